@@ -1,0 +1,87 @@
+# microray - the one entry point.
+#   make          build build/microrayd (and build/microray)
+#   make test     install missing Debian packages, build, run unit + end-to-end tests
+#   make check    the same tests built with AddressSanitizer + UBSan (build/check/)
+#   make bench    print the benchmark table
+#   make run      set up, start a local daemon, render examples/skinned-walk.json
+#   make clean
+
+BUILD   ?= build
+CC      ?= cc
+OPT     ?= -O2
+SAN     ?=
+WARN    := -Wall -Wextra -Werror -Wshadow -Wno-unused-parameter
+CFLAGS  := -std=c11 $(WARN) $(OPT) -g -D_DEFAULT_SOURCE -Icore -Iserver -I/usr/include/OpenEXR -I/usr/include/cjson -MMD -MP $(SAN)
+LDFLAGS := $(SAN)
+CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -lpthread -lm
+SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd
+CLIENT_LIBS := -lcurl -lcjson
+TEST_LIBS   := -lcmocka
+
+CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c))
+SERVER_SRC := $(filter-out server/main.c,$(sort $(wildcard server/*.c)))
+CLIENT_SRC := $(sort $(wildcard client/*.c))
+UNIT_SRC   := $(sort $(wildcard tests/unit/test_*.c))
+BENCH_SRC  := $(sort $(wildcard bench/*.c))
+
+obj = $(patsubst %.c,$(BUILD)/obj/%.o,$(1))
+CORE_OBJ   := $(call obj,$(CORE_SRC))
+SERVER_OBJ := $(call obj,$(SERVER_SRC))
+UNIT_BIN   := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNIT_SRC))
+BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
+CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
+
+.PHONY: all setup test check bench run clean tests
+all: $(BUILD)/microrayd $(CLIENT_BIN)
+
+$(BUILD)/obj/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+$(BUILD)/libmicroray.a: $(CORE_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(BUILD)/libmicrorayd.a: $(SERVER_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(BUILD)/microrayd: $(call obj,server/main.c) $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
+
+$(BUILD)/microray: $(call obj,$(CLIENT_SRC))
+	$(CC) $(LDFLAGS) -o $@ $^ $(CLIENT_LIBS)
+
+$(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+	@mkdir -p $(dir $@)
+	$(CC) $(LDFLAGS) -o $@ $^ $(TEST_LIBS) $(SERVER_LIBS) $(CORE_LIBS)
+
+$(BUILD)/bench/%: $(BUILD)/obj/bench/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+	@mkdir -p $(dir $@)
+	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
+
+tests: all $(UNIT_BIN)
+
+setup:
+	@bash scripts/setup.sh
+
+test: setup
+	$(MAKE) tests
+	bash scripts/run-tests.sh $(BUILD)
+
+check: setup
+	$(MAKE) tests BUILD=build/check OPT=-O1 SAN="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all"
+	MR_SANITIZED=1 bash scripts/run-tests.sh build/check
+
+bench: setup
+	$(MAKE) all $(BENCH_BIN)
+	bash scripts/run-bench.sh $(BUILD)
+
+run: setup
+	$(MAKE) all
+	bash scripts/run-example.sh $(BUILD)
+
+clean:
+	rm -rf build out
+
+-include $(shell find $(BUILD)/obj -name '*.d' 2>/dev/null)

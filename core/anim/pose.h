@@ -1,0 +1,63 @@
+/*
+ * pose.h - poses and linear blend skinning.
+ *
+ * A pose is the global transform of every node of an asset at one instant:
+ * clip keys sampled at a time (positions and scales linearly, rotations by
+ * slerp; clamped to the first/last key outside their range), then explicit
+ * joint overrides replace the local transform of the named nodes, then
+ * globals are composed parent to child.
+ */
+#ifndef MR_POSE_H
+#define MR_POSE_H
+
+#include "asset/asset.h"
+
+/* One explicit joint transform: replaces the named node's local transform. */
+typedef struct mr_joint_override {
+    char *joint;   /* node name */
+    mr_mat4 local; /* from TRS or a 4x4 given in the job */
+} mr_joint_override;
+
+/* How to pose an object at one frame. */
+typedef struct mr_pose_desc {
+    bool has_clip;
+    char *clip_name;  /* NULL: use clip_index */
+    int clip_index;
+    bool has_time;    /* explicit clip time in seconds ... */
+    double time;
+    double speed;     /* ... else clip time = offset + speed * frame time */
+    double offset;
+    bool loop;        /* wrap clip time into [0, duration) (default), else clamp */
+    size_t joint_count;
+    mr_joint_override *joints;
+} mr_pose_desc;
+
+/* Global transforms of every node of one asset. */
+typedef struct mr_pose {
+    size_t node_count;
+    mr_mat4 *local;
+    mr_mat4 *global;
+} mr_pose;
+
+int mr_pose_new(const mr_asset *asset, mr_pose **out, mr_error *err);
+void mr_pose_free(mr_pose *pose);
+
+/* Evaluates desc at frame_time (seconds on the job's timeline). Unknown clip
+ * or joint names fail with MR_ERR_NOT_FOUND naming them. desc may be NULL
+ * (rest pose). */
+int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
+                 double frame_time, mr_error *err);
+
+/* Clip time actually sampled for desc at frame_time (after loop/clamp). */
+double mr_pose_clip_time(const mr_clip *clip, const mr_pose_desc *desc, double frame_time);
+
+/* Skins (or rigidly places) mesh `mesh_index` of asset under pose, then
+ * applies object_transform: writes world-space positions (3 floats per
+ * vertex) and unit normals (3 per vertex). Normals go through the cofactor
+ * of each blended matrix, so non-uniform scale keeps them perpendicular.
+ * Runs on `threads` workers (0 = all cores); results do not depend on it. */
+void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                  const mr_mat4 *object_transform, float *out_positions,
+                  float *out_normals, unsigned threads);
+
+#endif

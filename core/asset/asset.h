@@ -1,0 +1,114 @@
+/*
+ * asset.h - imported models: meshes, node hierarchy, skins, animation clips,
+ * cameras. Imported once with assimp (glTF 2.0, FBX, COLLADA, X, SMD, OBJ,
+ * PLY and whatever else assimp reads) into plain arrays so nothing after the
+ * import depends on assimp.
+ *
+ * Space conventions:
+ *  - nodes[] are in parent-before-child order (parent < own index; root has
+ *    parent -1); local is the node's rest transform relative to its parent.
+ *  - A mesh that is not skinned is placed in the scene by the global
+ *    transform of its node. A skinned mesh ignores its node's transform (the
+ *    glTF rule; assimp's offset matrices already map mesh space to bone
+ *    space): world = sum_i w_i * global(joint_node_i) * inverse_bind_i * v.
+ *  - Skin influences: up to MR_MAX_INFLUENCES per vertex. assimp may deliver
+ *    more; we keep the largest MR_MAX_INFLUENCES weights and renormalise them
+ *    to sum to 1. A vertex whose weights sum to 0 (or that no bone names) is
+ *    bound rigidly to the mesh's node instead.
+ */
+#ifndef MR_ASSET_H
+#define MR_ASSET_H
+
+#include "math/mr_math.h"
+#include "microray.h"
+
+#define MR_MAX_INFLUENCES 8
+/* Import caps: larger files are refused with MR_ERR_LIMIT rather than
+ * exhausting memory in the daemon. */
+#define MR_MAX_ASSET_TRIANGLES (16u * 1024u * 1024u)
+#define MR_MAX_ASSET_VERTICES (16u * 1024u * 1024u)
+
+typedef struct mr_node {
+    char *name;    /* never NULL (may be "") */
+    int parent;    /* -1 for the root */
+    mr_mat4 local; /* rest transform relative to the parent */
+} mr_node;
+
+typedef struct mr_mesh {
+    char *name;
+    int node;                  /* node that places the mesh */
+    uint32_t vertex_count;
+    uint32_t triangle_count;
+    float *positions;          /* 3 per vertex, mesh space */
+    float *normals;            /* 3 per vertex, unit; computed (area-weighted) when the file has none */
+    float *uvs;                /* 2 per vertex or NULL */
+    uint32_t *indices;         /* 3 per triangle, all < vertex_count */
+    /* Skin; joint_count == 0 for rigid meshes (then the arrays below are NULL). */
+    uint32_t joint_count;
+    int *joint_nodes;          /* node index of each joint */
+    mr_mat4 *inverse_bind;     /* per joint: mesh space -> joint space */
+    uint16_t *joints;          /* MR_MAX_INFLUENCES per vertex, indices into joint_nodes */
+    float *weights;            /* MR_MAX_INFLUENCES per vertex, sum 1 (or all 0 = rigid) */
+} mr_mesh;
+
+typedef struct mr_vec3_key { double time; mr_vec3 value; } mr_vec3_key;
+typedef struct mr_quat_key { double time; mr_quat value; } mr_quat_key;
+
+/* Keys of one node in one clip, times in seconds, strictly increasing. */
+typedef struct mr_channel {
+    int node;
+    size_t position_count, rotation_count, scale_count;
+    mr_vec3_key *positions;
+    mr_quat_key *rotations;
+    mr_vec3_key *scales;
+} mr_channel;
+
+typedef struct mr_clip {
+    char *name;
+    double duration; /* seconds */
+    size_t channel_count;
+    mr_channel *channels;
+} mr_clip;
+
+typedef struct mr_camera_info {
+    char *name;
+    int node;          /* node carrying the camera (same name), -1 if none */
+    mr_vec3 position;  /* in the node's space */
+    mr_vec3 look_at;   /* direction, node space */
+    mr_vec3 up;
+    float yfov;        /* vertical field of view, radians */
+    float aspect;      /* width / height, 0 if unknown */
+} mr_camera_info;
+
+typedef struct mr_asset {
+    char *path;
+    size_t node_count, mesh_count, clip_count, camera_count;
+    mr_node *nodes;
+    mr_mesh *meshes;
+    mr_clip *clips;
+    mr_camera_info *cameras;
+    size_t triangle_count; /* over all meshes */
+} mr_asset;
+
+/* Imports a model file. Broken, empty or unsupported files fail with
+ * MR_ERR_FORMAT (or MR_ERR_IO when unreadable) and a message naming the
+ * file; they never crash. A file without any triangles is an error. */
+int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
+
+/* Builds an asset from one in-memory triangle mesh (copied), with a single
+ * root node. Used by tests and generated fixtures. normals may be NULL. */
+int mr_asset_from_mesh(const char *name, const float *positions, const float *normals,
+                       uint32_t vertex_count, const uint32_t *indices,
+                       uint32_t triangle_count, mr_asset **out, mr_error *err);
+
+void mr_asset_free(mr_asset *asset);
+
+/* Index of the node / clip with this exact name, or -1. */
+int mr_asset_find_node(const mr_asset *asset, const char *name);
+int mr_asset_find_clip(const mr_asset *asset, const char *name);
+int mr_asset_find_camera(const mr_asset *asset, const char *name);
+
+/* Bytes held by the asset's arrays. */
+size_t mr_asset_memory(const mr_asset *asset);
+
+#endif

@@ -1,0 +1,85 @@
+/*
+ * job.h - a render job as plain C structs: what to load, how to pose it,
+ * where the camera goes, which frames to render and how to write them.
+ *
+ * The server parses and validates job JSON (server/job_json.c) into this
+ * form; core never sees JSON. Every string and array here is owned by the
+ * job and released by mr_job_free(). Caps below are enforced by the parser
+ * and documented in the README.
+ */
+#ifndef MR_JOB_H
+#define MR_JOB_H
+
+#include "anim/pose.h"
+#include "render/camera.h"
+#include "render/exr.h"
+
+#define MR_MAX_ASSETS 256
+#define MR_MAX_OBJECTS 1024
+#define MR_MAX_LIGHTS 64
+#define MR_MAX_FRAMES 100000
+#define MR_MAX_SPP 1024
+#define MR_MAX_JOINT_OVERRIDES 1024
+#define MR_MAX_NAME 256         /* bytes in any name or id */
+#define MR_MAX_PATH 4096        /* bytes in an asset path */
+
+/* Geometry kinds (core/geom/). Each later technique adds one. */
+typedef enum mr_geom_kind { MR_GEOM_MESH = 0 } mr_geom_kind;
+
+typedef struct mr_asset_desc {
+    char *name;   /* key in the job's "assets" object */
+    char *path;   /* server-side path, resolved by the server before rendering */
+} mr_asset_desc;
+
+typedef struct mr_object_desc {
+    char *name;
+    size_t asset;            /* index into mr_job.assets */
+    mr_geom_kind kind;
+    mr_mat4 transform;       /* object to world, applied after posing */
+    mr_vec3 color;           /* Lambert albedo, linear */
+    size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */
+    mr_pose_desc *poses;
+} mr_object_desc;
+
+typedef struct mr_light_desc {
+    mr_vec3 direction;       /* unit; the direction light travels (sun rays) */
+    mr_vec3 color;           /* linear, already multiplied by intensity */
+} mr_light_desc;
+
+typedef enum mr_camera_source { MR_CAMERA_SOURCE_PATH = 0, MR_CAMERA_SOURCE_NODE } mr_camera_source;
+
+typedef struct mr_camera_desc {
+    mr_camera_source source;
+    mr_camera_path path;     /* SOURCE_PATH */
+    size_t node_asset;       /* SOURCE_NODE: asset holding the camera ... */
+    char *node_name;         /* ... and its camera (or node) name */
+} mr_camera_desc;
+
+typedef struct mr_output_desc {
+    int width, height;       /* 1..MR_MAX_RESOLUTION, width*height <= MR_MAX_PIXELS */
+    int spp;                 /* samples per pixel, 1..MR_MAX_SPP */
+    bool shadows;            /* trace shadow rays to directional lights */
+    uint32_t seed;           /* jitter seed */
+    mr_exr_options exr;
+} mr_output_desc;
+
+typedef struct mr_job {
+    char *name;
+    size_t asset_count, object_count, light_count;
+    mr_asset_desc *assets;
+    mr_object_desc *objects;
+    mr_light_desc *lights;
+    mr_vec3 ambient;         /* linear radiance added to every hit */
+    mr_vec3 background;      /* colour of missed samples, linear, not premultiplied */
+    float background_alpha;  /* alpha of missed samples */
+    mr_camera_desc camera;
+    double fps;              /* frames per second of the timeline (> 0) */
+    size_t frame_count;      /* 1..MR_MAX_FRAMES */
+    double *frame_times;     /* seconds, one per frame */
+    mr_output_desc output;
+} mr_job;
+
+/* Frees everything the job owns, then the job. NULL is fine. */
+void mr_job_free(mr_job *job);
+
+#endif

@@ -1,0 +1,33 @@
+/* error.c - mr_error helpers: the one place messages are formatted. */
+#include "microray.h"
+
+#include <stdarg.h>
+#include <stdio.h>
+
+int mr_error_set(mr_error *err, int code, const char *fmt, ...)
+{
+    if (err) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+        va_end(ap);
+        err->code = code;
+    }
+    return code;
+}
+
+const char *mr_err_name(int code)
+{
+    switch (code) {
+    case MR_OK: return "MR_OK";
+    case MR_ERR_NOMEM: return "MR_ERR_NOMEM";
+    case MR_ERR_INVALID: return "MR_ERR_INVALID";
+    case MR_ERR_IO: return "MR_ERR_IO";
+    case MR_ERR_FORMAT: return "MR_ERR_FORMAT";
+    case MR_ERR_EMBREE: return "MR_ERR_EMBREE";
+    case MR_ERR_LIMIT: return "MR_ERR_LIMIT";
+    case MR_ERR_CANCELLED: return "MR_ERR_CANCELLED";
+    case MR_ERR_NOT_FOUND: return "MR_ERR_NOT_FOUND";
+    default: return "MR_ERR_UNKNOWN";
+    }
+}

@@ -1,0 +1,170 @@
+/*
+ * test_math.c - quaternion slerp, matrix inverse and friends against values
+ * known in closed form.
+ *
+ * Tolerance: 1e-6 absolute on O(1) values, a few float32 ulps (2^-23 ~ 1.2e-7)
+ * times the handful of operations each result goes through; 1e-5 where acos /
+ * sin in float amplify rounding near the ends of their range.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "math/mr_math.h"
+
+#define PI_F 3.14159265358979f
+
+static void assert_near(double a, double b, double tol)
+{
+    if (!(fabs(a - b) <= tol))
+        fail_msg("expected %.9g, got %.9g (tol %g)", b, a, tol);
+}
+
+static void assert_quat_same_rotation(mr_quat a, mr_quat b, double tol)
+{
+    /* q and -q are the same rotation */
+    double d = fabs((double)a.x * b.x + (double)a.y * b.y + (double)a.z * b.z + (double)a.w * b.w);
+    assert_near(d, 1.0, tol);
+}
+
+static void test_slerp_known_values(void **state)
+{
+    (void)state;
+    mr_quat id = mr_quat_identity();
+    mr_quat z90 = mr_quat_from_axis_angle(mr_v3(0, 0, 1), PI_F / 2);
+    /* Halfway between 0 and 90 degrees about Z is 45 degrees: (0,0,sin 22.5, cos 22.5). */
+    mr_quat h = mr_quat_slerp(id, z90, 0.5f);
+    assert_near(h.x, 0, 1e-6);
+    assert_near(h.y, 0, 1e-6);
+    assert_near(h.z, sin(M_PI / 8), 1e-6);
+    assert_near(h.w, cos(M_PI / 8), 1e-6);
+    /* A quarter of the way: 22.5 degrees. */
+    mr_quat q = mr_quat_slerp(id, z90, 0.25f);
+    assert_near(q.z, sin(M_PI / 16), 1e-6);
+    assert_near(q.w, cos(M_PI / 16), 1e-6);
+    /* End points are reproduced. */
+    assert_quat_same_rotation(mr_quat_slerp(id, z90, 0.0f), id, 1e-6);
+    assert_quat_same_rotation(mr_quat_slerp(id, z90, 1.0f), z90, 1e-6);
+    /* Shortest path: -z90 is the same rotation, the midpoint must still be 45 degrees. */
+    mr_quat neg = {-z90.x, -z90.y, -z90.z, -z90.w};
+    assert_quat_same_rotation(mr_quat_slerp(id, neg, 0.5f), h, 1e-6);
+    /* Constant angular speed: rotating X by slerp(0..180 deg about Y) at t=1/3 gives 60 deg. */
+    mr_quat y180 = mr_quat_from_axis_angle(mr_v3(0, 1, 0), PI_F * 0.999f);
+    mr_vec3 v = mr_quat_rotate(mr_quat_slerp(id, y180, 1.0f / 3.0f), mr_v3(1, 0, 0));
+    assert_near(acos(v.x) * 180 / M_PI, 60 * 0.999, 1e-3);
+    /* Nearly identical inputs take the lerp branch and stay unit length. */
+    mr_quat tiny = mr_quat_from_axis_angle(mr_v3(1, 0, 0), 1e-5f);
+    mr_quat m = mr_quat_slerp(id, tiny, 0.5f);
+    assert_near(sqrt(m.x * m.x + m.y * m.y + m.z * m.z + m.w * m.w), 1.0, 1e-6);
+    assert_near(m.x, sin(0.25e-5), 1e-7);
+}
+
+static void test_mat4_inverse_known(void **state)
+{
+    (void)state;
+    /* A matrix with a known integer inverse. */
+    mr_mat4 a = {{2, 0, 0, 1,
+                  0, 4, 0, 2,
+                  0, 0, 8, 3,
+                  0, 0, 0, 1}};
+    mr_mat4 inv;
+    assert_true(mr_mat4_inverse(&a, &inv));
+    const float expect[16] = {0.5f, 0, 0, -0.5f,
+                              0, 0.25f, 0, -0.5f,
+                              0, 0, 0.125f, -0.375f,
+                              0, 0, 0, 1};
+    for (int i = 0; i < 16; i++)
+        assert_near(inv.m[i], expect[i], 1e-7);
+    /* A general (shear + projective row) matrix: A * A^-1 = I. */
+    mr_mat4 g = {{1, 2, 3, 4,
+                  0, 1, 4, 5,
+                  5, 6, 0, 7,
+                  1, 0, 2, 1}};
+    assert_true(mr_mat4_inverse(&g, &inv));
+    mr_mat4 p = mr_mat4_mul(&g, &inv);
+    for (int i = 0; i < 16; i++)
+        assert_near(p.m[i], (i % 5 == 0) ? 1.0 : 0.0, 1e-5);
+    /* Singular: rank 3. */
+    mr_mat4 s = {{1, 2, 3, 0, 2, 4, 6, 0, 0, 0, 1, 0, 0, 0, 0, 1}};
+    assert_false(mr_mat4_inverse(&s, &inv));
+    mr_mat4 z = {{0}};
+    assert_false(mr_mat4_inverse(&z, &inv));
+}
+
+static void test_trs_roundtrip(void **state)
+{
+    (void)state;
+    mr_quat r = mr_quat_from_axis_angle(mr_v3(1, 2, 3), 0.7f);
+    mr_mat4 m = mr_mat4_from_trs(mr_v3(1, -2, 3), r, mr_v3(2, 3, 4));
+    mr_vec3 t, s;
+    mr_quat r2;
+    assert_true(mr_mat4_to_trs(&m, &t, &r2, &s));
+    assert_near(t.x, 1, 1e-6); assert_near(t.y, -2, 1e-6); assert_near(t.z, 3, 1e-6);
+    assert_near(s.x, 2, 1e-5); assert_near(s.y, 3, 1e-5); assert_near(s.z, 4, 1e-5);
+    assert_quat_same_rotation(r, r2, 1e-6);
+    /* Scale first, then rotate, then translate: (1,0,0) -> 2*R(1,0,0) + t. */
+    mr_vec3 p = mr_mat4_point(&m, mr_v3(1, 0, 0));
+    mr_vec3 e = mr_v3_add(mr_quat_rotate(r, mr_v3(2, 0, 0)), mr_v3(1, -2, 3));
+    assert_near(p.x, e.x, 1e-5); assert_near(p.y, e.y, 1e-5); assert_near(p.z, e.z, 1e-5);
+}
+
+static void test_normal_matrix_keeps_perpendicular(void **state)
+{
+    (void)state;
+    /* Non-uniform scale: a 45-degree plane normal must stay perpendicular to
+     * the transformed plane's tangents. */
+    mr_mat4 m = mr_mat4_from_trs(mr_v3(0, 0, 0), mr_quat_from_axis_angle(mr_v3(0, 0, 1), 0.3f),
+                                 mr_v3(1, 5, 1));
+    mr_vec3 n = mr_v3(1, 1, 0), tangent = mr_v3(1, -1, 0), tangent2 = mr_v3(0, 0, 1);
+    mr_mat4 nm = mr_mat4_normal_matrix(&m);
+    mr_vec3 n2 = mr_v3_normalize_or(mr_mat4_dir(&nm, n), mr_v3(0, 0, 0));
+    assert_near(mr_v3_dot(n2, mr_v3_normalize_or(mr_mat4_dir(&m, tangent), n2)), 0, 1e-6);
+    assert_near(mr_v3_dot(n2, mr_v3_normalize_or(mr_mat4_dir(&m, tangent2), n2)), 0, 1e-6);
+}
+
+static void test_look_rotation(void **state)
+{
+    (void)state;
+    /* Looking down -Z with +Y up is the identity. */
+    assert_quat_same_rotation(mr_quat_look_rotation(mr_v3(0, 0, -1), mr_v3(0, 1, 0)),
+                              mr_quat_identity(), 1e-6);
+    /* Looking along +X: camera -Z maps to +X, +Y stays up. */
+    mr_quat q = mr_quat_look_rotation(mr_v3(1, 0, 0), mr_v3(0, 1, 0));
+    mr_vec3 f = mr_quat_rotate(q, mr_v3(0, 0, -1)), u = mr_quat_rotate(q, mr_v3(0, 1, 0));
+    assert_near(f.x, 1, 1e-6); assert_near(f.y, 0, 1e-6); assert_near(f.z, 0, 1e-6);
+    assert_near(u.y, 1, 1e-6);
+    /* Straight down (parallel to up) still gives a valid orthonormal frame. */
+    q = mr_quat_look_rotation(mr_v3(0, -1, 0), mr_v3(0, 1, 0));
+    f = mr_quat_rotate(q, mr_v3(0, 0, -1));
+    assert_near(f.y, -1, 1e-6);
+}
+
+static void test_catmull_rom_interpolates(void **state)
+{
+    (void)state;
+    mr_vec3 p0 = mr_v3(0, 0, 0), p1 = mr_v3(1, 0, 0), p2 = mr_v3(2, 1, 0), p3 = mr_v3(3, 1, 0);
+    mr_vec3 a = mr_catmull_rom(p0, p1, p2, p3, 0.0f), b = mr_catmull_rom(p0, p1, p2, p3, 1.0f);
+    assert_near(a.x, 1, 1e-7); assert_near(a.y, 0, 1e-7);
+    assert_near(b.x, 2, 1e-7); assert_near(b.y, 1, 1e-7);
+    /* Midpoint: 0.5*(p1+p2) + 0.125*((p1-p0)+(p2-p3))... closed form -> (1.5, 0.5). */
+    mr_vec3 m = mr_catmull_rom(p0, p1, p2, p3, 0.5f);
+    assert_near(m.x, 1.5, 1e-6); assert_near(m.y, 0.5, 1e-6);
+    /* Collinear evenly spaced points: the curve is the straight line. */
+    mr_vec3 q = mr_catmull_rom(mr_v3(0, 0, 0), mr_v3(1, 1, 1), mr_v3(2, 2, 2), mr_v3(3, 3, 3), 0.3f);
+    assert_near(q.x, 1.3, 1e-6); assert_near(q.z, 1.3, 1e-6);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_slerp_known_values),
+        cmocka_unit_test(test_mat4_inverse_known),
+        cmocka_unit_test(test_trs_roundtrip),
+        cmocka_unit_test(test_normal_matrix_keeps_perpendicular),
+        cmocka_unit_test(test_look_rotation),
+        cmocka_unit_test(test_catmull_rom_interpolates),
+    };
+    return cmocka_run_group_tests_name("math", tests, NULL, NULL);
+}
