@@ -1,0 +1,59 @@
+/*
+ * geom.h - the one interface every geometry kind implements.
+ *
+ * A kind turns an imported asset into something Embree can trace and keeps
+ * it up to date frame by frame:
+ *   create      build the derived data once from the asset (for a triangle
+ *               mesh: vertex/index buffers sized for all its meshes);
+ *   update      deform for this frame's pose and object transform;
+ *   attach      put the geometry into an Embree scene under the given geometry
+ *               id (the object index: the integrator maps hits back by it);
+ *   commit      tell Embree the data changed (after update);
+ *   normal      world-space shading normal at a hit (unnormalised is fine);
+ *   tessellate  the kind's exact triangle reference, used for accuracy
+ *               comparisons and as the pre-tessellation baseline;
+ *   memory      bytes held by the kind's own data (not Embree's BVH).
+ * A new technique is a new module implementing mr_geom_ops plus a schema
+ * entry; the renderer does not change.
+ */
+#ifndef MR_GEOM_H
+#define MR_GEOM_H
+
+#include <embree3/rtcore.h>
+
+#include "anim/pose.h"
+#include "job.h"
+
+typedef struct mr_geom mr_geom; /* a kind's own instance data */
+
+/* A plain triangle soup in world space (tessellation output). */
+typedef struct mr_trimesh {
+    uint32_t vertex_count, triangle_count;
+    float *positions;   /* 3 per vertex */
+    uint32_t *indices;  /* 3 per triangle */
+} mr_trimesh;
+
+typedef struct mr_geom_ops {
+    const char *name;   /* the job's "kind" string */
+    int (*create)(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err);
+    int (*update)(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                  mr_error *err);
+    int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id, bool dynamic,
+                  mr_error *err);
+    void (*commit)(mr_geom *g);
+    mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
+    int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);
+    size_t (*memory)(const mr_geom *g);
+    uint64_t (*primitives)(const mr_geom *g);
+    void (*free)(mr_geom *g);
+} mr_geom_ops;
+
+/* The kind table: ops for a kind, or NULL. */
+const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind);
+
+void mr_trimesh_free(mr_trimesh *m);
+
+/* Triangle meshes (core/geom/mesh.c). */
+extern const mr_geom_ops mr_geom_mesh_ops;
+
+#endif

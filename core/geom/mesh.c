@@ -1,0 +1,165 @@
+/*
+ * mesh.c - the triangle mesh kind: all meshes of an asset, skinned (linear
+ * blend skinning, core/anim) or rigid, merged into one Embree TRIANGLE
+ * geometry so an object's primitive ids run 0..triangles-1.
+ *
+ * Vertex and index arrays are ours, handed to Embree as shared buffers: Embree
+ * reads them in place, refits over them when they change, and its memory
+ * monitor then counts only its acceleration structure. The vertex array has
+ * one float of padding because Embree loads vertices with 16-byte reads.
+ *
+ * The exact reference of a triangle mesh is itself.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "geom/geom.h"
+
+struct mr_geom {
+    const mr_asset *asset;
+    uint32_t vertex_count, triangle_count;
+    uint32_t *mesh_first_vertex; /* per asset mesh: offset into the merged arrays */
+    float *positions;            /* 3 per vertex + 1 float padding */
+    float *normals;              /* 3 per vertex */
+    uint32_t *indices;           /* 3 per triangle, merged */
+    RTCGeometry rtc;
+};
+
+static void mesh_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    if (g->rtc)
+        rtcReleaseGeometry(g->rtc);
+    free(g->mesh_first_vertex);
+    free(g->positions);
+    free(g->normals);
+    free(g->indices);
+    free(g);
+}
+
+static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err)
+{
+    (void)desc;
+    *out = NULL;
+    uint64_t nv = 0, nt = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        nv += asset->meshes[i].vertex_count;
+        nt += asset->meshes[i].triangle_count;
+    }
+    if (nt == 0)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to render", asset->path);
+    if (nv > MR_MAX_ASSET_VERTICES || nt > MR_MAX_ASSET_TRIANGLES)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s: %llu vertices / %llu triangles exceed the caps",
+                            asset->path, (unsigned long long)nv, (unsigned long long)nt);
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        goto nomem;
+    g->asset = asset;
+    g->vertex_count = (uint32_t)nv;
+    g->triangle_count = (uint32_t)nt;
+    g->mesh_first_vertex = calloc(asset->mesh_count, sizeof *g->mesh_first_vertex);
+    g->positions = calloc(nv * 3 + 1, sizeof(float));
+    g->normals = calloc(nv * 3, sizeof(float));
+    g->indices = malloc(nt * 3 * sizeof(uint32_t));
+    if (!g->mesh_first_vertex || !g->positions || !g->normals || !g->indices)
+        goto nomem;
+    uint32_t v0 = 0, t0 = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_mesh *m = &asset->meshes[i];
+        g->mesh_first_vertex[i] = v0;
+        for (uint64_t k = 0; k < (uint64_t)m->triangle_count * 3; k++)
+            g->indices[(uint64_t)t0 * 3 + k] = m->indices[k] + v0;
+        v0 += m->vertex_count;
+        t0 += m->triangle_count;
+    }
+    *out = g;
+    return MR_OK;
+nomem:
+    mesh_free(g);
+    return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for %llu triangles", asset->path,
+                        (unsigned long long)nt);
+}
+
+static int mesh_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                       mr_error *err)
+{
+    (void)err;
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        size_t off = (size_t)g->mesh_first_vertex[i] * 3;
+        mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
+    }
+    return MR_OK;
+}
+
+static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id, bool dynamic,
+                       mr_error *err)
+{
+    g->rtc = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    if (!g->rtc)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a triangle geometry");
+    /* The refit trap (REFERENCE.md): refitting needs REFIT here *and* a
+     * DYNAMIC, LOW quality scene; the renderer sets the scene side. */
+    rtcSetGeometryBuildQuality(g->rtc, dynamic ? RTC_BUILD_QUALITY_REFIT : RTC_BUILD_QUALITY_MEDIUM);
+    rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g->positions, 0,
+                               3 * sizeof(float), g->vertex_count);
+    rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g->indices, 0,
+                               3 * sizeof(uint32_t), g->triangle_count);
+    rtcCommitGeometry(g->rtc);
+    rtcAttachGeometryByID(scene, g->rtc, geom_id);
+    return MR_OK;
+}
+
+static void mesh_commit(mr_geom *g)
+{
+    rtcUpdateGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0);
+    rtcCommitGeometry(g->rtc);
+}
+
+static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const float *n0 = g->normals + (size_t)tri[0] * 3;
+    const float *n1 = g->normals + (size_t)tri[1] * 3;
+    const float *n2 = g->normals + (size_t)tri[2] * 3;
+    float w = 1.0f - u - v;
+    return mr_v3(w * n0[0] + u * n1[0] + v * n2[0], w * n0[1] + u * n1[1] + v * n2[1],
+                 w * n0[2] + u * n1[2] + v * n2[2]);
+}
+
+static int mesh_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    *out = (mr_trimesh){0};
+    out->positions = malloc((size_t)g->vertex_count * 3 * sizeof(float));
+    out->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
+    if (!out->positions || !out->indices) {
+        mr_trimesh_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a mesh");
+    }
+    memcpy(out->positions, g->positions, (size_t)g->vertex_count * 3 * sizeof(float));
+    memcpy(out->indices, g->indices, (size_t)g->triangle_count * 3 * sizeof(uint32_t));
+    out->vertex_count = g->vertex_count;
+    out->triangle_count = g->triangle_count;
+    return MR_OK;
+}
+
+static size_t mesh_memory(const mr_geom *g)
+{
+    return ((size_t)g->vertex_count * 6 + 1) * sizeof(float) +
+           (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+}
+
+static uint64_t mesh_primitives(const mr_geom *g) { return g->triangle_count; }
+
+const mr_geom_ops mr_geom_mesh_ops = {
+    .name = "mesh",
+    .create = mesh_create,
+    .update = mesh_update,
+    .attach = mesh_attach,
+    .commit = mesh_commit,
+    .normal = mesh_normal,
+    .tessellate = mesh_tessellate,
+    .memory = mesh_memory,
+    .primitives = mesh_primitives,
+    .free = mesh_free,
+};

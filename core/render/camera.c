@@ -1,0 +1,64 @@
+/*
+ * camera.c - camera path evaluation and primary ray directions (camera.h).
+ */
+#include "render/camera.h"
+
+mr_quat mr_camera_key_rotation(const mr_camera_key *key, mr_vec3 up)
+{
+    if (key->has_target)
+        return mr_quat_look_rotation(mr_v3_sub(key->target, key->position), up);
+    return mr_quat_normalize(key->rotation);
+}
+
+static mr_camera camera_at_key(const mr_camera_path *path, size_t i)
+{
+    const mr_camera_key *k = &path->keys[i];
+    return (mr_camera){k->position, mr_camera_key_rotation(k, path->up), k->yfov};
+}
+
+mr_camera mr_camera_path_eval(const mr_camera_path *path, double t)
+{
+    size_t n = path->key_count;
+    if (n == 0)
+        return (mr_camera){mr_v3(0, 0, 0), mr_quat_identity(), 0.785398f};
+    if (n == 1 || t <= path->keys[0].t)
+        return camera_at_key(path, 0);
+    if (t >= path->keys[n - 1].t)
+        return camera_at_key(path, n - 1);
+
+    /* Segment [i, i+1] containing t: the last key with keys[i].t <= t. */
+    size_t lo = 0, hi = n - 1;
+    while (hi - lo > 1) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (path->keys[mid].t <= t)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    const mr_camera_key *k1 = &path->keys[lo], *k2 = &path->keys[lo + 1];
+    float u = (float)((t - k1->t) / (k2->t - k1->t));
+
+    mr_camera c;
+    if (path->interp == MR_INTERP_CATMULL_ROM) {
+        const mr_camera_key *k0 = lo > 0 ? &path->keys[lo - 1] : k1;
+        const mr_camera_key *k3 = lo + 2 < n ? &path->keys[lo + 2] : k2;
+        c.position = mr_catmull_rom(k0->position, k1->position, k2->position, k3->position, u);
+    } else {
+        c.position = mr_v3_lerp(k1->position, k2->position, u);
+    }
+    c.rotation = mr_quat_slerp(mr_camera_key_rotation(k1, path->up),
+                               mr_camera_key_rotation(k2, path->up), u);
+    c.yfov = k1->yfov + (k2->yfov - k1->yfov) * u;
+    return c;
+}
+
+mr_vec3 mr_camera_ray_dir(const mr_camera *cam, int width, int height, double px, double py)
+{
+    /* Image plane at distance 1: half height tan(yfov/2), square pixels. */
+    double th = tan(0.5 * (double)cam->yfov);
+    double aspect = (double)width / (double)height;
+    double x = (2.0 * px / width - 1.0) * th * aspect;
+    double y = (1.0 - 2.0 * py / height) * th;
+    mr_vec3 d = mr_quat_rotate(cam->rotation, mr_v3((float)x, (float)y, -1.0f));
+    return mr_v3_normalize_or(d, mr_v3(0, 0, -1));
+}

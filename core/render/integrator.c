@@ -1,0 +1,162 @@
+/* integrator.c - tiled primary-ray integrator (integrator.h). */
+#include "render/integrator.h"
+
+#include <float.h>
+#include <stdatomic.h>
+
+#include "util/parallel.h"
+
+/* splitmix64 finaliser: a good 64-bit mix, cheap, and stateless, which is
+ * what per-pixel determinism needs. */
+static inline uint64_t mix64(uint64_t z)
+{
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+}
+
+/* Two uniform floats in [0,1) for one sample. */
+static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y, uint32_t k, float *jx,
+                                 float *jy)
+{
+    uint64_t h = mix64(((uint64_t)s->seed << 32 | s->frame) ^ mix64((uint64_t)y << 32 | x) ^
+                       mix64((uint64_t)k + 0x9e3779b97f4a7c15ull));
+    *jx = (float)(h >> 40) * (1.0f / 16777216.0f);
+    *jy = (float)((h >> 16) & 0xffffff) * (1.0f / 16777216.0f);
+}
+
+typedef struct {
+    const mr_trace_setup *s;
+    mr_film *film;
+    int tiles_x;
+    atomic_ullong rays;
+} trace_ctx;
+
+typedef struct {
+    bool hit;
+    float t;
+    mr_vec3 normal; /* shading normal, unit, facing the ray origin */
+    uint32_t object, prim;
+    mr_vec3 rgb;
+} sample_result;
+
+static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 org, mr_vec3 dir,
+                  sample_result *out, uint64_t *rays)
+{
+    const mr_shade_object *obj = &s->objects[rh->hit.geomID];
+    mr_vec3 ng = mr_v3_normalize_or(mr_v3(rh->hit.Ng_x, rh->hit.Ng_y, rh->hit.Ng_z), mr_v3(0, 0, 1));
+    if (mr_v3_dot(ng, dir) > 0)
+        ng = mr_v3_scale(ng, -1.0f);
+    mr_vec3 n = obj->ops->normal(obj->geom, rh->hit.primID, rh->hit.u, rh->hit.v);
+    n = mr_v3_normalize_or(n, ng);
+    if (mr_v3_dot(n, dir) > 0)
+        n = mr_v3_scale(n, -1.0f);
+    out->hit = true;
+    out->t = rh->ray.tfar;
+    out->normal = n;
+    out->object = rh->hit.geomID + 1;
+    out->prim = rh->hit.primID;
+
+    mr_vec3 light = s->ambient;
+    mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, rh->ray.tfar));
+    mr_vec3 shadow_org = mr_v3_add(p, mr_v3_scale(ng, s->shadow_bias));
+    for (size_t i = 0; i < s->light_count; i++) {
+        mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
+        float cosine = mr_v3_dot(n, l);
+        if (cosine <= 0 || mr_v3_dot(ng, l) <= 0)
+            continue;
+        if (s->shadows) {
+            struct RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            struct RTCRay ray = {.org_x = shadow_org.x, .org_y = shadow_org.y, .org_z = shadow_org.z,
+                          .dir_x = l.x, .dir_y = l.y, .dir_z = l.z,
+                          .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
+            rtcOccluded1(s->scene, &ctx, &ray);
+            (*rays)++;
+            if (ray.tfar < 0) /* Embree sets tfar = -inf when occluded */
+                continue;
+        }
+        light = mr_v3_add(light, mr_v3_scale(s->lights[i].color, cosine));
+    }
+    out->rgb = mr_v3_mul(obj->albedo, light);
+}
+
+static void trace_sample(const mr_trace_setup *s, mr_vec3 dir, sample_result *out, uint64_t *rays)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    mr_vec3 org = s->camera.position;
+    struct RTCRayHit rh;
+    rh.ray = (struct RTCRay){.org_x = org.x, .org_y = org.y, .org_z = org.z,
+                      .dir_x = dir.x, .dir_y = dir.y, .dir_z = dir.z,
+                      .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(s->scene, &ctx, &rh);
+    (*rays)++;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID || rh.hit.geomID >= s->object_count) {
+        *out = (sample_result){.hit = false};
+        return;
+    }
+    shade(s, &rh, org, dir, out, rays);
+}
+
+static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    trace_ctx *c = p;
+    const mr_trace_setup *s = c->s;
+    mr_film *f = c->film;
+    uint64_t rays = 0;
+    float inv_spp = 1.0f / (float)s->spp;
+    for (size_t tile = begin; tile < end; tile++) {
+        int x0 = (int)(tile % (size_t)c->tiles_x) * MR_TILE_SIZE;
+        int y0 = (int)(tile / (size_t)c->tiles_x) * MR_TILE_SIZE;
+        int x1 = x0 + MR_TILE_SIZE < f->width ? x0 + MR_TILE_SIZE : f->width;
+        int y1 = y0 + MR_TILE_SIZE < f->height ? y0 + MR_TILE_SIZE : f->height;
+        for (int y = y0; y < y1; y++)
+            for (int x = x0; x < x1; x++) {
+                size_t i = (size_t)y * f->width + x;
+                mr_vec3 rgb = mr_v3(0, 0, 0);
+                float alpha = 0;
+                for (int k = 0; k < s->spp; k++) {
+                    float jx = 0.5f, jy = 0.5f;
+                    if (k > 0)
+                        sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
+                    mr_vec3 dir = mr_camera_ray_dir(&s->camera, f->width, f->height, x + jx, y + jy);
+                    sample_result r;
+                    trace_sample(s, dir, &r, &rays);
+                    if (r.hit) {
+                        rgb = mr_v3_add(rgb, r.rgb);
+                        alpha += 1.0f;
+                    } else {
+                        rgb = mr_v3_add(rgb, mr_v3_scale(s->background, s->background_alpha));
+                        alpha += s->background_alpha;
+                    }
+                    if (k == 0) {
+                        f->z[i] = r.hit ? r.t : 0.0f;
+                        f->nx[i] = r.hit ? r.normal.x : 0.0f;
+                        f->ny[i] = r.hit ? r.normal.y : 0.0f;
+                        f->nz[i] = r.hit ? r.normal.z : 0.0f;
+                        f->object_id[i] = r.hit ? r.object : 0;
+                        f->prim_id[i] = r.hit ? r.prim : 0;
+                    }
+                }
+                f->r[i] = rgb.x * inv_spp;
+                f->g[i] = rgb.y * inv_spp;
+                f->b[i] = rgb.z * inv_spp;
+                f->a[i] = alpha * inv_spp;
+            }
+    }
+    atomic_fetch_add(&c->rays, rays);
+}
+
+uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film)
+{
+    trace_ctx c = {.s = setup, .film = film};
+    c.tiles_x = (film->width + MR_TILE_SIZE - 1) / MR_TILE_SIZE;
+    int tiles_y = (film->height + MR_TILE_SIZE - 1) / MR_TILE_SIZE;
+    atomic_init(&c.rays, 0);
+    mr_parallel_for(setup->threads, (size_t)c.tiles_x * tiles_y, 1, trace_tiles, &c);
+    return atomic_load(&c.rays);
+}

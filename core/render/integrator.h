@@ -1,0 +1,49 @@
+/*
+ * integrator.h - the primary-ray integrator: tiles of pixels traced on all
+ * workers, Lambert shading from directional lights plus ambient, optional
+ * shadow rays, jittered supersampling.
+ *
+ * Determinism: each pixel's samples depend only on (seed, frame, x, y,
+ * sample), never on which worker traced it, so frames are bit-identical for
+ * any thread count. Sample 0 goes through the pixel centre and feeds the data
+ * AOVs (film.h); samples 1..spp-1 are uniformly jittered within the pixel.
+ */
+#ifndef MR_INTEGRATOR_H
+#define MR_INTEGRATOR_H
+
+#include <embree3/rtcore.h>
+
+#include "geom/geom.h"
+#include "render/camera.h"
+#include "render/film.h"
+
+#define MR_TILE_SIZE 16
+
+/* What the integrator needs to know about one object to shade its hits. */
+typedef struct mr_shade_object {
+    const mr_geom_ops *ops;
+    const mr_geom *geom;
+    mr_vec3 albedo;
+} mr_shade_object;
+
+typedef struct mr_trace_setup {
+    RTCScene scene;
+    const mr_shade_object *objects; /* indexed by Embree geomID */
+    size_t object_count;
+    mr_camera camera;
+    const mr_light_desc *lights;
+    size_t light_count;
+    mr_vec3 ambient, background;
+    float background_alpha;
+    int spp;
+    bool shadows;
+    uint32_t seed;
+    uint32_t frame;
+    float shadow_bias;              /* world units, ~1e-4 of the scene diagonal */
+    unsigned threads;
+} mr_trace_setup;
+
+/* Traces the whole film; returns the number of rays traced. */
+uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film);
+
+#endif

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Runs every unit test binary and every end-to-end test script against the
+# build in $1 (default build/). Prints one line per test program and a final
+# "N passed, N failed" line; exits non-zero if anything failed.
+set -uo pipefail
+BUILD=${1:-build}
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+export MR_SOURCE_DIR="$ROOT" MR_BUILD_DIR="$ROOT/$BUILD"
+cd "$ROOT"
+LOG_DIR="$BUILD/test-logs"
+mkdir -p "$LOG_DIR"
+passed=0 failed=0 failed_names=()
+
+run() { # name, command...
+  local name=$1; shift
+  local log="$LOG_DIR/$name.log" start end
+  start=$(date +%s.%N)
+  if "$@" >"$log" 2>&1; then
+    passed=$((passed + 1)); end=$(date +%s.%N)
+    printf "PASS %-34s %6.1fs\n" "$name" "$(awk -v s="$start" -v e="$end" "BEGIN{print e-s}")"
+  else
+    failed=$((failed + 1)); failed_names+=("$name")
+    printf 'FAIL %-34s (log: %s)\n' "$name" "$log"
+    tail -n 40 "$log" | sed 's/^/    | /'
+  fi
+}
+
+for t in "$BUILD"/tests/test_*; do
+  [ -x "$t" ] || continue
+  run "unit/$(basename "$t")" "$t"
+done
+for t in tests/integration/*.sh; do
+  [ -f "$t" ] || continue
+  run "integration/$(basename "$t" .sh)" bash "$t"
+done
+
+echo
+echo "${passed} passed, ${failed} failed"
+[ "$failed" -eq 0 ] || { echo "failed: ${failed_names[*]}"; exit 1; }

@@ -1,0 +1,43 @@
+/*
+ * main.c - microrayd: the render daemon and its one-shot commands.
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "microray.h"
+#include "render_cmd.h"
+
+static void usage(FILE *to)
+{
+    fprintf(to,
+            "microrayd %s - ray traced frames of deforming, detailed geometry\n"
+            "usage:\n"
+            "  microrayd render JOB.json --out DIR [--threads N] [--quiet]\n"
+            "  microrayd compare A.exr B.exr [--diagonal D]\n"
+            "  microrayd version\n",
+            MR_VERSION_STRING);
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 2) {
+        usage(stderr);
+        return 2;
+    }
+    const char *cmd = argv[1];
+    if (!strcmp(cmd, "render"))
+        return mr_cmd_render(argc - 2, argv + 2);
+    if (!strcmp(cmd, "compare"))
+        return mr_cmd_compare(argc - 2, argv + 2);
+    if (!strcmp(cmd, "version") || !strcmp(cmd, "--version")) {
+        printf("microrayd %s\n", MR_VERSION_STRING);
+        return 0;
+    }
+    if (!strcmp(cmd, "help") || !strcmp(cmd, "--help") || !strcmp(cmd, "-h")) {
+        usage(stdout);
+        return 0;
+    }
+    fprintf(stderr, "microrayd: unknown command '%s'\n", cmd);
+    usage(stderr);
+    return 2;
+}

@@ -1,0 +1,243 @@
+/*
+ * render_cmd.c - one-shot render and compare commands (render_cmd.h).
+ *
+ * render: the job file is parsed and validated exactly as the daemon does;
+ * relative asset paths are resolved against the job file's directory. Each
+ * frame is written as DIR/NNNN.exr through a temporary file and a rename,
+ * and DIR/stats.json is rewritten after every frame, so an interrupted run
+ * leaves only complete files behind.
+ */
+#include "render_cmd.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "files.h"
+#include "job_json.h"
+#include "render/compare.h"
+#include "render/exr.h"
+#include "stats_json.h"
+#include "worker.h"
+
+#define MR_MAX_JOB_FILE (16u * 1024u * 1024u)
+
+/* Exit codes shared by microrayd's one-shot commands (README). */
+enum { EXIT_OK = 0, EXIT_RENDER = 1, EXIT_USAGE = 2, EXIT_INVALID_JOB = 3, EXIT_IO = 4 };
+
+typedef struct render_out {
+    const char *dir;
+    const mr_job *job;
+    bool quiet;
+} render_out;
+
+static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_stats *st, mr_error *err)
+{
+    render_out *o = user;
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%04zu.exr", o->dir, index);
+    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
+                        .scene_diagonal = st->scene_diagonal};
+    snprintf(meta.job, sizeof meta.job, "%s", o->job->name);
+    double t0 = mr_now();
+    uint8_t *data = NULL;
+    size_t size = 0;
+    int rc = mr_exr_write_memory(&data, &size, film, &o->job->output.exr, &meta, err);
+    if (rc == MR_OK)
+        rc = mr_file_write_atomic(path, data, size, err);
+    free(data);
+    st->encode_s = mr_now() - t0;
+    return rc;
+}
+
+static void report_progress(void *user, size_t index, const mr_job_stats *stats)
+{
+    render_out *o = user;
+    const mr_frame_stats *f = &stats->frames[index];
+    if (!o->quiet)
+        fprintf(stderr,
+                "frame %zu/%zu t=%.3fs %.3fs (pose %.3f %s %.3f trace %.3f encode %.3f) %.1f Mrays/s\n",
+                index + 1, o->job->frame_count, f->time, f->total_s, f->pose_s,
+                f->bvh_refit ? "refit" : "build", f->bvh_s, f->trace_s, f->encode_s, f->mrays_per_s);
+    char *json = mr_stats_to_json(o->job, stats, 0);
+    if (json) {
+        char path[4200];
+        mr_error err;
+        snprintf(path, sizeof path, "%s/stats.json", o->dir);
+        if (mr_file_write_atomic(path, json, strlen(json), &err) < 0)
+            fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+        free(json);
+    }
+}
+
+/* Relative asset paths are relative to the job file. */
+static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
+{
+    char dir[4096];
+    mr_path_dirname(job_path, dir, sizeof dir);
+    for (size_t i = 0; i < job->asset_count; i++) {
+        char *p = job->assets[i].path;
+        if (p[0] == '/')
+            continue;
+        size_t n = strlen(dir) + strlen(p) + 2;
+        char *abs = malloc(n);
+        if (!abs)
+            return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        snprintf(abs, n, "%s/%s", dir, p);
+        free(p);
+        job->assets[i].path = abs;
+    }
+    return MR_OK;
+}
+
+static void usage_render(void)
+{
+    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--quiet]\n");
+}
+
+int mr_cmd_render(int argc, char **argv)
+{
+    const char *job_path = NULL, *out_dir = NULL;
+    unsigned threads = 0;
+    bool quiet = false;
+    for (int i = 0; i < argc; i++) {
+        if (!strcmp(argv[i], "--out") && i + 1 < argc) {
+            out_dir = argv[++i];
+        } else if (!strcmp(argv[i], "--threads") && i + 1 < argc) {
+            char *end;
+            long v = strtol(argv[++i], &end, 10);
+            if (*end || v < 1 || v > 256) {
+                fprintf(stderr, "microrayd: --threads wants an integer in 1..256\n");
+                return EXIT_USAGE;
+            }
+            threads = (unsigned)v;
+        } else if (!strcmp(argv[i], "--quiet")) {
+            quiet = true;
+        } else if (argv[i][0] == '-' || job_path) {
+            usage_render();
+            return EXIT_USAGE;
+        } else {
+            job_path = argv[i];
+        }
+    }
+    if (!job_path || !out_dir) {
+        usage_render();
+        return EXIT_USAGE;
+    }
+
+    int status = EXIT_OK;
+    char *text = NULL;
+    size_t len = 0;
+    mr_job *job = NULL;
+    mr_device *dev = NULL;
+    mr_job_stats stats = {0};
+    mr_error err = {0};
+    mr_job_error jerr = {0};
+
+    if (mr_file_read(job_path, MR_MAX_JOB_FILE, &text, &len, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        status = EXIT_IO;
+        goto done;
+    }
+    if (mr_job_parse(text, len, &job, &jerr) < 0) {
+        fprintf(stderr, "microrayd: %s: invalid job at '%s': %s\n", job_path, jerr.pointer, jerr.message);
+        status = EXIT_INVALID_JOB;
+        goto done;
+    }
+    if (resolve_asset_paths(job, job_path, &err) < 0 || mr_mkdir_p(out_dir, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        status = EXIT_IO;
+        goto done;
+    }
+    if (mr_device_new(threads, &dev, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        status = EXIT_RENDER;
+        goto done;
+    }
+    render_out out = {.dir = out_dir, .job = job, .quiet = quiet};
+    mr_frame_sink sink = {.user = &out, .frame_done = write_frame, .progress = report_progress};
+    int rc = mr_worker_run(dev, job, 0, &sink, &stats, &err);
+    if (rc < 0) {
+        fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
+        status = (rc == MR_ERR_IO) ? EXIT_IO : (rc == MR_ERR_NOT_FOUND || rc == MR_ERR_FORMAT) ? EXIT_INVALID_JOB : EXIT_RENDER;
+    }
+done:
+    mr_job_stats_free(&stats);
+    mr_device_free(dev);
+    mr_job_free(job);
+    free(text);
+    return status;
+}
+
+int mr_cmd_compare(int argc, char **argv)
+{
+    const char *paths[2] = {NULL, NULL};
+    double diagonal = 0;
+    int npaths = 0;
+    for (int i = 0; i < argc; i++) {
+        if (!strcmp(argv[i], "--diagonal") && i + 1 < argc) {
+            char *end;
+            diagonal = strtod(argv[++i], &end);
+            if (*end || !(diagonal > 0) || diagonal > 1e30) {
+                fprintf(stderr, "microrayd: --diagonal wants a positive number\n");
+                return EXIT_USAGE;
+            }
+        } else if (argv[i][0] != '-' && npaths < 2) {
+            paths[npaths++] = argv[i];
+        } else {
+            npaths = -1;
+            break;
+        }
+    }
+    if (npaths != 2) {
+        fprintf(stderr, "usage: microrayd compare A.exr B.exr [--diagonal D]\n");
+        return EXIT_USAGE;
+    }
+    int status = EXIT_OK;
+    mr_film *film[2] = {NULL, NULL};
+    mr_exr_meta meta[2];
+    mr_error err = {0};
+    for (int i = 0; i < 2; i++)
+        if (mr_exr_read_file(paths[i], &film[i], &meta[i], &err) < 0) {
+            fprintf(stderr, "microrayd: %s\n", err.msg);
+            status = EXIT_IO;
+            goto done;
+        }
+    /* The unit of depth error: given, else the reference's (B), else A's. */
+    if (diagonal <= 0)
+        diagonal = meta[1].scene_diagonal > 0 ? meta[1].scene_diagonal : meta[0].scene_diagonal;
+    if (!(diagonal > 0))
+        diagonal = 1.0;
+    mr_compare_result r;
+    if (mr_film_compare(film[0], film[1], diagonal, &r, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        status = EXIT_INVALID_JOB;
+        goto done;
+    }
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "a", paths[0]);
+    cJSON_AddStringToObject(o, "b", paths[1]);
+    cJSON_AddNumberToObject(o, "width", film[0]->width);
+    cJSON_AddNumberToObject(o, "height", film[0]->height);
+    cJSON_AddNumberToObject(o, "scene_diagonal", diagonal);
+    cJSON_AddNumberToObject(o, "pixels_hit_either", (double)r.hit_either);
+    cJSON_AddNumberToObject(o, "pixels_hit_both", (double)r.hit_both);
+    cJSON_AddNumberToObject(o, "coverage_error_pct", r.coverage_pct);
+    cJSON_AddNumberToObject(o, "depth_rmse", r.depth_rmse);
+    cJSON_AddNumberToObject(o, "depth_max", r.depth_max);
+    cJSON_AddNumberToObject(o, "normal_mean_deg", r.normal_mean_deg);
+    cJSON_AddNumberToObject(o, "normal_max_deg", r.normal_max_deg);
+    cJSON_AddNumberToObject(o, "psnr_rgb_db", r.psnr_rgb);
+    char *s = cJSON_Print(o);
+    if (s)
+        printf("%s\n", s);
+    free(s);
+    cJSON_Delete(o);
+done:
+    mr_film_free(film[0]);
+    mr_film_free(film[1]);
+    return status;
+}

@@ -1,0 +1,13 @@
+/*
+ * render_cmd.h - the one-shot commands of microrayd:
+ *   microrayd render JOB.json --out DIR [--threads N] [--quiet]
+ *   microrayd compare A.exr B.exr [--diagonal D]
+ */
+#ifndef MR_RENDER_CMD_H
+#define MR_RENDER_CMD_H
+
+/* Both return a process exit status (see the README's exit codes). */
+int mr_cmd_render(int argc, char **argv);
+int mr_cmd_compare(int argc, char **argv);
+
+#endif
