@@ -29,9 +29,9 @@ for t in "$BUILD"/tests/test_*; do
   [ -x "$t" ] || continue
   run "unit/$(basename "$t")" "$t"
 done
-for t in tests/integration/*.sh; do
-  [ -f "$t" ] || continue
-  run "integration/$(basename "$t" .sh)" bash "$t"
+for t in "$BUILD"/tests/integration/test_*; do
+  [ -x "$t" ] || continue
+  run "integration/$(basename "$t")" "$t"
 done
 
 echo

@@ -46,7 +46,22 @@ const char *mr_compression_name(mr_compression c);
 /* Parses a name as above; returns false for anything else. */
 bool mr_compression_parse(const char *name, mr_compression *out);
 
-/* Writes film to path (created or truncated). */
+/* IEEE 754 binary16 conversions used for the HALF channels.
+ * mr_float_to_half rounds to nearest, ties to even; finite values beyond the
+ * half range clamp to +-65504, +-Inf clamps to +-65504 and NaN becomes 0, so
+ * the result is always finite. mr_half_to_float is exact (every half is a
+ * float); it returns Inf/NaN only for half Inf/NaN bit patterns. */
+uint16_t mr_float_to_half(float f);
+float mr_half_to_float(uint16_t h);
+
+/* opt may be NULL (same as a zeroed struct: no compression, default level);
+ * meta may be NULL (only microray.version is written). NaN/Inf pixels are
+ * written as finite values (colour as above; Z and N: NaN -> 0,
+ * +-Inf -> +-FLT_MAX). */
+
+/* Writes film to path. The data goes to a temporary file next to path that
+ * is renamed over it on success, so nobody sees a partial frame and a failed
+ * write leaves an existing file at path untouched. */
 int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_options *opt,
                       const mr_exr_meta *meta, mr_error *err);
 /* Writes film into a malloc'ed buffer (*data, *size); caller frees *data. */

@@ -1,0 +1,262 @@
+/*
+ * test_e2e_render.c - end to end through the real binary: `microrayd render`
+ * on the real skinned example and on small jobs, frames read back with
+ * OpenEXR, `microrayd compare`, and bad input answered with clear errors.
+ *
+ * Needs MR_SOURCE_DIR (repository root) and MR_BUILD_DIR (where microrayd
+ * is); scripts/run-tests.sh sets both.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <cJSON.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "render/exr.h"
+
+static char src_dir[2048], bin[2200], tmp_dir[256];
+
+static char *slurp(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    fseek(f, 0, SEEK_END);
+    long n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *s = malloc((size_t)n + 1);
+    assert_non_null(s);
+    size_t got = fread(s, 1, (size_t)n, f);
+    s[got] = '\0';
+    fclose(f);
+    return s;
+}
+
+/* Runs `microrayd ARGS`, stdout/stderr into files in tmp_dir; returns the exit status. */
+static int microrayd(const char *args, char **out, char **err)
+{
+    char cmd[8192], o[512], e[512];
+    snprintf(o, sizeof o, "%s/stdout", tmp_dir);
+    snprintf(e, sizeof e, "%s/stderr", tmp_dir);
+    snprintf(cmd, sizeof cmd, "cd '%s' && '%s' %s >'%s' 2>'%s'", src_dir, bin, args, o, e);
+    int st = system(cmd);
+    assert_true(WIFEXITED(st));
+    if (out)
+        *out = slurp(o);
+    if (err)
+        *err = slurp(e);
+    return WEXITSTATUS(st);
+}
+
+static mr_film *read_frame(const char *dir, int frame)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%04d.exr", dir, frame);
+    mr_film *f = NULL;
+    mr_error err = {0};
+    if (mr_exr_read_file(path, &f, NULL, &err) < 0)
+        fail_msg("%s", err.msg);
+    return f;
+}
+
+static size_t count_lines_with(const char *text, const char *needle)
+{
+    size_t n = 0;
+    for (const char *p = text; (p = strstr(p, needle)); p += strlen(needle))
+        n++;
+    return n;
+}
+
+static void test_skinned_example_renders_and_moves(void **state)
+{
+    (void)state;
+    char args[1024], out_dir[512];
+    snprintf(out_dir, sizeof out_dir, "%s/walk", tmp_dir);
+    snprintf(args, sizeof args, "render examples/skinned-walk.json --out '%s'", out_dir);
+    char *err = NULL;
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 0)
+        fail_msg("render exited %d: %s", rc, err);
+    /* One progress line per frame. */
+    assert_int_equal(count_lines_with(err, "frame "), 49);
+    free(err);
+
+    char path[1024];
+    snprintf(path, sizeof path, "%s/stats.json", out_dir);
+    char *text = slurp(path);
+    assert_non_null(text);
+    cJSON *stats = cJSON_Parse(text);
+    assert_non_null(stats);
+    assert_int_equal(cJSON_GetObjectItem(stats, "frames_done")->valueint, 49);
+    cJSON *frames = cJSON_GetObjectItem(stats, "frames");
+    assert_int_equal(cJSON_GetArraySize(frames), 49);
+    /* The first frame builds the BVH, later ones refit it (animated scene). */
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(frames, 0), "bvh")->valuestring, "build");
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(frames, 1), "bvh")->valuestring, "refit");
+    cJSON *f1 = cJSON_GetArrayItem(frames, 1);
+    assert_true(cJSON_GetObjectItem(f1, "triangles")->valuedouble == 5126);
+    assert_true(cJSON_GetObjectItem(f1, "rays")->valuedouble >= 960.0 * 540 * 2);
+    assert_true(cJSON_GetObjectItem(cJSON_GetObjectItem(f1, "bytes"), "bvh")->valuedouble > 0);
+    cJSON_Delete(stats);
+    free(text);
+
+    /* Consecutive frames differ, and only where the character is: a pixel
+     * whose centre ray missed in both frames may change colour only through
+     * its jittered samples, so it must touch a pixel that hit something. */
+    for (int k = 0; k + 1 < 49; k += 8) {
+        mr_film *a = read_frame(out_dir, k), *b = read_frame(out_dir, k + 1);
+        int w = a->width, h = a->height;
+        size_t changed = 0, changed_background = 0, hit = 0;
+        for (int y = 0; y < h; y++)
+            for (int x = 0; x < w; x++) {
+                size_t i = (size_t)y * w + x;
+                bool differs = a->z[i] != b->z[i] || a->object_id[i] != b->object_id[i] || a->r[i] != b->r[i];
+                changed += differs;
+                hit += a->object_id[i] != 0;
+                if (!differs || a->object_id[i] || b->object_id[i])
+                    continue;
+                bool near_geometry = false;
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dx = -1; dx <= 1; dx++) {
+                        int xx = x + dx, yy = y + dy;
+                        if (xx >= 0 && yy >= 0 && xx < w && yy < h) {
+                            size_t j = (size_t)yy * w + xx;
+                            near_geometry |= a->object_id[j] || b->object_id[j];
+                        }
+                    }
+                changed_background += !near_geometry;
+            }
+        assert_true(hit > 1000);
+        assert_true(changed > 100);
+        assert_int_equal(changed_background, 0);
+        mr_film_free(a);
+        mr_film_free(b);
+    }
+}
+
+static void render_small(const char *name, int threads)
+{
+    char args[1024];
+    snprintf(args, sizeof args, "render tests/data/skinned-small.json --out '%s/%s' --threads %d --quiet",
+             tmp_dir, name, threads);
+    char *err = NULL;
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 0)
+        fail_msg("render exited %d: %s", rc, err);
+    free(err);
+}
+
+static void test_same_pixels_for_1_and_2_threads(void **state)
+{
+    (void)state;
+    render_small("t1", 1);
+    render_small("t2", 2);
+    char d1[512], d2[512];
+    snprintf(d1, sizeof d1, "%s/t1", tmp_dir);
+    snprintf(d2, sizeof d2, "%s/t2", tmp_dir);
+    for (int k = 0; k < 4; k++) {
+        mr_film *a = read_frame(d1, k), *b = read_frame(d2, k);
+        size_t n = (size_t)a->width * a->height;
+        assert_int_equal(a->width, 192);
+        assert_int_equal(a->height, 108);
+        float *pa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz};
+        float *pb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz};
+        for (int c = 0; c < 8; c++)
+            assert_memory_equal(pa[c], pb[c], n * sizeof(float));
+        assert_memory_equal(a->object_id, b->object_id, n * sizeof(uint32_t));
+        assert_memory_equal(a->prim_id, b->prim_id, n * sizeof(uint32_t));
+        mr_film_free(a);
+        mr_film_free(b);
+    }
+    /* 0.5 .. 1.25 s at 4 fps is exactly 4 frames: no fifth file. */
+    char path[1024];
+    snprintf(path, sizeof path, "%s/0004.exr", d1);
+    assert_int_not_equal(access(path, F_OK), 0);
+}
+
+static void test_compare_command(void **state)
+{
+    (void)state;
+    char args[2048], *out = NULL;
+    snprintf(args, sizeof args, "compare '%s/t1/0000.exr' '%s/t2/0000.exr'", tmp_dir, tmp_dir);
+    assert_int_equal(microrayd(args, &out, NULL), 0);
+    cJSON *j = cJSON_Parse(out);
+    assert_non_null(j);
+    assert_true(cJSON_GetObjectItem(j, "coverage_error_pct")->valuedouble == 0);
+    assert_true(cJSON_GetObjectItem(j, "depth_max")->valuedouble == 0);
+    assert_true(cJSON_GetObjectItem(j, "psnr_rgb_db")->valuedouble == 999);
+    cJSON_Delete(j);
+    free(out);
+    /* Different frames: the character moved, so coverage and depth differ. */
+    snprintf(args, sizeof args, "compare '%s/t1/0000.exr' '%s/t1/0003.exr'", tmp_dir, tmp_dir);
+    assert_int_equal(microrayd(args, &out, NULL), 0);
+    j = cJSON_Parse(out);
+    assert_non_null(j);
+    assert_true(cJSON_GetObjectItem(j, "coverage_error_pct")->valuedouble > 0);
+    assert_true(cJSON_GetObjectItem(j, "psnr_rgb_db")->valuedouble < 999);
+    cJSON_Delete(j);
+    free(out);
+}
+
+static void expect_failure(const char *args, int status, const char *needle)
+{
+    char *err = NULL;
+    int rc = microrayd(args, NULL, &err);
+    if (rc != status || !err || !strstr(err, needle))
+        fail_msg("`microrayd %s`: exit %d (want %d), stderr: %s (want '%s')", args, rc, status,
+                 err ? err : "", needle);
+    free(err);
+}
+
+static void test_bad_input_is_answered(void **state)
+{
+    (void)state;
+    char args[1024];
+    snprintf(args, sizeof args, "render tests/data/invalid-job.json --out '%s/bad'", tmp_dir);
+    expect_failure(args, 3, "/output/width");
+    snprintf(args, sizeof args, "render tests/data/missing-asset.json --out '%s/bad'", tmp_dir);
+    expect_failure(args, 4, "/assets/ghost/path");
+    snprintf(args, sizeof args, "render tests/data/broken-model.json --out '%s/bad'", tmp_dir);
+    expect_failure(args, 3, "/assets/bad/path");
+    snprintf(args, sizeof args, "render tests/data/no-such-job.json --out '%s/bad'", tmp_dir);
+    expect_failure(args, 4, "no-such-job.json");
+    expect_failure("render", 2, "usage");
+    expect_failure("frobnicate", 2, "unknown command");
+    expect_failure("compare examples/skinned-walk.json examples/skinned-walk.json", 4, "skinned-walk.json");
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    const char *s = getenv("MR_SOURCE_DIR"), *b = getenv("MR_BUILD_DIR");
+    snprintf(src_dir, sizeof src_dir, "%s", s ? s : ".");
+    snprintf(bin, sizeof bin, "%s/microrayd", b ? b : "build");
+    snprintf(tmp_dir, sizeof tmp_dir, "/tmp/microray-e2e-XXXXXX");
+    return mkdtemp(tmp_dir) ? 0 : -1;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp_dir);
+    return system(cmd) == 0 ? 0 : -1;
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_skinned_example_renders_and_moves),
+        cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
+        cmocka_unit_test(test_compare_command),
+        cmocka_unit_test(test_bad_input_is_answered),
+    };
+    return cmocka_run_group_tests_name("e2e_render", tests, setup, teardown);
+}

@@ -1,0 +1,294 @@
+/*
+ * test_compare.c - error metrics between two films (compare.h).
+ *
+ * Small hand-built films whose answers follow in closed form. Inputs are
+ * chosen exactly representable in float, so the only error left is double
+ * rounding in sqrt/acos/log10; the tolerance 1e-12 (relative to values of
+ * order 1..100) is many orders above that and far below any real defect.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <string.h>
+
+#include "render/compare.h"
+#include "render/film.h"
+
+#define TOL 1e-12
+
+static mr_film *film(int w, int h)
+{
+    mr_film *f = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_film_new(w, h, &f, &err), MR_OK);
+    return f;
+}
+
+/* Marks pixel i as a hit with depth z and normal n. */
+static void hit(mr_film *f, size_t i, float z, float nx, float ny, float nz)
+{
+    f->object_id[i] = 1;
+    f->prim_id[i] = (uint32_t)i;
+    f->z[i] = z;
+    f->nx[i] = nx;
+    f->ny[i] = ny;
+    f->nz[i] = nz;
+}
+
+static void test_identical(void **state)
+{
+    mr_film *a = film(5, 4), *b = film(5, 4);
+    mr_compare_result r;
+    mr_error err = {0};
+    size_t i;
+    (void)state;
+
+    for (i = 0; i < 20; i++) {
+        a->r[i] = 0.05f * (float)i;
+        a->g[i] = 0.5f;
+        a->b[i] = 1.0f - 0.04f * (float)i;
+        if (i % 3)
+            hit(a, i, 2.0f + (float)i, 0.0f, 0.6f, 0.8f);
+    }
+    memcpy(b->r, a->r, 20 * sizeof(float));
+    memcpy(b->g, a->g, 20 * sizeof(float));
+    memcpy(b->b, a->b, 20 * sizeof(float));
+    memcpy(b->z, a->z, 20 * sizeof(float));
+    memcpy(b->nx, a->nx, 20 * sizeof(float));
+    memcpy(b->ny, a->ny, 20 * sizeof(float));
+    memcpy(b->nz, a->nz, 20 * sizeof(float));
+    memcpy(b->object_id, a->object_id, 20 * sizeof(uint32_t));
+
+    assert_int_equal(mr_film_compare(a, b, 3.0, &r, &err), MR_OK);
+    assert_int_equal(r.pixels, 20);
+    assert_int_equal(r.hit_either, 13);
+    assert_int_equal(r.hit_both, 13);
+    assert_int_equal(r.hit_one, 0);
+    assert_true(r.coverage_pct == 0.0);
+    assert_true(r.depth_rmse == 0.0 && r.depth_max == 0.0);
+    /* acos(1) is exactly 0. */
+    assert_true(r.normal_mean_deg == 0.0 && r.normal_max_deg == 0.0);
+    assert_true(r.psnr_rgb == MR_PSNR_IDENTICAL);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+static void test_coverage(void **state)
+{
+    mr_film *a = film(4, 4), *b = film(4, 4);
+    mr_compare_result r;
+    mr_error err = {0};
+    (void)state;
+
+    /* Neither frame hits anything: coverage error is defined as 0. */
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.hit_either, 0);
+    assert_true(r.coverage_pct == 0.0);
+    assert_true(r.psnr_rgb == MR_PSNR_IDENTICAL);
+
+    /* Three pixels hit in both, one only in b: 1 of 4 -> exactly 25 %. */
+    hit(a, 0, 1.0f, 0, 0, 1);
+    hit(a, 5, 1.0f, 0, 0, 1);
+    hit(a, 10, 1.0f, 0, 0, 1);
+    hit(b, 0, 1.0f, 0, 0, 1);
+    hit(b, 5, 1.0f, 0, 0, 1);
+    hit(b, 10, 1.0f, 0, 0, 1);
+    hit(b, 15, 1.0f, 0, 0, 1);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.hit_either, 4);
+    assert_int_equal(r.hit_both, 3);
+    assert_int_equal(r.hit_one, 1);
+    assert_true(r.coverage_pct == 25.0);
+    /* Symmetric. */
+    assert_int_equal(mr_film_compare(b, a, 1.0, &r, &err), MR_OK);
+    assert_true(r.coverage_pct == 25.0);
+
+    /* One more pixel only in a: 2 of 5 -> 40 %. A hit means object_id != 0,
+     * whatever the other planes say. */
+    a->object_id[3] = 77;
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.hit_one, 2);
+    assert_int_equal(r.hit_either, 5);
+    assert_true(fabs(r.coverage_pct - 40.0) <= TOL);
+
+    /* Disjoint hits: 100 %. Nothing hit in both -> depth/normal stay 0. */
+    mr_film_clear(a);
+    mr_film_clear(b);
+    hit(a, 1, 1.0f, 0, 0, 1);
+    hit(b, 2, 9.0f, 1, 0, 0);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(r.coverage_pct == 100.0);
+    assert_int_equal(r.hit_both, 0);
+    assert_true(r.depth_rmse == 0.0 && r.depth_max == 0.0);
+    assert_true(r.normal_mean_deg == 0.0 && r.normal_max_deg == 0.0);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+static void test_depth(void **state)
+{
+    mr_film *a = film(3, 2), *b = film(3, 2);
+    mr_compare_result r;
+    mr_error err = {0};
+    (void)state;
+
+    /* |dZ| over pixels hit in both: 0, 3, 4, 0 -> RMSE sqrt(25 / 4) = 2.5,
+     * max 4; relative to a diagonal of 10: 0.25 and 0.4. */
+    hit(a, 0, 5.0f, 0, 0, 1);
+    hit(b, 0, 5.0f, 0, 0, 1);
+    hit(a, 1, 5.0f, 0, 0, 1);
+    hit(b, 1, 8.0f, 0, 0, 1);
+    hit(a, 2, 10.0f, 0, 0, 1);
+    hit(b, 2, 6.0f, 0, 0, 1);
+    hit(a, 3, 2.5f, 0, 0, 1);
+    hit(b, 3, 2.5f, 0, 0, 1);
+    /* Hit in one frame only: its (huge) depth must not count. */
+    hit(a, 4, 1000.0f, 0, 0, 1);
+    /* Missed in both: ignored even though Z differs. */
+    a->z[5] = 50.0f;
+
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_int_equal(r.hit_both, 4);
+    assert_true(fabs(r.depth_rmse - 0.25) <= TOL);
+    assert_true(fabs(r.depth_max - 0.4) <= TOL);
+
+    /* Scales inversely with the diagonal. */
+    assert_int_equal(mr_film_compare(a, b, 0.5, &r, &err), MR_OK);
+    assert_true(fabs(r.depth_rmse - 5.0) <= TOL);
+    assert_true(fabs(r.depth_max - 8.0) <= TOL);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+static void test_normals(void **state)
+{
+    mr_film *a = film(2, 2), *b = film(2, 2);
+    mr_compare_result r;
+    mr_error err = {0};
+    (void)state;
+
+    /* One pixel at 90 degrees, one identical: mean 45, max 90. */
+    hit(a, 0, 1.0f, 0, 0, 1);
+    hit(b, 0, 1.0f, 1, 0, 0);
+    hit(a, 1, 1.0f, 0, 1, 0);
+    hit(b, 1, 1.0f, 0, 1, 0);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(fabs(r.normal_max_deg - 90.0) <= TOL);
+    assert_true(fabs(r.normal_mean_deg - 45.0) <= TOL);
+
+    /* Opposite normals: 180, so the mean over three pixels is 90. */
+    hit(a, 2, 1.0f, 0, 0, 1);
+    hit(b, 2, 1.0f, 0, 0, -1);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(fabs(r.normal_max_deg - 180.0) <= TOL);
+    assert_true(fabs(r.normal_mean_deg - 90.0) <= TOL);
+
+    mr_film_clear(a);
+    mr_film_clear(b);
+    {
+        /* A 60 degree pair, (0,0,1) vs (0, sqrt3/2, 1/2): sqrt3/2 is rounded
+         * to float, so the exact reference is that float vector's angle. */
+        float s = (float)(sqrt(3.0) / 2.0);
+        double len = sqrt((double)s * s + 0.25);
+        double want = acos(0.5 / len) * 180.0 / 3.14159265358979323846;
+        hit(a, 0, 1.0f, 0, 0, 1);
+        hit(b, 0, 1.0f, 0, s, 0.5f);
+        assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+        assert_true(fabs(r.normal_max_deg - want) <= TOL);
+        assert_true(fabs(r.normal_max_deg - 60.0) <= 1e-5); /* float input */
+    }
+
+    /* Length does not matter, only direction. */
+    hit(a, 0, 1.0f, 2, 0, 0);
+    hit(b, 0, 1.0f, 1, 0, 0);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(r.normal_max_deg == 0.0);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+static void test_psnr(void **state)
+{
+    mr_film *a = film(4, 2), *b = film(4, 2);
+    mr_compare_result r;
+    mr_error err = {0};
+    size_t i;
+    (void)state;
+
+    /* R differs by 0.5 everywhere, G and B equal: MSE = 0.25 / 3,
+     * PSNR = 10 log10(12). Hits play no part in colour. */
+    for (i = 0; i < 8; i++) {
+        a->r[i] = 0.5f;
+        b->r[i] = 1.0f;
+        a->g[i] = b->g[i] = 0.25f;
+    }
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(fabs(r.psnr_rgb - 10.0 * log10(12.0)) <= TOL);
+
+    /* One channel of one pixel off by 1 (0 vs 1) out of 24 samples:
+     * MSE = 1/24, PSNR = 10 log10(24). */
+    for (i = 0; i < 8; i++)
+        b->r[i] = 0.5f;
+    b->b[7] = 1.0f;
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(fabs(r.psnr_rgb - 10.0 * log10(24.0)) <= TOL);
+
+    /* Clamped to [0, 1] first: 5 vs 1 and -3 vs 0 are no difference, and
+     * a NaN reads as 0. Alpha is not part of the metric. */
+    b->b[7] = 0.0f;
+    a->r[0] = 5.0f;
+    b->r[0] = 1.0f;
+    a->g[1] = -3.0f;
+    b->g[1] = 0.0f;
+    a->b[2] = NAN;
+    b->b[2] = 0.0f;
+    a->a[3] = 1.0f;
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_true(r.psnr_rgb == MR_PSNR_IDENTICAL);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+static void test_invalid(void **state)
+{
+    mr_film *a = film(4, 3), *b = film(3, 4), *c = film(4, 3);
+    mr_compare_result r;
+    mr_error err = {0};
+    (void)state;
+
+    r.pixels = 123;
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(err.code, MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "4x3"));
+    assert_non_null(strstr(err.msg, "3x4"));
+    assert_int_equal(r.pixels, 0); /* result cleared on failure */
+
+    assert_int_equal(mr_film_compare(a, c, 0.0, &r, &err), MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "scene_diagonal"));
+    assert_int_equal(mr_film_compare(a, c, -1.0, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(a, c, NAN, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(a, c, INFINITY, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(NULL, c, 1.0, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(a, NULL, 1.0, &r, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(a, c, 1.0, NULL, &err), MR_ERR_INVALID);
+    /* A NULL error pointer is allowed. */
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, NULL), MR_ERR_INVALID);
+    assert_int_equal(mr_film_compare(a, c, 1e-30, &r, NULL), MR_OK);
+    mr_film_free(a);
+    mr_film_free(b);
+    mr_film_free(c);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_identical), cmocka_unit_test(test_coverage),
+        cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
+        cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

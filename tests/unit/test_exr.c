@@ -1,0 +1,966 @@
+/*
+ * test_exr.c - film allocation and the OpenEXR writer/reader (film.h, exr.h).
+ *
+ * Everything runs against the real OpenEXRCore library and real files in a
+ * private temporary directory; the files are also checked with Debian's
+ * `exrheader` tool (package openexr), an independent reader built on the C++
+ * library, so a file both our reader and exrheader accept is a real EXR.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <openexr.h>
+
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "render/exr.h"
+#include "render/film.h"
+
+/* ------------------------------------------------------------------ */
+/* helpers                                                             */
+
+typedef struct fixture {
+    char dir[64];
+} fixture;
+
+static int group_setup(void **state)
+{
+    fixture *fx = calloc(1, sizeof *fx);
+    if (!fx)
+        return -1;
+    snprintf(fx->dir, sizeof fx->dir, "/tmp/mr_test_exr_XXXXXX");
+    if (!mkdtemp(fx->dir)) {
+        free(fx);
+        return -1;
+    }
+    *state = fx;
+    return 0;
+}
+
+static int group_teardown(void **state)
+{
+    fixture *fx = *state;
+    char cmd[128];
+    /* Only our own mkdtemp directory. */
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx->dir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "could not remove %s\n", fx->dir);
+    free(fx);
+    return 0;
+}
+
+static void tmp_path(void **state, const char *name, char *out, size_t n)
+{
+    const fixture *fx = *state;
+    snprintf(out, n, "%s/%s", fx->dir, name);
+}
+
+static uint8_t *read_all(const char *path, size_t *size)
+{
+    FILE *f = fopen(path, "rb");
+    uint8_t *data = NULL;
+    long n;
+
+    assert_non_null(f);
+    assert_int_equal(fseek(f, 0, SEEK_END), 0);
+    n = ftell(f);
+    assert_true(n >= 0);
+    rewind(f);
+    data = malloc((size_t)n + 1);
+    assert_non_null(data);
+    assert_int_equal(fread(data, 1, (size_t)n, f), (size_t)n);
+    fclose(f);
+    *size = (size_t)n;
+    return data;
+}
+
+static void write_all(const char *path, const void *data, size_t n)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(data, 1, n, f), n);
+    assert_int_equal(fclose(f), 0);
+}
+
+/* Runs a command and returns its stdout+stderr (malloc'ed). */
+static char *run_capture(const char *cmd)
+{
+    FILE *p = popen(cmd, "r");
+    char *buf = NULL;
+    size_t len = 0, cap = 0, n;
+
+    assert_non_null(p);
+    for (;;) {
+        if (cap - len < 4096) {
+            cap = cap ? cap * 2 : 8192;
+            buf = realloc(buf, cap);
+            assert_non_null(buf);
+        }
+        n = fread(buf + len, 1, cap - len - 1, p);
+        if (n == 0)
+            break;
+        len += n;
+    }
+    buf[len] = '\0';
+    pclose(p);
+    return buf;
+}
+
+enum { PW = 37, PH = 53 }; /* odd, and not a multiple of 16 or 32 rows */
+
+/* A film whose every channel varies per pixel: colour spans half's
+ * subnormal to near-max range and negatives, ids exceed 16 bits (a HALF or
+ * 16-bit path would corrupt them), normals are negative. */
+static mr_film *pattern_film(void)
+{
+    mr_film *f = NULL;
+    mr_error err = {0};
+    int x, y;
+
+    assert_int_equal(mr_film_new(PW, PH, &f, &err), MR_OK);
+    for (y = 0; y < PH; y++) {
+        for (x = 0; x < PW; x++) {
+            size_t i = (size_t)y * PW + (size_t)x;
+            f->r[i] = (float)(x - 10) * 0.37f + (float)y * 0.0113f;
+            f->g[i] = ldexpf(1.0f + (float)x * 0.01f, (y % 40) - 26);
+            f->b[i] = 60000.0f * (float)x / (float)(PW - 1) + (float)y;
+            f->a[i] = (float)(x + y) / (float)(PW + PH);
+            f->z[i] = 1000.0f + (float)x * 0.5f + (float)y * 1e-3f;
+            f->nx[i] = -0.6f + 0.01f * (float)x;
+            f->ny[i] = -0.8f + 0.003f * (float)y;
+            f->nz[i] = -(float)y / (float)PH;
+            f->object_id[i] = 65536u + (uint32_t)x * 1000u + (uint32_t)y;
+            f->prim_id[i] = (uint32_t)y * 100000u + (uint32_t)x + 70000u;
+        }
+    }
+    f->object_id[0] = 0xFFFFFFFFu;
+    f->object_id[1] = 0; /* a miss */
+    return f;
+}
+
+static const mr_exr_meta k_meta = {"job-42", 7, 2.5, 0.125, 12.5f};
+
+/* HALF check. Binary16 has 11 significant bits, so round-to-nearest is off
+ * by at most half an ulp: relative 2^-11 for normal values (|v| >= 2^-14),
+ * absolute 2^-25 (half the subnormal spacing 2^-24) below that. The read-back
+ * value must also be bit-exactly our own rounding of v: the library may not
+ * alter stored halves, and its HALF->FLOAT decode must agree with ours. */
+static void check_half(float got, float v)
+{
+    float want = mr_half_to_float(mr_float_to_half(v));
+    assert_true(isfinite(got));
+    assert_memory_equal(&got, &want, sizeof got);
+    if (fabsf(v) >= ldexpf(1.0f, -14))
+        assert_true(fabsf(got - v) <= fabsf(v) * ldexpf(1.0f, -11));
+    else
+        assert_true(fabsf(got - v) <= ldexpf(1.0f, -25));
+}
+
+static void check_same_film(const mr_film *in, const mr_film *out)
+{
+    size_t i, n = (size_t)in->width * (size_t)in->height;
+
+    assert_int_equal(out->width, in->width);
+    assert_int_equal(out->height, in->height);
+    for (i = 0; i < n; i++) {
+        check_half(out->r[i], in->r[i]);
+        check_half(out->g[i], in->g[i]);
+        check_half(out->b[i], in->b[i]);
+        check_half(out->a[i], in->a[i]);
+        /* FLOAT and UINT channels are stored verbatim: exact. */
+        assert_memory_equal(&out->z[i], &in->z[i], sizeof(float));
+        assert_memory_equal(&out->nx[i], &in->nx[i], sizeof(float));
+        assert_memory_equal(&out->ny[i], &in->ny[i], sizeof(float));
+        assert_memory_equal(&out->nz[i], &in->nz[i], sizeof(float));
+        assert_int_equal(out->object_id[i], in->object_id[i]);
+        assert_int_equal(out->prim_id[i], in->prim_id[i]);
+    }
+}
+
+/* ------------------------------------------------------------------ */
+/* half conversion                                                     */
+
+static void test_half_exhaustive_roundtrip(void **state)
+{
+    uint32_t h;
+    (void)state;
+    /* Every finite half survives half -> float -> half unchanged. */
+    for (h = 0; h < 0x10000u; h++) {
+        if (((h >> 10) & 0x1fu) == 0x1fu)
+            continue; /* Inf/NaN patterns are never produced */
+        assert_int_equal(mr_float_to_half(mr_half_to_float((uint16_t)h)), h);
+    }
+    assert_true(mr_half_to_float(0x7c00u) == INFINITY);
+    assert_true(isnan(mr_half_to_float(0x7e00u)));
+}
+
+static void test_half_rounding_nearest_even(void **state)
+{
+    uint32_t bits;
+    (void)state;
+    /* Sweep float bit patterns from 0 to 65504 (every 4099th): the chosen half
+     * must be a nearest one, and on an exact tie the even one. */
+    for (bits = 0; bits <= 0x477fe000u; bits += 4099u) {
+        float v, lo, mid, hi;
+        uint16_t h;
+        double dv, dmid, dlo, dhi;
+        memcpy(&v, &bits, sizeof v);
+        h = mr_float_to_half(v);
+        mid = mr_half_to_float(h);
+        dv = v;
+        dmid = fabs(dv - mid);
+        if (h > 0) {
+            lo = mr_half_to_float((uint16_t)(h - 1));
+            dlo = fabs(dv - lo);
+            assert_true(dmid <= dlo);
+            if (dmid == dlo)
+                assert_int_equal(h & 1u, 0);
+        }
+        if (h < 0x7bffu) {
+            hi = mr_half_to_float((uint16_t)(h + 1));
+            dhi = fabs(dv - hi);
+            assert_true(dmid <= dhi);
+            if (dmid == dhi)
+                assert_int_equal(h & 1u, 0);
+        }
+        /* Sign symmetry. */
+        assert_int_equal(mr_float_to_half(-v), h | 0x8000u);
+    }
+}
+
+static void test_half_special_values(void **state)
+{
+    (void)state;
+    assert_int_equal(mr_float_to_half(1.0f), 0x3c00);
+    assert_int_equal(mr_float_to_half(-2.0f), 0xc000);
+    assert_int_equal(mr_float_to_half(65504.0f), 0x7bff);
+    /* Ties: 1 + 2^-11 lies halfway between 1 and 1 + 2^-10 -> even (1.0);
+     * 1 + 3 * 2^-11 lies between odd 0x3c01 and even 0x3c02 -> 0x3c02. */
+    assert_int_equal(mr_float_to_half(1.0f + ldexpf(1.0f, -11)), 0x3c00);
+    assert_int_equal(mr_float_to_half(1.0f + 3.0f * ldexpf(1.0f, -11)), 0x3c02);
+    /* Subnormals: 2^-24 is the smallest; 2^-25 ties to even zero; just
+     * above it rounds up. */
+    assert_int_equal(mr_float_to_half(ldexpf(1.0f, -24)), 0x0001);
+    assert_int_equal(mr_float_to_half(ldexpf(1.0f, -25)), 0x0000);
+    assert_int_equal(mr_float_to_half(nextafterf(ldexpf(1.0f, -25), 1.0f)), 0x0001);
+    assert_int_equal(mr_float_to_half(-ldexpf(1.0f, -30)), 0x8000);
+    /* Largest subnormal rounding up into the smallest normal. */
+    assert_int_equal(mr_float_to_half(ldexpf(1.0f, -14) - ldexpf(1.0f, -26)), 0x0400);
+    /* Out of range and non-finite: always finite. */
+    assert_int_equal(mr_float_to_half(65519.0f), 0x7bff);
+    assert_int_equal(mr_float_to_half(65520.0f), 0x7bff);
+    assert_int_equal(mr_float_to_half(1e30f), 0x7bff);
+    assert_int_equal(mr_float_to_half(-1e30f), 0xfbff);
+    assert_int_equal(mr_float_to_half(INFINITY), 0x7bff);
+    assert_int_equal(mr_float_to_half(-INFINITY), 0xfbff);
+    assert_int_equal(mr_float_to_half(NAN), 0x0000);
+    assert_int_equal(mr_float_to_half(FLT_MAX), 0x7bff);
+}
+
+/* ------------------------------------------------------------------ */
+/* film                                                                */
+
+static void test_film_caps(void **state)
+{
+    mr_film *f = NULL;
+    mr_error err = {0};
+    (void)state;
+
+    assert_int_equal(mr_film_new(8193, 1, &f, &err), MR_ERR_LIMIT);
+    assert_null(f);
+    assert_non_null(strstr(err.msg, "8193x1"));
+    assert_int_equal(mr_film_new(1, 8193, &f, &err), MR_ERR_LIMIT);
+    assert_non_null(strstr(err.msg, "1x8193"));
+    /* Both sides within 8192 but the product above 4096 * 4096. */
+    assert_int_equal(mr_film_new(4097, 4096, &f, &err), MR_ERR_LIMIT);
+    assert_non_null(strstr(err.msg, "4097x4096"));
+    assert_int_equal(mr_film_new(8192, 8192, &f, &err), MR_ERR_LIMIT);
+    assert_int_equal(mr_film_new(0, 5, &f, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_new(5, -1, &f, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_new(-2147483647 - 1, -2147483647 - 1, &f, &err),
+                     MR_ERR_INVALID);
+    assert_int_equal(mr_film_new(2147483647, 2147483647, &f, &err), MR_ERR_LIMIT);
+    assert_int_equal(mr_film_new(4, 4, NULL, &err), MR_ERR_INVALID);
+    assert_null(f);
+
+    /* The longest allowed side works and starts zeroed. */
+    assert_int_equal(mr_film_new(8192, 1, &f, &err), MR_OK);
+    assert_int_equal(f->width, 8192);
+    assert_true(f->z[8191] == 0.0f && f->prim_id[8191] == 0);
+    mr_film_free(f);
+    mr_film_free(NULL);
+}
+
+static void test_film_clear(void **state)
+{
+    mr_film *f = pattern_film();
+    size_t i, n = (size_t)PW * PH;
+    (void)state;
+
+    mr_film_clear(f);
+    for (i = 0; i < n; i++) {
+        assert_true(f->r[i] == 0.0f && f->g[i] == 0.0f && f->b[i] == 0.0f &&
+                    f->a[i] == 0.0f && f->z[i] == 0.0f && f->nx[i] == 0.0f &&
+                    f->ny[i] == 0.0f && f->nz[i] == 0.0f);
+        assert_int_equal(f->object_id[i], 0);
+        assert_int_equal(f->prim_id[i], 0);
+    }
+    mr_film_clear(NULL);
+    mr_film_free(f);
+}
+
+/* ------------------------------------------------------------------ */
+/* round trips                                                         */
+
+static void check_exrheader(const char *path, const char *compression_line)
+{
+    /* In the file's (sorted) order, as exrheader prints them. */
+    static const char *const chans[] = {
+        "    A, 16-bit floating-point, sampling 1 1\n",
+        "    B, 16-bit floating-point, sampling 1 1\n",
+        "    G, 16-bit floating-point, sampling 1 1\n",
+        "    N.X, 32-bit floating-point, sampling 1 1\n",
+        "    N.Y, 32-bit floating-point, sampling 1 1\n",
+        "    N.Z, 32-bit floating-point, sampling 1 1\n",
+        "    R, 16-bit floating-point, sampling 1 1\n",
+        "    Z, 32-bit floating-point, sampling 1 1\n",
+        "    id.object, 32-bit unsigned integer, sampling 1 1\n",
+        "    id.primitive, 32-bit unsigned integer, sampling 1 1\n",
+    };
+    char cmd[512], *out, *prev, *p;
+    size_t i, lines = 0;
+
+    snprintf(cmd, sizeof cmd, "exrheader '%s' 2>&1", path);
+    out = run_capture(cmd);
+    prev = out;
+    for (i = 0; i < sizeof chans / sizeof chans[0]; i++) {
+        p = strstr(out, chans[i]);
+        if (!p)
+            fail_msg("exrheader output lacks \"%s\":\n%s", chans[i], out);
+        assert_true(p >= prev);
+        prev = p;
+    }
+    for (p = out; (p = strstr(p, ", sampling ")) != NULL; p++)
+        lines++;
+    assert_int_equal(lines, 10);
+    assert_non_null(strstr(out, "dataWindow (type box2i): (0 0) - (36 52)\n"));
+    assert_non_null(strstr(out, "displayWindow (type box2i): (0 0) - (36 52)\n"));
+    if (!strstr(out, compression_line))
+        fail_msg("exrheader output lacks \"%s\":\n%s", compression_line, out);
+    assert_non_null(strstr(out, "microray.version (type string): \"" MR_VERSION_STRING "\""));
+    assert_non_null(strstr(out, "microray.job (type string): \"job-42\""));
+    assert_non_null(strstr(out, "microray.frame (type int): 7\n"));
+    assert_non_null(strstr(out, "microray.time (type double): 2.5\n"));
+    assert_non_null(strstr(out, "microray.renderSeconds (type double): 0.125\n"));
+    assert_non_null(strstr(out, "microray.sceneDiagonal (type float): 12.5\n"));
+    free(out);
+}
+
+static void roundtrip(void **state, mr_compression c, int zip_level, const char *name,
+                      const char *compression_line)
+{
+    char path[256];
+    mr_film *in = pattern_film(), *out = NULL;
+    mr_exr_options opt = {c, zip_level};
+    mr_exr_meta meta;
+    mr_error err = {0};
+    uint8_t *mem = NULL, *file = NULL;
+    size_t mem_size = 0, file_size = 0;
+    int rc;
+
+    tmp_path(state, name, path, sizeof path);
+    rc = mr_exr_write_file(path, in, &opt, &k_meta, &err);
+    if (rc != MR_OK)
+        fail_msg("write %s: %s", name, err.msg);
+
+    memset(&meta, 0xAB, sizeof meta);
+    rc = mr_exr_read_file(path, &out, &meta, &err);
+    if (rc != MR_OK)
+        fail_msg("read %s: %s", name, err.msg);
+    check_same_film(in, out);
+    assert_string_equal(meta.job, "job-42");
+    assert_int_equal(meta.frame, 7);
+    assert_true(meta.time == 2.5);
+    assert_true(meta.render_seconds == 0.125);
+    assert_true(meta.scene_diagonal == 12.5f);
+
+    check_exrheader(path, compression_line);
+
+    /* The memory writer produces exactly the bytes of the file writer. */
+    assert_int_equal(mr_exr_write_memory(&mem, &mem_size, in, &opt, &k_meta, &err), MR_OK);
+    file = read_all(path, &file_size);
+    assert_int_equal(mem_size, file_size);
+    assert_memory_equal(mem, file, file_size);
+    if (c == MR_COMPRESSION_NONE) /* 4 half + 6 four-byte channels per pixel */
+        assert_true(file_size > (size_t)PW * PH * 32u);
+
+    free(mem);
+    free(file);
+    mr_film_free(in);
+    mr_film_free(out);
+}
+
+static void test_roundtrip_none(void **state)
+{
+    roundtrip(state, MR_COMPRESSION_NONE, 0, "none.exr",
+              "compression (type compression): none\n");
+}
+
+static void test_roundtrip_zip(void **state)
+{
+    roundtrip(state, MR_COMPRESSION_ZIP, 0, "zip.exr",
+              "compression (type compression): zip, multi-scanline blocks\n");
+}
+
+static void test_roundtrip_zip_level9(void **state)
+{
+    roundtrip(state, MR_COMPRESSION_ZIP, 9, "zip9.exr",
+              "compression (type compression): zip, multi-scanline blocks\n");
+}
+
+static void test_roundtrip_zips(void **state)
+{
+    roundtrip(state, MR_COMPRESSION_ZIPS, 1, "zips.exr",
+              "compression (type compression): zip, individual scanlines\n");
+}
+
+static void test_roundtrip_piz(void **state)
+{
+    roundtrip(state, MR_COMPRESSION_PIZ, 0, "piz.exr",
+              "compression (type compression): piz\n");
+}
+
+static void test_zip_level_changes_output(void **state)
+{
+    /* The level must reach zlib: levels 1 and 9 give different streams. */
+    mr_film *in = pattern_film();
+    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1}, o9 = {MR_COMPRESSION_ZIP, 9};
+    uint8_t *m1 = NULL, *m9 = NULL;
+    size_t s1 = 0, s9 = 0;
+    mr_error err = {0};
+    (void)state;
+
+    assert_int_equal(mr_exr_write_memory(&m1, &s1, in, &o1, &k_meta, &err), MR_OK);
+    assert_int_equal(mr_exr_write_memory(&m9, &s9, in, &o9, &k_meta, &err), MR_OK);
+    assert_true(s1 != s9 || memcmp(m1, m9, s1) != 0);
+    free(m1);
+    free(m9);
+    mr_film_free(in);
+}
+
+static void test_meta_absent(void **state)
+{
+    char path[256], cmd[512], *out;
+    mr_film *in = pattern_film(), *back = NULL;
+    mr_exr_meta meta;
+    mr_error err = {0};
+
+    tmp_path(state, "nometa.exr", path, sizeof path);
+    assert_int_equal(mr_exr_write_file(path, in, NULL, NULL, &err), MR_OK);
+    memset(&meta, 0x5A, sizeof meta);
+    assert_int_equal(mr_exr_read_file(path, &back, &meta, &err), MR_OK);
+    assert_string_equal(meta.job, "");
+    assert_int_equal(meta.frame, 0);
+    assert_true(meta.time == 0.0 && meta.render_seconds == 0.0 && meta.scene_diagonal == 0.0f);
+    check_same_film(in, back);
+    mr_film_free(back);
+    back = NULL;
+    /* meta is optional for the reader too. */
+    assert_int_equal(mr_exr_read_file(path, &back, NULL, &err), MR_OK);
+
+    snprintf(cmd, sizeof cmd, "exrheader '%s' 2>&1", path);
+    out = run_capture(cmd);
+    assert_non_null(strstr(out, "microray.version (type string)"));
+    assert_null(strstr(out, "microray.job"));
+    assert_non_null(strstr(out, "compression (type compression): none\n"));
+    free(out);
+    mr_film_free(in);
+    mr_film_free(back);
+}
+
+static void test_nonfinite_become_finite(void **state)
+{
+    char path[256];
+    mr_film *in = NULL, *out = NULL;
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0};
+    mr_error err = {0};
+    const float bad[4] = {NAN, INFINITY, -INFINITY, 1e30f};
+    size_t i, n;
+    (void)state;
+
+    assert_int_equal(mr_film_new(4, 3, &in, &err), MR_OK);
+    n = 12;
+    for (i = 0; i < n; i++) {
+        float v = bad[i % 4];
+        in->r[i] = in->g[i] = in->b[i] = in->a[i] = v;
+        in->z[i] = in->nx[i] = in->ny[i] = in->nz[i] = v;
+    }
+    tmp_path(state, "nonfinite.exr", path, sizeof path);
+    assert_int_equal(mr_exr_write_file(path, in, &opt, NULL, &err), MR_OK);
+    assert_int_equal(mr_exr_read_file(path, &out, NULL, &err), MR_OK);
+    for (i = 0; i < n; i++) {
+        const float *half_planes[4] = {out->r, out->g, out->b, out->a};
+        const float *float_planes[4] = {out->z, out->nx, out->ny, out->nz};
+        static const float want_half[4] = {0.0f, 65504.0f, -65504.0f, 65504.0f};
+        static const float want_float[4] = {0.0f, FLT_MAX, -FLT_MAX, 1e30f};
+        int k;
+        for (k = 0; k < 4; k++) {
+            assert_true(isfinite(half_planes[k][i]));
+            assert_true(half_planes[k][i] == want_half[i % 4]);
+            assert_true(isfinite(float_planes[k][i]));
+            assert_true(float_planes[k][i] == want_float[i % 4]);
+        }
+    }
+    mr_film_free(in);
+    mr_film_free(out);
+}
+
+/* One row per chunk keeps the smallest image (1x1) and the largest chunk
+ * count (NONE, 1 line per chunk) covered. */
+static void test_tiny_and_tall(void **state)
+{
+    static const mr_compression cs[] = {MR_COMPRESSION_NONE, MR_COMPRESSION_ZIP,
+                                        MR_COMPRESSION_ZIPS, MR_COMPRESSION_PIZ};
+    static const int sizes[][2] = {{1, 1}, {1, 70}, {70, 1}};
+    char path[256];
+    mr_error err = {0};
+    size_t s, c, i;
+
+    tmp_path(state, "tiny.exr", path, sizeof path);
+    for (s = 0; s < 3; s++) {
+        for (c = 0; c < 4; c++) {
+            mr_film *in = NULL, *out = NULL;
+            mr_exr_options opt = {cs[c], 0};
+            size_t n = (size_t)sizes[s][0] * (size_t)sizes[s][1];
+            assert_int_equal(mr_film_new(sizes[s][0], sizes[s][1], &in, &err), MR_OK);
+            for (i = 0; i < n; i++) {
+                in->r[i] = (float)i * 0.25f;
+                in->z[i] = (float)i + 0.5f;
+                in->prim_id[i] = (uint32_t)i * 65537u;
+            }
+            assert_int_equal(mr_exr_write_file(path, in, &opt, &k_meta, &err), MR_OK);
+            assert_int_equal(mr_exr_read_file(path, &out, NULL, &err), MR_OK);
+            check_same_film(in, out);
+            mr_film_free(in);
+            mr_film_free(out);
+        }
+    }
+}
+
+/* ------------------------------------------------------------------ */
+/* foreign files                                                       */
+
+static void quiet(exr_const_context_t c, exr_result_t code, const char *msg)
+{
+    (void)c;
+    (void)code;
+    (void)msg;
+}
+
+/* Writes, with the C API directly, a 3x2 image whose data window starts at
+ * (10, 20) and that has only R (FLOAT), Z (HALF), id.object and an unknown
+ * channel "foo": what a third-party tool might hand us. */
+static void write_foreign(const char *path)
+{
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    exr_context_t ctxt = NULL;
+    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+    exr_attr_box2i_t win = {{{{10, 20}}}, {{{12, 21}}}};
+    exr_attr_v2f_t center = {{{0.0f, 0.0f}}};
+    float r[2][3] = {{1.5f, -2.0f, 3.25f}, {4.0f, 5.0f, 6.0f}};
+    uint16_t z[2][3], foo[2][3];
+    uint32_t ids[2][3] = {{100000u, 0u, 7u}, {8u, 9u, 4000000000u}};
+    int part, y, c;
+
+    for (y = 0; y < 2; y++)
+        for (c = 0; c < 3; c++) {
+            z[y][c] = mr_float_to_half(10.0f * (float)y + (float)c + 0.5f);
+            foo[y][c] = mr_float_to_half(-1.0f);
+        }
+    init.error_handler_fn = quiet;
+    assert_int_equal(exr_start_write(&ctxt, path, EXR_WRITE_FILE_DIRECTLY, &init), 0);
+    assert_int_equal(exr_add_part(ctxt, NULL, EXR_STORAGE_SCANLINE, &part), 0);
+    assert_int_equal(exr_initialize_required_attr(ctxt, part, &win, &win, 1.0f, &center,
+                                                  1.0f, EXR_LINEORDER_INCREASING_Y,
+                                                  EXR_COMPRESSION_NONE),
+                     0);
+    assert_int_equal(exr_add_channel(ctxt, part, "R", EXR_PIXEL_FLOAT, 0, 1, 1), 0);
+    assert_int_equal(exr_add_channel(ctxt, part, "Z", EXR_PIXEL_HALF, 0, 1, 1), 0);
+    assert_int_equal(exr_add_channel(ctxt, part, "foo", EXR_PIXEL_HALF, 0, 1, 1), 0);
+    assert_int_equal(exr_add_channel(ctxt, part, "id.object", EXR_PIXEL_UINT, 0, 1, 1), 0);
+    assert_int_equal(exr_write_header(ctxt), 0);
+    for (y = 0; y < 2; y++) {
+        exr_chunk_info_t ci;
+        assert_int_equal(exr_write_scanline_chunk_info(ctxt, part, 20 + y, &ci), 0);
+        if (y == 0)
+            assert_int_equal(exr_encoding_initialize(ctxt, part, &ci, &enc), 0);
+        else
+            assert_int_equal(exr_encoding_update(ctxt, part, &ci, &enc), 0);
+        for (c = 0; c < enc.channel_count; c++) {
+            exr_coding_channel_info_t *ch = &enc.channels[c];
+            const char *nm = ch->channel_name;
+            int bpe = ch->bytes_per_element;
+            if (!strcmp(nm, "R"))
+                ch->encode_from_ptr = (const uint8_t *)r[y];
+            else if (!strcmp(nm, "Z"))
+                ch->encode_from_ptr = (const uint8_t *)z[y];
+            else if (!strcmp(nm, "foo"))
+                ch->encode_from_ptr = (const uint8_t *)foo[y];
+            else
+                ch->encode_from_ptr = (const uint8_t *)ids[y];
+            ch->user_data_type = ch->data_type;
+            ch->user_bytes_per_element = (int16_t)bpe;
+            ch->user_pixel_stride = bpe;
+            ch->user_line_stride = bpe * 3;
+        }
+        if (y == 0)
+            assert_int_equal(exr_encoding_choose_default_routines(ctxt, part, &enc), 0);
+        assert_int_equal(exr_encoding_run(ctxt, part, &enc), 0);
+    }
+    assert_int_equal(exr_encoding_destroy(ctxt, &enc), 0);
+    assert_int_equal(exr_finish(&ctxt), 0);
+}
+
+static void test_foreign_channels_by_name(void **state)
+{
+    char path[256];
+    mr_film *f = NULL;
+    mr_exr_meta meta;
+    mr_error err = {0};
+    int x, y;
+
+    tmp_path(state, "foreign.exr", path, sizeof path);
+    write_foreign(path);
+    memset(&meta, 0x11, sizeof meta);
+    assert_int_equal(mr_exr_read_file(path, &f, &meta, &err), MR_OK);
+    assert_int_equal(f->width, 3);
+    assert_int_equal(f->height, 2);
+    /* No microray attributes: meta is all zero. */
+    assert_string_equal(meta.job, "");
+    assert_int_equal(meta.frame, 0);
+    assert_true(f->r[0] == 1.5f && f->r[1] == -2.0f && f->r[2] == 3.25f);
+    assert_true(f->r[3] == 4.0f && f->r[5] == 6.0f);
+    for (y = 0; y < 2; y++)
+        for (x = 0; x < 3; x++) {
+            size_t i = (size_t)y * 3 + (size_t)x;
+            /* HALF Z converted to float; these values are exact in half. */
+            assert_true(f->z[i] == 10.0f * (float)y + (float)x + 0.5f);
+            /* Absent channels stay zero; "foo" went nowhere. */
+            assert_true(f->g[i] == 0.0f && f->b[i] == 0.0f && f->a[i] == 0.0f);
+            assert_true(f->nx[i] == 0.0f && f->ny[i] == 0.0f && f->nz[i] == 0.0f);
+            assert_int_equal(f->prim_id[i], 0);
+        }
+    assert_int_equal(f->object_id[0], 100000u);
+    assert_int_equal(f->object_id[5], 4000000000u);
+    mr_film_free(f);
+}
+
+/* A valid one-row EXR (one HALF channel "Z") of the given width. */
+static void write_row(const char *path, int width)
+{
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    exr_context_t ctxt = NULL;
+    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+    exr_chunk_info_t ci;
+    uint16_t *row = calloc((size_t)width, sizeof *row);
+    int part;
+
+    assert_non_null(row);
+    init.error_handler_fn = quiet;
+    assert_int_equal(exr_start_write(&ctxt, path, EXR_WRITE_FILE_DIRECTLY, &init), 0);
+    assert_int_equal(exr_add_part(ctxt, NULL, EXR_STORAGE_SCANLINE, &part), 0);
+    assert_int_equal(
+        exr_initialize_required_attr_simple(ctxt, part, width, 1, EXR_COMPRESSION_NONE), 0);
+    assert_int_equal(exr_add_channel(ctxt, part, "Z", EXR_PIXEL_HALF, 0, 1, 1), 0);
+    assert_int_equal(exr_write_header(ctxt), 0);
+    assert_int_equal(exr_write_scanline_chunk_info(ctxt, part, 0, &ci), 0);
+    assert_int_equal(exr_encoding_initialize(ctxt, part, &ci, &enc), 0);
+    enc.channels[0].encode_from_ptr = (const uint8_t *)row;
+    enc.channels[0].user_data_type = EXR_PIXEL_HALF;
+    enc.channels[0].user_bytes_per_element = 2;
+    enc.channels[0].user_pixel_stride = 2;
+    enc.channels[0].user_line_stride = 2 * width;
+    assert_int_equal(exr_encoding_choose_default_routines(ctxt, part, &enc), 0);
+    assert_int_equal(exr_encoding_run(ctxt, part, &enc), 0);
+    assert_int_equal(exr_encoding_destroy(ctxt, &enc), 0);
+    assert_int_equal(exr_finish(&ctxt), 0);
+    free(row);
+}
+
+static void test_read_respects_caps(void **state)
+{
+    char path[256];
+    mr_film *f = NULL;
+    mr_error err = {0};
+
+    /* Valid EXR, but wider than the film cap: MR_ERR_LIMIT, not a crash or
+     * a huge allocation. */
+    tmp_path(state, "wide.exr", path, sizeof path);
+    write_row(path, MR_MAX_RESOLUTION + 1);
+    assert_int_equal(mr_exr_read_file(path, &f, NULL, &err), MR_ERR_LIMIT);
+    assert_null(f);
+    assert_non_null(strstr(err.msg, "8193x1"));
+    /* At the cap it reads. */
+    write_row(path, MR_MAX_RESOLUTION);
+    assert_int_equal(mr_exr_read_file(path, &f, NULL, &err), MR_OK);
+    assert_int_equal(f->width, MR_MAX_RESOLUTION);
+    mr_film_free(f);
+}
+
+/* ------------------------------------------------------------------ */
+/* broken input                                                        */
+
+static void expect_format(const char *path)
+{
+    mr_film *f = (mr_film *)(uintptr_t)1; /* must be reset to NULL */
+    mr_exr_meta meta;
+    mr_error err = {0};
+    int rc;
+
+    memset(&meta, 0x7F, sizeof meta);
+    rc = mr_exr_read_file(path, &f, &meta, &err);
+    if (rc != MR_ERR_FORMAT)
+        fail_msg("%s: expected MR_ERR_FORMAT, got %s (%s)", path, mr_err_name(rc), err.msg);
+    assert_null(f);
+    assert_int_equal(err.code, MR_ERR_FORMAT);
+    assert_non_null(strstr(err.msg, path));
+    assert_int_equal(meta.frame, 0); /* meta not left half-filled */
+}
+
+static void test_bad_files(void **state)
+{
+    char path[256], good[256];
+    static const char text[] = "this is a text file, not an EXR image\n";
+    mr_film *in = pattern_film(), *f = NULL;
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0};
+    mr_error err = {0};
+    uint8_t *data = NULL, *junk = NULL;
+    size_t size = 0, i;
+    uint32_t lcg = 12345u;
+
+    /* Missing file and a directory are I/O errors, not format errors. */
+    tmp_path(state, "missing.exr", path, sizeof path);
+    assert_int_equal(mr_exr_read_file(path, &f, NULL, &err), MR_ERR_IO);
+    assert_non_null(strstr(err.msg, "missing.exr"));
+    tmp_path(state, "", path, sizeof path);
+    assert_int_equal(mr_exr_read_file(path, &f, NULL, &err), MR_ERR_IO);
+    assert_int_equal(mr_exr_read_file(NULL, &f, NULL, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_exr_read_file(path, NULL, NULL, &err), MR_ERR_INVALID);
+
+    tmp_path(state, "text.exr", path, sizeof path);
+    write_all(path, text, sizeof text - 1);
+    expect_format(path);
+
+    tmp_path(state, "empty.exr", path, sizeof path);
+    write_all(path, "", 0);
+    expect_format(path);
+
+    /* Valid magic followed by noise. */
+    junk = malloc(4096);
+    assert_non_null(junk);
+    junk[0] = 0x76; junk[1] = 0x2f; junk[2] = 0x31; junk[3] = 0x01;
+    for (i = 4; i < 4096; i++) {
+        lcg = lcg * 1664525u + 1013904223u;
+        junk[i] = (uint8_t)(lcg >> 24);
+    }
+    tmp_path(state, "noise.exr", path, sizeof path);
+    write_all(path, junk, 4096);
+    expect_format(path);
+
+    /* Truncations of a good file: inside the magic, the header, the offset
+     * table, the pixel data, and one byte short. */
+    tmp_path(state, "good.exr", good, sizeof good);
+    assert_int_equal(mr_exr_write_file(good, in, &opt, &k_meta, &err), MR_OK);
+    data = read_all(good, &size);
+    {
+        /* The offset table (4 chunks of 16 rows) sits right before the first
+         * chunk, so its first entry is its own position + 32. */
+        size_t table = 0;
+        for (i = 8; i + 8 <= size && !table; i++) {
+            uint64_t v = 0;
+            int k;
+            for (k = 7; k >= 0; k--)
+                v = (v << 8) | data[i + (size_t)k];
+            if (v == (uint64_t)i + 32u)
+                table = i;
+        }
+        assert_true(table > 300);
+        const size_t cuts[] = {2, 8, 60, 300, table, table + 4, table + 31,
+                               size / 2, size - 1};
+        for (i = 0; i < sizeof cuts / sizeof cuts[0]; i++) {
+            char name[64];
+            snprintf(name, sizeof name, "cut%zu.exr", cuts[i]);
+            tmp_path(state, name, path, sizeof path);
+            write_all(path, data, cuts[i]);
+            expect_format(path);
+        }
+    }
+
+    /* Garbage over the pixel data in the middle of the file: zlib or the
+     * chunk headers must catch it. */
+    {
+        uint8_t *bad = malloc(size);
+        assert_non_null(bad);
+        memcpy(bad, data, size);
+        for (i = size / 2; i < size / 2 + 64; i++)
+            bad[i] = 0xA5;
+        tmp_path(state, "garbled.exr", path, sizeof path);
+        write_all(path, bad, size);
+        expect_format(path);
+        free(bad);
+    }
+
+    free(data);
+    free(junk);
+    mr_film_free(in);
+}
+
+static void test_tiled_rejected(void **state)
+{
+    char good[256], tiled[256], cmd[700], *out;
+    mr_film *in = pattern_film(), *f = NULL;
+    mr_error err = {0};
+
+    tmp_path(state, "for_tiling.exr", good, sizeof good);
+    tmp_path(state, "tiled.exr", tiled, sizeof tiled);
+    assert_int_equal(mr_exr_write_file(good, in, NULL, &k_meta, &err), MR_OK);
+    /* A real tiled EXR, made by the OpenEXR tool from our own file. */
+    snprintf(cmd, sizeof cmd, "exrmaketiled '%s' '%s' 2>&1", good, tiled);
+    out = run_capture(cmd);
+    free(out);
+    assert_int_equal(access(tiled, R_OK), 0);
+    assert_int_equal(mr_exr_read_file(tiled, &f, NULL, &err), MR_ERR_FORMAT);
+    assert_null(f);
+    assert_non_null(strstr(err.msg, "tiled"));
+    mr_film_free(in);
+}
+
+static void test_write_errors(void **state)
+{
+    char path[256];
+    mr_film *in = pattern_film();
+    mr_film hollow;
+    mr_exr_options bad_level = {MR_COMPRESSION_ZIP, 10};
+    mr_exr_options bad_comp = {(mr_compression)42, 0};
+    mr_exr_meta bad_meta = k_meta;
+    mr_error err = {0};
+    uint8_t *mem = (uint8_t *)(uintptr_t)1;
+    size_t size = 99;
+
+    tmp_path(state, "werr.exr", path, sizeof path);
+    assert_int_equal(mr_exr_write_file(path, NULL, NULL, NULL, &err), MR_ERR_INVALID);
+    assert_int_equal(access(path, F_OK), -1); /* nothing left behind */
+    assert_int_equal(mr_exr_write_file(path, in, &bad_level, NULL, &err), MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "zip_level"));
+    assert_int_equal(access(path, F_OK), -1);
+    assert_int_equal(mr_exr_write_file(path, in, &bad_comp, NULL, &err), MR_ERR_INVALID);
+    bad_meta.time = NAN;
+    assert_int_equal(mr_exr_write_file(path, in, NULL, &bad_meta, &err), MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "meta.time"));
+    assert_int_equal(mr_exr_write_file("", in, NULL, NULL, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_exr_write_file(NULL, in, NULL, NULL, &err), MR_ERR_INVALID);
+
+    /* A hand-made film with a missing plane or a size beyond the caps. */
+    hollow = *in;
+    hollow.nz = NULL;
+    assert_int_equal(mr_exr_write_memory(&mem, &size, &hollow, NULL, NULL, &err),
+                     MR_ERR_INVALID);
+    assert_null(mem);
+    assert_int_equal(size, 0);
+    assert_non_null(strstr(err.msg, "N.Z"));
+    hollow = *in;
+    hollow.width = 9000;
+    assert_int_equal(mr_exr_write_memory(&mem, &size, &hollow, NULL, NULL, &err),
+                     MR_ERR_INVALID);
+    assert_int_equal(mr_exr_write_memory(NULL, &size, in, NULL, NULL, &err), MR_ERR_INVALID);
+
+    /* Unwritable location: an I/O error naming the path. */
+    tmp_path(state, "no/such/dir/x.exr", path, sizeof path);
+    assert_int_equal(mr_exr_write_file(path, in, NULL, NULL, &err), MR_ERR_IO);
+    assert_non_null(strstr(err.msg, "no/such/dir/x.exr"));
+
+    /* A failed write leaves an existing file untouched. */
+    tmp_path(state, "keep.exr", path, sizeof path);
+    write_all(path, "precious", 8);
+    assert_int_equal(mr_exr_write_file(path, in, &bad_level, NULL, &err), MR_ERR_INVALID);
+    {
+        size_t n = 0;
+        uint8_t *kept = read_all(path, &n);
+        assert_int_equal(n, 8);
+        assert_memory_equal(kept, "precious", 8);
+        free(kept);
+    }
+    /* The final rename fails when the target is a directory: I/O error, and
+     * the temporary file is cleaned up. */
+    tmp_path(state, "adir.exr", path, sizeof path);
+    assert_int_equal(mkdir(path, 0755), 0);
+    assert_int_equal(mr_exr_write_file(path, in, NULL, NULL, &err), MR_ERR_IO);
+    assert_non_null(strstr(err.msg, "rename"));
+    {
+        const fixture *fx = *state;
+        char cmd[256], *out;
+        snprintf(cmd, sizeof cmd, "find '%s' -name '*.tmp'", fx->dir);
+        out = run_capture(cmd);
+        assert_string_equal(out, ""); /* no temporary files left anywhere */
+        free(out);
+    }
+
+    mr_film_free(in);
+}
+
+static void test_compression_names(void **state)
+{
+    mr_compression c = MR_COMPRESSION_PIZ;
+    (void)state;
+
+    assert_string_equal(mr_compression_name(MR_COMPRESSION_NONE), "none");
+    assert_string_equal(mr_compression_name(MR_COMPRESSION_ZIP), "zip");
+    assert_string_equal(mr_compression_name(MR_COMPRESSION_ZIPS), "zips");
+    assert_string_equal(mr_compression_name(MR_COMPRESSION_PIZ), "piz");
+    assert_true(mr_compression_parse("zips", &c));
+    assert_int_equal(c, MR_COMPRESSION_ZIPS);
+    assert_true(mr_compression_parse("none", &c));
+    assert_int_equal(c, MR_COMPRESSION_NONE);
+    /* DWAA is not implemented by the 3.1.5 C library; names are exact. */
+    assert_false(mr_compression_parse("dwaa", &c));
+    assert_false(mr_compression_parse("ZIP", &c));
+    assert_false(mr_compression_parse("", &c));
+    assert_false(mr_compression_parse(NULL, &c));
+    assert_int_equal(c, MR_COMPRESSION_NONE);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_half_exhaustive_roundtrip),
+        cmocka_unit_test(test_half_rounding_nearest_even),
+        cmocka_unit_test(test_half_special_values),
+        cmocka_unit_test(test_film_caps),
+        cmocka_unit_test(test_film_clear),
+        cmocka_unit_test(test_roundtrip_none),
+        cmocka_unit_test(test_roundtrip_zip),
+        cmocka_unit_test(test_roundtrip_zip_level9),
+        cmocka_unit_test(test_roundtrip_zips),
+        cmocka_unit_test(test_roundtrip_piz),
+        cmocka_unit_test(test_zip_level_changes_output),
+        cmocka_unit_test(test_meta_absent),
+        cmocka_unit_test(test_nonfinite_become_finite),
+        cmocka_unit_test(test_tiny_and_tall),
+        cmocka_unit_test(test_foreign_channels_by_name),
+        cmocka_unit_test(test_read_respects_caps),
+        cmocka_unit_test(test_bad_files),
+        cmocka_unit_test(test_tiled_rejected),
+        cmocka_unit_test(test_write_errors),
+        cmocka_unit_test(test_compression_names),
+    };
+    return cmocka_run_group_tests(tests, group_setup, group_teardown);
+}
