@@ -5,10 +5,11 @@
 set -uo pipefail
 BUILD=${1:-build}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-export MR_SOURCE_DIR="$ROOT" MR_BUILD_DIR="$ROOT/$BUILD"
 cd "$ROOT"
+BUILD=$(cd "$BUILD" && pwd)
+export MR_SOURCE_DIR="$ROOT" MR_BUILD_DIR="$BUILD"
 LOG_DIR="$BUILD/test-logs"
-mkdir -p "$LOG_DIR"
+mkdir -p "$LOG_DIR/unit" "$LOG_DIR/integration"
 passed=0 failed=0 failed_names=()
 
 run() { # name, command...

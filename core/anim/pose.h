@@ -39,6 +39,9 @@ typedef struct mr_pose {
     mr_mat4 *global;
 } mr_pose;
 
+/* Makes a pose for asset (in its rest pose). Poses are only made here: the
+ * struct carries private data behind the public fields, and mr_pose_eval
+ * refuses (MR_ERR_INVALID) an asset other than the one given here. */
 int mr_pose_new(const mr_asset *asset, mr_pose **out, mr_error *err);
 void mr_pose_free(mr_pose *pose);
 
@@ -48,14 +51,20 @@ void mr_pose_free(mr_pose *pose);
 int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
                  double frame_time, mr_error *err);
 
-/* Clip time actually sampled for desc at frame_time (after loop/clamp). */
+/* Clip time actually sampled for desc at frame_time (after loop/clamp).
+ * desc NULL: frame_time, looped. Non-finite times and clips of zero duration
+ * give 0. */
 double mr_pose_clip_time(const mr_clip *clip, const mr_pose_desc *desc, double frame_time);
 
 /* Skins (or rigidly places) mesh `mesh_index` of asset under pose, then
  * applies object_transform: writes world-space positions (3 floats per
  * vertex) and unit normals (3 per vertex). Normals go through the cofactor
  * of each blended matrix, so non-uniform scale keeps them perpendicular.
- * Runs on `threads` workers (0 = all cores); results do not depend on it. */
+ * Runs on `threads` workers (0 = all cores); results do not depend on it.
+ * Vertices whose weights are all 0 follow the mesh's node. With a NULL pose
+ * (or one of another asset) the mesh-space vertices are written, moved by
+ * object_transform only; NULL object_transform means identity; NULL
+ * out_normals skips normals. Bad mesh_index or NULL outputs: no-op. */
 void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   const mr_mat4 *object_transform, float *out_positions,
                   float *out_normals, unsigned threads);

@@ -27,6 +27,9 @@
  * exhausting memory in the daemon. */
 #define MR_MAX_ASSET_TRIANGLES (16u * 1024u * 1024u)
 #define MR_MAX_ASSET_VERTICES (16u * 1024u * 1024u)
+#define MR_MAX_ASSET_NODES (1u << 20)
+/* Joint indices are stored as uint16_t. */
+#define MR_MAX_ASSET_JOINTS 65535u
 
 typedef struct mr_node {
     char *name;    /* never NULL (may be "") */
@@ -76,7 +79,7 @@ typedef struct mr_camera_info {
     mr_vec3 position;  /* in the node's space */
     mr_vec3 look_at;   /* direction, node space */
     mr_vec3 up;
-    float yfov;        /* vertical field of view, radians */
+    float yfov;        /* vertical field of view, radians; 0 for orthographic cameras */
     float aspect;      /* width / height, 0 if unknown */
 } mr_camera_info;
 
@@ -102,6 +105,17 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
                        uint32_t triangle_count, mr_asset **out, mr_error *err);
 
 void mr_asset_free(mr_asset *asset);
+
+/* Reduces one vertex's raw influences (count pairs, any count) to the stored
+ * form: influences naming the same joint are summed, NaN / infinite /
+ * non-positive weights are dropped, the MR_MAX_INFLUENCES largest are kept
+ * (ties: the earlier one), sorted by decreasing weight and renormalised to sum
+ * to 1. Unused slots get joint 0, weight 0. Returns the number kept (0: the
+ * vertex is rigid and all out_weights are 0). The importer uses it for every
+ * vertex; exposed so tests and generated fixtures share the one rule. */
+int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t count,
+                            uint16_t out_joints[MR_MAX_INFLUENCES],
+                            float out_weights[MR_MAX_INFLUENCES]);
 
 /* Index of the node / clip with this exact name, or -1. */
 int mr_asset_find_node(const mr_asset *asset, const char *name);

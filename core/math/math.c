@@ -66,11 +66,18 @@ bool mr_mat4_inverse(const mr_mat4 *a, mr_mat4 *out)
     double c0 = (double)m[8] * m[13] - (double)m[12] * m[9];
     double det = s0 * c5 - s1 * c4 + s2 * c3 + s3 * c2 - s4 * c1 + s5 * c0;
 
+    /* Singularity is judged relative to the size of the entries. For affine
+     * matrices (last row 0 0 0 1, the common case) det is the 3x3 linear
+     * part's determinant, so translation must not enter the scale: a large
+     * offset does not make a rotation any less invertible. */
+    bool affine = m[12] == 0 && m[13] == 0 && m[14] == 0 && m[15] == 1;
     double scale = 0.0;
     for (int i = 0; i < 16; i++)
-        scale = fmax(scale, fabs((double)m[i]));
+        if (!affine || (i < 12 && i % 4 != 3))
+            scale = fmax(scale, fabs((double)m[i]));
+    double bound = affine ? scale * scale * scale : scale * scale * scale * scale;
     *out = mr_mat4_identity();
-    if (!isfinite(det) || scale == 0.0 || fabs(det) <= 1e-12 * scale * scale * scale * scale)
+    if (!isfinite(det) || scale == 0.0 || fabs(det) <= 1e-12 * bound)
         return false;
     double inv = 1.0 / det;
     double r[16];

@@ -44,7 +44,9 @@ mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback);
 mr_mat4 mr_mat4_identity(void);
 mr_mat4 mr_mat4_mul(const mr_mat4 *a, const mr_mat4 *b);
 /* General 4x4 inverse by cofactors. Returns false (and leaves *out as identity)
- * when |det| <= 1e-12 * (largest |entry|)^4, i.e. numerically singular. */
+ * when numerically singular: |det| <= 1e-12 * (largest |entry|)^4, or for
+ * affine matrices (last row 0 0 0 1) |det| <= 1e-12 * (largest |entry| of the
+ * 3x3 linear part)^3, so translation never makes a matrix "singular". */
 bool mr_mat4_inverse(const mr_mat4 *a, mr_mat4 *out);
 mr_mat4 mr_mat4_transpose(const mr_mat4 *a);
 mr_vec3 mr_mat4_point(const mr_mat4 *a, mr_vec3 p);  /* w = 1, no divide */

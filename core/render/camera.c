@@ -54,11 +54,24 @@ mr_camera mr_camera_path_eval(const mr_camera_path *path, double t)
 
 mr_vec3 mr_camera_ray_dir(const mr_camera *cam, int width, int height, double px, double py)
 {
-    /* Image plane at distance 1: half height tan(yfov/2), square pixels. */
+    mr_camera_rays r = mr_camera_rays_setup(cam, width, height);
+    return mr_camera_rays_dir(&r, (float)px, (float)py);
+}
+
+mr_camera_rays mr_camera_rays_setup(const mr_camera *cam, int width, int height)
+{
     double th = tan(0.5 * (double)cam->yfov);
     double aspect = (double)width / (double)height;
-    double x = (2.0 * px / width - 1.0) * th * aspect;
-    double y = (1.0 - 2.0 * py / height) * th;
-    mr_vec3 d = mr_quat_rotate(cam->rotation, mr_v3((float)x, (float)y, -1.0f));
-    return mr_v3_normalize_or(d, mr_v3(0, 0, -1));
+    /* Film point (px, py) maps to camera-space (x, y, -1) with
+     * x = (2 px / w - 1) th aspect and y = (1 - 2 py / h) th. */
+    mr_vec3 right = mr_quat_rotate(cam->rotation, mr_v3(1, 0, 0));
+    mr_vec3 up = mr_quat_rotate(cam->rotation, mr_v3(0, 1, 0));
+    mr_vec3 fwd = mr_quat_rotate(cam->rotation, mr_v3(0, 0, -1));
+    float sx = (float)(2.0 * th * aspect / width), sy = (float)(2.0 * th / height);
+    mr_camera_rays r;
+    r.origin = cam->position;
+    r.step_x = mr_v3_scale(right, sx);
+    r.step_y = mr_v3_scale(up, -sy);
+    r.corner = mr_v3_add(fwd, mr_v3_add(mr_v3_scale(right, (float)(-th * aspect)), mr_v3_scale(up, (float)th)));
+    return r;
 }

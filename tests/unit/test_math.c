@@ -86,6 +86,19 @@ static void test_mat4_inverse_known(void **state)
     mr_mat4 p = mr_mat4_mul(&g, &inv);
     for (int i = 0; i < 16; i++)
         assert_near(p.m[i], (i % 5 == 0) ? 1.0 : 0.0, 1e-5);
+    /* A large translation does not make a rotation singular (with the scale
+     * taken over all entries, 1e4^4 swamped det = 1). Round trip within the
+     * float32 spacing of 1e4 (~1e-3). */
+    mr_mat4 far = mr_mat4_from_trs(mr_v3(1e4f, -3e3f, 2e3f), mr_quat_from_axis_angle(mr_v3(0, 1, 0), 0.3f),
+                                   mr_v3(1, 1, 1));
+    assert_true(mr_mat4_inverse(&far, &inv));
+    mr_vec3 back = mr_mat4_point(&inv, mr_mat4_point(&far, mr_v3(1, 2, 3)));
+    assert_near(back.x, 1, 2e-3); assert_near(back.y, 2, 2e-3); assert_near(back.z, 3, 2e-3);
+    /* Small uniform scale far from the origin is still invertible. */
+    mr_mat4 tiny = mr_mat4_from_trs(mr_v3(500, 0, 0), mr_quat_identity(), mr_v3(1e-3f, 1e-3f, 1e-3f));
+    assert_true(mr_mat4_inverse(&tiny, &inv));
+    assert_near(inv.m[0], 1e3, 1e-2);
+    assert_near(inv.m[3], -5e5, 1.0);
     /* Singular: rank 3. */
     mr_mat4 s = {{1, 2, 3, 0, 2, 4, 6, 0, 0, 0, 1, 0, 0, 0, 0, 1}};
     assert_false(mr_mat4_inverse(&s, &inv));

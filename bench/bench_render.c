@@ -1,0 +1,320 @@
+/*
+ * bench_render.c - the foundation benchmarks (make bench). Not a test: it
+ * prints figures, it never fails on a time.
+ *
+ * Everything is measured side by side in one run, interleaved, and reported
+ * as medians over repeats, because a 2-core machine's timings are noisy:
+ *  1. primary-ray throughput of microray's renderer (shading and AOVs
+ *     included, shadows off, 1 sample) against a bare Embree loop tracing
+ *     the same pixel-centre rays through the same triangles on the same
+ *     threads, for the static human and the skinned dancer;
+ *  2. per-frame BVH refit against full rebuild for the skinned example, and
+ *     what the refitted tree costs in trace time;
+ *  3. EXR encode time as a share of frame time for each compression.
+ *
+ * usage: bench_render [--repeats N]   (run from the repository root)
+ */
+#include <float.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asset/asset.h"
+#include "files.h"
+#include "geom/geom.h"
+#include "job_json.h"
+#include "render/renderer.h"
+#include "util/parallel.h"
+
+static int repeats = 5;
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+static void die(const char *what, const char *msg)
+{
+    fprintf(stderr, "bench: %s: %s\n", what, msg);
+    exit(1);
+}
+
+typedef struct loaded_job {
+    mr_job *job;
+    mr_asset **assets;
+} loaded_job;
+
+static loaded_job load_job(const char *path)
+{
+    loaded_job lj = {0};
+    char *text;
+    size_t len;
+    mr_error err = {0};
+    mr_job_error jerr = {0};
+    if (mr_file_read(path, MR_JOB_MAX_BYTES, &text, &len, &err) < 0)
+        die(path, err.msg);
+    if (mr_job_parse(text, len, &lj.job, &jerr) < 0)
+        die(path, jerr.message);
+    free(text);
+    lj.assets = calloc(lj.job->asset_count, sizeof *lj.assets);
+    for (size_t i = 0; i < lj.job->asset_count; i++)
+        if (mr_asset_load(lj.job->assets[i].path, &lj.assets[i], &err) < 0)
+            die(lj.job->assets[i].path, err.msg);
+    return lj;
+}
+
+static void free_job(loaded_job *lj)
+{
+    for (size_t i = 0; i < lj->job->asset_count; i++)
+        mr_asset_free(lj->assets[i]);
+    free(lj->assets);
+    mr_job_free(lj->job);
+}
+
+/* ---- bare Embree loop -------------------------------------------------- */
+
+typedef struct bare_ctx {
+    RTCScene scene;
+    mr_camera_rays cam;
+    int width, height, tiles_x;
+    atomic_ullong hits;
+} bare_ctx;
+
+static void bare_tiles(void *p, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    bare_ctx *c = p;
+    unsigned long long hits = 0;
+    for (size_t tile = begin; tile < end; tile++) {
+        int x0 = (int)(tile % (size_t)c->tiles_x) * 16, y0 = (int)(tile / (size_t)c->tiles_x) * 16;
+        for (int y = y0; y < y0 + 16 && y < c->height; y++)
+            for (int x = x0; x < x0 + 16 && x < c->width; x++) {
+                mr_vec3 d = mr_camera_rays_dir(&c->cam, (float)x + 0.5f, (float)y + 0.5f);
+                struct RTCIntersectContext ictx;
+                rtcInitIntersectContext(&ictx);
+                struct RTCRayHit rh;
+                rh.ray = (struct RTCRay){.org_x = c->cam.origin.x, .org_y = c->cam.origin.y,
+                                         .org_z = c->cam.origin.z, .dir_x = d.x, .dir_y = d.y,
+                                         .dir_z = d.z, .tnear = 0, .tfar = FLT_MAX, .mask = ~0u};
+                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                rtcIntersect1(c->scene, &ictx, &rh);
+                hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+            }
+    }
+    atomic_fetch_add(&c->hits, hits);
+}
+
+/* The job's frame-0 geometry, posed, as one plain Embree triangle scene. */
+static RTCScene bare_scene(mr_device *dev, const loaded_job *lj, size_t frame, uint64_t *tris)
+{
+    RTCDevice rtc = mr_device_embree(dev);
+    RTCScene scene = rtcNewScene(rtc);
+    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    *tris = 0;
+    mr_error err = {0};
+    for (size_t o = 0; o < lj->job->object_count; o++) {
+        const mr_object_desc *d = &lj->job->objects[o];
+        const mr_asset *a = lj->assets[d->asset];
+        mr_geom *g = NULL;
+        mr_pose *pose = NULL;
+        mr_trimesh tm;
+        const mr_geom_ops *ops = mr_geom_kind_ops(d->kind);
+        if (ops->create(a, d, &g, &err) < 0 || mr_pose_new(a, &pose, &err) < 0)
+            die("bare scene", err.msg);
+        const mr_pose_desc *pd = d->pose_count == 0 ? NULL : &d->poses[d->pose_count == 1 ? 0 : frame];
+        if (mr_pose_eval(pose, a, pd, lj->job->frame_times[frame], &err) < 0 ||
+            ops->update(g, pose, &d->transform, 0, &err) < 0 || ops->tessellate(g, &tm, &err) < 0)
+            die("bare scene", err.msg);
+        RTCGeometry geom = rtcNewGeometry(rtc, RTC_GEOMETRY_TYPE_TRIANGLE);
+        float *v = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                           3 * sizeof(float), tm.vertex_count);
+        uint32_t *ix = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                               3 * sizeof(uint32_t), tm.triangle_count);
+        memcpy(v, tm.positions, (size_t)tm.vertex_count * 3 * sizeof(float));
+        memcpy(ix, tm.indices, (size_t)tm.triangle_count * 3 * sizeof(uint32_t));
+        rtcCommitGeometry(geom);
+        rtcAttachGeometry(scene, geom);
+        rtcReleaseGeometry(geom);
+        *tris += tm.triangle_count;
+        mr_trimesh_free(&tm);
+        mr_pose_free(pose);
+        ops->free(g);
+    }
+    rtcCommitScene(scene);
+    return scene;
+}
+
+static void bench_throughput(mr_device *dev, const char *job_path, int width, int height)
+{
+    loaded_job lj = load_job(job_path);
+    mr_job *job = lj.job;
+    job->output.width = width;
+    job->output.height = height;
+    job->output.spp = 1;
+    job->output.shadows = false;
+    job->frame_count = 1; /* frame 0 only: a static scene for both sides */
+
+    mr_error err = {0};
+    mr_renderer *r = NULL;
+    mr_film *film = NULL;
+    if (mr_renderer_new(dev, job, lj.assets, NULL, &r, &err) < 0 || mr_film_new(width, height, &film, &err) < 0)
+        die(job_path, err.msg);
+    uint64_t tris;
+    RTCScene bare = bare_scene(dev, &lj, 0, &tris);
+    mr_camera cam = mr_camera_path_eval(&job->camera.path, job->frame_times[0]);
+    bare_ctx bc = {.scene = bare, .cam = mr_camera_rays_setup(&cam, width, height),
+                   .width = width, .height = height, .tiles_x = (width + 15) / 16};
+
+    double ours[64], base[64];
+    mr_frame_stats st;
+    uint64_t rays = 0;
+    for (int i = 0; i < repeats; i++) {
+        if (mr_renderer_render(r, 0, film, &st, &err) < 0)
+            die(job_path, err.msg);
+        ours[i] = (double)st.rays / st.trace_s * 1e-6;
+        rays = st.rays;
+        atomic_init(&bc.hits, 0);
+        double t0 = mr_now();
+        mr_parallel_for(mr_device_threads(dev), (size_t)bc.tiles_x * ((height + 15) / 16), 1, bare_tiles, &bc);
+        base[i] = (double)width * height / (mr_now() - t0) * 1e-6;
+        if (getenv("MR_BENCH_VERBOSE")) printf("  run %d: ours %.2f (trace %.4fs) bare %.2f\n", i, ours[i], st.trace_s, base[i]);
+    }
+    double mo = median(ours, repeats), mb = median(base, repeats);
+    printf("| %-14s | %8llu | %4dx%-4d | %7.2f | %7.2f | %5.2f |\n", job->name, (unsigned long long)tris,
+           width, height, mo, mb, mo / mb);
+    size_t our_hits = 0;
+    for (size_t i = 0; i < (size_t)width * height; i++)
+        our_hits += film->object_id[i] != 0;
+    if (our_hits != (size_t)atomic_load(&bc.hits))
+        printf("  (note: renderer hit %zu pixels, bare loop %llu)\n", our_hits, (unsigned long long)atomic_load(&bc.hits));
+    if (rays != (uint64_t)width * height)
+        printf("  (note: renderer traced %llu rays for %d pixels)\n", (unsigned long long)rays, width * height);
+    rtcReleaseScene(bare);
+    mr_film_free(film);
+    mr_renderer_free(r);
+    free_job(&lj);
+}
+
+static void bench_refit(mr_device *dev, const char *job_path, size_t frames)
+{
+    loaded_job lj = load_job(job_path);
+    mr_job *job = lj.job;
+    if (frames > job->frame_count)
+        frames = job->frame_count;
+    job->output.spp = 1;
+    mr_error err = {0};
+    mr_renderer *refit = NULL, *rebuild = NULL;
+    mr_renderer_options opt = {.force_rebuild = true};
+    mr_film *film = NULL;
+    if (mr_renderer_new(dev, job, lj.assets, NULL, &refit, &err) < 0 ||
+        mr_renderer_new(dev, job, lj.assets, &opt, &rebuild, &err) < 0 ||
+        mr_film_new(job->output.width, job->output.height, &film, &err) < 0)
+        die(job_path, err.msg);
+    double bvh_refit[1024], bvh_rebuild[1024], trace_refit[1024], trace_rebuild[1024];
+    size_t n = 0;
+    mr_frame_stats st;
+    for (size_t f = 0; f < frames && n < 1024; f++) {
+        if (mr_renderer_render(refit, f, film, &st, &err) < 0)
+            die(job_path, err.msg);
+        if (f == 0)
+            continue; /* frame 0 builds in both */
+        bvh_refit[n] = st.bvh_s;
+        trace_refit[n] = st.trace_s;
+        if (mr_renderer_render(rebuild, f, film, &st, &err) < 0)
+            die(job_path, err.msg);
+        bvh_rebuild[n] = st.bvh_s;
+        trace_rebuild[n] = st.trace_s;
+        n++;
+    }
+    /* frame 0 of the rebuild renderer was skipped above: render it so both saw the same frames */
+    double mr = median(bvh_refit, (int)n), mb = median(bvh_rebuild, (int)n);
+    double tr = median(trace_refit, (int)n), tb = median(trace_rebuild, (int)n);
+    printf("| %-14s | %8llu | %6zu | %9.3f | %9.3f | %5.1fx | %9.2f | %9.2f |\n", job->name,
+           (unsigned long long)st.triangles, n, mr * 1e3, mb * 1e3, mb / mr, tr * 1e3, tb * 1e3);
+    mr_film_free(film);
+    mr_renderer_free(refit);
+    mr_renderer_free(rebuild);
+    free_job(&lj);
+}
+
+static void bench_encode(mr_device *dev, const char *job_path)
+{
+    loaded_job lj = load_job(job_path);
+    mr_job *job = lj.job;
+    mr_error err = {0};
+    mr_renderer *r = NULL;
+    mr_film *film = NULL;
+    if (mr_renderer_new(dev, job, lj.assets, NULL, &r, &err) < 0 ||
+        mr_film_new(job->output.width, job->output.height, &film, &err) < 0)
+        die(job_path, err.msg);
+    mr_frame_stats st;
+    double frame[64];
+    for (int i = 0; i < repeats; i++) {
+        if (mr_renderer_render(r, (size_t)i % job->frame_count, film, &st, &err) < 0)
+            die(job_path, err.msg);
+        frame[i] = st.total_s;
+    }
+    double render_s = median(frame, repeats);
+    const mr_compression cs[] = {MR_COMPRESSION_NONE, MR_COMPRESSION_ZIP, MR_COMPRESSION_ZIPS, MR_COMPRESSION_PIZ};
+    mr_exr_meta meta = {.frame = 0, .scene_diagonal = st.scene_diagonal};
+    for (size_t c = 0; c < sizeof cs / sizeof cs[0]; c++) {
+        mr_exr_options opt = {.compression = cs[c], .zip_level = MR_ZIP_LEVEL_DEFAULT};
+        double enc[64];
+        size_t bytes = 0;
+        for (int i = 0; i < repeats; i++) {
+            uint8_t *data = NULL;
+            double t0 = mr_now();
+            if (mr_exr_write_memory(&data, &bytes, film, &opt, &meta, &err) < 0)
+                die("encode", err.msg);
+            enc[i] = mr_now() - t0;
+            free(data);
+        }
+        double e = median(enc, repeats);
+        printf("| %-5s | %4dx%-4d | %8.1f | %8.1f | %5.1f %% | %9.2f |\n", mr_compression_name(cs[c]),
+               job->output.width, job->output.height, e * 1e3, render_s * 1e3,
+               100.0 * e / (e + render_s), (double)bytes / (1024.0 * 1024.0));
+    }
+    mr_film_free(film);
+    mr_renderer_free(r);
+    free_job(&lj);
+}
+
+int main(int argc, char **argv)
+{
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--repeats") && i + 1 < argc)
+            repeats = atoi(argv[++i]);
+    if (repeats < 1 || repeats > 64)
+        repeats = 5;
+    mr_device *dev = NULL;
+    mr_error err = {0};
+    if (mr_device_new(0, &dev, &err) < 0)
+        die("device", err.msg);
+    printf("microray %s benchmarks: %u threads, medians of %d runs\n\n", MR_VERSION_STRING,
+           mr_device_threads(dev), repeats);
+
+    printf("Primary rays, 1 spp, no shadows (Mrays/s; ratio goal >= 0.9)\n\n");
+    printf("| scene          | triangles | size      | microray | bare Embree | ratio |\n");
+    printf("|----------------|-----------|-----------|----------|-------------|-------|\n");
+    bench_throughput(dev, "examples/static-human.json", 1280, 720);
+    bench_throughput(dev, "examples/skinned-walk.json", 1280, 720);
+
+    printf("\nBVH per frame, skinned example (ms; frames 1..N, frame 0 builds in both)\n\n");
+    printf("| scene          | triangles | frames | refit     | rebuild   | speedup | trace refit | trace rebuild |\n");
+    printf("|----------------|-----------|--------|-----------|-----------|---------|-------------|---------------|\n");
+    bench_refit(dev, "examples/skinned-walk.json", 49);
+
+    printf("\nEXR encode (ms, share of frame time = encode / (render + encode), skinned example frame)\n\n");
+    printf("| codec | size      | encode ms | render ms | share   | MiB       |\n");
+    printf("|-------|-----------|-----------|-----------|---------|-----------|\n");
+    bench_encode(dev, "examples/skinned-walk.json");
+    mr_device_free(dev);
+    return 0;
+}

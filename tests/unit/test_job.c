@@ -1,0 +1,855 @@
+/*
+ * test_job.c - the job JSON parser (server/job_json.c) and mr_job_free().
+ *
+ * (1) A table of malformed jobs, each a small edit of one valid base job,
+ *     with the exact JSON pointer and a piece of the message it must give.
+ * (2) Valid jobs and the exact struct values they must produce (defaults,
+ *     frame times, radians, TRS matrices, normalised directions, ...).
+ * (3) Caps that need large generated inputs, raw NUL bytes, nesting.
+ * (4) Every examples/NAME.json (under $MR_SOURCE_DIR, else the current
+ *     directory) must parse.
+ *
+ * Inputs are handed to the parser in exactly-sized heap buffers without a
+ * NUL terminator, so an over-read shows up under AddressSanitizer, and
+ * every failing case runs through the parser's cleanup path, so leaks show
+ * up under LeakSanitizer.
+ *
+ * Tolerances: values the parser computes in double and stores as float are
+ * compared with the same double computation cast to float: exact. Values the
+ * test derives another way (quaternion to matrix by mr_mat4_from_trs on a
+ * separately normalised quaternion, float normalisation) allow 1e-6
+ * absolute, a few float ulps on O(1) numbers.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <dirent.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "job_json.h"
+
+#define PI 3.14159265358979323846
+
+/* Job text is written with single quotes (JSON itself never uses them) and
+ * turned into double quotes here, to keep the table readable. */
+static char *dq(const char *s, size_t *len)
+{
+    size_t n = strlen(s);
+    char *d = malloc(n ? n : 1);
+    assert_non_null(d);
+    for (size_t i = 0; i < n; i++)
+        d[i] = s[i] == '\'' ? '"' : s[i];
+    *len = n;
+    return d;
+}
+
+/* Parses raw bytes from an unterminated exact-size copy. */
+static int parse_bytes(const char *bytes, size_t n, mr_job **job, mr_job_error *err)
+{
+    char *buf = malloc(n ? n : 1);
+    assert_non_null(buf);
+    memcpy(buf, bytes, n);
+    int rc = mr_job_parse(buf, n, job, err);
+    free(buf);
+    return rc;
+}
+
+static int parse_q(const char *quoted, mr_job **job, mr_job_error *err)
+{
+    size_t n;
+    char *buf = dq(quoted, &n);
+    int rc = mr_job_parse(buf, n, job, err);
+    free(buf);
+    return rc;
+}
+
+static mr_job *parse_ok(const char *quoted)
+{
+    mr_job *job = NULL;
+    mr_job_error err;
+    int rc = parse_q(quoted, &job, &err);
+    if (rc != MR_OK)
+        fail_msg("expected success, got %s at '%s': %s", mr_err_name(rc), err.pointer, err.message);
+    assert_non_null(job);
+    return job;
+}
+
+/* The valid base job every malformed case is derived from. */
+#define ASSETS "'assets':{'m':{'path':'/a.gltf'}}"
+#define OBJECTS "'objects':[{'asset':'m'}]"
+#define CAMERA "'camera':{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0]}]}"
+#define FRAMES "'frames':{'end':1}"
+#define BASE ASSETS "," OBJECTS "," CAMERA "," FRAMES
+#define NO_OBJECTS ASSETS "," CAMERA "," FRAMES
+#define NO_CAMERA ASSETS "," OBJECTS "," FRAMES
+#define NO_FRAMES ASSETS "," OBJECTS "," CAMERA
+#define NO_ASSETS OBJECTS "," CAMERA "," FRAMES
+#define WITH_OBJECT(o) "{" NO_OBJECTS ",'objects':[" o "]}"
+#define WITH_CAMERA(c) "{" NO_CAMERA ",'camera':" c "}"
+#define WITH_FRAMES(f) "{" NO_FRAMES ",'frames':" f "}"
+#define WITH_POSE(p) WITH_OBJECT("{'asset':'m','pose':" p "}")
+#define KEY "{'t':0,'position':[0,0,5],'target':[0,0,0]}"
+
+typedef struct bad_case {
+    const char *json;
+    int rc;
+    const char *pointer;
+    const char *msg; /* substring of the message */
+} bad_case;
+
+static const bad_case BAD[] = {
+    /* Malformed JSON and the root. */
+    {"", MR_ERR_INVALID, "", "malformed JSON at byte offset 0"},
+    {"{", MR_ERR_INVALID, "", "malformed JSON at byte offset"},
+    {"{" BASE ",}", MR_ERR_INVALID, "", "malformed JSON"},
+    {"{'assets' {}}", MR_ERR_INVALID, "", "malformed JSON at byte offset 10 (line 1, column 11)"},
+    {"{" BASE "} x", MR_ERR_INVALID, "", "unexpected data after the job at byte offset"},
+    {"{" BASE "}{}", MR_ERR_INVALID, "", "unexpected data after the job"},
+    {"[]", MR_ERR_INVALID, "", "expected a JSON object, got an empty array"},
+    {"42", MR_ERR_INVALID, "", "expected a JSON object, got 42"},
+    {"null", MR_ERR_INVALID, "", "expected a JSON object, got null"},
+    {"'job'", MR_ERR_INVALID, "", "expected a JSON object, got \"job\""},
+    /* Found by fuzzing: a string of escapes once overflowed the message buffer. */
+    {"'\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v'",
+     MR_ERR_INVALID, "", "expected a JSON object, got \"\\u000b\\u000b"},
+    /* Missing required fields. */
+    {"{" NO_ASSETS "}", MR_ERR_INVALID, "", "missing required field \"assets\""},
+    {"{" NO_OBJECTS "}", MR_ERR_INVALID, "", "missing required field \"objects\""},
+    {"{" NO_CAMERA "}", MR_ERR_INVALID, "", "missing required field \"camera\""},
+    {"{" NO_FRAMES "}", MR_ERR_INVALID, "", "missing required field \"frames\""},
+    /* Root fields. */
+    {"{" BASE ",'colour':[1,1,1]}", MR_ERR_INVALID, "/colour",
+     "unknown field; expected one of: name, assets, objects, lights, ambient, background, camera, "
+     "frames, output"},
+    {"{" BASE ",'name':'a','name':'b'}", MR_ERR_INVALID, "/name", "duplicate field \"name\""},
+    {"{" BASE ",'name':5}", MR_ERR_INVALID, "/name", "expected a string of 1..256 bytes, got 5"},
+    {"{" BASE ",'name':''}", MR_ERR_INVALID, "/name", "got an empty string"},
+    {"{" BASE ",'name':'a\\u0000b'}", MR_ERR_INVALID, "/name", "without control characters"},
+    {"{" BASE ",'name':'tab\there'}", MR_ERR_INVALID, "/name", "found U+0009 at byte 3"},
+    {"{" BASE ",'name':'bad \xff utf8'}", MR_ERR_INVALID, "", "invalid UTF-8 at byte offset"},
+    {"{" BASE ",'name':'overlong \xc0\xaf'}", MR_ERR_INVALID, "", "invalid UTF-8"},
+    {"{" BASE ",'name':'surrogate \xed\xa0\x80'}", MR_ERR_INVALID, "", "invalid UTF-8"},
+    {"{" BASE ",'name':'lone \\udc00 surrogate'}", MR_ERR_INVALID, "", "malformed JSON"},
+    {"{" BASE ",'name':'" /* 257 bytes */
+     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa"
+     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa"
+     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa'}",
+     MR_ERR_INVALID, "/name", "got 257 bytes"},
+    /* Assets. */
+    {"{" NO_ASSETS ",'assets':{}}", MR_ERR_INVALID, "/assets", "expected 1..256 assets, got none"},
+    {"{" NO_ASSETS ",'assets':[]}", MR_ERR_INVALID, "/assets",
+     "expected an object mapping asset names to assets, got an empty array"},
+    {"{" NO_ASSETS ",'assets':{'m s':{'path':'x'}}}", MR_ERR_INVALID, "/assets/m s",
+     "expected an asset name matching [A-Za-z0-9_.-]{1,64}, got \"m s\""},
+    {"{" NO_ASSETS ",'assets':{'a/b~c':{'path':'x'}}}", MR_ERR_INVALID, "/assets/a~1b~0c",
+     "asset name"},
+    {"{" NO_ASSETS ",'assets':{'m':{}}}", MR_ERR_INVALID, "/assets/m",
+     "missing required field \"path\""},
+    {"{" NO_ASSETS ",'assets':{'m':{'path':''}}}", MR_ERR_INVALID, "/assets/m/path",
+     "got an empty string"},
+    {"{" NO_ASSETS ",'assets':{'m':{'path':'/a\\u0000.gltf'}}}", MR_ERR_INVALID, "/assets/m/path",
+     "found U+0000 at byte 2"},
+    {"{" NO_ASSETS ",'assets':{'m':{'path':'x','id':'y'}}}", MR_ERR_INVALID, "/assets/m/id",
+     "unknown field; expected one of: path"},
+    {"{" NO_ASSETS ",'assets':{'m':{'path':'a'},'m':{'path':'b'}}}", MR_ERR_INVALID, "/assets/m",
+     "duplicate field \"m\""},
+    {"{" NO_ASSETS ",'assets':{'m':'/a.gltf'}}", MR_ERR_INVALID, "/assets/m",
+     "expected an asset object {\"path\": ...}, got \"/a.gltf\""},
+    /* Objects. */
+    {"{" NO_OBJECTS ",'objects':[]}", MR_ERR_INVALID, "/objects",
+     "expected an array of 1..1024 objects, got an empty array"},
+    {"{" NO_OBJECTS ",'objects':{'asset':'m'}}", MR_ERR_INVALID, "/objects", "got an object"},
+    {WITH_OBJECT("{}"), MR_ERR_INVALID, "/objects/0", "missing required field \"asset\""},
+    {WITH_OBJECT("{'asset':'m'},{'asset':'x'}"), MR_ERR_INVALID, "/objects/1/asset",
+     "expected the name of an entry in \"assets\", got \"x\""},
+    {WITH_OBJECT("{'asset':'m','material':1}"), MR_ERR_INVALID, "/objects/0/material",
+     "unknown field; expected one of: name, asset, kind, transform, color, pose"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo'}"), MR_ERR_INVALID, "/objects/0/kind",
+     "expected one of: \"mesh\", got \"svo\""},
+    {WITH_OBJECT("{'asset':'m','color':[0,2000,0]}"), MR_ERR_INVALID, "/objects/0/color/1",
+     "expected a number in 0..1000, got 2000"},
+    {WITH_OBJECT("{'asset':'m','color':[1,1]}"), MR_ERR_INVALID, "/objects/0/color",
+     "expected an array of 3 numbers, got an array of 2 elements"},
+    {WITH_OBJECT("{'asset':'m','color':[1e999,0,0]}"), MR_ERR_INVALID, "/objects/0/color/0",
+     "overflows to infinity"},
+    {WITH_OBJECT("{'asset':'m','color':[-1e999,0,0]}"), MR_ERR_INVALID, "/objects/0/color/0",
+     "overflows to infinity"},
+    /* Transforms. */
+    {WITH_OBJECT("{'asset':'m','transform':{'translation':[1,2,3],'matrix':[1,0,0,0,0,1,0,0,0,0,"
+                 "1,0,0,0,0,1]}}"),
+     MR_ERR_INVALID, "/objects/0/transform", "got both forms"},
+    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,0,0,1,0,0,0,0]}}"),
+     MR_ERR_INVALID, "/objects/0/transform/matrix",
+     "expected an array of 16 numbers (row-major 4x4), got an array of 15 elements"},
+    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,2,2,0,0,0,0,0,1]}}"),
+     MR_ERR_INVALID, "/objects/0/transform/matrix", "expected an invertible matrix"},
+    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,0,0,1,0,0,0,1,1]}}"),
+     MR_ERR_INVALID, "/objects/0/transform/matrix", "last row [0, 0, 0, 1], got [0, 0, 1, 1]"},
+    {WITH_OBJECT("{'asset':'m','transform':{'rotation':[0,0,0,0]}}"), MR_ERR_INVALID,
+     "/objects/0/transform/rotation", "expected a non-zero quaternion"},
+    {WITH_OBJECT("{'asset':'m','transform':{'scale':[1,0,1]}}"), MR_ERR_INVALID,
+     "/objects/0/transform/scale/1", "expected a non-zero scale, got 0"},
+    {WITH_OBJECT("{'asset':'m','transform':{'scale':[1,1e-30,1]}}"), MR_ERR_INVALID,
+     "/objects/0/transform", "expected an invertible transform"},
+    {WITH_OBJECT("{'asset':'m','transform':{'skew':[1,0,0]}}"), MR_ERR_INVALID,
+     "/objects/0/transform/skew",
+     "unknown field; expected one of: translation, rotation, scale, matrix"},
+    {WITH_OBJECT("{'asset':'m','transform':{'translation':['1',0,0]}}"), MR_ERR_INVALID,
+     "/objects/0/transform/translation/0", "got \"1\""},
+    {WITH_OBJECT("{'asset':'m','transform':{'translation':[1e39,0,0]}}"), MR_ERR_INVALID,
+     "/objects/0/transform/translation/0", "32-bit float range"},
+    {WITH_OBJECT("{'asset':'m','transform':[1,0,0]}"), MR_ERR_INVALID, "/objects/0/transform",
+     "expected a transform object"},
+    /* Poses. FRAMES gives 25 frames (end 1 at the default 24 fps). */
+    {WITH_POSE("[{'clip':0}]"), MR_ERR_INVALID, "/objects/0/pose",
+     "expected one pose per frame (25 frames), got an array of 1 pose"},
+    {WITH_POSE("'walk'"), MR_ERR_INVALID, "/objects/0/pose",
+     "expected a pose object or an array of pose objects (one per frame), got \"walk\""},
+    {WITH_POSE("{}"), MR_ERR_INVALID, "/objects/0/pose", "\"clip\" or \"joints\", got neither"},
+    {WITH_POSE("{'joints':{'j':{}},'time':1}"), MR_ERR_INVALID, "/objects/0/pose/time",
+     "\"time\" requires \"clip\""},
+    {WITH_POSE("{'joints':{'j':{}},'loop':false}"), MR_ERR_INVALID, "/objects/0/pose/loop",
+     "\"loop\" requires \"clip\""},
+    {WITH_POSE("{'clip':0,'time':1,'speed':2}"), MR_ERR_INVALID, "/objects/0/pose/speed",
+     "\"speed\" cannot be combined with \"time\""},
+    {WITH_POSE("{'clip':0,'offset':1,'time':2}"), MR_ERR_INVALID, "/objects/0/pose/offset",
+     "\"offset\" cannot be combined with \"time\""},
+    {WITH_POSE("{'clip':-1}"), MR_ERR_INVALID, "/objects/0/pose/clip",
+     "expected a clip name (string) or index (integer >= 0), got -1"},
+    {WITH_POSE("{'clip':1.5}"), MR_ERR_INVALID, "/objects/0/pose/clip", "got 1.5"},
+    {WITH_POSE("{'clip':''}"), MR_ERR_INVALID, "/objects/0/pose/clip", "got an empty string"},
+    {WITH_POSE("{'clip':0,'loop':1}"), MR_ERR_INVALID, "/objects/0/pose/loop",
+     "expected a boolean (true or false), got 1"},
+    {WITH_POSE("{'clip':0,'speed':1e999}"), MR_ERR_INVALID, "/objects/0/pose/speed",
+     "expected a finite number, got a number too large"},
+    {WITH_POSE("{'joints':{}}"), MR_ERR_INVALID, "/objects/0/pose/joints",
+     "expected 1..1024 joints, got none"},
+    {WITH_POSE("{'joints':{'a/b~c':{'scale':[0,1,1]}}}"), MR_ERR_INVALID,
+     "/objects/0/pose/joints/a~1b~0c/scale/0", "expected a non-zero scale"},
+    {WITH_POSE("{'joints':{'~':{'matrix':[0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1]}}}"), MR_ERR_INVALID,
+     "/objects/0/pose/joints/~0/matrix", "invertible"},
+    {WITH_POSE("{'joints':{'j':{},'k':{},'j':{}}}"), MR_ERR_INVALID, "/objects/0/pose/joints/j",
+     "duplicate field \"j\""},
+    {WITH_POSE("{'joints':{'':{}}}"), MR_ERR_INVALID, "/objects/0/pose/joints/",
+     "got an empty string"},
+    {WITH_POSE("{'joints':{'j':{'rotation':[0,0,0]}}}"), MR_ERR_INVALID,
+     "/objects/0/pose/joints/j/rotation", "expected an array of 4 numbers [x, y, z, w]"},
+    {WITH_POSE("{'clip':0,'blend':1}"), MR_ERR_INVALID, "/objects/0/pose/blend",
+     "unknown field; expected one of: clip, time, speed, offset, loop, joints"},
+    {"{" ASSETS "," CAMERA ",'frames':{'times':[0,1]},'objects':[{'asset':'m','pose':[{'clip':0},"
+     "{'clip':0,'x':1}]}]}",
+     MR_ERR_INVALID, "/objects/0/pose/1/x", "unknown field"},
+    /* Lights, ambient, background. */
+    {"{" BASE ",'lights':{}}", MR_ERR_INVALID, "/lights",
+     "expected an array of 0..64 lights, got an object"},
+    {"{" BASE ",'lights':[{'direction':[0,0,0]}]}", MR_ERR_INVALID, "/lights/0/direction",
+     "expected a non-zero vector"},
+    {"{" BASE ",'lights':[{}]}", MR_ERR_INVALID, "/lights/0",
+     "missing required field \"direction\""},
+    {"{" BASE ",'lights':[{'direction':[0,-1,0],'intensity':-1}]}", MR_ERR_INVALID,
+     "/lights/0/intensity", "expected a number in 0..1000, got -1"},
+    {"{" BASE ",'lights':[{'direction':[0,-1,0],'color':[1,1,1001]}]}", MR_ERR_INVALID,
+     "/lights/0/color/2", "got 1001"},
+    {"{" BASE ",'lights':[{'direction':[0,-1,0],'type':'sun'}]}", MR_ERR_INVALID,
+     "/lights/0/type", "unknown field; expected one of: direction, color, intensity"},
+    {"{" BASE ",'ambient':[1,1]}", MR_ERR_INVALID, "/ambient", "expected an array of 3 numbers"},
+    {"{" BASE ",'ambient':0.5}", MR_ERR_INVALID, "/ambient", "got 0.5"},
+    {"{" BASE ",'background':{'alpha':2}}", MR_ERR_INVALID, "/background/alpha",
+     "expected a number in 0..1, got 2"},
+    {"{" BASE ",'background':{'colour':[0,0,0]}}", MR_ERR_INVALID, "/background/colour",
+     "unknown field; expected one of: color, alpha"},
+    /* Camera. */
+    {WITH_CAMERA("[]"), MR_ERR_INVALID, "/camera", "expected a camera object, got an empty array"},
+    {WITH_CAMERA("{'path':[" KEY "],'node':{'asset':'m','name':'cam'}}"), MR_ERR_INVALID,
+     "/camera", "expected exactly one of \"path\" or \"node\", got both"},
+    {WITH_CAMERA("{'yfov':40}"), MR_ERR_INVALID, "/camera",
+     "missing required field: \"path\" or \"node\""},
+    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'rotation':[0,0,0,1]}]}"),
+     MR_ERR_INVALID, "/camera/path/0", "exactly one of \"target\" or \"rotation\", got both"},
+    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5]}]}"), MR_ERR_INVALID, "/camera/path/0",
+     "missing required field: \"target\" or \"rotation\""},
+    {WITH_CAMERA("{'path':[{'t':0,'target':[0,0,0]}]}"), MR_ERR_INVALID, "/camera/path/0",
+     "missing required field \"position\""},
+    {WITH_CAMERA("{'path':[" KEY "," KEY "]}"), MR_ERR_INVALID, "/camera/path/1/t",
+     "expected a time greater than the previous key's (0), got 0"},
+    {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'target':[1,2,3]}]}"), MR_ERR_INVALID,
+     "/camera/path/0/target", "expected a target different from \"position\""},
+    {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'rotation':[0,0,0,0]}]}"), MR_ERR_INVALID,
+     "/camera/path/0/rotation", "expected a non-zero quaternion"},
+    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'yfov':180}]}"),
+     MR_ERR_INVALID, "/camera/path/0/yfov",
+     "expected a field of view in degrees in (0, 180), got 180"},
+    {WITH_CAMERA("{'yfov':0,'path':[" KEY "]}"), MR_ERR_INVALID, "/camera/yfov", "got 0"},
+    {WITH_CAMERA("{'interpolation':'cubic','path':[" KEY "]}"), MR_ERR_INVALID,
+     "/camera/interpolation", "expected one of: \"linear\", \"catmull-rom\", got \"cubic\""},
+    {WITH_CAMERA("{'up':[0,0,0],'path':[" KEY "]}"), MR_ERR_INVALID, "/camera/up",
+     "expected a non-zero vector"},
+    {WITH_CAMERA("{'path':[]}"), MR_ERR_INVALID, "/camera/path",
+     "expected an array of 1..10000 camera keys, got an empty array"},
+    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'fov':1}]}"),
+     MR_ERR_INVALID, "/camera/path/0/fov",
+     "unknown field; expected one of: t, position, target, rotation, yfov"},
+    {WITH_CAMERA("{'node':{'asset':'x','name':'cam'}}"), MR_ERR_INVALID, "/camera/node/asset",
+     "expected the name of an entry in \"assets\", got \"x\""},
+    {WITH_CAMERA("{'node':{'asset':'m'}}"), MR_ERR_INVALID, "/camera/node",
+     "missing required field \"name\""},
+    {WITH_CAMERA("{'node':{'asset':'m','name':'cam'},'yfov':30}"), MR_ERR_INVALID, "/camera/yfov",
+     "\"yfov\" only applies to \"path\" cameras"},
+    /* Frames. */
+    {WITH_FRAMES("{'fps':0,'end':1}"), MR_ERR_INVALID, "/frames/fps",
+     "expected a number in (0, 1000], got 0"},
+    {WITH_FRAMES("{'fps':1001,'end':1}"), MR_ERR_INVALID, "/frames/fps", "got 1001"},
+    {WITH_FRAMES("{'start':2,'end':1}"), MR_ERR_INVALID, "/frames/end",
+     "expected a number >= start (2), got 1"},
+    {WITH_FRAMES("{'fps':24}"), MR_ERR_INVALID, "/frames",
+     "missing required field: \"end\" or \"times\""},
+    {WITH_FRAMES("{'end':1,'times':[0]}"), MR_ERR_INVALID, "/frames/times",
+     "\"times\" cannot be combined with \"end\""},
+    {WITH_FRAMES("{'start':0,'times':[0]}"), MR_ERR_INVALID, "/frames/start",
+     "\"start\" cannot be combined with \"times\""},
+    {WITH_FRAMES("{'end':100000}"), MR_ERR_LIMIT, "/frames",
+     "expected at most 100000 frames, got 2400001"},
+    {WITH_FRAMES("{'start':-1e308,'end':1e308}"), MR_ERR_LIMIT, "/frames",
+     "expected at most 100000 frames"},
+    {WITH_FRAMES("{'end':1e999}"), MR_ERR_INVALID, "/frames/end", "overflows to infinity"},
+    {WITH_FRAMES("{'times':[]}"), MR_ERR_INVALID, "/frames/times",
+     "expected an array of 1..100000 times in seconds, got an empty array"},
+    {WITH_FRAMES("{'times':[0,'1']}"), MR_ERR_INVALID, "/frames/times/1",
+     "expected a finite number, got \"1\""},
+    {WITH_FRAMES("{'end':1,'step':1}"), MR_ERR_INVALID, "/frames/step",
+     "unknown field; expected one of: fps, start, end, times"},
+    {WITH_FRAMES("[0,1]"), MR_ERR_INVALID, "/frames", "expected a frames object"},
+    /* Output. */
+    {"{" BASE ",'output':{'width':0}}", MR_ERR_INVALID, "/output/width",
+     "expected an integer in 1..8192, got 0"},
+    {"{" BASE ",'output':{'width':640.5}}", MR_ERR_INVALID, "/output/width", "got 640.5"},
+    {"{" BASE ",'output':{'height':-360}}", MR_ERR_INVALID, "/output/height", "got -360"},
+    {"{" BASE ",'output':{'width':100000}}", MR_ERR_INVALID, "/output/width", "got 100000"},
+    {"{" BASE ",'output':{'width':1e999}}", MR_ERR_INVALID, "/output/width", "overflows"},
+    {"{" BASE ",'output':{'width':1e300}}", MR_ERR_INVALID, "/output/width", "got 1e+300"},
+    {"{" BASE ",'output':{'width':'640'}}", MR_ERR_INVALID, "/output/width", "got \"640\""},
+    {"{" BASE ",'output':{'width':8192,'height':8192}}", MR_ERR_LIMIT, "/output",
+     "expected at most 16777216 pixels (width * height), got 8192 x 8192 = 67108864"},
+    {"{" BASE ",'output':{'samples':0}}", MR_ERR_INVALID, "/output/samples",
+     "expected an integer in 1..1024, got 0"},
+    {"{" BASE ",'output':{'seed':4294967296}}", MR_ERR_INVALID, "/output/seed",
+     "expected an integer in 0..4294967295, got 4294967296"},
+    {"{" BASE ",'output':{'seed':-1}}", MR_ERR_INVALID, "/output/seed", "got -1"},
+    {"{" BASE ",'output':{'compression':'dwaa'}}", MR_ERR_INVALID, "/output/compression",
+     "expected one of: \"none\", \"zip\", \"zips\", \"piz\", got \"dwaa\""},
+    {"{" BASE ",'output':{'compression':1}}", MR_ERR_INVALID, "/output/compression", "got 1"},
+    {"{" BASE ",'output':{'zip_level':10}}", MR_ERR_INVALID, "/output/zip_level",
+     "expected an integer in 1..9, got 10"},
+    {"{" BASE ",'output':{'shadows':'yes'}}", MR_ERR_INVALID, "/output/shadows",
+     "expected a boolean (true or false), got \"yes\""},
+    {"{" BASE ",'output':{'width':10,'width':20}}", MR_ERR_INVALID, "/output/width",
+     "duplicate field \"width\""},
+    {"{" BASE ",'output':{'format':'exr'}}", MR_ERR_INVALID, "/output/format",
+     "unknown field; expected one of: width, height, samples, shadows, seed, compression, "
+     "zip_level"},
+    {"{" BASE ",'output':null}", MR_ERR_INVALID, "/output", "expected an output object, got null"},
+};
+
+static void test_malformed_table(void **state)
+{
+    (void)state;
+    size_t failures = 0, n = sizeof BAD / sizeof BAD[0];
+    assert_true(n >= 40);
+    for (size_t i = 0; i < n; i++) {
+        mr_job *job = (mr_job *)&failures; /* must be reset to NULL */
+        mr_job_error err;
+        int rc = parse_q(BAD[i].json, &job, &err);
+        bool ok = rc == BAD[i].rc && job == NULL && strcmp(err.pointer, BAD[i].pointer) == 0 &&
+                  strstr(err.message, BAD[i].msg) != NULL;
+        if (!ok) {
+            failures++;
+            print_error("case %zu: %s\n  want %s '%s' ...%s...\n  got  %s '%s' %s\n", i,
+                        BAD[i].json, mr_err_name(BAD[i].rc), BAD[i].pointer, BAD[i].msg,
+                        mr_err_name(rc), err.pointer, err.message);
+        }
+        if (rc == MR_OK)
+            mr_job_free(job);
+    }
+    assert_int_equal(failures, 0);
+}
+
+/* The brief's own example, word for word. */
+static void test_message_format(void **state)
+{
+    (void)state;
+    mr_job *job;
+    mr_job_error err;
+    assert_int_equal(parse_q("{" BASE ",'output':{'width':0}}", &job, &err), MR_ERR_INVALID);
+    assert_string_equal(err.pointer, "/output/width");
+    assert_string_equal(err.message, "expected an integer in 1..8192, got 0");
+}
+
+static void assert_mat_eq(const mr_mat4 *a, const mr_mat4 *b, float tol)
+{
+    for (int i = 0; i < 16; i++)
+        if (!(fabsf(a->m[i] - b->m[i]) <= tol))
+            fail_msg("matrix element %d: got %.9g, want %.9g (tol %g)", i, a->m[i], b->m[i], tol);
+}
+
+static mr_vec3 unit_d(double x, double y, double z)
+{
+    double l = sqrt(x * x + y * y + z * z);
+    return mr_v3((float)(x / l), (float)(y / l), (float)(z / l));
+}
+
+static void assert_v3_eq(mr_vec3 a, mr_vec3 b)
+{
+    if (a.x != b.x || a.y != b.y || a.z != b.z)
+        fail_msg("got (%.9g, %.9g, %.9g), want (%.9g, %.9g, %.9g)", a.x, a.y, a.z, b.x, b.y, b.z);
+}
+
+static void test_defaults(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok("{" BASE "}");
+    mr_mat4 id = mr_mat4_identity();
+    assert_string_equal(job->name, "job");
+    assert_int_equal(job->asset_count, 1);
+    assert_string_equal(job->assets[0].name, "m");
+    assert_string_equal(job->assets[0].path, "/a.gltf");
+    assert_int_equal(job->object_count, 1);
+    const mr_object_desc *o = &job->objects[0];
+    assert_string_equal(o->name, "object0");
+    assert_int_equal(o->asset, 0);
+    assert_int_equal(o->kind, MR_GEOM_MESH);
+    assert_mat_eq(&o->transform, &id, 0);
+    assert_v3_eq(o->color, mr_v3(0.8f, 0.8f, 0.8f));
+    assert_int_equal(o->pose_count, 0);
+    assert_null(o->poses);
+    /* Absent "lights": one default sun. */
+    assert_int_equal(job->light_count, 1);
+    assert_v3_eq(job->lights[0].direction, unit_d(-0.4, -1, -0.6));
+    assert_v3_eq(job->lights[0].color, mr_v3(1, 1, 1));
+    assert_v3_eq(job->ambient, mr_v3(0.15f, 0.15f, 0.15f));
+    assert_v3_eq(job->background, mr_v3(0.1f, 0.1f, 0.12f));
+    assert_true(job->background_alpha == 1.0f);
+    /* Camera. */
+    assert_int_equal(job->camera.source, MR_CAMERA_SOURCE_PATH);
+    const mr_camera_path *p = &job->camera.path;
+    assert_int_equal(p->interp, MR_INTERP_CATMULL_ROM);
+    assert_v3_eq(p->up, mr_v3(0, 1, 0));
+    assert_int_equal(p->key_count, 1);
+    assert_true(p->keys[0].t == 0);
+    assert_v3_eq(p->keys[0].position, mr_v3(0, 0, 5));
+    assert_true(p->keys[0].has_target);
+    assert_v3_eq(p->keys[0].target, mr_v3(0, 0, 0));
+    assert_true(p->keys[0].yfov == (float)(45 * (PI / 180)));
+    assert_null(job->camera.node_name);
+    /* Frames: end 1 at 24 fps is 25 frames, i/24 s. */
+    assert_true(job->fps == 24);
+    assert_int_equal(job->frame_count, 25);
+    for (size_t i = 0; i < 25; i++)
+        assert_true(job->frame_times[i] == (double)i / 24);
+    /* Output. */
+    assert_int_equal(job->output.width, 640);
+    assert_int_equal(job->output.height, 360);
+    assert_int_equal(job->output.spp, 1);
+    assert_true(job->output.shadows);
+    assert_int_equal(job->output.seed, 0);
+    assert_int_equal(job->output.exr.compression, MR_COMPRESSION_ZIP);
+    assert_int_equal(job->output.exr.zip_level, 4);
+    mr_job_free(job);
+}
+
+static void test_full_job(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok(
+        "{'name':'caf\\u00e9 run','frames':{'fps':30,'times':[0,0.5,2]},"
+        "'assets':{'hero':{'path':'/m/hero.gltf'},'set.v2-final_A':{'path':'/m/set.obj'}},"
+        "'objects':["
+        " {'name':'hero','asset':'hero','kind':'mesh','color':[1,0.5,0],"
+        "  'transform':{'translation':[1,2,3],'rotation':[0,0,2,2],'scale':[2,3,4]},"
+        "  'pose':[{'clip':'walk','speed':2,'offset':0.25,'loop':false},"
+        "          {'clip':3,'time':1.25},"
+        "          {'joints':{'arm/l':{'rotation':[0,1,0,0]},'h~ead':{'matrix':"
+        "             [1,0,0,5, 0,1,0,6, 0,0,1,7, 0,0,0,1]}}}]},"
+        " {'asset':'set.v2-final_A',"
+        "  'transform':{'matrix':[0,-1,0,10, 1,0,0,20, 0,0,1,30, 0,0,0,1]},"
+        "  'pose':{'clip':'idle'}},"
+        " {'asset':'hero','transform':{'translation':[1e6,-1e6,1e6]}},"
+        " {'asset':'hero','transform':{'scale':[1e-4,1e-4,1e-4]}}],"
+        "'lights':[{'direction':[0,-2,0],'color':[1,0.5,0.25],'intensity':4},"
+        "          {'direction':[1,1,1]}],"
+        "'ambient':[0,0.25,1000],'background':{'color':[1,2,3],'alpha':0},"
+        "'camera':{'interpolation':'linear','up':[0,0,2],'yfov':60,'path':["
+        "  {'t':-1,'position':[0,0,5],'rotation':[0,0,0,3]},"
+        "  {'t':0.5,'position':[1,0,5],'target':[0,0,0],'yfov':30}]},"
+        "'output':{'width':1920,'height':1080,'samples':16,'shadows':false,'seed':4294967295,"
+        "'compression':'piz','zip_level':9}}");
+    assert_string_equal(job->name, "caf\xc3\xa9 run");
+    assert_int_equal(job->asset_count, 2);
+    assert_string_equal(job->assets[1].name, "set.v2-final_A");
+    assert_string_equal(job->assets[1].path, "/m/set.obj");
+    /* Explicit times. */
+    assert_true(job->fps == 30);
+    assert_int_equal(job->frame_count, 3);
+    assert_true(job->frame_times[0] == 0 && job->frame_times[1] == 0.5 &&
+                job->frame_times[2] == 2);
+    assert_int_equal(job->object_count, 4);
+
+    const mr_object_desc *o = &job->objects[0];
+    assert_string_equal(o->name, "hero");
+    assert_int_equal(o->asset, 0);
+    assert_v3_eq(o->color, mr_v3(1, 0.5f, 0));
+    const float h = (float)(1 / sqrt(2.0));
+    mr_mat4 want = mr_mat4_from_trs(mr_v3(1, 2, 3), (mr_quat){0, 0, h, h}, mr_v3(2, 3, 4));
+    assert_mat_eq(&o->transform, &want, 1e-6f);
+    /* Rotation of 90 degrees about z, then scale: column 0 is (0, 2, 0). */
+    assert_true(fabsf(o->transform.m[4] - 2) < 1e-6f && fabsf(o->transform.m[0]) < 1e-6f);
+    assert_true(o->transform.m[3] == 1 && o->transform.m[7] == 2 && o->transform.m[11] == 3);
+    /* Per-frame poses. */
+    assert_int_equal(o->pose_count, 3);
+    const mr_pose_desc *p = o->poses;
+    assert_true(p[0].has_clip && !p[0].has_time && !p[0].loop);
+    assert_string_equal(p[0].clip_name, "walk");
+    assert_true(p[0].speed == 2 && p[0].offset == 0.25);
+    assert_int_equal(p[0].joint_count, 0);
+    assert_true(p[1].has_clip && p[1].has_time && p[1].loop);
+    assert_null(p[1].clip_name);
+    assert_int_equal(p[1].clip_index, 3);
+    assert_true(p[1].time == 1.25 && p[1].speed == 1 && p[1].offset == 0);
+    assert_false(p[2].has_clip);
+    assert_null(p[2].clip_name);
+    assert_int_equal(p[2].joint_count, 2);
+    assert_string_equal(p[2].joints[0].joint, "arm/l");
+    want = mr_mat4_from_trs(mr_v3(0, 0, 0), (mr_quat){0, 1, 0, 0}, mr_v3(1, 1, 1));
+    assert_mat_eq(&p[2].joints[0].local, &want, 1e-6f);
+    assert_string_equal(p[2].joints[1].joint, "h~ead");
+    want = mr_mat4_identity();
+    want.m[3] = 5, want.m[7] = 6, want.m[11] = 7;
+    assert_mat_eq(&p[2].joints[1].local, &want, 0);
+
+    o = &job->objects[1];
+    assert_string_equal(o->name, "object1");
+    assert_int_equal(o->asset, 1);
+    const float rowm[16] = {0, -1, 0, 10, 1, 0, 0, 20, 0, 0, 1, 30, 0, 0, 0, 1};
+    memcpy(want.m, rowm, sizeof rowm);
+    assert_mat_eq(&o->transform, &want, 0);
+    assert_int_equal(o->pose_count, 1);
+    assert_string_equal(o->poses[0].clip_name, "idle");
+    assert_true(o->poses[0].loop && o->poses[0].speed == 1);
+    /* Large translations and small uniform scales are invertible transforms. */
+    assert_true(job->objects[2].transform.m[3] == 1e6f);
+    assert_true(job->objects[3].transform.m[0] == 1e-4f);
+
+    /* Lights: unit direction, colour already times intensity. */
+    assert_int_equal(job->light_count, 2);
+    assert_v3_eq(job->lights[0].direction, mr_v3(0, -1, 0));
+    assert_v3_eq(job->lights[0].color, mr_v3(4, 2, 1));
+    assert_v3_eq(job->lights[1].direction, unit_d(1, 1, 1));
+    assert_v3_eq(job->lights[1].color, mr_v3(1, 1, 1));
+    assert_v3_eq(job->ambient, mr_v3(0, 0.25f, 1000));
+    assert_v3_eq(job->background, mr_v3(1, 2, 3));
+    assert_true(job->background_alpha == 0);
+
+    /* Camera: radians, normalised rotation and up, per-key yfov default. */
+    const mr_camera_path *cp = &job->camera.path;
+    assert_int_equal(cp->interp, MR_INTERP_LINEAR);
+    assert_v3_eq(cp->up, mr_v3(0, 0, 1));
+    assert_int_equal(cp->key_count, 2);
+    assert_true(cp->keys[0].t == -1 && !cp->keys[0].has_target);
+    assert_true(cp->keys[0].rotation.w == 1 && cp->keys[0].rotation.x == 0);
+    assert_true(cp->keys[0].yfov == (float)(60 * (PI / 180)));
+    assert_true(cp->keys[1].t == 0.5 && cp->keys[1].has_target);
+    assert_v3_eq(cp->keys[1].position, mr_v3(1, 0, 5));
+    assert_true(cp->keys[1].yfov == (float)(30 * (PI / 180)));
+
+    assert_int_equal(job->output.width, 1920);
+    assert_int_equal(job->output.height, 1080);
+    assert_int_equal(job->output.spp, 16);
+    assert_false(job->output.shadows);
+    assert_true(job->output.seed == 4294967295u);
+    assert_int_equal(job->output.exr.compression, MR_COMPRESSION_PIZ);
+    assert_int_equal(job->output.exr.zip_level, 9);
+    mr_job_free(job);
+}
+
+static void test_frame_ranges(void **state)
+{
+    (void)state;
+    /* start 1, end 2 at 10 fps: 11 frames at 1 + i/10. */
+    mr_job *job = parse_ok("{" NO_FRAMES ",'frames':{'fps':10,'start':1,'end':2}}");
+    assert_int_equal(job->frame_count, 11);
+    for (size_t i = 0; i < 11; i++)
+        assert_true(job->frame_times[i] == 1 + (double)i / 10);
+    mr_job_free(job);
+    /* 0.29 * 100 is 28.999999999999996 in doubles: the 1e-9 keeps frame 29. */
+    job = parse_ok("{" NO_FRAMES ",'frames':{'fps':100,'end':0.29}}");
+    assert_int_equal(job->frame_count, 30);
+    assert_true(job->frame_times[29] == 29.0 / 100);
+    mr_job_free(job);
+    /* A range that ends between frames stops at the last whole one. */
+    job = parse_ok("{" NO_FRAMES ",'frames':{'fps':4,'start':-1,'end':0.6}}");
+    assert_int_equal(job->frame_count, 7);
+    assert_true(job->frame_times[0] == -1 && job->frame_times[6] == 0.5);
+    mr_job_free(job);
+    /* start == end is one frame. */
+    job = parse_ok("{" NO_FRAMES ",'frames':{'start':3,'end':3}}");
+    assert_int_equal(job->frame_count, 1);
+    assert_true(job->frame_times[0] == 3);
+    mr_job_free(job);
+    /* Exactly MR_MAX_FRAMES is allowed. */
+    job = parse_ok("{" NO_FRAMES ",'frames':{'fps':1000,'end':99.999}}");
+    assert_int_equal(job->frame_count, MR_MAX_FRAMES);
+    mr_job_free(job);
+}
+
+static void test_order_and_variants(void **state)
+{
+    (void)state;
+    /* "objects" before "frames" in the text: the pose array still sees 2 frames. */
+    mr_job *job = parse_ok("{'objects':[{'asset':'m','pose':[{'clip':0},{'clip':1}]}],"
+                           "'frames':{'times':[5,1]}," ASSETS "," CAMERA "}");
+    assert_int_equal(job->objects[0].pose_count, 2);
+    assert_int_equal(job->objects[0].poses[1].clip_index, 1);
+    assert_true(job->frame_times[0] == 5 && job->frame_times[1] == 1);
+    mr_job_free(job);
+    /* Raw UTF-8 (2- and 4-byte sequences) passes through unchanged. */
+    job = parse_ok("{" BASE ",'name':'h\xc3\xa9ros \xf0\x9f\x8e\xac'}");
+    assert_string_equal(job->name, "h\xc3\xa9ros \xf0\x9f\x8e\xac");
+    mr_job_free(job);
+    /* Present-but-empty lights means no lights. */
+    job = parse_ok("{" BASE ",'lights':[]}");
+    assert_int_equal(job->light_count, 0);
+    assert_null(job->lights);
+    mr_job_free(job);
+}
+
+static void test_camera_node(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok("{" OBJECTS "," FRAMES ",'assets':{'m':{'path':'a'},'cams':"
+                           "{'path':'c.gltf'}},'camera':{'node':{'asset':'cams','name':'Cam/1'}}}");
+    assert_int_equal(job->camera.source, MR_CAMERA_SOURCE_NODE);
+    assert_int_equal(job->camera.node_asset, 1);
+    assert_string_equal(job->camera.node_name, "Cam/1");
+    assert_int_equal(job->camera.path.key_count, 0);
+    assert_null(job->camera.path.keys);
+    mr_job_free(job);
+}
+
+static void expect_error(const char *bytes, size_t n, int rc_want, const char *ptr,
+                         const char *msg)
+{
+    mr_job *job = NULL;
+    mr_job_error err;
+    int rc = parse_bytes(bytes, n, &job, &err);
+    if (rc != rc_want || job != NULL || strcmp(err.pointer, ptr) != 0 || !strstr(err.message, msg))
+        fail_msg("want %s '%s' ...%s..., got %s '%s' %s", mr_err_name(rc_want), ptr, msg,
+                 mr_err_name(rc), err.pointer, err.message);
+}
+
+/* Builds "{<BASE minus one section>, <prefix> item,item,... <suffix>}" with
+ * count copies of item, double-quoted. */
+static char *repeat_job(const char *head, const char *item_fmt, size_t count, const char *tail,
+                        size_t *len)
+{
+    size_t cap = strlen(head) + strlen(tail) + count * (strlen(item_fmt) + 24) + 8, n = 0;
+    char *buf = malloc(cap);
+    assert_non_null(buf);
+    n += (size_t)snprintf(buf + n, cap - n, "%s", head);
+    for (size_t i = 0; i < count; i++) {
+        if (i)
+            buf[n++] = ',';
+        n += (size_t)snprintf(buf + n, cap - n, item_fmt, i, i);
+    }
+    n += (size_t)snprintf(buf + n, cap - n, "%s", tail);
+    for (size_t i = 0; i < n; i++)
+        if (buf[i] == '\'')
+            buf[i] = '"';
+    *len = n;
+    return buf;
+}
+
+static void test_caps(void **state)
+{
+    (void)state;
+    size_t n;
+    char *s;
+
+    s = repeat_job("{" BASE ",'lights':[", "{'direction':[0,-1,%zu]}", 65, "]}", &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/lights", "expected at most 64 lights, got 65");
+    free(s);
+    s = repeat_job("{" BASE ",'lights':[", "{'direction':[0,-1,%zu]}", 64, "]}", &n);
+    {
+        mr_job *job = NULL;
+        assert_int_equal(parse_bytes(s, n, &job, NULL), MR_OK);
+        assert_int_equal(job->light_count, 64);
+        mr_job_free(job);
+    }
+    free(s);
+
+    s = repeat_job("{" NO_FRAMES ",'frames':{'times':[", "%zu", MR_MAX_FRAMES + 1, "]}}", &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/frames", "expected at most 100000 frames, got 100001");
+    free(s);
+
+    s = repeat_job("{" NO_ASSETS ",'assets':{", "'a%zu':{'path':'p%zu'}", MR_MAX_ASSETS + 1, "}}",
+                   &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/assets", "expected at most 256 assets, got 257");
+    free(s);
+
+    s = repeat_job("{" NO_OBJECTS ",'objects':[", "{'asset':'m','name':'o%zu%zu'}",
+                   MR_MAX_OBJECTS + 1, "]}", &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/objects", "expected at most 1024 objects, got 1025");
+    free(s);
+
+    s = repeat_job("{" NO_OBJECTS ",'objects':[{'asset':'m','pose':{'joints':{", "'j%zu_%zu':{}",
+                   MR_MAX_JOINT_OVERRIDES + 1, "}}}]}", &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/objects/0/pose/joints",
+                 "expected at most 1024 joints, got 1025");
+    free(s);
+
+    s = repeat_job("{" NO_CAMERA ",'camera':{'path':[",
+                   "{'t':%zu,'position':[0,0,%zu],'rotation':[0,0,0,1]}", MR_MAX_CAMERA_KEYS + 1,
+                   "]}}", &n);
+    expect_error(s, n, MR_ERR_LIMIT, "/camera/path",
+                 "expected at most 10000 camera keys, got 10001");
+    free(s);
+
+    /* 10000 keys are fine and the times are checked all the way. */
+    s = repeat_job("{" NO_CAMERA ",'camera':{'path':[",
+                   "{'t':%zu,'position':[0,0,%zu],'rotation':[0,0,0,1]}", MR_MAX_CAMERA_KEYS,
+                   "]}}", &n);
+    {
+        mr_job *job = NULL;
+        assert_int_equal(parse_bytes(s, n, &job, NULL), MR_OK);
+        assert_int_equal(job->camera.path.key_count, MR_MAX_CAMERA_KEYS);
+        assert_true(job->camera.path.keys[9999].t == 9999);
+        mr_job_free(job);
+    }
+    free(s);
+
+    /* A duplicated allowed key repeated many times fails fast and exactly. */
+    s = repeat_job("{" BASE ",'output':{", "'width':%zu%zu", 100000, "}}", &n);
+    expect_error(s, n, MR_ERR_INVALID, "/output/width", "duplicate field \"width\"");
+    free(s);
+
+    /* Over 16 MiB: refused before parsing (contents irrelevant). */
+    n = (size_t)MR_JOB_MAX_BYTES + 1;
+    s = malloc(n);
+    assert_non_null(s);
+    memset(s, ' ', n);
+    {
+        mr_job *job = NULL;
+        mr_job_error err;
+        assert_int_equal(mr_job_parse(s, n, &job, &err), MR_ERR_LIMIT);
+        assert_null(job);
+        assert_string_equal(err.pointer, "");
+        assert_non_null(strstr(err.message, "at most 16777216 bytes"));
+    }
+    free(s);
+}
+
+static void test_raw_bytes(void **state)
+{
+    (void)state;
+    size_t n;
+    char *s = dq("{" BASE ",'name':'ab'}", &n);
+    /* A raw NUL byte in a string, then one after the document. */
+    char *nul = strstr(s, "ab");
+    nul[1] = '\0';
+    expect_error(s, n, MR_ERR_INVALID, "", "NUL byte at byte offset");
+    free(s);
+    s = dq("{" BASE "}", &n);
+    char *t = malloc(n + 1);
+    memcpy(t, s, n);
+    t[n] = '\0';
+    expect_error(t, n + 1, MR_ERR_INVALID, "", "NUL byte at byte offset");
+    free(t);
+    free(s);
+    /* Nesting beyond cJSON's limit is malformed JSON, not a stack overflow. */
+    n = 5000;
+    s = malloc(n);
+    memset(s, '[', n);
+    expect_error(s, n, MR_ERR_INVALID, "", "malformed JSON");
+    free(s);
+    /* A pointer to a very long unknown key is cut, not overflowed. */
+    {
+        size_t klen = 3000, cap = klen + 600;
+        char *big = malloc(cap);
+        size_t m = (size_t)snprintf(big, cap, "{\"");
+        memset(big + m, '~', klen);
+        m += klen;
+        m += (size_t)snprintf(big + m, cap - m, "\":1}");
+        mr_job *job = NULL;
+        mr_job_error err;
+        assert_int_equal(parse_bytes(big, m, &job, &err), MR_ERR_INVALID);
+        assert_true(strlen(err.pointer) < sizeof err.pointer);
+        assert_true(strncmp(err.pointer, "/~0~0~0", 7) == 0);
+        free(big);
+    }
+    /* NULL arguments. */
+    mr_job *job = NULL;
+    assert_int_equal(mr_job_parse(NULL, 5, &job, NULL), MR_ERR_INVALID);
+    assert_int_equal(mr_job_parse("{}", 2, NULL, NULL), MR_ERR_INVALID);
+    mr_job_free(NULL);
+}
+
+/* (3): every shipped example must parse. */
+static void test_examples(void **state)
+{
+    (void)state;
+    const char *root = getenv("MR_SOURCE_DIR");
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s/examples", root && *root ? root : ".");
+    DIR *d = opendir(dir);
+    if (!d) {
+        print_message("no %s directory: nothing to check\n", dir);
+        return;
+    }
+    struct dirent *e;
+    size_t checked = 0, failures = 0;
+    while ((e = readdir(d)) != NULL) {
+        size_t l = strlen(e->d_name);
+        if (l < 6 || strcmp(e->d_name + l - 5, ".json") != 0)
+            continue;
+        char path[8192];
+        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+        FILE *f = fopen(path, "rb");
+        assert_non_null(f);
+        fseek(f, 0, SEEK_END);
+        long size = ftell(f);
+        fseek(f, 0, SEEK_SET);
+        assert_true(size >= 0);
+        char *buf = malloc((size_t)size + 1);
+        assert_non_null(buf);
+        assert_int_equal(fread(buf, 1, (size_t)size, f), (size_t)size);
+        fclose(f);
+        mr_job *job = NULL;
+        mr_job_error err;
+        int rc = parse_bytes(buf, (size_t)size, &job, &err);
+        if (rc != MR_OK) {
+            failures++;
+            print_error("%s: %s at '%s': %s\n", path, mr_err_name(rc), err.pointer, err.message);
+        }
+        mr_job_free(job);
+        free(buf);
+        checked++;
+    }
+    closedir(d);
+    print_message("checked %zu example job(s) in %s\n", checked, dir);
+    assert_int_equal(failures, 0);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_malformed_table), cmocka_unit_test(test_message_format),
+        cmocka_unit_test(test_defaults),        cmocka_unit_test(test_full_job),
+        cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
+        cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
+        cmocka_unit_test(test_raw_bytes),       cmocka_unit_test(test_examples),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
