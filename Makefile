@@ -21,15 +21,14 @@ TEST_LIBS   := -lcmocka
 CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c))
 SERVER_SRC := $(filter-out server/main.c,$(sort $(wildcard server/*.c)))
 CLIENT_SRC := $(sort $(wildcard client/*.c))
-UNIT_SRC   := $(sort $(wildcard tests/unit/test_*.c))
-INTEG_SRC  := $(sort $(wildcard tests/integration/test_*.c))
+# Test programs: tests/<suite>/test_*.c -> $(BUILD)/tests/<suite>/test_*
+TEST_SRC   := $(sort $(wildcard tests/unit/test_*.c tests/hard/test_*.c tests/integration/test_*.c))
 BENCH_SRC  := $(sort $(wildcard bench/*.c))
 
 obj = $(patsubst %.c,$(BUILD)/obj/%.o,$(1))
 CORE_OBJ   := $(call obj,$(CORE_SRC))
 SERVER_OBJ := $(call obj,$(SERVER_SRC))
-UNIT_BIN   := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNIT_SRC))
-INTEG_BIN  := $(patsubst tests/integration/%.c,$(BUILD)/tests/integration/%,$(INTEG_SRC))
+TEST_BIN   := $(patsubst tests/%.c,$(BUILD)/tests/%,$(TEST_SRC))
 BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
 CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
 
@@ -54,11 +53,7 @@ $(BUILD)/microrayd: $(call obj,server/main.c) $(BUILD)/libmicrorayd.a $(BUILD)/l
 $(BUILD)/microray: $(call obj,$(CLIENT_SRC))
 	$(CC) $(LDFLAGS) -o $@ $^ $(CLIENT_LIBS)
 
-$(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
-	@mkdir -p $(dir $@)
-	$(CC) $(LDFLAGS) -o $@ $^ $(TEST_LIBS) $(SERVER_LIBS) $(CORE_LIBS)
-
-$(BUILD)/tests/integration/%: $(BUILD)/obj/tests/integration/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+$(BUILD)/tests/%: $(BUILD)/obj/tests/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS) -o $@ $^ $(TEST_LIBS) $(SERVER_LIBS) $(CORE_LIBS)
 
@@ -66,7 +61,7 @@ $(BUILD)/bench/%: $(BUILD)/obj/bench/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmic
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
 
-tests: all $(UNIT_BIN) $(INTEG_BIN)
+tests: all $(TEST_BIN)
 
 setup:
 	@bash scripts/setup.sh

@@ -12,7 +12,7 @@
  *     what the refitted tree costs in trace time;
  *  3. EXR encode time as a share of frame time for each compression.
  *
- * usage: bench_render [--repeats N]   (run from the repository root)
+ * usage: bench_render [--repeats N] [--threads N]   (run from the repository root)
  */
 #include <float.h>
 #include <stdatomic.h>
@@ -28,6 +28,7 @@
 #include "util/parallel.h"
 
 static int repeats = 5;
+static unsigned threads = 0;
 
 static int cmp_double(const void *a, const void *b)
 {
@@ -291,11 +292,13 @@ int main(int argc, char **argv)
     for (int i = 1; i < argc; i++)
         if (!strcmp(argv[i], "--repeats") && i + 1 < argc)
             repeats = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--threads") && i + 1 < argc)
+            threads = (unsigned)atoi(argv[++i]);
     if (repeats < 1 || repeats > 64)
         repeats = 5;
     mr_device *dev = NULL;
     mr_error err = {0};
-    if (mr_device_new(0, &dev, &err) < 0)
+    if (mr_device_new(threads, &dev, &err) < 0)
         die("device", err.msg);
     printf("microray %s benchmarks: %u threads, medians of %d runs\n\n", MR_VERSION_STRING,
            mr_device_threads(dev), repeats);

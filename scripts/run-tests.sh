@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs every unit test binary and every end-to-end test script against the
+# Runs every test program (tests/unit, tests/hard, tests/integration) against the
 # build in $1 (default build/). Prints one line per test program and a final
 # "N passed, N failed" line; exits non-zero if anything failed.
 set -uo pipefail
@@ -9,7 +9,7 @@ cd "$ROOT"
 BUILD=$(cd "$BUILD" && pwd)
 export MR_SOURCE_DIR="$ROOT" MR_BUILD_DIR="$BUILD"
 LOG_DIR="$BUILD/test-logs"
-mkdir -p "$LOG_DIR/unit" "$LOG_DIR/integration"
+mkdir -p "$LOG_DIR"
 passed=0 failed=0 failed_names=()
 
 run() { # name, command...
@@ -26,13 +26,12 @@ run() { # name, command...
   fi
 }
 
-for t in "$BUILD"/tests/test_*; do
-  [ -x "$t" ] || continue
-  run "unit/$(basename "$t")" "$t"
-done
-for t in "$BUILD"/tests/integration/test_*; do
-  [ -x "$t" ] || continue
-  run "integration/$(basename "$t")" "$t"
+for suite in unit hard integration; do
+  mkdir -p "$LOG_DIR/$suite"
+  for t in "$BUILD/tests/$suite"/test_*; do
+    [ -x "$t" ] || continue
+    run "$suite/$(basename "$t")" "$t"
+  done
 done
 
 echo

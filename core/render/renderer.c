@@ -2,6 +2,7 @@
 #include "render/renderer.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
@@ -99,10 +100,18 @@ static int setup_camera_node(mr_renderer *r, mr_asset *const *assets, mr_error *
     } else {
         node = mr_asset_find_node(a, cd->node_name);
     }
-    if (ci < 0 && node < 0)
+    if (ci < 0 && node < 0) {
+        char names[256] = "";
+        size_t used = 0;
+        for (size_t i = 0; i < a->camera_count && used + 1 < sizeof names; i++) {
+            int n = snprintf(names + used, sizeof names - used, "%s'%s'", i ? ", " : "", a->cameras[i].name);
+            used += n > 0 ? (size_t)n : 0;
+        }
         return mr_error_set(err, MR_ERR_NOT_FOUND,
-                            "/camera/node/name: asset '%s' has no camera or node named '%s' (%zu cameras)",
-                            r->job->assets[cd->node_asset].name, cd->node_name, a->camera_count);
+                            "/camera/node/name: asset '%s' has no camera or node named '%s' (cameras: %s)",
+                            r->job->assets[cd->node_asset].name, cd->node_name,
+                            a->camera_count ? names : "none");
+    }
     r->cam_asset = a;
     r->cam_info = ci >= 0 ? &a->cameras[ci] : NULL;
     r->cam_node = node;

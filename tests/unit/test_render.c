@@ -21,11 +21,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
-#include <stdlib.h>
-#include <string.h>
-
-#include "asset/asset.h"
-#include "render/renderer.h"
+#include "../support/scene_fixture.h"
 
 #define RINGS 128
 #define SEGMENTS 256
@@ -80,70 +76,13 @@ static mr_asset *make_sphere(void)
     return a;
 }
 
-/* A one-object, one-frame job looking at the origin from (0, 0, DIST). */
-typedef struct scene_fixture {
-    mr_job job;
-    mr_object_desc object;
-    mr_asset_desc asset_desc;
-    mr_camera_key key;
-    mr_light_desc light;
-    double time;
-    mr_asset *asset;
-} scene_fixture;
-
-static void fixture_init(scene_fixture *s, int spp)
-{
-    memset(s, 0, sizeof *s);
-    s->asset = make_sphere();
-    s->asset_desc = (mr_asset_desc){"sphere", "(memory)"};
-    s->object = (mr_object_desc){.name = "ball", .asset = 0, .kind = MR_GEOM_MESH,
-                                 .transform = mr_mat4_identity(), .color = mr_v3(0.8f, 0.8f, 0.8f)};
-    s->key = (mr_camera_key){.t = 0, .position = mr_v3(0, 0, DIST), .has_target = true,
-                             .target = mr_v3(0, 0, 0), .yfov = (float)(YFOV_DEG * M_PI / 180)};
-    s->light = (mr_light_desc){mr_v3(0, 0, -1), mr_v3(1, 1, 1)};
-    mr_job *j = &s->job;
-    j->name = "sphere";
-    j->asset_count = 1; j->assets = &s->asset_desc;
-    j->object_count = 1; j->objects = &s->object;
-    j->light_count = 1; j->lights = &s->light;
-    j->ambient = mr_v3(0.1f, 0.1f, 0.1f);
-    j->background = mr_v3(0, 0, 0);
-    j->background_alpha = 0;
-    j->camera = (mr_camera_desc){.source = MR_CAMERA_SOURCE_PATH,
-                                 .path = {.interp = MR_INTERP_LINEAR, .up = mr_v3(0, 1, 0), .key_count = 1, .keys = &s->key}};
-    j->fps = 24;
-    j->frame_count = 1;
-    j->frame_times = &s->time;
-    j->output = (mr_output_desc){.width = W, .height = H, .spp = spp, .shadows = true, .seed = 7,
-                                 .exr = {MR_COMPRESSION_ZIP, 4}};
-}
-
-static mr_film *render(scene_fixture *s, unsigned threads, mr_frame_stats *st)
-{
-    mr_error err = {0};
-    mr_device *dev = NULL;
-    mr_renderer *r = NULL;
-    mr_film *film = NULL;
-    if (mr_device_new(threads, &dev, &err) < 0)
-        fail_msg("device: %s", err.msg);
-    if (mr_renderer_new(dev, &s->job, &s->asset, NULL, &r, &err) < 0)
-        fail_msg("renderer: %s", err.msg);
-    if (mr_film_new(W, H, &film, &err) < 0)
-        fail_msg("film: %s", err.msg);
-    if (mr_renderer_render(r, 0, film, st, &err) < 0)
-        fail_msg("render: %s", err.msg);
-    mr_renderer_free(r);
-    mr_device_free(dev);
-    return film;
-}
-
 static void test_sphere_depth_and_silhouette(void **state)
 {
     (void)state;
     scene_fixture s;
-    fixture_init(&s, 1);
+    fixture_init(&s, make_sphere(), mr_v3(0, 0, DIST), mr_v3(0, 0, 0), YFOV_DEG, W, H, 1);
     mr_frame_stats st;
-    mr_film *f = render(&s, 0, &st);
+    mr_film *f = fixture_render(&s, 0, &st);
 
     size_t c = (size_t)(H / 2) * W + W / 2;
     assert_int_equal(f->object_id[c], 1);
@@ -182,17 +121,19 @@ static void test_sphere_depth_and_silhouette(void **state)
     assert_true(outside > 1000);
     assert_int_equal(st.triangles, 2 * SEGMENTS * (RINGS - 1));
     assert_true(st.rays >= (uint64_t)W * H);
+    assert_film_finite(f);
     mr_film_free(f);
-    mr_asset_free(s.asset);
+    fixture_free(&s);
 }
 
 static void test_same_bytes_any_thread_count(void **state)
 {
     (void)state;
     scene_fixture s;
-    fixture_init(&s, 4); /* jittered samples must not depend on the worker */
+    /* jittered samples must not depend on the worker */
+    fixture_init(&s, make_sphere(), mr_v3(0, 0, DIST), mr_v3(0, 0, 0), YFOV_DEG, W, H, 4);
     mr_frame_stats st;
-    mr_film *a = render(&s, 1, &st), *b = render(&s, 2, &st);
+    mr_film *a = fixture_render(&s, 1, &st), *b = fixture_render(&s, 2, &st);
     size_t n = (size_t)W * H;
     float *pa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz};
     float *pb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz};
@@ -207,7 +148,7 @@ static void test_same_bytes_any_thread_count(void **state)
     assert_true(partial > 10);
     mr_film_free(a);
     mr_film_free(b);
-    mr_asset_free(s.asset);
+    fixture_free(&s);
 }
 
 int main(void)
