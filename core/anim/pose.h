@@ -62,9 +62,10 @@ double mr_pose_clip_time(const mr_clip *clip, const mr_pose_desc *desc, double f
  * of each blended matrix, so non-uniform scale keeps them perpendicular.
  * Runs on `threads` workers (0 = all cores); results do not depend on it.
  * Vertices whose weights are all 0 follow the mesh's node. With a NULL pose
- * (or one of another asset) the mesh-space vertices are written, moved by
- * object_transform only; NULL object_transform means identity; NULL
- * out_normals skips normals. Bad mesh_index or NULL outputs: no-op. */
+ * (or one whose node count does not match the asset) the mesh-space vertices
+ * are written, moved by object_transform only; NULL object_transform means
+ * identity; NULL out_normals skips normals. Bad mesh_index or NULL
+ * out_positions: no-op. */
 void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   const mr_mat4 *object_transform, float *out_positions,
                   float *out_normals, unsigned threads);

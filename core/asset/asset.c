@@ -21,6 +21,8 @@
  *    horizontal angle, the Blender importer stores the half angle, and the
  *    glTF 1/2 importers store yfov * aspectRatio (measured: yfov 0.7 with
  *    aspectRatio 2 imports as 1.4). camera_yfov() inverts each of these.
+ *    The glTF importers also copy the node's translation into mPosition,
+ *    which import_cameras undoes.
  */
 #include "asset/asset.h"
 
@@ -1051,7 +1053,11 @@ static int import_cameras(mr_asset *a, const struct aiScene *s, const name_index
                             (float)ac->mPosition.z);
         c->look_at = mr_v3((float)ac->mLookAt.x, (float)ac->mLookAt.y, (float)ac->mLookAt.z);
         c->up = mr_v3((float)ac->mUp.x, (float)ac->mUp.y, (float)ac->mUp.z);
-        if (!vec_finite(c->position))
+        /* assimp 5.2.5's glTF importers copy the camera node's translation
+         * into mPosition (measured: a camera node at (0.5,0.5,3) gives
+         * mPosition (0.5,0.5,3)), so placing it by the node again would count
+         * it twice. A glTF camera sits at its node's origin. */
+        if (!vec_finite(c->position) || has_ext(a->path, "gltf") || has_ext(a->path, "glb"))
             c->position = mr_v3(0, 0, 0);
         /* aiCamera's defaults when a file gives garbage */
         c->look_at = mr_v3_normalize_or(c->look_at, mr_v3(0, 0, 1));

@@ -95,7 +95,12 @@ typedef struct mr_asset {
 
 /* Imports a model file. Broken, empty or unsupported files fail with
  * MR_ERR_FORMAT (or MR_ERR_IO when unreadable) and a message naming the
- * file; they never crash. A file without any triangles is an error. */
+ * file; they never crash. A file without any triangles is an error, and so
+ * is a non-finite vertex position (named by mesh and vertex) or a bone that
+ * names no node. Files above the caps fail with MR_ERR_LIMIT. Only meshes
+ * placed by a node are imported, one mr_mesh per (node, mesh) reference;
+ * points and lines are dropped. Camera yfov is converted from whatever the
+ * format's importer stored in assimp's mHorizontalFOV (see asset.c). */
 int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
 
 /* Builds an asset from one in-memory triangle mesh (copied), with a single
@@ -110,9 +115,11 @@ void mr_asset_free(mr_asset *asset);
  * form: influences naming the same joint are summed, NaN / infinite /
  * non-positive weights are dropped, the MR_MAX_INFLUENCES largest are kept
  * (ties: the earlier one), sorted by decreasing weight and renormalised to sum
- * to 1. Unused slots get joint 0, weight 0. Returns the number kept (0: the
- * vertex is rigid and all out_weights are 0). The importer uses it for every
- * vertex; exposed so tests and generated fixtures share the one rule. */
+ * to 1. Joint indices above MR_MAX_ASSET_JOINTS are dropped. Unused slots
+ * get joint 0, weight 0. Returns the number kept (0: the vertex is rigid and
+ * all out_weights are 0), or MR_ERR_NOMEM when a long list (> 64 entries)
+ * cannot get scratch memory. The importer uses it for every vertex; exposed
+ * so tests and generated fixtures share the one rule. */
 int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t count,
                             uint16_t out_joints[MR_MAX_INFLUENCES],
                             float out_weights[MR_MAX_INFLUENCES]);

@@ -204,7 +204,8 @@ static int camera_for_frame(mr_renderer *r, size_t index, double t, mr_camera *c
     int rc = mr_pose_eval(r->cam_pose, r->cam_asset, pd, t, err);
     if (rc < 0)
         return rc;
-    mr_mat4 g = r->cam_pose->global[r->cam_node];
+    /* A camera that no node carries sits in the asset's root space. */
+    mr_mat4 g = r->cam_node >= 0 ? r->cam_pose->global[r->cam_node] : mr_mat4_identity();
     mr_vec3 pos = mr_v3(0, 0, 0), look = mr_v3(0, 0, -1), up = mr_v3(0, 1, 0);
     float yfov = 0.785398f; /* 45 degrees for a plain node */
     if (r->cam_info) {

@@ -13,6 +13,7 @@
 #include <cmocka.h>
 
 #include <cJSON.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -205,6 +206,41 @@ static void test_compare_command(void **state)
     free(out);
 }
 
+/* A glTF camera node instead of a path: Cameras.gltf places a perspective
+ * camera (yfov 0.7) at (0.5, 0.5, 3) looking down -Z at a unit square
+ * through the origin tilted by theta about X, with theta from the node's
+ * quaternion (-0.383, 0, 0, 0.92375), about 45.03 degrees. The centre ray
+ * meets it at y = 0.5, z = -0.5 tan(theta), with normal (0, sin, cos).
+ * Tolerance 1e-4: float intersection at distance ~3. */
+static void test_camera_from_gltf_node(void **state)
+{
+    (void)state;
+    char args[1024], dir[512];
+    snprintf(dir, sizeof dir, "%s/camnode", tmp_dir);
+    snprintf(args, sizeof args, "render tests/data/camera-node.json --out '%s' --quiet", dir);
+    char *err = NULL;
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 0)
+        fail_msg("render exited %d: %s", rc, err);
+    free(err);
+    mr_film *f = read_frame(dir, 0);
+    size_t c = 32 * 65 + 32;
+    assert_int_equal(f->object_id[c], 1);
+    double theta = 2 * atan2(0.383, 0.92375);
+    if (fabs(f->z[c] - (3 + 0.5 * tan(theta))) > 1e-4 || fabs(f->ny[c] - sin(theta)) > 1e-4 ||
+        fabs(f->nz[c] - cos(theta)) > 1e-4)
+        fail_msg("centre z %g n (%g %g %g)", f->z[c], f->nx[c], f->ny[c], f->nz[c]);
+    /* the square spans x in [0, 1] around the camera's x = 0.5: symmetric coverage */
+    size_t left = 0, right = 0;
+    for (int y = 0; y < 65; y++)
+        for (int x = 0; x < 65; x++)
+            if (f->object_id[y * 65 + x])
+                x < 32 ? left++ : x > 32 ? right++ : 0;
+    assert_true(left > 100);
+    assert_true(left == right);
+    mr_film_free(f);
+}
+
 static void expect_failure(const char *args, int status, const char *needle)
 {
     char *err = NULL;
@@ -256,6 +292,7 @@ int main(void)
         cmocka_unit_test(test_skinned_example_renders_and_moves),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
         cmocka_unit_test(test_compare_command),
+        cmocka_unit_test(test_camera_from_gltf_node),
         cmocka_unit_test(test_bad_input_is_answered),
     };
     return cmocka_run_group_tests_name("e2e_render", tests, setup, teardown);

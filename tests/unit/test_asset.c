@@ -661,6 +661,14 @@ static void test_generated_gltf(void **state)
     assert_int_equal(a->cameras[0].node, mr_asset_find_node(a, "cam"));
     near(a->cameras[0].aspect, 2.0, 1e-6, "aspect");
     near(a->cameras[0].yfov, 0.5, 1e-6, "yfov");
+    /* assimp copies the node's translation into the camera's position; the
+     * camera must sit at its node's origin, placed once by the node. */
+    mr_vec3 cp = a->cameras[0].position;
+    near(cp.x, 0, 0, "camera x");
+    near(cp.y, 0, 0, "camera y");
+    near(cp.z, 0, 0, "camera z (not the node's 5)");
+    near(a->nodes[a->cameras[0].node].local.m[11], 5, 0, "camera node z");
+    near(a->cameras[0].look_at.z, -1, 1e-6, "glTF cameras look down -Z");
     mr_asset_free(a);
 
     /* A NaN position is refused naming the mesh and the vertex (vertex 1:
@@ -729,6 +737,53 @@ static void test_io_errors(void **state)
     tmp_remove(&t);
 }
 
+/* Declared counts are checked before assimp allocates for them: a 300-byte
+ * PLY declaring 1.5e9 vertices made assimp touch 17.6 GB (OutOfMemory.off in
+ * the invalid directory is the OFF case). A file large enough to hold what
+ * it declares but above the caps is refused with MR_ERR_LIMIT; a sparse file
+ * stands in for the large one (only its header is ever read). */
+static void test_declared_counts(void **state)
+{
+    (void)state;
+    tmpdir t;
+    tmp_make(&t);
+    char p[512];
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    static const char ply[] = "ply\nformat ascii 1.0\nelement vertex 1500000000\n"
+                              "property float x\nproperty float y\nproperty float z\n"
+                              "element face 1\nproperty list uchar int vertex_indices\n"
+                              "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    tmp_file(&t, "big.ply", p);
+    write_bytes(p, ply, sizeof ply - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_non_null(strstr(err.msg, "1500000000"));
+
+    static const char big[] = "ply\nformat binary_little_endian 1.0\nelement vertex 20000000\n"
+                              "property float x\nproperty float y\nproperty float z\n"
+                              "element face 0\nproperty list uchar int vertex_indices\n"
+                              "end_header\n";
+    tmp_file(&t, "sparse.ply", p);
+    write_bytes(p, big, sizeof big - 1);
+    assert_int_equal(truncate(p, 20000000LL * 12 + 200), 0);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_LIMIT);
+    assert_null(a);
+
+    static const char off[] = "OFF\n# comment\n4000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    tmp_file(&t, "big.off", p);
+    write_bytes(p, off, sizeof off - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_non_null(strstr(err.msg, "4000000000"));
+    /* and a normal OFF still loads through the same check */
+    static const char ok[] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    tmp_file(&t, "ok.off", p);
+    write_bytes(p, ok, sizeof ok - 1);
+    a = load_ok(p);
+    assert_int_equal(a->triangle_count, 1);
+    mr_asset_free(a);
+    tmp_remove(&t);
+}
+
 /* In-memory meshes: validation and computed area-weighted normals. */
 static void test_from_mesh(void **state)
 {
@@ -790,6 +845,7 @@ int main(void)
         cmocka_unit_test(test_invalid_files),
         cmocka_unit_test(test_generated_gltf),
         cmocka_unit_test(test_io_errors),
+        cmocka_unit_test(test_declared_counts),
         cmocka_unit_test(test_from_mesh),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
