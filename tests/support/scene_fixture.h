@@ -50,7 +50,7 @@ static void fixture_init(scene_fixture *s, mr_asset *asset, mr_vec3 eye, mr_vec3
     j->frame_count = 1;
     j->frame_times = &s->time;
     j->output = (mr_output_desc){.width = width, .height = height, .spp = spp, .shadows = true, .seed = 7,
-                                 .exr = {MR_COMPRESSION_ZIP, 4, 0}};
+                                 .exr = {.compression = MR_COMPRESSION_ZIP, .zip_level = 4}};
 }
 
 static void fixture_free(scene_fixture *s) { mr_asset_free(s->asset); }
