@@ -215,15 +215,21 @@ typedef struct num_spec {
     const char *expect; /* NULL: derived from lo, hi and flags */
 } num_spec;
 
-static const num_spec SPEC_ANY = {-DBL_MAX, DBL_MAX, 0, "a finite number"};
 /* Values stored as float must fit one, or they silently become inf. */
 static const num_spec SPEC_FLOAT = {-FLT_MAX, FLT_MAX, 0,
                                     "a number within the 32-bit float range (|x| <= 3.4e38)"};
+/* Positions, translations, scales and matrix entries. Far beyond any scene,
+ * but well inside what Embree accepts for ray origins (about 1.8e19), so a
+ * valid job can never trip Embree's ray validity checks. */
+static const num_spec SPEC_COORD = {-1e9, 1e9, 0, "a number with |x| <= 1e9"};
+/* Times on the job's timeline and clip times, seconds: differences of two
+ * stay finite, so interpolation can never divide inf by inf. */
+static const num_spec SPEC_TIME = {-1e9, 1e9, 0, "a time in seconds with |t| <= 1e9"};
+static const num_spec SPEC_SPEED = {-1e6, 1e6, 0, NULL};
 static const num_spec SPEC_COLOR = {0, 1000, 0, NULL};
 static const num_spec SPEC_ALPHA = {0, 1, 0, NULL};
 static const num_spec SPEC_FPS = {0, 1000, NUM_LO_OPEN, NULL};
-static const num_spec SPEC_YFOV = {0, 180, NUM_LO_OPEN | NUM_HI_OPEN,
-                                   "a field of view in degrees in (0, 180)"};
+static const num_spec SPEC_YFOV = {0.001, 179.9, 0, "a field of view in degrees in [0.001, 179.9]"};
 static const num_spec SPEC_SIZE = {1, MR_MAX_RESOLUTION, NUM_INT, NULL};
 static const num_spec SPEC_SPP = {1, MR_MAX_SPP, NUM_INT, NULL};
 static const num_spec SPEC_SEED = {0, 4294967295.0, NUM_INT, NULL};
@@ -545,7 +551,7 @@ static int get_transform(jctx *c, const cJSON *v, mr_mat4 *out)
     if (m) {
         double d[16];
         AT_KEY(c, "matrix",
-               get_numbers(c, m, 16, &SPEC_FLOAT, "an array of 16 numbers (row-major 4x4)", d));
+               get_numbers(c, m, 16, &SPEC_COORD, "an array of 16 numbers (row-major 4x4)", d));
         /* mr_mat4_point() ignores w, so a projective last row would be
          * silently dropped: refuse it. 1e-6 forgives exporters' rounding. */
         if (fabs(d[12]) > 1e-6 || fabs(d[13]) > 1e-6 || fabs(d[14]) > 1e-6 ||
@@ -569,12 +575,12 @@ static int get_transform(jctx *c, const cJSON *v, mr_mat4 *out)
     mr_vec3 tv = mr_v3(0, 0, 0), sv = mr_v3(1, 1, 1);
     mr_quat q = mr_quat_identity();
     if (t)
-        AT_KEY(c, "translation", get_vec3(c, t, &SPEC_FLOAT, &tv));
+        AT_KEY(c, "translation", get_vec3(c, t, &SPEC_COORD, &tv));
     if (r)
         AT_KEY(c, "rotation", get_quat(c, r, &q));
     if (s) {
         double d[3];
-        AT_KEY(c, "scale", get_numbers(c, s, 3, &SPEC_FLOAT, "an array of 3 numbers", d));
+        AT_KEY(c, "scale", get_numbers(c, s, 3, &SPEC_COORD, "an array of 3 numbers", d));
         for (size_t i = 0; i < 3; i++)
             if (d[i] == 0) {
                 push_key(c, "scale");
@@ -702,15 +708,15 @@ static int parse_frames(jctx *c, const cJSON *v, mr_job *job)
         job->frame_count = n;
         size_t mark = push_key(c, "times"), i = 0;
         for (const cJSON *t = times_v->child; t; t = t->next, i++)
-            AT_INDEX(c, i, get_num(c, t, &SPEC_ANY, &job->frame_times[i]));
+            AT_INDEX(c, i, get_num(c, t, &SPEC_TIME, &job->frame_times[i]));
         pop(c, mark);
         return MR_OK;
     }
     if (start_v)
-        AT_KEY(c, "start", get_num(c, start_v, &SPEC_ANY, &start));
-    num_spec end_spec = {start, DBL_MAX, 0, NULL};
+        AT_KEY(c, "start", get_num(c, start_v, &SPEC_TIME, &start));
+    num_spec end_spec = {start, SPEC_TIME.hi, 0, NULL};
     char expect[64];
-    snprintf(expect, sizeof expect, "a number >= start (%.15g)", start);
+    snprintf(expect, sizeof expect, "a time >= start (%.15g) and <= %g", start, SPEC_TIME.hi);
     end_spec.expect = expect;
     AT_KEY(c, "end", get_num(c, end_v, &end_spec, &end));
     /* The 1e-9 keeps (end - start) * fps that should be integral but rounds
@@ -803,13 +809,13 @@ static int parse_pose(jctx *c, const cJSON *v, mr_pose_desc *p)
         p->has_clip = true;
     }
     if (time) {
-        AT_KEY(c, "time", get_num(c, time, &SPEC_ANY, &p->time));
+        AT_KEY(c, "time", get_num(c, time, &SPEC_TIME, &p->time));
         p->has_time = true;
     }
     if (speed)
-        AT_KEY(c, "speed", get_num(c, speed, &SPEC_ANY, &p->speed));
+        AT_KEY(c, "speed", get_num(c, speed, &SPEC_SPEED, &p->speed));
     if (offset)
-        AT_KEY(c, "offset", get_num(c, offset, &SPEC_ANY, &p->offset));
+        AT_KEY(c, "offset", get_num(c, offset, &SPEC_TIME, &p->offset));
     if (loop)
         AT_KEY(c, "loop", get_bool(c, loop, &p->loop));
     if (joints)
@@ -983,12 +989,12 @@ static int parse_camera_key(jctx *c, const cJSON *v, mr_camera_key *k, float def
         after.expect = expect;
         AT_KEY(c, "t", get_num(c, field(v, "t"), &after, &k->t));
     } else {
-        AT_KEY(c, "t", get_num(c, field(v, "t"), &SPEC_ANY, &k->t));
+        AT_KEY(c, "t", get_num(c, field(v, "t"), &SPEC_TIME, &k->t));
     }
-    AT_KEY(c, "position", get_vec3(c, field(v, "position"), &SPEC_FLOAT, &k->position));
+    AT_KEY(c, "position", get_vec3(c, field(v, "position"), &SPEC_COORD, &k->position));
     k->rotation = mr_quat_identity();
     if (target) {
-        AT_KEY(c, "target", get_vec3(c, target, &SPEC_FLOAT, &k->target));
+        AT_KEY(c, "target", get_vec3(c, target, &SPEC_COORD, &k->target));
         /* Compared as stored (float): that is what the look-at will see. */
         if (k->target.x == k->position.x && k->target.y == k->position.y &&
             k->target.z == k->position.z) {

@@ -26,6 +26,11 @@
 
 typedef struct mr_geom mr_geom; /* a kind's own instance data */
 
+/* Largest |coordinate| any kind may hand Embree after update: far beyond any
+ * scene, and well inside the range where Embree's builders and ray checks
+ * work (about 1.8e19). */
+#define MR_MAX_COORDINATE 1e15
+
 /* A plain triangle soup in world space (tessellation output). */
 typedef struct mr_trimesh {
     uint32_t vertex_count, triangle_count;

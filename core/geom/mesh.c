@@ -10,6 +10,7 @@
  *
  * The exact reference of a triangle mesh is itself.
  */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -22,6 +23,7 @@ struct mr_geom {
     float *positions;            /* 3 per vertex + 1 float padding */
     float *normals;              /* 3 per vertex */
     uint32_t *indices;           /* 3 per triangle, merged */
+    float max_coordinate;        /* largest |coordinate| after the last update */
     RTCGeometry rtc;
 };
 
@@ -84,11 +86,23 @@ nomem:
 static int mesh_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
                        mr_error *err)
 {
-    (void)err;
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         size_t off = (size_t)g->mesh_first_vertex[i] * 3;
         mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
     }
+    /* A transform or pose can scale finite file data past what Embree can
+     * build over; refuse the frame rather than hand it inf or 1e30. */
+    float biggest = 0;
+    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++) {
+        float a = fabsf(g->positions[k]);
+        biggest = a > biggest ? a : biggest;
+        if (!(a <= MR_MAX_COORDINATE))
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "%s: posed vertex %zu has a coordinate of %g (limit %g): check the "
+                                "object's transform and pose",
+                                g->asset->path, k / 3, (double)g->positions[k], MR_MAX_COORDINATE);
+    }
+    g->max_coordinate = biggest;
     return MR_OK;
 }
 

@@ -31,6 +31,10 @@ typedef enum mr_compression {
 typedef struct mr_exr_options {
     mr_compression compression;
     int zip_level; /* 1..9, used by ZIP/ZIPS; 0 means MR_ZIP_LEVEL_DEFAULT */
+    /* Threads that encode (pack + compress) chunks; 0 = all online cores,
+     * values above 256 act as 256. The written bytes are the same for every
+     * value, so this is purely a speed setting. */
+    unsigned threads;
 } mr_exr_options;
 
 typedef struct mr_exr_meta {
@@ -54,7 +58,8 @@ bool mr_compression_parse(const char *name, mr_compression *out);
 uint16_t mr_float_to_half(float f);
 float mr_half_to_float(uint16_t h);
 
-/* opt may be NULL (same as a zeroed struct: no compression, default level);
+/* opt may be NULL (same as a zeroed struct: no compression, default level,
+ * all cores);
  * meta may be NULL (only microray.version is written). NaN/Inf pixels are
  * written as finite values (colour as above; Z and N: NaN -> 0,
  * +-Inf -> +-FLT_MAX). */

@@ -45,6 +45,23 @@ typedef struct {
     mr_vec3 rgb;
 } sample_result;
 
+/* Moves a point off the surface along its (unit, geometric) normal so a ray
+ * leaving it cannot hit the surface it starts on. The intersection point
+ * carries a rounding error proportional to the magnitude of its
+ * coordinates, so a fixed offset fails far from the origin (at 1e5 one
+ * float step is 0.008): each coordinate moves by `scene_bias` (relative to
+ * the scene size) or by 64 float steps of its own magnitude, whichever is
+ * larger. */
+static mr_vec3 offset_from_surface(mr_vec3 p, mr_vec3 n, float scene_bias)
+{
+    float c[3] = {p.x, p.y, p.z}, d[3] = {n.x, n.y, n.z};
+    for (int i = 0; i < 3; i++) {
+        float ulps = 64.0f * FLT_EPSILON * fabsf(c[i]);
+        c[i] += d[i] * (scene_bias > ulps ? scene_bias : ulps);
+    }
+    return mr_v3(c[0], c[1], c[2]);
+}
+
 static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 org, mr_vec3 dir,
                   sample_result *out, uint64_t *rays)
 {
@@ -64,7 +81,7 @@ static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 o
 
     mr_vec3 light = s->ambient;
     mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, rh->ray.tfar));
-    mr_vec3 shadow_org = mr_v3_add(p, mr_v3_scale(ng, s->shadow_bias));
+    mr_vec3 shadow_org = offset_from_surface(p, ng, s->shadow_bias);
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
         float cosine = mr_v3_dot(n, l);

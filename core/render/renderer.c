@@ -295,6 +295,10 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     };
     if ((rc = camera_for_frame(r, index, t, &ts.camera, err)) < 0)
         return rc;
+    mr_vec3 cp = ts.camera.position;
+    if (!(fabsf(cp.x) <= MR_MAX_COORDINATE && fabsf(cp.y) <= MR_MAX_COORDINATE && fabsf(cp.z) <= MR_MAX_COORDINATE))
+        return mr_error_set(err, MR_ERR_INVALID, "/camera: frame %zu puts the camera at (%g, %g, %g), beyond %g",
+                            index, (double)cp.x, (double)cp.y, (double)cp.z, MR_MAX_COORDINATE);
     st->rays = mr_trace_frame(&ts, film);
     double t3 = mr_now();
     st->trace_s = t3 - t2;

@@ -115,6 +115,17 @@ static void test_far_from_origin(void **state)
         assert_true(f->z[i] > 9.95f && f->z[i] < 10.1f);
     }
     assert_film_finite(f);
+    /* Light at 45 degrees: with nothing else in the scene, shadow rays must
+     * not find the plane they leave from, however far from the origin. */
+    s.light.direction = mr_v3(0, -0.70710678f, -0.70710678f);
+    mr_film *lit = fixture_render(&s, 0, &st);
+    s.job.output.shadows = false;
+    mr_film *unshadowed = fixture_render(&s, 0, &st);
+    for (size_t i = 0; i < 32 * 32; i++)
+        if (lit->r[i] != unshadowed->r[i])
+            fail_msg("pixel %zu shadowed by its own surface at 1e5: %g vs %g", i, lit->r[i], unshadowed->r[i]);
+    mr_film_free(lit);
+    mr_film_free(unshadowed);
     mr_film_free(f);
     fixture_free(&s);
 }

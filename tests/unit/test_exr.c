@@ -370,7 +370,7 @@ static void roundtrip(void **state, mr_compression c, int zip_level, const char 
 {
     char path[256];
     mr_film *in = pattern_film(), *out = NULL;
-    mr_exr_options opt = {c, zip_level};
+    mr_exr_options opt = {c, zip_level, 0};
     mr_exr_meta meta;
     mr_error err = {0};
     uint8_t *mem = NULL, *file = NULL;
@@ -443,7 +443,7 @@ static void test_zip_level_changes_output(void **state)
 {
     /* The level must reach zlib: levels 1 and 9 give different streams. */
     mr_film *in = pattern_film();
-    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1}, o9 = {MR_COMPRESSION_ZIP, 9};
+    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1, 0}, o9 = {MR_COMPRESSION_ZIP, 9, 0};
     uint8_t *m1 = NULL, *m9 = NULL;
     size_t s1 = 0, s9 = 0;
     mr_error err = {0};
@@ -491,7 +491,7 @@ static void test_nonfinite_become_finite(void **state)
 {
     char path[256];
     mr_film *in = NULL, *out = NULL;
-    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0};
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0};
     mr_error err = {0};
     const float bad[4] = {NAN, INFINITY, -INFINITY, 1e30f};
     size_t i, n;
@@ -539,7 +539,7 @@ static void test_tiny_and_tall(void **state)
     for (s = 0; s < 3; s++) {
         for (c = 0; c < 4; c++) {
             mr_film *in = NULL, *out = NULL;
-            mr_exr_options opt = {cs[c], 0};
+            mr_exr_options opt = {cs[c], 0, 0};
             size_t n = (size_t)sizes[s][0] * (size_t)sizes[s][1];
             assert_int_equal(mr_film_new(sizes[s][0], sizes[s][1], &in, &err), MR_OK);
             for (i = 0; i < n; i++) {
@@ -664,6 +664,307 @@ static void test_foreign_channels_by_name(void **state)
     mr_film_free(f);
 }
 
+/* ------------------------------------------------------------------ */
+/* parallel encoding                                                   */
+
+enum { BW = 1024, BH = 520 };
+
+/* Big enough that every compression takes several encoding batches at 1
+ * and 2 threads (a batch is 8 MB of raw chunk data but at least 8 chunks
+ * per thread: 256 rows of this width for NONE and ZIPS, 16 chunks of 16 rows
+ * for ZIP, 8 or 16 chunks of 32 rows for PIZ), with a short last chunk (520
+ * is no multiple of 16 or 32), noise so the
+ * compressors have work to do, and special values in every float plane:
+ * NaN, +-Inf, out-of-range colour, half ties, half subnormals, float
+ * denormals and -0. They land at varying positions within 8-sample groups,
+ * which covers both the vector and the scalar conversion paths. */
+static mr_film *big_film(void)
+{
+    static const uint32_t special_bits[] = {
+        0x7fc00000u, 0xffc00001u, 0x7f800000u, 0xff800000u, /* NaN, -NaN, +-Inf */
+        0x7149f2cau, 0xf149f2cau,                           /* +-1e30 */
+        0x477ff000u, 0x477fefffu,                           /* 65520, just below */
+        0x3f801000u, 0x3f803000u,                           /* half ties 1+2^-11, 1+3*2^-11 */
+        0x33800000u, 0x33000000u, 0x33000001u,              /* 2^-24, 2^-25, above it */
+        0x387fc000u,                                        /* subnormal -> min normal */
+        0x00000001u, 0x80400000u,                           /* float denormals */
+        0x80000000u, 0x7f7fffffu,                           /* -0, FLT_MAX */
+    };
+    const size_t nspecial = sizeof special_bits / sizeof special_bits[0];
+    mr_film *f = NULL;
+    mr_error err = {0};
+    uint32_t lcg = 99u;
+    size_t i, n = (size_t)BW * BH;
+
+    assert_int_equal(mr_film_new(BW, BH, &f, &err), MR_OK);
+    for (i = 0; i < n; i++) {
+        int x = (int)(i % BW), y = (int)(i / BW);
+        float noise;
+        lcg = lcg * 1664525u + 1013904223u;
+        noise = (float)(lcg >> 16) / 65536.0f * 0.05f;
+        f->r[i] = 0.5f + 0.4f * sinf((float)x * 0.01f) + noise;
+        f->g[i] = (float)y / BH + noise;
+        f->b[i] = ldexpf(noise, -(int)(x % 30)); /* down into half subnormals */
+        f->a[i] = x < BW / 4 ? 0.0f : 1.0f;
+        f->z[i] = x < BW / 4 ? 0.0f : 5.0f + (float)y * 0.01f + noise;
+        f->nx[i] = cosf((float)x * 0.003f);
+        f->ny[i] = sinf((float)x * 0.003f);
+        f->nz[i] = -noise;
+        f->object_id[i] = x < BW / 4 ? 0u : 1u + (uint32_t)(x / 500);
+        f->prim_id[i] = (uint32_t)(x / 5 + (y / 5) * 1000) | (lcg & 0x80000000u);
+        if (i % 97 == 0) {
+            float *planes[8] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz};
+            uint32_t bits = special_bits[(i / 97) % nspecial];
+            memcpy(&planes[(i / 97) % 8][i], &bits, sizeof bits);
+        }
+    }
+    return f;
+}
+
+/* What the writer documents for FLOAT planes: NaN -> 0, +-Inf -> +-FLT_MAX,
+ * everything else bit for bit. */
+static float expect_float(float v)
+{
+    if (isnan(v))
+        return 0.0f;
+    if (v > FLT_MAX)
+        return FLT_MAX;
+    if (v < -FLT_MAX)
+        return -FLT_MAX;
+    return v;
+}
+
+/* Read-back check for films with special values: exact bits, against the
+ * documented conversions (check_same_film assumes finite input). */
+static void check_encoded_film(const mr_film *in, const mr_film *out)
+{
+    const float *fin[8] = {in->r, in->g, in->b, in->a, in->z, in->nx, in->ny, in->nz};
+    const float *fout[8] = {out->r, out->g, out->b, out->a, out->z, out->nx, out->ny, out->nz};
+    size_t i, k, n = (size_t)in->width * (size_t)in->height;
+
+    assert_int_equal(out->width, in->width);
+    assert_int_equal(out->height, in->height);
+    for (i = 0; i < n; i++) {
+        for (k = 0; k < 8; k++) {
+            float want = k < 4 ? mr_half_to_float(mr_float_to_half(fin[k][i]))
+                               : expect_float(fin[k][i]);
+            if (memcmp(&fout[k][i], &want, sizeof want) != 0)
+                fail_msg("pixel %zu plane %zu: got %a, want %a", i, k, (double)fout[k][i],
+                         (double)want);
+        }
+        assert_int_equal(out->object_id[i], in->object_id[i]);
+        assert_int_equal(out->prim_id[i], in->prim_id[i]);
+    }
+}
+
+typedef struct membuf {
+    uint8_t *data;
+    size_t size, cap;
+} membuf;
+
+static int64_t membuf_write(exr_const_context_t ctxt, void *user, const void *buf, uint64_t sz,
+                            uint64_t offset, exr_stream_error_func_ptr_t error_cb)
+{
+    membuf *m = user;
+    size_t end = (size_t)(offset + sz);
+    (void)ctxt;
+    (void)error_cb;
+    if (end > m->cap) {
+        size_t ncap = m->cap ? m->cap : 65536;
+        while (ncap < end)
+            ncap *= 2;
+        m->data = realloc(m->data, ncap);
+        assert_non_null(m->data);
+        m->cap = ncap;
+    }
+    if ((size_t)offset > m->size)
+        memset(m->data + m->size, 0, (size_t)offset - m->size);
+    memcpy(m->data + offset, buf, (size_t)sz);
+    if (end > m->size)
+        m->size = end;
+    return (int64_t)sz;
+}
+
+/* The frame as the plain single-threaded library pipeline writes it, which
+ * is what mr_exr_write_* produced before encoding went parallel: the same
+ * header calls in the same order, colour staged with mr_float_to_half, Z/N
+ * sanitised, then the library's own packer and compressor, one chunk after
+ * the other through one pipeline. Byte equality with this pins our packer
+ * (vector paths included) to the library's layout. */
+static uint8_t *reference_write(const mr_film *f, mr_compression c, int level,
+                                const mr_exr_meta *meta, size_t *size)
+{
+    static const struct {
+        const char *name;
+        exr_pixel_type_t type;
+    } chans[10] = {
+        {"R", EXR_PIXEL_HALF},         {"G", EXR_PIXEL_HALF},  {"B", EXR_PIXEL_HALF},
+        {"A", EXR_PIXEL_HALF},         {"Z", EXR_PIXEL_FLOAT}, {"N.X", EXR_PIXEL_FLOAT},
+        {"N.Y", EXR_PIXEL_FLOAT},      {"N.Z", EXR_PIXEL_FLOAT},
+        {"id.object", EXR_PIXEL_UINT}, {"id.primitive", EXR_PIXEL_UINT},
+    };
+    const float *fplanes[8] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz};
+    const exr_compression_t ctypes[4] = {EXR_COMPRESSION_NONE, EXR_COMPRESSION_ZIP,
+                                         EXR_COMPRESSION_ZIPS, EXR_COMPRESSION_PIZ};
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    exr_context_t ctxt = NULL;
+    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+    membuf m = {NULL, 0, 0};
+    size_t w = (size_t)f->width, n = w * (size_t)f->height, i;
+    uint8_t *staged[10];
+    int part = 0, lines = 0, y, c2, k;
+
+    /* Whole planes in file types; the UINT planes are used as they are. */
+    for (k = 0; k < 8; k++) {
+        staged[k] = malloc(n * 4);
+        assert_non_null(staged[k]);
+        for (i = 0; i < n; i++) {
+            if (k < 4) {
+                uint16_t h = mr_float_to_half(fplanes[k][i]);
+                memcpy(staged[k] + 2 * i, &h, 2);
+            } else {
+                float v = expect_float(fplanes[k][i]);
+                memcpy(staged[k] + 4 * i, &v, 4);
+            }
+        }
+    }
+    staged[8] = (uint8_t *)f->object_id;
+    staged[9] = (uint8_t *)f->prim_id;
+
+    init.error_handler_fn = quiet;
+    init.user_data = &m;
+    init.write_fn = membuf_write;
+    assert_int_equal(exr_start_write(&ctxt, "<reference>", EXR_WRITE_FILE_DIRECTLY, &init), 0);
+    assert_int_equal(exr_add_part(ctxt, NULL, EXR_STORAGE_SCANLINE, &part), 0);
+    assert_int_equal(exr_initialize_required_attr_simple(ctxt, part, f->width, f->height,
+                                                         ctypes[c]),
+                     0);
+    for (k = 0; k < 10; k++)
+        assert_int_equal(exr_add_channel(ctxt, part, chans[k].name, chans[k].type,
+                                         EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1),
+                         0);
+    if (c == MR_COMPRESSION_ZIP || c == MR_COMPRESSION_ZIPS)
+        assert_int_equal(exr_set_zip_compression_level(ctxt, part,
+                                                       level ? level : MR_ZIP_LEVEL_DEFAULT),
+                         0);
+    assert_int_equal(exr_attr_set_string(ctxt, part, "microray.version", MR_VERSION_STRING), 0);
+    assert_int_equal(exr_attr_set_string(ctxt, part, "microray.job", meta->job), 0);
+    assert_int_equal(exr_attr_set_int(ctxt, part, "microray.frame", meta->frame), 0);
+    assert_int_equal(exr_attr_set_double(ctxt, part, "microray.time", meta->time), 0);
+    assert_int_equal(
+        exr_attr_set_double(ctxt, part, "microray.renderSeconds", meta->render_seconds), 0);
+    assert_int_equal(
+        exr_attr_set_float(ctxt, part, "microray.sceneDiagonal", meta->scene_diagonal), 0);
+    assert_int_equal(exr_write_header(ctxt), 0);
+    assert_int_equal(exr_get_scanlines_per_chunk(ctxt, part, &lines), 0);
+
+    for (y = 0; y < f->height; y += lines) {
+        exr_chunk_info_t ci;
+        assert_int_equal(exr_write_scanline_chunk_info(ctxt, part, y, &ci), 0);
+        if (y == 0)
+            assert_int_equal(exr_encoding_initialize(ctxt, part, &ci, &enc), 0);
+        else
+            assert_int_equal(exr_encoding_update(ctxt, part, &ci, &enc), 0);
+        for (c2 = 0; c2 < enc.channel_count; c2++) {
+            exr_coding_channel_info_t *ch = &enc.channels[c2];
+            int bpe = ch->bytes_per_element;
+            for (k = 0; k < 10 && strcmp(chans[k].name, ch->channel_name) != 0; k++)
+                ;
+            assert_true(k < 10);
+            ch->encode_from_ptr = staged[k] + (size_t)y * w * (size_t)bpe;
+            ch->user_data_type = ch->data_type;
+            ch->user_bytes_per_element = (int16_t)bpe;
+            ch->user_pixel_stride = bpe;
+            ch->user_line_stride = bpe * f->width;
+        }
+        if (y == 0)
+            assert_int_equal(exr_encoding_choose_default_routines(ctxt, part, &enc), 0);
+        assert_int_equal(exr_encoding_run(ctxt, part, &enc), 0);
+    }
+    assert_int_equal(exr_encoding_destroy(ctxt, &enc), 0);
+    assert_int_equal(exr_finish(&ctxt), 0);
+    for (k = 0; k < 8; k++)
+        free(staged[k]);
+    *size = m.size;
+    return m.data;
+}
+
+/* Encoding runs on several threads, but the bytes must not depend on how
+ * many: 1, 2, 3, all cores (0) and far more threads than cores or chunks
+ * (clamped) all give the reference bytes, from memory and from a file. */
+static void test_parallel_identical(void **state)
+{
+    static const struct {
+        mr_compression c;
+        int level;
+        const char *line;
+    } cases[] = {
+        {MR_COMPRESSION_NONE, 0, "compression (type compression): none\n"},
+        {MR_COMPRESSION_ZIP, 0, "compression (type compression): zip, multi-scanline blocks\n"},
+        {MR_COMPRESSION_ZIPS, 1, "compression (type compression): zip, individual scanlines\n"},
+        {MR_COMPRESSION_PIZ, 0, "compression (type compression): piz\n"},
+    };
+    static const unsigned threads[] = {2, 3, 0, 1000};
+    mr_film *in = big_film();
+    size_t ci, ti;
+
+    for (ci = 0; ci < sizeof cases / sizeof cases[0]; ci++) {
+        mr_exr_options opt = {cases[ci].c, cases[ci].level, 1};
+        mr_error err = {0};
+        uint8_t *ref, *one = NULL, *file;
+        size_t ref_size = 0, one_size = 0, file_size = 0;
+        char name[32], path[256], cmd[512], *out;
+        mr_film *back = NULL;
+
+        ref = reference_write(in, cases[ci].c, cases[ci].level, &k_meta, &ref_size);
+        assert_int_equal(mr_exr_write_memory(&one, &one_size, in, &opt, &k_meta, &err), MR_OK);
+        assert_int_equal(one_size, ref_size);
+        if (memcmp(one, ref, ref_size) != 0)
+            fail_msg("%s: 1-thread output differs from the library pipeline's",
+                     mr_compression_name(cases[ci].c));
+
+        for (ti = 0; ti < sizeof threads / sizeof threads[0]; ti++) {
+            uint8_t *many = NULL;
+            size_t many_size = 0;
+            opt.threads = threads[ti];
+            assert_int_equal(mr_exr_write_memory(&many, &many_size, in, &opt, &k_meta, &err),
+                             MR_OK);
+            assert_int_equal(many_size, one_size);
+            if (memcmp(many, one, one_size) != 0)
+                fail_msg("%s: %u threads differ from 1 thread", mr_compression_name(cases[ci].c),
+                         threads[ti]);
+            free(many);
+        }
+
+        /* The file writer, multi-threaded, too; and the result is a real EXR
+         * to the C++ library and to our reader. */
+        snprintf(name, sizeof name, "par_%s.exr", mr_compression_name(cases[ci].c));
+        tmp_path(state, name, path, sizeof path);
+        opt.threads = 2;
+        assert_int_equal(mr_exr_write_file(path, in, &opt, &k_meta, &err), MR_OK);
+        file = read_all(path, &file_size);
+        assert_int_equal(file_size, one_size);
+        assert_memory_equal(file, one, one_size);
+
+        snprintf(cmd, sizeof cmd, "exrheader '%s' 2>&1", path);
+        out = run_capture(cmd);
+        if (!strstr(out, cases[ci].line) ||
+            !strstr(out, "dataWindow (type box2i): (0 0) - (1023 519)\n") ||
+            !strstr(out, "id.primitive, 32-bit unsigned integer, sampling 1 1\n"))
+            fail_msg("exrheader output for %s:\n%s", path, out);
+        free(out);
+
+        assert_int_equal(mr_exr_read_file(path, &back, NULL, &err), MR_OK);
+        check_encoded_film(in, back);
+
+        mr_film_free(back);
+        free(file);
+        free(one);
+        free(ref);
+    }
+    mr_film_free(in);
+}
+
 /* A valid one-row EXR (one HALF channel "Z") of the given width. */
 static void write_row(const char *path, int width)
 {
@@ -741,7 +1042,7 @@ static void test_bad_files(void **state)
     char path[256], good[256];
     static const char text[] = "this is a text file, not an EXR image\n";
     mr_film *in = pattern_film(), *f = NULL;
-    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0};
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0};
     mr_error err = {0};
     uint8_t *data = NULL, *junk = NULL;
     size_t size = 0, i;
@@ -849,8 +1150,8 @@ static void test_write_errors(void **state)
     char path[256];
     mr_film *in = pattern_film();
     mr_film hollow;
-    mr_exr_options bad_level = {MR_COMPRESSION_ZIP, 10};
-    mr_exr_options bad_comp = {(mr_compression)42, 0};
+    mr_exr_options bad_level = {MR_COMPRESSION_ZIP, 10, 0};
+    mr_exr_options bad_comp = {(mr_compression)42, 0, 0};
     mr_exr_meta bad_meta = k_meta;
     mr_error err = {0};
     uint8_t *mem = (uint8_t *)(uintptr_t)1;
@@ -957,6 +1258,7 @@ int main(void)
         cmocka_unit_test(test_tiny_and_tall),
         cmocka_unit_test(test_foreign_channels_by_name),
         cmocka_unit_test(test_read_respects_caps),
+        cmocka_unit_test(test_parallel_identical),
         cmocka_unit_test(test_bad_files),
         cmocka_unit_test(test_tiled_rejected),
         cmocka_unit_test(test_write_errors),
