@@ -3,7 +3,7 @@
 #   make test     install missing Debian packages, build, run unit + end-to-end tests
 #   make check    the same tests built with AddressSanitizer + UBSan (build/check/)
 #   make bench    print the benchmark table
-#   make run      set up, start a local daemon, render examples/skinned-walk.json
+#   make run      set up, build, render examples/skinned-walk.json into out/skinned-walk/
 #   make clean
 
 BUILD   ?= build
@@ -72,7 +72,7 @@ test: setup
 
 check: setup
 	$(MAKE) tests BUILD=build/check OPT=-O1 SAN="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all"
-	MR_SANITIZED=1 bash scripts/run-tests.sh build/check
+	bash scripts/run-tests.sh build/check
 
 bench: setup
 	$(MAKE) all $(BENCH_BIN)

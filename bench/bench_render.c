@@ -8,8 +8,9 @@
  *     included, shadows off, 1 sample) against a bare Embree loop tracing
  *     the same pixel-centre rays through the same triangles on the same
  *     threads, for the static human and the skinned dancer;
- *  2. per-frame BVH refit against full rebuild for the skinned example, and
- *     what the refitted tree costs in trace time;
+ *  2. per-frame BVH refit against a full rebuild with the same fast (LOW
+ *     quality) builder for the skinned example, and what the refitted tree
+ *     costs in trace time;
  *  3. EXR encode time as a share of frame time for each compression.
  *
  * usage: bench_render [--repeats N] [--threads N]   (run from the repository root)
@@ -234,7 +235,6 @@ static void bench_refit(mr_device *dev, const char *job_path, size_t frames)
         trace_rebuild[n] = st.trace_s;
         n++;
     }
-    /* frame 0 of the rebuild renderer was skipped above: render it so both saw the same frames */
     double mr = median(bvh_refit, (int)n), mb = median(bvh_rebuild, (int)n);
     double tr = median(trace_refit, (int)n), tb = median(trace_rebuild, (int)n);
     printf("| %-14s | %8llu | %6zu | %9.3f | %9.3f | %5.1fx | %9.2f | %9.2f |\n", job->name,

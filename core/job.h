@@ -20,6 +20,7 @@
 #define MR_MAX_FRAMES 100000
 #define MR_MAX_SPP 1024
 #define MR_MAX_JOINT_OVERRIDES 1024
+#define MR_MAX_JOB_TRIANGLES (32u * 1024u * 1024u) /* over all objects (each holds its own copy) */
 #define MR_MAX_NAME 256         /* bytes in any name or id */
 #define MR_MAX_PATH 4096        /* bytes in an asset path */
 

@@ -47,6 +47,15 @@ int mr_error_set(mr_error *err, int code, const char *fmt, ...)
 #endif
     ;
 
+/* Puts a printf-style prefix in front of the message already in err (for
+ * adding where a failure happened, e.g. a JSON pointer); keeps the code and
+ * returns it. */
+int mr_error_prefix(mr_error *err, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+
 /* Static name of an error code, e.g. "MR_ERR_FORMAT". */
 const char *mr_err_name(int code);
 

@@ -6,7 +6,7 @@ set -uo pipefail
 BUILD=${1:-build}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 cd "$ROOT"
-BUILD=$(cd "$BUILD" && pwd)
+BUILD=$(cd "$BUILD" 2>/dev/null && pwd) || { echo "run-tests: no build directory '$1'" >&2; exit 1; }
 export MR_SOURCE_DIR="$ROOT" MR_BUILD_DIR="$BUILD"
 LOG_DIR="$BUILD/test-logs"
 mkdir -p "$LOG_DIR"
@@ -33,6 +33,11 @@ for suite in unit hard integration; do
     run "$suite/$(basename "$t")" "$t"
   done
 done
+
+if [ $((passed + failed)) -eq 0 ]; then
+  echo "run-tests: no test programs under $BUILD/tests" >&2
+  exit 1
+fi
 
 echo
 echo "${passed} passed, ${failed} failed"

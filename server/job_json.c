@@ -1057,7 +1057,7 @@ static int parse_camera(jctx *c, const cJSON *v, mr_job *job)
     job->camera.source = MR_CAMERA_SOURCE_PATH;
     cp->interp = MR_INTERP_CATMULL_ROM;
     cp->up = mr_v3(0, 1, 0);
-    double deg = 45;
+    double deg = MR_DEFAULT_YFOV_DEG;
     if (interp) {
         if (cJSON_IsString(interp) && strcmp(interp->valuestring, "linear") == 0)
             cp->interp = MR_INTERP_LINEAR;

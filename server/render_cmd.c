@@ -21,24 +21,42 @@
 #include "render/compare.h"
 #include "render/exr.h"
 #include "stats_json.h"
+#include "util/parallel.h"
 #include "worker.h"
 
-#define MR_MAX_JOB_FILE (16u * 1024u * 1024u)
-
 /* Exit codes shared by microrayd's one-shot commands (README). */
-enum { EXIT_OK = 0, EXIT_RENDER = 1, EXIT_USAGE = 2, EXIT_INVALID_JOB = 3, EXIT_IO = 4 };
+enum { EXIT_OK = 0, EXIT_RENDER = 1, EXIT_USAGE = 2, EXIT_INVALID_INPUT = 3, EXIT_IO = 4 };
+
+/* The exit status for a failure: whose fault it was decides, not where it
+ * happened. Input that is wrong, broken or too big is the caller's (3);
+ * files that cannot be read or written are the environment's (4); the rest
+ * (out of memory, Embree) is ours (1). */
+static int exit_status(int rc)
+{
+    switch (rc) {
+    case MR_OK: return EXIT_OK;
+    case MR_ERR_IO: return EXIT_IO;
+    case MR_ERR_INVALID:
+    case MR_ERR_FORMAT:
+    case MR_ERR_LIMIT:
+    case MR_ERR_NOT_FOUND: return EXIT_INVALID_INPUT;
+    default: return EXIT_RENDER;
+    }
+}
 
 typedef struct render_out {
     const char *dir;
     const mr_job *job;
     bool quiet;
+    double stats_written; /* mr_now() of the last stats.json write */
 } render_out;
 
 static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_stats *st, mr_error *err)
 {
     render_out *o = user;
-    char path[4200];
-    snprintf(path, sizeof path, "%s/%04zu.exr", o->dir, index);
+    char name[MR_FRAME_NAME_MAX], path[4200];
+    mr_frame_file_name(index, name);
+    snprintf(path, sizeof path, "%s/%s", o->dir, name);
     mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
                         .scene_diagonal = st->scene_diagonal};
     snprintf(meta.job, sizeof meta.job, "%s", o->job->name);
@@ -53,6 +71,25 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     return rc;
 }
 
+/* stats.json holds every frame so far; rewriting it after each frame would
+ * make a long job quadratic (and fsync-bound), so it is rewritten at most
+ * every MR_STATS_INTERVAL seconds and once more when the job ends. */
+#define MR_STATS_INTERVAL 2.0
+
+static void write_stats(render_out *o, const mr_job_stats *stats)
+{
+    char *json = mr_stats_to_json(o->job, stats, 0);
+    char path[4200];
+    mr_error err;
+    snprintf(path, sizeof path, "%s/stats.json", o->dir);
+    if (!json)
+        fprintf(stderr, "microrayd: warning: out of memory writing %s\n", path);
+    else if (mr_file_write_atomic(path, json, strlen(json), &err) < 0)
+        fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    free(json);
+    o->stats_written = mr_now();
+}
+
 static void report_progress(void *user, size_t index, const mr_job_stats *stats)
 {
     render_out *o = user;
@@ -61,16 +98,9 @@ static void report_progress(void *user, size_t index, const mr_job_stats *stats)
         fprintf(stderr,
                 "frame %zu/%zu t=%.3fs %.3fs (pose %.3f %s %.3f trace %.3f encode %.3f) %.1f Mrays/s\n",
                 index + 1, o->job->frame_count, f->time, f->total_s, f->pose_s,
-                f->bvh_refit ? "refit" : "build", f->bvh_s, f->trace_s, f->encode_s, f->mrays_per_s);
-    char *json = mr_stats_to_json(o->job, stats, 0);
-    if (json) {
-        char path[4200];
-        mr_error err;
-        snprintf(path, sizeof path, "%s/stats.json", o->dir);
-        if (mr_file_write_atomic(path, json, strlen(json), &err) < 0)
-            fprintf(stderr, "microrayd: warning: %s\n", err.msg);
-        free(json);
-    }
+                mr_bvh_update_name(f->bvh), f->bvh_s, f->trace_s, f->encode_s, f->mrays_per_s);
+    if (index + 1 == o->job->frame_count || mr_now() - o->stats_written >= MR_STATS_INTERVAL)
+        write_stats(o, stats);
 }
 
 /* Relative asset paths are relative to the job file. */
@@ -109,8 +139,8 @@ int mr_cmd_render(int argc, char **argv)
         } else if (!strcmp(argv[i], "--threads") && i + 1 < argc) {
             char *end;
             long v = strtol(argv[++i], &end, 10);
-            if (*end || v < 1 || v > 256) {
-                fprintf(stderr, "microrayd: --threads wants an integer in 1..256\n");
+            if (*end || v < 1 || v > MR_MAX_THREADS) {
+                fprintf(stderr, "microrayd: --threads wants an integer in 1..%d\n", MR_MAX_THREADS);
                 return EXIT_USAGE;
             }
             threads = (unsigned)v;
@@ -137,32 +167,30 @@ int mr_cmd_render(int argc, char **argv)
     mr_error err = {0};
     mr_job_error jerr = {0};
 
-    if (mr_file_read(job_path, MR_MAX_JOB_FILE, &text, &len, &err) < 0) {
+    int rc;
+    if ((rc = mr_file_read(job_path, MR_JOB_MAX_BYTES, &text, &len, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
-        status = EXIT_IO;
+        status = exit_status(rc);
         goto done;
     }
-    if (mr_job_parse(text, len, &job, &jerr) < 0) {
+    if ((rc = mr_job_parse(text, len, &job, &jerr)) < 0) {
         fprintf(stderr, "microrayd: %s: invalid job at '%s': %s\n", job_path, jerr.pointer, jerr.message);
-        status = EXIT_INVALID_JOB;
+        status = exit_status(rc);
         goto done;
     }
-    if (resolve_asset_paths(job, job_path, &err) < 0 || mr_mkdir_p(out_dir, &err) < 0) {
+    if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_mkdir_p(out_dir, &err)) < 0 ||
+        (rc = mr_device_new(threads, &dev, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
-        status = EXIT_IO;
+        status = exit_status(rc);
         goto done;
     }
-    if (mr_device_new(threads, &dev, &err) < 0) {
-        fprintf(stderr, "microrayd: %s\n", err.msg);
-        status = EXIT_RENDER;
-        goto done;
-    }
-    render_out out = {.dir = out_dir, .job = job, .quiet = quiet};
+    render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
     mr_frame_sink sink = {.user = &out, .frame_done = write_frame, .progress = report_progress};
-    int rc = mr_worker_run(dev, job, 0, &sink, &stats, &err);
-    if (rc < 0) {
+    if ((rc = mr_worker_run(dev, job, 0, &sink, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
-        status = (rc == MR_ERR_IO) ? EXIT_IO : (rc == MR_ERR_NOT_FOUND || rc == MR_ERR_FORMAT) ? EXIT_INVALID_JOB : EXIT_RENDER;
+        status = exit_status(rc);
+        if (stats.frame_count > 0) /* keep the figures of the frames that did finish */
+            write_stats(&out, &stats);
     }
 done:
     mr_job_stats_free(&stats);
@@ -200,10 +228,11 @@ int mr_cmd_compare(int argc, char **argv)
     mr_film *film[2] = {NULL, NULL};
     mr_exr_meta meta[2];
     mr_error err = {0};
+    int rc;
     for (int i = 0; i < 2; i++)
-        if (mr_exr_read_file(paths[i], &film[i], &meta[i], &err) < 0) {
+        if ((rc = mr_exr_read_file(paths[i], &film[i], &meta[i], &err)) < 0) {
             fprintf(stderr, "microrayd: %s\n", err.msg);
-            status = EXIT_IO;
+            status = exit_status(rc);
             goto done;
         }
     /* The unit of depth error: given, else the reference's (B), else A's. */
@@ -212,9 +241,9 @@ int mr_cmd_compare(int argc, char **argv)
     if (!(diagonal > 0))
         diagonal = 1.0;
     mr_compare_result r;
-    if (mr_film_compare(film[0], film[1], diagonal, &r, &err) < 0) {
+    if ((rc = mr_film_compare(film[0], film[1], diagonal, &r, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
-        status = EXIT_INVALID_JOB;
+        status = exit_status(rc);
         goto done;
     }
     cJSON *o = cJSON_CreateObject();

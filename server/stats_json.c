@@ -29,14 +29,14 @@ static cJSON *frame_json(const mr_frame_stats *f)
     cJSON *o = cJSON_CreateObject();
     cJSON_AddNumberToObject(o, "frame", f->frame);
     cJSON_AddNumberToObject(o, "time", f->time);
-    char name[16];
-    snprintf(name, sizeof name, "%04d.exr", f->frame);
+    char name[MR_FRAME_NAME_MAX];
+    mr_frame_file_name((size_t)f->frame, name);
     cJSON_AddStringToObject(o, "file", name);
     cJSON *s = cJSON_AddObjectToObject(o, "seconds");
 #define ADD(n) cJSON_AddNumberToObject(s, #n, f->n##_s);
     TIMINGS(ADD)
 #undef ADD
-    cJSON_AddStringToObject(o, "bvh", f->bvh_refit ? "refit" : "build");
+    cJSON_AddStringToObject(o, "bvh", mr_bvh_update_name(f->bvh));
     cJSON_AddNumberToObject(o, "rays", (double)f->rays);
     cJSON_AddNumberToObject(o, "mrays_per_s", f->mrays_per_s);
     cJSON_AddNumberToObject(o, "triangles", (double)f->triangles);

@@ -1,6 +1,7 @@
 /* worker.c - one job, all frames (worker.h). */
 #include "worker.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -26,9 +27,7 @@ int mr_worker_run(mr_device *dev, const mr_job *job, size_t first, const mr_fram
     double t0 = mr_now();
     for (size_t i = 0; i < job->asset_count; i++) {
         if ((rc = mr_asset_load(job->assets[i].path, &assets[i], err)) < 0) {
-            char inner[sizeof err->msg];
-            memcpy(inner, err->msg, sizeof inner);
-            rc = mr_error_set(err, rc, "/assets/%s/path: %s", job->assets[i].name, inner);
+            mr_error_prefix(err, "/assets/%s/path: ", job->assets[i].name);
             goto done;
         }
     }
@@ -66,6 +65,11 @@ done:
             mr_asset_free(assets[i]);
     free(assets);
     return rc;
+}
+
+void mr_frame_file_name(size_t index, char name[MR_FRAME_NAME_MAX])
+{
+    snprintf(name, MR_FRAME_NAME_MAX, "%04zu.exr", index);
 }
 
 void mr_job_stats_free(mr_job_stats *stats)

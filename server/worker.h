@@ -27,6 +27,10 @@ typedef struct mr_frame_sink {
     bool (*cancelled)(void *user);
 } mr_frame_sink;
 
+/* File name of frame `index` within a job's output ("0007.exr"). */
+#define MR_FRAME_NAME_MAX 32
+void mr_frame_file_name(size_t index, char name[MR_FRAME_NAME_MAX]);
+
 typedef struct mr_job_stats {
     size_t frame_count;      /* one past the last frame finished */
     mr_frame_stats *frames;  /* job->frame_count entries */

@@ -170,26 +170,13 @@ static void list_clips(const mr_asset *asset, char *buf, size_t size)
         snprintf(buf, size, "none");
 }
 
-int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
-                 double frame_time, mr_error *err)
+/* Checks every name and index desc refers to against asset, and finds its
+ * clip (NULL when it has none). */
+static int resolve_desc(const mr_asset *asset, const mr_pose_desc *desc, const mr_clip **clip_out,
+                        mr_error *err)
 {
-    if (!pose || !asset)
-        return mr_error_set(err, MR_ERR_INVALID, "mr_pose_eval: pose or asset is NULL");
-    pose_impl *p = (pose_impl *)pose;
-    if (p->asset != asset || pose->node_count != asset->node_count)
-        return mr_error_set(err, MR_ERR_INVALID,
-                            "mr_pose_eval: the pose was made for another asset");
-    size_t n = asset->node_count;
-    for (size_t i = 0; i < n; i++) {
-        int parent = asset->nodes[i].parent;
-        if (parent >= (int)i || parent < -1)
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "mr_pose_eval: node %zu ('%s') has parent %d, not an earlier node",
-                                i, asset->nodes[i].name, parent);
-    }
-
-    /* Resolve every name first so a failing call leaves the pose untouched. */
     const mr_clip *clip = NULL;
+    size_t n = asset->node_count;
     if (desc && desc->has_clip) {
         int ci = desc->clip_name ? mr_asset_find_clip(asset, desc->clip_name) : desc->clip_index;
         if (ci < 0 || (size_t)ci >= asset->clip_count) {
@@ -221,6 +208,39 @@ int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
             return mr_error_set(err, MR_ERR_INVALID, "joint '%s': non-finite transform",
                                 o->joint);
     }
+    *clip_out = clip;
+    return MR_OK;
+}
+
+int mr_pose_desc_check(const mr_asset *asset, const mr_pose_desc *desc, mr_error *err)
+{
+    const mr_clip *clip;
+    return resolve_desc(asset, desc, &clip, err);
+}
+
+int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
+                 double frame_time, mr_error *err)
+{
+    if (!pose || !asset)
+        return mr_error_set(err, MR_ERR_INVALID, "mr_pose_eval: pose or asset is NULL");
+    pose_impl *p = (pose_impl *)pose;
+    if (p->asset != asset || pose->node_count != asset->node_count)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "mr_pose_eval: the pose was made for another asset");
+    size_t n = asset->node_count;
+    for (size_t i = 0; i < n; i++) {
+        int parent = asset->nodes[i].parent;
+        if (parent >= (int)i || parent < -1)
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "mr_pose_eval: node %zu ('%s') has parent %d, not an earlier node",
+                                i, asset->nodes[i].name, parent);
+    }
+
+    /* Resolve every name first so a failing call leaves the pose untouched. */
+    const mr_clip *clip = NULL;
+    int rc = resolve_desc(asset, desc, &clip, err);
+    if (rc < 0)
+        return rc;
 
     for (size_t i = 0; i < n; i++)
         pose->local[i] = asset->nodes[i].local;

@@ -51,6 +51,12 @@ void mr_pose_free(mr_pose *pose);
 int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
                  double frame_time, mr_error *err);
 
+/* Checks that every clip and joint desc names exists in asset (and that its
+ * transforms are finite) without evaluating anything: renderers call it for
+ * every pose of a job before the first frame, so a bad name is reported up
+ * front rather than halfway through a render. Same errors as mr_pose_eval. */
+int mr_pose_desc_check(const mr_asset *asset, const mr_pose_desc *desc, mr_error *err);
+
 /* Clip time actually sampled for desc at frame_time (after loop/clamp).
  * desc NULL: frame_time, looped. Non-finite times and clips of zero duration
  * give 0. */

@@ -1272,6 +1272,9 @@ int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
         return mr_error_set(err, MR_ERR_IO, "%s: is a directory, not a model file", path);
     if (!S_ISREG(st.st_mode))
         return mr_error_set(err, MR_ERR_IO, "%s: not a regular file", path);
+    if ((unsigned long long)st.st_size > MR_MAX_ASSET_FILE_BYTES)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s: %lld bytes, more than the %llu a model file may have",
+                            path, (long long)st.st_size, (unsigned long long)MR_MAX_ASSET_FILE_BYTES);
     if (st.st_size == 0) {
         /* still tell an unreadable empty file apart */
         FILE *f = fopen(path, "rb");

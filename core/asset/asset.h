@@ -25,6 +25,7 @@
 #define MR_MAX_INFLUENCES 8
 /* Import caps: larger files are refused with MR_ERR_LIMIT rather than
  * exhausting memory in the daemon. */
+#define MR_MAX_ASSET_FILE_BYTES (2ull * 1024u * 1024u * 1024u)
 #define MR_MAX_ASSET_TRIANGLES (16u * 1024u * 1024u)
 #define MR_MAX_ASSET_VERTICES (16u * 1024u * 1024u)
 #define MR_MAX_ASSET_NODES (1u << 20)

@@ -7,7 +7,9 @@
  *               mesh: vertex/index buffers sized for all its meshes);
  *   update      deform for this frame's pose and object transform;
  *   attach      put the geometry into an Embree scene under the given geometry
- *               id (the object index: the integrator maps hits back by it);
+ *               id (the object index: the integrator maps hits back by it)
+ *               with the build quality the renderer chose (REFIT for
+ *               animated objects; see the refit trap in REFERENCE.md);
  *   commit      tell Embree the data changed (after update);
  *   normal      world-space shading normal at a hit (unnormalised is fine);
  *   tessellate  the kind's exact triangle reference, used for accuracy
@@ -43,8 +45,8 @@ typedef struct mr_geom_ops {
     int (*create)(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err);
     int (*update)(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
                   mr_error *err);
-    int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id, bool dynamic,
-                  mr_error *err);
+    int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                  enum RTCBuildQuality quality, mr_error *err);
     void (*commit)(mr_geom *g);
     mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);

@@ -106,15 +106,13 @@ static int mesh_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform
     return MR_OK;
 }
 
-static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id, bool dynamic,
-                       mr_error *err)
+static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                       enum RTCBuildQuality quality, mr_error *err)
 {
     g->rtc = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     if (!g->rtc)
         return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a triangle geometry");
-    /* The refit trap (REFERENCE.md): refitting needs REFIT here *and* a
-     * DYNAMIC, LOW quality scene; the renderer sets the scene side. */
-    rtcSetGeometryBuildQuality(g->rtc, dynamic ? RTC_BUILD_QUALITY_REFIT : RTC_BUILD_QUALITY_MEDIUM);
+    rtcSetGeometryBuildQuality(g->rtc, quality);
     rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g->positions, 0,
                                3 * sizeof(float), g->vertex_count);
     rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g->indices, 0,

@@ -20,7 +20,7 @@ mr_camera mr_camera_path_eval(const mr_camera_path *path, double t)
 {
     size_t n = path->key_count;
     if (n == 0)
-        return (mr_camera){mr_v3(0, 0, 0), mr_quat_identity(), 0.785398f};
+        return (mr_camera){mr_v3(0, 0, 0), mr_quat_identity(), (float)(MR_DEFAULT_YFOV_DEG * M_PI / 180)};
     if (n == 1 || t <= path->keys[0].t)
         return camera_at_key(path, 0);
     if (t >= path->keys[n - 1].t)

@@ -18,6 +18,8 @@
 #include "microray.h"
 
 #define MR_MAX_CAMERA_KEYS 10000
+/* Vertical field of view when a job or a camera node does not give one. */
+#define MR_DEFAULT_YFOV_DEG 45.0
 
 typedef enum mr_interp { MR_INTERP_LINEAR = 0, MR_INTERP_CATMULL_ROM } mr_interp;
 

@@ -29,7 +29,8 @@ struct mr_renderer {
     object_state *objects;
     mr_shade_object *shade;
     RTCScene scene;
-    bool dynamic; /* refit between frames */
+    bool dynamic; /* animated: Embree's dynamic-scene settings (fast LOW builds) */
+    bool refit;   /* dynamic and refitting between frames (not force_rebuild) */
     bool built;
     /* camera from an asset's camera node */
     const mr_asset *cam_asset;
@@ -52,6 +53,15 @@ uint64_t mr_peak_rss_bytes(void)
     if (getrusage(RUSAGE_SELF, &ru) != 0)
         return 0;
     return (uint64_t)ru.ru_maxrss * 1024u; /* Linux reports KiB */
+}
+
+const char *mr_bvh_update_name(mr_bvh_update u)
+{
+    switch (u) {
+    case MR_BVH_BUILD: return "build";
+    case MR_BVH_REFIT: return "refit";
+    default: return "none";
+    }
 }
 
 static const mr_pose_desc *pose_for_frame(const mr_object_desc *d, size_t frame)
@@ -142,11 +152,18 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory creating the renderer");
         goto fail;
     }
-    for (size_t i = 0; i < job->object_count; i++)
+    uint64_t triangles = 0;
+    for (size_t i = 0; i < job->object_count; i++) {
         if (object_is_animated(&job->objects[i], job->frame_count))
             r->dynamic = true;
-    if (r->opt.force_rebuild)
-        r->dynamic = false;
+        triangles += assets[job->objects[i].asset]->triangle_count;
+    }
+    if (triangles > MR_MAX_JOB_TRIANGLES) {
+        rc = mr_error_set(err, MR_ERR_LIMIT, "/objects: %zu objects hold %llu triangles in all, more than the %u a job may have",
+                          job->object_count, (unsigned long long)triangles, MR_MAX_JOB_TRIANGLES);
+        goto fail;
+    }
+    r->refit = r->dynamic && !r->opt.force_rebuild;
 
     RTCDevice rtc = mr_device_embree(dev);
     r->scene = rtcNewScene(rtc);
@@ -174,11 +191,24 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: unsupported geometry kind", i);
             goto fail;
         }
+        for (size_t k = 0; k < o->desc->pose_count; k++)
+            if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
+                if (o->desc->pose_count == 1)
+                    mr_error_prefix(err, "/objects/%zu/pose: ", i);
+                else
+                    mr_error_prefix(err, "/objects/%zu/pose/%zu: ", i, k);
+                goto fail;
+            }
         if ((rc = mr_pose_new(o->asset, &o->pose, err)) < 0)
             goto fail;
         if ((rc = o->ops->create(o->asset, o->desc, &o->geom, err)) < 0)
             goto fail;
-        if ((rc = o->ops->attach(o->geom, rtc, r->scene, (unsigned)i, r->dynamic && o->animated, err)) < 0)
+        /* Animated geometry refits (REFIT) or, for comparison, rebuilds with
+         * the same fast builder the dynamic scene uses (LOW). */
+        enum RTCBuildQuality quality = !(r->dynamic && o->animated) ? RTC_BUILD_QUALITY_MEDIUM
+                                       : r->refit                   ? RTC_BUILD_QUALITY_REFIT
+                                                                    : RTC_BUILD_QUALITY_LOW;
+        if ((rc = o->ops->attach(o->geom, rtc, r->scene, (unsigned)i, quality, err)) < 0)
             goto fail;
         r->shade[i] = (mr_shade_object){o->ops, o->geom, o->desc->color};
     }
@@ -207,7 +237,7 @@ static int camera_for_frame(mr_renderer *r, size_t index, double t, mr_camera *c
     /* A camera that no node carries sits in the asset's root space. */
     mr_mat4 g = r->cam_node >= 0 ? r->cam_pose->global[r->cam_node] : mr_mat4_identity();
     mr_vec3 pos = mr_v3(0, 0, 0), look = mr_v3(0, 0, -1), up = mr_v3(0, 1, 0);
-    float yfov = 0.785398f; /* 45 degrees for a plain node */
+    float yfov = (float)(MR_DEFAULT_YFOV_DEG * M_PI / 180); /* a plain node has no lens */
     if (r->cam_info) {
         pos = r->cam_info->position;
         look = r->cam_info->look_at;
@@ -244,11 +274,8 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         if (o->posed_once && !o->animated && !r->opt.force_rebuild)
             continue;
         if (!o->posed_once || o->animated) {
-            if ((rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, index), t, err)) < 0) {
-                char inner[sizeof err->msg];
-                memcpy(inner, err->msg, sizeof inner);
-                return mr_error_set(err, rc, "/objects/%zu/pose: %s", i, inner);
-            }
+            if ((rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, index), t, err)) < 0)
+                return mr_error_prefix(err, "/objects/%zu/pose: ", i);
             if ((rc = o->ops->update(o->geom, o->pose, &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
                 return rc;
         }
@@ -260,7 +287,7 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     st->pose_s = t1 - t0;
 
     if (changed || !r->built) {
-        st->bvh_refit = r->built && r->dynamic;
+        st->bvh = r->built && r->refit ? MR_BVH_REFIT : MR_BVH_BUILD;
         rtcCommitScene(r->scene);
         r->built = true;
         if ((rc = mr_device_check(r->dev, "rtcCommitScene", err)) < 0)

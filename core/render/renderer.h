@@ -21,8 +21,19 @@
 typedef struct mr_renderer mr_renderer;
 
 typedef struct mr_renderer_options {
-    bool force_rebuild; /* rebuild the BVH every frame instead of refitting (benchmarks) */
+    /* Rebuild the BVH every frame (same fast LOW-quality builder) instead of
+     * refitting it: the baseline refit is measured against in benchmarks. */
+    bool force_rebuild;
 } mr_renderer_options;
+
+typedef enum mr_bvh_update {
+    MR_BVH_NONE = 0, /* nothing moved: the previous frame's tree was reused */
+    MR_BVH_BUILD,    /* built from scratch */
+    MR_BVH_REFIT     /* same tree, bounds refitted to the moved vertices */
+} mr_bvh_update;
+
+/* "none", "build" or "refit" (stats.json's "bvh"). */
+const char *mr_bvh_update_name(mr_bvh_update u);
 
 /* Per-frame statistics (stats.json documents the same fields). */
 typedef struct mr_frame_stats {
@@ -31,7 +42,7 @@ typedef struct mr_frame_stats {
     double load_s;            /* asset import charged to this frame (the first) */
     double pose_s;            /* pose evaluation and skinning */
     double bvh_s;             /* Embree build or refit */
-    bool bvh_refit;           /* true: refit, false: full build (or nothing to do) */
+    mr_bvh_update bvh;        /* what happened to the BVH this frame */
     double trace_s;           /* primary + shadow rays and shading */
     double encode_s;          /* EXR encoding and writing (filled by the caller) */
     double total_s;           /* everything for this frame, encode included */

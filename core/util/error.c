@@ -3,6 +3,7 @@
 
 #include <stdarg.h>
 #include <stdio.h>
+#include <string.h>
 
 int mr_error_set(mr_error *err, int code, const char *fmt, ...)
 {
@@ -14,6 +15,21 @@ int mr_error_set(mr_error *err, int code, const char *fmt, ...)
         err->code = code;
     }
     return code;
+}
+
+int mr_error_prefix(mr_error *err, const char *fmt, ...)
+{
+    if (!err)
+        return MR_ERR_INVALID;
+    char inner[sizeof err->msg];
+    memcpy(inner, err->msg, sizeof inner);
+    char prefix[sizeof err->msg];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(prefix, sizeof prefix, fmt, ap);
+    va_end(ap);
+    snprintf(err->msg, sizeof err->msg, "%s%s", prefix, inner);
+    return err->code;
 }
 
 const char *mr_err_name(int code)

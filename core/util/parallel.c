@@ -6,7 +6,6 @@
 #include <stdlib.h>
 #include <unistd.h>
 
-#define MR_MAX_THREADS 256
 
 typedef struct {
     mr_range_fn fn;

@@ -12,6 +12,9 @@
 
 #include <stddef.h>
 
+/* Most workers one parallel-for starts (and the cap on configured threads). */
+#define MR_MAX_THREADS 256
+
 /* Called with a half-open range [begin, end) and the worker's index in [0, threads). */
 typedef void (*mr_range_fn)(void *ctx, size_t begin, size_t end, unsigned worker);
 

@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -254,7 +255,7 @@ static void expect_failure(const char *args, int status, const char *needle)
 static void test_bad_input_is_answered(void **state)
 {
     (void)state;
-    char args[1024];
+    char args[2048], path[512];
     snprintf(args, sizeof args, "render tests/data/invalid-job.json --out '%s/bad'", tmp_dir);
     expect_failure(args, 3, "/output/width");
     snprintf(args, sizeof args, "render tests/data/missing-asset.json --out '%s/bad'", tmp_dir);
@@ -263,9 +264,19 @@ static void test_bad_input_is_answered(void **state)
     expect_failure(args, 3, "/assets/bad/path");
     snprintf(args, sizeof args, "render tests/data/no-such-job.json --out '%s/bad'", tmp_dir);
     expect_failure(args, 4, "no-such-job.json");
+    /* a FIFO would block a plain open() forever */
+    snprintf(path, sizeof path, "%s/job.fifo", tmp_dir);
+    assert_int_equal(mkfifo(path, 0600), 0);
+    snprintf(args, sizeof args, "render '%s' --out '%s/bad'", path, tmp_dir);
+    expect_failure(args, 4, "not a regular file");
     expect_failure("render", 2, "usage");
     expect_failure("frobnicate", 2, "unknown command");
-    expect_failure("compare examples/skinned-walk.json examples/skinned-walk.json", 4, "skinned-walk.json");
+    snprintf(args, sizeof args, "render tests/data/bad-clip.json --out '%s/badclip'", tmp_dir);
+    expect_failure(args, 3, "/objects/0/pose/2: ");
+    /* names are checked before the first frame: nothing was written */
+    snprintf(path, sizeof path, "%s/badclip/0000.exr", tmp_dir);
+    assert_int_not_equal(access(path, F_OK), 0);
+    expect_failure("compare examples/skinned-walk.json examples/skinned-walk.json", 3, "skinned-walk.json");
 }
 
 static int setup(void **state)
