@@ -4,9 +4,6 @@
 #include <float.h>
 #include <stdatomic.h>
 #include <string.h>
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 
 #include "util/parallel.h"
 
@@ -62,25 +59,32 @@ static mr_vec3 offset_from_surface(mr_vec3 p, mr_vec3 n, float scene_bias)
     return mr_v3(c[0], c[1], c[2]);
 }
 
-static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 org, mr_vec3 dir,
+/* One lane of a hit record: what shading needs, whatever the packet width. */
+typedef struct hit_view {
+    unsigned geom, prim;
+    float u, v, t;
+    mr_vec3 ng;
+} hit_view;
+
+static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_vec3 dir,
                   sample_result *out, uint64_t *rays)
 {
-    const mr_shade_object *obj = &s->objects[rh->hit.geomID];
-    mr_vec3 ng = mr_v3_normalize_or(mr_v3(rh->hit.Ng_x, rh->hit.Ng_y, rh->hit.Ng_z), mr_v3(0, 0, 1));
+    const mr_shade_object *obj = &s->objects[h->geom];
+    mr_vec3 ng = mr_v3_normalize_or(h->ng, mr_v3(0, 0, 1));
     if (mr_v3_dot(ng, dir) > 0)
         ng = mr_v3_scale(ng, -1.0f);
-    mr_vec3 n = obj->ops->normal(obj->geom, rh->hit.primID, rh->hit.u, rh->hit.v);
+    mr_vec3 n = obj->ops->normal(obj->geom, h->prim, h->u, h->v);
     n = mr_v3_normalize_or(n, ng);
     if (mr_v3_dot(n, dir) > 0)
         n = mr_v3_scale(n, -1.0f);
     out->hit = true;
-    out->t = rh->ray.tfar;
+    out->t = h->t;
     out->normal = n;
-    out->object = rh->hit.geomID + 1;
-    out->prim = rh->hit.primID;
+    out->object = h->geom + 1;
+    out->prim = h->prim;
 
     mr_vec3 light = s->ambient;
-    mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, rh->ray.tfar));
+    mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, h->t));
     mr_vec3 shadow_org = offset_from_surface(p, ng, s->shadow_bias);
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
@@ -91,8 +95,8 @@ static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 o
             struct RTCIntersectContext ctx;
             rtcInitIntersectContext(&ctx);
             struct RTCRay ray = {.org_x = shadow_org.x, .org_y = shadow_org.y, .org_z = shadow_org.z,
-                          .dir_x = l.x, .dir_y = l.y, .dir_z = l.z,
-                          .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
+                                 .dir_x = l.x, .dir_y = l.y, .dir_z = l.z,
+                                 .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
             rtcOccluded1(s->scene, &ctx, &ray);
             (*rays)++;
             if (ray.tfar < 0) /* Embree sets tfar = -inf when occluded */
@@ -103,24 +107,58 @@ static void shade(const mr_trace_setup *s, const struct RTCRayHit *rh, mr_vec3 o
     out->rgb = mr_v3_mul(obj->albedo, light);
 }
 
-static void trace_sample(const mr_trace_setup *s, mr_vec3 org, mr_vec3 dir, sample_result *out,
+/* Primary rays go to Embree as packets of MR_PACKET neighbouring pixels of
+ * one row: they are coherent, so Embree traverses the BVH for all of them at
+ * once with SIMD, which is what lets the renderer keep up with (and pass) a
+ * plain one-ray-at-a-time loop. Each lane's result is exactly the closest
+ * hit of its ray, so the packet width never changes an image. */
+#define MR_PACKET 8
+
+/* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y). */
+static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
                          uint64_t *rays)
 {
+    const mr_trace_setup *s = c->s;
+    mr_vec3 org = c->rays_setup.origin, dir[MR_PACKET];
+    RTC_ALIGN(32) int valid[MR_PACKET];
+    struct RTCRayHit8 rh;
+    for (int i = 0; i < MR_PACKET; i++) {
+        int x = x0 + (i < n ? i : 0); /* idle lanes repeat a live ray: always a valid ray */
+        float jx = 0.5f, jy = 0.5f;
+        if (k > 0)
+            sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
+        dir[i] = mr_camera_rays_dir(&c->rays_setup, (float)x + jx, (float)y + jy);
+        valid[i] = i < n ? -1 : 0;
+        rh.ray.org_x[i] = org.x;
+        rh.ray.org_y[i] = org.y;
+        rh.ray.org_z[i] = org.z;
+        rh.ray.dir_x[i] = dir[i].x;
+        rh.ray.dir_y[i] = dir[i].y;
+        rh.ray.dir_z[i] = dir[i].z;
+        rh.ray.tnear[i] = 0.0f;
+        rh.ray.tfar[i] = FLT_MAX;
+        rh.ray.time[i] = 0.0f;
+        rh.ray.mask[i] = 0xffffffffu;
+        rh.ray.id[i] = (unsigned)i;
+        rh.ray.flags[i] = 0;
+        rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+    }
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    struct RTCRayHit rh;
-    rh.ray = (struct RTCRay){.org_x = org.x, .org_y = org.y, .org_z = org.z,
-                      .dir_x = dir.x, .dir_y = dir.y, .dir_z = dir.z,
-                      .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(s->scene, &ctx, &rh);
-    (*rays)++;
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID || rh.hit.geomID >= s->object_count) {
-        *out = (sample_result){.hit = false};
-        return;
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    rtcIntersect8(valid, s->scene, &ctx, &rh);
+    *rays += (uint64_t)n;
+    for (int i = 0; i < n; i++) {
+        unsigned geom = rh.hit.geomID[i];
+        if (geom == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count) {
+            out[i] = (sample_result){.hit = false};
+            continue;
+        }
+        hit_view h = {geom, rh.hit.primID[i], rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
+                      mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
+        shade(s, &h, org, dir[i], &out[i], rays);
     }
-    shade(s, &rh, org, dir, out, rays);
 }
 
 /* One tile's worth of every film plane. Tiles are traced into this private
@@ -135,58 +173,48 @@ typedef struct tile_buffer {
     uint32_t object_id[MR_TILE_PIXELS], prim_id[MR_TILE_PIXELS];
 } tile_buffer;
 
-static void trace_pixel(const trace_ctx *c, int x, int y, tile_buffer *t, size_t i, uint64_t *rays)
+/* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index i0.. */
+static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *t, size_t i0,
+                         uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
-    mr_vec3 rgb = mr_v3(0, 0, 0);
-    float alpha = 0;
+    mr_vec3 rgb[MR_PACKET];
+    float alpha[MR_PACKET];
+    for (int i = 0; i < n; i++) {
+        rgb[i] = mr_v3(0, 0, 0);
+        alpha[i] = 0;
+    }
+    mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     for (int k = 0; k < s->spp; k++) {
-        float jx = 0.5f, jy = 0.5f;
-        if (k > 0)
-            sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
-        mr_vec3 dir = mr_camera_rays_dir(&c->rays_setup, (float)x + jx, (float)y + jy);
-        sample_result r;
-        trace_sample(s, c->rays_setup.origin, dir, &r, rays);
-        if (r.hit) {
-            rgb = mr_v3_add(rgb, r.rgb);
-            alpha += 1.0f;
-        } else {
-            rgb = mr_v3_add(rgb, mr_v3_scale(s->background, s->background_alpha));
-            alpha += s->background_alpha;
-        }
-        if (k == 0) {
-            t->z[i] = r.hit ? r.t : 0.0f;
-            t->nx[i] = r.hit ? r.normal.x : 0.0f;
-            t->ny[i] = r.hit ? r.normal.y : 0.0f;
-            t->nz[i] = r.hit ? r.normal.z : 0.0f;
-            t->object_id[i] = r.hit ? r.object : 0;
-            t->prim_id[i] = r.hit ? r.prim : 0;
+        sample_result r[MR_PACKET];
+        trace_packet(c, x0, n, y, k, r, rays);
+        for (int i = 0; i < n; i++) {
+            rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
+            alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
+            if (k == 0) {
+                size_t p = i0 + (size_t)i;
+                t->z[p] = r[i].hit ? r[i].t : 0.0f;
+                t->nx[p] = r[i].hit ? r[i].normal.x : 0.0f;
+                t->ny[p] = r[i].hit ? r[i].normal.y : 0.0f;
+                t->nz[p] = r[i].hit ? r[i].normal.z : 0.0f;
+                t->object_id[p] = r[i].hit ? r[i].object : 0;
+                t->prim_id[p] = r[i].hit ? r[i].prim : 0;
+            }
         }
     }
     float inv_spp = 1.0f / (float)s->spp;
-    t->r[i] = rgb.x * inv_spp;
-    t->g[i] = rgb.y * inv_spp;
-    t->b[i] = rgb.z * inv_spp;
-    t->a[i] = alpha * inv_spp;
+    for (int i = 0; i < n; i++) {
+        size_t p = i0 + (size_t)i;
+        t->r[p] = rgb[i].x * inv_spp;
+        t->g[p] = rgb[i].y * inv_spp;
+        t->b[p] = rgb[i].z * inv_spp;
+        t->a[p] = alpha[i] * inv_spp;
+    }
 }
 
-/* Copies n 4-byte values from a tile row into the film. The film is far
- * larger than the caches and is not read again until encoding, so where the
- * destination is 16-byte aligned the copy uses streaming stores, which skip
- * reading each line in before overwriting it. Bit-identical either way. */
-static void copy_out(void *dst, const void *src, int n)
-{
-#if defined(__SSE2__)
-    if (((uintptr_t)dst & 15) == 0 && (n & 3) == 0) {
-        float *d = dst;
-        const float *sp = src;
-        for (int i = 0; i < n; i += 4)
-            _mm_stream_ps(d + i, _mm_loadu_ps(sp + i));
-        return;
-    }
-#endif
-    memcpy(dst, src, (size_t)n * 4);
-}
+/* Copies n 4-byte values from a tile row into the film. (Streaming stores
+ * were tried here and measured no faster.) */
+static void copy_out(void *dst, const void *src, int n) { memcpy(dst, src, (size_t)n * 4); }
 
 static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
 {
@@ -201,8 +229,10 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
         int tw = f->width - x0 < MR_TILE_W ? f->width - x0 : MR_TILE_W;
         int th = f->height - y0 < MR_TILE_H ? f->height - y0 : MR_TILE_H;
         for (int y = 0; y < th; y++)
-            for (int x = 0; x < tw; x++)
-                trace_pixel(c, x0 + x, y0 + y, &t, (size_t)y * MR_TILE_W + x, &rays);
+            for (int x = 0; x < tw; x += MR_PACKET) {
+                int n = tw - x < MR_PACKET ? tw - x : MR_PACKET;
+                trace_pixels(c, x0 + x, n, y0 + y, &t, (size_t)y * MR_TILE_W + x, &rays);
+            }
         for (int y = 0; y < th; y++) {
             size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
             copy_out(f->r + dst, t.r + src, tw);
@@ -217,9 +247,6 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
             copy_out(f->prim_id + dst, t.prim_id + src, tw);
         }
     }
-#if defined(__SSE2__)
-    _mm_sfence(); /* streaming stores are weakly ordered: publish them before the join */
-#endif
     atomic_fetch_add(&c->rays, rays);
 }
 
