@@ -28,7 +28,15 @@ int mr_error_prefix(mr_error *err, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(prefix, sizeof prefix, fmt, ap);
     va_end(ap);
-    snprintf(err->msg, sizeof err->msg, "%s%s", prefix, inner);
+    /* prefix + inner, cut to fit (a deliberate truncation, so no snprintf) */
+    size_t np = strlen(prefix), ni = strlen(inner), cap = sizeof err->msg - 1;
+    if (np > cap)
+        np = cap;
+    if (ni > cap - np)
+        ni = cap - np;
+    memcpy(err->msg, prefix, np);
+    memcpy(err->msg + np, inner, ni);
+    err->msg[np + ni] = '\0';
     return err->code;
 }
 
