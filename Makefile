@@ -33,6 +33,8 @@ BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
 CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
 
 .PHONY: all setup test check bench run clean tests
+# keep objects of test and bench programs (make would delete them as intermediates)
+.SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
 
 $(BUILD)/obj/%.o: %.c
