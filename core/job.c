@@ -36,6 +36,7 @@ void mr_job_free(mr_job *job)
         for (size_t i = 0; i < job->asset_count; i++) {
             free(job->assets[i].name);
             free(job->assets[i].path);
+            free(job->assets[i].id);
         }
     free(job->assets);
     if (job->objects)

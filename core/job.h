@@ -29,7 +29,9 @@ typedef enum mr_geom_kind { MR_GEOM_MESH = 0 } mr_geom_kind;
 
 typedef struct mr_asset_desc {
     char *name;   /* key in the job's "assets" object */
-    char *path;   /* server-side path, resolved by the server before rendering */
+    char *path;   /* server-side path, resolved by the server before rendering;
+                     for an "id" asset the server fills in the stored file */
+    char *id;     /* SHA-256 (64 hex) of an asset uploaded to the daemon, or NULL */
 } mr_asset_desc;
 
 typedef struct mr_object_desc {
@@ -64,8 +66,13 @@ typedef struct mr_output_desc {
     mr_exr_options exr;
 } mr_output_desc;
 
+#define MR_MAX_PRIORITY 1000     /* priorities run from -1000 to 1000 */
+#define MR_MAX_RETRIES 10        /* per frame */
+
 typedef struct mr_job {
     char *name;
+    int priority;            /* queue order in the daemon: higher first (default 0) */
+    int max_retries;         /* failed attempts allowed per frame (default 2) */
     size_t asset_count, object_count, light_count;
     mr_asset_desc *assets;
     mr_object_desc *objects;

@@ -600,7 +600,7 @@ static int get_transform(jctx *c, const cJSON *v, mr_mat4 *out)
 /* ------------------------------------------------------------------------ */
 /* Top-level sections.                                                      */
 
-static const char *const ASSET_FIELDS[] = {"path"};
+static const char *const ASSET_FIELDS[] = {"path", "id"};
 
 static bool asset_name_ok(const char *s)
 {
@@ -615,14 +615,34 @@ static bool asset_name_ok(const char *s)
     return n > 0;
 }
 
-/* One asset's description. A content-addressed {"id"} form is meant to join
- * "path" here as an alternative (exactly one of the two). */
+static bool hex64(const char *s)
+{
+    size_t n = 0;
+    for (; s[n]; n++)
+        if (!((s[n] >= '0' && s[n] <= '9') || (s[n] >= 'a' && s[n] <= 'f')) || n >= 64)
+            return false;
+    return n == 64;
+}
+
+/* One asset's description: a server-side {"path"} or the content hash of an
+ * uploaded asset, {"id"} (exactly one of the two). */
 static int parse_asset(jctx *c, const cJSON *v, mr_asset_desc *a)
 {
-    TRY(want_object(c, v, "an asset object {\"path\": ...}"));
+    TRY(want_object(c, v, "an asset object {\"path\": ...} or {\"id\": ...}"));
     TRY(check_fields(c, v, ASSET_FIELDS, COUNT_OF(ASSET_FIELDS)));
-    TRY(require(c, v, "path"));
-    AT_KEY(c, "path", get_string(c, field(v, "path"), MR_MAX_PATH, &a->path));
+    const cJSON *path = field(v, "path"), *id = field(v, "id");
+    if (!path == !id)
+        return fail(c, MR_ERR_INVALID, "expected exactly one of \"path\" (a file on the server) or "
+                                       "\"id\" (an uploaded asset's SHA-256)");
+    if (path) {
+        AT_KEY(c, "path", get_string(c, path, MR_MAX_PATH, &a->path));
+        return MR_OK;
+    }
+    AT_KEY(c, "id", get_string(c, id, 64, &a->id));
+    if (!hex64(a->id)) {
+        push_key(c, "id");
+        return fail(c, MR_ERR_INVALID, "expected 64 lowercase hex digits (the SHA-256 POST /v1/assets returned)");
+    }
     return MR_OK;
 }
 
@@ -1140,8 +1160,9 @@ static int parse_output(jctx *c, const cJSON *v, mr_job *job)
     return MR_OK;
 }
 
-static const char *const ROOT_FIELDS[] = {"name",       "assets", "objects", "lights", "ambient",
-                                          "background", "camera", "frames",  "output"};
+static const char *const ROOT_FIELDS[] = {"name",   "priority", "max_retries", "assets",
+                                          "objects", "lights", "ambient",     "background",
+                                          "camera",  "frames",   "output"};
 
 static void set_defaults(mr_job *job)
 {
@@ -1149,6 +1170,7 @@ static void set_defaults(mr_job *job)
     job->background = mr_v3(0.1f, 0.1f, 0.12f);
     job->background_alpha = 1.0f;
     job->fps = 24;
+    job->max_retries = 2;
     job->output.width = 640;
     job->output.height = 360;
     job->output.spp = 1;
@@ -1174,6 +1196,18 @@ static int parse_root(jctx *c, const cJSON *root, mr_job *job)
         AT_KEY(c, "name", get_string(c, name, MR_MAX_NAME, &job->name));
     else
         TRY(dup_string(c, "job", &job->name));
+    const cJSON *priority = field(root, "priority"), *retries = field(root, "max_retries");
+    double d;
+    if (priority) {
+        static const num_spec spec = {-MR_MAX_PRIORITY, MR_MAX_PRIORITY, NUM_INT, NULL};
+        AT_KEY(c, "priority", get_num(c, priority, &spec, &d));
+        job->priority = (int)d;
+    }
+    if (retries) {
+        static const num_spec spec = {0, MR_MAX_RETRIES, NUM_INT, NULL};
+        AT_KEY(c, "max_retries", get_num(c, retries, &spec, &d));
+        job->max_retries = (int)d;
+    }
     AT_KEY(c, "assets", parse_assets(c, field(root, "assets"), job));
     /* Before "objects": per-frame pose arrays are checked against the count. */
     AT_KEY(c, "frames", parse_frames(c, field(root, "frames"), job));

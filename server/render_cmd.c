@@ -110,6 +110,10 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
     mr_path_dirname(job_path, dir, sizeof dir);
     for (size_t i = 0; i < job->asset_count; i++) {
         char *p = job->assets[i].path;
+        if (!p)
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "/assets/%s/id: uploaded assets are stored by the daemon; the one-shot "
+                                "renderer needs a \"path\"", job->assets[i].name);
         if (p[0] == '/')
             continue;
         size_t n = strlen(dir) + strlen(p) + 2;

@@ -124,8 +124,8 @@ static const bad_case BAD[] = {
     {"{" NO_FRAMES "}", MR_ERR_INVALID, "", "missing required field \"frames\""},
     /* Root fields. */
     {"{" BASE ",'colour':[1,1,1]}", MR_ERR_INVALID, "/colour",
-     "unknown field; expected one of: name, assets, objects, lights, ambient, background, camera, "
-     "frames, output"},
+     "unknown field; expected one of: name, priority, max_retries, assets, objects, lights, ambient, "
+     "background, camera, frames, output"},
     {"{" BASE ",'name':'a','name':'b'}", MR_ERR_INVALID, "/name", "duplicate field \"name\""},
     {"{" BASE ",'name':5}", MR_ERR_INVALID, "/name", "expected a string of 1..256 bytes, got 5"},
     {"{" BASE ",'name':''}", MR_ERR_INVALID, "/name", "got an empty string"},
@@ -149,17 +149,27 @@ static const bad_case BAD[] = {
     {"{" NO_ASSETS ",'assets':{'a/b~c':{'path':'x'}}}", MR_ERR_INVALID, "/assets/a~1b~0c",
      "asset name"},
     {"{" NO_ASSETS ",'assets':{'m':{}}}", MR_ERR_INVALID, "/assets/m",
-     "missing required field \"path\""},
+     "expected exactly one of \"path\""},
     {"{" NO_ASSETS ",'assets':{'m':{'path':''}}}", MR_ERR_INVALID, "/assets/m/path",
      "got an empty string"},
     {"{" NO_ASSETS ",'assets':{'m':{'path':'/a\\u0000.gltf'}}}", MR_ERR_INVALID, "/assets/m/path",
      "found U+0000 at byte 2"},
-    {"{" NO_ASSETS ",'assets':{'m':{'path':'x','id':'y'}}}", MR_ERR_INVALID, "/assets/m/id",
-     "unknown field; expected one of: path"},
+    {"{" NO_ASSETS ",'assets':{'m':{'path':'x','id':'y'}}}", MR_ERR_INVALID, "/assets/m",
+     "expected exactly one of \"path\""},
+    {"{" NO_ASSETS ",'assets':{'m':{'id':'../../etc/passwd'}}}", MR_ERR_INVALID, "/assets/m/id",
+     "expected 64 lowercase hex digits"},
+    {"{" NO_ASSETS ",'assets':{'m':{'id':'ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789'}}}",
+     MR_ERR_INVALID, "/assets/m/id", "expected 64 lowercase hex digits"},
+    {"{" NO_ASSETS ",'assets':{'m':{'url':'x'}}}", MR_ERR_INVALID, "/assets/m/url",
+     "unknown field; expected one of: path, id"},
+    {"{" BASE ",'priority':1001}", MR_ERR_INVALID, "/priority", "-1000..1000"},
+    {"{" BASE ",'priority':1.5}", MR_ERR_INVALID, "/priority", "got 1.5"},
+    {"{" BASE ",'max_retries':11}", MR_ERR_INVALID, "/max_retries", "0..10"},
+    {"{" BASE ",'max_retries':'2'}", MR_ERR_INVALID, "/max_retries", "got \"2\""},
     {"{" NO_ASSETS ",'assets':{'m':{'path':'a'},'m':{'path':'b'}}}", MR_ERR_INVALID, "/assets/m",
      "duplicate field \"m\""},
     {"{" NO_ASSETS ",'assets':{'m':'/a.gltf'}}", MR_ERR_INVALID, "/assets/m",
-     "expected an asset object {\"path\": ...}, got \"/a.gltf\""},
+     "expected an asset object {\"path\": ...} or {\"id\": ...}, got \"/a.gltf\""},
     /* Objects. */
     {"{" NO_OBJECTS ",'objects':[]}", MR_ERR_INVALID, "/objects",
      "expected an array of 1..1024 objects, got an empty array"},
@@ -583,6 +593,24 @@ static void test_full_job(void **state)
     mr_job_free(job);
 }
 
+/* The daemon's fields: uploaded assets by id, queue priority, retries. */
+static void test_daemon_fields(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok("{'assets':{'m':{'id':'" "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef" "'}},"
+                           "'objects':[{'asset':'m'}]," CAMERA "," FRAMES ",'priority':-7,'max_retries':0}");
+    assert_null(job->assets[0].path);
+    assert_string_equal(job->assets[0].id, "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef");
+    assert_int_equal(job->priority, -7);
+    assert_int_equal(job->max_retries, 0);
+    mr_job_free(job);
+    job = parse_ok("{" BASE "}");
+    assert_null(job->assets[0].id);
+    assert_int_equal(job->priority, 0);
+    assert_int_equal(job->max_retries, 2);
+    mr_job_free(job);
+}
+
 static void test_frame_ranges(void **state)
 {
     (void)state;
@@ -858,6 +886,7 @@ int main(void)
         cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
         cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
         cmocka_unit_test(test_raw_bytes),       cmocka_unit_test(test_examples),
+        cmocka_unit_test(test_daemon_fields),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
