@@ -16,7 +16,7 @@ LDFLAGS := $(SAN)
 CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -lpthread -lm
 SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd
 CLIENT_LIBS := -lcurl -lcjson
-TEST_LIBS   := -lcmocka
+TEST_LIBS   := -lcmocka -lcurl
 
 CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c))
 SERVER_SRC := $(filter-out server/main.c,$(sort $(wildcard server/*.c)))
@@ -61,7 +61,7 @@ $(BUILD)/tests/%: $(BUILD)/obj/tests/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmic
 
 $(BUILD)/bench/%: $(BUILD)/obj/bench/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
 	@mkdir -p $(dir $@)
-	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
+	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS) -lcurl
 
 tests: all $(TEST_BIN)
 

@@ -11,6 +11,7 @@ PACKAGES=(
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev
   libcmocka-dev
+  wrk                    # HTTP load generator for make bench (loopback only)
 )
 
 missing=()

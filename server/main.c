@@ -14,6 +14,8 @@ static void usage(FILE *to)
             "usage:\n"
             "  microrayd render JOB.json --out DIR [--threads N] [--quiet]\n"
             "  microrayd compare A.exr B.exr [--diagonal D]\n"
+            "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
+            "                  [--threads N] [--cache-mb N] [--port-file FILE] [--quiet]\n"
             "  microrayd version\n",
             MR_VERSION_STRING);
 }
@@ -29,6 +31,8 @@ int main(int argc, char **argv)
         return mr_cmd_render(argc - 2, argv + 2);
     if (!strcmp(cmd, "compare"))
         return mr_cmd_compare(argc - 2, argv + 2);
+    if (!strcmp(cmd, "serve"))
+        return mr_cmd_serve(argc - 2, argv + 2);
     if (!strcmp(cmd, "version") || !strcmp(cmd, "--version")) {
         printf("microrayd %s\n", MR_VERSION_STRING);
         return 0;

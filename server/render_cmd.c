@@ -189,8 +189,8 @@ int mr_cmd_render(int argc, char **argv)
         goto done;
     }
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
-    mr_frame_sink sink = {.user = &out, .frame_done = write_frame, .progress = report_progress};
-    if ((rc = mr_worker_run(dev, job, 0, &sink, &stats, &err)) < 0) {
+    mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress};
+    if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
         status = exit_status(rc);
         if (stats.frame_count > 0) /* keep the figures of the frames that did finish */

@@ -6,8 +6,10 @@
 #ifndef MR_RENDER_CMD_H
 #define MR_RENDER_CMD_H
 
-/* Both return a process exit status (see the README's exit codes). */
+/* All return a process exit status (see the README's exit codes). */
 int mr_cmd_render(int argc, char **argv);
 int mr_cmd_compare(int argc, char **argv);
+/* microrayd serve (server/serve_cmd.c). */
+int mr_cmd_serve(int argc, char **argv);
 
 #endif

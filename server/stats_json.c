@@ -24,6 +24,7 @@ static double median(double *v, size_t n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+/* One frame's statistics as a cJSON object (NULL when out of memory). */
 static cJSON *frame_json(const mr_frame_stats *f)
 {
     cJSON *o = cJSON_CreateObject();
@@ -45,7 +46,22 @@ static cJSON *frame_json(const mr_frame_stats *f)
     cJSON_AddNumberToObject(b, "bvh", (double)f->bvh_bytes);
     cJSON_AddNumberToObject(b, "peak_rss", (double)f->peak_rss_bytes);
     cJSON_AddNumberToObject(o, "scene_diagonal", f->scene_diagonal);
+    if (f->assets_cached || f->assets_loaded) {
+        cJSON *c = cJSON_AddObjectToObject(o, "cache");
+        cJSON_AddStringToObject(c, "result", f->assets_loaded ? (f->assets_cached ? "partial" : "miss") : "hit");
+        cJSON_AddNumberToObject(c, "assets_cached", f->assets_cached);
+        cJSON_AddNumberToObject(c, "assets_loaded", f->assets_loaded);
+        cJSON_AddNumberToObject(c, "saved_s", f->load_saved_s);
+    }
     return o;
+}
+
+char *mr_frame_stats_json(const mr_frame_stats *f)
+{
+    cJSON *o = frame_json(f);
+    char *s = o ? cJSON_PrintUnformatted(o) : NULL;
+    cJSON_Delete(o);
+    return s;
 }
 
 char *mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first)

@@ -11,4 +11,8 @@
  * memory. Frames [first, stats->frame_count) are included. */
 char *mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first);
 
+/* One frame's statistics (an element of stats.json's "frames") as compact
+ * JSON; malloc'ed, NULL when out of memory. */
+char *mr_frame_stats_json(const mr_frame_stats *f);
+
 #endif

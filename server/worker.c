@@ -1,4 +1,4 @@
-/* worker.c - one job, all frames (worker.h). */
+/* worker.c - one job, its wanted frames (worker.h). */
 #include "worker.h"
 
 #include <stdio.h>
@@ -7,8 +7,26 @@
 
 #include "asset/asset.h"
 
-int mr_worker_run(mr_device *dev, const mr_job *job, size_t first, const mr_frame_sink *sink,
-                  mr_job_stats *stats, mr_error *err)
+static int acquire(const mr_worker_io *io, const mr_asset_desc *d, mr_asset **out, bool *hit,
+                   double *saved_s, mr_error *err)
+{
+    if (io->acquire_asset)
+        return io->acquire_asset(io->user, d, out, hit, saved_s, err);
+    *hit = false;
+    *saved_s = 0;
+    return mr_asset_load(d->path, out, err);
+}
+
+static void release(const mr_worker_io *io, mr_asset *a)
+{
+    if (io->release_asset)
+        io->release_asset(io->user, a);
+    else
+        mr_asset_free(a);
+}
+
+int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_job_stats *stats,
+                  mr_error *err)
 {
     int rc = MR_OK;
     mr_asset **assets = NULL;
@@ -26,43 +44,70 @@ int mr_worker_run(mr_device *dev, const mr_job *job, size_t first, const mr_fram
 
     double t0 = mr_now();
     for (size_t i = 0; i < job->asset_count; i++) {
-        if ((rc = mr_asset_load(job->assets[i].path, &assets[i], err)) < 0) {
-            mr_error_prefix(err, "/assets/%s/path: ", job->assets[i].name);
+        bool hit;
+        double saved;
+        if ((rc = acquire(io, &job->assets[i], &assets[i], &hit, &saved, err)) < 0) {
+            mr_error_prefix(err, "/assets/%s/%s: ", job->assets[i].name, job->assets[i].id ? "id" : "path");
             goto done;
         }
+        stats->assets_cached += hit;
+        stats->assets_loaded += !hit;
+        stats->load_saved_s += saved;
     }
     stats->load_s = mr_now() - t0;
 
-    if ((rc = mr_renderer_new(dev, job, assets, NULL, &renderer, err)) < 0)
+    mr_renderer_options opt = {.cancel = io->cancel};
+    if ((rc = mr_renderer_new(dev, job, assets, &opt, &renderer, err)) < 0)
         goto done;
     if ((rc = mr_film_new(job->output.width, job->output.height, &film, err)) < 0)
         goto done;
 
-    for (size_t f = first; f < job->frame_count; f++) {
-        if (sink->cancelled && sink->cancelled(sink->user)) {
-            rc = mr_error_set(err, MR_ERR_CANCELLED, "cancelled before frame %zu", f);
+    bool first = true;
+    for (size_t f = 0; f < job->frame_count; f++) {
+        if (io->wanted && !io->wanted(io->user, f))
+            continue;
+        if (io->stop_requested && io->stop_requested(io->user)) {
+            rc = mr_error_set(err, MR_ERR_CANCELLED, "stopped before frame %zu", f);
             goto done;
         }
+        if (io->frame_started)
+            io->frame_started(io->user, f);
         mr_frame_stats *st = &stats->frames[f];
-        if ((rc = mr_renderer_render(renderer, f, film, st, err)) < 0)
-            goto done;
-        if (f == first) {
-            st->load_s = stats->load_s;
-            st->total_s += stats->load_s;
+        rc = mr_renderer_render(renderer, f, film, st, err);
+        if (rc == MR_OK) {
+            if (first) {
+                st->load_s = stats->load_s;
+                st->assets_cached = stats->assets_cached;
+                st->assets_loaded = stats->assets_loaded;
+                st->load_saved_s = stats->load_saved_s;
+                st->total_s += stats->load_s;
+            }
+            rc = io->frame_done(io->user, f, film, st, err);
         }
-        if ((rc = sink->frame_done(sink->user, f, film, st, err)) < 0)
+        if (rc == MR_ERR_CANCELLED)
             goto done;
+        if (rc < 0) {
+            mr_frame_decision d = io->frame_failed ? io->frame_failed(io->user, f, err) : MR_FRAME_ABORT;
+            if (d == MR_FRAME_ABORT)
+                goto done;
+            rc = MR_OK;
+            if (d == MR_FRAME_RETRY)
+                f--; /* the loop's f++ brings us back to this frame */
+            continue;
+        }
+        first = false;
         st->total_s += st->encode_s;
         stats->frame_count = f + 1;
-        if (sink->progress)
-            sink->progress(sink->user, f, stats);
+        if (io->progress)
+            io->progress(io->user, f, stats);
     }
 done:
     mr_film_free(film);
     mr_renderer_free(renderer);
     if (assets)
         for (size_t i = 0; i < job->asset_count; i++)
-            mr_asset_free(assets[i]);
+            if (assets[i])
+                release(io, assets[i]);
     free(assets);
     return rc;
 }

@@ -1,12 +1,15 @@
 /*
- * worker.h - renders one job from start to finish: import its assets, build a
- * renderer, render every frame and hand each finished frame to a sink.
+ * worker.h - renders one job: import (or borrow from a cache) its assets,
+ * build a renderer, render the wanted frames and hand each finished frame to
+ * a sink.
  *
  * The one-shot command and the daemon share this code; only where jobs come
- * from and where frames go differ (the sink).
+ * from, where assets come from and where frames go differ (mr_worker_io).
  */
 #ifndef MR_WORKER_H
 #define MR_WORKER_H
+
+#include <stdatomic.h>
 
 #include "job.h"
 #include "render/device.h"
@@ -14,18 +17,35 @@
 
 struct mr_job_stats;
 
-typedef struct mr_frame_sink {
+/* What a frame failure should lead to (mr_worker_io.frame_failed). */
+typedef enum mr_frame_decision { MR_FRAME_RETRY, MR_FRAME_SKIP, MR_FRAME_ABORT } mr_frame_decision;
+
+typedef struct mr_worker_io {
     void *user;
     /* Called once per finished frame, in frame order. Encodes/stores the
      * frame and fills stats->encode_s (the worker adds it to total_s). */
     int (*frame_done)(void *user, size_t index, const mr_film *film, mr_frame_stats *stats,
                       mr_error *err);
-    /* Called after frame_done with the job's statistics so far (the frame's
-     * totals now include encoding); may be NULL. Progress lines, stats.json. */
+    /* After frame_done, with the job's statistics so far; may be NULL. */
     void (*progress)(void *user, size_t index, const struct mr_job_stats *stats);
-    /* Polled between frames; may be NULL. */
-    bool (*cancelled)(void *user);
-} mr_frame_sink;
+    /* Whether to render frame `index` (NULL: all); the daemon skips frames
+     * already done before a restart. */
+    bool (*wanted)(void *user, size_t index);
+    /* Called before a frame is rendered; may be NULL. */
+    void (*frame_started)(void *user, size_t index);
+    /* A frame failed (err says why): retry it, skip it, or abort the job.
+     * NULL: abort (the one-shot renderer's behaviour). */
+    mr_frame_decision (*frame_failed)(void *user, size_t index, const mr_error *err);
+    /* Polled between frames: stop after the frame in progress; may be NULL. */
+    bool (*stop_requested)(void *user);
+    /* Stops a frame in progress within one tile; may be NULL. */
+    const atomic_bool *cancel;
+    /* Where assets come from. NULL: mr_asset_load / mr_asset_free. With a
+     * cache, *hit and *saved_s report whether the import was avoided. */
+    int (*acquire_asset)(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
+                         double *saved_s, mr_error *err);
+    void (*release_asset)(void *user, mr_asset *asset);
+} mr_worker_io;
 
 /* File name of frame `index` within a job's output ("0007.exr"). */
 #define MR_FRAME_NAME_MAX 32
@@ -34,15 +54,18 @@ void mr_frame_file_name(size_t index, char name[MR_FRAME_NAME_MAX]);
 typedef struct mr_job_stats {
     size_t frame_count;      /* one past the last frame finished */
     mr_frame_stats *frames;  /* job->frame_count entries */
-    double load_s;           /* asset import */
+    double load_s;           /* asset import (or cache lookup) */
+    unsigned assets_cached;  /* assets that came from the cache */
+    unsigned assets_loaded;  /* assets imported for this job */
+    double load_saved_s;     /* import seconds the cache saved */
     unsigned threads;
 } mr_job_stats;
 
-/* Loads job->assets[i].path for every asset (paths must already be resolved
- * by the caller), renders frames [first, job->frame_count) and calls the sink
- * for each. stats->frames is allocated here; free with mr_job_stats_free. */
-int mr_worker_run(mr_device *dev, const mr_job *job, size_t first, const mr_frame_sink *sink,
-                  mr_job_stats *stats, mr_error *err);
+/* Renders the wanted frames of job (asset paths must already be resolved).
+ * Returns MR_ERR_CANCELLED when cancelled or stopped. stats->frames is
+ * allocated here; free with mr_job_stats_free. */
+int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_job_stats *stats,
+                  mr_error *err);
 void mr_job_stats_free(mr_job_stats *stats);
 
 #endif

@@ -32,6 +32,7 @@ typedef struct {
     mr_film *film;
     int tiles_x;
     atomic_ullong rays;
+    atomic_bool cancelled;
 } trace_ctx;
 
 typedef struct {
@@ -224,6 +225,10 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
     uint64_t rays = 0;
     tile_buffer t;
     for (size_t tile = begin; tile < end; tile++) {
+        if (c->s->cancel && atomic_load_explicit(c->s->cancel, memory_order_relaxed)) {
+            atomic_store(&c->cancelled, true);
+            break;
+        }
         int x0 = (int)(tile % (size_t)c->tiles_x) * MR_TILE_W;
         int y0 = (int)(tile / (size_t)c->tiles_x) * MR_TILE_H;
         int tw = f->width - x0 < MR_TILE_W ? f->width - x0 : MR_TILE_W;
@@ -250,13 +255,16 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
     atomic_fetch_add(&c->rays, rays);
 }
 
-uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film)
+uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancelled)
 {
     trace_ctx c = {.s = setup, .film = film};
     c.rays_setup = mr_camera_rays_setup(&setup->camera, film->width, film->height);
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);
+    atomic_init(&c.cancelled, false);
     mr_parallel_for(setup->threads, (size_t)c.tiles_x * tiles_y, 1, trace_tiles, &c);
+    if (cancelled)
+        *cancelled = atomic_load(&c.cancelled);
     return atomic_load(&c.rays);
 }

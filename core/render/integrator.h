@@ -12,6 +12,7 @@
 #define MR_INTEGRATOR_H
 
 #include <embree3/rtcore.h>
+#include <stdatomic.h>
 
 #include "geom/geom.h"
 #include "render/camera.h"
@@ -51,9 +52,12 @@ typedef struct mr_trace_setup {
     uint32_t frame;
     float shadow_bias;              /* world units, ~1e-4 of the scene diagonal */
     unsigned threads;
+    const atomic_bool *cancel;      /* may be NULL; checked before every tile */
 } mr_trace_setup;
 
-/* Traces the whole film; returns the number of rays traced. */
-uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film);
+/* Traces the whole film; returns the number of rays traced. When *cancel
+ * becomes true the remaining tiles are skipped (the film is then incomplete
+ * and *cancelled is set). */
+uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancelled);
 
 #endif

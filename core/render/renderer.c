@@ -319,6 +319,7 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         .frame = (uint32_t)index,
         .shadow_bias = 1e-4f * diag,
         .threads = mr_device_threads(r->dev),
+        .cancel = r->opt.cancel,
     };
     if ((rc = camera_for_frame(r, index, t, &ts.camera, err)) < 0)
         return rc;
@@ -326,7 +327,10 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     if (!(fabsf(cp.x) <= MR_MAX_COORDINATE && fabsf(cp.y) <= MR_MAX_COORDINATE && fabsf(cp.z) <= MR_MAX_COORDINATE))
         return mr_error_set(err, MR_ERR_INVALID, "/camera: frame %zu puts the camera at (%g, %g, %g), beyond %g",
                             index, (double)cp.x, (double)cp.y, (double)cp.z, MR_MAX_COORDINATE);
-    st->rays = mr_trace_frame(&ts, film);
+    bool cancelled = false;
+    st->rays = mr_trace_frame(&ts, film, &cancelled);
+    if (cancelled)
+        return mr_error_set(err, MR_ERR_CANCELLED, "frame %zu cancelled", index);
     double t3 = mr_now();
     st->trace_s = t3 - t2;
     st->mrays_per_s = st->trace_s > 0 ? (double)st->rays / st->trace_s * 1e-6 : 0;

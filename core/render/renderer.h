@@ -13,6 +13,8 @@
 #ifndef MR_RENDERER_H
 #define MR_RENDERER_H
 
+#include <stdatomic.h>
+
 #include "asset/asset.h"
 #include "job.h"
 #include "render/device.h"
@@ -24,6 +26,9 @@ typedef struct mr_renderer_options {
     /* Rebuild the BVH every frame (same fast LOW-quality builder) instead of
      * refitting it: the baseline refit is measured against in benchmarks. */
     bool force_rebuild;
+    /* When set to true (from any thread) a render in progress stops within
+     * one tile and mr_renderer_render fails with MR_ERR_CANCELLED. May be NULL. */
+    const atomic_bool *cancel;
 } mr_renderer_options;
 
 typedef enum mr_bvh_update {
@@ -40,6 +45,9 @@ typedef struct mr_frame_stats {
     int frame;
     double time;              /* frame time on the job's timeline, s */
     double load_s;            /* asset import charged to this frame (the first) */
+    uint32_t assets_cached;   /* first frame: assets a scene cache already held */
+    uint32_t assets_loaded;   /* first frame: assets imported for this job */
+    double load_saved_s;      /* first frame: import seconds the cache saved */
     double pose_s;            /* pose evaluation and skinning */
     double bvh_s;             /* Embree build or refit */
     mr_bvh_update bvh;        /* what happened to the BVH this frame */

@@ -1,0 +1,645 @@
+/*
+ * main.c - `microray`, the command-line client of the microrayd render
+ * daemon: argument parsing, --help, and the commands that are one or two
+ * requests (status, list, cancel, retry, delete, upload, health). Following
+ * a job and downloading frames live in jobs.c, HTTP in api.c.
+ *
+ * Output contract: stdout carries only what scripts capture (a job or
+ * asset id, the status and list tables, JSON with --json); progress,
+ * confirmations and errors go to stderr; the exit code says what happened
+ * (see usage() and docs/client.md).
+ */
+#include "api.h"
+#include "client.h"
+#include "jobs.h"
+
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <curl/curl.h>
+
+#define JOB_FILE_LIMIT ((size_t)64 << 20) /* far above the daemon's cap, which answers 413 */
+#define MAX_POSITIONAL 4
+
+static void usage(FILE *out)
+{
+    fputs(
+        "usage: microray [--server URL] [--quiet] COMMAND [ARGS]\n"
+        "\n"
+        "Submits render jobs to a microrayd daemon and follows and fetches their results.\n"
+        "\n"
+        "Commands:\n"
+        "  submit JOB.json [--wait] [--out DIR] [--idempotency-key KEY]\n"
+        "                        submit a job (\"-\" reads it from stdin), print its id;\n"
+        "                        --wait follows it to the end with a progress display,\n"
+        "                        --out DIR (implies --wait) downloads DIR/NNNN.exr and\n"
+        "                        DIR/stats.json\n"
+        "  status ID [--json]    state, frame counts, timings and errors of a job\n"
+        "  list [--state S] [--json]\n"
+        "                        jobs, newest first; S is queued, running, succeeded,\n"
+        "                        failed or canceled\n"
+        "  wait ID [--out DIR]   follow a job already submitted, like submit --wait\n"
+        "  fetch ID --out DIR    download the job's finished frames and stats.json\n"
+        "  cancel ID             cancel a queued or running job\n"
+        "  retry ID              re-queue the failed frames of a failed job\n"
+        "  delete ID             delete a job and its frames on the server\n"
+        "  upload FILE           store a model or image on the server, print its asset id\n"
+        "  health                check the daemon's /healthz and /readyz\n"
+        "\n"
+        "Options (anywhere on the line):\n"
+        "  --server URL          the daemon (default: $MICRORAY_SERVER, else " MRC_DEFAULT_SERVER ")\n"
+        "  --quiet, -q           no progress or confirmations (ids and errors still print)\n"
+        "  --help, -h            this help\n"
+        "  --version, -V         the client's version\n"
+        "\n"
+        "Asset paths in a job are resolved on the server, not rewritten. To render a\n"
+        "local model, upload it and name its id in the job:\n"
+        "  microray upload hero.glb   ->   \"assets\": {\"hero\": {\"id\": \"<that id>\"}}\n"
+        "\n"
+        "Exit codes:\n"
+        "  0  success\n"
+        "  1  the job failed or was canceled (submit --wait, wait)\n"
+        "  2  usage error\n"
+        "  3  the server rejected the request (4xx)\n"
+        "  4  the server is unreachable, answered 5xx or answered nonsense\n"
+        "  5  a local file could not be read or written\n"
+        "\n"
+        "See docs/client.md.\n",
+        out);
+}
+
+static int usage_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static int usage_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("microray: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputs("\nTry 'microray --help'.\n", stderr);
+    va_end(ap);
+    return MRC_EXIT_USAGE;
+}
+
+/* ---- command-line parsing ------------------------------------------------- */
+
+typedef struct cmd_args {
+    const char *pos[MAX_POSITIONAL];
+    int npos;
+    const char *out, *idem, *state;
+    bool wait, json;
+} cmd_args;
+
+typedef struct opt_spec {
+    const char *name;
+    const char **value; /* options with a value */
+    bool *flag;         /* flags */
+} opt_spec;
+
+/* Parses one command's arguments against its options. "--name VALUE" and
+ * "--name=VALUE" both work; after "--" everything is positional. */
+static int parse_command_args(int argc, char **argv, const opt_spec *specs, int min_pos,
+                              int max_pos, cmd_args *a)
+{
+    bool options_done = false;
+    for (int i = 0; i < argc; i++) {
+        const char *arg = argv[i];
+        if (!options_done && strcmp(arg, "--") == 0) {
+            options_done = true;
+            continue;
+        }
+        if (!options_done && arg[0] == '-' && arg[1] != '\0') {
+            const char *eq = strchr(arg, '=');
+            size_t name_len = eq ? (size_t)(eq - arg) : strlen(arg);
+            const opt_spec *s = NULL;
+            for (const opt_spec *p = specs; p && p->name; p++)
+                if (strlen(p->name) == name_len && strncmp(p->name, arg, name_len) == 0)
+                    s = p;
+            if (!s)
+                return usage_error("unknown option '%s' for this command", arg);
+            if (s->flag) {
+                if (eq)
+                    return usage_error("option '%s' takes no value", arg);
+                *s->flag = true;
+            } else if (eq) {
+                *s->value = eq + 1;
+            } else if (i + 1 < argc) {
+                *s->value = argv[++i];
+            } else {
+                return usage_error("option '%s' needs a value", arg);
+            }
+            continue;
+        }
+        if (a->npos >= max_pos)
+            return usage_error("unexpected argument '%s'", arg);
+        a->pos[a->npos++] = arg;
+    }
+    if (a->npos < min_pos)
+        return usage_error("%s", min_pos == 1 ? "missing argument (see --help)"
+                                              : "missing arguments (see --help)");
+    return 0;
+}
+
+/* Global options may stand anywhere: they are taken out of argv here. The
+ * value of a command option is skipped so "--out --quiet" stays an error
+ * of the command, not a silent global flag. */
+typedef struct globals {
+    const char *server;
+    bool quiet, help, version;
+} globals;
+
+static int take_globals(int argc, char **argv, globals *g, char **rest, int *nrest)
+{
+    static const char *const valued[] = {"--out", "--idempotency-key", "--state", NULL};
+    *nrest = 0;
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        if (strcmp(arg, "--") == 0) {
+            while (i < argc)
+                rest[(*nrest)++] = argv[i++];
+            break;
+        }
+        if (strcmp(arg, "--server") == 0) {
+            if (i + 1 >= argc)
+                return usage_error("%s needs a URL", arg);
+            g->server = argv[++i];
+        } else if (strncmp(arg, "--server=", 9) == 0) {
+            g->server = arg + 9;
+        } else if (strcmp(arg, "--quiet") == 0 || strcmp(arg, "-q") == 0) {
+            g->quiet = true;
+        } else if (strcmp(arg, "--help") == 0 || strcmp(arg, "-h") == 0) {
+            g->help = true;
+        } else if (strcmp(arg, "--version") == 0 || strcmp(arg, "-V") == 0) {
+            g->version = true;
+        } else {
+            rest[(*nrest)++] = argv[i];
+            for (const char *const *v = valued; *v; v++)
+                if (strcmp(arg, *v) == 0 && i + 1 < argc)
+                    rest[(*nrest)++] = argv[++i];
+        }
+    }
+    return 0;
+}
+
+static int check_id(const char *id)
+{
+    if (!mrc_valid_id(id))
+        return usage_error("'%s' is not a job id", id);
+    return 0;
+}
+
+static bool stderr_is_terminal(void)
+{
+    const char *term = getenv("TERM");
+    return isatty(STDERR_FILENO) && !(term && strcmp(term, "dumb") == 0);
+}
+
+/* ---- commands ------------------------------------------------------------- */
+
+static int cmd_submit(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err)
+{
+    int rc = 0;
+    char *body = NULL;
+    size_t len = 0;
+    mrc_response resp = {0};
+    cJSON *doc = NULL;
+    char id[520]; /* sid is at most 128 characters (mrc_valid_id) */
+
+    rc = mrc_read_file(a->pos[0], JOB_FILE_LIMIT, &body, &len, err);
+    if (rc < 0)
+        goto cleanup;
+    rc = mrc_http_json(h, "POST", "/v1/jobs", body, len, "application/json", a->idem, &resp, &doc,
+                       err);
+    if (rc < 0)
+        goto cleanup;
+    /* the id from the body, else the last segment of Location */
+    const char *sid = mrc_json_str(doc, "id");
+    if (!sid && resp.location[0]) {
+        const char *slash = strrchr(resp.location, '/');
+        sid = slash ? slash + 1 : resp.location;
+    }
+    if (!sid || !mrc_valid_id(sid)) {
+        rc = mrc_fail(err, MRC_EXIT_SERVER, "the server accepted the job but sent no usable job id");
+        goto cleanup;
+    }
+    snprintf(id, sizeof id, "%s", sid);
+    printf("%s\n", id);
+    fflush(stdout);
+    if (a->wait || a->out) {
+        mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal()};
+        rc = mrc_job_wait(h, id, &opts, err);
+    }
+cleanup:
+    cJSON_Delete(doc);
+    mrc_response_free(&resp);
+    free(body);
+    return rc;
+}
+
+static void print_json(const cJSON *doc)
+{
+    char *text = cJSON_Print(doc); /* re-serialised: control characters come out escaped */
+    if (text) {
+        puts(text);
+        free(text);
+    }
+}
+
+static const char *safe_str(char *dst, size_t size, const cJSON *obj, const char *key)
+{
+    const char *s = mrc_json_str(obj, key);
+    mrc_sanitize(dst, size, s && s[0] ? s : "-");
+    return dst;
+}
+
+static int cmd_status(mrc_http *h, const cmd_args *a, mrc_error *err)
+{
+    char path[256], name[128], state[32], when[64], error[512];
+    snprintf(path, sizeof path, "/v1/jobs/%s", a->pos[0]);
+    mrc_response resp = {0};
+    cJSON *job = NULL;
+    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &job, err);
+    if (rc < 0 || !job) {
+        if (rc == 0)
+            rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+        goto cleanup;
+    }
+    if (a->json) {
+        print_json(job);
+        goto cleanup;
+    }
+    const cJSON *frames = cJSON_GetObjectItemCaseSensitive(job, "frames");
+    long long total = mrc_json_int(frames, "total", 0, 0, 1LL << 40);
+    long long done = mrc_json_int(frames, "done", 0, 0, 1LL << 40);
+    long long failed = mrc_json_int(frames, "failed", 0, 0, 1LL << 40);
+    const cJSON *raw_states = cJSON_GetObjectItemCaseSensitive(job, "frame_states");
+    const cJSON *states = cJSON_IsArray(raw_states) ? raw_states : NULL;
+    long long running = 0, pending = 0;
+    const cJSON *fr;
+    cJSON_ArrayForEach(fr, states) {
+        const char *st = mrc_json_str(fr, "state");
+        running += st && strcmp(st, "running") == 0;
+        pending += st && strcmp(st, "pending") == 0;
+    }
+
+    char clean_id[160];
+    mrc_sanitize(clean_id, sizeof clean_id, a->pos[0]);
+    printf("id        %s\n", clean_id);
+    printf("name      %s\n", safe_str(name, sizeof name, job, "name"));
+    printf("state     %s\n", safe_str(state, sizeof state, job, "state"));
+    printf("priority  %lld\n", mrc_json_int(job, "priority", 0, -(1LL << 40), 1LL << 40));
+    printf("frames    %lld/%lld done", done, total);
+    if (failed)
+        printf(", %lld failed", failed);
+    if (states)
+        printf(", %lld running, %lld pending", running, pending);
+    printf("\n");
+    if (cJSON_IsNumber(cJSON_GetObjectItemCaseSensitive(job, "max_retries")))
+        printf("retries   up to %lld per frame\n", mrc_json_int(job, "max_retries", 0, 0, 1LL << 40));
+    mrc_format_time_field(when, sizeof when, job, "created");
+    printf("created   %s\n", when);
+    mrc_format_time_field(when, sizeof when, job, "started");
+    printf("started   %s\n", when);
+    mrc_format_time_field(when, sizeof when, job, "finished");
+    printf("finished  %s\n", when);
+    if (mrc_json_str(job, "error") && mrc_json_str(job, "error")[0])
+        printf("error     %s\n", safe_str(error, sizeof error, job, "error"));
+
+    /* the frames that need attention */
+    int shown = 0, more = 0;
+    cJSON_ArrayForEach(fr, states) {
+        const char *st = mrc_json_str(fr, "state");
+        bool bad = st && strcmp(st, "failed") == 0;
+        long long retries = mrc_json_int(fr, "retries", 0, 0, 1LL << 40);
+        if (!bad && !(retries > 0 && mrc_json_str(fr, "error")))
+            continue;
+        if (shown == 20) {
+            more++;
+            continue;
+        }
+        if (shown++ == 0)
+            printf("frames with errors:\n");
+        printf("  %6lld  %-7s  %lld retr%s  %s\n", mrc_json_int(fr, "index", -1, -1, 1LL << 40),
+               bad ? "failed" : st ? (strcmp(st, "done") == 0 ? "done" : "retried") : "?", retries,
+               retries == 1 ? "y" : "ies", safe_str(error, sizeof error, fr, "error"));
+    }
+    if (more)
+        printf("  ... and %d more\n", more);
+cleanup:
+    cJSON_Delete(job);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+static int cmd_list(mrc_http *h, const cmd_args *a, mrc_error *err)
+{
+    static const char *const valid[] = {"queued", "running", "succeeded", "failed", "canceled", NULL};
+    char path[128];
+    if (a->state) {
+        bool ok = false;
+        for (const char *const *v = valid; *v; v++)
+            ok = ok || strcmp(a->state, *v) == 0;
+        if (!ok)
+            return -usage_error(
+                "--state '%s': expected queued, running, succeeded, failed or canceled", a->state);
+        snprintf(path, sizeof path, "/v1/jobs?state=%s", a->state);
+    } else {
+        snprintf(path, sizeof path, "/v1/jobs");
+    }
+    mrc_response resp = {0};
+    cJSON *doc = NULL;
+    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &doc, err);
+    if (rc < 0)
+        goto cleanup;
+    const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
+    if (!cJSON_IsArray(jobs)) {
+        rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: the answer has no \"jobs\" array", path);
+        goto cleanup;
+    }
+    if (a->json) {
+        print_json(doc);
+        goto cleanup;
+    }
+    if (cJSON_GetArraySize(jobs) == 0) {
+        printf("no jobs\n");
+        goto cleanup;
+    }
+    printf("%-32s  %-20s  %-9s  %4s  %-13s  %s\n", "ID", "NAME", "STATE", "PRI", "FRAMES",
+           "CREATED");
+    const cJSON *job;
+    cJSON_ArrayForEach(job, jobs) {
+        char id[40], name[64], state[16], frames_col[48], created[64];
+        safe_str(id, sizeof id, job, "id");
+        safe_str(name, sizeof name, job, "name");
+        if (strlen(name) > 20)
+            memcpy(name + 17, "...", 4);
+        safe_str(state, sizeof state, job, "state");
+        const cJSON *frames = cJSON_GetObjectItemCaseSensitive(job, "frames");
+        long long failed = mrc_json_int(frames, "failed", 0, 0, 1LL << 40);
+        int n = snprintf(frames_col, sizeof frames_col, "%lld/%lld",
+                         mrc_json_int(frames, "done", 0, 0, 1LL << 40),
+                         mrc_json_int(frames, "total", 0, 0, 1LL << 40));
+        if (failed && n > 0 && (size_t)n < sizeof frames_col)
+            snprintf(frames_col + n, sizeof frames_col - (size_t)n, " (%lld!)", failed);
+        mrc_format_time_field(created, sizeof created, job, "created");
+        printf("%-32s  %-20s  %-9s  %4lld  %-13s  %s\n", id, name, state,
+               mrc_json_int(job, "priority", 0, -999, 9999), frames_col, created);
+    }
+cleanup:
+    cJSON_Delete(doc);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+/* cancel and retry: POST /v1/jobs/{id}/<action>, report the new state */
+static int cmd_action(mrc_http *h, const char *action, const cmd_args *a, bool quiet,
+                      mrc_error *err)
+{
+    char path[256], state[32];
+    snprintf(path, sizeof path, "/v1/jobs/%s/%s", a->pos[0], action);
+    mrc_response resp = {0};
+    cJSON *doc = NULL;
+    int rc = mrc_http_json(h, "POST", path, NULL, 0, NULL, NULL, &resp, &doc, err);
+    if (rc == 0 && !quiet) {
+        safe_str(state, sizeof state, doc, "state");
+        if (strcmp(action, "retry") == 0)
+            fprintf(stderr, "job %s: %lld frame%s requeued, state %s\n", a->pos[0],
+                    mrc_json_int(doc, "frames_requeued", 0, 0, 1LL << 40),
+                    mrc_json_int(doc, "frames_requeued", 0, 0, 1LL << 40) == 1 ? "" : "s", state);
+        else
+            fprintf(stderr, "job %s: cancel requested, state %s\n", a->pos[0], state);
+    }
+    cJSON_Delete(doc);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+static int cmd_delete(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err)
+{
+    char path[256];
+    snprintf(path, sizeof path, "/v1/jobs/%s", a->pos[0]);
+    mrc_response resp = {0};
+    int rc = mrc_http_request(h, "DELETE", path, NULL, 0, NULL, NULL, &resp, err);
+    if (rc == 0)
+        rc = mrc_http_check(&resp, err);
+    if (rc == 0 && !quiet)
+        fprintf(stderr, "job %s deleted\n", a->pos[0]);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+static int cmd_upload(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err)
+{
+    mrc_response resp = {0};
+    cJSON *doc = NULL;
+    int rc = mrc_http_upload(h, "/v1/assets", a->pos[0], &resp, err);
+    if (rc == 0)
+        rc = mrc_http_check(&resp, err);
+    if (rc < 0)
+        goto cleanup;
+    doc = cJSON_ParseWithLength(resp.body.data ? resp.body.data : "", resp.body.len);
+    const char *id = mrc_json_str(doc, "id");
+    /* an asset id is a SHA-256 in hex; anything else would break the job */
+    bool ok = id && strlen(id) == 64 && strspn(id, "0123456789abcdefABCDEF") == 64;
+    if (!ok) {
+        rc = mrc_fail(err, MRC_EXIT_SERVER, "POST /v1/assets: the answer has no asset id");
+        goto cleanup;
+    }
+    printf("%s\n", id);
+    fflush(stdout);
+    if (!quiet) {
+        char size[32];
+        mrc_format_bytes(size, sizeof size, mrc_json_num(doc, "size", 0.0));
+        const cJSON *existed = cJSON_GetObjectItemCaseSensitive(doc, "existed");
+        fprintf(stderr, "%s: %s %s\n", a->pos[0], size,
+                cJSON_IsTrue(existed) || resp.status == 200 ? "already stored on the server"
+                                                            : "stored");
+    }
+cleanup:
+    cJSON_Delete(doc);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+static int cmd_health(mrc_http *h, mrc_error *err)
+{
+    mrc_response resp = {0};
+    int rc = mrc_http_request(h, "GET", "/healthz", NULL, 0, NULL, NULL, &resp, err);
+    if (rc == 0)
+        rc = mrc_http_check(&resp, err);
+    if (rc < 0)
+        goto cleanup;
+    printf("healthz  ok\n");
+    rc = mrc_http_request(h, "GET", "/readyz", NULL, 0, NULL, NULL, &resp, err);
+    if (rc < 0)
+        goto cleanup;
+    if (resp.status == 200) {
+        printf("readyz   ready\n");
+    } else {
+        printf("readyz   not ready (%ld)\n", resp.status);
+        mrc_http_check(&resp, err);
+        rc = -err->code;
+    }
+cleanup:
+    fflush(stdout);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+/* ---- main ----------------------------------------------------------------- */
+
+int main(int argc, char **argv)
+{
+    int code = 0;
+    char **rest = NULL;
+    int nrest = 0;
+    mrc_http *http = NULL;
+    mrc_error err = {0};
+    globals g = {0};
+    cmd_args a = {0};
+    bool curl_ready = false;
+
+    /* writing to a closed pipe (microray list | head) must end in an
+     * error code, not a signal */
+    signal(SIGPIPE, SIG_IGN);
+
+    rest = calloc((size_t)argc + 1, sizeof *rest);
+    if (!rest) {
+        fprintf(stderr, "microray: out of memory\n");
+        return MRC_EXIT_LOCAL;
+    }
+    code = take_globals(argc, argv, &g, rest, &nrest);
+    if (code)
+        goto cleanup;
+    if (g.help) {
+        usage(stdout);
+        goto cleanup;
+    }
+    if (g.version) {
+        curl_version_info_data *cv = curl_version_info(CURLVERSION_NOW);
+        printf("microray %s (libcurl %s, cJSON %s)\n", MRC_VERSION, cv ? cv->version : "?",
+               cJSON_Version());
+        goto cleanup;
+    }
+    if (nrest == 0) {
+        usage(stderr);
+        code = MRC_EXIT_USAGE;
+        goto cleanup;
+    }
+    const char *cmd = rest[0];
+    int cargc = nrest - 1;
+    char **cargv = rest + 1;
+    opt_spec none[] = {{NULL, NULL, NULL}};
+    int min_pos = 1, max_pos = 1;
+    const opt_spec *specs = none;
+    opt_spec submit_specs[] = {{"--wait", NULL, &a.wait},
+                               {"--out", &a.out, NULL},
+                               {"--idempotency-key", &a.idem, NULL},
+                               {NULL, NULL, NULL}};
+    opt_spec status_specs[] = {{"--json", NULL, &a.json}, {NULL, NULL, NULL}};
+    opt_spec list_specs[] = {{"--state", &a.state, NULL}, {"--json", NULL, &a.json}, {NULL, NULL, NULL}};
+    opt_spec fetch_specs[] = {{"--out", &a.out, NULL}, {NULL, NULL, NULL}};
+
+    if (strcmp(cmd, "submit") == 0) {
+        specs = submit_specs;
+    } else if (strcmp(cmd, "status") == 0) {
+        specs = status_specs;
+    } else if (strcmp(cmd, "list") == 0) {
+        specs = list_specs;
+        min_pos = max_pos = 0;
+    } else if (strcmp(cmd, "fetch") == 0 || strcmp(cmd, "wait") == 0) {
+        specs = fetch_specs;
+    } else if (strcmp(cmd, "health") == 0) {
+        min_pos = max_pos = 0;
+    } else if (strcmp(cmd, "help") == 0) {
+        usage(stdout);
+        goto cleanup;
+    } else if (strcmp(cmd, "cancel") != 0 && strcmp(cmd, "retry") != 0 &&
+               strcmp(cmd, "delete") != 0 && strcmp(cmd, "upload") != 0) {
+        code = usage_error("unknown command '%s'", cmd);
+        goto cleanup;
+    }
+    code = parse_command_args(cargc, cargv, specs, min_pos, max_pos, &a);
+    if (code)
+        goto cleanup;
+    if (strcmp(cmd, "fetch") == 0 && !a.out) {
+        code = usage_error("%s", "fetch needs --out DIR");
+        goto cleanup;
+    }
+    if ((a.out && !a.out[0]) || (a.idem && !a.idem[0])) {
+        code = usage_error("%s", "empty option value");
+        goto cleanup;
+    }
+    if (a.idem) {
+        /* it becomes a header line: no CR/LF smuggling, printable ASCII only */
+        for (const char *p = a.idem; *p; p++) {
+            if ((unsigned char)*p < 0x21 || (unsigned char)*p > 0x7e || strlen(a.idem) > 255) {
+                code = usage_error("%s", "--idempotency-key: 1..255 printable ASCII characters");
+                goto cleanup;
+            }
+        }
+    }
+    if (strcmp(cmd, "submit") != 0 && strcmp(cmd, "upload") != 0 && strcmp(cmd, "list") != 0 &&
+        strcmp(cmd, "health") != 0) {
+        code = check_id(a.pos[0]);
+        if (code)
+            goto cleanup;
+    }
+
+    const char *server = g.server;
+    if (!server) {
+        server = getenv("MICRORAY_SERVER");
+        if (!server || !server[0])
+            server = MRC_DEFAULT_SERVER;
+    }
+    if (curl_global_init(CURL_GLOBAL_DEFAULT) != CURLE_OK) {
+        fprintf(stderr, "microray: cannot initialise libcurl\n");
+        code = MRC_EXIT_LOCAL;
+        goto cleanup;
+    }
+    curl_ready = true;
+    int rc = mrc_http_open(server, &http, &err);
+    if (rc == 0) {
+        if (strcmp(cmd, "submit") == 0)
+            rc = cmd_submit(http, &a, g.quiet, &err);
+        else if (strcmp(cmd, "status") == 0)
+            rc = cmd_status(http, &a, &err);
+        else if (strcmp(cmd, "list") == 0)
+            rc = cmd_list(http, &a, &err);
+        else if (strcmp(cmd, "fetch") == 0) {
+            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal()};
+            rc = mrc_job_fetch(http, a.pos[0], &opts, &err);
+        } else if (strcmp(cmd, "wait") == 0) {
+            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal()};
+            rc = mrc_job_wait(http, a.pos[0], &opts, &err);
+        } else if (strcmp(cmd, "cancel") == 0 || strcmp(cmd, "retry") == 0)
+            rc = cmd_action(http, cmd, &a, g.quiet, &err);
+        else if (strcmp(cmd, "delete") == 0)
+            rc = cmd_delete(http, &a, g.quiet, &err);
+        else if (strcmp(cmd, "upload") == 0)
+            rc = cmd_upload(http, &a, g.quiet, &err);
+        else
+            rc = cmd_health(http, &err);
+    }
+    if (rc < 0) {
+        code = -rc;
+        /* usage errors found late (a bad --state) were already printed */
+        if (err.code)
+            fprintf(stderr, "microray: %s\n", err.msg);
+        if (code == MRC_EXIT_USAGE && err.code)
+            fputs("Try 'microray --help'.\n", stderr);
+    }
+    if (code == 0 && (fflush(stdout) != 0 || ferror(stdout))) {
+        fprintf(stderr, "microray: cannot write to standard output\n");
+        code = MRC_EXIT_LOCAL;
+    }
+cleanup:
+    mrc_http_close(http);
+    if (curl_ready)
+        curl_global_cleanup();
+    free(rest);
+    return code;
+}

@@ -1,0 +1,166 @@
+/* cache.c - LRU, reference-counted cache of imported assets (cache.h). */
+#include "cache.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "render/renderer.h" /* mr_now */
+
+typedef struct entry {
+    char key[129];
+    mr_asset *asset;
+    size_t bytes;
+    int refs;
+    uint64_t last_use;  /* cache clock at the last acquire */
+    double import_s;    /* what a hit saves */
+    struct entry *next;
+} entry;
+
+struct mr_cache {
+    pthread_mutex_t lock;
+    size_t cap;
+    entry *entries;
+    uint64_t clock;
+    mr_cache_stats stats;
+};
+
+int mr_cache_new(size_t cap_bytes, mr_cache **out, mr_error *err)
+{
+    mr_cache *c = calloc(1, sizeof *c);
+    if (!c)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating the scene cache");
+    pthread_mutex_init(&c->lock, NULL);
+    c->cap = cap_bytes;
+    *out = c;
+    return MR_OK;
+}
+
+void mr_cache_free(mr_cache *c)
+{
+    if (!c)
+        return;
+    for (entry *e = c->entries, *next; e; e = next) {
+        next = e->next;
+        mr_asset_free(e->asset);
+        free(e);
+    }
+    pthread_mutex_destroy(&c->lock);
+    free(c);
+}
+
+/* Drops unreferenced entries, least recently used first, while over the cap.
+ * Called with the lock held. */
+static void evict(mr_cache *c)
+{
+    while (c->stats.bytes > c->cap) {
+        entry **victim = NULL;
+        for (entry **p = &c->entries; *p; p = &(*p)->next)
+            if ((*p)->refs == 0 && (!victim || (*p)->last_use < (*victim)->last_use))
+                victim = p;
+        if (!victim)
+            return; /* everything left is in use */
+        entry *e = *victim;
+        *victim = e->next;
+        c->stats.bytes -= e->bytes;
+        c->stats.entries--;
+        c->stats.evictions++;
+        mr_asset_free(e->asset);
+        free(e);
+    }
+}
+
+static entry *find(mr_cache *c, const char *key)
+{
+    for (entry *e = c->entries; e; e = e->next)
+        if (strcmp(e->key, key) == 0)
+            return e;
+    return NULL;
+}
+
+int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **out, bool *hit,
+                     double *saved_s, mr_error *err)
+{
+    *out = NULL;
+    *hit = false;
+    *saved_s = 0;
+    if (strlen(key) >= sizeof ((entry *)0)->key)
+        return mr_error_set(err, MR_ERR_INVALID, "cache key too long");
+    pthread_mutex_lock(&c->lock);
+    entry *e = find(c, key);
+    if (e) {
+        e->refs++;
+        e->last_use = ++c->clock;
+        c->stats.hits++;
+        c->stats.saved_s += e->import_s;
+        *out = e->asset;
+        *hit = true;
+        *saved_s = e->import_s;
+        pthread_mutex_unlock(&c->lock);
+        return MR_OK;
+    }
+    c->stats.misses++;
+    pthread_mutex_unlock(&c->lock);
+
+    /* Import without the lock: other jobs keep using the cache meanwhile. */
+    double t0 = mr_now();
+    mr_asset *a = NULL;
+    int rc = mr_asset_load(path, &a, err);
+    if (rc < 0)
+        return rc;
+    double import_s = mr_now() - t0;
+
+    pthread_mutex_lock(&c->lock);
+    e = find(c, key);
+    if (e) { /* someone imported the same file meanwhile: use theirs */
+        e->refs++;
+        e->last_use = ++c->clock;
+        *out = e->asset;
+        pthread_mutex_unlock(&c->lock);
+        mr_asset_free(a);
+        return MR_OK;
+    }
+    e = calloc(1, sizeof *e);
+    if (!e) {
+        pthread_mutex_unlock(&c->lock);
+        mr_asset_free(a);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory caching %s", path);
+    }
+    snprintf(e->key, sizeof e->key, "%s", key);
+    e->asset = a;
+    e->bytes = mr_asset_memory(a);
+    e->refs = 1;
+    e->last_use = ++c->clock;
+    e->import_s = import_s;
+    e->next = c->entries;
+    c->entries = e;
+    c->stats.bytes += e->bytes;
+    c->stats.entries++;
+    evict(c);
+    *out = a;
+    pthread_mutex_unlock(&c->lock);
+    return MR_OK;
+}
+
+void mr_cache_release(mr_cache *c, mr_asset *asset)
+{
+    if (!asset)
+        return;
+    pthread_mutex_lock(&c->lock);
+    for (entry *e = c->entries; e; e = e->next)
+        if (e->asset == asset) {
+            if (e->refs > 0)
+                e->refs--;
+            break;
+        }
+    evict(c);
+    pthread_mutex_unlock(&c->lock);
+}
+
+void mr_cache_stats_get(mr_cache *c, mr_cache_stats *out)
+{
+    pthread_mutex_lock(&c->lock);
+    *out = c->stats;
+    pthread_mutex_unlock(&c->lock);
+}

@@ -1,0 +1,877 @@
+/*
+ * daemon.c - microrayd serve: store, workers, scene cache, events and the
+ * HTTP front end wired together (daemon.h).
+ *
+ * Workers claim queued jobs from the store by priority and render them with
+ * the same worker code as the one-shot command. Frames already done (before
+ * a crash or a stop) are skipped, so a resumed job renders only what is
+ * missing. A user cancel stops the frame in progress within one tile; a
+ * daemon stop (SIGTERM) lets it finish and leaves the job to resume.
+ */
+#include "daemon.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <limits.h>
+#include <stdarg.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+
+#include "cache.h"
+#include "files.h"
+#include "http.h"
+#include "job_json.h"
+#include "render/exr.h"
+#include "sha256.h"
+#include "stats_json.h"
+#include "worker.h"
+
+/* Upper bounds (seconds) of the frame time histogram buckets in /metrics. */
+static const double FRAME_BUCKETS[] = {0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30};
+#define N_BUCKETS (sizeof FRAME_BUCKETS / sizeof FRAME_BUCKETS[0])
+
+typedef struct running_job {
+    char id[MR_JOB_ID_LEN + 1];
+    atomic_bool cancel;
+    struct running_job *next;
+} running_job;
+
+typedef struct event_msg {
+    char *text;
+    struct event_msg *next;
+} event_msg;
+
+struct mr_event_sub {
+    mr_daemon *d;
+    char id[MR_JOB_ID_LEN + 1];
+    event_msg *head, *tail;
+    bool ended;
+    void (*notify)(void *user);
+    void *notify_user;
+    struct mr_event_sub *next;
+};
+
+struct mr_daemon {
+    mr_daemon_config cfg;
+    char *data_dir;
+    char **roots; /* realpath of each asset root */
+    size_t root_count;
+    mr_store *store;
+    mr_device *dev;
+    mr_cache *cache;
+    mr_http *http;
+    pthread_t *workers;
+    unsigned worker_count;
+
+    pthread_mutex_t lock; /* stopping, running, metrics */
+    pthread_cond_t wake;     /* a job was queued, or stop */
+    pthread_cond_t released; /* a worker let go of a job */
+    bool stopping, ready;
+    running_job *running;
+    uint64_t frames_rendered, frames_failed, rays;
+    uint64_t buckets[N_BUCKETS + 1];
+    double frame_seconds_sum;
+
+    pthread_mutex_t ev_lock;
+    mr_event_sub *subs;
+};
+
+static void log_line(const mr_daemon *d, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void log_line(const mr_daemon *d, const char *fmt, ...)
+{
+    if (d->cfg.quiet)
+        return;
+    char buf[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "microrayd: %s\n", buf);
+}
+
+/* ---- events -------------------------------------------------------------- */
+
+static bool state_is_terminal(mr_job_state s)
+{
+    return s == MR_JOB_SUCCEEDED || s == MR_JOB_FAILED || s == MR_JOB_CANCELED;
+}
+
+static void sub_push(mr_event_sub *s, const char *type, const char *json, bool end)
+{
+    if (s->ended)
+        return;
+    size_t n = strlen(type) + strlen(json) + 32;
+    event_msg *m = malloc(sizeof *m);
+    char *text = malloc(n);
+    if (!m || !text) {
+        free(m);
+        free(text);
+        s->ended = true; /* out of memory: end the stream rather than lose events silently */
+    } else {
+        snprintf(text, n, "event: %s\ndata: %s\n\n", type, json);
+        *m = (event_msg){text, NULL};
+        if (s->tail)
+            s->tail->next = m;
+        else
+            s->head = m;
+        s->tail = m;
+        s->ended = end;
+    }
+    if (s->notify)
+        s->notify(s->notify_user);
+}
+
+static void publish(mr_daemon *d, const char *id, const char *type, const char *json, bool end)
+{
+    pthread_mutex_lock(&d->ev_lock);
+    for (mr_event_sub *s = d->subs; s; s = s->next)
+        if (strcmp(s->id, id) == 0)
+            sub_push(s, type, json, end);
+    pthread_mutex_unlock(&d->ev_lock);
+}
+
+/* Publishes the job's current state (from the store). */
+static void publish_state(mr_daemon *d, const char *id)
+{
+    mr_job_record r;
+    mr_error err;
+    if (mr_store_job_get(d->store, id, &r, &err) < 0)
+        return;
+    char json[1024];
+    snprintf(json, sizeof json,
+             "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}", r.id,
+             mr_job_state_name(r.state), r.frame_count, r.frames_done, r.frames_failed);
+    publish(d, id, "state", json, state_is_terminal(r.state));
+}
+
+mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id)
+{
+    mr_job_record r;
+    mr_error err;
+    if (mr_store_job_get(d->store, job_id, &r, &err) < 0)
+        return NULL;
+    mr_event_sub *s = calloc(1, sizeof *s);
+    if (!s)
+        return NULL;
+    s->d = d;
+    snprintf(s->id, sizeof s->id, "%s", job_id);
+    char json[1024];
+    snprintf(json, sizeof json,
+             "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}", r.id,
+             mr_job_state_name(r.state), r.frame_count, r.frames_done, r.frames_failed);
+    pthread_mutex_lock(&d->ev_lock);
+    sub_push(s, "state", json, state_is_terminal(r.state));
+    s->next = d->subs;
+    d->subs = s;
+    pthread_mutex_unlock(&d->ev_lock);
+    return s;
+}
+
+int mr_events_next(mr_event_sub *s, char *buf, size_t size)
+{
+    int n = 0;
+    pthread_mutex_lock(&s->d->ev_lock);
+    event_msg *m = s->head;
+    if (m) {
+        size_t len = strlen(m->text);
+        if (len >= size)
+            len = size - 1; /* events are small; a tiny buffer only truncates */
+        memcpy(buf, m->text, len);
+        buf[len] = '\0';
+        s->head = m->next;
+        if (!s->head)
+            s->tail = NULL;
+        free(m->text);
+        free(m);
+        n = (int)len;
+    } else if (s->ended) {
+        n = -1;
+    }
+    pthread_mutex_unlock(&s->d->ev_lock);
+    return n;
+}
+
+void mr_events_set_notify(mr_event_sub *s, void (*fn)(void *user), void *user)
+{
+    pthread_mutex_lock(&s->d->ev_lock);
+    s->notify = fn;
+    s->notify_user = user;
+    bool pending = s->head || s->ended;
+    pthread_mutex_unlock(&s->d->ev_lock);
+    if (pending && fn)
+        fn(user);
+}
+
+void mr_events_unsubscribe(mr_event_sub *s)
+{
+    if (!s)
+        return;
+    mr_daemon *d = s->d;
+    pthread_mutex_lock(&d->ev_lock);
+    for (mr_event_sub **p = &d->subs; *p; p = &(*p)->next)
+        if (*p == s) {
+            *p = s->next;
+            break;
+        }
+    pthread_mutex_unlock(&d->ev_lock);
+    for (event_msg *m = s->head, *next; m; m = next) {
+        next = m->next;
+        free(m->text);
+        free(m);
+    }
+    free(s);
+}
+
+/* ---- asset resolution -------------------------------------------------- */
+
+static bool path_has_dotdot(const char *p)
+{
+    for (const char *s = p; (s = strstr(s, "..")); s += 2) {
+        bool start = s == p || s[-1] == '/';
+        bool end = s[2] == '\0' || s[2] == '/';
+        if (start && end)
+            return true;
+    }
+    return false;
+}
+
+/* A server-side path, allowed only when it resolves (symlinks followed)
+ * to a regular file below one of the asset roots. */
+static int resolve_server_path(mr_daemon *d, const char *name, const char *path, char **out,
+                               char pointer[512], mr_error *err)
+{
+    snprintf(pointer, 512, "/assets/%s/path", name);
+    if (d->root_count == 0)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "server-side paths are disabled on this daemon (no --asset-root); upload the "
+                            "asset with POST /v1/assets and name it by \"id\"");
+    if (path_has_dotdot(path))
+        return mr_error_set(err, MR_ERR_INVALID, "'..' is not allowed in asset paths");
+    for (size_t i = 0; i < d->root_count; i++) {
+        char candidate[PATH_MAX + 8];
+        if (path[0] == '/')
+            snprintf(candidate, sizeof candidate, "%s", path);
+        else
+            snprintf(candidate, sizeof candidate, "%s/%s", d->roots[i], path);
+        char real[PATH_MAX];
+        if (!realpath(candidate, real))
+            continue;
+        size_t rl = strlen(d->roots[i]);
+        bool inside = strncmp(real, d->roots[i], rl) == 0 && (real[rl] == '/' || (rl == 1 && real[0] == '/'));
+        if (!inside)
+            continue;
+        struct stat st;
+        if (stat(real, &st) != 0 || !S_ISREG(st.st_mode))
+            return mr_error_set(err, MR_ERR_INVALID, "'%s' is not a regular file", path);
+        *out = strdup(real);
+        return *out ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    }
+    return mr_error_set(err, MR_ERR_NOT_FOUND, "no file '%s' below the asset roots", path);
+}
+
+/* Fills in job->assets[i].path for every asset: uploaded ids become stored
+ * files, server-side paths real paths below a root. */
+static int resolve_assets(mr_daemon *d, mr_job *job, char pointer[512], mr_error *err)
+{
+    for (size_t i = 0; i < job->asset_count; i++) {
+        mr_asset_desc *a = &job->assets[i];
+        char *resolved = NULL;
+        int rc;
+        if (a->id) {
+            char path[PATH_MAX];
+            snprintf(pointer, 512, "/assets/%s/id", a->name);
+            if ((rc = mr_store_asset_path(d->store, a->id, path, sizeof path, err)) < 0)
+                return mr_error_set(err, rc, "no uploaded asset with id %s", a->id);
+            resolved = strdup(path);
+            if (!resolved)
+                return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        } else if ((rc = resolve_server_path(d, a->name, a->path, &resolved, pointer, err)) < 0) {
+            return rc;
+        }
+        free(a->path);
+        a->path = resolved;
+    }
+    pointer[0] = '\0';
+    return MR_OK;
+}
+
+/* ---- submission and control ---------------------------------------------- */
+
+int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *idempotency_key,
+                     char id[MR_JOB_ID_LEN + 1], bool *existing, char pointer[512], mr_error *err)
+{
+    mr_job *job = NULL;
+    mr_job_error jerr;
+    pointer[0] = '\0';
+    *existing = false;
+    int rc = mr_job_parse(body, len, &job, &jerr);
+    if (rc < 0) {
+        snprintf(pointer, 512, "%s", jerr.pointer);
+        return mr_error_set(err, rc, "%s", jerr.message);
+    }
+    if ((rc = resolve_assets(d, job, pointer, err)) == MR_OK) {
+        char hash[65];
+        mr_sha256_hex(body, len, hash);
+        rc = mr_store_job_create(d->store, body, len, job->name, job->frame_count, job->priority,
+                                 job->max_retries, idempotency_key, hash, id, existing, err);
+    }
+    mr_job_free(job);
+    if (rc == MR_OK && !*existing) {
+        log_line(d, "job=%s queued", id);
+        pthread_mutex_lock(&d->lock);
+        pthread_cond_broadcast(&d->wake);
+        pthread_mutex_unlock(&d->lock);
+    }
+    return rc;
+}
+
+static running_job *find_running(mr_daemon *d, const char *id)
+{
+    for (running_job *r = d->running; r; r = r->next)
+        if (strcmp(r->id, id) == 0)
+            return r;
+    return NULL;
+}
+
+int mr_daemon_cancel(mr_daemon *d, const char *id, mr_error *err)
+{
+    mr_job_record r;
+    pthread_mutex_lock(&d->lock);
+    int rc = mr_store_job_get(d->store, id, &r, err);
+    if (rc == MR_OK && state_is_terminal(r.state))
+        rc = mr_error_set(err, MR_ERR_CONFLICT, "job %s already %s", id, mr_job_state_name(r.state));
+    if (rc == MR_OK)
+        rc = mr_store_job_set_state(d->store, id, MR_JOB_CANCELED, "canceled by request", err);
+    if (rc == MR_OK) {
+        running_job *run = find_running(d, id);
+        if (run)
+            atomic_store(&run->cancel, true);
+    }
+    pthread_mutex_unlock(&d->lock);
+    if (rc == MR_OK) {
+        log_line(d, "job=%s canceled", id);
+        publish_state(d, id);
+    }
+    return rc;
+}
+
+int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err)
+{
+    int rc = mr_store_job_retry(d->store, id, err);
+    if (rc >= 0) {
+        log_line(d, "job=%s retrying %d frames", id, rc);
+        pthread_mutex_lock(&d->lock);
+        pthread_cond_broadcast(&d->wake);
+        pthread_mutex_unlock(&d->lock);
+        publish_state(d, id);
+    }
+    return rc;
+}
+
+int mr_daemon_delete(mr_daemon *d, const char *id, mr_error *err)
+{
+    mr_error ignored;
+    mr_job_record r;
+    int rc = mr_store_job_get(d->store, id, &r, err);
+    if (rc < 0)
+        return rc;
+    if (!state_is_terminal(r.state))
+        mr_daemon_cancel(d, id, &ignored);
+    pthread_mutex_lock(&d->lock);
+    while (find_running(d, id))
+        pthread_cond_wait(&d->released, &d->lock);
+    rc = mr_store_job_delete(d->store, id, err);
+    pthread_mutex_unlock(&d->lock);
+    if (rc == MR_OK) {
+        log_line(d, "job=%s deleted", id);
+        publish(d, id, "deleted", "{}", true);
+    }
+    return rc;
+}
+
+/* ---- rendering ----------------------------------------------------------- */
+
+typedef struct job_run {
+    mr_daemon *d;
+    const char *id;
+    const mr_job *job;
+    mr_frame_state *states; /* per frame, as stored when the run started */
+    running_job *entry;
+    size_t failed;
+} job_run;
+
+static bool run_wanted(void *user, size_t index)
+{
+    job_run *r = user;
+    return r->states[index] != MR_FRAME_DONE && r->states[index] != MR_FRAME_FAILED;
+}
+
+static void run_frame_started(void *user, size_t index)
+{
+    job_run *r = user;
+    mr_error err;
+    mr_store_frame_set_running(r->d->store, r->id, index, &err);
+}
+
+static bool run_stop_requested(void *user)
+{
+    job_run *r = user;
+    pthread_mutex_lock(&r->d->lock);
+    bool stop = r->d->stopping;
+    pthread_mutex_unlock(&r->d->lock);
+    return stop || atomic_load(&r->entry->cancel);
+}
+
+static int run_frame_done(void *user, size_t index, const mr_film *film, mr_frame_stats *st,
+                          mr_error *err)
+{
+    job_run *r = user;
+    mr_daemon *d = r->d;
+    double t0 = mr_now();
+    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
+                        .scene_diagonal = st->scene_diagonal};
+    snprintf(meta.job, sizeof meta.job, "%s", r->id);
+    mr_exr_options opt = r->job->output.exr;
+    opt.threads = d->cfg.render_threads;
+    uint8_t *data = NULL;
+    size_t size = 0;
+    int rc = mr_exr_write_memory(&data, &size, film, &opt, &meta, err);
+    st->encode_s = mr_now() - t0;
+    if (rc == MR_OK) {
+        /* the record carries the final totals (the worker adds encode after us) */
+        mr_frame_stats rec = *st;
+        rec.total_s += rec.encode_s;
+        char *json = mr_frame_stats_json(&rec);
+        if (!json)
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        else
+            rc = mr_store_frame_done(d->store, r->id, index, data, size, json, err);
+        if (rc == MR_OK) {
+            publish(d, r->id, "frame", json, false);
+            pthread_mutex_lock(&d->lock);
+            d->frames_rendered++;
+            d->rays += st->rays;
+            d->frame_seconds_sum += rec.total_s;
+            size_t b = 0;
+            while (b < N_BUCKETS && rec.total_s > FRAME_BUCKETS[b])
+                b++;
+            d->buckets[b]++;
+            pthread_mutex_unlock(&d->lock);
+            log_line(d, "job=%s frame %zu/%zu %.3fs (trace %.3f encode %.3f) %.1f Mrays/s%s", r->id,
+                     index + 1, r->job->frame_count, rec.total_s, st->trace_s, st->encode_s,
+                     st->mrays_per_s, st->assets_cached && !st->assets_loaded ? " cache hit" : "");
+        }
+        free(json);
+    }
+    free(data);
+    return rc;
+}
+
+static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_error *e)
+{
+    job_run *r = user;
+    mr_error err;
+    bool gave_up = true;
+    mr_store_frame_failed(r->d->store, r->id, index, e->msg, &gave_up, &err);
+    pthread_mutex_lock(&r->d->lock);
+    r->d->frames_failed++;
+    pthread_mutex_unlock(&r->d->lock);
+    log_line(r->d, "job=%s frame %zu failed%s: %s", r->id, index, gave_up ? " (giving up)" : "", e->msg);
+    char json[768];
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "index", (double)index);
+    cJSON_AddStringToObject(o, "error", e->msg);
+    cJSON_AddBoolToObject(o, "gave_up", gave_up);
+    char *s = cJSON_PrintUnformatted(o);
+    snprintf(json, sizeof json, "%s", s ? s : "{}");
+    free(s);
+    cJSON_Delete(o);
+    publish(r->d, r->id, "frame_failed", json, false);
+    if (gave_up) {
+        r->failed++;
+        return MR_FRAME_SKIP;
+    }
+    return MR_FRAME_RETRY;
+}
+
+/* The cache key of an asset: its content hash (uploaded assets are named
+ * by it already; server-side files are hashed). Import parameters join the
+ * key when geometry kinds get them. */
+static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
+{
+    if (a->id) {
+        snprintf(key, 65, "%s", a->id);
+        return MR_OK;
+    }
+    FILE *f = fopen(a->path, "rb");
+    if (!f)
+        return mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
+    mr_sha256 h;
+    mr_sha256_init(&h);
+    char buf[1 << 16];
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+        mr_sha256_update(&h, buf, n);
+    int failed = ferror(f);
+    fclose(f);
+    if (failed)
+        return mr_error_set(err, MR_ERR_IO, "%s: read error", a->path);
+    uint8_t digest[32];
+    mr_sha256_final(&h, digest);
+    for (int i = 0; i < 32; i++)
+        snprintf(key + 2 * i, 3, "%02x", digest[i]);
+    return MR_OK;
+}
+
+static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
+                       double *saved_s, mr_error *err)
+{
+    job_run *r = user;
+    char key[65];
+    int rc = asset_key(desc, key, err);
+    if (rc < 0)
+        return rc;
+    return mr_cache_acquire(r->d->cache, key, desc->path, out, hit, saved_s, err);
+}
+
+static void run_release(void *user, mr_asset *asset)
+{
+    job_run *r = user;
+    mr_cache_release(r->d->cache, asset);
+}
+
+/* Renders one claimed job to the end (or until cancelled or stopped). */
+static void run_job(mr_daemon *d, const char *id, running_job *entry)
+{
+    mr_error err = {0};
+    char *json = NULL;
+    mr_job *job = NULL;
+    mr_frame_record *frames = NULL;
+    size_t frame_count = 0;
+    mr_frame_state *states = NULL;
+    mr_job_stats stats = {0};
+    mr_job_error jerr;
+    char pointer[512];
+    int rc;
+
+    log_line(d, "job=%s running", id);
+    publish_state(d, id);
+    if ((rc = mr_store_job_json(d->store, id, &json, &err)) < 0)
+        goto fail;
+    if ((rc = mr_job_parse(json, strlen(json), &job, &jerr)) < 0) {
+        mr_error_set(&err, rc, "%s: %s", jerr.pointer, jerr.message);
+        goto fail;
+    }
+    if ((rc = resolve_assets(d, job, pointer, &err)) < 0) {
+        mr_error_prefix(&err, "%s: ", pointer);
+        goto fail;
+    }
+    if ((rc = mr_store_frames(d->store, id, &frames, &frame_count, &err)) < 0)
+        goto fail;
+    states = calloc(job->frame_count, sizeof *states);
+    if (!states) {
+        rc = mr_error_set(&err, MR_ERR_NOMEM, "out of memory");
+        goto fail;
+    }
+    for (size_t i = 0; i < frame_count && i < job->frame_count; i++)
+        states[frames[i].index < job->frame_count ? frames[i].index : i] = frames[i].state;
+
+    job_run run = {.d = d, .id = id, .job = job, .states = states, .entry = entry};
+    for (size_t i = 0; i < job->frame_count; i++)
+        run.failed += states[i] == MR_FRAME_FAILED;
+    mr_worker_io io = {
+        .user = &run,
+        .frame_done = run_frame_done,
+        .wanted = run_wanted,
+        .frame_started = run_frame_started,
+        .frame_failed = run_frame_failed,
+        .stop_requested = run_stop_requested,
+        .cancel = &entry->cancel,
+        .acquire_asset = run_acquire,
+        .release_asset = run_release,
+    };
+    rc = mr_worker_run(d->dev, job, &io, &stats, &err);
+    if (rc == MR_ERR_CANCELLED) {
+        if (!atomic_load(&entry->cancel)) {
+            /* the daemon is stopping: leave the job to resume at the next start */
+            mr_store_job_set_state(d->store, id, MR_JOB_QUEUED, NULL, &err);
+            log_line(d, "job=%s paused for shutdown", id);
+        }
+        goto done;
+    }
+    if (rc < 0)
+        goto fail;
+    if (run.failed > 0) {
+        char why[128];
+        snprintf(why, sizeof why, "%zu frame%s failed after all retries", run.failed, run.failed == 1 ? "" : "s");
+        mr_store_job_set_state(d->store, id, MR_JOB_FAILED, why, &err);
+        log_line(d, "job=%s failed: %s", id, why);
+    } else {
+        mr_store_job_set_state(d->store, id, MR_JOB_SUCCEEDED, NULL, &err);
+        log_line(d, "job=%s succeeded", id);
+    }
+    publish_state(d, id);
+    goto done;
+fail:
+    {
+        mr_error ignored;
+        mr_job_record rec;
+        /* a job canceled meanwhile stays canceled */
+        if (mr_store_job_get(d->store, id, &rec, &ignored) == MR_OK && rec.state == MR_JOB_RUNNING)
+            mr_store_job_set_state(d->store, id, MR_JOB_FAILED, err.msg, &ignored);
+        log_line(d, "job=%s failed: %s", id, err.msg);
+        publish_state(d, id);
+    }
+done:
+    mr_job_stats_free(&stats);
+    free(states);
+    mr_frame_records_free(frames, frame_count);
+    mr_job_free(job);
+    free(json);
+}
+
+static void *worker_main(void *p)
+{
+    mr_daemon *d = p;
+    for (;;) {
+        pthread_mutex_lock(&d->lock);
+        if (d->stopping) {
+            pthread_mutex_unlock(&d->lock);
+            return NULL;
+        }
+        char id[MR_JOB_ID_LEN + 1];
+        mr_error err;
+        int rc = mr_store_job_claim(d->store, id, &err);
+        if (rc == MR_ERR_NOT_FOUND || rc < 0) {
+            if (rc != MR_ERR_NOT_FOUND)
+                log_line(d, "worker: claiming a job failed: %s", err.msg);
+            struct timespec until;
+            clock_gettime(CLOCK_REALTIME, &until);
+            until.tv_sec += 1;
+            pthread_cond_timedwait(&d->wake, &d->lock, &until);
+            pthread_mutex_unlock(&d->lock);
+            continue;
+        }
+        running_job *entry = calloc(1, sizeof *entry);
+        if (!entry) {
+            mr_store_job_set_state(d->store, id, MR_JOB_QUEUED, NULL, &err);
+            pthread_mutex_unlock(&d->lock);
+            continue;
+        }
+        snprintf(entry->id, sizeof entry->id, "%s", id);
+        atomic_init(&entry->cancel, false);
+        entry->next = d->running;
+        d->running = entry;
+        pthread_mutex_unlock(&d->lock);
+
+        run_job(d, id, entry);
+
+        pthread_mutex_lock(&d->lock);
+        for (running_job **r = &d->running; *r; r = &(*r)->next)
+            if (*r == entry) {
+                *r = entry->next;
+                break;
+            }
+        pthread_cond_broadcast(&d->released);
+        pthread_mutex_unlock(&d->lock);
+        free(entry);
+    }
+}
+
+/* ---- metrics ------------------------------------------------------------- */
+
+char *mr_daemon_metrics(mr_daemon *d)
+{
+    uint64_t counts[5] = {0};
+    mr_error err;
+    mr_store_job_counts(d->store, counts, &err);
+    mr_cache_stats cs;
+    mr_cache_stats_get(d->cache, &cs);
+    size_t cap = 8192, len = 0;
+    char *out = malloc(cap);
+    if (!out)
+        return NULL;
+#define EMIT(...)                                                                                  \
+    do {                                                                                           \
+        int n_ = snprintf(out + len, cap - len, __VA_ARGS__);                                     \
+        if (n_ > 0)                                                                                \
+            len += (size_t)n_ < cap - len ? (size_t)n_ : cap - len - 1;                            \
+    } while (0)
+    EMIT("# HELP microray_jobs Jobs by state.\n# TYPE microray_jobs gauge\n");
+    for (int s = 0; s < 5; s++)
+        EMIT("microray_jobs{state=\"%s\"} %llu\n", mr_job_state_name((mr_job_state)s),
+             (unsigned long long)counts[s]);
+    pthread_mutex_lock(&d->lock);
+    EMIT("# HELP microray_frames_rendered_total Frames rendered and stored.\n"
+         "# TYPE microray_frames_rendered_total counter\nmicroray_frames_rendered_total %llu\n",
+         (unsigned long long)d->frames_rendered);
+    EMIT("# HELP microray_frames_failed_total Failed frame attempts.\n"
+         "# TYPE microray_frames_failed_total counter\nmicroray_frames_failed_total %llu\n",
+         (unsigned long long)d->frames_failed);
+    EMIT("# HELP microray_rays_traced_total Rays traced (primary and shadow).\n"
+         "# TYPE microray_rays_traced_total counter\nmicroray_rays_traced_total %llu\n",
+         (unsigned long long)d->rays);
+    EMIT("# HELP microray_frame_seconds Wall time per frame, encode included.\n"
+         "# TYPE microray_frame_seconds histogram\n");
+    uint64_t cum = 0;
+    for (size_t b = 0; b < N_BUCKETS; b++) {
+        cum += d->buckets[b];
+        EMIT("microray_frame_seconds_bucket{le=\"%g\"} %llu\n", FRAME_BUCKETS[b], (unsigned long long)cum);
+    }
+    cum += d->buckets[N_BUCKETS];
+    EMIT("microray_frame_seconds_bucket{le=\"+Inf\"} %llu\n", (unsigned long long)cum);
+    EMIT("microray_frame_seconds_sum %.6f\nmicroray_frame_seconds_count %llu\n", d->frame_seconds_sum,
+         (unsigned long long)cum);
+    pthread_mutex_unlock(&d->lock);
+    EMIT("# HELP microray_cache_hits_total Scene cache hits.\n# TYPE microray_cache_hits_total counter\n"
+         "microray_cache_hits_total %llu\n", (unsigned long long)cs.hits);
+    EMIT("# HELP microray_cache_misses_total Scene cache misses.\n# TYPE microray_cache_misses_total counter\n"
+         "microray_cache_misses_total %llu\n", (unsigned long long)cs.misses);
+    EMIT("# HELP microray_cache_bytes Bytes held by the scene cache.\n# TYPE microray_cache_bytes gauge\n"
+         "microray_cache_bytes %zu\n", cs.bytes);
+    EMIT("# HELP microray_cache_entries Assets in the scene cache.\n# TYPE microray_cache_entries gauge\n"
+         "microray_cache_entries %zu\n", cs.entries);
+    EMIT("# HELP microray_cache_saved_seconds_total Import time saved by cache hits.\n"
+         "# TYPE microray_cache_saved_seconds_total counter\nmicroray_cache_saved_seconds_total %.6f\n",
+         cs.saved_s);
+#undef EMIT
+    return out;
+}
+
+/* ---- lifecycle ------------------------------------------------------------ */
+
+mr_store *mr_daemon_store(mr_daemon *d) { return d->store; }
+const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d) { return &d->cfg; }
+bool mr_daemon_ready(const mr_daemon *d) { return d->ready; }
+unsigned mr_daemon_port(const mr_daemon *d) { return d->http ? mr_http_port(d->http) : 0; }
+
+static void apply_defaults(mr_daemon_config *c)
+{
+    if (!c->listen_host)
+        c->listen_host = "127.0.0.1";
+    if (!c->workers)
+        c->workers = 1;
+    if (!c->cache_bytes)
+        c->cache_bytes = (size_t)1 << 30;
+    if (!c->max_job_bytes)
+        c->max_job_bytes = (size_t)1 << 20;
+    if (!c->max_asset_bytes)
+        c->max_asset_bytes = (size_t)512 << 20;
+    if (!c->http_threads)
+        c->http_threads = 4;
+    if (!c->connection_timeout_s)
+        c->connection_timeout_s = 30;
+    if (!c->per_ip_connections)
+        c->per_ip_connections = 128;
+}
+
+int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
+{
+    *out = NULL;
+    if (!cfg->data_dir || !cfg->data_dir[0])
+        return mr_error_set(err, MR_ERR_INVALID, "no data directory given (--data DIR)");
+    mr_daemon *d = calloc(1, sizeof *d);
+    if (!d)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    int rc;
+    pthread_mutex_init(&d->lock, NULL);
+    pthread_mutex_init(&d->ev_lock, NULL);
+    pthread_cond_init(&d->wake, NULL);
+    pthread_cond_init(&d->released, NULL);
+    d->cfg = *cfg;
+    apply_defaults(&d->cfg);
+    d->data_dir = strdup(cfg->data_dir);
+    d->roots = calloc(cfg->asset_root_count ? cfg->asset_root_count : 1, sizeof *d->roots);
+    if (!d->data_dir || !d->roots) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        goto fail;
+    }
+    d->cfg.data_dir = d->data_dir;
+    d->cfg.asset_roots = NULL; /* the resolved copies below are what counts */
+    for (size_t i = 0; i < cfg->asset_root_count; i++) {
+        char real[PATH_MAX];
+        if (!realpath(cfg->asset_roots[i], real)) {
+            rc = mr_error_set(err, MR_ERR_IO, "asset root '%s': %s", cfg->asset_roots[i], strerror(errno));
+            goto fail;
+        }
+        if (!(d->roots[d->root_count++] = strdup(real))) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+            goto fail;
+        }
+    }
+    d->cfg.asset_root_count = d->root_count;
+    if ((rc = mr_mkdir_p(d->data_dir, err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
+        goto fail;
+    if ((rc = mr_store_recover(d->store, err)) < 0)
+        goto fail;
+    if (rc > 0)
+        log_line(d, "resuming %d job%s interrupted by a stop or crash", rc, rc == 1 ? "" : "s");
+    if ((rc = mr_device_new(d->cfg.render_threads, &d->dev, err)) < 0 ||
+        (rc = mr_cache_new(d->cfg.cache_bytes, &d->cache, err)) < 0)
+        goto fail;
+    d->workers = calloc(d->cfg.workers, sizeof *d->workers);
+    if (!d->workers) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        goto fail;
+    }
+    for (unsigned i = 0; i < d->cfg.workers; i++) {
+        if (pthread_create(&d->workers[i], NULL, worker_main, d) != 0) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "cannot start render worker %u", i);
+            goto fail;
+        }
+        d->worker_count++;
+    }
+    if ((rc = mr_http_start(d, &d->cfg, &d->http, err)) < 0)
+        goto fail;
+    d->ready = true;
+    log_line(d, "listening on http://%s:%u/ (data %s, %u worker%s)", d->cfg.listen_host,
+             mr_http_port(d->http), d->data_dir, d->worker_count, d->worker_count == 1 ? "" : "s");
+    *out = d;
+    return MR_OK;
+fail:
+    mr_daemon_stop(d);
+    return rc;
+}
+
+void mr_daemon_stop(mr_daemon *d)
+{
+    if (!d)
+        return;
+    d->ready = false;
+    if (d->http)
+        mr_http_stop(d->http); /* no new work; event streams end */
+    pthread_mutex_lock(&d->lock);
+    d->stopping = true;
+    pthread_cond_broadcast(&d->wake);
+    pthread_mutex_unlock(&d->lock);
+    for (unsigned i = 0; i < d->worker_count; i++)
+        pthread_join(d->workers[i], NULL);
+    free(d->workers);
+    mr_cache_free(d->cache);
+    mr_device_free(d->dev);
+    mr_store_close(d->store);
+    for (mr_event_sub *s = d->subs, *next; s; s = next) {
+        next = s->next;
+        s->d = d;
+        for (event_msg *m = s->head, *mn; m; m = mn) {
+            mn = m->next;
+            free(m->text);
+            free(m);
+        }
+        free(s);
+    }
+    for (size_t i = 0; i < d->root_count; i++)
+        free(d->roots[i]);
+    free(d->roots);
+    free(d->data_dir);
+    pthread_cond_destroy(&d->wake);
+    pthread_cond_destroy(&d->released);
+    pthread_mutex_destroy(&d->lock);
+    pthread_mutex_destroy(&d->ev_lock);
+    free(d);
+}

@@ -1,0 +1,90 @@
+/*
+ * daemon.h - microrayd serve: the render service around the store.
+ *
+ * A daemon owns the store, the Embree device, the scene cache, a pool of
+ * render workers and the HTTP front end (http.h). Jobs arrive through HTTP,
+ * are validated and stored as queued; workers claim them by priority and
+ * render frame by frame (never on an HTTP thread), writing each finished
+ * frame through the store. Events (frame done, state changes) are published
+ * to subscribers (the SSE endpoint). SIGTERM: stop accepting work, let the
+ * frame in progress finish, leave the job running-in-store so the next start
+ * resumes it.
+ */
+#ifndef MR_DAEMON_H
+#define MR_DAEMON_H
+
+#include "job.h"
+#include "store.h"
+
+typedef struct mr_daemon_config {
+    const char *listen_host;      /* default "127.0.0.1" */
+    unsigned port;                /* 0 = pick a free port (tests); default 8470 */
+    const char *data_dir;         /* required */
+    const char *const *asset_roots; /* server-side paths must resolve below one of these */
+    size_t asset_root_count;
+    unsigned workers;             /* jobs rendered at once; default 1 */
+    unsigned render_threads;      /* threads per render; 0 = all cores */
+    size_t cache_bytes;           /* scene cache cap; default 1 GiB */
+    size_t max_job_bytes;         /* POST /v1/jobs body cap; default 1 MiB */
+    size_t max_asset_bytes;       /* POST /v1/assets body cap; default 512 MiB */
+    unsigned http_threads;        /* libmicrohttpd thread pool; default 4 */
+    unsigned connection_timeout_s;/* idle connection timeout; default 30 */
+    unsigned per_ip_connections;  /* default 128 */
+    bool quiet;                   /* no request/frame log lines */
+} mr_daemon_config;
+
+typedef struct mr_daemon mr_daemon;
+
+/* Opens the store, recovers after a crash, starts workers and HTTP. */
+int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err);
+/* The port actually listened on (useful with port 0). */
+unsigned mr_daemon_port(const mr_daemon *d);
+/* Graceful stop: HTTP first, then workers finish their current frame. */
+void mr_daemon_stop(mr_daemon *d);
+
+/* ---- for the HTTP handlers (http.c) ------------------------------------ */
+
+mr_store *mr_daemon_store(mr_daemon *d);
+const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d);
+bool mr_daemon_ready(const mr_daemon *d);
+
+/* Validates a job body (server/job_json.c), resolves its assets (ids to
+ * stored files, server-side paths to real paths below an asset root: "..",
+ * symlinks out of the roots and absolute paths elsewhere are refused) and
+ * stores it as queued. On a bad job, *pointer receives the JSON pointer of
+ * the offending field (or "" when there is none) and the result is
+ * MR_ERR_INVALID / MR_ERR_LIMIT / MR_ERR_NOT_FOUND (missing asset);
+ * MR_ERR_CONFLICT for an idempotency key reused with another body.
+ * *existing tells an idempotent replay. */
+int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *idempotency_key,
+                     char id[MR_JOB_ID_LEN + 1], bool *existing, char pointer[512],
+                     mr_error *err);
+/* Cancels a queued or running job (a running render stops within one tile).
+ * MR_ERR_CONFLICT if it already finished; MR_ERR_NOT_FOUND if unknown. */
+int mr_daemon_cancel(mr_daemon *d, const char *id, mr_error *err);
+/* Re-queues the failed frames of a failed job (MR_ERR_CONFLICT otherwise). */
+int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err);
+/* Cancels if needed, waits until no worker uses the job, removes it and
+ * its frames from disk. */
+int mr_daemon_delete(mr_daemon *d, const char *id, mr_error *err);
+
+/* Prometheus text exposition (malloc'ed); NULL when out of memory. */
+char *mr_daemon_metrics(mr_daemon *d);
+
+/* Events for one job, as ready-to-send server-sent-event text blocks
+ * ("event: frame\ndata: {...}\n\n"). A subscriber first receives a "state"
+ * event with the job's current state, then every event published after it;
+ * after the job reaches a terminal state the stream ends. */
+typedef struct mr_event_sub mr_event_sub;
+mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id);
+/* Copies the next pending event into buf (NUL-terminated) and returns its
+ * length; 0 when none is pending; -1 when the stream has ended (and nothing
+ * is pending). Never blocks. */
+int mr_events_next(mr_event_sub *sub, char *buf, size_t size);
+/* Calls fn(user) once whenever an event becomes pending for this subscriber
+ * (from the publishing thread; fn must not block): the HTTP layer uses it
+ * to resume a suspended connection. */
+void mr_events_set_notify(mr_event_sub *sub, void (*fn)(void *user), void *user);
+void mr_events_unsubscribe(mr_event_sub *sub);
+
+#endif

@@ -1,0 +1,136 @@
+/*
+ * serve_cmd.c - `microrayd serve`: runs the daemon until SIGTERM or SIGINT.
+ *
+ *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
+ *                   [--workers N] [--threads N] [--cache-mb N] [--port-file F] [--quiet]
+ *
+ * Signals are blocked in every thread and taken synchronously here with
+ * sigwait, so the stop runs in ordinary code (no async-signal-safety games):
+ * HTTP stops, workers finish the frame in progress, the store closes.
+ */
+#include <errno.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "daemon.h"
+#include "files.h"
+#include "render_cmd.h"
+#include "util/parallel.h"
+
+#define MR_DEFAULT_PORT 8470
+#define MR_MAX_ROOTS 64
+
+static void usage(void)
+{
+    fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
+                    "                       [--workers N] [--threads N] [--cache-mb N] [--port-file FILE] [--quiet]\n");
+}
+
+static bool parse_uint(const char *s, unsigned long lo, unsigned long hi, unsigned long *out)
+{
+    char *end;
+    errno = 0;
+    unsigned long v = strtoul(s, &end, 10);
+    if (errno || *end || s[0] == '-' || s[0] == '\0' || v < lo || v > hi)
+        return false;
+    *out = v;
+    return true;
+}
+
+/* The default data directory: $MICRORAY_DATA, else $XDG_DATA_HOME/microray,
+ * else $HOME/.local/share/microray, else ./microray-data. */
+static void default_data_dir(char *out, size_t n)
+{
+    const char *env = getenv("MICRORAY_DATA"), *xdg = getenv("XDG_DATA_HOME"), *home = getenv("HOME");
+    if (env && env[0])
+        snprintf(out, n, "%s", env);
+    else if (xdg && xdg[0])
+        snprintf(out, n, "%s/microray", xdg);
+    else if (home && home[0])
+        snprintf(out, n, "%s/.local/share/microray", home);
+    else
+        snprintf(out, n, "microray-data");
+}
+
+int mr_cmd_serve(int argc, char **argv)
+{
+    mr_daemon_config cfg = {.port = MR_DEFAULT_PORT};
+    const char *roots[MR_MAX_ROOTS];
+    const char *port_file = NULL;
+    char host[256] = "127.0.0.1", data[4096];
+    default_data_dir(data, sizeof data);
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        unsigned long n;
+        if (!strcmp(a, "--quiet")) {
+            cfg.quiet = true;
+            continue;
+        }
+        if (!v) {
+            usage();
+            return 2;
+        }
+        i++;
+        if (!strcmp(a, "--listen")) {
+            const char *colon = strrchr(v, ':');
+            if (!colon || colon == v || (size_t)(colon - v) >= sizeof host || !parse_uint(colon + 1, 0, 65535, &n)) {
+                fprintf(stderr, "microrayd: --listen wants HOST:PORT, e.g. 127.0.0.1:8470\n");
+                return 2;
+            }
+            snprintf(host, sizeof host, "%.*s", (int)(colon - v), v);
+            cfg.port = (unsigned)n;
+        } else if (!strcmp(a, "--data")) {
+            snprintf(data, sizeof data, "%s", v);
+        } else if (!strcmp(a, "--asset-root")) {
+            if (cfg.asset_root_count == MR_MAX_ROOTS) {
+                fprintf(stderr, "microrayd: at most %d asset roots\n", MR_MAX_ROOTS);
+                return 2;
+            }
+            roots[cfg.asset_root_count++] = v;
+        } else if (!strcmp(a, "--workers") && parse_uint(v, 1, 64, &n)) {
+            cfg.workers = (unsigned)n;
+        } else if (!strcmp(a, "--threads") && parse_uint(v, 1, MR_MAX_THREADS, &n)) {
+            cfg.render_threads = (unsigned)n;
+        } else if (!strcmp(a, "--cache-mb") && parse_uint(v, 1, 1u << 20, &n)) {
+            cfg.cache_bytes = (size_t)n << 20;
+        } else if (!strcmp(a, "--port-file")) {
+            port_file = v;
+        } else {
+            usage();
+            return 2;
+        }
+    }
+    cfg.listen_host = host;
+    cfg.data_dir = data;
+    cfg.asset_roots = roots;
+
+    /* Block the stop signals before any thread starts, so all inherit it. */
+    sigset_t set;
+    sigemptyset(&set);
+    sigaddset(&set, SIGTERM);
+    sigaddset(&set, SIGINT);
+    pthread_sigmask(SIG_BLOCK, &set, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    mr_daemon *d = NULL;
+    mr_error err = {0};
+    if (mr_daemon_start(&cfg, &d, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        return err.code == MR_ERR_IO ? 4 : 1;
+    }
+    if (port_file) {
+        char text[32];
+        int len = snprintf(text, sizeof text, "%u\n", mr_daemon_port(d));
+        if (mr_file_write_atomic(port_file, text, (size_t)len, &err) < 0)
+            fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    }
+    int sig = 0;
+    sigwait(&set, &sig);
+    if (!cfg.quiet)
+        fprintf(stderr, "microrayd: %s: stopping (the frame in progress finishes)\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
+    mr_daemon_stop(d);
+    return 0;
+}

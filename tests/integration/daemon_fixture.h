@@ -1,0 +1,178 @@
+/*
+ * daemon_fixture.h - runs the real microrayd on an ephemeral loopback port
+ * with a temporary data directory, and a tiny libcurl client for tests.
+ * Header-only: each test program includes it once.
+ */
+#ifndef MR_TEST_DAEMON_FIXTURE_H
+#define MR_TEST_DAEMON_FIXTURE_H
+
+#include <curl/curl.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+typedef struct daemon_proc {
+    pid_t pid;
+    unsigned port;
+    char data[512];
+    char log[600];
+    char base[64];
+} daemon_proc;
+
+static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256];
+
+static void fx_init_dirs(void)
+{
+    const char *s = getenv("MR_SOURCE_DIR"), *b = getenv("MR_BUILD_DIR");
+    snprintf(fx_src_dir, sizeof fx_src_dir, "%s", s ? s : ".");
+    snprintf(fx_build_dir, sizeof fx_build_dir, "%s", b ? b : "build");
+    snprintf(fx_tmp, sizeof fx_tmp, "/tmp/microray-daemon-XXXXXX");
+    if (!mkdtemp(fx_tmp))
+        fail_msg("mkdtemp failed");
+}
+
+static void fx_sleep_ms(int ms)
+{
+    struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+/* Starts microrayd serve with data directory data_name (inside fx_tmp). */
+static void daemon_start(daemon_proc *d, const char *data_name)
+{
+    memset(d, 0, sizeof *d);
+    snprintf(d->data, sizeof d->data, "%s/%s", fx_tmp, data_name);
+    snprintf(d->log, sizeof d->log, "%s/%s.log", fx_tmp, data_name);
+    char port_file[600], bin[2100];
+    snprintf(port_file, sizeof port_file, "%s/%s.port", fx_tmp, data_name);
+    unlink(port_file);
+    snprintf(bin, sizeof bin, "%s/microrayd", fx_build_dir);
+    d->pid = fork();
+    if (d->pid == 0) {
+        FILE *log = freopen(d->log, "a", stderr);
+        (void)log;
+        execl(bin, "microrayd", "serve", "--listen", "127.0.0.1:0", "--data", d->data, "--asset-root",
+              "/usr/share/assimp/models", "--threads", "2", "--port-file", port_file, (char *)NULL);
+        _exit(127);
+    }
+    for (int i = 0; i < 300; i++) { /* up to 30 s: ASan builds start slowly */
+        FILE *f = fopen(port_file, "r");
+        if (f) {
+            int ok = fscanf(f, "%u", &d->port);
+            fclose(f);
+            if (ok == 1 && d->port) {
+                snprintf(d->base, sizeof d->base, "http://127.0.0.1:%u", d->port);
+                return;
+            }
+        }
+        int st;
+        if (waitpid(d->pid, &st, WNOHANG) == d->pid)
+            fail_msg("microrayd exited during start (see %s)", d->log);
+        fx_sleep_ms(100);
+    }
+    fail_msg("microrayd did not start within 30 s (see %s)", d->log);
+}
+
+/* SIGTERM (graceful) or SIGKILL; returns the exit status or -signal. */
+static int daemon_stop(daemon_proc *d, int sig)
+{
+    kill(d->pid, sig);
+    int st = 0;
+    waitpid(d->pid, &st, 0);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
+}
+
+typedef struct http_result {
+    long status;
+    char *body;
+    size_t len;
+    char content_type[128];
+    char location[256];
+} http_result;
+
+static size_t fx_collect(char *p, size_t size, size_t n, void *user)
+{
+    http_result *r = user;
+    size_t add = size * n;
+    char *nb = realloc(r->body, r->len + add + 1);
+    if (!nb)
+        return 0;
+    memcpy(nb + r->len, p, add);
+    r->body = nb;
+    r->len += add;
+    r->body[r->len] = '\0';
+    return add;
+}
+
+static size_t fx_header(char *p, size_t size, size_t n, void *user)
+{
+    http_result *r = user;
+    size_t len = size * n;
+    if (len > 10 && strncasecmp(p, "Location: ", 10) == 0)
+        snprintf(r->location, sizeof r->location, "%.*s", (int)(len - 10 - 2), p + 10);
+    return len;
+}
+
+/* One request; header may be NULL ("Name: value"). */
+static http_result http(const daemon_proc *d, const char *method, const char *path, const void *body,
+                        size_t body_len, const char *header)
+{
+    http_result r = {0};
+    r.body = calloc(1, 1);
+    char url[512];
+    snprintf(url, sizeof url, "%s%s", d->base, path);
+    CURL *c = curl_easy_init();
+    struct curl_slist *h = NULL;
+    if (header)
+        h = curl_slist_append(h, header);
+    h = curl_slist_append(h, "Expect:");
+    curl_easy_setopt(c, CURLOPT_URL, url);
+    curl_easy_setopt(c, CURLOPT_CUSTOMREQUEST, method);
+    curl_easy_setopt(c, CURLOPT_HTTPHEADER, h);
+    curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, fx_collect);
+    curl_easy_setopt(c, CURLOPT_WRITEDATA, &r);
+    curl_easy_setopt(c, CURLOPT_HEADERFUNCTION, fx_header);
+    curl_easy_setopt(c, CURLOPT_HEADERDATA, &r);
+    curl_easy_setopt(c, CURLOPT_TIMEOUT, 60L);
+    if (body) {
+        curl_easy_setopt(c, CURLOPT_POSTFIELDS, body);
+        curl_easy_setopt(c, CURLOPT_POSTFIELDSIZE_LARGE, (curl_off_t)body_len);
+    }
+    CURLcode rc = curl_easy_perform(c);
+    if (rc != CURLE_OK)
+        fail_msg("%s %s: %s", method, path, curl_easy_strerror(rc));
+    curl_easy_getinfo(c, CURLINFO_RESPONSE_CODE, &r.status);
+    char *ct = NULL;
+    curl_easy_getinfo(c, CURLINFO_CONTENT_TYPE, &ct);
+    snprintf(r.content_type, sizeof r.content_type, "%s", ct ? ct : "");
+    curl_slist_free_all(h);
+    curl_easy_cleanup(c);
+    return r;
+}
+
+static void http_free(http_result *r) { free(r->body); }
+
+static char *fx_slurp(const char *path, size_t *len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    fseek(f, 0, SEEK_END);
+    long n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *s = malloc((size_t)n + 1);
+    size_t got = fread(s, 1, (size_t)n, f);
+    s[got] = '\0';
+    fclose(f);
+    if (len)
+        *len = got;
+    return s;
+}
+
+#endif

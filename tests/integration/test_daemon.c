@@ -1,0 +1,490 @@
+/*
+ * test_daemon.c - the real microrayd on an ephemeral loopback port with a
+ * temporary data directory: submissions with curl (libcurl) and with the
+ * microray client, progress by polling and by server-sent events, frames
+ * read back with OpenEXR, the scene cache, bad input answered with
+ * problem+json, cancel/retry/delete/idempotency, and kill -9 recovery.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <cJSON.h>
+
+#include "daemon_fixture.h"
+#include "render/exr.h"
+
+static daemon_proc D;
+
+/* The small skinned job with a different output size per test, so jobs never
+ * share an idempotency or cache story by accident. */
+static char *small_job(int frames_end_q, int width, const char *extra)
+{
+    char *s = malloc(4096);
+    snprintf(s, 4096,
+             "{\"name\":\"t\",%s\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+             "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"fps\":4,\"start\":0,\"end\":%g},"
+             "\"output\":{\"width\":%d,\"height\":%d,\"samples\":1}}",
+             extra ? extra : "", frames_end_q / 4.0, width, width * 9 / 16);
+    return s;
+}
+
+static void submit(const char *job, char id[64])
+{
+    http_result r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
+    if (r.status != 202)
+        fail_msg("submit: %ld %s", r.status, r.body);
+    cJSON *j = cJSON_Parse(r.body);
+    assert_non_null(j);
+    snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
+    char want[128];
+    snprintf(want, sizeof want, "/v1/jobs/%s", id);
+    assert_string_equal(r.location, want);
+    cJSON_Delete(j);
+    http_free(&r);
+}
+
+/* Polls GET /v1/jobs/{id} until the job reaches a terminal state. */
+static cJSON *wait_job(const char *id, int timeout_s)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    for (int i = 0; i < timeout_s * 10; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        assert_int_equal(r.status, 200);
+        cJSON *j = cJSON_Parse(r.body);
+        http_free(&r);
+        assert_non_null(j);
+        const char *st = cJSON_GetObjectItem(j, "state")->valuestring;
+        if (!strcmp(st, "succeeded") || !strcmp(st, "failed") || !strcmp(st, "canceled"))
+            return j;
+        cJSON_Delete(j);
+        fx_sleep_ms(100);
+    }
+    fail_msg("job %s did not finish in %d s", id, timeout_s);
+    return NULL;
+}
+
+static const char *state_of(cJSON *j) { return cJSON_GetObjectItem(j, "state")->valuestring; }
+
+static void expect_problem(const char *method, const char *path, const char *body, size_t len,
+                           const char *header, long status, const char *pointer)
+{
+    http_result r = http(&D, method, path, body, len, header);
+    if (r.status != status)
+        fail_msg("%s %s: status %ld, want %ld: %s", method, path, r.status, status, r.body);
+    if (!strstr(r.content_type, "application/problem+json"))
+        fail_msg("%s %s: content type '%s'", method, path, r.content_type);
+    cJSON *j = cJSON_Parse(r.body);
+    assert_non_null(j);
+    assert_int_equal(cJSON_GetObjectItem(j, "status")->valueint, status);
+    assert_non_null(cJSON_GetObjectItem(j, "title"));
+    if (pointer) {
+        cJSON *p = cJSON_GetObjectItem(j, "pointer");
+        if (!p || strcmp(p->valuestring, pointer))
+            fail_msg("%s %s: pointer %s, want %s (%s)", method, path, p ? p->valuestring : "(none)", pointer, r.body);
+    }
+    cJSON_Delete(j);
+    http_free(&r);
+}
+
+static void test_health_and_metrics(void **state)
+{
+    (void)state;
+    http_result r = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+    r = http(&D, "GET", "/readyz", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+    r = http(&D, "GET", "/metrics", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    assert_non_null(strstr(r.body, "microray_jobs{state=\"queued\"}"));
+    assert_non_null(strstr(r.body, "microray_frame_seconds_bucket"));
+    http_free(&r);
+}
+
+static void test_submit_poll_fetch_and_cache(void **state)
+{
+    (void)state;
+    char *job = small_job(3, 160, NULL), id[64];
+    submit(job, id);
+    cJSON *j = wait_job(id, 120);
+    assert_string_equal(state_of(j), "succeeded");
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 4);
+    cJSON_Delete(j);
+
+    /* Frames come back as EXR that OpenEXR reads. */
+    char path[256], file[512];
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/2", id);
+    http_result r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    assert_string_equal(r.content_type, "image/x-exr");
+    snprintf(file, sizeof file, "%s/frame.exr", fx_tmp);
+    FILE *f = fopen(file, "wb");
+    fwrite(r.body, 1, r.len, f);
+    fclose(f);
+    http_free(&r);
+    mr_film *film = NULL;
+    mr_error err = {0};
+    if (mr_exr_read_file(file, &film, NULL, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_int_equal(film->width, 160);
+    size_t hit = 0;
+    for (size_t i = 0; i < (size_t)film->width * film->height; i++)
+        hit += film->object_id[i] != 0;
+    assert_true(hit > 100);
+    mr_film_free(film);
+
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0/stats", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    cJSON *fs = cJSON_Parse(r.body);
+    assert_non_null(fs);
+    cJSON *cache = cJSON_GetObjectItem(fs, "cache");
+    assert_non_null(cache);
+    cJSON_Delete(fs);
+    http_free(&r);
+    snprintf(path, sizeof path, "/v1/jobs/%s/stats", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    assert_non_null(strstr(r.body, "\"medians\""));
+    http_free(&r);
+
+    /* A second job on the same asset: the import comes from the cache. */
+    free(job);
+    job = small_job(1, 128, NULL);
+    submit(job, id);
+    j = wait_job(id, 120);
+    assert_string_equal(state_of(j), "succeeded");
+    cJSON_Delete(j);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0/stats", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    fs = cJSON_Parse(r.body);
+    assert_non_null(fs);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(fs, "cache"), "result")->valuestring, "hit");
+    cJSON_Delete(fs);
+    http_free(&r);
+    r = http(&D, "GET", "/metrics", NULL, 0, NULL);
+    assert_non_null(strstr(r.body, "microray_cache_hits_total 1"));
+    http_free(&r);
+    free(job);
+}
+
+typedef struct sse_capture {
+    char buf[1 << 16];
+    size_t len;
+} sse_capture;
+
+static size_t sse_collect(char *p, size_t size, size_t n, void *user)
+{
+    sse_capture *c = user;
+    size_t add = size * n;
+    if (c->len + add >= sizeof c->buf)
+        add = sizeof c->buf - 1 - c->len;
+    memcpy(c->buf + c->len, p, add);
+    c->len += add;
+    c->buf[c->len] = '\0';
+    return size * n;
+}
+
+static void test_events_stream(void **state)
+{
+    (void)state;
+    char *job = small_job(2, 144, NULL), id[64];
+    submit(job, id);
+    free(job);
+    char url[256];
+    snprintf(url, sizeof url, "%s/v1/jobs/%s/events", D.base, id);
+    sse_capture *cap = calloc(1, sizeof *cap);
+    CURL *c = curl_easy_init();
+    curl_easy_setopt(c, CURLOPT_URL, url);
+    curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, sse_collect);
+    curl_easy_setopt(c, CURLOPT_WRITEDATA, cap);
+    curl_easy_setopt(c, CURLOPT_TIMEOUT, 120L);
+    CURLcode rc = curl_easy_perform(c); /* returns when the server ends the stream */
+    char *ct = NULL;
+    curl_easy_getinfo(c, CURLINFO_CONTENT_TYPE, &ct);
+    assert_int_equal(rc, CURLE_OK);
+    assert_non_null(ct);
+    assert_non_null(strstr(ct, "text/event-stream"));
+    curl_easy_cleanup(c);
+    /* Three frames, each announced; the stream ends with the final state. */
+    size_t frames = 0;
+    for (const char *p = cap->buf; (p = strstr(p, "event: frame\n")); p++)
+        frames++;
+    if (frames != 3)
+        fail_msg("saw %zu frame events:\n%s", frames, cap->buf);
+    assert_non_null(strstr(cap->buf, "\"state\":\"succeeded\""));
+    free(cap);
+}
+
+static void test_client_submit_wait_fetch(void **state)
+{
+    (void)state;
+    char job_path[512], out[512], cmd[4096], log[600];
+    snprintf(job_path, sizeof job_path, "%s/client-job.json", fx_tmp);
+    snprintf(out, sizeof out, "%s/client-out", fx_tmp);
+    snprintf(log, sizeof log, "%s/client.log", fx_tmp);
+    char *job = small_job(2, 112, NULL);
+    FILE *f = fopen(job_path, "w");
+    fputs(job, f);
+    fclose(f);
+    free(job);
+    snprintf(cmd, sizeof cmd, "'%s/microray' --server %s submit '%s' --wait --out '%s' >'%s' 2>&1",
+             fx_build_dir, D.base, job_path, out, log);
+    int st = system(cmd);
+    char *text = fx_slurp(log, NULL);
+    if (!WIFEXITED(st) || WEXITSTATUS(st) != 0)
+        fail_msg("client exited %d: %s", WEXITSTATUS(st), text ? text : "");
+    free(text);
+    for (int k = 0; k < 3; k++) {
+        char p[600];
+        snprintf(p, sizeof p, "%s/%04d.exr", out, k);
+        mr_film *film = NULL;
+        mr_error err = {0};
+        if (mr_exr_read_file(p, &film, NULL, &err) < 0)
+            fail_msg("%s", err.msg);
+        assert_int_equal(film->width, 112);
+        mr_film_free(film);
+    }
+    /* health through the client; a refused connection is exit 4 */
+    snprintf(cmd, sizeof cmd, "'%s/microray' --server %s health >/dev/null 2>&1", fx_build_dir, D.base);
+    st = system(cmd);
+    assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+    snprintf(cmd, sizeof cmd, "'%s/microray' --server http://127.0.0.1:1 health >/dev/null 2>&1", fx_build_dir);
+    st = system(cmd);
+    assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 4);
+}
+
+static void test_upload_and_render_by_id(void **state)
+{
+    (void)state;
+    size_t len;
+    char *model = fx_slurp("/usr/share/assimp/models/X/BCN_Epileptic.X", &len);
+    assert_non_null(model);
+    http_result r = http(&D, "POST", "/v1/assets", model, len, "Content-Type: application/octet-stream");
+    assert_true(r.status == 201 || r.status == 200);
+    cJSON *j = cJSON_Parse(r.body);
+    char asset_id[80];
+    snprintf(asset_id, sizeof asset_id, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
+    cJSON_Delete(j);
+    http_free(&r);
+    r = http(&D, "POST", "/v1/assets", model, len, "Content-Type: application/octet-stream");
+    assert_int_equal(r.status, 200); /* deduplicated */
+    assert_non_null(strstr(r.body, "\"existed\":true"));
+    http_free(&r);
+    free(model);
+    char job[2048], id[64];
+    snprintf(job, sizeof job,
+             "{\"assets\":{\"d\":{\"id\":\"%s\"}},\"objects\":[{\"asset\":\"d\"}],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"times\":[0]},\"output\":{\"width\":96,\"height\":54}}",
+             asset_id);
+    submit(job, id);
+    j = wait_job(id, 120);
+    assert_string_equal(state_of(j), "succeeded");
+    cJSON_Delete(j);
+}
+
+static void test_bad_requests(void **state)
+{
+    (void)state;
+    const char *bad_json = "{\"assets\": ";
+    expect_problem("POST", "/v1/jobs", bad_json, strlen(bad_json), NULL, 400, NULL);
+    char *job = small_job(1, 64, "\"name\":7,");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/name");
+    free(job);
+    job = small_job(1, 64, "\"colour\":[1,1,1],");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/colour");
+    free(job);
+    const char *traversal =
+        "{\"assets\":{\"a\":{\"path\":\"../../../etc/passwd\"}},\"objects\":[{\"asset\":\"a\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
+    expect_problem("POST", "/v1/jobs", traversal, strlen(traversal), NULL, 400, "/assets/a/path");
+    const char *outside =
+        "{\"assets\":{\"a\":{\"path\":\"/etc/passwd\"}},\"objects\":[{\"asset\":\"a\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
+    expect_problem("POST", "/v1/jobs", outside, strlen(outside), NULL, 422, "/assets/a/path");
+    const char *missing =
+        "{\"assets\":{\"a\":{\"path\":\"X/no-such-model.x\"}},\"objects\":[{\"asset\":\"a\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
+    expect_problem("POST", "/v1/jobs", missing, strlen(missing), NULL, 422, "/assets/a/path");
+    const char *unknown_id =
+        "{\"assets\":{\"a\":{\"id\":\"0000000000000000000000000000000000000000000000000000000000000000\"}},"
+        "\"objects\":[{\"asset\":\"a\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
+    expect_problem("POST", "/v1/jobs", unknown_id, strlen(unknown_id), NULL, 422, "/assets/a/id");
+    size_t big = 2u << 20;
+    char *huge = malloc(big);
+    memset(huge, ' ', big);
+    huge[0] = '{';
+    huge[big - 1] = '}';
+    expect_problem("POST", "/v1/jobs", huge, big, NULL, 413, NULL);
+    free(huge);
+    expect_problem("GET", "/v1/jobs/0123456789abcdef0123456789abcdef", NULL, 0, NULL, 404, NULL);
+    expect_problem("GET", "/v1/jobs/../../etc/passwd", NULL, 0, NULL, 404, NULL);
+    expect_problem("PUT", "/v1/jobs", "{}", 2, NULL, 405, NULL);
+    expect_problem("GET", "/v2/nothing", NULL, 0, NULL, 404, NULL);
+    expect_problem("GET", "/v1/jobs?state=sleeping", NULL, 0, NULL, 400, NULL);
+    /* still serving */
+    http_result r = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+}
+
+static void test_cancel_retry_delete_idempotency(void **state)
+{
+    (void)state;
+    /* a long job to cancel while it runs */
+    char *job = small_job(400, 320, "\"priority\":5,"), id[64], path[256];
+    submit(job, id);
+    free(job);
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    http_result r = http(&D, "POST", path, "", 0, NULL);
+    assert_int_equal(r.status, 202);
+    http_free(&r);
+    cJSON *j = wait_job(id, 30);
+    assert_string_equal(state_of(j), "canceled");
+    cJSON_Delete(j);
+    expect_problem("POST", path, "", 0, NULL, 409, NULL); /* already canceled */
+    /* retry resumes a canceled job's unfinished frames; cancel it again */
+    snprintf(path, sizeof path, "/v1/jobs/%s/retry", id);
+    r = http(&D, "POST", path, "", 0, NULL);
+    assert_int_equal(r.status, 202);
+    assert_non_null(strstr(r.body, "\"frames_requeued\""));
+    http_free(&r);
+    expect_problem("POST", path, "", 0, NULL, 409, NULL); /* queued or running: nothing to retry */
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    r = http(&D, "POST", path, "", 0, NULL);
+    assert_int_equal(r.status, 202);
+    http_free(&r);
+    j = wait_job(id, 30);
+    assert_string_equal(state_of(j), "canceled");
+    cJSON_Delete(j);
+
+    /* delete removes the job and its frames */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    r = http(&D, "DELETE", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 204);
+    http_free(&r);
+    expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
+    char dir[600];
+    snprintf(dir, sizeof dir, "%s/frames/%s", D.data, id);
+    struct stat st;
+    assert_int_not_equal(stat(dir, &st), 0);
+
+    /* idempotent resubmission */
+    job = small_job(1, 80, NULL);
+    char id2[64], id3[64];
+    r = http(&D, "POST", "/v1/jobs", job, strlen(job), "Idempotency-Key: test-key-1");
+    assert_int_equal(r.status, 202);
+    cJSON *a = cJSON_Parse(r.body);
+    snprintf(id2, sizeof id2, "%s", cJSON_GetObjectItem(a, "id")->valuestring);
+    cJSON_Delete(a);
+    http_free(&r);
+    r = http(&D, "POST", "/v1/jobs", job, strlen(job), "Idempotency-Key: test-key-1");
+    assert_int_equal(r.status, 202);
+    a = cJSON_Parse(r.body);
+    snprintf(id3, sizeof id3, "%s", cJSON_GetObjectItem(a, "id")->valuestring);
+    cJSON_Delete(a);
+    http_free(&r);
+    assert_string_equal(id2, id3);
+    free(job);
+    job = small_job(1, 96, NULL);
+    expect_problem("POST", "/v1/jobs", job, strlen(job), "Idempotency-Key: test-key-1", 422, NULL);
+    free(job);
+    j = wait_job(id2, 60);
+    cJSON_Delete(j);
+}
+
+static void test_kill_9_and_resume(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    daemon_start(&D, "crash");
+    char *job = small_job(47, 480, NULL), id[64], path[256];
+    submit(job, id);
+    free(job);
+    /* wait until a few frames are done */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    int done = 0;
+    for (int i = 0; i < 600 && done < 3; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        cJSON *j = cJSON_Parse(r.body);
+        done = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
+        cJSON_Delete(j);
+        http_free(&r);
+        fx_sleep_ms(50);
+    }
+    assert_true(done >= 3);
+    assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
+    /* what was finished before the kill, by inode: a re-render would rename a new file in */
+    ino_t inodes[48] = {0};
+    int before = 0;
+    for (int k = 0; k < 48; k++) {
+        char f[700];
+        struct stat st;
+        snprintf(f, sizeof f, "%s/frames/%s/%04d.exr", D.data, id, k);
+        if (stat(f, &st) == 0) {
+            inodes[k] = st.st_ino;
+            before++;
+        }
+    }
+    assert_true(before >= 3);
+    daemon_start(&D, "crash"); /* same data directory */
+    cJSON *j = wait_job(id, 300);
+    assert_string_equal(state_of(j), "succeeded");
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 48);
+    cJSON_Delete(j);
+    for (int k = 0; k < 48; k++) {
+        char f[700];
+        struct stat st;
+        snprintf(f, sizeof f, "%s/frames/%s/%04d.exr", D.data, id, k);
+        assert_int_equal(stat(f, &st), 0);
+        if (inodes[k])
+            assert_true(st.st_ino == inodes[k]); /* not rendered again */
+    }
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    curl_global_init(CURL_GLOBAL_DEFAULT);
+    fx_init_dirs();
+    daemon_start(&D, "data");
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    int st = daemon_stop(&D, SIGTERM);
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
+    if (system(cmd) != 0)
+        return -1;
+    curl_global_cleanup();
+    return st == 0 ? 0 : -1; /* a clean SIGTERM stop exits 0 */
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_health_and_metrics),
+        cmocka_unit_test(test_submit_poll_fetch_and_cache),
+        cmocka_unit_test(test_events_stream),
+        cmocka_unit_test(test_client_submit_wait_fetch),
+        cmocka_unit_test(test_upload_and_render_by_id),
+        cmocka_unit_test(test_bad_requests),
+        cmocka_unit_test(test_cancel_retry_delete_idempotency),
+        cmocka_unit_test(test_kill_9_and_resume),
+    };
+    return cmocka_run_group_tests_name("daemon", tests, setup, teardown);
+}
