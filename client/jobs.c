@@ -24,7 +24,7 @@
 
 enum { FS_UNKNOWN = 0, FS_PENDING, FS_RUNNING, FS_DONE, FS_FAILED };
 
-/* Why an event handler stopped the stream. */
+/* Why an event handler stopped the stream (any nonzero value stops it). */
 enum { STOP_TERMINAL = 1, STOP_FATAL = 2, STOP_BROKEN = 3 };
 
 typedef struct follow {
@@ -44,6 +44,7 @@ typedef struct follow {
     int64_t downloaded_bytes;
 
     mrc_sse sse;
+    bool synced;             /* re-read the job once the stream was open */
     mrc_error fatal;         /* why a callback stopped everything */
 } follow;
 
@@ -220,6 +221,10 @@ static int apply_snapshot(follow *f, const cJSON *job, bool announce, mrc_error 
     const char *error = mrc_json_str(job, "error");
     if (error)
         mrc_sanitize(f->job_error, sizeof f->job_error, error);
+    /* before the frames, so a log reads "running" before "frame 0 done" */
+    const char *state = mrc_json_str(job, "state");
+    if (state)
+        set_state(f, state);
 
     if (cJSON_IsArray(states)) {
         f->have_states = true;
@@ -246,14 +251,10 @@ static int apply_snapshot(follow *f, const cJSON *job, bool announce, mrc_error 
         f->done = (int)mrc_json_int(frames, "done", f->done, 0, MAX_FRAMES);
         f->failed = (int)mrc_json_int(frames, "failed", f->failed, 0, MAX_FRAMES);
         /* without per-frame states, a finished job's frames are all there */
-        const char *st = mrc_json_str(job, "state");
-        if (st && strcmp(st, "succeeded") == 0)
+        if (state && strcmp(state, "succeeded") == 0)
             for (int i = 0; i < f->total; i++)
                 f->fstate[i] = FS_DONE;
     }
-    const char *state = mrc_json_str(job, "state");
-    if (state)
-        set_state(f, state);
     return download_done_frames(f, err);
 }
 
@@ -299,6 +300,17 @@ static int on_event(const char *event, const char *data, size_t len, void *user)
         const char *state = mrc_json_str(doc, "state");
         if (state)
             set_state(f, state);
+        if (!f->synced) {
+            /* frames that finished between the first snapshot and the
+             * subscription are in no event: read the job again now */
+            f->synced = true;
+            mrc_error serr = {0};
+            if (get_snapshot(f, true, &serr) < 0 && serr.code != MRC_EXIT_SERVER) {
+                f->fatal = serr; /* a download could not be written, or was refused */
+                rc = STOP_FATAL;
+                goto cleanup;
+            }
+        }
         if (is_terminal(f->state))
             rc = STOP_TERMINAL;
     } else if (strcmp(event, "frame") == 0) {
@@ -345,16 +357,16 @@ static int follow_stream(follow *f, mrc_error *err)
     mrc_error serr = {0};
     mrc_sse_init(&f->sse, on_event, f);
     int rc = mrc_http_stream(f->http, path, on_stream_data, on_stream_tick, f, &serr);
-    int stop = rc == 1 ? (is_terminal(f->state) ? STOP_TERMINAL : f->fatal.code ? STOP_FATAL : STOP_BROKEN) : 0;
     mrc_sse_free(&f->sse);
-    if (stop == STOP_FATAL) {
+    if (f->fatal.code) { /* a download failed inside an event handler */
         *err = f->fatal;
         return -err->code;
     }
-    if (stop == STOP_TERMINAL || is_terminal(f->state))
+    if (is_terminal(f->state))
         return 0;
-    const char *why = rc < 0 ? serr.msg : stop == STOP_BROKEN ? "malformed event stream"
-                                                                  : "the server ended it early";
+    /* rc == 1 without a terminal state or a fatal error: the parser gave up */
+    const char *why = rc < 0 ? serr.msg : rc == 1 ? "malformed event stream"
+                                                  : "the server ended it early";
     mrc_progress_message(&f->prog, "microray: event stream unavailable (%s); polling instead", why);
     return 1;
 }

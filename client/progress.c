@@ -51,7 +51,10 @@ void mrc_progress_format(char *dst, size_t size, int done, int failed, int total
     size_t used = 0;
     if (failed > 0)
         used += (size_t)snprintf(extra + used, sizeof extra - used, "  %d failed", failed);
-    if (state && strcmp(state, "running") != 0 && used < sizeof extra)
+    /* "queued" and the like; not the end states, which get a summary line */
+    bool shown = state && strcmp(state, "running") != 0 && strcmp(state, "succeeded") != 0 &&
+                 strcmp(state, "failed") != 0 && strcmp(state, "canceled") != 0;
+    if (shown && used < sizeof extra)
         used += (size_t)snprintf(extra + used, sizeof extra - used, "  %s", state);
     if (eta >= 0.0 && used < sizeof extra) {
         if (eta < 1.0)
