@@ -166,7 +166,7 @@ static const char *JOB_FMT =
     "{\"name\":\"bench\",\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
     "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
     "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
-    "\"frames\":{\"fps\":24,\"start\":0,\"end\":%g},\"output\":{\"width\":%d,\"height\":%d,\"samples\":1}}";
+    "\"frames\":{\"fps\":24,\"start\":0,\"end\":%g},\"output\":{\"width\":%d,\"height\":%d,\"samples\":%d}}";
 
 int main(int argc, char **argv)
 {
@@ -184,7 +184,8 @@ int main(int argc, char **argv)
 
     /* 2. submission to first frame */
     char job[2048], job_path[128];
-    snprintf(job, sizeof job, JOB_FMT, 0.5, 640, 360);
+    /* one frame: each measurement finds the queue empty */
+    snprintf(job, sizeof job, JOB_FMT, 0.0, 640, 360, 1);
     snprintf(job_path, sizeof job_path, "%s/job.json", tmp);
     FILE *f = fopen(job_path, "w");
     fputs(job, f);
@@ -204,7 +205,8 @@ int main(int argc, char **argv)
     printf("| daemon warm / one-shot | %.2f |\n", mw / ms);
 
     /* 1. status requests under load, while a long job renders */
-    snprintf(job, sizeof job, JOB_FMT, 60.0, 320, 180);
+    /* the example's 49 frames, big enough to keep both cores busy for the 5 s */
+    snprintf(job, sizeof job, JOB_FMT, 2.0, 1920, 1080, 4);
     const char *id = post_job(job);
     char cmd[512], out[160];
     snprintf(out, sizeof out, "%s/wrk.txt", tmp);

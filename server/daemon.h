@@ -27,7 +27,7 @@ typedef struct mr_daemon_config {
     size_t cache_bytes;           /* scene cache cap; default 1 GiB */
     size_t max_job_bytes;         /* POST /v1/jobs body cap; default 1 MiB */
     size_t max_asset_bytes;       /* POST /v1/assets body cap; default 512 MiB */
-    unsigned http_threads;        /* libmicrohttpd thread pool; default 4 */
+    unsigned http_threads;        /* libmicrohttpd thread pool; default one per core */
     unsigned connection_timeout_s;/* idle connection timeout; default 30 */
     unsigned per_ip_connections;  /* default 128 */
     bool quiet;                   /* no request/frame log lines */

@@ -2,7 +2,8 @@
  * serve_cmd.c - `microrayd serve`: runs the daemon until SIGTERM or SIGINT.
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
- *                   [--workers N] [--threads N] [--cache-mb N] [--port-file F] [--quiet]
+ *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
+ *                   [--port-file F] [--quiet]
  *
  * Signals are blocked in every thread and taken synchronously here with
  * sigwait, so the stop runs in ordinary code (no async-signal-safety games):
@@ -26,7 +27,8 @@
 static void usage(void)
 {
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
-                    "                       [--workers N] [--threads N] [--cache-mb N] [--port-file FILE] [--quiet]\n");
+                    "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
+                    "                       [--port-file FILE] [--quiet]\n");
 }
 
 static bool parse_uint(const char *s, unsigned long lo, unsigned long hi, unsigned long *out)
@@ -94,6 +96,8 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.workers = (unsigned)n;
         } else if (!strcmp(a, "--threads") && parse_uint(v, 1, MR_MAX_THREADS, &n)) {
             cfg.render_threads = (unsigned)n;
+        } else if (!strcmp(a, "--http-threads") && parse_uint(v, 1, 64, &n)) {
+            cfg.http_threads = (unsigned)n;
         } else if (!strcmp(a, "--cache-mb") && parse_uint(v, 1, 1u << 20, &n)) {
             cfg.cache_bytes = (size_t)n << 20;
         } else if (!strcmp(a, "--port-file")) {
