@@ -313,15 +313,25 @@ static int on_event(const char *event, const char *data, size_t len, void *user)
         }
         if (is_terminal(f->state))
             rc = STOP_TERMINAL;
-    } else if (strcmp(event, "frame") == 0) {
+    } else if (strcmp(event, "frame") == 0 || strcmp(event, "frame_failed") == 0) {
+        /* "index", or "frame" when the event carries the frame's stats.json entry */
         int index = (int)mrc_json_int(doc, "index", -1, 0, MAX_FRAMES);
+        if (index < 0)
+            index = (int)mrc_json_int(doc, "frame", -1, 0, MAX_FRAMES);
         if (index < 0 || index >= f->total)
             goto cleanup;
+        const char *error = mrc_json_str(doc, "error");
         int st = frame_state_parse(mrc_json_str(doc, "state"));
         if (st == FS_UNKNOWN)
-            st = mrc_json_str(doc, "error") ? FS_FAILED : FS_DONE; /* the contract: a finished frame */
-        if (frame_changed(f, index, st, frame_seconds(doc), mrc_json_str(doc, "error"),
-                          &f->fatal) < 0) {
+            st = (strcmp(event, "frame_failed") == 0 || error) ? FS_FAILED : FS_DONE;
+        if (st == FS_FAILED && cJSON_IsFalse(cJSON_GetObjectItemCaseSensitive(doc, "gave_up"))) {
+            /* the server tries the frame again: a note, not a failure */
+            char msg[400];
+            mrc_sanitize(msg, sizeof msg, error ? error : "no reason given");
+            mrc_progress_message(&f->prog, "frame %d failed, retrying: %s", index, msg);
+            st = FS_PENDING;
+        }
+        if (frame_changed(f, index, st, frame_seconds(doc), error, &f->fatal) < 0) {
             rc = STOP_FATAL;
             goto cleanup;
         }

@@ -38,7 +38,7 @@ static void usage(FILE *out)
         "                        --wait follows it to the end with a progress display,\n"
         "                        --out DIR (implies --wait) downloads DIR/NNNN.exr and\n"
         "                        DIR/stats.json\n"
-        "  status ID [--json]    state, frame counts, timings and errors of a job\n"
+        "  status ID [--json]    state, frame counts, timestamps and errors of a job\n"
         "  list [--state S] [--json]\n"
         "                        jobs, newest first; S is queued, running, succeeded,\n"
         "                        failed or canceled\n"

@@ -870,7 +870,6 @@ void mr_daemon_stop(mr_daemon *d)
     mr_store_close(d->store);
     for (mr_event_sub *s = d->subs, *next; s; s = next) {
         next = s->next;
-        s->d = d;
         for (event_msg *m = s->head, *mn; m; m = mn) {
             mn = m->next;
             free(m->text);

@@ -62,7 +62,9 @@ int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *ide
 /* Cancels a queued or running job (a running render stops within one tile).
  * MR_ERR_CONFLICT if it already finished; MR_ERR_NOT_FOUND if unknown. */
 int mr_daemon_cancel(mr_daemon *d, const char *id, mr_error *err);
-/* Re-queues the failed frames of a failed job (MR_ERR_CONFLICT otherwise). */
+/* Re-queues the unfinished frames (failed ones with their retry counts
+ * reset) of a failed or canceled job and returns how many; MR_ERR_CONFLICT
+ * for queued, running and succeeded jobs. */
 int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err);
 /* Cancels if needed, waits until no worker uses the job, removes it and
  * its frames from disk. */
@@ -77,14 +79,16 @@ char *mr_daemon_metrics(mr_daemon *d);
  * after the job reaches a terminal state the stream ends. */
 typedef struct mr_event_sub mr_event_sub;
 mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id);
-/* Copies the next pending event into buf (NUL-terminated) and returns its
- * length; 0 when none is pending; -1 when the stream has ended (and nothing
- * is pending). Never blocks. */
+/* Copies the next pending event into buf (NUL-terminated; a block that does
+ * not fit is truncated) and returns its length; 0 when none is pending; -1
+ * when the stream has ended (and nothing is pending). Never blocks. */
 int mr_events_next(mr_event_sub *sub, char *buf, size_t size);
 /* Calls fn(user) once whenever an event becomes pending for this subscriber
  * (from the publishing thread; fn must not block): the HTTP layer uses it
  * to resume a suspended connection. */
 void mr_events_set_notify(mr_event_sub *sub, void (*fn)(void *user), void *user);
+/* After it returns the notify function is never called again and no call of
+ * it is in progress (publishers call it under the lock this takes). */
 void mr_events_unsubscribe(mr_event_sub *sub);
 
 #endif
