@@ -407,7 +407,11 @@ static void test_kill_9_and_resume(void **state)
     (void)state;
     daemon_proc saved = D;
     daemon_start(&D, "crash");
-    char *job = small_job(47, 480, NULL), id[64], path[256];
+    /* 48 frames heavy enough (640x360, 4 samples, shadows) that the kill lands mid-job */
+    char *job = small_job(47, 640, NULL), id[64], path[256];
+    char *spp = strstr(job, "\"samples\":1");
+    assert_non_null(spp);
+    spp[10] = '4';
     submit(job, id);
     free(job);
     /* wait until a few frames are done */
@@ -436,6 +440,7 @@ static void test_kill_9_and_resume(void **state)
         }
     }
     assert_true(before >= 3);
+    assert_true(before < 48); /* the kill interrupted the job */
     daemon_start(&D, "crash"); /* same data directory */
     cJSON *j = wait_job(id, 300);
     assert_string_equal(state_of(j), "succeeded");
@@ -450,6 +455,10 @@ static void test_kill_9_and_resume(void **state)
             assert_true(st.st_ino == inodes[k]); /* not rendered again */
     }
     assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    char *log = fx_slurp(D.log, NULL);
+    assert_non_null(log);
+    assert_non_null(strstr(log, "resuming 1 job"));
+    free(log);
     D = saved;
 }
 
