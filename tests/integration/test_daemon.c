@@ -402,6 +402,43 @@ static void test_cancel_retry_delete_idempotency(void **state)
     cJSON_Delete(j);
 }
 
+/* Frames that fail are retried max_retries times, then the job fails; retry
+ * re-queues them. Two nested joints scaled by 1e9 each put posed vertices
+ * at ~1e18, past what the renderer hands Embree, so every attempt fails. */
+static void test_failed_frames_and_retry(void **state)
+{
+    (void)state;
+    const char *job =
+        "{\"max_retries\":1,\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+        "\"objects\":[{\"asset\":\"d\",\"pose\":{\"joints\":{"
+        "\"B_Root_Pelvis_L\":{\"scale\":[1e9,1e9,1e9]},\"B_LowerPelvis\":{\"scale\":[1e9,1e9,1e9]}}}}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+        "\"frames\":{\"times\":[0,1]},\"output\":{\"width\":32,\"height\":18}}";
+    char id[64], path[256];
+    submit(job, id);
+    cJSON *j = wait_job(id, 60);
+    assert_string_equal(state_of(j), "failed");
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "failed")->valueint, 2);
+    assert_non_null(strstr(cJSON_GetObjectItem(j, "error")->valuestring, "2 frames failed"));
+    cJSON *fs = cJSON_GetObjectItem(j, "frame_states");
+    assert_int_equal(cJSON_GetArraySize(fs), 2);
+    cJSON *f0 = cJSON_GetArrayItem(fs, 0);
+    assert_string_equal(cJSON_GetObjectItem(f0, "state")->valuestring, "failed");
+    assert_int_equal(cJSON_GetObjectItem(f0, "retries")->valueint, 2); /* first try + 1 retry */
+    assert_non_null(strstr(cJSON_GetObjectItem(f0, "error")->valuestring, "coordinate"));
+    cJSON_Delete(j);
+    snprintf(path, sizeof path, "/v1/jobs/%s/retry", id);
+    http_result r = http(&D, "POST", path, "", 0, NULL);
+    assert_int_equal(r.status, 202);
+    assert_non_null(strstr(r.body, "\"frames_requeued\":2"));
+    http_free(&r);
+    j = wait_job(id, 60);
+    assert_string_equal(state_of(j), "failed"); /* it fails the same way again */
+    cJSON_Delete(j);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0", id);
+    expect_problem("GET", path, NULL, 0, NULL, 404, NULL); /* never rendered */
+}
+
 static void test_kill_9_and_resume(void **state)
 {
     (void)state;
@@ -493,6 +530,7 @@ int main(void)
         cmocka_unit_test(test_upload_and_render_by_id),
         cmocka_unit_test(test_bad_requests),
         cmocka_unit_test(test_cancel_retry_delete_idempotency),
+        cmocka_unit_test(test_failed_frames_and_retry),
         cmocka_unit_test(test_kill_9_and_resume),
     };
     return cmocka_run_group_tests_name("daemon", tests, setup, teardown);
