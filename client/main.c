@@ -576,8 +576,8 @@ int main(int argc, char **argv)
     if (a.idem) {
         /* it becomes a header line: no CR/LF smuggling, printable ASCII only */
         for (const char *p = a.idem; *p; p++) {
-            if ((unsigned char)*p < 0x21 || (unsigned char)*p > 0x7e || strlen(a.idem) > 255) {
-                code = usage_error("%s", "--idempotency-key: 1..255 printable ASCII characters");
+            if ((unsigned char)*p < 0x21 || (unsigned char)*p > 0x7e || strlen(a.idem) > 200) {
+                code = usage_error("%s", "--idempotency-key: 1..200 printable ASCII characters");
                 goto cleanup;
             }
         }

@@ -35,6 +35,11 @@
 #include "util/parallel.h"
 #include "worker.h"
 
+/* Events buffered per subscriber before its stream is ended, and streams
+ * open at once (each holds an HTTP connection). */
+#define MR_EVENT_QUEUE_MAX 1024
+#define MR_MAX_SUBSCRIBERS 64
+
 /* Nice value of render threads (HTTP threads keep 0). */
 #define MR_WORKER_NICE 10
 
@@ -57,6 +62,7 @@ struct mr_event_sub {
     mr_daemon *d;
     char id[MR_JOB_ID_LEN + 1];
     event_msg *head, *tail;
+    size_t queued;
     bool ended;
     void (*notify)(void *user);
     void *notify_user;
@@ -78,7 +84,8 @@ struct mr_daemon {
     pthread_mutex_t lock; /* stopping, running, metrics */
     pthread_cond_t wake;     /* a job was queued, or stop */
     pthread_cond_t released; /* a worker let go of a job */
-    bool stopping, ready;
+    bool stopping;
+    atomic_bool ready;
     running_job *running;
     uint64_t frames_rendered, frames_failed, rays;
     uint64_t buckets[N_BUCKETS + 1];
@@ -112,6 +119,14 @@ static void sub_push(mr_event_sub *s, const char *type, const char *json, bool e
 {
     if (s->ended)
         return;
+    if (s->queued >= MR_EVENT_QUEUE_MAX) {
+        /* a subscriber that does not read: end its stream instead of
+         * buffering without bound (clients fall back to polling) */
+        s->ended = true;
+        if (s->notify)
+            s->notify(s->notify_user);
+        return;
+    }
     size_t n = strlen(type) + strlen(json) + 32;
     event_msg *m = malloc(sizeof *m);
     char *text = malloc(n);
@@ -127,6 +142,7 @@ static void sub_push(mr_event_sub *s, const char *type, const char *json, bool e
         else
             s->head = m;
         s->tail = m;
+        s->queued++;
         s->ended = end;
     }
     if (s->notify)
@@ -172,6 +188,14 @@ mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id)
              "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}", r.id,
              mr_job_state_name(r.state), r.frame_count, r.frames_done, r.frames_failed);
     pthread_mutex_lock(&d->ev_lock);
+    size_t open = 0;
+    for (mr_event_sub *o = d->subs; o; o = o->next)
+        open++;
+    if (open >= MR_MAX_SUBSCRIBERS) {
+        pthread_mutex_unlock(&d->ev_lock);
+        free(s);
+        return NULL;
+    }
     sub_push(s, "state", json, state_is_terminal(r.state));
     s->next = d->subs;
     d->subs = s;
@@ -193,6 +217,7 @@ int mr_events_next(mr_event_sub *s, char *buf, size_t size)
         s->head = m->next;
         if (!s->head)
             s->tail = NULL;
+        s->queued--;
         free(m->text);
         free(m);
         n = (int)len;
@@ -369,7 +394,14 @@ int mr_daemon_cancel(mr_daemon *d, const char *id, mr_error *err)
 
 int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err)
 {
-    int rc = mr_store_job_retry(d->store, id, err);
+    /* Under d->lock, so no worker can claim or release the job meanwhile: a
+     * canceled job whose worker is still finishing its frame must not be
+     * queued again, or two workers would render it. */
+    pthread_mutex_lock(&d->lock);
+    int rc = find_running(d, id)
+                 ? mr_error_set(err, MR_ERR_CONFLICT, "job %s is still stopping; retry in a moment", id)
+                 : mr_store_job_retry(d->store, id, err);
+    pthread_mutex_unlock(&d->lock);
     if (rc >= 0) {
         log_line(d, "job=%s retrying %d frames", id, rc);
         pthread_mutex_lock(&d->lock);
@@ -454,10 +486,16 @@ static int run_frame_done(void *user, size_t index, const mr_film *film, mr_fram
         mr_frame_stats rec = *st;
         rec.total_s += rec.encode_s;
         char *json = mr_frame_stats_json(&rec);
+        /* Checked and stored under d->lock, which a cancel takes too: once a
+         * cancel has answered, no frame of the job is recorded any more. */
+        pthread_mutex_lock(&d->lock);
         if (!json)
             rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        else if (atomic_load(&r->entry->cancel))
+            rc = mr_error_set(err, MR_ERR_CANCELLED, "frame %zu cancelled", index);
         else
             rc = mr_store_frame_done(d->store, r->id, index, data, size, json, err);
+        pthread_mutex_unlock(&d->lock);
         if (rc == MR_OK) {
             publish(d, r->id, "frame", json, false);
             pthread_mutex_lock(&d->lock);
@@ -552,6 +590,22 @@ static void run_release(void *user, mr_asset *asset)
     mr_cache_release(r->d->cache, asset);
 }
 
+/* Moves a running job to its final state, unless a cancel (or anything
+ * else) changed it meanwhile: under d->lock, like every state change a
+ * request makes, so the last word is the user's. */
+static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const char *why)
+{
+    mr_error err;
+    mr_job_record rec;
+    pthread_mutex_lock(&d->lock);
+    int rc = mr_store_job_get(d->store, id, &rec, &err);
+    if (rc == MR_OK && rec.state == MR_JOB_RUNNING)
+        rc = mr_store_job_set_state(d->store, id, state, why, &err);
+    pthread_mutex_unlock(&d->lock);
+    if (rc < 0)
+        log_line(d, "job=%s: could not record state %s: %s", id, mr_job_state_name(state), err.msg);
+}
+
 /* Renders one claimed job to the end (or until cancelled or stopped). */
 static void run_job(mr_daemon *d, const char *id, running_job *entry)
 {
@@ -606,7 +660,7 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
     if (rc == MR_ERR_CANCELLED) {
         if (!atomic_load(&entry->cancel)) {
             /* the daemon is stopping: leave the job to resume at the next start */
-            mr_store_job_set_state(d->store, id, MR_JOB_QUEUED, NULL, &err);
+            finish_job(d, id, MR_JOB_QUEUED, NULL);
             log_line(d, "job=%s paused for shutdown", id);
         }
         goto done;
@@ -616,24 +670,18 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
     if (run.failed > 0) {
         char why[128];
         snprintf(why, sizeof why, "%zu frame%s failed after all retries", run.failed, run.failed == 1 ? "" : "s");
-        mr_store_job_set_state(d->store, id, MR_JOB_FAILED, why, &err);
+        finish_job(d, id, MR_JOB_FAILED, why);
         log_line(d, "job=%s failed: %s", id, why);
     } else {
-        mr_store_job_set_state(d->store, id, MR_JOB_SUCCEEDED, NULL, &err);
+        finish_job(d, id, MR_JOB_SUCCEEDED, NULL);
         log_line(d, "job=%s succeeded", id);
     }
     publish_state(d, id);
     goto done;
 fail:
-    {
-        mr_error ignored;
-        mr_job_record rec;
-        /* a job canceled meanwhile stays canceled */
-        if (mr_store_job_get(d->store, id, &rec, &ignored) == MR_OK && rec.state == MR_JOB_RUNNING)
-            mr_store_job_set_state(d->store, id, MR_JOB_FAILED, err.msg, &ignored);
-        log_line(d, "job=%s failed: %s", id, err.msg);
-        publish_state(d, id);
-    }
+    finish_job(d, id, MR_JOB_FAILED, err.msg); /* a job canceled meanwhile stays canceled */
+    log_line(d, "job=%s failed: %s", id, err.msg);
+    publish_state(d, id);
 done:
     mr_job_stats_free(&stats);
     free(states);
@@ -760,7 +808,7 @@ char *mr_daemon_metrics(mr_daemon *d)
 
 mr_store *mr_daemon_store(mr_daemon *d) { return d->store; }
 const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d) { return &d->cfg; }
-bool mr_daemon_ready(const mr_daemon *d) { return d->ready; }
+bool mr_daemon_ready(const mr_daemon *d) { return atomic_load(&((mr_daemon *)d)->ready); }
 unsigned mr_daemon_port(const mr_daemon *d) { return d->http ? mr_http_port(d->http) : 0; }
 
 static void apply_defaults(mr_daemon_config *c)
@@ -794,6 +842,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
     int rc;
     pthread_mutex_init(&d->lock, NULL);
     pthread_mutex_init(&d->ev_lock, NULL);
+    atomic_init(&d->ready, false);
     pthread_cond_init(&d->wake, NULL);
     pthread_cond_init(&d->released, NULL);
     d->cfg = *cfg;
@@ -841,7 +890,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
     }
     if ((rc = mr_http_start(d, &d->cfg, &d->http, err)) < 0)
         goto fail;
-    d->ready = true;
+    atomic_store(&d->ready, true);
     log_line(d, "listening on http://%s:%u/ (data %s, %u worker%s)", d->cfg.listen_host,
              mr_http_port(d->http), d->data_dir, d->worker_count, d->worker_count == 1 ? "" : "s");
     *out = d;
@@ -855,7 +904,7 @@ void mr_daemon_stop(mr_daemon *d)
 {
     if (!d)
         return;
-    d->ready = false;
+    atomic_store(&d->ready, false);
     if (d->http)
         mr_http_stop(d->http); /* no new work; event streams end */
     pthread_mutex_lock(&d->lock);

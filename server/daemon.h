@@ -78,6 +78,9 @@ char *mr_daemon_metrics(mr_daemon *d);
  * event with the job's current state, then every event published after it;
  * after the job reaches a terminal state the stream ends. */
 typedef struct mr_event_sub mr_event_sub;
+/* NULL for an unknown job, or when MR_MAX_SUBSCRIBERS (64) streams are
+ * already open. A subscriber that lets 1024 events pile up unread has its
+ * stream ended. */
 mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id);
 /* Copies the next pending event into buf (NUL-terminated; a block that does
  * not fit is truncated) and returns its length; 0 when none is pending; -1

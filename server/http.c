@@ -1293,7 +1293,8 @@ static enum MHD_Result h_job_events(req *r, struct MHD_Connection *c)
     if (!s->sub) {
         s->closed = true;
         sse_release(s);
-        return send_problem(r, c, P_INTERNAL, NULL, "cannot follow job %s", job.id);
+        return send_problem(r, c, P_UNAVAILABLE, NULL,
+                            "too many event streams are open; poll GET /v1/jobs/%s instead", job.id);
     }
     mr_events_set_notify(s->sub, sse_notify, s);
 

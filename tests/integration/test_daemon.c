@@ -344,17 +344,44 @@ static void test_cancel_retry_delete_idempotency(void **state)
     char *job = small_job(400, 320, "\"priority\":5,"), id[64], path[256];
     submit(job, id);
     free(job);
+    /* wait until it really renders */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    int done = 0;
+    for (int i = 0; i < 600 && done < 2; i++) {
+        http_result g = http(&D, "GET", path, NULL, 0, NULL);
+        cJSON *gj = cJSON_Parse(g.body);
+        done = cJSON_GetObjectItem(cJSON_GetObjectItem(gj, "frames"), "done")->valueint;
+        cJSON_Delete(gj);
+        http_free(&g);
+        fx_sleep_ms(20);
+    }
+    assert_true(done >= 2);
     snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
     http_result r = http(&D, "POST", path, "", 0, NULL);
     assert_int_equal(r.status, 202);
     http_free(&r);
     cJSON *j = wait_job(id, 30);
     assert_string_equal(state_of(j), "canceled");
+    int done_at_cancel = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
     cJSON_Delete(j);
+    /* the frame in progress stopped within a tile: no frame finishes after the cancel */
+    fx_sleep_ms(1000);
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    j = wait_job(id, 5);
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, done_at_cancel);
+    assert_true(done_at_cancel < 401);
+    cJSON_Delete(j);
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
     expect_problem("POST", path, "", 0, NULL, 409, NULL); /* already canceled */
-    /* retry resumes a canceled job's unfinished frames; cancel it again */
+    /* retry resumes a canceled job's unfinished frames (409 while its worker
+     * is still letting go of it); cancel it again */
     snprintf(path, sizeof path, "/v1/jobs/%s/retry", id);
     r = http(&D, "POST", path, "", 0, NULL);
+    for (int i = 0; i < 50 && r.status == 409; i++) {
+        http_free(&r);
+        fx_sleep_ms(100);
+        r = http(&D, "POST", path, "", 0, NULL);
+    }
     assert_int_equal(r.status, 202);
     assert_non_null(strstr(r.body, "\"frames_requeued\""));
     http_free(&r);
