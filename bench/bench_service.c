@@ -8,7 +8,8 @@
  *     same job (median of 5 each, interleaved, fresh asset import each time
  *     for the one-shot; the daemon's figure is shown with a cold and a warm
  *     scene cache).
- * usage: bench_service [--repeats N]   (run from the repository root)
+ * usage: bench_service [--repeats N]   (from the repository root; the
+ * daemon binary is $MR_BUILD_DIR/microrayd, default build/microrayd)
  */
 #include <curl/curl.h>
 #include <signal.h>
@@ -39,6 +40,7 @@ static double median(double *v, int n)
 }
 
 static char tmp[64] = "/tmp/microray-bench-XXXXXX";
+static char microrayd[512] = "build/microrayd"; /* $MR_BUILD_DIR/microrayd */
 static char base[64];
 static pid_t daemon_pid;
 
@@ -49,7 +51,7 @@ static void start_daemon(void)
     snprintf(port_file, sizeof port_file, "%s/port", tmp);
     daemon_pid = fork();
     if (daemon_pid == 0) {
-        execl("build/microrayd", "microrayd", "serve", "--listen", "127.0.0.1:0", "--data", data,
+        execl(microrayd, "microrayd", "serve", "--listen", "127.0.0.1:0", "--data", data,
               "--asset-root", "/usr/share/assimp/models", "--port-file", port_file, "--quiet", (char *)NULL);
         _exit(127);
     }
@@ -146,7 +148,7 @@ static double oneshot_first_frame(const char *job_path, int run)
     double t0 = now();
     pid_t pid = fork();
     if (pid == 0) {
-        execl("build/microrayd", "microrayd", "render", job_path, "--out", out, "--quiet", (char *)NULL);
+        execl(microrayd, "microrayd", "render", job_path, "--out", out, "--quiet", (char *)NULL);
         _exit(127);
     }
     struct stat st;
@@ -176,6 +178,8 @@ int main(int argc, char **argv)
             repeats = atoi(argv[++i]);
     if (repeats < 1 || repeats > 50)
         repeats = 5;
+    if (getenv("MR_BUILD_DIR"))
+        snprintf(microrayd, sizeof microrayd, "%s/microrayd", getenv("MR_BUILD_DIR"));
     if (!mkdtemp(tmp))
         return 1;
     curl_global_init(CURL_GLOBAL_DEFAULT);

@@ -4,6 +4,7 @@
 set -euo pipefail
 BUILD=${1:-build}
 cd "$(dirname "$0")/.."
+export MR_BUILD_DIR="$BUILD"
 for b in "$BUILD"/bench/*; do
   [ -x "$b" ] && "$b" "${@:2}"
 done
