@@ -368,7 +368,14 @@ static int follow_stream(follow *f, mrc_error *err)
     mrc_sse_init(&f->sse, on_event, f);
     int rc = mrc_http_stream(f->http, path, on_stream_data, on_stream_tick, f, &serr);
     mrc_sse_free(&f->sse);
-    if (f->fatal.code) { /* a download failed inside an event handler */
+    if (f->fatal.code == MRC_EXIT_SERVER) {
+        /* a frame download failed because the server is unavailable: like a
+         * broken stream, poll (which tolerates an outage) instead of giving up */
+        mrc_progress_message(&f->prog, "microray: download failed (%s); polling instead", f->fatal.msg);
+        f->fatal = (mrc_error){0};
+        return 1;
+    }
+    if (f->fatal.code) { /* a local failure inside an event handler (e.g. disk full) */
         *err = f->fatal;
         return -err->code;
     }

@@ -912,25 +912,20 @@ static enum MHD_Result h_frame_stats(req *r, struct MHD_Connection *c)
     enum MHD_Result res = MHD_NO;
     if (!load_frame(r, c, &job, &index, &res))
         return res;
-    mr_frame_record *frames = NULL;
-    size_t count = 0;
+    mr_frame_record f;
     mr_error err = {0};
-    int rc = mr_store_frames(mr_daemon_store(r->h->d), job.id, &frames, &count, &err);
-    if (rc < 0)
+    int rc = mr_store_frame_get(mr_daemon_store(r->h->d), job.id, index, &f, &err);
+    if (rc < 0 && rc != MR_ERR_NOT_FOUND)
         return send_error(r, c, rc, &err);
-    const mr_frame_record *f = NULL;
-    for (size_t i = 0; i < count; i++)
-        if (frames[i].index == index)
-            f = &frames[i];
-    if (!f || f->state != MR_FRAME_DONE || !f->stats_json) {
-        mr_frame_records_free(frames, count);
+    if (rc < 0 || f.state != MR_FRAME_DONE || !f.stats_json) {
+        free(f.stats_json);
         return send_problem(r, c, P_NOT_FOUND, NULL, "frame %zu of job %s is not rendered", index,
                             job.id);
     }
-    size_t n = strlen(f->stats_json);
+    size_t n = strlen(f.stats_json);
     struct MHD_Response *resp =
-        MHD_create_response_from_buffer(n, f->stats_json, MHD_RESPMEM_MUST_COPY);
-    mr_frame_records_free(frames, count);
+        MHD_create_response_from_buffer(n, f.stats_json, MHD_RESPMEM_MUST_COPY);
+    free(f.stats_json);
     if (resp && MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, CT_JSON) != MHD_YES) {
         MHD_destroy_response(resp);
         resp = NULL;

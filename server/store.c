@@ -68,6 +68,7 @@ enum stmt_id {
     S_DEL_FRAMES,
     S_DEL_JOB,
     S_FRAMES_LIST,
+    S_FRAME_ROW,
     S_FRAME_GET,
     S_FRAME_SET,
     S_FRAME_SET_RUNNING,
@@ -124,6 +125,8 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_DEL_JOB] = "DELETE FROM jobs WHERE id = ?1",
     [S_FRAMES_LIST] = "SELECT idx, state, retries, error, stats_json FROM frames "
                       "WHERE job_id = ?1 ORDER BY idx",
+    [S_FRAME_ROW] = "SELECT idx, state, retries, error, stats_json FROM frames "
+                    "WHERE job_id = ?1 AND idx = ?2",
     [S_FRAME_GET] = "SELECT f.state, f.retries, j.max_retries FROM frames f "
                     "JOIN jobs j ON j.id = f.job_id WHERE f.job_id = ?1 AND f.idx = ?2",
     [S_FRAME_SET] = "UPDATE frames SET state = ?3, retries = ?4, error = ?5 "
@@ -1258,6 +1261,26 @@ int mr_store_job_counts(mr_store *st, uint64_t counts[5], mr_error *err)
 
 /* ---- frames ----------------------------------------------------------------- */
 
+/* One row of S_FRAMES_LIST / S_FRAME_ROW into f (stats_json malloc'ed). */
+static int read_frame_row(sqlite3_stmt *s, mr_frame_record *f, mr_error *err)
+{
+    memset(f, 0, sizeof *f);
+    f->index = (size_t)sqlite3_column_int64(s, 0);
+    f->state = (mr_frame_state)sqlite3_column_int(s, 1);
+    f->retries = sqlite3_column_int(s, 2);
+    copy_col(f->error, sizeof f->error, s, 3);
+    const unsigned char *t = sqlite3_column_text(s, 4);
+    if (t) {
+        size_t len = (size_t)sqlite3_column_bytes(s, 4);
+        f->stats_json = malloc(len + 1);
+        if (!f->stats_json)
+            return mr_error_set(err, MR_ERR_NOMEM, "out of memory reading frames");
+        memcpy(f->stats_json, t, len);
+        f->stats_json[len] = '\0';
+    }
+    return MR_OK;
+}
+
 int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t *count,
                     mr_error *err)
 {
@@ -1303,23 +1326,8 @@ int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t 
             list = grown;
             cap = ncap;
         }
-        mr_frame_record *f = &list[n];
-        memset(f, 0, sizeof *f);
-        f->index = (size_t)sqlite3_column_int64(s, 0);
-        f->state = (mr_frame_state)sqlite3_column_int(s, 1);
-        f->retries = sqlite3_column_int(s, 2);
-        copy_col(f->error, sizeof f->error, s, 3);
-        const unsigned char *t = sqlite3_column_text(s, 4);
-        if (t) {
-            size_t len = (size_t)sqlite3_column_bytes(s, 4);
-            f->stats_json = malloc(len + 1);
-            if (!f->stats_json) {
-                rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory listing frames");
-                break;
-            }
-            memcpy(f->stats_json, t, len);
-            f->stats_json[len] = '\0';
-        }
+        if ((rc = read_frame_row(s, &list[n], err)) < 0)
+            break;
         n++;
     }
     stmt_release(s);
@@ -1331,6 +1339,36 @@ int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t 
     *out = list;
     *count = n;
     return MR_OK;
+}
+
+int mr_store_frame_get(mr_store *st, const char *id, size_t index, mr_frame_record *out, mr_error *err)
+{
+    memset(out, 0, sizeof *out);
+    if (!valid_job_id(id))
+        return no_job(err, id);
+    pthread_mutex_lock(&st->lock);
+    mr_job_state state;
+    size_t frames = 0;
+    int rc = job_lookup_locked(st, id, &state, &frames, err);
+    if (rc == MR_OK && index >= frames)
+        rc = mr_error_set(err, MR_ERR_NOT_FOUND, "job %s has no frame %zu", id, index);
+    sqlite3_stmt *s = stmt_use(st, S_FRAME_ROW);
+    if (rc == MR_OK)
+        rc = bind_check(st, bind_text(s, 1, id), "read frame", err);
+    if (rc == MR_OK)
+        rc = bind_check(st, sqlite3_bind_int64(s, 2, (sqlite3_int64)index), "read frame", err);
+    if (rc == MR_OK) {
+        int step = sqlite3_step(s);
+        if (step == SQLITE_ROW)
+            rc = read_frame_row(s, out, err);
+        else if (step == SQLITE_DONE)
+            rc = mr_error_set(err, MR_ERR_NOT_FOUND, "job %s has no frame %zu", id, index);
+        else
+            rc = db_fail(st, step, "read frame", err);
+    }
+    stmt_release(s);
+    pthread_mutex_unlock(&st->lock);
+    return rc;
 }
 
 void mr_frame_records_free(mr_frame_record *frames, size_t count)

@@ -114,6 +114,10 @@ int mr_store_job_delete(mr_store *st, const char *id, mr_error *err);
 int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t *count,
                     mr_error *err);
 void mr_frame_records_free(mr_frame_record *frames, size_t count);
+/* One frame of a job (free out->stats_json); MR_ERR_NOT_FOUND for unknown
+ * jobs and indices outside the job. */
+int mr_store_frame_get(mr_store *st, const char *id, size_t index, mr_frame_record *out,
+                       mr_error *err);
 int mr_store_frame_set_running(mr_store *st, const char *id, size_t index, mr_error *err);
 /* Records a finished frame: its EXR bytes are written to
  * DIR/frames/<id>/NNNN.exr (temporary name, fsync, rename) and only then is

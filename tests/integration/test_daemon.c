@@ -464,6 +464,10 @@ static void test_failed_frames_and_retry(void **state)
     cJSON_Delete(j);
     snprintf(path, sizeof path, "/v1/jobs/%s/frames/0", id);
     expect_problem("GET", path, NULL, 0, NULL, 404, NULL); /* never rendered */
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0/stats", id);
+    expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/7/stats", id); /* outside the job */
+    expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
 }
 
 static void test_kill_9_and_resume(void **state)
