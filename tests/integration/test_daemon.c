@@ -69,6 +69,26 @@ static cJSON *wait_job(const char *id, int timeout_s)
     return NULL;
 }
 
+/* Polls until at least n frames of the job are done (at most 30 s). */
+static void wait_frames_done(const char *id, int n)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    int done = 0;
+    for (int i = 0; i < 1500 && done < n; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        cJSON *j = cJSON_Parse(r.body);
+        assert_non_null(j);
+        done = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
+        cJSON_Delete(j);
+        http_free(&r);
+        if (done < n)
+            fx_sleep_ms(20);
+    }
+    if (done < n)
+        fail_msg("job %s: %d frames done after 30 s, waited for %d", id, done, n);
+}
+
 static const char *state_of(cJSON *j) { return cJSON_GetObjectItem(j, "state")->valuestring; }
 
 static void expect_problem(const char *method, const char *path, const char *body, size_t len,
@@ -344,18 +364,7 @@ static void test_cancel_retry_delete_idempotency(void **state)
     char *job = small_job(400, 320, "\"priority\":5,"), id[64], path[256];
     submit(job, id);
     free(job);
-    /* wait until it really renders */
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    int done = 0;
-    for (int i = 0; i < 600 && done < 2; i++) {
-        http_result g = http(&D, "GET", path, NULL, 0, NULL);
-        cJSON *gj = cJSON_Parse(g.body);
-        done = cJSON_GetObjectItem(cJSON_GetObjectItem(gj, "frames"), "done")->valueint;
-        cJSON_Delete(gj);
-        http_free(&g);
-        fx_sleep_ms(20);
-    }
-    assert_true(done >= 2);
+    wait_frames_done(id, 2); /* it really renders */
     snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
     http_result r = http(&D, "POST", path, "", 0, NULL);
     assert_int_equal(r.status, 202);
@@ -476,24 +485,13 @@ static void test_kill_9_and_resume(void **state)
     daemon_proc saved = D;
     daemon_start(&D, "crash");
     /* 48 frames heavy enough (640x360, 4 samples, shadows) that the kill lands mid-job */
-    char *job = small_job(47, 640, NULL), id[64], path[256];
+    char *job = small_job(47, 640, NULL), id[64];
     char *spp = strstr(job, "\"samples\":1");
     assert_non_null(spp);
     spp[10] = '4';
     submit(job, id);
     free(job);
-    /* wait until a few frames are done */
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    int done = 0;
-    for (int i = 0; i < 600 && done < 3; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        cJSON *j = cJSON_Parse(r.body);
-        done = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
-        cJSON_Delete(j);
-        http_free(&r);
-        fx_sleep_ms(50);
-    }
-    assert_true(done >= 3);
+    wait_frames_done(id, 3);
     assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
     /* what was finished before the kill, by inode: a re-render would rename a new file in */
     ino_t inodes[48] = {0};
