@@ -167,6 +167,7 @@ struct req {
     char method[16];
     char path[LOG_PATH_MAX];
     char *body;
+    mr_asset_upload *upload; /* POST /v1/assets: streamed to a file, never buffered */
     size_t len, cap, limit;
     size_t drained; /* bytes read and dropped after the cap was passed */
     bool over;      /* the body passed its cap */
@@ -1062,12 +1063,14 @@ cleanup:
 
 static enum MHD_Result h_asset_put(req *r, struct MHD_Connection *c)
 {
-    if (r->len == 0)
+    if (r->len == 0 || !r->upload)
         return send_problem(r, c, P_BAD_REQUEST, NULL, "empty body: send the asset's bytes");
     char id[MR_ASSET_ID_LEN + 1] = "";
     bool existed = false;
     mr_error err = {0};
-    int rc = mr_store_asset_put(mr_daemon_store(r->h->d), r->body, r->len, id, &existed, &err);
+    mr_asset_upload *up = r->upload;
+    r->upload = NULL; /* finish frees it */
+    int rc = mr_store_asset_upload_finish(mr_daemon_store(r->h->d), up, id, &existed, &err);
     if (rc < 0)
         return send_error(r, c, rc, &err);
     bool ok = true;
@@ -1489,7 +1492,7 @@ static enum MHD_Result begin_request(req *r, struct MHD_Connection *c, const cha
         return has_body ? answer_unrouted(r, c) : MHD_YES;
     }
     r->limit = body_cap(h, r->rt->body);
-    r->keep_body = r->rt->body != BODY_NONE;
+    r->keep_body = r->rt->body == BODY_JOB; /* assets stream to a file */
     if (cl && length > r->limit)
         return too_large(r, c);
     if (length_ok && r->keep_body && length > 0)
@@ -1522,6 +1525,8 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
             free(r->body);
             r->body = NULL;
             r->cap = 0;
+            mr_store_asset_upload_abort(r->upload);
+            r->upload = NULL;
         }
         r->drained += n;
         if (r->drained <= DRAIN_MAX)
@@ -1530,7 +1535,18 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
         atomic_fetch_add(&r->h->responses_4xx, 1);
         return MHD_NO;
     }
-    if (r->keep_body) {
+    if (r->rt->body == BODY_ASSET) {
+        mr_error err = {0};
+        if ((!r->upload && mr_store_asset_upload_begin(mr_daemon_store(r->h->d), &r->upload, &err) < 0) ||
+            mr_store_asset_upload_write(r->upload, data, n, &err) < 0) {
+            /* No answer can be queued mid-body: log and close the connection. */
+            if (!r->h->quiet)
+                fprintf(stderr, "microrayd: upload failed: %s\n", err.msg);
+            r->status = MHD_HTTP_INTERNAL_SERVER_ERROR;
+            atomic_fetch_add(&r->h->responses_5xx, 1);
+            return MHD_NO;
+        }
+    } else if (r->keep_body) {
         size_t need = r->len + n + 1; /* + NUL: handlers get a C string */
         if (!r->body || need > r->cap) {
             /* First allocation: Content-Length exactly when known, else 64 KiB;
@@ -1618,6 +1634,7 @@ static void on_completed(void *cls, struct MHD_Connection *c, void **con_cls,
     if (!r)
         return;
     *con_cls = NULL;
+    mr_store_asset_upload_abort(r->upload); /* a body cut off or refused */
     if (r->sse) {
         sse_close(r->sse);
         r->bytes = atomic_load(&r->sse->bytes);

@@ -794,7 +794,7 @@ static void remove_orphans(mr_store *st)
         DIR *d = opendir(path);
         struct dirent *e;
         while (d && (e = readdir(d)) != NULL) {
-            if (strncmp(e->d_name, ".tmp-", 5) == 0)
+            if (strncmp(e->d_name, ".upload-", 8) == 0) /* an upload cut off by a crash */
                 unlinkat(dirfd(d), e->d_name, 0);
         }
         if (d)
@@ -1577,43 +1577,93 @@ int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, 
 
 /* ---- assets ----------------------------------------------------------------- */
 
-int mr_store_asset_put(mr_store *st, const void *data, size_t size, char id[MR_ASSET_ID_LEN + 1],
-                       bool *existed, mr_error *err)
+struct mr_asset_upload {
+    int fd;
+    char tmp[STORE_PATH_MAX];
+    uint64_t size;
+    mr_sha256 hash;
+};
+
+int mr_store_asset_upload_begin(mr_store *st, mr_asset_upload **out, mr_error *err)
+{
+    *out = NULL;
+    mr_asset_upload *up = calloc(1, sizeof *up);
+    if (!up)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory starting an upload");
+    int rc = path_join(up->tmp, sizeof up->tmp, err, "%s/assets/.upload-XXXXXX", st->dir);
+    if (rc < 0) {
+        free(up);
+        return rc;
+    }
+    /* A unique temporary: two uploads of the same bytes at once must not
+     * write into one file. */
+    up->fd = mkstemp(up->tmp);
+    if (up->fd < 0) {
+        rc = io_error(err, "cannot create", up->tmp, errno);
+        free(up);
+        return rc;
+    }
+    if (fchmod(up->fd, 0644) != 0) {
+        rc = io_error(err, "cannot chmod", up->tmp, errno);
+        mr_store_asset_upload_abort(up);
+        return rc;
+    }
+    mr_sha256_init(&up->hash);
+    *out = up;
+    return MR_OK;
+}
+
+int mr_store_asset_upload_write(mr_asset_upload *up, const void *data, size_t size, mr_error *err)
+{
+    if (size > 0 && write_all(up->fd, data, size) != 0)
+        return io_error(err, "cannot write", up->tmp, errno);
+    mr_sha256_update(&up->hash, data, size);
+    up->size += size;
+    return MR_OK;
+}
+
+void mr_store_asset_upload_abort(mr_asset_upload *up)
+{
+    if (!up)
+        return;
+    if (up->fd >= 0) {
+        close(up->fd);
+        unlink(up->tmp);
+    }
+    free(up);
+}
+
+int mr_store_asset_upload_finish(mr_store *st, mr_asset_upload *up, char id[MR_ASSET_ID_LEN + 1],
+                                 bool *existed, mr_error *err)
 {
     if (existed)
         *existed = false;
-    if (!st || !id || (!data && size > 0))
-        return mr_error_set(err, MR_ERR_INVALID, "mr_store_asset_put: missing argument");
     id[0] = '\0';
-    if (size > (size_t)INT64_MAX)
-        return mr_error_set(err, MR_ERR_LIMIT, "asset of %zu bytes is too large", size);
+    uint8_t digest[32];
     char hex[MR_ASSET_ID_LEN + 1];
-    mr_sha256_hex(data, size, hex);
+    mr_sha256_final(&up->hash, digest);
+    for (int i = 0; i < 32; i++)
+        snprintf(hex + 2 * i, 3, "%02x", digest[i]);
+    uint64_t size = up->size;
 
-    char dir[STORE_PATH_MAX], path[STORE_PATH_MAX], tmp[STORE_PATH_MAX];
+    char dir[STORE_PATH_MAX], path[STORE_PATH_MAX];
     int rc;
     if ((rc = path_join(dir, sizeof dir, err, "%s/assets", st->dir)) < 0 ||
-        (rc = path_join(path, sizeof path, err, "%s/%s", dir, hex)) < 0 ||
-        (rc = path_join(tmp, sizeof tmp, err, "%s/.tmp-%s-XXXXXX", dir, hex)) < 0)
+        (rc = path_join(path, sizeof path, err, "%s/%s", dir, hex)) < 0) {
+        mr_store_asset_upload_abort(up);
         return rc;
-
+    }
     /* A file of the right size under its hash is taken as complete: it
      * only ever appears there by rename after an fsync. */
     struct stat sb;
-    bool present = stat(path, &sb) == 0 && S_ISREG(sb.st_mode) && (size_t)sb.st_size == size;
-    if (!present) {
-        /* A unique temporary: two uploads of the same bytes at once must
-         * not write into one file. */
-        int fd = mkstemp(tmp);
-        if (fd < 0)
-            return io_error(err, "cannot create", tmp, errno);
-        if (fchmod(fd, 0644) != 0) {
-            rc = io_error(err, "cannot chmod", tmp, errno);
-            close(fd);
-            unlink(tmp);
-            return rc;
-        }
-        if ((rc = commit_file(fd, tmp, path, dir, data, size, err)) < 0)
+    bool present = stat(path, &sb) == 0 && S_ISREG(sb.st_mode) && (uint64_t)sb.st_size == size;
+    if (present) {
+        mr_store_asset_upload_abort(up);
+    } else {
+        rc = commit_file(up->fd, up->tmp, path, dir, NULL, 0, err); /* closes the fd */
+        up->fd = -1;
+        free(up);
+        if (rc < 0)
             return rc;
     }
 
@@ -1636,6 +1686,23 @@ int mr_store_asset_put(mr_store *st, const void *data, size_t size, char id[MR_A
         *existed = known;
     memcpy(id, hex, sizeof hex);
     return MR_OK;
+}
+
+int mr_store_asset_put(mr_store *st, const void *data, size_t size, char id[MR_ASSET_ID_LEN + 1],
+                       bool *existed, mr_error *err)
+{
+    if (existed)
+        *existed = false;
+    if (!st || !id || (!data && size > 0))
+        return mr_error_set(err, MR_ERR_INVALID, "mr_store_asset_put: missing argument");
+    id[0] = '\0';
+    mr_asset_upload *up = NULL;
+    int rc = mr_store_asset_upload_begin(st, &up, err);
+    if (rc == MR_OK && (rc = mr_store_asset_upload_write(up, data, size, err)) < 0)
+        mr_store_asset_upload_abort(up);
+    else if (rc == MR_OK)
+        rc = mr_store_asset_upload_finish(st, up, id, existed, err);
+    return rc;
 }
 
 int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_size, mr_error *err)

@@ -136,6 +136,17 @@ int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, 
  * same bytes again only reports *existed). */
 int mr_store_asset_put(mr_store *st, const void *data, size_t size, char id[MR_ASSET_ID_LEN + 1],
                        bool *existed, mr_error *err);
+/* The same, streamed: an upload is written to a temporary file in the
+ * assets directory and hashed as it arrives, so its bytes are never held in
+ * memory; finish renames it under its hash (or drops it when those bytes are
+ * already stored) and records it. finish and abort free the upload. */
+typedef struct mr_asset_upload mr_asset_upload;
+int mr_store_asset_upload_begin(mr_store *st, mr_asset_upload **out, mr_error *err);
+int mr_store_asset_upload_write(mr_asset_upload *up, const void *data, size_t size, mr_error *err);
+int mr_store_asset_upload_finish(mr_store *st, mr_asset_upload *up, char id[MR_ASSET_ID_LEN + 1],
+                                 bool *existed, mr_error *err);
+void mr_store_asset_upload_abort(mr_asset_upload *up);
+
 /* Path of a stored asset; MR_ERR_NOT_FOUND for unknown ids (also for
  * strings that are not 64 lowercase hex digits). */
 int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_size,
