@@ -483,12 +483,16 @@ static void test_failed_frames_and_retry(void **state)
     expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
 }
 
-static void test_kill_9_and_resume(void **state)
+/* Stops the daemon with sig in the middle of a 48-frame job, restarts it on
+ * the same data directory and checks the job completes with every frame,
+ * and that frames finished before the stop were not rendered again (same
+ * inode: a re-render would rename a new file in). log_says is what the
+ * restarted daemon's log must contain. */
+static void interrupt_and_resume(int sig, const char *data, const char *log_says)
 {
-    (void)state;
     daemon_proc saved = D;
-    daemon_start(&D, "crash");
-    /* 48 frames heavy enough (640x360, 4 samples, shadows) that the kill lands mid-job */
+    daemon_start(&D, data);
+    /* heavy enough (640x360, 4 samples, shadows) that the stop lands mid-job */
     char *job = small_job(47, 640, NULL), id[64];
     char *spp = strstr(job, "\"samples\":1");
     assert_non_null(spp);
@@ -496,8 +500,7 @@ static void test_kill_9_and_resume(void **state)
     submit(job, id);
     free(job);
     wait_frames_done(id, 3);
-    assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
-    /* what was finished before the kill, by inode: a re-render would rename a new file in */
+    assert_int_equal(daemon_stop(&D, sig), sig == SIGKILL ? -SIGKILL : 0);
     ino_t inodes[48] = {0};
     int before = 0;
     for (int k = 0; k < 48; k++) {
@@ -510,8 +513,8 @@ static void test_kill_9_and_resume(void **state)
         }
     }
     assert_true(before >= 3);
-    assert_true(before < 48); /* the kill interrupted the job */
-    daemon_start(&D, "crash"); /* same data directory */
+    assert_true(before < 48); /* the stop interrupted the job */
+    daemon_start(&D, data); /* same data directory */
     cJSON *j = wait_job(id, 300);
     assert_string_equal(state_of(j), "succeeded");
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 48);
@@ -522,14 +525,29 @@ static void test_kill_9_and_resume(void **state)
         snprintf(f, sizeof f, "%s/frames/%s/%04d.exr", D.data, id, k);
         assert_int_equal(stat(f, &st), 0);
         if (inodes[k])
-            assert_true(st.st_ino == inodes[k]); /* not rendered again */
+            assert_true(st.st_ino == inodes[k]);
     }
     assert_int_equal(daemon_stop(&D, SIGTERM), 0);
     char *log = fx_slurp(D.log, NULL);
     assert_non_null(log);
-    assert_non_null(strstr(log, "resuming 1 job"));
+    if (!strstr(log, log_says))
+        fail_msg("daemon log lacks '%s':\n%s", log_says, log);
     free(log);
     D = saved;
+}
+
+/* kill -9: the job was running; the restart re-queues it. */
+static void test_kill_9_and_resume(void **state)
+{
+    (void)state;
+    interrupt_and_resume(SIGKILL, "crash", "resuming 1 job");
+}
+
+/* SIGTERM: the frame in progress finishes, the job is left queued. */
+static void test_sigterm_and_resume(void **state)
+{
+    (void)state;
+    interrupt_and_resume(SIGTERM, "stop", "paused for shutdown");
 }
 
 static int setup(void **state)
@@ -565,6 +583,7 @@ int main(void)
         cmocka_unit_test(test_cancel_retry_delete_idempotency),
         cmocka_unit_test(test_failed_frames_and_retry),
         cmocka_unit_test(test_kill_9_and_resume),
+        cmocka_unit_test(test_sigterm_and_resume),
     };
     return cmocka_run_group_tests_name("daemon", tests, setup, teardown);
 }
