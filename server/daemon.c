@@ -401,12 +401,11 @@ int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err)
     int rc = find_running(d, id)
                  ? mr_error_set(err, MR_ERR_CONFLICT, "job %s is still stopping; retry in a moment", id)
                  : mr_store_job_retry(d->store, id, err);
+    if (rc >= 0)
+        pthread_cond_broadcast(&d->wake);
     pthread_mutex_unlock(&d->lock);
     if (rc >= 0) {
         log_line(d, "job=%s retrying %d frames", id, rc);
-        pthread_mutex_lock(&d->lock);
-        pthread_cond_broadcast(&d->wake);
-        pthread_mutex_unlock(&d->lock);
         publish_state(d, id);
     }
     return rc;
