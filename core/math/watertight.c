@@ -1,0 +1,68 @@
+/* watertight.c - Woop, Benthin and Wald's watertight test (watertight.h). */
+#include "math/watertight.h"
+
+static inline float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
+
+mr_wt_ray mr_wt_ray_setup(mr_vec3 org, mr_vec3 dir)
+{
+    mr_wt_ray r;
+    r.org = org;
+    float ax = fabsf(dir.x), ay = fabsf(dir.y), az = fabsf(dir.z);
+    r.kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    r.kx = (r.kz + 1) % 3;
+    r.ky = (r.kx + 1) % 3;
+    /* keep the winding: swapping x and y when the ray runs along -z */
+    if (comp(dir, r.kz) < 0) {
+        int t = r.kx;
+        r.kx = r.ky;
+        r.ky = t;
+    }
+    float dz = comp(dir, r.kz);
+    r.sx = comp(dir, r.kx) / dz;
+    r.sy = comp(dir, r.ky) / dz;
+    r.sz = 1.0f / dz;
+    return r;
+}
+
+bool mr_wt_intersect(const mr_wt_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin, float tmax,
+                     mr_wt_hit *hit)
+{
+    /* vertices relative to the origin, sheared so the ray runs along +z */
+    mr_vec3 a = mr_v3_sub(v0, r->org), b = mr_v3_sub(v1, r->org), c = mr_v3_sub(v2, r->org);
+    float az = comp(a, r->kz), bz = comp(b, r->kz), cz = comp(c, r->kz);
+    float ax = comp(a, r->kx) - r->sx * az, ay = comp(a, r->ky) - r->sy * az;
+    float bx = comp(b, r->kx) - r->sx * bz, by = comp(b, r->ky) - r->sy * bz;
+    float cx = comp(c, r->kx) - r->sx * cz, cy = comp(c, r->ky) - r->sy * cz;
+
+    /* scaled barycentrics: 2D edge functions of the sheared triangle */
+    float u = cx * by - cy * bx, v = ax * cy - ay * cx, w = bx * ay - by * ax;
+    if (u == 0.0f || v == 0.0f || w == 0.0f) {
+        /* exactly on an edge in float: decide in double, which is exact for
+         * these products of floats */
+        u = (float)((double)cx * by - (double)cy * bx);
+        v = (float)((double)ax * cy - (double)ay * cx);
+        w = (float)((double)bx * ay - (double)by * ax);
+    }
+    if ((u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0))
+        return false;
+    float det = u + v + w;
+    if (det == 0.0f)
+        return false; /* the ray lies in the triangle's plane, or a degenerate triangle */
+
+    /* scaled hit distance, compared without dividing */
+    az *= r->sz;
+    bz *= r->sz;
+    cz *= r->sz;
+    float t_scaled = u * az + v * bz + w * cz;
+    if (det < 0) {
+        if (t_scaled > tmin * det || t_scaled < tmax * det)
+            return false;
+    } else if (t_scaled < tmin * det || t_scaled > tmax * det) {
+        return false;
+    }
+    float inv = 1.0f / det;
+    hit->t = t_scaled * inv;
+    hit->u = v * inv; /* weight of v1 */
+    hit->v = w * inv; /* weight of v2 */
+    return true;
+}
