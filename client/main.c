@@ -45,7 +45,7 @@ static void usage(FILE *out)
         "  wait ID [--out DIR]   follow a job already submitted, like submit --wait\n"
         "  fetch ID --out DIR    download the job's finished frames and stats.json\n"
         "  cancel ID             cancel a queued or running job\n"
-        "  retry ID              re-queue the failed frames of a failed job\n"
+        "  retry ID              re-queue the unfinished frames of a failed or canceled job\n"
         "  delete ID             delete a job and its frames on the server\n"
         "  upload FILE           store a model or image on the server, print its asset id\n"
         "  health                check the daemon's /healthz and /readyz\n"
