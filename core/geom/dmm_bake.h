@@ -1,0 +1,98 @@
+/*
+ * dmm_bake.h - first stage of the displaced micro-mesh (DMM) baker (paper
+ * 000, issue 4 part 1): detailed triangle mesh -> base mesh + one float
+ * displacement per micro-vertex. Hierarchical encoding, quantisation and the
+ * min/max pyramid come later and consume this result.
+ *
+ * Steps:
+ *  1. Weld the detailed mesh by position (importers split vertices at UV and
+ *     normal seams; an unwelded base mesh would not share edges, and shared
+ *     edges are what makes the DMM watertight, see micromesh.h).
+ *  2. Simplify with meshoptimizer (meshopt_simplify: half-edge collapses onto
+ *     existing vertices), so every base vertex IS a detailed vertex and keeps
+ *     its position bits and its bone joints/weights (base_source names it).
+ *  3. Base directions: area-weighted vertex normals of the base mesh, unit at
+ *     the vertices. They are interpolated across a triangle without
+ *     normalisation (eq. 5), by micromesh.h.
+ *  4. For every micro-vertex of the level-L subdivision, the signed distance
+ *     along the interpolated direction to the detailed surface: two Embree
+ *     rays from the undisplaced point, along +dir and -dir, nearest hit wins
+ *     (ties go to +dir). Distances are in units of the unnormalised
+ *     direction, i.e. exactly the d of eq. 5. Fallback: when neither ray
+ *     hits within max_displacement, the displacement is 0 (the micro-vertex
+ *     stays on the base surface) and fallback_count is incremented.
+ *     Micro-vertices on a shared base edge get bit-identical rays from both
+ *     triangles (micromesh.h's edge rule), and a ray query is a pure function
+ *     of the ray, so both sides get the same displacement.
+ *  5. Error report: distance from the DMM surface to the detailed mesh,
+ *     sampled at every displaced micro-vertex and every micro-triangle
+ *     centroid, by an exact closest-point query (Embree rtcPointQuery with a
+ *     point-triangle distance). RMS and max over all samples.
+ *
+ * Deterministic for any thread count: every base triangle is baked
+ * independently and per-triangle counts are summed in triangle order.
+ */
+#ifndef MR_DMM_BAKE_H
+#define MR_DMM_BAKE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "asset/asset.h"
+#include "microray.h"
+
+typedef struct mr_dmm_bake_params {
+    /* Target base triangle count; 0 means use target_ratio. */
+    uint32_t target_triangles;
+    /* Fraction of the detailed (welded) triangle count, in (0, 1]; used when
+     * target_triangles is 0. */
+    float target_ratio;
+    /* meshopt_simplify's error bound, relative to the mesh extent; 0 means
+     * no bound (simplify until the target count is reached or nothing can
+     * collapse any more). */
+    float max_error;
+    /* Subdivision level 0..MR_UMESH_MAX_LEVEL. */
+    unsigned level;
+    /* Longest displacement searched, in direction-length units; 0 means
+     * unbounded. */
+    float max_displacement;
+    /* Worker threads (0 = all cores). The result does not depend on it. */
+    unsigned threads;
+} mr_dmm_bake_params;
+
+typedef struct mr_dmm_bake {
+    unsigned level;
+    uint32_t micro_vertex_count;   /* per base triangle: mr_umesh_vertex_count(level) */
+    uint32_t base_vertex_count;
+    uint32_t base_triangle_count;
+    float *base_positions;         /* 3 per base vertex, bit-identical to the source vertex */
+    float *base_directions;        /* 3 per base vertex, unit */
+    uint32_t *base_indices;        /* 3 per base triangle */
+    uint32_t *base_source;         /* per base vertex: index of the detailed vertex it is */
+    uint16_t *joints;              /* MR_MAX_INFLUENCES per base vertex, or NULL if rigid */
+    float *weights;                /* MR_MAX_INFLUENCES per base vertex, or NULL if rigid */
+    float *displacements;          /* micro_vertex_count per base triangle, micromesh.h order */
+    uint64_t fallback_count;       /* micro-vertices where neither ray hit */
+    uint64_t sample_count;         /* samples of the error report */
+    double rms_distance;           /* DMM surface to detailed mesh, model units */
+    double max_distance;
+    float simplify_error;          /* meshopt's result_error, absolute (model units) */
+} mr_dmm_bake;
+
+/* Defaults: target_ratio 0.05, level 3, no error or displacement bound, all
+ * threads. */
+mr_dmm_bake_params mr_dmm_bake_params_default(void);
+
+/* Bakes a DMM from a detailed mesh (its positions, indices and skin; normals
+ * and uvs are not used). Fails with MR_ERR_INVALID for bad parameters or a
+ * mesh without triangles / with non-finite positions or out-of-range indices,
+ * MR_ERR_EMBREE when Embree fails, MR_ERR_NOMEM. *out is NULL on failure. */
+int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_dmm_bake **out,
+                    mr_error *err);
+
+void mr_dmm_bake_free(mr_dmm_bake *bake);
+
+/* Bytes held by the bake's arrays. */
+size_t mr_dmm_bake_memory(const mr_dmm_bake *bake);
+
+#endif /* MR_DMM_BAKE_H */
