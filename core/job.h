@@ -25,7 +25,26 @@
 #define MR_MAX_PATH 4096        /* bytes in an asset path */
 
 /* Geometry kinds (core/geom/). Each later technique adds one. */
-typedef enum mr_geom_kind { MR_GEOM_MESH = 0 } mr_geom_kind;
+typedef enum mr_geom_kind { MR_GEOM_MESH = 0, MR_GEOM_DMM } mr_geom_kind;
+
+/* How a dmm object is deformed and traced (issue 4). Only TESSELLATED is
+ * implemented so far; the parser refuses the others. */
+typedef enum mr_dmm_mode {
+    MR_DMM_TESSELLATED = 0, /* micro-triangles expanded into Embree triangles */
+    MR_DMM_BASE,            /* skinned base + prism traversal (not implemented yet) */
+    MR_DMM_INTERPOLATED     /* interpolated matrices + Bezier bounds (not implemented yet) */
+} mr_dmm_mode;
+
+#define MR_DMM_DEFAULT_LEVEL 3u
+#define MR_DMM_DEFAULT_BASE_RATIO 0.25f
+
+/* Bake parameters of a dmm object ("dmm" in the job). */
+typedef struct mr_dmm_desc {
+    unsigned level;          /* subdivision level 0..5 (MR_UMESH_MAX_LEVEL) */
+    float base_ratio;        /* base / detailed triangles, (0, 1]; used when base_triangles is 0 */
+    uint32_t base_triangles; /* target base triangle count per mesh, or 0 */
+    mr_dmm_mode mode;
+} mr_dmm_desc;
 
 typedef struct mr_asset_desc {
     char *name;   /* key in the job's "assets" object */
@@ -38,6 +57,7 @@ typedef struct mr_object_desc {
     char *name;
     size_t asset;            /* index into mr_job.assets */
     mr_geom_kind kind;
+    mr_dmm_desc dmm;         /* kind MR_GEOM_DMM only */
     mr_mat4 transform;       /* object to world, applied after posing */
     mr_vec3 color;           /* Lambert albedo, linear */
     size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */

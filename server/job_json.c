@@ -869,7 +869,53 @@ static int parse_object_pose(jctx *c, const cJSON *v, mr_object_desc *o, size_t 
     return MR_OK;
 }
 
-static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "transform", "color", "pose"};
+static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "transform", "color",
+                                            "pose"};
+static const char *const DMM_FIELDS[] = {"level", "base_ratio", "base_triangles", "mode"};
+static const num_spec SPEC_DMM_LEVEL = {0, 5, NUM_INT, NULL};
+static const num_spec SPEC_DMM_RATIO = {0, 1, NUM_LO_OPEN, NULL};
+static const num_spec SPEC_DMM_TRIANGLES = {1, MR_MAX_ASSET_TRIANGLES, NUM_INT, NULL};
+
+/* The "dmm" bake parameters of a dmm object; base_ratio and base_triangles
+ * are alternatives. Only mode "tessellated" is implemented so far. */
+static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
+{
+    TRY(want_object(c, v, "an object of dmm bake parameters"));
+    TRY(check_fields(c, v, DMM_FIELDS, COUNT_OF(DMM_FIELDS)));
+    const cJSON *level = field(v, "level"), *ratio = field(v, "base_ratio"),
+                *tris = field(v, "base_triangles"), *mode = field(v, "mode");
+    double x;
+    if (level) {
+        AT_KEY(c, "level", get_num(c, level, &SPEC_DMM_LEVEL, &x));
+        d->level = (unsigned)x;
+    }
+    if (ratio && tris) {
+        push_key(c, "base_triangles");
+        return fail(c, MR_ERR_INVALID, "give either \"base_ratio\" or \"base_triangles\", not both");
+    }
+    if (ratio) {
+        AT_KEY(c, "base_ratio", get_num(c, ratio, &SPEC_DMM_RATIO, &x));
+        d->base_ratio = (float)x;
+    }
+    if (tris) {
+        AT_KEY(c, "base_triangles", get_num(c, tris, &SPEC_DMM_TRIANGLES, &x));
+        d->base_triangles = (uint32_t)x;
+    }
+    if (mode) {
+        size_t mark = push_key(c, "mode");
+        if (!cJSON_IsString(mode))
+            return fail_expected(c, "one of: \"tessellated\", \"base\", \"interpolated\"", mode);
+        if (strcmp(mode->valuestring, "base") == 0 || strcmp(mode->valuestring, "interpolated") == 0)
+            return fail(c, MR_ERR_INVALID,
+                        "dmm mode \"%s\" is not implemented yet; use \"tessellated\"",
+                        mode->valuestring);
+        if (strcmp(mode->valuestring, "tessellated") != 0)
+            return fail_expected(c, "one of: \"tessellated\", \"base\", \"interpolated\"", mode);
+        d->mode = MR_DMM_TESSELLATED;
+        pop(c, mark);
+    }
+    return MR_OK;
+}
 
 static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_object_desc *o)
 {
@@ -877,7 +923,7 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
     TRY(check_fields(c, v, OBJECT_FIELDS, COUNT_OF(OBJECT_FIELDS)));
     TRY(require(c, v, "asset"));
     const cJSON *name = field(v, "name"), *kind = field(v, "kind"), *xf = field(v, "transform"),
-                *color = field(v, "color"), *pose = field(v, "pose");
+                *color = field(v, "color"), *pose = field(v, "pose"), *dmm = field(v, "dmm");
     if (name) {
         AT_KEY(c, "name", get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
@@ -887,10 +933,20 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
     }
     AT_KEY(c, "asset", find_asset(c, field(v, "asset"), job, &o->asset));
     o->kind = MR_GEOM_MESH;
-    if (kind && !(cJSON_IsString(kind) && strcmp(kind->valuestring, "mesh") == 0)) {
+    if (kind && cJSON_IsString(kind) && strcmp(kind->valuestring, "dmm") == 0) {
+        o->kind = MR_GEOM_DMM;
+    } else if (kind && !(cJSON_IsString(kind) && strcmp(kind->valuestring, "mesh") == 0)) {
         push_key(c, "kind");
-        return fail_expected(c, "one of: \"mesh\"", kind);
+        return fail_expected(c, "one of: \"mesh\", \"dmm\"", kind);
     }
+    o->dmm = (mr_dmm_desc){.level = MR_DMM_DEFAULT_LEVEL, .base_ratio = MR_DMM_DEFAULT_BASE_RATIO,
+                           .mode = MR_DMM_TESSELLATED};
+    if (dmm && o->kind != MR_GEOM_DMM) {
+        push_key(c, "dmm");
+        return fail(c, MR_ERR_INVALID, "\"dmm\" parameters need \"kind\": \"dmm\"");
+    }
+    if (dmm)
+        AT_KEY(c, "dmm", parse_dmm(c, dmm, &o->dmm));
     o->transform = mr_mat4_identity();
     if (xf)
         AT_KEY(c, "transform", get_transform(c, xf, &o->transform));

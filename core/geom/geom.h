@@ -63,4 +63,7 @@ void mr_trimesh_free(mr_trimesh *m);
 /* Triangle meshes (core/geom/mesh.c). */
 extern const mr_geom_ops mr_geom_mesh_ops;
 
+/* Displaced micro-meshes baked from an asset's meshes (core/geom/dmm.c). */
+extern const mr_geom_ops mr_geom_dmm_ops;
+
 #endif

@@ -13,6 +13,7 @@
 #include <cmocka.h>
 
 #include <cJSON.h>
+#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -141,6 +142,40 @@ static void test_skinned_example_renders_and_moves(void **state)
         mr_film_free(a);
         mr_film_free(b);
     }
+}
+
+/* Every example job renders (skinned-walk is covered above, in full). */
+static void test_every_example_renders(void **state)
+{
+    (void)state;
+    char dir_path[2100];
+    snprintf(dir_path, sizeof dir_path, "%s/examples", src_dir);
+    DIR *dir = opendir(dir_path);
+    assert_non_null(dir);
+    struct dirent *e;
+    int rendered = 0;
+    while ((e = readdir(dir)) != NULL) {
+        size_t n = strlen(e->d_name);
+        if (n < 6 || strcmp(e->d_name + n - 5, ".json") || !strcmp(e->d_name, "skinned-walk.json"))
+            continue;
+        char args[1024], out[600], *err = NULL;
+        snprintf(out, sizeof out, "%s/example-%.*s", tmp_dir, (int)(n - 5), e->d_name);
+        snprintf(args, sizeof args, "render 'examples/%s' --out '%s' --quiet", e->d_name, out);
+        int rc = microrayd(args, NULL, &err);
+        if (rc != 0)
+            fail_msg("%s: exit %d: %s", e->d_name, rc, err ? err : "");
+        free(err);
+        mr_film *f = read_frame(out, 0);
+        size_t hit = 0;
+        for (size_t i = 0; i < (size_t)f->width * f->height; i++)
+            hit += f->object_id[i] != 0;
+        if (hit < 1000)
+            fail_msg("%s: only %zu pixels show the scene", e->d_name, hit);
+        mr_film_free(f);
+        rendered++;
+    }
+    closedir(dir);
+    assert_true(rendered >= 2); /* static-human and dmm-static at least */
 }
 
 static void render_small(const char *name, int threads)
@@ -301,6 +336,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_skinned_example_renders_and_moves),
+        cmocka_unit_test(test_every_example_renders),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
         cmocka_unit_test(test_compare_command),
         cmocka_unit_test(test_camera_from_gltf_node),

@@ -178,9 +178,49 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m'},{'asset':'x'}"), MR_ERR_INVALID, "/objects/1/asset",
      "expected the name of an entry in \"assets\", got \"x\""},
     {WITH_OBJECT("{'asset':'m','material':1}"), MR_ERR_INVALID, "/objects/0/material",
-     "unknown field; expected one of: name, asset, kind, transform, color, pose"},
+     "unknown field; expected one of: name, asset, kind, dmm, transform, color, pose"},
     {WITH_OBJECT("{'asset':'m','kind':'svo'}"), MR_ERR_INVALID, "/objects/0/kind",
-     "expected one of: \"mesh\", got \"svo\""},
+     "expected one of: \"mesh\", \"dmm\", got \"svo\""},
+    {WITH_OBJECT("{'asset':'m','kind':'DMM'}"), MR_ERR_INVALID, "/objects/0/kind",
+     "got \"DMM\""},
+    {WITH_OBJECT("{'asset':'m','dmm':{'level':2}}"), MR_ERR_INVALID, "/objects/0/dmm",
+     "\"dmm\" parameters need \"kind\": \"dmm\""},
+    {WITH_OBJECT("{'asset':'m','kind':'mesh','dmm':{}}"), MR_ERR_INVALID, "/objects/0/dmm",
+     "need \"kind\": \"dmm\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':[]}"), MR_ERR_INVALID, "/objects/0/dmm",
+     "expected an object of dmm bake parameters, got an empty array"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'bits':[8]}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2,'level':3}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/level", "duplicate field \"level\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':6}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/level", "expected an integer in 0..5, got 6"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':-1}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/level", "got -1"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2.5}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/level", "got 2.5"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':'3'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/level", "got \"3\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':0}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/base_ratio", "expected a number in (0, 1], got 0"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':1.5}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/base_ratio", "got 1.5"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':1e999}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/base_ratio", "overflows to infinity"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_triangles':0}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/base_triangles", "expected an integer in 1..16777216, got 0"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_triangles':100.5}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/base_triangles", "got 100.5"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':0.5,'base_triangles':100}}"),
+     MR_ERR_INVALID, "/objects/0/dmm/base_triangles", "either \"base_ratio\" or \"base_triangles\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'base'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/mode", "dmm mode \"base\" is not implemented yet"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/mode", "dmm mode \"interpolated\" is not implemented yet"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'prism'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/mode", "expected one of: \"tessellated\", \"base\", \"interpolated\", got \"prism\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':1}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/mode", "got 1"},
     {WITH_OBJECT("{'asset':'m','color':[0,2000,0]}"), MR_ERR_INVALID, "/objects/0/color/1",
      "expected a number in 0..1000, got 2000"},
     {WITH_OBJECT("{'asset':'m','color':[1,1]}"), MR_ERR_INVALID, "/objects/0/color",
@@ -440,6 +480,7 @@ static void test_defaults(void **state)
     assert_string_equal(o->name, "object0");
     assert_int_equal(o->asset, 0);
     assert_int_equal(o->kind, MR_GEOM_MESH);
+    assert_int_equal(o->dmm.level, MR_DMM_DEFAULT_LEVEL);
     assert_mat_eq(&o->transform, &id, 0);
     assert_v3_eq(o->color, mr_v3(0.8f, 0.8f, 0.8f));
     assert_int_equal(o->pose_count, 0);
@@ -654,6 +695,21 @@ static void test_order_and_variants(void **state)
     /* Raw UTF-8 (2- and 4-byte sequences) passes through unchanged. */
     job = parse_ok("{" BASE ",'name':'h\xc3\xa9ros \xf0\x9f\x8e\xac'}");
     assert_string_equal(job->name, "h\xc3\xa9ros \xf0\x9f\x8e\xac");
+    mr_job_free(job);
+    /* dmm objects: defaults, every field, base_triangles instead of a ratio. */
+    job = parse_ok(WITH_OBJECT("{'asset':'m','kind':'dmm'},"
+                               "{'asset':'m','kind':'dmm','dmm':{'level':5,'base_ratio':1,"
+                               "'mode':'tessellated'}},"
+                               "{'asset':'m','kind':'dmm','dmm':{'level':0,'base_triangles':12}}"));
+    assert_int_equal(job->objects[0].kind, MR_GEOM_DMM);
+    assert_int_equal(job->objects[0].dmm.level, 3);
+    assert_true(job->objects[0].dmm.base_ratio == 0.25f);
+    assert_int_equal(job->objects[0].dmm.base_triangles, 0);
+    assert_int_equal(job->objects[0].dmm.mode, MR_DMM_TESSELLATED);
+    assert_int_equal(job->objects[1].dmm.level, 5);
+    assert_true(job->objects[1].dmm.base_ratio == 1.0f);
+    assert_int_equal(job->objects[2].dmm.level, 0);
+    assert_int_equal(job->objects[2].dmm.base_triangles, 12);
     mr_job_free(job);
     /* Present-but-empty lights means no lights. */
     job = parse_ok("{" BASE ",'lights':[]}");

@@ -1,0 +1,381 @@
+/*
+ * test_dmm_kind.c - the `dmm` geometry kind in mode `tessellated`
+ * (core/geom/dmm.c), rendered through the real renderer:
+ *  - a bumpy sphere baked to a DMM renders like the detailed mesh, within
+ *    coverage and depth bounds derived from the bake's reported distance;
+ *  - level 0 with zero displacement renders exactly like the base mesh;
+ *  - a skinned, refined real character (BCN_Epileptic.X) animates, and 1 and
+ *    2 threads give bit-identical films;
+ *  - parameters the kind cannot honour are refused.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <cmocka.h>
+
+#include <math.h>
+
+#include "../support/scene_fixture.h"
+#include "asset/refine.h"
+#include "geom/dmm_bake.h"
+#include "geom/dmm_encode.h"
+#include "geom/geom.h"
+#include "render/compare.h"
+
+#define BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
+
+/* Unit icosphere subdivided `rounds` times, every vertex moved radially to
+ * 1 + amp * sin(f x) sin(f y) sin(f z): smooth bumps the bake can follow. */
+static mr_asset *make_bumpy_sphere(unsigned rounds, float amp, float f)
+{
+    const float t = 1.6180339887f;
+    float v0[12][3] = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
+                       {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+    uint32_t f0[20][3] = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11},
+                          {1, 5, 9}, {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                          {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8}, {3, 8, 9},
+                          {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+    size_t nt = 20, nv = 12;
+    for (unsigned r = 0; r < rounds; r++)
+        nt *= 4;
+    size_t cap_v = nt * 3 + 12; /* midpoints are duplicated per triangle, then welded by the baker */
+    float *p = malloc(cap_v * 3 * sizeof(float));
+    uint32_t *idx = malloc(nt * 3 * sizeof(uint32_t));
+    uint32_t *tmp = malloc(nt * 3 * sizeof(uint32_t));
+    assert_true(p && idx && tmp);
+    for (size_t i = 0; i < 12; i++)
+        memcpy(p + i * 3, v0[i], sizeof v0[i]);
+    memcpy(idx, f0, sizeof f0);
+    size_t cur = 20;
+    for (unsigned r = 0; r < rounds; r++) {
+        size_t out = 0;
+        for (size_t k = 0; k < cur; k++) {
+            uint32_t a = idx[k * 3], b = idx[k * 3 + 1], c = idx[k * 3 + 2], m[3];
+            uint32_t e[3][2] = {{a, b}, {b, c}, {c, a}};
+            for (int j = 0; j < 3; j++) {
+                /* Midpoint from the sorted pair: bit-identical on both sides. */
+                uint32_t lo = e[j][0] < e[j][1] ? e[j][0] : e[j][1];
+                uint32_t hi = e[j][0] ^ e[j][1] ^ lo;
+                for (int q = 0; q < 3; q++)
+                    p[nv * 3 + q] = 0.5f * (p[lo * 3 + q] + p[hi * 3 + q]);
+                m[j] = (uint32_t)nv++;
+            }
+            uint32_t ch[4][3] = {{a, m[0], m[2]}, {m[0], b, m[1]}, {m[2], m[1], c}, {m[0], m[1], m[2]}};
+            memcpy(tmp + out * 3, ch, sizeof ch);
+            out += 4;
+        }
+        memcpy(idx, tmp, out * 3 * sizeof(uint32_t));
+        cur = out;
+    }
+    for (size_t i = 0; i < nv; i++) {
+        float *q = p + i * 3;
+        float len = sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        float x = q[0] / len, y = q[1] / len, z = q[2] / len;
+        float rad = 1.0f + amp * sinf(f * x) * sinf(f * y) * sinf(f * z);
+        q[0] = x * rad;
+        q[1] = y * rad;
+        q[2] = z * rad;
+    }
+    mr_asset *asset = NULL;
+    mr_error err = {0};
+    if (mr_asset_from_mesh("bumpy", p, NULL, (uint32_t)nv, idx, (uint32_t)cur, &asset, &err) < 0)
+        fail_msg("asset: %s", err.msg);
+    free(p);
+    free(idx);
+    free(tmp);
+    return asset;
+}
+
+/* The largest distance of the rendered DMM surface to the detailed mesh that
+ * the bake vouches for: its reported max distance (before quantisation) plus
+ * the encoder's largest quantisation error (directions are at most unit
+ * length, so a displacement error is at most that many model units). */
+static double bake_bound(const mr_asset *a, const mr_dmm_desc *d)
+{
+    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+    bp.level = d->level;
+    bp.target_ratio = d->base_ratio;
+    bp.target_triangles = d->base_triangles;
+    mr_dmm_bake *b = NULL;
+    mr_dmm_encoded *enc = NULL;
+    mr_dmm_encode_stats st;
+    mr_error err = {0};
+    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+    mr_dmm_default_bits(bits);
+    assert_int_equal(mr_dmm_bake_run(&a->meshes[0], &bp, &b, &err), MR_OK);
+    assert_int_equal(mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements, &enc,
+                                   &st, &err),
+                     MR_OK);
+    double bound = b->max_distance + st.max_error;
+    print_message("bake: %u base triangles, level %u, rms %.3g max %.3g, quantisation max %.3g\n",
+                  b->base_triangle_count, b->level, b->rms_distance, b->max_distance, st.max_error);
+    mr_dmm_encoded_free(enc);
+    mr_dmm_bake_free(b);
+    return bound;
+}
+
+static void test_matches_detailed_mesh(void **state)
+{
+    (void)state;
+    const int W = 256, H = 256;
+    mr_dmm_desc d = {.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED};
+    scene_fixture ref, dmm;
+    /* Camera 4 units away, yfov 35 deg: the unit sphere is ~100 pixels in
+     * radius, i.e. about 100 pixels per model unit at the silhouette. */
+    fixture_init(&ref, make_bumpy_sphere(5, 0.06f, 6.0f), mr_v3(0.3f, 0.5f, 4), mr_v3(0, 0, 0), 35,
+                 W, H, 1);
+    fixture_init(&dmm, make_bumpy_sphere(5, 0.06f, 6.0f), mr_v3(0.3f, 0.5f, 4), mr_v3(0, 0, 0), 35,
+                 W, H, 1);
+    dmm.object.kind = MR_GEOM_DMM;
+    dmm.object.dmm = d;
+    double D = bake_bound(dmm.asset, &d);
+    assert_true(D > 0 && D < 0.05);
+    mr_frame_stats st;
+    mr_film *fr = fixture_render(&ref, 0, &st);
+    mr_film *fd = fixture_render(&dmm, 0, &st);
+    assert_true(st.triangles % 64 == 0); /* 4^3 micro-triangles per base triangle */
+    assert_film_finite(fd);
+    mr_compare_result cmp;
+    mr_error err = {0};
+    assert_int_equal(mr_film_compare(fd, fr, 1.0, &cmp, &err), MR_OK);
+    print_message("dmm vs detailed: coverage %.3f%% depth rmse %.3g max %.3g, normal mean %.2f deg\n",
+                  cmp.coverage_pct, cmp.depth_rmse, cmp.depth_max, cmp.normal_mean_deg);
+    assert_true(cmp.hit_both > 20000);
+    /* Coverage: a pixel's (single) sample can only disagree when it passes
+     * between the two silhouettes, which are at most D apart in space: a band
+     * of about D * 100 pixels along a silhouette of 2 pi 100 pixels, against
+     * pi 100^2 pixels covered. The bumps lengthen the silhouette a little and
+     * the band is counted on both sides, hence factor 4:
+     * coverage_pct <= 100 * 4 * 2 pi 100 (100 D) / (pi 100^2) = 800 D (%),
+     * plus one pixel's worth of slack per silhouette pixel would be far more
+     * than the bound allows, so this also catches cracks and holes. */
+    double cov_bound = 800.0 * D;
+    assert_true(cmp.coverage_pct <= cov_bound);
+    /* Depth: along a view ray meeting the surface at angle theta the depth
+     * gap is at most D / cos(theta); over a sphere's disk seen from outside,
+     * the RMS of 1 / cos(theta) cut off one pixel from the rim is about 2,
+     * so RMS depth <= 4 D leaves a factor 2 of margin. */
+    assert_true(cmp.depth_rmse <= 4.0 * D);
+    mr_film_free(fr);
+    mr_film_free(fd);
+    fixture_free(&ref);
+    fixture_free(&dmm);
+}
+
+/* A flat 9x9-vertex grid in the z = 0 plane, interior vertices jittered
+ * within the plane (so the base triangles are not all alike). */
+static mr_asset *make_flat_grid(void)
+{
+    enum { N = 9 };
+    float p[N * N * 3];
+    uint32_t idx[(N - 1) * (N - 1) * 6];
+    size_t t = 0;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++) {
+            bool inner = x > 0 && y > 0 && x < N - 1 && y < N - 1;
+            float jx = inner ? 0.3f * sinf(7.0f * (float)(x * N + y)) : 0;
+            float jy = inner ? 0.3f * cosf(5.0f * (float)(x + y * N)) : 0;
+            p[(y * N + x) * 3] = ((float)x + jx) / (N - 1) * 2 - 1;
+            p[(y * N + x) * 3 + 1] = ((float)y + jy) / (N - 1) * 2 - 1;
+            p[(y * N + x) * 3 + 2] = 0;
+        }
+    for (uint32_t y = 0; y + 1 < N; y++)
+        for (uint32_t x = 0; x + 1 < N; x++) {
+            uint32_t a = y * N + x, b = a + 1, c = a + N, d = c + 1;
+            uint32_t q[6] = {a, b, d, a, d, c};
+            memcpy(idx + t, q, sizeof q);
+            t += 6;
+        }
+    mr_asset *asset = NULL;
+    mr_error err = {0};
+    if (mr_asset_from_mesh("grid", p, NULL, N * N, idx, (uint32_t)(t / 3), &asset, &err) < 0)
+        fail_msg("asset: %s", err.msg);
+    return asset;
+}
+
+/* Level 0, base_ratio 1: the base mesh is the (welded) detailed mesh and the
+ * dmm surface is base + d * n at the corners. Renders the base mesh as `mesh`
+ * and the detail as `dmm` and returns the largest depth difference over
+ * pixels (coverage must agree exactly); *max_disp gets the largest |d|. */
+static float level0_vs_base(mr_asset *detail, mr_vec3 eye, float *max_disp)
+{
+    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+    bp.level = 0;
+    bp.target_ratio = 1.0f;
+    mr_dmm_bake *b = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_dmm_bake_run(&detail->meshes[0], &bp, &b, &err), MR_OK);
+    *max_disp = 0;
+    for (size_t i = 0; i < (size_t)b->base_triangle_count * b->micro_vertex_count; i++)
+        *max_disp = fmaxf(*max_disp, fabsf(b->displacements[i]));
+    mr_asset *base = NULL;
+    assert_int_equal(mr_asset_from_mesh("base", b->base_positions, NULL, b->base_vertex_count,
+                                        b->base_indices, b->base_triangle_count, &base, &err),
+                     MR_OK);
+    mr_dmm_bake_free(b);
+
+    scene_fixture ref, dmm;
+    fixture_init(&ref, base, eye, mr_v3(0, 0, 0), 35, 160, 120, 1);
+    fixture_init(&dmm, detail, eye, mr_v3(0, 0, 0), 35, 160, 120, 1);
+    dmm.object.kind = MR_GEOM_DMM;
+    dmm.object.dmm = (mr_dmm_desc){.level = 0, .base_ratio = 1.0f, .mode = MR_DMM_TESSELLATED};
+    mr_frame_stats st;
+    mr_film *fr = fixture_render(&ref, 0, &st);
+    mr_film *fd = fixture_render(&dmm, 0, &st);
+    size_t n = (size_t)fr->width * fr->height, hits = 0;
+    float worst = 0;
+    for (size_t i = 0; i < n; i++) {
+        assert_int_equal(fr->object_id[i] != 0, fd->object_id[i] != 0);
+        assert_true(fr->a[i] == fd->a[i]);
+        worst = fmaxf(worst, fabsf(fr->z[i] - fd->z[i]));
+        hits += fr->object_id[i] != 0;
+    }
+    assert_true(hits > n / 10);
+    mr_film_free(fr);
+    mr_film_free(fd);
+    fixture_free(&ref);
+    fixture_free(&dmm);
+    return worst;
+}
+
+static void test_level0_is_base_mesh(void **state)
+{
+    (void)state;
+    float d, z;
+    /* A flat mesh: the baker's rays start on the surface, so every
+     * displacement is exactly 0 and the dmm must BE the base mesh: identical
+     * coverage and bit-identical depth (shading differs: dmm shades with
+     * geometric normals, mesh with vertex normals). */
+    z = level0_vs_base(make_flat_grid(), mr_v3(0.4f, -1.5f, 3), &d);
+    assert_true(d == 0.0f);
+    assert_true(z == 0.0f);
+    /* A curved mesh: rays from a vertex hit its own triangles at t ~ 1e-9
+     * rather than exactly 0 (Embree's rounding), so positions may move by
+     * that much: depth within 1e-6 (10x the displacement bound measured on
+     * a unit-size object, at our view angles), coverage still identical. */
+    z = level0_vs_base(make_bumpy_sphere(2, 0.06f, 6.0f), mr_v3(0.3f, 0.5f, 4), &d);
+    assert_true(d < 1e-7f);
+    assert_true(z <= 1e-6f);
+}
+
+static mr_asset *load_refined_bcn(void)
+{
+    mr_asset *a = NULL, *r = NULL;
+    mr_error err = {0};
+    if (mr_asset_load(BCN_MODEL, &a, &err) != MR_OK)
+        fail_msg("load %s: %s", BCN_MODEL, err.msg);
+    mr_refine_params p = {.rounds = 1, .amplitude = 0.0f};
+    if (mr_refine_asset(a, &p, &r, &err) != MR_OK)
+        fail_msg("refine: %s", err.msg);
+    mr_asset_free(a);
+    return r;
+}
+
+/* World bounds of the asset in its rest pose. */
+static void rest_bounds(const mr_asset *a, mr_vec3 *lo, mr_vec3 *hi)
+{
+    mr_pose *pose = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
+    assert_int_equal(mr_pose_eval(pose, a, NULL, 0, &err), MR_OK);
+    *lo = mr_v3(INFINITY, INFINITY, INFINITY);
+    *hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (size_t m = 0; m < a->mesh_count; m++) {
+        float *p = malloc((size_t)a->meshes[m].vertex_count * 3 * sizeof(float) + 1);
+        assert_non_null(p);
+        mr_skin_mesh(a, m, pose, NULL, p, NULL, 1);
+        for (uint32_t v = 0; v < a->meshes[m].vertex_count; v++) {
+            mr_vec3 q = mr_v3(p[v * 3], p[v * 3 + 1], p[v * 3 + 2]);
+            *lo = mr_v3_min(*lo, q);
+            *hi = mr_v3_max(*hi, q);
+        }
+        free(p);
+    }
+    mr_pose_free(pose);
+}
+
+static void test_skinned_animates_deterministically(void **state)
+{
+    (void)state;
+    mr_asset *a = load_refined_bcn();
+    assert_true(a->clip_count > 0);
+    double duration = a->clips[0].duration;
+    mr_vec3 lo, hi;
+    rest_bounds(a, &lo, &hi);
+    mr_vec3 c = mr_v3_scale(mr_v3_add(lo, hi), 0.5f);
+    float r = 0.5f * mr_v3_len(mr_v3_sub(hi, lo));
+    scene_fixture s;
+    fixture_init(&s, a, mr_v3_add(c, mr_v3(0.4f * r, 0.3f * r, 2.8f * r)), c, 45, 96, 96, 1);
+    s.object.kind = MR_GEOM_DMM;
+    s.object.dmm = (mr_dmm_desc){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_TESSELLATED};
+    mr_pose_desc pd = {.has_clip = true, .clip_index = 0, .speed = 1, .loop = true};
+    s.object.pose_count = 1;
+    s.object.poses = &pd;
+    mr_frame_stats st;
+    s.time = 0;
+    mr_film *f0 = fixture_render(&s, 1, &st);
+    s.time = 0.5 * duration;
+    mr_film *f1 = fixture_render(&s, 1, &st);
+    mr_film *f2 = fixture_render(&s, 2, &st);
+    assert_film_finite(f1);
+    size_t n = (size_t)f0->width * f0->height, differ = 0, hits = 0;
+    for (size_t i = 0; i < n; i++) {
+        differ += f0->z[i] != f1->z[i];
+        hits += f1->object_id[i] != 0;
+    }
+    print_message("skinned dmm: %zu of %zu pixels hit, %zu depths differ between frames\n", hits,
+                  n, differ);
+    assert_true(hits > n / 50);
+    assert_true(differ > 0); /* it moves */
+    /* Any thread count gives the same frame, bit for bit. */
+    assert_memory_equal(f1->z, f2->z, n * sizeof(float));
+    assert_memory_equal(f1->r, f2->r, n * sizeof(float));
+    assert_memory_equal(f1->nx, f2->nx, n * sizeof(float));
+    assert_memory_equal(f1->prim_id, f2->prim_id, n * sizeof(uint32_t));
+    mr_film_free(f0);
+    mr_film_free(f1);
+    mr_film_free(f2);
+    fixture_free(&s);
+}
+
+static void test_refused(void **state)
+{
+    (void)state;
+    mr_asset *a = make_bumpy_sphere(1, 0.0f, 1.0f);
+    mr_object_desc o = {.kind = MR_GEOM_DMM,
+                        .dmm = {.level = 3, .base_ratio = 0.5f, .mode = MR_DMM_BASE}};
+    mr_geom *g = NULL;
+    mr_error err = {0};
+    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
+    assert_non_null(ops);
+    assert_string_equal(ops->name, "dmm");
+    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "not implemented yet"));
+    assert_null(g);
+    o.dmm.mode = MR_DMM_TESSELLATED;
+    o.dmm.level = 6;
+    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
+    o.dmm.level = 1;
+    o.dmm.base_ratio = 0;
+    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
+    o.dmm.base_ratio = 1;
+    assert_int_equal(ops->create(a, &o, &g, &err), MR_OK);
+    /* 80 triangles at ratio 1 give 80 base triangles, 4 micro-triangles each. */
+    assert_int_equal(ops->primitives(g), 80 * 4);
+    assert_true(ops->memory(g) > 80 * 4 * 3 * sizeof(uint32_t));
+    ops->free(g);
+    mr_asset_free(a);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_refused),
+        cmocka_unit_test(test_level0_is_base_mesh),
+        cmocka_unit_test(test_matches_detailed_mesh),
+        cmocka_unit_test(test_skinned_animates_deterministically),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
