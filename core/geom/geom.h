@@ -59,6 +59,21 @@ typedef struct mr_geom_ops {
 const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind);
 
 void mr_trimesh_free(mr_trimesh *m);
+/* A copy of a triangle soup (what a kind whose Embree form is already
+ * triangles returns from tessellate). */
+int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,
+                    uint32_t triangle_count, mr_trimesh *out, mr_error *err);
+
+/* Helpers for kinds that hand Embree plain triangles: a TRIANGLE geometry
+ * reading the kind's own arrays in place (shared buffers: Embree refits over
+ * them and its memory monitor counts only its BVH; the vertex array needs
+ * one float of padding because Embree loads vertices with 16-byte reads),
+ * attached under geom_id; and the per-frame "vertices changed". */
+int mr_geom_attach_triangles(RTCDevice device, RTCScene scene, unsigned geom_id,
+                             enum RTCBuildQuality quality, float *positions, uint32_t vertex_count,
+                             uint32_t *indices, uint32_t triangle_count, RTCGeometry *out,
+                             mr_error *err);
+void mr_geom_commit_vertices(RTCGeometry geom);
 
 /* Triangle meshes (core/geom/mesh.c). */
 extern const mr_geom_ops mr_geom_mesh_ops;

@@ -109,24 +109,11 @@ static int mesh_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform
 static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                        enum RTCBuildQuality quality, mr_error *err)
 {
-    g->rtc = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    if (!g->rtc)
-        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a triangle geometry");
-    rtcSetGeometryBuildQuality(g->rtc, quality);
-    rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g->positions, 0,
-                               3 * sizeof(float), g->vertex_count);
-    rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g->indices, 0,
-                               3 * sizeof(uint32_t), g->triangle_count);
-    rtcCommitGeometry(g->rtc);
-    rtcAttachGeometryByID(scene, g->rtc, geom_id);
-    return MR_OK;
+    return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions, g->vertex_count,
+                                    g->indices, g->triangle_count, &g->rtc, err);
 }
 
-static void mesh_commit(mr_geom *g)
-{
-    rtcUpdateGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0);
-    rtcCommitGeometry(g->rtc);
-}
+static void mesh_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
 
 static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
@@ -141,18 +128,7 @@ static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
 
 static int mesh_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
-    *out = (mr_trimesh){0};
-    out->positions = malloc((size_t)g->vertex_count * 3 * sizeof(float));
-    out->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
-    if (!out->positions || !out->indices) {
-        mr_trimesh_free(out);
-        return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a mesh");
-    }
-    memcpy(out->positions, g->positions, (size_t)g->vertex_count * 3 * sizeof(float));
-    memcpy(out->indices, g->indices, (size_t)g->triangle_count * 3 * sizeof(uint32_t));
-    out->vertex_count = g->vertex_count;
-    out->triangle_count = g->triangle_count;
-    return MR_OK;
+    return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
 }
 
 static size_t mesh_memory(const mr_geom *g)
