@@ -199,8 +199,10 @@ int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t
 /* ------------------------------------------------------------------------ */
 /* freeing and memory                                                         */
 
-static void mesh_free(mr_mesh *m)
+void mr_mesh_release(mr_mesh *m)
 {
+    if (!m)
+        return;
     free(m->name);
     free(m->positions);
     free(m->normals);
@@ -210,6 +212,7 @@ static void mesh_free(mr_mesh *m)
     free(m->inverse_bind);
     free(m->joints);
     free(m->weights);
+    memset(m, 0, sizeof *m);
 }
 
 static void clip_free(mr_clip *c)
@@ -232,7 +235,7 @@ void mr_asset_free(mr_asset *asset)
         free(asset->nodes[i].name);
     free(asset->nodes);
     for (size_t i = 0; i < asset->mesh_count; i++)
-        mesh_free(&asset->meshes[i]);
+        mr_mesh_release(&asset->meshes[i]);
     free(asset->meshes);
     for (size_t i = 0; i < asset->clip_count; i++)
         clip_free(&asset->clips[i]);

@@ -111,6 +111,9 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
                        uint32_t triangle_count, mr_asset **out, mr_error *err);
 
 void mr_asset_free(mr_asset *asset);
+/* Frees the arrays a mesh owns and zeroes it (the mesh struct itself is the
+ * caller's). NULL is fine. */
+void mr_mesh_release(mr_mesh *mesh);
 
 /* Reduces one vertex's raw influences (count pairs, any count) to the stored
  * form: influences naming the same joint are summed, NaN / infinite /

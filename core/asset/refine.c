@@ -695,21 +695,7 @@ static void detail_range(void *ctx, size_t begin, size_t end, unsigned worker)
 /* ------------------------------------------------------------------------ */
 /* public                                                                     */
 
-void mr_refine_mesh_free(mr_mesh *m)
-{
-    if (!m)
-        return;
-    free(m->name);
-    free(m->positions);
-    free(m->normals);
-    free(m->uvs);
-    free(m->indices);
-    free(m->joint_nodes);
-    free(m->inverse_bind);
-    free(m->joints);
-    free(m->weights);
-    memset(m, 0, sizeof *m);
-}
+void mr_refine_mesh_free(mr_mesh *m) { mr_mesh_release(m); }
 
 static char *dup_str(const char *s)
 {
