@@ -27,13 +27,23 @@
 /* Geometry kinds (core/geom/). Each later technique adds one. */
 typedef enum mr_geom_kind { MR_GEOM_MESH = 0, MR_GEOM_DMM } mr_geom_kind;
 
-/* How a dmm object is deformed and traced (issue 4). Only TESSELLATED is
- * implemented so far; the parser refuses the others. */
+/* How a dmm object is traced (issue 4). */
 typedef enum mr_dmm_mode {
-    MR_DMM_TESSELLATED = 0, /* micro-triangles expanded into Embree triangles */
-    MR_DMM_BASE,            /* skinned base + prism traversal (not implemented yet) */
-    MR_DMM_INTERPOLATED     /* interpolated matrices + Bezier bounds (not implemented yet) */
+    MR_DMM_TESSELLATED = 0, /* micro-triangles expanded into Embree triangles (reference) */
+    MR_DMM_BASE,            /* skinned base mesh, prism traversal (paper 000, Alg. 2/4) */
+    MR_DMM_INTERPOLATED     /* interpolated matrices, Bezier bounds (paper 000, Alg. 1/3) */
 } mr_dmm_mode;
+
+/* How micro-vertices follow the skeleton: along the skinned base mesh
+ * (eq. 5) or under interpolated accumulated matrices (eq. 6-8). Mode BASE
+ * implies DEFORM_BASE, INTERPOLATED implies DEFORM_INTERPOLATED; TESSELLATED
+ * expands either. */
+typedef enum mr_dmm_deform { MR_DMM_DEFORM_BASE = 0, MR_DMM_DEFORM_INTERPOLATED } mr_dmm_deform;
+
+/* Shading normal of a dmm hit: the micro-triangle's geometric normal, or
+ * the rest-pose micro-triangle normal moved by the interpolated matrix at
+ * the hit (the paper's Fig. 1c "interpolated-matrix normals"). */
+typedef enum mr_dmm_normals { MR_DMM_NORMALS_GEOMETRIC = 0, MR_DMM_NORMALS_MATRIX } mr_dmm_normals;
 
 #define MR_DMM_DEFAULT_LEVEL 3u
 #define MR_DMM_DEFAULT_BASE_RATIO 0.25f
@@ -44,6 +54,8 @@ typedef struct mr_dmm_desc {
     float base_ratio;        /* base / detailed triangles, (0, 1]; used when base_triangles is 0 */
     uint32_t base_triangles; /* target base triangle count per mesh, or 0 */
     mr_dmm_mode mode;
+    mr_dmm_deform deform;
+    mr_dmm_normals normals;
 } mr_dmm_desc;
 
 typedef struct mr_asset_desc {

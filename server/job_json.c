@@ -871,20 +871,42 @@ static int parse_object_pose(jctx *c, const cJSON *v, mr_object_desc *o, size_t 
 
 static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "transform", "color",
                                             "pose"};
-static const char *const DMM_FIELDS[] = {"level", "base_ratio", "base_triangles", "mode"};
+static const char *const DMM_FIELDS[] = {"level",  "base_ratio",  "base_triangles",
+                                         "mode",   "deformation", "normals"};
 static const num_spec SPEC_DMM_LEVEL = {0, 5, NUM_INT, NULL};
 static const num_spec SPEC_DMM_RATIO = {0, 1, NUM_LO_OPEN, NULL};
 static const num_spec SPEC_DMM_TRIANGLES = {1, MR_MAX_ASSET_TRIANGLES, NUM_INT, NULL};
 
+/* Index of v's string in names, or a failure naming the choices. */
+static int get_choice(jctx *c, const cJSON *v, const char *const *names, size_t count,
+                      const char *expected, int *out)
+{
+    if (cJSON_IsString(v))
+        for (size_t i = 0; i < count; i++)
+            if (strcmp(v->valuestring, names[i]) == 0) {
+                *out = (int)i;
+                return MR_OK;
+            }
+    return fail_expected(c, expected, v);
+}
+
+/* Order matches mr_dmm_mode, mr_dmm_deform and mr_dmm_normals. */
+static const char *const DMM_MODES[] = {"tessellated", "base", "interpolated"};
+static const char *const DMM_DEFORMS[] = {"base", "interpolated"};
+static const char *const DMM_NORMALS[] = {"geometric", "matrix"};
+
 /* The "dmm" bake parameters of a dmm object; base_ratio and base_triangles
- * are alternatives. Only mode "tessellated" is implemented so far. */
+ * are alternatives. "deformation" chooses what mode "tessellated" expands
+ * and must agree with the other modes. */
 static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
 {
     TRY(want_object(c, v, "an object of dmm bake parameters"));
     TRY(check_fields(c, v, DMM_FIELDS, COUNT_OF(DMM_FIELDS)));
     const cJSON *level = field(v, "level"), *ratio = field(v, "base_ratio"),
-                *tris = field(v, "base_triangles"), *mode = field(v, "mode");
+                *tris = field(v, "base_triangles"), *mode = field(v, "mode"),
+                *deform = field(v, "deformation"), *normals = field(v, "normals");
     double x;
+    int choice = 0;
     if (level) {
         AT_KEY(c, "level", get_num(c, level, &SPEC_DMM_LEVEL, &x));
         d->level = (unsigned)x;
@@ -902,17 +924,30 @@ static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
         d->base_triangles = (uint32_t)x;
     }
     if (mode) {
-        size_t mark = push_key(c, "mode");
-        if (!cJSON_IsString(mode))
-            return fail_expected(c, "one of: \"tessellated\", \"base\", \"interpolated\"", mode);
-        if (strcmp(mode->valuestring, "base") == 0 || strcmp(mode->valuestring, "interpolated") == 0)
+        AT_KEY(c, "mode", get_choice(c, mode, DMM_MODES, COUNT_OF(DMM_MODES),
+                                     "one of: \"tessellated\", \"base\", \"interpolated\"",
+                                     &choice));
+        d->mode = (mr_dmm_mode)choice;
+        if (d->mode == MR_DMM_INTERPOLATED)
+            d->deform = MR_DMM_DEFORM_INTERPOLATED;
+    }
+    if (deform) {
+        AT_KEY(c, "deformation",
+               get_choice(c, deform, DMM_DEFORMS, COUNT_OF(DMM_DEFORMS),
+                          "one of: \"base\", \"interpolated\"", &choice));
+        if (d->mode != MR_DMM_TESSELLATED && choice != (int)d->deform) {
+            push_key(c, "deformation");
             return fail(c, MR_ERR_INVALID,
-                        "dmm mode \"%s\" is not implemented yet; use \"tessellated\"",
-                        mode->valuestring);
-        if (strcmp(mode->valuestring, "tessellated") != 0)
-            return fail_expected(c, "one of: \"tessellated\", \"base\", \"interpolated\"", mode);
-        d->mode = MR_DMM_TESSELLATED;
-        pop(c, mark);
+                        "mode \"%s\" deforms by \"%s\"; \"deformation\" only chooses what "
+                        "mode \"tessellated\" expands",
+                        DMM_MODES[d->mode], DMM_DEFORMS[d->deform]);
+        }
+        d->deform = (mr_dmm_deform)choice;
+    }
+    if (normals) {
+        AT_KEY(c, "normals", get_choice(c, normals, DMM_NORMALS, COUNT_OF(DMM_NORMALS),
+                                        "one of: \"geometric\", \"matrix\"", &choice));
+        d->normals = (mr_dmm_normals)choice;
     }
     return MR_OK;
 }
@@ -940,7 +975,9 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
         return fail_expected(c, "one of: \"mesh\", \"dmm\"", kind);
     }
     o->dmm = (mr_dmm_desc){.level = MR_DMM_DEFAULT_LEVEL, .base_ratio = MR_DMM_DEFAULT_BASE_RATIO,
-                           .mode = MR_DMM_TESSELLATED};
+                           .mode = MR_DMM_TESSELLATED,
+                           .deform = MR_DMM_DEFORM_BASE,
+                           .normals = MR_DMM_NORMALS_GEOMETRIC};
     if (dmm && o->kind != MR_GEOM_DMM) {
         push_key(c, "dmm");
         return fail(c, MR_ERR_INVALID, "\"dmm\" parameters need \"kind\": \"dmm\"");

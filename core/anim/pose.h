@@ -76,4 +76,12 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   const mr_mat4 *object_transform, float *out_positions,
                   float *out_normals, unsigned threads);
 
+/* The matrix mr_skin_mesh applies to each vertex of the mesh (the blended
+ * skin matrix, or object * mesh node for rigid meshes and vertices without
+ * influences): the accumulated matrices M_a of paper 000 (eq. 1) that
+ * displaced micro-meshes interpolate (eq. 6). One per vertex; same
+ * conditions and determinism as mr_skin_mesh. */
+void mr_skin_matrices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                      const mr_mat4 *object_transform, mr_affine *out_matrices, unsigned threads);
+
 #endif

@@ -30,6 +30,7 @@ typedef struct skin_ctx {
     bool skinned;         /* joint arrays present and usable */
     const mr_mat4 *skin;  /* K_j per joint; NULL: computed per use (allocation failed) */
     float *out_p, *out_n;
+    mr_affine *out_m;
 } skin_ctx;
 
 static mr_mat4 node_global(const skin_ctx *c, int node)
@@ -88,7 +89,10 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
                 N = &blend_n;
             }
         }
-        put(c->out_p, i, mr_mat4_point(M, p));
+        if (c->out_m)
+            memcpy(c->out_m[i].m, M->m, sizeof c->out_m[i].m);
+        if (c->out_p)
+            put(c->out_p, i, mr_mat4_point(M, p));
         if (c->out_n) {
             mr_vec3 fallback = mr_v3_normalize_or(n, mr_v3(0, 0, 1));
             put(c->out_n, i, mr_v3_normalize_or(mr_mat4_dir(N, n), fallback));
@@ -96,17 +100,17 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
-                  const mr_mat4 *object_transform, float *out_positions,
-                  float *out_normals, unsigned threads)
+static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                 const mr_mat4 *object_transform, float *out_positions, float *out_normals,
+                 mr_affine *out_matrices, unsigned threads)
 {
-    if (!asset || mesh_index >= asset->mesh_count || !out_positions)
+    if (!asset || mesh_index >= asset->mesh_count)
         return;
     const mr_mesh *m = &asset->meshes[mesh_index];
     if (m->vertex_count == 0 || !m->positions || !m->normals)
         return;
     skin_ctx c = {.asset = asset, .mesh = m, .pose = pose, .out_p = out_positions,
-                  .out_n = out_normals};
+                  .out_n = out_normals, .out_m = out_matrices};
     c.object = object_transform ? *object_transform : mr_mat4_identity();
     mr_mat4 *mats = NULL;
     if (!pose || pose->node_count != asset->node_count || !pose->global) {
@@ -131,4 +135,20 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
     }
     mr_parallel_for(threads, m->vertex_count, SKIN_GRAIN, skin_range, &c);
     free(mats);
+}
+
+void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                  const mr_mat4 *object_transform, float *out_positions,
+                  float *out_normals, unsigned threads)
+{
+    if (out_positions)
+        skin(asset, mesh_index, pose, object_transform, out_positions, out_normals, NULL,
+             threads);
+}
+
+void mr_skin_matrices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                      const mr_mat4 *object_transform, mr_affine *out_matrices, unsigned threads)
+{
+    if (out_matrices)
+        skin(asset, mesh_index, pose, object_transform, NULL, NULL, out_matrices, threads);
 }

@@ -1,31 +1,36 @@
 /*
- * dmm.c - the displaced micro-mesh (DMM) kind (paper 000, issue 4), mode
- * `tessellated`: the exact reference and the pre-tessellation baseline.
+ * dmm.c - the displaced micro-mesh (DMM) kind (paper 000, issue 4).
  *
  * create   bakes every mesh of the asset (dmm_bake.h: meshoptimizer base mesh
  *          whose vertices keep their bone weights, Embree-measured
- *          displacements), then encodes and decodes the displacements
- *          (dmm_encode.h), so what is rendered is exactly what a DMM file
- *          would store, not the unquantised bake;
- * update   skins the BASE vertices and their directions with the pose (linear
- *          blend skinning, mr_skin_mesh on a mesh made of the base arrays;
- *          static meshes are placed by their node), then evaluates every
- *          micro-vertex P = sum w_i v_i + d sum w_i n_i (eq. 5, the paper's
- *          `base` deformation: displacement along the interpolated skinned
- *          normals, not renormalised) with micromesh.h, in parallel over base
- *          triangles. Each base triangle is evaluated from its own data in a
- *          fixed order, so positions are bit-identical for any thread count;
- *          micromesh.h's edge rule makes micro-vertices on shared base edges
- *          bit-identical on both sides, so the micro-triangle mesh is
- *          watertight although every base triangle owns its micro-vertices;
- * attach   one Embree TRIANGLE geometry over the micro-triangles, with shared
- *          buffers (see mesh.c), primitive id = base triangle * 4^level +
- *          micro-triangle (micromesh.h row order);
- * normal   the micro-triangle's geometric normal.
+ *          displacements), encodes them (dmm_encode.h) and keeps the DECODED
+ *          grid values and the min/max pyramid down to the traversal's leaf
+ *          sublevel: what is rendered is exactly what a DMM file stores;
+ * update   computes each base vertex's accumulated skinning matrix M_a
+ *          (mr_skin_matrices; static meshes get their node's matrix), then
+ *           - mode base: skins base vertices and directions with it
+ *             (v' = M v, n' = M n, eq. 4: directions are neither
+ *             inverse-transposed nor renormalised, so the prism bounds hold
+ *             and displacements scale with the bone);
+ *           - mode interpolated: keeps the rest pose; M is interpolated per
+ *             micro-vertex (eq. 6-8);
+ *          and then either the box of every base triangle (dmm_trace.h: prism
+ *          or 12 Bezier control points), for the Embree user geometry to
+ *          refit over: cost proportional to base triangles; or, in mode
+ *          tessellated, every micro-vertex with the same mr_dmm_vertex;
+ * attach   tessellation-free modes: one Embree USER geometry, one primitive
+ *          per base triangle, whose callbacks run dmm_trace.h's traversal;
+ *          tessellated: one TRIANGLE geometry over the micro-triangles
+ *          (primitive id = base triangle * 4^level + micro-triangle in
+ *          micromesh.h row order);
+ * normal   the hit micro-triangle's geometric normal, or (normals "matrix")
+ *          the rest-pose micro-triangle normal moved by the cofactor of the
+ *          interpolated matrix at the hit.
  *
- * Micro-vertices are duplicated per base triangle (not shared across edges):
- * it keeps evaluation embarrassingly parallel and costs about 3x the vertex
- * memory of a shared layout, which only matters for this baseline mode.
+ * Everything per base triangle is computed from that triangle's own data in
+ * a fixed order, so results are bit-identical for any thread count, and
+ * micromesh.h's edge rule makes shared-edge micro-vertices bit-identical on
+ * both sides: the surface is watertight in every mode.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -33,32 +38,40 @@
 
 #include "geom/dmm_bake.h"
 #include "geom/dmm_encode.h"
+#include "geom/dmm_trace.h"
 #include "geom/geom.h"
 #include "geom/micromesh.h"
 #include "util/parallel.h"
 
-#define EVAL_GRAIN 64
+#define UPDATE_GRAIN 64
 
 struct mr_geom {
     const mr_asset *asset;
-    unsigned level;
+    mr_dmm_desc desc;
     uint32_t micro_vertices;      /* per base triangle */
     uint32_t micro_triangles;     /* per base triangle */
+    uint32_t pyramid_entries;     /* per base triangle: mr_dmm_trace_pyramid_size(level) */
     mr_dmm_bake **bakes;          /* per asset mesh; NULL for a mesh without triangles */
+    mr_dmm_encoded **encoded;     /* per asset mesh, as bakes */
     uint32_t *mesh_first_base;    /* per asset mesh: first base vertex in the merged arrays */
     uint32_t base_vertex_count, base_triangle_count;
     uint32_t *base_indices;       /* 3 per base triangle, merged vertex numbering */
-    float *disp;                  /* decoded displacements, micro_vertices per base triangle */
-    float *base_pos, *base_dir;   /* posed base vertices (world), 3 each per base vertex */
-    float *last_pos, *last_dir;   /* what the micro-vertices were last evaluated from */
+    uint32_t *tri_mesh;           /* per base triangle: its asset mesh */
+    float *rest_pos, *rest_dir;   /* rest-pose base vertices, 3 each */
+    uint16_t *values;             /* decoded grid values, micro_vertices per base triangle */
+    uint16_t *minv, *maxv;        /* pyramid prefix, pyramid_entries per base triangle */
+    mr_affine *mats, *last_mats;  /* per base vertex: accumulated matrix this / last frame */
+    float *posed_pos, *posed_dir; /* mode base: skinned base vertices, 3 each */
     bool evaluated;
-    uint32_t vertex_count, triangle_count;
+    float *boxes;                 /* tessellation-free: 6 per base triangle (lo, hi) */
+    uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
     size_t encoded_bytes;         /* bytes of the encoded records (what a file stores) */
-    float max_coordinate;
     RTCGeometry rtc;
 };
+
+static bool tessellated(const mr_geom *g) { return g->desc.mode == MR_DMM_TESSELLATED; }
 
 static void dmm_free(mr_geom *g)
 {
@@ -66,72 +79,141 @@ static void dmm_free(mr_geom *g)
         return;
     if (g->rtc)
         rtcReleaseGeometry(g->rtc);
-    if (g->bakes)
-        for (size_t i = 0; i < g->asset->mesh_count; i++)
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        if (g->bakes)
             mr_dmm_bake_free(g->bakes[i]);
+        if (g->encoded)
+            mr_dmm_encoded_free(g->encoded[i]);
+    }
     free(g->bakes);
+    free(g->encoded);
     free(g->mesh_first_base);
     free(g->base_indices);
-    free(g->disp);
-    free(g->base_pos);
-    free(g->base_dir);
-    free(g->last_pos);
-    free(g->last_dir);
+    free(g->tri_mesh);
+    free(g->rest_pos);
+    free(g->rest_dir);
+    free(g->values);
+    free(g->minv);
+    free(g->maxv);
+    free(g->mats);
+    free(g->last_mats);
+    free(g->posed_pos);
+    free(g->posed_dir);
+    free(g->boxes);
     free(g->positions);
     free(g->indices);
     free(g);
 }
 
-/* Encodes the bake's displacements and decodes them into out, so the
- * rendered surface carries exactly the quantisation a stored DMM has. */
-static int quantise(const mr_dmm_bake *b, float *out, size_t *bytes, mr_error *err)
+/* Encodes mesh i's bake and decodes its values and pyramid prefix into the
+ * merged arrays from base triangle t0 on. */
+static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
 {
+    const mr_dmm_bake *b = g->bakes[i];
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
     mr_dmm_default_bits(bits);
-    mr_dmm_encoded *enc = NULL;
-    int rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements, &enc, NULL,
-                           err);
+    int rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements,
+                           &g->encoded[i], NULL, err);
     if (rc < 0)
         return rc;
-    for (uint32_t t = 0; t < b->base_triangle_count && rc >= 0; t++)
-        rc = mr_dmm_decode_floats(enc, t, out + (size_t)t * b->micro_vertex_count, err);
-    *bytes += (size_t)enc->triangle_count * enc->record_bytes;
-    mr_dmm_encoded_free(enc);
+    const mr_dmm_encoded *enc = g->encoded[i];
+    uint32_t full = mr_dmm_pyramid_size(b->level);
+    uint16_t *minv = malloc(full * sizeof *minv), *maxv = malloc(full * sizeof *maxv);
+    if (!minv || !maxv)
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory decoding a dmm");
+    for (uint32_t t = 0; t < b->base_triangle_count && rc >= 0; t++) {
+        uint16_t *values = g->values + (size_t)(t0 + t) * g->micro_vertices;
+        if ((rc = mr_dmm_decode_values(enc, t, values, err)) < 0 ||
+            (rc = mr_dmm_pyramid_build(b->level, values, minv, maxv, err)) < 0)
+            break;
+        size_t at = (size_t)(t0 + t) * g->pyramid_entries;
+        memcpy(g->minv + at, minv, g->pyramid_entries * sizeof *minv);
+        memcpy(g->maxv + at, maxv, g->pyramid_entries * sizeof *maxv);
+        g->tri_mesh[t0 + t] = (uint32_t)i;
+    }
+    free(minv);
+    free(maxv);
+    g->encoded_bytes += (size_t)enc->triangle_count * enc->record_bytes;
     return rc;
 }
 
-static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
-                      mr_error *err)
+static int check_desc(const mr_dmm_desc *d, mr_error *err)
 {
-    *out = NULL;
-    const mr_dmm_desc *d = &desc->dmm;
-    if (d->mode != MR_DMM_TESSELLATED)
-        return mr_error_set(err, MR_ERR_INVALID,
-                            "dmm mode %d is not implemented yet (only \"tessellated\")",
-                            (int)d->mode);
     if (d->level > MR_UMESH_MAX_LEVEL)
         return mr_error_set(err, MR_ERR_INVALID, "dmm level %u is outside 0..%u", d->level,
                             MR_UMESH_MAX_LEVEL);
     if (d->base_triangles == 0 && !(d->base_ratio > 0 && d->base_ratio <= 1))
         return mr_error_set(err, MR_ERR_INVALID, "dmm base_ratio %g is outside (0, 1]",
                             (double)d->base_ratio);
-    int rc = MR_OK;
+    if ((d->mode == MR_DMM_BASE && d->deform != MR_DMM_DEFORM_BASE) ||
+        (d->mode == MR_DMM_INTERPOLATED && d->deform != MR_DMM_DEFORM_INTERPOLATED) ||
+        d->mode > MR_DMM_INTERPOLATED || d->deform > MR_DMM_DEFORM_INTERPOLATED ||
+        d->normals > MR_DMM_NORMALS_MATRIX)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm mode %d cannot use deformation %d",
+                            (int)d->mode, (int)d->deform);
+    return MR_OK;
+}
+
+/* Allocates everything after the bake counts are known. */
+static int allocate(mr_geom *g, mr_error *err)
+{
+    size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
+    g->base_indices = malloc(nt * 3 * sizeof(uint32_t));
+    g->tri_mesh = malloc(nt * sizeof(uint32_t));
+    g->rest_pos = malloc(nv * 3 * sizeof(float));
+    g->rest_dir = malloc(nv * 3 * sizeof(float));
+    g->values = malloc(nt * g->micro_vertices * sizeof(uint16_t));
+    g->minv = malloc(nt * g->pyramid_entries * sizeof(uint16_t));
+    g->maxv = malloc(nt * g->pyramid_entries * sizeof(uint16_t));
+    g->mats = calloc(nv, sizeof(mr_affine));
+    g->last_mats = calloc(nv, sizeof(mr_affine));
+    bool ok = g->base_indices && g->tri_mesh && g->rest_pos && g->rest_dir && g->values &&
+              g->minv && g->maxv && g->mats && g->last_mats;
+    if (g->desc.deform == MR_DMM_DEFORM_BASE) {
+        g->posed_pos = calloc(nv * 3, sizeof(float));
+        g->posed_dir = calloc(nv * 3, sizeof(float));
+        ok = ok && g->posed_pos && g->posed_dir;
+    }
+    if (tessellated(g)) {
+        g->vertex_count = (uint32_t)(nt * g->micro_vertices);
+        g->triangle_count = (uint32_t)(nt * g->micro_triangles);
+        g->positions = calloc((size_t)g->vertex_count * 3 + 1, sizeof(float));
+        g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
+        ok = ok && g->positions && g->indices;
+    } else {
+        g->boxes = calloc(nt * 6, sizeof(float));
+        ok = ok && g->boxes;
+    }
+    return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
+}
+
+static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
+                      mr_error *err)
+{
+    *out = NULL;
+    int rc = check_desc(&desc->dmm, err);
+    if (rc < 0)
+        return rc;
     mr_geom *g = calloc(1, sizeof *g);
     if (!g)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
     g->asset = asset;
-    g->level = d->level;
-    g->micro_vertices = mr_umesh_vertex_count(d->level);
-    g->micro_triangles = mr_umesh_triangle_count(d->level);
-    g->bakes = calloc(asset->mesh_count ? asset->mesh_count : 1, sizeof *g->bakes);
-    g->mesh_first_base = calloc(asset->mesh_count ? asset->mesh_count : 1, sizeof(uint32_t));
-    if (!g->bakes || !g->mesh_first_base)
+    g->desc = desc->dmm;
+    unsigned level = g->desc.level;
+    g->micro_vertices = mr_umesh_vertex_count(level);
+    g->micro_triangles = mr_umesh_triangle_count(level);
+    g->pyramid_entries = mr_dmm_trace_pyramid_size(level);
+    size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
+    g->bakes = calloc(meshes, sizeof *g->bakes);
+    g->encoded = calloc(meshes, sizeof *g->encoded);
+    g->mesh_first_base = calloc(meshes, sizeof(uint32_t));
+    if (!g->bakes || !g->encoded || !g->mesh_first_base)
         goto nomem;
 
     mr_dmm_bake_params bp = mr_dmm_bake_params_default();
-    bp.level = d->level;
-    bp.target_triangles = d->base_triangles;
-    bp.target_ratio = d->base_ratio;
+    bp.level = level;
+    bp.target_triangles = g->desc.base_triangles;
+    bp.target_ratio = g->desc.base_ratio;
     bp.threads = 0; /* the bake does not depend on it */
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
@@ -149,7 +231,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
             rc = mr_error_set(err, MR_ERR_LIMIT,
                               "%s: %llu base triangles at level %u exceed the caps (%u "
                               "micro-triangles / vertices)",
-                              asset->path, (unsigned long long)nt, g->level,
+                              asset->path, (unsigned long long)nt, level,
                               MR_MAX_ASSET_TRIANGLES);
             goto fail;
         }
@@ -160,47 +242,43 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     g->base_vertex_count = (uint32_t)nv;
     g->base_triangle_count = (uint32_t)nt;
-    g->vertex_count = (uint32_t)(nt * g->micro_vertices);
-    g->triangle_count = (uint32_t)(nt * g->micro_triangles);
-    g->base_indices = malloc(nt * 3 * sizeof(uint32_t));
-    g->disp = malloc((size_t)g->vertex_count * sizeof(float));
-    g->base_pos = calloc(nv * 3, sizeof(float));
-    g->base_dir = calloc(nv * 3, sizeof(float));
-    g->last_pos = calloc(nv * 3, sizeof(float));
-    g->last_dir = calloc(nv * 3, sizeof(float));
-    g->positions = calloc((size_t)g->vertex_count * 3 + 1, sizeof(float));
-    g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
-    if (!g->base_indices || !g->disp || !g->base_pos || !g->base_dir || !g->last_pos ||
-        !g->last_dir || !g->positions || !g->indices)
-        goto nomem;
+    if ((rc = allocate(g, err)) < 0)
+        goto fail;
 
-    /* Micro-triangle indices of one base triangle, reused with an offset. */
-    uint32_t *local = malloc((size_t)g->micro_triangles * 3 * sizeof(uint32_t));
-    if (!local)
-        goto nomem;
-    uint32_t local_count = mr_umesh_triangles(g->level, 0, local);
     uint32_t t0 = 0;
-    for (size_t i = 0; i < asset->mesh_count && rc >= 0; i++) {
+    for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_dmm_bake *b = g->bakes[i];
         if (!b)
             continue;
+        uint32_t v0 = g->mesh_first_base[i];
         for (uint64_t k = 0; k < (uint64_t)b->base_triangle_count * 3; k++)
-            g->base_indices[(uint64_t)t0 * 3 + k] = b->base_indices[k] + g->mesh_first_base[i];
-        rc = quantise(b, g->disp + (size_t)t0 * g->micro_vertices, &g->encoded_bytes, err);
+            g->base_indices[(uint64_t)t0 * 3 + k] = b->base_indices[k] + v0;
+        memcpy(g->rest_pos + (size_t)v0 * 3, b->base_positions,
+               (size_t)b->base_vertex_count * 3 * sizeof(float));
+        memcpy(g->rest_dir + (size_t)v0 * 3, b->base_directions,
+               (size_t)b->base_vertex_count * 3 * sizeof(float));
+        if ((rc = quantise(g, i, t0, err)) < 0)
+            goto fail;
         t0 += b->base_triangle_count;
     }
-    for (uint32_t t = 0; t < g->base_triangle_count && local_count == g->micro_triangles; t++) {
-        uint32_t *dst = g->indices + (size_t)t * g->micro_triangles * 3;
-        for (uint32_t k = 0; k < g->micro_triangles * 3; k++)
-            dst[k] = local[k] + t * g->micro_vertices;
-    }
-    free(local);
-    if (rc < 0)
-        goto fail;
-    if (local_count != g->micro_triangles) {
-        rc = mr_error_set(err, MR_ERR_INVALID, "micro-mesh topology of level %u is inconsistent",
-                          g->level);
-        goto fail;
+    if (tessellated(g)) {
+        /* Micro-triangle indices of one base triangle, repeated with an offset. */
+        uint32_t *local = malloc((size_t)g->micro_triangles * 3 * sizeof(uint32_t));
+        if (!local)
+            goto nomem;
+        uint32_t local_count = mr_umesh_triangles(level, 0, local);
+        for (uint32_t t = 0; t < g->base_triangle_count && local_count == g->micro_triangles;
+             t++) {
+            uint32_t *dst = g->indices + (size_t)t * g->micro_triangles * 3;
+            for (uint32_t k = 0; k < g->micro_triangles * 3; k++)
+                dst[k] = local[k] + t * g->micro_vertices;
+        }
+        free(local);
+        if (local_count != g->micro_triangles) {
+            rc = mr_error_set(err, MR_ERR_INVALID,
+                              "micro-mesh topology of level %u is inconsistent", level);
+            goto fail;
+        }
     }
     *out = g;
     return MR_OK;
@@ -211,35 +289,84 @@ fail:
     return rc;
 }
 
-typedef struct eval_ctx {
+static mr_vec3 load3(const float *a, size_t i) { return mr_v3(a[i * 3], a[i * 3 + 1], a[i * 3 + 2]); }
+
+/* Base triangle t as a traversal patch for this frame. */
+static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
+{
+    mr_dmm_patch p = {.level = g->desc.level,
+                      .enc = g->encoded[g->tri_mesh[t]],
+                      .values = g->values + (size_t)t * g->micro_vertices,
+                      .minv = g->minv + (size_t)t * g->pyramid_entries,
+                      .maxv = g->maxv + (size_t)t * g->pyramid_entries};
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    bool interpolated = g->desc.deform == MR_DMM_DEFORM_INTERPOLATED;
+    for (int k = 0; k < 3; k++) {
+        if (interpolated) {
+            p.tri.pos[k] = load3(g->rest_pos, idx[k]);
+            p.tri.dir[k] = load3(g->rest_dir, idx[k]);
+            p.mats[k] = &g->mats[idx[k]];
+        } else {
+            p.tri.pos[k] = load3(g->posed_pos, idx[k]);
+            p.tri.dir[k] = load3(g->posed_dir, idx[k]);
+        }
+    }
+    return p;
+}
+
+typedef struct update_ctx {
     mr_geom *g;
     uint32_t bad[MR_MAX_THREADS]; /* per worker: first failing base triangle + 1, or 0 */
-} eval_ctx;
+} update_ctx;
 
-static void eval_range(void *ctx, size_t begin, size_t end, unsigned worker)
+static void note_bad(update_ctx *c, unsigned worker, size_t t)
 {
-    eval_ctx *c = ctx;
+    if (c->bad[worker] == 0)
+        c->bad[worker] = (uint32_t)t + 1;
+}
+
+static bool finite_bounded(mr_vec3 v)
+{
+    return fabsf(v.x) <= MR_MAX_COORDINATE && fabsf(v.y) <= MR_MAX_COORDINATE &&
+           fabsf(v.z) <= MR_MAX_COORDINATE;
+}
+
+static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    update_ctx *c = ctx;
     mr_geom *g = c->g;
-    mr_vec3 pts[561]; /* mr_umesh_vertex_count(MR_UMESH_MAX_LEVEL) */
+    uint32_t n = mr_umesh_segments(g->desc.level);
     for (size_t t = begin; t < end; t++) {
-        mr_umesh_tri tri;
-        for (int k = 0; k < 3; k++) {
-            const float *p = g->base_pos + (size_t)g->base_indices[t * 3 + k] * 3;
-            const float *n = g->base_dir + (size_t)g->base_indices[t * 3 + k] * 3;
-            tri.pos[k] = mr_v3(p[0], p[1], p[2]);
-            tri.dir[k] = mr_v3(n[0], n[1], n[2]);
-        }
-        mr_error e = {0};
-        if (mr_umesh_eval_all(&tri, g->level, 0, g->disp + t * g->micro_vertices, pts, &e) < 0) {
-            if (c->bad[worker] == 0)
-                c->bad[worker] = (uint32_t)t + 1;
+        mr_dmm_patch p = patch_of(g, (uint32_t)t);
+        if (!tessellated(g)) {
+            mr_vec3 lo, hi;
+            if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
+                note_bad(c, worker, t);
+            float *b = g->boxes + t * 6;
+            b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
             continue;
         }
         float *dst = g->positions + t * g->micro_vertices * 3;
-        for (uint32_t v = 0; v < g->micro_vertices; v++) {
-            dst[v * 3] = pts[v].x;
-            dst[v * 3 + 1] = pts[v].y;
-            dst[v * 3 + 2] = pts[v].z;
+        for (uint32_t bb = 0; bb <= n; bb++)
+            for (uint32_t a = 0; a + bb <= n; a++) {
+                mr_vec3 v = mr_dmm_vertex(&p, a, bb);
+                if (!finite_bounded(v))
+                    note_bad(c, worker, t);
+                float *o = dst + (size_t)mr_umesh_vertex_index(g->desc.level, a, bb) * 3;
+                o[0] = v.x, o[1] = v.y, o[2] = v.z;
+            }
+    }
+}
+
+/* Mode base: v' = M v, n' = M n (eq. 4), per base vertex. */
+static void pose_base_vertices(mr_geom *g)
+{
+    for (size_t i = 0; i < g->base_vertex_count; i++) {
+        const float *m = g->mats[i].m, *v = g->rest_pos + i * 3, *d = g->rest_dir + i * 3;
+        for (int r = 0; r < 3; r++) {
+            g->posed_pos[i * 3 + r] = m[r * 4] * v[0] + m[r * 4 + 1] * v[1] +
+                                      m[r * 4 + 2] * v[2] + m[r * 4 + 3];
+            g->posed_dir[i * 3 + r] = m[r * 4] * d[0] + m[r * 4 + 1] * d[1] + m[r * 4 + 2] * d[2];
         }
     }
 }
@@ -247,8 +374,9 @@ static void eval_range(void *ctx, size_t begin, size_t end, unsigned worker)
 static int dmm_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
                       mr_error *err)
 {
-    /* Pose the base mesh: a one-mesh view of the asset whose vertices are the
-     * base vertices with their own weights (the bake kept them). */
+    /* Accumulated matrices of the base vertices: a one-mesh view of the
+     * asset whose vertices are the base vertices with their own weights
+     * (the bake kept them). */
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         const mr_dmm_bake *b = g->bakes[i];
         if (!b)
@@ -272,94 +400,270 @@ static int dmm_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform,
         mr_asset view = *g->asset;
         view.mesh_count = 1;
         view.meshes = &m;
-        size_t off = (size_t)g->mesh_first_base[i] * 3;
-        mr_skin_mesh(&view, 0, pose, transform, g->base_pos + off, g->base_dir + off, threads);
+        mr_skin_matrices(&view, 0, pose, transform, g->mats + g->mesh_first_base[i], threads);
     }
-    size_t nb = (size_t)g->base_vertex_count * 3 * sizeof(float);
-    /* Static objects (and frames where nothing moved) keep their micro-vertices. */
-    if (g->evaluated && memcmp(g->base_pos, g->last_pos, nb) == 0 &&
-        memcmp(g->base_dir, g->last_dir, nb) == 0)
+    size_t nb = (size_t)g->base_vertex_count * sizeof(mr_affine);
+    /* Static objects (and frames where nothing moved) keep their data. */
+    if (g->evaluated && memcmp(g->mats, g->last_mats, nb) == 0)
         return MR_OK;
-    eval_ctx *c = calloc(1, sizeof *c);
+    g->evaluated = false;
+    for (size_t k = 0; k < (size_t)g->base_vertex_count * 12; k++)
+        if (!isfinite(g->mats[k / 12].m[k % 12]))
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "%s: the skinning matrix of base vertex %zu is not finite: check "
+                                "the object's transform and pose",
+                                g->asset->path, k / 12);
+    if (g->posed_pos)
+        pose_base_vertices(g);
+    update_ctx *c = calloc(1, sizeof *c);
     if (!c)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a dmm object");
     c->g = g;
-    mr_parallel_for(threads, g->base_triangle_count, EVAL_GRAIN, eval_range, c);
+    mr_parallel_for(threads, g->base_triangle_count, UPDATE_GRAIN, update_range, c);
     uint32_t bad = 0;
     for (unsigned w = 0; w < MR_MAX_THREADS; w++)
         if (c->bad[w] && (bad == 0 || c->bad[w] < bad))
             bad = c->bad[w];
     free(c);
-    g->evaluated = false;
     if (bad)
         return mr_error_set(err, MR_ERR_INVALID,
-                            "%s: base triangle %u is not finite after posing: check the object's "
-                            "transform and pose",
-                            g->asset->path, bad - 1);
-    float biggest = 0;
-    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++) {
-        float a = fabsf(g->positions[k]);
-        biggest = a > biggest ? a : biggest;
-        if (!(a <= MR_MAX_COORDINATE))
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "%s: posed micro-vertex %zu has a coordinate of %g (limit %g): "
-                                "check the object's transform and pose",
-                                g->asset->path, k / 3, (double)g->positions[k],
-                                MR_MAX_COORDINATE);
-    }
-    g->max_coordinate = biggest;
-    memcpy(g->last_pos, g->base_pos, nb);
-    memcpy(g->last_dir, g->base_dir, nb);
+                            "%s: base triangle %u is not finite or beyond %g after posing: check "
+                            "the object's transform and pose",
+                            g->asset->path, bad - 1, MR_MAX_COORDINATE);
+    memcpy(g->last_mats, g->mats, nb);
     g->evaluated = true;
     return MR_OK;
+}
+
+/* Embree user-geometry callbacks (tessellation-free modes). */
+
+static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->boxes + (size_t)args->primID * 6;
+    struct RTCBounds *o = args->bounds_o;
+    o->lower_x = b[0], o->lower_y = b[1], o->lower_z = b[2];
+    o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
+}
+
+static bool ray_ok(mr_vec3 dir)
+{
+    return (dir.x != 0 || dir.y != 0 || dir.z != 0) && isfinite(dir.x) && isfinite(dir.y) &&
+           isfinite(dir.z);
+}
+
+/* Embree's RTCRayN / RTCHitN accessors are C++ only. The layout is
+ * structure-of-arrays: field f of ray i of an N-packet is element f * N + i
+ * (rtcore_ray.h); the hit follows the ray's 12 fields. */
+enum { RAY_ORG = 0, RAY_TNEAR = 3, RAY_DIR = 4, RAY_TFAR = 8, RAY_FIELDS = 12 };
+enum { HIT_NG = 0, HIT_U = 3, HIT_V = 4, HIT_PRIM = 5, HIT_GEOM = 6, HIT_INST = 7 };
+
+static float *ray_f(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (float *)ray + field * N + i;
+}
+
+static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (unsigned *)ray + field * N + i;
+}
+
+/* Traces ray i of an N-packet against patch p; tfar shrinks on a hit. */
+static bool trace_one(const mr_dmm_patch *p, void *ray, unsigned N, unsigned i, bool any_hit,
+                      mr_dmm_hit *h)
+{
+    mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
+                        *ray_f(ray, N, RAY_ORG + 2, i));
+    mr_vec3 dir = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
+                        *ray_f(ray, N, RAY_DIR + 2, i));
+    if (!ray_ok(dir))
+        return false;
+    mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
+    float *tfar = ray_f(ray, N, RAY_TFAR, i);
+    return mr_dmm_intersect(p, &r, *ray_f(ray, N, RAY_TNEAR, i), tfar, any_hit, h, NULL);
+}
+
+static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    mr_dmm_patch p = patch_of(g, args->primID);
+    for (unsigned i = 0; i < N; i++) {
+        mr_dmm_hit h;
+        if (args->valid[i] != -1 || !trace_one(&p, ray, N, i, false, &h))
+            continue;
+        *ray_f(hit, N, HIT_NG, i) = h.ng.x;
+        *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
+        *ray_f(hit, N, HIT_NG + 2, i) = h.ng.z;
+        *ray_f(hit, N, HIT_U, i) = h.u;
+        *ray_f(hit, N, HIT_V, i) = h.v;
+        *ray_u(hit, N, HIT_PRIM, i) = args->primID;
+        *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
+        *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+    }
+}
+
+static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    mr_dmm_patch p = patch_of(g, args->primID);
+    for (unsigned i = 0; i < N; i++)
+        if (args->valid[i] == -1 && trace_one(&p, args->ray, N, i, true, NULL))
+            *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
 }
 
 static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                       enum RTCBuildQuality quality, mr_error *err)
 {
-    return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions, g->vertex_count,
-                                    g->indices, g->triangle_count, &g->rtc, err);
+    if (tessellated(g))
+        return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
+                                        g->vertex_count, g->indices, g->triangle_count, &g->rtc,
+                                        err);
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    if (!geom)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a user geometry (%d)",
+                            (int)rtcGetDeviceError(device));
+    rtcSetGeometryUserPrimitiveCount(geom, g->base_triangle_count);
+    rtcSetGeometryUserData(geom, g);
+    rtcSetGeometryBoundsFunction(geom, bounds_cb, NULL);
+    rtcSetGeometryIntersectFunction(geom, intersect_cb);
+    rtcSetGeometryOccludedFunction(geom, occluded_cb);
+    rtcSetGeometryBuildQuality(geom, quality);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(scene, geom, geom_id);
+    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
+        rtcReleaseGeometry(geom);
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the dmm user geometry");
+    }
+    g->rtc = geom;
+    return MR_OK;
 }
 
-static void dmm_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
-
-static mr_vec3 vertex(const mr_geom *g, uint32_t i)
+static void dmm_commit(mr_geom *g)
 {
-    const float *p = g->positions + (size_t)i * 3;
-    return mr_v3(p[0], p[1], p[2]);
+    if (tessellated(g))
+        mr_geom_commit_vertices(g->rtc);
+    else
+        rtcCommitGeometry(g->rtc);
+}
+
+/* Base triangle and base-domain (u, v) of a hit. */
+static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
+{
+    if (!tessellated(g))
+        return prim;
+    uint32_t t = prim / g->micro_triangles, idx[3], a[3], b[3];
+    mr_umesh_triangle(g->desc.level, prim % g->micro_triangles, idx);
+    for (int k = 0; k < 3; k++)
+        mr_umesh_vertex_coords(g->desc.level, idx[k], &a[k], &b[k]);
+    float w0 = 1.0f - *u - *v, n = (float)mr_umesh_segments(g->desc.level);
+    float bu = (w0 * (float)a[0] + *u * (float)a[1] + *v * (float)a[2]) / n;
+    float bv = (w0 * (float)b[0] + *u * (float)b[1] + *v * (float)b[2]) / n;
+    *u = bu, *v = bv;
+    return t;
 }
 
 static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
-    (void)u;
-    (void)v;
-    if (prim >= g->triangle_count)
+    uint32_t t = hit_domain(g, prim, &u, &v);
+    if (t >= g->base_triangle_count)
         return mr_v3(0, 0, 1);
-    const uint32_t *tri = g->indices + (size_t)prim * 3;
-    mr_vec3 p0 = vertex(g, tri[0]), p1 = vertex(g, tri[1]), p2 = vertex(g, tri[2]);
-    return mr_v3_cross(mr_v3_sub(p1, p0), mr_v3_sub(p2, p0));
+    mr_dmm_patch p = patch_of(g, t);
+    uint32_t a[3], b[3];
+    mr_dmm_locate(g->desc.level, u, v, a, b);
+    if (g->desc.normals == MR_DMM_NORMALS_GEOMETRIC) {
+        mr_vec3 x[3];
+        for (int k = 0; k < 3; k++)
+            x[k] = mr_dmm_vertex(&p, a[k], b[k]);
+        return mr_v3_cross(mr_v3_sub(x[1], x[0]), mr_v3_sub(x[2], x[0]));
+    }
+    /* Interpolated-matrix normal: the rest micro-triangle's normal through
+     * the cofactor of M(u, v). */
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    mr_dmm_patch rest = p;
+    for (int k = 0; k < 3; k++) {
+        rest.tri.pos[k] = load3(g->rest_pos, idx[k]);
+        rest.tri.dir[k] = load3(g->rest_dir, idx[k]);
+        rest.mats[k] = NULL;
+    }
+    mr_vec3 x[3];
+    for (int k = 0; k < 3; k++)
+        x[k] = mr_dmm_vertex(&rest, a[k], b[k]);
+    mr_vec3 n = mr_v3_cross(mr_v3_sub(x[1], x[0]), mr_v3_sub(x[2], x[0]));
+    float w[3] = {1.0f - u - v, u, v};
+    mr_mat4 m = mr_mat4_identity();
+    for (int e = 0; e < 12; e++)
+        m.m[e] = w[0] * g->mats[idx[0]].m[e] + w[1] * g->mats[idx[1]].m[e] +
+                 w[2] * g->mats[idx[2]].m[e];
+    mr_mat4 cof = mr_mat4_normal_matrix(&m);
+    return mr_mat4_dir(&cof, n);
 }
 
 static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
-    return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
+    if (tessellated(g))
+        return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out,
+                               err);
+    /* The exact reference of a tessellation-free object: its micro-triangles
+     * from the same mr_dmm_vertex, one vertex set per base triangle. */
+    memset(out, 0, sizeof *out);
+    uint32_t level = g->desc.level, n = mr_umesh_segments(level);
+    uint64_t nv = (uint64_t)g->base_triangle_count * g->micro_vertices;
+    uint64_t nt = (uint64_t)g->base_triangle_count * g->micro_triangles;
+    out->positions = malloc(nv * 3 * sizeof(float) + sizeof(float));
+    out->indices = malloc(nt * 3 * sizeof(uint32_t));
+    uint32_t *local = malloc((size_t)g->micro_triangles * 3 * sizeof(uint32_t));
+    if (!out->positions || !out->indices || !local) {
+        free(local);
+        mr_trimesh_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a dmm object");
+    }
+    mr_umesh_triangles(level, 0, local);
+    for (uint32_t t = 0; t < g->base_triangle_count; t++) {
+        mr_dmm_patch p = patch_of(g, t);
+        float *dst = out->positions + (size_t)t * g->micro_vertices * 3;
+        for (uint32_t b = 0; b <= n; b++)
+            for (uint32_t a = 0; a + b <= n; a++) {
+                mr_vec3 x = mr_dmm_vertex(&p, a, b);
+                float *o = dst + (size_t)mr_umesh_vertex_index(level, a, b) * 3;
+                o[0] = x.x, o[1] = x.y, o[2] = x.z;
+            }
+        for (uint32_t k = 0; k < g->micro_triangles * 3; k++)
+            out->indices[(size_t)t * g->micro_triangles * 3 + k] = local[k] + t * g->micro_vertices;
+    }
+    free(local);
+    out->vertex_count = (uint32_t)nv;
+    out->triangle_count = (uint32_t)nt;
+    return MR_OK;
 }
 
 static size_t dmm_memory(const mr_geom *g)
 {
-    size_t bytes = sizeof *g + g->asset->mesh_count * (sizeof(void *) + sizeof(uint32_t));
+    size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
+    size_t bytes = sizeof *g + g->asset->mesh_count * (2 * sizeof(void *) + sizeof(uint32_t));
     for (size_t i = 0; i < g->asset->mesh_count; i++)
         if (g->bakes[i])
             bytes += mr_dmm_bake_memory(g->bakes[i]);
-    bytes += (size_t)g->base_triangle_count * 3 * sizeof(uint32_t);
-    bytes += (size_t)g->base_vertex_count * 12 * sizeof(float);
-    bytes += (size_t)g->vertex_count * sizeof(float);
-    bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float);
-    bytes += (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+    bytes += g->encoded_bytes;
+    bytes += nt * 4 * sizeof(uint32_t);                                 /* indices, tri_mesh */
+    bytes += nv * 6 * sizeof(float) + nv * 2 * sizeof(mr_affine);      /* rest, mats */
+    bytes += nt * (g->micro_vertices + 2 * g->pyramid_entries) * sizeof(uint16_t);
+    if (g->posed_pos)
+        bytes += nv * 6 * sizeof(float);
+    if (g->boxes)
+        bytes += nt * 6 * sizeof(float);
+    if (g->positions)
+        bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
+                 (size_t)g->triangle_count * 3 * sizeof(uint32_t);
     return bytes;
 }
 
-static uint64_t dmm_primitives(const mr_geom *g) { return g->triangle_count; }
+static uint64_t dmm_primitives(const mr_geom *g)
+{
+    return (uint64_t)g->base_triangle_count * g->micro_triangles;
+}
 
 const mr_geom_ops mr_geom_dmm_ops = {
     .name = "dmm",

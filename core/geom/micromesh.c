@@ -168,24 +168,23 @@ static int endpoint_cmp(mr_vec3 pa, mr_vec3 da, mr_vec3 pb, mr_vec3 db)
     return 0;
 }
 
-static dvec3 dv(mr_vec3 v) { return (dvec3){v.x, v.y, v.z}; }
+/* The corners a micro-vertex depends on and their weights, in the order they
+ * are summed: a corner alone; an edge's two endpoints in canonical order (the
+ * edge rule above); the three corners for an interior vertex. Every
+ * interpolated quantity (position, direction, skinning matrix) is summed in
+ * this order, so shared-edge vertices are bit-identical on both sides. */
+typedef struct corner_weights {
+    int count;
+    int corner[3];
+    double w[3];
+} corner_weights;
 
-static dvec3 lerp2(mr_vec3 p, double wp, mr_vec3 q, double wq)
-{
-    return (dvec3){wp * p.x + wq * q.x, wp * p.y + wq * q.y, wp * p.z + wq * q.z};
-}
-
-/* Undisplaced point and direction in double, by the edge rule. */
-static void frame_d(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, dvec3 *p,
-                    dvec3 *d)
+static corner_weights weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
 {
     uint32_t k, n = mr_umesh_segments(level);
     int e = mr_umesh_vertex_edge(level, a, b, &k);
-    if (e == 3) {
-        *p = dv(tri->pos[k]);
-        *d = dv(tri->dir[k]);
-        return;
-    }
+    if (e == 3)
+        return (corner_weights){1, {(int)k, 0, 0}, {1.0, 0, 0}};
     if (e >= 0) {
         int i0 = e, i1 = (e + 1) % 3;
         uint32_t k0 = n - k, k1 = k; /* weights (in units of 1/n) of i0 and i1 */
@@ -195,17 +194,32 @@ static void frame_d(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_
             uint32_t tk = k0;
             k0 = k1, k1 = tk;
         }
-        double w0 = (double)k0 / n, w1 = (double)k1 / n;
-        *p = lerp2(tri->pos[i0], w0, tri->pos[i1], w1);
-        *d = lerp2(tri->dir[i0], w0, tri->dir[i1], w1);
-        return;
+        return (corner_weights){2, {i0, i1, 0}, {(double)k0 / n, (double)k1 / n, 0}};
     }
-    double w0 = (double)(n - a - b) / n, w1 = (double)a / n, w2 = (double)b / n;
-    const mr_vec3 *v = tri->pos, *m = tri->dir;
-    *p = (dvec3){w0 * v[0].x + w1 * v[1].x + w2 * v[2].x, w0 * v[0].y + w1 * v[1].y + w2 * v[2].y,
-                 w0 * v[0].z + w1 * v[1].z + w2 * v[2].z};
-    *d = (dvec3){w0 * m[0].x + w1 * m[1].x + w2 * m[2].x, w0 * m[0].y + w1 * m[1].y + w2 * m[2].y,
-                 w0 * m[0].z + w1 * m[1].z + w2 * m[2].z};
+    return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) / n, (double)a / n, (double)b / n}};
+}
+
+static dvec3 blend(const mr_vec3 *v, const corner_weights *cw)
+{
+    dvec3 r = {0, 0, 0};
+    for (int i = 0; i < cw->count; i++) {
+        mr_vec3 x = v[cw->corner[i]];
+        double w = cw->w[i];
+        if (i == 0)
+            r = (dvec3){w * x.x, w * x.y, w * x.z};
+        else
+            r = (dvec3){r.x + w * x.x, r.y + w * x.y, r.z + w * x.z};
+    }
+    return r;
+}
+
+/* Undisplaced point and direction in double, by the edge rule. */
+static void frame_d(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, dvec3 *p,
+                    dvec3 *d)
+{
+    corner_weights cw = weights_of(tri, level, a, b);
+    *p = blend(tri->pos, &cw);
+    *d = blend(tri->dir, &cw);
 }
 
 static int check_args(unsigned level, uint32_t a, uint32_t b, mr_error *err)
@@ -251,6 +265,29 @@ int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t 
     dvec3 p, d;
     frame_d(tri, level, a, b, &p, &d);
     *out = displace(p, d, disp);
+    return MR_OK;
+}
+
+int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const mats[3],
+                               unsigned level, uint32_t a, uint32_t b, float disp, mr_vec3 *out,
+                               mr_error *err)
+{
+    int rc = check_args(level, a, b, err);
+    if (rc < 0)
+        return rc;
+    corner_weights cw = weights_of(rest, level, a, b);
+    dvec3 p = blend(rest->pos, &cw), d = blend(rest->dir, &cw);
+    double s = disp, x[3] = {p.x + s * d.x, p.y + s * d.y, p.z + s * d.z};
+    double m[12];
+    for (int e = 0; e < 12; e++) {
+        m[e] = cw.w[0] * mats[cw.corner[0]]->m[e];
+        for (int i = 1; i < cw.count; i++)
+            m[e] += cw.w[i] * mats[cw.corner[i]]->m[e];
+    }
+    double r[3];
+    for (int row = 0; row < 3; row++)
+        r[row] = m[row * 4] * x[0] + m[row * 4 + 1] * x[1] + m[row * 4 + 2] * x[2] + m[row * 4 + 3];
+    *out = mr_v3((float)r[0], (float)r[1], (float)r[2]);
     return MR_OK;
 }
 

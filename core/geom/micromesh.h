@@ -110,6 +110,17 @@ int mr_umesh_frame(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t
 int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, float disp,
                   mr_vec3 *out, mr_error *err);
 
+/* Micro-vertex (a, b) under interpolated matrices (paper 000, eq. 6-7): the
+ * rest-pose displaced point x = sum w_i v_i + disp * sum w_i n_i (tri holds
+ * the REST pose) moved by M(w) = sum w_i M_i, the barycentric blend of the
+ * corners' accumulated matrices. All in double, rounded once; M follows the
+ * edge rule like positions, so shared-edge vertices stay bit-identical. With
+ * three equal matrices this is M applied to mr_umesh_eval's point (up to one
+ * rounding). Same failure cases as mr_umesh_frame. */
+int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const mats[3],
+                               unsigned level, uint32_t a, uint32_t b, float disp, mr_vec3 *out,
+                               mr_error *err);
+
 /* All micro-vertices of a triangle: disp holds one displacement per
  * micro-vertex (vertex index order) or is NULL for zero displacement; out gets
  * mr_umesh_vertex_count(level) positions, decimated vertices already moved

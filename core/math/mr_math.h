@@ -19,6 +19,9 @@
 typedef struct mr_vec3 { float x, y, z; } mr_vec3;
 typedef struct mr_quat { float x, y, z, w; } mr_quat;
 typedef struct mr_mat4 { float m[16]; } mr_mat4;
+/* The top three rows of a row-major affine mr_mat4 (the bottom row is
+ * 0 0 0 1): m[4r + c]. */
+typedef struct mr_affine { float m[12]; } mr_affine;
 
 static inline mr_vec3 mr_v3(float x, float y, float z) { return (mr_vec3){x, y, z}; }
 static inline mr_vec3 mr_v3_add(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x + b.x, a.y + b.y, a.z + b.z); }

@@ -344,16 +344,20 @@ static void test_refused(void **state)
 {
     (void)state;
     mr_asset *a = make_bumpy_sphere(1, 0.0f, 1.0f);
+    /* mode base deforms the base mesh; a request to interpolate matrices
+     * with it is contradictory and refused rather than silently ignored */
     mr_object_desc o = {.kind = MR_GEOM_DMM,
-                        .dmm = {.level = 3, .base_ratio = 0.5f, .mode = MR_DMM_BASE}};
+                        .dmm = {.level = 3, .base_ratio = 0.5f, .mode = MR_DMM_BASE,
+                                .deform = MR_DMM_DEFORM_INTERPOLATED}};
     mr_geom *g = NULL;
     mr_error err = {0};
     const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
     assert_non_null(ops);
     assert_string_equal(ops->name, "dmm");
     assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
-    assert_non_null(strstr(err.msg, "not implemented yet"));
+    assert_non_null(strstr(err.msg, "cannot use deformation"));
     assert_null(g);
+    o.dmm.deform = MR_DMM_DEFORM_BASE;
     o.dmm.mode = MR_DMM_TESSELLATED;
     o.dmm.level = 6;
     assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);

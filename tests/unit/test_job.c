@@ -190,7 +190,7 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':[]}"), MR_ERR_INVALID, "/objects/0/dmm",
      "expected an object of dmm bake parameters, got an empty array"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'bits':[8]}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode"},
+     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode, deformation, normals"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2,'level':3}}"), MR_ERR_INVALID,
      "/objects/0/dmm/level", "duplicate field \"level\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':6}}"), MR_ERR_INVALID,
@@ -213,10 +213,15 @@ static const bad_case BAD[] = {
      "/objects/0/dmm/base_triangles", "got 100.5"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':0.5,'base_triangles':100}}"),
      MR_ERR_INVALID, "/objects/0/dmm/base_triangles", "either \"base_ratio\" or \"base_triangles\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'base'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/mode", "dmm mode \"base\" is not implemented yet"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/mode", "dmm mode \"interpolated\" is not implemented yet"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'base','deformation':'interpolated'}}"),
+     MR_ERR_INVALID, "/objects/0/dmm/deformation",
+     "mode \"base\" deforms by \"base\"; \"deformation\" only chooses"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated','deformation':'base'}}"),
+     MR_ERR_INVALID, "/objects/0/dmm/deformation", "mode \"interpolated\" deforms by"},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'deformation':'skinned'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/deformation", "expected one of: \"base\", \"interpolated\", got \"skinned\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'normals':true}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/normals", "expected one of: \"geometric\", \"matrix\", got true"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'prism'}}"), MR_ERR_INVALID,
      "/objects/0/dmm/mode", "expected one of: \"tessellated\", \"base\", \"interpolated\", got \"prism\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':1}}"), MR_ERR_INVALID,
@@ -700,7 +705,12 @@ static void test_order_and_variants(void **state)
     job = parse_ok(WITH_OBJECT("{'asset':'m','kind':'dmm'},"
                                "{'asset':'m','kind':'dmm','dmm':{'level':5,'base_ratio':1,"
                                "'mode':'tessellated'}},"
-                               "{'asset':'m','kind':'dmm','dmm':{'level':0,'base_triangles':12}}"));
+                               "{'asset':'m','kind':'dmm','dmm':{'level':0,'base_triangles':12}},"
+                               "{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated',"
+                               "'normals':'matrix'}},"
+                               "{'asset':'m','kind':'dmm','dmm':{'deformation':'interpolated'}},"
+                               "{'asset':'m','kind':'dmm','dmm':{'mode':'base',"
+                               "'deformation':'base'}}"));
     assert_int_equal(job->objects[0].kind, MR_GEOM_DMM);
     assert_int_equal(job->objects[0].dmm.level, 3);
     assert_true(job->objects[0].dmm.base_ratio == 0.25f);
@@ -710,6 +720,17 @@ static void test_order_and_variants(void **state)
     assert_true(job->objects[1].dmm.base_ratio == 1.0f);
     assert_int_equal(job->objects[2].dmm.level, 0);
     assert_int_equal(job->objects[2].dmm.base_triangles, 12);
+    assert_int_equal(job->objects[0].dmm.deform, MR_DMM_DEFORM_BASE);
+    assert_int_equal(job->objects[0].dmm.normals, MR_DMM_NORMALS_GEOMETRIC);
+    /* mode interpolated implies its deformation */
+    assert_int_equal(job->objects[3].dmm.mode, MR_DMM_INTERPOLATED);
+    assert_int_equal(job->objects[3].dmm.deform, MR_DMM_DEFORM_INTERPOLATED);
+    assert_int_equal(job->objects[3].dmm.normals, MR_DMM_NORMALS_MATRIX);
+    /* tessellated expands whichever deformation is asked for */
+    assert_int_equal(job->objects[4].dmm.mode, MR_DMM_TESSELLATED);
+    assert_int_equal(job->objects[4].dmm.deform, MR_DMM_DEFORM_INTERPOLATED);
+    assert_int_equal(job->objects[5].dmm.mode, MR_DMM_BASE);
+    assert_int_equal(job->objects[5].dmm.deform, MR_DMM_DEFORM_BASE);
     mr_job_free(job);
     /* Present-but-empty lights means no lights. */
     job = parse_ok("{" BASE ",'lights':[]}");
