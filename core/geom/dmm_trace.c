@@ -4,8 +4,10 @@
  * Recursion depth is at most MR_UMESH_MAX_LEVEL, so the quadtree is walked
  * recursively with every node's state on the C stack (no restart, no
  * epsilon pushes). Lattice points carry their interpolated frame (point,
- * direction and, for interpolated patches, matrix) in double, computed once
- * per node from the three base corners.
+ * direction and, for interpolated patches, matrix) in float, computed
+ * directly from the three base corners (no error accumulates down the
+ * tree); boxes are widened by a per-patch pad that covers float rounding.
+ * Micro-vertices are evaluated exactly as the tessellation does.
  */
 #include <float.h>
 #include <math.h>
@@ -13,23 +15,33 @@
 
 #include "geom/dmm_trace.h"
 
-/* Relative widening of every box: covers the final float rounding of a
- * micro-vertex (2^-24 relative) and the double evaluation error with room. */
-#define BOX_PAD 0x1p-20
+/* Widening of every box, relative to the patch's magnitude bound (see
+ * patch_pad): covers the final float rounding of a micro-vertex (2^-24
+ * relative) plus the few float roundings of the box arithmetic, with a
+ * factor 4 to spare. */
+#define BOX_PAD 0x1p-19f
 /* Far-distance widening of the slab test: 1 + 2 * gamma(3) in float. */
 #define SLAB_FAR_SCALE (1.0f + 2.0f * 3.0f * FLT_EPSILON)
 
+/* A lattice point of the patch with its interpolated frame, in float (the
+ * boxes are made conservative by the pad; micro-vertices themselves are
+ * evaluated exactly by micromesh.h). */
 typedef struct lattice_pt {
     uint32_t a, b;
-    double p[3], n[3];
-    double m[12]; /* interpolated patches only */
+    float p[3], n[3];
+    float m[12]; /* interpolated patches only */
 } lattice_pt;
+
+typedef struct fbox {
+    float lo[3], hi[3];
+} fbox;
 
 typedef struct trace_ctx {
     const mr_dmm_patch *patch;
     const mr_dmm_ray *ray;
     unsigned leaf;      /* leaf sublevel */
     uint32_t segments;  /* 2^level */
+    float pad[3];       /* per-axis box widening */
     float tmin, tmax;
     bool any_hit, found;
     mr_dmm_hit *hit;
@@ -71,30 +83,62 @@ mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
     return out;
 }
 
+static float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
+
 static void lattice(const trace_ctx *c, uint32_t a, uint32_t b, lattice_pt *out)
 {
     const mr_dmm_patch *p = c->patch;
-    double n = c->segments, w[3] = {(n - a - b) / n, a / n, b / n};
+    float n = (float)c->segments, w0 = (float)(c->segments - a - b) / n, w1 = (float)a / n,
+          w2 = (float)b / n;
     out->a = a;
     out->b = b;
     const mr_vec3 *v = p->tri.pos, *d = p->tri.dir;
-    out->p[0] = w[0] * v[0].x + w[1] * v[1].x + w[2] * v[2].x;
-    out->p[1] = w[0] * v[0].y + w[1] * v[1].y + w[2] * v[2].y;
-    out->p[2] = w[0] * v[0].z + w[1] * v[1].z + w[2] * v[2].z;
-    out->n[0] = w[0] * d[0].x + w[1] * d[1].x + w[2] * d[2].x;
-    out->n[1] = w[0] * d[0].y + w[1] * d[1].y + w[2] * d[2].y;
-    out->n[2] = w[0] * d[0].z + w[1] * d[1].z + w[2] * d[2].z;
+    for (int k = 0; k < 3; k++) {
+        out->p[k] = w0 * comp(v[0], k) + w1 * comp(v[1], k) + w2 * comp(v[2], k);
+        out->n[k] = w0 * comp(d[0], k) + w1 * comp(d[1], k) + w2 * comp(d[2], k);
+    }
     if (p->mats[0])
         for (int e = 0; e < 12; e++)
-            out->m[e] = w[0] * p->mats[0]->m[e] + w[1] * p->mats[1]->m[e] +
-                        w[2] * p->mats[2]->m[e];
+            out->m[e] = w0 * p->mats[0]->m[e] + w1 * p->mats[1]->m[e] + w2 * p->mats[2]->m[e];
 }
 
-typedef struct dbox {
-    double lo[3], hi[3];
-} dbox;
+/* Displacement bounds for boxes: bias + scale * V in float. Not bit-equal to
+ * mr_dmm_value_to_float, but within 2^-23 |d|, which the pad covers. */
+static float disp_bound(const trace_ctx *c, uint16_t v)
+{
+    return c->patch->enc->bias + c->patch->enc->scale * (float)v;
+}
 
-static void grow(dbox *b, const double x[3])
+/* Bound on |coordinate| of anything the patch's boxes are computed from,
+ * per axis, times BOX_PAD. Displacements are bounded by the root range. */
+static void patch_pad(trace_ctx *c)
+{
+    const mr_dmm_patch *p = c->patch;
+    float dm = fmaxf(fabsf(disp_bound(c, p->minv[0])), fabsf(disp_bound(c, p->maxv[0])));
+    float x[3];
+    for (int k = 0; k < 3; k++) {
+        float pm = 0, nm = 0;
+        for (int i = 0; i < 3; i++) {
+            pm = fmaxf(pm, fabsf(comp(p->tri.pos[i], k)));
+            nm = fmaxf(nm, fabsf(comp(p->tri.dir[i], k)));
+        }
+        x[k] = pm + dm * nm;
+    }
+    for (int r = 0; r < 3; r++) {
+        float mag = x[r];
+        if (p->mats[0]) {
+            mag = 0;
+            for (int i = 0; i < 3; i++) {
+                const float *m = p->mats[i]->m + r * 4;
+                mag = fmaxf(mag, fabsf(m[0]) * x[0] + fabsf(m[1]) * x[1] + fabsf(m[2]) * x[2] +
+                                     fabsf(m[3]));
+            }
+        }
+        c->pad[r] = mag * BOX_PAD + FLT_MIN;
+    }
+}
+
+static void grow(fbox *b, const float x[3])
 {
     for (int k = 0; k < 3; k++) {
         b->lo[k] = x[k] < b->lo[k] ? x[k] : b->lo[k];
@@ -102,86 +146,93 @@ static void grow(dbox *b, const double x[3])
     }
 }
 
-static void apply(const double m[12], const double x[3], double out[3])
+static fbox empty_box(void)
 {
-    for (int r = 0; r < 3; r++)
-        out[r] = m[r * 4] * x[0] + m[r * 4 + 1] * x[1] + m[r * 4 + 2] * x[2] + m[r * 4 + 3];
+    return (fbox){{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
 }
 
-/* Box of the micro-geometry over sub-triangle (L[0], L[1], L[2]) whose
- * displacements lie in [dmin, dmax]. */
-static dbox node_box(const mr_dmm_patch *p, const lattice_pt *const L[3], double dmin,
-                     double dmax)
+static void widen(const trace_ctx *c, fbox *b)
 {
-    dbox b = {{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
-    const double ds[2] = {dmin, dmax};
-    for (int s = 0; s < 2; s++) {
-        double x[3][3];
-        for (int k = 0; k < 3; k++)
-            for (int e = 0; e < 3; e++)
-                x[k][e] = L[k]->p[e] + ds[s] * L[k]->n[e];
-        if (!p->mats[0]) {
-            for (int k = 0; k < 3; k++)
-                grow(&b, x[k]);
-            continue;
-        }
-        /* Control points of the quadratic patch M(w) x_d(w) over this
-         * sub-triangle: the blossom at pairs of corners. */
-        for (int i = 0; i < 3; i++)
-            for (int j = i; j < 3; j++) {
-                double c[3], q[3];
-                apply(L[i]->m, x[j], c);
-                if (j != i) {
-                    apply(L[j]->m, x[i], q);
-                    for (int e = 0; e < 3; e++)
-                        c[e] = 0.5 * (c[e] + q[e]);
-                }
-                grow(&b, c);
-            }
-    }
     for (int k = 0; k < 3; k++) {
-        double mag = fabs(b.lo[k]) > fabs(b.hi[k]) ? fabs(b.lo[k]) : fabs(b.hi[k]);
-        double pad = mag * BOX_PAD + DBL_MIN;
-        b.lo[k] -= pad;
-        b.hi[k] += pad;
+        b->lo[k] -= c->pad[k];
+        b->hi[k] += c->pad[k];
+    }
+}
+
+/* For interpolated patches a sub-triangle's micro-geometry at displacement d
+ * is the quadratic patch with control points (blossom) c_ij = S_ij + d T_ij,
+ * S_ij = (M(r_i) p(r_j) + M(r_j) p(r_i)) / 2 (affine) and
+ * T_ij = (L(r_i) n(r_j) + L(r_j) n(r_i)) / 2 (L the linear part): eq. 11 and
+ * 13 at the sub-triangle's corners r. */
+typedef struct blossom {
+    float s[3], t[3];
+} blossom;
+
+static void half_apply(const float m[12], const float p[3], const float n[3], float s[3],
+                       float t[3])
+{
+    for (int r = 0; r < 3; r++) {
+        s[r] = m[r * 4] * p[0] + m[r * 4 + 1] * p[1] + m[r * 4 + 2] * p[2] + m[r * 4 + 3];
+        t[r] = m[r * 4] * n[0] + m[r * 4 + 1] * n[1] + m[r * 4 + 2] * n[2];
+    }
+}
+
+static blossom blossom_of(const lattice_pt *x, const lattice_pt *y)
+{
+    blossom b;
+    half_apply(x->m, y->p, y->n, b.s, b.t);
+    if (x != y) {
+        float s[3], t[3];
+        half_apply(y->m, x->p, x->n, s, t);
+        for (int r = 0; r < 3; r++) {
+            b.s[r] = 0.5f * (b.s[r] + s[r]);
+            b.t[r] = 0.5f * (b.t[r] + t[r]);
+        }
     }
     return b;
 }
 
-/* Entry distance of the ray into the box within [tmin, tmax], or INFINITY. */
-static float slab(const mr_dmm_ray *r, const dbox *b, float tmin, float tmax)
+static void grow_blossom(fbox *box, const blossom *b, float dmin, float dmax)
 {
-    const float o[3] = {r->org.x, r->org.y, r->org.z};
-    float t0 = tmin, t1 = tmax * SLAB_FAR_SCALE;
-    for (int k = 0; k < 3; k++) {
-        float lo = (float)b->lo[k], hi = (float)b->hi[k];
-        if (r->parallel[k]) {
-            if (o[k] < lo || o[k] > hi)
-                return INFINITY;
-            continue;
-        }
-        float a = (lo - o[k]) * r->inv[k], z = (hi - o[k]) * r->inv[k];
-        if (a > z) {
-            float s = a;
-            a = z, z = s;
-        }
-        t0 = a > t0 ? a : t0;
-        t1 = z < t1 ? z : t1;
-        if (!(t0 <= t1))
-            return INFINITY;
+    float lo[3], hi[3];
+    for (int r = 0; r < 3; r++) {
+        lo[r] = b->s[r] + dmin * b->t[r];
+        hi[r] = b->s[r] + dmax * b->t[r];
     }
-    return t0;
+    grow(box, lo);
+    grow(box, hi);
 }
 
-static double disp_min(const trace_ctx *c, uint32_t entry)
+static void grow_prism(fbox *box, const lattice_pt *x, float dmin, float dmax)
 {
-    return mr_dmm_value_to_float(c->patch->enc, c->patch->minv[entry]);
+    float lo[3], hi[3];
+    for (int r = 0; r < 3; r++) {
+        lo[r] = x->p[r] + dmin * x->n[r];
+        hi[r] = x->p[r] + dmax * x->n[r];
+    }
+    grow(box, lo);
+    grow(box, hi);
 }
 
-static double disp_max(const trace_ctx *c, uint32_t entry)
+/* Box of the micro-geometry over sub-triangle (L[0], L[1], L[2]) whose
+ * displacements lie in [dmin, dmax]; bl holds the blossoms of its corner
+ * pairs (interpolated patches): bl[0..2] = (i, i), bl[3] = (0, 1),
+ * bl[4] = (1, 2), bl[5] = (2, 0). */
+static fbox node_box(const trace_ctx *c, const lattice_pt *const L[3], const blossom *const bl[6],
+                     float dmin, float dmax)
 {
-    return mr_dmm_value_to_float(c->patch->enc, c->patch->maxv[entry]);
+    fbox b = empty_box();
+    if (!c->patch->mats[0])
+        for (int k = 0; k < 3; k++)
+            grow_prism(&b, L[k], dmin, dmax);
+    else
+        for (int k = 0; k < 6; k++)
+            grow_blossom(&b, bl[k], dmin, dmax);
+    widen(c, &b);
+    return b;
 }
+
+
 
 static void test_triangle(trace_ctx *c, const lattice_pt *const L[3], const mr_vec3 v[3])
 {
@@ -206,11 +257,22 @@ static void test_triangle(trace_ctx *c, const lattice_pt *const L[3], const mr_v
  * (m20, m12, P2), (m12, m20, m01). Indices into {P0, P1, P2, m01, m12, m20}. */
 static const int CHILD[4][3] = {{0, 3, 5}, {3, 1, 4}, {5, 4, 2}, {4, 5, 3}};
 
+/* Edge midpoints by averaging the endpoints' frames: one rounding per
+ * level, at most MR_UMESH_MAX_LEVEL of them, well inside BOX_PAD. */
 static void midpoints(const trace_ctx *c, const lattice_pt *const P[3], lattice_pt m[3])
 {
+    bool mats = c->patch->mats[0] != NULL;
     for (int e = 0; e < 3; e++) {
         const lattice_pt *x = P[e], *y = P[(e + 1) % 3];
-        lattice(c, (x->a + y->a) / 2, (x->b + y->b) / 2, &m[e]);
+        m[e].a = (x->a + y->a) / 2;
+        m[e].b = (x->b + y->b) / 2;
+        for (int k = 0; k < 3; k++) {
+            m[e].p[k] = 0.5f * (x->p[k] + y->p[k]);
+            m[e].n[k] = 0.5f * (x->n[k] + y->n[k]);
+        }
+        if (mats)
+            for (int k = 0; k < 12; k++)
+                m[e].m[k] = 0.5f * (x->m[k] + y->m[k]);
     }
 }
 
@@ -244,6 +306,91 @@ static void leaf(trace_ctx *c, const lattice_pt *const P[3])
 
 static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
 
+/* Corner pairs of the 4 children (indices into {P0, P1, P2, m01, m12, m20})
+ * that are edges of some child: the blossoms a node needs besides the 6
+ * diagonal ones. */
+static const int EDGE[9][2] = {{0, 3}, {3, 5}, {5, 0}, {3, 1}, {1, 4},
+                               {4, 3}, {5, 4}, {4, 2}, {2, 5}};
+
+/* Per child k: its blossom slots {diag c0, diag c1, diag c2, (c0,c1),
+ * (c1,c2), (c2,c0)} as indices into the node's 15 blossoms (the 6 diagonal
+ * ones, then the 9 of EDGE): CHILD and EDGE worked out by hand. */
+static const int CHILD_BLOSSOM[4][6] = {
+    {0, 3, 5, 6, 7, 8}, {3, 1, 4, 9, 10, 11}, {5, 4, 2, 12, 13, 14}, {4, 5, 3, 12, 7, 11}};
+
+/* The four children's boxes, one lane per child, written so the compiler
+ * can keep each line in one SIMD register. */
+typedef struct child_boxes {
+    float lo[3][4], hi[3][4];
+} child_boxes;
+
+static void child_boxes_prism(const lattice_pt *const pts[6], const float dmin[4],
+                              const float dmax[4], child_boxes *b)
+{
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 4; k++) {
+            float lo = INFINITY, hi = -INFINITY;
+            for (int i = 0; i < 3; i++) {
+                const lattice_pt *x = pts[CHILD[k][i]];
+                float u = x->p[r] + dmin[k] * x->n[r], w = x->p[r] + dmax[k] * x->n[r];
+                float mn = u < w ? u : w, mx = u < w ? w : u;
+                lo = mn < lo ? mn : lo;
+                hi = mx > hi ? mx : hi;
+            }
+            b->lo[r][k] = lo;
+            b->hi[r][k] = hi;
+        }
+}
+
+static void child_boxes_bezier(const blossom bl[15], const float dmin[4], const float dmax[4],
+                               child_boxes *b)
+{
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 4; k++) {
+            float lo = INFINITY, hi = -INFINITY;
+            for (int i = 0; i < 6; i++) {
+                const blossom *x = &bl[CHILD_BLOSSOM[k][i]];
+                float u = x->s[r] + dmin[k] * x->t[r], w = x->s[r] + dmax[k] * x->t[r];
+                float mn = u < w ? u : w, mx = u < w ? w : u;
+                lo = mn < lo ? mn : lo;
+                hi = mx > hi ? mx : hi;
+            }
+            b->lo[r][k] = lo;
+            b->hi[r][k] = hi;
+        }
+}
+
+/* Slab test of the ray against the four (widened) boxes: entry distance per
+ * lane, INFINITY for a miss. */
+static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
+{
+    const mr_dmm_ray *r = c->ray;
+    const float o[3] = {r->org.x, r->org.y, r->org.z};
+    float t0[4], t1[4];
+    for (int k = 0; k < 4; k++) {
+        t0[k] = c->tmin;
+        t1[k] = c->tmax * SLAB_FAR_SCALE;
+    }
+    for (int a = 0; a < 3; a++) {
+        float pad = c->pad[a];
+        if (r->parallel[a]) {
+            for (int k = 0; k < 4; k++)
+                if (o[a] < b->lo[a][k] - pad || o[a] > b->hi[a][k] + pad)
+                    t1[k] = -INFINITY;
+            continue;
+        }
+        float inv = r->inv[a];
+        for (int k = 0; k < 4; k++) {
+            float u = (b->lo[a][k] - pad - o[a]) * inv, w = (b->hi[a][k] + pad - o[a]) * inv;
+            float mn = u < w ? u : w, mx = u < w ? w : u;
+            t0[k] = mn > t0[k] ? mn : t0[k];
+            t1[k] = mx < t1[k] ? mx : t1[k];
+        }
+    }
+    for (int k = 0; k < 4; k++)
+        entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;
+}
+
 /* Sub-triangle `id` of `sublevel` whose box the ray already enters. */
 static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3])
 {
@@ -254,26 +401,39 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
     lattice_pt mid[3];
     midpoints(c, P, mid);
     const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
-    float entry[4];
-    int order[4], count = 0;
     uint32_t first = level_start(sublevel + 1) + 4 * id;
+    float dmin[4], dmax[4];
     for (int k = 0; k < 4; k++) {
-        const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
-        dbox b = node_box(c->patch, L, disp_min(c, first + (uint32_t)k),
-                          disp_max(c, first + (uint32_t)k));
-        if (c->stats)
-            c->stats->boxes++;
-        float t = slab(c->ray, &b, c->tmin, c->tmax);
-        if (t == INFINITY)
+        dmin[k] = disp_bound(c, c->patch->minv[first + (uint32_t)k]);
+        dmax[k] = disp_bound(c, c->patch->maxv[first + (uint32_t)k]);
+    }
+    child_boxes boxes;
+    if (c->patch->mats[0]) {
+        blossom bl[15];
+        for (int i = 0; i < 6; i++)
+            bl[i] = blossom_of(pts[i], pts[i]);
+        for (int e = 0; e < 9; e++)
+            bl[6 + e] = blossom_of(pts[EDGE[e][0]], pts[EDGE[e][1]]);
+        child_boxes_bezier(bl, dmin, dmax, &boxes);
+    } else {
+        child_boxes_prism(pts, dmin, dmax, &boxes);
+    }
+    if (c->stats)
+        c->stats->boxes += 4;
+    float t[4], entry[4];
+    int order[4], count = 0;
+    slab4(c, &boxes, t);
+    for (int k = 0; k < 4; k++) {
+        if (t[k] == INFINITY)
             continue;
         /* insertion by entry distance: nearest first */
         int at = count++;
-        while (at > 0 && entry[at - 1] > t) {
+        while (at > 0 && entry[at - 1] > t[k]) {
             entry[at] = entry[at - 1];
             order[at] = order[at - 1];
             at--;
         }
-        entry[at] = t;
+        entry[at] = t[k];
         order[at] = k;
     }
     for (int i = 0; i < count; i++) {
@@ -296,12 +456,22 @@ static void root(const trace_ctx *c, lattice_pt P[3])
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
 {
     trace_ctx c = {.patch = p, .segments = mr_umesh_segments(p->level)};
+    patch_pad(&c);
     lattice_pt P[3];
     root(&c, P);
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
-    dbox b = node_box(p, L, disp_min(&c, 0), disp_max(&c, 0));
-    *lo = mr_v3((float)b.lo[0], (float)b.lo[1], (float)b.lo[2]);
-    *hi = mr_v3((float)b.hi[0], (float)b.hi[1], (float)b.hi[2]);
+    blossom bl[6];
+    const blossom *B[6];
+    if (p->mats[0])
+        for (int i = 0; i < 3; i++) {
+            bl[i] = blossom_of(L[i], L[i]);
+            bl[3 + i] = blossom_of(L[i], L[(i + 1) % 3]);
+        }
+    for (int i = 0; i < 6; i++)
+        B[i] = &bl[i];
+    fbox b = node_box(&c, L, B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
+    *lo = mr_v3(b.lo[0], b.lo[1], b.lo[2]);
+    *hi = mr_v3(b.hi[0], b.hi[1], b.hi[2]);
     return isfinite(lo->x) && isfinite(lo->y) && isfinite(lo->z) && isfinite(hi->x) &&
            isfinite(hi->y) && isfinite(hi->z);
 }
@@ -320,6 +490,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
                    .any_hit = any_hit,
                    .hit = hit,
                    .stats = stats};
+    patch_pad(&c);
     lattice_pt P[3];
     root(&c, P);
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
