@@ -1,6 +1,7 @@
 /* cache.c - LRU, reference-counted cache of imported assets (cache.h). */
 #include "cache.h"
 
+#include <inttypes.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -8,8 +9,11 @@
 
 #include "render/renderer.h" /* mr_now */
 
+/* A file hash (64 hex) plus the refine suffix (about 70 bytes at most). */
+#define KEY_MAX 256
+
 typedef struct entry {
-    char key[129];
+    char key[KEY_MAX];
     mr_asset *asset;
     size_t bytes;
     int refs;
@@ -79,16 +83,91 @@ static entry *find(mr_cache *c, const char *key)
     return NULL;
 }
 
+/* The refinement that gives the same asset as *in with the fewest
+ * distinguishing fields (cache.h lists the equivalences), or false when it
+ * changes nothing. */
+static bool refine_canonical(const mr_refine_params *in, mr_refine_params *out)
+{
+    if (in->rounds == 0 && in->amplitude == 0.0f)
+        return false;
+    *out = (mr_refine_params){.rounds = in->rounds, .threads = in->threads};
+    if (in->amplitude != 0.0f) {
+        out->amplitude = in->amplitude;
+        out->frequency = in->frequency;
+        out->octaves = in->octaves ? in->octaves : 1;
+        out->seed = in->seed;
+    }
+    return true;
+}
+
+int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset **out,
+                    mr_error *err)
+{
+    mr_asset *base = NULL;
+    *out = NULL;
+    int rc = mr_asset_load(path, &base, err);
+    if (rc < 0 || !refine)
+        goto done;
+    if (refine->rounds > MR_REFINE_MAX_ROUNDS) {
+        rc = mr_error_set(err, MR_ERR_INVALID, "refine: %u rounds, at most %d", refine->rounds,
+                          MR_REFINE_MAX_ROUNDS);
+        goto done;
+    }
+    /* Every round splits every triangle in four, so the count is known
+     * now: refuse before spending minutes and gigabytes on it. */
+    uint64_t tris = (uint64_t)base->triangle_count << (2 * refine->rounds);
+    if (tris > MR_MAX_ASSET_TRIANGLES) {
+        rc = mr_error_set(err, MR_ERR_LIMIT,
+                          "refine: %u rounds would turn the %zu triangles of %s into %llu, more "
+                          "than the %u an asset may have",
+                          refine->rounds, base->triangle_count, path, (unsigned long long)tris,
+                          MR_MAX_ASSET_TRIANGLES);
+        goto done;
+    }
+    mr_asset *refined = NULL;
+    if ((rc = mr_refine_asset(base, refine, &refined, err)) < 0) {
+        mr_error_prefix(err, "refine: %s: ", path);
+        goto done;
+    }
+    mr_asset_free(base);
+    base = refined;
+done:
+    if (rc < 0)
+        mr_asset_free(base);
+    else
+        *out = base;
+    return rc;
+}
+
 int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **out, bool *hit,
                      double *saved_s, mr_error *err)
+{
+    return mr_cache_acquire_refined(c, key, path, NULL, out, hit, saved_s, err);
+}
+
+int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
+                             const mr_refine_params *refine, mr_asset **out, bool *hit,
+                             double *saved_s, mr_error *err)
 {
     *out = NULL;
     *hit = false;
     *saved_s = 0;
-    if (strlen(key) >= sizeof ((entry *)0)->key)
+    mr_refine_params canon;
+    bool refined = refine && refine_canonical(refine, &canon);
+    char full[KEY_MAX];
+    int n;
+    /* %a prints a float (promoted to double) exactly, so equal keys mean
+     * bit-equal parameters. The suffix starts with '/', which no file hash
+     * or upload id contains. */
+    if (refined)
+        n = snprintf(full, sizeof full, "%s/refine:r%u,a%a,f%a,o%u,s%" PRIu32, key, canon.rounds,
+                     (double)canon.amplitude, (double)canon.frequency, canon.octaves, canon.seed);
+    else
+        n = snprintf(full, sizeof full, "%s", key);
+    if (n < 0 || (size_t)n >= sizeof full)
         return mr_error_set(err, MR_ERR_INVALID, "cache key too long");
     pthread_mutex_lock(&c->lock);
-    entry *e = find(c, key);
+    entry *e = find(c, full);
     if (e) {
         e->refs++;
         e->last_use = ++c->clock;
@@ -103,16 +182,17 @@ int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **
     c->stats.misses++;
     pthread_mutex_unlock(&c->lock);
 
-    /* Import without the lock: other jobs keep using the cache meanwhile. */
+    /* Import (and refine) without the lock: other jobs keep using the cache
+     * meanwhile. */
     double t0 = mr_now();
     mr_asset *a = NULL;
-    int rc = mr_asset_load(path, &a, err);
+    int rc = mr_cache_import(path, refined ? &canon : NULL, &a, err);
     if (rc < 0)
         return rc;
     double import_s = mr_now() - t0;
 
     pthread_mutex_lock(&c->lock);
-    e = find(c, key);
+    e = find(c, full);
     if (e) { /* someone imported the same file meanwhile: use theirs */
         e->refs++;
         e->last_use = ++c->clock;
@@ -127,7 +207,7 @@ int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **
         mr_asset_free(a);
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory caching %s", path);
     }
-    snprintf(e->key, sizeof e->key, "%s", key);
+    snprintf(e->key, sizeof e->key, "%s", full);
     e->asset = a;
     e->bytes = mr_asset_memory(a);
     e->refs = 1;

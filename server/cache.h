@@ -4,6 +4,9 @@
  * content hash of the file plus the import parameters, under a memory cap
  * with least-recently-used eviction.
  *
+ * Refined imports (an asset's "refine" in the job) are entries of their own,
+ * refined once when they are imported.
+ *
  * Entries are reference counted: an asset in use by a running job is never
  * evicted (the cache may then exceed its cap until the job releases it).
  */
@@ -11,6 +14,7 @@
 #define MR_CACHE_H
 
 #include "asset/asset.h"
+#include "asset/refine.h"
 
 typedef struct mr_cache mr_cache;
 
@@ -30,7 +34,26 @@ void mr_cache_free(mr_cache *c);
  * mr_cache_release. */
 int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **out, bool *hit,
                      double *saved_s, mr_error *err);
+/* mr_cache_acquire of a refined import: the entry holds the file's import
+ * refined by mr_refine_asset (done once, on the miss), keyed by key plus the
+ * refine parameters, so other parameters never share it and the same ones
+ * always do. refine NULL is the plain import (mr_cache_acquire). Parameters
+ * that give the same result share one key: params->threads is ignored
+ * (refinement is bit-identical for any thread count); with amplitude 0 the
+ * noise fields are; octaves 0 counts as 1; and 0 rounds with amplitude 0
+ * (the input unchanged) is the plain import's entry. */
+int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
+                             const mr_refine_params *refine, mr_asset **out, bool *hit,
+                             double *saved_s, mr_error *err);
 void mr_cache_release(mr_cache *c, mr_asset *asset);
 void mr_cache_stats_get(mr_cache *c, mr_cache_stats *out);
+
+/* What a miss does, for callers without a cache (the one-shot renderer):
+ * mr_asset_load, then, with refine (may be NULL), mr_refine_asset. A refined
+ * asset whose triangles would exceed MR_MAX_ASSET_TRIANGLES fails with
+ * MR_ERR_LIMIT before any work. Errors of the refine step have messages
+ * that start with "refine: "; import errors name the file. */
+int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset **out,
+                    mr_error *err);
 
 #endif

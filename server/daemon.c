@@ -543,9 +543,9 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     return MR_FRAME_RETRY;
 }
 
-/* The cache key of an asset: its content hash (uploaded assets are named
- * by it already; server-side files are hashed). Import parameters join the
- * key when geometry kinds get them. */
+/* The cache key of an asset's file: its content hash (uploaded assets are
+ * named by it already; server-side files are hashed). The cache adds the
+ * import parameters ("refine") to it. */
 static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
 {
     if (a->id) {
@@ -580,7 +580,9 @@ static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bo
     int rc = asset_key(desc, key, err);
     if (rc < 0)
         return rc;
-    return mr_cache_acquire(r->d->cache, key, desc->path, out, hit, saved_s, err);
+    return mr_cache_acquire_refined(r->d->cache, key, desc->path,
+                                    desc->refine ? &desc->refine_params : NULL, out, hit, saved_s,
+                                    err);
 }
 
 static void run_release(void *user, mr_asset *asset)

@@ -600,7 +600,14 @@ static int get_transform(jctx *c, const cJSON *v, mr_mat4 *out)
 /* ------------------------------------------------------------------------ */
 /* Top-level sections.                                                      */
 
-static const char *const ASSET_FIELDS[] = {"path", "id"};
+static const char *const ASSET_FIELDS[] = {"path", "id", "refine"};
+static const char *const REFINE_FIELDS[] = {"rounds", "amplitude", "frequency", "octaves", "seed"};
+static const num_spec SPEC_REFINE_ROUNDS = {0, MR_ASSET_REFINE_MAX_ROUNDS, NUM_INT, NULL};
+static const num_spec SPEC_REFINE_OCTAVES = {0, MR_ASSET_REFINE_MAX_OCTAVES, NUM_INT, NULL};
+/* Mesh units, like coordinates (SPEC_COORD): |displacement| <= amplitude. */
+static const num_spec SPEC_REFINE_AMPLITUDE = {0, 1e9, 0, "a number in 0..1e9 (mesh units)"};
+static const num_spec SPEC_REFINE_FREQUENCY = {0, 1e9, NUM_LO_OPEN,
+                                               "a number in (0, 1e9] (noise cells per mesh unit)"};
 
 static bool asset_name_ok(const char *s)
 {
@@ -624,24 +631,74 @@ static bool hex64(const char *s)
     return n == 64;
 }
 
+/* An asset's "refine" parameters (core/asset/refine.h), every field
+ * optional. The frequency is stored as float and must stay positive there:
+ * refine.h refuses a zero frequency with a non-zero amplitude, which would
+ * otherwise only surface when the job runs. */
+static int parse_refine(jctx *c, const cJSON *v, mr_refine_params *p)
+{
+    TRY(want_object(c, v, "an object of refine parameters"));
+    TRY(check_fields(c, v, REFINE_FIELDS, COUNT_OF(REFINE_FIELDS)));
+    const cJSON *rounds = field(v, "rounds"), *amp = field(v, "amplitude"),
+                *freq = field(v, "frequency"), *oct = field(v, "octaves"), *seed = field(v, "seed");
+    double x;
+    *p = (mr_refine_params){.rounds = MR_ASSET_REFINE_DEFAULT_ROUNDS,
+                            .amplitude = 0.0f,
+                            .frequency = MR_ASSET_REFINE_DEFAULT_FREQUENCY,
+                            .octaves = MR_ASSET_REFINE_DEFAULT_OCTAVES,
+                            .seed = MR_ASSET_REFINE_DEFAULT_SEED};
+    if (rounds) {
+        AT_KEY(c, "rounds", get_num(c, rounds, &SPEC_REFINE_ROUNDS, &x));
+        p->rounds = (unsigned)x;
+    }
+    if (amp) {
+        AT_KEY(c, "amplitude", get_num(c, amp, &SPEC_REFINE_AMPLITUDE, &x));
+        p->amplitude = (float)x;
+    }
+    if (freq) {
+        AT_KEY(c, "frequency", get_num(c, freq, &SPEC_REFINE_FREQUENCY, &x));
+        if (!((float)x > 0.0f)) {
+            push_key(c, "frequency");
+            return fail(c, MR_ERR_INVALID,
+                        "expected a number in (0, 1e9] that stays above 0 as a 32-bit float, "
+                        "got %.15g",
+                        x);
+        }
+        p->frequency = (float)x;
+    }
+    if (oct) {
+        AT_KEY(c, "octaves", get_num(c, oct, &SPEC_REFINE_OCTAVES, &x));
+        p->octaves = (unsigned)x;
+    }
+    if (seed) {
+        AT_KEY(c, "seed", get_num(c, seed, &SPEC_SEED, &x));
+        p->seed = (uint32_t)x;
+    }
+    return MR_OK;
+}
+
 /* One asset's description: a server-side {"path"} or the content hash of an
- * uploaded asset, {"id"} (exactly one of the two). */
+ * uploaded asset, {"id"} (exactly one of the two), optionally "refine"d. */
 static int parse_asset(jctx *c, const cJSON *v, mr_asset_desc *a)
 {
     TRY(want_object(c, v, "an asset object {\"path\": ...} or {\"id\": ...}"));
     TRY(check_fields(c, v, ASSET_FIELDS, COUNT_OF(ASSET_FIELDS)));
-    const cJSON *path = field(v, "path"), *id = field(v, "id");
+    const cJSON *path = field(v, "path"), *id = field(v, "id"), *refine = field(v, "refine");
     if (!path == !id)
         return fail(c, MR_ERR_INVALID, "expected exactly one of \"path\" (a file on the server) or "
                                        "\"id\" (an uploaded asset's SHA-256)");
     if (path) {
         AT_KEY(c, "path", get_string(c, path, MR_MAX_PATH, &a->path));
-        return MR_OK;
+    } else {
+        AT_KEY(c, "id", get_string(c, id, 64, &a->id));
+        if (!hex64(a->id)) {
+            push_key(c, "id");
+            return fail(c, MR_ERR_INVALID, "expected 64 lowercase hex digits (the SHA-256 POST /v1/assets returned)");
+        }
     }
-    AT_KEY(c, "id", get_string(c, id, 64, &a->id));
-    if (!hex64(a->id)) {
-        push_key(c, "id");
-        return fail(c, MR_ERR_INVALID, "expected 64 lowercase hex digits (the SHA-256 POST /v1/assets returned)");
+    if (refine) {
+        AT_KEY(c, "refine", parse_refine(c, refine, &a->refine_params));
+        a->refine = true;
     }
     return MR_OK;
 }

@@ -6,7 +6,10 @@
 #include <string.h>
 
 #include "asset/asset.h"
+#include "cache.h"
 
+/* Without a cache, the import the cache would do on a miss (refinement
+ * included). */
 static int acquire(const mr_worker_io *io, const mr_asset_desc *d, mr_asset **out, bool *hit,
                    double *saved_s, mr_error *err)
 {
@@ -14,7 +17,7 @@ static int acquire(const mr_worker_io *io, const mr_asset_desc *d, mr_asset **ou
         return io->acquire_asset(io->user, d, out, hit, saved_s, err);
     *hit = false;
     *saved_s = 0;
-    return mr_asset_load(d->path, out, err);
+    return mr_cache_import(d->path, d->refine ? &d->refine_params : NULL, out, err);
 }
 
 static void release(const mr_worker_io *io, mr_asset *a)
@@ -46,8 +49,15 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
     for (size_t i = 0; i < job->asset_count; i++) {
         bool hit;
         double saved;
-        if ((rc = acquire(io, &job->assets[i], &assets[i], &hit, &saved, err)) < 0) {
-            mr_error_prefix(err, "/assets/%s/%s: ", job->assets[i].name, job->assets[i].id ? "id" : "path");
+        /* Refinement runs on the job's threads, like its frames. */
+        mr_asset_desc d = job->assets[i];
+        d.refine_params.threads = stats->threads;
+        if ((rc = acquire(io, &d, &assets[i], &hit, &saved, err)) < 0) {
+            /* A refine failure (cache.h: "refine: ...") points at "refine". */
+            if (err && d.refine && strncmp(err->msg, "refine: ", 8) == 0)
+                mr_error_prefix(err, "/assets/%s/", d.name);
+            else
+                mr_error_prefix(err, "/assets/%s/%s: ", d.name, d.id ? "id" : "path");
             goto done;
         }
         stats->assets_cached += hit;

@@ -44,6 +44,8 @@
 #include "util/parallel.h"
 
 #define UPDATE_GRAIN 64
+/* Per base triangle and frame: box lo, hi, and the traversal's pad. */
+#define BOX_FLOATS 9
 
 struct mr_geom {
     const mr_asset *asset;
@@ -63,7 +65,7 @@ struct mr_geom {
     mr_affine *mats, *last_mats;  /* per base vertex: accumulated matrix this / last frame */
     float *posed_pos, *posed_dir; /* mode base: skinned base vertices, 3 each */
     bool evaluated;
-    float *boxes;                 /* tessellation-free: 6 per base triangle (lo, hi) */
+    float *boxes;                 /* tessellation-free: BOX_FLOATS per base triangle */
     uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
@@ -181,7 +183,7 @@ static int allocate(mr_geom *g, mr_error *err)
         g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
         ok = ok && g->positions && g->indices;
     } else {
-        g->boxes = calloc(nt * 6, sizeof(float));
+        g->boxes = calloc(nt * BOX_FLOATS, sizeof(float));
         ok = ok && g->boxes;
     }
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
@@ -311,6 +313,8 @@ static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
             p.tri.dir[k] = load3(g->posed_dir, idx[k]);
         }
     }
+    if (g->boxes && g->evaluated)
+        memcpy(p.pad, g->boxes + (size_t)t * BOX_FLOATS + 6, sizeof p.pad);
     return p;
 }
 
@@ -342,8 +346,9 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             mr_vec3 lo, hi;
             if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
                 note_bad(c, worker, t);
-            float *b = g->boxes + t * 6;
+            float *b = g->boxes + t * BOX_FLOATS;
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
+            mr_dmm_patch_pad(&p, b + 6);
             continue;
         }
         float *dst = g->positions + t * g->micro_vertices * 3;
@@ -440,7 +445,7 @@ static int dmm_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform,
 static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
-    const float *b = g->boxes + (size_t)args->primID * 6;
+    const float *b = g->boxes + (size_t)args->primID * BOX_FLOATS;
     struct RTCBounds *o = args->bounds_o;
     o->lower_x = b[0], o->lower_y = b[1], o->lower_z = b[2];
     o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
@@ -653,7 +658,7 @@ static size_t dmm_memory(const mr_geom *g)
     if (g->posed_pos)
         bytes += nv * 6 * sizeof(float);
     if (g->boxes)
-        bytes += nt * 6 * sizeof(float);
+        bytes += nt * BOX_FLOATS * sizeof(float);
     if (g->positions)
         bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
                  (size_t)g->triangle_count * 3 * sizeof(uint32_t);

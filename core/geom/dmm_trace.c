@@ -85,22 +85,6 @@ mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
 
 static float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 
-static void lattice(const trace_ctx *c, uint32_t a, uint32_t b, lattice_pt *out)
-{
-    const mr_dmm_patch *p = c->patch;
-    float n = (float)c->segments, w0 = (float)(c->segments - a - b) / n, w1 = (float)a / n,
-          w2 = (float)b / n;
-    out->a = a;
-    out->b = b;
-    const mr_vec3 *v = p->tri.pos, *d = p->tri.dir;
-    for (int k = 0; k < 3; k++) {
-        out->p[k] = w0 * comp(v[0], k) + w1 * comp(v[1], k) + w2 * comp(v[2], k);
-        out->n[k] = w0 * comp(d[0], k) + w1 * comp(d[1], k) + w2 * comp(d[2], k);
-    }
-    if (p->mats[0])
-        for (int e = 0; e < 12; e++)
-            out->m[e] = w0 * p->mats[0]->m[e] + w1 * p->mats[1]->m[e] + w2 * p->mats[2]->m[e];
-}
 
 /* Displacement bounds for boxes: bias + scale * V in float. Not bit-equal to
  * mr_dmm_value_to_float, but within 2^-23 |d|, which the pad covers. */
@@ -111,9 +95,10 @@ static float disp_bound(const trace_ctx *c, uint16_t v)
 
 /* Bound on |coordinate| of anything the patch's boxes are computed from,
  * per axis, times BOX_PAD. Displacements are bounded by the root range. */
-static void patch_pad(trace_ctx *c)
+void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3])
 {
-    const mr_dmm_patch *p = c->patch;
+    trace_ctx ctx = {.patch = p};
+    const trace_ctx *c = &ctx;
     float dm = fmaxf(fabsf(disp_bound(c, p->minv[0])), fabsf(disp_bound(c, p->maxv[0])));
     float x[3];
     for (int k = 0; k < 3; k++) {
@@ -134,8 +119,17 @@ static void patch_pad(trace_ctx *c)
                                      fabsf(m[3]));
             }
         }
-        c->pad[r] = mag * BOX_PAD + FLT_MIN;
+        pad[r] = mag * BOX_PAD + FLT_MIN;
     }
+}
+
+static void patch_pad(trace_ctx *c)
+{
+    const float *given = c->patch->pad;
+    if (given[0] > 0 && given[1] > 0 && given[2] > 0)
+        memcpy(c->pad, given, sizeof c->pad);
+    else
+        mr_dmm_patch_pad(c->patch, c->pad);
 }
 
 static void grow(fbox *b, const float x[3])
@@ -318,74 +312,86 @@ static const int EDGE[9][2] = {{0, 3}, {3, 5}, {5, 0}, {3, 1}, {1, 4},
 static const int CHILD_BLOSSOM[4][6] = {
     {0, 3, 5, 6, 7, 8}, {3, 1, 4, 9, 10, 11}, {5, 4, 2, 12, 13, 14}, {4, 5, 3, 12, 7, 11}};
 
-/* The four children's boxes, one lane per child, written so the compiler
- * can keep each line in one SIMD register. */
+/* The four children's boxes are computed and tested together, one vector
+ * lane per child (GCC vector extensions: SSE on x86-64, plain code
+ * elsewhere). */
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+
+static inline v4f vsplat(float x) { return (v4f){x, x, x, x}; }
+
+/* a < b ? a : b and a > b ? a : b per lane (minps / maxps semantics). */
+static inline v4f vmin(v4f a, v4f b)
+{
+    v4i m = a < b;
+    return (v4f)((m & (v4i)a) | (~m & (v4i)b));
+}
+
+static inline v4f vmax(v4f a, v4f b)
+{
+    v4i m = a > b;
+    return (v4f)((m & (v4i)a) | (~m & (v4i)b));
+}
+
 typedef struct child_boxes {
-    float lo[3][4], hi[3][4];
+    v4f lo[3], hi[3];
 } child_boxes;
 
-static void child_boxes_prism(const lattice_pt *const pts[6], const float dmin[4],
-                              const float dmax[4], child_boxes *b)
+/* Grows lanes' boxes by x + dmin t and x + dmax t (x, t gathered per lane). */
+static inline void grow_lanes(child_boxes *b, int r, v4f x, v4f t, v4f dmin, v4f dmax)
 {
-    for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 4; k++) {
-            float lo = INFINITY, hi = -INFINITY;
-            for (int i = 0; i < 3; i++) {
-                const lattice_pt *x = pts[CHILD[k][i]];
-                float u = x->p[r] + dmin[k] * x->n[r], w = x->p[r] + dmax[k] * x->n[r];
-                float mn = u < w ? u : w, mx = u < w ? w : u;
-                lo = mn < lo ? mn : lo;
-                hi = mx > hi ? mx : hi;
-            }
-            b->lo[r][k] = lo;
-            b->hi[r][k] = hi;
-        }
+    v4f u = x + dmin * t, w = x + dmax * t;
+    b->lo[r] = vmin(b->lo[r], vmin(u, w));
+    b->hi[r] = vmax(b->hi[r], vmax(u, w));
 }
 
-static void child_boxes_bezier(const blossom bl[15], const float dmin[4], const float dmax[4],
-                               child_boxes *b)
+static void child_boxes_prism(const lattice_pt *const pts[6], v4f dmin, v4f dmax,
+                              child_boxes *b)
 {
-    for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 4; k++) {
-            float lo = INFINITY, hi = -INFINITY;
-            for (int i = 0; i < 6; i++) {
-                const blossom *x = &bl[CHILD_BLOSSOM[k][i]];
-                float u = x->s[r] + dmin[k] * x->t[r], w = x->s[r] + dmax[k] * x->t[r];
-                float mn = u < w ? u : w, mx = u < w ? w : u;
-                lo = mn < lo ? mn : lo;
-                hi = mx > hi ? mx : hi;
-            }
-            b->lo[r][k] = lo;
-            b->hi[r][k] = hi;
+    for (int r = 0; r < 3; r++) {
+        b->lo[r] = vsplat(INFINITY);
+        b->hi[r] = vsplat(-INFINITY);
+        for (int i = 0; i < 3; i++) {
+            const lattice_pt *x0 = pts[CHILD[0][i]], *x1 = pts[CHILD[1][i]],
+                             *x2 = pts[CHILD[2][i]], *x3 = pts[CHILD[3][i]];
+            grow_lanes(b, r, (v4f){x0->p[r], x1->p[r], x2->p[r], x3->p[r]},
+                       (v4f){x0->n[r], x1->n[r], x2->n[r], x3->n[r]}, dmin, dmax);
         }
+    }
 }
 
-/* Slab test of the ray against the four (widened) boxes: entry distance per
- * lane, INFINITY for a miss. */
+static void child_boxes_bezier(const blossom bl[15], v4f dmin, v4f dmax, child_boxes *b)
+{
+    for (int r = 0; r < 3; r++) {
+        b->lo[r] = vsplat(INFINITY);
+        b->hi[r] = vsplat(-INFINITY);
+        for (int i = 0; i < 6; i++) {
+            const blossom *x0 = &bl[CHILD_BLOSSOM[0][i]], *x1 = &bl[CHILD_BLOSSOM[1][i]],
+                          *x2 = &bl[CHILD_BLOSSOM[2][i]], *x3 = &bl[CHILD_BLOSSOM[3][i]];
+            grow_lanes(b, r, (v4f){x0->s[r], x1->s[r], x2->s[r], x3->s[r]},
+                       (v4f){x0->t[r], x1->t[r], x2->t[r], x3->t[r]}, dmin, dmax);
+        }
+    }
+}
+
+/* Slab test of the ray against the four boxes widened by the pad: entry
+ * distance per lane, INFINITY for a miss. */
 static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
 {
     const mr_dmm_ray *r = c->ray;
     const float o[3] = {r->org.x, r->org.y, r->org.z};
-    float t0[4], t1[4];
-    for (int k = 0; k < 4; k++) {
-        t0[k] = c->tmin;
-        t1[k] = c->tmax * SLAB_FAR_SCALE;
-    }
+    v4f t0 = vsplat(c->tmin), t1 = vsplat(c->tmax * SLAB_FAR_SCALE);
     for (int a = 0; a < 3; a++) {
-        float pad = c->pad[a];
+        v4f lo = b->lo[a] - vsplat(c->pad[a] + o[a]), hi = b->hi[a] + vsplat(c->pad[a] - o[a]);
         if (r->parallel[a]) {
-            for (int k = 0; k < 4; k++)
-                if (o[a] < b->lo[a][k] - pad || o[a] > b->hi[a][k] + pad)
-                    t1[k] = -INFINITY;
+            /* outside the slab: t1 = -inf on that lane */
+            v4i out = (lo > vsplat(0.0f)) | (hi < vsplat(0.0f));
+            t1 = (v4f)((out & (v4i)vsplat(-INFINITY)) | (~out & (v4i)t1));
             continue;
         }
-        float inv = r->inv[a];
-        for (int k = 0; k < 4; k++) {
-            float u = (b->lo[a][k] - pad - o[a]) * inv, w = (b->hi[a][k] + pad - o[a]) * inv;
-            float mn = u < w ? u : w, mx = u < w ? w : u;
-            t0[k] = mn > t0[k] ? mn : t0[k];
-            t1[k] = mx < t1[k] ? mx : t1[k];
-        }
+        v4f u = lo * vsplat(r->inv[a]), w = hi * vsplat(r->inv[a]);
+        t0 = vmax(t0, vmin(u, w));
+        t1 = vmin(t1, vmax(u, w));
     }
     for (int k = 0; k < 4; k++)
         entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;
@@ -402,11 +408,11 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
     midpoints(c, P, mid);
     const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
     uint32_t first = level_start(sublevel + 1) + 4 * id;
-    float dmin[4], dmax[4];
-    for (int k = 0; k < 4; k++) {
-        dmin[k] = disp_bound(c, c->patch->minv[first + (uint32_t)k]);
-        dmax[k] = disp_bound(c, c->patch->maxv[first + (uint32_t)k]);
-    }
+    const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
+    v4f dmin = {disp_bound(c, mn[0]), disp_bound(c, mn[1]), disp_bound(c, mn[2]),
+                disp_bound(c, mn[3])};
+    v4f dmax = {disp_bound(c, mx[0]), disp_bound(c, mx[1]), disp_bound(c, mx[2]),
+                disp_bound(c, mx[3])};
     child_boxes boxes;
     if (c->patch->mats[0]) {
         blossom bl[15];
@@ -447,10 +453,19 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
 
 static void root(const trace_ctx *c, lattice_pt P[3])
 {
+    const mr_dmm_patch *p = c->patch;
     uint32_t n = c->segments;
-    lattice(c, 0, 0, &P[0]);
-    lattice(c, n, 0, &P[1]);
-    lattice(c, 0, n, &P[2]);
+    const uint32_t a[3] = {0, n, 0}, b[3] = {0, 0, n};
+    for (int i = 0; i < 3; i++) {
+        P[i].a = a[i];
+        P[i].b = b[i];
+        for (int k = 0; k < 3; k++) {
+            P[i].p[k] = comp(p->tri.pos[i], k);
+            P[i].n[k] = comp(p->tri.dir[i], k);
+        }
+        if (p->mats[0])
+            memcpy(P[i].m, p->mats[i]->m, sizeof P[i].m);
+    }
 }
 
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)

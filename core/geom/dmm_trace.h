@@ -54,6 +54,8 @@ typedef struct mr_dmm_patch {
     const mr_dmm_encoded *enc;     /* grid -> displacement (bias, scale) */
     const uint16_t *values;        /* mr_umesh_vertex_count(level) decoded grid values */
     const uint16_t *minv, *maxv;   /* pyramid, at least mr_dmm_trace_pyramid_size(level) entries */
+    float pad[3];                  /* optional: mr_dmm_patch_pad's result, cached by the
+                                      caller; all 0 = computed on every call */
 } mr_dmm_patch;
 
 /* Per-ray precomputation. */
@@ -88,6 +90,11 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir);
  * mr_umesh_eval_interpolated (interpolated) of its decoded displacement.
  * The one definition both the traversal and the tessellation use. */
 mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b);
+
+/* Per-axis widening the patch's boxes need (a bound on its coordinates'
+ * magnitude times 2^-19): depends on the patch's data only, so a caller
+ * tracing many rays per frame computes it once with the bounds. */
+void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3]);
 
 /* Conservative box of the whole patch (what Embree's BVH gets); false when
  * it is not finite. */

@@ -182,6 +182,8 @@ typedef struct corner_weights {
 static corner_weights weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
 {
     uint32_t k, n = mr_umesh_segments(level);
+    if (a > 0 && b > 0 && a + b < n) /* interior: most micro-vertices */
+        return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) / n, (double)a / n, (double)b / n}};
     int e = mr_umesh_vertex_edge(level, a, b, &k);
     if (e == 3)
         return (corner_weights){1, {(int)k, 0, 0}, {1.0, 0, 0}};
@@ -201,14 +203,13 @@ static corner_weights weights_of(const mr_umesh_tri *tri, unsigned level, uint32
 
 static dvec3 blend(const mr_vec3 *v, const corner_weights *cw)
 {
-    dvec3 r = {0, 0, 0};
-    for (int i = 0; i < cw->count; i++) {
-        mr_vec3 x = v[cw->corner[i]];
-        double w = cw->w[i];
-        if (i == 0)
-            r = (dvec3){w * x.x, w * x.y, w * x.z};
-        else
-            r = (dvec3){r.x + w * x.x, r.y + w * x.y, r.z + w * x.z};
+    const int *c = cw->corner;
+    const double *w = cw->w;
+    mr_vec3 x = v[c[0]];
+    dvec3 r = {w[0] * x.x, w[0] * x.y, w[0] * x.z};
+    for (int i = 1; i < cw->count; i++) {
+        x = v[c[i]];
+        r = (dvec3){r.x + w[i] * x.x, r.y + w[i] * x.y, r.z + w[i] * x.z};
     }
     return r;
 }

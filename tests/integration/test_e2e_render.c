@@ -314,6 +314,75 @@ static void test_bad_input_is_answered(void **state)
     expect_failure("compare examples/skinned-walk.json examples/skinned-walk.json", 3, "skinned-walk.json");
 }
 
+static void write_text(const char *path, const char *text)
+{
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs(text, f);
+    assert_int_equal(fclose(f), 0);
+}
+
+/* An asset with "refine": rendered from the refined mesh (4x the 5126
+ * triangles after one round); over the triangle cap, a clear error naming
+ * the asset's "refine" before any frame. */
+static void test_refined_asset_renders(void **state)
+{
+    (void)state;
+    char job[600], args[2048], dir[600], *err = NULL;
+    snprintf(job, sizeof job, "%s/refine.json", tmp_dir);
+    write_text(job, "{\"assets\": {\"dancer\": {\"path\": "
+                    "\"/usr/share/assimp/models/X/BCN_Epileptic.X\", \"refine\": {\"rounds\": 1, "
+                    "\"amplitude\": 0.01, \"frequency\": 20}}},"
+                    "\"objects\": [{\"asset\": \"dancer\", \"pose\": {\"clip\": 0}}],"
+                    "\"camera\": {\"path\": [{\"t\": 0, \"position\": [0, 0.2, 4.3], "
+                    "\"target\": [0, 0, -0.1]}]},"
+                    "\"frames\": {\"times\": [0.5]}, \"output\": {\"width\": 192, \"height\": 108}}");
+    snprintf(dir, sizeof dir, "%s/refined", tmp_dir);
+    snprintf(args, sizeof args, "render '%s' --out '%s' --quiet", job, dir);
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 0)
+        fail_msg("render exited %d: %s", rc, err);
+    free(err);
+    char path[700];
+    snprintf(path, sizeof path, "%s/stats.json", dir);
+    char *text = slurp(path);
+    assert_non_null(text);
+    cJSON *stats = cJSON_Parse(text);
+    assert_non_null(stats);
+    cJSON *f0 = cJSON_GetArrayItem(cJSON_GetObjectItem(stats, "frames"), 0);
+    assert_true(cJSON_GetObjectItem(f0, "triangles")->valuedouble == 4 * 5126);
+    cJSON_Delete(stats);
+    free(text);
+    mr_film *f = read_frame(dir, 0);
+    size_t hit = 0;
+    for (size_t i = 0; i < (size_t)f->width * f->height; i++)
+        hit += f->object_id[i] != 0;
+    assert_true(hit > 200);
+    mr_film_free(f);
+
+    /* 182^2 * 2 = 66248 triangles; 4 rounds would give 16959488 > 2^24. */
+    snprintf(path, sizeof path, "%s/grid.obj", tmp_dir);
+    FILE *g = fopen(path, "w");
+    assert_non_null(g);
+    for (int y = 0; y <= 182; y++)
+        for (int x = 0; x <= 182; x++)
+            fprintf(g, "v %d %d 0\n", x, y);
+    for (int y = 0; y < 182; y++)
+        for (int x = 0; x < 182; x++) {
+            int a = y * 183 + x + 1;
+            fprintf(g, "f %d %d %d\nf %d %d %d\n", a, a + 1, a + 184, a, a + 184, a + 183);
+        }
+    assert_int_equal(fclose(g), 0);
+    write_text(job, "{\"assets\": {\"grid\": {\"path\": \"grid.obj\", \"refine\": {\"rounds\": 4}}},"
+                    "\"objects\": [{\"asset\": \"grid\"}],"
+                    "\"camera\": {\"path\": [{\"t\": 0, \"position\": [91, 91, 300], "
+                    "\"target\": [91, 91, 0]}]}, \"frames\": {\"times\": [0]}}");
+    snprintf(args, sizeof args, "render '%s' --out '%s/overcap'", job, tmp_dir);
+    expect_failure(args, 3, "/assets/grid/refine: 4 rounds would turn the 66248 triangles");
+    snprintf(path, sizeof path, "%s/overcap/0000.exr", tmp_dir);
+    assert_int_not_equal(access(path, F_OK), 0);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -341,6 +410,7 @@ int main(void)
         cmocka_unit_test(test_compare_command),
         cmocka_unit_test(test_camera_from_gltf_node),
         cmocka_unit_test(test_bad_input_is_answered),
+        cmocka_unit_test(test_refined_asset_renders),
     };
     return cmocka_run_group_tests_name("e2e_render", tests, setup, teardown);
 }

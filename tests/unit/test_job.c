@@ -161,7 +161,64 @@ static const bad_case BAD[] = {
     {"{" NO_ASSETS ",'assets':{'m':{'id':'ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789'}}}",
      MR_ERR_INVALID, "/assets/m/id", "expected 64 lowercase hex digits"},
     {"{" NO_ASSETS ",'assets':{'m':{'url':'x'}}}", MR_ERR_INVALID, "/assets/m/url",
-     "unknown field; expected one of: path, id"},
+     "unknown field; expected one of: path, id, refine"},
+    /* Asset refinement (core/asset/refine.h); messages in full. */
+#define REFINE(r) "{" NO_ASSETS ",'assets':{'m':{'path':'/a.gltf','refine':" r "}}}"
+    {REFINE("true"), MR_ERR_INVALID, "/assets/m/refine",
+     "expected an object of refine parameters, got true"},
+    {REFINE("[2]"), MR_ERR_INVALID, "/assets/m/refine",
+     "expected an object of refine parameters, got an array of 1 element"},
+    {REFINE("{'levels':2}"), MR_ERR_INVALID, "/assets/m/refine/levels",
+     "unknown field; expected one of: rounds, amplitude, frequency, octaves, seed"},
+    {REFINE("{'rounds':1,'rounds':2}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
+     "duplicate field \"rounds\""},
+    {REFINE("{'rounds':5}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
+     "expected an integer in 0..4, got 5"},
+    {REFINE("{'rounds':-1}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
+     "expected an integer in 0..4, got -1"},
+    {REFINE("{'rounds':1.5}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
+     "expected an integer in 0..4, got 1.5"},
+    {REFINE("{'rounds':'2'}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
+     "expected an integer in 0..4, got \"2\""},
+    {REFINE("{'amplitude':-0.1}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
+     "expected a number in 0..1e9 (mesh units), got -0.1"},
+    {REFINE("{'amplitude':2e9}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
+     "expected a number in 0..1e9 (mesh units), got 2000000000"},
+    {REFINE("{'amplitude':1e999}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
+     "expected a number in 0..1e9 (mesh units), got a number too large to represent (it "
+     "overflows to infinity)"},
+    {REFINE("{'amplitude':null}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
+     "expected a number in 0..1e9 (mesh units), got null"},
+    {REFINE("{'amplitude':NaN}"), MR_ERR_INVALID, "", "malformed JSON"},
+    {REFINE("{'frequency':0}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
+     "expected a number in (0, 1e9] (noise cells per mesh unit), got 0"},
+    {REFINE("{'amplitude':0,'frequency':-8}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
+     "expected a number in (0, 1e9] (noise cells per mesh unit), got -8"},
+    {REFINE("{'frequency':-1e999}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
+     "expected a number in (0, 1e9] (noise cells per mesh unit), got a number too large to "
+     "represent (it overflows to infinity)"},
+    /* positive as a double, 0 as the float refine.h gets */
+    {REFINE("{'amplitude':1,'frequency':1e-50}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
+     "expected a number in (0, 1e9] that stays above 0 as a 32-bit float, got 1e-50"},
+    {REFINE("{'octaves':9}"), MR_ERR_INVALID, "/assets/m/refine/octaves",
+     "expected an integer in 0..8, got 9"},
+    {REFINE("{'octaves':2.5}"), MR_ERR_INVALID, "/assets/m/refine/octaves",
+     "expected an integer in 0..8, got 2.5"},
+    {REFINE("{'seed':-1}"), MR_ERR_INVALID, "/assets/m/refine/seed",
+     "expected an integer in 0..4294967295, got -1"},
+    {REFINE("{'seed':4294967296}"), MR_ERR_INVALID, "/assets/m/refine/seed",
+     "expected an integer in 0..4294967295, got 4294967296"},
+    {REFINE("{'seed':0.5}"), MR_ERR_INVALID, "/assets/m/refine/seed",
+     "expected an integer in 0..4294967295, got 0.5"},
+    {"{" NO_ASSETS ",'assets':{'m':{'refine':{}}}}", MR_ERR_INVALID, "/assets/m",
+     "expected exactly one of \"path\" (a file on the server) or \"id\" (an uploaded asset's "
+     "SHA-256)"},
+    /* the file is checked before its refinement */
+    {"{" NO_ASSETS ",'assets':{'m':{'path':'','refine':{'rounds':9}}}}", MR_ERR_INVALID,
+     "/assets/m/path", "expected a string of 1..4096 bytes, got an empty string"},
+    {"{" NO_ASSETS ",'assets':{'m':{'id':'ab','refine':{}}}}", MR_ERR_INVALID, "/assets/m/id",
+     "expected 64 lowercase hex digits"},
+#undef REFINE
     {"{" BASE ",'priority':1001}", MR_ERR_INVALID, "/priority", "-1000..1000"},
     {"{" BASE ",'priority':1.5}", MR_ERR_INVALID, "/priority", "got 1.5"},
     {"{" BASE ",'max_retries':11}", MR_ERR_INVALID, "/max_retries", "0..10"},
@@ -739,6 +796,48 @@ static void test_order_and_variants(void **state)
     mr_job_free(job);
 }
 
+static void test_asset_refine(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok(
+        "{" NO_ASSETS ",'assets':{"
+        "'plain':{'path':'/a.x'},"
+        "'m':{'path':'/a.x','refine':{}},"
+        "'full':{'id':'0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef',"
+        "        'refine':{'seed':4294967295,'octaves':8,'frequency':0.5,'amplitude':0.125,"
+        "                  'rounds':4}},"
+        "'low':{'path':'/b.x','refine':{'rounds':0,'amplitude':1e9,'frequency':1e9,'octaves':0,"
+        "                              'seed':0}}}}");
+    assert_int_equal(job->asset_count, 4);
+    const mr_asset_desc *a = job->assets;
+    assert_false(a[0].refine);
+    /* {} is every default */
+    assert_true(a[1].refine);
+    assert_int_equal(a[1].refine_params.rounds, MR_ASSET_REFINE_DEFAULT_ROUNDS);
+    assert_int_equal(a[1].refine_params.rounds, 2);
+    assert_true(a[1].refine_params.amplitude == 0.0f);
+    assert_true(a[1].refine_params.frequency == 8.0f);
+    assert_int_equal(a[1].refine_params.octaves, 3);
+    assert_int_equal(a[1].refine_params.seed, 1);
+    assert_int_equal(a[1].refine_params.threads, 0);
+    /* every field, on an uploaded asset (exact binary fractions: no rounding) */
+    assert_true(a[2].refine);
+    assert_string_equal(a[2].id, "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef");
+    assert_int_equal(a[2].refine_params.rounds, 4);
+    assert_true(a[2].refine_params.amplitude == 0.125f);
+    assert_true(a[2].refine_params.frequency == 0.5f);
+    assert_int_equal(a[2].refine_params.octaves, 8);
+    assert_int_equal(a[2].refine_params.seed, 4294967295u);
+    /* the other ends of the ranges */
+    assert_true(a[3].refine);
+    assert_int_equal(a[3].refine_params.rounds, 0);
+    assert_true(a[3].refine_params.amplitude == 1e9f);
+    assert_true(a[3].refine_params.frequency == 1e9f);
+    assert_int_equal(a[3].refine_params.octaves, 0);
+    assert_int_equal(a[3].refine_params.seed, 0);
+    mr_job_free(job);
+}
+
 static void test_camera_node(void **state)
 {
     (void)state;
@@ -963,7 +1062,7 @@ int main(void)
         cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
         cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
         cmocka_unit_test(test_raw_bytes),       cmocka_unit_test(test_examples),
-        cmocka_unit_test(test_daemon_fields),
+        cmocka_unit_test(test_daemon_fields),   cmocka_unit_test(test_asset_refine),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
