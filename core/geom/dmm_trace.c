@@ -83,6 +83,10 @@ mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
     return out;
 }
 
+/* Larger of two (no NaN care: non-finite patches are refused before tracing);
+ * fmaxf would be a library call here. */
+static inline float larger(float a, float b) { return a > b ? a : b; }
+
 static float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 
 
@@ -99,13 +103,13 @@ void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3])
 {
     trace_ctx ctx = {.patch = p};
     const trace_ctx *c = &ctx;
-    float dm = fmaxf(fabsf(disp_bound(c, p->minv[0])), fabsf(disp_bound(c, p->maxv[0])));
+    float dm = larger(fabsf(disp_bound(c, p->minv[0])), fabsf(disp_bound(c, p->maxv[0])));
     float x[3];
     for (int k = 0; k < 3; k++) {
         float pm = 0, nm = 0;
         for (int i = 0; i < 3; i++) {
-            pm = fmaxf(pm, fabsf(comp(p->tri.pos[i], k)));
-            nm = fmaxf(nm, fabsf(comp(p->tri.dir[i], k)));
+            pm = larger(pm, fabsf(comp(p->tri.pos[i], k)));
+            nm = larger(nm, fabsf(comp(p->tri.dir[i], k)));
         }
         x[k] = pm + dm * nm;
     }
@@ -115,7 +119,7 @@ void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3])
             mag = 0;
             for (int i = 0; i < 3; i++) {
                 const float *m = p->mats[i]->m + r * 4;
-                mag = fmaxf(mag, fabsf(m[0]) * x[0] + fabsf(m[1]) * x[1] + fabsf(m[2]) * x[2] +
+                mag = larger(mag, fabsf(m[0]) * x[0] + fabsf(m[1]) * x[1] + fabsf(m[2]) * x[2] +
                                      fabsf(m[3]));
             }
         }
