@@ -23,6 +23,7 @@
  *
  * usage: bench_dmm [--frames N] [--levels a,b,...]  (run from the repository root)
  */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -30,6 +31,7 @@
 #include "asset/asset.h"
 #include "asset/refine.h"
 #include "files.h"
+#include "geom/dmm_bake.h"
 #include "geom/dmm_encode.h"
 #include "geom/micromesh.h"
 #include "job_json.h"
@@ -192,6 +194,60 @@ static level_result run_level(mr_job *job, mr_asset *dancer, unsigned level, int
     return res;
 }
 
+/* The baker's report in the rest pose (issue 4 part 1): what a DMM of each
+ * level costs and how far its surface is from the detailed mesh. */
+static void bake_report(const mr_asset *dancer, const unsigned *levels, int level_count)
+{
+    printf("Bake (rest pose, all meshes): size and distance of the DMM surface to the detailed "
+           "mesh (relative to the rest-pose bounding-box diagonal):\n\n"
+           "| level | base tris | micro-tris | bytes | bits/micro-tri | RMS distance | max "
+           "distance | quantisation max | bake s |\n|---|---|---|---|---|---|---|---|---|\n");
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < dancer->mesh_count; i++)
+        for (uint32_t v = 0; v < dancer->meshes[i].vertex_count; v++)
+            for (int k = 0; k < 3; k++) {
+                float x = dancer->meshes[i].positions[v * 3 + k];
+                lo[k] = x < lo[k] ? x : lo[k];
+                hi[k] = x > hi[k] ? x : hi[k];
+            }
+    double diag = sqrt((double)(hi[0] - lo[0]) * (hi[0] - lo[0]) +
+                       (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                       (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
+    for (int l = 0; l < level_count; l++) {
+        uint64_t base = 0, micro = 0, bytes = 0, samples = 0;
+        double sum2 = 0, worst = 0, quant = 0, t0 = mr_now();
+        for (size_t i = 0; i < dancer->mesh_count; i++) {
+            mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+            bp.level = levels[l];
+            bp.target_ratio = 0.0625f;
+            mr_dmm_bake *b = NULL;
+            mr_dmm_encoded *enc = NULL;
+            mr_dmm_encode_stats es;
+            mr_error err = {0};
+            uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+            mr_dmm_default_bits(bits);
+            if (mr_dmm_bake_run(&dancer->meshes[i], &bp, &b, &err) < 0 ||
+                mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements, &enc, &es,
+                              &err) < 0)
+                die("bake", err.msg);
+            base += b->base_triangle_count;
+            micro += (uint64_t)b->base_triangle_count * mr_umesh_triangle_count(levels[l]);
+            bytes += (uint64_t)enc->triangle_count * enc->record_bytes;
+            sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
+            samples += b->sample_count;
+            worst = b->max_distance > worst ? b->max_distance : worst;
+            quant = es.max_error > quant ? es.max_error : quant;
+            mr_dmm_encoded_free(enc);
+            mr_dmm_bake_free(b);
+        }
+        printf("| %u | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.2e | %.2f |\n", levels[l],
+               (unsigned long long)base, (unsigned long long)micro, (unsigned long long)bytes,
+               8.0 * (double)bytes / (double)micro, sqrt(sum2 / (double)samples) / diag,
+               worst / diag, quant / diag, mr_now() - t0);
+    }
+    printf("\n");
+}
+
 int main(int argc, char **argv)
 {
     int frames = 5;
@@ -221,6 +277,7 @@ int main(int argc, char **argv)
            "triangles, %dx%d primary rays, %d frames, %u threads\n\n",
            JOB_PATH, (unsigned long long)detail, job->output.width, job->output.height, frames,
            mr_cpu_count());
+    bake_report(dancer, levels, level_count);
     level_result res[8];
     for (int i = 0; i < level_count; i++) {
         res[i] = run_level(job, dancer, levels[i], frames);
