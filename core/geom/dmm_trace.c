@@ -232,12 +232,24 @@ static fbox node_box(const trace_ctx *c, const lattice_pt *const L[3], const blo
 
 
 
-static void test_triangle(trace_ctx *c, const lattice_pt *const L[3], const mr_vec3 v[3])
+/* Tests micro-triangle (L[0], L[1], L[2]) with vertices v. The watertight
+ * test's rounding depends on which vertex comes first, so the triangle is
+ * rotated (winding kept) to start where the tessellation's row order starts
+ * it: at the vertex with the smallest b, then the smallest a. Hits are then
+ * bit-identical to the tessellated micro-mesh's under the same test. */
+static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3], const mr_vec3 vin[3])
 {
     if (c->stats)
         c->stats->triangles++;
+    int s = 0;
+    for (int k = 1; k < 3; k++)
+        if (Lin[k]->b < Lin[s]->b || (Lin[k]->b == Lin[s]->b && Lin[k]->a < Lin[s]->a))
+            s = k;
+    const lattice_pt *L[3] = {Lin[s], Lin[(s + 1) % 3], Lin[(s + 2) % 3]};
+    const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
     mr_wt_hit h;
-    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
+    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h) ||
+        !(h.t <= c->tmax))
         return;
     c->found = true;
     c->tmax = h.t;
@@ -395,7 +407,7 @@ static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
         }
         v4f u = lo * vsplat(r->inv[a]), w = hi * vsplat(r->inv[a]);
         t0 = vmax(t0, vmin(u, w));
-        t1 = vmin(t1, vmax(u, w));
+        t1 = vmin(t1, vmax(u, w) * vsplat(SLAB_FAR_SCALE));
     }
     for (int k = 0; k < 4; k++)
         entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;

@@ -30,12 +30,15 @@
  * micro-triangles with the watertight test. Hits are therefore those of the
  * tessellated micro-mesh, bit for bit in the vertices.
  *
- * Conservative bounds: boxes are computed in double from the corners and
- * widened by 2^-20 of their magnitude, which covers the single float
- * rounding of each micro-vertex (2^-24 relative) with a wide margin; the
- * slab test widens the ray's far distance by 3 float ulps (Ize, "Robust
- * BVH Ray Traversal", 2013). Rays parallel to a slab are handled explicitly,
- * so no 0 * inf NaN can cull a box.
+ * Conservative bounds: boxes are computed in float from the corners and
+ * widened by a per-patch pad, 2^-19 of a bound on the magnitude of every
+ * coordinate they are computed from (mr_dmm_patch_pad), which covers the
+ * single float rounding of each micro-vertex (2^-24 relative) and the box
+ * arithmetic with a wide margin; the slab test widens each axis's far
+ * distance by 3 float ulps (Ize, "Robust BVH Ray Traversal", 2013). Rays
+ * parallel to a slab are handled explicitly, so no 0 * inf NaN can cull a
+ * box. The four children of a node are bounded and tested together, one
+ * SIMD lane each.
  */
 #ifndef MR_DMM_TRACE_H
 #define MR_DMM_TRACE_H

@@ -1,6 +1,9 @@
 /* watertight.c - Woop, Benthin and Wald's watertight test (watertight.h). */
 #include "math/watertight.h"
 
+#include <float.h>
+#include <math.h>
+
 static inline float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 
 mr_wt_ray mr_wt_ray_setup(mr_vec3 org, mr_vec3 dir)
@@ -46,8 +49,11 @@ bool mr_wt_intersect(const mr_wt_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, flo
     if ((u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0))
         return false;
     float det = u + v + w;
-    if (det == 0.0f)
-        return false; /* the ray lies in the triangle's plane, or a degenerate triangle */
+    /* det 0: the ray lies in the triangle's plane, or a degenerate triangle.
+     * A subnormal det is the same case blurred by rounding: 1 / det would
+     * overflow and give an infinite t and NaN barycentrics. */
+    if (!(fabsf(det) >= FLT_MIN))
+        return false;
 
     /* scaled hit distance, compared without dividing */
     az *= r->sz;
@@ -61,7 +67,14 @@ bool mr_wt_intersect(const mr_wt_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, flo
         return false;
     }
     float inv = 1.0f / det;
-    hit->t = t_scaled * inv;
+    float t = t_scaled * inv;
+    /* The scaled comparison above can pass a t a few ulps outside
+     * [tmin, tmax], and overflow (coordinates beyond ~1e13: t_scaled grows
+     * with their cube) can make it infinite: keep the promise of the
+     * interval and of finite results. */
+    if (!(t >= tmin && t <= tmax && t < INFINITY))
+        return false;
+    hit->t = t;
     hit->u = v * inv; /* weight of v1 */
     hit->v = w * inv; /* weight of v2 */
     return true;
