@@ -57,6 +57,8 @@ typedef struct mr_dmm_desc {
     mr_dmm_mode mode;
     mr_dmm_deform deform;
     mr_dmm_normals normals;
+    const char *cache_dir;   /* not from JSON: where baked DMMs are kept (core/geom/dmm_file.h),
+                                NULL = none; borrowed, must outlive the renderer */
 } mr_dmm_desc;
 
 /* An asset's "refine" (issue 4: detailed skinned meshes made from low-poly

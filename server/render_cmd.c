@@ -5,7 +5,8 @@
  * relative asset paths are resolved against the job file's directory. Each
  * frame is written as DIR/NNNN.exr through a temporary file and a rename,
  * and DIR/stats.json is rewritten after every frame, so an interrupted run
- * leaves only complete files behind.
+ * leaves only complete files behind. With --dmm-cache, dmm objects keep
+ * their bakes in that directory (core/geom/dmm_file.h) and reuse them.
  */
 #include "render_cmd.h"
 
@@ -129,12 +130,15 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 
 static void usage_render(void)
 {
-    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--quiet]\n");
+    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--dmm-cache DIR] "
+                    "[--quiet]\n"
+                    "  --dmm-cache DIR  keep baked DMMs in DIR (created if missing) and reuse them "
+                    "(default: bake every time)\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
 {
-    const char *job_path = NULL, *out_dir = NULL;
+    const char *job_path = NULL, *out_dir = NULL, *dmm_cache = NULL;
     unsigned threads = 0;
     bool quiet = false;
     for (int i = 0; i < argc; i++) {
@@ -148,6 +152,12 @@ int mr_cmd_render(int argc, char **argv)
                 return EXIT_USAGE;
             }
             threads = (unsigned)v;
+        } else if (!strcmp(argv[i], "--dmm-cache") && i + 1 < argc) {
+            dmm_cache = argv[++i];
+            if (!dmm_cache[0]) {
+                fprintf(stderr, "microrayd: --dmm-cache wants a directory\n");
+                return EXIT_USAGE;
+            }
         } else if (!strcmp(argv[i], "--quiet")) {
             quiet = true;
         } else if (argv[i][0] == '-' || job_path) {
@@ -188,6 +198,9 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
+    for (size_t i = 0; dmm_cache && i < job->object_count; i++)
+        if (job->objects[i].kind == MR_GEOM_DMM)
+            job->objects[i].dmm.cache_dir = dmm_cache;
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {

@@ -33,7 +33,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "sha256.h"
+#include "util/sha256.h"
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
  * step by step and refuses newer ones. */

@@ -42,8 +42,9 @@ size_t mr_dmm_bake_memory(const mr_dmm_bake *b)
     if (!b)
         return 0;
     size_t v = b->base_vertex_count, t = b->base_triangle_count;
-    size_t bytes = sizeof *b + v * (6 * sizeof(float) + sizeof(uint32_t)) + t * 3 * sizeof(uint32_t) +
-                   t * (size_t)b->micro_vertex_count * sizeof(float);
+    size_t bytes = sizeof *b + v * (6 * sizeof(float) + sizeof(uint32_t)) + t * 3 * sizeof(uint32_t);
+    if (b->displacements) /* absent when the bake came from a file */
+        bytes += t * (size_t)b->micro_vertex_count * sizeof(float);
     if (b->joints)
         bytes += v * MR_MAX_INFLUENCES * (sizeof(uint16_t) + sizeof(float));
     return bytes;

@@ -6,7 +6,13 @@
  *  - level 0 with zero displacement renders exactly like the base mesh;
  *  - a skinned, refined real character (BCN_Epileptic.X) animates, and 1 and
  *    2 threads give bit-identical films;
- *  - parameters the kind cannot honour are refused.
+ *  - parameters the kind cannot honour are refused;
+ *  - with a cache directory, a bake is stored once and reused: the second
+ *    create is a hit (the file is not rewritten, and a doctored but valid
+ *    file shows through), with a tessellation bit-identical to a fresh
+ *    bake, static and skinned; another level is another file; a corrupt or
+ *    truncated file still renders and is rewritten; an unusable directory
+ *    only costs the cache.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -15,12 +21,16 @@
 #include <stdio.h>
 #include <cmocka.h>
 
+#include <dirent.h>
 #include <math.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "../support/scene_fixture.h"
 #include "asset/refine.h"
 #include "geom/dmm_bake.h"
 #include "geom/dmm_encode.h"
+#include "geom/dmm_file.h"
 #include "geom/geom.h"
 #include "render/compare.h"
 
@@ -373,9 +383,240 @@ static void test_refused(void **state)
     mr_asset_free(a);
 }
 
+/* ---- the disk cache of bakes */
+
+/* The object's exact tessellation after create and one update at time t
+ * (clip 0 when the asset has clips). Fails the test if create fails. */
+static mr_trimesh tessellate_at(const mr_asset *a, const mr_dmm_desc *d, double t)
+{
+    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
+    mr_object_desc o = {.kind = MR_GEOM_DMM, .dmm = *d};
+    mr_geom *g = NULL;
+    mr_pose *pose = NULL;
+    mr_error err = {0};
+    if (ops->create(a, &o, &g, &err) < 0)
+        fail_msg("create: %s", err.msg);
+    mr_pose_desc pd = {.has_clip = a->clip_count > 0, .clip_index = 0, .speed = 1, .loop = true};
+    assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
+    assert_int_equal(mr_pose_eval(pose, a, &pd, t, &err), MR_OK);
+    mr_mat4 id = mr_mat4_identity();
+    if (ops->update(g, pose, &id, 1, &err) < 0)
+        fail_msg("update: %s", err.msg);
+    mr_trimesh m;
+    if (ops->tessellate(g, &m, &err) < 0)
+        fail_msg("tessellate: %s", err.msg);
+    mr_pose_free(pose);
+    ops->free(g);
+    return m;
+}
+
+static void assert_same_mesh(const mr_trimesh *x, const mr_trimesh *y)
+{
+    assert_int_equal(x->vertex_count, y->vertex_count);
+    assert_int_equal(x->triangle_count, y->triangle_count);
+    assert_memory_equal(x->positions, y->positions, (size_t)x->vertex_count * 3 * sizeof(float));
+    assert_memory_equal(x->indices, y->indices, (size_t)x->triangle_count * 3 * sizeof(uint32_t));
+}
+
+/* The one .dmm file in dir (fails unless there are exactly `want`). */
+static void cache_file(const char *dir, size_t want, char *path, size_t n)
+{
+    DIR *dd = opendir(dir);
+    assert_non_null(dd);
+    size_t found = 0;
+    for (struct dirent *e; (e = readdir(dd));) {
+        size_t len = strlen(e->d_name);
+        if (len > 4 && strcmp(e->d_name + len - 4, ".dmm") == 0) {
+            found++;
+            snprintf(path, n, "%s/%s", dir, e->d_name);
+        }
+        assert_null(strstr(e->d_name, ".tmp")); /* no temporary file left behind */
+    }
+    closedir(dd);
+    assert_int_equal(found, want);
+}
+
+static void file_id(const char *path, struct stat *st) { assert_int_equal(stat(path, st), 0); }
+
+static bool same_file(const struct stat *a, const struct stat *b)
+{
+    return a->st_ino == b->st_ino && a->st_mtim.tv_sec == b->st_mtim.tv_sec &&
+           a->st_mtim.tv_nsec == b->st_mtim.tv_nsec && a->st_size == b->st_size;
+}
+
+/* Fresh bake, miss (stores), hit: one tessellation, bit for bit; and a
+ * doctored but valid cache file shows through, which only a hit can do. */
+static void check_hit(const mr_asset *a, mr_dmm_desc d, double t, const char *dir)
+{
+    mr_trimesh fresh = tessellate_at(a, &d, t);
+    d.cache_dir = dir;
+    mr_trimesh miss = tessellate_at(a, &d, t);
+    char path[512];
+    cache_file(dir, 1, path, sizeof path);
+    struct stat st0, st1;
+    file_id(path, &st0);
+    mr_trimesh hit = tessellate_at(a, &d, t);
+    file_id(path, &st1);
+    assert_true(same_file(&st0, &st1)); /* not rewritten */
+    assert_same_mesh(&fresh, &miss);
+    assert_same_mesh(&fresh, &hit);
+
+    /* shift every mesh's displacement grid: valid, same key, other surface */
+    mr_dmm_file *f = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_dmm_file_read_path(path, &f, &err), MR_OK);
+    for (uint32_t i = 0; i < f->mesh_count; i++)
+        if (f->meshes[i].encoded)
+            f->meshes[i].encoded->bias += 0.01f;
+    assert_int_equal(mr_dmm_file_write_path(f, path, &err), MR_OK);
+    mr_dmm_file_free(f);
+    mr_trimesh doctored = tessellate_at(a, &d, t);
+    assert_int_equal(doctored.vertex_count, fresh.vertex_count);
+    assert_true(memcmp(doctored.positions, fresh.positions,
+                       (size_t)fresh.vertex_count * 3 * sizeof(float)) != 0);
+    unlink(path);
+    mr_trimesh_free(&doctored);
+    mr_trimesh_free(&fresh);
+    mr_trimesh_free(&miss);
+    mr_trimesh_free(&hit);
+}
+
+static void make_temp_dir(char *dir, size_t n)
+{
+    snprintf(dir, n, "/tmp/mr-dmm-cache-XXXXXX");
+    assert_non_null(mkdtemp(dir));
+}
+
+static void remove_dir(const char *dir)
+{
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    assert_int_equal(system(cmd), 0);
+}
+
+static void test_cache_hit_is_bit_identical(void **state)
+{
+    (void)state;
+    char root[64], dir[128];
+    make_temp_dir(root, sizeof root);
+    snprintf(dir, sizeof dir, "%s/not/yet", root); /* created on the first store */
+
+    mr_asset *sphere = make_bumpy_sphere(4, 0.06f, 6.0f);
+    check_hit(sphere, (mr_dmm_desc){.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED},
+              0, dir);
+    struct stat st;
+    assert_int_equal(stat(dir, &st), 0);
+    assert_int_equal(st.st_mode & 0777, 0755);
+    check_hit(sphere, (mr_dmm_desc){.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_BASE}, 0, dir);
+    mr_asset_free(sphere);
+
+    /* skinned, three meshes, posed mid-clip, matrices interpolated: the
+     * stored joints and weights drive the same skinning */
+    mr_asset *bcn = NULL;
+    mr_error err = {0};
+    if (mr_asset_load(BCN_MODEL, &bcn, &err) != MR_OK)
+        fail_msg("load %s: %s", BCN_MODEL, err.msg);
+    assert_true(bcn->clip_count > 0);
+    check_hit(bcn,
+              (mr_dmm_desc){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_INTERPOLATED,
+                            .deform = MR_DMM_DEFORM_INTERPOLATED,
+                            .normals = MR_DMM_NORMALS_MATRIX},
+              0.5 * bcn->clips[0].duration, dir);
+    mr_asset_free(bcn);
+    remove_dir(root);
+}
+
+static void test_cache_keys_corruption_and_failures(void **state)
+{
+    (void)state;
+    char dir[64];
+    make_temp_dir(dir, sizeof dir);
+    mr_asset *a = make_bumpy_sphere(3, 0.06f, 6.0f);
+    mr_dmm_desc d = {.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_TESSELLATED};
+    mr_trimesh fresh = tessellate_at(a, &d, 0);
+    d.cache_dir = dir;
+    mr_trimesh m = tessellate_at(a, &d, 0);
+    mr_trimesh_free(&m);
+    char path[512];
+    cache_file(dir, 1, path, sizeof path);
+
+    /* another level (or ratio) is another bake and another file */
+    d.level = 3;
+    m = tessellate_at(a, &d, 0);
+    mr_trimesh_free(&m);
+    cache_file(dir, 2, path, sizeof path);
+    d.level = 2;
+    d.base_ratio = 0.2f;
+    m = tessellate_at(a, &d, 0);
+    mr_trimesh_free(&m);
+    cache_file(dir, 3, path, sizeof path);
+    remove_dir(dir);
+    make_temp_dir(dir, sizeof dir);
+    d.base_ratio = 0.1f;
+    m = tessellate_at(a, &d, 0);
+    mr_trimesh_free(&m);
+    cache_file(dir, 1, path, sizeof path);
+
+    /* corrupt, then truncated, then garbage: each still renders the fresh
+     * bake and is replaced by a valid file (a new inode: renamed in) */
+    struct stat st;
+    file_id(path, &st);
+    off_t size = st.st_size;
+    for (int round = 0; round < 3; round++) {
+        FILE *f = fopen(path, "r+b");
+        assert_non_null(f);
+        if (round == 0) {
+            fseek(f, size / 2, SEEK_SET);
+            int c = fgetc(f);
+            fseek(f, size / 2, SEEK_SET);
+            fputc(c ^ 0x10, f);
+        } else if (round == 1) {
+            assert_int_equal(ftruncate(fileno(f), size - 7), 0);
+        } else {
+            assert_int_equal(ftruncate(fileno(f), 0), 0);
+            fputs("not a dmm file at all", f);
+        }
+        fclose(f);
+        struct stat bad;
+        file_id(path, &bad);
+        m = tessellate_at(a, &d, 0);
+        assert_same_mesh(&fresh, &m);
+        mr_trimesh_free(&m);
+        struct stat now;
+        file_id(path, &now);
+        assert_true(now.st_ino != bad.st_ino);
+        assert_int_equal(now.st_size, size);
+        mr_dmm_file *ok = NULL;
+        mr_error err = {0};
+        if (mr_dmm_file_read_path(path, &ok, &err) != MR_OK)
+            fail_msg("round %d: the rewritten file does not read: %s", round, err.msg);
+        mr_dmm_file_free(ok);
+    }
+
+    /* a cache directory that cannot exist (below a regular file) or a
+     * directory in the file's place: the job renders, uncached */
+    char below[600];
+    snprintf(below, sizeof below, "%s/dmm", path);
+    d.cache_dir = below;
+    m = tessellate_at(a, &d, 0);
+    assert_same_mesh(&fresh, &m);
+    mr_trimesh_free(&m);
+    d.cache_dir = dir;
+    assert_int_equal(unlink(path), 0);
+    assert_int_equal(mkdir(path, 0755), 0);
+    m = tessellate_at(a, &d, 0);
+    assert_same_mesh(&fresh, &m);
+    mr_trimesh_free(&m);
+    mr_trimesh_free(&fresh);
+    mr_asset_free(a);
+    remove_dir(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_cache_hit_is_bit_identical),
+        cmocka_unit_test(test_cache_keys_corruption_and_failures),
         cmocka_unit_test(test_refused),
         cmocka_unit_test(test_level0_is_base_mesh),
         cmocka_unit_test(test_matches_detailed_mesh),

@@ -1,6 +1,6 @@
 /*
  * test_store.c - the durable store (server/store.c) and SHA-256
- * (server/sha256.c).
+ * (core/util/sha256.c).
  *
  * SHA-256 is checked against the FIPS 180-4 / NIST example vectors ("",
  * "abc", the 448- and 896-bit messages, one million 'a'), against lengths
@@ -36,7 +36,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "sha256.h"
+#include "util/sha256.h"
 #include "store.h"
 
 /* ---- helpers ---------------------------------------------------------------- */

@@ -1,10 +1,12 @@
 /*
  * sha256.c - SHA-256 as specified in FIPS 180-4 (sections 4.1.2, 4.2.2,
  * 5.1.1, 5.3.3 and 6.2), written from the standard. Assets are named by
- * their hash and idempotent submissions compare body hashes, so the daemon
- * needs exactly this one digest and no crypto library for it.
+ * their hash, idempotent submissions compare body hashes and baked DMMs are
+ * cached under a hash of their inputs, so microray needs exactly this one
+ * digest and no crypto library for it. It lives in core because the DMM
+ * cache (core/geom/dmm_file.c) uses it and core must not depend on server.
  */
-#include "sha256.h"
+#include "util/sha256.h"
 
 #include <string.h>
 

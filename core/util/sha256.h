@@ -1,6 +1,7 @@
 /*
- * sha256.h - SHA-256 (FIPS 180-4), for content-addressed assets and
- * idempotency body hashes. Written from the standard; no dependency.
+ * sha256.h - SHA-256 (FIPS 180-4), for content-addressed assets,
+ * idempotency body hashes and the keys of the baked-DMM disk cache.
+ * Written from the standard; no dependency.
  */
 #ifndef MR_SHA256_H
 #define MR_SHA256_H
