@@ -28,8 +28,7 @@
  * evaluated exactly by micromesh.h). */
 typedef struct lattice_pt {
     uint32_t a, b;
-    float p[3], n[3];
-    float m[12]; /* interpolated patches only */
+    float p[3], n[3]; /* base patches only */
 } lattice_pt;
 
 typedef struct fbox {
@@ -161,33 +160,49 @@ static void widen(const trace_ctx *c, fbox *b)
  * is the quadratic patch with control points (blossom) c_ij = S_ij + d T_ij,
  * S_ij = (M(r_i) p(r_j) + M(r_j) p(r_i)) / 2 (affine) and
  * T_ij = (L(r_i) n(r_j) + L(r_j) n(r_i)) / 2 (L the linear part): eq. 11 and
- * 13 at the sub-triangle's corners r. */
+ * 13 at the sub-triangle's corners r. Matrices are only applied at the root
+ * (the top-level patch); below it the blossom's bilinearity gives every
+ * control point of the children from the parent's six by averaging
+ * (B(m_ab, x) = (B(a, x) + B(b, x)) / 2 for an edge midpoint m_ab): exact
+ * midpoint subdivision of the top-level patch, one float rounding per
+ * average, which the pad covers. A node's blossoms: [0..2] = (i, i),
+ * [3] = (0, 1), [4] = (1, 2), [5] = (2, 0). */
 typedef struct blossom {
     float s[3], t[3];
 } blossom;
 
-static void half_apply(const float m[12], const float p[3], const float n[3], float s[3],
-                       float t[3])
+static void half_apply(const float m[12], const mr_vec3 p, const mr_vec3 n, float s[3], float t[3])
 {
     for (int r = 0; r < 3; r++) {
-        s[r] = m[r * 4] * p[0] + m[r * 4 + 1] * p[1] + m[r * 4 + 2] * p[2] + m[r * 4 + 3];
-        t[r] = m[r * 4] * n[0] + m[r * 4 + 1] * n[1] + m[r * 4 + 2] * n[2];
+        s[r] = m[r * 4] * p.x + m[r * 4 + 1] * p.y + m[r * 4 + 2] * p.z + m[r * 4 + 3];
+        t[r] = m[r * 4] * n.x + m[r * 4 + 1] * n.y + m[r * 4 + 2] * n.z;
     }
 }
 
-static blossom blossom_of(const lattice_pt *x, const lattice_pt *y)
+/* The top-level patch: eq. 11 for positions and directions at corners i, j. */
+static blossom top_blossom(const mr_dmm_patch *p, int i, int j)
 {
     blossom b;
-    half_apply(x->m, y->p, y->n, b.s, b.t);
-    if (x != y) {
+    half_apply(p->mats[i]->m, p->tri.pos[j], p->tri.dir[j], b.s, b.t);
+    if (i != j) {
         float s[3], t[3];
-        half_apply(y->m, x->p, x->n, s, t);
+        half_apply(p->mats[j]->m, p->tri.pos[i], p->tri.dir[i], s, t);
         for (int r = 0; r < 3; r++) {
             b.s[r] = 0.5f * (b.s[r] + s[r]);
             b.t[r] = 0.5f * (b.t[r] + t[r]);
         }
     }
     return b;
+}
+
+/* Written in place (returning the struct made the compiler store it in
+ * pieces and reload it whole: a store-forwarding stall per blossom). */
+static inline void average(blossom *b, const blossom *x, const blossom *y)
+{
+    for (int r = 0; r < 3; r++) {
+        b->s[r] = 0.5f * (x->s[r] + y->s[r]);
+        b->t[r] = 0.5f * (x->t[r] + y->t[r]);
+    }
 }
 
 static void grow_blossom(fbox *box, const blossom *b, float dmin, float dmax)
@@ -269,9 +284,8 @@ static const int CHILD[4][3] = {{0, 3, 5}, {3, 1, 4}, {5, 4, 2}, {4, 5, 3}};
 
 /* Edge midpoints by averaging the endpoints' frames: one rounding per
  * level, at most MR_UMESH_MAX_LEVEL of them, well inside BOX_PAD. */
-static void midpoints(const trace_ctx *c, const lattice_pt *const P[3], lattice_pt m[3])
+static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
 {
-    bool mats = c->patch->mats[0] != NULL;
     for (int e = 0; e < 3; e++) {
         const lattice_pt *x = P[e], *y = P[(e + 1) % 3];
         m[e].a = (x->a + y->a) / 2;
@@ -280,9 +294,6 @@ static void midpoints(const trace_ctx *c, const lattice_pt *const P[3], lattice_
             m[e].p[k] = 0.5f * (x->p[k] + y->p[k]);
             m[e].n[k] = 0.5f * (x->n[k] + y->n[k]);
         }
-        if (mats)
-            for (int k = 0; k < 12; k++)
-                m[e].m[k] = 0.5f * (x->m[k] + y->m[k]);
     }
 }
 
@@ -316,15 +327,13 @@ static void leaf(trace_ctx *c, const lattice_pt *const P[3])
 
 static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
 
-/* Corner pairs of the 4 children (indices into {P0, P1, P2, m01, m12, m20})
- * that are edges of some child: the blossoms a node needs besides the 6
- * diagonal ones. */
-static const int EDGE[9][2] = {{0, 3}, {3, 5}, {5, 0}, {3, 1}, {1, 4},
-                               {4, 3}, {5, 4}, {4, 2}, {2, 5}};
-
+/* EDGE: the corner pairs of the 4 children (indices into {P0, P1, P2, m01,
+ * m12, m20}) that are edges of some child, i.e. the blossoms a node needs
+ * besides the 6 diagonal ones, in this order: (0,3) (3,5) (5,0) (3,1) (1,4)
+ * (4,3) (5,4) (4,2) (2,5). */
 /* Per child k: its blossom slots {diag c0, diag c1, diag c2, (c0,c1),
  * (c1,c2), (c2,c0)} as indices into the node's 15 blossoms (the 6 diagonal
- * ones, then the 9 of EDGE): CHILD and EDGE worked out by hand. */
+ * ones, then the 9 of EDGE): worked out by hand from CHILD and EDGE. */
 static const int CHILD_BLOSSOM[4][6] = {
     {0, 3, 5, 6, 7, 8}, {3, 1, 4, 9, 10, 11}, {5, 4, 2, 12, 13, 14}, {4, 5, 3, 12, 7, 11}};
 
@@ -376,14 +385,14 @@ static void child_boxes_prism(const lattice_pt *const pts[6], v4f dmin, v4f dmax
     }
 }
 
-static void child_boxes_bezier(const blossom bl[15], v4f dmin, v4f dmax, child_boxes *b)
+static void child_boxes_bezier(const blossom *const bl[15], v4f dmin, v4f dmax, child_boxes *b)
 {
     for (int r = 0; r < 3; r++) {
         b->lo[r] = vsplat(INFINITY);
         b->hi[r] = vsplat(-INFINITY);
         for (int i = 0; i < 6; i++) {
-            const blossom *x0 = &bl[CHILD_BLOSSOM[0][i]], *x1 = &bl[CHILD_BLOSSOM[1][i]],
-                          *x2 = &bl[CHILD_BLOSSOM[2][i]], *x3 = &bl[CHILD_BLOSSOM[3][i]];
+            const blossom *x0 = bl[CHILD_BLOSSOM[0][i]], *x1 = bl[CHILD_BLOSSOM[1][i]],
+                          *x2 = bl[CHILD_BLOSSOM[2][i]], *x3 = bl[CHILD_BLOSSOM[3][i]];
             grow_lanes(b, r, (v4f){x0->s[r], x1->s[r], x2->s[r], x3->s[r]},
                        (v4f){x0->t[r], x1->t[r], x2->t[r], x3->t[r]}, dmin, dmax);
         }
@@ -413,15 +422,57 @@ static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
         entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;
 }
 
-/* Sub-triangle `id` of `sublevel` whose box the ray already enters. */
-static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3])
+/* The blossoms a node's children need, computed into `store`. */
+typedef struct node_blossoms {
+    blossom mc[3][3]; /* (midpoint e of corners e, e+1; corner i) */
+    blossom md[3];    /* (m_e, m_e) */
+    blossom mm[3];    /* (m01, m20), (m12, m01), (m20, m12) */
+} node_blossoms;
+
+/* The 15 blossoms of a node's six points {P0, P1, P2, m01, m12, m20} (the 6
+ * diagonal ones, then those of EDGE) from the node's own six (B, see
+ * struct blossom), as pointers into B and store. */
+static void subdivide(const blossom *const B[6], node_blossoms *store, const blossom *out[15])
+{
+    /* corner pairs: (i, i) = B[i]; (0,1) = B[3], (1,2) = B[4], (2,0) = B[5] */
+    const blossom *C[3][3] = {{B[0], B[3], B[5]}, {B[3], B[1], B[4]}, {B[5], B[4], B[2]}};
+    for (int e = 0; e < 3; e++)
+        for (int i = 0; i < 3; i++)
+            average(&store->mc[e][i], C[e][i], C[(e + 1) % 3][i]);
+    for (int e = 0; e < 3; e++)
+        average(&store->md[e], &store->mc[e][e], &store->mc[e][(e + 1) % 3]);
+    average(&store->mm[0], &store->mc[0][2], &store->mc[0][0]); /* m20 = (P2 + P0) / 2 */
+    average(&store->mm[1], &store->mc[1][0], &store->mc[1][1]); /* m01 = (P0 + P1) / 2 */
+    average(&store->mm[2], &store->mc[2][1], &store->mc[2][2]); /* m12 = (P1 + P2) / 2 */
+    for (int i = 0; i < 3; i++) {
+        out[i] = B[i];
+        out[3 + i] = &store->md[i];
+    }
+    /* EDGE order: (P0,m01) (m01,m20) (m20,P0) (m01,P1) (P1,m12) (m12,m01)
+     * (m20,m12) (m12,P2) (P2,m20); midpoints m01 = 0, m12 = 1, m20 = 2 */
+    out[6] = &store->mc[0][0];
+    out[7] = &store->mm[0];
+    out[8] = &store->mc[2][0];
+    out[9] = &store->mc[0][1];
+    out[10] = &store->mc[1][1];
+    out[11] = &store->mm[1];
+    out[12] = &store->mm[2];
+    out[13] = &store->mc[1][2];
+    out[14] = &store->mc[2][2];
+}
+
+/* Sub-triangle `id` of `sublevel` whose box the ray already enters; B its
+ * blossoms (interpolated patches). */
+static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3],
+                  const blossom *const B[6])
 {
     if (sublevel == c->leaf) {
         leaf(c, P);
         return;
     }
+    bool bezier = c->patch->mats[0] != NULL;
     lattice_pt mid[3];
-    midpoints(c, P, mid);
+    midpoints(P, mid);
     const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
     uint32_t first = level_start(sublevel + 1) + 4 * id;
     const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
@@ -430,12 +481,10 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
     v4f dmax = {disp_bound(c, mx[0]), disp_bound(c, mx[1]), disp_bound(c, mx[2]),
                 disp_bound(c, mx[3])};
     child_boxes boxes;
-    if (c->patch->mats[0]) {
-        blossom bl[15];
-        for (int i = 0; i < 6; i++)
-            bl[i] = blossom_of(pts[i], pts[i]);
-        for (int e = 0; e < 9; e++)
-            bl[6 + e] = blossom_of(pts[EDGE[e][0]], pts[EDGE[e][1]]);
+    node_blossoms store;
+    const blossom *bl[15];
+    if (bezier) {
+        subdivide(B, &store, bl);
         child_boxes_bezier(bl, dmin, dmax, &boxes);
     } else {
         child_boxes_prism(pts, dmin, dmax, &boxes);
@@ -463,7 +512,10 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
             break;
         int k = order[i];
         const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
-        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L);
+        const blossom *CB[6];
+        for (int m = 0; m < 6 && bezier; m++)
+            CB[m] = bl[CHILD_BLOSSOM[k][m]];
+        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
     }
 }
 
@@ -479,9 +531,18 @@ static void root(const trace_ctx *c, lattice_pt P[3])
             P[i].p[k] = comp(p->tri.pos[i], k);
             P[i].n[k] = comp(p->tri.dir[i], k);
         }
-        if (p->mats[0])
-            memcpy(P[i].m, p->mats[i]->m, sizeof P[i].m);
     }
+}
+
+/* The top-level patch's six blossoms (interpolated patches). */
+static void root_blossoms(const mr_dmm_patch *p, blossom bl[6], const blossom *B[6])
+{
+    for (int i = 0; i < 3; i++) {
+        bl[i] = top_blossom(p, i, i);
+        bl[3 + i] = top_blossom(p, i, (i + 1) % 3);
+    }
+    for (int i = 0; i < 6; i++)
+        B[i] = &bl[i];
 }
 
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
@@ -492,14 +553,9 @@ bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
     root(&c, P);
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
     blossom bl[6];
-    const blossom *B[6];
+    const blossom *B[6] = {NULL};
     if (p->mats[0])
-        for (int i = 0; i < 3; i++) {
-            bl[i] = blossom_of(L[i], L[i]);
-            bl[3 + i] = blossom_of(L[i], L[(i + 1) % 3]);
-        }
-    for (int i = 0; i < 6; i++)
-        B[i] = &bl[i];
+        root_blossoms(p, bl, B);
     fbox b = node_box(&c, L, B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
     *lo = mr_v3(b.lo[0], b.lo[1], b.lo[2]);
     *hi = mr_v3(b.hi[0], b.hi[1], b.hi[2]);
@@ -525,8 +581,12 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     lattice_pt P[3];
     root(&c, P);
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
+    blossom bl[6];
+    const blossom *B[6] = {NULL};
+    if (p->mats[0])
+        root_blossoms(p, bl, B);
     /* The caller's BVH has tested the patch box; the root needs no test. */
-    visit(&c, 0, 0, L);
+    visit(&c, 0, 0, L, p->mats[0] ? B : NULL);
     if (c.found)
         *tmax = c.tmax;
     return c.found;
