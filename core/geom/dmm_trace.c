@@ -88,7 +88,6 @@ static inline float larger(float a, float b) { return a > b ? a : b; }
 
 static float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 
-
 /* Displacement bounds for boxes: bias + scale * V in float. Not bit-equal to
  * mr_dmm_value_to_float, but within 2^-23 |d|, which the pad covers. */
 static float disp_bound(const trace_ctx *c, uint16_t v)

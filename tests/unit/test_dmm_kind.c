@@ -270,6 +270,70 @@ static void test_level0_is_base_mesh(void **state)
     assert_true(z <= 1e-6f);
 }
 
+/* Shading normals of a rigidly placed object. With one matrix for every
+ * base vertex the interpolated matrix is that matrix, and the cofactor of an
+ * affine map sends a rest triangle's normal to the normal of the mapped
+ * triangle: "matrix" normals must equal the micro-triangles' geometric
+ * normals in direction, here under rotation plus non-uniform scale (where a
+ * plain M n would tilt them). Tolerance: 1e-4 in the unit vectors' cosine,
+ * float rounding of a cross product of micro-edges a few ulps long relative
+ * to the object. Every mode (tessellated primitive ids and tessellation-free
+ * base-triangle ids) is checked at every micro-triangle centre. */
+static void test_matrix_normals_match_geometric_when_rigid(void **state)
+{
+    (void)state;
+    mr_asset *a = make_bumpy_sphere(1, 0.05f, 5.0f);
+    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
+    mr_mat4 t = mr_mat4_from_trs(mr_v3(0.3f, -2.0f, 1.0f),
+                                 mr_quat_from_axis_angle(mr_v3(1, 2, 3), 0.7f),
+                                 mr_v3(2.0f, 0.5f, 1.3f));
+    const mr_dmm_mode modes[3] = {MR_DMM_TESSELLATED, MR_DMM_BASE, MR_DMM_INTERPOLATED};
+    for (int m = 0; m < 3; m++) {
+        mr_geom *geo[2] = {NULL, NULL};
+        for (int k = 0; k < 2; k++) {
+            mr_object_desc o = {.kind = MR_GEOM_DMM,
+                                .dmm = {.level = 2, .base_ratio = 0.5f, .mode = modes[m],
+                                        .deform = modes[m] == MR_DMM_INTERPOLATED
+                                                      ? MR_DMM_DEFORM_INTERPOLATED
+                                                      : MR_DMM_DEFORM_BASE,
+                                        .normals = k ? MR_DMM_NORMALS_MATRIX
+                                                     : MR_DMM_NORMALS_GEOMETRIC}};
+            mr_error err = {0};
+            assert_int_equal(ops->create(a, &o, &geo[k], &err), MR_OK);
+            assert_int_equal(ops->update(geo[k], NULL, &t, 1, &err), MR_OK);
+        }
+        uint64_t prims = modes[m] == MR_DMM_TESSELLATED ? ops->primitives(geo[0]) : 0;
+        /* tessellation-free: base triangles, sampled at micro-triangle centres */
+        uint32_t base = (uint32_t)(ops->primitives(geo[0]) / 16), n = 4;
+        uint64_t checked = 0;
+        double worst = 1;
+        for (uint64_t prim = 0; prim < (prims ? prims : base); prim++)
+            for (uint32_t cell = 0; cell < (prims ? 1u : n * n); cell++) {
+                float u = 1.0f / 3, v = 1.0f / 3;
+                if (!prims) {
+                    uint32_t ia = cell % n, ib = cell / n;
+                    if (ia + ib >= n)
+                        continue;
+                    u = ((float)ia + 1.0f / 3) / (float)n;
+                    v = ((float)ib + 1.0f / 3) / (float)n;
+                }
+                mr_vec3 g = mr_v3_normalize_or(ops->normal(geo[0], (unsigned)prim, u, v),
+                                               mr_v3(0, 0, 0));
+                mr_vec3 x = mr_v3_normalize_or(ops->normal(geo[1], (unsigned)prim, u, v),
+                                               mr_v3(0, 0, 0));
+                double c = mr_v3_dot(g, x);
+                worst = c < worst ? c : worst;
+                checked++;
+            }
+        assert_true(checked > 100);
+        if (!(worst > 1.0 - 1e-4))
+            fail_msg("mode %d: matrix vs geometric normal cosine %.7f", (int)modes[m], worst);
+        ops->free(geo[0]);
+        ops->free(geo[1]);
+    }
+    mr_asset_free(a);
+}
+
 static mr_asset *load_refined_bcn(void)
 {
     mr_asset *a = NULL, *r = NULL;
@@ -618,6 +682,7 @@ int main(void)
         cmocka_unit_test(test_cache_hit_is_bit_identical),
         cmocka_unit_test(test_cache_keys_corruption_and_failures),
         cmocka_unit_test(test_refused),
+        cmocka_unit_test(test_matrix_normals_match_geometric_when_rigid),
         cmocka_unit_test(test_level0_is_base_mesh),
         cmocka_unit_test(test_matches_detailed_mesh),
         cmocka_unit_test(test_skinned_animates_deterministically),
