@@ -35,6 +35,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "files.h"
+#include "job_json.h"
 #include "render/compare.h"
 #include "render/exr.h"
 
@@ -42,22 +44,6 @@
 #define DEPTH_BOUND 1e-5
 
 static char src_dir[2048], bin[2200], tmp_dir[256];
-
-static char *slurp(const char *path)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return NULL;
-    fseek(f, 0, SEEK_END);
-    long n = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    char *s = malloc((size_t)n + 1);
-    assert_non_null(s);
-    size_t got = fread(s, 1, (size_t)n, f);
-    s[got] = '\0';
-    fclose(f);
-    return s;
-}
 
 static void write_json(const char *path, const cJSON *j)
 {
@@ -114,8 +100,11 @@ static void check_example(const char *name, int *checked)
 {
     char path[4096];
     snprintf(path, sizeof path, "%s/examples/%s", src_dir, name);
-    char *text = slurp(path);
-    assert_non_null(text);
+    char *text = NULL;
+    size_t len = 0;
+    mr_error err = {0};
+    if (mr_file_read(path, MR_JOB_MAX_BYTES, &text, &len, &err) != MR_OK)
+        fail_msg("%s: %s", path, err.msg);
     cJSON *job = cJSON_Parse(text);
     free(text);
     assert_non_null(job);
@@ -144,7 +133,6 @@ static void check_example(const char *name, int *checked)
             break;
         mr_film *a = NULL, *b = NULL;
         mr_exr_meta ma, mb;
-        mr_error err = {0};
         assert_int_equal(mr_exr_read_file(fa, &a, &ma, &err), MR_OK);
         assert_int_equal(mr_exr_read_file(fb, &b, &mb, &err), MR_OK);
         mr_compare_result c;
