@@ -147,6 +147,25 @@ static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
     return rc;
 }
 
+/* The micro-triangle indices of base_count base triangles, each with its own
+ * micro_vertices-long vertex block (micromesh.h row order), into out. */
+static int fill_micro_indices(unsigned level, uint32_t base_count, uint32_t *out, mr_error *err)
+{
+    uint32_t tris = mr_umesh_triangle_count(level), verts = mr_umesh_vertex_count(level);
+    uint32_t *local = malloc((size_t)tris * 3 * sizeof(uint32_t));
+    if (!local)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for dmm micro-triangles");
+    uint32_t local_count = mr_umesh_triangles(level, 0, local);
+    for (uint32_t t = 0; t < base_count && local_count == tris; t++)
+        for (uint32_t k = 0; k < tris * 3; k++)
+            out[(size_t)t * tris * 3 + k] = local[k] + t * verts;
+    free(local);
+    if (local_count != tris)
+        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh topology of level %u is inconsistent",
+                            level);
+    return MR_OK;
+}
+
 static int check_desc(const mr_dmm_desc *d, mr_error *err)
 {
     if (d->level > MR_UMESH_MAX_LEVEL)
@@ -307,25 +326,9 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     if (cache_path && !cached)
         cache_store(g, key, cache_path);
-    if (tessellated(g)) {
-        /* Micro-triangle indices of one base triangle, repeated with an offset. */
-        uint32_t *local = malloc((size_t)g->micro_triangles * 3 * sizeof(uint32_t));
-        if (!local)
-            goto nomem;
-        uint32_t local_count = mr_umesh_triangles(level, 0, local);
-        for (uint32_t t = 0; t < g->base_triangle_count && local_count == g->micro_triangles;
-             t++) {
-            uint32_t *dst = g->indices + (size_t)t * g->micro_triangles * 3;
-            for (uint32_t k = 0; k < g->micro_triangles * 3; k++)
-                dst[k] = local[k] + t * g->micro_vertices;
-        }
-        free(local);
-        if (local_count != g->micro_triangles) {
-            rc = mr_error_set(err, MR_ERR_INVALID,
-                              "micro-mesh topology of level %u is inconsistent", level);
-            goto fail;
-        }
-    }
+    if (tessellated(g) &&
+        (rc = fill_micro_indices(level, g->base_triangle_count, g->indices, err)) < 0)
+        goto fail;
     free(cache_path);
     *out = g;
     return MR_OK;
@@ -364,6 +367,30 @@ static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
     return p;
 }
 
+static bool finite_bounded(mr_vec3 v)
+{
+    return fabsf(v.x) <= MR_MAX_COORDINATE && fabsf(v.y) <= MR_MAX_COORDINATE &&
+           fabsf(v.z) <= MR_MAX_COORDINATE;
+}
+
+/* Every micro-vertex of base triangle t (mr_dmm_vertex, the one evaluation
+ * all modes share) into dst, 3 floats each in micromesh.h order; false if
+ * one is not finite or beyond MR_MAX_COORDINATE. */
+static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
+{
+    mr_dmm_patch p = patch_of(g, t);
+    uint32_t n = mr_umesh_segments(g->desc.level);
+    bool ok = true;
+    for (uint32_t b = 0; b <= n; b++)
+        for (uint32_t a = 0; a + b <= n; a++) {
+            mr_vec3 v = mr_dmm_vertex(&p, a, b);
+            ok = ok && finite_bounded(v);
+            float *o = dst + (size_t)mr_umesh_vertex_index(g->desc.level, a, b) * 3;
+            o[0] = v.x, o[1] = v.y, o[2] = v.z;
+        }
+    return ok;
+}
+
 typedef struct update_ctx {
     mr_geom *g;
     uint32_t bad[MR_MAX_THREADS]; /* per worker: first failing base triangle + 1, or 0 */
@@ -375,20 +402,13 @@ static void note_bad(update_ctx *c, unsigned worker, size_t t)
         c->bad[worker] = (uint32_t)t + 1;
 }
 
-static bool finite_bounded(mr_vec3 v)
-{
-    return fabsf(v.x) <= MR_MAX_COORDINATE && fabsf(v.y) <= MR_MAX_COORDINATE &&
-           fabsf(v.z) <= MR_MAX_COORDINATE;
-}
-
 static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     update_ctx *c = ctx;
     mr_geom *g = c->g;
-    uint32_t n = mr_umesh_segments(g->desc.level);
     for (size_t t = begin; t < end; t++) {
-        mr_dmm_patch p = patch_of(g, (uint32_t)t);
         if (!tessellated(g)) {
+            mr_dmm_patch p = patch_of(g, (uint32_t)t);
             mr_vec3 lo, hi;
             if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
                 note_bad(c, worker, t);
@@ -397,15 +417,8 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             mr_dmm_patch_pad(&p, b + 6);
             continue;
         }
-        float *dst = g->positions + t * g->micro_vertices * 3;
-        for (uint32_t bb = 0; bb <= n; bb++)
-            for (uint32_t a = 0; a + bb <= n; a++) {
-                mr_vec3 v = mr_dmm_vertex(&p, a, bb);
-                if (!finite_bounded(v))
-                    note_bad(c, worker, t);
-                float *o = dst + (size_t)mr_umesh_vertex_index(g->desc.level, a, bb) * 3;
-                o[0] = v.x, o[1] = v.y, o[2] = v.z;
-            }
+        if (!eval_micro_vertices(g, (uint32_t)t, g->positions + t * g->micro_vertices * 3))
+            note_bad(c, worker, t);
     }
 }
 
@@ -660,31 +673,22 @@ static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
     /* The exact reference of a tessellation-free object: its micro-triangles
      * from the same mr_dmm_vertex, one vertex set per base triangle. */
     memset(out, 0, sizeof *out);
-    uint32_t level = g->desc.level, n = mr_umesh_segments(level);
     uint64_t nv = (uint64_t)g->base_triangle_count * g->micro_vertices;
     uint64_t nt = (uint64_t)g->base_triangle_count * g->micro_triangles;
     out->positions = malloc(nv * 3 * sizeof(float) + sizeof(float));
     out->indices = malloc(nt * 3 * sizeof(uint32_t));
-    uint32_t *local = malloc((size_t)g->micro_triangles * 3 * sizeof(uint32_t));
-    if (!out->positions || !out->indices || !local) {
-        free(local);
+    if (!out->positions || !out->indices) {
         mr_trimesh_free(out);
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a dmm object");
     }
-    mr_umesh_triangles(level, 0, local);
-    for (uint32_t t = 0; t < g->base_triangle_count; t++) {
-        mr_dmm_patch p = patch_of(g, t);
-        float *dst = out->positions + (size_t)t * g->micro_vertices * 3;
-        for (uint32_t b = 0; b <= n; b++)
-            for (uint32_t a = 0; a + b <= n; a++) {
-                mr_vec3 x = mr_dmm_vertex(&p, a, b);
-                float *o = dst + (size_t)mr_umesh_vertex_index(level, a, b) * 3;
-                o[0] = x.x, o[1] = x.y, o[2] = x.z;
-            }
-        for (uint32_t k = 0; k < g->micro_triangles * 3; k++)
-            out->indices[(size_t)t * g->micro_triangles * 3 + k] = local[k] + t * g->micro_vertices;
+    int rc = fill_micro_indices(g->desc.level, g->base_triangle_count, out->indices, err);
+    if (rc < 0) {
+        mr_trimesh_free(out);
+        return rc;
     }
-    free(local);
+    /* update() already refused frames with non-finite micro-vertices */
+    for (uint32_t t = 0; t < g->base_triangle_count; t++)
+        eval_micro_vertices(g, t, out->positions + (size_t)t * g->micro_vertices * 3);
     out->vertex_count = (uint32_t)nv;
     out->triangle_count = (uint32_t)nt;
     return MR_OK;
