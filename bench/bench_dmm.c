@@ -38,24 +38,13 @@
 #include "render/compare.h"
 #include "render/renderer.h"
 #include "util/parallel.h"
+#include "bench_util.h"
 
 #define JOB_PATH "examples/skinned-walk.json"
 #define MODES 5
 #define MAX_FRAMES 64
 
 static const char *const MODE_NAME[MODES] = {"tess-b", "base", "tess-i", "interp", "truth"};
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-static double median(double *v, int n)
-{
-    qsort(v, (size_t)n, sizeof *v, cmp_double);
-    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 static void die(const char *what, const char *msg)
 {

@@ -27,20 +27,10 @@
 #include "job_json.h"
 #include "render/renderer.h"
 #include "util/parallel.h"
+#include "bench_util.h"
 
 static int repeats = 5;
 static unsigned threads = 0;
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-static double median(double *v, int n)
-{
-    qsort(v, (size_t)n, sizeof *v, cmp_double);
-    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 static void die(const char *what, const char *msg)
 {
