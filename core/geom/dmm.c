@@ -408,13 +408,15 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
     mr_geom *g = c->g;
     for (size_t t = begin; t < end; t++) {
         if (!tessellated(g)) {
+            /* the pad once: the bounds use it, and it is cached for the rays */
             mr_dmm_patch p = patch_of(g, (uint32_t)t);
+            float *b = g->boxes + t * BOX_FLOATS;
+            mr_dmm_patch_pad(&p, p.pad);
+            memcpy(b + 6, p.pad, sizeof p.pad);
             mr_vec3 lo, hi;
             if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
                 note_bad(c, worker, t);
-            float *b = g->boxes + t * BOX_FLOATS;
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
-            mr_dmm_patch_pad(&p, b + 6);
             continue;
         }
         if (!eval_micro_vertices(g, (uint32_t)t, g->positions + t * g->micro_vertices * 3))
