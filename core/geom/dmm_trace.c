@@ -262,9 +262,8 @@ static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3], const mr
     const lattice_pt *L[3] = {Lin[s], Lin[(s + 1) % 3], Lin[(s + 2) % 3]};
     const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
     mr_wt_hit h;
-    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h) ||
-        !(h.t <= c->tmax))
-        return;
+    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
+        return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
     c->found = true;
     c->tmax = h.t;
     if (!c->hit)

@@ -35,7 +35,8 @@ typedef struct mr_wt_hit {
 mr_wt_ray mr_wt_ray_setup(mr_vec3 org, mr_vec3 dir);
 
 /* True when the ray hits triangle (v0, v1, v2) at tmin <= t <= tmax (either
- * side: no back-face culling); fills *hit. Hits exactly on an edge or a
+ * side: no back-face culling); fills *hit, whose t is then finite and in that
+ * interval (degenerate and near-degenerate triangles never hit). Hits exactly on an edge or a
  * vertex count, so a ray through a shared edge hits at least one of the two
  * triangles. */
 bool mr_wt_intersect(const mr_wt_ray *ray, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
