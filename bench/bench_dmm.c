@@ -216,7 +216,7 @@ static void bake_report(const mr_asset *dancer, const unsigned *levels, int leve
             uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
             mr_dmm_default_bits(bits);
             if (mr_dmm_bake_run(&dancer->meshes[i], &bp, &b, &err) < 0 ||
-                mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements, &enc, &es,
+                mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements, &enc, &es,
                               &err) < 0)
                 die("bake", err.msg);
             base += b->base_triangle_count;

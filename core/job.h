@@ -51,7 +51,9 @@ typedef enum mr_dmm_normals { MR_DMM_NORMALS_GEOMETRIC = 0, MR_DMM_NORMALS_MATRI
 
 /* Bake parameters of a dmm object ("dmm" in the job). */
 typedef struct mr_dmm_desc {
-    unsigned level;          /* subdivision level 0..5 (MR_UMESH_MAX_LEVEL) */
+    unsigned level;          /* subdivision level 0..5 (MR_UMESH_MAX_LEVEL); the largest
+                                when adaptive */
+    bool adaptive;           /* per-triangle levels from the detail ("levels": "adaptive") */
     float base_ratio;        /* base / detailed triangles, (0, 1]; used when base_triangles is 0 */
     uint32_t base_triangles; /* target base triangle count per mesh, or 0 */
     mr_dmm_mode mode;

@@ -929,7 +929,7 @@ static int parse_object_pose(jctx *c, const cJSON *v, mr_object_desc *o, size_t 
 static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "transform", "color",
                                             "pose"};
 static const char *const DMM_FIELDS[] = {"level",  "base_ratio",  "base_triangles",
-                                         "mode",   "deformation", "normals"};
+                                         "mode",   "deformation", "normals", "levels"};
 static const num_spec SPEC_DMM_LEVEL = {0, 5, NUM_INT, NULL};
 static const num_spec SPEC_DMM_RATIO = {0, 1, NUM_LO_OPEN, NULL};
 static const num_spec SPEC_DMM_TRIANGLES = {1, MR_MAX_ASSET_TRIANGLES, NUM_INT, NULL};
@@ -951,6 +951,8 @@ static int get_choice(jctx *c, const cJSON *v, const char *const *names, size_t 
 static const char *const DMM_MODES[] = {"tessellated", "base", "interpolated"};
 static const char *const DMM_DEFORMS[] = {"base", "interpolated"};
 static const char *const DMM_NORMALS[] = {"geometric", "matrix"};
+/* "levels": false / true of mr_dmm_desc.adaptive. */
+static const char *const DMM_LEVELS[] = {"uniform", "adaptive"};
 
 /* The "dmm" bake parameters of a dmm object; base_ratio and base_triangles
  * are alternatives. "deformation" chooses what mode "tessellated" expands
@@ -961,7 +963,8 @@ static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
     TRY(check_fields(c, v, DMM_FIELDS, COUNT_OF(DMM_FIELDS)));
     const cJSON *level = field(v, "level"), *ratio = field(v, "base_ratio"),
                 *tris = field(v, "base_triangles"), *mode = field(v, "mode"),
-                *deform = field(v, "deformation"), *normals = field(v, "normals");
+                *deform = field(v, "deformation"), *normals = field(v, "normals"),
+                *levels = field(v, "levels");
     double x;
     int choice = 0;
     if (level) {
@@ -1005,6 +1008,11 @@ static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
         AT_KEY(c, "normals", get_choice(c, normals, DMM_NORMALS, COUNT_OF(DMM_NORMALS),
                                         "one of: \"geometric\", \"matrix\"", &choice));
         d->normals = (mr_dmm_normals)choice;
+    }
+    if (levels) {
+        AT_KEY(c, "levels", get_choice(c, levels, DMM_LEVELS, COUNT_OF(DMM_LEVELS),
+                                       "one of: \"uniform\", \"adaptive\"", &choice));
+        d->adaptive = choice == 1;
     }
     return MR_OK;
 }

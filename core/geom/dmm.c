@@ -24,11 +24,15 @@
  * attach   tessellation-free modes: one Embree USER geometry, one primitive
  *          per base triangle, whose callbacks run dmm_trace.h's traversal;
  *          tessellated: one TRIANGLE geometry over the micro-triangles
- *          (primitive id = base triangle * 4^level + micro-triangle in
- *          micromesh.h row order);
+ *          (base triangle after base triangle, each its surviving
+ *          micro-triangles in micromesh.h row order: mr_umesh_triangles);
  * normal   the hit micro-triangle's geometric normal, or (normals "matrix")
  *          the rest-pose micro-triangle normal moved by the cofactor of the
  *          interpolated matrix at the hit.
+ *
+ * Base triangles have their own levels (bake parameter "adaptive"): every
+ * per-triangle array (decoded values, pyramid, micro-vertices and
+ * micro-triangles) is packed, with a prefix offset per base triangle.
  *
  * Everything per base triangle is computed from that triangle's own data in
  * a fixed order, so results are bit-identical for any thread count, and
@@ -51,12 +55,21 @@
 /* Per base triangle and frame: box lo, hi, and the traversal's pad. */
 #define BOX_FLOATS 9
 
+/* The surviving micro-triangles (mr_umesh_triangles) of every level and
+ * decimation mask, so a hit maps back to its lattice in O(1). */
+typedef struct topology {
+    uint32_t count[MR_UMESH_MAX_LEVEL + 1][8];
+    uint32_t *tris[MR_UMESH_MAX_LEVEL + 1][8];
+} topology;
+
 struct mr_geom {
     const mr_asset *asset;
     mr_dmm_desc desc;
-    uint32_t micro_vertices;      /* per base triangle */
-    uint32_t micro_triangles;     /* per base triangle */
-    uint32_t pyramid_entries;     /* per base triangle: mr_dmm_trace_pyramid_size(level) */
+    topology topo;
+    uint8_t *tri_info;            /* per base triangle: level and decimation (dmm_encode.h) */
+    /* per base triangle + 1, prefix sums: first decoded value (= first
+     * micro-vertex), first pyramid entry, first surviving micro-triangle */
+    uint32_t *value_first, *pyramid_first, *micro_first;
     mr_dmm_bake **bakes;          /* per asset mesh; NULL for a mesh without triangles */
     mr_dmm_encoded **encoded;     /* per asset mesh, as bakes */
     uint32_t *mesh_first_base;    /* per asset mesh: first base vertex in the merged arrays */
@@ -64,8 +77,9 @@ struct mr_geom {
     uint32_t *base_indices;       /* 3 per base triangle, merged vertex numbering */
     uint32_t *tri_mesh;           /* per base triangle: its asset mesh */
     float *rest_pos, *rest_dir;   /* rest-pose base vertices, 3 each */
-    uint16_t *values;             /* decoded grid values, micro_vertices per base triangle */
-    uint16_t *minv, *maxv;        /* pyramid prefix, pyramid_entries per base triangle */
+    uint16_t *values;             /* decoded grid values, from value_first[t] */
+    uint16_t *minv, *maxv;        /* pyramid prefixes (mr_dmm_trace_pyramid_size), from
+                                     pyramid_first[t] */
     mr_affine *mats, *last_mats;  /* per base vertex: accumulated matrix this / last frame */
     float *posed_pos, *posed_dir; /* mode base: skinned base vertices, 3 each */
     bool evaluated;
@@ -93,6 +107,13 @@ static void dmm_free(mr_geom *g)
     }
     free(g->bakes);
     free(g->encoded);
+    for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
+        for (unsigned m = 0; m < 8; m++)
+            free(g->topo.tris[l][m]);
+    free(g->tri_info);
+    free(g->value_first);
+    free(g->pyramid_first);
+    free(g->micro_first);
     free(g->mesh_first_base);
     free(g->base_indices);
     free(g->tri_mesh);
@@ -112,7 +133,7 @@ static void dmm_free(mr_geom *g)
 }
 
 /* Encodes mesh i's bake (unless its encoding came from the disk cache) and
- * decodes its values and pyramid prefix into the merged arrays from base
+ * decodes its values and pyramid prefixes into the packed arrays from base
  * triangle t0 on: either way what is rendered is the encoding. */
 static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
 {
@@ -121,7 +142,7 @@ static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
     if (!g->encoded[i]) {
         uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
         mr_dmm_default_bits(bits);
-        rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements,
+        rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements,
                            &g->encoded[i], NULL, err);
         if (rc < 0)
             return rc;
@@ -132,38 +153,54 @@ static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
     if (!minv || !maxv)
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory decoding a dmm");
     for (uint32_t t = 0; t < b->base_triangle_count && rc >= 0; t++) {
-        uint16_t *values = g->values + (size_t)(t0 + t) * g->micro_vertices;
+        uint32_t at = t0 + t;
+        unsigned level = mr_dmm_info_level(g->tri_info[at]);
+        uint16_t *values = g->values + g->value_first[at];
         if ((rc = mr_dmm_decode_values(enc, t, values, err)) < 0 ||
-            (rc = mr_dmm_pyramid_build(b->level, values, minv, maxv, err)) < 0)
+            (rc = mr_dmm_pyramid_build(level, values, minv, maxv, err)) < 0)
             break;
-        size_t at = (size_t)(t0 + t) * g->pyramid_entries;
-        memcpy(g->minv + at, minv, g->pyramid_entries * sizeof *minv);
-        memcpy(g->maxv + at, maxv, g->pyramid_entries * sizeof *maxv);
-        g->tri_mesh[t0 + t] = (uint32_t)i;
+        uint32_t keep = g->pyramid_first[at + 1] - g->pyramid_first[at];
+        memcpy(g->minv + g->pyramid_first[at], minv, keep * sizeof *minv);
+        memcpy(g->maxv + g->pyramid_first[at], maxv, keep * sizeof *maxv);
+        g->tri_mesh[at] = (uint32_t)i;
     }
     free(minv);
     free(maxv);
-    g->encoded_bytes += (size_t)enc->triangle_count * enc->record_bytes;
+    g->encoded_bytes += (size_t)enc->triangle_count + enc->records_bytes;
     return rc;
 }
 
-/* The micro-triangle indices of base_count base triangles, each with its own
- * micro_vertices-long vertex block (micromesh.h row order), into out. */
-static int fill_micro_indices(unsigned level, uint32_t base_count, uint32_t *out, mr_error *err)
+static int topology_init(topology *tp, unsigned max_level, mr_error *err)
 {
-    uint32_t tris = mr_umesh_triangle_count(level), verts = mr_umesh_vertex_count(level);
-    uint32_t *local = malloc((size_t)tris * 3 * sizeof(uint32_t));
-    if (!local)
-        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for dmm micro-triangles");
-    uint32_t local_count = mr_umesh_triangles(level, 0, local);
-    for (uint32_t t = 0; t < base_count && local_count == tris; t++)
-        for (uint32_t k = 0; k < tris * 3; k++)
-            out[(size_t)t * tris * 3 + k] = local[k] + t * verts;
-    free(local);
-    if (local_count != tris)
-        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh topology of level %u is inconsistent",
-                            level);
+    for (unsigned l = 0; l <= max_level; l++)
+        for (unsigned m = 0; m < (l ? 8u : 1u); m++) {
+            tp->tris[l][m] = malloc((size_t)mr_umesh_triangle_count(l) * 3 * sizeof(uint32_t));
+            if (!tp->tris[l][m]) /* the owner's free releases what was made */
+                return mr_error_set(err, MR_ERR_NOMEM, "out of memory for dmm micro-triangles");
+            tp->count[l][m] = mr_umesh_triangles(l, m, tp->tris[l][m]);
+        }
     return MR_OK;
+}
+
+/* Surviving micro-triangles of base triangle t (local vertex indices). */
+static const uint32_t *local_tris(const mr_geom *g, uint32_t t, uint32_t *count)
+{
+    unsigned l = mr_dmm_info_level(g->tri_info[t]), m = mr_dmm_info_decimate(g->tri_info[t]);
+    *count = g->topo.count[l][m];
+    return g->topo.tris[l][m];
+}
+
+/* The micro-triangle indices of every base triangle, each over its own
+ * block of micro-vertices from value_first[t], into out. */
+static void fill_micro_indices(const mr_geom *g, uint32_t *out)
+{
+    for (uint32_t t = 0; t < g->base_triangle_count; t++) {
+        uint32_t count;
+        const uint32_t *local = local_tris(g, t, &count);
+        uint32_t *o = out + (size_t)g->micro_first[t] * 3;
+        for (uint32_t k = 0; k < count * 3; k++)
+            o[k] = local[k] + g->value_first[t];
+    }
 }
 
 static int check_desc(const mr_dmm_desc *d, mr_error *err)
@@ -183,17 +220,58 @@ static int check_desc(const mr_dmm_desc *d, mr_error *err)
     return MR_OK;
 }
 
+/* Per-triangle levels into the packed layout: tri_info and the prefix
+ * offsets, within the asset caps. */
+static int lay_out(mr_geom *g, mr_error *err)
+{
+    size_t nt = g->base_triangle_count;
+    g->tri_info = malloc(nt);
+    g->value_first = malloc((nt + 1) * sizeof(uint32_t));
+    g->pyramid_first = malloc((nt + 1) * sizeof(uint32_t));
+    g->micro_first = malloc((nt + 1) * sizeof(uint32_t));
+    if (!g->tri_info || !g->value_first || !g->pyramid_first || !g->micro_first)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
+    size_t t = 0;
+    for (size_t i = 0; i < g->asset->mesh_count; i++)
+        if (g->bakes[i]) {
+            memcpy(g->tri_info + t, g->bakes[i]->tri_info, g->bakes[i]->base_triangle_count);
+            t += g->bakes[i]->base_triangle_count;
+        }
+    uint64_t values = 0, pyramid = 0, micro = 0;
+    for (t = 0; t < nt; t++) {
+        g->value_first[t] = (uint32_t)values;
+        g->pyramid_first[t] = (uint32_t)pyramid;
+        g->micro_first[t] = (uint32_t)micro;
+        unsigned level = mr_dmm_info_level(g->tri_info[t]);
+        uint32_t count;
+        local_tris(g, (uint32_t)t, &count);
+        values += mr_umesh_vertex_count(level);
+        pyramid += mr_dmm_trace_pyramid_size(level);
+        micro += count;
+        if (values > MR_MAX_ASSET_VERTICES || micro > MR_MAX_ASSET_TRIANGLES)
+            return mr_error_set(err, MR_ERR_LIMIT,
+                                "%s: %zu base triangles at level %u exceed the caps (%u "
+                                "micro-triangles / vertices)",
+                                g->asset->path, nt, g->desc.level, MR_MAX_ASSET_TRIANGLES);
+    }
+    g->value_first[nt] = (uint32_t)values;
+    g->pyramid_first[nt] = (uint32_t)pyramid;
+    g->micro_first[nt] = (uint32_t)micro;
+    return MR_OK;
+}
+
 /* Allocates everything after the bake counts are known. */
 static int allocate(mr_geom *g, mr_error *err)
 {
     size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
+    size_t values = g->value_first[nt], pyramid = g->pyramid_first[nt];
     g->base_indices = malloc(nt * 3 * sizeof(uint32_t));
     g->tri_mesh = malloc(nt * sizeof(uint32_t));
     g->rest_pos = malloc(nv * 3 * sizeof(float));
     g->rest_dir = malloc(nv * 3 * sizeof(float));
-    g->values = malloc(nt * g->micro_vertices * sizeof(uint16_t));
-    g->minv = malloc(nt * g->pyramid_entries * sizeof(uint16_t));
-    g->maxv = malloc(nt * g->pyramid_entries * sizeof(uint16_t));
+    g->values = malloc(values * sizeof(uint16_t));
+    g->minv = malloc(pyramid * sizeof(uint16_t));
+    g->maxv = malloc(pyramid * sizeof(uint16_t));
     g->mats = calloc(nv, sizeof(mr_affine));
     g->last_mats = calloc(nv, sizeof(mr_affine));
     bool ok = g->base_indices && g->tri_mesh && g->rest_pos && g->rest_dir && g->values &&
@@ -204,8 +282,8 @@ static int allocate(mr_geom *g, mr_error *err)
         ok = ok && g->posed_pos && g->posed_dir;
     }
     if (tessellated(g)) {
-        g->vertex_count = (uint32_t)(nt * g->micro_vertices);
-        g->triangle_count = (uint32_t)(nt * g->micro_triangles);
+        g->vertex_count = (uint32_t)values;
+        g->triangle_count = g->micro_first[nt];
         g->positions = calloc((size_t)g->vertex_count * 3 + 1, sizeof(float));
         g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
         ok = ok && g->positions && g->indices;
@@ -262,9 +340,6 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     g->asset = asset;
     g->desc = desc->dmm;
     unsigned level = g->desc.level;
-    g->micro_vertices = mr_umesh_vertex_count(level);
-    g->micro_triangles = mr_umesh_triangle_count(level);
-    g->pyramid_entries = mr_dmm_trace_pyramid_size(level);
     size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
     g->bakes = calloc(meshes, sizeof *g->bakes);
     g->encoded = calloc(meshes, sizeof *g->encoded);
@@ -274,6 +349,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
 
     mr_dmm_bake_params bp = mr_dmm_bake_params_default();
     bp.level = level;
+    bp.adaptive = g->desc.adaptive;
     bp.target_triangles = g->desc.base_triangles;
     bp.target_ratio = g->desc.base_ratio;
     bp.threads = 0; /* the bake does not depend on it */
@@ -289,13 +365,9 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
         g->mesh_first_base[i] = (uint32_t)nv;
         nv += g->bakes[i]->base_vertex_count;
         nt += g->bakes[i]->base_triangle_count;
-        if (nv > MR_MAX_ASSET_VERTICES || nt * g->micro_triangles > MR_MAX_ASSET_TRIANGLES ||
-            nt * g->micro_vertices > MR_MAX_ASSET_VERTICES) {
-            rc = mr_error_set(err, MR_ERR_LIMIT,
-                              "%s: %llu base triangles at level %u exceed the caps (%u "
-                              "micro-triangles / vertices)",
-                              asset->path, (unsigned long long)nt, level,
-                              MR_MAX_ASSET_TRIANGLES);
+        if (nv > MR_MAX_ASSET_VERTICES || nt > MR_DMM_MAX_TRIANGLES) {
+            rc = mr_error_set(err, MR_ERR_LIMIT, "%s: %llu base triangles exceed the cap (%u)",
+                              asset->path, (unsigned long long)nt, MR_DMM_MAX_TRIANGLES);
             goto fail;
         }
     }
@@ -305,7 +377,8 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     g->base_vertex_count = (uint32_t)nv;
     g->base_triangle_count = (uint32_t)nt;
-    if ((rc = allocate(g, err)) < 0)
+    if ((rc = topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
+        (rc = allocate(g, err)) < 0)
         goto fail;
 
     uint32_t t0 = 0;
@@ -326,9 +399,8 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     if (cache_path && !cached)
         cache_store(g, key, cache_path);
-    if (tessellated(g) &&
-        (rc = fill_micro_indices(level, g->base_triangle_count, g->indices, err)) < 0)
-        goto fail;
+    if (tessellated(g))
+        fill_micro_indices(g, g->indices);
     free(cache_path);
     *out = g;
     return MR_OK;
@@ -345,11 +417,12 @@ static mr_vec3 load3(const float *a, size_t i) { return mr_v3(a[i * 3], a[i * 3 
 /* Base triangle t as a traversal patch for this frame. */
 static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
 {
-    mr_dmm_patch p = {.level = g->desc.level,
+    mr_dmm_patch p = {.level = mr_dmm_info_level(g->tri_info[t]),
+                      .decimate = mr_dmm_info_decimate(g->tri_info[t]),
                       .enc = g->encoded[g->tri_mesh[t]],
-                      .values = g->values + (size_t)t * g->micro_vertices,
-                      .minv = g->minv + (size_t)t * g->pyramid_entries,
-                      .maxv = g->maxv + (size_t)t * g->pyramid_entries};
+                      .values = g->values + g->value_first[t],
+                      .minv = g->minv + g->pyramid_first[t],
+                      .maxv = g->maxv + g->pyramid_first[t]};
     const uint32_t *idx = g->base_indices + (size_t)t * 3;
     bool interpolated = g->desc.deform == MR_DMM_DEFORM_INTERPOLATED;
     for (int k = 0; k < 3; k++) {
@@ -374,18 +447,19 @@ static bool finite_bounded(mr_vec3 v)
 }
 
 /* Every micro-vertex of base triangle t (mr_dmm_vertex, the one evaluation
- * all modes share) into dst, 3 floats each in micromesh.h order; false if
- * one is not finite or beyond MR_MAX_COORDINATE. */
+ * all modes share) into dst, 3 floats each in micromesh.h order (vertices a
+ * decimated edge collapses are evaluated too; no surviving micro-triangle
+ * uses them); false if one is not finite or beyond MR_MAX_COORDINATE. */
 static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
 {
     mr_dmm_patch p = patch_of(g, t);
-    uint32_t n = mr_umesh_segments(g->desc.level);
+    uint32_t n = mr_umesh_segments(p.level);
     bool ok = true;
     for (uint32_t b = 0; b <= n; b++)
         for (uint32_t a = 0; a + b <= n; a++) {
             mr_vec3 v = mr_dmm_vertex(&p, a, b);
             ok = ok && finite_bounded(v);
-            float *o = dst + (size_t)mr_umesh_vertex_index(g->desc.level, a, b) * 3;
+            float *o = dst + (size_t)mr_umesh_vertex_index(p.level, a, b) * 3;
             o[0] = v.x, o[1] = v.y, o[2] = v.z;
         }
     return ok;
@@ -419,7 +493,7 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
             continue;
         }
-        if (!eval_micro_vertices(g, (uint32_t)t, g->positions + t * g->micro_vertices * 3))
+        if (!eval_micro_vertices(g, (uint32_t)t, g->positions + (size_t)g->value_first[t] * 3))
             note_bad(c, worker, t);
     }
 }
@@ -620,11 +694,23 @@ static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
 {
     if (!tessellated(g))
         return prim;
-    uint32_t t = prim / g->micro_triangles, idx[3], a[3], b[3];
-    mr_umesh_triangle(g->desc.level, prim % g->micro_triangles, idx);
+    if (prim >= g->micro_first[g->base_triangle_count])
+        return UINT32_MAX;
+    /* the base triangle whose micro-triangle range holds prim */
+    uint32_t lo = 0, hi = g->base_triangle_count;
+    while (hi - lo > 1) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (g->micro_first[mid] <= prim)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    uint32_t t = lo, count, a[3], b[3];
+    unsigned level = mr_dmm_info_level(g->tri_info[t]);
+    const uint32_t *idx = local_tris(g, t, &count) + 3 * (size_t)(prim - g->micro_first[t]);
     for (int k = 0; k < 3; k++)
-        mr_umesh_vertex_coords(g->desc.level, idx[k], &a[k], &b[k]);
-    float w0 = 1.0f - *u - *v, n = (float)mr_umesh_segments(g->desc.level);
+        mr_umesh_vertex_coords(level, idx[k], &a[k], &b[k]);
+    float w0 = 1.0f - *u - *v, n = (float)mr_umesh_segments(level);
     float bu = (w0 * (float)a[0] + *u * (float)a[1] + *v * (float)a[2]) / n;
     float bv = (w0 * (float)b[0] + *u * (float)b[1] + *v * (float)b[2]) / n;
     *u = bu, *v = bv;
@@ -638,7 +724,7 @@ static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
         return mr_v3(0, 0, 1);
     mr_dmm_patch p = patch_of(g, t);
     uint32_t a[3], b[3];
-    mr_dmm_locate(g->desc.level, u, v, a, b);
+    mr_dmm_locate(p.level, p.decimate, u, v, a, b);
     if (g->desc.normals == MR_DMM_NORMALS_GEOMETRIC) {
         mr_vec3 x[3];
         for (int k = 0; k < 3; k++)
@@ -675,22 +761,18 @@ static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
     /* The exact reference of a tessellation-free object: its micro-triangles
      * from the same mr_dmm_vertex, one vertex set per base triangle. */
     memset(out, 0, sizeof *out);
-    uint64_t nv = (uint64_t)g->base_triangle_count * g->micro_vertices;
-    uint64_t nt = (uint64_t)g->base_triangle_count * g->micro_triangles;
+    uint64_t nv = g->value_first[g->base_triangle_count];
+    uint64_t nt = g->micro_first[g->base_triangle_count];
     out->positions = malloc(nv * 3 * sizeof(float) + sizeof(float));
     out->indices = malloc(nt * 3 * sizeof(uint32_t));
     if (!out->positions || !out->indices) {
         mr_trimesh_free(out);
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a dmm object");
     }
-    int rc = fill_micro_indices(g->desc.level, g->base_triangle_count, out->indices, err);
-    if (rc < 0) {
-        mr_trimesh_free(out);
-        return rc;
-    }
+    fill_micro_indices(g, out->indices);
     /* update() already refused frames with non-finite micro-vertices */
     for (uint32_t t = 0; t < g->base_triangle_count; t++)
-        eval_micro_vertices(g, t, out->positions + (size_t)t * g->micro_vertices * 3);
+        eval_micro_vertices(g, t, out->positions + (size_t)g->value_first[t] * 3);
     out->vertex_count = (uint32_t)nv;
     out->triangle_count = (uint32_t)nt;
     return MR_OK;
@@ -705,8 +787,9 @@ static size_t dmm_memory(const mr_geom *g)
             bytes += mr_dmm_bake_memory(g->bakes[i]);
     bytes += g->encoded_bytes;
     bytes += nt * 4 * sizeof(uint32_t);                                 /* indices, tri_mesh */
+    bytes += nt * (1 + 3 * sizeof(uint32_t));                           /* tri_info, offsets */
     bytes += nv * 6 * sizeof(float) + nv * 2 * sizeof(mr_affine);      /* rest, mats */
-    bytes += nt * (g->micro_vertices + 2 * g->pyramid_entries) * sizeof(uint16_t);
+    bytes += ((size_t)g->value_first[nt] + 2 * (size_t)g->pyramid_first[nt]) * sizeof(uint16_t);
     if (g->posed_pos)
         bytes += nv * 6 * sizeof(float);
     if (g->boxes)
@@ -719,7 +802,7 @@ static size_t dmm_memory(const mr_geom *g)
 
 static uint64_t dmm_primitives(const mr_geom *g)
 {
-    return (uint64_t)g->base_triangle_count * g->micro_triangles;
+    return g->micro_first[g->base_triangle_count];
 }
 
 const mr_geom_ops mr_geom_dmm_ops = {

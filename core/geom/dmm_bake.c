@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "geom/dmm_encode.h"
 #include "geom/micromesh.h"
 #include "util/parallel.h"
 
@@ -34,6 +35,7 @@ void mr_dmm_bake_free(mr_dmm_bake *bake)
     free(bake->joints);
     free(bake->weights);
     free(bake->displacements);
+    free(bake->tri_info);
     free(bake);
 }
 
@@ -42,7 +44,8 @@ size_t mr_dmm_bake_memory(const mr_dmm_bake *b)
     if (!b)
         return 0;
     size_t v = b->base_vertex_count, t = b->base_triangle_count;
-    size_t bytes = sizeof *b + v * (6 * sizeof(float) + sizeof(uint32_t)) + t * 3 * sizeof(uint32_t);
+    size_t bytes = sizeof *b + v * (6 * sizeof(float) + sizeof(uint32_t)) +
+                   t * (3 * sizeof(uint32_t) + sizeof(uint8_t));
     if (b->displacements) /* absent when the bake came from a file */
         bytes += t * (size_t)b->micro_vertex_count * sizeof(float);
     if (b->joints)
@@ -152,7 +155,9 @@ typedef struct bake_ctx {
     uint32_t *fallbacks;          /* per base triangle */
     double *sum2;                 /* per base triangle */
     double *maxd;                 /* per base triangle */
+    uint32_t *samples;            /* per base triangle: error report samples */
     mr_vec3 *scratch;             /* per worker: micro_vertex_count positions */
+    uint32_t *tri_scratch;        /* per worker: 3 * 4^level micro-triangle indices */
 } bake_ctx;
 
 /* Hit distance along dir from org, or INFINITY. */
@@ -188,12 +193,14 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     bake_ctx *c = vctx;
     mr_dmm_bake *b = c->bake;
-    const unsigned level = b->level;
-    const uint32_t mvc = b->micro_vertex_count, mtc = mr_umesh_triangle_count(level);
-    mr_vec3 *pts = c->scratch + (size_t)worker * mvc;
+    mr_vec3 *pts = c->scratch + (size_t)worker * b->micro_vertex_count;
+    uint32_t *tris = c->tri_scratch + (size_t)worker * 3 * mr_umesh_triangle_count(b->level);
     for (size_t t = begin; t < end; t++) {
+        const unsigned level = mr_dmm_info_level(b->tri_info[t]);
+        const unsigned decimate = mr_dmm_info_decimate(b->tri_info[t]);
+        const uint32_t mvc = mr_umesh_vertex_count(level);
         mr_umesh_tri tri = base_tri(b, (uint32_t)t);
-        float *disp = b->displacements + t * mvc;
+        float *disp = b->displacements + t * b->micro_vertex_count;
         uint32_t fb = 0;
         for (uint32_t i = 0; i < mvc; i++) {
             uint32_t a, bb;
@@ -217,17 +224,18 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
         }
         c->fallbacks[t] = fb;
 
-        /* error report: displaced micro-vertices and micro-triangle centroids */
-        mr_umesh_eval_all(&tri, level, 0, disp, pts, NULL);
+        /* error report: displaced micro-vertices (collapsed ones where they
+         * went) and the surviving micro-triangles' centroids */
+        mr_umesh_eval_all(&tri, level, decimate, disp, pts, NULL);
         double s2 = 0, mx = 0;
         for (uint32_t i = 0; i < mvc; i++) {
             double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, pts[i]);
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
+        uint32_t mtc = mr_umesh_triangles(level, decimate, tris);
         for (uint32_t k = 0; k < mtc; k++) {
-            uint32_t idx[3];
-            mr_umesh_triangle(level, k, idx);
+            const uint32_t *idx = tris + 3 * k;
             mr_vec3 cen = mr_v3_scale(mr_v3_add(mr_v3_add(pts[idx[0]], pts[idx[1]]), pts[idx[2]]),
                                       1.0f / 3.0f);
             double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, cen);
@@ -236,6 +244,7 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
         }
         c->sum2[t] = s2;
         c->maxd[t] = mx;
+        c->samples[t] = mvc + mtc;
     }
 }
 
@@ -318,6 +327,96 @@ static bool base_normals(mr_dmm_bake *b)
     }
     free(acc);
     free(first);
+    return true;
+}
+
+static double tri_area(const float *pos, const uint32_t *ix)
+{
+    d3 p0 = vtx(pos, ix[0]), p1 = vtx(pos, ix[1]), p2 = vtx(pos, ix[2]);
+    d3 e1 = d3_sub(p1, p0), e2 = d3_sub(p2, p0);
+    d3 n = {e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x};
+    return 0.5 * sqrt(d3_dot(n, n));
+}
+
+/* A base triangle's edge k (micromesh.h: k = 0 is corner 0 -> 1), keyed by
+ * its vertex pair so the triangles sharing it sort next to each other. */
+typedef struct edge_ref {
+    uint32_t lo, hi, tri, k;
+} edge_ref;
+
+static int edge_cmp(const void *x, const void *y)
+{
+    const edge_ref *a = x, *b = y;
+    if (a->lo != b->lo)
+        return a->lo < b->lo ? -1 : 1;
+    if (a->hi != b->hi)
+        return a->hi < b->hi ? -1 : 1;
+    return a->tri < b->tri ? -1 : a->tri > b->tri;
+}
+
+/* Step 4 of dmm_bake.h: b->tri_info from the detail's mean triangle area
+ * (welded mesh wpos / widx, wi indices). */
+static bool assign_levels(mr_dmm_bake *b, const float *wpos, const uint32_t *widx, size_t wi,
+                          bool adaptive)
+{
+    uint32_t nt = b->base_triangle_count;
+    uint8_t *level = malloc(nt);
+    edge_ref *e = malloc((size_t)nt * 3 * sizeof *e);
+    if (!level || !e) {
+        free(level);
+        free(e);
+        return false;
+    }
+    double detail = 0;
+    for (size_t t = 0; adaptive && t < wi; t += 3)
+        detail += tri_area(wpos, widx + t);
+    detail /= (double)(wi / 3);
+    for (uint32_t t = 0; t < nt; t++) {
+        level[t] = (uint8_t)b->level;
+        double ratio = tri_area(b->base_positions, b->base_indices + 3 * t) / detail;
+        if (adaptive && ratio < INFINITY) /* else (no detail area) the finest */
+            level[t] = (uint8_t)(ratio > 1 ? fmin(nearbyint(0.5 * log2(ratio)), b->level) : 0);
+    }
+    for (uint32_t t = 0; t < nt; t++)
+        for (uint32_t k = 0; k < 3; k++) {
+            uint32_t u = b->base_indices[3 * t + k], v = b->base_indices[3 * t + (k + 1) % 3];
+            e[3 * t + k] = (edge_ref){u < v ? u : v, u < v ? v : u, t, k};
+        }
+    qsort(e, (size_t)nt * 3, sizeof *e, edge_cmp);
+    /* raise the coarse side of every edge joining levels more than one
+     * apart; levels only grow and are capped, so this ends */
+    for (bool changed = adaptive; changed;) {
+        changed = false;
+        for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
+            unsigned top = 0;
+            for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
+                top = level[e[j].tri] > top ? level[e[j].tri] : top;
+            for (size_t m = i; m < j; m++)
+                if (level[e[m].tri] + 1u < top) {
+                    level[e[m].tri] = (uint8_t)(top - 1);
+                    changed = true;
+                }
+        }
+    }
+    uint8_t *decimate = calloc(nt, 1);
+    if (!decimate) {
+        free(level);
+        free(e);
+        return false;
+    }
+    for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
+        unsigned low = UINT32_MAX;
+        for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
+            low = level[e[j].tri] < low ? level[e[j].tri] : low;
+        for (size_t m = i; m < j; m++)
+            if (level[e[m].tri] > low)
+                decimate[e[m].tri] |= (uint8_t)(1u << e[m].k);
+    }
+    for (uint32_t t = 0; t < nt; t++)
+        b->tri_info[t] = mr_dmm_tri_info(level[t], decimate[t]);
+    free(decimate);
+    free(level);
+    free(e);
     return true;
 }
 
@@ -414,8 +513,10 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
     b->base_positions = malloc((size_t)nbv * 3 * sizeof(float));
     b->base_directions = malloc((size_t)nbv * 3 * sizeof(float));
     b->base_source = malloc((size_t)nbv * sizeof(uint32_t));
-    b->displacements = malloc((size_t)nbt * b->micro_vertex_count * sizeof(float));
-    if (!b->base_positions || !b->base_directions || !b->base_source || !b->displacements)
+    b->displacements = calloc((size_t)nbt * b->micro_vertex_count, sizeof(float));
+    b->tri_info = malloc(nbt);
+    if (!b->base_positions || !b->base_directions || !b->base_source || !b->displacements ||
+        !b->tri_info)
         goto nomem;
     bool skinned = detail->joint_count > 0 && detail->joints && detail->weights;
     if (skinned) {
@@ -442,8 +543,8 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
         }
     }
 
-    /* 3. directions */
-    if (!base_normals(b))
+    /* 3. directions, 4. levels */
+    if (!base_normals(b) || !assign_levels(b, wpos, widx, wi, params->adaptive))
         goto nomem;
 
     /* 4. Embree scene of the (welded) detailed mesh */
@@ -486,17 +587,21 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
     ctx.fallbacks = calloc(nbt, sizeof *ctx.fallbacks);
     ctx.sum2 = calloc(nbt, sizeof *ctx.sum2);
     ctx.maxd = calloc(nbt, sizeof *ctx.maxd);
+    ctx.samples = calloc(nbt, sizeof *ctx.samples);
     ctx.scratch = malloc((size_t)threads * b->micro_vertex_count * sizeof(mr_vec3));
-    if (!ctx.fallbacks || !ctx.sum2 || !ctx.maxd || !ctx.scratch)
+    ctx.tri_scratch =
+        malloc((size_t)threads * 3 * mr_umesh_triangle_count(b->level) * sizeof(uint32_t));
+    if (!ctx.fallbacks || !ctx.sum2 || !ctx.maxd || !ctx.samples || !ctx.scratch ||
+        !ctx.tri_scratch)
         goto nomem;
     mr_parallel_for(threads, nbt, 4, bake_range, &ctx);
     double s2 = 0, mx = 0;
     for (uint32_t t = 0; t < nbt; t++) {
         b->fallback_count += ctx.fallbacks[t];
+        b->sample_count += ctx.samples[t];
         s2 += ctx.sum2[t];
         mx = fmax(mx, ctx.maxd[t]);
     }
-    b->sample_count = (uint64_t)nbt * (b->micro_vertex_count + mr_umesh_triangle_count(b->level));
     b->rms_distance = sqrt(s2 / (double)b->sample_count);
     b->max_distance = mx;
     *out = b;
@@ -509,7 +614,9 @@ cleanup:
     free(ctx.fallbacks);
     free(ctx.sum2);
     free(ctx.maxd);
+    free(ctx.samples);
     free(ctx.scratch);
+    free(ctx.tri_scratch);
     if (scene)
         rtcReleaseScene(scene);
     if (device)

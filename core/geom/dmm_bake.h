@@ -14,7 +14,14 @@
  *  3. Base directions: area-weighted vertex normals of the base mesh, unit at
  *     the vertices. They are interpolated across a triangle without
  *     normalisation (eq. 5), by micromesh.h.
- *  4. For every micro-vertex of the level-L subdivision, the signed distance
+ *  4. Levels (params.adaptive): every base triangle gets the level whose
+ *     micro-triangles are closest in area to the detailed mesh's mean
+ *     triangle, log4(base area / mean detail area) rounded, within 0..L;
+ *     then levels are raised until no shared edge joins levels more than one
+ *     apart (raising keeps detail; at most L passes), and the finer side of
+ *     an edge between levels l and l + 1 is decimated (micromesh.h). Without
+ *     adaptive every triangle is at level L.
+ *  5. For every micro-vertex of a triangle's subdivision, the signed distance
  *     along the interpolated direction to the detailed surface: two Embree
  *     rays from the undisplaced point, along +dir and -dir, nearest hit wins
  *     (ties go to +dir). Distances are in units of the unnormalised
@@ -24,9 +31,9 @@
  *     Micro-vertices on a shared base edge get bit-identical rays from both
  *     triangles (micromesh.h's edge rule), and a ray query is a pure function
  *     of the ray, so both sides get the same displacement.
- *  5. Error report: distance from the DMM surface to the detailed mesh,
- *     sampled at every displaced micro-vertex and every micro-triangle
- *     centroid, by an exact closest-point query (Embree rtcPointQuery with a
+ *  6. Error report: distance from the DMM surface to the detailed mesh,
+ *     sampled at every displaced micro-vertex and every (surviving)
+ *     micro-triangle centroid, by an exact closest-point query (Embree rtcPointQuery with a
  *     point-triangle distance). RMS and max over all samples.
  *
  * Deterministic for any thread count: every base triangle is baked
@@ -35,6 +42,7 @@
 #ifndef MR_DMM_BAKE_H
 #define MR_DMM_BAKE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -51,8 +59,11 @@ typedef struct mr_dmm_bake_params {
      * no bound (simplify until the target count is reached or nothing can
      * collapse any more). */
     float max_error;
-    /* Subdivision level 0..MR_UMESH_MAX_LEVEL. */
+    /* Subdivision level 0..MR_UMESH_MAX_LEVEL: of every triangle, or the
+     * largest with adaptive. */
     unsigned level;
+    /* Per-triangle levels from the detail's density (step 4). */
+    bool adaptive;
     /* Longest displacement searched, in direction-length units; 0 means
      * unbounded. */
     float max_displacement;
@@ -61,8 +72,9 @@ typedef struct mr_dmm_bake_params {
 } mr_dmm_bake_params;
 
 typedef struct mr_dmm_bake {
-    unsigned level;
-    uint32_t micro_vertex_count;   /* per base triangle: mr_umesh_vertex_count(level) */
+    unsigned level;                /* the largest triangle level */
+    uint32_t micro_vertex_count;   /* floats per base triangle in displacements:
+                                      mr_umesh_vertex_count(level) */
     uint32_t base_vertex_count;
     uint32_t base_triangle_count;
     float *base_positions;         /* 3 per base vertex, bit-identical to the source vertex */
@@ -71,7 +83,9 @@ typedef struct mr_dmm_bake {
     uint32_t *base_source;         /* per base vertex: index of the detailed vertex it is */
     uint16_t *joints;              /* MR_MAX_INFLUENCES per base vertex, or NULL if rigid */
     float *weights;                /* MR_MAX_INFLUENCES per base vertex, or NULL if rigid */
-    float *displacements;          /* micro_vertex_count per base triangle, micromesh.h order */
+    uint8_t *tri_info;             /* per base triangle: level and decimation, mr_dmm_tri_info */
+    float *displacements;          /* micro_vertex_count per base triangle, micromesh.h order;
+                                      a triangle uses the vertex count of its own level */
     uint64_t fallback_count;       /* micro-vertices where neither ray hit */
     uint64_t sample_count;         /* samples of the error report */
     double rms_distance;           /* DMM surface to detailed mesh, model units */

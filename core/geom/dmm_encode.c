@@ -20,7 +20,7 @@
 #define SHIFT_BITS 4u
 #define MAX_SHIFT 15
 #define GROUPS 4 /* edges 0, 1, 2 and the interior */
-#define FILE_VERSION 1u
+#define FILE_VERSION 2u
 #define MAX_FILE_BYTES ((uint64_t)1 << 31)
 
 static const uint8_t file_magic[8] = {'M', 'R', 'D', 'M', 'M', 0, '\r', '\n'};
@@ -208,9 +208,31 @@ static void decode_triangle(unsigned L, const uint8_t *bits, const uint8_t *rec,
 
 /* ---- encode / decode API */
 
+/* Checks each triangle's info byte against the largest level and lays the
+ * records out: offset[t] and *total. MR_ERR_INVALID for a bad info byte,
+ * MR_ERR_LIMIT when the records pass MAX_FILE_BYTES; *bad names the
+ * triangle. No message: callers know their context. */
+static int layout_records(unsigned level, const uint8_t *bits, uint32_t count,
+                          const uint8_t *info, uint32_t *offset, uint64_t *total, uint32_t *bad)
+{
+    uint64_t sum = 0;
+    for (uint32_t t = 0; t < count; t++) {
+        unsigned l = mr_dmm_info_level(info[t]);
+        *bad = t;
+        if ((info[t] & 0x88u) || l > level || (l == 0 && mr_dmm_info_decimate(info[t])))
+            return MR_ERR_INVALID;
+        offset[t] = (uint32_t)sum;
+        sum += mr_dmm_record_bytes(l, bits);
+        if (sum > MAX_FILE_BYTES)
+            return MR_ERR_LIMIT;
+    }
+    *total = sum;
+    return MR_OK;
+}
+
 int mr_dmm_encode(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
-                  uint32_t triangle_count, const float *disp, mr_dmm_encoded **out,
-                  mr_dmm_encode_stats *stats, mr_error *err)
+                  uint32_t triangle_count, const uint8_t *tri_info, const float *disp,
+                  mr_dmm_encoded **out, mr_dmm_encode_stats *stats, mr_error *err)
 {
     int rc = MR_OK;
     mr_dmm_encoded *enc = NULL;
@@ -221,47 +243,69 @@ int mr_dmm_encode(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
         return mr_error_set(err, MR_ERR_INVALID,
                             "dmm encode: need output, displacements and 1..%u triangles",
                             MR_DMM_MAX_TRIANGLES);
-    uint32_t rb = mr_dmm_record_bytes(level, bits);
-    if (!rb)
+    if (!mr_dmm_record_bytes(level, bits))
         return mr_error_set(err, MR_ERR_INVALID,
                             "dmm encode: bad level %u or bits per level (bits[0] 1..16, "
                             "bits[1..level] 2..16)",
                             level);
-    uint32_t vc = mr_umesh_vertex_count(level);
-    size_t total = (size_t)triangle_count * vc;
+    uint32_t stride = mr_umesh_vertex_count(level);
+    enc = calloc(1, sizeof *enc);
+    target = malloc(sizeof(uint16_t) * stride);
+    dec = malloc(sizeof(uint16_t) * stride);
+    if (enc) {
+        enc->tri_info = malloc(triangle_count);
+        enc->record_offset = malloc(sizeof(uint32_t) * triangle_count);
+    }
+    if (!enc || !target || !dec || !enc->tri_info || !enc->record_offset)
+        goto nomem;
+    for (uint32_t t = 0; t < triangle_count; t++)
+        enc->tri_info[t] = tri_info ? tri_info[t] : mr_dmm_tri_info(level, 0);
+    uint32_t bad = 0;
+    uint64_t body = 0;
+    if ((rc = layout_records(level, bits, triangle_count, enc->tri_info, enc->record_offset,
+                             &body, &bad)) < 0) {
+        rc = rc == MR_ERR_LIMIT
+                 ? mr_error_set(err, rc, "dmm encode: the records pass 2 GiB at triangle %u", bad)
+                 : mr_error_set(err, rc,
+                                "dmm encode: triangle %u: level/decimation byte 0x%02x is not "
+                                "valid under largest level %u",
+                                bad, enc->tri_info[bad], level);
+        goto cleanup;
+    }
     double dmin = INFINITY, dmax = -INFINITY;
-    for (size_t i = 0; i < total; i++) {
-        if (!isfinite(disp[i]))
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "dmm encode: displacement %zu (triangle %zu) is not finite", i,
-                                i / vc);
-        dmin = fmin(dmin, disp[i]);
-        dmax = fmax(dmax, disp[i]);
+    uint64_t total = 0;
+    for (uint32_t t = 0; t < triangle_count; t++) {
+        uint32_t vc = mr_umesh_vertex_count(mr_dmm_info_level(enc->tri_info[t]));
+        const float *d = disp + (size_t)t * stride;
+        total += vc;
+        for (uint32_t v = 0; v < vc; v++) {
+            if (!isfinite(d[v])) {
+                rc = mr_error_set(err, MR_ERR_INVALID,
+                                  "dmm encode: displacement %u of triangle %u is not finite", v, t);
+                goto cleanup;
+            }
+            dmin = fmin(dmin, d[v]);
+            dmax = fmax(dmax, d[v]);
+        }
     }
     uint32_t vmax = (1u << bits[0]) - 1u;
     double range = dmax - dmin;
     float scale = range > 0 ? (float)(range / vmax) : 1.0f;
-    if (!isfinite(scale))
-        return mr_error_set(err, MR_ERR_INVALID, "dmm encode: displacement range %g too large",
-                            range);
-    if (scale <= 0) /* a range so small it underflows: any positive step works */
-        scale = 1.0f;
-
-    enc = calloc(1, sizeof *enc);
-    target = malloc(sizeof(uint16_t) * vc);
-    dec = malloc(sizeof(uint16_t) * vc);
-    if (enc)
-        enc->records = calloc(triangle_count, rb);
-    if (!enc || !target || !dec || !enc->records) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm encode: out of memory for %u triangles",
-                          triangle_count);
+    if (!isfinite(scale)) {
+        rc = mr_error_set(err, MR_ERR_INVALID, "dmm encode: displacement range %g too large",
+                          range);
         goto cleanup;
     }
+    if (scale <= 0) /* a range so small it underflows: any positive step works */
+        scale = 1.0f;
+    enc->records = calloc(1, (size_t)body);
+    if (!enc->records)
+        goto nomem;
     enc->level = level;
     for (unsigned l = 0; l <= level; l++)
         enc->bits[l] = bits[l];
     enc->triangle_count = triangle_count;
-    enc->record_bytes = rb;
+    enc->records_bytes = (uint32_t)body;
     enc->bias = (float)dmin; /* the minimum is an input float: exact */
     enc->scale = scale;
 
@@ -269,14 +313,16 @@ int mr_dmm_encode(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
     uint64_t clamped = 0;
     mr_dmm_encode_stats acc = {0};
     for (uint32_t t = 0; t < triangle_count; t++) {
-        const float *d = disp + (size_t)t * vc;
+        unsigned l = mr_dmm_info_level(enc->tri_info[t]);
+        uint32_t vc = mr_umesh_vertex_count(l);
+        const float *d = disp + (size_t)t * stride;
         for (uint32_t v = 0; v < vc; v++) {
             /* a function of the float alone: shared vertices get equal values */
             double x = nearbyint(((double)d[v] - (double)enc->bias) / (double)scale);
             target[v] = clamp_value((int64_t)fmax(fmin(x, (double)vmax), 0.0), vmax);
         }
-        clamped += encode_triangle(level, enc->bits, target, dec,
-                                   enc->records + (size_t)t * rb, &acc);
+        clamped += encode_triangle(l, enc->bits, target, dec,
+                                   enc->records + enc->record_offset[t], &acc);
         for (uint32_t v = 0; v < vc; v++) {
             double e = fabs((double)mr_dmm_value_to_float(enc, dec[v]) - (double)d[v]);
             worst = fmax(worst, e);
@@ -291,6 +337,10 @@ int mr_dmm_encode(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
     }
     *out = enc;
     enc = NULL;
+    goto cleanup;
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "dmm encode: out of memory for %u triangles",
+                      triangle_count);
 cleanup:
     mr_dmm_encoded_free(enc);
     free(target);
@@ -302,17 +352,29 @@ void mr_dmm_encoded_free(mr_dmm_encoded *enc)
 {
     if (!enc)
         return;
+    free(enc->tri_info);
+    free(enc->record_offset);
     free(enc->records);
     free(enc);
+}
+
+unsigned mr_dmm_tri_level(const mr_dmm_encoded *enc, uint32_t tri)
+{
+    return mr_dmm_info_level(enc->tri_info[tri]);
+}
+
+unsigned mr_dmm_tri_decimate(const mr_dmm_encoded *enc, uint32_t tri)
+{
+    return mr_dmm_info_decimate(enc->tri_info[tri]);
 }
 
 int mr_dmm_decode_values(const mr_dmm_encoded *enc, uint32_t tri, uint16_t *values,
                          mr_error *err)
 {
-    if (!enc || !values || tri >= enc->triangle_count || !enc->records ||
-        enc->record_bytes != mr_dmm_record_bytes(enc->level, enc->bits))
+    if (!enc || !values || tri >= enc->triangle_count || !enc->records || !enc->tri_info ||
+        !enc->record_offset)
         return mr_error_set(err, MR_ERR_INVALID, "dmm decode: bad arguments (triangle %u)", tri);
-    decode_triangle(enc->level, enc->bits, enc->records + (size_t)tri * enc->record_bytes,
+    decode_triangle(mr_dmm_tri_level(enc, tri), enc->bits, enc->records + enc->record_offset[tri],
                     values);
     return MR_OK;
 }
@@ -331,7 +393,7 @@ int mr_dmm_decode_floats(const mr_dmm_encoded *enc, uint32_t tri, float *out, mr
     int rc = mr_dmm_decode_values(enc, tri, values, err);
     if (rc < 0)
         return rc;
-    for (uint32_t v = 0; v < mr_umesh_vertex_count(enc->level); v++)
+    for (uint32_t v = 0; v < mr_umesh_vertex_count(mr_dmm_tri_level(enc, tri)); v++)
         out[v] = mr_dmm_value_to_float(enc, values[v]);
     return MR_OK;
 }
@@ -450,13 +512,13 @@ int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_erro
 {
     if (buf)
         *buf = NULL;
-    if (!enc || !buf || !size || !enc->records || enc->triangle_count == 0 ||
-        enc->triangle_count > MR_DMM_MAX_TRIANGLES ||
-        enc->record_bytes != mr_dmm_record_bytes(enc->level, enc->bits) ||
-        !isfinite(enc->bias) || !isfinite(enc->scale) || !(enc->scale > 0))
+    if (!enc || !buf || !size || !enc->records || !enc->tri_info ||
+        enc->triangle_count == 0 || enc->triangle_count > MR_DMM_MAX_TRIANGLES ||
+        !mr_dmm_record_bytes(enc->level, enc->bits) || !isfinite(enc->bias) ||
+        !isfinite(enc->scale) || !(enc->scale > 0))
         return mr_error_set(err, MR_ERR_INVALID, "dmm write: bad or inconsistent DMM");
-    size_t body = (size_t)enc->triangle_count * enc->record_bytes;
-    size_t total = MR_DMM_HEADER_BYTES + body + 4;
+    size_t info = enc->triangle_count, body = enc->records_bytes;
+    size_t total = MR_DMM_HEADER_BYTES + info + body + 4;
     uint8_t *p = calloc(1, total);
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "dmm write: out of memory for %zu bytes", total);
@@ -467,12 +529,14 @@ int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_erro
     for (unsigned l = 0; l <= enc->level; l++)
         p[20 + l] = enc->bits[l]; /* bytes 20..27: widths, unused ones and padding 0 */
     put_u32(p + 28, enc->triangle_count);
-    put_u32(p + 32, enc->record_bytes);
+    put_u32(p + 32, enc->records_bytes);
     put_f32(p + 36, enc->bias);
     put_f32(p + 40, enc->scale);
     put_u32(p + 44, crc32_of(p, 44));
-    memcpy(p + MR_DMM_HEADER_BYTES, enc->records, body);
-    put_u32(p + MR_DMM_HEADER_BYTES + body, crc32_of(enc->records, body));
+    memcpy(p + MR_DMM_HEADER_BYTES, enc->tri_info, info);
+    memcpy(p + MR_DMM_HEADER_BYTES + info, enc->records, body);
+    put_u32(p + MR_DMM_HEADER_BYTES + info + body,
+            crc32_of(p + MR_DMM_HEADER_BYTES, info + body));
     *buf = p;
     *size = total;
     return MR_OK;
@@ -526,19 +590,15 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: triangle count %u at byte offset 28 (1..%u)", count,
                             MR_DMM_MAX_TRIANGLES);
-    uint32_t rb = get_u32(buf + 32);
-    if (rb != mr_dmm_record_bytes(level, bits))
-        return mr_error_set(err, MR_ERR_FORMAT,
-                            "dmm file: record size %u at byte offset 32 (level and widths give %u)",
-                            rb, mr_dmm_record_bytes(level, bits));
+    uint32_t declared = get_u32(buf + 32);
     float bias = get_f32(buf + 36), scale = get_f32(buf + 40);
     if (!isfinite(bias))
         return mr_error_set(err, MR_ERR_FORMAT, "dmm file: non-finite bias at byte offset 36");
     if (!isfinite(scale) || !(scale > 0))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: scale at byte offset 40 is not a positive finite number");
-    /* count and rb are capped, so this cannot overflow 64 bits */
-    uint64_t body = (uint64_t)count * rb, want = MR_DMM_HEADER_BYTES + body + 4;
+    /* count and records_bytes are 32-bit: no 64-bit overflow below */
+    uint64_t want = MR_DMM_HEADER_BYTES + (uint64_t)count + declared + 4;
     if ((uint64_t)size < want)
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: truncated at byte offset %zu (declared size %llu)", size,
@@ -548,29 +608,47 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
                             "dmm file: %llu unexpected trailing bytes at byte offset %llu",
                             (unsigned long long)((uint64_t)size - want),
                             (unsigned long long)want);
-    const uint8_t *rec = buf + MR_DMM_HEADER_BYTES;
-    if (get_u32(rec + body) != crc32_of(rec, (size_t)body))
+    const uint8_t *info = buf + MR_DMM_HEADER_BYTES;
+    uint64_t body_end = MR_DMM_HEADER_BYTES + (uint64_t)count + declared;
+    if (get_u32(buf + body_end) != crc32_of(info, (size_t)(count + (uint64_t)declared)))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: record checksum mismatch at byte offset %llu (bytes "
                             "%u..%llu corrupted)",
-                            (unsigned long long)(MR_DMM_HEADER_BYTES + body), MR_DMM_HEADER_BYTES,
-                            (unsigned long long)(MR_DMM_HEADER_BYTES + body - 1));
+                            (unsigned long long)body_end, MR_DMM_HEADER_BYTES,
+                            (unsigned long long)(body_end - 1));
     mr_dmm_encoded *enc = calloc(1, sizeof *enc);
-    uint8_t *records = malloc((size_t)body);
-    if (!enc || !records) {
-        free(enc);
-        free(records);
-        return mr_error_set(err, MR_ERR_NOMEM, "dmm read: out of memory for %llu bytes",
-                            (unsigned long long)body);
+    if (enc) {
+        enc->tri_info = malloc(count);
+        enc->record_offset = malloc(sizeof(uint32_t) * count);
+        enc->records = malloc(declared ? declared : 1);
     }
-    memcpy(records, rec, (size_t)body);
+    if (!enc || !enc->tri_info || !enc->record_offset || !enc->records) {
+        mr_dmm_encoded_free(enc);
+        return mr_error_set(err, MR_ERR_NOMEM, "dmm read: out of memory for %u triangles", count);
+    }
+    memcpy(enc->tri_info, info, count);
+    uint32_t bad = 0;
+    uint64_t body = 0;
+    int rc = layout_records(level, bits, count, enc->tri_info, enc->record_offset, &body, &bad);
+    if (rc < 0 || body != declared) {
+        rc = rc < 0 ? mr_error_set(err, MR_ERR_FORMAT,
+                                   "dmm file: level/decimation byte 0x%02x of triangle %u at byte "
+                                   "offset %u is not valid under level %u",
+                                   enc->tri_info[bad], bad, MR_DMM_HEADER_BYTES + bad, level)
+                    : mr_error_set(err, MR_ERR_FORMAT,
+                                   "dmm file: records size %u at byte offset 32 (the triangles' "
+                                   "levels and widths give %llu)",
+                                   declared, (unsigned long long)body);
+        mr_dmm_encoded_free(enc);
+        return rc;
+    }
+    memcpy(enc->records, info + count, declared);
     enc->level = level;
     memcpy(enc->bits, bits, sizeof bits);
     enc->triangle_count = count;
-    enc->record_bytes = rb;
+    enc->records_bytes = declared;
     enc->bias = bias;
     enc->scale = scale;
-    enc->records = records;
     /* every record bit pattern decodes to in-range values (shifts are 4-bit,
      * results clamped), so nothing further can be invalid */
     *out = enc;

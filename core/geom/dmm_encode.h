@@ -4,7 +4,16 @@
  * dmm_bake.h, the min/max displacement pyramid of the paper's Fig. 11, and a
  * validated binary file (docs/dmm-format.md).
  *
- * Encoding (fixed rate: every base triangle of a DMM takes record_bytes):
+ * Levels per triangle: every base triangle has its own level 0..level (the
+ * DMM's largest) and a decimation mask (micromesh.h: edges whose neighbour
+ * is one level coarser), packed in one byte, mr_dmm_tri_info. Its record
+ * takes mr_dmm_record_bytes(its level, bits); records follow each other.
+ * The hierarchy below is the same at every level (a vertex new at level l
+ * sits at edge parameter k / 2^l whatever the triangle's level), so a shared
+ * edge between a level-l and a level-(l+1) triangle stores and decodes the
+ * same values for its level <= l vertices on both sides.
+ *
+ * Encoding:
  *  - Value grid. Displacements are mapped to unsigned integers V in
  *    [0, 2^G - 1], G = bits[0], by d = bias + scale * V (evaluated in double,
  *    rounded once to float). bias and scale are shared by the whole DMM and
@@ -59,14 +68,24 @@
 /* Size of the fixed file header (docs/dmm-format.md). */
 #define MR_DMM_HEADER_BYTES 48u
 
+/* A triangle's level (bits 0..2) and decimation mask (bits 4..6). */
+static inline uint8_t mr_dmm_tri_info(unsigned level, unsigned decimate)
+{
+    return (uint8_t)((level & 7u) | (decimate & 7u) << 4);
+}
+static inline unsigned mr_dmm_info_level(uint8_t info) { return info & 7u; }
+static inline unsigned mr_dmm_info_decimate(uint8_t info) { return info >> 4 & 7u; }
+
 typedef struct mr_dmm_encoded {
-    unsigned level;                         /* 0..MR_UMESH_MAX_LEVEL */
+    unsigned level;                         /* largest triangle level, 0..MR_UMESH_MAX_LEVEL */
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1];   /* bits[0] = G; bits[l] for l <= level; rest 0 */
     uint32_t triangle_count;
-    uint32_t record_bytes;                  /* mr_dmm_record_bytes(level, bits) */
+    uint32_t records_bytes;                 /* sum of the records' sizes */
     float bias;                             /* d = bias + scale * V */
     float scale;                            /* > 0 */
-    uint8_t *records;                       /* triangle_count * record_bytes */
+    uint8_t *tri_info;                      /* per triangle: mr_dmm_tri_info */
+    uint32_t *record_offset;                /* per triangle: its record's first byte */
+    uint8_t *records;                       /* records_bytes */
 } mr_dmm_encoded;
 
 /* Quantisation error of an encode against its float input. */
@@ -85,19 +104,28 @@ void mr_dmm_default_bits(uint8_t bits[MR_UMESH_MAX_LEVEL + 1]);
  * in 1..16, bits[1..level] in 2..16). */
 uint32_t mr_dmm_record_bytes(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1]);
 
-/* Encodes triangle_count * mr_umesh_vertex_count(level) displacements
- * (micromesh.h vertex order, triangle after triangle, e.g.
- * mr_dmm_bake.displacements). bits entries above level are ignored. stats
- * may be NULL. MR_ERR_INVALID for bad parameters or non-finite input,
+/* Encodes triangle_count triangles of displacements, mr_umesh_vertex_count
+ * (level) floats per triangle (micromesh.h vertex order, triangle after
+ * triangle, e.g. mr_dmm_bake.displacements). tri_info gives each triangle's
+ * level (<= level) and decimation mask; NULL = every triangle at `level`,
+ * none decimated. A triangle of a lower level uses the first
+ * mr_umesh_vertex_count(its level) floats of its block. bits entries above
+ * level are ignored. stats may be NULL. MR_ERR_INVALID for bad parameters or
+ * non-finite input, MR_ERR_LIMIT when the records would pass 2 GiB,
  * MR_ERR_NOMEM. *out is NULL on failure. */
 int mr_dmm_encode(unsigned level, const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
-                  uint32_t triangle_count, const float *disp, mr_dmm_encoded **out,
-                  mr_dmm_encode_stats *stats, mr_error *err);
+                  uint32_t triangle_count, const uint8_t *tri_info, const float *disp,
+                  mr_dmm_encoded **out, mr_dmm_encode_stats *stats, mr_error *err);
 
 void mr_dmm_encoded_free(mr_dmm_encoded *enc);
 
-/* Decodes triangle tri to grid values V (mr_umesh_vertex_count(level) of
- * them, micromesh.h order). Pure integer arithmetic: bit-exact everywhere. */
+/* Level and decimation mask of triangle tri (tri < triangle_count). */
+unsigned mr_dmm_tri_level(const mr_dmm_encoded *enc, uint32_t tri);
+unsigned mr_dmm_tri_decimate(const mr_dmm_encoded *enc, uint32_t tri);
+
+/* Decodes triangle tri to grid values V (mr_umesh_vertex_count(its level)
+ * of them, micromesh.h order). Pure integer arithmetic: bit-exact
+ * everywhere. */
 int mr_dmm_decode_values(const mr_dmm_encoded *enc, uint32_t tri, uint16_t *values,
                          mr_error *err);
 /* Grid value to displacement: bias + scale * V in double, clamped to the

@@ -276,10 +276,11 @@ static int parse_mesh_header(parser *p, const mr_dmm_file *f, uint32_t i, size_t
         return bad(p, "mesh %u: fallback count %llu at byte offset %zu exceeds the %llu "
                    "micro-vertices", i, (unsigned long long)report->fallback_count,
                    FIELD(M_FALLBACKS), (unsigned long long)(*nt * mv));
-    if (report->sample_count != *nt * (mv + mt))
-        return bad(p, "mesh %u: sample count %llu at byte offset %zu (want %llu)", i,
+    /* triangles below the file's level take fewer samples */
+    if (report->sample_count < *nt * 4 || report->sample_count > *nt * (mv + mt))
+        return bad(p, "mesh %u: sample count %llu at byte offset %zu (%llu..%llu)", i,
                    (unsigned long long)report->sample_count, FIELD(M_SAMPLES),
-                   (unsigned long long)(*nt * (mv + mt)));
+                   (unsigned long long)(*nt * 4), (unsigned long long)(*nt * (mv + mt)));
     if (!finite_nonneg(report->rms_distance))
         return bad(p, "mesh %u: rms distance at byte offset %zu is not finite and >= 0", i,
                    FIELD(M_RMS));
@@ -295,11 +296,16 @@ static int parse_mesh_header(parser *p, const mr_dmm_file *f, uint32_t i, size_t
         return bad(p, "mesh %u: array size %llu at byte offset %zu (counts give %llu)", i,
                    (unsigned long long)*array_bytes, FIELD(M_ARRAY_BYTES),
                    (unsigned long long)want_arrays);
-    uint64_t want_dmm = MR_DMM_HEADER_BYTES + (uint64_t)*nt * mr_dmm_record_bytes(f->level, f->bits) + 4;
-    if (*dmm_bytes != want_dmm)
+    /* per-triangle levels: the block checks its exact size itself; here
+     * the bounds of level 0 and the file's level */
+    uint64_t min_dmm = MR_DMM_HEADER_BYTES + (uint64_t)*nt * (1 + mr_dmm_record_bytes(0, f->bits)) + 4;
+    uint64_t want_dmm = MR_DMM_HEADER_BYTES +
+                        (uint64_t)*nt * (1 + mr_dmm_record_bytes(f->level, f->bits)) + 4;
+    if (*dmm_bytes < min_dmm || *dmm_bytes > want_dmm)
         return bad(p, "mesh %u: displacement block size %llu at byte offset %zu (counts give "
-                   "%llu)", i, (unsigned long long)*dmm_bytes, FIELD(M_DMM_BYTES),
-                   (unsigned long long)want_dmm);
+                   "%llu..%llu)", i, (unsigned long long)*dmm_bytes, FIELD(M_DMM_BYTES),
+                   (unsigned long long)min_dmm, (unsigned long long)want_dmm);
+    want_dmm = *dmm_bytes;
     /* every size is capped above, so the sum cannot overflow */
     uint64_t need = MR_DMM_FILE_MESH_HEADER_BYTES + want_arrays + 4 + want_dmm;
     if ((uint64_t)(p->size - off) < need)
@@ -464,6 +470,12 @@ static int parse(parser *p, mr_dmm_file **out)
         off += (size_t)array_bytes + 4;
         if ((rc = parse_block(p, f, i, off, (size_t)dmm_bytes, nt, &m->encoded)) < 0)
             goto fail;
+        if (p->keep && !(m->bake->tri_info = malloc(nt))) {
+            rc = mr_error_set(p->err, MR_ERR_NOMEM, "dmm bake file: out of memory for mesh %u", i);
+            goto fail;
+        }
+        if (p->keep)
+            memcpy(m->bake->tri_info, m->encoded->tri_info, nt);
         off += (size_t)dmm_bytes;
     }
     if (off != p->size) {
@@ -524,8 +536,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
         return write_invalid(err, "bad arguments");
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1] = {0};
     memcpy(bits, f->bits, f->level + 1);
-    uint32_t record = mr_dmm_record_bytes(f->level, bits);
-    if (record == 0)
+    if (mr_dmm_record_bytes(f->level, bits) == 0)
         return write_invalid(err, "bad bit widths");
     /* sizes first; the read-back check below catches counts beyond the caps */
     uint64_t total = MR_DMM_FILE_HEADER_BYTES;
@@ -540,12 +551,13 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
             !b->base_indices || !b->base_source || !b->joints != !b->weights)
             return write_invalid(err, "a mesh lacks its bake or its encoding");
         if (e->triangle_count != b->base_triangle_count || e->level != f->level ||
-            e->record_bytes != record || memcmp(e->bits, bits, f->level + 1) != 0 ||
-            b->base_triangle_count > MR_DMM_MAX_TRIANGLES)
+            memcmp(e->bits, bits, f->level + 1) != 0 ||
+            b->base_triangle_count > MR_DMM_MAX_TRIANGLES || !b->tri_info ||
+            memcmp(b->tri_info, e->tri_info, b->base_triangle_count) != 0)
             return write_invalid(err, "a mesh's encoding does not match its bake or the level");
         total += (uint64_t)b->base_vertex_count * (VERTEX_BYTES + (b->joints ? SKIN_BYTES : 0)) +
                  (uint64_t)b->base_triangle_count * TRIANGLE_BYTES + 4 + MR_DMM_HEADER_BYTES +
-                 (uint64_t)b->base_triangle_count * record + 4;
+                 (uint64_t)b->base_triangle_count + e->records_bytes + 4;
     }
     if (total > MR_DMM_FILE_MAX_BYTES)
         return mr_error_set(err, MR_ERR_LIMIT, "dmm bake file write: %llu bytes exceed the %llu "
@@ -871,6 +883,7 @@ void mr_dmm_cache_key(const mr_asset *asset, const mr_dmm_bake_params *params,
         }
     }
     feed_u32(h, params->level);
+    feed_u32(h, params->adaptive);
     feed_u32(h, params->target_triangles);
     feed_f32s(h, &params->target_ratio, 1);
     feed_f32s(h, &params->max_error, 1);

@@ -38,11 +38,11 @@
 #include "microray.h"
 
 /* Version of the baked-DMM file layout (part of the cache key). */
-#define MR_DMM_FILE_VERSION 1u
+#define MR_DMM_FILE_VERSION 2u
 /* Bump when dmm_bake.c or dmm_encode.c change what they produce for the same
  * input: it is part of the cache key, so old cache files stop matching
  * instead of being rendered as if they were fresh bakes. */
-#define MR_DMM_BAKER_REVISION 1u
+#define MR_DMM_BAKER_REVISION 2u
 /* Bytes of the file header and of each mesh section header. */
 #define MR_DMM_FILE_HEADER_BYTES 68u
 #define MR_DMM_FILE_MESH_HEADER_BYTES 96u
@@ -93,6 +93,7 @@ int mr_dmm_file_read_path(const char *path, mr_dmm_file **out, mr_error *err);
  * bits: SHA-256 over MR_DMM_FILE_VERSION, MR_DMM_BAKER_REVISION, per mesh its
  * vertex, triangle and joint counts, positions, indices, joints and weights
  * (what the bake reads; normals and uvs are not), the parameters (level,
+ * adaptive,
  * target_triangles, target_ratio, max_error, max_displacement; not threads:
  * the bake does not depend on it) and bits[0..MR_UMESH_MAX_LEVEL].
  * Host-independent: everything is hashed little-endian. */

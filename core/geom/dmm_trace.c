@@ -251,7 +251,14 @@ static fbox node_box(const trace_ctx *c, const lattice_pt *const L[3], const blo
  * rotated (winding kept) to start where the tessellation's row order starts
  * it: at the vertex with the smallest b, then the smallest a. Hits are then
  * bit-identical to the tessellated micro-mesh's under the same test. */
-static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3], const mr_vec3 vin[3])
+/* Lin: the micro-triangle's lattice corners as the quadtree has them; the
+ * tessellation (mr_umesh_triangle) lists them starting at the smallest
+ * (b, a), and starting there keeps the watertight test's result bit-equal
+ * to the tessellation's. at: the corners after edge decimation (the
+ * vertices v were evaluated there; a collapsed micro-triangle has two equal
+ * vertices, so a zero determinant and no hit). */
+static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
+                          const lattice_pt *const at[3], const mr_vec3 vin[3])
 {
     if (c->stats)
         c->stats->triangles++;
@@ -259,7 +266,7 @@ static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3], const mr
     for (int k = 1; k < 3; k++)
         if (Lin[k]->b < Lin[s]->b || (Lin[k]->b == Lin[s]->b && Lin[k]->a < Lin[s]->a))
             s = k;
-    const lattice_pt *L[3] = {Lin[s], Lin[(s + 1) % 3], Lin[(s + 2) % 3]};
+    const lattice_pt *L[3] = {at[s], at[(s + 1) % 3], at[(s + 2) % 3]};
     const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
     mr_wt_hit h;
     if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
@@ -302,7 +309,7 @@ static void leaf(trace_ctx *c, const lattice_pt *const P[3])
         mr_vec3 v[3];
         for (int k = 0; k < 3; k++)
             v[k] = mr_dmm_vertex(p, P[k]->a, P[k]->b);
-        test_triangle(c, P, v);
+        test_triangle(c, P, P, v);
         return;
     }
     /* Lattice coordinates are all the micro-triangle test needs here. */
@@ -313,13 +320,27 @@ static void leaf(trace_ctx *c, const lattice_pt *const P[3])
         mid[e].b = (x->b + y->b) / 2;
     }
     const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
+    /* Decimated edges: a collapsed vertex moves to the even vertex before it
+     * on the same base edge, a corner of this leaf (leaf edges on a base edge
+     * start at even steps), so the leaf's box still bounds it. */
+    lattice_pt moved[6];
+    const lattice_pt *at[6];
+    for (int k = 0; k < 6; k++) {
+        at[k] = pts[k];
+        if (p->decimate) {
+            moved[k].a = pts[k]->a, moved[k].b = pts[k]->b;
+            mr_umesh_remap_coords(p->level, p->decimate, &moved[k].a, &moved[k].b);
+            at[k] = &moved[k];
+        }
+    }
     mr_vec3 v[6];
     for (int k = 0; k < 6; k++)
-        v[k] = mr_dmm_vertex(p, pts[k]->a, pts[k]->b);
+        v[k] = mr_dmm_vertex(p, at[k]->a, at[k]->b);
     for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
         const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
+        const lattice_pt *A[3] = {at[CHILD[k][0]], at[CHILD[k][1]], at[CHILD[k][2]]};
         const mr_vec3 tv[3] = {v[CHILD[k][0]], v[CHILD[k][1]], v[CHILD[k][2]]};
-        test_triangle(c, L, tv);
+        test_triangle(c, L, A, tv);
     }
 }
 
@@ -590,7 +611,47 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     return c.found;
 }
 
-void mr_dmm_locate(unsigned level, float u, float v, uint32_t a[3], uint32_t b[3])
+/* Lattice corners of micro-triangle (ia, ib, upright or inverted). */
+static void lattice_tri(uint32_t ia, uint32_t ib, bool inverted, uint32_t a[3], uint32_t b[3])
+{
+    if (!inverted) {
+        a[0] = ia, b[0] = ib;
+        a[1] = ia + 1, b[1] = ib;
+        a[2] = ia, b[2] = ib + 1;
+    } else {
+        a[0] = ia + 1, b[0] = ib;
+        a[1] = ia + 1, b[1] = ib + 1;
+        a[2] = ia, b[2] = ib + 1;
+    }
+}
+
+static bool decimated_tri(unsigned level, unsigned decimate, uint32_t a[3], uint32_t b[3])
+{
+    for (int k = 0; k < 3; k++)
+        mr_umesh_remap_coords(level, decimate, &a[k], &b[k]);
+    for (int k = 0; k < 3; k++)
+        if (a[k] == a[(k + 1) % 3] && b[k] == b[(k + 1) % 3])
+            return false;
+    return true;
+}
+
+/* Smallest barycentric weight of lattice point (x, y) in triangle (a, b):
+ * >= 0 inside. */
+static float inside_weight(const uint32_t a[3], const uint32_t b[3], float x, float y)
+{
+    float w[3], area = 0;
+    for (int k = 0; k < 3; k++) {
+        int i = (k + 1) % 3, j = (k + 2) % 3;
+        w[k] = ((float)a[i] - x) * ((float)b[j] - y) - ((float)a[j] - x) * ((float)b[i] - y);
+        area += w[k];
+    }
+    float m = w[0] < w[1] ? w[0] : w[1];
+    m = m < w[2] ? m : w[2];
+    return area > 0 ? m / area : -INFINITY;
+}
+
+void mr_dmm_locate(unsigned level, unsigned decimate, float u, float v, uint32_t a[3],
+                   uint32_t b[3])
 {
     uint32_t n = mr_umesh_segments(level);
     if (n == 0)
@@ -605,13 +666,25 @@ void mr_dmm_locate(unsigned level, float u, float v, uint32_t a[3], uint32_t b[3
             ia = n - 1 - ib;
     }
     float fx = x - (float)ia, fy = y - (float)ib;
-    if (fx + fy <= 1.0f || ia + ib + 1 > n - 1) {
-        a[0] = ia, b[0] = ib;
-        a[1] = ia + 1, b[1] = ib;
-        a[2] = ia, b[2] = ib + 1;
-    } else {
-        a[0] = ia + 1, b[0] = ib;
-        a[1] = ia + 1, b[1] = ib + 1;
-        a[2] = ia, b[2] = ib + 1;
-    }
+    lattice_tri(ia, ib, !(fx + fy <= 1.0f || ia + ib + 1 > n - 1), a, b);
+    if (!decimate || level == 0 || decimated_tri(level, decimate, a, b))
+        return;
+    /* Collapsed: the surviving micro-triangles around it cover its domain;
+     * take the one that contains (x, y) best (the largest smallest
+     * barycentric weight, which also absorbs rounding at their borders). */
+    float best = -INFINITY;
+    for (uint32_t jb = ib ? ib - 1 : 0; jb <= ib + 1 && jb < n; jb++)
+        for (uint32_t ja = ia ? ia - 1 : 0; ja <= ia + 1 && ja + jb < n; ja++)
+            for (int inv = 0; inv < 2 && !(inv && ja + jb + 1 > n - 1); inv++) {
+                uint32_t ca[3], cb[3];
+                lattice_tri(ja, jb, inv, ca, cb);
+                if (!decimated_tri(level, decimate, ca, cb))
+                    continue;
+                float w = inside_weight(ca, cb, x, y);
+                if (w > best) {
+                    best = w;
+                    memcpy(a, ca, sizeof ca);
+                    memcpy(b, cb, sizeof cb);
+                }
+            }
 }

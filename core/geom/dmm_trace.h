@@ -28,7 +28,10 @@
  * micro-triangles) it evaluates the 6 micro-vertices with exactly the
  * functions the tessellation uses (mr_dmm_vertex) and intersects the 4
  * micro-triangles with the watertight test. Hits are therefore those of the
- * tessellated micro-mesh, bit for bit in the vertices.
+ * tessellated micro-mesh, bit for bit in the vertices. Decimated edges
+ * (neighbour one level coarser) move their odd micro-vertices as
+ * mr_umesh_triangles does; the collapsed micro-triangles have no area and
+ * are never hit.
  *
  * Conservative bounds: boxes are computed in float from the corners and
  * widened by a per-patch pad, 2^-19 of a bound on the magnitude of every
@@ -52,6 +55,7 @@
 
 typedef struct mr_dmm_patch {
     unsigned level;                /* 0..MR_UMESH_MAX_LEVEL */
+    unsigned decimate;             /* edges bordering a coarser neighbour (micromesh.h) */
     mr_umesh_tri tri;              /* base: posed; interpolated: rest pose */
     const mr_affine *mats[3];      /* interpolated: the corners' accumulated matrices; base: NULL */
     const mr_dmm_encoded *enc;     /* grid -> displacement (bias, scale) */
@@ -108,8 +112,11 @@ bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi);
 bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, float *tmax,
                       bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats);
 
-/* Micro-triangle of the patch containing base-domain point (u, v): its
- * lattice corners (a[k], b[k]), wound like the base triangle. */
-void mr_dmm_locate(unsigned level, float u, float v, uint32_t a[3], uint32_t b[3]);
+/* Micro-triangle of the patch containing base-domain point (u, v) after
+ * decimation (a micro-triangle that decimation collapsed is replaced by the
+ * surviving neighbour that covers (u, v)): its lattice corners (a[k], b[k]),
+ * already moved by the decimation, wound like the base triangle. */
+void mr_dmm_locate(unsigned level, unsigned decimate, float u, float v, uint32_t a[3],
+                   uint32_t b[3]);
 
 #endif /* MR_DMM_TRACE_H */

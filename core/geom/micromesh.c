@@ -131,6 +131,13 @@ uint32_t mr_umesh_vertex_remap(unsigned level, unsigned decimate_mask, uint32_t 
     }
 }
 
+void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, uint32_t *b)
+{
+    uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, mr_umesh_vertex_index(level, *a, *b));
+    if (r != UINT32_MAX)
+        mr_umesh_vertex_coords(level, r, a, b);
+}
+
 uint32_t mr_umesh_triangles(unsigned level, unsigned decimate_mask, uint32_t *out)
 {
     uint32_t count = mr_umesh_triangle_count(level), kept = 0;

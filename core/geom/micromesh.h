@@ -93,6 +93,9 @@ bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3]);
  * no decimated edge moves it). decimate_mask bits 0..2 name edges 0..2; it
  * has no effect at level 0. Returns UINT32_MAX for a bad index. */
 uint32_t mr_umesh_vertex_remap(unsigned level, unsigned decimate_mask, uint32_t index);
+/* The same on lattice coordinates: (*a, *b) becomes the vertex it collapses
+ * onto; unchanged for coordinates outside the lattice. */
+void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, uint32_t *b);
 
 /* Writes the micro-triangles that survive decimation (vertex indices already
  * remapped) to out (3 * 4^level entries suffice) and returns their count.

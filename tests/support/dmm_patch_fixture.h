@@ -114,7 +114,7 @@ static inline void set_build(patch_set *s, unsigned level, uint32_t count, const
     memset(s, 0, sizeof *s);
     s->level = level;
     s->count = count;
-    int rc = mr_dmm_encode(level, bits, count, disp, &s->enc, NULL, &err);
+    int rc = mr_dmm_encode(level, bits, count, NULL, disp, &s->enc, NULL, &err);
     if (rc != MR_OK)
         print_error("encode: %s\n", err.msg);
     assert_int_equal(rc, MR_OK);
@@ -349,7 +349,7 @@ static inline void check_fine(const brute *bf, const mr_dmm_patch *p, const mr_d
                  tmax);
     }
     uint32_t la[3], lb[3];
-    mr_dmm_locate(p->level, h->u, h->v, la, lb);
+    mr_dmm_locate(p->level, p->decimate, h->u, h->v, la, lb);
     const uint32_t *ti = bf->idx + 3 * best;
     int same = 0;
     for (int i = 0; i < 3; i++)

@@ -90,7 +90,7 @@ static void test_lossless_random(void **state)
         mr_dmm_encoded *enc = NULL;
         mr_dmm_encode_stats st;
         mr_error err = {0};
-        assert_int_equal(mr_dmm_encode(level, bits, count, d, &enc, &st, &err), MR_OK);
+        assert_int_equal(mr_dmm_encode(level, bits, count, NULL, d, &enc, &st, &err), MR_OK);
         double tol = enc->scale * 0.5 + FLT_EPSILON * 0.7;
         assert_true(st.max_error <= tol);
         assert_true(st.rms_error <= st.max_error);
@@ -120,7 +120,7 @@ static void test_lossy_random(void **state)
             d[i] = rndf(&s, -1.0f, 1.0f);
         mr_dmm_encoded *enc = NULL;
         mr_dmm_encode_stats st;
-        assert_int_equal(mr_dmm_encode(level, bits, count, d, &enc, &st, NULL), MR_OK);
+        assert_int_equal(mr_dmm_encode(level, bits, count, NULL, d, &enc, &st, NULL), MR_OK);
         assert_true(decode_error(enc, d) == st.max_error);
         /* white noise needs corrections of up to 2^11 steps; a 7-bit
          * correction covers them at shift 5: error <= 2^4 steps + rounding */
@@ -170,7 +170,7 @@ static void test_watertight_edges(void **state)
                     d[vc + edge_vertex(level, f, n - k)] = x;
                 }
                 mr_dmm_encoded *enc = NULL;
-                assert_int_equal(mr_dmm_encode(level, bits, 2, d, &enc, NULL, NULL), MR_OK);
+                assert_int_equal(mr_dmm_encode(level, bits, 2, NULL, d, &enc, NULL, NULL), MR_OK);
                 uint16_t v0[561], v1[561];
                 assert_int_equal(mr_dmm_decode_values(enc, 0, v0, NULL), MR_OK);
                 assert_int_equal(mr_dmm_decode_values(enc, 1, v1, NULL), MR_OK);
@@ -195,13 +195,13 @@ static void test_extremes(void **state)
     /* constant: zero range decodes exactly */
     for (int i = 0; i < 45; i++)
         d[i] = 0.25f;
-    assert_int_equal(mr_dmm_encode(3, bits, 1, d, &enc, &st, &err), MR_OK);
+    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, d, &enc, &st, &err), MR_OK);
     assert_true(st.max_error == 0);
     mr_dmm_encoded_free(enc);
     /* the whole float range: finite scale, min and max decode exactly */
     for (int i = 0; i < 45; i++)
         d[i] = i % 2 ? FLT_MAX : -FLT_MAX;
-    assert_int_equal(mr_dmm_encode(3, bits, 1, d, &enc, &st, &err), MR_OK);
+    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, d, &enc, &st, &err), MR_OK);
     float out[45];
     assert_int_equal(mr_dmm_decode_floats(enc, 0, out, NULL), MR_OK);
     assert_true(out[0] == -FLT_MAX);
@@ -210,7 +210,7 @@ static void test_extremes(void **state)
     mr_dmm_encoded_free(enc);
     /* ...but not with a 1-bit grid, whose step would overflow float */
     uint8_t one[6] = {1, 2, 2, 2, 0, 0};
-    assert_int_equal(mr_dmm_encode(3, one, 1, d, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(3, one, 1, NULL, d, &enc, &st, &err), MR_ERR_INVALID);
     assert_null(enc);
     /* 16-bit grid with 2-bit corrections on noise: shifts saturate, some
      * corrections clamp; still exact decode and values on the grid */
@@ -219,19 +219,19 @@ static void test_extremes(void **state)
     static float big[3 * 561];
     for (int i = 0; i < 3 * 561; i++)
         big[i] = rndf(&s, -5.0f, 5.0f);
-    assert_int_equal(mr_dmm_encode(5, narrow, 3, big, &enc, &st, &err), MR_OK);
+    assert_int_equal(mr_dmm_encode(5, narrow, 3, NULL, big, &enc, &st, &err), MR_OK);
     assert_true(decode_error(enc, big) == st.max_error);
     mr_dmm_encoded_free(enc);
     /* bad input */
     d[3] = NAN;
-    assert_int_equal(mr_dmm_encode(3, bits, 1, d, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, d, &enc, &st, &err), MR_ERR_INVALID);
     assert_non_null(strstr(err.msg, "not finite"));
     d[3] = INFINITY;
-    assert_int_equal(mr_dmm_encode(3, bits, 1, d, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, d, &enc, &st, &err), MR_ERR_INVALID);
     d[3] = 0;
-    assert_int_equal(mr_dmm_encode(6, bits, 1, d, &enc, &st, &err), MR_ERR_INVALID);
-    assert_int_equal(mr_dmm_encode(3, bits, 0, d, &enc, &st, &err), MR_ERR_INVALID);
-    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(6, bits, 1, NULL, d, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(3, bits, 0, NULL, d, &enc, &st, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_dmm_encode(3, bits, 1, NULL, NULL, &enc, &st, &err), MR_ERR_INVALID);
     assert_null(enc);
 }
 
@@ -322,7 +322,7 @@ static mr_dmm_encoded *small_encoded(uint32_t count)
     for (uint32_t i = 0; i < 45 * count; i++)
         d[i] = rndf(&s, -0.1f, 0.2f);
     mr_dmm_encoded *enc = NULL;
-    assert_int_equal(mr_dmm_encode(3, bits, count, d, &enc, NULL, NULL), MR_OK);
+    assert_int_equal(mr_dmm_encode(3, bits, count, NULL, d, &enc, NULL, NULL), MR_OK);
     free(d);
     return enc;
 }
@@ -332,10 +332,12 @@ static void assert_same(const mr_dmm_encoded *a, const mr_dmm_encoded *b)
     assert_int_equal(a->level, b->level);
     assert_memory_equal(a->bits, b->bits, sizeof a->bits);
     assert_int_equal(a->triangle_count, b->triangle_count);
-    assert_int_equal(a->record_bytes, b->record_bytes);
+    assert_int_equal(a->records_bytes, b->records_bytes);
+    assert_memory_equal(a->tri_info, b->tri_info, a->triangle_count);
+    assert_memory_equal(a->record_offset, b->record_offset, a->triangle_count * sizeof(uint32_t));
     assert_memory_equal(&a->bias, &b->bias, sizeof(float));
     assert_memory_equal(&a->scale, &b->scale, sizeof(float));
-    assert_memory_equal(a->records, b->records, (size_t)a->record_bytes * a->triangle_count);
+    assert_memory_equal(a->records, b->records, (size_t)a->records_bytes);
 }
 
 static void test_file_roundtrip(void **state)
@@ -346,7 +348,8 @@ static void test_file_roundtrip(void **state)
     size_t size = 0;
     mr_error err = {0};
     assert_int_equal(mr_dmm_write(enc, &buf, &size, &err), MR_OK);
-    assert_int_equal(size, MR_DMM_HEADER_BYTES + 9 * enc->record_bytes + 4);
+    assert_int_equal(enc->records_bytes, 9 * mr_dmm_record_bytes(3, enc->bits));
+    assert_int_equal(size, MR_DMM_HEADER_BYTES + 9 + enc->records_bytes + 4);
     assert_memory_equal(buf, "MRDMM\0\r\n", 8);
     assert_int_equal(mr_dmm_read(buf, size, &back, &err), MR_OK);
     assert_same(enc, back);
@@ -446,7 +449,7 @@ static void test_file_corruptions(void **state)
         uint32_t value;
         const char *want;
     } table[] = {
-        {8, 2, "version"},
+        {8, 1, "version"},
         {8, 0, "version"},
         {12, 64, "header size"},
         {16, 6, "level"},
@@ -458,7 +461,7 @@ static void test_file_corruptions(void **state)
         {28, MR_DMM_MAX_TRIANGLES + 1, "triangle count"},
         {28, MR_DMM_MAX_TRIANGLES, "truncated"}, /* declares far more than present */
         {28, 4, "trailing"},
-        {32, 61, "record size"},
+        {32, 5 * 60 + 1, "truncated"},          /* records size disagrees with the file */
         {36, 0x7FC00000u, "bias"},               /* NaN */
         {40, 0x7F800000u, "scale"},              /* inf */
         {40, 0xBF800000u, "scale"},              /* -1 */
@@ -585,7 +588,7 @@ static void test_bumpy_sphere(void **state)
         mr_dmm_encoded *enc = NULL;
         mr_dmm_encode_stats st;
         assert_int_equal(
-            mr_dmm_encode(level, bits, b->base_triangle_count, b->displacements, &enc, &st, &err),
+            mr_dmm_encode(level, bits, b->base_triangle_count, b->tri_info, b->displacements, &enc, &st, &err),
             MR_OK);
         double dmax = 0;
         for (size_t i = 0; i < (size_t)b->base_triangle_count * b->micro_vertex_count; i++)
@@ -593,8 +596,10 @@ static void test_bumpy_sphere(void **state)
         print_message("level %u: %u base triangles, %u B/base triangle, %.3f bits/micro-triangle, "
                       "grid step %.3g, quantisation error max %.3g rms %.3g (%.3g%% / %.3g%% of "
                       "max |d| %.3g), clamped %llu\n",
-                      level, b->base_triangle_count, enc->record_bytes,
-                      8.0 * enc->record_bytes / mr_umesh_triangle_count(level), enc->scale,
+                      level, b->base_triangle_count, enc->records_bytes / b->base_triangle_count,
+                      8.0 * enc->records_bytes / b->base_triangle_count /
+                          mr_umesh_triangle_count(level),
+                      enc->scale,
                       st.max_error, st.rms_error, 100 * st.max_error / dmax,
                       100 * st.rms_error / dmax, dmax, (unsigned long long)st.clamped);
         print_message("  %llu of %llu corrections shifted (max shift %u)\n",

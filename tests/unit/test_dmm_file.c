@@ -129,7 +129,7 @@ static mr_dmm_file *bake_all(const mr_asset *a, const mr_dmm_bake_params *bp)
             continue;
         if (mr_dmm_bake_run(&a->meshes[i], bp, &m->bake, &err) < 0)
             fail_msg("bake mesh %zu: %s", i, err.msg);
-        if (mr_dmm_encode(bp->level, bits, m->bake->base_triangle_count, m->bake->displacements,
+        if (mr_dmm_encode(bp->level, bits, m->bake->base_triangle_count, m->bake->tri_info, m->bake->displacements,
                           &m->encoded, NULL, &err) < 0)
             fail_msg("encode mesh %zu: %s", i, err.msg);
     }
@@ -166,6 +166,7 @@ static void assert_same_bake(const mr_dmm_file_mesh *a, const mr_dmm_file_mesh *
         assert_memory_equal(x->weights, y->weights, (size_t)nv * MR_MAX_INFLUENCES * 4);
     }
     assert_null(y->displacements); /* not stored: the encoding is what renders */
+    assert_memory_equal(x->tri_info, y->tri_info, nt);
     assert_int_equal(x->fallback_count, y->fallback_count);
     assert_int_equal(x->sample_count, y->sample_count);
     assert_memory_equal(&x->rms_distance, &y->rms_distance, sizeof(double));
@@ -175,10 +176,11 @@ static void assert_same_bake(const mr_dmm_file_mesh *a, const mr_dmm_file_mesh *
     assert_int_equal(e->level, g->level);
     assert_memory_equal(e->bits, g->bits, sizeof e->bits);
     assert_int_equal(e->triangle_count, g->triangle_count);
-    assert_int_equal(e->record_bytes, g->record_bytes);
+    assert_int_equal(e->records_bytes, g->records_bytes);
+    assert_memory_equal(e->tri_info, g->tri_info, e->triangle_count);
     assert_memory_equal(&e->bias, &g->bias, sizeof(float));
     assert_memory_equal(&e->scale, &g->scale, sizeof(float));
-    assert_memory_equal(e->records, g->records, (size_t)e->triangle_count * e->record_bytes);
+    assert_memory_equal(e->records, g->records, e->records_bytes);
 }
 
 static size_t count_files(const char *dir, const char *contains)
@@ -427,7 +429,7 @@ static void test_field_corruptions(void **state)
     corrupt(g, n, m0 + 20, nv + 1, m0 + 72, "base vertex count vs array size");
     corrupt(g, n, m0 + 24, 0, m0 + 24, "base triangle count 0");
     corrupt(g, n, m0 + 24, MR_DMM_MAX_TRIANGLES + 1, m0 + 24, "triangle count over cap");
-    corrupt(g, n, m0 + 24, nt + 1, m0 + 40, "triangle count vs sample count");
+    corrupt(g, n, m0 + 24, nt + 1, m0 + 72, "triangle count vs array size");
     corrupt(g, n, m0 + 32, 0xFFFFFFFFu, m0 + 32, "fallback count beyond micro-vertices");
     corrupt(g, n, m0 + 40, 1, m0 + 40, "sample count");
     corrupt(g, n, m0 + 52, 0x7FF80000u, m0 + 48, "NaN rms distance");

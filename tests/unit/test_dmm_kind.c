@@ -115,7 +115,7 @@ static double bake_bound(const mr_asset *a, const mr_dmm_desc *d)
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
     mr_dmm_default_bits(bits);
     assert_int_equal(mr_dmm_bake_run(&a->meshes[0], &bp, &b, &err), MR_OK);
-    assert_int_equal(mr_dmm_encode(b->level, bits, b->base_triangle_count, b->displacements, &enc,
+    assert_int_equal(mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements, &enc,
                                    &st, &err),
                      MR_OK);
     double bound = b->max_distance + st.max_error;
