@@ -182,6 +182,52 @@ static void test_watertight_edges(void **state)
     }
 }
 
+/* A level-l triangle next to a level-(l+1) one whose shared edge is
+ * decimated (per-triangle levels): the edge's displacements are a function
+ * of the edge parameter (what the baker measures from bit-identical points),
+ * the fine side's odd edge vertices get unrelated values (they are
+ * collapsed). The level-l vertices of the edge must decode to the same
+ * values on both sides, for every pair of edge slots and every level. */
+static void test_watertight_mixed_levels(void **state)
+{
+    (void)state;
+    uint64_t s = 7;
+    uint8_t bits[6];
+    mr_dmm_default_bits(bits);
+    for (unsigned level = 0; level < MR_UMESH_MAX_LEVEL; level++) {
+        uint32_t nc = mr_umesh_segments(level), nf = 2 * nc;
+        uint32_t stride = mr_umesh_vertex_count(level + 1);
+        for (int e = 0; e < 3; e++)
+            for (int f = 0; f < 3; f++) {
+                float d[2 * 561];
+                for (uint32_t i = 0; i < 2 * stride; i++)
+                    d[i] = rndf(&s, -1.0f, 1.0f);
+                for (uint32_t k = 0; k <= nf; k++) {
+                    float x = 0.1f * sinf((float)k * 0.35f) + rndf(&s, -0.01f, 0.01f);
+                    if (k % 2 == 0)
+                        d[edge_vertex(level, e, k / 2)] = x;
+                    d[stride + edge_vertex(level + 1, f, nf - k)] = x;
+                }
+                const uint8_t info[2] = {mr_dmm_tri_info(level, 0),
+                                         mr_dmm_tri_info(level + 1, 1u << f)};
+                mr_dmm_encoded *enc = NULL;
+                assert_int_equal(mr_dmm_encode(level + 1, bits, 2, info, d, &enc, NULL, NULL),
+                                 MR_OK);
+                assert_int_equal(mr_dmm_tri_level(enc, 0), level);
+                assert_int_equal(mr_dmm_tri_decimate(enc, 1), 1u << f);
+                assert_int_equal(enc->records_bytes, mr_dmm_record_bytes(level, bits) +
+                                                         mr_dmm_record_bytes(level + 1, bits));
+                uint16_t v0[561], v1[561];
+                assert_int_equal(mr_dmm_decode_values(enc, 0, v0, NULL), MR_OK);
+                assert_int_equal(mr_dmm_decode_values(enc, 1, v1, NULL), MR_OK);
+                for (uint32_t k = 0; k <= nc; k++)
+                    assert_int_equal(v0[edge_vertex(level, e, k)],
+                                     v1[edge_vertex(level + 1, f, nf - 2 * k)]);
+                mr_dmm_encoded_free(enc);
+            }
+    }
+}
+
 /* Values at the limits of the grid and of float. */
 static void test_extremes(void **state)
 {
@@ -643,6 +689,53 @@ static void test_bumpy_sphere(void **state)
     free(m.indices);
 }
 
+/* Level/decimation bytes: refused when invalid by the encoder, and by the
+ * reader with a checksum that matches (a writer with a bug), naming the
+ * byte; a valid byte of another level makes the records size disagree. */
+static void test_level_bytes(void **state)
+{
+    (void)state;
+    uint8_t bits[6];
+    mr_dmm_default_bits(bits);
+    float d[3 * 45] = {0};
+    for (int i = 0; i < 3 * 45; i++)
+        d[i] = 0.01f * (float)(i % 17);
+    const uint8_t bad_infos[] = {0x04, 0x08, 0x10, 0x80, mr_dmm_tri_info(3, 0) | 0x08};
+    mr_error err = {0};
+    for (size_t k = 0; k < sizeof bad_infos; k++) {
+        uint8_t info[3] = {mr_dmm_tri_info(3, 0), bad_infos[k], mr_dmm_tri_info(1, 5)};
+        mr_dmm_encoded *enc = (mr_dmm_encoded *)&err;
+        assert_int_equal(mr_dmm_encode(3, bits, 3, info, d, &enc, NULL, &err), MR_ERR_INVALID);
+        assert_null(enc);
+        assert_non_null(strstr(err.msg, "triangle 1"));
+    }
+    uint8_t info[3] = {mr_dmm_tri_info(3, 2), mr_dmm_tri_info(0, 0), mr_dmm_tri_info(2, 7)};
+    mr_dmm_encoded *enc = NULL, *back = NULL;
+    assert_int_equal(mr_dmm_encode(3, bits, 3, info, d, &enc, NULL, &err), MR_OK);
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    assert_int_equal(mr_dmm_write(enc, &buf, &size, &err), MR_OK);
+    assert_int_equal(mr_dmm_read(buf, size, &back, &err), MR_OK);
+    assert_same(enc, back);
+    mr_dmm_encoded_free(back);
+    const struct {
+        uint8_t byte;
+        const char *want;
+    } cases[] = {{0x04, "offset 49"}, {0x18, "offset 49"}, {0x80, "offset 49"},
+                 {mr_dmm_tri_info(1, 0), "records size"}};
+    uint8_t *c = malloc(size);
+    assert_non_null(c);
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+        memcpy(c, buf, size);
+        c[MR_DMM_HEADER_BYTES + 1] = cases[k].byte;
+        le32(c + size - 4, crc32_ref(c + MR_DMM_HEADER_BYTES, size - 4 - MR_DMM_HEADER_BYTES));
+        expect_format(c, size, cases[k].want);
+    }
+    free(c);
+    free(buf);
+    mr_dmm_encoded_free(enc);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -650,7 +743,8 @@ int main(void)
         cmocka_unit_test(test_lossy_random),     cmocka_unit_test(test_watertight_edges),
         cmocka_unit_test(test_extremes),         cmocka_unit_test(test_pyramid),
         cmocka_unit_test(test_file_roundtrip),   cmocka_unit_test(test_file_corruptions),
-        cmocka_unit_test(test_bumpy_sphere),
+        cmocka_unit_test(test_bumpy_sphere),     cmocka_unit_test(test_watertight_mixed_levels),
+        cmocka_unit_test(test_level_bytes),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

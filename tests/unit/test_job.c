@@ -247,7 +247,7 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':[]}"), MR_ERR_INVALID, "/objects/0/dmm",
      "expected an object of dmm bake parameters, got an empty array"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'bits':[8]}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode, deformation, normals"},
+     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode, deformation, normals, levels"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2,'level':3}}"), MR_ERR_INVALID,
      "/objects/0/dmm/level", "duplicate field \"level\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':6}}"), MR_ERR_INVALID,
@@ -277,6 +277,8 @@ static const bad_case BAD[] = {
      MR_ERR_INVALID, "/objects/0/dmm/deformation", "mode \"interpolated\" deforms by"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'deformation':'skinned'}}"), MR_ERR_INVALID,
      "/objects/0/dmm/deformation", "expected one of: \"base\", \"interpolated\", got \"skinned\""},
+    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'levels':'mixed'}}"), MR_ERR_INVALID,
+     "/objects/0/dmm/levels", "expected one of: \"uniform\", \"adaptive\", got \"mixed\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'normals':true}}"), MR_ERR_INVALID,
      "/objects/0/dmm/normals", "expected one of: \"geometric\", \"matrix\", got true"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'prism'}}"), MR_ERR_INVALID,
@@ -767,7 +769,7 @@ static void test_order_and_variants(void **state)
                                "'normals':'matrix'}},"
                                "{'asset':'m','kind':'dmm','dmm':{'deformation':'interpolated'}},"
                                "{'asset':'m','kind':'dmm','dmm':{'mode':'base',"
-                               "'deformation':'base'}}"));
+                               "'deformation':'base','levels':'adaptive'}}"));
     assert_int_equal(job->objects[0].kind, MR_GEOM_DMM);
     assert_int_equal(job->objects[0].dmm.level, 3);
     assert_true(job->objects[0].dmm.base_ratio == 0.25f);
@@ -788,6 +790,8 @@ static void test_order_and_variants(void **state)
     assert_int_equal(job->objects[4].dmm.deform, MR_DMM_DEFORM_INTERPOLATED);
     assert_int_equal(job->objects[5].dmm.mode, MR_DMM_BASE);
     assert_int_equal(job->objects[5].dmm.deform, MR_DMM_DEFORM_BASE);
+    assert_true(job->objects[5].dmm.adaptive);
+    assert_false(job->objects[0].dmm.adaptive);
     mr_job_free(job);
     /* Present-but-empty lights means no lights. */
     job = parse_ok("{" BASE ",'lights':[]}");
