@@ -21,7 +21,11 @@
  * acceleration update (pose + BVH) of the DMM against the pre-tessellated
  * refit; bytes per micro-triangle.
  *
- * usage: bench_dmm [--frames N] [--levels a,b,...]  (run from the repository root)
+ * Configurations are levels 2..5 (every base triangle at that level) and
+ * "4a": adaptive levels up to 4 (each base triangle at the level matching
+ * the detail's density, dmm_bake.h).
+ *
+ * usage: bench_dmm [--frames N] [--levels 2,3,4a,...]  (run from the repository root)
  */
 #include <math.h>
 #include <stdio.h>
@@ -87,9 +91,28 @@ static mr_asset *detailed_dancer(const char *path)
     return r;
 }
 
-typedef struct level_result {
+/* A bake configuration: largest level, and whether levels are adaptive. */
+typedef struct config {
     unsigned level;
-    uint64_t micro, base_tris;
+    bool adaptive;
+} config;
+
+static const char *config_name(config c)
+{
+    static const char *const uniform[] = {"0", "1", "2", "3", "4", "5"},
+                             *const adaptive[] = {"0a", "1a", "2a", "3a", "4a", "5a"};
+    return c.adaptive ? adaptive[c.level] : uniform[c.level];
+}
+
+/* What the bake report measured of a configuration. */
+typedef struct bake_figures {
+    uint64_t micro;       /* micro-triangles (after decimation) */
+    uint64_t stored;      /* bytes of the encodings: level bytes + records */
+} bake_figures;
+
+typedef struct level_result {
+    config cfg;
+    uint64_t micro;
     double trace_ms[MODES], update_ms[MODES];
     mr_compare_result self[2];  /* base vs tess-b, interp vs tess-i (worst frame) */
     double truth_cov[4], truth_depth[4], truth_normal[4]; /* mean over frames, modes 0..3 */
@@ -110,9 +133,10 @@ static void worst(mr_compare_result *acc, const mr_compare_result *c, bool first
 
 /* Each mode gets its own device, so Embree's memory monitor counts only
  * that mode's BVH. */
-static level_result run_level(mr_job *job, mr_asset *dancer, unsigned level, int frames)
+static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_figures bake,
+                              int frames)
 {
-    level_result res = {.level = level};
+    level_result res = {.cfg = cfg};
     mr_object_desc *o = &job->objects[0];
     mr_device *dev[MODES] = {0};
     mr_renderer *r[MODES] = {0};
@@ -121,7 +145,8 @@ static level_result run_level(mr_job *job, mr_asset *dancer, unsigned level, int
     mr_asset *assets[1] = {dancer};
     for (int m = 0; m < MODES; m++) {
         o->kind = m == 4 ? MR_GEOM_MESH : MR_GEOM_DMM;
-        o->dmm = (mr_dmm_desc){.level = level,
+        o->dmm = (mr_dmm_desc){.level = cfg.level,
+                               .adaptive = cfg.adaptive,
                                .base_ratio = 0.0625f,
                                .mode = m == 1   ? MR_DMM_BASE
                                        : m == 3 ? MR_DMM_INTERPOLATED
@@ -166,12 +191,9 @@ static level_result run_level(mr_job *job, mr_asset *dancer, unsigned level, int
         res.update_ms[m] = n > 1 ? median(update[m] + 1, n - 1) : update[m][0];
     }
     res.micro = st[0].triangles;
-    res.base_tris = res.micro / mr_umesh_triangle_count(level);
-    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
-    mr_dmm_default_bits(bits);
-    double record = mr_dmm_record_bytes(level, bits);
-    res.bytes_dmm_stored = (record * (double)res.base_tris + (double)st[1].bvh_bytes) /
-                           (double)res.micro;
+    if (res.micro != bake.micro)
+        die("bench", "the renderer and the bake report disagree on the micro-triangle count");
+    res.bytes_dmm_stored = ((double)bake.stored + (double)st[1].bvh_bytes) / (double)res.micro;
     res.bytes_dmm_resident =
         (double)(st[1].geometry_bytes + st[1].bvh_bytes) / (double)res.micro;
     res.bytes_tess = (double)(st[0].geometry_bytes + st[0].bvh_bytes) / (double)res.micro;
@@ -185,7 +207,7 @@ static level_result run_level(mr_job *job, mr_asset *dancer, unsigned level, int
 
 /* The baker's report in the rest pose (issue 4 part 1): what a DMM of each
  * level costs and how far its surface is from the detailed mesh. */
-static void bake_report(const mr_asset *dancer, const unsigned *levels, int level_count)
+static void bake_report(const mr_asset *dancer, const config *cfg, int count, bake_figures *out)
 {
     printf("Bake (rest pose, all meshes): size and distance of the DMM surface to the detailed "
            "mesh (relative to the rest-pose bounding-box diagonal):\n\n"
@@ -199,15 +221,17 @@ static void bake_report(const mr_asset *dancer, const unsigned *levels, int leve
                 lo[k] = x < lo[k] ? x : lo[k];
                 hi[k] = x > hi[k] ? x : hi[k];
             }
+    uint32_t scratch[3 * 1024]; /* micro-triangles of one base triangle at level 5 */
     double diag = sqrt((double)(hi[0] - lo[0]) * (hi[0] - lo[0]) +
                        (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
                        (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
-    for (int l = 0; l < level_count; l++) {
+    for (int l = 0; l < count; l++) {
         uint64_t base = 0, micro = 0, bytes = 0, samples = 0;
         double sum2 = 0, worst = 0, quant = 0, t0 = mr_now();
         for (size_t i = 0; i < dancer->mesh_count; i++) {
             mr_dmm_bake_params bp = mr_dmm_bake_params_default();
-            bp.level = levels[l];
+            bp.level = cfg[l].level;
+            bp.adaptive = cfg[l].adaptive;
             bp.target_ratio = 0.0625f;
             mr_dmm_bake *b = NULL;
             mr_dmm_encoded *enc = NULL;
@@ -220,8 +244,10 @@ static void bake_report(const mr_asset *dancer, const unsigned *levels, int leve
                               &err) < 0)
                 die("bake", err.msg);
             base += b->base_triangle_count;
-            micro += (uint64_t)b->base_triangle_count * mr_umesh_triangle_count(levels[l]);
-            bytes += (uint64_t)enc->triangle_count * enc->record_bytes;
+            for (uint32_t t = 0; t < b->base_triangle_count; t++)
+                micro += mr_umesh_triangles(mr_dmm_info_level(b->tri_info[t]),
+                                            mr_dmm_info_decimate(b->tri_info[t]), scratch);
+            bytes += (uint64_t)enc->triangle_count + enc->records_bytes;
             sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
             samples += b->sample_count;
             worst = b->max_distance > worst ? b->max_distance : worst;
@@ -229,7 +255,9 @@ static void bake_report(const mr_asset *dancer, const unsigned *levels, int leve
             mr_dmm_encoded_free(enc);
             mr_dmm_bake_free(b);
         }
-        printf("| %u | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.2e | %.2f |\n", levels[l],
+        out[l] = (bake_figures){.micro = micro, .stored = bytes};
+        printf("| %s | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.2e | %.2f |\n",
+               config_name(cfg[l]),
                (unsigned long long)base, (unsigned long long)micro, (unsigned long long)bytes,
                8.0 * (double)bytes / (double)micro, sqrt(sum2 / (double)samples) / diag,
                worst / diag, quant / diag, mr_now() - t0);
@@ -240,18 +268,18 @@ static void bake_report(const mr_asset *dancer, const unsigned *levels, int leve
 int main(int argc, char **argv)
 {
     int frames = 5;
-    unsigned levels[8] = {2, 3, 4, 5};
-    int level_count = 4;
+    config cfg[8] = {{2, false}, {3, false}, {4, false}, {5, false}, {4, true}};
+    int count = 5;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--frames") == 0 && i + 1 < argc) {
             frames = atoi(argv[++i]);
         } else if (strcmp(argv[i], "--levels") == 0 && i + 1 < argc) {
-            level_count = 0;
-            for (char *s = argv[++i]; *s && level_count < 8; s++)
+            count = 0;
+            for (char *s = argv[++i]; *s && count < 8; s++)
                 if (*s >= '0' && *s <= '5')
-                    levels[level_count++] = (unsigned)(*s - '0');
+                    cfg[count++] = (config){(unsigned)(*s - '0'), s[1] == 'a'};
         } else {
-            fprintf(stderr, "usage: bench_dmm [--frames N] [--levels a,b,...]\n");
+            fprintf(stderr, "usage: bench_dmm [--frames N] [--levels 2,3,4a,...]\n");
             return 2;
         }
     }
@@ -266,40 +294,41 @@ int main(int argc, char **argv)
            "triangles, %dx%d primary rays, %d frames, %u threads\n\n",
            JOB_PATH, (unsigned long long)detail, job->output.width, job->output.height, frames,
            mr_cpu_count());
-    bake_report(dancer, levels, level_count);
+    bake_figures bake[8];
+    bake_report(dancer, cfg, count, bake);
     level_result res[8];
-    for (int i = 0; i < level_count; i++) {
-        res[i] = run_level(job, dancer, levels[i], frames);
+    for (int i = 0; i < count; i++) {
+        res[i] = run_level(job, dancer, cfg[i], bake[i], frames);
         fflush(stdout);
     }
     printf("Trace time per frame (median, ms) and ratios, side by side:\n\n");
     printf("| level | micro-tris | tess-b | base | tess-i | interp | truth | base/tess-b | "
            "interp/tess-i | interp/base |\n|---|---|---|---|---|---|---|---|---|---|\n");
-    for (int i = 0; i < level_count; i++) {
+    for (int i = 0; i < count; i++) {
         const level_result *x = &res[i];
-        printf("| %u | %llu | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f | %.2f |\n",
-               x->level, (unsigned long long)x->micro, x->trace_ms[0], x->trace_ms[1],
+        printf("| %s | %llu | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f | %.2f |\n",
+               config_name(x->cfg), (unsigned long long)x->micro, x->trace_ms[0], x->trace_ms[1],
                x->trace_ms[2], x->trace_ms[3], x->trace_ms[4], x->trace_ms[1] / x->trace_ms[0],
                x->trace_ms[3] / x->trace_ms[2], x->trace_ms[3] / x->trace_ms[1]);
     }
     printf("\nTessellation-free vs its own tessellation (worst frame; diagonal-relative depth):\n\n"
            "| level | base: pixels differing | base: depth max | interp: pixels differing | "
            "interp: depth max |\n|---|---|---|---|---|\n");
-    for (int i = 0; i < level_count; i++)
-        printf("| %u | %zu | %.2e | %zu | %.2e |\n", res[i].level, res[i].self[0].hit_one,
+    for (int i = 0; i < count; i++)
+        printf("| %s | %zu | %.2e | %zu | %.2e |\n", config_name(res[i].cfg), res[i].self[0].hit_one,
                res[i].self[0].depth_max, res[i].self[1].hit_one, res[i].self[1].depth_max);
     printf("\nError against the detailed mesh skinned with LBS (mean over frames):\n\n"
            "| level | base: coverage %% | base: depth RMS | base: normal deg | interp: coverage "
            "%% | interp: depth RMS | interp: normal deg |\n|---|---|---|---|---|---|---|\n");
-    for (int i = 0; i < level_count; i++)
-        printf("| %u | %.3f | %.2e | %.2f | %.3f | %.2e | %.2f |\n", res[i].level,
+    for (int i = 0; i < count; i++)
+        printf("| %s | %.3f | %.2e | %.2f | %.3f | %.2e | %.2f |\n", config_name(res[i].cfg),
                res[i].truth_cov[1], res[i].truth_depth[1], res[i].truth_normal[1],
                res[i].truth_cov[3], res[i].truth_depth[3], res[i].truth_normal[3]);
     printf("\nPer-frame acceleration update (pose + BVH refit, median ms) and memory:\n\n"
            "| level | tess-b | base | interp | base/tess-b | DMM stored B/micro-tri | DMM "
            "resident B/micro-tri | tessellated B/micro-tri |\n|---|---|---|---|---|---|---|---|\n");
-    for (int i = 0; i < level_count; i++)
-        printf("| %u | %.2f | %.3f | %.3f | 1/%.0f | %.2f | %.2f | %.1f |\n", res[i].level,
+    for (int i = 0; i < count; i++)
+        printf("| %s | %.2f | %.3f | %.3f | 1/%.0f | %.2f | %.2f | %.1f |\n", config_name(res[i].cfg),
                res[i].update_ms[0], res[i].update_ms[1], res[i].update_ms[3],
                res[i].update_ms[0] / res[i].update_ms[1], res[i].bytes_dmm_stored,
                res[i].bytes_dmm_resident, res[i].bytes_tess);

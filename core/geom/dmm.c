@@ -399,6 +399,13 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     if (cache_path && !cached)
         cache_store(g, key, cache_path);
+    /* the encodings are what renders: the bakes' float displacements (up to
+     * 561 floats per base triangle) are not needed any more */
+    for (size_t i = 0; i < asset->mesh_count; i++)
+        if (g->bakes[i]) {
+            free(g->bakes[i]->displacements);
+            g->bakes[i]->displacements = NULL;
+        }
     if (tessellated(g))
         fill_micro_indices(g, g->indices);
     free(cache_path);
