@@ -1,0 +1,109 @@
+/*
+ * svo.h - sparse voxel octree (SVO) of one voxelised asset (paper 004,
+ * Willcocks, chapters 3-4; issue 5): the shared, read-only data every
+ * instance of an `svo` object points at, and the per-frame world-space
+ * octrees that `resize` / `emit` rebuild.
+ *
+ * Grid. An octree of depth D (1..MR_SVO_MAX_DEPTH) divides the axis-aligned
+ * cube [origin, origin + size]^3 into 2^D cells per axis. A voxel at level l
+ * (0 = the whole cube, D = finest) has integer coordinates x, y, z in
+ * [0, 2^l). Its key (mr_svo_key) is the Morton code of its coordinates
+ * scaled to the finest level, (x << (D - l), ...), plus the level, so a
+ * voxel's code is the code of its first (lowest-corner) finest descendant
+ * and codes of nested voxels share a prefix of 3l bits (morton.h).
+ *
+ * Node layout (chosen here; the thesis gives none: REFERENCE.md). Leaves
+ * may sit at any level (a rebuilt octree keeps the coarsest of nested
+ * voxels), so every interior node says which children exist and which of
+ * those are leaves:
+ *  - interior node i: child_mask[i] (bit c = child c exists; child c covers
+ *    x + (c & 1), y + ((c >> 1) & 1), z + (c >> 2) at the next level),
+ *    leaf_mask[i] (subset of child_mask: those children are leaves),
+ *    first_node[i]: interior children, in increasing c, at nodes
+ *    first_node[i] + 0, 1, ...; first_leaf[i]: leaf children, in increasing
+ *    c, at leaves first_leaf[i] + 0, 1, .... So child c's index is its base
+ *    plus the popcount of the lower bits of its own mask. 10 bytes.
+ *  - leaf: 4 bytes (mr_svo_leaf): an octahedral unit normal (8 + 8 bits)
+ *    and an index into the attribute palette (albedo and skin weights are
+ *    shared by many voxels: a skinned character has a few thousand distinct
+ *    quantised weight sets).
+ *  Node 0 is the root. An empty octree has node_count 0 and leaf_count 0;
+ *  an octree whose root itself is a leaf (one voxel covering the cube) has
+ *  node_count 0 and leaf_count 1.
+ *  With surface voxels about 1/3 of a leaf's cost is its ancestors, i.e.
+ *  ~4 + 0.33 x 10 = 7.3 bytes per leaf voxel (measured figures in README).
+ */
+#ifndef MR_SVO_H
+#define MR_SVO_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "math/mr_math.h"
+#include "microray.h"
+
+/* Deepest level: 21 bits per axis in a 63-bit Morton code. */
+#define MR_SVO_MAX_DEPTH 21u
+/* Skin influences kept per palette entry. */
+#define MR_SVO_INFLUENCES 4u
+/* Palette entries are indexed by 16 bits. */
+#define MR_SVO_MAX_PALETTE 65536u
+
+/* A voxel: Morton code of its lowest finest-level descendant, and its
+ * level. Sorted by (code, level); two keys are nested when the coarser one's
+ * 3 * level code prefix equals the finer one's. */
+typedef struct mr_svo_key {
+    uint64_t code;
+    uint32_t level;
+} mr_svo_key;
+
+/* Per-voxel attributes, 4 bytes. */
+typedef struct mr_svo_leaf {
+    uint8_t normal[2]; /* octahedral encoding, mr_svo_normal_encode */
+    uint16_t attr;     /* index into mr_svo.palette */
+} mr_svo_leaf;
+
+/* Shared attributes: linear albedo and skin weights (joint indices of the
+ * source mesh's skin, weights / 255 summing to 255; all zero weights =
+ * rigid). */
+typedef struct mr_svo_attr {
+    uint8_t albedo[3];
+    uint8_t mesh;                            /* source mesh of the asset (skin owner) */
+    uint16_t joints[MR_SVO_INFLUENCES];
+    uint8_t weights[MR_SVO_INFLUENCES];
+} mr_svo_attr;
+
+typedef struct mr_svo {
+    unsigned depth;        /* D, 1..MR_SVO_MAX_DEPTH */
+    mr_vec3 origin;        /* cube corner (object space) */
+    float size;            /* cube edge, > 0 */
+    uint32_t node_count;
+    uint32_t leaf_count;
+    uint32_t palette_count;
+    uint32_t *first_node;  /* node_count each */
+    uint32_t *first_leaf;
+    uint8_t *child_mask;
+    uint8_t *leaf_mask;
+    mr_svo_leaf *leaves;   /* leaf_count */
+    mr_svo_key *leaf_keys; /* leaf_count, or NULL: the key of each leaf, when kept */
+    mr_svo_attr *palette;  /* palette_count */
+} mr_svo;
+
+void mr_svo_free(mr_svo *svo);
+/* Bytes held by the octree's arrays. */
+size_t mr_svo_memory(const mr_svo *svo);
+
+/* Walks the octree depth-first in child order and writes, for every leaf in
+ * Morton order, its key (keys) and its index in leaves (leaf_index); either
+ * may be NULL, each has room for leaf_count. Checks the structure on the
+ * way: MR_ERR_FORMAT for masks, indices or depths that do not fit, or a leaf
+ * count that differs from the leaves reached. */
+int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_index, mr_error *err);
+
+/* Octahedral unit-vector encoding, 8 bits per coordinate; decode gives a
+ * unit vector within ~1 degree of the input. Non-finite or zero input
+ * encodes +z. */
+void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
+mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
+
+#endif /* MR_SVO_H */
