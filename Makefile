@@ -13,7 +13,11 @@ SAN     ?=
 WARN    := -Wall -Wextra -Werror -Wshadow -Wno-unused-parameter
 # -ffp-contract=off: no fused multiply-adds behind our back; watertight
 # intersection relies on two triangles evaluating a shared edge identically.
-CFLAGS  := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -D_DEFAULT_SOURCE -Icore -Iserver -I/usr/include/OpenEXR -I/usr/include/cjson -MMD -MP $(SAN)
+# -fno-tree-slp-vectorize: GCC 12.2's SLP vectorizer (on at -O2) can reuse
+# the unrounded double where a (float) cast result is used again in double
+# arithmetic, e.g. d = (float)(c - (float)(c + e)) comes out as -e; code
+# that relies on exact float rounding must not be compiled that way.
+CFLAGS  := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vectorize -D_DEFAULT_SOURCE -Icore -Iserver -I/usr/include/OpenEXR -I/usr/include/cjson -MMD -MP $(SAN)
 LDFLAGS := $(SAN)
 CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -lmeshoptimizer -lpthread -lm
 SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd

@@ -1,0 +1,373 @@
+/*
+ * test_svo_trace.c - the sparse voxel octree ray caster (core/svo/svo_trace.h)
+ * against a brute force over every leaf's box, on random sparse octrees of
+ * depth 1..8, 12 and 21 (some far from the origin), with random rays from
+ * outside and inside, axis-parallel rays (also lying exactly on cell
+ * planes) and rays aimed at voxel corners, edges and faces; plus the root
+ * leaf, the empty octree, mr_svo_bounds and a one-off throughput figure.
+ *
+ * The harness (tests/support/svo_fixture.h: an octree builder from a
+ * classification function, the brute force and the comparison of one ray)
+ * is shared with tests/hard/test_svo_hard.c, so both use the same oracle.
+ *
+ * Brute force: each leaf's closed box, its planes at origin + k * size *
+ * 2^-21 (k the integer finest-grid position), slab-tested in double with
+ * divisions (the traversal multiplies by 1 / dir and adds in another order,
+ * so the two round differently, by a few double ulps).
+ *
+ * Tolerance (check_ray): the traversal reports t as a float, so its t
+ * matches the brute force's to within float rounding of t plus the double
+ * differences above: tol = 4 * FLT_EPSILON * (|t| + size / |dir|), i.e. a
+ * few float ulps relative to the cube size. Within tol:
+ *  - the traversal's leaf is accepted when its box's entry t is within tol
+ *    of the nearest entry over all boxes (ties: rays through a face, edge or
+ *    corner shared by two leaves may report either);
+ *  - a box whose interval is shorter than tol is a graze: the two sides may
+ *    disagree on it by rounding, so a miss is accepted only when every box
+ *    the brute force hits is such a graze, and a hit on a graze only when
+ *    no box is entered properly before it.
+ * With exact arithmetic (dyadic cube, rays with dyadic origins and
+ * directions whose planes' t are exact: check_ray_exact) both compute the
+ * same t exactly and grazes count as hits on both sides, so the comparison
+ * is exact: same hit/miss, same t bit for bit.
+ */
+#include "../support/svo_fixture.h"
+
+
+/* ---- tests */
+
+static void run_random(unsigned depth, uint64_t seed, fx_random params, mr_vec3 origin, float size, int rays)
+{
+    svo_fx fx;
+    params.seed = seed;
+    fx_build(&fx, depth, origin, size, fx_random_cls, &params);
+    fx_rng r = {seed * 7919u + depth};
+    fx_stats st = {0};
+    for (int i = 0; i < rays; i++) {
+        mr_vec3 o, d;
+        float tmin, tmax;
+        fx_random_ray(&fx, &r, i, &o, &d, &tmin, &tmax);
+        check_ray(&fx, o, d, tmin, tmax, &st);
+    }
+    /* the ray mix must actually exercise hits (except for empty trees) */
+    if (fx.svo.leaf_count > 0)
+        assert_true(st.hits > 0);
+    fx_free(&fx);
+}
+
+static void test_random_shallow(void **state)
+{
+    (void)state;
+    for (unsigned depth = 1; depth <= 8; depth++) {
+        for (uint64_t seed = 1; seed <= 6; seed++) {
+            /* dense near the root for small depths, sparse further down */
+            fx_random p = {0, 0.25, depth <= 4 ? 0.4 : 0.2, seed % 3 == 0 ? 2u : 0u};
+            const mr_vec3 origin = seed % 2 ? mr_v3(0, 0, 0) : mr_v3(-0.75f, 0.3f, 2.5f);
+            const float size = seed % 2 ? 1.0f : 3.0f;
+            run_random(depth, seed * 131u + depth, p, origin, size, 1500);
+        }
+    }
+}
+
+static void test_random_deep(void **state)
+{
+    (void)state;
+    /* sparse: ~1.4 split children per interior node, so depth 21 stays small */
+    const fx_random p = {0, 0.15, 0.17, 2};
+    run_random(12, 5, p, mr_v3(0, 0, 0), 1.0f, 3000);
+    run_random(12, 6, p, mr_v3(-3, 7, 1), 10.0f, 3000);
+    run_random(21, 7, p, mr_v3(0, 0, 0), 1.0f, 3000);
+    run_random(21, 8, p, mr_v3(1e5f, -1e5f, 1e5f), 1.0f, 3000);
+    run_random(21, 9, p, mr_v3(1e5f, 1e5f, 1e5f), 1000.0f, 3000);
+}
+
+/* Dyadic cube, rays with dyadic origins and directions in {0, +-1, +-2,
+ * +-0.5}: every plane t is exact, so the comparison is exact. Origins on
+ * grid points make rays run along faces and edges and through corners. */
+static void test_exact_grid_rays(void **state)
+{
+    (void)state;
+    for (unsigned depth = 2; depth <= 5; depth++) {
+        svo_fx fx;
+        fx_random p = {depth * 1000u + 3u, 0.3, 0.35, 1};
+        fx_build(&fx, depth, mr_v3(-2, 0, 4), 4.0f, fx_random_cls, &p);
+        fx_rng r = {depth};
+        const float comps[] = {0.0f, -0.0f, 1.0f, -1.0f, 2.0f, -2.0f, 0.5f, -0.5f};
+        for (int i = 0; i < 4000; i++) {
+            const float n = (float)(1u << depth);
+            float ov[3], dv[3];
+            const float base[3] = {-2.0f, 0.0f, 4.0f};
+            for (int a = 0; a < 3; a++) {
+                /* grid points, also outside the cube, or half-cell points */
+                ov[a] = base[a] + 4.0f * (float)((int)fx_below(&r, (uint32_t)(3 * n)) - (int)n) / n;
+                if (fx_below(&r, 4) == 0)
+                    ov[a] += 2.0f / n;
+                dv[a] = comps[fx_below(&r, 8)];
+            }
+            float tmin = 0.0f, tmax = INFINITY;
+            if (fx_below(&r, 3) == 0) {
+                tmin = (float)fx_below(&r, 8) / 4.0f;
+                tmax = tmin + (float)fx_below(&r, 16) / 4.0f;
+            }
+            check_ray_exact(&fx, mr_v3(ov[0], ov[1], ov[2]), mr_v3(dv[0], dv[1], dv[2]), tmin, tmax);
+        }
+        fx_free(&fx);
+    }
+}
+
+static int cls_root_leaf(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    (void)ctx, (void)level, (void)x, (void)y, (void)z;
+    return FX_LEAF;
+}
+
+static int cls_empty(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    (void)ctx, (void)level, (void)x, (void)y, (void)z;
+    return FX_EMPTY;
+}
+
+static void test_root_leaf_and_empty(void **state)
+{
+    (void)state;
+    svo_fx fx;
+    fx_build(&fx, 3, mr_v3(1, 2, 3), 2.0f, cls_root_leaf, NULL);
+    assert_int_equal(fx.svo.node_count, 0);
+    assert_int_equal(fx.svo.leaf_count, 1);
+    mr_svo_hit h;
+    /* from -x: enters the cube's face x = 1 at t = 1 */
+    assert_true(mr_svo_intersect(&fx.svo, mr_v3(0, 3, 4), mr_v3(1, 0, 0), 0.0f, INFINITY, &h));
+    assert_true(h.t == 1.0f);
+    assert_int_equal(h.leaf, 0);
+    assert_int_equal(h.level, 0);
+    assert_int_equal(h.axis, 0);
+    assert_true(h.ng.x == -1.0f);
+    /* from inside */
+    assert_true(mr_svo_intersect(&fx.svo, mr_v3(2, 3, 4), mr_v3(0, 0, -1), 0.5f, INFINITY, &h));
+    assert_true(h.t == 0.5f);
+    assert_int_equal(h.axis, -1);
+    /* segment that ends before the cube */
+    assert_false(mr_svo_intersect(&fx.svo, mr_v3(0, 3, 4), mr_v3(1, 0, 0), 0.0f, 0.99f, &h));
+    assert_false(mr_svo_occluded(&fx.svo, mr_v3(0, 3, 4), mr_v3(1, 0, 0), 0.0f, 0.99f));
+    fx_rng r = {3};
+    fx_stats st = {0};
+    for (int i = 0; i < 500; i++) {
+        mr_vec3 o, d;
+        float tmin, tmax;
+        fx_random_ray(&fx, &r, i, &o, &d, &tmin, &tmax);
+        check_ray(&fx, o, d, tmin, tmax, &st);
+    }
+    float lo[3], hi[3];
+    assert_true(mr_svo_bounds(&fx.svo, lo, hi));
+    assert_true(lo[0] == 1.0f && lo[1] == 2.0f && lo[2] == 3.0f);
+    assert_true(hi[0] == 3.0f && hi[1] == 4.0f && hi[2] == 5.0f);
+    fx_free(&fx);
+
+    fx_build(&fx, 5, mr_v3(0, 0, 0), 1.0f, cls_empty, NULL);
+    assert_int_equal(fx.svo.leaf_count, 0);
+    assert_false(mr_svo_intersect(&fx.svo, mr_v3(0.5f, 0.5f, -1), mr_v3(0, 0, 1), 0.0f, INFINITY, &h));
+    assert_false(mr_svo_occluded(&fx.svo, mr_v3(0.5f, 0.5f, 0.5f), mr_v3(0, 0, 1), 0.0f, INFINITY));
+    assert_false(mr_svo_bounds(&fx.svo, lo, hi));
+    assert_false(mr_svo_intersect(NULL, mr_v3(0, 0, 0), mr_v3(0, 0, 1), 0.0f, INFINITY, &h));
+    fx_free(&fx);
+}
+
+/* One child of the root occupied: bounds shrink to that octant (rounded
+ * outwards), and always contain every leaf box. */
+static int cls_one_octant(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    (void)ctx;
+    if (level == 0)
+        return FX_SPLIT;
+    if (level == 1)
+        return (x == 1 && y == 0 && z == 1) ? FX_SPLIT : FX_EMPTY;
+    return ((x + y + z) % 3 == 0) ? FX_LEAF : FX_EMPTY;
+}
+
+static void test_bounds(void **state)
+{
+    (void)state;
+    svo_fx fx;
+    fx_build(&fx, 4, mr_v3(0.1f, -0.3f, 7.0f), 0.7f, cls_one_octant, NULL);
+    float lo[3], hi[3];
+    assert_true(mr_svo_bounds(&fx.svo, lo, hi));
+    const double o[3] = {0.1f, -0.3f, 7.0f}, s = 0.7f;
+    const double elo[3] = {o[0] + 0.5 * s, o[1], o[2] + 0.5 * s};
+    const double ehi[3] = {o[0] + s, o[1] + 0.5 * s, o[2] + s};
+    for (int a = 0; a < 3; a++) {
+        /* outward rounding: at most one float ulp outside the exact plane */
+        assert_true((double)lo[a] <= elo[a] && (double)nextafterf(lo[a], INFINITY) > elo[a]);
+        assert_true((double)hi[a] >= ehi[a] && (double)nextafterf(hi[a], -INFINITY) < ehi[a]);
+    }
+    for (uint32_t i = 0; i < fx.svo.leaf_count; i++) {
+        for (int a = 0; a < 3; a++) {
+            double bl, bh;
+            fx_box_planes(&fx.svo, &fx.boxes[i], a, &bl, &bh);
+            assert_true((double)lo[a] <= bl && bh <= (double)hi[a]);
+        }
+    }
+    fx_free(&fx);
+}
+
+/* The same leaves through the real builder (mr_svo_build: breadth-first
+ * nodes, leaves by level and code) must trace identically to the fixture's
+ * depth-first layout: the walk order depends on geometry only, so hit/miss,
+ * t (bit for bit) and the voxel agree, and leaf_keys names the voxel. */
+static int cmp_key(const void *pa, const void *pb)
+{
+    const mr_svo_key *a = pa, *b = pb;
+    if (a->code != b->code)
+        return a->code < b->code ? -1 : 1;
+    return a->level < b->level ? -1 : a->level > b->level;
+}
+
+static void crosscheck_build(unsigned depth, fx_random p, mr_vec3 origin, float size, int rays)
+{
+    svo_fx fx;
+    fx_build(&fx, depth, origin, size, fx_random_cls, &p);
+    const uint32_t n = fx.svo.leaf_count;
+    mr_svo_key *keys = calloc(n ? n : 1, sizeof *keys);
+    assert_non_null(keys);
+    for (uint32_t i = 0; i < n; i++) {
+        const fx_box *b = &fx.boxes[i];
+        const unsigned sh = depth - b->level;
+        keys[i].code = mr_morton_encode(b->xyz[0] << sh, b->xyz[1] << sh, b->xyz[2] << sh);
+        keys[i].level = b->level;
+    }
+    qsort(keys, n, sizeof *keys, cmp_key);
+    const mr_svo_attr pal = {{128, 128, 128}, 0, {0, 0, 0, 0}, {0, 0, 0, 0}};
+    mr_svo built;
+    mr_error err;
+    assert_int_equal(mr_svo_build(keys, NULL, n, depth, origin, size, &pal, 1, 1, &built, &err), MR_OK);
+    assert_int_equal(built.leaf_count, n);
+    assert_non_null(built.leaf_keys);
+    fx_rng r = {depth * 31u + 7u};
+    long hits = 0;
+    for (int i = 0; i < rays; i++) {
+        mr_vec3 o, d;
+        float tmin, tmax;
+        fx_random_ray(&fx, &r, i, &o, &d, &tmin, &tmax);
+        mr_svo_hit a, b;
+        const bool ha = mr_svo_intersect(&fx.svo, o, d, tmin, tmax, &a);
+        const bool hb = mr_svo_intersect(&built, o, d, tmin, tmax, &b);
+        assert_int_equal(ha, hb);
+        assert_int_equal(hb, mr_svo_occluded(&built, o, d, tmin, tmax));
+        if (!ha)
+            continue;
+        hits++;
+        assert_true(a.t == b.t);
+        assert_int_equal(a.level, b.level);
+        assert_int_equal(a.x, b.x);
+        assert_int_equal(a.y, b.y);
+        assert_int_equal(a.z, b.z);
+        assert_int_equal(a.axis, b.axis);
+        const unsigned sh = depth - b.level;
+        assert_true(built.leaf_keys[b.leaf].code == mr_morton_encode(b.x << sh, b.y << sh, b.z << sh));
+        assert_int_equal(built.leaf_keys[b.leaf].level, b.level);
+    }
+    assert_true(n == 0 || hits > 0);
+    mr_svo_free(&built);
+    free(keys);
+    fx_free(&fx);
+}
+
+static void test_build_crosscheck(void **state)
+{
+    (void)state;
+    const fx_random dense = {11, 0.3, 0.4, 1}, sparse = {12, 0.15, 0.17, 2};
+    crosscheck_build(1, dense, mr_v3(0, 0, 0), 1.0f, 500);
+    crosscheck_build(4, dense, mr_v3(-1, 2, 0.5f), 2.0f, 2000);
+    crosscheck_build(8, sparse, mr_v3(0, 0, 0), 1.0f, 2000);
+    crosscheck_build(21, sparse, mr_v3(1e5f, 0, -3), 4.0f, 2000);
+}
+
+/* Shell of a sphere at depth 10: leaves are the finest cells the sphere's
+ * surface passes through (about a million). */
+typedef struct fx_shell {
+    double c, r; /* centre (all axes) and radius, in finest cells of this depth */
+    unsigned depth;
+} fx_shell;
+
+static int cls_shell(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    const fx_shell *s = ctx;
+    const double w = ldexp(1.0, (int)(s->depth - level));
+    const double p[3] = {x * w, y * w, z * w};
+    double dmin = 0.0, dmax = 0.0;
+    for (int a = 0; a < 3; a++) {
+        const double lo = p[a] - s->c, hi = p[a] + w - s->c;
+        const double n = lo > 0 ? lo : hi < 0 ? -hi : 0.0;
+        const double f = fmax(fabs(lo), fabs(hi));
+        dmin += n * n;
+        dmax += f * f;
+    }
+    if (dmin > s->r * s->r || dmax < s->r * s->r)
+        return FX_EMPTY;
+    return FX_SPLIT;
+}
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Throughput on ~1M leaves, printed once, never asserted. Also spot-checks
+ * a few hundred of the rays against the brute force. */
+static void test_throughput(void **state)
+{
+    (void)state;
+    fx_shell sh = {512.0, 290.0, 10};
+    svo_fx fx;
+    fx_build(&fx, 10, mr_v3(-1, -1, -1), 2.0f, cls_shell, &sh);
+    assert_true(fx.svo.leaf_count > 500000);
+    fx_rng r = {42};
+    enum { N = 1 << 19 };
+    mr_vec3 *o = malloc(N * sizeof *o), *d = malloc(N * sizeof *d);
+    assert_non_null(o);
+    assert_non_null(d);
+    for (int i = 0; i < N; i++) {
+        /* camera-like: from a sphere around the object towards points near it */
+        const mr_vec3 u = fx_random_dir(&r);
+        const float l = mr_v3_len(u);
+        o[i] = mr_v3(3.0f * u.x / l, 3.0f * u.y / l, 3.0f * u.z / l);
+        const mr_vec3 tgt = mr_v3((float)fx_range(&r, -0.7, 0.7), (float)fx_range(&r, -0.7, 0.7),
+                                  (float)fx_range(&r, -0.7, 0.7));
+        d[i] = mr_v3_sub(tgt, o[i]);
+    }
+    long hits = 0;
+    const double t0 = now_seconds();
+    for (int i = 0; i < N; i++) {
+        mr_svo_hit h;
+        hits += mr_svo_intersect(&fx.svo, o[i], d[i], 0.0f, INFINITY, &h);
+    }
+    const double t1 = now_seconds();
+    long occ = 0;
+    for (int i = 0; i < N; i++)
+        occ += mr_svo_occluded(&fx.svo, o[i], d[i], 0.0f, INFINITY);
+    const double t2 = now_seconds();
+    assert_int_equal(hits, occ);
+    assert_true(hits > N / 4);
+    printf("svo_trace: %u leaves, %u nodes (depth 10 sphere shell), %d rays (%.0f%% hit): intersect %.2f Mrays/s, "
+           "occluded %.2f Mrays/s (one thread)\n",
+           fx.svo.leaf_count, fx.svo.node_count, N, 100.0 * (double)hits / N, N / (t1 - t0) * 1e-6,
+           N / (t2 - t1) * 1e-6);
+    fx_stats st = {0};
+    for (int i = 0; i < 64; i++)
+        check_ray(&fx, o[i], d[i], 0.0f, INFINITY, &st);
+    free(o);
+    free(d);
+    fx_free(&fx);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_random_shallow),  cmocka_unit_test(test_random_deep),
+        cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
+        cmocka_unit_test(test_bounds),          cmocka_unit_test(test_build_crosscheck),
+        cmocka_unit_test(test_throughput),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
