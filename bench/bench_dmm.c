@@ -221,7 +221,10 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
                 lo[k] = x < lo[k] ? x : lo[k];
                 hi[k] = x > hi[k] ? x : hi[k];
             }
-    uint32_t scratch[3 * 1024]; /* micro-triangles of one base triangle at level 5 */
+    mr_umesh_topology topo;
+    mr_error terr = {0};
+    if (mr_umesh_topology_init(&topo, MR_UMESH_MAX_LEVEL, &terr) < 0)
+        die("topology", terr.msg);
     double diag = sqrt((double)(hi[0] - lo[0]) * (hi[0] - lo[0]) +
                        (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
                        (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
@@ -245,8 +248,8 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
                 die("bake", err.msg);
             base += b->base_triangle_count;
             for (uint32_t t = 0; t < b->base_triangle_count; t++)
-                micro += mr_umesh_triangles(mr_dmm_info_level(b->tri_info[t]),
-                                            mr_dmm_info_decimate(b->tri_info[t]), scratch);
+                micro += topo.count[mr_dmm_info_level(b->tri_info[t])]
+                                   [mr_dmm_info_decimate(b->tri_info[t])];
             bytes += (uint64_t)enc->triangle_count + enc->records_bytes;
             sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
             samples += b->sample_count;
@@ -262,6 +265,7 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
                8.0 * (double)bytes / (double)micro, sqrt(sum2 / (double)samples) / diag,
                worst / diag, quant / diag, mr_now() - t0);
     }
+    mr_umesh_topology_free(&topo);
     printf("\n");
 }
 

@@ -55,17 +55,11 @@
 /* Per base triangle and frame: box lo, hi, and the traversal's pad. */
 #define BOX_FLOATS 9
 
-/* The surviving micro-triangles (mr_umesh_triangles) of every level and
- * decimation mask, so a hit maps back to its lattice in O(1). */
-typedef struct topology {
-    uint32_t count[MR_UMESH_MAX_LEVEL + 1][8];
-    uint32_t *tris[MR_UMESH_MAX_LEVEL + 1][8];
-} topology;
-
 struct mr_geom {
     const mr_asset *asset;
     mr_dmm_desc desc;
-    topology topo;
+    mr_umesh_topology topo;       /* surviving micro-triangles per level and decimation mask:
+                                     a hit maps back to its lattice in O(1) */
     uint8_t *tri_info;            /* per base triangle: level and decimation (dmm_encode.h) */
     /* per base triangle + 1, prefix sums: first decoded value (= first
      * micro-vertex), first pyramid entry, first surviving micro-triangle */
@@ -107,9 +101,7 @@ static void dmm_free(mr_geom *g)
     }
     free(g->bakes);
     free(g->encoded);
-    for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
-        for (unsigned m = 0; m < 8; m++)
-            free(g->topo.tris[l][m]);
+    mr_umesh_topology_free(&g->topo);
     free(g->tri_info);
     free(g->value_first);
     free(g->pyramid_first);
@@ -168,18 +160,6 @@ static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
     free(maxv);
     g->encoded_bytes += (size_t)enc->triangle_count + enc->records_bytes;
     return rc;
-}
-
-static int topology_init(topology *tp, unsigned max_level, mr_error *err)
-{
-    for (unsigned l = 0; l <= max_level; l++)
-        for (unsigned m = 0; m < (l ? 8u : 1u); m++) {
-            tp->tris[l][m] = malloc((size_t)mr_umesh_triangle_count(l) * 3 * sizeof(uint32_t));
-            if (!tp->tris[l][m]) /* the owner's free releases what was made */
-                return mr_error_set(err, MR_ERR_NOMEM, "out of memory for dmm micro-triangles");
-            tp->count[l][m] = mr_umesh_triangles(l, m, tp->tris[l][m]);
-        }
-    return MR_OK;
 }
 
 /* Surviving micro-triangles of base triangle t (local vertex indices). */
@@ -377,7 +357,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     g->base_vertex_count = (uint32_t)nv;
     g->base_triangle_count = (uint32_t)nt;
-    if ((rc = topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
+    if ((rc = mr_umesh_topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
         (rc = allocate(g, err)) < 0)
         goto fail;
 

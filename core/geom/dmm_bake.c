@@ -157,7 +157,7 @@ typedef struct bake_ctx {
     double *maxd;                 /* per base triangle */
     uint32_t *samples;            /* per base triangle: error report samples */
     mr_vec3 *scratch;             /* per worker: micro_vertex_count positions */
-    uint32_t *tri_scratch;        /* per worker: 3 * 4^level micro-triangle indices */
+    mr_umesh_topology topo;       /* surviving micro-triangles per level and mask */
 } bake_ctx;
 
 /* Hit distance along dir from org, or INFINITY. */
@@ -194,7 +194,6 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
     bake_ctx *c = vctx;
     mr_dmm_bake *b = c->bake;
     mr_vec3 *pts = c->scratch + (size_t)worker * b->micro_vertex_count;
-    uint32_t *tris = c->tri_scratch + (size_t)worker * 3 * mr_umesh_triangle_count(b->level);
     for (size_t t = begin; t < end; t++) {
         const unsigned level = mr_dmm_info_level(b->tri_info[t]);
         const unsigned decimate = mr_dmm_info_decimate(b->tri_info[t]);
@@ -233,9 +232,9 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
-        uint32_t mtc = mr_umesh_triangles(level, decimate, tris);
+        uint32_t mtc = c->topo.count[level][decimate];
         for (uint32_t k = 0; k < mtc; k++) {
-            const uint32_t *idx = tris + 3 * k;
+            const uint32_t *idx = c->topo.tris[level][decimate] + 3 * k;
             mr_vec3 cen = mr_v3_scale(mr_v3_add(mr_v3_add(pts[idx[0]], pts[idx[1]]), pts[idx[2]]),
                                       1.0f / 3.0f);
             double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, cen);
@@ -589,11 +588,10 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
     ctx.maxd = calloc(nbt, sizeof *ctx.maxd);
     ctx.samples = calloc(nbt, sizeof *ctx.samples);
     ctx.scratch = malloc((size_t)threads * b->micro_vertex_count * sizeof(mr_vec3));
-    ctx.tri_scratch =
-        malloc((size_t)threads * 3 * mr_umesh_triangle_count(b->level) * sizeof(uint32_t));
-    if (!ctx.fallbacks || !ctx.sum2 || !ctx.maxd || !ctx.samples || !ctx.scratch ||
-        !ctx.tri_scratch)
+    if (!ctx.fallbacks || !ctx.sum2 || !ctx.maxd || !ctx.samples || !ctx.scratch)
         goto nomem;
+    if ((rc = mr_umesh_topology_init(&ctx.topo, b->level, err)) < 0)
+        goto cleanup;
     mr_parallel_for(threads, nbt, 4, bake_range, &ctx);
     double s2 = 0, mx = 0;
     for (uint32_t t = 0; t < nbt; t++) {
@@ -616,7 +614,7 @@ cleanup:
     free(ctx.maxd);
     free(ctx.samples);
     free(ctx.scratch);
-    free(ctx.tri_scratch);
+    mr_umesh_topology_free(&ctx.topo);
     if (scene)
         rtcReleaseScene(scene);
     if (device)

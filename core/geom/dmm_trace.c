@@ -611,20 +611,6 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     return c.found;
 }
 
-/* Lattice corners of micro-triangle (ia, ib, upright or inverted). */
-static void lattice_tri(uint32_t ia, uint32_t ib, bool inverted, uint32_t a[3], uint32_t b[3])
-{
-    if (!inverted) {
-        a[0] = ia, b[0] = ib;
-        a[1] = ia + 1, b[1] = ib;
-        a[2] = ia, b[2] = ib + 1;
-    } else {
-        a[0] = ia + 1, b[0] = ib;
-        a[1] = ia + 1, b[1] = ib + 1;
-        a[2] = ia, b[2] = ib + 1;
-    }
-}
-
 static bool decimated_tri(unsigned level, unsigned decimate, uint32_t a[3], uint32_t b[3])
 {
     for (int k = 0; k < 3; k++)
@@ -666,7 +652,7 @@ void mr_dmm_locate(unsigned level, unsigned decimate, float u, float v, uint32_t
             ia = n - 1 - ib;
     }
     float fx = x - (float)ia, fy = y - (float)ib;
-    lattice_tri(ia, ib, !(fx + fy <= 1.0f || ia + ib + 1 > n - 1), a, b);
+    mr_umesh_lattice_triangle(ia, ib, !(fx + fy <= 1.0f || ia + ib + 1 > n - 1), a, b);
     if (!decimate || level == 0 || decimated_tri(level, decimate, a, b))
         return;
     /* Collapsed: the surviving micro-triangles around it cover its domain;
@@ -677,7 +663,7 @@ void mr_dmm_locate(unsigned level, unsigned decimate, float u, float v, uint32_t
         for (uint32_t ja = ia ? ia - 1 : 0; ja <= ia + 1 && ja + jb < n; ja++)
             for (int inv = 0; inv < 2 && !(inv && ja + jb + 1 > n - 1); inv++) {
                 uint32_t ca[3], cb[3];
-                lattice_tri(ja, jb, inv, ca, cb);
+                mr_umesh_lattice_triangle(ja, jb, inv, ca, cb);
                 if (!decimated_tri(level, decimate, ca, cb))
                     continue;
                 float w = inside_weight(ca, cb, x, y);

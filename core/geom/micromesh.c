@@ -6,6 +6,7 @@
  */
 #include "geom/micromesh.h"
 
+#include <stdlib.h>
 #include <string.h>
 
 typedef struct dvec3 { double x, y, z; } dvec3;
@@ -89,6 +90,20 @@ int mr_umesh_vertex_edge(unsigned level, uint32_t a, uint32_t b, uint32_t *k)
     return e;
 }
 
+void mr_umesh_lattice_triangle(uint32_t a, uint32_t b, bool inverted, uint32_t ta[3],
+                               uint32_t tb[3])
+{
+    if (!inverted) {
+        ta[0] = a, tb[0] = b;
+        ta[1] = a + 1, tb[1] = b;
+        ta[2] = a, tb[2] = b + 1;
+    } else {
+        ta[0] = a + 1, tb[0] = b;
+        ta[1] = a + 1, tb[1] = b + 1;
+        ta[2] = a, tb[2] = b + 1;
+    }
+}
+
 bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3])
 {
     uint32_t n = mr_umesh_segments(level);
@@ -98,17 +113,10 @@ bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3])
     uint32_t b = 0;
     while (b < n && (b + 1) * (2 * n - b - 1) <= tri)
         b++;
-    uint32_t r = tri - b * (2 * n - b);
-    uint32_t a = r / 2;
-    if (r % 2 == 0) {
-        idx[0] = mr_umesh_vertex_index(level, a, b);
-        idx[1] = mr_umesh_vertex_index(level, a + 1, b);
-        idx[2] = mr_umesh_vertex_index(level, a, b + 1);
-    } else {
-        idx[0] = mr_umesh_vertex_index(level, a + 1, b);
-        idx[1] = mr_umesh_vertex_index(level, a + 1, b + 1);
-        idx[2] = mr_umesh_vertex_index(level, a, b + 1);
-    }
+    uint32_t r = tri - b * (2 * n - b), ta[3], tb[3];
+    mr_umesh_lattice_triangle(r / 2, b, r % 2 != 0, ta, tb);
+    for (int k = 0; k < 3; k++)
+        idx[k] = mr_umesh_vertex_index(level, ta[k], tb[k]);
     return true;
 }
 
@@ -300,6 +308,34 @@ int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const 
 }
 
 static bool v3_finite(mr_vec3 v) { return isfinite(v.x) && isfinite(v.y) && isfinite(v.z); }
+
+void mr_umesh_topology_free(mr_umesh_topology *t)
+{
+    for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
+        for (unsigned m = 0; m < 8; m++) {
+            free(t->tris[l][m]);
+            t->tris[l][m] = NULL;
+            t->count[l][m] = 0;
+        }
+}
+
+int mr_umesh_topology_init(mr_umesh_topology *t, unsigned max_level, mr_error *err)
+{
+    memset(t, 0, sizeof *t);
+    if (max_level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh level %u is above %u", max_level,
+                            MR_UMESH_MAX_LEVEL);
+    for (unsigned l = 0; l <= max_level; l++)
+        for (unsigned m = 0; m < (l ? 8u : 1u); m++) {
+            t->tris[l][m] = malloc((size_t)mr_umesh_triangle_count(l) * 3 * sizeof(uint32_t));
+            if (!t->tris[l][m]) {
+                mr_umesh_topology_free(t);
+                return mr_error_set(err, MR_ERR_NOMEM, "out of memory for micro-mesh topology");
+            }
+            t->count[l][m] = mr_umesh_triangles(l, m, t->tris[l][m]);
+        }
+    return MR_OK;
+}
 
 int mr_umesh_eval_all(const mr_umesh_tri *tri, unsigned level, unsigned decimate_mask,
                       const float *disp, mr_vec3 *out, mr_error *err)

@@ -85,6 +85,11 @@ bool mr_umesh_vertex_bary(unsigned level, uint32_t index, float *u, float *v);
  * (edge 0 from v0 to v1, 1 from v1 to v2, 2 from v2 to v0), 1 <= *k < n. */
 int mr_umesh_vertex_edge(unsigned level, uint32_t a, uint32_t b, uint32_t *k);
 
+/* Lattice corners (ta[k], tb[k]) of the upright micro-triangle at (a, b),
+ * or of the inverted one right of it, in mr_umesh_triangle's vertex order. */
+void mr_umesh_lattice_triangle(uint32_t a, uint32_t b, bool inverted, uint32_t ta[3],
+                               uint32_t tb[3]);
+
 /* Vertex indices of micro-triangle tri (row order, see above); false when
  * tri >= 4^level. */
 bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3]);
@@ -101,6 +106,20 @@ void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, 
  * remapped) to out (3 * 4^level entries suffice) and returns their count.
  * With decimate_mask 0 this is every triangle of mr_umesh_triangle. */
 uint32_t mr_umesh_triangles(unsigned level, unsigned decimate_mask, uint32_t *out);
+
+/* mr_umesh_triangles of every level up to a largest one and every
+ * decimation mask, computed once: what a mesh of mixed levels looks its
+ * triangles up in (tris[l][m], count[l][m] of them; NULL above the largest
+ * level, and for masks other than 0 at level 0). */
+typedef struct mr_umesh_topology {
+    uint32_t count[MR_UMESH_MAX_LEVEL + 1][8];
+    uint32_t *tris[MR_UMESH_MAX_LEVEL + 1][8];
+} mr_umesh_topology;
+
+/* Fills *t (zeroed first) for levels 0..max_level; MR_ERR_INVALID for a bad
+ * level, MR_ERR_NOMEM (then *t holds nothing). */
+int mr_umesh_topology_init(mr_umesh_topology *t, unsigned max_level, mr_error *err);
+void mr_umesh_topology_free(mr_umesh_topology *t);
 
 /* Undisplaced point and interpolated (unnormalised) direction at micro-vertex
  * (a, b), following the edge rule above. Fails (MR_ERR_INVALID) for a bad
