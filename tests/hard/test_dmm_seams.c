@@ -33,28 +33,14 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "../support/bcn_fixture.h"
 #include "anim/pose.h"
-#include "asset/refine.h"
 #include "geom/dmm_bake.h"
 #include "geom/dmm_encode.h"
 #include "geom/geom.h"
 
-#define BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 #define LEVEL 4u
 #define BASE_RATIO 0.0625f
-
-static mr_asset *load_refined_bcn(void)
-{
-    mr_asset *a = NULL, *r = NULL;
-    mr_error err = {0};
-    if (mr_asset_load(BCN_MODEL, &a, &err) != MR_OK)
-        fail_msg("load %s: %s", BCN_MODEL, err.msg);
-    mr_refine_params p = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
-    if (mr_refine_asset(a, &p, &r, &err) != MR_OK)
-        fail_msg("refine: %s", err.msg);
-    mr_asset_free(a);
-    return r;
-}
 
 static mr_dmm_desc adaptive_desc(mr_dmm_mode mode)
 {
@@ -339,7 +325,8 @@ static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
 static void test_adaptive_levels_are_watertight(void **state)
 {
     (void)state;
-    mr_asset *a = load_refined_bcn();
+    mr_refine_params rp = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
+    mr_asset *a = bcn_load_refined(&rp);
     /* the bake the kind makes (same parameters, deterministic) */
     mr_dmm_bake_params bp = mr_dmm_bake_params_default();
     bp.level = LEVEL;

@@ -25,10 +25,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "../support/bcn_fixture.h"
 #include "asset/asset.h"
 #include "geom/dmm_file.h"
 
-#define BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 
 /* ---- fixtures */
 
@@ -199,10 +199,8 @@ static size_t count_files(const char *dir, const char *contains)
 static void test_round_trip_real_skinned(void **state)
 {
     (void)state;
-    mr_asset *a = NULL;
+    mr_asset *a = bcn_load();
     mr_error err = {0};
-    if (mr_asset_load(BCN_MODEL, &a, &err) < 0)
-        fail_msg("%s: %s", BCN_MODEL, err.msg);
     assert_true(a->mesh_count >= 2);
     mr_dmm_bake_params bp = params(2, 0.25f);
     mr_dmm_file *f = bake_all(a, &bp);

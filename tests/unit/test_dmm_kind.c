@@ -26,15 +26,14 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "../support/bcn_fixture.h"
 #include "../support/scene_fixture.h"
-#include "asset/refine.h"
 #include "geom/dmm_bake.h"
 #include "geom/dmm_encode.h"
 #include "geom/dmm_file.h"
 #include "geom/geom.h"
 #include "render/compare.h"
 
-#define BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 
 /* Unit icosphere subdivided `rounds` times, every vertex moved radially to
  * 1 + amp * sin(f x) sin(f y) sin(f z): smooth bumps the bake can follow. */
@@ -334,19 +333,6 @@ static void test_matrix_normals_match_geometric_when_rigid(void **state)
     mr_asset_free(a);
 }
 
-static mr_asset *load_refined_bcn(void)
-{
-    mr_asset *a = NULL, *r = NULL;
-    mr_error err = {0};
-    if (mr_asset_load(BCN_MODEL, &a, &err) != MR_OK)
-        fail_msg("load %s: %s", BCN_MODEL, err.msg);
-    mr_refine_params p = {.rounds = 1, .amplitude = 0.0f};
-    if (mr_refine_asset(a, &p, &r, &err) != MR_OK)
-        fail_msg("refine: %s", err.msg);
-    mr_asset_free(a);
-    return r;
-}
-
 /* World bounds of the asset in its rest pose. */
 static void rest_bounds(const mr_asset *a, mr_vec3 *lo, mr_vec3 *hi)
 {
@@ -373,7 +359,8 @@ static void rest_bounds(const mr_asset *a, mr_vec3 *lo, mr_vec3 *hi)
 static void test_skinned_animates_deterministically(void **state)
 {
     (void)state;
-    mr_asset *a = load_refined_bcn();
+    mr_refine_params rp = {.rounds = 1, .amplitude = 0.0f};
+    mr_asset *a = bcn_load_refined(&rp);
     assert_true(a->clip_count > 0);
     double duration = a->clips[0].duration;
     mr_vec3 lo, hi;
@@ -576,10 +563,7 @@ static void test_cache_hit_is_bit_identical(void **state)
 
     /* skinned, three meshes, posed mid-clip, matrices interpolated: the
      * stored joints and weights drive the same skinning */
-    mr_asset *bcn = NULL;
-    mr_error err = {0};
-    if (mr_asset_load(BCN_MODEL, &bcn, &err) != MR_OK)
-        fail_msg("load %s: %s", BCN_MODEL, err.msg);
+    mr_asset *bcn = bcn_load();
     assert_true(bcn->clip_count > 0);
     check_hit(bcn,
               (mr_dmm_desc){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_INTERPOLATED,
