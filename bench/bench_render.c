@@ -164,7 +164,7 @@ static RTCScene bare_scene(mr_device *dev, const loaded_job *lj, size_t frame, u
             die("bare scene", err.msg);
         const mr_pose_desc *pd = d->pose_count == 0 ? NULL : &d->poses[d->pose_count == 1 ? 0 : frame];
         if (mr_pose_eval(pose, a, pd, lj->job->frame_times[frame], &err) < 0 ||
-            ops->update(g, pose, &d->transform, 0, &err) < 0 || ops->tessellate(g, &tm, &err) < 0)
+            ops->update(g, NULL, pose, &d->transform, 0, &err) < 0 || ops->tessellate(g, &tm, &err) < 0)
             die("bare scene", err.msg);
         RTCGeometry geom = rtcNewGeometry(rtc, RTC_GEOMETRY_TYPE_TRIANGLE);
         float *v = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,

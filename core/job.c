@@ -25,6 +25,10 @@ static void object_desc_clear(mr_object_desc *o)
         for (size_t i = 0; i < o->pose_count; i++)
             pose_desc_clear(&o->poses[i]);
     free(o->poses);
+    if (o->svo.instances)
+        for (size_t i = 0; i < o->svo.instance_count; i++)
+            pose_desc_clear(&o->svo.instances[i].pose);
+    free(o->svo.instances);
 }
 
 void mr_job_free(mr_job *job)

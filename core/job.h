@@ -14,6 +14,8 @@
 #include "asset/refine.h"
 #include "render/camera.h"
 #include "render/exr.h"
+#include "svo/deform.h"
+#include "svo/voxelize.h"
 
 #define MR_MAX_ASSETS 256
 #define MR_MAX_OBJECTS 1024
@@ -26,7 +28,7 @@
 #define MR_MAX_PATH 4096        /* bytes in an asset path */
 
 /* Geometry kinds (core/geom/). Each later technique adds one. */
-typedef enum mr_geom_kind { MR_GEOM_MESH = 0, MR_GEOM_DMM } mr_geom_kind;
+typedef enum mr_geom_kind { MR_GEOM_MESH = 0, MR_GEOM_DMM, MR_GEOM_SVO } mr_geom_kind;
 
 /* How a dmm object is traced (issue 4). */
 typedef enum mr_dmm_mode {
@@ -83,11 +85,40 @@ typedef struct mr_asset_desc {
     mr_refine_params refine_params; /* when refine; threads 0 (the worker sets its own) */
 } mr_asset_desc;
 
+/* Sparse voxel octree objects (issue 5, paper 004): the asset voxelised
+ * once (shared by all instances), each instance placed by its own transform
+ * and pose. */
+#define MR_SVO_DEFAULT_DEPTH 8u
+#define MR_SVO_JOB_MAX_DEPTH 12u        /* 4096^3; surface voxels of a character: ~15 M */
+#define MR_SVO_MAX_INSTANCES 100000u    /* per object */
+#define MR_SVO_DEFAULT_DELTA 1.0f       /* pixels */
+
+typedef struct mr_svo_instance_desc {
+    mr_mat4 transform;       /* instance to object space (then the object's transform) */
+    bool has_pose;           /* else the object's pose (or rest) */
+    mr_pose_desc pose;
+} mr_svo_instance_desc;
+
+typedef struct mr_svo_desc {
+    unsigned depth;              /* voxelisation depth 1..MR_SVO_JOB_MAX_DEPTH */
+    mr_svo_voxelize_mode voxelize;
+    mr_svo_method method;
+    float delta;                 /* screen-space refinement threshold, pixels, > 0 */
+    bool cull;                   /* frustum culling of deformed voxels */
+    bool skeleton;               /* extract a skeleton (chapter 5) and skin to it */
+    float omega;                 /* skeleton feature size (fraction of the cube), 0 = default */
+    size_t instance_count;       /* 0 = one instance at the object's transform */
+    mr_svo_instance_desc *instances;
+    const char *cache_dir;       /* not from JSON: where voxelised assets are kept, NULL = none;
+                                    borrowed, must outlive the renderer */
+} mr_svo_desc;
+
 typedef struct mr_object_desc {
     char *name;
     size_t asset;            /* index into mr_job.assets */
     mr_geom_kind kind;
     mr_dmm_desc dmm;         /* kind MR_GEOM_DMM only */
+    mr_svo_desc svo;         /* kind MR_GEOM_SVO only */
     mr_mat4 transform;       /* object to world, applied after posing */
     mr_vec3 color;           /* Lambert albedo, linear */
     size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */

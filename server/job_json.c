@@ -926,8 +926,8 @@ static int parse_object_pose(jctx *c, const cJSON *v, mr_object_desc *o, size_t 
     return MR_OK;
 }
 
-static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "transform", "color",
-                                            "pose"};
+static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "svo", "transform",
+                                            "color", "pose"};
 static const char *const DMM_FIELDS[] = {"level",  "base_ratio",  "base_triangles",
                                          "mode",   "deformation", "normals", "levels"};
 static const num_spec SPEC_DMM_LEVEL = {0, 5, NUM_INT, NULL};
@@ -1017,13 +1017,112 @@ static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
     return MR_OK;
 }
 
+static const char *const SVO_FIELDS[] = {"depth", "voxelize", "method", "delta",
+                                         "cull", "skeleton", "instances"};
+static const char *const SVO_SKELETON_FIELDS[] = {"omega"};
+static const char *const SVO_INSTANCE_FIELDS[] = {"transform", "pose"};
+static const num_spec SPEC_SVO_DEPTH = {1, MR_SVO_JOB_MAX_DEPTH, NUM_INT, NULL};
+static const num_spec SPEC_SVO_DELTA = {0, 1e6, NUM_LO_OPEN, "a number of pixels in (0, 1e6]"};
+static const num_spec SPEC_SVO_OMEGA = {0, 0.5, NUM_LO_OPEN, "a fraction of the voxel cube in (0, 0.5]"};
+/* Order matches mr_svo_voxelize_mode and mr_svo_method. */
+static const char *const SVO_VOXELIZE[] = {"surface", "solid"};
+static const char *const SVO_METHODS[] = {"rigid", "direct", "resize", "emit"};
+
+static int parse_svo_instance(jctx *c, const cJSON *v, mr_svo_instance_desc *in)
+{
+    TRY(want_object(c, v, "an instance object"));
+    TRY(check_fields(c, v, SVO_INSTANCE_FIELDS, COUNT_OF(SVO_INSTANCE_FIELDS)));
+    const cJSON *xf = field(v, "transform"), *pose = field(v, "pose");
+    in->transform = mr_mat4_identity();
+    if (xf)
+        AT_KEY(c, "transform", get_transform(c, xf, &in->transform));
+    if (pose) {
+        AT_KEY(c, "pose", parse_pose(c, pose, &in->pose));
+        in->has_pose = true;
+    }
+    return MR_OK;
+}
+
+/* The "svo" parameters of an svo object. */
+static int parse_svo(jctx *c, const cJSON *v, mr_svo_desc *d)
+{
+    TRY(want_object(c, v, "an object of svo parameters"));
+    TRY(check_fields(c, v, SVO_FIELDS, COUNT_OF(SVO_FIELDS)));
+    const cJSON *depth = field(v, "depth"), *vox = field(v, "voxelize"),
+                *method = field(v, "method"), *delta = field(v, "delta"), *cull = field(v, "cull"),
+                *skel = field(v, "skeleton"), *inst = field(v, "instances");
+    double x;
+    int choice = 0;
+    if (depth) {
+        AT_KEY(c, "depth", get_num(c, depth, &SPEC_SVO_DEPTH, &x));
+        d->depth = (unsigned)x;
+    }
+    if (vox) {
+        AT_KEY(c, "voxelize", get_choice(c, vox, SVO_VOXELIZE, COUNT_OF(SVO_VOXELIZE),
+                                         "one of: \"surface\", \"solid\"", &choice));
+        d->voxelize = (mr_svo_voxelize_mode)choice;
+    }
+    if (d->voxelize == MR_SVO_VOXELIZE_SOLID && d->depth > MR_SVO_SOLID_MAX_DEPTH) {
+        push_key(c, depth ? "depth" : "voxelize");
+        return fail(c, MR_ERR_LIMIT, "solid voxelisation goes to depth %u at most, asked for %u",
+                    MR_SVO_SOLID_MAX_DEPTH, d->depth);
+    }
+    if (method) {
+        AT_KEY(c, "method", get_choice(c, method, SVO_METHODS, COUNT_OF(SVO_METHODS),
+                                       "one of: \"rigid\", \"direct\", \"resize\", \"emit\"",
+                                       &choice));
+        d->method = (mr_svo_method)choice;
+    }
+    if (delta) {
+        AT_KEY(c, "delta", get_num(c, delta, &SPEC_SVO_DELTA, &x));
+        d->delta = (float)x;
+    }
+    if (cull)
+        AT_KEY(c, "cull", get_bool(c, cull, &d->cull));
+    if (skel) {
+        size_t mark = push_key(c, "skeleton");
+        if (cJSON_IsBool(skel)) {
+            d->skeleton = cJSON_IsTrue(skel);
+        } else {
+            TRY(want_object(c, skel, "true, false or an object of skeleton parameters"));
+            TRY(check_fields(c, skel, SVO_SKELETON_FIELDS, COUNT_OF(SVO_SKELETON_FIELDS)));
+            const cJSON *omega = field(skel, "omega");
+            if (omega) {
+                AT_KEY(c, "omega", get_num(c, omega, &SPEC_SVO_OMEGA, &x));
+                d->omega = (float)x;
+            }
+            d->skeleton = true;
+        }
+        pop(c, mark);
+    }
+    if (inst) {
+        size_t mark = push_key(c, "instances");
+        if (!cJSON_IsArray(inst) || cJSON_GetArraySize(inst) == 0)
+            return fail_expected(c, "an array of 1..100000 instance objects", inst);
+        size_t n = (size_t)cJSON_GetArraySize(inst);
+        if (n > MR_SVO_MAX_INSTANCES)
+            return fail(c, MR_ERR_LIMIT, "expected at most %u instances, got %zu",
+                        MR_SVO_MAX_INSTANCES, n);
+        d->instances = calloc(n, sizeof *d->instances);
+        if (!d->instances)
+            return fail_nomem(c);
+        d->instance_count = n;
+        size_t i = 0;
+        for (const cJSON *e = inst->child; e; e = e->next, i++)
+            AT_INDEX(c, i, parse_svo_instance(c, e, &d->instances[i]));
+        pop(c, mark);
+    }
+    return MR_OK;
+}
+
 static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_object_desc *o)
 {
     TRY(want_object(c, v, "an object description"));
     TRY(check_fields(c, v, OBJECT_FIELDS, COUNT_OF(OBJECT_FIELDS)));
     TRY(require(c, v, "asset"));
     const cJSON *name = field(v, "name"), *kind = field(v, "kind"), *xf = field(v, "transform"),
-                *color = field(v, "color"), *pose = field(v, "pose"), *dmm = field(v, "dmm");
+                *color = field(v, "color"), *pose = field(v, "pose"), *dmm = field(v, "dmm"),
+                *svo = field(v, "svo");
     if (name) {
         AT_KEY(c, "name", get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
@@ -1033,11 +1132,12 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
     }
     AT_KEY(c, "asset", find_asset(c, field(v, "asset"), job, &o->asset));
     o->kind = MR_GEOM_MESH;
-    if (kind && cJSON_IsString(kind) && strcmp(kind->valuestring, "dmm") == 0) {
-        o->kind = MR_GEOM_DMM;
-    } else if (kind && !(cJSON_IsString(kind) && strcmp(kind->valuestring, "mesh") == 0)) {
-        push_key(c, "kind");
-        return fail_expected(c, "one of: \"mesh\", \"dmm\"", kind);
+    if (kind) {
+        static const char *const kinds[] = {"mesh", "dmm", "svo"}; /* order of mr_geom_kind */
+        int choice = 0;
+        AT_KEY(c, "kind", get_choice(c, kind, kinds, COUNT_OF(kinds),
+                                     "one of: \"mesh\", \"dmm\", \"svo\"", &choice));
+        o->kind = (mr_geom_kind)choice;
     }
     o->dmm = (mr_dmm_desc){.level = MR_DMM_DEFAULT_LEVEL, .base_ratio = MR_DMM_DEFAULT_BASE_RATIO,
                            .mode = MR_DMM_TESSELLATED,
@@ -1049,6 +1149,14 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
     }
     if (dmm)
         AT_KEY(c, "dmm", parse_dmm(c, dmm, &o->dmm));
+    o->svo = (mr_svo_desc){.depth = MR_SVO_DEFAULT_DEPTH, .voxelize = MR_SVO_VOXELIZE_SURFACE,
+                           .method = MR_SVO_RIGID, .delta = MR_SVO_DEFAULT_DELTA, .cull = true};
+    if (svo && o->kind != MR_GEOM_SVO) {
+        push_key(c, "svo");
+        return fail(c, MR_ERR_INVALID, "\"svo\" parameters need \"kind\": \"svo\"");
+    }
+    if (svo)
+        AT_KEY(c, "svo", parse_svo(c, svo, &o->svo));
     o->transform = mr_mat4_identity();
     if (xf)
         AT_KEY(c, "transform", get_transform(c, xf, &o->transform));

@@ -498,9 +498,10 @@ static void pose_base_vertices(mr_geom *g)
     }
 }
 
-static int dmm_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
                       mr_error *err)
 {
+    (void)frame; /* posed geometry does not depend on the view */
     /* Accumulated matrices of the base vertices: a one-mesh view of the
      * asset whose vertices are the base vertices with their own weights
      * (the bake kept them). */

@@ -9,6 +9,7 @@ const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind)
     switch (kind) {
     case MR_GEOM_MESH: return &mr_geom_mesh_ops;
     case MR_GEOM_DMM: return &mr_geom_dmm_ops;
+    case MR_GEOM_SVO: return &mr_geom_svo_ops;
     }
     return NULL;
 }

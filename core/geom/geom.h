@@ -5,7 +5,9 @@
  * it up to date frame by frame:
  *   create      build the derived data once from the asset (for a triangle
  *               mesh: vertex/index buffers sized for all its meshes);
- *   update      deform for this frame's pose and object transform;
+ *   update      deform for this frame's pose and object transform (the
+ *               frame says when and from where: kinds that refine for the
+ *               screen, like svo, need the camera);
  *   attach      put the geometry into an Embree scene under the given geometry
  *               id (the object index: the integrator maps hits back by it)
  *               with the build quality the renderer chose (REFIT for
@@ -15,6 +17,14 @@
  *   tessellate  the kind's exact triangle reference, used for accuracy
  *               comparisons and as the pre-tessellation baseline;
  *   memory      bytes held by the kind's own data (not Embree's BVH).
+ *   geometry_ids  how many consecutive Embree geometry ids attach uses
+ *               (NULL: one). A kind that puts Embree instances into the
+ *               scene needs one id per instance: the renderer hands it the
+ *               first, and maps a hit's instID back to the object, passing
+ *               the instance index (id - first) to normal as prim.
+ * self_posed: the kind evaluates poses itself (svo: one per instance, maybe
+ * of a skeleton it extracted): the renderer then passes a NULL pose to
+ * update and leaves checking pose names to create.
  * A new technique is a new module implementing mr_geom_ops plus a schema
  * entry; the renderer does not change.
  */
@@ -25,6 +35,7 @@
 
 #include "anim/pose.h"
 #include "job.h"
+#include "render/camera.h"
 
 typedef struct mr_geom mr_geom; /* a kind's own instance data */
 
@@ -40,11 +51,20 @@ typedef struct mr_trimesh {
     uint32_t *indices;  /* 3 per triangle */
 } mr_trimesh;
 
+/* The frame being prepared. */
+typedef struct mr_geom_frame {
+    size_t index;       /* frame number in the job */
+    double time;        /* seconds on the job's timeline */
+    mr_camera camera;   /* this frame's camera */
+    int width, height;  /* film size in pixels */
+} mr_geom_frame;
+
 typedef struct mr_geom_ops {
     const char *name;   /* the job's "kind" string */
+    bool self_posed;
     int (*create)(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err);
-    int (*update)(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
-                  mr_error *err);
+    int (*update)(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                  const mr_mat4 *transform, unsigned threads, mr_error *err);
     int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                   enum RTCBuildQuality quality, mr_error *err);
     void (*commit)(mr_geom *g);
@@ -52,6 +72,7 @@ typedef struct mr_geom_ops {
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);
     size_t (*memory)(const mr_geom *g);
     uint64_t (*primitives)(const mr_geom *g);
+    uint32_t (*geometry_ids)(const mr_geom *g);
     void (*free)(mr_geom *g);
 } mr_geom_ops;
 
@@ -80,5 +101,8 @@ extern const mr_geom_ops mr_geom_mesh_ops;
 
 /* Displaced micro-meshes baked from an asset's meshes (core/geom/dmm.c). */
 extern const mr_geom_ops mr_geom_dmm_ops;
+
+/* Sparse voxel octree instances (core/geom/svo_kind.c). */
+extern const mr_geom_ops mr_geom_svo_ops;
 
 #endif

@@ -83,9 +83,10 @@ nomem:
                         (unsigned long long)nt);
 }
 
-static int mesh_update(mr_geom *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
                        mr_error *err)
 {
+    (void)frame; /* posed geometry does not depend on the view */
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         size_t off = (size_t)g->mesh_first_vertex[i] * 3;
         mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);

@@ -8,6 +8,7 @@
 #include "render/compare.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <string.h>
 
 #define MR_PI 3.14159265358979323846
@@ -94,6 +95,20 @@ int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
         }
     }
 
+    for (int y = 1; y + 1 < a->height; y++)
+        for (int x = 1; x + 1 < a->width; x++) {
+            size_t p = (size_t)y * (size_t)a->width + (size_t)x;
+            if (a->object_id[p] != 0 || b->object_id[p] == 0)
+                continue;
+            bool interior = true;
+            for (int dy = -1; dy <= 1 && interior; dy++)
+                for (int dx = -1; dx <= 1; dx++)
+                    if (b->object_id[p + (size_t)((ptrdiff_t)dy * a->width + dx)] == 0) {
+                        interior = false;
+                        break;
+                    }
+            res.holes += interior;
+        }
     if (res.hit_either > 0)
         res.coverage_pct = 100.0 * (double)res.hit_one / (double)res.hit_either;
     if (res.hit_both > 0) {

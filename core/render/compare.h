@@ -10,6 +10,9 @@
  *    divided by scene_diagonal;
  *  - normal_mean_deg, normal_max_deg: angle between the normals over pixels
  *    hit in both (acos clamped to [-1, 1]);
+ *  - holes: pixels the reference b hits, together with all 8 neighbours (so
+ *    not on its silhouette), that a misses: gaps inside the reference's
+ *    silhouette, as opposed to a silhouette that is a little off;
  *  - psnr_rgb: 10 log10(1 / MSE) over R, G, B of all pixels, colours clamped to
  *    [0, 1] first; reported as 999 when the images are identical (MSE = 0),
  *    which keeps JSON free of infinities.
@@ -24,6 +27,7 @@
 typedef struct mr_compare_result {
     size_t pixels;            /* width * height */
     size_t hit_either, hit_both, hit_one;
+    size_t holes;
     double coverage_pct;
     double depth_rmse, depth_max;  /* relative to scene_diagonal */
     double normal_mean_deg, normal_max_deg;

@@ -2,6 +2,7 @@
 #include "render/integrator.h"
 
 #include <float.h>
+#include <limits.h>
 #include <stdatomic.h>
 #include <string.h>
 
@@ -151,12 +152,17 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
     rtcIntersect8(valid, s->scene, &ctx, &rh);
     *rays += (uint64_t)n;
     for (int i = 0; i < n; i++) {
-        unsigned geom = rh.hit.geomID[i];
-        if (geom == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count) {
+        /* An instance hit names the instance's top-level id; the kind
+         * learns which instance as prim (geom.h geometry_ids). */
+        bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
+        unsigned id = instanced ? rh.hit.instID[0][i] : rh.hit.geomID[i];
+        unsigned geom = s->id_object ? (id < s->id_count ? s->id_object[id] : UINT_MAX) : id;
+        if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count) {
             out[i] = (sample_result){.hit = false};
             continue;
         }
-        hit_view h = {geom, rh.hit.primID[i], rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
+        unsigned prim = instanced ? id - s->objects[geom].first_id : rh.hit.primID[i];
+        hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
         shade(s, &h, org, dir[i], &out[i], rays);
     }

@@ -35,12 +35,16 @@ typedef struct mr_shade_object {
     const mr_geom_ops *ops;
     const mr_geom *geom;
     mr_vec3 albedo;
+    unsigned first_id;  /* its first Embree geometry id (geom.h geometry_ids) */
 } mr_shade_object;
 
 typedef struct mr_trace_setup {
     RTCScene scene;
-    const mr_shade_object *objects; /* indexed by Embree geomID */
+    const mr_shade_object *objects; /* indexed by object */
     size_t object_count;
+    const unsigned *id_object;      /* Embree geometry id (instID for instances, else
+                                       geomID) -> object; NULL: the id is the object */
+    unsigned id_count;
     mr_camera camera;
     const mr_light_desc *lights;
     size_t light_count;

@@ -28,6 +28,8 @@ struct mr_renderer {
     size_t object_count;
     object_state *objects;
     mr_shade_object *shade;
+    unsigned *id_object;  /* Embree geometry id -> object index */
+    unsigned id_count;
     RTCScene scene;
     bool dynamic; /* animated: Embree's dynamic-scene settings (fast LOW builds) */
     bool refit;   /* dynamic and refitting between frames (not force_rebuild) */
@@ -75,6 +77,10 @@ static const mr_pose_desc *pose_for_frame(const mr_object_desc *d, size_t frame)
 
 static bool object_is_animated(const mr_object_desc *d, size_t frame_count)
 {
+    /* Deformed voxels are selected for the screen and rebuilt every frame
+     * (paper 004's pipeline), whatever moves. */
+    if (frame_count >= 2 && d->kind == MR_GEOM_SVO && d->svo.method != MR_SVO_RIGID)
+        return true;
     if (frame_count < 2 || d->pose_count == 0)
         return false;
     if (d->pose_count > 1)
@@ -96,6 +102,7 @@ void mr_renderer_free(mr_renderer *r)
     mr_pose_free(r->cam_pose);
     free(r->objects);
     free(r->shade);
+    free(r->id_object);
     free(r);
 }
 
@@ -191,7 +198,7 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: unsupported geometry kind", i);
             goto fail;
         }
-        for (size_t k = 0; k < o->desc->pose_count; k++)
+        for (size_t k = 0; k < o->desc->pose_count && !o->ops->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
                 if (o->desc->pose_count == 1)
                     mr_error_prefix(err, "/objects/%zu/pose: ", i);
@@ -201,16 +208,29 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             }
         if ((rc = mr_pose_new(o->asset, &o->pose, err)) < 0)
             goto fail;
-        if ((rc = o->ops->create(o->asset, o->desc, &o->geom, err)) < 0)
+        if ((rc = o->ops->create(o->asset, o->desc, &o->geom, err)) < 0) {
+            if (o->ops->self_posed) /* its errors name the pose fields under the object */
+                mr_error_prefix(err, "/objects/%zu/", i);
             goto fail;
+        }
         /* Animated geometry refits (REFIT) or, for comparison, rebuilds with
          * the same fast builder the dynamic scene uses (LOW). */
         enum RTCBuildQuality quality = !(r->dynamic && o->animated) ? RTC_BUILD_QUALITY_MEDIUM
                                        : r->refit                   ? RTC_BUILD_QUALITY_REFIT
                                                                     : RTC_BUILD_QUALITY_LOW;
-        if ((rc = o->ops->attach(o->geom, rtc, r->scene, (unsigned)i, quality, err)) < 0)
+        uint32_t ids = o->ops->geometry_ids ? o->ops->geometry_ids(o->geom) : 1;
+        unsigned *grown = ids ? realloc(r->id_object, ((size_t)r->id_count + ids) * sizeof *grown) : r->id_object;
+        if (!grown || (uint64_t)r->id_count + ids > UINT32_MAX / 2) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "/objects/%zu: out of memory for %u Embree geometries", i, ids);
             goto fail;
-        r->shade[i] = (mr_shade_object){o->ops, o->geom, o->desc->color};
+        }
+        r->id_object = grown;
+        for (uint32_t k = 0; k < ids; k++)
+            r->id_object[r->id_count + k] = (unsigned)i;
+        if ((rc = o->ops->attach(o->geom, rtc, r->scene, r->id_count, quality, err)) < 0)
+            goto fail;
+        r->shade[i] = (mr_shade_object){o->ops, o->geom, o->desc->color, r->id_count};
+        r->id_count += ids;
     }
     if (job->camera.source == MR_CAMERA_SOURCE_NODE && (rc = setup_camera_node(r, assets, err)) < 0)
         goto fail;
@@ -267,6 +287,10 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     st->time = t;
     double t0 = mr_now();
 
+    mr_geom_frame frame = {.index = index, .time = t, .width = film->width, .height = film->height};
+    if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
+        return rc;
+
     /* Pose and deform whatever moves (everything on the first frame). */
     bool changed = false;
     for (size_t i = 0; i < r->object_count; i++) {
@@ -274,9 +298,11 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         if (o->posed_once && !o->animated && !r->opt.force_rebuild)
             continue;
         if (!o->posed_once || o->animated) {
-            if ((rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, index), t, err)) < 0)
+            if (!o->ops->self_posed &&
+                (rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, index), t, err)) < 0)
                 return mr_error_prefix(err, "/objects/%zu/pose: ", i);
-            if ((rc = o->ops->update(o->geom, o->pose, &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
+            if ((rc = o->ops->update(o->geom, &frame, o->ops->self_posed ? NULL : o->pose,
+                                     &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
                 return rc;
         }
         o->ops->commit(o->geom);
@@ -308,6 +334,8 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         .scene = r->scene,
         .objects = r->shade,
         .object_count = r->object_count,
+        .id_object = r->id_object,
+        .id_count = r->id_count,
         .lights = job->lights,
         .light_count = job->light_count,
         .ambient = job->ambient,
@@ -321,8 +349,7 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         .threads = mr_device_threads(r->dev),
         .cancel = r->opt.cancel,
     };
-    if ((rc = camera_for_frame(r, index, t, &ts.camera, err)) < 0)
-        return rc;
+    ts.camera = frame.camera;
     mr_vec3 cp = ts.camera.position;
     if (!(fabsf(cp.x) <= MR_MAX_COORDINATE && fabsf(cp.y) <= MR_MAX_COORDINATE && fabsf(cp.z) <= MR_MAX_COORDINATE))
         return mr_error_set(err, MR_ERR_INVALID, "/camera: frame %zu puts the camera at (%g, %g, %g), beyond %g",

@@ -256,7 +256,7 @@ static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
     double t = a->clip_count ? a->clips[0].duration / 3 : 0;
     assert_int_equal(mr_pose_eval(pose, a, &pd, t, &err), MR_OK);
     mr_mat4 id = mr_mat4_identity();
-    if (ops->update(g, pose, &id, 2, &err) < 0)
+    if (ops->update(g, NULL, pose, &id, 2, &err) < 0)
         fail_msg("update: %s", err.msg);
     mr_trimesh m;
     if (ops->tessellate(g, &m, &err) < 0)

@@ -253,6 +253,39 @@ static void test_psnr(void **state)
     mr_film_free(b);
 }
 
+/* Holes: misses inside the reference's silhouette, not on its edge. */
+static void test_holes(void **state)
+{
+    (void)state;
+    mr_film *a = film(5, 5), *b = film(5, 5);
+    mr_compare_result r;
+    mr_error err = {0};
+    for (int p = 0; p < 25; p++)
+        hit(b, p, 1.0f, 0, 0, 1); /* the reference covers everything */
+    for (int p = 0; p < 25; p++)
+        if (p != 12 && p != 0 && p != 7)
+            hit(a, p, 1.0f, 0, 0, 1);
+    /* 12 (centre) and 7 (its neighbour above) are interior: holes; 0 is a
+     * corner of the image, never interior. */
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.holes, 2);
+    /* The reference missing a neighbour of 12 puts 12 on its silhouette. */
+    b->object_id[13] = 0;
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.holes, 0); /* 7's neighbours include 13 too */
+    /* Not symmetric: against a full reference an empty frame has the 3 x 3
+     * interior as holes; against an empty reference nothing is a hole. */
+    mr_film_clear(b);
+    for (int p = 0; p < 25; p++)
+        hit(a, p, 1.0f, 0, 0, 1);
+    assert_int_equal(mr_film_compare(b, a, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.holes, 9);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.holes, 0);
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
 static void test_invalid(void **state)
 {
     mr_film *a = film(4, 3), *b = film(3, 4), *c = film(4, 3);
@@ -289,6 +322,7 @@ int main(void)
         cmocka_unit_test(test_identical), cmocka_unit_test(test_coverage),
         cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
         cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
+        cmocka_unit_test(test_holes),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -299,7 +299,7 @@ static void test_matrix_normals_match_geometric_when_rigid(void **state)
                                                      : MR_DMM_NORMALS_GEOMETRIC}};
             mr_error err = {0};
             assert_int_equal(ops->create(a, &o, &geo[k], &err), MR_OK);
-            assert_int_equal(ops->update(geo[k], NULL, &t, 1, &err), MR_OK);
+            assert_int_equal(ops->update(geo[k], NULL, NULL, &t, 1, &err), MR_OK);
         }
         uint64_t prims = modes[m] == MR_DMM_TESSELLATED ? ops->primitives(geo[0]) : 0;
         /* tessellation-free: base triangles, sampled at micro-triangle centres */
@@ -451,7 +451,7 @@ static mr_trimesh tessellate_at(const mr_asset *a, const mr_dmm_desc *d, double 
     assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
     assert_int_equal(mr_pose_eval(pose, a, &pd, t, &err), MR_OK);
     mr_mat4 id = mr_mat4_identity();
-    if (ops->update(g, pose, &id, 1, &err) < 0)
+    if (ops->update(g, NULL, pose, &id, 1, &err) < 0)
         fail_msg("update: %s", err.msg);
     mr_trimesh m;
     if (ops->tessellate(g, &m, &err) < 0)

@@ -235,9 +235,51 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m'},{'asset':'x'}"), MR_ERR_INVALID, "/objects/1/asset",
      "expected the name of an entry in \"assets\", got \"x\""},
     {WITH_OBJECT("{'asset':'m','material':1}"), MR_ERR_INVALID, "/objects/0/material",
-     "unknown field; expected one of: name, asset, kind, dmm, transform, color, pose"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo'}"), MR_ERR_INVALID, "/objects/0/kind",
-     "expected one of: \"mesh\", \"dmm\", got \"svo\""},
+     "unknown field; expected one of: name, asset, kind, dmm, svo, transform, color, pose"},
+    {WITH_OBJECT("{'asset':'m','kind':'voxels'}"), MR_ERR_INVALID, "/objects/0/kind",
+     "expected one of: \"mesh\", \"dmm\", \"svo\", got \"voxels\""},
+    /* svo objects (issue 5). */
+    {WITH_OBJECT("{'asset':'m','svo':{'depth':4}}"), MR_ERR_INVALID, "/objects/0/svo",
+     "\"svo\" parameters need \"kind\": \"svo\""},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':[]}"), MR_ERR_INVALID, "/objects/0/svo",
+     "expected an object of svo parameters, got an empty array"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'size':4}}"), MR_ERR_INVALID,
+     "/objects/0/svo/size",
+     "unknown field; expected one of: depth, voxelize, method, delta, cull, skeleton, instances"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':13}}"), MR_ERR_INVALID,
+     "/objects/0/svo/depth", "expected an integer in 1..12, got 13"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':0}}"), MR_ERR_INVALID,
+     "/objects/0/svo/depth", "got 0"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':11,'voxelize':'solid'}}"), MR_ERR_LIMIT,
+     "/objects/0/svo/depth", "solid voxelisation goes to depth 10 at most, asked for 11"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'voxelize':'hollow'}}"), MR_ERR_INVALID,
+     "/objects/0/svo/voxelize", "expected one of: \"surface\", \"solid\", got \"hollow\""},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'method':'warp'}}"), MR_ERR_INVALID,
+     "/objects/0/svo/method",
+     "expected one of: \"rigid\", \"direct\", \"resize\", \"emit\", got \"warp\""},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'delta':0}}"), MR_ERR_INVALID,
+     "/objects/0/svo/delta", "expected a number of pixels in (0, 1e6], got 0"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'delta':1e999}}"), MR_ERR_INVALID,
+     "/objects/0/svo/delta", "overflows to infinity"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'cull':1}}"), MR_ERR_INVALID,
+     "/objects/0/svo/cull", "got 1"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':'yes'}}"), MR_ERR_INVALID,
+     "/objects/0/svo/skeleton", "expected true, false or an object of skeleton parameters"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':{'omega':0.6}}}"), MR_ERR_INVALID,
+     "/objects/0/svo/skeleton/omega", "got 0.6"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':{'beta':1}}}"), MR_ERR_INVALID,
+     "/objects/0/svo/skeleton/beta", "unknown field; expected one of: omega"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[]}}"), MR_ERR_INVALID,
+     "/objects/0/svo/instances", "expected an array of 1..100000 instance objects, got an empty array"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{},{'scale':2}]}}"),
+     MR_ERR_INVALID, "/objects/0/svo/instances/1/scale",
+     "unknown field; expected one of: transform, pose"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'transform':{'scale':[0,1,1]}}]}}"),
+     MR_ERR_INVALID, "/objects/0/svo/instances/0/transform/scale/0", "expected a non-zero scale, got 0"},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'pose':{'joints':{'a':{}},'time':1}}]}}"),
+     MR_ERR_INVALID, "/objects/0/svo/instances/0/pose/time", "\"time\" requires \"clip\""},
+    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'transform':{'translation':[1e10,0,0]}}]}}"),
+     MR_ERR_INVALID, "/objects/0/svo/instances/0/transform/translation/0", "|x| <= 1e9"},
     {WITH_OBJECT("{'asset':'m','kind':'DMM'}"), MR_ERR_INVALID, "/objects/0/kind",
      "got \"DMM\""},
     {WITH_OBJECT("{'asset':'m','dmm':{'level':2}}"), MR_ERR_INVALID, "/objects/0/dmm",
@@ -792,6 +834,41 @@ static void test_order_and_variants(void **state)
     assert_int_equal(job->objects[5].dmm.deform, MR_DMM_DEFORM_BASE);
     assert_true(job->objects[5].dmm.adaptive);
     assert_false(job->objects[0].dmm.adaptive);
+    mr_job_free(job);
+    /* svo objects: defaults and every field. */
+    job = parse_ok(WITH_OBJECT("{'asset':'m','kind':'svo'},"
+                               "{'asset':'m','kind':'svo','svo':{'depth':12,'method':'emit',"
+                               "'delta':0.5,'cull':false,'skeleton':{'omega':0.05},"
+                               "'instances':[{},{'transform':{'translation':[2,0,0]},"
+                               "'pose':{'clip':0,'offset':0.5}}]}},"
+                               "{'asset':'m','kind':'svo','svo':{'voxelize':'solid','depth':10,"
+                               "'method':'resize','skeleton':true}}"));
+    assert_int_equal(job->objects[0].kind, MR_GEOM_SVO);
+    assert_int_equal(job->objects[0].svo.depth, MR_SVO_DEFAULT_DEPTH);
+    assert_int_equal(job->objects[0].svo.method, MR_SVO_RIGID);
+    assert_int_equal(job->objects[0].svo.voxelize, MR_SVO_VOXELIZE_SURFACE);
+    assert_true(job->objects[0].svo.delta == MR_SVO_DEFAULT_DELTA);
+    assert_true(job->objects[0].svo.cull);
+    assert_false(job->objects[0].svo.skeleton);
+    assert_int_equal(job->objects[0].svo.instance_count, 0);
+    const mr_svo_desc *sd = &job->objects[1].svo;
+    assert_int_equal(sd->depth, 12);
+    assert_int_equal(sd->method, MR_SVO_EMIT);
+    assert_true(sd->delta == 0.5f);
+    assert_false(sd->cull);
+    assert_true(sd->skeleton);
+    assert_true(sd->omega == 0.05f);
+    assert_int_equal(sd->instance_count, 2);
+    assert_false(sd->instances[0].has_pose);
+    assert_true(sd->instances[0].transform.m[3] == 0.0f);
+    assert_true(sd->instances[1].transform.m[3] == 2.0f);
+    assert_true(sd->instances[1].has_pose);
+    assert_int_equal(sd->instances[1].pose.clip_index, 0);
+    assert_true(sd->instances[1].pose.offset == 0.5);
+    assert_int_equal(job->objects[2].svo.voxelize, MR_SVO_VOXELIZE_SOLID);
+    assert_int_equal(job->objects[2].svo.method, MR_SVO_RESIZE);
+    assert_true(job->objects[2].svo.skeleton);
+    assert_true(job->objects[2].svo.omega == 0.0f);
     mr_job_free(job);
     /* Present-but-empty lights means no lights. */
     job = parse_ok("{" BASE ",'lights':[]}");

@@ -1,0 +1,203 @@
+/*
+ * test_svo_instances.c - hard cases of the svo kind's instancing, through
+ * the real Embree scene the renderer builds (geom.h ops: create, update,
+ * attach, commit, normal): every method with instances at the origin, far
+ * from it (1e5), mirrored, and of zero scale; a one-voxel asset.
+ *
+ * The asset is a unit cube voxelised at depth 4 (voxels of 1/16, a little
+ * more since the voxel cube is padded); rays come straight at each
+ * instance's +z face from outside. Tolerances:
+ *  - hit distance: the voxel surface of a surface voxelisation lies between
+ *    the mesh face and one voxel outside it (conservative cells); resampling
+ *    aligns the deformed boxes to the world octree's grid, which moves them
+ *    out by up to one more cell (resize: half a cell of the level above;
+ *    emit: a cell of the box's level), so the hit is within 2.5 voxels
+ *    outside the face (+1e-3 for rounding);
+ *    at 1e5 the float spacing is 0.0078 and Embree's ray transform adds a
+ *    few ulps, so 0.02 is allowed there;
+ *  - the shading normal of a +z face hit points along +z within 45 degrees
+ *    (octahedral normals of the voxels on the face; the cube's edge voxels
+ *    take the nearest triangle's normal, which may be a side's).
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asset/asset.h"
+#include "geom/geom.h"
+
+static mr_asset *cube(float half)
+{
+    static const float c[8][3] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
+                                  {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
+    static const uint32_t idx[36] = {0, 2, 1, 0, 3, 2, 4, 5, 6, 4, 6, 7, 0, 1, 5, 0, 5, 4,
+                                     1, 2, 6, 1, 6, 5, 2, 3, 7, 2, 7, 6, 3, 0, 4, 3, 4, 7};
+    float p[24];
+    for (int i = 0; i < 8; i++)
+        for (int k = 0; k < 3; k++)
+            p[i * 3 + k] = c[i][k] * half;
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_from_mesh("cube", p, NULL, 8, idx, 12, &a, &err), MR_OK);
+    return a;
+}
+
+typedef struct scene {
+    RTCDevice device;
+    RTCScene scene;
+    const mr_geom_ops *ops;
+    mr_geom *g;
+    mr_object_desc desc;
+} scene;
+
+static void build(scene *s, const mr_asset *a, mr_svo_method method, unsigned depth,
+                  const mr_mat4 *instances, size_t n)
+{
+    memset(s, 0, sizeof *s);
+    s->desc.kind = MR_GEOM_SVO;
+    s->desc.transform = mr_mat4_identity();
+    s->desc.color = mr_v3(0.8f, 0.8f, 0.8f);
+    s->desc.svo = (mr_svo_desc){.depth = depth, .method = method, .delta = 1, .cull = true,
+                                .instance_count = n};
+    s->desc.svo.instances = calloc(n, sizeof *s->desc.svo.instances);
+    for (size_t k = 0; k < n; k++)
+        s->desc.svo.instances[k].transform = instances[k];
+    mr_error err = {0};
+    s->ops = mr_geom_kind_ops(MR_GEOM_SVO);
+    assert_non_null(s->ops);
+    s->device = rtcNewDevice(NULL);
+    s->scene = rtcNewScene(s->device);
+    rtcSetSceneFlags(s->scene, RTC_SCENE_FLAG_ROBUST);
+    if (s->ops->create(a, &s->desc, &s->g, &err) < 0)
+        fail_msg("create: %s", err.msg);
+    assert_int_equal(s->ops->geometry_ids(s->g), method == MR_SVO_RIGID ? n : 1);
+    if (s->ops->attach(s->g, s->device, s->scene, 0, RTC_BUILD_QUALITY_MEDIUM, &err) < 0)
+        fail_msg("attach: %s", err.msg);
+    /* No frame: no camera, so every leaf is selected. */
+    if (s->ops->update(s->g, NULL, NULL, &s->desc.transform, 2, &err) < 0)
+        fail_msg("update: %s", err.msg);
+    s->ops->commit(s->g);
+    rtcCommitScene(s->scene);
+    assert_int_equal(rtcGetDeviceError(s->device), RTC_ERROR_NONE);
+}
+
+static void release(scene *s)
+{
+    s->ops->free(s->g);
+    rtcReleaseScene(s->scene);
+    rtcReleaseDevice(s->device);
+    free(s->desc.svo.instances);
+}
+
+/* A ray down -z at (x, y) from z0; returns the hit t (or INFINITY). */
+static float shoot(const scene *s, float x, float y, float z0, struct RTCRayHit *rh)
+{
+    memset(rh, 0, sizeof *rh);
+    rh->ray.org_x = x;
+    rh->ray.org_y = y;
+    rh->ray.org_z = z0;
+    rh->ray.dir_z = -1;
+    rh->ray.tfar = FLT_MAX;
+    rh->ray.mask = 0xffffffffu;
+    rh->hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    rtcIntersect1(s->scene, &ctx, rh);
+    return rh->hit.geomID == RTC_INVALID_GEOMETRY_ID ? INFINITY : rh->ray.tfar;
+}
+
+static mr_mat4 translate_scale(float tx, float ty, float tz, float sx, float sy, float sz)
+{
+    return mr_mat4_from_trs(mr_v3(tx, ty, tz), mr_quat_identity(), mr_v3(sx, sy, sz));
+}
+
+static void check_methods(void **state)
+{
+    (void)state;
+    const float half = 0.5f;
+    mr_asset *a = cube(half);
+    const float voxel = 2 * half * 1.01f / 16; /* depth 4, padded cube */
+    mr_mat4 inst[4] = {
+        translate_scale(0, 0, 0, 1, 1, 1),
+        translate_scale(1e5f, -1e5f, 0, 1, 1, 1),
+        translate_scale(5, 0, 0, -1, 1, 1), /* mirrored in x */
+        translate_scale(-5, 0, 0, 0, 0, 0), /* zero scale: nothing to see */
+    };
+    const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    for (size_t m = 0; m < 4; m++) {
+        scene s;
+        build(&s, a, methods[m], 4, inst, 4);
+        for (size_t k = 0; k < 3; k++) {
+            float cx = inst[k].m[3], cy = inst[k].m[7];
+            float z0 = 10.0f;
+            struct RTCRayHit rh;
+            float t = shoot(&s, cx + 0.1f, cy + 0.05f, z0, &rh);
+            float face = z0 - half;
+            float tol = k == 1 ? 0.02f : 1e-3f;
+            if (!(t >= face - voxel * 2.5f - tol && t <= face + tol))
+                fail_msg("method %zu instance %zu: hit at t %g, face at %g (voxel %g)", m, k,
+                         (double)t, (double)face, (double)voxel);
+            if (methods[m] == MR_SVO_RIGID)
+                assert_int_equal(rh.hit.instID[0], k); /* the instance, by id */
+            else if (methods[m] != MR_SVO_DIRECT)
+                assert_int_equal(rh.hit.primID, k);    /* one octree per instance */
+            unsigned prim = methods[m] == MR_SVO_RIGID ? rh.hit.instID[0] : rh.hit.primID;
+            mr_vec3 n = mr_v3_normalize_or(s.ops->normal(s.g, prim, rh.hit.u, rh.hit.v),
+                                           mr_v3(0, 0, 0));
+            if (!(n.z > 0.7f))
+                fail_msg("method %zu instance %zu: normal (%g, %g, %g)", m, k, (double)n.x,
+                         (double)n.y, (double)n.z);
+            /* Geometric normal: facing the ray, world space. */
+            mr_vec3 ng = mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+            assert_true(ng.z > 0);
+            /* A ray beside the instance misses it. */
+            assert_true(isinf(shoot(&s, cx + 2.0f, cy, z0, &rh)) ||
+                        fabsf(rh.ray.tfar - face) > 1.0f);
+        }
+        /* The zero-scale instance has no volume: no hit, no crash. */
+        struct RTCRayHit rh;
+        float t = shoot(&s, -5.0f + 0.1f, 0.05f, 10.0f, &rh);
+        assert_true(isinf(t));
+        release(&s);
+    }
+    mr_asset_free(a);
+}
+
+/* An asset small enough for one voxel: depth 1 has 8 cells; a single
+ * triangle in one corner cell still renders, in every method. */
+static void check_tiny(void **state)
+{
+    (void)state;
+    const float p[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    const uint32_t idx[3] = {0, 1, 2};
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_from_mesh("tri", p, NULL, 3, idx, 1, &a, &err), MR_OK);
+    mr_mat4 id = mr_mat4_identity();
+    const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    for (size_t m = 0; m < 4; m++) {
+        scene s;
+        build(&s, a, methods[m], 1, &id, 1);
+        struct RTCRayHit rh;
+        assert_false(isinf(shoot(&s, 0.25f, 0.25f, 5.0f, &rh)));
+        release(&s);
+    }
+    mr_asset_free(a);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(check_methods),
+        cmocka_unit_test(check_tiny),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
