@@ -1,6 +1,6 @@
 /*
- * svo.c - octree lifetime, size, leaf enumeration and the octahedral normal
- * encoding of svo.h.
+ * svo.c - octree lifetime (including dropping the optional leaf keys),
+ * size, leaf enumeration and the octahedral normal encoding of svo.h.
  *
  * Normals: the unit vector is projected onto the octahedron |x|+|y|+|z| = 1,
  * the lower half folded over the diagonals onto the square (Meyer et al.
@@ -28,6 +28,14 @@ void mr_svo_free(mr_svo *svo)
     free(svo->leaf_keys);
     free(svo->palette);
     memset(svo, 0, sizeof *svo);
+}
+
+void mr_svo_drop_leaf_keys(mr_svo *svo)
+{
+    if (!svo)
+        return;
+    free(svo->leaf_keys);
+    svo->leaf_keys = NULL;
 }
 
 size_t mr_svo_memory(const mr_svo *svo)

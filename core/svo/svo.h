@@ -85,11 +85,17 @@ typedef struct mr_svo {
     uint8_t *child_mask;
     uint8_t *leaf_mask;
     mr_svo_leaf *leaves;   /* leaf_count */
-    mr_svo_key *leaf_keys; /* leaf_count, or NULL: the key of each leaf, when kept */
+    mr_svo_key *leaf_keys; /* leaf_count, or NULL: the key of each leaf. mr_svo_build fills
+                            * it; mr_svo_voxelize drops it unless asked to keep it, and
+                            * files (svo_file.h) never store it: 16 bytes per leaf, more
+                            * than the leaf itself. mr_svo_collect_keys recomputes it */
     mr_svo_attr *palette;  /* palette_count */
 } mr_svo;
 
 void mr_svo_free(mr_svo *svo);
+/* Frees leaf_keys and sets it to NULL (NULL svo is fine): nothing in the
+ * renderer reads them, and they would double the octree's memory. */
+void mr_svo_drop_leaf_keys(mr_svo *svo);
 /* Bytes held by the octree's arrays. */
 size_t mr_svo_memory(const mr_svo *svo);
 

@@ -21,7 +21,8 @@
  *     Morton order (deterministic numbering), retried with coarser weight
  *     steps while the palette overflows;
  *  5. solid mode adds interior cells (row parity, see voxelize.h);
- *  6. mr_svo_compact and mr_svo_build (svo_build.h).
+ *  6. mr_svo_compact and mr_svo_build (svo_build.h); its leaf_keys are
+ *     dropped unless the caller keeps them (voxelize.h).
  * Peak memory is about 16 bytes per voxel/triangle pair of the largest bin
  * per worker plus ~45 bytes per output voxel.
  */
@@ -1367,6 +1368,8 @@ int mr_svo_voxelize(const mr_asset *asset, const mr_svo_voxelize_params *p, mr_s
         svo = NULL;
         goto cleanup;
     }
+    if (!p->keep_leaf_keys)
+        mr_svo_drop_leaf_keys(svo);
     *out = svo;
     svo = NULL;
 

@@ -55,7 +55,9 @@
  * (ties: the one at lower x). Interior is stored at the finest level (no
  * coarse interior leaves), hence the depth cap.
  *
- * Output octrees keep leaf_keys when mr_svo_build does. Results are
+ * Output octrees have no leaf_keys (NULL: they would cost 16 bytes per leaf
+ * on top of the leaf's 4 and the nodes' ~3) unless params.keep_leaf_keys is
+ * set; mr_svo_collect_keys recomputes them from the nodes. Results are
  * bit-identical for any thread count.
  */
 #ifndef MR_VOXELIZE_H
@@ -87,6 +89,7 @@ typedef struct mr_svo_voxelize_params {
     const float *albedo;       /* 3 linear RGB floats per mesh (asset->mesh_count), or NULL:
                                 * 0.8 grey; values clamped to [0, 1], non-finite rejected */
     unsigned threads;          /* 0 = all cores */
+    bool keep_leaf_keys;       /* keep mr_svo.leaf_keys (default false: dropped) */
 } mr_svo_voxelize_params;
 
 /* Voxelises every triangle of asset into *out, a heap-allocated octree

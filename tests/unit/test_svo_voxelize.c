@@ -4,7 +4,8 @@
  * separating cases, closest points, weight quantisation, conservative
  * surface voxelisation of a cube and a UV sphere (coverage, no spurious
  * voxels, counts against analytic expectations), solid volume, a real
- * skinned model's palette, thread-count independence and bad input.
+ * skinned model's palette, thread-count independence, leaf keys dropped
+ * unless kept, and bad input.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -414,10 +415,12 @@ static mr_asset *make_sphere(double r, int slices, int stacks)
     return a;
 }
 
+/* Keeps the leaf keys: the checks below read each leaf's cell from them. */
 static mr_svo *voxelize(const mr_asset *a, unsigned depth, mr_svo_voxelize_mode mode,
                         unsigned threads)
 {
-    mr_svo_voxelize_params p = {.depth = depth, .mode = mode, .threads = threads};
+    mr_svo_voxelize_params p = {.depth = depth, .mode = mode, .threads = threads,
+                                .keep_leaf_keys = true};
     mr_svo *s = NULL;
     mr_error err = {0};
     int rc = mr_svo_voxelize(a, &p, &s, &err);
@@ -658,6 +661,44 @@ static void test_albedo(void **state)
     mr_asset_free(a);
 }
 
+/* Leaf keys are dropped by default (they cost 16 bytes per leaf) and kept on
+ * request; kept keys are exactly what mr_svo_collect_keys recomputes from
+ * the nodes, and the octree is otherwise the same either way. */
+static void test_leaf_keys_optional(void **state)
+{
+    (void)state;
+    mr_asset *a = make_sphere(1.0, 32, 16);
+    mr_svo_voxelize_params p = {.depth = 5, .mode = MR_SVO_VOXELIZE_SOLID, .threads = 2};
+    mr_svo *dropped = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_voxelize(a, &p, &dropped, &err), MR_OK);
+    assert_null(dropped->leaf_keys);
+    mr_svo *kept = voxelize(a, 5, MR_SVO_VOXELIZE_SOLID, 2);
+    assert_non_null(kept->leaf_keys);
+    assert_true(svo_equal(dropped, kept));
+    assert_int_equal(mr_svo_memory(kept) - mr_svo_memory(dropped),
+                     (size_t)kept->leaf_count * sizeof(mr_svo_key));
+    uint32_t n = dropped->leaf_count;
+    assert_true(n > 0);
+    mr_svo_key *keys = malloc(n * sizeof *keys);
+    uint32_t *idx = malloc(n * sizeof *idx);
+    assert_true(keys && idx);
+    assert_int_equal(mr_svo_collect_keys(dropped, keys, idx, &err), MR_OK);
+    for (uint32_t i = 0; i < n; i++) {
+        assert_true(kept->leaf_keys[idx[i]].code == keys[i].code);
+        assert_int_equal(kept->leaf_keys[idx[i]].level, keys[i].level);
+    }
+    mr_svo_drop_leaf_keys(kept);
+    assert_null(kept->leaf_keys);
+    mr_svo_drop_leaf_keys(kept); /* twice, and NULL, are fine */
+    mr_svo_drop_leaf_keys(NULL);
+    free(keys);
+    free(idx);
+    mr_svo_voxelize_free(kept);
+    mr_svo_voxelize_free(dropped);
+    mr_asset_free(a);
+}
+
 static void test_bad_input(void **state)
 {
     (void)state;
@@ -735,6 +776,7 @@ int main(void)
         cmocka_unit_test(test_sphere_solid),
         cmocka_unit_test(test_skinned_model),
         cmocka_unit_test(test_albedo),
+        cmocka_unit_test(test_leaf_keys_optional),
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_degenerate_mesh),
     };
