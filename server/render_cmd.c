@@ -131,14 +131,15 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 static void usage_render(void)
 {
     fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--dmm-cache DIR] "
-                    "[--quiet]\n"
+                    "[--svo-cache DIR] [--quiet]\n"
                     "  --dmm-cache DIR  keep baked DMMs in DIR (created if missing) and reuse them "
-                    "(default: bake every time)\n");
+                    "(default: bake every time)\n"
+                    "  --svo-cache DIR  keep voxelised assets (svo objects) in DIR the same way\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
 {
-    const char *job_path = NULL, *out_dir = NULL, *dmm_cache = NULL;
+    const char *job_path = NULL, *out_dir = NULL, *dmm_cache = NULL, *svo_cache = NULL;
     unsigned threads = 0;
     bool quiet = false;
     for (int i = 0; i < argc; i++) {
@@ -156,6 +157,12 @@ int mr_cmd_render(int argc, char **argv)
             dmm_cache = argv[++i];
             if (!dmm_cache[0]) {
                 fprintf(stderr, "microrayd: --dmm-cache wants a directory\n");
+                return EXIT_USAGE;
+            }
+        } else if (!strcmp(argv[i], "--svo-cache") && i + 1 < argc) {
+            svo_cache = argv[++i];
+            if (!svo_cache[0]) {
+                fprintf(stderr, "microrayd: --svo-cache wants a directory\n");
                 return EXIT_USAGE;
             }
         } else if (!strcmp(argv[i], "--quiet")) {
@@ -198,9 +205,11 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
-    for (size_t i = 0; dmm_cache && i < job->object_count; i++)
+    for (size_t i = 0; i < job->object_count; i++)
         if (job->objects[i].kind == MR_GEOM_DMM)
             job->objects[i].dmm.cache_dir = dmm_cache;
+        else if (job->objects[i].kind == MR_GEOM_SVO)
+            job->objects[i].svo.cache_dir = svo_cache;
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {

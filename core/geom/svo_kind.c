@@ -33,6 +33,7 @@
 
 #include "geom/geom.h"
 #include "svo/deform.h"
+#include "svo/svo_file.h"
 #include "svo/svo_trace.h"
 #include "svo/voxelize.h"
 #include "util/parallel.h"
@@ -805,7 +806,7 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     }
     mr_svo_voxelize_params vp = {.depth = desc->svo.depth, .mode = desc->svo.voxelize,
                                  .albedo = albedo, .threads = 0};
-    rc = mr_svo_voxelize(asset, &vp, &g->svo, err);
+    rc = mr_svo_voxelize_cached(asset, &vp, desc->svo.cache_dir, &g->svo, NULL, err);
     free(albedo);
     if (rc < 0)
         goto fail;
