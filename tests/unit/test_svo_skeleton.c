@@ -820,6 +820,49 @@ static void test_rig_pose(void **state)
     rig_free(&c);
 }
 
+/* The working level follows omega (nearest cell edge in log scale), and
+ * drops to a coarser level, raising omega to its cell, when the graph would
+ * exceed MR_SVO_SKELETON_MAX_VERTICES. */
+static void test_level_choice(void **state)
+{
+    (void)state;
+    mr_asset *a = capsule_asset();
+    mr_svo *svo = voxelize(a, 6, MR_SVO_VOXELIZE_SURFACE);
+    const struct {
+        float omega;
+        unsigned level;
+    } cases[] = {{0.03f, 5}, {0.0625f, 4}, {0.7f, 1}, {1.0f, 0}, {0.001f, 6}};
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        const mr_svo_skeleton_params p = {cases[i].omega, 0, 0, 0, 0};
+        mr_svo_skeleton s;
+        skeletonize(svo, &p, &s, NULL);
+        check_forest(&s);
+        assert_int_equal(s.level, cases[i].level);
+        assert_true(s.omega == cases[i].omega);
+        if (cases[i].level == 0)
+            assert_int_equal(s.bone_count, 1);
+        mr_svo_skeleton_free(&s);
+    }
+    mr_svo_voxelize_free(svo);
+    mr_asset_free(a);
+    a = load(WUSON);
+    svo = voxelize(a, 8, MR_SVO_VOXELIZE_SURFACE);
+    assert_true(svo->leaf_count > MR_SVO_SKELETON_MAX_VERTICES);
+    const mr_svo_skeleton_params p = {1.0f / 256.0f, 0, 1, 0, 0};
+    mr_svo_skeleton s;
+    skeletonize(svo, &p, &s, NULL);
+    print_message("Wuson depth 8, omega 2^-8: %u leaves, working level %u with %u cells, omega %g\n", svo->leaf_count,
+                  s.level, s.graph_vertices, (double)s.omega);
+    assert_int_equal(s.level, 7);
+    assert_true(s.graph_vertices <= MR_SVO_SKELETON_MAX_VERTICES);
+    assert_true(s.omega == 1.0f / 128.0f);
+    assert_int_equal(s.iterations, 1);
+    check_forest(&s);
+    mr_svo_skeleton_free(&s);
+    mr_svo_voxelize_free(svo);
+    mr_asset_free(a);
+}
+
 /* ---------------------------------------------------------------------- */
 /* bad input                                                              */
 
@@ -943,6 +986,7 @@ int main(void)
         cmocka_unit_test(test_segmentation),
         cmocka_unit_test(test_rig_rest),
         cmocka_unit_test(test_rig_pose),
+        cmocka_unit_test(test_level_choice),
         cmocka_unit_test(test_bad_input),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
