@@ -21,7 +21,6 @@
 #include "svo/voxelize.h"
 #include "util/parallel.h"
 
-#define SK_PI 3.14159265358979323846
 #define SK_GRAIN 256u
 /* Bones a graph vertex keeps while its weights are smoothed. */
 #define SK_KEEP 8u
@@ -98,6 +97,9 @@ static int sk_leaves_collect(const mr_svo *svo, sk_leaves *l, mr_error *err)
         !isfinite(svo->origin.z))
         return mr_error_set(err, MR_ERR_FORMAT, "skeleton: octree cube (origin, size %g) is not finite and positive",
                             (double)svo->size);
+    if (svo->node_count > 0 && (!svo->first_node || !svo->first_leaf || !svo->child_mask || !svo->leaf_mask))
+        return mr_error_set(err, MR_ERR_FORMAT, "skeleton: octree with %u nodes lacks its node arrays",
+                            svo->node_count);
     l->depth = svo->depth;
     l->keys = malloc((size_t)svo->leaf_count * sizeof *l->keys);
     l->index = malloc((size_t)svo->leaf_count * sizeof *l->index);
@@ -733,10 +735,8 @@ static int sk_weld(const sk_graph *g, const double *pos, double omega, const mr_
     if (!adj || !queue || !bone_of || !dist || !par)
         goto nomem;
     {
-        /* Sorted pairs fill each list in increasing neighbour order: a's
-         * lists get b ascending, and b's lists get a ascending because the
-         * pairs are sorted by a first; merging the two keeps each list sorted
-         * only if written in global increasing order, so sort afterwards. */
+        /* Neighbour lists sorted by group, so the BFS numbering of the
+         * bones is fixed. */
         uint32_t *fill = malloc(((size_t)ng + 1u) * sizeof *fill);
         if (!fill)
             goto nomem;

@@ -706,6 +706,40 @@ static void test_rig_rest(void **state)
     rig_free(&c);
 }
 
+/* Vertices outside every voxel (an asset that moved since it was voxelised)
+ * are bound wholly to the nearest bone. */
+static void test_rig_outside(void **state)
+{
+    (void)state;
+    mr_asset *a = capsule_asset();
+    mr_svo *svo = voxelize(a, 6, MR_SVO_VOXELIZE_SURFACE);
+    mr_svo_skeleton s;
+    skeletonize(svo, NULL, &s, NULL);
+    mr_mesh *m = &a->meshes[0];
+    for (uint32_t v = 0; v < m->vertex_count; v++)
+        m->positions[3 * v] += 10.0f; /* all beyond the +x end */
+    uint32_t tip = 0;
+    for (uint32_t b = 0; b < s.bone_count; b++)
+        if (s.position[b].x > s.position[tip].x)
+            tip = b;
+    mr_asset *ra = NULL;
+    mr_svo *rs = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_skeleton_rig(a, svo, &s, NULL, &ra, &rs, &err), MR_OK);
+    const mr_mesh *rm = &ra->meshes[0];
+    for (uint32_t v = 0; v < rm->vertex_count; v++) {
+        assert_int_equal(rm->joints[v * MR_MAX_INFLUENCES], tip);
+        assert_true(rm->weights[v * MR_MAX_INFLUENCES] == 1.0f);
+        for (unsigned k = 1; k < MR_MAX_INFLUENCES; k++)
+            assert_true(rm->weights[v * MR_MAX_INFLUENCES + k] == 0.0f);
+    }
+    mr_asset_free(ra);
+    mr_svo_voxelize_free(rs);
+    mr_svo_skeleton_free(&s);
+    mr_svo_voxelize_free(svo);
+    mr_asset_free(a);
+}
+
 /* Leaf of the octree containing point p, or -1 (descends from the root). */
 static int64_t leaf_at(const mr_svo *svo, mr_vec3 p)
 {
@@ -986,6 +1020,7 @@ int main(void)
         cmocka_unit_test(test_segmentation),
         cmocka_unit_test(test_rig_rest),
         cmocka_unit_test(test_rig_pose),
+        cmocka_unit_test(test_rig_outside),
         cmocka_unit_test(test_level_choice),
         cmocka_unit_test(test_bad_input),
     };
