@@ -33,6 +33,7 @@
 
 #include "geom/geom.h"
 #include "svo/deform.h"
+#include "svo/skeleton.h"
 #include "svo/svo_file.h"
 #include "svo/svo_trace.h"
 #include "svo/voxelize.h"
@@ -782,6 +783,25 @@ static int setup_workers(mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
+/* Chapter 5: bones contracted out of the voxels, and the asset and octree
+ * skinned to them (skeleton.h); from here on the kind poses the copy. */
+static int rig_skeleton(mr_geom *g, mr_error *err)
+{
+    mr_svo_skeleton_params sp = {.omega = g->desc->svo.omega};
+    mr_svo_skeleton sk = {0};
+    mr_svo *rigged_svo = NULL;
+    int rc = mr_svo_skeletonize(g->svo, &sp, &sk, err);
+    if (rc >= 0)
+        rc = mr_svo_skeleton_rig(g->asset, g->svo, &sk, &sp, &g->rigged, &rigged_svo, err);
+    mr_svo_skeleton_free(&sk);
+    if (rc < 0)
+        return mr_error_prefix(err, "svo/skeleton: ");
+    mr_svo_voxelize_free(g->svo);
+    g->svo = rigged_svo;
+    g->asset = g->rigged;
+    return MR_OK;
+}
+
 static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
                       mr_error *err)
 {
@@ -809,6 +829,8 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     rc = mr_svo_voxelize_cached(asset, &vp, desc->svo.cache_dir, &g->svo, NULL, err);
     free(albedo);
     if (rc < 0)
+        goto fail;
+    if (desc->svo.skeleton && (rc = rig_skeleton(g, err)) < 0)
         goto fail;
     g->out_depth = desc->svo.depth + 2 < MR_SVO_MAX_DEPTH ? desc->svo.depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = setup_meshes(g, err)) < 0 || (rc = check_poses(g, err)) < 0)

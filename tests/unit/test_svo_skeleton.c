@@ -175,7 +175,7 @@ static mr_svo *voxelize(const mr_asset *a, unsigned depth, mr_svo_voxelize_mode 
 {
     mr_svo *s = NULL;
     mr_error err = {0};
-    const mr_svo_voxelize_params p = {depth, mode, NULL, 0};
+    const mr_svo_voxelize_params p = {.depth = depth, .mode = mode};
     if (mr_svo_voxelize(a, &p, &s, &err) != MR_OK)
         fail_msg("voxelize: %s", err.msg);
     return s;
