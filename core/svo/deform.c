@@ -1,0 +1,1188 @@
+/*
+ * deform.c - per-frame selection, deformation and resampling of one octree
+ * instance (deform.h; paper 004, 3.2 "Selection", 3.3 "Direct", "Resize",
+ * "Emit", with the REFERENCE.md errata).
+ *
+ * Selection is level-synchronous: the frontier of one level (the voxels to
+ * deform there) is split into fixed chunks of SEL_CHUNK items. Pass 1
+ * deforms every item and decides removed / selected / expanded, with
+ * per-chunk counts; a serial prefix sum over the chunks gives each chunk's
+ * place in the selection and in the next frontier; pass 2 writes them.
+ * Chunk boundaries depend on the frontier only, so the order of the output
+ * is the same for any thread count, and every number is computed by the
+ * same operations whichever worker runs it.
+ *
+ * Resampling is the same pattern over the selected boxes: a bounds pass, a
+ * count pass (level and cell ranges per box), a prefix sum, a write pass of
+ * keys and source indices, then the shared sort / compact / build.
+ *
+ * Cell indices are decided with the plane arithmetic of svo_trace.c: a cell
+ * boundary at finest-grid position K lies at signed distance
+ * (origin - x) + K * size * 2^-21 from a coordinate x, computed in double
+ * (K * size * 2^-21 is exact). floor / ceil of (x - origin) / cell give a
+ * first guess that rounding can leave one cell off; the guess is then moved
+ * until that exact-as-possible test agrees, so an emitted range covers its
+ * box in the very arithmetic a ray cast uses to decide whether a point lies
+ * in a leaf.
+ */
+#include "svo/deform.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "svo/morton.h"
+#include "svo/radix_sort.h"
+#include "svo/svo_build.h"
+#include "util/parallel.h"
+
+#define GRID_BITS MR_SVO_MAX_DEPTH
+#define GRID_CELLS (1u << GRID_BITS)
+/* Items per chunk: fixed, never derived from the thread count. */
+#define SEL_CHUNK 1024u
+#define RS_CHUNK 4096u
+/* Relative growth of the output cube's edge beyond the largest extent: two
+ * finest cells at depth 21, invisible at the depths used, and enough that
+ * the far face is never touched after rounding to float. */
+#define CUBE_GROWTH 0x1p-20
+
+static inline unsigned popcount8(unsigned v)
+{
+    v = v - ((v >> 1) & 0x55u);
+    v = (v & 0x33u) + ((v >> 2) & 0x33u);
+    return (v + (v >> 4)) & 0x0fu;
+}
+
+static inline unsigned lowest_bit(unsigned m) /* m != 0 */
+{
+    unsigned c = 0;
+    while (!(m & (1u << c)))
+        c++;
+    return c;
+}
+
+static inline unsigned highest_bit(unsigned m) /* m != 0 */
+{
+    unsigned c = 7;
+    while (!(m & (1u << c)))
+        c--;
+    return c;
+}
+
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+
+/* Nearest float on the low / high side of v (outward rounding, so a float
+ * box always contains the double box it came from). */
+static inline float float_down(double v)
+{
+    float f = (float)v;
+    if ((double)f > v)
+        f = nextafterf(f, -INFINITY);
+    return f;
+}
+
+static inline float float_up(double v)
+{
+    float f = (float)v;
+    if ((double)f < v)
+        f = nextafterf(f, INFINITY);
+    return f;
+}
+
+static bool affine_finite(const mr_affine *a)
+{
+    for (int e = 0; e < 12; e++)
+        if (!isfinite(a->m[e]))
+            return false;
+    return true;
+}
+
+/* Child c of interior node n: its index among the leaves (is_leaf) or the
+ * interior nodes. Returns false when the index does not fit the octree. */
+static bool child_index(const mr_svo *svo, uint32_t n, unsigned c, bool *is_leaf, uint32_t *index)
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    const unsigned below = (1u << c) - 1u;
+    uint64_t i;
+    if (lm & (1u << c)) {
+        *is_leaf = true;
+        i = (uint64_t)svo->first_leaf[n] + popcount8(lm & below);
+        if (i >= svo->leaf_count)
+            return false;
+    } else {
+        *is_leaf = false;
+        i = (uint64_t)svo->first_node[n] + popcount8(cm & ~lm & below);
+        /* Breadth-first: children come after their parent, which also rules
+         * out cycles in a corrupt octree. */
+        if (i >= svo->node_count || i <= n)
+            return false;
+    }
+    *index = (uint32_t)i;
+    return true;
+}
+
+static bool masks_ok(const mr_svo *svo, uint32_t n)
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    return cm != 0 && (lm & ~cm) == 0;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Extremes                                                                 */
+
+void mr_svo_extremes_free(mr_svo_extremes *e)
+{
+    if (!e)
+        return;
+    free(e->lo_attr);
+    free(e->hi_attr);
+    memset(e, 0, sizeof *e);
+}
+
+int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: NULL output");
+    memset(out, 0, sizeof *out);
+    if (!svo)
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: NULL octree");
+    const uint32_t n = svo->node_count;
+    if (n == 0)
+        return MR_OK;
+    if (!svo->first_node || !svo->first_leaf || !svo->child_mask || !svo->leaf_mask ||
+        (svo->leaf_count > 0 && !svo->leaves))
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: octree arrays missing");
+    out->lo_attr = malloc((size_t)n * sizeof *out->lo_attr);
+    out->hi_attr = malloc((size_t)n * sizeof *out->hi_attr);
+    if (!out->lo_attr || !out->hi_attr) {
+        mr_svo_extremes_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "svo extremes: out of memory (%u nodes)", n);
+    }
+    out->node_count = n;
+    /* Nodes are breadth-first, so every interior child has a larger index
+     * than its parent: one reverse pass sees children before parents. */
+    for (uint32_t k = n; k-- > 0;) {
+        if (!masks_ok(svo, k)) {
+            mr_svo_extremes_free(out);
+            return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u has bad child masks", k);
+        }
+        const unsigned cm = svo->child_mask[k];
+        const unsigned side[2] = {lowest_bit(cm), highest_bit(cm)};
+        uint16_t attr[2];
+        for (int s = 0; s < 2; s++) {
+            bool leaf;
+            uint32_t ci;
+            if (!child_index(svo, k, side[s], &leaf, &ci)) {
+                mr_svo_extremes_free(out);
+                return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u child %u out of range", k,
+                                    side[s]);
+            }
+            attr[s] = leaf ? svo->leaves[ci].attr : (s == 0 ? out->lo_attr[ci] : out->hi_attr[ci]);
+        }
+        out->lo_attr[k] = attr[0];
+        out->hi_attr[k] = attr[1];
+    }
+    return MR_OK;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Selection                                                                */
+
+/* One voxel to deform: its coordinates at the frontier's level (21 bits
+ * each, x | y << 21 | z << 42) and its node or leaf index. */
+typedef struct sel_item {
+    uint64_t xyz;
+    uint32_t index;
+    uint32_t leaf;
+} sel_item;
+
+enum { OUT_REMOVED = 0, OUT_SELECTED = 1, OUT_EXPANDED = 2 };
+
+enum {
+    FAIL_NONE = 0,
+    FAIL_ATTR,     /* a: voxel's palette entry, b: palette count */
+    FAIL_FIELD,    /* p: bind point */
+    FAIL_CHILD,    /* a: node */
+    FAIL_OVERFLOW, /* a: level; the deformed box left the float range */
+};
+
+typedef struct sel_fail {
+    int kind;
+    uint32_t a, b;
+    double p[3];
+} sel_fail;
+
+typedef struct sel_ctx {
+    const mr_svo *svo;
+    const mr_svo_extremes *ex;
+    const mr_svo_deformer *d;
+    const mr_affine *pal_mat; /* per palette entry (skinning); NULL with a field */
+    bool view_on, cull;
+    double vp[16];
+    double planes[7][4]; /* clip-space half spaces p . (x, y, z, 1) >= 0 */
+    double width, height, delta;
+    unsigned level, max_level;
+    double origin[3], cell;
+    /* the level being processed */
+    const sel_item *items;
+    size_t n;
+    float *box;
+    mr_svo_leaf *leaf;
+    uint8_t *outcome;
+    size_t *chunk_sel, *chunk_child; /* counts, then offsets */
+    sel_fail *chunk_fail;
+    sel_item *next;
+    mr_svo_selection *out;
+} sel_ctx;
+
+/* Arvo's box transform applied once per matrix, union of the two (Fig. 16),
+ * in the mr_affine convention: out_i = m[4i+3] + sum_j m[4i+j] * in_j. */
+static void deform_box(const mr_affine *a0, const mr_affine *a1, const double lo[3], const double hi[3],
+                       double olo[3], double ohi[3])
+{
+    for (int i = 0; i < 3; i++) {
+        olo[i] = INFINITY;
+        ohi[i] = -INFINITY;
+    }
+    for (int k = 0; k < 2; k++) {
+        const float *m = (k == 0 ? a0 : a1)->m;
+        for (int i = 0; i < 3; i++) {
+            double l = m[4 * i + 3], h = l;
+            for (int j = 0; j < 3; j++) {
+                const double p = (double)m[4 * i + j] * lo[j], q = (double)m[4 * i + j] * hi[j];
+                l += dmin(p, q);
+                h += dmax(p, q);
+            }
+            olo[i] = dmin(olo[i], l);
+            ohi[i] = dmax(ohi[i], h);
+        }
+    }
+}
+
+/* Bind normal moved by the cofactor of the mean matrix, sign-corrected by
+ * its determinant so a mirroring transform keeps normals outward (a voxel
+ * has no winding that would flip with it, unlike a triangle); a matrix that
+ * collapses the normal keeps the bind normal. */
+static void move_normal(const mr_affine *a0, const mr_affine *a1, const uint8_t in[2], uint8_t out[2])
+{
+    double c[3][3]; /* columns of the mean linear part */
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c[j][i] = 0.5 * ((double)a0->m[4 * i + j] + (double)a1->m[4 * i + j]);
+    double r[3][3]; /* cofactor columns: c1 x c2, c2 x c0, c0 x c1 */
+    for (int k = 0; k < 3; k++) {
+        const double *u = c[(k + 1) % 3], *v = c[(k + 2) % 3];
+        r[k][0] = u[1] * v[2] - u[2] * v[1];
+        r[k][1] = u[2] * v[0] - u[0] * v[2];
+        r[k][2] = u[0] * v[1] - u[1] * v[0];
+    }
+    const double det = c[0][0] * r[0][0] + c[0][1] * r[0][1] + c[0][2] * r[0][2];
+    const mr_vec3 n = mr_svo_normal_decode(in);
+    double m[3];
+    for (int i = 0; i < 3; i++)
+        m[i] = r[0][i] * n.x + r[1][i] * n.y + r[2][i] * n.z;
+    if (det < 0.0)
+        for (int i = 0; i < 3; i++)
+            m[i] = -m[i];
+    const double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    if (!(len > 0.0) || !isfinite(len)) {
+        out[0] = in[0];
+        out[1] = in[1];
+        return;
+    }
+    mr_svo_normal_encode(mr_v3((float)(m[0] / len), (float)(m[1] / len), (float)(m[2] / len)), out);
+}
+
+/* The leaf reached from interior node n by always taking the lowest child. */
+static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
+{
+    for (unsigned guard = 0; guard <= GRID_BITS; guard++) {
+        if (!masks_ok(svo, n))
+            return false;
+        bool is_leaf;
+        uint32_t ci;
+        if (!child_index(svo, n, lowest_bit(svo->child_mask[n]), &is_leaf, &ci))
+            return false;
+        if (is_leaf) {
+            *leaf = ci;
+            return true;
+        }
+        n = ci;
+    }
+    return false;
+}
+
+static void fail_set(sel_fail *f, int kind, uint32_t a, uint32_t b, const double p[3])
+{
+    if (f->kind != FAIL_NONE)
+        return; /* keep the chunk's first */
+    f->kind = kind;
+    f->a = a;
+    f->b = b;
+    for (int i = 0; i < 3; i++)
+        f->p[i] = p ? p[i] : 0.0;
+}
+
+/* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
+static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    sel_ctx *c = vctx;
+    const mr_svo *svo = c->svo;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
+        size_t nsel = 0, nchild = 0;
+        sel_fail *fail = &c->chunk_fail[ch];
+        fail->kind = FAIL_NONE;
+        for (size_t i = i0; i < i1; i++) {
+            const sel_item *it = &c->items[i];
+            c->outcome[i] = OUT_REMOVED;
+            const uint32_t xyz[3] = {(uint32_t)(it->xyz & 0x1fffffu), (uint32_t)((it->xyz >> 21) & 0x1fffffu),
+                                     (uint32_t)((it->xyz >> 42) & 0x1fffffu)};
+            double lo[3], hi[3];
+            for (int a = 0; a < 3; a++) {
+                lo[a] = c->origin[a] + (double)xyz[a] * c->cell;
+                hi[a] = c->origin[a] + (double)(xyz[a] + 1u) * c->cell;
+            }
+            uint32_t attr0, attr1;
+            if (it->leaf) {
+                attr0 = attr1 = svo->leaves[it->index].attr;
+            } else {
+                attr0 = c->ex->lo_attr[it->index];
+                attr1 = c->ex->hi_attr[it->index];
+            }
+            if (attr0 >= svo->palette_count || attr1 >= svo->palette_count) {
+                fail_set(fail, FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count,
+                         NULL);
+                continue;
+            }
+            mr_affine a0, a1;
+            if (c->d->field) {
+                a0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
+                a1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
+                if (!affine_finite(&a0) || !affine_finite(&a1)) {
+                    fail_set(fail, FAIL_FIELD, 0, 0, affine_finite(&a0) ? hi : lo);
+                    continue;
+                }
+            } else {
+                a0 = c->pal_mat[attr0];
+                a1 = c->pal_mat[attr1];
+            }
+            double dlo[3], dhi[3];
+            deform_box(&a0, &a1, lo, hi, dlo, dhi);
+            float *b = &c->box[i * 6];
+            bool finite = true;
+            for (int a = 0; a < 3; a++) {
+                b[a] = float_down(dlo[a]);
+                b[3 + a] = float_up(dhi[a]);
+                finite = finite && isfinite(b[a]) && isfinite(b[3 + a]);
+            }
+            if (!finite) {
+                fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
+                continue;
+            }
+            double size = INFINITY;
+            if (c->view_on) {
+                double blo[3], bhi[3], g = 0.0;
+                for (int a = 0; a < 3; a++) {
+                    blo[a] = b[a];
+                    bhi[a] = b[3 + a];
+                    g = dmax(g, bhi[a] - blo[a]);
+                }
+                if (c->cull) {
+                    /* Predicate (a): the box grown by its largest side (room for
+                     * what descendants' own matrices may do) entirely on the
+                     * outer side of one plane, or entirely behind the eye. */
+                    bool outside = false;
+                    for (int p = 0; p < 7 && !outside; p++) {
+                        const double *pl = c->planes[p];
+                        double mx = pl[3];
+                        for (int a = 0; a < 3; a++)
+                            mx += dmax(pl[a] * (blo[a] - g), pl[a] * (bhi[a] + g));
+                        outside = p == 6 ? !(mx > 0.0) : mx < 0.0;
+                    }
+                    if (outside)
+                        continue; /* removed */
+                }
+                /* eq. 3.2.1-3.2.3; a corner at or behind the eye plane makes
+                 * the projection unbounded. */
+                double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
+                bool behind = false;
+                for (unsigned k = 0; k < 8 && !behind; k++) {
+                    const double q[3] = {(k & 1) ? bhi[0] : blo[0], (k & 2) ? bhi[1] : blo[1],
+                                         (k & 4) ? bhi[2] : blo[2]};
+                    double cl[4];
+                    for (int r = 0; r < 4; r++)
+                        cl[r] = c->vp[4 * r] * q[0] + c->vp[4 * r + 1] * q[1] + c->vp[4 * r + 2] * q[2] +
+                                c->vp[4 * r + 3];
+                    if (!(cl[3] > 0.0)) {
+                        behind = true;
+                        break;
+                    }
+                    const double x = 0.5 * cl[0] / cl[3] + 0.5, y = 0.5 * cl[1] / cl[3] + 0.5;
+                    xmin = dmin(xmin, x);
+                    xmax = dmax(xmax, x);
+                    ymin = dmin(ymin, y);
+                    ymax = dmax(ymax, y);
+                }
+                if (!behind)
+                    size = dmax(c->width * (xmax - xmin), c->height * (ymax - ymin));
+            }
+            if (it->leaf || c->level >= c->max_level || size < c->delta) {
+                uint32_t src = it->index;
+                if (!it->leaf && !lowest_leaf(svo, it->index, &src)) {
+                    fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                    continue;
+                }
+                mr_svo_leaf *l = &c->leaf[i];
+                l->attr = (uint16_t)attr0;
+                move_normal(&a0, &a1, svo->leaves[src].normal, l->normal);
+                c->outcome[i] = OUT_SELECTED;
+                nsel++;
+                continue;
+            }
+            /* expand: check every child now so pass 2 cannot fail */
+            if (!masks_ok(svo, it->index)) {
+                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                continue;
+            }
+            const unsigned cm = svo->child_mask[it->index];
+            bool ok = true;
+            for (unsigned ci = 0; ci < 8 && ok; ci++) {
+                bool is_leaf;
+                uint32_t idx;
+                if (cm & (1u << ci))
+                    ok = child_index(svo, it->index, ci, &is_leaf, &idx);
+            }
+            if (!ok) {
+                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                continue;
+            }
+            c->outcome[i] = OUT_EXPANDED;
+            nchild += popcount8(cm);
+        }
+        c->chunk_sel[ch] = nsel;
+        c->chunk_child[ch] = nchild;
+    }
+}
+
+/* Pass 2: write the chunk's selected voxels and children at its offsets. */
+static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    sel_ctx *c = vctx;
+    const mr_svo *svo = c->svo;
+    mr_svo_selection *out = c->out;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
+        size_t s = c->chunk_sel[ch], k = c->chunk_child[ch];
+        for (size_t i = i0; i < i1; i++) {
+            if (c->outcome[i] == OUT_SELECTED) {
+                memcpy(&out->box[s * 6], &c->box[i * 6], 6 * sizeof(float));
+                out->leaf[s] = c->leaf[i];
+                out->level[s] = (uint8_t)c->level;
+                s++;
+            } else if (c->outcome[i] == OUT_EXPANDED) {
+                const sel_item *it = &c->items[i];
+                const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu,
+                               z = (it->xyz >> 42) & 0x1fffffu;
+                const unsigned cm = svo->child_mask[it->index];
+                for (unsigned ci = 0; ci < 8; ci++) {
+                    if (!(cm & (1u << ci)))
+                        continue;
+                    bool is_leaf = false;
+                    uint32_t idx = 0;
+                    (void)child_index(svo, it->index, ci, &is_leaf, &idx); /* checked in pass 1 */
+                    sel_item *o = &c->next[k++];
+                    o->xyz = (2 * x + (ci & 1u)) | ((2 * y + ((ci >> 1) & 1u)) << 21) |
+                             ((2 * z + (ci >> 2)) << 42);
+                    o->index = idx;
+                    o->leaf = is_leaf;
+                }
+            }
+        }
+    }
+}
+
+void mr_svo_selection_free(mr_svo_selection *s)
+{
+    if (!s)
+        return;
+    free(s->box);
+    free(s->leaf);
+    free(s->level);
+    memset(s, 0, sizeof *s);
+}
+
+static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
+{
+    if (need <= s->capacity)
+        return MR_OK;
+    size_t cap = s->capacity ? s->capacity : 256;
+    while (cap < need)
+        cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+    if (cap > SIZE_MAX / (6 * sizeof(float)))
+        return mr_error_set(err, MR_ERR_NOMEM, "svo select: %zu voxels do not fit in memory", need);
+    float *box = realloc(s->box, cap * 6 * sizeof *box);
+    if (box)
+        s->box = box;
+    mr_svo_leaf *leaf = realloc(s->leaf, cap * sizeof *leaf);
+    if (leaf)
+        s->leaf = leaf;
+    uint8_t *level = realloc(s->level, cap);
+    if (level)
+        s->level = level;
+    if (!box || !leaf || !level)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels)", need);
+    s->capacity = cap;
+    return MR_OK;
+}
+
+/* Grows *p (of *cap elements of size elem) to at least need elements;
+ * contents are not kept. */
+static bool scratch_reserve(void **p, size_t *cap, size_t need, size_t elem)
+{
+    if (need <= *cap)
+        return true;
+    size_t c = *cap ? *cap : 64;
+    while (c < need)
+        c = c > SIZE_MAX / 4 ? need : c * 2;
+    if (c > SIZE_MAX / elem)
+        return false;
+    void *q = malloc(c * elem);
+    if (!q)
+        return false;
+    free(*p);
+    *p = q;
+    *cap = c;
+    return true;
+}
+
+/* Checks the deformer and blends one matrix per palette entry (they do not
+ * depend on the voxel: every extreme of a voxel maps to an entry). */
+static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_affine **out, mr_error *err)
+{
+    *out = NULL;
+    if (d->mesh_count > 0 && !d->mesh)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: deformer has %zu meshes but no mesh matrices",
+                            d->mesh_count);
+    for (size_t m = 0; m < d->mesh_count; m++) {
+        if (!affine_finite(&d->mesh[m]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu matrix is not finite", m);
+        const uint32_t jc = d->joint_count ? d->joint_count[m] : 0;
+        if (jc > 0 && (!d->joint || !d->joint[m]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu has %u joints but no matrices", m,
+                                jc);
+        for (uint32_t j = 0; j < jc; j++)
+            if (!affine_finite(&d->joint[m][j]))
+                return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu joint %u matrix is not finite",
+                                    m, j);
+    }
+    if (svo->palette_count == 0)
+        return MR_OK;
+    if (!svo->palette)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: octree has %u palette entries but no palette",
+                            svo->palette_count);
+    mr_affine *pm = malloc((size_t)svo->palette_count * sizeof *pm);
+    if (!pm)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (palette matrices)");
+    for (uint32_t p = 0; p < svo->palette_count; p++) {
+        const mr_svo_attr *at = &svo->palette[p];
+        if (at->mesh >= d->mesh_count) {
+            free(pm);
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "svo select: palette entry %u names mesh %u, the deformer has %zu", p,
+                                (unsigned)at->mesh, d->mesh_count);
+        }
+        const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
+        double acc[12] = {0};
+        bool any = false;
+        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
+            if (at->weights[k] == 0)
+                continue;
+            if (at->joints[k] >= jc) {
+                free(pm);
+                return mr_error_set(err, MR_ERR_INVALID,
+                                    "svo select: palette entry %u names joint %u of mesh %u, which has %u", p,
+                                    (unsigned)at->joints[k], (unsigned)at->mesh, jc);
+            }
+            const double w = at->weights[k] / 255.0;
+            const float *j = d->joint[at->mesh][at->joints[k]].m;
+            for (int e = 0; e < 12; e++)
+                acc[e] += w * (double)j[e];
+            any = true;
+        }
+        if (any) {
+            for (int e = 0; e < 12; e++)
+                pm[p].m[e] = (float)acc[e];
+        } else {
+            pm[p] = d->mesh[at->mesh];
+        }
+        if (!affine_finite(&pm[p])) {
+            free(pm);
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: palette entry %u gives a non-finite matrix", p);
+        }
+    }
+    *out = pm;
+    return MR_OK;
+}
+
+static int view_setup(sel_ctx *c, const mr_svo_view *view, mr_error *err)
+{
+    c->view_on = view && view->enabled;
+    c->cull = c->view_on && view->cull;
+    if (!c->view_on)
+        return MR_OK;
+    for (int e = 0; e < 16; e++) {
+        if (!isfinite(view->view_proj.m[e]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: view_proj is not finite");
+        c->vp[e] = view->view_proj.m[e];
+    }
+    if (view->width <= 0 || view->height <= 0 || !(view->delta > 0.0f) || !isfinite(view->delta))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: view needs width, height and delta > 0 (%d x %d, %g)",
+                            view->width, view->height, (double)view->delta);
+    c->width = view->width;
+    c->height = view->height;
+    c->delta = view->delta;
+    /* Rows of view_proj give clip x, y, z, w as linear functions of the
+     * point: w + x, w - x, w + y, w - y, w + z, w - z >= 0, and w > 0. */
+    const double *r = c->vp;
+    for (int a = 0; a < 3; a++)
+        for (int s = 0; s < 2; s++)
+            for (int e = 0; e < 4; e++)
+                c->planes[2 * a + s][e] = r[12 + e] + (s ? -1.0 : 1.0) * r[4 * a + e];
+    for (int e = 0; e < 4; e++)
+        c->planes[6][e] = r[12 + e];
+    return MR_OK;
+}
+
+static int fail_report(const sel_fail *f, mr_error *err)
+{
+    switch (f->kind) {
+    case FAIL_ATTR:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: a voxel names palette entry %u of %u", f->a, f->b);
+    case FAIL_FIELD:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: the field gives a non-finite matrix at (%g, %g, %g)",
+                            f->p[0], f->p[1], f->p[2]);
+    case FAIL_OVERFLOW:
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "svo select: a deformed voxel box (level %u, bind corner %g %g %g) overflows float",
+                            f->a, f->p[0], f->p[1], f->p[2]);
+    default:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree at node %u", f->a);
+    }
+}
+
+int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
+                  const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_selection *out,
+                  mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: NULL output");
+    out->count = 0;
+    out->visited = 0;
+    if (!svo || !extremes || !d)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: NULL octree, extremes or deformer");
+    if (svo->depth < 1 || svo->depth > MR_SVO_MAX_DEPTH || !isfinite(svo->size) || !(svo->size > 0.0f) ||
+        !isfinite(svo->origin.x) || !isfinite(svo->origin.y) || !isfinite(svo->origin.z))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: bad octree cube or depth");
+    if (extremes->node_count != svo->node_count ||
+        (svo->node_count > 0 && (!extremes->lo_attr || !extremes->hi_attr)))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: extremes of another octree (%u nodes, octree %u)",
+                            extremes->node_count, svo->node_count);
+    if ((svo->node_count > 0 && (!svo->first_node || !svo->first_leaf || !svo->child_mask || !svo->leaf_mask)) ||
+        (svo->leaf_count > 0 && !svo->leaves) || (svo->node_count == 0 && svo->leaf_count > 1))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree");
+
+    sel_ctx c;
+    memset(&c, 0, sizeof c);
+    c.svo = svo;
+    c.ex = extremes;
+    c.d = d;
+    c.out = out;
+    c.max_level = max_level < svo->depth ? max_level : svo->depth;
+    c.origin[0] = svo->origin.x;
+    c.origin[1] = svo->origin.y;
+    c.origin[2] = svo->origin.z;
+    int rc = view_setup(&c, view, err);
+    if (rc != MR_OK)
+        return rc;
+    mr_affine *pal_mat = NULL;
+    if (!d->field) {
+        rc = palette_matrices(svo, d, &pal_mat, err);
+        if (rc != MR_OK)
+            return rc;
+    }
+    c.pal_mat = pal_mat;
+
+    sel_item *cur = NULL, *next = NULL;
+    size_t cur_cap = 0, next_cap = 0, tmp_cap = 0, leaf_cap = 0, out_cap = 0, ch_cap = 0, ch2_cap = 0, f_cap = 0;
+    float *box = NULL;
+    mr_svo_leaf *leaf = NULL;
+    uint8_t *outcome = NULL;
+    size_t *chunk_sel = NULL, *chunk_child = NULL;
+    sel_fail *chunk_fail = NULL;
+    size_t n = 0;
+    const uint64_t budget = (uint64_t)svo->node_count + svo->leaf_count; /* each is visited at most once */
+    uint64_t visited = 0;
+
+    if (svo->node_count > 0 || svo->leaf_count == 1) {
+        if (!scratch_reserve((void **)&cur, &cur_cap, 1, sizeof *cur)) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory");
+            goto cleanup;
+        }
+        cur[0] = (sel_item){0, 0, svo->node_count == 0};
+        n = 1;
+    }
+    for (unsigned level = 0; n > 0; level++) {
+        visited += n;
+        if (visited > budget) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
+            goto cleanup;
+        }
+        const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
+        if (!scratch_reserve((void **)&box, &tmp_cap, n, 6 * sizeof *box) ||
+            !scratch_reserve((void **)&leaf, &leaf_cap, n, sizeof *leaf) ||
+            !scratch_reserve((void **)&outcome, &out_cap, n, 1) ||
+            !scratch_reserve((void **)&chunk_sel, &ch_cap, chunks, sizeof *chunk_sel) ||
+            !scratch_reserve((void **)&chunk_child, &ch2_cap, chunks, sizeof *chunk_child) ||
+            !scratch_reserve((void **)&chunk_fail, &f_cap, chunks, sizeof *chunk_fail)) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", n, level);
+            goto cleanup;
+        }
+        c.level = level;
+        c.cell = (double)svo->size * ldexp(1.0, -(int)level); /* exact */
+        c.items = cur;
+        c.n = n;
+        c.box = box;
+        c.leaf = leaf;
+        c.outcome = outcome;
+        c.chunk_sel = chunk_sel;
+        c.chunk_child = chunk_child;
+        c.chunk_fail = chunk_fail;
+        mr_parallel_for(threads, chunks, 1, sel_pass1, &c);
+        size_t sel_total = out->count, child_total = 0;
+        for (size_t ch = 0; ch < chunks; ch++) {
+            if (chunk_fail[ch].kind != FAIL_NONE) {
+                rc = fail_report(&chunk_fail[ch], err);
+                goto cleanup;
+            }
+            const size_t s = chunk_sel[ch], k = chunk_child[ch];
+            chunk_sel[ch] = sel_total;
+            chunk_child[ch] = child_total;
+            sel_total += s;
+            child_total += k;
+        }
+        if (sel_total > UINT32_MAX) {
+            rc = mr_error_set(err, MR_ERR_LIMIT, "svo select: more than 2^32 - 1 voxels selected");
+            goto cleanup;
+        }
+        if (child_total > budget - visited) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
+            goto cleanup;
+        }
+        rc = selection_reserve(out, sel_total, err);
+        if (rc != MR_OK)
+            goto cleanup;
+        if (!scratch_reserve((void **)&next, &next_cap, child_total, sizeof *next)) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", child_total,
+                              level + 1);
+            goto cleanup;
+        }
+        c.next = next;
+        mr_parallel_for(threads, chunks, 1, sel_pass2, &c);
+        out->count = sel_total;
+        sel_item *t = cur;
+        cur = next;
+        next = t;
+        size_t tc = cur_cap;
+        cur_cap = next_cap;
+        next_cap = tc;
+        n = child_total;
+    }
+    out->visited = visited;
+    rc = MR_OK;
+
+cleanup:
+    if (rc != MR_OK) {
+        out->count = 0;
+        out->visited = 0;
+    }
+    free(pal_mat);
+    free(cur);
+    free(next);
+    free(box);
+    free(leaf);
+    free(outcome);
+    free(chunk_sel);
+    free(chunk_child);
+    free(chunk_fail);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Resampling                                                               */
+
+typedef struct rs_ctx {
+    const mr_svo_selection *sel;
+    mr_svo_method method;
+    unsigned depth;
+    double origin[3]; /* the output cube, as doubles of its floats */
+    double size;
+    double cell21;    /* size * 2^-21 */
+    /* bounds pass, per chunk */
+    double (*chunk_lo)[3], (*chunk_hi)[3];
+    size_t *chunk_bad; /* first bad box + 1, or 0 */
+    /* count / write passes */
+    uint8_t *box_level;
+    uint32_t *box_cells;
+    uint64_t *chunk_cells; /* counts, then offsets */
+    mr_svo_key *keys;
+    uint32_t *payload;
+} rs_ctx;
+
+static void rs_bounds(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        c->chunk_bad[ch] = 0;
+        for (size_t i = i0; i < i1; i++) {
+            const float *b = &c->sel->box[i * 6];
+            bool ok = true;
+            for (int a = 0; a < 3; a++)
+                ok = ok && isfinite(b[a]) && isfinite(b[3 + a]) && b[a] <= b[3 + a];
+            if (!ok) {
+                c->chunk_bad[ch] = i + 1;
+                break;
+            }
+            for (int a = 0; a < 3; a++) {
+                lo[a] = dmin(lo[a], b[a]);
+                hi[a] = dmax(hi[a], b[3 + a]);
+            }
+        }
+        memcpy(c->chunk_lo[ch], lo, sizeof lo);
+        memcpy(c->chunk_hi[ch], hi, sizeof hi);
+    }
+}
+
+/* Signed distance from x to the plane at finest-grid position k: <= 0 when
+ * the plane is at or below x (svo_trace.c's arithmetic). */
+static inline double plane_s(const rs_ctx *c, int a, double x, uint64_t k)
+{
+    return (c->origin[a] - x) + (double)k * c->cell21;
+}
+
+/* Level whose cells are the smallest still at least `side` wide (the
+ * coarsest that holds it, eq. 3.3.6 / 3.3.10), clamped to the depth. */
+static unsigned hold_level(const rs_ctx *c, double side)
+{
+    if (!(side > 0.0))
+        return c->depth;
+    int e;
+    (void)frexp(c->size / side, &e); /* size / side in [2^(e-1), 2^e) */
+    int h = e - 1;
+    if (h < 0)
+        h = 0;
+    if (h > (int)c->depth)
+        h = (int)c->depth;
+    while (h > 0 && ldexp(c->size, -h) < side)
+        h--;
+    while (h < (int)c->depth && ldexp(c->size, -(h + 1)) >= side)
+        h++;
+    return (unsigned)h;
+}
+
+static inline uint64_t clamp_floor(double u, uint64_t lo, uint64_t hi)
+{
+    const double f = floor(u);
+    if (!(f >= (double)lo))
+        return lo;
+    if (f >= (double)hi)
+        return hi;
+    return (uint64_t)f;
+}
+
+/* Emit range on axis a at level l: cells [*i0, *i1) whose closed boxes
+ * cover [lo, hi], i.e. floor(r lo) .. ceil(r hi) - 1, decided by plane_s. */
+static void emit_range(const rs_ctx *c, int a, unsigned l, double lo, double hi, uint64_t *i0, uint64_t *i1)
+{
+    const uint64_t n = 1ull << l, span = 1ull << (GRID_BITS - l);
+    const double cl = ldexp(c->size, -(int)l);
+    uint64_t i = clamp_floor((lo - c->origin[a]) / cl, 0, n - 1);
+    while (i > 0 && plane_s(c, a, lo, i * span) > 0.0)
+        i--;
+    while (i + 1 < n && plane_s(c, a, lo, (i + 1) * span) <= 0.0)
+        i++;
+    const double v = ceil((hi - c->origin[a]) / cl);
+    uint64_t j = !(v >= (double)(i + 1)) ? i + 1 : v >= (double)n ? n : (uint64_t)v;
+    while (j > i + 1 && plane_s(c, a, hi, (j - 1) * span) >= 0.0)
+        j--;
+    while (j < n && plane_s(c, a, hi, j * span) < 0.0)
+        j++;
+    *i0 = i;
+    *i1 = j;
+}
+
+/* Resize on axis a at level l (= h + 1): the two cells floor(r c - 1/2) and
+ * that + 1, kept inside the grid. */
+static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, double hi)
+{
+    const uint64_t n = 1ull << l;
+    const double u = (0.5 * (lo + hi) - c->origin[a]) / ldexp(c->size, -(int)l);
+    return clamp_floor(u - 0.5, 0, n - 2);
+}
+
+/* Level and cell count of box i. */
+static void rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint64_t *cells)
+{
+    const float *b = &c->sel->box[i * 6];
+    double lo[3], hi[3], smin = INFINITY, smax = 0.0;
+    for (int a = 0; a < 3; a++) {
+        lo[a] = b[a];
+        hi[a] = b[3 + a];
+        smin = dmin(smin, hi[a] - lo[a]);
+        smax = dmax(smax, hi[a] - lo[a]);
+    }
+    if (c->method == MR_SVO_RESIZE) {
+        const unsigned h = hold_level(c, smax);
+        *level = h + 1 < c->depth ? h + 1 : c->depth;
+        *cells = 8;
+        return;
+    }
+    unsigned h = hold_level(c, smin);
+    for (;;) {
+        uint64_t cnt = 1;
+        for (int a = 0; a < 3; a++) {
+            uint64_t i0, i1;
+            emit_range(c, a, h, lo[a], hi[a], &i0, &i1);
+            cnt *= i1 - i0;
+        }
+        if (cnt <= MR_SVO_EMIT_MAX_CELLS || h == 0) {
+            *level = h;
+            *cells = cnt;
+            return;
+        }
+        h--;
+    }
+}
+
+static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        uint64_t total = 0;
+        for (size_t i = i0; i < i1; i++) {
+            unsigned l;
+            uint64_t cells;
+            rs_plan(c, i, &l, &cells);
+            c->box_level[i] = (uint8_t)l;
+            c->box_cells[i] = (uint32_t)cells;
+            total += cells;
+        }
+        c->chunk_cells[ch] = total;
+    }
+}
+
+static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        uint64_t o = c->chunk_cells[ch];
+        for (size_t i = i0; i < i1; i++) {
+            const float *b = &c->sel->box[i * 6];
+            const unsigned l = c->box_level[i], sh = c->depth - l;
+            uint64_t r0[3], r1[3];
+            for (int a = 0; a < 3; a++) {
+                if (c->method == MR_SVO_RESIZE) {
+                    r0[a] = resize_first(c, a, l, b[a], b[3 + a]);
+                    r1[a] = r0[a] + 2;
+                } else {
+                    emit_range(c, a, l, b[a], b[3 + a], &r0[a], &r1[a]);
+                }
+            }
+            for (uint64_t z = r0[2]; z < r1[2]; z++)
+                for (uint64_t y = r0[1]; y < r1[1]; y++)
+                    for (uint64_t x = r0[0]; x < r1[0]; x++) {
+                        c->keys[o].code =
+                            mr_morton_encode((uint32_t)(x << sh), (uint32_t)(y << sh), (uint32_t)(z << sh));
+                        c->keys[o].level = l;
+                        c->payload[o] = (uint32_t)i;
+                        o++;
+                    }
+        }
+    }
+}
+
+int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
+                    const mr_svo_attr *palette, uint32_t palette_count, unsigned threads, mr_svo *out,
+                    uint64_t *cells, mr_error *err)
+{
+    if (cells)
+        *cells = 0;
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: NULL output");
+    mr_svo_free(out);
+    memset(out, 0, sizeof *out);
+    if (!sel)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: NULL selection");
+    if (method != MR_SVO_RESIZE && method != MR_SVO_EMIT)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: method %d is neither resize nor emit", (int)method);
+    if (depth < 1 || depth > MR_SVO_MAX_DEPTH)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: depth %u outside 1..%u", depth, MR_SVO_MAX_DEPTH);
+    if (sel->count > 0 && (!sel->box || !sel->leaf))
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: selection arrays missing");
+    if (sel->count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo resample: more than 2^32 - 1 voxels");
+    if (sel->count == 0) {
+        /* empty octree over a unit cube, keeping the palette */
+        int rc0 = mr_svo_build(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count, threads, out,
+                               err);
+        if (rc0 == MR_OK) {
+            free(out->leaf_keys);
+            out->leaf_keys = NULL;
+        }
+        return rc0;
+    }
+
+    rs_ctx c;
+    memset(&c, 0, sizeof c);
+    c.sel = sel;
+    c.method = method;
+    c.depth = depth;
+    int rc = MR_OK;
+    const size_t n = sel->count, chunks = (n + RS_CHUNK - 1) / RS_CHUNK;
+    mr_svo_key *keys = NULL;
+    uint32_t *payload = NULL, *kept_from = NULL;
+    mr_svo_leaf *leaves = NULL;
+    c.chunk_lo = malloc(chunks * sizeof *c.chunk_lo);
+    c.chunk_hi = malloc(chunks * sizeof *c.chunk_hi);
+    c.chunk_bad = malloc(chunks * sizeof *c.chunk_bad);
+    c.chunk_cells = malloc(chunks * sizeof *c.chunk_cells);
+    c.box_level = malloc(n);
+    c.box_cells = malloc(n * sizeof *c.box_cells);
+    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.box_level || !c.box_cells) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu boxes)", n);
+        goto cleanup;
+    }
+
+    /* The cube: min corner of all boxes, edge = largest extent grown so the
+     * far faces stay strictly beyond every box. */
+    mr_parallel_for(threads, chunks, 1, rs_bounds, &c);
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t ch = 0; ch < chunks; ch++) {
+        if (c.chunk_bad[ch]) {
+            const size_t i = c.chunk_bad[ch] - 1;
+            const float *b = &sel->box[i * 6];
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo resample: box %zu is not finite or inverted (%g %g %g .. %g %g %g)",
+                              i, (double)b[0], (double)b[1], (double)b[2], (double)b[3], (double)b[4],
+                              (double)b[5]);
+            goto cleanup;
+        }
+        for (int a = 0; a < 3; a++) {
+            lo[a] = dmin(lo[a], c.chunk_lo[ch][a]);
+            hi[a] = dmax(hi[a], c.chunk_hi[ch][a]);
+        }
+    }
+    double extent = 0.0, maxabs = 0.0;
+    for (int a = 0; a < 3; a++) {
+        c.origin[a] = lo[a]; /* a float already */
+        extent = dmax(extent, hi[a] - lo[a]);
+        maxabs = dmax(maxabs, dmax(fabs(lo[a]), fabs(hi[a])));
+    }
+    float size = extent > 0.0 ? float_up(extent + extent * CUBE_GROWTH) : float_up(dmax(maxabs, 1.0) * CUBE_GROWTH);
+    for (;;) {
+        if (!isfinite(size)) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo resample: the boxes span %g, beyond float range", extent);
+            goto cleanup;
+        }
+        bool clear = true;
+        for (int a = 0; a < 3; a++)
+            clear = clear && (c.origin[a] - hi[a]) + (double)size > 0.0;
+        if (clear)
+            break;
+        size = nextafterf(size, INFINITY);
+    }
+    c.size = size;
+    c.cell21 = (double)size * (1.0 / (double)GRID_CELLS);
+
+    mr_parallel_for(threads, chunks, 1, rs_count, &c);
+    uint64_t total = 0;
+    for (size_t ch = 0; ch < chunks; ch++) {
+        const uint64_t t = c.chunk_cells[ch];
+        c.chunk_cells[ch] = total;
+        total += t;
+    }
+    if (total > UINT32_MAX) {
+        rc = mr_error_set(err, MR_ERR_LIMIT, "svo resample: %llu cells, more than 2^32 - 1",
+                          (unsigned long long)total);
+        goto cleanup;
+    }
+    keys = malloc((size_t)total * sizeof *keys);
+    payload = malloc((size_t)total * sizeof *payload);
+    if (!keys || !payload) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
+        goto cleanup;
+    }
+    c.keys = keys;
+    c.payload = payload;
+    mr_parallel_for(threads, chunks, 1, rs_write, &c);
+    free(c.box_level);
+    free(c.box_cells);
+    c.box_level = NULL;
+    c.box_cells = NULL;
+
+    rc = mr_svo_radix_sort_payload(keys, payload, (size_t)total, NULL, NULL, threads, err);
+    if (rc != MR_OK)
+        goto cleanup;
+    kept_from = malloc((size_t)total * sizeof *kept_from);
+    if (!kept_from) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
+        goto cleanup;
+    }
+    size_t kept = 0;
+    rc = mr_svo_compact(keys, (size_t)total, depth, kept_from, &kept, err);
+    if (rc != MR_OK)
+        goto cleanup;
+    leaves = malloc((kept ? kept : 1) * sizeof *leaves);
+    if (!leaves) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu voxels)", kept);
+        goto cleanup;
+    }
+    for (size_t i = 0; i < kept; i++)
+        leaves[i] = sel->leaf[payload[kept_from[i]]];
+    rc = mr_svo_build(keys, leaves, kept, depth, mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]),
+                      size, palette, palette_count, threads, out, err);
+    if (rc != MR_OK)
+        goto cleanup;
+    /* the per-frame octree is never re-keyed */
+    free(out->leaf_keys);
+    out->leaf_keys = NULL;
+    if (cells)
+        *cells = total;
+
+cleanup:
+    if (rc != MR_OK) {
+        mr_svo_free(out);
+        memset(out, 0, sizeof *out);
+    }
+    free(c.chunk_lo);
+    free(c.chunk_hi);
+    free(c.chunk_bad);
+    free(c.chunk_cells);
+    free(c.box_level);
+    free(c.box_cells);
+    free(keys);
+    free(payload);
+    free(kept_from);
+    free(leaves);
+    return rc;
+}

@@ -1,0 +1,569 @@
+/*
+ * test_svo_deform_hard.c - edge cases of selection, deformation and
+ * resampling (core/svo/deform.h): the empty octree, a root leaf, a
+ * zero-scale field (every box a point) and a flattening one (boxes with a
+ * zero side, capped emission), a mirroring field (negative determinant), an
+ * instance 1e5 away from the origin, non-finite matrices, an output of depth
+ * 21, corrupt octrees; and a throughput printout on the BCN rig at depth 10
+ * (never asserted).
+ *
+ * Coverage is a point query with the library's ray caster (a zero-length
+ * ray hits exactly the closed leaf boxes holding its origin), on float
+ * points inside the float boxes: exact, no tolerance.
+ */
+#include <float.h>
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <cmocka.h>
+
+#include "../support/bcn_fixture.h"
+#include "anim/pose.h"
+#include "svo/deform.h"
+#include "svo/svo_build.h"
+#include "svo/svo_trace.h"
+#include "svo/voxelize.h"
+
+static mr_affine affine_rows(float a, float b, float c, float d, float e, float f, float g, float h, float i,
+                             float j, float k, float l)
+{
+    return (mr_affine){{a, b, c, d, e, f, g, h, i, j, k, l}};
+}
+
+typedef struct rig {
+    mr_svo_deformer d;
+    mr_affine *mesh;
+    mr_affine **joint;
+    uint32_t *joint_count;
+} rig;
+
+/* Every mesh and joint matrix of the asset = M. */
+static void rig_uniform(rig *r, const mr_asset *a, mr_affine M)
+{
+    memset(r, 0, sizeof *r);
+    r->mesh = calloc(a->mesh_count, sizeof *r->mesh);
+    r->joint = calloc(a->mesh_count, sizeof *r->joint);
+    r->joint_count = calloc(a->mesh_count, sizeof *r->joint_count);
+    assert_true(r->mesh && r->joint && r->joint_count);
+    for (size_t m = 0; m < a->mesh_count; m++) {
+        r->mesh[m] = M;
+        r->joint_count[m] = a->meshes[m].joint_count;
+        r->joint[m] = calloc(r->joint_count[m] + 1, sizeof **r->joint);
+        assert_non_null(r->joint[m]);
+        for (uint32_t j = 0; j < r->joint_count[m]; j++)
+            r->joint[m][j] = M;
+    }
+    r->d.mesh_count = a->mesh_count;
+    r->d.mesh = r->mesh;
+    r->d.joint = (const mr_affine *const *)r->joint;
+    r->d.joint_count = r->joint_count;
+}
+
+static void rig_free(rig *r)
+{
+    for (size_t m = 0; m < r->d.mesh_count; m++)
+        free(r->joint[m]);
+    free(r->joint);
+    free(r->mesh);
+    free(r->joint_count);
+}
+
+static mr_svo *voxelize(const mr_asset *a, unsigned depth)
+{
+    mr_svo_voxelize_params p = {.depth = depth, .mode = MR_SVO_VOXELIZE_SURFACE, .threads = 2};
+    mr_svo *s = NULL;
+    mr_error err = {0};
+    if (mr_svo_voxelize(a, &p, &s, &err) != MR_OK)
+        fail_msg("voxelize: %s", err.msg);
+    return s;
+}
+
+static void select_ok(const mr_svo *s, const mr_svo_extremes *e, const mr_svo_deformer *d, unsigned max_level,
+                      mr_svo_selection *out)
+{
+    mr_error err = {0};
+    if (mr_svo_select(s, e, d, NULL, max_level, 2, out, &err) != MR_OK)
+        fail_msg("select: %s", err.msg);
+}
+
+static void resample_ok(const mr_svo_selection *sel, mr_svo_method m, unsigned depth, const mr_svo *src, mr_svo *out,
+                        uint64_t *cells)
+{
+    mr_error err = {0};
+    if (mr_svo_resample(sel, m, depth, src->palette, src->palette_count, 2, out, cells, &err) != MR_OK)
+        fail_msg("resample: %s", err.msg);
+}
+
+static bool covered(const mr_svo *s, float x, float y, float z)
+{
+    return mr_svo_intersect(s, mr_v3(x, y, z), mr_v3(1, 1, 1), 0.0f, 0.0f, NULL);
+}
+
+/* Corners and centre of every box inside the output. */
+static void check_boxes_covered(const mr_svo *out, const mr_svo_selection *sel)
+{
+    for (size_t i = 0; i < sel->count; i++) {
+        const float *b = &sel->box[i * 6];
+        for (unsigned c = 0; c < 9; c++) {
+            float p[3];
+            for (int a = 0; a < 3; a++) {
+                p[a] = c == 8 ? (float)(0.5 * ((double)b[a] + b[3 + a])) : ((c >> a) & 1) ? b[3 + a] : b[a];
+                p[a] = p[a] < b[a] ? b[a] : p[a] > b[3 + a] ? b[3 + a] : p[a];
+            }
+            if (!covered(out, p[0], p[1], p[2]))
+                fail_msg("box %zu [%.9g %.9g %.9g .. %.9g %.9g %.9g] point %u not covered", i, (double)b[0],
+                         (double)b[1], (double)b[2], (double)b[3], (double)b[4], (double)b[5], c);
+        }
+    }
+}
+
+static const mr_svo_attr palette1[1] = {{{128, 128, 128}, 0, {0, 0, 0, 0}, {0, 0, 0, 0}}};
+
+/* ---- tiny octrees */
+
+static void test_empty_octree(void **state)
+{
+    (void)state;
+    mr_svo s;
+    memset(&s, 0, sizeof s);
+    s.depth = 4;
+    s.size = 1.0f;
+    s.palette = (mr_svo_attr *)palette1;
+    s.palette_count = 1;
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(&s, &e, &err), MR_OK);
+    assert_int_equal(e.node_count, 0);
+    const mr_affine I = affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0);
+    mr_svo_deformer d = {.mesh_count = 1, .mesh = &I};
+    mr_svo_selection sel = {0};
+    select_ok(&s, &e, &d, 4, &sel);
+    assert_int_equal(sel.count, 0);
+    assert_int_equal(sel.visited, 0);
+    for (int m = 0; m < 2; m++) {
+        mr_svo out = {0};
+        uint64_t cells = 99;
+        resample_ok(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, 5, &s, &out, &cells);
+        assert_int_equal(cells, 0);
+        assert_int_equal(out.node_count, 0);
+        assert_int_equal(out.leaf_count, 0);
+        assert_int_equal(out.palette_count, 1);
+        assert_false(covered(&out, 0.5f, 0.5f, 0.5f));
+        mr_svo_free(&out);
+    }
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+}
+
+static mr_affine shear_field(void *ctx, mr_vec3 p)
+{
+    (void)ctx;
+    return affine_rows(1, 0.5f * p.z, 0, 3, 0, 1, 0, 0, 0, 0, 2, 0);
+}
+
+static void test_root_leaf(void **state)
+{
+    (void)state;
+    mr_svo s;
+    memset(&s, 0, sizeof s);
+    mr_svo_leaf leaf = {{0, 0}, 0};
+    mr_svo_normal_encode(mr_v3(0, 1, 0), leaf.normal);
+    s.depth = 3;
+    s.origin = mr_v3(-1, -1, -1);
+    s.size = 2.0f;
+    s.leaf_count = 1;
+    s.leaves = &leaf;
+    s.palette = (mr_svo_attr *)palette1;
+    s.palette_count = 1;
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(&s, &e, &err), MR_OK);
+    mr_svo_deformer d = {.field = shear_field};
+    mr_svo_selection sel = {0};
+    select_ok(&s, &e, &d, 3, &sel);
+    assert_int_equal(sel.count, 1);
+    assert_int_equal(sel.visited, 1);
+    assert_int_equal(sel.level[0], 0);
+    /* corners (+-1, +-1, +-1): the low one's matrix shears by -0.5, the
+     * high one's by +0.5; x' = x + k y + 3 over both gives [1.5, 4.5],
+     * z doubles */
+    const float want[6] = {1.5f, -1, -2, 4.5f, 1, 2};
+    for (int i = 0; i < 6; i++)
+        assert_true(sel.box[i] == want[i]);
+    for (int m = 0; m < 2; m++) {
+        mr_svo out = {0};
+        uint64_t cells = 0;
+        resample_ok(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, 6, &s, &out, &cells);
+        if (m)
+            check_boxes_covered(&out, &sel);
+        else
+            assert_int_equal(cells, 8);
+        mr_svo_free(&out);
+    }
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+}
+
+/* ---- degenerate and mirrored fields on the real rig */
+
+static mr_affine zero_field(void *ctx, mr_vec3 p)
+{
+    (void)ctx;
+    (void)p;
+    return affine_rows(0, 0, 0, 1.25f, 0, 0, 0, -2.5f, 0, 0, 0, 7.0f);
+}
+
+static mr_affine flat_field(void *ctx, mr_vec3 p)
+{
+    (void)ctx;
+    (void)p;
+    return affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0.5f); /* z collapsed onto 0.5 */
+}
+
+static mr_affine mirror_field(void *ctx, mr_vec3 p)
+{
+    (void)ctx;
+    (void)p;
+    return affine_rows(-1, 0, 0, 0.5f, 0, 1, 0, 0, 0, 0, 1, 0);
+}
+
+static void test_degenerate_fields(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 6;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+
+    /* zero scale: every box is the point (1.25, -2.5, 7) */
+    mr_svo_deformer zero = {.field = zero_field};
+    mr_svo_selection sel = {0};
+    select_ok(s, &e, &zero, D, &sel);
+    assert_int_equal(sel.count, s->leaf_count);
+    for (size_t i = 0; i < sel.count; i++) {
+        const float *b = &sel.box[i * 6];
+        assert_true(b[0] == 1.25f && b[3] == 1.25f && b[1] == -2.5f && b[4] == -2.5f && b[2] == 7.0f && b[5] == 7.0f);
+        /* the normal collapses: the bind normal is kept */
+        assert_memory_equal(sel.leaf[i].normal, s->leaves[i].normal, 2);
+    }
+    for (unsigned depth = 1; depth <= MR_SVO_MAX_DEPTH; depth += 10) {
+        mr_svo out = {0};
+        uint64_t cells = 0;
+        resample_ok(&sel, MR_SVO_EMIT, depth, s, &out, &cells);
+        assert_int_equal(cells, sel.count); /* one finest cell each */
+        assert_int_equal(out.leaf_count, 1);
+        assert_true(covered(&out, 1.25f, -2.5f, 7.0f));
+        resample_ok(&sel, MR_SVO_RESIZE, depth, s, &out, &cells);
+        assert_int_equal(cells, 8 * sel.count);
+        assert_int_equal(out.leaf_count, 8); /* the same 8 finest cells each */
+        assert_true(covered(&out, 1.25f, -2.5f, 7.0f));
+        mr_svo_free(&out);
+    }
+
+    /* flat: boxes with a zero side; emit would want thousands of finest
+     * cells per box and is capped by coarsening */
+    mr_svo_deformer flat = {.field = flat_field};
+    select_ok(s, &e, &flat, D, &sel);
+    mr_svo out = {0};
+    uint64_t cells = 0;
+    resample_ok(&sel, MR_SVO_EMIT, 10, s, &out, &cells);
+    assert_true(cells <= (uint64_t)MR_SVO_EMIT_MAX_CELLS * sel.count);
+    check_boxes_covered(&out, &sel);
+    print_message("flat: %zu boxes -> %llu cells -> %u voxels\n", sel.count, (unsigned long long)cells,
+                  out.leaf_count);
+
+    /* mirror in x: boxes stay ordered, normals stay outward (x flips) */
+    mr_svo_deformer mirror = {.field = mirror_field};
+    select_ok(s, &e, &mirror, D, &sel);
+    assert_int_equal(sel.count, s->leaf_count);
+    const double cell = (double)s->size * ldexp(1.0, -(int)D);
+    size_t flipped = 0;
+    for (size_t i = 0; i < sel.count; i++) {
+        const float *b = &sel.box[i * 6];
+        for (int ax = 0; ax < 3; ax++)
+            /* outward rounding adds at most an ulp per side (coordinates < 4) */
+            assert_true(b[ax] <= b[3 + ax] && b[3 + ax] - b[ax] <= cell + 0x1p-20);
+        const mr_vec3 n0 = mr_svo_normal_decode(s->leaves[i].normal), n1 = mr_svo_normal_decode(sel.leaf[i].normal);
+        /* within the ~1 degree of the encoding, twice */
+        assert_true(fabsf(n1.x + n0.x) < 0.05f && fabsf(n1.y - n0.y) < 0.05f && fabsf(n1.z - n0.z) < 0.05f);
+        flipped += fabsf(n0.x) > 0.5f;
+    }
+    assert_true(flipped > 0);
+    resample_ok(&sel, MR_SVO_EMIT, D + 1, s, &out, &cells);
+    check_boxes_covered(&out, &sel);
+    mr_svo_free(&out);
+
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+/* An instance 1e5 from the origin: floats there are 2^-7 apart, about a
+ * voxel; boxes are still ordered and emit still covers them exactly. */
+static void test_far_instance(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 7;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    rig r;
+    rig_uniform(&r, a, affine_rows(1, 0, 0, 1e5f, 0, 1, 0, -1e5f, 0, 0, 1, 1e5f));
+    mr_svo_selection sel = {0};
+    select_ok(s, &e, &r.d, D, &sel);
+    assert_int_equal(sel.count, s->leaf_count);
+    for (size_t i = 0; i < sel.count; i++)
+        for (int ax = 0; ax < 3; ax++)
+            assert_true(sel.box[i * 6 + ax] <= sel.box[i * 6 + 3 + ax]);
+    for (int m = 0; m < 2; m++) {
+        mr_svo out = {0};
+        uint64_t cells = 0;
+        resample_ok(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, D + 1, s, &out, &cells);
+        assert_true(fabsf(out.origin.x - 1e5f) < 2.0f && fabsf(out.origin.y + 1e5f) < 2.0f);
+        if (m)
+            check_boxes_covered(&out, &sel);
+        else
+            assert_int_equal(cells, 8 * sel.count);
+        mr_svo_free(&out);
+    }
+    mr_svo_selection_free(&sel);
+    rig_free(&r);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+/* ---- non-finite input */
+
+static mr_affine nan_field(void *ctx, mr_vec3 p)
+{
+    const float lim = *(const float *)ctx;
+    return affine_rows(1, 0, 0, p.x > lim ? NAN : 0.0f, 0, 1, 0, 0, 0, 0, 1, 0);
+}
+
+static void test_non_finite(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    mr_svo *s = voxelize(a, 5);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    rig r;
+    rig_uniform(&r, a, affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
+    mr_svo_selection sel = {0};
+    r.mesh[2].m[7] = NAN;
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 5, 2, &sel, &err), MR_ERR_INVALID);
+    print_message("NaN mesh matrix: %s\n", err.msg);
+    r.mesh[2].m[7] = 0;
+    r.joint[0][3].m[0] = INFINITY;
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 5, 2, &sel, &err), MR_ERR_INVALID);
+    r.joint[0][3].m[0] = 1;
+    /* a field that goes bad over part of the shape */
+    float lim = s->origin.x + 0.7f * s->size;
+    mr_svo_deformer f = {.field = nan_field, .field_ctx = &lim};
+    for (unsigned t = 1; t <= 2; t++) {
+        assert_int_equal(mr_svo_select(s, &e, &f, NULL, 5, t, &sel, &err), MR_ERR_INVALID);
+        assert_int_equal(sel.count, 0);
+        print_message("NaN field: %s\n", err.msg);
+    }
+    /* huge but finite matrices whose boxes leave the float range */
+    rig_free(&r);
+    rig_uniform(&r, a, affine_rows(3e38f, 3e38f, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 5, 2, &sel, &err), MR_ERR_INVALID);
+    print_message("overflow: %s\n", err.msg);
+    rig_free(&r);
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+/* ---- depth 21 output */
+
+static void test_depth21(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 6;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    /* the identity's boxes shrunk about their centres by 2^-14: tiny
+     * voxels spread over the whole cube need levels near 21 */
+    rig r;
+    rig_uniform(&r, a, affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
+    mr_svo_selection sel = {0};
+    select_ok(s, &e, &r.d, D, &sel);
+    for (size_t i = 0; i < sel.count; i++) {
+        float *b = &sel.box[i * 6];
+        for (int ax = 0; ax < 3; ax++) {
+            const double c = 0.5 * ((double)b[ax] + b[3 + ax]), h = 0.5 * ((double)b[3 + ax] - b[ax]) * 0x1p-14;
+            b[ax] = (float)(c - h);
+            b[3 + ax] = (float)(c + h);
+            assert_true(b[ax] <= b[3 + ax]);
+        }
+    }
+    for (int m = 0; m < 2; m++) {
+        mr_svo out = {0};
+        uint64_t cells = 0;
+        resample_ok(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, MR_SVO_MAX_DEPTH, s, &out, &cells);
+        assert_int_equal(out.depth, MR_SVO_MAX_DEPTH);
+        if (m)
+            check_boxes_covered(&out, &sel);
+        else
+            assert_int_equal(cells, 8 * sel.count);
+        /* levels reach deep into the octree */
+        mr_svo_key *k = malloc(out.leaf_count * sizeof *k);
+        assert_non_null(k);
+        assert_int_equal(mr_svo_collect_keys(&out, k, NULL, &err), MR_OK);
+        unsigned deepest = 0;
+        for (uint32_t i = 0; i < out.leaf_count; i++)
+            deepest = k[i].level > deepest ? k[i].level : deepest;
+        print_message("depth 21 %s: %llu cells -> %u voxels, deepest level %u\n", m ? "emit" : "resize",
+                      (unsigned long long)cells, out.leaf_count, deepest);
+        assert_true(deepest >= 18);
+        free(k);
+        mr_svo_free(&out);
+    }
+    rig_free(&r);
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+/* ---- corrupt octrees never crash */
+
+static void test_corrupt_octree(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    mr_svo *s = voxelize(a, 4);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    rig r;
+    rig_uniform(&r, a, affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
+    mr_svo_selection sel = {0};
+    /* an interior child index beyond the nodes */
+    const uint32_t saved = s->first_node[0];
+    s->first_node[0] = s->node_count;
+    assert_true(mr_svo_extremes_build(s, &e, &err) < 0);
+    assert_int_equal(mr_svo_extremes_build(s, &(mr_svo_extremes){0}, &err), MR_ERR_FORMAT);
+    s->first_node[0] = saved;
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    /* corrupted after the extremes were built: the selection notices */
+    s->first_leaf[s->node_count - 1] = s->leaf_count;
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 4, 2, &sel, &err), MR_ERR_INVALID);
+    print_message("corrupt: %s\n", err.msg);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    s = voxelize(a, 4);
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    /* a child pointing back to its parent (a cycle) */
+    s->first_node[1] = 0;
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 4, 2, &sel, &err), MR_ERR_INVALID);
+    mr_svo_voxelize_free(s);
+    s = voxelize(a, 4);
+    /* a leaf naming a palette entry that does not exist */
+    s->leaves[5].attr = (uint16_t)s->palette_count;
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, 4, 2, &sel, &err), MR_ERR_INVALID);
+    print_message("bad attr: %s\n", err.msg);
+    /* bad masks */
+    s->leaves[5].attr = 0;
+    s->child_mask[0] = 0;
+    assert_true(mr_svo_extremes_build(s, &(mr_svo_extremes){0}, &err) < 0);
+    rig_free(&r);
+    mr_svo_selection_free(&sel);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+/* ---- throughput (printed only) */
+
+static double now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+static void test_throughput(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 10;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_extremes_build(s, &e, &err), MR_OK);
+    /* the clip's pose (object at the identity) */
+    mr_pose *pose = NULL;
+    assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
+    mr_pose_desc desc;
+    memset(&desc, 0, sizeof desc);
+    desc.has_clip = true;
+    desc.has_time = true;
+    desc.time = 0.5 * a->clips[0].duration;
+    assert_int_equal(mr_pose_eval(pose, a, &desc, 0.0, &err), MR_OK);
+    rig r;
+    rig_uniform(&r, a, affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
+    for (size_t m = 0; m < a->mesh_count; m++) {
+        const mr_mesh *me = &a->meshes[m];
+        memcpy(r.mesh[m].m, pose->global[me->node].m, sizeof r.mesh[m].m);
+        for (uint32_t j = 0; j < me->joint_count; j++) {
+            mr_mat4 k = mr_mat4_mul(&pose->global[me->joint_nodes[j]], &me->inverse_bind[j]);
+            memcpy(r.joint[m][j].m, k.m, sizeof r.joint[m][j].m);
+        }
+    }
+    mr_svo_selection sel = {0};
+    double t0 = now();
+    assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, D, 2, &sel, &err), MR_OK);
+    const double ts = now() - t0;
+    print_message("BCN depth %u, 2 threads: select %zu voxels (%llu deformed) in %.1f ms: %.1f M voxels/s\n", D,
+                  sel.count, (unsigned long long)sel.visited, ts * 1e3, (double)sel.visited / ts * 1e-6);
+    for (int m = 0; m < 2; m++) {
+        mr_svo out = {0};
+        uint64_t cells = 0;
+        t0 = now();
+        assert_int_equal(mr_svo_resample(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, D, s->palette, s->palette_count, 2,
+                                         &out, &cells, &err),
+                         MR_OK);
+        const double tr = now() - t0;
+        print_message("  %s at depth %u: %llu cells -> %u voxels in %.1f ms: %.1f M cells/s\n",
+                      m ? "emit" : "resize", D, (unsigned long long)cells, out.leaf_count, tr * 1e3,
+                      (double)cells / tr * 1e-6);
+        mr_svo_free(&out);
+    }
+    mr_svo_selection_free(&sel);
+    rig_free(&r);
+    mr_pose_free(pose);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_empty_octree),    cmocka_unit_test(test_root_leaf),
+        cmocka_unit_test(test_degenerate_fields), cmocka_unit_test(test_far_instance),
+        cmocka_unit_test(test_non_finite),      cmocka_unit_test(test_depth21),
+        cmocka_unit_test(test_corrupt_octree),  cmocka_unit_test(test_throughput),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
