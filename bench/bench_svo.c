@@ -26,8 +26,9 @@
  *     per frame; the largest N within 33.8 ms; then doubling on to 2^20 or a
  *     memory budget, bytes per instance and where 24 GiB would end.
  *
- * usage: bench_svo [--quick]  (other arguments are ignored: make bench
- * passes the same ones to every benchmark)
+ * usage: bench_svo [--quick]  (--quick: the sweep on surface voxels at depth
+ * 6, depths 8 and 10 only, a shorter instance series; other arguments are
+ * ignored: make bench passes the same ones to every benchmark)
  */
 #include <embree3/rtcore.h>
 #include <math.h>
@@ -408,7 +409,7 @@ typedef struct depth_row {
     double select_ms, mvox_s;     /* every leaf */
     double ms[2], mcells_s[2], rebuild_ms[2];
     double cells[2], out_voxels[2];
-    bool ran[2];
+    const char *skipped[2]; /* why a resample was not run, or NULL */
     double cam_selected, cam_visited, cam_ms, cam_resize_ms;
 } depth_row;
 
@@ -650,14 +651,16 @@ static void part_bc(bool quick)
                                      (float)(0.5 * (shape.lo[2] + shape.hi[2])));
         const mr_vec3 eye = mr_v3_add(target, mr_v3(0, 0, (float)(3 * H)));
         const mr_svo_view cam = make_view(eye, target, (float)(0.05 * H), (float)(10 * H));
-        /* big frames cost seconds: fewer of them */
-        const int frames = svo->leaf_count > 4000000 ? 2 : frames_full;
+        /* big frames cost seconds: fewer of them (the bench stays within ~5 minutes) */
+        const int frames = svo->leaf_count > 4000000 ? 1 : svo->leaf_count > 400000 ? 3 : frames_full;
         const unsigned out_depth = depth + 2 > MR_SVO_MAX_DEPTH ? MR_SVO_MAX_DEPTH : depth + 2;
-        bool run[2];
-        run[0] = 8.0 * svo->leaf_count * 48.0 < budget;
-        run[1] = emit_ratio * svo->leaf_count * 48.0 < budget;
+        const bool fits[2] = {8.0 * svo->leaf_count * 48.0 < budget,
+                              emit_ratio * svo->leaf_count * 48.0 < budget};
         for (int ti = 0; ti < 2; ti++) {
             const unsigned threads = ti == 0 ? 2 : 1;
+            /* depth 12 resamples for tens of seconds: on 2 threads only */
+            const bool big = svo->leaf_count > 4000000 && threads == 1;
+            const bool run[2] = {fits[0] && !big, fits[1] && !big};
             depth_row *row = &rows[nrows++];
             memset(row, 0, sizeof *row);
             row->depth = depth;
@@ -666,7 +669,7 @@ static void part_bc(bool quick)
             double sel_t[MAX_FRAMES], mvox[MAX_FRAMES], ms[2][MAX_FRAMES], mc[2][MAX_FRAMES],
                 rb[2][MAX_FRAMES], cells[2][MAX_FRAMES], outv[2][MAX_FRAMES], cs[MAX_FRAMES],
                 cv[MAX_FRAMES], ct[MAX_FRAMES], cr[MAX_FRAMES];
-            int nrb[2] = {0, 0};
+            int nrb[2] = {0, 0}, rb_skipped[2] = {0, 0};
             mr_svo_selection sel = {0};
             for (int f = 0; f < frames; f++) {
                 mr_pose_desc desc = clip_desc(0);
@@ -704,6 +707,8 @@ static void part_bc(bool quick)
                                                 nc, threads, &rs);
                         if (t >= 0)
                             rb[m][nrb[m]++] = t * 1e3;
+                    } else if (f < 2) {
+                        rb_skipped[m] = 1;
                     }
                     mr_svo_free(&out);
                     if (m == 1 && ti == 0 && f == 0)
@@ -728,14 +733,14 @@ static void part_bc(bool quick)
             row->select_ms = median(sel_t, frames);
             row->mvox_s = median(mvox, frames);
             for (int m = 0; m < 2; m++) {
-                row->ran[m] = run[m];
+                row->skipped[m] = !fits[m] ? "skipped (memory)" : big ? "2 threads only (time)" : NULL;
                 if (!run[m])
                     continue;
                 row->ms[m] = median(ms[m], frames);
                 row->mcells_s[m] = median(mc[m], frames);
                 row->cells[m] = median(cells[m], frames);
                 row->out_voxels[m] = median(outv[m], frames);
-                row->rebuild_ms[m] = nrb[m] ? median(rb[m], nrb[m]) : -1;
+                row->rebuild_ms[m] = nrb[m] ? median(rb[m], nrb[m]) : rb_skipped[m] ? -2 : -1;
             }
             row->cam_selected = median(cs, frames);
             row->cam_visited = median(cv, frames);
@@ -765,8 +770,10 @@ static void part_bc(bool quick)
     printf("\nEvery leaf, no view (median over the clip's frames; rebuilt octree depth = source + "
            "2). select: selection + deformation, Mvox/s = voxels deformed (visited) per second. "
            "Resample columns: total ms, Mcells/s, rebuild = radix sort + compaction + octree build "
-           "of the same cells timed apart (the rest of the total is cell generation), cells and "
-           "output voxels.\n\n");
+           "of the same cells timed apart (the rest of the total is cell generation; not timed "
+           "where a second copy of the cells would not fit the memory budget of %.1f GiB), cells "
+           "and output voxels.\n\n",
+           budget / GIB);
     printf("| depth | threads | voxels | select ms | Mvox/s | resize ms | resize Mcells/s | resize "
            "rebuild ms | resize cells | resize out | emit ms | emit Mcells/s | emit rebuild ms | "
            "emit cells | emit out |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
@@ -775,15 +782,15 @@ static void part_bc(bool quick)
         printf("| %u | %u | %u | %.1f | %.1f ", r->depth, r->threads, r->voxels, r->select_ms,
                r->mvox_s);
         for (int m = 0; m < 2; m++) {
-            if (!r->ran[m]) {
-                printf("| skipped (memory) | | | | ");
+            if (r->skipped[m]) {
+                printf("| %s | | | | ", r->skipped[m]);
                 continue;
             }
             char rb[32];
             if (r->rebuild_ms[m] >= 0)
                 snprintf(rb, sizeof rb, "%.1f", r->rebuild_ms[m]);
             else
-                snprintf(rb, sizeof rb, "n/a");
+                snprintf(rb, sizeof rb, "%s", r->rebuild_ms[m] < -1.5 ? "(memory)" : "n/a");
             printf("| %.1f | %.1f | %s | %.0f | %.0f ", r->ms[m], r->mcells_s[m], rb, r->cells[m],
                    r->out_voxels[m]);
         }
@@ -892,7 +899,7 @@ typedef struct inst_result {
     unsigned out_depth;
 } inst_result;
 
-static void part_d(bool quick)
+static void part_d(double deadline)
 {
     const unsigned threads = 2;
     mr_asset *asset = NULL;
@@ -907,7 +914,7 @@ static void part_d(bool quick)
     const double voxel = (double)svo->size / (double)(1u << svo->depth);
     const double avail = mem_available();
     const double budget = fmin(8.0 * GIB, 0.6 * avail);
-    const size_t n_max = quick ? (1u << 14) : (1u << 20);
+    const size_t n_max = 1u << 20;
     printf("\n### d. Instances (thesis: 10^6 instances of 6 models, 33.8 ms per frame, GTX 260)\n\n"
            "BCN at depth 8 (%u voxels) per instance, each with its own clip offset (poses by "
            "mr_pose_eval) and a turn about y, on a square grid %.1f units apart, the camera "
@@ -930,7 +937,9 @@ static void part_d(bool quick)
     mr_svo_selection all = {0};
     const bool reset = peak_reset();
     const double base_rss = rss_now();
+    double frame_s = 0;
     size_t fit = 0, last_n = 0;
+    double first_ms = 0;
     double last_bytes = 0, last_marginal = 0, last_peak = base_rss;
     const char *stop = "N = 2^20";
     for (size_t n = 1; n <= n_max; n *= 2) {
@@ -1029,6 +1038,8 @@ static void part_d(bool quick)
         fflush(stdout);
         if (r.total_ms <= THESIS_MS)
             fit = n;
+        if (n == 1)
+            first_ms = r.total_ms;
         last_n = n;
         last_bytes = bytes;
         last_marginal = marginal;
@@ -1036,23 +1047,68 @@ static void part_d(bool quick)
         free(xf);
         free(offset);
         free(rec);
-        /* the next doubling would need about twice this frame's memory */
+        /* the next doubling would need about twice this frame's memory and time */
         if (base_rss + 2.0 * (r.peak - base_rss) > budget && n * 2 <= n_max) {
             stop = "memory budget";
             break;
         }
-        if (n * 2 > n_max)
-            stop = quick ? "N = 2^14 (--quick)" : "N = 2^20";
+        frame_s = r.total_ms * 1e-3;
+        const int next_repeats = 2 * n <= 1024 ? 5 : 2 * n <= 65536 ? 3 : 1;
+        if (mr_now() + 2.2 * frame_s * next_repeats > deadline && n * 2 <= n_max) {
+            stop = "the bench's time budget";
+            break;
+        }
+    }
+    /* Where an instance's time goes: pose + skin matrices, and the selection
+     * of one far-away instance (a few voxels), one thread, averaged. */
+    {
+        const int reps = 200;
+        mr_pose_desc desc = clip_desc(0);
+        const mr_mat4 id = mr_mat4_identity();
+        double t0 = mr_now();
+        for (int i = 0; i < reps; i++) {
+            desc.offset = i * 1e-3;
+            if (mr_pose_eval(w[0].pose, asset, &desc, 0.5, &err) < 0)
+                die("pose", err.msg);
+            skin_pose(&w[0].sk, asset, w[0].pose, &id);
+        }
+        const double pose_us = (mr_now() - t0) / reps * 1e6;
+        const mr_vec3 target = mr_v3(0, (float)(0.5 * H), 0);
+        const mr_svo_view far = make_view(mr_v3(0, (float)(0.5 * H), (float)(2000 * H)), target,
+                                          (float)H, (float)(4000 * H));
+        mr_svo_deformer d = skin_deformer(&w[0].sk);
+        t0 = mr_now();
+        for (int i = 0; i < reps; i++)
+            if (mr_svo_select(svo, &ex, &d, &far, svo->depth, 1, &w[0].sel, &err) < 0)
+                die("select", err.msg);
+        const double sel_us = (mr_now() - t0) / reps * 1e6;
+        sw_field ident = sw_field_make(SW_SCALE, 1.0, &shape);
+        mr_svo_deformer fd = {.field = sw_field_matrix, .field_ctx = &ident};
+        t0 = mr_now();
+        for (int i = 0; i < reps; i++)
+            if (mr_svo_select(svo, &ex, &fd, &far, svo->depth, 1, &w[0].sel, &err) < 0)
+                die("select", err.msg);
+        const double field_us = (mr_now() - t0) / reps * 1e6;
+        printf("\nPer instance, one thread: pose (mr_pose_eval) + skin matrices %.1f us; selection "
+               "of a far instance (%zu voxels) %.1f us skinned, %.1f us with a field deformer (no "
+               "palette: the skinned selection blends one matrix per palette entry, %u of them, "
+               "before it walks).\n",
+               pose_us, w[0].sel.count, sel_us, field_us, svo->palette_count);
     }
     /* 24 GiB: from the last frame's peak on at the marginal cost (the average if the
      * marginal one is not positive: RSS measurements are coarse) */
     const double per = last_marginal > 0 ? last_marginal : last_bytes;
     const double n24 = per > 0 ? (double)last_n + (24.0 * GIB - last_peak) / per : 0.0;
-    printf("\nLargest N within %.1f ms per frame: %zu. Stopped at N = %zu (%s). At N = %zu: "
+    char fits[64];
+    if (fit)
+        snprintf(fits, sizeof fits, "%zu", fit);
+    else
+        snprintf(fits, sizeof fits, "none (N = 1 takes %.1f ms)", first_ms);
+    printf("\nLargest N within %.1f ms per frame: %s. Stopped at N = %zu (%s). At N = %zu: "
            "%.0f bytes of peak RSS growth per instance (average), %.0f per added instance "
            "(marginal, last doubling); 24 GiB would run out near N = %.3g (extrapolated "
            "linearly at the marginal cost).\n",
-           THESIS_MS, fit, last_n, stop, last_n, last_bytes, last_marginal, n24);
+           THESIS_MS, fits, last_n, stop, last_n, last_bytes, last_marginal, n24);
     if (!reset)
         printf("(The peak RSS could not be reset: figures include the earlier parts' peak.)\n");
     for (unsigned i = 0; i < threads; i++) {
@@ -1080,7 +1136,8 @@ int main(int argc, char **argv)
     double t0 = mr_now();
     part_a(quick);
     part_bc(quick);
-    part_d(quick);
+    /* part d doubles N while the next frame fits in its share of the ~5 minutes */
+    part_d(mr_now() + (quick ? 45.0 : 100.0));
     printf("\n(bench_svo: %.0f s)\n", mr_now() - t0);
     return 0;
 }

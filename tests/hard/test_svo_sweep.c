@@ -4,9 +4,9 @@
  * measure of tests/support/svo_sweep.h (orthographic pixel coverage of the
  * resize and emit octrees against the directly deformed boxes).
  *
- * Shape: BCN_Epileptic.X, surface voxels at depth 6 (3,426 voxels, about
- * 4 pixels each on the 256 x 256-pixel grid), so the whole file runs in a
- * couple of seconds under ASan.
+ * Shape: BCN_Epileptic.X, surface voxels at depth 6 (3,426 voxels; a pixel
+ * is a quarter of a voxel, so the undeformed character is 256 pixels
+ * tall); the whole file runs in under a second under ASan.
  *
  * Asserted (tolerances at each test):
  *  - uniform scale (powers of two and not): resize's error is bounded
