@@ -631,16 +631,16 @@ static void part_bc(bool quick)
         if (mr_svo_extremes_build(svo, &ex, &err) < 0)
             die("extremes", err.msg);
         const double ex_ms = (mr_now() - t0) * 1e3;
-        memory_row *mr_ = &mem[di];
-        memset(mr_, 0, sizeof *mr_);
-        mr_->depth = depth;
-        mr_->voxels = svo->leaf_count;
-        mr_->svo_bytes = (double)mr_svo_memory(svo) / svo->leaf_count;
-        mr_->svo_layout_bytes =
+        memory_row *mrow = &mem[di];
+        memset(mrow, 0, sizeof *mrow);
+        mrow->depth = depth;
+        mrow->voxels = svo->leaf_count;
+        mrow->svo_bytes = (double)mr_svo_memory(svo) / svo->leaf_count;
+        mrow->svo_layout_bytes =
             (double)(mr_svo_memory(svo) - (svo->leaf_keys ? svo->leaf_count * sizeof(mr_svo_key) : 0)) /
             svo->leaf_count;
         printf("| %u | %u | %u | %.2f | %.1f | %.2f |\n", depth, svo->leaf_count, svo->node_count,
-               vox_s, ex_ms, mr_->svo_bytes);
+               vox_s, ex_ms, mrow->svo_bytes);
         fflush(stdout);
 
         sw_bounds shape;
@@ -699,8 +699,8 @@ static void part_bc(bool quick)
                     cells[m][f] = (double)nc;
                     outv[m][f] = out.leaf_count;
                     if (f == 0 && ti == 0 && m == 0) {
-                        mr_->rebuilt_bytes = (double)mr_svo_memory(&out) / out.leaf_count;
-                        mr_->rebuilt_voxels = out.leaf_count;
+                        mrow->rebuilt_bytes = (double)mr_svo_memory(&out) / out.leaf_count;
+                        mrow->rebuilt_voxels = out.leaf_count;
                     }
                     /* the rebuild split costs a second copy of the cells: 2 frames */
                     if (f < 2 && (double)nc * 96.0 < budget) {
@@ -752,9 +752,9 @@ static void part_bc(bool quick)
         tri_mesh tm;
         const bool embree = depth <= 10;
         exposed_faces(svo, 2, &tm, !embree);
-        mr_->triangles = (double)tm.tcount;
+        mrow->triangles = (double)tm.tcount;
         if (embree)
-            embree_measure(&tm, mr_);
+            embree_measure(&tm, mrow);
         free(tm.v);
         free(tm.idx);
         mr_svo_extremes_free(&ex);
@@ -893,10 +893,9 @@ static void inst_select(void *ctx, size_t begin, size_t end, unsigned worker)
 }
 
 typedef struct inst_result {
-    size_t n;
     double select_ms, resample_ms, total_ms;
     double selected, cells, out_voxels;
-    double rss, peak;
+    double peak;
     unsigned out_depth;
 } inst_result;
 
@@ -938,7 +937,6 @@ static void part_d(double deadline)
     mr_svo_selection all = {0};
     const bool reset = peak_reset();
     const double base_rss = rss_now();
-    double frame_s = 0;
     size_t fit = 0, last_n = 0;
     double first_ms = 0;
     double last_bytes = 0, last_marginal = 0, last_peak = base_rss;
@@ -1019,14 +1017,12 @@ static void part_d(double deadline)
             outv = out.leaf_count;
             mr_svo_free(&out);
         }
-        inst_result r = {.n = n,
-                         .select_ms = median(sel_ms, repeats),
+        inst_result r = {.select_ms = median(sel_ms, repeats),
                          .resample_ms = median(res_ms, repeats),
                          .total_ms = median(tot_ms, repeats),
                          .selected = selected,
                          .cells = cells,
                          .out_voxels = outv,
-                         .rss = rss_now(),
                          .peak = peak_rss(),
                          .out_depth = out_depth};
         /* peak RSS grows with the frame's transient buffers (selection, cells, octree) and
@@ -1054,9 +1050,8 @@ static void part_d(double deadline)
             stop = "memory budget";
             break;
         }
-        frame_s = r.total_ms * 1e-3;
         const int next_repeats = 2 * n <= 16 ? 3 : 1;
-        if (mr_now() + 2.2 * frame_s * next_repeats > deadline && n * 2 <= n_max) {
+        if (mr_now() + 2.2 * r.total_ms * 1e-3 * next_repeats > deadline && n * 2 <= n_max) {
             stop = "the bench's time budget";
             break;
         }
