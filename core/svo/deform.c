@@ -75,19 +75,31 @@ static inline double dmax(double a, double b) { return a > b ? a : b; }
 
 /* Nearest float on the low / high side of v (outward rounding, so a float
  * box always contains the double box it came from). */
+/* The next float towards -inf (up = false) or +inf of a finite f. */
+static inline float float_step(float f, bool up)
+{
+    if (f == 0.0f)
+        return up ? FLT_TRUE_MIN : -FLT_TRUE_MIN;
+    uint32_t b;
+    memcpy(&b, &f, sizeof b);
+    b = ((f > 0.0f) == up) ? b + 1u : b - 1u; /* magnitude up or down */
+    memcpy(&f, &b, sizeof f);
+    return f;
+}
+
 static inline float float_down(double v)
 {
     float f = (float)v;
-    if ((double)f > v)
-        f = nextafterf(f, -INFINITY);
+    if ((double)f > v && isfinite(f))
+        f = float_step(f, false);
     return f;
 }
 
 static inline float float_up(double v)
 {
     float f = (float)v;
-    if ((double)f < v)
-        f = nextafterf(f, INFINITY);
+    if ((double)f < v && isfinite(f))
+        f = float_step(f, true);
     return f;
 }
 
@@ -335,6 +347,11 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
         size_t nsel = 0, nchild = 0;
         sel_fail *fail = &c->chunk_fail[ch];
+        /* With skinning, the moved normal is a function of (palette entries,
+         * bind normal) only, and neighbours in Morton order often share
+         * both: remember the last one (the same value either way). */
+        uint32_t memo_key = UINT32_MAX, memo_hi = 0;
+        uint8_t memo_out[2] = {0, 0};
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
@@ -438,7 +455,15 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 }
                 mr_svo_leaf *l = &c->leaf[i];
                 l->attr = (uint16_t)attr0;
-                move_normal(&a0, &a1, svo->leaves[src].normal, l->normal);
+                const uint8_t *bn = svo->leaves[src].normal;
+                const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
+                if (c->d->field || key != memo_key || attr1 != memo_hi) {
+                    move_normal(&a0, &a1, bn, memo_out);
+                    memo_key = key;
+                    memo_hi = attr1;
+                }
+                l->normal[0] = memo_out[0];
+                l->normal[1] = memo_out[1];
                 c->outcome[i] = OUT_SELECTED;
                 nsel++;
                 continue;

@@ -45,6 +45,20 @@
  * Output voxels keep their source leaf's palette entry; their normal is the
  * bind-space normal moved by the cofactor of the mean of the two extreme
  * matrices (so non-uniform scale keeps it perpendicular), in world space.
+ * The cofactor is taken times the sign of the determinant, so a mirroring
+ * matrix keeps normals outward (a voxel has no winding that would flip with
+ * it); a matrix that collapses the normal (zero scale) keeps the bind
+ * normal. A selected interior voxel takes the palette entry and bind
+ * normal of its lowest descendant leaf (the b_min extreme's).
+ *
+ * Numbers (deform.c): bind boxes and the deformation are evaluated in
+ * double and the deformed box rounded outwards to float, so it always holds
+ * the exact deformed box. Resampled cell ranges are decided with the plane
+ * arithmetic of svo_trace.h ((origin - x) + K * size * 2^-21 in double),
+ * so an emitted range covers its float box exactly as a ray cast sees it.
+ * The output cube's edge is the largest extent times (1 + 2^-20), rounded
+ * up to float (a point set of zero extent gets max(|coordinate|, 1) *
+ * 2^-20); an empty selection gives an empty octree over [0, 1]^3.
  *
  * Results do not depend on the thread count.
  */
@@ -79,7 +93,9 @@ typedef enum mr_svo_method {
  * rigid meshes: the rule of voxelize.h). Voxel palette entries name
  * (attr.mesh, attr.joints[k]).
  * Field: when field is not NULL it replaces skinning: the matrix at a
- * bind-space point (test shapes, the thesis' shear and twist sweeps). */
+ * bind-space point (test shapes, the thesis' shear and twist sweeps),
+ * called with each voxel's b_min and b_max corners. It is called from
+ * several threads at once and must be a pure function of the point. */
 typedef struct mr_svo_deformer {
     size_t mesh_count;
     const mr_affine *const *joint; /* mesh_count arrays (NULL for a rigid mesh) */
@@ -115,6 +131,9 @@ typedef struct mr_svo_extremes {
     uint16_t *lo_attr, *hi_attr; /* node_count each */
 } mr_svo_extremes;
 
+/* out is zeroed first. Errors: MR_ERR_INVALID (NULL arguments, missing
+ * arrays), MR_ERR_FORMAT (masks or child indices that do not fit, nodes
+ * without children), MR_ERR_NOMEM. */
 int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err);
 void mr_svo_extremes_free(mr_svo_extremes *e);
 
@@ -122,8 +141,13 @@ void mr_svo_extremes_free(mr_svo_extremes *e);
  * out is reset, its buffers reused and grown). max_level: deepest level to
  * refine to (clamped to svo->depth). view may be NULL (= not enabled).
  * Errors: MR_ERR_INVALID for NULL svo/extremes/deformer/out, a palette
- * entry naming a mesh or joint the deformer lacks, a non-finite matrix;
- * MR_ERR_LIMIT above 2^32 - 1 voxels; MR_ERR_NOMEM. */
+ * entry naming a mesh or joint the deformer lacks (message names the
+ * entry; joints with weight 0 are not looked at), a non-finite matrix (any
+ * of the deformer's, or the field's at some point), a bad view (non-finite
+ * view_proj, width/height/delta not > 0), extremes of another octree, a
+ * malformed octree or a deformed box beyond the float range;
+ * MR_ERR_LIMIT above 2^32 - 1 voxels; MR_ERR_NOMEM. On error out->count
+ * is 0. */
 int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
                   const mr_svo_view *view, unsigned max_level, unsigned threads,
                   mr_svo_selection *out, mr_error *err);
