@@ -136,13 +136,13 @@ static void test_fields(void **state)
  * (Fig. 25). Here the rebuilt octree's cube follows the deformed bounds, so
  * its grid is the scaled source grid and every box is one cell of it, up
  * to float rounding: the 2 x 2 x 2 subcells of level h + 1 would be the
- * box itself. Rounding decides otherwise: deform.c rounds each box outward
- * to floats (a couple of ulps of the coordinates, ~4e-6 of a depth-6 voxel
- * of this character, more than the output cube's 2^-20 growth), so a box
- * whose side should equal a cell comes out a hair wider, no longer fits
- * the cell (eq. 3.3.6 with no slack) and takes the next coarser level:
- * its block is two voxels wide and overhangs the silhouette by one voxel on
- * one side. Measured at depth 6 (factors 0.37 .. 8): resize error 0.098 ..
+ * box itself. Rounding decides otherwise: the source corners are not
+ * floats a voxel apart, and deform.c rounds each box outward to floats (an
+ * ulp of these coordinates is ~4e-6 of a depth-6 voxel, more than the
+ * output cube's 2^-20 growth), so most boxes (~70 % at scale 1) come out a
+ * hair wider than a cell, no longer fit it (eq. 3.3.6 has no slack) and
+ * take the next coarser level: their block is two voxels wide and
+ * overhangs the silhouette by one voxel on one side. Measured at depth 6 (factors 0.37 .. 8): resize error 0.098 ..
  * 0.154, all of it extra coverage (missing 0 pixels), emit 0.149 .. 0.169;
  * a reference resample of unwidened boxes gave 0 .. 0.055 instead. Bounds:
  * error <= 0.2 at every factor (about one voxel of overhang on a third of
