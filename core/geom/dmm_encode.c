@@ -7,15 +7,14 @@
  */
 #include "geom/dmm_encode.h"
 
-#include <errno.h>
-#include <fcntl.h>
 #include <float.h>
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
+
+#include "util/crc32.h"
+#include "util/file_io.h"
+#include "util/le.h"
 
 #define SHIFT_BITS 4u
 #define MAX_SHIFT 15
@@ -471,43 +470,6 @@ int mr_dmm_pyramid_build(unsigned level, const uint16_t *values, uint16_t *minv,
 
 /* ---- file */
 
-static uint32_t crc32_of(const uint8_t *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
-    }
-    return ~c;
-}
-
-static void put_u32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static uint32_t get_u32(const uint8_t *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-
-static void put_f32(uint8_t *p, float f)
-{
-    uint32_t v;
-    memcpy(&v, &f, sizeof v);
-    put_u32(p, v);
-}
-
-static float get_f32(const uint8_t *p)
-{
-    uint32_t v = get_u32(p);
-    float f;
-    memcpy(&f, &v, sizeof f);
-    return f;
-}
-
 int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_error *err)
 {
     if (buf)
@@ -522,21 +484,23 @@ int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_erro
     uint8_t *p = calloc(1, total);
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "dmm write: out of memory for %zu bytes", total);
+    mr_crc32_table crc;
+    mr_crc32_init(&crc);
     memcpy(p, file_magic, 8);
-    put_u32(p + 8, FILE_VERSION);
-    put_u32(p + 12, MR_DMM_HEADER_BYTES);
-    put_u32(p + 16, enc->level);
+    mr_le_put_u32(p + 8, FILE_VERSION);
+    mr_le_put_u32(p + 12, MR_DMM_HEADER_BYTES);
+    mr_le_put_u32(p + 16, enc->level);
     for (unsigned l = 0; l <= enc->level; l++)
         p[20 + l] = enc->bits[l]; /* bytes 20..27: widths, unused ones and padding 0 */
-    put_u32(p + 28, enc->triangle_count);
-    put_u32(p + 32, enc->records_bytes);
-    put_f32(p + 36, enc->bias);
-    put_f32(p + 40, enc->scale);
-    put_u32(p + 44, crc32_of(p, 44));
+    mr_le_put_u32(p + 28, enc->triangle_count);
+    mr_le_put_u32(p + 32, enc->records_bytes);
+    mr_le_put_f32(p + 36, enc->bias);
+    mr_le_put_f32(p + 40, enc->scale);
+    mr_le_put_u32(p + 44, mr_crc32(&crc, p, 44));
     memcpy(p + MR_DMM_HEADER_BYTES, enc->tri_info, info);
     memcpy(p + MR_DMM_HEADER_BYTES + info, enc->records, body);
-    put_u32(p + MR_DMM_HEADER_BYTES + info + body,
-            crc32_of(p + MR_DMM_HEADER_BYTES, info + body));
+    mr_le_put_u32(p + MR_DMM_HEADER_BYTES + info + body,
+            mr_crc32(&crc, p + MR_DMM_HEADER_BYTES, info + body));
     *buf = p;
     *size = total;
     return MR_OK;
@@ -555,21 +519,22 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
     for (size_t i = 0; i < 8; i++)
         if (buf[i] != file_magic[i])
             return mr_error_set(err, MR_ERR_FORMAT, "dmm file: bad magic at byte offset %zu", i);
-    uint32_t version = get_u32(buf + 8);
+    uint32_t version = mr_le_get_u32(buf + 8);
     if (version != FILE_VERSION)
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: unsupported version %u at byte offset 8 (want %u)",
                             version, FILE_VERSION);
-    if (get_u32(buf + 12) != MR_DMM_HEADER_BYTES)
+    if (mr_le_get_u32(buf + 12) != MR_DMM_HEADER_BYTES)
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header size %u at byte offset 12 (want %u)",
-                            get_u32(buf + 12), MR_DMM_HEADER_BYTES);
-    uint32_t crc = crc32_of(buf, 44);
-    if (get_u32(buf + 44) != crc)
+                            mr_le_get_u32(buf + 12), MR_DMM_HEADER_BYTES);
+    mr_crc32_table crc;
+    mr_crc32_init(&crc);
+    if (mr_le_get_u32(buf + 44) != mr_crc32(&crc, buf, 44))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header checksum mismatch at byte offset 44 "
                             "(bytes 0..43 corrupted)");
-    uint32_t level = get_u32(buf + 16);
+    uint32_t level = mr_le_get_u32(buf + 16);
     if (level > MR_UMESH_MAX_LEVEL)
         return mr_error_set(err, MR_ERR_FORMAT, "dmm file: level %u at byte offset 16 (max %u)",
                             level, MR_UMESH_MAX_LEVEL);
@@ -585,13 +550,13 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
         if (i <= MR_UMESH_MAX_LEVEL)
             bits[i] = v;
     }
-    uint32_t count = get_u32(buf + 28);
+    uint32_t count = mr_le_get_u32(buf + 28);
     if (count == 0 || count > MR_DMM_MAX_TRIANGLES)
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: triangle count %u at byte offset 28 (1..%u)", count,
                             MR_DMM_MAX_TRIANGLES);
-    uint32_t declared = get_u32(buf + 32);
-    float bias = get_f32(buf + 36), scale = get_f32(buf + 40);
+    uint32_t declared = mr_le_get_u32(buf + 32);
+    float bias = mr_le_get_f32(buf + 36), scale = mr_le_get_f32(buf + 40);
     if (!isfinite(bias))
         return mr_error_set(err, MR_ERR_FORMAT, "dmm file: non-finite bias at byte offset 36");
     if (!isfinite(scale) || !(scale > 0))
@@ -610,7 +575,7 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
                             (unsigned long long)want);
     const uint8_t *info = buf + MR_DMM_HEADER_BYTES;
     uint64_t body_end = MR_DMM_HEADER_BYTES + (uint64_t)count + declared;
-    if (get_u32(buf + body_end) != crc32_of(info, (size_t)(count + (uint64_t)declared)))
+    if (mr_le_get_u32(buf + body_end) != mr_crc32(&crc, info, (size_t)(count + (uint64_t)declared)))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: record checksum mismatch at byte offset %llu (bytes "
                             "%u..%llu corrupted)",
@@ -657,109 +622,28 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
 
 int mr_dmm_write_file(const mr_dmm_encoded *enc, const char *path, mr_error *err)
 {
-    int rc = MR_OK, fd = -1;
     uint8_t *buf = NULL;
-    char *tmp = NULL;
     size_t size = 0;
     if (!path)
         return mr_error_set(err, MR_ERR_INVALID, "dmm write: no path");
-    rc = mr_dmm_write(enc, &buf, &size, err);
-    if (rc < 0)
-        goto cleanup;
-    size_t plen = strlen(path);
-    tmp = malloc(plen + 16);
-    if (!tmp) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm write: out of memory");
-        goto cleanup;
-    }
-    memcpy(tmp, path, plen);
-    memcpy(tmp + plen, ".tmp.XXXXXX", 12);
-    fd = mkstemp(tmp);
-    if (fd < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm write: cannot create %s: %s", tmp, strerror(errno));
-        free(tmp);
-        tmp = NULL; /* nothing to unlink */
-        goto cleanup;
-    }
-    for (size_t done = 0; done < size;) {
-        ssize_t w = write(fd, buf + done, size - done);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "dmm write: writing %s: %s", tmp, strerror(errno));
-            goto cleanup;
-        }
-        done += (size_t)w;
-    }
-    if (fsync(fd) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm write: fsync %s: %s", tmp, strerror(errno));
-        goto cleanup;
-    }
-    if (close(fd) != 0) {
-        fd = -1;
-        rc = mr_error_set(err, MR_ERR_IO, "dmm write: close %s: %s", tmp, strerror(errno));
-        goto cleanup;
-    }
-    fd = -1;
-    if (rename(tmp, path) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm write: rename to %s: %s", path, strerror(errno));
-        goto cleanup;
-    }
-    free(tmp);
-    tmp = NULL;
-cleanup:
-    if (fd >= 0)
-        close(fd);
-    if (tmp) {
-        unlink(tmp);
-        free(tmp);
-    }
+    int rc = mr_dmm_write(enc, &buf, &size, err);
+    if (rc == MR_OK)
+        rc = mr_fs_write_atomic(path, buf, size, "dmm write", err);
     free(buf);
     return rc;
 }
 
 int mr_dmm_read_file(const char *path, mr_dmm_encoded **out, mr_error *err)
 {
-    int rc = MR_OK;
-    FILE *f = NULL;
-    uint8_t *buf = NULL;
     if (out)
         *out = NULL;
     if (!path || !out)
         return mr_error_set(err, MR_ERR_INVALID, "dmm read: bad arguments");
-    f = fopen(path, "rb");
-    struct stat st;
-    if (!f || fstat(fileno(f), &st) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm read: cannot open %s: %s", path, strerror(errno));
-        goto cleanup;
-    }
-    if (!S_ISREG(st.st_mode)) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm read: %s is not a regular file", path);
-        goto cleanup;
-    }
-    if ((uint64_t)st.st_size > MAX_FILE_BYTES) {
-        rc = mr_error_set(err, MR_ERR_FORMAT,
-                          "dmm file %s: %lld bytes, larger than any valid file (from byte "
-                          "offset %llu)",
-                          path, (long long)st.st_size, (unsigned long long)MAX_FILE_BYTES);
-        goto cleanup;
-    }
-    size_t size = (size_t)st.st_size;
-    buf = malloc(size ? size : 1);
-    if (!buf) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm read: out of memory for %zu bytes", size);
-        goto cleanup;
-    }
-    if (fread(buf, 1, size, f) != size) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm read: short read of %s", path);
-        goto cleanup;
-    }
-    rc = mr_dmm_read(buf, size, out, err);
-    if (rc < 0)
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    int rc = mr_fs_read_capped(path, MAX_FILE_BYTES, &buf, &size, "dmm file", err);
+    if (rc == MR_OK && (rc = mr_dmm_read(buf, size, out, err)) < 0)
         mr_error_prefix(err, "%s: ", path);
-cleanup:
-    if (f)
-        fclose(f);
     free(buf);
     return rc;
 }

@@ -11,17 +11,16 @@
  */
 #include "geom/dmm_file.h"
 
-#include <errno.h>
-#include <fcntl.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
+#include "util/crc32.h"
+#include "util/file_io.h"
+#include "util/le.h"
 #include "util/sha256.h"
 
 static const uint8_t file_magic[8] = {'M', 'R', 'D', 'M', 'B', 0, '\r', '\n'};
@@ -46,90 +45,13 @@ enum { M_INDEX = 4, M_FLAGS = 8, M_SRC_VERTICES = 12, M_SRC_JOINTS = 16, M_VERTI
 #define SKIN_BYTES (MR_MAX_INFLUENCES * 6u)
 #define TRIANGLE_BYTES 12u
 
-/* ---- little-endian fields and CRC-32 */
-
-static void put_u16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v, p[1] = (uint8_t)(v >> 8); }
-
-static void put_u32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static void put_u64(uint8_t *p, uint64_t v)
-{
-    for (int i = 0; i < 8; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static void put_f32(uint8_t *p, float f)
-{
-    uint32_t v;
-    memcpy(&v, &f, sizeof v);
-    put_u32(p, v);
-}
-
-static void put_f64(uint8_t *p, double d)
-{
-    uint64_t v;
-    memcpy(&v, &d, sizeof v);
-    put_u64(p, v);
-}
-
-static uint16_t get_u16(const uint8_t *p) { return (uint16_t)(p[0] | p[1] << 8); }
-
-static uint32_t get_u32(const uint8_t *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-
-static uint64_t get_u64(const uint8_t *p) { return get_u32(p) | (uint64_t)get_u32(p + 4) << 32; }
-
-static float get_f32(const uint8_t *p)
-{
-    uint32_t v = get_u32(p);
-    float f;
-    memcpy(&f, &v, sizeof f);
-    return f;
-}
-
-static double get_f64(const uint8_t *p)
-{
-    uint64_t v = get_u64(p);
-    double d;
-    memcpy(&d, &v, sizeof d);
-    return d;
-}
-
-/* CRC-32 of IEEE 802.3 / zlib (the one dmm_encode.c's `.mrdmm` uses), one
- * table lookup per byte: the arrays of a big base mesh are hundreds of MB. */
-typedef struct crc_table { uint32_t t[256]; } crc_table;
-
-static void crc_init(crc_table *tab)
-{
-    for (uint32_t i = 0; i < 256; i++) {
-        uint32_t c = i;
-        for (int k = 0; k < 8; k++)
-            c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
-        tab->t[i] = c;
-    }
-}
-
-static uint32_t crc32_of(const crc_table *tab, const uint8_t *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++)
-        c = tab->t[(c ^ p[i]) & 0xFFu] ^ (c >> 8);
-    return ~c;
-}
-
 /* ---- parser (reader, and the writer's read-back check) */
 
 typedef struct parser {
     const uint8_t *buf;
     size_t size;
     bool keep;      /* build mr_dmm_file (reader) or only check (writer) */
-    crc_table crc;
+    mr_crc32_table crc;
     mr_error *err;
 } parser;
 
@@ -155,22 +77,22 @@ static int parse_header(parser *p, mr_dmm_file *f)
     for (size_t i = 0; i < sizeof file_magic; i++)
         if (b[i] != file_magic[i])
             return bad(p, "bad magic at byte offset %zu", i);
-    if (get_u32(b + H_VERSION) != MR_DMM_FILE_VERSION)
-        return bad(p, "unsupported version %u at byte offset %d (want %u)", get_u32(b + H_VERSION),
+    if (mr_le_get_u32(b + H_VERSION) != MR_DMM_FILE_VERSION)
+        return bad(p, "unsupported version %u at byte offset %d (want %u)", mr_le_get_u32(b + H_VERSION),
                    H_VERSION, MR_DMM_FILE_VERSION);
-    if (get_u32(b + H_HEADER_BYTES) != MR_DMM_FILE_HEADER_BYTES)
-        return bad(p, "header size %u at byte offset %d (want %u)", get_u32(b + H_HEADER_BYTES),
+    if (mr_le_get_u32(b + H_HEADER_BYTES) != MR_DMM_FILE_HEADER_BYTES)
+        return bad(p, "header size %u at byte offset %d (want %u)", mr_le_get_u32(b + H_HEADER_BYTES),
                    H_HEADER_BYTES, MR_DMM_FILE_HEADER_BYTES);
-    if (get_u32(b + H_CRC) != crc32_of(&p->crc, b, H_CRC))
+    if (mr_le_get_u32(b + H_CRC) != mr_crc32(&p->crc, b, H_CRC))
         return bad(p, "header checksum mismatch at byte offset %d (bytes 0..%d corrupted)", H_CRC,
                    H_CRC - 1);
-    uint32_t meshes = get_u32(b + H_MESHES);
+    uint32_t meshes = mr_le_get_u32(b + H_MESHES);
     uint64_t room = (p->size - MR_DMM_FILE_HEADER_BYTES) / MR_DMM_FILE_MESH_HEADER_BYTES;
     if (meshes == 0 || meshes > room)
         return bad(p, "mesh count %u at byte offset %d (1..%llu: each mesh takes at least %u of "
                    "the %zu bytes)", meshes, H_MESHES, (unsigned long long)room,
                    MR_DMM_FILE_MESH_HEADER_BYTES, p->size);
-    uint32_t level = get_u32(b + H_LEVEL);
+    uint32_t level = mr_le_get_u32(b + H_LEVEL);
     if (level > MR_UMESH_MAX_LEVEL)
         return bad(p, "level %u at byte offset %d (max %u)", level, H_LEVEL, MR_UMESH_MAX_LEVEL);
     memset(f->bits, 0, sizeof f->bits);
@@ -206,46 +128,46 @@ static int parse_mesh_header(parser *p, const mr_dmm_file *f, uint32_t i, size_t
     for (size_t k = 0; k < sizeof mesh_tag; k++)
         if (h[k] != mesh_tag[k])
             return bad(p, "mesh %u: bad section tag at byte offset %zu", i, off + k);
-    if (get_u32(h + M_CRC) != crc32_of(&p->crc, h, M_CRC))
+    if (mr_le_get_u32(h + M_CRC) != mr_crc32(&p->crc, h, M_CRC))
         return bad(p, "mesh %u: header checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + M_CRC, off, off + M_CRC - 1);
 #define FIELD(o) (off + (size_t)(o))
-    if (get_u32(h + M_INDEX) != i)
-        return bad(p, "mesh index %u at byte offset %zu (want %u)", get_u32(h + M_INDEX),
+    if (mr_le_get_u32(h + M_INDEX) != i)
+        return bad(p, "mesh index %u at byte offset %zu (want %u)", mr_le_get_u32(h + M_INDEX),
                    FIELD(M_INDEX), i);
-    *flags = get_u32(h + M_FLAGS);
+    *flags = mr_le_get_u32(h + M_FLAGS);
     bool baked = *flags & FLAG_BAKED, skinned = *flags & FLAG_SKINNED;
     if ((*flags & ~(FLAG_BAKED | FLAG_SKINNED)) || (skinned && !baked))
         return bad(p, "mesh %u: bad flags 0x%x at byte offset %zu", i, *flags, FIELD(M_FLAGS));
     const int reserved[3] = {M_RESERVED0, M_RESERVED1, M_RESERVED2};
     for (int k = 0; k < 3; k++)
-        if (get_u32(h + reserved[k]) != 0)
+        if (mr_le_get_u32(h + reserved[k]) != 0)
             return bad(p, "mesh %u: reserved field at byte offset %zu is not 0", i,
                        FIELD(reserved[k]));
-    m->source_vertex_count = get_u32(h + M_SRC_VERTICES);
-    m->source_joint_count = get_u32(h + M_SRC_JOINTS);
+    m->source_vertex_count = mr_le_get_u32(h + M_SRC_VERTICES);
+    m->source_joint_count = mr_le_get_u32(h + M_SRC_JOINTS);
     if (m->source_vertex_count > MR_MAX_ASSET_VERTICES)
         return bad(p, "mesh %u: source vertex count %u at byte offset %zu (max %u)", i,
                    m->source_vertex_count, FIELD(M_SRC_VERTICES), MR_MAX_ASSET_VERTICES);
     if (m->source_joint_count > MR_MAX_ASSET_JOINTS)
         return bad(p, "mesh %u: source joint count %u at byte offset %zu (max %u)", i,
                    m->source_joint_count, FIELD(M_SRC_JOINTS), MR_MAX_ASSET_JOINTS);
-    *nv = get_u32(h + M_VERTICES);
-    *nt = get_u32(h + M_TRIANGLES);
-    report->fallback_count = get_u64(h + M_FALLBACKS);
-    report->sample_count = get_u64(h + M_SAMPLES);
-    report->rms_distance = get_f64(h + M_RMS);
-    report->max_distance = get_f64(h + M_MAX);
-    report->simplify_error = get_f32(h + M_SIMPLIFY);
-    *array_bytes = get_u64(h + M_ARRAY_BYTES);
-    *dmm_bytes = get_u64(h + M_DMM_BYTES);
+    *nv = mr_le_get_u32(h + M_VERTICES);
+    *nt = mr_le_get_u32(h + M_TRIANGLES);
+    report->fallback_count = mr_le_get_u64(h + M_FALLBACKS);
+    report->sample_count = mr_le_get_u64(h + M_SAMPLES);
+    report->rms_distance = mr_le_get_f64(h + M_RMS);
+    report->max_distance = mr_le_get_f64(h + M_MAX);
+    report->simplify_error = mr_le_get_f32(h + M_SIMPLIFY);
+    *array_bytes = mr_le_get_u64(h + M_ARRAY_BYTES);
+    *dmm_bytes = mr_le_get_u64(h + M_DMM_BYTES);
     if (!baked) {
         /* a mesh without triangles: nothing but its source counts */
         const int zero[] = {M_VERTICES, M_TRIANGLES, M_FALLBACKS, M_FALLBACKS + 4, M_SAMPLES,
                             M_SAMPLES + 4, M_RMS, M_RMS + 4, M_MAX, M_MAX + 4, M_SIMPLIFY,
                             M_ARRAY_BYTES, M_ARRAY_BYTES + 4, M_DMM_BYTES, M_DMM_BYTES + 4};
         for (size_t k = 0; k < sizeof zero / sizeof zero[0]; k++)
-            if (get_u32(h + zero[k]) != 0)
+            if (mr_le_get_u32(h + zero[k]) != 0)
                 return bad(p, "mesh %u has no DMM but byte offset %zu is not 0", i,
                            FIELD(zero[k]));
         return MR_OK;
@@ -322,14 +244,14 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
     const uint8_t *a = p->buf + off;
     bool skinned = flags & FLAG_SKINNED;
     size_t n = (size_t)nv * (VERTEX_BYTES + (skinned ? SKIN_BYTES : 0)) + (size_t)nt * TRIANGLE_BYTES;
-    if (get_u32(a + n) != crc32_of(&p->crc, a, n))
+    if (mr_le_get_u32(a + n) != mr_crc32(&p->crc, a, n))
         return bad(p, "mesh %u: array checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + n, off, off + n - 1);
     size_t pos_at = 0, dir_at = pos_at + (size_t)nv * 12, idx_at = dir_at + (size_t)nv * 12;
     size_t src_at = idx_at + (size_t)nt * 12, joint_at = src_at + (size_t)nv * 4;
     size_t weight_at = joint_at + (size_t)nv * MR_MAX_INFLUENCES * 2;
     for (size_t k = 0; k < (size_t)nv * 3; k++) {
-        float x = get_f32(a + pos_at + k * 4), d = get_f32(a + dir_at + k * 4);
+        float x = mr_le_get_f32(a + pos_at + k * 4), d = mr_le_get_f32(a + dir_at + k * 4);
         if (!isfinite(x))
             return bad(p, "mesh %u: base position %zu at byte offset %zu is not finite", i, k / 3,
                        off + pos_at + k * 4);
@@ -340,7 +262,7 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
             b->base_positions[k] = x, b->base_directions[k] = d;
     }
     for (size_t k = 0; k < (size_t)nt * 3; k++) {
-        uint32_t v = get_u32(a + idx_at + k * 4);
+        uint32_t v = mr_le_get_u32(a + idx_at + k * 4);
         if (v >= nv)
             return bad(p, "mesh %u: base index %u at byte offset %zu is not below the %u base "
                        "vertices", i, v, off + idx_at + k * 4, nv);
@@ -348,7 +270,7 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
             b->base_indices[k] = v;
     }
     for (size_t k = 0; k < nv; k++) {
-        uint32_t s = get_u32(a + src_at + k * 4);
+        uint32_t s = mr_le_get_u32(a + src_at + k * 4);
         if (s >= m->source_vertex_count)
             return bad(p, "mesh %u: source vertex %u at byte offset %zu is not below the %u "
                        "source vertices", i, s, off + src_at + k * 4, m->source_vertex_count);
@@ -358,8 +280,8 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
     if (!skinned)
         return MR_OK;
     for (size_t k = 0; k < (size_t)nv * MR_MAX_INFLUENCES; k++) {
-        uint16_t j = get_u16(a + joint_at + k * 2);
-        float w = get_f32(a + weight_at + k * 4);
+        uint16_t j = mr_le_get_u16(a + joint_at + k * 2);
+        float w = mr_le_get_f32(a + weight_at + k * 4);
         if (!isfinite(w))
             return bad(p, "mesh %u: weight at byte offset %zu is not finite", i,
                        off + weight_at + k * 4);
@@ -515,7 +437,7 @@ int mr_dmm_file_read(const uint8_t *buf, size_t size, mr_dmm_file **out, mr_erro
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "dmm bake file: out of memory");
     *p = (parser){.buf = buf, .size = size, .keep = true, .err = err};
-    crc_init(&p->crc);
+    mr_crc32_init(&p->crc);
     int rc = parse(p, out);
     free(p);
     return rc;
@@ -572,27 +494,27 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
         goto cleanup;
     }
     *p = (parser){.buf = out, .size = (size_t)total, .keep = false, .err = err};
-    crc_init(&p->crc);
+    mr_crc32_init(&p->crc);
     memcpy(out, file_magic, sizeof file_magic);
-    put_u32(out + H_VERSION, MR_DMM_FILE_VERSION);
-    put_u32(out + H_HEADER_BYTES, MR_DMM_FILE_HEADER_BYTES);
-    put_u32(out + H_MESHES, f->mesh_count);
-    put_u32(out + H_LEVEL, f->level);
+    mr_le_put_u32(out + H_VERSION, MR_DMM_FILE_VERSION);
+    mr_le_put_u32(out + H_HEADER_BYTES, MR_DMM_FILE_HEADER_BYTES);
+    mr_le_put_u32(out + H_MESHES, f->mesh_count);
+    mr_le_put_u32(out + H_LEVEL, f->level);
     memcpy(out + H_BITS, bits, f->level + 1);
     memcpy(out + H_KEY, f->key, MR_DMM_KEY_BYTES);
-    put_u32(out + H_CRC, crc32_of(&p->crc, out, H_CRC));
+    mr_le_put_u32(out + H_CRC, mr_crc32(&p->crc, out, H_CRC));
     size_t off = MR_DMM_FILE_HEADER_BYTES;
     for (uint32_t i = 0; i < f->mesh_count; i++) {
         const mr_dmm_file_mesh *m = &f->meshes[i];
         const mr_dmm_bake *b = m->bake;
         uint8_t *h = out + off;
         memcpy(h, mesh_tag, sizeof mesh_tag);
-        put_u32(h + M_INDEX, i);
-        put_u32(h + M_SRC_VERTICES, m->source_vertex_count);
-        put_u32(h + M_SRC_JOINTS, m->source_joint_count);
+        mr_le_put_u32(h + M_INDEX, i);
+        mr_le_put_u32(h + M_SRC_VERTICES, m->source_vertex_count);
+        mr_le_put_u32(h + M_SRC_JOINTS, m->source_joint_count);
         off += MR_DMM_FILE_MESH_HEADER_BYTES;
         if (!b) {
-            put_u32(h + M_CRC, crc32_of(&p->crc, h, M_CRC));
+            mr_le_put_u32(h + M_CRC, mr_crc32(&p->crc, h, M_CRC));
             continue;
         }
         uint32_t nv = b->base_vertex_count, nt = b->base_triangle_count;
@@ -605,38 +527,38 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
             mr_error_prefix(err, "dmm bake file write: mesh %u: ", i);
             goto cleanup;
         }
-        put_u32(h + M_FLAGS, FLAG_BAKED | (skinned ? FLAG_SKINNED : 0));
-        put_u32(h + M_VERTICES, nv);
-        put_u32(h + M_TRIANGLES, nt);
-        put_u64(h + M_FALLBACKS, b->fallback_count);
-        put_u64(h + M_SAMPLES, b->sample_count);
-        put_f64(h + M_RMS, b->rms_distance);
-        put_f64(h + M_MAX, b->max_distance);
-        put_f32(h + M_SIMPLIFY, b->simplify_error);
-        put_u64(h + M_ARRAY_BYTES, arrays);
-        put_u64(h + M_DMM_BYTES, block_size);
-        put_u32(h + M_CRC, crc32_of(&p->crc, h, M_CRC));
+        mr_le_put_u32(h + M_FLAGS, FLAG_BAKED | (skinned ? FLAG_SKINNED : 0));
+        mr_le_put_u32(h + M_VERTICES, nv);
+        mr_le_put_u32(h + M_TRIANGLES, nt);
+        mr_le_put_u64(h + M_FALLBACKS, b->fallback_count);
+        mr_le_put_u64(h + M_SAMPLES, b->sample_count);
+        mr_le_put_f64(h + M_RMS, b->rms_distance);
+        mr_le_put_f64(h + M_MAX, b->max_distance);
+        mr_le_put_f32(h + M_SIMPLIFY, b->simplify_error);
+        mr_le_put_u64(h + M_ARRAY_BYTES, arrays);
+        mr_le_put_u64(h + M_DMM_BYTES, block_size);
+        mr_le_put_u32(h + M_CRC, mr_crc32(&p->crc, h, M_CRC));
         uint8_t *a = out + off;
         for (size_t k = 0; k < (size_t)nv * 3; k++)
-            put_f32(a + k * 4, b->base_positions[k]);
+            mr_le_put_f32(a + k * 4, b->base_positions[k]);
         a += (size_t)nv * 12;
         for (size_t k = 0; k < (size_t)nv * 3; k++)
-            put_f32(a + k * 4, b->base_directions[k]);
+            mr_le_put_f32(a + k * 4, b->base_directions[k]);
         a += (size_t)nv * 12;
         for (size_t k = 0; k < (size_t)nt * 3; k++)
-            put_u32(a + k * 4, b->base_indices[k]);
+            mr_le_put_u32(a + k * 4, b->base_indices[k]);
         a += (size_t)nt * 12;
         for (size_t k = 0; k < nv; k++)
-            put_u32(a + k * 4, b->base_source[k]);
+            mr_le_put_u32(a + k * 4, b->base_source[k]);
         a += (size_t)nv * 4;
         if (skinned) {
             for (size_t k = 0; k < (size_t)nv * MR_MAX_INFLUENCES; k++)
-                put_u16(a + k * 2, b->joints[k]);
+                mr_le_put_u16(a + k * 2, b->joints[k]);
             a += (size_t)nv * MR_MAX_INFLUENCES * 2;
             for (size_t k = 0; k < (size_t)nv * MR_MAX_INFLUENCES; k++)
-                put_f32(a + k * 4, b->weights[k]);
+                mr_le_put_f32(a + k * 4, b->weights[k]);
         }
-        put_u32(out + off + arrays, crc32_of(&p->crc, out + off, arrays));
+        mr_le_put_u32(out + off + arrays, mr_crc32(&p->crc, out + off, arrays));
         off += arrays + 4;
         /* the size check above used the same record size mr_dmm_write does */
         memcpy(out + off, block, block_size);
@@ -658,198 +580,35 @@ cleanup:
     return rc;
 }
 
-/* Directory part of path into a malloc'ed string ("." when there is none). */
-static char *dir_of(const char *path)
-{
-    const char *slash = strrchr(path, '/');
-    if (!slash)
-        return strdup(".");
-    size_t n = slash == path ? 1 : (size_t)(slash - path);
-    char *d = malloc(n + 1);
-    if (d) {
-        memcpy(d, path, n);
-        d[n] = '\0';
-    }
-    return d;
-}
-
 int mr_dmm_file_write_path(const mr_dmm_file *f, const char *path, mr_error *err)
 {
-    int rc = MR_OK, fd = -1;
     uint8_t *buf = NULL;
-    char *tmp = NULL, *dir = NULL;
     size_t size = 0;
     if (!path || !path[0])
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file write: no path");
-    if ((rc = mr_dmm_file_write(f, &buf, &size, err)) < 0)
-        return rc;
-    size_t plen = strlen(path);
-    tmp = malloc(plen + 12);
-    dir = dir_of(path);
-    if (!tmp || !dir) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm bake file write: out of memory");
-        goto cleanup;
-    }
-    /* a unique name: two jobs may store the same bake at once (the last
-     * rename wins, with the same content) */
-    memcpy(tmp, path, plen);
-    memcpy(tmp + plen, ".tmpXXXXXX", 11);
-    if ((fd = mkstemp(tmp)) < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: cannot create %s: %s", tmp,
-                          strerror(errno));
-        tmp[0] = '\0'; /* nothing to unlink */
-        goto cleanup;
-    }
-    (void)fchmod(fd, 0644); /* mkstemp's 0600 would hide the cache from other users */
-    for (size_t done = 0; done < size;) {
-        ssize_t w = write(fd, buf + done, size - done);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: writing %s: %s", tmp,
-                              w < 0 ? strerror(errno) : "no progress");
-            goto cleanup;
-        }
-        done += (size_t)w;
-    }
-    if (fsync(fd) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: fsync %s: %s", tmp,
-                          strerror(errno));
-        goto cleanup;
-    }
-    int closed = close(fd);
-    fd = -1;
-    if (closed != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: close %s: %s", tmp,
-                          strerror(errno));
-        goto cleanup;
-    }
-    if (rename(tmp, path) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: rename to %s: %s", path,
-                          strerror(errno));
-        goto cleanup;
-    }
-    tmp[0] = '\0';
-    /* the rename itself is durable only once the directory is synced */
-    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd < 0 || (fsync(dfd) != 0 && errno != EINVAL)) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file write: fsync of directory %s: %s", dir,
-                          strerror(errno));
-    }
-    if (dfd >= 0)
-        close(dfd);
-cleanup:
-    if (fd >= 0)
-        close(fd);
-    if (tmp && tmp[0])
-        unlink(tmp);
-    free(tmp);
-    free(dir);
+    int rc = mr_dmm_file_write(f, &buf, &size, err);
+    if (rc == MR_OK)
+        rc = mr_fs_write_atomic(path, buf, size, "dmm bake file write", err);
     free(buf);
     return rc;
 }
 
 int mr_dmm_file_read_path(const char *path, mr_dmm_file **out, mr_error *err)
 {
-    int rc = MR_OK, fd = -1;
-    uint8_t *buf = NULL;
     if (out)
         *out = NULL;
     if (!path || !out)
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
-    /* O_NONBLOCK: a FIFO planted under the name must not block the job */
-    fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
-    struct stat st;
-    if (fd < 0 || fstat(fd, &st) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file: cannot open %s: %s", path,
-                          strerror(errno));
-        goto cleanup;
-    }
-    if (!S_ISREG(st.st_mode)) {
-        rc = mr_error_set(err, MR_ERR_IO, "dmm bake file: %s is not a regular file", path);
-        goto cleanup;
-    }
-    if ((uint64_t)st.st_size > MR_DMM_FILE_MAX_BYTES) {
-        rc = mr_error_set(err, MR_ERR_FORMAT,
-                          "dmm bake file %s: %lld bytes, larger than any valid file (from byte "
-                          "offset %llu)", path, (long long)st.st_size,
-                          (unsigned long long)MR_DMM_FILE_MAX_BYTES);
-        goto cleanup;
-    }
-    size_t size = (size_t)st.st_size, got = 0;
-    if (!(buf = malloc(size ? size : 1))) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm bake file: out of memory for %zu bytes", size);
-        goto cleanup;
-    }
-    while (got < size) {
-        ssize_t r = read(fd, buf + got, size - got);
-        if (r < 0 && errno == EINTR)
-            continue;
-        if (r < 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "dmm bake file: reading %s: %s", path,
-                              strerror(errno));
-            goto cleanup;
-        }
-        if (r == 0)
-            break; /* shrank since fstat: parsed as the truncated file it now is */
-        got += (size_t)r;
-    }
-    if ((rc = mr_dmm_file_read(buf, got, out, err)) < 0)
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    int rc = mr_fs_read_capped(path, MR_DMM_FILE_MAX_BYTES, &buf, &size, "dmm bake file", err);
+    if (rc == MR_OK && (rc = mr_dmm_file_read(buf, size, out, err)) < 0)
         mr_error_prefix(err, "%s: ", path);
-cleanup:
-    if (fd >= 0)
-        close(fd);
     free(buf);
     return rc;
 }
 
 /* ---- the cache */
-
-/* Feeds values little-endian through a small buffer. */
-typedef struct le_feed {
-    mr_sha256 *s;
-    uint8_t buf[4096];
-    size_t used;
-} le_feed;
-
-static void feed_flush(le_feed *h)
-{
-    mr_sha256_update(h->s, h->buf, h->used);
-    h->used = 0;
-}
-
-static void feed_u32(le_feed *h, uint32_t v)
-{
-    if (h->used + 4 > sizeof h->buf)
-        feed_flush(h);
-    put_u32(h->buf + h->used, v);
-    h->used += 4;
-}
-
-static void feed_u16s(le_feed *h, const uint16_t *a, size_t n)
-{
-    for (size_t i = 0; i < n; i++) {
-        if (h->used + 2 > sizeof h->buf)
-            feed_flush(h);
-        put_u16(h->buf + h->used, a[i]);
-        h->used += 2;
-    }
-}
-
-static void feed_u32s(le_feed *h, const uint32_t *a, size_t n)
-{
-    for (size_t i = 0; i < n; i++)
-        feed_u32(h, a[i]);
-}
-
-static void feed_f32s(le_feed *h, const float *a, size_t n)
-{
-    for (size_t i = 0; i < n; i++) {
-        uint32_t v;
-        memcpy(&v, &a[i], sizeof v);
-        feed_u32(h, v);
-    }
-}
 
 static bool mesh_skinned(const mr_mesh *m)
 {
@@ -861,37 +620,35 @@ void mr_dmm_cache_key(const mr_asset *asset, const mr_dmm_bake_params *params,
                       const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], uint8_t key[MR_DMM_KEY_BYTES])
 {
     static const char domain[] = "microray baked dmm cache";
-    mr_sha256 s;
-    mr_sha256_init(&s);
-    mr_sha256_update(&s, domain, sizeof domain);
-    le_feed feed = {.s = &s, .used = 0}, *h = &feed;
-    feed_u32(h, MR_DMM_FILE_VERSION);
-    feed_u32(h, MR_DMM_BAKER_REVISION);
-    feed_u32(h, (uint32_t)asset->mesh_count);
+    mr_sha256_feed feed, *h = &feed;
+    mr_sha256_feed_init(h);
+    mr_sha256_feed_bytes(h, domain, sizeof domain);
+    mr_sha256_feed_u32(h, MR_DMM_FILE_VERSION);
+    mr_sha256_feed_u32(h, MR_DMM_BAKER_REVISION);
+    mr_sha256_feed_u32(h, (uint32_t)asset->mesh_count);
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
         bool skinned = mesh_skinned(m);
-        feed_u32(h, m->vertex_count);
-        feed_u32(h, m->triangle_count);
-        feed_u32(h, m->joint_count);
-        feed_u32(h, skinned);
-        feed_f32s(h, m->positions, (size_t)m->vertex_count * 3);
-        feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
+        mr_sha256_feed_u32(h, m->vertex_count);
+        mr_sha256_feed_u32(h, m->triangle_count);
+        mr_sha256_feed_u32(h, m->joint_count);
+        mr_sha256_feed_u32(h, skinned);
+        mr_sha256_feed_f32s(h, m->positions, (size_t)m->vertex_count * 3);
+        mr_sha256_feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
         if (skinned) {
-            feed_u16s(h, m->joints, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
-            feed_f32s(h, m->weights, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
+            mr_sha256_feed_u16s(h, m->joints, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
+            mr_sha256_feed_f32s(h, m->weights, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
         }
     }
-    feed_u32(h, params->level);
-    feed_u32(h, params->adaptive);
-    feed_u32(h, params->target_triangles);
-    feed_f32s(h, &params->target_ratio, 1);
-    feed_f32s(h, &params->max_error, 1);
-    feed_f32s(h, &params->max_displacement, 1);
+    mr_sha256_feed_u32(h, params->level);
+    mr_sha256_feed_u32(h, params->adaptive);
+    mr_sha256_feed_u32(h, params->target_triangles);
+    mr_sha256_feed_f32s(h, &params->target_ratio, 1);
+    mr_sha256_feed_f32s(h, &params->max_error, 1);
+    mr_sha256_feed_f32s(h, &params->max_displacement, 1);
     for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
-        feed_u32(h, bits[l]);
-    feed_flush(h);
-    mr_sha256_final(&s, key);
+        mr_sha256_feed_u32(h, bits[l]);
+    mr_sha256_feed_final(h, key);
 }
 
 int mr_dmm_cache_path(const char *dir, const uint8_t key[MR_DMM_KEY_BYTES], char **path,
@@ -970,34 +727,6 @@ int mr_dmm_cache_load(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
     return MR_OK;
 }
 
-/* mkdir -p with mode 0755. */
-static int make_dirs(const char *dir, mr_error *err)
-{
-    char *buf = strdup(dir);
-    if (!buf)
-        return mr_error_set(err, MR_ERR_NOMEM, "dmm cache: out of memory");
-    int rc = MR_OK;
-    for (char *p = buf + 1;; p++) {
-        if (*p != '/' && *p != '\0')
-            continue;
-        char c = *p;
-        *p = '\0';
-        if (mkdir(buf, 0755) != 0 && errno != EEXIST) {
-            rc = mr_error_set(err, MR_ERR_IO, "dmm cache: cannot create directory %s: %s", buf,
-                              strerror(errno));
-            break;
-        }
-        *p = c;
-        if (c == '\0')
-            break;
-    }
-    struct stat st;
-    if (rc == MR_OK && (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode)))
-        rc = mr_error_set(err, MR_ERR_IO, "dmm cache: %s is not a directory", dir);
-    free(buf);
-    return rc;
-}
-
 int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
                        const mr_asset *asset, unsigned level,
                        const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], mr_dmm_bake *const *bakes,
@@ -1009,7 +738,7 @@ int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
     memcpy(f.bits, bits, sizeof f.bits);
     memcpy(f.key, key, MR_DMM_KEY_BYTES);
     f.meshes = calloc(asset->mesh_count, sizeof *f.meshes);
-    char *dir = dir_of(path);
+    char *dir = mr_fs_dir_of(path);
     int rc = MR_OK;
     if (!f.meshes || !dir) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "dmm cache store: out of memory");
@@ -1020,7 +749,7 @@ int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
                                          .source_joint_count = asset->meshes[i].joint_count,
                                          .bake = bakes[i],
                                          .encoded = encoded[i]};
-    if ((rc = make_dirs(dir, err)) == MR_OK)
+    if ((rc = mr_fs_make_dirs(dir, "dmm cache", err)) == MR_OK)
         rc = mr_dmm_file_write_path(&f, path, err);
 cleanup:
     free(f.meshes);

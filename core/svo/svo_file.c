@@ -11,16 +11,15 @@
  */
 #include "svo/svo_file.h"
 
-#include <errno.h>
-#include <fcntl.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
+#include "util/crc32.h"
+#include "util/file_io.h"
+#include "util/le.h"
 #include "util/sha256.h"
 
 static const uint8_t file_magic[8] = {'M', 'R', 'S', 'V', 'O', 0, '\r', '\n'};
@@ -39,310 +38,13 @@ _Static_assert(H_CRC + 4 == MR_SVO_FILE_HEADER_BYTES, "header layout");
 #define ATTR_BYTES 16u
 
 /* ======================================================================
- * Helpers that dmm_file.c has as static functions of its own (little-endian
- * fields, CRC-32, whole-file read, atomic file write, mkdir -p, hashing
- * little-endian values). Written again here only until they move to
- * core/util, where both files should share one copy.
- * ====================================================================== */
-
-static void le_put16(uint8_t *p, uint16_t v)
-{
-    p[0] = (uint8_t)(v & 0xFFu);
-    p[1] = (uint8_t)(v >> 8);
-}
-
-static void le_put32(uint8_t *p, uint32_t v)
-{
-    le_put16(p, (uint16_t)(v & 0xFFFFu));
-    le_put16(p + 2, (uint16_t)(v >> 16));
-}
-
-static void le_put64(uint8_t *p, uint64_t v)
-{
-    le_put32(p, (uint32_t)(v & 0xFFFFFFFFu));
-    le_put32(p + 4, (uint32_t)(v >> 32));
-}
-
-static uint32_t f32_bits(float f)
-{
-    uint32_t v;
-    memcpy(&v, &f, sizeof v);
-    return v;
-}
-
-static uint16_t le_get16(const uint8_t *p) { return (uint16_t)(p[0] | (unsigned)p[1] << 8); }
-
-static uint32_t le_get32(const uint8_t *p)
-{
-    return (uint32_t)le_get16(p) | (uint32_t)le_get16(p + 2) << 16;
-}
-
-static uint64_t le_get64(const uint8_t *p)
-{
-    return (uint64_t)le_get32(p) | (uint64_t)le_get32(p + 4) << 32;
-}
-
-static float le_getf(const uint8_t *p)
-{
-    uint32_t v = le_get32(p);
-    float f;
-    memcpy(&f, &v, sizeof f);
-    return f;
-}
-
-/* CRC-32 of IEEE 802.3 / zlib (reflected 0xEDB88320, init and final xor
- * all ones), byte-wise table: a depth-10 octree is megabytes. */
-typedef struct crc32_table {
-    uint32_t t[256];
-} crc32_table;
-
-static void crc32_table_init(crc32_table *tab)
-{
-    for (uint32_t n = 0; n < 256; n++) {
-        uint32_t r = n;
-        for (unsigned b = 0; b < 8; b++)
-            r = (r & 1u) ? 0xEDB88320u ^ (r >> 1) : r >> 1;
-        tab->t[n] = r;
-    }
-}
-
-static uint32_t crc32_buf(const crc32_table *tab, const uint8_t *p, size_t n)
-{
-    uint32_t r = ~0u;
-    while (n--)
-        r = tab->t[(r ^ *p++) & 0xFFu] ^ (r >> 8);
-    return ~r;
-}
-
-/* Directory part of path, malloc'ed ("." without a slash, "/" for "/x"). */
-static char *path_dir(const char *path)
-{
-    const char *slash = strrchr(path, '/');
-    if (!slash)
-        return strdup(".");
-    size_t len = slash > path ? (size_t)(slash - path) : 1;
-    return strndup(path, len);
-}
-
-/* Reads a whole regular file (at most max bytes) into a malloc'ed buffer.
- * MR_ERR_IO: cannot open or read, not a regular file; MR_ERR_FORMAT: larger
- * than max (refused before reading). */
-static int file_read_all(const char *path, uint64_t max, uint8_t **buf, size_t *size,
-                         mr_error *err)
-{
-    *buf = NULL;
-    *size = 0;
-    /* O_NONBLOCK: a FIFO planted under the name must not block the caller */
-    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0)
-        return mr_error_set(err, MR_ERR_IO, "svo file: cannot open %s: %s", path,
-                            strerror(errno));
-    int rc = MR_OK;
-    uint8_t *data = NULL;
-    struct stat st;
-    if (fstat(fd, &st) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file: cannot stat %s: %s", path, strerror(errno));
-        goto done;
-    }
-    if (!S_ISREG(st.st_mode)) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file: %s is not a regular file", path);
-        goto done;
-    }
-    if (st.st_size < 0 || (uint64_t)st.st_size > max) {
-        rc = mr_error_set(err, MR_ERR_FORMAT,
-                          "svo file %s: %lld bytes, more than any valid file (limit %llu, from "
-                          "byte offset %llu on)", path, (long long)st.st_size,
-                          (unsigned long long)max, (unsigned long long)max);
-        goto done;
-    }
-    size_t want = (size_t)st.st_size, got = 0;
-    data = malloc(want ? want : 1);
-    if (!data) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "svo file: out of memory for %zu bytes", want);
-        goto done;
-    }
-    while (got < want) {
-        ssize_t r = read(fd, data + got, want - got);
-        if (r < 0 && errno == EINTR)
-            continue;
-        if (r < 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "svo file: reading %s: %s", path, strerror(errno));
-            goto done;
-        }
-        if (r == 0)
-            break; /* shrank since fstat: parsed as the truncated file it now is */
-        got += (size_t)r;
-    }
-    *buf = data;
-    *size = got;
-    data = NULL;
-done:
-    free(data);
-    close(fd);
-    return rc;
-}
-
-/* Writes buf to path atomically: <path>.tmpXXXXXX in the same directory
- * (mode 0644), fsync, rename over path, fsync of the directory so the
- * rename survives a crash. MR_ERR_IO names the failing step. */
-static int file_write_atomic(const char *path, const uint8_t *buf, size_t size, mr_error *err)
-{
-    int rc = MR_OK, fd = -1;
-    size_t n = strlen(path);
-    char *tmp = malloc(n + sizeof ".tmpXXXXXX");
-    char *dir = path_dir(path);
-    if (!tmp || !dir) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "svo file write: out of memory");
-        goto done;
-    }
-    /* unique per writer: two jobs may store the same octree at once; the
-     * last rename wins with the same content */
-    snprintf(tmp, n + sizeof ".tmpXXXXXX", "%s.tmpXXXXXX", path);
-    if ((fd = mkstemp(tmp)) < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file write: cannot create %s: %s", tmp,
-                          strerror(errno));
-        free(tmp);
-        tmp = NULL; /* nothing to remove */
-        goto done;
-    }
-    (void)fchmod(fd, 0644); /* mkstemp's 0600 would hide the cache from other users */
-    size_t off = 0;
-    while (off < size) {
-        ssize_t w = write(fd, buf + off, size - off);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "svo file write: writing %s: %s", tmp,
-                              w < 0 ? strerror(errno) : "no progress");
-            goto done;
-        }
-        off += (size_t)w;
-    }
-    if (fsync(fd) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file write: fsync %s: %s", tmp, strerror(errno));
-        goto done;
-    }
-    int c = close(fd);
-    fd = -1;
-    if (c != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file write: close %s: %s", tmp, strerror(errno));
-        goto done;
-    }
-    if (rename(tmp, path) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "svo file write: rename %s to %s: %s", tmp, path,
-                          strerror(errno));
-        goto done;
-    }
-    free(tmp);
-    tmp = NULL;
-    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    /* EINVAL: file systems that cannot sync a directory */
-    if (dfd < 0 || (fsync(dfd) != 0 && errno != EINVAL))
-        rc = mr_error_set(err, MR_ERR_IO, "svo file write: fsync of directory %s: %s", dir,
-                          strerror(errno));
-    if (dfd >= 0)
-        close(dfd);
-done:
-    if (fd >= 0)
-        close(fd);
-    if (tmp)
-        unlink(tmp);
-    free(tmp);
-    free(dir);
-    return rc;
-}
-
-/* mkdir -p dir (mode 0755); MR_ERR_IO when a component cannot be made or
- * dir is not a directory in the end. */
-static int make_dir_tree(const char *dir, mr_error *err)
-{
-    char *d = strdup(dir);
-    if (!d)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo cache: out of memory");
-    int rc = MR_OK;
-    size_t n = strlen(d);
-    for (size_t i = 1; i <= n && rc == MR_OK; i++) {
-        if (d[i] != '/' && d[i] != '\0')
-            continue;
-        char saved = d[i];
-        d[i] = '\0';
-        if (mkdir(d, 0755) != 0 && errno != EEXIST)
-            rc = mr_error_set(err, MR_ERR_IO, "svo cache: cannot create directory %s: %s", d,
-                              strerror(errno));
-        d[i] = saved;
-    }
-    struct stat st;
-    if (rc == MR_OK && (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode)))
-        rc = mr_error_set(err, MR_ERR_IO, "svo cache: %s is not a directory", dir);
-    free(d);
-    return rc;
-}
-
-/* Values into a SHA-256, little-endian, through a small buffer. */
-typedef struct hash_feed {
-    mr_sha256 sha;
-    uint8_t buf[4096];
-    size_t used;
-} hash_feed;
-
-static void feed_room(hash_feed *h, size_t need)
-{
-    if (h->used + need > sizeof h->buf) {
-        mr_sha256_update(&h->sha, h->buf, h->used);
-        h->used = 0;
-    }
-}
-
-static void feed_u32(hash_feed *h, uint32_t v)
-{
-    feed_room(h, 4);
-    le_put32(h->buf + h->used, v);
-    h->used += 4;
-}
-
-static void feed_u64(hash_feed *h, uint64_t v)
-{
-    feed_room(h, 8);
-    le_put64(h->buf + h->used, v);
-    h->used += 8;
-}
-
-static void feed_u16s(hash_feed *h, const uint16_t *v, size_t n)
-{
-    for (size_t i = 0; i < n; i++) {
-        feed_room(h, 2);
-        le_put16(h->buf + h->used, v[i]);
-        h->used += 2;
-    }
-}
-
-static void feed_u32s(hash_feed *h, const uint32_t *v, size_t n)
-{
-    for (size_t i = 0; i < n; i++)
-        feed_u32(h, v[i]);
-}
-
-static void feed_f32s(hash_feed *h, const float *v, size_t n)
-{
-    for (size_t i = 0; i < n; i++)
-        feed_u32(h, f32_bits(v[i]));
-}
-
-static void feed_final(hash_feed *h, uint8_t digest[32])
-{
-    mr_sha256_update(&h->sha, h->buf, h->used);
-    h->used = 0;
-    mr_sha256_final(&h->sha, digest);
-}
-
-/* ======================================================================
  * Parser (the reader, and the writer's read-back check)
  * ====================================================================== */
 
 typedef struct parser {
     const uint8_t *buf;
     size_t size;
-    crc32_table crc;
+    mr_crc32_table crc;
     mr_error *err;
 } parser;
 
@@ -388,46 +90,46 @@ static int parse_header(parser *p, mr_svo *s, mr_svo_file_meta *meta)
     for (size_t i = 0; i < sizeof file_magic; i++)
         if (b[i] != file_magic[i])
             return bad(p, "bad magic at byte offset %zu (not an .mrsvo file)", i);
-    uint32_t version = le_get32(b + H_VERSION);
+    uint32_t version = mr_le_get_u32(b + H_VERSION);
     if (version != MR_SVO_FILE_VERSION)
         return bad(p, "unsupported version %u at byte offset %d (want %u)", version, H_VERSION,
                    MR_SVO_FILE_VERSION);
-    uint32_t hb = le_get32(b + H_HEADER_BYTES);
+    uint32_t hb = mr_le_get_u32(b + H_HEADER_BYTES);
     if (hb != MR_SVO_FILE_HEADER_BYTES)
         return bad(p, "header_bytes %u at byte offset %d (want %u)", hb, H_HEADER_BYTES,
                    MR_SVO_FILE_HEADER_BYTES);
-    if (le_get32(b + H_CRC) != crc32_buf(&p->crc, b, H_CRC))
+    if (mr_le_get_u32(b + H_CRC) != mr_crc32(&p->crc, b, H_CRC))
         return bad(p, "header checksum mismatch at byte offset %d (bytes 0..%d corrupted)", H_CRC,
                    H_CRC - 1);
-    uint32_t flags = le_get32(b + H_FLAGS);
+    uint32_t flags = mr_le_get_u32(b + H_FLAGS);
     if ((flags & ~(uint32_t)(MR_SVO_FILE_VOXELIZED | MR_SVO_FILE_SOLID)) ||
         ((flags & MR_SVO_FILE_SOLID) && !(flags & MR_SVO_FILE_VOXELIZED)))
         return bad(p, "flags %#x at byte offset %d (known: 1 voxelized, 2 solid with 1)", flags,
                    H_FLAGS);
-    uint32_t depth = le_get32(b + H_DEPTH);
+    uint32_t depth = mr_le_get_u32(b + H_DEPTH);
     if (depth < 1 || depth > MR_SVO_MAX_DEPTH)
         return bad(p, "depth %u at byte offset %d (want 1..%u)", depth, H_DEPTH,
                    MR_SVO_MAX_DEPTH);
     float o[3];
     for (int k = 0; k < 3; k++) {
-        o[k] = le_getf(b + H_ORIGIN + 4 * k);
+        o[k] = mr_le_get_f32(b + H_ORIGIN + 4 * k);
         if (!isfinite(o[k]))
             return bad(p, "origin.%c at byte offset %d is not finite", "xyz"[k], H_ORIGIN + 4 * k);
     }
-    float size = le_getf(b + H_SIZE);
+    float size = mr_le_get_f32(b + H_SIZE);
     if (!isfinite(size) || !(size > 0.0f))
         return bad(p, "cube size %g at byte offset %d (want finite and > 0)", (double)size,
                    H_SIZE);
-    uint32_t n = le_get32(b + H_NODES), l = le_get32(b + H_LEAVES), pc = le_get32(b + H_PALETTE);
+    uint32_t n = mr_le_get_u32(b + H_NODES), l = mr_le_get_u32(b + H_LEAVES), pc = mr_le_get_u32(b + H_PALETTE);
     if (pc > MR_SVO_MAX_PALETTE)
         return bad(p, "palette_count %u at byte offset %d (max %u)", pc, H_PALETTE,
                    MR_SVO_MAX_PALETTE);
     if (n == 0 && l > 1)
         return bad(p, "leaf_count %u at byte offset %d without nodes (at most 1: the root)", l,
                    H_LEAVES);
-    if (le_get32(b + H_RESERVED) != 0)
+    if (mr_le_get_u32(b + H_RESERVED) != 0)
         return bad(p, "reserved field at byte offset %d is not 0", H_RESERVED);
-    uint64_t payload = le_get64(b + H_PAYLOAD);
+    uint64_t payload = mr_le_get_u64(b + H_PAYLOAD);
     uint64_t want = (uint64_t)n * NODE_BYTES + (uint64_t)l * LEAF_BYTES + (uint64_t)pc * ATTR_BYTES;
     if (payload != want)
         return bad(p, "payload_bytes %llu at byte offset %d (the counts give %llu)",
@@ -479,7 +181,7 @@ static int parse_nodes(parser *p, const layout *o, mr_svo *s)
         const size_t fn_at = o->first_node + (size_t)i * 4, fl_at = o->first_leaf + (size_t)i * 4;
         const size_t cm_at = o->child_mask + i, lm_at = o->leaf_mask + i;
         const unsigned cm = b[cm_at], lm = b[lm_at];
-        const uint32_t fn = le_get32(b + fn_at), fl = le_get32(b + fl_at);
+        const uint32_t fn = mr_le_get_u32(b + fn_at), fl = mr_le_get_u32(b + fl_at);
         if (i >= next_node) {
             rc = bad(p, "node %u is no node's child: node_count %u at byte offset %d exceeds the "
                      "%llu nodes of the tree", i, n, H_NODES, (unsigned long long)next_node);
@@ -545,7 +247,7 @@ static int parse_leaves_palette(parser *p, const layout *o, mr_svo *s)
     const uint8_t *b = p->buf;
     for (uint32_t i = 0; i < s->leaf_count; i++) {
         const uint8_t *q = b + o->leaves + (size_t)i * LEAF_BYTES;
-        uint16_t attr = le_get16(q + 2);
+        uint16_t attr = mr_le_get_u16(q + 2);
         if (attr >= s->palette_count)
             return bad(p, "leaf %u: palette index %u at byte offset %zu (palette_count %u)", i,
                        attr, o->leaves + (size_t)i * LEAF_BYTES + 2, s->palette_count);
@@ -561,7 +263,7 @@ static int parse_leaves_palette(parser *p, const layout *o, mr_svo *s)
         a->mesh = q[3];
         unsigned sum = 0;
         for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
-            a->joints[k] = le_get16(q + 4 + 2 * k);
+            a->joints[k] = mr_le_get_u16(q + 4 + 2 * k);
             a->weights[k] = q[12 + k];
             sum += q[12 + k];
         }
@@ -583,7 +285,7 @@ static int parse(parser *p, mr_svo **out, mr_svo_file_meta *meta)
     if (rc < 0)
         goto fail;
     const layout o = layout_of(s->node_count, s->leaf_count, s->palette_count);
-    if (le_get32(p->buf + o.crc) != crc32_buf(&p->crc, p->buf + o.first_node, o.crc - o.first_node)) {
+    if (mr_le_get_u32(p->buf + o.crc) != mr_crc32(&p->crc, p->buf + o.first_node, o.crc - o.first_node)) {
         rc = bad(p, "payload checksum mismatch at byte offset %zu (bytes %zu..%zu corrupted)",
                  o.crc, o.first_node, o.crc - 1);
         goto fail;
@@ -635,7 +337,7 @@ int mr_svo_file_read_meta(const uint8_t *buf, size_t size, mr_svo **out, mr_svo_
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "svo file: out of memory");
     *p = (parser){.buf = buf, .size = size, .err = err};
-    crc32_table_init(&p->crc);
+    mr_crc32_init(&p->crc);
     mr_svo_file_meta m;
     int rc = parse(p, out, &m);
     if (rc == MR_OK && meta)
@@ -657,7 +359,7 @@ static int read_path_meta(const char *path, mr_svo **out, mr_svo_file_meta *meta
         return mr_error_set(err, MR_ERR_INVALID, "svo file read: bad arguments");
     uint8_t *buf = NULL;
     size_t size = 0;
-    int rc = file_read_all(path, MR_SVO_FILE_MAX_BYTES, &buf, &size, err);
+    int rc = mr_fs_read_capped(path, MR_SVO_FILE_MAX_BYTES, &buf, &size, "svo file", err);
     if (rc == MR_OK && (rc = mr_svo_file_read_meta(buf, size, out, meta, err)) < 0)
         mr_error_prefix(err, "%s: ", path);
     free(buf);
@@ -703,27 +405,27 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
         goto done;
     }
     *p = (parser){.buf = b, .size = (size_t)total, .err = err};
-    crc32_table_init(&p->crc);
+    mr_crc32_init(&p->crc);
     memcpy(b, file_magic, sizeof file_magic);
-    le_put32(b + H_VERSION, MR_SVO_FILE_VERSION);
-    le_put32(b + H_HEADER_BYTES, MR_SVO_FILE_HEADER_BYTES);
-    le_put32(b + H_FLAGS, meta ? meta->flags : 0);
-    le_put32(b + H_DEPTH, svo->depth);
-    le_put32(b + H_ORIGIN, f32_bits(svo->origin.x));
-    le_put32(b + H_ORIGIN + 4, f32_bits(svo->origin.y));
-    le_put32(b + H_ORIGIN + 8, f32_bits(svo->origin.z));
-    le_put32(b + H_SIZE, f32_bits(svo->size));
-    le_put32(b + H_NODES, n);
-    le_put32(b + H_LEAVES, l);
-    le_put32(b + H_PALETTE, pc);
-    le_put64(b + H_PAYLOAD, total - MR_SVO_FILE_HEADER_BYTES - 4);
+    mr_le_put_u32(b + H_VERSION, MR_SVO_FILE_VERSION);
+    mr_le_put_u32(b + H_HEADER_BYTES, MR_SVO_FILE_HEADER_BYTES);
+    mr_le_put_u32(b + H_FLAGS, meta ? meta->flags : 0);
+    mr_le_put_u32(b + H_DEPTH, svo->depth);
+    mr_le_put_f32(b + H_ORIGIN, svo->origin.x);
+    mr_le_put_f32(b + H_ORIGIN + 4, svo->origin.y);
+    mr_le_put_f32(b + H_ORIGIN + 8, svo->origin.z);
+    mr_le_put_f32(b + H_SIZE, svo->size);
+    mr_le_put_u32(b + H_NODES, n);
+    mr_le_put_u32(b + H_LEAVES, l);
+    mr_le_put_u32(b + H_PALETTE, pc);
+    mr_le_put_u64(b + H_PAYLOAD, total - MR_SVO_FILE_HEADER_BYTES - 4);
     if (meta)
         memcpy(b + H_KEY, meta->key, MR_SVO_KEY_BYTES);
-    le_put32(b + H_CRC, crc32_buf(&p->crc, b, H_CRC));
+    mr_le_put_u32(b + H_CRC, mr_crc32(&p->crc, b, H_CRC));
     const layout o = layout_of(n, l, pc);
     for (uint32_t i = 0; i < n; i++) {
-        le_put32(b + o.first_node + (size_t)i * 4, svo->first_node[i]);
-        le_put32(b + o.first_leaf + (size_t)i * 4, svo->first_leaf[i]);
+        mr_le_put_u32(b + o.first_node + (size_t)i * 4, svo->first_node[i]);
+        mr_le_put_u32(b + o.first_leaf + (size_t)i * 4, svo->first_leaf[i]);
     }
     if (n) {
         memcpy(b + o.child_mask, svo->child_mask, n);
@@ -733,7 +435,7 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
         uint8_t *q = b + o.leaves + (size_t)i * LEAF_BYTES;
         q[0] = svo->leaves[i].normal[0];
         q[1] = svo->leaves[i].normal[1];
-        le_put16(q + 2, svo->leaves[i].attr);
+        mr_le_put_u16(q + 2, svo->leaves[i].attr);
     }
     for (uint32_t i = 0; i < pc; i++) {
         uint8_t *q = b + o.palette + (size_t)i * ATTR_BYTES;
@@ -741,11 +443,11 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
         memcpy(q, a->albedo, 3);
         q[3] = a->mesh;
         for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
-            le_put16(q + 4 + 2 * k, a->joints[k]);
+            mr_le_put_u16(q + 4 + 2 * k, a->joints[k]);
             q[12 + k] = a->weights[k];
         }
     }
-    le_put32(b + o.crc, crc32_buf(&p->crc, b + o.first_node, o.crc - o.first_node));
+    mr_le_put_u32(b + o.crc, mr_crc32(&p->crc, b + o.first_node, o.crc - o.first_node));
     mr_svo_file_meta m;
     if ((rc = parse(p, &back, &m)) < 0) {
         mr_error_prefix(err, "svo file write: would not read back: ");
@@ -783,7 +485,7 @@ static int write_path_meta(const mr_svo *svo, const mr_svo_file_meta *meta, cons
     size_t size = 0;
     int rc = mr_svo_file_write_meta(svo, meta, &buf, &size, err);
     if (rc == MR_OK)
-        rc = file_write_atomic(path, buf, size, err);
+        rc = mr_fs_write_atomic(path, buf, size, "svo file write", err);
     free(buf);
     return rc;
 }
@@ -810,45 +512,44 @@ void mr_svo_cache_key(const mr_asset *asset, const mr_svo_voxelize_params *param
     if (!asset || !params)
         return;
     static const char domain[] = "microray svo cache";
-    hash_feed feed, *h = &feed;
-    h->used = 0;
-    mr_sha256_init(&h->sha);
-    mr_sha256_update(&h->sha, domain, sizeof domain); /* with its NUL */
-    feed_u32(h, MR_SVO_FILE_VERSION);
-    feed_u32(h, MR_SVO_VOXELIZER_REVISION);
-    feed_u64(h, asset->node_count);
+    mr_sha256_feed feed, *h = &feed;
+    mr_sha256_feed_init(h);
+    mr_sha256_feed_bytes(h, domain, sizeof domain); /* with its NUL */
+    mr_sha256_feed_u32(h, MR_SVO_FILE_VERSION);
+    mr_sha256_feed_u32(h, MR_SVO_VOXELIZER_REVISION);
+    mr_sha256_feed_u64(h, asset->node_count);
     for (size_t i = 0; i < asset->node_count; i++) {
-        feed_u32(h, (uint32_t)asset->nodes[i].parent);
-        feed_f32s(h, asset->nodes[i].local.m, 16);
+        mr_sha256_feed_u32(h, (uint32_t)asset->nodes[i].parent);
+        mr_sha256_feed_f32s(h, asset->nodes[i].local.m, 16);
     }
-    feed_u64(h, asset->mesh_count);
+    mr_sha256_feed_u64(h, asset->mesh_count);
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
         const bool skinned = mesh_skinned(m);
         const size_t nv = m->vertex_count;
-        feed_u32(h, (uint32_t)m->node);
-        feed_u32(h, m->vertex_count);
-        feed_u32(h, m->triangle_count);
-        feed_u32(h, m->joint_count);
-        feed_u32(h, (m->positions ? 1u : 0u) | (m->normals ? 2u : 0u) | (m->indices ? 4u : 0u) |
+        mr_sha256_feed_u32(h, (uint32_t)m->node);
+        mr_sha256_feed_u32(h, m->vertex_count);
+        mr_sha256_feed_u32(h, m->triangle_count);
+        mr_sha256_feed_u32(h, m->joint_count);
+        mr_sha256_feed_u32(h, (m->positions ? 1u : 0u) | (m->normals ? 2u : 0u) | (m->indices ? 4u : 0u) |
                         (skinned ? 8u : 0u));
         if (m->positions)
-            feed_f32s(h, m->positions, nv * 3);
+            mr_sha256_feed_f32s(h, m->positions, nv * 3);
         if (m->normals)
-            feed_f32s(h, m->normals, nv * 3);
+            mr_sha256_feed_f32s(h, m->normals, nv * 3);
         if (m->indices)
-            feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
+            mr_sha256_feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
         if (skinned) {
-            feed_u16s(h, m->joints, nv * MR_MAX_INFLUENCES);
-            feed_f32s(h, m->weights, nv * MR_MAX_INFLUENCES);
+            mr_sha256_feed_u16s(h, m->joints, nv * MR_MAX_INFLUENCES);
+            mr_sha256_feed_f32s(h, m->weights, nv * MR_MAX_INFLUENCES);
         }
     }
-    feed_u32(h, params->depth);
-    feed_u32(h, (uint32_t)params->mode);
-    feed_u32(h, params->albedo ? 1u : 0u);
+    mr_sha256_feed_u32(h, params->depth);
+    mr_sha256_feed_u32(h, (uint32_t)params->mode);
+    mr_sha256_feed_u32(h, params->albedo ? 1u : 0u);
     if (params->albedo)
-        feed_f32s(h, params->albedo, asset->mesh_count * 3);
-    feed_final(h, key);
+        mr_sha256_feed_f32s(h, params->albedo, asset->mesh_count * 3);
+    mr_sha256_feed_final(h, key);
 }
 
 int mr_svo_cache_path(const char *dir, const uint8_t key[MR_SVO_KEY_BYTES], char **path,
@@ -904,10 +605,10 @@ static int cache_store_flags(const char *path, const uint8_t key[MR_SVO_KEY_BYTE
         return mr_error_set(err, MR_ERR_INVALID, "svo cache store: bad arguments");
     mr_svo_file_meta meta = {.flags = flags};
     memcpy(meta.key, key, MR_SVO_KEY_BYTES);
-    char *dir = path_dir(path);
+    char *dir = mr_fs_dir_of(path);
     if (!dir)
         return mr_error_set(err, MR_ERR_NOMEM, "svo cache store: out of memory");
-    int rc = make_dir_tree(dir, err);
+    int rc = mr_fs_make_dirs(dir, "svo cache", err);
     if (rc == MR_OK)
         rc = write_path_meta(svo, &meta, path, err);
     free(dir);

@@ -10,6 +10,8 @@
 
 #include <string.h>
 
+#include "util/le.h"
+
 /* First 32 bits of the fractional parts of the cube roots of the first 64
  * primes (FIPS 180-4, 4.2.2). */
 static const uint32_t K[64] = {
@@ -148,4 +150,62 @@ void mr_sha256_hex(const void *data, size_t size, char hex[65])
         hex[2 * i + 1] = digits[d[i] & 15];
     }
     hex[64] = '\0';
+}
+
+/* ---- little-endian feed */
+
+void mr_sha256_feed_init(mr_sha256_feed *f)
+{
+    mr_sha256_init(&f->sha);
+    f->used = 0;
+}
+
+static void feed_flush(mr_sha256_feed *f)
+{
+    mr_sha256_update(&f->sha, f->buf, f->used);
+    f->used = 0;
+}
+
+/* Room for need more bytes in buf. */
+static uint8_t *feed_room(mr_sha256_feed *f, size_t need)
+{
+    if (f->used + need > sizeof f->buf)
+        feed_flush(f);
+    uint8_t *p = f->buf + f->used;
+    f->used += need;
+    return p;
+}
+
+void mr_sha256_feed_bytes(mr_sha256_feed *f, const void *data, size_t size)
+{
+    feed_flush(f);
+    mr_sha256_update(&f->sha, data, size);
+}
+
+void mr_sha256_feed_u32(mr_sha256_feed *f, uint32_t v) { mr_le_put_u32(feed_room(f, 4), v); }
+
+void mr_sha256_feed_u64(mr_sha256_feed *f, uint64_t v) { mr_le_put_u64(feed_room(f, 8), v); }
+
+void mr_sha256_feed_u16s(mr_sha256_feed *f, const uint16_t *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        mr_le_put_u16(feed_room(f, 2), v[i]);
+}
+
+void mr_sha256_feed_u32s(mr_sha256_feed *f, const uint32_t *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        mr_le_put_u32(feed_room(f, 4), v[i]);
+}
+
+void mr_sha256_feed_f32s(mr_sha256_feed *f, const float *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        mr_le_put_u32(feed_room(f, 4), mr_f32_bits(v[i]));
+}
+
+void mr_sha256_feed_final(mr_sha256_feed *f, uint8_t digest[32])
+{
+    feed_flush(f);
+    mr_sha256_final(&f->sha, digest);
 }

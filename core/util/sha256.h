@@ -1,6 +1,7 @@
 /*
  * sha256.h - SHA-256 (FIPS 180-4), for content-addressed assets,
- * idempotency body hashes and the keys of the baked-DMM disk cache.
+ * idempotency body hashes and the keys of the baked-DMM and voxelisation
+ * disk caches.
  * Written from the standard; no dependency.
  */
 #ifndef MR_SHA256_H
@@ -21,5 +22,25 @@ void mr_sha256_update(mr_sha256 *s, const void *data, size_t size);
 void mr_sha256_final(mr_sha256 *s, uint8_t digest[32]);
 /* One-shot: lowercase hex digest of data into hex (65 bytes with the NUL). */
 void mr_sha256_hex(const void *data, size_t size, char hex[65]);
+
+/* Numbers into a SHA-256 as little-endian bytes (util/le.h), batched
+ * through a small buffer: the cache keys of baked DMMs and voxelisations
+ * hash whole meshes value by value, independent of the host's byte order.
+ * Raw bytes fed in between keep their place in the stream. */
+typedef struct mr_sha256_feed {
+    mr_sha256 sha;
+    uint8_t buf[4096];
+    size_t used;         /* bytes in buf, not yet hashed */
+} mr_sha256_feed;
+
+void mr_sha256_feed_init(mr_sha256_feed *f);
+void mr_sha256_feed_bytes(mr_sha256_feed *f, const void *data, size_t size);
+void mr_sha256_feed_u32(mr_sha256_feed *f, uint32_t v);
+void mr_sha256_feed_u64(mr_sha256_feed *f, uint64_t v);
+void mr_sha256_feed_u16s(mr_sha256_feed *f, const uint16_t *v, size_t n);
+void mr_sha256_feed_u32s(mr_sha256_feed *f, const uint32_t *v, size_t n);
+/* Floats as their bit patterns: -0 and 0 differ, as they do in a file. */
+void mr_sha256_feed_f32s(mr_sha256_feed *f, const float *v, size_t n);
+void mr_sha256_feed_final(mr_sha256_feed *f, uint8_t digest[32]);
 
 #endif
