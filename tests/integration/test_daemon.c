@@ -4,7 +4,8 @@
  * microray client, progress by polling and by server-sent events, frames
  * read back with OpenEXR, the scene cache, bad input answered with
  * problem+json, cancel/retry/delete/idempotency, kill -9 recovery, and
- * baked DMMs kept in DATA/dmm across jobs and restarts.
+ * baked DMMs kept in DATA/dmm and voxelised assets in DATA/svo across jobs
+ * and restarts.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -552,12 +553,13 @@ static void test_sigterm_and_resume(void **state)
     interrupt_and_resume(SIGTERM, "stop", "paused for shutdown");
 }
 
-/* The one DATA/dmm/<64 hex>.dmm file (fails unless there is exactly one,
- * or if a temporary file was left behind). */
-static void dmm_cache_file(const char *data, char *path, size_t n, struct stat *st)
+/* The one DATA/<sub>/<64 hex><ext> file (fails unless there is exactly
+ * one, or if a temporary file was left behind). */
+static void cache_file(const char *data, const char *sub, const char *ext, char *path, size_t n,
+                       struct stat *st)
 {
     char dir[700];
-    snprintf(dir, sizeof dir, "%s/dmm", data);
+    snprintf(dir, sizeof dir, "%s/%s", data, sub);
     DIR *d = opendir(dir);
     assert_non_null(d);
     int count = 0;
@@ -565,7 +567,7 @@ static void dmm_cache_file(const char *data, char *path, size_t n, struct stat *
         if (e->d_name[0] == '.')
             continue;
         size_t hex = strspn(e->d_name, "0123456789abcdef");
-        if (hex != 64 || strcmp(e->d_name + 64, ".dmm") != 0)
+        if (hex != 64 || strcmp(e->d_name + 64, ext) != 0)
             fail_msg("unexpected file in %s: %s", dir, e->d_name);
         snprintf(path, n, "%s/%s", dir, e->d_name);
         count++;
@@ -575,43 +577,61 @@ static void dmm_cache_file(const char *data, char *path, size_t n, struct stat *
     assert_int_equal(stat(path, st), 0);
 }
 
-/* A dmm job bakes once: the bake lands in DATA/dmm, and the same job after a
- * restart (a new process: nothing in memory) loads it instead of baking
- * again (a bake would rename a new file in: another inode). */
-static void test_dmm_bake_kept_across_restarts(void **state)
+/* A job whose derived data is cached (a dmm bake in DATA/dmm, a voxelised
+ * asset in DATA/svo) computes it once: the file lands in the cache, and the
+ * same job after a restart (a new process: nothing in memory) loads it
+ * instead of computing it again (which would rename a new file in: another
+ * inode). */
+static void check_kept_across_restarts(const char *object, const char *sub, const char *ext)
 {
-    (void)state;
     daemon_proc saved = D;
-    daemon_start(&D, "dmm");
-    const char *job =
-        "{\"name\":\"dmm\",\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
-        "\"objects\":[{\"asset\":\"d\",\"kind\":\"dmm\",\"dmm\":{\"level\":2,\"base_ratio\":0.25,"
-        "\"mode\":\"tessellated\"},\"pose\":{\"clip\":0}}],"
-        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
-        "\"frames\":{\"fps\":4,\"start\":0,\"end\":0.25},"
-        "\"output\":{\"width\":96,\"height\":54,\"samples\":1}}";
+    daemon_start(&D, sub);
+    char job[2048];
+    snprintf(job, sizeof job,
+             "{\"name\":\"%s\",\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+             "\"objects\":[%s],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"fps\":4,\"start\":0,\"end\":0.25},"
+             "\"output\":{\"width\":96,\"height\":54,\"samples\":1}}",
+             sub, object);
     char id[64], path[1024];
     struct stat st0, st1;
     submit(job, id);
     cJSON *j = wait_job(id, 120);
     assert_string_equal(state_of(j), "succeeded");
     cJSON_Delete(j);
-    dmm_cache_file(D.data, path, sizeof path, &st0);
+    cache_file(D.data, sub, ext, path, sizeof path, &st0);
     assert_int_equal(st0.st_mode & 0777, 0644);
 
     assert_int_equal(daemon_stop(&D, SIGTERM), 0);
-    daemon_start(&D, "dmm");
+    daemon_start(&D, sub);
     submit(job, id);
     j = wait_job(id, 120);
     assert_string_equal(state_of(j), "succeeded");
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 2);
     cJSON_Delete(j);
-    dmm_cache_file(D.data, path, sizeof path, &st1);
+    cache_file(D.data, sub, ext, path, sizeof path, &st1);
     assert_true(st1.st_ino == st0.st_ino);
     assert_true(st1.st_mtim.tv_sec == st0.st_mtim.tv_sec &&
                 st1.st_mtim.tv_nsec == st0.st_mtim.tv_nsec);
     assert_int_equal(daemon_stop(&D, SIGTERM), 0);
     D = saved;
+}
+
+static void test_dmm_bake_kept_across_restarts(void **state)
+{
+    (void)state;
+    check_kept_across_restarts("{\"asset\":\"d\",\"kind\":\"dmm\",\"dmm\":{\"level\":2,"
+                               "\"base_ratio\":0.25,\"mode\":\"tessellated\"},\"pose\":{\"clip\":0}}",
+                               "dmm", ".dmm");
+}
+
+static void test_svo_voxels_kept_across_restarts(void **state)
+{
+    (void)state;
+    check_kept_across_restarts("{\"asset\":\"d\",\"kind\":\"svo\",\"svo\":{\"depth\":7,"
+                               "\"method\":\"emit\"},\"pose\":{\"clip\":0}}",
+                               "svo", ".mrsvo");
 }
 
 static int setup(void **state)
@@ -647,6 +667,7 @@ int main(void)
         cmocka_unit_test(test_cancel_retry_delete_idempotency),
         cmocka_unit_test(test_failed_frames_and_retry),
         cmocka_unit_test(test_dmm_bake_kept_across_restarts),
+        cmocka_unit_test(test_svo_voxels_kept_across_restarts),
         cmocka_unit_test(test_kill_9_and_resume),
         cmocka_unit_test(test_sigterm_and_resume),
     };
