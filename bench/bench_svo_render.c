@@ -19,7 +19,9 @@
  * worst coverage / depth / normal error and holes against the reference.
  * Then: how many instances the renderer deforms and rebuilds (resize,
  * depth 8) within the thesis' 33.8 ms per frame, instances on a grid seen
- * from afar, each with its own clip offset.
+ * from afar, each with its own clip offset; and skeleton extraction
+ * (chapter 5) on real models: bones, iterations, thinness error (eq.
+ * 5.7.1), time.
  *
  * usage: bench_svo_render [--frames N] [--depths 8,10,12] [--quick]
  * (run from the repository root; voxelised octrees are cached in
@@ -33,6 +35,8 @@
 
 #include "asset/asset.h"
 #include "job_json.h"
+#include "svo/skeleton.h"
+#include "svo/voxelize.h"
 #include "render/compare.h"
 #include "render/device.h"
 #include "render/renderer.h"
@@ -227,6 +231,37 @@ static double instances_frame_s(mr_asset *asset, unsigned n, int frames)
     return median(t, frames);
 }
 
+/* Chapter 5 on real models, the kind's defaults (omega 2^-min(depth, 5)). */
+static void skeletons(void)
+{
+    static const char *const models[] = {"/usr/share/assimp/models/Collada/human.zae",
+                                         "/usr/share/assimp/models/OBJ/spider.obj",
+                                         "/usr/share/assimp/models/OBJ/WusonOBJ.obj", MODEL};
+    printf("\nskeleton extraction (chapter 5; surface voxels, default omega, 2 threads)\n");
+    printf("  %-14s %6s %9s %8s %6s %11s %11s %9s\n", "model", "depth", "voxels", "graph",
+           "bones", "iterations", "thinness %", "time s");
+    for (size_t i = 0; i < sizeof models / sizeof *models; i++)
+        for (unsigned depth = 7; depth <= 8; depth++) {
+            mr_asset *a = NULL;
+            mr_svo *s = NULL;
+            mr_error err = {0};
+            mr_svo_voxelize_params vp = {.depth = depth};
+            if (mr_asset_load(models[i], &a, &err) < 0 || mr_svo_voxelize(a, &vp, &s, &err) < 0)
+                die(models[i], err.msg);
+            mr_svo_skeleton sk = {0};
+            double t0 = mr_now();
+            if (mr_svo_skeletonize(s, NULL, &sk, &err) < 0)
+                die(models[i], err.msg);
+            double t = mr_now() - t0;
+            const char *name = strrchr(models[i], '/') + 1;
+            printf("  %-14s %6u %9u %8u %6u %11u %11.3f %9.2f\n", name, depth, s->leaf_count,
+                   sk.graph_vertices, sk.bone_count, sk.iterations, sk.thinness_error_percent, t);
+            mr_svo_skeleton_free(&sk);
+            mr_svo_voxelize_free(s);
+            mr_asset_free(a);
+        }
+}
+
 int main(int argc, char **argv)
 {
     int frames = 6;
@@ -279,6 +314,7 @@ int main(int argc, char **argv)
     printf("  largest power of two within the thesis' 33.8 ms: %u instance%s (thesis: 10^6 "
            "instances of 6 models on a GTX 260)\n",
            best, best == 1 ? "" : "s");
+    skeletons();
     mr_asset_free(asset);
     return 0;
 }
