@@ -423,6 +423,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     if (outside)
                         continue; /* removed */
                 }
+            }
+            /* The projected size only decides whether an interior voxel
+             * above max_level is refined: leaves (most of what is visited)
+             * and voxels at max_level are selected whatever it is. */
+            if (c->view_on && !it->leaf && c->level < c->max_level) {
+                const double blo[3] = {b[0], b[1], b[2]}, bhi[3] = {b[3], b[4], b[5]};
                 /* eq. 3.2.1-3.2.3; a corner at or behind the eye plane makes
                  * the projection unbounded. */
                 double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
