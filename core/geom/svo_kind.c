@@ -45,6 +45,7 @@ typedef struct worker_scratch {
     mr_affine *joint_storage;     /* all meshes' joints */
     const mr_affine **joint;      /* per mesh, into joint_storage (NULL: rigid mesh) */
     mr_affine *mesh;              /* per mesh */
+    mr_svo_workspace *ws;         /* selection / resampling scratch, kept across frames */
     int rc;                       /* first failure of this worker ... */
     size_t failed_instance;       /* ... and the instance it came from */
     mr_error err;
@@ -184,12 +185,12 @@ static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *
     uint32_t joint_counts[MR_SVO_VOXELIZE_MAX_MESHES];
     mr_svo_deformer d;
     fill_deformer(g, k, s, &d, joint_counts);
-    rc = mr_svo_select(g->svo, &g->extremes, &d, &c->view, g->svo->depth, c->inner_threads,
-                       &g->sel[k], err);
+    rc = mr_svo_select_ws(g->svo, &g->extremes, &d, &c->view, g->svo->depth, c->inner_threads, s->ws,
+                          &g->sel[k], err);
     if (rc < 0 || g->method == MR_SVO_DIRECT)
         return rc;
-    return mr_svo_resample(&g->sel[k], g->method, g->out_depth, g->svo->palette,
-                           g->svo->palette_count, c->inner_threads, &g->octree[k], NULL, err);
+    return mr_svo_resample_ws(&g->sel[k], g->method, g->out_depth, g->svo->palette,
+                              g->svo->palette_count, c->inner_threads, s->ws, &g->octree[k], NULL, err);
 }
 
 static void deform_range(void *ctx, size_t begin, size_t end, unsigned worker)
@@ -691,6 +692,7 @@ static void svo_free(mr_geom *g)
             free(g->scratch[w].joint_storage);
             free(g->scratch[w].joint);
             free(g->scratch[w].mesh);
+            mr_svo_workspace_free(g->scratch[w].ws);
         }
     free(g->scratch);
     free(g->box);
@@ -779,6 +781,8 @@ static int setup_workers(mr_geom *g, mr_error *err)
         s->mesh = calloc(meshes, sizeof *s->mesh);
         if (!s->joint_storage || !s->joint || !s->mesh)
             return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
+        if ((rc = mr_svo_workspace_new(&s->ws, err)) < 0)
+            return rc;
     }
     return MR_OK;
 }

@@ -142,6 +142,92 @@ static bool masks_ok(const mr_svo *svo, uint32_t n)
 }
 
 /* ------------------------------------------------------------------------ */
+/* Workspace                                                                */
+
+/* Every scratch array of a selection or resampling, by slot. A per-frame
+ * caller keeps one workspace, so after the first frame nothing is
+ * allocated and no fresh page is faulted in (both showed in profiles). */
+enum {
+    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL, WS_PAL,
+    WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
+    WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
+    WS_RS_KEPT, WS_RS_LEAVES,
+    WS_SLOTS
+};
+
+struct mr_svo_workspace {
+    void *p[WS_SLOTS];
+    size_t bytes[WS_SLOTS];
+};
+
+int mr_svo_workspace_new(mr_svo_workspace **out, mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo workspace: NULL output");
+    *out = calloc(1, sizeof **out);
+    if (!*out)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo workspace: out of memory");
+    return MR_OK;
+}
+
+static void ws_release(mr_svo_workspace *ws)
+{
+    for (int k = 0; k < WS_SLOTS; k++)
+        free(ws->p[k]);
+    memset(ws, 0, sizeof *ws);
+}
+
+void mr_svo_workspace_free(mr_svo_workspace *ws)
+{
+    if (!ws)
+        return;
+    ws_release(ws);
+    free(ws);
+}
+
+size_t mr_svo_workspace_memory(const mr_svo_workspace *ws)
+{
+    size_t b = 0;
+    if (ws)
+        for (int k = 0; k < WS_SLOTS; k++)
+            b += ws->bytes[k];
+    return b;
+}
+
+/* Slot `slot` with room for count elements of elem bytes (at least one);
+ * contents are not kept when it grows. NULL when out of memory. */
+static void *ws_get(mr_svo_workspace *ws, int slot, size_t count, size_t elem)
+{
+    if (count == 0)
+        count = 1;
+    if (count > SIZE_MAX / elem)
+        return NULL;
+    const size_t need = count * elem;
+    if (need <= ws->bytes[slot])
+        return ws->p[slot];
+    size_t cap = ws->bytes[slot] ? ws->bytes[slot] : 256;
+    while (cap < need)
+        cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+    void *q = malloc(cap);
+    if (!q)
+        return NULL;
+    free(ws->p[slot]);
+    ws->p[slot] = q;
+    ws->bytes[slot] = cap;
+    return q;
+}
+
+static void ws_swap(mr_svo_workspace *ws, int a, int b)
+{
+    void *p = ws->p[a];
+    ws->p[a] = ws->p[b];
+    ws->p[b] = p;
+    size_t n = ws->bytes[a];
+    ws->bytes[a] = ws->bytes[b];
+    ws->bytes[b] = n;
+}
+
+/* ------------------------------------------------------------------------ */
 /* Extremes                                                                 */
 
 void mr_svo_extremes_free(mr_svo_extremes *e)
@@ -423,6 +509,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     if (outside)
                         continue; /* removed */
                 }
+            }
+            /* The projected size only decides whether an interior voxel
+             * above max_level is refined: leaves (most of what is visited)
+             * and voxels at max_level are selected whatever it is. */
+            if (c->view_on && !it->leaf && c->level < c->max_level) {
+                const double blo[3] = {b[0], b[1], b[2]}, bhi[3] = {b[3], b[4], b[5]};
                 /* eq. 3.2.1-3.2.3; a corner at or behind the eye plane makes
                  * the projection unbounded. */
                 double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
@@ -565,29 +657,10 @@ static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
     return MR_OK;
 }
 
-/* Grows *p (of *cap elements of size elem) to at least need elements;
- * contents are not kept. */
-static bool scratch_reserve(void **p, size_t *cap, size_t need, size_t elem)
-{
-    if (need <= *cap)
-        return true;
-    size_t c = *cap ? *cap : 64;
-    while (c < need)
-        c = c > SIZE_MAX / 4 ? need : c * 2;
-    if (c > SIZE_MAX / elem)
-        return false;
-    void *q = malloc(c * elem);
-    if (!q)
-        return false;
-    free(*p);
-    *p = q;
-    *cap = c;
-    return true;
-}
-
 /* Checks the deformer and blends one matrix per palette entry (they do not
  * depend on the voxel: every extreme of a voxel maps to an entry). */
-static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_affine **out, mr_error *err)
+static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_svo_workspace *ws, mr_affine **out,
+                            mr_error *err)
 {
     *out = NULL;
     if (d->mesh_count > 0 && !d->mesh)
@@ -610,13 +683,12 @@ static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_affi
     if (!svo->palette)
         return mr_error_set(err, MR_ERR_INVALID, "svo select: octree has %u palette entries but no palette",
                             svo->palette_count);
-    mr_affine *pm = malloc((size_t)svo->palette_count * sizeof *pm);
+    mr_affine *pm = ws_get(ws, WS_PAL, svo->palette_count, sizeof *pm);
     if (!pm)
         return mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (palette matrices)");
     for (uint32_t p = 0; p < svo->palette_count; p++) {
         const mr_svo_attr *at = &svo->palette[p];
         if (at->mesh >= d->mesh_count) {
-            free(pm);
             return mr_error_set(err, MR_ERR_INVALID,
                                 "svo select: palette entry %u names mesh %u, the deformer has %zu", p,
                                 (unsigned)at->mesh, d->mesh_count);
@@ -628,8 +700,7 @@ static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_affi
             if (at->weights[k] == 0)
                 continue;
             if (at->joints[k] >= jc) {
-                free(pm);
-                return mr_error_set(err, MR_ERR_INVALID,
+                    return mr_error_set(err, MR_ERR_INVALID,
                                     "svo select: palette entry %u names joint %u of mesh %u, which has %u", p,
                                     (unsigned)at->joints[k], (unsigned)at->mesh, jc);
             }
@@ -646,7 +717,6 @@ static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_affi
             pm[p] = d->mesh[at->mesh];
         }
         if (!affine_finite(&pm[p])) {
-            free(pm);
             return mr_error_set(err, MR_ERR_INVALID, "svo select: palette entry %u gives a non-finite matrix", p);
         }
     }
@@ -704,6 +774,13 @@ int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_s
                   const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_selection *out,
                   mr_error *err)
 {
+    return mr_svo_select_ws(svo, extremes, d, view, max_level, threads, NULL, out, err);
+}
+
+int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
+                     const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_workspace *ws,
+                     mr_svo_selection *out, mr_error *err)
+{
     if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "svo select: NULL output");
     out->count = 0;
@@ -734,27 +811,26 @@ int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_s
     int rc = view_setup(&c, view, err);
     if (rc != MR_OK)
         return rc;
+    mr_svo_workspace local;
+    memset(&local, 0, sizeof local);
+    if (!ws)
+        ws = &local;
     mr_affine *pal_mat = NULL;
     if (!d->field) {
-        rc = palette_matrices(svo, d, &pal_mat, err);
+        rc = palette_matrices(svo, d, ws, &pal_mat, err);
         if (rc != MR_OK)
-            return rc;
+            goto cleanup;
     }
     c.pal_mat = pal_mat;
 
-    sel_item *cur = NULL, *next = NULL;
-    size_t cur_cap = 0, next_cap = 0, tmp_cap = 0, leaf_cap = 0, out_cap = 0, ch_cap = 0, ch2_cap = 0, f_cap = 0;
-    float *box = NULL;
-    mr_svo_leaf *leaf = NULL;
-    uint8_t *outcome = NULL;
-    size_t *chunk_sel = NULL, *chunk_child = NULL;
-    sel_fail *chunk_fail = NULL;
+    sel_item *cur = NULL;
     size_t n = 0;
     const uint64_t budget = (uint64_t)svo->node_count + svo->leaf_count; /* each is visited at most once */
     uint64_t visited = 0;
 
     if (svo->node_count > 0 || svo->leaf_count == 1) {
-        if (!scratch_reserve((void **)&cur, &cur_cap, 1, sizeof *cur)) {
+        cur = ws_get(ws, WS_CUR, 1, sizeof *cur);
+        if (!cur) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory");
             goto cleanup;
         }
@@ -768,12 +844,13 @@ int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_s
             goto cleanup;
         }
         const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
-        if (!scratch_reserve((void **)&box, &tmp_cap, n, 6 * sizeof *box) ||
-            !scratch_reserve((void **)&leaf, &leaf_cap, n, sizeof *leaf) ||
-            !scratch_reserve((void **)&outcome, &out_cap, n, 1) ||
-            !scratch_reserve((void **)&chunk_sel, &ch_cap, chunks, sizeof *chunk_sel) ||
-            !scratch_reserve((void **)&chunk_child, &ch2_cap, chunks, sizeof *chunk_child) ||
-            !scratch_reserve((void **)&chunk_fail, &f_cap, chunks, sizeof *chunk_fail)) {
+        float *box = ws_get(ws, WS_BOX, n, 6 * sizeof *box);
+        mr_svo_leaf *leaf = ws_get(ws, WS_LEAF, n, sizeof *leaf);
+        uint8_t *outcome = ws_get(ws, WS_OUTCOME, n, 1);
+        size_t *chunk_sel = ws_get(ws, WS_CH_SEL, chunks, sizeof *chunk_sel);
+        size_t *chunk_child = ws_get(ws, WS_CH_CHILD, chunks, sizeof *chunk_child);
+        sel_fail *chunk_fail = ws_get(ws, WS_CH_FAIL, chunks, sizeof *chunk_fail);
+        if (!box || !leaf || !outcome || !chunk_sel || !chunk_child || !chunk_fail) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", n, level);
             goto cleanup;
         }
@@ -811,7 +888,8 @@ int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_s
         rc = selection_reserve(out, sel_total, err);
         if (rc != MR_OK)
             goto cleanup;
-        if (!scratch_reserve((void **)&next, &next_cap, child_total, sizeof *next)) {
+        sel_item *next = ws_get(ws, WS_NEXT, child_total, sizeof *next);
+        if (!next) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", child_total,
                               level + 1);
             goto cleanup;
@@ -819,12 +897,8 @@ int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_s
         c.next = next;
         mr_parallel_for(threads, chunks, 1, sel_pass2, &c);
         out->count = sel_total;
-        sel_item *t = cur;
+        ws_swap(ws, WS_CUR, WS_NEXT);
         cur = next;
-        next = t;
-        size_t tc = cur_cap;
-        cur_cap = next_cap;
-        next_cap = tc;
         n = child_total;
     }
     out->visited = visited;
@@ -835,20 +909,30 @@ cleanup:
         out->count = 0;
         out->visited = 0;
     }
-    free(pal_mat);
-    free(cur);
-    free(next);
-    free(box);
-    free(leaf);
-    free(outcome);
-    free(chunk_sel);
-    free(chunk_child);
-    free(chunk_fail);
+    if (ws == &local)
+        ws_release(&local);
     return rc;
 }
 
 /* ------------------------------------------------------------------------ */
 /* Resampling                                                               */
+
+/* Packed sort keys: code << 5 | level (levels < 32), one uint64 while
+ * 3 * depth + 5 <= 64. The shared radix sort moves 16-byte keys plus the
+ * payload and sorts every varying digit of level and code separately; the
+ * packed key is half the bytes and sorts level and code together, so the
+ * per-frame sort (most of a resampling) moves less and takes fewer
+ * passes. Deeper output octrees use the shared sort. */
+#define PACK_LEVEL_BITS 5u
+#define PACK_MAX_DEPTH ((64u - PACK_LEVEL_BITS) / 3u)
+/* Digits of at most this many bits: 2^10 buckets of 8 + 4 bytes stay in L2
+ * while scattering. */
+#define PK_MAX_BITS 10u
+/* Below this many keys per block, threads cost more than they save. */
+#define PK_MIN_PER_BLOCK 32768u
+#define PK_MAX_BLOCKS 64u
+/* Dilated (Morton) bits of one axis: x at bits 0, 3, ..., 60. */
+#define MORTON_X 0x1249249249249249ull
 
 typedef struct rs_ctx {
     const mr_svo_selection *sel;
@@ -857,14 +941,19 @@ typedef struct rs_ctx {
     double origin[3]; /* the output cube, as doubles of its floats */
     double size;
     double cell21;    /* size * 2^-21 */
+    double cell[GRID_BITS + 1];     /* size * 2^-l (exact) */
+    double inv_cell[GRID_BITS + 1]; /* 2^l / size, rounded: first guesses only */
     /* bounds pass, per chunk */
     double (*chunk_lo)[3], (*chunk_hi)[3];
     size_t *chunk_bad; /* first bad box + 1, or 0 */
     /* count / write passes */
     uint8_t *box_level;
-    uint32_t *box_cells;
+    uint32_t *box_range;   /* 6 per box: first cell x, y, z, then end x, y, z */
     uint64_t *chunk_cells; /* counts, then offsets */
-    mr_svo_key *keys;
+    uint64_t *chunk_bits;  /* 2 per chunk: OR and AND of its packed keys */
+    bool packed;
+    mr_svo_key *keys;      /* !packed */
+    uint64_t *pk;          /* packed */
     uint32_t *payload;
 } rs_ctx;
 
@@ -915,9 +1004,9 @@ static unsigned hold_level(const rs_ctx *c, double side)
         h = 0;
     if (h > (int)c->depth)
         h = (int)c->depth;
-    while (h > 0 && ldexp(c->size, -h) < side)
+    while (h > 0 && c->cell[h] < side)
         h--;
-    while (h < (int)c->depth && ldexp(c->size, -(h + 1)) >= side)
+    while (h < (int)c->depth && c->cell[h + 1] >= side)
         h++;
     return (unsigned)h;
 }
@@ -933,17 +1022,19 @@ static inline uint64_t clamp_floor(double u, uint64_t lo, uint64_t hi)
 }
 
 /* Emit range on axis a at level l: cells [*i0, *i1) whose closed boxes
- * cover [lo, hi], i.e. floor(r lo) .. ceil(r hi) - 1, decided by plane_s. */
+ * cover [lo, hi], i.e. floor(r lo) .. ceil(r hi) - 1, decided by plane_s.
+ * The first guesses multiply by the rounded inverse cell; the plane tests
+ * move them to the one answer (plane_s is monotonic in k), so the range
+ * does not depend on the guess. */
 static void emit_range(const rs_ctx *c, int a, unsigned l, double lo, double hi, uint64_t *i0, uint64_t *i1)
 {
     const uint64_t n = 1ull << l, span = 1ull << (GRID_BITS - l);
-    const double cl = ldexp(c->size, -(int)l);
-    uint64_t i = clamp_floor((lo - c->origin[a]) / cl, 0, n - 1);
+    uint64_t i = clamp_floor((lo - c->origin[a]) * c->inv_cell[l], 0, n - 1);
     while (i > 0 && plane_s(c, a, lo, i * span) > 0.0)
         i--;
     while (i + 1 < n && plane_s(c, a, lo, (i + 1) * span) <= 0.0)
         i++;
-    const double v = ceil((hi - c->origin[a]) / cl);
+    const double v = ceil((hi - c->origin[a]) * c->inv_cell[l]);
     uint64_t j = !(v >= (double)(i + 1)) ? i + 1 : v >= (double)n ? n : (uint64_t)v;
     while (j > i + 1 && plane_s(c, a, hi, (j - 1) * span) >= 0.0)
         j--;
@@ -958,12 +1049,13 @@ static void emit_range(const rs_ctx *c, int a, unsigned l, double lo, double hi,
 static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, double hi)
 {
     const uint64_t n = 1ull << l;
-    const double u = (0.5 * (lo + hi) - c->origin[a]) / ldexp(c->size, -(int)l);
+    const double u = (0.5 * (lo + hi) - c->origin[a]) / c->cell[l];
     return clamp_floor(u - 0.5, 0, n - 2);
 }
 
-/* Level and cell count of box i. */
-static void rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint64_t *cells)
+/* Level and cell ranges (r: first x, y, z, end x, y, z) of box i; returns
+ * its number of cells. */
+static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6])
 {
     const float *b = &c->sel->box[i * 6];
     double lo[3], hi[3], smin = INFINITY, smax = 0.0;
@@ -974,10 +1066,13 @@ static void rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint64_t *cells)
         smax = dmax(smax, hi[a] - lo[a]);
     }
     if (c->method == MR_SVO_RESIZE) {
-        const unsigned h = hold_level(c, smax);
-        *level = h + 1 < c->depth ? h + 1 : c->depth;
-        *cells = 8;
-        return;
+        const unsigned h = hold_level(c, smax), l = h + 1 < c->depth ? h + 1 : c->depth;
+        *level = l;
+        for (int a = 0; a < 3; a++) {
+            r[a] = (uint32_t)resize_first(c, a, l, lo[a], hi[a]);
+            r[3 + a] = r[a] + 2;
+        }
+        return 8;
     }
     unsigned h = hold_level(c, smin);
     for (;;) {
@@ -985,12 +1080,13 @@ static void rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint64_t *cells)
         for (int a = 0; a < 3; a++) {
             uint64_t i0, i1;
             emit_range(c, a, h, lo[a], hi[a], &i0, &i1);
+            r[a] = (uint32_t)i0;
+            r[3 + a] = (uint32_t)i1;
             cnt *= i1 - i0;
         }
         if (cnt <= MR_SVO_EMIT_MAX_CELLS || h == 0) {
             *level = h;
-            *cells = cnt;
-            return;
+            return cnt;
         }
         h--;
     }
@@ -1005,14 +1101,18 @@ static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
         uint64_t total = 0;
         for (size_t i = i0; i < i1; i++) {
             unsigned l;
-            uint64_t cells;
-            rs_plan(c, i, &l, &cells);
+            total += rs_plan(c, i, &l, &c->box_range[6 * i]);
             c->box_level[i] = (uint8_t)l;
-            c->box_cells[i] = (uint32_t)cells;
-            total += cells;
         }
         c->chunk_cells[ch] = total;
     }
+}
+
+/* The dilated coordinate d of one axis (mask m) moved by one cell whose
+ * dilated width is unit: the carry runs through the other axes' bits. */
+static inline uint64_t dilated_next(uint64_t d, uint64_t m, uint64_t unit)
+{
+    return ((d | ~m) + unit) & m;
 }
 
 static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
@@ -1021,35 +1121,185 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
     rs_ctx *c = vctx;
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
-        uint64_t o = c->chunk_cells[ch];
+        uint64_t o = c->chunk_cells[ch], bits_or = 0, bits_and = ~(uint64_t)0;
         for (size_t i = i0; i < i1; i++) {
-            const float *b = &c->sel->box[i * 6];
             const unsigned l = c->box_level[i], sh = c->depth - l;
-            uint64_t r0[3], r1[3];
-            for (int a = 0; a < 3; a++) {
-                if (c->method == MR_SVO_RESIZE) {
-                    r0[a] = resize_first(c, a, l, b[a], b[3 + a]);
-                    r1[a] = r0[a] + 2;
-                } else {
-                    emit_range(c, a, l, b[a], b[3 + a], &r0[a], &r1[a]);
-                }
-            }
-            for (uint64_t z = r0[2]; z < r1[2]; z++)
-                for (uint64_t y = r0[1]; y < r1[1]; y++)
-                    for (uint64_t x = r0[0]; x < r1[0]; x++) {
-                        c->keys[o].code =
-                            mr_morton_encode((uint32_t)(x << sh), (uint32_t)(y << sh), (uint32_t)(z << sh));
-                        c->keys[o].level = l;
+            const uint32_t *r = &c->box_range[6 * i];
+            const uint64_t ux = 1ull << (3 * sh), uy = ux << 1, uz = ux << 2;
+            const uint64_t mx = MORTON_X, my = MORTON_X << 1, mz = MORTON_X << 2;
+            const uint64_t dx0 = mr_morton_encode(r[0] << sh, 0, 0), dy0 = mr_morton_encode(0, r[1] << sh, 0);
+            uint64_t dz = mr_morton_encode(0, 0, r[2] << sh);
+            for (uint32_t z = r[2]; z < r[5]; z++, dz = dilated_next(dz, mz, uz)) {
+                uint64_t dy = dy0;
+                for (uint32_t y = r[1]; y < r[4]; y++, dy = dilated_next(dy, my, uy)) {
+                    uint64_t dx = dx0;
+                    for (uint32_t x = r[0]; x < r[3]; x++, dx = dilated_next(dx, mx, ux)) {
+                        const uint64_t code = dx | dy | dz;
+                        if (c->packed) {
+                            const uint64_t k = code << PACK_LEVEL_BITS | l;
+                            c->pk[o] = k;
+                            bits_or |= k;
+                            bits_and &= k;
+                        } else {
+                            c->keys[o].code = code;
+                            c->keys[o].level = l;
+                        }
                         c->payload[o] = (uint32_t)i;
                         o++;
                     }
+                }
+            }
+        }
+        c->chunk_bits[2 * ch] = bits_or;
+        c->chunk_bits[2 * ch + 1] = bits_and;
+    }
+}
+
+/* ---- the packed sort: stable LSD radix over the varying bits ---------- */
+
+typedef struct pk_sort {
+    uint64_t *src, *dst;
+    uint32_t *src_p, *dst_p;
+    mr_svo_key *out;       /* the last pass unpacks into it */
+    size_t count;
+    unsigned blocks, passes, pass, shift, bits;
+    uint32_t *hist;        /* blocks * RADIX per pass (or all passes at once) */
+    bool all;              /* count every pass's digits in one read */
+} pk_sort;
+
+static void pk_block(const pk_sort *s, size_t b, size_t *lo, size_t *hi)
+{
+    *lo = s->count * b / s->blocks;
+    *hi = s->count * (b + 1) / s->blocks;
+}
+
+static void pk_count(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    pk_sort *s = vctx;
+    const size_t radix = (size_t)1 << s->bits;
+    const uint64_t mask = radix - 1;
+    const unsigned p0 = s->all ? 0 : s->pass, p1 = s->all ? s->passes : s->pass + 1;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        pk_block(s, b, &lo, &hi);
+        uint32_t *h = s->hist + b * radix * (p1 - p0);
+        memset(h, 0, radix * (p1 - p0) * sizeof *h);
+        for (unsigned p = p0; p < p1; p++) {
+            uint32_t *hp = h + (p - p0) * radix;
+            const unsigned sh = s->shift + p * s->bits;
+            for (size_t i = lo; i < hi; i++)
+                hp[(s->src[i] >> sh) & mask]++;
         }
     }
+}
+
+static void pk_scatter(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    pk_sort *s = vctx;
+    const size_t radix = (size_t)1 << s->bits;
+    const uint64_t mask = radix - 1;
+    const unsigned sh = s->shift + s->pass * s->bits;
+    const bool last = s->pass + 1 == s->passes;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        pk_block(s, b, &lo, &hi);
+        uint32_t *off = s->hist + b * radix * (s->all ? s->passes : 1) + (s->all ? s->pass * radix : 0);
+        if (last) {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = s->src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                s->out[at].code = k >> PACK_LEVEL_BITS;
+                s->out[at].level = (uint32_t)(k & ((1u << PACK_LEVEL_BITS) - 1u));
+                s->dst_p[at] = s->src_p[i];
+            }
+        } else {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = s->src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                s->dst[at] = k;
+                s->dst_p[at] = s->src_p[i];
+            }
+        }
+    }
+}
+
+/* Sorts count packed keys (whose bits outside `varying` are all equal)
+ * with their payloads into out / *payload (pointing at pay or pay2
+ * afterwards). pk2, pay2: scratch of count each. */
+static int pk_sort_run(uint64_t *pk, uint64_t *pk2, uint32_t *pay, uint32_t *pay2, size_t count,
+                       uint64_t varying, unsigned threads, mr_svo_workspace *ws, mr_svo_key *out,
+                       uint32_t **payload, mr_error *err)
+{
+    pk_sort s = {.src = pk, .dst = pk2, .src_p = pay, .dst_p = pay2, .out = out, .count = count};
+    if (varying == 0) {
+        /* one pass on a constant digit: a stable copy that unpacks */
+        s.shift = 0;
+        s.bits = 1;
+        s.passes = 1;
+    } else {
+        const unsigned lo = (unsigned)__builtin_ctzll(varying), hi = 64u - (unsigned)__builtin_clzll(varying);
+        s.passes = (hi - lo + PK_MAX_BITS - 1) / PK_MAX_BITS;
+        s.bits = (hi - lo + s.passes - 1) / s.passes;
+        s.shift = lo;
+    }
+    if (threads == 0)
+        threads = mr_cpu_count();
+    size_t blocks = count / PK_MIN_PER_BLOCK;
+    if (blocks > threads)
+        blocks = threads;
+    if (blocks > PK_MAX_BLOCKS)
+        blocks = PK_MAX_BLOCKS;
+    if (blocks == 0)
+        blocks = 1;
+    s.blocks = (unsigned)blocks;
+    /* One block: its digit counts are the whole array's, which no pass
+     * changes, so all passes are counted in one read. Several: each pass
+     * counts the blocks of its own input. */
+    s.all = blocks == 1;
+    const size_t radix = (size_t)1 << s.bits;
+    s.hist = ws_get(ws, WS_RS_HIST, blocks * radix * (s.all ? s.passes : 1), sizeof *s.hist);
+    if (!s.hist)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (sort histograms)");
+    if (s.all)
+        pk_count(&s, 0, 1, 0);
+    for (unsigned p = 0; p < s.passes; p++) {
+        s.pass = p;
+        if (!s.all)
+            mr_parallel_for(threads, blocks, 1, pk_count, &s);
+        uint32_t *h = s.hist + (s.all ? p * radix : 0);
+        const size_t stride = s.all ? radix * s.passes : radix;
+        uint32_t run = 0;
+        for (size_t d = 0; d < radix; d++) {
+            for (size_t b = 0; b < blocks; b++) {
+                const uint32_t n = h[b * stride + d];
+                h[b * stride + d] = run;
+                run += n;
+            }
+        }
+        mr_parallel_for(threads, blocks, 1, pk_scatter, &s);
+        uint64_t *t = s.src;
+        s.src = s.dst;
+        s.dst = t;
+        uint32_t *tp = s.src_p;
+        s.src_p = s.dst_p;
+        s.dst_p = tp;
+    }
+    *payload = s.src_p;
+    return MR_OK;
 }
 
 int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
                     const mr_svo_attr *palette, uint32_t palette_count, unsigned threads, mr_svo *out,
                     uint64_t *cells, mr_error *err)
+{
+    return mr_svo_resample_ws(sel, method, depth, palette, palette_count, threads, NULL, out, cells, err);
+}
+
+int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
+                       const mr_svo_attr *palette, uint32_t palette_count, unsigned threads,
+                       mr_svo_workspace *ws, mr_svo *out, uint64_t *cells, mr_error *err)
 {
     if (cells)
         *cells = 0;
@@ -1078,23 +1328,27 @@ int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned 
         return rc0;
     }
 
+    mr_svo_workspace local;
+    memset(&local, 0, sizeof local);
+    if (!ws)
+        ws = &local;
     rs_ctx c;
     memset(&c, 0, sizeof c);
     c.sel = sel;
     c.method = method;
     c.depth = depth;
+    c.packed = depth <= PACK_MAX_DEPTH;
     int rc = MR_OK;
     const size_t n = sel->count, chunks = (n + RS_CHUNK - 1) / RS_CHUNK;
-    mr_svo_key *keys = NULL;
-    uint32_t *payload = NULL, *kept_from = NULL;
-    mr_svo_leaf *leaves = NULL;
-    c.chunk_lo = malloc(chunks * sizeof *c.chunk_lo);
-    c.chunk_hi = malloc(chunks * sizeof *c.chunk_hi);
-    c.chunk_bad = malloc(chunks * sizeof *c.chunk_bad);
-    c.chunk_cells = malloc(chunks * sizeof *c.chunk_cells);
-    c.box_level = malloc(n);
-    c.box_cells = malloc(n * sizeof *c.box_cells);
-    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.box_level || !c.box_cells) {
+    c.chunk_lo = ws_get(ws, WS_RS_LO, chunks, sizeof *c.chunk_lo);
+    c.chunk_hi = ws_get(ws, WS_RS_HI, chunks, sizeof *c.chunk_hi);
+    c.chunk_bad = ws_get(ws, WS_RS_BAD, chunks, sizeof *c.chunk_bad);
+    c.chunk_cells = ws_get(ws, WS_RS_CELLS, chunks, sizeof *c.chunk_cells);
+    c.chunk_bits = ws_get(ws, WS_RS_BITS, chunks, 2 * sizeof *c.chunk_bits);
+    c.box_level = ws_get(ws, WS_RS_LEVEL, n, 1);
+    c.box_range = ws_get(ws, WS_RS_RANGE, n, 6 * sizeof *c.box_range);
+    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.chunk_bits || !c.box_level ||
+        !c.box_range) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu boxes)", n);
         goto cleanup;
     }
@@ -1138,6 +1392,10 @@ int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned 
     }
     c.size = size;
     c.cell21 = (double)size * (1.0 / (double)GRID_CELLS);
+    for (unsigned l = 0; l <= GRID_BITS; l++) {
+        c.cell[l] = ldexp(c.size, -(int)l);
+        c.inv_cell[l] = 1.0 / c.cell[l];
+    }
 
     mr_parallel_for(threads, chunks, 1, rs_count, &c);
     uint64_t total = 0;
@@ -1151,24 +1409,40 @@ int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned 
                           (unsigned long long)total);
         goto cleanup;
     }
-    keys = malloc((size_t)total * sizeof *keys);
-    payload = malloc((size_t)total * sizeof *payload);
-    if (!keys || !payload) {
+    mr_svo_key *keys = ws_get(ws, WS_RS_KEYS, (size_t)total, sizeof *keys);
+    uint32_t *payload = ws_get(ws, WS_RS_PAY, (size_t)total, sizeof *payload);
+    uint32_t *payload2 = ws_get(ws, WS_RS_PAY2, (size_t)total, sizeof *payload2);
+    uint64_t *pk = NULL, *pk2 = NULL;
+    mr_svo_key *keys2 = NULL;
+    if (c.packed) {
+        pk = ws_get(ws, WS_RS_PACKED, (size_t)total, sizeof *pk);
+        pk2 = ws_get(ws, WS_RS_PACKED2, (size_t)total, sizeof *pk2);
+    } else {
+        keys2 = ws_get(ws, WS_RS_KEYS2, (size_t)total, sizeof *keys2);
+    }
+    if (!keys || !payload || !payload2 || (c.packed ? !pk || !pk2 : !keys2)) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
         goto cleanup;
     }
     c.keys = keys;
+    c.pk = pk;
     c.payload = payload;
     mr_parallel_for(threads, chunks, 1, rs_write, &c);
-    free(c.box_level);
-    free(c.box_cells);
-    c.box_level = NULL;
-    c.box_cells = NULL;
 
-    rc = mr_svo_radix_sort_payload(keys, payload, (size_t)total, NULL, NULL, threads, err);
+    if (c.packed) {
+        uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
+        for (size_t ch = 0; ch < chunks; ch++) {
+            bits_or |= c.chunk_bits[2 * ch];
+            bits_and &= c.chunk_bits[2 * ch + 1];
+        }
+        rc = pk_sort_run(pk, pk2, payload, payload2, (size_t)total, bits_or ^ bits_and, threads, ws, keys,
+                         &payload, err);
+    } else {
+        rc = mr_svo_radix_sort_payload(keys, payload, (size_t)total, keys2, payload2, threads, err);
+    }
     if (rc != MR_OK)
         goto cleanup;
-    kept_from = malloc((size_t)total * sizeof *kept_from);
+    uint32_t *kept_from = ws_get(ws, WS_RS_KEPT, (size_t)total, sizeof *kept_from);
     if (!kept_from) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
         goto cleanup;
@@ -1177,7 +1451,7 @@ int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned 
     rc = mr_svo_compact(keys, (size_t)total, depth, kept_from, &kept, err);
     if (rc != MR_OK)
         goto cleanup;
-    leaves = malloc((kept ? kept : 1) * sizeof *leaves);
+    mr_svo_leaf *leaves = ws_get(ws, WS_RS_LEAVES, kept, sizeof *leaves);
     if (!leaves) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu voxels)", kept);
         goto cleanup;
@@ -1199,15 +1473,7 @@ cleanup:
         mr_svo_free(out);
         memset(out, 0, sizeof *out);
     }
-    free(c.chunk_lo);
-    free(c.chunk_hi);
-    free(c.chunk_bad);
-    free(c.chunk_cells);
-    free(c.box_level);
-    free(c.box_cells);
-    free(keys);
-    free(payload);
-    free(kept_from);
-    free(leaves);
+    if (ws == &local)
+        ws_release(&local);
     return rc;
 }

@@ -137,6 +137,20 @@ typedef struct mr_svo_extremes {
 int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err);
 void mr_svo_extremes_free(mr_svo_extremes *e);
 
+/* Scratch arrays kept between calls of the _ws functions below, so a caller
+ * that selects and resamples every frame allocates (and faults in fresh
+ * pages) only while its frames grow. Opaque. One workspace serves one call
+ * at a time (a per-frame caller keeps one per worker); a _ws function given
+ * NULL allocates its own and frees it, as the plain functions do. It holds
+ * about the largest arrays a call needed (resampling: ~44 bytes per cell). */
+typedef struct mr_svo_workspace mr_svo_workspace;
+
+/* Errors: MR_ERR_INVALID (NULL out), MR_ERR_NOMEM. */
+int mr_svo_workspace_new(mr_svo_workspace **out, mr_error *err);
+void mr_svo_workspace_free(mr_svo_workspace *ws);
+/* Bytes the workspace holds now. */
+size_t mr_svo_workspace_memory(const mr_svo_workspace *ws);
+
 /* Selects and deforms the voxels of svo for one instance (appends nothing:
  * out is reset, its buffers reused and grown). max_level: deepest level to
  * refine to (clamped to svo->depth). view may be NULL (= not enabled).
@@ -151,6 +165,10 @@ void mr_svo_extremes_free(mr_svo_extremes *e);
 int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
                   const mr_svo_view *view, unsigned max_level, unsigned threads,
                   mr_svo_selection *out, mr_error *err);
+/* mr_svo_select with scratch from ws (NULL: its own); same results. */
+int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
+                     const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_workspace *ws,
+                     mr_svo_selection *out, mr_error *err);
 void mr_svo_selection_free(mr_svo_selection *s);
 
 /* Resamples sel with method RESIZE or EMIT into *out (freed first with
@@ -164,5 +182,9 @@ void mr_svo_selection_free(mr_svo_selection *s);
 int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
                     const mr_svo_attr *palette, uint32_t palette_count, unsigned threads,
                     mr_svo *out, uint64_t *cells, mr_error *err);
+/* mr_svo_resample with scratch from ws (NULL: its own); same results. */
+int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
+                       const mr_svo_attr *palette, uint32_t palette_count, unsigned threads,
+                       mr_svo_workspace *ws, mr_svo *out, uint64_t *cells, mr_error *err);
 
 #endif /* MR_SVO_DEFORM_H */

@@ -8,11 +8,16 @@
  * Rounding each coordinate on its own is not the nearest code on the
  * sphere, so the encoder tries the four codes around the projected point and
  * keeps the one whose decoded direction is closest: measured worst error
- * 0.63 degrees over 2 M directions (test_svo_build).
+ * 0.63 degrees over 2 M directions (test_svo_build). The candidates are
+ * compared by cosine squared over squared length, so choosing costs no
+ * square root or division (selection re-encodes every moved normal each
+ * frame); the choice is the same as comparing normalised decodes except
+ * between candidates tied to float rounding.
  */
 #include "svo/svo.h"
 
 #include <math.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -74,6 +79,22 @@ mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
     return decode_uv(in[0], in[1]);
 }
 
+/* The decoded direction of code (u, v) before normalisation: the encoder
+ * compares candidates by angle, for which the length does not matter. */
+static inline mr_vec3 unfold_uv(int u, int v)
+{
+    float x = (float)u * (2.0f / 255.0f) - 1.0f;
+    float y = (float)v * (2.0f / 255.0f) - 1.0f;
+    float z = 1.0f - fabsf(x) - fabsf(y);
+    if (z < 0.0f) {
+        float fx = (1.0f - fabsf(y)) * sign_not_zero(x);
+        float fy = (1.0f - fabsf(x)) * sign_not_zero(y);
+        x = fx;
+        y = fy;
+    }
+    return mr_v3(x, y, z);
+}
+
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
 {
     float l1 = fabsf(n.x) + fabsf(n.y) + fabsf(n.z);
@@ -81,7 +102,11 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
         n = mr_v3(0.0f, 0.0f, 1.0f);
         l1 = 1.0f;
     }
-    float x = n.x / l1, y = n.y / l1;
+    /* On the octahedron (|x| + |y| + |z| = 1): the comparison below then
+     * works on numbers near 1 whatever the input's length. */
+    const float inv = 1.0f / l1;
+    n = mr_v3(n.x * inv, n.y * inv, n.z * inv);
+    float x = n.x, y = n.y;
     if (n.z < 0.0f) {
         float fx = (1.0f - fabsf(y)) * sign_not_zero(x);
         float fy = (1.0f - fabsf(x)) * sign_not_zero(y);
@@ -89,20 +114,31 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
         y = fy;
     }
     float fu = (x + 1.0f) * 127.5f, fv = (y + 1.0f) * 127.5f;
-    int u0 = (int)floorf(fu), v0 = (int)floorf(fv);
-    float len = sqrtf(n.x * n.x + n.y * n.y + n.z * n.z);
-    mr_vec3 unit = mr_v3(n.x / len, n.y / len, n.z / len);
-    float best = -2.0f;
+    /* floor without a libm call (fu, fv are within [-1, 256]) */
+    int u0 = (int)fu, v0 = (int)fv;
+    u0 -= (float)u0 > fu;
+    v0 -= (float)v0 > fv;
+    /* The candidate with the smallest angle to n has the largest
+     * dot / |d|; among candidates with dot > 0 that is the largest
+     * dot^2 / |d|^2, compared cross-multiplied: no square root, no division
+     * (the decode of each candidate used to cost both). */
+    float best_dot = 0.0f, best_len2 = 1.0f;
+    bool have = false;
     unsigned bu = 128, bv = 128;
     for (int dv = 0; dv < 2; dv++) {
         for (int du = 0; du < 2; du++) {
             int u = u0 + du, v = v0 + dv;
             u = u < 0 ? 0 : u > 255 ? 255 : u;
             v = v < 0 ? 0 : v > 255 ? 255 : v;
-            mr_vec3 d = decode_uv((unsigned)u, (unsigned)v);
-            float dot = d.x * unit.x + d.y * unit.y + d.z * unit.z;
-            if (dot > best) {
-                best = dot;
+            const mr_vec3 d = unfold_uv(u, v);
+            const float dot = d.x * n.x + d.y * n.y + d.z * n.z;
+            const float len2 = d.x * d.x + d.y * d.y + d.z * d.z;
+            if (!(dot > 0.0f))
+                continue;
+            if (!have || dot * dot * best_len2 > best_dot * best_dot * len2) {
+                have = true;
+                best_dot = dot;
+                best_len2 = len2;
                 bu = (unsigned)u;
                 bv = (unsigned)v;
             }

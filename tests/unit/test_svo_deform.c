@@ -982,6 +982,75 @@ static void test_threads(void **state)
     mr_asset_free(a);
 }
 
+/* ---- workspaces */
+
+/* A workspace kept across calls (as per frame) gives exactly what the calls
+ * without one give, whatever the calls before it left in it: a large
+ * selection, a small one, a failed call, and resampling at depth 20 (above
+ * the packed sort's 19: the shared sort) between depth-9 ones. */
+static void test_workspace(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 8;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    extremes(s, &e);
+    mr_pose *pose, *rest;
+    pose_at(a, 0.37 * a->clips[0].duration, &pose, &rest);
+    const double h = 0.5 * s->size;
+    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
+                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
+    rig r;
+    rig_posed(&r, a, pose, rest, &place);
+    mr_svo_view near = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256,
+                        .height = 256, .delta = 1.0f, .cull = true};
+    mr_svo_view far = near;
+    far.width = far.height = 16;
+    mr_svo_workspace *ws = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_workspace_new(&ws, &err), MR_OK);
+    const mr_svo_view *views[3] = {&near, &far, &near};
+    const unsigned depths[3] = {D + 1, 20, D + 1};
+    for (int k = 0; k < 3; k++) {
+        mr_svo_selection ref = {0}, got = {0};
+        select_ok(s, &e, &r.d, views[k], D, 1, &ref);
+        assert_int_equal(mr_svo_select_ws(s, &e, &r.d, views[k], D, 2, ws, &got, &err), MR_OK);
+        assert_true(ref.count > 0);
+        assert_true(selections_equal(&ref, &got));
+        for (int m = 0; m < 2; m++) {
+            const mr_svo_method method = m ? MR_SVO_EMIT : MR_SVO_RESIZE;
+            mr_svo o_ref = {0}, o_got = {0};
+            uint64_t c_ref = 0, c_got = 0;
+            resample_ok(&ref, method, depths[k], s, 1, &o_ref, &c_ref);
+            assert_int_equal(mr_svo_resample_ws(&got, method, depths[k], s->palette, s->palette_count, 2, ws,
+                                                &o_got, &c_got, &err),
+                             MR_OK);
+            assert_true(c_ref == c_got && o_ref.leaf_count > 0);
+            assert_true(svos_equal(&o_ref, &o_got));
+            mr_svo_free(&o_ref);
+            mr_svo_free(&o_got);
+        }
+        /* a failing call leaves the workspace usable */
+        mr_svo_view bad = near;
+        bad.delta = 0.0f;
+        assert_int_equal(mr_svo_select_ws(s, &e, &r.d, &bad, D, 2, ws, &got, &err), MR_ERR_INVALID);
+        assert_int_equal(got.count, 0);
+        mr_svo_selection_free(&ref);
+        mr_svo_selection_free(&got);
+    }
+    assert_true(mr_svo_workspace_memory(ws) > 0);
+    mr_svo_workspace_free(ws);
+    mr_svo_workspace_free(NULL);
+    assert_int_equal(mr_svo_workspace_new(NULL, &err), MR_ERR_INVALID);
+    rig_free(&r);
+    mr_pose_free(pose);
+    mr_pose_free(rest);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
 /* ---- validation */
 
 static void test_invalid_input(void **state)
@@ -1075,6 +1144,7 @@ int main(void)
         cmocka_unit_test(test_screen_space),
         cmocka_unit_test(test_skinned_rig),
         cmocka_unit_test(test_threads),
+        cmocka_unit_test(test_workspace),
         cmocka_unit_test(test_invalid_input),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
