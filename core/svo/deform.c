@@ -148,7 +148,7 @@ static bool masks_ok(const mr_svo *svo, uint32_t n)
  * caller keeps one workspace, so after the first frame nothing is
  * allocated and no fresh page is faulted in (both showed in profiles). */
 enum {
-    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL, WS_PAL,
+    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
     WS_RS_KEPT, WS_RS_LEAVES,
@@ -316,7 +316,6 @@ typedef struct sel_ctx {
     const mr_svo *svo;
     const mr_svo_extremes *ex;
     const mr_svo_deformer *d;
-    const mr_affine *pal_mat; /* per palette entry (skinning); NULL with a field */
     bool view_on, cull;
     double vp[16];
     double planes[7][4]; /* clip-space half spaces p . (x, y, z, 1) >= 0 */
@@ -337,6 +336,33 @@ typedef struct sel_ctx {
 
 /* Arvo's box transform applied once per matrix, union of the two (Fig. 16),
  * in the mr_affine convention: out_i = m[4i+3] + sum_j m[4i+j] * in_j. */
+/* The blended skin matrix of palette entry at (sum of weight * joint
+ * matrix, in double; no weights: the mesh's matrix). Blended per voxel
+ * extreme rather than once per palette entry up front: a far instance
+ * selects a handful of voxels, while the palette of a character has
+ * thousands of entries (blending them all cost ~1 ms per instance). The
+ * arithmetic is the same either way. */
+static mr_affine blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d)
+{
+    double acc[12] = {0};
+    bool any = false;
+    for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
+        if (at->weights[k] == 0)
+            continue;
+        const double w = at->weights[k] / 255.0;
+        const float *j = d->joint[at->mesh][at->joints[k]].m;
+        for (int e = 0; e < 12; e++)
+            acc[e] += w * (double)j[e];
+        any = true;
+    }
+    if (!any)
+        return d->mesh[at->mesh];
+    mr_affine out;
+    for (int e = 0; e < 12; e++)
+        out.m[e] = (float)acc[e];
+    return out;
+}
+
 static void deform_box(const mr_affine *a0, const mr_affine *a1, const double lo[3], const double hi[3],
                        double olo[3], double ohi[3])
 {
@@ -470,8 +496,8 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     continue;
                 }
             } else {
-                a0 = c->pal_mat[attr0];
-                a1 = c->pal_mat[attr1];
+                a0 = blend_entry(&svo->palette[attr0], c->d);
+                a1 = attr1 == attr0 ? a0 : blend_entry(&svo->palette[attr1], c->d);
             }
             double dlo[3], dhi[3];
             deform_box(&a0, &a1, lo, hi, dlo, dhi);
@@ -657,12 +683,10 @@ static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
     return MR_OK;
 }
 
-/* Checks the deformer and blends one matrix per palette entry (they do not
- * depend on the voxel: every extreme of a voxel maps to an entry). */
-static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_svo_workspace *ws, mr_affine **out,
-                            mr_error *err)
+/* Checks that the deformer has finite matrices for every mesh and joint
+ * the palette names (integer checks per entry: no blending here). */
+static int check_deformer(const mr_svo *svo, const mr_svo_deformer *d, mr_error *err)
 {
-    *out = NULL;
     if (d->mesh_count > 0 && !d->mesh)
         return mr_error_set(err, MR_ERR_INVALID, "svo select: deformer has %zu meshes but no mesh matrices",
                             d->mesh_count);
@@ -678,49 +702,22 @@ static int palette_matrices(const mr_svo *svo, const mr_svo_deformer *d, mr_svo_
                 return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu joint %u matrix is not finite",
                                     m, j);
     }
-    if (svo->palette_count == 0)
-        return MR_OK;
-    if (!svo->palette)
+    if (svo->palette_count > 0 && !svo->palette)
         return mr_error_set(err, MR_ERR_INVALID, "svo select: octree has %u palette entries but no palette",
                             svo->palette_count);
-    mr_affine *pm = ws_get(ws, WS_PAL, svo->palette_count, sizeof *pm);
-    if (!pm)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (palette matrices)");
     for (uint32_t p = 0; p < svo->palette_count; p++) {
         const mr_svo_attr *at = &svo->palette[p];
-        if (at->mesh >= d->mesh_count) {
+        if (at->mesh >= d->mesh_count)
             return mr_error_set(err, MR_ERR_INVALID,
                                 "svo select: palette entry %u names mesh %u, the deformer has %zu", p,
                                 (unsigned)at->mesh, d->mesh_count);
-        }
         const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
-        double acc[12] = {0};
-        bool any = false;
-        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
-            if (at->weights[k] == 0)
-                continue;
-            if (at->joints[k] >= jc) {
-                    return mr_error_set(err, MR_ERR_INVALID,
+        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++)
+            if (at->weights[k] != 0 && at->joints[k] >= jc)
+                return mr_error_set(err, MR_ERR_INVALID,
                                     "svo select: palette entry %u names joint %u of mesh %u, which has %u", p,
                                     (unsigned)at->joints[k], (unsigned)at->mesh, jc);
-            }
-            const double w = at->weights[k] / 255.0;
-            const float *j = d->joint[at->mesh][at->joints[k]].m;
-            for (int e = 0; e < 12; e++)
-                acc[e] += w * (double)j[e];
-            any = true;
-        }
-        if (any) {
-            for (int e = 0; e < 12; e++)
-                pm[p].m[e] = (float)acc[e];
-        } else {
-            pm[p] = d->mesh[at->mesh];
-        }
-        if (!affine_finite(&pm[p])) {
-            return mr_error_set(err, MR_ERR_INVALID, "svo select: palette entry %u gives a non-finite matrix", p);
-        }
     }
-    *out = pm;
     return MR_OK;
 }
 
@@ -815,13 +812,8 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
     memset(&local, 0, sizeof local);
     if (!ws)
         ws = &local;
-    mr_affine *pal_mat = NULL;
-    if (!d->field) {
-        rc = palette_matrices(svo, d, ws, &pal_mat, err);
-        if (rc != MR_OK)
-            goto cleanup;
-    }
-    c.pal_mat = pal_mat;
+    if (!d->field && (rc = check_deformer(svo, d, err)) != MR_OK)
+        goto cleanup;
 
     sel_item *cur = NULL;
     size_t n = 0;
@@ -1058,13 +1050,24 @@ static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, doub
 static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6])
 {
     const float *b = &c->sel->box[i * 6];
-    double lo[3], hi[3], smin = INFINITY, smax = 0.0;
+    double lo[3], hi[3], smin = INFINITY, smax = 0.0, mag = 0.0;
     for (int a = 0; a < 3; a++) {
         lo[a] = b[a];
         hi[a] = b[3 + a];
         smin = dmin(smin, hi[a] - lo[a]);
         smax = dmax(smax, hi[a] - lo[a]);
+        mag = dmax(mag, dmax(fabs(lo[a]), fabs(hi[a])));
     }
+    /* Boxes were rounded outwards to float, which widens them by up to an
+     * ulp of their coordinates at each end: a box that is one cell of level
+     * h but for that rounding still fits level h. Without this slack an
+     * undeformed or uniformly scaled voxel (a cell exactly) goes one level
+     * coarser and resize overhangs the silhouette by a voxel, where the
+     * thesis finds resize exact under uniform scale. Emit still covers the
+     * whole box (its ranges use lo and hi). */
+    const double slack = 4.0 * FLT_EPSILON * mag;
+    smin = dmax(smin - slack, 0.0);
+    smax = dmax(smax - slack, 0.0);
     if (c->method == MR_SVO_RESIZE) {
         const unsigned h = hold_level(c, smax), l = h + 1 < c->depth ? h + 1 : c->depth;
         *level = l;

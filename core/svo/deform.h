@@ -34,7 +34,9 @@
  *  - resize: h from the largest side (the coarsest level whose cell still
  *    holds it, eq. 3.3.6), then the 2 x 2 x 2 cells of level h + 1 whose
  *    indices per axis are floor(r c - 1/2) and that + 1, c the box centre in
- *    cells of level h + 1 (eq. 3.3.7-3.3.9 with floor);
+ *    cells of level h + 1 (eq. 3.3.7-3.3.9 with floor); a box wider than a
+ *    cell only by its outward float rounding (4 ulps of its coordinates)
+ *    still fits that cell, so resize is exact under uniform scale;
  *  - emit: h from the smallest side (eq. 3.3.10), then every cell of level h
  *    with index floor(r lo) .. ceil(r hi) - 1 per axis (eq. 3.3.12
  *    corrected: covers the whole box). Boxes that would emit more than
