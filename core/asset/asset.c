@@ -226,6 +226,93 @@ static void clip_free(mr_clip *c)
     free(c->channels);
 }
 
+static void *copy_bytes(const void *src, size_t bytes)
+{
+    if (!src || bytes == 0)
+        return NULL;
+    void *p = malloc(bytes);
+    if (p)
+        memcpy(p, src, bytes);
+    return p;
+}
+
+static int copy_clip(const mr_clip *src, mr_clip *dst)
+{
+    dst->duration = src->duration;
+    if (src->name && !(dst->name = strdup(src->name)))
+        return MR_ERR_NOMEM;
+    if (src->channel_count == 0)
+        return MR_OK;
+    dst->channels = calloc(src->channel_count, sizeof *dst->channels);
+    if (!dst->channels)
+        return MR_ERR_NOMEM;
+    dst->channel_count = src->channel_count;
+    for (size_t i = 0; i < src->channel_count; i++) {
+        const mr_channel *a = &src->channels[i];
+        mr_channel *b = &dst->channels[i];
+        b->node = a->node;
+        b->position_count = a->position_count;
+        b->rotation_count = a->rotation_count;
+        b->scale_count = a->scale_count;
+        b->positions = copy_bytes(a->positions, a->position_count * sizeof *a->positions);
+        b->rotations = copy_bytes(a->rotations, a->rotation_count * sizeof *a->rotations);
+        b->scales = copy_bytes(a->scales, a->scale_count * sizeof *a->scales);
+        if ((a->position_count && !b->positions) || (a->rotation_count && !b->rotations) ||
+            (a->scale_count && !b->scales))
+            return MR_ERR_NOMEM;
+    }
+    return MR_OK;
+}
+
+int mr_asset_copy_shell(const mr_asset *in, size_t extra_nodes, mr_asset **out)
+{
+    mr_asset *a = calloc(1, sizeof *a);
+    *out = a;
+    if (!a)
+        return MR_ERR_NOMEM;
+    /* Counts are set as soon as an array exists (zeroed), so mr_asset_free
+     * can release a partial copy. */
+    if (in->path && !(a->path = strdup(in->path)))
+        return MR_ERR_NOMEM;
+    if (in->node_count + extra_nodes > 0 &&
+        !(a->nodes = calloc(in->node_count + extra_nodes, sizeof *a->nodes)))
+        return MR_ERR_NOMEM;
+    for (size_t i = 0; i < in->node_count; i++) {
+        a->nodes[i] = in->nodes[i];
+        a->nodes[i].name = NULL;
+        a->node_count = i + 1;
+        /* mr_node.name is never NULL. */
+        if (!(a->nodes[i].name = strdup(in->nodes[i].name ? in->nodes[i].name : "")))
+            return MR_ERR_NOMEM;
+    }
+    if (in->clip_count) {
+        if (!(a->clips = calloc(in->clip_count, sizeof *a->clips)))
+            return MR_ERR_NOMEM;
+        a->clip_count = in->clip_count;
+        for (size_t i = 0; i < in->clip_count; i++)
+            if (copy_clip(&in->clips[i], &a->clips[i]) < 0)
+                return MR_ERR_NOMEM;
+    }
+    if (in->camera_count) {
+        if (!(a->cameras = calloc(in->camera_count, sizeof *a->cameras)))
+            return MR_ERR_NOMEM;
+        a->camera_count = in->camera_count;
+        for (size_t i = 0; i < in->camera_count; i++) {
+            a->cameras[i] = in->cameras[i];
+            a->cameras[i].name = NULL;
+            if (in->cameras[i].name && !(a->cameras[i].name = strdup(in->cameras[i].name)))
+                return MR_ERR_NOMEM;
+        }
+    }
+    if (in->mesh_count) {
+        if (!(a->meshes = calloc(in->mesh_count, sizeof *a->meshes)))
+            return MR_ERR_NOMEM;
+        a->mesh_count = in->mesh_count;
+    }
+    a->triangle_count = in->triangle_count;
+    return MR_OK;
+}
+
 void mr_asset_free(mr_asset *asset)
 {
     if (!asset)

@@ -111,6 +111,13 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
                        uint32_t triangle_count, mr_asset **out, mr_error *err);
 
 void mr_asset_free(mr_asset *asset);
+/* A deep copy of in's path, nodes (with room for extra_nodes more after
+ * them; node_count counts the copied ones), clips and cameras, plus
+ * mesh_count zeroed meshes and in's triangle_count, for a caller that makes
+ * its own meshes (refine.h, the svo skeleton rig). *out is set even on
+ * failure (a partial copy; release with mr_asset_free). Returns MR_OK or
+ * MR_ERR_NOMEM. */
+int mr_asset_copy_shell(const mr_asset *in, size_t extra_nodes, mr_asset **out);
 /* Frees the arrays a mesh owns and zeroes it (the mesh struct itself is the
  * caller's). NULL is fine. */
 void mr_mesh_release(mr_mesh *mesh);

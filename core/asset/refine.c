@@ -849,35 +849,7 @@ cleanup:
 }
 
 /* ------------------------------------------------------------------------ */
-/* asset copy                                                                 */
-
-static int copy_clip(const mr_clip *src, mr_clip *dst)
-{
-    dst->duration = src->duration;
-    if (src->name && !(dst->name = dup_str(src->name)))
-        return MR_ERR_NOMEM;
-    if (src->channel_count == 0)
-        return MR_OK;
-    dst->channels = calloc(src->channel_count, sizeof *dst->channels);
-    if (!dst->channels)
-        return MR_ERR_NOMEM;
-    dst->channel_count = src->channel_count;
-    for (size_t i = 0; i < src->channel_count; i++) {
-        const mr_channel *a = &src->channels[i];
-        mr_channel *b = &dst->channels[i];
-        b->node = a->node;
-        b->position_count = a->position_count;
-        b->rotation_count = a->rotation_count;
-        b->scale_count = a->scale_count;
-        b->positions = dup_mem(a->positions, a->position_count * sizeof *a->positions);
-        b->rotations = dup_mem(a->rotations, a->rotation_count * sizeof *a->rotations);
-        b->scales = dup_mem(a->scales, a->scale_count * sizeof *a->scales);
-        if ((a->position_count && !b->positions) || (a->rotation_count && !b->rotations) ||
-            (a->scale_count && !b->scales))
-            return MR_ERR_NOMEM;
-    }
-    return MR_OK;
-}
+/* the refined asset                                                          */
 
 int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset **out,
                     mr_error *err)
@@ -889,46 +861,9 @@ int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset
     *out = NULL;
     if (!in || !params)
         return mr_error_set(err, MR_ERR_INVALID, "refine: NULL asset or params");
-    if (!(a = calloc(1, sizeof *a)))
+    if (mr_asset_copy_shell(in, 0, &a) < 0)
         goto nomem;
-    if (in->path && !(a->path = dup_str(in->path)))
-        goto nomem;
-    /* Counts are set as soon as an array exists (zeroed), so mr_asset_free
-     * can release a partial copy. */
-    if (in->node_count) {
-        if (!(a->nodes = calloc(in->node_count, sizeof *a->nodes)))
-            goto nomem;
-        a->node_count = in->node_count;
-        for (size_t i = 0; i < in->node_count; i++) {
-            a->nodes[i] = in->nodes[i];
-            /* mr_node.name is never NULL. */
-            if (!(a->nodes[i].name = dup_str(in->nodes[i].name ? in->nodes[i].name : "")))
-                goto nomem;
-        }
-    }
-    if (in->clip_count) {
-        if (!(a->clips = calloc(in->clip_count, sizeof *a->clips)))
-            goto nomem;
-        a->clip_count = in->clip_count;
-        for (size_t i = 0; i < in->clip_count; i++)
-            if (copy_clip(&in->clips[i], &a->clips[i]) < 0)
-                goto nomem;
-    }
-    if (in->camera_count) {
-        if (!(a->cameras = calloc(in->camera_count, sizeof *a->cameras)))
-            goto nomem;
-        a->camera_count = in->camera_count;
-        for (size_t i = 0; i < in->camera_count; i++) {
-            a->cameras[i] = in->cameras[i];
-            a->cameras[i].name = NULL;
-            if (in->cameras[i].name && !(a->cameras[i].name = dup_str(in->cameras[i].name)))
-                goto nomem;
-        }
-    }
     if (in->mesh_count) {
-        if (!(a->meshes = calloc(in->mesh_count, sizeof *a->meshes)))
-            goto nomem;
-        a->mesh_count = in->mesh_count;
         size_t total = 0;
         for (size_t i = 0; i < in->mesh_count; i++) {
             if ((rc = mr_refine_mesh(&in->meshes[i], params, &a->meshes[i], err)) < 0) {

@@ -1339,75 +1339,6 @@ static bool sk_is_bone_name(const char *name, uint32_t count)
     return v < count;
 }
 
-/* The asset's path, nodes (room for extra more), clips and cameras; meshes
- * allocated zeroed (mesh_count set) for the caller to fill. */
-static int sk_copy_asset(const mr_asset *in, size_t extra, mr_asset **out)
-{
-    mr_asset *a = calloc(1, sizeof *a);
-    *out = a;
-    if (!a)
-        return MR_ERR_NOMEM;
-    if (in->path && !(a->path = sk_strdup(in->path)))
-        return MR_ERR_NOMEM;
-    if (!(a->nodes = calloc(in->node_count + extra, sizeof *a->nodes)))
-        return MR_ERR_NOMEM;
-    for (size_t i = 0; i < in->node_count; i++) {
-        a->nodes[i] = in->nodes[i];
-        a->nodes[i].name = NULL;
-        a->node_count = i + 1u;
-        if (!(a->nodes[i].name = sk_strdup(in->nodes[i].name ? in->nodes[i].name : "")))
-            return MR_ERR_NOMEM;
-    }
-    if (in->clip_count) {
-        if (!(a->clips = calloc(in->clip_count, sizeof *a->clips)))
-            return MR_ERR_NOMEM;
-        a->clip_count = in->clip_count;
-        for (size_t i = 0; i < in->clip_count; i++) {
-            const mr_clip *s = &in->clips[i];
-            mr_clip *d = &a->clips[i];
-            d->duration = s->duration;
-            if (s->name && !(d->name = sk_strdup(s->name)))
-                return MR_ERR_NOMEM;
-            if (s->channel_count == 0)
-                continue;
-            if (!(d->channels = calloc(s->channel_count, sizeof *d->channels)))
-                return MR_ERR_NOMEM;
-            d->channel_count = s->channel_count;
-            for (size_t k = 0; k < s->channel_count; k++) {
-                const mr_channel *x = &s->channels[k];
-                mr_channel *y = &d->channels[k];
-                y->node = x->node;
-                y->positions = sk_memdup(x->positions, x->position_count * sizeof *x->positions);
-                y->rotations = sk_memdup(x->rotations, x->rotation_count * sizeof *x->rotations);
-                y->scales = sk_memdup(x->scales, x->scale_count * sizeof *x->scales);
-                y->position_count = y->positions ? x->position_count : 0;
-                y->rotation_count = y->rotations ? x->rotation_count : 0;
-                y->scale_count = y->scales ? x->scale_count : 0;
-                if (y->position_count != x->position_count || y->rotation_count != x->rotation_count ||
-                    y->scale_count != x->scale_count)
-                    return MR_ERR_NOMEM;
-            }
-        }
-    }
-    if (in->camera_count) {
-        if (!(a->cameras = calloc(in->camera_count, sizeof *a->cameras)))
-            return MR_ERR_NOMEM;
-        a->camera_count = in->camera_count;
-        for (size_t i = 0; i < in->camera_count; i++) {
-            a->cameras[i] = in->cameras[i];
-            a->cameras[i].name = NULL;
-            if (in->cameras[i].name && !(a->cameras[i].name = sk_strdup(in->cameras[i].name)))
-                return MR_ERR_NOMEM;
-        }
-    }
-    if (in->mesh_count) {
-        if (!(a->meshes = calloc(in->mesh_count, sizeof *a->meshes)))
-            return MR_ERR_NOMEM;
-        a->mesh_count = in->mesh_count;
-    }
-    a->triangle_count = in->triangle_count;
-    return MR_OK;
-}
 
 /* Leaf containing finest-level cell (x, y, z), or -1. */
 static int64_t sk_find_leaf(const mr_svo *svo, uint32_t x, uint32_t y, uint32_t z)
@@ -1635,7 +1566,7 @@ int mr_svo_skeleton_rig(const mr_asset *asset, const mr_svo *svo, const mr_svo_s
     if ((rc = mr_pose_new(asset, &rest, err)) < 0)
         goto cleanup;
     const size_t n0 = asset->node_count;
-    if ((rc = sk_copy_asset(asset, s->bone_count, &a)) < 0)
+    if ((rc = mr_asset_copy_shell(asset, s->bone_count, &a)) < 0)
         goto nomem;
     mr_mat4 root_inv;
     if (!mr_mat4_inverse(&rest->global[0], &root_inv)) {
