@@ -1087,10 +1087,9 @@ static void part_d(double deadline)
                 die("select", err.msg);
         const double field_us = (mr_now() - t0) / reps * 1e6;
         printf("\nPer instance, one thread: pose (mr_pose_eval) + skin matrices %.1f us; selection "
-               "of a far instance (%zu voxels) %.1f us skinned, %.1f us with a field deformer (no "
-               "palette: the skinned selection blends one matrix per palette entry, %u of them, "
-               "before it walks).\n",
-               pose_us, w[0].sel.count, sel_us, field_us, svo->palette_count);
+               "of a far instance (%zu voxels) %.1f us skinned (matrices blended for the voxels "
+               "it reaches, of a palette of %u entries), %.1f us with a field deformer.\n",
+               pose_us, w[0].sel.count, sel_us, svo->palette_count, field_us);
     }
     /* 24 GiB: from the last frame's peak on at the marginal cost (the average if the
      * marginal one is not positive: RSS measurements are coarse) */

@@ -304,6 +304,7 @@ enum {
     FAIL_FIELD,    /* p: bind point */
     FAIL_CHILD,    /* a: node */
     FAIL_OVERFLOW, /* a: level; the deformed box left the float range */
+    FAIL_PALETTE,  /* a: palette entry naming a mesh or joint the deformer lacks */
 };
 
 typedef struct sel_fail {
@@ -337,30 +338,37 @@ typedef struct sel_ctx {
 /* Arvo's box transform applied once per matrix, union of the two (Fig. 16),
  * in the mr_affine convention: out_i = m[4i+3] + sum_j m[4i+j] * in_j. */
 /* The blended skin matrix of palette entry at (sum of weight * joint
- * matrix, in double; no weights: the mesh's matrix). Blended per voxel
- * extreme rather than once per palette entry up front: a far instance
+ * matrix, in double; no weights: the mesh's matrix), or false when the
+ * entry names a mesh or joint the deformer lacks. Blended (and checked) per
+ * voxel extreme rather than for the whole palette up front: a far instance
  * selects a handful of voxels, while the palette of a character has
- * thousands of entries (blending them all cost ~1 ms per instance). The
- * arithmetic is the same either way. */
-static mr_affine blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d)
+ * thousands of entries (doing them all cost ~1 ms per instance per frame).
+ * The arithmetic is the same either way. */
+static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affine *out)
 {
+    if (at->mesh >= d->mesh_count)
+        return false;
+    const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
     double acc[12] = {0};
     bool any = false;
     for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
         if (at->weights[k] == 0)
             continue;
+        if (at->joints[k] >= jc)
+            return false;
         const double w = at->weights[k] / 255.0;
         const float *j = d->joint[at->mesh][at->joints[k]].m;
         for (int e = 0; e < 12; e++)
             acc[e] += w * (double)j[e];
         any = true;
     }
-    if (!any)
-        return d->mesh[at->mesh];
-    mr_affine out;
+    if (!any) {
+        *out = d->mesh[at->mesh];
+        return true;
+    }
     for (int e = 0; e < 12; e++)
-        out.m[e] = (float)acc[e];
-    return out;
+        out->m[e] = (float)acc[e];
+    return true;
 }
 
 static void deform_box(const mr_affine *a0, const mr_affine *a1, const double lo[3], const double hi[3],
@@ -496,8 +504,16 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     continue;
                 }
             } else {
-                a0 = blend_entry(&svo->palette[attr0], c->d);
-                a1 = attr1 == attr0 ? a0 : blend_entry(&svo->palette[attr1], c->d);
+                if (!blend_entry(&svo->palette[attr0], c->d, &a0)) {
+                    fail_set(fail, FAIL_PALETTE, attr0, 0, NULL);
+                    continue;
+                }
+                if (attr1 == attr0) {
+                    a1 = a0;
+                } else if (!blend_entry(&svo->palette[attr1], c->d, &a1)) {
+                    fail_set(fail, FAIL_PALETTE, attr1, 0, NULL);
+                    continue;
+                }
             }
             double dlo[3], dhi[3];
             deform_box(&a0, &a1, lo, hi, dlo, dhi);
@@ -683,8 +699,9 @@ static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
     return MR_OK;
 }
 
-/* Checks that the deformer has finite matrices for every mesh and joint
- * the palette names (integer checks per entry: no blending here). */
+/* Checks that the deformer's matrices are finite (whether the palette's
+ * entries name meshes and joints it has is checked where they are used:
+ * blend_entry). */
 static int check_deformer(const mr_svo *svo, const mr_svo_deformer *d, mr_error *err)
 {
     if (d->mesh_count > 0 && !d->mesh)
@@ -705,19 +722,6 @@ static int check_deformer(const mr_svo *svo, const mr_svo_deformer *d, mr_error 
     if (svo->palette_count > 0 && !svo->palette)
         return mr_error_set(err, MR_ERR_INVALID, "svo select: octree has %u palette entries but no palette",
                             svo->palette_count);
-    for (uint32_t p = 0; p < svo->palette_count; p++) {
-        const mr_svo_attr *at = &svo->palette[p];
-        if (at->mesh >= d->mesh_count)
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "svo select: palette entry %u names mesh %u, the deformer has %zu", p,
-                                (unsigned)at->mesh, d->mesh_count);
-        const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
-        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++)
-            if (at->weights[k] != 0 && at->joints[k] >= jc)
-                return mr_error_set(err, MR_ERR_INVALID,
-                                    "svo select: palette entry %u names joint %u of mesh %u, which has %u", p,
-                                    (unsigned)at->joints[k], (unsigned)at->mesh, jc);
-    }
     return MR_OK;
 }
 
@@ -755,6 +759,9 @@ static int fail_report(const sel_fail *f, mr_error *err)
     switch (f->kind) {
     case FAIL_ATTR:
         return mr_error_set(err, MR_ERR_INVALID, "svo select: a voxel names palette entry %u of %u", f->a, f->b);
+    case FAIL_PALETTE:
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "svo select: palette entry %u names a mesh or joint the deformer lacks", f->a);
     case FAIL_FIELD:
         return mr_error_set(err, MR_ERR_INVALID, "svo select: the field gives a non-finite matrix at (%g, %g, %g)",
                             f->p[0], f->p[1], f->p[2]);

@@ -157,8 +157,9 @@ size_t mr_svo_workspace_memory(const mr_svo_workspace *ws);
  * out is reset, its buffers reused and grown). max_level: deepest level to
  * refine to (clamped to svo->depth). view may be NULL (= not enabled).
  * Errors: MR_ERR_INVALID for NULL svo/extremes/deformer/out, a palette
- * entry naming a mesh or joint the deformer lacks (message names the
- * entry; joints with weight 0 are not looked at), a non-finite matrix (any
+ * entry naming a mesh or joint the deformer lacks (checked for the entries
+ * the walk reaches; message names the entry; joints with weight 0 are not
+ * looked at), a non-finite matrix (any
  * of the deformer's, or the field's at some point), a bad view (non-finite
  * view_proj, width/height/delta not > 0), extremes of another octree, a
  * malformed octree or a deformed box beyond the float range;
