@@ -228,6 +228,7 @@ static void test_compare_command(void **state)
     assert_non_null(j);
     assert_true(cJSON_GetObjectItem(j, "coverage_error_pct")->valuedouble == 0);
     assert_true(cJSON_GetObjectItem(j, "depth_max")->valuedouble == 0);
+    assert_true(cJSON_GetObjectItem(j, "holes")->valuedouble == 0);
     assert_true(cJSON_GetObjectItem(j, "psnr_rgb_db")->valuedouble == 999);
     cJSON_Delete(j);
     free(out);
