@@ -9,7 +9,7 @@
  *               frame says when and from where: kinds that refine for the
  *               screen, like svo, need the camera);
  *   attach      put the geometry into an Embree scene under the given geometry
- *               id (the object index: the integrator maps hits back by it)
+ *               id (the renderer's: it maps hits back to the object by it)
  *               with the build quality the renderer chose (REFIT for
  *               animated objects; see the refit trap in REFERENCE.md);
  *   commit      tell Embree the data changed (after update);
