@@ -641,6 +641,8 @@ static size_t svo_memory(const mr_geom *g)
 {
     size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 4;
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
+    for (unsigned w = 0; g->scratch && w < g->workers; w++)
+        bytes += mr_svo_workspace_memory(g->scratch[w].ws);
     for (size_t k = 0; k < g->instance_count && g->sel; k++) {
         bytes += g->sel[k].capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf) + 1);
         if (g->octree)
