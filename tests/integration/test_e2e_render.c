@@ -312,6 +312,11 @@ static void test_bad_input_is_answered(void **state)
     /* names are checked before the first frame: nothing was written */
     snprintf(path, sizeof path, "%s/badclip/0000.exr", tmp_dir);
     assert_int_not_equal(access(path, F_OK), 0);
+    /* an svo instance naming a bone the extracted skeleton does not have */
+    snprintf(args, sizeof args, "render tests/data/bad-svo-bone.json --out '%s/badbone'", tmp_dir);
+    expect_failure(args, 3, "/objects/0/svo/instances/1/pose: ");
+    snprintf(path, sizeof path, "%s/badbone/0000.exr", tmp_dir);
+    assert_int_not_equal(access(path, F_OK), 0);
     expect_failure("compare examples/skinned-walk.json examples/skinned-walk.json", 3, "skinned-walk.json");
 }
 
