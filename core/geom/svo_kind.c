@@ -210,6 +210,28 @@ static void deform_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
+/* Every kind keeps what it hands Embree within MR_MAX_COORDINATE (geom.h):
+ * beyond ~1.8e18 Embree silently drops primitives, so a pose that scales
+ * voxels that far fails the frame instead. */
+static int check_extent(float biggest, size_t instance, mr_error *err)
+{
+    if (biggest <= MR_MAX_COORDINATE)
+        return MR_OK;
+    return mr_error_set(err, MR_ERR_INVALID,
+                        "svo: instance %zu's posed voxels reach %g, beyond %g", instance,
+                        (double)biggest, MR_MAX_COORDINATE);
+}
+
+static float octree_extent(const mr_svo *o)
+{
+    float lo[3], hi[3], m = 0;
+    if (!mr_svo_bounds(o, lo, hi))
+        return 0;
+    for (int a = 0; a < 3; a++)
+        m = fmaxf(m, fmaxf(fabsf(lo[a]), fabsf(hi[a])));
+    return m;
+}
+
 static int gather_boxes(mr_geom *g, mr_error *err)
 {
     size_t total = 0;
@@ -233,6 +255,12 @@ static int gather_boxes(mr_geom *g, mr_error *err)
         const mr_svo_selection *s = &g->sel[k];
         if (s->count == 0)
             continue;
+        float biggest = 0;
+        for (size_t i = 0; i < s->count * 6; i++)
+            biggest = fmaxf(biggest, fabsf(s->box[i]));
+        int rc = check_extent(biggest, k, err);
+        if (rc < 0)
+            return rc;
         memcpy(g->box + at * 6, s->box, s->count * 6 * sizeof *g->box);
         memcpy(g->box_leaf + at, s->leaf, s->count * sizeof *g->box_leaf);
         at += s->count;
@@ -266,6 +294,22 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
                 return mr_error_set(err, MR_ERR_INVALID,
                                     "svo: instance %zu's transform reaches beyond %g", k,
                                     MR_MAX_COORDINATE);
+    }
+    if (g->method == MR_SVO_RIGID) {
+        float lo[3], hi[3];
+        if (mr_svo_bounds(g->svo, lo, hi))
+            for (size_t k = 0; k < g->instance_count; k++) {
+                float biggest = 0;
+                for (int c = 0; c < 8; c++) {
+                    mr_vec3 p = mr_mat4_point(&g->world[k], mr_v3(c & 1 ? hi[0] : lo[0],
+                                                                  c & 2 ? hi[1] : lo[1],
+                                                                  c & 4 ? hi[2] : lo[2]));
+                    biggest = fmaxf(biggest, fmaxf(fabsf(p.x), fmaxf(fabsf(p.y), fabsf(p.z))));
+                }
+                int rc = check_extent(biggest, k, err);
+                if (rc < 0)
+                    return rc;
+            }
     }
     g->visited = g->cells = 0;
     g->last_frame = frame ? frame->index : 0;
@@ -301,8 +345,12 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     }
     for (size_t k = 0; k < g->instance_count; k++) {
         g->visited += g->sel[k].visited;
-        if (g->method != MR_SVO_DIRECT)
-            g->cells += g->octree[k].leaf_count;
+        if (g->method == MR_SVO_DIRECT)
+            continue;
+        g->cells += g->octree[k].leaf_count;
+        int rc = check_extent(octree_extent(&g->octree[k]), k, err);
+        if (rc < 0)
+            return rc;
     }
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
@@ -526,6 +574,8 @@ static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
     rtcCommitGeometry(oct);
     rtcAttachGeometry(g->shared_scene, oct);
     rtcReleaseGeometry(oct);
+    /* The top scene's ROBUST does not reach into instanced scenes. */
+    rtcSetSceneFlags(g->shared_scene, RTC_SCENE_FLAG_ROBUST);
     rtcCommitScene(g->shared_scene);
     g->instances = calloc(g->instance_count, sizeof *g->instances);
     if (!g->instances)

@@ -470,7 +470,9 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         /* With skinning, the moved normal is a function of (palette entries,
          * bind normal) only, and neighbours in Morton order often share
          * both: remember the last one (the same value either way). */
-        uint32_t memo_key = UINT32_MAX, memo_hi = 0;
+        /* memo_hi starts above every palette index (attr1 <= 65535), so the
+         * first voxel never matches the empty memo. */
+        uint32_t memo_key = UINT32_MAX, memo_hi = UINT32_MAX;
         uint8_t memo_out[2] = {0, 0};
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {

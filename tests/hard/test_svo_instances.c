@@ -2,7 +2,8 @@
  * test_svo_instances.c - hard cases of the svo kind's instancing, through
  * the real Embree scene the renderer builds (geom.h ops: create, update,
  * attach, commit, normal): every method with instances at the origin, far
- * from it (1e5), mirrored, and of zero scale; a one-voxel asset.
+ * from it (1e5), mirrored, and of zero scale; a one-voxel asset; a pose
+ * that throws voxels beyond MR_MAX_COORDINATE.
  *
  * The asset is a unit cube voxelised at depth 4 (voxels of 1/16, a little
  * more since the voxel cube is padded); rays come straight at each
@@ -193,11 +194,62 @@ static void check_tiny(void **state)
     mr_asset_free(a);
 }
 
+/* A pose that scales voxels past MR_MAX_COORDINATE (two chained joints
+ * scaled by 1e9 each: every single value passes the job parser) fails the
+ * frame in every method, as it does for meshes, instead of handing Embree
+ * boxes it would silently drop. */
+static void check_far_pose_refused(void **state)
+{
+    (void)state;
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_load("/usr/share/assimp/models/X/BCN_Epileptic.X", &a, &err), MR_OK);
+    /* the root and its child above the first joint of the first skinned
+     * mesh: every joint below them is scaled by 1e18 */
+    int joint = -1;
+    for (size_t m = 0; m < a->mesh_count && joint < 0; m++)
+        if (a->meshes[m].joint_count > 0)
+            joint = a->meshes[m].joint_nodes[0];
+    assert_true(joint > 0);
+    while (a->nodes[joint].parent > 0)
+        joint = a->nodes[joint].parent;
+    assert_int_equal(a->nodes[joint].parent, 0);
+    const mr_mat4 huge = mr_mat4_from_trs(mr_v3(0, 0, 0), mr_quat_identity(), mr_v3(1e9f, 1e9f, 1e9f));
+    mr_joint_override ov[2] = {{a->nodes[0].name, huge}, {a->nodes[joint].name, huge}};
+    mr_pose_desc pose = {.clip_index = -1, .joint_count = 2, .joints = ov};
+    const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    for (size_t m = 0; m < 4; m++) {
+        mr_object_desc desc = {.kind = MR_GEOM_SVO, .transform = mr_mat4_identity(),
+                               .color = mr_v3(0.8f, 0.8f, 0.8f), .pose_count = 1, .poses = &pose};
+        desc.svo = (mr_svo_desc){.depth = 5, .method = methods[m], .delta = 1, .cull = true};
+        const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_SVO);
+        mr_geom *g = NULL;
+        RTCDevice dev = rtcNewDevice(NULL);
+        RTCScene sc = rtcNewScene(dev);
+        if (ops->create(a, &desc, &g, &err) < 0 ||
+            ops->attach(g, dev, sc, 0, RTC_BUILD_QUALITY_MEDIUM, &err) < 0)
+            fail_msg("setup: %s", err.msg);
+        int rc = ops->update(g, NULL, NULL, &desc.transform, 2, &err);
+        if (methods[m] == MR_SVO_RIGID) {
+            /* rigid instances keep the rest pose: nothing moves far */
+            assert_int_equal(rc, MR_OK);
+        } else {
+            assert_int_equal(rc, MR_ERR_INVALID);
+            assert_non_null(strstr(err.msg, "beyond"));
+        }
+        ops->free(g);
+        rtcReleaseScene(sc);
+        rtcReleaseDevice(dev);
+    }
+    mr_asset_free(a);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(check_methods),
         cmocka_unit_test(check_tiny),
+        cmocka_unit_test(check_far_pose_refused),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
