@@ -132,85 +132,13 @@ static double mem_available(void)
 
 static const double GIB = 1024.0 * 1024.0 * 1024.0;
 
-/* ---- skinning matrices of one posed instance (deform.h's mr_svo_deformer) */
+/* ---- skinning matrices of one posed instance (deform.h's mr_svo_skin) */
 
-typedef struct skin {
-    size_t mesh_count;
-    mr_affine *store;       /* every joint matrix of every mesh */
-    const mr_affine **joint; /* per mesh, into store (NULL for a rigid mesh) */
-    uint32_t *joint_count;
-    mr_affine *mesh;
-    mr_mat4 *rest_inv;      /* per mesh: inverse rest global of its node (rigid meshes) */
-} skin;
-
-static mr_affine to_affine(const mr_mat4 *m)
+static void skin_init(mr_svo_skin *s, const mr_asset *a)
 {
-    mr_affine a;
-    memcpy(a.m, m->m, sizeof a.m);
-    return a;
-}
-
-static void skin_init(skin *s, const mr_asset *a)
-{
-    memset(s, 0, sizeof *s);
-    size_t joints = 0;
-    for (size_t m = 0; m < a->mesh_count; m++)
-        joints += a->meshes[m].joint_count;
-    s->mesh_count = a->mesh_count;
-    s->store = xmalloc(joints * sizeof *s->store);
-    s->joint = xmalloc(a->mesh_count * sizeof *s->joint);
-    s->joint_count = xmalloc(a->mesh_count * sizeof *s->joint_count);
-    s->mesh = xmalloc(a->mesh_count * sizeof *s->mesh);
-    s->rest_inv = xmalloc(a->mesh_count * sizeof *s->rest_inv);
-    mr_mat4 *rest = xmalloc(a->node_count * sizeof *rest);
-    for (size_t i = 0; i < a->node_count; i++)
-        rest[i] = a->nodes[i].parent < 0
-                      ? a->nodes[i].local
-                      : mr_mat4_mul(&rest[a->nodes[i].parent], &a->nodes[i].local);
-    for (size_t m = 0, at = 0; m < a->mesh_count; m++) {
-        s->joint_count[m] = a->meshes[m].joint_count;
-        s->joint[m] = a->meshes[m].joint_count ? s->store + at : NULL;
-        at += a->meshes[m].joint_count;
-        if (!mr_mat4_inverse(&rest[a->meshes[m].node], &s->rest_inv[m]))
-            s->rest_inv[m] = mr_mat4_identity();
-    }
-    free(rest);
-}
-
-/* The matrices of pose p, premultiplied by the instance transform. */
-static void skin_pose(skin *s, const mr_asset *a, const mr_pose *p, const mr_mat4 *inst)
-{
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        const mr_mesh *me = &a->meshes[m];
-        mr_affine *j = (mr_affine *)s->joint[m];
-        for (uint32_t k = 0; k < me->joint_count; k++) {
-            mr_mat4 g = mr_mat4_mul(&p->global[me->joint_nodes[k]], &me->inverse_bind[k]);
-            g = mr_mat4_mul(inst, &g);
-            j[k] = to_affine(&g);
-        }
-        mr_mat4 g = mr_mat4_mul(inst, &p->global[me->node]);
-        if (!me->joint_count)
-            g = mr_mat4_mul(&g, &s->rest_inv[m]);
-        s->mesh[m] = to_affine(&g);
-    }
-}
-
-static mr_svo_deformer skin_deformer(const skin *s)
-{
-    return (mr_svo_deformer){.mesh_count = s->mesh_count,
-                             .joint = (const mr_affine *const *)s->joint,
-                             .joint_count = s->joint_count,
-                             .mesh = s->mesh};
-}
-
-static void skin_free(skin *s)
-{
-    free(s->store);
-    free(s->joint);
-    free(s->joint_count);
-    free(s->mesh);
-    free(s->rest_inv);
-    memset(s, 0, sizeof *s);
+    mr_error err = {0};
+    if (mr_svo_skin_init(s, a, &err) < 0)
+        die("skin", err.msg);
 }
 
 static mr_pose_desc clip_desc(double offset)
@@ -615,7 +543,7 @@ static void part_bc(bool quick)
     mr_pose *pose = NULL;
     if (mr_pose_new(asset, &pose, &err) < 0)
         die("pose", err.msg);
-    skin sk;
+    mr_svo_skin sk;
     skin_init(&sk, asset);
     rebuild_scratch rs = {0};
     for (int di = 0; di < ndepth; di++) {
@@ -677,8 +605,8 @@ static void part_bc(bool quick)
                 if (mr_pose_eval(pose, asset, &desc, (f + 0.5) * duration / frames, &err) < 0)
                     die("pose", err.msg);
                 const mr_mat4 id = mr_mat4_identity();
-                skin_pose(&sk, asset, pose, &id);
-                mr_svo_deformer d = skin_deformer(&sk);
+                mr_svo_skin_pose(&sk, asset, pose, &id);
+                mr_svo_deformer d = sk.d;
                 t0 = mr_now();
                 if (mr_svo_select(svo, &ex, &d, NULL, depth, threads, &sel, &err) < 0)
                     die("select", err.msg);
@@ -764,7 +692,7 @@ static void part_bc(bool quick)
     free(rs.payload);
     free(rs.kept);
     free(rs.leaves);
-    skin_free(&sk);
+    mr_svo_skin_free(&sk);
     mr_pose_free(pose);
     mr_asset_free(asset);
 
@@ -837,7 +765,7 @@ static void part_bc(bool quick)
 
 typedef struct inst_worker {
     mr_pose *pose;
-    skin sk;
+    mr_svo_skin sk;
     mr_svo_selection sel;
     float *box;
     mr_svo_leaf *leaf;
@@ -872,8 +800,8 @@ static void inst_select(void *ctx, size_t begin, size_t end, unsigned worker)
         mr_pose_desc desc = clip_desc(f->offset[i]);
         if (mr_pose_eval(w->pose, f->asset, &desc, f->time, &err) < 0)
             die("pose", err.msg);
-        skin_pose(&w->sk, f->asset, w->pose, &f->xf[i]);
-        mr_svo_deformer d = skin_deformer(&w->sk);
+        mr_svo_skin_pose(&w->sk, f->asset, w->pose, &f->xf[i]);
+        mr_svo_deformer d = w->sk.d;
         if (mr_svo_select(f->svo, f->ex, &d, f->view, f->svo->depth, f->inner_threads, &w->sel,
                           &err) < 0)
             die("select", err.msg);
@@ -1067,13 +995,13 @@ static void part_d(double deadline)
             desc.offset = i * 1e-3;
             if (mr_pose_eval(w[0].pose, asset, &desc, 0.5, &err) < 0)
                 die("pose", err.msg);
-            skin_pose(&w[0].sk, asset, w[0].pose, &id);
+            mr_svo_skin_pose(&w[0].sk, asset, w[0].pose, &id);
         }
         const double pose_us = (mr_now() - t0) / reps * 1e6;
         const mr_vec3 target = mr_v3(0, (float)(0.5 * H), 0);
         const mr_svo_view far = make_view(mr_v3(0, (float)(0.5 * H), (float)(2000 * H)), target,
                                           (float)H, (float)(4000 * H));
-        mr_svo_deformer d = skin_deformer(&w[0].sk);
+        mr_svo_deformer d = w[0].sk.d;
         t0 = mr_now();
         for (int i = 0; i < reps; i++)
             if (mr_svo_select(svo, &ex, &d, &far, svo->depth, 1, &w[0].sel, &err) < 0)
@@ -1109,7 +1037,7 @@ static void part_d(double deadline)
         printf("(The peak RSS could not be reset: figures include the earlier parts' peak.)\n");
     for (unsigned i = 0; i < threads; i++) {
         mr_pose_free(w[i].pose);
-        skin_free(&w[i].sk);
+        mr_svo_skin_free(&w[i].sk);
         mr_svo_selection_free(&w[i].sel);
         free(w[i].box);
         free(w[i].leaf);

@@ -42,9 +42,7 @@
 /* Scratch of one worker: a pose and the matrices of one instance. */
 typedef struct worker_scratch {
     mr_pose *pose;
-    mr_affine *joint_storage;     /* all meshes' joints */
-    const mr_affine **joint;      /* per mesh, into joint_storage (NULL: rigid mesh) */
-    mr_affine *mesh;              /* per mesh */
+    mr_svo_skin skin;
     mr_svo_workspace *ws;         /* selection / resampling scratch, kept across frames */
     int rc;                       /* first failure of this worker ... */
     size_t failed_instance;       /* ... and the instance it came from */
@@ -63,9 +61,6 @@ struct mr_geom {
     mr_mat4 *world;               /* per instance: object transform * instance transform */
     mr_mat4 *world_normal;        /* per instance: its normal matrix */
     bool *invertible;             /* per instance (rigid instances need an inverse) */
-    uint32_t *joint_offset;       /* per mesh: first entry in a worker's joint_storage */
-    uint32_t joint_total;
-    mr_mat4 *rest_inverse;        /* per mesh: inverse rest global of its node */
     unsigned workers;
     worker_scratch *scratch;
     /* per frame */
@@ -99,48 +94,6 @@ static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t fram
     if (s->instance_count > 0 && s->instances[k].has_pose)
         return &s->instances[k].pose;
     return object_pose(g->desc, frame);
-}
-
-static mr_affine to_affine(const mr_mat4 *m)
-{
-    mr_affine a;
-    memcpy(a.m, m->m, sizeof a.m);
-    return a;
-}
-
-/* The deformer of instance k under pose (evaluated into s->pose). */
-static void fill_deformer(const mr_geom *g, size_t k, worker_scratch *s, mr_svo_deformer *d,
-                          uint32_t *joint_counts)
-{
-    const mr_asset *a = g->asset;
-    const mr_mat4 *w = &g->world[k];
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        const mr_mesh *mesh = &a->meshes[m];
-        mr_mat4 node = mesh->node >= 0 && (size_t)mesh->node < s->pose->node_count
-                           ? s->pose->global[mesh->node]
-                           : mr_mat4_identity();
-        /* Rigid meshes were voxelised at their rest placement (voxelize.h). */
-        if (mesh->joint_count == 0)
-            node = mr_mat4_mul(&node, &g->rest_inverse[m]);
-        mr_mat4 wm = mr_mat4_mul(w, &node);
-        s->mesh[m] = to_affine(&wm);
-        joint_counts[m] = mesh->joint_count;
-        s->joint[m] = NULL;
-        if (mesh->joint_count == 0)
-            continue;
-        mr_affine *dst = s->joint_storage + g->joint_offset[m];
-        for (uint32_t j = 0; j < mesh->joint_count; j++) {
-            int n = mesh->joint_nodes[j];
-            mr_mat4 gj = n >= 0 && (size_t)n < s->pose->node_count ? s->pose->global[n]
-                                                                   : mr_mat4_identity();
-            mr_mat4 b = mr_mat4_mul(&gj, &mesh->inverse_bind[j]);
-            mr_mat4 wb = mr_mat4_mul(w, &b);
-            dst[j] = to_affine(&wb);
-        }
-        s->joint[m] = dst;
-    }
-    *d = (mr_svo_deformer){.mesh_count = a->mesh_count, .joint = s->joint,
-                           .joint_count = joint_counts, .mesh = s->mesh};
 }
 
 /* Perspective projection of the frame's camera, far plane at infinity
@@ -182,10 +135,8 @@ static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *
     int rc = mr_pose_eval(s->pose, g->asset, instance_pose(g, k, frame), t, err);
     if (rc < 0)
         return rc;
-    uint32_t joint_counts[MR_SVO_VOXELIZE_MAX_MESHES];
-    mr_svo_deformer d;
-    fill_deformer(g, k, s, &d, joint_counts);
-    rc = mr_svo_select_ws(g->svo, &g->extremes, &d, &c->view, g->svo->depth, c->inner_threads, s->ws,
+    mr_svo_skin_pose(&s->skin, g->asset, s->pose, &g->world[k]);
+    rc = mr_svo_select_ws(g->svo, &g->extremes, &s->skin.d, &c->view, g->svo->depth, c->inner_threads, s->ws,
                           &g->sel[k], err);
     if (rc < 0 || g->method == MR_SVO_DIRECT)
         return rc;
@@ -741,9 +692,7 @@ static void svo_free(mr_geom *g)
     if (g->scratch)
         for (unsigned w = 0; w < g->workers; w++) {
             mr_pose_free(g->scratch[w].pose);
-            free(g->scratch[w].joint_storage);
-            free(g->scratch[w].joint);
-            free(g->scratch[w].mesh);
+            mr_svo_skin_free(&g->scratch[w].skin);
             mr_svo_workspace_free(g->scratch[w].ws);
         }
     free(g->scratch);
@@ -752,8 +701,6 @@ static void svo_free(mr_geom *g)
     free(g->world);
     free(g->world_normal);
     free(g->invertible);
-    free(g->joint_offset);
-    free(g->rest_inverse);
     mr_svo_extremes_free(&g->extremes);
     mr_svo_voxelize_free(g->svo);
     if (g->rigged)
@@ -782,37 +729,6 @@ static int check_poses(const mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
-/* Inverse rest placement of each rigid mesh's node (voxelize.h's bind
- * space), and where each mesh's joints go in a worker's matrices. */
-static int setup_meshes(mr_geom *g, mr_error *err)
-{
-    const mr_asset *a = g->asset;
-    if (a->mesh_count > MR_SVO_VOXELIZE_MAX_MESHES)
-        return mr_error_set(err, MR_ERR_LIMIT, "svo: %zu meshes, at most %u", a->mesh_count,
-                            MR_SVO_VOXELIZE_MAX_MESHES);
-    g->rest_inverse = calloc(a->mesh_count ? a->mesh_count : 1, sizeof *g->rest_inverse);
-    g->joint_offset = calloc(a->mesh_count ? a->mesh_count : 1, sizeof *g->joint_offset);
-    if (!g->rest_inverse || !g->joint_offset)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
-    mr_pose *rest = NULL;
-    int rc = mr_pose_new(a, &rest, err);
-    if (rc >= 0)
-        rc = mr_pose_eval(rest, a, NULL, 0, err);
-    for (size_t m = 0; rc >= 0 && m < a->mesh_count; m++) {
-        const mr_mesh *mesh = &a->meshes[m];
-        mr_mat4 node = mesh->node >= 0 && (size_t)mesh->node < rest->node_count
-                           ? rest->global[mesh->node]
-                           : mr_mat4_identity();
-        g->rest_inverse[m] = mr_mat4_identity();
-        if (mesh->joint_count == 0 && !mr_mat4_inverse(&node, &g->rest_inverse[m]))
-            rc = mr_error_set(err, MR_ERR_INVALID, "svo: mesh %zu's node has a singular rest transform", m);
-        g->joint_offset[m] = g->joint_total;
-        g->joint_total += mesh->joint_count;
-    }
-    mr_pose_free(rest);
-    return rc;
-}
-
 static int setup_workers(mr_geom *g, mr_error *err)
 {
     const mr_asset *a = g->asset;
@@ -822,18 +738,11 @@ static int setup_workers(mr_geom *g, mr_error *err)
     g->scratch = calloc(g->workers, sizeof *g->scratch);
     if (!g->scratch)
         return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
-    size_t meshes = a->mesh_count ? a->mesh_count : 1;
     for (unsigned w = 0; w < g->workers; w++) {
         worker_scratch *s = &g->scratch[w];
-        int rc = mr_pose_new(a, &s->pose, err);
-        if (rc < 0)
-            return rc;
-        s->joint_storage = malloc(((size_t)g->joint_total + 1) * sizeof *s->joint_storage);
-        s->joint = calloc(meshes, sizeof *s->joint);
-        s->mesh = calloc(meshes, sizeof *s->mesh);
-        if (!s->joint_storage || !s->joint || !s->mesh)
-            return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
-        if ((rc = mr_svo_workspace_new(&s->ws, err)) < 0)
+        int rc;
+        if ((rc = mr_pose_new(a, &s->pose, err)) < 0 || (rc = mr_svo_skin_init(&s->skin, a, err)) < 0 ||
+            (rc = mr_svo_workspace_new(&s->ws, err)) < 0)
             return rc;
     }
     return MR_OK;
@@ -889,8 +798,17 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
     if (desc->svo.skeleton && (rc = rig_skeleton(g, err)) < 0)
         goto fail;
     g->out_depth = desc->svo.depth + 2 < MR_SVO_MAX_DEPTH ? desc->svo.depth + 2 : MR_SVO_MAX_DEPTH;
-    if ((rc = setup_meshes(g, err)) < 0 || (rc = check_poses(g, err)) < 0)
+    if ((rc = check_poses(g, err)) < 0)
         goto fail;
+    if (g->method == MR_SVO_RIGID) {
+        /* Rigid instances pose nothing, but the asset must be one the
+         * other methods could skin (a rigid mesh's rest node invertible). */
+        mr_svo_skin probe;
+        rc = mr_svo_skin_init(&probe, g->asset, err);
+        mr_svo_skin_free(&probe);
+        if (rc < 0)
+            goto fail;
+    }
     size_t n = g->instance_count;
     g->world = calloc(n, sizeof *g->world);
     g->world_normal = calloc(n, sizeof *g->world_normal);

@@ -1489,3 +1489,82 @@ cleanup:
         ws_release(&local);
     return rc;
 }
+
+/* ------------------------------------------------------------------------ */
+/* The skinning deformer of a posed asset                                   */
+
+static mr_affine affine_of(const mr_mat4 *m)
+{
+    mr_affine a;
+    memcpy(a.m, m->m, sizeof a.m);
+    return a;
+}
+
+static mr_mat4 node_global(const mr_pose *pose, int node)
+{
+    return node >= 0 && (size_t)node < pose->node_count ? pose->global[node] : mr_mat4_identity();
+}
+
+int mr_svo_skin_init(mr_svo_skin *s, const mr_asset *asset, mr_error *err)
+{
+    memset(s, 0, sizeof *s);
+    const size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
+    size_t joints = 0;
+    for (size_t m = 0; m < asset->mesh_count; m++)
+        joints += asset->meshes[m].joint_count;
+    s->storage = malloc((joints + 1) * sizeof *s->storage);
+    s->joint = calloc(meshes, sizeof *s->joint);
+    s->joint_count = calloc(meshes, sizeof *s->joint_count);
+    s->mesh = calloc(meshes, sizeof *s->mesh);
+    s->rest_inverse = calloc(meshes, sizeof *s->rest_inverse);
+    mr_pose *rest = NULL;
+    int rc = !s->storage || !s->joint || !s->joint_count || !s->mesh || !s->rest_inverse
+                 ? mr_error_set(err, MR_ERR_NOMEM, "svo skin: out of memory")
+                 : mr_pose_new(asset, &rest, err);
+    if (rc >= 0)
+        rc = mr_pose_eval(rest, asset, NULL, 0, err);
+    for (size_t m = 0, at = 0; rc >= 0 && m < asset->mesh_count; m++) {
+        const mr_mesh *mesh = &asset->meshes[m];
+        s->joint_count[m] = mesh->joint_count;
+        s->joint[m] = mesh->joint_count ? s->storage + at : NULL;
+        at += mesh->joint_count;
+        /* Rigid meshes were voxelised at their rest placement (voxelize.h). */
+        mr_mat4 node = node_global(rest, mesh->node);
+        s->rest_inverse[m] = mr_mat4_identity();
+        if (mesh->joint_count == 0 && !mr_mat4_inverse(&node, &s->rest_inverse[m]))
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo skin: mesh %zu's node has a singular rest transform", m);
+    }
+    mr_pose_free(rest);
+    s->d = (mr_svo_deformer){.mesh_count = asset->mesh_count, .joint = s->joint,
+                             .joint_count = s->joint_count, .mesh = s->mesh};
+    return rc;
+}
+
+void mr_svo_skin_pose(mr_svo_skin *s, const mr_asset *asset, const mr_pose *pose, const mr_mat4 *world)
+{
+    for (size_t m = 0; m < asset->mesh_count; m++) {
+        const mr_mesh *mesh = &asset->meshes[m];
+        mr_mat4 node = node_global(pose, mesh->node);
+        if (mesh->joint_count == 0)
+            node = mr_mat4_mul(&node, &s->rest_inverse[m]);
+        mr_mat4 wm = mr_mat4_mul(world, &node);
+        s->mesh[m] = affine_of(&wm);
+        mr_affine *dst = (mr_affine *)s->joint[m];
+        for (uint32_t j = 0; j < mesh->joint_count; j++) {
+            mr_mat4 gj = node_global(pose, mesh->joint_nodes[j]);
+            mr_mat4 b = mr_mat4_mul(&gj, &mesh->inverse_bind[j]);
+            mr_mat4 wb = mr_mat4_mul(world, &b);
+            dst[j] = affine_of(&wb);
+        }
+    }
+}
+
+void mr_svo_skin_free(mr_svo_skin *s)
+{
+    free(s->storage);
+    free(s->joint);
+    free(s->joint_count);
+    free(s->mesh);
+    free(s->rest_inverse);
+    memset(s, 0, sizeof *s);
+}

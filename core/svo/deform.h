@@ -71,6 +71,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "anim/pose.h"
 #include "math/mr_math.h"
 #include "microray.h"
 #include "svo/svo.h"
@@ -106,6 +107,29 @@ typedef struct mr_svo_deformer {
     mr_affine (*field)(void *ctx, mr_vec3 bind_point);
     void *field_ctx;
 } mr_svo_deformer;
+
+/* The skinning deformer of an asset under a pose, with the storage it
+ * points into (the rule above: joint[m][j] = world * global(joint node) *
+ * inverse bind; mesh[m] = world * global(mesh node), times the inverse of
+ * that node's rest global for rigid meshes). */
+typedef struct mr_svo_skin {
+    mr_svo_deformer d;        /* points into the arrays below */
+    mr_affine *storage;       /* every mesh's joints */
+    const mr_affine **joint;  /* per mesh, into storage (NULL: rigid mesh) */
+    uint32_t *joint_count;    /* per mesh */
+    mr_affine *mesh;          /* per mesh */
+    mr_mat4 *rest_inverse;    /* per mesh: inverse rest global of its node */
+} mr_svo_skin;
+
+/* Sizes *s for asset (zeroed first; release with mr_svo_skin_free, also
+ * after a failure). Errors: MR_ERR_INVALID for a rigid mesh whose node's
+ * rest transform is singular, MR_ERR_NOMEM. */
+int mr_svo_skin_init(mr_svo_skin *s, const mr_asset *asset, mr_error *err);
+/* Fills s->d's matrices for pose (of asset, as given to init) placed by
+ * world. */
+void mr_svo_skin_pose(mr_svo_skin *s, const mr_asset *asset, const mr_pose *pose,
+                      const mr_mat4 *world);
+void mr_svo_skin_free(mr_svo_skin *s);
 
 /* Screen-space selection. view_proj maps world points to clip space
  * (OpenGL convention: visible when -w <= x, y, z <= w, w > 0). */

@@ -29,50 +29,7 @@
 #include "svo/svo_build.h"
 #include "svo/svo_trace.h"
 #include "svo/voxelize.h"
-
-static mr_affine affine_rows(float a, float b, float c, float d, float e, float f, float g, float h, float i,
-                             float j, float k, float l)
-{
-    return (mr_affine){{a, b, c, d, e, f, g, h, i, j, k, l}};
-}
-
-typedef struct rig {
-    mr_svo_deformer d;
-    mr_affine *mesh;
-    mr_affine **joint;
-    uint32_t *joint_count;
-} rig;
-
-/* Every mesh and joint matrix of the asset = M. */
-static void rig_uniform(rig *r, const mr_asset *a, mr_affine M)
-{
-    memset(r, 0, sizeof *r);
-    r->mesh = calloc(a->mesh_count, sizeof *r->mesh);
-    r->joint = calloc(a->mesh_count, sizeof *r->joint);
-    r->joint_count = calloc(a->mesh_count, sizeof *r->joint_count);
-    assert_true(r->mesh && r->joint && r->joint_count);
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        r->mesh[m] = M;
-        r->joint_count[m] = a->meshes[m].joint_count;
-        r->joint[m] = calloc(r->joint_count[m] + 1, sizeof **r->joint);
-        assert_non_null(r->joint[m]);
-        for (uint32_t j = 0; j < r->joint_count[m]; j++)
-            r->joint[m][j] = M;
-    }
-    r->d.mesh_count = a->mesh_count;
-    r->d.mesh = r->mesh;
-    r->d.joint = (const mr_affine *const *)r->joint;
-    r->d.joint_count = r->joint_count;
-}
-
-static void rig_free(rig *r)
-{
-    for (size_t m = 0; m < r->d.mesh_count; m++)
-        free(r->joint[m]);
-    free(r->joint);
-    free(r->mesh);
-    free(r->joint_count);
-}
+#include "../support/svo_rig.h"
 
 static mr_svo *voxelize(const mr_asset *a, unsigned depth)
 {
@@ -522,16 +479,10 @@ static void test_throughput(void **state)
     desc.has_time = true;
     desc.time = 0.5 * a->clips[0].duration;
     assert_int_equal(mr_pose_eval(pose, a, &desc, 0.0, &err), MR_OK);
-    rig r;
-    rig_uniform(&r, a, affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0));
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        const mr_mesh *me = &a->meshes[m];
-        memcpy(r.mesh[m].m, pose->global[me->node].m, sizeof r.mesh[m].m);
-        for (uint32_t j = 0; j < me->joint_count; j++) {
-            mr_mat4 k = mr_mat4_mul(&pose->global[me->joint_nodes[j]], &me->inverse_bind[j]);
-            memcpy(r.joint[m][j].m, k.m, sizeof r.joint[m][j].m);
-        }
-    }
+    mr_svo_skin r;
+    const mr_mat4 I = mr_mat4_identity();
+    assert_int_equal(mr_svo_skin_init(&r, a, &err), MR_OK);
+    mr_svo_skin_pose(&r, a, pose, &I);
     /* the second call, as per frame: the selection's buffers are reused */
     mr_svo_selection sel = {0};
     assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, D, 2, &sel, &err), MR_OK);
@@ -554,7 +505,7 @@ static void test_throughput(void **state)
         mr_svo_free(&out);
     }
     mr_svo_selection_free(&sel);
-    rig_free(&r);
+    mr_svo_skin_free(&r);
     mr_pose_free(pose);
     mr_svo_extremes_free(&e);
     mr_svo_voxelize_free(s);

@@ -28,96 +28,17 @@
 #include "anim/pose.h"
 #include "svo/deform.h"
 #include "svo/voxelize.h"
+#include "../support/svo_rig.h"
 
 /* ---- helpers */
 
-static mr_affine affine_of(const mr_mat4 *m)
+/* The skinning deformer of pose placed by object (deform.h's mr_svo_skin,
+ * the one the svo kind uses). */
+static void skin_posed(mr_svo_skin *r, const mr_asset *a, const mr_pose *pose, const mr_mat4 *object)
 {
-    mr_affine a;
-    memcpy(a.m, m->m, sizeof a.m);
-    return a;
-}
-
-static mr_affine affine_rows(float a, float b, float c, float d, float e, float f, float g, float h, float i,
-                             float j, float k, float l)
-{
-    return (mr_affine){{a, b, c, d, e, f, g, h, i, j, k, l}};
-}
-
-static mr_affine affine_identity(void) { return affine_rows(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0); }
-
-/* A deformer with storage: every mesh and joint matrix of an asset. */
-typedef struct rig {
-    mr_svo_deformer d;
-    mr_affine *mesh;
-    mr_affine **joint;
-    uint32_t *joint_count;
-} rig;
-
-static void rig_alloc(rig *r, const mr_asset *a)
-{
-    memset(r, 0, sizeof *r);
-    r->mesh = calloc(a->mesh_count, sizeof *r->mesh);
-    r->joint = calloc(a->mesh_count, sizeof *r->joint);
-    r->joint_count = calloc(a->mesh_count, sizeof *r->joint_count);
-    assert_true(r->mesh && r->joint && r->joint_count);
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        r->joint_count[m] = a->meshes[m].joint_count;
-        if (r->joint_count[m]) {
-            r->joint[m] = calloc(r->joint_count[m], sizeof **r->joint);
-            assert_non_null(r->joint[m]);
-        }
-    }
-    r->d.mesh_count = a->mesh_count;
-    r->d.mesh = r->mesh;
-    r->d.joint = (const mr_affine *const *)r->joint;
-    r->d.joint_count = r->joint_count;
-}
-
-static void rig_free(rig *r)
-{
-    for (size_t m = 0; m < r->d.mesh_count; m++)
-        free(r->joint[m]);
-    free(r->joint);
-    free(r->mesh);
-    free(r->joint_count);
-    memset(r, 0, sizeof *r);
-}
-
-/* Every matrix = M: the whole asset moved rigidly. */
-static void rig_uniform(rig *r, const mr_asset *a, mr_affine M)
-{
-    rig_alloc(r, a);
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        r->mesh[m] = M;
-        for (uint32_t j = 0; j < r->joint_count[m]; j++)
-            r->joint[m][j] = M;
-    }
-}
-
-/* The rule of deform.h: joints object * global(joint) * inverse bind;
- * meshes object * global(node) (skinned) or that times the inverse rest
- * global (rigid). */
-static void rig_posed(rig *r, const mr_asset *a, const mr_pose *pose, const mr_pose *rest, const mr_mat4 *object)
-{
-    rig_alloc(r, a);
-    for (size_t m = 0; m < a->mesh_count; m++) {
-        const mr_mesh *me = &a->meshes[m];
-        const mr_mat4 I = mr_mat4_identity();
-        mr_mat4 g = mr_mat4_mul(object, me->node >= 0 ? &pose->global[me->node] : &I);
-        if (me->joint_count == 0) {
-            mr_mat4 inv;
-            assert_true(mr_mat4_inverse(me->node >= 0 ? &rest->global[me->node] : &I, &inv));
-            g = mr_mat4_mul(&g, &inv);
-        }
-        r->mesh[m] = affine_of(&g);
-        for (uint32_t j = 0; j < me->joint_count; j++) {
-            const int jn = me->joint_nodes[j];
-            mr_mat4 gb = mr_mat4_mul(jn >= 0 ? &pose->global[jn] : &I, &me->inverse_bind[j]);
-            mr_mat4 k = mr_mat4_mul(object, &gb);
-            r->joint[m][j] = affine_of(&k);
-        }
-    }
+    mr_error err = {0};
+    assert_int_equal(mr_svo_skin_init(r, a, &err), MR_OK);
+    mr_svo_skin_pose(r, a, pose, object);
 }
 
 static mr_svo *voxelize(const mr_asset *a, unsigned depth)
@@ -771,12 +692,10 @@ static void test_screen_space(void **state)
 
 /* ---- skinning with the real rig */
 
-static void pose_at(const mr_asset *a, double t, mr_pose **pose, mr_pose **rest)
+static void pose_at(const mr_asset *a, double t, mr_pose **pose)
 {
     mr_error err = {0};
     assert_int_equal(mr_pose_new(a, pose, &err), MR_OK);
-    assert_int_equal(mr_pose_new(a, rest, &err), MR_OK);
-    assert_int_equal(mr_pose_eval(*rest, a, NULL, 0.0, &err), MR_OK);
     mr_pose_desc desc;
     memset(&desc, 0, sizeof desc);
     desc.has_clip = true;
@@ -885,11 +804,11 @@ static void test_skinned_rig(void **state)
     mr_svo *s = voxelize(a, D);
     mr_svo_extremes e;
     extremes(s, &e);
-    mr_pose *pose, *rest;
-    pose_at(a, 0.37 * a->clips[0].duration, &pose, &rest);
+    mr_pose *pose;
+    pose_at(a, 0.37 * a->clips[0].duration, &pose);
     const mr_mat4 I = mr_mat4_identity();
-    rig r;
-    rig_posed(&r, a, pose, rest, &I);
+    mr_svo_skin r;
+    skin_posed(&r, a, pose, &I);
     mr_svo_selection sel = {0};
     select_ok(s, &e, &r.d, NULL, D, 2, &sel);
     assert_int_equal(sel.count, s->leaf_count);
@@ -923,9 +842,8 @@ static void test_skinned_rig(void **state)
     free(G.start);
     free(G.items);
     mr_svo_selection_free(&sel);
-    rig_free(&r);
+    mr_svo_skin_free(&r);
     mr_pose_free(pose);
-    mr_pose_free(rest);
     mr_svo_extremes_free(&e);
     mr_svo_voxelize_free(s);
     mr_asset_free(a);
@@ -941,13 +859,13 @@ static void test_threads(void **state)
     mr_svo *s = voxelize(a, D);
     mr_svo_extremes e;
     extremes(s, &e);
-    mr_pose *pose, *rest;
-    pose_at(a, 0.61 * a->clips[0].duration, &pose, &rest);
+    mr_pose *pose;
+    pose_at(a, 0.61 * a->clips[0].duration, &pose);
     const double h = 0.5 * s->size;
     const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
                             (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
-    rig r;
-    rig_posed(&r, a, pose, rest, &place);
+    mr_svo_skin r;
+    skin_posed(&r, a, pose, &place);
     mr_svo_view v = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256, .height = 256,
                      .delta = 1.0f, .cull = true};
     mr_svo_selection sel[3] = {{0}};
@@ -974,9 +892,8 @@ static void test_threads(void **state)
     }
     for (int t = 0; t < 3; t++)
         mr_svo_selection_free(&sel[t]);
-    rig_free(&r);
+    mr_svo_skin_free(&r);
     mr_pose_free(pose);
-    mr_pose_free(rest);
     mr_svo_extremes_free(&e);
     mr_svo_voxelize_free(s);
     mr_asset_free(a);
@@ -996,13 +913,13 @@ static void test_workspace(void **state)
     mr_svo *s = voxelize(a, D);
     mr_svo_extremes e;
     extremes(s, &e);
-    mr_pose *pose, *rest;
-    pose_at(a, 0.37 * a->clips[0].duration, &pose, &rest);
+    mr_pose *pose;
+    pose_at(a, 0.37 * a->clips[0].duration, &pose);
     const double h = 0.5 * s->size;
     const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
                             (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
-    rig r;
-    rig_posed(&r, a, pose, rest, &place);
+    mr_svo_skin r;
+    skin_posed(&r, a, pose, &place);
     mr_svo_view near = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256,
                         .height = 256, .delta = 1.0f, .cull = true};
     mr_svo_view far = near;
@@ -1043,9 +960,8 @@ static void test_workspace(void **state)
     mr_svo_workspace_free(ws);
     mr_svo_workspace_free(NULL);
     assert_int_equal(mr_svo_workspace_new(NULL, &err), MR_ERR_INVALID);
-    rig_free(&r);
+    mr_svo_skin_free(&r);
     mr_pose_free(pose);
-    mr_pose_free(rest);
     mr_svo_extremes_free(&e);
     mr_svo_voxelize_free(s);
     mr_asset_free(a);
