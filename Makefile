@@ -24,7 +24,7 @@ SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd
 CLIENT_LIBS := -lcurl -lcjson
 TEST_LIBS   := -lcmocka -lcurl
 
-CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c))
+CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c core/*/*/*.c))
 SERVER_SRC := $(filter-out server/main.c,$(sort $(wildcard server/*.c)))
 CLIENT_SRC := $(sort $(wildcard client/*.c))
 # Test programs: tests/<suite>/test_*.c -> $(BUILD)/tests/<suite>/test_*

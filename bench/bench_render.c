@@ -23,7 +23,7 @@
 
 #include "asset/asset.h"
 #include "files.h"
-#include "geom/geom.h"
+#include "kinds/kind.h"
 #include "job_json.h"
 #include "render/renderer.h"
 #include "util/parallel.h"

@@ -42,8 +42,8 @@
 
 #include "anim/pose.h"
 #include "render/renderer.h"
-#include "svo/radix_sort.h"
-#include "svo/svo_build.h"
+#include "util/radix_sort.h"
+#include "kinds/svo/svo_build.h"
 #include "util/parallel.h"
 #include "../tests/support/svo_sweep.h"
 #include "bench_util.h"

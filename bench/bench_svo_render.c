@@ -35,8 +35,8 @@
 
 #include "asset/asset.h"
 #include "job_json.h"
-#include "svo/skeleton.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/skeleton.h"
+#include "kinds/svo/voxelize.h"
 #include "render/compare.h"
 #include "render/device.h"
 #include "render/renderer.h"

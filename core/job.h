@@ -14,8 +14,8 @@
 #include "asset/refine.h"
 #include "render/camera.h"
 #include "render/exr.h"
-#include "svo/deform.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/deform.h"
+#include "kinds/svo/voxelize.h"
 
 #define MR_MAX_ASSETS 256
 #define MR_MAX_OBJECTS 1024
@@ -27,7 +27,7 @@
 #define MR_MAX_NAME 256         /* bytes in any name or id */
 #define MR_MAX_PATH 4096        /* bytes in an asset path */
 
-/* Geometry kinds (core/geom/). Each later technique adds one. */
+/* Geometry kinds (core/kinds/). Each later technique adds one. */
 typedef enum mr_geom_kind { MR_GEOM_MESH = 0, MR_GEOM_DMM, MR_GEOM_SVO } mr_geom_kind;
 
 /* How a dmm object is traced (issue 4). */
@@ -61,7 +61,7 @@ typedef struct mr_dmm_desc {
     mr_dmm_mode mode;
     mr_dmm_deform deform;
     mr_dmm_normals normals;
-    const char *cache_dir;   /* not from JSON: where baked DMMs are kept (core/geom/dmm_file.h),
+    const char *cache_dir;   /* not from JSON: where baked DMMs are kept (core/kinds/dmm/dmm_file.h),
                                 NULL = none; borrowed, must outlive the renderer */
 } mr_dmm_desc;
 

@@ -72,8 +72,8 @@ struct mr_event_sub {
 struct mr_daemon {
     mr_daemon_config cfg;
     char *data_dir;
-    char *dmm_dir;  /* DATA/dmm: baked DMMs kept across jobs and restarts (core/geom/dmm_file.h) */
-    char *svo_dir;  /* DATA/svo: voxelised assets, the same way (core/svo/svo_file.h) */
+    char *dmm_dir;  /* DATA/dmm: baked DMMs kept across jobs and restarts (core/kinds/dmm/dmm_file.h) */
+    char *svo_dir;  /* DATA/svo: voxelised assets, the same way (core/kinds/svo/svo_file.h) */
     char **roots; /* realpath of each asset root */
     size_t root_count;
     mr_store *store;

@@ -6,7 +6,7 @@
  * frame is written as DIR/NNNN.exr through a temporary file and a rename,
  * and DIR/stats.json is rewritten after every frame, so an interrupted run
  * leaves only complete files behind. With --dmm-cache, dmm objects keep
- * their bakes in that directory (core/geom/dmm_file.h) and reuse them.
+ * their bakes in that directory (core/kinds/dmm/dmm_file.h) and reuse them.
  */
 #include "render_cmd.h"
 

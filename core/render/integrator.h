@@ -14,7 +14,7 @@
 #include <embree3/rtcore.h>
 #include <stdatomic.h>
 
-#include "geom/geom.h"
+#include "kinds/kind.h"
 #include "render/camera.h"
 #include "render/film.h"
 

@@ -8,7 +8,7 @@
 #include <sys/resource.h>
 #include <time.h>
 
-#include "geom/geom.h"
+#include "kinds/kind.h"
 #include "render/integrator.h"
 
 typedef struct object_state {

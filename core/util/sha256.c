@@ -4,7 +4,7 @@
  * their hash, idempotent submissions compare body hashes and baked DMMs are
  * cached under a hash of their inputs, so microray needs exactly this one
  * digest and no crypto library for it. It lives in core because the DMM
- * cache (core/geom/dmm_file.c) uses it and core must not depend on server.
+ * cache (core/kinds/dmm/dmm_file.c) uses it and core must not depend on server.
  */
 #include "util/sha256.h"
 

@@ -1,6 +1,6 @@
 /*
  * test_dmm_hard.c - hard cases for the tessellation-free DMM traversal
- * (core/geom/dmm_trace.h): extreme deformations, degenerate base triangles,
+ * (core/kinds/dmm/dmm_trace.h): extreme deformations, degenerate base triangles,
  * displacements at the quantisation limits, grazing rays, rays starting
  * inside a patch, rays at a shared edge between two patches, rays at every
  * micro-vertex, axis-parallel rays and rays from far away.
@@ -50,9 +50,9 @@
 #include <string.h>
 #include <cmocka.h>
 
-#include "geom/dmm_encode.h"
-#include "geom/dmm_trace.h"
-#include "geom/micromesh.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_trace.h"
+#include "kinds/dmm/micromesh.h"
 #include "math/watertight.h"
 
 #include "../support/dmm_patch_fixture.h"

@@ -35,9 +35,9 @@
 
 #include "../support/bcn_fixture.h"
 #include "anim/pose.h"
-#include "geom/dmm_bake.h"
-#include "geom/dmm_encode.h"
-#include "geom/geom.h"
+#include "kinds/dmm/dmm_bake.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/kind.h"
 
 #define LEVEL 4u
 #define BASE_RATIO 0.0625f

@@ -1,6 +1,6 @@
 /*
  * test_svo_deform_hard.c - edge cases of selection, deformation and
- * resampling (core/svo/deform.h): the empty octree, a root leaf, a
+ * resampling (core/kinds/svo/deform.h): the empty octree, a root leaf, a
  * zero-scale field (every box a point) and a flattening one (boxes with a
  * zero side, capped emission), a mirroring field (negative determinant), an
  * instance 1e5 away from the origin, non-finite matrices, an output of depth
@@ -25,10 +25,10 @@
 
 #include "../support/bcn_fixture.h"
 #include "anim/pose.h"
-#include "svo/deform.h"
-#include "svo/svo_build.h"
-#include "svo/svo_trace.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/deform.h"
+#include "kinds/svo/svo_build.h"
+#include "kinds/svo/svo_trace.h"
+#include "kinds/svo/voxelize.h"
 #include "../support/svo_rig.h"
 
 static mr_svo *voxelize(const mr_asset *a, unsigned depth)

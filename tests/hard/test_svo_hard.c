@@ -1,6 +1,6 @@
 /*
  * test_svo_hard.c - hard cases for the sparse voxel octree ray caster
- * (core/svo/svo_trace.h): rays along shared faces, edges and corners of a
+ * (core/kinds/svo/svo_trace.h): rays along shared faces, edges and corners of a
  * solid block and of voxels that touch only at an edge or a corner (no
  * leaks), a 3D checkerboard, rays starting inside a voxel, the deepest
  * level (21) far from the origin, tiny and huge cubes, the empty octree and

@@ -32,7 +32,7 @@
 #include <string.h>
 
 #include "asset/asset.h"
-#include "geom/geom.h"
+#include "kinds/kind.h"
 
 static mr_asset *cube(float half)
 {

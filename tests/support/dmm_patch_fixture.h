@@ -19,9 +19,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "geom/dmm_encode.h"
-#include "geom/dmm_trace.h"
-#include "geom/micromesh.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_trace.h"
+#include "kinds/dmm/micromesh.h"
 #include "math/watertight.h"
 
 #define MAX_VERTS 561u  /* mr_umesh_vertex_count(5) */

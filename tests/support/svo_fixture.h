@@ -20,10 +20,10 @@
 #include <time.h>
 #include <cmocka.h>
 
-#include "svo/morton.h"
-#include "svo/svo.h"
-#include "svo/svo_build.h"
-#include "svo/svo_trace.h"
+#include "util/morton.h"
+#include "kinds/svo/svo.h"
+#include "kinds/svo/svo_build.h"
+#include "kinds/svo/svo_trace.h"
 
 /* ---- fixture: random numbers */
 

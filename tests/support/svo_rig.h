@@ -1,6 +1,6 @@
 /*
  * svo_rig.h - deformers with their own storage for the svo deformation
- * tests (core/svo/deform.h): every mesh and joint matrix of an asset, set
+ * tests (core/kinds/svo/deform.h): every mesh and joint matrix of an asset, set
  * by hand. Include after <cmocka.h>. (Skinned poses use deform.h's
  * mr_svo_skin, the svo kind's own.)
  */
@@ -11,7 +11,7 @@
 #include <string.h>
 
 #include "asset/asset.h"
-#include "svo/deform.h"
+#include "kinds/svo/deform.h"
 
 static inline mr_affine affine_rows(float a, float b, float c, float d, float e, float f, float g,
                                     float h, float i, float j, float k, float l)

@@ -52,10 +52,10 @@
 #include <string.h>
 
 #include "asset/asset.h"
-#include "svo/deform.h"
-#include "svo/morton.h"
-#include "svo/svo.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/deform.h"
+#include "util/morton.h"
+#include "kinds/svo/svo.h"
+#include "kinds/svo/voxelize.h"
 
 #define SW_BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 

@@ -1,5 +1,5 @@
 /*
- * test_dmm_bake.c - the first DMM baker stage (core/geom/dmm_bake.h) on a
+ * test_dmm_bake.c - the first DMM baker stage (core/kinds/dmm/dmm_bake.h) on a
  * generated detailed mesh whose true surface is known in closed form: a
  * bumpy sphere r(u) = 1 + A (sin 4x cos 3y + 0.5 sin 5z), u = (x, y, z) unit,
  * tessellated as a cube sphere (6 faces of N x N quads, projected). The cube
@@ -24,8 +24,8 @@
 #include <string.h>
 #include <cmocka.h>
 
-#include "geom/dmm_bake.h"
-#include "geom/micromesh.h"
+#include "kinds/dmm/dmm_bake.h"
+#include "kinds/dmm/micromesh.h"
 
 #define BUMP_A 0.03
 

@@ -1,6 +1,6 @@
 /*
  * test_dmm_encode.c - hierarchical DMM encoding, the min/max pyramid and the
- * binary file (core/geom/dmm_encode.h) on synthetic inputs (random and
+ * binary file (core/kinds/dmm/dmm_encode.h) on synthetic inputs (random and
  * extreme values, crafted shared edges) and on a real bake of a bumpy sphere
  * (the generator of test_dmm_bake.c, rebuilt here).
  *
@@ -21,9 +21,9 @@
 #include <unistd.h>
 #include <cmocka.h>
 
-#include "geom/dmm_bake.h"
-#include "geom/dmm_encode.h"
-#include "geom/micromesh.h"
+#include "kinds/dmm/dmm_bake.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/micromesh.h"
 
 /* Deterministic generator (xorshift), so failures reproduce. */
 static uint32_t rnd(uint64_t *s)

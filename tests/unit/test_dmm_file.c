@@ -1,6 +1,6 @@
 /*
  * test_dmm_file.c - the baked-DMM file and the bake cache
- * (core/geom/dmm_file.c, docs/dmm-format.md "Baked DMM file"):
+ * (core/kinds/dmm/dmm_file.c, docs/dmm-format.md "Baked DMM file"):
  *  - a real skinned bake (BCN_Epileptic.X, 3 meshes) survives a round trip
  *    through a file bit for bit, and writing is canonical;
  *  - every truncation and every single-bit flip of a small file is refused
@@ -27,7 +27,7 @@
 
 #include "../support/bcn_fixture.h"
 #include "asset/asset.h"
-#include "geom/dmm_file.h"
+#include "kinds/dmm/dmm_file.h"
 
 
 /* ---- fixtures */

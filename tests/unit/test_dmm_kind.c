@@ -1,6 +1,6 @@
 /*
  * test_dmm_kind.c - the `dmm` geometry kind in mode `tessellated`
- * (core/geom/dmm.c), rendered through the real renderer:
+ * (core/kinds/dmm/dmm_kind.c), rendered through the real renderer:
  *  - a bumpy sphere baked to a DMM renders like the detailed mesh, within
  *    coverage and depth bounds derived from the bake's reported distance;
  *  - level 0 with zero displacement renders exactly like the base mesh;
@@ -28,10 +28,10 @@
 
 #include "../support/bcn_fixture.h"
 #include "../support/scene_fixture.h"
-#include "geom/dmm_bake.h"
-#include "geom/dmm_encode.h"
-#include "geom/dmm_file.h"
-#include "geom/geom.h"
+#include "kinds/dmm/dmm_bake.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_file.h"
+#include "kinds/kind.h"
 #include "render/compare.h"
 
 

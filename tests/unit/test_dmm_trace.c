@@ -1,6 +1,6 @@
 /*
  * test_dmm_trace.c - tessellation-free traversal of displaced micro-mesh
- * patches (core/geom/dmm_trace.h; paper 000, Algorithms 1-4, eq. 5-13).
+ * patches (core/kinds/dmm/dmm_trace.h; paper 000, Algorithms 1-4, eq. 5-13).
  *
  * The oracle is the tessellation itself: every micro-triangle of the patch
  * (mr_umesh_triangles order, vertices from mr_dmm_vertex) tested with the
@@ -69,9 +69,9 @@
 #include <string.h>
 #include <cmocka.h>
 
-#include "geom/dmm_encode.h"
-#include "geom/dmm_trace.h"
-#include "geom/micromesh.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_trace.h"
+#include "kinds/dmm/micromesh.h"
 #include "math/watertight.h"
 
 #include "../support/dmm_patch_fixture.h"

@@ -1,6 +1,6 @@
 /*
  * test_micromesh.c - micro-mesh topology, displaced micro-vertex evaluation
- * and watertightness across shared base edges (core/geom/micromesh.h).
+ * and watertightness across shared base edges (core/kinds/dmm/micromesh.h).
  *
  * Topology is checked exactly in integer (a, b) coordinates. Positions on a
  * shared edge are compared bit for bit (memcmp): that is the property the
@@ -17,7 +17,7 @@
 #include <string.h>
 #include <cmocka.h>
 
-#include "geom/micromesh.h"
+#include "kinds/dmm/micromesh.h"
 #include "math/watertight.h"
 
 /* Small deterministic generator so failures reproduce. */

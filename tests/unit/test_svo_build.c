@@ -28,10 +28,10 @@
 #include <time.h>
 #include <cmocka.h>
 
-#include "svo/morton.h"
-#include "svo/radix_sort.h"
-#include "svo/svo.h"
-#include "svo/svo_build.h"
+#include "util/morton.h"
+#include "util/radix_sort.h"
+#include "kinds/svo/svo.h"
+#include "kinds/svo/svo_build.h"
 
 static uint64_t rng_next(uint64_t *s)
 {

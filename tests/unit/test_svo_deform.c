@@ -1,6 +1,6 @@
 /*
  * test_svo_deform.c - per-frame selection, deformation and resampling of an
- * octree instance (core/svo/deform.h) on real octrees (the BCN rig
+ * octree instance (core/kinds/svo/deform.h) on real octrees (the BCN rig
  * voxelised with mr_svo_voxelize) and hand-built tiny ones
  * (tests/support/svo_fixture.h).
  *
@@ -26,8 +26,8 @@
 
 #include "../support/bcn_fixture.h"
 #include "anim/pose.h"
-#include "svo/deform.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/deform.h"
+#include "kinds/svo/voxelize.h"
 #include "../support/svo_rig.h"
 
 /* ---- helpers */

@@ -1,6 +1,6 @@
 /*
  * test_svo_file.c - the `.mrsvo` file and the voxelisation cache
- * (core/svo/svo_file.c, docs/svo-format.md):
+ * (core/kinds/svo/svo_file.c, docs/svo-format.md):
  *  - real voxelised octrees (the BCN rig, depths 6-8, surface and solid)
  *    survive a round trip bit for bit, writing is deterministic and
  *    canonical, leaf keys are never stored, and an independent serializer
@@ -31,9 +31,9 @@
 
 #include "../support/bcn_fixture.h"
 #include "asset/asset.h"
-#include "svo/svo_build.h"
-#include "svo/svo_file.h"
-#include "svo/voxelize.h"
+#include "kinds/svo/svo_build.h"
+#include "kinds/svo/svo_file.h"
+#include "kinds/svo/voxelize.h"
 
 /* ---- fixtures */
 

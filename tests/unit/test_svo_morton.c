@@ -19,8 +19,8 @@
 #include <string.h>
 #include <cmocka.h>
 
-#include "svo/morton.h"
-#include "svo/radix_sort.h"
+#include "util/morton.h"
+#include "util/radix_sort.h"
 
 static uint64_t rng_next(uint64_t *s)
 {

@@ -1,6 +1,6 @@
 /*
  * test_svo_skeleton.c - contraction skeletonisation of voxelised models and
- * the posable rig built from it (core/svo/skeleton.h; paper 004 chapter 5).
+ * the posable rig built from it (core/kinds/svo/skeleton.h; paper 004 chapter 5).
  *
  * Generated shapes whose answer is known (a capsule: a chain along its axis;
  * a plus: a branch at the crossing), real static models from Debian's
@@ -22,9 +22,9 @@
 
 #include "anim/pose.h"
 #include "asset/asset.h"
-#include "svo/morton.h"
-#include "svo/skeleton.h"
-#include "svo/voxelize.h"
+#include "util/morton.h"
+#include "kinds/svo/skeleton.h"
+#include "kinds/svo/voxelize.h"
 
 #include "../support/bcn_fixture.h"
 

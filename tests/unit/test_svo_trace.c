@@ -1,5 +1,5 @@
 /*
- * test_svo_trace.c - the sparse voxel octree ray caster (core/svo/svo_trace.h)
+ * test_svo_trace.c - the sparse voxel octree ray caster (core/kinds/svo/svo_trace.h)
  * against a brute force over every leaf's box, on random sparse octrees of
  * depth 1..8, 12 and 21 (some far from the origin), with random rays from
  * outside and inside, axis-parallel rays (also lying exactly on cell

@@ -1,5 +1,5 @@
 /*
- * test_svo_voxelize.c - mesh -> SVO voxelisation (core/svo/voxelize.h):
+ * test_svo_voxelize.c - mesh -> SVO voxelisation (core/kinds/svo/voxelize.h):
  * the triangle/box overlap test against brute-force sampling and hand-made
  * separating cases, closest points, weight quantisation, conservative
  * surface voxelisation of a cube and a UV sphere (coverage, no spurious
@@ -17,8 +17,8 @@
 #include <cmocka.h>
 
 #include "asset/asset.h"
-#include "svo/morton.h"
-#include "svo/voxelize.h"
+#include "util/morton.h"
+#include "kinds/svo/voxelize.h"
 
 #define MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 #define PI 3.14159265358979323846

@@ -1,0 +1,630 @@
+/*
+ * dmm_bake.c - detailed mesh -> DMM base mesh + per-micro-vertex
+ * displacements (dmm_bake.h). Simplification by meshoptimizer, distances by
+ * Embree rays, error report by Embree closest-point queries.
+ */
+#include "kinds/dmm/dmm_bake.h"
+
+#include <embree3/rtcore.h>
+#include <float.h>
+#include <meshoptimizer.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/micromesh.h"
+#include "util/parallel.h"
+
+mr_dmm_bake_params mr_dmm_bake_params_default(void)
+{
+    mr_dmm_bake_params p;
+    memset(&p, 0, sizeof p);
+    p.target_ratio = 0.05f;
+    p.level = 3;
+    return p;
+}
+
+void mr_dmm_bake_free(mr_dmm_bake *bake)
+{
+    if (!bake)
+        return;
+    free(bake->base_positions);
+    free(bake->base_directions);
+    free(bake->base_indices);
+    free(bake->base_source);
+    free(bake->joints);
+    free(bake->weights);
+    free(bake->displacements);
+    free(bake->tri_info);
+    free(bake);
+}
+
+size_t mr_dmm_bake_memory(const mr_dmm_bake *b)
+{
+    if (!b)
+        return 0;
+    size_t v = b->base_vertex_count, t = b->base_triangle_count;
+    size_t bytes = sizeof *b + v * (6 * sizeof(float) + sizeof(uint32_t)) +
+                   t * (3 * sizeof(uint32_t) + sizeof(uint8_t));
+    if (b->displacements) /* absent when the bake came from a file */
+        bytes += t * (size_t)b->micro_vertex_count * sizeof(float);
+    if (b->joints)
+        bytes += v * MR_MAX_INFLUENCES * (sizeof(uint16_t) + sizeof(float));
+    return bytes;
+}
+
+/* ---- closest point on a triangle (Ericson, Real-Time Collision Detection,
+ * 5.1.5, written here in double), for the error report ---- */
+
+typedef struct d3 { double x, y, z; } d3;
+static d3 d3_sub(d3 a, d3 b) { return (d3){a.x - b.x, a.y - b.y, a.z - b.z}; }
+static double d3_dot(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static d3 d3_mad(d3 a, d3 b, double s) { return (d3){a.x + b.x * s, a.y + b.y * s, a.z + b.z * s}; }
+
+static double point_triangle_dist2(d3 p, d3 a, d3 b, d3 c)
+{
+    d3 ab = d3_sub(b, a), ac = d3_sub(c, a), ap = d3_sub(p, a), q;
+    double d1 = d3_dot(ab, ap), d2 = d3_dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) {
+        q = a;
+        goto done;
+    }
+    d3 bp = d3_sub(p, b);
+    double d3v = d3_dot(ab, bp), d4 = d3_dot(ac, bp);
+    if (d3v >= 0 && d4 <= d3v) {
+        q = b;
+        goto done;
+    }
+    double vc = d1 * d4 - d3v * d2;
+    if (vc <= 0 && d1 >= 0 && d3v <= 0) {
+        q = d3_mad(a, ab, d1 / (d1 - d3v));
+        goto done;
+    }
+    d3 cp = d3_sub(p, c);
+    double d5 = d3_dot(ab, cp), d6 = d3_dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) {
+        q = c;
+        goto done;
+    }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        q = d3_mad(a, ac, d2 / (d2 - d6));
+        goto done;
+    }
+    double va = d3v * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3v) >= 0 && (d5 - d6) >= 0) {
+        q = d3_mad(b, d3_sub(c, b), (d4 - d3v) / ((d4 - d3v) + (d5 - d6)));
+        goto done;
+    }
+    {
+        double denom = va + vb + vc;
+        if (!(denom > 0)) { /* degenerate triangle: its vertices are close enough */
+            double da = d3_dot(ap, ap), db = d3_dot(bp, bp), dc = d3_dot(cp, cp);
+            return fmin(da, fmin(db, dc));
+        }
+        q = d3_mad(d3_mad(a, ab, vb / denom), ac, vc / denom);
+    }
+done : {
+    d3 e = d3_sub(p, q);
+    return d3_dot(e, e);
+}
+}
+
+typedef struct closest_ctx {
+    const float *pos;
+    const uint32_t *idx;
+    double best2;
+} closest_ctx;
+
+static d3 vtx(const float *pos, uint32_t i) { return (d3){pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]}; }
+
+static bool closest_cb(struct RTCPointQueryFunctionArguments *args)
+{
+    closest_ctx *c = args->userPtr;
+    const uint32_t *t = c->idx + 3 * (size_t)args->primID;
+    d3 p = {args->query->x, args->query->y, args->query->z};
+    double dd = point_triangle_dist2(p, vtx(c->pos, t[0]), vtx(c->pos, t[1]), vtx(c->pos, t[2]));
+    if (dd < c->best2) {
+        c->best2 = dd;
+        /* float radius rounded up so the true closest is never culled */
+        args->query->radius = nextafterf((float)sqrt(dd), INFINITY);
+        return true;
+    }
+    return false;
+}
+
+static double closest_distance(RTCScene scene, const float *pos, const uint32_t *idx, mr_vec3 p)
+{
+    struct RTCPointQuery q;
+    q.x = p.x, q.y = p.y, q.z = p.z, q.time = 0, q.radius = INFINITY;
+    struct RTCPointQueryContext qc;
+    rtcInitPointQueryContext(&qc);
+    closest_ctx c = {pos, idx, INFINITY};
+    rtcPointQuery(scene, &q, &qc, closest_cb, &c);
+    return sqrt(c.best2);
+}
+
+/* ---- per-triangle bake, run in parallel ---- */
+
+typedef struct bake_ctx {
+    RTCScene scene;
+    const float *detail_pos;      /* welded detailed positions */
+    const uint32_t *detail_idx;   /* welded detailed indices */
+    mr_dmm_bake *bake;
+    float tfar;
+    uint32_t *fallbacks;          /* per base triangle */
+    double *sum2;                 /* per base triangle */
+    double *maxd;                 /* per base triangle */
+    uint32_t *samples;            /* per base triangle: error report samples */
+    mr_vec3 *scratch;             /* per worker: micro_vertex_count positions */
+    mr_umesh_topology topo;       /* surviving micro-triangles per level and mask */
+} bake_ctx;
+
+/* Hit distance along dir from org, or INFINITY. */
+static float cast(RTCScene scene, mr_vec3 org, mr_vec3 dir, float tfar)
+{
+    struct RTCRayHit rh;
+    memset(&rh, 0, sizeof rh);
+    rh.ray.org_x = org.x, rh.ray.org_y = org.y, rh.ray.org_z = org.z;
+    rh.ray.dir_x = dir.x, rh.ray.dir_y = dir.y, rh.ray.dir_z = dir.z;
+    rh.ray.tnear = 0.0f;
+    rh.ray.tfar = tfar;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    struct RTCIntersectContext ic;
+    rtcInitIntersectContext(&ic);
+    rtcIntersect1(scene, &ic, &rh);
+    return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? INFINITY : rh.ray.tfar;
+}
+
+static mr_umesh_tri base_tri(const mr_dmm_bake *b, uint32_t t)
+{
+    mr_umesh_tri tri;
+    for (int k = 0; k < 3; k++) {
+        uint32_t v = b->base_indices[3 * t + k];
+        const float *p = b->base_positions + 3 * v, *d = b->base_directions + 3 * v;
+        tri.pos[k] = mr_v3(p[0], p[1], p[2]);
+        tri.dir[k] = mr_v3(d[0], d[1], d[2]);
+    }
+    return tri;
+}
+
+static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    bake_ctx *c = vctx;
+    mr_dmm_bake *b = c->bake;
+    mr_vec3 *pts = c->scratch + (size_t)worker * b->micro_vertex_count;
+    for (size_t t = begin; t < end; t++) {
+        const unsigned level = mr_dmm_info_level(b->tri_info[t]);
+        const unsigned decimate = mr_dmm_info_decimate(b->tri_info[t]);
+        const uint32_t mvc = mr_umesh_vertex_count(level);
+        mr_umesh_tri tri = base_tri(b, (uint32_t)t);
+        float *disp = b->displacements + t * b->micro_vertex_count;
+        uint32_t fb = 0;
+        for (uint32_t i = 0; i < mvc; i++) {
+            uint32_t a, bb;
+            mr_vec3 p, d;
+            mr_umesh_vertex_coords(level, i, &a, &bb);
+            mr_umesh_frame(&tri, level, a, bb, &p, &d, NULL);
+            float best = INFINITY, sign = 1.0f;
+            if (mr_v3_dot(d, d) > 0) {
+                float tp = cast(c->scene, p, d, c->tfar);
+                float tn = cast(c->scene, p, mr_v3_scale(d, -1.0f), c->tfar);
+                best = tp, sign = 1.0f;
+                if (tn < tp)
+                    best = tn, sign = -1.0f;
+            }
+            if (isinf(best)) {
+                disp[i] = 0.0f;
+                fb++;
+            } else {
+                disp[i] = sign * best;
+            }
+        }
+        c->fallbacks[t] = fb;
+
+        /* error report: displaced micro-vertices (collapsed ones where they
+         * went) and the surviving micro-triangles' centroids */
+        mr_umesh_eval_all(&tri, level, decimate, disp, pts, NULL);
+        double s2 = 0, mx = 0;
+        for (uint32_t i = 0; i < mvc; i++) {
+            double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, pts[i]);
+            s2 += dd * dd;
+            mx = fmax(mx, dd);
+        }
+        uint32_t mtc = c->topo.count[level][decimate];
+        for (uint32_t k = 0; k < mtc; k++) {
+            const uint32_t *idx = c->topo.tris[level][decimate] + 3 * k;
+            mr_vec3 cen = mr_v3_scale(mr_v3_add(mr_v3_add(pts[idx[0]], pts[idx[1]]), pts[idx[2]]),
+                                      1.0f / 3.0f);
+            double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, cen);
+            s2 += dd * dd;
+            mx = fmax(mx, dd);
+        }
+        c->sum2[t] = s2;
+        c->maxd[t] = mx;
+        c->samples[t] = mvc + mtc;
+    }
+}
+
+static bool finite3(const float *p) { return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]); }
+
+static int check_input(const mr_mesh *m, const mr_dmm_bake_params *pr, mr_error *err)
+{
+    if (!m || !pr)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: mesh and parameters are required");
+    if (pr->level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: level %u is above %u", pr->level,
+                            MR_UMESH_MAX_LEVEL);
+    if (pr->target_triangles == 0 && !(pr->target_ratio > 0 && pr->target_ratio <= 1))
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "dmm bake: target_ratio %g must be in (0, 1] when target_triangles is 0",
+                            (double)pr->target_ratio);
+    if (!(pr->max_error >= 0 && isfinite(pr->max_error)))
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: max_error must be >= 0 and finite");
+    if (!(pr->max_displacement >= 0 && isfinite(pr->max_displacement)))
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "dmm bake: max_displacement must be >= 0 and finite");
+    if (m->vertex_count == 0 || m->triangle_count == 0 || !m->positions || !m->indices)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: mesh '%s' has no triangles",
+                            m->name ? m->name : "");
+    if (m->triangle_count > MR_MAX_ASSET_TRIANGLES || m->vertex_count > MR_MAX_ASSET_VERTICES)
+        return mr_error_set(err, MR_ERR_LIMIT, "dmm bake: mesh is above the asset caps");
+    for (uint32_t i = 0; i < m->vertex_count; i++)
+        if (!finite3(m->positions + 3 * (size_t)i))
+            return mr_error_set(err, MR_ERR_INVALID, "dmm bake: vertex %u is not finite", i);
+    for (size_t i = 0; i < 3 * (size_t)m->triangle_count; i++)
+        if (m->indices[i] >= m->vertex_count)
+            return mr_error_set(err, MR_ERR_INVALID, "dmm bake: index %zu (%u) is out of range",
+                                i, m->indices[i]);
+    return MR_OK;
+}
+
+/* Area-weighted vertex normals of the base mesh, unit. A vertex whose
+ * weighted sum vanishes (e.g. two opposite faces) takes its first
+ * non-degenerate face's normal, and (0, 0, 1) when it has none. */
+static bool base_normals(mr_dmm_bake *b)
+{
+    size_t nv = b->base_vertex_count;
+    double *acc = calloc(nv * 3, sizeof(double));
+    float *first = calloc(nv * 3, sizeof(float));
+    if (!acc || !first) {
+        free(acc);
+        free(first);
+        return false;
+    }
+    for (uint32_t t = 0; t < b->base_triangle_count; t++) {
+        const uint32_t *ix = b->base_indices + 3 * t;
+        d3 p0 = vtx(b->base_positions, ix[0]), p1 = vtx(b->base_positions, ix[1]),
+           p2 = vtx(b->base_positions, ix[2]);
+        d3 e1 = d3_sub(p1, p0), e2 = d3_sub(p2, p0);
+        d3 n = {e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x};
+        double len = sqrt(d3_dot(n, n));
+        for (int k = 0; k < 3; k++) {
+            double *a = acc + 3 * ix[k];
+            a[0] += n.x, a[1] += n.y, a[2] += n.z;
+            float *f = first + 3 * ix[k];
+            if (len > 0 && f[0] == 0 && f[1] == 0 && f[2] == 0)
+                f[0] = (float)(n.x / len), f[1] = (float)(n.y / len), f[2] = (float)(n.z / len);
+        }
+    }
+    for (size_t v = 0; v < nv; v++) {
+        mr_vec3 fb = mr_v3(0, 0, 1);
+        if (first[3 * v] != 0 || first[3 * v + 1] != 0 || first[3 * v + 2] != 0)
+            fb = mr_v3(first[3 * v], first[3 * v + 1], first[3 * v + 2]);
+        double *a = acc + 3 * v, len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        /* normalise in double: the sum can be tiny or huge in float; a sum
+         * that cancels to (nearly) nothing relative to its faces' areas
+         * would give a meaningless direction, but exact cancellation is the
+         * only case caught here (hard case for the next stage) */
+        mr_vec3 s = len > 0 && isfinite(len)
+                        ? mr_v3((float)(a[0] / len), (float)(a[1] / len), (float)(a[2] / len))
+                        : fb;
+        b->base_directions[3 * v] = s.x;
+        b->base_directions[3 * v + 1] = s.y;
+        b->base_directions[3 * v + 2] = s.z;
+    }
+    free(acc);
+    free(first);
+    return true;
+}
+
+static double tri_area(const float *pos, const uint32_t *ix)
+{
+    d3 p0 = vtx(pos, ix[0]), p1 = vtx(pos, ix[1]), p2 = vtx(pos, ix[2]);
+    d3 e1 = d3_sub(p1, p0), e2 = d3_sub(p2, p0);
+    d3 n = {e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x};
+    return 0.5 * sqrt(d3_dot(n, n));
+}
+
+/* A base triangle's edge k (micromesh.h: k = 0 is corner 0 -> 1), keyed by
+ * its vertex pair so the triangles sharing it sort next to each other. */
+typedef struct edge_ref {
+    uint32_t lo, hi, tri, k;
+} edge_ref;
+
+static int edge_cmp(const void *x, const void *y)
+{
+    const edge_ref *a = x, *b = y;
+    if (a->lo != b->lo)
+        return a->lo < b->lo ? -1 : 1;
+    if (a->hi != b->hi)
+        return a->hi < b->hi ? -1 : 1;
+    return a->tri < b->tri ? -1 : a->tri > b->tri;
+}
+
+/* Step 4 of dmm_bake.h: b->tri_info from the detail's mean triangle area
+ * (welded mesh wpos / widx, wi indices). */
+static bool assign_levels(mr_dmm_bake *b, const float *wpos, const uint32_t *widx, size_t wi,
+                          bool adaptive)
+{
+    uint32_t nt = b->base_triangle_count;
+    uint8_t *level = malloc(nt);
+    edge_ref *e = malloc((size_t)nt * 3 * sizeof *e);
+    if (!level || !e) {
+        free(level);
+        free(e);
+        return false;
+    }
+    double detail = 0;
+    for (size_t t = 0; adaptive && t < wi; t += 3)
+        detail += tri_area(wpos, widx + t);
+    detail /= (double)(wi / 3);
+    for (uint32_t t = 0; t < nt; t++) {
+        level[t] = (uint8_t)b->level;
+        double ratio = tri_area(b->base_positions, b->base_indices + 3 * t) / detail;
+        if (adaptive && ratio < INFINITY) /* else (no detail area) the finest */
+            level[t] = (uint8_t)(ratio > 1 ? fmin(nearbyint(0.5 * log2(ratio)), b->level) : 0);
+    }
+    for (uint32_t t = 0; t < nt; t++)
+        for (uint32_t k = 0; k < 3; k++) {
+            uint32_t u = b->base_indices[3 * t + k], v = b->base_indices[3 * t + (k + 1) % 3];
+            e[3 * t + k] = (edge_ref){u < v ? u : v, u < v ? v : u, t, k};
+        }
+    qsort(e, (size_t)nt * 3, sizeof *e, edge_cmp);
+    /* raise the coarse side of every edge joining levels more than one
+     * apart; levels only grow and are capped, so this ends */
+    for (bool changed = adaptive; changed;) {
+        changed = false;
+        for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
+            unsigned top = 0;
+            for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
+                top = level[e[j].tri] > top ? level[e[j].tri] : top;
+            for (size_t m = i; m < j; m++)
+                if (level[e[m].tri] + 1u < top) {
+                    level[e[m].tri] = (uint8_t)(top - 1);
+                    changed = true;
+                }
+        }
+    }
+    uint8_t *decimate = calloc(nt, 1);
+    if (!decimate) {
+        free(level);
+        free(e);
+        return false;
+    }
+    for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
+        unsigned low = UINT32_MAX;
+        for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
+            low = level[e[j].tri] < low ? level[e[j].tri] : low;
+        for (size_t m = i; m < j; m++)
+            if (level[e[m].tri] > low)
+                decimate[e[m].tri] |= (uint8_t)(1u << e[m].k);
+    }
+    for (uint32_t t = 0; t < nt; t++)
+        b->tri_info[t] = mr_dmm_tri_info(level[t], decimate[t]);
+    free(decimate);
+    free(level);
+    free(e);
+    return true;
+}
+
+int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_dmm_bake **out,
+                    mr_error *err)
+{
+    int rc = MR_OK;
+    uint32_t *remap = NULL, *rep = NULL, *widx = NULL, *sidx = NULL, *bmap = NULL;
+    float *wpos = NULL;
+    mr_dmm_bake *b = NULL;
+    RTCDevice device = NULL;
+    RTCScene scene = NULL;
+    bake_ctx ctx;
+    memset(&ctx, 0, sizeof ctx);
+    if (out)
+        *out = NULL;
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: out is NULL");
+    rc = check_input(detail, params, err);
+    if (rc < 0)
+        return rc;
+
+    /* 1. weld by position (bitwise) */
+    size_t nv = detail->vertex_count, ni = 3 * (size_t)detail->triangle_count;
+    remap = malloc(nv * sizeof *remap);
+    widx = malloc(ni * sizeof *widx);
+    sidx = malloc(ni * sizeof *sidx);
+    if (!remap || !widx || !sidx)
+        goto nomem;
+    size_t nw = meshopt_generateVertexRemap(remap, NULL, nv, detail->positions, nv, 3 * sizeof(float));
+    wpos = malloc(nw * 3 * sizeof *wpos);
+    rep = malloc(nw * sizeof *rep);
+    if (!wpos || !rep)
+        goto nomem;
+    for (size_t i = 0; i < nw; i++)
+        rep[i] = UINT32_MAX;
+    for (size_t i = 0; i < nv; i++)
+        if (rep[remap[i]] == UINT32_MAX) {
+            rep[remap[i]] = (uint32_t)i;
+            memcpy(wpos + 3 * remap[i], detail->positions + 3 * i, 3 * sizeof(float));
+        }
+    size_t wi = 0;
+    for (size_t t = 0; t < ni; t += 3) {
+        uint32_t a = remap[detail->indices[t]], c1 = remap[detail->indices[t + 1]],
+                 c2 = remap[detail->indices[t + 2]];
+        if (a == c1 || c1 == c2 || c2 == a)
+            continue; /* collapsed by the weld */
+        widx[wi++] = a, widx[wi++] = c1, widx[wi++] = c2;
+    }
+    if (wi == 0) {
+        rc = mr_error_set(err, MR_ERR_INVALID, "dmm bake: every triangle is degenerate");
+        goto cleanup;
+    }
+
+    /* 2. simplify */
+    size_t target = params->target_triangles ? params->target_triangles
+                                             : (size_t)((double)params->target_ratio * (double)(wi / 3));
+    if (target < 1)
+        target = 1;
+    float rerr = 0;
+    size_t si = meshopt_simplify(sidx, widx, wi, wpos, nw, 3 * sizeof(float), 3 * target,
+                                 params->max_error > 0 ? params->max_error : FLT_MAX, 0, &rerr);
+
+    b = calloc(1, sizeof *b);
+    bmap = malloc(nw * sizeof *bmap);
+    if (!b || !bmap)
+        goto nomem;
+    for (size_t i = 0; i < nw; i++)
+        bmap[i] = UINT32_MAX;
+    b->level = params->level;
+    b->micro_vertex_count = mr_umesh_vertex_count(params->level);
+    b->simplify_error = rerr * meshopt_simplifyScale(wpos, nw, 3 * sizeof(float));
+    b->base_indices = malloc((si ? si : 3) * sizeof(uint32_t));
+    if (!b->base_indices)
+        goto nomem;
+    uint32_t nbv = 0, nbt = 0;
+    for (size_t t = 0; t < si; t += 3) {
+        if (sidx[t] == sidx[t + 1] || sidx[t + 1] == sidx[t + 2] || sidx[t + 2] == sidx[t])
+            continue;
+        for (int k = 0; k < 3; k++) {
+            uint32_t w = sidx[t + k];
+            if (bmap[w] == UINT32_MAX)
+                bmap[w] = nbv++;
+            b->base_indices[3 * nbt + k] = bmap[w];
+        }
+        nbt++;
+    }
+    if (nbt == 0) {
+        rc = mr_error_set(err, MR_ERR_INVALID, "dmm bake: simplification left no triangles");
+        goto cleanup;
+    }
+    b->base_vertex_count = nbv;
+    b->base_triangle_count = nbt;
+    b->base_positions = malloc((size_t)nbv * 3 * sizeof(float));
+    b->base_directions = malloc((size_t)nbv * 3 * sizeof(float));
+    b->base_source = malloc((size_t)nbv * sizeof(uint32_t));
+    b->displacements = calloc((size_t)nbt * b->micro_vertex_count, sizeof(float));
+    b->tri_info = malloc(nbt);
+    if (!b->base_positions || !b->base_directions || !b->base_source || !b->displacements ||
+        !b->tri_info)
+        goto nomem;
+    bool skinned = detail->joint_count > 0 && detail->joints && detail->weights;
+    if (skinned) {
+        b->joints = malloc((size_t)nbv * MR_MAX_INFLUENCES * sizeof(uint16_t));
+        b->weights = malloc((size_t)nbv * MR_MAX_INFLUENCES * sizeof(float));
+        if (!b->joints || !b->weights)
+            goto nomem;
+    }
+    for (size_t w = 0; w < nw; w++) {
+        uint32_t v = bmap[w];
+        if (v == UINT32_MAX)
+            continue;
+        uint32_t src = rep[w];
+        b->base_source[v] = src;
+        memcpy(b->base_positions + 3 * (size_t)v, detail->positions + 3 * (size_t)src,
+               3 * sizeof(float));
+        if (skinned) {
+            memcpy(b->joints + (size_t)v * MR_MAX_INFLUENCES,
+                   detail->joints + (size_t)src * MR_MAX_INFLUENCES,
+                   MR_MAX_INFLUENCES * sizeof(uint16_t));
+            memcpy(b->weights + (size_t)v * MR_MAX_INFLUENCES,
+                   detail->weights + (size_t)src * MR_MAX_INFLUENCES,
+                   MR_MAX_INFLUENCES * sizeof(float));
+        }
+    }
+
+    /* 3. directions, 4. levels */
+    if (!base_normals(b) || !assign_levels(b, wpos, widx, wi, params->adaptive))
+        goto nomem;
+
+    /* 4. Embree scene of the (welded) detailed mesh */
+    device = rtcNewDevice(NULL);
+    if (!device) {
+        rc = mr_error_set(err, MR_ERR_EMBREE, "dmm bake: rtcNewDevice failed");
+        goto cleanup;
+    }
+    scene = rtcNewScene(device);
+    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    float *vb = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                        3 * sizeof(float), nw);
+    unsigned *ib = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                           3 * sizeof(unsigned), wi / 3);
+    if (vb && ib) {
+        memcpy(vb, wpos, nw * 3 * sizeof(float));
+        memcpy(ib, widx, wi * sizeof(unsigned));
+        rtcCommitGeometry(geom);
+        rtcAttachGeometry(scene, geom);
+    }
+    rtcReleaseGeometry(geom);
+    rtcCommitScene(scene);
+    enum RTCError e = rtcGetDeviceError(device);
+    if (e != RTC_ERROR_NONE || !vb || !ib) {
+        rc = mr_error_set(err, e == RTC_ERROR_OUT_OF_MEMORY ? MR_ERR_NOMEM : MR_ERR_EMBREE,
+                          "dmm bake: building the Embree scene failed (error %d)", (int)e);
+        goto cleanup;
+    }
+
+    /* 5. displacements and error report per base triangle */
+    unsigned threads = params->threads ? params->threads : mr_cpu_count();
+    if (threads > MR_MAX_THREADS)
+        threads = MR_MAX_THREADS;
+    ctx.scene = scene;
+    ctx.detail_pos = wpos;
+    ctx.detail_idx = widx;
+    ctx.bake = b;
+    ctx.tfar = params->max_displacement > 0 ? params->max_displacement : INFINITY;
+    ctx.fallbacks = calloc(nbt, sizeof *ctx.fallbacks);
+    ctx.sum2 = calloc(nbt, sizeof *ctx.sum2);
+    ctx.maxd = calloc(nbt, sizeof *ctx.maxd);
+    ctx.samples = calloc(nbt, sizeof *ctx.samples);
+    ctx.scratch = malloc((size_t)threads * b->micro_vertex_count * sizeof(mr_vec3));
+    if (!ctx.fallbacks || !ctx.sum2 || !ctx.maxd || !ctx.samples || !ctx.scratch)
+        goto nomem;
+    if ((rc = mr_umesh_topology_init(&ctx.topo, b->level, err)) < 0)
+        goto cleanup;
+    mr_parallel_for(threads, nbt, 4, bake_range, &ctx);
+    double s2 = 0, mx = 0;
+    for (uint32_t t = 0; t < nbt; t++) {
+        b->fallback_count += ctx.fallbacks[t];
+        b->sample_count += ctx.samples[t];
+        s2 += ctx.sum2[t];
+        mx = fmax(mx, ctx.maxd[t]);
+    }
+    b->rms_distance = sqrt(s2 / (double)b->sample_count);
+    b->max_distance = mx;
+    *out = b;
+    b = NULL;
+    goto cleanup;
+
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "dmm bake: out of memory");
+cleanup:
+    free(ctx.fallbacks);
+    free(ctx.sum2);
+    free(ctx.maxd);
+    free(ctx.samples);
+    free(ctx.scratch);
+    mr_umesh_topology_free(&ctx.topo);
+    if (scene)
+        rtcReleaseScene(scene);
+    if (device)
+        rtcReleaseDevice(device);
+    mr_dmm_bake_free(b);
+    free(remap);
+    free(rep);
+    free(widx);
+    free(sidx);
+    free(bmap);
+    free(wpos);
+    return rc;
+}

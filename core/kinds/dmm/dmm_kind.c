@@ -1,0 +1,807 @@
+/*
+ * dmm.c - the displaced micro-mesh (DMM) kind (paper 000, issue 4).
+ *
+ * create   bakes every mesh of the asset (dmm_bake.h: meshoptimizer base mesh
+ *          whose vertices keep their bone weights, Embree-measured
+ *          displacements), encodes them (dmm_encode.h) and keeps the DECODED
+ *          grid values and the min/max pyramid down to the traversal's leaf
+ *          sublevel: what is rendered is exactly what a DMM file stores;
+ *          with desc.cache_dir, bakes are kept on disk (dmm_file.h) keyed
+ *          by the mesh data and bake parameters, and a hit skips bake and
+ *          encode (the decoded data is the same, bit for bit);
+ * update   computes each base vertex's accumulated skinning matrix M_a
+ *          (mr_skin_matrices; static meshes get their node's matrix), then
+ *           - mode base: skins base vertices and directions with it
+ *             (v' = M v, n' = M n, eq. 4: directions are neither
+ *             inverse-transposed nor renormalised, so the prism bounds hold
+ *             and displacements scale with the bone);
+ *           - mode interpolated: keeps the rest pose; M is interpolated per
+ *             micro-vertex (eq. 6-8);
+ *          and then either the box of every base triangle (dmm_trace.h: prism
+ *          or 12 Bezier control points), for the Embree user geometry to
+ *          refit over: cost proportional to base triangles; or, in mode
+ *          tessellated, every micro-vertex with the same mr_dmm_vertex;
+ * attach   tessellation-free modes: one Embree USER geometry, one primitive
+ *          per base triangle, whose callbacks run dmm_trace.h's traversal;
+ *          tessellated: one TRIANGLE geometry over the micro-triangles
+ *          (base triangle after base triangle, each its surviving
+ *          micro-triangles in micromesh.h row order: mr_umesh_triangles);
+ * normal   the hit micro-triangle's geometric normal, or (normals "matrix")
+ *          the rest-pose micro-triangle normal moved by the cofactor of the
+ *          interpolated matrix at the hit.
+ *
+ * Base triangles have their own levels (bake parameter "adaptive"): every
+ * per-triangle array (decoded values, pyramid, micro-vertices and
+ * micro-triangles) is packed, with a prefix offset per base triangle.
+ *
+ * Everything per base triangle is computed from that triangle's own data in
+ * a fixed order, so results are bit-identical for any thread count, and
+ * micromesh.h's edge rule makes shared-edge micro-vertices bit-identical on
+ * both sides: the surface is watertight in every mode.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "kinds/dmm/dmm_bake.h"
+#include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_file.h"
+#include "kinds/dmm/dmm_trace.h"
+#include "kinds/kind.h"
+#include "kinds/dmm/micromesh.h"
+#include "util/parallel.h"
+
+#define UPDATE_GRAIN 64
+/* Per base triangle and frame: box lo, hi, and the traversal's pad. */
+#define BOX_FLOATS 9
+
+struct mr_geom {
+    const mr_asset *asset;
+    mr_dmm_desc desc;
+    mr_umesh_topology topo;       /* surviving micro-triangles per level and decimation mask:
+                                     a hit maps back to its lattice in O(1) */
+    uint8_t *tri_info;            /* per base triangle: level and decimation (dmm_encode.h) */
+    /* per base triangle + 1, prefix sums: first decoded value (= first
+     * micro-vertex), first pyramid entry, first surviving micro-triangle */
+    uint32_t *value_first, *pyramid_first, *micro_first;
+    mr_dmm_bake **bakes;          /* per asset mesh; NULL for a mesh without triangles */
+    mr_dmm_encoded **encoded;     /* per asset mesh, as bakes */
+    uint32_t *mesh_first_base;    /* per asset mesh: first base vertex in the merged arrays */
+    uint32_t base_vertex_count, base_triangle_count;
+    uint32_t *base_indices;       /* 3 per base triangle, merged vertex numbering */
+    uint32_t *tri_mesh;           /* per base triangle: its asset mesh */
+    float *rest_pos, *rest_dir;   /* rest-pose base vertices, 3 each */
+    uint16_t *values;             /* decoded grid values, from value_first[t] */
+    uint16_t *minv, *maxv;        /* pyramid prefixes (mr_dmm_trace_pyramid_size), from
+                                     pyramid_first[t] */
+    mr_affine *mats, *last_mats;  /* per base vertex: accumulated matrix this / last frame */
+    float *posed_pos, *posed_dir; /* mode base: skinned base vertices, 3 each */
+    bool evaluated;
+    float *boxes;                 /* tessellation-free: BOX_FLOATS per base triangle */
+    uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
+    float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
+    uint32_t *indices;            /* 3 per micro-triangle */
+    size_t encoded_bytes;         /* bytes of the encoded records (what a file stores) */
+    RTCGeometry rtc;
+};
+
+static bool tessellated(const mr_geom *g) { return g->desc.mode == MR_DMM_TESSELLATED; }
+
+static void dmm_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    if (g->rtc)
+        rtcReleaseGeometry(g->rtc);
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        if (g->bakes)
+            mr_dmm_bake_free(g->bakes[i]);
+        if (g->encoded)
+            mr_dmm_encoded_free(g->encoded[i]);
+    }
+    free(g->bakes);
+    free(g->encoded);
+    mr_umesh_topology_free(&g->topo);
+    free(g->tri_info);
+    free(g->value_first);
+    free(g->pyramid_first);
+    free(g->micro_first);
+    free(g->mesh_first_base);
+    free(g->base_indices);
+    free(g->tri_mesh);
+    free(g->rest_pos);
+    free(g->rest_dir);
+    free(g->values);
+    free(g->minv);
+    free(g->maxv);
+    free(g->mats);
+    free(g->last_mats);
+    free(g->posed_pos);
+    free(g->posed_dir);
+    free(g->boxes);
+    free(g->positions);
+    free(g->indices);
+    free(g);
+}
+
+/* Encodes mesh i's bake (unless its encoding came from the disk cache) and
+ * decodes its values and pyramid prefixes into the packed arrays from base
+ * triangle t0 on: either way what is rendered is the encoding. */
+static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
+{
+    const mr_dmm_bake *b = g->bakes[i];
+    int rc = MR_OK;
+    if (!g->encoded[i]) {
+        uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+        mr_dmm_default_bits(bits);
+        rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements,
+                           &g->encoded[i], NULL, err);
+        if (rc < 0)
+            return rc;
+    }
+    const mr_dmm_encoded *enc = g->encoded[i];
+    uint32_t full = mr_dmm_pyramid_size(b->level);
+    uint16_t *minv = malloc(full * sizeof *minv), *maxv = malloc(full * sizeof *maxv);
+    if (!minv || !maxv)
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory decoding a dmm");
+    for (uint32_t t = 0; t < b->base_triangle_count && rc >= 0; t++) {
+        uint32_t at = t0 + t;
+        unsigned level = mr_dmm_info_level(g->tri_info[at]);
+        uint16_t *values = g->values + g->value_first[at];
+        if ((rc = mr_dmm_decode_values(enc, t, values, err)) < 0 ||
+            (rc = mr_dmm_pyramid_build(level, values, minv, maxv, err)) < 0)
+            break;
+        uint32_t keep = g->pyramid_first[at + 1] - g->pyramid_first[at];
+        memcpy(g->minv + g->pyramid_first[at], minv, keep * sizeof *minv);
+        memcpy(g->maxv + g->pyramid_first[at], maxv, keep * sizeof *maxv);
+        g->tri_mesh[at] = (uint32_t)i;
+    }
+    free(minv);
+    free(maxv);
+    g->encoded_bytes += (size_t)enc->triangle_count + enc->records_bytes;
+    return rc;
+}
+
+/* Surviving micro-triangles of base triangle t (local vertex indices). */
+static const uint32_t *local_tris(const mr_geom *g, uint32_t t, uint32_t *count)
+{
+    unsigned l = mr_dmm_info_level(g->tri_info[t]), m = mr_dmm_info_decimate(g->tri_info[t]);
+    *count = g->topo.count[l][m];
+    return g->topo.tris[l][m];
+}
+
+/* The micro-triangle indices of every base triangle, each over its own
+ * block of micro-vertices from value_first[t], into out. */
+static void fill_micro_indices(const mr_geom *g, uint32_t *out)
+{
+    for (uint32_t t = 0; t < g->base_triangle_count; t++) {
+        uint32_t count;
+        const uint32_t *local = local_tris(g, t, &count);
+        uint32_t *o = out + (size_t)g->micro_first[t] * 3;
+        for (uint32_t k = 0; k < count * 3; k++)
+            o[k] = local[k] + g->value_first[t];
+    }
+}
+
+static int check_desc(const mr_dmm_desc *d, mr_error *err)
+{
+    if (d->level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm level %u is outside 0..%u", d->level,
+                            MR_UMESH_MAX_LEVEL);
+    if (d->base_triangles == 0 && !(d->base_ratio > 0 && d->base_ratio <= 1))
+        return mr_error_set(err, MR_ERR_INVALID, "dmm base_ratio %g is outside (0, 1]",
+                            (double)d->base_ratio);
+    if ((d->mode == MR_DMM_BASE && d->deform != MR_DMM_DEFORM_BASE) ||
+        (d->mode == MR_DMM_INTERPOLATED && d->deform != MR_DMM_DEFORM_INTERPOLATED) ||
+        d->mode > MR_DMM_INTERPOLATED || d->deform > MR_DMM_DEFORM_INTERPOLATED ||
+        d->normals > MR_DMM_NORMALS_MATRIX)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm mode %d cannot use deformation %d",
+                            (int)d->mode, (int)d->deform);
+    return MR_OK;
+}
+
+/* Per-triangle levels into the packed layout: tri_info and the prefix
+ * offsets, within the asset caps. */
+static int lay_out(mr_geom *g, mr_error *err)
+{
+    size_t nt = g->base_triangle_count;
+    g->tri_info = malloc(nt);
+    g->value_first = malloc((nt + 1) * sizeof(uint32_t));
+    g->pyramid_first = malloc((nt + 1) * sizeof(uint32_t));
+    g->micro_first = malloc((nt + 1) * sizeof(uint32_t));
+    if (!g->tri_info || !g->value_first || !g->pyramid_first || !g->micro_first)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
+    size_t t = 0;
+    for (size_t i = 0; i < g->asset->mesh_count; i++)
+        if (g->bakes[i]) {
+            memcpy(g->tri_info + t, g->bakes[i]->tri_info, g->bakes[i]->base_triangle_count);
+            t += g->bakes[i]->base_triangle_count;
+        }
+    uint64_t values = 0, pyramid = 0, micro = 0;
+    for (t = 0; t < nt; t++) {
+        g->value_first[t] = (uint32_t)values;
+        g->pyramid_first[t] = (uint32_t)pyramid;
+        g->micro_first[t] = (uint32_t)micro;
+        unsigned level = mr_dmm_info_level(g->tri_info[t]);
+        uint32_t count;
+        local_tris(g, (uint32_t)t, &count);
+        values += mr_umesh_vertex_count(level);
+        pyramid += mr_dmm_trace_pyramid_size(level);
+        micro += count;
+        if (values > MR_MAX_ASSET_VERTICES || micro > MR_MAX_ASSET_TRIANGLES)
+            return mr_error_set(err, MR_ERR_LIMIT,
+                                "%s: %zu base triangles at level %u exceed the caps (%u "
+                                "micro-triangles / vertices)",
+                                g->asset->path, nt, g->desc.level, MR_MAX_ASSET_TRIANGLES);
+    }
+    g->value_first[nt] = (uint32_t)values;
+    g->pyramid_first[nt] = (uint32_t)pyramid;
+    g->micro_first[nt] = (uint32_t)micro;
+    return MR_OK;
+}
+
+/* Allocates everything after the bake counts are known. */
+static int allocate(mr_geom *g, mr_error *err)
+{
+    size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
+    size_t values = g->value_first[nt], pyramid = g->pyramid_first[nt];
+    g->base_indices = malloc(nt * 3 * sizeof(uint32_t));
+    g->tri_mesh = malloc(nt * sizeof(uint32_t));
+    g->rest_pos = malloc(nv * 3 * sizeof(float));
+    g->rest_dir = malloc(nv * 3 * sizeof(float));
+    g->values = malloc(values * sizeof(uint16_t));
+    g->minv = malloc(pyramid * sizeof(uint16_t));
+    g->maxv = malloc(pyramid * sizeof(uint16_t));
+    g->mats = calloc(nv, sizeof(mr_affine));
+    g->last_mats = calloc(nv, sizeof(mr_affine));
+    bool ok = g->base_indices && g->tri_mesh && g->rest_pos && g->rest_dir && g->values &&
+              g->minv && g->maxv && g->mats && g->last_mats;
+    if (g->desc.deform == MR_DMM_DEFORM_BASE) {
+        g->posed_pos = calloc(nv * 3, sizeof(float));
+        g->posed_dir = calloc(nv * 3, sizeof(float));
+        ok = ok && g->posed_pos && g->posed_dir;
+    }
+    if (tessellated(g)) {
+        g->vertex_count = (uint32_t)values;
+        g->triangle_count = g->micro_first[nt];
+        g->positions = calloc((size_t)g->vertex_count * 3 + 1, sizeof(float));
+        g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
+        ok = ok && g->positions && g->indices;
+    } else {
+        g->boxes = calloc(nt * BOX_FLOATS, sizeof(float));
+        ok = ok && g->boxes;
+    }
+    return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
+}
+
+/* The disk cache of bakes (dmm_file.h), when desc.cache_dir is set: on a
+ * hit, g->bakes and g->encoded hold the stored base meshes and encodings
+ * and true is returned. *path is the cache file (NULL without a cache dir,
+ * or when it cannot be named). A missing, broken or mismatching file is a
+ * miss: the caller bakes and cache_store overwrites it. Never fails the job. */
+static bool cache_lookup(mr_geom *g, const mr_dmm_bake_params *bp, uint8_t key[MR_DMM_KEY_BYTES],
+                         char **path)
+{
+    *path = NULL;
+    if (!g->desc.cache_dir || !g->desc.cache_dir[0])
+        return false;
+    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+    mr_dmm_default_bits(bits);
+    mr_dmm_cache_key(g->asset, bp, bits, key);
+    mr_error e = {0};
+    if (mr_dmm_cache_path(g->desc.cache_dir, key, path, &e) < 0)
+        return false;
+    return mr_dmm_cache_load(*path, key, g->asset, bp->level, bits, g->bakes, g->encoded, &e) ==
+           MR_OK;
+}
+
+/* Stores a fresh bake; a failure (full disk, read-only directory) costs the
+ * next job a bake, never this job its frames, so it is dropped. */
+static void cache_store(const mr_geom *g, const uint8_t key[MR_DMM_KEY_BYTES], const char *path)
+{
+    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+    mr_dmm_default_bits(bits);
+    mr_error e = {0};
+    (void)mr_dmm_cache_store(path, key, g->asset, g->desc.level, bits, g->bakes, g->encoded, &e);
+}
+
+static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
+                      mr_error *err)
+{
+    *out = NULL;
+    uint8_t key[MR_DMM_KEY_BYTES];
+    char *cache_path = NULL; /* before the first goto: fail frees it */
+    int rc = check_desc(&desc->dmm, err);
+    if (rc < 0)
+        return rc;
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
+    g->asset = asset;
+    g->desc = desc->dmm;
+    unsigned level = g->desc.level;
+    size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
+    g->bakes = calloc(meshes, sizeof *g->bakes);
+    g->encoded = calloc(meshes, sizeof *g->encoded);
+    g->mesh_first_base = calloc(meshes, sizeof(uint32_t));
+    if (!g->bakes || !g->encoded || !g->mesh_first_base)
+        goto nomem;
+
+    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+    bp.level = level;
+    bp.adaptive = g->desc.adaptive;
+    bp.target_triangles = g->desc.base_triangles;
+    bp.target_ratio = g->desc.base_ratio;
+    bp.threads = 0; /* the bake does not depend on it */
+    bool cached = cache_lookup(g, &bp, key, &cache_path);
+    uint64_t nv = 0, nt = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        if (asset->meshes[i].triangle_count == 0)
+            continue;
+        if (!cached && (rc = mr_dmm_bake_run(&asset->meshes[i], &bp, &g->bakes[i], err)) < 0) {
+            mr_error_prefix(err, "%s: mesh %zu: ", asset->path, i);
+            goto fail;
+        }
+        g->mesh_first_base[i] = (uint32_t)nv;
+        nv += g->bakes[i]->base_vertex_count;
+        nt += g->bakes[i]->base_triangle_count;
+        if (nv > MR_MAX_ASSET_VERTICES || nt > MR_DMM_MAX_TRIANGLES) {
+            rc = mr_error_set(err, MR_ERR_LIMIT, "%s: %llu base triangles exceed the cap (%u)",
+                              asset->path, (unsigned long long)nt, MR_DMM_MAX_TRIANGLES);
+            goto fail;
+        }
+    }
+    if (nt == 0) {
+        rc = mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to render", asset->path);
+        goto fail;
+    }
+    g->base_vertex_count = (uint32_t)nv;
+    g->base_triangle_count = (uint32_t)nt;
+    if ((rc = mr_umesh_topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
+        (rc = allocate(g, err)) < 0)
+        goto fail;
+
+    uint32_t t0 = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_dmm_bake *b = g->bakes[i];
+        if (!b)
+            continue;
+        uint32_t v0 = g->mesh_first_base[i];
+        for (uint64_t k = 0; k < (uint64_t)b->base_triangle_count * 3; k++)
+            g->base_indices[(uint64_t)t0 * 3 + k] = b->base_indices[k] + v0;
+        memcpy(g->rest_pos + (size_t)v0 * 3, b->base_positions,
+               (size_t)b->base_vertex_count * 3 * sizeof(float));
+        memcpy(g->rest_dir + (size_t)v0 * 3, b->base_directions,
+               (size_t)b->base_vertex_count * 3 * sizeof(float));
+        if ((rc = quantise(g, i, t0, err)) < 0)
+            goto fail;
+        t0 += b->base_triangle_count;
+    }
+    if (cache_path && !cached)
+        cache_store(g, key, cache_path);
+    /* the encodings are what renders: the bakes' float displacements (up to
+     * 561 floats per base triangle) are not needed any more */
+    for (size_t i = 0; i < asset->mesh_count; i++)
+        if (g->bakes[i]) {
+            free(g->bakes[i]->displacements);
+            g->bakes[i]->displacements = NULL;
+        }
+    if (tessellated(g))
+        fill_micro_indices(g, g->indices);
+    free(cache_path);
+    *out = g;
+    return MR_OK;
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for a dmm object", asset->path);
+fail:
+    free(cache_path);
+    dmm_free(g);
+    return rc;
+}
+
+static mr_vec3 load3(const float *a, size_t i) { return mr_v3(a[i * 3], a[i * 3 + 1], a[i * 3 + 2]); }
+
+/* Base triangle t as a traversal patch for this frame. */
+static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
+{
+    mr_dmm_patch p = {.level = mr_dmm_info_level(g->tri_info[t]),
+                      .decimate = mr_dmm_info_decimate(g->tri_info[t]),
+                      .enc = g->encoded[g->tri_mesh[t]],
+                      .values = g->values + g->value_first[t],
+                      .minv = g->minv + g->pyramid_first[t],
+                      .maxv = g->maxv + g->pyramid_first[t]};
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    bool interpolated = g->desc.deform == MR_DMM_DEFORM_INTERPOLATED;
+    for (int k = 0; k < 3; k++) {
+        if (interpolated) {
+            p.tri.pos[k] = load3(g->rest_pos, idx[k]);
+            p.tri.dir[k] = load3(g->rest_dir, idx[k]);
+            p.mats[k] = &g->mats[idx[k]];
+        } else {
+            p.tri.pos[k] = load3(g->posed_pos, idx[k]);
+            p.tri.dir[k] = load3(g->posed_dir, idx[k]);
+        }
+    }
+    if (g->boxes && g->evaluated)
+        memcpy(p.pad, g->boxes + (size_t)t * BOX_FLOATS + 6, sizeof p.pad);
+    return p;
+}
+
+static bool finite_bounded(mr_vec3 v)
+{
+    return fabsf(v.x) <= MR_MAX_COORDINATE && fabsf(v.y) <= MR_MAX_COORDINATE &&
+           fabsf(v.z) <= MR_MAX_COORDINATE;
+}
+
+/* Every micro-vertex of base triangle t (mr_dmm_vertex, the one evaluation
+ * all modes share) into dst, 3 floats each in micromesh.h order (vertices a
+ * decimated edge collapses are evaluated too; no surviving micro-triangle
+ * uses them); false if one is not finite or beyond MR_MAX_COORDINATE. */
+static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
+{
+    mr_dmm_patch p = patch_of(g, t);
+    uint32_t n = mr_umesh_segments(p.level);
+    bool ok = true;
+    for (uint32_t b = 0; b <= n; b++)
+        for (uint32_t a = 0; a + b <= n; a++) {
+            mr_vec3 v = mr_dmm_vertex(&p, a, b);
+            ok = ok && finite_bounded(v);
+            float *o = dst + (size_t)mr_umesh_vertex_index(p.level, a, b) * 3;
+            o[0] = v.x, o[1] = v.y, o[2] = v.z;
+        }
+    return ok;
+}
+
+typedef struct update_ctx {
+    mr_geom *g;
+    uint32_t bad[MR_MAX_THREADS]; /* per worker: first failing base triangle + 1, or 0 */
+} update_ctx;
+
+static void note_bad(update_ctx *c, unsigned worker, size_t t)
+{
+    if (c->bad[worker] == 0)
+        c->bad[worker] = (uint32_t)t + 1;
+}
+
+static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    update_ctx *c = ctx;
+    mr_geom *g = c->g;
+    for (size_t t = begin; t < end; t++) {
+        if (!tessellated(g)) {
+            /* the pad once: the bounds use it, and it is cached for the rays */
+            mr_dmm_patch p = patch_of(g, (uint32_t)t);
+            float *b = g->boxes + t * BOX_FLOATS;
+            mr_dmm_patch_pad(&p, p.pad);
+            memcpy(b + 6, p.pad, sizeof p.pad);
+            mr_vec3 lo, hi;
+            if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
+                note_bad(c, worker, t);
+            b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
+            continue;
+        }
+        if (!eval_micro_vertices(g, (uint32_t)t, g->positions + (size_t)g->value_first[t] * 3))
+            note_bad(c, worker, t);
+    }
+}
+
+/* Mode base: v' = M v, n' = M n (eq. 4), per base vertex. */
+static void pose_base_vertices(mr_geom *g)
+{
+    for (size_t i = 0; i < g->base_vertex_count; i++) {
+        const float *m = g->mats[i].m, *v = g->rest_pos + i * 3, *d = g->rest_dir + i * 3;
+        for (int r = 0; r < 3; r++) {
+            g->posed_pos[i * 3 + r] = m[r * 4] * v[0] + m[r * 4 + 1] * v[1] +
+                                      m[r * 4 + 2] * v[2] + m[r * 4 + 3];
+            g->posed_dir[i * 3 + r] = m[r * 4] * d[0] + m[r * 4 + 1] * d[1] + m[r * 4 + 2] * d[2];
+        }
+    }
+}
+
+static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                      mr_error *err)
+{
+    (void)frame; /* posed geometry does not depend on the view */
+    /* Accumulated matrices of the base vertices: a one-mesh view of the
+     * asset whose vertices are the base vertices with their own weights
+     * (the bake kept them). */
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        const mr_dmm_bake *b = g->bakes[i];
+        if (!b)
+            continue;
+        mr_mesh m = g->asset->meshes[i];
+        m.vertex_count = b->base_vertex_count;
+        m.triangle_count = b->base_triangle_count;
+        m.positions = b->base_positions;
+        m.normals = b->base_directions;
+        m.uvs = NULL;
+        m.indices = b->base_indices;
+        m.joints = b->joints;
+        m.weights = b->weights;
+        if (!b->joints || !b->weights) {
+            m.joint_count = 0;
+            m.joint_nodes = NULL;
+            m.inverse_bind = NULL;
+            m.joints = NULL;
+            m.weights = NULL;
+        }
+        mr_asset view = *g->asset;
+        view.mesh_count = 1;
+        view.meshes = &m;
+        mr_skin_matrices(&view, 0, pose, transform, g->mats + g->mesh_first_base[i], threads);
+    }
+    size_t nb = (size_t)g->base_vertex_count * sizeof(mr_affine);
+    /* Static objects (and frames where nothing moved) keep their data. */
+    if (g->evaluated && memcmp(g->mats, g->last_mats, nb) == 0)
+        return MR_OK;
+    g->evaluated = false;
+    for (size_t k = 0; k < (size_t)g->base_vertex_count * 12; k++)
+        if (!isfinite(g->mats[k / 12].m[k % 12]))
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "%s: the skinning matrix of base vertex %zu is not finite: check "
+                                "the object's transform and pose",
+                                g->asset->path, k / 12);
+    if (g->posed_pos)
+        pose_base_vertices(g);
+    update_ctx *c = calloc(1, sizeof *c);
+    if (!c)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a dmm object");
+    c->g = g;
+    mr_parallel_for(threads, g->base_triangle_count, UPDATE_GRAIN, update_range, c);
+    uint32_t bad = 0;
+    for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+        if (c->bad[w] && (bad == 0 || c->bad[w] < bad))
+            bad = c->bad[w];
+    free(c);
+    if (bad)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "%s: base triangle %u is not finite or beyond %g after posing: check "
+                            "the object's transform and pose",
+                            g->asset->path, bad - 1, MR_MAX_COORDINATE);
+    memcpy(g->last_mats, g->mats, nb);
+    g->evaluated = true;
+    return MR_OK;
+}
+
+/* Embree user-geometry callbacks (tessellation-free modes). */
+
+static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->boxes + (size_t)args->primID * BOX_FLOATS;
+    struct RTCBounds *o = args->bounds_o;
+    o->lower_x = b[0], o->lower_y = b[1], o->lower_z = b[2];
+    o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
+}
+
+static bool ray_ok(mr_vec3 dir)
+{
+    return (dir.x != 0 || dir.y != 0 || dir.z != 0) && isfinite(dir.x) && isfinite(dir.y) &&
+           isfinite(dir.z);
+}
+
+/* Embree's RTCRayN / RTCHitN accessors are C++ only. The layout is
+ * structure-of-arrays: field f of ray i of an N-packet is element f * N + i
+ * (rtcore_ray.h); the hit follows the ray's 12 fields. */
+enum { RAY_ORG = 0, RAY_TNEAR = 3, RAY_DIR = 4, RAY_TFAR = 8, RAY_FIELDS = 12 };
+enum { HIT_NG = 0, HIT_U = 3, HIT_V = 4, HIT_PRIM = 5, HIT_GEOM = 6, HIT_INST = 7 };
+
+static float *ray_f(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (float *)ray + field * N + i;
+}
+
+static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (unsigned *)ray + field * N + i;
+}
+
+/* Traces ray i of an N-packet against patch p; tfar shrinks on a hit. */
+static bool trace_one(const mr_dmm_patch *p, void *ray, unsigned N, unsigned i, bool any_hit,
+                      mr_dmm_hit *h)
+{
+    mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
+                        *ray_f(ray, N, RAY_ORG + 2, i));
+    mr_vec3 dir = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
+                        *ray_f(ray, N, RAY_DIR + 2, i));
+    if (!ray_ok(dir))
+        return false;
+    mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
+    float *tfar = ray_f(ray, N, RAY_TFAR, i);
+    return mr_dmm_intersect(p, &r, *ray_f(ray, N, RAY_TNEAR, i), tfar, any_hit, h, NULL);
+}
+
+static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    mr_dmm_patch p = patch_of(g, args->primID);
+    for (unsigned i = 0; i < N; i++) {
+        mr_dmm_hit h;
+        if (args->valid[i] != -1 || !trace_one(&p, ray, N, i, false, &h))
+            continue;
+        *ray_f(hit, N, HIT_NG, i) = h.ng.x;
+        *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
+        *ray_f(hit, N, HIT_NG + 2, i) = h.ng.z;
+        *ray_f(hit, N, HIT_U, i) = h.u;
+        *ray_f(hit, N, HIT_V, i) = h.v;
+        *ray_u(hit, N, HIT_PRIM, i) = args->primID;
+        *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
+        *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+    }
+}
+
+static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    mr_dmm_patch p = patch_of(g, args->primID);
+    for (unsigned i = 0; i < N; i++)
+        if (args->valid[i] == -1 && trace_one(&p, args->ray, N, i, true, NULL))
+            *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
+}
+
+static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                      enum RTCBuildQuality quality, mr_error *err)
+{
+    if (tessellated(g))
+        return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
+                                        g->vertex_count, g->indices, g->triangle_count, &g->rtc,
+                                        err);
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    if (!geom)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a user geometry (%d)",
+                            (int)rtcGetDeviceError(device));
+    rtcSetGeometryUserPrimitiveCount(geom, g->base_triangle_count);
+    rtcSetGeometryUserData(geom, g);
+    rtcSetGeometryBoundsFunction(geom, bounds_cb, NULL);
+    rtcSetGeometryIntersectFunction(geom, intersect_cb);
+    rtcSetGeometryOccludedFunction(geom, occluded_cb);
+    rtcSetGeometryBuildQuality(geom, quality);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(scene, geom, geom_id);
+    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
+        rtcReleaseGeometry(geom);
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the dmm user geometry");
+    }
+    g->rtc = geom;
+    return MR_OK;
+}
+
+static void dmm_commit(mr_geom *g)
+{
+    if (tessellated(g))
+        mr_geom_commit_vertices(g->rtc);
+    else
+        rtcCommitGeometry(g->rtc);
+}
+
+/* Base triangle and base-domain (u, v) of a hit. */
+static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
+{
+    if (!tessellated(g))
+        return prim;
+    if (prim >= g->micro_first[g->base_triangle_count])
+        return UINT32_MAX;
+    /* the base triangle whose micro-triangle range holds prim */
+    uint32_t lo = 0, hi = g->base_triangle_count;
+    while (hi - lo > 1) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (g->micro_first[mid] <= prim)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    uint32_t t = lo, count, a[3], b[3];
+    unsigned level = mr_dmm_info_level(g->tri_info[t]);
+    const uint32_t *idx = local_tris(g, t, &count) + 3 * (size_t)(prim - g->micro_first[t]);
+    for (int k = 0; k < 3; k++)
+        mr_umesh_vertex_coords(level, idx[k], &a[k], &b[k]);
+    float w0 = 1.0f - *u - *v, n = (float)mr_umesh_segments(level);
+    float bu = (w0 * (float)a[0] + *u * (float)a[1] + *v * (float)a[2]) / n;
+    float bv = (w0 * (float)b[0] + *u * (float)b[1] + *v * (float)b[2]) / n;
+    *u = bu, *v = bv;
+    return t;
+}
+
+static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    uint32_t t = hit_domain(g, prim, &u, &v);
+    if (t >= g->base_triangle_count)
+        return mr_v3(0, 0, 1);
+    mr_dmm_patch p = patch_of(g, t);
+    uint32_t a[3], b[3];
+    mr_dmm_locate(p.level, p.decimate, u, v, a, b);
+    if (g->desc.normals == MR_DMM_NORMALS_GEOMETRIC) {
+        mr_vec3 x[3];
+        for (int k = 0; k < 3; k++)
+            x[k] = mr_dmm_vertex(&p, a[k], b[k]);
+        return mr_v3_cross(mr_v3_sub(x[1], x[0]), mr_v3_sub(x[2], x[0]));
+    }
+    /* Interpolated-matrix normal: the rest micro-triangle's normal through
+     * the cofactor of M(u, v). */
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    mr_dmm_patch rest = p;
+    for (int k = 0; k < 3; k++) {
+        rest.tri.pos[k] = load3(g->rest_pos, idx[k]);
+        rest.tri.dir[k] = load3(g->rest_dir, idx[k]);
+        rest.mats[k] = NULL;
+    }
+    mr_vec3 x[3];
+    for (int k = 0; k < 3; k++)
+        x[k] = mr_dmm_vertex(&rest, a[k], b[k]);
+    mr_vec3 n = mr_v3_cross(mr_v3_sub(x[1], x[0]), mr_v3_sub(x[2], x[0]));
+    float w[3] = {1.0f - u - v, u, v};
+    mr_mat4 m = mr_mat4_identity();
+    for (int e = 0; e < 12; e++)
+        m.m[e] = w[0] * g->mats[idx[0]].m[e] + w[1] * g->mats[idx[1]].m[e] +
+                 w[2] * g->mats[idx[2]].m[e];
+    mr_mat4 cof = mr_mat4_normal_matrix(&m);
+    return mr_mat4_dir(&cof, n);
+}
+
+static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    if (tessellated(g))
+        return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out,
+                               err);
+    /* The exact reference of a tessellation-free object: its micro-triangles
+     * from the same mr_dmm_vertex, one vertex set per base triangle. */
+    memset(out, 0, sizeof *out);
+    uint64_t nv = g->value_first[g->base_triangle_count];
+    uint64_t nt = g->micro_first[g->base_triangle_count];
+    out->positions = malloc(nv * 3 * sizeof(float) + sizeof(float));
+    out->indices = malloc(nt * 3 * sizeof(uint32_t));
+    if (!out->positions || !out->indices) {
+        mr_trimesh_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a dmm object");
+    }
+    fill_micro_indices(g, out->indices);
+    /* update() already refused frames with non-finite micro-vertices */
+    for (uint32_t t = 0; t < g->base_triangle_count; t++)
+        eval_micro_vertices(g, t, out->positions + (size_t)g->value_first[t] * 3);
+    out->vertex_count = (uint32_t)nv;
+    out->triangle_count = (uint32_t)nt;
+    return MR_OK;
+}
+
+static size_t dmm_memory(const mr_geom *g)
+{
+    size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
+    size_t bytes = sizeof *g + g->asset->mesh_count * (2 * sizeof(void *) + sizeof(uint32_t));
+    for (size_t i = 0; i < g->asset->mesh_count; i++)
+        if (g->bakes[i])
+            bytes += mr_dmm_bake_memory(g->bakes[i]);
+    bytes += g->encoded_bytes;
+    bytes += nt * 4 * sizeof(uint32_t);                                 /* indices, tri_mesh */
+    bytes += nt * (1 + 3 * sizeof(uint32_t));                           /* tri_info, offsets */
+    bytes += nv * 6 * sizeof(float) + nv * 2 * sizeof(mr_affine);      /* rest, mats */
+    bytes += ((size_t)g->value_first[nt] + 2 * (size_t)g->pyramid_first[nt]) * sizeof(uint16_t);
+    if (g->posed_pos)
+        bytes += nv * 6 * sizeof(float);
+    if (g->boxes)
+        bytes += nt * BOX_FLOATS * sizeof(float);
+    if (g->positions)
+        bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
+                 (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+    return bytes;
+}
+
+static uint64_t dmm_primitives(const mr_geom *g)
+{
+    return g->micro_first[g->base_triangle_count];
+}
+
+const mr_geom_ops mr_geom_dmm_ops = {
+    .name = "dmm",
+    .create = dmm_create,
+    .update = dmm_update,
+    .attach = dmm_attach,
+    .commit = dmm_commit,
+    .normal = dmm_normal,
+    .tessellate = dmm_tessellate,
+    .memory = dmm_memory,
+    .primitives = dmm_primitives,
+    .free = dmm_free,
+};

@@ -1,0 +1,676 @@
+/*
+ * dmm_trace.c - tessellation-free traversal of a DMM patch (dmm_trace.h).
+ *
+ * Recursion depth is at most MR_UMESH_MAX_LEVEL, so the quadtree is walked
+ * recursively with every node's state on the C stack (no restart, no
+ * epsilon pushes). Lattice points carry their interpolated frame (point,
+ * direction and, for interpolated patches, matrix) in float, computed
+ * directly from the three base corners (no error accumulates down the
+ * tree); boxes are widened by a per-patch pad that covers float rounding.
+ * Micro-vertices are evaluated exactly as the tessellation does.
+ */
+#include <float.h>
+#include <math.h>
+#include <string.h>
+
+#include "kinds/dmm/dmm_trace.h"
+
+/* Widening of every box, relative to the patch's magnitude bound (see
+ * patch_pad): covers the final float rounding of a micro-vertex (2^-24
+ * relative) plus the few float roundings of the box arithmetic, with a
+ * factor 4 to spare. */
+#define BOX_PAD 0x1p-19f
+/* Far-distance widening of the slab test: 1 + 2 * gamma(3) in float. */
+#define SLAB_FAR_SCALE (1.0f + 2.0f * 3.0f * FLT_EPSILON)
+
+/* A lattice point of the patch with its interpolated frame, in float (the
+ * boxes are made conservative by the pad; micro-vertices themselves are
+ * evaluated exactly by micromesh.h). */
+typedef struct lattice_pt {
+    uint32_t a, b;
+    float p[3], n[3]; /* base patches only */
+} lattice_pt;
+
+typedef struct fbox {
+    float lo[3], hi[3];
+} fbox;
+
+typedef struct trace_ctx {
+    const mr_dmm_patch *patch;
+    const mr_dmm_ray *ray;
+    unsigned leaf;      /* leaf sublevel */
+    uint32_t segments;  /* 2^level */
+    float pad[3];       /* per-axis box widening */
+    float tmin, tmax;
+    bool any_hit, found;
+    mr_dmm_hit *hit;
+    mr_dmm_trace_stats *stats;
+} trace_ctx;
+
+unsigned mr_dmm_trace_leaf_sublevel(unsigned level) { return level ? level - 1 : 0; }
+
+uint32_t mr_dmm_trace_pyramid_size(unsigned level)
+{
+    return mr_dmm_pyramid_size(mr_dmm_trace_leaf_sublevel(level));
+}
+
+mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir)
+{
+    mr_dmm_ray r = {.org = org, .dir = dir};
+    const float d[3] = {dir.x, dir.y, dir.z};
+    for (int k = 0; k < 3; k++) {
+        r.parallel[k] = d[k] == 0.0f;
+        r.inv[k] = r.parallel[k] ? 0.0f : 1.0f / d[k];
+    }
+    r.wt = mr_wt_ray_setup(org, dir);
+    return r;
+}
+
+static float disp_of(const mr_dmm_patch *p, uint32_t a, uint32_t b)
+{
+    return mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index(p->level, a, b)]);
+}
+
+mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
+{
+    mr_vec3 out = {0, 0, 0};
+    float d = disp_of(p, a, b);
+    if (p->mats[0])
+        mr_umesh_eval_interpolated(&p->tri, p->mats, p->level, a, b, d, &out, NULL);
+    else
+        mr_umesh_eval(&p->tri, p->level, a, b, d, &out, NULL);
+    return out;
+}
+
+/* Larger of two (no NaN care: non-finite patches are refused before tracing);
+ * fmaxf would be a library call here. */
+static inline float larger(float a, float b) { return a > b ? a : b; }
+
+static float comp(mr_vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
+
+/* Displacement bounds for boxes: bias + scale * V in float. Not bit-equal to
+ * mr_dmm_value_to_float, but within 2^-23 |d|, which the pad covers. */
+static float disp_bound(const trace_ctx *c, uint16_t v)
+{
+    return c->patch->enc->bias + c->patch->enc->scale * (float)v;
+}
+
+/* Bound on |coordinate| of anything the patch's boxes are computed from,
+ * per axis, times BOX_PAD. Displacements are bounded by the root range. */
+void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3])
+{
+    trace_ctx ctx = {.patch = p};
+    const trace_ctx *c = &ctx;
+    float dm = larger(fabsf(disp_bound(c, p->minv[0])), fabsf(disp_bound(c, p->maxv[0])));
+    float x[3];
+    for (int k = 0; k < 3; k++) {
+        float pm = 0, nm = 0;
+        for (int i = 0; i < 3; i++) {
+            pm = larger(pm, fabsf(comp(p->tri.pos[i], k)));
+            nm = larger(nm, fabsf(comp(p->tri.dir[i], k)));
+        }
+        x[k] = pm + dm * nm;
+    }
+    for (int r = 0; r < 3; r++) {
+        float mag = x[r];
+        if (p->mats[0]) {
+            mag = 0;
+            for (int i = 0; i < 3; i++) {
+                const float *m = p->mats[i]->m + r * 4;
+                mag = larger(mag, fabsf(m[0]) * x[0] + fabsf(m[1]) * x[1] + fabsf(m[2]) * x[2] +
+                                     fabsf(m[3]));
+            }
+        }
+        pad[r] = mag * BOX_PAD + FLT_MIN;
+    }
+}
+
+static void patch_pad(trace_ctx *c)
+{
+    const float *given = c->patch->pad;
+    if (given[0] > 0 && given[1] > 0 && given[2] > 0)
+        memcpy(c->pad, given, sizeof c->pad);
+    else
+        mr_dmm_patch_pad(c->patch, c->pad);
+}
+
+static void grow(fbox *b, const float x[3])
+{
+    for (int k = 0; k < 3; k++) {
+        b->lo[k] = x[k] < b->lo[k] ? x[k] : b->lo[k];
+        b->hi[k] = x[k] > b->hi[k] ? x[k] : b->hi[k];
+    }
+}
+
+static fbox empty_box(void)
+{
+    return (fbox){{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
+}
+
+static void widen(const trace_ctx *c, fbox *b)
+{
+    for (int k = 0; k < 3; k++) {
+        b->lo[k] -= c->pad[k];
+        b->hi[k] += c->pad[k];
+    }
+}
+
+/* For interpolated patches a sub-triangle's micro-geometry at displacement d
+ * is the quadratic patch with control points (blossom) c_ij = S_ij + d T_ij,
+ * S_ij = (M(r_i) p(r_j) + M(r_j) p(r_i)) / 2 (affine) and
+ * T_ij = (L(r_i) n(r_j) + L(r_j) n(r_i)) / 2 (L the linear part): eq. 11 and
+ * 13 at the sub-triangle's corners r. Matrices are only applied at the root
+ * (the top-level patch); below it the blossom's bilinearity gives every
+ * control point of the children from the parent's six by averaging
+ * (B(m_ab, x) = (B(a, x) + B(b, x)) / 2 for an edge midpoint m_ab): exact
+ * midpoint subdivision of the top-level patch, one float rounding per
+ * average, which the pad covers. A node's blossoms: [0..2] = (i, i),
+ * [3] = (0, 1), [4] = (1, 2), [5] = (2, 0). */
+typedef struct blossom {
+    float s[3], t[3];
+} blossom;
+
+static void half_apply(const float m[12], const mr_vec3 p, const mr_vec3 n, float s[3], float t[3])
+{
+    for (int r = 0; r < 3; r++) {
+        s[r] = m[r * 4] * p.x + m[r * 4 + 1] * p.y + m[r * 4 + 2] * p.z + m[r * 4 + 3];
+        t[r] = m[r * 4] * n.x + m[r * 4 + 1] * n.y + m[r * 4 + 2] * n.z;
+    }
+}
+
+/* The top-level patch: eq. 11 for positions and directions at corners i, j. */
+static blossom top_blossom(const mr_dmm_patch *p, int i, int j)
+{
+    blossom b;
+    half_apply(p->mats[i]->m, p->tri.pos[j], p->tri.dir[j], b.s, b.t);
+    if (i != j) {
+        float s[3], t[3];
+        half_apply(p->mats[j]->m, p->tri.pos[i], p->tri.dir[i], s, t);
+        for (int r = 0; r < 3; r++) {
+            b.s[r] = 0.5f * (b.s[r] + s[r]);
+            b.t[r] = 0.5f * (b.t[r] + t[r]);
+        }
+    }
+    return b;
+}
+
+/* Written in place (returning the struct made the compiler store it in
+ * pieces and reload it whole: a store-forwarding stall per blossom). */
+static inline void average(blossom *b, const blossom *x, const blossom *y)
+{
+    for (int r = 0; r < 3; r++) {
+        b->s[r] = 0.5f * (x->s[r] + y->s[r]);
+        b->t[r] = 0.5f * (x->t[r] + y->t[r]);
+    }
+}
+
+static void grow_blossom(fbox *box, const blossom *b, float dmin, float dmax)
+{
+    float lo[3], hi[3];
+    for (int r = 0; r < 3; r++) {
+        lo[r] = b->s[r] + dmin * b->t[r];
+        hi[r] = b->s[r] + dmax * b->t[r];
+    }
+    grow(box, lo);
+    grow(box, hi);
+}
+
+static void grow_prism(fbox *box, const lattice_pt *x, float dmin, float dmax)
+{
+    float lo[3], hi[3];
+    for (int r = 0; r < 3; r++) {
+        lo[r] = x->p[r] + dmin * x->n[r];
+        hi[r] = x->p[r] + dmax * x->n[r];
+    }
+    grow(box, lo);
+    grow(box, hi);
+}
+
+/* Box of the micro-geometry over sub-triangle (L[0], L[1], L[2]) whose
+ * displacements lie in [dmin, dmax]; bl holds the blossoms of its corner
+ * pairs (interpolated patches): bl[0..2] = (i, i), bl[3] = (0, 1),
+ * bl[4] = (1, 2), bl[5] = (2, 0). */
+static fbox node_box(const trace_ctx *c, const lattice_pt *const L[3], const blossom *const bl[6],
+                     float dmin, float dmax)
+{
+    fbox b = empty_box();
+    if (!c->patch->mats[0])
+        for (int k = 0; k < 3; k++)
+            grow_prism(&b, L[k], dmin, dmax);
+    else
+        for (int k = 0; k < 6; k++)
+            grow_blossom(&b, bl[k], dmin, dmax);
+    widen(c, &b);
+    return b;
+}
+
+
+
+/* Tests micro-triangle (L[0], L[1], L[2]) with vertices v. The watertight
+ * test's rounding depends on which vertex comes first, so the triangle is
+ * rotated (winding kept) to start where the tessellation's row order starts
+ * it: at the vertex with the smallest b, then the smallest a. Hits are then
+ * bit-identical to the tessellated micro-mesh's under the same test. */
+/* Lin: the micro-triangle's lattice corners as the quadtree has them; the
+ * tessellation (mr_umesh_triangle) lists them starting at the smallest
+ * (b, a), and starting there keeps the watertight test's result bit-equal
+ * to the tessellation's. at: the corners after edge decimation (the
+ * vertices v were evaluated there; a collapsed micro-triangle has two equal
+ * vertices, so a zero determinant and no hit). */
+static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
+                          const lattice_pt *const at[3], const mr_vec3 vin[3])
+{
+    if (c->stats)
+        c->stats->triangles++;
+    int s = 0;
+    for (int k = 1; k < 3; k++)
+        if (Lin[k]->b < Lin[s]->b || (Lin[k]->b == Lin[s]->b && Lin[k]->a < Lin[s]->a))
+            s = k;
+    const lattice_pt *L[3] = {at[s], at[(s + 1) % 3], at[(s + 2) % 3]};
+    const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
+    mr_wt_hit h;
+    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
+        return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
+    c->found = true;
+    c->tmax = h.t;
+    if (!c->hit)
+        return;
+    float w0 = 1.0f - h.u - h.v, n = (float)c->segments;
+    c->hit->t = h.t;
+    c->hit->u = (w0 * (float)L[0]->a + h.u * (float)L[1]->a + h.v * (float)L[2]->a) / n;
+    c->hit->v = (w0 * (float)L[0]->b + h.u * (float)L[1]->b + h.v * (float)L[2]->b) / n;
+    c->hit->ng = mr_v3_cross(mr_v3_sub(v[1], v[0]), mr_v3_sub(v[2], v[0]));
+}
+
+/* Children of sub-triangle (P0, P1, P2) with edge midpoints m01, m12, m20,
+ * in pyramid order (dmm_encode.h): (P0, m01, m20), (m01, P1, m12),
+ * (m20, m12, P2), (m12, m20, m01). Indices into {P0, P1, P2, m01, m12, m20}. */
+static const int CHILD[4][3] = {{0, 3, 5}, {3, 1, 4}, {5, 4, 2}, {4, 5, 3}};
+
+/* Edge midpoints by averaging the endpoints' frames: one rounding per
+ * level, at most MR_UMESH_MAX_LEVEL of them, well inside BOX_PAD. */
+static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
+{
+    for (int e = 0; e < 3; e++) {
+        const lattice_pt *x = P[e], *y = P[(e + 1) % 3];
+        m[e].a = (x->a + y->a) / 2;
+        m[e].b = (x->b + y->b) / 2;
+        for (int k = 0; k < 3; k++) {
+            m[e].p[k] = 0.5f * (x->p[k] + y->p[k]);
+            m[e].n[k] = 0.5f * (x->n[k] + y->n[k]);
+        }
+    }
+}
+
+static void leaf(trace_ctx *c, const lattice_pt *const P[3])
+{
+    const mr_dmm_patch *p = c->patch;
+    if (p->level == 0) {
+        mr_vec3 v[3];
+        for (int k = 0; k < 3; k++)
+            v[k] = mr_dmm_vertex(p, P[k]->a, P[k]->b);
+        test_triangle(c, P, P, v);
+        return;
+    }
+    /* Lattice coordinates are all the micro-triangle test needs here. */
+    lattice_pt mid[3];
+    for (int e = 0; e < 3; e++) {
+        const lattice_pt *x = P[e], *y = P[(e + 1) % 3];
+        mid[e].a = (x->a + y->a) / 2;
+        mid[e].b = (x->b + y->b) / 2;
+    }
+    const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
+    /* Decimated edges: a collapsed vertex moves to the even vertex before it
+     * on the same base edge, a corner of this leaf (leaf edges on a base edge
+     * start at even steps), so the leaf's box still bounds it. */
+    lattice_pt moved[6];
+    const lattice_pt *at[6];
+    for (int k = 0; k < 6; k++) {
+        at[k] = pts[k];
+        if (p->decimate) {
+            moved[k].a = pts[k]->a, moved[k].b = pts[k]->b;
+            mr_umesh_remap_coords(p->level, p->decimate, &moved[k].a, &moved[k].b);
+            at[k] = &moved[k];
+        }
+    }
+    mr_vec3 v[6];
+    for (int k = 0; k < 6; k++)
+        v[k] = mr_dmm_vertex(p, at[k]->a, at[k]->b);
+    for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
+        const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
+        const lattice_pt *A[3] = {at[CHILD[k][0]], at[CHILD[k][1]], at[CHILD[k][2]]};
+        const mr_vec3 tv[3] = {v[CHILD[k][0]], v[CHILD[k][1]], v[CHILD[k][2]]};
+        test_triangle(c, L, A, tv);
+    }
+}
+
+static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
+
+/* EDGE: the corner pairs of the 4 children (indices into {P0, P1, P2, m01,
+ * m12, m20}) that are edges of some child, i.e. the blossoms a node needs
+ * besides the 6 diagonal ones, in this order: (0,3) (3,5) (5,0) (3,1) (1,4)
+ * (4,3) (5,4) (4,2) (2,5). */
+/* Per child k: its blossom slots {diag c0, diag c1, diag c2, (c0,c1),
+ * (c1,c2), (c2,c0)} as indices into the node's 15 blossoms (the 6 diagonal
+ * ones, then the 9 of EDGE): worked out by hand from CHILD and EDGE. */
+static const int CHILD_BLOSSOM[4][6] = {
+    {0, 3, 5, 6, 7, 8}, {3, 1, 4, 9, 10, 11}, {5, 4, 2, 12, 13, 14}, {4, 5, 3, 12, 7, 11}};
+
+/* The four children's boxes are computed and tested together, one vector
+ * lane per child (GCC vector extensions: SSE on x86-64, plain code
+ * elsewhere). */
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+
+static inline v4f vsplat(float x) { return (v4f){x, x, x, x}; }
+
+/* a < b ? a : b and a > b ? a : b per lane (minps / maxps semantics). */
+static inline v4f vmin(v4f a, v4f b)
+{
+    v4i m = a < b;
+    return (v4f)((m & (v4i)a) | (~m & (v4i)b));
+}
+
+static inline v4f vmax(v4f a, v4f b)
+{
+    v4i m = a > b;
+    return (v4f)((m & (v4i)a) | (~m & (v4i)b));
+}
+
+typedef struct child_boxes {
+    v4f lo[3], hi[3];
+} child_boxes;
+
+/* Grows lanes' boxes by x + dmin t and x + dmax t (x, t gathered per lane). */
+static inline void grow_lanes(child_boxes *b, int r, v4f x, v4f t, v4f dmin, v4f dmax)
+{
+    v4f u = x + dmin * t, w = x + dmax * t;
+    b->lo[r] = vmin(b->lo[r], vmin(u, w));
+    b->hi[r] = vmax(b->hi[r], vmax(u, w));
+}
+
+static void child_boxes_prism(const lattice_pt *const pts[6], v4f dmin, v4f dmax,
+                              child_boxes *b)
+{
+    for (int r = 0; r < 3; r++) {
+        b->lo[r] = vsplat(INFINITY);
+        b->hi[r] = vsplat(-INFINITY);
+        for (int i = 0; i < 3; i++) {
+            const lattice_pt *x0 = pts[CHILD[0][i]], *x1 = pts[CHILD[1][i]],
+                             *x2 = pts[CHILD[2][i]], *x3 = pts[CHILD[3][i]];
+            grow_lanes(b, r, (v4f){x0->p[r], x1->p[r], x2->p[r], x3->p[r]},
+                       (v4f){x0->n[r], x1->n[r], x2->n[r], x3->n[r]}, dmin, dmax);
+        }
+    }
+}
+
+static void child_boxes_bezier(const blossom *const bl[15], v4f dmin, v4f dmax, child_boxes *b)
+{
+    for (int r = 0; r < 3; r++) {
+        b->lo[r] = vsplat(INFINITY);
+        b->hi[r] = vsplat(-INFINITY);
+        for (int i = 0; i < 6; i++) {
+            const blossom *x0 = bl[CHILD_BLOSSOM[0][i]], *x1 = bl[CHILD_BLOSSOM[1][i]],
+                          *x2 = bl[CHILD_BLOSSOM[2][i]], *x3 = bl[CHILD_BLOSSOM[3][i]];
+            grow_lanes(b, r, (v4f){x0->s[r], x1->s[r], x2->s[r], x3->s[r]},
+                       (v4f){x0->t[r], x1->t[r], x2->t[r], x3->t[r]}, dmin, dmax);
+        }
+    }
+}
+
+/* Slab test of the ray against the four boxes widened by the pad: entry
+ * distance per lane, INFINITY for a miss. */
+static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
+{
+    const mr_dmm_ray *r = c->ray;
+    const float o[3] = {r->org.x, r->org.y, r->org.z};
+    v4f t0 = vsplat(c->tmin), t1 = vsplat(c->tmax * SLAB_FAR_SCALE);
+    for (int a = 0; a < 3; a++) {
+        v4f lo = b->lo[a] - vsplat(c->pad[a] + o[a]), hi = b->hi[a] + vsplat(c->pad[a] - o[a]);
+        if (r->parallel[a]) {
+            /* outside the slab: t1 = -inf on that lane */
+            v4i out = (lo > vsplat(0.0f)) | (hi < vsplat(0.0f));
+            t1 = (v4f)((out & (v4i)vsplat(-INFINITY)) | (~out & (v4i)t1));
+            continue;
+        }
+        v4f u = lo * vsplat(r->inv[a]), w = hi * vsplat(r->inv[a]);
+        t0 = vmax(t0, vmin(u, w));
+        t1 = vmin(t1, vmax(u, w) * vsplat(SLAB_FAR_SCALE));
+    }
+    for (int k = 0; k < 4; k++)
+        entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;
+}
+
+/* The blossoms a node's children need, computed into `store`. */
+typedef struct node_blossoms {
+    blossom mc[3][3]; /* (midpoint e of corners e, e+1; corner i) */
+    blossom md[3];    /* (m_e, m_e) */
+    blossom mm[3];    /* (m01, m20), (m12, m01), (m20, m12) */
+} node_blossoms;
+
+/* The 15 blossoms of a node's six points {P0, P1, P2, m01, m12, m20} (the 6
+ * diagonal ones, then those of EDGE) from the node's own six (B, see
+ * struct blossom), as pointers into B and store. */
+static void subdivide(const blossom *const B[6], node_blossoms *store, const blossom *out[15])
+{
+    /* corner pairs: (i, i) = B[i]; (0,1) = B[3], (1,2) = B[4], (2,0) = B[5] */
+    const blossom *C[3][3] = {{B[0], B[3], B[5]}, {B[3], B[1], B[4]}, {B[5], B[4], B[2]}};
+    for (int e = 0; e < 3; e++)
+        for (int i = 0; i < 3; i++)
+            average(&store->mc[e][i], C[e][i], C[(e + 1) % 3][i]);
+    for (int e = 0; e < 3; e++)
+        average(&store->md[e], &store->mc[e][e], &store->mc[e][(e + 1) % 3]);
+    average(&store->mm[0], &store->mc[0][2], &store->mc[0][0]); /* m20 = (P2 + P0) / 2 */
+    average(&store->mm[1], &store->mc[1][0], &store->mc[1][1]); /* m01 = (P0 + P1) / 2 */
+    average(&store->mm[2], &store->mc[2][1], &store->mc[2][2]); /* m12 = (P1 + P2) / 2 */
+    for (int i = 0; i < 3; i++) {
+        out[i] = B[i];
+        out[3 + i] = &store->md[i];
+    }
+    /* EDGE order: (P0,m01) (m01,m20) (m20,P0) (m01,P1) (P1,m12) (m12,m01)
+     * (m20,m12) (m12,P2) (P2,m20); midpoints m01 = 0, m12 = 1, m20 = 2 */
+    out[6] = &store->mc[0][0];
+    out[7] = &store->mm[0];
+    out[8] = &store->mc[2][0];
+    out[9] = &store->mc[0][1];
+    out[10] = &store->mc[1][1];
+    out[11] = &store->mm[1];
+    out[12] = &store->mm[2];
+    out[13] = &store->mc[1][2];
+    out[14] = &store->mc[2][2];
+}
+
+/* Sub-triangle `id` of `sublevel` whose box the ray already enters; B its
+ * blossoms (interpolated patches). */
+static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3],
+                  const blossom *const B[6])
+{
+    if (sublevel == c->leaf) {
+        leaf(c, P);
+        return;
+    }
+    bool bezier = c->patch->mats[0] != NULL;
+    lattice_pt mid[3];
+    midpoints(P, mid);
+    const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
+    uint32_t first = level_start(sublevel + 1) + 4 * id;
+    const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
+    v4f dmin = {disp_bound(c, mn[0]), disp_bound(c, mn[1]), disp_bound(c, mn[2]),
+                disp_bound(c, mn[3])};
+    v4f dmax = {disp_bound(c, mx[0]), disp_bound(c, mx[1]), disp_bound(c, mx[2]),
+                disp_bound(c, mx[3])};
+    child_boxes boxes;
+    node_blossoms store;
+    const blossom *bl[15];
+    if (bezier) {
+        subdivide(B, &store, bl);
+        child_boxes_bezier(bl, dmin, dmax, &boxes);
+    } else {
+        child_boxes_prism(pts, dmin, dmax, &boxes);
+    }
+    if (c->stats)
+        c->stats->boxes += 4;
+    float t[4], entry[4];
+    int order[4], count = 0;
+    slab4(c, &boxes, t);
+    for (int k = 0; k < 4; k++) {
+        if (t[k] == INFINITY)
+            continue;
+        /* insertion by entry distance: nearest first */
+        int at = count++;
+        while (at > 0 && entry[at - 1] > t[k]) {
+            entry[at] = entry[at - 1];
+            order[at] = order[at - 1];
+            at--;
+        }
+        entry[at] = t[k];
+        order[at] = k;
+    }
+    for (int i = 0; i < count; i++) {
+        if (entry[i] > c->tmax * SLAB_FAR_SCALE || (c->any_hit && c->found))
+            break;
+        int k = order[i];
+        const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
+        const blossom *CB[6];
+        for (int m = 0; m < 6 && bezier; m++)
+            CB[m] = bl[CHILD_BLOSSOM[k][m]];
+        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
+    }
+}
+
+static void root(const trace_ctx *c, lattice_pt P[3])
+{
+    const mr_dmm_patch *p = c->patch;
+    uint32_t n = c->segments;
+    const uint32_t a[3] = {0, n, 0}, b[3] = {0, 0, n};
+    for (int i = 0; i < 3; i++) {
+        P[i].a = a[i];
+        P[i].b = b[i];
+        for (int k = 0; k < 3; k++) {
+            P[i].p[k] = comp(p->tri.pos[i], k);
+            P[i].n[k] = comp(p->tri.dir[i], k);
+        }
+    }
+}
+
+/* The top-level patch's six blossoms (interpolated patches). */
+static void root_blossoms(const mr_dmm_patch *p, blossom bl[6], const blossom *B[6])
+{
+    for (int i = 0; i < 3; i++) {
+        bl[i] = top_blossom(p, i, i);
+        bl[3 + i] = top_blossom(p, i, (i + 1) % 3);
+    }
+    for (int i = 0; i < 6; i++)
+        B[i] = &bl[i];
+}
+
+bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
+{
+    trace_ctx c = {.patch = p, .segments = mr_umesh_segments(p->level)};
+    patch_pad(&c);
+    lattice_pt P[3];
+    root(&c, P);
+    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
+    blossom bl[6];
+    const blossom *B[6] = {NULL};
+    if (p->mats[0])
+        root_blossoms(p, bl, B);
+    fbox b = node_box(&c, L, B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
+    *lo = mr_v3(b.lo[0], b.lo[1], b.lo[2]);
+    *hi = mr_v3(b.hi[0], b.hi[1], b.hi[2]);
+    return isfinite(lo->x) && isfinite(lo->y) && isfinite(lo->z) && isfinite(hi->x) &&
+           isfinite(hi->y) && isfinite(hi->z);
+}
+
+bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, float *tmax,
+                      bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats)
+{
+    if (p->level > MR_UMESH_MAX_LEVEL || !(tmin <= *tmax))
+        return false;
+    trace_ctx c = {.patch = p,
+                   .ray = ray,
+                   .leaf = mr_dmm_trace_leaf_sublevel(p->level),
+                   .segments = mr_umesh_segments(p->level),
+                   .tmin = tmin,
+                   .tmax = *tmax,
+                   .any_hit = any_hit,
+                   .hit = hit,
+                   .stats = stats};
+    patch_pad(&c);
+    lattice_pt P[3];
+    root(&c, P);
+    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
+    blossom bl[6];
+    const blossom *B[6] = {NULL};
+    if (p->mats[0])
+        root_blossoms(p, bl, B);
+    /* The caller's BVH has tested the patch box; the root needs no test. */
+    visit(&c, 0, 0, L, p->mats[0] ? B : NULL);
+    if (c.found)
+        *tmax = c.tmax;
+    return c.found;
+}
+
+static bool decimated_tri(unsigned level, unsigned decimate, uint32_t a[3], uint32_t b[3])
+{
+    for (int k = 0; k < 3; k++)
+        mr_umesh_remap_coords(level, decimate, &a[k], &b[k]);
+    for (int k = 0; k < 3; k++)
+        if (a[k] == a[(k + 1) % 3] && b[k] == b[(k + 1) % 3])
+            return false;
+    return true;
+}
+
+/* Smallest barycentric weight of lattice point (x, y) in triangle (a, b):
+ * >= 0 inside. */
+static float inside_weight(const uint32_t a[3], const uint32_t b[3], float x, float y)
+{
+    float w[3], area = 0;
+    for (int k = 0; k < 3; k++) {
+        int i = (k + 1) % 3, j = (k + 2) % 3;
+        w[k] = ((float)a[i] - x) * ((float)b[j] - y) - ((float)a[j] - x) * ((float)b[i] - y);
+        area += w[k];
+    }
+    float m = w[0] < w[1] ? w[0] : w[1];
+    m = m < w[2] ? m : w[2];
+    return area > 0 ? m / area : -INFINITY;
+}
+
+void mr_dmm_locate(unsigned level, unsigned decimate, float u, float v, uint32_t a[3],
+                   uint32_t b[3])
+{
+    uint32_t n = mr_umesh_segments(level);
+    if (n == 0)
+        n = 1;
+    float x = u * (float)n, y = v * (float)n;
+    x = x > 0 ? x : 0;
+    y = y > 0 ? y : 0;
+    uint32_t ia = x < (float)n ? (uint32_t)x : n - 1, ib = y < (float)n ? (uint32_t)y : n - 1;
+    if (ia + ib > n - 1) {
+        /* outside the triangle by rounding: pull back onto the last row */
+        if (ia > n - 1 - ib)
+            ia = n - 1 - ib;
+    }
+    float fx = x - (float)ia, fy = y - (float)ib;
+    mr_umesh_lattice_triangle(ia, ib, !(fx + fy <= 1.0f || ia + ib + 1 > n - 1), a, b);
+    if (!decimate || level == 0 || decimated_tri(level, decimate, a, b))
+        return;
+    /* Collapsed: the surviving micro-triangles around it cover its domain;
+     * take the one that contains (x, y) best (the largest smallest
+     * barycentric weight, which also absorbs rounding at their borders). */
+    float best = -INFINITY;
+    for (uint32_t jb = ib ? ib - 1 : 0; jb <= ib + 1 && jb < n; jb++)
+        for (uint32_t ja = ia ? ia - 1 : 0; ja <= ia + 1 && ja + jb < n; ja++)
+            for (int inv = 0; inv < 2 && !(inv && ja + jb + 1 > n - 1); inv++) {
+                uint32_t ca[3], cb[3];
+                mr_umesh_lattice_triangle(ja, jb, inv, ca, cb);
+                if (!decimated_tri(level, decimate, ca, cb))
+                    continue;
+                float w = inside_weight(ca, cb, x, y);
+                if (w > best) {
+                    best = w;
+                    memcpy(a, ca, sizeof ca);
+                    memcpy(b, cb, sizeof cb);
+                }
+            }
+}

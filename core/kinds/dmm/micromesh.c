@@ -1,0 +1,367 @@
+/*
+ * micromesh.c - micro-mesh topology and displaced micro-vertex evaluation
+ * (micromesh.h). The edge rule and the numerics are explained in the header;
+ * the point of this file is that one code path computes every micro-vertex
+ * of a base edge, from that edge's data only.
+ */
+#include "kinds/dmm/micromesh.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct dvec3 { double x, y, z; } dvec3;
+
+uint32_t mr_umesh_segments(unsigned level)
+{
+    return level > MR_UMESH_MAX_LEVEL ? 0u : 1u << level;
+}
+
+uint32_t mr_umesh_vertex_count(unsigned level)
+{
+    uint32_t n = mr_umesh_segments(level);
+    return n ? (n + 1) * (n + 2) / 2 : 0u;
+}
+
+uint32_t mr_umesh_triangle_count(unsigned level)
+{
+    uint32_t n = mr_umesh_segments(level);
+    return n * n;
+}
+
+/* Index of the first vertex of row b: rows 0..b-1 hold n+1, n, ..., n-b+2. */
+static uint32_t row_start(uint32_t n, uint32_t b)
+{
+    return b * (n + 1) - b * (b - 1) / 2;
+}
+
+uint32_t mr_umesh_vertex_index(unsigned level, uint32_t a, uint32_t b)
+{
+    uint32_t n = mr_umesh_segments(level);
+    if (!n || a > n || b > n || a + b > n)
+        return UINT32_MAX;
+    return row_start(n, b) + a;
+}
+
+bool mr_umesh_vertex_coords(unsigned level, uint32_t index, uint32_t *a, uint32_t *b)
+{
+    uint32_t n = mr_umesh_segments(level);
+    if (!n || index >= mr_umesh_vertex_count(level))
+        return false;
+    uint32_t row = 0;
+    /* at most 33 rows: a linear walk is simpler than inverting the quadratic */
+    while (row < n && row_start(n, row + 1) <= index)
+        row++;
+    *a = index - row_start(n, row);
+    *b = row;
+    return true;
+}
+
+bool mr_umesh_vertex_bary(unsigned level, uint32_t index, float *u, float *v)
+{
+    uint32_t a, b;
+    if (!mr_umesh_vertex_coords(level, index, &a, &b))
+        return false;
+    float n = (float)mr_umesh_segments(level);
+    *u = (float)a / n;
+    *v = (float)b / n;
+    return true;
+}
+
+int mr_umesh_vertex_edge(unsigned level, uint32_t a, uint32_t b, uint32_t *k)
+{
+    uint32_t n = mr_umesh_segments(level);
+    uint32_t kk = 0;
+    int e = -1;
+    if (a == 0 && b == 0) {
+        e = 3, kk = 0;
+    } else if (a == n && b == 0) {
+        e = 3, kk = 1;
+    } else if (a == 0 && b == n) {
+        e = 3, kk = 2;
+    } else if (b == 0) {
+        e = 0, kk = a;
+    } else if (a + b == n) {
+        e = 1, kk = b;
+    } else if (a == 0) {
+        e = 2, kk = n - b;
+    }
+    if (k)
+        *k = kk;
+    return e;
+}
+
+void mr_umesh_lattice_triangle(uint32_t a, uint32_t b, bool inverted, uint32_t ta[3],
+                               uint32_t tb[3])
+{
+    if (!inverted) {
+        ta[0] = a, tb[0] = b;
+        ta[1] = a + 1, tb[1] = b;
+        ta[2] = a, tb[2] = b + 1;
+    } else {
+        ta[0] = a + 1, tb[0] = b;
+        ta[1] = a + 1, tb[1] = b + 1;
+        ta[2] = a, tb[2] = b + 1;
+    }
+}
+
+bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3])
+{
+    uint32_t n = mr_umesh_segments(level);
+    if (tri >= n * n)
+        return false;
+    /* row b holds 2(n-b)-1 triangles; rows 0..b-1 hold b(2n-b) */
+    uint32_t b = 0;
+    while (b < n && (b + 1) * (2 * n - b - 1) <= tri)
+        b++;
+    uint32_t r = tri - b * (2 * n - b), ta[3], tb[3];
+    mr_umesh_lattice_triangle(r / 2, b, r % 2 != 0, ta, tb);
+    for (int k = 0; k < 3; k++)
+        idx[k] = mr_umesh_vertex_index(level, ta[k], tb[k]);
+    return true;
+}
+
+uint32_t mr_umesh_vertex_remap(unsigned level, unsigned decimate_mask, uint32_t index)
+{
+    uint32_t a, b, k;
+    if (!mr_umesh_vertex_coords(level, index, &a, &b))
+        return UINT32_MAX;
+    uint32_t n = mr_umesh_segments(level);
+    int e = mr_umesh_vertex_edge(level, a, b, &k);
+    if (e < 0 || e > 2 || !(decimate_mask & (1u << e)) || k % 2 == 0)
+        return index;
+    /* odd vertex: collapse onto step k-1 of the same edge (k-1 >= 0 is even,
+     * so it is a corner or an even edge vertex, which is never moved) */
+    uint32_t j = k - 1;
+    switch (e) {
+    case 0: return mr_umesh_vertex_index(level, j, 0);
+    case 1: return mr_umesh_vertex_index(level, n - j, j);
+    default: return mr_umesh_vertex_index(level, 0, n - j);
+    }
+}
+
+void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, uint32_t *b)
+{
+    uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, mr_umesh_vertex_index(level, *a, *b));
+    if (r != UINT32_MAX)
+        mr_umesh_vertex_coords(level, r, a, b);
+}
+
+uint32_t mr_umesh_triangles(unsigned level, unsigned decimate_mask, uint32_t *out)
+{
+    uint32_t count = mr_umesh_triangle_count(level), kept = 0;
+    for (uint32_t t = 0; t < count; t++) {
+        uint32_t idx[3];
+        mr_umesh_triangle(level, t, idx);
+        for (int i = 0; i < 3; i++)
+            idx[i] = mr_umesh_vertex_remap(level, decimate_mask, idx[i]);
+        if (idx[0] == idx[1] || idx[1] == idx[2] || idx[2] == idx[0])
+            continue;
+        memcpy(out + 3 * kept, idx, sizeof idx);
+        kept++;
+    }
+    return kept;
+}
+
+static uint32_t fbits(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+/* Total order on an endpoint's (position, direction) bit patterns. It need
+ * not mean anything geometrically: both triangles only have to agree. */
+static int endpoint_cmp(mr_vec3 pa, mr_vec3 da, mr_vec3 pb, mr_vec3 db)
+{
+    const float ka[6] = {pa.x, pa.y, pa.z, da.x, da.y, da.z};
+    const float kb[6] = {pb.x, pb.y, pb.z, db.x, db.y, db.z};
+    for (int i = 0; i < 6; i++) {
+        uint32_t x = fbits(ka[i]), y = fbits(kb[i]);
+        if (x != y)
+            return x < y ? -1 : 1;
+    }
+    return 0;
+}
+
+/* The corners a micro-vertex depends on and their weights, in the order they
+ * are summed: a corner alone; an edge's two endpoints in canonical order (the
+ * edge rule above); the three corners for an interior vertex. Every
+ * interpolated quantity (position, direction, skinning matrix) is summed in
+ * this order, so shared-edge vertices are bit-identical on both sides. */
+typedef struct corner_weights {
+    int count;
+    int corner[3];
+    double w[3];
+} corner_weights;
+
+static corner_weights weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
+{
+    uint32_t k, n = mr_umesh_segments(level);
+    if (a > 0 && b > 0 && a + b < n) /* interior: most micro-vertices */
+        return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) / n, (double)a / n, (double)b / n}};
+    int e = mr_umesh_vertex_edge(level, a, b, &k);
+    if (e == 3)
+        return (corner_weights){1, {(int)k, 0, 0}, {1.0, 0, 0}};
+    if (e >= 0) {
+        int i0 = e, i1 = (e + 1) % 3;
+        uint32_t k0 = n - k, k1 = k; /* weights (in units of 1/n) of i0 and i1 */
+        if (endpoint_cmp(tri->pos[i0], tri->dir[i0], tri->pos[i1], tri->dir[i1]) > 0) {
+            int ti = i0;
+            i0 = i1, i1 = ti;
+            uint32_t tk = k0;
+            k0 = k1, k1 = tk;
+        }
+        return (corner_weights){2, {i0, i1, 0}, {(double)k0 / n, (double)k1 / n, 0}};
+    }
+    return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) / n, (double)a / n, (double)b / n}};
+}
+
+static dvec3 blend(const mr_vec3 *v, const corner_weights *cw)
+{
+    const int *c = cw->corner;
+    const double *w = cw->w;
+    mr_vec3 x = v[c[0]];
+    dvec3 r = {w[0] * x.x, w[0] * x.y, w[0] * x.z};
+    for (int i = 1; i < cw->count; i++) {
+        x = v[c[i]];
+        r = (dvec3){r.x + w[i] * x.x, r.y + w[i] * x.y, r.z + w[i] * x.z};
+    }
+    return r;
+}
+
+/* Undisplaced point and direction in double, by the edge rule. */
+static void frame_d(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, dvec3 *p,
+                    dvec3 *d)
+{
+    corner_weights cw = weights_of(tri, level, a, b);
+    *p = blend(tri->pos, &cw);
+    *d = blend(tri->dir, &cw);
+}
+
+static int check_args(unsigned level, uint32_t a, uint32_t b, mr_error *err)
+{
+    if (level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh level %u is above %u", level,
+                            MR_UMESH_MAX_LEVEL);
+    if (mr_umesh_vertex_index(level, a, b) == UINT32_MAX)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "micro-vertex (%u, %u) is outside the level-%u triangle", a, b, level);
+    return MR_OK;
+}
+
+static mr_vec3 to_f(dvec3 v) { return mr_v3((float)v.x, (float)v.y, (float)v.z); }
+
+static mr_vec3 displace(dvec3 p, dvec3 d, float disp)
+{
+    double s = disp;
+    return mr_v3((float)(p.x + s * d.x), (float)(p.y + s * d.y), (float)(p.z + s * d.z));
+}
+
+int mr_umesh_frame(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b,
+                   mr_vec3 *point, mr_vec3 *dir, mr_error *err)
+{
+    int rc = check_args(level, a, b, err);
+    if (rc < 0)
+        return rc;
+    dvec3 p, d;
+    frame_d(tri, level, a, b, &p, &d);
+    if (point)
+        *point = to_f(p);
+    if (dir)
+        *dir = to_f(d);
+    return MR_OK;
+}
+
+int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, float disp,
+                  mr_vec3 *out, mr_error *err)
+{
+    int rc = check_args(level, a, b, err);
+    if (rc < 0)
+        return rc;
+    dvec3 p, d;
+    frame_d(tri, level, a, b, &p, &d);
+    *out = displace(p, d, disp);
+    return MR_OK;
+}
+
+int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const mats[3],
+                               unsigned level, uint32_t a, uint32_t b, float disp, mr_vec3 *out,
+                               mr_error *err)
+{
+    int rc = check_args(level, a, b, err);
+    if (rc < 0)
+        return rc;
+    corner_weights cw = weights_of(rest, level, a, b);
+    dvec3 p = blend(rest->pos, &cw), d = blend(rest->dir, &cw);
+    double s = disp, x[3] = {p.x + s * d.x, p.y + s * d.y, p.z + s * d.z};
+    double m[12];
+    for (int e = 0; e < 12; e++) {
+        m[e] = cw.w[0] * mats[cw.corner[0]]->m[e];
+        for (int i = 1; i < cw.count; i++)
+            m[e] += cw.w[i] * mats[cw.corner[i]]->m[e];
+    }
+    double r[3];
+    for (int row = 0; row < 3; row++)
+        r[row] = m[row * 4] * x[0] + m[row * 4 + 1] * x[1] + m[row * 4 + 2] * x[2] + m[row * 4 + 3];
+    *out = mr_v3((float)r[0], (float)r[1], (float)r[2]);
+    return MR_OK;
+}
+
+static bool v3_finite(mr_vec3 v) { return isfinite(v.x) && isfinite(v.y) && isfinite(v.z); }
+
+void mr_umesh_topology_free(mr_umesh_topology *t)
+{
+    for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
+        for (unsigned m = 0; m < 8; m++) {
+            free(t->tris[l][m]);
+            t->tris[l][m] = NULL;
+            t->count[l][m] = 0;
+        }
+}
+
+int mr_umesh_topology_init(mr_umesh_topology *t, unsigned max_level, mr_error *err)
+{
+    memset(t, 0, sizeof *t);
+    if (max_level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh level %u is above %u", max_level,
+                            MR_UMESH_MAX_LEVEL);
+    for (unsigned l = 0; l <= max_level; l++)
+        for (unsigned m = 0; m < (l ? 8u : 1u); m++) {
+            t->tris[l][m] = malloc((size_t)mr_umesh_triangle_count(l) * 3 * sizeof(uint32_t));
+            if (!t->tris[l][m]) {
+                mr_umesh_topology_free(t);
+                return mr_error_set(err, MR_ERR_NOMEM, "out of memory for micro-mesh topology");
+            }
+            t->count[l][m] = mr_umesh_triangles(l, m, t->tris[l][m]);
+        }
+    return MR_OK;
+}
+
+int mr_umesh_eval_all(const mr_umesh_tri *tri, unsigned level, unsigned decimate_mask,
+                      const float *disp, mr_vec3 *out, mr_error *err)
+{
+    if (level > MR_UMESH_MAX_LEVEL)
+        return mr_error_set(err, MR_ERR_INVALID, "micro-mesh level %u is above %u", level,
+                            MR_UMESH_MAX_LEVEL);
+    if (decimate_mask > 7u)
+        return mr_error_set(err, MR_ERR_INVALID, "decimate mask 0x%x names edges above 2",
+                            decimate_mask);
+    for (int i = 0; i < 3; i++)
+        if (!v3_finite(tri->pos[i]) || !v3_finite(tri->dir[i]))
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "base corner %d has a non-finite position or direction", i);
+    uint32_t count = mr_umesh_vertex_count(level);
+    if (disp)
+        for (uint32_t i = 0; i < count; i++)
+            if (!isfinite(disp[i]))
+                return mr_error_set(err, MR_ERR_INVALID,
+                                    "displacement of micro-vertex %u is not finite", i);
+    for (uint32_t i = 0; i < count; i++) {
+        uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, i), a, b;
+        mr_umesh_vertex_coords(level, r, &a, &b);
+        dvec3 p, d;
+        frame_d(tri, level, a, b, &p, &d);
+        out[i] = displace(p, d, disp ? disp[r] : 0.0f);
+    }
+    return MR_OK;
+}

@@ -1,0 +1,66 @@
+/* geom.c - the geometry kind table (geom.h). */
+#include "kinds/kind.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind)
+{
+    switch (kind) {
+    case MR_GEOM_MESH: return &mr_geom_mesh_ops;
+    case MR_GEOM_DMM: return &mr_geom_dmm_ops;
+    case MR_GEOM_SVO: return &mr_geom_svo_ops;
+    }
+    return NULL;
+}
+
+int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,
+                    uint32_t triangle_count, mr_trimesh *out, mr_error *err)
+{
+    *out = (mr_trimesh){0};
+    out->positions = malloc((size_t)vertex_count * 3 * sizeof(float));
+    out->indices = malloc((size_t)triangle_count * 3 * sizeof(uint32_t));
+    if (!out->positions || !out->indices) {
+        mr_trimesh_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory copying %u triangles", triangle_count);
+    }
+    memcpy(out->positions, positions, (size_t)vertex_count * 3 * sizeof(float));
+    memcpy(out->indices, indices, (size_t)triangle_count * 3 * sizeof(uint32_t));
+    out->vertex_count = vertex_count;
+    out->triangle_count = triangle_count;
+    return MR_OK;
+}
+
+int mr_geom_attach_triangles(RTCDevice device, RTCScene scene, unsigned geom_id,
+                             enum RTCBuildQuality quality, float *positions, uint32_t vertex_count,
+                             uint32_t *indices, uint32_t triangle_count, RTCGeometry *out,
+                             mr_error *err)
+{
+    RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    *out = g;
+    if (!g)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a triangle geometry");
+    rtcSetGeometryBuildQuality(g, quality);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, positions, 0,
+                               3 * sizeof(float), vertex_count);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, indices, 0,
+                               3 * sizeof(uint32_t), triangle_count);
+    rtcCommitGeometry(g);
+    rtcAttachGeometryByID(scene, g, geom_id);
+    return MR_OK;
+}
+
+void mr_geom_commit_vertices(RTCGeometry geom)
+{
+    rtcUpdateGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0);
+    rtcCommitGeometry(geom);
+}
+
+void mr_trimesh_free(mr_trimesh *m)
+{
+    if (!m)
+        return;
+    free(m->positions);
+    free(m->indices);
+    *m = (mr_trimesh){0};
+}

@@ -1,0 +1,1570 @@
+/*
+ * deform.c - per-frame selection, deformation and resampling of one octree
+ * instance (deform.h; paper 004, 3.2 "Selection", 3.3 "Direct", "Resize",
+ * "Emit", with the REFERENCE.md errata).
+ *
+ * Selection is level-synchronous: the frontier of one level (the voxels to
+ * deform there) is split into fixed chunks of SEL_CHUNK items. Pass 1
+ * deforms every item and decides removed / selected / expanded, with
+ * per-chunk counts; a serial prefix sum over the chunks gives each chunk's
+ * place in the selection and in the next frontier; pass 2 writes them.
+ * Chunk boundaries depend on the frontier only, so the order of the output
+ * is the same for any thread count, and every number is computed by the
+ * same operations whichever worker runs it.
+ *
+ * Resampling is the same pattern over the selected boxes: a bounds pass, a
+ * count pass (level and cell ranges per box), a prefix sum, a write pass of
+ * keys and source indices, then the shared sort / compact / build.
+ *
+ * Cell indices are decided with the plane arithmetic of svo_trace.c: a cell
+ * boundary at finest-grid position K lies at signed distance
+ * (origin - x) + K * size * 2^-21 from a coordinate x, computed in double
+ * (K * size * 2^-21 is exact). floor / ceil of (x - origin) / cell give a
+ * first guess that rounding can leave one cell off; the guess is then moved
+ * until that exact-as-possible test agrees, so an emitted range covers its
+ * box in the very arithmetic a ray cast uses to decide whether a point lies
+ * in a leaf.
+ */
+#include "kinds/svo/deform.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "util/morton.h"
+#include "util/radix_sort.h"
+#include "kinds/svo/svo_build.h"
+#include "util/parallel.h"
+
+#define GRID_BITS MR_SVO_MAX_DEPTH
+#define GRID_CELLS (1u << GRID_BITS)
+/* Items per chunk: fixed, never derived from the thread count. */
+#define SEL_CHUNK 1024u
+#define RS_CHUNK 4096u
+/* Relative growth of the output cube's edge beyond the largest extent: two
+ * finest cells at depth 21, invisible at the depths used, and enough that
+ * the far face is never touched after rounding to float. */
+#define CUBE_GROWTH 0x1p-20
+
+static inline unsigned popcount8(unsigned v)
+{
+    v = v - ((v >> 1) & 0x55u);
+    v = (v & 0x33u) + ((v >> 2) & 0x33u);
+    return (v + (v >> 4)) & 0x0fu;
+}
+
+static inline unsigned lowest_bit(unsigned m) /* m != 0 */
+{
+    unsigned c = 0;
+    while (!(m & (1u << c)))
+        c++;
+    return c;
+}
+
+static inline unsigned highest_bit(unsigned m) /* m != 0 */
+{
+    unsigned c = 7;
+    while (!(m & (1u << c)))
+        c--;
+    return c;
+}
+
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+
+/* Nearest float on the low / high side of v (outward rounding, so a float
+ * box always contains the double box it came from). */
+/* The next float towards -inf (up = false) or +inf of a finite f. */
+static inline float float_step(float f, bool up)
+{
+    if (f == 0.0f)
+        return up ? FLT_TRUE_MIN : -FLT_TRUE_MIN;
+    uint32_t b;
+    memcpy(&b, &f, sizeof b);
+    b = ((f > 0.0f) == up) ? b + 1u : b - 1u; /* magnitude up or down */
+    memcpy(&f, &b, sizeof f);
+    return f;
+}
+
+static inline float float_down(double v)
+{
+    float f = (float)v;
+    if ((double)f > v && isfinite(f))
+        f = float_step(f, false);
+    return f;
+}
+
+static inline float float_up(double v)
+{
+    float f = (float)v;
+    if ((double)f < v && isfinite(f))
+        f = float_step(f, true);
+    return f;
+}
+
+static bool affine_finite(const mr_affine *a)
+{
+    for (int e = 0; e < 12; e++)
+        if (!isfinite(a->m[e]))
+            return false;
+    return true;
+}
+
+/* Child c of interior node n: its index among the leaves (is_leaf) or the
+ * interior nodes. Returns false when the index does not fit the octree. */
+static bool child_index(const mr_svo *svo, uint32_t n, unsigned c, bool *is_leaf, uint32_t *index)
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    const unsigned below = (1u << c) - 1u;
+    uint64_t i;
+    if (lm & (1u << c)) {
+        *is_leaf = true;
+        i = (uint64_t)svo->first_leaf[n] + popcount8(lm & below);
+        if (i >= svo->leaf_count)
+            return false;
+    } else {
+        *is_leaf = false;
+        i = (uint64_t)svo->first_node[n] + popcount8(cm & ~lm & below);
+        /* Breadth-first: children come after their parent, which also rules
+         * out cycles in a corrupt octree. */
+        if (i >= svo->node_count || i <= n)
+            return false;
+    }
+    *index = (uint32_t)i;
+    return true;
+}
+
+static bool masks_ok(const mr_svo *svo, uint32_t n)
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    return cm != 0 && (lm & ~cm) == 0;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Workspace                                                                */
+
+/* Every scratch array of a selection or resampling, by slot. A per-frame
+ * caller keeps one workspace, so after the first frame nothing is
+ * allocated and no fresh page is faulted in (both showed in profiles). */
+enum {
+    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL,
+    WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
+    WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
+    WS_RS_KEPT, WS_RS_LEAVES,
+    WS_SLOTS
+};
+
+struct mr_svo_workspace {
+    void *p[WS_SLOTS];
+    size_t bytes[WS_SLOTS];
+};
+
+int mr_svo_workspace_new(mr_svo_workspace **out, mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo workspace: NULL output");
+    *out = calloc(1, sizeof **out);
+    if (!*out)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo workspace: out of memory");
+    return MR_OK;
+}
+
+static void ws_release(mr_svo_workspace *ws)
+{
+    for (int k = 0; k < WS_SLOTS; k++)
+        free(ws->p[k]);
+    memset(ws, 0, sizeof *ws);
+}
+
+void mr_svo_workspace_free(mr_svo_workspace *ws)
+{
+    if (!ws)
+        return;
+    ws_release(ws);
+    free(ws);
+}
+
+size_t mr_svo_workspace_memory(const mr_svo_workspace *ws)
+{
+    size_t b = 0;
+    if (ws)
+        for (int k = 0; k < WS_SLOTS; k++)
+            b += ws->bytes[k];
+    return b;
+}
+
+/* Slot `slot` with room for count elements of elem bytes (at least one);
+ * contents are not kept when it grows. NULL when out of memory. */
+static void *ws_get(mr_svo_workspace *ws, int slot, size_t count, size_t elem)
+{
+    if (count == 0)
+        count = 1;
+    if (count > SIZE_MAX / elem)
+        return NULL;
+    const size_t need = count * elem;
+    if (need <= ws->bytes[slot])
+        return ws->p[slot];
+    size_t cap = ws->bytes[slot] ? ws->bytes[slot] : 256;
+    while (cap < need)
+        cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+    void *q = malloc(cap);
+    if (!q)
+        return NULL;
+    free(ws->p[slot]);
+    ws->p[slot] = q;
+    ws->bytes[slot] = cap;
+    return q;
+}
+
+static void ws_swap(mr_svo_workspace *ws, int a, int b)
+{
+    void *p = ws->p[a];
+    ws->p[a] = ws->p[b];
+    ws->p[b] = p;
+    size_t n = ws->bytes[a];
+    ws->bytes[a] = ws->bytes[b];
+    ws->bytes[b] = n;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Extremes                                                                 */
+
+void mr_svo_extremes_free(mr_svo_extremes *e)
+{
+    if (!e)
+        return;
+    free(e->lo_attr);
+    free(e->hi_attr);
+    memset(e, 0, sizeof *e);
+}
+
+int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: NULL output");
+    memset(out, 0, sizeof *out);
+    if (!svo)
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: NULL octree");
+    const uint32_t n = svo->node_count;
+    if (n == 0)
+        return MR_OK;
+    if (!svo->first_node || !svo->first_leaf || !svo->child_mask || !svo->leaf_mask ||
+        (svo->leaf_count > 0 && !svo->leaves))
+        return mr_error_set(err, MR_ERR_INVALID, "svo extremes: octree arrays missing");
+    out->lo_attr = malloc((size_t)n * sizeof *out->lo_attr);
+    out->hi_attr = malloc((size_t)n * sizeof *out->hi_attr);
+    if (!out->lo_attr || !out->hi_attr) {
+        mr_svo_extremes_free(out);
+        return mr_error_set(err, MR_ERR_NOMEM, "svo extremes: out of memory (%u nodes)", n);
+    }
+    out->node_count = n;
+    /* Nodes are breadth-first, so every interior child has a larger index
+     * than its parent: one reverse pass sees children before parents. */
+    for (uint32_t k = n; k-- > 0;) {
+        if (!masks_ok(svo, k)) {
+            mr_svo_extremes_free(out);
+            return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u has bad child masks", k);
+        }
+        const unsigned cm = svo->child_mask[k];
+        const unsigned side[2] = {lowest_bit(cm), highest_bit(cm)};
+        uint16_t attr[2];
+        for (int s = 0; s < 2; s++) {
+            bool leaf;
+            uint32_t ci;
+            if (!child_index(svo, k, side[s], &leaf, &ci)) {
+                mr_svo_extremes_free(out);
+                return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u child %u out of range", k,
+                                    side[s]);
+            }
+            attr[s] = leaf ? svo->leaves[ci].attr : (s == 0 ? out->lo_attr[ci] : out->hi_attr[ci]);
+        }
+        out->lo_attr[k] = attr[0];
+        out->hi_attr[k] = attr[1];
+    }
+    return MR_OK;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Selection                                                                */
+
+/* One voxel to deform: its coordinates at the frontier's level (21 bits
+ * each, x | y << 21 | z << 42) and its node or leaf index. */
+typedef struct sel_item {
+    uint64_t xyz;
+    uint32_t index;
+    uint32_t leaf;
+} sel_item;
+
+enum { OUT_REMOVED = 0, OUT_SELECTED = 1, OUT_EXPANDED = 2 };
+
+enum {
+    FAIL_NONE = 0,
+    FAIL_ATTR,     /* a: voxel's palette entry, b: palette count */
+    FAIL_FIELD,    /* p: bind point */
+    FAIL_CHILD,    /* a: node */
+    FAIL_OVERFLOW, /* a: level; the deformed box left the float range */
+    FAIL_PALETTE,  /* a: palette entry naming a mesh or joint the deformer lacks */
+};
+
+typedef struct sel_fail {
+    int kind;
+    uint32_t a, b;
+    double p[3];
+} sel_fail;
+
+typedef struct sel_ctx {
+    const mr_svo *svo;
+    const mr_svo_extremes *ex;
+    const mr_svo_deformer *d;
+    bool view_on, cull;
+    double vp[16];
+    double planes[7][4]; /* clip-space half spaces p . (x, y, z, 1) >= 0 */
+    double width, height, delta;
+    unsigned level, max_level;
+    double origin[3], cell;
+    /* the level being processed */
+    const sel_item *items;
+    size_t n;
+    float *box;
+    mr_svo_leaf *leaf;
+    uint8_t *outcome;
+    size_t *chunk_sel, *chunk_child; /* counts, then offsets */
+    sel_fail *chunk_fail;
+    sel_item *next;
+    mr_svo_selection *out;
+} sel_ctx;
+
+/* Arvo's box transform applied once per matrix, union of the two (Fig. 16),
+ * in the mr_affine convention: out_i = m[4i+3] + sum_j m[4i+j] * in_j. */
+/* The blended skin matrix of palette entry at (sum of weight * joint
+ * matrix, in double; no weights: the mesh's matrix), or false when the
+ * entry names a mesh or joint the deformer lacks. Blended (and checked) per
+ * voxel extreme rather than for the whole palette up front: a far instance
+ * selects a handful of voxels, while the palette of a character has
+ * thousands of entries (doing them all cost ~1 ms per instance per frame).
+ * The arithmetic is the same either way. */
+static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affine *out)
+{
+    if (at->mesh >= d->mesh_count)
+        return false;
+    const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
+    double acc[12] = {0};
+    bool any = false;
+    for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
+        if (at->weights[k] == 0)
+            continue;
+        if (at->joints[k] >= jc)
+            return false;
+        const double w = at->weights[k] / 255.0;
+        const float *j = d->joint[at->mesh][at->joints[k]].m;
+        for (int e = 0; e < 12; e++)
+            acc[e] += w * (double)j[e];
+        any = true;
+    }
+    if (!any) {
+        *out = d->mesh[at->mesh];
+        return true;
+    }
+    for (int e = 0; e < 12; e++)
+        out->m[e] = (float)acc[e];
+    return true;
+}
+
+static void deform_box(const mr_affine *a0, const mr_affine *a1, const double lo[3], const double hi[3],
+                       double olo[3], double ohi[3])
+{
+    for (int i = 0; i < 3; i++) {
+        olo[i] = INFINITY;
+        ohi[i] = -INFINITY;
+    }
+    for (int k = 0; k < 2; k++) {
+        const float *m = (k == 0 ? a0 : a1)->m;
+        for (int i = 0; i < 3; i++) {
+            double l = m[4 * i + 3], h = l;
+            for (int j = 0; j < 3; j++) {
+                const double p = (double)m[4 * i + j] * lo[j], q = (double)m[4 * i + j] * hi[j];
+                l += dmin(p, q);
+                h += dmax(p, q);
+            }
+            olo[i] = dmin(olo[i], l);
+            ohi[i] = dmax(ohi[i], h);
+        }
+    }
+}
+
+/* Bind normal moved by the cofactor of the mean matrix, sign-corrected by
+ * its determinant so a mirroring transform keeps normals outward (a voxel
+ * has no winding that would flip with it, unlike a triangle); a matrix that
+ * collapses the normal keeps the bind normal. */
+static void move_normal(const mr_affine *a0, const mr_affine *a1, const uint8_t in[2], uint8_t out[2])
+{
+    double c[3][3]; /* columns of the mean linear part */
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c[j][i] = 0.5 * ((double)a0->m[4 * i + j] + (double)a1->m[4 * i + j]);
+    double r[3][3]; /* cofactor columns: c1 x c2, c2 x c0, c0 x c1 */
+    for (int k = 0; k < 3; k++) {
+        const double *u = c[(k + 1) % 3], *v = c[(k + 2) % 3];
+        r[k][0] = u[1] * v[2] - u[2] * v[1];
+        r[k][1] = u[2] * v[0] - u[0] * v[2];
+        r[k][2] = u[0] * v[1] - u[1] * v[0];
+    }
+    const double det = c[0][0] * r[0][0] + c[0][1] * r[0][1] + c[0][2] * r[0][2];
+    const mr_vec3 n = mr_svo_normal_decode(in);
+    double m[3];
+    for (int i = 0; i < 3; i++)
+        m[i] = r[0][i] * n.x + r[1][i] * n.y + r[2][i] * n.z;
+    if (det < 0.0)
+        for (int i = 0; i < 3; i++)
+            m[i] = -m[i];
+    const double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    if (!(len > 0.0) || !isfinite(len)) {
+        out[0] = in[0];
+        out[1] = in[1];
+        return;
+    }
+    mr_svo_normal_encode(mr_v3((float)(m[0] / len), (float)(m[1] / len), (float)(m[2] / len)), out);
+}
+
+/* The leaf reached from interior node n by always taking the lowest child. */
+static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
+{
+    for (unsigned guard = 0; guard <= GRID_BITS; guard++) {
+        if (!masks_ok(svo, n))
+            return false;
+        bool is_leaf;
+        uint32_t ci;
+        if (!child_index(svo, n, lowest_bit(svo->child_mask[n]), &is_leaf, &ci))
+            return false;
+        if (is_leaf) {
+            *leaf = ci;
+            return true;
+        }
+        n = ci;
+    }
+    return false;
+}
+
+static void fail_set(sel_fail *f, int kind, uint32_t a, uint32_t b, const double p[3])
+{
+    if (f->kind != FAIL_NONE)
+        return; /* keep the chunk's first */
+    f->kind = kind;
+    f->a = a;
+    f->b = b;
+    for (int i = 0; i < 3; i++)
+        f->p[i] = p ? p[i] : 0.0;
+}
+
+/* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
+static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    sel_ctx *c = vctx;
+    const mr_svo *svo = c->svo;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
+        size_t nsel = 0, nchild = 0;
+        sel_fail *fail = &c->chunk_fail[ch];
+        /* With skinning, the moved normal is a function of (palette entries,
+         * bind normal) only, and neighbours in Morton order often share
+         * both: remember the last one (the same value either way). */
+        /* memo_hi starts above every palette index (attr1 <= 65535), so the
+         * first voxel never matches the empty memo. */
+        uint32_t memo_key = UINT32_MAX, memo_hi = UINT32_MAX;
+        uint8_t memo_out[2] = {0, 0};
+        fail->kind = FAIL_NONE;
+        for (size_t i = i0; i < i1; i++) {
+            const sel_item *it = &c->items[i];
+            c->outcome[i] = OUT_REMOVED;
+            const uint32_t xyz[3] = {(uint32_t)(it->xyz & 0x1fffffu), (uint32_t)((it->xyz >> 21) & 0x1fffffu),
+                                     (uint32_t)((it->xyz >> 42) & 0x1fffffu)};
+            double lo[3], hi[3];
+            for (int a = 0; a < 3; a++) {
+                lo[a] = c->origin[a] + (double)xyz[a] * c->cell;
+                hi[a] = c->origin[a] + (double)(xyz[a] + 1u) * c->cell;
+            }
+            uint32_t attr0, attr1;
+            if (it->leaf) {
+                attr0 = attr1 = svo->leaves[it->index].attr;
+            } else {
+                attr0 = c->ex->lo_attr[it->index];
+                attr1 = c->ex->hi_attr[it->index];
+            }
+            if (attr0 >= svo->palette_count || attr1 >= svo->palette_count) {
+                fail_set(fail, FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count,
+                         NULL);
+                continue;
+            }
+            mr_affine a0, a1;
+            if (c->d->field) {
+                a0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
+                a1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
+                if (!affine_finite(&a0) || !affine_finite(&a1)) {
+                    fail_set(fail, FAIL_FIELD, 0, 0, affine_finite(&a0) ? hi : lo);
+                    continue;
+                }
+            } else {
+                if (!blend_entry(&svo->palette[attr0], c->d, &a0)) {
+                    fail_set(fail, FAIL_PALETTE, attr0, 0, NULL);
+                    continue;
+                }
+                if (attr1 == attr0) {
+                    a1 = a0;
+                } else if (!blend_entry(&svo->palette[attr1], c->d, &a1)) {
+                    fail_set(fail, FAIL_PALETTE, attr1, 0, NULL);
+                    continue;
+                }
+            }
+            double dlo[3], dhi[3];
+            deform_box(&a0, &a1, lo, hi, dlo, dhi);
+            float *b = &c->box[i * 6];
+            bool finite = true;
+            for (int a = 0; a < 3; a++) {
+                b[a] = float_down(dlo[a]);
+                b[3 + a] = float_up(dhi[a]);
+                finite = finite && isfinite(b[a]) && isfinite(b[3 + a]);
+            }
+            if (!finite) {
+                fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
+                continue;
+            }
+            double size = INFINITY;
+            if (c->view_on) {
+                double blo[3], bhi[3], g = 0.0;
+                for (int a = 0; a < 3; a++) {
+                    blo[a] = b[a];
+                    bhi[a] = b[3 + a];
+                    g = dmax(g, bhi[a] - blo[a]);
+                }
+                if (c->cull) {
+                    /* Predicate (a): the box grown by its largest side (room for
+                     * what descendants' own matrices may do) entirely on the
+                     * outer side of one plane, or entirely behind the eye. */
+                    bool outside = false;
+                    for (int p = 0; p < 7 && !outside; p++) {
+                        const double *pl = c->planes[p];
+                        double mx = pl[3];
+                        for (int a = 0; a < 3; a++)
+                            mx += dmax(pl[a] * (blo[a] - g), pl[a] * (bhi[a] + g));
+                        outside = p == 6 ? !(mx > 0.0) : mx < 0.0;
+                    }
+                    if (outside)
+                        continue; /* removed */
+                }
+            }
+            /* The projected size only decides whether an interior voxel
+             * above max_level is refined: leaves (most of what is visited)
+             * and voxels at max_level are selected whatever it is. */
+            if (c->view_on && !it->leaf && c->level < c->max_level) {
+                const double blo[3] = {b[0], b[1], b[2]}, bhi[3] = {b[3], b[4], b[5]};
+                /* eq. 3.2.1-3.2.3; a corner at or behind the eye plane makes
+                 * the projection unbounded. */
+                double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
+                bool behind = false;
+                for (unsigned k = 0; k < 8 && !behind; k++) {
+                    const double q[3] = {(k & 1) ? bhi[0] : blo[0], (k & 2) ? bhi[1] : blo[1],
+                                         (k & 4) ? bhi[2] : blo[2]};
+                    double cl[4];
+                    for (int r = 0; r < 4; r++)
+                        cl[r] = c->vp[4 * r] * q[0] + c->vp[4 * r + 1] * q[1] + c->vp[4 * r + 2] * q[2] +
+                                c->vp[4 * r + 3];
+                    if (!(cl[3] > 0.0)) {
+                        behind = true;
+                        break;
+                    }
+                    const double x = 0.5 * cl[0] / cl[3] + 0.5, y = 0.5 * cl[1] / cl[3] + 0.5;
+                    xmin = dmin(xmin, x);
+                    xmax = dmax(xmax, x);
+                    ymin = dmin(ymin, y);
+                    ymax = dmax(ymax, y);
+                }
+                if (!behind)
+                    size = dmax(c->width * (xmax - xmin), c->height * (ymax - ymin));
+            }
+            if (it->leaf || c->level >= c->max_level || size < c->delta) {
+                uint32_t src = it->index;
+                if (!it->leaf && !lowest_leaf(svo, it->index, &src)) {
+                    fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                    continue;
+                }
+                mr_svo_leaf *l = &c->leaf[i];
+                l->attr = (uint16_t)attr0;
+                const uint8_t *bn = svo->leaves[src].normal;
+                const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
+                if (c->d->field || key != memo_key || attr1 != memo_hi) {
+                    move_normal(&a0, &a1, bn, memo_out);
+                    memo_key = key;
+                    memo_hi = attr1;
+                }
+                l->normal[0] = memo_out[0];
+                l->normal[1] = memo_out[1];
+                c->outcome[i] = OUT_SELECTED;
+                nsel++;
+                continue;
+            }
+            /* expand: check every child now so pass 2 cannot fail */
+            if (!masks_ok(svo, it->index)) {
+                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                continue;
+            }
+            const unsigned cm = svo->child_mask[it->index];
+            bool ok = true;
+            for (unsigned ci = 0; ci < 8 && ok; ci++) {
+                bool is_leaf;
+                uint32_t idx;
+                if (cm & (1u << ci))
+                    ok = child_index(svo, it->index, ci, &is_leaf, &idx);
+            }
+            if (!ok) {
+                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+                continue;
+            }
+            c->outcome[i] = OUT_EXPANDED;
+            nchild += popcount8(cm);
+        }
+        c->chunk_sel[ch] = nsel;
+        c->chunk_child[ch] = nchild;
+    }
+}
+
+/* Pass 2: write the chunk's selected voxels and children at its offsets. */
+static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    sel_ctx *c = vctx;
+    const mr_svo *svo = c->svo;
+    mr_svo_selection *out = c->out;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
+        size_t s = c->chunk_sel[ch], k = c->chunk_child[ch];
+        for (size_t i = i0; i < i1; i++) {
+            if (c->outcome[i] == OUT_SELECTED) {
+                memcpy(&out->box[s * 6], &c->box[i * 6], 6 * sizeof(float));
+                out->leaf[s] = c->leaf[i];
+                out->level[s] = (uint8_t)c->level;
+                s++;
+            } else if (c->outcome[i] == OUT_EXPANDED) {
+                const sel_item *it = &c->items[i];
+                const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu,
+                               z = (it->xyz >> 42) & 0x1fffffu;
+                const unsigned cm = svo->child_mask[it->index];
+                for (unsigned ci = 0; ci < 8; ci++) {
+                    if (!(cm & (1u << ci)))
+                        continue;
+                    bool is_leaf = false;
+                    uint32_t idx = 0;
+                    (void)child_index(svo, it->index, ci, &is_leaf, &idx); /* checked in pass 1 */
+                    sel_item *o = &c->next[k++];
+                    o->xyz = (2 * x + (ci & 1u)) | ((2 * y + ((ci >> 1) & 1u)) << 21) |
+                             ((2 * z + (ci >> 2)) << 42);
+                    o->index = idx;
+                    o->leaf = is_leaf;
+                }
+            }
+        }
+    }
+}
+
+void mr_svo_selection_free(mr_svo_selection *s)
+{
+    if (!s)
+        return;
+    free(s->box);
+    free(s->leaf);
+    free(s->level);
+    memset(s, 0, sizeof *s);
+}
+
+static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
+{
+    if (need <= s->capacity)
+        return MR_OK;
+    size_t cap = s->capacity ? s->capacity : 256;
+    while (cap < need)
+        cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+    if (cap > SIZE_MAX / (6 * sizeof(float)))
+        return mr_error_set(err, MR_ERR_NOMEM, "svo select: %zu voxels do not fit in memory", need);
+    float *box = realloc(s->box, cap * 6 * sizeof *box);
+    if (box)
+        s->box = box;
+    mr_svo_leaf *leaf = realloc(s->leaf, cap * sizeof *leaf);
+    if (leaf)
+        s->leaf = leaf;
+    uint8_t *level = realloc(s->level, cap);
+    if (level)
+        s->level = level;
+    if (!box || !leaf || !level)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels)", need);
+    s->capacity = cap;
+    return MR_OK;
+}
+
+/* Checks that the deformer's matrices are finite (whether the palette's
+ * entries name meshes and joints it has is checked where they are used:
+ * blend_entry). */
+static int check_deformer(const mr_svo *svo, const mr_svo_deformer *d, mr_error *err)
+{
+    if (d->mesh_count > 0 && !d->mesh)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: deformer has %zu meshes but no mesh matrices",
+                            d->mesh_count);
+    for (size_t m = 0; m < d->mesh_count; m++) {
+        if (!affine_finite(&d->mesh[m]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu matrix is not finite", m);
+        const uint32_t jc = d->joint_count ? d->joint_count[m] : 0;
+        if (jc > 0 && (!d->joint || !d->joint[m]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu has %u joints but no matrices", m,
+                                jc);
+        for (uint32_t j = 0; j < jc; j++)
+            if (!affine_finite(&d->joint[m][j]))
+                return mr_error_set(err, MR_ERR_INVALID, "svo select: mesh %zu joint %u matrix is not finite",
+                                    m, j);
+    }
+    if (svo->palette_count > 0 && !svo->palette)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: octree has %u palette entries but no palette",
+                            svo->palette_count);
+    return MR_OK;
+}
+
+static int view_setup(sel_ctx *c, const mr_svo_view *view, mr_error *err)
+{
+    c->view_on = view && view->enabled;
+    c->cull = c->view_on && view->cull;
+    if (!c->view_on)
+        return MR_OK;
+    for (int e = 0; e < 16; e++) {
+        if (!isfinite(view->view_proj.m[e]))
+            return mr_error_set(err, MR_ERR_INVALID, "svo select: view_proj is not finite");
+        c->vp[e] = view->view_proj.m[e];
+    }
+    if (view->width <= 0 || view->height <= 0 || !(view->delta > 0.0f) || !isfinite(view->delta))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: view needs width, height and delta > 0 (%d x %d, %g)",
+                            view->width, view->height, (double)view->delta);
+    c->width = view->width;
+    c->height = view->height;
+    c->delta = view->delta;
+    /* Rows of view_proj give clip x, y, z, w as linear functions of the
+     * point: w + x, w - x, w + y, w - y, w + z, w - z >= 0, and w > 0. */
+    const double *r = c->vp;
+    for (int a = 0; a < 3; a++)
+        for (int s = 0; s < 2; s++)
+            for (int e = 0; e < 4; e++)
+                c->planes[2 * a + s][e] = r[12 + e] + (s ? -1.0 : 1.0) * r[4 * a + e];
+    for (int e = 0; e < 4; e++)
+        c->planes[6][e] = r[12 + e];
+    return MR_OK;
+}
+
+static int fail_report(const sel_fail *f, mr_error *err)
+{
+    switch (f->kind) {
+    case FAIL_ATTR:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: a voxel names palette entry %u of %u", f->a, f->b);
+    case FAIL_PALETTE:
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "svo select: palette entry %u names a mesh or joint the deformer lacks", f->a);
+    case FAIL_FIELD:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: the field gives a non-finite matrix at (%g, %g, %g)",
+                            f->p[0], f->p[1], f->p[2]);
+    case FAIL_OVERFLOW:
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "svo select: a deformed voxel box (level %u, bind corner %g %g %g) overflows float",
+                            f->a, f->p[0], f->p[1], f->p[2]);
+    default:
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree at node %u", f->a);
+    }
+}
+
+int mr_svo_select(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
+                  const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_selection *out,
+                  mr_error *err)
+{
+    return mr_svo_select_ws(svo, extremes, d, view, max_level, threads, NULL, out, err);
+}
+
+int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const mr_svo_deformer *d,
+                     const mr_svo_view *view, unsigned max_level, unsigned threads, mr_svo_workspace *ws,
+                     mr_svo_selection *out, mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: NULL output");
+    out->count = 0;
+    out->visited = 0;
+    if (!svo || !extremes || !d)
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: NULL octree, extremes or deformer");
+    if (svo->depth < 1 || svo->depth > MR_SVO_MAX_DEPTH || !isfinite(svo->size) || !(svo->size > 0.0f) ||
+        !isfinite(svo->origin.x) || !isfinite(svo->origin.y) || !isfinite(svo->origin.z))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: bad octree cube or depth");
+    if (extremes->node_count != svo->node_count ||
+        (svo->node_count > 0 && (!extremes->lo_attr || !extremes->hi_attr)))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: extremes of another octree (%u nodes, octree %u)",
+                            extremes->node_count, svo->node_count);
+    if ((svo->node_count > 0 && (!svo->first_node || !svo->first_leaf || !svo->child_mask || !svo->leaf_mask)) ||
+        (svo->leaf_count > 0 && !svo->leaves) || (svo->node_count == 0 && svo->leaf_count > 1))
+        return mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree");
+
+    sel_ctx c;
+    memset(&c, 0, sizeof c);
+    c.svo = svo;
+    c.ex = extremes;
+    c.d = d;
+    c.out = out;
+    c.max_level = max_level < svo->depth ? max_level : svo->depth;
+    c.origin[0] = svo->origin.x;
+    c.origin[1] = svo->origin.y;
+    c.origin[2] = svo->origin.z;
+    int rc = view_setup(&c, view, err);
+    if (rc != MR_OK)
+        return rc;
+    mr_svo_workspace local;
+    memset(&local, 0, sizeof local);
+    if (!ws)
+        ws = &local;
+    if (!d->field && (rc = check_deformer(svo, d, err)) != MR_OK)
+        goto cleanup;
+
+    sel_item *cur = NULL;
+    size_t n = 0;
+    const uint64_t budget = (uint64_t)svo->node_count + svo->leaf_count; /* each is visited at most once */
+    uint64_t visited = 0;
+
+    if (svo->node_count > 0 || svo->leaf_count == 1) {
+        cur = ws_get(ws, WS_CUR, 1, sizeof *cur);
+        if (!cur) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory");
+            goto cleanup;
+        }
+        cur[0] = (sel_item){0, 0, svo->node_count == 0};
+        n = 1;
+    }
+    for (unsigned level = 0; n > 0; level++) {
+        visited += n;
+        if (visited > budget) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
+            goto cleanup;
+        }
+        const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
+        float *box = ws_get(ws, WS_BOX, n, 6 * sizeof *box);
+        mr_svo_leaf *leaf = ws_get(ws, WS_LEAF, n, sizeof *leaf);
+        uint8_t *outcome = ws_get(ws, WS_OUTCOME, n, 1);
+        size_t *chunk_sel = ws_get(ws, WS_CH_SEL, chunks, sizeof *chunk_sel);
+        size_t *chunk_child = ws_get(ws, WS_CH_CHILD, chunks, sizeof *chunk_child);
+        sel_fail *chunk_fail = ws_get(ws, WS_CH_FAIL, chunks, sizeof *chunk_fail);
+        if (!box || !leaf || !outcome || !chunk_sel || !chunk_child || !chunk_fail) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", n, level);
+            goto cleanup;
+        }
+        c.level = level;
+        c.cell = (double)svo->size * ldexp(1.0, -(int)level); /* exact */
+        c.items = cur;
+        c.n = n;
+        c.box = box;
+        c.leaf = leaf;
+        c.outcome = outcome;
+        c.chunk_sel = chunk_sel;
+        c.chunk_child = chunk_child;
+        c.chunk_fail = chunk_fail;
+        mr_parallel_for(threads, chunks, 1, sel_pass1, &c);
+        size_t sel_total = out->count, child_total = 0;
+        for (size_t ch = 0; ch < chunks; ch++) {
+            if (chunk_fail[ch].kind != FAIL_NONE) {
+                rc = fail_report(&chunk_fail[ch], err);
+                goto cleanup;
+            }
+            const size_t s = chunk_sel[ch], k = chunk_child[ch];
+            chunk_sel[ch] = sel_total;
+            chunk_child[ch] = child_total;
+            sel_total += s;
+            child_total += k;
+        }
+        if (sel_total > UINT32_MAX) {
+            rc = mr_error_set(err, MR_ERR_LIMIT, "svo select: more than 2^32 - 1 voxels selected");
+            goto cleanup;
+        }
+        if (child_total > budget - visited) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
+            goto cleanup;
+        }
+        rc = selection_reserve(out, sel_total, err);
+        if (rc != MR_OK)
+            goto cleanup;
+        sel_item *next = ws_get(ws, WS_NEXT, child_total, sizeof *next);
+        if (!next) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", child_total,
+                              level + 1);
+            goto cleanup;
+        }
+        c.next = next;
+        mr_parallel_for(threads, chunks, 1, sel_pass2, &c);
+        out->count = sel_total;
+        ws_swap(ws, WS_CUR, WS_NEXT);
+        cur = next;
+        n = child_total;
+    }
+    out->visited = visited;
+    rc = MR_OK;
+
+cleanup:
+    if (rc != MR_OK) {
+        out->count = 0;
+        out->visited = 0;
+    }
+    if (ws == &local)
+        ws_release(&local);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Resampling                                                               */
+
+/* Packed sort keys: code << 5 | level (levels < 32), one uint64 while
+ * 3 * depth + 5 <= 64. The shared radix sort moves 16-byte keys plus the
+ * payload and sorts every varying digit of level and code separately; the
+ * packed key is half the bytes and sorts level and code together, so the
+ * per-frame sort (most of a resampling) moves less and takes fewer
+ * passes. Deeper output octrees use the shared sort. */
+#define PACK_LEVEL_BITS 5u
+#define PACK_MAX_DEPTH ((64u - PACK_LEVEL_BITS) / 3u)
+/* Digits of at most this many bits: 2^10 buckets of 8 + 4 bytes stay in L2
+ * while scattering. */
+#define PK_MAX_BITS 10u
+/* Below this many keys per block, threads cost more than they save. */
+#define PK_MIN_PER_BLOCK 32768u
+#define PK_MAX_BLOCKS 64u
+/* Dilated (Morton) bits of one axis: x at bits 0, 3, ..., 60. */
+#define MORTON_X 0x1249249249249249ull
+
+typedef struct rs_ctx {
+    const mr_svo_selection *sel;
+    mr_svo_method method;
+    unsigned depth;
+    double origin[3]; /* the output cube, as doubles of its floats */
+    double size;
+    double cell21;    /* size * 2^-21 */
+    double cell[GRID_BITS + 1];     /* size * 2^-l (exact) */
+    double inv_cell[GRID_BITS + 1]; /* 2^l / size, rounded: first guesses only */
+    /* bounds pass, per chunk */
+    double (*chunk_lo)[3], (*chunk_hi)[3];
+    size_t *chunk_bad; /* first bad box + 1, or 0 */
+    /* count / write passes */
+    uint8_t *box_level;
+    uint32_t *box_range;   /* 6 per box: first cell x, y, z, then end x, y, z */
+    uint64_t *chunk_cells; /* counts, then offsets */
+    uint64_t *chunk_bits;  /* 2 per chunk: OR and AND of its packed keys */
+    bool packed;
+    mr_svo_key *keys;      /* !packed */
+    uint64_t *pk;          /* packed */
+    uint32_t *payload;
+} rs_ctx;
+
+static void rs_bounds(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        c->chunk_bad[ch] = 0;
+        for (size_t i = i0; i < i1; i++) {
+            const float *b = &c->sel->box[i * 6];
+            bool ok = true;
+            for (int a = 0; a < 3; a++)
+                ok = ok && isfinite(b[a]) && isfinite(b[3 + a]) && b[a] <= b[3 + a];
+            if (!ok) {
+                c->chunk_bad[ch] = i + 1;
+                break;
+            }
+            for (int a = 0; a < 3; a++) {
+                lo[a] = dmin(lo[a], b[a]);
+                hi[a] = dmax(hi[a], b[3 + a]);
+            }
+        }
+        memcpy(c->chunk_lo[ch], lo, sizeof lo);
+        memcpy(c->chunk_hi[ch], hi, sizeof hi);
+    }
+}
+
+/* Signed distance from x to the plane at finest-grid position k: <= 0 when
+ * the plane is at or below x (svo_trace.c's arithmetic). */
+static inline double plane_s(const rs_ctx *c, int a, double x, uint64_t k)
+{
+    return (c->origin[a] - x) + (double)k * c->cell21;
+}
+
+/* Level whose cells are the smallest still at least `side` wide (the
+ * coarsest that holds it, eq. 3.3.6 / 3.3.10), clamped to the depth. */
+static unsigned hold_level(const rs_ctx *c, double side)
+{
+    if (!(side > 0.0))
+        return c->depth;
+    int e;
+    (void)frexp(c->size / side, &e); /* size / side in [2^(e-1), 2^e) */
+    int h = e - 1;
+    if (h < 0)
+        h = 0;
+    if (h > (int)c->depth)
+        h = (int)c->depth;
+    while (h > 0 && c->cell[h] < side)
+        h--;
+    while (h < (int)c->depth && c->cell[h + 1] >= side)
+        h++;
+    return (unsigned)h;
+}
+
+static inline uint64_t clamp_floor(double u, uint64_t lo, uint64_t hi)
+{
+    const double f = floor(u);
+    if (!(f >= (double)lo))
+        return lo;
+    if (f >= (double)hi)
+        return hi;
+    return (uint64_t)f;
+}
+
+/* Emit range on axis a at level l: cells [*i0, *i1) whose closed boxes
+ * cover [lo, hi], i.e. floor(r lo) .. ceil(r hi) - 1, decided by plane_s.
+ * The first guesses multiply by the rounded inverse cell; the plane tests
+ * move them to the one answer (plane_s is monotonic in k), so the range
+ * does not depend on the guess. */
+static void emit_range(const rs_ctx *c, int a, unsigned l, double lo, double hi, uint64_t *i0, uint64_t *i1)
+{
+    const uint64_t n = 1ull << l, span = 1ull << (GRID_BITS - l);
+    uint64_t i = clamp_floor((lo - c->origin[a]) * c->inv_cell[l], 0, n - 1);
+    while (i > 0 && plane_s(c, a, lo, i * span) > 0.0)
+        i--;
+    while (i + 1 < n && plane_s(c, a, lo, (i + 1) * span) <= 0.0)
+        i++;
+    const double v = ceil((hi - c->origin[a]) * c->inv_cell[l]);
+    uint64_t j = !(v >= (double)(i + 1)) ? i + 1 : v >= (double)n ? n : (uint64_t)v;
+    while (j > i + 1 && plane_s(c, a, hi, (j - 1) * span) >= 0.0)
+        j--;
+    while (j < n && plane_s(c, a, hi, j * span) < 0.0)
+        j++;
+    *i0 = i;
+    *i1 = j;
+}
+
+/* Resize on axis a at level l (= h + 1): the two cells floor(r c - 1/2) and
+ * that + 1, kept inside the grid. */
+static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, double hi)
+{
+    const uint64_t n = 1ull << l;
+    const double u = (0.5 * (lo + hi) - c->origin[a]) / c->cell[l];
+    return clamp_floor(u - 0.5, 0, n - 2);
+}
+
+/* Level and cell ranges (r: first x, y, z, end x, y, z) of box i; returns
+ * its number of cells. */
+static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6])
+{
+    const float *b = &c->sel->box[i * 6];
+    double lo[3], hi[3], smin = INFINITY, smax = 0.0, mag = 0.0;
+    for (int a = 0; a < 3; a++) {
+        lo[a] = b[a];
+        hi[a] = b[3 + a];
+        smin = dmin(smin, hi[a] - lo[a]);
+        smax = dmax(smax, hi[a] - lo[a]);
+        mag = dmax(mag, dmax(fabs(lo[a]), fabs(hi[a])));
+    }
+    /* Boxes were rounded outwards to float, which widens them by up to an
+     * ulp of their coordinates at each end: a box that is one cell of level
+     * h but for that rounding still fits level h. Without this slack an
+     * undeformed or uniformly scaled voxel (a cell exactly) goes one level
+     * coarser and resize overhangs the silhouette by a voxel, where the
+     * thesis finds resize exact under uniform scale. Emit still covers the
+     * whole box (its ranges use lo and hi). */
+    const double slack = 4.0 * FLT_EPSILON * mag;
+    smin = dmax(smin - slack, 0.0);
+    smax = dmax(smax - slack, 0.0);
+    if (c->method == MR_SVO_RESIZE) {
+        const unsigned h = hold_level(c, smax), l = h + 1 < c->depth ? h + 1 : c->depth;
+        *level = l;
+        for (int a = 0; a < 3; a++) {
+            r[a] = (uint32_t)resize_first(c, a, l, lo[a], hi[a]);
+            r[3 + a] = r[a] + 2;
+        }
+        return 8;
+    }
+    unsigned h = hold_level(c, smin);
+    for (;;) {
+        uint64_t cnt = 1;
+        for (int a = 0; a < 3; a++) {
+            uint64_t i0, i1;
+            emit_range(c, a, h, lo[a], hi[a], &i0, &i1);
+            r[a] = (uint32_t)i0;
+            r[3 + a] = (uint32_t)i1;
+            cnt *= i1 - i0;
+        }
+        if (cnt <= MR_SVO_EMIT_MAX_CELLS || h == 0) {
+            *level = h;
+            return cnt;
+        }
+        h--;
+    }
+}
+
+static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        uint64_t total = 0;
+        for (size_t i = i0; i < i1; i++) {
+            unsigned l;
+            total += rs_plan(c, i, &l, &c->box_range[6 * i]);
+            c->box_level[i] = (uint8_t)l;
+        }
+        c->chunk_cells[ch] = total;
+    }
+}
+
+/* The dilated coordinate d of one axis (mask m) moved by one cell whose
+ * dilated width is unit: the carry runs through the other axes' bits. */
+static inline uint64_t dilated_next(uint64_t d, uint64_t m, uint64_t unit)
+{
+    return ((d | ~m) + unit) & m;
+}
+
+static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    rs_ctx *c = vctx;
+    for (size_t ch = begin; ch < end; ch++) {
+        const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
+        uint64_t o = c->chunk_cells[ch], bits_or = 0, bits_and = ~(uint64_t)0;
+        for (size_t i = i0; i < i1; i++) {
+            const unsigned l = c->box_level[i], sh = c->depth - l;
+            const uint32_t *r = &c->box_range[6 * i];
+            const uint64_t ux = 1ull << (3 * sh), uy = ux << 1, uz = ux << 2;
+            const uint64_t mx = MORTON_X, my = MORTON_X << 1, mz = MORTON_X << 2;
+            const uint64_t dx0 = mr_morton_encode(r[0] << sh, 0, 0), dy0 = mr_morton_encode(0, r[1] << sh, 0);
+            uint64_t dz = mr_morton_encode(0, 0, r[2] << sh);
+            for (uint32_t z = r[2]; z < r[5]; z++, dz = dilated_next(dz, mz, uz)) {
+                uint64_t dy = dy0;
+                for (uint32_t y = r[1]; y < r[4]; y++, dy = dilated_next(dy, my, uy)) {
+                    uint64_t dx = dx0;
+                    for (uint32_t x = r[0]; x < r[3]; x++, dx = dilated_next(dx, mx, ux)) {
+                        const uint64_t code = dx | dy | dz;
+                        if (c->packed) {
+                            const uint64_t k = code << PACK_LEVEL_BITS | l;
+                            c->pk[o] = k;
+                            bits_or |= k;
+                            bits_and &= k;
+                        } else {
+                            c->keys[o].code = code;
+                            c->keys[o].level = l;
+                        }
+                        c->payload[o] = (uint32_t)i;
+                        o++;
+                    }
+                }
+            }
+        }
+        c->chunk_bits[2 * ch] = bits_or;
+        c->chunk_bits[2 * ch + 1] = bits_and;
+    }
+}
+
+/* ---- the packed sort: stable LSD radix over the varying bits ---------- */
+
+typedef struct pk_sort {
+    uint64_t *src, *dst;
+    uint32_t *src_p, *dst_p;
+    mr_svo_key *out;       /* the last pass unpacks into it */
+    size_t count;
+    unsigned blocks, passes, pass, shift, bits;
+    uint32_t *hist;        /* blocks * RADIX per pass (or all passes at once) */
+    bool all;              /* count every pass's digits in one read */
+} pk_sort;
+
+static void pk_block(const pk_sort *s, size_t b, size_t *lo, size_t *hi)
+{
+    *lo = s->count * b / s->blocks;
+    *hi = s->count * (b + 1) / s->blocks;
+}
+
+static void pk_count(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    pk_sort *s = vctx;
+    const size_t radix = (size_t)1 << s->bits;
+    const uint64_t mask = radix - 1;
+    const unsigned p0 = s->all ? 0 : s->pass, p1 = s->all ? s->passes : s->pass + 1;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        pk_block(s, b, &lo, &hi);
+        uint32_t *h = s->hist + b * radix * (p1 - p0);
+        memset(h, 0, radix * (p1 - p0) * sizeof *h);
+        for (unsigned p = p0; p < p1; p++) {
+            uint32_t *hp = h + (p - p0) * radix;
+            const unsigned sh = s->shift + p * s->bits;
+            for (size_t i = lo; i < hi; i++)
+                hp[(s->src[i] >> sh) & mask]++;
+        }
+    }
+}
+
+static void pk_scatter(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    pk_sort *s = vctx;
+    const size_t radix = (size_t)1 << s->bits;
+    const uint64_t mask = radix - 1;
+    const unsigned sh = s->shift + s->pass * s->bits;
+    const bool last = s->pass + 1 == s->passes;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        pk_block(s, b, &lo, &hi);
+        uint32_t *off = s->hist + b * radix * (s->all ? s->passes : 1) + (s->all ? s->pass * radix : 0);
+        if (last) {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = s->src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                s->out[at].code = k >> PACK_LEVEL_BITS;
+                s->out[at].level = (uint32_t)(k & ((1u << PACK_LEVEL_BITS) - 1u));
+                s->dst_p[at] = s->src_p[i];
+            }
+        } else {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = s->src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                s->dst[at] = k;
+                s->dst_p[at] = s->src_p[i];
+            }
+        }
+    }
+}
+
+/* Sorts count packed keys (whose bits outside `varying` are all equal)
+ * with their payloads into out / *payload (pointing at pay or pay2
+ * afterwards). pk2, pay2: scratch of count each. */
+static int pk_sort_run(uint64_t *pk, uint64_t *pk2, uint32_t *pay, uint32_t *pay2, size_t count,
+                       uint64_t varying, unsigned threads, mr_svo_workspace *ws, mr_svo_key *out,
+                       uint32_t **payload, mr_error *err)
+{
+    pk_sort s = {.src = pk, .dst = pk2, .src_p = pay, .dst_p = pay2, .out = out, .count = count};
+    if (varying == 0) {
+        /* one pass on a constant digit: a stable copy that unpacks */
+        s.shift = 0;
+        s.bits = 1;
+        s.passes = 1;
+    } else {
+        const unsigned lo = (unsigned)__builtin_ctzll(varying), hi = 64u - (unsigned)__builtin_clzll(varying);
+        s.passes = (hi - lo + PK_MAX_BITS - 1) / PK_MAX_BITS;
+        s.bits = (hi - lo + s.passes - 1) / s.passes;
+        s.shift = lo;
+    }
+    if (threads == 0)
+        threads = mr_cpu_count();
+    size_t blocks = count / PK_MIN_PER_BLOCK;
+    if (blocks > threads)
+        blocks = threads;
+    if (blocks > PK_MAX_BLOCKS)
+        blocks = PK_MAX_BLOCKS;
+    if (blocks == 0)
+        blocks = 1;
+    s.blocks = (unsigned)blocks;
+    /* One block: its digit counts are the whole array's, which no pass
+     * changes, so all passes are counted in one read. Several: each pass
+     * counts the blocks of its own input. */
+    s.all = blocks == 1;
+    const size_t radix = (size_t)1 << s.bits;
+    s.hist = ws_get(ws, WS_RS_HIST, blocks * radix * (s.all ? s.passes : 1), sizeof *s.hist);
+    if (!s.hist)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (sort histograms)");
+    if (s.all)
+        pk_count(&s, 0, 1, 0);
+    for (unsigned p = 0; p < s.passes; p++) {
+        s.pass = p;
+        if (!s.all)
+            mr_parallel_for(threads, blocks, 1, pk_count, &s);
+        uint32_t *h = s.hist + (s.all ? p * radix : 0);
+        const size_t stride = s.all ? radix * s.passes : radix;
+        uint32_t run = 0;
+        for (size_t d = 0; d < radix; d++) {
+            for (size_t b = 0; b < blocks; b++) {
+                const uint32_t n = h[b * stride + d];
+                h[b * stride + d] = run;
+                run += n;
+            }
+        }
+        mr_parallel_for(threads, blocks, 1, pk_scatter, &s);
+        uint64_t *t = s.src;
+        s.src = s.dst;
+        s.dst = t;
+        uint32_t *tp = s.src_p;
+        s.src_p = s.dst_p;
+        s.dst_p = tp;
+    }
+    *payload = s.src_p;
+    return MR_OK;
+}
+
+int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
+                    const mr_svo_attr *palette, uint32_t palette_count, unsigned threads, mr_svo *out,
+                    uint64_t *cells, mr_error *err)
+{
+    return mr_svo_resample_ws(sel, method, depth, palette, palette_count, threads, NULL, out, cells, err);
+}
+
+int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
+                       const mr_svo_attr *palette, uint32_t palette_count, unsigned threads,
+                       mr_svo_workspace *ws, mr_svo *out, uint64_t *cells, mr_error *err)
+{
+    if (cells)
+        *cells = 0;
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: NULL output");
+    mr_svo_free(out);
+    memset(out, 0, sizeof *out);
+    if (!sel)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: NULL selection");
+    if (method != MR_SVO_RESIZE && method != MR_SVO_EMIT)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: method %d is neither resize nor emit", (int)method);
+    if (depth < 1 || depth > MR_SVO_MAX_DEPTH)
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: depth %u outside 1..%u", depth, MR_SVO_MAX_DEPTH);
+    if (sel->count > 0 && (!sel->box || !sel->leaf))
+        return mr_error_set(err, MR_ERR_INVALID, "svo resample: selection arrays missing");
+    if (sel->count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo resample: more than 2^32 - 1 voxels");
+    if (sel->count == 0) {
+        /* empty octree over a unit cube, keeping the palette */
+        int rc0 = mr_svo_build(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count, threads, out,
+                               err);
+        if (rc0 == MR_OK) {
+            free(out->leaf_keys);
+            out->leaf_keys = NULL;
+        }
+        return rc0;
+    }
+
+    mr_svo_workspace local;
+    memset(&local, 0, sizeof local);
+    if (!ws)
+        ws = &local;
+    rs_ctx c;
+    memset(&c, 0, sizeof c);
+    c.sel = sel;
+    c.method = method;
+    c.depth = depth;
+    c.packed = depth <= PACK_MAX_DEPTH;
+    int rc = MR_OK;
+    const size_t n = sel->count, chunks = (n + RS_CHUNK - 1) / RS_CHUNK;
+    c.chunk_lo = ws_get(ws, WS_RS_LO, chunks, sizeof *c.chunk_lo);
+    c.chunk_hi = ws_get(ws, WS_RS_HI, chunks, sizeof *c.chunk_hi);
+    c.chunk_bad = ws_get(ws, WS_RS_BAD, chunks, sizeof *c.chunk_bad);
+    c.chunk_cells = ws_get(ws, WS_RS_CELLS, chunks, sizeof *c.chunk_cells);
+    c.chunk_bits = ws_get(ws, WS_RS_BITS, chunks, 2 * sizeof *c.chunk_bits);
+    c.box_level = ws_get(ws, WS_RS_LEVEL, n, 1);
+    c.box_range = ws_get(ws, WS_RS_RANGE, n, 6 * sizeof *c.box_range);
+    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.chunk_bits || !c.box_level ||
+        !c.box_range) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu boxes)", n);
+        goto cleanup;
+    }
+
+    /* The cube: min corner of all boxes, edge = largest extent grown so the
+     * far faces stay strictly beyond every box. */
+    mr_parallel_for(threads, chunks, 1, rs_bounds, &c);
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t ch = 0; ch < chunks; ch++) {
+        if (c.chunk_bad[ch]) {
+            const size_t i = c.chunk_bad[ch] - 1;
+            const float *b = &sel->box[i * 6];
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo resample: box %zu is not finite or inverted (%g %g %g .. %g %g %g)",
+                              i, (double)b[0], (double)b[1], (double)b[2], (double)b[3], (double)b[4],
+                              (double)b[5]);
+            goto cleanup;
+        }
+        for (int a = 0; a < 3; a++) {
+            lo[a] = dmin(lo[a], c.chunk_lo[ch][a]);
+            hi[a] = dmax(hi[a], c.chunk_hi[ch][a]);
+        }
+    }
+    double extent = 0.0, maxabs = 0.0;
+    for (int a = 0; a < 3; a++) {
+        c.origin[a] = lo[a]; /* a float already */
+        extent = dmax(extent, hi[a] - lo[a]);
+        maxabs = dmax(maxabs, dmax(fabs(lo[a]), fabs(hi[a])));
+    }
+    float size = extent > 0.0 ? float_up(extent + extent * CUBE_GROWTH) : float_up(dmax(maxabs, 1.0) * CUBE_GROWTH);
+    for (;;) {
+        if (!isfinite(size)) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo resample: the boxes span %g, beyond float range", extent);
+            goto cleanup;
+        }
+        bool clear = true;
+        for (int a = 0; a < 3; a++)
+            clear = clear && (c.origin[a] - hi[a]) + (double)size > 0.0;
+        if (clear)
+            break;
+        size = nextafterf(size, INFINITY);
+    }
+    c.size = size;
+    c.cell21 = (double)size * (1.0 / (double)GRID_CELLS);
+    for (unsigned l = 0; l <= GRID_BITS; l++) {
+        c.cell[l] = ldexp(c.size, -(int)l);
+        c.inv_cell[l] = 1.0 / c.cell[l];
+    }
+
+    mr_parallel_for(threads, chunks, 1, rs_count, &c);
+    uint64_t total = 0;
+    for (size_t ch = 0; ch < chunks; ch++) {
+        const uint64_t t = c.chunk_cells[ch];
+        c.chunk_cells[ch] = total;
+        total += t;
+    }
+    if (total > UINT32_MAX) {
+        rc = mr_error_set(err, MR_ERR_LIMIT, "svo resample: %llu cells, more than 2^32 - 1",
+                          (unsigned long long)total);
+        goto cleanup;
+    }
+    mr_svo_key *keys = ws_get(ws, WS_RS_KEYS, (size_t)total, sizeof *keys);
+    uint32_t *payload = ws_get(ws, WS_RS_PAY, (size_t)total, sizeof *payload);
+    uint32_t *payload2 = ws_get(ws, WS_RS_PAY2, (size_t)total, sizeof *payload2);
+    uint64_t *pk = NULL, *pk2 = NULL;
+    mr_svo_key *keys2 = NULL;
+    if (c.packed) {
+        pk = ws_get(ws, WS_RS_PACKED, (size_t)total, sizeof *pk);
+        pk2 = ws_get(ws, WS_RS_PACKED2, (size_t)total, sizeof *pk2);
+    } else {
+        keys2 = ws_get(ws, WS_RS_KEYS2, (size_t)total, sizeof *keys2);
+    }
+    if (!keys || !payload || !payload2 || (c.packed ? !pk || !pk2 : !keys2)) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
+        goto cleanup;
+    }
+    c.keys = keys;
+    c.pk = pk;
+    c.payload = payload;
+    mr_parallel_for(threads, chunks, 1, rs_write, &c);
+
+    if (c.packed) {
+        uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
+        for (size_t ch = 0; ch < chunks; ch++) {
+            bits_or |= c.chunk_bits[2 * ch];
+            bits_and &= c.chunk_bits[2 * ch + 1];
+        }
+        rc = pk_sort_run(pk, pk2, payload, payload2, (size_t)total, bits_or ^ bits_and, threads, ws, keys,
+                         &payload, err);
+    } else {
+        rc = mr_svo_radix_sort_payload(keys, payload, (size_t)total, keys2, payload2, threads, err);
+    }
+    if (rc != MR_OK)
+        goto cleanup;
+    uint32_t *kept_from = ws_get(ws, WS_RS_KEPT, (size_t)total, sizeof *kept_from);
+    if (!kept_from) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
+        goto cleanup;
+    }
+    size_t kept = 0;
+    rc = mr_svo_compact(keys, (size_t)total, depth, kept_from, &kept, err);
+    if (rc != MR_OK)
+        goto cleanup;
+    mr_svo_leaf *leaves = ws_get(ws, WS_RS_LEAVES, kept, sizeof *leaves);
+    if (!leaves) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu voxels)", kept);
+        goto cleanup;
+    }
+    for (size_t i = 0; i < kept; i++)
+        leaves[i] = sel->leaf[payload[kept_from[i]]];
+    rc = mr_svo_build(keys, leaves, kept, depth, mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]),
+                      size, palette, palette_count, threads, out, err);
+    if (rc != MR_OK)
+        goto cleanup;
+    /* the per-frame octree is never re-keyed */
+    free(out->leaf_keys);
+    out->leaf_keys = NULL;
+    if (cells)
+        *cells = total;
+
+cleanup:
+    if (rc != MR_OK) {
+        mr_svo_free(out);
+        memset(out, 0, sizeof *out);
+    }
+    if (ws == &local)
+        ws_release(&local);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------ */
+/* The skinning deformer of a posed asset                                   */
+
+static mr_affine affine_of(const mr_mat4 *m)
+{
+    mr_affine a;
+    memcpy(a.m, m->m, sizeof a.m);
+    return a;
+}
+
+static mr_mat4 node_global(const mr_pose *pose, int node)
+{
+    return node >= 0 && (size_t)node < pose->node_count ? pose->global[node] : mr_mat4_identity();
+}
+
+int mr_svo_skin_init(mr_svo_skin *s, const mr_asset *asset, mr_error *err)
+{
+    memset(s, 0, sizeof *s);
+    const size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
+    size_t joints = 0;
+    for (size_t m = 0; m < asset->mesh_count; m++)
+        joints += asset->meshes[m].joint_count;
+    s->storage = malloc((joints + 1) * sizeof *s->storage);
+    s->joint = calloc(meshes, sizeof *s->joint);
+    s->joint_count = calloc(meshes, sizeof *s->joint_count);
+    s->mesh = calloc(meshes, sizeof *s->mesh);
+    s->rest_inverse = calloc(meshes, sizeof *s->rest_inverse);
+    mr_pose *rest = NULL;
+    int rc = !s->storage || !s->joint || !s->joint_count || !s->mesh || !s->rest_inverse
+                 ? mr_error_set(err, MR_ERR_NOMEM, "svo skin: out of memory")
+                 : mr_pose_new(asset, &rest, err);
+    if (rc >= 0)
+        rc = mr_pose_eval(rest, asset, NULL, 0, err);
+    for (size_t m = 0, at = 0; rc >= 0 && m < asset->mesh_count; m++) {
+        const mr_mesh *mesh = &asset->meshes[m];
+        s->joint_count[m] = mesh->joint_count;
+        s->joint[m] = mesh->joint_count ? s->storage + at : NULL;
+        at += mesh->joint_count;
+        /* Rigid meshes were voxelised at their rest placement (voxelize.h). */
+        mr_mat4 node = node_global(rest, mesh->node);
+        s->rest_inverse[m] = mr_mat4_identity();
+        if (mesh->joint_count == 0 && !mr_mat4_inverse(&node, &s->rest_inverse[m]))
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo skin: mesh %zu's node has a singular rest transform", m);
+    }
+    mr_pose_free(rest);
+    s->d = (mr_svo_deformer){.mesh_count = asset->mesh_count, .joint = s->joint,
+                             .joint_count = s->joint_count, .mesh = s->mesh};
+    return rc;
+}
+
+void mr_svo_skin_pose(mr_svo_skin *s, const mr_asset *asset, const mr_pose *pose, const mr_mat4 *world)
+{
+    for (size_t m = 0; m < asset->mesh_count; m++) {
+        const mr_mesh *mesh = &asset->meshes[m];
+        mr_mat4 node = node_global(pose, mesh->node);
+        if (mesh->joint_count == 0)
+            node = mr_mat4_mul(&node, &s->rest_inverse[m]);
+        mr_mat4 wm = mr_mat4_mul(world, &node);
+        s->mesh[m] = affine_of(&wm);
+        mr_affine *dst = (mr_affine *)s->joint[m];
+        for (uint32_t j = 0; j < mesh->joint_count; j++) {
+            mr_mat4 gj = node_global(pose, mesh->joint_nodes[j]);
+            mr_mat4 b = mr_mat4_mul(&gj, &mesh->inverse_bind[j]);
+            mr_mat4 wb = mr_mat4_mul(world, &b);
+            dst[j] = affine_of(&wb);
+        }
+    }
+}
+
+void mr_svo_skin_free(mr_svo_skin *s)
+{
+    free(s->storage);
+    free(s->joint);
+    free(s->joint_count);
+    free(s->mesh);
+    free(s->rest_inverse);
+    memset(s, 0, sizeof *s);
+}

@@ -1,0 +1,531 @@
+/*
+ * svo_build.c - compaction and the parallel octree build (svo_build.h).
+ *
+ * Build, for n sorted keys with pairwise disjoint cells (codes unique):
+ *  1. Binary radix tree (Karras 2012, one independent search per internal
+ *     node, parallel): node i's range, split and common prefix length in
+ *     bits of the 3D-bit codes. Each node writes its own prefix length into
+ *     its two children ("parent prefix"), so no parent pointers are kept.
+ *  2. Octree interior nodes are the cells that strictly contain a key. A
+ *     radix node with prefix length p whose parent has length q owns the
+ *     cells of levels L with q < 3L <= p (they hold >= 2 keys); a radix leaf
+ *     (a key of level l) owns the single-key chain q < 3L, L < l. Every
+ *     interior cell has exactly one owner. Cells of one level ordered by
+ *     code are the owners ordered by any index inside their ranges, and
+ *     internal node i's range contains key i, so both owners at index f are
+ *     ranked by f: per-block per-level counts plus a prefix over blocks give
+ *     each cell its breadth-first position directly, in parallel.
+ *  3. Each cell's masks come from its owner: a chain cell has one child; the
+ *     deepest cell of a radix node finds its (<= 8) children by descending
+ *     the radix nodes whose prefix ends inside the next level's 3 bits.
+ *  4. Breadth-first order lists the children of node 0, then of node 1, ...
+ *     so first_node / first_leaf are exclusive prefix sums of the children
+ *     counts over the node array (a blocked parallel scan).
+ * All steps write to positions fixed by the input alone, so the result does
+ * not depend on the thread count. Temporaries: 7 bytes per key.
+ */
+#include "kinds/svo/svo_build.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "util/parallel.h"
+
+#define BLK 16384u
+#define LEVELS (MR_SVO_MAX_DEPTH + 1u)
+#define LEAF_LEFT 0x40u
+#define LEAF_RIGHT 0x80u
+#define PREFIX_MASK 0x3fu
+
+typedef struct {
+    const mr_svo_key *keys;
+    const mr_svo_leaf *in_leaves;
+    size_t n;
+    unsigned depth;
+    uint32_t palette_count;
+    uint32_t *split;  /* n - 1: Karras split gamma */
+    uint8_t *info;    /* n - 1: prefix bits | LEAF_LEFT | LEAF_RIGHT */
+    int8_t *pd_int;   /* n - 1: parent's prefix bits, -1 at the root */
+    int8_t *pd_leaf;  /* n */
+    size_t blocks;    /* over keys */
+    uint32_t *node_base; /* blocks * LEVELS */
+    uint32_t *leaf_base; /* blocks * LEVELS */
+    size_t *bad;      /* blocks: first invalid key or SIZE_MAX */
+    size_t node_blocks;
+    uint32_t *scan;   /* node_blocks * 2 */
+    mr_svo *out;
+} build_ctx;
+
+/* Cell edge of a level-l voxel in finest-level code units (2^(3(D-l))). */
+static inline uint64_t cell_span(unsigned depth, uint32_t level)
+{
+    return (uint64_t)1 << (3u * (depth - level));
+}
+
+/* Child index (0..7) of a code's cell at level l >= 1. */
+static inline unsigned digit_at(uint64_t code, unsigned depth, unsigned level)
+{
+    return (unsigned)(code >> (3u * (depth - level))) & 7u;
+}
+
+/* Why key i cannot be a compacted key (NULL if it can): checks of the key
+ * itself and of its order against key i - 1. */
+static const char *key_problem(const mr_svo_key *keys, size_t i, unsigned depth, int need_disjoint)
+{
+    const mr_svo_key *k = &keys[i];
+    if (k->level > depth)
+        return "level above the octree depth";
+    if (3u * depth < 64u && (k->code >> (3u * depth)) != 0)
+        return "code has bits at or above 3 * depth";
+    if (k->code & (cell_span(depth, k->level) - 1u))
+        return "code not aligned to its level (low bits set)";
+    if (i == 0)
+        return NULL;
+    const mr_svo_key *p = &keys[i - 1];
+    if (p->level > depth)
+        return NULL; /* reported at i - 1 */
+    if (k->code < p->code || (k->code == p->code && k->level < p->level))
+        return "keys not sorted by (code, level)";
+    if (need_disjoint && k->code < p->code + cell_span(depth, p->level))
+        return k->code == p->code && k->level == p->level ? "duplicate key (not compacted)"
+                                                          : "key nested in the previous key (not compacted)";
+    return NULL;
+}
+
+int mr_svo_compact(mr_svo_key *keys, size_t count, unsigned depth, uint32_t *kept_from,
+                   size_t *out_count, mr_error *err)
+{
+    if (out_count)
+        *out_count = 0;
+    if (depth < 1 || depth > MR_SVO_MAX_DEPTH)
+        return mr_error_set(err, MR_ERR_INVALID, "svo compact: depth %u not in 1..%u", depth, MR_SVO_MAX_DEPTH);
+    if (count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo compact: %zu keys exceed 2^32 - 1", count);
+    if (count > 0 && !keys)
+        return mr_error_set(err, MR_ERR_INVALID, "svo compact: keys is NULL");
+    for (size_t i = 0; i < count; i++) {
+        const char *why = key_problem(keys, i, depth, 0);
+        if (why)
+            return mr_error_set(err, MR_ERR_INVALID, "svo compact: key %zu (code %#llx, level %u): %s", i,
+                                (unsigned long long)keys[i].code, keys[i].level, why);
+    }
+    /* In sorted order, a key nested in any earlier key is nested in the last
+     * kept one: the cells are aligned, so anything between a kept key and a
+     * key inside it lies inside it too and was dropped. */
+    size_t kept = 0;
+    uint64_t end = 0;
+    for (size_t i = 0; i < count; i++) {
+        if (kept > 0 && keys[i].code < end)
+            continue;
+        end = keys[i].code + cell_span(depth, keys[i].level);
+        if (kept_from)
+            kept_from[kept] = (uint32_t)i;
+        keys[kept++] = keys[i];
+    }
+    if (out_count)
+        *out_count = kept;
+    return MR_OK;
+}
+
+/* ---- build ------------------------------------------------------------ */
+
+static void block_keys(const build_ctx *c, size_t b, size_t *lo, size_t *hi)
+{
+    *lo = b * BLK;
+    *hi = *lo + BLK < c->n ? *lo + BLK : c->n;
+}
+
+static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_keys(c, b, &lo, &hi);
+        c->bad[b] = SIZE_MAX;
+        for (size_t i = lo; i < hi; i++) {
+            if (key_problem(c->keys, i, c->depth, 1) ||
+                (c->in_leaves && c->in_leaves[i].attr >= c->palette_count) ||
+                (!c->in_leaves && c->palette_count == 0)) {
+                c->bad[b] = i;
+                break;
+            }
+        }
+    }
+}
+
+/* Common prefix length (leading equal bits of the 64-bit words) of keys i
+ * and j, -1 when j is outside the array (Karras' delta). */
+static inline int delta(const mr_svo_key *k, int64_t n, int64_t i, int64_t j)
+{
+    if (j < 0 || j >= n)
+        return -1;
+    return __builtin_clzll(k[i].code ^ k[j].code); /* codes are unique */
+}
+
+static void radix_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    const mr_svo_key *k = c->keys;
+    const int64_t n = (int64_t)c->n;
+    const int unused = 64 - 3 * (int)c->depth; /* top bits every code has zero */
+    for (size_t ui = begin; ui < end; ui++) {
+        const int64_t i = (int64_t)ui;
+        const int64_t d = delta(k, n, i, i + 1) > delta(k, n, i, i - 1) ? 1 : -1;
+        const int dmin = delta(k, n, i, i - d);
+        int64_t lmax = 2;
+        while (delta(k, n, i, i + lmax * d) > dmin)
+            lmax *= 2;
+        int64_t l = 0;
+        for (int64_t t = lmax / 2; t >= 1; t /= 2)
+            if (delta(k, n, i, i + (l + t) * d) > dmin)
+                l += t;
+        const int64_t j = i + l * d;
+        const int dnode = delta(k, n, i, j);
+        int64_t s = 0, t = l;
+        do {
+            t = (t + 1) / 2;
+            if (delta(k, n, i, i + (s + t) * d) > dnode)
+                s += t;
+        } while (t > 1);
+        const int64_t gamma = i + s * d + (d < 0 ? -1 : 0);
+        const int64_t first = i < j ? i : j, last = i < j ? j : i;
+        const int bits = dnode - unused;
+        uint8_t info = (uint8_t)bits;
+        if (first == gamma) {
+            info |= LEAF_LEFT;
+            c->pd_leaf[gamma] = (int8_t)bits;
+        } else {
+            c->pd_int[gamma] = (int8_t)bits;
+        }
+        if (last == gamma + 1) {
+            info |= LEAF_RIGHT;
+            c->pd_leaf[gamma + 1] = (int8_t)bits;
+        } else {
+            c->pd_int[gamma + 1] = (int8_t)bits;
+        }
+        c->split[i] = (uint32_t)gamma;
+        c->info[i] = info;
+    }
+}
+
+/* Levels of the interior cells owned by internal node i / leaf f
+ * (empty when lo > hi). (q + 3) / 3 is the least L with 3L > q, q >= -1. */
+static inline void internal_levels(const build_ctx *c, size_t i, int *lo, int *hi)
+{
+    *lo = (c->pd_int[i] + 3) / 3;
+    *hi = (int)(c->info[i] & PREFIX_MASK) / 3;
+}
+
+static inline void leaf_levels(const build_ctx *c, size_t f, int *lo, int *hi)
+{
+    *lo = (c->pd_leaf[f] + 3) / 3;
+    *hi = (int)c->keys[f].level - 1;
+}
+
+static void count_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_keys(c, b, &lo, &hi);
+        uint32_t *nc = c->node_base + b * LEVELS, *lc = c->leaf_base + b * LEVELS;
+        memset(nc, 0, LEVELS * sizeof *nc);
+        memset(lc, 0, LEVELS * sizeof *lc);
+        for (size_t f = lo; f < hi; f++) {
+            int a, z;
+            if (f + 1 < c->n) {
+                internal_levels(c, f, &a, &z);
+                for (int L = a; L <= z; L++)
+                    nc[L]++;
+            }
+            leaf_levels(c, f, &a, &z);
+            for (int L = a; L <= z; L++)
+                nc[L]++;
+            lc[c->keys[f].level]++;
+        }
+    }
+}
+
+/* Masks of internal node i's deepest cell (level L): its children are the
+ * radix elements below i that first reach level L + 1. */
+static void split_cell(const build_ctx *c, size_t i, unsigned L, uint8_t *child, uint8_t *leaf)
+{
+    const unsigned D = c->depth;
+    uint32_t stack[16]; /* element << 1 | is_leaf; the descent is <= 2 radix levels deep */
+    unsigned sp = 0;
+    uint8_t cm = 0, lm = 0;
+    uint32_t g = c->split[i];
+    stack[sp++] = ((g + 1) << 1) | ((c->info[i] & LEAF_RIGHT) ? 1u : 0u);
+    stack[sp++] = (g << 1) | ((c->info[i] & LEAF_LEFT) ? 1u : 0u);
+    while (sp > 0) {
+        uint32_t e = stack[--sp];
+        uint32_t x = e >> 1;
+        unsigned bit = 1u << digit_at(c->keys[x].code, D, L + 1);
+        if (e & 1u) {
+            cm |= (uint8_t)bit;
+            if (c->keys[x].level == L + 1)
+                lm |= (uint8_t)bit;
+        } else if ((c->info[x] & PREFIX_MASK) >= 3u * (L + 1)) {
+            cm |= (uint8_t)bit;
+        } else if (sp + 2 <= 16) {
+            uint32_t gx = c->split[x];
+            stack[sp++] = ((gx + 1) << 1) | ((c->info[x] & LEAF_RIGHT) ? 1u : 0u);
+            stack[sp++] = (gx << 1) | ((c->info[x] & LEAF_LEFT) ? 1u : 0u);
+        }
+    }
+    *child = cm;
+    *leaf = lm;
+}
+
+static void fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    mr_svo *o = c->out;
+    const unsigned D = c->depth;
+    uint8_t plus_z[2];
+    mr_svo_normal_encode(mr_v3(0.0f, 0.0f, 1.0f), plus_z);
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_keys(c, b, &lo, &hi);
+        uint32_t nrun[LEVELS], lrun[LEVELS];
+        memcpy(nrun, c->node_base + b * LEVELS, sizeof nrun);
+        memcpy(lrun, c->leaf_base + b * LEVELS, sizeof lrun);
+        for (size_t f = lo; f < hi; f++) {
+            const uint64_t code = c->keys[f].code;
+            int a, z;
+            if (f + 1 < c->n) {
+                internal_levels(c, f, &a, &z);
+                for (int L = a; L <= z; L++) {
+                    uint32_t pos = nrun[L]++;
+                    if (L < z) {
+                        o->child_mask[pos] = (uint8_t)(1u << digit_at(code, D, (unsigned)L + 1));
+                        o->leaf_mask[pos] = 0;
+                    } else {
+                        split_cell(c, f, (unsigned)L, &o->child_mask[pos], &o->leaf_mask[pos]);
+                    }
+                }
+            }
+            const uint32_t level = c->keys[f].level;
+            leaf_levels(c, f, &a, &z);
+            for (int L = a; L <= z; L++) {
+                uint32_t pos = nrun[L]++;
+                uint8_t bit = (uint8_t)(1u << digit_at(code, D, (unsigned)L + 1));
+                o->child_mask[pos] = bit;
+                o->leaf_mask[pos] = (uint32_t)L + 1 == level ? bit : 0;
+            }
+            uint32_t lp = lrun[level]++;
+            o->leaf_keys[lp] = c->keys[f];
+            if (c->in_leaves) {
+                o->leaves[lp] = c->in_leaves[f];
+            } else {
+                o->leaves[lp].normal[0] = plus_z[0];
+                o->leaves[lp].normal[1] = plus_z[1];
+                o->leaves[lp].attr = 0;
+            }
+        }
+    }
+}
+
+/* Bits set in an 8-bit mask (SWAR: the build flags have no -mpopcnt, and
+ * __builtin_popcount would be a library call). */
+static inline uint32_t pop8(unsigned v)
+{
+    v = v - ((v >> 1) & 0x55u);
+    v = (v & 0x33u) + ((v >> 2) & 0x33u);
+    return (v + (v >> 4)) & 0x0fu;
+}
+
+static void block_nodes(const build_ctx *c, size_t b, size_t *lo, size_t *hi)
+{
+    *lo = b * BLK;
+    *hi = *lo + BLK < c->out->node_count ? *lo + BLK : c->out->node_count;
+}
+
+static void scan_sum_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    const mr_svo *o = c->out;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_nodes(c, b, &lo, &hi);
+        uint32_t ni = 0, nl = 0;
+        for (size_t p = lo; p < hi; p++) {
+            ni += pop8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
+            nl += pop8(o->leaf_mask[p]);
+        }
+        c->scan[2 * b] = ni;
+        c->scan[2 * b + 1] = nl;
+    }
+}
+
+static void scan_fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = vctx;
+    mr_svo *o = c->out;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_nodes(c, b, &lo, &hi);
+        uint32_t ni = c->scan[2 * b], nl = c->scan[2 * b + 1];
+        for (size_t p = lo; p < hi; p++) {
+            o->first_node[p] = ni;
+            o->first_leaf[p] = nl;
+            ni += pop8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
+            nl += pop8(o->leaf_mask[p]);
+        }
+    }
+}
+
+int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
+                 unsigned depth, mr_vec3 origin, float size,
+                 const mr_svo_attr *palette, uint32_t palette_count,
+                 unsigned threads, mr_svo *out, mr_error *err)
+{
+    int rc = MR_OK;
+    build_ctx c;
+    memset(&c, 0, sizeof c);
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo build: out is NULL");
+    memset(out, 0, sizeof *out);
+    if (depth < 1 || depth > MR_SVO_MAX_DEPTH)
+        return mr_error_set(err, MR_ERR_INVALID, "svo build: depth %u not in 1..%u", depth, MR_SVO_MAX_DEPTH);
+    if (!(size > 0.0f) || !isfinite(size) || !isfinite(origin.x) || !isfinite(origin.y) || !isfinite(origin.z))
+        return mr_error_set(err, MR_ERR_INVALID, "svo build: cube needs a finite origin and a finite size > 0");
+    if (palette_count > MR_SVO_MAX_PALETTE || (palette_count > 0 && !palette))
+        return mr_error_set(err, MR_ERR_INVALID, "svo build: palette of %u entries (max %u) %s", palette_count,
+                            MR_SVO_MAX_PALETTE, palette ? "" : "is NULL");
+    if (count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo build: %zu keys exceed 2^32 - 1", count);
+    if (count > 0 && !keys)
+        return mr_error_set(err, MR_ERR_INVALID, "svo build: keys is NULL");
+
+    out->depth = depth;
+    out->origin = origin;
+    out->size = size;
+    c.keys = keys;
+    c.in_leaves = leaves;
+    c.n = count;
+    c.depth = depth;
+    c.palette_count = palette_count;
+    c.out = out;
+    c.blocks = (count + BLK - 1) / BLK;
+
+    if (palette_count > 0) {
+        out->palette = malloc(palette_count * sizeof *out->palette);
+        if (!out->palette)
+            goto nomem;
+        memcpy(out->palette, palette, palette_count * sizeof *out->palette);
+        out->palette_count = palette_count;
+    }
+    if (count == 0)
+        return MR_OK;
+
+    c.bad = malloc(c.blocks * sizeof *c.bad);
+    if (!c.bad)
+        goto nomem;
+    mr_parallel_for(threads, c.blocks, 1, validate_fn, &c);
+    for (size_t b = 0; b < c.blocks; b++) {
+        if (c.bad[b] == SIZE_MAX)
+            continue;
+        size_t i = c.bad[b];
+        const char *why = key_problem(keys, i, depth, 1);
+        if (!why)
+            why = palette_count == 0 ? "keys need a palette" : "leaf attr beyond the palette";
+        rc = mr_error_set(err, MR_ERR_INVALID, "svo build: key %zu (code %#llx, level %u): %s", i,
+                          (unsigned long long)keys[i].code, keys[i].level, why);
+        goto cleanup;
+    }
+
+    size_t ni = count > 1 ? count - 1 : 1;
+    c.split = malloc(ni * sizeof *c.split);
+    c.info = malloc(ni);
+    c.pd_int = malloc(ni);
+    c.pd_leaf = malloc(count);
+    c.node_base = malloc(c.blocks * LEVELS * sizeof *c.node_base);
+    c.leaf_base = malloc(c.blocks * LEVELS * sizeof *c.leaf_base);
+    if (!c.split || !c.info || !c.pd_int || !c.pd_leaf || !c.node_base || !c.leaf_base)
+        goto nomem;
+    c.pd_int[0] = -1; /* the radix root (or the only key) has no parent */
+    c.pd_leaf[0] = -1;
+    if (count > 1)
+        mr_parallel_for(threads, count - 1, 4096, radix_fn, &c);
+    mr_parallel_for(threads, c.blocks, 1, count_fn, &c);
+
+    /* Per-level totals, then each block's first position per level. */
+    uint64_t node_total = 0, leaf_total = 0;
+    for (unsigned L = 0; L < LEVELS; L++) {
+        for (size_t b = 0; b < c.blocks; b++) {
+            uint32_t nn = c.node_base[b * LEVELS + L], nl = c.leaf_base[b * LEVELS + L];
+            c.node_base[b * LEVELS + L] = (uint32_t)node_total;
+            c.leaf_base[b * LEVELS + L] = (uint32_t)leaf_total;
+            node_total += nn;
+            leaf_total += nl;
+            if (node_total > UINT32_MAX) {
+                rc = mr_error_set(err, MR_ERR_LIMIT, "svo build: more than 2^32 - 1 octree nodes");
+                goto cleanup;
+            }
+        }
+    }
+    out->node_count = (uint32_t)node_total;
+    out->leaf_count = (uint32_t)leaf_total;
+    if (node_total > 0) {
+        out->first_node = malloc(node_total * sizeof *out->first_node);
+        out->first_leaf = malloc(node_total * sizeof *out->first_leaf);
+        out->child_mask = malloc(node_total);
+        out->leaf_mask = malloc(node_total);
+        if (!out->first_node || !out->first_leaf || !out->child_mask || !out->leaf_mask)
+            goto nomem;
+    }
+    out->leaves = malloc(leaf_total * sizeof *out->leaves);
+    out->leaf_keys = malloc(leaf_total * sizeof *out->leaf_keys);
+    if (!out->leaves || !out->leaf_keys)
+        goto nomem;
+    mr_parallel_for(threads, c.blocks, 1, fill_fn, &c);
+
+    if (node_total > 0) {
+        c.node_blocks = (node_total + BLK - 1) / BLK;
+        c.scan = malloc(2 * c.node_blocks * sizeof *c.scan);
+        if (!c.scan)
+            goto nomem;
+        mr_parallel_for(threads, c.node_blocks, 1, scan_sum_fn, &c);
+        uint32_t ni_run = 1, nl_run = 0; /* node 0 is nobody's child */
+        for (size_t b = 0; b < c.node_blocks; b++) {
+            uint32_t a = c.scan[2 * b], z = c.scan[2 * b + 1];
+            c.scan[2 * b] = ni_run;
+            c.scan[2 * b + 1] = nl_run;
+            ni_run += a;
+            nl_run += z;
+        }
+        /* Every node but the root is one node's interior child and every
+         * leaf one node's leaf child; anything else is a bug here. */
+        if (ni_run != out->node_count || nl_run != out->leaf_count) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "svo build: internal error: %u nodes / %u leaves reached of %u / %u",
+                              ni_run, nl_run, out->node_count, out->leaf_count);
+            goto cleanup;
+        }
+        mr_parallel_for(threads, c.node_blocks, 1, scan_fill_fn, &c);
+    }
+    goto cleanup;
+
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "svo build: out of memory for %zu keys", count);
+cleanup:
+    free(c.bad);
+    free(c.split);
+    free(c.info);
+    free(c.pd_int);
+    free(c.pd_leaf);
+    free(c.node_base);
+    free(c.leaf_base);
+    free(c.scan);
+    if (rc < 0)
+        mr_svo_free(out);
+    return rc;
+}

@@ -1,0 +1,851 @@
+/*
+ * svo_kind.c - the `svo` geometry kind (issue 5, paper 004): an asset
+ * voxelised once into a sparse voxel octree shared by every instance of the
+ * object, each instance with its own transform and pose.
+ *
+ * Methods (job "method", deform.h):
+ *  - rigid: the shared octree sits in its own Embree scene as a user
+ *    geometry (svo_trace.h casts the rays); every instance is an Embree
+ *    instance of that scene (the thesis' instance model: shared octree,
+ *    unshared matrices). One Embree geometry id per instance (geom.h
+ *    geometry_ids), so hits name the instance.
+ *  - direct: each frame every instance is selected and deformed (deform.h);
+ *    the deformed voxel boxes of all instances are one user geometry, one
+ *    primitive per box, over which Embree builds its BVH.
+ *  - resize / emit: each instance's selection is resampled into its own
+ *    world-space octree, rebuilt every frame; one user geometry, one
+ *    primitive per instance, each traced by svo_trace.h.
+ * Rays hitting an octree report the leaf in u and v (its high and low 16
+ * bits as small exact floats) so normal() can find the voxel's normal.
+ * Instance poses are evaluated here (self_posed), one instance after the
+ * other per worker, so memory does not grow with instances x joints.
+ * With "skeleton" the asset has no usable skin: a skeleton is extracted
+ * from the voxels (chapter 5, skeleton.h) and the kind poses the rigged
+ * copy, whose bones "bone<k>" the instance poses may name.
+ * The exact reference (tessellate) is the asset's triangles skinned with
+ * each instance's pose: what the voxels approximate.
+ */
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "kinds/kind.h"
+#include "kinds/svo/deform.h"
+#include "kinds/svo/skeleton.h"
+#include "kinds/svo/svo_file.h"
+#include "kinds/svo/svo_trace.h"
+#include "kinds/svo/voxelize.h"
+#include "util/parallel.h"
+
+/* Scratch of one worker: a pose and the matrices of one instance. */
+typedef struct worker_scratch {
+    mr_pose *pose;
+    mr_svo_skin skin;
+    mr_svo_workspace *ws;         /* selection / resampling scratch, kept across frames */
+    int rc;                       /* first failure of this worker ... */
+    size_t failed_instance;       /* ... and the instance it came from */
+    mr_error err;
+} worker_scratch;
+
+struct mr_geom {
+    const mr_asset *asset;        /* posing asset: the source, or the rigged copy */
+    mr_asset *rigged;             /* owned rigged copy (skeleton), or NULL */
+    const mr_object_desc *desc;
+    mr_svo_method method;
+    mr_svo *svo;                  /* shared octree, bind space */
+    mr_svo_extremes extremes;
+    unsigned out_depth;           /* depth of the per-frame world octrees */
+    size_t instance_count;
+    mr_mat4 *world;               /* per instance: object transform * instance transform */
+    mr_mat4 *world_normal;        /* per instance: its normal matrix */
+    bool *invertible;             /* per instance (rigid instances need an inverse) */
+    unsigned workers;
+    worker_scratch *scratch;
+    /* per frame */
+    mr_svo_selection *sel;        /* per instance */
+    mr_svo *octree;               /* per instance (resize, emit) */
+    size_t box_count, box_capacity;
+    float *box;                   /* direct: all instances' boxes */
+    mr_svo_leaf *box_leaf;
+    uint64_t visited, cells;      /* voxels deformed / output voxels, last frame */
+    size_t last_frame;            /* the frame of the last update (tessellate poses it) */
+    double last_time;
+    /* Embree */
+    RTCScene shared_scene;        /* rigid: the octree as a user geometry */
+    RTCGeometry user;             /* direct / resize / emit: the object's user geometry */
+    RTCGeometry *instances;       /* rigid: one instance geometry per instance */
+    unsigned first_id;
+};
+
+/* ---- the posing side ------------------------------------------------ */
+
+static const mr_pose_desc *object_pose(const mr_object_desc *d, size_t frame)
+{
+    if (d->pose_count == 0)
+        return NULL;
+    return d->pose_count == 1 ? &d->poses[0] : &d->poses[frame < d->pose_count ? frame : 0];
+}
+
+static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t frame)
+{
+    const mr_svo_desc *s = &g->desc->svo;
+    if (s->instance_count > 0 && s->instances[k].has_pose)
+        return &s->instances[k].pose;
+    return object_pose(g->desc, frame);
+}
+
+/* Perspective projection of the frame's camera, far plane at infinity
+ * (only the near plane culls), for the screen-space selection. */
+static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
+{
+    mr_svo_view v = {.enabled = false};
+    if (!f || f->width <= 0 || f->height <= 0)
+        return v;
+    mr_mat4 cam = mr_mat4_from_trs(f->camera.position, f->camera.rotation, mr_v3(1, 1, 1));
+    mr_mat4 view;
+    if (!mr_mat4_inverse(&cam, &view))
+        return v;
+    float fy = 1.0f / tanf(0.5f * f->camera.yfov);
+    float fx = fy * (float)f->height / (float)f->width;
+    const float near = 1e-4f;
+    mr_mat4 proj = {{fx, 0, 0, 0, 0, fy, 0, 0, 0, 0, -1, -2 * near, 0, 0, -1, 0}};
+    v.enabled = true;
+    v.view_proj = mr_mat4_mul(&proj, &view);
+    v.width = f->width;
+    v.height = f->height;
+    v.delta = g->desc->svo.delta;
+    v.cull = g->desc->svo.cull;
+    return v;
+}
+
+typedef struct frame_ctx {
+    mr_geom *g;
+    const mr_geom_frame *frame;
+    mr_svo_view view;
+    unsigned inner_threads;
+} frame_ctx;
+
+static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *err)
+{
+    mr_geom *g = c->g;
+    size_t frame = c->frame ? c->frame->index : 0;
+    double t = c->frame ? c->frame->time : 0;
+    int rc = mr_pose_eval(s->pose, g->asset, instance_pose(g, k, frame), t, err);
+    if (rc < 0)
+        return rc;
+    mr_svo_skin_pose(&s->skin, g->asset, s->pose, &g->world[k]);
+    rc = mr_svo_select_ws(g->svo, &g->extremes, &s->skin.d, &c->view, g->svo->depth, c->inner_threads, s->ws,
+                          &g->sel[k], err);
+    if (rc < 0 || g->method == MR_SVO_DIRECT)
+        return rc;
+    return mr_svo_resample_ws(&g->sel[k], g->method, g->out_depth, g->svo->palette,
+                              g->svo->palette_count, c->inner_threads, s->ws, &g->octree[k], NULL, err);
+}
+
+static void deform_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    frame_ctx *c = ctx;
+    worker_scratch *s = &c->g->scratch[worker];
+    for (size_t k = begin; k < end; k++) {
+        if (s->rc < 0)
+            return;
+        mr_error e = {0};
+        int rc = deform_instance(c, k, s, &e);
+        if (rc < 0) {
+            s->rc = rc;
+            s->failed_instance = k;
+            s->err = e;
+        }
+    }
+}
+
+/* Every kind keeps what it hands Embree within MR_MAX_COORDINATE (geom.h):
+ * beyond ~1.8e18 Embree silently drops primitives, so a pose that scales
+ * voxels that far fails the frame instead. */
+static int check_extent(float biggest, size_t instance, mr_error *err)
+{
+    if (biggest <= MR_MAX_COORDINATE)
+        return MR_OK;
+    return mr_error_set(err, MR_ERR_INVALID,
+                        "svo: instance %zu's posed voxels reach %g, beyond %g", instance,
+                        (double)biggest, MR_MAX_COORDINATE);
+}
+
+static float octree_extent(const mr_svo *o)
+{
+    float lo[3], hi[3], m = 0;
+    if (!mr_svo_bounds(o, lo, hi))
+        return 0;
+    for (int a = 0; a < 3; a++)
+        m = fmaxf(m, fmaxf(fabsf(lo[a]), fabsf(hi[a])));
+    return m;
+}
+
+static int gather_boxes(mr_geom *g, mr_error *err)
+{
+    size_t total = 0;
+    for (size_t k = 0; k < g->instance_count; k++)
+        total += g->sel[k].count;
+    if (total > UINT32_MAX - 1)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo: %zu deformed voxels in one frame, more than Embree takes", total);
+    if (total > g->box_capacity) {
+        float *b = realloc(g->box, total * 6 * sizeof *b);
+        if (b)
+            g->box = b;
+        mr_svo_leaf *l = realloc(g->box_leaf, total * sizeof *l);
+        if (l)
+            g->box_leaf = l;
+        if (!b || !l)
+            return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu deformed voxels", total);
+        g->box_capacity = total;
+    }
+    size_t at = 0;
+    for (size_t k = 0; k < g->instance_count; k++) {
+        const mr_svo_selection *s = &g->sel[k];
+        if (s->count == 0)
+            continue;
+        float biggest = 0;
+        for (size_t i = 0; i < s->count * 6; i++)
+            biggest = fmaxf(biggest, fabsf(s->box[i]));
+        int rc = check_extent(biggest, k, err);
+        if (rc < 0)
+            return rc;
+        memcpy(g->box + at * 6, s->box, s->count * 6 * sizeof *g->box);
+        memcpy(g->box_leaf + at, s->leaf, s->count * sizeof *g->box_leaf);
+        at += s->count;
+    }
+    g->box_count = total;
+    return MR_OK;
+}
+
+static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                      const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    (void)pose; /* self_posed: each instance has its own */
+    mr_mat4 object = transform ? *transform : mr_mat4_identity();
+    for (size_t k = 0; k < g->instance_count; k++) {
+        const mr_mat4 inst = g->desc->svo.instance_count ? g->desc->svo.instances[k].transform
+                                                         : mr_mat4_identity();
+        g->world[k] = mr_mat4_mul(&object, &inst);
+        /* The cofactor flips normals of mirroring transforms (det < 0):
+         * undo that, so normals keep pointing out of the surface. */
+        g->world_normal[k] = mr_mat4_normal_matrix(&g->world[k]);
+        const float *w = g->world[k].m;
+        float det = w[0] * (w[5] * w[10] - w[6] * w[9]) - w[1] * (w[4] * w[10] - w[6] * w[8]) +
+                    w[2] * (w[4] * w[9] - w[5] * w[8]);
+        if (det < 0)
+            for (int i = 0; i < 12; i++)
+                g->world_normal[k].m[i] = -g->world_normal[k].m[i];
+        mr_mat4 inv;
+        g->invertible[k] = mr_mat4_inverse(&g->world[k], &inv);
+        for (int i = 0; i < 12; i++)
+            if (!(fabsf(g->world[k].m[i]) <= MR_MAX_COORDINATE))
+                return mr_error_set(err, MR_ERR_INVALID,
+                                    "svo: instance %zu's transform reaches beyond %g", k,
+                                    MR_MAX_COORDINATE);
+    }
+    if (g->method == MR_SVO_RIGID) {
+        float lo[3], hi[3];
+        if (mr_svo_bounds(g->svo, lo, hi))
+            for (size_t k = 0; k < g->instance_count; k++) {
+                float biggest = 0;
+                for (int c = 0; c < 8; c++) {
+                    mr_vec3 p = mr_mat4_point(&g->world[k], mr_v3(c & 1 ? hi[0] : lo[0],
+                                                                  c & 2 ? hi[1] : lo[1],
+                                                                  c & 4 ? hi[2] : lo[2]));
+                    biggest = fmaxf(biggest, fmaxf(fabsf(p.x), fmaxf(fabsf(p.y), fabsf(p.z))));
+                }
+                int rc = check_extent(biggest, k, err);
+                if (rc < 0)
+                    return rc;
+            }
+    }
+    g->visited = g->cells = 0;
+    g->last_frame = frame ? frame->index : 0;
+    g->last_time = frame ? frame->time : 0;
+    if (g->method == MR_SVO_RIGID)
+        return MR_OK;
+
+    unsigned workers = threads ? threads : mr_cpu_count();
+    if (workers > g->workers)
+        workers = g->workers;
+    frame_ctx c = {.g = g, .frame = frame, .view = frame_view(g, frame)};
+    for (unsigned w = 0; w < g->workers; w++)
+        g->scratch[w].rc = 0;
+    /* Many instances: one instance per task, each single-threaded; few:
+     * one after the other, each on all workers. Either way the results do
+     * not depend on the thread count (deform.h). */
+    if (g->instance_count >= 2 * (size_t)workers && workers > 1) {
+        c.inner_threads = 1;
+        mr_parallel_for(workers, g->instance_count, 1, deform_range, &c);
+    } else {
+        c.inner_threads = workers;
+        deform_range(&c, 0, g->instance_count, 0);
+    }
+    worker_scratch *bad = NULL;
+    for (unsigned w = 0; w < g->workers; w++)
+        if (g->scratch[w].rc < 0 && (!bad || g->scratch[w].failed_instance < bad->failed_instance))
+            bad = &g->scratch[w];
+    if (bad) {
+        *err = bad->err;
+        if (g->desc->svo.instance_count)
+            mr_error_prefix(err, "svo/instances/%zu: ", bad->failed_instance);
+        return bad->rc;
+    }
+    for (size_t k = 0; k < g->instance_count; k++) {
+        g->visited += g->sel[k].visited;
+        if (g->method == MR_SVO_DIRECT)
+            continue;
+        g->cells += g->octree[k].leaf_count;
+        int rc = check_extent(octree_extent(&g->octree[k]), k, err);
+        if (rc < 0)
+            return rc;
+    }
+    if (g->method == MR_SVO_DIRECT)
+        return gather_boxes(g, err);
+    return MR_OK;
+}
+
+/* ---- Embree callbacks ------------------------------------------------ */
+
+/* SOA packet access (rtcore_ray.h gives these only to C++). */
+#define RAY_F(r, N, i, field) (((float *)(r))[(field) * (N) + (i)])
+#define RAY_U(r, N, i, field) (((unsigned *)(r))[(field) * (N) + (i)])
+enum { R_OX, R_OY, R_OZ, R_TNEAR, R_DX, R_DY, R_DZ, R_TIME, R_TFAR, R_MASK, R_ID, R_FLAGS };
+enum { H_NX, H_NY, H_NZ, H_U, H_V, H_PRIM, H_GEOM, H_INST };
+
+static void set_bounds(struct RTCBounds *b, const float lo[3], const float hi[3])
+{
+    b->lower_x = lo[0];
+    b->lower_y = lo[1];
+    b->lower_z = lo[2];
+    b->upper_x = hi[0];
+    b->upper_y = hi[1];
+    b->upper_z = hi[2];
+}
+
+static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const mr_svo *o = g->method == MR_SVO_RIGID ? g->svo : &g->octree[args->primID];
+    float lo[3], hi[3];
+    if (!mr_svo_bounds(o, lo, hi)) {
+        /* Empty: an inverted box, which Embree leaves out of its BVH. */
+        lo[0] = lo[1] = lo[2] = 1;
+        hi[0] = hi[1] = hi[2] = -1;
+    }
+    set_bounds(args->bounds_o, lo, hi);
+}
+
+static void box_bounds(const struct RTCBoundsFunctionArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->box + (size_t)args->primID * 6;
+    set_bounds(args->bounds_o, b, b + 3);
+}
+
+static const mr_svo *hit_octree(const mr_geom *g, unsigned prim)
+{
+    return g->method == MR_SVO_RIGID ? g->svo : &g->octree[prim];
+}
+
+static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const mr_svo *o = hit_octree(g, args->primID);
+    unsigned N = args->N;
+    float *ray = (float *)args->rayhit;
+    float *hit = ray + 12 * N;
+    unsigned inst = args->context->instID[0];
+    for (unsigned i = 0; i < N; i++) {
+        if (!args->valid[i])
+            continue;
+        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
+        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        mr_svo_hit h;
+        if (!mr_svo_intersect(o, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &h))
+            continue;
+        mr_vec3 ng = h.axis >= 0 ? h.ng : mr_v3_scale(dir, -1.0f);
+        if (g->method == MR_SVO_RIGID && inst != RTC_INVALID_GEOMETRY_ID && inst >= g->first_id &&
+            inst - g->first_id < g->instance_count)
+            ng = mr_mat4_dir(&g->world_normal[inst - g->first_id], ng); /* world space */
+        RAY_F(ray, N, i, R_TFAR) = h.t;
+        RAY_F(hit, N, i, H_NX) = ng.x;
+        RAY_F(hit, N, i, H_NY) = ng.y;
+        RAY_F(hit, N, i, H_NZ) = ng.z;
+        RAY_F(hit, N, i, H_U) = (float)(h.leaf >> 16);
+        RAY_F(hit, N, i, H_V) = (float)(h.leaf & 0xffffu);
+        RAY_U(hit, N, i, H_PRIM) = args->primID;
+        RAY_U(hit, N, i, H_GEOM) = args->geomID;
+        RAY_U(hit, N, i, H_INST) = inst;
+    }
+}
+
+static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const mr_svo *o = hit_octree(g, args->primID);
+    unsigned N = args->N;
+    float *ray = (float *)args->ray;
+    for (unsigned i = 0; i < N; i++) {
+        if (!args->valid[i])
+            continue;
+        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
+        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        if (mr_svo_occluded(o, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR)))
+            RAY_F(ray, N, i, R_TFAR) = -INFINITY;
+    }
+}
+
+/* Closed slab test of one deformed box: entry t (clipped to tnear) and the
+ * axis of the entry face, or false. */
+static bool box_hit(const float *b, mr_vec3 org, mr_vec3 dir, float tnear, float tfar, float *t,
+                    int *axis)
+{
+    const float o[3] = {org.x, org.y, org.z}, d[3] = {dir.x, dir.y, dir.z};
+    float t0 = tnear, t1 = tfar;
+    int ax = -1;
+    for (int a = 0; a < 3; a++) {
+        if (d[a] == 0) {
+            if (o[a] < b[a] || o[a] > b[a + 3])
+                return false;
+            continue;
+        }
+        float inv = 1.0f / d[a];
+        float n = (b[a] - o[a]) * inv, f = (b[a + 3] - o[a]) * inv;
+        if (n > f) {
+            float s = n;
+            n = f;
+            f = s;
+        }
+        if (n > t0) {
+            t0 = n;
+            ax = a;
+        }
+        if (f < t1)
+            t1 = f;
+        if (!(t0 <= t1))
+            return false;
+    }
+    *t = t0;
+    *axis = ax;
+    return true;
+}
+
+static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->box + (size_t)args->primID * 6;
+    unsigned N = args->N;
+    float *ray = (float *)args->rayhit;
+    float *hit = ray + 12 * N;
+    for (unsigned i = 0; i < N; i++) {
+        if (!args->valid[i])
+            continue;
+        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
+        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        float t;
+        int axis;
+        if (!box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
+            continue;
+        float n[3] = {0, 0, 0};
+        if (axis >= 0)
+            n[axis] = (axis == 0 ? dir.x : axis == 1 ? dir.y : dir.z) > 0 ? -1.0f : 1.0f;
+        else {
+            n[0] = -dir.x;
+            n[1] = -dir.y;
+            n[2] = -dir.z;
+        }
+        RAY_F(ray, N, i, R_TFAR) = t;
+        RAY_F(hit, N, i, H_NX) = n[0];
+        RAY_F(hit, N, i, H_NY) = n[1];
+        RAY_F(hit, N, i, H_NZ) = n[2];
+        RAY_F(hit, N, i, H_U) = 0;
+        RAY_F(hit, N, i, H_V) = 0;
+        RAY_U(hit, N, i, H_PRIM) = args->primID;
+        RAY_U(hit, N, i, H_GEOM) = args->geomID;
+        RAY_U(hit, N, i, H_INST) = args->context->instID[0];
+    }
+}
+
+static void boxes_occluded(const struct RTCOccludedFunctionNArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->box + (size_t)args->primID * 6;
+    unsigned N = args->N;
+    float *ray = (float *)args->ray;
+    for (unsigned i = 0; i < N; i++) {
+        if (!args->valid[i])
+            continue;
+        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
+        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        float t;
+        int axis;
+        if (box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
+            RAY_F(ray, N, i, R_TFAR) = -INFINITY;
+    }
+}
+
+static RTCGeometry new_user_geometry(RTCDevice device, mr_geom *g, unsigned count,
+                                     enum RTCBuildQuality quality, bool boxes)
+{
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    if (!geom)
+        return NULL;
+    rtcSetGeometryUserPrimitiveCount(geom, count);
+    rtcSetGeometryUserData(geom, g);
+    rtcSetGeometryBoundsFunction(geom, boxes ? box_bounds : octree_bounds, NULL);
+    rtcSetGeometryIntersectFunction(geom, boxes ? boxes_intersect : octree_intersect);
+    rtcSetGeometryOccludedFunction(geom, boxes ? boxes_occluded : octree_occluded);
+    rtcSetGeometryBuildQuality(geom, quality);
+    return geom;
+}
+
+static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                      enum RTCBuildQuality quality, mr_error *err)
+{
+    g->first_id = geom_id;
+    if (g->method != MR_SVO_RIGID) {
+        /* Primitive counts change every frame: always a fresh (LOW) build. */
+        (void)quality;
+        g->user = new_user_geometry(device, g, 0, RTC_BUILD_QUALITY_LOW, g->method == MR_SVO_DIRECT);
+        if (!g->user)
+            return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create a user geometry");
+        rtcCommitGeometry(g->user);
+        rtcAttachGeometryByID(scene, g->user, geom_id);
+        return MR_OK;
+    }
+    g->shared_scene = rtcNewScene(device);
+    RTCGeometry oct = g->shared_scene ? new_user_geometry(device, g, 1, RTC_BUILD_QUALITY_HIGH, false)
+                                      : NULL;
+    if (!oct)
+        return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create the octree scene");
+    rtcCommitGeometry(oct);
+    rtcAttachGeometry(g->shared_scene, oct);
+    rtcReleaseGeometry(oct);
+    /* The top scene's ROBUST does not reach into instanced scenes. */
+    rtcSetSceneFlags(g->shared_scene, RTC_SCENE_FLAG_ROBUST);
+    rtcCommitScene(g->shared_scene);
+    g->instances = calloc(g->instance_count, sizeof *g->instances);
+    if (!g->instances)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", g->instance_count);
+    for (size_t k = 0; k < g->instance_count; k++) {
+        RTCGeometry in = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+        if (!in)
+            return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create instance %zu", k);
+        rtcSetGeometryInstancedScene(in, g->shared_scene);
+        rtcSetGeometryTimeStepCount(in, 1);
+        rtcAttachGeometryByID(scene, in, geom_id + (unsigned)k);
+        g->instances[k] = in;
+    }
+    return MR_OK;
+}
+
+static void svo_commit(mr_geom *g)
+{
+    if (g->method == MR_SVO_RIGID) {
+        for (size_t k = 0; k < g->instance_count; k++) {
+            RTCGeometry in = g->instances[k];
+            /* A singular transform has no inverse to move rays by: such an
+             * instance has no volume and is left out (Embree would divide
+             * by zero). */
+            if (!g->invertible[k]) {
+                rtcDisableGeometry(in);
+                continue;
+            }
+            rtcEnableGeometry(in);
+            float xfm[12]; /* RTC_FORMAT_FLOAT3X4_ROW_MAJOR */
+            memcpy(xfm, g->world[k].m, sizeof xfm);
+            rtcSetGeometryTransform(in, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, xfm);
+            rtcCommitGeometry(in);
+        }
+        return;
+    }
+    unsigned count = g->method == MR_SVO_DIRECT ? (unsigned)g->box_count : (unsigned)g->instance_count;
+    rtcSetGeometryUserPrimitiveCount(g->user, count);
+    rtcCommitGeometry(g->user);
+}
+
+static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    if (g->method == MR_SVO_DIRECT) {
+        if (prim >= g->box_count)
+            return mr_v3(0, 0, 0);
+        return mr_svo_normal_decode(g->box_leaf[prim].normal);
+    }
+    if (prim >= g->instance_count || !(u >= 0 && v >= 0))
+        return mr_v3(0, 0, 0);
+    uint32_t leaf = ((uint32_t)u << 16) | (uint32_t)v;
+    const mr_svo *o = hit_octree(g, prim);
+    if (leaf >= o->leaf_count)
+        return mr_v3(0, 0, 0);
+    mr_vec3 n = mr_svo_normal_decode(o->leaves[leaf].normal);
+    if (g->method == MR_SVO_RIGID)
+        n = mr_mat4_dir(&g->world_normal[prim], n);
+    return n;
+}
+
+/* ---- reference, sizes, lifetime -------------------------------------- */
+
+static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    *out = (mr_trimesh){0};
+    const mr_asset *a = g->asset;
+    uint64_t nv = 0, nt = 0;
+    for (size_t m = 0; m < a->mesh_count; m++) {
+        nv += a->meshes[m].vertex_count;
+        nt += a->meshes[m].triangle_count;
+    }
+    nv *= g->instance_count;
+    nt *= g->instance_count;
+    if (nv > UINT32_MAX / 3 || nt > UINT32_MAX / 3)
+        return mr_error_set(err, MR_ERR_LIMIT, "svo: the reference of %zu instances is too large",
+                            g->instance_count);
+    out->positions = malloc((size_t)nv * 3 * sizeof *out->positions + 4);
+    out->indices = malloc((size_t)nt * 3 * sizeof *out->indices);
+    mr_pose *pose = NULL;
+    int rc = mr_pose_new(a, &pose, err);
+    if (rc < 0 || !out->positions || !out->indices) {
+        mr_pose_free(pose);
+        mr_trimesh_free(out);
+        return rc < 0 ? rc : mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for the reference");
+    }
+    uint32_t v0 = 0, t0 = 0;
+    for (size_t k = 0; k < g->instance_count; k++) {
+        /* Rigid instances stay in the rest pose; the others take the pose
+         * of the last update. */
+        const mr_pose_desc *pd = g->method == MR_SVO_RIGID ? NULL : instance_pose(g, k, g->last_frame);
+        if ((rc = mr_pose_eval(pose, a, pd, g->last_time, err)) < 0)
+            break;
+        for (size_t m = 0; m < a->mesh_count; m++) {
+            const mr_mesh *mesh = &a->meshes[m];
+            mr_skin_mesh(a, m, pose, &g->world[k], out->positions + (size_t)v0 * 3, NULL, 1);
+            for (size_t i = 0; i < (size_t)mesh->triangle_count * 3; i++)
+                out->indices[(size_t)t0 * 3 + i] = v0 + mesh->indices[i];
+            v0 += mesh->vertex_count;
+            t0 += mesh->triangle_count;
+        }
+    }
+    mr_pose_free(pose);
+    if (rc < 0) {
+        mr_trimesh_free(out);
+        return rc;
+    }
+    out->vertex_count = v0;
+    out->triangle_count = t0;
+    return MR_OK;
+}
+
+static size_t svo_memory(const mr_geom *g)
+{
+    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 4;
+    bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
+    for (unsigned w = 0; g->scratch && w < g->workers; w++)
+        bytes += mr_svo_workspace_memory(g->scratch[w].ws);
+    for (size_t k = 0; k < g->instance_count && g->sel; k++) {
+        bytes += g->sel[k].capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf) + 1);
+        if (g->octree)
+            bytes += mr_svo_memory(&g->octree[k]);
+    }
+    return bytes;
+}
+
+/* Voxels traced: the shared octree's leaves once per instance (rigid), the
+ * deformed boxes (direct) or the rebuilt octrees' leaves. */
+static uint64_t svo_primitives(const mr_geom *g)
+{
+    if (g->method == MR_SVO_RIGID)
+        return (uint64_t)g->svo->leaf_count * g->instance_count;
+    if (g->method == MR_SVO_DIRECT)
+        return g->box_count;
+    return g->cells;
+}
+
+static uint32_t svo_geometry_ids(const mr_geom *g)
+{
+    return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
+}
+
+static void svo_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    if (g->instances)
+        for (size_t k = 0; k < g->instance_count; k++)
+            if (g->instances[k])
+                rtcReleaseGeometry(g->instances[k]);
+    free(g->instances);
+    if (g->user)
+        rtcReleaseGeometry(g->user);
+    if (g->shared_scene)
+        rtcReleaseScene(g->shared_scene);
+    if (g->sel)
+        for (size_t k = 0; k < g->instance_count; k++)
+            mr_svo_selection_free(&g->sel[k]);
+    free(g->sel);
+    if (g->octree)
+        for (size_t k = 0; k < g->instance_count; k++)
+            mr_svo_free(&g->octree[k]);
+    free(g->octree);
+    if (g->scratch)
+        for (unsigned w = 0; w < g->workers; w++) {
+            mr_pose_free(g->scratch[w].pose);
+            mr_svo_skin_free(&g->scratch[w].skin);
+            mr_svo_workspace_free(g->scratch[w].ws);
+        }
+    free(g->scratch);
+    free(g->box);
+    free(g->box_leaf);
+    free(g->world);
+    free(g->world_normal);
+    free(g->invertible);
+    mr_svo_extremes_free(&g->extremes);
+    mr_svo_voxelize_free(g->svo);
+    if (g->rigged)
+        mr_asset_free(g->rigged);
+    free(g);
+}
+
+/* Every pose the object's instances use must name clips and joints of the
+ * posing asset (the rigged copy's bones, with a skeleton). */
+static int check_poses(const mr_geom *g, mr_error *err)
+{
+    const mr_object_desc *d = g->desc;
+    for (size_t k = 0; k < d->pose_count; k++) {
+        int rc = mr_pose_desc_check(g->asset, &d->poses[k], err);
+        if (rc < 0)
+            return d->pose_count == 1 ? mr_error_prefix(err, "pose: ")
+                                      : mr_error_prefix(err, "pose/%zu: ", k);
+    }
+    for (size_t k = 0; k < d->svo.instance_count; k++) {
+        if (!d->svo.instances[k].has_pose)
+            continue;
+        int rc = mr_pose_desc_check(g->asset, &d->svo.instances[k].pose, err);
+        if (rc < 0)
+            return mr_error_prefix(err, "svo/instances/%zu/pose: ", k);
+    }
+    return MR_OK;
+}
+
+static int setup_workers(mr_geom *g, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    g->workers = mr_cpu_count();
+    if (g->workers > MR_MAX_THREADS)
+        g->workers = MR_MAX_THREADS;
+    g->scratch = calloc(g->workers, sizeof *g->scratch);
+    if (!g->scratch)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
+    for (unsigned w = 0; w < g->workers; w++) {
+        worker_scratch *s = &g->scratch[w];
+        int rc;
+        if ((rc = mr_pose_new(a, &s->pose, err)) < 0 || (rc = mr_svo_skin_init(&s->skin, a, err)) < 0 ||
+            (rc = mr_svo_workspace_new(&s->ws, err)) < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
+/* Chapter 5: bones contracted out of the voxels, and the asset and octree
+ * skinned to them (skeleton.h); from here on the kind poses the copy. */
+static int rig_skeleton(mr_geom *g, mr_error *err)
+{
+    mr_svo_skeleton_params sp = {.omega = g->desc->svo.omega};
+    mr_svo_skeleton sk = {0};
+    mr_svo *rigged_svo = NULL;
+    int rc = mr_svo_skeletonize(g->svo, &sp, &sk, err);
+    if (rc >= 0)
+        rc = mr_svo_skeleton_rig(g->asset, g->svo, &sk, &sp, &g->rigged, &rigged_svo, err);
+    mr_svo_skeleton_free(&sk);
+    if (rc < 0)
+        return mr_error_prefix(err, "svo/skeleton: ");
+    mr_svo_voxelize_free(g->svo);
+    g->svo = rigged_svo;
+    g->asset = g->rigged;
+    return MR_OK;
+}
+
+static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
+                      mr_error *err)
+{
+    *out = NULL;
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
+    g->asset = asset;
+    g->desc = desc;
+    g->method = desc->svo.method;
+    g->instance_count = desc->svo.instance_count ? desc->svo.instance_count : 1;
+    int rc;
+    float *albedo = malloc((asset->mesh_count ? asset->mesh_count : 1) * 3 * sizeof *albedo);
+    if (!albedo) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
+        goto fail;
+    }
+    for (size_t m = 0; m < asset->mesh_count; m++) {
+        albedo[m * 3] = fminf(desc->color.x, 1.0f);
+        albedo[m * 3 + 1] = fminf(desc->color.y, 1.0f);
+        albedo[m * 3 + 2] = fminf(desc->color.z, 1.0f);
+    }
+    mr_svo_voxelize_params vp = {.depth = desc->svo.depth, .mode = desc->svo.voxelize,
+                                 .albedo = albedo, .threads = 0};
+    rc = mr_svo_voxelize_cached(asset, &vp, desc->svo.cache_dir, &g->svo, NULL, err);
+    free(albedo);
+    if (rc < 0)
+        goto fail;
+    if (desc->svo.skeleton && (rc = rig_skeleton(g, err)) < 0)
+        goto fail;
+    g->out_depth = desc->svo.depth + 2 < MR_SVO_MAX_DEPTH ? desc->svo.depth + 2 : MR_SVO_MAX_DEPTH;
+    if ((rc = check_poses(g, err)) < 0)
+        goto fail;
+    if (g->method == MR_SVO_RIGID) {
+        /* Rigid instances pose nothing, but the asset must be one the
+         * other methods could skin (a rigid mesh's rest node invertible). */
+        mr_svo_skin probe;
+        rc = mr_svo_skin_init(&probe, g->asset, err);
+        mr_svo_skin_free(&probe);
+        if (rc < 0)
+            goto fail;
+    }
+    size_t n = g->instance_count;
+    g->world = calloc(n, sizeof *g->world);
+    g->world_normal = calloc(n, sizeof *g->world_normal);
+    g->invertible = calloc(n, sizeof *g->invertible);
+    if (!g->world || !g->world_normal || !g->invertible) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
+        goto fail;
+    }
+    if (g->method != MR_SVO_RIGID) {
+        g->sel = calloc(n, sizeof *g->sel);
+        g->octree = g->method == MR_SVO_DIRECT ? NULL : calloc(n, sizeof *g->octree);
+        if (!g->sel || (g->method != MR_SVO_DIRECT && !g->octree)) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
+            goto fail;
+        }
+        if ((rc = mr_svo_extremes_build(g->svo, &g->extremes, err)) < 0 ||
+            (rc = setup_workers(g, err)) < 0)
+            goto fail;
+    }
+    *out = g;
+    return MR_OK;
+fail:
+    svo_free(g);
+    return rc;
+}
+
+const mr_geom_ops mr_geom_svo_ops = {
+    .name = "svo",
+    .self_posed = true,
+    .create = svo_create,
+    .update = svo_update,
+    .attach = svo_attach,
+    .commit = svo_commit,
+    .normal = svo_normal,
+    .tessellate = svo_tessellate,
+    .memory = svo_memory,
+    .primitives = svo_primitives,
+    .geometry_ids = svo_geometry_ids,
+    .free = svo_free,
+};

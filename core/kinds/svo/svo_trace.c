@@ -1,0 +1,365 @@
+/*
+ * svo_trace.c - stack-based ray casting of a sparse voxel octree (see
+ * svo_trace.h for the rules: integer plane positions, closed boxes,
+ * mirrored child order, explicit handling of zero direction components).
+ *
+ * One stack frame per level holds an interior node, its integer
+ * coordinates, its t interval (already clipped to [tmin, tmax]), the t of
+ * its three midplanes, and the mask of children the ray still has to visit
+ * (in mirrored order, computed once when the node is entered). The walk takes the lowest pending child of the top frame: a
+ * leaf ends the walk (it is the nearest, see the header), an interior child
+ * gets a new frame. A frame with nothing pending is popped.
+ */
+#include "kinds/svo/svo_trace.h"
+
+#include <float.h>
+#include <math.h>
+
+/* Every plane is placed on the finest possible grid, 2^21 cells per axis,
+ * whatever the octree's depth: a node at level l spans 2^(21 - l) cells. */
+#define GRID_BITS MR_SVO_MAX_DEPTH
+#define GRID_CELLS (1u << GRID_BITS)
+
+#define DMAX(a, b) ((a) > (b) ? (a) : (b))
+#define DMIN(a, b) ((a) < (b) ? (a) : (b))
+
+/* Per-ray constants. A plane at finest-grid position k on axis a lies at
+ * signed distance s = d0[a] + k * cell from the ray origin (k * cell is
+ * exact: 22 bits of k times the 24 bits of size), at t = s * inv[a]. */
+typedef struct svo_ray {
+    double d0[3];
+    double cell;
+    double inv[3];  /* 1 / dir; unused on parallel axes */
+    unsigned mirror; /* bit a: dir[a] < 0 */
+    unsigned par;    /* bit a: dir[a] == 0 (the ray never crosses a plane of a) */
+    bool tie;        /* the ray lies in a midplane it is parallel to (see frame_enter) */
+    double tmin, tmax;
+} svo_ray;
+
+typedef struct svo_frame {
+    /* Midplane t per axis, as the entry of the far half (mid_en) and the
+     * exit of the near half (mid_ex): the same value, except on parallel
+     * axes, where the halves span all t (-inf, +inf). */
+    double mid_en[3], mid_ex[3];
+    double t0, t1;    /* the node's interval, clipped */
+    uint32_t node;
+    uint32_t xyz[3];  /* integer coordinates at the frame's level */
+    unsigned pending; /* mirrored child indices still to visit */
+    int axis;         /* axis of the plane t0 lies on, -1 for tmin */
+} svo_frame;
+
+/* Children of mirrored index i with bit a equal to h, for a parallel axis
+ * that rules one half out. */
+static const uint8_t half_children[3][2] = {{0x55, 0xaa}, {0x33, 0xcc}, {0x0f, 0xf0}};
+
+static inline double plane_s(const svo_ray *r, int a, uint32_t k)
+{
+    return r->d0[a] + (double)k * r->cell;
+}
+
+/* Bits set in a byte (no popcnt instruction is assumed). */
+static inline unsigned popcount8(unsigned v)
+{
+    v = v - ((v >> 1) & 0x55u);
+    v = (v & 0x33u) + ((v >> 2) & 0x33u);
+    return (v + (v >> 4)) & 0x0fu;
+}
+
+/* Sets up the ray; false when it cannot hit anything (non-finite input,
+ * empty [tmin, tmax]). */
+static bool ray_setup(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, svo_ray *r)
+{
+    const float o[3] = {org.x, org.y, org.z};
+    const float d[3] = {dir.x, dir.y, dir.z};
+    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
+    if (!isfinite(tmin) || isnan(tmax) || !(tmax >= tmin))
+        return false;
+    if (!isfinite(svo->size) || !(svo->size > 0.0f))
+        return false;
+    r->mirror = 0;
+    r->par = 0;
+    r->tie = false;
+    for (int a = 0; a < 3; a++) {
+        if (!isfinite(o[a]) || !isfinite(d[a]) || !isfinite(c[a]))
+            return false;
+        r->d0[a] = (double)c[a] - (double)o[a];
+        if (d[a] == 0.0f) {
+            r->par |= 1u << a;
+            r->inv[a] = 0.0;
+        } else {
+            /* In double, even 1 / (smallest denormal) is finite. */
+            r->inv[a] = 1.0 / (double)d[a];
+            if (d[a] < 0.0f)
+                r->mirror |= 1u << a;
+        }
+    }
+    r->cell = (double)svo->size * (1.0 / (double)GRID_CELLS); /* exact: a power of 2 */
+    r->tmin = (double)tmin;
+    /* A t past FLT_MAX could not be reported as a float. */
+    r->tmax = DMIN((double)tmax, (double)FLT_MAX);
+    return r->tmin <= r->tmax;
+}
+
+/* The child mask in mirrored order: bit i is bit i ^ mirror of m. */
+static inline unsigned mirror_mask(unsigned m, unsigned mirror)
+{
+    if (mirror & 1u)
+        m = ((m & 0x55u) << 1) | ((m >> 1) & 0x55u);
+    if (mirror & 2u)
+        m = ((m & 0x33u) << 2) | ((m >> 2) & 0x33u);
+    if (mirror & 4u)
+        m = ((m & 0x0fu) << 4) | ((m >> 4) & 0x0fu);
+    return m;
+}
+
+/* All children but `children` when cond fails, else all (branch-free). */
+#define DROP(cond, children) (~(0u - (unsigned)!(cond)) | ~(unsigned)(children))
+
+/* Computes f's midplanes and the children the ray touches. f->xyz, node,
+ * t0, t1 are set; level is the node's level (< GRID_BITS).
+ * Child (hx, hy, hz) (mirrored halves) has the interval [max(t0, mid of
+ * each axis with h = 1), min(t1, mid of each axis with h = 0)], since a
+ * node's near planes are <= t0 and its far planes >= t1. It is non-empty
+ * exactly when each entry is <= each exit, i.e. per axis mid >= t0 (near
+ * half) or mid <= t1 (far half), and per pair of axes a far half of a and
+ * a near half of b need mid_a <= mid_b. Nine comparisons, no branches
+ * (which children a ray touches is unpredictable). */
+static inline __attribute__((always_inline)) void frame_enter(svo_ray *r, const mr_svo *svo, svo_frame *f,
+                                                              unsigned level)
+{
+    /* The node's other fields are read when its children are popped: start
+     * those cache misses together with the child mask's. */
+    __builtin_prefetch(&svo->leaf_mask[f->node]);
+    __builtin_prefetch(&svo->first_leaf[f->node]);
+    __builtin_prefetch(&svo->first_node[f->node]);
+    const uint32_t span = GRID_CELLS >> level;
+    unsigned keep = 0xffu;
+    for (int a = 0; a < 3; a++) {
+        const uint32_t kmid = f->xyz[a] * span + (span >> 1);
+        if (r->par & (1u << a)) {
+            /* Constant position along a: a half is in when its closed slab
+             * holds it (on the midplane, both are). */
+            const double s = plane_s(r, a, kmid);
+            if (s < 0.0)
+                keep &= half_children[a][1];
+            else if (s > 0.0)
+                keep &= half_children[a][0];
+            else
+                r->tie = true;
+            f->mid_en[a] = -INFINITY;
+            f->mid_ex[a] = INFINITY;
+        } else {
+            f->mid_en[a] = f->mid_ex[a] = plane_s(r, a, kmid) * r->inv[a];
+        }
+    }
+    const double *me = f->mid_en, *mx = f->mid_ex;
+    keep &= DROP(mx[0] >= f->t0, 0x55u) & DROP(me[0] <= f->t1, 0xaau);
+    keep &= DROP(mx[1] >= f->t0, 0x33u) & DROP(me[1] <= f->t1, 0xccu);
+    keep &= DROP(mx[2] >= f->t0, 0x0fu) & DROP(me[2] <= f->t1, 0xf0u);
+    /* far half of the first axis, near half of the second */
+    keep &= DROP(me[0] <= mx[1], 0x22u) & DROP(me[1] <= mx[0], 0x44u);
+    keep &= DROP(me[0] <= mx[2], 0x0au) & DROP(me[2] <= mx[0], 0x50u);
+    keep &= DROP(me[1] <= mx[2], 0x0cu) & DROP(me[2] <= mx[1], 0x30u);
+    f->pending = keep & mirror_mask(svo->child_mask[f->node], r->mirror);
+}
+
+static void fill_hit(const svo_ray *r, mr_svo_hit *hit, uint32_t leaf, unsigned level, const uint32_t xyz[3],
+                     int axis, double t0)
+{
+    hit->t = (float)t0;
+    hit->leaf = leaf;
+    hit->level = level;
+    hit->x = xyz[0];
+    hit->y = xyz[1];
+    hit->z = xyz[2];
+    hit->axis = axis;
+    float n[3] = {0.0f, 0.0f, 0.0f};
+    if (axis >= 0)
+        n[axis] = (r->mirror & (1u << axis)) ? 1.0f : -1.0f;
+    hit->ng = mr_v3(n[0], n[1], n[2]);
+}
+
+/* The walk shared by both queries; hit may be NULL. */
+static inline bool svo_walk(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax,
+                            mr_svo_hit *hit)
+{
+    svo_ray r;
+    if (!svo || (svo->node_count == 0 && svo->leaf_count == 0))
+        return false;
+    if (!ray_setup(svo, org, dir, tmin, tmax, &r))
+        return false;
+
+    /* The root cube. The entry face is the axis whose near plane is the
+     * latest, if that is not before tmin (else the ray starts inside). */
+    double t0 = r.tmin, t1 = r.tmax;
+    int axis = -1;
+    for (int a = 0; a < 3; a++) {
+        if (r.par & (1u << a)) {
+            if (plane_s(&r, a, 0) > 0.0 || plane_s(&r, a, GRID_CELLS) < 0.0)
+                return false;
+            continue;
+        }
+        const double ta = plane_s(&r, a, 0) * r.inv[a];
+        const double tb = plane_s(&r, a, GRID_CELLS) * r.inv[a];
+        const double near = DMIN(ta, tb), far = DMAX(ta, tb);
+        if (near > t0 || (near == t0 && axis < 0)) {
+            t0 = near;
+            axis = a;
+        }
+        t1 = DMIN(t1, far);
+    }
+    if (!(t0 <= t1))
+        return false;
+    if (svo->node_count == 0) {
+        /* The root is a leaf. */
+        if (hit) {
+            const uint32_t zero[3] = {0, 0, 0};
+            fill_hit(&r, hit, 0, 0, zero, axis, t0);
+        }
+        return true;
+    }
+
+    svo_frame stack[MR_SVO_MAX_DEPTH + 1];
+    int top = 0; /* == the top frame's level */
+    svo_frame *f = &stack[0];
+    f->node = 0;
+    f->xyz[0] = f->xyz[1] = f->xyz[2] = 0;
+    f->t0 = t0;
+    f->t1 = t1;
+    f->axis = axis;
+    frame_enter(&r, svo, f, 0);
+
+    /* Nearest hit so far, kept only in the tie case (see below). */
+    bool found = false;
+    double best = r.tmax;
+    for (;;) {
+        f = &stack[top];
+        if (f->pending == 0) {
+            if (top == 0)
+                return found;
+            top--;
+            continue;
+        }
+        const unsigned i = (unsigned)__builtin_ctz(f->pending);
+        f->pending &= f->pending - 1u;
+        const unsigned c = i ^ r.mirror;
+        double c0 = f->t0, c1 = DMIN(f->t1, best);
+        int caxis = f->axis;
+        for (int a = 0; a < 3; a++) {
+            if ((i >> a) & 1u) {
+                if (f->mid_en[a] > c0 || (f->mid_en[a] == c0 && caxis < 0)) {
+                    c0 = f->mid_en[a];
+                    caxis = a;
+                }
+            } else {
+                c1 = DMIN(c1, f->mid_ex[a]);
+            }
+        }
+        if (!(c0 <= c1))
+            continue; /* only after a hit in the tie case */
+        const unsigned cbit = 1u << c;
+        const unsigned lmask = svo->leaf_mask[f->node];
+        const unsigned clevel = (unsigned)top + 1u;
+        const uint32_t cxyz[3] = {f->xyz[0] * 2u + (c & 1u), f->xyz[1] * 2u + ((c >> 1) & 1u),
+                                  f->xyz[2] * 2u + (c >> 2)};
+        if (lmask & cbit) {
+            const uint32_t leaf = svo->first_leaf[f->node] + popcount8(lmask & (cbit - 1u));
+            if (leaf >= svo->leaf_count)
+                continue; /* malformed octree: skip rather than read out of bounds */
+            if (!hit)
+                return true;
+            /* The first leaf met is the nearest unless the ray lies in a
+             * midplane it is parallel to: then the two halves along that
+             * axis share one t interval and the walk finishes the other
+             * half, keeping the nearest (ties: the first). */
+            if (!r.tie || c0 <= r.tmin) {
+                fill_hit(&r, hit, leaf, clevel, cxyz, caxis, c0);
+                return true;
+            }
+            if (!found || c0 < best) {
+                fill_hit(&r, hit, leaf, clevel, cxyz, caxis, c0);
+                found = true;
+                best = c0;
+            }
+            continue;
+        }
+        /* Interior children never sit at the finest level. */
+        const unsigned nmask = svo->child_mask[f->node] & ~lmask;
+        const uint32_t node = svo->first_node[f->node] + popcount8(nmask & (cbit - 1u));
+        if (clevel >= GRID_BITS || node >= svo->node_count)
+            continue;
+        svo_frame *g = &stack[++top];
+        g->node = node;
+        g->xyz[0] = cxyz[0];
+        g->xyz[1] = cxyz[1];
+        g->xyz[2] = cxyz[2];
+        g->t0 = c0;
+        g->t1 = c1;
+        g->axis = caxis;
+        frame_enter(&r, svo, g, clevel);
+    }
+}
+
+bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)
+{
+    return svo_walk(svo, org, dir, tmin, tmax, hit);
+}
+
+bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax)
+{
+    return svo_walk(svo, org, dir, tmin, tmax, NULL);
+}
+
+/* Rounds a double down / up to a float, so float boxes stay conservative. */
+static float float_down(double v)
+{
+    float f = (float)v;
+    return (double)f > v ? nextafterf(f, -INFINITY) : f;
+}
+
+static float float_up(double v)
+{
+    float f = (float)v;
+    return (double)f < v ? nextafterf(f, INFINITY) : f;
+}
+
+bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
+{
+    if (!svo) {
+        for (int a = 0; a < 3; a++)
+            lo[a] = hi[a] = 0.0f;
+        return false;
+    }
+    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
+    if (svo->node_count == 0 && svo->leaf_count == 0) {
+        for (int a = 0; a < 3; a++)
+            lo[a] = hi[a] = c[a];
+        return false;
+    }
+    /* Which halves of the root hold anything, per axis. */
+    unsigned low_used = 7u, high_used = 7u;
+    if (svo->node_count > 0) {
+        const unsigned m = svo->child_mask[0];
+        low_used = high_used = 0;
+        for (unsigned ch = 0; ch < 8; ch++) {
+            if (!((m >> ch) & 1u))
+                continue;
+            for (unsigned a = 0; a < 3; a++) {
+                if ((ch >> a) & 1u)
+                    high_used |= 1u << a;
+                else
+                    low_used |= 1u << a;
+            }
+        }
+        if (m == 0)
+            low_used = high_used = 7u; /* malformed: keep the cube */
+    }
+    const double s = (double)svo->size;
+    for (unsigned a = 0; a < 3; a++) {
+        const double l = (low_used >> a) & 1u ? (double)c[a] : (double)c[a] + 0.5 * s;
+        const double h = (high_used >> a) & 1u ? (double)c[a] + s : (double)c[a] + 0.5 * s;
+        lo[a] = float_down(l);
+        hi[a] = float_up(h);
+    }
+    return true;
+}

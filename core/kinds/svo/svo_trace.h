@@ -1,0 +1,76 @@
+/*
+ * svo_trace.h - ray casting of a sparse voxel octree (svo.h): the nearest
+ * leaf voxel along a ray, and an any-hit query for shadow rays (paper 004,
+ * 4.3, replaced: REFERENCE.md "004").
+ *
+ * The thesis restarts from the root after every empty node and pushes the
+ * ray into the next cell by an unspecified epsilon, which is slow and skips
+ * features thinner than the epsilon. This traversal keeps a fixed stack of
+ * one entry per level instead (in the spirit of Laine and Karras 2010), so
+ * it never restarts and never moves the ray:
+ *  - Every t is that of an axis plane at an integer position k of the finest
+ *    grid (2^21 cells per axis, whatever the octree's depth), computed in
+ *    double from the integer: t(k) = (origin - org + k * size * 2^-21) /
+ *    dir. k * size * 2^-21 is exact, so cell boundaries never accumulate
+ *    error, and a plane shared by two cells gets one t for both: the
+ *    children's closed t intervals tile their parent's exactly, and a ray
+ *    that passes through a shared face, edge or corner touches every cell
+ *    there (no leaks between voxels that share only an edge or a corner).
+ *  - Cells are closed boxes: a ray that only grazes a leaf (enters and
+ *    leaves it at the same t, through an edge or corner) hits it.
+ *  - Children are visited in the order c ^ m, m the mask of axes along
+ *    which dir is negative (Revelles-style mirroring). For two children the
+ *    ray touches, the one earlier in that order ends no later than the other
+ *    starts, so the first leaf the depth-first walk meets is the nearest:
+ *    no sorting and no t-max bookkeeping, and the any-hit query is the same
+ *    walk. One exception: a ray lying exactly in a midplane it is parallel
+ *    to touches both halves over the same t interval; then the walk goes on
+ *    after the first hit, pruning by the nearest t so far.
+ *  - Per node: one t per axis (its midplane, (d0 + k * cell) / dir), and
+ *    the touched children from nine comparisons between the midplane t and
+ *    the node's interval, without branches (svo_trace.c).
+ *  - Components of dir that are 0 (or -0) are handled explicitly: the ray is
+ *    parallel to that axis' planes, its t interval there is unbounded, and
+ *    the half of a node it lies in is chosen by comparing positions (on the
+ *    midplane: both halves), so 0 * inf never produces a NaN. Denormal
+ *    components are not zero and give large, finite t in double.
+ * Non-finite org, dir, tmin or tmax (NaN; infinite org or dir) give no hit;
+ * tmax may be +inf. No allocation, no recursion.
+ */
+#ifndef MR_SVO_TRACE_H
+#define MR_SVO_TRACE_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "math/mr_math.h"
+#include "kinds/svo/svo.h"
+
+typedef struct mr_svo_hit {
+    float t;          /* where the ray enters the leaf's box, clipped to tmin */
+    uint32_t leaf;    /* index into svo->leaves */
+    unsigned level;   /* the leaf's level, 0 (root leaf) .. depth */
+    uint32_t x, y, z; /* its integer coordinates at that level, [0, 2^level) */
+    int axis;         /* axis of the face the ray enters through (0, 1, 2; at an
+                         edge or corner one of those faces' axes), or -1 when
+                         the ray starts inside the leaf (t == tmin) */
+    mr_vec3 ng;       /* that face's outward unit normal; 0 when axis == -1 */
+} mr_svo_hit;
+
+/* Nearest leaf whose closed box meets the ray org + t dir, t in [tmin,
+ * tmax], in object space (dir need not be normalised). hit may be NULL.
+ * Returns false and leaves hit untouched when nothing is hit, the octree is
+ * empty or the input is not finite (see above). */
+bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax,
+                      mr_svo_hit *hit);
+
+/* Whether any leaf meets the ray segment (same rules as mr_svo_intersect). */
+bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax);
+
+/* Object-space box of the occupied part of the octree: the cube, shrunk to
+ * the halves of the root that hold children, rounded outwards to float so
+ * the box always contains every leaf. Returns false (lo = hi = origin) for
+ * an empty octree or NULL svo. */
+bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3]);
+
+#endif /* MR_SVO_TRACE_H */
