@@ -3,32 +3,25 @@
  *
  * The parser builds jobs from zeroed allocations and sets counts as soon as
  * arrays exist, so mr_job_free() must (and does) accept any partially built
- * job: NULL strings and arrays are skipped.
+ * job: NULL strings and arrays are skipped. A kind's parameters are released
+ * through its parameter table (kinds/params.h), so no kind is named here.
  */
 #include "job.h"
 
-#include <stdlib.h>
+#include "kinds/kind.h"
 
-static void pose_desc_clear(mr_pose_desc *p)
-{
-    free(p->clip_name);
-    if (p->joints)
-        for (size_t i = 0; i < p->joint_count; i++)
-            free(p->joints[i].joint);
-    free(p->joints);
-}
+#include <stdlib.h>
 
 static void object_desc_clear(mr_object_desc *o)
 {
     free(o->name);
     if (o->poses)
         for (size_t i = 0; i < o->pose_count; i++)
-            pose_desc_clear(&o->poses[i]);
+            mr_pose_desc_clear(&o->poses[i]);
     free(o->poses);
-    if (o->svo.instances)
-        for (size_t i = 0; i < o->svo.instance_count; i++)
-            pose_desc_clear(&o->svo.instances[i].pose);
-    free(o->svo.instances);
+    if (o->params && o->kind && o->kind->params)
+        mr_params_clear(o->kind->params, o->params);
+    free(o->params);
 }
 
 void mr_job_free(mr_job *job)

@@ -72,8 +72,6 @@ struct mr_event_sub {
 struct mr_daemon {
     mr_daemon_config cfg;
     char *data_dir;
-    char *dmm_dir;  /* DATA/dmm: baked DMMs kept across jobs and restarts (core/kinds/dmm/dmm_file.h) */
-    char *svo_dir;  /* DATA/svo: voxelised assets, the same way (core/kinds/svo/svo_file.h) */
     char **roots; /* realpath of each asset root */
     size_t root_count;
     mr_store *store;
@@ -635,14 +633,6 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
         mr_error_prefix(&err, "%s: ", pointer);
         goto fail;
     }
-    /* bakes and voxelisations are kept on disk (created on the first
-     * store), so a job after a restart, or another job on the same asset,
-     * skips them */
-    for (size_t i = 0; i < job->object_count; i++)
-        if (job->objects[i].kind == MR_GEOM_DMM)
-            job->objects[i].dmm.cache_dir = d->dmm_dir;
-        else if (job->objects[i].kind == MR_GEOM_SVO)
-            job->objects[i].svo.cache_dir = d->svo_dir;
     if ((rc = mr_store_frames(d->store, id, &frames, &frame_count, &err)) < 0)
         goto fail;
     states = calloc(job->frame_count, sizeof *states);
@@ -666,6 +656,10 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
         .cancel = &entry->cancel,
         .acquire_asset = run_acquire,
         .release_asset = run_release,
+        /* derived data (bakes, voxelisations) is kept in DATA/<kind>/
+         * (created on the first store), so a job after a restart, or
+         * another job on the same asset, skips deriving it again */
+        .cache_dir = d->data_dir,
     };
     rc = mr_worker_run(d->dev, job, &io, &stats, &err);
     if (rc == MR_ERR_CANCELLED) {
@@ -860,12 +854,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
     apply_defaults(&d->cfg);
     d->data_dir = strdup(cfg->data_dir);
     d->roots = calloc(cfg->asset_root_count ? cfg->asset_root_count : 1, sizeof *d->roots);
-    size_t dmm_len = strlen(cfg->data_dir) + sizeof "/dmm";
-    if ((d->dmm_dir = malloc(dmm_len)))
-        snprintf(d->dmm_dir, dmm_len, "%s/dmm", cfg->data_dir);
-    if ((d->svo_dir = malloc(dmm_len)))
-        snprintf(d->svo_dir, dmm_len, "%s/svo", cfg->data_dir);
-    if (!d->data_dir || !d->roots || !d->dmm_dir || !d->svo_dir) {
+    if (!d->data_dir || !d->roots) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
         goto fail;
     }
@@ -946,8 +935,6 @@ void mr_daemon_stop(mr_daemon *d)
         free(d->roots[i]);
     free(d->roots);
     free(d->data_dir);
-    free(d->dmm_dir);
-    free(d->svo_dir);
     pthread_cond_destroy(&d->wake);
     pthread_cond_destroy(&d->released);
     pthread_mutex_destroy(&d->lock);

@@ -25,6 +25,8 @@
  */
 #include "job_json.h"
 
+#include "kinds/kind.h"
+
 #include <cJSON.h>
 #include <float.h>
 #include <limits.h>
@@ -926,14 +928,6 @@ static int parse_object_pose(jctx *c, const cJSON *v, mr_object_desc *o, size_t 
     return MR_OK;
 }
 
-static const char *const OBJECT_FIELDS[] = {"name", "asset", "kind", "dmm", "svo", "transform",
-                                            "color", "pose"};
-static const char *const DMM_FIELDS[] = {"level",  "base_ratio",  "base_triangles",
-                                         "mode",   "deformation", "normals", "levels"};
-static const num_spec SPEC_DMM_LEVEL = {0, 5, NUM_INT, NULL};
-static const num_spec SPEC_DMM_RATIO = {0, 1, NUM_LO_OPEN, NULL};
-static const num_spec SPEC_DMM_TRIANGLES = {1, MR_MAX_ASSET_TRIANGLES, NUM_INT, NULL};
-
 /* Index of v's string in names, or a failure naming the choices. */
 static int get_choice(jctx *c, const cJSON *v, const char *const *names, size_t count,
                       const char *expected, int *out)
@@ -947,182 +941,185 @@ static int get_choice(jctx *c, const cJSON *v, const char *const *names, size_t 
     return fail_expected(c, expected, v);
 }
 
-/* Order matches mr_dmm_mode, mr_dmm_deform and mr_dmm_normals. */
-static const char *const DMM_MODES[] = {"tessellated", "base", "interpolated"};
-static const char *const DMM_DEFORMS[] = {"base", "interpolated"};
-static const char *const DMM_NORMALS[] = {"geometric", "matrix"};
-/* "levels": false / true of mr_dmm_desc.adaptive. */
-static const char *const DMM_LEVELS[] = {"uniform", "adaptive"};
-
-/* The "dmm" bake parameters of a dmm object; base_ratio and base_triangles
- * are alternatives. "deformation" chooses what mode "tessellated" expands
- * and must agree with the other modes. */
-static int parse_dmm(jctx *c, const cJSON *v, mr_dmm_desc *d)
+/* "one of: \"a\", \"b\"" for a choice list. */
+static void choices_text(const char *const *names, size_t count, char *buf, size_t n)
 {
-    TRY(want_object(c, v, "an object of dmm bake parameters"));
-    TRY(check_fields(c, v, DMM_FIELDS, COUNT_OF(DMM_FIELDS)));
-    const cJSON *level = field(v, "level"), *ratio = field(v, "base_ratio"),
-                *tris = field(v, "base_triangles"), *mode = field(v, "mode"),
-                *deform = field(v, "deformation"), *normals = field(v, "normals"),
-                *levels = field(v, "levels");
+    size_t o = (size_t)snprintf(buf, n, "one of: ");
+    for (size_t i = 0; i < count && o < n; i++)
+        o += (size_t)snprintf(buf + o, n - o, "%s\"%s\"", i ? ", " : "", names[i]);
+}
+
+/* ------------------------------------------------------------------------ */
+/* A kind's parameter block, read from its table (core/kinds/params.h).     */
+
+#define PARAM_AT(values, off, type) ((type *)((char *)(values) + (off)))
+
+static num_spec param_spec(const mr_param *p)
+{
+    unsigned flags = (p->type == MR_PARAM_INT ? NUM_INT : 0u) |
+                     ((p->flags & MR_PARAM_LO_OPEN) ? NUM_LO_OPEN : 0u) |
+                     ((p->flags & MR_PARAM_HI_OPEN) ? NUM_HI_OPEN : 0u);
+    return (num_spec){p->lo, p->hi, flags, p->expect};
+}
+
+static int parse_params(jctx *c, const cJSON *v, const mr_param_table *t, void *values,
+                        bool flag_object);
+
+/* Fails at the hook's field with its message. */
+static int fail_param(jctx *c, const mr_param_error *pe)
+{
+    if (pe->field[0])
+        push_key(c, pe->field);
+    return fail(c, pe->code ? pe->code : MR_ERR_INVALID, "%s", pe->message);
+}
+
+static int parse_param_array(jctx *c, const cJSON *v, const mr_param *p, void *values)
+{
+    char expect[128];
+    snprintf(expect, sizeof expect, "an array of 1..%zu %s", p->max_items, p->sub->plural);
+    if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) == 0)
+        return fail_expected(c, expect, v);
+    size_t n = (size_t)cJSON_GetArraySize(v);
+    if (n > p->max_items)
+        return fail(c, MR_ERR_LIMIT, "expected at most %zu %s, got %zu", p->max_items, p->field, n);
+    char *items = calloc(n, p->sub->size);
+    if (!items)
+        return fail_nomem(c);
+    *PARAM_AT(values, p->offset, char *) = items;
+    *PARAM_AT(values, p->count_offset, size_t) = n;
+    size_t i = 0;
+    for (const cJSON *e = v->child; e; e = e->next, i++) {
+        void *item = items + i * p->sub->size;
+        mr_params_defaults(p->sub, item);
+        AT_INDEX(c, i, parse_params(c, e, p->sub, item, false));
+    }
+    return MR_OK;
+}
+
+static int parse_param(jctx *c, const cJSON *v, const mr_param *p, void *values)
+{
     double x;
-    int choice = 0;
-    if (level) {
-        AT_KEY(c, "level", get_num(c, level, &SPEC_DMM_LEVEL, &x));
-        d->level = (unsigned)x;
+    int choice;
+    num_spec spec = param_spec(p);
+    switch (p->type) {
+    case MR_PARAM_INT:
+        TRY(get_num(c, v, &spec, &x));
+        *PARAM_AT(values, p->offset, uint32_t) = (uint32_t)x;
+        return MR_OK;
+    case MR_PARAM_NUMBER:
+        TRY(get_num(c, v, &spec, &x));
+        *PARAM_AT(values, p->offset, float) = (float)x;
+        return MR_OK;
+    case MR_PARAM_BOOL:
+        return get_bool(c, v, PARAM_AT(values, p->offset, bool));
+    case MR_PARAM_ENUM: {
+        char expect[256];
+        if (p->expect)
+            snprintf(expect, sizeof expect, "%s", p->expect);
+        else
+            choices_text(p->choices, p->choice_count, expect, sizeof expect);
+        TRY(get_choice(c, v, p->choices, p->choice_count, expect, &choice));
+        *PARAM_AT(values, p->offset, int) = choice;
+        return MR_OK;
     }
-    if (ratio && tris) {
-        push_key(c, "base_triangles");
-        return fail(c, MR_ERR_INVALID, "give either \"base_ratio\" or \"base_triangles\", not both");
-    }
-    if (ratio) {
-        AT_KEY(c, "base_ratio", get_num(c, ratio, &SPEC_DMM_RATIO, &x));
-        d->base_ratio = (float)x;
-    }
-    if (tris) {
-        AT_KEY(c, "base_triangles", get_num(c, tris, &SPEC_DMM_TRIANGLES, &x));
-        d->base_triangles = (uint32_t)x;
-    }
-    if (mode) {
-        AT_KEY(c, "mode", get_choice(c, mode, DMM_MODES, COUNT_OF(DMM_MODES),
-                                     "one of: \"tessellated\", \"base\", \"interpolated\"",
-                                     &choice));
-        d->mode = (mr_dmm_mode)choice;
-        if (d->mode == MR_DMM_INTERPOLATED)
-            d->deform = MR_DMM_DEFORM_INTERPOLATED;
-    }
-    if (deform) {
-        AT_KEY(c, "deformation",
-               get_choice(c, deform, DMM_DEFORMS, COUNT_OF(DMM_DEFORMS),
-                          "one of: \"base\", \"interpolated\"", &choice));
-        if (d->mode != MR_DMM_TESSELLATED && choice != (int)d->deform) {
-            push_key(c, "deformation");
-            return fail(c, MR_ERR_INVALID,
-                        "mode \"%s\" deforms by \"%s\"; \"deformation\" only chooses what "
-                        "mode \"tessellated\" expands",
-                        DMM_MODES[d->mode], DMM_DEFORMS[d->deform]);
+    case MR_PARAM_FLAG_OBJECT:
+        if (cJSON_IsBool(v)) {
+            *PARAM_AT(values, p->offset, bool) = cJSON_IsTrue(v);
+            return MR_OK;
         }
-        d->deform = (mr_dmm_deform)choice;
+        TRY(parse_params(c, v, p->sub, values, true));
+        *PARAM_AT(values, p->offset, bool) = true;
+        return MR_OK;
+    case MR_PARAM_ARRAY:
+        return parse_param_array(c, v, p, values);
+    case MR_PARAM_TRANSFORM:
+        return get_transform(c, v, PARAM_AT(values, p->offset, mr_mat4));
+    case MR_PARAM_POSE:
+        TRY(parse_pose(c, v, PARAM_AT(values, p->offset, mr_pose_desc)));
+        *PARAM_AT(values, p->present_offset, bool) = true;
+        return MR_OK;
     }
-    if (normals) {
-        AT_KEY(c, "normals", get_choice(c, normals, DMM_NORMALS, COUNT_OF(DMM_NORMALS),
-                                        "one of: \"geometric\", \"matrix\"", &choice));
-        d->normals = (mr_dmm_normals)choice;
-    }
-    if (levels) {
-        AT_KEY(c, "levels", get_choice(c, levels, DMM_LEVELS, COUNT_OF(DMM_LEVELS),
-                                       "one of: \"uniform\", \"adaptive\"", &choice));
-        d->adaptive = choice == 1;
-    }
-    return MR_OK;
+    return fail(c, MR_ERR_INVALID, "unsupported parameter type");
 }
 
-static const char *const SVO_FIELDS[] = {"depth", "voxelize", "method", "delta",
-                                         "cull", "skeleton", "instances"};
-static const char *const SVO_SKELETON_FIELDS[] = {"omega"};
-static const char *const SVO_INSTANCE_FIELDS[] = {"transform", "pose"};
-static const num_spec SPEC_SVO_DEPTH = {1, MR_SVO_JOB_MAX_DEPTH, NUM_INT, NULL};
-static const num_spec SPEC_SVO_DELTA = {0, 1e6, NUM_LO_OPEN, "a number of pixels in (0, 1e6]"};
-static const num_spec SPEC_SVO_OMEGA = {0, 0.5, NUM_LO_OPEN, "a fraction of the voxel cube in (0, 0.5]"};
-/* Order matches mr_svo_voxelize_mode and mr_svo_method. */
-static const char *const SVO_VOXELIZE[] = {"surface", "solid"};
-static const char *const SVO_METHODS[] = {"rigid", "direct", "resize", "emit"};
-
-static int parse_svo_instance(jctx *c, const cJSON *v, mr_svo_instance_desc *in)
+/* Reads object v into values (already holding the table's defaults):
+ * known and unique keys, then every field in table order, each followed by
+ * its after hook. flag_object: v is a FLAG_OBJECT's object form. */
+static int parse_params(jctx *c, const cJSON *v, const mr_param_table *t, void *values,
+                        bool flag_object)
 {
-    TRY(want_object(c, v, "an instance object"));
-    TRY(check_fields(c, v, SVO_INSTANCE_FIELDS, COUNT_OF(SVO_INSTANCE_FIELDS)));
-    const cJSON *xf = field(v, "transform"), *pose = field(v, "pose");
-    in->transform = mr_mat4_identity();
-    if (xf)
-        AT_KEY(c, "transform", get_transform(c, xf, &in->transform));
-    if (pose) {
-        AT_KEY(c, "pose", parse_pose(c, pose, &in->pose));
-        in->has_pose = true;
-    }
-    return MR_OK;
-}
-
-/* The "svo" parameters of an svo object. */
-static int parse_svo(jctx *c, const cJSON *v, mr_svo_desc *d)
-{
-    TRY(want_object(c, v, "an object of svo parameters"));
-    TRY(check_fields(c, v, SVO_FIELDS, COUNT_OF(SVO_FIELDS)));
-    const cJSON *depth = field(v, "depth"), *vox = field(v, "voxelize"),
-                *method = field(v, "method"), *delta = field(v, "delta"), *cull = field(v, "cull"),
-                *skel = field(v, "skeleton"), *inst = field(v, "instances");
-    double x;
-    int choice = 0;
-    if (depth) {
-        AT_KEY(c, "depth", get_num(c, depth, &SPEC_SVO_DEPTH, &x));
-        d->depth = (unsigned)x;
-    }
-    if (vox) {
-        AT_KEY(c, "voxelize", get_choice(c, vox, SVO_VOXELIZE, COUNT_OF(SVO_VOXELIZE),
-                                         "one of: \"surface\", \"solid\"", &choice));
-        d->voxelize = (mr_svo_voxelize_mode)choice;
-    }
-    if (d->voxelize == MR_SVO_VOXELIZE_SOLID && d->depth > MR_SVO_SOLID_MAX_DEPTH) {
-        push_key(c, depth ? "depth" : "voxelize");
-        return fail(c, MR_ERR_LIMIT, "solid voxelisation goes to depth %u at most, asked for %u",
-                    MR_SVO_SOLID_MAX_DEPTH, d->depth);
-    }
-    if (method) {
-        AT_KEY(c, "method", get_choice(c, method, SVO_METHODS, COUNT_OF(SVO_METHODS),
-                                       "one of: \"rigid\", \"direct\", \"resize\", \"emit\"",
-                                       &choice));
-        d->method = (mr_svo_method)choice;
-    }
-    if (delta) {
-        AT_KEY(c, "delta", get_num(c, delta, &SPEC_SVO_DELTA, &x));
-        d->delta = (float)x;
-    }
-    if (cull)
-        AT_KEY(c, "cull", get_bool(c, cull, &d->cull));
-    if (skel) {
-        size_t mark = push_key(c, "skeleton");
-        if (cJSON_IsBool(skel)) {
-            d->skeleton = cJSON_IsTrue(skel);
-        } else {
-            TRY(want_object(c, skel, "true, false or an object of skeleton parameters"));
-            TRY(check_fields(c, skel, SVO_SKELETON_FIELDS, COUNT_OF(SVO_SKELETON_FIELDS)));
-            const cJSON *omega = field(skel, "omega");
-            if (omega) {
-                AT_KEY(c, "omega", get_num(c, omega, &SPEC_SVO_OMEGA, &x));
-                d->omega = (float)x;
+    const char *names[MR_PARAM_MAX_FIELDS];
+    bool given[MR_PARAM_MAX_FIELDS] = {false};
+    (void)flag_object;
+    TRY(want_object(c, v, t->expect));
+    for (size_t i = 0; i < t->count; i++)
+        names[i] = t->params[i].field;
+    TRY(check_fields(c, v, names, t->count));
+    for (size_t i = 0; i < t->count; i++)
+        given[i] = field(v, names[i]) != NULL;
+    for (size_t i = 0; i < t->count; i++) {
+        const mr_param *p = &t->params[i];
+        const cJSON *fv = field(v, p->field);
+        if (fv && p->conflicts) {
+            int k = mr_param_index(t, p->conflicts);
+            if (k >= 0 && given[k]) {
+                push_key(c, p->conflicts);
+                return fail(c, MR_ERR_INVALID, "give either \"%s\" or \"%s\", not both", p->field,
+                            p->conflicts);
             }
-            d->skeleton = true;
         }
-        pop(c, mark);
+        if (fv)
+            AT_KEY(c, p->field, parse_param(c, fv, p, values));
+        if (p->after) {
+            mr_param_error pe = {0};
+            if (p->after(values, given, &pe) < 0)
+                return fail_param(c, &pe);
+        }
     }
-    if (inst) {
-        size_t mark = push_key(c, "instances");
-        if (!cJSON_IsArray(inst) || cJSON_GetArraySize(inst) == 0)
-            return fail_expected(c, "an array of 1..100000 instance objects", inst);
-        size_t n = (size_t)cJSON_GetArraySize(inst);
-        if (n > MR_SVO_MAX_INSTANCES)
-            return fail(c, MR_ERR_LIMIT, "expected at most %u instances, got %zu",
-                        MR_SVO_MAX_INSTANCES, n);
-        d->instances = calloc(n, sizeof *d->instances);
-        if (!d->instances)
-            return fail_nomem(c);
-        d->instance_count = n;
-        size_t i = 0;
-        for (const cJSON *e = inst->child; e; e = e->next, i++)
-            AT_INDEX(c, i, parse_svo_instance(c, e, &d->instances[i]));
-        pop(c, mark);
-    }
+    return MR_OK;
+}
+
+static const char *const OBJECT_FIELDS_HEAD[] = {"name", "asset", "kind"};
+static const char *const OBJECT_FIELDS_TAIL[] = {"transform", "color", "pose"};
+
+/* The keys an object may have: its own, and after "kind" each registered
+ * kind's parameter block, in registry order. */
+static size_t object_fields(const char **names, size_t cap)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < COUNT_OF(OBJECT_FIELDS_HEAD) && n < cap; i++)
+        names[n++] = OBJECT_FIELDS_HEAD[i];
+    for (size_t i = 0; i < mr_kind_count() && n < cap; i++)
+        if (mr_kind_at(i)->params)
+            names[n++] = mr_kind_at(i)->name;
+    for (size_t i = 0; i < COUNT_OF(OBJECT_FIELDS_TAIL) && n < cap; i++)
+        names[n++] = OBJECT_FIELDS_TAIL[i];
+    return n;
+}
+
+static int parse_kind(jctx *c, const cJSON *v, const mr_kind **out)
+{
+    const char *names[32];
+    size_t n = 0;
+    for (size_t i = 0; i < mr_kind_count() && n < COUNT_OF(names); i++)
+        names[n++] = mr_kind_at(i)->name;
+    char expect[512];
+    choices_text(names, n, expect, sizeof expect);
+    int choice = 0;
+    TRY(get_choice(c, v, names, n, expect, &choice));
+    *out = mr_kind_at((size_t)choice);
     return MR_OK;
 }
 
 static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_object_desc *o)
 {
+    const char *fields[MR_PARAM_MAX_FIELDS];
+    size_t field_count = object_fields(fields, COUNT_OF(fields));
     TRY(want_object(c, v, "an object description"));
-    TRY(check_fields(c, v, OBJECT_FIELDS, COUNT_OF(OBJECT_FIELDS)));
+    TRY(check_fields(c, v, fields, field_count));
     TRY(require(c, v, "asset"));
     const cJSON *name = field(v, "name"), *kind = field(v, "kind"), *xf = field(v, "transform"),
-                *color = field(v, "color"), *pose = field(v, "pose"), *dmm = field(v, "dmm"),
-                *svo = field(v, "svo");
+                *color = field(v, "color"), *pose = field(v, "pose");
     if (name) {
         AT_KEY(c, "name", get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
@@ -1131,32 +1128,26 @@ static int parse_object(jctx *c, const cJSON *v, mr_job *job, size_t index, mr_o
         TRY(dup_string(c, buf, &o->name));
     }
     AT_KEY(c, "asset", find_asset(c, field(v, "asset"), job, &o->asset));
-    o->kind = MR_GEOM_MESH;
-    if (kind) {
-        static const char *const kinds[] = {"mesh", "dmm", "svo"}; /* order of mr_geom_kind */
-        int choice = 0;
-        AT_KEY(c, "kind", get_choice(c, kind, kinds, COUNT_OF(kinds),
-                                     "one of: \"mesh\", \"dmm\", \"svo\"", &choice));
-        o->kind = (mr_geom_kind)choice;
+    o->kind = mr_kind_at(0); /* the default kind: triangle meshes */
+    if (kind)
+        AT_KEY(c, "kind", parse_kind(c, kind, &o->kind));
+    if (o->kind->params) {
+        if (!(o->params = calloc(1, o->kind->params->size)))
+            return fail_nomem(c);
+        mr_params_defaults(o->kind->params, o->params);
     }
-    o->dmm = (mr_dmm_desc){.level = MR_DMM_DEFAULT_LEVEL, .base_ratio = MR_DMM_DEFAULT_BASE_RATIO,
-                           .mode = MR_DMM_TESSELLATED,
-                           .deform = MR_DMM_DEFORM_BASE,
-                           .normals = MR_DMM_NORMALS_GEOMETRIC};
-    if (dmm && o->kind != MR_GEOM_DMM) {
-        push_key(c, "dmm");
-        return fail(c, MR_ERR_INVALID, "\"dmm\" parameters need \"kind\": \"dmm\"");
+    for (size_t i = 0; i < mr_kind_count(); i++) {
+        const mr_kind *k = mr_kind_at(i);
+        const cJSON *block = k->params ? field(v, k->name) : NULL;
+        if (!block)
+            continue;
+        if (k != o->kind) {
+            push_key(c, k->name);
+            return fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", k->name,
+                        k->name);
+        }
+        AT_KEY(c, k->name, parse_params(c, block, k->params, o->params, false));
     }
-    if (dmm)
-        AT_KEY(c, "dmm", parse_dmm(c, dmm, &o->dmm));
-    o->svo = (mr_svo_desc){.depth = MR_SVO_DEFAULT_DEPTH, .voxelize = MR_SVO_VOXELIZE_SURFACE,
-                           .method = MR_SVO_RIGID, .delta = MR_SVO_DEFAULT_DELTA, .cull = true};
-    if (svo && o->kind != MR_GEOM_SVO) {
-        push_key(c, "svo");
-        return fail(c, MR_ERR_INVALID, "\"svo\" parameters need \"kind\": \"svo\"");
-    }
-    if (svo)
-        AT_KEY(c, "svo", parse_svo(c, svo, &o->svo));
     o->transform = mr_mat4_identity();
     if (xf)
         AT_KEY(c, "transform", get_transform(c, xf, &o->transform));

@@ -130,16 +130,16 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 
 static void usage_render(void)
 {
-    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--dmm-cache DIR] "
-                    "[--svo-cache DIR] [--quiet]\n"
-                    "  --dmm-cache DIR  keep baked DMMs in DIR (created if missing) and reuse them "
-                    "(default: bake every time)\n"
-                    "  --svo-cache DIR  keep voxelised assets (svo objects) in DIR the same way\n");
+    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
+                    "[--quiet]\n"
+                    "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
+                    "(created if missing)\n"
+                    "               and reuse it (default: derive it again every time)\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
 {
-    const char *job_path = NULL, *out_dir = NULL, *dmm_cache = NULL, *svo_cache = NULL;
+    const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL;
     unsigned threads = 0;
     bool quiet = false;
     for (int i = 0; i < argc; i++) {
@@ -153,16 +153,10 @@ int mr_cmd_render(int argc, char **argv)
                 return EXIT_USAGE;
             }
             threads = (unsigned)v;
-        } else if (!strcmp(argv[i], "--dmm-cache") && i + 1 < argc) {
-            dmm_cache = argv[++i];
-            if (!dmm_cache[0]) {
-                fprintf(stderr, "microrayd: --dmm-cache wants a directory\n");
-                return EXIT_USAGE;
-            }
-        } else if (!strcmp(argv[i], "--svo-cache") && i + 1 < argc) {
-            svo_cache = argv[++i];
-            if (!svo_cache[0]) {
-                fprintf(stderr, "microrayd: --svo-cache wants a directory\n");
+        } else if (!strcmp(argv[i], "--cache") && i + 1 < argc) {
+            cache_dir = argv[++i];
+            if (!cache_dir[0]) {
+                fprintf(stderr, "microrayd: --cache wants a directory\n");
                 return EXIT_USAGE;
             }
         } else if (!strcmp(argv[i], "--quiet")) {
@@ -205,13 +199,9 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
-    for (size_t i = 0; i < job->object_count; i++)
-        if (job->objects[i].kind == MR_GEOM_DMM)
-            job->objects[i].dmm.cache_dir = dmm_cache;
-        else if (job->objects[i].kind == MR_GEOM_SVO)
-            job->objects[i].svo.cache_dir = svo_cache;
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
-    mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress};
+    mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress,
+                       .cache_dir = cache_dir};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
         status = exit_status(rc);

@@ -45,6 +45,8 @@ typedef struct mr_worker_io {
     int (*acquire_asset)(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
                          double *saved_s, mr_error *err);
     void (*release_asset)(void *user, mr_asset *asset);
+    /* Root of the derived-data cache (mr_renderer_options.cache_dir), or NULL. */
+    const char *cache_dir;
 } mr_worker_io;
 
 /* File name of frame `index` within a job's output ("0007.exr"). */

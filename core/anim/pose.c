@@ -268,3 +268,15 @@ int mr_pose_eval(mr_pose *pose, const mr_asset *asset, const mr_pose_desc *desc,
     }
     return MR_OK;
 }
+
+void mr_pose_desc_clear(mr_pose_desc *p)
+{
+    if (!p)
+        return;
+    free(p->clip_name);
+    if (p->joints)
+        for (size_t i = 0; i < p->joint_count; i++)
+            free(p->joints[i].joint);
+    free(p->joints);
+    *p = (mr_pose_desc){0};
+}

@@ -32,6 +32,10 @@ typedef struct mr_pose_desc {
     mr_joint_override *joints;
 } mr_pose_desc;
 
+/* Frees the strings and joint overrides a pose description owns (a job's
+ * parser allocates them) and zeroes it. */
+void mr_pose_desc_clear(mr_pose_desc *p);
+
 /* Global transforms of every node of one asset. */
 typedef struct mr_pose {
     size_t node_count;

@@ -1,18 +1,9 @@
-/* geom.c - the geometry kind table (geom.h). */
+/* kind.c - helpers shared by geometry kinds (kind.h): triangle soups and
+ * Embree triangle geometries. The registry is registry.c. */
 #include "kinds/kind.h"
 
 #include <stdlib.h>
 #include <string.h>
-
-const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind)
-{
-    switch (kind) {
-    case MR_GEOM_MESH: return &mr_geom_mesh_ops;
-    case MR_GEOM_DMM: return &mr_geom_dmm_ops;
-    case MR_GEOM_SVO: return &mr_geom_svo_ops;
-    }
-    return NULL;
-}
 
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,
                     uint32_t triangle_count, mr_trimesh *out, mr_error *err)

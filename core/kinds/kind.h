@@ -1,10 +1,14 @@
 /*
- * geom.h - the one interface every geometry kind implements.
+ * kind.h - what a geometry kind is: one descriptor (mr_kind) holding its
+ * job name, its parameter table (params.h), its contracts and its ops.
  *
  * A kind turns an imported asset into something Embree can trace and keeps
  * it up to date frame by frame:
  *   create      build the derived data once from the asset (for a triangle
- *               mesh: vertex/index buffers sized for all its meshes);
+ *               mesh: vertex/index buffers sized for all its meshes); the
+ *               context names the kind's own folder of the derived-data
+ *               cache (<cache root>/<kind name>/, when it declares
+ *               has_derived and the caller keeps a cache) and the threads;
  *   update      deform for this frame's pose and object transform (the
  *               frame says when and from where: kinds that refine for the
  *               screen, like svo, need the camera);
@@ -22,19 +26,32 @@
  *               scene needs one id per instance: the renderer hands it the
  *               first, and maps a hit's instID back to the object, passing
  *               the instance index (id - first) to normal as prim.
+ *   frame_stats the values of the kind's own per-frame statistics fields
+ *               (`stats`, in that order) for the frame just updated; they
+ *               reach stats.json and the HTTP stats by the one generic path.
+ *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
  * self_posed: the kind evaluates poses itself (svo: one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to
  * update and leaves checking pose names to create.
- * A new technique is a new module implementing mr_geom_ops plus a schema
- * entry; the renderer does not change.
+ * animated: whether an object of the kind changes from frame to frame even
+ * when its pose does not (NULL: only a pose animates it).
+ * frame_order: INDEPENDENT kinds can render any frame on its own;
+ * SEQUENTIAL ones (a simulation) need frames 0..N-1 before N. The renderer
+ * honours it: asked for frame N out of order (a resumed or retried job, a
+ * frame range) it rewinds and replays the updates of the frames before N
+ * without tracing them, so every frame is what an uninterrupted run gives.
+ *
+ * A new technique is a folder under core/kinds/ with its descriptor and one
+ * line in core/kinds/registry.c; nothing else changes.
  */
-#ifndef MR_GEOM_H
-#define MR_GEOM_H
+#ifndef MR_KIND_H
+#define MR_KIND_H
 
 #include <embree3/rtcore.h>
 
 #include "anim/pose.h"
 #include "job.h"
+#include "kinds/params.h"
 #include "render/camera.h"
 
 typedef struct mr_geom mr_geom; /* a kind's own instance data */
@@ -59,10 +76,36 @@ typedef struct mr_geom_frame {
     int width, height;  /* film size in pixels */
 } mr_geom_frame;
 
-typedef struct mr_geom_ops {
-    const char *name;   /* the job's "kind" string */
+/* Where a kind builds from: its folder of derived data and its threads. */
+typedef struct mr_kind_context {
+    const char *cache_dir; /* <cache root>/<kind name>, or NULL: no disk cache */
+    unsigned threads;      /* the job's thread count (0: all cores) */
+} mr_kind_context;
+
+/* One of a kind's own per-frame statistics fields. */
+typedef struct mr_kind_stat {
+    const char *name;        /* stats.json key, unique among all fields */
+    const char *unit;        /* "s", "count", "bytes", ... */
+    const char *description; /* one line */
+} mr_kind_stat;
+
+typedef enum mr_frame_order {
+    MR_FRAMES_INDEPENDENT = 0, /* any frame can be rendered alone */
+    MR_FRAMES_SEQUENTIAL       /* frame N needs frames 0..N-1 (a simulation) */
+} mr_frame_order;
+
+struct mr_kind {
+    const char *name;              /* the job's "kind" string and its block's key */
+    const char *summary;           /* one line, for the schema and docs */
+    const mr_param_table *params;  /* the block's fields, NULL: the kind takes none */
+    mr_frame_order frame_order;
+    bool has_derived;              /* keeps derived data in <cache root>/<name>/ */
+    const mr_kind_stat *stats;     /* its own per-frame stats fields */
+    size_t stat_count;
     bool self_posed;
-    int (*create)(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err);
+    bool (*animated)(const void *params);
+    int (*create)(const mr_asset *asset, const mr_object_desc *desc, const mr_kind_context *ctx,
+                  mr_geom **out, mr_error *err);
     int (*update)(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                   const mr_mat4 *transform, unsigned threads, mr_error *err);
     int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
@@ -73,11 +116,23 @@ typedef struct mr_geom_ops {
     size_t (*memory)(const mr_geom *g);
     uint64_t (*primitives)(const mr_geom *g);
     uint32_t (*geometry_ids)(const mr_geom *g);
+    void (*frame_stats)(const mr_geom *g, double *values);
+    int (*rewind)(mr_geom *g, mr_error *err);
     void (*free)(mr_geom *g);
-} mr_geom_ops;
+};
 
-/* The kind table: ops for a kind, or NULL. */
-const mr_geom_ops *mr_geom_kind_ops(mr_geom_kind kind);
+/* The registry (core/kinds/registry.c): the built-in kinds, in a fixed
+ * order, then any added by mr_kind_register. */
+size_t mr_kind_count(void);
+const mr_kind *mr_kind_at(size_t i);
+/* The kind named name, or NULL. */
+const mr_kind *mr_kind_find(const char *name);
+/* Adds a kind (tests, plug-ins) before any job is parsed or rendered; not
+ * thread-safe. Fails on a name already taken or a full registry. */
+int mr_kind_register(const mr_kind *kind, mr_error *err);
+/* <root>/<kind name> for a kind that keeps derived data, malloc'ed; NULL
+ * (and MR_OK) when root is NULL/empty or the kind keeps none. */
+int mr_kind_cache_dir(const mr_kind *kind, const char *root, char **out, mr_error *err);
 
 void mr_trimesh_free(mr_trimesh *m);
 /* A copy of a triangle soup (what a kind whose Embree form is already
@@ -95,14 +150,5 @@ int mr_geom_attach_triangles(RTCDevice device, RTCScene scene, unsigned geom_id,
                              uint32_t *indices, uint32_t triangle_count, RTCGeometry *out,
                              mr_error *err);
 void mr_geom_commit_vertices(RTCGeometry geom);
-
-/* Triangle meshes (core/kinds/mesh/mesh_kind.c). */
-extern const mr_geom_ops mr_geom_mesh_ops;
-
-/* Displaced micro-meshes baked from an asset's meshes (core/kinds/dmm/dmm_kind.c). */
-extern const mr_geom_ops mr_geom_dmm_ops;
-
-/* Sparse voxel octree instances (core/kinds/svo/svo_kind.c). */
-extern const mr_geom_ops mr_geom_svo_ops;
 
 #endif

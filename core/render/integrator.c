@@ -75,7 +75,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     mr_vec3 ng = mr_v3_normalize_or(h->ng, mr_v3(0, 0, 1));
     if (mr_v3_dot(ng, dir) > 0)
         ng = mr_v3_scale(ng, -1.0f);
-    mr_vec3 n = obj->ops->normal(obj->geom, h->prim, h->u, h->v);
+    mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v);
     n = mr_v3_normalize_or(n, ng);
     if (mr_v3_dot(n, dir) > 0)
         n = mr_v3_scale(n, -1.0f);
@@ -153,7 +153,7 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
     *rays += (uint64_t)n;
     for (int i = 0; i < n; i++) {
         /* An instance hit names the instance's top-level id; the kind
-         * learns which instance as prim (geom.h geometry_ids). */
+         * learns which instance as prim (kind.h geometry_ids). */
         bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
         unsigned id = instanced ? rh.hit.instID[0][i] : rh.hit.geomID[i];
         unsigned geom = s->id_object ? (id < s->id_count ? s->id_object[id] : UINT_MAX) : id;

@@ -32,10 +32,10 @@
 
 /* What the integrator needs to know about one object to shade its hits. */
 typedef struct mr_shade_object {
-    const mr_geom_ops *ops;
+    const mr_kind *kind;
     const mr_geom *geom;
     mr_vec3 albedo;
-    unsigned first_id;  /* its first Embree geometry id (geom.h geometry_ids) */
+    unsigned first_id;  /* its first Embree geometry id (kind.h geometry_ids) */
 } mr_shade_object;
 
 typedef struct mr_trace_setup {

@@ -14,11 +14,13 @@
 typedef struct object_state {
     const mr_object_desc *desc;
     const mr_asset *asset;
-    const mr_geom_ops *ops;
+    const mr_kind *kind;
     mr_geom *geom;
     mr_pose *pose;
     bool animated;   /* pose changes from frame to frame */
     bool posed_once;
+    char *cache_dir; /* the kind's folder of derived data, or NULL */
+    size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
 } object_state;
 
 struct mr_renderer {
@@ -77,9 +79,9 @@ static const mr_pose_desc *pose_for_frame(const mr_object_desc *d, size_t frame)
 
 static bool object_is_animated(const mr_object_desc *d, size_t frame_count)
 {
-    /* Deformed voxels are selected for the screen and rebuilt every frame
-     * (paper 004's pipeline), whatever moves. */
-    if (frame_count >= 2 && d->kind == MR_GEOM_SVO && d->svo.method != MR_SVO_RIGID)
+    if (frame_count >= 2 && d->kind->frame_order == MR_FRAMES_SEQUENTIAL)
+        return true;
+    if (frame_count >= 2 && d->kind->animated && d->params && d->kind->animated(d->params))
         return true;
     if (frame_count < 2 || d->pose_count == 0)
         return false;
@@ -96,7 +98,7 @@ void mr_renderer_free(mr_renderer *r)
         rtcReleaseScene(r->scene);
     for (size_t i = 0; i < r->object_count; i++) {
         if (r->objects[i].geom)
-            r->objects[i].ops->free(r->objects[i].geom);
+            r->objects[i].kind->free(r->objects[i].geom);
         mr_pose_free(r->objects[i].pose);
     }
     mr_pose_free(r->cam_pose);
@@ -161,6 +163,10 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
     }
     uint64_t triangles = 0;
     for (size_t i = 0; i < job->object_count; i++) {
+        if (!job->objects[i].kind) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: no geometry kind", i);
+            goto fail;
+        }
         if (object_is_animated(&job->objects[i], job->frame_count))
             r->dynamic = true;
         triangles += assets[job->objects[i].asset]->triangle_count;
@@ -192,13 +198,13 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         object_state *o = &r->objects[i];
         o->desc = &job->objects[i];
         o->asset = assets[o->desc->asset];
-        o->ops = mr_geom_kind_ops(o->desc->kind);
-        o->animated = object_is_animated(o->desc, job->frame_count);
-        if (!o->ops) {
-            rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: unsupported geometry kind", i);
+        o->kind = o->desc->kind;
+        if (!o->kind) {
+            rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: no geometry kind", i);
             goto fail;
         }
-        for (size_t k = 0; k < o->desc->pose_count && !o->ops->self_posed; k++)
+        o->animated = object_is_animated(o->desc, job->frame_count);
+        for (size_t k = 0; k < o->desc->pose_count && !o->kind->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
                 if (o->desc->pose_count == 1)
                     mr_error_prefix(err, "/objects/%zu/pose: ", i);
@@ -208,8 +214,11 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             }
         if ((rc = mr_pose_new(o->asset, &o->pose, err)) < 0)
             goto fail;
-        if ((rc = o->ops->create(o->asset, o->desc, &o->geom, err)) < 0) {
-            if (o->ops->self_posed) /* its errors name the pose fields under the object */
+        if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &o->cache_dir, err)) < 0)
+            goto fail;
+        mr_kind_context ctx = {.cache_dir = o->cache_dir, .threads = mr_device_threads(dev)};
+        if ((rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err)) < 0) {
+            if (o->kind->self_posed) /* its errors name the pose fields under the object */
                 mr_error_prefix(err, "/objects/%zu/", i);
             goto fail;
         }
@@ -218,7 +227,7 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         enum RTCBuildQuality quality = !(r->dynamic && o->animated) ? RTC_BUILD_QUALITY_MEDIUM
                                        : r->refit                   ? RTC_BUILD_QUALITY_REFIT
                                                                     : RTC_BUILD_QUALITY_LOW;
-        uint32_t ids = o->ops->geometry_ids ? o->ops->geometry_ids(o->geom) : 1;
+        uint32_t ids = o->kind->geometry_ids ? o->kind->geometry_ids(o->geom) : 1;
         unsigned *grown = ids ? realloc(r->id_object, ((size_t)r->id_count + ids) * sizeof *grown) : r->id_object;
         if (!grown || (uint64_t)r->id_count + ids > UINT32_MAX / 2) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "/objects/%zu: out of memory for %u Embree geometries", i, ids);
@@ -227,9 +236,9 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         r->id_object = grown;
         for (uint32_t k = 0; k < ids; k++)
             r->id_object[r->id_count + k] = (unsigned)i;
-        if ((rc = o->ops->attach(o->geom, rtc, r->scene, r->id_count, quality, err)) < 0)
+        if ((rc = o->kind->attach(o->geom, rtc, r->scene, r->id_count, quality, err)) < 0)
             goto fail;
-        r->shade[i] = (mr_shade_object){o->ops, o->geom, o->desc->color, r->id_count};
+        r->shade[i] = (mr_shade_object){o->kind, o->geom, o->desc->color, r->id_count};
         r->id_count += ids;
     }
     if (job->camera.source == MR_CAMERA_SOURCE_NODE && (rc = setup_camera_node(r, assets, err)) < 0)
@@ -271,6 +280,43 @@ static int camera_for_frame(mr_renderer *r, size_t index, double t, mr_camera *c
     return MR_OK;
 }
 
+/* Poses object i for frame->index and lets its kind update. */
+static int update_object(mr_renderer *r, object_state *o, size_t i, const mr_geom_frame *frame,
+                         mr_error *err)
+{
+    int rc;
+    if (!o->kind->self_posed &&
+        (rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, frame->index), frame->time,
+                           err)) < 0)
+        return mr_error_prefix(err, "/objects/%zu/pose: ", i);
+    return o->kind->update(o->geom, frame, o->kind->self_posed ? NULL : o->pose,
+                           &o->desc->transform, mr_device_threads(r->dev), err);
+}
+
+/* The frame-order contract (kind.h): a SEQUENTIAL object about to show
+ * frame `index` must have applied exactly frames 0..index-1. A frame out of
+ * order (resumed job, retry, frame range) rewinds it and replays the
+ * updates in between, untraced, so the result is the uninterrupted run's. */
+static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_error *err)
+{
+    int rc;
+    if (o->stepped > index) {
+        if ((rc = o->kind->rewind(o->geom, err)) < 0)
+            return mr_error_prefix(err, "/objects/%zu: ", i);
+        o->stepped = 0;
+    }
+    while (o->stepped < index) {
+        size_t k = o->stepped;
+        mr_geom_frame f = {.index = k, .time = r->job->frame_times[k],
+                           .width = r->job->output.width, .height = r->job->output.height};
+        if ((rc = camera_for_frame(r, k, f.time, &f.camera, err)) < 0 ||
+            (rc = update_object(r, o, i, &f, err)) < 0)
+            return rc;
+        o->stepped = k + 1;
+    }
+    return MR_OK;
+}
+
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
 {
     const mr_job *job = r->job;
@@ -298,14 +344,14 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         if (o->posed_once && !o->animated && !r->opt.force_rebuild)
             continue;
         if (!o->posed_once || o->animated) {
-            if (!o->ops->self_posed &&
-                (rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, index), t, err)) < 0)
-                return mr_error_prefix(err, "/objects/%zu/pose: ", i);
-            if ((rc = o->ops->update(o->geom, &frame, o->ops->self_posed ? NULL : o->pose,
-                                     &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
+            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
+                (rc = replay_to(r, o, i, index, err)) < 0)
                 return rc;
+            if ((rc = update_object(r, o, i, &frame, err)) < 0)
+                return rc;
+            o->stepped = index + 1;
         }
-        o->ops->commit(o->geom);
+        o->kind->commit(o->geom);
         o->posed_once = true;
         changed = true;
     }
@@ -363,8 +409,8 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     st->mrays_per_s = st->trace_s > 0 ? (double)st->rays / st->trace_s * 1e-6 : 0;
 
     for (size_t i = 0; i < r->object_count; i++) {
-        st->triangles += r->objects[i].ops->primitives(r->objects[i].geom);
-        st->geometry_bytes += r->objects[i].ops->memory(r->objects[i].geom);
+        st->triangles += r->objects[i].kind->primitives(r->objects[i].geom);
+        st->geometry_bytes += r->objects[i].kind->memory(r->objects[i].geom);
     }
     int64_t eb = mr_device_embree_bytes(r->dev);
     st->bvh_bytes = eb > 0 ? (uint64_t)eb : 0;

@@ -29,6 +29,10 @@ typedef struct mr_renderer_options {
     /* When set to true (from any thread) a render in progress stops within
      * one tile and mr_renderer_render fails with MR_ERR_CANCELLED. May be NULL. */
     const atomic_bool *cancel;
+    /* Root of the derived-data cache (bakes, voxelisations, ...): each kind
+     * that keeps derived data reads and writes <cache_dir>/<kind name>/
+     * (kind.h). NULL: nothing is kept on disk. Borrowed. */
+    const char *cache_dir;
 } mr_renderer_options;
 
 typedef enum mr_bvh_update {

@@ -31,7 +31,7 @@ static void fixture_init(scene_fixture *s, mr_asset *asset, mr_vec3 eye, mr_vec3
     memset(s, 0, sizeof *s);
     s->asset = asset;
     s->asset_desc = (mr_asset_desc){.name = "fixture", .path = "(memory)"};
-    s->object = (mr_object_desc){.name = "fixture", .asset = 0, .kind = MR_GEOM_MESH,
+    s->object = (mr_object_desc){.name = "fixture", .asset = 0, .kind = &mr_kind_mesh,
                                  .transform = mr_mat4_identity(), .color = mr_v3(0.8f, 0.8f, 0.8f)};
     s->key = (mr_camera_key){.t = 0, .position = eye, .has_target = true, .target = target,
                              .yfov = (float)(yfov_deg * M_PI / 180)};

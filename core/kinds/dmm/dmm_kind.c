@@ -1,12 +1,12 @@
 /*
- * dmm.c - the displaced micro-mesh (DMM) kind (paper 000, issue 4).
+ * dmm_kind.c - the displaced micro-mesh (DMM) kind (paper 000, issue 4).
  *
  * create   bakes every mesh of the asset (dmm_bake.h: meshoptimizer base mesh
  *          whose vertices keep their bone weights, Embree-measured
  *          displacements), encodes them (dmm_encode.h) and keeps the DECODED
  *          grid values and the min/max pyramid down to the traversal's leaf
  *          sublevel: what is rendered is exactly what a DMM file stores;
- *          with desc.cache_dir, bakes are kept on disk (dmm_file.h) keyed
+ *          with a cache folder (mr_kind_context), bakes are kept on disk (dmm_file.h) keyed
  *          by the mesh data and bake parameters, and a hit skips bake and
  *          encode (the decoded data is the same, bit for bit);
  * update   computes each base vertex's accumulated skinning matrix M_a
@@ -47,7 +47,7 @@
 #include "kinds/dmm/dmm_encode.h"
 #include "kinds/dmm/dmm_file.h"
 #include "kinds/dmm/dmm_trace.h"
-#include "kinds/kind.h"
+#include "kinds/dmm/dmm_kind.h"
 #include "kinds/dmm/micromesh.h"
 #include "util/parallel.h"
 
@@ -57,7 +57,8 @@
 
 struct mr_geom {
     const mr_asset *asset;
-    mr_dmm_desc desc;
+    mr_dmm_params desc;
+    char *cache_dir;              /* the context's folder of bakes, or NULL */
     mr_umesh_topology topo;       /* surviving micro-triangles per level and decimation mask:
                                      a hit maps back to its lattice in O(1) */
     uint8_t *tri_info;            /* per base triangle: level and decimation (dmm_encode.h) */
@@ -93,6 +94,7 @@ static void dmm_free(mr_geom *g)
         return;
     if (g->rtc)
         rtcReleaseGeometry(g->rtc);
+    free(g->cache_dir);
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         if (g->bakes)
             mr_dmm_bake_free(g->bakes[i]);
@@ -183,7 +185,7 @@ static void fill_micro_indices(const mr_geom *g, uint32_t *out)
     }
 }
 
-static int check_desc(const mr_dmm_desc *d, mr_error *err)
+static int check_desc(const mr_dmm_params *d, mr_error *err)
 {
     if (d->level > MR_UMESH_MAX_LEVEL)
         return mr_error_set(err, MR_ERR_INVALID, "dmm level %u is outside 0..%u", d->level,
@@ -274,7 +276,7 @@ static int allocate(mr_geom *g, mr_error *err)
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
 }
 
-/* The disk cache of bakes (dmm_file.h), when desc.cache_dir is set: on a
+/* The disk cache of bakes (dmm_file.h), when the context names a cache folder: on a
  * hit, g->bakes and g->encoded hold the stored base meshes and encodings
  * and true is returned. *path is the cache file (NULL without a cache dir,
  * or when it cannot be named). A missing, broken or mismatching file is a
@@ -283,13 +285,13 @@ static bool cache_lookup(mr_geom *g, const mr_dmm_bake_params *bp, uint8_t key[M
                          char **path)
 {
     *path = NULL;
-    if (!g->desc.cache_dir || !g->desc.cache_dir[0])
+    if (!g->cache_dir || !g->cache_dir[0])
         return false;
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
     mr_dmm_default_bits(bits);
     mr_dmm_cache_key(g->asset, bp, bits, key);
     mr_error e = {0};
-    if (mr_dmm_cache_path(g->desc.cache_dir, key, path, &e) < 0)
+    if (mr_dmm_cache_path(g->cache_dir, key, path, &e) < 0)
         return false;
     return mr_dmm_cache_load(*path, key, g->asset, bp->level, bits, g->bakes, g->encoded, &e) ==
            MR_OK;
@@ -305,20 +307,24 @@ static void cache_store(const mr_geom *g, const uint8_t key[MR_DMM_KEY_BYTES], c
     (void)mr_dmm_cache_store(path, key, g->asset, g->desc.level, bits, g->bakes, g->encoded, &e);
 }
 
-static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
-                      mr_error *err)
+static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
+                      const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
     *out = NULL;
     uint8_t key[MR_DMM_KEY_BYTES];
     char *cache_path = NULL; /* before the first goto: fail frees it */
-    int rc = check_desc(&desc->dmm, err);
+    if (!desc->params)
+        return mr_error_set(err, MR_ERR_INVALID, "a dmm object needs its parameters");
+    int rc = check_desc(desc->params, err);
     if (rc < 0)
         return rc;
     mr_geom *g = calloc(1, sizeof *g);
     if (!g)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
     g->asset = asset;
-    g->desc = desc->dmm;
+    g->desc = *(const mr_dmm_params *)desc->params;
+    if (ctx && ctx->cache_dir && ctx->cache_dir[0] && !(g->cache_dir = strdup(ctx->cache_dir)))
+        goto nomem;
     unsigned level = g->desc.level;
     size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
     g->bakes = calloc(meshes, sizeof *g->bakes);
@@ -329,7 +335,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
 
     mr_dmm_bake_params bp = mr_dmm_bake_params_default();
     bp.level = level;
-    bp.adaptive = g->desc.adaptive;
+    bp.adaptive = g->desc.levels == MR_DMM_LEVELS_ADAPTIVE;
     bp.target_triangles = g->desc.base_triangles;
     bp.target_ratio = g->desc.base_ratio;
     bp.threads = 0; /* the bake does not depend on it */
@@ -793,8 +799,90 @@ static uint64_t dmm_primitives(const mr_geom *g)
     return g->micro_first[g->base_triangle_count];
 }
 
-const mr_geom_ops mr_geom_dmm_ops = {
+/* The "dmm" block. "deformation" chooses what mode "tessellated" expands
+ * and must agree with the other modes; base_ratio and base_triangles are
+ * alternatives. */
+static const char *const MODES[] = {"tessellated", "base", "interpolated"};
+static const char *const DEFORMS[] = {"base", "interpolated"};
+static const char *const NORMALS[] = {"geometric", "matrix"};
+static const char *const LEVELS[] = {"uniform", "adaptive"};
+
+enum { P_LEVEL, P_RATIO, P_TRIANGLES, P_MODE, P_DEFORM, P_NORMALS, P_LEVELS };
+
+static mr_dmm_deform deform_of_mode(mr_dmm_mode m)
+{
+    return m == MR_DMM_INTERPOLATED ? MR_DMM_DEFORM_INTERPOLATED : MR_DMM_DEFORM_BASE;
+}
+
+static int after_mode(void *values, const bool *given, mr_param_error *err)
+{
+    mr_dmm_params *d = values;
+    d->deform = deform_of_mode(d->mode);
+    return MR_OK;
+}
+
+static int after_deform(void *values, const bool *given, mr_param_error *err)
+{
+    mr_dmm_params *d = values;
+    mr_dmm_deform implied = deform_of_mode(d->mode);
+    if (given[P_DEFORM] && d->mode != MR_DMM_TESSELLATED && d->deform != implied)
+        return mr_param_fail(err, MR_ERR_INVALID, "deformation",
+                             "mode \"%s\" deforms by \"%s\"; \"deformation\" only chooses what "
+                             "mode \"tessellated\" expands",
+                             MODES[d->mode], DEFORMS[implied]);
+    return MR_OK;
+}
+
+#define ENUM_OF(names) .choices = names, .choice_count = sizeof names / sizeof names[0]
+
+static const mr_param DMM_PARAMS[] = {
+    [P_LEVEL] = {.field = "level", .type = MR_PARAM_INT, .offset = offsetof(mr_dmm_params, level),
+                 .lo = 0, .hi = MR_UMESH_MAX_LEVEL, .def = MR_DMM_DEFAULT_LEVEL,
+                 .description = "subdivision level of the micro-meshes (the largest with "
+                                "\"levels\": \"adaptive\")"},
+    [P_RATIO] = {.field = "base_ratio", .type = MR_PARAM_NUMBER,
+                 .offset = offsetof(mr_dmm_params, base_ratio), .lo = 0, .hi = 1,
+                 .flags = MR_PARAM_LO_OPEN, .def = MR_DMM_DEFAULT_BASE_RATIO,
+                 .conflicts = "base_triangles",
+                 .description = "base mesh triangles as a fraction of the detailed mesh's"},
+    [P_TRIANGLES] = {.field = "base_triangles", .type = MR_PARAM_INT,
+                     .offset = offsetof(mr_dmm_params, base_triangles), .lo = 1,
+                     .hi = MR_MAX_ASSET_TRIANGLES, .def = 0,
+                     .description = "target base triangles per mesh, instead of base_ratio"},
+    [P_MODE] = {.field = "mode", .type = MR_PARAM_ENUM, .offset = offsetof(mr_dmm_params, mode),
+                ENUM_OF(MODES), .def = MR_DMM_TESSELLATED, .after = after_mode,
+                .description = "tessellated (micro-triangles in Embree: the exact reference), "
+                               "base (skinned base mesh, prism bounds) or interpolated "
+                               "(interpolated skinning matrices)"},
+    [P_DEFORM] = {.field = "deformation", .type = MR_PARAM_ENUM,
+                  .offset = offsetof(mr_dmm_params, deform), ENUM_OF(DEFORMS),
+                  .def = MR_DMM_DEFORM_BASE, .after = after_deform,
+                  .description = "what mode tessellated expands; the other modes imply theirs"},
+    [P_NORMALS] = {.field = "normals", .type = MR_PARAM_ENUM,
+                   .offset = offsetof(mr_dmm_params, normals), ENUM_OF(NORMALS),
+                   .def = MR_DMM_NORMALS_GEOMETRIC,
+                   .description = "shading normals: the micro-triangle's, or the rest normal "
+                                  "moved by the interpolated matrix"},
+    [P_LEVELS] = {.field = "levels", .type = MR_PARAM_ENUM,
+                  .offset = offsetof(mr_dmm_params, levels), ENUM_OF(LEVELS),
+                  .def = MR_DMM_LEVELS_UNIFORM,
+                  .description = "one level for every base triangle, or per-triangle levels "
+                                 "matched to the detail"},
+};
+
+static const mr_param_table DMM_TABLE = {
+    .params = DMM_PARAMS,
+    .count = sizeof DMM_PARAMS / sizeof DMM_PARAMS[0],
+    .size = sizeof(mr_dmm_params),
+    .expect = "an object of dmm bake parameters",
+};
+
+const mr_kind mr_kind_dmm = {
     .name = "dmm",
+    .summary = "displaced micro-meshes (paper 000): a baked base mesh plus hierarchically "
+               "encoded displacements, skinned per frame and traced without tessellation",
+    .params = &DMM_TABLE,
+    .has_derived = true,
     .create = dmm_create,
     .update = dmm_update,
     .attach = dmm_attach,

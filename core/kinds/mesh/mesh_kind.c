@@ -1,5 +1,5 @@
 /*
- * mesh.c - the triangle mesh kind: all meshes of an asset, skinned (linear
+ * mesh_kind.c - the triangle mesh kind: all meshes of an asset, skinned (linear
  * blend skinning, core/anim) or rigid, merged into one Embree TRIANGLE
  * geometry so an object's primitive ids run 0..triangles-1.
  *
@@ -14,7 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "kinds/kind.h"
+#include "kinds/mesh/mesh_kind.h"
 
 struct mr_geom {
     const mr_asset *asset;
@@ -40,9 +40,11 @@ static void mesh_free(mr_geom *g)
     free(g);
 }
 
-static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out, mr_error *err)
+static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const mr_kind_context *ctx,
+                       mr_geom **out, mr_error *err)
 {
     (void)desc;
+    (void)ctx;
     *out = NULL;
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
@@ -140,8 +142,9 @@ static size_t mesh_memory(const mr_geom *g)
 
 static uint64_t mesh_primitives(const mr_geom *g) { return g->triangle_count; }
 
-const mr_geom_ops mr_geom_mesh_ops = {
+const mr_kind mr_kind_mesh = {
     .name = "mesh",
+    .summary = "triangle meshes, skinned or rigid (the default kind)",
     .create = mesh_create,
     .update = mesh_update,
     .attach = mesh_attach,

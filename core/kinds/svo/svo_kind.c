@@ -7,7 +7,7 @@
  *  - rigid: the shared octree sits in its own Embree scene as a user
  *    geometry (svo_trace.h casts the rays); every instance is an Embree
  *    instance of that scene (the thesis' instance model: shared octree,
- *    unshared matrices). One Embree geometry id per instance (geom.h
+ *    unshared matrices). One Embree geometry id per instance (kind.h
  *    geometry_ids), so hits name the instance.
  *  - direct: each frame every instance is selected and deformed (deform.h);
  *    the deformed voxel boxes of all instances are one user geometry, one
@@ -31,9 +31,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "kinds/kind.h"
 #include "kinds/svo/deform.h"
 #include "kinds/svo/skeleton.h"
+#include "kinds/svo/svo_kind.h"
 #include "kinds/svo/svo_file.h"
 #include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
@@ -53,6 +53,7 @@ struct mr_geom {
     const mr_asset *asset;        /* posing asset: the source, or the rigged copy */
     mr_asset *rigged;             /* owned rigged copy (skeleton), or NULL */
     const mr_object_desc *desc;
+    const mr_svo_params *p;      /* desc->params */
     mr_svo_method method;
     mr_svo *svo;                  /* shared octree, bind space */
     mr_svo_extremes extremes;
@@ -90,7 +91,7 @@ static const mr_pose_desc *object_pose(const mr_object_desc *d, size_t frame)
 
 static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t frame)
 {
-    const mr_svo_desc *s = &g->desc->svo;
+    const mr_svo_params *s = g->p;
     if (s->instance_count > 0 && s->instances[k].has_pose)
         return &s->instances[k].pose;
     return object_pose(g->desc, frame);
@@ -115,8 +116,8 @@ static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
     v.view_proj = mr_mat4_mul(&proj, &view);
     v.width = f->width;
     v.height = f->height;
-    v.delta = g->desc->svo.delta;
-    v.cull = g->desc->svo.cull;
+    v.delta = g->p->delta;
+    v.cull = g->p->cull;
     return v;
 }
 
@@ -161,7 +162,7 @@ static void deform_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* Every kind keeps what it hands Embree within MR_MAX_COORDINATE (geom.h):
+/* Every kind keeps what it hands Embree within MR_MAX_COORDINATE (kind.h):
  * beyond ~1.8e18 Embree silently drops primitives, so a pose that scales
  * voxels that far fails the frame instead. */
 static int check_extent(float biggest, size_t instance, mr_error *err)
@@ -226,7 +227,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     (void)pose; /* self_posed: each instance has its own */
     mr_mat4 object = transform ? *transform : mr_mat4_identity();
     for (size_t k = 0; k < g->instance_count; k++) {
-        const mr_mat4 inst = g->desc->svo.instance_count ? g->desc->svo.instances[k].transform
+        const mr_mat4 inst = g->p->instance_count ? g->p->instances[k].transform
                                                          : mr_mat4_identity();
         g->world[k] = mr_mat4_mul(&object, &inst);
         /* The cofactor flips normals of mirroring transforms (det < 0):
@@ -290,7 +291,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
             bad = &g->scratch[w];
     if (bad) {
         *err = bad->err;
-        if (g->desc->svo.instance_count)
+        if (g->p->instance_count)
             mr_error_prefix(err, "svo/instances/%zu: ", bad->failed_instance);
         return bad->rc;
     }
@@ -719,10 +720,10 @@ static int check_poses(const mr_geom *g, mr_error *err)
             return d->pose_count == 1 ? mr_error_prefix(err, "pose: ")
                                       : mr_error_prefix(err, "pose/%zu: ", k);
     }
-    for (size_t k = 0; k < d->svo.instance_count; k++) {
-        if (!d->svo.instances[k].has_pose)
+    for (size_t k = 0; k < g->p->instance_count; k++) {
+        if (!g->p->instances[k].has_pose)
             continue;
-        int rc = mr_pose_desc_check(g->asset, &d->svo.instances[k].pose, err);
+        int rc = mr_pose_desc_check(g->asset, &g->p->instances[k].pose, err);
         if (rc < 0)
             return mr_error_prefix(err, "svo/instances/%zu/pose: ", k);
     }
@@ -752,7 +753,7 @@ static int setup_workers(mr_geom *g, mr_error *err)
  * skinned to them (skeleton.h); from here on the kind poses the copy. */
 static int rig_skeleton(mr_geom *g, mr_error *err)
 {
-    mr_svo_skeleton_params sp = {.omega = g->desc->svo.omega};
+    mr_svo_skeleton_params sp = {.omega = g->p->omega};
     mr_svo_skeleton sk = {0};
     mr_svo *rigged_svo = NULL;
     int rc = mr_svo_skeletonize(g->svo, &sp, &sk, err);
@@ -767,17 +768,21 @@ static int rig_skeleton(mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
-static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom **out,
-                      mr_error *err)
+static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
+                      const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
     *out = NULL;
+    if (!desc->params)
+        return mr_error_set(err, MR_ERR_INVALID, "an svo object needs its parameters");
+    const mr_svo_params *p = desc->params;
     mr_geom *g = calloc(1, sizeof *g);
     if (!g)
         return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
     g->asset = asset;
     g->desc = desc;
-    g->method = desc->svo.method;
-    g->instance_count = desc->svo.instance_count ? desc->svo.instance_count : 1;
+    g->p = p;
+    g->method = p->method;
+    g->instance_count = p->instance_count ? p->instance_count : 1;
     int rc;
     float *albedo = malloc((asset->mesh_count ? asset->mesh_count : 1) * 3 * sizeof *albedo);
     if (!albedo) {
@@ -789,15 +794,15 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc, mr_geom
         albedo[m * 3 + 1] = fminf(desc->color.y, 1.0f);
         albedo[m * 3 + 2] = fminf(desc->color.z, 1.0f);
     }
-    mr_svo_voxelize_params vp = {.depth = desc->svo.depth, .mode = desc->svo.voxelize,
+    mr_svo_voxelize_params vp = {.depth = p->depth, .mode = p->voxelize,
                                  .albedo = albedo, .threads = 0};
-    rc = mr_svo_voxelize_cached(asset, &vp, desc->svo.cache_dir, &g->svo, NULL, err);
+    rc = mr_svo_voxelize_cached(asset, &vp, ctx ? ctx->cache_dir : NULL, &g->svo, NULL, err);
     free(albedo);
     if (rc < 0)
         goto fail;
-    if (desc->svo.skeleton && (rc = rig_skeleton(g, err)) < 0)
+    if (p->skeleton && (rc = rig_skeleton(g, err)) < 0)
         goto fail;
-    g->out_depth = desc->svo.depth + 2 < MR_SVO_MAX_DEPTH ? desc->svo.depth + 2 : MR_SVO_MAX_DEPTH;
+    g->out_depth = p->depth + 2 < MR_SVO_MAX_DEPTH ? p->depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = check_poses(g, err)) < 0)
         goto fail;
     if (g->method == MR_SVO_RIGID) {
@@ -835,8 +840,108 @@ fail:
     return rc;
 }
 
-const mr_geom_ops mr_geom_svo_ops = {
+static bool svo_animated(const void *params)
+{
+    /* Deformed voxels are selected for the screen and rebuilt every frame
+     * (paper 004's pipeline), whatever moves. */
+    return ((const mr_svo_params *)params)->method != MR_SVO_RIGID;
+}
+
+/* The "svo" block. */
+static const char *const VOXELIZE[] = {"surface", "solid"};
+static const char *const METHODS[] = {"rigid", "direct", "resize", "emit"};
+
+enum { P_DEPTH, P_VOXELIZE, P_METHOD, P_DELTA, P_CULL, P_SKELETON, P_INSTANCES };
+
+static int after_voxelize(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_svo_params *d = values;
+    if (d->voxelize == MR_SVO_VOXELIZE_SOLID && d->depth > MR_SVO_SOLID_MAX_DEPTH)
+        return mr_param_fail(err, MR_ERR_LIMIT, given[P_DEPTH] ? "depth" : "voxelize",
+                             "solid voxelisation goes to depth %u at most, asked for %u",
+                             MR_SVO_SOLID_MAX_DEPTH, d->depth);
+    return MR_OK;
+}
+
+#define ENUM_OF(names) .choices = names, .choice_count = sizeof names / sizeof names[0]
+
+static const mr_param SKELETON_PARAMS[] = {
+    {.field = "omega", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, omega), .lo = 0,
+     .hi = 0.5, .flags = MR_PARAM_LO_OPEN, .def = 0,
+     .expect = "a fraction of the voxel cube in (0, 0.5]",
+     .description = "feature size of the contraction, a fraction of the voxel cube (default "
+                    "2^-min(depth,5))"},
+};
+
+static const mr_param_table SKELETON_TABLE = {
+    .params = SKELETON_PARAMS,
+    .count = 1,
+    .size = sizeof(mr_svo_params),
+    .expect = "true, false or an object of skeleton parameters",
+};
+
+static const mr_param INSTANCE_PARAMS[] = {
+    {.field = "transform", .type = MR_PARAM_TRANSFORM, .offset = offsetof(mr_svo_instance, transform),
+     .description = "instance to object space (then the object's transform)"},
+    {.field = "pose", .type = MR_PARAM_POSE, .offset = offsetof(mr_svo_instance, pose),
+     .present_offset = offsetof(mr_svo_instance, has_pose),
+     .description = "this instance's pose (else the object's)"},
+};
+
+static const mr_param_table INSTANCE_TABLE = {
+    .params = INSTANCE_PARAMS,
+    .count = 2,
+    .size = sizeof(mr_svo_instance),
+    .expect = "an instance object",
+    .plural = "instance objects",
+};
+
+static const mr_param SVO_PARAMS[] = {
+    [P_DEPTH] = {.field = "depth", .type = MR_PARAM_INT, .offset = offsetof(mr_svo_params, depth),
+                 .lo = 1, .hi = MR_SVO_JOB_MAX_DEPTH, .def = MR_SVO_DEFAULT_DEPTH,
+                 .description = "voxelisation depth: the cube split 2^depth times per axis"},
+    [P_VOXELIZE] = {.field = "voxelize", .type = MR_PARAM_ENUM,
+                    .offset = offsetof(mr_svo_params, voxelize), ENUM_OF(VOXELIZE),
+                    .def = MR_SVO_VOXELIZE_SURFACE, .after = after_voxelize,
+                    .description = "surface voxels, or solid (surface and inside; depth <= 10)"},
+    [P_METHOD] = {.field = "method", .type = MR_PARAM_ENUM, .offset = offsetof(mr_svo_params, method),
+                  ENUM_OF(METHODS), .def = MR_SVO_RIGID,
+                  .description = "rigid (Embree instances of the shared octree), direct "
+                                 "(deformed boxes), resize or emit (resampled per instance)"},
+    [P_DELTA] = {.field = "delta", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, delta),
+                 .lo = 0, .hi = 1e6, .flags = MR_PARAM_LO_OPEN, .def = MR_SVO_DEFAULT_DELTA,
+                 .expect = "a number of pixels in (0, 1e6]",
+                 .description = "screen-space refinement threshold, pixels"},
+    [P_CULL] = {.field = "cull", .type = MR_PARAM_BOOL, .offset = offsetof(mr_svo_params, cull),
+                .def = 1,
+                .description = "drop deformed voxels outside the view frustum (they then cast "
+                               "no shadows)"},
+    [P_SKELETON] = {.field = "skeleton", .type = MR_PARAM_FLAG_OBJECT,
+                    .offset = offsetof(mr_svo_params, skeleton), .def = 0, .sub = &SKELETON_TABLE,
+                    .description = "extract a skeleton from the voxels (chapter 5) and pose its "
+                                   "bones bone0.."},
+    [P_INSTANCES] = {.field = "instances", .type = MR_PARAM_ARRAY,
+                     .offset = offsetof(mr_svo_params, instances),
+                     .count_offset = offsetof(mr_svo_params, instance_count),
+                     .max_items = MR_SVO_MAX_INSTANCES, .sub = &INSTANCE_TABLE,
+                     .description = "instances of the shared octree (default: one at the "
+                                    "object's transform)"},
+};
+
+static const mr_param_table SVO_TABLE = {
+    .params = SVO_PARAMS,
+    .count = sizeof SVO_PARAMS / sizeof SVO_PARAMS[0],
+    .size = sizeof(mr_svo_params),
+    .expect = "an object of svo parameters",
+};
+
+const mr_kind mr_kind_svo = {
     .name = "svo",
+    .summary = "sparse voxel octree instances (paper 004): an asset voxelised once, every "
+               "instance with its own transform and pose",
+    .params = &SVO_TABLE,
+    .has_derived = true,
+    .animated = svo_animated,
     .self_posed = true,
     .create = svo_create,
     .update = svo_update,

@@ -1,0 +1,77 @@
+/*
+ * registry.c - the geometry kinds a job may name (kind.h).
+ *
+ * Adding a kind is one line in BUILTIN (its descriptor, declared in its own
+ * folder's header). Order matters only for messages and the generated
+ * schema: "one of: \"mesh\", \"dmm\", \"svo\"".
+ */
+#include "kinds/kind.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "kinds/dmm/dmm_kind.h"
+#include "kinds/mesh/mesh_kind.h"
+#include "kinds/svo/svo_kind.h"
+
+static const mr_kind *const BUILTIN[] = {
+    &mr_kind_mesh,
+    &mr_kind_dmm,
+    &mr_kind_svo,
+};
+
+#define BUILTIN_COUNT (sizeof BUILTIN / sizeof BUILTIN[0])
+#define MAX_ADDED 16
+
+static const mr_kind *added[MAX_ADDED];
+static size_t added_count;
+
+size_t mr_kind_count(void) { return BUILTIN_COUNT + added_count; }
+
+const mr_kind *mr_kind_at(size_t i)
+{
+    if (i < BUILTIN_COUNT)
+        return BUILTIN[i];
+    i -= BUILTIN_COUNT;
+    return i < added_count ? added[i] : NULL;
+}
+
+const mr_kind *mr_kind_find(const char *name)
+{
+    for (size_t i = 0; name && i < mr_kind_count(); i++)
+        if (strcmp(mr_kind_at(i)->name, name) == 0)
+            return mr_kind_at(i);
+    return NULL;
+}
+
+int mr_kind_register(const mr_kind *kind, mr_error *err)
+{
+    if (!kind || !kind->name || !kind->name[0] || !kind->create || !kind->free)
+        return mr_error_set(err, MR_ERR_INVALID, "a kind needs a name, create and free");
+    if (mr_kind_find(kind->name))
+        return mr_error_set(err, MR_ERR_CONFLICT, "a kind named \"%s\" is already registered",
+                            kind->name);
+    if (kind->params && kind->params->count > MR_PARAM_MAX_FIELDS)
+        return mr_error_set(err, MR_ERR_LIMIT, "kind \"%s\": at most %u parameters", kind->name,
+                            MR_PARAM_MAX_FIELDS);
+    if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
+        return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
+                            kind->name);
+    if (added_count == MAX_ADDED)
+        return mr_error_set(err, MR_ERR_LIMIT, "at most %d kinds can be added", MAX_ADDED);
+    added[added_count++] = kind;
+    return MR_OK;
+}
+
+int mr_kind_cache_dir(const mr_kind *kind, const char *root, char **out, mr_error *err)
+{
+    *out = NULL;
+    if (!kind->has_derived || !root || !root[0])
+        return MR_OK;
+    size_t n = strlen(root) + 1 + strlen(kind->name) + 1;
+    if (!(*out = malloc(n)))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    snprintf(*out, n, "%s/%s", root, kind->name);
+    return MR_OK;
+}
