@@ -6,16 +6,18 @@
 
 #include "microray.h"
 #include "render_cmd.h"
+#include "schema_gen.h"
 
 static void usage(FILE *to)
 {
     fprintf(to,
             "microrayd %s - ray traced frames of deforming, detailed geometry\n"
             "usage:\n"
-            "  microrayd render JOB.json --out DIR [--threads N] [--quiet]\n"
+            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--quiet]\n"
             "  microrayd compare A.exr B.exr [--diagonal D]\n"
             "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
             "                  [--threads N] [--cache-mb N] [--port-file FILE] [--quiet]\n"
+            "  microrayd schema FILE [--check]  (the job schema's generated kind blocks)\n"
             "  microrayd version\n",
             MR_VERSION_STRING);
 }
@@ -33,6 +35,8 @@ int main(int argc, char **argv)
         return mr_cmd_compare(argc - 2, argv + 2);
     if (!strcmp(cmd, "serve"))
         return mr_cmd_serve(argc - 2, argv + 2);
+    if (!strcmp(cmd, "schema"))
+        return mr_cmd_schema(argc - 2, argv + 2);
     if (!strcmp(cmd, "version") || !strcmp(cmd, "--version")) {
         printf("microrayd %s\n", MR_VERSION_STRING);
         return 0;

@@ -90,6 +90,10 @@ struct mr_param_table {
     size_t size;         /* bytes of the struct the values live in */
     const char *expect;  /* what the block is: "an object of dmm bake parameters" */
     const char *plural;  /* ARRAY elements, for "an array of 1..N <plural>" */
+    /* The after hooks' rules as JSON Schema keywords (the members of a JSON
+     * object, e.g. "if"/"then"), merged into the generated block; NULL if
+     * none. Text only: core parses no JSON. */
+    const char *schema_rules;
 };
 
 /* Writes every default of t into values (sub tables included). */

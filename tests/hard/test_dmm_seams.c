@@ -37,19 +37,20 @@
 #include "anim/pose.h"
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_kind.h"
 #include "kinds/kind.h"
 
 #define LEVEL 4u
 #define BASE_RATIO 0.0625f
 
-static mr_dmm_desc adaptive_desc(mr_dmm_mode mode)
+static mr_dmm_params adaptive_desc(mr_dmm_mode mode)
 {
-    return (mr_dmm_desc){.level = LEVEL,
-                         .adaptive = true,
-                         .base_ratio = BASE_RATIO,
-                         .mode = mode,
-                         .deform = mode == MR_DMM_INTERPOLATED ? MR_DMM_DEFORM_INTERPOLATED
-                                                               : MR_DMM_DEFORM_BASE};
+    return (mr_dmm_params){.level = LEVEL,
+                           .levels = MR_DMM_LEVELS_ADAPTIVE,
+                           .base_ratio = BASE_RATIO,
+                           .mode = mode,
+                           .deform = mode == MR_DMM_INTERPOLATED ? MR_DMM_DEFORM_INTERPOLATED
+                                                                 : MR_DMM_DEFORM_BASE};
 }
 
 /* ---- base-mesh edges, keyed by vertex pair */
@@ -243,12 +244,13 @@ static bool hits(RTCScene scene, mr_vec3 org, mr_vec3 dir)
 
 static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
 {
-    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
-    mr_object_desc o = {.kind = MR_GEOM_DMM, .dmm = adaptive_desc(mode)};
+    const mr_kind *ops = &mr_kind_dmm;
+    mr_dmm_params params = adaptive_desc(mode);
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = &params};
     mr_geom *g = NULL;
     mr_pose *pose = NULL;
     mr_error err = {0};
-    if (ops->create(a, &o, &g, &err) < 0)
+    if (ops->create(a, &o, &(mr_kind_context){.cache_dir = NULL, .threads = 0}, &g, &err) < 0)
         fail_msg("create: %s", err.msg);
     /* a frame a third into the clip: limbs bent, so seams are not planar */
     mr_pose_desc pd = {.has_clip = a->clip_count > 0, .clip_index = 0, .speed = 1, .loop = true};

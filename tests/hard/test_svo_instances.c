@@ -1,6 +1,6 @@
 /*
  * test_svo_instances.c - hard cases of the svo kind's instancing, through
- * the real Embree scene the renderer builds (geom.h ops: create, update,
+ * the real Embree scene the renderer builds (kind.h ops: create, update,
  * attach, commit, normal): every method with instances at the origin, far
  * from it (1e5), mirrored, and of zero scale; a one-voxel asset; a pose
  * that throws voxels beyond MR_MAX_COORDINATE.
@@ -33,6 +33,7 @@
 
 #include "asset/asset.h"
 #include "kinds/kind.h"
+#include "kinds/svo/svo_kind.h"
 
 static mr_asset *cube(float half)
 {
@@ -53,30 +54,32 @@ static mr_asset *cube(float half)
 typedef struct scene {
     RTCDevice device;
     RTCScene scene;
-    const mr_geom_ops *ops;
+    const mr_kind *ops;
     mr_geom *g;
     mr_object_desc desc;
+    mr_svo_params params; /* desc.params */
 } scene;
 
 static void build(scene *s, const mr_asset *a, mr_svo_method method, unsigned depth,
                   const mr_mat4 *instances, size_t n)
 {
     memset(s, 0, sizeof *s);
-    s->desc.kind = MR_GEOM_SVO;
+    s->desc.kind = &mr_kind_svo;
+    s->desc.params = &s->params;
     s->desc.transform = mr_mat4_identity();
     s->desc.color = mr_v3(0.8f, 0.8f, 0.8f);
-    s->desc.svo = (mr_svo_desc){.depth = depth, .method = method, .delta = 1, .cull = true,
+    s->params = (mr_svo_params){.depth = depth, .method = method, .delta = 1, .cull = true,
                                 .instance_count = n};
-    s->desc.svo.instances = calloc(n, sizeof *s->desc.svo.instances);
+    s->params.instances = calloc(n, sizeof *s->params.instances);
     for (size_t k = 0; k < n; k++)
-        s->desc.svo.instances[k].transform = instances[k];
+        s->params.instances[k].transform = instances[k];
     mr_error err = {0};
-    s->ops = mr_geom_kind_ops(MR_GEOM_SVO);
+    s->ops = mr_kind_find("svo");
     assert_non_null(s->ops);
     s->device = rtcNewDevice(NULL);
     s->scene = rtcNewScene(s->device);
     rtcSetSceneFlags(s->scene, RTC_SCENE_FLAG_ROBUST);
-    if (s->ops->create(a, &s->desc, &s->g, &err) < 0)
+    if (s->ops->create(a, &s->desc, &(mr_kind_context){.cache_dir = NULL, .threads = 0}, &s->g, &err) < 0)
         fail_msg("create: %s", err.msg);
     assert_int_equal(s->ops->geometry_ids(s->g), method == MR_SVO_RIGID ? n : 1);
     if (s->ops->attach(s->g, s->device, s->scene, 0, RTC_BUILD_QUALITY_MEDIUM, &err) < 0)
@@ -94,7 +97,7 @@ static void release(scene *s)
     s->ops->free(s->g);
     rtcReleaseScene(s->scene);
     rtcReleaseDevice(s->device);
-    free(s->desc.svo.instances);
+    free(s->params.instances);
 }
 
 /* A ray down -z at (x, y) from z0; returns the hit t (or INFINITY). */
@@ -219,14 +222,14 @@ static void check_far_pose_refused(void **state)
     mr_pose_desc pose = {.clip_index = -1, .joint_count = 2, .joints = ov};
     const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
     for (size_t m = 0; m < 4; m++) {
-        mr_object_desc desc = {.kind = MR_GEOM_SVO, .transform = mr_mat4_identity(),
+        mr_svo_params params = {.depth = 5, .method = methods[m], .delta = 1, .cull = true};
+        mr_object_desc desc = {.kind = &mr_kind_svo, .params = &params, .transform = mr_mat4_identity(),
                                .color = mr_v3(0.8f, 0.8f, 0.8f), .pose_count = 1, .poses = &pose};
-        desc.svo = (mr_svo_desc){.depth = 5, .method = methods[m], .delta = 1, .cull = true};
-        const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_SVO);
+        const mr_kind *ops = &mr_kind_svo;
         mr_geom *g = NULL;
         RTCDevice dev = rtcNewDevice(NULL);
         RTCScene sc = rtcNewScene(dev);
-        if (ops->create(a, &desc, &g, &err) < 0 ||
+        if (ops->create(a, &desc, &(mr_kind_context){.cache_dir = NULL, .threads = 0}, &g, &err) < 0 ||
             ops->attach(g, dev, sc, 0, RTC_BUILD_QUALITY_MEDIUM, &err) < 0)
             fail_msg("setup: %s", err.msg);
         int rc = ops->update(g, NULL, NULL, &desc.transform, 2, &err);

@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "asset/asset.h"
+#include "kinds/mesh/mesh_kind.h"
 #include "render/renderer.h"
 
 typedef struct scene_fixture {

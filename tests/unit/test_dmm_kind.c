@@ -31,8 +31,12 @@
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
 #include "kinds/dmm/dmm_file.h"
+#include "kinds/dmm/dmm_kind.h"
 #include "kinds/kind.h"
 #include "render/compare.h"
+
+/* A create context without a disk cache (bake threads: all cores). */
+static const mr_kind_context NO_CACHE = {.cache_dir = NULL, .threads = 0};
 
 
 /* Unit icosphere subdivided `rounds` times, every vertex moved radially to
@@ -101,7 +105,7 @@ static mr_asset *make_bumpy_sphere(unsigned rounds, float amp, float f)
  * the bake vouches for: its reported max distance (before quantisation) plus
  * the encoder's largest quantisation error (directions are at most unit
  * length, so a displacement error is at most that many model units). */
-static double bake_bound(const mr_asset *a, const mr_dmm_desc *d)
+static double bake_bound(const mr_asset *a, const mr_dmm_params *d)
 {
     mr_dmm_bake_params bp = mr_dmm_bake_params_default();
     bp.level = d->level;
@@ -129,7 +133,7 @@ static void test_matches_detailed_mesh(void **state)
 {
     (void)state;
     const int W = 256, H = 256;
-    mr_dmm_desc d = {.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED};
+    mr_dmm_params d = {.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED};
     scene_fixture ref, dmm;
     /* Camera 4 units away, yfov 35 deg: the unit sphere is ~100 pixels in
      * radius, i.e. about 100 pixels per model unit at the silhouette. */
@@ -137,8 +141,8 @@ static void test_matches_detailed_mesh(void **state)
                  W, H, 1);
     fixture_init(&dmm, make_bumpy_sphere(5, 0.06f, 6.0f), mr_v3(0.3f, 0.5f, 4), mr_v3(0, 0, 0), 35,
                  W, H, 1);
-    dmm.object.kind = MR_GEOM_DMM;
-    dmm.object.dmm = d;
+    dmm.object.kind = &mr_kind_dmm;
+    dmm.object.params = &d;
     double D = bake_bound(dmm.asset, &d);
     assert_true(D > 0 && D < 0.05);
     mr_frame_stats st;
@@ -228,8 +232,9 @@ static float level0_vs_base(mr_asset *detail, mr_vec3 eye, float *max_disp)
     scene_fixture ref, dmm;
     fixture_init(&ref, base, eye, mr_v3(0, 0, 0), 35, 160, 120, 1);
     fixture_init(&dmm, detail, eye, mr_v3(0, 0, 0), 35, 160, 120, 1);
-    dmm.object.kind = MR_GEOM_DMM;
-    dmm.object.dmm = (mr_dmm_desc){.level = 0, .base_ratio = 1.0f, .mode = MR_DMM_TESSELLATED};
+    mr_dmm_params d = {.level = 0, .base_ratio = 1.0f, .mode = MR_DMM_TESSELLATED};
+    dmm.object.kind = &mr_kind_dmm;
+    dmm.object.params = &d;
     mr_frame_stats st;
     mr_film *fr = fixture_render(&ref, 0, &st);
     mr_film *fd = fixture_render(&dmm, 0, &st);
@@ -282,7 +287,7 @@ static void test_matrix_normals_match_geometric_when_rigid(void **state)
 {
     (void)state;
     mr_asset *a = make_bumpy_sphere(1, 0.05f, 5.0f);
-    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
+    const mr_kind *ops = &mr_kind_dmm;
     mr_mat4 t = mr_mat4_from_trs(mr_v3(0.3f, -2.0f, 1.0f),
                                  mr_quat_from_axis_angle(mr_v3(1, 2, 3), 0.7f),
                                  mr_v3(2.0f, 0.5f, 1.3f));
@@ -290,15 +295,13 @@ static void test_matrix_normals_match_geometric_when_rigid(void **state)
     for (int m = 0; m < 3; m++) {
         mr_geom *geo[2] = {NULL, NULL};
         for (int k = 0; k < 2; k++) {
-            mr_object_desc o = {.kind = MR_GEOM_DMM,
-                                .dmm = {.level = 2, .base_ratio = 0.5f, .mode = modes[m],
-                                        .deform = modes[m] == MR_DMM_INTERPOLATED
-                                                      ? MR_DMM_DEFORM_INTERPOLATED
-                                                      : MR_DMM_DEFORM_BASE,
-                                        .normals = k ? MR_DMM_NORMALS_MATRIX
-                                                     : MR_DMM_NORMALS_GEOMETRIC}};
+            mr_dmm_params d = {.level = 2, .base_ratio = 0.5f, .mode = modes[m],
+                               .deform = modes[m] == MR_DMM_INTERPOLATED ? MR_DMM_DEFORM_INTERPOLATED
+                                                                         : MR_DMM_DEFORM_BASE,
+                               .normals = k ? MR_DMM_NORMALS_MATRIX : MR_DMM_NORMALS_GEOMETRIC};
+            mr_object_desc o = {.kind = &mr_kind_dmm, .params = &d};
             mr_error err = {0};
-            assert_int_equal(ops->create(a, &o, &geo[k], &err), MR_OK);
+            assert_int_equal(ops->create(a, &o, &NO_CACHE, &geo[k], &err), MR_OK);
             assert_int_equal(ops->update(geo[k], NULL, NULL, &t, 1, &err), MR_OK);
         }
         uint64_t prims = modes[m] == MR_DMM_TESSELLATED ? ops->primitives(geo[0]) : 0;
@@ -369,8 +372,9 @@ static void test_skinned_animates_deterministically(void **state)
     float r = 0.5f * mr_v3_len(mr_v3_sub(hi, lo));
     scene_fixture s;
     fixture_init(&s, a, mr_v3_add(c, mr_v3(0.4f * r, 0.3f * r, 2.8f * r)), c, 45, 96, 96, 1);
-    s.object.kind = MR_GEOM_DMM;
-    s.object.dmm = (mr_dmm_desc){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_TESSELLATED};
+    mr_dmm_params d = {.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_TESSELLATED};
+    s.object.kind = &mr_kind_dmm;
+    s.object.params = &d;
     mr_pose_desc pd = {.has_clip = true, .clip_index = 0, .speed = 1, .loop = true};
     s.object.pose_count = 1;
     s.object.poses = &pd;
@@ -407,26 +411,26 @@ static void test_refused(void **state)
     mr_asset *a = make_bumpy_sphere(1, 0.0f, 1.0f);
     /* mode base deforms the base mesh; a request to interpolate matrices
      * with it is contradictory and refused rather than silently ignored */
-    mr_object_desc o = {.kind = MR_GEOM_DMM,
-                        .dmm = {.level = 3, .base_ratio = 0.5f, .mode = MR_DMM_BASE,
-                                .deform = MR_DMM_DEFORM_INTERPOLATED}};
+    mr_dmm_params d = {.level = 3, .base_ratio = 0.5f, .mode = MR_DMM_BASE,
+                       .deform = MR_DMM_DEFORM_INTERPOLATED};
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = &d};
     mr_geom *g = NULL;
     mr_error err = {0};
-    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
+    const mr_kind *ops = mr_kind_find("dmm");
     assert_non_null(ops);
     assert_string_equal(ops->name, "dmm");
-    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
+    assert_int_equal(ops->create(a, &o, &NO_CACHE, &g, &err), MR_ERR_INVALID);
     assert_non_null(strstr(err.msg, "cannot use deformation"));
     assert_null(g);
-    o.dmm.deform = MR_DMM_DEFORM_BASE;
-    o.dmm.mode = MR_DMM_TESSELLATED;
-    o.dmm.level = 6;
-    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
-    o.dmm.level = 1;
-    o.dmm.base_ratio = 0;
-    assert_int_equal(ops->create(a, &o, &g, &err), MR_ERR_INVALID);
-    o.dmm.base_ratio = 1;
-    assert_int_equal(ops->create(a, &o, &g, &err), MR_OK);
+    d.deform = MR_DMM_DEFORM_BASE;
+    d.mode = MR_DMM_TESSELLATED;
+    d.level = 6;
+    assert_int_equal(ops->create(a, &o, &NO_CACHE, &g, &err), MR_ERR_INVALID);
+    d.level = 1;
+    d.base_ratio = 0;
+    assert_int_equal(ops->create(a, &o, &NO_CACHE, &g, &err), MR_ERR_INVALID);
+    d.base_ratio = 1;
+    assert_int_equal(ops->create(a, &o, &NO_CACHE, &g, &err), MR_OK);
     /* 80 triangles at ratio 1 give 80 base triangles, 4 micro-triangles each. */
     assert_int_equal(ops->primitives(g), 80 * 4);
     assert_true(ops->memory(g) > 80 * 4 * 3 * sizeof(uint32_t));
@@ -436,16 +440,19 @@ static void test_refused(void **state)
 
 /* ---- the disk cache of bakes */
 
-/* The object's exact tessellation after create and one update at time t
- * (clip 0 when the asset has clips). Fails the test if create fails. */
-static mr_trimesh tessellate_at(const mr_asset *a, const mr_dmm_desc *d, double t)
+/* The object's exact tessellation after create (bakes cached in cache_dir,
+ * or none when NULL) and one update at time t (clip 0 when the asset has
+ * clips). Fails the test if create fails. */
+static mr_trimesh tessellate_at(const mr_asset *a, const mr_dmm_params *d, const char *cache_dir,
+                                double t)
 {
-    const mr_geom_ops *ops = mr_geom_kind_ops(MR_GEOM_DMM);
-    mr_object_desc o = {.kind = MR_GEOM_DMM, .dmm = *d};
+    const mr_kind *ops = &mr_kind_dmm;
+    mr_dmm_params params = *d;
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = &params};
     mr_geom *g = NULL;
     mr_pose *pose = NULL;
     mr_error err = {0};
-    if (ops->create(a, &o, &g, &err) < 0)
+    if (ops->create(a, &o, &(mr_kind_context){.cache_dir = cache_dir}, &g, &err) < 0)
         fail_msg("create: %s", err.msg);
     mr_pose_desc pd = {.has_clip = a->clip_count > 0, .clip_index = 0, .speed = 1, .loop = true};
     assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
@@ -497,16 +504,15 @@ static bool same_file(const struct stat *a, const struct stat *b)
 
 /* Fresh bake, miss (stores), hit: one tessellation, bit for bit; and a
  * doctored but valid cache file shows through, which only a hit can do. */
-static void check_hit(const mr_asset *a, mr_dmm_desc d, double t, const char *dir)
+static void check_hit(const mr_asset *a, mr_dmm_params d, double t, const char *dir)
 {
-    mr_trimesh fresh = tessellate_at(a, &d, t);
-    d.cache_dir = dir;
-    mr_trimesh miss = tessellate_at(a, &d, t);
+    mr_trimesh fresh = tessellate_at(a, &d, NULL, t);
+    mr_trimesh miss = tessellate_at(a, &d, dir, t);
     char path[512];
     cache_file(dir, 1, path, sizeof path);
     struct stat st0, st1;
     file_id(path, &st0);
-    mr_trimesh hit = tessellate_at(a, &d, t);
+    mr_trimesh hit = tessellate_at(a, &d, dir, t);
     file_id(path, &st1);
     assert_true(same_file(&st0, &st1)); /* not rewritten */
     assert_same_mesh(&fresh, &miss);
@@ -521,7 +527,7 @@ static void check_hit(const mr_asset *a, mr_dmm_desc d, double t, const char *di
             f->meshes[i].encoded->bias += 0.01f;
     assert_int_equal(mr_dmm_file_write_path(f, path, &err), MR_OK);
     mr_dmm_file_free(f);
-    mr_trimesh doctored = tessellate_at(a, &d, t);
+    mr_trimesh doctored = tessellate_at(a, &d, dir, t);
     assert_int_equal(doctored.vertex_count, fresh.vertex_count);
     assert_true(memcmp(doctored.positions, fresh.positions,
                        (size_t)fresh.vertex_count * 3 * sizeof(float)) != 0);
@@ -553,12 +559,12 @@ static void test_cache_hit_is_bit_identical(void **state)
     snprintf(dir, sizeof dir, "%s/not/yet", root); /* created on the first store */
 
     mr_asset *sphere = make_bumpy_sphere(4, 0.06f, 6.0f);
-    check_hit(sphere, (mr_dmm_desc){.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED},
+    check_hit(sphere, (mr_dmm_params){.level = 3, .base_ratio = 0.05f, .mode = MR_DMM_TESSELLATED},
               0, dir);
     struct stat st;
     assert_int_equal(stat(dir, &st), 0);
     assert_int_equal(st.st_mode & 0777, 0755);
-    check_hit(sphere, (mr_dmm_desc){.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_BASE}, 0, dir);
+    check_hit(sphere, (mr_dmm_params){.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_BASE}, 0, dir);
     mr_asset_free(sphere);
 
     /* skinned, three meshes, posed mid-clip, matrices interpolated: the
@@ -566,9 +572,9 @@ static void test_cache_hit_is_bit_identical(void **state)
     mr_asset *bcn = bcn_load();
     assert_true(bcn->clip_count > 0);
     check_hit(bcn,
-              (mr_dmm_desc){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_INTERPOLATED,
-                            .deform = MR_DMM_DEFORM_INTERPOLATED,
-                            .normals = MR_DMM_NORMALS_MATRIX},
+              (mr_dmm_params){.level = 2, .base_ratio = 0.25f, .mode = MR_DMM_INTERPOLATED,
+                              .deform = MR_DMM_DEFORM_INTERPOLATED,
+                              .normals = MR_DMM_NORMALS_MATRIX},
               0.5 * bcn->clips[0].duration, dir);
     mr_asset_free(bcn);
     remove_dir(root);
@@ -580,28 +586,28 @@ static void test_cache_keys_corruption_and_failures(void **state)
     char dir[64];
     make_temp_dir(dir, sizeof dir);
     mr_asset *a = make_bumpy_sphere(3, 0.06f, 6.0f);
-    mr_dmm_desc d = {.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_TESSELLATED};
-    mr_trimesh fresh = tessellate_at(a, &d, 0);
-    d.cache_dir = dir;
-    mr_trimesh m = tessellate_at(a, &d, 0);
+    mr_dmm_params d = {.level = 2, .base_ratio = 0.1f, .mode = MR_DMM_TESSELLATED};
+    mr_trimesh fresh = tessellate_at(a, &d, NULL, 0);
+    const char *cache_dir = dir;
+    mr_trimesh m = tessellate_at(a, &d, cache_dir, 0);
     mr_trimesh_free(&m);
     char path[512];
     cache_file(dir, 1, path, sizeof path);
 
     /* another level (or ratio) is another bake and another file */
     d.level = 3;
-    m = tessellate_at(a, &d, 0);
+    m = tessellate_at(a, &d, cache_dir, 0);
     mr_trimesh_free(&m);
     cache_file(dir, 2, path, sizeof path);
     d.level = 2;
     d.base_ratio = 0.2f;
-    m = tessellate_at(a, &d, 0);
+    m = tessellate_at(a, &d, cache_dir, 0);
     mr_trimesh_free(&m);
     cache_file(dir, 3, path, sizeof path);
     remove_dir(dir);
     make_temp_dir(dir, sizeof dir);
     d.base_ratio = 0.1f;
-    m = tessellate_at(a, &d, 0);
+    m = tessellate_at(a, &d, cache_dir, 0);
     mr_trimesh_free(&m);
     cache_file(dir, 1, path, sizeof path);
 
@@ -627,7 +633,7 @@ static void test_cache_keys_corruption_and_failures(void **state)
         fclose(f);
         struct stat bad;
         file_id(path, &bad);
-        m = tessellate_at(a, &d, 0);
+        m = tessellate_at(a, &d, cache_dir, 0);
         assert_same_mesh(&fresh, &m);
         mr_trimesh_free(&m);
         struct stat now;
@@ -645,14 +651,14 @@ static void test_cache_keys_corruption_and_failures(void **state)
      * directory in the file's place: the job renders, uncached */
     char below[600];
     snprintf(below, sizeof below, "%s/dmm", path);
-    d.cache_dir = below;
-    m = tessellate_at(a, &d, 0);
+    cache_dir = below;
+    m = tessellate_at(a, &d, cache_dir, 0);
     assert_same_mesh(&fresh, &m);
     mr_trimesh_free(&m);
-    d.cache_dir = dir;
+    cache_dir = dir;
     assert_int_equal(unlink(path), 0);
     assert_int_equal(mkdir(path, 0755), 0);
-    m = tessellate_at(a, &d, 0);
+    m = tessellate_at(a, &d, cache_dir, 0);
     assert_same_mesh(&fresh, &m);
     mr_trimesh_free(&m);
     mr_trimesh_free(&fresh);

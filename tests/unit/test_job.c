@@ -32,8 +32,26 @@
 #include <string.h>
 
 #include "job_json.h"
+#include "kinds/dmm/dmm_kind.h"
+#include "kinds/mesh/mesh_kind.h"
+#include "kinds/svo/svo_kind.h"
 
 #define PI 3.14159265358979323846
+
+/* An object's parameter block, as its kind's struct. */
+static const mr_dmm_params *dmm_of(const mr_job *job, size_t i)
+{
+    assert_ptr_equal(job->objects[i].kind, &mr_kind_dmm);
+    assert_non_null(job->objects[i].params);
+    return (const mr_dmm_params *)job->objects[i].params;
+}
+
+static const mr_svo_params *svo_of(const mr_job *job, size_t i)
+{
+    assert_ptr_equal(job->objects[i].kind, &mr_kind_svo);
+    assert_non_null(job->objects[i].params);
+    return (const mr_svo_params *)job->objects[i].params;
+}
 
 /* Job text is written with single quotes (JSON itself never uses them) and
  * turned into double quotes here, to keep the table readable. */
@@ -585,8 +603,8 @@ static void test_defaults(void **state)
     const mr_object_desc *o = &job->objects[0];
     assert_string_equal(o->name, "object0");
     assert_int_equal(o->asset, 0);
-    assert_int_equal(o->kind, MR_GEOM_MESH);
-    assert_int_equal(o->dmm.level, MR_DMM_DEFAULT_LEVEL);
+    assert_ptr_equal(o->kind, &mr_kind_mesh);
+    assert_null(o->params); /* the mesh kind takes no parameters */
     assert_mat_eq(&o->transform, &id, 0);
     assert_v3_eq(o->color, mr_v3(0.8f, 0.8f, 0.8f));
     assert_int_equal(o->pose_count, 0);
@@ -812,28 +830,28 @@ static void test_order_and_variants(void **state)
                                "{'asset':'m','kind':'dmm','dmm':{'deformation':'interpolated'}},"
                                "{'asset':'m','kind':'dmm','dmm':{'mode':'base',"
                                "'deformation':'base','levels':'adaptive'}}"));
-    assert_int_equal(job->objects[0].kind, MR_GEOM_DMM);
-    assert_int_equal(job->objects[0].dmm.level, 3);
-    assert_true(job->objects[0].dmm.base_ratio == 0.25f);
-    assert_int_equal(job->objects[0].dmm.base_triangles, 0);
-    assert_int_equal(job->objects[0].dmm.mode, MR_DMM_TESSELLATED);
-    assert_int_equal(job->objects[1].dmm.level, 5);
-    assert_true(job->objects[1].dmm.base_ratio == 1.0f);
-    assert_int_equal(job->objects[2].dmm.level, 0);
-    assert_int_equal(job->objects[2].dmm.base_triangles, 12);
-    assert_int_equal(job->objects[0].dmm.deform, MR_DMM_DEFORM_BASE);
-    assert_int_equal(job->objects[0].dmm.normals, MR_DMM_NORMALS_GEOMETRIC);
+    assert_ptr_equal(job->objects[0].kind, &mr_kind_dmm);
+    assert_int_equal(dmm_of(job, 0)->level, 3);
+    assert_true(dmm_of(job, 0)->base_ratio == 0.25f);
+    assert_int_equal(dmm_of(job, 0)->base_triangles, 0);
+    assert_int_equal(dmm_of(job, 0)->mode, MR_DMM_TESSELLATED);
+    assert_int_equal(dmm_of(job, 1)->level, 5);
+    assert_true(dmm_of(job, 1)->base_ratio == 1.0f);
+    assert_int_equal(dmm_of(job, 2)->level, 0);
+    assert_int_equal(dmm_of(job, 2)->base_triangles, 12);
+    assert_int_equal(dmm_of(job, 0)->deform, MR_DMM_DEFORM_BASE);
+    assert_int_equal(dmm_of(job, 0)->normals, MR_DMM_NORMALS_GEOMETRIC);
     /* mode interpolated implies its deformation */
-    assert_int_equal(job->objects[3].dmm.mode, MR_DMM_INTERPOLATED);
-    assert_int_equal(job->objects[3].dmm.deform, MR_DMM_DEFORM_INTERPOLATED);
-    assert_int_equal(job->objects[3].dmm.normals, MR_DMM_NORMALS_MATRIX);
+    assert_int_equal(dmm_of(job, 3)->mode, MR_DMM_INTERPOLATED);
+    assert_int_equal(dmm_of(job, 3)->deform, MR_DMM_DEFORM_INTERPOLATED);
+    assert_int_equal(dmm_of(job, 3)->normals, MR_DMM_NORMALS_MATRIX);
     /* tessellated expands whichever deformation is asked for */
-    assert_int_equal(job->objects[4].dmm.mode, MR_DMM_TESSELLATED);
-    assert_int_equal(job->objects[4].dmm.deform, MR_DMM_DEFORM_INTERPOLATED);
-    assert_int_equal(job->objects[5].dmm.mode, MR_DMM_BASE);
-    assert_int_equal(job->objects[5].dmm.deform, MR_DMM_DEFORM_BASE);
-    assert_true(job->objects[5].dmm.adaptive);
-    assert_false(job->objects[0].dmm.adaptive);
+    assert_int_equal(dmm_of(job, 4)->mode, MR_DMM_TESSELLATED);
+    assert_int_equal(dmm_of(job, 4)->deform, MR_DMM_DEFORM_INTERPOLATED);
+    assert_int_equal(dmm_of(job, 5)->mode, MR_DMM_BASE);
+    assert_int_equal(dmm_of(job, 5)->deform, MR_DMM_DEFORM_BASE);
+    assert_int_equal(dmm_of(job, 5)->levels, MR_DMM_LEVELS_ADAPTIVE);
+    assert_int_equal(dmm_of(job, 0)->levels, MR_DMM_LEVELS_UNIFORM);
     mr_job_free(job);
     /* svo objects: defaults and every field. */
     job = parse_ok(WITH_OBJECT("{'asset':'m','kind':'svo'},"
@@ -843,15 +861,15 @@ static void test_order_and_variants(void **state)
                                "'pose':{'clip':0,'offset':0.5}}]}},"
                                "{'asset':'m','kind':'svo','svo':{'voxelize':'solid','depth':10,"
                                "'method':'resize','skeleton':true}}"));
-    assert_int_equal(job->objects[0].kind, MR_GEOM_SVO);
-    assert_int_equal(job->objects[0].svo.depth, MR_SVO_DEFAULT_DEPTH);
-    assert_int_equal(job->objects[0].svo.method, MR_SVO_RIGID);
-    assert_int_equal(job->objects[0].svo.voxelize, MR_SVO_VOXELIZE_SURFACE);
-    assert_true(job->objects[0].svo.delta == MR_SVO_DEFAULT_DELTA);
-    assert_true(job->objects[0].svo.cull);
-    assert_false(job->objects[0].svo.skeleton);
-    assert_int_equal(job->objects[0].svo.instance_count, 0);
-    const mr_svo_desc *sd = &job->objects[1].svo;
+    assert_ptr_equal(job->objects[0].kind, &mr_kind_svo);
+    assert_int_equal(svo_of(job, 0)->depth, MR_SVO_DEFAULT_DEPTH);
+    assert_int_equal(svo_of(job, 0)->method, MR_SVO_RIGID);
+    assert_int_equal(svo_of(job, 0)->voxelize, MR_SVO_VOXELIZE_SURFACE);
+    assert_true(svo_of(job, 0)->delta == MR_SVO_DEFAULT_DELTA);
+    assert_true(svo_of(job, 0)->cull);
+    assert_false(svo_of(job, 0)->skeleton);
+    assert_int_equal(svo_of(job, 0)->instance_count, 0);
+    const mr_svo_params *sd = svo_of(job, 1);
     assert_int_equal(sd->depth, 12);
     assert_int_equal(sd->method, MR_SVO_EMIT);
     assert_true(sd->delta == 0.5f);
@@ -865,10 +883,10 @@ static void test_order_and_variants(void **state)
     assert_true(sd->instances[1].has_pose);
     assert_int_equal(sd->instances[1].pose.clip_index, 0);
     assert_true(sd->instances[1].pose.offset == 0.5);
-    assert_int_equal(job->objects[2].svo.voxelize, MR_SVO_VOXELIZE_SOLID);
-    assert_int_equal(job->objects[2].svo.method, MR_SVO_RESIZE);
-    assert_true(job->objects[2].svo.skeleton);
-    assert_true(job->objects[2].svo.omega == 0.0f);
+    assert_int_equal(svo_of(job, 2)->voxelize, MR_SVO_VOXELIZE_SOLID);
+    assert_int_equal(svo_of(job, 2)->method, MR_SVO_RESIZE);
+    assert_true(svo_of(job, 2)->skeleton);
+    assert_true(svo_of(job, 2)->omega == 0.0f);
     mr_job_free(job);
     /* Present-but-empty lights means no lights. */
     job = parse_ok("{" BASE ",'lights':[]}");

@@ -838,36 +838,46 @@ static int after_deform(void *values, const bool *given, mr_param_error *err)
 static const mr_param DMM_PARAMS[] = {
     [P_LEVEL] = {.field = "level", .type = MR_PARAM_INT, .offset = offsetof(mr_dmm_params, level),
                  .lo = 0, .hi = MR_UMESH_MAX_LEVEL, .def = MR_DMM_DEFAULT_LEVEL,
-                 .description = "subdivision level of the micro-meshes (the largest with "
-                                "\"levels\": \"adaptive\")"},
+                 .description = "Subdivision level: 4^level micro-triangles per base triangle."},
     [P_RATIO] = {.field = "base_ratio", .type = MR_PARAM_NUMBER,
                  .offset = offsetof(mr_dmm_params, base_ratio), .lo = 0, .hi = 1,
                  .flags = MR_PARAM_LO_OPEN, .def = MR_DMM_DEFAULT_BASE_RATIO,
                  .conflicts = "base_triangles",
-                 .description = "base mesh triangles as a fraction of the detailed mesh's"},
+                 .description = "Base triangles as a fraction of the detailed (welded) triangles, per mesh."},
     [P_TRIANGLES] = {.field = "base_triangles", .type = MR_PARAM_INT,
                      .offset = offsetof(mr_dmm_params, base_triangles), .lo = 1,
                      .hi = MR_MAX_ASSET_TRIANGLES, .def = 0,
-                     .description = "target base triangles per mesh, instead of base_ratio"},
+                     .description = "Target base triangle count per mesh, instead of base_ratio."},
     [P_MODE] = {.field = "mode", .type = MR_PARAM_ENUM, .offset = offsetof(mr_dmm_params, mode),
                 ENUM_OF(MODES), .def = MR_DMM_TESSELLATED, .after = after_mode,
-                .description = "tessellated (micro-triangles in Embree: the exact reference), "
-                               "base (skinned base mesh, prism bounds) or interpolated "
-                               "(interpolated skinning matrices)"},
+                .description = "How the micro-geometry is traced. \"tessellated\": the micro-triangles of the "
+                               "chosen deformation expanded into Embree triangles (the exact reference and "
+                               "pre-tessellation baseline). \"base\": deformation base, traced without "
+                               "tessellation through prism bounds (Algorithms 2 and 4) in an Embree user "
+                               "geometry with one primitive per base triangle. \"interpolated\": deformation "
+                               "interpolated, traced without tessellation, bounded by the 12 control points of "
+                               "the min/max quadratic Bezier patches (eq. 9-13, Algorithms 1 and 3), in the "
+                               "same kind of user geometry. All three intersect the same micro-triangles for "
+                               "the same deformation."},
     [P_DEFORM] = {.field = "deformation", .type = MR_PARAM_ENUM,
                   .offset = offsetof(mr_dmm_params, deform), ENUM_OF(DEFORMS),
                   .def = MR_DMM_DEFORM_BASE, .after = after_deform,
-                  .description = "what mode tessellated expands; the other modes imply theirs"},
+                  .description = "What mode \"tessellated\" expands. Mode \"base\" implies \"base\" and mode "
+                                 "\"interpolated\" implies \"interpolated\" (then the default); a contradicting "
+                                 "value is refused."},
     [P_NORMALS] = {.field = "normals", .type = MR_PARAM_ENUM,
                    .offset = offsetof(mr_dmm_params, normals), ENUM_OF(NORMALS),
                    .def = MR_DMM_NORMALS_GEOMETRIC,
-                   .description = "shading normals: the micro-triangle's, or the rest normal "
-                                  "moved by the interpolated matrix"},
+                   .description = "Shading normal: the hit micro-triangle's own normal (\"geometric\"), or the "
+                                  "rest-pose micro-triangle normal moved by the cofactor of the interpolated "
+                                  "matrix at the hit (\"matrix\", the paper's Fig. 1c), in any mode."},
     [P_LEVELS] = {.field = "levels", .type = MR_PARAM_ENUM,
                   .offset = offsetof(mr_dmm_params, levels), ENUM_OF(LEVELS),
                   .def = MR_DMM_LEVELS_UNIFORM,
-                  .description = "one level for every base triangle, or per-triangle levels "
-                                 "matched to the detail"},
+                  .description = "\"uniform\": every base triangle at level. \"adaptive\": each base triangle at "
+                                 "the level (0..level) whose micro-triangles are closest in area to the detailed "
+                                 "mesh's mean triangle; neighbours at most one level apart, the finer side's "
+                                 "shared edge decimated (watertight)."},
 };
 
 static const mr_param_table DMM_TABLE = {
@@ -875,12 +885,26 @@ static const mr_param_table DMM_TABLE = {
     .count = sizeof DMM_PARAMS / sizeof DMM_PARAMS[0],
     .size = sizeof(mr_dmm_params),
     .expect = "an object of dmm bake parameters",
+    .schema_rules =
+        "{\"allOf\": ["
+        "{\"if\": {\"required\": [\"mode\"], \"properties\": {\"mode\": {\"const\": \"base\"}}},"
+        " \"then\": {\"properties\": {\"deformation\": {\"const\": \"base\"}}}},"
+        "{\"if\": {\"required\": [\"mode\"], \"properties\": {\"mode\": {\"const\": "
+        "\"interpolated\"}}},"
+        " \"then\": {\"properties\": {\"deformation\": {\"const\": \"interpolated\"}}}}]}",
 };
 
 const mr_kind mr_kind_dmm = {
     .name = "dmm",
-    .summary = "displaced micro-meshes (paper 000): a baked base mesh plus hierarchically "
-               "encoded displacements, skinned per frame and traced without tessellation",
+    .summary = "Parameters of a displaced micro-mesh object (kind \"dmm\", paper 000). Every "
+               "mesh of the asset is simplified to a base mesh whose vertices keep their bone "
+               "weights, and displaced at every micro-vertex of the given subdivision level. "
+               "Each frame every base vertex gets its accumulated skinning matrix M. "
+               "Deformation \"base\": base vertices and directions skinned with it (v' = M v, "
+               "n' = M n, eq. 4; not renormalised), micro-vertex = interpolated point + d * "
+               "interpolated direction (eq. 5). Deformation \"interpolated\" (the paper's "
+               "method): M interpolated barycentrically per micro-vertex and applied to the "
+               "rest-pose displaced micro-vertex (eq. 6-8).",
     .params = &DMM_TABLE,
     .has_derived = true,
     .create = dmm_create,

@@ -899,27 +899,30 @@ static const mr_param_table INSTANCE_TABLE = {
 static const mr_param SVO_PARAMS[] = {
     [P_DEPTH] = {.field = "depth", .type = MR_PARAM_INT, .offset = offsetof(mr_svo_params, depth),
                  .lo = 1, .hi = MR_SVO_JOB_MAX_DEPTH, .def = MR_SVO_DEFAULT_DEPTH,
-                 .description = "voxelisation depth: the cube split 2^depth times per axis"},
+                 .description = "2^depth voxels per axis around the asset."},
     [P_VOXELIZE] = {.field = "voxelize", .type = MR_PARAM_ENUM,
                     .offset = offsetof(mr_svo_params, voxelize), ENUM_OF(VOXELIZE),
                     .def = MR_SVO_VOXELIZE_SURFACE, .after = after_voxelize,
-                    .description = "surface voxels, or solid (surface and inside; depth <= 10)"},
+                    .description = "Surface cells only, or also the inside (depth <= 10)."},
     [P_METHOD] = {.field = "method", .type = MR_PARAM_ENUM, .offset = offsetof(mr_svo_params, method),
                   ENUM_OF(METHODS), .def = MR_SVO_RIGID,
-                  .description = "rigid (Embree instances of the shared octree), direct "
-                                 "(deformed boxes), resize or emit (resampled per instance)"},
+                  .description = "rigid: transform only, Embree instances of the shared octree. direct: deformed "
+                                 "voxel boxes (two matrices per voxel, thesis Fig. 16). resize / emit: resampled "
+                                 "into a per-instance world-space octree every frame (2x2x2 cells from the "
+                                 "largest side / cells filling the box from the smallest side)."},
     [P_DELTA] = {.field = "delta", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, delta),
                  .lo = 0, .hi = 1e6, .flags = MR_PARAM_LO_OPEN, .def = MR_SVO_DEFAULT_DELTA,
                  .expect = "a number of pixels in (0, 1e6]",
-                 .description = "screen-space refinement threshold, pixels"},
+                 .description = "Screen-space refinement threshold in pixels: voxels projecting smaller are not "
+                                "refined."},
     [P_CULL] = {.field = "cull", .type = MR_PARAM_BOOL, .offset = offsetof(mr_svo_params, cull),
                 .def = 1,
-                .description = "drop deformed voxels outside the view frustum (they then cast "
-                               "no shadows)"},
+                .description = "Drop voxels outside the view frustum (they then cast no shadows into the view "
+                               "either; false keeps them, refined by their projected size like the rest)."},
     [P_SKELETON] = {.field = "skeleton", .type = MR_PARAM_FLAG_OBJECT,
                     .offset = offsetof(mr_svo_params, skeleton), .def = 0, .sub = &SKELETON_TABLE,
-                    .description = "extract a skeleton from the voxels (chapter 5) and pose its "
-                                   "bones bone0.."},
+                    .description = "Extract a skeleton from the voxels (thesis chapter 5) and skin to it; bones "
+                                   "are named bone0, bone1, ..."},
     [P_INSTANCES] = {.field = "instances", .type = MR_PARAM_ARRAY,
                      .offset = offsetof(mr_svo_params, instances),
                      .count_offset = offsetof(mr_svo_params, instance_count),
@@ -933,12 +936,16 @@ static const mr_param_table SVO_TABLE = {
     .count = sizeof SVO_PARAMS / sizeof SVO_PARAMS[0],
     .size = sizeof(mr_svo_params),
     .expect = "an object of svo parameters",
+    .schema_rules = "{\"if\": {\"required\": [\"voxelize\"], \"properties\": {\"voxelize\": "
+                    "{\"const\": \"solid\"}}}, \"then\": {\"properties\": {\"depth\": "
+                    "{\"maximum\": 10}}}}",
 };
 
 const mr_kind mr_kind_svo = {
     .name = "svo",
-    .summary = "sparse voxel octree instances (paper 004): an asset voxelised once, every "
-               "instance with its own transform and pose",
+    .summary = "Parameters of a sparse voxel octree object (kind \"svo\", paper 004): the "
+               "asset voxelised once, shared by every instance; each instance has its own "
+               "transform and pose.",
     .params = &SVO_TABLE,
     .has_derived = true,
     .animated = svo_animated,
