@@ -37,7 +37,9 @@
 #include "files.h"
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
+#include "kinds/dmm/dmm_kind.h"
 #include "kinds/dmm/micromesh.h"
+#include "kinds/mesh/mesh_kind.h"
 #include "job_json.h"
 #include "render/compare.h"
 #include "render/renderer.h"
@@ -143,15 +145,24 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
     mr_film *film[MODES] = {0};
     mr_error err = {0};
     mr_asset *assets[1] = {dancer};
+    /* each mode's parameters live as long as its renderer; the job's own
+     * kind and parameters are put back before returning (mr_job_free owns
+     * them) */
+    const mr_kind *job_kind = o->kind;
+    void *job_params = o->params;
+    mr_dmm_params params[MODES];
     for (int m = 0; m < MODES; m++) {
-        o->kind = m == 4 ? MR_GEOM_MESH : MR_GEOM_DMM;
-        o->dmm = (mr_dmm_desc){.level = cfg.level,
-                               .adaptive = cfg.adaptive,
-                               .base_ratio = 0.0625f,
-                               .mode = m == 1   ? MR_DMM_BASE
-                                       : m == 3 ? MR_DMM_INTERPOLATED
-                                                : MR_DMM_TESSELLATED,
-                               .deform = m >= 2 ? MR_DMM_DEFORM_INTERPOLATED : MR_DMM_DEFORM_BASE};
+        params[m] = (mr_dmm_params){.level = cfg.level,
+                                    .levels = cfg.adaptive ? MR_DMM_LEVELS_ADAPTIVE
+                                                           : MR_DMM_LEVELS_UNIFORM,
+                                    .base_ratio = 0.0625f,
+                                    .mode = m == 1   ? MR_DMM_BASE
+                                            : m == 3 ? MR_DMM_INTERPOLATED
+                                                     : MR_DMM_TESSELLATED,
+                                    .deform = m >= 2 ? MR_DMM_DEFORM_INTERPOLATED
+                                                     : MR_DMM_DEFORM_BASE};
+        o->kind = m == 4 ? &mr_kind_mesh : &mr_kind_dmm;
+        o->params = m == 4 ? NULL : &params[m];
         if (mr_device_new(0, &dev[m], &err) < 0 ||
             mr_renderer_new(dev[m], job, assets, NULL, &r[m], &err) < 0 ||
             mr_film_new(job->output.width, job->output.height, &film[m], &err) < 0)
@@ -202,6 +213,8 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
         mr_renderer_free(r[m]);
         mr_device_free(dev[m]);
     }
+    o->kind = job_kind;
+    o->params = job_params;
     return res;
 }
 

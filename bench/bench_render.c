@@ -159,8 +159,8 @@ static RTCScene bare_scene(mr_device *dev, const loaded_job *lj, size_t frame, u
         mr_geom *g = NULL;
         mr_pose *pose = NULL;
         mr_trimesh tm;
-        const mr_geom_ops *ops = mr_geom_kind_ops(d->kind);
-        if (ops->create(a, d, &g, &err) < 0 || mr_pose_new(a, &pose, &err) < 0)
+        const mr_kind *ops = d->kind;
+        if (ops->create(a, d, &(mr_kind_context){.cache_dir = NULL, .threads = 0}, &g, &err) < 0 || mr_pose_new(a, &pose, &err) < 0)
             die("bare scene", err.msg);
         const mr_pose_desc *pd = d->pose_count == 0 ? NULL : &d->poses[d->pose_count == 1 ? 0 : frame];
         if (mr_pose_eval(pose, a, pd, lj->job->frame_times[frame], &err) < 0 ||

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Runs every test program (tests/unit, tests/hard, tests/integration) against the
-# build in $1 (default build/). Prints one line per test program and a final
+# Runs the layout check and every test program (tests/unit, tests/hard,
+# tests/integration) against the build in $1 (default build/). Prints one line per test program and a final
 # "N passed, N failed" line; exits non-zero if anything failed.
 set -uo pipefail
 BUILD=${1:-build}
@@ -25,6 +25,9 @@ run() { # name, command...
     tail -n 40 "$log" | sed 's/^/    | /'
   fi
 }
+
+# the layout rules a grep can check (a kind is named only in its folder)
+run layout/check-layout bash scripts/check-layout.sh
 
 for suite in unit hard integration; do
   mkdir -p "$LOG_DIR/$suite"

@@ -5,8 +5,9 @@
  * relative asset paths are resolved against the job file's directory. Each
  * frame is written as DIR/NNNN.exr through a temporary file and a rename,
  * and DIR/stats.json is rewritten after every frame, so an interrupted run
- * leaves only complete files behind. With --dmm-cache, dmm objects keep
- * their bakes in that directory (core/kinds/dmm/dmm_file.h) and reuse them.
+ * leaves only complete files behind. With --cache DIR, kinds that derive
+ * data from an asset (bakes, voxelisations) keep it in DIR/<kind>/ and
+ * reuse it (core/kinds/kind.h).
  */
 #include "render_cmd.h"
 

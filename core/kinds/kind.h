@@ -4,14 +4,14 @@
  *
  * A kind turns an imported asset into something Embree can trace and keeps
  * it up to date frame by frame:
- *   create      build the derived data once from the asset (for a triangle
- *               mesh: vertex/index buffers sized for all its meshes); the
+ *   create      build the derived data once from the asset (for triangle
+ *               meshes: vertex/index buffers sized for all of them); the
  *               context names the kind's own folder of the derived-data
  *               cache (<cache root>/<kind name>/, when it declares
  *               has_derived and the caller keeps a cache) and the threads;
  *   update      deform for this frame's pose and object transform (the
  *               frame says when and from where: kinds that refine for the
- *               screen, like svo, need the camera);
+ *               screen need the camera);
  *   attach      put the geometry into an Embree scene under the given geometry
  *               id (the renderer's: it maps hits back to the object by it)
  *               with the build quality the renderer chose (REFIT for
@@ -30,7 +30,7 @@
  *               (`stats`, in that order) for the frame just updated; they
  *               reach stats.json and the HTTP stats by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
- * self_posed: the kind evaluates poses itself (svo: one per instance, maybe
+ * self_posed: the kind evaluates poses itself (say one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to
  * update and leaves checking pose names to create.
  * animated: whether an object of the kind changes from frame to frame even

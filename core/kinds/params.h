@@ -1,8 +1,8 @@
 /*
  * params.h - a geometry kind's job parameters, declared as a table.
  *
- * Each kind that takes parameters ("dmm": {...}, "svo": {...} in a job
- * object) describes them once, here, as data: field name, type, range or
+ * Each kind that takes parameters (a block named after the kind in a job
+ * object: "<kind>": {...}) describes them once, here, as data: field name, type, range or
  * enum values, default, one-line description, and where the value lives in
  * the kind's own C struct. Everything else is derived from that table:
  *   - the server reads and validates the block generically (server/
@@ -88,7 +88,7 @@ struct mr_param_table {
     const mr_param *params;
     size_t count;
     size_t size;         /* bytes of the struct the values live in */
-    const char *expect;  /* what the block is: "an object of dmm bake parameters" */
+    const char *expect;  /* what the block is: "an object of <kind> parameters" */
     const char *plural;  /* ARRAY elements, for "an array of 1..N <plural>" */
     /* The after hooks' rules as JSON Schema keywords (the members of a JSON
      * object, e.g. "if"/"then"), merged into the generated block; NULL if
