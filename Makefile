@@ -17,7 +17,10 @@ WARN    := -Wall -Wextra -Werror -Wshadow -Wno-unused-parameter
 # the unrounded double where a (float) cast result is used again in double
 # arithmetic, e.g. d = (float)(c - (float)(c + e)) comes out as -e; code
 # that relies on exact float rounding must not be compiled that way.
-CFLAGS  := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vectorize -D_DEFAULT_SOURCE -Icore -Iserver -I/usr/include/OpenEXR -I/usr/include/cjson -MMD -MP $(SAN)
+# core/ (libmicroray) sees only its own headers: no -Iserver, so a core
+# file that includes a server header does not compile.
+CORE_CFLAGS := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vectorize -D_DEFAULT_SOURCE -Icore -I/usr/include/OpenEXR -MMD -MP $(SAN)
+CFLAGS  := $(CORE_CFLAGS) -Iserver -I/usr/include/cjson
 LDFLAGS := $(SAN)
 CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -lmeshoptimizer -lpthread -lm
 SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd
@@ -42,6 +45,10 @@ CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
+
+$(BUILD)/obj/core/%.o: core/%.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CORE_CFLAGS) -c $< -o $@
 
 $(BUILD)/obj/%.o: %.c
 	@mkdir -p $(dir $@)

@@ -25,7 +25,7 @@
  *
  * usage: bench_svo_render [--frames N] [--depths 8,10,12] [--quick]
  * (run from the repository root; voxelised octrees are cached in
- * $TMPDIR/microray-bench-svo so each depth is voxelised once)
+ * $TMPDIR/microray-bench-svo/svo so each depth is voxelised once)
  */
 #include <math.h>
 #include <stdio.h>
@@ -48,7 +48,7 @@
 #define BUDGET_S 0.0338
 
 static const char *const MODE_NAME[MODES] = {"mesh", "rigid", "direct", "resize", "emit"};
-static char cache_dir[512];
+static char cache_dir[512]; /* the renderers' cache root: octrees in cache_dir/svo */
 
 static void die(const char *what, const char *msg)
 {
@@ -80,8 +80,6 @@ static mr_job *make_job(const char *object, const double *times, int frames, int
     mr_job_error jerr = {0};
     if (mr_job_parse(text, (size_t)n, &job, &jerr) < 0)
         die(jerr.pointer, jerr.message);
-    for (size_t i = 0; i < job->object_count; i++)
-        job->objects[i].svo.cache_dir = cache_dir;
     free(text);
     free(ts);
     return job;
@@ -103,8 +101,9 @@ static void open_run(mode_run *m, mr_job *job, mr_asset *asset)
 {
     mr_error err = {0};
     mr_asset *assets[1] = {asset};
+    mr_renderer_options opt = {.cache_dir = cache_dir};
     m->job = job;
-    if (mr_device_new(0, &m->dev, &err) < 0 || mr_renderer_new(m->dev, job, assets, NULL, &m->r, &err) < 0 ||
+    if (mr_device_new(0, &m->dev, &err) < 0 || mr_renderer_new(m->dev, job, assets, &opt, &m->r, &err) < 0 ||
         mr_film_new(job->output.width, job->output.height, &m->film, &err) < 0)
         die("renderer", err.msg);
 }
