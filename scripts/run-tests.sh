@@ -27,6 +27,7 @@ run() { # name, command...
 }
 
 # the layout rules a grep can check (a kind is named only in its folder)
+mkdir -p "$LOG_DIR/layout"
 run layout/check-layout bash scripts/check-layout.sh
 
 for suite in unit hard integration; do
