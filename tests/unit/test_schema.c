@@ -621,7 +621,7 @@ static int setup(void **unused)
     }
     /* ajv validate --spec=draft2020 --strict-types=true --strict-tuples=true
      *   -s SCHEMA --errors=line -d FILE ... */
-    size_t argc = 0, cap = 8 + 2 * S.file_count;
+    size_t argc = 0, cap = 8 + 2 * S.file_count + 1; /* and the NULL */
     char **argv = calloc(cap, sizeof *argv);
     assert_non_null(argv);
     argv[argc++] = S.ajv;
@@ -636,6 +636,7 @@ static int setup(void **unused)
         argv[argc++] = "-d";
         argv[argc++] = S.files[i].path;
     }
+    assert_true(argc < cap);
     argv[argc] = NULL;
     char *log_path = xprintf("%s/ajv.log", S.dir);
     S.ajv_status = run(argv, log_path);
