@@ -1,7 +1,14 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages microray needs, only those missing.
-# Runs as root on a fresh machine (CI, containers); elsewhere it says what to run.
+# Installs what microray needs, only what is missing:
+#  1. the Debian 12 packages (as root; elsewhere it says what to run), plus
+#     Debian's nodejs and npm when `node` or `npm` is not on the PATH;
+#  2. the schema test tools (ajv-cli, a JSON Schema 2020-12 validator) into
+#     tests/schema/node_modules with `npm ci`, pinned by the committed
+#     tests/schema/package-lock.json. Skipped when the installed tree was
+#     made from the same lock file (a copy of it is kept in node_modules).
+# Runs as root on a fresh machine (CI, containers).
 set -euo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
 
 PACKAGES=(
   build-essential pkg-config
@@ -18,13 +25,28 @@ missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-[ ${#missing[@]} -eq 0 ] && exit 0
+# By command, not by package: a machine may have node and npm from elsewhere.
+command -v node >/dev/null 2>&1 || missing+=(nodejs)
+command -v npm >/dev/null 2>&1 || missing+=(npm)
 
-echo "setup: installing ${missing[*]}" >&2
-if [ "$(id -u)" -ne 0 ]; then
-  echo "setup: not root; run: sudo apt-get install -y ${missing[*]}" >&2
-  exit 1
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${missing[*]}" >&2
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "setup: not root; run: sudo apt-get install -y ${missing[*]}" >&2
+    exit 1
+  fi
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq
-apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+
+# Schema test tools (tests/unit/test_schema). No root needed: a local folder.
+TOOLS="$ROOT/tests/schema"
+STAMP="$TOOLS/node_modules/.microray-package-lock.json"
+if [ -x "$TOOLS/node_modules/.bin/ajv" ] && cmp -s "$TOOLS/package-lock.json" "$STAMP"; then
+  exit 0
+fi
+echo "setup: installing the schema test tools (npm ci in tests/schema)" >&2
+(cd "$TOOLS" && npm ci --no-audit --no-fund --ignore-scripts --loglevel=error >/dev/null)
+"$TOOLS/node_modules/.bin/ajv" help >/dev/null
+cp "$TOOLS/package-lock.json" "$STAMP"

@@ -1259,14 +1259,14 @@ static int parse_camera_key(jctx *c, const cJSON *v, mr_camera_key *k, float def
                     "expected exactly one of \"target\" or \"rotation\", got both");
     if (!target && !rot)
         return fail(c, MR_ERR_INVALID, "missing required field: \"target\" or \"rotation\"");
-    if (prev) {
-        num_spec after = {prev->t, DBL_MAX, NUM_LO_OPEN, NULL};
+    /* Every key's time is under the time cap, not only the first one's: a
+     * later key at 1e300 would make the differences of key times overflow. */
+    AT_KEY(c, "t", get_num(c, field(v, "t"), &SPEC_TIME, &k->t));
+    if (prev && !(k->t > prev->t)) {
         char expect[96];
         snprintf(expect, sizeof expect, "a time greater than the previous key's (%.15g)", prev->t);
-        after.expect = expect;
-        AT_KEY(c, "t", get_num(c, field(v, "t"), &after, &k->t));
-    } else {
-        AT_KEY(c, "t", get_num(c, field(v, "t"), &SPEC_TIME, &k->t));
+        push_key(c, "t");
+        return fail_expected(c, expect, field(v, "t"));
     }
     AT_KEY(c, "position", get_vec3(c, field(v, "position"), &SPEC_COORD, &k->position));
     k->rotation = mr_quat_identity();

@@ -459,6 +459,9 @@ static const bad_case BAD[] = {
      "missing required field \"position\""},
     {WITH_CAMERA("{'path':[" KEY "," KEY "]}"), MR_ERR_INVALID, "/camera/path/1/t",
      "expected a time greater than the previous key's (0), got 0"},
+    /* A later key is under the time cap too, not only the first. */
+    {WITH_CAMERA("{'path':[" KEY ",{'t':2e9,'position':[0,0,5],'target':[0,0,0]}]}"),
+     MR_ERR_INVALID, "/camera/path/1/t", "expected a time in seconds with |t| <= 1e9, got 2000000000"},
     {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'target':[1,2,3]}]}"), MR_ERR_INVALID,
      "/camera/path/0/target", "expected a target different from \"position\""},
     {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'rotation':[0,0,0,0]}]}"), MR_ERR_INVALID,
