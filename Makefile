@@ -4,6 +4,7 @@
 #   make check    the same tests built with AddressSanitizer + UBSan (build/check/)
 #   make bench    print the benchmark table
 #   make run      set up, build, render examples/skinned-walk.json into out/skinned-walk/
+#   make schema   regenerate the kind blocks of schemas/job.schema.json
 #   make clean
 
 BUILD   ?= build
@@ -41,7 +42,7 @@ TEST_BIN   := $(patsubst tests/%.c,$(BUILD)/tests/%,$(TEST_SRC))
 BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
 CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
 
-.PHONY: all setup test check bench run clean tests
+.PHONY: all setup test check bench run clean tests schema
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
@@ -96,6 +97,12 @@ bench: setup
 run: setup
 	$(MAKE) all
 	bash scripts/run-example.sh $(BUILD)
+
+# The job schema's kind blocks, regenerated from the kinds' parameter tables
+# (server/schema_gen.h); test_schema fails while the committed file is stale.
+schema: all
+	$(BUILD)/microrayd schema schemas/job.schema.json > schemas/job.schema.json.new
+	mv schemas/job.schema.json.new schemas/job.schema.json
 
 clean:
 	rm -rf build out

@@ -10,7 +10,8 @@
 
 #define KIND_DEF_PREFIX "kind_"
 
-static cJSON *table_schema(const mr_param_table *t, const char *description, mr_error *err);
+static cJSON *table_schema(const mr_param_table *t, const char *comment, const char *description,
+                           mr_error *err);
 
 static bool add(cJSON *obj, const char *key, cJSON *item)
 {
@@ -79,7 +80,7 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
         ok = ok && cJSON_AddItemToArray(one, b);
         if (!ok)
             cJSON_Delete(b);
-        ok = ok && cJSON_AddItemToArray(one, table_schema(p->sub, NULL, err));
+        ok = ok && cJSON_AddItemToArray(one, table_schema(p->sub, NULL, NULL, err));
         ok = ok && add(s, "oneOf", one);
         if (!ok)
             cJSON_Delete(one);
@@ -91,7 +92,7 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
         ok = s && add(s, "type", cJSON_CreateString("array")) &&
              add(s, "minItems", cJSON_CreateNumber(1)) &&
              add(s, "maxItems", cJSON_CreateNumber((double)p->max_items)) &&
-             add(s, "items", table_schema(p->sub, NULL, err));
+             add(s, "items", table_schema(p->sub, NULL, NULL, err));
         break;
     case MR_PARAM_TRANSFORM: s = ref_to("transform"); break;
     case MR_PARAM_POSE: s = ref_to("pose"); break;
@@ -107,10 +108,13 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
     return s;
 }
 
-static cJSON *table_schema(const mr_param_table *t, const char *description, mr_error *err)
+static cJSON *table_schema(const mr_param_table *t, const char *comment, const char *description,
+                           mr_error *err)
 {
     cJSON *s = cJSON_CreateObject(), *props = cJSON_CreateObject();
     bool ok = s && props;
+    if (ok && comment)
+        ok = add(s, "$comment", cJSON_CreateString(comment));
     if (ok && description)
         ok = add(s, "description", cJSON_CreateString(description));
     ok = ok && add(s, "type", cJSON_CreateString("object")) &&
@@ -162,7 +166,12 @@ cJSON *mr_schema_kind_block(const mr_kind *kind, mr_error *err)
         mr_error_set(err, MR_ERR_INVALID, "kind \"%s\" takes no parameters", kind->name);
         return NULL;
     }
-    return table_schema(kind->params, kind->summary, err);
+    char note[256];
+    snprintf(note, sizeof note,
+             "Generated from the \"%s\" kind's parameter table by `make schema`; edit the "
+             "table, not this block.",
+             kind->name);
+    return table_schema(kind->params, note, kind->summary, err);
 }
 
 /* {"properties": {"kind": {"const": name}}, "required": ["kind"]}: a

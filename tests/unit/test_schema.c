@@ -41,6 +41,7 @@
 #include <unistd.h>
 
 #include "job_json.h"
+#include "schema_gen.h"
 
 extern char **environ;
 
@@ -707,6 +708,31 @@ static const char *schema_why(const ajv_result *r)
 }
 
 /* ajv ran, compiled the schema (strictly) and judged every file. */
+/* The committed schema is what `make schema` makes of it: its kind blocks
+ * are those of the parameter tables the parser reads. */
+static void test_schema_current(void **unused)
+{
+    (void)unused;
+    FILE *f = fopen(S.schema, "rb");
+    assert_non_null(f);
+    static char text[1 << 20];
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    assert_true(n > 0 && n < sizeof text - 1);
+    text[n] = '\0';
+    cJSON *doc = cJSON_Parse(text);
+    assert_non_null(doc);
+    mr_error err = {0};
+    assert_int_equal(mr_schema_update(doc, &err), MR_OK);
+    char *fresh = mr_schema_print(doc);
+    assert_non_null(fresh);
+    if (strcmp(fresh, text) != 0)
+        fail_msg("schemas/job.schema.json is stale: run `make schema` (its kind blocks differ "
+                 "from the parameter tables)");
+    free(fresh);
+    cJSON_Delete(doc);
+}
+
 static void test_ajv_ran(void **unused)
 {
     (void)unused;
@@ -829,6 +855,7 @@ static void test_parser_only(void **unused)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_schema_current),
         cmocka_unit_test(test_ajv_ran),
         cmocka_unit_test(test_examples_and_data),
         cmocka_unit_test(test_agreement),

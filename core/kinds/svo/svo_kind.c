@@ -938,7 +938,7 @@ static const mr_param_table SVO_TABLE = {
     .expect = "an object of svo parameters",
     .schema_rules = "{\"if\": {\"required\": [\"voxelize\"], \"properties\": {\"voxelize\": "
                     "{\"const\": \"solid\"}}}, \"then\": {\"properties\": {\"depth\": "
-                    "{\"maximum\": 10}}}}",
+                    "{\"type\": \"integer\", \"maximum\": 10}}}}",
 };
 
 const mr_kind mr_kind_svo = {
