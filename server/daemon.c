@@ -26,10 +26,10 @@
 #include <time.h>
 
 #include "cache.h"
-#include "files.h"
 #include "http.h"
 #include "job_json.h"
 #include "render/exr.h"
+#include "util/file_io.h"
 #include "util/sha256.h"
 #include "stats_json.h"
 #include "util/parallel.h"
@@ -883,7 +883,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         }
     }
     d->cfg.asset_root_count = d->root_count;
-    if ((rc = mr_mkdir_p(d->data_dir, err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
+    if ((rc = mr_fs_make_dirs(d->data_dir, "data directory", err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
         goto fail;
     if ((rc = mr_store_recover(d->store, err)) < 0)
         goto fail;

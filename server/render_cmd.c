@@ -22,6 +22,7 @@
 #include "render/compare.h"
 #include "render/exr.h"
 #include "stats_json.h"
+#include "util/file_io.h"
 #include "util/parallel.h"
 #include "worker.h"
 
@@ -66,7 +67,7 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     size_t size = 0;
     int rc = mr_exr_write_memory(&data, &size, film, &o->job->output.exr, &meta, err);
     if (rc == MR_OK)
-        rc = mr_file_write_atomic(path, data, size, err);
+        rc = mr_fs_write_atomic(path, data, size, "frame", err);
     free(data);
     st->encode_s = mr_now() - t0;
     return rc;
@@ -85,7 +86,7 @@ static void write_stats(render_out *o, const mr_job_stats *stats)
     snprintf(path, sizeof path, "%s/stats.json", o->dir);
     if (!json)
         fprintf(stderr, "microrayd: warning: out of memory writing %s\n", path);
-    else if (mr_file_write_atomic(path, json, strlen(json), &err) < 0)
+    else if (mr_fs_write_atomic(path, json, strlen(json), "stats.json", &err) < 0)
         fprintf(stderr, "microrayd: warning: %s\n", err.msg);
     free(json);
     o->stats_written = mr_now();
@@ -107,25 +108,32 @@ static void report_progress(void *user, size_t index, const mr_job_stats *stats)
 /* Relative asset paths are relative to the job file. */
 static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 {
-    char dir[4096];
-    mr_path_dirname(job_path, dir, sizeof dir);
-    for (size_t i = 0; i < job->asset_count; i++) {
+    char *dir = mr_fs_dir_of(job_path);
+    if (!dir)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    int rc = MR_OK;
+    for (size_t i = 0; i < job->asset_count && rc == MR_OK; i++) {
         char *p = job->assets[i].path;
-        if (!p)
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "/assets/%s/id: uploaded assets are stored by the daemon; the one-shot "
-                                "renderer needs a \"path\"", job->assets[i].name);
+        if (!p) {
+            rc = mr_error_set(err, MR_ERR_INVALID,
+                              "/assets/%s/id: uploaded assets are stored by the daemon; the one-shot "
+                              "renderer needs a \"path\"", job->assets[i].name);
+            break;
+        }
         if (p[0] == '/')
             continue;
         size_t n = strlen(dir) + strlen(p) + 2;
         char *abs = malloc(n);
-        if (!abs)
-            return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        if (!abs) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+            break;
+        }
         snprintf(abs, n, "%s/%s", dir, p);
         free(p);
         job->assets[i].path = abs;
     }
-    return MR_OK;
+    free(dir);
+    return rc;
 }
 
 static void usage_render(void)
@@ -199,7 +207,7 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
-    if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_mkdir_p(out_dir, &err)) < 0 ||
+    if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_fs_make_dirs(out_dir, "output directory", &err)) < 0 ||
         (rc = mr_device_new(threads, &dev, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
         status = exit_status(rc);

@@ -304,7 +304,7 @@ static void test_upload_and_render_by_id(void **state)
     free(model);
     /* uploads stream to a temporary file that is renamed or removed: none is left */
     char cmd[700];
-    snprintf(cmd, sizeof cmd, "ls -a '%s/assets' | grep -q '^\\.upload-'", D.data);
+    snprintf(cmd, sizeof cmd, "ls -a '%s/assets' | grep -q '^\\.upload'", D.data);
     assert_int_not_equal(system(cmd), 0);
     char job[2048], id[64];
     snprintf(job, sizeof job,
