@@ -253,6 +253,31 @@ static void test_render_owns_its_temporaries(void **state)
     free(text);
 }
 
+/* stats.json is an output of the job: when it cannot be written at the end,
+ * the command fails (exit 4, I/O) naming it, though every frame rendered. */
+static void test_render_fails_without_stats_json(void **state)
+{
+    (void)state;
+    char dir[512], blocker[600], inner[700];
+    snprintf(dir, sizeof dir, "%s/no-stats", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(blocker, sizeof blocker, "%s/stats.json", dir); /* a non-empty directory: no rename onto it */
+    assert_int_equal(mkdir(blocker, 0755), 0);
+    snprintf(inner, sizeof inner, "%s/keep", blocker);
+    FILE *f = fopen(inner, "w");
+    assert_non_null(f);
+    fclose(f);
+    char args[1024], *err = NULL;
+    snprintf(args, sizeof args, "render tests/data/skinned-small.json --out '%s' --quiet", dir);
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 4)
+        fail_msg("render exited %d, want 4: %s", rc, err);
+    assert_non_null(strstr(err, "stats.json"));
+    free(err);
+    mr_film *frame3 = read_frame(dir, 3); /* the frames themselves are complete */
+    mr_film_free(frame3);
+}
+
 static void test_compare_command(void **state)
 {
     (void)state;
@@ -449,6 +474,7 @@ int main(void)
         cmocka_unit_test(test_every_example_renders),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
         cmocka_unit_test(test_render_owns_its_temporaries),
+        cmocka_unit_test(test_render_fails_without_stats_json),
         cmocka_unit_test(test_compare_command),
         cmocka_unit_test(test_camera_from_gltf_node),
         cmocka_unit_test(test_bad_input_is_answered),
