@@ -575,7 +575,7 @@ static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
 }
 
 static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
-                       double *saved_s, mr_error *err)
+                       double *saved_s, mr_asset_stage *stage, mr_error *err)
 {
     job_run *r = user;
     char key[65];
@@ -584,7 +584,7 @@ static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bo
         return rc;
     return mr_cache_acquire_refined(r->d->cache, key, desc->path,
                                     desc->refine ? &desc->refine_params : NULL, out, hit, saved_s,
-                                    err);
+                                    stage, err);
 }
 
 static void run_release(void *user, mr_asset *asset)
