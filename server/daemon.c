@@ -12,6 +12,7 @@
 
 #include <cJSON.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
 #include <stdarg.h>
 #include <pthread.h>
@@ -547,31 +548,53 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
 
 /* The cache key of an asset's file: its content hash (uploaded assets are
  * named by it already; server-side files are hashed). The cache adds the
- * import parameters ("refine") to it. */
+ * import parameters ("refine") to it. The path was checked to be a regular
+ * file when the job was resolved, but the file may have been replaced
+ * since: O_NONBLOCK, so a FIFO planted under an asset root cannot block the
+ * worker forever waiting for a writer, and anything but a regular file is
+ * refused (the worker names the asset's field). */
 static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
 {
     if (a->id) {
         snprintf(key, 65, "%s", a->id);
         return MR_OK;
     }
-    FILE *f = fopen(a->path, "rb");
-    if (!f)
+    int fd = open(a->path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
         return mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
+    int rc = MR_OK;
+    struct stat st;
+    if (fstat(fd, &st) != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
+        goto done;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: not a regular file (a FIFO, device or directory "
+                          "cannot be an asset)", a->path);
+        goto done;
+    }
     mr_sha256 h;
     mr_sha256_init(&h);
     char buf[1 << 16];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
-        mr_sha256_update(&h, buf, n);
-    int failed = ferror(f);
-    fclose(f);
-    if (failed)
-        return mr_error_set(err, MR_ERR_IO, "%s: read error", a->path);
+    for (;;) {
+        ssize_t n = read(fd, buf, sizeof buf);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0) {
+            rc = mr_error_set(err, MR_ERR_IO, "%s: read error: %s", a->path, strerror(errno));
+            goto done;
+        }
+        if (n == 0)
+            break;
+        mr_sha256_update(&h, buf, (size_t)n);
+    }
     uint8_t digest[32];
     mr_sha256_final(&h, digest);
     for (int i = 0; i < 32; i++)
         snprintf(key + 2 * i, 3, "%02x", digest[i]);
-    return MR_OK;
+done:
+    close(fd);
+    return rc;
 }
 
 static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
