@@ -101,15 +101,17 @@ static bool refine_canonical(const mr_refine_params *in, mr_refine_params *out)
 }
 
 int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset **out,
-                    mr_error *err)
+                    mr_asset_stage *stage, mr_error *err)
 {
     mr_asset *base = NULL;
+    mr_asset_stage at = MR_ASSET_STAGE_LOAD;
     *out = NULL;
     int rc = mr_asset_load(path, &base, err);
     if (rc < 0 || !refine)
         goto done;
+    at = MR_ASSET_STAGE_REFINE;
     if (refine->rounds > MR_REFINE_MAX_ROUNDS) {
-        rc = mr_error_set(err, MR_ERR_INVALID, "refine: %u rounds, at most %d", refine->rounds,
+        rc = mr_error_set(err, MR_ERR_INVALID, "%u rounds, at most %d", refine->rounds,
                           MR_REFINE_MAX_ROUNDS);
         goto done;
     }
@@ -118,7 +120,7 @@ int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset *
     uint64_t tris = (uint64_t)base->triangle_count << (2 * refine->rounds);
     if (tris > MR_MAX_ASSET_TRIANGLES) {
         rc = mr_error_set(err, MR_ERR_LIMIT,
-                          "refine: %u rounds would turn the %zu triangles of %s into %llu, more "
+                          "%u rounds would turn the %zu triangles of %s into %llu, more "
                           "than the %u an asset may have",
                           refine->rounds, base->triangle_count, path, (unsigned long long)tris,
                           MR_MAX_ASSET_TRIANGLES);
@@ -126,28 +128,31 @@ int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset *
     }
     mr_asset *refined = NULL;
     if ((rc = mr_refine_asset(base, refine, &refined, err)) < 0) {
-        mr_error_prefix(err, "refine: %s: ", path);
+        mr_error_prefix(err, "%s: ", path);
         goto done;
     }
     mr_asset_free(base);
     base = refined;
 done:
-    if (rc < 0)
+    if (rc < 0) {
         mr_asset_free(base);
-    else
+        if (stage)
+            *stage = at;
+    } else {
         *out = base;
+    }
     return rc;
 }
 
 int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **out, bool *hit,
                      double *saved_s, mr_error *err)
 {
-    return mr_cache_acquire_refined(c, key, path, NULL, out, hit, saved_s, err);
+    return mr_cache_acquire_refined(c, key, path, NULL, out, hit, saved_s, NULL, err);
 }
 
 int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
                              const mr_refine_params *refine, mr_asset **out, bool *hit,
-                             double *saved_s, mr_error *err)
+                             double *saved_s, mr_asset_stage *stage, mr_error *err)
 {
     *out = NULL;
     *hit = false;
@@ -164,6 +169,8 @@ int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
                      (double)canon.amplitude, (double)canon.frequency, canon.octaves, canon.seed);
     else
         n = snprintf(full, sizeof full, "%s", key);
+    if (stage)
+        *stage = MR_ASSET_STAGE_LOAD; /* until the import says otherwise */
     if (n < 0 || (size_t)n >= sizeof full)
         return mr_error_set(err, MR_ERR_INVALID, "cache key too long");
     pthread_mutex_lock(&c->lock);
@@ -186,7 +193,7 @@ int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
      * meanwhile. */
     double t0 = mr_now();
     mr_asset *a = NULL;
-    int rc = mr_cache_import(path, refined ? &canon : NULL, &a, err);
+    int rc = mr_cache_import(path, refined ? &canon : NULL, &a, stage, err);
     if (rc < 0)
         return rc;
     double import_s = mr_now() - t0;

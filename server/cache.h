@@ -18,6 +18,15 @@
 
 typedef struct mr_cache mr_cache;
 
+/* Which step of getting an asset failed (mr_cache_import and
+ * mr_cache_acquire_refined set it when they fail): reading and importing
+ * the file, or refining the import. The worker points its error at the
+ * asset's "path"/"id" or at its "refine" by it. */
+typedef enum mr_asset_stage {
+    MR_ASSET_STAGE_LOAD,   /* the file: missing, unreadable, broken, over a cap */
+    MR_ASSET_STAGE_REFINE  /* its "refine" parameters or the refinement itself */
+} mr_asset_stage;
+
 typedef struct mr_cache_stats {
     uint64_t hits, misses, evictions;
     size_t bytes, entries;
@@ -44,16 +53,17 @@ int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **
  * (the input unchanged) is the plain import's entry. */
 int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
                              const mr_refine_params *refine, mr_asset **out, bool *hit,
-                             double *saved_s, mr_error *err);
+                             double *saved_s, mr_asset_stage *stage, mr_error *err);
 void mr_cache_release(mr_cache *c, mr_asset *asset);
 void mr_cache_stats_get(mr_cache *c, mr_cache_stats *out);
 
 /* What a miss does, for callers without a cache (the one-shot renderer):
  * mr_asset_load, then, with refine (may be NULL), mr_refine_asset. A refined
  * asset whose triangles would exceed MR_MAX_ASSET_TRIANGLES fails with
- * MR_ERR_LIMIT before any work. Errors of the refine step have messages
- * that start with "refine: "; import errors name the file. */
+ * MR_ERR_LIMIT before any work. On failure *stage (stage may be NULL) says
+ * which step failed; messages name the file and say what is wrong, without
+ * a pointer (the caller knows which field the stage is). */
 int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset **out,
-                    mr_error *err);
+                    mr_asset_stage *stage, mr_error *err);
 
 #endif

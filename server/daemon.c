@@ -12,6 +12,7 @@
 
 #include <cJSON.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
 #include <stdarg.h>
 #include <pthread.h>
@@ -26,10 +27,10 @@
 #include <time.h>
 
 #include "cache.h"
-#include "files.h"
 #include "http.h"
 #include "job_json.h"
 #include "render/exr.h"
+#include "util/file_io.h"
 #include "util/sha256.h"
 #include "stats_json.h"
 #include "util/parallel.h"
@@ -545,35 +546,57 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
 
 /* The cache key of an asset's file: its content hash (uploaded assets are
  * named by it already; server-side files are hashed). The cache adds the
- * import parameters ("refine") to it. */
+ * import parameters ("refine") to it. The path was checked to be a regular
+ * file when the job was resolved, but the file may have been replaced
+ * since: O_NONBLOCK, so a FIFO planted under an asset root cannot block the
+ * worker forever waiting for a writer, and anything but a regular file is
+ * refused (the worker names the asset's field). */
 static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
 {
     if (a->id) {
         snprintf(key, 65, "%s", a->id);
         return MR_OK;
     }
-    FILE *f = fopen(a->path, "rb");
-    if (!f)
+    int fd = open(a->path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
         return mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
+    int rc = MR_OK;
+    struct stat st;
+    if (fstat(fd, &st) != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
+        goto done;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: not a regular file (a FIFO, device or directory "
+                          "cannot be an asset)", a->path);
+        goto done;
+    }
     mr_sha256 h;
     mr_sha256_init(&h);
     char buf[1 << 16];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
-        mr_sha256_update(&h, buf, n);
-    int failed = ferror(f);
-    fclose(f);
-    if (failed)
-        return mr_error_set(err, MR_ERR_IO, "%s: read error", a->path);
+    for (;;) {
+        ssize_t n = read(fd, buf, sizeof buf);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0) {
+            rc = mr_error_set(err, MR_ERR_IO, "%s: read error: %s", a->path, strerror(errno));
+            goto done;
+        }
+        if (n == 0)
+            break;
+        mr_sha256_update(&h, buf, (size_t)n);
+    }
     uint8_t digest[32];
     mr_sha256_final(&h, digest);
     for (int i = 0; i < 32; i++)
         snprintf(key + 2 * i, 3, "%02x", digest[i]);
-    return MR_OK;
+done:
+    close(fd);
+    return rc;
 }
 
 static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
-                       double *saved_s, mr_error *err)
+                       double *saved_s, mr_asset_stage *stage, mr_error *err)
 {
     job_run *r = user;
     char key[65];
@@ -582,7 +605,7 @@ static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bo
         return rc;
     return mr_cache_acquire_refined(r->d->cache, key, desc->path,
                                     desc->refine ? &desc->refine_params : NULL, out, hit, saved_s,
-                                    err);
+                                    stage, err);
 }
 
 static void run_release(void *user, mr_asset *asset)
@@ -872,7 +895,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         }
     }
     d->cfg.asset_root_count = d->root_count;
-    if ((rc = mr_mkdir_p(d->data_dir, err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
+    if ((rc = mr_fs_make_dirs(d->data_dir, "data directory", err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
         goto fail;
     if ((rc = mr_store_recover(d->store, err)) < 0)
         goto fail;

@@ -1,7 +1,7 @@
 /*
- * files.h - small file helpers for the server side: bounded whole-file
- * reads, atomic replace-by-rename writes (nothing half-written is ever
- * visible under the final name, even after a crash), mkdir -p.
+ * files.h - the server's bounded whole-file read (NUL-terminated, for job
+ * files). Atomic writes, mkdir -p and dirname are core's, the same for
+ * every writer: util/file_io.h.
  */
 #ifndef MR_FILES_H
 #define MR_FILES_H
@@ -11,11 +11,5 @@
 /* Reads a whole file (at most max_bytes; MR_ERR_LIMIT beyond) into a
  * malloc'ed, NUL-terminated buffer. */
 int mr_file_read(const char *path, size_t max_bytes, char **data, size_t *size, mr_error *err);
-/* Writes data to path.tmp, fsyncs it and renames it over path. */
-int mr_file_write_atomic(const char *path, const void *data, size_t size, mr_error *err);
-/* Creates dir and its parents (mode 0755); existing directories are fine. */
-int mr_mkdir_p(const char *dir, mr_error *err);
-/* Directory part of path ("." when there is none), into out. */
-void mr_path_dirname(const char *path, char *out, size_t out_size);
 
 #endif

@@ -1018,9 +1018,11 @@ static enum MHD_Result h_job_stats(req *r, struct MHD_Connection *c)
         }
     }
     mr_job_stats stats = {.frame_count = done, .frames = fs, .threads = (unsigned)threads};
-    text = mr_stats_to_json(job ? job : &fallback, &stats, 0);
-    root = text ? cJSON_Parse(text) : NULL;
-    if (!root)
+    if ((rc = mr_stats_to_json(job ? job : &fallback, &stats, 0, &text, &err)) < 0) {
+        res = send_error(r, c, rc, &err);
+        goto cleanup;
+    }
+    if (!(root = cJSON_Parse(text)))
         goto oom;
 
     /* The frames list shows what the store recorded, exactly (and with the

@@ -23,6 +23,7 @@
 #include "render/compare.h"
 #include "render/exr.h"
 #include "stats_json.h"
+#include "util/file_io.h"
 #include "util/parallel.h"
 #include "worker.h"
 
@@ -67,7 +68,7 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     size_t size = 0;
     int rc = mr_exr_write_memory(&data, &size, film, &o->job->output.exr, &meta, err);
     if (rc == MR_OK)
-        rc = mr_file_write_atomic(path, data, size, err);
+        rc = mr_fs_write_atomic(path, data, size, "frame", err);
     free(data);
     st->encode_s = mr_now() - t0;
     return rc;
@@ -78,18 +79,21 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
  * every MR_STATS_INTERVAL seconds and once more when the job ends. */
 #define MR_STATS_INTERVAL 2.0
 
-static void write_stats(render_out *o, const mr_job_stats *stats)
+/* Rewrites DIR/stats.json; on failure the previous one stays (never one
+ * with frames missing) and err says why, naming the file. */
+static int write_stats(render_out *o, const mr_job_stats *stats, mr_error *err)
 {
-    char *json = mr_stats_to_json(o->job, stats, 0);
+    char *json = NULL;
     char path[4200];
-    mr_error err;
     snprintf(path, sizeof path, "%s/stats.json", o->dir);
-    if (!json)
-        fprintf(stderr, "microrayd: warning: out of memory writing %s\n", path);
-    else if (mr_file_write_atomic(path, json, strlen(json), &err) < 0)
-        fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    int rc = mr_stats_to_json(o->job, stats, 0, &json, err);
+    if (rc < 0)
+        mr_error_prefix(err, "%s: ", path);
+    else
+        rc = mr_fs_write_atomic(path, json, strlen(json), "stats.json", err);
     free(json);
     o->stats_written = mr_now();
+    return rc;
 }
 
 static void report_progress(void *user, size_t index, const mr_job_stats *stats)
@@ -101,32 +105,43 @@ static void report_progress(void *user, size_t index, const mr_job_stats *stats)
                 "frame %zu/%zu t=%.3fs %.3fs (pose %.3f %s %.3f trace %.3f encode %.3f) %.1f Mrays/s\n",
                 index + 1, o->job->frame_count, f->time, f->total_s, f->pose_s,
                 mr_bvh_update_name(f->bvh), f->bvh_s, f->trace_s, f->encode_s, f->mrays_per_s);
-    if (index + 1 == o->job->frame_count || mr_now() - o->stats_written >= MR_STATS_INTERVAL)
-        write_stats(o, stats);
+    /* the last one is written once the job ends (mr_cmd_render), where a
+     * failure can still fail the command */
+    mr_error err;
+    if (index + 1 < o->job->frame_count && mr_now() - o->stats_written >= MR_STATS_INTERVAL &&
+        write_stats(o, stats, &err) < 0)
+        fprintf(stderr, "microrayd: warning: %s\n", err.msg);
 }
 
 /* Relative asset paths are relative to the job file. */
 static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 {
-    char dir[4096];
-    mr_path_dirname(job_path, dir, sizeof dir);
-    for (size_t i = 0; i < job->asset_count; i++) {
+    char *dir = mr_fs_dir_of(job_path);
+    if (!dir)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    int rc = MR_OK;
+    for (size_t i = 0; i < job->asset_count && rc == MR_OK; i++) {
         char *p = job->assets[i].path;
-        if (!p)
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "/assets/%s/id: uploaded assets are stored by the daemon; the one-shot "
-                                "renderer needs a \"path\"", job->assets[i].name);
+        if (!p) {
+            rc = mr_error_set(err, MR_ERR_INVALID,
+                              "/assets/%s/id: uploaded assets are stored by the daemon; the one-shot "
+                              "renderer needs a \"path\"", job->assets[i].name);
+            break;
+        }
         if (p[0] == '/')
             continue;
         size_t n = strlen(dir) + strlen(p) + 2;
         char *abs = malloc(n);
-        if (!abs)
-            return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        if (!abs) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+            break;
+        }
         snprintf(abs, n, "%s/%s", dir, p);
         free(p);
         job->assets[i].path = abs;
     }
-    return MR_OK;
+    free(dir);
+    return rc;
 }
 
 static void usage_render(void)
@@ -194,7 +209,7 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
-    if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_mkdir_p(out_dir, &err)) < 0 ||
+    if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_fs_make_dirs(out_dir, "output directory", &err)) < 0 ||
         (rc = mr_device_new(threads, &dev, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
         status = exit_status(rc);
@@ -206,8 +221,14 @@ int mr_cmd_render(int argc, char **argv)
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
         status = exit_status(rc);
-        if (stats.frame_count > 0) /* keep the figures of the frames that did finish */
-            write_stats(&out, &stats);
+        /* keep the figures of the frames that did finish */
+        if (stats.frame_count > 0 && write_stats(&out, &stats, &err) < 0)
+            fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    } else if ((rc = write_stats(&out, &stats, &err)) < 0) {
+        /* every frame rendered, but stats.json, an output of the job, is not
+         * there or not up to date */
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        status = exit_status(rc);
     }
 done:
     mr_job_stats_free(&stats);

@@ -17,8 +17,8 @@
 #include <string.h>
 
 #include "daemon.h"
-#include "files.h"
 #include "render_cmd.h"
+#include "util/file_io.h"
 #include "util/parallel.h"
 
 #define MR_DEFAULT_PORT 8470
@@ -128,7 +128,7 @@ int mr_cmd_serve(int argc, char **argv)
     if (port_file) {
         char text[32];
         int len = snprintf(text, sizeof text, "%u\n", mr_daemon_port(d));
-        if (mr_file_write_atomic(port_file, text, (size_t)len, &err) < 0)
+        if (mr_fs_write_atomic(port_file, text, (size_t)len, "port file", &err) < 0)
             fprintf(stderr, "microrayd: warning: %s\n", err.msg);
     }
     int sig = 0;

@@ -2,6 +2,7 @@
 #include "stats_json.h"
 
 #include <cJSON.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,34 +25,44 @@ static double median(double *v, size_t n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-/* One frame's statistics as a cJSON object (NULL when out of memory). */
+/* Each builder below collects the results of its cJSON calls in `ok`: a
+ * call that fails for want of memory leaves its field out, and a document
+ * with a field or a frame missing must never pass for complete. (cJSON's
+ * Add functions return NULL on failure, also when given a NULL parent.) */
+
+/* One frame's statistics as a cJSON object; NULL when out of memory. */
 static cJSON *frame_json(const mr_frame_stats *f)
 {
     cJSON *o = cJSON_CreateObject();
-    cJSON_AddNumberToObject(o, "frame", f->frame);
-    cJSON_AddNumberToObject(o, "time", f->time);
+    bool ok = o != NULL;
+    ok &= cJSON_AddNumberToObject(o, "frame", f->frame) != NULL;
+    ok &= cJSON_AddNumberToObject(o, "time", f->time) != NULL;
     char name[MR_FRAME_NAME_MAX];
     mr_frame_file_name((size_t)f->frame, name);
-    cJSON_AddStringToObject(o, "file", name);
+    ok &= cJSON_AddStringToObject(o, "file", name) != NULL;
     cJSON *s = cJSON_AddObjectToObject(o, "seconds");
-#define ADD(n) cJSON_AddNumberToObject(s, #n, f->n##_s);
+#define ADD(n) ok &= cJSON_AddNumberToObject(s, #n, f->n##_s) != NULL;
     TIMINGS(ADD)
 #undef ADD
-    cJSON_AddStringToObject(o, "bvh", mr_bvh_update_name(f->bvh));
-    cJSON_AddNumberToObject(o, "rays", (double)f->rays);
-    cJSON_AddNumberToObject(o, "mrays_per_s", f->mrays_per_s);
-    cJSON_AddNumberToObject(o, "triangles", (double)f->triangles);
+    ok &= cJSON_AddStringToObject(o, "bvh", mr_bvh_update_name(f->bvh)) != NULL;
+    ok &= cJSON_AddNumberToObject(o, "rays", (double)f->rays) != NULL;
+    ok &= cJSON_AddNumberToObject(o, "mrays_per_s", f->mrays_per_s) != NULL;
+    ok &= cJSON_AddNumberToObject(o, "triangles", (double)f->triangles) != NULL;
     cJSON *b = cJSON_AddObjectToObject(o, "bytes");
-    cJSON_AddNumberToObject(b, "geometry", (double)f->geometry_bytes);
-    cJSON_AddNumberToObject(b, "bvh", (double)f->bvh_bytes);
-    cJSON_AddNumberToObject(b, "peak_rss", (double)f->peak_rss_bytes);
-    cJSON_AddNumberToObject(o, "scene_diagonal", f->scene_diagonal);
+    ok &= cJSON_AddNumberToObject(b, "geometry", (double)f->geometry_bytes) != NULL;
+    ok &= cJSON_AddNumberToObject(b, "bvh", (double)f->bvh_bytes) != NULL;
+    ok &= cJSON_AddNumberToObject(b, "peak_rss", (double)f->peak_rss_bytes) != NULL;
+    ok &= cJSON_AddNumberToObject(o, "scene_diagonal", f->scene_diagonal) != NULL;
     if (f->assets_cached || f->assets_loaded) {
         cJSON *c = cJSON_AddObjectToObject(o, "cache");
-        cJSON_AddStringToObject(c, "result", f->assets_loaded ? (f->assets_cached ? "partial" : "miss") : "hit");
-        cJSON_AddNumberToObject(c, "assets_cached", f->assets_cached);
-        cJSON_AddNumberToObject(c, "assets_loaded", f->assets_loaded);
-        cJSON_AddNumberToObject(c, "saved_s", f->load_saved_s);
+        ok &= cJSON_AddStringToObject(c, "result", f->assets_loaded ? (f->assets_cached ? "partial" : "miss") : "hit") != NULL;
+        ok &= cJSON_AddNumberToObject(c, "assets_cached", f->assets_cached) != NULL;
+        ok &= cJSON_AddNumberToObject(c, "assets_loaded", f->assets_loaded) != NULL;
+        ok &= cJSON_AddNumberToObject(c, "saved_s", f->load_saved_s) != NULL;
+    }
+    if (!ok) {
+        cJSON_Delete(o);
+        return NULL;
     }
     return o;
 }
@@ -64,29 +75,37 @@ char *mr_frame_stats_json(const mr_frame_stats *f)
     return s;
 }
 
-char *mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first)
+int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first, char **out,
+                     mr_error *err)
 {
+    *out = NULL;
     size_t n = stats->frame_count > first ? stats->frame_count - first : 0;
     const mr_frame_stats *fr = stats->frames + first;
     double *tmp = malloc((n ? n : 1) * sizeof *tmp);
     cJSON *root = cJSON_CreateObject();
-    if (!tmp || !root) {
-        free(tmp);
-        cJSON_Delete(root);
-        return NULL;
-    }
-    cJSON_AddStringToObject(root, "job", job->name);
-    cJSON_AddStringToObject(root, "software", "microray " MR_VERSION_STRING);
-    cJSON_AddNumberToObject(root, "threads", stats->threads);
-    cJSON_AddNumberToObject(root, "width", job->output.width);
-    cJSON_AddNumberToObject(root, "height", job->output.height);
-    cJSON_AddNumberToObject(root, "samples", job->output.spp);
-    cJSON_AddNumberToObject(root, "frames_total", (double)job->frame_count);
-    cJSON_AddNumberToObject(root, "frames_done", (double)n);
+    bool ok = tmp && root;
+    if (!ok)
+        goto done;
+    ok &= cJSON_AddStringToObject(root, "job", job->name) != NULL;
+    ok &= cJSON_AddStringToObject(root, "software", "microray " MR_VERSION_STRING) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "threads", stats->threads) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "width", job->output.width) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "height", job->output.height) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "samples", job->output.spp) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "frames_total", (double)job->frame_count) != NULL;
+    ok &= cJSON_AddNumberToObject(root, "frames_done", (double)n) != NULL;
 
     cJSON *frames = cJSON_AddArrayToObject(root, "frames");
-    for (size_t i = 0; i < n; i++)
-        cJSON_AddItemToArray(frames, frame_json(&fr[i]));
+    ok &= frames != NULL;
+    for (size_t i = 0; i < n && ok; i++) {
+        cJSON *f = frame_json(&fr[i]);
+        if (!f || !cJSON_AddItemToArray(frames, f)) {
+            cJSON_Delete(f);
+            ok = false;
+        }
+    }
+    if (!ok)
+        goto done;
 
     cJSON *tot = cJSON_AddObjectToObject(root, "totals");
     cJSON *ts = cJSON_AddObjectToObject(tot, "seconds");
@@ -100,22 +119,26 @@ char *mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t firs
         double sum = 0;                                                                            \
         for (size_t i = 0; i < n; i++)                                                             \
             sum += tmp[i] = fr[i].name##_s;                                                        \
-        cJSON_AddNumberToObject(ts, #name, sum);                                                   \
-        cJSON_AddNumberToObject(ms, #name, median(tmp, n));                                        \
+        ok &= cJSON_AddNumberToObject(ts, #name, sum) != NULL;                                     \
+        ok &= cJSON_AddNumberToObject(ms, #name, median(tmp, n)) != NULL;                          \
     }
     TIMINGS(ADD)
 #undef ADD
-    cJSON_AddNumberToObject(tot, "rays", (double)rays);
+    ok &= cJSON_AddNumberToObject(tot, "rays", (double)rays) != NULL;
     for (size_t i = 0; i < n; i++)
         tmp[i] = fr[i].mrays_per_s;
-    cJSON_AddNumberToObject(med, "mrays_per_s", median(tmp, n));
+    ok &= cJSON_AddNumberToObject(med, "mrays_per_s", median(tmp, n)) != NULL;
     uint64_t peak = 0;
     for (size_t i = 0; i < n; i++)
         peak = fr[i].peak_rss_bytes > peak ? fr[i].peak_rss_bytes : peak;
-    cJSON_AddNumberToObject(tot, "peak_rss_bytes", (double)peak);
-
-    char *out = cJSON_Print(root);
+    ok &= cJSON_AddNumberToObject(tot, "peak_rss_bytes", (double)peak) != NULL;
+    if (ok)
+        ok = (*out = cJSON_Print(root)) != NULL;
+done:
     cJSON_Delete(root);
     free(tmp);
-    return out;
+    if (!ok)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory writing the statistics of %zu frames",
+                            n);
+    return MR_OK;
 }

@@ -33,6 +33,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/file_io.h"
 #include "util/sha256.h"
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
@@ -333,108 +334,6 @@ static int random_job_id(char id[MR_JOB_ID_LEN + 1], mr_error *err)
 
 /* ---- files ------------------------------------------------------------------ */
 
-static int fsync_dir(const char *dir, mr_error *err)
-{
-    int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (fd < 0)
-        return io_error(err, "cannot open directory", dir, errno);
-    if (fsync(fd) != 0) {
-        int e = errno;
-        close(fd);
-        return io_error(err, "cannot fsync directory", dir, e);
-    }
-    close(fd);
-    return MR_OK;
-}
-
-/* mkdir that accepts an existing directory; *created tells whether it is
- * new (its parent then needs an fsync for the entry to be durable). */
-static int make_dir(const char *dir, bool *created, mr_error *err)
-{
-    if (created)
-        *created = false;
-    if (mkdir(dir, 0755) == 0) {
-        if (created)
-            *created = true;
-        return MR_OK;
-    }
-    if (errno != EEXIST)
-        return io_error(err, "cannot create directory", dir, errno);
-    struct stat sb;
-    if (stat(dir, &sb) != 0)
-        return io_error(err, "cannot stat", dir, errno);
-    if (!S_ISDIR(sb.st_mode))
-        return mr_error_set(err, MR_ERR_IO, "'%s' exists and is not a directory", dir);
-    return MR_OK;
-}
-
-static int make_dirs(const char *dir, mr_error *err)
-{
-    char p[STORE_PATH_MAX];
-    int rc = path_join(p, sizeof p, err, "%s", dir);
-    if (rc < 0)
-        return rc;
-    for (char *c = p + 1; *c; c++) {
-        if (*c != '/')
-            continue;
-        *c = '\0';
-        rc = make_dir(p, NULL, err);
-        *c = '/';
-        if (rc < 0)
-            return rc;
-    }
-    return make_dir(p, NULL, err);
-}
-
-static int write_all(int fd, const void *data, size_t size)
-{
-    const unsigned char *p = data;
-    while (size > 0) {
-        ssize_t n = write(fd, p, size);
-        if (n < 0) {
-            if (errno == EINTR)
-                continue;
-            return -1;
-        }
-        p += n;
-        size -= (size_t)n;
-    }
-    return 0;
-}
-
-/* Writes data through the already open fd of tmp, fsyncs, renames tmp to
- * path and fsyncs dir: after it returns, path holds the complete bytes
- * even across a crash. Closes fd; removes tmp on failure. */
-static int commit_file(int fd, const char *tmp, const char *path, const char *dir,
-                       const void *data, size_t size, mr_error *err)
-{
-    int rc = MR_OK;
-    if (size > 0 && write_all(fd, data, size) != 0) {
-        rc = io_error(err, "cannot write", tmp, errno);
-        close(fd);
-        goto fail;
-    }
-    if (fsync(fd) != 0) {
-        rc = io_error(err, "cannot fsync", tmp, errno);
-        close(fd);
-        goto fail;
-    }
-    /* close can report a delayed write error (NFS); the data is not safe
-     * then. */
-    if (close(fd) != 0) {
-        rc = io_error(err, "cannot close", tmp, errno);
-        goto fail;
-    }
-    if (rename(tmp, path) != 0) {
-        rc = io_error(err, "cannot rename to", path, errno);
-        goto fail;
-    }
-    return fsync_dir(dir, err);
-fail:
-    unlink(tmp);
-    return rc;
-}
-
 /* Removes the regular files in dir and dir itself; a missing dir is fine. */
 static int remove_dir(const char *dir, mr_error *err)
 {
@@ -669,7 +568,7 @@ int mr_store_open(const char *data_dir, mr_store **out, mr_error *err)
     *out = NULL;
     if (!data_dir || !*data_dir)
         return mr_error_set(err, MR_ERR_INVALID, "no data directory given");
-    /* Room for "/frames/<id>/NNNNNNN.exr.tmp" below the directory. */
+    /* Room for "/frames/<id>/NNNNNNN.exr.tmpXXXXXX" below the directory. */
     if (strlen(data_dir) > STORE_PATH_MAX - 128)
         return mr_error_set(err, MR_ERR_INVALID, "data directory path too long (%zu bytes)",
                             strlen(data_dir));
@@ -686,13 +585,13 @@ int mr_store_open(const char *data_dir, mr_store **out, mr_error *err)
     st->dir[n] = '\0';
 
     char path[STORE_PATH_MAX];
-    if ((rc = make_dirs(st->dir, err)) < 0)
+    if ((rc = mr_fs_make_dirs(st->dir, "store", err)) < 0)
         goto fail;
     if ((rc = path_join(path, sizeof path, err, "%s/assets", st->dir)) < 0 ||
-        (rc = make_dir(path, NULL, err)) < 0)
+        (rc = mr_fs_make_dirs(path, "store", err)) < 0)
         goto fail;
     if ((rc = path_join(path, sizeof path, err, "%s/frames", st->dir)) < 0 ||
-        (rc = make_dir(path, NULL, err)) < 0)
+        (rc = mr_fs_make_dirs(path, "store", err)) < 0)
         goto fail;
 
     if (pthread_mutex_init(&st->lock, NULL) != 0) {
@@ -794,7 +693,9 @@ static void remove_orphans(mr_store *st)
         DIR *d = opendir(path);
         struct dirent *e;
         while (d && (e = readdir(d)) != NULL) {
-            if (strncmp(e->d_name, ".upload-", 8) == 0) /* an upload cut off by a crash */
+            /* an upload cut off by a crash (".upload.tmpXXXXXX"; earlier
+             * versions named it ".upload-XXXXXX"); assets are hex hashes */
+            if (strncmp(e->d_name, ".upload", 7) == 0)
                 unlinkat(dirfd(d), e->d_name, 0);
         }
         if (d)
@@ -1499,10 +1400,9 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
         return mr_error_set(err, MR_ERR_INVALID, "mr_store_frame_done: missing argument");
     if (!valid_job_id(id))
         return no_job(err, id);
-    char dir[STORE_PATH_MAX], tmp[STORE_PATH_MAX], path[STORE_PATH_MAX];
+    char dir[STORE_PATH_MAX], path[STORE_PATH_MAX];
     int rc;
     if ((rc = path_join(dir, sizeof dir, err, "%s/frames/%s", st->dir, id)) < 0 ||
-        (rc = frame_file(st, id, index, ".tmp", tmp, sizeof tmp, err)) < 0 ||
         (rc = frame_file(st, id, index, "", path, sizeof path, err)) < 0)
         return rc;
 
@@ -1513,19 +1413,10 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
     if (rc < 0)
         return rc;
 
-    bool created = false;
-    if ((rc = make_dir(dir, &created, err)) < 0)
-        return rc;
-    if (created) {
-        char parent[STORE_PATH_MAX];
-        if ((rc = path_join(parent, sizeof parent, err, "%s/frames", st->dir)) < 0 ||
-            (rc = fsync_dir(parent, err)) < 0)
-            return rc;
-    }
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0)
-        return io_error(err, "cannot create", tmp, errno);
-    if ((rc = commit_file(fd, tmp, path, dir, exr, exr_size, err)) < 0)
+    /* a new frame directory is durable (its parent synced) before the
+     * frame is renamed into it */
+    if ((rc = mr_fs_make_dirs(dir, "frame", err)) < 0 ||
+        (rc = mr_fs_write_atomic(path, exr, exr_size, "frame", err)) < 0)
         return rc;
 
     /* The file is durable; only now may the row say so. */
@@ -1578,8 +1469,7 @@ int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, 
 /* ---- assets ----------------------------------------------------------------- */
 
 struct mr_asset_upload {
-    int fd;
-    char tmp[STORE_PATH_MAX];
+    mr_fs_atomic file; /* assets/.upload.tmpXXXXXX, renamed to its hash */
     uint64_t size;
     mr_sha256 hash;
 };
@@ -1590,22 +1480,14 @@ int mr_store_asset_upload_begin(mr_store *st, mr_asset_upload **out, mr_error *e
     mr_asset_upload *up = calloc(1, sizeof *up);
     if (!up)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory starting an upload");
-    int rc = path_join(up->tmp, sizeof up->tmp, err, "%s/assets/.upload-XXXXXX", st->dir);
-    if (rc < 0) {
-        free(up);
-        return rc;
-    }
+    char name[STORE_PATH_MAX];
+    int rc = path_join(name, sizeof name, err, "%s/assets/.upload", st->dir);
     /* A unique temporary: two uploads of the same bytes at once must not
      * write into one file. */
-    up->fd = mkstemp(up->tmp);
-    if (up->fd < 0) {
-        rc = io_error(err, "cannot create", up->tmp, errno);
+    if (rc == MR_OK)
+        rc = mr_fs_atomic_begin(&up->file, name, "asset upload", err);
+    if (rc < 0) {
         free(up);
-        return rc;
-    }
-    if (fchmod(up->fd, 0644) != 0) {
-        rc = io_error(err, "cannot chmod", up->tmp, errno);
-        mr_store_asset_upload_abort(up);
         return rc;
     }
     mr_sha256_init(&up->hash);
@@ -1615,8 +1497,9 @@ int mr_store_asset_upload_begin(mr_store *st, mr_asset_upload **out, mr_error *e
 
 int mr_store_asset_upload_write(mr_asset_upload *up, const void *data, size_t size, mr_error *err)
 {
-    if (size > 0 && write_all(up->fd, data, size) != 0)
-        return io_error(err, "cannot write", up->tmp, errno);
+    int rc = mr_fs_atomic_write(&up->file, data, size, "asset upload", err);
+    if (rc < 0)
+        return rc;
     mr_sha256_update(&up->hash, data, size);
     up->size += size;
     return MR_OK;
@@ -1626,10 +1509,7 @@ void mr_store_asset_upload_abort(mr_asset_upload *up)
 {
     if (!up)
         return;
-    if (up->fd >= 0) {
-        close(up->fd);
-        unlink(up->tmp);
-    }
+    mr_fs_atomic_abort(&up->file);
     free(up);
 }
 
@@ -1660,8 +1540,7 @@ int mr_store_asset_upload_finish(mr_store *st, mr_asset_upload *up, char id[MR_A
     if (present) {
         mr_store_asset_upload_abort(up);
     } else {
-        rc = commit_file(up->fd, up->tmp, path, dir, NULL, 0, err); /* closes the fd */
-        up->fd = -1;
+        rc = mr_fs_atomic_commit(&up->file, path, "asset upload", err); /* ends the write */
         free(up);
         if (rc < 0)
             return rc;

@@ -11,13 +11,14 @@
 /* Without a cache, the import the cache would do on a miss (refinement
  * included). */
 static int acquire(const mr_worker_io *io, const mr_asset_desc *d, mr_asset **out, bool *hit,
-                   double *saved_s, mr_error *err)
+                   double *saved_s, mr_asset_stage *stage, mr_error *err)
 {
+    *stage = MR_ASSET_STAGE_LOAD;
     if (io->acquire_asset)
-        return io->acquire_asset(io->user, d, out, hit, saved_s, err);
+        return io->acquire_asset(io->user, d, out, hit, saved_s, stage, err);
     *hit = false;
     *saved_s = 0;
-    return mr_cache_import(d->path, d->refine ? &d->refine_params : NULL, out, err);
+    return mr_cache_import(d->path, d->refine ? &d->refine_params : NULL, out, stage, err);
 }
 
 static void release(const mr_worker_io *io, mr_asset *a)
@@ -49,15 +50,13 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
     for (size_t i = 0; i < job->asset_count; i++) {
         bool hit;
         double saved;
+        mr_asset_stage stage;
         /* Refinement runs on the job's threads, like its frames. */
         mr_asset_desc d = job->assets[i];
         d.refine_params.threads = stats->threads;
-        if ((rc = acquire(io, &d, &assets[i], &hit, &saved, err)) < 0) {
-            /* A refine failure (cache.h: "refine: ...") points at "refine". */
-            if (err && d.refine && strncmp(err->msg, "refine: ", 8) == 0)
-                mr_error_prefix(err, "/assets/%s/", d.name);
-            else
-                mr_error_prefix(err, "/assets/%s/%s: ", d.name, d.id ? "id" : "path");
+        if ((rc = acquire(io, &d, &assets[i], &hit, &saved, &stage, err)) < 0) {
+            mr_error_prefix(err, "/assets/%s/%s: ", d.name,
+                            stage == MR_ASSET_STAGE_REFINE ? "refine" : d.id ? "id" : "path");
             goto done;
         }
         stats->assets_cached += hit;

@@ -11,6 +11,7 @@
 
 #include <stdatomic.h>
 
+#include "cache.h"
 #include "job.h"
 #include "render/device.h"
 #include "render/renderer.h"
@@ -40,10 +41,12 @@ typedef struct mr_worker_io {
     bool (*stop_requested)(void *user);
     /* Stops a frame in progress within one tile; may be NULL. */
     const atomic_bool *cancel;
-    /* Where assets come from. NULL: mr_asset_load / mr_asset_free. With a
-     * cache, *hit and *saved_s report whether the import was avoided. */
+    /* Where assets come from. NULL: mr_cache_import / mr_asset_free. With a
+     * cache, *hit and *saved_s report whether the import was avoided. On
+     * failure *stage says which step failed (cache.h): the worker points
+     * the error at the asset's "path" or "id", or at its "refine". */
     int (*acquire_asset)(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
-                         double *saved_s, mr_error *err);
+                         double *saved_s, mr_asset_stage *stage, mr_error *err);
     void (*release_asset)(void *user, mr_asset *asset);
     /* Root of the derived-data cache (mr_renderer_options.cache_dir), or NULL. */
     const char *cache_dir;

@@ -48,6 +48,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "util/file_io.h"
 #include "util/parallel.h"
 
 /* ------------------------------------------------------------------ */
@@ -929,8 +930,7 @@ int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_option
     exr_io io;
     exr_io *saved = t_sink;
     exr_compression_t ctype;
-    char *tmp = NULL;
-    size_t tmp_len;
+    mr_fs_atomic file;
     int level, rc;
 
     if (!path || !path[0])
@@ -940,40 +940,23 @@ int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_option
         (rc = check_meta(meta, err)) < 0)
         return rc;
 
-    /* Write next to the target and rename into place: readers (the HTTP
-     * side) never see a partial frame, and a failed write leaves an existing
-     * file untouched. pid + the address of this call's frame make the name
-     * unique among concurrent writers; O_EXCL refuses any leftover. */
-    tmp_len = strlen(path) + 64;
-    tmp = malloc(tmp_len);
-    if (!tmp)
-        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", path);
-    snprintf(tmp, tmp_len, "%s.%ld.%lx.tmp", path, (long)getpid(),
-             (unsigned long)(uintptr_t)&io);
-
+    /* Encode into a unique temporary next to the target, renamed into place
+     * once complete and synced (util/file_io.h): readers (the HTTP side)
+     * never see a partial frame, and a failed write leaves an existing file
+     * untouched. */
+    if ((rc = mr_fs_atomic_begin(&file, path, path, err)) < 0)
+        return rc;
     memset(&io, 0, sizeof io);
     io.name = path;
-    io.fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-    if (io.fd < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create %s: %s", path, tmp,
-                          strerror(errno));
-        goto cleanup;
-    }
+    io.fd = file.fd;
 
     t_sink = &io;
     rc = write_impl(&io, film, opt, meta, err);
     t_sink = saved;
 
-    if (close(io.fd) != 0 && rc == MR_OK)
-        rc = mr_error_set(err, MR_ERR_IO, "%s: close failed: %s", path, strerror(errno));
-    if (rc == MR_OK && rename(tmp, path) != 0)
-        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot rename %s into place: %s", path, tmp,
-                          strerror(errno));
-    if (rc != MR_OK)
-        unlink(tmp);
-
-cleanup:
-    free(tmp);
+    if (rc == MR_OK)
+        return mr_fs_atomic_commit(&file, NULL, path, err);
+    mr_fs_atomic_abort(&file);
     return rc;
 }
 

@@ -64,9 +64,10 @@ float mr_half_to_float(uint16_t h);
  * written as finite values (colour as above; Z and N: NaN -> 0,
  * +-Inf -> +-FLT_MAX). */
 
-/* Writes film to path. The data goes to a temporary file next to path that
- * is renamed over it on success, so nobody sees a partial frame and a failed
- * write leaves an existing file at path untouched. */
+/* Writes film to path atomically (util/file_io.h mr_fs_atomic: a unique
+ * temporary next to path, fsynced and renamed over it on success, then the
+ * directory synced), so nobody sees a partial frame, a failed write leaves
+ * an existing file at path untouched and a crash loses no finished frame. */
 int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_options *opt,
                       const mr_exr_meta *meta, mr_error *err);
 /* Writes film into a malloc'ed buffer (*data, *size); caller frees *data. */

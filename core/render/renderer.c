@@ -228,12 +228,23 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
                                        : r->refit                   ? RTC_BUILD_QUALITY_REFIT
                                                                     : RTC_BUILD_QUALITY_LOW;
         uint32_t ids = o->kind->geometry_ids ? o->kind->geometry_ids(o->geom) : 1;
-        unsigned *grown = ids ? realloc(r->id_object, ((size_t)r->id_count + ids) * sizeof *grown) : r->id_object;
-        if (!grown || (uint64_t)r->id_count + ids > UINT32_MAX / 2) {
-            rc = mr_error_set(err, MR_ERR_NOMEM, "/objects/%zu: out of memory for %u Embree geometries", i, ids);
+        /* The cap before the realloc: a refused object must leave id_object
+         * as it was (mr_renderer_free frees it once). */
+        if ((uint64_t)r->id_count + ids > UINT32_MAX / 2) {
+            rc = mr_error_set(err, MR_ERR_LIMIT,
+                              "/objects/%zu: %u Embree geometries would bring the scene to %llu, more "
+                              "than the %u a scene may have",
+                              i, ids, (unsigned long long)r->id_count + ids, UINT32_MAX / 2);
             goto fail;
         }
-        r->id_object = grown;
+        if (ids) {
+            unsigned *grown = realloc(r->id_object, ((size_t)r->id_count + ids) * sizeof *grown);
+            if (!grown) {
+                rc = mr_error_set(err, MR_ERR_NOMEM, "/objects/%zu: out of memory for %u Embree geometries", i, ids);
+                goto fail;
+            }
+            r->id_object = grown;
+        }
         for (uint32_t k = 0; k < ids; k++)
             r->id_object[r->id_count + k] = (unsigned)i;
         if ((rc = o->kind->attach(o->geom, rtc, r->scene, r->id_count, quality, err)) < 0)

@@ -17,8 +17,26 @@ char *mr_fs_dir_of(const char *path)
     return strndup(path, slash > path ? (size_t)(slash - path) : 1);
 }
 
+/* fsync of a directory, so entries just made or renamed in it survive a
+ * crash. EINVAL: file systems that cannot sync a directory. */
+static int fsync_dir(const char *dir, const char *what, mr_error *err)
+{
+    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd < 0)
+        return mr_error_set(err, MR_ERR_IO, "%s: fsync of directory %s: %s", what, dir,
+                            strerror(errno));
+    int rc = MR_OK;
+    if (fsync(dfd) != 0 && errno != EINVAL)
+        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync of directory %s: %s", what, dir,
+                          strerror(errno));
+    close(dfd);
+    return rc;
+}
+
 int mr_fs_make_dirs(const char *dir, const char *what, mr_error *err)
 {
+    if (!dir || !dir[0])
+        return mr_error_set(err, MR_ERR_INVALID, "%s: empty directory name", what);
     char *d = strdup(dir);
     if (!d)
         return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", what);
@@ -29,9 +47,17 @@ int mr_fs_make_dirs(const char *dir, const char *what, mr_error *err)
             continue;
         char saved = d[i];
         d[i] = '\0';
-        if (mkdir(d, 0755) != 0 && errno != EEXIST)
+        if (mkdir(d, 0755) == 0) {
+            /* new: its entry in the parent is durable only once the parent
+             * is synced */
+            char *parent = mr_fs_dir_of(d);
+            rc = parent ? fsync_dir(parent, what, err)
+                        : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", what);
+            free(parent);
+        } else if (errno != EEXIST) {
             rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create directory %s: %s", what, d,
                               strerror(errno));
+        }
         d[i] = saved;
     }
     struct stat st;
@@ -41,78 +67,135 @@ int mr_fs_make_dirs(const char *dir, const char *what, mr_error *err)
     return rc;
 }
 
-int mr_fs_write_atomic(const char *path, const void *buf, size_t size, const char *what,
-                       mr_error *err)
+int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_error *err)
 {
+    *a = (mr_fs_atomic){.fd = -1};
     if (!path || !path[0])
         return mr_error_set(err, MR_ERR_INVALID, "%s: no path", what);
-    if (!buf && size)
-        return mr_error_set(err, MR_ERR_INVALID, "%s: no data", what);
-    int rc = MR_OK, fd = -1;
-    const uint8_t *bytes = buf;
     size_t n = strlen(path);
     char *tmp = malloc(n + sizeof ".tmpXXXXXX");
+    char *target = strdup(path);
     char *dir = mr_fs_dir_of(path);
-    if (!tmp || !dir) {
+    int rc = MR_OK, fd = -1;
+    if (!tmp || !target || !dir) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", what);
-        goto done;
+        goto fail;
     }
-    /* unique per writer: two jobs may store the same cache entry at once;
-     * the last rename wins, with the same content */
+    /* unique per writer: two jobs may store the same cache entry, or two
+     * renders the same frame, at once; the last rename wins */
     memcpy(tmp, path, n);
     memcpy(tmp + n, ".tmpXXXXXX", sizeof ".tmpXXXXXX");
     if ((fd = mkstemp(tmp)) < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create %s: %s", what, tmp,
-                          strerror(errno));
-        free(tmp);
-        tmp = NULL; /* nothing to remove */
-        goto done;
+        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create %s: %s", what, tmp, strerror(errno));
+        goto fail;
     }
-    (void)fchmod(fd, 0644); /* mkstemp's 0600 would hide a cache from other users */
-    for (size_t off = 0; off < size;) {
-        ssize_t w = write(fd, bytes + off, size - off);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "%s: writing %s: %s", what, tmp,
-                              w < 0 ? strerror(errno) : "no progress");
-            goto done;
-        }
-        off += (size_t)w;
-    }
-    if (fsync(fd) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync %s: %s", what, tmp, strerror(errno));
-        goto done;
-    }
-    int c = close(fd);
-    fd = -1;
-    if (c != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: close %s: %s", what, tmp, strerror(errno));
-        goto done;
-    }
-    if (rename(tmp, path) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: rename %s to %s: %s", what, tmp, path,
-                          strerror(errno));
-        goto done;
-    }
-    free(tmp);
-    tmp = NULL;
-    /* the rename itself is durable only once the directory is synced;
-     * EINVAL: file systems that cannot sync a directory */
-    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd < 0 || (fsync(dfd) != 0 && errno != EINVAL))
-        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync of directory %s: %s", what, dir,
-                          strerror(errno));
-    if (dfd >= 0)
-        close(dfd);
-done:
-    if (fd >= 0)
+    /* mkstemp's 0600 would hide a cache or a frame from other users */
+    if (fcntl(fd, F_SETFD, FD_CLOEXEC) != 0 || fchmod(fd, 0644) != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot set up %s: %s", what, tmp, strerror(errno));
         close(fd);
-    if (tmp)
         unlink(tmp);
+        goto fail;
+    }
+    *a = (mr_fs_atomic){.fd = fd, .tmp = tmp, .path = target, .dir = dir};
+    return MR_OK;
+fail:
     free(tmp);
+    free(target);
     free(dir);
     return rc;
+}
+
+int mr_fs_atomic_write(mr_fs_atomic *a, const void *buf, size_t size, const char *what,
+                       mr_error *err)
+{
+    if (!a->tmp || a->fd < 0)
+        return mr_error_set(err, MR_ERR_INVALID, "%s: no write in progress", what);
+    if (!buf && size)
+        return mr_error_set(err, MR_ERR_INVALID, "%s: no data", what);
+    const uint8_t *bytes = buf;
+    for (size_t off = 0; off < size;) {
+        ssize_t w = write(a->fd, bytes + off, size - off);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0)
+            return mr_error_set(err, MR_ERR_IO, "%s: writing %s: %s", what, a->tmp,
+                                w < 0 ? strerror(errno) : "no progress");
+        off += (size_t)w;
+    }
+    return MR_OK;
+}
+
+int mr_fs_atomic_commit(mr_fs_atomic *a, const char *path, const char *what, mr_error *err)
+{
+    int rc = MR_OK;
+    char *dir = NULL;
+    if (!a->tmp || a->fd < 0) {
+        rc = mr_error_set(err, MR_ERR_INVALID, "%s: no write in progress", what);
+        goto done;
+    }
+    const char *target = path ? path : a->path;
+    /* a rename across directories would leave the synced one the wrong one */
+    if (path && (!(dir = mr_fs_dir_of(path)) || strcmp(dir, a->dir) != 0)) {
+        rc = dir ? mr_error_set(err, MR_ERR_INVALID, "%s: %s is not in the directory of %s", what,
+                                path, a->tmp)
+                 : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", what);
+        goto done;
+    }
+    if (fsync(a->fd) != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync %s: %s", what, a->tmp, strerror(errno));
+        goto done;
+    }
+    /* close can report a delayed write error (NFS): the data is not safe */
+    int c = close(a->fd);
+    a->fd = -1;
+    if (c != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: close %s: %s", what, a->tmp, strerror(errno));
+        goto done;
+    }
+    if (rename(a->tmp, target) != 0) {
+        rc = mr_error_set(err, MR_ERR_IO, "%s: rename %s to %s: %s", what, a->tmp, target,
+                          strerror(errno));
+        goto done;
+    }
+    free(a->tmp);
+    a->tmp = NULL; /* renamed: nothing left to remove */
+    /* the rename itself is durable only once the directory is synced */
+    rc = fsync_dir(a->dir, what, err);
+done:
+    free(dir);
+    mr_fs_atomic_abort(a);
+    return rc;
+}
+
+void mr_fs_atomic_abort(mr_fs_atomic *a)
+{
+    if (!a)
+        return;
+    if (a->tmp) { /* tmp marks a write in progress; fd may already be closed */
+        if (a->fd >= 0)
+            close(a->fd);
+        unlink(a->tmp);
+    }
+    free(a->tmp);
+    free(a->path);
+    free(a->dir);
+    *a = (mr_fs_atomic){.fd = -1};
+}
+
+int mr_fs_write_atomic(const char *path, const void *buf, size_t size, const char *what,
+                       mr_error *err)
+{
+    if (!buf && size)
+        return mr_error_set(err, MR_ERR_INVALID, "%s: no data", what);
+    mr_fs_atomic a;
+    int rc = mr_fs_atomic_begin(&a, path, what, err);
+    if (rc < 0)
+        return rc;
+    if ((rc = mr_fs_atomic_write(&a, buf, size, what, err)) < 0) {
+        mr_fs_atomic_abort(&a);
+        return rc;
+    }
+    return mr_fs_atomic_commit(&a, NULL, what, err);
 }
 
 int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *size,

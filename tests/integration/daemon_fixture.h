@@ -25,7 +25,9 @@ typedef struct daemon_proc {
     char base[64];
 } daemon_proc;
 
-static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256];
+/* fx_root: a second, writable asset root of every daemon (fx_tmp/root),
+ * for tests that plant files where jobs may name them. */
+static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256], fx_root[300];
 
 static void fx_init_dirs(void)
 {
@@ -35,6 +37,9 @@ static void fx_init_dirs(void)
     snprintf(fx_tmp, sizeof fx_tmp, "/tmp/microray-daemon-XXXXXX");
     if (!mkdtemp(fx_tmp))
         fail_msg("mkdtemp failed");
+    snprintf(fx_root, sizeof fx_root, "%s/root", fx_tmp);
+    if (mkdir(fx_root, 0755) != 0)
+        fail_msg("cannot create %s", fx_root);
 }
 
 static void fx_sleep_ms(int ms)
@@ -58,7 +63,8 @@ static void daemon_start(daemon_proc *d, const char *data_name)
         FILE *log = freopen(d->log, "a", stderr);
         (void)log;
         execl(bin, "microrayd", "serve", "--listen", "127.0.0.1:0", "--data", d->data, "--asset-root",
-              "/usr/share/assimp/models", "--threads", "2", "--port-file", port_file, (char *)NULL);
+              "/usr/share/assimp/models", "--asset-root", fx_root, "--threads", "2", "--port-file",
+              port_file, (char *)NULL);
         _exit(127);
     }
     for (int i = 0; i < 300; i++) { /* up to 30 s: ASan builds start slowly */

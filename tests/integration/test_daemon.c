@@ -5,7 +5,8 @@
  * read back with OpenEXR, the scene cache, bad input answered with
  * problem+json, cancel/retry/delete/idempotency, kill -9 recovery, and
  * baked DMMs kept in DATA/dmm and voxelised assets in DATA/svo across jobs
- * and restarts.
+ * and restarts; a FIFO under an asset root, named or swapped in, refused
+ * without blocking a worker.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -15,6 +16,7 @@
 
 #include <cJSON.h>
 #include <dirent.h>
+#include <fcntl.h>
 
 #include "daemon_fixture.h"
 #include "render/exr.h"
@@ -304,7 +306,7 @@ static void test_upload_and_render_by_id(void **state)
     free(model);
     /* uploads stream to a temporary file that is renamed or removed: none is left */
     char cmd[700];
-    snprintf(cmd, sizeof cmd, "ls -a '%s/assets' | grep -q '^\\.upload-'", D.data);
+    snprintf(cmd, sizeof cmd, "ls -a '%s/assets' | grep -q '^\\.upload'", D.data);
     assert_int_not_equal(system(cmd), 0);
     char job[2048], id[64];
     snprintf(job, sizeof job,
@@ -362,6 +364,92 @@ static void test_bad_requests(void **state)
     http_result r = http(&D, "GET", "/healthz", NULL, 0, NULL);
     assert_int_equal(r.status, 200);
     http_free(&r);
+}
+
+/* A FIFO under an asset root can never be an asset: opening it for reading
+ * waits for a writer, forever. Named at submission it is refused, 400
+ * problem+json pointing at the asset's path. Swapped in for a regular file
+ * after the job was resolved (here while the job's first asset, a
+ * refinement no other test asks for, is imported, before the second is
+ * opened) the job fails naming the asset, instead of leaving a worker
+ * blocked for good. Bounded waits: a worker that does block is released by
+ * opening the FIFO for writing, so a failing run still ends. */
+static void test_fifo_asset_refused(void **state)
+{
+    (void)state;
+    static const char tail[] =
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+        "\"frames\":{\"times\":[0]},\"output\":{\"width\":32,\"height\":18,\"samples\":1}}";
+    char fifo[400], job[2048];
+    snprintf(fifo, sizeof fifo, "%s/pipe.x", fx_root);
+    assert_int_equal(mkfifo(fifo, 0644), 0);
+    snprintf(job, sizeof job, "{\"assets\":{\"p\":{\"path\":\"pipe.x\"}},\"objects\":[{\"asset\":\"p\"}],%s",
+             tail);
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/assets/p/path");
+
+    /* a regular file now, a FIFO by the time the worker opens it */
+    char model[400], next[400], cmd[1000];
+    snprintf(model, sizeof model, "%s/swapped.x", fx_root);
+    snprintf(next, sizeof next, "%s/next.x", fx_root);
+    snprintf(cmd, sizeof cmd, "cp /usr/share/assimp/models/X/BCN_Epileptic.X '%s'", model);
+    assert_int_equal(system(cmd), 0);
+    assert_int_equal(mkfifo(next, 0644), 0);
+    snprintf(job, sizeof job,
+             "{\"assets\":{\"slow\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\","
+             "\"refine\":{\"rounds\":3,\"amplitude\":0.002,\"seed\":90210}},"
+             "\"b\":{\"path\":\"swapped.x\"}},"
+             "\"objects\":[{\"asset\":\"slow\"},{\"asset\":\"b\"}],%s", tail);
+    char id[64], path[128];
+    submit(job, id);
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    const char *st = "queued";
+    cJSON *j = NULL;
+    for (int i = 0; i < 3000 && !strcmp(st, "queued"); i++) { /* at most 30 s */
+        cJSON_Delete(j);
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        j = cJSON_Parse(r.body);
+        http_free(&r);
+        assert_non_null(j);
+        st = state_of(j);
+        if (!strcmp(st, "queued"))
+            fx_sleep_ms(10);
+    }
+    cJSON_Delete(j); /* st is not used again before it is set anew */
+    assert_int_equal(rename(next, model), 0);
+    bool final = false;
+    j = NULL;
+    for (int i = 0; i < 600 && !final; i++) { /* at most 60 s */
+        cJSON_Delete(j);
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        j = cJSON_Parse(r.body);
+        http_free(&r);
+        assert_non_null(j);
+        st = state_of(j);
+        final = !strcmp(st, "succeeded") || !strcmp(st, "failed") || !strcmp(st, "canceled");
+        if (!final)
+            fx_sleep_ms(100);
+    }
+    if (!final) {
+        int w = open(model, O_WRONLY | O_NONBLOCK); /* release a reader stuck in open() */
+        if (w >= 0)
+            close(w);
+        char was[32];
+        snprintf(was, sizeof was, "%s", st);
+        cJSON_Delete(j);
+        fail_msg("job %s still %s after 60 s: a worker is blocked opening the FIFO", id, was);
+    }
+    if (strcmp(st, "failed") != 0)
+        fail_msg("job %s %s, want failed", id, st);
+    const cJSON *e = cJSON_GetObjectItem(j, "error");
+    assert_true(cJSON_IsString(e));
+    if (!strstr(e->valuestring, "/assets/b/path") || !strstr(e->valuestring, "not a regular file"))
+        fail_msg("error '%s' does not name the asset's path as not a regular file", e->valuestring);
+    print_message("job error: %s\n", e->valuestring);
+    cJSON_Delete(j);
+    /* the daemon still works */
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/assets/b/path");
+    unlink(model);
+    unlink(fifo);
 }
 
 static void test_cancel_retry_delete_idempotency(void **state)
@@ -664,6 +752,7 @@ int main(void)
         cmocka_unit_test(test_client_submit_wait_fetch),
         cmocka_unit_test(test_upload_and_render_by_id),
         cmocka_unit_test(test_bad_requests),
+        cmocka_unit_test(test_fifo_asset_refused),
         cmocka_unit_test(test_cancel_retry_delete_idempotency),
         cmocka_unit_test(test_failed_frames_and_retry),
         cmocka_unit_test(test_dmm_bake_kept_across_restarts),

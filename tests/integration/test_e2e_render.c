@@ -218,6 +218,66 @@ static void test_same_pixels_for_1_and_2_threads(void **state)
     assert_int_not_equal(access(path, F_OK), 0);
 }
 
+/* Another writer of the same output (a second render into DIR, an
+ * interrupted one's leftovers) holds the names the one-shot renderer used to
+ * write through ("0000.exr.tmp", "stats.json.tmp") and keeps writing after
+ * this render is done: the frame and stats.json must stay this render's. */
+static void test_render_owns_its_temporaries(void **state)
+{
+    (void)state;
+    char dir[512], held[2][600];
+    snprintf(dir, sizeof dir, "%s/shared-out", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(held[0], sizeof held[0], "%s/0000.exr.tmp", dir);
+    snprintf(held[1], sizeof held[1], "%s/stats.json.tmp", dir);
+    FILE *other[2];
+    for (int i = 0; i < 2; i++)
+        assert_non_null(other[i] = fopen(held[i], "w"));
+    render_small("shared-out", 2);
+    for (int i = 0; i < 2; i++) {
+        fputs("the other writer's bytes", other[i]);
+        fclose(other[i]);
+    }
+    mr_film *f = read_frame(dir, 0);
+    assert_int_equal(f->width, 192);
+    mr_film_free(f);
+    char path[700];
+    snprintf(path, sizeof path, "%s/stats.json", dir);
+    char *text = slurp(path);
+    assert_non_null(text);
+    cJSON *stats = cJSON_Parse(text);
+    if (!stats)
+        fail_msg("stats.json is not JSON: %.60s", text);
+    assert_int_equal(cJSON_GetObjectItem(stats, "frames_done")->valueint, 4);
+    cJSON_Delete(stats);
+    free(text);
+}
+
+/* stats.json is an output of the job: when it cannot be written at the end,
+ * the command fails (exit 4, I/O) naming it, though every frame rendered. */
+static void test_render_fails_without_stats_json(void **state)
+{
+    (void)state;
+    char dir[512], blocker[600], inner[700];
+    snprintf(dir, sizeof dir, "%s/no-stats", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(blocker, sizeof blocker, "%s/stats.json", dir); /* a non-empty directory: no rename onto it */
+    assert_int_equal(mkdir(blocker, 0755), 0);
+    snprintf(inner, sizeof inner, "%s/keep", blocker);
+    FILE *f = fopen(inner, "w");
+    assert_non_null(f);
+    fclose(f);
+    char args[1024], *err = NULL;
+    snprintf(args, sizeof args, "render tests/data/skinned-small.json --out '%s' --quiet", dir);
+    int rc = microrayd(args, NULL, &err);
+    if (rc != 4)
+        fail_msg("render exited %d, want 4: %s", rc, err);
+    assert_non_null(strstr(err, "stats.json"));
+    free(err);
+    mr_film *frame3 = read_frame(dir, 3); /* the frames themselves are complete */
+    mr_film_free(frame3);
+}
+
 static void test_compare_command(void **state)
 {
     (void)state;
@@ -413,6 +473,8 @@ int main(void)
         cmocka_unit_test(test_skinned_example_renders_and_moves),
         cmocka_unit_test(test_every_example_renders),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
+        cmocka_unit_test(test_render_owns_its_temporaries),
+        cmocka_unit_test(test_render_fails_without_stats_json),
         cmocka_unit_test(test_compare_command),
         cmocka_unit_test(test_camera_from_gltf_node),
         cmocka_unit_test(test_bad_input_is_answered),

@@ -124,7 +124,7 @@ static mr_asset *acquire_refined(mr_cache *c, const char *key, const char *path,
     mr_asset *a = NULL;
     double saved;
     mr_error err = {0};
-    if (mr_cache_acquire_refined(c, key, path, p, &a, hit, &saved, &err) < 0)
+    if (mr_cache_acquire_refined(c, key, path, p, &a, hit, &saved, NULL, &err) < 0)
         fail_msg("%s", err.msg);
     return a;
 }
@@ -254,31 +254,39 @@ static void test_refine_over_the_cap(void **state)
     mr_asset *a = NULL;
     bool hit;
     double saved;
-    assert_int_equal(mr_cache_acquire_refined(c, "g", path, &p, &a, &hit, &saved, &err),
+    mr_asset_stage stage = MR_ASSET_STAGE_LOAD;
+    assert_int_equal(mr_cache_acquire_refined(c, "g", path, &p, &a, &hit, &saved, &stage, &err),
                      MR_ERR_LIMIT);
     assert_null(a);
-    /* the worker points at "refine" because the message starts so */
-    assert_int_equal(strncmp(err.msg, "refine: ", 8), 0);
-    assert_non_null(strstr(err.msg, "4 rounds would turn the 66248 triangles of"));
+    /* the worker points at "refine" because the stage says so */
+    assert_int_equal(stage, MR_ASSET_STAGE_REFINE);
+    assert_int_equal(strncmp(err.msg, "4 rounds would turn the 66248 triangles of", 42), 0);
     assert_non_null(strstr(err.msg, "into 16959488, more than the 16777216 an asset may have"));
     mr_cache_stats st;
     mr_cache_stats_get(c, &st);
     assert_int_equal(st.entries, 0);
     /* Without a cache: the same check. */
     err = (mr_error){0};
-    assert_int_equal(mr_cache_import(path, &p, &a, &err), MR_ERR_LIMIT);
+    stage = MR_ASSET_STAGE_LOAD;
+    assert_int_equal(mr_cache_import(path, &p, &a, &stage, &err), MR_ERR_LIMIT);
     assert_null(a);
-    assert_int_equal(strncmp(err.msg, "refine: ", 8), 0);
+    assert_int_equal(stage, MR_ASSET_STAGE_REFINE);
     /* One round fewer fits the cap (not run: 4 million triangles); the
      * plain import works and is not a refine error. */
-    assert_int_equal(mr_cache_import(path, NULL, &a, &err), MR_OK);
+    assert_int_equal(mr_cache_import(path, NULL, &a, NULL, &err), MR_OK);
     assert_int_equal(a->triangle_count, 66248);
     mr_asset_free(a);
     /* a broken file fails as an import, not a refinement */
     err = (mr_error){0};
-    assert_int_equal(mr_cache_import("/usr/share/assimp/models/invalid/empty.obj", &p, &a, &err),
-                     MR_ERR_FORMAT);
-    assert_int_not_equal(strncmp(err.msg, "refine: ", 8), 0);
+    stage = MR_ASSET_STAGE_REFINE;
+    assert_int_equal(mr_cache_import("/usr/share/assimp/models/invalid/empty.obj", &p, &a, &stage,
+                                     &err), MR_ERR_FORMAT);
+    assert_int_equal(stage, MR_ASSET_STAGE_LOAD);
+    /* also through the cache, and for a missing file */
+    stage = MR_ASSET_STAGE_REFINE;
+    assert_int_equal(mr_cache_acquire_refined(c, "nope", "/nonexistent/x.obj", &p, &a, &hit, &saved,
+                                              &stage, &err), MR_ERR_IO);
+    assert_int_equal(stage, MR_ASSET_STAGE_LOAD);
     mr_cache_free(c);
     assert_int_equal(unlink(path), 0);
     assert_int_equal(rmdir(dir), 0);

@@ -640,6 +640,38 @@ static void test_frame_done(void **state)
     assert_true(exists(path));
 }
 
+/* Two writers of one frame (a retry while a stuck attempt still writes, a
+ * second daemon on the same data directory) must not share a temporary:
+ * here the other writer holds the name the store used to write through
+ * ("NNNN.exr.tmp") and keeps writing after this frame is done. The frame
+ * file must hold exactly this write's bytes. */
+static void test_frame_done_own_temporary(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char id[33], dir[512], held[600], path[512];
+    create_job(fx->st, "t", 2, 0, 0, id);
+    snprintf(dir, sizeof dir, "%s/frames/%s", fx->dir, id);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(held, sizeof held, "%s/0001.exr.tmp", dir);
+    FILE *other = fopen(held, "w");
+    assert_non_null(other);
+    static const char exr[] = "the complete frame";
+    ok(mr_store_frame_set_running(fx->st, id, 1, &err), &err);
+    ok(mr_store_frame_done(fx->st, id, 1, exr, sizeof exr, "{}", &err), &err);
+    fputs("the other writer's bytes", other);
+    fclose(other);
+    frame_file_path(fx, id, 1, path, sizeof path);
+    size_t size = 0;
+    char *bytes = read_whole(path, &size);
+    assert_non_null(bytes);
+    assert_int_equal(size, sizeof exr);
+    assert_memory_equal(bytes, exr, sizeof exr);
+    free(bytes);
+    /* its own temporary is gone; the other writer's is its business */
+    assert_int_equal(count_entries(dir, ".tmp"), 1);
+}
+
 static void test_frame_failed_retries(void **state)
 {
     fixture *fx = *state;
@@ -848,7 +880,7 @@ static void test_recover_after_crash(void **state)
     assert_false(exists(orphan));
 
     /* The resumed job is claimed first again (priority 1), and the stale
-     * temporary is simply overwritten by the next attempt. */
+     * temporary does not get in the way of the next attempt. */
     char id[33];
     ok(mr_store_job_claim(fx->st, id, &err), &err);
     assert_string_equal(id, job);
@@ -1271,6 +1303,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_set_state_times, setup, teardown),
         cmocka_unit_test_setup_teardown(test_claim_order, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_done, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_done_own_temporary, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_failed_retries, setup, teardown),
         cmocka_unit_test_setup_teardown(test_retry, setup, teardown),
         cmocka_unit_test_setup_teardown(test_recover_after_crash, setup, teardown),

@@ -8,7 +8,9 @@
  *  - the SHA-256 feed hashes exactly the little-endian byte stream, across
  *    its buffer boundary and with raw bytes in between;
  *  - atomic write replaces content, leaves no temporary (also when it
- *    fails) and makes the file world-readable; capped read takes a file at
+ *    fails) and makes the file world-readable; two writers of one target
+ *    (streamed, interleaved) each get their own temporary; commit under
+ *    another name only in the same directory; abort leaves nothing; capped read takes a file at
  *    the cap, refuses one above it, a FIFO (without blocking), a directory
  *    and a missing file; mkdir -p and the directory part of a path.
  */
@@ -20,6 +22,7 @@
 #include <cmocka.h>
 
 #include <dirent.h>
+#include <fcntl.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -285,6 +288,108 @@ static void test_write_atomic(void **state)
     assert_int_equal(entries(dir), 2);
 }
 
+/* The streamed form (mr_fs_atomic): two writers of one target at once each
+ * get their own temporary in the target's directory, the last commit wins
+ * with its complete bytes; commit under another name in the directory
+ * (uploads named by their hash), never outside it; abort and every failed
+ * step leave nothing behind. */
+static void test_atomic_stream(void **state)
+{
+    (void)state;
+    char dir[128], path[160], other[160];
+    snprintf(dir, sizeof dir, "%s/s", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(path, sizeof path, "%s/frame.exr", dir);
+    mr_error err = {0};
+    mr_fs_atomic a, b;
+    assert_int_equal(mr_fs_atomic_begin(&a, path, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_begin(&b, path, "t", &err), MR_OK);
+    assert_string_not_equal(a.tmp, b.tmp);
+    assert_int_equal(strncmp(a.tmp, path, strlen(path)), 0); /* same directory */
+    assert_int_equal(strncmp(b.tmp, path, strlen(path)), 0);
+    assert_int_equal(entries(dir), 2);
+    /* interleaved: each writer's bytes stay its own */
+    assert_int_equal(mr_fs_atomic_write(&a, "aaaa", 4, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_write(&b, "bbbbbb", 6, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_write(&a, "AAAA", 4, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_commit(&a, NULL, "t", &err), MR_OK);
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    assert_int_equal(mr_fs_read_capped(path, 100, &buf, &size, "t", &err), MR_OK);
+    assert_int_equal(size, 8);
+    assert_memory_equal(buf, "aaaaAAAA", 8);
+    free(buf);
+    assert_int_equal(mr_fs_atomic_write(&b, "BB", 2, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_commit(&b, NULL, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_read_capped(path, 100, &buf, &size, "t", &err), MR_OK);
+    assert_int_equal(size, 8);
+    assert_memory_equal(buf, "bbbbbbBB", 8);
+    free(buf);
+    assert_int_equal(entries(dir), 1);
+    /* an ended write takes no more bytes and no second commit */
+    assert_int_equal(mr_fs_atomic_write(&a, "x", 1, "t", &err), MR_ERR_INVALID);
+    assert_int_equal(mr_fs_atomic_commit(&a, NULL, "t", &err), MR_ERR_INVALID);
+    mr_fs_atomic_abort(&a); /* harmless */
+
+    /* committed under another name of the same directory */
+    snprintf(other, sizeof other, "%s/by-hash", dir);
+    assert_int_equal(mr_fs_atomic_begin(&a, path, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_write(&a, "hash", 4, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_commit(&a, other, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_read_capped(other, 100, &buf, &size, "t", &err), MR_OK);
+    assert_int_equal(size, 4);
+    free(buf);
+    assert_int_equal(entries(dir), 2);
+    /* ... but not elsewhere: refused, the temporary removed */
+    snprintf(other, sizeof other, "%s/elsewhere", tmp_dir);
+    assert_int_equal(mr_fs_atomic_begin(&a, path, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_commit(&a, other, "t", &err), MR_ERR_INVALID);
+    assert_int_equal(access(other, F_OK), -1);
+    assert_int_equal(entries(dir), 2);
+    /* abort: nothing left, the target untouched */
+    assert_int_equal(mr_fs_atomic_begin(&a, path, "t", &err), MR_OK);
+    assert_int_equal(mr_fs_atomic_write(&a, "half", 4, "t", &err), MR_OK);
+    mr_fs_atomic_abort(&a);
+    assert_int_equal(entries(dir), 2);
+    assert_int_equal(mr_fs_read_capped(path, 100, &buf, &size, "t", &err), MR_OK);
+    assert_int_equal(size, 8);
+    free(buf);
+    /* a zeroed handle aborts harmlessly (closes no descriptor 0) */
+    mr_fs_atomic z = {0};
+    mr_fs_atomic_abort(&z);
+    assert_int_not_equal(fcntl(0, F_GETFD), -1);
+    /* begin in a missing directory: the error names the step, nothing to end */
+    snprintf(other, sizeof other, "%s/no/such/f", dir);
+    assert_int_equal(mr_fs_atomic_begin(&a, other, "w", &err), MR_ERR_IO);
+    assert_non_null(strstr(err.msg, "w: cannot create"));
+    assert_null(a.tmp);
+    mr_fs_atomic_abort(&a);
+}
+
+/* A temporary of the old fixed name (<path>.tmp) left or held by another
+ * writer must not be written through: the final file is only this write's. */
+static void test_write_atomic_ignores_foreign_tmp(void **state)
+{
+    (void)state;
+    char dir[128], path[160], tmp[170];
+    snprintf(dir, sizeof dir, "%s/f", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(path, sizeof path, "%s/out", dir);
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    FILE *other = fopen(tmp, "w"); /* another writer, mid-write */
+    assert_non_null(other);
+    mr_error err = {0};
+    assert_int_equal(mr_fs_write_atomic(path, "mine", 4, "t", &err), MR_OK);
+    fputs("theirs, later", other);
+    fclose(other);
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    assert_int_equal(mr_fs_read_capped(path, 100, &buf, &size, "t", &err), MR_OK);
+    assert_int_equal(size, 4);
+    assert_memory_equal(buf, "mine", 4);
+    free(buf);
+}
+
 static void test_read_capped(void **state)
 {
     (void)state;
@@ -343,6 +448,7 @@ static void test_make_dirs(void **state)
     snprintf(below, sizeof below, "%s/below", file); /* a file in the way */
     assert_int_equal(mr_fs_make_dirs(below, "mk", &err), MR_ERR_IO);
     assert_non_null(strstr(err.msg, "mk: "));
+    assert_int_equal(mr_fs_make_dirs("", "mk", &err), MR_ERR_INVALID);
 }
 
 static void test_dir_of(void **state)
@@ -366,6 +472,8 @@ int main(void)
         cmocka_unit_test(test_le_round_trip),
         cmocka_unit_test(test_sha256_feed),
         cmocka_unit_test(test_write_atomic),
+        cmocka_unit_test(test_atomic_stream),
+        cmocka_unit_test(test_write_atomic_ignores_foreign_tmp),
         cmocka_unit_test(test_read_capped),
         cmocka_unit_test(test_make_dirs),
         cmocka_unit_test(test_dir_of),

@@ -221,6 +221,30 @@ static int gather_boxes(mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
+/* Scratch for `workers` workers (a pose, skin matrices and a workspace
+ * each), grown as the job's thread count asks; kept across frames. */
+static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
+{
+    if (workers <= g->workers)
+        return MR_OK;
+    worker_scratch *grown = realloc(g->scratch, workers * sizeof *grown);
+    if (!grown)
+        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %u workers", workers);
+    memset(grown + g->workers, 0, (workers - g->workers) * sizeof *grown);
+    g->scratch = grown;
+    unsigned first = g->workers;
+    g->workers = workers; /* zeroed entries are safe to free */
+    for (unsigned w = first; w < workers; w++) {
+        worker_scratch *s = &g->scratch[w];
+        int rc;
+        if ((rc = mr_pose_new(g->asset, &s->pose, err)) < 0 ||
+            (rc = mr_svo_skin_init(&s->skin, g->asset, err)) < 0 ||
+            (rc = mr_svo_workspace_new(&s->ws, err)) < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
 static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                       const mr_mat4 *transform, unsigned threads, mr_error *err)
 {
@@ -269,16 +293,24 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     if (g->method == MR_SVO_RIGID)
         return MR_OK;
 
+    /* The job's thread count (the renderer's device), not the machine's
+     * cores: a job asked to use T threads uses T, and holds scratch for no
+     * more workers than it runs. */
     unsigned workers = threads ? threads : mr_cpu_count();
-    if (workers > g->workers)
-        workers = g->workers;
+    if (workers > MR_MAX_THREADS)
+        workers = MR_MAX_THREADS;
+    /* Many instances: one instance per task, each single-threaded, one
+     * scratch per worker; few: one after the other, each on all workers,
+     * in scratch 0. Either way the results do not depend on the thread
+     * count (deform.h). */
+    bool per_instance = g->instance_count >= 2 * (size_t)workers && workers > 1;
+    int rc = ensure_workers(g, per_instance ? workers : 1, err);
+    if (rc < 0)
+        return rc;
     frame_ctx c = {.g = g, .frame = frame, .view = frame_view(g, frame)};
     for (unsigned w = 0; w < g->workers; w++)
         g->scratch[w].rc = 0;
-    /* Many instances: one instance per task, each single-threaded; few:
-     * one after the other, each on all workers. Either way the results do
-     * not depend on the thread count (deform.h). */
-    if (g->instance_count >= 2 * (size_t)workers && workers > 1) {
+    if (per_instance) {
         c.inner_threads = 1;
         mr_parallel_for(workers, g->instance_count, 1, deform_range, &c);
     } else {
@@ -300,8 +332,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         if (g->method == MR_SVO_DIRECT)
             continue;
         g->cells += g->octree[k].leaf_count;
-        int rc = check_extent(octree_extent(&g->octree[k]), k, err);
-        if (rc < 0)
+        if ((rc = check_extent(octree_extent(&g->octree[k]), k, err)) < 0)
             return rc;
     }
     if (g->method == MR_SVO_DIRECT)
@@ -730,25 +761,6 @@ static int check_poses(const mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
-static int setup_workers(mr_geom *g, mr_error *err)
-{
-    const mr_asset *a = g->asset;
-    g->workers = mr_cpu_count();
-    if (g->workers > MR_MAX_THREADS)
-        g->workers = MR_MAX_THREADS;
-    g->scratch = calloc(g->workers, sizeof *g->scratch);
-    if (!g->scratch)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory");
-    for (unsigned w = 0; w < g->workers; w++) {
-        worker_scratch *s = &g->scratch[w];
-        int rc;
-        if ((rc = mr_pose_new(a, &s->pose, err)) < 0 || (rc = mr_svo_skin_init(&s->skin, a, err)) < 0 ||
-            (rc = mr_svo_workspace_new(&s->ws, err)) < 0)
-            return rc;
-    }
-    return MR_OK;
-}
-
 /* Chapter 5: bones contracted out of the voxels, and the asset and octree
  * skinned to them (skeleton.h); from here on the kind poses the copy. */
 static int rig_skeleton(mr_geom *g, mr_error *err)
@@ -829,8 +841,10 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
             goto fail;
         }
+        /* one worker now, so an asset the methods cannot skin fails here;
+         * update adds the workers the job's thread count asks for */
         if ((rc = mr_svo_extremes_build(g->svo, &g->extremes, err)) < 0 ||
-            (rc = setup_workers(g, err)) < 0)
+            (rc = ensure_workers(g, 1, err)) < 0)
             goto fail;
     }
     *out = g;
