@@ -12,14 +12,13 @@
 #define MR_JOB_JSON_H
 
 #include "job.h"
+#include "json_reader.h"
 
 /* Largest job document accepted, in bytes; larger inputs give MR_ERR_LIMIT. */
 #define MR_JOB_MAX_BYTES (16u * 1024u * 1024u)
 
-typedef struct mr_job_error {
-    char pointer[512]; /* RFC 6901 pointer to the offending value; "" = root */
-    char message[512]; /* what was expected and what was found */
-} mr_job_error;
+/* The first problem in a job: its JSON pointer and message. */
+typedef mr_json_error mr_job_error;
 
 /* Parses and validates len bytes of job JSON (need not be NUL-terminated).
  * On success returns MR_OK and a new job in *out (free with mr_job_free()).

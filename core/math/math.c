@@ -305,3 +305,20 @@ mr_vec3 mr_catmull_rom(mr_vec3 p0, mr_vec3 p1, mr_vec3 p2, mr_vec3 p3, float t)
                  w0 * p0.y + w1 * p1.y + w2 * p2.y + w3 * p3.y,
                  w0 * p0.z + w1 * p1.z + w2 * p2.z + w3 * p3.z);
 }
+
+bool mr_normalize_d(double *d, size_t n)
+{
+    double m = 0, l = 0;
+    for (size_t i = 0; i < n; i++)
+        m = fmax(m, fabs(d[i]));
+    if (!(m > 0))
+        return false;
+    for (size_t i = 0; i < n; i++) {
+        d[i] /= m;
+        l += d[i] * d[i];
+    }
+    l = sqrt(l);
+    for (size_t i = 0; i < n; i++)
+        d[i] /= l;
+    return true;
+}

@@ -15,6 +15,7 @@
 
 #include <math.h>
 #include <stdbool.h>
+#include <stddef.h>
 
 typedef struct mr_vec3 { float x, y, z; } mr_vec3;
 typedef struct mr_quat { float x, y, z, w; } mr_quat;
@@ -83,5 +84,10 @@ mr_quat mr_quat_look_rotation(mr_vec3 forward, mr_vec3 up);
 
 /* Catmull-Rom (uniform) through p1..p2 with neighbours p0 and p3, t in [0,1]. */
 mr_vec3 mr_catmull_rom(mr_vec3 p0, mr_vec3 p1, mr_vec3 p2, mr_vec3 p3, float t);
+
+/* Normalises the n doubles of d in place, scaling by the largest component
+ * before squaring so tiny but non-zero inputs (1e-200) normalise instead of
+ * underflowing to a zero length. Returns false for the zero vector. */
+bool mr_normalize_d(double *d, size_t n);
 
 #endif /* MR_MATH_H */
