@@ -108,28 +108,69 @@ int mr_derived_bad(const mr_derived_format *f, mr_error *err, const char *fmt, .
     return mr_error_set(err, MR_ERR_FORMAT, "%s: %s", f->name, msg);
 }
 
-int mr_derived_header_check(const mr_derived_format *f, const mr_crc32_table *crc,
-                            const uint8_t *buf, size_t size, mr_error *err)
+int mr_derived_parse(const mr_derived_format *f, const uint8_t *buf, size_t size,
+                     int (*parse)(mr_derived_reader *r, void *out), void *out, mr_error *err)
 {
+    if (!buf && size)
+        return mr_error_set(err, MR_ERR_INVALID, "%s read: bad arguments", f->name);
+    mr_derived_reader *r = malloc(sizeof *r);
+    if (!r)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", f->name);
+    *r = (mr_derived_reader){.format = f, .buf = buf, .size = size, .keep = true, .err = err};
+    mr_crc32_init(&r->crc);
+    int rc = parse(r, out);
+    free(r);
+    return rc;
+}
+
+int mr_derived_header_check(mr_derived_reader *r)
+{
+    const mr_derived_format *f = r->format;
+    const uint8_t *buf = r->buf;
     const uint32_t at_crc = f->header_bytes - 4;
-    if (size < f->header_bytes)
-        return mr_derived_bad(f, err, "truncated header at byte offset %zu (need %u bytes)", size,
-                              f->header_bytes);
+    if (r->size < f->header_bytes)
+        return mr_derived_bad(f, r->err, "truncated header at byte offset %zu (need %u bytes)",
+                              r->size, f->header_bytes);
     for (size_t i = 0; i < sizeof f->magic; i++)
         if (buf[i] != f->magic[i])
-            return mr_derived_bad(f, err, "bad magic at byte offset %zu (not a .%s file)", i,
+            return mr_derived_bad(f, r->err, "bad magic at byte offset %zu (not a .%s file)", i,
                                   f->ext);
     uint32_t version = mr_le_get_u32(buf + MR_DERIVED_AT_VERSION);
     if (version != f->version)
-        return mr_derived_bad(f, err, "unsupported version %u at byte offset %u (want %u)",
+        return mr_derived_bad(f, r->err, "unsupported version %u at byte offset %u (want %u)",
                               version, MR_DERIVED_AT_VERSION, f->version);
     uint32_t hb = mr_le_get_u32(buf + MR_DERIVED_AT_HEADER_BYTES);
     if (hb != f->header_bytes)
-        return mr_derived_bad(f, err, "header_bytes %u at byte offset %u (want %u)", hb,
+        return mr_derived_bad(f, r->err, "header_bytes %u at byte offset %u (want %u)", hb,
                               MR_DERIVED_AT_HEADER_BYTES, f->header_bytes);
-    if (mr_le_get_u32(buf + at_crc) != mr_crc32(crc, buf, at_crc))
-        return mr_derived_bad(f, err, "header checksum mismatch at byte offset %u (bytes 0..%u "
-                              "corrupted)", at_crc, at_crc - 1);
+    if (mr_le_get_u32(buf + at_crc) != mr_crc32(&r->crc, buf, at_crc))
+        return mr_derived_bad(f, r->err, "header checksum mismatch at byte offset %u (bytes "
+                              "0..%u corrupted)", at_crc, at_crc - 1);
+    return MR_OK;
+}
+
+int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
+                      mr_derived_reader **check, mr_error *err)
+{
+    *buf = NULL;
+    *check = NULL;
+    if (size > f->max_bytes)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s write: %llu bytes exceed the %llu a reader "
+                            "accepts", f->name, (unsigned long long)size,
+                            (unsigned long long)f->max_bytes);
+    uint8_t *b = calloc(1, size ? (size_t)size : 1);
+    mr_derived_reader *r = malloc(sizeof *r);
+    if (!b || !r) {
+        free(b);
+        free(r);
+        return mr_error_set(err, MR_ERR_NOMEM, "%s write: out of memory for %llu bytes",
+                            f->name, (unsigned long long)size);
+    }
+    *r = (mr_derived_reader){.format = f, .buf = b, .size = (size_t)size, .keep = false,
+                             .err = err};
+    mr_crc32_init(&r->crc);
+    *buf = b;
+    *check = r;
     return MR_OK;
 }
 
@@ -147,19 +188,6 @@ void mr_derived_header_seal(const mr_derived_format *f, const mr_crc32_table *cr
     mr_le_put_u32(buf + at_crc, mr_crc32(crc, buf, at_crc));
 }
 
-int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf, mr_error *err)
-{
-    *buf = NULL;
-    if (size > f->max_bytes)
-        return mr_error_set(err, MR_ERR_LIMIT, "%s write: %llu bytes exceed the %llu a reader "
-                            "accepts", f->name, (unsigned long long)size,
-                            (unsigned long long)f->max_bytes);
-    if (!(*buf = calloc(1, size ? (size_t)size : 1)))
-        return mr_error_set(err, MR_ERR_NOMEM, "%s write: out of memory for %llu bytes",
-                            f->name, (unsigned long long)size);
-    return MR_OK;
-}
-
 int mr_derived_readback_failed(const mr_derived_format *f, int rc, mr_error *err)
 {
     mr_error_prefix(err, "%s write: would not read back: ", f->name);
@@ -173,6 +201,26 @@ int mr_derived_readback_failed(const mr_derived_format *f, int rc, mr_error *err
 
 /* ---- the cache */
 
+/* mr_derived_load's parser: the envelope and the key, then the kind's. */
+typedef struct load_request {
+    const uint8_t *key;        /* NULL: any */
+    const mr_derived_ops *ops; /* NULL: the envelope only */
+    void *ctx;
+} load_request;
+
+static int parse_stored(mr_derived_reader *r, void *out)
+{
+    const load_request *q = out;
+    const mr_derived_format *f = r->format;
+    /* the envelope first: a foreign file is refused before it is parsed */
+    int rc = mr_derived_header_check(r);
+    if (rc < 0)
+        return rc;
+    if (q->key && memcmp(r->buf + f->key_at, q->key, MR_DERIVED_KEY_BYTES) != 0)
+        return mr_derived_bad(f, r->err, "stored under another key (byte offset %u)", f->key_at);
+    return q->ops ? q->ops->parse(q->ctx, r->buf, r->size, r->err) : MR_OK;
+}
+
 int mr_derived_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
                     const mr_derived_format *f, const mr_derived_ops *ops, void *ctx,
                     mr_error *err)
@@ -184,25 +232,9 @@ int mr_derived_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
     int rc = mr_fs_read_capped(path, f->max_bytes, &buf, &size, f->name, err);
     if (rc < 0)
         return rc;
-    mr_crc32_table *crc = malloc(sizeof *crc);
-    if (!crc) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", f->name);
-        goto done;
-    }
-    mr_crc32_init(crc);
-    /* the envelope first: a foreign file is refused before it is parsed */
-    if ((rc = mr_derived_header_check(f, crc, buf, size, err)) < 0)
-        goto prefix;
-    if (key && memcmp(buf + f->key_at, key, MR_DERIVED_KEY_BYTES) != 0) {
-        rc = mr_derived_bad(f, err, "stored under another key (byte offset %u)", f->key_at);
-        goto prefix;
-    }
-    if ((rc = ops->parse(ctx, buf, size, err)) == MR_OK)
-        goto done;
-prefix:
-    mr_error_prefix(err, "%s: ", path);
-done:
-    free(crc);
+    load_request q = {.key = key, .ops = ops, .ctx = ctx};
+    if ((rc = mr_derived_parse(f, buf, size, parse_stored, &q, err)) < 0)
+        mr_error_prefix(err, "%s: ", path);
     free(buf);
     return rc;
 }
@@ -224,17 +256,13 @@ int mr_derived_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
     uint8_t *buf = NULL;
     size_t size = 0;
     char *dir = NULL;
-    mr_crc32_table *crc = malloc(sizeof *crc);
-    if (!crc)
-        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", f->name);
-    mr_crc32_init(crc);
     int rc = ops->serialise(ctx, key, &buf, &size, err);
     if (rc < 0)
         goto done;
     /* what could never hit must not be stored: every later job would
      * rebuild and rewrite it, silently */
-    if ((rc = mr_derived_header_check(f, crc, buf, size, err)) < 0 ||
-        memcmp(buf + f->key_at, key, MR_DERIVED_KEY_BYTES) != 0) {
+    load_request q = {.key = key}; /* the envelope only */
+    if (mr_derived_parse(f, buf, size, parse_stored, &q, err) < 0) {
         rc = mr_error_set(err, MR_ERR_INVALID, "%s store: the file made would not be found "
                           "under its key", f->name);
         goto done;
@@ -248,7 +276,6 @@ int mr_derived_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
 done:
     free(dir);
     free(buf);
-    free(crc);
     return rc;
 }
 

@@ -127,6 +127,19 @@ typedef struct mr_derived_format {
     uint64_t max_bytes;    /* largest file read from disk or written */
 } mr_derived_format;
 
+/* A format parser's state. One parser serves both directions: a read
+ * keeps what it parses, a writer runs it over the bytes it just produced
+ * (keep false) so it can never store a file its reader refuses (a cache
+ * entry that never loads would make every job rebuild, silently). */
+typedef struct mr_derived_reader {
+    const mr_derived_format *format;
+    const uint8_t *buf;
+    size_t size;
+    bool keep;           /* build the result, or only check (a parser may build anyway) */
+    mr_crc32_table crc;  /* for the envelope's and the format's own checksums */
+    mr_error *err;
+} mr_derived_reader;
+
 /* MR_ERR_FORMAT with "<f->name>: <message>" (a parser's one way to fail). */
 int mr_derived_bad(const mr_derived_format *f, mr_error *err, const char *fmt, ...)
 #if defined(__GNUC__)
@@ -134,21 +147,30 @@ int mr_derived_bad(const mr_derived_format *f, mr_error *err, const char *fmt, .
 #endif
     ;
 
-/* Checks a file's header in this order: size, magic, version,
- * header_bytes, header CRC (its message names the offset of each). The key
+/* Runs parse(r, out) over size bytes at buf with a reader that keeps what
+ * it parses (on the heap: its CRC table is 1 KB). MR_ERR_INVALID when buf
+ * is NULL but size is not, MR_ERR_NOMEM, else parse's result. */
+int mr_derived_parse(const mr_derived_format *f, const uint8_t *buf, size_t size,
+                     int (*parse)(mr_derived_reader *r, void *out), void *out, mr_error *err);
+/* Checks the header at r->buf in this order: size, magic, version,
+ * header_bytes, header CRC (the message names the offset of each). The key
  * is not compared: any key reads; mr_derived_load compares it. */
-int mr_derived_header_check(const mr_derived_format *f, const mr_crc32_table *crc,
-                            const uint8_t *buf, size_t size, mr_error *err);
+int mr_derived_header_check(mr_derived_reader *r);
+
+/* A writer's start: a zeroed buffer of size bytes (*buf) and a reader over
+ * it that only checks (*check, keep false), whose CRC table the writer
+ * uses for its checksums before it reads its bytes back with the format's
+ * parser. The caller frees both. MR_ERR_LIMIT above f->max_bytes (no reader
+ * would take it), MR_ERR_NOMEM. */
+int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
+                      mr_derived_reader **check, mr_error *err);
 /* Writes magic, version, header_bytes, key (NULL: all zero) and, last, the
  * header CRC into buf (at least header_bytes): call it after the format's
  * own header fields are in place. */
 void mr_derived_header_seal(const mr_derived_format *f, const mr_crc32_table *crc,
                             const uint8_t *key, uint8_t *buf);
-/* A zeroed buffer of size bytes for a writer, *buf owned by the caller:
- * MR_ERR_LIMIT above f->max_bytes (no reader would take it), MR_ERR_NOMEM. */
-int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf, mr_error *err);
-/* What a writer returns when its own bytes fail its reader (rc from the
- * reader): the message gets "<name> write: would not read back: " in front
+/* What a writer returns when its bytes fail its read-back (rc from the
+ * parser): the message gets "<name> write: would not read back: " in front
  * and MR_ERR_FORMAT becomes MR_ERR_INVALID (the data, not a file, is bad). */
 int mr_derived_readback_failed(const mr_derived_format *f, int rc, mr_error *err);
 

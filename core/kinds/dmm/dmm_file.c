@@ -21,27 +21,24 @@
 #include "util/derived.h"
 #include "util/le.h"
 
-const mr_derived_format mr_dmm_file_format = {
-    .name = "dmm bake file",
-    .ext = "dmm",
-    .magic = {'M', 'R', 'D', 'M', 'B', 0, '\r', '\n'},
-    .version = MR_DMM_FILE_VERSION,
-    .header_bytes = MR_DMM_FILE_HEADER_BYTES,
-    .key_at = 32,
-    .max_bytes = MR_DMM_FILE_MAX_BYTES,
-};
+/* this file's format (the envelope's constants; below) */
 #define FORMAT (&mr_dmm_file_format)
-
-static const uint8_t mesh_tag[4] = {'M', 'E', 'S', 'H'};
-
-#define FLAG_BAKED 1u
-#define FLAG_SKINNED 2u
 
 /* File header fields (byte offsets) after the envelope's magic, version
  * and header size (util/derived.h); the key and the CRC are the envelope's
  * too. */
 enum { H_MESHES = 16, H_LEVEL = 20, H_BITS = 24, H_KEY = 32, H_CRC = 64 };
 _Static_assert(H_CRC + 4 == MR_DMM_FILE_HEADER_BYTES, "header layout");
+
+const mr_derived_format mr_dmm_file_format = {
+    .name = "dmm bake file", .ext = "dmm", .magic = {'M', 'R', 'D', 'M', 'B', 0, '\r', '\n'},
+    .version = MR_DMM_FILE_VERSION, .header_bytes = MR_DMM_FILE_HEADER_BYTES, .key_at = H_KEY,
+    .max_bytes = MR_DMM_FILE_MAX_BYTES};
+
+static const uint8_t mesh_tag[4] = {'M', 'E', 'S', 'H'};
+
+#define FLAG_BAKED 1u
+#define FLAG_SKINNED 2u
 /* Mesh section header fields (offsets from the section start). */
 enum { M_INDEX = 4, M_FLAGS = 8, M_SRC_VERTICES = 12, M_SRC_JOINTS = 16, M_VERTICES = 20,
        M_TRIANGLES = 24, M_RESERVED0 = 28, M_FALLBACKS = 32, M_SAMPLES = 40, M_RMS = 48,
@@ -57,23 +54,18 @@ enum { M_INDEX = 4, M_FLAGS = 8, M_SRC_VERTICES = 12, M_SRC_JOINTS = 16, M_VERTI
 
 /* ---- parser (reader, and the writer's read-back check) */
 
-typedef struct parser {
-    const uint8_t *buf;
-    size_t size;
-    bool keep;      /* build mr_dmm_file (reader) or only check (writer) */
-    mr_crc32_table crc;
-    mr_error *err;
-} parser;
+/* keep: build the mr_dmm_file (a read) or only check (the writer's) */
+typedef mr_derived_reader parser;
 
 /* MR_ERR_FORMAT "dmm bake file: ..." */
-#define bad(p, ...) mr_derived_bad(FORMAT, (p)->err, __VA_ARGS__)
+#define bad(p, ...) mr_derived_bad((p)->format, (p)->err, __VA_ARGS__)
 
 static bool finite_nonneg(double v) { return isfinite(v) && v >= 0; }
 
 static int parse_header(parser *p, mr_dmm_file *f)
 {
     const uint8_t *b = p->buf;
-    int rc = mr_derived_header_check(FORMAT, &p->crc, b, p->size, p->err);
+    int rc = mr_derived_header_check(p);
     if (rc < 0)
         return rc;
     uint32_t meshes = mr_le_get_u32(b + H_MESHES);
@@ -331,8 +323,9 @@ static mr_dmm_bake *bake_alloc(uint32_t flags, uint32_t nv, uint32_t nt)
     return b;
 }
 
-static int parse(parser *p, mr_dmm_file **out)
+static int parse(parser *p, void *result)
 {
+    mr_dmm_file **out = result;
     mr_dmm_file *f = calloc(1, sizeof *f);
     if (!f)
         return mr_error_set(p->err, MR_ERR_NOMEM, "dmm bake file: out of memory");
@@ -419,18 +412,10 @@ void mr_dmm_file_free(mr_dmm_file *f)
 
 int mr_dmm_file_read(const uint8_t *buf, size_t size, mr_dmm_file **out, mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!out || (!buf && size))
+    if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
-    parser *p = malloc(sizeof *p);
-    if (!p)
-        return mr_error_set(err, MR_ERR_NOMEM, "dmm bake file: out of memory");
-    *p = (parser){.buf = buf, .size = size, .keep = true, .err = err};
-    mr_crc32_init(&p->crc);
-    int rc = parse(p, out);
-    free(p);
-    return rc;
+    *out = NULL;
+    return mr_derived_parse(FORMAT, buf, size, parse, out, err);
 }
 
 /* ---- writer */
@@ -472,16 +457,10 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
                  (uint64_t)b->base_triangle_count + e->records_bytes + 4;
     }
     uint8_t *out = NULL;
-    parser *p = NULL;
-    int rc = mr_derived_buffer(FORMAT, total, &out, err);
+    parser *p = NULL; /* over out: its CRC table, then the read-back */
+    int rc = mr_derived_buffer(FORMAT, total, &out, &p, err);
     if (rc < 0)
         return rc;
-    if (!(p = malloc(sizeof *p))) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm bake file write: out of memory");
-        goto cleanup;
-    }
-    *p = (parser){.buf = out, .size = (size_t)total, .keep = false, .err = err};
-    mr_crc32_init(&p->crc);
     mr_le_put_u32(out + H_MESHES, f->mesh_count);
     mr_le_put_u32(out + H_LEVEL, f->level);
     memcpy(out + H_BITS, bits, f->level + 1);
@@ -581,11 +560,10 @@ static int read_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
 
 int mr_dmm_file_read_path(const char *path, mr_dmm_file **out, mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!path || !out)
-        return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
     static const mr_derived_ops read_ops = {.parse = read_parse};
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
+    *out = NULL;
     return mr_derived_load(path, NULL, FORMAT, &read_ops, out, err);
 }
 
