@@ -8,6 +8,10 @@
  * entry that never loads would make every job bake again, silently).
  * Values are assembled byte by byte, so the host's byte order and the
  * buffer's alignment never matter.
+ *
+ * The cache's mechanics (envelope checks, key stream, path, hit/miss/
+ * replace, atomic store) are util/derived.h's; what is here is the DMM's
+ * own: the layout, the key's inputs, the fit check and the builder.
  */
 #include "kinds/dmm/dmm_file.h"
 

@@ -8,6 +8,11 @@
  * never loads would make every job voxelise again, silently). Values are
  * assembled byte by byte, so the host's byte order and the buffer's
  * alignment never matter.
+ *
+ * The cache's mechanics (envelope checks, key stream, path, hit/miss/
+ * replace, atomic store) are util/derived.h's; what is here is the
+ * octree's own: the layout, the key's inputs, the fit check and the
+ * builder.
  */
 #include "kinds/svo/svo_file.h"
 
