@@ -154,6 +154,12 @@ int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
 {
     *buf = NULL;
     *check = NULL;
+    /* the first write of any format under test finds a bad constant */
+    if (f->key_at < MR_DERIVED_AT_FIELDS || f->header_bytes < 4 ||
+        (uint64_t)f->key_at + MR_DERIVED_KEY_BYTES > f->header_bytes - 4u || size < f->header_bytes)
+        return mr_error_set(err, MR_ERR_INVALID, "%s write: the header (%u bytes, key at byte "
+                            "offset %u) does not hold its fields in %llu bytes", f->name,
+                            f->header_bytes, f->key_at, (unsigned long long)size);
     if (size > f->max_bytes)
         return mr_error_set(err, MR_ERR_LIMIT, "%s write: %llu bytes exceed the %llu a reader "
                             "accepts", f->name, (unsigned long long)size,

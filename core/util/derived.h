@@ -122,8 +122,9 @@ typedef struct mr_derived_format {
     const char *ext;       /* file name extension without the dot: "mrsvo" */
     uint8_t magic[8];
     uint32_t version;      /* the layout's; changes with any layout change */
-    uint32_t header_bytes; /* >= 24; the header CRC-32 is its last 4 bytes */
-    uint32_t key_at;       /* offset of the key, MR_DERIVED_AT_FIELDS or later, before the CRC */
+    uint32_t header_bytes; /* the header CRC-32 is its last 4 bytes */
+    uint32_t key_at;       /* offset of the key: MR_DERIVED_AT_FIELDS or later, and the key
+                              ends at or before the CRC (mr_derived_buffer checks) */
     uint64_t max_bytes;    /* largest file read from disk or written */
 } mr_derived_format;
 
@@ -161,7 +162,8 @@ int mr_derived_header_check(mr_derived_reader *r);
  * it that only checks (*check, keep false), whose CRC table the writer
  * uses for its checksums before it reads its bytes back with the format's
  * parser. The caller frees both. MR_ERR_LIMIT above f->max_bytes (no reader
- * would take it), MR_ERR_NOMEM. */
+ * would take it), MR_ERR_INVALID for a format constant whose key does not
+ * fit its header or a size below the header, MR_ERR_NOMEM. */
 int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
                       mr_derived_reader **check, mr_error *err);
 /* Writes magic, version, header_bytes, key (NULL: all zero) and, last, the

@@ -374,6 +374,12 @@ static void test_path_and_envelope(void **state)
                      MR_ERR_LIMIT);
     assert_null(b);
     assert_null(check);
+    assert_int_equal(mr_derived_buffer(&tally_format, TALLY_HEADER - 1, &b, &check, &err),
+                     MR_ERR_INVALID);
+    mr_derived_format broken = tally_format;
+    broken.key_at = 30; /* the key would overlap the header CRC at 60 */
+    assert_int_equal(mr_derived_buffer(&broken, 100, &b, &check, &err), MR_ERR_INVALID);
+    assert_null(b);
     mr_error_set(&err, MR_ERR_FORMAT, "inner");
     assert_int_equal(mr_derived_readback_failed(&tally_format, MR_ERR_FORMAT, &err),
                      MR_ERR_INVALID);
