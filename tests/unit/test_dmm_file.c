@@ -599,7 +599,7 @@ static void test_cache_key_inputs(void **state)
 
     char *path = NULL;
     mr_error err = {0};
-    assert_int_equal(mr_dmm_cache_path("/x/y", k0, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path("/x/y", k0, mr_dmm_file_format.ext, &path, &err), MR_OK);
     assert_int_equal(strlen(path), strlen("/x/y/") + 64 + strlen(".dmm"));
     assert_int_equal(strncmp(path, "/x/y/", 5), 0);
     for (int i = 0; i < 64; i++)
@@ -622,7 +622,7 @@ static void test_cache_store_and_load(void **state)
     char dir[128], *path = NULL;
     mr_error err = {0};
     snprintf(dir, sizeof dir, "%s/cache/a/b", tmp_dir); /* created with its parents */
-    assert_int_equal(mr_dmm_cache_path(dir, key, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path(dir, key, mr_dmm_file_format.ext, &path, &err), MR_OK);
 
     mr_dmm_bake *bakes[1] = {NULL};
     mr_dmm_encoded *enc[1] = {NULL};

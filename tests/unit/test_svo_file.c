@@ -228,7 +228,7 @@ static void test_round_trip_bcn(void **state)
         assert_non_null(s->leaf_keys);
         mr_svo_file_meta meta = {.flags = MR_SVO_FILE_VOXELIZED |
                                           (cases[c].mode == MR_SVO_VOXELIZE_SOLID ? MR_SVO_FILE_SOLID : 0)};
-        for (unsigned i = 0; i < MR_SVO_KEY_BYTES; i++)
+        for (unsigned i = 0; i < MR_DERIVED_KEY_BYTES; i++)
             meta.key[i] = (uint8_t)(i * 7 + c);
         uint8_t *b1 = NULL, *b2 = NULL, *b3 = NULL;
         size_t s1 = 0, s2 = 0, s3 = 0;
@@ -259,7 +259,7 @@ static void test_round_trip_bcn(void **state)
         assert_same_svo(s, r);
         assert_null(r->leaf_keys);
         assert_int_equal(back.flags, meta.flags);
-        assert_memory_equal(back.key, meta.key, MR_SVO_KEY_BYTES);
+        assert_memory_equal(back.key, meta.key, MR_DERIVED_KEY_BYTES);
         /* canonical: what was read writes the same bytes */
         write_buf(r, &meta, &b3, &s3);
         assert_int_equal(s3, s1);
@@ -788,14 +788,14 @@ static void test_cache_key_inputs(void **state)
 
     char *path = NULL;
     mr_error err = {0};
-    assert_int_equal(mr_svo_cache_path("/x/y", k0, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path("/x/y", k0, mr_svo_file_format.ext, &path, &err), MR_OK);
     assert_int_equal(strlen(path), strlen("/x/y/") + 64 + strlen(".mrsvo"));
     char hex[3];
     snprintf(hex, sizeof hex, "%02x", k0[0]);
     assert_memory_equal(path + 5, hex, 2);
     assert_string_equal(path + 5 + 64, ".mrsvo");
     free(path);
-    assert_int_equal(mr_svo_cache_path("", k0, &path, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_derived_path("", k0, mr_svo_file_format.ext, &path, &err), MR_ERR_INVALID);
     assert_null(path);
     mr_asset_free(a);
 }
@@ -816,7 +816,7 @@ static void test_cache_miss_store_hit(void **state)
     uint8_t key[32];
     mr_svo_cache_key(a, &p, key);
     char *path = NULL;
-    assert_int_equal(mr_svo_cache_path(dir, key, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path(dir, key, mr_svo_file_format.ext, &path, &err), MR_OK);
     assert_int_equal(mr_svo_cache_load(path, key, &s, &err), MR_ERR_IO);
     assert_null(s);
 
@@ -930,7 +930,7 @@ static void test_cache_bad_files_replaced(void **state)
     mr_svo_cache_key(a, &p, key);
     char *path = NULL;
     mr_error err = {0};
-    assert_int_equal(mr_svo_cache_path(dir, key, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path(dir, key, mr_svo_file_format.ext, &path, &err), MR_OK);
     mr_svo *s = NULL;
     bool hit = false;
     assert_int_equal(mr_svo_voxelize_cached(a, &p, dir, &s, &hit, &err), MR_OK);
@@ -1028,7 +1028,7 @@ static void test_cache_unwritable(void **state)
     uint8_t key[32];
     mr_svo_cache_key(a, &p, key);
     char *path = NULL;
-    assert_int_equal(mr_svo_cache_path(dir, key, &path, &err), MR_OK);
+    assert_int_equal(mr_derived_path(dir, key, mr_svo_file_format.ext, &path, &err), MR_OK);
     assert_int_equal(mr_svo_cache_store(path, key, fresh, &err), MR_ERR_IO);
     assert_non_null(strstr(err.msg, blocker));
     free(path);

@@ -8,30 +8,41 @@
  * entry that never loads would make every job bake again, silently).
  * Values are assembled byte by byte, so the host's byte order and the
  * buffer's alignment never matter.
+ *
+ * The cache's mechanics (envelope checks, key stream, path, hit/miss/
+ * replace, atomic store) are util/derived.h's; what is here is the DMM's
+ * own: the layout, the key's inputs, the fit check and the builder.
  */
 #include "kinds/dmm/dmm_file.h"
 
 #include <math.h>
-#include <stdarg.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "util/crc32.h"
-#include "util/file_io.h"
+#include "util/derived.h"
 #include "util/le.h"
-#include "util/sha256.h"
 
-static const uint8_t file_magic[8] = {'M', 'R', 'D', 'M', 'B', 0, '\r', '\n'};
+/* this file's format (the envelope's constants; below) */
+#define FORMAT (&mr_dmm_file_format)
+
+/* File header fields (byte offsets) after the envelope's magic, version
+ * and header size (util/derived.h); the key and the CRC are the envelope's
+ * too. */
+enum { H_MESHES = 16, H_LEVEL = 20, H_BITS = 24, H_KEY = 32, H_CRC = 64 };
+_Static_assert(H_CRC + 4 == MR_DMM_FILE_HEADER_BYTES, "header layout");
+
+const mr_derived_format mr_dmm_file_format = {
+    .name = "dmm bake file", .ext = "dmm", .magic = {'M', 'R', 'D', 'M', 'B', 0, '\r', '\n'},
+    .version = MR_DMM_FILE_VERSION, .header_bytes = MR_DMM_FILE_HEADER_BYTES, .key_at = H_KEY,
+    .max_bytes = MR_DMM_FILE_MAX_BYTES};
+
 static const uint8_t mesh_tag[4] = {'M', 'E', 'S', 'H'};
 
 #define FLAG_BAKED 1u
 #define FLAG_SKINNED 2u
-
-/* File header fields (byte offsets). */
-enum { H_VERSION = 8, H_HEADER_BYTES = 12, H_MESHES = 16, H_LEVEL = 20, H_BITS = 24, H_KEY = 32,
-       H_CRC = 64 };
 /* Mesh section header fields (offsets from the section start). */
 enum { M_INDEX = 4, M_FLAGS = 8, M_SRC_VERTICES = 12, M_SRC_JOINTS = 16, M_VERTICES = 20,
        M_TRIANGLES = 24, M_RESERVED0 = 28, M_FALLBACKS = 32, M_SAMPLES = 40, M_RMS = 48,
@@ -47,45 +58,20 @@ enum { M_INDEX = 4, M_FLAGS = 8, M_SRC_VERTICES = 12, M_SRC_JOINTS = 16, M_VERTI
 
 /* ---- parser (reader, and the writer's read-back check) */
 
-typedef struct parser {
-    const uint8_t *buf;
-    size_t size;
-    bool keep;      /* build mr_dmm_file (reader) or only check (writer) */
-    mr_crc32_table crc;
-    mr_error *err;
-} parser;
+/* keep: build the mr_dmm_file (a read) or only check (the writer's) */
+typedef mr_derived_reader parser;
 
-static int bad(parser *p, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int bad(parser *p, const char *fmt, ...)
-{
-    char msg[sizeof p->err->msg];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mr_error_set(p->err, MR_ERR_FORMAT, "dmm bake file: %s", msg);
-}
+/* MR_ERR_FORMAT "dmm bake file: ..." */
+#define bad(p, ...) mr_derived_bad((p)->format, (p)->err, __VA_ARGS__)
 
 static bool finite_nonneg(double v) { return isfinite(v) && v >= 0; }
 
 static int parse_header(parser *p, mr_dmm_file *f)
 {
     const uint8_t *b = p->buf;
-    if (p->size < MR_DMM_FILE_HEADER_BYTES)
-        return bad(p, "truncated header at byte offset %zu (need %u bytes)", p->size,
-                   MR_DMM_FILE_HEADER_BYTES);
-    for (size_t i = 0; i < sizeof file_magic; i++)
-        if (b[i] != file_magic[i])
-            return bad(p, "bad magic at byte offset %zu", i);
-    if (mr_le_get_u32(b + H_VERSION) != MR_DMM_FILE_VERSION)
-        return bad(p, "unsupported version %u at byte offset %d (want %u)", mr_le_get_u32(b + H_VERSION),
-                   H_VERSION, MR_DMM_FILE_VERSION);
-    if (mr_le_get_u32(b + H_HEADER_BYTES) != MR_DMM_FILE_HEADER_BYTES)
-        return bad(p, "header size %u at byte offset %d (want %u)", mr_le_get_u32(b + H_HEADER_BYTES),
-                   H_HEADER_BYTES, MR_DMM_FILE_HEADER_BYTES);
-    if (mr_le_get_u32(b + H_CRC) != mr_crc32(&p->crc, b, H_CRC))
-        return bad(p, "header checksum mismatch at byte offset %d (bytes 0..%d corrupted)", H_CRC,
-                   H_CRC - 1);
+    int rc = mr_derived_header_check(p);
+    if (rc < 0)
+        return rc;
     uint32_t meshes = mr_le_get_u32(b + H_MESHES);
     uint64_t room = (p->size - MR_DMM_FILE_HEADER_BYTES) / MR_DMM_FILE_MESH_HEADER_BYTES;
     if (meshes == 0 || meshes > room)
@@ -108,7 +94,7 @@ static int parse_header(parser *p, mr_dmm_file *f)
     }
     f->level = level;
     f->mesh_count = meshes;
-    memcpy(f->key, b + H_KEY, MR_DMM_KEY_BYTES);
+    memcpy(f->key, b + H_KEY, MR_DERIVED_KEY_BYTES);
     return MR_OK;
 }
 
@@ -341,8 +327,9 @@ static mr_dmm_bake *bake_alloc(uint32_t flags, uint32_t nv, uint32_t nt)
     return b;
 }
 
-static int parse(parser *p, mr_dmm_file **out)
+static int parse(parser *p, void *result)
 {
+    mr_dmm_file **out = result;
     mr_dmm_file *f = calloc(1, sizeof *f);
     if (!f)
         return mr_error_set(p->err, MR_ERR_NOMEM, "dmm bake file: out of memory");
@@ -429,18 +416,10 @@ void mr_dmm_file_free(mr_dmm_file *f)
 
 int mr_dmm_file_read(const uint8_t *buf, size_t size, mr_dmm_file **out, mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!out || (!buf && size))
+    if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
-    parser *p = malloc(sizeof *p);
-    if (!p)
-        return mr_error_set(err, MR_ERR_NOMEM, "dmm bake file: out of memory");
-    *p = (parser){.buf = buf, .size = size, .keep = true, .err = err};
-    mr_crc32_init(&p->crc);
-    int rc = parse(p, out);
-    free(p);
-    return rc;
+    *out = NULL;
+    return mr_derived_parse(FORMAT, buf, size, parse, out, err);
 }
 
 /* ---- writer */
@@ -481,28 +460,15 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
                  (uint64_t)b->base_triangle_count * TRIANGLE_BYTES + 4 + MR_DMM_HEADER_BYTES +
                  (uint64_t)b->base_triangle_count + e->records_bytes + 4;
     }
-    if (total > MR_DMM_FILE_MAX_BYTES)
-        return mr_error_set(err, MR_ERR_LIMIT, "dmm bake file write: %llu bytes exceed the %llu "
-                            "a reader accepts", (unsigned long long)total,
-                            (unsigned long long)MR_DMM_FILE_MAX_BYTES);
-    int rc = MR_OK;
-    parser *p = malloc(sizeof *p);
-    uint8_t *out = calloc(1, (size_t)total);
-    if (!p || !out) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm bake file write: out of memory for %llu bytes",
-                          (unsigned long long)total);
-        goto cleanup;
-    }
-    *p = (parser){.buf = out, .size = (size_t)total, .keep = false, .err = err};
-    mr_crc32_init(&p->crc);
-    memcpy(out, file_magic, sizeof file_magic);
-    mr_le_put_u32(out + H_VERSION, MR_DMM_FILE_VERSION);
-    mr_le_put_u32(out + H_HEADER_BYTES, MR_DMM_FILE_HEADER_BYTES);
+    uint8_t *out = NULL;
+    parser *p = NULL; /* over out: its CRC table, then the read-back */
+    int rc = mr_derived_buffer(FORMAT, total, &out, &p, err);
+    if (rc < 0)
+        return rc;
     mr_le_put_u32(out + H_MESHES, f->mesh_count);
     mr_le_put_u32(out + H_LEVEL, f->level);
     memcpy(out + H_BITS, bits, f->level + 1);
-    memcpy(out + H_KEY, f->key, MR_DMM_KEY_BYTES);
-    mr_le_put_u32(out + H_CRC, mr_crc32(&p->crc, out, H_CRC));
+    mr_derived_header_seal(FORMAT, &p->crc, f->key, out);
     size_t off = MR_DMM_FILE_HEADER_BYTES;
     for (uint32_t i = 0; i < f->mesh_count; i++) {
         const mr_dmm_file_mesh *m = &f->meshes[i];
@@ -566,9 +532,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
         free(block);
     }
     if ((rc = parse(p, NULL)) < 0) {
-        mr_error_prefix(err, "dmm bake file write: would not read back: ");
-        if (rc == MR_ERR_FORMAT)
-            rc = err ? (err->code = MR_ERR_INVALID) : MR_ERR_INVALID;
+        rc = mr_derived_readback_failed(FORMAT, rc, err);
         goto cleanup;
     }
     *buf = out;
@@ -588,95 +552,71 @@ int mr_dmm_file_write_path(const mr_dmm_file *f, const char *path, mr_error *err
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file write: no path");
     int rc = mr_dmm_file_write(f, &buf, &size, err);
     if (rc == MR_OK)
-        rc = mr_fs_write_atomic(path, buf, size, "dmm bake file write", err);
+        rc = mr_derived_write(FORMAT, path, buf, size, err);
     free(buf);
     return rc;
+}
+
+static int read_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
+{
+    return mr_dmm_file_read(buf, size, ctx, err);
 }
 
 int mr_dmm_file_read_path(const char *path, mr_dmm_file **out, mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!path || !out)
+    static const mr_derived_ops read_ops = {.parse = read_parse};
+    if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "dmm bake file read: bad arguments");
-    uint8_t *buf = NULL;
-    size_t size = 0;
-    int rc = mr_fs_read_capped(path, MR_DMM_FILE_MAX_BYTES, &buf, &size, "dmm bake file", err);
-    if (rc == MR_OK && (rc = mr_dmm_file_read(buf, size, out, err)) < 0)
-        mr_error_prefix(err, "%s: ", path);
-    free(buf);
-    return rc;
+    *out = NULL;
+    return mr_derived_load(path, NULL, FORMAT, &read_ops, out, err);
 }
 
-/* ---- the cache */
-
-static bool mesh_skinned(const mr_mesh *m)
-{
-    /* the bake's own rule for keeping joints and weights */
-    return m->joint_count > 0 && m->joints && m->weights;
-}
+/* ---- the cache (util/derived.h: key, path, load-or-bake, store) */
 
 void mr_dmm_cache_key(const mr_asset *asset, const mr_dmm_bake_params *params,
-                      const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], uint8_t key[MR_DMM_KEY_BYTES])
+                      const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
+                      uint8_t key[MR_DERIVED_KEY_BYTES])
 {
-    static const char domain[] = "microray baked dmm cache";
-    mr_sha256_feed feed, *h = &feed;
-    mr_sha256_feed_init(h);
-    mr_sha256_feed_bytes(h, domain, sizeof domain);
-    mr_sha256_feed_u32(h, MR_DMM_FILE_VERSION);
-    mr_sha256_feed_u32(h, MR_DMM_BAKER_REVISION);
-    mr_sha256_feed_u32(h, (uint32_t)asset->mesh_count);
+    mr_derived_key_builder kb;
+    mr_derived_key_begin(&kb, "microray baked dmm cache", MR_DMM_FILE_VERSION,
+                         MR_DMM_BAKER_REVISION);
+    mr_derived_key_u32(&kb, (uint32_t)asset->mesh_count);
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
-        bool skinned = mesh_skinned(m);
-        mr_sha256_feed_u32(h, m->vertex_count);
-        mr_sha256_feed_u32(h, m->triangle_count);
-        mr_sha256_feed_u32(h, m->joint_count);
-        mr_sha256_feed_u32(h, skinned);
-        mr_sha256_feed_f32s(h, m->positions, (size_t)m->vertex_count * 3);
-        mr_sha256_feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
-        if (skinned) {
-            mr_sha256_feed_u16s(h, m->joints, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
-            mr_sha256_feed_f32s(h, m->weights, (size_t)m->vertex_count * MR_MAX_INFLUENCES);
-        }
+        mr_derived_key_mesh_counts(&kb, m);
+        mr_derived_key_u32(&kb, mr_derived_mesh_skinned(m)); /* the bake's rule */
+        mr_derived_key_mesh_arrays(&kb, m, MR_DERIVED_POSITIONS | MR_DERIVED_INDICES |
+                                               MR_DERIVED_SKIN);
     }
-    mr_sha256_feed_u32(h, params->level);
-    mr_sha256_feed_u32(h, params->adaptive);
-    mr_sha256_feed_u32(h, params->target_triangles);
-    mr_sha256_feed_f32s(h, &params->target_ratio, 1);
-    mr_sha256_feed_f32s(h, &params->max_error, 1);
-    mr_sha256_feed_f32s(h, &params->max_displacement, 1);
+    mr_derived_key_u32(&kb, params->level);
+    mr_derived_key_u32(&kb, params->adaptive);
+    mr_derived_key_u32(&kb, params->target_triangles);
+    mr_derived_key_f32s(&kb, &params->target_ratio, 1);
+    mr_derived_key_f32s(&kb, &params->max_error, 1);
+    mr_derived_key_f32s(&kb, &params->max_displacement, 1);
     for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++)
-        mr_sha256_feed_u32(h, bits[l]);
-    mr_sha256_feed_final(h, key);
+        mr_derived_key_u32(&kb, bits[l]);
+    mr_derived_key_end(&kb, key);
 }
 
-int mr_dmm_cache_path(const char *dir, const uint8_t key[MR_DMM_KEY_BYTES], char **path,
-                      mr_error *err)
-{
-    *path = NULL;
-    if (!dir || !dir[0])
-        return mr_error_set(err, MR_ERR_INVALID, "dmm cache: no directory");
-    size_t n = strlen(dir) + 1 + 2 * MR_DMM_KEY_BYTES + sizeof ".dmm";
-    char *p = malloc(n);
-    if (!p)
-        return mr_error_set(err, MR_ERR_NOMEM, "dmm cache: out of memory");
-    size_t at = (size_t)snprintf(p, n, "%s/", dir);
-    for (unsigned i = 0; i < MR_DMM_KEY_BYTES; i++)
-        at += (size_t)snprintf(p + at, n - at, "%02x", key[i]);
-    snprintf(p + at, n - at, ".dmm");
-    *path = p;
-    return MR_OK;
-}
+/* What the cache's callbacks see (their ctx): one bake of an asset. */
+typedef struct bake_request {
+    const mr_asset *asset;
+    const mr_dmm_bake_params *params; /* the bake's: mr_dmm_bake_cached only */
+    unsigned level;
+    const uint8_t *bits;              /* MR_UMESH_MAX_LEVEL + 1 */
+    mr_dmm_bake **bakes;              /* parse and build fill these (asset->mesh_count each) */
+    mr_dmm_encoded **encoded;
+    mr_dmm_bake *const *store_bakes;  /* serialise writes these */
+    mr_dmm_encoded *const *store_encoded;
+} bake_request;
 
-/* Whether file f is the bake of asset under key/level/bits; err says why not. */
-static int matches(const mr_dmm_file *f, const uint8_t *key, const mr_asset *asset,
-                   unsigned level, const uint8_t *bits, mr_error *err)
+/* Whether file f (stored under the right key) is the bake of r's asset at
+ * r's level and widths; err says why not. */
+static int matches(const mr_dmm_file *f, const bake_request *r, mr_error *err)
 {
-    if (memcmp(f->key, key, MR_DMM_KEY_BYTES) != 0)
-        return mr_error_set(err, MR_ERR_FORMAT, "stored under another key (byte offset %d)",
-                            H_KEY);
-    if (f->level != level || memcmp(f->bits, bits, level + 1) != 0)
+    const mr_asset *asset = r->asset;
+    if (f->level != r->level || memcmp(f->bits, r->bits, r->level + 1) != 0)
         return mr_error_set(err, MR_ERR_FORMAT, "level or bit widths differ (byte offset %d)",
                             H_LEVEL);
     if (f->mesh_count != asset->mesh_count)
@@ -689,7 +629,7 @@ static int matches(const mr_dmm_file *f, const uint8_t *key, const mr_asset *ass
         if ((b != NULL) != (am->triangle_count > 0) ||
             m->source_vertex_count != am->vertex_count ||
             m->source_joint_count != am->joint_count ||
-            (b && (b->joints != NULL) != mesh_skinned(am)))
+            (b && (b->joints != NULL) != mr_derived_mesh_skinned(am)))
             return mr_error_set(err, MR_ERR_FORMAT, "mesh %u does not match the asset's", i);
         for (uint32_t v = 0; b && v < b->base_vertex_count; v++)
             if (memcmp(b->base_positions + (size_t)v * 3,
@@ -701,58 +641,121 @@ static int matches(const mr_dmm_file *f, const uint8_t *key, const mr_asset *ass
     return MR_OK;
 }
 
-int mr_dmm_cache_load(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
+static int cache_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
+{
+    bake_request *r = ctx;
+    mr_dmm_file *f = NULL;
+    int rc = mr_dmm_file_read(buf, size, &f, err);
+    if (rc == MR_OK && (rc = matches(f, r, err)) == MR_OK)
+        for (size_t i = 0; i < r->asset->mesh_count; i++) {
+            r->bakes[i] = f->meshes[i].bake;
+            r->encoded[i] = f->meshes[i].encoded;
+            f->meshes[i].bake = NULL;
+            f->meshes[i].encoded = NULL;
+        }
+    mr_dmm_file_free(f);
+    return rc;
+}
+
+static int cache_serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t **buf,
+                           size_t *size, mr_error *err)
+{
+    const bake_request *r = ctx;
+    const mr_asset *asset = r->asset;
+    if (!asset || asset->mesh_count == 0 || asset->mesh_count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm cache store: bad arguments");
+    mr_dmm_file f = {.level = r->level, .mesh_count = (uint32_t)asset->mesh_count};
+    memcpy(f.bits, r->bits, sizeof f.bits);
+    memcpy(f.key, key, MR_DERIVED_KEY_BYTES);
+    if (!(f.meshes = calloc(asset->mesh_count, sizeof *f.meshes)))
+        return mr_error_set(err, MR_ERR_NOMEM, "dmm cache store: out of memory");
+    for (size_t i = 0; i < asset->mesh_count; i++)
+        f.meshes[i] = (mr_dmm_file_mesh){.source_vertex_count = asset->meshes[i].vertex_count,
+                                         .source_joint_count = asset->meshes[i].joint_count,
+                                         .bake = r->store_bakes[i],
+                                         .encoded = r->store_encoded[i]};
+    int rc = mr_dmm_file_write(&f, buf, size, err);
+    free(f.meshes);
+    return rc;
+}
+
+/* Bakes and encodes every mesh with triangles; on failure nothing is kept. */
+static int cache_build(void *ctx, mr_error *err)
+{
+    bake_request *r = ctx;
+    const mr_asset *asset = r->asset;
+    int rc = MR_OK;
+    for (size_t i = 0; i < asset->mesh_count && rc == MR_OK; i++) {
+        if (asset->meshes[i].triangle_count == 0)
+            continue;
+        if ((rc = mr_dmm_bake_run(&asset->meshes[i], r->params, &r->bakes[i], err)) == MR_OK) {
+            mr_dmm_bake *b = r->bakes[i];
+            rc = mr_dmm_encode(b->level, r->bits, b->base_triangle_count, b->tri_info,
+                               b->displacements, &r->encoded[i], NULL, err);
+            /* the encoding is what renders (and what a hit has): the float
+             * displacements (up to 561 per base triangle) are done with */
+            free(b->displacements);
+            b->displacements = NULL;
+        }
+        if (rc < 0)
+            mr_error_prefix(err, "%s: mesh %zu: ", asset->path, i);
+    }
+    for (size_t i = 0; i < asset->mesh_count && rc < 0; i++) {
+        mr_dmm_bake_free(r->bakes[i]);
+        mr_dmm_encoded_free(r->encoded[i]);
+        r->bakes[i] = NULL;
+        r->encoded[i] = NULL;
+    }
+    return rc;
+}
+
+static const mr_derived_ops bake_ops = {
+    .parse = cache_parse, .serialise = cache_serialise, .build = cache_build};
+
+static void clear(const mr_asset *asset, mr_dmm_bake **bakes, mr_dmm_encoded **encoded)
+{
+    for (size_t i = 0; i < asset->mesh_count; i++)
+        bakes[i] = NULL, encoded[i] = NULL;
+}
+
+int mr_dmm_cache_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
                       const mr_asset *asset, unsigned level,
                       const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], mr_dmm_bake **bakes,
                       mr_dmm_encoded **encoded, mr_error *err)
 {
-    for (size_t i = 0; i < asset->mesh_count; i++)
-        bakes[i] = NULL, encoded[i] = NULL;
-    mr_dmm_file *f = NULL;
-    int rc = mr_dmm_file_read_path(path, &f, err);
-    if (rc < 0)
-        return rc;
-    if ((rc = matches(f, key, asset, level, bits, err)) < 0) {
-        mr_error_prefix(err, "dmm cache %s: ", path);
-        mr_dmm_file_free(f);
-        return rc;
-    }
-    for (size_t i = 0; i < asset->mesh_count; i++) {
-        bakes[i] = f->meshes[i].bake;
-        encoded[i] = f->meshes[i].encoded;
-        f->meshes[i].bake = NULL;
-        f->meshes[i].encoded = NULL;
-    }
-    mr_dmm_file_free(f);
-    return MR_OK;
+    clear(asset, bakes, encoded);
+    bake_request r = {.asset = asset, .level = level, .bits = bits, .bakes = bakes,
+                      .encoded = encoded};
+    return mr_derived_load(path, key, FORMAT, &bake_ops, &r, err);
 }
 
-int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
+int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
                        const mr_asset *asset, unsigned level,
                        const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], mr_dmm_bake *const *bakes,
                        mr_dmm_encoded *const *encoded, mr_error *err)
 {
-    if (!path || !asset || asset->mesh_count == 0 || asset->mesh_count > UINT32_MAX)
-        return mr_error_set(err, MR_ERR_INVALID, "dmm cache store: bad arguments");
-    mr_dmm_file f = {.level = level, .mesh_count = (uint32_t)asset->mesh_count};
-    memcpy(f.bits, bits, sizeof f.bits);
-    memcpy(f.key, key, MR_DMM_KEY_BYTES);
-    f.meshes = calloc(asset->mesh_count, sizeof *f.meshes);
-    char *dir = mr_fs_dir_of(path);
-    int rc = MR_OK;
-    if (!f.meshes || !dir) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "dmm cache store: out of memory");
-        goto cleanup;
-    }
-    for (size_t i = 0; i < asset->mesh_count; i++)
-        f.meshes[i] = (mr_dmm_file_mesh){.source_vertex_count = asset->meshes[i].vertex_count,
-                                         .source_joint_count = asset->meshes[i].joint_count,
-                                         .bake = bakes[i],
-                                         .encoded = encoded[i]};
-    if ((rc = mr_fs_make_dirs(dir, "dmm cache", err)) == MR_OK)
-        rc = mr_dmm_file_write_path(&f, path, err);
-cleanup:
-    free(f.meshes);
-    free(dir);
-    return rc;
+    bake_request r = {.asset = asset, .level = level, .bits = bits, .store_bakes = bakes,
+                      .store_encoded = encoded};
+    return mr_derived_store(path, key, FORMAT, &bake_ops, &r, err);
+}
+
+int mr_dmm_bake_cached(const mr_asset *asset, const mr_dmm_bake_params *params,
+                       const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], const char *cache_dir,
+                       mr_dmm_bake **bakes, mr_dmm_encoded **encoded, bool *from_cache,
+                       mr_error *err)
+{
+    if (from_cache)
+        *from_cache = false;
+    if (!asset || !params || !bits || !bakes || !encoded)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm bake: bad arguments");
+    clear(asset, bakes, encoded);
+    uint8_t key[MR_DERIVED_KEY_BYTES];
+    const bool cached = cache_dir && cache_dir[0];
+    if (cached)
+        mr_dmm_cache_key(asset, params, bits, key);
+    bake_request r = {.asset = asset, .params = params, .level = params->level, .bits = bits,
+                      .bakes = bakes, .encoded = encoded, .store_bakes = bakes,
+                      .store_encoded = encoded};
+    return mr_derived_get(cached ? cache_dir : NULL, cached ? key : NULL, FORMAT, &bake_ops, &r,
+                          from_cache, err);
 }

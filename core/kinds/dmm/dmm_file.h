@@ -21,14 +21,20 @@
  * fsync, rename and an fsync of the directory, so a reader sees the old file
  * or the new one, never half of one, even after a crash.
  *
- * The cache: a bake is stored as <dir>/<key>.dmm, key the lowercase hex
- * SHA-256 of everything the bake depends on (mr_dmm_cache_key). A file that
- * is missing, corrupt, truncated, of another version or not consistent with
- * the asset it is loaded for is a miss; the caller bakes and overwrites it.
+ * The cache is the derived-data cache (util/derived.h), which owns the
+ * envelope (magic, version, header size, key, header CRC), the path
+ * <dir>/<hex key>.dmm, the key builder and the hit/miss/replace policy.
+ * This module adds what is the DMM's own: the layout (mr_dmm_file_format),
+ * what the key covers (mr_dmm_cache_key: everything the bake reads), when a
+ * stored bake fits an asset, and the builder (bake, then encode). A file
+ * that is missing, corrupt, truncated, of another version, under another
+ * key or not consistent with the asset is a miss: the asset is baked again
+ * and the file replaced (mr_dmm_bake_cached).
  */
 #ifndef MR_DMM_FILE_H
 #define MR_DMM_FILE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -36,6 +42,7 @@
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
 #include "microray.h"
+#include "util/derived.h"
 
 /* Version of the baked-DMM file layout (part of the cache key). */
 #define MR_DMM_FILE_VERSION 2u
@@ -48,9 +55,10 @@
 #define MR_DMM_FILE_MESH_HEADER_BYTES 96u
 /* Largest file a reader accepts from disk (the caps allow about 1.5 GiB). */
 #define MR_DMM_FILE_MAX_BYTES ((uint64_t)1 << 31)
-/* Bytes of a cache key and of its hex form with the NUL. */
-#define MR_DMM_KEY_BYTES 32u
-#define MR_DMM_KEY_HEX 65u
+
+/* The layout's envelope for the derived-data cache: "dmm bake file", files
+ * named <hex key>.dmm, magic "MRDMB\0\r\n", the key at byte 32. */
+extern const mr_derived_format mr_dmm_file_format;
 
 /* One mesh of the asset. */
 typedef struct mr_dmm_file_mesh {
@@ -65,7 +73,7 @@ typedef struct mr_dmm_file_mesh {
 typedef struct mr_dmm_file {
     unsigned level;                  /* subdivision level of every mesh */
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1]; /* encoding widths of every mesh; above level: 0 */
-    uint8_t key[MR_DMM_KEY_BYTES];   /* the cache key it is stored under, or all zero */
+    uint8_t key[MR_DERIVED_KEY_BYTES]; /* the cache key it is stored under, or all zero */
     uint32_t mesh_count;
     mr_dmm_file_mesh *meshes;
 } mr_dmm_file;
@@ -90,35 +98,50 @@ int mr_dmm_file_read(const uint8_t *buf, size_t size, mr_dmm_file **out, mr_erro
 int mr_dmm_file_read_path(const char *path, mr_dmm_file **out, mr_error *err);
 
 /* The cache key of baking every mesh of asset with params and encoding with
- * bits: SHA-256 over MR_DMM_FILE_VERSION, MR_DMM_BAKER_REVISION, per mesh its
- * vertex, triangle and joint counts, positions, indices, joints and weights
- * (what the bake reads; normals and uvs are not), the parameters (level,
- * adaptive,
- * target_triangles, target_ratio, max_error, max_displacement; not threads:
- * the bake does not depend on it) and bits[0..MR_UMESH_MAX_LEVEL].
- * Host-independent: everything is hashed little-endian. */
+ * bits (util/derived.h's builder, tag "microray baked dmm cache"):
+ * MR_DMM_FILE_VERSION, MR_DMM_BAKER_REVISION, per mesh its vertex,
+ * triangle and joint counts, whether it is skinned, positions, indices,
+ * joints and weights (what the bake reads; normals and uvs are not), the
+ * parameters (level, adaptive, target_triangles, target_ratio, max_error,
+ * max_displacement; not threads: the bake does not depend on it) and
+ * bits[0..MR_UMESH_MAX_LEVEL]. Host-independent (docs/dmm-format.md lists
+ * the bytes). The file is mr_derived_path(dir, key, mr_dmm_file_format.ext). */
 void mr_dmm_cache_key(const mr_asset *asset, const mr_dmm_bake_params *params,
-                      const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], uint8_t key[MR_DMM_KEY_BYTES]);
-/* "<dir>/<hex key>.dmm", malloc'ed into *path. */
-int mr_dmm_cache_path(const char *dir, const uint8_t key[MR_DMM_KEY_BYTES], char **path,
-                      mr_error *err);
+                      const uint8_t bits[MR_UMESH_MAX_LEVEL + 1],
+                      uint8_t key[MR_DERIVED_KEY_BYTES]);
 /* Loads the cache file at path for asset: a hit fills bakes[i] / encoded[i]
  * (asset->mesh_count entries each, NULL for meshes without triangles; the
- * caller owns them) and returns MR_OK. MR_ERR_IO: no such file (or it cannot
- * be read); MR_ERR_FORMAT: broken, or stored under another key, level or
- * bits, or not consistent with the asset (mesh count, which meshes are baked,
- * vertex and joint counts, skin, base vertices bit-identical to the detailed
- * vertices they name). On failure every entry is NULL. */
-int mr_dmm_cache_load(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
+ * caller owns them; the bakes have no displacements) and returns MR_OK.
+ * MR_ERR_IO: no such file (or it cannot be read, or is not a regular
+ * file); MR_ERR_FORMAT: broken, or stored under another key, level or bits,
+ * or not consistent with the asset (mesh count, which meshes are baked,
+ * vertex and joint counts, skin, base vertices bit-identical to the
+ * detailed vertices they name). On failure every entry is NULL. */
+int mr_dmm_cache_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
                       const mr_asset *asset, unsigned level,
                       const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], mr_dmm_bake **bakes,
                       mr_dmm_encoded **encoded, mr_error *err);
 /* Stores the bakes of asset (bakes[i] / encoded[i] per mesh, borrowed) at
  * path under key, creating its directory (and parents, mode 0755) if
- * missing; atomic as mr_dmm_file_write_path. */
-int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DMM_KEY_BYTES],
+ * missing; atomic as mr_dmm_file_write_path (mr_derived_store). */
+int mr_dmm_cache_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
                        const mr_asset *asset, unsigned level,
                        const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], mr_dmm_bake *const *bakes,
                        mr_dmm_encoded *const *encoded, mr_error *err);
+
+/* Bakes every mesh of asset that has triangles with params
+ * (mr_dmm_bake_run) and encodes it with bits (mr_dmm_encode at
+ * params->level), through the cache in cache_dir (NULL or "": no cache):
+ * bakes[i] / encoded[i] as mr_dmm_cache_load fills them, from the cache
+ * file when it loads for this asset (*from_cache true, may be NULL), else
+ * freshly made and then stored under mr_dmm_cache_key; a store that fails
+ * (a full disk, a read-only directory) is ignored. Either way the bakes
+ * keep no float displacements: the encoding is what renders. Errors are the
+ * bake's and the encoder's, prefixed "<asset path>: mesh i: "; on failure
+ * every entry is NULL. */
+int mr_dmm_bake_cached(const mr_asset *asset, const mr_dmm_bake_params *params,
+                       const uint8_t bits[MR_UMESH_MAX_LEVEL + 1], const char *cache_dir,
+                       mr_dmm_bake **bakes, mr_dmm_encoded **encoded, bool *from_cache,
+                       mr_error *err);
 
 #endif /* MR_DMM_FILE_H */

@@ -58,7 +58,6 @@
 struct mr_geom {
     const mr_asset *asset;
     mr_dmm_params desc;
-    char *cache_dir;              /* the context's folder of bakes, or NULL */
     mr_umesh_topology topo;       /* surviving micro-triangles per level and decimation mask:
                                      a hit maps back to its lattice in O(1) */
     uint8_t *tri_info;            /* per base triangle: level and decimation (dmm_encode.h) */
@@ -94,7 +93,6 @@ static void dmm_free(mr_geom *g)
         return;
     if (g->rtc)
         rtcReleaseGeometry(g->rtc);
-    free(g->cache_dir);
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         if (g->bakes)
             mr_dmm_bake_free(g->bakes[i]);
@@ -126,21 +124,13 @@ static void dmm_free(mr_geom *g)
     free(g);
 }
 
-/* Encodes mesh i's bake (unless its encoding came from the disk cache) and
- * decodes its values and pyramid prefixes into the packed arrays from base
- * triangle t0 on: either way what is rendered is the encoding. */
+/* Decodes mesh i's values and pyramid prefixes into the packed arrays from
+ * base triangle t0 on: freshly baked or from the disk cache, what is
+ * rendered is the encoding. */
 static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
 {
     const mr_dmm_bake *b = g->bakes[i];
     int rc = MR_OK;
-    if (!g->encoded[i]) {
-        uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
-        mr_dmm_default_bits(bits);
-        rc = mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements,
-                           &g->encoded[i], NULL, err);
-        if (rc < 0)
-            return rc;
-    }
     const mr_dmm_encoded *enc = g->encoded[i];
     uint32_t full = mr_dmm_pyramid_size(b->level);
     uint16_t *minv = malloc(full * sizeof *minv), *maxv = malloc(full * sizeof *maxv);
@@ -276,43 +266,10 @@ static int allocate(mr_geom *g, mr_error *err)
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
 }
 
-/* The disk cache of bakes (dmm_file.h), when the context names a cache folder: on a
- * hit, g->bakes and g->encoded hold the stored base meshes and encodings
- * and true is returned. *path is the cache file (NULL without a cache dir,
- * or when it cannot be named). A missing, broken or mismatching file is a
- * miss: the caller bakes and cache_store overwrites it. Never fails the job. */
-static bool cache_lookup(mr_geom *g, const mr_dmm_bake_params *bp, uint8_t key[MR_DMM_KEY_BYTES],
-                         char **path)
-{
-    *path = NULL;
-    if (!g->cache_dir || !g->cache_dir[0])
-        return false;
-    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
-    mr_dmm_default_bits(bits);
-    mr_dmm_cache_key(g->asset, bp, bits, key);
-    mr_error e = {0};
-    if (mr_dmm_cache_path(g->cache_dir, key, path, &e) < 0)
-        return false;
-    return mr_dmm_cache_load(*path, key, g->asset, bp->level, bits, g->bakes, g->encoded, &e) ==
-           MR_OK;
-}
-
-/* Stores a fresh bake; a failure (full disk, read-only directory) costs the
- * next job a bake, never this job its frames, so it is dropped. */
-static void cache_store(const mr_geom *g, const uint8_t key[MR_DMM_KEY_BYTES], const char *path)
-{
-    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
-    mr_dmm_default_bits(bits);
-    mr_error e = {0};
-    (void)mr_dmm_cache_store(path, key, g->asset, g->desc.level, bits, g->bakes, g->encoded, &e);
-}
-
 static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
                       const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
     *out = NULL;
-    uint8_t key[MR_DMM_KEY_BYTES];
-    char *cache_path = NULL; /* before the first goto: fail frees it */
     if (!desc->params)
         return mr_error_set(err, MR_ERR_INVALID, "a dmm object needs its parameters");
     int rc = check_desc(desc->params, err);
@@ -323,8 +280,6 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
     g->asset = asset;
     g->desc = *(const mr_dmm_params *)desc->params;
-    if (ctx && ctx->cache_dir && ctx->cache_dir[0] && !(g->cache_dir = strdup(ctx->cache_dir)))
-        goto nomem;
     unsigned level = g->desc.level;
     size_t meshes = asset->mesh_count ? asset->mesh_count : 1;
     g->bakes = calloc(meshes, sizeof *g->bakes);
@@ -339,15 +294,16 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     bp.target_triangles = g->desc.base_triangles;
     bp.target_ratio = g->desc.base_ratio;
     bp.threads = 0; /* the bake does not depend on it */
-    bool cached = cache_lookup(g, &bp, key, &cache_path);
+    /* bake and encode, or load both from the disk cache (dmm_file.h) */
+    uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
+    mr_dmm_default_bits(bits);
+    if ((rc = mr_dmm_bake_cached(asset, &bp, bits, ctx ? ctx->cache_dir : NULL, g->bakes, g->encoded, NULL,
+                                 err)) < 0)
+        goto fail;
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
-        if (asset->meshes[i].triangle_count == 0)
+        if (!g->bakes[i])
             continue;
-        if (!cached && (rc = mr_dmm_bake_run(&asset->meshes[i], &bp, &g->bakes[i], err)) < 0) {
-            mr_error_prefix(err, "%s: mesh %zu: ", asset->path, i);
-            goto fail;
-        }
         g->mesh_first_base[i] = (uint32_t)nv;
         nv += g->bakes[i]->base_vertex_count;
         nt += g->bakes[i]->base_triangle_count;
@@ -383,24 +339,13 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
             goto fail;
         t0 += b->base_triangle_count;
     }
-    if (cache_path && !cached)
-        cache_store(g, key, cache_path);
-    /* the encodings are what renders: the bakes' float displacements (up to
-     * 561 floats per base triangle) are not needed any more */
-    for (size_t i = 0; i < asset->mesh_count; i++)
-        if (g->bakes[i]) {
-            free(g->bakes[i]->displacements);
-            g->bakes[i]->displacements = NULL;
-        }
     if (tessellated(g))
         fill_micro_indices(g, g->indices);
-    free(cache_path);
     *out = g;
     return MR_OK;
 nomem:
     rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for a dmm object", asset->path);
 fail:
-    free(cache_path);
     dmm_free(g);
     return rc;
 }

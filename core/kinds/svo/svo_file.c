@@ -8,27 +8,37 @@
  * never loads would make every job voxelise again, silently). Values are
  * assembled byte by byte, so the host's byte order and the buffer's
  * alignment never matter.
+ *
+ * The cache's mechanics (envelope checks, key stream, path, hit/miss/
+ * replace, atomic store) are util/derived.h's; what is here is the
+ * octree's own: the layout, the key's inputs, the fit check and the
+ * builder.
  */
 #include "kinds/svo/svo_file.h"
 
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "util/crc32.h"
-#include "util/file_io.h"
+#include "util/derived.h"
 #include "util/le.h"
-#include "util/sha256.h"
 
-static const uint8_t file_magic[8] = {'M', 'R', 'S', 'V', 'O', 0, '\r', '\n'};
+/* this file's format (the envelope's constants; below) */
+#define FORMAT (&mr_svo_file_format)
 
-/* Header fields (byte offsets; docs/svo-format.md). */
-enum { H_VERSION = 8, H_HEADER_BYTES = 12, H_FLAGS = 16, H_DEPTH = 20, H_ORIGIN = 24,
-       H_SIZE = 36, H_NODES = 40, H_LEAVES = 44, H_PALETTE = 48, H_RESERVED = 52,
-       H_PAYLOAD = 56, H_KEY = 64, H_CRC = 96 };
+/* Header fields (byte offsets; docs/svo-format.md) after the envelope's
+ * magic, version and header size (util/derived.h); the key and the CRC
+ * are the envelope's too. */
+enum { H_FLAGS = 16, H_DEPTH = 20, H_ORIGIN = 24, H_SIZE = 36, H_NODES = 40, H_LEAVES = 44,
+       H_PALETTE = 48, H_RESERVED = 52, H_PAYLOAD = 56, H_KEY = 64, H_CRC = 96 };
 _Static_assert(H_CRC + 4 == MR_SVO_FILE_HEADER_BYTES, "header layout");
+
+const mr_derived_format mr_svo_file_format = {
+    .name = "svo file", .ext = "mrsvo", .magic = {'M', 'R', 'S', 'V', 'O', 0, '\r', '\n'},
+    .version = MR_SVO_FILE_VERSION, .header_bytes = MR_SVO_FILE_HEADER_BYTES, .key_at = H_KEY,
+    .max_bytes = MR_SVO_FILE_MAX_BYTES};
 
 /* Payload bytes per node (first_node, first_leaf: u32; child_mask,
  * leaf_mask: u8), per leaf (2 x u8 normal, u16 attr) and per palette entry
@@ -41,12 +51,8 @@ _Static_assert(H_CRC + 4 == MR_SVO_FILE_HEADER_BYTES, "header layout");
  * Parser (the reader, and the writer's read-back check)
  * ====================================================================== */
 
-typedef struct parser {
-    const uint8_t *buf;
-    size_t size;
-    mr_crc32_table crc;
-    mr_error *err;
-} parser;
+/* keep is ignored: the read-back builds the octree too (and drops it) */
+typedef mr_derived_reader parser;
 
 /* Where the payload's arrays start, for counts n (nodes), l (leaves), pc
  * (palette entries). */
@@ -68,39 +74,18 @@ static layout layout_of(uint32_t n, uint32_t l, uint32_t pc)
     return o;
 }
 
-static int bad(parser *p, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int bad(parser *p, const char *fmt, ...)
-{
-    char msg[sizeof p->err->msg];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    return mr_error_set(p->err, MR_ERR_FORMAT, "svo file: %s", msg);
-}
+/* MR_ERR_FORMAT "svo file: ..." */
+#define bad(p, ...) mr_derived_bad((p)->format, (p)->err, __VA_ARGS__)
 
-/* Header checks, in the documented order: size, magic, version,
- * header_bytes, CRC, then the fields and the file size they imply. */
+/* Header checks, in the documented order: the envelope's (size, magic,
+ * version, header_bytes, CRC), then the fields and the file size they
+ * imply. */
 static int parse_header(parser *p, mr_svo *s, mr_svo_file_meta *meta)
 {
     const uint8_t *b = p->buf;
-    if (p->size < MR_SVO_FILE_HEADER_BYTES)
-        return bad(p, "truncated header at byte offset %zu (need %u bytes)", p->size,
-                   MR_SVO_FILE_HEADER_BYTES);
-    for (size_t i = 0; i < sizeof file_magic; i++)
-        if (b[i] != file_magic[i])
-            return bad(p, "bad magic at byte offset %zu (not an .mrsvo file)", i);
-    uint32_t version = mr_le_get_u32(b + H_VERSION);
-    if (version != MR_SVO_FILE_VERSION)
-        return bad(p, "unsupported version %u at byte offset %d (want %u)", version, H_VERSION,
-                   MR_SVO_FILE_VERSION);
-    uint32_t hb = mr_le_get_u32(b + H_HEADER_BYTES);
-    if (hb != MR_SVO_FILE_HEADER_BYTES)
-        return bad(p, "header_bytes %u at byte offset %d (want %u)", hb, H_HEADER_BYTES,
-                   MR_SVO_FILE_HEADER_BYTES);
-    if (mr_le_get_u32(b + H_CRC) != mr_crc32(&p->crc, b, H_CRC))
-        return bad(p, "header checksum mismatch at byte offset %d (bytes 0..%d corrupted)", H_CRC,
-                   H_CRC - 1);
+    int rc = mr_derived_header_check(p);
+    if (rc < 0)
+        return rc;
     uint32_t flags = mr_le_get_u32(b + H_FLAGS);
     if ((flags & ~(uint32_t)(MR_SVO_FILE_VOXELIZED | MR_SVO_FILE_SOLID)) ||
         ((flags & MR_SVO_FILE_SOLID) && !(flags & MR_SVO_FILE_VOXELIZED)))
@@ -153,7 +138,7 @@ static int parse_header(parser *p, mr_svo *s, mr_svo_file_meta *meta)
     s->palette_count = pc;
     if (meta) {
         meta->flags = flags;
-        memcpy(meta->key, b + H_KEY, MR_SVO_KEY_BYTES);
+        memcpy(meta->key, b + H_KEY, MR_DERIVED_KEY_BYTES);
     }
     return MR_OK;
 }
@@ -326,24 +311,29 @@ fail:
     return rc;
 }
 
+/* Where a read puts what it parses. */
+typedef struct read_target {
+    mr_svo **out;
+    mr_svo_file_meta *meta; /* may be NULL */
+} read_target;
+
+static int parse_into(parser *p, void *target)
+{
+    const read_target *t = target;
+    mr_svo_file_meta m;
+    int rc = parse(p, t->out, &m);
+    if (rc == MR_OK && t->meta)
+        *t->meta = m;
+    return rc;
+}
+
 int mr_svo_file_read_meta(const uint8_t *buf, size_t size, mr_svo **out, mr_svo_file_meta *meta,
                           mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!out || (!buf && size))
+    if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "svo file read: bad arguments");
-    parser *p = malloc(sizeof *p);
-    if (!p)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo file: out of memory");
-    *p = (parser){.buf = buf, .size = size, .err = err};
-    mr_crc32_init(&p->crc);
-    mr_svo_file_meta m;
-    int rc = parse(p, out, &m);
-    if (rc == MR_OK && meta)
-        *meta = m;
-    free(p);
-    return rc;
+    *out = NULL;
+    return mr_derived_parse(FORMAT, buf, size, parse_into, &(read_target){out, meta}, err);
 }
 
 int mr_svo_file_read(const uint8_t *buf, size_t size, mr_svo **out, mr_error *err)
@@ -351,24 +341,20 @@ int mr_svo_file_read(const uint8_t *buf, size_t size, mr_svo **out, mr_error *er
     return mr_svo_file_read_meta(buf, size, out, NULL, err);
 }
 
-static int read_path_meta(const char *path, mr_svo **out, mr_svo_file_meta *meta, mr_error *err)
+/* A whole file into an octree (mr_derived_load's parse). */
+static int read_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
 {
-    if (out)
-        *out = NULL;
-    if (!path || !out)
-        return mr_error_set(err, MR_ERR_INVALID, "svo file read: bad arguments");
-    uint8_t *buf = NULL;
-    size_t size = 0;
-    int rc = mr_fs_read_capped(path, MR_SVO_FILE_MAX_BYTES, &buf, &size, "svo file", err);
-    if (rc == MR_OK && (rc = mr_svo_file_read_meta(buf, size, out, meta, err)) < 0)
-        mr_error_prefix(err, "%s: ", path);
-    free(buf);
-    return rc;
+    const read_target *t = ctx;
+    return mr_svo_file_read_meta(buf, size, t->out, t->meta, err);
 }
 
 int mr_svo_file_read_path(const char *path, mr_svo **out, mr_error *err)
 {
-    return read_path_meta(path, out, NULL, err);
+    static const mr_derived_ops read_ops = {.parse = read_parse};
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "svo file read: bad arguments");
+    *out = NULL;
+    return mr_derived_load(path, NULL, FORMAT, &read_ops, &(read_target){out, NULL}, err);
 }
 
 /* ======================================================================
@@ -391,24 +377,12 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
                             pc, MR_SVO_MAX_PALETTE);
     uint64_t total = MR_SVO_FILE_HEADER_BYTES + (uint64_t)n * NODE_BYTES +
                      (uint64_t)l * LEAF_BYTES + (uint64_t)pc * ATTR_BYTES + 4;
-    if (total > MR_SVO_FILE_MAX_BYTES)
-        return mr_error_set(err, MR_ERR_LIMIT, "svo file write: %llu bytes exceed the %llu a "
-                            "reader accepts", (unsigned long long)total,
-                            (unsigned long long)MR_SVO_FILE_MAX_BYTES);
-    int rc = MR_OK;
     mr_svo *back = NULL;
-    parser *p = malloc(sizeof *p);
-    uint8_t *b = calloc(1, (size_t)total);
-    if (!p || !b) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "svo file write: out of memory for %llu bytes",
-                          (unsigned long long)total);
-        goto done;
-    }
-    *p = (parser){.buf = b, .size = (size_t)total, .err = err};
-    mr_crc32_init(&p->crc);
-    memcpy(b, file_magic, sizeof file_magic);
-    mr_le_put_u32(b + H_VERSION, MR_SVO_FILE_VERSION);
-    mr_le_put_u32(b + H_HEADER_BYTES, MR_SVO_FILE_HEADER_BYTES);
+    uint8_t *b = NULL;
+    parser *p = NULL; /* over b: its CRC table, then the read-back */
+    int rc = mr_derived_buffer(FORMAT, total, &b, &p, err);
+    if (rc < 0)
+        return rc;
     mr_le_put_u32(b + H_FLAGS, meta ? meta->flags : 0);
     mr_le_put_u32(b + H_DEPTH, svo->depth);
     mr_le_put_f32(b + H_ORIGIN, svo->origin.x);
@@ -419,9 +393,7 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
     mr_le_put_u32(b + H_LEAVES, l);
     mr_le_put_u32(b + H_PALETTE, pc);
     mr_le_put_u64(b + H_PAYLOAD, total - MR_SVO_FILE_HEADER_BYTES - 4);
-    if (meta)
-        memcpy(b + H_KEY, meta->key, MR_SVO_KEY_BYTES);
-    mr_le_put_u32(b + H_CRC, mr_crc32(&p->crc, b, H_CRC));
+    mr_derived_header_seal(FORMAT, &p->crc, meta ? meta->key : NULL, b);
     const layout o = layout_of(n, l, pc);
     for (uint32_t i = 0; i < n; i++) {
         mr_le_put_u32(b + o.first_node + (size_t)i * 4, svo->first_node[i]);
@@ -450,12 +422,7 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
     mr_le_put_u32(b + o.crc, mr_crc32(&p->crc, b + o.first_node, o.crc - o.first_node));
     mr_svo_file_meta m;
     if ((rc = parse(p, &back, &m)) < 0) {
-        mr_error_prefix(err, "svo file write: would not read back: ");
-        if (rc == MR_ERR_FORMAT) {
-            rc = MR_ERR_INVALID;
-            if (err)
-                err->code = rc;
-        }
+        rc = mr_derived_readback_failed(FORMAT, rc, err);
         goto done;
     }
     *buf = b;
@@ -476,149 +443,142 @@ int mr_svo_file_write(const mr_svo *svo, uint8_t **buf, size_t *size, mr_error *
     return mr_svo_file_write_meta(svo, NULL, buf, size, err);
 }
 
-static int write_path_meta(const mr_svo *svo, const mr_svo_file_meta *meta, const char *path,
-                           mr_error *err)
+int mr_svo_file_write_path(const mr_svo *svo, const char *path, mr_error *err)
 {
     if (!path || !path[0])
         return mr_error_set(err, MR_ERR_INVALID, "svo file write: no path");
     uint8_t *buf = NULL;
     size_t size = 0;
-    int rc = mr_svo_file_write_meta(svo, meta, &buf, &size, err);
+    int rc = mr_svo_file_write(svo, &buf, &size, err);
     if (rc == MR_OK)
-        rc = mr_fs_write_atomic(path, buf, size, "svo file write", err);
+        rc = mr_derived_write(FORMAT, path, buf, size, err);
     free(buf);
     return rc;
 }
 
-int mr_svo_file_write_path(const mr_svo *svo, const char *path, mr_error *err)
-{
-    return write_path_meta(svo, NULL, path, err);
-}
-
 /* ======================================================================
- * The cache
+ * The cache (util/derived.h: key, path, load-or-voxelise, store)
  * ====================================================================== */
 
-static bool mesh_skinned(const mr_mesh *m)
-{
-    /* voxelize.c's rule for reading joints and weights */
-    return m->joint_count > 0 && m->joints && m->weights;
-}
-
 void mr_svo_cache_key(const mr_asset *asset, const mr_svo_voxelize_params *params,
-                      uint8_t key[MR_SVO_KEY_BYTES])
+                      uint8_t key[MR_DERIVED_KEY_BYTES])
 {
-    memset(key, 0, MR_SVO_KEY_BYTES);
+    memset(key, 0, MR_DERIVED_KEY_BYTES);
     if (!asset || !params)
         return;
-    static const char domain[] = "microray svo cache";
-    mr_sha256_feed feed, *h = &feed;
-    mr_sha256_feed_init(h);
-    mr_sha256_feed_bytes(h, domain, sizeof domain); /* with its NUL */
-    mr_sha256_feed_u32(h, MR_SVO_FILE_VERSION);
-    mr_sha256_feed_u32(h, MR_SVO_VOXELIZER_REVISION);
-    mr_sha256_feed_u64(h, asset->node_count);
-    for (size_t i = 0; i < asset->node_count; i++) {
-        mr_sha256_feed_u32(h, (uint32_t)asset->nodes[i].parent);
-        mr_sha256_feed_f32s(h, asset->nodes[i].local.m, 16);
-    }
-    mr_sha256_feed_u64(h, asset->mesh_count);
+    /* what voxelize.c reads: rigid meshes are placed by their nodes */
+    const unsigned parts = MR_DERIVED_POSITIONS | MR_DERIVED_NORMALS | MR_DERIVED_INDICES |
+                           MR_DERIVED_SKIN;
+    mr_derived_key_builder kb;
+    mr_derived_key_begin(&kb, "microray svo cache", MR_SVO_FILE_VERSION,
+                         MR_SVO_VOXELIZER_REVISION);
+    mr_derived_key_nodes(&kb, asset);
+    mr_derived_key_u64(&kb, asset->mesh_count);
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
-        const bool skinned = mesh_skinned(m);
-        const size_t nv = m->vertex_count;
-        mr_sha256_feed_u32(h, (uint32_t)m->node);
-        mr_sha256_feed_u32(h, m->vertex_count);
-        mr_sha256_feed_u32(h, m->triangle_count);
-        mr_sha256_feed_u32(h, m->joint_count);
-        mr_sha256_feed_u32(h, (m->positions ? 1u : 0u) | (m->normals ? 2u : 0u) | (m->indices ? 4u : 0u) |
-                        (skinned ? 8u : 0u));
-        if (m->positions)
-            mr_sha256_feed_f32s(h, m->positions, nv * 3);
-        if (m->normals)
-            mr_sha256_feed_f32s(h, m->normals, nv * 3);
-        if (m->indices)
-            mr_sha256_feed_u32s(h, m->indices, (size_t)m->triangle_count * 3);
-        if (skinned) {
-            mr_sha256_feed_u16s(h, m->joints, nv * MR_MAX_INFLUENCES);
-            mr_sha256_feed_f32s(h, m->weights, nv * MR_MAX_INFLUENCES);
-        }
+        mr_derived_key_u32(&kb, (uint32_t)m->node);
+        mr_derived_key_mesh_counts(&kb, m);
+        mr_derived_key_u32(&kb, mr_derived_mesh_parts(m, parts)); /* the presence word */
+        mr_derived_key_mesh_arrays(&kb, m, parts);
     }
-    mr_sha256_feed_u32(h, params->depth);
-    mr_sha256_feed_u32(h, (uint32_t)params->mode);
-    mr_sha256_feed_u32(h, params->albedo ? 1u : 0u);
+    mr_derived_key_u32(&kb, params->depth);
+    mr_derived_key_u32(&kb, (uint32_t)params->mode);
+    mr_derived_key_u32(&kb, params->albedo ? 1u : 0u);
     if (params->albedo)
-        mr_sha256_feed_f32s(h, params->albedo, asset->mesh_count * 3);
-    mr_sha256_feed_final(h, key);
+        mr_derived_key_f32s(&kb, params->albedo, asset->mesh_count * 3);
+    mr_derived_key_end(&kb, key);
 }
 
-int mr_svo_cache_path(const char *dir, const uint8_t key[MR_SVO_KEY_BYTES], char **path,
-                      mr_error *err)
+static uint32_t mode_flags(mr_svo_voxelize_mode mode)
 {
-    if (path)
-        *path = NULL;
-    if (!dir || !dir[0] || !key || !path)
-        return mr_error_set(err, MR_ERR_INVALID, "svo cache: no directory");
-    size_t len = strlen(dir) + 1 + 2 * MR_SVO_KEY_BYTES + sizeof ".mrsvo";
-    char *s = malloc(len);
-    if (!s)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo cache: out of memory");
-    int at = snprintf(s, len, "%s/", dir);
-    for (unsigned i = 0; i < MR_SVO_KEY_BYTES; i++)
-        at += snprintf(s + at, len - (size_t)at, "%02x", key[i]);
-    snprintf(s + at, len - (size_t)at, ".mrsvo");
-    *path = s;
+    return MR_SVO_FILE_VOXELIZED | (mode == MR_SVO_VOXELIZE_SOLID ? MR_SVO_FILE_SOLID : 0u);
+}
+
+/* What the cache's callbacks see (their ctx): one voxelisation. */
+typedef struct voxel_request {
+    const mr_asset *asset;                /* NULL: any octree stored under the key fits */
+    const mr_svo_voxelize_params *params; /* with asset */
+    uint32_t flags;                       /* the header's, for serialise */
+    mr_svo *svo;                          /* parse and build leave the result here */
+    const mr_svo *store;                  /* serialise writes this */
+} voxel_request;
+
+/* Whether a loaded octree answers r's request. */
+static bool fits(const mr_svo *s, const mr_svo_file_meta *meta, const voxel_request *r)
+{
+    const mr_asset *a = r->asset;
+    if (!a)
+        return true;
+    if (s->depth != r->params->depth || meta->flags != mode_flags(r->params->mode))
+        return false;
+    for (uint32_t i = 0; i < s->palette_count; i++) {
+        const mr_svo_attr *e = &s->palette[i];
+        if (e->mesh >= a->mesh_count)
+            return false;
+        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++)
+            if (e->weights[k] && e->joints[k] >= a->meshes[e->mesh].joint_count)
+                return false;
+    }
+    return true;
+}
+
+static int cache_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
+{
+    voxel_request *r = ctx;
+    mr_svo *s = NULL;
+    mr_svo_file_meta meta;
+    int rc = mr_svo_file_read_meta(buf, size, &s, &meta, err);
+    if (rc < 0)
+        return rc;
+    if (!fits(s, &meta, r)) {
+        mr_svo_voxelize_free(s);
+        return mr_error_set(err, MR_ERR_FORMAT, "depth, mode or palette (header flags at byte "
+                            "offset %d) do not fit the request", H_FLAGS);
+    }
+    r->svo = s;
     return MR_OK;
 }
 
-static int cache_load_meta(const char *path, const uint8_t key[MR_SVO_KEY_BYTES], mr_svo **out,
-                           mr_svo_file_meta *meta, mr_error *err)
+static int cache_serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t **buf,
+                           size_t *size, mr_error *err)
+{
+    const voxel_request *r = ctx;
+    mr_svo_file_meta meta = {.flags = r->flags};
+    memcpy(meta.key, key, MR_DERIVED_KEY_BYTES);
+    return mr_svo_file_write_meta(r->store, &meta, buf, size, err);
+}
+
+static int cache_build(void *ctx, mr_error *err)
+{
+    voxel_request *r = ctx;
+    int rc = mr_svo_voxelize(r->asset, r->params, &r->svo, err);
+    r->store = r->svo;
+    return rc;
+}
+
+static const mr_derived_ops voxel_ops = {
+    .parse = cache_parse, .serialise = cache_serialise, .build = cache_build};
+
+int mr_svo_cache_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES], mr_svo **out,
+                      mr_error *err)
 {
     if (out)
         *out = NULL;
     if (!path || !key || !out)
         return mr_error_set(err, MR_ERR_INVALID, "svo cache load: bad arguments");
-    mr_svo *s = NULL;
-    int rc = read_path_meta(path, &s, meta, err);
-    if (rc < 0)
-        return rc;
-    if (memcmp(meta->key, key, MR_SVO_KEY_BYTES) != 0) {
-        mr_svo_voxelize_free(s);
-        return mr_error_set(err, MR_ERR_FORMAT,
-                            "svo cache %s: stored under another key (byte offset %d)", path, H_KEY);
-    }
-    *out = s;
-    return MR_OK;
-}
-
-int mr_svo_cache_load(const char *path, const uint8_t key[MR_SVO_KEY_BYTES], mr_svo **out,
-                      mr_error *err)
-{
-    mr_svo_file_meta meta;
-    return cache_load_meta(path, key, out, &meta, err);
-}
-
-static int cache_store_flags(const char *path, const uint8_t key[MR_SVO_KEY_BYTES],
-                             const mr_svo *svo, uint32_t flags, mr_error *err)
-{
-    if (!path || !path[0] || !key || !svo)
-        return mr_error_set(err, MR_ERR_INVALID, "svo cache store: bad arguments");
-    mr_svo_file_meta meta = {.flags = flags};
-    memcpy(meta.key, key, MR_SVO_KEY_BYTES);
-    char *dir = mr_fs_dir_of(path);
-    if (!dir)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo cache store: out of memory");
-    int rc = mr_fs_make_dirs(dir, "svo cache", err);
-    if (rc == MR_OK)
-        rc = write_path_meta(svo, &meta, path, err);
-    free(dir);
+    voxel_request r = {0};
+    int rc = mr_derived_load(path, key, FORMAT, &voxel_ops, &r, err);
+    *out = r.svo;
     return rc;
 }
 
-int mr_svo_cache_store(const char *path, const uint8_t key[MR_SVO_KEY_BYTES], const mr_svo *svo,
-                       mr_error *err)
+int mr_svo_cache_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
+                       const mr_svo *svo, mr_error *err)
 {
-    return cache_store_flags(path, key, svo, 0, err);
+    if (!path || !path[0] || !key || !svo)
+        return mr_error_set(err, MR_ERR_INVALID, "svo cache store: bad arguments");
+    voxel_request r = {.flags = 0, .store = svo};
+    return mr_derived_store(path, key, FORMAT, &voxel_ops, &r, err);
 }
 
 /* Parameters mr_svo_voxelize accepts (its first checks): others go
@@ -633,28 +593,6 @@ static bool params_valid(const mr_asset *a, const mr_svo_voxelize_params *p)
     for (size_t i = 0; p->albedo && i < a->mesh_count * 3; i++)
         if (!isfinite(p->albedo[i]))
             return false;
-    return true;
-}
-
-static uint32_t mode_flags(mr_svo_voxelize_mode mode)
-{
-    return MR_SVO_FILE_VOXELIZED | (mode == MR_SVO_VOXELIZE_SOLID ? MR_SVO_FILE_SOLID : 0u);
-}
-
-/* Whether a loaded octree answers this request for this asset. */
-static bool fits(const mr_svo *s, const mr_svo_file_meta *meta, const mr_asset *a,
-                 const mr_svo_voxelize_params *p)
-{
-    if (s->depth != p->depth || meta->flags != mode_flags(p->mode))
-        return false;
-    for (uint32_t i = 0; i < s->palette_count; i++) {
-        const mr_svo_attr *e = &s->palette[i];
-        if (e->mesh >= a->mesh_count)
-            return false;
-        for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++)
-            if (e->weights[k] && e->joints[k] >= a->meshes[e->mesh].joint_count)
-                return false;
-    }
     return true;
 }
 
@@ -690,36 +628,18 @@ int mr_svo_voxelize_cached(const mr_asset *asset, const mr_svo_voxelize_params *
         *out = NULL;
     if (!out || !cache_dir || !cache_dir[0] || !params_valid(asset, params))
         return mr_svo_voxelize(asset, params, out, err);
-    uint8_t key[MR_SVO_KEY_BYTES];
+    uint8_t key[MR_DERIVED_KEY_BYTES];
     mr_svo_cache_key(asset, params, key);
-    char *path = NULL;
-    mr_error quiet = {0}; /* a miss or a failed store is not the caller's error */
-    mr_svo *s = NULL;
-    int rc = MR_OK;
-    if (mr_svo_cache_path(cache_dir, key, &path, &quiet) == MR_OK) {
-        mr_svo_file_meta meta;
-        if (cache_load_meta(path, key, &s, &meta, &quiet) == MR_OK && !fits(s, &meta, asset, params)) {
-            mr_svo_voxelize_free(s);
-            s = NULL;
-        }
+    voxel_request r = {.asset = asset, .params = params, .flags = mode_flags(params->mode)};
+    bool hit = false;
+    int rc = mr_derived_get(cache_dir, key, FORMAT, &voxel_ops, &r, &hit, err);
+    /* with keep_leaf_keys a hit has the keys a fresh voxelisation keeps */
+    if (rc == MR_OK && hit && params->keep_leaf_keys && (rc = restore_leaf_keys(r.svo, err)) < 0) {
+        mr_svo_voxelize_free(r.svo);
+        return rc;
     }
-    if (s) {
-        if (params->keep_leaf_keys && (rc = restore_leaf_keys(s, err)) < 0) {
-            mr_svo_voxelize_free(s);
-            goto done;
-        }
-        if (from_cache)
-            *from_cache = true;
-        *out = s;
-        goto done;
-    }
-    if ((rc = mr_svo_voxelize(asset, params, out, err)) < 0)
-        goto done;
-    /* a cache that cannot be written costs the next job a voxelisation,
-     * never this one its octree */
-    if (path)
-        (void)cache_store_flags(path, key, *out, mode_flags(params->mode), &quiet);
-done:
-    free(path);
+    if (from_cache)
+        *from_cache = hit;
+    *out = r.svo;
     return rc;
 }

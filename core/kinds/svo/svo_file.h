@@ -6,8 +6,8 @@
  *
  * Why a file: voxelising (voxelize.h) a character at depth 10 takes seconds
  * and ~45 bytes per voxel of temporaries; loading the result is one read and
- * two checksums. Mirrors the baked-DMM file (geom/dmm_file.h): same
- * conventions, same cache rules.
+ * two checksums. The same conventions as the baked-DMM file
+ * (kinds/dmm/dmm_file.h), and the same cache: util/derived.h.
  *
  * Layout (docs/svo-format.md): little-endian, magic and version, a 100-byte
  * header with its own CRC-32, then the arrays first_node, first_leaf,
@@ -24,11 +24,16 @@
  * own size. Writes go through a temporary file, fsync, rename and an fsync
  * of the directory, so a reader sees the old file or the new one.
  *
- * The cache: <dir>/<key>.mrsvo, key the lowercase hex SHA-256 of everything
- * the voxeliser reads (mr_svo_cache_key). A file that is missing, corrupt,
- * truncated, of another version or stored under another key is a miss: the
- * asset is voxelised again and the file replaced. A cache that cannot be
- * written costs the next job a voxelisation, never this job its result.
+ * The cache is the derived-data cache (util/derived.h), which owns the
+ * envelope (magic, version, header size, key, header CRC), the path
+ * <dir>/<hex key>.mrsvo, the key builder and the hit/miss/replace policy.
+ * This module adds what is the voxeliser's own: the layout
+ * (mr_svo_file_format), what the key covers (mr_svo_cache_key: everything
+ * the voxeliser reads), when a stored octree fits a request, and the
+ * builder (mr_svo_voxelize). A file that is missing, corrupt, truncated, of
+ * another version, under another key or not fitting is a miss: the asset is
+ * voxelised again and the file replaced. A cache that cannot be written
+ * costs the next job a voxelisation, never this job its result.
  */
 #ifndef MR_SVO_FILE_H
 #define MR_SVO_FILE_H
@@ -41,6 +46,7 @@
 #include "microray.h"
 #include "kinds/svo/svo.h"
 #include "kinds/svo/voxelize.h"
+#include "util/derived.h"
 
 /* Version of the `.mrsvo` layout (part of the cache key). */
 #define MR_SVO_FILE_VERSION 1u
@@ -57,8 +63,10 @@
  * about 1.9 GiB at the usual 0.33 nodes per leaf (a depth-10 character is
  * a few MB); the writer refuses larger octrees with MR_ERR_LIMIT. */
 #define MR_SVO_FILE_MAX_BYTES ((uint64_t)1 << 31)
-/* Bytes of a cache key. */
-#define MR_SVO_KEY_BYTES 32u
+
+/* The layout's envelope for the derived-data cache: "svo file", files
+ * named <hex key>.mrsvo, magic "MRSVO\0\r\n", the key at byte 64. */
+extern const mr_derived_format mr_svo_file_format;
 
 /* Header flags. VOXELIZED: written by the voxeliser's cache, the mode is
  * recorded; SOLID (only with VOXELIZED): mode MR_SVO_VOXELIZE_SOLID, else
@@ -69,7 +77,7 @@
 /* What a file says beside the octree. */
 typedef struct mr_svo_file_meta {
     uint32_t flags;                /* MR_SVO_FILE_* */
-    uint8_t key[MR_SVO_KEY_BYTES]; /* the cache key it is stored under, or all zero */
+    uint8_t key[MR_DERIVED_KEY_BYTES]; /* the cache key it is stored under, or all zero */
 } mr_svo_file_meta;
 
 /* Serialises svo (leaf_keys are ignored) into a malloc'ed buffer (*buf owned
@@ -97,32 +105,31 @@ int mr_svo_file_read_meta(const uint8_t *buf, size_t size, mr_svo **out, mr_svo_
  * or broken (the message starts with the path). */
 int mr_svo_file_read_path(const char *path, mr_svo **out, mr_error *err);
 
-/* The cache key of mr_svo_voxelize(asset, params): SHA-256 over a domain
- * string, MR_SVO_FILE_VERSION, MR_SVO_VOXELIZER_REVISION, every node's
- * parent and rest transform (rigid meshes are placed by them), per mesh its
- * node, vertex, triangle and joint counts, positions, normals, indices,
- * joints and weights (what the voxeliser reads; uvs, names, inverse binds
- * and clips are not), then depth, mode and the albedo floats (not threads
- * or keep_leaf_keys: the octree does not depend on them). Host-independent:
- * everything is hashed little-endian (docs/svo-format.md lists the order).
- * NULL asset or params give an all-zero key. */
+/* The cache key of mr_svo_voxelize(asset, params) (util/derived.h's
+ * builder, tag "microray svo cache"): MR_SVO_FILE_VERSION,
+ * MR_SVO_VOXELIZER_REVISION, every node's parent and rest transform (rigid
+ * meshes are placed by them), per mesh its node, vertex, triangle and joint
+ * counts, a presence word, positions, normals, indices, joints and weights
+ * (what the voxeliser reads; uvs, names, inverse binds and clips are not),
+ * then depth, mode and the albedo floats (not threads or keep_leaf_keys:
+ * the octree does not depend on them). Host-independent (docs/svo-format.md
+ * lists the bytes). NULL asset or params give an all-zero key. The file is
+ * mr_derived_path(dir, key, mr_svo_file_format.ext). */
 void mr_svo_cache_key(const mr_asset *asset, const mr_svo_voxelize_params *params,
-                      uint8_t key[MR_SVO_KEY_BYTES]);
-/* "<dir>/<hex key>.mrsvo", malloc'ed into *path. */
-int mr_svo_cache_path(const char *dir, const uint8_t key[MR_SVO_KEY_BYTES], char **path,
-                      mr_error *err);
+                      uint8_t key[MR_DERIVED_KEY_BYTES]);
 /* Loads the cache file at path: a hit sets *out (release with
  * mr_svo_voxelize_free; no leaf_keys) and returns MR_OK. A miss leaves *out
  * NULL: MR_ERR_IO when there is no such file (or it cannot be read),
  * MR_ERR_FORMAT when it is broken or stored under another key. Callers
  * treat both as "voxelise and store" (mr_svo_voxelize_cached does). */
-int mr_svo_cache_load(const char *path, const uint8_t key[MR_SVO_KEY_BYTES], mr_svo **out,
+int mr_svo_cache_load(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES], mr_svo **out,
                       mr_error *err);
 /* Stores svo at path under key (flags 0), creating path's directory and its
- * parents (mode 0755) if missing; atomic as mr_svo_file_write_path.
- * MR_ERR_IO when the directory cannot be made or written. */
-int mr_svo_cache_store(const char *path, const uint8_t key[MR_SVO_KEY_BYTES], const mr_svo *svo,
-                       mr_error *err);
+ * parents (mode 0755) if missing; atomic as mr_svo_file_write_path
+ * (mr_derived_store). MR_ERR_IO when the directory cannot be made or
+ * written. */
+int mr_svo_cache_store(const char *path, const uint8_t key[MR_DERIVED_KEY_BYTES],
+                       const mr_svo *svo, mr_error *err);
 
 /* mr_svo_voxelize through the cache in cache_dir (NULL or "": no cache).
  * A hit needs a file that loads under the key and also fits the request:
