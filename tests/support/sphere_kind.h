@@ -7,9 +7,10 @@
  * descriptor:
  *   - a parameter table (one NUMBER field) the server reads generically and
  *     the schema generator turns into a block;
- *   - derived data through the derived-data cache folder the renderer hands
- *     it (<cache root>/test_sphere/): the tessellated unit sphere, stored as
- *     a small file keyed by its subdivision, reused by the next create;
+ *   - derived data through the one derived-data cache (util/derived.h) in
+ *     the folder the renderer hands it (<cache root>/test_sphere/): the
+ *     tessellated unit sphere, stored as a file keyed by its subdivision and
+ *     read back by the next create;
  *   - its own per-frame stats fields (scale, steps, cache hit);
  *   - the SEQUENTIAL frame order: a one-line "simulation" whose scale after
  *     frame n depends on every frame before it, so a frame rendered out of
@@ -26,10 +27,11 @@
 #include <string.h>
 
 #include "kinds/kind.h"
-#include "util/file_io.h"
+#include "util/crc32.h"
+#include "util/derived.h"
+#include "util/le.h"
 
 #define TEST_SPHERE_SUBDIV 3u
-#define TEST_SPHERE_MAGIC "mrsphere1"
 
 typedef struct test_sphere_params {
     float radius;
@@ -101,41 +103,70 @@ static int test_sphere_build(uint32_t subdiv, float **unit, uint32_t **indices, 
     return MR_OK;
 }
 
-/* The derived data on disk: magic, vertex count, the unit vertices. */
-static bool test_sphere_load(const char *path, mr_geom *g)
+/* The derived data on disk, through the one derived-data cache
+ * (core/util/derived.h): the envelope, the vertex count at 16, the key at
+ * 20, then the unit vertices (little-endian floats) and their CRC-32. */
+static const mr_derived_format TEST_SPHERE_FORMAT = {
+    .name = "sphere file",
+    .ext = "sphere",
+    .magic = {'M', 'R', 'S', 'P', 'H', 'E', 'R', 'E'},
+    .version = 1,
+    .header_bytes = 56,
+    .key_at = 20,
+    .max_bytes = 64u << 20,
+};
+
+static int test_sphere_parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
 {
-    uint8_t *buf = NULL;
-    size_t size = 0;
-    mr_error e = {0};
-    if (mr_fs_read_capped(path, 64u << 20, &buf, &size, "sphere cache", &e) < 0)
-        return false;
-    size_t head = sizeof TEST_SPHERE_MAGIC + sizeof(uint32_t);
-    uint32_t nv = 0;
-    bool ok = size >= head && memcmp(buf, TEST_SPHERE_MAGIC, sizeof TEST_SPHERE_MAGIC) == 0;
-    if (ok)
-        memcpy(&nv, buf + sizeof TEST_SPHERE_MAGIC, sizeof nv);
-    ok = ok && nv == g->vertex_count && size == head + (size_t)nv * 3 * sizeof(float);
-    if (ok)
-        memcpy(g->unit, buf + head, (size_t)nv * 3 * sizeof(float));
-    free(buf);
-    return ok;
+    mr_geom *g = ctx;
+    const size_t head = TEST_SPHERE_FORMAT.header_bytes, bytes = (size_t)g->vertex_count * 12;
+    if (mr_le_get_u32(buf + 16) != g->vertex_count || size != head + bytes + 4)
+        return mr_derived_bad(&TEST_SPHERE_FORMAT, err, "not the sphere of this subdivision");
+    mr_crc32_table crc;
+    mr_crc32_init(&crc);
+    if (mr_crc32(&crc, buf + head, bytes) != mr_le_get_u32(buf + head + bytes))
+        return mr_derived_bad(&TEST_SPHERE_FORMAT, err, "vertex CRC mismatch");
+    for (size_t i = 0; i < (size_t)g->vertex_count * 3; i++)
+        g->unit[i] = mr_le_get_f32(buf + head + i * 4);
+    return MR_OK;
 }
 
-static void test_sphere_store(const char *dir, const char *path, const mr_geom *g)
+static int test_sphere_serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t **out,
+                                 size_t *size, mr_error *err)
 {
-    size_t head = sizeof TEST_SPHERE_MAGIC + sizeof(uint32_t);
-    size_t size = head + (size_t)g->vertex_count * 3 * sizeof(float);
-    uint8_t *buf = malloc(size);
-    mr_error e = {0};
+    const mr_geom *g = ctx;
+    const size_t head = TEST_SPHERE_FORMAT.header_bytes, bytes = (size_t)g->vertex_count * 12;
+    uint8_t *buf = calloc(1, head + bytes + 4);
     if (!buf)
-        return;
-    memcpy(buf, TEST_SPHERE_MAGIC, sizeof TEST_SPHERE_MAGIC);
-    memcpy(buf + sizeof TEST_SPHERE_MAGIC, &g->vertex_count, sizeof g->vertex_count);
-    memcpy(buf + head, g->unit, (size_t)g->vertex_count * 3 * sizeof(float));
-    if (mr_fs_make_dirs(dir, "sphere cache", &e) == MR_OK)
-        (void)mr_fs_write_atomic(path, buf, size, "sphere cache", &e);
-    free(buf);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    mr_crc32_table crc;
+    mr_crc32_init(&crc);
+    mr_le_put_u32(buf + 16, g->vertex_count);
+    for (size_t i = 0; i < (size_t)g->vertex_count * 3; i++)
+        mr_le_put_f32(buf + head + i * 4, g->unit[i]);
+    mr_le_put_u32(buf + head + bytes, mr_crc32(&crc, buf + head, bytes));
+    mr_derived_header_seal(&TEST_SPHERE_FORMAT, &crc, key, buf);
+    *out = buf;
+    *size = head + bytes + 4;
+    return MR_OK;
 }
+
+static int test_sphere_derive(void *ctx, mr_error *err)
+{
+    mr_geom *g = ctx;
+    uint32_t nv, nt;
+    float *unit;
+    uint32_t *indices;
+    if (test_sphere_build(TEST_SPHERE_SUBDIV, &unit, &indices, &nv, &nt) < 0)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    memcpy(g->unit, unit, (size_t)nv * 12);
+    free(unit);
+    free(indices);
+    return MR_OK;
+}
+
+static const mr_derived_ops TEST_SPHERE_CACHE = {test_sphere_parse, test_sphere_serialise,
+                                                 test_sphere_derive};
 
 static void test_sphere_free(mr_geom *g)
 {
@@ -165,12 +196,17 @@ static int test_sphere_create(const mr_asset *asset, const mr_object_desc *desc,
         test_sphere_free(g);
         return mr_error_set(err, MR_ERR_NOMEM, "test_sphere: out of memory");
     }
-    if (ctx && ctx->cache_dir) {
-        char path[4096];
-        snprintf(path, sizeof path, "%s/subdiv%u.sphere", ctx->cache_dir, TEST_SPHERE_SUBDIV);
-        g->cache_hit = test_sphere_load(path, g);
-        if (!g->cache_hit)
-            test_sphere_store(ctx->cache_dir, path, g);
+    /* the unit sphere: read back from the cache, or derived and stored */
+    mr_derived_key_builder kb;
+    uint8_t key[MR_DERIVED_KEY_BYTES];
+    mr_derived_key_begin(&kb, "microray test sphere", TEST_SPHERE_FORMAT.version, 1);
+    mr_derived_key_u32(&kb, TEST_SPHERE_SUBDIV);
+    mr_derived_key_end(&kb, key);
+    int rc = mr_derived_get(ctx ? ctx->cache_dir : NULL, key, &TEST_SPHERE_FORMAT,
+                            &TEST_SPHERE_CACHE, g, &g->cache_hit, err);
+    if (rc < 0) {
+        test_sphere_free(g);
+        return rc;
     }
     *out = g;
     return MR_OK;
