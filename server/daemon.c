@@ -32,6 +32,7 @@
 #include "render/exr.h"
 #include "util/sha256.h"
 #include "stats_json.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "worker.h"
 

@@ -51,6 +51,7 @@
 
 #include "job_json.h"
 #include "stats_json.h"
+#include "util/clock.h"
 #include "worker.h"
 
 #define PROBLEM_BASE "https://microray.invalid/problems/"
@@ -85,22 +86,6 @@
 #define LOG_PATH_MAX 256
 
 static const char KEEPALIVE[] = ": keepalive\n\n";
-
-/* ---- time --------------------------------------------------------------- */
-
-static int64_t now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000 + ts.tv_nsec / 1000000;
-}
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ---- types -------------------------------------------------------------- */
 
@@ -1226,7 +1211,7 @@ static ssize_t sse_read(void *cls, uint64_t pos, char *buf, size_t max)
             memcpy(buf, s->buf + s->out_off, n);
             s->out_off += n;
             atomic_fetch_add(&s->bytes, n);
-            atomic_store(&s->last_send_ms, now_ms());
+            atomic_store(&s->last_send_ms, mr_now_ms());
             return (ssize_t)n;
         }
         if (atomic_load(&h->stopping) || !s->sub)
@@ -1246,7 +1231,7 @@ static ssize_t sse_read(void *cls, uint64_t pos, char *buf, size_t max)
             s->out_off = 0;
             continue;
         }
-        if (keepalive || now_ms() - atomic_load(&s->last_send_ms) >= KEEPALIVE_MS) {
+        if (keepalive || mr_now_ms() - atomic_load(&s->last_send_ms) >= KEEPALIVE_MS) {
             memcpy(s->buf, KEEPALIVE, sizeof KEEPALIVE - 1);
             s->out_len = sizeof KEEPALIVE - 1;
             s->out_off = 0;
@@ -1285,7 +1270,7 @@ static enum MHD_Result h_job_events(req *r, struct MHD_Connection *c)
     s->conn = c;
     s->buf = buf;
     atomic_init(&s->refs, 1);
-    atomic_init(&s->last_send_ms, now_ms());
+    atomic_init(&s->last_send_ms, mr_now_ms());
     atomic_init(&s->bytes, 0);
     s->sub = mr_events_subscribe(h->d, job.id);
     if (!s->sub) {
@@ -1339,7 +1324,7 @@ static void *ticker_main(void *arg)
         clock_gettime(CLOCK_MONOTONIC, &ts);
         ts.tv_sec += 1;
         pthread_cond_timedwait(&h->tick_cv, &h->streams_mu, &ts);
-        int64_t now = now_ms();
+        int64_t now = mr_now_ms();
         for (sse_stream *s = h->streams; s && !h->tick_stop; s = s->next) {
             pthread_mutex_lock(&s->mu);
             if (s->suspended && !s->closed &&
@@ -1589,7 +1574,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
             return MHD_NO;
         *con_cls = r;
         r->h = h;
-        r->t0 = now_s();
+        r->t0 = mr_now();
         r->url = url;
         atomic_fetch_add(&h->requests, 1);
         snprintf(r->method, sizeof r->method, "%s", method);
@@ -1644,7 +1629,7 @@ static void on_completed(void *cls, struct MHD_Connection *c, void **con_cls,
         char status[16] = "-";
         if (r->answered || r->status)
             snprintf(status, sizeof status, "%u", r->status);
-        double ms = (now_s() - r->t0) * 1e3;
+        double ms = (mr_now() - r->t0) * 1e3;
         fprintf(stderr, "microrayd: %s %s %s %llu %.1fms%s%s\n", r->method, r->path, status,
                 (unsigned long long)r->bytes, ms, r->job[0] ? " job=" : "", r->job);
     }

@@ -22,6 +22,7 @@
 #include "render/compare.h"
 #include "render/exr.h"
 #include "stats_json.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "worker.h"
 

@@ -6,10 +6,10 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
-#include <time.h>
 
 #include "kinds/kind.h"
 #include "render/integrator.h"
+#include "util/clock.h"
 
 typedef struct object_state {
     const mr_object_desc *desc;
@@ -41,13 +41,6 @@ struct mr_renderer {
     mr_pose *cam_pose;
     const object_state *cam_driver; /* object whose pose moves the camera's asset */
 };
-
-double mr_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 uint64_t mr_peak_rss_bytes(void)
 {

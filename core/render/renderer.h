@@ -76,7 +76,5 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
 
 /* Peak resident set size of the process, bytes. */
 uint64_t mr_peak_rss_bytes(void);
-/* Monotonic clock, seconds. */
-double mr_now(void);
 
 #endif
