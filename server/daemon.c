@@ -30,6 +30,7 @@
 #include "http.h"
 #include "job_json.h"
 #include "render/exr.h"
+#include "util/hex.h"
 #include "util/sha256.h"
 #include "stats_json.h"
 #include "util/clock.h"
@@ -570,8 +571,7 @@ static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
         return mr_error_set(err, MR_ERR_IO, "%s: read error", a->path);
     uint8_t digest[32];
     mr_sha256_final(&h, digest);
-    for (int i = 0; i < 32; i++)
-        snprintf(key + 2 * i, 3, "%02x", digest[i]);
+    mr_hex_encode(digest, sizeof digest, key);
     return MR_OK;
 }
 

@@ -52,6 +52,7 @@
 #include "job_json.h"
 #include "stats_json.h"
 #include "util/clock.h"
+#include "util/hex.h"
 #include "worker.h"
 
 #define PROBLEM_BASE "https://microray.invalid/problems/"
@@ -392,15 +393,6 @@ static uint64_t count_of(const cJSON *o, const char *k)
 
 /* ---- request parsing helpers ------------------------------------------- */
 
-static bool is_job_id(const char *s)
-{
-    size_t n = 0;
-    for (; s[n]; n++)
-        if (!((s[n] >= '0' && s[n] <= '9') || (s[n] >= 'a' && s[n] <= 'f')))
-            return false;
-    return n == MR_JOB_ID_LEN;
-}
-
 /* Frame numbers are plain decimals (leading zeros allowed, as in 0007). */
 static bool parse_index(const char *s, size_t *out)
 {
@@ -418,7 +410,7 @@ static bool parse_index(const char *s, size_t *out)
 static bool load_job(req *r, struct MHD_Connection *c, mr_job_record *job, enum MHD_Result *res)
 {
     const char *id = r->params[0];
-    if (!is_job_id(id)) {
+    if (!mr_hex_is_lower(id, MR_JOB_ID_LEN)) {
         *res = send_problem(r, c, P_NOT_FOUND, NULL, "no job with id '%s'", id);
         return false;
     }

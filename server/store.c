@@ -33,6 +33,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/hex.h"
 #include "util/sha256.h"
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
@@ -225,21 +226,9 @@ static double now_seconds(void)
     return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
 }
 
-static bool is_lower_hex(const char *s, size_t len)
-{
-    if (!s)
-        return false;
-    for (size_t i = 0; i < len; i++) {
-        char c = s[i];
-        if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f')))
-            return false;
-    }
-    return s[len] == '\0';
-}
-
 /* Ids reach the store straight from URLs; only well-formed ones are ever
  * looked up or turned into paths. */
-static bool valid_job_id(const char *id) { return is_lower_hex(id, MR_JOB_ID_LEN); }
+static bool valid_job_id(const char *id) { return mr_hex_is_lower(id, MR_JOB_ID_LEN); }
 
 /* A caller's string made safe for a message: printable ASCII, at most 64
  * characters. */
@@ -311,7 +300,6 @@ static size_t utf8_prefix(const char *s, size_t max)
 
 static int random_job_id(char id[MR_JOB_ID_LEN + 1], mr_error *err)
 {
-    static const char digits[] = "0123456789abcdef";
     unsigned char b[MR_JOB_ID_LEN / 2];
     size_t got = 0;
     while (got < sizeof b) {
@@ -323,11 +311,7 @@ static int random_job_id(char id[MR_JOB_ID_LEN + 1], mr_error *err)
         }
         got += (size_t)n;
     }
-    for (size_t i = 0; i < sizeof b; i++) {
-        id[2 * i] = digits[b[i] >> 4];
-        id[2 * i + 1] = digits[b[i] & 15];
-    }
-    id[MR_JOB_ID_LEN] = '\0';
+    mr_hex_encode(b, sizeof b, id);
     return MR_OK;
 }
 
@@ -1642,8 +1626,7 @@ int mr_store_asset_upload_finish(mr_store *st, mr_asset_upload *up, char id[MR_A
     uint8_t digest[32];
     char hex[MR_ASSET_ID_LEN + 1];
     mr_sha256_final(&up->hash, digest);
-    for (int i = 0; i < 32; i++)
-        snprintf(hex + 2 * i, 3, "%02x", digest[i]);
+    mr_hex_encode(digest, sizeof digest, hex);
     uint64_t size = up->size;
 
     char dir[STORE_PATH_MAX], path[STORE_PATH_MAX];
@@ -1713,7 +1696,7 @@ int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_si
     char buf[72];
     /* Only exact hashes become paths: "../x", "a/b", uppercase, short or
      * long strings never reach the file system. */
-    if (!is_lower_hex(id, MR_ASSET_ID_LEN))
+    if (!mr_hex_is_lower(id, MR_ASSET_ID_LEN))
         return mr_error_set(err, MR_ERR_NOT_FOUND, "no asset '%s' (an asset id is 64 lowercase "
                             "hex digits)", printable(id, buf));
     pthread_mutex_lock(&st->lock);

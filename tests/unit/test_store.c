@@ -37,16 +37,11 @@
 #include <unistd.h>
 
 #include "util/clock.h"
+#include "util/hex.h"
 #include "util/sha256.h"
 #include "store.h"
 
 /* ---- helpers ---------------------------------------------------------------- */
-
-static void hex_of(const uint8_t d[32], char hex[65])
-{
-    for (int i = 0; i < 32; i++)
-        snprintf(hex + 2 * i, 3, "%02x", d[i]);
-}
 
 /* Removes a directory tree (the test directories are at most three deep). */
 static void rm_rf(const char *path)
@@ -216,7 +211,7 @@ static void test_sha256_nist_vectors(void **state)
     for (int i = 0; i < 1000; i++)
         mr_sha256_update(&s, a, 1000);
     mr_sha256_final(&s, d);
-    hex_of(d, hex);
+    mr_hex_encode(d, 32, hex);
     assert_string_equal(hex, million);
     free(a);
 }
@@ -267,7 +262,7 @@ static void test_sha256_split_updates(void **state)
         mr_sha256_update(&s, msg, cut);
         mr_sha256_update(&s, msg + cut, sizeof msg - cut);
         mr_sha256_final(&s, d);
-        hex_of(d, hex);
+        mr_hex_encode(d, 32, hex);
         if (strcmp(hex, expect) != 0)
             fail_msg("split at %zu: %s", cut, hex);
     }
@@ -283,7 +278,7 @@ static void test_sha256_split_updates(void **state)
             off += n;
         }
         mr_sha256_final(&s, d);
-        hex_of(d, hex);
+        mr_hex_encode(d, 32, hex);
         if (strcmp(hex, expect) != 0)
             fail_msg("pieces of %zu: %s", pieces[p], hex);
     }
@@ -297,7 +292,7 @@ static void test_sha256_split_updates(void **state)
         off += n;
     }
     mr_sha256_final(&s, d);
-    hex_of(d, hex);
+    mr_hex_encode(d, 32, hex);
     assert_string_equal(hex, expect);
 }
 

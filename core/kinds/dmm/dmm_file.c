@@ -20,6 +20,7 @@
 
 #include "util/crc32.h"
 #include "util/file_io.h"
+#include "util/hex.h"
 #include "util/le.h"
 #include "util/sha256.h"
 
@@ -662,8 +663,8 @@ int mr_dmm_cache_path(const char *dir, const uint8_t key[MR_DMM_KEY_BYTES], char
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "dmm cache: out of memory");
     size_t at = (size_t)snprintf(p, n, "%s/", dir);
-    for (unsigned i = 0; i < MR_DMM_KEY_BYTES; i++)
-        at += (size_t)snprintf(p + at, n - at, "%02x", key[i]);
+    mr_hex_encode(key, MR_DMM_KEY_BYTES, p + at);
+    at += 2 * MR_DMM_KEY_BYTES;
     snprintf(p + at, n - at, ".dmm");
     *path = p;
     return MR_OK;

@@ -19,6 +19,7 @@
 
 #include "util/crc32.h"
 #include "util/file_io.h"
+#include "util/hex.h"
 #include "util/le.h"
 #include "util/sha256.h"
 
@@ -564,8 +565,8 @@ int mr_svo_cache_path(const char *dir, const uint8_t key[MR_SVO_KEY_BYTES], char
     if (!s)
         return mr_error_set(err, MR_ERR_NOMEM, "svo cache: out of memory");
     int at = snprintf(s, len, "%s/", dir);
-    for (unsigned i = 0; i < MR_SVO_KEY_BYTES; i++)
-        at += snprintf(s + at, len - (size_t)at, "%02x", key[i]);
+    mr_hex_encode(key, MR_SVO_KEY_BYTES, s + at);
+    at += 2 * MR_SVO_KEY_BYTES;
     snprintf(s + at, len - (size_t)at, ".mrsvo");
     *path = s;
     return MR_OK;

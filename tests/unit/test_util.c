@@ -1,0 +1,75 @@
+/*
+ * test_util.c - the small helpers of core/util that are not about files:
+ *  - hex.h: known answers for every nibble value, the empty input, and the
+ *    spelling check (uppercase, short, long, NULL and non-digits refused);
+ *  - clock.h: mr_now and mr_now_ms never go backwards and agree with each
+ *    other.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <string.h>
+
+#include "util/clock.h"
+#include "util/hex.h"
+
+static void test_hex_encode(void **state)
+{
+    (void)state;
+    uint8_t all[16];
+    for (int i = 0; i < 16; i++)
+        all[i] = (uint8_t)(i * 17); /* 00, 11, ..., ff: every digit in both nibbles */
+    char out[33];
+    mr_hex_encode(all, sizeof all, out);
+    assert_string_equal(out, "00112233445566778899aabbccddeeff");
+    static const uint8_t mixed[] = {0x0f, 0xf0, 0x7a, 0xa7};
+    mr_hex_encode(mixed, sizeof mixed, out);
+    assert_string_equal(out, "0ff07aa7");
+    out[0] = 'x';
+    mr_hex_encode(mixed, 0, out);
+    assert_string_equal(out, "");
+}
+
+static void test_hex_is_lower(void **state)
+{
+    (void)state;
+    assert_true(mr_hex_is_lower("0123456789abcdef", 16));
+    assert_true(mr_hex_is_lower("", 0));
+    assert_false(mr_hex_is_lower("0123456789ABCDEF", 16));
+    assert_false(mr_hex_is_lower("0123456789abcde", 16));   /* short */
+    assert_false(mr_hex_is_lower("0123456789abcdef0", 16)); /* long */
+    assert_false(mr_hex_is_lower("0123456789abcdeg", 16));
+    assert_false(mr_hex_is_lower("../x", 4));
+    assert_false(mr_hex_is_lower(NULL, 0));
+}
+
+static void test_clock(void **state)
+{
+    (void)state;
+    double s0 = mr_now();
+    int64_t m0 = mr_now_ms();
+    double last = s0;
+    for (int i = 0; i < 100000; i++) {
+        double t = mr_now();
+        assert_true(t >= last);
+        last = t;
+    }
+    int64_t m1 = mr_now_ms();
+    double s1 = mr_now();
+    assert_true(m1 >= m0);
+    /* The same clock: the milliseconds lie within the seconds readings. */
+    assert_true((double)m0 >= s0 * 1e3 - 1.0 && (double)m1 <= s1 * 1e3 + 1.0);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_hex_encode),
+        cmocka_unit_test(test_hex_is_lower),
+        cmocka_unit_test(test_clock),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
