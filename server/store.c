@@ -33,6 +33,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/dup.h"
 #include "util/hex.h"
 #include "util/sha256.h"
 
@@ -995,15 +996,8 @@ int mr_store_job_json(mr_store *st, const char *id, char **json, mr_error *err)
         if (step == SQLITE_ROW) {
             const unsigned char *t = sqlite3_column_text(s, 0);
             size_t n = t ? (size_t)sqlite3_column_bytes(s, 0) : 0;
-            char *copy = malloc(n + 1);
-            if (!copy) {
+            if (!(*json = mr_memdup_str(t, n)))
                 rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory reading job '%s'", id);
-            } else {
-                if (n)
-                    memcpy(copy, t, n);
-                copy[n] = '\0';
-                *json = copy;
-            }
         } else if (step == SQLITE_DONE) {
             rc = no_job(err, id);
         } else {
@@ -1254,14 +1248,8 @@ static int read_frame_row(sqlite3_stmt *s, mr_frame_record *f, mr_error *err)
     f->retries = sqlite3_column_int(s, 2);
     copy_col(f->error, sizeof f->error, s, 3);
     const unsigned char *t = sqlite3_column_text(s, 4);
-    if (t) {
-        size_t len = (size_t)sqlite3_column_bytes(s, 4);
-        f->stats_json = malloc(len + 1);
-        if (!f->stats_json)
-            return mr_error_set(err, MR_ERR_NOMEM, "out of memory reading frames");
-        memcpy(f->stats_json, t, len);
-        f->stats_json[len] = '\0';
-    }
+    if (t && !(f->stats_json = mr_memdup_str(t, (size_t)sqlite3_column_bytes(s, 4))))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory reading frames");
     return MR_OK;
 }
 

@@ -2,6 +2,8 @@
  * test_util.c - the small helpers of core/util that are not about files:
  *  - hex.h: known answers for every nibble value, the empty input, and the
  *    spelling check (uppercase, short, long, NULL and non-digits refused);
+ *  - dup.h: copies are equal and distinct, NULL and empty inputs give what
+ *    the header promises, and a byte range keeps an embedded NUL;
  *  - clock.h: mr_now and mr_now_ms never go backwards and agree with each
  *    other.
  */
@@ -11,9 +13,11 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <stdlib.h>
 #include <string.h>
 
 #include "util/clock.h"
+#include "util/dup.h"
 #include "util/hex.h"
 
 static void test_hex_encode(void **state)
@@ -46,6 +50,41 @@ static void test_hex_is_lower(void **state)
     assert_false(mr_hex_is_lower(NULL, 0));
 }
 
+static void test_dup(void **state)
+{
+    (void)state;
+    const char *name = "bone0";
+    char *s = mr_strdup(name);
+    assert_non_null(s);
+    assert_ptr_not_equal(s, name);
+    assert_string_equal(s, name);
+    free(s);
+    assert_null(mr_strdup(NULL));
+    s = mr_strdup("");
+    assert_string_equal(s, "");
+    free(s);
+
+    static const uint32_t v[3] = {1, 0xdeadbeef, 3};
+    uint32_t *c = mr_memdup(v, sizeof v);
+    assert_non_null(c);
+    assert_memory_equal(c, v, sizeof v);
+    free(c);
+    assert_null(mr_memdup(NULL, 4));
+    assert_null(mr_memdup(v, 0));
+
+    /* a text column may hold a NUL: all n bytes are copied, then one more */
+    s = mr_memdup_str("ab\0cd", 5);
+    assert_non_null(s);
+    assert_memory_equal(s, "ab\0cd", 6);
+    free(s);
+    s = mr_memdup_str("abc", 2);
+    assert_string_equal(s, "ab");
+    free(s);
+    s = mr_memdup_str(NULL, 0);
+    assert_string_equal(s, "");
+    free(s);
+}
+
 static void test_clock(void **state)
 {
     (void)state;
@@ -69,6 +108,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_hex_encode),
         cmocka_unit_test(test_hex_is_lower),
+        cmocka_unit_test(test_dup),
         cmocka_unit_test(test_clock),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
