@@ -374,21 +374,10 @@ static cJSON *job_json(const mr_job_record *j, bool *ok)
     return o;
 }
 
-static const cJSON *member(const cJSON *o, const char *k)
-{
-    return cJSON_GetObjectItemCaseSensitive(o, k);
-}
-
 static double num_or(const cJSON *o, const char *k, double fallback)
 {
-    const cJSON *v = member(o, k);
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, k);
     return cJSON_IsNumber(v) ? v->valuedouble : fallback;
-}
-
-static uint64_t count_of(const cJSON *o, const char *k)
-{
-    double x = num_or(o, k, 0);
-    return x > 0 && x < 1.8e19 ? (uint64_t)x : 0;
 }
 
 /* ---- request parsing helpers ------------------------------------------- */
@@ -911,35 +900,6 @@ static enum MHD_Result h_frame_stats(req *r, struct MHD_Connection *c)
     return send_response(r, c, MHD_HTTP_OK, resp, n);
 }
 
-/* Rebuilds the worker's per-frame statistics from the JSON the store keeps
- * (the "frames" entries of stats.json), so that job totals and medians come
- * from the one implementation in stats_json.c. Missing fields count as 0. */
-static void frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f)
-{
-    memset(f, 0, sizeof *f);
-    f->frame = (int)index;
-    f->time = num_or(o, "time", 0);
-    const cJSON *s = member(o, "seconds");
-    f->load_s = num_or(s, "load", 0);
-    f->pose_s = num_or(s, "pose", 0);
-    f->bvh_s = num_or(s, "bvh", 0);
-    f->trace_s = num_or(s, "trace", 0);
-    f->encode_s = num_or(s, "encode", 0);
-    f->total_s = num_or(s, "total", 0);
-    const cJSON *bvh = member(o, "bvh");
-    for (int u = MR_BVH_NONE; u <= MR_BVH_REFIT; u++)
-        if (cJSON_IsString(bvh) && !strcmp(bvh->valuestring, mr_bvh_update_name(u)))
-            f->bvh = (mr_bvh_update)u;
-    f->rays = count_of(o, "rays");
-    f->mrays_per_s = num_or(o, "mrays_per_s", 0);
-    f->triangles = count_of(o, "triangles");
-    const cJSON *b = member(o, "bytes");
-    f->geometry_bytes = count_of(b, "geometry");
-    f->bvh_bytes = count_of(b, "bvh");
-    f->peak_rss_bytes = count_of(b, "peak_rss");
-    f->scene_diagonal = (float)num_or(o, "scene_diagonal", 0);
-}
-
 static enum MHD_Result h_job_stats(req *r, struct MHD_Connection *c)
 {
     mr_http *h = r->h;
@@ -974,7 +934,8 @@ static enum MHD_Result h_job_stats(req *r, struct MHD_Connection *c)
             cJSON_Delete(o);
             continue;
         }
-        frame_stats_from_json(o, frames[i].index, &fs[done]);
+        /* job totals and medians come from the one writer (stats_json.c) */
+        mr_frame_stats_from_json(o, frames[i].index, &fs[done]);
         threads = num_or(o, "threads", threads);
         stored[done++] = o;
     }

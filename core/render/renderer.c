@@ -50,15 +50,6 @@ uint64_t mr_peak_rss_bytes(void)
     return (uint64_t)ru.ru_maxrss * 1024u; /* Linux reports KiB */
 }
 
-const char *mr_bvh_update_name(mr_bvh_update u)
-{
-    switch (u) {
-    case MR_BVH_BUILD: return "build";
-    case MR_BVH_REFIT: return "refit";
-    default: return "none";
-    }
-}
-
 static const mr_pose_desc *pose_for_frame(const mr_object_desc *d, size_t frame)
 {
     if (d->pose_count == 0)

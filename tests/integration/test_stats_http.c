@@ -8,6 +8,9 @@
  * answers are compared byte for byte with the documents recorded before the
  * frame-stats fields became one table: the frame stats are the stored
  * text as it is, the job stats rebuild their totals and medians from it.
+ * A second job's frames carry extras (a kind's own fields, as the renderer
+ * appends them): they reach both answers, in place after the table's
+ * fields, and leave the totals and medians alone.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -83,29 +86,45 @@ static void get_ok(const char *path, const char *want)
     http_free(&r);
 }
 
+/* The two jobs of the data directory and their stored frame texts. */
+static char job_plain[MR_JOB_ID_LEN + 1], job_extras[MR_JOB_ID_LEN + 1];
+static char *text_plain[3], *text_extras[3];
+
 static void test_recorded_documents(void **state)
 {
     (void)state;
-    char data[600], id[MR_JOB_ID_LEN + 1], path[128];
-    snprintf(data, sizeof data, "%s/recorded", fx_tmp);
-    char *stats[3];
-    for (int i = 0; i < 3; i++) {
-        mr_frame_stats f = frame_fixture(i);
-        stats[i] = mr_frame_stats_json(&f);
-        assert_non_null(stats[i]);
-    }
-    store_job(data, stats, id);
-    daemon_start(&D, "recorded");
+    char path[128];
     static const char *const want[] = {FRAME0, FRAME1, FRAME2};
     for (int i = 0; i < 3; i++) {
-        snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d/stats", id, i);
+        expect_text(text_plain[i], want[i]);
+        snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d/stats", job_plain, i);
         get_ok(path, want[i]);
     }
-    snprintf(path, sizeof path, "/v1/jobs/%s/stats", id);
+    snprintf(path, sizeof path, "/v1/jobs/%s/stats", job_plain);
     get_ok(path, JOB_STATS);
-    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+}
+
+static void test_extras_reach_http(void **state)
+{
+    (void)state;
+    char path[128];
+    for (int i = 0; i < 3; i++) {
+        assert_non_null(strstr(text_extras[i], ",\"simulate_s\":"));
+        snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d/stats", job_extras, i);
+        get_ok(path, text_extras[i]);
+    }
+    snprintf(path, sizeof path, "/v1/jobs/%s/stats", job_extras);
+    http_result r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    /* each frame entry is the stored text, extras in place ... */
     for (int i = 0; i < 3; i++)
-        free(stats[i]);
+        if (!strstr(r.body, text_extras[i]))
+            fail_msg("frame %d is not in the job stats as stored:\n%s\n%s", i, text_extras[i], r.body);
+    /* ... and the job figures are those of the same frames without extras */
+    assert_non_null(strstr(JOB_STATS, ",\"totals\":"));
+    assert_non_null(strstr(r.body, ",\"totals\":"));
+    assert_string_equal(strstr(r.body, ",\"totals\":"), strstr(JOB_STATS, ",\"totals\":"));
+    http_free(&r);
 }
 
 static int setup(void **state)
@@ -114,22 +133,44 @@ static int setup(void **state)
     (void)fx_slurp; /* the fixture's, unused here */
     fx_init_dirs();
     curl_global_init(CURL_GLOBAL_DEFAULT);
+    char data[600];
+    snprintf(data, sizeof data, "%s/data", fx_tmp);
+    for (int i = 0; i < 3; i++) {
+        mr_frame_stats f = frame_fixture(i);
+        text_plain[i] = mr_frame_stats_json(&f);
+        /* what a kind reports through the renderer: a phase and a counter */
+        if (mr_frame_stats_add_extra(&f, "simulate_s", "s", 0.125 * (i + 1), NULL) < 0 ||
+            mr_frame_stats_add_extra(&f, "springs", "count", 40000 + i, NULL) < 0)
+            return -1;
+        text_extras[i] = mr_frame_stats_json(&f);
+        if (!text_plain[i] || !text_extras[i])
+            return -1;
+    }
+    store_job(data, text_plain, job_plain);
+    store_job(data, text_extras, job_extras);
+    daemon_start(&D, "data");
     return 0;
 }
 
 static int teardown(void **state)
 {
     (void)state;
+    int st = daemon_stop(&D, SIGTERM);
+    for (int i = 0; i < 3; i++) {
+        free(text_plain[i]);
+        free(text_extras[i]);
+    }
     curl_global_cleanup();
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf %s", fx_tmp);
-    return system(cmd) == 0 ? 0 : -1;
+    return system(cmd) == 0 && st == 0 ? 0 : -1;
 }
 
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_recorded_documents),
+        cmocka_unit_test(test_extras_reach_http),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

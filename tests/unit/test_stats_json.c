@@ -10,6 +10,13 @@
  * print differently under any careless conversion: 0.1 (not a binary
  * fraction), 1/3 (17 significant digits), 2^40 + 1 rays (beyond 32 bits)
  * and a float diagonal (printed as the double it widens to).
+ *
+ * Also: the field table itself (groups consecutive, names unique, every
+ * member of mr_frame_stats but the extras covered exactly once), reading a
+ * frame back from its text, extras (written after the table's fields, in
+ * stats.json too; bad, taken, repeated and surplus names refused), and
+ * schemas/openapi.yaml's frame-stats schemas being what the table gives
+ * (`make openapi` writes them).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -22,6 +29,7 @@
 #include <string.h>
 
 #include "stats_json.h"
+#include "stats_openapi.h"
 #include "../support/stats_fixture.h"
 
 /* ---- recorded documents --------------------------------------------------- */
@@ -137,11 +145,147 @@ static void test_job_document(void **state)
     free(s);
 }
 
+static size_t type_size(mr_stat_type t)
+{
+    switch (t) {
+    case MR_STAT_INT: return sizeof(int);
+    case MR_STAT_U32: return sizeof(uint32_t);
+    case MR_STAT_U64: return sizeof(uint64_t);
+    case MR_STAT_F32: return sizeof(float);
+    case MR_STAT_F64: return sizeof(double);
+    case MR_STAT_BVH: return sizeof(mr_bvh_update);
+    default: return 0; /* derived: stored nowhere */
+    }
+}
+
+static int by_offset(const void *a, const void *b)
+{
+    const mr_stat_field *x = *(const mr_stat_field *const *)a, *y = *(const mr_stat_field *const *)b;
+    return (x->offset > y->offset) - (x->offset < y->offset);
+}
+
+static void test_field_table(void **state)
+{
+    (void)state;
+    const mr_stat_field *stored[64];
+    size_t n = 0;
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *f = &mr_frame_stat_fields[i];
+        assert_non_null(f->name);
+        assert_non_null(f->unit);
+        assert_non_null(f->description);
+        /* a group's fields are consecutive: the writer opens each group once */
+        for (size_t j = 0; j + 1 < i; j++)
+            if (f->group && mr_frame_stat_fields[j].group == f->group)
+                assert_ptr_equal(mr_frame_stat_fields[i - 1].group, f->group);
+        for (size_t j = 0; j < i; j++)
+            if (mr_frame_stat_fields[j].group == f->group && !strcmp(mr_frame_stat_fields[j].name, f->name))
+                fail_msg("field '%s' appears twice in its group", f->name);
+        if (type_size(f->type)) {
+            assert_true(n < 64);
+            stored[n++] = f;
+        }
+    }
+    /* Every member before the extras is one field's, exactly: sorted by
+     * offset, each starts where the last one ended (up to padding). */
+    qsort(stored, n, sizeof *stored, by_offset);
+    size_t end = 0;
+    for (size_t i = 0; i < n; i++) {
+        if (stored[i]->offset < end || stored[i]->offset >= end + 8)
+            fail_msg("field '%s' at byte %zu: the member before it ends at %zu (a member without a "
+                     "table row, or two rows on one member)", stored[i]->name, stored[i]->offset, end);
+        end = stored[i]->offset + type_size(stored[i]->type);
+    }
+    assert_true(end <= offsetof(mr_frame_stats, extra_count) &&
+                end + 8 > offsetof(mr_frame_stats, extra_count));
+}
+
+static void test_read_back(void **state)
+{
+    (void)state;
+    static const char *const text[] = {FRAME0, FRAME1, FRAME2};
+    for (int i = 0; i < 3; i++) {
+        cJSON *o = cJSON_Parse(text[i]);
+        assert_non_null(o);
+        mr_frame_stats want = frame_fixture(i), got;
+        mr_frame_stats_from_json(o, (size_t)i, &got);
+        cJSON_Delete(o);
+        for (size_t k = 0; k < mr_frame_stat_field_count; k++) {
+            const mr_stat_field *f = &mr_frame_stat_fields[k];
+            if (mr_frame_stat_number(&got, f) != mr_frame_stat_number(&want, f))
+                fail_msg("frame %d: %s read back as %.17g, written as %.17g", i, f->name,
+                         mr_frame_stat_number(&got, f), mr_frame_stat_number(&want, f));
+        }
+        char *again = mr_frame_stats_json(&got);
+        expect_text(again, text[i]);
+        free(again);
+    }
+}
+
+static void test_extras(void **state)
+{
+    (void)state;
+    mr_frame_stats f = frame_fixture(0);
+    mr_error err = {0};
+    assert_int_equal(mr_frame_stats_add_extra(&f, "simulate_s", "s", 0.02, &err), MR_OK);
+    assert_int_equal(mr_frame_stats_add_extra(&f, "springs", "count", 1200, &err), MR_OK);
+    /* names the frame object already has, twice the same, not [a-z0-9_]+ */
+    static const char *const bad[] = {"rays", "seconds", "cache", "simulate_s", "", "Load", "a-b", NULL};
+    for (int i = 0; i < 8; i++)
+        assert_int_equal(mr_frame_stats_add_extra(&f, bad[i], "s", 1, &err), MR_ERR_INVALID);
+    assert_int_equal(f.extra_count, 2);
+
+    char want[sizeof FRAME0 + 64];
+    snprintf(want, sizeof want, "%.*s,\"simulate_s\":0.02,\"springs\":1200}", (int)strlen(FRAME0) - 1, FRAME0);
+    char *s = mr_frame_stats_json(&f);
+    expect_text(s, want);
+    free(s);
+
+    /* stats.json: the frame's entry carries them; totals and medians do not */
+    mr_frame_stats frames[2] = {f, frame_fixture(1)};
+    mr_job job = job_fixture();
+    mr_job_stats stats = {.frame_count = 2, .frames = frames, .threads = 2};
+    s = mr_stats_to_json(&job, &stats, 0);
+    cJSON *doc = cJSON_Parse(s);
+    free(s);
+    assert_non_null(doc);
+    cJSON *f0 = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 0);
+    assert_true(cJSON_GetObjectItem(f0, "simulate_s")->valuedouble == 0.02);
+    assert_true(cJSON_GetObjectItem(f0, "springs")->valuedouble == 1200);
+    assert_null(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 1), "springs"));
+    cJSON_Delete(doc);
+
+    static const char *const names[] = {"e0", "e1", "e2", "e3", "e4", "e5", "e6", "e7", "e8"};
+    mr_frame_stats full = frame_fixture(1);
+    for (int i = 0; i < MR_FRAME_EXTRAS_MAX; i++)
+        assert_int_equal(mr_frame_stats_add_extra(&full, names[i], "", i, &err), MR_OK);
+    assert_int_equal(mr_frame_stats_add_extra(&full, names[MR_FRAME_EXTRAS_MAX], "", 9, &err), MR_ERR_LIMIT);
+}
+
+static void test_openapi_current(void **state)
+{
+    (void)state;
+    const char *src = getenv("MR_SOURCE_DIR");
+    char path[4096];
+    snprintf(path, sizeof path, "%s/schemas/openapi.yaml", src ? src : ".");
+    bool stale = true;
+    mr_error err = {0};
+    if (mr_stats_openapi_update(path, false, &stale, &err) < 0)
+        fail_msg("%s", err.msg);
+    if (stale)
+        fail_msg("%s: the frame-stats schemas differ from the field table in core/render/frame_stats.c: "
+                 "run `make openapi`", path);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_frame_documents),
         cmocka_unit_test(test_job_document),
+        cmocka_unit_test(test_field_table),
+        cmocka_unit_test(test_read_back),
+        cmocka_unit_test(test_extras),
+        cmocka_unit_test(test_openapi_current),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
