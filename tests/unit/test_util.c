@@ -4,6 +4,9 @@
  *    spelling check (uppercase, short, long, NULL and non-digits refused);
  *  - dup.h: copies are equal and distinct, NULL and empty inputs give what
  *    the header promises, and a byte range keeps an embedded NUL;
+ *  - fs.h: write-all puts every byte in the file, a directory fsync works
+ *    and names a missing directory, removal empties and removes a
+ *    directory and accepts one that is already gone;
  *  - clock.h: mr_now and mr_now_ms never go backwards and agree with each
  *    other.
  */
@@ -13,11 +16,16 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <fcntl.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "util/clock.h"
 #include "util/dup.h"
+#include "util/fs.h"
 #include "util/hex.h"
 
 static void test_hex_encode(void **state)
@@ -85,6 +93,33 @@ static void test_dup(void **state)
     free(s);
 }
 
+static void test_fs(void **state)
+{
+    (void)state;
+    char dir[64] = "/tmp/mr-util-fs-XXXXXX", path[128];
+    assert_non_null(mkdtemp(dir));
+    static char big[300000];
+    for (size_t i = 0; i < sizeof big; i++)
+        big[i] = (char)(i * 7);
+    for (int k = 0; k < 3; k++) {
+        snprintf(path, sizeof path, "%s/f%d", dir, k);
+        int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        assert_true(fd >= 0);
+        assert_int_equal(mr_fs_write_all(fd, big, sizeof big), 0);
+        close(fd);
+        struct stat st;
+        assert_int_equal(stat(path, &st), 0);
+        assert_int_equal(st.st_size, sizeof big);
+    }
+    mr_error err = {0};
+    assert_int_equal(mr_fs_fsync_dir(dir, &err), MR_OK);
+    assert_int_equal(mr_fs_remove_dir(dir, &err), MR_OK);
+    assert_int_not_equal(access(dir, F_OK), 0);
+    assert_int_equal(mr_fs_remove_dir(dir, &err), MR_OK); /* gone already */
+    assert_int_equal(mr_fs_fsync_dir(dir, &err), MR_ERR_IO);
+    assert_non_null(strstr(err.msg, dir));
+}
+
 static void test_clock(void **state)
 {
     (void)state;
@@ -109,6 +144,7 @@ int main(void)
         cmocka_unit_test(test_hex_encode),
         cmocka_unit_test(test_hex_is_lower),
         cmocka_unit_test(test_dup),
+        cmocka_unit_test(test_fs),
         cmocka_unit_test(test_clock),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
