@@ -369,32 +369,36 @@ int store_exec_bound(mr_store *st, sqlite3_stmt *s, int bind_rc, const char *wha
     return store_exec(st, s, what, err);
 }
 
-int store_read_rows(mr_store *st, sqlite3_stmt *s, size_t elem, size_t first_cap,
-                    int (*read_row)(sqlite3_stmt *s, void *row, mr_error *err), void **list,
-                    size_t *n, size_t *cap, const char *what, mr_error *err)
+int store_read_rows(mr_store *st, sqlite3_stmt *s, int bind_rc, store_rows *rows, const char *what,
+                    mr_error *err)
 {
-    for (;;) {
+    char doing[64];
+    snprintf(doing, sizeof doing, "list %s", what);
+    int rc = store_bind_check(st, bind_rc, doing, err);
+    while (rc == MR_OK) {
         int step = sqlite3_step(s);
         if (step == SQLITE_DONE)
-            return MR_OK;
+            break;
         if (step != SQLITE_ROW) {
-            char doing[64];
-            snprintf(doing, sizeof doing, "list %s", what);
-            return store_db_fail(st, step, doing, err);
+            rc = store_db_fail(st, step, doing, err);
+            break;
         }
-        if (*n == *cap) {
-            size_t ncap = *cap ? *cap * 2 : first_cap;
-            void *grown = realloc(*list, ncap * elem);
-            if (!grown)
-                return mr_error_set(err, MR_ERR_NOMEM, "out of memory listing %s", what);
-            *list = grown;
-            *cap = ncap;
+        if (rows->count == rows->cap) {
+            size_t ncap = rows->cap ? rows->cap * 2 : rows->first_cap;
+            void *grown = realloc(rows->items, ncap * rows->elem);
+            if (!grown) {
+                rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory listing %s", what);
+                break;
+            }
+            rows->items = grown;
+            rows->cap = ncap;
         }
-        int rc = read_row(s, (char *)*list + *n * elem, err);
-        if (rc < 0)
-            return rc;
-        (*n)++;
+        if ((rc = rows->read(s, (char *)rows->items + rows->count * rows->elem, err)) < 0)
+            break;
+        rows->count++;
     }
+    store_stmt_release(s);
+    return rc;
 }
 
 int store_bind_text(sqlite3_stmt *s, int i, const char *t)

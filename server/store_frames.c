@@ -55,8 +55,7 @@ int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t 
     *count = 0;
     if (!store_valid_job_id(id))
         return store_no_job(err, id);
-    mr_frame_record *list = NULL;
-    size_t n = 0, cap = 0;
+    store_rows rows = {.elem = sizeof **out, .first_cap = 64, .read = frame_row};
     pthread_mutex_lock(&st->lock);
     mr_job_state state;
     size_t expected = 0;
@@ -65,26 +64,21 @@ int mr_store_frames(mr_store *st, const char *id, mr_frame_record **out, size_t 
      * 54 MB). */
     int rc = store_job_lookup_locked(st, id, &state, &expected, err);
     if (rc == MR_OK && expected > 0) {
-        list = malloc(expected * sizeof *list);
-        if (!list)
+        rows.items = malloc(expected * rows.elem);
+        if (!rows.items)
             rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory listing %zu frames", expected);
-        cap = list ? expected : 0;
+        rows.cap = rows.items ? expected : 0;
     }
     sqlite3_stmt *s = store_stmt(st, S_FRAMES_LIST);
     if (rc == MR_OK)
-        rc = store_bind_check(st, store_bind_text(s, 1, id), "list frames", err);
-    void *rows = list;
-    if (rc == MR_OK)
-        rc = store_read_rows(st, s, sizeof *list, 64, frame_row, &rows, &n, &cap, "frames", err);
-    list = rows;
-    store_stmt_release(s);
+        rc = store_read_rows(st, s, store_bind_text(s, 1, id), &rows, "frames", err);
     pthread_mutex_unlock(&st->lock);
     if (rc < 0) {
-        mr_frame_records_free(list, n);
+        mr_frame_records_free(rows.items, rows.count);
         return rc;
     }
-    *out = list;
-    *count = n;
+    *out = rows.items;
+    *count = rows.count;
     return MR_OK;
 }
 

@@ -111,13 +111,20 @@ int store_bind_check(mr_store *st, int rc, const char *what, mr_error *err);
  * calls' results (SQLITE_OK is 0); a failed bind releases the statement
  * and names what. */
 int store_exec_bound(mr_store *st, sqlite3_stmt *s, int bind_rc, const char *what, mr_error *err);
-/* Steps s (bound) through its rows into a growing array: *list holds *n
- * rows of elem bytes with room for *cap (growing by doubling, from
- * first_cap); read_row fills one. Rows read before a failure stay counted
- * in *n for the caller to free. Messages say "list <what>". */
-int store_read_rows(mr_store *st, sqlite3_stmt *s, size_t elem, size_t first_cap,
-                    int (*read_row)(sqlite3_stmt *s, void *row, mr_error *err), void **list,
-                    size_t *n, size_t *cap, const char *what, mr_error *err);
+/* A growing array of rows read from a statement. */
+typedef struct store_rows {
+    void *items;           /* count rows of elem bytes, room for cap */
+    size_t count, cap;
+    size_t elem;
+    size_t first_cap;      /* rows of the first allocation when cap is 0 */
+    int (*read)(sqlite3_stmt *s, void *row, mr_error *err); /* fills one row */
+} store_rows;
+/* Steps s, just bound (bind_rc: the OR of the bind results), through all
+ * its rows into rows (doubling its room as needed), then releases s. Rows
+ * read before a failure stay counted for the caller to free. Messages say
+ * "list <what>". */
+int store_read_rows(mr_store *st, sqlite3_stmt *s, int bind_rc, store_rows *rows, const char *what,
+                    mr_error *err);
 /* Binds text, or NULL for a NULL t. */
 int store_bind_text(sqlite3_stmt *s, int i, const char *t);
 int store_tx_begin(mr_store *st, mr_error *err);

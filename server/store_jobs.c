@@ -274,25 +274,18 @@ int mr_store_job_list(mr_store *st, bool filter, mr_job_state state, mr_job_reco
         return mr_error_set(err, MR_ERR_INVALID, "mr_store_job_list: missing argument");
     *out = NULL;
     *count = 0;
-    mr_job_record *list = NULL;
-    size_t n = 0, cap = 0;
+    store_rows rows = {.elem = sizeof **out, .first_cap = 16, .read = job_row};
     pthread_mutex_lock(&st->lock);
     sqlite3_stmt *s = store_stmt(st, filter ? S_JOB_LIST_STATE : S_JOB_LIST);
-    int rc = MR_OK;
-    if (filter)
-        rc = store_bind_check(st, sqlite3_bind_int(s, 1, (int)state), "list jobs", err);
-    void *rows = list;
-    if (rc == MR_OK)
-        rc = store_read_rows(st, s, sizeof *list, 16, job_row, &rows, &n, &cap, "jobs", err);
-    list = rows;
-    store_stmt_release(s);
+    int rc = store_read_rows(st, s, filter ? sqlite3_bind_int(s, 1, (int)state) : SQLITE_OK, &rows,
+                             "jobs", err);
     pthread_mutex_unlock(&st->lock);
     if (rc < 0) {
-        free(list);
+        free(rows.items);
         return rc;
     }
-    *out = list;
-    *count = n;
+    *out = rows.items;
+    *count = rows.count;
     return MR_OK;
 }
 
