@@ -13,55 +13,27 @@
 
 #include "render/renderer.h"
 
+/* Frame 0: a first frame with a partial scene-cache result; 1: awkward
+ * numbers; any other: a cache hit, all else 0. */
 static inline mr_frame_stats frame_fixture(int i)
 {
-    mr_frame_stats f;
-    memset(&f, 0, sizeof f);
-    f.frame = i;
-    switch (i) {
-    case 0:
-        f.time = 0.5;
-        f.load_s = 0.25;
-        f.assets_cached = 1;
-        f.assets_loaded = 2;
-        f.load_saved_s = 0.125;
-        f.pose_s = 0.001;
-        f.bvh_s = 0.003;
-        f.bvh = MR_BVH_BUILD;
-        f.trace_s = 0.11;
-        f.encode_s = 0.2;
-        f.total_s = 0.36;
-        f.rays = 1586211;
-        f.mrays_per_s = 14.4;
-        f.triangles = 5126;
-        f.geometry_bytes = 159188;
-        f.bvh_bytes = 622592;
-        f.peak_rss_bytes = 52428800;
-        f.scene_diagonal = 1.94f;
-        break;
-    case 1:
-        f.time = 0.75;
-        f.pose_s = 1.0 / 3.0;
-        f.bvh_s = 0.1;
-        f.bvh = MR_BVH_REFIT;
-        f.trace_s = 2.5e-7;
-        f.encode_s = 12345.678;
-        f.total_s = 1e-3;
-        f.rays = ((uint64_t)1 << 40) + 1;
-        f.mrays_per_s = 0.0;
-        f.triangles = 4294967296ull;
-        f.geometry_bytes = 1;
-        f.bvh_bytes = 0;
-        f.peak_rss_bytes = 123456789012ull;
-        f.scene_diagonal = 0.1f;
-        break;
-    default:
-        f.time = 1.0 * i;
-        f.bvh = MR_BVH_NONE;
-        f.assets_cached = 3; /* a cache hit: "hit" */
+    static const mr_frame_stats first = {
+        .time = 0.5, .load_s = 0.25, .assets_cached = 1, .assets_loaded = 2, .load_saved_s = 0.125,
+        .pose_s = 0.001, .bvh_s = 0.003, .bvh = MR_BVH_BUILD, .trace_s = 0.11, .encode_s = 0.2,
+        .total_s = 0.36, .rays = 1586211, .mrays_per_s = 14.4, .triangles = 5126,
+        .geometry_bytes = 159188, .bvh_bytes = 622592, .peak_rss_bytes = 52428800,
+        .scene_diagonal = 1.94f};
+    static const mr_frame_stats awkward = {
+        .time = 0.75, .pose_s = 1.0 / 3.0, .bvh_s = 0.1, .bvh = MR_BVH_REFIT, .trace_s = 2.5e-7,
+        .encode_s = 12345.678, .total_s = 1e-3, .rays = ((uint64_t)1 << 40) + 1,
+        .triangles = 4294967296ull, .geometry_bytes = 1, .peak_rss_bytes = 123456789012ull,
+        .scene_diagonal = 0.1f};
+    mr_frame_stats f = i == 0 ? first : i == 1 ? awkward : (mr_frame_stats){.time = 1.0 * i};
+    if (i > 1) {
+        f.assets_cached = 3;
         f.load_saved_s = 2.0;
-        break;
     }
+    f.frame = i;
     return f;
 }
 
