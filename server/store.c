@@ -401,6 +401,17 @@ int store_read_rows(mr_store *st, sqlite3_stmt *s, int bind_rc, store_rows *rows
     return rc;
 }
 
+int store_step_row(mr_store *st, sqlite3_stmt *s, int bind_rc, const char *what, mr_error *err)
+{
+    int rc = store_bind_check(st, bind_rc, what, err);
+    if (rc < 0)
+        return rc;
+    int step = sqlite3_step(s);
+    if (step == SQLITE_ROW)
+        return 1;
+    return step == SQLITE_DONE ? 0 : store_db_fail(st, step, what, err);
+}
+
 int store_bind_text(sqlite3_stmt *s, int i, const char *t)
 {
     return t ? sqlite3_bind_text(s, i, t, -1, SQLITE_STATIC) : sqlite3_bind_null(s, i);

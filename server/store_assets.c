@@ -154,14 +154,9 @@ int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_si
                             "hex digits)", store_printable(id, buf));
     pthread_mutex_lock(&st->lock);
     sqlite3_stmt *s = store_stmt(st, S_ASSET_GET);
-    int rc = store_bind_check(st, store_bind_text(s, 1, id), "find asset", err);
-    if (rc == MR_OK) {
-        int step = sqlite3_step(s);
-        if (step == SQLITE_DONE)
-            rc = mr_error_set(err, MR_ERR_NOT_FOUND, "no asset '%s'", id);
-        else if (step != SQLITE_ROW)
-            rc = store_db_fail(st, step, "find asset", err);
-    }
+    int rc = store_step_row(st, s, store_bind_text(s, 1, id), "find asset", err);
+    if (rc == 0)
+        rc = mr_error_set(err, MR_ERR_NOT_FOUND, "no asset '%s'", id);
     store_stmt_release(s);
     pthread_mutex_unlock(&st->lock);
     if (rc < 0)

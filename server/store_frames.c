@@ -129,28 +129,21 @@ static int frame_get_locked(mr_store *st, const char *id, size_t index, mr_frame
     if (index > (size_t)INT64_MAX)
         return no_frame(st, id, index, err);
     sqlite3_stmt *s = store_stmt(st, S_FRAME_GET);
-    int rc = store_bind_check(st, store_bind_text(s, 1, id) | sqlite3_bind_int64(s, 2, (sqlite3_int64)index),
-                              "read frame", err);
-    bool missing = false;
-    if (rc == MR_OK) {
-        int step = sqlite3_step(s);
-        if (step == SQLITE_ROW) {
-            if (state)
-                *state = (mr_frame_state)sqlite3_column_int(s, 0);
-            if (retries)
-                *retries = sqlite3_column_int(s, 1);
-            if (max_retries)
-                *max_retries = sqlite3_column_int(s, 2);
-        } else if (step == SQLITE_DONE) {
-            missing = true;
-        } else {
-            rc = store_db_fail(st, step, "read frame", err);
-        }
+    int rc = store_step_row(st, s,
+                            store_bind_text(s, 1, id) | sqlite3_bind_int64(s, 2, (sqlite3_int64)index),
+                            "read frame", err);
+    if (rc == 1) {
+        if (state)
+            *state = (mr_frame_state)sqlite3_column_int(s, 0);
+        if (retries)
+            *retries = sqlite3_column_int(s, 1);
+        if (max_retries)
+            *max_retries = sqlite3_column_int(s, 2);
     }
     store_stmt_release(s);
-    if (missing)
+    if (rc == 0)
         return no_frame(st, id, index, err);
-    return rc;
+    return rc < 0 ? rc : MR_OK;
 }
 
 /* Updates state, retries and error of an existing frame (lock held). */

@@ -111,6 +111,10 @@ int store_bind_check(mr_store *st, int rc, const char *what, mr_error *err);
  * calls' results (SQLITE_OK is 0); a failed bind releases the statement
  * and names what. */
 int store_exec_bound(mr_store *st, sqlite3_stmt *s, int bind_rc, const char *what, mr_error *err);
+/* Steps s, just bound (bind_rc as for store_exec_bound), for a single
+ * row: 1 when s stands on it (read the columns, then release s), 0 when
+ * there is none, or a negative mr_err naming what. */
+int store_step_row(mr_store *st, sqlite3_stmt *s, int bind_rc, const char *what, mr_error *err);
 /* A growing array of rows read from a statement. */
 typedef struct store_rows {
     void *items;           /* count rows of elem bytes, room for cap */

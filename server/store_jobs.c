@@ -55,18 +55,14 @@ int store_job_lookup_locked(mr_store *st, const char *id, mr_job_state *state, s
                             mr_error *err)
 {
     sqlite3_stmt *s = store_stmt(st, S_JOB_STATE);
-    int rc = store_bind_check(st, store_bind_text(s, 1, id), "find job", err);
-    if (rc == MR_OK) {
-        int step = sqlite3_step(s);
-        if (step == SQLITE_ROW) {
-            *state = (mr_job_state)sqlite3_column_int(s, 0);
-            if (frames)
-                *frames = (size_t)sqlite3_column_int64(s, 1);
-        } else if (step == SQLITE_DONE) {
-            rc = store_no_job(err, id);
-        } else {
-            rc = store_db_fail(st, step, "find job", err);
-        }
+    int rc = store_step_row(st, s, store_bind_text(s, 1, id), "find job", err);
+    if (rc == 1) {
+        *state = (mr_job_state)sqlite3_column_int(s, 0);
+        if (frames)
+            *frames = (size_t)sqlite3_column_int64(s, 1);
+        rc = MR_OK;
+    } else if (rc == 0) {
+        rc = store_no_job(err, id);
     }
     store_stmt_release(s);
     return rc;
@@ -224,16 +220,11 @@ int mr_store_job_get(mr_store *st, const char *id, mr_job_record *out, mr_error 
         return store_no_job(err, id);
     pthread_mutex_lock(&st->lock);
     sqlite3_stmt *s = store_stmt(st, S_JOB_GET);
-    int rc = store_bind_check(st, store_bind_text(s, 1, id), "read job", err);
-    if (rc == MR_OK) {
-        int step = sqlite3_step(s);
-        if (step == SQLITE_ROW)
-            read_job(s, out);
-        else if (step == SQLITE_DONE)
-            rc = store_no_job(err, id);
-        else
-            rc = store_db_fail(st, step, "read job", err);
-    }
+    int rc = store_step_row(st, s, store_bind_text(s, 1, id), "read job", err);
+    if (rc == 1)
+        rc = job_row(s, out, err);
+    else if (rc == 0)
+        rc = store_no_job(err, id);
     store_stmt_release(s);
     pthread_mutex_unlock(&st->lock);
     return rc;
@@ -248,19 +239,15 @@ int mr_store_job_json(mr_store *st, const char *id, char **json, mr_error *err)
         return store_no_job(err, id);
     pthread_mutex_lock(&st->lock);
     sqlite3_stmt *s = store_stmt(st, S_JOB_JSON);
-    int rc = store_bind_check(st, store_bind_text(s, 1, id), "read job document", err);
-    if (rc == MR_OK) {
-        int step = sqlite3_step(s);
-        if (step == SQLITE_ROW) {
-            const unsigned char *t = sqlite3_column_text(s, 0);
-            size_t n = t ? (size_t)sqlite3_column_bytes(s, 0) : 0;
-            if (!(*json = mr_memdup_str(t, n)))
-                rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory reading job '%s'", id);
-        } else if (step == SQLITE_DONE) {
-            rc = store_no_job(err, id);
-        } else {
-            rc = store_db_fail(st, step, "read job document", err);
-        }
+    int rc = store_step_row(st, s, store_bind_text(s, 1, id), "read job document", err);
+    if (rc == 1) {
+        const unsigned char *t = sqlite3_column_text(s, 0);
+        size_t n = t ? (size_t)sqlite3_column_bytes(s, 0) : 0;
+        rc = (*json = mr_memdup_str(t, n))
+                 ? MR_OK
+                 : mr_error_set(err, MR_ERR_NOMEM, "out of memory reading job '%s'", id);
+    } else if (rc == 0) {
+        rc = store_no_job(err, id);
     }
     store_stmt_release(s);
     pthread_mutex_unlock(&st->lock);
@@ -322,13 +309,13 @@ int mr_store_job_claim(mr_store *st, char id[MR_JOB_ID_LEN + 1], mr_error *err)
     if (rc < 0)
         goto done;
     sqlite3_stmt *s = store_stmt(st, S_CLAIM_PICK);
-    int step = sqlite3_step(s);
-    if (step == SQLITE_ROW)
+    rc = store_step_row(st, s, SQLITE_OK, "pick queued job", err);
+    if (rc == 1) {
         store_copy_col(found, sizeof found, s, 0);
-    else if (step == SQLITE_DONE)
+        rc = MR_OK;
+    } else if (rc == 0) {
         rc = mr_error_set(err, MR_ERR_NOT_FOUND, "no queued job");
-    else
-        rc = store_db_fail(st, step, "pick queued job", err);
+    }
     store_stmt_release(s);
     if (rc < 0)
         goto done;
