@@ -5,6 +5,7 @@
 #   make bench    print the benchmark table
 #   make run      set up, build, render examples/skinned-walk.json into out/skinned-walk/
 #   make schema   regenerate the kind blocks of schemas/job.schema.json
+#   make openapi  rewrite the frame-stats schemas of schemas/openapi.yaml from the stats table
 #   make clean
 
 BUILD   ?= build
@@ -34,15 +35,18 @@ CLIENT_SRC := $(sort $(wildcard client/*.c))
 # Test programs: tests/<suite>/test_*.c -> $(BUILD)/tests/<suite>/test_*
 TEST_SRC   := $(sort $(wildcard tests/unit/test_*.c tests/hard/test_*.c tests/integration/test_*.c))
 BENCH_SRC  := $(sort $(wildcard bench/*.c))
+# Generators of checked-in text: tools/*.c -> $(BUILD)/tools/*
+TOOL_SRC   := $(sort $(wildcard tools/*.c))
 
 obj = $(patsubst %.c,$(BUILD)/obj/%.o,$(1))
 CORE_OBJ   := $(call obj,$(CORE_SRC))
 SERVER_OBJ := $(call obj,$(SERVER_SRC))
 TEST_BIN   := $(patsubst tests/%.c,$(BUILD)/tests/%,$(TEST_SRC))
 BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
+TOOL_BIN   := $(patsubst tools/%.c,$(BUILD)/tools/%,$(TOOL_SRC))
 CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
 
-.PHONY: all setup test check bench run clean tests schema
+.PHONY: all setup test check bench run clean tests schema openapi
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
@@ -77,7 +81,17 @@ $(BUILD)/bench/%: $(BUILD)/obj/bench/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmic
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS) -lcurl
 
-tests: all $(TEST_BIN)
+$(BUILD)/tools/%: $(BUILD)/obj/tools/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+	@mkdir -p $(dir $@)
+	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
+
+tests: all $(TEST_BIN) $(TOOL_BIN)
+
+# The frame-stats schemas (Seconds, FrameStats) of schemas/openapi.yaml are
+# generated from the field table in core/render/frame_stats.c;
+# test_stats_json fails while they are stale.
+openapi: $(BUILD)/tools/openapi_stats
+	$(BUILD)/tools/openapi_stats schemas/openapi.yaml
 
 setup:
 	@bash scripts/setup.sh

@@ -43,6 +43,7 @@
 #include "job_json.h"
 #include "render/compare.h"
 #include "render/renderer.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "bench_util.h"
 

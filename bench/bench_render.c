@@ -26,6 +26,7 @@
 #include "kinds/kind.h"
 #include "job_json.h"
 #include "render/renderer.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "bench_util.h"
 

@@ -21,14 +21,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/clock.h"
 #include "bench_util.h"
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static char tmp[64] = "/tmp/microray-bench-XXXXXX";
 static char microrayd[512] = "build/microrayd"; /* $MR_BUILD_DIR/microrayd */
@@ -67,7 +61,7 @@ static void start_daemon(void)
 typedef struct buf {
     char *p;
     size_t n;
-    double first_frame; /* now() when "event: frame" first arrived */
+    double first_frame; /* mr_now() when "event: frame" first arrived */
 } buf;
 
 static size_t collect(char *p, size_t size, size_t n, void *user)
@@ -81,7 +75,7 @@ static size_t collect(char *p, size_t size, size_t n, void *user)
     b->n += size * n;
     b->p[b->n] = '\0';
     if (!b->first_frame && strstr(b->p, "event: frame\n")) {
-        b->first_frame = now();
+        b->first_frame = mr_now();
         return 0; /* enough: abort the stream */
     }
     return size * n;
@@ -114,7 +108,7 @@ static const char *post_job(const char *job)
 /* Seconds from POST to the first frame event. */
 static double daemon_first_frame(const char *job)
 {
-    double t0 = now();
+    double t0 = mr_now();
     const char *id = post_job(job);
     char url[160];
     snprintf(url, sizeof url, "%s/v1/jobs/%s/events", base, id);
@@ -136,7 +130,7 @@ static double oneshot_first_frame(const char *job_path, int run)
     char out[128], first[160];
     snprintf(out, sizeof out, "%s/oneshot%d", tmp, run);
     snprintf(first, sizeof first, "%s/0000.exr", out);
-    double t0 = now();
+    double t0 = mr_now();
     pid_t pid = fork();
     if (pid == 0) {
         execl(microrayd, "microrayd", "render", job_path, "--out", out, "--quiet", (char *)NULL);
@@ -146,7 +140,7 @@ static double oneshot_first_frame(const char *job_path, int run)
     double t = -1;
     while (t < 0) {
         if (stat(first, &st) == 0)
-            t = now() - t0;
+            t = mr_now() - t0;
         else
             usleep(500);
     }

@@ -42,6 +42,7 @@
 
 #include "anim/pose.h"
 #include "render/renderer.h"
+#include "util/clock.h"
 #include "util/radix_sort.h"
 #include "kinds/svo/svo_build.h"
 #include "util/parallel.h"

@@ -40,6 +40,7 @@
 #include "render/compare.h"
 #include "render/device.h"
 #include "render/renderer.h"
+#include "util/clock.h"
 #include "bench_util.h"
 
 #define MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"

@@ -43,7 +43,8 @@ typedef struct mrc_error {
 int mrc_fail(mrc_error *err, int code, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 
-/* Monotonic seconds, for durations and progress. */
+/* Monotonic seconds, for durations and progress: CLOCK_MONOTONIC like the
+ * core's mr_now (util/clock.h), which the client does not link. */
 double mrc_now(void);
 
 /* Copies src into dst (always terminated), replacing control characters

@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "render/renderer.h" /* mr_now */
+#include "util/clock.h"
 
 /* A file hash (64 hex) plus the refine suffix (about 70 bytes at most). */
 #define KEY_MAX 256

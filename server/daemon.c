@@ -31,8 +31,10 @@
 #include "job_json.h"
 #include "render/exr.h"
 #include "util/file_io.h"
+#include "util/hex.h"
 #include "util/sha256.h"
 #include "stats_json.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "worker.h"
 
@@ -588,8 +590,7 @@ static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
     }
     uint8_t digest[32];
     mr_sha256_final(&h, digest);
-    for (int i = 0; i < 32; i++)
-        snprintf(key + 2 * i, 3, "%02x", digest[i]);
+    mr_hex_encode(digest, sizeof digest, key);
 done:
     close(fd);
     return rc;

@@ -42,7 +42,7 @@ unsigned mr_daemon_port(const mr_daemon *d);
 /* Graceful stop: HTTP first, then workers finish their current frame. */
 void mr_daemon_stop(mr_daemon *d);
 
-/* ---- for the HTTP handlers (http.c) ------------------------------------ */
+/* ---- for the HTTP handlers (http_handlers.c, http_events.c) ----------- */
 
 mr_store *mr_daemon_store(mr_daemon *d);
 const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d);

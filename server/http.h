@@ -1,7 +1,9 @@
 /*
  * http.h - the HTTP front end of microrayd (libmicrohttpd): one route table,
  * RFC 9457 problem+json errors, body caps, request logging. Handlers only
- * parse, call the daemon/store and answer; they never render.
+ * parse, call the daemon/store and answer; they never render. Its parts
+ * (lifecycle, routes, replies, handlers, event streams) share
+ * http_internal.h.
  */
 #ifndef MR_HTTP_H
 #define MR_HTTP_H

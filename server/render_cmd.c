@@ -24,6 +24,7 @@
 #include "render/exr.h"
 #include "stats_json.h"
 #include "util/file_io.h"
+#include "util/clock.h"
 #include "util/parallel.h"
 #include "worker.h"
 

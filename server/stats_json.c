@@ -1,14 +1,21 @@
-/* stats_json.c - per-frame and per-job statistics as JSON (stats_json.h). */
+/*
+ * stats_json.c - per-frame and per-job statistics as JSON (stats_json.h),
+ * written and read by the frame-stats field table (render/frame_stats.h):
+ * no field is named here. A frame is its table fields in table order (a
+ * group's fields nested in the group's object), then its extras; a job
+ * adds totals and medians of the "seconds" group and a few job figures.
+ *
+ * Every builder collects the results of its cJSON calls in `ok`: a call
+ * that fails for want of memory leaves its field out, and a document with a
+ * field or a frame missing must never pass for complete. (cJSON's Add
+ * functions return NULL on failure, also when given a NULL parent.)
+ */
 #include "stats_json.h"
 
 #include <cJSON.h>
-#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* The per-frame timings, in the order they appear in "seconds". */
-#define TIMINGS(X) X(load) X(pose) X(bvh) X(trace) X(encode) X(total)
 
 static int cmp_double(const void *a, const void *b)
 {
@@ -25,41 +32,58 @@ static double median(double *v, size_t n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-/* Each builder below collects the results of its cJSON calls in `ok`: a
- * call that fails for want of memory leaves its field out, and a document
- * with a field or a frame missing must never pass for complete. (cJSON's
- * Add functions return NULL on failure, also when given a NULL parent.) */
+/* Whether an optional group has something to report for this frame: one
+ * of its integer fields is non-zero. */
+static bool group_present(const mr_stat_group *g, const mr_frame_stats *f)
+{
+    if (!g->optional)
+        return true;
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[i];
+        bool integer = fd->type == MR_STAT_INT || fd->type == MR_STAT_U32 || fd->type == MR_STAT_U64;
+        if (fd->group == g && integer && mr_frame_stat_number(f, fd) != 0)
+            return true;
+    }
+    return false;
+}
+
+static bool add_field(cJSON *o, const mr_stat_field *fd, const mr_frame_stats *f)
+{
+    switch (fd->type) {
+    case MR_STAT_FRAME_FILE: {
+        char name[MR_FRAME_NAME_MAX];
+        mr_frame_file_name((size_t)f->frame, name);
+        return cJSON_AddStringToObject(o, fd->name, name) != NULL;
+    }
+    case MR_STAT_BVH:
+        return cJSON_AddStringToObject(o, fd->name, mr_bvh_update_name(f->bvh)) != NULL;
+    case MR_STAT_CACHE_RESULT:
+        return cJSON_AddStringToObject(o, fd->name, mr_frame_cache_result(f)) != NULL;
+    default:
+        return cJSON_AddNumberToObject(o, fd->name, mr_frame_stat_number(f, fd)) != NULL;
+    }
+}
 
 /* One frame's statistics as a cJSON object; NULL when out of memory. */
 static cJSON *frame_json(const mr_frame_stats *f)
 {
     cJSON *o = cJSON_CreateObject();
     bool ok = o != NULL;
-    ok &= cJSON_AddNumberToObject(o, "frame", f->frame) != NULL;
-    ok &= cJSON_AddNumberToObject(o, "time", f->time) != NULL;
-    char name[MR_FRAME_NAME_MAX];
-    mr_frame_file_name((size_t)f->frame, name);
-    ok &= cJSON_AddStringToObject(o, "file", name) != NULL;
-    cJSON *s = cJSON_AddObjectToObject(o, "seconds");
-#define ADD(n) ok &= cJSON_AddNumberToObject(s, #n, f->n##_s) != NULL;
-    TIMINGS(ADD)
-#undef ADD
-    ok &= cJSON_AddStringToObject(o, "bvh", mr_bvh_update_name(f->bvh)) != NULL;
-    ok &= cJSON_AddNumberToObject(o, "rays", (double)f->rays) != NULL;
-    ok &= cJSON_AddNumberToObject(o, "mrays_per_s", f->mrays_per_s) != NULL;
-    ok &= cJSON_AddNumberToObject(o, "triangles", (double)f->triangles) != NULL;
-    cJSON *b = cJSON_AddObjectToObject(o, "bytes");
-    ok &= cJSON_AddNumberToObject(b, "geometry", (double)f->geometry_bytes) != NULL;
-    ok &= cJSON_AddNumberToObject(b, "bvh", (double)f->bvh_bytes) != NULL;
-    ok &= cJSON_AddNumberToObject(b, "peak_rss", (double)f->peak_rss_bytes) != NULL;
-    ok &= cJSON_AddNumberToObject(o, "scene_diagonal", f->scene_diagonal) != NULL;
-    if (f->assets_cached || f->assets_loaded) {
-        cJSON *c = cJSON_AddObjectToObject(o, "cache");
-        ok &= cJSON_AddStringToObject(c, "result", f->assets_loaded ? (f->assets_cached ? "partial" : "miss") : "hit") != NULL;
-        ok &= cJSON_AddNumberToObject(c, "assets_cached", f->assets_cached) != NULL;
-        ok &= cJSON_AddNumberToObject(c, "assets_loaded", f->assets_loaded) != NULL;
-        ok &= cJSON_AddNumberToObject(c, "saved_s", f->load_saved_s) != NULL;
+    const mr_stat_group *group = NULL;
+    cJSON *into = o; /* the object of the current group, NULL while one is skipped */
+    for (size_t i = 0; i < mr_frame_stat_field_count && ok; i++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[i];
+        if (fd->group != group) {
+            group = fd->group;
+            bool present = !group || group_present(group, f);
+            into = !group ? o : present ? cJSON_AddObjectToObject(o, group->name) : NULL;
+            ok = !present || into != NULL;
+        }
+        if (into && ok)
+            ok = add_field(into, fd, f);
     }
+    for (uint32_t i = 0; i < f->extra_count && i < MR_FRAME_EXTRAS_MAX && ok; i++)
+        ok = cJSON_AddNumberToObject(o, f->extras[i].name, f->extras[i].value) != NULL;
     if (!ok) {
         cJSON_Delete(o);
         return NULL;
@@ -73,6 +97,24 @@ char *mr_frame_stats_json(const mr_frame_stats *f)
     char *s = o ? cJSON_PrintUnformatted(o) : NULL;
     cJSON_Delete(o);
     return s;
+}
+
+void mr_frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f)
+{
+    memset(f, 0, sizeof *f);
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[i];
+        const cJSON *in = fd->group ? cJSON_GetObjectItemCaseSensitive(o, fd->group->name) : o;
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(in, fd->name);
+        if (fd->type == MR_STAT_BVH) {
+            for (int u = MR_BVH_NONE; u <= MR_BVH_REFIT; u++)
+                if (cJSON_IsString(v) && !strcmp(v->valuestring, mr_bvh_update_name(u)))
+                    mr_frame_stat_set_number(f, fd, u);
+        } else if (cJSON_IsNumber(v)) {
+            mr_frame_stat_set_number(f, fd, v->valuedouble);
+        }
+    }
+    f->frame = (int)index;
 }
 
 int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first, char **out,
@@ -114,16 +156,16 @@ int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first,
     uint64_t rays = 0;
     for (size_t i = 0; i < n; i++)
         rays += fr[i].rays;
-#define ADD(name)                                                                                  \
-    {                                                                                              \
-        double sum = 0;                                                                            \
-        for (size_t i = 0; i < n; i++)                                                             \
-            sum += tmp[i] = fr[i].name##_s;                                                        \
-        ok &= cJSON_AddNumberToObject(ts, #name, sum) != NULL;                                     \
-        ok &= cJSON_AddNumberToObject(ms, #name, median(tmp, n)) != NULL;                          \
+    for (size_t k = 0; k < mr_frame_stat_field_count; k++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[k];
+        if (fd->group != &mr_stat_group_seconds)
+            continue;
+        double sum = 0;
+        for (size_t i = 0; i < n; i++)
+            sum += tmp[i] = mr_frame_stat_number(&fr[i], fd);
+        ok &= cJSON_AddNumberToObject(ts, fd->name, sum) != NULL;
+        ok &= cJSON_AddNumberToObject(ms, fd->name, median(tmp, n)) != NULL;
     }
-    TIMINGS(ADD)
-#undef ADD
     ok &= cJSON_AddNumberToObject(tot, "rays", (double)rays) != NULL;
     for (size_t i = 0; i < n; i++)
         tmp[i] = fr[i].mrays_per_s;

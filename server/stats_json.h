@@ -1,9 +1,13 @@
 /*
- * stats_json.h - job statistics as JSON (stats.json, the API's stats).
- * The format is documented in the README ("stats.json").
+ * stats_json.h - job statistics as JSON (stats.json, the API's stats),
+ * written and read by the frame-stats field table (render/frame_stats.h).
+ * The format is documented in the README ("stats.json") and in
+ * schemas/openapi.yaml (FrameStats, generated from the same table).
  */
 #ifndef MR_STATS_JSON_H
 #define MR_STATS_JSON_H
+
+#include <cJSON.h>
 
 #include "worker.h"
 
@@ -17,5 +21,10 @@ int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first,
 /* One frame's statistics (an element of stats.json's "frames") as compact
  * JSON; malloc'ed, NULL when out of memory (never one with fields left out). */
 char *mr_frame_stats_json(const mr_frame_stats *f);
+
+/* The table's fields of one frame object back into *f (frame = index);
+ * missing or mistyped fields are 0, derived ones and extras are not read
+ * (the stored text carries them). */
+void mr_frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f);
 
 #endif

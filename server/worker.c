@@ -7,6 +7,7 @@
 
 #include "asset/asset.h"
 #include "cache.h"
+#include "util/clock.h"
 
 /* Without a cache, the import the cache would do on a miss (refinement
  * included). */

@@ -37,6 +37,8 @@
 #include <strings.h>
 #include <sys/stat.h>
 
+#include "util/dup.h"
+
 /* Import runs in two phases. aiImportFile does the parsing with only
  * aiProcess_ValidateDataStructure (a failure there comes back the safe way,
  * NULL plus aiGetErrorString). We then refuse non-finite positions, and only
@@ -69,17 +71,6 @@
 /* ------------------------------------------------------------------------ */
 /* small helpers                                                              */
 
-static char *dup_str(const char *s)
-{
-    if (!s)
-        s = "";
-    size_t n = strlen(s);
-    char *d = malloc(n + 1);
-    if (d)
-        memcpy(d, s, n + 1);
-    return d;
-}
-
 /* aiString carries an explicit length (< MAXLEN) and is NUL-terminated;
  * trust neither blindly. */
 static char *dup_aistring(const struct aiString *s)
@@ -87,13 +78,7 @@ static char *dup_aistring(const struct aiString *s)
     size_t n = s->length;
     if (n >= MAXLEN)
         n = MAXLEN - 1;
-    size_t z = strnlen(s->data, n);
-    char *d = malloc(z + 1);
-    if (d) {
-        memcpy(d, s->data, z);
-        d[z] = '\0';
-    }
-    return d;
+    return mr_memdup_str(s->data, strnlen(s->data, n));
 }
 
 static mr_mat4 mat_from_ai(const struct aiMatrix4x4 *a)
@@ -226,16 +211,6 @@ static void clip_free(mr_clip *c)
     free(c->channels);
 }
 
-static void *copy_bytes(const void *src, size_t bytes)
-{
-    if (!src || bytes == 0)
-        return NULL;
-    void *p = malloc(bytes);
-    if (p)
-        memcpy(p, src, bytes);
-    return p;
-}
-
 static int copy_clip(const mr_clip *src, mr_clip *dst)
 {
     dst->duration = src->duration;
@@ -254,9 +229,9 @@ static int copy_clip(const mr_clip *src, mr_clip *dst)
         b->position_count = a->position_count;
         b->rotation_count = a->rotation_count;
         b->scale_count = a->scale_count;
-        b->positions = copy_bytes(a->positions, a->position_count * sizeof *a->positions);
-        b->rotations = copy_bytes(a->rotations, a->rotation_count * sizeof *a->rotations);
-        b->scales = copy_bytes(a->scales, a->scale_count * sizeof *a->scales);
+        b->positions = mr_memdup(a->positions, a->position_count * sizeof *a->positions);
+        b->rotations = mr_memdup(a->rotations, a->rotation_count * sizeof *a->rotations);
+        b->scales = mr_memdup(a->scales, a->scale_count * sizeof *a->scales);
         if ((a->position_count && !b->positions) || (a->rotation_count && !b->rotations) ||
             (a->scale_count && !b->scales))
             return MR_ERR_NOMEM;
@@ -1391,7 +1366,7 @@ int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
     }
 
     a = calloc(1, sizeof *a);
-    if (!a || !(a->path = dup_str(path))) {
+    if (!a || !(a->path = mr_strdup(path))) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", path);
         goto cleanup;
     }
@@ -1460,7 +1435,7 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
     a->node_count = 1;
     a->nodes[0].parent = -1;
     a->nodes[0].local = mr_mat4_identity();
-    if (!(a->nodes[0].name = dup_str(name)))
+    if (!(a->nodes[0].name = mr_strdup(name)))
         goto nomem;
     a->meshes = calloc(1, sizeof *a->meshes);
     if (!a->meshes)
@@ -1470,7 +1445,7 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
     m->node = 0;
     m->vertex_count = vertex_count;
     m->triangle_count = triangle_count;
-    m->name = dup_str(name);
+    m->name = mr_strdup(name);
     m->positions = malloc(nv * 3 * sizeof(float));
     m->normals = malloc(nv * 3 * sizeof(float));
     m->indices = malloc(nt * 3 * sizeof(uint32_t));

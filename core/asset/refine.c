@@ -10,6 +10,7 @@
  * distinct wedge edges that become output vertices.
  */
 #include "asset/refine.h"
+#include "util/dup.h"
 #include "util/parallel.h"
 
 #include <math.h>
@@ -697,27 +698,6 @@ static void detail_range(void *ctx, size_t begin, size_t end, unsigned worker)
 
 void mr_refine_mesh_free(mr_mesh *m) { mr_mesh_release(m); }
 
-static char *dup_str(const char *s)
-{
-    if (!s)
-        return NULL;
-    size_t n = strlen(s) + 1;
-    char *d = malloc(n);
-    if (d)
-        memcpy(d, s, n);
-    return d;
-}
-
-static void *dup_mem(const void *src, size_t bytes)
-{
-    if (!src || bytes == 0)
-        return NULL;
-    void *d = malloc(bytes);
-    if (d)
-        memcpy(d, src, bytes);
-    return d;
-}
-
 static int check_input(const mr_mesh *in, const mr_refine_params *p, mr_error *err)
 {
     if (!in || !p)
@@ -801,13 +781,13 @@ int mr_refine_mesh(const mr_mesh *in, const mr_refine_params *params, mr_mesh *o
     out->node = in->node;
     out->vertex_count = (uint32_t)cur.nw;
     out->triangle_count = (uint32_t)cur.nt;
-    out->name = dup_str(in->name);
+    out->name = mr_strdup(in->name);
     out->positions = malloc(cur.nw * 3 * sizeof(float));
     out->normals = malloc(cur.nw * 3 * sizeof(float));
-    out->indices = dup_mem(cur.tri, cur.nt * 3 * sizeof(uint32_t));
+    out->indices = mr_memdup(cur.tri, cur.nt * 3 * sizeof(uint32_t));
     if ((in->name && !out->name) || !out->positions || !out->normals || !out->indices)
         goto nomem;
-    if (cur.uv && !(out->uvs = dup_mem(cur.uv, cur.nw * 2 * sizeof(float))))
+    if (cur.uv && !(out->uvs = mr_memdup(cur.uv, cur.nw * 2 * sizeof(float))))
         goto nomem;
     for (size_t w = 0; w < cur.nw; w++) {
         size_t v = cur.weld[w];
@@ -818,8 +798,8 @@ int mr_refine_mesh(const mr_mesh *in, const mr_refine_params *params, mr_mesh *o
     }
     if (skinned) {
         out->joint_count = in->joint_count;
-        out->joint_nodes = dup_mem(in->joint_nodes, in->joint_count * sizeof(int));
-        out->inverse_bind = dup_mem(in->inverse_bind, in->joint_count * sizeof(mr_mat4));
+        out->joint_nodes = mr_memdup(in->joint_nodes, in->joint_count * sizeof(int));
+        out->inverse_bind = mr_memdup(in->inverse_bind, in->joint_count * sizeof(mr_mat4));
         out->joints = malloc(cur.nw * MR_MAX_INFLUENCES * sizeof *out->joints);
         out->weights = malloc(cur.nw * MR_MAX_INFLUENCES * sizeof *out->weights);
         if (!out->joint_nodes || !out->inverse_bind || !out->joints || !out->weights)

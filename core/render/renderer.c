@@ -6,10 +6,10 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
-#include <time.h>
 
 #include "kinds/kind.h"
 #include "render/integrator.h"
+#include "util/clock.h"
 
 typedef struct object_state {
     const mr_object_desc *desc;
@@ -44,28 +44,12 @@ struct mr_renderer {
     const object_state *cam_driver; /* object whose pose moves the camera's asset */
 };
 
-double mr_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 uint64_t mr_peak_rss_bytes(void)
 {
     struct rusage ru;
     if (getrusage(RUSAGE_SELF, &ru) != 0)
         return 0;
     return (uint64_t)ru.ru_maxrss * 1024u; /* Linux reports KiB */
-}
-
-const char *mr_bvh_update_name(mr_bvh_update u)
-{
-    switch (u) {
-    case MR_BVH_BUILD: return "build";
-    case MR_BVH_REFIT: return "refit";
-    default: return "none";
-    }
 }
 
 static const mr_pose_desc *pose_for_frame(const mr_object_desc *d, size_t frame)

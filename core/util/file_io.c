@@ -1,6 +1,7 @@
-/* file_io.c - capped whole-file reads, atomic writes, mkdir -p (file_io.h). */
+/* file_io.c - capped whole-file reads, atomic writes, mkdir -p, removal (file_io.h). */
 #include "util/file_io.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -251,4 +252,36 @@ done:
     free(data);
     close(fd);
     return rc;
+}
+
+int mr_fs_remove_dir(const char *dir, mr_error *err)
+{
+    DIR *d = opendir(dir);
+    if (!d)
+        return errno == ENOENT ? MR_OK : mr_error_set(err, MR_ERR_IO, "cannot open directory '%s': %s", dir, strerror(errno));
+    int rc = MR_OK;
+    struct dirent *e;
+    errno = 0;
+    while ((e = readdir(d)) != NULL) {
+        if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+            continue;
+        if (unlinkat(dirfd(d), e->d_name, 0) != 0 && errno != ENOENT && rc == MR_OK) {
+            char p[4096];
+            int e2 = errno;
+            int n = snprintf(p, sizeof p, "%s/%s", dir, e->d_name);
+            if (n < 0 || (size_t)n >= sizeof p)
+                snprintf(p, sizeof p, "%s/...", dir);
+            rc = mr_error_set(err, MR_ERR_IO, "cannot remove '%s': %s", p, strerror(e2));
+        }
+        errno = 0;
+    }
+    if (errno != 0 && rc == MR_OK)
+        rc = mr_error_set(err, MR_ERR_IO, "cannot read directory '%s': %s", dir, strerror(errno));
+    closedir(d);
+    if (rc < 0)
+        return rc;
+    /* ENOTEMPTY: a file appeared meanwhile (see file_io.h) */
+    if (rmdir(dir) != 0 && errno != ENOENT && errno != ENOTEMPTY)
+        return mr_error_set(err, MR_ERR_IO, "cannot remove directory '%s': %s", dir, strerror(errno));
+    return MR_OK;
 }

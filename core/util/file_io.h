@@ -1,5 +1,5 @@
 /*
- * file_io.h - the whole-file reads, crash-safe writes and mkdir -p of
+ * file_io.h - the whole-file reads, crash-safe writes, mkdir -p and removal of
  * microray's file formats, disk caches (baked DMMs, .mrdmm, .mrsvo) and
  * the daemon's files, in one place so every file gets the same guarantees:
  *  - a read never blocks on a FIFO planted under the name, refuses
@@ -65,6 +65,12 @@ void mr_fs_atomic_abort(mr_fs_atomic *a);
 /* begin + write + commit of one buffer. */
 int mr_fs_write_atomic(const char *path, const void *buf, size_t size, const char *what,
                        mr_error *err);
+
+/* Removes the files in dir, then dir itself; a missing dir is fine. A file
+ * that appears while it is emptied (a writer racing the removal) keeps the
+ * directory without an error: that writer owns cleaning up after itself.
+ * MR_ERR_IO naming the first entry that could not be removed. */
+int mr_fs_remove_dir(const char *dir, mr_error *err);
 
 /* Reads the whole regular file path (at most max bytes) into a malloc'ed
  * buffer (*buf, *size; a 0-byte file gives a 1-byte allocation). A file

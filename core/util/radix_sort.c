@@ -1,16 +1,24 @@
 /*
- * radix_sort.c - stable LSD radix sort of mr_svo_key by (code, level), see
- * radix_sort.h.
+ * radix_sort.c - stable LSD radix sorts of voxel keys (radix_sort.h).
  *
- * The 96-bit sort key (code high, level low) is cut into nine 11-bit digits,
- * least significant first: three of the level, six of the code. One reading
- * pass ORs and ANDs all keys; a digit where OR and AND agree is constant and
- * its pass is skipped (most often all levels are equal and the top code bits
- * are zero). Parallel passes split the array into one fixed contiguous block
- * per worker: each block counts its digits into its own histogram, the
- * offsets are the exclusive prefix over (digit, block), and each block
- * scatters its keys in input order, so the result is the stable order for
- * any block count.
+ * One scheme for both layouts. Parallel passes split the array into one
+ * fixed contiguous block per worker: each block counts its digits into its
+ * own histogram, the offsets are the exclusive prefix over (digit, block),
+ * and each block scatters its keys in input order, so the result is the
+ * stable order for any block count. A pass whose digit is the same for
+ * every key would not move anything and is skipped.
+ *
+ * 16-byte keys: the 96-bit sort key (code high, level low) is cut into nine
+ * 11-bit digits, least significant first: three of the level, six of the
+ * code. One reading pass ORs and ANDs all keys; a digit where OR and AND
+ * agree is constant (most often all levels are equal and the top code bits
+ * are zero).
+ *
+ * 64-bit keys: the caller names the varying bits; the passes cover them
+ * from the lowest to the highest in equal digits of at most U64_MAX_BITS.
+ * With a single block every pass's digits are counted in one read (no pass
+ * changes the whole array's counts); with several, each pass counts its
+ * own input. The last pass may write mr_svo_keys (unpack) instead of words.
  */
 #include "util/radix_sort.h"
 
@@ -28,6 +36,45 @@
 /* Below this many keys per worker, threads cost more than they save. */
 #define MIN_PER_BLOCK 32768u
 #define MAX_BLOCKS 64u
+/* Digits of the 64-bit sort: 2^10 buckets of 8 + 4 bytes stay in L2. */
+#define U64_MAX_BITS 10u
+
+/* ---- shared by both layouts ------------------------------------------- */
+
+/* Blocks (workers) for count keys on `threads` (0 = all cores). */
+static size_t block_count(size_t count, unsigned threads)
+{
+    if (threads == 0)
+        threads = mr_cpu_count();
+    size_t blocks = count / MIN_PER_BLOCK;
+    if (blocks > threads)
+        blocks = threads;
+    if (blocks > MAX_BLOCKS)
+        blocks = MAX_BLOCKS;
+    return blocks == 0 ? 1 : blocks;
+}
+
+static void block_range(size_t count, size_t blocks, size_t b, size_t *begin, size_t *end)
+{
+    *begin = count * b / blocks;
+    *end = count * (b + 1) / blocks;
+}
+
+/* Turns digit counts into scatter offsets: the exclusive prefix over
+ * (digit, block), block b's counts at h + b * stride. */
+static void counts_to_offsets(uint32_t *h, size_t radix, size_t blocks, size_t stride)
+{
+    uint32_t run = 0;
+    for (size_t d = 0; d < radix; d++) {
+        for (size_t b = 0; b < blocks; b++) {
+            const uint32_t n = h[b * stride + d];
+            h[b * stride + d] = run;
+            run += n;
+        }
+    }
+}
+
+/* ---- 16-byte keys --------------------------------------------------------- */
 
 typedef struct {
     mr_svo_key *src_k, *dst_k;
@@ -39,12 +86,6 @@ typedef struct {
     uint64_t *or_code, *and_code; /* per block */
     uint32_t *or_level, *and_level;
 } sort_ctx;
-
-static void block_range(const sort_ctx *c, size_t b, size_t *begin, size_t *end)
-{
-    *begin = c->count * b / c->blocks;
-    *end = c->count * (b + 1) / c->blocks;
-}
 
 static inline uint32_t digit_of(const mr_svo_key *k, unsigned pass)
 {
@@ -59,7 +100,7 @@ static void reduce_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     sort_ctx *c = vctx;
     for (size_t b = begin; b < end; b++) {
         size_t lo, hi;
-        block_range(c, b, &lo, &hi);
+        block_range(c->count, c->blocks, b, &lo, &hi);
         uint64_t oc = 0, ac = ~(uint64_t)0;
         uint32_t ol = 0, al = ~(uint32_t)0;
         for (size_t i = lo; i < hi; i++) {
@@ -81,7 +122,7 @@ static void count_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     sort_ctx *c = vctx;
     for (size_t b = begin; b < end; b++) {
         size_t lo, hi;
-        block_range(c, b, &lo, &hi);
+        block_range(c->count, c->blocks, b, &lo, &hi);
         uint32_t *h = c->hist + b * RADIX;
         memset(h, 0, RADIX * sizeof *h);
         const unsigned pass = c->pass;
@@ -96,7 +137,7 @@ static void scatter_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     sort_ctx *c = vctx;
     for (size_t b = begin; b < end; b++) {
         size_t lo, hi;
-        block_range(c, b, &lo, &hi);
+        block_range(c->count, c->blocks, b, &lo, &hi);
         uint32_t *off = c->hist + b * RADIX;
         const unsigned pass = c->pass;
         if (c->src_p) {
@@ -118,7 +159,7 @@ static void copy_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     sort_ctx *c = vctx;
     for (size_t b = begin; b < end; b++) {
         size_t lo, hi;
-        block_range(c, b, &lo, &hi);
+        block_range(c->count, c->blocks, b, &lo, &hi);
         memcpy(c->dst_k + lo, c->src_k + lo, (hi - lo) * sizeof *c->dst_k);
         if (c->src_p)
             memcpy(c->dst_p + lo, c->src_p + lo, (hi - lo) * sizeof *c->dst_p);
@@ -147,13 +188,7 @@ int mr_svo_radix_sort_payload(mr_svo_key *keys, uint32_t *payload, size_t count,
         return mr_error_set(err, MR_ERR_INVALID, "radix sort: keys is NULL");
     if (threads == 0)
         threads = mr_cpu_count();
-    size_t blocks = count / MIN_PER_BLOCK;
-    if (blocks > threads)
-        blocks = threads;
-    if (blocks > MAX_BLOCKS)
-        blocks = MAX_BLOCKS;
-    if (blocks == 0)
-        blocks = 1;
+    const size_t blocks = block_count(count, threads);
     /* Counts and offsets are 32-bit (payloads index keys with 32 bits too). */
     if (count > UINT32_MAX)
         return mr_error_set(err, MR_ERR_LIMIT, "radix sort: %zu keys exceed 2^32 - 1", count);
@@ -206,14 +241,7 @@ int mr_svo_radix_sort_payload(mr_svo_key *keys, uint32_t *payload, size_t count,
             continue; /* every key has the same digit: the pass would not move anything */
         c.pass = pass;
         mr_parallel_for(threads, blocks, 1, count_fn, &c);
-        uint32_t run = 0;
-        for (unsigned d = 0; d < RADIX; d++) {
-            for (size_t b = 0; b < blocks; b++) {
-                uint32_t n = hist[b * RADIX + d];
-                hist[b * RADIX + d] = run;
-                run += n;
-            }
-        }
+        counts_to_offsets(hist, RADIX, blocks, RADIX);
         mr_parallel_for(threads, blocks, 1, scatter_fn, &c);
         mr_svo_key *tk = c.src_k;
         c.src_k = c.dst_k;
@@ -236,4 +264,153 @@ cleanup:
     free(codes);
     free(levels);
     return rc;
+}
+
+/* ---- 64-bit keys ---------------------------------------------------------- */
+
+typedef struct {
+    size_t blocks;
+    unsigned passes, shift, bits; /* digit p is bits [shift + p * bits, + bits) */
+    size_t radix;                 /* 2^bits */
+    bool count_once;              /* one block: all passes counted in one read */
+    size_t hist_words;
+} u64_plan;
+
+static u64_plan u64_plan_of(const mr_radix_u64 *s)
+{
+    u64_plan p = {.blocks = block_count(s->count, s->threads)};
+    if (s->varying != 0) {
+        const unsigned lo = (unsigned)__builtin_ctzll(s->varying);
+        const unsigned hi = 64u - (unsigned)__builtin_clzll(s->varying);
+        p.passes = (hi - lo + U64_MAX_BITS - 1) / U64_MAX_BITS;
+        p.bits = (hi - lo + p.passes - 1) / p.passes;
+        p.shift = lo;
+    } else if (s->unpack) {
+        /* one pass on a constant digit: a stable copy that unpacks */
+        p.passes = 1;
+        p.bits = 1;
+        p.shift = 0;
+    }
+    p.radix = (size_t)1 << p.bits;
+    p.count_once = p.blocks == 1;
+    if (p.passes)
+        p.hist_words = p.blocks * p.radix * (p.count_once ? p.passes : 1);
+    return p;
+}
+
+size_t mr_radix_sort_u64_hist_words(const mr_radix_u64 *s)
+{
+    return s ? u64_plan_of(s).hist_words : 0;
+}
+
+typedef struct {
+    u64_plan plan;
+    uint64_t *key[2];   /* the caller's keys and scratch */
+    uint32_t *pay[2];   /* the caller's payload and scratch */
+    unsigned from;      /* this pass reads key[from], pay[from], writes the others */
+    mr_svo_key *unpack;
+    size_t count;
+    unsigned pass;
+    uint32_t *hist; /* blocks * radix counts (count_once: radix per pass, one block) */
+} u64_ctx;
+
+/* Block b's counts of pass q: with count_once every block holds all passes. */
+static uint32_t *u64_hist(const u64_ctx *c, size_t b, unsigned q)
+{
+    const u64_plan *p = &c->plan;
+    return p->count_once ? c->hist + (b * p->passes + q) * p->radix : c->hist + b * p->radix;
+}
+
+static void u64_count(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    u64_ctx *c = vctx;
+    const u64_plan *p = &c->plan;
+    const unsigned first = p->count_once ? 0 : c->pass, last = p->count_once ? p->passes - 1 : c->pass;
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_range(c->count, p->blocks, b, &lo, &hi);
+        for (unsigned q = first; q <= last; q++) {
+            uint32_t *h = u64_hist(c, b, q);
+            memset(h, 0, p->radix * sizeof *h);
+            const unsigned sh = p->shift + q * p->bits;
+            const uint64_t *src = c->key[c->from], mask = p->radix - 1;
+            for (size_t i = lo; i < hi; i++)
+                h[(src[i] >> sh) & mask]++;
+        }
+    }
+}
+
+static void u64_scatter(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    u64_ctx *c = vctx;
+    const unsigned sh = c->plan.shift + c->pass * c->plan.bits;
+    const uint64_t mask = c->plan.radix - 1;
+    const bool unpack = c->unpack && c->pass + 1 == c->plan.passes;
+    const uint64_t *src = c->key[c->from];
+    const uint32_t *src_p = c->pay[c->from];
+    uint64_t *dst = c->key[c->from ^ 1];
+    uint32_t *dst_p = c->pay[c->from ^ 1];
+    for (size_t b = begin; b < end; b++) {
+        size_t lo, hi;
+        block_range(c->count, c->plan.blocks, b, &lo, &hi);
+        uint32_t *off = u64_hist(c, b, c->pass);
+        if (unpack) {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                c->unpack[at] = mr_svo_key_unpack(k);
+                dst_p[at] = src_p[i];
+            }
+        } else {
+            for (size_t i = lo; i < hi; i++) {
+                const uint64_t k = src[i];
+                const uint32_t at = off[(k >> sh) & mask]++;
+                dst[at] = k;
+                dst_p[at] = src_p[i];
+            }
+        }
+    }
+}
+
+int mr_radix_sort_u64(mr_radix_u64 *s, mr_error *err)
+{
+    if (!s)
+        return mr_error_set(err, MR_ERR_INVALID, "radix sort: no sort given");
+    s->sorted_keys = s->keys;
+    s->sorted_payload = s->payload;
+    if (s->count > 0 && (!s->keys || !s->key_scratch || !s->payload || !s->payload_scratch))
+        return mr_error_set(err, MR_ERR_INVALID, "radix sort: key or payload arrays missing");
+    /* Counts and offsets are 32-bit (payloads index keys with 32 bits too). */
+    if (s->count > UINT32_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "radix sort: %zu keys exceed 2^32 - 1", s->count);
+    u64_ctx c = {.plan = u64_plan_of(s), .key = {s->keys, s->key_scratch},
+                 .pay = {s->payload, s->payload_scratch}, .unpack = s->unpack,
+                 .count = s->count, .hist = s->hist};
+    const u64_plan *p = &c.plan;
+    if (p->passes == 0)
+        return MR_OK; /* nothing varies and nothing to unpack: sorted as it is */
+    uint32_t *own = NULL;
+    if (!c.hist) {
+        c.hist = own = malloc(p->hist_words * sizeof *own);
+        if (!own)
+            return mr_error_set(err, MR_ERR_NOMEM, "radix sort: no memory for histograms");
+    }
+    const unsigned threads = s->threads ? s->threads : mr_cpu_count();
+    if (p->count_once)
+        u64_count(&c, 0, 1, 0);
+    for (unsigned q = 0; q < p->passes; q++) {
+        c.pass = q;
+        if (!p->count_once)
+            mr_parallel_for(threads, p->blocks, 1, u64_count, &c);
+        /* one block with count_once: the blocks' stride does not matter */
+        counts_to_offsets(u64_hist(&c, 0, q), p->radix, p->blocks, p->radix);
+        mr_parallel_for(threads, p->blocks, 1, u64_scatter, &c);
+        c.from ^= 1;
+    }
+    s->sorted_keys = s->unpack ? NULL : c.key[c.from];
+    s->sorted_payload = c.pay[c.from];
+    free(own);
+    return MR_OK;
 }

@@ -10,6 +10,7 @@
 
 #include <string.h>
 
+#include "util/hex.h"
 #include "util/le.h"
 
 /* First 32 bits of the fractional parts of the cube roots of the first 64
@@ -139,17 +140,12 @@ void mr_sha256_final(mr_sha256 *s, uint8_t digest[32])
 
 void mr_sha256_hex(const void *data, size_t size, char hex[65])
 {
-    static const char digits[] = "0123456789abcdef";
     mr_sha256 s;
     uint8_t d[32];
     mr_sha256_init(&s);
     mr_sha256_update(&s, data, size);
     mr_sha256_final(&s, d);
-    for (int i = 0; i < 32; i++) {
-        hex[2 * i] = digits[d[i] >> 4];
-        hex[2 * i + 1] = digits[d[i] & 15];
-    }
-    hex[64] = '\0';
+    mr_hex_encode(d, sizeof d, hex);
 }
 
 /* ---- little-endian feed */

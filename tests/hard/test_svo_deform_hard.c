@@ -20,7 +20,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <cmocka.h>
 
 #include "../support/bcn_fixture.h"
@@ -29,6 +28,7 @@
 #include "kinds/svo/svo_build.h"
 #include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
+#include "util/clock.h"
 #include "../support/svo_rig.h"
 
 static mr_svo *voxelize(const mr_asset *a, unsigned depth)
@@ -451,13 +451,6 @@ static void test_corrupt_octree(void **state)
 
 /* ---- throughput (printed only) */
 
-static double now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
-
 /* Depth 9 by default, to keep the suite quick; MR_SVO_DEFORM_BENCH_DEPTH=10
  * gives the figures of the task (the BCN rig at depth 10). */
 static void test_throughput(void **state)
@@ -486,19 +479,19 @@ static void test_throughput(void **state)
     /* the second call, as per frame: the selection's buffers are reused */
     mr_svo_selection sel = {0};
     assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, D, 2, &sel, &err), MR_OK);
-    double t0 = now();
+    double t0 = mr_now();
     assert_int_equal(mr_svo_select(s, &e, &r.d, NULL, D, 2, &sel, &err), MR_OK);
-    const double ts = now() - t0;
+    const double ts = mr_now() - t0;
     print_message("BCN depth %u, 2 threads: select %zu voxels (%llu deformed) in %.1f ms: %.1f M voxels/s\n", D,
                   sel.count, (unsigned long long)sel.visited, ts * 1e3, (double)sel.visited / ts * 1e-6);
     for (int m = 0; m < 2; m++) {
         mr_svo out = {0};
         uint64_t cells = 0;
-        t0 = now();
+        t0 = mr_now();
         assert_int_equal(mr_svo_resample(&sel, m ? MR_SVO_EMIT : MR_SVO_RESIZE, D, s->palette, s->palette_count, 2,
                                          &out, &cells, &err),
                          MR_OK);
-        const double tr = now() - t0;
+        const double tr = mr_now() - t0;
         print_message("  %s at depth %u: %llu cells -> %u voxels in %.1f ms: %.1f M cells/s\n",
                       m ? "emit" : "resize", D, (unsigned long long)cells, out.leaf_count, tr * 1e3,
                       (double)cells / tr * 1e-6);

@@ -11,12 +11,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <cmocka.h>
 
 #include "anim/pose.h"
 #include "asset/asset.h"
 #include "asset/refine.h"
+#include "util/clock.h"
 
 #define BCN_MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
 
@@ -434,13 +434,6 @@ static void test_weight_rules(void **state)
     mr_asset_free(a);
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 static void bbox_diag(const mr_mesh *m, double *diag)
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -486,9 +479,9 @@ static void test_skin_bcn(void **state)
         p.octaves = 2;
         mr_asset *r = NULL;
         mr_error err = {0};
-        double t0 = now_s();
+        double t0 = mr_now();
         assert_int_equal(mr_refine_asset(a, &p, &r, &err), MR_OK);
-        double t1 = now_s();
+        double t1 = mr_now();
         print_message("BCN_Epileptic.X %u round(s): %zu -> %zu triangles, %.3f s\n", rounds,
                       a->triangle_count, r->triangle_count, t1 - t0);
         assert_int_equal(r->triangle_count, a->triangle_count << (2 * rounds));

@@ -1,10 +1,22 @@
 /*
- * test_stats_json.c - stats.json and the per-frame statistics
- * (server/stats_json.h) when memory runs out: every allocation cJSON makes
- * for a document fails once, in turn (cJSON_InitHooks with the real
- * allocator behind a counter), and each attempt must either report the
- * failure (MR_ERR_NOMEM, no document) or produce exactly the document of a
- * run without failures: never one with frames or fields left out.
+ * test_stats_json.c - the per-frame and per-job statistics documents
+ * (server/stats_json.c): stats.json, the stored per-frame object (which is
+ * also the HTTP frame stats and the "frame" event) and the frames the HTTP
+ * job stats rebuild from stored text.
+ *
+ * The documents are compared byte for byte with texts recorded before the
+ * frame-stats fields became one table, so a change in the order of fields,
+ * their nesting or how numbers print shows at once. Values were picked to
+ * print differently under any careless conversion: 0.1 (not a binary
+ * fraction), 1/3 (17 significant digits), 2^40 + 1 rays (beyond 32 bits)
+ * and a float diagonal (printed as the double it widens to).
+ *
+ * Also: the field table itself (groups consecutive, names unique, every
+ * member of mr_frame_stats but the extras covered exactly once), reading a
+ * frame back from its text, extras (written after the table's fields, in
+ * stats.json too; bad, taken, repeated and surplus names refused), and
+ * schemas/openapi.yaml's frame-stats schemas being what the table gives
+ * (`make openapi` writes them).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -12,117 +24,270 @@
 #include <stdint.h>
 #include <cmocka.h>
 
-#include <cJSON.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "stats_json.h"
+#include "stats_openapi.h"
+#include "../support/stats_fixture.h"
 
-/* The allocation to fail (1-based; 0: none) and how many were made. */
-static size_t fail_at, allocations;
+/* ---- recorded documents --------------------------------------------------- */
 
-static void *counting_malloc(size_t size)
-{
-    if (++allocations == fail_at)
-        return NULL;
-    return malloc(size);
-}
+static const char JOB_FROM_1[] =
+    "{\n"
+    "\t\"job\":\t\"golden \\\"walk\\\"\",\n"
+    "\t\"software\":\t\"microray " MR_VERSION_STRING "\",\n"
+    "\t\"threads\":\t2,\n"
+    "\t\"width\":\t192,\n"
+    "\t\"height\":\t108,\n"
+    "\t\"samples\":\t3,\n"
+    "\t\"frames_total\":\t4,\n"
+    "\t\"frames_done\":\t2,\n"
+    "\t\"frames\":\t[{\n"
+    "\t\t\t\"frame\":\t1,\n"
+    "\t\t\t\"time\":\t0.75,\n"
+    "\t\t\t\"file\":\t\"0001.exr\",\n"
+    "\t\t\t\"seconds\":\t{\n"
+    "\t\t\t\t\"load\":\t0,\n"
+    "\t\t\t\t\"pose\":\t0.33333333333333331,\n"
+    "\t\t\t\t\"bvh\":\t0.1,\n"
+    "\t\t\t\t\"trace\":\t2.5e-07,\n"
+    "\t\t\t\t\"encode\":\t12345.678,\n"
+    "\t\t\t\t\"total\":\t0.001\n"
+    "\t\t\t},\n"
+    "\t\t\t\"bvh\":\t\"refit\",\n"
+    "\t\t\t\"rays\":\t1099511627777,\n"
+    "\t\t\t\"mrays_per_s\":\t0,\n"
+    "\t\t\t\"triangles\":\t4294967296,\n"
+    "\t\t\t\"bytes\":\t{\n"
+    "\t\t\t\t\"geometry\":\t1,\n"
+    "\t\t\t\t\"bvh\":\t0,\n"
+    "\t\t\t\t\"peak_rss\":\t123456789012\n"
+    "\t\t\t},\n"
+    "\t\t\t\"scene_diagonal\":\t0.10000000149011612\n"
+    "\t\t}, {\n"
+    "\t\t\t\"frame\":\t2,\n"
+    "\t\t\t\"time\":\t2,\n"
+    "\t\t\t\"file\":\t\"0002.exr\",\n"
+    "\t\t\t\"seconds\":\t{\n"
+    "\t\t\t\t\"load\":\t0,\n"
+    "\t\t\t\t\"pose\":\t0,\n"
+    "\t\t\t\t\"bvh\":\t0,\n"
+    "\t\t\t\t\"trace\":\t0,\n"
+    "\t\t\t\t\"encode\":\t0,\n"
+    "\t\t\t\t\"total\":\t0\n"
+    "\t\t\t},\n"
+    "\t\t\t\"bvh\":\t\"none\",\n"
+    "\t\t\t\"rays\":\t0,\n"
+    "\t\t\t\"mrays_per_s\":\t0,\n"
+    "\t\t\t\"triangles\":\t0,\n"
+    "\t\t\t\"bytes\":\t{\n"
+    "\t\t\t\t\"geometry\":\t0,\n"
+    "\t\t\t\t\"bvh\":\t0,\n"
+    "\t\t\t\t\"peak_rss\":\t0\n"
+    "\t\t\t},\n"
+    "\t\t\t\"scene_diagonal\":\t0,\n"
+    "\t\t\t\"cache\":\t{\n"
+    "\t\t\t\t\"result\":\t\"hit\",\n"
+    "\t\t\t\t\"assets_cached\":\t3,\n"
+    "\t\t\t\t\"assets_loaded\":\t0,\n"
+    "\t\t\t\t\"saved_s\":\t2\n"
+    "\t\t\t}\n"
+    "\t\t}],\n"
+    "\t\"totals\":\t{\n"
+    "\t\t\"seconds\":\t{\n"
+    "\t\t\t\"load\":\t0,\n"
+    "\t\t\t\"pose\":\t0.33333333333333331,\n"
+    "\t\t\t\"bvh\":\t0.1,\n"
+    "\t\t\t\"trace\":\t2.5e-07,\n"
+    "\t\t\t\"encode\":\t12345.678,\n"
+    "\t\t\t\"total\":\t0.001\n"
+    "\t\t},\n"
+    "\t\t\"rays\":\t1099511627777,\n"
+    "\t\t\"peak_rss_bytes\":\t123456789012\n"
+    "\t},\n"
+    "\t\"medians\":\t{\n"
+    "\t\t\"seconds\":\t{\n"
+    "\t\t\t\"load\":\t0,\n"
+    "\t\t\t\"pose\":\t0.16666666666666666,\n"
+    "\t\t\t\"bvh\":\t0.05,\n"
+    "\t\t\t\"trace\":\t1.25e-07,\n"
+    "\t\t\t\"encode\":\t6172.839,\n"
+    "\t\t\t\"total\":\t0.0005\n"
+    "\t\t},\n"
+    "\t\t\"mrays_per_s\":\t0\n"
+    "\t}\n"
+    "}";
 
-static void hooks_fail_at(size_t k)
-{
-    fail_at = k;
-    allocations = 0;
-    cJSON_Hooks h = {.malloc_fn = counting_malloc, .free_fn = free};
-    cJSON_InitHooks(&h);
-}
+/* ---- tests ---------------------------------------------------------------- */
 
-static void hooks_reset(void) { cJSON_InitHooks(NULL); }
-
-static mr_frame_stats frame(int i)
-{
-    return (mr_frame_stats){.frame = i, .time = 0.25 * i, .pose_s = 0.01 * i, .bvh_s = 0.02,
-                            .bvh = i ? MR_BVH_REFIT : MR_BVH_BUILD, .trace_s = 0.1 + i,
-                            .encode_s = 0.03, .total_s = 0.2 + i, .rays = 1000u + (uint64_t)i,
-                            .mrays_per_s = 12.5, .triangles = 5126, .geometry_bytes = 4096,
-                            .bvh_bytes = 8192, .peak_rss_bytes = 1u << 20, .scene_diagonal = 2.5f,
-                            .assets_loaded = i == 0, .load_s = i == 0 ? 0.5 : 0};
-}
-
-static void test_stats_out_of_memory(void **state)
+static void test_frame_documents(void **state)
 {
     (void)state;
-    mr_frame_stats frames[4];
-    for (int i = 0; i < 4; i++)
-        frames[i] = frame(i);
-    mr_job job = {.name = "oom", .frame_count = 4,
-                  .output = {.width = 64, .height = 36, .spp = 1}};
-    mr_job_stats stats = {.frame_count = 4, .frames = frames, .threads = 2};
+    static const char *const want[] = {FRAME0, FRAME1, FRAME2};
+    for (int i = 0; i < 3; i++) {
+        mr_frame_stats f = frame_fixture(i);
+        char *s = mr_frame_stats_json(&f);
+        expect_text(s, want[i]);
+        free(s);
+    }
+}
+
+static void test_job_document(void **state)
+{
+    (void)state;
+    mr_frame_stats frames[3] = {frame_fixture(0), frame_fixture(1), frame_fixture(2)};
+    mr_job job = job_fixture();
+    mr_job_stats stats = {.frame_count = 3, .frames = frames, .threads = 2};
+    char *s = NULL;
     mr_error err = {0};
-
-    char *want = NULL;
-    hooks_fail_at(0);
-    assert_int_equal(mr_stats_to_json(&job, &stats, 0, &want, &err), MR_OK);
-    size_t total = allocations;
-    hooks_reset();
-    assert_non_null(want);
-    cJSON *doc = cJSON_Parse(want);
-    assert_non_null(doc);
-    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "frames")), 4);
-    cJSON_Delete(doc);
-    assert_true(total > 20);
-
-    size_t reported = 0;
-    for (size_t k = 1; k <= total; k++) {
-        char *got = (char *)&err; /* must come back NULL on failure */
-        err = (mr_error){0};
-        hooks_fail_at(k);
-        int rc = mr_stats_to_json(&job, &stats, 0, &got, &err);
-        hooks_reset();
-        if (rc == MR_OK) {
-            if (!got || strcmp(got, want) != 0)
-                fail_msg("allocation %zu of %zu failed, yet success was reported with a "
-                         "different document:\n%s", k, total, got ? got : "(null)");
-        } else {
-            assert_int_equal(rc, MR_ERR_NOMEM);
-            assert_int_equal(err.code, MR_ERR_NOMEM);
-            assert_non_null(strstr(err.msg, "out of memory"));
-            assert_null(got);
-            reported++;
-        }
-        if (rc == MR_OK)
-            free(got);
-    }
-    /* every allocation is needed for the document: each failure is reported */
-    assert_int_equal(reported, total);
-    free(want);
+    assert_int_equal(mr_stats_to_json(&job, &stats, 1, &s, &err), MR_OK);
+    expect_text(s, JOB_FROM_1);
+    free(s);
 }
 
-static void test_frame_stats_out_of_memory(void **state)
+static size_t type_size(mr_stat_type t)
+{
+    switch (t) {
+    case MR_STAT_INT: return sizeof(int);
+    case MR_STAT_U32: return sizeof(uint32_t);
+    case MR_STAT_U64: return sizeof(uint64_t);
+    case MR_STAT_F32: return sizeof(float);
+    case MR_STAT_F64: return sizeof(double);
+    case MR_STAT_BVH: return sizeof(mr_bvh_update);
+    default: return 0; /* derived: stored nowhere */
+    }
+}
+
+static int by_offset(const void *a, const void *b)
+{
+    const mr_stat_field *x = *(const mr_stat_field *const *)a, *y = *(const mr_stat_field *const *)b;
+    return (x->offset > y->offset) - (x->offset < y->offset);
+}
+
+static void test_field_table(void **state)
 {
     (void)state;
-    mr_frame_stats f = frame(0);
-    hooks_fail_at(0);
-    char *want = mr_frame_stats_json(&f);
-    size_t total = allocations;
-    hooks_reset();
-    assert_non_null(want);
-    assert_non_null(strstr(want, "\"cache\""));
-    for (size_t k = 1; k <= total; k++) {
-        hooks_fail_at(k);
-        char *got = mr_frame_stats_json(&f);
-        hooks_reset();
-        if (got && strcmp(got, want) != 0)
-            fail_msg("allocation %zu of %zu failed, yet a frame came back: %s", k, total, got);
-        free(got);
+    const mr_stat_field *stored[64];
+    size_t n = 0;
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *f = &mr_frame_stat_fields[i];
+        assert_non_null(f->name);
+        assert_non_null(f->unit);
+        assert_non_null(f->description);
+        /* a group's fields are consecutive: the writer opens each group once */
+        for (size_t j = 0; j + 1 < i; j++)
+            if (f->group && mr_frame_stat_fields[j].group == f->group)
+                assert_ptr_equal(mr_frame_stat_fields[i - 1].group, f->group);
+        for (size_t j = 0; j < i; j++)
+            if (mr_frame_stat_fields[j].group == f->group && !strcmp(mr_frame_stat_fields[j].name, f->name))
+                fail_msg("field '%s' appears twice in its group", f->name);
+        if (type_size(f->type)) {
+            assert_true(n < 64);
+            stored[n++] = f;
+        }
     }
-    free(want);
+    /* Every member before the extras is one field's, exactly: sorted by
+     * offset, each starts where the last one ended (up to padding). */
+    qsort(stored, n, sizeof *stored, by_offset);
+    size_t end = 0;
+    for (size_t i = 0; i < n; i++) {
+        if (stored[i]->offset < end || stored[i]->offset >= end + 8)
+            fail_msg("field '%s' at byte %zu: the member before it ends at %zu (a member without a "
+                     "table row, or two rows on one member)", stored[i]->name, stored[i]->offset, end);
+        end = stored[i]->offset + type_size(stored[i]->type);
+    }
+    assert_true(end <= offsetof(mr_frame_stats, extra_count) &&
+                end + 8 > offsetof(mr_frame_stats, extra_count));
+}
+
+static void test_read_back(void **state)
+{
+    (void)state;
+    static const char *const text[] = {FRAME0, FRAME1, FRAME2};
+    for (int i = 0; i < 3; i++) {
+        cJSON *o = cJSON_Parse(text[i]);
+        assert_non_null(o);
+        mr_frame_stats want = frame_fixture(i), got;
+        mr_frame_stats_from_json(o, (size_t)i, &got);
+        cJSON_Delete(o);
+        for (size_t k = 0; k < mr_frame_stat_field_count; k++) {
+            const mr_stat_field *f = &mr_frame_stat_fields[k];
+            if (mr_frame_stat_number(&got, f) != mr_frame_stat_number(&want, f))
+                fail_msg("frame %d: %s read back as %.17g, written as %.17g", i, f->name,
+                         mr_frame_stat_number(&got, f), mr_frame_stat_number(&want, f));
+        }
+        char *again = mr_frame_stats_json(&got);
+        expect_text(again, text[i]);
+        free(again);
+    }
+}
+
+static void test_extras(void **state)
+{
+    (void)state;
+    mr_frame_stats f = frame_fixture(0);
+    mr_error err = {0};
+    assert_int_equal(mr_frame_stats_add_extra(&f, "simulate_s", "s", 0.02, &err), MR_OK);
+    assert_int_equal(mr_frame_stats_add_extra(&f, "springs", "count", 1200, &err), MR_OK);
+    /* names the frame object already has, twice the same, not [a-z0-9_]+ */
+    static const char *const bad[] = {"rays", "seconds", "cache", "simulate_s", "", "Load", "a-b", NULL};
+    for (int i = 0; i < 8; i++)
+        assert_int_equal(mr_frame_stats_add_extra(&f, bad[i], "s", 1, &err), MR_ERR_INVALID);
+    assert_int_equal(f.extra_count, 2);
+
+    char want[sizeof FRAME0 + 64];
+    snprintf(want, sizeof want, "%.*s,\"simulate_s\":0.02,\"springs\":1200}", (int)strlen(FRAME0) - 1, FRAME0);
+    char *s = mr_frame_stats_json(&f);
+    expect_text(s, want);
+    free(s);
+
+    /* stats.json: the frame's entry carries them; totals and medians do not */
+    mr_frame_stats frames[2] = {f, frame_fixture(1)};
+    mr_job job = job_fixture();
+    mr_job_stats stats = {.frame_count = 2, .frames = frames, .threads = 2};
+    assert_int_equal(mr_stats_to_json(&job, &stats, 0, &s, &err), MR_OK);
+    cJSON *doc = cJSON_Parse(s);
+    free(s);
+    assert_non_null(doc);
+    cJSON *f0 = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 0);
+    assert_true(cJSON_GetObjectItem(f0, "simulate_s")->valuedouble == 0.02);
+    assert_true(cJSON_GetObjectItem(f0, "springs")->valuedouble == 1200);
+    assert_null(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 1), "springs"));
+    cJSON_Delete(doc);
+
+    static const char *const names[] = {"e0", "e1", "e2", "e3", "e4", "e5", "e6", "e7", "e8"};
+    mr_frame_stats full = frame_fixture(1);
+    for (int i = 0; i < MR_FRAME_EXTRAS_MAX; i++)
+        assert_int_equal(mr_frame_stats_add_extra(&full, names[i], "", i, &err), MR_OK);
+    assert_int_equal(mr_frame_stats_add_extra(&full, names[MR_FRAME_EXTRAS_MAX], "", 9, &err), MR_ERR_LIMIT);
+}
+
+static void test_openapi_current(void **state)
+{
+    (void)state;
+    const char *src = getenv("MR_SOURCE_DIR");
+    char path[4096];
+    snprintf(path, sizeof path, "%s/schemas/openapi.yaml", src ? src : ".");
+    bool stale = true;
+    mr_error err = {0};
+    if (mr_stats_openapi_update(path, false, &stale, &err) < 0)
+        fail_msg("%s", err.msg);
+    if (stale)
+        fail_msg("%s: the frame-stats schemas differ from the field table in core/render/frame_stats.c: "
+                 "run `make openapi`", path);
 }
 
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_stats_out_of_memory),
-        cmocka_unit_test(test_frame_stats_out_of_memory),
+        cmocka_unit_test(test_frame_documents),
+        cmocka_unit_test(test_job_document),
+        cmocka_unit_test(test_field_table),
+        cmocka_unit_test(test_read_back),
+        cmocka_unit_test(test_extras),
+        cmocka_unit_test(test_openapi_current),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

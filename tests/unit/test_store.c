@@ -36,23 +36,12 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/clock.h"
+#include "util/hex.h"
 #include "util/sha256.h"
 #include "store.h"
 
 /* ---- helpers ---------------------------------------------------------------- */
-
-static double mono(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
-
-static void hex_of(const uint8_t d[32], char hex[65])
-{
-    for (int i = 0; i < 32; i++)
-        snprintf(hex + 2 * i, 3, "%02x", d[i]);
-}
 
 /* Removes a directory tree (the test directories are at most three deep). */
 static void rm_rf(const char *path)
@@ -222,7 +211,7 @@ static void test_sha256_nist_vectors(void **state)
     for (int i = 0; i < 1000; i++)
         mr_sha256_update(&s, a, 1000);
     mr_sha256_final(&s, d);
-    hex_of(d, hex);
+    mr_hex_encode(d, 32, hex);
     assert_string_equal(hex, million);
     free(a);
 }
@@ -273,7 +262,7 @@ static void test_sha256_split_updates(void **state)
         mr_sha256_update(&s, msg, cut);
         mr_sha256_update(&s, msg + cut, sizeof msg - cut);
         mr_sha256_final(&s, d);
-        hex_of(d, hex);
+        mr_hex_encode(d, 32, hex);
         if (strcmp(hex, expect) != 0)
             fail_msg("split at %zu: %s", cut, hex);
     }
@@ -289,7 +278,7 @@ static void test_sha256_split_updates(void **state)
             off += n;
         }
         mr_sha256_final(&s, d);
-        hex_of(d, hex);
+        mr_hex_encode(d, 32, hex);
         if (strcmp(hex, expect) != 0)
             fail_msg("pieces of %zu: %s", pieces[p], hex);
     }
@@ -303,7 +292,7 @@ static void test_sha256_split_updates(void **state)
         off += n;
     }
     mr_sha256_final(&s, d);
-    hex_of(d, hex);
+    mr_hex_encode(d, 32, hex);
     assert_string_equal(hex, expect);
 }
 
@@ -1130,10 +1119,10 @@ static void test_large_job(void **state)
     const size_t frames = 100000;
     char id[33];
     bool existing;
-    double t0 = mono();
+    double t0 = mr_now();
     ok(mr_store_job_create(fx->st, "{}", 2, "big", frames, 0, 2, NULL, NULL, id, &existing, &err),
        &err);
-    double t_create = mono() - t0;
+    double t_create = mr_now() - t0;
 
     mr_job_record r = get_job(fx->st, id);
     assert_int_equal(r.frame_count, frames);
@@ -1143,22 +1132,22 @@ static void test_large_job(void **state)
     static char exr[64 * 1024];
     for (size_t i = 0; i < sizeof exr; i++)
         exr[i] = (char)(i * 7);
-    t0 = mono();
+    t0 = mr_now();
     for (size_t i = 0; i < DONE; i++)
         ok(mr_store_frame_done(fx->st, id, i * 1999, exr, sizeof exr, "{\"x\":1}", &err), &err);
-    double t_done = (mono() - t0) / DONE;
+    double t_done = (mr_now() - t0) / DONE;
 
-    t0 = mono();
+    t0 = mr_now();
     for (int i = 0; i < 20; i++)
         r = get_job(fx->st, id);
-    double t_get = (mono() - t0) / 20;
+    double t_get = (mr_now() - t0) / 20;
     assert_int_equal(r.frames_done, DONE);
 
     mr_frame_record *list = NULL;
     size_t n = 0;
-    t0 = mono();
+    t0 = mr_now();
     ok(mr_store_frames(fx->st, id, &list, &n, &err), &err);
-    double t_frames = mono() - t0;
+    double t_frames = mr_now() - t0;
     assert_int_equal(n, frames);
     assert_int_equal(list[frames - 1].index, frames - 1);
     assert_int_equal(list[1999].state, MR_FRAME_DONE);
@@ -1172,15 +1161,15 @@ static void test_large_job(void **state)
     assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
     assert_int_equal(sqlite3_exec(db, "UPDATE frames SET state = 2", NULL, NULL, NULL), SQLITE_OK);
     sqlite3_close(db);
-    t0 = mono();
+    t0 = mr_now();
     for (int i = 0; i < 20; i++)
         r = get_job(fx->st, id);
-    double t_get_all = (mono() - t0) / 20;
+    double t_get_all = (mr_now() - t0) / 20;
     assert_int_equal(r.frames_done, frames);
 
-    t0 = mono();
+    t0 = mr_now();
     ok(mr_store_job_delete(fx->st, id, &err), &err);
-    double t_delete = mono() - t0;
+    double t_delete = mr_now() - t0;
 
     printf("[ timing   ] create 100000-frame job %.1f ms; frame_done (64 KiB) %.2f ms each; "
            "job_get %.3f ms (%.2f ms with 100000 frames done); frames list %.1f ms; "

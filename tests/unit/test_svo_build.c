@@ -25,9 +25,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <cmocka.h>
 
+#include "util/clock.h"
 #include "util/morton.h"
 #include "util/radix_sort.h"
 #include "kinds/svo/svo.h"
@@ -591,13 +591,6 @@ static void test_normals(void **state)
 
 /* ---- timing ---- */
 
-static double now_s(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
-
 /* Surface voxels of a few spheres at depth 12 (shell of half-width 0.87
  * voxel around each radius), in shuffled order: ~10 M keys with the prefix
  * sharing of real surfaces, ~1 M by default; MR_SVO_TIMING_SCALE=1 gives the
@@ -648,16 +641,16 @@ static void test_build_timing(void **state)
         k[j] = t;
     }
     mr_error err = {0};
-    double t0 = now_s();
+    double t0 = mr_now();
     assert_int_equal(mr_svo_radix_sort_payload(k, pay, n, NULL, NULL, 0, &err), MR_OK);
-    double t1 = now_s();
+    double t1 = mr_now();
     size_t kept;
     assert_int_equal(mr_svo_compact(k, n, depth, pay, &kept, &err), MR_OK);
-    double t2 = now_s();
+    double t2 = mr_now();
     mr_svo svo;
     if (mr_svo_build(k, NULL, kept, depth, mr_v3(0, 0, 0), 1.0f, palette3, 1, 0, &svo, &err) != MR_OK)
         fail_msg("%s", err.msg);
-    double t3 = now_s();
+    double t3 = mr_now();
     size_t bytes = mr_svo_memory(&svo);
     size_t keys_bytes = (size_t)svo.leaf_count * sizeof *svo.leaf_keys;
     printf("timing (depth %u, %zu keys, %zu unique, %u threads): sort %.0f ms, compact %.0f ms, build %.0f ms\n",

@@ -8,11 +8,18 @@
  * ours passes. Radix sort: against qsort by (code, level, input index) - the
  * stable order, so payloads must match too - for sizes 0, 1, 2, 1000, 10^6,
  * with duplicates, arbitrary 32-bit levels, caller scratch, and identical
- * output for 1, 2 and 7 threads. Everything is exact integer comparison.
+ * output for 1, 2 and 7 threads. The 64-bit key sort: against qsort by
+ * (key, input index) for arbitrary words, packed voxel keys, a single
+ * varying bit and keys that are all equal, with and without unpacking, with
+ * its own or the caller's histograms, on one block and on several (1, 2, 3
+ * and 7 threads); and packed keys sorted and unpacked equal the 16-byte
+ * sort of the same keys, payloads included. Everything is exact integer
+ * comparison.
  */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -280,6 +287,118 @@ static void test_sort_thread_independent(void **state)
     }
 }
 
+/* ---- 64-bit keys -------------------------------------------------------- */
+
+/* kind 0: arbitrary words; 1: packed voxel keys of a depth-12 octree with
+ * three levels and many duplicates; 2: one varying bit (bit 61); 3: all
+ * keys equal. */
+static void make_u64(uint64_t *k, size_t n, unsigned kind, uint64_t seed)
+{
+    uint64_t s = seed;
+    for (size_t i = 0; i < n; i++) {
+        uint64_t r = rng_next(&s);
+        if (kind == 0)
+            k[i] = r;
+        else if (kind == 1)
+            k[i] = mr_svo_key_pack((r & ((1ull << 36) - 1)) & ~0xfffull, 12 - (unsigned)((r >> 40) % 3));
+        else if (kind == 2)
+            k[i] = 0x5ull | ((r & 1) << 61);
+        else
+            k[i] = 0x123456789ull;
+    }
+}
+
+/* The reference is ref_cmp's stable order of (key as code, level 0). */
+static void check_u64_against_qsort(size_t n, unsigned kind, unsigned threads, bool unpack, bool own_hist)
+{
+    void *mem[7] = {NULL};
+    uint64_t *keys = mem[0] = calloc(n + 1, sizeof *keys);
+    uint64_t *ks = mem[1] = calloc(n + 1, sizeof *ks);
+    uint32_t *pay = mem[2] = calloc(n + 1, sizeof *pay);
+    uint32_t *ps = mem[3] = calloc(n + 1, sizeof *ps);
+    ref_entry *ref = mem[4] = calloc(n + 1, sizeof *ref);
+    mr_svo_key *out = mem[5] = unpack ? calloc(n + 1, sizeof *out) : NULL;
+    assert_true(keys && ks && pay && ps && ref && (!unpack || out));
+    make_u64(keys, n, kind, 77 + n + kind);
+    uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
+    for (size_t i = 0; i < n; i++) {
+        pay[i] = (uint32_t)i;
+        ref[i] = (ref_entry){{keys[i], 0}, (uint32_t)i};
+        bits_or |= keys[i];
+        bits_and &= keys[i];
+    }
+    qsort(ref, n, sizeof *ref, ref_cmp);
+    mr_radix_u64 sort = {.keys = keys, .key_scratch = ks, .payload = pay, .payload_scratch = ps,
+                         .count = n, .varying = bits_or ^ bits_and, .unpack = out,
+                         .threads = threads};
+    if (own_hist) {
+        sort.hist = mem[6] = malloc((mr_radix_sort_u64_hist_words(&sort) + 1) * sizeof *sort.hist);
+        assert_non_null(sort.hist);
+    }
+    mr_error err = {0};
+    assert_int_equal(mr_radix_sort_u64(&sort, &err), MR_OK);
+    assert_non_null(sort.sorted_payload);
+    assert_true(unpack ? sort.sorted_keys == NULL : sort.sorted_keys != NULL);
+    for (size_t i = 0; i < n; i++) {
+        const uint64_t want = ref[i].key.code;
+        bool same = unpack ? out[i].code == mr_svo_key_unpack(want).code &&
+                                 out[i].level == mr_svo_key_unpack(want).level
+                           : sort.sorted_keys[i] == want;
+        if (!same || sort.sorted_payload[i] != ref[i].index)
+            fail_msg("n=%zu kind=%u threads=%u unpack=%d: entry %zu (payload %u) differs from the stable "
+                     "order (payload %u)", n, kind, threads, unpack, i, sort.sorted_payload[i], ref[i].index);
+    }
+    for (int k = 0; k < 7; k++)
+        free(mem[k]);
+}
+
+static void test_u64_sort_vs_qsort(void **state)
+{
+    (void)state;
+    const size_t sizes[] = {0, 1, 2, 3, 1000, 200000};
+    const unsigned threads[] = {1, 2, 3, 7};
+    for (unsigned s = 0; s < sizeof sizes / sizeof sizes[0]; s++)
+        for (unsigned kind = 0; kind < 4; kind++)
+            for (unsigned t = 0; t < sizeof threads / sizeof threads[0]; t++) {
+                if (sizes[s] < 100000 && t > 1)
+                    continue; /* one block either way */
+                check_u64_against_qsort(sizes[s], kind, threads[t], false, t % 2 == 0);
+                if (kind != 0) /* arbitrary words are no packed keys */
+                    check_u64_against_qsort(sizes[s], kind, threads[t], true, t % 2 == 1);
+            }
+}
+
+/* The per-frame resampling sorts packed keys below MR_SVO_KEY_PACK_MAX_DEPTH
+ * and 16-byte keys beyond: both must give the same order. */
+static void test_u64_sort_matches_key_sort(void **state)
+{
+    (void)state;
+    const size_t n = 300000;
+    void *mem[7];
+    mr_svo_key *k = mem[0] = malloc(n * sizeof *k), *out = mem[1] = malloc(n * sizeof *out);
+    uint64_t *pk = mem[2] = malloc(n * sizeof *pk), *pk2 = mem[3] = malloc(n * sizeof *pk2);
+    uint32_t *pay = mem[4] = malloc(n * sizeof *pay), *pay2 = mem[5] = malloc(n * sizeof *pay2);
+    uint32_t *kp = mem[6] = malloc(n * sizeof *kp);
+    assert_true(k && out && pk && pk2 && pay && pay2 && kp);
+    make_keys(k, n, 0, 5);
+    uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
+    for (size_t i = 0; i < n; i++) {
+        pk[i] = mr_svo_key_pack(k[i].code, k[i].level);
+        bits_or |= pk[i];
+        bits_and &= pk[i];
+        pay[i] = kp[i] = (uint32_t)i;
+    }
+    mr_radix_u64 sort = {.keys = pk, .key_scratch = pk2, .payload = pay, .payload_scratch = pay2,
+                         .count = n, .varying = bits_or ^ bits_and, .unpack = out, .threads = 2};
+    assert_int_equal(mr_radix_sort_u64(&sort, NULL), MR_OK);
+    assert_int_equal(mr_svo_radix_sort_payload(k, kp, n, NULL, NULL, 3, NULL), MR_OK);
+    for (size_t i = 0; i < n; i++)
+        if (out[i].code != k[i].code || out[i].level != k[i].level || sort.sorted_payload[i] != kp[i])
+            fail_msg("packed and 16-byte sorts differ at %zu", i);
+    for (int m = 0; m < 7; m++)
+        free(mem[m]);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -289,6 +408,8 @@ int main(void)
         cmocka_unit_test(test_sort_vs_qsort),
         cmocka_unit_test(test_sort_odd_passes),
         cmocka_unit_test(test_sort_thread_independent),
+        cmocka_unit_test(test_u64_sort_vs_qsort),
+        cmocka_unit_test(test_u64_sort_matches_key_sort),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -17,11 +17,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <cmocka.h>
 
 #include "anim/pose.h"
 #include "asset/asset.h"
+#include "util/clock.h"
 #include "util/morton.h"
 #include "kinds/svo/skeleton.h"
 #include "kinds/svo/voxelize.h"
@@ -31,13 +31,6 @@
 #define SPIDER "/usr/share/assimp/models/OBJ/spider.obj"
 #define WUSON "/usr/share/assimp/models/OBJ/WusonOBJ.obj"
 #define PI 3.14159265358979323846
-
-static double now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
 
 /* ---------------------------------------------------------------------- */
 /* generated shapes                                                       */
@@ -184,11 +177,11 @@ static mr_svo *voxelize(const mr_asset *a, unsigned depth, mr_svo_voxelize_mode 
 static void skeletonize(const mr_svo *svo, const mr_svo_skeleton_params *p, mr_svo_skeleton *s, double *seconds)
 {
     mr_error err = {0};
-    const double t0 = now();
+    const double t0 = mr_now();
     if (mr_svo_skeletonize(svo, p, s, &err) != MR_OK)
         fail_msg("skeletonize: %s", err.msg);
     if (seconds)
-        *seconds = now() - t0;
+        *seconds = mr_now() - t0;
 }
 
 /* Skeleton degree of every bone (edges of the forest). */
@@ -357,9 +350,9 @@ static void test_plus_branch(void **state)
  * bound. The spider has 8 legs, so at least 8 end features. */
 static void model_case(const char *name, mr_asset *a, mr_svo_voxelize_mode mode, unsigned min_ends)
 {
-    const double t0 = now();
+    const double t0 = mr_now();
     mr_svo *svo = voxelize(a, 7, mode);
-    const double t1 = now();
+    const double t1 = mr_now();
     mr_svo_skeleton s;
     double secs;
     skeletonize(svo, NULL, &s, &secs);
@@ -697,10 +690,10 @@ static void test_rig_rest(void **state)
     check_rig_structure(&c);
     check_rest(&c);
     rig_free(&c);
-    const double t0 = now();
+    const double t0 = mr_now();
     rig_make(&c, load(SPIDER), 7);
     print_message("spider rig: %u bones, %u palette entries, %.3f s (voxelize + skeletonize + rig)\n", c.s.bone_count,
-                  c.rsvo->palette_count, now() - t0);
+                  c.rsvo->palette_count, mr_now() - t0);
     check_rig_structure(&c);
     check_rest(&c);
     rig_free(&c);

@@ -31,6 +31,7 @@
  * same t exactly and grazes count as hits on both sides, so the comparison
  * is exact: same hit/miss, same t bit for bit.
  */
+#include "util/clock.h"
 #include "../support/svo_fixture.h"
 
 
@@ -306,13 +307,6 @@ static int cls_shell(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t
     return FX_SPLIT;
 }
 
-static double now_seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 /* Throughput on ~1M leaves, printed once, never asserted. Also spot-checks
  * a few hundred of the rays against the brute force. */
 static void test_throughput(void **state)
@@ -337,16 +331,16 @@ static void test_throughput(void **state)
         d[i] = mr_v3_sub(tgt, o[i]);
     }
     long hits = 0;
-    const double t0 = now_seconds();
+    const double t0 = mr_now();
     for (int i = 0; i < N; i++) {
         mr_svo_hit h;
         hits += mr_svo_intersect(&fx.svo, o[i], d[i], 0.0f, INFINITY, &h);
     }
-    const double t1 = now_seconds();
+    const double t1 = mr_now();
     long occ = 0;
     for (int i = 0; i < N; i++)
         occ += mr_svo_occluded(&fx.svo, o[i], d[i], 0.0f, INFINITY);
-    const double t2 = now_seconds();
+    const double t2 = mr_now();
     assert_int_equal(hits, occ);
     assert_true(hits > N / 4);
     printf("svo_trace: %u leaves, %u nodes (depth 10 sphere shell), %d rays (%.0f%% hit): intersect %.2f Mrays/s, "

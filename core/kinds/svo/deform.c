@@ -918,20 +918,11 @@ cleanup:
 /* ------------------------------------------------------------------------ */
 /* Resampling                                                               */
 
-/* Packed sort keys: code << 5 | level (levels < 32), one uint64 while
- * 3 * depth + 5 <= 64. The shared radix sort moves 16-byte keys plus the
- * payload and sorts every varying digit of level and code separately; the
- * packed key is half the bytes and sorts level and code together, so the
- * per-frame sort (most of a resampling) moves less and takes fewer
- * passes. Deeper output octrees use the shared sort. */
-#define PACK_LEVEL_BITS 5u
-#define PACK_MAX_DEPTH ((64u - PACK_LEVEL_BITS) / 3u)
-/* Digits of at most this many bits: 2^10 buckets of 8 + 4 bytes stay in L2
- * while scattering. */
-#define PK_MAX_BITS 10u
-/* Below this many keys per block, threads cost more than they save. */
-#define PK_MIN_PER_BLOCK 32768u
-#define PK_MAX_BLOCKS 64u
+/* Cells are sorted as packed keys (mr_svo_key_pack, radix_sort.h) while
+ * the output octree is at most MR_SVO_KEY_PACK_MAX_DEPTH deep: the 16-byte
+ * sort moves twice the bytes and sorts every varying digit of level and
+ * code separately, and the per-frame sort is most of a resampling. Deeper
+ * output octrees use the 16-byte sort. */
 /* Dilated (Morton) bits of one axis: x at bits 0, 3, ..., 60. */
 #define MORTON_X 0x1249249249249249ull
 
@@ -1148,7 +1139,7 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
                     for (uint32_t x = r[0]; x < r[3]; x++, dx = dilated_next(dx, mx, ux)) {
                         const uint64_t code = dx | dy | dz;
                         if (c->packed) {
-                            const uint64_t k = code << PACK_LEVEL_BITS | l;
+                            const uint64_t k = mr_svo_key_pack(code, l);
                             c->pk[o] = k;
                             bits_or |= k;
                             bits_and &= k;
@@ -1165,141 +1156,6 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
         c->chunk_bits[2 * ch] = bits_or;
         c->chunk_bits[2 * ch + 1] = bits_and;
     }
-}
-
-/* ---- the packed sort: stable LSD radix over the varying bits ---------- */
-
-typedef struct pk_sort {
-    uint64_t *src, *dst;
-    uint32_t *src_p, *dst_p;
-    mr_svo_key *out;       /* the last pass unpacks into it */
-    size_t count;
-    unsigned blocks, passes, pass, shift, bits;
-    uint32_t *hist;        /* blocks * RADIX per pass (or all passes at once) */
-    bool all;              /* count every pass's digits in one read */
-} pk_sort;
-
-static void pk_block(const pk_sort *s, size_t b, size_t *lo, size_t *hi)
-{
-    *lo = s->count * b / s->blocks;
-    *hi = s->count * (b + 1) / s->blocks;
-}
-
-static void pk_count(void *vctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    pk_sort *s = vctx;
-    const size_t radix = (size_t)1 << s->bits;
-    const uint64_t mask = radix - 1;
-    const unsigned p0 = s->all ? 0 : s->pass, p1 = s->all ? s->passes : s->pass + 1;
-    for (size_t b = begin; b < end; b++) {
-        size_t lo, hi;
-        pk_block(s, b, &lo, &hi);
-        uint32_t *h = s->hist + b * radix * (p1 - p0);
-        memset(h, 0, radix * (p1 - p0) * sizeof *h);
-        for (unsigned p = p0; p < p1; p++) {
-            uint32_t *hp = h + (p - p0) * radix;
-            const unsigned sh = s->shift + p * s->bits;
-            for (size_t i = lo; i < hi; i++)
-                hp[(s->src[i] >> sh) & mask]++;
-        }
-    }
-}
-
-static void pk_scatter(void *vctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    pk_sort *s = vctx;
-    const size_t radix = (size_t)1 << s->bits;
-    const uint64_t mask = radix - 1;
-    const unsigned sh = s->shift + s->pass * s->bits;
-    const bool last = s->pass + 1 == s->passes;
-    for (size_t b = begin; b < end; b++) {
-        size_t lo, hi;
-        pk_block(s, b, &lo, &hi);
-        uint32_t *off = s->hist + b * radix * (s->all ? s->passes : 1) + (s->all ? s->pass * radix : 0);
-        if (last) {
-            for (size_t i = lo; i < hi; i++) {
-                const uint64_t k = s->src[i];
-                const uint32_t at = off[(k >> sh) & mask]++;
-                s->out[at].code = k >> PACK_LEVEL_BITS;
-                s->out[at].level = (uint32_t)(k & ((1u << PACK_LEVEL_BITS) - 1u));
-                s->dst_p[at] = s->src_p[i];
-            }
-        } else {
-            for (size_t i = lo; i < hi; i++) {
-                const uint64_t k = s->src[i];
-                const uint32_t at = off[(k >> sh) & mask]++;
-                s->dst[at] = k;
-                s->dst_p[at] = s->src_p[i];
-            }
-        }
-    }
-}
-
-/* Sorts count packed keys (whose bits outside `varying` are all equal)
- * with their payloads into out / *payload (pointing at pay or pay2
- * afterwards). pk2, pay2: scratch of count each. */
-static int pk_sort_run(uint64_t *pk, uint64_t *pk2, uint32_t *pay, uint32_t *pay2, size_t count,
-                       uint64_t varying, unsigned threads, mr_svo_workspace *ws, mr_svo_key *out,
-                       uint32_t **payload, mr_error *err)
-{
-    pk_sort s = {.src = pk, .dst = pk2, .src_p = pay, .dst_p = pay2, .out = out, .count = count};
-    if (varying == 0) {
-        /* one pass on a constant digit: a stable copy that unpacks */
-        s.shift = 0;
-        s.bits = 1;
-        s.passes = 1;
-    } else {
-        const unsigned lo = (unsigned)__builtin_ctzll(varying), hi = 64u - (unsigned)__builtin_clzll(varying);
-        s.passes = (hi - lo + PK_MAX_BITS - 1) / PK_MAX_BITS;
-        s.bits = (hi - lo + s.passes - 1) / s.passes;
-        s.shift = lo;
-    }
-    if (threads == 0)
-        threads = mr_cpu_count();
-    size_t blocks = count / PK_MIN_PER_BLOCK;
-    if (blocks > threads)
-        blocks = threads;
-    if (blocks > PK_MAX_BLOCKS)
-        blocks = PK_MAX_BLOCKS;
-    if (blocks == 0)
-        blocks = 1;
-    s.blocks = (unsigned)blocks;
-    /* One block: its digit counts are the whole array's, which no pass
-     * changes, so all passes are counted in one read. Several: each pass
-     * counts the blocks of its own input. */
-    s.all = blocks == 1;
-    const size_t radix = (size_t)1 << s.bits;
-    s.hist = ws_get(ws, WS_RS_HIST, blocks * radix * (s.all ? s.passes : 1), sizeof *s.hist);
-    if (!s.hist)
-        return mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (sort histograms)");
-    if (s.all)
-        pk_count(&s, 0, 1, 0);
-    for (unsigned p = 0; p < s.passes; p++) {
-        s.pass = p;
-        if (!s.all)
-            mr_parallel_for(threads, blocks, 1, pk_count, &s);
-        uint32_t *h = s.hist + (s.all ? p * radix : 0);
-        const size_t stride = s.all ? radix * s.passes : radix;
-        uint32_t run = 0;
-        for (size_t d = 0; d < radix; d++) {
-            for (size_t b = 0; b < blocks; b++) {
-                const uint32_t n = h[b * stride + d];
-                h[b * stride + d] = run;
-                run += n;
-            }
-        }
-        mr_parallel_for(threads, blocks, 1, pk_scatter, &s);
-        uint64_t *t = s.src;
-        s.src = s.dst;
-        s.dst = t;
-        uint32_t *tp = s.src_p;
-        s.src_p = s.dst_p;
-        s.dst_p = tp;
-    }
-    *payload = s.src_p;
-    return MR_OK;
 }
 
 int mr_svo_resample(const mr_svo_selection *sel, mr_svo_method method, unsigned depth,
@@ -1349,7 +1205,7 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     c.sel = sel;
     c.method = method;
     c.depth = depth;
-    c.packed = depth <= PACK_MAX_DEPTH;
+    c.packed = depth <= MR_SVO_KEY_PACK_MAX_DEPTH;
     int rc = MR_OK;
     const size_t n = sel->count, chunks = (n + RS_CHUNK - 1) / RS_CHUNK;
     c.chunk_lo = ws_get(ws, WS_RS_LO, chunks, sizeof *c.chunk_lo);
@@ -1447,8 +1303,14 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
             bits_or |= c.chunk_bits[2 * ch];
             bits_and &= c.chunk_bits[2 * ch + 1];
         }
-        rc = pk_sort_run(pk, pk2, payload, payload2, (size_t)total, bits_or ^ bits_and, threads, ws, keys,
-                         &payload, err);
+        mr_radix_u64 sort = {.keys = pk, .key_scratch = pk2, .payload = payload,
+                             .payload_scratch = payload2, .count = (size_t)total,
+                             .varying = bits_or ^ bits_and, .unpack = keys, .threads = threads};
+        sort.hist = ws_get(ws, WS_RS_HIST, mr_radix_sort_u64_hist_words(&sort), sizeof *sort.hist);
+        if (!sort.hist)
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (sort histograms)");
+        else if ((rc = mr_radix_sort_u64(&sort, err)) == MR_OK)
+            payload = sort.sorted_payload;
     } else {
         rc = mr_svo_radix_sort_payload(keys, payload, (size_t)total, keys2, payload2, threads, err);
     }

@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "anim/pose.h"
+#include "util/dup.h"
 #include "util/morton.h"
 #include "kinds/svo/voxelize.h"
 #include "util/parallel.h"
@@ -1303,25 +1304,6 @@ int mr_svo_skeleton_weights(const mr_svo *svo, const mr_svo_skeleton *s, const m
 /* ------------------------------------------------------------------------ */
 /* rig                                                                       */
 
-static char *sk_strdup(const char *s)
-{
-    const size_t n = strlen(s) + 1u;
-    char *d = malloc(n);
-    if (d)
-        memcpy(d, s, n);
-    return d;
-}
-
-static void *sk_memdup(const void *src, size_t bytes)
-{
-    if (!src || bytes == 0)
-        return NULL;
-    void *d = malloc(bytes);
-    if (d)
-        memcpy(d, src, bytes);
-    return d;
-}
-
 /* Does name spell "bone<k>" for some k < count (canonical decimal)? */
 static bool sk_is_bone_name(const char *name, uint32_t count)
 {
@@ -1534,12 +1516,12 @@ int mr_svo_skeleton_rig(const mr_asset *asset, const mr_svo *svo, const mr_svo_s
     o->leaf_keys = NULL;
     o->palette = NULL;
     o->palette_count = 0;
-    o->first_node = sk_memdup(svo->first_node, (size_t)nn * sizeof *svo->first_node);
-    o->first_leaf = sk_memdup(svo->first_leaf, (size_t)nn * sizeof *svo->first_leaf);
-    o->child_mask = sk_memdup(svo->child_mask, nn);
-    o->leaf_mask = sk_memdup(svo->leaf_mask, nn);
-    o->leaves = sk_memdup(svo->leaves, (size_t)nl * sizeof *svo->leaves);
-    o->leaf_keys = sk_memdup(svo->leaf_keys, (size_t)nl * sizeof *svo->leaf_keys);
+    o->first_node = mr_memdup(svo->first_node, (size_t)nn * sizeof *svo->first_node);
+    o->first_leaf = mr_memdup(svo->first_leaf, (size_t)nn * sizeof *svo->first_leaf);
+    o->child_mask = mr_memdup(svo->child_mask, nn);
+    o->leaf_mask = mr_memdup(svo->leaf_mask, nn);
+    o->leaves = mr_memdup(svo->leaves, (size_t)nl * sizeof *svo->leaves);
+    o->leaf_keys = mr_memdup(svo->leaf_keys, (size_t)nl * sizeof *svo->leaf_keys);
     o->palette = malloc(MR_SVO_MAX_PALETTE * sizeof *o->palette);
     lj = malloc(((size_t)nl + 1u) * MR_SVO_INFLUENCES * sizeof *lj);
     lw = malloc(((size_t)nl + 1u) * MR_SVO_INFLUENCES * sizeof *lw);
@@ -1577,7 +1559,7 @@ int mr_svo_skeleton_rig(const mr_asset *asset, const mr_svo *svo, const mr_svo_s
         char name[32];
         snprintf(name, sizeof name, "bone%u", b);
         mr_node *nd = &a->nodes[n0 + b];
-        if (!(nd->name = sk_strdup(name)))
+        if (!(nd->name = mr_strdup(name)))
             goto nomem;
         a->node_count = n0 + b + 1u;
         const mr_vec3 q = s->position[b];
@@ -1598,14 +1580,14 @@ int mr_svo_skeleton_rig(const mr_asset *asset, const mr_svo *svo, const mr_svo_s
         mr_mesh *dst = &a->meshes[mi];
         const uint32_t nv = src->vertex_count;
         dst->node = src->node;
-        if (src->name && !(dst->name = sk_strdup(src->name)))
+        if (src->name && !(dst->name = mr_strdup(src->name)))
             goto nomem;
         dst->vertex_count = nv;
         dst->triangle_count = src->triangle_count;
         dst->positions = malloc(((size_t)nv + 1u) * 3u * sizeof *dst->positions);
         dst->normals = malloc(((size_t)nv + 1u) * 3u * sizeof *dst->normals);
-        dst->indices = sk_memdup(src->indices, (size_t)src->triangle_count * 3u * sizeof *src->indices);
-        dst->uvs = sk_memdup(src->uvs, (size_t)nv * 2u * sizeof *src->uvs);
+        dst->indices = mr_memdup(src->indices, (size_t)src->triangle_count * 3u * sizeof *src->indices);
+        dst->uvs = mr_memdup(src->uvs, (size_t)nv * 2u * sizeof *src->uvs);
         dst->joint_nodes = malloc((size_t)s->bone_count * sizeof *dst->joint_nodes);
         dst->inverse_bind = malloc((size_t)s->bone_count * sizeof *dst->inverse_bind);
         dst->joints = malloc(((size_t)nv + 1u) * MR_MAX_INFLUENCES * sizeof *dst->joints);

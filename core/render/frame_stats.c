@@ -1,0 +1,132 @@
+/* frame_stats.c - the frame-stats field table and its accessors (frame_stats.h). */
+#include "render/frame_stats.h"
+
+#include <limits.h>
+#include <string.h>
+
+const char *mr_bvh_update_name(mr_bvh_update u)
+{
+    switch (u) {
+    case MR_BVH_BUILD: return "build";
+    case MR_BVH_REFIT: return "refit";
+    default: return "none";
+    }
+}
+
+const mr_stat_group mr_stat_group_seconds = {
+    "seconds", "Seconds spent per stage of the frame; the job's totals and medians sum them up.",
+    false};
+const mr_stat_group mr_stat_group_bytes = {"bytes", "Memory held while the frame was rendered.",
+                                           false};
+const mr_stat_group mr_stat_group_cache = {
+    "cache", "What the scene cache did for the job's assets (only on the frame that asked it: the first).",
+    true};
+
+#define AT(member) offsetof(mr_frame_stats, member)
+/* The per-stage timings (doubles of seconds) and the memory figures
+ * (uint64 counts of bytes). */
+#define SECONDS(key, member, what) {&mr_stat_group_seconds, key, MR_STAT_F64, AT(member), "s", what}
+#define BYTES(key, member, what) {&mr_stat_group_bytes, key, MR_STAT_U64, AT(member), "bytes", what}
+/* A field made from others when written (stored nowhere). */
+#define DERIVED(group, key, type, what) {group, key, type, 0, "", what}
+
+const mr_stat_field mr_frame_stat_fields[] = {
+    {NULL, "frame", MR_STAT_INT, AT(frame), "", "The frame's index in the job."},
+    {NULL, "time", MR_STAT_F64, AT(time), "s", "The frame's time on the job's timeline."},
+    DERIVED(NULL, "file", MR_STAT_FRAME_FILE, "The frame's EXR file, NNNN.exr."),
+    SECONDS("load", load_s, "Asset import (or scene-cache lookup), charged to the first frame."),
+    SECONDS("pose", pose_s, "Pose evaluation and deformation."),
+    SECONDS("bvh", bvh_s, "Embree's build or refit of the tree."),
+    SECONDS("trace", trace_s, "Primary and shadow rays with shading."),
+    SECONDS("encode", encode_s, "EXR encoding and writing."),
+    SECONDS("total", total_s, "Everything for this frame, encode included."),
+    {NULL, "bvh", MR_STAT_BVH, AT(bvh), "",
+     "What happened to the tree: build (first frame), refit (later frames of animated scenes) or "
+     "none (nothing moved)."},
+    {NULL, "rays", MR_STAT_U64, AT(rays), "count", "Primary and shadow rays traced."},
+    {NULL, "mrays_per_s", MR_STAT_F64, AT(mrays_per_s), "Mrays/s", "Rays / trace seconds / 10^6."},
+    {NULL, "triangles", MR_STAT_U64, AT(triangles), "count", "Primitives in the scene."},
+    BYTES("geometry", geometry_bytes, "microray's vertex, normal and index arrays."),
+    BYTES("bvh", bvh_bytes, "What Embree itself holds (its memory monitor: the acceleration structure)."),
+    BYTES("peak_rss", peak_rss_bytes, "The process's peak resident set so far."),
+    {NULL, "scene_diagonal", MR_STAT_F32, AT(scene_diagonal), "scene units",
+     "Bounding-box diagonal of the frame's scene, the unit of depth errors."},
+    DERIVED(&mr_stat_group_cache, "result", MR_STAT_CACHE_RESULT,
+            "hit (every asset came from the cache), partial or miss."),
+    {&mr_stat_group_cache, "assets_cached", MR_STAT_U32, AT(assets_cached), "count",
+     "Assets the scene cache already held."},
+    {&mr_stat_group_cache, "assets_loaded", MR_STAT_U32, AT(assets_loaded), "count",
+     "Assets imported for this job."},
+    {&mr_stat_group_cache, "saved_s", MR_STAT_F64, AT(load_saved_s), "s", "Import seconds the cache saved."},
+};
+const size_t mr_frame_stat_field_count = sizeof mr_frame_stat_fields / sizeof *mr_frame_stat_fields;
+
+static const void *field_at(const mr_frame_stats *st, const mr_stat_field *f)
+{
+    return (const char *)st + f->offset;
+}
+
+double mr_frame_stat_number(const mr_frame_stats *st, const mr_stat_field *f)
+{
+    const void *p = field_at(st, f);
+    switch (f->type) {
+    case MR_STAT_INT: return *(const int *)p;
+    case MR_STAT_U32: return *(const uint32_t *)p;
+    case MR_STAT_U64: return (double)*(const uint64_t *)p;
+    case MR_STAT_F32: return *(const float *)p;
+    case MR_STAT_F64: return *(const double *)p;
+    case MR_STAT_BVH: return (double)*(const mr_bvh_update *)p;
+    default: return 0;
+    }
+}
+
+void mr_frame_stat_set_number(mr_frame_stats *st, const mr_stat_field *f, double v)
+{
+    void *p = (char *)st + f->offset;
+    switch (f->type) {
+    case MR_STAT_INT: *(int *)p = v > INT_MIN && v < INT_MAX ? (int)v : 0; break;
+    case MR_STAT_U32: *(uint32_t *)p = v > 0 && v < 4294967296.0 ? (uint32_t)v : 0; break;
+    case MR_STAT_U64: *(uint64_t *)p = v > 0 && v < 1.8e19 ? (uint64_t)v : 0; break;
+    case MR_STAT_F32: *(float *)p = (float)v; break;
+    case MR_STAT_F64: *(double *)p = v; break;
+    case MR_STAT_BVH:
+        *(mr_bvh_update *)p = v >= MR_BVH_NONE && v <= MR_BVH_REFIT ? (mr_bvh_update)(int)v : MR_BVH_NONE;
+        break;
+    default: break;
+    }
+}
+
+const char *mr_frame_cache_result(const mr_frame_stats *st)
+{
+    return st->assets_loaded ? (st->assets_cached ? "partial" : "miss") : "hit";
+}
+
+/* Whether name is taken by a field or group of the frame object. */
+static bool table_name(const char *name)
+{
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *f = &mr_frame_stat_fields[i];
+        if (!strcmp(f->group ? f->group->name : f->name, name))
+            return true;
+    }
+    return false;
+}
+
+int mr_frame_stats_add_extra(mr_frame_stats *st, const char *name, const char *unit, double value,
+                             mr_error *err)
+{
+    if (!st || !name || !name[0] || strspn(name, "abcdefghijklmnopqrstuvwxyz0123456789_") != strlen(name))
+        return mr_error_set(err, MR_ERR_INVALID, "frame stats: extra field name '%s' is not [a-z0-9_]+",
+                            name ? name : "(null)");
+    if (table_name(name))
+        return mr_error_set(err, MR_ERR_INVALID, "frame stats: extra field '%s' is a field of every frame",
+                            name);
+    for (uint32_t i = 0; i < st->extra_count; i++)
+        if (!strcmp(st->extras[i].name, name))
+            return mr_error_set(err, MR_ERR_INVALID, "frame stats: extra field '%s' added twice", name);
+    if (st->extra_count >= MR_FRAME_EXTRAS_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT, "frame stats: more than %d extra fields (at '%s')",
+                            MR_FRAME_EXTRAS_MAX, name);
+    st->extras[st->extra_count++] = (mr_frame_extra){name, unit ? unit : "", value};
+    return MR_OK;
+}

@@ -1,0 +1,177 @@
+/*
+ * stats_openapi.c - the frame-stats schemas of schemas/openapi.yaml from
+ * the field table (stats_openapi.h). YAML is written by hand in the
+ * document's own style: one flow mapping per field, groups as nested
+ * objects (the "seconds" group as the Seconds component it has always
+ * been, since the job's totals and medians refer to it too).
+ */
+#include "stats_openapi.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "files.h"
+#include "render/frame_stats.h"
+#include "util/file_io.h"
+
+#define DOC_MAX_BYTES (4u << 20)
+
+/* A YAML double-quoted scalar. */
+static void put_quoted(FILE *f, const char *s)
+{
+    fputc('"', f);
+    for (; *s; s++) {
+        if (*s == '"' || *s == '\\')
+            fputc('\\', f);
+        fputc(*s, f);
+    }
+    fputc('"', f);
+}
+
+static void put_field(FILE *f, const mr_stat_field *fd, int indent)
+{
+    fprintf(f, "%*s%s: { ", indent, "", fd->name);
+    switch (fd->type) {
+    case MR_STAT_INT:
+    case MR_STAT_U32:
+    case MR_STAT_U64: fputs("type: integer, minimum: 0", f); break;
+    case MR_STAT_F32:
+    case MR_STAT_F64: fputs("type: number", f); break;
+    case MR_STAT_BVH:
+        fprintf(f, "type: string, enum: [%s, %s, %s]", mr_bvh_update_name(MR_BVH_NONE),
+                mr_bvh_update_name(MR_BVH_BUILD), mr_bvh_update_name(MR_BVH_REFIT));
+        break;
+    case MR_STAT_FRAME_FILE: fputs("type: string", f); break;
+    case MR_STAT_CACHE_RESULT: fputs("type: string, enum: [hit, partial, miss]", f); break;
+    }
+    char text[512];
+    snprintf(text, sizeof text, "%s%s%s%s", fd->description, fd->unit[0] ? " Unit: " : "", fd->unit,
+             fd->unit[0] ? "." : "");
+    fputs(", description: ", f);
+    put_quoted(f, text);
+    fputs(" }\n", f);
+}
+
+/* "required: [a, b, ...]" of the members of group (NULL: the frame object,
+ * whose groups count as members unless optional). */
+static void put_required(FILE *f, const mr_stat_group *group, int indent)
+{
+    fprintf(f, "%*srequired: [", indent, "");
+    const char *sep = "";
+    const mr_stat_group *last = NULL;
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[i];
+        const char *name = NULL;
+        if (fd->group == group)
+            name = fd->name;
+        else if (!group && fd->group != last && !fd->group->optional)
+            name = fd->group->name;
+        last = fd->group;
+        if (name) {
+            fprintf(f, "%s%s", sep, name);
+            sep = ", ";
+        }
+    }
+    fputs("]\n", f);
+}
+
+static void put_group_header(FILE *f, const mr_stat_group *g, int indent)
+{
+    fprintf(f, "%*stype: object\n%*sdescription: ", indent, "", indent, "");
+    put_quoted(f, g->description);
+    fputc('\n', f);
+    put_required(f, g, indent);
+    fprintf(f, "%*sproperties:\n", indent, "");
+}
+
+static void put_group_fields(FILE *f, const mr_stat_group *g, int indent)
+{
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++)
+        if (mr_frame_stat_fields[i].group == g)
+            put_field(f, &mr_frame_stat_fields[i], indent);
+}
+
+char *mr_stats_openapi_block(void)
+{
+    char *text = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&text, &len);
+    if (!f)
+        return NULL;
+    fputs(MR_STATS_OPENAPI_BEGIN, f);
+    fputs("    Seconds:\n", f);
+    put_group_header(f, &mr_stat_group_seconds, 6);
+    put_group_fields(f, &mr_stat_group_seconds, 8);
+    fputs("\n    FrameStats:\n"
+          "      type: object\n"
+          "      description: \"One frame's statistics (an entry of stats.json's `frames`, the stored "
+          "frame stats, the `frame` event). A geometry kind may add numeric fields of its own "
+          "after these (extras).\"\n",
+          f);
+    put_required(f, NULL, 6);
+    fputs("      properties:\n", f);
+    const mr_stat_group *group = NULL;
+    for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
+        const mr_stat_field *fd = &mr_frame_stat_fields[i];
+        if (!fd->group) {
+            put_field(f, fd, 8);
+        } else if (fd->group != group && fd->group == &mr_stat_group_seconds) {
+            fprintf(f, "        %s: { $ref: \"#/components/schemas/Seconds\" }\n", fd->group->name);
+        } else if (fd->group != group) {
+            fprintf(f, "        %s:\n", fd->group->name);
+            put_group_header(f, fd->group, 10);
+            put_group_fields(f, fd->group, 12);
+        }
+        group = fd->group;
+    }
+    fputs("      additionalProperties: { type: number, description: \"A geometry kind's own "
+          "per-frame field (extras).\" }\n",
+          f);
+    fputs(MR_STATS_OPENAPI_END, f);
+    if (fclose(f) != 0) {
+        free(text);
+        return NULL;
+    }
+    return text;
+}
+
+int mr_stats_openapi_update(const char *path, bool write, bool *stale, mr_error *err)
+{
+    *stale = false;
+    char *doc = NULL, *block = NULL, *out = NULL;
+    size_t size = 0;
+    int rc = mr_file_read(path, DOC_MAX_BYTES, &doc, &size, err);
+    if (rc < 0)
+        return rc;
+    char *begin = strstr(doc, MR_STATS_OPENAPI_BEGIN);
+    char *end = begin ? strstr(begin, MR_STATS_OPENAPI_END) : NULL;
+    if (!begin || !end || (begin > doc && begin[-1] != '\n')) {
+        rc = mr_error_set(err, MR_ERR_FORMAT, "%s: no frame-stats block (a line '%.*s' and a later '%.*s')",
+                          path, (int)strlen(MR_STATS_OPENAPI_BEGIN) - 1, MR_STATS_OPENAPI_BEGIN,
+                          (int)strlen(MR_STATS_OPENAPI_END) - 1, MR_STATS_OPENAPI_END);
+        goto cleanup;
+    }
+    end += strlen(MR_STATS_OPENAPI_END);
+    if (!(block = mr_stats_openapi_block())) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        goto cleanup;
+    }
+    size_t bl = strlen(block), head = (size_t)(begin - doc), tail = size - (size_t)(end - doc);
+    *stale = (size_t)(end - begin) != bl || memcmp(begin, block, bl) != 0;
+    if (!write || !*stale)
+        goto cleanup;
+    if (!(out = malloc(head + bl + tail))) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        goto cleanup;
+    }
+    memcpy(out, doc, head);
+    memcpy(out + head, block, bl);
+    memcpy(out + head + bl, end, tail);
+    rc = mr_fs_write_atomic(path, out, head + bl + tail, "openapi document", err);
+cleanup:
+    free(doc);
+    free(block);
+    free(out);
+    return rc;
+}
