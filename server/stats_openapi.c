@@ -1,6 +1,7 @@
 /*
  * stats_openapi.c - the frame-stats schemas of schemas/openapi.yaml from
- * the field table (stats_openapi.h). YAML is written by hand in the
+ * the field table and the registered kinds' own stats fields
+ * (stats_openapi.h). YAML is written by hand in the
  * document's own style: one flow mapping per field, groups as nested
  * objects (the "seconds" group as the Seconds component it has always
  * been, since the job's totals and medians refer to it too).
@@ -12,6 +13,7 @@
 #include <string.h>
 
 #include "files.h"
+#include "kinds/kind.h"
 #include "render/frame_stats.h"
 #include "util/file_io.h"
 
@@ -124,6 +126,19 @@ char *mr_stats_openapi_block(void)
             put_group_fields(f, fd->group, 12);
         }
         group = fd->group;
+    }
+    /* the registered kinds' own fields (kind.h stats), summed over a job's
+     * objects of the kind */
+    for (size_t k = 0; k < mr_kind_count(); k++) {
+        const mr_kind *kind = mr_kind_at(k);
+        for (size_t i = 0; i < kind->stat_count; i++) {
+            char about[512];
+            snprintf(about, sizeof about, "Kind %s, summed over its objects: %s. Unit: %s.",
+                     kind->name, kind->stats[i].description, kind->stats[i].unit);
+            fprintf(f, "        %s: { type: number, description: ", kind->stats[i].name);
+            put_quoted(f, about);
+            fputs(" }\n", f);
+        }
     }
     fputs("      additionalProperties: { type: number, description: \"A geometry kind's own "
           "per-frame field (extras).\" }\n",

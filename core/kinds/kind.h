@@ -27,8 +27,11 @@
  *               first, and maps a hit's instID back to the object, passing
  *               the instance index (id - first) to normal as prim.
  *   frame_stats the values of the kind's own per-frame statistics fields
- *               (`stats`, in that order) for the frame just updated; they
- *               reach stats.json and the HTTP stats by the one generic path.
+ *               (`stats`, in that order; at most MR_FRAME_EXTRAS_MAX) for
+ *               the frame just updated; the renderer sums them over the
+ *               job's objects of the kind and hands them on as the frame's
+ *               extras (render/frame_stats.h), which reach stats.json, the
+ *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
  * self_posed: the kind evaluates poses itself (say one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to

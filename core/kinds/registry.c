@@ -7,6 +7,8 @@
  */
 #include "kinds/kind.h"
 
+#include "render/frame_stats.h"
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -55,6 +57,10 @@ int mr_kind_register(const mr_kind *kind, mr_error *err)
     if (kind->params && kind->params->count > MR_PARAM_MAX_FIELDS)
         return mr_error_set(err, MR_ERR_LIMIT, "kind \"%s\": at most %u parameters", kind->name,
                             MR_PARAM_MAX_FIELDS);
+    if (kind->stat_count > MR_FRAME_EXTRAS_MAX || (kind->stat_count && !kind->frame_stats))
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "kind \"%s\": at most %d stats fields, with frame_stats", kind->name,
+                            MR_FRAME_EXTRAS_MAX);
     if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
         return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
                             kind->name);

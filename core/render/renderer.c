@@ -312,6 +312,34 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
     return MR_OK;
 }
 
+/* The kinds' own per-frame fields (kind.h stats), each summed over the
+ * job's objects of its kind, as the frame's extras. */
+static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
+{
+    for (size_t i = 0; i < r->object_count; i++) {
+        const mr_kind *k = r->objects[i].kind;
+        bool first = true;
+        for (size_t j = 0; j < i && first; j++)
+            first = r->objects[j].kind != k;
+        if (!first || !k->stat_count || !k->frame_stats)
+            continue;
+        double sum[MR_FRAME_EXTRAS_MAX] = {0}, v[MR_FRAME_EXTRAS_MAX];
+        for (size_t j = i; j < r->object_count; j++) {
+            if (r->objects[j].kind != k)
+                continue;
+            k->frame_stats(r->objects[j].geom, v);
+            for (size_t f = 0; f < k->stat_count; f++)
+                sum[f] += v[f];
+        }
+        for (size_t f = 0; f < k->stat_count; f++) {
+            int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, sum[f], err);
+            if (rc < 0)
+                return mr_error_prefix(err, "kind \"%s\" stats: ", k->name);
+        }
+    }
+    return MR_OK;
+}
+
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
 {
     const mr_job *job = r->job;
@@ -411,5 +439,5 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     st->bvh_bytes = eb > 0 ? (uint64_t)eb : 0;
     st->peak_rss_bytes = mr_peak_rss_bytes();
     st->total_s = t3 - t0;
-    return MR_OK;
+    return kind_stats(r, st, err);
 }

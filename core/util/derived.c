@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "util/file_io.h"
+#include "util/hex.h"
 #include "util/le.h"
 
 /* ---- the key */
@@ -89,8 +90,8 @@ int mr_derived_path(const char *dir, const uint8_t key[MR_DERIVED_KEY_BYTES], co
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "derived-data cache: out of memory");
     size_t at = (size_t)snprintf(p, n, "%s/", dir);
-    for (unsigned i = 0; i < MR_DERIVED_KEY_BYTES; i++)
-        at += (size_t)snprintf(p + at, n - at, "%02x", key[i]);
+    mr_hex_encode(key, MR_DERIVED_KEY_BYTES, p + at);
+    at += 2 * MR_DERIVED_KEY_BYTES;
     snprintf(p + at, n - at, ".%s", ext);
     *path = p;
     return MR_OK;

@@ -6,7 +6,8 @@
  *   - the server's generic block reader (defaults, values, JSON pointers and
  *     messages of bad values, a block without its kind, the kind list in
  *     the "kind" error);
- *   - the schema generator (its block and the kind enum);
+ *   - the schema generator (its block and the kind enum) and the OpenAPI
+ *     document's frame stats (its fields);
  *   - the renderer and worker, with its derived data kept in
  *     <cache root>/test_sphere/ and read back by the next job;
  *   - the frame-order contract: frames rendered out of order (a resumed or
@@ -29,6 +30,7 @@
 #include "render/renderer.h"
 #include "schema_gen.h"
 #include "stats_json.h"
+#include "stats_openapi.h"
 #include "worker.h"
 
 #define BOX "/usr/share/assimp/models/OBJ/box.obj"
@@ -154,6 +156,13 @@ static void test_schema(void **state)
     assert_string_equal(cJSON_GetArrayItem(kinds, (int)mr_kind_count() - 1)->valuestring,
                         "test_sphere");
     cJSON_Delete(doc);
+
+    /* its stats fields are in the OpenAPI document's FrameStats */
+    char *yaml = mr_stats_openapi_block();
+    assert_non_null(yaml);
+    assert_non_null(strstr(yaml, "        test_sphere_steps: { type: number, description: \"Kind "
+                                 "test_sphere, summed over its objects: updates applied"));
+    free(yaml);
 }
 
 /* ---- rendering */
@@ -260,6 +269,25 @@ static void test_worker_and_cache(void **state)
         /* the sphere is in the frame: the centre pixel is hit */
         float alpha = c.rgba[3][3 * 48 * 32 + 16 * 48 + 24];
         assert_true(alpha > 0.99f);
+        /* its stats fields: the second job read the sphere from the cache,
+         * in order every frame is one more step */
+        for (size_t i = 0; i < 7; i++) {
+            const mr_frame_stats *f = &c.stats[i];
+            assert_int_equal(f->extra_count, 3);
+            assert_string_equal(f->extras[0].name, "test_sphere_scale");
+            assert_true(f->extras[1].value == (double)(i + 1));
+            assert_true(f->extras[2].value == (run == 1 ? 1.0 : 0.0));
+        }
+        /* and in stats.json, from the worker's own figures */
+        char *json = NULL;
+        assert_int_equal(mr_stats_to_json(job, &stats, 0, &json, &err), MR_OK);
+        cJSON *doc = cJSON_Parse(json);
+        const cJSON *last = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 6);
+        assert_true(cJSON_GetObjectItem(last, "test_sphere_steps")->valuedouble == 7);
+        assert_true(cJSON_GetObjectItem(last, "test_sphere_cache_hit")->valuedouble == run);
+        assert_true(cJSON_GetObjectItem(last, "test_sphere_scale")->valuedouble > 0);
+        cJSON_Delete(doc);
+        free(json);
         free_captured(&c);
         mr_job_stats_free(&stats);
     }
