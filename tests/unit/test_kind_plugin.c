@@ -296,6 +296,8 @@ static void test_worker_and_cache(void **state)
     remove_tree(root);
 }
 
+static bool from_frame_4(void *user, size_t index) { return index >= 4; }
+
 /* Frame n of a SEQUENTIAL kind is the same whether frames 0..n-1 were just
  * rendered, skipped (a job resumed at n), or rendered after n (a retry). */
 static void test_frame_order(void **state)
@@ -313,6 +315,20 @@ static void test_frame_order(void **state)
     size_t n = 48 * 32 * 5 * sizeof(float);
     /* the state really changes from frame to frame */
     assert_true(memcmp(in_order.rgba[1], in_order.rgba[5], n) != 0);
+
+    /* the worker resuming a job at frame 4 (the daemon after a crash skips
+     * the frames already done, through io.wanted) */
+    captured resumed = {0};
+    mr_worker_io resume = {.user = &resumed, .frame_done = capture_frame, .wanted = from_frame_4};
+    assert_int_equal(mr_worker_run(dev, job, &resume, &stats, &err), MR_OK);
+    mr_job_stats_free(&stats);
+    assert_int_equal(resumed.count, 3);
+    for (size_t i = 4; i < 7; i++) {
+        if (memcmp(resumed.rgba[i], in_order.rgba[i], n) != 0)
+            fail_msg("frame %zu of a job resumed at frame 4 differs from the in-order run", i);
+        assert_true(resumed.stats[i].extras[1].value == (double)(i + 1)); /* replayed steps */
+    }
+    free_captured(&resumed);
 
     const mr_asset *asset = NULL;
     mr_asset *a = NULL;
