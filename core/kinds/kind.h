@@ -81,7 +81,8 @@ typedef struct mr_geom_frame {
 
 /* Where a kind builds from: its folder of derived data and its threads. */
 typedef struct mr_kind_context {
-    const char *cache_dir; /* <cache root>/<kind name>, or NULL: no disk cache */
+    const char *cache_dir; /* <cache root>/<kind name>, or NULL: no disk cache; valid
+                              during create only */
     unsigned threads;      /* the job's thread count (0: all cores) */
 } mr_kind_context;
 

@@ -19,7 +19,6 @@ typedef struct object_state {
     mr_pose *pose;
     bool animated;   /* pose changes from frame to frame */
     bool posed_once;
-    char *cache_dir; /* the kind's folder of derived data, or NULL */
     size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
 } object_state;
 
@@ -198,10 +197,14 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             }
         if ((rc = mr_pose_new(o->asset, &o->pose, err)) < 0)
             goto fail;
-        if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &o->cache_dir, err)) < 0)
+        /* the kind's folder of derived data, for create only */
+        char *cache_dir = NULL;
+        if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &cache_dir, err)) < 0)
             goto fail;
-        mr_kind_context ctx = {.cache_dir = o->cache_dir, .threads = mr_device_threads(dev)};
-        if ((rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err)) < 0) {
+        mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev)};
+        rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
+        free(cache_dir);
+        if (rc < 0) {
             if (o->kind->self_posed) /* its errors name the pose fields under the object */
                 mr_error_prefix(err, "/objects/%zu/", i);
             goto fail;
