@@ -8,6 +8,7 @@
 #include <sys/resource.h>
 
 #include "kinds/kind.h"
+#include "render/device.h"
 #include "render/integrator.h"
 #include "util/clock.h"
 
