@@ -25,6 +25,7 @@
 #include "files.h"
 #include "kinds/kind.h"
 #include "job_json.h"
+#include "render/device.h"
 #include "render/renderer.h"
 #include "util/clock.h"
 #include "util/parallel.h"

@@ -21,7 +21,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "util/clock.h"
+#include "microray.h"
 #include "bench_util.h"
 
 static char tmp[64] = "/tmp/microray-bench-XXXXXX";

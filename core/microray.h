@@ -1,25 +1,47 @@
 /*
- * microray.h - public API of libmicroray, the core renderer.
+ * microray.h - the public API of libmicroray, the core renderer.
  *
- * Everything that renders lives behind this header and the module headers it
- * pulls in: no HTTP, no SQL and no JSON in core/. The daemon and the one-shot
- * command (server/) turn job JSON into the plain structs of core/job.h and
- * drive a renderer frame by frame.
+ * This is the one core header that server/ (the daemon and the one-shot
+ * command) and the service benchmarks include: everything they may use from
+ * core is declared here, and nothing here names an Embree, assimp or OpenEXR
+ * type. The module headers beside the code (util/, math/, asset/, anim/,
+ * kinds/, render/) include this file and add what only core itself (and the
+ * tests, which may look inside) uses; each thing is declared once, here or
+ * there. scripts/check-layout.sh fails a server/ file that includes any other
+ * core header.
+ *
+ * What a client does: parse a job into the plain structs of the "Jobs"
+ * section (no JSON in core: server/job_json.c does that, reading each kind's
+ * block from its parameter table), import its assets (mr_asset_load and
+ * mr_refine_asset), make a renderer on a device and render frame by frame
+ * into a film, then write the film as EXR and the mr_frame_stats through the
+ * field table.
+ *
+ * Sections, in order: errors; utilities (clock, hex, copies, SHA-256, files,
+ * cores); math value types; film, comparison, EXR; device; assets; kinds and
+ * parameter tables; jobs; frame statistics; renderer.
  *
  * Conventions (see ../shared/ARCHITECTURE.md):
+ *  - public names are mr_<noun>_<verb>(); mr_x_new() / mr_x_free() pairs;
+ *    handles (mr_device, mr_asset, mr_kind, mr_renderer) are opaque, their
+ *    accessors are functions; plain data (jobs, films, stats, tables) are
+ *    structs with public fields;
  *  - functions that can fail return int: MR_OK (0) or a negative mr_err, and
- *    write a human-readable message into the caller's mr_error;
- *  - handles are opaque, created by mr_x_new() and released by mr_x_free();
- *  - there is no global error state.
+ *    write a human-readable message into the caller's mr_error; predicates
+ *    return bool; there is no global error state;
+ *  - free functions accept NULL.
  */
 #ifndef MICRORAY_H
 #define MICRORAY_H
 
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
 #define MR_VERSION_STRING "0.1.0"
+
+/* ==== Errors ============================================================== */
 
 /* Error codes. Negative so "if (rc < 0)" reads naturally. */
 typedef enum mr_err {
@@ -59,5 +81,866 @@ int mr_error_prefix(mr_error *err, const char *fmt, ...)
 
 /* Static name of an error code, e.g. "MR_ERR_FORMAT". */
 const char *mr_err_name(int code);
+
+/* ==== Utilities =========================================================== */
+
+/* ---- clock (util/clock.c) ----
+ * The one clock every duration in microray is measured with: frame stats,
+ * asset import and cache savings, request log lines, event stream
+ * keepalives, benchmarks and the tests' timings. It is CLOCK_MONOTONIC,
+ * which never jumps when the wall clock is set, so the difference of two
+ * readings is always an elapsed time. (Timestamps people read, such as a
+ * job's "created", are wall-clock time and not from here.) */
+
+/* Monotonic clock, seconds (nanosecond resolution). */
+double mr_now(void);
+/* The same clock in whole milliseconds, for integer deadlines. */
+int64_t mr_now_ms(void);
+
+/* ---- hex (util/hex.c) ----
+ * Bytes as lowercase hexadecimal, and the check for it: SHA-256 digests
+ * become asset ids, idempotency body hashes and the file names of the
+ * derived-data caches; random bytes become job ids. Ids arrive back in URLs
+ * and job documents, and only exact lowercase hex is ever turned into a
+ * path, so the spelling is checked by one function too. */
+
+/* Writes 2 * n lowercase hex digits of bytes[0, n) and a NUL into out
+ * (2 * n + 1 bytes). */
+void mr_hex_encode(const void *bytes, size_t n, char *out);
+
+/* Whether s is exactly `digits` characters of 0-9a-f (false for NULL, for
+ * uppercase, and for shorter or longer strings). */
+bool mr_hex_is_lower(const char *s, size_t digits);
+
+/* ---- copies (util/dup.c) ----
+ * malloc'ed copies of strings and byte ranges: names and arrays copied
+ * between assets, meshes and rigs, and text columns read out of sqlite.
+ * Plain C11 has no strdup, and copies that must also work on a range that
+ * is not NUL-terminated were written again in every module. Every result
+ * is the caller's to free. */
+
+/* A copy of the string s; NULL for a NULL s or when out of memory. */
+char *mr_strdup(const char *s);
+
+/* A copy of bytes [src, src + n); NULL for a NULL src, for n == 0 (there
+ * is nothing to own) or when out of memory. */
+void *mr_memdup(const void *src, size_t n);
+
+/* The n bytes at src followed by a NUL, as a string; the bytes are copied
+ * as they are (a NUL among them is copied too). src may be NULL when n is
+ * 0, which gives "". NULL only when out of memory. */
+char *mr_memdup_str(const void *src, size_t n);
+
+/* ---- SHA-256 (util/sha256.c) ----
+ * FIPS 180-4, for content-addressed assets, idempotency body hashes and
+ * the keys of the derived-data disk caches (util/sha256.h adds the
+ * little-endian number feed those keys are hashed with). Written from the
+ * standard; no dependency. */
+
+typedef struct mr_sha256 {
+    uint32_t h[8];
+    uint64_t length;     /* bytes hashed so far */
+    uint8_t block[64];
+    size_t used;         /* bytes in block */
+} mr_sha256;
+
+void mr_sha256_init(mr_sha256 *s);
+void mr_sha256_update(mr_sha256 *s, const void *data, size_t size);
+void mr_sha256_final(mr_sha256 *s, uint8_t digest[32]);
+/* One-shot: lowercase hex digest of data into hex (65 bytes with the NUL). */
+void mr_sha256_hex(const void *data, size_t size, char hex[65]);
+
+/* ---- files (util/file_io.c) ----
+ * The whole-file reads, crash-safe writes, mkdir -p and removal of
+ * microray's file formats, disk caches (baked DMMs, .mrdmm, .mrsvo) and
+ * the daemon's files, in one place so every file gets the same guarantees:
+ *  - a read never blocks on a FIFO planted under the name, refuses
+ *    anything but a regular file, and refuses a file above the format's
+ *    cap before allocating for it;
+ *  - a write never leaves a half-written file under the final name, even
+ *    after a crash, and two writers of the same name never collide.
+ * The server writes through these too (frames, uploads, stats.json, port
+ * files); server/files.h keeps only its NUL-terminated job-file read.
+ * `what` starts every error message ("svo file", "dmm cache", ...). */
+
+/* Directory part of path, malloc'ed: "." without a slash, "/" for "/x".
+ * NULL when out of memory. */
+char *mr_fs_dir_of(const char *path);
+
+/* mkdir -p dir with mode 0755; existing directories are fine. A directory
+ * it creates is durable when it returns (its parent is fsynced), so a file
+ * renamed into it later survives a crash too. MR_ERR_INVALID for an empty
+ * name; MR_ERR_IO when a component cannot be made or dir is not a directory
+ * in the end. */
+int mr_fs_make_dirs(const char *dir, const char *what, mr_error *err);
+
+/* The one atomic write of microray (core formats, caches, frames, uploads,
+ * stats.json, port files): bytes go to a unique <path>.tmpXXXXXX in the
+ * target's directory (mode 0644; two writers of one target never share a
+ * temporary), which appears under the final name only by commit: fsync of
+ * the file, rename, fsync of the directory so the rename survives a crash.
+ * Nothing half-written is ever visible under the final name, and the
+ * temporary never outlives a failed or aborted write. For writers that
+ * stream (EXR encoding, uploads whose name is their hash):
+ *     mr_fs_atomic a;
+ *     begin(&a, path) -> write(&a, ...) or write(2) to a.fd ... ->
+ *     commit(&a, NULL or another name in the same directory) | abort(&a)
+ * Every error names `what` and the file, and the failing step. */
+typedef struct mr_fs_atomic {
+    int fd;     /* the temporary, open for writing; -1 once ended */
+    char *tmp;  /* its name */
+    char *path; /* the target given to begin */
+    char *dir;  /* the directory of both */
+} mr_fs_atomic;
+
+/* Creates the temporary next to path. On failure *a needs no abort. */
+int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_error *err);
+/* Appends size bytes to the temporary (retrying short writes). */
+int mr_fs_atomic_write(mr_fs_atomic *a, const void *buf, size_t size, const char *what,
+                       mr_error *err);
+/* fsync, close, rename onto path (NULL: begin's path; otherwise a name in
+ * the same directory), fsync of the directory. Ends the write either way:
+ * on failure the temporary is removed and the target untouched. */
+int mr_fs_atomic_commit(mr_fs_atomic *a, const char *path, const char *what, mr_error *err);
+/* Ends an unfinished write: closes and removes the temporary. Safe on an
+ * ended or zeroed-after-failed-begin *a. */
+void mr_fs_atomic_abort(mr_fs_atomic *a);
+
+/* begin + write + commit of one buffer. */
+int mr_fs_write_atomic(const char *path, const void *buf, size_t size, const char *what,
+                       mr_error *err);
+
+/* Removes the files in dir, then dir itself; a missing dir is fine. A file
+ * that appears while it is emptied (a writer racing the removal) keeps the
+ * directory without an error: that writer owns cleaning up after itself.
+ * MR_ERR_IO naming the first entry that could not be removed. */
+int mr_fs_remove_dir(const char *dir, mr_error *err);
+
+/* Reads the whole regular file path (at most max bytes) into a malloc'ed
+ * buffer (*buf, *size; a 0-byte file gives a 1-byte allocation). A file
+ * that shrinks while read comes back shorter: the caller's parser then
+ * sees the truncated file it now is. MR_ERR_IO: cannot open or read, not a
+ * regular file (FIFOs are refused without blocking); MR_ERR_FORMAT: larger
+ * than max, refused before reading; MR_ERR_NOMEM. */
+int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *size,
+                      const char *what, mr_error *err);
+
+/* ---- cores (util/parallel.c; core's parallel loop is util/parallel.h) ---- */
+
+/* Most workers one parallel loop starts (and the cap on configured threads). */
+#define MR_MAX_THREADS 256
+
+/* Number of online cores (at least 1). */
+unsigned mr_cpu_count(void);
+
+/* Peak resident set size of the process, bytes (render/renderer.c). */
+uint64_t mr_peak_rss_bytes(void);
+
+/* ==== Math value types (math/math.c; the rest is math/mr_math.h) ==========
+ * Conventions, used everywhere in microray:
+ *  - mr_mat4 is stored row-major (m[row*4 + col]) and applied to column
+ *    vectors: p' = M p. Translation lives in m[3], m[7], m[11]. This is the
+ *    layout of assimp's aiMatrix4x4 (a1..a4 is the first row), so imported
+ *    matrices copy over element by element.
+ *  - Quaternions are (x, y, z, w) with w the scalar part, unit length when
+ *    they represent rotations; rotation of v is q v q*.
+ *  - Composition reads right to left: mr_mat4_mul(A, B) applies B first.
+ * Only what a job parser needs to build a job is here. */
+
+typedef struct mr_vec3 { float x, y, z; } mr_vec3;
+typedef struct mr_quat { float x, y, z, w; } mr_quat;
+typedef struct mr_mat4 { float m[16]; } mr_mat4;
+
+static inline mr_vec3 mr_v3(float x, float y, float z) { return (mr_vec3){x, y, z}; }
+
+mr_mat4 mr_mat4_identity(void);
+/* General 4x4 inverse by cofactors. Returns false (and leaves *out as identity)
+ * when numerically singular: |det| <= 1e-12 * (largest |entry|)^4, or for
+ * affine matrices (last row 0 0 0 1) |det| <= 1e-12 * (largest |entry| of the
+ * 3x3 linear part)^3, so translation never makes a matrix "singular". */
+bool mr_mat4_inverse(const mr_mat4 *a, mr_mat4 *out);
+mr_vec3 mr_mat4_point(const mr_mat4 *a, mr_vec3 p);  /* w = 1, no divide */
+/* T * R * S: scale first, then rotate, then translate (glTF/assimp order). */
+mr_mat4 mr_mat4_from_trs(mr_vec3 t, mr_quat r, mr_vec3 s);
+bool mr_mat4_is_finite(const mr_mat4 *a);
+
+mr_quat mr_quat_identity(void);
+
+/* Normalises the n doubles of d in place, scaling by the largest component
+ * before squaring so tiny but non-zero inputs (1e-200) normalise instead of
+ * underflowing to a zero length. Returns false for the zero vector. */
+bool mr_normalize_d(double *d, size_t n);
+
+/* ==== Film (render/film.c) ================================================
+ * The frame buffer a render writes into: one plane per AOV.
+ *
+ * Planes are row-major, row 0 at the top of the image (EXR's increasing-y
+ * order). Colour is linear and premultiplied by alpha.
+ *
+ * The data AOVs (z, n*, object_id, prim_id) describe the pixel-centre ray
+ * (sample 0), so two renders of the same camera compare pixel by pixel
+ * whatever their sample counts; colour and alpha average all samples.
+ *  - z: distance along the (unit-length) ray to the hit; 0 where it missed.
+ *  - nx, ny, nz: world-space shading normal, unit length, facing the camera;
+ *    0 where it missed.
+ *  - object_id: 1-based index of the job object hit, 0 = miss.
+ *  - prim_id: index of the primitive (triangle) within that object. */
+
+/* Caps shared by the job parser and the film allocator (documented in README). */
+#define MR_MAX_RESOLUTION 8192                 /* per side, pixels */
+#define MR_MAX_PIXELS (4096u * 4096u)          /* width * height */
+
+typedef struct mr_film {
+    int width, height;
+    float *r, *g, *b, *a;
+    float *z;
+    float *nx, *ny, *nz;
+    uint32_t *object_id, *prim_id;
+} mr_film;
+
+/* Allocates a zeroed film. Fails with MR_ERR_LIMIT beyond the caps above. */
+int mr_film_new(int width, int height, mr_film **out, mr_error *err);
+void mr_film_free(mr_film *film);
+/* Resets every plane to zero (miss). */
+void mr_film_clear(mr_film *film);
+
+/* ---- comparison (render/compare.c) ----
+ * Error metrics between a frame and a reference frame of the same camera
+ * (../shared/ARCHITECTURE.md, "Error metrics"). Every geometry kind reports
+ * its accuracy with these figures.
+ *
+ * A pixel is "hit" when its object_id is non-zero.
+ *  - coverage_pct: pixels hit in exactly one frame, as % of pixels hit in either
+ *    (0 when neither frame hits anything);
+ *  - depth_rmse, depth_max: RMSE and max of |Za - Zb| over pixels hit in both,
+ *    divided by scene_diagonal;
+ *  - normal_mean_deg, normal_max_deg: angle between the normals over pixels
+ *    hit in both (acos clamped to [-1, 1]);
+ *  - holes: pixels the reference b hits, together with all 8 neighbours (so
+ *    not on its silhouette), that a misses: gaps inside the reference's
+ *    silhouette, as opposed to a silhouette that is a little off;
+ *  - psnr_rgb: 10 log10(1 / MSE) over R, G, B of all pixels, colours clamped to
+ *    [0, 1] first; reported as 999 when the images are identical (MSE = 0),
+ *    which keeps JSON free of infinities. */
+
+#define MR_PSNR_IDENTICAL 999.0
+
+typedef struct mr_compare_result {
+    size_t pixels;            /* width * height */
+    size_t hit_either, hit_both, hit_one;
+    size_t holes;
+    double coverage_pct;
+    double depth_rmse, depth_max;  /* relative to scene_diagonal */
+    double normal_mean_deg, normal_max_deg;
+    double psnr_rgb;
+} mr_compare_result;
+
+/* Fails with MR_ERR_INVALID when sizes differ or scene_diagonal is not a
+ * positive finite number. */
+int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
+                    mr_compare_result *out, mr_error *err);
+
+/* ---- EXR (render/exr.c, through the OpenEXR 3 C API) ----
+ * A frame is one scanline part with these channels (EXR stores them sorted by
+ * name; we always match channels by name, never by position):
+ *   R G B A            HALF   linear, premultiplied colour
+ *   Z                  FLOAT  distance along the ray, 0 = miss
+ *   N.X N.Y N.Z        FLOAT  world-space normal
+ *   id.object          UINT   1-based object index, 0 = miss
+ *   id.primitive       UINT   primitive index within the object
+ * and header attributes (string unless noted):
+ *   microray.version, microray.job, microray.frame (int), microray.time
+ *   (double, seconds on the job's timeline), microray.renderSeconds (double),
+ *   microray.sceneDiagonal (float: bounding-box diagonal of the scene, the
+ *   unit depth errors are expressed in). */
+
+typedef enum mr_compression {
+    MR_COMPRESSION_NONE = 0,
+    MR_COMPRESSION_ZIP,   /* 16 scanlines per chunk */
+    MR_COMPRESSION_ZIPS,  /* 1 scanline per chunk */
+    MR_COMPRESSION_PIZ
+} mr_compression;
+
+#define MR_ZIP_LEVEL_DEFAULT 4
+
+typedef struct mr_exr_options {
+    mr_compression compression;
+    int zip_level; /* 1..9, used by ZIP/ZIPS; 0 means MR_ZIP_LEVEL_DEFAULT */
+    /* Threads that encode (pack + compress) chunks; 0 = all online cores,
+     * values above 256 act as 256. The written bytes are the same for every
+     * value, so this is purely a speed setting. */
+    unsigned threads;
+} mr_exr_options;
+
+typedef struct mr_exr_meta {
+    char job[128];          /* job name or id, may be empty */
+    int frame;              /* frame index within the job */
+    double time;            /* frame time on the job's timeline, seconds */
+    double render_seconds;  /* wall time spent rendering this frame */
+    float scene_diagonal;   /* > 0 */
+} mr_exr_meta;
+
+/* Name of a compression as used in jobs ("none", "zip", "zips", "piz"). */
+const char *mr_compression_name(mr_compression c);
+/* Parses a name as above; returns false for anything else. */
+bool mr_compression_parse(const char *name, mr_compression *out);
+
+/* opt may be NULL (same as a zeroed struct: no compression, default level,
+ * all cores);
+ * meta may be NULL (only microray.version is written). NaN/Inf pixels are
+ * written as finite values (colour as above; Z and N: NaN -> 0,
+ * +-Inf -> +-FLT_MAX). */
+
+/* Writes film to path atomically (mr_fs_atomic: a unique temporary next to
+ * path, fsynced and renamed over it on success, then the directory synced),
+ * so nobody sees a partial frame, a failed write leaves an existing file at
+ * path untouched and a crash loses no finished frame. */
+int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_options *opt,
+                      const mr_exr_meta *meta, mr_error *err);
+/* Writes film into a malloc'ed buffer (*data, *size); caller frees *data. */
+int mr_exr_write_memory(uint8_t **data, size_t *size, const mr_film *film,
+                        const mr_exr_options *opt, const mr_exr_meta *meta, mr_error *err);
+/* Reads a microray EXR (any compression the library decodes) into a new film.
+ * Missing channels are left zero; meta may be NULL. Fails with MR_ERR_FORMAT
+ * for files that are not scanline EXR images. */
+int mr_exr_read_file(const char *path, mr_film **out, mr_exr_meta *meta, mr_error *err);
+
+/* ==== Device (render/device.c; its Embree side is render/device.h) ========
+ * The process-wide render device. One device is shared by every job of a
+ * process (Embree devices are heavy: each owns a task scheduler). It carries
+ * the worker thread count used for tracing and skinning, a memory monitor
+ * that counts the bytes Embree itself allocates (its acceleration
+ * structures), and the last Embree error message. */
+
+typedef struct mr_device mr_device;
+
+/* threads == 0: all online cores. */
+int mr_device_new(unsigned threads, mr_device **out, mr_error *err);
+void mr_device_free(mr_device *dev);
+unsigned mr_device_threads(const mr_device *dev);
+
+/* ==== Assets (asset/asset.c, asset/refine.c; the arrays are asset/asset.h) ==
+ * Imported models: meshes, node hierarchy, skins, animation clips, cameras,
+ * imported once with assimp (glTF 2.0, FBX, COLLADA, X, SMD, OBJ, PLY and
+ * whatever else assimp reads) into plain arrays so nothing after the import
+ * depends on assimp. */
+
+typedef struct mr_asset mr_asset;
+
+/* Import caps: larger files are refused with MR_ERR_LIMIT rather than
+ * exhausting memory in the daemon. */
+#define MR_MAX_ASSET_FILE_BYTES (2ull * 1024u * 1024u * 1024u)
+#define MR_MAX_ASSET_TRIANGLES (16u * 1024u * 1024u)
+#define MR_MAX_ASSET_VERTICES (16u * 1024u * 1024u)
+#define MR_MAX_ASSET_NODES (1u << 20)
+/* Joint indices are stored as uint16_t. */
+#define MR_MAX_ASSET_JOINTS 65535u
+
+/* Imports a model file. Broken, empty or unsupported files fail with
+ * MR_ERR_FORMAT (or MR_ERR_IO when unreadable) and a message naming the
+ * file; they never crash. A file without any triangles is an error, and so
+ * is a non-finite vertex position (named by mesh and vertex) or a bone that
+ * names no node. Files above the caps fail with MR_ERR_LIMIT. Only meshes
+ * placed by a node are imported, one mesh per (node, mesh) reference;
+ * points and lines are dropped. Camera yfov is converted from whatever the
+ * format's importer stored in assimp's mHorizontalFOV (see asset.c). */
+int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
+void mr_asset_free(mr_asset *asset);
+
+/* Triangles over all meshes. */
+size_t mr_asset_triangle_count(const mr_asset *asset);
+/* Bytes held by the asset's arrays. */
+size_t mr_asset_memory(const mr_asset *asset);
+
+/* ---- refinement (asset/refine.h says how) ----
+ * Detailed skinned meshes made from low-poly rigs: Loop subdivision plus a
+ * procedural displacement, with skin weights carried along; bit-identical
+ * for any thread count. */
+
+/* Most Loop rounds one call does (each multiplies triangles by 4). */
+#define MR_REFINE_MAX_ROUNDS 8
+/* Most noise octaves. */
+#define MR_REFINE_MAX_OCTAVES 16
+
+typedef struct mr_refine_params {
+    unsigned rounds;   /* Loop subdivision rounds, 0..MR_REFINE_MAX_ROUNDS */
+    float amplitude;   /* largest displacement, mesh units; 0: no detail */
+    float frequency;   /* lattice cells per mesh unit of the first octave (> 0 when amplitude != 0) */
+    unsigned octaves;  /* 0 or 1: one band; k: k bands, each 2x the frequency and 1/2 the weight */
+    uint32_t seed;     /* picks the noise pattern */
+    unsigned threads;  /* 0: all cores */
+} mr_refine_params;
+
+/* A deep copy of in (path, nodes, clips, cameras) with every mesh replaced
+ * by its refinement; mr_asset_free releases it. Fails with MR_ERR_INVALID
+ * for bad params or a broken mesh and MR_ERR_LIMIT when a mesh would exceed
+ * MR_MAX_ASSET_TRIANGLES / MR_MAX_ASSET_VERTICES. */
+int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset **out,
+                    mr_error *err);
+
+/* ==== Kinds and parameter tables (kinds/registry.c, kinds/params.c) =======
+ * A geometry kind (triangle mesh, displaced micro-mesh, voxels, ...) is an
+ * opaque descriptor from the registry (its ops are kinds/kind.h). What a
+ * client sees of it: its name (the job's "kind" string and its block's key),
+ * a one-line summary, the parameter table of its job block and its own
+ * per-frame statistics fields.
+ *
+ * A parameter table describes a kind's job block ("<kind>": {...}) once, as
+ * data: field name, type, range or enum values, default, one-line
+ * description, and where the value lives in the kind's own C struct.
+ * Everything else is derived from that table:
+ *   - the server reads and validates the block generically (server/
+ *     job_json.c), with a JSON pointer and an "expected X, got Y" message
+ *     for every bad value;
+ *   - the job schema's kind blocks are generated from it (microrayd schema,
+ *     `make schema`), so the schema cannot drift from the parser;
+ *   - defaults are filled in and owned memory released generically
+ *     (mr_params_defaults, mr_params_clear), so core/job.c knows no kind.
+ * Rules a table cannot express (two fields that exclude each other, a
+ * limit that depends on another field) are per-field `after` hooks, run
+ * right after the field was read (or found absent), in table order, so the
+ * first error in the document is the one reported.
+ *
+ * Storage by type: INT -> uint32_t (tables give lo >= 0), NUMBER -> float
+ * (lo/hi within the float range), BOOL -> bool, ENUM -> int (index into
+ * choices), TRANSFORM -> mr_mat4 (the job's transform grammar, identity by
+ * default), POSE -> mr_pose_desc plus a bool at present_offset,
+ * FLAG_OBJECT -> bool at offset, given as true/false or as an object of the
+ * sub table's fields (stored in the same struct; the bool then becomes
+ * true), ARRAY -> a pointer at offset to count elements of sub->size bytes,
+ * the count a size_t at count_offset, 1..max_items of them. */
+
+typedef enum mr_param_type {
+    MR_PARAM_INT = 0,
+    MR_PARAM_NUMBER,
+    MR_PARAM_BOOL,
+    MR_PARAM_ENUM,
+    MR_PARAM_FLAG_OBJECT,
+    MR_PARAM_ARRAY,
+    MR_PARAM_TRANSFORM,
+    MR_PARAM_POSE
+} mr_param_type;
+
+/* mr_param.flags: open ends of a number's range. */
+enum { MR_PARAM_LO_OPEN = 1u, MR_PARAM_HI_OPEN = 2u };
+
+/* At most this many fields in one table (the reader tracks them in a
+ * 32-bit set). */
+#define MR_PARAM_MAX_FIELDS 32u
+
+/* What an `after` hook reports: the field the pointer should end at
+ * (relative to the block; "" for the block itself), code and message. */
+typedef struct mr_param_error {
+    int code;
+    char field[64];
+    char message[256];
+} mr_param_error;
+
+typedef struct mr_param_table mr_param_table;
+
+typedef struct mr_param {
+    const char *field;
+    mr_param_type type;
+    size_t offset;             /* of the value in the table's struct */
+    double lo, hi;             /* INT, NUMBER: range */
+    unsigned flags;            /* MR_PARAM_LO_OPEN | MR_PARAM_HI_OPEN */
+    const char *const *choices; /* ENUM: names in the order of the stored int */
+    size_t choice_count;
+    double def;                /* default: the number, 0/1, or the enum index */
+    const char *expect;        /* "expected ..." text instead of the generated one, or NULL */
+    const char *description;   /* one line, for the schema and docs */
+    const char *conflicts;     /* a later field of this table that may not be given with this one */
+    const mr_param_table *sub; /* FLAG_OBJECT: its object's fields; ARRAY: an element's */
+    size_t present_offset;     /* POSE: bool set when the pose is given */
+    size_t count_offset;       /* ARRAY: size_t element count */
+    size_t max_items;          /* ARRAY */
+    /* Runs after the field was read or found absent (given[i]: field i of
+     * the table was in the job). Returns MR_OK or fills err and returns its
+     * code. May adjust other values (a default that depends on this one). */
+    int (*after)(void *values, const bool *given, mr_param_error *err);
+} mr_param;
+
+struct mr_param_table {
+    const mr_param *params;
+    size_t count;
+    size_t size;         /* bytes of the struct the values live in */
+    const char *expect;  /* what the block is: "an object of <kind> parameters" */
+    const char *plural;  /* ARRAY elements, for "an array of 1..N <plural>" */
+    /* The after hooks' rules as JSON Schema keywords (the members of a JSON
+     * object, e.g. "if"/"then"), merged into the generated block; NULL if
+     * none. Text only: core parses no JSON. */
+    const char *schema_rules;
+};
+
+/* Writes every default of t into values (sub tables included). */
+void mr_params_defaults(const mr_param_table *t, void *values);
+/* Releases what values own (arrays and the poses inside them), leaving
+ * them empty; values itself is the caller's. Accepts partially read
+ * values (NULL arrays, counts set as soon as arrays exist). */
+void mr_params_clear(const mr_param_table *t, void *values);
+/* A table's field by name, or NULL. */
+const mr_param *mr_param_find(const mr_param_table *t, const char *field);
+/* Index of `field` in t, or -1. */
+int mr_param_index(const mr_param_table *t, const char *field);
+
+/* Fills err (returns code): a helper for after hooks. */
+int mr_param_fail(mr_param_error *err, int code, const char *field, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 4, 5)))
+#endif
+    ;
+
+/* A geometry kind: its descriptor, from the registry. */
+typedef struct mr_kind mr_kind;
+
+/* One of a kind's own per-frame statistics fields (reported as a frame's
+ * extras, see mr_frame_extra). */
+typedef struct mr_kind_stat {
+    const char *name;        /* stats.json key, unique among all fields */
+    const char *unit;        /* "s", "count", "bytes", ... */
+    const char *description; /* one line */
+} mr_kind_stat;
+
+/* The registry: the built-in kinds, in a fixed order, then any added by
+ * mr_kind_register (kinds/kind.h). */
+size_t mr_kind_count(void);
+const mr_kind *mr_kind_at(size_t i);
+/* The kind named name, or NULL. */
+const mr_kind *mr_kind_find(const char *name);
+
+/* The job's "kind" string and its block's key. */
+const char *mr_kind_name(const mr_kind *kind);
+/* One line, for the schema and docs. */
+const char *mr_kind_summary(const mr_kind *kind);
+/* The fields of the kind's job block; NULL: the kind takes none. */
+const mr_param_table *mr_kind_params(const mr_kind *kind);
+/* The kind's own per-frame statistics fields: stat_count of them, i < count. */
+size_t mr_kind_stat_count(const mr_kind *kind);
+const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i);
+
+/* ==== Jobs (job.c) ========================================================
+ * A render job as plain C structs: what to load, how to pose it, where the
+ * camera goes, which frames to render and how to write them.
+ *
+ * The server parses and validates job JSON (server/job_json.c) into this
+ * form; core never sees JSON. Every string and array here is owned by the
+ * job and released by mr_job_free(). Caps below are enforced by the parser
+ * and documented in the README. */
+
+#define MR_MAX_ASSETS 256
+#define MR_MAX_OBJECTS 1024
+#define MR_MAX_LIGHTS 64
+#define MR_MAX_FRAMES 100000
+#define MR_MAX_SPP 1024
+#define MR_MAX_JOINT_OVERRIDES 1024
+#define MR_MAX_JOB_TRIANGLES (32u * 1024u * 1024u) /* over all objects (each holds its own copy) */
+#define MR_MAX_NAME 256         /* bytes in any name or id */
+#define MR_MAX_PATH 4096        /* bytes in an asset path */
+
+/* ---- poses (anim/pose.c; evaluation is anim/pose.h) ----
+ * A pose is the global transform of every node of an asset at one instant:
+ * clip keys sampled at a time (positions and scales linearly, rotations by
+ * slerp; clamped to the first/last key outside their range), then explicit
+ * joint overrides replace the local transform of the named nodes, then
+ * globals are composed parent to child. */
+
+/* One explicit joint transform: replaces the named node's local transform. */
+typedef struct mr_joint_override {
+    char *joint;   /* node name */
+    mr_mat4 local; /* from TRS or a 4x4 given in the job */
+} mr_joint_override;
+
+/* How to pose an object at one frame. */
+typedef struct mr_pose_desc {
+    bool has_clip;
+    char *clip_name;  /* NULL: use clip_index */
+    int clip_index;
+    bool has_time;    /* explicit clip time in seconds ... */
+    double time;
+    double speed;     /* ... else clip time = offset + speed * frame time */
+    double offset;
+    bool loop;        /* wrap clip time into [0, duration) (default), else clamp */
+    size_t joint_count;
+    mr_joint_override *joints;
+} mr_pose_desc;
+
+/* Frees the strings and joint overrides a pose description owns (a job's
+ * parser allocates them) and zeroes it. */
+void mr_pose_desc_clear(mr_pose_desc *p);
+
+/* ---- camera paths (render/camera.c; cameras and rays are render/camera.h) ----
+ * A camera looks down its local -Z with +Y up (glTF's convention); its
+ * orientation is a unit quaternion mapping camera space to world space.
+ * A path is a list of keyframes sorted by time; between keys, position is
+ * interpolated linearly or with uniform Catmull-Rom (end keys duplicated as
+ * their own neighbours), orientation by slerp, field of view linearly.
+ * Before the first key and after the last the path holds still.
+ * A key gives its orientation either as a rotation or as a target point
+ * (looked at with the path's up vector); targets are turned into rotations
+ * at the key, so both kinds interpolate the same way. */
+
+#define MR_MAX_CAMERA_KEYS 10000
+/* Vertical field of view when a job or a camera node does not give one. */
+#define MR_DEFAULT_YFOV_DEG 45.0
+
+typedef enum mr_interp { MR_INTERP_LINEAR = 0, MR_INTERP_CATMULL_ROM } mr_interp;
+
+typedef struct mr_camera_key {
+    double t;          /* seconds, strictly increasing along the path */
+    mr_vec3 position;
+    bool has_target;   /* orientation from target (else from rotation) */
+    mr_vec3 target;
+    mr_quat rotation;
+    float yfov;        /* vertical field of view, radians, in (0, pi) */
+} mr_camera_key;
+
+typedef struct mr_camera_path {
+    mr_interp interp;
+    mr_vec3 up;        /* for target keys; default +Y */
+    size_t key_count;  /* >= 1 */
+    mr_camera_key *keys;
+} mr_camera_path;
+
+/* ---- the job ---- */
+
+/* An asset's "refine" (issue 4: detailed skinned meshes made from low-poly
+ * rigs by mr_refine_asset). The job allows less than refinement does:
+ * each round multiplies triangles by 4, and 4 rounds already turn a
+ * 5000-triangle character into 1.3 million. */
+#define MR_ASSET_REFINE_MAX_ROUNDS 4u
+#define MR_ASSET_REFINE_MAX_OCTAVES 8u
+#define MR_ASSET_REFINE_DEFAULT_ROUNDS 2u
+#define MR_ASSET_REFINE_DEFAULT_FREQUENCY 8.0f
+#define MR_ASSET_REFINE_DEFAULT_OCTAVES 3u
+#define MR_ASSET_REFINE_DEFAULT_SEED 1u
+
+typedef struct mr_asset_desc {
+    char *name;   /* key in the job's "assets" object */
+    char *path;   /* server-side path, resolved by the server before rendering;
+                     for an "id" asset the server fills in the stored file */
+    char *id;     /* SHA-256 (64 hex) of an asset uploaded to the daemon, or NULL */
+    bool refine;  /* "refine" given: the import is refined (mr_refine_asset) once */
+    mr_refine_params refine_params; /* when refine; threads 0 (the worker sets its own) */
+} mr_asset_desc;
+
+typedef struct mr_object_desc {
+    char *name;
+    size_t asset;            /* index into mr_job.assets */
+    const mr_kind *kind;     /* never NULL in a parsed job */
+    void *params;            /* the kind's parameter struct (its table's size), owned;
+                                NULL for a kind without parameters */
+    mr_mat4 transform;       /* object to world, applied after posing */
+    mr_vec3 color;           /* Lambert albedo, linear */
+    size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */
+    mr_pose_desc *poses;
+} mr_object_desc;
+
+typedef struct mr_light_desc {
+    mr_vec3 direction;       /* unit; the direction light travels (sun rays) */
+    mr_vec3 color;           /* linear, already multiplied by intensity */
+} mr_light_desc;
+
+typedef enum mr_camera_source { MR_CAMERA_SOURCE_PATH = 0, MR_CAMERA_SOURCE_NODE } mr_camera_source;
+
+typedef struct mr_camera_desc {
+    mr_camera_source source;
+    mr_camera_path path;     /* SOURCE_PATH */
+    size_t node_asset;       /* SOURCE_NODE: asset holding the camera ... */
+    char *node_name;         /* ... and its camera (or node) name */
+} mr_camera_desc;
+
+typedef struct mr_output_desc {
+    int width, height;       /* 1..MR_MAX_RESOLUTION, width*height <= MR_MAX_PIXELS */
+    int spp;                 /* samples per pixel, 1..MR_MAX_SPP */
+    bool shadows;            /* trace shadow rays to directional lights */
+    uint32_t seed;           /* jitter seed */
+    mr_exr_options exr;
+} mr_output_desc;
+
+#define MR_MAX_PRIORITY 1000     /* priorities run from -1000 to 1000 */
+#define MR_MAX_RETRIES 10        /* per frame */
+
+typedef struct mr_job {
+    char *name;
+    int priority;            /* queue order in the daemon: higher first (default 0) */
+    int max_retries;         /* failed attempts allowed per frame (default 2) */
+    size_t asset_count, object_count, light_count;
+    mr_asset_desc *assets;
+    mr_object_desc *objects;
+    mr_light_desc *lights;
+    mr_vec3 ambient;         /* linear radiance added to every hit */
+    mr_vec3 background;      /* colour of missed samples, linear, not premultiplied */
+    float background_alpha;  /* alpha of missed samples */
+    mr_camera_desc camera;
+    double fps;              /* frames per second of the timeline (> 0) */
+    size_t frame_count;      /* 1..MR_MAX_FRAMES */
+    double *frame_times;     /* seconds, one per frame */
+    mr_output_desc output;
+} mr_job;
+
+/* Frees everything the job owns, then the job. NULL is fine. */
+void mr_job_free(mr_job *job);
+
+/* ==== Frame statistics (render/frame_stats.c) =============================
+ * What a frame's statistics are: the struct the renderer, the worker and the
+ * encoding caller fill (mr_frame_stats), and the one table of its fields
+ * (mr_frame_stat_fields) that everything else is driven by: the stats writer
+ * (stats.json, the stored per-frame object, the HTTP frame and job stats and
+ * the "frame" event: server/stats_json.c), its reader (the HTTP job stats
+ * rebuild totals from stored frames) and the API's schema of a frame's stats
+ * (schemas/openapi.yaml, generated from the table by `make openapi`). A new
+ * field is a struct member plus a table row.
+ *
+ * A geometry kind's own per-frame fields (an extra "simulate" phase, its
+ * counters) are not table rows: the renderer appends them to the frame as
+ * extras (mr_frame_stats_add_extra), and the writer emits them after the
+ * table's fields as "name": value, in the order they were added.
+ *
+ * No JSON here (core/ has none): the table says names, types, units and
+ * where each value lives; the writer decides how a type is spelled. */
+
+typedef enum mr_bvh_update {
+    MR_BVH_NONE = 0, /* nothing moved: the previous frame's tree was reused */
+    MR_BVH_BUILD,    /* built from scratch */
+    MR_BVH_REFIT     /* same tree, bounds refitted to the moved vertices */
+} mr_bvh_update;
+
+/* "none", "build" or "refit" (stats.json's "bvh"). */
+const char *mr_bvh_update_name(mr_bvh_update u);
+
+/* Most extras one frame carries: a few per kind, for a few kinds. */
+#define MR_FRAME_EXTRAS_MAX 8
+
+/* One per-frame field beyond the table's, e.g. {"simulate_s", "s", 0.02}. */
+typedef struct mr_frame_extra {
+    const char *name;  /* stats.json key; borrowed: a kind's static table */
+    const char *unit;  /* "s", "count", "bytes", ...; borrowed */
+    double value;
+} mr_frame_extra;
+
+/* Per-frame statistics. Every member but the extras has a row in
+ * mr_frame_stat_fields (test_stats_json checks they agree). */
+typedef struct mr_frame_stats {
+    int frame;
+    double time;              /* frame time on the job's timeline, s */
+    double load_s;            /* asset import charged to this frame (the first) */
+    uint32_t assets_cached;   /* first frame: assets a scene cache already held */
+    uint32_t assets_loaded;   /* first frame: assets imported for this job */
+    double load_saved_s;      /* first frame: import seconds the cache saved */
+    double pose_s;            /* pose evaluation and skinning */
+    double bvh_s;             /* Embree build or refit */
+    mr_bvh_update bvh;        /* what happened to the BVH this frame */
+    double trace_s;           /* primary + shadow rays and shading */
+    double encode_s;          /* EXR encoding and writing (filled by the caller) */
+    double total_s;           /* everything for this frame, encode included */
+    uint64_t rays;            /* primary + shadow rays traced */
+    double mrays_per_s;       /* rays / trace_s / 1e6 */
+    uint64_t triangles;       /* primitives in the scene */
+    uint64_t geometry_bytes;  /* microray's vertex/index/normal arrays */
+    uint64_t bvh_bytes;       /* Embree's own allocations (memory monitor) */
+    uint64_t peak_rss_bytes;  /* process peak resident set so far */
+    float scene_diagonal;     /* bounding-box diagonal of the frame's scene */
+    uint32_t extra_count;     /* extras[0, extra_count) are set */
+    mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
+} mr_frame_stats;
+
+/* Appends an extra field to the frame. name must be a non-empty run of
+ * [a-z0-9_], and neither a field or group name of the table nor an extra
+ * already added (MR_ERR_INVALID); at most MR_FRAME_EXTRAS_MAX extras
+ * (MR_ERR_LIMIT). name and unit are borrowed: they must outlive st. */
+int mr_frame_stats_add_extra(mr_frame_stats *st, const char *name, const char *unit, double value,
+                             mr_error *err);
+
+/* ---- the field table ---- */
+
+/* How a field's value is stored in mr_frame_stats (and so how it is read
+ * and written). The last two are derived, not stored (offset 0): the
+ * writer makes them from other fields and readers skip them. */
+typedef enum mr_stat_type {
+    MR_STAT_INT,          /* int */
+    MR_STAT_U32,          /* uint32_t */
+    MR_STAT_U64,          /* uint64_t */
+    MR_STAT_F32,          /* float */
+    MR_STAT_F64,          /* double */
+    MR_STAT_BVH,          /* mr_bvh_update, written as mr_bvh_update_name() */
+    MR_STAT_FRAME_FILE,   /* the frame's EXR file name, from the frame index */
+    MR_STAT_CACHE_RESULT  /* "hit", "partial" or "miss", from assets_cached/assets_loaded */
+} mr_stat_type;
+
+/* A JSON object some fields are nested in ("seconds": {...}). */
+typedef struct mr_stat_group {
+    const char *name;
+    const char *description;
+    /* Written only for frames where one of the group's integer fields is
+     * non-zero (the scene cache reports only on the frame that asked it). */
+    bool optional;
+} mr_stat_group;
+
+typedef struct mr_stat_field {
+    const mr_stat_group *group; /* NULL: a member of the frame object itself */
+    const char *name;           /* JSON key within its group */
+    mr_stat_type type;
+    size_t offset;              /* offsetof(mr_frame_stats, ...) of the value */
+    const char *unit;           /* "s", "bytes", "count", ... or "" */
+    const char *description;    /* one sentence, for the API schema */
+} mr_stat_field;
+
+/* The fields in the order they are written; a group's fields are
+ * consecutive. */
+extern const mr_stat_field mr_frame_stat_fields[];
+extern const size_t mr_frame_stat_field_count;
+
+/* The groups "seconds" (the per-stage timings that job totals and medians
+ * sum up), "bytes" and "cache". */
+extern const mr_stat_group mr_stat_group_seconds, mr_stat_group_bytes, mr_stat_group_cache;
+
+/* The value of a stored numeric field (INT, U32, U64, F32, F64, BVH) as a
+ * double; 0 for derived types. */
+double mr_frame_stat_number(const mr_frame_stats *st, const mr_stat_field *f);
+/* Sets a stored numeric field from a double, converted as the type needs
+ * (integers truncate; negative, NaN and out-of-range counts become 0);
+ * derived types are left alone. */
+void mr_frame_stat_set_number(mr_frame_stats *st, const mr_stat_field *f, double v);
+
+/* "hit" (every asset came from the cache), "partial" or "miss" for the
+ * frame's cache counters. */
+const char *mr_frame_cache_result(const mr_frame_stats *st);
+
+/* ==== Renderer (render/renderer.c) ========================================
+ * Renders the frames of one job. A renderer owns the job's objects (one
+ * geometry kind instance each) and one Embree scene. Per frame it evaluates
+ * the camera path and each object's pose, deforms what moved, refits
+ * (animated scenes) or builds (first frame, static scenes, or force_rebuild)
+ * the BVH, and traces the frame into a film.
+ *
+ * Animated scenes use the refit recipe of REFERENCE.md (scene DYNAMIC + LOW,
+ * geometry REFIT): the first frame builds, later frames refit the same tree.
+ * Static scenes build once with MEDIUM quality and never touch Embree again. */
+
+typedef struct mr_renderer mr_renderer;
+
+typedef struct mr_renderer_options {
+    /* Rebuild the BVH every frame (same fast LOW-quality builder) instead of
+     * refitting it: the baseline refit is measured against in benchmarks. */
+    bool force_rebuild;
+    /* When set to true (from any thread) a render in progress stops within
+     * one tile and mr_renderer_render fails with MR_ERR_CANCELLED. May be NULL. */
+    const atomic_bool *cancel;
+    /* Root of the derived-data cache (bakes, voxelisations, ...): each kind
+     * that keeps derived data reads and writes <cache_dir>/<kind name>/
+     * (kinds/kind.h). NULL: nothing is kept on disk. Borrowed. */
+    const char *cache_dir;
+} mr_renderer_options;
+
+/* assets[i] is the import of job->assets[i]; the renderer borrows them (they
+ * must outlive it). Fails naming the object for unknown clips/cameras. */
+int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
+                    const mr_renderer_options *opt, mr_renderer **out, mr_error *err);
+void mr_renderer_free(mr_renderer *r);
+
+/* Renders frame `index` (0 <= index < job->frame_count) into film, which must
+ * be job->output.width x height. */
+int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *stats,
+                       mr_error *err);
 
 #endif /* MICRORAY_H */

@@ -3,7 +3,10 @@
 #  - nothing outside a kind's folder names a kind: no kind's name (or its
 #    mr_<kind>_ identifiers, or its folder) in server/, core/render/,
 #    core/job.[ch] or core/kinds/*.[ch]; only core/kinds/registry.c lists them;
-#  - core does not include server headers (it is compiled without -Iserver).
+#  - core does not include server headers (it is compiled without -Iserver);
+#  - server/ includes from core only microray.h, the public API (tests/ may
+#    include internals); so do the benchmarks, but for the exceptions below,
+#    which measure core internals.
 # Prints each violation and exits 1 if there is any. Run by make test/check.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -27,6 +30,41 @@ done
 hits=$(grep -rnE '#include "(daemon|http|store|worker|job_json|render_cmd|files|cache|stats_json|schema_gen)\.h"' core || true)
 if [ -n "$hits" ]; then
   echo "check-layout: core includes server headers:"
+  echo "$hits" | sed 's/^/  /'
+  status=1
+fi
+# A quoted include names a core header when core/<name> exists (and the
+# including file's own directory has no such file).
+core_includes() { # files...
+  for f in "$@"; do
+    grep -nE '^[[:space:]]*#[[:space:]]*include[[:space:]]*"[^"]+"' "$f" 2>/dev/null |
+      while IFS= read -r line; do
+        inc=$(printf '%s\n' "$line" | sed -E 's/.*#[[:space:]]*include[[:space:]]*"([^"]+)".*/\1/')
+        [ "$inc" = microray.h ] && continue
+        [ -e "core/$inc" ] && [ ! -e "$(dirname "$f")/$inc" ] && echo "$f:$line"
+      done
+  done
+}
+hits=$(core_includes server/*.c server/*.h)
+if [ -n "$hits" ]; then
+  echo "check-layout: server includes core headers other than microray.h:"
+  echo "$hits" | sed 's/^/  /'
+  status=1
+fi
+# Benchmarks that measure core internals, and may include internal headers:
+bench_internal=(
+  bench/bench_render.c     # a bare Embree loop on the renderer's device, beside the renderer
+  bench/bench_dmm.c        # DMM bake, encoding and traversal, against tessellated meshes
+  bench/bench_svo.c        # octree build, radix sort and skinned voxel deformation
+  bench/bench_svo_render.c # voxelisation and extracted skeletons, beside the renderer
+)
+bench_public=()
+for f in bench/*.c bench/*.h; do
+  [[ " ${bench_internal[*]} " == *" $f "* ]] || bench_public+=("$f")
+done
+hits=$(core_includes "${bench_public[@]}")
+if [ -n "$hits" ]; then
+  echo "check-layout: benchmarks outside the listed exceptions include core headers other than microray.h:"
   echo "$hits" | sed 's/^/  /'
   status=1
 fi

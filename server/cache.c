@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "util/clock.h"
+#include "microray.h"
 
 /* A file hash (64 hex) plus the refine suffix (about 70 bytes at most). */
 #define KEY_MAX 256
@@ -117,12 +117,13 @@ int mr_cache_import(const char *path, const mr_refine_params *refine, mr_asset *
     }
     /* Every round splits every triangle in four, so the count is known
      * now: refuse before spending minutes and gigabytes on it. */
-    uint64_t tris = (uint64_t)base->triangle_count << (2 * refine->rounds);
+    size_t base_tris = mr_asset_triangle_count(base);
+    uint64_t tris = (uint64_t)base_tris << (2 * refine->rounds);
     if (tris > MR_MAX_ASSET_TRIANGLES) {
         rc = mr_error_set(err, MR_ERR_LIMIT,
                           "%u rounds would turn the %zu triangles of %s into %llu, more "
                           "than the %u an asset may have",
-                          refine->rounds, base->triangle_count, path, (unsigned long long)tris,
+                          refine->rounds, base_tris, path, (unsigned long long)tris,
                           MR_MAX_ASSET_TRIANGLES);
         goto done;
     }

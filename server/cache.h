@@ -13,8 +13,7 @@
 #ifndef MR_CACHE_H
 #define MR_CACHE_H
 
-#include "asset/asset.h"
-#include "asset/refine.h"
+#include "microray.h"
 
 typedef struct mr_cache mr_cache;
 

@@ -29,13 +29,8 @@
 #include "cache.h"
 #include "http.h"
 #include "job_json.h"
-#include "render/exr.h"
-#include "util/file_io.h"
-#include "util/hex.h"
-#include "util/sha256.h"
+#include "microray.h"
 #include "stats_json.h"
-#include "util/clock.h"
-#include "util/parallel.h"
 #include "worker.h"
 
 /* Events buffered per subscriber before its stream is ended, and streams

@@ -13,7 +13,7 @@
 #ifndef MR_DAEMON_H
 #define MR_DAEMON_H
 
-#include "job.h"
+#include "microray.h"
 #include "store.h"
 
 typedef struct mr_daemon_config {

@@ -28,7 +28,7 @@
 #include <unistd.h>
 
 #include "http_internal.h"
-#include "util/clock.h"
+#include "microray.h"
 
 #define DEFAULT_HOST "127.0.0.1"
 #define DEFAULT_JOB_BYTES (1u << 20)

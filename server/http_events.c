@@ -17,7 +17,7 @@
 #include <time.h>
 
 #include "http_internal.h"
-#include "util/clock.h"
+#include "microray.h"
 
 #define KEEPALIVE_MS 15000
 /* Largest event block passed on to a client in one piece. */

@@ -15,7 +15,7 @@
 #include "http_internal.h"
 #include "job_json.h"
 #include "stats_json.h"
-#include "util/hex.h"
+#include "microray.h"
 
 #define CT_METRICS "text/plain; version=0.0.4; charset=utf-8"
 

@@ -1,6 +1,6 @@
 /*
  * job_json.c - the job grammar: validates job JSON and turns it into the
- * structs of core/job.h.
+ * structs of microray.h.
  *
  * Hand-written rather than driven by a JSON Schema library because the
  * daemon must answer with one precise JSON pointer and a short message, and
@@ -11,7 +11,7 @@
  *
  * The generic reading (pointers, messages, scalars, strings, keys, cJSON's
  * quirks) is json_reader.h; this file is the job grammar. Kind blocks are
- * read from each kind's parameter table (core/kinds/params.h).
+ * read from each kind's parameter table (microray.h).
  *
  * Every value is stored into the (zeroed) job as soon as it is allocated, so
  * an error anywhere is cleaned up by the single mr_job_free() in
@@ -20,7 +20,7 @@
 #include "job_json.h"
 
 #include "json_reader.h"
-#include "kinds/kind.h"
+#include "microray.h"
 
 #include <float.h>
 #include <limits.h>
@@ -157,7 +157,7 @@ static bool hex64(const char *s)
     return n == 64;
 }
 
-/* An asset's "refine" parameters (core/asset/refine.h), every field
+/* An asset's "refine" parameters (microray.h), every field
  * optional. The frequency is stored as float and must stay positive there:
  * refine.h refuses a zero frequency with a non-zero amplitude, which would
  * otherwise only surface when the job runs. */
@@ -453,7 +453,7 @@ static int parse_object_pose(mr_json_ctx *c, const cJSON *v, mr_object_desc *o, 
 }
 
 /* ------------------------------------------------------------------------ */
-/* A kind's parameter block, read from its table (core/kinds/params.h).     */
+/* A kind's parameter block, read from its table (microray.h).     */
 
 #define PARAM_AT(values, off, type) ((type *)((char *)(values) + (off)))
 
@@ -593,8 +593,8 @@ static size_t object_fields(const char **names, size_t cap)
     for (size_t i = 0; i < COUNT_OF(OBJECT_FIELDS_HEAD) && n < cap; i++)
         names[n++] = OBJECT_FIELDS_HEAD[i];
     for (size_t i = 0; i < mr_kind_count() && n < cap; i++)
-        if (mr_kind_at(i)->params)
-            names[n++] = mr_kind_at(i)->name;
+        if (mr_kind_params(mr_kind_at(i)))
+            names[n++] = mr_kind_name(mr_kind_at(i));
     for (size_t i = 0; i < COUNT_OF(OBJECT_FIELDS_TAIL) && n < cap; i++)
         names[n++] = OBJECT_FIELDS_TAIL[i];
     return n;
@@ -605,7 +605,7 @@ static int parse_kind(mr_json_ctx *c, const cJSON *v, const mr_kind **out)
     const char *names[32];
     size_t n = 0;
     for (size_t i = 0; i < mr_kind_count() && n < COUNT_OF(names); i++)
-        names[n++] = mr_kind_at(i)->name;
+        names[n++] = mr_kind_name(mr_kind_at(i));
     char expect[512];
     json_choices_text(names, n, expect, sizeof expect);
     int choice = 0;
@@ -634,22 +634,24 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     o->kind = mr_kind_at(0); /* the default kind: triangle meshes */
     if (kind)
         AT_KEY(c, "kind", parse_kind(c, kind, &o->kind));
-    if (o->kind->params) {
-        if (!(o->params = calloc(1, o->kind->params->size)))
+    const mr_param_table *table = mr_kind_params(o->kind);
+    if (table) {
+        if (!(o->params = calloc(1, table->size)))
             return json_fail_nomem(c);
-        mr_params_defaults(o->kind->params, o->params);
+        mr_params_defaults(table, o->params);
     }
     for (size_t i = 0; i < mr_kind_count(); i++) {
         const mr_kind *k = mr_kind_at(i);
-        const cJSON *block = k->params ? json_field(v, k->name) : NULL;
+        const char *kname = mr_kind_name(k);
+        const cJSON *block = mr_kind_params(k) ? json_field(v, kname) : NULL;
         if (!block)
             continue;
         if (k != o->kind) {
-            json_push_key(c, k->name);
-            return json_fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", k->name,
-                        k->name);
+            json_push_key(c, kname);
+            return json_fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", kname,
+                             kname);
         }
-        AT_KEY(c, k->name, parse_params(c, block, k->params, o->params, false));
+        AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params, false));
     }
     o->transform = mr_mat4_identity();
     if (xf)

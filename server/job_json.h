@@ -1,6 +1,6 @@
 /*
  * job_json.h - job JSON (docs/job-format.md, schemas/job.schema.json) to the
- * JSON-free structs of core/job.h.
+ * JSON-free structs of microray.h.
  *
  * The parser is the daemon's only gate for untrusted jobs, so it validates
  * everything the renderer relies on (ranges, caps, references between
@@ -11,7 +11,7 @@
 #ifndef MR_JOB_JSON_H
 #define MR_JOB_JSON_H
 
-#include "job.h"
+#include "microray.h"
 #include "json_reader.h"
 
 /* Largest job document accepted, in bytes; larger inputs give MR_ERR_LIMIT. */
@@ -27,7 +27,7 @@ typedef mr_json_error mr_job_error;
  *   MR_ERR_INVALID  malformed JSON or a value that breaks the format,
  *   MR_ERR_LIMIT    input over MR_JOB_MAX_BYTES, or more assets, objects,
  *                   lights, joints, camera keys, frames or pixels than the
- *                   caps of core/job.h allow,
+ *                   caps of microray.h allow,
  *   MR_ERR_NOMEM    out of memory.
  * Problems are looked for in a fixed order, so the same input always
  * reports the same error. Thread-safe apart from cJSON's own unsynchronised

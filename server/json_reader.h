@@ -22,7 +22,6 @@
 #include <stdbool.h>
 #include <stddef.h>
 
-#include "math/mr_math.h"
 #include "microray.h"
 
 /* The first problem found: where and what. */

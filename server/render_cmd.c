@@ -7,7 +7,7 @@
  * and DIR/stats.json is rewritten after every frame, so an interrupted run
  * leaves only complete files behind. With --cache DIR, kinds that derive
  * data from an asset (bakes, voxelisations) keep it in DIR/<kind>/ and
- * reuse it (core/kinds/kind.h).
+ * reuse it (mr_renderer_options.cache_dir).
  */
 #include "render_cmd.h"
 
@@ -20,12 +20,8 @@
 
 #include "files.h"
 #include "job_json.h"
-#include "render/compare.h"
-#include "render/exr.h"
+#include "microray.h"
 #include "stats_json.h"
-#include "util/file_io.h"
-#include "util/clock.h"
-#include "util/parallel.h"
 #include "worker.h"
 
 /* Exit codes shared by microrayd's one-shot commands (README). */

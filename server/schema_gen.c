@@ -162,16 +162,16 @@ static cJSON *table_schema(const mr_param_table *t, const char *comment, const c
 
 cJSON *mr_schema_kind_block(const mr_kind *kind, mr_error *err)
 {
-    if (!kind->params) {
-        mr_error_set(err, MR_ERR_INVALID, "kind \"%s\" takes no parameters", kind->name);
+    if (!mr_kind_params(kind)) {
+        mr_error_set(err, MR_ERR_INVALID, "kind \"%s\" takes no parameters", mr_kind_name(kind));
         return NULL;
     }
     char note[256];
     snprintf(note, sizeof note,
              "Generated from the \"%s\" kind's parameter table by `make schema`; edit the "
              "table, not this block.",
-             kind->name);
-    return table_schema(kind->params, note, kind->summary, err);
+             mr_kind_name(kind));
+    return table_schema(mr_kind_params(kind), note, mr_kind_summary(kind), err);
 }
 
 /* {"properties": {"kind": {"const": name}}, "required": ["kind"]}: a
@@ -280,7 +280,7 @@ int mr_schema_update(cJSON *schema, mr_error *err)
     const char *names[64];
     size_t n = 0;
     for (size_t i = 0; i < mr_kind_count() && n < 64; i++)
-        names[n++] = mr_kind_at(i)->name;
+        names[n++] = mr_kind_name(mr_kind_at(i));
     cJSON *kind = cJSON_CreateObject();
     bool ok = kind && add(kind, "enum", cJSON_CreateStringArray(names, (int)n)) &&
               add(kind, "default", cJSON_CreateString(names[0])) &&
@@ -293,10 +293,11 @@ int mr_schema_update(cJSON *schema, mr_error *err)
     }
     for (size_t i = 0; i < mr_kind_count(); i++) {
         const mr_kind *k = mr_kind_at(i);
-        if (!k->params)
+        const char *kname = mr_kind_name(k);
+        if (!mr_kind_params(k))
             continue;
         char def[96];
-        snprintf(def, sizeof def, KIND_DEF_PREFIX "%s", k->name);
+        snprintf(def, sizeof def, KIND_DEF_PREFIX "%s", kname);
         cJSON *block = mr_schema_kind_block(k, err);
         if (!block)
             return err->code ? err->code : MR_ERR_NOMEM;
@@ -305,13 +306,13 @@ int mr_schema_update(cJSON *schema, mr_error *err)
             return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
         }
         /* the block's property sits before "transform" (the parser's order) */
-        if (!cJSON_GetObjectItemCaseSensitive(props, k->name)) {
-            if (!add_before(props, "transform", k->name, ref_to(def)))
+        if (!cJSON_GetObjectItemCaseSensitive(props, kname)) {
+            if (!add_before(props, "transform", kname, ref_to(def)))
                 return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
-        } else if (!put(props, k->name, ref_to(def))) {
+        } else if (!put(props, kname, ref_to(def))) {
             return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
         }
-        if (!put(deps, k->name, needs_kind(k->name)))
+        if (!put(deps, kname, needs_kind(kname)))
             return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
     }
     return MR_OK;

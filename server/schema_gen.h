@@ -1,6 +1,6 @@
 /*
  * schema_gen.h - the job schema's geometry-kind parts, generated from the
- * kinds' parameter tables (core/kinds/params.h), so the schema given to
+ * kinds' parameter tables (microray.h), so the schema given to
  * clients cannot drift from the parser that reads the same tables.
  *
  * Generated, in schemas/job.schema.json: "$defs"/"kind_<name>" (each kind's
@@ -16,7 +16,7 @@
 
 #include <cJSON.h>
 
-#include "kinds/kind.h"
+#include "microray.h"
 
 /* The JSON Schema of one kind's parameter block (NULL on allocation
  * failure or a kind without parameters; a malformed schema_rules text is

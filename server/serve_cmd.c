@@ -18,8 +18,7 @@
 
 #include "daemon.h"
 #include "render_cmd.h"
-#include "util/file_io.h"
-#include "util/parallel.h"
+#include "microray.h"
 
 #define MR_DEFAULT_PORT 8470
 #define MR_MAX_ROOTS 64

@@ -13,9 +13,7 @@
 #include <string.h>
 
 #include "files.h"
-#include "kinds/kind.h"
-#include "render/frame_stats.h"
-#include "util/file_io.h"
+#include "microray.h"
 
 #define DOC_MAX_BYTES (4u << 20)
 
@@ -127,15 +125,16 @@ char *mr_stats_openapi_block(void)
         }
         group = fd->group;
     }
-    /* the registered kinds' own fields (kind.h stats), summed over a job's
+    /* the registered kinds' own fields (mr_kind_stat_at), summed over a job's
      * objects of the kind */
     for (size_t k = 0; k < mr_kind_count(); k++) {
         const mr_kind *kind = mr_kind_at(k);
-        for (size_t i = 0; i < kind->stat_count; i++) {
+        for (size_t i = 0; i < mr_kind_stat_count(kind); i++) {
+            const mr_kind_stat *st = mr_kind_stat_at(kind, i);
             char about[512];
             snprintf(about, sizeof about, "Kind %s, summed over its objects: %s. Unit: %s.",
-                     kind->name, kind->stats[i].description, kind->stats[i].unit);
-            fprintf(f, "        %s: { type: number, description: ", kind->stats[i].name);
+                     mr_kind_name(kind), st->description, st->unit);
+            fprintf(f, "        %s: { type: number, description: ", st->name);
             put_quoted(f, about);
             fputs(" }\n", f);
         }

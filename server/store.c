@@ -32,8 +32,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "util/file_io.h"
-#include "util/hex.h"
+#include "microray.h"
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
  * step by step and refuses newer ones. */

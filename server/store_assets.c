@@ -12,9 +12,7 @@
 #include <unistd.h>
 
 #include "store_internal.h"
-#include "util/file_io.h"
-#include "util/hex.h"
-#include "util/sha256.h"
+#include "microray.h"
 
 /* ---- assets ----------------------------------------------------------------- */
 

@@ -11,8 +11,7 @@
 #include <unistd.h>
 
 #include "store_internal.h"
-#include "util/dup.h"
-#include "util/file_io.h"
+#include "microray.h"
 
 /* For a frame lookup that found no row: an unknown job, or a job without
  * that frame. */

@@ -11,12 +11,10 @@
 #include <sys/random.h>
 
 #include "store_internal.h"
-#include "util/dup.h"
-#include "util/file_io.h"
-#include "util/hex.h"
+#include "microray.h"
 
 /* A guard against runaway frame counts, well above the job format's cap
- * (MR_MAX_FRAMES in core/job.h); the parser enforces the real limit. */
+ * (MR_MAX_FRAMES in microray.h); the parser enforces the real limit. */
 #define STORE_MAX_FRAMES 1000000u
 
 /* Length of at most max bytes of s that does not end inside a UTF-8

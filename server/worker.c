@@ -5,9 +5,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asset/asset.h"
+#include "microray.h"
 #include "cache.h"
-#include "util/clock.h"
 
 /* Without a cache, the import the cache would do on a miss (refinement
  * included). */

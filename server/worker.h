@@ -12,9 +12,7 @@
 #include <stdatomic.h>
 
 #include "cache.h"
-#include "job.h"
-#include "render/device.h"
-#include "render/renderer.h"
+#include "microray.h"
 
 struct mr_job_stats;
 

@@ -1,5 +1,7 @@
 /*
- * pose.h - poses and linear blend skinning.
+ * pose.h - poses and linear blend skinning. The job's pose descriptions
+ * (mr_pose_desc, mr_joint_override, mr_pose_desc_clear) are public:
+ * microray.h.
  *
  * A pose is the global transform of every node of an asset at one instant:
  * clip keys sampled at a time (positions and scales linearly, rotations by
@@ -11,30 +13,6 @@
 #define MR_POSE_H
 
 #include "asset/asset.h"
-
-/* One explicit joint transform: replaces the named node's local transform. */
-typedef struct mr_joint_override {
-    char *joint;   /* node name */
-    mr_mat4 local; /* from TRS or a 4x4 given in the job */
-} mr_joint_override;
-
-/* How to pose an object at one frame. */
-typedef struct mr_pose_desc {
-    bool has_clip;
-    char *clip_name;  /* NULL: use clip_index */
-    int clip_index;
-    bool has_time;    /* explicit clip time in seconds ... */
-    double time;
-    double speed;     /* ... else clip time = offset + speed * frame time */
-    double offset;
-    bool loop;        /* wrap clip time into [0, duration) (default), else clamp */
-    size_t joint_count;
-    mr_joint_override *joints;
-} mr_pose_desc;
-
-/* Frees the strings and joint overrides a pose description owns (a job's
- * parser allocates them) and zeroes it. */
-void mr_pose_desc_clear(mr_pose_desc *p);
 
 /* Global transforms of every node of one asset. */
 typedef struct mr_pose {

@@ -308,6 +308,11 @@ void mr_asset_free(mr_asset *asset)
     free(asset);
 }
 
+size_t mr_asset_triangle_count(const mr_asset *asset)
+{
+    return asset ? asset->triangle_count : 0;
+}
+
 size_t mr_asset_memory(const mr_asset *asset)
 {
     if (!asset)

@@ -1,8 +1,8 @@
 /*
- * asset.h - imported models: meshes, node hierarchy, skins, animation clips,
- * cameras. Imported once with assimp (glTF 2.0, FBX, COLLADA, X, SMD, OBJ,
- * PLY and whatever else assimp reads) into plain arrays so nothing after the
- * import depends on assimp.
+ * asset.h - what an imported model holds: meshes, node hierarchy, skins,
+ * animation clips, cameras, as plain arrays (struct mr_asset). The handle,
+ * its import caps, mr_asset_load/free and the accessors a client needs are
+ * public (microray.h); the arrays are core's.
  *
  * Space conventions:
  *  - nodes[] are in parent-before-child order (parent < own index; root has
@@ -23,14 +23,6 @@
 #include "microray.h"
 
 #define MR_MAX_INFLUENCES 8
-/* Import caps: larger files are refused with MR_ERR_LIMIT rather than
- * exhausting memory in the daemon. */
-#define MR_MAX_ASSET_FILE_BYTES (2ull * 1024u * 1024u * 1024u)
-#define MR_MAX_ASSET_TRIANGLES (16u * 1024u * 1024u)
-#define MR_MAX_ASSET_VERTICES (16u * 1024u * 1024u)
-#define MR_MAX_ASSET_NODES (1u << 20)
-/* Joint indices are stored as uint16_t. */
-#define MR_MAX_ASSET_JOINTS 65535u
 
 typedef struct mr_node {
     char *name;    /* never NULL (may be "") */
@@ -84,7 +76,7 @@ typedef struct mr_camera_info {
     float aspect;      /* width / height, 0 if unknown */
 } mr_camera_info;
 
-typedef struct mr_asset {
+struct mr_asset {
     char *path;
     size_t node_count, mesh_count, clip_count, camera_count;
     mr_node *nodes;
@@ -92,17 +84,7 @@ typedef struct mr_asset {
     mr_clip *clips;
     mr_camera_info *cameras;
     size_t triangle_count; /* over all meshes */
-} mr_asset;
-
-/* Imports a model file. Broken, empty or unsupported files fail with
- * MR_ERR_FORMAT (or MR_ERR_IO when unreadable) and a message naming the
- * file; they never crash. A file without any triangles is an error, and so
- * is a non-finite vertex position (named by mesh and vertex) or a bone that
- * names no node. Files above the caps fail with MR_ERR_LIMIT. Only meshes
- * placed by a node are imported, one mr_mesh per (node, mesh) reference;
- * points and lines are dropped. Camera yfov is converted from whatever the
- * format's importer stored in assimp's mHorizontalFOV (see asset.c). */
-int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
+};
 
 /* Builds an asset from one in-memory triangle mesh (copied), with a single
  * root node. Used by tests and generated fixtures. normals may be NULL. */
@@ -110,7 +92,6 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
                        uint32_t vertex_count, const uint32_t *indices,
                        uint32_t triangle_count, mr_asset **out, mr_error *err);
 
-void mr_asset_free(mr_asset *asset);
 /* A deep copy of in's path, nodes (with room for extra_nodes more after
  * them; node_count counts the copied ones), clips and cameras, plus
  * mesh_count zeroed meshes and in's triangle_count, for a caller that makes
@@ -139,8 +120,5 @@ int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t
 int mr_asset_find_node(const mr_asset *asset, const char *name);
 int mr_asset_find_clip(const mr_asset *asset, const char *name);
 int mr_asset_find_camera(const mr_asset *asset, const char *name);
-
-/* Bytes held by the asset's arrays. */
-size_t mr_asset_memory(const mr_asset *asset);
 
 #endif

@@ -1,6 +1,8 @@
 /*
  * refine.h - detailed skinned test meshes made from low-poly ones: Loop
  * subdivision plus a procedural displacement, with skin weights carried along.
+ * mr_refine_params and mr_refine_asset are public (microray.h); this header
+ * says what a refinement does and declares the per-mesh calls and the noise.
  *
  * Why: the real skinned characters available (assimp-testmodels) have a few
  * thousand triangles, while displaced micro-meshes must be baked from
@@ -50,20 +52,6 @@
 
 #include "asset/asset.h"
 
-/* Most Loop rounds one call does (each multiplies triangles by 4). */
-#define MR_REFINE_MAX_ROUNDS 8
-/* Most noise octaves. */
-#define MR_REFINE_MAX_OCTAVES 16
-
-typedef struct mr_refine_params {
-    unsigned rounds;   /* Loop subdivision rounds, 0..MR_REFINE_MAX_ROUNDS */
-    float amplitude;   /* largest displacement, mesh units; 0: no detail */
-    float frequency;   /* lattice cells per mesh unit of the first octave (> 0 when amplitude != 0) */
-    unsigned octaves;  /* 0 or 1: one band; k: k bands, each 2x the frequency and 1/2 the weight */
-    uint32_t seed;     /* picks the noise pattern */
-    unsigned threads;  /* 0: all cores */
-} mr_refine_params;
-
 /* Refines in into *out (overwritten; release with mr_refine_mesh_free).
  * name, node and skin (joint_nodes, inverse_bind) are copied. Fails with
  * MR_ERR_INVALID for bad params or a broken mesh (index out of range,
@@ -75,11 +63,6 @@ int mr_refine_mesh(const mr_mesh *in, const mr_refine_params *params, mr_mesh *o
 
 /* Frees the arrays of a mesh made by mr_refine_mesh and zeroes it. */
 void mr_refine_mesh_free(mr_mesh *mesh);
-
-/* A deep copy of in (path, nodes, clips, cameras) with every mesh replaced
- * by its refinement; mr_asset_free releases it. */
-int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset **out,
-                    mr_error *err);
 
 /* Band-limited gradient noise at (x, y, z): sum of `octaves` (0 = 1) bands of
  * Perlin-style gradient noise (12 cube-edge gradients, quintic fade) on the

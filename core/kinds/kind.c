@@ -1,9 +1,20 @@
-/* kind.c - helpers shared by geometry kinds (kind.h): triangle soups and
- * Embree triangle geometries. The registry is registry.c. */
+/* kind.c - a kind's public accessors (microray.h) and helpers shared by
+ * geometry kinds (kind.h): triangle soups and Embree triangle geometries.
+ * The registry is registry.c. */
 #include "kinds/kind.h"
 
 #include <stdlib.h>
 #include <string.h>
+
+const char *mr_kind_name(const mr_kind *kind) { return kind ? kind->name : NULL; }
+const char *mr_kind_summary(const mr_kind *kind) { return kind ? kind->summary : NULL; }
+const mr_param_table *mr_kind_params(const mr_kind *kind) { return kind ? kind->params : NULL; }
+size_t mr_kind_stat_count(const mr_kind *kind) { return kind ? kind->stat_count : 0; }
+
+const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)
+{
+    return kind && i < kind->stat_count ? &kind->stats[i] : NULL;
+}
 
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,
                     uint32_t triangle_count, mr_trimesh *out, mr_error *err)

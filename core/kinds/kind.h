@@ -1,6 +1,8 @@
 /*
- * kind.h - what a geometry kind is: one descriptor (mr_kind) holding its
- * job name, its parameter table (params.h), its contracts and its ops.
+ * kind.h - what a geometry kind is: one descriptor (struct mr_kind) holding
+ * its job name, its parameter table (params.h), its contracts and its ops.
+ * Clients see kinds as opaque handles with accessors (microray.h: the
+ * registry lookups, name, summary, parameter table, stats fields).
  *
  * A kind turns an imported asset into something Embree can trace and keeps
  * it up to date frame by frame:
@@ -86,13 +88,6 @@ typedef struct mr_kind_context {
     unsigned threads;      /* the job's thread count (0: all cores) */
 } mr_kind_context;
 
-/* One of a kind's own per-frame statistics fields. */
-typedef struct mr_kind_stat {
-    const char *name;        /* stats.json key, unique among all fields */
-    const char *unit;        /* "s", "count", "bytes", ... */
-    const char *description; /* one line */
-} mr_kind_stat;
-
 typedef enum mr_frame_order {
     MR_FRAMES_INDEPENDENT = 0, /* any frame can be rendered alone */
     MR_FRAMES_SEQUENTIAL       /* frame N needs frames 0..N-1 (a simulation) */
@@ -125,12 +120,8 @@ struct mr_kind {
     void (*free)(mr_geom *g);
 };
 
-/* The registry (core/kinds/registry.c): the built-in kinds, in a fixed
- * order, then any added by mr_kind_register. */
-size_t mr_kind_count(void);
-const mr_kind *mr_kind_at(size_t i);
-/* The kind named name, or NULL. */
-const mr_kind *mr_kind_find(const char *name);
+/* The registry's lookups (mr_kind_count, mr_kind_at, mr_kind_find) are
+ * public: microray.h. */
 /* Adds a kind (tests, plug-ins) before any job is parsed or rendered; not
  * thread-safe. Fails on a name already taken or a full registry. */
 int mr_kind_register(const mr_kind *kind, mr_error *err);

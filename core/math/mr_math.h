@@ -1,14 +1,10 @@
 /*
  * mr_math.h - small vector, matrix and quaternion arithmetic.
  *
- * Conventions, used everywhere in microray:
- *  - mr_mat4 is stored row-major (m[row*4 + col]) and applied to column
- *    vectors: p' = M p. Translation lives in m[3], m[7], m[11]. This is the
- *    layout of assimp's aiMatrix4x4 (a1..a4 is the first row), so imported
- *    matrices copy over element by element.
- *  - Quaternions are (x, y, z, w) with w the scalar part, unit length when
- *    they represent rotations; rotation of v is q v q*.
- *  - Composition reads right to left: mr_mat4_mul(A, B) applies B first.
+ * The value types (mr_vec3, mr_quat, mr_mat4), their conventions (row-major
+ * matrices on column vectors, (x, y, z, w) quaternions, right-to-left
+ * composition) and the functions a job parser needs are public:
+ * microray.h. This is the rest of the arithmetic core uses.
  */
 #ifndef MR_MATH_H
 #define MR_MATH_H
@@ -17,14 +13,12 @@
 #include <stdbool.h>
 #include <stddef.h>
 
-typedef struct mr_vec3 { float x, y, z; } mr_vec3;
-typedef struct mr_quat { float x, y, z, w; } mr_quat;
-typedef struct mr_mat4 { float m[16]; } mr_mat4;
+#include "microray.h"
+
 /* The top three rows of a row-major affine mr_mat4 (the bottom row is
  * 0 0 0 1): m[4r + c]. */
 typedef struct mr_affine { float m[12]; } mr_affine;
 
-static inline mr_vec3 mr_v3(float x, float y, float z) { return (mr_vec3){x, y, z}; }
 static inline mr_vec3 mr_v3_add(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x + b.x, a.y + b.y, a.z + b.z); }
 static inline mr_vec3 mr_v3_sub(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x - b.x, a.y - b.y, a.z - b.z); }
 static inline mr_vec3 mr_v3_scale(mr_vec3 a, float s) { return mr_v3(a.x * s, a.y * s, a.z * s); }
@@ -45,28 +39,17 @@ static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, 
 /* Unit vector along a; returns fallback when |a| is zero or not finite. */
 mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback);
 
-mr_mat4 mr_mat4_identity(void);
 mr_mat4 mr_mat4_mul(const mr_mat4 *a, const mr_mat4 *b);
-/* General 4x4 inverse by cofactors. Returns false (and leaves *out as identity)
- * when numerically singular: |det| <= 1e-12 * (largest |entry|)^4, or for
- * affine matrices (last row 0 0 0 1) |det| <= 1e-12 * (largest |entry| of the
- * 3x3 linear part)^3, so translation never makes a matrix "singular". */
-bool mr_mat4_inverse(const mr_mat4 *a, mr_mat4 *out);
 mr_mat4 mr_mat4_transpose(const mr_mat4 *a);
-mr_vec3 mr_mat4_point(const mr_mat4 *a, mr_vec3 p);  /* w = 1, no divide */
 mr_vec3 mr_mat4_dir(const mr_mat4 *a, mr_vec3 d);    /* w = 0 */
 /* Matrix that maps normals for transform a: inverse transpose of its linear
  * part, scaled by |det| so it also works for singular-ish skinning blends
  * (the cofactor matrix). Only the upper 3x3 is meaningful. Callers normalise. */
 mr_mat4 mr_mat4_normal_matrix(const mr_mat4 *a);
-/* T * R * S: scale first, then rotate, then translate (glTF/assimp order). */
-mr_mat4 mr_mat4_from_trs(mr_vec3 t, mr_quat r, mr_vec3 s);
 /* Inverse of from_trs for matrices without shear. Returns false when the
  * matrix has a zero scale axis. */
 bool mr_mat4_to_trs(const mr_mat4 *a, mr_vec3 *t, mr_quat *r, mr_vec3 *s);
-bool mr_mat4_is_finite(const mr_mat4 *a);
 
-mr_quat mr_quat_identity(void);
 mr_quat mr_quat_normalize(mr_quat q);            /* identity for |q| = 0 */
 mr_quat mr_quat_mul(mr_quat a, mr_quat b);       /* applies b first */
 mr_quat mr_quat_from_axis_angle(mr_vec3 axis, float radians);
@@ -84,10 +67,5 @@ mr_quat mr_quat_look_rotation(mr_vec3 forward, mr_vec3 up);
 
 /* Catmull-Rom (uniform) through p1..p2 with neighbours p0 and p3, t in [0,1]. */
 mr_vec3 mr_catmull_rom(mr_vec3 p0, mr_vec3 p1, mr_vec3 p2, mr_vec3 p3, float t);
-
-/* Normalises the n doubles of d in place, scaling by the largest component
- * before squaring so tiny but non-zero inputs (1e-200) normalise instead of
- * underflowing to a zero length. Returns false for the zero vector. */
-bool mr_normalize_d(double *d, size_t n);
 
 #endif /* MR_MATH_H */

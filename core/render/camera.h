@@ -1,5 +1,6 @@
 /*
- * camera.h - pinhole cameras and camera paths.
+ * camera.h - pinhole cameras and camera paths. The path types (mr_camera_path,
+ * mr_camera_key, mr_interp) and their caps are public: microray.h.
  *
  * A camera looks down its local -Z with +Y up (glTF's convention); its
  * orientation is a unit quaternion mapping camera space to world space.
@@ -17,34 +18,12 @@
 #include "math/mr_math.h"
 #include "microray.h"
 
-#define MR_MAX_CAMERA_KEYS 10000
-/* Vertical field of view when a job or a camera node does not give one. */
-#define MR_DEFAULT_YFOV_DEG 45.0
-
-typedef enum mr_interp { MR_INTERP_LINEAR = 0, MR_INTERP_CATMULL_ROM } mr_interp;
-
-typedef struct mr_camera_key {
-    double t;          /* seconds, strictly increasing along the path */
-    mr_vec3 position;
-    bool has_target;   /* orientation from target (else from rotation) */
-    mr_vec3 target;
-    mr_quat rotation;
-    float yfov;        /* vertical field of view, radians, in (0, pi) */
-} mr_camera_key;
-
 /* The camera at one instant. */
 typedef struct mr_camera {
     mr_vec3 position;
     mr_quat rotation;
     float yfov;
 } mr_camera;
-
-typedef struct mr_camera_path {
-    mr_interp interp;
-    mr_vec3 up;        /* for target keys; default +Y */
-    size_t key_count;  /* >= 1 */
-    mr_camera_key *keys;
-} mr_camera_path;
 
 /* Camera of the path at time t. */
 mr_camera mr_camera_path_eval(const mr_camera_path *path, double t);

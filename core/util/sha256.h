@@ -1,8 +1,6 @@
 /*
- * sha256.h - SHA-256 (FIPS 180-4), for content-addressed assets,
- * idempotency body hashes and the keys of the baked-DMM and voxelisation
- * disk caches.
- * Written from the standard; no dependency.
+ * sha256.h - the number feed of the derived-data cache keys. SHA-256 itself
+ * (mr_sha256, init/update/final/hex) is public: microray.h.
  */
 #ifndef MR_SHA256_H
 #define MR_SHA256_H
@@ -10,18 +8,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-typedef struct mr_sha256 {
-    uint32_t h[8];
-    uint64_t length;     /* bytes hashed so far */
-    uint8_t block[64];
-    size_t used;         /* bytes in block */
-} mr_sha256;
-
-void mr_sha256_init(mr_sha256 *s);
-void mr_sha256_update(mr_sha256 *s, const void *data, size_t size);
-void mr_sha256_final(mr_sha256 *s, uint8_t digest[32]);
-/* One-shot: lowercase hex digest of data into hex (65 bytes with the NUL). */
-void mr_sha256_hex(const void *data, size_t size, char hex[65]);
+#include "microray.h"
 
 /* Numbers into a SHA-256 as little-endian bytes (util/le.h), batched
  * through a small buffer: the cache keys of baked DMMs and voxelisations

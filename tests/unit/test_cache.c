@@ -17,6 +17,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "asset/asset.h"
 #include "cache.h"
 
 #define MODEL_A "/usr/share/assimp/models/X/BCN_Epileptic.X"
