@@ -84,7 +84,6 @@ void mr_renderer_free(mr_renderer *r)
         if (r->objects[i].geom)
             r->objects[i].kind->free(r->objects[i].geom);
         mr_pose_free(r->objects[i].pose);
-        free(r->objects[i].cache_dir);
     }
     mr_pose_free(r->cam_pose);
     free(r->objects);
