@@ -538,6 +538,10 @@ typedef struct mr_param_error {
 
 typedef struct mr_param_table mr_param_table;
 
+/* An ENUM's names in a table entry: .choices and .choice_count of a static
+ * array of strings, e.g. {.type = MR_PARAM_ENUM, MR_PARAM_CHOICES(MODES)}. */
+#define MR_PARAM_CHOICES(names) .choices = (names), .choice_count = sizeof(names) / sizeof((names)[0])
+
 typedef struct mr_param {
     const char *field;
     mr_param_type type;

@@ -778,8 +778,6 @@ static int after_deform(void *values, const bool *given, mr_param_error *err)
     return MR_OK;
 }
 
-#define ENUM_OF(names) .choices = names, .choice_count = sizeof names / sizeof names[0]
-
 static const mr_param DMM_PARAMS[] = {
     [P_LEVEL] = {.field = "level", .type = MR_PARAM_INT, .offset = offsetof(mr_dmm_params, level),
                  .lo = 0, .hi = MR_UMESH_MAX_LEVEL, .def = MR_DMM_DEFAULT_LEVEL,
@@ -794,7 +792,7 @@ static const mr_param DMM_PARAMS[] = {
                      .hi = MR_MAX_ASSET_TRIANGLES, .def = 0,
                      .description = "Target base triangle count per mesh, instead of base_ratio."},
     [P_MODE] = {.field = "mode", .type = MR_PARAM_ENUM, .offset = offsetof(mr_dmm_params, mode),
-                ENUM_OF(MODES), .def = MR_DMM_TESSELLATED, .after = after_mode,
+                MR_PARAM_CHOICES(MODES), .def = MR_DMM_TESSELLATED, .after = after_mode,
                 .description = "How the micro-geometry is traced. \"tessellated\": the micro-triangles of the "
                                "chosen deformation expanded into Embree triangles (the exact reference and "
                                "pre-tessellation baseline). \"base\": deformation base, traced without "
@@ -805,19 +803,19 @@ static const mr_param DMM_PARAMS[] = {
                                "same kind of user geometry. All three intersect the same micro-triangles for "
                                "the same deformation."},
     [P_DEFORM] = {.field = "deformation", .type = MR_PARAM_ENUM,
-                  .offset = offsetof(mr_dmm_params, deform), ENUM_OF(DEFORMS),
+                  .offset = offsetof(mr_dmm_params, deform), MR_PARAM_CHOICES(DEFORMS),
                   .def = MR_DMM_DEFORM_BASE, .after = after_deform,
                   .description = "What mode \"tessellated\" expands. Mode \"base\" implies \"base\" and mode "
                                  "\"interpolated\" implies \"interpolated\" (then the default); a contradicting "
                                  "value is refused."},
     [P_NORMALS] = {.field = "normals", .type = MR_PARAM_ENUM,
-                   .offset = offsetof(mr_dmm_params, normals), ENUM_OF(NORMALS),
+                   .offset = offsetof(mr_dmm_params, normals), MR_PARAM_CHOICES(NORMALS),
                    .def = MR_DMM_NORMALS_GEOMETRIC,
                    .description = "Shading normal: the hit micro-triangle's own normal (\"geometric\"), or the "
                                   "rest-pose micro-triangle normal moved by the cofactor of the interpolated "
                                   "matrix at the hit (\"matrix\", the paper's Fig. 1c), in any mode."},
     [P_LEVELS] = {.field = "levels", .type = MR_PARAM_ENUM,
-                  .offset = offsetof(mr_dmm_params, levels), ENUM_OF(LEVELS),
+                  .offset = offsetof(mr_dmm_params, levels), MR_PARAM_CHOICES(LEVELS),
                   .def = MR_DMM_LEVELS_UNIFORM,
                   .description = "\"uniform\": every base triangle at level. \"adaptive\": each base triangle at "
                                  "the level (0..level) whose micro-triangles are closest in area to the detailed "

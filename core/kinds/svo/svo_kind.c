@@ -877,8 +877,6 @@ static int after_voxelize(void *values, const bool *given, mr_param_error *err)
     return MR_OK;
 }
 
-#define ENUM_OF(names) .choices = names, .choice_count = sizeof names / sizeof names[0]
-
 static const mr_param SKELETON_PARAMS[] = {
     {.field = "omega", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, omega), .lo = 0,
      .hi = 0.5, .flags = MR_PARAM_LO_OPEN, .def = 0,
@@ -915,11 +913,11 @@ static const mr_param SVO_PARAMS[] = {
                  .lo = 1, .hi = MR_SVO_JOB_MAX_DEPTH, .def = MR_SVO_DEFAULT_DEPTH,
                  .description = "2^depth voxels per axis around the asset."},
     [P_VOXELIZE] = {.field = "voxelize", .type = MR_PARAM_ENUM,
-                    .offset = offsetof(mr_svo_params, voxelize), ENUM_OF(VOXELIZE),
+                    .offset = offsetof(mr_svo_params, voxelize), MR_PARAM_CHOICES(VOXELIZE),
                     .def = MR_SVO_VOXELIZE_SURFACE, .after = after_voxelize,
                     .description = "Surface cells only, or also the inside (depth <= 10)."},
     [P_METHOD] = {.field = "method", .type = MR_PARAM_ENUM, .offset = offsetof(mr_svo_params, method),
-                  ENUM_OF(METHODS), .def = MR_SVO_RIGID,
+                  MR_PARAM_CHOICES(METHODS), .def = MR_SVO_RIGID,
                   .description = "rigid: transform only, Embree instances of the shared octree. direct: deformed "
                                  "voxel boxes (two matrices per voxel, thesis Fig. 16). resize / emit: resampled "
                                  "into a per-instance world-space octree every frame (2x2x2 cells from the "
