@@ -445,30 +445,105 @@ void json_choices_text(const char *const *names, size_t count, char *buf, size_t
         o += (size_t)snprintf(buf + o, n - o, "%s\"%s\"", i ? ", " : "", names[i]);
 }
 
-/* Refuses raw NUL bytes and invalid UTF-8, and rewrites "\u0000" escapes
- * to "\u0001" in the private copy (same length, so byte offsets in later
- * messages still match the caller's input). Only escapes inside strings are
- * touched; malformed input is left for cJSON to report. */
+static bool is_hex(char ch)
+{
+    return (ch >= '0' && ch <= '9') || (ch >= 'a' && ch <= 'f') || (ch >= 'A' && ch <= 'F');
+}
+
+static bool is_digit(char ch) { return ch >= '0' && ch <= '9'; }
+
+/* Length of the RFC 8259 number at t[0..len) (-? int frac? exp?, int
+ * without leading zeros), or 0 if none starts there. cJSON would also take
+ * 064, 64., 1.e1, +1 and read them as some other number. */
+static size_t number_length(const char *t, size_t len)
+{
+    size_t i = 0;
+    if (i < len && t[i] == '-')
+        i++;
+    if (i < len && t[i] == '0') {
+        i++;
+    } else if (i < len && t[i] >= '1' && t[i] <= '9') {
+        while (i < len && is_digit(t[i]))
+            i++;
+    } else {
+        return 0;
+    }
+    if (i < len && t[i] == '.') {
+        if (!(i + 1 < len && is_digit(t[i + 1])))
+            return 0;
+        i++;
+        while (i < len && is_digit(t[i]))
+            i++;
+    }
+    if (i < len && (t[i] == 'e' || t[i] == 'E')) {
+        i++;
+        if (i < len && (t[i] == '+' || t[i] == '-'))
+            i++;
+        if (!(i < len && is_digit(t[i])))
+            return 0;
+        while (i < len && is_digit(t[i]))
+            i++;
+    }
+    return i;
+}
+
+static int fail_syntax(mr_json_ctx *c, const char *text, size_t len, size_t off, const char *what);
+
+/* Refuses what RFC 8259 forbids but cJSON lets through, before cJSON sees
+ * it: raw NUL bytes, control characters between tokens (cJSON skips every
+ * byte <= 0x20 as whitespace; inside strings json_check_text refuses them,
+ * naming the field), \u escapes without four
+ * hex digits (cJSON decodes "\uZZZZ" as U+0000 and silently cuts the
+ * string there), numbers outside the JSON grammar, and invalid UTF-8. It
+ * also rewrites "\u0000" escapes to "\u0001" in the private copy (same
+ * length, so byte offsets in later messages still match the caller's
+ * input), for the control-character check to name them. Structure (braces,
+ * commas, literals) is left for cJSON to report. */
 static int prescan(mr_json_ctx *c, char *text, size_t len)
 {
     bool in_str = false, esc = false;
     for (size_t i = 0; i < len; i++) {
         char ch = text[i];
+        unsigned char u = (unsigned char)ch;
         if (ch == '\0')
             return json_fail(c, MR_ERR_INVALID, "malformed JSON: NUL byte at byte offset %zu", i);
         if (esc) {
             esc = false;
-            if (ch == 'u' && len - i > 4 && memcmp(text + i + 1, "0000", 4) == 0) {
-                text[i + 4] = '1';
-                c->nul_escapes = true;
+            if (ch == 'u') {
+                if (!(len - i > 4 && is_hex(text[i + 1]) && is_hex(text[i + 2]) &&
+                      is_hex(text[i + 3]) && is_hex(text[i + 4])))
+                    return fail_syntax(c, text, len, i - 1,
+                                       "malformed JSON: a \\u escape needs four hex digits");
+                if (memcmp(text + i + 1, "0000", 4) == 0) {
+                    text[i + 4] = '1';
+                    c->nul_escapes = true;
+                }
             }
         } else if (in_str) {
             if (ch == '\\')
                 esc = true;
             else if (ch == '"')
                 in_str = false;
+            /* raw control characters inside strings are left to
+             * json_check_text, which names the field and the byte */
         } else if (ch == '"') {
             in_str = true;
+        } else if (u < 0x20 && ch != ' ' && ch != '\t' && ch != '\n' && ch != '\r') {
+            return fail_syntax(c, text, len, i,
+                               "malformed JSON: control character outside a string");
+        } else if (ch == '-' || is_digit(ch)) {
+            size_t n = number_length(text + i, len - i);
+            /* the number must end where the grammar says: no 064, 64., 1.e1 */
+            char next = i + n < len ? text[i + n] : ' ';
+            if (n == 0 || is_digit(next) || next == '.' || next == 'e' || next == 'E' ||
+                next == '+' || next == '-')
+                return fail_syntax(c, text, len, i,
+                                   "malformed JSON: not a number by RFC 8259 (no leading zeros, "
+                                   "digits on both sides of '.', digits in the exponent)");
+            i += n - 1;
+        } else if (ch == '+' || ch == '.') {
+            return fail_syntax(c, text, len, i,
+                               "malformed JSON: not a number by RFC 8259 (no leading '+' or '.')");
         }
     }
     /* RFC 8259 requires UTF-8. Checking the whole text (which now has no

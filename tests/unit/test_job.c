@@ -127,6 +127,21 @@ static const bad_case BAD[] = {
     {"{" BASE ",}", MR_ERR_INVALID, "", "malformed JSON"},
     {"{'assets' {}}", MR_ERR_INVALID, "", "malformed JSON at byte offset 10 (line 1, column 11)"},
     {"{" BASE "} x", MR_ERR_INVALID, "", "unexpected data after the job at byte offset"},
+    /* RFC 8259, strictly (issue 12): what cJSON alone lets through. A bad
+     * \u escape would decode as U+0000 and cut the path short. */
+    {"{'assets':{'m':{'path':'X/BCN_Epileptic.X\\uZZZZ/../../../../etc/passwd'}},'objects':["
+     "{'asset':'m'}]," CAMERA "," FRAMES "}",
+     MR_ERR_INVALID, "", "a \\u escape needs four hex digits at byte offset 41"},
+    {"{" BASE ",'name':'a\\u12'}", MR_ERR_INVALID, "", "a \\u escape needs four hex digits"},
+    {"{" BASE ",\x01'name':'a'}", MR_ERR_INVALID, "", "control character outside a string"},
+    {"{" BASE ",'output':{'width':064}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':64.}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':1.e1}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':1e}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':-}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':-01}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
+    {"{" BASE ",'output':{'width':+1}}", MR_ERR_INVALID, "", "no leading '+' or '.'"},
+    {"{" BASE ",'output':{'width':.5}}", MR_ERR_INVALID, "", "no leading '+' or '.'"},
     {"{" BASE "}{}", MR_ERR_INVALID, "", "unexpected data after the job"},
     {"[]", MR_ERR_INVALID, "", "expected a JSON object, got an empty array"},
     {"42", MR_ERR_INVALID, "", "expected a JSON object, got 42"},
@@ -593,6 +608,19 @@ static void assert_v3_eq(mr_vec3 a, mr_vec3 b)
         fail_msg("got (%.9g, %.9g, %.9g), want (%.9g, %.9g, %.9g)", a.x, a.y, a.z, b.x, b.y, b.z);
 }
 
+/* Every form of number RFC 8259 allows still reads, to the same value. */
+static void test_rfc_numbers(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok(WITH_OBJECT("{'asset':'m','color':[0.5,1e-1,-0],'transform':"
+                                       "{'translation':[-0,2.5e0,1E+2]}}"));
+    const mr_object_desc *o = &job->objects[0];
+    assert_true(o->color.x == 0.5f && o->color.y == 0.1f && o->color.z == 0.0f);
+    assert_true(o->transform.m[3] == 0.0f && o->transform.m[7] == 2.5f &&
+                o->transform.m[11] == 100.0f);
+    mr_job_free(job);
+}
+
 static void test_defaults(void **state)
 {
     (void)state;
@@ -1045,7 +1073,7 @@ static void test_caps(void **state)
     free(s);
 
     /* A duplicated allowed key repeated many times fails fast and exactly. */
-    s = repeat_job("{" BASE ",'output':{", "'width':%zu%zu", 100000, "}}", &n);
+    s = repeat_job("{" BASE ",'output':{", "'width':1%zu%zu", 100000, "}}", &n);
     expect_error(s, n, MR_ERR_INVALID, "/output/width", "duplicate field \"width\"");
     free(s);
 
@@ -1159,7 +1187,7 @@ static void test_examples(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_malformed_table), cmocka_unit_test(test_message_format),
+        cmocka_unit_test(test_malformed_table), cmocka_unit_test(test_rfc_numbers), cmocka_unit_test(test_message_format),
         cmocka_unit_test(test_defaults),        cmocka_unit_test(test_full_job),
         cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
         cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
