@@ -26,18 +26,133 @@
  */
 #include "asset/asset.h"
 
+#include <assimp/cfileio.h>
 #include <assimp/cimport.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "util/dup.h"
+
+/* ---- the files assimp may open ------------------------------------------
+ * A model may name other files: glTF buffers and images, an OBJ's .mtl,
+ * textures. assimp opens whatever it is told, so a file uploaded with a
+ * buffer "uri": "../../../../etc/passwd" (or "../microray.sqlite") would
+ * read outside the asset roots and leak bytes through error messages. The
+ * import therefore goes through this file system: the model itself and files
+ * inside the model's own folder (its bundle, after resolving "..", symlinks
+ * and absolute names) open; anything else, and anything but a regular file
+ * (a FIFO would block), is refused as missing, and the first refused name is
+ * kept for the error message. Only reading is offered. */
+typedef struct confined_fs {
+    char model[PATH_MAX]; /* realpath of the model file */
+    char dir[PATH_MAX];   /* its folder, with a trailing '/' */
+    char refused[256];    /* the first name refused, as assimp asked for it */
+} confined_fs;
+
+static size_t cfs_read(struct aiFile *f, char *buf, size_t size, size_t count)
+{
+    return size && count ? fread(buf, size, count, (FILE *)f->UserData) : 0;
+}
+
+static size_t cfs_write(struct aiFile *f, const char *buf, size_t size, size_t count)
+{
+    (void)f, (void)buf, (void)size, (void)count;
+    return 0;
+}
+
+static size_t cfs_tell(struct aiFile *f)
+{
+    long at = ftell((FILE *)f->UserData);
+    return at < 0 ? 0 : (size_t)at;
+}
+
+static size_t cfs_size(struct aiFile *f)
+{
+    struct stat st;
+    return fstat(fileno((FILE *)f->UserData), &st) == 0 ? (size_t)st.st_size : 0;
+}
+
+static enum aiReturn cfs_seek(struct aiFile *f, size_t offset, enum aiOrigin origin)
+{
+    int whence = origin == aiOrigin_SET ? SEEK_SET : origin == aiOrigin_CUR ? SEEK_CUR : SEEK_END;
+    if (offset > (size_t)LONG_MAX)
+        return aiReturn_FAILURE;
+    return fseek((FILE *)f->UserData, (long)offset, whence) == 0 ? aiReturn_SUCCESS
+                                                                : aiReturn_FAILURE;
+}
+
+static void cfs_flush(struct aiFile *f) { (void)f; }
+
+static struct aiFile *cfs_open(struct aiFileIO *io, const char *name, const char *mode)
+{
+    confined_fs *fs = (confined_fs *)io->UserData;
+    char real[PATH_MAX];
+    if (!name || !mode || strchr(mode, 'w') || strchr(mode, 'a') || strchr(mode, '+'))
+        return NULL;
+    if (!realpath(name, real))
+        return NULL; /* missing: assimp says so itself */
+    if (strcmp(real, fs->model) != 0 && strncmp(real, fs->dir, strlen(fs->dir)) != 0) {
+        if (!fs->refused[0])
+            snprintf(fs->refused, sizeof fs->refused, "%s", name);
+        return NULL;
+    }
+    int fd = open(real, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    struct stat st;
+    if (fd < 0)
+        return NULL;
+    if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        close(fd);
+        if (!fs->refused[0])
+            snprintf(fs->refused, sizeof fs->refused, "%s", name);
+        return NULL;
+    }
+    FILE *fp = fdopen(fd, "rb");
+    struct aiFile *f = fp ? calloc(1, sizeof *f) : NULL;
+    if (!f) {
+        if (fp)
+            fclose(fp);
+        else
+            close(fd);
+        return NULL;
+    }
+    *f = (struct aiFile){.ReadProc = cfs_read, .WriteProc = cfs_write, .TellProc = cfs_tell,
+                         .FileSizeProc = cfs_size, .SeekProc = cfs_seek, .FlushProc = cfs_flush,
+                         .UserData = (aiUserData)fp};
+    return f;
+}
+
+static void cfs_close(struct aiFileIO *io, struct aiFile *f)
+{
+    (void)io;
+    if (!f)
+        return;
+    fclose((FILE *)f->UserData);
+    free(f);
+}
+
+/* Sets fs up for the model at path; false when it cannot be resolved. */
+static bool cfs_init(confined_fs *fs, const char *path)
+{
+    memset(fs, 0, sizeof *fs);
+    if (!realpath(path, fs->model))
+        return false;
+    const char *slash = strrchr(fs->model, '/');
+    size_t n = slash ? (size_t)(slash - fs->model) + 1 : 0;
+    if (n == 0 || n >= sizeof fs->dir)
+        return false;
+    memcpy(fs->dir, fs->model, n);
+    fs->dir[n] = '\0';
+    return true;
+}
 
 /* Import runs in two phases. aiImportFile does the parsing with only
  * aiProcess_ValidateDataStructure (a failure there comes back the safe way,
@@ -1356,9 +1471,18 @@ int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
     if ((rc = precheck_counts(path, (long long)st.st_size, err)) < 0)
         return rc;
 
-    scene = aiImportFile(path, MR_ASSIMP_IMPORT_FLAGS);
+    confined_fs fs;
+    if (!cfs_init(&fs, path))
+        return mr_error_set(err, MR_ERR_IO, "%s: %s", path, strerror(errno));
+    struct aiFileIO io = {.OpenProc = cfs_open, .CloseProc = cfs_close, .UserData = (aiUserData)&fs};
+    scene = aiImportFileEx(path, MR_ASSIMP_IMPORT_FLAGS, &io);
     if (!scene) {
         const char *why = aiGetErrorString();
+        if (fs.refused[0])
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "%s: it refers to \"%s\", outside the model's own folder (the "
+                                "files a model names must sit beside it or below)",
+                                path, fs.refused);
         return mr_error_set(err, MR_ERR_FORMAT, "%s: assimp could not import it: %s", path,
                             why && why[0] ? why : "(no reason given)");
     }

@@ -834,6 +834,108 @@ static void test_from_mesh(void **state)
     mr_asset_free(NULL);
 }
 
+/* ---- the files a model may name (issue 12 item 4) */
+
+static void write_file(const char *path, const void *data, size_t n)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(data, 1, n, f), n);
+    fclose(f);
+}
+
+/* model.gltf in dir: one triangle whose vertex buffer is the file uri. */
+static void write_uri_gltf(const char *dir, const char *uri)
+{
+    char path[512], text[1024];
+    snprintf(text, sizeof text,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+             "{\"POSITION\":0}}]}],\"buffers\":[{\"uri\":\"%s\",\"byteLength\":36}],"
+             "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36}],"
+             "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,"
+             "\"type\":\"VEC3\",\"min\":[0,0,0],\"max\":[1,1,0]}]}",
+             uri);
+    snprintf(path, sizeof path, "%s/model.gltf", dir);
+    write_file(path, text, strlen(text));
+}
+
+static void expect_refused(const char *model, const char *uri)
+{
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_load(model, &a, &err), MR_ERR_INVALID);
+    assert_null(a);
+    if (!strstr(err.msg, "outside the model's own folder") || !strstr(err.msg, uri))
+        fail_msg("%s: %s", uri, err.msg);
+}
+
+/* A model opens its own files (beside it or below) and nothing else: not
+ * "..", not absolute names, not a symlink leading out, not a FIFO (which
+ * would block the import). The refused file's bytes never reach a message. */
+static void test_model_files_confined(void **state)
+{
+    (void)state;
+    char root[64] = "/tmp/mr-asset-confined-XXXXXX", dir[128], path[256], model[256];
+    assert_non_null(mkdtemp(root));
+    snprintf(dir, sizeof dir, "%s/bundle", root);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(model, sizeof model, "%s/model.gltf", dir);
+    const float tri[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    /* the secret outside the bundle holds a valid buffer: only the rule can refuse it */
+    snprintf(path, sizeof path, "%s/secret.bin", root);
+    write_file(path, tri, sizeof tri);
+    snprintf(path, sizeof path, "%s/model.bin", dir);
+    write_file(path, tri, sizeof tri);
+    snprintf(path, sizeof path, "%s/sub", dir);
+    assert_int_equal(mkdir(path, 0755), 0);
+    snprintf(path, sizeof path, "%s/sub/model.bin", dir);
+    write_file(path, tri, sizeof tri);
+
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    const char *ok_uris[] = {"model.bin", "sub/model.bin", "sub/../model.bin"};
+    for (size_t i = 0; i < 3; i++) {
+        write_uri_gltf(dir, ok_uris[i]);
+        if (mr_asset_load(model, &a, &err) < 0)
+            fail_msg("%s: %s", ok_uris[i], err.msg);
+        assert_int_equal(mr_asset_triangle_count(a), 1);
+        mr_asset_free(a);
+        a = NULL;
+    }
+
+    write_uri_gltf(dir, "../secret.bin");
+    expect_refused(model, "../secret.bin");
+    snprintf(path, sizeof path, "%s/secret.bin", root);
+    /* absolute names: assimp 5.2.5 looks them up itself and finds nothing
+     * (measured: "could not open referenced file"); either way no byte of
+     * the file is read */
+    const char *absolute[] = {path, "/etc/passwd"};
+    for (size_t i = 0; i < 2; i++) {
+        write_uri_gltf(dir, absolute[i]);
+        assert_true(mr_asset_load(model, &a, &err) < 0);
+        assert_null(a);
+        assert_true(strstr(err.msg, "outside the model's own folder") ||
+                    strstr(err.msg, "could not open referenced file"));
+    }
+    snprintf(path, sizeof path, "%s/link.bin", dir);
+    char target[256];
+    snprintf(target, sizeof target, "%s/secret.bin", root);
+    assert_int_equal(symlink(target, path), 0);
+    write_uri_gltf(dir, "link.bin");
+    expect_refused(model, "link.bin");
+    snprintf(path, sizeof path, "%s/fifo.bin", dir);
+    assert_int_equal(mkfifo(path, 0644), 0);
+    write_uri_gltf(dir, "fifo.bin");
+    alarm(20); /* a blocking open would hang here */
+    expect_refused(model, "fifo.bin");
+    alarm(0);
+
+    char cmd[128];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", root);
+    assert_int_equal(system(cmd), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -847,6 +949,7 @@ int main(void)
         cmocka_unit_test(test_io_errors),
         cmocka_unit_test(test_declared_counts),
         cmocka_unit_test(test_from_mesh),
+        cmocka_unit_test(test_model_files_confined),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
