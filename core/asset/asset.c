@@ -30,6 +30,7 @@
 #include <assimp/cimport.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <ctype.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
@@ -1390,6 +1391,42 @@ static int precheck_ply(const char *path, const char *buf, size_t n, long long s
     return check_counts(path, vertices, faces, elements, size, err);
 }
 
+/* A text DirectX file ("xof 0303txt ..."): every "Mesh [name] {" starts
+ * with its vertex count, and assimp reserves that many vertices before
+ * reading one (an 83-byte file declaring 2e9 vertices grew past 12 GB).
+ * A vertex takes at least 6 bytes ("0;0;0;"), so a count the file cannot
+ * hold is refused here, as are counts above the caps. Binary and compressed
+ * X files are left to assimp. Only the sniffed head is searched. */
+static int precheck_x(const char *path, const char *buf, size_t n, long long size,
+                      mr_error *err)
+{
+    if (n < 16 || memcmp(buf, "xof ", 4) != 0 || memcmp(buf + 8, "txt ", 4) != 0)
+        return MR_OK;
+    unsigned long long vertices = 0;
+    for (size_t i = 16; i + 4 < n; i++) {
+        bool word_start = !(isalnum((unsigned char)buf[i - 1]) || buf[i - 1] == '_');
+        if (!word_start || memcmp(buf + i, "Mesh", 4) != 0 ||
+            isalnum((unsigned char)buf[i + 4]) || buf[i + 4] == '_')
+            continue;
+        size_t k = i + 4;
+        while (k < n && buf[k] != '{' && buf[k] != ';' && buf[k] != '}')
+            k++; /* the optional name */
+        if (k >= n || buf[k] != '{')
+            continue;
+        k++;
+        while (k < n && isspace((unsigned char)buf[k]))
+            k++;
+        size_t d = k;
+        while (d < n && buf[d] >= '0' && buf[d] <= '9')
+            d++;
+        unsigned long long count;
+        if (d > k && parse_count(buf + k, d - k, &count))
+            vertices = sat_add(vertices, count);
+        i = d;
+    }
+    return check_counts(path, vertices, 0, sat_mul(vertices, 6), size, err);
+}
+
 static int precheck_counts(const char *path, long long size, mr_error *err)
 {
     char *buf = malloc(MR_SNIFF_BYTES);
@@ -1405,6 +1442,8 @@ static int precheck_counts(const char *path, long long size, mr_error *err)
     fclose(f);
     if (n >= 4 && memcmp(buf, "ply", 3) == 0 && (buf[3] == '\n' || buf[3] == '\r'))
         rc = precheck_ply(path, buf, n, size, err);
+    else if (n >= 4 && memcmp(buf, "xof ", 4) == 0)
+        rc = precheck_x(path, buf, n, size, err);
     else
         rc = precheck_off(path, buf, n, size, err);
 cleanup:

@@ -774,6 +774,22 @@ static void test_declared_counts(void **state)
     write_bytes(p, off, sizeof off - 1);
     assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
     assert_non_null(strstr(err.msg, "4000000000"));
+    /* a text X file declaring 2e9 vertices in 69 bytes (issue 12 item 2:
+     * assimp reserved them all, past 12 GB, before reading one) */
+    static const char x[] = "xof 0303txt 0032\nMesh {\n 2000000000;\n 0.0;0.0;0.0;,\n 1;\n"
+                            " 3;0,0,0;;\n}\n";
+    tmp_file(&t, "big.x", p);
+    write_bytes(p, x, sizeof x - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_non_null(strstr(err.msg, "declares 2000000000 vertices"));
+    /* a named mesh, counts within the file and the caps: assimp reads it */
+    static const char xok[] = "xof 0303txt 0032\nMesh tri {\n 3;\n 0.0;0.0;0.0;,\n"
+                              " 1.0;0.0;0.0;,\n 0.0;1.0;0.0;;\n 1;\n 3;0,1,2;;\n}\n";
+    tmp_file(&t, "ok.x", p);
+    write_bytes(p, xok, sizeof xok - 1);
+    a = load_ok(p);
+    assert_int_equal(a->triangle_count, 1);
+    mr_asset_free(a);
     /* and a normal OFF still loads through the same check */
     static const char ok[] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
     tmp_file(&t, "ok.off", p);
