@@ -34,6 +34,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1473,7 +1474,9 @@ static int check_positions(const struct aiScene *s, const char *path, mr_error *
     return MR_OK;
 }
 
-int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
+/* The import itself, on whatever thread calls it (mr_asset_load gives it
+ * a deep stack). */
+static int load_here(const char *path, mr_asset **out, mr_error *err)
 {
     int rc = MR_OK;
     const struct aiScene *scene = NULL;
@@ -1630,4 +1633,45 @@ nomem:
     rc = mr_error_set(err, MR_ERR_NOMEM, "mesh '%s': out of memory", name);
     mr_asset_free(a);
     return rc;
+}
+
+/* ---- the import's stack ----------------------------------------------------
+ * assimp walks node hierarchies recursively while it parses, post-processes
+ * and releases a scene: a 679 KB glTF whose 30,000 nodes are nested one in
+ * the other overflowed the 8 MiB stack of a daemon thread (about 35,000
+ * frames; a crash, and again after every restart). So the whole import runs
+ * on a thread of its own with a stack sized for the deepest hierarchy the
+ * node cap allows (MR_MAX_ASSET_NODES, ~1 M, at about 1 KiB a level): the
+ * stack is address space, taken from memory only as deep as a file goes. */
+#define MR_IMPORT_STACK_BYTES ((size_t)1 << 30)
+
+typedef struct load_call {
+    const char *path;
+    mr_asset **out;
+    mr_error *err;
+    int rc;
+} load_call;
+
+static void *load_thread(void *arg)
+{
+    load_call *c = arg;
+    c->rc = load_here(c->path, c->out, c->err);
+    return NULL;
+}
+
+int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
+{
+    load_call call = {path, out, err, MR_OK};
+    pthread_attr_t attr;
+    pthread_t t;
+    bool started = false;
+    if (pthread_attr_init(&attr) == 0) {
+        started = pthread_attr_setstacksize(&attr, MR_IMPORT_STACK_BYTES) == 0 &&
+                  pthread_create(&t, &attr, load_thread, &call) == 0;
+        pthread_attr_destroy(&attr);
+    }
+    if (!started) /* no room for the stack: import here, as before */
+        return load_here(path, out, err);
+    pthread_join(t, NULL);
+    return call.rc;
 }

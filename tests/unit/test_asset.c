@@ -952,6 +952,45 @@ static void test_model_files_confined(void **state)
     assert_int_equal(system(cmd), 0);
 }
 
+/* A glTF whose 30,000 nodes are nested one in the other (679 KB; issue 12
+ * item 3): assimp's recursion overflowed a thread's 8 MiB stack and the
+ * daemon crashed, again after every restart. It imports now, every node in
+ * parent-before-child order. */
+static void test_deep_hierarchy(void **state)
+{
+    (void)state;
+    enum { DEPTH = 30000 };
+    tmpdir t;
+    tmp_make(&t);
+    char p[512];
+    size_t cap = (size_t)DEPTH * 24 + 4096, n = 0;
+    char *doc = malloc(cap);
+    assert_non_null(doc);
+    n += (size_t)snprintf(doc + n, cap - n, "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,"
+                                           "\"scenes\":[{\"nodes\":[0]}],\"nodes\":[");
+    for (int i = 0; i < DEPTH - 1; i++)
+        n += (size_t)snprintf(doc + n, cap - n, "{\"children\":[%d]},", i + 1);
+    n += (size_t)snprintf(
+        doc + n, cap - n,
+        "{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+        "\"buffers\":[{\"uri\":\"data:application/octet-stream;base64,"
+        "AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA\",\"byteLength\":36}],"
+        "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36}],"
+        "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,"
+        "\"type\":\"VEC3\",\"min\":[0,0,0],\"max\":[1,1,0]}]}");
+    assert_true(n < cap);
+    tmp_file(&t, "deep.gltf", p);
+    write_bytes(p, doc, n);
+    free(doc);
+    mr_asset *a = load_ok(p);
+    assert_true(a->node_count >= DEPTH);
+    for (size_t i = 1; i < a->node_count; i++)
+        assert_true(a->nodes[i].parent >= 0 && (size_t)a->nodes[i].parent < i);
+    assert_int_equal(a->triangle_count, 1);
+    mr_asset_free(a);
+    tmp_remove(&t);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -966,6 +1005,7 @@ int main(void)
         cmocka_unit_test(test_declared_counts),
         cmocka_unit_test(test_from_mesh),
         cmocka_unit_test(test_model_files_confined),
+        cmocka_unit_test(test_deep_hierarchy),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
