@@ -90,6 +90,21 @@ static enum MHD_Result answer_unrouted(req *r, struct MHD_Connection *c)
  * the body is read. A response queued now makes libmicrohttpd close the
  * connection afterwards (the body is left unread), so requests without a
  * body learn about a wrong route on the last call and keep their connection. */
+/* libmicrohttpd's %HH decoding, except that a decoded NUL becomes DEL:
+ * handlers see URLs and arguments as C strings, and "/v1/jobs/ID%00/frames/0"
+ * must not turn into "/v1/jobs/ID" (it answered the job). DEL matches no
+ * route, id or argument, so such a request gets the 404 or 400 its text
+ * deserves. */
+static size_t unescape_no_nul(void *cls, struct MHD_Connection *c, char *s)
+{
+    (void)cls, (void)c;
+    size_t n = MHD_http_unescape(s);
+    for (size_t i = 0; i < n; i++)
+        if (s[i] == '\0')
+            s[i] = 0x7F;
+    return n;
+}
+
 static enum MHD_Result begin_request(req *r, struct MHD_Connection *c, const char *url,
                                      const char *method)
 {
@@ -366,7 +381,7 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
         (const struct sockaddr *)&ss, MHD_OPTION_THREAD_POOL_SIZE, threads,
         MHD_OPTION_CONNECTION_TIMEOUT, timeout, MHD_OPTION_PER_IP_CONNECTION_LIMIT, per_ip,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)CONNECTION_MEMORY, MHD_OPTION_NOTIFY_COMPLETED,
-        on_completed, h, MHD_OPTION_END);
+        on_completed, h, MHD_OPTION_UNESCAPE_CALLBACK, unescape_no_nul, NULL, MHD_OPTION_END);
     if (!h->mhd) {
         int e = errno;
         rc = mr_error_set(err, MR_ERR_IO, "cannot listen on %s%s%s:%u: %s", v6 ? "[" : "", host,

@@ -572,6 +572,10 @@ static void test_failed_frames_and_retry(void **state)
     expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
     snprintf(path, sizeof path, "/v1/jobs/%s/frames/7/stats", id); /* outside the job */
     expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
+    /* an escaped NUL does not cut the route short (issue 12 item 10: this
+     * answered the job itself) */
+    snprintf(path, sizeof path, "/v1/jobs/%s%%00/frames/0", id);
+    expect_problem("GET", path, NULL, 0, NULL, 404, NULL);
 }
 
 /* Stops the daemon with sig in the middle of a 48-frame job, restarts it on
