@@ -465,8 +465,7 @@ static json_num_spec param_spec(const mr_param *p)
     return (json_num_spec){p->lo, p->hi, flags, p->expect};
 }
 
-static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values,
-                        bool flag_object);
+static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values);
 
 /* Fails at the hook's field with its message. */
 static int fail_param(mr_json_ctx *c, const mr_param_error *pe)
@@ -494,7 +493,7 @@ static int parse_param_array(mr_json_ctx *c, const cJSON *v, const mr_param *p, 
     for (const cJSON *e = v->child; e; e = e->next, i++) {
         void *item = items + i * p->sub->size;
         mr_params_defaults(p->sub, item);
-        AT_INDEX(c, i, parse_params(c, e, p->sub, item, false));
+        AT_INDEX(c, i, parse_params(c, e, p->sub, item));
     }
     return MR_OK;
 }
@@ -530,7 +529,7 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *
             *PARAM_AT(values, p->offset, bool) = cJSON_IsTrue(v);
             return MR_OK;
         }
-        TRY(parse_params(c, v, p->sub, values, true));
+        TRY(parse_params(c, v, p->sub, values));
         *PARAM_AT(values, p->offset, bool) = true;
         return MR_OK;
     case MR_PARAM_ARRAY:
@@ -547,22 +546,21 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *
 
 /* Reads object v into values (already holding the table's defaults):
  * known and unique keys, then every field in table order, each followed by
- * its after hook. flag_object: v is a FLAG_OBJECT's object form. */
-static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values,
-                        bool flag_object)
+ * its after hook. */
+static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values)
 {
     const char *names[MR_PARAM_MAX_FIELDS];
-    bool given[MR_PARAM_MAX_FIELDS] = {false};
-    (void)flag_object;
+    const cJSON *fields[MR_PARAM_MAX_FIELDS];
+    bool given[MR_PARAM_MAX_FIELDS];
     TRY(json_want_object(c, v, t->expect));
     for (size_t i = 0; i < t->count; i++)
         names[i] = t->params[i].field;
     TRY(json_check_fields(c, v, names, t->count));
     for (size_t i = 0; i < t->count; i++)
-        given[i] = json_field(v, names[i]) != NULL;
+        given[i] = (fields[i] = json_field(v, names[i])) != NULL;
     for (size_t i = 0; i < t->count; i++) {
         const mr_param *p = &t->params[i];
-        const cJSON *fv = json_field(v, p->field);
+        const cJSON *fv = fields[i];
         if (fv && p->conflicts) {
             int k = mr_param_index(t, p->conflicts);
             if (k >= 0 && given[k]) {
@@ -651,7 +649,7 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
             return json_fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", kname,
                              kname);
         }
-        AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params, false));
+        AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params));
     }
     o->transform = mr_mat4_identity();
     if (xf)

@@ -447,16 +447,16 @@ char *mr_schema_print(const cJSON *doc)
 int mr_cmd_schema(int argc, char **argv)
 {
     const char *path = NULL;
-    bool check = false;
-    for (int i = 0; i < argc; i++) {
+    bool check = false, usage = false;
+    for (int i = 0; i < argc && !usage; i++) {
         if (!strcmp(argv[i], "--check"))
             check = true;
         else if (argv[i][0] != '-' && !path)
             path = argv[i];
         else
-            path = NULL, argc = 0;
+            usage = true;
     }
-    if (!path) {
+    if (usage || !path) {
         fprintf(stderr, "usage: microrayd schema FILE [--check]\n"
                         "  prints FILE (schemas/job.schema.json) with its geometry-kind parts\n"
                         "  generated from the kinds' parameter tables; --check: exit 1 if FILE\n"

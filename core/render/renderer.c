@@ -42,6 +42,8 @@ struct mr_renderer {
     int cam_node;
     mr_pose *cam_pose;
     const object_state *cam_driver; /* object whose pose moves the camera's asset */
+    const mr_kind **stat_kinds; /* the job's kinds that report stats fields, each once */
+    size_t stat_kind_count;
 };
 
 uint64_t mr_peak_rss_bytes(void)
@@ -86,6 +88,7 @@ void mr_renderer_free(mr_renderer *r)
         mr_pose_free(r->objects[i].pose);
     }
     mr_pose_free(r->cam_pose);
+    free(r->stat_kinds);
     free(r->objects);
     free(r->shade);
     free(r->id_object);
@@ -141,7 +144,8 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
     r->object_count = job->object_count;
     r->objects = calloc(job->object_count, sizeof *r->objects);
     r->shade = calloc(job->object_count, sizeof *r->shade);
-    if (!r->objects || !r->shade) {
+    r->stat_kinds = calloc(job->object_count ? job->object_count : 1, sizeof *r->stat_kinds);
+    if (!r->objects || !r->shade || !r->stat_kinds) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory creating the renderer");
         goto fail;
     }
@@ -153,6 +157,12 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         }
         if (object_is_animated(&job->objects[i], job->frame_count))
             r->dynamic = true;
+        const mr_kind *k = job->objects[i].kind;
+        bool known = false;
+        for (size_t j = 0; j < r->stat_kind_count && !known; j++)
+            known = r->stat_kinds[j] == k;
+        if (k->stat_count && k->frame_stats && !known)
+            r->stat_kinds[r->stat_kind_count++] = k;
         triangles += assets[job->objects[i].asset]->triangle_count;
     }
     if (triangles > MR_MAX_JOB_TRIANGLES) {
@@ -182,11 +192,7 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         object_state *o = &r->objects[i];
         o->desc = &job->objects[i];
         o->asset = assets[o->desc->asset];
-        o->kind = o->desc->kind;
-        if (!o->kind) {
-            rc = mr_error_set(err, MR_ERR_INVALID, "/objects/%zu/kind: no geometry kind", i);
-            goto fail;
-        }
+        o->kind = o->desc->kind; /* never NULL: checked above */
         o->animated = object_is_animated(o->desc, job->frame_count);
         for (size_t k = 0; k < o->desc->pose_count && !o->kind->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
@@ -320,15 +326,10 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
  * job's objects of its kind, as the frame's extras. */
 static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
 {
-    for (size_t i = 0; i < r->object_count; i++) {
-        const mr_kind *k = r->objects[i].kind;
-        bool first = true;
-        for (size_t j = 0; j < i && first; j++)
-            first = r->objects[j].kind != k;
-        if (!first || !k->stat_count || !k->frame_stats)
-            continue;
+    for (size_t s = 0; s < r->stat_kind_count; s++) {
+        const mr_kind *k = r->stat_kinds[s];
         double sum[MR_FRAME_EXTRAS_MAX] = {0}, v[MR_FRAME_EXTRAS_MAX];
-        for (size_t j = i; j < r->object_count; j++) {
+        for (size_t j = 0; j < r->object_count; j++) {
             if (r->objects[j].kind != k)
                 continue;
             k->frame_stats(r->objects[j].geom, v);
