@@ -451,6 +451,18 @@ void mr_asset_free(mr_asset *asset);
 size_t mr_asset_triangle_count(const mr_asset *asset);
 /* Bytes held by the asset's arrays. */
 size_t mr_asset_memory(const mr_asset *asset);
+/* Address space the import's own thread reserves for its stack (asset.c:
+ * deep hierarchies recurse in assimp); memory only as deep as a file goes. */
+#define MR_ASSET_IMPORT_STACK_BYTES ((size_t)1 << 30)
+
+/* An imported asset as one flat byte string and back, for handing an
+ * import from the process that did it to the one that renders (the daemon
+ * imports in a child process). The blob is for the same build on the same
+ * machine (native byte order and struct layout, checked by its header),
+ * never stored; reading checks every length against the bytes left, so a
+ * short or damaged blob is refused (MR_ERR_FORMAT), never overread. */
+int mr_asset_blob_write(const mr_asset *asset, uint8_t **out, size_t *size, mr_error *err);
+int mr_asset_blob_read(const uint8_t *data, size_t size, mr_asset **out, mr_error *err);
 
 /* ---- refinement (asset/refine.h says how) ----
  * Detailed skinned meshes made from low-poly rigs: Loop subdivision plus a

@@ -148,12 +148,13 @@ done:
 int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **out, bool *hit,
                      double *saved_s, mr_error *err)
 {
-    return mr_cache_acquire_refined(c, key, path, NULL, out, hit, saved_s, NULL, err);
+    return mr_cache_acquire_refined(c, key, path, NULL, NULL, out, hit, saved_s, NULL, err);
 }
 
 int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
-                             const mr_refine_params *refine, mr_asset **out, bool *hit,
-                             double *saved_s, mr_asset_stage *stage, mr_error *err)
+                             const mr_refine_params *refine, const mr_cache_importer *importer,
+                             mr_asset **out, bool *hit, double *saved_s, mr_asset_stage *stage,
+                             mr_error *err)
 {
     *out = NULL;
     *hit = false;
@@ -194,7 +195,9 @@ int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
      * meanwhile. */
     double t0 = mr_now();
     mr_asset *a = NULL;
-    int rc = mr_cache_import(path, refined ? &canon : NULL, &a, stage, err);
+    const mr_refine_params *how = refined ? &canon : NULL;
+    int rc = importer ? importer->import(importer->user, path, how, &a, stage, err)
+                      : mr_cache_import(path, how, &a, stage, err);
     if (rc < 0)
         return rc;
     double import_s = mr_now() - t0;

@@ -50,9 +50,17 @@ int mr_cache_acquire(mr_cache *c, const char *key, const char *path, mr_asset **
  * (refinement is bit-identical for any thread count); with amplitude 0 the
  * noise fields are; octaves 0 counts as 1; and 0 rounds with amplitude 0
  * (the input unchanged) is the plain import's entry. */
+/* How a miss imports: NULL means mr_cache_import in this process; the
+ * daemon passes one that imports in a child process (import_worker.h). */
+typedef struct mr_cache_importer {
+    int (*import)(void *user, const char *path, const mr_refine_params *refine, mr_asset **out,
+                  mr_asset_stage *stage, mr_error *err);
+    void *user;
+} mr_cache_importer;
 int mr_cache_acquire_refined(mr_cache *c, const char *key, const char *path,
-                             const mr_refine_params *refine, mr_asset **out, bool *hit,
-                             double *saved_s, mr_asset_stage *stage, mr_error *err);
+                             const mr_refine_params *refine, const mr_cache_importer *importer,
+                             mr_asset **out, bool *hit, double *saved_s, mr_asset_stage *stage,
+                             mr_error *err);
 void mr_cache_release(mr_cache *c, mr_asset *asset);
 void mr_cache_stats_get(mr_cache *c, mr_cache_stats *out);
 

@@ -28,6 +28,7 @@
 
 #include "cache.h"
 #include "http.h"
+#include "import_worker.h"
 #include "job_json.h"
 #include "microray.h"
 #include "stats_json.h"
@@ -591,6 +592,23 @@ done:
     return rc;
 }
 
+/* A cache miss imports in a child process under the daemon's limits
+ * (import_worker.h); a cancel or a stop kills it at once. */
+typedef struct isolated_import {
+    job_run *run;
+    char label[96]; /* an upload by its id, not by its path in the data directory */
+} isolated_import;
+
+static int import_in_child(void *user, const char *path, const mr_refine_params *refine,
+                           mr_asset **out, mr_asset_stage *stage, mr_error *err)
+{
+    isolated_import *ii = user;
+    const mr_daemon_config *cfg = &ii->run->d->cfg;
+    mr_import_limits lim = {.memory_bytes = cfg->import_memory, .timeout_s = cfg->import_timeout_s};
+    return mr_import_isolated(path, ii->label, refine, &lim, run_stop_requested, ii->run, out,
+                              stage, err);
+}
+
 static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
                        double *saved_s, mr_asset_stage *stage, mr_error *err)
 {
@@ -599,9 +617,15 @@ static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bo
     int rc = asset_key(desc, key, err);
     if (rc < 0)
         return rc;
+    isolated_import ii = {.run = r};
+    if (desc->id)
+        snprintf(ii.label, sizeof ii.label, "asset %.64s", desc->id);
+    else
+        snprintf(ii.label, sizeof ii.label, "%s", desc->path);
+    mr_cache_importer importer = {.import = import_in_child, .user = &ii};
     return mr_cache_acquire_refined(r->d->cache, key, desc->path,
-                                    desc->refine ? &desc->refine_params : NULL, out, hit, saved_s,
-                                    stage, err);
+                                    desc->refine ? &desc->refine_params : NULL, &importer, out, hit,
+                                    saved_s, stage, err);
 }
 
 static void run_release(void *user, mr_asset *asset)
@@ -853,6 +877,12 @@ static void apply_defaults(mr_daemon_config *c)
         c->connection_timeout_s = 30;
     if (!c->per_ip_connections)
         c->per_ip_connections = 128;
+    mr_import_limits lim;
+    mr_import_limits_default(&lim);
+    if (!c->import_memory)
+        c->import_memory = lim.memory_bytes;
+    if (!(c->import_timeout_s > 0))
+        c->import_timeout_s = lim.timeout_s;
 }
 
 int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)

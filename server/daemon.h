@@ -30,6 +30,8 @@ typedef struct mr_daemon_config {
     unsigned http_threads;        /* libmicrohttpd thread pool; default one per core */
     unsigned connection_timeout_s;/* idle connection timeout; default 30 */
     unsigned per_ip_connections;  /* default 128 */
+    size_t import_memory;         /* an import's own memory; default a quarter of RAM, >= 1 GiB */
+    double import_timeout_s;      /* an import's wall clock; default 300 */
     bool quiet;                   /* no request/frame log lines */
 } mr_daemon_config;
 

@@ -36,7 +36,7 @@
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
  * step by step and refuses newer ones. */
-#define SCHEMA_VERSION 1
+#define SCHEMA_VERSION 2
 #define STORE_BUSY_MS 5000 /* another process (sqlite3 shell, backup) holding the lock */
 
 /* Columns of a job record, in the order read_job() expects. Done and
@@ -67,20 +67,41 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_JOB_STATE] = "SELECT state, frame_count FROM jobs WHERE id = ?1",
     /* ?2 state, ?3 error or NULL to keep it, ?4 now. started is set the
      * first time a job runs; finished on entering a final state and cleared
-     * when it is queued or running again. */
+     * when it is queued or running again. interrupted counts the job's
+     * starts since a frame last finished (S_JOB_PROGRESS resets it): one
+     * more for each start, one less when a start ends gracefully (running
+     * back to queued: a stop); what is left at recovery are the starts the
+     * process did not survive. */
     [S_JOB_SET_STATE] = "UPDATE jobs SET state = ?2, error = COALESCE(?3, error), "
+                        "interrupted = CASE WHEN ?2 = 1 THEN interrupted + 1 "
+                        "WHEN ?2 = 0 AND state = 1 AND interrupted > 0 THEN interrupted - 1 "
+                        "ELSE interrupted END, "
                         "started = CASE WHEN ?2 = 1 AND started = 0 THEN ?4 ELSE started END, "
                         "finished = CASE WHEN ?2 >= 2 THEN ?4 ELSE 0 END WHERE id = ?1",
     [S_CLAIM_PICK] = "SELECT id FROM jobs WHERE state = 0 ORDER BY priority DESC, seq ASC LIMIT 1",
     [S_JOB_COUNTS] = "SELECT state, COUNT(*) FROM jobs GROUP BY state",
+    /* Recovery, in this order (crash-loop protection): a frame that was
+     * running when the process died counts as a failed attempt (?1 the
+     * message), and fails once its attempts exceed the job's max_retries;
+     * a job whose starts were interrupted more than max_retries times in a
+     * row (no frame finished in between; see S_JOB_SET_STATE) fails (?1
+     * now) instead of being resumed again, which is what stops a job that
+     * kills the daemon from killing every restart; the rest resume. */
+    [S_RECOVER_FRAMES] = "UPDATE frames SET retries = retries + 1, error = ?1, "
+                         "state = CASE WHEN retries + 1 > (SELECT max_retries FROM jobs j "
+                         "WHERE j.id = frames.job_id) THEN 3 ELSE 0 END WHERE state = 1",
+    [S_RECOVER_GIVE_UP] = "UPDATE jobs SET state = 3, finished = ?1, error = 'the daemon stopped "
+                          "' || interrupted || ' times in a row while running this job (killed, "
+                          "crashed or out of memory) before a frame finished; not resumed again' "
+                          "WHERE state = 1 AND interrupted > max_retries",
     [S_RECOVER_JOBS] = "UPDATE jobs SET state = 0 WHERE state = 1",
-    [S_RECOVER_FRAMES] = "UPDATE frames SET state = 0 WHERE state = 1",
     /* Every frame that is not done gets rendered again with a fresh retry
      * budget: failed ones, pending ones a cancel left behind, and running
      * ones a stopped worker left behind. */
     [S_RETRY_FRAMES] = "UPDATE frames SET state = 0, retries = 0, error = '' "
                        "WHERE job_id = ?1 AND state <> 2",
-    [S_JOB_REQUEUE] = "UPDATE jobs SET state = 0, error = '', finished = 0 WHERE id = ?1",
+    [S_JOB_REQUEUE] = "UPDATE jobs SET state = 0, error = '', finished = 0, interrupted = 0 "
+                      "WHERE id = ?1",
     [S_DEL_IDEM] = "DELETE FROM idempotency WHERE job_id = ?1",
     [S_DEL_FRAMES] = "DELETE FROM frames WHERE job_id = ?1",
     [S_DEL_JOB] = "DELETE FROM jobs WHERE id = ?1",
@@ -95,6 +116,7 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_FRAME_SET_RUNNING] = "UPDATE frames SET state = 1 WHERE job_id = ?1 AND idx = ?2",
     [S_FRAME_DONE] = "UPDATE frames SET state = 2, error = '', stats_json = ?3 "
                      "WHERE job_id = ?1 AND idx = ?2",
+    [S_JOB_PROGRESS] = "UPDATE jobs SET interrupted = 0 WHERE id = ?1 AND interrupted <> 0",
     [S_ASSET_INSERT] = "INSERT OR IGNORE INTO assets(id, size, created) VALUES(?1, ?2, ?3)",
     [S_ASSET_GET] = "SELECT size FROM assets WHERE id = ?1",
 };
@@ -135,6 +157,9 @@ static const char schema_v1[] =
     " id TEXT PRIMARY KEY NOT NULL,"
     " size INTEGER NOT NULL,"
     " created REAL NOT NULL);";
+
+static const char schema_v2[] =
+    "ALTER TABLE jobs ADD COLUMN interrupted INTEGER NOT NULL DEFAULT 0;";
 
 /* ---- names ---------------------------------------------------------------- */
 
@@ -435,7 +460,12 @@ static int migrate(mr_store *st, mr_error *err)
         if (rc < 0)
             goto fail;
     }
-    /* Later versions add "if (version < 2) ALTER ..." steps here. */
+    if (version < 2) {
+        /* v2: consecutive starts of a job that the process did not survive */
+        rc = exec_sql(st, schema_v2, "upgrade schema to version 2", err);
+        if (rc < 0)
+            goto fail;
+    }
     if (version != SCHEMA_VERSION) {
         char sql[64];
         snprintf(sql, sizeof sql, "PRAGMA user_version = %d", SCHEMA_VERSION);
@@ -606,12 +636,20 @@ int mr_store_recover(mr_store *st, mr_error *err)
     int rc = store_tx_begin(st, err);
     if (rc < 0)
         goto done;
+    sqlite3_stmt *s = store_stmt(st, S_RECOVER_FRAMES);
+    if ((rc = store_exec_bound(st, s,
+                               store_bind_text(s, 1, "the daemon stopped during this frame "
+                                                     "(killed, crashed or out of memory)"),
+                               "count interrupted frames", err)) < 0)
+        goto done;
+    s = store_stmt(st, S_RECOVER_GIVE_UP);
+    if ((rc = store_exec_bound(st, s, sqlite3_bind_double(s, 1, store_now()),
+                               "fail crash-looping jobs", err)) < 0)
+        goto done;
     if ((rc = store_exec(st, store_stmt(st, S_RECOVER_JOBS), "re-queue running jobs", err)) < 0)
         goto done;
     sqlite3_int64 n = sqlite3_changes64(st->db);
     requeued = n > INT_MAX ? INT_MAX : (int)n;
-    if ((rc = store_exec(st, store_stmt(st, S_RECOVER_FRAMES), "reset running frames", err)) < 0)
-        goto done;
 done:
     rc = store_tx_end(st, rc, err);
     if (rc < 0)

@@ -74,9 +74,15 @@ int mr_store_open(const char *data_dir, mr_store **out, mr_error *err);
 void mr_store_close(mr_store *st);
 const char *mr_store_dir(const mr_store *st);
 
-/* Crash recovery, called once at startup: running jobs go back to queued
- * (they resume: done frames are kept) and running frames back to pending.
- * Returns the number of jobs re-queued, or a negative mr_err. */
+/* Crash recovery, called once at startup. What was running when the last
+ * process died was interrupted: a running frame counts a failed attempt
+ * (back to pending, or failed once its attempts exceed max_retries), and a
+ * running job counts an interrupted start; a job whose last max_retries + 1
+ * starts were all interrupted before a frame finished fails (a poison job
+ * that kills the daemon cannot kill every restart), the others go back to
+ * queued and resume (done frames are kept). A graceful stop leaves nothing
+ * running, so it counts nothing. Returns the number of jobs re-queued, or a
+ * negative mr_err. */
 int mr_store_recover(mr_store *st, mr_error *err);
 
 /* Creates a queued job holding the job document `json` (already validated)

@@ -243,18 +243,28 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
         (rc = mr_fs_write_atomic(path, exr, exr_size, "frame", err)) < 0)
         return rc;
 
-    /* The file is durable; only now may the row say so. */
+    /* The file is durable; only now may the row say so. A finished frame
+     * is progress too: the job's interrupted starts count from zero again
+     * (crash-loop protection, mr_store_recover). */
     pthread_mutex_lock(&st->lock);
-    sqlite3_stmt *s = store_stmt(st, S_FRAME_DONE);
-    rc = store_exec_bound(st, s,
-                          store_bind_text(s, 1, id) |
-                              sqlite3_bind_int64(s, 2, (sqlite3_int64)index) |
-                              store_bind_text(s, 3, stats_json),
-                          "mark frame done", err);
-    bool gone = rc == MR_OK && sqlite3_changes(st->db) == 0;
-    if (gone)
-        rc = store_no_job(err, id);
-    pthread_mutex_unlock(&st->lock);
+    bool gone = false;
+    rc = store_tx_begin(st, err);
+    if (rc == MR_OK) {
+        sqlite3_stmt *s = store_stmt(st, S_FRAME_DONE);
+        rc = store_exec_bound(st, s,
+                              store_bind_text(s, 1, id) |
+                                  sqlite3_bind_int64(s, 2, (sqlite3_int64)index) |
+                                  store_bind_text(s, 3, stats_json),
+                              "mark frame done", err);
+        gone = rc == MR_OK && sqlite3_changes(st->db) == 0;
+        if (gone)
+            rc = store_no_job(err, id);
+    }
+    if (rc == MR_OK) {
+        sqlite3_stmt *s = store_stmt(st, S_JOB_PROGRESS);
+        rc = store_exec_bound(st, s, store_bind_text(s, 1, id), "record progress", err);
+    }
+    rc = store_tx_end(st, rc, err); /* and unlocks */
     if (gone) {
         /* The job was deleted while this frame was written: its delete
          * may have missed the file, so clean up here. */

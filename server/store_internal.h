@@ -37,8 +37,9 @@ enum stmt_id {
     S_JOB_SET_STATE,
     S_CLAIM_PICK,
     S_JOB_COUNTS,
-    S_RECOVER_JOBS,
     S_RECOVER_FRAMES,
+    S_RECOVER_GIVE_UP,
+    S_RECOVER_JOBS,
     S_RETRY_FRAMES,
     S_JOB_REQUEUE,
     S_DEL_IDEM,
@@ -50,6 +51,7 @@ enum stmt_id {
     S_FRAME_SET,
     S_FRAME_SET_RUNNING,
     S_FRAME_DONE,
+    S_JOB_PROGRESS,
     S_ASSET_INSERT,
     S_ASSET_GET,
     S_COUNT

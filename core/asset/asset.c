@@ -1643,8 +1643,6 @@ nomem:
  * on a thread of its own with a stack sized for the deepest hierarchy the
  * node cap allows (MR_MAX_ASSET_NODES, ~1 M, at about 1 KiB a level): the
  * stack is address space, taken from memory only as deep as a file goes. */
-#define MR_IMPORT_STACK_BYTES ((size_t)1 << 30)
-
 typedef struct load_call {
     const char *path;
     mr_asset **out;
@@ -1666,7 +1664,7 @@ int mr_asset_load(const char *path, mr_asset **out, mr_error *err)
     pthread_t t;
     bool started = false;
     if (pthread_attr_init(&attr) == 0) {
-        started = pthread_attr_setstacksize(&attr, MR_IMPORT_STACK_BYTES) == 0 &&
+        started = pthread_attr_setstacksize(&attr, MR_ASSET_IMPORT_STACK_BYTES) == 0 &&
                   pthread_create(&t, &attr, load_thread, &call) == 0;
         pthread_attr_destroy(&attr);
     }

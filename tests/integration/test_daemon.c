@@ -20,6 +20,7 @@
 
 #include "daemon_fixture.h"
 #include "render/exr.h"
+#include "util/clock.h"
 
 static daemon_proc D;
 
@@ -638,6 +639,72 @@ static void test_kill_9_and_resume(void **state)
     interrupt_and_resume(SIGKILL, "crash", "resuming 1 job");
 }
 
+/* Waits until job id is running, then a while longer: long enough to be
+ * inside its first frame (its asset imports in well under a second, even
+ * in sanitizer builds), much shorter than that frame. */
+static void wait_inside_first_frame(const char *id)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    for (int i = 0; i < 600; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        bool running = r.status == 200 && r.body && strstr(r.body, "\"state\":\"running\"");
+        http_free(&r);
+        if (running) {
+            fx_sleep_ms(1500);
+            return;
+        }
+        fx_sleep_ms(50);
+    }
+    fail_msg("job %s never started", id);
+}
+
+/* Crash-loop protection (issue 12): a job whose frame takes the daemon
+ * down on every start (here: kill -9 during that frame, which is what an
+ * OOM kill or a crash in a library looks like from the store) is resumed
+ * max_retries times and then failed, with the frame and the reason named,
+ * instead of killing every restart forever. The restart after it serves at
+ * once. */
+static void test_crash_loop_gives_up(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    daemon_start(&D, "poison");
+    /* one frame slow enough (1280x720, 512 samples: about 10 s here) to
+     * be killed mid-frame */
+    char *job = small_job(0, 1280, "\"max_retries\":1,"), id[64], slow[4200];
+    char *spp = strstr(job, "\"samples\":1}");
+    assert_non_null(spp);
+    *spp = '\0';
+    snprintf(slow, sizeof slow, "%s\"samples\":512}}", job);
+    free(job);
+    submit(slow, id);
+    for (int death = 1; death <= 2; death++) {
+        wait_inside_first_frame(id);
+        assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
+        double t0 = mr_now();
+        daemon_start(&D, "poison");
+        http_result h = http(&D, "GET", "/healthz", NULL, 0, NULL);
+        assert_int_equal(h.status, 200);
+        http_free(&h);
+        print_message("[ timing   ] restart %d to /healthz: %.2f s\n", death, mr_now() - t0);
+    }
+    cJSON *j = wait_job(id, 30);
+    assert_string_equal(state_of(j), "failed");
+    const char *why = cJSON_GetObjectItem(j, "error")->valuestring;
+    if (!strstr(why, "stopped 2 times in a row"))
+        fail_msg("error: %s", why);
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "failed")->valueint, 1);
+    cJSON_Delete(j);
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0/stats", id);
+    http_result f = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(f.status, 404);
+    http_free(&f);
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
 /* SIGTERM: the frame in progress finishes, the job is left queued. */
 static void test_sigterm_and_resume(void **state)
 {
@@ -762,6 +829,7 @@ int main(void)
         cmocka_unit_test(test_dmm_bake_kept_across_restarts),
         cmocka_unit_test(test_svo_voxels_kept_across_restarts),
         cmocka_unit_test(test_kill_9_and_resume),
+        cmocka_unit_test(test_crash_loop_gives_up),
         cmocka_unit_test(test_sigterm_and_resume),
     };
     return cmocka_run_group_tests_name("daemon", tests, setup, teardown);

@@ -125,7 +125,7 @@ static mr_asset *acquire_refined(mr_cache *c, const char *key, const char *path,
     mr_asset *a = NULL;
     double saved;
     mr_error err = {0};
-    if (mr_cache_acquire_refined(c, key, path, p, &a, hit, &saved, NULL, &err) < 0)
+    if (mr_cache_acquire_refined(c, key, path, p, NULL, &a, hit, &saved, NULL, &err) < 0)
         fail_msg("%s", err.msg);
     return a;
 }
@@ -256,7 +256,7 @@ static void test_refine_over_the_cap(void **state)
     bool hit;
     double saved;
     mr_asset_stage stage = MR_ASSET_STAGE_LOAD;
-    assert_int_equal(mr_cache_acquire_refined(c, "g", path, &p, &a, &hit, &saved, &stage, &err),
+    assert_int_equal(mr_cache_acquire_refined(c, "g", path, &p, NULL, &a, &hit, &saved, &stage, &err),
                      MR_ERR_LIMIT);
     assert_null(a);
     /* the worker points at "refine" because the stage says so */
@@ -285,7 +285,7 @@ static void test_refine_over_the_cap(void **state)
     assert_int_equal(stage, MR_ASSET_STAGE_LOAD);
     /* also through the cache, and for a missing file */
     stage = MR_ASSET_STAGE_REFINE;
-    assert_int_equal(mr_cache_acquire_refined(c, "nope", "/nonexistent/x.obj", &p, &a, &hit, &saved,
+    assert_int_equal(mr_cache_acquire_refined(c, "nope", "/nonexistent/x.obj", &p, NULL, &a, &hit, &saved,
                                               &stage, &err), MR_ERR_IO);
     assert_int_equal(stage, MR_ASSET_STAGE_LOAD);
     mr_cache_free(c);

@@ -336,7 +336,7 @@ static void test_open_schema(void **state)
     sqlite3_finalize(s);
     assert_int_equal(sqlite3_prepare_v2(db, "PRAGMA user_version", -1, &s, NULL), SQLITE_OK);
     assert_int_equal(sqlite3_step(s), SQLITE_ROW);
-    assert_int_equal(sqlite3_column_int(s, 0), 1);
+    assert_int_equal(sqlite3_column_int(s, 0), 2);
     sqlite3_finalize(s);
 
     /* A newer schema is refused instead of being misread. */
@@ -371,9 +371,35 @@ static void test_open_schema(void **state)
     /* Reopen the fixture's directory for teardown, with the version put back. */
     snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
     assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 1", NULL, NULL, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 2", NULL, NULL, NULL), SQLITE_OK);
     sqlite3_close(db);
     ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+}
+
+/* A version-1 file (before crash-loop protection) is upgraded in place:
+ * its jobs stay, and the new count works on them. */
+static void test_schema_upgrade_from_v1(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char job[MR_JOB_ID_LEN + 1];
+    create_job(fx->st, "old", 2, 0, 0, job);
+    mr_store_close(fx->st);
+    fx->st = NULL;
+    char path[512];
+    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, "ALTER TABLE jobs DROP COLUMN interrupted; "
+                                      "PRAGMA user_version = 1", NULL, NULL, NULL), SQLITE_OK);
+    sqlite3_close(db);
+
+    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    assert_string_equal(get_job(fx->st, job).name, "old");
+    char id[MR_JOB_ID_LEN + 1];
+    ok(mr_store_job_claim(fx->st, id, &err), &err);
+    ok(mr_store_recover(fx->st, &err), &err); /* max_retries 0: one interrupted start fails it */
+    assert_int_equal(get_job(fx->st, job).state, MR_JOB_FAILED);
 }
 
 static void test_create_get_list_filter(void **state)
@@ -893,6 +919,92 @@ static void test_recover_after_crash(void **state)
     assert_int_equal(mr_store_recover(fx->st, &err), 0);
 }
 
+/* Crash-loop protection: starts that died count, progress forgives them.
+ * A close without finishing stands for the death (recovery cannot tell the
+ * two apart, and test_recover_after_crash shows a real kill reads the same). */
+static void reopen(fixture *fx)
+{
+    mr_error err = {0};
+    mr_store_close(fx->st);
+    fx->st = NULL;
+    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    ok(mr_store_recover(fx->st, &err), &err);
+}
+
+static void test_recover_crash_loop(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char id[MR_JOB_ID_LEN + 1];
+
+    /* A frame that kills the process each time: max_retries 1 allows two
+     * attempts; the second death fails the frame and the job. */
+    char poison[MR_JOB_ID_LEN + 1];
+    create_job(fx->st, "poison", 3, 0, 1, poison);
+    for (int attempt = 1; attempt <= 2; attempt++) {
+        ok(mr_store_job_claim(fx->st, id, &err), &err);
+        assert_string_equal(id, poison);
+        ok(mr_store_frame_set_running(fx->st, poison, 0, &err), &err);
+        reopen(fx);
+        mr_frame_record f;
+        ok(mr_store_frame_get(fx->st, poison, 0, &f, &err), &err);
+        free(f.stats_json);
+        assert_int_equal(f.retries, attempt);
+        assert_non_null(strstr(f.error, "the daemon stopped during this frame"));
+        mr_job_record r = get_job(fx->st, poison);
+        if (attempt == 1) {
+            assert_int_equal(f.state, MR_FRAME_PENDING);
+            assert_int_equal(r.state, MR_JOB_QUEUED);
+        } else {
+            assert_int_equal(f.state, MR_FRAME_FAILED);
+            assert_int_equal(r.state, MR_JOB_FAILED);
+            assert_non_null(strstr(r.error, "stopped 2 times in a row"));
+            assert_true(r.finished > 0);
+        }
+    }
+    assert_int_equal(mr_store_job_claim(fx->st, id, &err), MR_ERR_NOT_FOUND);
+
+    /* Dying before any frame started (an import that kills the process)
+     * counts too: max_retries 0 means the first death is final. */
+    char setup_death[MR_JOB_ID_LEN + 1];
+    create_job(fx->st, "import-crash", 2, 0, 0, setup_death);
+    ok(mr_store_job_claim(fx->st, id, &err), &err);
+    reopen(fx);
+    mr_job_record r = get_job(fx->st, setup_death);
+    assert_int_equal(r.state, MR_JOB_FAILED);
+    assert_non_null(strstr(r.error, "stopped 1 times in a row"));
+    /* a user's retry gives it a fresh count */
+    assert_int_equal(mr_store_job_retry(fx->st, setup_death, &err), 2);
+    assert_int_equal(get_job(fx->st, setup_death).state, MR_JOB_QUEUED);
+    ok(mr_store_job_claim(fx->st, id, &err), &err);
+    ok(mr_store_frame_done(fx->st, setup_death, 0, "x", 1, "{}", &err), &err);
+    ok(mr_store_frame_done(fx->st, setup_death, 1, "x", 1, "{}", &err), &err);
+    ok(mr_store_job_set_state(fx->st, setup_death, MR_JOB_SUCCEEDED, NULL, &err), &err);
+
+    /* A job killed again and again but finishing a frame each time is
+     * making progress and is never given up. */
+    char slow[MR_JOB_ID_LEN + 1];
+    create_job(fx->st, "progress", 6, 0, 0, slow);
+    for (size_t i = 0; i < 5; i++) {
+        ok(mr_store_job_claim(fx->st, id, &err), &err);
+        assert_string_equal(id, slow);
+        ok(mr_store_frame_set_running(fx->st, slow, i, &err), &err);
+        ok(mr_store_frame_done(fx->st, slow, i, "x", 1, "{}", &err), &err);
+        reopen(fx);
+        r = get_job(fx->st, slow);
+        assert_int_equal(r.state, MR_JOB_QUEUED);
+        assert_int_equal(r.frames_done, i + 1);
+        assert_int_equal(r.frames_failed, 0);
+    }
+    /* A graceful stop (the job put back to queued) counts nothing. */
+    for (int k = 0; k < 3; k++) {
+        ok(mr_store_job_claim(fx->st, id, &err), &err);
+        ok(mr_store_job_set_state(fx->st, slow, MR_JOB_QUEUED, NULL, &err), &err);
+        reopen(fx);
+        assert_int_equal(get_job(fx->st, slow).state, MR_JOB_QUEUED);
+    }
+}
+
 /* ---- store: idempotency, delete, assets, counts ------------------------------ */
 
 static void test_idempotency(void **state)
@@ -1288,6 +1400,7 @@ int main(void)
         cmocka_unit_test(test_sha256_split_updates),
         cmocka_unit_test(test_state_names),
         cmocka_unit_test_setup_teardown(test_open_schema, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_schema_upgrade_from_v1, setup, teardown),
         cmocka_unit_test_setup_teardown(test_create_get_list_filter, setup, teardown),
         cmocka_unit_test_setup_teardown(test_set_state_times, setup, teardown),
         cmocka_unit_test_setup_teardown(test_claim_order, setup, teardown),
@@ -1296,6 +1409,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_frame_failed_retries, setup, teardown),
         cmocka_unit_test_setup_teardown(test_retry, setup, teardown),
         cmocka_unit_test_setup_teardown(test_recover_after_crash, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_recover_crash_loop, setup, teardown),
         cmocka_unit_test_setup_teardown(test_idempotency, setup, teardown),
         cmocka_unit_test_setup_teardown(test_delete, setup, teardown),
         cmocka_unit_test_setup_teardown(test_assets, setup, teardown),

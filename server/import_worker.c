@@ -1,0 +1,277 @@
+/*
+ * import_worker.c - mr_import_isolated: fork, import in the child, read the
+ * asset back (import_worker.h).
+ *
+ * Why fork and not exec: the child needs nothing but the importer, which
+ * is in this very image, and fork works the same from the daemon and from
+ * the test programs. After fork only the forking thread exists in the
+ * child; it uses malloc (glibc makes that fork-safe), assimp and the
+ * refiner, none of which take locks another daemon thread could have held,
+ * and never touches sqlite, Embree or the log.
+ *
+ * The result travels as one message on a pipe: a header (status, failing
+ * stage, message length, blob length), the message, the blob. The parent
+ * reads it while the child writes (no pipe-buffer deadlock) and judges the
+ * child by its exit: a complete message and exit 0 is a result; anything
+ * else (a signal, a limit, a short message) is an error naming what
+ * happened.
+ */
+#define _GNU_SOURCE
+#include "import_worker.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/prctl.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+
+#if defined(__SANITIZE_ADDRESS__)
+#define SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define SANITIZED 1
+#endif
+#endif
+#ifndef SANITIZED
+#define SANITIZED 0 /* ASan reserves terabytes of shadow: no address-space limit then */
+#endif
+
+#define POLL_MS 50
+#define RESULT_FD 3
+
+typedef struct result_header {
+    int32_t rc;
+    int32_t stage;
+    uint32_t message_len;
+    uint32_t pad;
+    uint64_t blob_len;
+} result_header;
+
+void mr_import_limits_default(mr_import_limits *out)
+{
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+    size_t quarter = pages > 0 && page > 0 ? (size_t)pages * (size_t)page / 4 : 0;
+    size_t gib = (size_t)1 << 30;
+    out->memory_bytes = quarter > gib ? quarter : gib;
+    out->timeout_s = 300;
+}
+
+/* Pages of memory in use by a process, from /proc (field: 1 size, 2 resident). */
+static size_t statm_bytes(pid_t pid, int field)
+{
+    char path[64];
+    snprintf(path, sizeof path, "/proc/%d/statm", (int)pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return 0;
+    unsigned long v[2] = {0, 0};
+    int n = fscanf(f, "%lu %lu", &v[0], &v[1]);
+    fclose(f);
+    if (n != 2)
+        return 0;
+    return (size_t)v[field - 1] * (size_t)sysconf(_SC_PAGESIZE);
+}
+
+static bool write_all(int fd, const void *p, size_t n)
+{
+    const uint8_t *b = p;
+    while (n > 0) {
+        ssize_t w = write(fd, b, n);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0)
+            return false;
+        b += w;
+        n -= (size_t)w;
+    }
+    return true;
+}
+
+static _Noreturn void child_main(int fd, const char *path, const mr_refine_params *refine,
+                                 const mr_import_limits *lim, pid_t parent)
+{
+    /* die with the daemon; nothing inherited but the result pipe */
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent)
+        _exit(120);
+    if (dup2(fd, RESULT_FD) != RESULT_FD)
+        _exit(121);
+    close_range(RESULT_FD + 1, ~0u, 0);
+    struct rlimit none = {0, 0};
+    setrlimit(RLIMIT_CORE, &none);
+    if (lim->timeout_s > 0) {
+        /* a backstop behind the parent's wall clock (SIGXCPU) */
+        rlim_t cpu = (rlim_t)ceil(lim->timeout_s) + 2;
+        struct rlimit r = {cpu, cpu + 1};
+        setrlimit(RLIMIT_CPU, &r);
+    }
+    if (lim->memory_bytes && !SANITIZED) {
+        /* what the parent's image already maps, plus the import's own */
+        size_t base = statm_bytes(getpid(), 1) + MR_ASSET_IMPORT_STACK_BYTES;
+        struct rlimit r = {base + lim->memory_bytes, base + lim->memory_bytes};
+        setrlimit(RLIMIT_AS, &r);
+    }
+    mr_error e = {0};
+    mr_asset *asset = NULL;
+    mr_asset_stage stage = MR_ASSET_STAGE_LOAD;
+    uint8_t *blob = NULL;
+    size_t blob_len = 0;
+    int rc = mr_cache_import(path, refine, &asset, &stage, &e);
+    if (rc == MR_OK)
+        rc = mr_asset_blob_write(asset, &blob, &blob_len, &e);
+    result_header h = {.rc = rc, .stage = (int32_t)stage};
+    if (rc < 0) {
+        h.message_len = (uint32_t)strnlen(e.msg, sizeof e.msg);
+        blob_len = 0;
+    }
+    h.blob_len = blob_len;
+    bool ok = write_all(RESULT_FD, &h, sizeof h) && write_all(RESULT_FD, e.msg, h.message_len) &&
+              write_all(RESULT_FD, blob, blob_len);
+    _exit(ok ? 0 : 122);
+}
+
+typedef enum verdict { RAN, CANCELLED, TIMED_OUT, TOO_BIG } verdict;
+
+static void format_bytes(size_t b, char *out, size_t n)
+{
+    if (b >= ((size_t)1 << 30))
+        snprintf(out, n, "%.1f GiB", (double)b / (1 << 30));
+    else
+        snprintf(out, n, "%.0f MiB", (double)b / (1 << 20));
+}
+
+int mr_import_isolated(const char *path, const char *label, const mr_refine_params *refine,
+                       const mr_import_limits *lim, bool (*interrupted)(void *user), void *user,
+                       mr_asset **out, mr_asset_stage *stage, mr_error *err)
+{
+    *out = NULL;
+    if (stage)
+        *stage = MR_ASSET_STAGE_LOAD;
+    mr_import_limits none = {0};
+    if (!lim)
+        lim = &none;
+    int fds[2];
+    if (pipe2(fds, O_CLOEXEC) != 0)
+        return mr_error_set(err, MR_ERR_IO, "import of %s: pipe: %s", label, strerror(errno));
+    size_t rss_at_fork = statm_bytes(getpid(), 2);
+    pid_t parent = getpid();
+    fflush(NULL); /* nothing buffered is written twice */
+    pid_t pid = fork();
+    if (pid < 0) {
+        int e = errno;
+        close(fds[0]);
+        close(fds[1]);
+        return mr_error_set(err, MR_ERR_IO, "import of %s: fork: %s", label, strerror(e));
+    }
+    if (pid == 0)
+        child_main(fds[1], path, refine, lim, parent);
+    close(fds[1]);
+
+    uint8_t *buf = NULL;
+    size_t len = 0, cap = 0, peak = 0;
+    verdict v = RAN;
+    bool read_failed = false;
+    double deadline = lim->timeout_s > 0 ? mr_now() + lim->timeout_s : 0;
+    for (;;) {
+        struct pollfd p = {.fd = fds[0], .events = POLLIN};
+        int n = poll(&p, 1, POLL_MS);
+        if (n < 0 && errno != EINTR) {
+            read_failed = true;
+            break;
+        }
+        if (n > 0) {
+            if (cap - len < 65536) {
+                size_t ncap = cap ? cap * 2 : 1 << 20;
+                uint8_t *nb = realloc(buf, ncap);
+                if (!nb) {
+                    read_failed = true;
+                    break;
+                }
+                buf = nb;
+                cap = ncap;
+            }
+            ssize_t r = read(fds[0], buf + len, cap - len);
+            if (r < 0 && errno == EINTR)
+                continue;
+            if (r <= 0) {
+                read_failed = r < 0;
+                break; /* EOF: the child is done (or dead) */
+            }
+            len += (size_t)r;
+        }
+        if (interrupted && interrupted(user)) {
+            v = CANCELLED;
+            break;
+        }
+        if (deadline > 0 && mr_now() > deadline) {
+            v = TIMED_OUT;
+            break;
+        }
+        size_t rss = statm_bytes(pid, 2);
+        size_t grown = rss > rss_at_fork ? rss - rss_at_fork : 0;
+        if (grown > peak)
+            peak = grown;
+        if (lim->memory_bytes && grown > lim->memory_bytes) {
+            v = TOO_BIG;
+            break;
+        }
+    }
+    close(fds[0]);
+    if (v != RAN || read_failed)
+        kill(pid, SIGKILL);
+    int status = 0;
+    while (waitpid(pid, &status, 0) < 0 && errno == EINTR)
+        ;
+
+    int rc = MR_OK;
+    char limit[32];
+    format_bytes(lim->memory_bytes, limit, sizeof limit);
+    result_header h;
+    if (v == CANCELLED) {
+        rc = mr_error_set(err, MR_ERR_CANCELLED, "import of %s cancelled", label);
+    } else if (v == TIMED_OUT || (WIFSIGNALED(status) && WTERMSIG(status) == SIGXCPU)) {
+        rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s took longer than %g s (the daemon's "
+                          "--import-timeout)", label, lim->timeout_s);
+    } else if (v == TOO_BIG) {
+        rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s used more than %s of memory (the "
+                          "daemon's --import-memory)", label, limit);
+    } else if (WIFSIGNALED(status)) {
+        int sig = WTERMSIG(status);
+        rc = mr_error_set(err, MR_ERR_FORMAT, "import of %s crashed the importer (%s%s%s)", label,
+                          sigabbrev_np(sig) ? "SIG" : "signal ", sigabbrev_np(sig) ? sigabbrev_np(sig) : "",
+                          sig == SIGKILL ? ", killed: out of memory?" : "");
+    } else if (read_failed || !WIFEXITED(status) || WEXITSTATUS(status) != 0 || len < sizeof h) {
+        rc = mr_error_set(err, MR_ERR_IO, "import of %s: the import process failed (exit %d)",
+                          label, WIFEXITED(status) ? WEXITSTATUS(status) : -1);
+    } else {
+        memcpy(&h, buf, sizeof h);
+        if (len != sizeof h + h.message_len + h.blob_len) {
+            rc = mr_error_set(err, MR_ERR_IO, "import of %s: a torn result (%zu bytes)", label, len);
+        } else if (h.rc < 0) {
+            char msg[sizeof err->msg];
+            snprintf(msg, sizeof msg, "%.*s", (int)h.message_len, (const char *)buf + sizeof h);
+            if (strstr(msg, "bad_alloc") || h.rc == MR_ERR_NOMEM)
+                rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s used more than %s of memory (the "
+                                  "daemon's --import-memory): %s", label, limit, msg);
+            else
+                rc = mr_error_set(err, h.rc, "%s", msg);
+            if (stage)
+                *stage = (mr_asset_stage)h.stage;
+        } else {
+            rc = mr_asset_blob_read(buf + sizeof h + h.message_len, (size_t)h.blob_len, out, err);
+            if (rc < 0)
+                mr_error_prefix(err, "import of %s: ", label);
+        }
+    }
+    free(buf);
+    return rc;
+}
