@@ -3,7 +3,7 @@
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
- *                   [--port-file F] [--quiet]
+ *                   [--import-memory-mb N] [--import-timeout S] [--port-file F] [--quiet]
  *
  * Signals are blocked in every thread and taken synchronously here with
  * sigwait, so the stop runs in ordinary code (no async-signal-safety games):
@@ -27,6 +27,7 @@ static void usage(void)
 {
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
+                    "                       [--import-memory-mb N] [--import-timeout S]\n"
                     "                       [--port-file FILE] [--quiet]\n");
 }
 
@@ -99,6 +100,10 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.http_threads = (unsigned)n;
         } else if (!strcmp(a, "--cache-mb") && parse_uint(v, 1, 1u << 20, &n)) {
             cfg.cache_bytes = (size_t)n << 20;
+        } else if (!strcmp(a, "--import-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {
+            cfg.import_memory = (size_t)n << 20;
+        } else if (!strcmp(a, "--import-timeout") && parse_uint(v, 1, 86400, &n)) {
+            cfg.import_timeout_s = (double)n;
         } else if (!strcmp(a, "--port-file")) {
             port_file = v;
         } else {
