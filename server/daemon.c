@@ -853,6 +853,10 @@ static void apply_defaults(mr_daemon_config *c)
         c->connection_timeout_s = 30;
     if (!c->per_ip_connections)
         c->per_ip_connections = 128;
+    if (!c->max_connections)
+        c->max_connections = 1024;
+    if (!c->request_timeout_s)
+        c->request_timeout_s = 10;
 }
 
 int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)

@@ -30,6 +30,8 @@ typedef struct mr_daemon_config {
     unsigned http_threads;        /* libmicrohttpd thread pool; default one per core */
     unsigned connection_timeout_s;/* idle connection timeout; default 30 */
     unsigned per_ip_connections;  /* default 128 */
+    unsigned max_connections;     /* connection budget; default 1024 */
+    unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */
     bool quiet;                   /* no request/frame log lines */
 } mr_daemon_config;
 

@@ -3,6 +3,7 @@
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
+ *                   [--max-connections N] [--per-ip-connections N] [--request-timeout S]
  *                   [--port-file F] [--quiet]
  *
  * Signals are blocked in every thread and taken synchronously here with
@@ -27,7 +28,8 @@ static void usage(void)
 {
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
-                    "                       [--port-file FILE] [--quiet]\n");
+                    "                       [--max-connections N] [--per-ip-connections N]\n"
+                    "                       [--request-timeout S] [--port-file FILE] [--quiet]\n");
 }
 
 static bool parse_uint(const char *s, unsigned long lo, unsigned long hi, unsigned long *out)
@@ -99,6 +101,12 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.http_threads = (unsigned)n;
         } else if (!strcmp(a, "--cache-mb") && parse_uint(v, 1, 1u << 20, &n)) {
             cfg.cache_bytes = (size_t)n << 20;
+        } else if (!strcmp(a, "--max-connections") && parse_uint(v, 16, 1u << 20, &n)) {
+            cfg.max_connections = (unsigned)n;
+        } else if (!strcmp(a, "--per-ip-connections") && parse_uint(v, 1, 1u << 20, &n)) {
+            cfg.per_ip_connections = (unsigned)n;
+        } else if (!strcmp(a, "--request-timeout") && parse_uint(v, 1, 3600, &n)) {
+            cfg.request_timeout_s = (unsigned)n;
         } else if (!strcmp(a, "--port-file")) {
             port_file = v;
         } else {
