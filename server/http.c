@@ -144,10 +144,43 @@ static enum MHD_Result collect_length(void *cls, enum MHD_ValueKind kind, const 
     return MHD_YES;
 }
 
+/* Whether the request carries the daemon's bearer token. Compared as
+ * SHA-256 digests, byte by byte without an early exit, so the time taken
+ * tells nothing about the token (not even its length). */
+static bool authorized(const mr_http *h, struct MHD_Connection *c, bool *presented)
+{
+    const char *auth = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
+    *presented = auth && strncasecmp(auth, "Bearer ", 7) == 0;
+    if (!*presented)
+        return false;
+    const char *token = auth + 7;
+    while (*token == ' ')
+        token++;
+    uint8_t digest[32];
+    mr_sha256 sha;
+    mr_sha256_init(&sha);
+    mr_sha256_update(&sha, token, strlen(token));
+    mr_sha256_final(&sha, digest);
+    unsigned diff = 0;
+    for (size_t i = 0; i < sizeof digest; i++)
+        diff |= (unsigned)(digest[i] ^ h->token_digest[i]);
+    return diff == 0;
+}
+
 static enum MHD_Result begin_request(req *r, struct MHD_Connection *c, const char *url,
                                      const char *method)
 {
     mr_http *h = r->h;
+    /* Before routing, so that without the token nothing (not even which
+     * paths exist) is learned; the probes stay open for load balancers. */
+    bool presented = false;
+    if (h->has_token && strcmp(url, "/healthz") != 0 && strcmp(url, "/readyz") != 0 &&
+        !authorized(h, c, &presented))
+        return http_send_problem_hdr(r, c, P_UNAUTHORIZED, MHD_HTTP_HEADER_WWW_AUTHENTICATE,
+                                     presented ? "Bearer realm=\"microrayd\", error=\"invalid_token\""
+                                               : "Bearer realm=\"microrayd\"",
+                                     presented ? "the bearer token is not this daemon's"
+                                               : "this daemon needs Authorization: Bearer <token>");
     if (r->uri_len > URI_MAX) {
         r->url = NULL; /* the instance is the (cut) log copy, not 8 KiB echoed back */
         return http_send_problem(r, c, P_URI_TOO_LONG, NULL,
@@ -432,6 +465,15 @@ static int parse_host(const char *host, unsigned port, struct sockaddr_storage *
                         "listen address '%.200s' is not a numeric IPv4 or IPv6 address", host);
 }
 
+/* 127.0.0.0/8, ::1 and IPv4-mapped 127/8: only this machine can connect. */
+static bool is_loopback(const struct sockaddr_storage *ss)
+{
+    if (ss->ss_family == AF_INET)
+        return (ntohl(((const struct sockaddr_in *)ss)->sin_addr.s_addr) >> 24) == 127;
+    const struct in6_addr *a = &((const struct sockaddr_in6 *)ss)->sin6_addr;
+    return IN6_IS_ADDR_LOOPBACK(a) || (IN6_IS_ADDR_V4MAPPED(a) && a->s6_addr[12] == 127);
+}
+
 int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_error *err)
 {
     *out = NULL;
@@ -443,6 +485,17 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     int rc = parse_host(host, cfg->port, &ss, &v6, err);
     if (rc < 0)
         return rc;
+    if (!is_loopback(&ss) && !(cfg->token && *cfg->token) && !cfg->insecure)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "%.200s is not a loopback address: anyone who reaches it could submit, "
+                            "read and delete jobs; give --token-file FILE (clients send "
+                            "Authorization: Bearer <token>) or, on a trusted network, --insecure",
+                            host);
+    bool tls = cfg->tls_cert_pem || cfg->tls_key_pem;
+    if (tls && !(cfg->tls_cert_pem && cfg->tls_key_pem))
+        return mr_error_set(err, MR_ERR_INVALID, "TLS needs both --tls-cert and --tls-key");
+    if (tls && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES)
+        return mr_error_set(err, MR_ERR_INVALID, "this libmicrohttpd is built without TLS");
 
     mr_http *h = calloc(1, sizeof *h);
     if (!h)
@@ -452,6 +505,13 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     h->max_job_bytes = cfg->max_job_bytes ? cfg->max_job_bytes : DEFAULT_JOB_BYTES;
     h->max_asset_bytes = cfg->max_asset_bytes ? cfg->max_asset_bytes : DEFAULT_ASSET_BYTES;
     h->render_threads = cfg->render_threads;
+    if (cfg->token && *cfg->token) {
+        mr_sha256 sha;
+        mr_sha256_init(&sha);
+        mr_sha256_update(&sha, cfg->token, strlen(cfg->token));
+        mr_sha256_final(&sha, h->token_digest);
+        h->has_token = true;
+    }
     atomic_init(&h->stopping, false);
     atomic_init(&h->requests, 0);
     atomic_init(&h->responses_4xx, 0);
@@ -482,6 +542,15 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
         flags |= MHD_USE_EPOLL;
     if (v6)
         flags |= MHD_USE_IPv6;
+    if (tls)
+        flags |= MHD_USE_TLS;
+    /* libmicrohttpd copies neither: the PEM text lives in cfg, which
+     * outlives the daemon. */
+    struct MHD_OptionItem tls_opts[] = {
+        {tls ? MHD_OPTION_HTTPS_MEM_KEY : MHD_OPTION_END, 0, (void *)cfg->tls_key_pem},
+        {MHD_OPTION_HTTPS_MEM_CERT, 0, (void *)cfg->tls_cert_pem},
+        {MHD_OPTION_END, 0, NULL},
+    };
     errno = 0;
     h->mhd = MHD_start_daemon(
         flags, (uint16_t)cfg->port, http_guard_accept, h, on_request, h,
@@ -492,7 +561,8 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
         MHD_OPTION_CONNECTION_LIMIT, backstop, MHD_OPTION_NOTIFY_CONNECTION, http_guard_notify, h,
         MHD_OPTION_URI_LOG_CALLBACK, on_uri, h,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)CONNECTION_MEMORY, MHD_OPTION_NOTIFY_COMPLETED,
-        on_completed, h, MHD_OPTION_UNESCAPE_CALLBACK, unescape_no_nul, NULL, MHD_OPTION_END);
+        on_completed, h, MHD_OPTION_UNESCAPE_CALLBACK, unescape_no_nul, NULL, MHD_OPTION_ARRAY,
+        tls_opts, MHD_OPTION_END);
     if (!h->mhd) {
         int e = errno;
         rc = mr_error_set(err, MR_ERR_IO, "cannot listen on %s%s%s:%u: %s", v6 ? "[" : "", host,

@@ -38,6 +38,8 @@ struct mr_http {
     size_t max_job_bytes, max_asset_bytes;
     unsigned render_threads;
     bool quiet;
+    bool has_token;
+    uint8_t token_digest[32]; /* SHA-256 of the bearer token (compared, never the token) */
     atomic_bool stopping;
     _Atomic uint64_t requests, responses_4xx, responses_5xx;
 
