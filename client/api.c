@@ -32,6 +32,7 @@
 
 struct mrc_http {
     char *base;
+    char *token; /* bearer token sent with every request; NULL: none */
     CURL *easy;
     CURL *stream;
     char errbuf[CURL_ERROR_SIZE];
@@ -150,7 +151,19 @@ void mrc_http_close(mrc_http *h)
     if (h->stream)
         curl_easy_cleanup(h->stream);
     free(h->base);
+    free(h->token);
     free(h);
+}
+
+int mrc_http_set_token(mrc_http *h, const char *token, mrc_error *err)
+{
+    free(h->token);
+    h->token = NULL;
+    if (!token || !token[0])
+        return 0;
+    if (!(h->token = strdup(token)))
+        return mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
+    return 0;
 }
 
 const char *mrc_http_base(const mrc_http *h)
@@ -266,7 +279,10 @@ static void setup(mrc_http *h, CURL *c, char *errbuf, const char *url, transfer_
         curl_easy_setopt(c, CURLOPT_LOW_SPEED_TIME, STREAM_STALL_S);
         break;
     }
-    (void)h;
+    if (h->token) { /* Authorization: Bearer <token>, on every request */
+        curl_easy_setopt(c, CURLOPT_HTTPAUTH, CURLAUTH_BEARER);
+        curl_easy_setopt(c, CURLOPT_XOAUTH2_BEARER, h->token);
+    }
 }
 
 static char *make_url(const mrc_http *h, const char *path, mrc_error *err)

@@ -38,6 +38,9 @@ void mrc_response_free(mrc_response *r);
  * slashes are dropped). Only http and https are ever spoken. */
 int mrc_http_open(const char *base, mrc_http **out, mrc_error *err);
 void mrc_http_close(mrc_http *h);
+/* The bearer token (Authorization: Bearer) every later request sends; NULL
+ * or "" sends none. */
+int mrc_http_set_token(mrc_http *h, const char *token, mrc_error *err);
 const char *mrc_http_base(const mrc_http *h);
 
 /* One request; method "GET", "POST" or "DELETE". body may be NULL (POST

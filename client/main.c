@@ -28,7 +28,7 @@
 static void usage(FILE *out)
 {
     fputs(
-        "usage: microray [--server URL] [--quiet] COMMAND [ARGS]\n"
+        "usage: microray [--server URL] [--token-file FILE] [--quiet] COMMAND [ARGS]\n"
         "\n"
         "Submits render jobs to a microrayd daemon and follows and fetches their results.\n"
         "\n"
@@ -52,6 +52,8 @@ static void usage(FILE *out)
         "\n"
         "Options (anywhere on the line):\n"
         "  --server URL          the daemon (default: $MICRORAY_SERVER, else " MRC_DEFAULT_SERVER ")\n"
+        "  --token-file FILE     send the bearer token in FILE's first line (default:\n"
+        "                        $MICRORAY_TOKEN) to a daemon started with --token-file\n"
         "  --quiet, -q           no progress or confirmations (ids and errors still print)\n"
         "  --help, -h            this help\n"
         "  --version, -V         the client's version\n"
@@ -148,6 +150,7 @@ static int parse_command_args(int argc, char **argv, const opt_spec *specs, int 
  * of the command, not a silent global flag. */
 typedef struct globals {
     const char *server;
+    const char *token_file;
     bool quiet, help, version;
 } globals;
 
@@ -168,6 +171,12 @@ static int take_globals(int argc, char **argv, globals *g, char **rest, int *nre
             g->server = argv[++i];
         } else if (strncmp(arg, "--server=", 9) == 0) {
             g->server = arg + 9;
+        } else if (strcmp(arg, "--token-file") == 0) {
+            if (i + 1 >= argc)
+                return usage_error("%s needs a file", arg);
+            g->token_file = argv[++i];
+        } else if (strncmp(arg, "--token-file=", 13) == 0) {
+            g->token_file = arg + 13;
         } else if (strcmp(arg, "--quiet") == 0 || strcmp(arg, "-q") == 0) {
             g->quiet = true;
         } else if (strcmp(arg, "--help") == 0 || strcmp(arg, "-h") == 0) {
@@ -195,6 +204,22 @@ static bool stderr_is_terminal(void)
 {
     const char *term = getenv("TERM");
     return isatty(STDERR_FILENO) && !(term && strcmp(term, "dumb") == 0);
+}
+
+/* The token of --token-file (its first line), else $MICRORAY_TOKEN. */
+static int set_token(mrc_http *http, const char *file, mrc_error *err)
+{
+    if (!file)
+        return mrc_http_set_token(http, getenv("MICRORAY_TOKEN"), err);
+    char *text = NULL;
+    size_t len = 0;
+    int rc = mrc_read_file(file, 4096, &text, &len, err);
+    if (rc)
+        return rc;
+    text[strcspn(text, "\r\n")] = '\0';
+    rc = mrc_http_set_token(http, text, err);
+    free(text);
+    return rc;
 }
 
 /* ---- commands ------------------------------------------------------------- */
@@ -602,6 +627,8 @@ int main(int argc, char **argv)
     }
     curl_ready = true;
     int rc = mrc_http_open(server, &http, &err);
+    if (rc == 0)
+        rc = set_token(http, g.token_file, &err);
     if (rc == 0) {
         if (strcmp(cmd, "submit") == 0)
             rc = cmd_submit(http, &a, g.quiet, &err);

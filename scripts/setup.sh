@@ -18,6 +18,7 @@ PACKAGES=(
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev
   libcmocka-dev
+  openssl                # self-signed certificates for the TLS test (test_http_auth)
   wrk                    # HTTP load generator for make bench (loopback only)
 )
 

@@ -883,6 +883,10 @@ static void apply_defaults(mr_daemon_config *c)
         c->import_memory = lim.memory_bytes;
     if (!(c->import_timeout_s > 0))
         c->import_timeout_s = lim.timeout_s;
+    if (!c->max_connections)
+        c->max_connections = 1024;
+    if (!c->request_timeout_s)
+        c->request_timeout_s = 10;
 }
 
 int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
@@ -945,7 +949,8 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
     if ((rc = mr_http_start(d, &d->cfg, &d->http, err)) < 0)
         goto fail;
     atomic_store(&d->ready, true);
-    log_line(d, "listening on http://%s:%u/ (data %s, %u worker%s)", d->cfg.listen_host,
+    log_line(d, "listening on %s://%s:%u/ (data %s, %u worker%s)", d->cfg.tls_cert_pem ? "https" : "http",
+             d->cfg.listen_host,
              mr_http_port(d->http), d->data_dir, d->worker_count, d->worker_count == 1 ? "" : "s");
     *out = d;
     return MR_OK;

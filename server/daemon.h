@@ -32,6 +32,12 @@ typedef struct mr_daemon_config {
     unsigned per_ip_connections;  /* default 128 */
     size_t import_memory;         /* an import's own memory; default a quarter of RAM, >= 1 GiB */
     double import_timeout_s;      /* an import's wall clock; default 300 */
+    unsigned max_connections;     /* connection budget; default 1024 */
+    unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */
+    const char *token;            /* bearer token every request but /healthz, /readyz needs; NULL: none */
+    bool insecure;                /* allow a non-loopback listen address without a token */
+    const char *tls_cert_pem;     /* TLS certificate chain and key (PEM text); NULL: plain HTTP */
+    const char *tls_key_pem;
     bool quiet;                   /* no request/frame log lines */
 } mr_daemon_config;
 

@@ -14,6 +14,15 @@
  * 413 once it ends (libmicrohttpd 0.9.75 queues responses only on the first
  * and the last call), its excess read and dropped up to DRAIN_MAX, beyond
  * which the connection is closed.
+ *
+ * The request's struct is made when libmicrohttpd has the request line
+ * (its URI log callback), so the raw target's length is known for 414 and
+ * every request gets its log line, also one libmicrohttpd answers itself.
+ * Our limits on the head (URI_MAX, HEAD_MAX) are below what libmicrohttpd
+ * can hold in CONNECTION_MEMORY, so our handler answers 414 and 431 as
+ * problem+json; a head past libmicrohttpd's own limit (about 30 KiB, less
+ * with many small headers) gets its text/html 414 or 431. The connection
+ * guard (http_guard.c) learns each request's phase from here.
  */
 #include "http.h"
 
@@ -24,6 +33,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -48,6 +58,12 @@
  * client still gets its 413; beyond it the connection is simply closed. */
 #define DRAIN_MAX (1u << 20)
 #define IDEMPOTENCY_KEY_MAX 200
+/* Longest request target (path and query, as sent) and request head
+ * (request line and headers) we answer; both well below what fits in
+ * CONNECTION_MEMORY, so that libmicrohttpd hands such requests to us
+ * rather than answering its own text/html 414 or 431. */
+#define URI_MAX 8192
+#define HEAD_MAX 16384
 
 static bool idempotency_key_ok(const char *key)
 {
@@ -105,22 +121,96 @@ static size_t unescape_no_nul(void *cls, struct MHD_Connection *c, char *s)
     return n;
 }
 
+/* Every Content-Length field of the request must say the same: a second,
+ * different one means the request's framing is ambiguous (request
+ * smuggling through a proxy that reads the other one). libmicrohttpd frames
+ * the body by the first and does not look at the others. */
+typedef struct length_fields {
+    const char *first;
+    bool conflict;
+} length_fields;
+
+static enum MHD_Result collect_length(void *cls, enum MHD_ValueKind kind, const char *key,
+                                      const char *value)
+{
+    (void)kind;
+    length_fields *f = cls;
+    if (strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH) != 0)
+        return MHD_YES;
+    if (!f->first)
+        f->first = value ? value : "";
+    else if (strcmp(f->first, value ? value : "") != 0)
+        f->conflict = true;
+    return MHD_YES;
+}
+
+/* Whether the request carries the daemon's bearer token. Compared as
+ * SHA-256 digests, byte by byte without an early exit, so the time taken
+ * tells nothing about the token (not even its length). */
+static bool authorized(const mr_http *h, struct MHD_Connection *c, bool *presented)
+{
+    const char *auth = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
+    *presented = auth && strncasecmp(auth, "Bearer ", 7) == 0;
+    if (!*presented)
+        return false;
+    const char *token = auth + 7;
+    while (*token == ' ')
+        token++;
+    uint8_t digest[32];
+    mr_sha256 sha;
+    mr_sha256_init(&sha);
+    mr_sha256_update(&sha, token, strlen(token));
+    mr_sha256_final(&sha, digest);
+    unsigned diff = 0;
+    for (size_t i = 0; i < sizeof digest; i++)
+        diff |= (unsigned)(digest[i] ^ h->token_digest[i]);
+    return diff == 0;
+}
+
 static enum MHD_Result begin_request(req *r, struct MHD_Connection *c, const char *url,
                                      const char *method)
 {
     mr_http *h = r->h;
+    /* Before routing, so that without the token nothing (not even which
+     * paths exist) is learned; the probes stay open for load balancers. */
+    bool presented = false;
+    if (h->has_token && strcmp(url, "/healthz") != 0 && strcmp(url, "/readyz") != 0 &&
+        !authorized(h, c, &presented))
+        return http_send_problem_hdr(r, c, P_UNAUTHORIZED, MHD_HTTP_HEADER_WWW_AUTHENTICATE,
+                                     presented ? "Bearer realm=\"microrayd\", error=\"invalid_token\""
+                                               : "Bearer realm=\"microrayd\"",
+                                     presented ? "the bearer token is not this daemon's"
+                                               : "this daemon needs Authorization: Bearer <token>");
+    if (r->uri_len > URI_MAX) {
+        r->url = NULL; /* the instance is the (cut) log copy, not 8 KiB echoed back */
+        return http_send_problem(r, c, P_URI_TOO_LONG, NULL,
+                                 "the request target is %zu bytes, over %d", r->uri_len, URI_MAX);
+    }
+    const union MHD_ConnectionInfo *head = MHD_get_connection_info(c, MHD_CONNECTION_INFO_REQUEST_HEADER_SIZE);
+    if (head && head->header_size > HEAD_MAX)
+        return http_send_problem(r, c, P_HEADERS_TOO_LARGE, NULL,
+                                 "the request head is %zu bytes, over %d", head->header_size, HEAD_MAX);
     const char *cl = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     const char *te =
         MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+    length_fields fields = {0};
+    MHD_get_connection_values(c, MHD_HEADER_KIND, collect_length, &fields);
+    if (fields.conflict)
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL, "conflicting Content-Length headers");
+    if (cl && te)
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL,
+                                 "Content-Length and Transfer-Encoding together");
+    /* libmicrohttpd refused (itself) a Content-Length that is not all digits
+     * or does not fit 64 bits before calling us; what reaches us is one. */
     unsigned long long length = 0;
     bool length_ok = false;
     if (cl) {
         char *end = NULL;
         errno = 0;
         length = strtoull(cl, &end, 10);
-        length_ok = end != cl && errno != ERANGE;
+        length_ok = end != cl && !*end && errno != ERANGE && cl[0] >= '0' && cl[0] <= '9';
         if (!length_ok)
-            length = ULLONG_MAX;
+            return http_send_problem(r, c, P_BAD_REQUEST, NULL, "malformed Content-Length");
     }
     bool has_body = te || (cl && length > 0);
 
@@ -213,6 +303,42 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
     return MHD_YES;
 }
 
+/* A new request's struct; NULL when out of memory. */
+static req *new_request(mr_http *h, struct MHD_Connection *c)
+{
+    req *r = calloc(1, sizeof *r);
+    if (!r)
+        return NULL;
+    r->h = h;
+    r->t0 = mr_now();
+    r->conn = http_guard_of(c);
+    snprintf(r->method, sizeof r->method, "-");
+    snprintf(r->path, sizeof r->path, "-");
+    atomic_fetch_add(&h->requests, 1);
+    return r;
+}
+
+/* Log-safe copy: no spaces or control characters in the log line. */
+static void set_log_path(req *r, const char *url)
+{
+    size_t i = 0;
+    for (; url[i] && i + 1 < sizeof r->path; i++)
+        r->path[i] = (unsigned char)url[i] > 0x20 && (unsigned char)url[i] < 0x7f ? url[i] : '?';
+    r->path[i] = '\0';
+}
+
+/* libmicrohttpd's URI log callback: the request line is in, the headers
+ * are not. What it returns becomes the request's *con_cls. */
+static void *on_uri(void *cls, const char *uri, struct MHD_Connection *c)
+{
+    req *r = new_request(cls, c);
+    if (r) {
+        r->uri_len = strlen(uri);
+        set_log_path(r, uri);
+    }
+    return r;
+}
+
 static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const char *url,
                                   const char *method, const char *version,
                                   const char *upload_data, size_t *upload_data_size,
@@ -221,23 +347,16 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
     (void)version;
     mr_http *h = cls;
     req *r = *con_cls;
-    if (!r) {
-        r = calloc(1, sizeof *r);
-        if (!r)
-            return MHD_NO;
-        *con_cls = r;
-        r->h = h;
-        r->t0 = mr_now();
+    if (!r && !(r = *con_cls = new_request(h, c)))
+        return MHD_NO;
+    if (!r->begun) {
+        r->begun = true;
         r->url = url;
-        atomic_fetch_add(&h->requests, 1);
         snprintf(r->method, sizeof r->method, "%s", method);
-        /* Log-safe copy: no spaces or control characters in the log line. */
-        size_t i = 0;
-        for (; url[i] && i + 1 < sizeof r->path; i++)
-            r->path[i] = (unsigned char)url[i] > 0x20 && (unsigned char)url[i] < 0x7f ? url[i] : '?';
-        r->path[i] = '\0';
+        set_log_path(r, url);
         enum MHD_Result res = begin_request(r, c, url, method);
         r->url = NULL;
+        http_guard_phase(r->conn, r->answered ? PHASE_ANSWER : PHASE_BODY);
         return res;
     }
     if (r->answered) {
@@ -246,6 +365,10 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
         *upload_data_size = 0;
         return MHD_YES;
     }
+    if (!*upload_data_size) /* the body is in: what remains is ours to do */
+        http_guard_phase(r->conn, PHASE_ANSWER);
+    else
+        http_guard_body(r->conn, *upload_data_size);
     r->url = url;
     enum MHD_Result res;
     if (!r->rt) {
@@ -265,20 +388,27 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
 static void on_completed(void *cls, struct MHD_Connection *c, void **con_cls,
                          enum MHD_RequestTerminationCode toe)
 {
-    (void)c;
     (void)toe;
     mr_http *h = cls;
     req *r = *con_cls;
     if (!r)
         return;
     *con_cls = NULL;
+    /* A keep-alive connection now waits for its next request head. */
+    http_guard_phase(r->conn, PHASE_HEAD);
     mr_store_asset_upload_abort(r->upload); /* a body cut off or refused */
     if (r->sse)
         r->bytes = http_events_request_done(r->sse);
     if (!h->quiet) {
         char status[16] = "-";
-        if (r->answered || r->status)
+        if (r->answered || r->status) {
             snprintf(status, sizeof status, "%u", r->status);
+        } else {
+            /* answered by libmicrohttpd itself (a malformed head) */
+            const union MHD_ConnectionInfo *i = MHD_get_connection_info(c, MHD_CONNECTION_INFO_HTTP_STATUS);
+            if (i)
+                snprintf(status, sizeof status, "%u", i->http_status);
+        }
         double ms = (mr_now() - r->t0) * 1e3;
         fprintf(stderr, "microrayd: %s %s %s %llu %.1fms%s%s\n", r->method, r->path, status,
                 (unsigned long long)r->bytes, ms, r->job[0] ? " job=" : "", r->job);
@@ -335,6 +465,15 @@ static int parse_host(const char *host, unsigned port, struct sockaddr_storage *
                         "listen address '%.200s' is not a numeric IPv4 or IPv6 address", host);
 }
 
+/* 127.0.0.0/8, ::1 and IPv4-mapped 127/8: only this machine can connect. */
+static bool is_loopback(const struct sockaddr_storage *ss)
+{
+    if (ss->ss_family == AF_INET)
+        return (ntohl(((const struct sockaddr_in *)ss)->sin_addr.s_addr) >> 24) == 127;
+    const struct in6_addr *a = &((const struct sockaddr_in6 *)ss)->sin6_addr;
+    return IN6_IS_ADDR_LOOPBACK(a) || (IN6_IS_ADDR_V4MAPPED(a) && a->s6_addr[12] == 127);
+}
+
 int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_error *err)
 {
     *out = NULL;
@@ -346,6 +485,17 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     int rc = parse_host(host, cfg->port, &ss, &v6, err);
     if (rc < 0)
         return rc;
+    if (!is_loopback(&ss) && !(cfg->token && *cfg->token) && !cfg->insecure)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "%.200s is not a loopback address: anyone who reaches it could submit, "
+                            "read and delete jobs; give --token-file FILE (clients send "
+                            "Authorization: Bearer <token>) or, on a trusted network, --insecure",
+                            host);
+    bool tls = cfg->tls_cert_pem || cfg->tls_key_pem;
+    if (tls && !(cfg->tls_cert_pem && cfg->tls_key_pem))
+        return mr_error_set(err, MR_ERR_INVALID, "TLS needs both --tls-cert and --tls-key");
+    if (tls && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES)
+        return mr_error_set(err, MR_ERR_INVALID, "this libmicrohttpd is built without TLS");
 
     mr_http *h = calloc(1, sizeof *h);
     if (!h)
@@ -355,11 +505,27 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     h->max_job_bytes = cfg->max_job_bytes ? cfg->max_job_bytes : DEFAULT_JOB_BYTES;
     h->max_asset_bytes = cfg->max_asset_bytes ? cfg->max_asset_bytes : DEFAULT_ASSET_BYTES;
     h->render_threads = cfg->render_threads;
+    if (cfg->token && *cfg->token) {
+        mr_sha256 sha;
+        mr_sha256_init(&sha);
+        mr_sha256_update(&sha, cfg->token, strlen(cfg->token));
+        mr_sha256_final(&sha, h->token_digest);
+        h->has_token = true;
+    }
     atomic_init(&h->stopping, false);
     atomic_init(&h->requests, 0);
     atomic_init(&h->responses_4xx, 0);
     atomic_init(&h->responses_5xx, 0);
+    /* Defaults of the budget and deadline: daemon.c (apply_defaults). */
+    h->max_connections = cfg->max_connections;
+    h->request_timeout_s = cfg->request_timeout_s;
     if ((rc = http_events_start(h, err)) < 0) {
+        free(h);
+        return rc;
+    }
+    if ((rc = http_guard_start(h, err)) < 0) {
+        http_events_stop(h);
+        http_events_free(h);
         free(h);
         return rc;
     }
@@ -368,20 +534,35 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     unsigned threads = cfg->http_threads ? cfg->http_threads : cores > 0 ? (unsigned)cores : 1;
     unsigned timeout = cfg->connection_timeout_s ? cfg->connection_timeout_s : DEFAULT_TIMEOUT_S;
     unsigned per_ip = cfg->per_ip_connections ? cfg->per_ip_connections : DEFAULT_PER_IP;
+    /* libmicrohttpd splits its limit over its threads; per thread the whole
+     * budget, so it is only the backstop of the guard's global count. */
+    unsigned backstop = h->max_connections * threads;
     unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_ALLOW_SUSPEND_RESUME | MHD_USE_ERROR_LOG;
     if (MHD_is_feature_supported(MHD_FEATURE_EPOLL) == MHD_YES)
         flags |= MHD_USE_EPOLL;
     if (v6)
         flags |= MHD_USE_IPv6;
+    if (tls)
+        flags |= MHD_USE_TLS;
+    /* libmicrohttpd copies neither: the PEM text lives in cfg, which
+     * outlives the daemon. */
+    struct MHD_OptionItem tls_opts[] = {
+        {tls ? MHD_OPTION_HTTPS_MEM_KEY : MHD_OPTION_END, 0, (void *)cfg->tls_key_pem},
+        {MHD_OPTION_HTTPS_MEM_CERT, 0, (void *)cfg->tls_cert_pem},
+        {MHD_OPTION_END, 0, NULL},
+    };
     errno = 0;
     h->mhd = MHD_start_daemon(
-        flags, (uint16_t)cfg->port, NULL, NULL, on_request, h,
+        flags, (uint16_t)cfg->port, http_guard_accept, h, on_request, h,
         /* first, or libmicrohttpd logs its option parsing its own way */
         MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, h, MHD_OPTION_SOCK_ADDR,
         (const struct sockaddr *)&ss, MHD_OPTION_THREAD_POOL_SIZE, threads,
         MHD_OPTION_CONNECTION_TIMEOUT, timeout, MHD_OPTION_PER_IP_CONNECTION_LIMIT, per_ip,
+        MHD_OPTION_CONNECTION_LIMIT, backstop, MHD_OPTION_NOTIFY_CONNECTION, http_guard_notify, h,
+        MHD_OPTION_URI_LOG_CALLBACK, on_uri, h,
         MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)CONNECTION_MEMORY, MHD_OPTION_NOTIFY_COMPLETED,
-        on_completed, h, MHD_OPTION_UNESCAPE_CALLBACK, unescape_no_nul, NULL, MHD_OPTION_END);
+        on_completed, h, MHD_OPTION_UNESCAPE_CALLBACK, unescape_no_nul, NULL, MHD_OPTION_ARRAY,
+        tls_opts, MHD_OPTION_END);
     if (!h->mhd) {
         int e = errno;
         rc = mr_error_set(err, MR_ERR_IO, "cannot listen on %s%s%s:%u: %s", v6 ? "[" : "", host,
@@ -409,9 +590,11 @@ void mr_http_stop(mr_http *h)
      * suspended connections. Readers see `stopping` and end their streams. */
     atomic_store(&h->stopping, true);
     http_events_stop(h);
+    http_guard_stop(h);
     if (h->mhd)
         MHD_stop_daemon(h->mhd);
     http_events_free(h);
+    http_guard_free(h);
     free(h);
 }
 

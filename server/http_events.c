@@ -9,9 +9,17 @@
  * checks under the stream's mutex right before suspending, which closes the
  * window where an event arrives between "nothing pending" and the suspend.
  * A ticker thread resumes streams that sent nothing for 15 s so they write
- * a keepalive comment: a suspended connection never notices a client that
- * went away, and proxies drop silent streams.
+ * a keepalive comment (proxies drop silent streams), and once a second
+ * looks at the socket of every suspended stream: libmicrohttpd takes a
+ * suspended connection out of its poll set, so without a look a client
+ * that went away would hold its subscriber slot (MR_MAX_SUBSCRIBERS) until
+ * the next keepalive fails. A hang-up (POLLRDHUP: the client closed or
+ * shut down its side; an event-stream client sends nothing after its
+ * request) ends the stream at once. The socket is valid while the
+ * connection is suspended: libmicrohttpd cannot close a suspended one.
  */
+#define _GNU_SOURCE /* POLLRDHUP */
+#include <poll.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -38,6 +46,8 @@ struct sse_stream {
     bool notified;      /* an event became pending since the reader last looked */
     bool keepalive_due; /* the ticker resumed us to send a keepalive */
     bool closed;        /* the request is over: never touch conn again */
+    bool gone;          /* the client hung up: end the stream */
+    int fd;             /* the connection's socket */
     bool registered;
     _Atomic int64_t last_send_ms;
     _Atomic uint64_t bytes;
@@ -123,10 +133,13 @@ static ssize_t sse_read(void *cls, uint64_t pos, char *buf, size_t max)
         if (atomic_load(&h->stopping) || !s->sub)
             return MHD_CONTENT_READER_END_OF_STREAM;
         pthread_mutex_lock(&s->mu);
+        bool gone = s->gone;
         s->notified = false;
         bool keepalive = s->keepalive_due;
         s->keepalive_due = false;
         pthread_mutex_unlock(&s->mu);
+        if (gone)
+            return MHD_CONTENT_READER_END_WITH_ERROR;
 
         int n = mr_events_next(s->sub, s->buf, EVENT_MAX);
         if (n < 0)
@@ -175,6 +188,8 @@ enum MHD_Result http_job_events(req *r, struct MHD_Connection *c)
     s->h = h;
     s->conn = c;
     s->buf = buf;
+    const union MHD_ConnectionInfo *fd = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+    s->fd = fd ? fd->connect_fd : -1;
     atomic_init(&s->refs, 1);
     atomic_init(&s->last_send_ms, mr_now_ms());
     atomic_init(&s->bytes, 0);
@@ -215,8 +230,18 @@ enum MHD_Result http_job_events(req *r, struct MHD_Connection *c)
     return http_send_response(r, c, MHD_HTTP_OK, resp, 0);
 }
 
-/* Resumes streams that have been silent for KEEPALIVE_MS. Sleeps without a
- * timeout while there are no streams. */
+/* Whether the client of a suspended stream hung up (s->mu held). */
+static bool client_gone(const sse_stream *s)
+{
+    if (s->fd < 0)
+        return false;
+    struct pollfd p = {.fd = s->fd, .events = POLLRDHUP};
+    return poll(&p, 1, 0) == 1 && (p.revents & (POLLRDHUP | POLLHUP | POLLERR | POLLNVAL));
+}
+
+/* Resumes streams that have been silent for KEEPALIVE_MS, and those whose
+ * client hung up (to end them). Sleeps without a timeout while there are
+ * no streams. */
 static void *ticker_main(void *arg)
 {
     mr_http *h = arg;
@@ -233,8 +258,12 @@ static void *ticker_main(void *arg)
         int64_t now = mr_now_ms();
         for (sse_stream *s = h->streams; s && !h->tick_stop; s = s->next) {
             pthread_mutex_lock(&s->mu);
-            if (s->suspended && !s->closed &&
-                now - atomic_load(&s->last_send_ms) >= KEEPALIVE_MS) {
+            if (s->suspended && !s->closed && client_gone(s)) {
+                s->gone = true;
+                s->suspended = false;
+                MHD_resume_connection(s->conn);
+            } else if (s->suspended && !s->closed &&
+                       now - atomic_load(&s->last_send_ms) >= KEEPALIVE_MS) {
                 s->keepalive_due = true;
                 s->suspended = false;
                 MHD_resume_connection(s->conn);

@@ -7,7 +7,9 @@
  *   http_reply.c    responses: JSON bodies, RFC 9457 problems, error mapping;
  *   http_handlers.c the handlers of the job, frame, asset and service routes;
  *   http_events.c   server-sent event streams (GET /v1/jobs/{id}/events) and
- *                   their keepalive ticker.
+ *                   their keepalive ticker;
+ *   http_guard.c    the connection budget and the request head and body
+ *                   deadlines (their reaper thread).
  * Cross-file names start with http_; handlers are named after their route.
  */
 #ifndef MR_HTTP_INTERNAL_H
@@ -27,6 +29,7 @@
 #define LOG_PATH_MAX 256
 
 typedef struct sse_stream sse_stream;
+typedef struct conn_track conn_track;
 
 struct mr_http {
     mr_daemon *d;
@@ -35,6 +38,8 @@ struct mr_http {
     size_t max_job_bytes, max_asset_bytes;
     unsigned render_threads;
     bool quiet;
+    bool has_token;
+    uint8_t token_digest[32]; /* SHA-256 of the bearer token (compared, never the token) */
     atomic_bool stopping;
     _Atomic uint64_t requests, responses_4xx, responses_5xx;
 
@@ -46,6 +51,17 @@ struct mr_http {
     bool tick_stop;
     bool ticker_running;
     pthread_t ticker;
+
+    /* Connections, for the budget and the deadlines (http_guard.c). */
+    unsigned max_connections, request_timeout_s;
+    pthread_mutex_t conns_mu;
+    pthread_cond_t reap_cv;
+    conn_track *conns;
+    unsigned conn_count;
+    bool reap_stop;
+    bool reaper_running;
+    pthread_t reaper;
+    _Atomic uint64_t connections_refused, connections_reaped;
 };
 
 typedef struct req req;
@@ -75,11 +91,14 @@ struct req {
     bool over;      /* the body passed its cap */
     bool keep_body;
     bool answered;
+    bool begun;     /* the access handler had its first call */
+    size_t uri_len; /* the request target as sent (path and query) */
     unsigned status;
     uint64_t bytes;
     char job[MR_JOB_ID_LEN + 1];
     char allow[64]; /* methods of the path when none matched this one */
     sse_stream *sse;
+    conn_track *conn; /* the connection's guard record (NULL if untracked) */
 };
 
 /* ---- routes (http_routes.c) ------------------------------------------- */
@@ -96,12 +115,15 @@ void http_route_methods(const char *path, char *allow, size_t size);
 typedef enum problem_kind {
     P_BAD_REQUEST,
     P_INVALID_JOB,
+    P_UNAUTHORIZED,
     P_NOT_FOUND,
     P_METHOD,
     P_CONFLICT,
     P_TOO_LARGE,
+    P_URI_TOO_LONG,
     P_UNPROCESSABLE,
     P_IDEMPOTENCY,
+    P_HEADERS_TOO_LARGE,
     P_INTERNAL,
     P_UNAVAILABLE
 } problem_kind;
@@ -174,5 +196,33 @@ void http_events_free(mr_http *h);
 /* The request of a stream is over: unties it from the connection and the
  * daemon, drops the request's reference; returns the bytes it sent. */
 uint64_t http_events_request_done(sse_stream *s);
+
+/* ---- the connection guard (http_guard.c) ------------------------------ */
+
+/* Where a connection is in its request cycle, for the deadlines. */
+typedef enum conn_phase {
+    PHASE_HEAD,  /* waiting for (the rest of) a request line and headers */
+    PHASE_BODY,  /* the head is in, the body is arriving */
+    PHASE_ANSWER /* handled or being answered: no deadline */
+} conn_phase;
+
+/* The reaper thread; sizes the descriptor limit for h->max_connections
+ * (which it may lower). MR_ERR_NOMEM. */
+int http_guard_start(mr_http *h, mr_error *err);
+/* Ends the reaper; before MHD_stop_daemon. */
+void http_guard_stop(mr_http *h);
+/* After MHD_stop_daemon. */
+void http_guard_free(mr_http *h);
+/* libmicrohttpd's accept policy and NOTIFY_CONNECTION callbacks (cls: h). */
+enum MHD_Result http_guard_accept(void *cls, const struct sockaddr *addr, socklen_t len);
+void http_guard_notify(void *cls, struct MHD_Connection *c, void **socket_context,
+                       enum MHD_ConnectionNotificationCode code);
+/* The record of c (NULL if untracked); valid until its CLOSED notification,
+ * so for the whole of every request on it. */
+conn_track *http_guard_of(struct MHD_Connection *c);
+/* Enters a phase (its clock starts now); t may be NULL. */
+void http_guard_phase(conn_track *t, conn_phase phase);
+/* n more body bytes arrived; t may be NULL. */
+void http_guard_body(conn_track *t, size_t n);
 
 #endif

@@ -20,12 +20,15 @@ static const struct {
 } PROBLEMS[] = {
     [P_BAD_REQUEST] = {400, "bad-request", "Bad request"},
     [P_INVALID_JOB] = {400, "invalid-job", "Invalid job"},
+    [P_UNAUTHORIZED] = {401, "unauthorized", "Authentication required"},
     [P_NOT_FOUND] = {404, "not-found", "Not found"},
     [P_METHOD] = {405, "method-not-allowed", "Method not allowed"},
     [P_CONFLICT] = {409, "conflict", "Conflict with the job's state"},
     [P_TOO_LARGE] = {413, "body-too-large", "Request body too large"},
+    [P_URI_TOO_LONG] = {414, "uri-too-long", "Request target too long"},
     [P_UNPROCESSABLE] = {422, "unprocessable-job", "Job cannot be processed"},
     [P_IDEMPOTENCY] = {422, "idempotency-key-reused", "Idempotency key reused with another body"},
+    [P_HEADERS_TOO_LARGE] = {431, "headers-too-large", "Request header fields too large"},
     [P_INTERNAL] = {500, "internal", "Internal server error"},
     [P_UNAVAILABLE] = {503, "unavailable", "Service unavailable"},
 };

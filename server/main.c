@@ -16,7 +16,10 @@ static void usage(FILE *to)
             "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--quiet]\n"
             "  microrayd compare A.exr B.exr [--diagonal D]\n"
             "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
-            "                  [--threads N] [--cache-mb N] [--port-file FILE] [--quiet]\n"
+            "                  [--threads N] [--http-threads N] [--cache-mb N]\n"
+            "                  [--max-connections N] [--per-ip-connections N] [--request-timeout S]\n"
+            "                  [--token-file FILE] [--insecure] [--tls-cert FILE --tls-key FILE]\n"
+            "                  [--port-file FILE] [--quiet]\n"
             "  microrayd schema FILE [--check]  (the job schema's generated kind blocks)\n"
             "  microrayd version\n",
             MR_VERSION_STRING);

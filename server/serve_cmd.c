@@ -3,7 +3,10 @@
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
- *                   [--import-memory-mb N] [--import-timeout S] [--port-file F] [--quiet]
+ *                   [--import-memory-mb N] [--import-timeout S]
+ *                   [--max-connections N] [--per-ip-connections N] [--request-timeout S]
+ *                   [--token-file F] [--insecure] [--tls-cert F --tls-key F]
+ *                   [--port-file F] [--quiet]
  *
  * Signals are blocked in every thread and taken synchronously here with
  * sigwait, so the stop runs in ordinary code (no async-signal-safety games):
@@ -28,7 +31,9 @@ static void usage(void)
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
                     "                       [--import-memory-mb N] [--import-timeout S]\n"
-                    "                       [--port-file FILE] [--quiet]\n");
+                    "                       [--max-connections N] [--per-ip-connections N]\n"
+                    "                       [--request-timeout S] [--token-file FILE] [--insecure]\n"
+                    "                       [--tls-cert FILE --tls-key FILE] [--port-file FILE] [--quiet]\n");
 }
 
 static bool parse_uint(const char *s, unsigned long lo, unsigned long hi, unsigned long *out)
@@ -57,11 +62,58 @@ static void default_data_dir(char *out, size_t n)
         snprintf(out, n, "microray-data");
 }
 
+/* A PEM file or the token file, NUL-terminated; NULL after printing why. */
+static char *read_text(const char *path, uint64_t max, const char *what)
+{
+    uint8_t *buf = NULL;
+    size_t size = 0;
+    mr_error err = {0};
+    if (mr_fs_read_capped(path, max, &buf, &size, what, &err) < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        return NULL;
+    }
+    char *text = realloc(buf, size + 1);
+    if (!text) {
+        free(buf);
+        fprintf(stderr, "microrayd: out of memory\n");
+        return NULL;
+    }
+    text[size] = '\0';
+    return text;
+}
+
+/* The bearer token of --token-file: its first line, which must be an RFC
+ * 6750 b64token of at least MIN_TOKEN characters (guessing it must not be
+ * an option). NULL after printing why. */
+#define MIN_TOKEN 16
+static char *read_token(const char *path)
+{
+    char *t = read_text(path, 4096, "token file");
+    if (!t)
+        return NULL;
+    t[strcspn(t, "\r\n")] = '\0';
+    size_t n = strlen(t);
+    while (n && (t[n - 1] == ' ' || t[n - 1] == '\t'))
+        t[--n] = '\0';
+    size_t bad = strspn(t, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-._~+/");
+    while (t[bad] == '=')
+        bad++;
+    if (n < MIN_TOKEN || bad != n) {
+        fprintf(stderr,
+                "microrayd: token file %s: the first line must be a token of at least %d characters "
+                "A-Z a-z 0-9 - . _ ~ + / (e.g. from: openssl rand -hex 32)\n",
+                path, MIN_TOKEN);
+        free(t);
+        return NULL;
+    }
+    return t;
+}
+
 int mr_cmd_serve(int argc, char **argv)
 {
     mr_daemon_config cfg = {.port = MR_DEFAULT_PORT};
     const char *roots[MR_MAX_ROOTS];
-    const char *port_file = NULL;
+    const char *port_file = NULL, *token_file = NULL, *cert_file = NULL, *key_file = NULL;
     char host[256] = "127.0.0.1", data[4096];
     default_data_dir(data, sizeof data);
     for (int i = 0; i < argc; i++) {
@@ -69,6 +121,10 @@ int mr_cmd_serve(int argc, char **argv)
         unsigned long n;
         if (!strcmp(a, "--quiet")) {
             cfg.quiet = true;
+            continue;
+        }
+        if (!strcmp(a, "--insecure")) {
+            cfg.insecure = true;
             continue;
         }
         if (!v) {
@@ -104,6 +160,18 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.import_memory = (size_t)n << 20;
         } else if (!strcmp(a, "--import-timeout") && parse_uint(v, 1, 86400, &n)) {
             cfg.import_timeout_s = (double)n;
+        } else if (!strcmp(a, "--max-connections") && parse_uint(v, 16, 1u << 20, &n)) {
+            cfg.max_connections = (unsigned)n;
+        } else if (!strcmp(a, "--per-ip-connections") && parse_uint(v, 1, 1u << 20, &n)) {
+            cfg.per_ip_connections = (unsigned)n;
+        } else if (!strcmp(a, "--request-timeout") && parse_uint(v, 1, 3600, &n)) {
+            cfg.request_timeout_s = (unsigned)n;
+        } else if (!strcmp(a, "--token-file")) {
+            token_file = v;
+        } else if (!strcmp(a, "--tls-cert")) {
+            cert_file = v;
+        } else if (!strcmp(a, "--tls-key")) {
+            key_file = v;
         } else if (!strcmp(a, "--port-file")) {
             port_file = v;
         } else {
@@ -114,6 +182,23 @@ int mr_cmd_serve(int argc, char **argv)
     cfg.listen_host = host;
     cfg.data_dir = data;
     cfg.asset_roots = roots;
+    /* Read once here; they live (like cfg) until the process ends. */
+    char *token = NULL, *cert = NULL, *key = NULL;
+    if (token_file && !(token = read_token(token_file)))
+        return 2;
+    if ((cert_file || key_file) && !(cert_file && key_file)) {
+        fprintf(stderr, "microrayd: TLS needs both --tls-cert FILE and --tls-key FILE\n");
+        return 2;
+    }
+    if (cert_file && (!(cert = read_text(cert_file, 1u << 20, "TLS certificate")) ||
+                      !(key = read_text(key_file, 1u << 20, "TLS key")))) {
+        free(token);
+        free(cert);
+        return 2;
+    }
+    cfg.token = token;
+    cfg.tls_cert_pem = cert;
+    cfg.tls_key_pem = key;
 
     /* Block the stop signals before any thread starts, so all inherit it. */
     sigset_t set;
@@ -127,6 +212,9 @@ int mr_cmd_serve(int argc, char **argv)
     mr_error err = {0};
     if (mr_daemon_start(&cfg, &d, &err) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);
+        free(token);
+        free(cert);
+        free(key);
         return err.code == MR_ERR_IO ? 4 : 1;
     }
     if (port_file) {
@@ -140,5 +228,8 @@ int mr_cmd_serve(int argc, char **argv)
     if (!cfg.quiet)
         fprintf(stderr, "microrayd: %s: stopping (the frame in progress finishes)\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
     mr_daemon_stop(d);
+    free(token);
+    free(cert);
+    free(key);
     return 0;
 }

@@ -48,8 +48,9 @@ static void fx_sleep_ms(int ms)
     nanosleep(&ts, NULL);
 }
 
-/* Starts microrayd serve with data directory data_name (inside fx_tmp). */
-static void daemon_start(daemon_proc *d, const char *data_name)
+/* Starts microrayd serve with data directory data_name (inside fx_tmp) and
+ * the extra arguments of the NULL-terminated list extra (may be NULL). */
+static void daemon_start_args(daemon_proc *d, const char *data_name, const char *const *extra)
 {
     memset(d, 0, sizeof *d);
     snprintf(d->data, sizeof d->data, "%s/%s", fx_tmp, data_name);
@@ -62,9 +63,14 @@ static void daemon_start(daemon_proc *d, const char *data_name)
     if (d->pid == 0) {
         FILE *log = freopen(d->log, "a", stderr);
         (void)log;
-        execl(bin, "microrayd", "serve", "--listen", "127.0.0.1:0", "--data", d->data, "--asset-root",
-              "/usr/share/assimp/models", "--asset-root", fx_root, "--threads", "2", "--port-file",
-              port_file, (char *)NULL);
+        const char *argv[64] = {"microrayd", "serve", "--listen", "127.0.0.1:0", "--data", d->data,
+                                "--asset-root", "/usr/share/assimp/models", "--asset-root", fx_root,
+                                "--threads", "2", "--port-file", port_file};
+        size_t n = 14;
+        for (size_t i = 0; extra && extra[i] && n + 1 < sizeof argv / sizeof *argv; i++)
+            argv[n++] = extra[i];
+        argv[n] = NULL;
+        execv(bin, (char *const *)argv);
         _exit(127);
     }
     for (int i = 0; i < 300; i++) { /* up to 30 s: ASan builds start slowly */
@@ -84,6 +90,8 @@ static void daemon_start(daemon_proc *d, const char *data_name)
     }
     fail_msg("microrayd did not start within 30 s (see %s)", d->log);
 }
+
+static inline void daemon_start(daemon_proc *d, const char *data_name) { daemon_start_args(d, data_name, NULL); }
 
 /* SIGTERM (graceful) or SIGKILL; returns the exit status or -signal. */
 static int daemon_stop(daemon_proc *d, int sig)
