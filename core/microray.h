@@ -94,6 +94,9 @@ const char *mr_err_name(int code);
 
 /* Monotonic clock, seconds (nanosecond resolution). */
 double mr_now(void);
+/* "1.5 GiB", "320.0 KiB", "12 bytes" (binary units, one decimal). */
+#define MR_BYTES_TEXT 24
+void mr_format_bytes(size_t bytes, char *out, size_t size);
 /* The same clock in whole milliseconds, for integer deadlines. */
 int64_t mr_now_ms(void);
 
@@ -946,7 +949,15 @@ typedef struct mr_renderer_options {
      * that keeps derived data reads and writes <cache_dir>/<kind name>/
      * (kinds/kind.h). NULL: nothing is kept on disk. Borrowed. */
     const char *cache_dir;
+    /* Bytes the job's geometry may hold (0: no limit). Kinds whose memory
+     * grows with their parameters (svo instances) estimate it before they
+     * allocate and fail with MR_ERR_LIMIT, naming the field, beyond it. */
+    size_t memory_budget;
 } mr_renderer_options;
+
+/* The budget a daemon or the one-shot renderer gives a job when none is
+ * set: half of the machine's memory. */
+size_t mr_job_memory_default(void);
 
 /* assets[i] is the import of job->assets[i]; the renderer borrows them (they
  * must outlive it). Fails naming the object for unknown clips/cameras. */

@@ -520,7 +520,10 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     job_run *r = user;
     mr_error err;
     bool gave_up = true;
-    mr_store_frame_failed(r->d->store, r->id, index, e->msg, &gave_up, &err);
+    /* A frame over a limit or with invalid input fails the same way every
+     * time: retrying only repeats the work (and the memory) */
+    bool final = e->code == MR_ERR_LIMIT || e->code == MR_ERR_INVALID;
+    mr_store_frame_failed(r->d->store, r->id, index, e->msg, final, &gave_up, &err);
     pthread_mutex_lock(&r->d->lock);
     r->d->frames_failed++;
     pthread_mutex_unlock(&r->d->lock);
@@ -703,6 +706,7 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
          * (created on the first store), so a job after a restart, or
          * another job on the same asset, skips deriving it again */
         .cache_dir = d->data_dir,
+        .memory_budget = d->cfg.job_memory,
     };
     rc = mr_worker_run(d->dev, job, &io, &stats, &err);
     if (rc == MR_ERR_CANCELLED) {
@@ -883,6 +887,8 @@ static void apply_defaults(mr_daemon_config *c)
         c->import_memory = lim.memory_bytes;
     if (!(c->import_timeout_s > 0))
         c->import_timeout_s = lim.timeout_s;
+    if (!c->job_memory)
+        c->job_memory = mr_job_memory_default();
     if (!c->max_connections)
         c->max_connections = 1024;
     if (!c->request_timeout_s)

@@ -32,6 +32,8 @@ typedef struct mr_daemon_config {
     unsigned per_ip_connections;  /* default 128 */
     size_t import_memory;         /* an import's own memory; default a quarter of RAM, >= 1 GiB */
     double import_timeout_s;      /* an import's wall clock; default 300 */
+    size_t job_memory;            /* a job's geometry (mr_renderer_options.memory_budget);
+                                     default half of RAM */
     unsigned max_connections;     /* connection budget; default 1024 */
     unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */
     const char *token;            /* bearer token every request but /healthz, /readyz needs; NULL: none */

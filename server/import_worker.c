@@ -141,14 +141,6 @@ static _Noreturn void child_main(int fd, const char *path, const mr_refine_param
 
 typedef enum verdict { RAN, CANCELLED, TIMED_OUT, TOO_BIG } verdict;
 
-static void format_bytes(size_t b, char *out, size_t n)
-{
-    if (b >= ((size_t)1 << 30))
-        snprintf(out, n, "%.1f GiB", (double)b / (1 << 30));
-    else
-        snprintf(out, n, "%.0f MiB", (double)b / (1 << 20));
-}
-
 int mr_import_isolated(const char *path, const char *label, const mr_refine_params *refine,
                        const mr_import_limits *lim, bool (*interrupted)(void *user), void *user,
                        mr_asset **out, mr_asset_stage *stage, mr_error *err)
@@ -233,8 +225,8 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
         ;
 
     int rc = MR_OK;
-    char limit[32];
-    format_bytes(lim->memory_bytes, limit, sizeof limit);
+    char limit[MR_BYTES_TEXT];
+    mr_format_bytes(lim->memory_bytes, limit, sizeof limit);
     result_header h;
     if (v == CANCELLED) {
         rc = mr_error_set(err, MR_ERR_CANCELLED, "import of %s cancelled", label);

@@ -144,16 +144,19 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 static void usage_render(void)
 {
     fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
-                    "[--quiet]\n"
+                    "[--job-memory-mb N] [--quiet]\n"
                     "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
                     "(created if missing)\n"
-                    "               and reuse it (default: derive it again every time)\n");
+                    "               and reuse it (default: derive it again every time)\n"
+                    "  --job-memory-mb N  what the job's geometry may hold (default: half of "
+                    "the machine's memory)\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
 {
     const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL;
     unsigned threads = 0;
+    size_t memory_budget = mr_job_memory_default();
     bool quiet = false;
     for (int i = 0; i < argc; i++) {
         if (!strcmp(argv[i], "--out") && i + 1 < argc) {
@@ -172,6 +175,14 @@ int mr_cmd_render(int argc, char **argv)
                 fprintf(stderr, "microrayd: --cache wants a directory\n");
                 return EXIT_USAGE;
             }
+        } else if (!strcmp(argv[i], "--job-memory-mb") && i + 1 < argc) {
+            char *end;
+            long v = strtol(argv[++i], &end, 10);
+            if (*end || v < 1 || v > (1L << 24)) {
+                fprintf(stderr, "microrayd: --job-memory-mb wants an integer in 1..%ld\n", 1L << 24);
+                return EXIT_USAGE;
+            }
+            memory_budget = (size_t)v << 20;
         } else if (!strcmp(argv[i], "--quiet")) {
             quiet = true;
         } else if (argv[i][0] == '-' || job_path) {
@@ -214,7 +225,7 @@ int mr_cmd_render(int argc, char **argv)
     }
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress,
-                       .cache_dir = cache_dir};
+                       .cache_dir = cache_dir, .memory_budget = memory_budget};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
         status = exit_status(rc);

@@ -131,9 +131,11 @@ int mr_store_frame_set_running(mr_store *st, const char *id, size_t index, mr_er
 int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *exr,
                         size_t exr_size, const char *stats_json, mr_error *err);
 /* Records a failed attempt: retries + 1; the frame goes back to pending
- * while retries <= max_retries, else to failed. *gave_up tells which. */
+ * while retries <= max_retries, else to failed. A final failure (one that
+ * would repeat: a limit, an invalid input) fails the frame at once.
+ * *gave_up tells which. */
 int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char *error,
-                          bool *gave_up, mr_error *err);
+                          bool final, bool *gave_up, mr_error *err);
 /* Path of a done frame's EXR file; MR_ERR_NOT_FOUND unless the frame is done. */
 int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, size_t path_size,
                         mr_error *err);

@@ -182,7 +182,7 @@ int mr_store_frame_set_running(mr_store *st, const char *id, size_t index, mr_er
 }
 
 int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char *error,
-                          bool *gave_up, mr_error *err)
+                          bool final, bool *gave_up, mr_error *err)
 {
     if (gave_up)
         *gave_up = false;
@@ -200,7 +200,7 @@ int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char
         goto done;
     if (retries < INT_MAX)
         retries++;
-    give_up = retries > max_retries;
+    give_up = final || retries > max_retries;
     if ((rc = frame_set_locked(st, id, index, give_up ? MR_FRAME_FAILED : MR_FRAME_PENDING,
                                retries, error, err)) < 0)
         goto done;

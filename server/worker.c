@@ -65,7 +65,8 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
     }
     stats->load_s = mr_now() - t0;
 
-    mr_renderer_options opt = {.cancel = io->cancel, .cache_dir = io->cache_dir};
+    mr_renderer_options opt = {.cancel = io->cancel, .cache_dir = io->cache_dir,
+                               .memory_budget = io->memory_budget};
     if ((rc = mr_renderer_new(dev, job, assets, &opt, &renderer, err)) < 0)
         goto done;
     if ((rc = mr_film_new(job->output.width, job->output.height, &film, err)) < 0)

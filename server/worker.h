@@ -48,6 +48,8 @@ typedef struct mr_worker_io {
     void (*release_asset)(void *user, mr_asset *asset);
     /* Root of the derived-data cache (mr_renderer_options.cache_dir), or NULL. */
     const char *cache_dir;
+    /* mr_renderer_options.memory_budget (0: none). */
+    size_t memory_budget;
 } mr_worker_io;
 
 /* File name of frame `index` within a job's output ("0007.exr"). */

@@ -86,6 +86,8 @@ typedef struct mr_kind_context {
     const char *cache_dir; /* <cache root>/<kind name>, or NULL: no disk cache; valid
                               during create only */
     unsigned threads;      /* the job's thread count (0: all cores) */
+    size_t memory_budget;  /* bytes the job's geometry may hold, 0: no limit
+                              (mr_renderer_options.memory_budget) */
 } mr_kind_context;
 
 typedef enum mr_frame_order {

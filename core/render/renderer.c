@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <unistd.h>
 #include <string.h>
 #include <sys/resource.h>
 
@@ -129,6 +130,12 @@ static int setup_camera_node(mr_renderer *r, mr_asset *const *assets, mr_error *
     return mr_pose_new(a, &r->cam_pose, err);
 }
 
+size_t mr_job_memory_default(void)
+{
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+    return pages > 0 && page > 0 ? (size_t)pages * (size_t)page / 2 : (size_t)4 << 30;
+}
+
 int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
                     const mr_renderer_options *opt, mr_renderer **out, mr_error *err)
 {
@@ -208,7 +215,8 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         char *cache_dir = NULL;
         if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &cache_dir, err)) < 0)
             goto fail;
-        mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev)};
+        mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev),
+                               .memory_budget = r->opt.memory_budget};
         rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
         free(cache_dir);
         if (rc < 0) {
@@ -294,8 +302,11 @@ static int update_object(mr_renderer *r, object_state *o, size_t i, const mr_geo
         (rc = mr_pose_eval(o->pose, o->asset, pose_for_frame(o->desc, frame->index), frame->time,
                            err)) < 0)
         return mr_error_prefix(err, "/objects/%zu/pose: ", i);
-    return o->kind->update(o->geom, frame, o->kind->self_posed ? NULL : o->pose,
-                           &o->desc->transform, mr_device_threads(r->dev), err);
+    rc = o->kind->update(o->geom, frame, o->kind->self_posed ? NULL : o->pose,
+                         &o->desc->transform, mr_device_threads(r->dev), err);
+    if (rc < 0 && o->kind->self_posed) /* its errors name fields under the object, as in create */
+        mr_error_prefix(err, "/objects/%zu/", i);
+    return rc;
 }
 
 /* The frame-order contract (kind.h): a SEQUENTIAL object about to show

@@ -702,7 +702,7 @@ static void test_frame_failed_retries(void **state)
         ok(mr_store_frame_set_running(fx->st, id, 1, &err), &err);
         char msg[64];
         snprintf(msg, sizeof msg, "attempt %d failed", attempt);
-        ok(mr_store_frame_failed(fx->st, id, 1, msg, &gave_up, &err), &err);
+        ok(mr_store_frame_failed(fx->st, id, 1, msg, false, &gave_up, &err), &err);
         ok(mr_store_frames(fx->st, id, &frames, &n, &err), &err);
         assert_int_equal(frames[1].retries, attempt);
         assert_string_equal(frames[1].error, msg);
@@ -723,11 +723,23 @@ static void test_frame_failed_retries(void **state)
     /* max_retries 0: the first failure is final. */
     char z[33];
     create_job(fx->st, "zero", 1, 0, 0, z);
-    ok(mr_store_frame_failed(fx->st, z, 0, NULL, &gave_up, &err), &err);
+    ok(mr_store_frame_failed(fx->st, z, 0, NULL, false, &gave_up, &err), &err);
     assert_true(gave_up);
-    assert_int_equal(mr_store_frame_failed(fx->st, z, 5, "x", &gave_up, &err), MR_ERR_NOT_FOUND);
-    assert_int_equal(mr_store_frame_failed(fx->st, "nope", 0, "x", &gave_up, &err),
+    assert_int_equal(mr_store_frame_failed(fx->st, z, 5, "x", false, &gave_up, &err), MR_ERR_NOT_FOUND);
+    assert_int_equal(mr_store_frame_failed(fx->st, "nope", 0, "x", false, &gave_up, &err),
                      MR_ERR_NOT_FOUND);
+
+    /* A final failure (the same frame would fail the same way: over a
+     * budget) gives up at once, retries left or not. */
+    char f[33];
+    create_job(fx->st, "final", 1, 0, 2, f);
+    ok(mr_store_frame_failed(fx->st, f, 0, "over budget", true, &gave_up, &err), &err);
+    assert_true(gave_up);
+    mr_frame_record rec;
+    ok(mr_store_frame_get(fx->st, f, 0, &rec, &err), &err);
+    free(rec.stats_json);
+    assert_int_equal(rec.state, MR_FRAME_FAILED);
+    assert_int_equal(rec.retries, 1);
 }
 
 static void test_retry(void **state)
@@ -742,7 +754,7 @@ static void test_retry(void **state)
     assert_int_equal(mr_store_job_retry(fx->st, id, &err), MR_ERR_CONFLICT);
     ok(mr_store_frame_done(fx->st, id, 0, "x", 1, NULL, &err), &err);
     ok(mr_store_frame_done(fx->st, id, 3, "x", 1, NULL, &err), &err);
-    ok(mr_store_frame_failed(fx->st, id, 1, "boom", &gave_up, &err), &err);
+    ok(mr_store_frame_failed(fx->st, id, 1, "boom", false, &gave_up, &err), &err);
     assert_true(gave_up);
     ok(mr_store_job_set_state(fx->st, id, MR_JOB_FAILED, "frame 1: boom", &err), &err);
     mr_job_record r = get_job(fx->st, id);
@@ -1328,7 +1340,7 @@ static void *worker(void *p)
         bool gave_up;
         if (mr_store_frame_set_running(w->st, id, 0, &err) != MR_OK ||
             mr_store_frame_done(w->st, id, 0, id, 32, "{}", &err) != MR_OK ||
-            mr_store_frame_failed(w->st, id, 1, "x", &gave_up, &err) != MR_OK ||
+            mr_store_frame_failed(w->st, id, 1, "x", false, &gave_up, &err) != MR_OK ||
             mr_store_job_get(w->st, id, &r, &err) != MR_OK ||
             mr_store_job_list(w->st, false, MR_JOB_QUEUED, &list, &n, &err) != MR_OK ||
             mr_store_job_counts(w->st, counts, &err) != MR_OK ||
