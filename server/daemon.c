@@ -71,6 +71,7 @@ struct mr_event_sub {
 struct mr_daemon {
     mr_daemon_config cfg;
     char *data_dir;
+    char *data_real;              /* its realpath (NULL if none), for redact_paths */
     char **roots; /* realpath of each asset root */
     size_t root_count;
     mr_store *store;
@@ -515,6 +516,29 @@ static int run_frame_done(void *user, size_t index, const mr_film *film, mr_fram
     return rc;
 }
 
+/* What a client reads of an error (a job's or a frame's) names files of
+ * the data directory relative to it: "assets/<sha256>: ...", not the
+ * server's absolute paths (issue 12 item 11). The log keeps them whole. */
+static void redact_paths(const mr_daemon *d, const char *in, char *out, size_t size)
+{
+    const char *prefixes[2] = {d->data_dir, d->data_real};
+    size_t o = 0;
+    while (*in && o + 1 < size) {
+        size_t skip = 0;
+        for (int k = 0; k < 2 && !skip; k++) {
+            size_t n = prefixes[k] ? strlen(prefixes[k]) : 0;
+            if (n > 0 && strncmp(in, prefixes[k], n) == 0 && in[n] == '/')
+                skip = n + 1;
+        }
+        if (skip) {
+            in += skip;
+            continue;
+        }
+        out[o++] = *in++;
+    }
+    out[o] = '\0';
+}
+
 static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_error *e)
 {
     job_run *r = user;
@@ -523,7 +547,9 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     /* A frame over a limit or with invalid input fails the same way every
      * time: retrying only repeats the work (and the memory) */
     bool final = e->code == MR_ERR_LIMIT || e->code == MR_ERR_INVALID;
-    mr_store_frame_failed(r->d->store, r->id, index, e->msg, final, &gave_up, &err);
+    char shown[sizeof e->msg];
+    redact_paths(r->d, e->msg, shown, sizeof shown);
+    mr_store_frame_failed(r->d->store, r->id, index, shown, final, &gave_up, &err);
     pthread_mutex_lock(&r->d->lock);
     r->d->frames_failed++;
     pthread_mutex_unlock(&r->d->lock);
@@ -531,7 +557,7 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     char json[768];
     cJSON *o = cJSON_CreateObject();
     cJSON_AddNumberToObject(o, "index", (double)index);
-    cJSON_AddStringToObject(o, "error", e->msg);
+    cJSON_AddStringToObject(o, "error", shown);
     cJSON_AddBoolToObject(o, "gave_up", gave_up);
     char *s = cJSON_PrintUnformatted(o);
     snprintf(json, sizeof json, "%s", s ? s : "{}");
@@ -644,10 +670,13 @@ static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const c
 {
     mr_error err;
     mr_job_record rec;
+    char shown[sizeof err.msg];
+    if (why)
+        redact_paths(d, why, shown, sizeof shown);
     pthread_mutex_lock(&d->lock);
     int rc = mr_store_job_get(d->store, id, &rec, &err);
     if (rc == MR_OK && rec.state == MR_JOB_RUNNING)
-        rc = mr_store_job_set_state(d->store, id, state, why, &err);
+        rc = mr_store_job_set_state(d->store, id, state, why ? shown : NULL, &err);
     pthread_mutex_unlock(&d->lock);
     if (rc < 0)
         log_line(d, "job=%s: could not record state %s: %s", id, mr_job_state_name(state), err.msg);
@@ -933,6 +962,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
     d->cfg.asset_root_count = d->root_count;
     if ((rc = mr_fs_make_dirs(d->data_dir, "data directory", err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
         goto fail;
+    d->data_real = realpath(d->data_dir, NULL);
     if ((rc = mr_store_recover(d->store, err)) < 0)
         goto fail;
     if (rc > 0)
@@ -995,6 +1025,7 @@ void mr_daemon_stop(mr_daemon *d)
         free(d->roots[i]);
     free(d->roots);
     free(d->data_dir);
+    free(d->data_real);
     pthread_cond_destroy(&d->wake);
     pthread_cond_destroy(&d->released);
     pthread_mutex_destroy(&d->lock);

@@ -106,6 +106,11 @@ static _Noreturn void child_main(int fd, const char *path, const mr_refine_param
     if (dup2(fd, RESULT_FD) != RESULT_FD)
         _exit(121);
     close_range(RESULT_FD + 1, ~0u, 0);
+    /* a crash kills the child, so the parent sees the signal (not a
+     * handler the parent installed, nor a sanitizer's report and exit) */
+    const int crash[] = {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT};
+    for (size_t i = 0; i < sizeof crash / sizeof *crash; i++)
+        signal(crash[i], SIG_DFL);
     struct rlimit none = {0, 0};
     setrlimit(RLIMIT_CORE, &none);
     if (lim->timeout_s > 0) {
@@ -235,7 +240,7 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
                           "--import-timeout)", label, lim->timeout_s);
     } else if (v == TOO_BIG) {
         rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s used more than %s of memory (the "
-                          "daemon's --import-memory)", label, limit);
+                          "daemon's --import-memory-mb)", label, limit);
     } else if (WIFSIGNALED(status)) {
         int sig = WTERMSIG(status);
         rc = mr_error_set(err, MR_ERR_FORMAT, "import of %s crashed the importer (%s%s%s)", label,
@@ -253,7 +258,7 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
             snprintf(msg, sizeof msg, "%.*s", (int)h.message_len, (const char *)buf + sizeof h);
             if (strstr(msg, "bad_alloc") || h.rc == MR_ERR_NOMEM)
                 rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s used more than %s of memory (the "
-                                  "daemon's --import-memory): %s", label, limit, msg);
+                                  "daemon's --import-memory-mb): %s", label, limit, msg);
             else
                 rc = mr_error_set(err, h.rc, "%s", msg);
             if (stage)

@@ -71,6 +71,22 @@ static void put_array(writer *w, const void *p, size_t count, size_t elem)
     put(w, p, count * elem);
 }
 
+/* Keys one by one, padding zeroed: the same asset always gives the same
+ * bytes. */
+static void put_vec3_keys(writer *w, const mr_vec3_key *k, size_t count)
+{
+    if (!k)
+        count = 0;
+    put_u64(w, count);
+    for (size_t i = 0; i < count; i++) {
+        mr_vec3_key clean;
+        memset(&clean, 0, sizeof clean);
+        clean.time = k[i].time;
+        clean.value = k[i].value;
+        put(w, &clean, sizeof clean);
+    }
+}
+
 /* The struct sizes the layout depends on: a blob from another build (or a
  * torn one) is refused at the header. */
 static void header(uint64_t h[8])
@@ -129,16 +145,23 @@ int mr_asset_blob_write(const mr_asset *a, uint8_t **out, size_t *size, mr_error
         for (size_t k = 0; k < c->channel_count; k++) {
             const mr_channel *ch = &c->channels[k];
             put(&w, &ch->node, sizeof ch->node);
-            put_array(&w, ch->positions, ch->position_count, sizeof(mr_vec3_key));
+            put_vec3_keys(&w, ch->positions, ch->position_count);
             put_array(&w, ch->rotations, ch->rotation_count, sizeof(mr_quat_key));
-            put_array(&w, ch->scales, ch->scale_count, sizeof(mr_vec3_key));
+            put_vec3_keys(&w, ch->scales, ch->scale_count);
         }
     }
     put_u64(&w, a->camera_count);
     for (size_t i = 0; i < a->camera_count; i++) {
-        mr_camera_info c = a->cameras[i];
-        put_string(&w, c.name);
-        c.name = NULL; /* the rest is plain data */
+        const mr_camera_info *src = &a->cameras[i];
+        mr_camera_info c;
+        memset(&c, 0, sizeof c); /* padding zeroed; the name travels as a string */
+        c.node = src->node;
+        c.position = src->position;
+        c.look_at = src->look_at;
+        c.up = src->up;
+        c.yfov = src->yfov;
+        c.aspect = src->aspect;
+        put_string(&w, src->name);
         put(&w, &c, sizeof c);
     }
     if (w.failed) {

@@ -321,6 +321,56 @@ static void test_upload_and_render_by_id(void **state)
     cJSON_Delete(j);
 }
 
+/* issue 12 items 2 and 11: an uploaded 220-byte PLY whose one face claims
+ * a list of 2e9 indices grew the daemon past 12 GB. Now the import runs in
+ * a child under --import-memory-mb: the job fails saying so, the daemon
+ * keeps serving, and the error names the asset by id, not by the server's
+ * path. */
+static void test_upload_bomb_fails_the_job(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    const char *args[] = {"--import-memory-mb", "256", NULL};
+    daemon_start_args(&D, "bomb", args);
+    const char head[] = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                        "property float x\nproperty float y\nproperty float z\nelement face 1\n"
+                        "property list uint int vertex_indices\nend_header\n";
+    unsigned char body[sizeof head - 1 + 36 + 4 + 12] = {0};
+    memcpy(body, head, sizeof head - 1);
+    const float v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    const uint32_t count = 2000000000u;
+    const int32_t idx[3] = {0, 1, 2};
+    memcpy(body + sizeof head - 1, v, sizeof v);
+    memcpy(body + sizeof head - 1 + 36, &count, 4);
+    memcpy(body + sizeof head - 1 + 40, idx, sizeof idx);
+    http_result r = http(&D, "POST", "/v1/assets", body, sizeof body, "Content-Type: application/octet-stream");
+    assert_int_equal(r.status, 201);
+    cJSON *j = cJSON_Parse(r.body);
+    char asset_id[80], job[1024], id[64];
+    snprintf(asset_id, sizeof asset_id, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
+    cJSON_Delete(j);
+    http_free(&r);
+    snprintf(job, sizeof job,
+             "{\"assets\":{\"d\":{\"id\":\"%s\"}},\"objects\":[{\"asset\":\"d\"}],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,3],\"target\":[0,0,0]}]},"
+             "\"frames\":{\"times\":[0]},\"output\":{\"width\":32,\"height\":18}}",
+             asset_id);
+    submit(job, id);
+    j = wait_job(id, 120);
+    assert_string_equal(state_of(j), "failed");
+    const char *why = cJSON_GetObjectItem(j, "error")->valuestring;
+    char want[160];
+    snprintf(want, sizeof want, "import of asset %s used more than 256.0 MiB", asset_id);
+    if (!strstr(why, want) || strstr(why, D.data))
+        fail_msg("error: %s", why);
+    cJSON_Delete(j);
+    r = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
 static void test_bad_requests(void **state)
 {
     (void)state;
@@ -832,6 +882,7 @@ int main(void)
         cmocka_unit_test(test_svo_voxels_kept_across_restarts),
         cmocka_unit_test(test_kill_9_and_resume),
         cmocka_unit_test(test_crash_loop_gives_up),
+        cmocka_unit_test(test_upload_bomb_fails_the_job),
         cmocka_unit_test(test_sigterm_and_resume),
     };
     return cmocka_run_group_tests_name("daemon", tests, setup, teardown);
