@@ -54,7 +54,8 @@ typedef enum mr_err {
     MR_ERR_LIMIT = -6,     /* a documented size cap was exceeded */
     MR_ERR_CANCELLED = -7, /* the caller asked to stop */
     MR_ERR_NOT_FOUND = -8, /* a named thing (clip, joint, node, job, asset) does not exist */
-    MR_ERR_CONFLICT = -9   /* the request contradicts stored state (e.g. idempotency key reuse) */
+    MR_ERR_CONFLICT = -9,  /* the request contradicts stored state (e.g. idempotency key reuse) */
+    MR_ERR_NO_SPACE = -10  /* a write failed for want of disk space (ENOSPC, EDQUOT, SQLITE_FULL) */
 } mr_err;
 
 /* Where a failing call leaves its message. Callers own it (often on the stack). */

@@ -29,6 +29,7 @@
 #include "cache.h"
 #include "http.h"
 #include "import_worker.h"
+#include "space_guard.h"
 #include "job_json.h"
 #include "microray.h"
 #include "stats_json.h"
@@ -71,7 +72,7 @@ struct mr_event_sub {
 struct mr_daemon {
     mr_daemon_config cfg;
     char *data_dir;
-    char *data_real;              /* its realpath (NULL if none), for redact_paths */
+    char *data_real;              /* its realpath (NULL if none), for mr_daemon_redact */
     char **roots; /* realpath of each asset root */
     size_t root_count;
     mr_store *store;
@@ -80,6 +81,9 @@ struct mr_daemon {
     mr_http *http;
     pthread_t *workers;
     unsigned worker_count;
+    mr_space_guard *space;        /* disk full: the queue pauses (space_guard.h) */
+    pthread_t space_thread;
+    bool space_thread_started;
 
     pthread_mutex_t lock; /* stopping, running, metrics */
     pthread_cond_t wake;     /* a job was queued, or stop */
@@ -351,6 +355,8 @@ int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *ide
         mr_sha256_hex(body, len, hash);
         rc = mr_store_job_create(d->store, body, len, job->name, job->frame_count, job->priority,
                                  job->max_retries, idempotency_key, hash, id, existing, err);
+        if (rc == MR_ERR_NO_SPACE)
+            mr_daemon_no_space(d, err->msg);
     }
     mr_job_free(job);
     if (rc == MR_OK && !*existing) {
@@ -462,7 +468,43 @@ static bool run_stop_requested(void *user)
     pthread_mutex_lock(&r->d->lock);
     bool stop = r->d->stopping;
     pthread_mutex_unlock(&r->d->lock);
-    return stop || atomic_load(&r->entry->cancel);
+    return stop || atomic_load(&r->entry->cancel) || mr_space_guard_full(r->d->space, NULL, 0);
+}
+
+void mr_daemon_no_space(mr_daemon *d, const char *why)
+{
+    if (mr_space_guard_report(d->space, why))
+        log_line(d, "disk full: %s; the queue is paused (reads and deletes go on) until space "
+                    "is freed", why);
+}
+
+bool mr_daemon_disk_full(mr_daemon *d, char *why, size_t size)
+{
+    return mr_space_guard_full(d->space, why, size);
+}
+
+/* Polls for space while the disk is full; resumes the queue when it is back. */
+static void *space_main(void *p)
+{
+    mr_daemon *d = p;
+    pthread_mutex_lock(&d->lock);
+    while (!d->stopping) {
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_sec += 1;
+        pthread_cond_timedwait(&d->wake, &d->lock, &until);
+        if (d->stopping)
+            break;
+        pthread_mutex_unlock(&d->lock);
+        bool resumed = mr_space_guard_poll(d->space);
+        pthread_mutex_lock(&d->lock);
+        if (resumed) {
+            log_line(d, "disk space is back: the queue resumes");
+            pthread_cond_broadcast(&d->wake);
+        }
+    }
+    pthread_mutex_unlock(&d->lock);
+    return NULL;
 }
 
 static int run_frame_done(void *user, size_t index, const mr_film *film, mr_frame_stats *st,
@@ -519,7 +561,7 @@ static int run_frame_done(void *user, size_t index, const mr_film *film, mr_fram
 /* What a client reads of an error (a job's or a frame's) names files of
  * the data directory relative to it: "assets/<sha256>: ...", not the
  * server's absolute paths (issue 12 item 11). The log keeps them whole. */
-static void redact_paths(const mr_daemon *d, const char *in, char *out, size_t size)
+void mr_daemon_redact(const mr_daemon *d, const char *in, char *out, size_t size)
 {
     const char *prefixes[2] = {d->data_dir, d->data_real};
     size_t o = 0;
@@ -548,7 +590,9 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
      * time: retrying only repeats the work (and the memory) */
     bool final = e->code == MR_ERR_LIMIT || e->code == MR_ERR_INVALID;
     char shown[sizeof e->msg];
-    redact_paths(r->d, e->msg, shown, sizeof shown);
+    mr_daemon_redact(r->d, e->msg, shown, sizeof shown);
+    if (e->code == MR_ERR_NO_SPACE) /* first, so the reserve makes room for the record */
+        mr_daemon_no_space(r->d, shown);
     mr_store_frame_failed(r->d->store, r->id, index, shown, final, &gave_up, &err);
     pthread_mutex_lock(&r->d->lock);
     r->d->frames_failed++;
@@ -672,7 +716,7 @@ static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const c
     mr_job_record rec;
     char shown[sizeof err.msg];
     if (why)
-        redact_paths(d, why, shown, sizeof shown);
+        mr_daemon_redact(d, why, shown, sizeof shown);
     pthread_mutex_lock(&d->lock);
     int rc = mr_store_job_get(d->store, id, &rec, &err);
     if (rc == MR_OK && rec.state == MR_JOB_RUNNING)
@@ -740,9 +784,12 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
     rc = mr_worker_run(d->dev, job, &io, &stats, &err);
     if (rc == MR_ERR_CANCELLED) {
         if (!atomic_load(&entry->cancel)) {
-            /* the daemon is stopping: leave the job to resume at the next start */
+            /* the daemon is stopping or the disk is full: leave the job to
+             * resume (at the next start, or once space is back) */
+            char why[512];
+            bool full = mr_daemon_disk_full(d, why, sizeof why);
             finish_job(d, id, MR_JOB_QUEUED, NULL);
-            log_line(d, "job=%s paused for shutdown", id);
+            log_line(d, "job=%s paused for %s", id, full ? "disk space" : "shutdown");
         }
         goto done;
     }
@@ -788,7 +835,9 @@ static void *worker_main(void *p)
         }
         char id[MR_JOB_ID_LEN + 1];
         mr_error err;
-        int rc = mr_store_job_claim(d->store, id, &err);
+        /* a full disk pauses the queue (space_main resumes it) */
+        int rc = mr_space_guard_full(d->space, NULL, 0) ? MR_ERR_NOT_FOUND
+                                                        : mr_store_job_claim(d->store, id, &err);
         if (rc == MR_ERR_NOT_FOUND || rc < 0) {
             if (rc != MR_ERR_NOT_FOUND)
                 log_line(d, "worker: claiming a job failed: %s", err.msg);
@@ -876,6 +925,9 @@ char *mr_daemon_metrics(mr_daemon *d)
          "microray_cache_misses_total %llu\n", (unsigned long long)cs.misses);
     EMIT("# HELP microray_cache_bytes Bytes held by the scene cache.\n# TYPE microray_cache_bytes gauge\n"
          "microray_cache_bytes %zu\n", cs.bytes);
+    EMIT("# HELP microray_disk_full 1 while the queue is paused for disk space.\n"
+         "# TYPE microray_disk_full gauge\nmicroray_disk_full %d\n",
+         mr_space_guard_full(d->space, NULL, 0) ? 1 : 0);
     EMIT("# HELP microray_cache_entries Assets in the scene cache.\n# TYPE microray_cache_entries gauge\n"
          "microray_cache_entries %zu\n", cs.entries);
     EMIT("# HELP microray_cache_saved_seconds_total Import time saved by cache hits.\n"
@@ -918,6 +970,8 @@ static void apply_defaults(mr_daemon_config *c)
         c->import_timeout_s = lim.timeout_s;
     if (!c->job_memory)
         c->job_memory = mr_job_memory_default();
+    if (!c->disk_reserve)
+        c->disk_reserve = (size_t)64 << 20;
     if (!c->max_connections)
         c->max_connections = 1024;
     if (!c->request_timeout_s)
@@ -960,8 +1014,15 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         }
     }
     d->cfg.asset_root_count = d->root_count;
-    if ((rc = mr_fs_make_dirs(d->data_dir, "data directory", err)) < 0 || (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
+    /* the space guard before the store: on a full disk it releases the
+     * reserve, which lets the store open and recover */
+    if ((rc = mr_fs_make_dirs(d->data_dir, "data directory", err)) < 0 ||
+        (rc = mr_space_guard_open(d->data_dir, d->cfg.disk_reserve, &d->space, err)) < 0 ||
+        (rc = mr_store_open(d->data_dir, &d->store, err)) < 0)
         goto fail;
+    char why[512];
+    if (mr_space_guard_full(d->space, why, sizeof why))
+        log_line(d, "disk full: %s; the queue is paused until space is freed", why);
     d->data_real = realpath(d->data_dir, NULL);
     if ((rc = mr_store_recover(d->store, err)) < 0)
         goto fail;
@@ -982,6 +1043,11 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         }
         d->worker_count++;
     }
+    if (pthread_create(&d->space_thread, NULL, space_main, d) != 0) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "cannot start the disk-space watch");
+        goto fail;
+    }
+    d->space_thread_started = true;
     if ((rc = mr_http_start(d, &d->cfg, &d->http, err)) < 0)
         goto fail;
     atomic_store(&d->ready, true);
@@ -1008,10 +1074,13 @@ void mr_daemon_stop(mr_daemon *d)
     pthread_mutex_unlock(&d->lock);
     for (unsigned i = 0; i < d->worker_count; i++)
         pthread_join(d->workers[i], NULL);
+    if (d->space_thread_started)
+        pthread_join(d->space_thread, NULL);
     free(d->workers);
     mr_cache_free(d->cache);
     mr_device_free(d->dev);
     mr_store_close(d->store);
+    mr_space_guard_close(d->space);
     for (mr_event_sub *s = d->subs, *next; s; s = next) {
         next = s->next;
         for (event_msg *m = s->head, *mn; m; m = mn) {

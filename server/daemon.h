@@ -34,6 +34,7 @@ typedef struct mr_daemon_config {
     double import_timeout_s;      /* an import's wall clock; default 300 */
     size_t job_memory;            /* a job's geometry (mr_renderer_options.memory_budget);
                                      default half of RAM */
+    size_t disk_reserve;          /* bytes kept free for a full disk (space_guard.h); default 64 MiB */
     unsigned max_connections;     /* connection budget; default 1024 */
     unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */
     const char *token;            /* bearer token every request but /healthz, /readyz needs; NULL: none */
@@ -79,6 +80,18 @@ int mr_daemon_retry(mr_daemon *d, const char *id, mr_error *err);
 /* Cancels if needed, waits until no worker uses the job, removes it and
  * its frames from disk. */
 int mr_daemon_delete(mr_daemon *d, const char *id, mr_error *err);
+
+/* A write failed for want of space (MR_ERR_NO_SPACE; why says which): the
+ * queue pauses, the running job stops after its frame and goes back to
+ * queued, reads and deletes go on; it resumes by itself once space is
+ * back (space_guard.h). */
+void mr_daemon_no_space(mr_daemon *d, const char *why);
+/* Whether the queue is paused for disk space (why: the first failure). */
+bool mr_daemon_disk_full(mr_daemon *d, char *why, size_t size);
+
+/* in with the data directory's own paths made relative to it, for what a
+ * client reads ("assets/<sha256>: ...", not the server's absolute paths). */
+void mr_daemon_redact(const mr_daemon *d, const char *in, char *out, size_t size);
 
 /* Prometheus text exposition (malloc'ed); NULL when out of memory. */
 char *mr_daemon_metrics(mr_daemon *d);

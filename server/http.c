@@ -264,15 +264,18 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
         return MHD_NO;
     }
     if (r->rt->body == BODY_ASSET) {
-        mr_error err = {0};
-        if ((!r->upload && mr_store_asset_upload_begin(mr_daemon_store(r->h->d), &r->upload, &err) < 0) ||
-            mr_store_asset_upload_write(r->upload, data, n, &err) < 0) {
-            /* No answer can be queued mid-body: log and close the connection. */
-            if (!r->h->quiet)
-                fprintf(stderr, "microrayd: upload failed: %s\n", err.msg);
-            r->status = MHD_HTTP_INTERNAL_SERVER_ERROR;
-            atomic_fetch_add(&r->h->responses_5xx, 1);
-            return MHD_NO;
+        if (r->body_err.code < 0) { /* failed already: the rest is read and dropped */
+            r->len += n;
+            return MHD_YES;
+        }
+        if ((!r->upload && mr_store_asset_upload_begin(mr_daemon_store(r->h->d), &r->upload,
+                                                       &r->body_err) < 0) ||
+            mr_store_asset_upload_write(r->upload, data, n, &r->body_err) < 0) {
+            /* No answer can be queued mid-body: the rest of the body (at
+             * most the cap) is read and dropped, and the end answers why
+             * (507 for a full disk). */
+            mr_store_asset_upload_abort(r->upload);
+            r->upload = NULL;
         }
     } else if (r->keep_body) {
         size_t need = r->len + n + 1; /* + NUL: handlers get a C string */
@@ -378,6 +381,8 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
         res = take_body(r, c, upload_data, upload_data_size);
     } else if (r->over) {
         res = too_large(r, c);
+    } else if (r->body_err.code < 0) {
+        res = http_send_error(r, c, r->body_err.code, &r->body_err);
     } else {
         res = r->rt->fn(r, c);
     }

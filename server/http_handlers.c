@@ -688,6 +688,10 @@ enum MHD_Result http_readyz(req *r, struct MHD_Connection *c)
 {
     if (atomic_load(&r->h->stopping) || !mr_daemon_ready(r->h->d))
         return http_send_problem(r, c, P_UNAVAILABLE, NULL, "the daemon is not ready for jobs");
+    char why[512];
+    if (mr_daemon_disk_full(r->h->d, why, sizeof why))
+        return http_send_problem(r, c, P_UNAVAILABLE, NULL, "disk full, the render queue is "
+                                 "paused until space is freed: %s", why);
     return h_status(r, c, "ready");
 }
 

@@ -89,6 +89,7 @@ struct req {
     size_t len, cap, limit;
     size_t drained; /* bytes read and dropped after the cap was passed */
     bool over;      /* the body passed its cap */
+    mr_error body_err; /* storing the body failed (an upload): answered when it ends */
     bool keep_body;
     bool answered;
     bool begun;     /* the access handler had its first call */
@@ -125,7 +126,8 @@ typedef enum problem_kind {
     P_IDEMPOTENCY,
     P_HEADERS_TOO_LARGE,
     P_INTERNAL,
-    P_UNAVAILABLE
+    P_UNAVAILABLE,
+    P_NO_SPACE
 } problem_kind;
 
 /* Queues resp (which may be NULL after a failed allocation: the connection

@@ -31,6 +31,7 @@ static const struct {
     [P_HEADERS_TOO_LARGE] = {431, "headers-too-large", "Request header fields too large"},
     [P_INTERNAL] = {500, "internal", "Internal server error"},
     [P_UNAVAILABLE] = {503, "unavailable", "Service unavailable"},
+    [P_NO_SPACE] = {507, "insufficient-storage", "Insufficient storage"},
 };
 
 struct MHD_Response *http_buffer_response(char *body, size_t len, const char *ctype)
@@ -172,7 +173,8 @@ enum MHD_Result http_send_problem_hdr(req *r, struct MHD_Connection *c, problem_
 /* The usual mapping of a daemon or store failure. */
 enum MHD_Result http_send_error(req *r, struct MHD_Connection *c, int code, const mr_error *e)
 {
-    const char *msg = e && e->msg[0] ? e->msg : mr_err_name(code);
+    char msg[sizeof e->msg];
+    mr_daemon_redact(r->h->d, e && e->msg[0] ? e->msg : mr_err_name(code), msg, sizeof msg);
     switch (code) {
     case MR_ERR_NOT_FOUND:
         return http_send_problem(r, c, P_NOT_FOUND, NULL, "%s", msg);
@@ -182,6 +184,10 @@ enum MHD_Result http_send_error(req *r, struct MHD_Connection *c, int code, cons
         return http_send_problem(r, c, P_BAD_REQUEST, NULL, "%s", msg);
     case MR_ERR_LIMIT:
         return http_send_problem(r, c, P_UNPROCESSABLE, NULL, "%s", msg);
+    case MR_ERR_NO_SPACE:
+        mr_daemon_no_space(r->h->d, msg);
+        return http_send_problem(r, c, P_NO_SPACE, NULL, "%s (the render queue is paused until "
+                                 "space is freed; reads and deletes still work)", msg);
     default:
         return http_send_problem(r, c, P_INTERNAL, NULL, "%s", msg);
     }

@@ -4,6 +4,7 @@
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
  *                   [--job-memory-mb N] [--import-memory-mb N] [--import-timeout S]
+ *                   [--disk-reserve-mb N]
  *                   [--max-connections N] [--per-ip-connections N] [--request-timeout S]
  *                   [--token-file F] [--insecure] [--tls-cert F --tls-key F]
  *                   [--port-file F] [--quiet]
@@ -31,6 +32,7 @@ static void usage(void)
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
                     "                       [--job-memory-mb N] [--import-memory-mb N] [--import-timeout S]\n"
+                    "                       [--disk-reserve-mb N]\n"
                     "                       [--max-connections N] [--per-ip-connections N]\n"
                     "                       [--request-timeout S] [--token-file FILE] [--insecure]\n"
                     "                       [--tls-cert FILE --tls-key FILE] [--port-file FILE] [--quiet]\n");
@@ -156,6 +158,8 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.http_threads = (unsigned)n;
         } else if (!strcmp(a, "--cache-mb") && parse_uint(v, 1, 1u << 20, &n)) {
             cfg.cache_bytes = (size_t)n << 20;
+        } else if (!strcmp(a, "--disk-reserve-mb") && parse_uint(v, 1, 1u << 16, &n)) {
+            cfg.disk_reserve = (size_t)n << 20;
         } else if (!strcmp(a, "--job-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {
             cfg.job_memory = (size_t)n << 20;
         } else if (!strcmp(a, "--import-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {

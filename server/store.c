@@ -270,6 +270,7 @@ static int db_code(int sqlite_rc)
     case SQLITE_CORRUPT: return MR_ERR_FORMAT;
     case SQLITE_CONSTRAINT: return MR_ERR_CONFLICT;
     case SQLITE_TOOBIG: return MR_ERR_LIMIT;
+    case SQLITE_FULL: return MR_ERR_NO_SPACE;
     default: return MR_ERR_IO;
     }
 }

@@ -53,6 +53,7 @@ const char *mr_err_name(int code)
     case MR_ERR_CANCELLED: return "MR_ERR_CANCELLED";
     case MR_ERR_NOT_FOUND: return "MR_ERR_NOT_FOUND";
     case MR_ERR_CONFLICT: return "MR_ERR_CONFLICT";
+    case MR_ERR_NO_SPACE: return "MR_ERR_NO_SPACE";
     default: return "MR_ERR_UNKNOWN";
     }
 }

@@ -18,17 +18,24 @@ char *mr_fs_dir_of(const char *path)
     return strndup(path, slash > path ? (size_t)(slash - path) : 1);
 }
 
+/* A failed write for want of space is told apart (MR_ERR_NO_SPACE): the
+ * daemon pauses its queue on it instead of failing frame after frame. */
+static int io_code(int e)
+{
+    return e == ENOSPC || e == EDQUOT ? MR_ERR_NO_SPACE : MR_ERR_IO;
+}
+
 /* fsync of a directory, so entries just made or renamed in it survive a
  * crash. EINVAL: file systems that cannot sync a directory. */
 static int fsync_dir(const char *dir, const char *what, mr_error *err)
 {
     int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
     if (dfd < 0)
-        return mr_error_set(err, MR_ERR_IO, "%s: fsync of directory %s: %s", what, dir,
+        return mr_error_set(err, io_code(errno), "%s: fsync of directory %s: %s", what, dir,
                             strerror(errno));
     int rc = MR_OK;
     if (fsync(dfd) != 0 && errno != EINVAL)
-        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync of directory %s: %s", what, dir,
+        rc = mr_error_set(err, io_code(errno), "%s: fsync of directory %s: %s", what, dir,
                           strerror(errno));
     close(dfd);
     return rc;
@@ -56,7 +63,7 @@ int mr_fs_make_dirs(const char *dir, const char *what, mr_error *err)
                         : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", what);
             free(parent);
         } else if (errno != EEXIST) {
-            rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create directory %s: %s", what, d,
+            rc = mr_error_set(err, io_code(errno), "%s: cannot create directory %s: %s", what, d,
                               strerror(errno));
         }
         d[i] = saved;
@@ -87,7 +94,7 @@ int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_e
     memcpy(tmp, path, n);
     memcpy(tmp + n, ".tmpXXXXXX", sizeof ".tmpXXXXXX");
     if ((fd = mkstemp(tmp)) < 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: cannot create %s: %s", what, tmp, strerror(errno));
+        rc = mr_error_set(err, io_code(errno), "%s: cannot create %s: %s", what, tmp, strerror(errno));
         goto fail;
     }
     /* mkstemp's 0600 would hide a cache or a frame from other users */
@@ -119,8 +126,8 @@ int mr_fs_atomic_write(mr_fs_atomic *a, const void *buf, size_t size, const char
         if (w < 0 && errno == EINTR)
             continue;
         if (w <= 0)
-            return mr_error_set(err, MR_ERR_IO, "%s: writing %s: %s", what, a->tmp,
-                                w < 0 ? strerror(errno) : "no progress");
+            return mr_error_set(err, w < 0 ? io_code(errno) : MR_ERR_IO, "%s: writing %s: %s",
+                                what, a->tmp, w < 0 ? strerror(errno) : "no progress");
         off += (size_t)w;
     }
     return MR_OK;
@@ -143,18 +150,18 @@ int mr_fs_atomic_commit(mr_fs_atomic *a, const char *path, const char *what, mr_
         goto done;
     }
     if (fsync(a->fd) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: fsync %s: %s", what, a->tmp, strerror(errno));
+        rc = mr_error_set(err, io_code(errno), "%s: fsync %s: %s", what, a->tmp, strerror(errno));
         goto done;
     }
     /* close can report a delayed write error (NFS): the data is not safe */
     int c = close(a->fd);
     a->fd = -1;
     if (c != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: close %s: %s", what, a->tmp, strerror(errno));
+        rc = mr_error_set(err, io_code(errno), "%s: close %s: %s", what, a->tmp, strerror(errno));
         goto done;
     }
     if (rename(a->tmp, target) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: rename %s to %s: %s", what, a->tmp, target,
+        rc = mr_error_set(err, io_code(errno), "%s: rename %s to %s: %s", what, a->tmp, target,
                           strerror(errno));
         goto done;
     }
