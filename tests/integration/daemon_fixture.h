@@ -172,7 +172,7 @@ static http_result http(const daemon_proc *d, const char *method, const char *pa
 
 static void http_free(http_result *r) { free(r->body); }
 
-static char *fx_slurp(const char *path, size_t *len)
+static inline char *fx_slurp(const char *path, size_t *len)
 {
     FILE *f = fopen(path, "rb");
     if (!f)

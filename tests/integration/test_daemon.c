@@ -290,7 +290,7 @@ static void test_client_submit_wait_fetch(void **state)
 static void test_upload_and_render_by_id(void **state)
 {
     (void)state;
-    size_t len;
+    size_t len = 0;
     char *model = fx_slurp("/usr/share/assimp/models/X/BCN_Epileptic.X", &len);
     assert_non_null(model);
     http_result r = http(&D, "POST", "/v1/assets", model, len, "Content-Type: application/octet-stream");
