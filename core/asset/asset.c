@@ -1509,6 +1509,45 @@ static int check_positions(const struct aiScene *s, const char *path, mr_error *
     return MR_OK;
 }
 
+/* Raw faces, before post-processing: every face has indices, all within
+ * the mesh, and each mesh's primitive types are set again from its faces.
+ * assimp's scene preprocessor counts a face without indices (a binary PLY
+ * face whose count byte is 0) as a polygon, and its triangulation then
+ * finds nothing to split and dies of an assertion (abort(), found by
+ * tests/fuzz/fuzz_asset); its post-processing steps also index vertices
+ * with whatever a face holds. */
+static int check_faces(const struct aiScene *s, const char *path, mr_error *err)
+{
+    for (unsigned k = 0; s->mMeshes && k < s->mNumMeshes; k++) {
+        struct aiMesh *am = s->mMeshes[k];
+        if (!am || !am->mFaces)
+            continue;
+        unsigned types = 0;
+        for (unsigned f = 0; f < am->mNumFaces; f++) {
+            const struct aiFace *face = &am->mFaces[f];
+            const char *why = NULL;
+            if (face->mNumIndices == 0 || !face->mIndices)
+                why = "has no vertices";
+            for (unsigned i = 0; !why && i < face->mNumIndices; i++)
+                if (face->mIndices[i] >= am->mNumVertices)
+                    why = "uses a vertex the mesh does not have";
+            if (why) {
+                char lbuf[32], *name = dup_aistring(&am->mName);
+                int rc = mr_error_set(err, MR_ERR_FORMAT, "%s: mesh '%s' face %u %s", path,
+                                      mesh_label(name, k, lbuf), f, why);
+                free(name);
+                return rc;
+            }
+            types |= face->mNumIndices == 1   ? aiPrimitiveType_POINT
+                     : face->mNumIndices == 2 ? aiPrimitiveType_LINE
+                     : face->mNumIndices == 3 ? aiPrimitiveType_TRIANGLE
+                                              : aiPrimitiveType_POLYGON;
+        }
+        am->mPrimitiveTypes = types;
+    }
+    return MR_OK;
+}
+
 /* The import itself, on whatever thread calls it (mr_asset_load gives it
  * a deep stack). */
 static int load_here(const char *path, mr_asset **out, mr_error *err)
@@ -1563,7 +1602,7 @@ static int load_here(const char *path, mr_asset **out, mr_error *err)
         return mr_error_set(err, MR_ERR_FORMAT, "%s: assimp could not import it: %s", path,
                             why && why[0] ? why : "(no reason given)");
     }
-    if ((rc = check_positions(scene, path, err)) < 0)
+    if ((rc = check_positions(scene, path, err)) < 0 || (rc = check_faces(scene, path, err)) < 0)
         goto cleanup;
     if (!(scene = aiApplyPostProcessing(scene, MR_ASSIMP_POST_FLAGS))) {
         /* assimp has released the scene itself */
