@@ -18,18 +18,20 @@
  * claims: tests/fuzz/fuzz_asset.options caps input size, memory and time,
  * and leak detection is off (docs/fuzzing.md).
  */
+#define _GNU_SOURCE /* nftw (fuzz_tmp.h) */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
+#include "fuzz_tmp.h"
 #include "microray.h"
 
 static const char *const EXTS[] = {"obj", "ply", "off", "x", "gltf", "glb", "stl", "smd", "dae", "fbx"};
 #define EXT_COUNT (sizeof EXTS / sizeof EXTS[0])
 
-static char dir[64];
+static char dir[128];
 static unsigned long serial;
 
 static void die(const char *what)
@@ -40,16 +42,13 @@ static void die(const char *what)
 
 static void cleanup(void)
 {
-    if (dir[0])
-        rmdir(dir);
+    fuzz_tmp_remove(dir);
 }
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
     (void)argc, (void)argv;
-    const char *tmp = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : getenv("TMPDIR");
-    snprintf(dir, sizeof dir, "%s/fuzz-asset-XXXXXX", tmp && strlen(tmp) < 40 ? tmp : "/tmp");
-    if (!mkdtemp(dir))
+    if (fuzz_tmp_make("fuzz-asset", dir, sizeof dir) != 0)
         die("mkdtemp");
     atexit(cleanup);
     return 0;

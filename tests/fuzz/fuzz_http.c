@@ -45,13 +45,14 @@
 #include <unistd.h>
 
 #include "daemon.h"
+#include "fuzz_tmp.h"
 
 #define ANSWER_TIMEOUT_MS 20000
 #define QUIET_MS 3
 
 static mr_daemon *daemon_;
 static unsigned port;
-static char data_dir[64];
+static char data_dir[128];
 
 static void die(const char *what)
 {
@@ -59,29 +60,19 @@ static void die(const char *what)
     abort();
 }
 
-static int rm_entry(const char *p, const struct stat *st, int flag, struct FTW *ftw)
-{
-    (void)st, (void)flag, (void)ftw;
-    remove(p);
-    return 0;
-}
-
 static void cleanup(void)
 {
     if (daemon_)
         mr_daemon_stop(daemon_);
     daemon_ = NULL;
-    if (data_dir[0])
-        nftw(data_dir, rm_entry, 16, FTW_DEPTH | FTW_PHYS);
+    fuzz_tmp_remove(data_dir);
 }
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
     (void)argc, (void)argv;
     signal(SIGPIPE, SIG_IGN);
-    const char *tmp = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : getenv("TMPDIR");
-    snprintf(data_dir, sizeof data_dir, "%s/fuzz-http-XXXXXX", tmp && strlen(tmp) < 40 ? tmp : "/tmp");
-    if (!mkdtemp(data_dir))
+    if (fuzz_tmp_make("fuzz-http", data_dir, sizeof data_dir) != 0)
         die("mkdtemp");
     mr_daemon_config cfg = {
         .listen_host = "127.0.0.1",
