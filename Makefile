@@ -6,6 +6,9 @@
 #   make run      set up, build, render examples/skinned-walk.json into out/skinned-walk/
 #   make schema   regenerate the kind blocks of schemas/job.schema.json
 #   make openapi  rewrite the frame-stats schemas of schemas/openapi.yaml from the stats table
+#   make fuzz-build  the libFuzzer harnesses of tests/fuzz (clang) into $(BUILD)/fuzz/
+#   make fuzz        run each harness FUZZ_SECONDS (600) long; make fuzz-short: 60 s each
+#                    (make test runs it), both re-running tests/fuzz/crashers first
 #   make clean
 
 BUILD   ?= build
@@ -45,8 +48,17 @@ TEST_BIN   := $(patsubst tests/%.c,$(BUILD)/tests/%,$(TEST_SRC))
 BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
 TOOL_BIN   := $(patsubst tools/%.c,$(BUILD)/tools/%,$(TOOL_SRC))
 CLIENT_BIN := $(if $(CLIENT_SRC),$(BUILD)/microray)
+# libFuzzer harnesses: tests/fuzz/fuzz_*.c -> $(BUILD)/fuzz/fuzz_* (docs/fuzzing.md).
+# The whole tree is rebuilt for them with clang, ASan and UBSan into
+# $(BUILD)/fuzz/ (a sub-make with BUILD=$(BUILD)/fuzz builds fuzz-bins).
+FUZZ_CC      ?= clang
+FUZZ_SECONDS ?= 600
+FUZZ_SAN     := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer \
+                -fsanitize=fuzzer-no-link
+FUZZ_SRC     := $(sort $(wildcard tests/fuzz/fuzz_*.c))
+FUZZ_BIN     := $(patsubst tests/fuzz/%.c,$(BUILD)/%,$(FUZZ_SRC))
 
-.PHONY: all setup test check bench run clean tests schema openapi
+.PHONY: all setup test check bench run clean tests schema openapi fuzz-build fuzz-bins fuzz fuzz-short
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
@@ -85,7 +97,22 @@ $(BUILD)/tools/%: $(BUILD)/obj/tools/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmic
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
 
+$(BUILD)/fuzz_%: $(BUILD)/obj/tests/fuzz/fuzz_%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
+	$(CC) $(LDFLAGS) -fsanitize=fuzzer -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
+
 tests: all $(TEST_BIN) $(TOOL_BIN)
+
+# Only in the sub-make of fuzz-build, where BUILD is the fuzz tree.
+fuzz-bins: $(FUZZ_BIN)
+
+fuzz-build:
+	$(MAKE) fuzz-bins BUILD=$(BUILD)/fuzz CC=$(FUZZ_CC) OPT=-O1 SAN="$(FUZZ_SAN)"
+
+fuzz: fuzz-build
+	bash scripts/run-fuzz.sh $(BUILD) $(FUZZ_SECONDS)
+
+fuzz-short: fuzz-build
+	bash scripts/run-fuzz.sh $(BUILD) 60
 
 # The frame-stats schemas (Seconds, FrameStats) of schemas/openapi.yaml are
 # generated from the field table in core/render/frame_stats.c;
@@ -96,9 +123,10 @@ openapi: $(BUILD)/tools/openapi_stats
 setup:
 	@bash scripts/setup.sh
 
+# The fuzz run goes on after failed tests (and fails the target too).
 test: setup
-	$(MAKE) tests
-	bash scripts/run-tests.sh $(BUILD)
+	$(MAKE) tests fuzz-build
+	bash scripts/run-tests.sh $(BUILD); t=$$?; bash scripts/run-fuzz.sh $(BUILD) 60 || exit 1; exit $$t
 
 check: setup
 	$(MAKE) tests BUILD=build/check OPT=-O1 SAN="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all"

@@ -1428,8 +1428,43 @@ static int precheck_x(const char *path, const char *buf, size_t n, long long siz
     return check_counts(path, vertices, 0, sat_mul(vertices, 6), size, err);
 }
 
+/* assimp 5.2's SMD reader loops for ever (at full CPU, until the import's
+ * deadline) on a bone name of the "nodes" section whose opening quote is
+ * never closed: ParseNodeInfo stops at the end of the file and returns
+ * where it started, and ParseNodesSection calls it again
+ * (`version 1\nnodes\n0 "bone -1\n`, found by tests/fuzz/fuzz_asset). Such a
+ * name leaves the file with an odd number of quotes, and the format has no
+ * other use for them, so an odd count is refused. The whole file is read:
+ * the quote that opens the name may come anywhere. */
+static int precheck_smd(const char *path, mr_error *err)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return mr_error_set(err, MR_ERR_IO, "%s: %s", path, strerror(errno));
+    char buf[65536];
+    unsigned long long quotes = 0;
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+        for (const char *p = buf; (p = memchr(p, '"', (size_t)(buf + n - p))); p++)
+            quotes++;
+    bool failed = ferror(f) != 0;
+    fclose(f);
+    if (failed)
+        return mr_error_set(err, MR_ERR_IO, "%s: read error", path);
+    if (quotes % 2)
+        return mr_error_set(err, MR_ERR_FORMAT,
+                            "%s: an SMD file with an unterminated quoted name (%llu quotes)",
+                            path, quotes);
+    return MR_OK;
+}
+
 static int precheck_counts(const char *path, long long size, mr_error *err)
 {
+    if (has_ext(path, "smd") || has_ext(path, "vta")) {
+        int rc = precheck_smd(path, err);
+        if (rc < 0)
+            return rc;
+    }
     char *buf = malloc(MR_SNIFF_BYTES);
     if (!buf)
         return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", path);
@@ -1470,6 +1505,45 @@ static int check_positions(const struct aiScene *s, const char *path, mr_error *
             free(name);
             return rc;
         }
+    }
+    return MR_OK;
+}
+
+/* Raw faces, before post-processing: every face has indices, all within
+ * the mesh, and each mesh's primitive types are set again from its faces.
+ * assimp's scene preprocessor counts a face without indices (a binary PLY
+ * face whose count byte is 0) as a polygon, and its triangulation then
+ * finds nothing to split and dies of an assertion (abort(), found by
+ * tests/fuzz/fuzz_asset); its post-processing steps also index vertices
+ * with whatever a face holds. */
+static int check_faces(const struct aiScene *s, const char *path, mr_error *err)
+{
+    for (unsigned k = 0; s->mMeshes && k < s->mNumMeshes; k++) {
+        struct aiMesh *am = s->mMeshes[k];
+        if (!am || !am->mFaces)
+            continue;
+        unsigned types = 0;
+        for (unsigned f = 0; f < am->mNumFaces; f++) {
+            const struct aiFace *face = &am->mFaces[f];
+            const char *why = NULL;
+            if (face->mNumIndices == 0 || !face->mIndices)
+                why = "has no vertices";
+            for (unsigned i = 0; !why && i < face->mNumIndices; i++)
+                if (face->mIndices[i] >= am->mNumVertices)
+                    why = "uses a vertex the mesh does not have";
+            if (why) {
+                char lbuf[32], *name = dup_aistring(&am->mName);
+                int rc = mr_error_set(err, MR_ERR_FORMAT, "%s: mesh '%s' face %u %s", path,
+                                      mesh_label(name, k, lbuf), f, why);
+                free(name);
+                return rc;
+            }
+            types |= face->mNumIndices == 1   ? aiPrimitiveType_POINT
+                     : face->mNumIndices == 2 ? aiPrimitiveType_LINE
+                     : face->mNumIndices == 3 ? aiPrimitiveType_TRIANGLE
+                                              : aiPrimitiveType_POLYGON;
+        }
+        am->mPrimitiveTypes = types;
     }
     return MR_OK;
 }
@@ -1528,7 +1602,7 @@ static int load_here(const char *path, mr_asset **out, mr_error *err)
         return mr_error_set(err, MR_ERR_FORMAT, "%s: assimp could not import it: %s", path,
                             why && why[0] ? why : "(no reason given)");
     }
-    if ((rc = check_positions(scene, path, err)) < 0)
+    if ((rc = check_positions(scene, path, err)) < 0 || (rc = check_faces(scene, path, err)) < 0)
         goto cleanup;
     if (!(scene = aiApplyPostProcessing(scene, MR_ASSIMP_POST_FLAGS))) {
         /* assimp has released the scene itself */

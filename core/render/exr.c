@@ -513,6 +513,7 @@ static void uint_row(const uint32_t *src, uint8_t *dst, size_t n)
 }
 
 #if defined(__GNUC__) && defined(__x86_64__)
+#include <cpuid.h>
 #include <immintrin.h>
 #define MR_EXR_F16C 1
 /* Half conversion was about half of an uncompressed write and a tenth of a
@@ -561,7 +562,14 @@ __attribute__((target("avx"))) static void float_row_avx(const float *src, uint8
 
 static bool have_f16c(void)
 {
+#ifdef __clang__
+    /* clang 14's __builtin_cpu_supports has no "f16c" (the fuzz build
+     * compiles with clang): CPUID leaf 1 says it. */
+    unsigned a, b, c, d;
+    return __builtin_cpu_supports("avx") && __get_cpuid(1, &a, &b, &c, &d) && (c & bit_F16C);
+#else
     return __builtin_cpu_supports("avx") && __builtin_cpu_supports("f16c");
+#endif
 }
 #else
 static bool have_f16c(void)
@@ -1015,8 +1023,19 @@ static void read_meta(exr_context_t ctxt, mr_exr_meta *meta)
         meta->scene_diagonal = fv;
 }
 
+/* Whether a decoded channel goes into the film: a known name, full
+ * resolution, and the chunk's size. */
+static bool channel_wanted(const exr_coding_channel_info_t *ch, const mr_film *film,
+                           const exr_chunk_info_t *cinfo)
+{
+    return chan_index(ch->channel_name) >= 0 && ch->x_samples == 1 && ch->y_samples == 1 &&
+           ch->width == film->width && ch->height == cinfo->height;
+}
+
 static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err)
 {
+    uint8_t *scratch = NULL;
+    size_t scratch_size = 0;
     exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
     exr_context_t ctxt = NULL;
     exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
@@ -1124,13 +1143,38 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
         } else {
             EXR_TRY(exr_decoding_update(ctxt, 0, &cinfo, &dec), "exr_decoding_update");
         }
+        /* Subsampled or unknown channels are decoded into a scratch
+         * buffer and dropped. Not a NULL decode_to_ptr, which the API
+         * allows: OpenEXRCore 3.1's unpackers for some channel layouts
+         * write through it all the same (a SEGV at address 0, found by
+         * tests/fuzz/fuzz_exr: uncompressed A plus two unknown UINT
+         * channels). One buffer serves them all; its content is garbage. */
+        size_t skip_need = 0;
+        for (c = 0; c < dec.channel_count; c++) {
+            const exr_coding_channel_info_t *ch = &dec.channels[c];
+            if (!channel_wanted(ch, film, &cinfo) && ch->width > 0 && ch->height > 0) {
+                size_t need = (size_t)ch->width * (size_t)ch->height * 4u;
+                skip_need = need > skip_need ? need : skip_need;
+            }
+        }
+        if (skip_need > scratch_size) {
+            uint8_t *grown = realloc(scratch, skip_need);
+            if (!grown) {
+                rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", io->name);
+                goto cleanup;
+            }
+            scratch = grown;
+            scratch_size = skip_need;
+        }
         for (c = 0; c < dec.channel_count; c++) {
             exr_coding_channel_info_t *ch = &dec.channels[c];
             int ci = chan_index(ch->channel_name);
-            /* Subsampled or unknown channels are skipped (NULL pointer). */
-            if (ci < 0 || ch->x_samples != 1 || ch->y_samples != 1 ||
-                ch->width != film->width || ch->height != cinfo.height) {
-                ch->decode_to_ptr = NULL;
+            if (!channel_wanted(ch, film, &cinfo)) {
+                ch->decode_to_ptr = ch->width > 0 && ch->height > 0 ? scratch : NULL;
+                ch->user_data_type = ch->data_type;
+                ch->user_bytes_per_element = ch->bytes_per_element;
+                ch->user_pixel_stride = ch->bytes_per_element;
+                ch->user_line_stride = ch->width * ch->bytes_per_element;
                 continue;
             }
             ch->decode_to_ptr = (uint8_t *)((uint32_t *)film_plane(film, ci) +
@@ -1169,6 +1213,7 @@ cleanup:
     if (ctxt)
         exr_finish(&ctxt);
     mr_film_free(film);
+    free(scratch);
     return rc;
 }
 

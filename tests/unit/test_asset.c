@@ -800,6 +800,59 @@ static void test_declared_counts(void **state)
     tmp_remove(&t);
 }
 
+/* assimp's SMD reader loops for ever on a bone name whose quote is never
+ * closed (tests/fuzz/crashers/fuzz_asset/timeout-80457aeb...); it is refused
+ * before assimp sees it. alarm(): without the check this test would hang,
+ * so it dies of SIGALRM instead. */
+static void test_smd_unterminated_name(void **state)
+{
+    (void)state;
+    tmpdir t;
+    tmp_make(&t);
+    char p[512];
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    alarm(60);
+    static const char bad[] = "version 1\nnodes\n0 \"bone -1\n";
+    tmp_file(&t, "bad.smd", p);
+    write_bytes(p, bad, sizeof bad - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_null(a);
+    assert_non_null(strstr(err.msg, "unterminated quoted name"));
+    /* the same with the quote closed goes to assimp (and has no triangles) */
+    static const char closed[] = "version 1\nnodes\n0 \"bone\" -1\nend\n";
+    tmp_file(&t, "closed.smd", p);
+    write_bytes(p, closed, sizeof closed - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_null(strstr(err.msg, "unterminated"));
+    alarm(0);
+    tmp_remove(&t);
+}
+
+/* A PLY face with no vertices: assimp counted it as a polygon and its
+ * triangulation aborted the process on an assertion
+ * (tests/fuzz/crashers/fuzz_asset/crash-427387a6...). Refused, naming the
+ * face, before post-processing. */
+static void test_empty_face(void **state)
+{
+    (void)state;
+    tmpdir t;
+    tmp_make(&t);
+    char p[512];
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    static const char ply[] = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                              "property float y\nproperty float z\nelement face 2\n"
+                              "property list uchar int vertex_indices\nend_header\n"
+                              "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n0\n";
+    tmp_file(&t, "empty-face.ply", p);
+    write_bytes(p, ply, sizeof ply - 1);
+    assert_int_equal(mr_asset_load(p, &a, &err), MR_ERR_FORMAT);
+    assert_null(a);
+    assert_non_null(strstr(err.msg, "face 1 has no vertices"));
+    tmp_remove(&t);
+}
+
 /* In-memory meshes: validation and computed area-weighted normals. */
 static void test_from_mesh(void **state)
 {
@@ -1003,6 +1056,8 @@ int main(void)
         cmocka_unit_test(test_generated_gltf),
         cmocka_unit_test(test_io_errors),
         cmocka_unit_test(test_declared_counts),
+        cmocka_unit_test(test_smd_unterminated_name),
+        cmocka_unit_test(test_empty_face),
         cmocka_unit_test(test_from_mesh),
         cmocka_unit_test(test_model_files_confined),
         cmocka_unit_test(test_deep_hierarchy),

@@ -1037,6 +1037,26 @@ static void expect_format(const char *path)
     assert_int_equal(meta.frame, 0); /* meta not left half-filled */
 }
 
+/* An uncompressed file with A and two channels we do not know (their
+ * names damaged): OpenEXRCore 3.1 unpacked the unknown ones through the
+ * NULL pointer that means "skip" and crashed (found by tests/fuzz/fuzz_exr;
+ * the file is its crasher). They go to a scratch buffer now; A is read. */
+static void test_unknown_channels_skipped(void **state)
+{
+    (void)state;
+    const char *src = getenv("MR_SOURCE_DIR");
+    char path[1024];
+    snprintf(path, sizeof path, "%s/tests/fuzz/crashers/fuzz_exr/"
+             "crash-949785ba205eaa2fc1674046455672b2577e46d5", src ? src : ".");
+    mr_film *f = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_exr_read_file(path, &f, NULL, &err), MR_OK);
+    assert_non_null(f);
+    assert_int_equal(f->width, 114);
+    assert_int_equal(f->height, 1);
+    mr_film_free(f);
+}
+
 static void test_bad_files(void **state)
 {
     char path[256], good[256];
@@ -1260,6 +1280,7 @@ int main(void)
         cmocka_unit_test(test_read_respects_caps),
         cmocka_unit_test(test_parallel_identical),
         cmocka_unit_test(test_bad_files),
+        cmocka_unit_test(test_unknown_channels_skipped),
         cmocka_unit_test(test_tiled_rejected),
         cmocka_unit_test(test_write_errors),
         cmocka_unit_test(test_compression_names),
