@@ -344,6 +344,20 @@ typedef struct mr_compare_result {
 int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
                     mr_compare_result *out, mr_error *err);
 
+/* Isolated dark pixels of one frame (speckles: shadow acne, pinholes,
+ * floating dark pixels; issue 13). An interior pixel is one whose 8
+ * neighbours all hit one object (whatever the pixel itself hits); it is a
+ * speckle when its luminance (Rec. 709 weights of the linear colour) is
+ * below 0.6 times the median of theirs (the mean of the 4th and 5th of the
+ * eight; a NaN colour reads as black). speckle_pct = 100 speckles /
+ * interior (0 without interior pixels). Frame borders are never interior. */
+typedef struct mr_speckle_result {
+    size_t interior, speckles;
+    double speckle_pct;
+} mr_speckle_result;
+#define MR_SPECKLE_RATIO 0.6
+void mr_film_speckles(const mr_film *f, mr_speckle_result *out);
+
 /* ---- EXR (render/exr.c, through the OpenEXR 3 C API) ----
  * A frame is one scanline part with these channels (EXR stores them sorted by
  * name; we always match channels by name, never by position):
@@ -860,6 +874,7 @@ typedef struct mr_frame_stats {
     uint64_t bvh_bytes;       /* Embree's own allocations (memory monitor) */
     uint64_t peak_rss_bytes;  /* process peak resident set so far */
     float scene_diagonal;     /* bounding-box diagonal of the frame's scene */
+    double speckle_pct;       /* isolated dark pixels, % of interior pixels (mr_film_speckles) */
     uint32_t extra_count;     /* extras[0, extra_count) are set */
     mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
 } mr_frame_stats;

@@ -306,6 +306,13 @@ int mr_cmd_compare(int argc, char **argv)
     cJSON_AddNumberToObject(o, "normal_mean_deg", r.normal_mean_deg);
     cJSON_AddNumberToObject(o, "normal_max_deg", r.normal_max_deg);
     cJSON_AddNumberToObject(o, "holes", (double)r.holes);
+    mr_speckle_result sa, sb;
+    mr_film_speckles(film[0], &sa);
+    mr_film_speckles(film[1], &sb);
+    cJSON_AddNumberToObject(o, "speckle_pct_a", sa.speckle_pct);
+    cJSON_AddNumberToObject(o, "speckle_pct_b", sb.speckle_pct);
+    cJSON_AddNumberToObject(o, "speckles_a", (double)sa.speckles);
+    cJSON_AddNumberToObject(o, "speckles_b", (double)sb.speckles);
     cJSON_AddNumberToObject(o, "psnr_rgb_db", r.psnr_rgb);
     char *s = cJSON_Print(o);
     if (s)

@@ -43,6 +43,57 @@ static double normal_angle_deg(double ax, double ay, double az, double bx, doubl
     return acos(c) * (180.0 / MR_PI);
 }
 
+/* A NaN colour reads as black: it is a speckle itself and moves no
+ * neighbour's median more than one dark pixel does. */
+static float luminance(const mr_film *f, size_t p)
+{
+    float y = 0.2126f * f->r[p] + 0.7152f * f->g[p] + 0.0722f * f->b[p];
+    return y == y ? y : 0.0f;
+}
+
+/* The mean of the 4th and 5th smallest of eight (a full sort of eight is a
+ * handful of compares; the film is walked once). */
+static float median8(float v[8])
+{
+    for (int i = 1; i < 8; i++) {
+        float x = v[i];
+        int j = i - 1;
+        while (j >= 0 && v[j] > x) {
+            v[j + 1] = v[j];
+            j--;
+        }
+        v[j + 1] = x;
+    }
+    return 0.5f * (v[3] + v[4]);
+}
+
+void mr_film_speckles(const mr_film *f, mr_speckle_result *out)
+{
+    memset(out, 0, sizeof *out);
+    if (!f || !f->object_id || !f->r || !f->g || !f->b || f->width < 3 || f->height < 3)
+        return;
+    const ptrdiff_t w = f->width;
+    const ptrdiff_t around[8] = {-w - 1, -w, -w + 1, -1, 1, w - 1, w, w + 1};
+    for (int y = 1; y + 1 < f->height; y++)
+        for (int x = 1; x + 1 < f->width; x++) {
+            size_t p = (size_t)y * (size_t)w + (size_t)x;
+            uint32_t object = f->object_id[p + (size_t)around[0]];
+            bool interior = object != 0;
+            float lum[8];
+            for (int k = 0; k < 8 && interior; k++) {
+                size_t q = p + (size_t)around[k];
+                interior = f->object_id[q] == object;
+                lum[k] = luminance(f, q);
+            }
+            if (!interior)
+                continue;
+            out->interior++;
+            out->speckles += luminance(f, p) < (float)MR_SPECKLE_RATIO * median8(lum);
+        }
+    if (out->interior)
+        out->speckle_pct = 100.0 * (double)out->speckles / (double)out->interior;
+}
+
 int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
                     mr_compare_result *out, mr_error *err)
 {

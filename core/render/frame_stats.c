@@ -51,6 +51,9 @@ const mr_stat_field mr_frame_stat_fields[] = {
     BYTES("peak_rss", peak_rss_bytes, "The process's peak resident set so far."),
     {NULL, "scene_diagonal", MR_STAT_F32, AT(scene_diagonal), "scene units",
      "Bounding-box diagonal of the frame's scene, the unit of depth errors."},
+    {NULL, "speckle_pct", MR_STAT_F64, AT(speckle_pct), "%",
+     "Isolated dark pixels (shadow acne, pinholes): pixels darker than 0.6x the median of 8 "
+     "neighbours that all hit one object, as % of such interior pixels."},
     DERIVED(&mr_stat_group_cache, "result", MR_STAT_CACHE_RESULT,
             "hit (every asset came from the cache), partial or miss."),
     {&mr_stat_group_cache, "assets_cached", MR_STAT_U32, AT(assets_cached), "count",

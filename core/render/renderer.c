@@ -455,5 +455,9 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     st->bvh_bytes = eb > 0 ? (uint64_t)eb : 0;
     st->peak_rss_bytes = mr_peak_rss_bytes();
     st->total_s = t3 - t0;
+    /* one pass over the film, outside the frame's timings */
+    mr_speckle_result sp;
+    mr_film_speckles(film, &sp);
+    st->speckle_pct = sp.speckle_pct;
     return kind_stats(r, st, err);
 }

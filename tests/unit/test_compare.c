@@ -316,13 +316,83 @@ static void test_invalid(void **state)
     mr_film_free(c);
 }
 
+/* Fills the film with one object of grey level v. */
+static void fill(mr_film *f, uint32_t object, float v)
+{
+    for (size_t i = 0; i < (size_t)f->width * (size_t)f->height; i++) {
+        f->object_id[i] = object;
+        f->r[i] = f->g[i] = f->b[i] = v;
+    }
+}
+
+/* The isolated-dark-pixel metric: exactly the pixels below 0.6x the
+ * median of eight neighbours on one object. Grey levels make luminance the
+ * level itself (the weights sum to 1 within float rounding, hence the
+ * margins of 1e-3 around the 0.6 threshold). */
+static void test_speckles(void **state)
+{
+    (void)state;
+    mr_film *f = film(5, 5);
+    mr_speckle_result s;
+    fill(f, 1, 1.0f);
+    mr_film_speckles(f, &s);
+    assert_int_equal(s.interior, 9); /* the 3x3 inside the border */
+    assert_int_equal(s.speckles, 0);
+    assert_true(s.speckle_pct == 0.0);
+
+    f->r[12] = f->g[12] = f->b[12] = 0.599f; /* the centre, just below 0.6 */
+    mr_film_speckles(f, &s);
+    assert_int_equal(s.speckles, 1);
+    assert_true(fabs(s.speckle_pct - 100.0 / 9.0) < 1e-9);
+    f->r[12] = f->g[12] = f->b[12] = 0.601f; /* just above: not a speckle */
+    mr_film_speckles(f, &s);
+    assert_int_equal(s.speckles, 0);
+    f->r[12] = f->g[12] = f->b[12] = NAN; /* a NaN pixel is one */
+    mr_film_speckles(f, &s);
+    assert_int_equal(s.speckles, 1);
+
+    /* the median, not the mean: of the eight neighbours of a 3x3 film,
+     * three dark ones leave it at 1, four pull it to (0.1 + 1) / 2 = 0.55 */
+    mr_speckle_result only;
+    mr_film *g = film(3, 3);
+    const float centre[3] = {0.5f, 0.5f, 0.3f};
+    const int dark[3] = {3, 4, 4};
+    const size_t expect[3] = {1, 0, 1}; /* 0.5 < 0.6; 0.5 >= 0.33; 0.3 < 0.33 */
+    for (int c = 0; c < 3; c++) {
+        fill(g, 1, 1.0f);
+        const size_t ring[8] = {0, 1, 2, 3, 5, 6, 7, 8};
+        for (int k = 0; k < dark[c]; k++)
+            g->r[ring[k]] = g->g[ring[k]] = g->b[ring[k]] = 0.1f;
+        g->r[4] = g->g[4] = g->b[4] = centre[c];
+        mr_film_speckles(g, &only);
+        assert_int_equal(only.interior, 1);
+        assert_int_equal(only.speckles, expect[c]);
+    }
+
+    /* a pinhole (the pixel misses, the background shows) inside an object
+     * is one; a pixel whose neighbours hit two objects is not interior */
+    fill(g, 1, 1.0f);
+    g->object_id[4] = 0;
+    g->r[4] = g->g[4] = g->b[4] = 0.0f;
+    mr_film_speckles(g, &only);
+    assert_int_equal(only.speckles, 1);
+    fill(g, 1, 1.0f);
+    g->object_id[0] = 2;
+    g->r[4] = g->g[4] = g->b[4] = 0.0f;
+    mr_film_speckles(g, &only);
+    assert_int_equal(only.interior, 0);
+    assert_int_equal(only.speckles, 0);
+    mr_film_free(g);
+    mr_film_free(f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_identical), cmocka_unit_test(test_coverage),
         cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
         cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
-        cmocka_unit_test(test_holes),
+        cmocka_unit_test(test_holes),     cmocka_unit_test(test_speckles),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
