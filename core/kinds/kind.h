@@ -35,6 +35,14 @@
  *               extras (render/frame_stats.h), which reach stats.json, the
  *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
+ *   surface_step  (NULL: 0) the size, in world units after the last
+ *               update, of the steps the kind's surface makes around the
+ *               smooth one it stands for (a voxel's edge): faces of a
+ *               staircase of boxes point up to 90 degrees away from the
+ *               surface, so with a step the renderer lights by the shading
+ *               normal alone and starts shadow rays that far along it,
+ *               out of the staircase (the terminator problem; issue 13).
+ *               Exact surfaces (triangles) have none.
  * self_posed: the kind evaluates poses itself (say one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to
  * update and leaves checking pose names to create.
@@ -119,6 +127,7 @@ struct mr_kind {
     uint32_t (*geometry_ids)(const mr_geom *g);
     void (*frame_stats)(const mr_geom *g, double *values);
     int (*rewind)(mr_geom *g, mr_error *err);
+    float (*surface_step)(const mr_geom *g);
     void (*free)(mr_geom *g);
 };
 

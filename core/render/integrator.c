@@ -88,10 +88,18 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     mr_vec3 light = s->ambient;
     mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, h->t));
     mr_vec3 shadow_org = offset_from_surface(p, ng, s->shadow_bias);
+    /* A surface of steps (voxels) stands for the smooth one its shading
+     * normals describe: lit by those alone, its shadow rays start 1.5 steps
+     * along them (past the next step's box: a voxel's diagonal is 1.73
+     * edges, and half of it lies behind the face hit), so the staircase
+     * does not shadow itself (kind.h surface_step). */
+    bool stepped = obj->surface_step > 0;
+    if (stepped)
+        shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * obj->surface_step));
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
         float cosine = mr_v3_dot(n, l);
-        if (cosine <= 0 || mr_v3_dot(ng, l) <= 0)
+        if (cosine <= 0 || (!stepped && mr_v3_dot(ng, l) <= 0))
             continue;
         if (s->shadows) {
             struct RTCIntersectContext ctx;

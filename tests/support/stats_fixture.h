@@ -22,12 +22,12 @@ static inline mr_frame_stats frame_fixture(int i)
         .pose_s = 0.001, .bvh_s = 0.003, .bvh = MR_BVH_BUILD, .trace_s = 0.11, .encode_s = 0.2,
         .total_s = 0.36, .rays = 1586211, .mrays_per_s = 14.4, .triangles = 5126,
         .geometry_bytes = 159188, .bvh_bytes = 622592, .peak_rss_bytes = 52428800,
-        .scene_diagonal = 1.94f};
+        .scene_diagonal = 1.94f, .speckle_pct = 0.25};
     static const mr_frame_stats awkward = {
         .time = 0.75, .pose_s = 1.0 / 3.0, .bvh_s = 0.1, .bvh = MR_BVH_REFIT, .trace_s = 2.5e-7,
         .encode_s = 12345.678, .total_s = 1e-3, .rays = ((uint64_t)1 << 40) + 1,
         .triangles = 4294967296ull, .geometry_bytes = 1, .peak_rss_bytes = 123456789012ull,
-        .scene_diagonal = 0.1f};
+        .scene_diagonal = 0.1f, .speckle_pct = 100.0 / 3.0};
     mr_frame_stats f = i == 0 ? first : i == 1 ? awkward : (mr_frame_stats){.time = 1.0 * i};
     if (i > 1) {
         f.assets_cached = 3;
@@ -63,7 +63,7 @@ static const char FRAME0[] =
     "{\"frame\":0,\"time\":0.5,\"file\":\"0000.exr\",\"seconds\":{\"load\":0.25,\"pose\":0.001,"
     "\"bvh\":0.003,\"trace\":0.11,\"encode\":0.2,\"total\":0.36},\"bvh\":\"build\",\"rays\":1586211,"
     "\"mrays_per_s\":14.4,\"triangles\":5126,\"bytes\":{\"geometry\":159188,\"bvh\":622592,"
-    "\"peak_rss\":52428800},\"scene_diagonal\":1.940000057220459,\"cache\":{\"result\":\"partial\","
+    "\"peak_rss\":52428800},\"scene_diagonal\":1.940000057220459,\"speckle_pct\":0.25,\"cache\":{\"result\":\"partial\","
     "\"assets_cached\":1,\"assets_loaded\":2,\"saved_s\":0.125}}";
 
 static const char FRAME1[] =
@@ -71,12 +71,12 @@ static const char FRAME1[] =
     "\"pose\":0.33333333333333331,\"bvh\":0.1,\"trace\":2.5e-07,\"encode\":12345.678,\"total\":0.001},"
     "\"bvh\":\"refit\",\"rays\":1099511627777,\"mrays_per_s\":0,\"triangles\":4294967296,"
     "\"bytes\":{\"geometry\":1,\"bvh\":0,\"peak_rss\":123456789012},"
-    "\"scene_diagonal\":0.10000000149011612}";
+    "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336}";
 
 static const char FRAME2[] =
     "{\"frame\":2,\"time\":2,\"file\":\"0002.exr\",\"seconds\":{\"load\":0,\"pose\":0,\"bvh\":0,"
     "\"trace\":0,\"encode\":0,\"total\":0},\"bvh\":\"none\",\"rays\":0,\"mrays_per_s\":0,"
-    "\"triangles\":0,\"bytes\":{\"geometry\":0,\"bvh\":0,\"peak_rss\":0},\"scene_diagonal\":0,"
+    "\"triangles\":0,\"bytes\":{\"geometry\":0,\"bvh\":0,\"peak_rss\":0},\"scene_diagonal\":0,\"speckle_pct\":0,"
     "\"cache\":{\"result\":\"hit\",\"assets_cached\":3,\"assets_loaded\":0,\"saved_s\":2}}";
 
 #endif

@@ -737,6 +737,24 @@ static uint32_t svo_geometry_ids(const mr_geom *g)
     return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
 }
 
+/* The finest voxel's edge in world units: the octree's at its depth, times
+ * the largest scale any instance's matrix applies (a column's length).
+ * Skinning moves voxels but rarely scales them; the matrices are what the
+ * last update used. */
+static float svo_surface_step(const mr_geom *g)
+{
+    double scale = 0;
+    for (size_t k = 0; k < g->instance_count; k++)
+        for (int c = 0; c < 3; c++) {
+            const float *m = g->world[k].m;
+            double len = sqrt((double)m[c] * m[c] + (double)m[4 + c] * m[4 + c] +
+                              (double)m[8 + c] * m[8 + c]);
+            if (len > scale)
+                scale = len;
+        }
+    return (float)(scale * g->svo->size / (double)(1u << g->svo->depth));
+}
+
 static void svo_free(mr_geom *g)
 {
     if (!g)
@@ -1042,5 +1060,6 @@ const mr_kind mr_kind_svo = {
     .memory = svo_memory,
     .primitives = svo_primitives,
     .geometry_ids = svo_geometry_ids,
+    .surface_step = svo_surface_step,
     .free = svo_free,
 };
