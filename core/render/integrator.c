@@ -93,9 +93,10 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
      * along them, so the staircase does not shadow itself (kind.h
      * surface_step). Past one voxel's diagonal (1.73 edges) is the least;
      * skinned voxels at bends are stretched and out of line, and measured
-     * over the svo examples 1.5 / 3 / 6 steps gave svo-skinned 3.7 / 2.3 /
-     * 2.0 % isolated dark pixels and svo-crowd 5.2 / 5.3 / 5.4 %: 3 takes
-     * most of the gain while keeping contact shadows within 3 voxels. */
+     * on the voxel examples 1.5 / 3 / 6 steps gave the skinned dancers 3.7
+     * / 2.3 / 2.0 % isolated dark pixels and the rigid crowd 5.2 / 5.3 /
+     * 5.4 %: 3 takes most of the gain while keeping contact shadows within
+     * 3 voxels (README, "Error metrics"). */
     bool stepped = obj->surface_step > 0;
     if (stepped)
         shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * obj->surface_step));
