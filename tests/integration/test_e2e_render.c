@@ -449,6 +449,45 @@ static void test_refined_asset_renders(void **state)
     assert_int_not_equal(access(path, F_OK), 0);
 }
 
+/* Voxel shadow acne (issue 13): the dancer as an emit octree at depth 9
+ * and as triangles, same camera, light and pose, two frames. Before voxel
+ * surfaces were lit by their shading normals and their shadow rays left
+ * the staircase (kind.h surface_step), the octree had 9.1 % and 5.9 %
+ * isolated dark pixels against the triangles' 1.9 % and 1.5 % (4.7x and
+ * 3.9x); now 3.4 % and 3.0 % (1.8x and 2.0x). The bound, 2.5x per frame,
+ * fails on the old cause and leaves room for the noise of a changed pose
+ * or voxelisation; issue 13's goal is 1.2x. */
+static void test_voxel_acne(void **state)
+{
+    (void)state;
+    const char *const jobs[2] = {"svo-acne", "svo-acne-triangles"};
+    double pct[2][2];
+    for (int k = 0; k < 2; k++) {
+        char args[1024];
+        snprintf(args, sizeof args, "render tests/data/%s.json --out '%s/%s' --quiet", jobs[k],
+                 tmp_dir, jobs[k]);
+        char *err = NULL;
+        if (microrayd(args, NULL, &err) != 0)
+            fail_msg("render %s: %s", jobs[k], err);
+        free(err);
+        char dir[600];
+        snprintf(dir, sizeof dir, "%s/%s", tmp_dir, jobs[k]);
+        for (int f = 0; f < 2; f++) {
+            mr_film *film = read_frame(dir, f);
+            mr_speckle_result s;
+            mr_film_speckles(film, &s);
+            assert_true(s.interior > 1000); /* the character: ~1,900 interior pixels */
+            pct[k][f] = s.speckle_pct;
+            mr_film_free(film);
+        }
+    }
+    for (int f = 0; f < 2; f++) {
+        print_message("[ acne     ] frame %d: voxels %.3f %%, triangles %.3f %% (%.2fx)\n", f,
+                      pct[0][f], pct[1][f], pct[0][f] / pct[1][f]);
+        assert_true(pct[0][f] <= 2.5 * pct[1][f]);
+    }
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -479,6 +518,7 @@ int main(void)
         cmocka_unit_test(test_camera_from_gltf_node),
         cmocka_unit_test(test_bad_input_is_answered),
         cmocka_unit_test(test_refined_asset_renders),
+        cmocka_unit_test(test_voxel_acne),
     };
     return cmocka_run_group_tests_name("e2e_render", tests, setup, teardown);
 }
