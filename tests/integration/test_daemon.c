@@ -59,10 +59,12 @@ static cJSON *wait_job(const char *id, int timeout_s)
 {
     char path[128];
     snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    char last[4096] = "";
     for (int i = 0; i < timeout_s * 10; i++) {
         http_result r = http(&D, "GET", path, NULL, 0, NULL);
         assert_int_equal(r.status, 200);
         cJSON *j = cJSON_Parse(r.body);
+        snprintf(last, sizeof last, "%s", r.body);
         http_free(&r);
         assert_non_null(j);
         const char *st = cJSON_GetObjectItem(j, "state")->valuestring;
@@ -71,7 +73,8 @@ static cJSON *wait_job(const char *id, int timeout_s)
         cJSON_Delete(j);
         fx_sleep_ms(100);
     }
-    fail_msg("job %s did not finish in %d s", id, timeout_s);
+    fail_msg("job %s did not finish in %d s; last seen: %s (daemon log %s)", id, timeout_s, last,
+             D.log);
     return NULL;
 }
 
@@ -664,7 +667,11 @@ static void interrupt_and_resume(int sig, const char *data, const char *log_says
     assert_true(before < 48); /* the stop interrupted the job */
     daemon_start(&D, data); /* same data directory */
     cJSON *j = wait_job(id, 300);
-    assert_string_equal(state_of(j), "succeeded");
+    if (strcmp(state_of(j), "succeeded") != 0) {
+        char *log = fx_slurp(D.log, NULL);
+        fail_msg("the resumed job ended %s: %s\ndaemon log:\n%.6000s", state_of(j),
+                 cJSON_PrintUnformatted(j), log ? log : "");
+    }
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 48);
     cJSON_Delete(j);
     for (int k = 0; k < 48; k++) {
