@@ -677,7 +677,8 @@ static int import_in_child(void *user, const char *path, const mr_refine_params 
 {
     isolated_import *ii = user;
     const mr_daemon_config *cfg = &ii->run->d->cfg;
-    mr_import_limits lim = {.memory_bytes = cfg->import_memory, .timeout_s = cfg->import_timeout_s};
+    mr_import_limits lim = {.memory_bytes = cfg->import_memory, .timeout_s = cfg->import_timeout_s,
+                            .worker_exe = cfg->import_exe};
     return mr_import_isolated(path, ii->label, refine, &lim, run_stop_requested, ii->run, out,
                               stage, err);
 }

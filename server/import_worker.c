@@ -96,35 +96,8 @@ static bool write_all(int fd, const void *p, size_t n)
     return true;
 }
 
-static _Noreturn void child_main(int fd, const char *path, const mr_refine_params *refine,
-                                 const mr_import_limits *lim, pid_t parent)
+int mr_import_worker_run(const char *path, const mr_refine_params *refine)
 {
-    /* die with the daemon; nothing inherited but the result pipe */
-    prctl(PR_SET_PDEATHSIG, SIGKILL);
-    if (getppid() != parent)
-        _exit(120);
-    if (dup2(fd, RESULT_FD) != RESULT_FD)
-        _exit(121);
-    close_range(RESULT_FD + 1, ~0u, 0);
-    /* a crash kills the child, so the parent sees the signal (not a
-     * handler the parent installed, nor a sanitizer's report and exit) */
-    const int crash[] = {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT};
-    for (size_t i = 0; i < sizeof crash / sizeof *crash; i++)
-        signal(crash[i], SIG_DFL);
-    struct rlimit none = {0, 0};
-    setrlimit(RLIMIT_CORE, &none);
-    if (lim->timeout_s > 0) {
-        /* a backstop behind the parent's wall clock (SIGXCPU) */
-        rlim_t cpu = (rlim_t)ceil(lim->timeout_s) + 2;
-        struct rlimit r = {cpu, cpu + 1};
-        setrlimit(RLIMIT_CPU, &r);
-    }
-    if (lim->memory_bytes && !SANITIZED) {
-        /* what the parent's image already maps, plus the import's own */
-        size_t base = statm_bytes(getpid(), 1) + MR_ASSET_IMPORT_STACK_BYTES;
-        struct rlimit r = {base + lim->memory_bytes, base + lim->memory_bytes};
-        setrlimit(RLIMIT_AS, &r);
-    }
     mr_error e = {0};
     mr_asset *asset = NULL;
     mr_asset_stage stage = MR_ASSET_STAGE_LOAD;
@@ -141,7 +114,49 @@ static _Noreturn void child_main(int fd, const char *path, const mr_refine_param
     h.blob_len = blob_len;
     bool ok = write_all(RESULT_FD, &h, sizeof h) && write_all(RESULT_FD, e.msg, h.message_len) &&
               write_all(RESULT_FD, blob, blob_len);
-    _exit(ok ? 0 : 122);
+    return ok ? 0 : 122;
+}
+
+/* After fork, in the child: only async-signal-safe calls until the exec
+ * (the parent has many threads; any lock one of them held is held for
+ * ever here). as_limit 0: no address-space limit. */
+static _Noreturn void child_main(int fd, const char *path, const mr_refine_params *refine,
+                                 const mr_import_limits *lim, rlim_t as_limit, pid_t parent,
+                                 char *const *argv)
+{
+    /* die with the daemon; nothing inherited but the result pipe */
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent)
+        _exit(120);
+    if (dup2(fd, RESULT_FD) != RESULT_FD)
+        _exit(121);
+    close_range(RESULT_FD + 1, ~0u, 0);
+    /* a crash kills the child, so the parent sees the signal (not a
+     * handler the parent installed, nor a sanitizer's report and exit);
+     * the daemon's blocked stop signals are not the import's */
+    const int crash[] = {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT};
+    for (size_t i = 0; i < sizeof crash / sizeof *crash; i++)
+        signal(crash[i], SIG_DFL);
+    sigset_t none_blocked;
+    sigemptyset(&none_blocked);
+    sigprocmask(SIG_SETMASK, &none_blocked, NULL);
+    struct rlimit none = {0, 0};
+    setrlimit(RLIMIT_CORE, &none);
+    if (lim->timeout_s > 0) {
+        /* a backstop behind the parent's wall clock (SIGXCPU) */
+        rlim_t cpu = (rlim_t)ceil(lim->timeout_s) + 2;
+        struct rlimit r = {cpu, cpu + 1};
+        setrlimit(RLIMIT_CPU, &r);
+    }
+    if (as_limit) {
+        struct rlimit r = {as_limit, as_limit};
+        setrlimit(RLIMIT_AS, &r);
+    }
+    if (lim->worker_exe) {
+        execv(lim->worker_exe, argv);
+        _exit(127);
+    }
+    _exit(mr_import_worker_run(path, refine));
 }
 
 typedef enum verdict { RAN, CANCELLED, TIMED_OUT, TOO_BIG } verdict;
@@ -159,7 +174,30 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
     int fds[2];
     if (pipe2(fds, O_CLOEXEC) != 0)
         return mr_error_set(err, MR_ERR_IO, "import of %s: pipe: %s", label, strerror(errno));
-    size_t rss_at_fork = statm_bytes(getpid(), 2);
+    /* Everything the child needs is made here, before fork: after it the
+     * child may only make async-signal-safe calls until it execs. */
+    char rounds[16], amplitude[40], frequency[40], octaves[16], seed[16], threads[16];
+    char *argv[12] = {"microrayd", "import-worker", (char *)path, NULL};
+    if (refine) {
+        snprintf(rounds, sizeof rounds, "%u", refine->rounds);
+        snprintf(amplitude, sizeof amplitude, "%a", (double)refine->amplitude);
+        snprintf(frequency, sizeof frequency, "%a", (double)refine->frequency);
+        snprintf(octaves, sizeof octaves, "%u", refine->octaves);
+        snprintf(seed, sizeof seed, "%u", (unsigned)refine->seed);
+        snprintf(threads, sizeof threads, "%u", refine->threads);
+        char *more[] = {"--refine", rounds, amplitude, frequency, octaves, seed, threads, NULL};
+        memcpy(argv + 3, more, sizeof more);
+    }
+    /* the address space the import may take: on top of what is mapped
+     * (the parent's image after fork, or a fresh image's libraries after
+     * exec: 2 GiB covers them and the allocator's per-thread arenas),
+     * with room for the import thread's stack */
+    rlim_t as_limit = 0;
+    if (lim->memory_bytes && !SANITIZED) {
+        size_t base = lim->worker_exe ? (size_t)2 << 30 : statm_bytes(getpid(), 1);
+        as_limit = (rlim_t)(base + MR_ASSET_IMPORT_STACK_BYTES + lim->memory_bytes);
+    }
+    size_t rss_at_fork = lim->worker_exe ? 0 : statm_bytes(getpid(), 2);
     pid_t parent = getpid();
     fflush(NULL); /* nothing buffered is written twice */
     pid_t pid = fork();
@@ -170,7 +208,7 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
         return mr_error_set(err, MR_ERR_IO, "import of %s: fork: %s", label, strerror(e));
     }
     if (pid == 0)
-        child_main(fds[1], path, refine, lim, parent);
+        child_main(fds[1], path, refine, lim, as_limit, parent, argv);
     close(fds[1]);
 
     uint8_t *buf = NULL;
@@ -271,4 +309,24 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
     }
     free(buf);
     return rc;
+}
+
+/* `microrayd import-worker PATH [--refine R A F O S T]`: mr_import_isolated's
+ * child after exec (its descriptor 3 is the result pipe). */
+int mr_cmd_import_worker(int argc, char **argv)
+{
+    if (argc != 1 && !(argc == 8 && !strcmp(argv[1], "--refine"))) {
+        fprintf(stderr, "microrayd import-worker: runs only as the daemon's import child\n");
+        return 2;
+    }
+    mr_refine_params refine = {0};
+    if (argc == 8) {
+        refine.rounds = (unsigned)strtoul(argv[2], NULL, 10);
+        refine.amplitude = (float)strtod(argv[3], NULL);
+        refine.frequency = (float)strtod(argv[4], NULL);
+        refine.octaves = (unsigned)strtoul(argv[5], NULL, 10);
+        refine.seed = (uint32_t)strtoul(argv[6], NULL, 10);
+        refine.threads = (unsigned)strtoul(argv[7], NULL, 10);
+    }
+    return mr_import_worker_run(argv[0], argc == 8 ? &refine : NULL);
 }

@@ -29,6 +29,13 @@
 typedef struct mr_import_limits {
     size_t memory_bytes; /* the import's own resident memory; 0: unlimited */
     double timeout_s;    /* wall clock; 0: unlimited */
+    /* The microrayd binary to exec in the child (`microrayd import-worker`),
+     * or NULL: the forked child imports itself. Exec is what a daemon
+     * wants: after fork in a process of many threads, a lock another
+     * thread held (an allocator's: seen with ASan's, whose child then hung
+     * until the deadline) stays held in the child; a fresh image has none.
+     * Forking alone serves single-threaded callers (tests, harnesses). */
+    const char *worker_exe;
 } mr_import_limits;
 
 /* The defaults a daemon uses when none are given: a quarter of the
@@ -42,5 +49,13 @@ void mr_import_limits_default(mr_import_limits *out);
 int mr_import_isolated(const char *path, const char *label, const mr_refine_params *refine,
                        const mr_import_limits *lim, bool (*interrupted)(void *user), void *user,
                        mr_asset **out, mr_asset_stage *stage, mr_error *err);
+
+/* The child's side: imports path (and refines it) and writes the result to
+ * descriptor 3 for the parent. Returns the exit status (0: written). Used
+ * by the forked child and by `microrayd import-worker PATH [--refine
+ * ROUNDS AMPLITUDE FREQUENCY OCTAVES SEED THREADS]`, which runs only as
+ * mr_import_isolated's child. */
+int mr_import_worker_run(const char *path, const mr_refine_params *refine);
+int mr_cmd_import_worker(int argc, char **argv);
 
 #endif

@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "microray.h"
+#include "import_worker.h"
 #include "render_cmd.h"
 #include "schema_gen.h"
 
@@ -40,6 +41,8 @@ int main(int argc, char **argv)
         return mr_cmd_serve(argc - 2, argv + 2);
     if (!strcmp(cmd, "schema"))
         return mr_cmd_schema(argc - 2, argv + 2);
+    if (!strcmp(cmd, "import-worker")) /* not for people: the daemon's import child */
+        return mr_cmd_import_worker(argc - 2, argv + 2);
     if (!strcmp(cmd, "version") || !strcmp(cmd, "--version")) {
         printf("microrayd %s\n", MR_VERSION_STRING);
         return 0;

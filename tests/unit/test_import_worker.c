@@ -43,14 +43,23 @@ static uint8_t *blob_of(const mr_asset *a, size_t *n)
     return b;
 }
 
+static char worker_exe[2100]; /* the daemon's way: exec microrayd import-worker */
+
+static void same_import_as(const char *path, const mr_refine_params *refine, const char *exe);
+
 static void same_import(const char *path, const mr_refine_params *refine)
+{
+    same_import_as(path, refine, NULL);
+}
+
+static void same_import_as(const char *path, const mr_refine_params *refine, const char *exe)
 {
     mr_error err = {0};
     mr_asset *here = NULL, *there = NULL;
     mr_asset_stage stage;
     if (mr_cache_import(path, refine, &here, &stage, &err) < 0)
         fail_msg("in process: %s", err.msg);
-    mr_import_limits lim = {.memory_bytes = (size_t)1 << 30, .timeout_s = 120};
+    mr_import_limits lim = {.memory_bytes = (size_t)1 << 30, .timeout_s = 120, .worker_exe = exe};
     if (mr_import_isolated(path, path, refine, &lim, NULL, NULL, &there, &stage, &err) < 0)
         fail_msg("in a child: %s", err.msg);
     size_t na, nb;
@@ -71,6 +80,34 @@ static void test_same_as_in_process(void **state)
     mr_refine_params r = {.rounds = 1, .amplitude = 0.01f, .frequency = 4, .octaves = 2, .seed = 7};
     same_import(MODELS "/X/BCN_Epileptic.X", &r);
     same_import(MODELS "/OBJ/box.obj", NULL);
+}
+
+/* The same through exec of the real binary (what the daemon does): the
+ * result, the refine parameters on the command line (hex floats, so
+ * bit-exact), and the memory limit on a fresh image. */
+static void test_exec_mode(void **state)
+{
+    (void)state;
+    const char *b = getenv("MR_BUILD_DIR");
+    snprintf(worker_exe, sizeof worker_exe, "%s/microrayd", b ? b : "build");
+    same_import_as(MODELS "/X/BCN_Epileptic.X", NULL, worker_exe);
+    mr_refine_params r = {.rounds = 1, .amplitude = 0.01f, .frequency = 4.1f, .octaves = 2, .seed = 7};
+    same_import_as(MODELS "/X/BCN_Epileptic.X", &r, worker_exe);
+    mr_import_limits lim = {.memory_bytes = (size_t)64 << 20, .timeout_s = 120,
+                            .worker_exe = worker_exe};
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    mr_refine_params heavy = {.rounds = 5};
+    assert_int_equal(mr_import_isolated(MODELS "/X/BCN_Epileptic.X", "the dancer", &heavy, &lim,
+                                        NULL, NULL, &a, NULL, &err),
+                     MR_ERR_LIMIT);
+    assert_non_null(strstr(err.msg, "used more than 64.0 MiB"));
+    /* a binary that is not microrayd: the child's exec fails, and says so */
+    lim.worker_exe = "/nonexistent/microrayd";
+    assert_int_equal(mr_import_isolated(MODELS "/OBJ/box.obj", "box", NULL, &lim, NULL, NULL, &a,
+                                        NULL, &err),
+                     MR_ERR_IO);
+    assert_non_null(strstr(err.msg, "exit 127"));
 }
 
 static void test_broken_file_as_in_process(void **state)
@@ -267,6 +304,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_same_as_in_process),
+        cmocka_unit_test(test_exec_mode),
         cmocka_unit_test(test_broken_file_as_in_process),
         cmocka_unit_test(test_memory_limit),
         cmocka_unit_test(test_timeout),
