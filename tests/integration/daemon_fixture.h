@@ -7,7 +7,9 @@
 #define MR_TEST_DAEMON_FIXTURE_H
 
 #include <curl/curl.h>
+#include <sqlite3.h>
 #include <signal.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,6 +42,35 @@ static void fx_init_dirs(void)
     snprintf(fx_root, sizeof fx_root, "%s/root", fx_tmp);
     if (mkdir(fx_root, 0755) != 0)
         fail_msg("cannot create %s", fx_root);
+}
+
+/* Teardown's end: removes fx_tmp (a message if it cannot) and releases
+ * libcurl; whether the directory is gone. */
+static inline bool fx_cleanup_dirs(void)
+{
+    char cmd[400];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
+    bool removed = system(cmd) == 0;
+    if (!removed)
+        print_message("could not remove %s\n", fx_tmp);
+    curl_global_cleanup();
+    return removed;
+}
+
+/* The daemon's database in data_dir passes sqlite's integrity check (read
+ * with a connection of its own, the daemon stopped or not). */
+static inline void fx_assert_store_intact(const char *data_dir)
+{
+    char db_path[700];
+    snprintf(db_path, sizeof db_path, "%s/microray.sqlite", data_dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open_v2(db_path, &db, SQLITE_OPEN_READONLY, NULL), SQLITE_OK);
+    sqlite3_stmt *s = NULL;
+    assert_int_equal(sqlite3_prepare_v2(db, "PRAGMA integrity_check", -1, &s, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_step(s), SQLITE_ROW);
+    assert_string_equal((const char *)sqlite3_column_text(s, 0), "ok");
+    sqlite3_finalize(s);
+    sqlite3_close(db);
 }
 
 static void fx_sleep_ms(int ms)

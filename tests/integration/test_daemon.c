@@ -865,11 +865,8 @@ static int teardown(void **state)
 {
     (void)state;
     int st = daemon_stop(&D, SIGTERM);
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
-    if (system(cmd) != 0)
+    if (!fx_cleanup_dirs())
         return -1;
-    curl_global_cleanup();
     return st == 0 ? 0 : -1; /* a clean SIGTERM stop exits 0 */
 }
 

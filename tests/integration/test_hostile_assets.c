@@ -21,7 +21,6 @@
 
 #include <cJSON.h>
 #include <dirent.h>
-#include <sqlite3.h>
 #include <stdbool.h>
 
 #include "daemon_fixture.h"
@@ -43,11 +42,7 @@ static int teardown(void **state)
 {
     (void)state;
     int rc = daemon_stop(&D, SIGTERM);
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
-    if (system(cmd) != 0)
-        print_message("could not remove %s\n", fx_tmp);
-    curl_global_cleanup();
+    fx_cleanup_dirs();
     return rc == 0 ? 0 : -1;
 }
 
@@ -240,16 +235,7 @@ static void test_still_healthy(void **state)
     assert_int_equal(r.status, 200);
     http_free(&r);
     assert_true(mr_now() - t0 < 1.0);
-    char db_path[700];
-    snprintf(db_path, sizeof db_path, "%s/microray.sqlite", D.data);
-    sqlite3 *db = NULL;
-    assert_int_equal(sqlite3_open_v2(db_path, &db, SQLITE_OPEN_READONLY, NULL), SQLITE_OK);
-    sqlite3_stmt *s = NULL;
-    assert_int_equal(sqlite3_prepare_v2(db, "PRAGMA integrity_check", -1, &s, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_step(s), SQLITE_ROW);
-    assert_string_equal((const char *)sqlite3_column_text(s, 0), "ok");
-    sqlite3_finalize(s);
-    sqlite3_close(db);
+    fx_assert_store_intact(D.data);
 }
 
 int main(void)

@@ -43,11 +43,7 @@ static int teardown(void **state)
 {
     (void)state;
     int rc = daemon_stop(&A, SIGTERM);
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
-    if (system(cmd) != 0)
-        print_message("could not remove %s\n", fx_tmp);
-    curl_global_cleanup();
+    fx_cleanup_dirs();
     return rc == 0 ? 0 : -1;
 }
 

@@ -157,11 +157,7 @@ static int teardown(void **state)
 {
     (void)state;
     int a = daemon_stop(&S, SIGTERM), b = daemon_stop(&E, SIGTERM);
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", fx_tmp);
-    if (system(cmd) != 0)
-        print_message("could not remove %s\n", fx_tmp);
-    curl_global_cleanup();
+    fx_cleanup_dirs();
     return a == 0 && b == 0 ? 0 : -1;
 }
 
