@@ -1,13 +1,10 @@
 /*
- * import_worker.c - mr_import_isolated: fork, import in the child, read the
- * asset back (import_worker.h).
+ * import_worker.c - mr_import_isolated: start an import child (child.h),
+ * read the asset back (import_worker.h).
  *
- * Why fork and not exec: the child needs nothing but the importer, which
- * is in this very image, and fork works the same from the daemon and from
- * the test programs. After fork only the forking thread exists in the
- * child; it uses malloc (glibc makes that fork-safe), assimp and the
- * refiner, none of which take locks another daemon thread could have held,
- * and never touches sqlite, Embree or the log.
+ * The daemon's child execs `microrayd import-worker`, a fresh image with no
+ * lock a daemon thread could have held; single-threaded callers (tests,
+ * harnesses) may let the forked child import in the parent's image.
  *
  * The result travels as one message on a pipe: a header (status, failing
  * stage, message length, blob length), the message, the blob. The parent
@@ -19,6 +16,8 @@
 #define _GNU_SOURCE
 #include "import_worker.h"
 
+#include "child.h"
+
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -28,25 +27,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 
-#if defined(__SANITIZE_ADDRESS__)
-#define SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define SANITIZED 1
-#endif
-#endif
-#ifndef SANITIZED
-#define SANITIZED 0 /* ASan reserves terabytes of shadow: no address-space limit then */
-#endif
-
 #define POLL_MS 50
-#define RESULT_FD 3
+#define RESULT_FD MR_CHILD_FD
 
 typedef struct result_header {
     int32_t rc;
@@ -63,22 +50,6 @@ void mr_import_limits_default(mr_import_limits *out)
     size_t gib = (size_t)1 << 30;
     out->memory_bytes = quarter > gib ? quarter : gib;
     out->timeout_s = 300;
-}
-
-/* Pages of memory in use by a process, from /proc (field: 1 size, 2 resident). */
-static size_t statm_bytes(pid_t pid, int field)
-{
-    char path[64];
-    snprintf(path, sizeof path, "/proc/%d/statm", (int)pid);
-    FILE *f = fopen(path, "r");
-    if (!f)
-        return 0;
-    unsigned long v[2] = {0, 0};
-    int n = fscanf(f, "%lu %lu", &v[0], &v[1]);
-    fclose(f);
-    if (n != 2)
-        return 0;
-    return (size_t)v[field - 1] * (size_t)sysconf(_SC_PAGESIZE);
 }
 
 static bool write_all(int fd, const void *p, size_t n)
@@ -121,46 +92,15 @@ int mr_import_worker_run(const char *path, const mr_refine_params *refine)
     return ok ? 0 : 122;
 }
 
-/* After fork, in the child: only async-signal-safe calls until the exec
- * (the parent has many threads; any lock one of them held is held for
- * ever here). as_limit 0: no address-space limit. */
-static _Noreturn void child_main(int fd, const char *path, const mr_refine_params *refine,
-                                 const mr_import_limits *lim, rlim_t as_limit, pid_t parent,
-                                 char *const *argv)
+typedef struct fork_only {
+    const char *path;
+    const mr_refine_params *refine;
+} fork_only;
+
+static int import_here(void *user)
 {
-    /* die with the daemon; nothing inherited but the result pipe */
-    prctl(PR_SET_PDEATHSIG, SIGKILL);
-    if (getppid() != parent)
-        _exit(120);
-    if (dup2(fd, RESULT_FD) != RESULT_FD)
-        _exit(121);
-    close_range(RESULT_FD + 1, ~0u, 0);
-    /* a crash kills the child, so the parent sees the signal (not a
-     * handler the parent installed, nor a sanitizer's report and exit);
-     * the daemon's blocked stop signals are not the import's */
-    const int crash[] = {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT};
-    for (size_t i = 0; i < sizeof crash / sizeof *crash; i++)
-        signal(crash[i], SIG_DFL);
-    sigset_t none_blocked;
-    sigemptyset(&none_blocked);
-    sigprocmask(SIG_SETMASK, &none_blocked, NULL);
-    struct rlimit none = {0, 0};
-    setrlimit(RLIMIT_CORE, &none);
-    if (lim->timeout_s > 0) {
-        /* a backstop behind the parent's wall clock (SIGXCPU) */
-        rlim_t cpu = (rlim_t)ceil(lim->timeout_s) + 2;
-        struct rlimit r = {cpu, cpu + 1};
-        setrlimit(RLIMIT_CPU, &r);
-    }
-    if (as_limit) {
-        struct rlimit r = {as_limit, as_limit};
-        setrlimit(RLIMIT_AS, &r);
-    }
-    if (lim->worker_exe) {
-        execv(lim->worker_exe, argv);
-        _exit(127);
-    }
-    _exit(mr_import_worker_run(path, refine));
+    fork_only *f = user;
+    return mr_import_worker_run(f->path, f->refine);
 }
 
 typedef enum verdict { RAN, CANCELLED, TIMED_OUT, TOO_BIG } verdict;
@@ -197,23 +137,22 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
      * exec: 2 GiB covers them and the allocator's per-thread arenas),
      * with room for the import thread's stack */
     rlim_t as_limit = 0;
-    if (lim->memory_bytes && !SANITIZED) {
-        size_t base = lim->worker_exe ? (size_t)2 << 30 : statm_bytes(getpid(), 1);
+    if (lim->memory_bytes && !MR_SANITIZED) {
+        size_t base = lim->worker_exe ? (size_t)2 << 30 : mr_child_memory(getpid(), false);
         as_limit = (rlim_t)(base + MR_ASSET_IMPORT_STACK_BYTES + lim->memory_bytes);
     }
-    size_t rss_at_fork = lim->worker_exe ? 0 : statm_bytes(getpid(), 2);
-    pid_t parent = getpid();
-    fflush(NULL); /* nothing buffered is written twice */
-    pid_t pid = fork();
-    if (pid < 0) {
-        int e = errno;
-        close(fds[0]);
-        close(fds[1]);
-        return mr_error_set(err, MR_ERR_IO, "import of %s: fork: %s", label, strerror(e));
-    }
-    if (pid == 0)
-        child_main(fds[1], path, refine, lim, as_limit, parent, argv);
+    /* a backstop behind the parent's wall clock (SIGXCPU) */
+    mr_child_limits child = {.address_space = (size_t)as_limit,
+                             .cpu_seconds = lim->timeout_s > 0 ? (unsigned)ceil(lim->timeout_s) + 2 : 0};
+    size_t rss_at_fork = lim->worker_exe ? 0 : mr_child_memory(getpid(), true);
+    fork_only here = {.path = path, .refine = refine};
+    pid_t pid = mr_child_spawn(lim->worker_exe, argv, fds[1], &child, import_here, &here);
+    int spawn_errno = errno;
     close(fds[1]);
+    if (pid < 0) {
+        close(fds[0]);
+        return mr_error_set(err, MR_ERR_IO, "import of %s: fork: %s", label, strerror(spawn_errno));
+    }
 
     uint8_t *buf = NULL;
     size_t len = 0, cap = 0, peak = 0;
@@ -255,7 +194,7 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
             v = TIMED_OUT;
             break;
         }
-        size_t rss = statm_bytes(pid, 2);
+        size_t rss = mr_child_memory(pid, true);
         size_t grown = rss > rss_at_fork ? rss - rss_at_fork : 0;
         if (grown > peak)
             peak = grown;
@@ -267,9 +206,7 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
     close(fds[0]);
     if (v != RAN || read_failed)
         kill(pid, SIGKILL);
-    int status = 0;
-    while (waitpid(pid, &status, 0) < 0 && errno == EINTR)
-        ;
+    int status = mr_child_reap(pid);
 
     int rc = MR_OK;
     char limit[MR_BYTES_TEXT];
@@ -284,10 +221,11 @@ int mr_import_isolated(const char *path, const char *label, const mr_refine_para
         rc = mr_error_set(err, MR_ERR_LIMIT, "import of %s used more than %s of memory (the "
                           "daemon's --import-memory-mb)", label, limit);
     } else if (WIFSIGNALED(status)) {
-        int sig = WTERMSIG(status);
-        rc = mr_error_set(err, MR_ERR_FORMAT, "import of %s crashed the importer (%s%s%s)", label,
-                          sigabbrev_np(sig) ? "SIG" : "signal ", sigabbrev_np(sig) ? sigabbrev_np(sig) : "",
-                          sig == SIGKILL ? ", killed: out of memory?" : "");
+        char how[64];
+        mr_child_describe_exit(status, how, sizeof how);
+        rc = mr_error_set(err, MR_ERR_FORMAT, "import of %s crashed the importer (%s%s)", label,
+                          how + strlen("killed by "),
+                          WTERMSIG(status) == SIGKILL ? ", killed: out of memory?" : "");
     } else if (read_failed || !WIFEXITED(status) || WEXITSTATUS(status) != 0 || len < sizeof h) {
         rc = mr_error_set(err, MR_ERR_IO, "import of %s: the import process failed (exit %d)",
                           label, WIFEXITED(status) ? WEXITSTATUS(status) : -1);
