@@ -55,7 +55,8 @@ typedef enum mr_err {
     MR_ERR_CANCELLED = -7, /* the caller asked to stop */
     MR_ERR_NOT_FOUND = -8, /* a named thing (clip, joint, node, job, asset) does not exist */
     MR_ERR_CONFLICT = -9,  /* the request contradicts stored state (e.g. idempotency key reuse) */
-    MR_ERR_NO_SPACE = -10  /* a write failed for want of disk space (ENOSPC, EDQUOT, SQLITE_FULL) */
+    MR_ERR_NO_SPACE = -10, /* a write failed for want of disk space (ENOSPC, EDQUOT, SQLITE_FULL) */
+    MR_ERR_CRASHED = -11   /* the process doing the work died (a crash, a kill, a memory limit) */
 } mr_err;
 
 /* Where a failing call leaves its message. Callers own it (often on the stack). */

@@ -20,15 +20,14 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/resource.h>
 #include <sys/stat.h>
-#include <sys/syscall.h>
 #include <unistd.h>
 #include <time.h>
 
 #include "cache.h"
 #include "http.h"
 #include "import_worker.h"
+#include "render_proc.h"
 #include "space_guard.h"
 #include "job_json.h"
 #include "microray.h"
@@ -40,7 +39,7 @@
 #define MR_EVENT_QUEUE_MAX 1024
 #define MR_MAX_SUBSCRIBERS 64
 
-/* Nice value of render threads (HTTP threads keep 0). */
+/* Nice value of render worker processes (HTTP threads keep 0). */
 #define MR_WORKER_NICE 10
 
 /* Upper bounds (seconds) of the frame time histogram buckets in /metrics. */
@@ -76,10 +75,9 @@ struct mr_daemon {
     char **roots; /* realpath of each asset root */
     size_t root_count;
     mr_store *store;
-    mr_device *dev;
-    mr_cache *cache;
     mr_http *http;
     pthread_t *workers;
+    mr_render_proc **procs; /* one render slot (worker process) per worker thread */
     unsigned worker_count;
     mr_space_guard *space;        /* disk full: the queue pauses (space_guard.h) */
     pthread_t space_thread;
@@ -444,16 +442,9 @@ typedef struct job_run {
     mr_daemon *d;
     const char *id;
     const mr_job *job;
-    mr_frame_state *states; /* per frame, as stored when the run started */
     running_job *entry;
     size_t failed;
 } job_run;
-
-static bool run_wanted(void *user, size_t index)
-{
-    job_run *r = user;
-    return r->states[index] != MR_FRAME_DONE && r->states[index] != MR_FRAME_FAILED;
-}
 
 static void run_frame_started(void *user, size_t index)
 {
@@ -468,7 +459,13 @@ static bool run_stop_requested(void *user)
     pthread_mutex_lock(&r->d->lock);
     bool stop = r->d->stopping;
     pthread_mutex_unlock(&r->d->lock);
-    return stop || atomic_load(&r->entry->cancel) || mr_space_guard_full(r->d->space, NULL, 0);
+    return stop || mr_space_guard_full(r->d->space, NULL, 0);
+}
+
+static bool run_cancelled(void *user)
+{
+    job_run *r = user;
+    return atomic_load(&r->entry->cancel);
 }
 
 void mr_daemon_no_space(mr_daemon *d, const char *why)
@@ -507,55 +504,45 @@ static void *space_main(void *p)
     return NULL;
 }
 
-static int run_frame_done(void *user, size_t index, const mr_film *film, mr_frame_stats *st,
-                          mr_error *err)
+/* A frame the render worker finished (its stats as JSON and its EXR
+ * file): stored, published and counted. */
+static int run_frame_done(void *user, size_t index, const char *stats_json, const uint8_t *exr,
+                          size_t exr_size, mr_error *err)
 {
     job_run *r = user;
     mr_daemon *d = r->d;
-    double t0 = mr_now();
-    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
-                        .scene_diagonal = st->scene_diagonal};
-    snprintf(meta.job, sizeof meta.job, "%s", r->id);
-    mr_exr_options opt = r->job->output.exr;
-    opt.threads = d->cfg.render_threads;
-    uint8_t *data = NULL;
-    size_t size = 0;
-    int rc = mr_exr_write_memory(&data, &size, film, &opt, &meta, err);
-    st->encode_s = mr_now() - t0;
-    if (rc == MR_OK) {
-        /* the record carries the final totals (the worker adds encode after us) */
-        mr_frame_stats rec = *st;
-        rec.total_s += rec.encode_s;
-        char *json = mr_frame_stats_json(&rec);
-        /* Checked and stored under d->lock, which a cancel takes too: once a
-         * cancel has answered, no frame of the job is recorded any more. */
-        pthread_mutex_lock(&d->lock);
-        if (!json)
-            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
-        else if (atomic_load(&r->entry->cancel))
-            rc = mr_error_set(err, MR_ERR_CANCELLED, "frame %zu cancelled", index);
-        else
-            rc = mr_store_frame_done(d->store, r->id, index, data, size, json, err);
-        pthread_mutex_unlock(&d->lock);
-        if (rc == MR_OK) {
-            publish(d, r->id, "frame", json, false);
-            pthread_mutex_lock(&d->lock);
-            d->frames_rendered++;
-            d->rays += st->rays;
-            d->frame_seconds_sum += rec.total_s;
-            size_t b = 0;
-            while (b < N_BUCKETS && rec.total_s > FRAME_BUCKETS[b])
-                b++;
-            d->buckets[b]++;
-            pthread_mutex_unlock(&d->lock);
-            log_line(d, "job=%s frame %zu/%zu %.3fs (trace %.3f encode %.3f) %.1f Mrays/s%s", r->id,
-                     index + 1, r->job->frame_count, rec.total_s, st->trace_s, st->encode_s,
-                     st->mrays_per_s, st->assets_cached && !st->assets_loaded ? " cache hit" : "");
-        }
-        free(json);
-    }
-    free(data);
-    return rc;
+    mr_frame_stats st = {0};
+    cJSON *parsed = cJSON_Parse(stats_json);
+    if (!parsed)
+        return mr_error_set(err, MR_ERR_FORMAT, "frame %zu: the render worker sent stats that "
+                            "are not JSON", index);
+    mr_frame_stats_from_json(parsed, index, &st);
+    cJSON_Delete(parsed);
+    /* Checked and stored under d->lock, which a cancel takes too: once a
+     * cancel has answered, no frame of the job is recorded any more. */
+    int rc;
+    pthread_mutex_lock(&d->lock);
+    if (atomic_load(&r->entry->cancel))
+        rc = mr_error_set(err, MR_ERR_CANCELLED, "frame %zu cancelled", index);
+    else
+        rc = mr_store_frame_done(d->store, r->id, index, exr, exr_size, stats_json, err);
+    pthread_mutex_unlock(&d->lock);
+    if (rc < 0)
+        return rc;
+    publish(d, r->id, "frame", stats_json, false);
+    pthread_mutex_lock(&d->lock);
+    d->frames_rendered++;
+    d->rays += st.rays;
+    d->frame_seconds_sum += st.total_s;
+    size_t b = 0;
+    while (b < N_BUCKETS && st.total_s > FRAME_BUCKETS[b])
+        b++;
+    d->buckets[b]++;
+    pthread_mutex_unlock(&d->lock);
+    log_line(d, "job=%s frame %zu/%zu %.3fs (trace %.3f encode %.3f) %.1f Mrays/s%s", r->id,
+             index + 1, r->job->frame_count, st.total_s, st.trace_s, st.encode_s, st.mrays_per_s,
+             st.assets_cached && !st.assets_loaded ? " cache hit" : "");
+    return MR_OK;
 }
 
 /* What a client reads of an error (a job's or a frame's) names files of
@@ -615,99 +602,6 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     return MR_FRAME_RETRY;
 }
 
-/* The cache key of an asset's file: its content hash (uploaded assets are
- * named by it already; server-side files are hashed). The cache adds the
- * import parameters ("refine") to it. The path was checked to be a regular
- * file when the job was resolved, but the file may have been replaced
- * since: O_NONBLOCK, so a FIFO planted under an asset root cannot block the
- * worker forever waiting for a writer, and anything but a regular file is
- * refused (the worker names the asset's field). */
-static int asset_key(const mr_asset_desc *a, char key[65], mr_error *err)
-{
-    if (a->id) {
-        snprintf(key, 65, "%s", a->id);
-        return MR_OK;
-    }
-    int fd = open(a->path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0)
-        return mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
-    int rc = MR_OK;
-    struct stat st;
-    if (fstat(fd, &st) != 0) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: %s", a->path, strerror(errno));
-        goto done;
-    }
-    if (!S_ISREG(st.st_mode)) {
-        rc = mr_error_set(err, MR_ERR_IO, "%s: not a regular file (a FIFO, device or directory "
-                          "cannot be an asset)", a->path);
-        goto done;
-    }
-    mr_sha256 h;
-    mr_sha256_init(&h);
-    char buf[1 << 16];
-    for (;;) {
-        ssize_t n = read(fd, buf, sizeof buf);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n < 0) {
-            rc = mr_error_set(err, MR_ERR_IO, "%s: read error: %s", a->path, strerror(errno));
-            goto done;
-        }
-        if (n == 0)
-            break;
-        mr_sha256_update(&h, buf, (size_t)n);
-    }
-    uint8_t digest[32];
-    mr_sha256_final(&h, digest);
-    mr_hex_encode(digest, sizeof digest, key);
-done:
-    close(fd);
-    return rc;
-}
-
-/* A cache miss imports in a child process under the daemon's limits
- * (import_worker.h); a cancel or a stop kills it at once. */
-typedef struct isolated_import {
-    job_run *run;
-    char label[96]; /* an upload by its id, not by its path in the data directory */
-} isolated_import;
-
-static int import_in_child(void *user, const char *path, const mr_refine_params *refine,
-                           mr_asset **out, mr_asset_stage *stage, mr_error *err)
-{
-    isolated_import *ii = user;
-    const mr_daemon_config *cfg = &ii->run->d->cfg;
-    mr_import_limits lim = {.memory_bytes = cfg->import_memory, .timeout_s = cfg->import_timeout_s,
-                            .worker_exe = cfg->import_exe};
-    return mr_import_isolated(path, ii->label, refine, &lim, run_stop_requested, ii->run, out,
-                              stage, err);
-}
-
-static int run_acquire(void *user, const mr_asset_desc *desc, mr_asset **out, bool *hit,
-                       double *saved_s, mr_asset_stage *stage, mr_error *err)
-{
-    job_run *r = user;
-    char key[65];
-    int rc = asset_key(desc, key, err);
-    if (rc < 0)
-        return rc;
-    isolated_import ii = {.run = r};
-    if (desc->id)
-        snprintf(ii.label, sizeof ii.label, "asset %.64s", desc->id);
-    else
-        snprintf(ii.label, sizeof ii.label, "%s", desc->path);
-    mr_cache_importer importer = {.import = import_in_child, .user = &ii};
-    return mr_cache_acquire_refined(r->d->cache, key, desc->path,
-                                    desc->refine ? &desc->refine_params : NULL, &importer, out, hit,
-                                    saved_s, stage, err);
-}
-
-static void run_release(void *user, mr_asset *asset)
-{
-    job_run *r = user;
-    mr_cache_release(r->d->cache, asset);
-}
-
 /* Moves a running job to its final state, unless a cancel (or anything
  * else) changed it meanwhile: under d->lock, like every state change a
  * request makes, so the last word is the user's. */
@@ -727,16 +621,17 @@ static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const c
         log_line(d, "job=%s: could not record state %s: %s", id, mr_job_state_name(state), err.msg);
 }
 
-/* Renders one claimed job to the end (or until cancelled or stopped). */
-static void run_job(mr_daemon *d, const char *id, running_job *entry)
+/* Renders one claimed job to the end (or until cancelled or stopped) in
+ * the render worker process of slot proc (render_proc.h). */
+static void run_job(mr_daemon *d, mr_render_proc *proc, const char *id, running_job *entry)
 {
     mr_error err = {0};
     char *json = NULL;
     mr_job *job = NULL;
     mr_frame_record *frames = NULL;
     size_t frame_count = 0;
-    mr_frame_state *states = NULL;
-    mr_job_stats stats = {0};
+    uint8_t *wanted = NULL;
+    const char **paths = NULL;
     mr_job_error jerr;
     char pointer[512];
     int rc;
@@ -755,34 +650,39 @@ static void run_job(mr_daemon *d, const char *id, running_job *entry)
     }
     if ((rc = mr_store_frames(d->store, id, &frames, &frame_count, &err)) < 0)
         goto fail;
-    states = calloc(job->frame_count, sizeof *states);
-    if (!states) {
+    wanted = calloc(job->frame_count, 1);
+    paths = calloc(job->asset_count ? job->asset_count : 1, sizeof *paths);
+    if (!wanted || !paths) {
         rc = mr_error_set(&err, MR_ERR_NOMEM, "out of memory");
         goto fail;
     }
-    for (size_t i = 0; i < frame_count && i < job->frame_count; i++)
-        states[frames[i].index < job->frame_count ? frames[i].index : i] = frames[i].state;
-
-    job_run run = {.d = d, .id = id, .job = job, .states = states, .entry = entry};
-    for (size_t i = 0; i < job->frame_count; i++)
-        run.failed += states[i] == MR_FRAME_FAILED;
-    mr_worker_io io = {
+    job_run run = {.d = d, .id = id, .job = job, .entry = entry};
+    memset(wanted, 1, job->frame_count);
+    for (size_t i = 0; i < frame_count; i++) {
+        size_t f = frames[i].index;
+        if (f < job->frame_count && (frames[i].state == MR_FRAME_DONE || frames[i].state == MR_FRAME_FAILED)) {
+            wanted[f] = 0; /* done before a restart, or given up */
+            run.failed += frames[i].state == MR_FRAME_FAILED;
+        }
+    }
+    for (size_t i = 0; i < job->asset_count; i++)
+        paths[i] = job->assets[i].path;
+    mr_render_session session = {
         .user = &run,
-        .frame_done = run_frame_done,
-        .wanted = run_wanted,
+        .job_id = id,
+        .job_json = json,
+        .job_json_len = strlen(json),
+        .paths = paths,
+        .path_count = job->asset_count,
+        .wanted = wanted,
+        .frame_count = job->frame_count,
         .frame_started = run_frame_started,
+        .frame_done = run_frame_done,
         .frame_failed = run_frame_failed,
         .stop_requested = run_stop_requested,
-        .cancel = &entry->cancel,
-        .acquire_asset = run_acquire,
-        .release_asset = run_release,
-        /* derived data (bakes, voxelisations) is kept in DATA/<kind>/
-         * (created on the first store), so a job after a restart, or
-         * another job on the same asset, skips deriving it again */
-        .cache_dir = d->data_dir,
-        .memory_budget = d->cfg.job_memory,
+        .cancelled = run_cancelled,
     };
-    rc = mr_worker_run(d->dev, job, &io, &stats, &err);
+    rc = mr_render_proc_run(proc, &session, &err);
     if (rc == MR_ERR_CANCELLED) {
         if (!atomic_load(&entry->cancel)) {
             /* the daemon is stopping or the disk is full: leave the job to
@@ -812,22 +712,27 @@ fail:
     log_line(d, "job=%s failed: %s", id, err.msg);
     publish_state(d, id);
 done:
-    mr_job_stats_free(&stats);
-    free(states);
+    free(paths);
+    free(wanted);
     mr_frame_records_free(frames, frame_count);
     mr_job_free(job);
     free(json);
 }
 
+typedef struct worker_slot {
+    mr_daemon *d;
+    mr_render_proc *proc;
+} worker_slot;
+
 static void *worker_main(void *p)
 {
-    mr_daemon *d = p;
-    /* Renders run at a lower CPU priority than the HTTP threads: on Linux
-     * nice is per thread and inherited by the threads a render starts, so
-     * status requests get a core within a scheduler tick even while every
-     * core renders (measured: p99 27 ms -> see README). Best effort. */
-    if (setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), MR_WORKER_NICE) != 0 && !d->cfg.quiet)
-        fprintf(stderr, "microrayd: note: could not lower the render priority: %s\n", strerror(errno));
+    mr_daemon *d = ((worker_slot *)p)->d;
+    mr_render_proc *proc = ((worker_slot *)p)->proc;
+    free(p);
+    /* the worker process starts now, so the first job does not wait for it */
+    mr_error err;
+    if (mr_render_proc_start(proc, &err) < 0)
+        log_line(d, "worker: %s (tried again at the next job)", err.msg);
     for (;;) {
         pthread_mutex_lock(&d->lock);
         if (d->stopping) {
@@ -835,7 +740,6 @@ static void *worker_main(void *p)
             return NULL;
         }
         char id[MR_JOB_ID_LEN + 1];
-        mr_error err;
         /* a full disk pauses the queue (space_main resumes it) */
         int rc = mr_space_guard_full(d->space, NULL, 0) ? MR_ERR_NOT_FOUND
                                                         : mr_store_job_claim(d->store, id, &err);
@@ -861,7 +765,7 @@ static void *worker_main(void *p)
         d->running = entry;
         pthread_mutex_unlock(&d->lock);
 
-        run_job(d, id, entry);
+        run_job(d, proc, id, entry);
 
         pthread_mutex_lock(&d->lock);
         for (running_job **r = &d->running; *r; r = &(*r)->next)
@@ -882,8 +786,16 @@ char *mr_daemon_metrics(mr_daemon *d)
     uint64_t counts[5] = {0};
     mr_error err;
     mr_store_job_counts(d->store, counts, &err);
-    mr_cache_stats cs;
-    mr_cache_stats_get(d->cache, &cs);
+    mr_cache_stats cs = {0};
+    for (unsigned i = 0; i < d->worker_count; i++) {
+        mr_cache_stats one;
+        mr_render_proc_cache_stats(d->procs[i], &one);
+        cs.hits += one.hits;
+        cs.misses += one.misses;
+        cs.bytes += one.bytes;
+        cs.entries += one.entries;
+        cs.saved_s += one.saved_s;
+    }
     size_t cap = 8192, len = 0;
     char *out = malloc(cap);
     if (!out)
@@ -971,6 +883,8 @@ static void apply_defaults(mr_daemon_config *c)
         c->import_timeout_s = lim.timeout_s;
     if (!c->job_memory)
         c->job_memory = mr_job_memory_default();
+    if (!c->worker_exe)
+        c->worker_exe = "/proc/self/exe";
     if (!c->disk_reserve)
         c->disk_reserve = (size_t)64 << 20;
     if (!c->max_connections)
@@ -1029,16 +943,39 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         goto fail;
     if (rc > 0)
         log_line(d, "resuming %d job%s interrupted by a stop or crash", rc, rc == 1 ? "" : "s");
-    if ((rc = mr_device_new(d->cfg.render_threads, &d->dev, err)) < 0 ||
-        (rc = mr_cache_new(d->cfg.cache_bytes, &d->cache, err)) < 0)
-        goto fail;
     d->workers = calloc(d->cfg.workers, sizeof *d->workers);
-    if (!d->workers) {
+    d->procs = calloc(d->cfg.workers, sizeof *d->procs);
+    if (!d->workers || !d->procs) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
         goto fail;
     }
+    mr_render_proc_config pc = {
+        .exe = d->cfg.worker_exe,
+        .threads = d->cfg.render_threads,
+        .cache_bytes = d->cfg.cache_bytes,
+        /* derived data (bakes, voxelisations) is kept in DATA/<kind>/
+         * (created on the first store), so a job after a restart, or
+         * another job on the same asset, skips deriving it again */
+        .data_dir = d->data_dir,
+        .job_memory = d->cfg.job_memory,
+        .import_memory = d->cfg.import_memory,
+        .import_timeout_s = d->cfg.import_timeout_s,
+        .memory_limit = mr_render_proc_memory_limit(d->cfg.job_memory, d->cfg.cache_bytes),
+        /* renders run at a lower CPU priority than the HTTP threads, so
+         * status requests get a core within a scheduler tick even while
+         * every core renders */
+        .nice = MR_WORKER_NICE,
+    };
     for (unsigned i = 0; i < d->cfg.workers; i++) {
-        if (pthread_create(&d->workers[i], NULL, worker_main, d) != 0) {
+        worker_slot *slot = malloc(sizeof *slot);
+        if (!slot || (rc = mr_render_proc_new(&pc, &d->procs[i], err)) < 0) {
+            free(slot);
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+            goto fail;
+        }
+        *slot = (worker_slot){.d = d, .proc = d->procs[i]};
+        if (pthread_create(&d->workers[i], NULL, worker_main, slot) != 0) {
+            free(slot);
             rc = mr_error_set(err, MR_ERR_NOMEM, "cannot start render worker %u", i);
             goto fail;
         }
@@ -1078,8 +1015,10 @@ void mr_daemon_stop(mr_daemon *d)
     if (d->space_thread_started)
         pthread_join(d->space_thread, NULL);
     free(d->workers);
-    mr_cache_free(d->cache);
-    mr_device_free(d->dev);
+    if (d->procs)
+        for (unsigned i = 0; i < d->cfg.workers; i++)
+            mr_render_proc_free(d->procs[i]);
+    free(d->procs);
     mr_store_close(d->store);
     mr_space_guard_close(d->space);
     for (mr_event_sub *s = d->subs, *next; s; s = next) {

@@ -32,8 +32,9 @@ typedef struct mr_daemon_config {
     unsigned per_ip_connections;  /* default 128 */
     size_t import_memory;         /* an import's own memory; default a quarter of RAM, >= 1 GiB */
     double import_timeout_s;      /* an import's wall clock; default 300 */
-    const char *import_exe;       /* the microrayd binary imports exec (mr_import_limits.
-                                     worker_exe); NULL: the forked child imports itself */
+    const char *worker_exe;       /* the microrayd binary render workers run (render_proc.h;
+                                     they exec it again for each import, import_worker.h);
+                                     default /proc/self/exe, this very binary */
     size_t job_memory;            /* a job's geometry (mr_renderer_options.memory_budget);
                                      default half of RAM */
     size_t disk_reserve;          /* bytes kept free for a full disk (space_guard.h); default 64 MiB */

@@ -6,6 +6,7 @@
 
 #include "microray.h"
 #include "import_worker.h"
+#include "render_proc.h"
 #include "render_cmd.h"
 #include "schema_gen.h"
 
@@ -43,6 +44,8 @@ int main(int argc, char **argv)
         return mr_cmd_schema(argc - 2, argv + 2);
     if (!strcmp(cmd, "import-worker")) /* not for people: the daemon's import child */
         return mr_cmd_import_worker(argc - 2, argv + 2);
+    if (!strcmp(cmd, "render-worker")) /* not for people: the daemon's render worker */
+        return mr_cmd_render_worker(argc - 2, argv + 2);
     if (!strcmp(cmd, "version") || !strcmp(cmd, "--version")) {
         printf("microrayd %s\n", MR_VERSION_STRING);
         return 0;

@@ -188,14 +188,6 @@ int mr_cmd_serve(int argc, char **argv)
     }
     cfg.listen_host = host;
     cfg.data_dir = data;
-    /* imports exec this very binary (import_worker.h: a fresh image, no
-     * lock of the daemon's threads inherited) */
-    char exe[4096];
-    ssize_t exe_len = readlink("/proc/self/exe", exe, sizeof exe - 1);
-    if (exe_len > 0) {
-        exe[exe_len] = '\0';
-        cfg.import_exe = exe;
-    }
     cfg.asset_roots = roots;
     /* Read once here; they live (like cfg) until the process ends. */
     char *token = NULL, *cert = NULL, *key = NULL;

@@ -54,6 +54,7 @@ const char *mr_err_name(int code)
     case MR_ERR_NOT_FOUND: return "MR_ERR_NOT_FOUND";
     case MR_ERR_CONFLICT: return "MR_ERR_CONFLICT";
     case MR_ERR_NO_SPACE: return "MR_ERR_NO_SPACE";
+    case MR_ERR_CRASHED: return "MR_ERR_CRASHED";
     default: return "MR_ERR_UNKNOWN";
     }
 }
