@@ -883,6 +883,8 @@ static void apply_defaults(mr_daemon_config *c)
         c->import_timeout_s = lim.timeout_s;
     if (!c->job_memory)
         c->job_memory = mr_job_memory_default();
+    if (!c->worker_memory)
+        c->worker_memory = mr_render_proc_memory_limit(c->job_memory, c->cache_bytes);
     if (!c->worker_exe)
         c->worker_exe = "/proc/self/exe";
     if (!c->disk_reserve)
@@ -960,7 +962,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         .job_memory = d->cfg.job_memory,
         .import_memory = d->cfg.import_memory,
         .import_timeout_s = d->cfg.import_timeout_s,
-        .memory_limit = mr_render_proc_memory_limit(d->cfg.job_memory, d->cfg.cache_bytes),
+        .memory_limit = d->cfg.worker_memory,
         /* renders run at a lower CPU priority than the HTTP threads, so
          * status requests get a core within a scheduler tick even while
          * every core renders */

@@ -37,6 +37,8 @@ typedef struct mr_daemon_config {
                                      default /proc/self/exe, this very binary */
     size_t job_memory;            /* a job's geometry (mr_renderer_options.memory_budget);
                                      default half of RAM */
+    size_t worker_memory;         /* a render worker's resident memory, beyond which it is
+                                     killed; default job_memory + cache_bytes + 1 GiB */
     size_t disk_reserve;          /* bytes kept free for a full disk (space_guard.h); default 64 MiB */
     unsigned max_connections;     /* connection budget; default 1024 */
     unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */

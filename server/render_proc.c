@@ -223,8 +223,7 @@ static int worker_died(mr_render_proc *p, wait_result w, phase ph, long frame, m
         char limit[MR_BYTES_TEXT];
         mr_format_bytes(p->cfg.memory_limit, limit, sizeof limit);
         return mr_error_set(err, MR_ERR_LIMIT, "the render worker used more than %s of memory %s "
-                            "(the daemon's --job-memory-mb and --cache-mb, plus 1 GiB)", limit,
-                            where);
+                            "(the daemon's --worker-memory-mb)", limit, where);
     }
     char how[64];
     mr_child_describe_exit(status, how, sizeof how);

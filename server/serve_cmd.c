@@ -3,7 +3,8 @@
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
- *                   [--job-memory-mb N] [--import-memory-mb N] [--import-timeout S]
+ *                   [--job-memory-mb N] [--worker-memory-mb N]
+ *                   [--import-memory-mb N] [--import-timeout S]
  *                   [--disk-reserve-mb N]
  *                   [--max-connections N] [--per-ip-connections N] [--request-timeout S]
  *                   [--token-file F] [--insecure] [--tls-cert F --tls-key F]
@@ -32,7 +33,8 @@ static void usage(void)
 {
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
-                    "                       [--job-memory-mb N] [--import-memory-mb N] [--import-timeout S]\n"
+                    "                       [--job-memory-mb N] [--worker-memory-mb N]\n"
+                    "                       [--import-memory-mb N] [--import-timeout S]\n"
                     "                       [--disk-reserve-mb N]\n"
                     "                       [--max-connections N] [--per-ip-connections N]\n"
                     "                       [--request-timeout S] [--token-file FILE] [--insecure]\n"
@@ -163,6 +165,8 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.disk_reserve = (size_t)n << 20;
         } else if (!strcmp(a, "--job-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {
             cfg.job_memory = (size_t)n << 20;
+        } else if (!strcmp(a, "--worker-memory-mb") && parse_uint(v, 64, 1u << 24, &n)) {
+            cfg.worker_memory = (size_t)n << 20;
         } else if (!strcmp(a, "--import-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {
             cfg.import_memory = (size_t)n << 20;
         } else if (!strcmp(a, "--import-timeout") && parse_uint(v, 1, 86400, &n)) {

@@ -6,7 +6,9 @@
 #ifndef MR_TEST_DAEMON_FIXTURE_H
 #define MR_TEST_DAEMON_FIXTURE_H
 
+#include <cJSON.h>
 #include <curl/curl.h>
+#include <dirent.h>
 #include <sqlite3.h>
 #include <signal.h>
 #include <stdbool.h>
@@ -28,8 +30,9 @@ typedef struct daemon_proc {
 } daemon_proc;
 
 /* fx_root: a second, writable asset root of every daemon (fx_tmp/root),
- * for tests that plant files where jobs may name them. */
-static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256], fx_root[300];
+ * for tests that plant files where jobs may name them. fx_daemon_exe: the
+ * binary daemon_start runs as `serve` (empty: the build's microrayd). */
+static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256], fx_root[300], fx_daemon_exe[2100];
 
 static void fx_init_dirs(void)
 {
@@ -89,7 +92,10 @@ static void daemon_start_args(daemon_proc *d, const char *data_name, const char 
     char port_file[600], bin[2100];
     snprintf(port_file, sizeof port_file, "%s/%s.port", fx_tmp, data_name);
     unlink(port_file);
-    snprintf(bin, sizeof bin, "%s/microrayd", fx_build_dir);
+    if (fx_daemon_exe[0])
+        snprintf(bin, sizeof bin, "%s", fx_daemon_exe);
+    else
+        snprintf(bin, sizeof bin, "%s/microrayd", fx_build_dir);
     d->pid = fork();
     if (d->pid == 0) {
         FILE *log = freopen(d->log, "a", stderr);
@@ -120,6 +126,49 @@ static void daemon_start_args(daemon_proc *d, const char *data_name, const char 
         fx_sleep_ms(100);
     }
     fail_msg("microrayd did not start within 30 s (see %s)", d->log);
+}
+
+/* The pid of the daemon's render worker process (a child running
+ * `render-worker`), waiting up to 30 s for one; fails the test if none. */
+static inline pid_t fx_render_worker_pid(const daemon_proc *d)
+{
+    for (int i = 0; i < 600; i++) {
+        /* the worker is a child of a worker thread, not of the main one:
+         * look at every task's children */
+        char path[400], dir[64];
+        snprintf(dir, sizeof dir, "/proc/%d/task", (int)d->pid);
+        DIR *td = opendir(dir);
+        struct dirent *e;
+        while (td && (e = readdir(td))) {
+            if (e->d_name[0] == '.')
+                continue;
+            snprintf(path, sizeof path, "/proc/%d/task/%s/children", (int)d->pid, e->d_name);
+            FILE *f = fopen(path, "r");
+            int child;
+            while (f && fscanf(f, "%d", &child) == 1) {
+                char cmd[64], line[256] = "";
+                snprintf(cmd, sizeof cmd, "/proc/%d/cmdline", child);
+                FILE *c = fopen(cmd, "r");
+                size_t n = c ? fread(line, 1, sizeof line - 1, c) : 0;
+                if (c)
+                    fclose(c);
+                /* argv is NUL-separated: "microrayd\0render-worker\0..." */
+                size_t first = strnlen(line, n);
+                if (first + 1 < n && !strcmp(line + first + 1, "render-worker")) {
+                    fclose(f);
+                    closedir(td);
+                    return child;
+                }
+            }
+            if (f)
+                fclose(f);
+        }
+        if (td)
+            closedir(td);
+        fx_sleep_ms(50);
+    }
+    fail_msg("the daemon (pid %d) has no render worker", (int)d->pid);
+    return -1;
 }
 
 static inline void daemon_start(daemon_proc *d, const char *data_name) { daemon_start_args(d, data_name, NULL); }
@@ -218,6 +267,80 @@ static inline char *fx_slurp(const char *path, size_t *len)
     if (len)
         *len = got;
     return s;
+}
+
+/* The small skinned job with a different output size per test, so jobs never
+ * share an idempotency or cache story by accident. */
+static inline char *fx_small_job(int frames_end_q, int width, const char *extra)
+{
+    char *s = malloc(4096);
+    snprintf(s, 4096,
+             "{\"name\":\"t\",%s\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+             "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"fps\":4,\"start\":0,\"end\":%g},"
+             "\"output\":{\"width\":%d,\"height\":%d,\"samples\":1}}",
+             extra ? extra : "", frames_end_q / 4.0, width, width * 9 / 16);
+    return s;
+}
+
+static inline void fx_submit(const daemon_proc *d, const char *job, char id[64])
+{
+    http_result r = http(d, "POST", "/v1/jobs", job, strlen(job), NULL);
+    if (r.status != 202)
+        fail_msg("submit: %ld %s", r.status, r.body);
+    cJSON *j = cJSON_Parse(r.body);
+    assert_non_null(j);
+    snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
+    char want[128];
+    snprintf(want, sizeof want, "/v1/jobs/%s", id);
+    assert_string_equal(r.location, want);
+    cJSON_Delete(j);
+    http_free(&r);
+}
+
+/* Polls GET /v1/jobs/{id} until the job reaches a terminal state. */
+static inline cJSON *fx_wait_job(const daemon_proc *d, const char *id, int timeout_s)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    char last[4096] = "";
+    for (int i = 0; i < timeout_s * 10; i++) {
+        http_result r = http(d, "GET", path, NULL, 0, NULL);
+        assert_int_equal(r.status, 200);
+        cJSON *j = cJSON_Parse(r.body);
+        snprintf(last, sizeof last, "%s", r.body);
+        http_free(&r);
+        assert_non_null(j);
+        const char *st = cJSON_GetObjectItem(j, "state")->valuestring;
+        if (!strcmp(st, "succeeded") || !strcmp(st, "failed") || !strcmp(st, "canceled"))
+            return j;
+        cJSON_Delete(j);
+        fx_sleep_ms(100);
+    }
+    fail_msg("job %s did not finish in %d s; last seen: %s (daemon log %s)", id, timeout_s, last,
+             d->log);
+    return NULL;
+}
+
+/* Polls until at least n frames of the job are done (at most 30 s). */
+static inline void fx_wait_frames_done(const daemon_proc *d, const char *id, int n)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    int done = 0;
+    for (int i = 0; i < 1500 && done < n; i++) {
+        http_result r = http(d, "GET", path, NULL, 0, NULL);
+        cJSON *j = cJSON_Parse(r.body);
+        assert_non_null(j);
+        done = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
+        cJSON_Delete(j);
+        http_free(&r);
+        if (done < n)
+            fx_sleep_ms(20);
+    }
+    if (done < n)
+        fail_msg("job %s: %d frames done after 30 s, waited for %d", id, done, n);
 }
 
 #endif

@@ -24,80 +24,6 @@
 
 static daemon_proc D;
 
-/* The small skinned job with a different output size per test, so jobs never
- * share an idempotency or cache story by accident. */
-static char *small_job(int frames_end_q, int width, const char *extra)
-{
-    char *s = malloc(4096);
-    snprintf(s, 4096,
-             "{\"name\":\"t\",%s\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
-             "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
-             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
-             "\"frames\":{\"fps\":4,\"start\":0,\"end\":%g},"
-             "\"output\":{\"width\":%d,\"height\":%d,\"samples\":1}}",
-             extra ? extra : "", frames_end_q / 4.0, width, width * 9 / 16);
-    return s;
-}
-
-static void submit(const char *job, char id[64])
-{
-    http_result r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
-    if (r.status != 202)
-        fail_msg("submit: %ld %s", r.status, r.body);
-    cJSON *j = cJSON_Parse(r.body);
-    assert_non_null(j);
-    snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
-    char want[128];
-    snprintf(want, sizeof want, "/v1/jobs/%s", id);
-    assert_string_equal(r.location, want);
-    cJSON_Delete(j);
-    http_free(&r);
-}
-
-/* Polls GET /v1/jobs/{id} until the job reaches a terminal state. */
-static cJSON *wait_job(const char *id, int timeout_s)
-{
-    char path[128];
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    char last[4096] = "";
-    for (int i = 0; i < timeout_s * 10; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        assert_int_equal(r.status, 200);
-        cJSON *j = cJSON_Parse(r.body);
-        snprintf(last, sizeof last, "%s", r.body);
-        http_free(&r);
-        assert_non_null(j);
-        const char *st = cJSON_GetObjectItem(j, "state")->valuestring;
-        if (!strcmp(st, "succeeded") || !strcmp(st, "failed") || !strcmp(st, "canceled"))
-            return j;
-        cJSON_Delete(j);
-        fx_sleep_ms(100);
-    }
-    fail_msg("job %s did not finish in %d s; last seen: %s (daemon log %s)", id, timeout_s, last,
-             D.log);
-    return NULL;
-}
-
-/* Polls until at least n frames of the job are done (at most 30 s). */
-static void wait_frames_done(const char *id, int n)
-{
-    char path[128];
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    int done = 0;
-    for (int i = 0; i < 1500 && done < n; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        cJSON *j = cJSON_Parse(r.body);
-        assert_non_null(j);
-        done = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
-        cJSON_Delete(j);
-        http_free(&r);
-        if (done < n)
-            fx_sleep_ms(20);
-    }
-    if (done < n)
-        fail_msg("job %s: %d frames done after 30 s, waited for %d", id, done, n);
-}
-
 static const char *state_of(cJSON *j) { return cJSON_GetObjectItem(j, "state")->valuestring; }
 
 static void expect_problem(const char *method, const char *path, const char *body, size_t len,
@@ -140,9 +66,9 @@ static void test_health_and_metrics(void **state)
 static void test_submit_poll_fetch_and_cache(void **state)
 {
     (void)state;
-    char *job = small_job(3, 160, NULL), id[64];
-    submit(job, id);
-    cJSON *j = wait_job(id, 120);
+    char *job = fx_small_job(3, 160, NULL), id[64];
+    fx_submit(&D, job, id);
+    cJSON *j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "succeeded");
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 4);
     cJSON_Delete(j);
@@ -186,9 +112,9 @@ static void test_submit_poll_fetch_and_cache(void **state)
 
     /* A second job on the same asset: the import comes from the cache. */
     free(job);
-    job = small_job(1, 128, NULL);
-    submit(job, id);
-    j = wait_job(id, 120);
+    job = fx_small_job(1, 128, NULL);
+    fx_submit(&D, job, id);
+    j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "succeeded");
     cJSON_Delete(j);
     snprintf(path, sizeof path, "/v1/jobs/%s/frames/0/stats", id);
@@ -224,8 +150,8 @@ static size_t sse_collect(char *p, size_t size, size_t n, void *user)
 static void test_events_stream(void **state)
 {
     (void)state;
-    char *job = small_job(2, 144, NULL), id[64];
-    submit(job, id);
+    char *job = fx_small_job(2, 144, NULL), id[64];
+    fx_submit(&D, job, id);
     free(job);
     char url[256];
     snprintf(url, sizeof url, "%s/v1/jobs/%s/events", D.base, id);
@@ -259,7 +185,7 @@ static void test_client_submit_wait_fetch(void **state)
     snprintf(job_path, sizeof job_path, "%s/client-job.json", fx_tmp);
     snprintf(out, sizeof out, "%s/client-out", fx_tmp);
     snprintf(log, sizeof log, "%s/client.log", fx_tmp);
-    char *job = small_job(2, 112, NULL);
+    char *job = fx_small_job(2, 112, NULL);
     FILE *f = fopen(job_path, "w");
     fputs(job, f);
     fclose(f);
@@ -318,8 +244,8 @@ static void test_upload_and_render_by_id(void **state)
              "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
              "\"frames\":{\"times\":[0]},\"output\":{\"width\":96,\"height\":54}}",
              asset_id);
-    submit(job, id);
-    j = wait_job(id, 120);
+    fx_submit(&D, job, id);
+    j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "succeeded");
     cJSON_Delete(j);
 }
@@ -358,8 +284,8 @@ static void test_upload_bomb_fails_the_job(void **state)
              "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,3],\"target\":[0,0,0]}]},"
              "\"frames\":{\"times\":[0]},\"output\":{\"width\":32,\"height\":18}}",
              asset_id);
-    submit(job, id);
-    j = wait_job(id, 120);
+    fx_submit(&D, job, id);
+    j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "failed");
     const char *why = cJSON_GetObjectItem(j, "error")->valuestring;
     char want[160];
@@ -379,10 +305,10 @@ static void test_bad_requests(void **state)
     (void)state;
     const char *bad_json = "{\"assets\": ";
     expect_problem("POST", "/v1/jobs", bad_json, strlen(bad_json), NULL, 400, NULL);
-    char *job = small_job(1, 64, "\"name\":7,");
+    char *job = fx_small_job(1, 64, "\"name\":7,");
     expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/name");
     free(job);
-    job = small_job(1, 64, "\"colour\":[1,1,1],");
+    job = fx_small_job(1, 64, "\"colour\":[1,1,1],");
     expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/colour");
     free(job);
     const char *traversal =
@@ -454,7 +380,7 @@ static void test_fifo_asset_refused(void **state)
              "\"b\":{\"path\":\"swapped.x\"}},"
              "\"objects\":[{\"asset\":\"slow\"},{\"asset\":\"b\"}],%s", tail);
     char id[64], path[128];
-    submit(job, id);
+    fx_submit(&D, job, id);
     snprintf(path, sizeof path, "/v1/jobs/%s", id);
     const char *st = "queued";
     cJSON *j = NULL;
@@ -510,22 +436,22 @@ static void test_cancel_retry_delete_idempotency(void **state)
 {
     (void)state;
     /* a long job to cancel while it runs */
-    char *job = small_job(400, 320, "\"priority\":5,"), id[64], path[256];
-    submit(job, id);
+    char *job = fx_small_job(400, 320, "\"priority\":5,"), id[64], path[256];
+    fx_submit(&D, job, id);
     free(job);
-    wait_frames_done(id, 2); /* it really renders */
+    fx_wait_frames_done(&D, id, 2); /* it really renders */
     snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
     http_result r = http(&D, "POST", path, "", 0, NULL);
     assert_int_equal(r.status, 202);
     http_free(&r);
-    cJSON *j = wait_job(id, 30);
+    cJSON *j = fx_wait_job(&D, id, 30);
     assert_string_equal(state_of(j), "canceled");
     int done_at_cancel = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
     cJSON_Delete(j);
     /* the frame in progress stopped within a tile: no frame finishes after the cancel */
     fx_sleep_ms(1000);
     snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    j = wait_job(id, 5);
+    j = fx_wait_job(&D, id, 5);
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, done_at_cancel);
     assert_true(done_at_cancel < 401);
     cJSON_Delete(j);
@@ -548,7 +474,7 @@ static void test_cancel_retry_delete_idempotency(void **state)
     r = http(&D, "POST", path, "", 0, NULL);
     assert_int_equal(r.status, 202);
     http_free(&r);
-    j = wait_job(id, 30);
+    j = fx_wait_job(&D, id, 30);
     assert_string_equal(state_of(j), "canceled");
     cJSON_Delete(j);
 
@@ -564,7 +490,7 @@ static void test_cancel_retry_delete_idempotency(void **state)
     assert_int_not_equal(stat(dir, &st), 0);
 
     /* idempotent resubmission */
-    job = small_job(1, 80, NULL);
+    job = fx_small_job(1, 80, NULL);
     char id2[64], id3[64];
     r = http(&D, "POST", "/v1/jobs", job, strlen(job), "Idempotency-Key: test-key-1");
     assert_int_equal(r.status, 202);
@@ -580,10 +506,10 @@ static void test_cancel_retry_delete_idempotency(void **state)
     http_free(&r);
     assert_string_equal(id2, id3);
     free(job);
-    job = small_job(1, 96, NULL);
+    job = fx_small_job(1, 96, NULL);
     expect_problem("POST", "/v1/jobs", job, strlen(job), "Idempotency-Key: test-key-1", 422, NULL);
     free(job);
-    j = wait_job(id2, 60);
+    j = fx_wait_job(&D, id2, 60);
     cJSON_Delete(j);
 }
 
@@ -602,8 +528,8 @@ static void test_failed_frames_and_retry(void **state)
         "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
         "\"frames\":{\"times\":[0,1]},\"output\":{\"width\":32,\"height\":18}}";
     char id[64], path[256];
-    submit(job, id);
-    cJSON *j = wait_job(id, 60);
+    fx_submit(&D, job, id);
+    cJSON *j = fx_wait_job(&D, id, 60);
     assert_string_equal(state_of(j), "failed");
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "failed")->valueint, 2);
     assert_non_null(strstr(cJSON_GetObjectItem(j, "error")->valuestring, "2 frames failed"));
@@ -619,7 +545,7 @@ static void test_failed_frames_and_retry(void **state)
     assert_int_equal(r.status, 202);
     assert_non_null(strstr(r.body, "\"frames_requeued\":2"));
     http_free(&r);
-    j = wait_job(id, 60);
+    j = fx_wait_job(&D, id, 60);
     assert_string_equal(state_of(j), "failed"); /* it fails the same way again */
     cJSON_Delete(j);
     snprintf(path, sizeof path, "/v1/jobs/%s/frames/0", id);
@@ -644,13 +570,13 @@ static void interrupt_and_resume(int sig, const char *data, const char *log_says
     daemon_proc saved = D;
     daemon_start(&D, data);
     /* heavy enough (640x360, 4 samples, shadows) that the stop lands mid-job */
-    char *job = small_job(47, 640, NULL), id[64];
+    char *job = fx_small_job(47, 640, NULL), id[64];
     char *spp = strstr(job, "\"samples\":1");
     assert_non_null(spp);
     spp[10] = '4';
-    submit(job, id);
+    fx_submit(&D, job, id);
     free(job);
-    wait_frames_done(id, 3);
+    fx_wait_frames_done(&D, id, 3);
     assert_int_equal(daemon_stop(&D, sig), sig == SIGKILL ? -SIGKILL : 0);
     ino_t inodes[48] = {0};
     int before = 0;
@@ -666,7 +592,7 @@ static void interrupt_and_resume(int sig, const char *data, const char *log_says
     assert_true(before >= 3);
     assert_true(before < 48); /* the stop interrupted the job */
     daemon_start(&D, data); /* same data directory */
-    cJSON *j = wait_job(id, 300);
+    cJSON *j = fx_wait_job(&D, id, 300);
     if (strcmp(state_of(j), "succeeded") != 0) {
         char *log = fx_slurp(D.log, NULL);
         fail_msg("the resumed job ended %s: %s\ndaemon log:\n%.6000s", state_of(j),
@@ -731,13 +657,13 @@ static void test_crash_loop_gives_up(void **state)
     daemon_start(&D, "poison");
     /* one frame slow enough (1280x720, 512 samples: about 10 s here) to
      * be killed mid-frame */
-    char *job = small_job(0, 1280, "\"max_retries\":1,"), id[64], slow[4200];
+    char *job = fx_small_job(0, 1280, "\"max_retries\":1,"), id[64], slow[4200];
     char *spp = strstr(job, "\"samples\":1}");
     assert_non_null(spp);
     *spp = '\0';
     snprintf(slow, sizeof slow, "%s\"samples\":512}}", job);
     free(job);
-    submit(slow, id);
+    fx_submit(&D, slow, id);
     for (int death = 1; death <= 2; death++) {
         wait_inside_first_frame(id);
         assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
@@ -748,7 +674,7 @@ static void test_crash_loop_gives_up(void **state)
         http_free(&h);
         print_message("[ timing   ] restart %d to /healthz: %.2f s\n", death, mr_now() - t0);
     }
-    cJSON *j = wait_job(id, 30);
+    cJSON *j = fx_wait_job(&D, id, 30);
     assert_string_equal(state_of(j), "failed");
     const char *why = cJSON_GetObjectItem(j, "error")->valuestring;
     if (!strstr(why, "stopped 2 times in a row"))
@@ -814,8 +740,8 @@ static void check_kept_across_restarts(const char *object, const char *sub, cons
              sub, object);
     char id[64], path[1024];
     struct stat st0, st1;
-    submit(job, id);
-    cJSON *j = wait_job(id, 120);
+    fx_submit(&D, job, id);
+    cJSON *j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "succeeded");
     cJSON_Delete(j);
     cache_file(D.data, sub, ext, path, sizeof path, &st0);
@@ -823,8 +749,8 @@ static void check_kept_across_restarts(const char *object, const char *sub, cons
 
     assert_int_equal(daemon_stop(&D, SIGTERM), 0);
     daemon_start(&D, sub);
-    submit(job, id);
-    j = wait_job(id, 120);
+    fx_submit(&D, job, id);
+    j = fx_wait_job(&D, id, 120);
     assert_string_equal(state_of(j), "succeeded");
     assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 2);
     cJSON_Delete(j);

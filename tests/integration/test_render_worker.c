@@ -1,0 +1,241 @@
+/*
+ * test_render_worker.c - renders run in a worker process the daemon keeps
+ * (server/render_proc.h, issue 12), so that a job cannot take the daemon
+ * down with it. Against the real daemon on loopback, each test kills,
+ * crashes or starves the render worker as a job would and checks that
+ *   - the daemon keeps answering (/healthz at once) and its store is intact;
+ *   - a frame in progress counts one failed attempt, with how the worker
+ *     ended, and the job goes on in a new worker to a complete result;
+ *   - a death while the job is being prepared fails the job, saying so;
+ *   - a worker over --worker-memory-mb is killed and the frame fails as
+ *     over a limit (not retried);
+ *   - a cancel kills the worker at once, and the next job gets a new one.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+
+#include <signal.h>
+#include <string.h>
+
+#include "daemon_fixture.h"
+#include "util/clock.h"
+
+static daemon_proc D;
+
+/* A job of slow frames (640x360, 64 samples: seconds each here), so a
+ * test can act inside a frame. */
+static char *slow_job(int frames, const char *extra)
+{
+    char *s = malloc(4096);
+    snprintf(s, 4096,
+             "{\"name\":\"rw\",%s\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+             "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
+             "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"fps\":4,\"start\":0,\"end\":%g},"
+             "\"output\":{\"width\":640,\"height\":360,\"samples\":64}}",
+             extra ? extra : "", (frames - 1) / 4.0);
+    return s;
+}
+
+static void assert_healthy(void)
+{
+    double t0 = mr_now();
+    http_result h = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    assert_int_equal(h.status, 200);
+    http_free(&h);
+    assert_true(mr_now() - t0 < 1.0);
+}
+
+/* Polls the job until one of its frames is running (the worker is inside
+ * a frame, past importing and preparing). */
+static void wait_frame_running(const char *id)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    for (int i = 0; i < 3000; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        bool running = r.status == 200 && strstr(r.body, "\"state\":\"running\",\"retries\"");
+        http_free(&r);
+        if (running)
+            return;
+        fx_sleep_ms(10);
+    }
+    fail_msg("job %s: no frame started within 30 s", id);
+}
+
+static cJSON *frame_state(cJSON *job, int index)
+{
+    cJSON *f = cJSON_GetArrayItem(cJSON_GetObjectItem(job, "frame_states"), index);
+    assert_non_null(f);
+    return f;
+}
+
+static bool process_gone(pid_t pid)
+{
+    char path[64];
+    snprintf(path, sizeof path, "/proc/%d/stat", (int)pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return true;
+    char state = '?';
+    int n = fscanf(f, "%*d %*s %c", &state);
+    fclose(f);
+    return n == 1 && state == 'Z';
+}
+
+/* A worker killed inside a frame (SIGKILL: what the kernel's OOM killer
+ * does; then SIGSEGV: a crash) costs that frame one attempt each; the job
+ * completes in new workers, every frame once. */
+static void test_worker_death_mid_frame_is_retried(void **state)
+{
+    (void)state;
+    char *job = slow_job(2, "\"max_retries\":2,"), id[64];
+    fx_submit(&D, job, id);
+    free(job);
+    const int sigs[2] = {SIGKILL, SIGSEGV};
+    for (int k = 0; k < 2; k++) {
+        wait_frame_running(id);
+        pid_t worker = fx_render_worker_pid(&D);
+        assert_int_equal(kill(worker, sigs[k]), 0);
+        assert_healthy();
+        for (int i = 0; i < 200 && fx_render_worker_pid(&D) == worker; i++)
+            fx_sleep_ms(10);
+        assert_true(fx_render_worker_pid(&D) != worker); /* a new worker took over */
+    }
+    cJSON *j = fx_wait_job(&D, id, 300);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded");
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 2);
+    /* both deaths landed in frame 0 (the slow one): two failed attempts */
+    cJSON *f0 = frame_state(j, 0);
+    assert_int_equal(cJSON_GetObjectItem(f0, "retries")->valueint, 2);
+    assert_int_equal(cJSON_GetObjectItem(frame_state(j, 1), "retries")->valueint, 0);
+    cJSON_Delete(j);
+    char *log = fx_slurp(D.log, NULL);
+    assert_non_null(log);
+    if (!strstr(log, "the render worker was killed by SIGKILL (out of memory?) while rendering frame 0") ||
+        !strstr(log, "the render worker was killed by SIGSEGV while rendering frame 0"))
+        fail_msg("the daemon log does not say how the worker died:\n%s", log);
+    free(log);
+    fx_assert_store_intact(D.data);
+}
+
+/* Killed while the job is prepared (stopped before it could import, then
+ * killed): the job fails saying where, and the next job renders. */
+static void test_worker_death_while_preparing_fails_the_job(void **state)
+{
+    (void)state;
+    pid_t worker = fx_render_worker_pid(&D);
+    assert_int_equal(kill(worker, SIGSTOP), 0);
+    char *job = slow_job(1, NULL), id[64];
+    fx_submit(&D, job, id);
+    free(job);
+    /* the daemon has handed it the job: it is running */
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    for (int i = 0; i < 500; i++) {
+        http_result r = http(&D, "GET", path, NULL, 0, NULL);
+        bool running = strstr(r.body, "\"state\":\"running\"") != NULL;
+        http_free(&r);
+        if (running)
+            break;
+        fx_sleep_ms(10);
+    }
+    assert_int_equal(kill(worker, SIGKILL), 0);
+    cJSON *j = fx_wait_job(&D, id, 60);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "failed");
+    const char *why = cJSON_GetObjectItem(j, "error")->valuestring;
+    if (!strstr(why, "the render worker was killed by SIGKILL") || !strstr(why, "while preparing the job"))
+        fail_msg("error: %s", why);
+    cJSON_Delete(j);
+    assert_healthy();
+    char *quick = fx_small_job(0, 64, NULL);
+    fx_submit(&D, quick, id);
+    free(quick);
+    j = fx_wait_job(&D, id, 60);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded");
+    cJSON_Delete(j);
+}
+
+/* A cancel kills the worker at once (well within a second, mid-frame of
+ * a frame that takes seconds); no frame of the job is stored after it. */
+static void test_cancel_kills_the_worker(void **state)
+{
+    (void)state;
+    char *job = slow_job(2, NULL), id[64];
+    fx_submit(&D, job, id);
+    free(job);
+    wait_frame_running(id);
+    pid_t worker = fx_render_worker_pid(&D);
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    double t0 = mr_now();
+    http_result r = http(&D, "POST", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 202);
+    http_free(&r);
+    while (!process_gone(worker) && mr_now() - t0 < 5)
+        fx_sleep_ms(5);
+    double gone = mr_now() - t0;
+    print_message("[ cancel   ] worker gone %.3f s after the cancel was answered\n", gone);
+    assert_true(process_gone(worker));
+    assert_true(gone < 1.0);
+    cJSON *j = fx_wait_job(&D, id, 30);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "canceled");
+    assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint, 0);
+    cJSON_Delete(j);
+    assert_healthy();
+}
+
+/* --worker-memory-mb: a worker that grows past it is killed; the frame
+ * fails as over a limit, once (retrying would only repeat it), and the
+ * daemon goes on. */
+static void test_worker_memory_limit(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    const char *extra[] = {"--worker-memory-mb", "160", NULL};
+    daemon_start_args(&D, "memory", extra);
+    /* 4096 x 2304: a film of 4096 x 2304 x 40 bytes (377 MB) */
+    char *job = fx_small_job(0, 4096, "\"max_retries\":3,"), id[64];
+    fx_submit(&D, job, id);
+    free(job);
+    cJSON *j = fx_wait_job(&D, id, 120);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "failed");
+    char *text = cJSON_PrintUnformatted(j);
+    if (!strstr(text, "the render worker used more than 160.0 MiB of memory"))
+        fail_msg("job: %s", text);
+    free(text);
+    cJSON_Delete(j);
+    assert_healthy();
+    fx_assert_store_intact(D.data);
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    fx_init_dirs();
+    daemon_start(&D, "data");
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    fx_assert_store_intact(D.data);
+    return fx_cleanup_dirs() ? 0 : -1;
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_worker_death_mid_frame_is_retried),
+        cmocka_unit_test(test_worker_death_while_preparing_fails_the_job),
+        cmocka_unit_test(test_cancel_kills_the_worker),
+        cmocka_unit_test(test_worker_memory_limit),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
