@@ -98,8 +98,11 @@ static void daemon_start_args(daemon_proc *d, const char *data_name, const char 
         snprintf(bin, sizeof bin, "%s/microrayd", fx_build_dir);
     d->pid = fork();
     if (d->pid == 0) {
+        /* both to the log: a daemon left running by a failed test must
+         * not hold the test's output open */
         FILE *log = freopen(d->log, "a", stderr);
-        (void)log;
+        FILE *out = freopen(d->log, "a", stdout);
+        (void)log, (void)out;
         const char *argv[64] = {"microrayd", "serve", "--listen", "127.0.0.1:0", "--data", d->data,
                                 "--asset-root", "/usr/share/assimp/models", "--asset-root", fx_root,
                                 "--threads", "2", "--port-file", port_file};
@@ -179,6 +182,7 @@ static int daemon_stop(daemon_proc *d, int sig)
     kill(d->pid, sig);
     int st = 0;
     waitpid(d->pid, &st, 0);
+    d->pid = 0;
     return WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
 }
 
