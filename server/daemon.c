@@ -963,6 +963,7 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         .import_memory = d->cfg.import_memory,
         .import_timeout_s = d->cfg.import_timeout_s,
         .memory_limit = d->cfg.worker_memory,
+        .frame_timeout_s = d->cfg.frame_timeout_s,
         /* renders run at a lower CPU priority than the HTTP threads, so
          * status requests get a core within a scheduler tick even while
          * every core renders */

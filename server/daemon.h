@@ -39,6 +39,8 @@ typedef struct mr_daemon_config {
                                      default half of RAM */
     size_t worker_memory;         /* a render worker's resident memory, beyond which it is
                                      killed; default job_memory + cache_bytes + 1 GiB */
+    double frame_timeout_s;       /* a frame's (and a job's preparation's) wall clock in a
+                                     render worker; 0: none (the default) */
     size_t disk_reserve;          /* bytes kept free for a full disk (space_guard.h); default 64 MiB */
     unsigned max_connections;     /* connection budget; default 1024 */
     unsigned request_timeout_s;   /* request head deadline, body grace; default 10 */

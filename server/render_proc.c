@@ -177,14 +177,16 @@ int mr_render_proc_pid(mr_render_proc *p)
 /* Where the worker is in the job: what its death means. */
 typedef enum phase { PREPARING, IN_FRAME, BETWEEN } phase;
 
-typedef enum wait_result { GOT_MESSAGE, CANCELLED, STOPPED, DIED, TOO_BIG } wait_result;
+typedef enum wait_result { GOT_MESSAGE, CANCELLED, STOPPED, DIED, TOO_BIG, TOO_LONG } wait_result;
 
 /* Waits for the worker's next message, watching the session's cancel and
- * stop, and the worker's memory. */
+ * stop, the worker's memory and the deadline (mr_now(); 0: none). */
 static wait_result wait_message(mr_render_proc *p, const mr_render_session *s, bool let_finish,
-                                mr_msg *m, mr_error *err)
+                                double deadline, mr_msg *m, mr_error *err)
 {
     for (;;) {
+        if (deadline > 0 && mr_now() > deadline)
+            return TOO_LONG;
         if (s->cancelled && s->cancelled(s->user))
             return CANCELLED;
         /* a frame in progress finishes (and a worker told to stop ends the
@@ -219,6 +221,14 @@ static int worker_died(mr_render_proc *p, wait_result w, phase ph, long frame, m
         snprintf(where, sizeof where, "while rendering frame %ld", frame);
     else
         snprintf(where, sizeof where, "%s", phase_words(ph));
+    if (w == TOO_LONG) {
+        if (ph == IN_FRAME)
+            return mr_error_set(err, MR_ERR_LIMIT, "frame %ld took longer than %g s (the daemon's "
+                                "--frame-timeout)", frame, p->cfg.frame_timeout_s);
+        return mr_error_set(err, MR_ERR_LIMIT, "preparing the job (importing assets, deriving "
+                            "data, building the scene) took longer than %g s (the daemon's "
+                            "--frame-timeout)", p->cfg.frame_timeout_s);
+    }
     if (w == TOO_BIG) {
         char limit[MR_BYTES_TEXT];
         mr_format_bytes(p->cfg.memory_limit, limit, sizeof limit);
@@ -284,12 +294,14 @@ int mr_render_proc_run(mr_render_proc *p, const mr_render_session *s, mr_error *
             return worker_died(p, DIED, PREPARING, -1, err);
         phase ph = PREPARING;
         bool stop_sent = false;
+        /* the deadline of the preparation, then of each frame */
+        double limit = p->cfg.frame_timeout_s, deadline = limit > 0 ? mr_now() + limit : 0;
         long frame = -1;
         uint32_t type = 0, index = 0; /* of the message in hand */
         wait_result w;
         mr_msg m;
         mr_error e = {0};
-        while ((w = wait_message(p, s, ph == IN_FRAME || stop_sent, &m, &e)) == GOT_MESSAGE) {
+        while ((w = wait_message(p, s, ph == IN_FRAME || stop_sent, deadline, &m, &e)) == GOT_MESSAGE) {
             bool valid = m.index < s->frame_count;
             type = m.type;
             index = m.index;
@@ -299,6 +311,7 @@ int mr_render_proc_run(mr_render_proc *p, const mr_render_session *s, mr_error *
                     goto protocol;
                 ph = IN_FRAME;
                 frame = m.index;
+                deadline = limit > 0 ? mr_now() + limit : 0;
                 if (s->frame_started)
                     s->frame_started(s->user, m.index);
                 break;
@@ -329,6 +342,7 @@ int mr_render_proc_run(mr_render_proc *p, const mr_render_session *s, mr_error *
                     stop_sent = true;
                 }
                 ph = BETWEEN;
+                deadline = 0;
                 mr_msg_free(&m);
                 if (reply(p, type == MR_MSG_FRAME ? MR_MSG_ACK : MR_MSG_DECISION, frc, flags,
                           frc < 0 ? fe.msg : NULL, &e) < 0) {

@@ -42,6 +42,8 @@ typedef struct mr_render_proc_config {
     size_t import_memory;     /* mr_import_limits of the worker's imports */
     double import_timeout_s;
     size_t memory_limit;      /* the worker's resident memory at which it is killed; 0: none */
+    double frame_timeout_s;   /* a frame, or the preparation of a job, that takes longer is
+                                 killed and fails as over a limit; 0: none */
     int nice;                 /* CPU niceness of the worker */
 } mr_render_proc_config;
 

@@ -319,12 +319,10 @@ int mr_cmd_render_worker(int argc, char **argv)
 {
     worker_ctx c = {.fd = MR_CHILD_FD};
     size_t threads = 0, cache_bytes = 0;
-    bool ok = true;
-    for (int i = 0; i < argc && ok; i++) {
-        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (!v)
-            ok = false;
-        else if (!strcmp(a, "--threads"))
+    bool ok = argc % 2 == 0; /* --flag value pairs */
+    for (int i = 0; i + 1 < argc && ok; i += 2) {
+        const char *a = argv[i], *v = argv[i + 1];
+        if (!strcmp(a, "--threads"))
             ok = parse_size(v, &threads) && threads <= MR_MAX_THREADS;
         else if (!strcmp(a, "--cache-bytes"))
             ok = parse_size(v, &cache_bytes);
@@ -340,7 +338,6 @@ int mr_cmd_render_worker(int argc, char **argv)
             c.import.worker_exe = v;
         else
             ok = false;
-        i++;
     }
     struct stat st;
     if (!ok || !c.data_dir || fstat(MR_CHILD_FD, &st) != 0 || !S_ISSOCK(st.st_mode)) {

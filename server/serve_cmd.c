@@ -3,7 +3,7 @@
  *
  *   microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...
  *                   [--workers N] [--threads N] [--http-threads N] [--cache-mb N]
- *                   [--job-memory-mb N] [--worker-memory-mb N]
+ *                   [--job-memory-mb N] [--worker-memory-mb N] [--frame-timeout S]
  *                   [--import-memory-mb N] [--import-timeout S]
  *                   [--disk-reserve-mb N]
  *                   [--max-connections N] [--per-ip-connections N] [--request-timeout S]
@@ -33,7 +33,7 @@ static void usage(void)
 {
     fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
                     "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
-                    "                       [--job-memory-mb N] [--worker-memory-mb N]\n"
+                    "                       [--job-memory-mb N] [--worker-memory-mb N] [--frame-timeout S]\n"
                     "                       [--import-memory-mb N] [--import-timeout S]\n"
                     "                       [--disk-reserve-mb N]\n"
                     "                       [--max-connections N] [--per-ip-connections N]\n"
@@ -169,6 +169,8 @@ int mr_cmd_serve(int argc, char **argv)
             cfg.worker_memory = (size_t)n << 20;
         } else if (!strcmp(a, "--import-memory-mb") && parse_uint(v, 16, 1u << 24, &n)) {
             cfg.import_memory = (size_t)n << 20;
+        } else if (!strcmp(a, "--frame-timeout") && parse_uint(v, 1, 7 * 86400, &n)) {
+            cfg.frame_timeout_s = (double)n;
         } else if (!strcmp(a, "--import-timeout") && parse_uint(v, 1, 86400, &n)) {
             cfg.import_timeout_s = (double)n;
         } else if (!strcmp(a, "--max-connections") && parse_uint(v, 16, 1u << 20, &n)) {

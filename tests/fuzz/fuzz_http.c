@@ -45,6 +45,8 @@
 #include <unistd.h>
 
 #include "daemon.h"
+#include "import_worker.h"
+#include "render_proc.h"
 #include "fuzz_tmp.h"
 
 #define ANSWER_TIMEOUT_MS 20000
@@ -70,7 +72,12 @@ static void cleanup(void)
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
-    (void)argc, (void)argv;
+    /* The daemon's render worker (and its import children) exec this very
+     * program (/proc/self/exe): run as that, not as the fuzzer. */
+    if (*argc >= 2 && !strcmp((*argv)[1], "render-worker"))
+        exit(mr_cmd_render_worker(*argc - 2, *argv + 2));
+    if (*argc >= 2 && !strcmp((*argv)[1], "import-worker"))
+        exit(mr_cmd_import_worker(*argc - 2, *argv + 2));
     signal(SIGPIPE, SIG_IGN);
     if (fuzz_tmp_make("fuzz-http", data_dir, sizeof data_dir) != 0)
         die("mkdtemp");

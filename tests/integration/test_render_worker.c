@@ -9,6 +9,7 @@
  *   - a death while the job is being prepared fails the job, saying so;
  *   - a worker over --worker-memory-mb is killed and the frame fails as
  *     over a limit (not retried);
+ *   - a frame over --frame-timeout is killed and fails, once;
  *   - a cancel kills the worker at once, and the next job gets a new one.
  */
 #include <setjmp.h>
@@ -213,6 +214,32 @@ static void test_worker_memory_limit(void **state)
     D = saved;
 }
 
+/* --frame-timeout: a frame that takes longer is killed with its worker
+ * and fails as over the limit, once. */
+static void test_frame_timeout(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    const char *extra[] = {"--frame-timeout", "1", NULL};
+    daemon_start_args(&D, "timeout", extra);
+    char *job = slow_job(1, "\"max_retries\":3,"), id[64];
+    fx_submit(&D, job, id);
+    free(job);
+    double t0 = mr_now();
+    cJSON *j = fx_wait_job(&D, id, 120);
+    assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "failed");
+    cJSON *f0 = frame_state(j, 0);
+    const char *why = cJSON_GetObjectItem(f0, "error")->valuestring;
+    if (!strstr(why, "frame 0 took longer than 1 s (the daemon's --frame-timeout)"))
+        fail_msg("frame error: %s", why);
+    assert_int_equal(cJSON_GetObjectItem(f0, "retries")->valueint, 1); /* not retried */
+    cJSON_Delete(j);
+    print_message("[ timeout  ] job failed %.2f s after submission\n", mr_now() - t0);
+    assert_healthy();
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -236,6 +263,7 @@ int main(void)
         cmocka_unit_test(test_worker_death_while_preparing_fails_the_job),
         cmocka_unit_test(test_cancel_kills_the_worker),
         cmocka_unit_test(test_worker_memory_limit),
+        cmocka_unit_test(test_frame_timeout),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
