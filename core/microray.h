@@ -813,6 +813,13 @@ typedef struct mr_job {
     mr_output_desc output;
 } mr_job;
 
+/* Refuses (MR_ERR_LIMIT) a job whose objects surely need more than budget
+ * bytes of geometry, from their parameters alone (each kind's memory
+ * floor: svo instances, say), before anything is imported or allocated;
+ * pointer receives the field of the object with the largest floor
+ * ("/objects/3/svo/instances"). budget 0: no limit. */
+int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_error *err);
+
 /* Frees everything the job owns, then the job. NULL is fine. */
 void mr_job_free(mr_job *job);
 

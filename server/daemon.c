@@ -348,7 +348,8 @@ int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *ide
         snprintf(pointer, 512, "%s", jerr.pointer);
         return mr_error_set(err, rc, "%s", jerr.message);
     }
-    if ((rc = resolve_assets(d, job, pointer, err)) == MR_OK) {
+    if ((rc = mr_job_check_memory(job, d->cfg.job_memory, pointer, err)) == MR_OK &&
+        (rc = resolve_assets(d, job, pointer, err)) == MR_OK) {
         char hash[65];
         mr_sha256_hex(body, len, hash);
         rc = mr_store_job_create(d->store, body, len, job->name, job->frame_count, job->priority,

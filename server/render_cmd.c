@@ -217,6 +217,12 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
+    char pointer[512];
+    if ((rc = mr_job_check_memory(job, memory_budget, pointer, &err)) < 0) {
+        fprintf(stderr, "microrayd: %s: invalid job at '%s': %s\n", job_path, pointer, err.msg);
+        status = exit_status(rc);
+        goto done;
+    }
     if ((rc = resolve_asset_paths(job, job_path, &err)) < 0 || (rc = mr_fs_make_dirs(out_dir, "output directory", &err)) < 0 ||
         (rc = mr_device_new(threads, &dev, &err)) < 0) {
         fprintf(stderr, "microrayd: %s\n", err.msg);

@@ -3,6 +3,7 @@
  * The registry is registry.c. */
 #include "kinds/kind.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -14,6 +15,34 @@ size_t mr_kind_stat_count(const mr_kind *kind) { return kind ? kind->stat_count 
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)
 {
     return kind && i < kind->stat_count ? &kind->stats[i] : NULL;
+}
+
+int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_error *err)
+{
+    pointer[0] = '\0';
+    if (!budget)
+        return MR_OK;
+    size_t total = 0, largest = 0, worst = 0;
+    for (size_t i = 0; i < job->object_count; i++) {
+        const mr_kind *k = job->objects[i].kind;
+        size_t floor = k && k->memory_floor ? k->memory_floor(job->objects[i].params) : 0;
+        total = floor > SIZE_MAX - total ? SIZE_MAX : total + floor;
+        if (floor > largest) {
+            largest = floor;
+            worst = i;
+        }
+    }
+    if (total <= budget)
+        return MR_OK;
+    const mr_kind *k = job->objects[worst].kind;
+    snprintf(pointer, 512, "/objects/%zu/%s/%s", worst, k->name, k->memory_field);
+    char need[MR_BYTES_TEXT], most[MR_BYTES_TEXT], cap[MR_BYTES_TEXT];
+    mr_format_bytes(total, need, sizeof need);
+    mr_format_bytes(largest, most, sizeof most);
+    mr_format_bytes(budget, cap, sizeof cap);
+    return mr_error_set(err, MR_ERR_LIMIT, "the job's objects need at least %s of geometry (%s "
+                        "for this one's %s), over the job memory budget of %s", need, most,
+                        k->memory_field, cap);
 }
 
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,

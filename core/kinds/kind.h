@@ -48,6 +48,13 @@
  * update and leaves checking pose names to create.
  * animated: whether an object of the kind changes from frame to frame even
  * when its pose does not (NULL: only a pose animates it).
+ * memory_floor: (NULL: none) the bytes an object of the kind surely holds
+ * whatever its asset and its view, from its parameters alone (instances:
+ * their matrices), which grow with the parameter memory_field names.
+ * A job whose objects' floors pass the job's memory budget is refused
+ * before anything is imported or allocated (mr_job_check_memory; the
+ * daemon answers 422 naming the field); what an object holds beyond its
+ * floor is the kind's to check against the budget as it allocates.
  * frame_order: INDEPENDENT kinds can render any frame on its own;
  * SEQUENTIAL ones (a simulation) need frames 0..N-1 before N. The renderer
  * honours it: asked for frame N out of order (a resumed or retried job, a
@@ -113,6 +120,8 @@ struct mr_kind {
     size_t stat_count;
     bool self_posed;
     bool (*animated)(const void *params);
+    size_t (*memory_floor)(const void *params);
+    const char *memory_field;
     int (*create)(const mr_asset *asset, const mr_object_desc *desc, const mr_kind_context *ctx,
                   mr_geom **out, mr_error *err);
     int (*update)(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,

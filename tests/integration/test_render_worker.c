@@ -7,8 +7,9 @@
  *   - a frame in progress counts one failed attempt, with how the worker
  *     ended, and the job goes on in a new worker to a complete result;
  *   - a death while the job is being prepared fails the job, saying so;
- *   - a worker over --worker-memory-mb is killed and the frame fails as
- *     over a limit (not retried);
+ *   - a job that surely needs more than --job-memory-mb is refused at
+ *     submission; a worker over --worker-memory-mb is killed and the frame
+ *     fails as over a limit (not retried);
  *   - a frame over --frame-timeout is killed and fails, once;
  *   - a cancel kills the worker at once, and the next job gets a new one.
  */
@@ -25,9 +26,10 @@
 
 static daemon_proc D;
 
-/* A job of slow frames (640x360, 64 samples: seconds each here), so a
- * test can act inside a frame. */
-static char *slow_job(int frames, const char *extra)
+/* A job of slow frames (640x360 at 64 samples: about half a second each
+ * here on an idle machine, 512: about 5 s), so a test can act inside a
+ * frame. */
+static char *slow_job(int frames, int samples, const char *extra)
 {
     char *s = malloc(4096);
     snprintf(s, 4096,
@@ -35,8 +37,8 @@ static char *slow_job(int frames, const char *extra)
              "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
              "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
              "\"frames\":{\"fps\":4,\"start\":0,\"end\":%g},"
-             "\"output\":{\"width\":640,\"height\":360,\"samples\":64}}",
-             extra ? extra : "", (frames - 1) / 4.0);
+             "\"output\":{\"width\":640,\"height\":360,\"samples\":%d}}",
+             extra ? extra : "", (frames - 1) / 4.0, samples);
     return s;
 }
 
@@ -92,7 +94,7 @@ static bool process_gone(pid_t pid)
 static void test_worker_death_mid_frame_is_retried(void **state)
 {
     (void)state;
-    char *job = slow_job(2, "\"max_retries\":2,"), id[64];
+    char *job = slow_job(2, 64, "\"max_retries\":2,"), id[64];
     fx_submit(&D, job, id);
     free(job);
     const int sigs[2] = {SIGKILL, SIGSEGV};
@@ -129,7 +131,7 @@ static void test_worker_death_while_preparing_fails_the_job(void **state)
     (void)state;
     pid_t worker = fx_render_worker_pid(&D);
     assert_int_equal(kill(worker, SIGSTOP), 0);
-    char *job = slow_job(1, NULL), id[64];
+    char *job = slow_job(1, 64, NULL), id[64];
     fx_submit(&D, job, id);
     free(job);
     /* the daemon has handed it the job: it is running */
@@ -164,7 +166,7 @@ static void test_worker_death_while_preparing_fails_the_job(void **state)
 static void test_cancel_kills_the_worker(void **state)
 {
     (void)state;
-    char *job = slow_job(2, NULL), id[64];
+    char *job = slow_job(2, 512, NULL), id[64];
     fx_submit(&D, job, id);
     free(job);
     wait_frame_running(id);
@@ -188,15 +190,36 @@ static void test_cancel_kills_the_worker(void **state)
     assert_healthy();
 }
 
-/* --worker-memory-mb: a worker that grows past it is killed; the frame
+/* The memory limits. --job-memory-mb: a job whose objects surely need
+ * more (100,000 svo instances: their matrices alone) is refused at
+ * submission, 422 naming the field, before anything is imported.
+ * --worker-memory-mb: a worker that grows past it is killed; the frame
  * fails as over a limit, once (retrying would only repeat it), and the
  * daemon goes on. */
-static void test_worker_memory_limit(void **state)
+static void test_memory_limits(void **state)
 {
     (void)state;
     daemon_proc saved = D;
-    const char *extra[] = {"--worker-memory-mb", "160", NULL};
+    const char *extra[] = {"--job-memory-mb", "16", "--worker-memory-mb", "160", NULL};
     daemon_start_args(&D, "memory", extra);
+    size_t cap = 100000 * 3 + 4096;
+    char *crowd = malloc(cap);
+    int n = snprintf(crowd, cap,
+                     "{\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
+                     "\"objects\":[{\"asset\":\"d\",\"kind\":\"svo\",\"svo\":{\"depth\":8,"
+                     "\"method\":\"rigid\",\"instances\":[");
+    for (int i = 0; i < 100000; i++)
+        n += snprintf(crowd + n, cap - (size_t)n, i ? ",{}" : "{}");
+    snprintf(crowd + n, cap - (size_t)n, "]}}],\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,9],"
+             "\"target\":[0,0,0]}]},\"frames\":{\"fps\":1,\"start\":0,\"end\":0},"
+             "\"output\":{\"width\":64,\"height\":64}}");
+    http_result r = http(&D, "POST", "/v1/jobs", crowd, strlen(crowd), NULL);
+    free(crowd);
+    if (r.status != 422 || !strstr(r.body, "\"pointer\":\"/objects/0/svo/instances\"") ||
+        !strstr(r.body, "over the job memory budget of 16.0 MiB"))
+        fail_msg("the crowd: %ld %s", r.status, r.body);
+    http_free(&r);
+
     /* 4096 x 2304: a film of 4096 x 2304 x 40 bytes (377 MB) */
     char *job = fx_small_job(0, 4096, "\"max_retries\":3,"), id[64];
     fx_submit(&D, job, id);
@@ -222,7 +245,7 @@ static void test_frame_timeout(void **state)
     daemon_proc saved = D;
     const char *extra[] = {"--frame-timeout", "1", NULL};
     daemon_start_args(&D, "timeout", extra);
-    char *job = slow_job(1, "\"max_retries\":3,"), id[64];
+    char *job = slow_job(1, 512, "\"max_retries\":3,"), id[64];
     fx_submit(&D, job, id);
     free(job);
     double t0 = mr_now();
@@ -262,7 +285,7 @@ int main(void)
         cmocka_unit_test(test_worker_death_mid_frame_is_retried),
         cmocka_unit_test(test_worker_death_while_preparing_fails_the_job),
         cmocka_unit_test(test_cancel_kills_the_worker),
-        cmocka_unit_test(test_worker_memory_limit),
+        cmocka_unit_test(test_memory_limits),
         cmocka_unit_test(test_frame_timeout),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

@@ -835,22 +835,36 @@ static int rig_skeleton(mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
-/* Memory the instances surely need, checked before any per-instance
- * allocation: what every instance holds whatever the view (its matrices,
- * its Embree instance or selection). What a non-rigid instance holds on
- * top depends on the view far more than on the parameters: one emit
- * instance of BCN_Epileptic at depth 8 held 0.26 MB filling a 64x64 frame
- * and 20 MB close up at 640x360, 0.4x to 32x the shared octree. So no
+/* Memory the instances surely need (kind.h memory_floor): what every
+ * instance holds whatever the asset and the view (its matrices, its
+ * Embree instance or selection). What a non-rigid instance holds on top
+ * depends on the view far more than on the parameters: one emit instance
+ * of BCN_Epileptic at depth 8 held 0.26 MB filling a 64x64 frame and 20 MB
+ * close up at 640x360, 0.4x to 32x the shared octree. So no
  * parameter-only figure is honest for it: the running total in
  * deform_instance enforces the budget as the frame is built instead. */
+static size_t instance_floor(mr_svo_method method)
+{
+    return 3 * sizeof(mr_mat4) + sizeof(bool) +
+           (method == MR_SVO_RIGID ? 512 /* an Embree instance */
+                                   : sizeof(mr_svo_selection) + sizeof(mr_svo));
+}
+
+static size_t svo_memory_floor(const void *params)
+{
+    const mr_svo_params *p = params;
+    size_t n = p->instance_count ? p->instance_count : 1;
+    return n * instance_floor(p->method);
+}
+
+/* Checked before any per-instance allocation: the floor plus the shared
+ * octree, now that it is built. */
 static int check_estimate(const mr_geom *g, mr_error *err)
 {
     if (!g->budget)
         return MR_OK;
     size_t shared = mr_svo_memory(g->svo);
-    size_t each = 3 * sizeof(mr_mat4) + sizeof(bool) +
-                  (g->method == MR_SVO_RIGID ? 512 /* an Embree instance */
-                                             : sizeof(mr_svo_selection) + sizeof(mr_svo));
+    size_t each = instance_floor(g->method);
     size_t n = g->instance_count;
     size_t need = each > (SIZE_MAX - shared) / n ? SIZE_MAX : shared + n * each;
     if (need <= g->budget)
@@ -1050,6 +1064,8 @@ const mr_kind mr_kind_svo = {
     .params = &SVO_TABLE,
     .has_derived = true,
     .animated = svo_animated,
+    .memory_floor = svo_memory_floor,
+    .memory_field = "instances",
     .self_posed = true,
     .create = svo_create,
     .update = svo_update,
