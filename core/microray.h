@@ -650,6 +650,9 @@ const char *mr_kind_summary(const mr_kind *kind);
 /* The fields of the kind's job block; NULL: the kind takes none. */
 const mr_param_table *mr_kind_params(const mr_kind *kind);
 /* The kind's own per-frame statistics fields: stat_count of them, i < count. */
+/* Whether the kind keeps derived data (bakes, voxelisations) in
+ * <cache root>/<its name>/. */
+bool mr_kind_keeps_derived(const mr_kind *kind);
 size_t mr_kind_stat_count(const mr_kind *kind);
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i);
 

@@ -960,6 +960,8 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
          * (created on the first store), so a job after a restart, or
          * another job on the same asset, skips deriving it again */
         .data_dir = d->data_dir,
+        .asset_roots = (const char *const *)d->roots,
+        .root_count = d->root_count,
         .job_memory = d->cfg.job_memory,
         .import_memory = d->cfg.import_memory,
         .import_timeout_s = d->cfg.import_timeout_s,

@@ -85,16 +85,28 @@ static int start_worker(mr_render_proc *p, mr_error *err)
     snprintf(job_mem, sizeof job_mem, "%zu", c->job_memory);
     snprintf(imp_mem, sizeof imp_mem, "%zu", c->import_memory);
     snprintf(imp_time, sizeof imp_time, "%a", c->import_timeout_s);
-    char *argv[] = {"microrayd", "render-worker", "--threads", threads, "--cache-bytes", cache,
-                    "--data", (char *)c->data_dir, "--job-memory", job_mem, "--import-memory",
-                    imp_mem, "--import-timeout", imp_time, "--import-exe", (char *)c->exe, NULL};
+    char *fixed[] = {"microrayd", "render-worker", "--threads", threads, "--cache-bytes", cache,
+                     "--data", (char *)c->data_dir, "--job-memory", job_mem, "--import-memory",
+                     imp_mem, "--import-timeout", imp_time, "--import-exe", (char *)c->exe};
+    size_t nf = sizeof fixed / sizeof *fixed;
+    char **argv = calloc(nf + 2 * c->root_count + 1, sizeof *argv);
+    if (!argv)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    memcpy(argv, fixed, sizeof fixed);
+    for (size_t i = 0; i < c->root_count; i++) {
+        argv[nf + 2 * i] = "--asset-root";
+        argv[nf + 2 * i + 1] = (char *)c->asset_roots[i];
+    }
     int sv[2];
-    if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sv) != 0)
+    if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sv) != 0) {
+        free(argv);
         return mr_error_set(err, MR_ERR_IO, "cannot start a render worker: socketpair: %s",
                             strerror(errno));
+    }
     mr_child_limits lim = {.nice = c->nice};
     pid_t pid = mr_child_spawn(c->exe, argv, sv[1], &lim, NULL, NULL);
     int spawn_errno = errno;
+    free(argv);
     close(sv[1]);
     if (pid < 0) {
         close(sv[0]);

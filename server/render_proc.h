@@ -38,6 +38,8 @@ typedef struct mr_render_proc_config {
     unsigned threads;         /* render threads (0: all cores) */
     size_t cache_bytes;       /* the worker's scene cache */
     const char *data_dir;     /* derived data is kept in data_dir/<kind>/ */
+    const char *const *asset_roots; /* what the worker may read besides DATA/assets (sandbox.h) */
+    size_t root_count;
     size_t job_memory;        /* mr_renderer_options.memory_budget */
     size_t import_memory;     /* mr_import_limits of the worker's imports */
     double import_timeout_s;
@@ -104,7 +106,8 @@ int mr_render_proc_pid(mr_render_proc *p);
 
 /* The worker's side: `microrayd render-worker --threads N --cache-bytes N
  * --data DIR --job-memory N --import-memory N --import-timeout S
- * [--import-exe PATH]`, run only by mr_render_proc on descriptor 3. */
+ * --import-exe PATH [--asset-root DIR]...`, run only by mr_render_proc on
+ * descriptor 3. Once started it confines itself (sandbox.h). */
 int mr_cmd_render_worker(int argc, char **argv);
 
 #endif

@@ -21,6 +21,7 @@
 #include "import_worker.h"
 #include "job_json.h"
 #include "render_msg.h"
+#include "sandbox.h"
 #include "stats_json.h"
 
 /* The largest message the daemon sends: a job (capped by the daemon's
@@ -319,7 +320,9 @@ int mr_cmd_render_worker(int argc, char **argv)
 {
     worker_ctx c = {.fd = MR_CHILD_FD};
     size_t threads = 0, cache_bytes = 0;
-    bool ok = argc % 2 == 0; /* --flag value pairs */
+    const char **roots = calloc((size_t)argc / 2 + 1, sizeof *roots);
+    size_t root_count = 0;
+    bool ok = argc % 2 == 0 && roots; /* --flag value pairs */
     for (int i = 0; i + 1 < argc && ok; i += 2) {
         const char *a = argv[i], *v = argv[i + 1];
         if (!strcmp(a, "--threads"))
@@ -336,18 +339,30 @@ int mr_cmd_render_worker(int argc, char **argv)
             c.import.timeout_s = strtod(v, NULL);
         else if (!strcmp(a, "--import-exe"))
             c.import.worker_exe = v;
+        else if (!strcmp(a, "--asset-root"))
+            roots[root_count++] = v;
         else
             ok = false;
     }
     struct stat st;
     if (!ok || !c.data_dir || fstat(MR_CHILD_FD, &st) != 0 || !S_ISSOCK(st.st_mode)) {
         fprintf(stderr, "microrayd render-worker: runs only as the daemon's render worker\n");
+        free(roots);
         return 2;
     }
     mr_error err = {0};
     int status = 0;
     if (mr_device_new((unsigned)threads, &c.dev, &err) < 0 ||
         mr_cache_new(cache_bytes, &c.cache, &err) < 0) {
+        fprintf(stderr, "microrayd render-worker: %s\n", err.msg);
+        status = 1;
+        goto done;
+    }
+    /* confined from here on (sandbox.h), its import children too */
+    char *exe = realpath("/proc/self/exe", NULL);
+    int sb = mr_sandbox_apply(c.data_dir, roots, root_count, exe, &err);
+    free(exe);
+    if (sb < 0 && sb != MR_ERR_NOT_FOUND) {
         fprintf(stderr, "microrayd render-worker: %s\n", err.msg);
         status = 1;
         goto done;
@@ -370,5 +385,6 @@ int mr_cmd_render_worker(int argc, char **argv)
 done:
     mr_cache_free(c.cache);
     mr_device_free(c.dev);
+    free(roots);
     return status;
 }
