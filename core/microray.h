@@ -501,8 +501,9 @@ int mr_contact_sheet_new(size_t count, int thumb_w, int thumb_h, mr_image8 *shee
 int mr_contact_sheet_put(mr_image8 *sheet, size_t i, const mr_image8 *thumb, mr_error *err);
 
 /* PNG (8-bit, RGB or RGBA by img->channels, sRGB chunk) in a malloc'ed
- * buffer (*data, *size; caller frees). zlib level 3 with libpng's filter
- * choice: measured against levels 1 and 6 in render/preview.c. */
+ * buffer (*data, *size; caller frees). The UP filter and zlib's run-length
+ * strategy: about 4x faster than libpng's defaults for files about 12 %
+ * larger (measured in render/preview.c). */
 int mr_png_encode(const mr_image8 *img, uint8_t **data, size_t *size, mr_error *err);
 /* Decodes an 8-bit RGB or RGBA PNG without colour conversion (what
  * mr_png_encode writes; other kinds are converted to RGBA by libpng).
