@@ -754,8 +754,9 @@ static enum MHD_Result send_frame_png(req *r, struct MHD_Connection *c, const mr
         if (rc < 0)
             return preview_failed(r, c, job->id, index, rc, &err);
     }
-    char disposition[64];
-    snprintf(disposition, sizeof disposition, "inline; filename=\"%04zu.png\"", index);
+    char name[MR_FRAME_NAME_MAX], disposition[MR_FRAME_NAME_MAX + 32];
+    mr_frame_preview_name(index, name);
+    snprintf(disposition, sizeof disposition, "inline; filename=\"%s\"", name);
     const char *headers[] = {MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
                              MHD_HTTP_HEADER_VARY, negotiated ? "Accept" : NULL, NULL};
     return send_png(r, c, &body, headers);
