@@ -769,14 +769,14 @@ enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c)
     mr_job_record job;
     size_t index = 0;
     enum MHD_Result res = MHD_NO;
-    if (!load_frame(r, c, &job, &index, &res))
-        return res;
+    /* first: it needs no store, and an unacceptable request is one whatever the frame */
     int choice = negotiate(c, types, 2);
     if (choice < 0)
         return http_send_problem_hdr(r, c, P_NOT_ACCEPTABLE, MHD_HTTP_HEADER_VARY, "Accept",
-                                     "frame %zu of job %s is served as " CT_EXR " (the default) or "
-                                     CT_PNG "; the Accept header allows neither",
-                                     index, job.id);
+                                     "frames are served as " CT_EXR " (the default) or " CT_PNG
+                                     "; the Accept header allows neither");
+    if (!load_frame(r, c, &job, &index, &res))
+        return res;
     char path[4096];
     if (!frame_exr_path(r, c, &job, index, path, sizeof path, &res))
         return res;
