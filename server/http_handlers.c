@@ -1,8 +1,12 @@
 /*
  * http_handlers.c - the handlers of the job, frame, asset and service
- * routes (http_internal.h; the event stream's is in http_events.c). They
- * run on libmicrohttpd's thread pool and only parse, call the daemon or the
- * store and answer: rendering happens on the daemon's workers.
+ * routes (http_internal.h; the event stream's is in http_events.c), with
+ * the frame route's content negotiation and the PNG preview routes (the
+ * pictures and their disk cache are previews.c's). They run on
+ * libmicrohttpd's thread pool and only parse, call the daemon or the store
+ * and answer: rendering happens on the daemon's workers. The one heavier
+ * thing done here, making a PNG preview from a stored EXR, is bounded (at
+ * most previews_max at once, each made once and cached).
  */
 #include <errno.h>
 #include <fcntl.h>

@@ -5,7 +5,9 @@
  *                   log lines, start and stop;
  *   http_routes.c   the one route table and path matching;
  *   http_reply.c    responses: JSON bodies, RFC 9457 problems, error mapping;
- *   http_handlers.c the handlers of the job, frame, asset and service routes;
+ *   http_handlers.c the handlers of the job, frame, asset and service routes,
+ *                   content negotiation (Accept) and the PNG preview routes
+ *                   (their pictures and cache: previews.c);
  *   http_events.c   server-sent event streams (GET /v1/jobs/{id}/events) and
  *                   their keepalive ticker;
  *   http_guard.c    the connection budget and the request head and body
