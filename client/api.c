@@ -184,6 +184,12 @@ static size_t on_header(char *line, size_t size, size_t nmemb, void *user)
     }
     char *target = NULL;
     size_t target_size = 0, skip = 0;
+    if (len > 12 && strncasecmp(line, "retry-after:", 12) == 0) {
+        char *end = NULL;
+        long v = strtol(line + 12, &end, 10);
+        r->retry_after = end != line + 12 && v > 0 && v < 86400 ? (int)v : 0;
+        return len;
+    }
     if (len > 13 && strncasecmp(line, "content-type:", 13) == 0) {
         target = r->content_type;
         target_size = sizeof r->content_type;
@@ -507,18 +513,27 @@ int mrc_http_download(mrc_http *h, const char *path, const char *dest, int64_t *
         rc = mrc_fail(err, MRC_EXIT_LOCAL, "cannot create %s: %s", tmp, strerror(errno));
         goto cleanup;
     }
-    s.fd = fd;
 
-    response_reset(&resp, ERROR_BODY_LIMIT);
-    setup(h, h->easy, h->errbuf, url, KIND_TRANSFER);
     hdrs = curl_slist_append(NULL, "Accept: */*");
-    curl_easy_setopt(h->easy, CURLOPT_HTTPHEADER, hdrs);
-    curl_easy_setopt(h->easy, CURLOPT_HEADERFUNCTION, on_header);
-    curl_easy_setopt(h->easy, CURLOPT_HEADERDATA, &resp);
-    curl_easy_setopt(h->easy, CURLOPT_WRITEFUNCTION, on_body);
-    curl_easy_setopt(h->easy, CURLOPT_WRITEDATA, &s);
-    CURLcode cc = curl_easy_perform(h->easy);
-    curl_easy_getinfo(h->easy, CURLINFO_RESPONSE_CODE, &resp.status);
+    CURLcode cc;
+    for (int waited = 0;;) {
+        response_reset(&resp, ERROR_BODY_LIMIT);
+        s = (sink){.curl = h->easy, .resp = &resp, .fd = fd};
+        setup(h, h->easy, h->errbuf, url, KIND_TRANSFER);
+        curl_easy_setopt(h->easy, CURLOPT_HTTPHEADER, hdrs);
+        curl_easy_setopt(h->easy, CURLOPT_HEADERFUNCTION, on_header);
+        curl_easy_setopt(h->easy, CURLOPT_HEADERDATA, &resp);
+        curl_easy_setopt(h->easy, CURLOPT_WRITEFUNCTION, on_body);
+        curl_easy_setopt(h->easy, CURLOPT_WRITEDATA, &s);
+        cc = curl_easy_perform(h->easy);
+        curl_easy_getinfo(h->easy, CURLINFO_RESPONSE_CODE, &resp.status);
+        /* busy for a moment (an error body is never written to the file) */
+        if (resp.status != 503 || resp.retry_after < 1 || resp.retry_after > 5 ||
+            waited + resp.retry_after > 60)
+            break;
+        sleep((unsigned)resp.retry_after);
+        waited += resp.retry_after;
+    }
     if (s.write_errno) {
         rc = mrc_fail(err, MRC_EXIT_LOCAL, "cannot write %s: %s", tmp, strerror(s.write_errno));
         goto cleanup;

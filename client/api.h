@@ -29,6 +29,7 @@ typedef struct mrc_response {
     long status;            /* HTTP status, 0 when no response arrived */
     char content_type[128];
     char location[512];     /* Location header, "" when absent */
+    int retry_after;        /* Retry-After in seconds (delta form), 0 when absent */
     mrc_buf body;
 } mrc_response;
 
@@ -67,7 +68,9 @@ int mrc_http_json(mrc_http *h, const char *method, const char *path, const void 
 /* GET path into file dest, streamed (never held in memory): written to a
  * temporary name in dest's directory, fsync'ed and renamed over dest only
  * after the whole body arrived with a 2xx status. *bytes (may be NULL)
- * receives the size. */
+ * receives the size. A 503 with a Retry-After of 1 to 5 seconds (the
+ * daemon busy making previews) is tried again after that wait, for up to
+ * a minute in all. */
 int mrc_http_download(mrc_http *h, const char *path, const char *dest, int64_t *bytes,
                       mrc_error *err);
 

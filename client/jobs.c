@@ -132,8 +132,9 @@ static void set_state(follow *f, const char *state)
 static int download_frame(follow *f, int index, mrc_error *err)
 {
     char path[256], dest[4096];
-    snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d", f->id, index);
-    int n = snprintf(dest, sizeof dest, "%s/%04d.exr", f->opts->out_dir, index);
+    const char *ext = f->opts->png ? "png" : "exr";
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d%s", f->id, index, f->opts->png ? ".png" : "");
+    int n = snprintf(dest, sizeof dest, "%s/%04d.%s", f->opts->out_dir, index, ext);
     if (n < 0 || (size_t)n >= sizeof dest)
         return mrc_fail(err, MRC_EXIT_LOCAL, "%s: path too long", f->opts->out_dir);
     int64_t bytes = 0;
@@ -160,14 +161,24 @@ static int download_done_frames(follow *f, mrc_error *err)
     return 0;
 }
 
-static int download_stats(follow *f, mrc_error *err)
+/* The job's file `what` ("stats", "contact-sheet.png") into DIR/name. */
+static int download_job_file(follow *f, const char *what, const char *name, mrc_error *err)
 {
     char path[256], dest[4096];
-    snprintf(path, sizeof path, "/v1/jobs/%s/stats", f->id);
-    int n = snprintf(dest, sizeof dest, "%s/stats.json", f->opts->out_dir);
+    snprintf(path, sizeof path, "/v1/jobs/%s/%s", f->id, what);
+    int n = snprintf(dest, sizeof dest, "%s/%s", f->opts->out_dir, name);
     if (n < 0 || (size_t)n >= sizeof dest)
         return mrc_fail(err, MRC_EXIT_LOCAL, "%s: path too long", f->opts->out_dir);
     return mrc_http_download(f->http, path, dest, NULL, err);
+}
+
+/* stats.json, and with --png the contact sheet; once a frame is done. */
+static int download_job_files(follow *f, mrc_error *err)
+{
+    int rc = download_job_file(f, "stats", "stats.json", err);
+    if (rc == 0 && f->opts->png)
+        rc = download_job_file(f, "contact-sheet.png", "contact-sheet.png", err);
+    return rc;
 }
 
 /* ---- the view ------------------------------------------------------------- */
@@ -464,7 +475,7 @@ int mrc_job_wait(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_e
     }
     mrc_progress_update(&f.prog, f.done, f.failed, f.total, f.state, true);
     if (opts->out_dir && f.done > 0) {
-        rc = download_stats(&f, err);
+        rc = download_job_files(&f, err);
         if (rc < 0)
             goto cleanup;
     }
@@ -512,7 +523,7 @@ int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_
     if (rc < 0)
         goto cleanup;
     if (f.done > 0) {
-        rc = download_stats(&f, err);
+        rc = download_job_files(&f, err);
         if (rc < 0)
             goto cleanup;
     }
@@ -520,8 +531,9 @@ int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_
         char size[32];
         mrc_format_bytes(size, sizeof size, (double)f.downloaded_bytes);
         if (f.done > 0)
-            fprintf(stderr, "fetched %d frame%s (%s) and stats.json into %s; job %s: %d/%d frames done\n",
-                    f.downloaded, f.downloaded == 1 ? "" : "s", size, opts->out_dir,
+            fprintf(stderr, "fetched %d frame%s%s (%s) and stats.json%s into %s; job %s: %d/%d frames done\n",
+                    f.downloaded, f.downloaded == 1 ? "" : "s", opts->png ? " as PNG previews" : "",
+                    size, opts->png ? ", contact-sheet.png" : "", opts->out_dir,
                     f.state[0] ? f.state : "?", f.done, f.total);
         else
             fprintf(stderr, "nothing to fetch yet: job %s is %s, 0/%d frames done\n", id,

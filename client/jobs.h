@@ -6,7 +6,9 @@
  * falls back to polling GET /v1/jobs/{id} every 0.5 s when the stream
  * cannot be opened or breaks. Frames are downloaded as they finish (and
  * once more at the end for any that were missed) to DIR/NNNN.exr, each
- * written to a temporary name and renamed, then DIR/stats.json.
+ * written to a temporary name and renamed, then DIR/stats.json. With png,
+ * DIR/NNNN.png (the daemon's previews) instead of the EXRs, and
+ * DIR/contact-sheet.png at the end.
  */
 #ifndef MRC_JOBS_H
 #define MRC_JOBS_H
@@ -17,6 +19,7 @@ typedef struct mrc_follow_opts {
     const char *out_dir; /* NULL: do not download */
     bool quiet;          /* no progress output */
     bool tty;            /* draw a bar instead of lines */
+    bool png;            /* PNG previews (NNNN.png, contact-sheet.png) instead of EXRs */
 } mrc_follow_opts;
 
 /* Follows job `id` until it succeeds (0), fails or is canceled

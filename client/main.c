@@ -33,17 +33,21 @@ static void usage(FILE *out)
         "Submits render jobs to a microrayd daemon and follows and fetches their results.\n"
         "\n"
         "Commands:\n"
-        "  submit JOB.json [--wait] [--out DIR] [--idempotency-key KEY]\n"
+        "  submit JOB.json [--wait] [--out DIR [--png]] [--idempotency-key KEY]\n"
         "                        submit a job (\"-\" reads it from stdin), print its id;\n"
         "                        --wait follows it to the end with a progress display,\n"
         "                        --out DIR (implies --wait) downloads DIR/NNNN.exr and\n"
-        "                        DIR/stats.json\n"
+        "                        DIR/stats.json; --png: 8-bit sRGB previews DIR/NNNN.png\n"
+        "                        and DIR/contact-sheet.png instead of the EXRs\n"
         "  status ID [--json]    state, frame counts, timestamps and errors of a job\n"
         "  list [--state S] [--json]\n"
         "                        jobs, newest first; S is queued, running, succeeded,\n"
         "                        failed or canceled\n"
-        "  wait ID [--out DIR]   follow a job already submitted, like submit --wait\n"
-        "  fetch ID --out DIR    download the job's finished frames and stats.json\n"
+        "  wait ID [--out DIR [--png]]\n"
+        "                        follow a job already submitted, like submit --wait\n"
+        "  fetch ID --out DIR [--png]\n"
+        "                        download the job's finished frames and stats.json\n"
+        "                        (--png: previews and contact sheet, not EXRs)\n"
         "  cancel ID             cancel a queued or running job\n"
         "  retry ID              re-queue the unfinished frames of a failed or canceled job\n"
         "  delete ID             delete a job and its frames on the server\n"
@@ -92,7 +96,7 @@ typedef struct cmd_args {
     const char *pos[MAX_POSITIONAL];
     int npos;
     const char *out, *idem, *state;
-    bool wait, json;
+    bool wait, json, png;
 } cmd_args;
 
 typedef struct opt_spec {
@@ -254,7 +258,8 @@ static int cmd_submit(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err
     printf("%s\n", id);
     fflush(stdout);
     if (a->wait || a->out) {
-        mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal()};
+        mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal(),
+                                .png = a->png};
         rc = mrc_job_wait(h, id, &opts, err);
     }
 cleanup:
@@ -563,10 +568,11 @@ int main(int argc, char **argv)
     opt_spec submit_specs[] = {{"--wait", NULL, &a.wait},
                                {"--out", &a.out, NULL},
                                {"--idempotency-key", &a.idem, NULL},
+                               {"--png", NULL, &a.png},
                                {NULL, NULL, NULL}};
     opt_spec status_specs[] = {{"--json", NULL, &a.json}, {NULL, NULL, NULL}};
     opt_spec list_specs[] = {{"--state", &a.state, NULL}, {"--json", NULL, &a.json}, {NULL, NULL, NULL}};
-    opt_spec fetch_specs[] = {{"--out", &a.out, NULL}, {NULL, NULL, NULL}};
+    opt_spec fetch_specs[] = {{"--out", &a.out, NULL}, {"--png", NULL, &a.png}, {NULL, NULL, NULL}};
 
     if (strcmp(cmd, "submit") == 0) {
         specs = submit_specs;
@@ -592,6 +598,10 @@ int main(int argc, char **argv)
         goto cleanup;
     if (strcmp(cmd, "fetch") == 0 && !a.out) {
         code = usage_error("%s", "fetch needs --out DIR");
+        goto cleanup;
+    }
+    if (a.png && !a.out) {
+        code = usage_error("%s", "--png needs --out DIR");
         goto cleanup;
     }
     if ((a.out && !a.out[0]) || (a.idem && !a.idem[0])) {
@@ -637,10 +647,12 @@ int main(int argc, char **argv)
         else if (strcmp(cmd, "list") == 0)
             rc = cmd_list(http, &a, &err);
         else if (strcmp(cmd, "fetch") == 0) {
-            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal()};
+            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal(),
+                                    .png = a.png};
             rc = mrc_job_fetch(http, a.pos[0], &opts, &err);
         } else if (strcmp(cmd, "wait") == 0) {
-            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal()};
+            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal(),
+                                    .png = a.png};
             rc = mrc_job_wait(http, a.pos[0], &opts, &err);
         } else if (strcmp(cmd, "cancel") == 0 || strcmp(cmd, "retry") == 0)
             rc = cmd_action(http, cmd, &a, g.quiet, &err);

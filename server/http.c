@@ -537,6 +537,8 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
 
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     unsigned threads = cfg->http_threads ? cfg->http_threads : cores > 0 ? (unsigned)cores : 1;
+    h->previews_max = threads / 2 ? threads / 2 : 1;
+    atomic_init(&h->previews_busy, 0);
     unsigned timeout = cfg->connection_timeout_s ? cfg->connection_timeout_s : DEFAULT_TIMEOUT_S;
     unsigned per_ip = cfg->per_ip_connections ? cfg->per_ip_connections : DEFAULT_PER_IP;
     /* libmicrohttpd splits its limit over its threads; per thread the whole

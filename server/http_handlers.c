@@ -1,23 +1,31 @@
 /*
  * http_handlers.c - the handlers of the job, frame, asset and service
- * routes (http_internal.h; the event stream's is in http_events.c). They
- * run on libmicrohttpd's thread pool and only parse, call the daemon or the
- * store and answer: rendering happens on the daemon's workers.
+ * routes (http_internal.h; the event stream's is in http_events.c), with
+ * the frame route's content negotiation and the PNG preview routes (the
+ * pictures and their disk cache are previews.c's). They run on
+ * libmicrohttpd's thread pool and only parse, call the daemon or the store
+ * and answer: rendering happens on the daemon's workers. The one heavier
+ * thing done here, making a PNG preview from a stored EXR, is bounded (at
+ * most previews_max at once, each made once and cached).
  */
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include "http_internal.h"
 #include "job_json.h"
+#include "previews.h"
 #include "stats_json.h"
 #include "microray.h"
 
 #define CT_METRICS "text/plain; version=0.0.4; charset=utf-8"
+#define CT_EXR "image/x-exr"
+#define CT_PNG "image/png"
 
 /* ---- job records as JSON ------------------------------------------------ */
 
@@ -479,21 +487,305 @@ static bool load_frame(req *r, struct MHD_Connection *c, mr_job_record *job, siz
     return true;
 }
 
+/* ---- content negotiation (RFC 9110 12.5.1) --------------------------------
+ * Accept lists media ranges (a type such as image/png, a type's family as
+ * "image/" and an asterisk, or anything as an asterisk on both sides of the
+ * slash) with optional weights (";q=0.5", three decimals at most). Each representation
+ * takes the weight of the most specific range that matches it (several
+ * equally specific ones: the highest), 0 when none matches; the highest
+ * weight wins, ties go to the server's order of preference, and when every
+ * weight is 0 the answer is 406. Elements that do not parse are ignored,
+ * and a request without an Accept header (or without any element that
+ * parses) accepts anything. Parameters other than q do not narrow a range. */
+
+typedef struct accept_state {
+    const char *const *types; /* "type/subtype", the server's preference first */
+    size_t n;
+    int spec[4];  /* specificity of the best range matching types[i]: 0 none, 1 any,
+                     2 type/ *, 3 exact */
+    int q[4];     /* its weight, in thousandths */
+    bool parsed;  /* some element was understood */
+} accept_state;
+
+static const char *ows(const char *p)
+{
+    while (*p == ' ' || *p == '\t')
+        p++;
+    return p;
+}
+
+static bool is_tchar(char ch)
+{
+    return ch > 0x20 && ch < 0x7f && !strchr("\"(),/:;<=>?@[\\]{}", ch);
+}
+
+static const char *token_end(const char *p)
+{
+    while (is_tchar(*p))
+        p++;
+    return p;
+}
+
+/* Past the quoted string at p (on its opening quote); NULL if unterminated. */
+static const char *quoted_end(const char *p)
+{
+    for (p++; *p; p++) {
+        if (*p == '\\' && p[1])
+            p++;
+        else if (*p == '"')
+            return p + 1;
+    }
+    return NULL;
+}
+
+/* The comma ending the element at p (outside quoted strings), or the NUL. */
+static const char *element_end(const char *p)
+{
+    while (*p && *p != ',') {
+        if (*p == '"') {
+            const char *e = quoted_end(p);
+            if (!e)
+                return p + strlen(p);
+            p = e;
+        } else {
+            p++;
+        }
+    }
+    return p;
+}
+
+/* qvalue = ("0" ["." 0*3DIGIT]) / ("1" ["." 0*3"0"]), in thousandths; -1 if not one. */
+static int parse_qvalue(const char *p, const char *end)
+{
+    if (p == end || (*p != '0' && *p != '1'))
+        return -1;
+    int whole = *p++ - '0', q = whole * 1000, scale = 100;
+    if (p == end)
+        return q;
+    if (*p++ != '.')
+        return -1;
+    for (int k = 0; p < end; k++, p++) {
+        if (k >= 3 || *p < '0' || *p > '9' || (whole && *p != '0'))
+            return -1;
+        q += (*p - '0') * scale;
+        scale /= 10;
+    }
+    return q;
+}
+
+static void accept_element(accept_state *a, const char *p, const char *end)
+{
+    const char *t0 = ows(p), *t1 = token_end(t0);
+    if (t1 == t0 || *t1 != '/')
+        return;
+    const char *s0 = t1 + 1, *s1 = token_end(s0);
+    if (s1 == s0)
+        return;
+    int q = 1000;
+    p = ows(s1);
+    while (p < end && *p == ';') {
+        const char *n0 = ows(p + 1), *n1 = token_end(n0);
+        if (n1 == n0 || *n1 != '=')
+            return;
+        const char *v0 = n1 + 1, *v1 = *v0 == '"' ? quoted_end(v0) : token_end(v0);
+        if (!v1 || v1 == v0 || v1 > end)
+            return;
+        if (n1 - n0 == 1 && (*n0 == 'q' || *n0 == 'Q')) {
+            if ((q = parse_qvalue(v0, v1)) < 0)
+                return;
+            p = end; /* the weight ends the range (old accept-ext parameters may follow) */
+            break;
+        }
+        p = ows(v1);
+    }
+    if (p != end)
+        return;
+    size_t tl = (size_t)(t1 - t0), sl = (size_t)(s1 - s0);
+    bool any_type = tl == 1 && *t0 == '*', any_sub = sl == 1 && *s0 == '*';
+    if (any_type && !any_sub)
+        return; /* "* /png" is no media range */
+    a->parsed = true;
+    for (size_t i = 0; i < a->n; i++) {
+        const char *type = a->types[i], *slash = strchr(type, '/');
+        bool type_eq = (size_t)(slash - type) == tl && !strncasecmp(type, t0, tl);
+        bool sub_eq = strlen(slash + 1) == sl && !strncasecmp(slash + 1, s0, sl);
+        int spec = any_type ? 1 : !type_eq ? 0 : any_sub ? 2 : sub_eq ? 3 : 0;
+        if (spec > a->spec[i] || (spec && spec == a->spec[i] && q > a->q[i])) {
+            a->spec[i] = spec;
+            a->q[i] = q;
+        }
+    }
+}
+
+static enum MHD_Result accept_header(void *cls, enum MHD_ValueKind kind, const char *key,
+                                     const char *value)
+{
+    (void)kind;
+    if (key && value && !strcasecmp(key, MHD_HTTP_HEADER_ACCEPT))
+        for (const char *p = value;; p++) {
+            const char *e = element_end(p);
+            accept_element(cls, p, e);
+            if (!*e)
+                break;
+            p = e;
+        }
+    return MHD_YES;
+}
+
+/* The index into types (n <= 4, the server's preference first) of the
+ * representation to send, or -1 when the Accept headers allow none. */
+static int negotiate(struct MHD_Connection *c, const char *const *types, size_t n)
+{
+    accept_state a = {.types = types, .n = n};
+    MHD_get_connection_values(c, MHD_HEADER_KIND, accept_header, &a);
+    if (!a.parsed)
+        return 0;
+    int best = -1, best_q = 0;
+    for (size_t i = 0; i < n; i++)
+        if (a.q[i] > best_q) {
+            best = (int)i;
+            best_q = a.q[i];
+        }
+    return best;
+}
+
+/* ---- PNG previews (previews.h) --------------------------------------------
+ * Reading an EXR and encoding a PNG take a while (about 0.2 s for 1080p
+ * here), so at most previews_max requests make one at once; beyond that
+ * the answer is 503 with Retry-After: 1, and the other threads of the pool
+ * stay free for everything else. Cached previews are served without a
+ * slot. */
+
+static bool preview_slot_take(mr_http *h)
+{
+    if (atomic_fetch_add(&h->previews_busy, 1) < h->previews_max)
+        return true;
+    atomic_fetch_sub(&h->previews_busy, 1);
+    return false;
+}
+
+static void preview_slot_give(mr_http *h)
+{
+    atomic_fetch_sub(&h->previews_busy, 1);
+}
+
+static enum MHD_Result preview_busy(req *r, struct MHD_Connection *c)
+{
+    return http_send_problem_hdr(r, c, P_UNAVAILABLE, "Retry-After", "1",
+                                 "%u previews are being made; try again in a second",
+                                 r->h->previews_max);
+}
+
+/* Caching writes into the data directory: not while its disk is full. */
+static bool may_cache(req *r)
+{
+    return !mr_daemon_disk_full(r->h->d, NULL, 0);
+}
+
+static enum MHD_Result preview_failed(req *r, struct MHD_Connection *c, const char *job,
+                                      size_t index, int rc, const mr_error *err)
+{
+    if (rc == MR_ERR_NOT_FOUND)
+        return http_send_problem(r, c, P_NOT_FOUND, NULL, "frame %zu of job %s is gone", index, job);
+    char msg[sizeof err->msg];
+    mr_daemon_redact(r->h->d, err->msg[0] ? err->msg : mr_err_name(rc), msg, sizeof msg);
+    return http_send_problem(r, c, P_INTERNAL, NULL, "frame %zu of job %s cannot be previewed: %s",
+                             index, job, msg);
+}
+
+/* Adds the NULL-terminated name, value pairs; false (resp destroyed) on failure. */
+static bool add_headers(struct MHD_Response *resp, const char *const *kv)
+{
+    for (; kv[0]; kv += 2)
+        if (kv[1] && MHD_add_response_header(resp, kv[0], kv[1]) != MHD_YES) {
+            MHD_destroy_response(resp);
+            return false;
+        }
+    return true;
+}
+
+/* 200 with the body as image/png (the response takes it over) and headers
+ * (name, value pairs, NULL-terminated; a NULL value is skipped). */
+static enum MHD_Result send_png(req *r, struct MHD_Connection *c, mr_preview_body *b,
+                                const char *const *headers)
+{
+    struct MHD_Response *resp = NULL;
+    size_t size = b->size;
+    if (b->fd >= 0) {
+        resp = MHD_create_response_from_fd(size, b->fd);
+        if (resp)
+            b->fd = -1;
+        else
+            mr_preview_body_free(b);
+    } else {
+        resp = MHD_create_response_from_buffer(size, b->data, MHD_RESPMEM_MUST_FREE);
+        if (resp)
+            b->data = NULL;
+        else
+            mr_preview_body_free(b);
+    }
+    const char *ctype[] = {MHD_HTTP_HEADER_CONTENT_TYPE, CT_PNG, NULL};
+    if (!resp || !add_headers(resp, ctype) || !add_headers(resp, headers))
+        return MHD_NO;
+    return http_send_response(r, c, MHD_HTTP_OK, resp, size);
+}
+
+/* The EXR path of a done frame; answers 404 itself when it is not done. */
+static bool frame_exr_path(req *r, struct MHD_Connection *c, const mr_job_record *job, size_t index,
+                           char *path, size_t size, enum MHD_Result *res)
+{
+    mr_error err = {0};
+    int rc = mr_store_frame_path(mr_daemon_store(r->h->d), job->id, index, path, size, &err);
+    if (rc == MR_ERR_NOT_FOUND)
+        *res = http_send_problem(r, c, P_NOT_FOUND, NULL, "frame %zu of job %s is not rendered", index,
+                                 job->id);
+    else if (rc < 0)
+        *res = http_send_error(r, c, rc, &err);
+    return rc == MR_OK;
+}
+
+/* The preview of a done frame (negotiated: with Vary: Accept). */
+static enum MHD_Result send_frame_png(req *r, struct MHD_Connection *c, const mr_job_record *job,
+                                      size_t index, const char *exr_path, bool negotiated)
+{
+    mr_preview_body body;
+    if (!mr_preview_frame_cached(exr_path, &body)) {
+        if (!preview_slot_take(r->h))
+            return preview_busy(r, c);
+        mr_error err = {0};
+        int rc = mr_preview_frame_build(exr_path, may_cache(r), &body, &err);
+        preview_slot_give(r->h);
+        if (rc < 0)
+            return preview_failed(r, c, job->id, index, rc, &err);
+    }
+    char name[MR_FRAME_NAME_MAX], disposition[MR_FRAME_NAME_MAX + 32];
+    mr_frame_preview_name(index, name);
+    snprintf(disposition, sizeof disposition, "inline; filename=\"%s\"", name);
+    const char *headers[] = {MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
+                             MHD_HTTP_HEADER_VARY, negotiated ? "Accept" : NULL, NULL};
+    return send_png(r, c, &body, headers);
+}
+
+/* GET .../frames/{n}: the EXR, or its PNG preview for Accept: image/png. */
 enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c)
 {
+    static const char *const types[] = {CT_EXR, CT_PNG};
     mr_job_record job;
     size_t index = 0;
     enum MHD_Result res = MHD_NO;
+    /* first: it needs no store, and an unacceptable request is one whatever the frame */
+    int choice = negotiate(c, types, 2);
+    if (choice < 0)
+        return http_send_problem_hdr(r, c, P_NOT_ACCEPTABLE, MHD_HTTP_HEADER_VARY, "Accept",
+                                     "frames are served as " CT_EXR " (the default) or " CT_PNG
+                                     "; the Accept header allows neither");
     if (!load_frame(r, c, &job, &index, &res))
         return res;
     char path[4096];
-    mr_error err = {0};
-    int rc = mr_store_frame_path(mr_daemon_store(r->h->d), job.id, index, path, sizeof path, &err);
-    if (rc == MR_ERR_NOT_FOUND)
-        return http_send_problem(r, c, P_NOT_FOUND, NULL, "frame %zu of job %s is not rendered", index,
-                                 job.id);
-    if (rc < 0)
-        return http_send_error(r, c, rc, &err);
+    if (!frame_exr_path(r, c, &job, index, path, sizeof path, &res))
+        return res;
+    if (choice == 1)
+        return send_frame_png(r, c, &job, index, path, true);
     int fd = open(path, O_RDONLY | O_CLOEXEC);
     if (fd < 0)
         /* Deleted between the lookup and here. */
@@ -515,13 +807,109 @@ enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c)
     char name[MR_FRAME_NAME_MAX], disposition[MR_FRAME_NAME_MAX + 32];
     mr_frame_file_name(index, name);
     snprintf(disposition, sizeof disposition, "attachment; filename=\"%s\"", name);
-    if (MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "image/x-exr") != MHD_YES ||
-        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition) !=
-            MHD_YES) {
-        MHD_destroy_response(resp);
+    const char *headers[] = {MHD_HTTP_HEADER_CONTENT_TYPE, CT_EXR,
+                             MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
+                             MHD_HTTP_HEADER_VARY, "Accept", NULL};
+    if (!add_headers(resp, headers))
         return MHD_NO;
-    }
     return http_send_response(r, c, MHD_HTTP_OK, resp, (uint64_t)st.st_size);
+}
+
+/* GET .../frames/{n}.png: the preview whatever Accept says (the path chose). */
+enum MHD_Result http_frame_png(req *r, struct MHD_Connection *c)
+{
+    mr_job_record job;
+    size_t index = 0;
+    enum MHD_Result res = MHD_NO;
+    char path[4096];
+    if (!load_frame(r, c, &job, &index, &res) ||
+        !frame_exr_path(r, c, &job, index, path, sizeof path, &res))
+        return res;
+    return send_frame_png(r, c, &job, index, path, false);
+}
+
+static void sheet_plan_free(mr_sheet_plan *plan)
+{
+    for (size_t i = 0; i < plan->count; i++)
+        free(plan->exr[i]);
+}
+
+/* The job's output size, from its stored document. */
+static int job_size(mr_store *st, const char *id, int *width, int *height, mr_error *err)
+{
+    char *doc = NULL;
+    mr_job *job = NULL;
+    mr_job_error jerr = {0};
+    int rc = mr_store_job_json(st, id, &doc, err);
+    if (rc == MR_OK && (rc = mr_job_parse(doc, strlen(doc), &job, &jerr)) < 0)
+        mr_error_set(err, rc, "the stored job does not parse: %s", jerr.message);
+    if (rc == MR_OK) {
+        *width = job->output.width;
+        *height = job->output.height;
+    }
+    mr_job_free(job);
+    free(doc);
+    return rc;
+}
+
+/* GET .../contact-sheet.png: thumbnails of (up to 64 of) the job's frames. */
+enum MHD_Result http_contact_sheet(req *r, struct MHD_Connection *c)
+{
+    mr_job_record job;
+    enum MHD_Result res = MHD_NO;
+    if (!http_load_job(r, c, &job, &res))
+        return res;
+    mr_store *st = mr_daemon_store(r->h->d);
+    mr_sheet_plan plan = {.frame_count = job.frame_count};
+    plan.count = mr_contact_sheet_frames(job.frame_count, plan.index);
+    mr_error err = {0};
+    for (size_t i = 0; i < plan.count; i++) {
+        char path[4096];
+        int rc = mr_store_frame_path(st, job.id, plan.index[i], path, sizeof path, &err);
+        if (rc == MR_OK && !(plan.exr[i] = mr_strdup(path)))
+            rc = mr_error_set(&err, MR_ERR_NOMEM, "out of memory");
+        if (rc < 0 && rc != MR_ERR_NOT_FOUND) {
+            sheet_plan_free(&plan);
+            return http_send_error(r, c, rc, &err);
+        }
+    }
+    mr_sheet_plan_key(&plan);
+    char etag[24];
+    snprintf(etag, sizeof etag, "\"%s\"", plan.key);
+    /* the sheet changes as frames finish: clients revalidate, cheaply */
+    const char *headers[] = {MHD_HTTP_HEADER_ETAG, etag, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache",
+                             MHD_HTTP_HEADER_CONTENT_DISPOSITION,
+                             "inline; filename=\"contact-sheet.png\"", NULL};
+    const char *match = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_IF_NONE_MATCH);
+    if (match && (strstr(match, etag) || !strcmp(match, "*"))) {
+        sheet_plan_free(&plan);
+        struct MHD_Response *resp = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
+        if (!resp || !add_headers(resp, headers))
+            return MHD_NO;
+        return http_send_response(r, c, MHD_HTTP_NOT_MODIFIED, resp, 0);
+    }
+    mr_preview_body body;
+    if (!mr_preview_sheet_cached(&plan, &body)) {
+        int width = 0, height = 0;
+        size_t bad = 0;
+        int rc = job_size(st, job.id, &width, &height, &err);
+        if (rc < 0) {
+            sheet_plan_free(&plan);
+            return http_send_error(r, c, rc, &err);
+        }
+        if (!preview_slot_take(r->h)) {
+            sheet_plan_free(&plan);
+            return preview_busy(r, c);
+        }
+        rc = mr_preview_sheet_build(&plan, width, height, may_cache(r), &body, &bad, &err);
+        preview_slot_give(r->h);
+        if (rc < 0) {
+            sheet_plan_free(&plan);
+            return preview_failed(r, c, job.id, bad, rc, &err);
+        }
+    }
+    sheet_plan_free(&plan);
+    return send_png(r, c, &body, headers);
 }
 
 enum MHD_Result http_frame_stats(req *r, struct MHD_Connection *c)

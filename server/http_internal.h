@@ -5,7 +5,9 @@
  *                   log lines, start and stop;
  *   http_routes.c   the one route table and path matching;
  *   http_reply.c    responses: JSON bodies, RFC 9457 problems, error mapping;
- *   http_handlers.c the handlers of the job, frame, asset and service routes;
+ *   http_handlers.c the handlers of the job, frame, asset and service routes,
+ *                   content negotiation (Accept) and the PNG preview routes
+ *                   (their pictures and cache: previews.c);
  *   http_events.c   server-sent event streams (GET /v1/jobs/{id}/events) and
  *                   their keepalive ticker;
  *   http_guard.c    the connection budget and the request head and body
@@ -62,6 +64,12 @@ struct mr_http {
     bool reaper_running;
     pthread_t reaper;
     _Atomic uint64_t connections_refused, connections_reaped;
+
+    /* PNG previews being made (EXR reads, encoding) right now, and how many
+     * may be: half the thread pool, at least 1, so the others keep
+     * answering (http_handlers.c). */
+    atomic_uint previews_busy;
+    unsigned previews_max;
 };
 
 typedef struct req req;
@@ -71,7 +79,9 @@ typedef enum body_kind { BODY_NONE = 0, BODY_JOB, BODY_ASSET } body_kind;
 
 typedef struct route {
     const char *method;
-    const char *pattern; /* "/v1/jobs/{id}": {name} matches one non-empty segment */
+    /* "/v1/jobs/{id}": {name} matches one non-empty segment; "{n}.png"
+     * one that ends in ".png", capturing what comes before it */
+    const char *pattern;
     handler_fn fn;
     body_kind body;
 } route;
@@ -119,6 +129,7 @@ typedef enum problem_kind {
     P_UNAUTHORIZED,
     P_NOT_FOUND,
     P_METHOD,
+    P_NOT_ACCEPTABLE,
     P_CONFLICT,
     P_TOO_LARGE,
     P_URI_TOO_LONG,
@@ -178,6 +189,8 @@ enum MHD_Result http_job_delete(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_cancel(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_retry(req *r, struct MHD_Connection *c);
 enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c);
+enum MHD_Result http_frame_png(req *r, struct MHD_Connection *c);
+enum MHD_Result http_contact_sheet(req *r, struct MHD_Connection *c);
 enum MHD_Result http_frame_stats(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_events(req *r, struct MHD_Connection *c);

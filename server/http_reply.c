@@ -23,6 +23,7 @@ static const struct {
     [P_UNAUTHORIZED] = {401, "unauthorized", "Authentication required"},
     [P_NOT_FOUND] = {404, "not-found", "Not found"},
     [P_METHOD] = {405, "method-not-allowed", "Method not allowed"},
+    [P_NOT_ACCEPTABLE] = {406, "not-acceptable", "Not acceptable"},
     [P_CONFLICT] = {409, "conflict", "Conflict with the job's state"},
     [P_TOO_LARGE] = {413, "body-too-large", "Request body too large"},
     [P_URI_TOO_LONG] = {414, "uri-too-long", "Request target too long"},

@@ -3,7 +3,10 @@
  * (method, path pattern) to handler and body kind. A path that no pattern
  * matches answers 404; a path whose patterns exist only for other methods
  * answers 405 with an Allow header (http_route_methods). Patterns match
- * segment by segment; {name} captures one non-empty segment.
+ * segment by segment; {name} captures one non-empty segment, and
+ * {name}.ext one that ends in .ext, capturing what precedes it. The first
+ * route that matches wins, so a suffixed pattern comes before the plain one
+ * it would otherwise lose to ("/frames/{n}" also matches "7.png").
  */
 #include <stdio.h>
 #include <string.h>
@@ -16,9 +19,11 @@ static const route ROUTES[] = {
     {"GET", "/v1/jobs", http_job_list, BODY_NONE},
     {"GET", "/v1/jobs/{id}", http_job_get, BODY_NONE},
     {"DELETE", "/v1/jobs/{id}", http_job_delete, BODY_NONE},
+    {"GET", "/v1/jobs/{id}/frames/{n}.png", http_frame_png, BODY_NONE},
     {"GET", "/v1/jobs/{id}/frames/{n}", http_frame_get, BODY_NONE},
     {"GET", "/v1/jobs/{id}/frames/{n}/stats", http_frame_stats, BODY_NONE},
     {"GET", "/v1/jobs/{id}/stats", http_job_stats, BODY_NONE},
+    {"GET", "/v1/jobs/{id}/contact-sheet.png", http_contact_sheet, BODY_NONE},
     {"GET", "/v1/jobs/{id}/events", http_job_events, BODY_NONE},
     {"POST", "/v1/jobs/{id}/cancel", http_job_cancel, BODY_NONE},
     {"POST", "/v1/jobs/{id}/retry", http_job_retry, BODY_NONE},
@@ -47,8 +52,14 @@ static bool route_match(const char *pattern, const char *path, char params[][PAR
         u++;
         const char *pe = segment_end(p), *ue = segment_end(u);
         size_t pl = (size_t)(pe - p), ul = (size_t)(ue - u);
-        if (pl > 2 && p[0] == '{') {
-            if (ul == 0 || ul >= PARAM_MAX || np >= MAX_PARAMS)
+        const char *close = pl > 2 && p[0] == '{' ? memchr(p, '}', pl) : NULL;
+        if (close) {
+            /* what follows the braces must end the segment: "{n}.png" */
+            size_t sl = (size_t)(pe - close - 1);
+            if (ul <= sl || memcmp(ue - sl, close + 1, sl) != 0)
+                return false;
+            ul -= sl;
+            if (ul >= PARAM_MAX || np >= MAX_PARAMS)
                 return false;
             if (params) {
                 memcpy(params[np], u, ul);

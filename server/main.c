@@ -15,7 +15,7 @@ static void usage(FILE *to)
     fprintf(to,
             "microrayd %s - ray traced frames of deforming, detailed geometry\n"
             "usage:\n"
-            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--quiet]\n"
+            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--png] [--quiet]\n"
             "  microrayd compare A.exr B.exr [--diagonal D]\n"
             "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
             "                  [--threads N] [--http-threads N] [--cache-mb N]\n"

@@ -7,7 +7,10 @@
  * and DIR/stats.json is rewritten after every frame, so an interrupted run
  * leaves only complete files behind. With --cache DIR, kinds that derive
  * data from an asset (bakes, voxelisations) keep it in DIR/<kind>/ and
- * reuse it (mr_renderer_options.cache_dir).
+ * reuse it (mr_renderer_options.cache_dir). With --png each frame also
+ * gets DIR/NNNN.png, its 8-bit sRGB preview (microray.h, "PNG previews"),
+ * and the run ends with DIR/contact-sheet.png, from thumbnails made while
+ * each film was in memory (no EXR is read back).
  */
 #include "render_cmd.h"
 
@@ -49,7 +52,58 @@ typedef struct render_out {
     const mr_job *job;
     bool quiet;
     double stats_written; /* mr_now() of the last stats.json write */
+    /* --png: previews beside the EXRs, and the contact sheet's thumbnails */
+    bool png;
+    size_t sheet_count;
+    size_t sheet_index[MR_SHEET_MAX_FRAMES];
+    mr_image8 thumbs[MR_SHEET_MAX_FRAMES]; /* px NULL: that frame is not done */
 } render_out;
+
+/* DIR/NNNN.png and, when frame index is on the contact sheet, its
+ * thumbnail; the seconds go to the frame's "png_s" (and its encode_s). */
+static int write_preview(render_out *o, size_t index, const mr_film *film, mr_frame_stats *st,
+                         mr_error *err)
+{
+    char name[MR_FRAME_NAME_MAX], path[4200];
+    mr_frame_preview_name(index, name);
+    snprintf(path, sizeof path, "%s/%s", o->dir, name);
+    double t0 = mr_now();
+    int rc = mr_png_write_film(path, film, err);
+    for (size_t i = 0; i < o->sheet_count && rc == MR_OK; i++)
+        if (o->sheet_index[i] == index) {
+            mr_image8_free(&o->thumbs[i]);
+            rc = mr_preview_thumbnail(film, &o->thumbs[i], err);
+        }
+    double seconds = mr_now() - t0;
+    st->encode_s += seconds;
+    if (rc == MR_OK)
+        rc = mr_frame_stats_add_extra(st, "png_s", "s", seconds, err);
+    return rc;
+}
+
+/* DIR/contact-sheet.png of the thumbnails made (cells of frames that did
+ * not finish are drawn as such). */
+static int write_contact_sheet(render_out *o, mr_error *err)
+{
+    int tw, th;
+    mr_preview_thumb_size(o->job->output.width, o->job->output.height, &tw, &th);
+    mr_image8 sheet;
+    uint8_t *data = NULL;
+    size_t size = 0;
+    char path[4200];
+    snprintf(path, sizeof path, "%s/contact-sheet.png", o->dir);
+    int rc = mr_contact_sheet_new(o->sheet_count, tw, th, &sheet, err);
+    for (size_t i = 0; i < o->sheet_count && rc == MR_OK; i++)
+        if (o->thumbs[i].px)
+            rc = mr_contact_sheet_put(&sheet, i, &o->thumbs[i], err);
+    if (rc == MR_OK)
+        rc = mr_png_encode(&sheet, &data, &size, err);
+    if (rc == MR_OK)
+        rc = mr_fs_write_atomic(path, data, size, "contact sheet", err);
+    free(data);
+    mr_image8_free(&sheet);
+    return rc;
+}
 
 static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_stats *st, mr_error *err)
 {
@@ -68,6 +122,8 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
         rc = mr_fs_write_atomic(path, data, size, "frame", err);
     free(data);
     st->encode_s = mr_now() - t0;
+    if (rc == MR_OK && o->png)
+        rc = write_preview(o, index, film, st, err);
     return rc;
 }
 
@@ -144,12 +200,14 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 static void usage_render(void)
 {
     fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
-                    "[--job-memory-mb N] [--quiet]\n"
+                    "[--job-memory-mb N] [--png] [--quiet]\n"
                     "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
                     "(created if missing)\n"
                     "               and reuse it (default: derive it again every time)\n"
                     "  --job-memory-mb N  what the job's geometry may hold (default: half of "
-                    "the machine's memory)\n");
+                    "the machine's memory)\n"
+                    "  --png        also write DIR/NNNN.png (8-bit sRGB previews) and "
+                    "DIR/contact-sheet.png\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
@@ -157,7 +215,7 @@ int mr_cmd_render(int argc, char **argv)
     const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL;
     unsigned threads = 0;
     size_t memory_budget = mr_job_memory_default();
-    bool quiet = false;
+    bool quiet = false, png = false;
     for (int i = 0; i < argc; i++) {
         if (!strcmp(argv[i], "--out") && i + 1 < argc) {
             out_dir = argv[++i];
@@ -185,6 +243,8 @@ int mr_cmd_render(int argc, char **argv)
             memory_budget = (size_t)v << 20;
         } else if (!strcmp(argv[i], "--quiet")) {
             quiet = true;
+        } else if (!strcmp(argv[i], "--png")) {
+            png = true;
         } else if (argv[i][0] == '-' || job_path) {
             usage_render();
             return EXIT_USAGE;
@@ -229,7 +289,10 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
-    render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now()};
+    render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now(),
+                      .png = png};
+    if (png)
+        out.sheet_count = mr_contact_sheet_frames(job->frame_count, out.sheet_index);
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress,
                        .cache_dir = cache_dir, .memory_budget = memory_budget};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
@@ -244,6 +307,14 @@ int mr_cmd_render(int argc, char **argv)
         fprintf(stderr, "microrayd: %s\n", err.msg);
         status = exit_status(rc);
     }
+    /* also after a failure: the frames that finished, the others as such */
+    if (png && stats.frame_count > 0 && (rc = write_contact_sheet(&out, &err)) < 0) {
+        fprintf(stderr, "microrayd: %s/contact-sheet.png: %s\n", out_dir, err.msg);
+        if (status == EXIT_OK)
+            status = exit_status(rc);
+    }
+    for (size_t i = 0; i < out.sheet_count; i++)
+        mr_image8_free(&out.thumbs[i]);
 done:
     mr_job_stats_free(&stats);
     mr_device_free(dev);

@@ -127,6 +127,11 @@ void mr_frame_file_name(size_t index, char name[MR_FRAME_NAME_MAX])
     snprintf(name, MR_FRAME_NAME_MAX, "%04zu.exr", index);
 }
 
+void mr_frame_preview_name(size_t index, char name[MR_FRAME_NAME_MAX])
+{
+    snprintf(name, MR_FRAME_NAME_MAX, "%04zu.png", index);
+}
+
 void mr_job_stats_free(mr_job_stats *stats)
 {
     if (!stats)

@@ -52,9 +52,11 @@ typedef struct mr_worker_io {
     size_t memory_budget;
 } mr_worker_io;
 
-/* File name of frame `index` within a job's output ("0007.exr"). */
+/* File name of frame `index` within a job's output ("0007.exr"), and of
+ * its PNG preview ("0007.png"). */
 #define MR_FRAME_NAME_MAX 32
 void mr_frame_file_name(size_t index, char name[MR_FRAME_NAME_MAX]);
+void mr_frame_preview_name(size_t index, char name[MR_FRAME_NAME_MAX]);
 
 typedef struct mr_job_stats {
     size_t frame_count;      /* one past the last frame finished */

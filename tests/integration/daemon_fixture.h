@@ -192,6 +192,7 @@ typedef struct http_result {
     size_t len;
     char content_type[128];
     char location[256];
+    char etag[128], vary[128], disposition[256]; /* those headers, "" when absent */
 } http_result;
 
 static size_t fx_collect(char *p, size_t size, size_t n, void *user)
@@ -208,18 +209,35 @@ static size_t fx_collect(char *p, size_t size, size_t n, void *user)
     return add;
 }
 
+/* Copies the value of header line p (of len bytes) into out when its name is `name`. */
+static void fx_header_value(const char *p, size_t len, const char *name, char *out, size_t size)
+{
+    size_t nl = strlen(name);
+    if (len > nl + 2 && strncasecmp(p, name, nl) == 0 && p[nl] == ':') {
+        const char *v = p + nl + 1, *e = p + len;
+        while (v < e && *v == ' ')
+            v++;
+        while (e > v && (e[-1] == '\r' || e[-1] == '\n'))
+            e--;
+        snprintf(out, size, "%.*s", (int)(e - v), v);
+    }
+}
+
 static size_t fx_header(char *p, size_t size, size_t n, void *user)
 {
     http_result *r = user;
     size_t len = size * n;
-    if (len > 10 && strncasecmp(p, "Location: ", 10) == 0)
-        snprintf(r->location, sizeof r->location, "%.*s", (int)(len - 10 - 2), p + 10);
+    fx_header_value(p, len, "Location", r->location, sizeof r->location);
+    fx_header_value(p, len, "ETag", r->etag, sizeof r->etag);
+    fx_header_value(p, len, "Vary", r->vary, sizeof r->vary);
+    fx_header_value(p, len, "Content-Disposition", r->disposition, sizeof r->disposition);
     return len;
 }
 
-/* One request; header may be NULL ("Name: value"). */
-static http_result http(const daemon_proc *d, const char *method, const char *path, const void *body,
-                        size_t body_len, const char *header)
+/* One request with the NULL-terminated request headers ("Name: value";
+ * headers may be NULL). */
+static http_result http_headers(const daemon_proc *d, const char *method, const char *path,
+                                const void *body, size_t body_len, const char *const *headers)
 {
     http_result r = {0};
     r.body = calloc(1, 1);
@@ -227,11 +245,13 @@ static http_result http(const daemon_proc *d, const char *method, const char *pa
     snprintf(url, sizeof url, "%s%s", d->base, path);
     CURL *c = curl_easy_init();
     struct curl_slist *h = NULL;
-    if (header)
-        h = curl_slist_append(h, header);
+    for (size_t i = 0; headers && headers[i]; i++)
+        h = curl_slist_append(h, headers[i]);
     h = curl_slist_append(h, "Expect:");
     curl_easy_setopt(c, CURLOPT_URL, url);
     curl_easy_setopt(c, CURLOPT_CUSTOMREQUEST, method);
+    if (!strcmp(method, "HEAD")) /* headers only: no body will come */
+        curl_easy_setopt(c, CURLOPT_NOBODY, 1L);
     curl_easy_setopt(c, CURLOPT_HTTPHEADER, h);
     curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, fx_collect);
     curl_easy_setopt(c, CURLOPT_WRITEDATA, &r);
@@ -252,6 +272,14 @@ static http_result http(const daemon_proc *d, const char *method, const char *pa
     curl_slist_free_all(h);
     curl_easy_cleanup(c);
     return r;
+}
+
+/* One request; header may be NULL ("Name: value"). */
+static http_result http(const daemon_proc *d, const char *method, const char *path, const void *body,
+                        size_t body_len, const char *header)
+{
+    const char *headers[] = {header, NULL};
+    return http_headers(d, method, path, body, body_len, headers);
 }
 
 static void http_free(http_result *r) { free(r->body); }
