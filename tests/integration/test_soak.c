@@ -1,7 +1,8 @@
 /*
  * test_soak.c - 1,000 small jobs through one real daemon (issue 12, "a
- * soak"): every one succeeds, and the daemon's open file descriptors and
- * resident memory stay flat from after a warm-up (the first 100 jobs: the
+ * soak"): every one succeeds in the same render worker, and the open file
+ * descriptors and resident memory of the daemon and of its render worker
+ * stay flat from after a warm-up (the first 100 jobs: the
  * scene cache filled, sqlite's page cache and the allocator's arenas grown)
  * to the end. Each job is one 32x18 frame of the dancer, so the run is
  * about HTTP, the store, the workers and the per-job setup, which is where
@@ -126,17 +127,24 @@ static void test_thousand_jobs(void **state)
     static char ids[JOBS][40];
     double t0 = mr_now();
     run_jobs(0, WARMUP, ids);
-    int fds0 = open_fds(D.pid);
-    long rss0 = rss_kb(D.pid);
+    /* the daemon, and the render worker that rendered every job */
+    pid_t worker = fx_render_worker_pid(&D);
+    int fds0 = open_fds(D.pid), wfds0 = open_fds(worker);
+    long rss0 = rss_kb(D.pid), wrss0 = rss_kb(worker);
     run_jobs(WARMUP, JOBS, ids);
-    int fds1 = open_fds(D.pid);
-    long rss1 = rss_kb(D.pid);
-    print_message("[ soak     ] %d jobs in %.1f s; after %d: %d fds, %ld KiB resident; "
-                  "after %d: %d fds, %ld KiB resident\n",
-                  JOBS, mr_now() - t0, WARMUP, fds0, rss0, JOBS, fds1, rss1);
+    assert_int_equal(fx_render_worker_pid(&D), worker); /* the same worker throughout */
+    int fds1 = open_fds(D.pid), wfds1 = open_fds(worker);
+    long rss1 = rss_kb(D.pid), wrss1 = rss_kb(worker);
+    print_message("[ soak     ] %d jobs in %.1f s; after %d: daemon %d fds, %ld KiB resident, "
+                  "render worker %d fds, %ld KiB; after %d: daemon %d fds, %ld KiB, worker %d "
+                  "fds, %ld KiB\n",
+                  JOBS, mr_now() - t0, WARMUP, fds0, rss0, wfds0, wrss0, JOBS, fds1, rss1, wfds1,
+                  wrss1);
     assert_true(fds1 <= fds0 + 2);
+    assert_true(wfds1 <= wfds0 + 2);
 #if !defined(__SANITIZE_ADDRESS__)
     assert_true(rss1 - rss0 < 32 * 1024);
+    assert_true(wrss1 - wrss0 < 32 * 1024);
 #endif
 }
 
