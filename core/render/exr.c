@@ -51,6 +51,11 @@
 #include "util/file_io.h"
 #include "util/parallel.h"
 
+#include <libdeflate.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 /* ------------------------------------------------------------------ */
 /* half <-> float                                                      */
 
@@ -435,6 +440,20 @@ static int check_meta(const mr_exr_meta *meta, mr_error *err)
  * chunks that wait for their turn to be written. */
 #define ENC_BATCH_BYTES ((size_t)8 << 20)
 
+/* One channel of the file, in the file's (name) order. */
+typedef struct enc_chan {
+    int plane;              /* k_chans index */
+    exr_pixel_type_t type;  /* type in the file */
+} enc_chan;
+
+/* The channels as the library stored them (read back after the header is
+ * written, so the order is the library's, not our guess of it). */
+typedef struct enc_layout {
+    int count;
+    enc_chan ch[CH_COUNT];
+    size_t pixel_bytes;     /* one pixel over all channels, as packed */
+} enc_layout;
+
 /* One chunk of the current batch. cinfo is filled on the calling thread,
  * the rest by the worker that encodes the chunk. */
 typedef struct enc_slot {
@@ -447,18 +466,29 @@ typedef struct enc_slot {
     char msg[384];      /* library message of a failure, from the worker */
 } enc_slot;
 
-/* Per worker index: its own pipeline (pipelines are not thread-safe, the
- * context is), reused for every chunk that worker takes. */
+/* Per worker index, reused for every chunk that worker takes: for PIZ the
+ * library's pipeline (pipelines are not thread-safe, the context is), for
+ * ZIP/ZIPS our own compressor and its two chunk-sized buffers. */
 typedef struct enc_worker {
     exr_encode_pipeline_t pipe;
     bool ready, routines;
-    const mr_film *film;
-    int map[CH_COUNT];  /* pipeline channel (file order) -> k_chans index */
+    const struct enc_batch *batch;
+    struct libdeflate_compressor *deflate;
+    uint8_t *packed[2], *predicted; /* packed[cur]: this chunk, packed[!cur]: the last one */
+    size_t buf_cap;
+    int cur;
+    size_t last_raw;                /* the last chunk compressed: its packed size ... */
+    uint8_t *last_out;              /* ... and what it compressed to */
+    size_t last_size, last_cap;
 } enc_worker;
 
 typedef struct enc_batch {
     exr_const_context_t ctxt;
     int part;
+    const mr_film *film;
+    enc_layout layout;
+    exr_compression_t ctype;
+    int level;          /* ZIP/ZIPS: the deflate level */
     enc_slot *slots;
     enc_worker *workers;
     atomic_bool failed; /* set by the first failing chunk: skip the rest */
@@ -578,30 +608,23 @@ static bool have_f16c(void)
 }
 #endif
 
-/* Our convert_and_pack step. It writes the layout the library's default
- * packer produces for unsampled scanline channels (per scanline, every
- * channel in file order, little-endian samples), but converts straight from
- * the film: no staging copy, and the half rounding stays ours. */
-static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
+/* Packs rows [y0, y0 + h) of the film in the layout of an uncompressed
+ * scanline chunk (per scanline, every channel in file order, little-endian
+ * samples), converting straight from the film: no staging copy, and the
+ * half rounding stays ours. Returns the bytes written (h * width *
+ * pixel_bytes). */
+static size_t pack_rows(const mr_film *film, const enc_layout *L, int y0, int h, uint8_t *dst)
 {
-    const enc_worker *w = p->encoding_user_data;
-    const mr_film *film = w->film;
-    size_t width = (size_t)film->width, need;
-    uint8_t *dst = p->packed_buffer;
+    size_t width = (size_t)film->width;
+    uint8_t *start = dst;
     bool f16c = have_f16c(); /* F16C implies AVX */
     int row, c;
 
-    need = (size_t)p->chunk.height * width * 32u; /* 4 x 2 + 6 x 4 bytes per pixel */
-    if (!dst || p->packed_alloc_size < need || p->chunk.start_y < 0 || p->chunk.height < 1 ||
-        p->chunk.start_y + p->chunk.height > film->height)
-        return EXR_ERR_INVALID_ARGUMENT;
-
-    for (row = 0; row < p->chunk.height; row++) {
-        size_t base = (size_t)(p->chunk.start_y + row) * width;
-        for (c = 0; c < CH_COUNT; c++) {
-            int ci = w->map[c];
-            const void *plane = film_plane(film, ci);
-            switch (k_chans[ci].type) {
+    for (row = 0; row < h; row++) {
+        size_t base = (size_t)(y0 + row) * width;
+        for (c = 0; c < L->count; c++) {
+            const void *plane = film_plane(film, L->ch[c].plane);
+            switch (L->ch[c].type) {
             case EXR_PIXEL_HALF:
 #ifdef MR_EXR_F16C
                 if (f16c)
@@ -627,35 +650,107 @@ static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
             }
         }
     }
-    p->packed_bytes = (uint64_t)(dst - (uint8_t *)p->packed_buffer);
+    (void)f16c;
+    return (size_t)(dst - start);
+}
+
+/* Our convert_and_pack step in the library's pipeline (PIZ). */
+static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
+{
+    const enc_worker *w = p->encoding_user_data;
+    const enc_batch *b = w->batch;
+    const mr_film *film = b->film;
+    size_t need = (size_t)p->chunk.height * (size_t)film->width * b->layout.pixel_bytes;
+
+    if (!p->packed_buffer || p->packed_alloc_size < need || p->chunk.start_y < 0 ||
+        p->chunk.height < 1 || p->chunk.start_y + p->chunk.height > film->height)
+        return EXR_ERR_INVALID_ARGUMENT;
+    p->packed_bytes = pack_rows(film, &b->layout, p->chunk.start_y, p->chunk.height,
+                                p->packed_buffer);
     return EXR_ERR_SUCCESS;
 }
 
+/* The ZIP codec's byte order and predictor, applied to n packed bytes in
+ * one pass: the chunk is split into its even-indexed bytes followed by its
+ * odd-indexed bytes (t), and every byte of t but the first is stored as its
+ * difference to the previous one plus 128 (mod 256). OpenEXR's decoder
+ * undoes both after inflating (openexr internal_zip.c, ImfZip.cpp); the
+ * result is what the library's own encoder hands to zlib. The vector loop
+ * splits 32 input bytes into 16 even and 16 odd ones and subtracts each
+ * lane's predecessor (the lane before it, or the last lane of the previous
+ * block). */
+void mr_exr_zip_predict(const uint8_t *in, size_t n, uint8_t *out)
+{
+    size_t h = (n + 1) / 2, odd = n / 2, i = 1, j = 1;
+    uint8_t *eo = out, *oo = out + h;
+
+    if (n == 0)
+        return;
+    eo[0] = in[0];
+#if defined(__SSE2__)
+    {
+        const __m128i lo_mask = _mm_set1_epi16(0x00ff), bias = _mm_set1_epi8((char)0x80);
+        /* Lane 15 of prev_* holds the predecessor of the next block's lane
+         * 0: t[0] for the evens, in[1] (the first odd byte) for the odds;
+         * the first odd byte itself follows the last even one (scalar, below). */
+        __m128i prev_e = _mm_slli_si128(_mm_cvtsi32_si128(in[0]), 15);
+        __m128i prev_o = _mm_slli_si128(_mm_cvtsi32_si128(n > 1 ? in[1] : 0), 15);
+        while (i + 16 <= h && 2 * i + 32 <= n) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i));
+            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i + 16));
+            __m128i ev = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
+            __m128i pe = _mm_or_si128(_mm_slli_si128(ev, 1), _mm_srli_si128(prev_e, 15));
+            _mm_storeu_si128((__m128i *)(void *)(eo + i),
+                             _mm_add_epi8(_mm_sub_epi8(ev, pe), bias));
+            prev_e = ev;
+            i += 16;
+        }
+        while (j + 16 <= odd && 2 * j + 33 <= n) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 1));
+            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 17));
+            __m128i od = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
+            __m128i po = _mm_or_si128(_mm_slli_si128(od, 1), _mm_srli_si128(prev_o, 15));
+            _mm_storeu_si128((__m128i *)(void *)(oo + j),
+                             _mm_add_epi8(_mm_sub_epi8(od, po), bias));
+            prev_o = od;
+            j += 16;
+        }
+    }
+#endif
+    for (; i < h; i++)
+        eo[i] = (uint8_t)(in[2 * i] - in[2 * i - 2] + 128u);
+    if (odd >= 1)
+        oo[0] = (uint8_t)(in[1] - in[2 * (h - 1)] + 128u);
+    for (; j < odd; j++)
+        oo[j] = (uint8_t)(in[2 * j + 1] - in[2 * j - 1] + 128u);
+}
+
 /* Points the pipeline's channels at the chunk's rows and checks that the
- * library describes the layout we wrote the header for. */
+ * library describes the layout we wrote the header for (PIZ). */
 static exr_result_t setup_channels(enc_worker *w, const exr_chunk_info_t *cinfo)
 {
     exr_encode_pipeline_t *p = &w->pipe;
-    const mr_film *film = w->film;
+    const enc_layout *L = &w->batch->layout;
+    const mr_film *film = w->batch->film;
     int c;
 
-    if (p->channel_count != CH_COUNT)
+    if (p->channel_count != L->count)
         return EXR_ERR_INVALID_ARGUMENT;
-    for (c = 0; c < CH_COUNT; c++) {
+    for (c = 0; c < L->count; c++) {
         exr_coding_channel_info_t *ch = &p->channels[c];
-        int ci = chan_index(ch->channel_name);
-        if (ci < 0 || ch->data_type != (uint16_t)k_chans[ci].type || ch->x_samples != 1 ||
-            ch->y_samples != 1 || ch->width != film->width || ch->height != cinfo->height ||
-            ch->bytes_per_element != (k_chans[ci].type == EXR_PIXEL_HALF ? 2 : 4))
+        int ci = L->ch[c].plane;
+        if (chan_index(ch->channel_name) != ci || ch->data_type != (uint16_t)L->ch[c].type ||
+            ch->x_samples != 1 || ch->y_samples != 1 || ch->width != film->width ||
+            ch->height != cinfo->height ||
+            ch->bytes_per_element != (L->ch[c].type == EXR_PIXEL_HALF ? 2 : 4))
             return EXR_ERR_INVALID_ARGUMENT;
-        w->map[c] = ci;
         /* pack_chunk reads the film itself; these describe the film planes
          * truthfully (4-byte float or uint rows) because exr_encoding_run
          * validates them. */
         ch->encode_from_ptr = (const uint8_t *)((const uint32_t *)film_plane(film, ci) +
                                                 (size_t)cinfo->start_y * (size_t)film->width);
-        ch->user_data_type = (uint16_t)(k_chans[ci].type == EXR_PIXEL_UINT ? EXR_PIXEL_UINT
-                                                                           : EXR_PIXEL_FLOAT);
+        ch->user_data_type = (uint16_t)(L->ch[c].type == EXR_PIXEL_UINT ? EXR_PIXEL_UINT
+                                                                         : EXR_PIXEL_FLOAT);
         ch->user_bytes_per_element = 4;
         ch->user_pixel_stride = 4;
         ch->user_line_stride = 4 * film->width;
@@ -663,10 +758,9 @@ static exr_result_t setup_channels(enc_worker *w, const exr_chunk_info_t *cinfo)
     return EXR_ERR_SUCCESS;
 }
 
-/* Packs and compresses one chunk into s->data. Only pipeline calls happen
- * here; everything that touches the file (chunk table, offsets) stays on
- * the calling thread. */
-static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
+/* PIZ: packs (our pack_chunk) and compresses one chunk through the
+ * library's pipeline into s->data. */
+static exr_result_t encode_chunk_library(enc_batch *b, enc_worker *w, enc_slot *s)
 {
     exr_encode_pipeline_t *p = &w->pipe;
     exr_result_t rv;
@@ -705,7 +799,6 @@ static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
     rv = exr_encoding_run(b->ctxt, b->part, p);
     if (rv != EXR_ERR_SUCCESS)
         return rv;
-    /* NONE (no compressor) leaves the packed bytes here too. */
     if (!p->compressed_buffer || p->compressed_bytes == 0)
         return EXR_ERR_INVALID_ARGUMENT;
     if (p->compressed_bytes > s->cap) {
@@ -719,6 +812,100 @@ static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
     memcpy(s->data, p->compressed_buffer, p->compressed_bytes);
     s->size = p->compressed_bytes;
     return EXR_ERR_SUCCESS;
+}
+
+static bool grow(uint8_t **buf, size_t *cap, size_t need)
+{
+    uint8_t *nd;
+    if (*cap >= need)
+        return true;
+    nd = realloc(*buf, need);
+    if (!nd)
+        return false;
+    *buf = nd;
+    *cap = need;
+    return true;
+}
+
+/* NONE, ZIP and ZIPS without the library's pipeline: the chunk is packed by
+ * pack_rows and, for the ZIP codecs, reordered and predicted as the codec
+ * expects and deflated by libdeflate into the zlib format (which zlib's
+ * inflate, used by OpenEXR's readers, decodes). As the library does, a
+ * chunk that does not shrink is stored packed: the readers take a chunk
+ * whose size equals its unpacked size as uncompressed, so a compressed
+ * chunk must be strictly smaller.
+ *
+ * Deflate costs about 1.5 ns per input byte even for a run of one value
+ * (its match finder visits every byte a match covers), and empty sky is
+ * most of a typical frame: a chunk whose packed bytes equal the last chunk
+ * this worker compressed (rows of background, all alike) reuses that
+ * chunk's compressed bytes. The bytes are the same as compressing again
+ * (libdeflate is deterministic), so the file does not depend on which
+ * worker took which chunk. */
+static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
+{
+    const mr_film *film = b->film;
+    size_t raw = (size_t)s->cinfo.height * (size_t)film->width * b->layout.pixel_bytes, got;
+    uint8_t *packed;
+
+    s->step = "packing a chunk (layout mismatch)";
+    if (raw != s->cinfo.unpacked_size || raw == 0)
+        return EXR_ERR_INVALID_ARGUMENT;
+    s->step = "keeping an encoded chunk";
+    if (!grow(&s->data, &s->cap, raw))
+        return EXR_ERR_OUT_OF_MEMORY;
+    if (b->ctype == EXR_COMPRESSION_NONE) {
+        s->size = pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, s->data);
+        return EXR_ERR_SUCCESS;
+    }
+    if (w->buf_cap < raw) {
+        size_t cap = 0;
+        for (int i = 0; i < 2; i++) {
+            cap = w->buf_cap;
+            if (!grow(&w->packed[i], &cap, raw))
+                return EXR_ERR_OUT_OF_MEMORY;
+        }
+        cap = w->buf_cap;
+        if (!grow(&w->predicted, &cap, raw))
+            return EXR_ERR_OUT_OF_MEMORY;
+        w->buf_cap = raw;
+        w->last_raw = 0; /* the last chunk's bytes did not survive the realloc */
+    }
+    if (!w->deflate) {
+        s->step = "libdeflate_alloc_compressor";
+        w->deflate = libdeflate_alloc_compressor(b->level);
+        if (!w->deflate)
+            return EXR_ERR_OUT_OF_MEMORY;
+    }
+    packed = w->packed[w->cur];
+    pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, packed);
+    if (w->last_raw == raw && memcmp(packed, w->packed[!w->cur], raw) == 0) {
+        memcpy(s->data, w->last_out, w->last_size);
+        s->size = w->last_size;
+        return EXR_ERR_SUCCESS;
+    }
+    mr_exr_zip_predict(packed, raw, w->predicted);
+    /* 0 when the stream would not fit in raw - 1 bytes: store packed. */
+    got = raw > 1 ? libdeflate_zlib_compress(w->deflate, w->predicted, raw, s->data, raw - 1) : 0;
+    if (got == 0) {
+        memcpy(s->data, packed, raw);
+        got = raw;
+    }
+    s->size = got;
+    s->step = "keeping an encoded chunk";
+    if (!grow(&w->last_out, &w->last_cap, got))
+        return EXR_ERR_OUT_OF_MEMORY;
+    memcpy(w->last_out, s->data, got);
+    w->last_size = got;
+    w->last_raw = raw;
+    w->cur = !w->cur;
+    return EXR_ERR_SUCCESS;
+}
+
+static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
+{
+    return b->ctype == EXR_COMPRESSION_PIZ ? encode_chunk_library(b, w, s)
+                                           : encode_chunk_own(b, w, s);
 }
 
 static void encode_range(void *ctx, size_t begin, size_t end, unsigned worker)
@@ -746,6 +933,34 @@ static void encode_range(void *ctx, size_t begin, size_t end, unsigned worker)
         }
     }
     t_sink = saved;
+}
+
+/* The written header's channel list as an enc_layout: file order, each
+ * channel one of ours with the type we asked for. */
+static int read_layout(exr_context_t ctxt, int part, enc_layout *L, const exr_io *io,
+                       mr_error *err)
+{
+    const exr_attr_chlist_t *chans = NULL;
+    int c;
+
+    memset(L, 0, sizeof *L);
+    if (exr_get_channels(ctxt, part, &chans) != EXR_ERR_SUCCESS || !chans ||
+        chans->num_channels < 1 || chans->num_channels > CH_COUNT)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: EXR write: unexpected channel list",
+                            io->name);
+    for (c = 0; c < chans->num_channels; c++) {
+        const exr_attr_chlist_entry_t *e = &chans->entries[c];
+        int ci = chan_index(e->name.str);
+        if (ci < 0 || e->pixel_type != k_chans[ci].type)
+            return mr_error_set(err, MR_ERR_FORMAT,
+                                "%s: EXR write: unexpected channel '%s' in the header",
+                                io->name, e->name.str ? e->name.str : "");
+        L->ch[c].plane = ci;
+        L->ch[c].type = e->pixel_type;
+        L->pixel_bytes += e->pixel_type == EXR_PIXEL_HALF ? 2u : 4u;
+    }
+    L->count = chans->num_channels;
+    return MR_OK;
 }
 
 static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt,
@@ -796,10 +1011,6 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
                                 EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1),
                 "exr_add_channel");
     }
-    if (ctype == EXR_COMPRESSION_ZIP || ctype == EXR_COMPRESSION_ZIPS)
-        EXR_TRY(exr_set_zip_compression_level(ctxt, part, level),
-                "exr_set_zip_compression_level");
-
     EXR_TRY(exr_attr_set_string(ctxt, part, "microray.version", MR_VERSION_STRING),
             "exr_attr_set_string(microray.version)");
     if (meta) {
@@ -829,8 +1040,13 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
      * chunk order by this thread, which is the only one that touches the
      * file and the chunk table. The bytes of a chunk depend on nothing but
      * its pixels, so the file is the same for every thread count. */
+    if ((rc = read_layout(ctxt, part, &b.layout, io, err)) < 0)
+        goto cleanup;
+    b.film = film;
+    b.ctype = ctype;
+    b.level = level;
     chunks = ((size_t)film->height + (size_t)lines - 1) / (size_t)lines;
-    chunk_bytes = (size_t)lines * (size_t)film->width * 32u;
+    chunk_bytes = (size_t)lines * (size_t)film->width * b.layout.pixel_bytes;
     nslots = ENC_BATCH_BYTES / chunk_bytes;
     /* Several chunks per worker keep uneven chunks (sky compresses faster
      * than geometry) from idling workers at the end of a batch. */
@@ -847,7 +1063,7 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
         goto cleanup;
     }
     for (t = 0; t < threads; t++)
-        b.workers[t].film = film;
+        b.workers[t].batch = &b;
 
     for (first = 0; first < chunks; first += nslots) {
         size_t n = chunks - first < nslots ? chunks - first : nslots;
@@ -917,9 +1133,16 @@ fail:
     rc = exr_fail(err, io, true, step, rv);
 cleanup:
     if (b.workers) {
-        for (t = 0; t < threads; t++)
+        for (t = 0; t < threads; t++) {
             if (b.workers[t].ready)
                 exr_encoding_destroy(ctxt, &b.workers[t].pipe);
+            if (b.workers[t].deflate)
+                libdeflate_free_compressor(b.workers[t].deflate);
+            free(b.workers[t].packed[0]);
+            free(b.workers[t].packed[1]);
+            free(b.workers[t].predicted);
+            free(b.workers[t].last_out);
+        }
         free(b.workers);
     }
     if (b.slots) {

@@ -16,4 +16,11 @@
 uint16_t mr_float_to_half(float f);
 float mr_half_to_float(uint16_t h);
 
+/* The ZIP codec's byte reordering and predictor over n packed chunk bytes
+ * (what OpenEXR's ZIP and ZIPS encoders hand to deflate): out[0 .. (n+1)/2)
+ * are the even-indexed bytes of in, the rest the odd-indexed ones, and every
+ * byte but the first then holds its difference to the one before it plus
+ * 128, mod 256. in and out must not overlap. */
+void mr_exr_zip_predict(const uint8_t *in, size_t n, uint8_t *out);
+
 #endif
