@@ -513,9 +513,9 @@ static int run_frame_done(void *user, size_t index, const mr_film *film, mr_fram
     job_run *r = user;
     mr_daemon *d = r->d;
     double t0 = mr_now();
-    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
-                        .scene_diagonal = st->scene_diagonal};
-    snprintf(meta.job, sizeof meta.job, "%s", r->id);
+    mr_exr_meta meta;
+    mr_exr_meta_for_frame(&meta, r->job, st);
+    snprintf(meta.job, sizeof meta.job, "%s", r->id); /* the daemon names jobs by id */
     mr_exr_options opt = r->job->output.exr;
     opt.threads = d->cfg.render_threads;
     uint8_t *data = NULL;

@@ -23,4 +23,10 @@ float mr_half_to_float(uint16_t h);
  * 128, mod 256. in and out must not overlap. */
 void mr_exr_zip_predict(const uint8_t *in, size_t n, uint8_t *out);
 
+/* The name Cryptomatte layer `layer` (MR_CRYPTO_OBJECT, MR_CRYPTO_ASSET)
+ * gives item i (an object, or an asset) of job: the object's or the
+ * asset's name; "object<i>" for an object a hand-built job left unnamed
+ * (the parser names every object). buf backs the made-up name. */
+const char *mr_crypto_name(const mr_job *job, int layer, size_t i, char buf[32]);
+
 #endif

@@ -147,7 +147,8 @@ static mr_film *pattern_film(void)
     return f;
 }
 
-static const mr_exr_meta k_meta = {"job-42", 7, 2.5, 0.125, 12.5f};
+static const mr_exr_meta k_meta = {.job = "job-42", .frame = 7, .time = 2.5,
+                                   .render_seconds = 0.125, .scene_diagonal = 12.5f};
 
 /* HALF check. Binary16 has 11 significant bits, so round-to-nearest is off
  * by at most half an ulp: relative 2^-11 for normal values (|v| >= 2^-14),
@@ -295,7 +296,7 @@ static void test_film_caps(void **state)
     /* The longest allowed side works and starts zeroed. */
     assert_int_equal(mr_film_new(8192, 1, &f, &err), MR_OK);
     assert_int_equal(f->width, 8192);
-    assert_true(f->z[8191] == 0.0f && f->prim_id[8191] == 0);
+    assert_true(f->z[8191] == MR_DEPTH_MISS && f->prim_id[8191] == 0); /* all miss */
     mr_film_free(f);
     mr_film_free(NULL);
 }
@@ -309,7 +310,7 @@ static void test_film_clear(void **state)
     mr_film_clear(f);
     for (i = 0; i < n; i++) {
         assert_true(f->r[i] == 0.0f && f->g[i] == 0.0f && f->b[i] == 0.0f &&
-                    f->a[i] == 0.0f && f->z[i] == 0.0f && f->nx[i] == 0.0f &&
+                    f->a[i] == 0.0f && f->z[i] == MR_DEPTH_MISS && f->nx[i] == 0.0f &&
                     f->ny[i] == 0.0f && f->nz[i] == 0.0f);
         assert_int_equal(f->object_id[i], 0);
         assert_int_equal(f->prim_id[i], 0);
@@ -370,7 +371,7 @@ static void roundtrip(void **state, mr_compression c, int zip_level, const char 
 {
     char path[256];
     mr_film *in = pattern_film(), *out = NULL;
-    mr_exr_options opt = {c, zip_level, 0};
+    mr_exr_options opt = {c, zip_level, 0, false};
     mr_exr_meta meta;
     mr_error err = {0};
     uint8_t *mem = NULL, *file = NULL;
@@ -443,7 +444,7 @@ static void test_zip_level_changes_output(void **state)
 {
     /* The level must reach zlib: levels 1 and 9 give different streams. */
     mr_film *in = pattern_film();
-    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1, 0}, o9 = {MR_COMPRESSION_ZIP, 9, 0};
+    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1, 0, false}, o9 = {MR_COMPRESSION_ZIP, 9, 0, false};
     uint8_t *m1 = NULL, *m9 = NULL;
     size_t s1 = 0, s9 = 0;
     mr_error err = {0};
@@ -491,7 +492,7 @@ static void test_nonfinite_become_finite(void **state)
 {
     char path[256];
     mr_film *in = NULL, *out = NULL;
-    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0};
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0, false};
     mr_error err = {0};
     const float bad[4] = {NAN, INFINITY, -INFINITY, 1e30f};
     size_t i, n;
@@ -539,7 +540,7 @@ static void test_tiny_and_tall(void **state)
     for (s = 0; s < 3; s++) {
         for (c = 0; c < 4; c++) {
             mr_film *in = NULL, *out = NULL;
-            mr_exr_options opt = {cs[c], 0, 0};
+            mr_exr_options opt = {cs[c], 0, 0, false};
             size_t n = (size_t)sizes[s][0] * (size_t)sizes[s][1];
             assert_int_equal(mr_film_new(sizes[s][0], sizes[s][1], &in, &err), MR_OK);
             for (i = 0; i < n; i++) {
@@ -848,13 +849,24 @@ static uint8_t *reference_write(const mr_film *f, mr_compression c, int level,
                                                        level ? level : MR_ZIP_LEVEL_DEFAULT),
                          0);
     assert_int_equal(exr_attr_set_string(ctxt, part, "microray.version", MR_VERSION_STRING), 0);
-    assert_int_equal(exr_attr_set_string(ctxt, part, "microray.job", meta->job), 0);
-    assert_int_equal(exr_attr_set_int(ctxt, part, "microray.frame", meta->frame), 0);
-    assert_int_equal(exr_attr_set_double(ctxt, part, "microray.time", meta->time), 0);
-    assert_int_equal(
-        exr_attr_set_double(ctxt, part, "microray.renderSeconds", meta->render_seconds), 0);
-    assert_int_equal(
-        exr_attr_set_float(ctxt, part, "microray.sceneDiagonal", meta->scene_diagonal), 0);
+    {
+        /* the standard attributes a film without a camera and k_meta get */
+        const exr_attr_chromaticities_t rec709 = {0.64f, 0.33f, 0.30f, 0.60f,
+                                                  0.15f, 0.06f, 0.3127f, 0.3290f};
+        char comments[256];
+        snprintf(comments, sizeof comments,
+                 "Rendered by microray %s: job %s, frame %d at %.6g s on the job's timeline",
+                 MR_VERSION_STRING, meta->job, meta->frame, meta->time);
+        assert_int_equal(exr_attr_set_chromaticities(ctxt, part, "chromaticities", &rec709), 0);
+        assert_int_equal(exr_attr_set_string(ctxt, part, "microray.job", meta->job), 0);
+        assert_int_equal(exr_attr_set_int(ctxt, part, "microray.frame", meta->frame), 0);
+        assert_int_equal(exr_attr_set_double(ctxt, part, "microray.time", meta->time), 0);
+        assert_int_equal(
+            exr_attr_set_double(ctxt, part, "microray.renderSeconds", meta->render_seconds), 0);
+        assert_int_equal(
+            exr_attr_set_float(ctxt, part, "microray.sceneDiagonal", meta->scene_diagonal), 0);
+        assert_int_equal(exr_attr_set_string(ctxt, part, "comments", comments), 0);
+    }
     assert_int_equal(exr_write_header(ctxt), 0);
     assert_int_equal(exr_get_scanlines_per_chunk(ctxt, part, &lines), 0);
 
@@ -1026,7 +1038,7 @@ static void test_parallel_identical(void **state)
     size_t ci, ti;
 
     for (ci = 0; ci < sizeof cases / sizeof cases[0]; ci++) {
-        mr_exr_options opt = {cases[ci].c, cases[ci].level, 1};
+        mr_exr_options opt = {cases[ci].c, cases[ci].level, 1, false};
         mr_error err = {0};
         uint8_t *ref, *one = NULL, *file;
         size_t ref_size = 0, one_size = 0, file_size = 0;
@@ -1196,7 +1208,7 @@ static void test_self_compressed_chunks_decode(void **state)
             }
         }
         for (c = 0; c < sizeof cs / sizeof cs[0]; c++) {
-            mr_exr_options opt = {cs[c], 0, 2};
+            mr_exr_options opt = {cs[c], 0, 2, false};
             mr_error err = {0};
             uint8_t *ours = NULL, *ref;
             size_t ours_size = 0, ref_size = 0;
@@ -1336,7 +1348,7 @@ static void test_bad_files(void **state)
     char path[256], good[256];
     static const char text[] = "this is a text file, not an EXR image\n";
     mr_film *in = pattern_film(), *f = NULL;
-    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0};
+    mr_exr_options opt = {MR_COMPRESSION_ZIP, 0, 0, false};
     mr_error err = {0};
     uint8_t *data = NULL, *junk = NULL;
     size_t size = 0, i;
@@ -1444,8 +1456,8 @@ static void test_write_errors(void **state)
     char path[256];
     mr_film *in = pattern_film();
     mr_film hollow;
-    mr_exr_options bad_level = {MR_COMPRESSION_ZIP, 10, 0};
-    mr_exr_options bad_comp = {(mr_compression)42, 0, 0};
+    mr_exr_options bad_level = {MR_COMPRESSION_ZIP, 10, 0, false};
+    mr_exr_options bad_comp = {(mr_compression)42, 0, 0, false};
     mr_exr_meta bad_meta = k_meta;
     mr_error err = {0};
     uint8_t *mem = (uint8_t *)(uintptr_t)1;
