@@ -1201,7 +1201,7 @@ static void test_self_compressed_chunks_decode(void **state)
                 if (y < 20 || y >= 30) {
                     in->r[i] = in->g[i] = in->b[i] = 0.25f;
                     in->a[i] = 1.0f;
-                    in->z[i] = 0.0f;
+                    in->z[i] = MR_DEPTH_MISS;
                     in->nx[i] = in->ny[i] = in->nz[i] = 0.0f;
                     in->object_id[i] = in->prim_id[i] = 0;
                 }
