@@ -293,6 +293,21 @@ static void test_film_caps(void **state)
     assert_int_equal(mr_film_new(4, 4, NULL, &err), MR_ERR_INVALID);
     assert_null(f);
 
+    /* Passes: at least one, and only known ones; a film has the planes of
+     * its passes and no others; Cryptomatte ranks are even, 2..6. */
+    assert_int_equal(mr_film_new_aovs(4, 4, 0, 0, &f, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_Z | 0x40u, 0, &f, &err), MR_ERR_INVALID);
+    assert_null(f);
+    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_P | MR_AOV_CRYPTOMATTE, 3, &f, &err), MR_OK);
+    assert_true(f->px && f->py && f->pz && !f->r && !f->z && !f->nx && !f->object_id);
+    assert_int_equal(f->crypto_ranks, 4);
+    assert_true(f->crypto[MR_CRYPTO_ASSET][7] && !f->crypto[MR_CRYPTO_ASSET][8]);
+    mr_film_free(f);
+    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_CRYPTOMATTE, 100, &f, &err), MR_OK);
+    assert_int_equal(f->crypto_ranks, MR_CRYPTO_MAX_RANKS);
+    mr_film_free(f);
+    f = NULL;
+
     /* The longest allowed side works and starts zeroed. */
     assert_int_equal(mr_film_new(8192, 1, &f, &err), MR_OK);
     assert_int_equal(f->width, 8192);
@@ -1152,28 +1167,162 @@ static void test_zip_predict_matches_definition(void **state)
     free(got);
 }
 
-/* A film with varied values (and ids) in every plane, of any size. */
-static mr_film *varied_film(int w, int h, uint32_t seed)
+/* A film of the given passes (Cryptomatte with 4 ranks) with varied
+ * values (and ids) in every plane, of any size. */
+static mr_film *varied_film(int w, int h, uint32_t seed, unsigned aovs)
 {
     mr_film *f = NULL;
     mr_error err = {0};
     size_t i, n = (size_t)w * (size_t)h;
-    assert_int_equal(mr_film_new(w, h, &f, &err), MR_OK);
+    assert_int_equal(mr_film_new_aovs(w, h, aovs, 4, &f, &err), MR_OK);
     for (i = 0; i < n; i++) {
         seed = seed * 1664525u + 1013904223u;
         float u = (float)(seed >> 8) / 16777216.0f;
-        f->r[i] = u;
-        f->g[i] = 1.0f - u;
-        f->b[i] = (float)(i % 7);
-        f->a[i] = i % 3 ? 1.0f : 0.0f;
-        f->z[i] = 2.0f + u;
-        f->nx[i] = u - 0.5f;
-        f->ny[i] = 0.25f;
-        f->nz[i] = -u;
-        f->object_id[i] = seed >> 30;
-        f->prim_id[i] = seed;
+        if (f->r) {
+            f->r[i] = u;
+            f->g[i] = 1.0f - u;
+            f->b[i] = (float)(i % 7);
+            f->a[i] = i % 3 ? 1.0f : 0.0f;
+        }
+        if (f->z)
+            f->z[i] = 2.0f + u;
+        if (f->nx) {
+            f->nx[i] = u - 0.5f;
+            f->ny[i] = 0.25f;
+            f->nz[i] = -u;
+        }
+        if (f->px) {
+            f->px[i] = 100.0f * u;
+            f->py[i] = -3.0f;
+            f->pz[i] = (float)i;
+        }
+        if (f->object_id) {
+            f->object_id[i] = seed >> 30;
+            f->prim_id[i] = seed;
+        }
+        for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+            for (int k = 0; k < 2 * f->crypto_ranks; k++)
+                f->crypto[l][k][i] = k % 2 ? u / (float)(k + 1) : (float)(seed >> (k + l));
     }
     return f;
+}
+
+/* The frame's channels as this test states them (the writer has its own
+ * table): names, file types and the planes behind them. */
+typedef struct ref_chan {
+    char name[24];
+    exr_pixel_type_t type;
+    const void *plane; /* float, or uint32 for UINT */
+} ref_chan;
+
+static int ref_channels(const mr_film *f, bool half_normals, ref_chan ch[64])
+{
+    int n = 0;
+#define ADD(nm, t, p) (snprintf(ch[n].name, sizeof ch[n].name, "%s", nm), ch[n].type = (t), ch[n++].plane = (p))
+    if (f->aovs & MR_AOV_RGBA) {
+        ADD("R", EXR_PIXEL_HALF, f->r);
+        ADD("G", EXR_PIXEL_HALF, f->g);
+        ADD("B", EXR_PIXEL_HALF, f->b);
+        ADD("A", EXR_PIXEL_HALF, f->a);
+    }
+    if (f->aovs & MR_AOV_Z)
+        ADD("Z", EXR_PIXEL_FLOAT, f->z);
+    if (f->aovs & MR_AOV_N) {
+        ADD("N.X", half_normals ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT, f->nx);
+        ADD("N.Y", half_normals ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT, f->ny);
+        ADD("N.Z", half_normals ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT, f->nz);
+    }
+    if (f->aovs & MR_AOV_P) {
+        ADD("P.X", EXR_PIXEL_FLOAT, f->px);
+        ADD("P.Y", EXR_PIXEL_FLOAT, f->py);
+        ADD("P.Z", EXR_PIXEL_FLOAT, f->pz);
+    }
+    if (f->aovs & MR_AOV_ID) {
+        ADD("id.object", EXR_PIXEL_UINT, f->object_id);
+        ADD("id.primitive", EXR_PIXEL_UINT, f->prim_id);
+    }
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * f->crypto_ranks; k++) {
+            char name[24];
+            snprintf(name, sizeof name, "%s%02d.%c", l ? "CryptoAsset" : "CryptoObject", k / 4,
+                     "RGBA"[k % 4]);
+            ADD(name, EXR_PIXEL_FLOAT, f->crypto[l][k]);
+        }
+#undef ADD
+    return n;
+}
+
+/* An uncompressed file of the film's passes written by the library's own
+ * pipeline (its packer), from planes staged in file types with our
+ * documented conversions: the packed bytes every codec must decode to. */
+static uint8_t *reference_write_passes(const mr_film *f, bool half_normals, size_t *size)
+{
+    ref_chan ch[64];
+    int nch = ref_channels(f, half_normals, ch), part = 0, y, c, k;
+    size_t w = (size_t)f->width, n = w * (size_t)f->height, i;
+    uint8_t *staged[64];
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    exr_context_t ctxt = NULL;
+    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+    membuf m = {NULL, 0, 0};
+
+    for (k = 0; k < nch; k++) {
+        staged[k] = malloc(n * 4);
+        assert_non_null(staged[k]);
+        for (i = 0; i < n; i++) {
+            if (ch[k].type == EXR_PIXEL_HALF) {
+                uint16_t h = mr_float_to_half(((const float *)ch[k].plane)[i]);
+                memcpy(staged[k] + 2 * i, &h, 2);
+            } else if (ch[k].type == EXR_PIXEL_FLOAT) {
+                float v = expect_float(((const float *)ch[k].plane)[i]);
+                memcpy(staged[k] + 4 * i, &v, 4);
+            } else {
+                memcpy(staged[k] + 4 * i, (const uint32_t *)ch[k].plane + i, 4);
+            }
+        }
+    }
+    init.error_handler_fn = quiet;
+    init.user_data = &m;
+    init.write_fn = membuf_write;
+    assert_int_equal(exr_start_write(&ctxt, "<reference>", EXR_WRITE_FILE_DIRECTLY, &init), 0);
+    assert_int_equal(exr_add_part(ctxt, NULL, EXR_STORAGE_SCANLINE, &part), 0);
+    assert_int_equal(exr_initialize_required_attr_simple(ctxt, part, f->width, f->height,
+                                                         EXR_COMPRESSION_NONE),
+                     0);
+    for (k = 0; k < nch; k++)
+        assert_int_equal(exr_add_channel(ctxt, part, ch[k].name, ch[k].type,
+                                         EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1),
+                         0);
+    assert_int_equal(exr_write_header(ctxt), 0);
+    for (y = 0; y < f->height; y++) {
+        exr_chunk_info_t ci;
+        assert_int_equal(exr_write_scanline_chunk_info(ctxt, part, y, &ci), 0);
+        if (y == 0)
+            assert_int_equal(exr_encoding_initialize(ctxt, part, &ci, &enc), 0);
+        else
+            assert_int_equal(exr_encoding_update(ctxt, part, &ci, &enc), 0);
+        for (c = 0; c < enc.channel_count; c++) {
+            exr_coding_channel_info_t *cc = &enc.channels[c];
+            int bpe = cc->bytes_per_element;
+            for (k = 0; k < nch && strcmp(ch[k].name, cc->channel_name) != 0; k++)
+                ;
+            assert_true(k < nch);
+            cc->encode_from_ptr = staged[k] + (size_t)y * w * (size_t)bpe;
+            cc->user_data_type = cc->data_type;
+            cc->user_bytes_per_element = (int16_t)bpe;
+            cc->user_pixel_stride = bpe;
+            cc->user_line_stride = bpe * f->width;
+        }
+        if (y == 0)
+            assert_int_equal(exr_encoding_choose_default_routines(ctxt, part, &enc), 0);
+        assert_int_equal(exr_encoding_run(ctxt, part, &enc), 0);
+    }
+    assert_int_equal(exr_encoding_destroy(ctxt, &enc), 0);
+    assert_int_equal(exr_finish(&ctxt), 0);
+    for (k = 0; k < nch; k++)
+        free(staged[k]);
+    *size = m.size;
+    return m.data;
 }
 
 /* The chunks we compress ourselves decode, with OpenEXR's own decoder, to
@@ -1193,7 +1342,7 @@ static void test_self_compressed_chunks_decode(void **state)
 
     for (s = 0; s < sizeof sizes / sizeof sizes[0]; s++) {
         int w = sizes[s][0], h = sizes[s][1];
-        mr_film *in = varied_film(w, h, 11u + (uint32_t)s);
+        mr_film *in = varied_film(w, h, 11u + (uint32_t)s, MR_AOV_DEFAULT);
         if (w == 64) {
             /* background but for rows 20..29 */
             for (size_t i = 0; i < (size_t)w * (size_t)h; i++) {
@@ -1249,6 +1398,49 @@ static void test_self_compressed_chunks_decode(void **state)
         }
         mr_film_free(in);
     }
+}
+
+/* The same for other choices of passes (issue 13: output.aovs) and half
+ * normals: every pass at once, and a few alone, at the odd sizes. */
+static void test_self_compressed_passes_decode(void **state)
+{
+    static const mr_compression cs[] = {MR_COMPRESSION_NONE, MR_COMPRESSION_ZIP,
+                                        MR_COMPRESSION_ZIPS, MR_COMPRESSION_PIZ};
+    static const int sizes[][2] = {{1, 1}, {1, 17}, {4097, 3}};
+    static const struct {
+        unsigned aovs;
+        bool half_normals;
+    } sets[] = {
+        {MR_AOV_ALL, false},
+        {MR_AOV_ALL, true},
+        {MR_AOV_Z | MR_AOV_P, false},
+        {MR_AOV_N, true},
+        {MR_AOV_CRYPTOMATTE | MR_AOV_ID, false},
+    };
+    (void)state;
+    for (size_t s = 0; s < sizeof sizes / sizeof sizes[0]; s++)
+        for (size_t p = 0; p < sizeof sets / sizeof sets[0]; p++) {
+            mr_film *in = varied_film(sizes[s][0], sizes[s][1], 5u + (uint32_t)(s * 7 + p),
+                                      sets[p].aovs);
+            size_t ref_size = 0;
+            uint8_t *ref = reference_write_passes(in, sets[p].half_normals, &ref_size);
+            for (size_t c = 0; c < sizeof cs / sizeof cs[0]; c++) {
+                mr_exr_options opt = {cs[c], 0, 2, sets[p].half_normals};
+                mr_error err = {0};
+                uint8_t *ours = NULL;
+                size_t ours_size = 0;
+                char what[96];
+                snprintf(what, sizeof what, "%s %dx%d passes 0x%x%s", mr_compression_name(cs[c]),
+                         sizes[s][0], sizes[s][1], sets[p].aovs,
+                         sets[p].half_normals ? " half normals" : "");
+                if (mr_exr_write_memory(&ours, &ours_size, in, &opt, &k_meta, &err) != MR_OK)
+                    fail_msg("%s: %s", what, err.msg);
+                assert_chunks_decode_alike(ours, ours_size, ref, ref_size, what);
+                free(ours);
+            }
+            free(ref);
+            mr_film_free(in);
+        }
 }
 
 /* A valid one-row EXR (one HALF channel "Z") of the given width. */
@@ -1567,6 +1759,7 @@ int main(void)
         cmocka_unit_test(test_parallel_identical),
         cmocka_unit_test(test_zip_predict_matches_definition),
         cmocka_unit_test(test_self_compressed_chunks_decode),
+        cmocka_unit_test(test_self_compressed_passes_decode),
         cmocka_unit_test(test_bad_files),
         cmocka_unit_test(test_unknown_channels_skipped),
         cmocka_unit_test(test_tiled_rejected),
