@@ -87,6 +87,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     out->normal = n;
     out->object = h->geom + 1;
     out->prim = h->prim;
+    out->rgb = mr_v3(0, 0, 0);
     if (!(s->aovs & MR_AOV_RGBA))
         return; /* nothing asks for light */
 

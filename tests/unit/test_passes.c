@@ -390,7 +390,7 @@ static void test_half_normals(void **state)
  * name's hash; in the pixels, rank 0 of the object layer is the object the
  * pixel's centre hits wherever all samples hit one object (coverage 1),
  * the asset layer merges objects of one asset, and a pixel's coverages
- * add up to its alpha. */
+ * add up to its alpha (the background is transparent). */
 static void test_cryptomatte(void **state)
 {
     (void)state;
