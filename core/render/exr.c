@@ -11,14 +11,21 @@
  *    pipelines list them in that order: channels are always matched by name
  *    (openexr issue 1900: matching by insertion order silently scrambles
  *    planes).
+ *  - A frame's channels are those of the film's passes (film_channels:
+ *    one table of names, file types and planes for the writer, the reader
+ *    and the header's layout check).
  *  - Colour is converted to half here (mr_float_to_half), not by the
  *    library, so rounding, clamping and NaN/Inf handling are ours and tested.
- *    Our own convert_and_pack step writes the film straight into the
- *    library's packed chunk layout (one pass, no staging copy).
+ *    Our own packer writes the film straight into the packed chunk layout
+ *    (one pass, no staging copy).
  *  - Encoding (pack + compress) is most of a frame's time, so chunks are
- *    encoded on all cores (mr_parallel_for), each worker with its own
- *    exr_encode_pipeline_t: OpenEXRCore pipelines are per thread by design
- *    and only read the context once the header is written. Writing stays
+ *    encoded on all cores (mr_parallel_for). NONE, ZIP and ZIPS chunks are
+ *    ours from end to end: packed, for ZIP reordered and predicted as the
+ *    codec defines and deflated by libdeflate (several times faster than the
+ *    library's zlib at about the same size), then handed to the library as
+ *    finished chunks. PIZ goes through the library's pipeline, one
+ *    exr_encode_pipeline_t per worker (pipelines are per thread by design
+ *    and only read the context once the header is written). Writing stays
  *    on the calling thread in chunk order: exr_write_scanline_chunk moves
  *    the file offset and fills the chunk table, and the library refuses
  *    out-of-order chunks for INCREASING_Y files. A chunk's bytes depend
@@ -183,7 +190,7 @@ enum { CH_MAX = 13 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS };
 /* One channel of a frame and the film plane behind it (4-byte samples:
  * float, or uint32 for the ids). */
 typedef struct chan_def {
-    char name[24];
+    char name[32];
     exr_pixel_type_t type; /* type in the file */
     mr_aov aov;            /* the pass it belongs to */
     int rank;              /* Cryptomatte: the rank it holds (id or coverage); else -1 */
@@ -236,7 +243,7 @@ static int film_channels(const mr_film *f, bool half_normals, chan_def ch[CH_MAX
         int ranks = f->crypto_ranks > MR_CRYPTO_MAX_RANKS ? MR_CRYPTO_MAX_RANKS : f->crypto_ranks;
         for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
             for (int k = 0; k < 2 * ranks; k++) {
-                char name[24];
+                char name[32];
                 snprintf(name, sizeof name, "%s%02d.%c", k_crypto_layer[l], k / 4, "RGBA"[k % 4]);
                 add_chan(ch, &n, name, EXR_PIXEL_FLOAT, MR_AOV_CRYPTOMATTE, k / 2,
                          f->crypto[l][k]);

@@ -1,7 +1,8 @@
 /*
- * exr.h - the HALF conversions of the OpenEXR writer and reader. The EXR
- * layout of a frame, its options and the write/read calls are public:
- * microray.h.
+ * exr.h - what only core and the tests use of the OpenEXR writer and
+ * reader: the HALF conversions, the ZIP codec's predictor and the names
+ * Cryptomatte ids are made from. The EXR layout of a frame, its options
+ * and the write/read calls are public: microray.h.
  */
 #ifndef MR_EXR_H
 #define MR_EXR_H

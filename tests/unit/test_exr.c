@@ -1210,7 +1210,7 @@ static mr_film *varied_film(int w, int h, uint32_t seed, unsigned aovs)
 /* The frame's channels as this test states them (the writer has its own
  * table): names, file types and the planes behind them. */
 typedef struct ref_chan {
-    char name[24];
+    char name[32];
     exr_pixel_type_t type;
     const void *plane; /* float, or uint32 for UINT */
 } ref_chan;
@@ -1243,7 +1243,7 @@ static int ref_channels(const mr_film *f, bool half_normals, ref_chan ch[64])
     }
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * f->crypto_ranks; k++) {
-            char name[24];
+            char name[32];
             snprintf(name, sizeof name, "%s%02d.%c", l ? "CryptoAsset" : "CryptoObject", k / 4,
                      "RGBA"[k % 4]);
             ADD(name, EXR_PIXEL_FLOAT, f->crypto[l][k]);
