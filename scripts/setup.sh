@@ -14,6 +14,7 @@ PACKAGES=(
   build-essential pkg-config
   libembree-dev          # Embree 3 ray tracing kernels
   libopenexr-dev openexr # OpenEXR 3 C API, and exrheader used by the tests
+  libdeflate-dev         # the ZIP/ZIPS chunk compressor of the EXR writer
   libassimp-dev assimp-testmodels  # asset import, and the real models examples/tests use
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev

@@ -118,9 +118,8 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     char name[MR_FRAME_NAME_MAX], path[4200];
     mr_frame_file_name(index, name);
     snprintf(path, sizeof path, "%s/%s", o->dir, name);
-    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
-                        .scene_diagonal = st->scene_diagonal};
-    snprintf(meta.job, sizeof meta.job, "%s", o->job->name);
+    mr_exr_meta meta;
+    mr_exr_meta_for_frame(&meta, o->job, st);
     double t0 = mr_now();
     uint8_t *data = NULL;
     size_t size = 0;

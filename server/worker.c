@@ -69,7 +69,7 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
                                .memory_budget = io->memory_budget};
     if ((rc = mr_renderer_new(dev, job, assets, &opt, &renderer, err)) < 0)
         goto done;
-    if ((rc = mr_film_new(job->output.width, job->output.height, &film, err)) < 0)
+    if ((rc = mr_job_film_new(job, &film, err)) < 0)
         goto done;
 
     bool first = true;
