@@ -1081,6 +1081,7 @@ typedef struct mr_frame_stats {
     uint32_t assets_cached;   /* first frame: assets a scene cache already held */
     uint32_t assets_loaded;   /* first frame: assets imported for this job */
     double load_saved_s;      /* first frame: import seconds the cache saved */
+    double derive_s;          /* first frame: the renderer's set-up (derived data built or read) */
     double pose_s;            /* pose evaluation and skinning */
     double bvh_s;             /* Embree build or refit */
     mr_bvh_update bvh;        /* what happened to the BVH this frame */
