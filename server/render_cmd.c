@@ -275,7 +275,7 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 static void usage_render(void)
 {
     fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
-                    "[--job-memory-mb N] [--frames LIST] [--png] [--quiet]\n"
+                    "[--job-memory-mb N] [--frames LIST | --prepare] [--png] [--quiet]\n"
                     "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
                     "(created if missing)\n"
                     "               and reuse it (default: derive it again every time)\n"
@@ -283,6 +283,9 @@ static void usage_render(void)
                     "the machine's memory)\n"
                     "  --png        also write DIR/NNNN.png (8-bit sRGB previews) and "
                     "DIR/contact-sheet.png\n"
+                    "  --prepare    render nothing: import the assets and derive each kind's data "
+                    "into --cache\n"
+                    "               (the first task of a job split into parts)\n"
                     "  --frames LIST  render only these frames (0-based: 3, 0-9, 0-9,20): the "
                     "same files as a whole run,\n"
                     "               statistics in DIR/stats.frames-LIST.json (microrayd "
@@ -294,7 +297,7 @@ int mr_cmd_render(int argc, char **argv)
     const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL, *frames_spec = NULL;
     unsigned threads = 0;
     size_t memory_budget = mr_job_memory_default();
-    bool quiet = false, png = false;
+    bool quiet = false, png = false, prepare = false;
     for (int i = 0; i < argc; i++) {
         if (!strcmp(argv[i], "--out") && i + 1 < argc) {
             out_dir = argv[++i];
@@ -322,6 +325,8 @@ int mr_cmd_render(int argc, char **argv)
             memory_budget = (size_t)v << 20;
         } else if (!strcmp(argv[i], "--frames") && i + 1 < argc) {
             frames_spec = argv[++i];
+        } else if (!strcmp(argv[i], "--prepare")) {
+            prepare = true;
         } else if (!strcmp(argv[i], "--quiet")) {
             quiet = true;
         } else if (!strcmp(argv[i], "--png")) {
@@ -333,7 +338,7 @@ int mr_cmd_render(int argc, char **argv)
             job_path = argv[i];
         }
     }
-    if (!job_path || !out_dir) {
+    if (!job_path || !out_dir || (prepare && (frames_spec || png))) {
         usage_render();
         return EXIT_USAGE;
     }
@@ -380,7 +385,12 @@ int mr_cmd_render(int argc, char **argv)
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now(),
                       .png = png, .wanted = wanted, .rendered = rendered};
     snprintf(out.stats_name, sizeof out.stats_name, "stats.json");
-    if (frames_spec) {
+    if (prepare) {
+        /* no frame wanted: the assets are imported and each kind derives
+         * its data into --cache, for the parts that follow */
+        wanted = rendered;
+        out.wanted = wanted;
+    } else if (frames_spec) {
         char msg[512];
         if (strlen(frames_spec) > 64 || !parse_frames(frames_spec, job->frame_count, wanted, msg,
                                                       sizeof msg)) {
@@ -404,6 +414,10 @@ int mr_cmd_render(int argc, char **argv)
         /* keep the figures of the frames that did finish */
         if (stats.frame_count > 0 && write_stats(&out, &stats, &err) < 0)
             fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    } else if (prepare) {
+        /* what the set-up cost, for whoever split the job (a cluster task's log) */
+        printf("{\"load_s\":%.6f,\"assets_loaded\":%u,\"derive_s\":%.6f}\n", stats.load_s,
+               stats.assets_loaded, stats.derive_s);
     } else if ((rc = write_stats(&out, &stats, &err)) < 0) {
         /* every frame rendered, but stats.json, an output of the job, is not
          * there or not up to date */
@@ -423,7 +437,8 @@ done:
     mr_job_stats_free(&stats);
     mr_device_free(dev);
     mr_job_free(job);
-    free(wanted);
+    if (wanted != rendered)
+        free(wanted);
     free(rendered);
     free(text);
     return status;
@@ -447,6 +462,37 @@ static bool load_job(const char *path, char **text, mr_job **job, int *status)
         return false;
     }
     return true;
+}
+
+int mr_cmd_plan(int argc, char **argv)
+{
+    if (argc != 1) {
+        fprintf(stderr, "usage: microrayd plan JOB.json\n"
+                        "  validates the job as the daemon would and prints what splitting it "
+                        "needs, as JSON\n");
+        return EXIT_USAGE;
+    }
+    char *text = NULL;
+    mr_job *job = NULL;
+    int status = EXIT_OK;
+    if (load_job(argv[0], &text, &job, &status)) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "name", job->name ? job->name : "");
+        cJSON_AddNumberToObject(o, "frames", (double)job->frame_count);
+        cJSON_AddNumberToObject(o, "max_retries", job->max_retries);
+        cJSON_AddNumberToObject(o, "width", job->output.width);
+        cJSON_AddNumberToObject(o, "height", job->output.height);
+        char *out = cJSON_PrintUnformatted(o);
+        if (out)
+            printf("%s\n", out);
+        else
+            status = EXIT_RENDER;
+        free(out);
+        cJSON_Delete(o);
+    }
+    mr_job_free(job);
+    free(text);
+    return status;
 }
 
 #define PART_PREFIX "stats.frames-"

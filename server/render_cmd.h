@@ -10,6 +10,9 @@
 /* All return a process exit status (see the README's exit codes). */
 int mr_cmd_render(int argc, char **argv);
 int mr_cmd_compare(int argc, char **argv);
+/* microrayd plan JOB.json: the job validated, and what splitting it
+ * into parts needs (frames, max_retries) as JSON on stdout. */
+int mr_cmd_plan(int argc, char **argv);
 /* microrayd stats-merge DIR JOB.json: stats.json of the parts that
  * render --frames wrote. */
 int mr_cmd_stats_merge(int argc, char **argv);
