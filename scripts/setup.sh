@@ -22,6 +22,8 @@ PACKAGES=(
   libcmocka-dev
   openssl                # self-signed certificates for the TLS test (test_http_auth)
   wrk                    # HTTP load generator for make bench (loopback only)
+  slurm-wlm munge        # a real single-node Slurm for the cluster test (test_slurm,
+                         # scripts/slurm-local.sh; microray cluster, docs/scale.md)
   clang libclang-rt-14-dev  # the libFuzzer harnesses (make fuzz-build): clang 14 and its
                             # fuzzer/ASan/UBSan runtimes (only recommended by clang-14)
 )
