@@ -30,8 +30,9 @@
  *               the instance index (id - first) to normal as prim.
  *   frame_stats the values of the kind's own per-frame statistics fields
  *               (`stats`, in that order; at most MR_FRAME_EXTRAS_MAX) for
- *               the frame just updated; the renderer sums them over the
- *               job's objects of the kind and hands them on as the frame's
+ *               the frame just updated; the renderer combines them over
+ *               the job's objects of the kind (summed, or the largest:
+ *               mr_kind_stat.combine) and hands them on as the frame's
  *               extras (render/frame_stats.h), which reach stats.json, the
  *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.

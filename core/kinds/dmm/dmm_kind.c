@@ -82,6 +82,7 @@ struct mr_geom {
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
     size_t encoded_bytes;         /* bytes of the encoded records (what a file stores) */
+    double bake_quality[3];       /* the bake's own report, DMM_STATS order */
     RTCGeometry rtc;
 };
 
@@ -266,6 +267,39 @@ static int allocate(mr_geom *g, mr_error *err)
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
 }
 
+/* The bake's report (dmm_bake.h step 6) over the asset's meshes, in the
+ * units of DMM_STATS: distances as fractions of the rest-pose
+ * bounding-box diagonal of the asset's meshes (the space the bake works
+ * in), unmatched micro-vertices as % of all. */
+static void bake_quality(mr_geom *g)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    double sum2 = 0, worst = 0, samples = 0, unmatched = 0, vertices = 0;
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        const mr_mesh *m = &g->asset->meshes[i];
+        for (size_t v = 0; v < (size_t)m->vertex_count * 3; v++) {
+            lo[v % 3] = fmin(lo[v % 3], m->positions[v]);
+            hi[v % 3] = fmax(hi[v % 3], m->positions[v]);
+        }
+        const mr_dmm_bake *b = g->bakes[i];
+        if (!b)
+            continue;
+        sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
+        samples += (double)b->sample_count;
+        worst = fmax(worst, b->max_distance);
+        unmatched += (double)b->fallback_count;
+        for (uint32_t t = 0; t < b->base_triangle_count; t++)
+            vertices += mr_umesh_vertex_count(mr_dmm_info_level(b->tri_info[t]));
+    }
+    double d2 = 0;
+    for (int k = 0; k < 3; k++)
+        d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    double diag = sqrt(d2) > 0 ? sqrt(d2) : 1.0;
+    g->bake_quality[0] = samples > 0 ? sqrt(sum2 / samples) / diag : 0;
+    g->bake_quality[1] = worst / diag;
+    g->bake_quality[2] = vertices > 0 ? 100.0 * unmatched / vertices : 0;
+}
+
 static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
                       const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
@@ -319,6 +353,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     g->base_vertex_count = (uint32_t)nv;
     g->base_triangle_count = (uint32_t)nt;
+    bake_quality(g);
     if ((rc = mr_umesh_topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
         (rc = allocate(g, err)) < 0)
         goto fail;
@@ -744,6 +779,27 @@ static uint64_t dmm_primitives(const mr_geom *g)
     return g->micro_first[g->base_triangle_count];
 }
 
+/* The bake's own quality (dmm_bake.h steps 5 and 6), the same every frame:
+ * what a user reads to judge a level or base ratio before looking at
+ * frames. */
+static const mr_kind_stat DMM_STATS[] = {
+    {"dmm_bake_rms_distance", "diagonal",
+     "RMS distance of the baked surface (its micro-vertices and micro-triangle centroids, rest "
+     "pose) to the detailed mesh, as a fraction of the asset's rest-pose bounding-box diagonal",
+     MR_STAT_MAX},
+    {"dmm_bake_max_distance", "diagonal",
+     "largest such distance, as a fraction of the same diagonal", MR_STAT_MAX},
+    {"dmm_bake_unmatched_pct", "%",
+     "micro-vertices whose displacement search found no detailed surface facing its way within "
+     "its reach (their height came from the nearest detailed point), as % of all",
+     MR_STAT_MAX},
+};
+
+static void dmm_frame_stats(const mr_geom *g, double *values)
+{
+    memcpy(values, g->bake_quality, sizeof g->bake_quality);
+}
+
 /* The "dmm" block. "deformation" chooses what mode "tessellated" expands
  * and must agree with the other modes; base_ratio and base_triangles are
  * alternatives. */
@@ -858,5 +914,8 @@ const mr_kind mr_kind_dmm = {
     .tessellate = dmm_tessellate,
     .memory = dmm_memory,
     .primitives = dmm_primitives,
+    .stats = DMM_STATS,
+    .stat_count = sizeof DMM_STATS / sizeof DMM_STATS[0],
+    .frame_stats = dmm_frame_stats,
     .free = dmm_free,
 };
