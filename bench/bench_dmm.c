@@ -8,7 +8,8 @@
  * triangles (~5k, the paper's figure), traced
  * with primary rays only (1 sample, no shadows), as the paper's Table 1.
  * For each level, five renderers run the same frames interleaved (frame f in
- * every mode before frame f + 1), so their timings are side by side:
+ * every mode before frame f + 1), so their timings are side by side (the
+ * DMMs with their default, smooth normals):
  *   tess-b  mode tessellated, deformation base   (pre-tessellated baseline)
  *   base    mode base         (skinned base mesh, prism bounds: Alg. 2/4)
  *   tess-i  mode tessellated, deformation interpolated
@@ -20,7 +21,8 @@
  * truth (coverage, depth RMS / diagonal, mean normal error, stray pixels);
  * the bake's own accuracy in the rest pose, where no deformation differs
  * (the same figures against the detailed mesh, its normals taken both as
- * its facets and as its smooth vertex normals); per-frame acceleration
+ * its facets and as its smooth vertex normals, for the DMM's flat and its
+ * smooth normals); per-frame acceleration
  * update (pose + BVH) of the DMM against the pre-tessellated refit; bytes
  * per micro-triangle.
  *
@@ -165,7 +167,8 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
                                             : m == 3 ? MR_DMM_INTERPOLATED
                                                      : MR_DMM_TESSELLATED,
                                     .deform = m >= 2 ? MR_DMM_DEFORM_INTERPOLATED
-                                                     : MR_DMM_DEFORM_BASE};
+                                                     : MR_DMM_DEFORM_BASE,
+                                    .normals = MR_DMM_NORMALS_SMOOTH};
         o->kind = m == 4 ? &mr_kind_mesh : &mr_kind_dmm;
         o->params = m == 4 ? NULL : &params[m];
         if (mr_device_new(0, &dev[m], &err) < 0 ||
@@ -362,46 +365,58 @@ static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int 
     mr_renderer_free(flat);
     printf("\nThe bake alone: rest pose, tessellated, against the detailed mesh (mean over %d "
            "views; the detail's own facets differ from its smooth normals by %.2f deg):\n\n"
-           "| level | coverage %% | depth RMS | normal vs facets deg | normal vs smooth deg | "
-           "strays |\n|---|---|---|---|---|---|\n",
+           "| level | coverage %% | depth RMS | flat normals vs facets deg | flat vs smooth deg | "
+           "smooth normals vs smooth deg | strays |\n|---|---|---|---|---|---|---|\n",
            n, floor_deg);
     o->kind = &mr_kind_dmm;
     for (int l = 0; l < count; l++) {
-        mr_dmm_params params = {.level = cfg[l].level,
-                                .levels = cfg[l].adaptive ? MR_DMM_LEVELS_ADAPTIVE
-                                                          : MR_DMM_LEVELS_UNIFORM,
-                                .base_ratio = 0.0625f,
-                                .mode = MR_DMM_TESSELLATED,
-                                .deform = MR_DMM_DEFORM_INTERPOLATED};
-        o->params = &params;
-        mr_renderer *r = NULL;
-        mr_film *film = NULL;
-        if (mr_renderer_new(dev, job, smooth_assets, NULL, &r, &err) < 0 ||
-            mr_film_new(w, h, &film, &err) < 0)
-            die("rest dmm", err.msg);
-        double cov = 0, depth = 0, nf = 0, ns = 0;
+        /* the same micro-triangles with flat normals and with smooth ones */
+        mr_dmm_params params[2];
+        mr_renderer *r[2] = {NULL, NULL};
+        mr_film *film[2] = {NULL, NULL};
+        for (int k = 0; k < 2; k++) {
+            params[k] = (mr_dmm_params){.level = cfg[l].level,
+                                        .levels = cfg[l].adaptive ? MR_DMM_LEVELS_ADAPTIVE
+                                                                  : MR_DMM_LEVELS_UNIFORM,
+                                        .base_ratio = 0.0625f,
+                                        .mode = MR_DMM_TESSELLATED,
+                                        .deform = MR_DMM_DEFORM_INTERPOLATED,
+                                        .normals = k ? MR_DMM_NORMALS_SMOOTH
+                                                     : MR_DMM_NORMALS_GEOMETRIC};
+            o->params = &params[k];
+            if (mr_renderer_new(dev, job, smooth_assets, NULL, &r[k], &err) < 0 ||
+                mr_film_new(w, h, &film[k], &err) < 0)
+                die("rest dmm", err.msg);
+        }
+        double cov = 0, depth = 0, nf = 0, nfs = 0, ns = 0;
         size_t strays = 0;
         for (int k = 0; k < n; k++) {
             mr_frame_stats st;
             mr_compare_result c;
-            if (mr_renderer_render(r, index[k], film, &st, &err) < 0 ||
-                mr_film_compare(tf[k], film, diag, &c, &err) < 0)
+            if (mr_renderer_render(r[0], index[k], film[0], &st, &err) < 0 ||
+                mr_renderer_render(r[1], index[k], film[1], &st, &err) < 0 ||
+                mr_film_compare(tf[k], film[0], diag, &c, &err) < 0)
                 die("rest dmm", err.msg);
             cov += c.coverage_pct / n;
             depth += c.depth_rmse / n;
             nf += c.normal_mean_deg / n;
-            if (mr_film_compare(ts[k], film, diag, &c, &err) < 0)
+            if (mr_film_compare(ts[k], film[0], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            nfs += c.normal_mean_deg / n;
+            if (mr_film_compare(ts[k], film[1], diag, &c, &err) < 0)
                 die("compare", err.msg);
             ns += c.normal_mean_deg / n;
-            if (mr_film_compare(film, ts[k], diag, &c, &err) < 0)
+            if (mr_film_compare(film[0], ts[k], diag, &c, &err) < 0)
                 die("compare", err.msg);
             strays += c.strays;
         }
-        printf("| %s | %.3f | %.2e | %.2f | %.2f | %zu |\n", config_name(cfg[l]), cov, depth, nf,
-               ns, strays);
+        printf("| %s | %.3f | %.2e | %.2f | %.2f | %.2f | %zu |\n", config_name(cfg[l]), cov, depth,
+               nf, nfs, ns, strays);
         fflush(stdout);
-        mr_film_free(film);
-        mr_renderer_free(r);
+        for (int k = 0; k < 2; k++) {
+            mr_film_free(film[k]);
+            mr_renderer_free(r[k]);
+        }
     }
     printf("\n");
     for (int k = 0; k < n; k++) {
