@@ -90,6 +90,7 @@ struct mr_geom {
     uint8_t *coarse_level;
     uint32_t *coarse_first, *coarse_id;
     float *smooth_normals;
+    uint32_t smooth_count;        /* coarse vertices (smooth_normals holds 3 floats each) */
     RTCGeometry rtc;
 };
 
@@ -467,6 +468,7 @@ static int smooth_normals_build(mr_geom *g, mr_error *err)
         g->coarse_id[keys[i].slot] = ids;
     }
     ids = total ? ids + 1 : 0;
+    g->smooth_count = ids;
     acc = calloc((size_t)ids * 3, sizeof(double));
     g->smooth_normals = malloc((size_t)ids * 3 * sizeof(float));
     if (!acc || !g->smooth_normals)
@@ -1048,6 +1050,10 @@ static size_t dmm_memory(const mr_geom *g)
     if (g->positions)
         bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
                  (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+    if (g->coarse_first)
+        bytes += nt * (1 + sizeof(uint32_t)) + sizeof(uint32_t) +
+                 (size_t)g->coarse_first[nt] * sizeof(uint32_t) +
+                 (size_t)g->smooth_count * 3 * sizeof(float);
     return bytes;
 }
 
