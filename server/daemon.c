@@ -713,6 +713,10 @@ fail:
     log_line(d, "job=%s failed: %s", id, err.msg);
     publish_state(d, id);
 done:
+    /* a frame the render did not finish (a cancel killed the worker in it)
+     * is not running any more */
+    if (mr_store_frames_release(d->store, id, &err) < 0)
+        log_line(d, "job=%s: could not release its running frames: %s", id, err.msg);
     free(paths);
     free(wanted);
     mr_frame_records_free(frames, frame_count);
@@ -856,6 +860,14 @@ char *mr_daemon_metrics(mr_daemon *d)
 mr_store *mr_daemon_store(mr_daemon *d) { return d->store; }
 const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d) { return &d->cfg; }
 bool mr_daemon_ready(const mr_daemon *d) { return atomic_load(&((mr_daemon *)d)->ready); }
+
+bool mr_daemon_stopping(mr_daemon *d)
+{
+    pthread_mutex_lock(&d->lock);
+    bool stopping = d->stopping;
+    pthread_mutex_unlock(&d->lock);
+    return stopping;
+}
 unsigned mr_daemon_port(const mr_daemon *d) { return d->http ? mr_http_port(d->http) : 0; }
 
 static void apply_defaults(mr_daemon_config *c)
@@ -1009,9 +1021,11 @@ void mr_daemon_stop(mr_daemon *d)
 {
     if (!d)
         return;
+    /* Draining: /readyz answers 503 (load balancers take the daemon out),
+     * submissions and uploads are refused with 503, reads, cancels and
+     * deletes are served while each frame in progress finishes; only then
+     * does the port close. */
     atomic_store(&d->ready, false);
-    if (d->http)
-        mr_http_stop(d->http); /* no new work; event streams end */
     pthread_mutex_lock(&d->lock);
     d->stopping = true;
     pthread_cond_broadcast(&d->wake);
@@ -1020,6 +1034,9 @@ void mr_daemon_stop(mr_daemon *d)
         pthread_join(d->workers[i], NULL);
     if (d->space_thread_started)
         pthread_join(d->space_thread, NULL);
+    if (d->http)
+        mr_http_stop(d->http); /* the port closes; event streams end */
+    d->http = NULL;
     free(d->workers);
     if (d->procs)
         for (unsigned i = 0; i < d->cfg.workers; i++)

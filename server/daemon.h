@@ -6,9 +6,10 @@
  * are validated and stored as queued; workers claim them by priority and
  * render frame by frame (never on an HTTP thread), writing each finished
  * frame through the store. Events (frame done, state changes) are published
- * to subscribers (the SSE endpoint). SIGTERM: stop accepting work, let the
- * frame in progress finish, leave the job running-in-store so the next start
- * resumes it.
+ * to subscribers (the SSE endpoint). SIGTERM: stop accepting work (/readyz
+ * and submissions answer 503 with Retry-After, reads go on), let the frame
+ * in progress finish, leave the job queued so the next start resumes it,
+ * and only then close the port.
  */
 #ifndef MR_DAEMON_H
 #define MR_DAEMON_H
@@ -57,7 +58,9 @@ typedef struct mr_daemon mr_daemon;
 int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err);
 /* The port actually listened on (useful with port 0). */
 unsigned mr_daemon_port(const mr_daemon *d);
-/* Graceful stop: HTTP first, then workers finish their current frame. */
+/* Graceful stop: the queue stops and every frame in progress finishes
+ * while HTTP keeps serving reads (draining: mr_daemon_stopping), then HTTP
+ * stops and everything is freed. */
 void mr_daemon_stop(mr_daemon *d);
 
 /* ---- for the HTTP handlers (http_handlers.c, http_events.c) ----------- */
@@ -65,6 +68,9 @@ void mr_daemon_stop(mr_daemon *d);
 mr_store *mr_daemon_store(mr_daemon *d);
 const mr_daemon_config *mr_daemon_config_of(const mr_daemon *d);
 bool mr_daemon_ready(const mr_daemon *d);
+/* A stop has begun: the frames in progress are finishing (new work is
+ * refused with 503, reads are served). */
+bool mr_daemon_stopping(mr_daemon *d);
 
 /* Validates a job body (server/job_json.c), resolves its assets (ids to
  * stored files, server-side paths to real paths below an asset root: "..",

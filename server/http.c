@@ -219,6 +219,12 @@ static enum MHD_Result begin_request(req *r, struct MHD_Connection *c, const cha
         http_route_methods(url, r->allow, sizeof r->allow);
         return has_body ? answer_unrouted(r, c) : MHD_YES;
     }
+    /* New work is refused while a stop drains (before the body is read);
+     * reads, cancels and deletes go on. */
+    if (r->rt->body != BODY_NONE && mr_daemon_stopping(h->d))
+        return http_send_problem(r, c, P_UNAVAILABLE, NULL,
+                                 "the daemon is stopping and takes no new work; try again once it "
+                                 "is back");
     r->limit = body_cap(h, r->rt->body);
     r->keep_body = r->rt->body == BODY_JOB; /* assets stream to a file */
     if (cl && length > r->limit)

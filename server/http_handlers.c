@@ -1046,7 +1046,10 @@ enum MHD_Result http_healthz(req *r, struct MHD_Connection *c)
 
 enum MHD_Result http_readyz(req *r, struct MHD_Connection *c)
 {
-    if (atomic_load(&r->h->stopping) || !mr_daemon_ready(r->h->d))
+    if (atomic_load(&r->h->stopping) || mr_daemon_stopping(r->h->d))
+        return http_send_problem(r, c, P_UNAVAILABLE, NULL, "the daemon is stopping: the frames in "
+                                 "progress finish, reads are served meanwhile");
+    if (!mr_daemon_ready(r->h->d))
         return http_send_problem(r, c, P_UNAVAILABLE, NULL, "the daemon is not ready for jobs");
     char why[512];
     if (mr_daemon_disk_full(r->h->d, why, sizeof why))

@@ -8,11 +8,15 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 #include "http_internal.h"
 
 #define PROBLEM_BASE "https://microray.invalid/problems/"
 #define CT_PROBLEM "application/problem+json"
+/* Seconds a 503 asks the client to wait when its cause says nothing
+ * better: a stopping daemon is usually restarted within that. */
+#define RETRY_AFTER_DEFAULT "5"
 
 static const struct {
     unsigned status;
@@ -144,6 +148,14 @@ static enum MHD_Result send_problem_h(req *r, struct MHD_Connection *c, problem_
     size_t n = 0;
     struct MHD_Response *resp = http_json_response(doc, CT_PROBLEM, &n);
     if (resp && extra_header && MHD_add_response_header(resp, extra_header, extra_value) != MHD_YES) {
+        MHD_destroy_response(resp);
+        resp = NULL;
+    }
+    /* every 503 says when to come back (RFC 9110 10.2.3); callers that
+     * know better pass their own */
+    bool own_retry = extra_header && !strcasecmp(extra_header, "Retry-After");
+    if (resp && PROBLEMS[kind].status == 503 && !own_retry &&
+        MHD_add_response_header(resp, "Retry-After", RETRY_AFTER_DEFAULT) != MHD_YES) {
         MHD_destroy_response(resp);
         resp = NULL;
     }

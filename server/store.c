@@ -114,6 +114,9 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_FRAME_SET] = "UPDATE frames SET state = ?3, retries = ?4, error = ?5 "
                     "WHERE job_id = ?1 AND idx = ?2",
     [S_FRAME_SET_RUNNING] = "UPDATE frames SET state = 1 WHERE job_id = ?1 AND idx = ?2",
+    /* a render that ended without finishing its frame (a cancel, a stop,
+     * a worker gone): the frame is no longer running; no attempt counted */
+    [S_FRAMES_RELEASE] = "UPDATE frames SET state = 0 WHERE job_id = ?1 AND state = 1",
     [S_FRAME_DONE] = "UPDATE frames SET state = 2, error = '', stats_json = ?3 "
                      "WHERE job_id = ?1 AND idx = ?2",
     [S_JOB_PROGRESS] = "UPDATE jobs SET interrupted = 0 WHERE id = ?1 AND interrupted <> 0",

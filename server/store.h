@@ -125,6 +125,10 @@ void mr_frame_records_free(mr_frame_record *frames, size_t count);
 int mr_store_frame_get(mr_store *st, const char *id, size_t index, mr_frame_record *out,
                        mr_error *err);
 int mr_store_frame_set_running(mr_store *st, const char *id, size_t index, mr_error *err);
+/* The job's render ended: frames still marked running (a cancel killed
+ * the worker mid-frame, say) go back to pending without counting a failed
+ * attempt. Returns how many, or a negative mr_err. */
+int mr_store_frames_release(mr_store *st, const char *id, mr_error *err);
 /* Records a finished frame: its EXR bytes are written to
  * DIR/frames/<id>/NNNN.exr (temporary name, fsync, rename) and only then is
  * the row marked done with stats_json. */

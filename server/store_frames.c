@@ -181,6 +181,23 @@ int mr_store_frame_set_running(mr_store *st, const char *id, size_t index, mr_er
     return rc;
 }
 
+int mr_store_frames_release(mr_store *st, const char *id, mr_error *err)
+{
+    if (!st)
+        return mr_error_set(err, MR_ERR_INVALID, "mr_store_frames_release: no store");
+    if (!store_valid_job_id(id))
+        return store_no_job(err, id);
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_FRAMES_RELEASE);
+    int rc = store_exec_bound(st, s, store_bind_text(s, 1, id), "release running frames", err);
+    if (rc == MR_OK) {
+        int n = sqlite3_changes(st->db);
+        rc = n;
+    }
+    pthread_mutex_unlock(&st->lock);
+    return rc;
+}
+
 int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char *error,
                           bool final, bool *gave_up, mr_error *err)
 {

@@ -50,6 +50,7 @@ enum stmt_id {
     S_FRAME_GET,
     S_FRAME_SET,
     S_FRAME_SET_RUNNING,
+    S_FRAMES_RELEASE,
     S_FRAME_DONE,
     S_JOB_PROGRESS,
     S_ASSET_INSERT,

