@@ -41,9 +41,9 @@ static void usage(FILE *out)
         "                        DIR/stats.json; --png: 8-bit sRGB previews DIR/NNNN.png\n"
         "                        and DIR/contact-sheet.png instead of the EXRs\n"
         "  status ID [--json]    state, frame counts, timestamps and errors of a job\n"
-        "  list [--state S] [--json]\n"
-        "                        jobs, newest first; S is queued, running, succeeded,\n"
-        "                        failed or canceled\n"
+        "  list [--state S] [--name NAME] [--limit N] [--json]\n"
+        "                        jobs, newest first (every page, or the first N); S is\n"
+        "                        queued, running, succeeded, failed or canceled\n"
         "  wait ID [--out DIR [--png]]\n"
         "                        follow a job already submitted, like submit --wait\n"
         "  fetch ID --out DIR [--png]\n"
@@ -101,7 +101,7 @@ static int usage_error(const char *fmt, ...)
 typedef struct cmd_args {
     const char *pos[MAX_POSITIONAL];
     int npos;
-    const char *out, *idem, *state;
+    const char *out, *idem, *state, *limit, *name;
     bool wait, json, png;
 } cmd_args;
 
@@ -166,7 +166,8 @@ typedef struct globals {
 
 static int take_globals(int argc, char **argv, globals *g, char **rest, int *nrest)
 {
-    static const char *const valued[] = {"--out", "--idempotency-key", "--state", NULL};
+    static const char *const valued[] = {"--out", "--idempotency-key", "--state", "--limit", "--name",
+                                         NULL};
     *nrest = 0;
     for (int i = 1; i < argc; i++) {
         const char *arg = argv[i];
@@ -370,10 +371,32 @@ cleanup:
     return rc;
 }
 
+/* One table row of a job of the list. */
+static void print_job_row(const cJSON *job)
+{
+    char id[40], name[64], state[16], frames_col[48], created[64];
+    safe_str(id, sizeof id, job, "id");
+    safe_str(name, sizeof name, job, "name");
+    if (strlen(name) > 20)
+        memcpy(name + 17, "...", 4);
+    safe_str(state, sizeof state, job, "state");
+    const cJSON *frames = cJSON_GetObjectItemCaseSensitive(job, "frames");
+    long long failed = mrc_json_int(frames, "failed", 0, 0, 1LL << 40);
+    int n = snprintf(frames_col, sizeof frames_col, "%lld/%lld",
+                     mrc_json_int(frames, "done", 0, 0, 1LL << 40),
+                     mrc_json_int(frames, "total", 0, 0, 1LL << 40));
+    if (failed && n > 0 && (size_t)n < sizeof frames_col)
+        snprintf(frames_col + n, sizeof frames_col - (size_t)n, " (%lld!)", failed);
+    mrc_format_time_field(created, sizeof created, job, "created");
+    printf("%-32s  %-20s  %-9s  %4lld  %-13s  %s\n", id, name, state,
+           mrc_json_int(job, "priority", 0, -999, 9999), frames_col, created);
+}
+
+/* list: GET /v1/jobs page by page (the server's "next" cursor) until the
+ * last page, or until --limit jobs were shown. */
 static int cmd_list(mrc_http *h, const cmd_args *a, mrc_error *err)
 {
     static const char *const valid[] = {"queued", "running", "succeeded", "failed", "canceled", NULL};
-    char path[128];
     if (a->state) {
         bool ok = false;
         for (const char *const *v = valid; *v; v++)
@@ -381,52 +404,89 @@ static int cmd_list(mrc_http *h, const cmd_args *a, mrc_error *err)
         if (!ok)
             return -usage_error(
                 "--state '%s': expected queued, running, succeeded, failed or canceled", a->state);
-        snprintf(path, sizeof path, "/v1/jobs?state=%s", a->state);
-    } else {
-        snprintf(path, sizeof path, "/v1/jobs");
     }
-    mrc_response resp = {0};
-    cJSON *doc = NULL;
-    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &doc, err);
-    if (rc < 0)
-        goto cleanup;
-    const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
-    if (!cJSON_IsArray(jobs)) {
-        rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: the answer has no \"jobs\" array", path);
-        goto cleanup;
+    long long wanted = 0; /* 0: every job */
+    if (a->limit) {
+        char *end = NULL;
+        wanted = strtoll(a->limit, &end, 10);
+        if (!*a->limit || *end || wanted < 1 || wanted > 1000000)
+            return -usage_error("--limit '%s': expected a number of jobs, 1 or more", a->limit);
     }
-    if (a->json) {
+    char name_q[800] = "";
+    if (a->name) {
+        if (!a->name[0] || strlen(a->name) > 256)
+            return -usage_error("%s", "--name: 1 to 256 bytes");
+        char *enc = curl_easy_escape(NULL, a->name, 0);
+        if (!enc)
+            return mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
+        snprintf(name_q, sizeof name_q, "&name=%s", enc);
+        curl_free(enc);
+    }
+    cJSON *all = a->json ? cJSON_CreateArray() : NULL;
+    if (a->json && !all)
+        return mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
+    char cursor[64] = "";
+    long long shown = 0;
+    int rc = 0;
+    for (;;) {
+        long long page = 1000;
+        if (wanted && wanted - shown < page)
+            page = wanted - shown;
+        char path[1024];
+        snprintf(path, sizeof path, "/v1/jobs?limit=%lld%s%s%s%s%s", page, a->state ? "&state=" : "",
+                 a->state ? a->state : "", name_q, cursor[0] ? "&cursor=" : "", cursor);
+        mrc_response resp = {0};
+        cJSON *doc = NULL;
+        rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &doc, err);
+        mrc_response_free(&resp);
+        if (rc < 0)
+            break;
+        const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
+        if (!cJSON_IsArray(jobs)) {
+            cJSON_Delete(doc);
+            rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: the answer has no \"jobs\" array", path);
+            break;
+        }
+        const cJSON *job;
+        cJSON_ArrayForEach(job, jobs) {
+            if (all) {
+                cJSON *copy = cJSON_Duplicate(job, true);
+                if (!copy || !cJSON_AddItemToArray(all, copy)) {
+                    cJSON_Delete(copy);
+                    rc = mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
+                    break;
+                }
+            } else {
+                if (shown == 0)
+                    printf("%-32s  %-20s  %-9s  %4s  %-13s  %s\n", "ID", "NAME", "STATE", "PRI",
+                           "FRAMES", "CREATED");
+                print_job_row(job);
+            }
+            shown++;
+        }
+        const char *next = mrc_json_str(doc, "next");
+        bool more = rc == 0 && next && next[0] && strlen(next) < sizeof cursor &&
+                    strspn(next, "0123456789") == strlen(next) && (!wanted || shown < wanted);
+        if (more)
+            snprintf(cursor, sizeof cursor, "%s", next);
+        cJSON_Delete(doc);
+        if (!more)
+            break;
+    }
+    if (rc == 0 && all) {
+        cJSON *doc = cJSON_CreateObject();
+        if (!doc || !cJSON_AddItemToObject(doc, "jobs", all)) {
+            cJSON_Delete(doc);
+            cJSON_Delete(all);
+            return mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
+        }
         print_json(doc);
-        goto cleanup;
+        cJSON_Delete(doc);
+        return 0;
     }
-    if (cJSON_GetArraySize(jobs) == 0) {
+    cJSON_Delete(all);
+    if (rc == 0 && shown == 0)
         printf("no jobs\n");
-        goto cleanup;
-    }
-    printf("%-32s  %-20s  %-9s  %4s  %-13s  %s\n", "ID", "NAME", "STATE", "PRI", "FRAMES",
-           "CREATED");
-    const cJSON *job;
-    cJSON_ArrayForEach(job, jobs) {
-        char id[40], name[64], state[16], frames_col[48], created[64];
-        safe_str(id, sizeof id, job, "id");
-        safe_str(name, sizeof name, job, "name");
-        if (strlen(name) > 20)
-            memcpy(name + 17, "...", 4);
-        safe_str(state, sizeof state, job, "state");
-        const cJSON *frames = cJSON_GetObjectItemCaseSensitive(job, "frames");
-        long long failed = mrc_json_int(frames, "failed", 0, 0, 1LL << 40);
-        int n = snprintf(frames_col, sizeof frames_col, "%lld/%lld",
-                         mrc_json_int(frames, "done", 0, 0, 1LL << 40),
-                         mrc_json_int(frames, "total", 0, 0, 1LL << 40));
-        if (failed && n > 0 && (size_t)n < sizeof frames_col)
-            snprintf(frames_col + n, sizeof frames_col - (size_t)n, " (%lld!)", failed);
-        mrc_format_time_field(created, sizeof created, job, "created");
-        printf("%-32s  %-20s  %-9s  %4lld  %-13s  %s\n", id, name, state,
-               mrc_json_int(job, "priority", 0, -999, 9999), frames_col, created);
-    }
-cleanup:
-    cJSON_Delete(doc);
-    mrc_response_free(&resp);
     return rc;
 }
 
@@ -581,7 +641,11 @@ int main(int argc, char **argv)
                                {"--png", NULL, &a.png},
                                {NULL, NULL, NULL}};
     opt_spec status_specs[] = {{"--json", NULL, &a.json}, {NULL, NULL, NULL}};
-    opt_spec list_specs[] = {{"--state", &a.state, NULL}, {"--json", NULL, &a.json}, {NULL, NULL, NULL}};
+    opt_spec list_specs[] = {{"--state", &a.state, NULL},
+                             {"--limit", &a.limit, NULL},
+                             {"--name", &a.name, NULL},
+                             {"--json", NULL, &a.json},
+                             {NULL, NULL, NULL}};
     opt_spec fetch_specs[] = {{"--out", &a.out, NULL}, {"--png", NULL, &a.png}, {NULL, NULL, NULL}};
 
     if (strcmp(cmd, "submit") == 0) {

@@ -39,6 +39,13 @@ static cJSON *time_or_null(double t)
     return t > 0 ? cJSON_CreateNumber(t) : cJSON_CreateNull();
 }
 
+/* The same instant as an RFC 3339 string (UTC, milliseconds), or null. */
+static cJSON *rfc3339_or_null(double t)
+{
+    char text[40];
+    return t > 0 && http_rfc3339(t, text, sizeof text) ? cJSON_CreateString(text) : cJSON_CreateNull();
+}
+
 static cJSON *job_json(const mr_job_record *j, bool *ok)
 {
     cJSON *o = cJSON_CreateObject();
@@ -54,6 +61,9 @@ static cJSON *job_json(const mr_job_record *j, bool *ok)
     http_put(o, "created", time_or_null(j->created), ok);
     http_put(o, "started", time_or_null(j->started), ok);
     http_put(o, "finished", time_or_null(j->finished), ok);
+    http_put(o, "created_at", rfc3339_or_null(j->created), ok);
+    http_put(o, "started_at", rfc3339_or_null(j->started), ok);
+    http_put(o, "finished_at", rfc3339_or_null(j->finished), ok);
     http_put(o, "error", str_or_null(j->error), ok);
     if (!o)
         *ok = false;
@@ -159,20 +169,48 @@ enum MHD_Result http_job_submit(req *r, struct MHD_Connection *c)
     return http_send_response(r, c, MHD_HTTP_ACCEPTED, resp, n);
 }
 
+/* GET /v1/jobs: pages of at most `limit` jobs (default LIST_LIMIT_DEFAULT),
+ * newest first, filtered by `state` and `name`; `next` (and a Link header
+ * with rel="next") carries the cursor of the following page, null on the
+ * last. The cursor is opaque to clients: the submission number of the
+ * page's last job, so pages stay put while new jobs arrive. */
+#define LIST_LIMIT_DEFAULT 100
+#define LIST_LIMIT_MAX 1000
+
 enum MHD_Result http_job_list(req *r, struct MHD_Connection *c)
 {
     const char *state_arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "state");
-    mr_job_state state = MR_JOB_QUEUED;
-    if (state_arg && !mr_job_state_parse(state_arg, &state))
+    const char *limit_arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "limit");
+    const char *cursor_arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "cursor");
+    const char *name_arg = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "name");
+    mr_job_query q = {.limit = LIST_LIMIT_DEFAULT};
+    if (state_arg && !mr_job_state_parse(state_arg, &q.state))
         return http_send_problem(r, c, P_BAD_REQUEST, NULL,
                                  "unknown state '%.64s'; expected queued, running, succeeded, failed "
                                  "or canceled",
                                  state_arg);
+    q.by_state = state_arg != NULL;
+    size_t limit = 0;
+    if (limit_arg && (!parse_index(limit_arg, &limit) || limit < 1 || limit > LIST_LIMIT_MAX))
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL,
+                                 "limit '%.32s': expected an integer in 1..%d", limit_arg,
+                                 LIST_LIMIT_MAX);
+    if (limit_arg)
+        q.limit = limit;
+    size_t cursor = 0;
+    if (cursor_arg && (!parse_index(cursor_arg, &cursor) || cursor < 1))
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL,
+                                 "cursor '%.32s' is not one this daemon gave (the \"next\" of a page)",
+                                 cursor_arg);
+    q.before = (int64_t)cursor;
+    if (name_arg && (!name_arg[0] || strlen(name_arg) > 256))
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL, "name: expected 1..256 bytes");
+    q.name = name_arg;
     mr_job_record *jobs = NULL;
     size_t count = 0;
+    int64_t next = 0;
     mr_error err = {0};
-    int rc = mr_store_job_list(mr_daemon_store(r->h->d), state_arg != NULL, state, &jobs, &count,
-                               &err);
+    int rc = mr_store_job_list(mr_daemon_store(r->h->d), &q, &jobs, &count, &next, &err);
     if (rc < 0)
         return http_send_error(r, c, rc, &err);
     bool ok = true;
@@ -186,7 +224,31 @@ enum MHD_Result http_job_list(req *r, struct MHD_Connection *c)
         }
     }
     free(jobs);
-    return http_send_built(r, c, MHD_HTTP_OK, doc, ok);
+    char cursor_text[24] = "", link[1024] = "";
+    if (next > 0) {
+        snprintf(cursor_text, sizeof cursor_text, "%lld", (long long)next);
+        char name_q[800] = "";
+        if (q.name) {
+            char enc[780];
+            http_url_encode(q.name, enc, sizeof enc);
+            snprintf(name_q, sizeof name_q, "&name=%s", enc);
+        }
+        snprintf(link, sizeof link, "</v1/jobs?limit=%zu&cursor=%s%s%s%s>; rel=\"next\"", q.limit,
+                 cursor_text, q.by_state ? "&state=" : "", q.by_state ? mr_job_state_name(q.state) : "",
+                 name_q);
+    }
+    http_put(doc, "next", next > 0 ? cJSON_CreateString(cursor_text) : cJSON_CreateNull(), &ok);
+    if (!ok) {
+        cJSON_Delete(doc);
+        return http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+    }
+    size_t n = 0;
+    struct MHD_Response *resp = http_json_response(doc, CT_JSON, &n);
+    if (resp && link[0] && MHD_add_response_header(resp, "Link", link) != MHD_YES) {
+        MHD_destroy_response(resp);
+        resp = NULL;
+    }
+    return http_send_response(r, c, MHD_HTTP_OK, resp, n);
 }
 
 /* ---- the job detail, written by hand -------------------------------------

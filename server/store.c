@@ -46,7 +46,7 @@
     "j.id, j.name, j.state, j.priority, j.max_retries, j.frame_count, j.created, "       \
     "j.started, j.finished, j.error, "                                                    \
     "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 2), "             \
-    "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 3)"
+    "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 3), j.seq"
 
 static const char *const stmt_sql[S_COUNT] = {
     [S_BEGIN] = "BEGIN IMMEDIATE",
@@ -61,8 +61,11 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_IDEM_GET] = "SELECT body_hash, job_id FROM idempotency WHERE key = ?1",
     [S_IDEM_INSERT] = "INSERT INTO idempotency(key, body_hash, job_id) VALUES(?1, ?2, ?3)",
     [S_JOB_GET] = "SELECT " JOB_COLS " FROM jobs j WHERE j.id = ?1",
-    [S_JOB_LIST] = "SELECT " JOB_COLS " FROM jobs j ORDER BY j.seq DESC",
-    [S_JOB_LIST_STATE] = "SELECT " JOB_COLS " FROM jobs j WHERE j.state = ?1 ORDER BY j.seq DESC",
+    /* ?1 state or -1, ?2 name or NULL, ?3 seq the page starts below or 0,
+     * ?4 rows or -1 (sqlite: no limit); newest first */
+    [S_JOB_QUERY] = "SELECT " JOB_COLS " FROM jobs j WHERE (?1 < 0 OR j.state = ?1) "
+                    "AND (?2 IS NULL OR j.name = ?2) AND (?3 <= 0 OR j.seq < ?3) "
+                    "ORDER BY j.seq DESC LIMIT ?4",
     [S_JOB_JSON] = "SELECT json FROM jobs WHERE id = ?1",
     [S_JOB_STATE] = "SELECT state, frame_count FROM jobs WHERE id = ?1",
     /* ?2 state, ?3 error or NULL to keep it, ?4 now. started is set the

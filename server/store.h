@@ -59,6 +59,7 @@ typedef struct mr_job_record {
     size_t frames_done, frames_failed;
     double created, started, finished; /* unix seconds; 0 = not yet */
     char error[512];       /* why it failed, or "" */
+    int64_t seq;           /* submission order (1, 2, ...): list cursors */
 } mr_job_record;
 
 typedef struct mr_frame_record {
@@ -98,10 +99,20 @@ int mr_store_job_create(mr_store *st, const char *json, size_t json_len, const c
 int mr_store_job_get(mr_store *st, const char *id, mr_job_record *out, mr_error *err);
 /* The stored job document (malloc'ed, NUL-terminated); caller frees. */
 int mr_store_job_json(mr_store *st, const char *id, char **json, mr_error *err);
-/* All jobs (newest first), or only those in `state` when filter is true.
- * *out is malloc'ed; caller frees. */
-int mr_store_job_list(mr_store *st, bool filter, mr_job_state state, mr_job_record **out,
-                      size_t *count, mr_error *err);
+/* Which jobs mr_store_job_list returns. Zeroed: all of them. */
+typedef struct mr_job_query {
+    bool by_state;         /* only jobs in state */
+    mr_job_state state;
+    const char *name;      /* only jobs of this name (exactly); NULL: any */
+    int64_t before;        /* only jobs submitted before the one of this seq (a
+                              page's cursor); 0: from the newest */
+    size_t limit;          /* at most this many; 0: no limit */
+} mr_job_query;
+/* The jobs q selects, newest first; *out is malloc'ed (caller frees).
+ * next (may be NULL) receives the cursor of the following page (q->before
+ * for it), 0 when there is none. */
+int mr_store_job_list(mr_store *st, const mr_job_query *q, mr_job_record **out, size_t *count,
+                      int64_t *next, mr_error *err);
 /* Moves a job to a new state (sets started/finished times as fitting);
  * error may be NULL. */
 int mr_store_job_set_state(mr_store *st, const char *id, mr_job_state state, const char *error,

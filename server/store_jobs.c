@@ -201,6 +201,7 @@ static void read_job(sqlite3_stmt *s, mr_job_record *r)
     store_copy_col(r->error, sizeof r->error, s, 9);
     r->frames_done = (size_t)sqlite3_column_int64(s, 10);
     r->frames_failed = (size_t)sqlite3_column_int64(s, 11);
+    r->seq = sqlite3_column_int64(s, 12);
 }
 
 static int job_row(sqlite3_stmt *s, void *row, mr_error *err)
@@ -252,18 +253,26 @@ int mr_store_job_json(mr_store *st, const char *id, char **json, mr_error *err)
     return rc;
 }
 
-int mr_store_job_list(mr_store *st, bool filter, mr_job_state state, mr_job_record **out,
-                      size_t *count, mr_error *err)
+int mr_store_job_list(mr_store *st, const mr_job_query *q, mr_job_record **out, size_t *count,
+                      int64_t *next, mr_error *err)
 {
-    if (!st || !out || !count)
+    if (!st || !q || !out || !count)
         return mr_error_set(err, MR_ERR_INVALID, "mr_store_job_list: missing argument");
     *out = NULL;
     *count = 0;
+    if (next)
+        *next = 0;
+    /* one row more than asked tells whether another page follows */
+    sqlite3_int64 rows_wanted = q->limit && q->limit < (size_t)INT64_MAX ? (sqlite3_int64)q->limit + 1 : -1;
     store_rows rows = {.elem = sizeof **out, .first_cap = 16, .read = job_row};
     pthread_mutex_lock(&st->lock);
-    sqlite3_stmt *s = store_stmt(st, filter ? S_JOB_LIST_STATE : S_JOB_LIST);
-    int rc = store_read_rows(st, s, filter ? sqlite3_bind_int(s, 1, (int)state) : SQLITE_OK, &rows,
-                             "jobs", err);
+    sqlite3_stmt *s = store_stmt(st, S_JOB_QUERY);
+    int rc = store_read_rows(st, s,
+                             sqlite3_bind_int(s, 1, q->by_state ? (int)q->state : -1) |
+                                 store_bind_text(s, 2, q->name) |
+                                 sqlite3_bind_int64(s, 3, q->before > 0 ? q->before : 0) |
+                                 sqlite3_bind_int64(s, 4, rows_wanted),
+                             &rows, "jobs", err);
     pthread_mutex_unlock(&st->lock);
     if (rc < 0) {
         free(rows.items);
@@ -271,6 +280,11 @@ int mr_store_job_list(mr_store *st, bool filter, mr_job_state state, mr_job_reco
     }
     *out = rows.items;
     *count = rows.count;
+    if (q->limit && rows.count > q->limit) {
+        *count = q->limit;
+        if (next)
+            *next = (*out)[q->limit - 1].seq;
+    }
     return MR_OK;
 }
 

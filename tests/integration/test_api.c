@@ -121,6 +121,94 @@ static void test_readyz_503_while_stopping(void **state)
     D = saved;
 }
 
+/* GET /v1/jobs pages: limit (it was ignored: every job came back), the
+ * cursor of the next page in "next" and in a Link header, state and name
+ * filters; RFC 3339 times beside the numbers. */
+static void test_job_list_pages(void **state)
+{
+    (void)state;
+    char ids[3][64];
+    for (int i = 0; i < 3; i++) {
+        char extra[64];
+        snprintf(extra, sizeof extra, "\"name\":\"page-%c\",", i == 1 ? 'b' : 'a');
+        char *job = fx_small_job(0, 32 + 8 * i, NULL);
+        /* fx_small_job names every job "t": give these their own */
+        char *named = malloc(strlen(job) + 64);
+        snprintf(named, strlen(job) + 64, "{%s%s", extra, job + strlen("{\"name\":\"t\","));
+        fx_submit(&D, named, ids[i]);
+        free(named);
+        free(job);
+    }
+    http_result r = http(&D, "GET", "/v1/jobs?limit=2&name=page-a", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    cJSON *doc = cJSON_Parse(r.body);
+    cJSON *jobs = cJSON_GetObjectItem(doc, "jobs");
+    assert_int_equal(cJSON_GetArraySize(jobs), 2);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(jobs, 0), "id")->valuestring, ids[2]);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(jobs, 1), "id")->valuestring, ids[0]);
+    /* the filter leaves nothing more: no next page */
+    assert_true(cJSON_IsNull(cJSON_GetObjectItem(doc, "next")));
+    cJSON_Delete(doc);
+    http_free(&r);
+
+    r = http(&D, "GET", "/v1/jobs?limit=1", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    doc = cJSON_Parse(r.body);
+    jobs = cJSON_GetObjectItem(doc, "jobs");
+    assert_int_equal(cJSON_GetArraySize(jobs), 1);
+    cJSON *first = cJSON_GetArrayItem(jobs, 0);
+    assert_string_equal(cJSON_GetObjectItem(first, "id")->valuestring, ids[2]);
+    /* "2025-01-31T09:05:03.250Z" beside the number */
+    const char *at = cJSON_GetObjectItem(first, "created_at")->valuestring;
+    assert_int_equal(strlen(at), 24);
+    assert_true(at[4] == '-' && at[10] == 'T' && at[19] == '.' && at[23] == 'Z');
+    assert_true(cJSON_IsNull(cJSON_GetObjectItem(first, "finished_at")) ||
+                cJSON_IsString(cJSON_GetObjectItem(first, "finished_at")));
+    const char *next = cJSON_GetObjectItem(doc, "next")->valuestring;
+    char link[512], want[512], path[256];
+    assert_true(fx_header_get(&r, "Link", link, sizeof link));
+    snprintf(want, sizeof want, "</v1/jobs?limit=1&cursor=%s>; rel=\"next\"", next);
+    assert_string_equal(link, want);
+    snprintf(path, sizeof path, "/v1/jobs?limit=1&cursor=%s", next);
+    cJSON_Delete(doc);
+    http_free(&r);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    doc = cJSON_Parse(r.body);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "jobs"), 0), "id")->valuestring,
+                        ids[1]);
+    cJSON_Delete(doc);
+    http_free(&r);
+
+    /* the client follows the pages (a page of 1 here) or stops at --limit */
+    char cmd[4096], log[600];
+    snprintf(log, sizeof log, "%s/list.txt", fx_tmp);
+    snprintf(cmd, sizeof cmd, "'%s/microray' --server %s list --limit 2 --json >'%s' 2>&1", fx_build_dir,
+             D.base, log);
+    assert_int_equal(system(cmd), 0);
+    char *text = fx_slurp(log, NULL);
+    doc = cJSON_Parse(text);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "jobs")), 2);
+    cJSON_Delete(doc);
+    free(text);
+    snprintf(cmd, sizeof cmd, "'%s/microray' --server %s list --name page-a >'%s' 2>&1", fx_build_dir,
+             D.base, log);
+    assert_int_equal(system(cmd), 0);
+    text = fx_slurp(log, NULL);
+    assert_non_null(strstr(text, ids[0]));
+    assert_non_null(strstr(text, ids[2]));
+    assert_null(strstr(text, ids[1]));
+    free(text);
+
+    static const char *const bad[] = {"/v1/jobs?limit=0", "/v1/jobs?limit=1001", "/v1/jobs?limit=x",
+                                      "/v1/jobs?cursor=abc", "/v1/jobs?state=done", "/v1/jobs?name="};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        r = http(&D, "GET", bad[i], NULL, 0, NULL);
+        if (r.status != 400)
+            fail_msg("GET %s: %ld, want 400", bad[i], r.status);
+        http_free(&r);
+    }
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -144,6 +232,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_cancel_releases_running_frame),
         cmocka_unit_test(test_readyz_503_while_stopping),
+        cmocka_unit_test(test_job_list_pages),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }

@@ -437,7 +437,7 @@ static void test_create_get_list_filter(void **state)
 
     mr_job_record *list = NULL;
     size_t n = 0;
-    ok(mr_store_job_list(fx->st, false, MR_JOB_QUEUED, &list, &n, &err), &err);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){0}, &list, &n, NULL, &err), &err);
     assert_int_equal(n, 3);
     /* newest first */
     assert_string_equal(list[0].id, c);
@@ -447,16 +447,45 @@ static void test_create_get_list_filter(void **state)
     free(list);
 
     ok(mr_store_job_set_state(fx->st, b, MR_JOB_RUNNING, NULL, &err), &err);
-    ok(mr_store_job_list(fx->st, true, MR_JOB_QUEUED, &list, &n, &err), &err);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.by_state = true, .state = MR_JOB_QUEUED}, &list, &n, NULL, &err), &err);
     assert_int_equal(n, 2);
     assert_string_equal(list[0].id, c);
     assert_string_equal(list[1].id, a);
     free(list);
-    ok(mr_store_job_list(fx->st, true, MR_JOB_RUNNING, &list, &n, &err), &err);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.by_state = true, .state = MR_JOB_RUNNING}, &list, &n, NULL, &err), &err);
     assert_int_equal(n, 1);
     assert_string_equal(list[0].id, b);
     free(list);
-    ok(mr_store_job_list(fx->st, true, MR_JOB_FAILED, &list, &n, &err), &err);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.by_state = true, .state = MR_JOB_FAILED}, &list, &n, NULL, &err), &err);
+    assert_int_equal(n, 0);
+    free(list);
+
+    /* pages: limit, the cursor of the next page, and the last page's 0 */
+    int64_t next = -1;
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.limit = 2}, &list, &n, &next, &err), &err);
+    assert_int_equal(n, 2);
+    assert_string_equal(list[0].id, c);
+    assert_string_equal(list[1].id, b);
+    assert_true(next == list[1].seq && next > 0);
+    free(list);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.limit = 2, .before = next}, &list, &n, &next, &err),
+       &err);
+    assert_int_equal(n, 1);
+    assert_string_equal(list[0].id, a);
+    assert_true(next == 0);
+    free(list);
+    /* exactly a page's worth: no next page */
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.limit = 3}, &list, &n, &next, &err), &err);
+    assert_int_equal(n, 3);
+    assert_true(next == 0);
+    free(list);
+    /* by name, with the state */
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.name = "beta"}, &list, &n, NULL, &err), &err);
+    assert_int_equal(n, 1);
+    assert_string_equal(list[0].id, b);
+    free(list);
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.name = "beta", .by_state = true, .state = MR_JOB_QUEUED},
+                         &list, &n, NULL, &err), &err);
     assert_int_equal(n, 0);
     free(list);
 
@@ -1342,7 +1371,7 @@ static void *worker(void *p)
             mr_store_frame_done(w->st, id, 0, id, 32, "{}", &err) != MR_OK ||
             mr_store_frame_failed(w->st, id, 1, "x", false, &gave_up, &err) != MR_OK ||
             mr_store_job_get(w->st, id, &r, &err) != MR_OK ||
-            mr_store_job_list(w->st, false, MR_JOB_QUEUED, &list, &n, &err) != MR_OK ||
+            mr_store_job_list(w->st, &(mr_job_query){0}, &list, &n, NULL, &err) != MR_OK ||
             mr_store_job_counts(w->st, counts, &err) != MR_OK ||
             mr_store_job_set_state(w->st, id, MR_JOB_SUCCEEDED, NULL, &err) != MR_OK) {
             free(list);
