@@ -34,7 +34,7 @@ typedef struct daemon_proc {
  * binary daemon_start runs as `serve` (empty: the build's microrayd). */
 static char fx_src_dir[2048], fx_build_dir[2048], fx_tmp[256], fx_root[300], fx_daemon_exe[2100];
 
-static void fx_init_dirs(void)
+static inline void fx_init_dirs(void)
 {
     const char *s = getenv("MR_SOURCE_DIR"), *b = getenv("MR_BUILD_DIR");
     snprintf(fx_src_dir, sizeof fx_src_dir, "%s", s ? s : ".");
@@ -76,7 +76,7 @@ static inline void fx_assert_store_intact(const char *data_dir)
     sqlite3_close(db);
 }
 
-static void fx_sleep_ms(int ms)
+static inline void fx_sleep_ms(int ms)
 {
     struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
     nanosleep(&ts, NULL);
@@ -84,7 +84,7 @@ static void fx_sleep_ms(int ms)
 
 /* Starts microrayd serve with data directory data_name (inside fx_tmp) and
  * the extra arguments of the NULL-terminated list extra (may be NULL). */
-static void daemon_start_args(daemon_proc *d, const char *data_name, const char *const *extra)
+static inline void daemon_start_args(daemon_proc *d, const char *data_name, const char *const *extra)
 {
     memset(d, 0, sizeof *d);
     snprintf(d->data, sizeof d->data, "%s/%s", fx_tmp, data_name);
@@ -177,7 +177,7 @@ static inline pid_t fx_render_worker_pid(const daemon_proc *d)
 static inline void daemon_start(daemon_proc *d, const char *data_name) { daemon_start_args(d, data_name, NULL); }
 
 /* SIGTERM (graceful) or SIGKILL; returns the exit status or -signal. */
-static int daemon_stop(daemon_proc *d, int sig)
+static inline int daemon_stop(daemon_proc *d, int sig)
 {
     kill(d->pid, sig);
     int st = 0;
@@ -197,7 +197,7 @@ typedef struct http_result {
     size_t head_len;
 } http_result;
 
-static size_t fx_collect(char *p, size_t size, size_t n, void *user)
+static inline size_t fx_collect(char *p, size_t size, size_t n, void *user)
 {
     http_result *r = user;
     size_t add = size * n;
@@ -212,7 +212,7 @@ static size_t fx_collect(char *p, size_t size, size_t n, void *user)
 }
 
 /* Copies the value of header line p (of len bytes) into out when its name is `name`. */
-static void fx_header_value(const char *p, size_t len, const char *name, char *out, size_t size)
+static inline void fx_header_value(const char *p, size_t len, const char *name, char *out, size_t size)
 {
     size_t nl = strlen(name);
     if (len > nl + 2 && strncasecmp(p, name, nl) == 0 && p[nl] == ':') {
@@ -225,7 +225,7 @@ static void fx_header_value(const char *p, size_t len, const char *name, char *o
     }
 }
 
-static size_t fx_header(char *p, size_t size, size_t n, void *user)
+static inline size_t fx_header(char *p, size_t size, size_t n, void *user)
 {
     http_result *r = user;
     size_t len = size * n;
@@ -245,7 +245,7 @@ static size_t fx_header(char *p, size_t size, size_t n, void *user)
 
 /* One request with the NULL-terminated request headers ("Name: value";
  * headers may be NULL). */
-static http_result http_headers(const daemon_proc *d, const char *method, const char *path,
+static inline http_result http_headers(const daemon_proc *d, const char *method, const char *path,
                                 const void *body, size_t body_len, const char *const *headers)
 {
     http_result r = {0};
@@ -284,14 +284,14 @@ static http_result http_headers(const daemon_proc *d, const char *method, const 
 }
 
 /* One request; header may be NULL ("Name: value"). */
-static http_result http(const daemon_proc *d, const char *method, const char *path, const void *body,
+static inline http_result http(const daemon_proc *d, const char *method, const char *path, const void *body,
                         size_t body_len, const char *header)
 {
     const char *headers[] = {header, NULL};
     return http_headers(d, method, path, body, body_len, headers);
 }
 
-static void http_free(http_result *r) { free(r->body); }
+static inline void http_free(http_result *r) { free(r->body); }
 
 /* The value of response header name (case-insensitive; the first of
  * several) into out; false ("" in out) when absent. */
