@@ -11,7 +11,10 @@
 #include "client.h"
 
 #include <stdarg.h>
+#include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
+#include <unistd.h>
 
 #define BAR_WIDTH 20
 
@@ -30,21 +33,22 @@ double mrc_progress_elapsed(const mrc_progress *p)
     return mrc_now() - p->start;
 }
 
-void mrc_progress_format(char *dst, size_t size, int done, int failed, int total,
-                         const char *state, double elapsed, double eta)
+int mrc_terminal_columns(FILE *out)
 {
-    char bar[BAR_WIDTH + 1];
-    int filled = 0;
-    if (total > 0) {
-        int finished = done + failed;
-        if (finished > total)
-            finished = total;
-        filled = (int)((long long)finished * BAR_WIDTH / total);
-    }
-    for (int i = 0; i < BAR_WIDTH; i++)
-        bar[i] = i < filled ? '#' : '.';
-    bar[BAR_WIDTH] = '\0';
+    struct winsize ws;
+    if (out && ioctl(fileno(out), TIOCGWINSZ, &ws) == 0 && ws.ws_col > 0)
+        return ws.ws_col;
+    const char *env = getenv("COLUMNS");
+    long cols = env ? strtol(env, NULL, 10) : 0;
+    return cols > 0 && cols < 10000 ? (int)cols : 80;
+}
 
+/* Narrowest bar still worth drawing. */
+#define BAR_MIN 5
+
+void mrc_progress_format(char *dst, size_t size, int done, int failed, int total,
+                         const char *state, double elapsed, double eta, int max_len)
+{
     char el[32], et[32], extra[96];
     mrc_format_seconds(el, sizeof el, elapsed);
     extra[0] = '\0';
@@ -65,14 +69,43 @@ void mrc_progress_format(char *dst, size_t size, int done, int failed, int total
             mrc_format_seconds(et, sizeof et, eta);
         snprintf(extra + used, sizeof extra - used, "  ETA %s", et);
     }
-    snprintf(dst, size, "[%s] %d/%d frames  %s%s", bar, done, total, el, extra);
+    char text[160];
+    int tl = snprintf(text, sizeof text, "%d/%d frames  %s%s", done, total, el, extra);
+    if (tl < 0)
+        tl = 0;
+    if (tl > (int)sizeof text - 1)
+        tl = (int)sizeof text - 1;
+    /* "[bar] " takes width + 3: as wide as fits, down to BAR_MIN, else none */
+    int width = BAR_WIDTH;
+    if (max_len > 0 && tl + 3 + width > max_len)
+        width = max_len - tl - 3;
+    char bar[BAR_WIDTH + 1] = "";
+    if (width >= BAR_MIN) {
+        int filled = 0;
+        if (total > 0) {
+            int finished = done + failed;
+            if (finished > total)
+                finished = total;
+            filled = (int)((long long)finished * width / total);
+        }
+        for (int i = 0; i < width; i++)
+            bar[i] = i < filled ? '#' : '.';
+        bar[width] = '\0';
+        snprintf(dst, size, "[%s] %s", bar, text);
+    } else {
+        snprintf(dst, size, "%s", text);
+    }
+    /* the text is ASCII: a byte is a column */
+    if (max_len > 0 && strlen(dst) > (size_t)max_len)
+        dst[max_len] = '\0';
 }
 
 static void clear_bar(mrc_progress *p)
 {
     if (!p->drawn)
         return;
-    fprintf(p->out, "\r%*s\r", p->drawn_len, "");
+    int room = p->columns > 1 ? p->columns - 1 : 1;
+    fprintf(p->out, "\r%*s\r", p->drawn_len < room ? p->drawn_len : room, "");
     p->drawn = false;
     p->drawn_len = 0;
 }
@@ -102,11 +135,17 @@ void mrc_progress_update(mrc_progress *p, int done, int failed, int total, const
             eta = (now - p->start) / (done - p->done0) * remaining;
     }
     char line[256];
-    mrc_progress_format(line, sizeof line, done, failed, total, state, now - p->start, eta);
+    /* one column short of the width: a line reaching the last column wraps */
+    p->columns = mrc_terminal_columns(p->out);
+    int room = p->columns - 1 < (int)sizeof line - 1 ? p->columns - 1 : (int)sizeof line - 1;
+    if (room < 1)
+        room = 1;
+    mrc_progress_format(line, sizeof line, done, failed, total, state, now - p->start, eta, room);
     int len = (int)strlen(line);
     /* pad with blanks over a longer previous line instead of relying on
-     * terminal escape sequences */
-    fprintf(p->out, "\r%s%*s", line, p->drawn_len > len ? p->drawn_len - len : 0, "");
+     * terminal escape sequences (never past the room: that would wrap) */
+    int old = p->drawn_len < room ? p->drawn_len : room;
+    fprintf(p->out, "\r%s%*s", line, old > len ? old - len : 0, "");
     fflush(p->out);
     p->drawn = true;
     p->drawn_len = len > p->drawn_len ? len : p->drawn_len;

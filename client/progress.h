@@ -3,6 +3,10 @@
  *
  * On a terminal one line is redrawn in place with \r:
  *   [#########...........] 12/49 frames  3.1 s  ETA 9 s
+ * never wider than the terminal less one column (asked at every redraw, so
+ * a resize is followed): a narrower bar first, then none, then the text
+ * cut, because a line that reaches the last column wraps and every redraw
+ * would then leave a line behind.
  * Anywhere else (a log file, CI) redrawing would only produce noise, so the
  * caller's per-frame messages are printed as plain lines and the bar is
  * never drawn. --quiet silences both; errors are not printed here.
@@ -19,6 +23,7 @@ typedef struct mrc_progress {
     bool quiet;
     bool drawn;         /* a bar is on screen, the cursor sits at its end */
     int drawn_len;      /* its length, for blanking a shorter redraw */
+    int columns;        /* the terminal's width at the last redraw */
     double start;       /* when following began */
     double last_draw;
     int done0;          /* frames already finished when following began */
@@ -44,8 +49,12 @@ void mrc_progress_finish(mrc_progress *p);
 /* Seconds since mrc_progress_init. */
 double mrc_progress_elapsed(const mrc_progress *p);
 
-/* The bar text without drawing it (exposed for tests). eta < 0 = unknown. */
+/* The bar text without drawing it, at most max_len characters (0: no
+ * limit). eta < 0 = unknown. */
 void mrc_progress_format(char *dst, size_t size, int done, int failed, int total,
-                         const char *state, double elapsed, double eta);
+                         const char *state, double elapsed, double eta, int max_len);
+
+/* Columns of the terminal at out (TIOCGWINSZ), else $COLUMNS, else 80. */
+int mrc_terminal_columns(FILE *out);
 
 #endif

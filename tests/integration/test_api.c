@@ -12,6 +12,8 @@
 #include <cmocka.h>
 
 #include <cJSON.h>
+#include <poll.h>
+#include <pty.h>
 
 #include "daemon_fixture.h"
 
@@ -209,6 +211,65 @@ static void test_job_list_pages(void **state)
     }
 }
 
+/* The client's progress bar on a terminal of 40 columns: every redraw
+ * fits in 39 (it had 50 and more: the terminal wrapped it and every redraw
+ * left a line behind). The client runs on a real pseudo-terminal. */
+static void test_progress_bar_fits_narrow_terminal(void **state)
+{
+    (void)state;
+    char job_path[512];
+    snprintf(job_path, sizeof job_path, "%s/narrow.json", fx_tmp);
+    char *job = fx_small_job(23, 96, NULL); /* 24 frames: many redraws */
+    FILE *f = fopen(job_path, "w");
+    fputs(job, f);
+    fclose(f);
+    free(job);
+    struct winsize ws = {.ws_row = 24, .ws_col = 40};
+    int master = -1;
+    pid_t pid = forkpty(&master, NULL, NULL, &ws);
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        setenv("TERM", "xterm", 1);
+        unsetenv("COLUMNS");
+        char bin[2200];
+        snprintf(bin, sizeof bin, "%s/microray", fx_build_dir);
+        execl(bin, "microray", "--server", D.base, "submit", job_path, "--wait", (char *)NULL);
+        _exit(127);
+    }
+    size_t len = 0, cap = 1 << 16;
+    char *out = malloc(cap);
+    for (;;) {
+        if (len + 4096 > cap)
+            out = realloc(out, cap *= 2);
+        ssize_t n = read(master, out + len, 4096);
+        if (n <= 0) /* EIO once the client is gone */
+            break;
+        len += (size_t)n;
+    }
+    out[len] = '\0';
+    close(master);
+    int st = 0;
+    waitpid(pid, &st, 0);
+    if (!WIFEXITED(st) || WEXITSTATUS(st) != 0)
+        fail_msg("microray exited %d: %s", WEXITSTATUS(st), out);
+    /* every redraw of the bar, between carriage returns and newlines */
+    int redraws = 0;
+    for (char *seg = out; *seg;) {
+        size_t n = strcspn(seg, "\r\n");
+        bool bar = n > 0 && strstr(seg, " frames") && strstr(seg, " frames") < seg + n &&
+                   strncmp(seg, "job ", 4) != 0;
+        if (bar) {
+            redraws++;
+            if (n > 39)
+                fail_msg("a redraw of %zu columns on a 40-column terminal: '%.*s'", n, (int)n, seg);
+        }
+        seg += n;
+        seg += strspn(seg, "\r\n");
+    }
+    assert_true(redraws >= 2);
+    free(out);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -233,6 +294,7 @@ int main(void)
         cmocka_unit_test(test_cancel_releases_running_frame),
         cmocka_unit_test(test_readyz_503_while_stopping),
         cmocka_unit_test(test_job_list_pages),
+        cmocka_unit_test(test_progress_bar_fits_narrow_terminal),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }
