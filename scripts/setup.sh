@@ -34,6 +34,7 @@ TEST_PACKAGES=(
   assimp-testmodels      # the real models the examples and tests use
   libcmocka-dev
   openssl                # self-signed certificates for the TLS test (test_http_auth)
+  curl                   # the README's curl examples, run as written by test_api
   wrk                    # HTTP load generator for make bench (loopback only)
   slurm-wlm munge        # a real single-node Slurm for the cluster test (test_slurm,
                          # scripts/slurm-local.sh; microray cluster, docs/scale.md)

@@ -270,6 +270,92 @@ static void test_progress_bar_fits_narrow_terminal(void **state)
     free(out);
 }
 
+/* The line of README.md that starts with prefix (after a newline), up to
+ * the first of stop_at (a comment, a '&') with trailing blanks cut; fails
+ * the test when there is none. */
+static void readme_line(const char *readme, const char *prefix, const char *stop_at, char *out,
+                        size_t size)
+{
+    char needle[256];
+    snprintf(needle, sizeof needle, "\n%s", prefix);
+    const char *p = strstr(readme, needle);
+    if (!p)
+        fail_msg("README.md has no line starting with '%s'", prefix);
+    p++;
+    size_t n = strcspn(p, stop_at);
+    while (n && p[n - 1] == ' ')
+        n--;
+    snprintf(out, size, "%.*s", (int)n, p);
+}
+
+/* The README's quick start, run as written against the daemon it says to
+ * start: the curl submission answers 202 and the client's prints a job id.
+ * (The examples name models by server-side path: a daemon without the
+ * asset root refused them, and the README did not say so.) */
+static void test_readme_quick_start(void **state)
+{
+    (void)state;
+    char path[2200], serve[512], curl[512], client[512], cmd[8192];
+    snprintf(path, sizeof path, "%s/README.md", fx_src_dir);
+    char *readme = fx_slurp(path, NULL);
+    assert_non_null(readme);
+    readme_line(readme, "build/microrayd serve --asset-root", "&#\n", serve, sizeof serve);
+    readme_line(readme, "curl -si -X POST --data-binary @examples/", "#\n", curl, sizeof curl);
+    readme_line(readme, "build/microray submit examples/skinned-walk.json", "#\n", client,
+                sizeof client);
+    free(readme);
+    /* the daemon as the quick start starts it, on a free port and a data
+     * directory of the test's (later options win) */
+    daemon_proc q = {0};
+    snprintf(q.data, sizeof q.data, "%s/quick", fx_tmp);
+    snprintf(q.log, sizeof q.log, "%s/quick.log", fx_tmp);
+    char port_file[600];
+    snprintf(port_file, sizeof port_file, "%s/quick.port", fx_tmp);
+    q.pid = fork();
+    if (q.pid == 0) {
+        FILE *l = freopen(q.log, "a", stderr);
+        (void)l;
+        if (chdir(fx_src_dir) != 0)
+            _exit(127);
+        snprintf(cmd, sizeof cmd, "exec '%s/microrayd'%s --listen 127.0.0.1:0 --data '%s' --port-file '%s'",
+                 fx_build_dir, serve + strlen("build/microrayd"), q.data, port_file);
+        execl("/bin/sh", "sh", "-c", cmd, (char *)NULL);
+        _exit(127);
+    }
+    for (int i = 0; i < 300 && !q.port; i++) {
+        FILE *f = fopen(port_file, "r");
+        if (f) {
+            if (fscanf(f, "%u", &q.port) != 1)
+                q.port = 0;
+            fclose(f);
+        }
+        if (!q.port)
+            fx_sleep_ms(100);
+    }
+    assert_true(q.port > 0);
+    snprintf(q.base, sizeof q.base, "http://127.0.0.1:%u", q.port);
+    /* curl as written, the port swapped in */
+    char *at = strstr(curl, "127.0.0.1:8470");
+    assert_non_null(at);
+    snprintf(cmd, sizeof cmd, "cd '%s' && %.*s127.0.0.1:%u%s", fx_src_dir, (int)(at - curl), curl, q.port,
+             at + strlen("127.0.0.1:8470"));
+    FILE *p = popen(cmd, "r");
+    char head[256] = "";
+    assert_non_null(fgets(head, sizeof head, p));
+    pclose(p);
+    if (!strstr(head, " 202"))
+        fail_msg("%s answered: %s", cmd, head);
+    /* the client as written, the server from the environment */
+    snprintf(cmd, sizeof cmd, "cd '%s' && MICRORAY_SERVER=%s '%s/microray'%s", fx_src_dir, q.base,
+             fx_build_dir, client + strlen("build/microray"));
+    p = popen(cmd, "r");
+    char id[128] = "";
+    assert_non_null(fgets(id, sizeof id, p));
+    assert_int_equal(pclose(p), 0);
+    assert_int_equal(strspn(id, "0123456789abcdef"), 32);
+    assert_int_equal(daemon_stop(&q, SIGKILL), -SIGKILL); /* its jobs need not finish */
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -295,6 +381,7 @@ int main(void)
         cmocka_unit_test(test_readyz_503_while_stopping),
         cmocka_unit_test(test_job_list_pages),
         cmocka_unit_test(test_progress_bar_fits_narrow_terminal),
+        cmocka_unit_test(test_readme_quick_start),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }
