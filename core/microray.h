@@ -371,6 +371,8 @@ int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_
                      mr_error *err);
 /* The same with MR_AOV_DEFAULT. */
 int mr_film_new(int width, int height, mr_film **out, mr_error *err);
+/* Bytes the planes of such a film take (0 for a size that is none). */
+size_t mr_film_bytes(int width, int height, unsigned aovs, int crypto_ranks);
 void mr_film_free(mr_film *film);
 /* Resets every plane to "miss": z to MR_DEPTH_MISS, everything else 0. */
 void mr_film_clear(mr_film *film);
@@ -1037,6 +1039,10 @@ typedef struct mr_job {
  * pointer receives the field of the object with the largest floor
  * ("/objects/3/svo/instances"). budget 0: no limit. */
 int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_error *err);
+/* The bytes of geometry the job's objects surely need, from their
+ * parameters alone (the sum of each kind's memory floor; SIZE_MAX when it
+ * overflows): what mr_job_check_memory holds against the budget. */
+size_t mr_job_memory_floor(const mr_job *job);
 
 /* Frees everything the job owns, then the job. NULL is fine. */
 void mr_job_free(mr_job *job);

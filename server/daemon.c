@@ -309,9 +309,14 @@ static int resolve_server_path(mr_daemon *d, const char *name, const char *path,
 }
 
 /* Fills in job->assets[i].path for every asset: uploaded ids become stored
- * files, server-side paths real paths below a root. */
-static int resolve_assets(mr_daemon *d, mr_job *job, char pointer[512], mr_error *err)
+ * files, server-side paths real paths below a root. With problems, every
+ * asset that does not resolve is recorded there and the rest are still
+ * tried (the first failure's code is returned); without, the first one
+ * ends it (pointer names it). */
+static int resolve_assets_all(mr_daemon *d, mr_job *job, char pointer[512], mr_job_problems *problems,
+                              mr_error *err)
 {
+    int first = MR_OK;
     for (size_t i = 0; i < job->asset_count; i++) {
         mr_asset_desc *a = &job->assets[i];
         char *resolved = NULL;
@@ -320,36 +325,74 @@ static int resolve_assets(mr_daemon *d, mr_job *job, char pointer[512], mr_error
             char path[PATH_MAX];
             snprintf(pointer, 512, "/assets/%s/id", a->name);
             if ((rc = mr_store_asset_path(d->store, a->id, path, sizeof path, err)) < 0)
-                return mr_error_set(err, rc, "no uploaded asset with id %s", a->id);
-            resolved = strdup(path);
-            if (!resolved)
-                return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
-        } else if ((rc = resolve_server_path(d, a->name, a->path, &resolved, pointer, err)) < 0) {
-            return rc;
+                mr_error_set(err, rc, "no uploaded asset with id %s", a->id);
+            else if (!(resolved = strdup(path)))
+                rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+        } else {
+            rc = resolve_server_path(d, a->name, a->path, &resolved, pointer, err);
+        }
+        if (rc < 0) {
+            if (!problems || rc == MR_ERR_NOMEM)
+                return rc;
+            json_errors_add(problems, pointer, err->msg);
+            if (first == MR_OK)
+                first = rc;
+            continue;
         }
         free(a->path);
         a->path = resolved;
     }
     pointer[0] = '\0';
-    return MR_OK;
+    return first;
+}
+
+static int resolve_assets(mr_daemon *d, mr_job *job, char pointer[512], mr_error *err)
+{
+    return resolve_assets_all(d, job, pointer, NULL, err);
 }
 
 /* ---- submission and control ---------------------------------------------- */
 
-int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *idempotency_key,
-                     char id[MR_JOB_ID_LEN + 1], bool *existing, char pointer[512], mr_error *err)
+int mr_daemon_check_job(mr_daemon *d, const char *body, size_t len, mr_job **job_out,
+                        mr_job_problems *problems, mr_error *err)
 {
     mr_job *job = NULL;
-    mr_job_error jerr;
-    pointer[0] = '\0';
-    *existing = false;
-    int rc = mr_job_parse(body, len, &job, &jerr);
+    if (job_out)
+        *job_out = NULL;
+    int rc = mr_job_check(body, len, &job, problems);
     if (rc < 0) {
-        snprintf(pointer, 512, "%s", jerr.pointer);
-        return mr_error_set(err, rc, "%s", jerr.message);
+        mr_error_set(err, rc, "%s", problems->count ? problems->items[0].message : mr_err_name(rc));
+        return rc;
     }
-    if ((rc = mr_job_check_memory(job, d->cfg.job_memory, pointer, err)) == MR_OK &&
-        (rc = resolve_assets(d, job, pointer, err)) == MR_OK) {
+    char pointer[512];
+    mr_error e = {0};
+    int first = MR_OK;
+    if ((rc = mr_job_check_memory(job, d->cfg.job_memory, pointer, &e)) < 0) {
+        json_errors_add(problems, pointer, e.msg);
+        first = rc;
+    }
+    rc = resolve_assets_all(d, job, pointer, problems, &e);
+    if (first == MR_OK)
+        first = rc;
+    if (first < 0) {
+        mr_job_free(job);
+        return mr_error_set(err, first, "%s", problems->count ? problems->items[0].message : e.msg);
+    }
+    if (job_out)
+        *job_out = job;
+    else
+        mr_job_free(job);
+    return MR_OK;
+}
+
+int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *idempotency_key,
+                     char id[MR_JOB_ID_LEN + 1], bool *existing, mr_job_problems *problems,
+                     mr_error *err)
+{
+    mr_job *job = NULL;
+    *existing = false;
+    int rc = mr_daemon_check_job(d, body, len, &job, problems, err);
+    if (rc == MR_OK) {
         char hash[65];
         mr_sha256_hex(body, len, hash);
         rc = mr_store_job_create(d->store, body, len, job->name, job->frame_count, job->priority,

@@ -14,6 +14,7 @@
 #ifndef MR_DAEMON_H
 #define MR_DAEMON_H
 
+#include "job_json.h"
 #include "microray.h"
 #include "store.h"
 
@@ -72,16 +73,24 @@ bool mr_daemon_ready(const mr_daemon *d);
  * refused with 503, reads are served). */
 bool mr_daemon_stopping(mr_daemon *d);
 
-/* Validates a job body (server/job_json.c), resolves its assets (ids to
- * stored files, server-side paths to real paths below an asset root: "..",
- * symlinks out of the roots and absolute paths elsewhere are refused) and
- * stores it as queued. On a bad job, *pointer receives the JSON pointer of
- * the offending field (or "" when there is none) and the result is
- * MR_ERR_INVALID / MR_ERR_LIMIT / MR_ERR_NOT_FOUND (missing asset);
- * MR_ERR_CONFLICT for an idempotency key reused with another body.
- * *existing tells an idempotent replay. */
+/* Validates a job body as a submission does, without storing anything:
+ * every problem the job parser finds (server/job_json.c, mr_job_check),
+ * then the job memory budget and each asset's resolution (ids to stored
+ * files, server-side paths to real paths below an asset root: "..",
+ * symlinks out of the roots and absolute paths elsewhere are refused),
+ * each asset that does not resolve one more problem. problems (required)
+ * receives them, with their JSON pointers; the result is the first one's
+ * code: MR_ERR_INVALID, MR_ERR_LIMIT (a cap, the budget, or a document
+ * over MR_JOB_MAX_BYTES), MR_ERR_NOT_FOUND (a missing asset), and err
+ * holds its message. On success *job_out (may be NULL) is the job with
+ * its assets resolved (mr_job_free). */
+int mr_daemon_check_job(mr_daemon *d, const char *body, size_t len, mr_job **job_out,
+                        mr_job_problems *problems, mr_error *err);
+/* mr_daemon_check_job, then stores the job as queued. MR_ERR_CONFLICT
+ * for an idempotency key reused with another body; *existing tells an
+ * idempotent replay. */
 int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *idempotency_key,
-                     char id[MR_JOB_ID_LEN + 1], bool *existing, char pointer[512],
+                     char id[MR_JOB_ID_LEN + 1], bool *existing, mr_job_problems *problems,
                      mr_error *err);
 /* Cancels a queued or running job (a running render stops within one tile).
  * MR_ERR_CONFLICT if it already finished; MR_ERR_NOT_FOUND if unknown. */

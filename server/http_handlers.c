@@ -113,33 +113,140 @@ bool http_load_job(req *r, struct MHD_Connection *c, mr_job_record *job, enum MH
 
 /* ---- handlers: jobs ----------------------------------------------------- */
 
+/* A refused job: 413 over the size cap; 400 malformed-json when the body
+ * is not JSON; 422 invalid-job with the first problem's pointer and every
+ * problem in `errors`; else the daemon's error as usual. */
+static enum MHD_Result job_refused(req *r, struct MHD_Connection *c, int rc,
+                                   const mr_job_problems *problems, const mr_error *err)
+{
+    const mr_json_error *first = problems->count ? &problems->items[0] : NULL;
+    if (rc == MR_ERR_LIMIT && r->len > MR_JOB_MAX_BYTES)
+        return http_send_problem(r, c, P_TOO_LARGE, NULL, "%s", err->msg);
+    if (rc == MR_ERR_CONFLICT)
+        return http_send_problem(r, c, P_IDEMPOTENCY, NULL, "%s", err->msg);
+    if (!first || (rc != MR_ERR_INVALID && rc != MR_ERR_LIMIT && rc != MR_ERR_NOT_FOUND))
+        return http_send_error(r, c, rc, err);
+    if (first->syntax)
+        return http_send_problem(r, c, P_MALFORMED_JSON, NULL, "%s", first->message);
+    bool ok = true;
+    cJSON *ext = cJSON_CreateObject();
+    cJSON *list = http_put(ext, "errors", cJSON_CreateArray(), &ok);
+    for (size_t i = 0; i < problems->count && ok; i++) {
+        char shown[sizeof problems->items[i].message];
+        mr_daemon_redact(r->h->d, problems->items[i].message, shown, sizeof shown);
+        cJSON *e = cJSON_CreateObject();
+        http_put(e, "pointer", cJSON_CreateString(problems->items[i].pointer), &ok);
+        http_put(e, "detail", cJSON_CreateString(shown), &ok);
+        if (!e || !cJSON_AddItemToArray(list, e)) {
+            cJSON_Delete(e);
+            ok = false;
+        }
+    }
+    if (problems->more)
+        http_put(ext, "errors_omitted", cJSON_CreateNumber((double)problems->more), &ok);
+    if (!ok) {
+        cJSON_Delete(ext);
+        ext = NULL;
+    }
+    char shown[sizeof first->message];
+    mr_daemon_redact(r->h->d, first->message, shown, sizeof shown);
+    return http_send_problem_ext(r, c, P_INVALID_JOB, first->pointer, ext, "%s", shown);
+}
+
+/* POST /v1/jobs?dry_run=1: what a submission would do, without queuing:
+ * the job's size and work, the memory it surely needs, its assets' files
+ * and which objects derive data (built on first use, then kept). */
+static enum MHD_Result job_estimate(req *r, struct MHD_Connection *c, const mr_job *job)
+{
+    const mr_daemon_config *cfg = mr_daemon_config_of(r->h->d);
+    const mr_output_desc *o = &job->output;
+    bool ok = true;
+    cJSON *doc = cJSON_CreateObject();
+    http_put(doc, "valid", cJSON_CreateTrue(), &ok);
+    http_put(doc, "name", cJSON_CreateString(job->name ? job->name : ""), &ok);
+    http_put(doc, "frames", cJSON_CreateNumber((double)job->frame_count), &ok);
+    http_put(doc, "width", cJSON_CreateNumber(o->width), &ok);
+    http_put(doc, "height", cJSON_CreateNumber(o->height), &ok);
+    http_put(doc, "samples", cJSON_CreateNumber(o->spp), &ok);
+    http_put(doc, "camera_rays", cJSON_CreateNumber((double)job->frame_count * o->width * o->height * o->spp),
+             &ok);
+    cJSON *mem = http_put(doc, "memory", cJSON_CreateObject(), &ok);
+    size_t floor = mr_job_memory_floor(job);
+    http_put(mem, "geometry_floor", cJSON_CreateNumber((double)floor), &ok);
+    http_put(mem, "film", cJSON_CreateNumber((double)mr_film_bytes(o->width, o->height, o->aovs,
+                                                                     mr_output_crypto_ranks(o))),
+             &ok);
+    http_put(mem, "budget", cJSON_CreateNumber((double)cfg->job_memory), &ok);
+    cJSON *assets = http_put(doc, "assets", cJSON_CreateArray(), &ok);
+    for (size_t i = 0; i < job->asset_count && ok; i++) {
+        const mr_asset_desc *a = &job->assets[i];
+        struct stat st;
+        cJSON *e = cJSON_CreateObject();
+        http_put(e, "name", cJSON_CreateString(a->name), &ok);
+        http_put(e, "source", cJSON_CreateString(a->id ? "upload" : "path"), &ok);
+        http_put(e, "bytes", stat(a->path, &st) == 0 ? cJSON_CreateNumber((double)st.st_size)
+                                                     : cJSON_CreateNull(), &ok);
+        if (!e || !cJSON_AddItemToArray(assets, e)) {
+            cJSON_Delete(e);
+            ok = false;
+        }
+    }
+    cJSON *derived = http_put(doc, "derived", cJSON_CreateArray(), &ok);
+    for (size_t i = 0; i < job->object_count && ok; i++) {
+        const mr_kind *k = job->objects[i].kind;
+        if (!mr_kind_keeps_derived(k))
+            continue;
+        char pointer[32];
+        snprintf(pointer, sizeof pointer, "/objects/%zu", i);
+        cJSON *e = cJSON_CreateObject();
+        http_put(e, "pointer", cJSON_CreateString(pointer), &ok);
+        http_put(e, "kind", cJSON_CreateString(mr_kind_name(k)), &ok);
+        if (!e || !cJSON_AddItemToArray(derived, e)) {
+            cJSON_Delete(e);
+            ok = false;
+        }
+    }
+    return http_send_built(r, c, MHD_HTTP_OK, doc, ok);
+}
+
+/* dry_run: absent, "0"/"false" (no), "1"/"true" (yes); anything else -1. */
+static int dry_run_arg(struct MHD_Connection *c)
+{
+    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "dry_run");
+    if (!v || !strcmp(v, "0") || !strcmp(v, "false"))
+        return 0;
+    if (!strcmp(v, "1") || !strcmp(v, "true") || !v[0])
+        return 1;
+    return -1;
+}
+
 enum MHD_Result http_job_submit(req *r, struct MHD_Connection *c)
 {
     mr_http *h = r->h;
+    int dry = dry_run_arg(c);
+    if (dry < 0)
+        return http_send_problem(r, c, P_BAD_REQUEST, NULL, "dry_run: expected 1, true, 0 or false");
     const char *key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key");
     char id[MR_JOB_ID_LEN + 1] = "";
-    char pointer[512] = "";
     bool existing = false;
     mr_error err = {0};
-    int rc = mr_daemon_submit(h->d, r->body ? r->body : "", r->len, key, id, &existing, pointer,
-                              &err);
+    mr_job_problems *problems = calloc(1, sizeof *problems);
+    if (!problems)
+        return http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+    mr_job *job = NULL;
+    int rc = dry ? mr_daemon_check_job(h->d, r->body ? r->body : "", r->len, &job, problems, &err)
+                 : mr_daemon_submit(h->d, r->body ? r->body : "", r->len, key, id, &existing, problems,
+                                    &err);
     if (rc < 0) {
-        const char *msg = err.msg[0] ? err.msg : mr_err_name(rc);
-        switch (rc) {
-        case MR_ERR_INVALID:
-            return http_send_problem(r, c, P_INVALID_JOB, pointer, "%s", msg);
-        case MR_ERR_LIMIT:
-            /* The job parser's own size cap, when configured above it. */
-            if (r->len > MR_JOB_MAX_BYTES)
-                return http_send_problem(r, c, P_TOO_LARGE, NULL, "%s", msg);
-            return http_send_problem(r, c, P_UNPROCESSABLE, pointer, "%s", msg);
-        case MR_ERR_NOT_FOUND:
-            return http_send_problem(r, c, P_UNPROCESSABLE, pointer, "%s", msg);
-        case MR_ERR_CONFLICT:
-            return http_send_problem(r, c, P_IDEMPOTENCY, NULL, "%s", msg);
-        default:
-            return http_send_problem(r, c, P_INTERNAL, NULL, "%s", msg);
-        }
+        enum MHD_Result res = job_refused(r, c, rc, problems, &err);
+        free(problems);
+        return res;
+    }
+    free(problems);
+    if (dry) {
+        enum MHD_Result res = job_estimate(r, c, job);
+        mr_job_free(job);
+        return res;
     }
     memcpy(r->job, id, sizeof r->job);
     char location[64];

@@ -125,6 +125,7 @@ void http_route_methods(const char *path, char *allow, size_t size);
 
 typedef enum problem_kind {
     P_BAD_REQUEST,
+    P_MALFORMED_JSON,
     P_INVALID_JOB,
     P_UNAUTHORIZED,
     P_NOT_FOUND,
@@ -133,6 +134,7 @@ typedef enum problem_kind {
     P_CONFLICT,
     P_TOO_LARGE,
     P_URI_TOO_LONG,
+    P_RANGE,
     P_UNPROCESSABLE,
     P_IDEMPOTENCY,
     P_HEADERS_TOO_LARGE,
@@ -164,6 +166,14 @@ enum MHD_Result http_send_problem(req *r, struct MHD_Connection *c, problem_kind
                                   const char *pointer, const char *fmt, ...)
 #if defined(__GNUC__)
     __attribute__((format(printf, 5, 6)))
+#endif
+    ;
+/* The same with extension members (RFC 9457 3.2): the members of the
+ * object ext (may be NULL; consumed) join the document. */
+enum MHD_Result http_send_problem_ext(req *r, struct MHD_Connection *c, problem_kind kind,
+                                      const char *pointer, cJSON *ext, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 6, 7)))
 #endif
     ;
 /* The same with one extra header, e.g. Allow. */
@@ -203,6 +213,7 @@ enum MHD_Result http_job_events(req *r, struct MHD_Connection *c);
 enum MHD_Result http_healthz(req *r, struct MHD_Connection *c);
 enum MHD_Result http_readyz(req *r, struct MHD_Connection *c);
 enum MHD_Result http_metrics(req *r, struct MHD_Connection *c);
+enum MHD_Result http_problem_page(req *r, struct MHD_Connection *c);
 
 /* ---- event streams (http_events.c) ------------------------------------ */
 

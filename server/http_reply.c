@@ -5,41 +5,95 @@
  * daemon and store failures onto them. Every answer goes through
  * http_send_response, which counts status classes for /metrics.
  */
+#define _GNU_SOURCE /* asprintf */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <math.h>
 #include <string.h>
 #include <strings.h>
 #include <time.h>
 
 #include "http_internal.h"
 
-#define PROBLEM_BASE "https://microray.invalid/problems/"
+#define PROBLEM_BASE "/problems/"
 #define CT_PROBLEM "application/problem+json"
 /* Seconds a 503 asks the client to wait when its cause says nothing
  * better: a stopping daemon is usually restarted within that. */
 #define RETRY_AFTER_DEFAULT "5"
 
+/* Every problem type: its status, slug, title and what it means (the page
+ * GET /problems/<slug> serves; `type` is that path, a URI reference the
+ * client resolves against the daemon's own address, RFC 9457 3.1.1). The
+ * rule for a job: 400 `malformed-json` when the body is not one JSON text
+ * (RFC 8259), 422 `invalid-job` for every JSON document that is not a
+ * valid job (wrong types, unknown or duplicate fields, out of range, over a
+ * cap, a reference or asset that does not resolve, over the memory budget),
+ * 413 for a body over the size cap. */
 static const struct {
     unsigned status;
-    const char *slug, *title;
+    const char *slug, *title, *about;
 } PROBLEMS[] = {
-    [P_BAD_REQUEST] = {400, "bad-request", "Bad request"},
-    [P_INVALID_JOB] = {400, "invalid-job", "Invalid job"},
-    [P_UNAUTHORIZED] = {401, "unauthorized", "Authentication required"},
-    [P_NOT_FOUND] = {404, "not-found", "Not found"},
-    [P_METHOD] = {405, "method-not-allowed", "Method not allowed"},
-    [P_NOT_ACCEPTABLE] = {406, "not-acceptable", "Not acceptable"},
-    [P_CONFLICT] = {409, "conflict", "Conflict with the job's state"},
-    [P_TOO_LARGE] = {413, "body-too-large", "Request body too large"},
-    [P_URI_TOO_LONG] = {414, "uri-too-long", "Request target too long"},
-    [P_UNPROCESSABLE] = {422, "unprocessable-job", "Job cannot be processed"},
-    [P_IDEMPOTENCY] = {422, "idempotency-key-reused", "Idempotency key reused with another body"},
-    [P_HEADERS_TOO_LARGE] = {431, "headers-too-large", "Request header fields too large"},
-    [P_INTERNAL] = {500, "internal", "Internal server error"},
-    [P_UNAVAILABLE] = {503, "unavailable", "Service unavailable"},
-    [P_NO_SPACE] = {507, "insufficient-storage", "Insufficient storage"},
+    [P_BAD_REQUEST] = {400, "bad-request", "Bad request",
+                       "A header, query parameter or the request's framing is wrong (an "
+                       "Idempotency-Key, a list filter, conflicting Content-Length fields, an "
+                       "empty upload). The detail says which."},
+    [P_MALFORMED_JSON] = {400, "malformed-json", "Malformed JSON",
+                          "The job body is not one JSON text by RFC 8259: a syntax error, invalid "
+                          "UTF-8, a NUL byte, a number JSON does not allow (064, 1.e1, +1) or data "
+                          "after the value. The detail gives the byte offset, line and column. "
+                          "Nothing of the job was read."},
+    [P_INVALID_JOB] = {422, "invalid-job", "Invalid job",
+                       "The body is JSON but not a valid job: a wrong type, an unknown or duplicate "
+                       "field, a value out of range, over a cap (frames, pixels, objects, ...), a "
+                       "reference that does not resolve (an object naming a missing asset), an "
+                       "asset the daemon cannot find or may not read, or objects over the job "
+                       "memory budget. `pointer` is the JSON pointer of the first problem and "
+                       "`errors` lists every problem found ({pointer, detail}), not only the first; "
+                       "`errors_omitted` counts those beyond the list's 32."},
+    [P_UNAUTHORIZED] = {401, "unauthorized", "Authentication required",
+                        "The daemon was started with a token (--token-file) and the request lacks "
+                        "Authorization: Bearer <token>, or carries another token."},
+    [P_NOT_FOUND] = {404, "not-found", "Not found",
+                     "No route at this path, or no such job, frame, asset or problem type; also a "
+                     "frame that is not rendered yet."},
+    [P_METHOD] = {405, "method-not-allowed", "Method not allowed",
+                  "The path exists but not for this method; the Allow header lists the methods it "
+                  "has (OPTIONS answers with the same header)."},
+    [P_NOT_ACCEPTABLE] = {406, "not-acceptable", "Not acceptable",
+                          "The Accept header allows none of the representations of the resource "
+                          "(frames are image/x-exr or image/png)."},
+    [P_CONFLICT] = {409, "conflict", "Conflict with the resource's state",
+                    "The action does not fit the resource's state: cancel of a finished job, retry "
+                    "of a job that is not failed or canceled, deletion of an asset a job still "
+                    "uses."},
+    [P_TOO_LARGE] = {413, "body-too-large", "Request body too large",
+                     "The request body is over the route's cap (jobs 1 MiB, assets 512 MiB by "
+                     "default, every other route 4096 bytes)."},
+    [P_URI_TOO_LONG] = {414, "uri-too-long", "Request target too long",
+                        "The request target (path and query) is over 8192 bytes."},
+    [P_RANGE] = {416, "range-not-satisfiable", "Range not satisfiable",
+                 "The Range header asks for bytes the file does not have; Content-Range gives "
+                 "its size."},
+    [P_UNPROCESSABLE] = {422, "unprocessable", "Request cannot be processed",
+                         "The request is well formed but over one of the daemon's limits."},
+    [P_IDEMPOTENCY] = {422, "idempotency-key-reused", "Idempotency key reused with another body",
+                       "The Idempotency-Key was used before with a different request body; the "
+                       "same key with the same body returns the job of the first request."},
+    [P_HEADERS_TOO_LARGE] = {431, "headers-too-large", "Request header fields too large",
+                             "The request head (request line and headers) is over 16384 bytes."},
+    [P_INTERNAL] = {500, "internal", "Internal server error",
+                    "A failure on the daemon's side (the store, the disk, memory); the detail "
+                    "says which."},
+    [P_UNAVAILABLE] = {503, "unavailable", "Service unavailable",
+                       "The daemon cannot take this request now: it is stopping (the frames in "
+                       "progress finish, reads are served), the disk is full, or a resource is "
+                       "busy (previews being made, event streams open). Retry-After says when to "
+                       "try again."},
+    [P_NO_SPACE] = {507, "insufficient-storage", "Insufficient storage",
+                    "The data directory's disk is full: the render queue is paused until space is "
+                    "freed (deleting jobs frees their frames); reads and deletes go on."},
 };
+#define PROBLEM_COUNT (sizeof PROBLEMS / sizeof PROBLEMS[0])
 
 struct MHD_Response *http_buffer_response(char *body, size_t len, const char *ctype)
 {
@@ -128,7 +182,8 @@ enum MHD_Result http_send_built(req *r, struct MHD_Connection *c, unsigned statu
  * extra_header/extra_value (may be NULL) add one header, e.g. Allow. */
 static enum MHD_Result send_problem_h(req *r, struct MHD_Connection *c, problem_kind kind,
                                       const char *pointer, const char *extra_header,
-                                      const char *extra_value, const char *fmt, va_list ap)
+                                      const char *extra_value, cJSON *ext, const char *fmt,
+                                      va_list ap)
 {
     char detail[1024];
     vsnprintf(detail, sizeof detail, fmt, ap);
@@ -143,6 +198,10 @@ static enum MHD_Result send_problem_h(req *r, struct MHD_Connection *c, problem_
     http_put(doc, "instance", cJSON_CreateString(r->url ? r->url : r->path), &ok);
     if (pointer && *pointer)
         http_put(doc, "pointer", cJSON_CreateString(pointer), &ok);
+    /* extension members (RFC 9457 3.2), moved over */
+    for (const cJSON *m = ext ? ext->child : NULL; m && ok; m = m->next)
+        http_put(doc, m->string, cJSON_Duplicate(m, true), &ok);
+    cJSON_Delete(ext);
     if (!ok) {
         cJSON_Delete(doc);
         doc = NULL;
@@ -169,7 +228,17 @@ enum MHD_Result http_send_problem(req *r, struct MHD_Connection *c, problem_kind
 {
     va_list ap;
     va_start(ap, fmt);
-    enum MHD_Result res = send_problem_h(r, c, kind, pointer, NULL, NULL, fmt, ap);
+    enum MHD_Result res = send_problem_h(r, c, kind, pointer, NULL, NULL, NULL, fmt, ap);
+    va_end(ap);
+    return res;
+}
+
+enum MHD_Result http_send_problem_ext(req *r, struct MHD_Connection *c, problem_kind kind,
+                                      const char *pointer, cJSON *ext, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    enum MHD_Result res = send_problem_h(r, c, kind, pointer, NULL, NULL, ext, fmt, ap);
     va_end(ap);
     return res;
 }
@@ -180,7 +249,7 @@ enum MHD_Result http_send_problem_hdr(req *r, struct MHD_Connection *c, problem_
 {
     va_list ap;
     va_start(ap, fmt);
-    enum MHD_Result res = send_problem_h(r, c, kind, NULL, header, value, fmt, ap);
+    enum MHD_Result res = send_problem_h(r, c, kind, NULL, header, value, NULL, fmt, ap);
     va_end(ap);
     return res;
 }
@@ -242,4 +311,33 @@ void http_url_encode(const char *s, char *out, size_t size)
     }
     if (size)
         out[o < size ? o : size - 1] = '\0';
+}
+
+/* GET /problems/{slug}: what a problem type means, as a small HTML page
+ * (the `type` of every problem document points here). */
+enum MHD_Result http_problem_page(req *r, struct MHD_Connection *c)
+{
+    const char *slug = r->params[0];
+    for (size_t i = 0; i < PROBLEM_COUNT; i++) {
+        if (!PROBLEMS[i].slug || strcmp(PROBLEMS[i].slug, slug) != 0)
+            continue;
+        char *page = NULL;
+        int n = asprintf(&page,
+                         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+                         "<title>%u %s</title></head>\n<body><h1>%s</h1>\n"
+                         "<p>HTTP status %u, problem type <code>%s%s</code> (RFC 9457).</p>\n"
+                         "<p>%s</p>\n<p>All problem types: schemas/openapi.yaml of microray.</p>"
+                         "\n</body></html>\n",
+                         PROBLEMS[i].status, PROBLEMS[i].title, PROBLEMS[i].title,
+                         PROBLEMS[i].status, PROBLEM_BASE, PROBLEMS[i].slug, PROBLEMS[i].about);
+        if (n < 0)
+            return http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+        struct MHD_Response *resp = http_buffer_response(page, (size_t)n, "text/html; charset=utf-8");
+        if (resp && MHD_add_response_header(resp, MHD_HTTP_HEADER_CACHE_CONTROL, "max-age=86400") != MHD_YES) {
+            MHD_destroy_response(resp);
+            resp = NULL;
+        }
+        return http_send_response(r, c, MHD_HTTP_OK, resp, (uint64_t)n);
+    }
+    return http_send_problem(r, c, P_NOT_FOUND, NULL, "no problem type '%s'", slug);
 }

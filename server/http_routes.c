@@ -30,6 +30,7 @@ static const route ROUTES[] = {
     {"GET", "/healthz", http_healthz, BODY_NONE},
     {"GET", "/readyz", http_readyz, BODY_NONE},
     {"GET", "/metrics", http_metrics, BODY_NONE},
+    {"GET", "/problems/{slug}", http_problem_page, BODY_NONE},
 };
 #define ROUTE_COUNT (sizeof ROUTES / sizeof ROUTES[0])
 

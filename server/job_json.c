@@ -237,7 +237,7 @@ static int parse_assets(mr_json_ctx *c, const cJSON *v, mr_job *job)
         return json_fail(c, MR_ERR_INVALID, "expected 1..%d assets, got none", MR_MAX_ASSETS);
     if (n > MR_MAX_ASSETS)
         return json_fail(c, MR_ERR_LIMIT, "expected at most %d assets, got %zu", MR_MAX_ASSETS, n);
-    TRY(json_check_unique_keys(c, v, n));
+    GO_ON(c, json_check_unique_keys(c, v, n));
     job->assets = calloc(n, sizeof *job->assets);
     if (!job->assets)
         return json_fail_nomem(c);
@@ -249,13 +249,13 @@ static int parse_assets(mr_json_ctx *c, const cJSON *v, mr_job *job)
         if (!asset_name_ok(name)) {
             char q[128];
             json_quote(name, q, sizeof q);
-            return json_fail(c, MR_ERR_INVALID,
-                        "expected an asset name matching [A-Za-z0-9_.-]{1,%d}, got %s",
-                        MAX_ASSET_NAME, q);
+            GO_ON_PART(c, mark, json_fail(c, MR_ERR_INVALID,
+                                          "expected an asset name matching [A-Za-z0-9_.-]{1,%d}, got %s",
+                                          MAX_ASSET_NAME, q));
+            continue;
         }
         TRY(json_dup_string(c, name, &job->assets[i].name));
-        TRY(parse_asset(c, a, &job->assets[i]));
-        json_pop(c, mark);
+        GO_ON_PART(c, mark, parse_asset(c, a, &job->assets[i]));
     }
     return MR_OK;
 }
@@ -265,7 +265,7 @@ static int find_asset(mr_json_ctx *c, const cJSON *v, const mr_job *job, size_t 
     if (!cJSON_IsString(v) || !v->valuestring)
         return json_fail_expected(c, "the name of an asset (a string)", v);
     for (size_t i = 0; i < job->asset_count; i++)
-        if (strcmp(job->assets[i].name, v->valuestring) == 0) {
+        if (job->assets[i].name && strcmp(job->assets[i].name, v->valuestring) == 0) {
             *out = i;
             return MR_OK;
         }
@@ -438,7 +438,9 @@ static int parse_object_pose(mr_json_ctx *c, const cJSON *v, mr_object_desc *o, 
     if (!cJSON_IsArray(v))
         return json_fail_expected(c, "a pose object or an array of pose objects (one per frame)", v);
     size_t n = (size_t)cJSON_GetArraySize(v);
-    if (n != frame_count)
+    /* frame_count 0: "frames" failed (collecting every problem), so the
+     * count is unknown and not compared */
+    if (n != frame_count && frame_count > 0)
         return json_fail(c, MR_ERR_INVALID,
                     "expected one pose per frame (%zu frame%s), got an array of %zu pose%s",
                     frame_count, frame_count == 1 ? "" : "s", n, n == 1 ? "" : "s");
@@ -448,7 +450,7 @@ static int parse_object_pose(mr_json_ctx *c, const cJSON *v, mr_object_desc *o, 
     o->pose_count = n;
     size_t i = 0;
     for (const cJSON *p = v->child; p; p = p->next, i++)
-        AT_INDEX(c, i, parse_pose(c, p, &o->poses[i]));
+        GO_ON_AT_INDEX(c, i, parse_pose(c, p, &o->poses[i]));
     return MR_OK;
 }
 
@@ -493,7 +495,7 @@ static int parse_param_array(mr_json_ctx *c, const cJSON *v, const mr_param *p, 
     for (const cJSON *e = v->child; e; e = e->next, i++) {
         void *item = items + i * p->sub->size;
         mr_params_defaults(p->sub, item);
-        AT_INDEX(c, i, parse_params(c, e, p->sub, item));
+        GO_ON_AT_INDEX(c, i, parse_params(c, e, p->sub, item));
     }
     return MR_OK;
 }
@@ -555,7 +557,7 @@ static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
     TRY(json_want_object(c, v, t->expect));
     for (size_t i = 0; i < t->count; i++)
         names[i] = t->params[i].field;
-    TRY(json_check_fields(c, v, names, t->count));
+    GO_ON(c, json_check_fields(c, v, names, t->count));
     for (size_t i = 0; i < t->count; i++)
         given[i] = (fields[i] = json_field(v, names[i])) != NULL;
     for (size_t i = 0; i < t->count; i++) {
@@ -564,17 +566,21 @@ static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
         if (fv && p->conflicts) {
             int k = mr_param_index(t, p->conflicts);
             if (k >= 0 && given[k]) {
-                json_push_key(c, p->conflicts);
-                return json_fail(c, MR_ERR_INVALID, "give either \"%s\" or \"%s\", not both", p->field,
-                            p->conflicts);
+                GO_ON_AT_KEY(c, p->conflicts,
+                             json_fail(c, MR_ERR_INVALID, "give either \"%s\" or \"%s\", not both",
+                                       p->field, p->conflicts));
+                continue;
             }
         }
-        if (fv)
-            AT_KEY(c, p->field, parse_param(c, fv, p, values));
+        if (fv) {
+            GO_ON_AT_KEY(c, p->field, parse_param(c, fv, p, values));
+            if (c->failed) /* its checks would only repeat the problem */
+                continue;
+        }
         if (p->after) {
             mr_param_error pe = {0};
             if (p->after(values, given, &pe) < 0)
-                return fail_param(c, &pe);
+                GO_ON(c, fail_param(c, &pe));
         }
     }
     return MR_OK;
@@ -617,21 +623,26 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     const char *fields[MR_PARAM_MAX_FIELDS];
     size_t field_count = object_fields(fields, COUNT_OF(fields));
     TRY(json_want_object(c, v, "an object description"));
-    TRY(json_check_fields(c, v, fields, field_count));
-    TRY(json_require(c, v, "asset"));
+    GO_ON(c, json_check_fields(c, v, fields, field_count));
+    GO_ON(c, json_require(c, v, "asset"));
     const cJSON *name = json_field(v, "name"), *kind = json_field(v, "kind"), *xf = json_field(v, "transform"),
-                *color = json_field(v, "color"), *pose = json_field(v, "pose");
+                *color = json_field(v, "color"), *pose = json_field(v, "pose"),
+                *asset = json_field(v, "asset");
     if (name) {
-        AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &o->name));
+        GO_ON_AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
         char buf[32];
         snprintf(buf, sizeof buf, "object%zu", index);
         TRY(json_dup_string(c, buf, &o->name));
     }
-    AT_KEY(c, "asset", find_asset(c, json_field(v, "asset"), job, &o->asset));
+    if (asset)
+        GO_ON_AT_KEY(c, "asset", find_asset(c, asset, job, &o->asset));
     o->kind = mr_kind_at(0); /* the default kind: triangle meshes */
-    if (kind)
-        AT_KEY(c, "kind", parse_kind(c, kind, &o->kind));
+    bool kind_ok = true;
+    if (kind) {
+        GO_ON_AT_KEY(c, "kind", parse_kind(c, kind, &o->kind));
+        kind_ok = !c->failed; /* else its block is not read: which kind's would it be? */
+    }
     const mr_param_table *table = mr_kind_params(o->kind);
     if (table) {
         if (!(o->params = calloc(1, table->size)))
@@ -642,23 +653,24 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
         const mr_kind *k = mr_kind_at(i);
         const char *kname = mr_kind_name(k);
         const cJSON *block = mr_kind_params(k) ? json_field(v, kname) : NULL;
-        if (!block)
+        if (!block || !kind_ok)
             continue;
         if (k != o->kind) {
-            json_push_key(c, kname);
-            return json_fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", kname,
-                             kname);
+            GO_ON_AT_KEY(c, kname,
+                         json_fail(c, MR_ERR_INVALID, "\"%s\" parameters need \"kind\": \"%s\"", kname,
+                                   kname));
+            continue;
         }
-        AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params));
+        GO_ON_AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params));
     }
     o->transform = mr_mat4_identity();
     if (xf)
-        AT_KEY(c, "transform", get_transform(c, xf, &o->transform));
+        GO_ON_AT_KEY(c, "transform", get_transform(c, xf, &o->transform));
     o->color = mr_v3(0.8f, 0.8f, 0.8f);
     if (color)
-        AT_KEY(c, "color", json_get_vec3(c, color, &SPEC_COLOR, &o->color));
+        GO_ON_AT_KEY(c, "color", json_get_vec3(c, color, &SPEC_COLOR, &o->color));
     if (pose)
-        AT_KEY(c, "pose", parse_object_pose(c, pose, o, job->frame_count));
+        GO_ON_AT_KEY(c, "pose", parse_object_pose(c, pose, o, job->frame_count));
     return MR_OK;
 }
 
@@ -675,7 +687,7 @@ static int parse_objects(mr_json_ctx *c, const cJSON *v, mr_job *job)
     job->object_count = n;
     size_t i = 0;
     for (const cJSON *o = v->child; o; o = o->next, i++)
-        AT_INDEX(c, i, parse_object(c, o, job, i, &job->objects[i]));
+        GO_ON_AT_INDEX(c, i, parse_object(c, o, job, i, &job->objects[i]));
     return MR_OK;
 }
 
@@ -726,7 +738,7 @@ static int parse_lights(mr_json_ctx *c, const cJSON *v, mr_job *job)
     job->light_count = n;
     size_t i = 0;
     for (const cJSON *l = v->child; l; l = l->next, i++)
-        AT_INDEX(c, i, parse_light(c, l, &job->lights[i]));
+        GO_ON_AT_INDEX(c, i, parse_light(c, l, &job->lights[i]));
     return MR_OK;
 }
 
@@ -847,9 +859,9 @@ static int parse_camera(mr_json_ctx *c, const cJSON *v, mr_job *job)
         }
     }
     if (up)
-        AT_KEY(c, "up", json_get_unit_vec3(c, up, &cp->up));
+        GO_ON_AT_KEY(c, "up", json_get_unit_vec3(c, up, &cp->up));
     if (yfov)
-        AT_KEY(c, "yfov", json_get_num(c, yfov, &SPEC_YFOV, &deg));
+        GO_ON_AT_KEY(c, "yfov", json_get_num(c, yfov, &SPEC_YFOV, &deg));
     float default_yfov = (float)(deg * DEG_TO_RAD);
     if (!cJSON_IsArray(path) || cJSON_GetArraySize(path) == 0) {
         json_push_key(c, "path");
@@ -866,9 +878,13 @@ static int parse_camera(mr_json_ctx *c, const cJSON *v, mr_job *job)
         return json_fail_nomem(c);
     cp->key_count = n;
     size_t mark = json_push_key(c, "path"), i = 0;
-    for (const cJSON *k = path->child; k; k = k->next, i++)
-        AT_INDEX(c, i,
-                 parse_camera_key(c, k, &cp->keys[i], default_yfov, i ? &cp->keys[i - 1] : NULL));
+    bool prev_ok = false; /* a key that failed is no reference for the next one's time */
+    for (const cJSON *k = path->child; k; k = k->next, i++) {
+        GO_ON_AT_INDEX(c, i,
+                       parse_camera_key(c, k, &cp->keys[i], default_yfov,
+                                        i && prev_ok ? &cp->keys[i - 1] : NULL));
+        prev_ok = !c->failed;
+    }
     json_pop(c, mark);
     return MR_OK;
 }
@@ -906,54 +922,61 @@ static int parse_aovs(mr_json_ctx *c, const cJSON *v, unsigned *aovs)
 static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
 {
     TRY(json_want_object(c, v, "an output object"));
-    TRY(json_check_fields(c, v, OUTPUT_FIELDS, COUNT_OF(OUTPUT_FIELDS)));
+    GO_ON(c, json_check_fields(c, v, OUTPUT_FIELDS, COUNT_OF(OUTPUT_FIELDS)));
     mr_output_desc *o = &job->output;
     const cJSON *w = json_field(v, "width"), *h = json_field(v, "height"), *spp = json_field(v, "samples"),
                 *shadows = json_field(v, "shadows"), *seed = json_field(v, "seed"),
                 *comp = json_field(v, "compression"), *zip = json_field(v, "zip_level"),
                 *aovs = json_field(v, "aovs"), *normals = json_field(v, "normals");
     double d;
+    bool size_ok = true;
     if (w) {
-        AT_KEY(c, "width", json_get_num(c, w, &SPEC_SIZE, &d));
-        o->width = (int)d;
+        GO_ON_AT_KEY(c, "width", json_get_num(c, w, &SPEC_SIZE, &d));
+        if (!c->failed)
+            o->width = (int)d;
+        else
+            size_ok = false;
     }
     if (h) {
-        AT_KEY(c, "height", json_get_num(c, h, &SPEC_SIZE, &d));
-        o->height = (int)d;
+        GO_ON_AT_KEY(c, "height", json_get_num(c, h, &SPEC_SIZE, &d));
+        if (!c->failed)
+            o->height = (int)d;
+        else
+            size_ok = false;
     }
     uint64_t pixels = (uint64_t)o->width * (uint64_t)o->height;
-    if (pixels > MR_MAX_PIXELS)
-        return json_fail(c, MR_ERR_LIMIT,
-                    "expected at most %u pixels (width * height), got %d x %d = %llu",
-                    (unsigned)MR_MAX_PIXELS, o->width, o->height, (unsigned long long)pixels);
+    if (size_ok && pixels > MR_MAX_PIXELS)
+        GO_ON(c, json_fail(c, MR_ERR_LIMIT,
+                           "expected at most %u pixels (width * height), got %d x %d = %llu",
+                           (unsigned)MR_MAX_PIXELS, o->width, o->height, (unsigned long long)pixels));
     if (spp) {
-        AT_KEY(c, "samples", json_get_num(c, spp, &SPEC_SPP, &d));
-        o->spp = (int)d;
+        GO_ON_AT_KEY(c, "samples", json_get_num(c, spp, &SPEC_SPP, &d));
+        if (!c->failed)
+            o->spp = (int)d;
     }
     if (shadows)
-        AT_KEY(c, "shadows", json_get_bool(c, shadows, &o->shadows));
+        GO_ON_AT_KEY(c, "shadows", json_get_bool(c, shadows, &o->shadows));
     if (seed) {
-        AT_KEY(c, "seed", json_get_num(c, seed, &SPEC_SEED, &d));
-        o->seed = (uint32_t)d;
+        GO_ON_AT_KEY(c, "seed", json_get_num(c, seed, &SPEC_SEED, &d));
+        if (!c->failed)
+            o->seed = (uint32_t)d;
     }
     if (comp &&
-        !(cJSON_IsString(comp) && mr_compression_parse(comp->valuestring, &o->exr.compression))) {
-        json_push_key(c, "compression");
-        return json_fail_expected(c, "one of: \"none\", \"zip\", \"zips\", \"piz\"", comp);
-    }
+        !(cJSON_IsString(comp) && mr_compression_parse(comp->valuestring, &o->exr.compression)))
+        GO_ON_AT_KEY(c, "compression",
+                     json_fail_expected(c, "one of: \"none\", \"zip\", \"zips\", \"piz\"", comp));
     if (zip) {
-        AT_KEY(c, "zip_level", json_get_num(c, zip, &SPEC_ZIP, &d));
-        o->exr.zip_level = (int)d;
+        GO_ON_AT_KEY(c, "zip_level", json_get_num(c, zip, &SPEC_ZIP, &d));
+        if (!c->failed)
+            o->exr.zip_level = (int)d;
     }
     if (aovs)
-        AT_KEY(c, "aovs", parse_aovs(c, aovs, &o->aovs));
+        GO_ON_AT_KEY(c, "aovs", parse_aovs(c, aovs, &o->aovs));
     if (normals) {
         if (cJSON_IsString(normals) && strcmp(normals->valuestring, "half") == 0)
             o->exr.half_normals = true;
-        else if (!(cJSON_IsString(normals) && strcmp(normals->valuestring, "float") == 0)) {
-            json_push_key(c, "normals");
-            return json_fail_expected(c, "one of: \"float\", \"half\"", normals);
-        }
+        else if (!(cJSON_IsString(normals) && strcmp(normals->valuestring, "float") == 0))
+            GO_ON_AT_KEY(c, "normals", json_fail_expected(c, "one of: \"float\", \"half\"", normals));
     }
     return MR_OK;
 }
@@ -984,50 +1007,62 @@ static void set_defaults(mr_job *job)
 static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
 {
     TRY(json_want_object(c, root, "a JSON object"));
-    TRY(json_check_fields(c, root, ROOT_FIELDS, COUNT_OF(ROOT_FIELDS)));
-    TRY(json_require(c, root, "assets"));
-    TRY(json_require(c, root, "objects"));
-    TRY(json_require(c, root, "camera"));
-    TRY(json_require(c, root, "frames"));
+    GO_ON(c, json_check_fields(c, root, ROOT_FIELDS, COUNT_OF(ROOT_FIELDS)));
+    static const char *const required[] = {"assets", "objects", "camera", "frames"};
+    for (size_t i = 0; i < COUNT_OF(required); i++)
+        GO_ON(c, json_require(c, root, required[i]));
     set_defaults(job);
     const cJSON *name = json_field(root, "name"), *lights = json_field(root, "lights"),
                 *ambient = json_field(root, "ambient"), *background = json_field(root, "background"),
-                *output = json_field(root, "output");
+                *output = json_field(root, "output"), *assets = json_field(root, "assets"),
+                *frames = json_field(root, "frames"), *objects = json_field(root, "objects"),
+                *camera = json_field(root, "camera");
     if (name)
-        AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &job->name));
+        GO_ON_AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &job->name));
     else
         TRY(json_dup_string(c, "job", &job->name));
     const cJSON *priority = json_field(root, "priority"), *retries = json_field(root, "max_retries");
     double d;
     if (priority) {
         static const json_num_spec spec = {-MR_MAX_PRIORITY, MR_MAX_PRIORITY, JSON_NUM_INT, NULL};
-        AT_KEY(c, "priority", json_get_num(c, priority, &spec, &d));
-        job->priority = (int)d;
+        GO_ON_AT_KEY(c, "priority", json_get_num(c, priority, &spec, &d));
+        if (!c->failed)
+            job->priority = (int)d;
     }
     if (retries) {
         static const json_num_spec spec = {0, MR_MAX_RETRIES, JSON_NUM_INT, NULL};
-        AT_KEY(c, "max_retries", json_get_num(c, retries, &spec, &d));
-        job->max_retries = (int)d;
+        GO_ON_AT_KEY(c, "max_retries", json_get_num(c, retries, &spec, &d));
+        if (!c->failed)
+            job->max_retries = (int)d;
     }
-    AT_KEY(c, "assets", parse_assets(c, json_field(root, "assets"), job));
+    if (assets)
+        GO_ON_AT_KEY(c, "assets", parse_assets(c, assets, job));
     /* Before "objects": per-frame pose arrays are checked against the count. */
-    AT_KEY(c, "frames", parse_frames(c, json_field(root, "frames"), job));
-    AT_KEY(c, "objects", parse_objects(c, json_field(root, "objects"), job));
-    AT_KEY(c, "camera", parse_camera(c, json_field(root, "camera"), job));
-    AT_KEY(c, "lights", parse_lights(c, lights, job));
+    if (frames) {
+        GO_ON_AT_KEY(c, "frames", parse_frames(c, frames, job));
+        if (c->failed)
+            job->frame_count = 0; /* unknown: not compared (parse_object_pose) */
+    }
+    if (objects)
+        GO_ON_AT_KEY(c, "objects", parse_objects(c, objects, job));
+    if (camera)
+        GO_ON_AT_KEY(c, "camera", parse_camera(c, camera, job));
+    GO_ON_AT_KEY(c, "lights", parse_lights(c, lights, job));
     if (ambient)
-        AT_KEY(c, "ambient", json_get_vec3(c, ambient, &SPEC_COLOR, &job->ambient));
+        GO_ON_AT_KEY(c, "ambient", json_get_vec3(c, ambient, &SPEC_COLOR, &job->ambient));
     if (background)
-        AT_KEY(c, "background", parse_background(c, background, job));
+        GO_ON_AT_KEY(c, "background", parse_background(c, background, job));
     if (output)
-        AT_KEY(c, "output", parse_output(c, output, job));
+        GO_ON_AT_KEY(c, "output", parse_output(c, output, job));
     return MR_OK;
 }
 
 /* ------------------------------------------------------------------------ */
 /* Entry point.                                                             */
 
-int mr_job_parse(const char *json, size_t len, mr_job **out, mr_job_error *err)
+/* mr_job_parse, collecting every problem into all when it is not NULL. */
+static int parse_job(const char *json, size_t len, mr_job **out, mr_job_error *err,
+                     mr_job_problems *all)
 {
     mr_job_error scratch;
     mr_json_ctx c;
@@ -1038,8 +1073,10 @@ int mr_job_parse(const char *json, size_t len, mr_job **out, mr_job_error *err)
 
     memset(&c, 0, sizeof c);
     c.err = err ? err : &scratch;
-    c.err->pointer[0] = '\0';
-    c.err->message[0] = '\0';
+    memset(c.err, 0, sizeof *c.err);
+    c.all = all;
+    if (all)
+        memset(all, 0, sizeof *all);
     if (out)
         *out = NULL;
     if (!out) {
@@ -1054,6 +1091,8 @@ int mr_job_parse(const char *json, size_t len, mr_job **out, mr_job_error *err)
         goto cleanup;
     }
     rc = parse_root(&c, root, job);
+    if (rc == MR_OK && c.first_rc < 0) /* problems gone on from */
+        rc = c.first_rc;
     if (rc < 0)
         goto cleanup;
     *out = job;
@@ -1065,4 +1104,14 @@ cleanup:
     cJSON_Delete(root);
     free(text);
     return rc;
+}
+
+int mr_job_parse(const char *json, size_t len, mr_job **out, mr_job_error *err)
+{
+    return parse_job(json, len, out, err, NULL);
+}
+
+int mr_job_check(const char *json, size_t len, mr_job **out, mr_job_problems *all)
+{
+    return parse_job(json, len, out, NULL, all);
 }

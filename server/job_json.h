@@ -34,4 +34,14 @@ typedef mr_json_error mr_job_error;
  * write of its (unused here) global error position. */
 int mr_job_parse(const char *json, size_t len, mr_job **out, mr_job_error *err);
 
+/* Every problem of a job, not only the first (json_reader.h: reading goes
+ * on after a field, a list element or a section that failed, and skips
+ * what depends on it). */
+typedef mr_json_errors mr_job_problems;
+
+/* mr_job_parse collecting every problem into *all (all->items[0] is the
+ * one mr_job_parse reports, and the result is its code). A document that
+ * is not JSON has exactly one problem, marked syntax. */
+int mr_job_check(const char *json, size_t len, mr_job **out, mr_job_problems *all);
+
 #endif

@@ -60,11 +60,62 @@ void json_pop(mr_json_ctx *c, size_t mark)
 int json_fail(mr_json_ctx *c, int code, const char *fmt, ...)
 {
     va_list ap;
-    memcpy(c->err->pointer, c->ptr, c->len + 1);
+    bool first = !c->all || (c->all->count == 0 && c->all->more == 0);
+    mr_json_error *e = NULL;
+    if (c->all && c->all->count < MR_JSON_ERRORS_MAX)
+        e = &c->all->items[c->all->count++];
+    else if (c->all)
+        c->all->more++;
+    if (first)
+        memset(c->err, 0, sizeof *c->err);
+    if (first)
+        memcpy(c->err->pointer, c->ptr, c->len + 1);
+    if (e) {
+        memset(e, 0, sizeof *e);
+        memcpy(e->pointer, c->ptr, c->len + 1);
+    }
     va_start(ap, fmt);
-    vsnprintf(c->err->message, sizeof c->err->message, fmt, ap);
+    char message[sizeof c->err->message];
+    vsnprintf(message, sizeof message, fmt, ap);
     va_end(ap);
+    if (first)
+        memcpy(c->err->message, message, sizeof message);
+    if (e)
+        memcpy(e->message, message, sizeof message);
     return code;
+}
+
+void json_errors_add(mr_json_errors *all, const char *pointer, const char *message)
+{
+    if (all->count >= MR_JSON_ERRORS_MAX) {
+        all->more++;
+        return;
+    }
+    mr_json_error *e = &all->items[all->count++];
+    memset(e, 0, sizeof *e);
+    snprintf(e->pointer, sizeof e->pointer, "%s", pointer ? pointer : "");
+    snprintf(e->message, sizeof e->message, "%s", message ? message : "");
+}
+
+bool json_go_on(mr_json_ctx *c, int rc)
+{
+    if (!c->all || rc == MR_ERR_NOMEM)
+        return false;
+    if (c->first_rc == 0)
+        c->first_rc = rc;
+    return true;
+}
+
+/* The problem just recorded (the first, and the last of the list) is one
+ * of syntax. */
+static int mark_syntax(mr_json_ctx *c, int rc)
+{
+    if (rc == MR_ERR_NOMEM || rc == MR_ERR_LIMIT)
+        return rc;
+    c->err->syntax = true;
+    if (c->all && c->all->count > 0)
+        c->all->items[c->all->count - 1].syntax = true;
+    return rc;
 }
 
 int json_fail_nomem(mr_json_ctx *c) { return json_fail(c, MR_ERR_NOMEM, "out of memory"); }
@@ -586,7 +637,7 @@ int json_parse_document(mr_json_ctx *c, const char *json, size_t len, size_t max
     *text_out = NULL;
     *root_out = NULL;
     if (!json && len > 0)
-        return json_fail(c, MR_ERR_INVALID, "no %s given", noun);
+        return mark_syntax(c, json_fail(c, MR_ERR_INVALID, "no %s given", noun));
     if (len > max)
         return json_fail(c, MR_ERR_LIMIT, "expected a %s of at most %zu bytes, got %zu bytes", noun,
                          max, len);
@@ -598,14 +649,14 @@ int json_parse_document(mr_json_ctx *c, const char *json, size_t len, size_t max
     text[len] = '\0';
     if ((rc = prescan(c, text, len)) < 0) {
         free(text);
-        return rc;
+        return mark_syntax(c, rc);
     }
     cJSON *root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
     if (!root) {
         off = end && end >= text ? (size_t)(end - text) : 0;
         rc = fail_syntax(c, text, len, off, "malformed JSON");
         free(text);
-        return rc;
+        return mark_syntax(c, rc);
     }
     off = end && end >= text ? (size_t)(end - text) : len;
     while (off < len && (text[off] == ' ' || text[off] == '\t' || text[off] == '\n' ||
@@ -617,7 +668,7 @@ int json_parse_document(mr_json_ctx *c, const char *json, size_t len, size_t max
         rc = fail_syntax(c, text, len, off, what);
         cJSON_Delete(root);
         free(text);
-        return rc;
+        return mark_syntax(c, rc);
     }
     *text_out = text;
     *root_out = root;

@@ -24,15 +24,38 @@
 
 #include "microray.h"
 
-/* The first problem found: where and what. */
+/* A problem found: where and what. */
 typedef struct mr_json_error {
     char pointer[512]; /* RFC 6901 pointer to the offending value; "" = root */
     char message[512]; /* what was expected and what was found */
+    bool syntax;       /* the text is not one JSON value (malformed JSON, bad UTF-8, a
+                          NUL byte, data after the value): nothing else was read */
 } mr_json_error;
 
-/* The JSON pointer of the value being read, and where errors go. */
+/* Every problem of a document, when a reader collects them rather than
+ * stopping at the first: the first MR_JSON_ERRORS_MAX in reading order
+ * (items[0] is the one a first-problem reader reports), then a count. */
+#define MR_JSON_ERRORS_MAX 32
+typedef struct mr_json_errors {
+    size_t count;   /* kept in items */
+    size_t more;    /* found beyond those */
+    mr_json_error items[MR_JSON_ERRORS_MAX];
+} mr_json_errors;
+
+/* The JSON pointer of the value being read, and where errors go.
+ *
+ * Collecting every problem: with `all` set, a reader goes on after a
+ * problem at the points that say so (GO_ON_AT_KEY and the like: a field,
+ * an element of a list, a section), so one pass reports each independent
+ * problem; what depends on a part that failed is skipped there rather than
+ * reported again. Within such a part, reading stops at its first problem.
+ * Running out of memory always stops. Without `all` (the default) the
+ * first problem ends reading, as before. */
 typedef struct mr_json_ctx {
-    mr_json_error *err;
+    mr_json_error *err;   /* the first problem */
+    mr_json_errors *all;  /* NULL: stop at the first problem */
+    int first_rc;         /* collecting: the code of the first problem gone on from */
+    bool failed;          /* the last GO_ON_* part failed (and reading went on) */
     char ptr[sizeof(((mr_json_error *)0)->pointer)];
     size_t len;
     bool nul_escapes; /* prescan() rewrote some "\u0000" to "\u0001" */
@@ -68,6 +91,31 @@ typedef struct json_num_spec {
         TRY(expr);                                                                       \
         json_pop((c), mark_);                                                            \
     } while (0)
+
+/* Appends a problem found outside the reader (a later check of the same
+ * document) to all: kept while there is room, counted after. */
+void json_errors_add(mr_json_errors *all, const char *pointer, const char *message);
+
+/* Whether reading may go on after a part failed with rc: collecting, and
+ * not out of memory (records rc as the result if it is the first). */
+bool json_go_on(mr_json_ctx *c, int rc);
+
+/* Runs expr (with /key or /index appended for the _AT_ forms) as a part
+ * reading may go on after (see mr_json_ctx): the pointer is restored
+ * either way, c->failed says whether the part failed, and a failure that
+ * cannot be gone on from is returned. */
+#define GO_ON_PART(c, mark, expr)                                                        \
+    do {                                                                                 \
+        size_t mark_ = (mark);                                                           \
+        int rc_ = (expr);                                                                \
+        json_pop((c), mark_);                                                            \
+        (c)->failed = rc_ < 0;                                                           \
+        if (rc_ < 0 && !json_go_on((c), rc_))                                            \
+            return rc_;                                                                  \
+    } while (0)
+#define GO_ON(c, expr) GO_ON_PART((c), (c)->len, (expr))
+#define GO_ON_AT_KEY(c, key, expr) GO_ON_PART((c), json_push_key((c), (key)), (expr))
+#define GO_ON_AT_INDEX(c, i, expr) GO_ON_PART((c), json_push_index((c), (i)), (expr))
 
 /* Values stored as float must fit one, or they silently become inf. */
 extern const json_num_spec JSON_SPEC_FLOAT;

@@ -18,23 +18,37 @@ const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)
     return kind && i < kind->stat_count ? &kind->stats[i] : NULL;
 }
 
+/* An object's memory floor (kind.h). */
+static size_t object_floor(const mr_object_desc *o)
+{
+    return o->kind && o->kind->memory_floor ? o->kind->memory_floor(o->params) : 0;
+}
+
+size_t mr_job_memory_floor(const mr_job *job)
+{
+    size_t total = 0;
+    for (size_t i = 0; i < job->object_count; i++) {
+        size_t floor = object_floor(&job->objects[i]);
+        total = floor > SIZE_MAX - total ? SIZE_MAX : total + floor;
+    }
+    return total;
+}
+
 int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_error *err)
 {
     pointer[0] = '\0';
     if (!budget)
         return MR_OK;
-    size_t total = 0, largest = 0, worst = 0;
+    size_t total = mr_job_memory_floor(job), largest = 0, worst = 0;
+    if (total <= budget)
+        return MR_OK;
     for (size_t i = 0; i < job->object_count; i++) {
-        const mr_kind *k = job->objects[i].kind;
-        size_t floor = k && k->memory_floor ? k->memory_floor(job->objects[i].params) : 0;
-        total = floor > SIZE_MAX - total ? SIZE_MAX : total + floor;
+        size_t floor = object_floor(&job->objects[i]);
         if (floor > largest) {
             largest = floor;
             worst = i;
         }
     }
-    if (total <= budget)
-        return MR_OK;
     const mr_kind *k = job->objects[worst].kind;
     snprintf(pointer, 512, "/objects/%zu/%s/%s", worst, k->name, k->memory_field);
     char need[MR_BYTES_TEXT], most[MR_BYTES_TEXT], cap[MR_BYTES_TEXT];

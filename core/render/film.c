@@ -59,6 +59,26 @@ static size_t film_slots(mr_film *f, void **slot[FILM_SLOTS])
     return n;
 }
 
+/* Ranks per Cryptomatte layer a film gets for crypto_ranks asked. */
+static int film_crypto_ranks(int crypto_ranks)
+{
+    int ranks = crypto_ranks < 2 ? 2 : crypto_ranks > MR_CRYPTO_MAX_RANKS ? MR_CRYPTO_MAX_RANKS
+                                                                          : crypto_ranks;
+    return ranks + (ranks & 1);
+}
+
+size_t mr_film_bytes(int width, int height, unsigned aovs, int crypto_ranks)
+{
+    if (width <= 0 || height <= 0)
+        return 0;
+    size_t planes = ((aovs & MR_AOV_RGBA) ? 4u : 0u) + ((aovs & MR_AOV_Z) ? 1u : 0u) +
+                    ((aovs & MR_AOV_N) ? 3u : 0u) + ((aovs & MR_AOV_P) ? 3u : 0u) +
+                    ((aovs & MR_AOV_ID) ? 2u : 0u);
+    if (aovs & MR_AOV_CRYPTOMATTE)
+        planes += (size_t)MR_CRYPTO_LAYERS * 2u * (size_t)film_crypto_ranks(crypto_ranks);
+    return (size_t)width * (size_t)height * planes * 4u;
+}
+
 int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_film **out,
                      mr_error *err)
 {
@@ -107,9 +127,7 @@ int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_
     if ((aovs & MR_AOV_ID) && !(PLANE(film->object_id) && PLANE(film->prim_id)))
         goto nomem;
     if (aovs & MR_AOV_CRYPTOMATTE) {
-        int ranks = crypto_ranks < 2 ? 2 : crypto_ranks > MR_CRYPTO_MAX_RANKS ? MR_CRYPTO_MAX_RANKS
-                                                                              : crypto_ranks;
-        film->crypto_ranks = ranks + (ranks & 1);
+        film->crypto_ranks = film_crypto_ranks(crypto_ranks);
         for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
             for (int k = 0; k < 2 * film->crypto_ranks; k++)
                 if (!PLANE(film->crypto[l][k]))

@@ -15,6 +15,7 @@
 #include <poll.h>
 #include <pty.h>
 
+#include "../support/bad_jobs.h"
 #include "daemon_fixture.h"
 
 static daemon_proc D;
@@ -356,6 +357,155 @@ static void test_readme_quick_start(void **state)
     assert_int_equal(daemon_stop(&q, SIGKILL), -SIGKILL); /* its jobs need not finish */
 }
 
+/* The one rule for a refused job, over the whole table of malformed jobs
+ * (tests/support/bad_jobs.h): 400 malformed-json when the body is not one
+ * JSON text, 422 invalid-job for every other problem, with the table's
+ * pointer, every problem in "errors", and a type that resolves to a page
+ * the daemon serves. (Before, width 8193 was 400 but the pixel cap 422,
+ * svo depth 13 was 400 but solid depth 11 422.) */
+static void test_status_rule_over_malformed_table(void **state)
+{
+    (void)state;
+    size_t n = sizeof BAD / sizeof BAD[0], failures = 0;
+    for (size_t i = 0; i < n; i++) {
+        size_t len = strlen(BAD[i].json);
+        char *body = malloc(len + 1);
+        for (size_t k = 0; k <= len; k++)
+            body[k] = BAD[i].json[k] == '\'' ? '"' : BAD[i].json[k];
+        http_result r = http(&D, "POST", "/v1/jobs", body, len, NULL);
+        free(body);
+        bool syntax = bad_job_is_syntax(&BAD[i]);
+        long want = syntax ? 400 : 422;
+        const char *slug = syntax ? "/problems/malformed-json" : "/problems/invalid-job";
+        cJSON *doc = cJSON_Parse(r.body);
+        const cJSON *type = cJSON_GetObjectItem(doc, "type"), *ptr = cJSON_GetObjectItem(doc, "pointer"),
+                    *errors = cJSON_GetObjectItem(doc, "errors");
+        const char *got_ptr = cJSON_IsString(ptr) ? ptr->valuestring : "";
+        const cJSON *first = cJSON_GetArrayItem(errors, 0);
+        bool ok = r.status == want && strstr(r.content_type, "application/problem+json") &&
+                  cJSON_IsString(type) && !strcmp(type->valuestring, slug) &&
+                  !strcmp(got_ptr, BAD[i].pointer) &&
+                  (syntax ? errors == NULL
+                          : cJSON_GetArraySize(errors) >= 1 &&
+                                !strcmp(cJSON_GetObjectItem(first, "pointer")->valuestring, BAD[i].pointer));
+        if (!ok) {
+            failures++;
+            print_error("case %zu: %s\n  want %ld %s at '%s'\n  got  %ld %s\n", i, BAD[i].json, want,
+                        slug, BAD[i].pointer, r.status, r.body);
+        }
+        cJSON_Delete(doc);
+        http_free(&r);
+    }
+    assert_int_equal(failures, 0);
+    /* the examples of the issue */
+    static const char *const cases[][2] = {
+        {"\"output\":{\"width\":8193,\"height\":16}", "/output/width"},
+        {"\"output\":{\"width\":8192,\"height\":8192}", "/output"},
+    };
+    for (size_t i = 0; i < 2; i++) {
+        char *job = fx_small_job(0, 32, NULL), body[4096];
+        /* replace the output block */
+        char *out = strstr(job, "\"output\"");
+        snprintf(body, sizeof body, "%.*s%s}", (int)(out - job), job, cases[i][0]);
+        free(job);
+        http_result r = http(&D, "POST", "/v1/jobs", body, strlen(body), NULL);
+        if (r.status != 422 || !strstr(r.body, cases[i][1]))
+            fail_msg("%s: %ld %s", cases[i][0], r.status, r.body);
+        http_free(&r);
+    }
+    /* the types resolve */
+    static const char *const pages[] = {"/problems/malformed-json", "/problems/invalid-job",
+                                        "/problems/not-found", "/problems/unavailable"};
+    for (size_t i = 0; i < sizeof pages / sizeof *pages; i++) {
+        http_result r = http(&D, "GET", pages[i], NULL, 0, NULL);
+        assert_int_equal(r.status, 200);
+        assert_non_null(strstr(r.content_type, "text/html"));
+        assert_non_null(strstr(r.body, "<h1>"));
+        http_free(&r);
+    }
+    http_result r = http(&D, "GET", "/problems/no-such-thing", NULL, 0, NULL);
+    assert_int_equal(r.status, 404);
+    http_free(&r);
+}
+
+/* POST /v1/jobs?dry_run=1 validates and estimates without queuing, and
+ * reports every problem it finds, not only the first. */
+static void test_dry_run(void **state)
+{
+    (void)state;
+    http_result r = http(&D, "GET", "/v1/jobs?limit=1000", NULL, 0, NULL);
+    cJSON *doc = cJSON_Parse(r.body);
+    int before = cJSON_GetArraySize(cJSON_GetObjectItem(doc, "jobs"));
+    cJSON_Delete(doc);
+    http_free(&r);
+
+    char *job = fx_small_job(7, 160, NULL);
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", job, strlen(job), NULL);
+    free(job);
+    if (r.status != 200)
+        fail_msg("dry run: %ld %s", r.status, r.body);
+    doc = cJSON_Parse(r.body);
+    assert_true(cJSON_IsTrue(cJSON_GetObjectItem(doc, "valid")));
+    assert_int_equal(cJSON_GetObjectItem(doc, "frames")->valueint, 8);
+    assert_int_equal(cJSON_GetObjectItem(doc, "width")->valueint, 160);
+    assert_true(cJSON_GetObjectItem(doc, "camera_rays")->valuedouble == 8.0 * 160 * 90 * 1);
+    cJSON *mem = cJSON_GetObjectItem(doc, "memory");
+    /* the default passes: rgba, z, n, id = 10 float planes */
+    assert_true(cJSON_GetObjectItem(mem, "film")->valuedouble == 160.0 * 90 * 10 * 4);
+    cJSON *asset = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "assets"), 0);
+    struct stat st;
+    assert_int_equal(stat("/usr/share/assimp/models/X/BCN_Epileptic.X", &st), 0);
+    assert_true(cJSON_GetObjectItem(asset, "bytes")->valuedouble == (double)st.st_size);
+    cJSON_Delete(doc);
+    http_free(&r);
+
+    /* three independent problems: the parser's two and a missing asset */
+    static const char bad[] =
+        "{\"assets\":{\"a\":{\"path\":\"X/no-such.x\"},\"b\":{\"path\":\"X/BCN_Epileptic.X\"}},"
+        "\"objects\":[{\"asset\":\"b\",\"color\":[1,2]}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},"
+        "\"frames\":{\"end\":1},\"output\":{\"samples\":0}}";
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", bad, strlen(bad), NULL);
+    assert_int_equal(r.status, 422);
+    doc = cJSON_Parse(r.body);
+    cJSON *errors = cJSON_GetObjectItem(doc, "errors");
+    assert_int_equal(cJSON_GetArraySize(errors), 2); /* the parser stops the check before assets */
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 0), "pointer")->valuestring,
+                        "/objects/0/color");
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 1), "pointer")->valuestring,
+                        "/output/samples");
+    assert_string_equal(cJSON_GetObjectItem(doc, "pointer")->valuestring, "/objects/0/color");
+    cJSON_Delete(doc);
+    http_free(&r);
+    /* with the parser satisfied, each asset that does not resolve is one problem */
+    static const char assets[] =
+        "{\"assets\":{\"a\":{\"path\":\"X/no-such.x\"},\"b\":{\"path\":\"../etc/passwd\"},"
+        "\"c\":{\"path\":\"X/BCN_Epileptic.X\"}},\"objects\":[{\"asset\":\"c\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},"
+        "\"frames\":{\"end\":1}}";
+    r = http(&D, "POST", "/v1/jobs?dry_run=true", assets, strlen(assets), NULL);
+    assert_int_equal(r.status, 422);
+    doc = cJSON_Parse(r.body);
+    errors = cJSON_GetObjectItem(doc, "errors");
+    assert_int_equal(cJSON_GetArraySize(errors), 2);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 0), "pointer")->valuestring,
+                        "/assets/a/path");
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 1), "pointer")->valuestring,
+                        "/assets/b/path");
+    cJSON_Delete(doc);
+    http_free(&r);
+    r = http(&D, "POST", "/v1/jobs?dry_run=maybe", assets, strlen(assets), NULL);
+    assert_int_equal(r.status, 400);
+    http_free(&r);
+
+    /* nothing was queued */
+    r = http(&D, "GET", "/v1/jobs?limit=1000", NULL, 0, NULL);
+    doc = cJSON_Parse(r.body);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "jobs")), before);
+    cJSON_Delete(doc);
+    http_free(&r);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -382,6 +532,8 @@ int main(void)
         cmocka_unit_test(test_job_list_pages),
         cmocka_unit_test(test_progress_bar_fits_narrow_terminal),
         cmocka_unit_test(test_readme_quick_start),
+        cmocka_unit_test(test_status_rule_over_malformed_table),
+        cmocka_unit_test(test_dry_run),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }

@@ -306,15 +306,15 @@ static void test_bad_requests(void **state)
     const char *bad_json = "{\"assets\": ";
     expect_problem("POST", "/v1/jobs", bad_json, strlen(bad_json), NULL, 400, NULL);
     char *job = fx_small_job(1, 64, "\"name\":7,");
-    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/name");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 422, "/name");
     free(job);
     job = fx_small_job(1, 64, "\"colour\":[1,1,1],");
-    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/colour");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 422, "/colour");
     free(job);
     const char *traversal =
         "{\"assets\":{\"a\":{\"path\":\"../../../etc/passwd\"}},\"objects\":[{\"asset\":\"a\"}],"
         "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
-    expect_problem("POST", "/v1/jobs", traversal, strlen(traversal), NULL, 400, "/assets/a/path");
+    expect_problem("POST", "/v1/jobs", traversal, strlen(traversal), NULL, 422, "/assets/a/path");
     const char *outside =
         "{\"assets\":{\"a\":{\"path\":\"/etc/passwd\"}},\"objects\":[{\"asset\":\"a\"}],"
         "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"times\":[0]}}";
@@ -347,7 +347,7 @@ static void test_bad_requests(void **state)
 }
 
 /* A FIFO under an asset root can never be an asset: opening it for reading
- * waits for a writer, forever. Named at submission it is refused, 400
+ * waits for a writer, forever. Named at submission it is refused, 422
  * problem+json pointing at the asset's path. Swapped in for a regular file
  * after the job was resolved (here while the job's first asset, a
  * refinement no other test asks for, is imported, before the second is
@@ -365,7 +365,7 @@ static void test_fifo_asset_refused(void **state)
     assert_int_equal(mkfifo(fifo, 0644), 0);
     snprintf(job, sizeof job, "{\"assets\":{\"p\":{\"path\":\"pipe.x\"}},\"objects\":[{\"asset\":\"p\"}],%s",
              tail);
-    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/assets/p/path");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 422, "/assets/p/path");
 
     /* a regular file now, a FIFO by the time the worker opens it */
     char model[400], next[400], cmd[1000];
@@ -427,7 +427,7 @@ static void test_fifo_asset_refused(void **state)
     print_message("job error: %s\n", e->valuestring);
     cJSON_Delete(j);
     /* the daemon still works */
-    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 400, "/assets/b/path");
+    expect_problem("POST", "/v1/jobs", job, strlen(job), NULL, 422, "/assets/b/path");
     unlink(model);
     unlink(fifo);
 }

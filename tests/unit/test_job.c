@@ -31,6 +31,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "../support/bad_jobs.h"
 #include "job_json.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/mesh/mesh_kind.h"
@@ -97,473 +98,6 @@ static mr_job *parse_ok(const char *quoted)
     return job;
 }
 
-/* The valid base job every malformed case is derived from. */
-#define ASSETS "'assets':{'m':{'path':'/a.gltf'}}"
-#define OBJECTS "'objects':[{'asset':'m'}]"
-#define CAMERA "'camera':{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0]}]}"
-#define FRAMES "'frames':{'end':1}"
-#define BASE ASSETS "," OBJECTS "," CAMERA "," FRAMES
-#define NO_OBJECTS ASSETS "," CAMERA "," FRAMES
-#define NO_CAMERA ASSETS "," OBJECTS "," FRAMES
-#define NO_FRAMES ASSETS "," OBJECTS "," CAMERA
-#define NO_ASSETS OBJECTS "," CAMERA "," FRAMES
-#define WITH_OBJECT(o) "{" NO_OBJECTS ",'objects':[" o "]}"
-#define WITH_CAMERA(c) "{" NO_CAMERA ",'camera':" c "}"
-#define WITH_FRAMES(f) "{" NO_FRAMES ",'frames':" f "}"
-#define WITH_POSE(p) WITH_OBJECT("{'asset':'m','pose':" p "}")
-#define KEY "{'t':0,'position':[0,0,5],'target':[0,0,0]}"
-
-typedef struct bad_case {
-    const char *json;
-    int rc;
-    const char *pointer;
-    const char *msg; /* substring of the message */
-} bad_case;
-
-static const bad_case BAD[] = {
-    /* Malformed JSON and the root. */
-    {"", MR_ERR_INVALID, "", "malformed JSON at byte offset 0"},
-    {"{", MR_ERR_INVALID, "", "malformed JSON at byte offset"},
-    {"{" BASE ",}", MR_ERR_INVALID, "", "malformed JSON"},
-    {"{'assets' {}}", MR_ERR_INVALID, "", "malformed JSON at byte offset 10 (line 1, column 11)"},
-    {"{" BASE "} x", MR_ERR_INVALID, "", "unexpected data after the job at byte offset"},
-    /* RFC 8259, strictly (issue 12): what cJSON alone lets through. A bad
-     * \u escape would decode as U+0000 and cut the path short. */
-    {"{'assets':{'m':{'path':'X/BCN_Epileptic.X\\uZZZZ/../../../../etc/passwd'}},'objects':["
-     "{'asset':'m'}]," CAMERA "," FRAMES "}",
-     MR_ERR_INVALID, "", "a \\u escape needs four hex digits at byte offset 41"},
-    {"{" BASE ",'name':'a\\u12'}", MR_ERR_INVALID, "", "a \\u escape needs four hex digits"},
-    {"{" BASE ",\x01'name':'a'}", MR_ERR_INVALID, "", "control character outside a string"},
-    {"{" BASE ",'output':{'width':064}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':64.}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':1.e1}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':1e}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':-}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':-01}}", MR_ERR_INVALID, "", "not a number by RFC 8259"},
-    {"{" BASE ",'output':{'width':+1}}", MR_ERR_INVALID, "", "no leading '+' or '.'"},
-    {"{" BASE ",'output':{'width':.5}}", MR_ERR_INVALID, "", "no leading '+' or '.'"},
-    {"{" BASE "}{}", MR_ERR_INVALID, "", "unexpected data after the job"},
-    {"[]", MR_ERR_INVALID, "", "expected a JSON object, got an empty array"},
-    {"42", MR_ERR_INVALID, "", "expected a JSON object, got 42"},
-    {"null", MR_ERR_INVALID, "", "expected a JSON object, got null"},
-    {"'job'", MR_ERR_INVALID, "", "expected a JSON object, got \"job\""},
-    /* Found by fuzzing: a string of escapes once overflowed the message buffer. */
-    {"'\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v\v'",
-     MR_ERR_INVALID, "", "expected a JSON object, got \"\\u000b\\u000b"},
-    /* Missing required fields. */
-    {"{" NO_ASSETS "}", MR_ERR_INVALID, "", "missing required field \"assets\""},
-    {"{" NO_OBJECTS "}", MR_ERR_INVALID, "", "missing required field \"objects\""},
-    {"{" NO_CAMERA "}", MR_ERR_INVALID, "", "missing required field \"camera\""},
-    {"{" NO_FRAMES "}", MR_ERR_INVALID, "", "missing required field \"frames\""},
-    /* Root fields. */
-    {"{" BASE ",'colour':[1,1,1]}", MR_ERR_INVALID, "/colour",
-     "unknown field; expected one of: name, priority, max_retries, assets, objects, lights, ambient, "
-     "background, camera, frames, output"},
-    {"{" BASE ",'name':'a','name':'b'}", MR_ERR_INVALID, "/name", "duplicate field \"name\""},
-    {"{" BASE ",'name':5}", MR_ERR_INVALID, "/name", "expected a string of 1..256 bytes, got 5"},
-    {"{" BASE ",'name':''}", MR_ERR_INVALID, "/name", "got an empty string"},
-    {"{" BASE ",'name':'a\\u0000b'}", MR_ERR_INVALID, "/name", "without control characters"},
-    {"{" BASE ",'name':'tab\there'}", MR_ERR_INVALID, "/name", "found U+0009 at byte 3"},
-    {"{" BASE ",'name':'bad \xff utf8'}", MR_ERR_INVALID, "", "invalid UTF-8 at byte offset"},
-    {"{" BASE ",'name':'overlong \xc0\xaf'}", MR_ERR_INVALID, "", "invalid UTF-8"},
-    {"{" BASE ",'name':'surrogate \xed\xa0\x80'}", MR_ERR_INVALID, "", "invalid UTF-8"},
-    {"{" BASE ",'name':'lone \\udc00 surrogate'}", MR_ERR_INVALID, "", "malformed JSON"},
-    {"{" BASE ",'name':'" /* 257 bytes */
-     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa"
-     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa"
-     "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa'}",
-     MR_ERR_INVALID, "/name", "got 257 bytes"},
-    /* Assets. */
-    {"{" NO_ASSETS ",'assets':{}}", MR_ERR_INVALID, "/assets", "expected 1..256 assets, got none"},
-    {"{" NO_ASSETS ",'assets':[]}", MR_ERR_INVALID, "/assets",
-     "expected an object mapping asset names to assets, got an empty array"},
-    {"{" NO_ASSETS ",'assets':{'m s':{'path':'x'}}}", MR_ERR_INVALID, "/assets/m s",
-     "expected an asset name matching [A-Za-z0-9_.-]{1,64}, got \"m s\""},
-    {"{" NO_ASSETS ",'assets':{'a/b~c':{'path':'x'}}}", MR_ERR_INVALID, "/assets/a~1b~0c",
-     "asset name"},
-    {"{" NO_ASSETS ",'assets':{'m':{}}}", MR_ERR_INVALID, "/assets/m",
-     "expected exactly one of \"path\""},
-    {"{" NO_ASSETS ",'assets':{'m':{'path':''}}}", MR_ERR_INVALID, "/assets/m/path",
-     "got an empty string"},
-    {"{" NO_ASSETS ",'assets':{'m':{'path':'/a\\u0000.gltf'}}}", MR_ERR_INVALID, "/assets/m/path",
-     "found U+0000 at byte 2"},
-    {"{" NO_ASSETS ",'assets':{'m':{'path':'x','id':'y'}}}", MR_ERR_INVALID, "/assets/m",
-     "expected exactly one of \"path\""},
-    {"{" NO_ASSETS ",'assets':{'m':{'id':'../../etc/passwd'}}}", MR_ERR_INVALID, "/assets/m/id",
-     "expected 64 lowercase hex digits"},
-    {"{" NO_ASSETS ",'assets':{'m':{'id':'ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789ABCDEF0123456789'}}}",
-     MR_ERR_INVALID, "/assets/m/id", "expected 64 lowercase hex digits"},
-    {"{" NO_ASSETS ",'assets':{'m':{'url':'x'}}}", MR_ERR_INVALID, "/assets/m/url",
-     "unknown field; expected one of: path, id, refine"},
-    /* Asset refinement (core/asset/refine.h); messages in full. */
-#define REFINE(r) "{" NO_ASSETS ",'assets':{'m':{'path':'/a.gltf','refine':" r "}}}"
-    {REFINE("true"), MR_ERR_INVALID, "/assets/m/refine",
-     "expected an object of refine parameters, got true"},
-    {REFINE("[2]"), MR_ERR_INVALID, "/assets/m/refine",
-     "expected an object of refine parameters, got an array of 1 element"},
-    {REFINE("{'levels':2}"), MR_ERR_INVALID, "/assets/m/refine/levels",
-     "unknown field; expected one of: rounds, amplitude, frequency, octaves, seed"},
-    {REFINE("{'rounds':1,'rounds':2}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
-     "duplicate field \"rounds\""},
-    {REFINE("{'rounds':5}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
-     "expected an integer in 0..4, got 5"},
-    {REFINE("{'rounds':-1}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
-     "expected an integer in 0..4, got -1"},
-    {REFINE("{'rounds':1.5}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
-     "expected an integer in 0..4, got 1.5"},
-    {REFINE("{'rounds':'2'}"), MR_ERR_INVALID, "/assets/m/refine/rounds",
-     "expected an integer in 0..4, got \"2\""},
-    {REFINE("{'amplitude':-0.1}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
-     "expected a number in 0..1e9 (mesh units), got -0.1"},
-    {REFINE("{'amplitude':2e9}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
-     "expected a number in 0..1e9 (mesh units), got 2000000000"},
-    {REFINE("{'amplitude':1e999}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
-     "expected a number in 0..1e9 (mesh units), got a number too large to represent (it "
-     "overflows to infinity)"},
-    {REFINE("{'amplitude':null}"), MR_ERR_INVALID, "/assets/m/refine/amplitude",
-     "expected a number in 0..1e9 (mesh units), got null"},
-    {REFINE("{'amplitude':NaN}"), MR_ERR_INVALID, "", "malformed JSON"},
-    {REFINE("{'frequency':0}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
-     "expected a number in (0, 1e9] (noise cells per mesh unit), got 0"},
-    {REFINE("{'amplitude':0,'frequency':-8}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
-     "expected a number in (0, 1e9] (noise cells per mesh unit), got -8"},
-    {REFINE("{'frequency':-1e999}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
-     "expected a number in (0, 1e9] (noise cells per mesh unit), got a number too large to "
-     "represent (it overflows to infinity)"},
-    /* positive as a double, 0 as the float refine.h gets */
-    {REFINE("{'amplitude':1,'frequency':1e-50}"), MR_ERR_INVALID, "/assets/m/refine/frequency",
-     "expected a number in (0, 1e9] that stays above 0 as a 32-bit float, got 1e-50"},
-    {REFINE("{'octaves':9}"), MR_ERR_INVALID, "/assets/m/refine/octaves",
-     "expected an integer in 0..8, got 9"},
-    {REFINE("{'octaves':2.5}"), MR_ERR_INVALID, "/assets/m/refine/octaves",
-     "expected an integer in 0..8, got 2.5"},
-    {REFINE("{'seed':-1}"), MR_ERR_INVALID, "/assets/m/refine/seed",
-     "expected an integer in 0..4294967295, got -1"},
-    {REFINE("{'seed':4294967296}"), MR_ERR_INVALID, "/assets/m/refine/seed",
-     "expected an integer in 0..4294967295, got 4294967296"},
-    {REFINE("{'seed':0.5}"), MR_ERR_INVALID, "/assets/m/refine/seed",
-     "expected an integer in 0..4294967295, got 0.5"},
-    {"{" NO_ASSETS ",'assets':{'m':{'refine':{}}}}", MR_ERR_INVALID, "/assets/m",
-     "expected exactly one of \"path\" (a file on the server) or \"id\" (an uploaded asset's "
-     "SHA-256)"},
-    /* the file is checked before its refinement */
-    {"{" NO_ASSETS ",'assets':{'m':{'path':'','refine':{'rounds':9}}}}", MR_ERR_INVALID,
-     "/assets/m/path", "expected a string of 1..4096 bytes, got an empty string"},
-    {"{" NO_ASSETS ",'assets':{'m':{'id':'ab','refine':{}}}}", MR_ERR_INVALID, "/assets/m/id",
-     "expected 64 lowercase hex digits"},
-#undef REFINE
-    {"{" BASE ",'priority':1001}", MR_ERR_INVALID, "/priority", "-1000..1000"},
-    {"{" BASE ",'priority':1.5}", MR_ERR_INVALID, "/priority", "got 1.5"},
-    {"{" BASE ",'max_retries':11}", MR_ERR_INVALID, "/max_retries", "0..10"},
-    {"{" BASE ",'max_retries':'2'}", MR_ERR_INVALID, "/max_retries", "got \"2\""},
-    {"{" NO_ASSETS ",'assets':{'m':{'path':'a'},'m':{'path':'b'}}}", MR_ERR_INVALID, "/assets/m",
-     "duplicate field \"m\""},
-    {"{" NO_ASSETS ",'assets':{'m':'/a.gltf'}}", MR_ERR_INVALID, "/assets/m",
-     "expected an asset object {\"path\": ...} or {\"id\": ...}, got \"/a.gltf\""},
-    /* Objects. */
-    {"{" NO_OBJECTS ",'objects':[]}", MR_ERR_INVALID, "/objects",
-     "expected an array of 1..1024 objects, got an empty array"},
-    {"{" NO_OBJECTS ",'objects':{'asset':'m'}}", MR_ERR_INVALID, "/objects", "got an object"},
-    {WITH_OBJECT("{}"), MR_ERR_INVALID, "/objects/0", "missing required field \"asset\""},
-    {WITH_OBJECT("{'asset':'m'},{'asset':'x'}"), MR_ERR_INVALID, "/objects/1/asset",
-     "expected the name of an entry in \"assets\", got \"x\""},
-    {WITH_OBJECT("{'asset':'m','material':1}"), MR_ERR_INVALID, "/objects/0/material",
-     "unknown field; expected one of: name, asset, kind, dmm, svo, transform, color, pose"},
-    {WITH_OBJECT("{'asset':'m','kind':'voxels'}"), MR_ERR_INVALID, "/objects/0/kind",
-     "expected one of: \"mesh\", \"dmm\", \"svo\", got \"voxels\""},
-    /* svo objects (issue 5). */
-    {WITH_OBJECT("{'asset':'m','svo':{'depth':4}}"), MR_ERR_INVALID, "/objects/0/svo",
-     "\"svo\" parameters need \"kind\": \"svo\""},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':[]}"), MR_ERR_INVALID, "/objects/0/svo",
-     "expected an object of svo parameters, got an empty array"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'size':4}}"), MR_ERR_INVALID,
-     "/objects/0/svo/size",
-     "unknown field; expected one of: depth, voxelize, method, delta, cull, skeleton, instances"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':13}}"), MR_ERR_INVALID,
-     "/objects/0/svo/depth", "expected an integer in 1..12, got 13"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':0}}"), MR_ERR_INVALID,
-     "/objects/0/svo/depth", "got 0"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'depth':11,'voxelize':'solid'}}"), MR_ERR_LIMIT,
-     "/objects/0/svo/depth", "solid voxelisation goes to depth 10 at most, asked for 11"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'voxelize':'hollow'}}"), MR_ERR_INVALID,
-     "/objects/0/svo/voxelize", "expected one of: \"surface\", \"solid\", got \"hollow\""},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'method':'warp'}}"), MR_ERR_INVALID,
-     "/objects/0/svo/method",
-     "expected one of: \"rigid\", \"direct\", \"resize\", \"emit\", got \"warp\""},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'delta':0}}"), MR_ERR_INVALID,
-     "/objects/0/svo/delta", "expected a number of pixels in (0, 1e6], got 0"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'delta':1e999}}"), MR_ERR_INVALID,
-     "/objects/0/svo/delta", "overflows to infinity"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'cull':1}}"), MR_ERR_INVALID,
-     "/objects/0/svo/cull", "got 1"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':'yes'}}"), MR_ERR_INVALID,
-     "/objects/0/svo/skeleton", "expected true, false or an object of skeleton parameters"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':{'omega':0.6}}}"), MR_ERR_INVALID,
-     "/objects/0/svo/skeleton/omega", "got 0.6"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'skeleton':{'beta':1}}}"), MR_ERR_INVALID,
-     "/objects/0/svo/skeleton/beta", "unknown field; expected one of: omega"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[]}}"), MR_ERR_INVALID,
-     "/objects/0/svo/instances", "expected an array of 1..100000 instance objects, got an empty array"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{},{'scale':2}]}}"),
-     MR_ERR_INVALID, "/objects/0/svo/instances/1/scale",
-     "unknown field; expected one of: transform, pose"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'transform':{'scale':[0,1,1]}}]}}"),
-     MR_ERR_INVALID, "/objects/0/svo/instances/0/transform/scale/0", "expected a non-zero scale, got 0"},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'pose':{'joints':{'a':{}},'time':1}}]}}"),
-     MR_ERR_INVALID, "/objects/0/svo/instances/0/pose/time", "\"time\" requires \"clip\""},
-    {WITH_OBJECT("{'asset':'m','kind':'svo','svo':{'instances':[{'transform':{'translation':[1e10,0,0]}}]}}"),
-     MR_ERR_INVALID, "/objects/0/svo/instances/0/transform/translation/0", "|x| <= 1e9"},
-    {WITH_OBJECT("{'asset':'m','kind':'DMM'}"), MR_ERR_INVALID, "/objects/0/kind",
-     "got \"DMM\""},
-    {WITH_OBJECT("{'asset':'m','dmm':{'level':2}}"), MR_ERR_INVALID, "/objects/0/dmm",
-     "\"dmm\" parameters need \"kind\": \"dmm\""},
-    {WITH_OBJECT("{'asset':'m','kind':'mesh','dmm':{}}"), MR_ERR_INVALID, "/objects/0/dmm",
-     "need \"kind\": \"dmm\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':[]}"), MR_ERR_INVALID, "/objects/0/dmm",
-     "expected an object of dmm bake parameters, got an empty array"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'bits':[8]}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/bits", "unknown field; expected one of: level, base_ratio, base_triangles, mode, deformation, normals, levels"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2,'level':3}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/level", "duplicate field \"level\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':6}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/level", "expected an integer in 0..5, got 6"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':-1}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/level", "got -1"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':2.5}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/level", "got 2.5"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'level':'3'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/level", "got \"3\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':0}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/base_ratio", "expected a number in (0, 1], got 0"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':1.5}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/base_ratio", "got 1.5"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':1e999}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/base_ratio", "overflows to infinity"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_triangles':0}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/base_triangles", "expected an integer in 1..16777216, got 0"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_triangles':100.5}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/base_triangles", "got 100.5"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'base_ratio':0.5,'base_triangles':100}}"),
-     MR_ERR_INVALID, "/objects/0/dmm/base_triangles", "either \"base_ratio\" or \"base_triangles\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'base','deformation':'interpolated'}}"),
-     MR_ERR_INVALID, "/objects/0/dmm/deformation",
-     "mode \"base\" deforms by \"base\"; \"deformation\" only chooses"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated','deformation':'base'}}"),
-     MR_ERR_INVALID, "/objects/0/dmm/deformation", "mode \"interpolated\" deforms by"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'deformation':'skinned'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/deformation", "expected one of: \"base\", \"interpolated\", got \"skinned\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'levels':'mixed'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/levels", "expected one of: \"uniform\", \"adaptive\", got \"mixed\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'normals':true}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/normals", "expected one of: \"geometric\", \"matrix\", \"smooth\", got true"},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'prism'}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/mode", "expected one of: \"tessellated\", \"base\", \"interpolated\", got \"prism\""},
-    {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':1}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/mode", "got 1"},
-    {WITH_OBJECT("{'asset':'m','color':[0,2000,0]}"), MR_ERR_INVALID, "/objects/0/color/1",
-     "expected a number in 0..1000, got 2000"},
-    {WITH_OBJECT("{'asset':'m','color':[1,1]}"), MR_ERR_INVALID, "/objects/0/color",
-     "expected an array of 3 numbers, got an array of 2 elements"},
-    {WITH_OBJECT("{'asset':'m','color':[1e999,0,0]}"), MR_ERR_INVALID, "/objects/0/color/0",
-     "overflows to infinity"},
-    {WITH_OBJECT("{'asset':'m','color':[-1e999,0,0]}"), MR_ERR_INVALID, "/objects/0/color/0",
-     "overflows to infinity"},
-    /* Transforms. */
-    {WITH_OBJECT("{'asset':'m','transform':{'translation':[1,2,3],'matrix':[1,0,0,0,0,1,0,0,0,0,"
-                 "1,0,0,0,0,1]}}"),
-     MR_ERR_INVALID, "/objects/0/transform", "got both forms"},
-    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,0,0,1,0,0,0,0]}}"),
-     MR_ERR_INVALID, "/objects/0/transform/matrix",
-     "expected an array of 16 numbers (row-major 4x4), got an array of 15 elements"},
-    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,2,2,0,0,0,0,0,1]}}"),
-     MR_ERR_INVALID, "/objects/0/transform/matrix", "expected an invertible matrix"},
-    {WITH_OBJECT("{'asset':'m','transform':{'matrix':[1,0,0,0,0,1,0,0,0,0,1,0,0,0,1,1]}}"),
-     MR_ERR_INVALID, "/objects/0/transform/matrix", "last row [0, 0, 0, 1], got [0, 0, 1, 1]"},
-    {WITH_OBJECT("{'asset':'m','transform':{'rotation':[0,0,0,0]}}"), MR_ERR_INVALID,
-     "/objects/0/transform/rotation", "expected a non-zero quaternion"},
-    {WITH_OBJECT("{'asset':'m','transform':{'scale':[1,0,1]}}"), MR_ERR_INVALID,
-     "/objects/0/transform/scale/1", "expected a non-zero scale, got 0"},
-    {WITH_OBJECT("{'asset':'m','transform':{'scale':[1,1e-30,1]}}"), MR_ERR_INVALID,
-     "/objects/0/transform", "expected an invertible transform"},
-    {WITH_OBJECT("{'asset':'m','transform':{'skew':[1,0,0]}}"), MR_ERR_INVALID,
-     "/objects/0/transform/skew",
-     "unknown field; expected one of: translation, rotation, scale, matrix"},
-    {WITH_OBJECT("{'asset':'m','transform':{'translation':['1',0,0]}}"), MR_ERR_INVALID,
-     "/objects/0/transform/translation/0", "got \"1\""},
-    {WITH_OBJECT("{'asset':'m','transform':{'translation':[1e39,0,0]}}"), MR_ERR_INVALID,
-     "/objects/0/transform/translation/0", "|x| <= 1e9"},
-    /* Coordinates and times are capped so no valid job can make Embree's ray
-     * checks fire (origins beyond ~1.8e19) or interpolation divide inf by inf. */
-    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0.2,2e18],'target':[0,0,0]}]}"), MR_ERR_INVALID,
-     "/camera/path/0/position/2", "|x| <= 1e9"},
-    {WITH_CAMERA("{'path':[{'t':-1e308,'position':[0,0,5],'target':[0,0,0]}]}"), MR_ERR_INVALID,
-     "/camera/path/0/t", "|t| <= 1e9"},
-    {WITH_CAMERA("{'yfov':1e-300,'path':[" KEY "]}"), MR_ERR_INVALID, "/camera/yfov", "[0.001, 179.9]"},
-    {WITH_FRAMES("{'times':[0,1e10]}"), MR_ERR_INVALID, "/frames/times/1", "|t| <= 1e9"},
-    {WITH_OBJECT("{'asset':'m','transform':[1,0,0]}"), MR_ERR_INVALID, "/objects/0/transform",
-     "expected a transform object"},
-    /* Poses. FRAMES gives 25 frames (end 1 at the default 24 fps). */
-    {WITH_POSE("[{'clip':0}]"), MR_ERR_INVALID, "/objects/0/pose",
-     "expected one pose per frame (25 frames), got an array of 1 pose"},
-    {WITH_POSE("'walk'"), MR_ERR_INVALID, "/objects/0/pose",
-     "expected a pose object or an array of pose objects (one per frame), got \"walk\""},
-    {WITH_POSE("{}"), MR_ERR_INVALID, "/objects/0/pose", "\"clip\" or \"joints\", got neither"},
-    {WITH_POSE("{'joints':{'j':{}},'time':1}"), MR_ERR_INVALID, "/objects/0/pose/time",
-     "\"time\" requires \"clip\""},
-    {WITH_POSE("{'joints':{'j':{}},'loop':false}"), MR_ERR_INVALID, "/objects/0/pose/loop",
-     "\"loop\" requires \"clip\""},
-    {WITH_POSE("{'clip':0,'time':1,'speed':2}"), MR_ERR_INVALID, "/objects/0/pose/speed",
-     "\"speed\" cannot be combined with \"time\""},
-    {WITH_POSE("{'clip':0,'offset':1,'time':2}"), MR_ERR_INVALID, "/objects/0/pose/offset",
-     "\"offset\" cannot be combined with \"time\""},
-    {WITH_POSE("{'clip':-1}"), MR_ERR_INVALID, "/objects/0/pose/clip",
-     "expected a clip name (string) or index (integer >= 0), got -1"},
-    {WITH_POSE("{'clip':1.5}"), MR_ERR_INVALID, "/objects/0/pose/clip", "got 1.5"},
-    {WITH_POSE("{'clip':''}"), MR_ERR_INVALID, "/objects/0/pose/clip", "got an empty string"},
-    {WITH_POSE("{'clip':0,'loop':1}"), MR_ERR_INVALID, "/objects/0/pose/loop",
-     "expected a boolean (true or false), got 1"},
-    {WITH_POSE("{'clip':0,'speed':1e999}"), MR_ERR_INVALID, "/objects/0/pose/speed",
-     "got a number too large"},
-    {WITH_POSE("{'joints':{}}"), MR_ERR_INVALID, "/objects/0/pose/joints",
-     "expected 1..1024 joints, got none"},
-    {WITH_POSE("{'joints':{'a/b~c':{'scale':[0,1,1]}}}"), MR_ERR_INVALID,
-     "/objects/0/pose/joints/a~1b~0c/scale/0", "expected a non-zero scale"},
-    {WITH_POSE("{'joints':{'~':{'matrix':[0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1]}}}"), MR_ERR_INVALID,
-     "/objects/0/pose/joints/~0/matrix", "invertible"},
-    {WITH_POSE("{'joints':{'j':{},'k':{},'j':{}}}"), MR_ERR_INVALID, "/objects/0/pose/joints/j",
-     "duplicate field \"j\""},
-    {WITH_POSE("{'joints':{'':{}}}"), MR_ERR_INVALID, "/objects/0/pose/joints/",
-     "got an empty string"},
-    {WITH_POSE("{'joints':{'j':{'rotation':[0,0,0]}}}"), MR_ERR_INVALID,
-     "/objects/0/pose/joints/j/rotation", "expected an array of 4 numbers [x, y, z, w]"},
-    {WITH_POSE("{'clip':0,'blend':1}"), MR_ERR_INVALID, "/objects/0/pose/blend",
-     "unknown field; expected one of: clip, time, speed, offset, loop, joints"},
-    {"{" ASSETS "," CAMERA ",'frames':{'times':[0,1]},'objects':[{'asset':'m','pose':[{'clip':0},"
-     "{'clip':0,'x':1}]}]}",
-     MR_ERR_INVALID, "/objects/0/pose/1/x", "unknown field"},
-    /* Lights, ambient, background. */
-    {"{" BASE ",'lights':{}}", MR_ERR_INVALID, "/lights",
-     "expected an array of 0..64 lights, got an object"},
-    {"{" BASE ",'lights':[{'direction':[0,0,0]}]}", MR_ERR_INVALID, "/lights/0/direction",
-     "expected a non-zero vector"},
-    {"{" BASE ",'lights':[{}]}", MR_ERR_INVALID, "/lights/0",
-     "missing required field \"direction\""},
-    {"{" BASE ",'lights':[{'direction':[0,-1,0],'intensity':-1}]}", MR_ERR_INVALID,
-     "/lights/0/intensity", "expected a number in 0..1000, got -1"},
-    {"{" BASE ",'lights':[{'direction':[0,-1,0],'color':[1,1,1001]}]}", MR_ERR_INVALID,
-     "/lights/0/color/2", "got 1001"},
-    {"{" BASE ",'lights':[{'direction':[0,-1,0],'type':'sun'}]}", MR_ERR_INVALID,
-     "/lights/0/type", "unknown field; expected one of: direction, color, intensity"},
-    {"{" BASE ",'ambient':[1,1]}", MR_ERR_INVALID, "/ambient", "expected an array of 3 numbers"},
-    {"{" BASE ",'ambient':0.5}", MR_ERR_INVALID, "/ambient", "got 0.5"},
-    {"{" BASE ",'background':{'alpha':2}}", MR_ERR_INVALID, "/background/alpha",
-     "expected a number in 0..1, got 2"},
-    {"{" BASE ",'background':{'colour':[0,0,0]}}", MR_ERR_INVALID, "/background/colour",
-     "unknown field; expected one of: color, alpha"},
-    /* Camera. */
-    {WITH_CAMERA("[]"), MR_ERR_INVALID, "/camera", "expected a camera object, got an empty array"},
-    {WITH_CAMERA("{'path':[" KEY "],'node':{'asset':'m','name':'cam'}}"), MR_ERR_INVALID,
-     "/camera", "expected exactly one of \"path\" or \"node\", got both"},
-    {WITH_CAMERA("{'yfov':40}"), MR_ERR_INVALID, "/camera",
-     "missing required field: \"path\" or \"node\""},
-    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'rotation':[0,0,0,1]}]}"),
-     MR_ERR_INVALID, "/camera/path/0", "exactly one of \"target\" or \"rotation\", got both"},
-    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5]}]}"), MR_ERR_INVALID, "/camera/path/0",
-     "missing required field: \"target\" or \"rotation\""},
-    {WITH_CAMERA("{'path':[{'t':0,'target':[0,0,0]}]}"), MR_ERR_INVALID, "/camera/path/0",
-     "missing required field \"position\""},
-    {WITH_CAMERA("{'path':[" KEY "," KEY "]}"), MR_ERR_INVALID, "/camera/path/1/t",
-     "expected a time greater than the previous key's (0), got 0"},
-    /* A later key is under the time cap too, not only the first. */
-    {WITH_CAMERA("{'path':[" KEY ",{'t':2e9,'position':[0,0,5],'target':[0,0,0]}]}"),
-     MR_ERR_INVALID, "/camera/path/1/t", "expected a time in seconds with |t| <= 1e9, got 2000000000"},
-    {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'target':[1,2,3]}]}"), MR_ERR_INVALID,
-     "/camera/path/0/target", "expected a target different from \"position\""},
-    {WITH_CAMERA("{'path':[{'t':1,'position':[1,2,3],'rotation':[0,0,0,0]}]}"), MR_ERR_INVALID,
-     "/camera/path/0/rotation", "expected a non-zero quaternion"},
-    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'yfov':180}]}"),
-     MR_ERR_INVALID, "/camera/path/0/yfov",
-     "[0.001, 179.9], got 180"},
-    {WITH_CAMERA("{'yfov':0,'path':[" KEY "]}"), MR_ERR_INVALID, "/camera/yfov", "got 0"},
-    {WITH_CAMERA("{'interpolation':'cubic','path':[" KEY "]}"), MR_ERR_INVALID,
-     "/camera/interpolation", "expected one of: \"linear\", \"catmull-rom\", got \"cubic\""},
-    {WITH_CAMERA("{'up':[0,0,0],'path':[" KEY "]}"), MR_ERR_INVALID, "/camera/up",
-     "expected a non-zero vector"},
-    {WITH_CAMERA("{'path':[]}"), MR_ERR_INVALID, "/camera/path",
-     "expected an array of 1..10000 camera keys, got an empty array"},
-    {WITH_CAMERA("{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'fov':1}]}"),
-     MR_ERR_INVALID, "/camera/path/0/fov",
-     "unknown field; expected one of: t, position, target, rotation, yfov"},
-    {WITH_CAMERA("{'node':{'asset':'x','name':'cam'}}"), MR_ERR_INVALID, "/camera/node/asset",
-     "expected the name of an entry in \"assets\", got \"x\""},
-    {WITH_CAMERA("{'node':{'asset':'m'}}"), MR_ERR_INVALID, "/camera/node",
-     "missing required field \"name\""},
-    {WITH_CAMERA("{'node':{'asset':'m','name':'cam'},'yfov':30}"), MR_ERR_INVALID, "/camera/yfov",
-     "\"yfov\" only applies to \"path\" cameras"},
-    /* Frames. */
-    {WITH_FRAMES("{'fps':0,'end':1}"), MR_ERR_INVALID, "/frames/fps",
-     "expected a number in (0, 1000], got 0"},
-    {WITH_FRAMES("{'fps':1001,'end':1}"), MR_ERR_INVALID, "/frames/fps", "got 1001"},
-    {WITH_FRAMES("{'start':2,'end':1}"), MR_ERR_INVALID, "/frames/end",
-     "expected a time >= start (2)"},
-    {WITH_FRAMES("{'fps':24}"), MR_ERR_INVALID, "/frames",
-     "missing required field: \"end\" or \"times\""},
-    {WITH_FRAMES("{'end':1,'times':[0]}"), MR_ERR_INVALID, "/frames/times",
-     "\"times\" cannot be combined with \"end\""},
-    {WITH_FRAMES("{'start':0,'times':[0]}"), MR_ERR_INVALID, "/frames/start",
-     "\"start\" cannot be combined with \"times\""},
-    {WITH_FRAMES("{'end':100000}"), MR_ERR_LIMIT, "/frames",
-     "expected at most 100000 frames, got 2400001"},
-    {WITH_FRAMES("{'start':-1e9,'end':1e9}"), MR_ERR_LIMIT, "/frames",
-     "expected at most 100000 frames"},
-    {WITH_FRAMES("{'end':1e999}"), MR_ERR_INVALID, "/frames/end", "overflows to infinity"},
-    {WITH_FRAMES("{'times':[]}"), MR_ERR_INVALID, "/frames/times",
-     "expected an array of 1..100000 times in seconds, got an empty array"},
-    {WITH_FRAMES("{'times':[0,'1']}"), MR_ERR_INVALID, "/frames/times/1",
-     "got \"1\""},
-    {WITH_FRAMES("{'end':1,'step':1}"), MR_ERR_INVALID, "/frames/step",
-     "unknown field; expected one of: fps, start, end, times"},
-    {WITH_FRAMES("[0,1]"), MR_ERR_INVALID, "/frames", "expected a frames object"},
-    /* Output. */
-    {"{" BASE ",'output':{'width':0}}", MR_ERR_INVALID, "/output/width",
-     "expected an integer in 1..8192, got 0"},
-    {"{" BASE ",'output':{'width':640.5}}", MR_ERR_INVALID, "/output/width", "got 640.5"},
-    {"{" BASE ",'output':{'height':-360}}", MR_ERR_INVALID, "/output/height", "got -360"},
-    {"{" BASE ",'output':{'width':100000}}", MR_ERR_INVALID, "/output/width", "got 100000"},
-    {"{" BASE ",'output':{'width':1e999}}", MR_ERR_INVALID, "/output/width", "overflows"},
-    {"{" BASE ",'output':{'width':1e300}}", MR_ERR_INVALID, "/output/width", "got 1e+300"},
-    {"{" BASE ",'output':{'width':'640'}}", MR_ERR_INVALID, "/output/width", "got \"640\""},
-    {"{" BASE ",'output':{'width':8192,'height':8192}}", MR_ERR_LIMIT, "/output",
-     "expected at most 16777216 pixels (width * height), got 8192 x 8192 = 67108864"},
-    {"{" BASE ",'output':{'samples':0}}", MR_ERR_INVALID, "/output/samples",
-     "expected an integer in 1..1024, got 0"},
-    {"{" BASE ",'output':{'seed':4294967296}}", MR_ERR_INVALID, "/output/seed",
-     "expected an integer in 0..4294967295, got 4294967296"},
-    {"{" BASE ",'output':{'seed':-1}}", MR_ERR_INVALID, "/output/seed", "got -1"},
-    {"{" BASE ",'output':{'compression':'dwaa'}}", MR_ERR_INVALID, "/output/compression",
-     "expected one of: \"none\", \"zip\", \"zips\", \"piz\", got \"dwaa\""},
-    {"{" BASE ",'output':{'compression':1}}", MR_ERR_INVALID, "/output/compression", "got 1"},
-    {"{" BASE ",'output':{'zip_level':10}}", MR_ERR_INVALID, "/output/zip_level",
-     "expected an integer in 1..9, got 10"},
-    {"{" BASE ",'output':{'shadows':'yes'}}", MR_ERR_INVALID, "/output/shadows",
-     "expected a boolean (true or false), got \"yes\""},
-    {"{" BASE ",'output':{'width':10,'width':20}}", MR_ERR_INVALID, "/output/width",
-     "duplicate field \"width\""},
-    {"{" BASE ",'output':{'format':'exr'}}", MR_ERR_INVALID, "/output/format",
-     "unknown field; expected one of: width, height, samples, shadows, seed, compression, "
-     "zip_level, aovs, normals"},
-    {"{" BASE ",'output':{'aovs':[]}}", MR_ERR_INVALID, "/output/aovs",
-     "expected an array of 1..6 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", "
-     "\"cryptomatte\", got an empty array"},
-    {"{" BASE ",'output':{'aovs':'z'}}", MR_ERR_INVALID, "/output/aovs", "got \"z\""},
-    {"{" BASE ",'output':{'aovs':['z','depth']}}", MR_ERR_INVALID, "/output/aovs/1",
-     "expected one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", got \"depth\""},
-    {"{" BASE ",'output':{'aovs':['z','n','z']}}", MR_ERR_INVALID, "/output/aovs/2",
-     "expected each pass once, got \"z\" again"},
-    {"{" BASE ",'output':{'normals':'double'}}", MR_ERR_INVALID, "/output/normals",
-     "expected one of: \"float\", \"half\", got \"double\""},
-    {"{" BASE ",'output':null}", MR_ERR_INVALID, "/output", "expected an output object, got null"},
-};
 
 static void test_malformed_table(void **state)
 {
@@ -586,6 +120,86 @@ static void test_malformed_table(void **state)
             mr_job_free(job);
     }
     assert_int_equal(failures, 0);
+}
+
+/* Collecting every problem (mr_job_check): over the whole table, the first
+ * problem is mr_job_parse's (code, pointer, message) and it is marked
+ * syntax exactly when the body is not one JSON text (the 400 of the HTTP
+ * rule); a syntax problem is the only one. */
+static void test_check_first_problem_and_syntax(void **state)
+{
+    (void)state;
+    size_t failures = 0, n = sizeof BAD / sizeof BAD[0];
+    for (size_t i = 0; i < n; i++) {
+        size_t len;
+        char *buf = dq(BAD[i].json, &len);
+        mr_job *job = NULL;
+        mr_job_error err;
+        mr_job_problems all;
+        int rc1 = mr_job_parse(buf, len, &job, &err);
+        int rc2 = mr_job_check(buf, len, &job, &all);
+        free(buf);
+        bool syntax = bad_job_is_syntax(&BAD[i]);
+        bool ok = rc1 == rc2 && job == NULL && all.count >= 1 &&
+                  !strcmp(all.items[0].pointer, err.pointer) &&
+                  !strcmp(all.items[0].message, err.message) && all.items[0].syntax == syntax &&
+                  err.syntax == syntax && (!syntax || all.count == 1);
+        if (!ok) {
+            failures++;
+            print_error("case %zu: %s\n  parse: %s '%s' %s (syntax %d)\n  check: %s, %zu problems, "
+                        "first '%s' %s (syntax %d), table says syntax %d\n",
+                        i, BAD[i].json, mr_err_name(rc1), err.pointer, err.message, err.syntax,
+                        mr_err_name(rc2), all.count, all.items[0].pointer, all.items[0].message,
+                        all.items[0].syntax, syntax);
+        }
+    }
+    assert_int_equal(failures, 0);
+}
+
+/* Independent problems in one job are all reported, in reading order; what
+ * depends on a part that failed is not reported again. */
+static void test_check_collects_every_problem(void **state)
+{
+    (void)state;
+    static const char job[] =
+        "{'assets':{'m':{'path':'/a.gltf'},'b a d':{'path':'/b.gltf'}},"
+        "'objects':[{'asset':'m','color':[1,2]},{'asset':'ghost'},"
+        "{'asset':'m','kind':'voxels','svo':{'depth':99}},"
+        "{'asset':'m','kind':'svo','svo':{'depth':99,'method':'bend'}}],"
+        "'camera':{'path':[{'t':0,'position':[0,0,5],'target':[0,0,0],'yfov':500},"
+        "{'t':1,'position':[0,0,5],'target':[0,0,0]}]},"
+        "'frames':{'end':1},'output':{'width':0,'height':540,'samples':2000},'extra':1}";
+    static const char *const pointers[] = {
+        "/extra",                  /* unknown field */
+        "/assets/b a d",           /* asset name */
+        "/objects/0/color",        /* 2 numbers */
+        "/objects/1/asset",        /* no such asset */
+        "/objects/2/kind",         /* unknown kind: its block is not read */
+        "/objects/3/svo/depth",    /* each field of a kind block */
+        "/objects/3/svo/method",
+        "/camera/path/0/yfov",     /* the next key's time is compared with nothing */
+        "/output/width",
+        "/output/samples",
+    };
+    size_t len;
+    char *buf = dq(job, &len);
+    mr_job *out = NULL;
+    mr_job_problems all;
+    int rc = mr_job_check(buf, len, &out, &all);
+    free(buf);
+    assert_int_equal(rc, MR_ERR_INVALID);
+    assert_null(out);
+    size_t want = sizeof pointers / sizeof *pointers;
+    assert_int_equal(all.count, want);
+    assert_int_equal(all.more, 0);
+    for (size_t i = 0; i < want; i++)
+        assert_string_equal(all.items[i].pointer, pointers[i]);
+    /* without collecting, the first one only */
+    mr_job_error err;
+    buf = dq(job, &len);
+    assert_int_equal(mr_job_parse(buf, len, &out, &err), MR_ERR_INVALID);
+    free(buf);
+    assert_string_equal(err.pointer, "/extra");
 }
 
 /* The brief's own example, word for word. */
@@ -1203,7 +817,9 @@ static void test_examples(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_malformed_table), cmocka_unit_test(test_rfc_numbers), cmocka_unit_test(test_message_format),
+        cmocka_unit_test(test_malformed_table),
+        cmocka_unit_test(test_check_first_problem_and_syntax),
+        cmocka_unit_test(test_check_collects_every_problem), cmocka_unit_test(test_rfc_numbers), cmocka_unit_test(test_message_format),
         cmocka_unit_test(test_defaults),        cmocka_unit_test(test_full_job),
         cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
         cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
