@@ -93,11 +93,20 @@ static enum MHD_Result too_large(req *r, struct MHD_Connection *c)
     return http_send_problem(r, c, P_TOO_LARGE, NULL, "the request body is over %zu bytes", r->limit);
 }
 
-/* 404 or 405 for a request that matched no route. */
+/* 404 or 405 for a request that matched no route; OPTIONS on a path that
+ * exists: 204 with the methods it has in Allow. */
 static enum MHD_Result answer_unrouted(req *r, struct MHD_Connection *c)
 {
     if (!r->allow[0])
         return http_send_problem(r, c, P_NOT_FOUND, NULL, "no resource at %s", r->path);
+    if (!strcmp(r->method, "OPTIONS")) {
+        struct MHD_Response *resp = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
+        if (resp && MHD_add_response_header(resp, MHD_HTTP_HEADER_ALLOW, r->allow) != MHD_YES) {
+            MHD_destroy_response(resp);
+            resp = NULL;
+        }
+        return http_send_response(r, c, MHD_HTTP_NO_CONTENT, resp, 0);
+    }
     return http_send_problem_hdr(r, c, P_METHOD, MHD_HTTP_HEADER_ALLOW, r->allow,
                                  "%s is not allowed on %s; allowed: %s", r->method, r->path, r->allow);
 }

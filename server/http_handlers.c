@@ -913,10 +913,93 @@ static bool frame_exr_path(req *r, struct MHD_Connection *c, const mr_job_record
     return rc == MR_OK;
 }
 
+/* ---- caching and ranges of frames -----------------------------------------
+ * A frame's EXR never changes once it is done (a finished frame is never
+ * rendered again; a deleted job takes it away), nor does its preview: both
+ * are served with a strong ETag (the EXR file's size and modification
+ * time, "-png" for the preview) and Cache-Control: immutable, and
+ * If-None-Match answers 304. The EXR also takes a single byte range
+ * (Range: bytes=a-b, a-, -n; RFC 9110 14): 206 with Content-Range, 416
+ * when it lies outside the file; If-Range with another tag, several
+ * ranges or a unit other than bytes get the whole file. */
+
+#define FRAME_CACHE_CONTROL "max-age=31536000, immutable"
+
+static void frame_etag(const struct stat *st, const char *suffix, char *out, size_t size)
+{
+    snprintf(out, size, "\"%llx-%llx.%lx%s\"", (unsigned long long)st->st_size,
+             (unsigned long long)st->st_mtim.tv_sec, (unsigned long)st->st_mtim.tv_nsec, suffix);
+}
+
+/* Whether If-None-Match names etag (or is "*"). */
+static bool etag_matches(struct MHD_Connection *c, const char *etag)
+{
+    const char *match = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_IF_NONE_MATCH);
+    return match && (strstr(match, etag) || !strcmp(match, "*"));
+}
+
+static enum MHD_Result not_modified(req *r, struct MHD_Connection *c, const char *const *headers)
+{
+    struct MHD_Response *resp = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
+    if (!resp || !add_headers(resp, headers))
+        return MHD_NO;
+    return http_send_response(r, c, MHD_HTTP_NOT_MODIFIED, resp, 0);
+}
+
+/* The one byte range a Range header asks of a file of size bytes: 1 with
+ * [*first, *last], 0 to send the whole file, -1 unsatisfiable. */
+static int parse_range(const char *h, uint64_t size, uint64_t *first, uint64_t *last)
+{
+    if (!h || strncmp(h, "bytes=", 6) != 0 || strchr(h, ','))
+        return 0;
+    const char *p = h + 6;
+    char *end = NULL;
+    if (*p == '-') { /* the last n bytes */
+        if (p[1] < '0' || p[1] > '9')
+            return 0;
+        unsigned long long n = strtoull(p + 1, &end, 10);
+        if (*end || n == 0)
+            return *end ? 0 : -1;
+        if (size == 0)
+            return -1;
+        *first = n >= size ? 0 : size - n;
+        *last = size - 1;
+        return 1;
+    }
+    if (*p < '0' || *p > '9')
+        return 0;
+    unsigned long long a = strtoull(p, &end, 10);
+    if (*end != '-')
+        return 0;
+    p = end + 1;
+    unsigned long long b = size ? size - 1 : 0;
+    if (*p) {
+        if (*p < '0' || *p > '9')
+            return 0;
+        b = strtoull(p, &end, 10);
+        if (*end || b < a)
+            return 0;
+    }
+    if (a >= size)
+        return -1;
+    *first = a;
+    *last = b >= size ? size - 1 : b;
+    return 1;
+}
+
 /* The preview of a done frame (negotiated: with Vary: Accept). */
 static enum MHD_Result send_frame_png(req *r, struct MHD_Connection *c, const mr_job_record *job,
                                       size_t index, const char *exr_path, bool negotiated)
 {
+    char etag[96] = "";
+    struct stat st;
+    if (stat(exr_path, &st) == 0)
+        frame_etag(&st, "-png", etag, sizeof etag);
+    const char *cache[] = {MHD_HTTP_HEADER_ETAG, etag[0] ? etag : NULL, MHD_HTTP_HEADER_CACHE_CONTROL,
+                           FRAME_CACHE_CONTROL, MHD_HTTP_HEADER_VARY, negotiated ? "Accept" : NULL,
+                           NULL};
+    if (etag[0] && etag_matches(c, etag))
+        return not_modified(r, c, cache);
     mr_preview_body body;
     if (!mr_preview_frame_cached(exr_path, &body)) {
         if (!preview_slot_take(r->h))
@@ -931,7 +1014,9 @@ static enum MHD_Result send_frame_png(req *r, struct MHD_Connection *c, const mr
     mr_frame_preview_name(index, name);
     snprintf(disposition, sizeof disposition, "inline; filename=\"%s\"", name);
     const char *headers[] = {MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
-                             MHD_HTTP_HEADER_VARY, negotiated ? "Accept" : NULL, NULL};
+                             MHD_HTTP_HEADER_VARY, negotiated ? "Accept" : NULL,
+                             MHD_HTTP_HEADER_ETAG, etag[0] ? etag : NULL,
+                             MHD_HTTP_HEADER_CACHE_CONTROL, FRAME_CACHE_CONTROL, NULL};
     return send_png(r, c, &body, headers);
 }
 
@@ -968,20 +1053,43 @@ enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c)
         return http_send_problem(r, c, P_INTERNAL, NULL, "frame %zu of job %s is not a file", index,
                                  job.id);
     }
-    struct MHD_Response *resp = MHD_create_response_from_fd((size_t)st.st_size, fd);
+    char etag[96], name[MR_FRAME_NAME_MAX], disposition[MR_FRAME_NAME_MAX + 32];
+    frame_etag(&st, "", etag, sizeof etag);
+    mr_frame_file_name(index, name);
+    snprintf(disposition, sizeof disposition, "attachment; filename=\"%s\"", name);
+    const char *headers[] = {MHD_HTTP_HEADER_VARY, "Accept", MHD_HTTP_HEADER_ETAG, etag,
+                             MHD_HTTP_HEADER_CACHE_CONTROL, FRAME_CACHE_CONTROL,
+                             MHD_HTTP_HEADER_ACCEPT_RANGES, "bytes", NULL};
+    if (etag_matches(c, etag)) {
+        close(fd);
+        return not_modified(r, c, headers);
+    }
+    uint64_t size = (uint64_t)st.st_size, first = 0, last = size ? size - 1 : 0;
+    const char *range = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_RANGE);
+    const char *if_range = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_IF_RANGE);
+    int ranged = range && (!if_range || !strcmp(if_range, etag)) ? parse_range(range, size, &first, &last) : 0;
+    char content_range[96];
+    if (ranged < 0) {
+        close(fd);
+        snprintf(content_range, sizeof content_range, "bytes */%llu", (unsigned long long)size);
+        return http_send_problem_hdr(r, c, P_RANGE, MHD_HTTP_HEADER_CONTENT_RANGE, content_range,
+                                     "frame %zu of job %s has %llu bytes; the range '%.64s' lies "
+                                     "outside them", index, job.id, (unsigned long long)size, range);
+    }
+    uint64_t length = ranged ? last - first + 1 : size;
+    struct MHD_Response *resp = MHD_create_response_from_fd_at_offset64(length, fd, first);
     if (!resp) {
         close(fd);
         return MHD_NO;
     }
-    char name[MR_FRAME_NAME_MAX], disposition[MR_FRAME_NAME_MAX + 32];
-    mr_frame_file_name(index, name);
-    snprintf(disposition, sizeof disposition, "attachment; filename=\"%s\"", name);
-    const char *headers[] = {MHD_HTTP_HEADER_CONTENT_TYPE, CT_EXR,
-                             MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
-                             MHD_HTTP_HEADER_VARY, "Accept", NULL};
-    if (!add_headers(resp, headers))
+    snprintf(content_range, sizeof content_range, "bytes %llu-%llu/%llu", (unsigned long long)first,
+             (unsigned long long)last, (unsigned long long)size);
+    const char *more[] = {MHD_HTTP_HEADER_CONTENT_TYPE, CT_EXR,
+                          MHD_HTTP_HEADER_CONTENT_DISPOSITION, disposition,
+                          MHD_HTTP_HEADER_CONTENT_RANGE, ranged ? content_range : NULL, NULL};
+    if (!add_headers(resp, headers) || !add_headers(resp, more))
         return MHD_NO;
-    return http_send_response(r, c, MHD_HTTP_OK, resp, (uint64_t)st.st_size);
+    return http_send_response(r, c, ranged ? MHD_HTTP_PARTIAL_CONTENT : MHD_HTTP_OK, resp, length);
 }
 
 /* GET .../frames/{n}.png: the preview whatever Accept says (the path chose). */
@@ -1103,29 +1211,21 @@ enum MHD_Result http_frame_stats(req *r, struct MHD_Connection *c)
     return http_send_response(r, c, MHD_HTTP_OK, http_buffer_response(f.stats_json, n, CT_JSON), n);
 }
 
-enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
+int http_job_stats_doc(mr_http *h, const mr_job_record *rec, cJSON **out, mr_error *err)
 {
-    mr_http *h = r->h;
-    mr_job_record rec;
-    enum MHD_Result res = MHD_NO;
-    if (!http_load_job(r, c, &rec, &res))
-        return res;
+    *out = NULL;
     mr_store *st = mr_daemon_store(h->d);
     mr_frame_record *frames = NULL;
     size_t count = 0, done = 0;
     cJSON **stored = NULL;
     char *doc_json = NULL;
     mr_job *job = NULL;
-    cJSON *root = NULL;
-    mr_error err = {0};
-    int rc = mr_store_frames(st, rec.id, &frames, &count, &err);
-    if (rc < 0) {
-        res = http_send_error(r, c, rc, &err);
+    int rc = mr_store_frames(st, rec->id, &frames, &count, err);
+    if (rc < 0)
         goto cleanup;
-    }
     stored = calloc(count ? count : 1, sizeof *stored);
     if (!stored) {
-        res = http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
         goto cleanup;
     }
     double threads = 0;
@@ -1145,9 +1245,10 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
      * document is the validated job, so parsing it again cannot fail unless
      * the store is damaged, and then the record's figures stand in. */
     mr_job fallback = {0};
-    fallback.name = rec.name;
-    fallback.frame_count = rec.frame_count;
-    if (mr_store_job_json(st, rec.id, &doc_json, &err) == MR_OK)
+    fallback.name = (char *)rec->name;
+    fallback.frame_count = rec->frame_count;
+    mr_error ignored;
+    if (mr_store_job_json(st, rec->id, &doc_json, &ignored) == MR_OK)
         mr_job_parse(doc_json, strlen(doc_json), &job, NULL);
     if (!(threads >= 1 && threads <= 65536)) {
         threads = h->render_threads;
@@ -1156,22 +1257,29 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
             threads = n > 0 ? (double)n : 1;
         }
     }
-    if ((rc = mr_stats_from_frames(job ? job : &fallback, stored, done, (unsigned)threads, &root,
-                                   &err)) < 0) {
-        res = http_send_error(r, c, rc, &err);
-        goto cleanup;
-    }
-    res = http_send_json(r, c, MHD_HTTP_OK, root);
-    root = NULL;
+    rc = mr_stats_from_frames(job ? job : &fallback, stored, done, (unsigned)threads, out, err);
 cleanup:
-    cJSON_Delete(root);
     mr_job_free(job);
     free(doc_json);
     for (size_t k = 0; stored && k < done; k++)
         cJSON_Delete(stored[k]);
     free(stored);
     mr_frame_records_free(frames, count);
-    return res;
+    return rc;
+}
+
+enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
+{
+    mr_job_record rec;
+    enum MHD_Result res = MHD_NO;
+    if (!http_load_job(r, c, &rec, &res))
+        return res;
+    cJSON *root = NULL;
+    mr_error err = {0};
+    int rc = http_job_stats_doc(r->h, &rec, &root, &err);
+    if (rc < 0)
+        return http_send_error(r, c, rc, &err);
+    return http_send_json(r, c, MHD_HTTP_OK, root);
 }
 
 /* ---- handlers: assets and service --------------------------------------- */

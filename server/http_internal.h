@@ -8,6 +8,8 @@
  *   http_handlers.c the handlers of the job, frame, asset and service routes,
  *                   content negotiation (Accept) and the PNG preview routes
  *                   (their pictures and cache: previews.c);
+ *   http_frames.c   a job's frames as a collection: the list, and every
+ *                   finished frame streamed as one tar archive;
  *   http_events.c   server-sent event streams (GET /v1/jobs/{id}/events) and
  *                   their keepalive ticker;
  *   http_guard.c    the connection budget and the request head and body
@@ -107,7 +109,7 @@ struct req {
     unsigned status;
     uint64_t bytes;
     char job[MR_JOB_ID_LEN + 1];
-    char allow[64]; /* methods of the path when none matched this one */
+    char allow[96]; /* methods of the path when none matched this one */
     sse_stream *sse;
     conn_track *conn; /* the connection's guard record (NULL if untracked) */
 };
@@ -194,6 +196,10 @@ enum MHD_Result http_send_error(req *r, struct MHD_Connection *c, int code, cons
 
 /* ---- handlers (http_handlers.c, http_events.c) ------------------------- */
 
+/* The job's stats.json document over its frames done so far (what GET
+ * /v1/jobs/{id}/stats answers and frames.tar holds). */
+int http_job_stats_doc(mr_http *h, const mr_job_record *rec, cJSON **out, mr_error *err);
+
 /* The job named by the {id} parameter; answers 404 itself when unknown. */
 bool http_load_job(req *r, struct MHD_Connection *c, mr_job_record *job, enum MHD_Result *res);
 
@@ -204,6 +210,8 @@ enum MHD_Result http_job_get(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_delete(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_cancel(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_retry(req *r, struct MHD_Connection *c);
+enum MHD_Result http_job_frames(req *r, struct MHD_Connection *c);
+enum MHD_Result http_frames_tar(req *r, struct MHD_Connection *c);
 enum MHD_Result http_frame_get(req *r, struct MHD_Connection *c);
 enum MHD_Result http_frame_png(req *r, struct MHD_Connection *c);
 enum MHD_Result http_contact_sheet(req *r, struct MHD_Connection *c);

@@ -3,7 +3,8 @@
  * (method, path pattern) to handler and body kind. A path that no pattern
  * matches answers 404; a path whose patterns exist only for other methods
  * answers 405 with an Allow header (http_route_methods). Patterns match
- * segment by segment; {name} captures one non-empty segment, and
+ * segment by segment (OPTIONS on any path that exists answers 204 with the
+ * same Allow header); {name} captures one non-empty segment, and
  * {name}.ext one that ends in .ext, capturing what precedes it. The first
  * route that matches wins, so a suffixed pattern comes before the plain one
  * it would otherwise lose to ("/frames/{n}" also matches "7.png").
@@ -19,6 +20,8 @@ static const route ROUTES[] = {
     {"GET", "/v1/jobs", http_job_list, BODY_NONE},
     {"GET", "/v1/jobs/{id}", http_job_get, BODY_NONE},
     {"DELETE", "/v1/jobs/{id}", http_job_delete, BODY_NONE},
+    {"GET", "/v1/jobs/{id}/frames", http_job_frames, BODY_NONE},
+    {"GET", "/v1/jobs/{id}/frames.tar", http_frames_tar, BODY_NONE},
     {"GET", "/v1/jobs/{id}/frames/{n}.png", http_frame_png, BODY_NONE},
     {"GET", "/v1/jobs/{id}/frames/{n}", http_frame_get, BODY_NONE},
     {"GET", "/v1/jobs/{id}/frames/{n}/stats", http_frame_stats, BODY_NONE},
@@ -110,4 +113,6 @@ void http_route_methods(const char *path, char *allow, size_t size)
             if (!strcmp(ROUTES[i].method, "GET"))
                 add_allowed(allow, size, "HEAD");
         }
+    if (allow[0]) /* every path that exists answers OPTIONS (http.c) */
+        add_allowed(allow, size, "OPTIONS");
 }

@@ -151,6 +151,10 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
  * *gave_up tells which. */
 int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char *error,
                           bool final, bool *gave_up, mr_error *err);
+/* Where a frame's EXR file is when it is done, whatever its state (one
+ * path, no query: for listing many frames at once). */
+int mr_store_frame_file(const mr_store *st, const char *id, size_t index, char *path, size_t size,
+                        mr_error *err);
 /* Path of a done frame's EXR file; MR_ERR_NOT_FOUND unless the frame is done. */
 int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, size_t path_size,
                         mr_error *err);

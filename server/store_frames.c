@@ -234,6 +234,14 @@ static int frame_file(const mr_store *st, const char *id, size_t index, const ch
     return store_path_join(path, size, err, "%s/frames/%s/%04zu.exr%s", st->dir, id, index, suffix);
 }
 
+int mr_store_frame_file(const mr_store *st, const char *id, size_t index, char *path, size_t size,
+                        mr_error *err)
+{
+    if (!store_valid_job_id(id))
+        return store_no_job(err, id);
+    return frame_file(st, id, index, "", path, size, err);
+}
+
 int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *exr,
                         size_t exr_size, const char *stats_json, mr_error *err)
 {

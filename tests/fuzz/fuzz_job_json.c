@@ -8,7 +8,9 @@
  * result of MR_OK comes with a job and anything else with none, only the
  * documented error codes, a JSON pointer that is "" or starts with '/', a
  * message on every failure, and the same answer for the same input
- * ("problems are looked for in a fixed order").
+ * ("problems are looked for in a fixed order"); then the same input read
+ * collecting every problem (mr_job_check, what the daemon does), which
+ * must give the same result and the same first problem.
  */
 #include <stdint.h>
 #include <stdio.h>
@@ -49,13 +51,24 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         check(err.message[0] != '\0', "empty message");
     }
 
+    /* Again, collecting every problem (mr_job_check, the daemon's path):
+     * the reader then goes on after failures, through states a first-
+     * problem reader never reaches; its first problem is the same. */
     mr_job *again = NULL;
-    mr_job_error err2;
-    int rc2 = mr_job_parse(body, size, &again, &err2);
+    static mr_job_problems all;
+    int rc2 = mr_job_check(body, size, &again, &all);
     check(rc2 == rc, "a different result for the same input");
-    if (rc != MR_OK && rc != MR_ERR_NOMEM)
-        check(!strcmp(err.pointer, err2.pointer) && !strcmp(err.message, err2.message),
-              "a different error for the same input");
+    check((rc2 == MR_OK) == (again != NULL), "a job without MR_OK, or none with it");
+    if (rc != MR_OK && rc != MR_ERR_NOMEM) {
+        check(all.count >= 1, "no problem collected");
+        check(!strcmp(err.pointer, all.items[0].pointer) && !strcmp(err.message, all.items[0].message),
+              "a different first problem when collecting");
+        for (size_t i = 0; i < all.count; i++) {
+            check(all.items[i].pointer[0] == '\0' || all.items[i].pointer[0] == '/',
+                  "a collected pointer neither \"\" nor /...");
+            check(all.items[i].message[0] != '\0', "an empty collected message");
+        }
+    }
     mr_job_free(job);
     mr_job_free(again);
     free(body);

@@ -506,6 +506,137 @@ static void test_dry_run(void **state)
     http_free(&r);
 }
 
+/* A job's frames as a collection: the list (state, size, seconds, links),
+ * every finished frame and stats.json in one streamed tar that tar(1)
+ * reads, and a frame's EXR with ETag, Cache-Control: immutable, 304 and
+ * byte ranges; OPTIONS answers with Allow. */
+static void test_frames_collection_and_caching(void **state)
+{
+    (void)state;
+    char *job = fx_small_job(3, 64, NULL), id[64], path[256], value[256];
+    fx_submit(&D, job, id);
+    free(job);
+    cJSON *j = fx_wait_job(&D, id, 120);
+    assert_string_equal(state_of(j), "succeeded");
+    cJSON_Delete(j);
+
+    /* the frames, each with its file's size */
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0", id);
+    http_result exr0 = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(exr0.status, 200);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames", id);
+    http_result r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    cJSON *doc = cJSON_Parse(r.body);
+    cJSON *frames = cJSON_GetObjectItem(doc, "frames");
+    assert_int_equal(cJSON_GetArraySize(frames), 4);
+    cJSON *f0 = cJSON_GetArrayItem(frames, 0);
+    assert_string_equal(cJSON_GetObjectItem(f0, "state")->valuestring, "done");
+    assert_true(cJSON_GetObjectItem(f0, "bytes")->valuedouble == (double)exr0.len);
+    assert_true(cJSON_GetObjectItem(f0, "seconds")->valuedouble > 0);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0.png", id);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(f0, "links"), "png")->valuestring, path);
+    cJSON_Delete(doc);
+    http_free(&r);
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames?state=failed", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    doc = cJSON_Parse(r.body);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "frames")), 0);
+    cJSON_Delete(doc);
+    http_free(&r);
+
+    /* the archive: tar(1) lists and extracts it; its frames are the files */
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames.tar", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    assert_string_equal(r.content_type, "application/x-tar");
+    assert_true(fx_header_get(&r, "Content-Length", value, sizeof value));
+    assert_true((size_t)atoll(value) == r.len);
+    char tar_path[600], dir[600], cmd[2000];
+    snprintf(tar_path, sizeof tar_path, "%s/frames.tar", fx_tmp);
+    snprintf(dir, sizeof dir, "%s/untar", fx_tmp);
+    FILE *f = fopen(tar_path, "wb");
+    fwrite(r.body, 1, r.len, f);
+    fclose(f);
+    http_free(&r);
+    snprintf(cmd, sizeof cmd, "mkdir -p '%s' && tar -xf '%s' -C '%s'", dir, tar_path, dir);
+    assert_int_equal(system(cmd), 0);
+    for (int k = 0; k < 4; k++) {
+        char file[700];
+        snprintf(file, sizeof file, "%s/%04d.exr", dir, k);
+        size_t len = 0;
+        char *bytes = fx_slurp(file, &len);
+        assert_non_null(bytes);
+        snprintf(path, sizeof path, "/v1/jobs/%s/frames/%d", id, k);
+        http_result fr = http(&D, "GET", path, NULL, 0, NULL);
+        assert_true(len == fr.len && memcmp(bytes, fr.body, len) == 0);
+        http_free(&fr);
+        free(bytes);
+    }
+    char stats_file[700];
+    snprintf(stats_file, sizeof stats_file, "%s/stats.json", dir);
+    char *text = fx_slurp(stats_file, NULL);
+    doc = cJSON_Parse(text);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "frames")), 4);
+    cJSON_Delete(doc);
+    free(text);
+
+    /* caching and ranges */
+    char etag[128], header[256];
+    assert_true(fx_header_get(&exr0, "ETag", etag, sizeof etag));
+    assert_true(fx_header_get(&exr0, "Cache-Control", value, sizeof value));
+    assert_non_null(strstr(value, "immutable"));
+    assert_true(fx_header_get(&exr0, "Accept-Ranges", value, sizeof value));
+    assert_string_equal(value, "bytes");
+    snprintf(path, sizeof path, "/v1/jobs/%s/frames/0", id);
+    snprintf(header, sizeof header, "If-None-Match: %s", etag);
+    r = http(&D, "GET", path, NULL, 0, header);
+    assert_int_equal(r.status, 304);
+    assert_int_equal(r.len, 0);
+    http_free(&r);
+    r = http(&D, "GET", path, NULL, 0, "Range: bytes=0-99");
+    assert_int_equal(r.status, 206);
+    assert_true(r.len == 100 && memcmp(r.body, exr0.body, 100) == 0);
+    assert_true(fx_header_get(&r, "Content-Range", value, sizeof value));
+    char want[96];
+    snprintf(want, sizeof want, "bytes 0-99/%zu", exr0.len);
+    assert_string_equal(value, want);
+    http_free(&r);
+    r = http(&D, "GET", path, NULL, 0, "Range: bytes=-10");
+    assert_int_equal(r.status, 206);
+    assert_true(r.len == 10 && memcmp(r.body, exr0.body + exr0.len - 10, 10) == 0);
+    http_free(&r);
+    snprintf(header, sizeof header, "Range: bytes=%zu-", exr0.len);
+    r = http(&D, "GET", path, NULL, 0, header);
+    assert_int_equal(r.status, 416);
+    assert_true(fx_header_get(&r, "Content-Range", value, sizeof value));
+    snprintf(want, sizeof want, "bytes */%zu", exr0.len);
+    assert_string_equal(value, want);
+    http_free(&r);
+    const char *if_range[] = {"Range: bytes=0-99", "If-Range: \"another\"", NULL};
+    r = http_headers(&D, "GET", path, NULL, 0, if_range);
+    assert_int_equal(r.status, 200);
+    assert_true(r.len == exr0.len);
+    http_free(&r);
+    http_free(&exr0);
+
+    /* OPTIONS and Allow */
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    r = http(&D, "OPTIONS", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 204);
+    assert_true(fx_header_get(&r, "Allow", value, sizeof value));
+    assert_string_equal(value, "GET, HEAD, DELETE, OPTIONS");
+    http_free(&r);
+    r = http(&D, "OPTIONS", "/v2/nothing", NULL, 0, NULL);
+    assert_int_equal(r.status, 404);
+    http_free(&r);
+    r = http(&D, "PUT", "/v1/jobs", "{}", 2, NULL);
+    assert_int_equal(r.status, 405);
+    assert_true(fx_header_get(&r, "Allow", value, sizeof value));
+    assert_string_equal(value, "POST, GET, HEAD, OPTIONS");
+    http_free(&r);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -534,6 +665,7 @@ int main(void)
         cmocka_unit_test(test_readme_quick_start),
         cmocka_unit_test(test_status_rule_over_malformed_table),
         cmocka_unit_test(test_dry_run),
+        cmocka_unit_test(test_frames_collection_and_caching),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }
