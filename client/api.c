@@ -695,8 +695,9 @@ static int on_stream_progress(void *user, curl_off_t dltotal, curl_off_t dlnow, 
     return 0;
 }
 
-int mrc_http_stream(mrc_http *h, const char *path, mrc_stream_data_fn on_data,
-                    mrc_stream_tick_fn on_tick, void *user, mrc_error *err)
+int mrc_http_stream(mrc_http *h, const char *path, const char *last_event_id,
+                    mrc_stream_data_fn on_data, mrc_stream_tick_fn on_tick, void *user,
+                    mrc_error *err)
 {
     int rc = 0;
     char *url = NULL;
@@ -709,6 +710,13 @@ int mrc_http_stream(mrc_http *h, const char *path, mrc_stream_data_fn on_data,
     url = make_url(h, path, err);
     hdrs = curl_slist_append(NULL, "Accept: text/event-stream");
     tmp = hdrs ? curl_slist_append(hdrs, "Cache-Control: no-cache") : NULL;
+    if (tmp && last_event_id && last_event_id[0]) {
+        char line[96];
+        /* the id came from the server's stream: printable, no line breaks */
+        snprintf(line, sizeof line, "Last-Event-ID: %.64s", last_event_id);
+        hdrs = tmp;
+        tmp = strpbrk(last_event_id, "\r\n") ? NULL : curl_slist_append(hdrs, line);
+    }
     if (!url || !tmp) {
         rc = mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
         goto cleanup;

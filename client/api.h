@@ -78,7 +78,8 @@ int mrc_http_download(mrc_http *h, const char *path, const char *dest, int64_t *
 int mrc_http_upload(mrc_http *h, const char *path, const char *file, mrc_response *resp,
                     mrc_error *err);
 
-/* GET path as text/event-stream and hand the raw bytes to on_data as they
+/* GET path as text/event-stream (resuming after last_event_id when it is
+ * not NULL or "": Last-Event-ID) and hand the raw bytes to on_data as they
  * arrive; on_tick is called about once a second while waiting (may be
  * NULL), for redrawing progress. Either callback may stop the stream by
  * returning nonzero.
@@ -86,7 +87,8 @@ int mrc_http_upload(mrc_http *h, const char *path, const char *file, mrc_respons
  * negative (with err filled) when it could not be opened or broke. */
 typedef int (*mrc_stream_data_fn)(const char *data, size_t len, void *user);
 typedef int (*mrc_stream_tick_fn)(void *user);
-int mrc_http_stream(mrc_http *h, const char *path, mrc_stream_data_fn on_data,
-                    mrc_stream_tick_fn on_tick, void *user, mrc_error *err);
+int mrc_http_stream(mrc_http *h, const char *path, const char *last_event_id,
+                    mrc_stream_data_fn on_data, mrc_stream_tick_fn on_tick, void *user,
+                    mrc_error *err);
 
 #endif

@@ -44,6 +44,8 @@ typedef struct follow {
     int64_t downloaded_bytes;
 
     mrc_sse sse;
+    char last_event_id[64];  /* of the stream so far: a dropped stream resumes after it */
+    int events;              /* events the current stream brought */
     bool synced;             /* re-read the job once the stream was open */
     mrc_error fatal;         /* why a callback stopped everything */
 } follow;
@@ -290,6 +292,7 @@ static int get_snapshot(follow *f, bool announce, mrc_error *err)
 static int on_event(const char *event, const char *data, size_t len, void *user)
 {
     follow *f = user;
+    f->events++;
     cJSON *doc = cJSON_ParseWithLength(data, len);
     int rc = 0;
     if (!cJSON_IsObject(doc)) {
@@ -369,15 +372,26 @@ static int on_stream_tick(void *user)
     return 0;
 }
 
-/* 0: the job reached a terminal state; 1: the stream is of no further use
- * (poll instead); negative: a fatal error (err filled). */
-static int follow_stream(follow *f, mrc_error *err)
+static void sleep_seconds(double s)
+{
+    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+    while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
+    }
+}
+
+/* One stream: 0 terminal state, 1 poll instead, 2 resume (it dropped or
+ * ended early after an event with an id), negative fatal (err filled). */
+static int follow_stream_once(follow *f, mrc_error *err)
 {
     char path[256];
     snprintf(path, sizeof path, "/v1/jobs/%s/events", f->id);
     mrc_error serr = {0};
     mrc_sse_init(&f->sse, on_event, f);
-    int rc = mrc_http_stream(f->http, path, on_stream_data, on_stream_tick, f, &serr);
+    f->events = 0;
+    int rc = mrc_http_stream(f->http, path, f->last_event_id, on_stream_data, on_stream_tick, f,
+                             &serr);
+    if (f->sse.last_id[0])
+        snprintf(f->last_event_id, sizeof f->last_event_id, "%s", f->sse.last_id);
     mrc_sse_free(&f->sse);
     if (f->fatal.code == MRC_EXIT_SERVER) {
         /* a frame download failed because the server is unavailable: like a
@@ -392,6 +406,12 @@ static int follow_stream(follow *f, mrc_error *err)
     }
     if (is_terminal(f->state))
         return 0;
+    /* dropped (the connection broke, or the server ended the stream before
+     * a final state): resume after the last event; refused (an HTTP error)
+     * or malformed: poll */
+    bool dropped = rc == 0 || (rc < 0 && serr.code == MRC_EXIT_SERVER && f->events > 0);
+    if (dropped && f->last_event_id[0])
+        return 2;
     /* rc == 1 without a terminal state or a fatal error: the parser gave up */
     const char *why = rc < 0 ? serr.msg : rc == 1 ? "malformed event stream"
                                                   : "the server ended it early";
@@ -399,11 +419,27 @@ static int follow_stream(follow *f, mrc_error *err)
     return 1;
 }
 
-static void sleep_seconds(double s)
+/* Consecutive resumptions of a dropped stream that brought no event
+ * before the client polls instead. */
+#define STREAM_RESUMES 3
+
+/* 0: the job reached a terminal state; 1: the stream is of no further use
+ * (poll instead); negative: a fatal error (err filled). A stream that
+ * drops or ends early is resumed after its last event (Last-Event-ID: the
+ * daemon sends the frame events missed meanwhile). */
+static int follow_stream(follow *f, mrc_error *err)
 {
-    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
-    while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
+    for (int fruitless = 0;;) {
+        int rc = follow_stream_once(f, err);
+        if (rc != 2)
+            return rc;
+        fruitless = f->events > 0 ? 0 : fruitless + 1;
+        if (fruitless >= STREAM_RESUMES)
+            break;
+        sleep_seconds(POLL_INTERVAL_S);
     }
+    mrc_progress_message(&f->prog, "microray: event stream keeps dropping; polling instead");
+    return 1;
 }
 
 static int follow_poll(follow *f, mrc_error *err)

@@ -46,6 +46,7 @@ static int reserve(char **buf, size_t *cap, size_t len, size_t extra, size_t max
 
 static int dispatch(mrc_sse *s)
 {
+    memcpy(s->last_id, s->id_buf, sizeof s->last_id);
     int rc = 0;
     if (s->have_data) {
         /* the data buffer holds "line\n" per data line: drop the last "\n" */
@@ -88,8 +89,14 @@ static int process_line(mrc_sse *s)
         s->data_len += value_len;
         s->data[s->data_len++] = '\n';
         s->have_data = true;
+    } else if (name_len == 2 && memcmp(line, "id", 2) == 0) {
+        /* an id with a NUL is ignored (spec); one too long for us too */
+        if (!memchr(value, '\0', value_len) && value_len < sizeof s->id_buf) {
+            memcpy(s->id_buf, value, value_len);
+            s->id_buf[value_len] = '\0';
+        }
     }
-    /* "id", "retry" and unknown fields: nothing the client needs */
+    /* "retry" and unknown fields: nothing the client needs */
     return 0;
 }
 

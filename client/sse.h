@@ -5,8 +5,10 @@
  * Bytes arrive in arbitrary chunks from libcurl; the parser joins lines
  * across chunks (CR, LF and CRLF endings, also a CRLF split between two
  * chunks), collects "event:" and "data:" fields and calls the handler once
- * per complete event. Comments (":" lines, used as keep-alives), "id:" and
- * "retry:" are ignored. Lines and events have size caps so a misbehaving
+ * per complete event. Comments (":" lines, used as keep-alives) and
+ * "retry:" are ignored; "id:" is kept as the stream's last event id (what
+ * a resumed stream sends back as Last-Event-ID), as the WHATWG HTML
+ * specification's event stream interpretation says. Lines and events have size caps so a misbehaving
  * server cannot make the client grow without bound.
  */
 #ifndef MRC_SSE_H
@@ -31,6 +33,8 @@ typedef struct mrc_sse {
     char *data;          /* data lines of the event being assembled */
     size_t data_len, data_cap;
     char event[64];
+    char id_buf[64];     /* the id field of the event being assembled */
+    char last_id[64];    /* set from id_buf when an event is dispatched; "" until one had an id */
     bool have_data;
     bool after_cr;       /* the last byte was CR: an LF right after it is part of the same break */
 } mrc_sse;

@@ -62,6 +62,8 @@ struct mr_event_sub {
     char id[MR_JOB_ID_LEN + 1];
     event_msg *head, *tail;
     size_t queued;
+    int64_t frames_sent;  /* highest frame event id queued: a frame replayed at subscription
+                             is not sent again when its live event follows */
     bool ended;
     void (*notify)(void *user);
     void *notify_user;
@@ -117,10 +119,23 @@ static bool state_is_terminal(mr_job_state s)
     return s == MR_JOB_SUCCEEDED || s == MR_JOB_FAILED || s == MR_JOB_CANCELED;
 }
 
-static void sub_push(mr_event_sub *s, const char *type, const char *json, bool end)
+/* Event ids (the SSE `id:` field, what a client sends back as
+ * Last-Event-ID): the job's done_seq (store.h), the number of frames done
+ * so far in the order they were. A frame event carries its own number;
+ * other events the number of the last frame done before them. A stream
+ * resumed after id N first gets the frame events after N from the store
+ * (mr_events_subscribe), so a dropped client misses no frame. Negative
+ * event_id: no id (a deletion). */
+static void sub_push(mr_event_sub *s, const char *type, const char *json, int64_t event_id,
+                     bool end)
 {
     if (s->ended)
         return;
+    bool is_frame = !strcmp(type, "frame");
+    if (is_frame && event_id <= s->frames_sent)
+        return; /* replayed already */
+    if (is_frame)
+        s->frames_sent = event_id;
     if (s->queued >= MR_EVENT_QUEUE_MAX) {
         /* a subscriber that does not read: end its stream instead of
          * buffering without bound (clients fall back to polling) */
@@ -129,7 +144,7 @@ static void sub_push(mr_event_sub *s, const char *type, const char *json, bool e
             s->notify(s->notify_user);
         return;
     }
-    size_t n = strlen(type) + strlen(json) + 32;
+    size_t n = strlen(type) + strlen(json) + 64;
     event_msg *m = malloc(sizeof *m);
     char *text = malloc(n);
     if (!m || !text) {
@@ -137,7 +152,10 @@ static void sub_push(mr_event_sub *s, const char *type, const char *json, bool e
         free(text);
         s->ended = true; /* out of memory: end the stream rather than lose events silently */
     } else {
-        snprintf(text, n, "event: %s\ndata: %s\n\n", type, json);
+        if (event_id >= 0)
+            snprintf(text, n, "id: %lld\nevent: %s\ndata: %s\n\n", (long long)event_id, type, json);
+        else
+            snprintf(text, n, "event: %s\ndata: %s\n\n", type, json);
         *m = (event_msg){text, NULL};
         if (s->tail)
             s->tail->next = m;
@@ -151,13 +169,21 @@ static void sub_push(mr_event_sub *s, const char *type, const char *json, bool e
         s->notify(s->notify_user);
 }
 
-static void publish(mr_daemon *d, const char *id, const char *type, const char *json, bool end)
+static void publish(mr_daemon *d, const char *id, const char *type, const char *json,
+                    int64_t event_id, bool end)
 {
     pthread_mutex_lock(&d->ev_lock);
     for (mr_event_sub *s = d->subs; s; s = s->next)
         if (strcmp(s->id, id) == 0)
-            sub_push(s, type, json, end);
+            sub_push(s, type, json, event_id, end);
     pthread_mutex_unlock(&d->ev_lock);
+}
+
+static void state_json(const mr_job_record *r, char *json, size_t size)
+{
+    snprintf(json, size,
+             "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}",
+             r->id, mr_job_state_name(r->state), r->frame_count, r->frames_done, r->frames_failed);
 }
 
 /* Publishes the job's current state (from the store). */
@@ -168,13 +194,11 @@ static void publish_state(mr_daemon *d, const char *id)
     if (mr_store_job_get(d->store, id, &r, &err) < 0)
         return;
     char json[1024];
-    snprintf(json, sizeof json,
-             "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}", r.id,
-             mr_job_state_name(r.state), r.frame_count, r.frames_done, r.frames_failed);
-    publish(d, id, "state", json, state_is_terminal(r.state));
+    state_json(&r, json, sizeof json);
+    publish(d, id, "state", json, r.done_seq, state_is_terminal(r.state));
 }
 
-mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id)
+mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id, int64_t last_event_id)
 {
     mr_job_record r;
     mr_error err;
@@ -184,11 +208,8 @@ mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id)
     if (!s)
         return NULL;
     s->d = d;
+    s->frames_sent = last_event_id >= 0 ? last_event_id : 0;
     snprintf(s->id, sizeof s->id, "%s", job_id);
-    char json[1024];
-    snprintf(json, sizeof json,
-             "{\"id\":\"%s\",\"state\":\"%s\",\"frames\":{\"total\":%zu,\"done\":%zu,\"failed\":%zu}}", r.id,
-             mr_job_state_name(r.state), r.frame_count, r.frames_done, r.frames_failed);
     pthread_mutex_lock(&d->ev_lock);
     size_t open = 0;
     for (mr_event_sub *o = d->subs; o; o = o->next)
@@ -198,7 +219,34 @@ mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id)
         free(s);
         return NULL;
     }
-    sub_push(s, "state", json, state_is_terminal(r.state));
+    /* Under ev_lock no event is published meanwhile: the store's word and
+     * the live events that follow it join without a gap (a frame stored
+     * but not yet published is replayed here and skipped when its live
+     * event comes: frames_sent). */
+    bool more = false;
+    if (last_event_id >= 0) {
+        mr_frame_done_record *done = NULL;
+        size_t n = 0, room = MR_EVENT_QUEUE_MAX - 8;
+        if (mr_store_frames_after(d->store, job_id, last_event_id, room + 1, &done, &n, &err) == MR_OK) {
+            more = n > room; /* the rest after a reconnection from the last one sent */
+            for (size_t i = 0; i < n && i < room; i++)
+                sub_push(s, "frame", done[i].stats_json ? done[i].stats_json : "{}", done[i].done_seq,
+                         false);
+        }
+        mr_frame_done_records_free(done, n);
+    }
+    /* the state as it is now (re-read: frames may have finished since;
+     * those still to be published come as live events, their numbers
+     * being above frames_sent) */
+    if (mr_store_job_get(d->store, job_id, &r, &err) == MR_OK) {
+        if (last_event_id < 0)
+            s->frames_sent = r.done_seq; /* a fresh stream starts from now */
+        char json[1024];
+        state_json(&r, json, sizeof json);
+        /* its id: the last frame this stream has sent, so resuming from it
+         * misses none; a replay cut short ends here (the client resumes) */
+        sub_push(s, "state", json, s->frames_sent, more || state_is_terminal(r.state));
+    }
     s->next = d->subs;
     d->subs = s;
     pthread_mutex_unlock(&d->ev_lock);
@@ -392,14 +440,25 @@ int mr_daemon_submit(mr_daemon *d, const char *body, size_t len, const char *ide
     mr_job *job = NULL;
     *existing = false;
     int rc = mr_daemon_check_job(d, body, len, &job, problems, err);
+    const char **ids = NULL;
+    size_t n_ids = 0;
+    if (rc == MR_OK && !(ids = calloc(job->asset_count ? job->asset_count : 1, sizeof *ids)))
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory");
     if (rc == MR_OK) {
+        for (size_t i = 0; i < job->asset_count; i++)
+            if (job->assets[i].id)
+                ids[n_ids++] = job->assets[i].id;
         char hash[65];
         mr_sha256_hex(body, len, hash);
-        rc = mr_store_job_create(d->store, body, len, job->name, job->frame_count, job->priority,
-                                 job->max_retries, idempotency_key, hash, id, existing, err);
+        rc = mr_store_job_create_using(d->store, body, len, job->name, job->frame_count,
+                                       job->priority, job->max_retries, idempotency_key, hash, ids,
+                                       n_ids, id, existing, err);
         if (rc == MR_ERR_NO_SPACE)
             mr_daemon_no_space(d, err->msg);
+        if (rc == MR_ERR_NOT_FOUND) /* an asset deleted since it was resolved */
+            json_errors_add(problems, "/assets", err->msg);
     }
+    free(ids);
     mr_job_free(job);
     if (rc == MR_OK && !*existing) {
         log_line(d, "job=%s queued", id);
@@ -475,7 +534,7 @@ int mr_daemon_delete(mr_daemon *d, const char *id, mr_error *err)
     pthread_mutex_unlock(&d->lock);
     if (rc == MR_OK) {
         log_line(d, "job=%s deleted", id);
-        publish(d, id, "deleted", "{}", true);
+        publish(d, id, "deleted", "{}", -1, true);
     }
     return rc;
 }
@@ -570,10 +629,16 @@ static int run_frame_done(void *user, size_t index, const char *stats_json, cons
         rc = mr_error_set(err, MR_ERR_CANCELLED, "frame %zu cancelled", index);
     else
         rc = mr_store_frame_done(d->store, r->id, index, exr, exr_size, stats_json, err);
+    /* the frame's event id: the job's frames done, this one the last (one
+     * worker stores a job's frames, one at a time) */
+    mr_job_record rec = {0};
+    mr_error ignored;
+    if (rc == MR_OK && mr_store_job_get(d->store, r->id, &rec, &ignored) < 0)
+        rec.done_seq = 0;
     pthread_mutex_unlock(&d->lock);
     if (rc < 0)
         return rc;
-    publish(d, r->id, "frame", stats_json, false);
+    publish(d, r->id, "frame", stats_json, rec.done_seq, false);
     pthread_mutex_lock(&d->lock);
     d->frames_rendered++;
     d->rays += st.rays;
@@ -638,7 +703,9 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     snprintf(json, sizeof json, "%s", s ? s : "{}");
     free(s);
     cJSON_Delete(o);
-    publish(r->d, r->id, "frame_failed", json, false);
+    mr_job_record rec;
+    publish(r->d, r->id, "frame_failed", json,
+            mr_store_job_get(r->d->store, r->id, &rec, &err) == MR_OK ? rec.done_seq : -1, false);
     if (gave_up) {
         r->failed++;
         return MR_FRAME_SKIP;

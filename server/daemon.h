@@ -119,14 +119,19 @@ void mr_daemon_redact(const mr_daemon *d, const char *in, char *out, size_t size
 char *mr_daemon_metrics(mr_daemon *d);
 
 /* Events for one job, as ready-to-send server-sent-event text blocks
- * ("event: frame\ndata: {...}\n\n"). A subscriber first receives a "state"
- * event with the job's current state, then every event published after it;
- * after the job reaches a terminal state the stream ends. */
+ * ("id: 7\nevent: frame\ndata: {...}\n\n"). A subscriber first receives a
+ * "state" event with the job's current state, then every event published
+ * after it; after the job reaches a terminal state the stream ends. Event
+ * ids count the job's frames done, in the order they were: a frame event
+ * carries its own number, the others the last frame's before them. */
 typedef struct mr_event_sub mr_event_sub;
 /* NULL for an unknown job, or when MR_MAX_SUBSCRIBERS (64) streams are
  * already open. A subscriber that lets 1024 events pile up unread has its
- * stream ended. */
-mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id);
+ * stream ended. last_event_id >= 0 resumes a stream (the client's
+ * Last-Event-ID): the frame events after that id come first, from the
+ * store (at most about 1000; with more the stream ends after them and the
+ * client resumes again from the last), then the state. */
+mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id, int64_t last_event_id);
 /* Copies the next pending event into buf (NUL-terminated; a block that does
  * not fit is truncated) and returns its length; 0 when none is pending; -1
  * when the stream has ended (and nothing is pending). Never blocks. */

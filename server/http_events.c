@@ -20,6 +20,7 @@
  */
 #define _GNU_SOURCE /* POLLRDHUP */
 #include <poll.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -178,6 +179,20 @@ enum MHD_Result http_job_events(req *r, struct MHD_Connection *c)
         return res;
     if (atomic_load(&h->stopping))
         return http_send_problem(r, c, P_UNAVAILABLE, NULL, "the daemon is stopping");
+    /* a resumed stream: the id of the last event the client got (the
+     * header EventSource sends, or the query parameter for clients that
+     * cannot set headers) */
+    const char *last = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Last-Event-ID");
+    if (!last)
+        last = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "last_event_id");
+    int64_t last_event_id = -1;
+    if (last) {
+        size_t n = strspn(last, "0123456789");
+        if (n == 0 || n > 18 || last[n])
+            return http_send_problem(r, c, P_BAD_REQUEST, NULL,
+                                     "Last-Event-ID '%.32s' is not an id of this job's events", last);
+        last_event_id = atoll(last);
+    }
     sse_stream *s = calloc(1, sizeof *s);
     char *buf = malloc(EVENT_MAX);
     if (!s || !buf || pthread_mutex_init(&s->mu, NULL) != 0) {
@@ -193,7 +208,7 @@ enum MHD_Result http_job_events(req *r, struct MHD_Connection *c)
     atomic_init(&s->refs, 1);
     atomic_init(&s->last_send_ms, mr_now_ms());
     atomic_init(&s->bytes, 0);
-    s->sub = mr_events_subscribe(h->d, job.id);
+    s->sub = mr_events_subscribe(h->d, job.id, last_event_id);
     if (!s->sub) {
         s->closed = true;
         sse_release(s);

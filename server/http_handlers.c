@@ -1301,7 +1301,20 @@ enum MHD_Result http_asset_put(req *r, struct MHD_Connection *c)
     http_put(doc, "id", cJSON_CreateString(id), &ok);
     http_put(doc, "size", cJSON_CreateNumber((double)r->len), &ok);
     http_put(doc, "existed", cJSON_CreateBool(existed), &ok);
-    return http_send_built(r, c, existed ? MHD_HTTP_OK : MHD_HTTP_CREATED, doc, ok);
+    if (!ok) {
+        cJSON_Delete(doc);
+        return http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+    }
+    /* where the asset is (GET/DELETE /v1/assets/{id}, http_assets.c) */
+    char location[96];
+    snprintf(location, sizeof location, "/v1/assets/%s", id);
+    size_t n = 0;
+    struct MHD_Response *resp = http_json_response(doc, CT_JSON, &n);
+    if (resp && MHD_add_response_header(resp, MHD_HTTP_HEADER_LOCATION, location) != MHD_YES) {
+        MHD_destroy_response(resp);
+        resp = NULL;
+    }
+    return http_send_response(r, c, existed ? MHD_HTTP_OK : MHD_HTTP_CREATED, resp, n);
 }
 
 static enum MHD_Result h_status(req *r, struct MHD_Connection *c, const char *status)

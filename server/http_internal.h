@@ -8,6 +8,7 @@
  *   http_handlers.c the handlers of the job, frame, asset and service routes,
  *                   content negotiation (Accept) and the PNG preview routes
  *                   (their pictures and cache: previews.c);
+ *   http_assets.c   uploaded assets as resources: list, one, delete;
  *   http_frames.c   a job's frames as a collection: the list, and every
  *                   finished frame streamed as one tar archive;
  *   http_events.c   server-sent event streams (GET /v1/jobs/{id}/events) and
@@ -204,6 +205,9 @@ int http_job_stats_doc(mr_http *h, const mr_job_record *rec, cJSON **out, mr_err
 bool http_load_job(req *r, struct MHD_Connection *c, mr_job_record *job, enum MHD_Result *res);
 
 enum MHD_Result http_asset_put(req *r, struct MHD_Connection *c);
+enum MHD_Result http_asset_list(req *r, struct MHD_Connection *c);
+enum MHD_Result http_asset_get(req *r, struct MHD_Connection *c);
+enum MHD_Result http_asset_delete(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_submit(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_list(req *r, struct MHD_Connection *c);
 enum MHD_Result http_job_get(req *r, struct MHD_Connection *c);

@@ -16,6 +16,9 @@
 
 static const route ROUTES[] = {
     {"POST", "/v1/assets", http_asset_put, BODY_ASSET},
+    {"GET", "/v1/assets", http_asset_list, BODY_NONE},
+    {"GET", "/v1/assets/{id}", http_asset_get, BODY_NONE},
+    {"DELETE", "/v1/assets/{id}", http_asset_delete, BODY_NONE},
     {"POST", "/v1/jobs", http_job_submit, BODY_JOB},
     {"GET", "/v1/jobs", http_job_list, BODY_NONE},
     {"GET", "/v1/jobs/{id}", http_job_get, BODY_NONE},

@@ -36,7 +36,7 @@
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
  * step by step and refuses newer ones. */
-#define SCHEMA_VERSION 2
+#define SCHEMA_VERSION 3
 #define STORE_BUSY_MS 5000 /* another process (sqlite3 shell, backup) holding the lock */
 
 /* Columns of a job record, in the order read_job() expects. Done and
@@ -46,7 +46,12 @@
     "j.id, j.name, j.state, j.priority, j.max_retries, j.frame_count, j.created, "       \
     "j.started, j.finished, j.error, "                                                    \
     "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 2), "             \
-    "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 3), j.seq"
+    "(SELECT COUNT(*) FROM frames f WHERE f.job_id = j.id AND f.state = 3), j.seq, j.done_seq"
+
+/* Queued and running jobs that use asset a.id. */
+#define ASSET_ACTIVE                                                                      \
+    "(SELECT COUNT(*) FROM job_assets ja JOIN jobs j ON j.id = ja.job_id "                 \
+    "WHERE ja.asset_id = a.id AND j.state IN (0, 1))"
 
 static const char *const stmt_sql[S_COUNT] = {
     [S_BEGIN] = "BEGIN IMMEDIATE",
@@ -120,11 +125,29 @@ static const char *const stmt_sql[S_COUNT] = {
     /* a render that ended without finishing its frame (a cancel, a stop,
      * a worker gone): the frame is no longer running; no attempt counted */
     [S_FRAMES_RELEASE] = "UPDATE frames SET state = 0 WHERE job_id = ?1 AND state = 1",
-    [S_FRAME_DONE] = "UPDATE frames SET state = 2, error = '', stats_json = ?3 "
+    /* done_seq: the job's frames in the order they were done, for event
+     * streams that resume (mr_store_frames_after); jobs.done_seq counts */
+    [S_FRAME_DONE] = "UPDATE frames SET state = 2, error = '', stats_json = ?3, "
+                     "done_seq = (SELECT done_seq + 1 FROM jobs WHERE id = ?1) "
                      "WHERE job_id = ?1 AND idx = ?2",
-    [S_JOB_PROGRESS] = "UPDATE jobs SET interrupted = 0 WHERE id = ?1 AND interrupted <> 0",
+    [S_JOB_PROGRESS] = "UPDATE jobs SET interrupted = 0, done_seq = done_seq + 1 WHERE id = ?1",
     [S_ASSET_INSERT] = "INSERT OR IGNORE INTO assets(id, size, created) VALUES(?1, ?2, ?3)",
     [S_ASSET_GET] = "SELECT size FROM assets WHERE id = ?1",
+    /* an asset with the number of queued and running jobs that use it */
+    [S_ASSET_ROW] = "SELECT a.id, a.size, a.created, a.last_used, " ASSET_ACTIVE ", a.rowid "
+                    "FROM assets a WHERE a.id = ?1",
+    /* ?1 rowid the page starts below or 0, ?2 rows or -1; newest first */
+    [S_ASSET_LIST] = "SELECT a.id, a.size, a.created, a.last_used, " ASSET_ACTIVE ", a.rowid "
+                     "FROM assets a WHERE ?1 <= 0 OR a.rowid < ?1 ORDER BY a.rowid DESC LIMIT ?2",
+    /* a job uses an uploaded asset: only if it is (still) stored */
+    [S_ASSET_USE] = "INSERT OR IGNORE INTO job_assets(job_id, asset_id) "
+                    "SELECT ?1, id FROM assets WHERE id = ?2",
+    [S_ASSET_TOUCH] = "UPDATE assets SET last_used = ?2 WHERE id = ?1",
+    [S_ASSET_ACTIVE] = "SELECT " ASSET_ACTIVE " FROM assets a WHERE a.id = ?1",
+    [S_ASSET_DELETE] = "DELETE FROM assets WHERE id = ?1",
+    /* a job's frames done after event sequence ?2, in the order they were */
+    [S_FRAMES_AFTER] = "SELECT idx, stats_json, done_seq FROM frames "
+                       "WHERE job_id = ?1 AND state = 2 AND done_seq > ?2 ORDER BY done_seq LIMIT ?3",
 };
 
 /* Version 1. frames.state/jobs.state hold mr_frame_state/mr_job_state.
@@ -166,6 +189,19 @@ static const char schema_v1[] =
 
 static const char schema_v2[] =
     "ALTER TABLE jobs ADD COLUMN interrupted INTEGER NOT NULL DEFAULT 0;";
+
+/* Version 3 (issue 19): which jobs use which uploaded assets (an asset in
+ * use by a queued or running job is not deleted) and when an asset was
+ * last named by a job; the order frames were done in (event ids). */
+static const char schema_v3[] =
+    "CREATE TABLE job_assets("
+    " job_id TEXT NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,"
+    " asset_id TEXT NOT NULL,"
+    " PRIMARY KEY(job_id, asset_id)) WITHOUT ROWID;"
+    "CREATE INDEX job_assets_asset ON job_assets(asset_id);"
+    "ALTER TABLE assets ADD COLUMN last_used REAL NOT NULL DEFAULT 0;"
+    "ALTER TABLE jobs ADD COLUMN done_seq INTEGER NOT NULL DEFAULT 0;"
+    "ALTER TABLE frames ADD COLUMN done_seq INTEGER NOT NULL DEFAULT 0;";
 
 /* ---- names ---------------------------------------------------------------- */
 
@@ -470,6 +506,11 @@ static int migrate(mr_store *st, mr_error *err)
     if (version < 2) {
         /* v2: consecutive starts of a job that the process did not survive */
         rc = exec_sql(st, schema_v2, "upgrade schema to version 2", err);
+        if (rc < 0)
+            goto fail;
+    }
+    if (version < 3) {
+        rc = exec_sql(st, schema_v3, "upgrade schema to version 3", err);
         if (rc < 0)
             goto fail;
     }

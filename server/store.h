@@ -60,6 +60,8 @@ typedef struct mr_job_record {
     double created, started, finished; /* unix seconds; 0 = not yet */
     char error[512];       /* why it failed, or "" */
     int64_t seq;           /* submission order (1, 2, ...): list cursors */
+    int64_t done_seq;      /* frames done so far, counting each once in the order they
+                              were (the last frame event's id) */
 } mr_job_record;
 
 typedef struct mr_frame_record {
@@ -95,6 +97,15 @@ int mr_store_job_create(mr_store *st, const char *json, size_t json_len, const c
                         size_t frame_count, int priority, int max_retries,
                         const char *idempotency_key, const char *body_hash,
                         char id[MR_JOB_ID_LEN + 1], bool *existing, mr_error *err);
+/* mr_store_job_create for a job that names uploaded assets by id: each is
+ * recorded as used by the job (an asset in use by a queued or running job
+ * is not deleted) and its last use set to now, in the same transaction;
+ * MR_ERR_NOT_FOUND when one of them is not stored (any more). */
+int mr_store_job_create_using(mr_store *st, const char *json, size_t json_len, const char *name,
+                              size_t frame_count, int priority, int max_retries,
+                              const char *idempotency_key, const char *body_hash,
+                              const char *const *asset_ids, size_t asset_count,
+                              char id[MR_JOB_ID_LEN + 1], bool *existing, mr_error *err);
 /* MR_ERR_NOT_FOUND for unknown ids. */
 int mr_store_job_get(mr_store *st, const char *id, mr_job_record *out, mr_error *err);
 /* The stored job document (malloc'ed, NUL-terminated); caller frees. */
@@ -155,6 +166,17 @@ int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char
  * path, no query: for listing many frames at once). */
 int mr_store_frame_file(const mr_store *st, const char *id, size_t index, char *path, size_t size,
                         mr_error *err);
+/* A frame done, in the order frames were (for event streams that resume). */
+typedef struct mr_frame_done_record {
+    size_t index;
+    int64_t done_seq;      /* the job's done_seq right after it */
+    char *stats_json;      /* malloc'ed, may be NULL */
+} mr_frame_done_record;
+/* The job's frames done after sequence after (a Last-Event-ID), at most
+ * limit, in the order they were done. Free with mr_frame_done_records_free. */
+int mr_store_frames_after(mr_store *st, const char *id, int64_t after, size_t limit,
+                          mr_frame_done_record **out, size_t *count, mr_error *err);
+void mr_frame_done_records_free(mr_frame_done_record *f, size_t count);
 /* Path of a done frame's EXR file; MR_ERR_NOT_FOUND unless the frame is done. */
 int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, size_t path_size,
                         mr_error *err);
@@ -173,6 +195,26 @@ int mr_store_asset_upload_write(mr_asset_upload *up, const void *data, size_t si
 int mr_store_asset_upload_finish(mr_store *st, mr_asset_upload *up, char id[MR_ASSET_ID_LEN + 1],
                                  bool *existed, mr_error *err);
 void mr_store_asset_upload_abort(mr_asset_upload *up);
+
+/* An uploaded asset as listed. */
+typedef struct mr_asset_record {
+    char id[MR_ASSET_ID_LEN + 1];
+    uint64_t size;
+    double created;        /* first stored, unix seconds */
+    double last_used;      /* last named by a submitted job; 0: never */
+    size_t jobs_active;    /* queued and running jobs that use it */
+    int64_t seq;           /* list cursor */
+} mr_asset_record;
+/* MR_ERR_NOT_FOUND for unknown ids. */
+int mr_store_asset_get(mr_store *st, const char *id, mr_asset_record *out, mr_error *err);
+/* Assets newest first, at most limit (0: all) of those stored before the
+ * one of seq before (0: from the newest); *next is the cursor of the
+ * following page, 0 when there is none. *out is malloc'ed. */
+int mr_store_asset_list(mr_store *st, int64_t before, size_t limit, mr_asset_record **out,
+                        size_t *count, int64_t *next, mr_error *err);
+/* Removes an asset's row and file; MR_ERR_CONFLICT while a queued or
+ * running job uses it, MR_ERR_NOT_FOUND when unknown. */
+int mr_store_asset_delete(mr_store *st, const char *id, mr_error *err);
 
 /* Path of a stored asset; MR_ERR_NOT_FOUND for unknown ids (also for
  * strings that are not 64 lowercase hex digits). */

@@ -161,3 +161,106 @@ int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_si
     }
     return MR_OK;
 }
+
+/* ---- listing and deleting ------------------------------------------------ */
+
+static int asset_row(sqlite3_stmt *s, void *row, mr_error *err)
+{
+    (void)err;
+    mr_asset_record *a = row;
+    memset(a, 0, sizeof *a);
+    store_copy_col(a->id, sizeof a->id, s, 0);
+    a->size = (uint64_t)sqlite3_column_int64(s, 1);
+    a->created = sqlite3_column_double(s, 2);
+    a->last_used = sqlite3_column_double(s, 3);
+    a->jobs_active = (size_t)sqlite3_column_int64(s, 4);
+    a->seq = sqlite3_column_int64(s, 5);
+    return MR_OK;
+}
+
+static int no_asset(mr_error *err, const char *id)
+{
+    char b[72];
+    return mr_error_set(err, MR_ERR_NOT_FOUND, "no asset '%s'", store_printable(id, b));
+}
+
+int mr_store_asset_get(mr_store *st, const char *id, mr_asset_record *out, mr_error *err)
+{
+    if (!mr_hex_is_lower(id, MR_ASSET_ID_LEN))
+        return no_asset(err, id);
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_ASSET_ROW);
+    int rc = store_step_row(st, s, store_bind_text(s, 1, id), "read asset", err);
+    if (rc == 1)
+        rc = asset_row(s, out, err);
+    else if (rc == 0)
+        rc = no_asset(err, id);
+    store_stmt_release(s);
+    pthread_mutex_unlock(&st->lock);
+    return rc;
+}
+
+int mr_store_asset_list(mr_store *st, int64_t before, size_t limit, mr_asset_record **out,
+                        size_t *count, int64_t *next, mr_error *err)
+{
+    *out = NULL;
+    *count = 0;
+    *next = 0;
+    sqlite3_int64 rows_wanted = limit && limit < (size_t)INT64_MAX ? (sqlite3_int64)limit + 1 : -1;
+    store_rows rows = {.elem = sizeof **out, .first_cap = 16, .read = asset_row};
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_ASSET_LIST);
+    int rc = store_read_rows(st, s,
+                             sqlite3_bind_int64(s, 1, before > 0 ? before : 0) |
+                                 sqlite3_bind_int64(s, 2, rows_wanted),
+                             &rows, "assets", err);
+    pthread_mutex_unlock(&st->lock);
+    if (rc < 0) {
+        free(rows.items);
+        return rc;
+    }
+    *out = rows.items;
+    *count = rows.count;
+    if (limit && rows.count > limit) {
+        *count = limit;
+        *next = (*out)[limit - 1].seq;
+    }
+    return MR_OK;
+}
+
+int mr_store_asset_delete(mr_store *st, const char *id, mr_error *err)
+{
+    if (!mr_hex_is_lower(id, MR_ASSET_ID_LEN))
+        return no_asset(err, id);
+    char path[STORE_PATH_MAX];
+    int rc = store_path_join(path, sizeof path, err, "%s/assets/%s", st->dir, id);
+    if (rc < 0)
+        return rc;
+    pthread_mutex_lock(&st->lock);
+    if ((rc = store_tx_begin(st, err)) < 0) {
+        pthread_mutex_unlock(&st->lock);
+        return rc;
+    }
+    sqlite3_stmt *s = store_stmt(st, S_ASSET_ACTIVE);
+    rc = store_step_row(st, s, store_bind_text(s, 1, id), "find asset", err);
+    sqlite3_int64 active = rc == 1 ? sqlite3_column_int64(s, 0) : 0;
+    store_stmt_release(s);
+    if (rc == 0)
+        rc = no_asset(err, id);
+    else if (rc == 1 && active > 0)
+        rc = mr_error_set(err, MR_ERR_CONFLICT, "asset %s is used by %lld queued or running job%s; "
+                          "cancel or delete %s first", id, (long long)active, active == 1 ? "" : "s",
+                          active == 1 ? "it" : "them");
+    else if (rc == 1) {
+        s = store_stmt(st, S_ASSET_DELETE);
+        rc = store_exec_bound(st, s, store_bind_text(s, 1, id), "delete asset", err);
+    }
+    rc = store_tx_end(st, rc, err); /* and unlocks */
+    if (rc < 0)
+        return rc;
+    /* the row first, the file second: a crash in between leaves a file no
+     * row names, which an upload of the same bytes reuses */
+    if (unlink(path) != 0 && errno != ENOENT)
+        return store_io_error(err, "remove asset", path, errno);
+    return MR_OK;
+}

@@ -321,3 +321,48 @@ int mr_store_frame_path(mr_store *st, const char *id, size_t index, char *path, 
         path[0] = '\0';
     return rc;
 }
+
+/* ---- frames in the order they were done ---------------------------------- */
+
+static int done_row(sqlite3_stmt *s, void *row, mr_error *err)
+{
+    mr_frame_done_record *f = row;
+    memset(f, 0, sizeof *f);
+    f->index = (size_t)sqlite3_column_int64(s, 0);
+    const unsigned char *t = sqlite3_column_text(s, 1);
+    if (t && !(f->stats_json = mr_memdup_str(t, (size_t)sqlite3_column_bytes(s, 1))))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory reading frames");
+    f->done_seq = sqlite3_column_int64(s, 2);
+    return MR_OK;
+}
+
+int mr_store_frames_after(mr_store *st, const char *id, int64_t after, size_t limit,
+                          mr_frame_done_record **out, size_t *count, mr_error *err)
+{
+    *out = NULL;
+    *count = 0;
+    if (!store_valid_job_id(id))
+        return store_no_job(err, id);
+    store_rows rows = {.elem = sizeof **out, .first_cap = 16, .read = done_row};
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_FRAMES_AFTER);
+    int rc = store_read_rows(st, s,
+                             store_bind_text(s, 1, id) | sqlite3_bind_int64(s, 2, after) |
+                                 sqlite3_bind_int64(s, 3, limit ? (sqlite3_int64)limit : -1),
+                             &rows, "frames done", err);
+    pthread_mutex_unlock(&st->lock);
+    if (rc < 0) {
+        mr_frame_done_records_free(rows.items, rows.count);
+        return rc;
+    }
+    *out = rows.items;
+    *count = rows.count;
+    return MR_OK;
+}
+
+void mr_frame_done_records_free(mr_frame_done_record *f, size_t count)
+{
+    for (size_t i = 0; f && i < count; i++)
+        free(f[i].stats_json);
+    free(f);
+}

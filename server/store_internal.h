@@ -54,6 +54,13 @@ enum stmt_id {
     S_JOB_PROGRESS,
     S_ASSET_INSERT,
     S_ASSET_GET,
+    S_ASSET_ROW,
+    S_ASSET_LIST,
+    S_ASSET_USE,
+    S_ASSET_TOUCH,
+    S_ASSET_ACTIVE,
+    S_ASSET_DELETE,
+    S_FRAMES_AFTER,
     S_COUNT
 };
 

@@ -78,6 +78,51 @@ int mr_store_job_create(mr_store *st, const char *json, size_t json_len, const c
                         const char *idempotency_key, const char *body_hash,
                         char id[MR_JOB_ID_LEN + 1], bool *existing, mr_error *err)
 {
+    return mr_store_job_create_using(st, json, json_len, name, frame_count, priority, max_retries,
+                                     idempotency_key, body_hash, NULL, 0, id, existing, err);
+}
+
+/* Records that job uses each of the assets, and their last use (lock and
+ * transaction held). */
+static int record_asset_uses(mr_store *st, const char *job, const char *const *ids, size_t n,
+                             mr_error *err)
+{
+    double now = store_now();
+    for (size_t i = 0; i < n; i++) {
+        sqlite3_stmt *s = store_stmt(st, S_ASSET_USE);
+        int rc = store_exec_bound(st, s,
+                                  sqlite3_bind_text(s, 1, job, -1, SQLITE_STATIC) |
+                                      store_bind_text(s, 2, ids[i]),
+                                  "record asset use", err);
+        if (rc < 0)
+            return rc;
+        if (sqlite3_changes(st->db) == 0) {
+            /* none inserted: a second name for the same asset, or gone */
+            s = store_stmt(st, S_ASSET_GET);
+            rc = store_step_row(st, s, store_bind_text(s, 1, ids[i]), "find asset", err);
+            store_stmt_release(s);
+            if (rc < 0)
+                return rc;
+            if (rc == 0) {
+                char b[72];
+                return mr_error_set(err, MR_ERR_NOT_FOUND, "no uploaded asset '%s' (deleted meanwhile?)",
+                                    store_printable(ids[i], b));
+            }
+        }
+        s = store_stmt(st, S_ASSET_TOUCH);
+        if ((rc = store_exec_bound(st, s, store_bind_text(s, 1, ids[i]) | sqlite3_bind_double(s, 2, now),
+                                   "record asset use", err)) < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
+int mr_store_job_create_using(mr_store *st, const char *json, size_t json_len, const char *name,
+                              size_t frame_count, int priority, int max_retries,
+                              const char *idempotency_key, const char *body_hash,
+                              const char *const *asset_ids, size_t asset_count,
+                              char id[MR_JOB_ID_LEN + 1], bool *existing, mr_error *err)
+{
     if (existing)
         *existing = false;
     if (!st || !id || !json)
@@ -169,6 +214,8 @@ int mr_store_job_create(mr_store *st, const char *json, size_t json_len, const c
     store_stmt_release(s);
     if (rc < 0)
         goto done;
+    if ((rc = record_asset_uses(st, new_id, asset_ids, asset_count, err)) < 0)
+        goto done;
 
     if (keyed) {
         s = store_stmt(st, S_IDEM_INSERT);
@@ -202,6 +249,7 @@ static void read_job(sqlite3_stmt *s, mr_job_record *r)
     r->frames_done = (size_t)sqlite3_column_int64(s, 10);
     r->frames_failed = (size_t)sqlite3_column_int64(s, 11);
     r->seq = sqlite3_column_int64(s, 12);
+    r->done_seq = sqlite3_column_int64(s, 13);
 }
 
 static int job_row(sqlite3_stmt *s, void *row, mr_error *err)

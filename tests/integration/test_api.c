@@ -637,6 +637,70 @@ static void test_frames_collection_and_caching(void **state)
     http_free(&r);
 }
 
+/* The ids of the "frame" events of an event stream's text, in order. */
+static int frame_event_ids(const char *text, long long *ids, int max)
+{
+    int n = 0;
+    for (const char *p = text; (p = strstr(p, "id: ")) && n < max; p += 4) {
+        long long id = atoll(p + 4);
+        const char *nl = strchr(p, '\n');
+        if (nl && !strncmp(nl + 1, "event: frame\n", 13))
+            ids[n++] = id;
+    }
+    return n;
+}
+
+/* Event streams carry ids (the job's frames done, in order) and a stream
+ * resumed with Last-Event-ID gets the frame events it missed, then the
+ * state (whose id is the last frame's). */
+static void test_event_stream_resumes(void **state)
+{
+    (void)state;
+    char *job = fx_small_job(5, 48, NULL), id[64], path[160];
+    fx_submit(&D, job, id);
+    free(job);
+    snprintf(path, sizeof path, "/v1/jobs/%s/events", id);
+    /* live: every frame event, ids 1..6 in order, and the final state */
+    http_result r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    long long ids[16];
+    int n = frame_event_ids(r.body, ids, 16);
+    cJSON *j = fx_wait_job(&D, id, 60);
+    cJSON_Delete(j);
+    /* the stream began after the submission: frames done before it are not
+     * events of it, the later ones are, numbered in order */
+    for (int i = 1; i < n; i++)
+        assert_true(ids[i] == ids[i - 1] + 1);
+    assert_true(n == 0 || ids[n - 1] == 6);
+    assert_non_null(strstr(r.body, "id: 6\nevent: state\n"));
+    http_free(&r);
+
+    /* resumed after the second frame: frames 3..6, then the state */
+    r = http(&D, "GET", path, NULL, 0, "Last-Event-ID: 2");
+    assert_int_equal(r.status, 200);
+    n = frame_event_ids(r.body, ids, 16);
+    assert_int_equal(n, 4);
+    for (int i = 0; i < 4; i++)
+        assert_true(ids[i] == 3 + i);
+    assert_non_null(strstr(r.body, "id: 6\nevent: state\n"));
+    assert_non_null(strstr(r.body, "\"state\":\"succeeded\""));
+    http_free(&r);
+    /* from the start: all six; the same with the query parameter */
+    snprintf(path, sizeof path, "/v1/jobs/%s/events?last_event_id=0", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(frame_event_ids(r.body, ids, 16), 6);
+    http_free(&r);
+    /* a fresh stream of a finished job: its state, nothing replayed */
+    snprintf(path, sizeof path, "/v1/jobs/%s/events", id);
+    r = http(&D, "GET", path, NULL, 0, NULL);
+    assert_int_equal(frame_event_ids(r.body, ids, 16), 0);
+    assert_non_null(strstr(r.body, "id: 6\nevent: state\n"));
+    http_free(&r);
+    r = http(&D, "GET", path, NULL, 0, "Last-Event-ID: seven");
+    assert_int_equal(r.status, 400);
+    http_free(&r);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -666,6 +730,7 @@ int main(void)
         cmocka_unit_test(test_status_rule_over_malformed_table),
         cmocka_unit_test(test_dry_run),
         cmocka_unit_test(test_frames_collection_and_caching),
+        cmocka_unit_test(test_event_stream_resumes),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }

@@ -336,7 +336,7 @@ static void test_open_schema(void **state)
     sqlite3_finalize(s);
     assert_int_equal(sqlite3_prepare_v2(db, "PRAGMA user_version", -1, &s, NULL), SQLITE_OK);
     assert_int_equal(sqlite3_step(s), SQLITE_ROW);
-    assert_int_equal(sqlite3_column_int(s, 0), 2);
+    assert_int_equal(sqlite3_column_int(s, 0), 3);
     sqlite3_finalize(s);
 
     /* A newer schema is refused instead of being misread. */
@@ -371,10 +371,15 @@ static void test_open_schema(void **state)
     /* Reopen the fixture's directory for teardown, with the version put back. */
     snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
     assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 2", NULL, NULL, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 3", NULL, NULL, NULL), SQLITE_OK);
     sqlite3_close(db);
     ok(mr_store_open(fx->dir, &fx->st, &err), &err);
 }
+
+/* What version 3 added, taken away again: a file as version 2 wrote it. */
+#define UNDO_V3                                                                                    \
+    "DROP TABLE job_assets; ALTER TABLE assets DROP COLUMN last_used; "                            \
+    "ALTER TABLE jobs DROP COLUMN done_seq; ALTER TABLE frames DROP COLUMN done_seq; "
 
 /* A version-1 file (before crash-loop protection) is upgraded in place:
  * its jobs stay, and the new count works on them. */
@@ -390,7 +395,7 @@ static void test_schema_upgrade_from_v1(void **state)
     snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
     sqlite3 *db = NULL;
     assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, "ALTER TABLE jobs DROP COLUMN interrupted; "
+    assert_int_equal(sqlite3_exec(db, UNDO_V3 "ALTER TABLE jobs DROP COLUMN interrupted; "
                                       "PRAGMA user_version = 1", NULL, NULL, NULL), SQLITE_OK);
     sqlite3_close(db);
 
@@ -400,6 +405,94 @@ static void test_schema_upgrade_from_v1(void **state)
     ok(mr_store_job_claim(fx->st, id, &err), &err);
     ok(mr_store_recover(fx->st, &err), &err); /* max_retries 0: one interrupted start fails it */
     assert_int_equal(get_job(fx->st, job).state, MR_JOB_FAILED);
+}
+
+/* A version-2 file is upgraded in place: its jobs and done frames stay,
+ * frames done from then on are numbered in order, and its assets can be
+ * used and deleted. */
+static void test_schema_upgrade_from_v2(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char job[MR_JOB_ID_LEN + 1], asset[MR_ASSET_ID_LEN + 1];
+    bool existed;
+    create_job(fx->st, "old", 3, 0, 0, job);
+    ok(mr_store_frame_done(fx->st, job, 0, "exr", 3, "{}", &err), &err);
+    ok(mr_store_asset_put(fx->st, "bytes", 5, asset, &existed, &err), &err);
+    mr_store_close(fx->st);
+    fx->st = NULL;
+    char path[512];
+    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, UNDO_V3 "PRAGMA user_version = 2", NULL, NULL, NULL), SQLITE_OK);
+    sqlite3_close(db);
+
+    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    mr_job_record r = get_job(fx->st, job);
+    assert_int_equal(r.frames_done, 1);
+    assert_true(r.done_seq == 0); /* frames done before the upgrade have no number */
+    ok(mr_store_frame_done(fx->st, job, 2, "exr", 3, "{}", &err), &err);
+    assert_true(get_job(fx->st, job).done_seq == 1);
+    mr_frame_done_record *after = NULL;
+    size_t n = 0;
+    ok(mr_store_frames_after(fx->st, job, 0, 0, &after, &n, &err), &err);
+    assert_int_equal(n, 1);
+    assert_int_equal(after[0].index, 2);
+    mr_frame_done_records_free(after, n);
+    mr_asset_record a;
+    ok(mr_store_asset_get(fx->st, asset, &a, &err), &err);
+    assert_true(a.size == 5 && a.last_used == 0 && a.jobs_active == 0);
+    ok(mr_store_asset_delete(fx->st, asset, &err), &err);
+}
+
+/* Uploaded assets used by jobs: in use while a job that names them is
+ * queued or running (not deleted then), free again once it ended; the list
+ * pages newest first. */
+static void test_asset_use_list_delete(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char a[MR_ASSET_ID_LEN + 1], b[MR_ASSET_ID_LEN + 1], job[MR_JOB_ID_LEN + 1];
+    bool existed, existing;
+    ok(mr_store_asset_put(fx->st, "first", 5, a, &existed, &err), &err);
+    ok(mr_store_asset_put(fx->st, "second", 6, b, &existed, &err), &err);
+    const char *ids[] = {a, a}; /* one asset under two names */
+    ok(mr_store_job_create_using(fx->st, "{}", 2, "uses", 1, 0, 0, NULL, NULL, ids, 2, job, &existing,
+                                 &err), &err);
+    mr_asset_record r;
+    ok(mr_store_asset_get(fx->st, a, &r, &err), &err);
+    assert_int_equal(r.jobs_active, 1);
+    assert_true(r.last_used > 0);
+    assert_int_equal(mr_store_asset_delete(fx->st, a, &err), MR_ERR_CONFLICT);
+    assert_non_null(strstr(err.msg, "used by 1 queued or running job"));
+    mr_asset_record *list = NULL;
+    size_t n = 0;
+    int64_t next = 0;
+    ok(mr_store_asset_list(fx->st, 0, 1, &list, &n, &next, &err), &err);
+    assert_int_equal(n, 1);
+    assert_string_equal(list[0].id, b);
+    assert_true(next > 0);
+    free(list);
+    ok(mr_store_asset_list(fx->st, next, 1, &list, &n, &next, &err), &err);
+    assert_int_equal(n, 1);
+    assert_string_equal(list[0].id, a);
+    assert_true(next == 0);
+    free(list);
+    /* the job ends: the asset is free */
+    ok(mr_store_job_set_state(fx->st, job, MR_JOB_CANCELED, NULL, &err), &err);
+    ok(mr_store_asset_delete(fx->st, a, &err), &err);
+    assert_int_equal(mr_store_asset_get(fx->st, a, &r, &err), MR_ERR_NOT_FOUND);
+    assert_int_equal(mr_store_asset_delete(fx->st, a, &err), MR_ERR_NOT_FOUND);
+    /* a job naming an asset that is gone is refused, and nothing is stored */
+    const char *gone[] = {a};
+    assert_int_equal(mr_store_job_create_using(fx->st, "{}", 2, "late", 1, 0, 0, NULL, NULL, gone, 1,
+                                               job, &existing, &err),
+                     MR_ERR_NOT_FOUND);
+    mr_job_record *jobs = NULL;
+    ok(mr_store_job_list(fx->st, &(mr_job_query){.name = "late"}, &jobs, &n, NULL, &err), &err);
+    assert_int_equal(n, 0);
+    free(jobs);
 }
 
 static void test_create_get_list_filter(void **state)
@@ -1442,6 +1535,8 @@ int main(void)
         cmocka_unit_test(test_state_names),
         cmocka_unit_test_setup_teardown(test_open_schema, setup, teardown),
         cmocka_unit_test_setup_teardown(test_schema_upgrade_from_v1, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_schema_upgrade_from_v2, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_asset_use_list_delete, setup, teardown),
         cmocka_unit_test_setup_teardown(test_create_get_list_filter, setup, teardown),
         cmocka_unit_test_setup_teardown(test_set_state_times, setup, teardown),
         cmocka_unit_test_setup_teardown(test_claim_order, setup, teardown),
