@@ -28,7 +28,7 @@ CORE_CFLAGS := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vector
 CFLAGS  := $(CORE_CFLAGS) -Iserver -I/usr/include/cjson
 LDFLAGS := $(SAN)
 CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -ldeflate -lmeshoptimizer -lpng16 -lpthread -lm
-SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd
+SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd -lcurl
 CLIENT_LIBS := -lcurl -lcjson
 TEST_LIBS   := -lcmocka -lcurl
 

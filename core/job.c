@@ -29,6 +29,7 @@ void mr_job_free(mr_job *job)
     if (!job)
         return;
     free(job->name);
+    free(job->notify);
     if (job->assets)
         for (size_t i = 0; i < job->asset_count; i++) {
             free(job->assets[i].name);

@@ -99,6 +99,10 @@ double mr_now(void);
 /* "1.5 GiB", "320.0 KiB", "12 bytes" (binary units, one decimal). */
 #define MR_BYTES_TEXT 24
 void mr_format_bytes(size_t bytes, char *out, size_t size);
+/* t (unix seconds) as RFC 3339 in UTC with milliseconds,
+ * "2025-01-31T09:05:03.250Z"; false (out untouched) for times before 1970,
+ * after 9999 or a buffer too small. */
+bool mr_format_rfc3339(double t, char *out, size_t size);
 /* The same clock in whole milliseconds, for integer deadlines. */
 int64_t mr_now_ms(void);
 
@@ -1019,6 +1023,7 @@ typedef struct mr_job {
     char *name;
     int priority;            /* queue order in the daemon: higher first (default 0) */
     int max_retries;         /* failed attempts allowed per frame (default 2) */
+    char *notify;            /* the daemon POSTs the final state here (http(s) URL); NULL: none */
     size_t asset_count, object_count, light_count;
     mr_asset_desc *assets;
     mr_object_desc *objects;

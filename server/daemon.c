@@ -24,8 +24,11 @@
 #include <unistd.h>
 #include <time.h>
 
+#include <curl/curl.h>
+
 #include "cache.h"
 #include "http.h"
+#include "notify.h"
 #include "import_worker.h"
 #include "render_proc.h"
 #include "space_guard.h"
@@ -97,6 +100,9 @@ struct mr_daemon {
 
     pthread_mutex_t ev_lock;
     mr_event_sub *subs;
+
+    mr_notifier *notifier; /* completion notifications (notify.h) */
+    bool curl_ready;
 };
 
 static void log_line(const mr_daemon *d, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -196,6 +202,57 @@ static void publish_state(mr_daemon *d, const char *id)
     char json[1024];
     state_json(&r, json, sizeof json);
     publish(d, id, "state", json, r.done_seq, state_is_terminal(r.state));
+}
+
+static void notify_log(void *user, const char *line)
+{
+    log_line(user, "%s", line);
+}
+
+/* A job reached its final state: POST it to the job's notify URL, if it
+ * names one (notify.h). */
+static void notify_final(mr_daemon *d, const char *id)
+{
+    mr_job_record r;
+    mr_error err;
+    char *json = NULL;
+    if (!d->notifier || mr_store_job_get(d->store, id, &r, &err) < 0 || !state_is_terminal(r.state) ||
+        mr_store_job_json(d->store, id, &json, &err) < 0)
+        return;
+    cJSON *doc = cJSON_Parse(json);
+    free(json);
+    const cJSON *url = cJSON_GetObjectItemCaseSensitive(doc, "notify");
+    if (cJSON_IsString(url)) {
+        char when[40], location[64], shown[sizeof r.error];
+        mr_daemon_redact(d, r.error, shown, sizeof shown);
+        snprintf(location, sizeof location, "/v1/jobs/%s", r.id);
+        cJSON *body = cJSON_CreateObject(), *frames = cJSON_CreateObject();
+        cJSON_AddStringToObject(body, "id", r.id);
+        cJSON_AddStringToObject(body, "name", r.name);
+        cJSON_AddStringToObject(body, "state", mr_job_state_name(r.state));
+        cJSON_AddNumberToObject(frames, "total", (double)r.frame_count);
+        cJSON_AddNumberToObject(frames, "done", (double)r.frames_done);
+        cJSON_AddNumberToObject(frames, "failed", (double)r.frames_failed);
+        cJSON_AddItemToObject(body, "frames", frames);
+        cJSON_AddNumberToObject(body, "finished", r.finished);
+        if (mr_format_rfc3339(r.finished, when, sizeof when))
+            cJSON_AddStringToObject(body, "finished_at", when);
+        else
+            cJSON_AddNullToObject(body, "finished_at");
+        if (shown[0])
+            cJSON_AddStringToObject(body, "error", shown);
+        else
+            cJSON_AddNullToObject(body, "error");
+        cJSON_AddStringToObject(body, "location", location);
+        char *text = cJSON_PrintUnformatted(body);
+        if (text)
+            mr_notifier_send(d->notifier, url->valuestring, text);
+        else
+            log_line(d, "job=%s: out of memory, its notification is not sent", id);
+        free(text);
+        cJSON_Delete(body);
+    }
+    cJSON_Delete(doc);
 }
 
 mr_event_sub *mr_events_subscribe(mr_daemon *d, const char *job_id, int64_t last_event_id)
@@ -495,6 +552,7 @@ int mr_daemon_cancel(mr_daemon *d, const char *id, mr_error *err)
     if (rc == MR_OK) {
         log_line(d, "job=%s canceled", id);
         publish_state(d, id);
+        notify_final(d, id);
     }
     return rc;
 }
@@ -716,7 +774,7 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
 /* Moves a running job to its final state, unless a cancel (or anything
  * else) changed it meanwhile: under d->lock, like every state change a
  * request makes, so the last word is the user's. */
-static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const char *why)
+static bool finish_job(mr_daemon *d, const char *id, mr_job_state state, const char *why)
 {
     mr_error err;
     mr_job_record rec;
@@ -725,11 +783,13 @@ static void finish_job(mr_daemon *d, const char *id, mr_job_state state, const c
         mr_daemon_redact(d, why, shown, sizeof shown);
     pthread_mutex_lock(&d->lock);
     int rc = mr_store_job_get(d->store, id, &rec, &err);
-    if (rc == MR_OK && rec.state == MR_JOB_RUNNING)
+    bool changed = rc == MR_OK && rec.state == MR_JOB_RUNNING;
+    if (changed)
         rc = mr_store_job_set_state(d->store, id, state, why ? shown : NULL, &err);
     pthread_mutex_unlock(&d->lock);
     if (rc < 0)
         log_line(d, "job=%s: could not record state %s: %s", id, mr_job_state_name(state), err.msg);
+    return changed && rc == MR_OK;
 }
 
 /* Renders one claimed job to the end (or until cancelled or stopped) in
@@ -807,21 +867,27 @@ static void run_job(mr_daemon *d, mr_render_proc *proc, const char *id, running_
     }
     if (rc < 0)
         goto fail;
+    bool ended;
     if (run.failed > 0) {
         char why[128];
         snprintf(why, sizeof why, "%zu frame%s failed after all retries", run.failed, run.failed == 1 ? "" : "s");
-        finish_job(d, id, MR_JOB_FAILED, why);
+        ended = finish_job(d, id, MR_JOB_FAILED, why);
         log_line(d, "job=%s failed: %s", id, why);
     } else {
-        finish_job(d, id, MR_JOB_SUCCEEDED, NULL);
+        ended = finish_job(d, id, MR_JOB_SUCCEEDED, NULL);
         log_line(d, "job=%s succeeded", id);
     }
     publish_state(d, id);
+    if (ended)
+        notify_final(d, id);
     goto done;
 fail:
-    finish_job(d, id, MR_JOB_FAILED, err.msg); /* a job canceled meanwhile stays canceled */
+    /* a job canceled meanwhile stays canceled (and was notified as such) */
+    ended = finish_job(d, id, MR_JOB_FAILED, err.msg);
     log_line(d, "job=%s failed: %s", id, err.msg);
     publish_state(d, id);
+    if (ended)
+        notify_final(d, id);
 done:
     /* a frame the render did not finish (a cancel killed the worker in it)
      * is not running any more */
@@ -1114,6 +1180,13 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         goto fail;
     }
     d->space_thread_started = true;
+    if (curl_global_init(CURL_GLOBAL_DEFAULT) != CURLE_OK) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "cannot initialise libcurl (notifications)");
+        goto fail;
+    }
+    d->curl_ready = true;
+    if ((rc = mr_notifier_start(notify_log, d, &d->notifier, err)) < 0)
+        goto fail;
     if ((rc = mr_http_start(d, &d->cfg, &d->http, err)) < 0)
         goto fail;
     atomic_store(&d->ready, true);
@@ -1147,6 +1220,10 @@ void mr_daemon_stop(mr_daemon *d)
     if (d->http)
         mr_http_stop(d->http); /* the port closes; event streams end */
     d->http = NULL;
+    mr_notifier_stop(d->notifier); /* after the last job could end */
+    d->notifier = NULL;
+    if (d->curl_ready)
+        curl_global_cleanup();
     free(d->workers);
     if (d->procs)
         for (unsigned i = 0; i < d->cfg.workers; i++)

@@ -22,7 +22,7 @@ static cJSON *time_pair(cJSON *o, const char *num_key, const char *text_key, dou
 {
     char text[40];
     http_put(o, num_key, t > 0 ? cJSON_CreateNumber(t) : cJSON_CreateNull(), ok);
-    http_put(o, text_key, t > 0 && http_rfc3339(t, text, sizeof text) ? cJSON_CreateString(text)
+    http_put(o, text_key, t > 0 && mr_format_rfc3339(t, text, sizeof text) ? cJSON_CreateString(text)
                                                                     : cJSON_CreateNull(), ok);
     return o;
 }

@@ -43,7 +43,7 @@ static cJSON *time_or_null(double t)
 static cJSON *rfc3339_or_null(double t)
 {
     char text[40];
-    return t > 0 && http_rfc3339(t, text, sizeof text) ? cJSON_CreateString(text) : cJSON_CreateNull();
+    return t > 0 && mr_format_rfc3339(t, text, sizeof text) ? cJSON_CreateString(text) : cJSON_CreateNull();
 }
 
 static cJSON *job_json(const mr_job_record *j, bool *ok)

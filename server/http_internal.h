@@ -186,9 +186,6 @@ enum MHD_Result http_send_problem_hdr(req *r, struct MHD_Connection *c, problem_
     __attribute__((format(printf, 6, 7)))
 #endif
     ;
-/* t (unix seconds) as RFC 3339 in UTC with milliseconds,
- * "2025-01-31T09:05:03.250Z"; false when it does not fit. */
-bool http_rfc3339(double t, char *out, size_t size);
 /* s percent-encoded for a query value (RFC 3986 unreserved bytes kept),
  * cut to fit out. */
 void http_url_encode(const char *s, char *out, size_t size);

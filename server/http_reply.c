@@ -6,12 +6,10 @@
  * http_send_response, which counts status classes for /metrics.
  */
 #define _GNU_SOURCE /* asprintf */
-#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
-#include <time.h>
 
 #include "http_internal.h"
 
@@ -277,22 +275,6 @@ enum MHD_Result http_send_error(req *r, struct MHD_Connection *c, int code, cons
     }
 }
 
-
-bool http_rfc3339(double t, char *out, size_t size)
-{
-    if (!(t >= 0 && t < 253402300800.0)) /* years 1970..9999 */
-        return false;
-    time_t whole = (time_t)floor(t);
-    int ms = (int)((t - (double)whole) * 1000.0);
-    if (ms > 999)
-        ms = 999;
-    struct tm tm;
-    char date[32];
-    if (!gmtime_r(&whole, &tm) || strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%S", &tm) == 0)
-        return false;
-    int n = snprintf(out, size, "%s.%03dZ", date, ms);
-    return n > 0 && (size_t)n < size;
-}
 
 void http_url_encode(const char *s, char *out, size_t size)
 {

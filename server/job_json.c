@@ -983,7 +983,27 @@ static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
 
 static const char *const ROOT_FIELDS[] = {"name",   "priority", "max_retries", "assets",
                                           "objects", "lights", "ambient",     "background",
-                                          "camera",  "frames",   "output"};
+                                          "camera",  "frames",   "output",      "notify"};
+
+/* Longest notify URL. */
+#define MAX_NOTIFY_URL 2048
+
+/* "notify": an http:// or https:// URL with a host, of printable ASCII
+ * without spaces (what goes into the daemon's request line). */
+static int parse_notify(mr_json_ctx *c, const cJSON *v, char **out)
+{
+    static const char expect[] = "an http:// or https:// URL of printable ASCII without spaces";
+    if (!cJSON_IsString(v))
+        return json_fail_expected(c, expect, v);
+    const char *u = v->valuestring;
+    size_t n = strlen(u), scheme = !strncmp(u, "http://", 7) ? 7 : !strncmp(u, "https://", 8) ? 8 : 0;
+    bool ok = scheme && n > scheme && n <= MAX_NOTIFY_URL && u[scheme] != '/';
+    for (size_t i = 0; ok && i < n; i++)
+        ok = u[i] > 0x20 && u[i] < 0x7f;
+    if (!ok)
+        return json_fail_expected(c, expect, v);
+    return json_dup_string(c, u, out);
+}
 
 static void set_defaults(mr_job *job)
 {
@@ -1035,6 +1055,9 @@ static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
         if (!c->failed)
             job->max_retries = (int)d;
     }
+    const cJSON *notify = json_field(root, "notify");
+    if (notify)
+        GO_ON_AT_KEY(c, "notify", parse_notify(c, notify, &job->notify));
     if (assets)
         GO_ON_AT_KEY(c, "assets", parse_assets(c, assets, job));
     /* Before "objects": per-frame pose arrays are checked against the count. */

@@ -5,15 +5,20 @@
  * (/readyz 503 while the frame in progress finishes), and the API's
  * further routes and headers.
  */
+#define _GNU_SOURCE /* strcasestr */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <arpa/inet.h>
 #include <cJSON.h>
+#include <netinet/in.h>
 #include <poll.h>
+#include <pthread.h>
 #include <pty.h>
+#include <sys/socket.h>
 
 #include "../support/bad_jobs.h"
 #include "daemon_fixture.h"
@@ -701,6 +706,130 @@ static void test_event_stream_resumes(void **state)
     http_free(&r);
 }
 
+/* A loopback receiver of notifications: answers its first request 500
+ * (so the daemon must retry), the later ones 204, keeping each body and
+ * its X-Microray-Attempt. */
+typedef struct receiver {
+    int fd;
+    unsigned port;
+    pthread_t thread;
+    pthread_mutex_t mu;
+    int count;
+    char bodies[4][2048];
+    int attempts[4];
+} receiver;
+
+static void *receiver_main(void *arg)
+{
+    receiver *rv = arg;
+    for (;;) {
+        int c = accept(rv->fd, NULL, NULL);
+        if (c < 0)
+            return NULL; /* shut down */
+        char buf[8192];
+        size_t len = 0;
+        char *body = NULL;
+        long want = -1;
+        while (len < sizeof buf - 1) {
+            ssize_t n = read(c, buf + len, sizeof buf - 1 - len);
+            if (n <= 0)
+                break;
+            len += (size_t)n;
+            buf[len] = '\0';
+            char *end = strstr(buf, "\r\n\r\n");
+            if (end && want < 0) {
+                const char *cl = strcasestr(buf, "Content-Length:");
+                want = cl ? atol(cl + 15) : 0;
+                body = end + 4;
+            }
+            if (body && (long)(buf + len - body) >= want)
+                break;
+        }
+        pthread_mutex_lock(&rv->mu);
+        int k = rv->count++;
+        if (k < 4 && body) {
+            snprintf(rv->bodies[k], sizeof rv->bodies[k], "%s", body);
+            const char *a = strcasestr(buf, "X-Microray-Attempt:");
+            rv->attempts[k] = a ? atoi(a + 19) : 0;
+        }
+        pthread_mutex_unlock(&rv->mu);
+        const char *answer = k == 0 ? "HTTP/1.1 500 Not Now\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+                                    : "HTTP/1.1 204 No Content\r\nConnection: close\r\n\r\n";
+        ssize_t w = write(c, answer, strlen(answer));
+        (void)w;
+        close(c);
+    }
+}
+
+static void receiver_start(receiver *rv)
+{
+    memset(rv, 0, sizeof *rv);
+    pthread_mutex_init(&rv->mu, NULL);
+    rv->fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t al = sizeof a;
+    assert_int_equal(bind(rv->fd, (struct sockaddr *)&a, sizeof a), 0);
+    assert_int_equal(listen(rv->fd, 8), 0);
+    getsockname(rv->fd, (struct sockaddr *)&a, &al);
+    rv->port = ntohs(a.sin_port);
+    pthread_create(&rv->thread, NULL, receiver_main, rv);
+}
+
+static int receiver_count(receiver *rv)
+{
+    pthread_mutex_lock(&rv->mu);
+    int n = rv->count;
+    pthread_mutex_unlock(&rv->mu);
+    return n;
+}
+
+static void receiver_stop(receiver *rv)
+{
+    shutdown(rv->fd, SHUT_RDWR);
+    close(rv->fd);
+    pthread_join(rv->thread, NULL);
+    pthread_mutex_destroy(&rv->mu);
+}
+
+/* A job's notify URL gets its final state POSTed, retried with backoff
+ * after a failed attempt (the receiver answers the first one 500). */
+static void test_notify_on_completion(void **state)
+{
+    (void)state;
+    receiver rv;
+    receiver_start(&rv);
+    char extra[128], id[64];
+    snprintf(extra, sizeof extra, "\"notify\":\"http://127.0.0.1:%u/hook?x=1\",", rv.port);
+    char *job = fx_small_job(1, 48, extra);
+    fx_submit(&D, job, id);
+    free(job);
+    cJSON *j = fx_wait_job(&D, id, 60);
+    assert_string_equal(state_of(j), "succeeded");
+    cJSON_Delete(j);
+    /* the retry comes after 1 s; the bound is the backoff's total, not a timing */
+    for (int i = 0; i < 600 && receiver_count(&rv) < 2; i++)
+        fx_sleep_ms(100);
+    receiver_stop(&rv);
+    assert_int_equal(rv.count, 2);
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(rv.attempts[k], k + 1);
+        cJSON *b = cJSON_Parse(rv.bodies[k]);
+        assert_non_null(b);
+        assert_string_equal(cJSON_GetObjectItem(b, "id")->valuestring, id);
+        assert_string_equal(cJSON_GetObjectItem(b, "state")->valuestring, "succeeded");
+        assert_int_equal(cJSON_GetObjectItem(cJSON_GetObjectItem(b, "frames"), "done")->valueint, 2);
+        assert_true(cJSON_IsString(cJSON_GetObjectItem(b, "finished_at")));
+        cJSON_Delete(b);
+    }
+    /* a URL that is not http(s) is refused at submission */
+    job = fx_small_job(1, 48, "\"notify\":\"file:///etc/passwd\",");
+    http_result r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
+    free(job);
+    assert_int_equal(r.status, 422);
+    assert_non_null(strstr(r.body, "\"pointer\":\"/notify\""));
+    http_free(&r);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -731,6 +860,7 @@ int main(void)
         cmocka_unit_test(test_dry_run),
         cmocka_unit_test(test_frames_collection_and_caching),
         cmocka_unit_test(test_event_stream_resumes),
+        cmocka_unit_test(test_notify_on_completion),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }

@@ -424,13 +424,16 @@ static void test_daemon_fields(void **state)
 {
     (void)state;
     mr_job *job = parse_ok("{'assets':{'m':{'id':'" "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef" "'}},"
-                           "'objects':[{'asset':'m'}]," CAMERA "," FRAMES ",'priority':-7,'max_retries':0}");
+                           "'objects':[{'asset':'m'}]," CAMERA "," FRAMES ",'priority':-7,'max_retries':0,"
+                           "'notify':'https://farm.example:8443/hooks/render?job=1'}");
     assert_null(job->assets[0].path);
     assert_string_equal(job->assets[0].id, "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef");
     assert_int_equal(job->priority, -7);
     assert_int_equal(job->max_retries, 0);
+    assert_string_equal(job->notify, "https://farm.example:8443/hooks/render?job=1");
     mr_job_free(job);
     job = parse_ok("{" BASE "}");
+    assert_null(job->notify);
     assert_null(job->assets[0].id);
     assert_int_equal(job->priority, 0);
     assert_int_equal(job->max_retries, 2);
