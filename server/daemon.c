@@ -29,6 +29,7 @@
 #include "cache.h"
 #include "http.h"
 #include "notify.h"
+#include "proc_stats.h"
 #include "import_worker.h"
 #include "render_proc.h"
 #include "space_guard.h"
@@ -977,7 +978,7 @@ char *mr_daemon_metrics(mr_daemon *d)
         cs.entries += one.entries;
         cs.saved_s += one.saved_s;
     }
-    size_t cap = 8192, len = 0;
+    size_t cap = 16384 + (size_t)d->worker_count * 256, len = 0;
     char *out = malloc(cap);
     if (!out)
         return NULL;
@@ -1027,6 +1028,61 @@ char *mr_daemon_metrics(mr_daemon *d)
     EMIT("# HELP microray_cache_saved_seconds_total Import time saved by cache hits.\n"
          "# TYPE microray_cache_saved_seconds_total counter\nmicroray_cache_saved_seconds_total %.6f\n",
          cs.saved_s);
+    /* the queue and the workers */
+    uint64_t queued_frames = 0;
+    mr_store_queue_frames(d->store, &queued_frames, &err);
+    unsigned busy = 0;
+    pthread_mutex_lock(&d->lock);
+    for (running_job *r = d->running; r; r = r->next)
+        busy++;
+    pthread_mutex_unlock(&d->lock);
+    EMIT("# HELP microray_queue_jobs Jobs waiting for a worker.\n# TYPE microray_queue_jobs gauge\n"
+         "microray_queue_jobs %llu\n", (unsigned long long)counts[MR_JOB_QUEUED]);
+    EMIT("# HELP microray_queue_frames Frames still to render, of queued and running jobs.\n"
+         "# TYPE microray_queue_frames gauge\nmicroray_queue_frames %llu\n",
+         (unsigned long long)queued_frames);
+    EMIT("# HELP microray_workers Render worker slots (--workers).\n# TYPE microray_workers gauge\n"
+         "microray_workers %u\n", d->worker_count);
+    EMIT("# HELP microray_workers_busy Worker slots rendering a job now.\n"
+         "# TYPE microray_workers_busy gauge\nmicroray_workers_busy %u\n", busy);
+    EMIT("# HELP microray_build_info The daemon's version.\n# TYPE microray_build_info gauge\n"
+         "microray_build_info{version=\"%s\"} 1\n", MR_VERSION_STRING);
+    /* the daemon's process (the client libraries' standard names) */
+    mr_proc_stats ps;
+    if (mr_proc_stats_read(0, &ps)) {
+        EMIT("# HELP process_cpu_seconds_total User and system CPU time of the daemon.\n"
+             "# TYPE process_cpu_seconds_total counter\nprocess_cpu_seconds_total %.2f\n",
+             ps.cpu_seconds);
+        EMIT("# HELP process_resident_memory_bytes Resident memory of the daemon.\n"
+             "# TYPE process_resident_memory_bytes gauge\nprocess_resident_memory_bytes %llu\n",
+             (unsigned long long)ps.resident_bytes);
+        EMIT("# HELP process_virtual_memory_bytes Virtual memory of the daemon.\n"
+             "# TYPE process_virtual_memory_bytes gauge\nprocess_virtual_memory_bytes %llu\n",
+             (unsigned long long)ps.virtual_bytes);
+        EMIT("# HELP process_open_fds Open file descriptors of the daemon.\n"
+             "# TYPE process_open_fds gauge\nprocess_open_fds %u\n", ps.open_fds);
+        EMIT("# HELP process_max_fds The daemon's descriptor limit.\n"
+             "# TYPE process_max_fds gauge\nprocess_max_fds %llu\n", (unsigned long long)ps.max_fds);
+        EMIT("# HELP process_start_time_seconds When the daemon started, unix seconds.\n"
+             "# TYPE process_start_time_seconds gauge\nprocess_start_time_seconds %.2f\n",
+             ps.start_time);
+    }
+    /* each render worker's process (slot = --workers index) */
+    EMIT("# HELP microray_worker_resident_memory_bytes Resident memory of a render worker process.\n"
+         "# TYPE microray_worker_resident_memory_bytes gauge\n");
+    for (unsigned i = 0; i < d->worker_count; i++) {
+        int pid = mr_render_proc_pid(d->procs[i]);
+        if (pid > 0 && mr_proc_stats_read(pid, &ps))
+            EMIT("microray_worker_resident_memory_bytes{slot=\"%u\"} %llu\n", i,
+                 (unsigned long long)ps.resident_bytes);
+    }
+    EMIT("# HELP microray_worker_cpu_seconds_total CPU time of the current render worker process of a slot.\n"
+         "# TYPE microray_worker_cpu_seconds_total counter\n");
+    for (unsigned i = 0; i < d->worker_count; i++) {
+        int pid = mr_render_proc_pid(d->procs[i]);
+        if (pid > 0 && mr_proc_stats_read(pid, &ps))
+            EMIT("microray_worker_cpu_seconds_total{slot=\"%u\"} %.2f\n", i, ps.cpu_seconds);
+    }
 #undef EMIT
     return out;
 }

@@ -275,7 +275,7 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
         if (r->drained <= DRAIN_MAX)
             return MHD_YES;
         r->status = MHD_HTTP_CONTENT_TOO_LARGE;
-        atomic_fetch_add(&r->h->responses_4xx, 1);
+        atomic_fetch_add(&r->h->responses[4], 1);
         return MHD_NO;
     }
     if (r->rt->body == BODY_ASSET) {
@@ -308,7 +308,7 @@ static enum MHD_Result take_body(req *r, struct MHD_Connection *c, const char *d
             if (!b) {
                 /* No answer can be queued mid-body: close the connection. */
                 r->status = MHD_HTTP_INTERNAL_SERVER_ERROR;
-                atomic_fetch_add(&r->h->responses_5xx, 1);
+                atomic_fetch_add(&r->h->responses[5], 1);
                 return MHD_NO;
             }
             r->body = b;
@@ -534,8 +534,8 @@ int mr_http_start(mr_daemon *d, const mr_daemon_config *cfg, mr_http **out, mr_e
     }
     atomic_init(&h->stopping, false);
     atomic_init(&h->requests, 0);
-    atomic_init(&h->responses_4xx, 0);
-    atomic_init(&h->responses_5xx, 0);
+    for (int i = 0; i < 6; i++)
+        atomic_init(&h->responses[i], 0);
     /* Defaults of the budget and deadline: daemon.c (apply_defaults). */
     h->max_connections = cfg->max_connections;
     h->request_timeout_s = cfg->request_timeout_s;
@@ -628,6 +628,6 @@ void mr_http_counters_get(const mr_http *h, mr_http_counters *out)
     /* atomic_load needs a non-const object in C11's generic form. */
     mr_http *m = (mr_http *)h;
     out->requests = atomic_load(&m->requests);
-    out->responses_4xx = atomic_load(&m->responses_4xx);
-    out->responses_5xx = atomic_load(&m->responses_5xx);
+    for (int i = 0; i < 6; i++)
+        out->responses[i] = atomic_load(&m->responses[i]);
 }

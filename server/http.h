@@ -21,7 +21,7 @@ void mr_http_stop(mr_http *h);
 /* Counters the front end keeps for /metrics. */
 typedef struct mr_http_counters {
     uint64_t requests;
-    uint64_t responses_4xx, responses_5xx;
+    uint64_t responses[6]; /* by status class: [1] 1xx ... [5] 5xx */
 } mr_http_counters;
 void mr_http_counters_get(const mr_http *h, mr_http_counters *out);
 

@@ -1356,17 +1356,19 @@ enum MHD_Result http_metrics(req *r, struct MHD_Connection *c)
         return http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
     mr_http_counters k;
     mr_http_counters_get(h, &k);
-    char own[1024];
+    char own[1536];
     int n = snprintf(own, sizeof own,
                      "# HELP microray_http_requests_total HTTP requests received.\n"
                      "# TYPE microray_http_requests_total counter\n"
                      "microray_http_requests_total %llu\n"
-                     "# HELP microray_http_responses_total HTTP error responses by status class.\n"
-                     "# TYPE microray_http_responses_total counter\n"
-                     "microray_http_responses_total{class=\"4xx\"} %llu\n"
-                     "microray_http_responses_total{class=\"5xx\"} %llu\n",
-                     (unsigned long long)k.requests, (unsigned long long)k.responses_4xx,
-                     (unsigned long long)k.responses_5xx);
+                     "# HELP microray_http_responses_total HTTP responses sent, by status class.\n"
+                     "# TYPE microray_http_responses_total counter\n",
+                     (unsigned long long)k.requests);
+    for (int cls = 1; cls <= 5 && n > 0 && (size_t)n < sizeof own; cls++)
+        n += snprintf(own + n, sizeof own - (size_t)n, "microray_http_responses_total{class=\"%dxx\"} %llu\n",
+                      cls, (unsigned long long)k.responses[cls]);
+    if (n < 0 || (size_t)n >= sizeof own)
+        n = 0;
     size_t dn = strlen(daemon_text);
     bool nl = dn > 0 && daemon_text[dn - 1] != '\n';
     char *body = malloc(dn + nl + (size_t)n + 1);

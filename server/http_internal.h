@@ -46,7 +46,8 @@ struct mr_http {
     bool has_token;
     uint8_t token_digest[32]; /* SHA-256 of the bearer token (compared, never the token) */
     atomic_bool stopping;
-    _Atomic uint64_t requests, responses_4xx, responses_5xx;
+    _Atomic uint64_t requests;
+    _Atomic uint64_t responses[6]; /* by status class: [2] counts 2xx, ... */
 
     /* Event streams, for the keepalive ticker and for ending them at stop.
      * Lock order: streams_mu, then a stream's mu, then libmicrohttpd's own. */

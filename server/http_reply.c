@@ -117,10 +117,8 @@ enum MHD_Result http_send_response(req *r, struct MHD_Connection *c, unsigned st
     r->answered = true;
     r->status = status;
     r->bytes = bytes;
-    if (status >= 500)
-        atomic_fetch_add(&r->h->responses_5xx, 1);
-    else if (status >= 400)
-        atomic_fetch_add(&r->h->responses_4xx, 1);
+    if (status >= 100 && status < 600)
+        atomic_fetch_add(&r->h->responses[status / 100], 1);
     enum MHD_Result ok = MHD_queue_response(c, status, resp);
     MHD_destroy_response(resp);
     return ok;

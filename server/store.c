@@ -88,6 +88,9 @@ static const char *const stmt_sql[S_COUNT] = {
                         "finished = CASE WHEN ?2 >= 2 THEN ?4 ELSE 0 END WHERE id = ?1",
     [S_CLAIM_PICK] = "SELECT id FROM jobs WHERE state = 0 ORDER BY priority DESC, seq ASC LIMIT 1",
     [S_JOB_COUNTS] = "SELECT state, COUNT(*) FROM jobs GROUP BY state",
+    /* frames still to render: pending or running, of queued or running jobs */
+    [S_QUEUE_FRAMES] = "SELECT COUNT(*) FROM jobs j JOIN frames f ON f.job_id = j.id "
+                       "WHERE j.state IN (0, 1) AND f.state IN (0, 1)",
     /* Recovery, in this order (crash-loop protection): a frame that was
      * running when the process died counts as a failed attempt (?1 the
      * message), and fails once its attempts exceed the job's max_retries;

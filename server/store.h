@@ -221,6 +221,9 @@ int mr_store_asset_delete(mr_store *st, const char *id, mr_error *err);
 int mr_store_asset_path(mr_store *st, const char *id, char *path, size_t path_size,
                         mr_error *err);
 
+/* Frames still to render (pending or running, of queued or running jobs):
+ * the queue's depth in frames, for /metrics. */
+int mr_store_queue_frames(mr_store *st, uint64_t *frames, mr_error *err);
 /* Counts of jobs per state (for /metrics), indexed by mr_job_state. */
 int mr_store_job_counts(mr_store *st, uint64_t counts[5], mr_error *err);
 

@@ -36,6 +36,7 @@ enum stmt_id {
     S_JOB_SET_STATE,
     S_CLAIM_PICK,
     S_JOB_COUNTS,
+    S_QUEUE_FRAMES,
     S_RECOVER_FRAMES,
     S_RECOVER_GIVE_UP,
     S_RECOVER_JOBS,

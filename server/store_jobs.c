@@ -489,3 +489,18 @@ int mr_store_job_counts(mr_store *st, uint64_t counts[5], mr_error *err)
     pthread_mutex_unlock(&st->lock);
     return rc;
 }
+
+int mr_store_queue_frames(mr_store *st, uint64_t *frames, mr_error *err)
+{
+    *frames = 0;
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_QUEUE_FRAMES);
+    int rc = store_step_row(st, s, SQLITE_OK, "count queued frames", err);
+    if (rc == 1) {
+        *frames = (uint64_t)sqlite3_column_int64(s, 0);
+        rc = MR_OK;
+    }
+    store_stmt_release(s);
+    pthread_mutex_unlock(&st->lock);
+    return rc < 0 ? rc : MR_OK;
+}

@@ -830,6 +830,46 @@ static void test_notify_on_completion(void **state)
     http_free(&r);
 }
 
+/* The value of the metric line that starts with name (labels included)
+ * in text; -1 when there is none. */
+static double metric(const char *text, const char *name)
+{
+    for (const char *p = text; (p = strstr(p, name)); p++)
+        if ((p == text || p[-1] == '\n') && p[strlen(name)] == ' ')
+            return atof(p + strlen(name) + 1);
+    return -1;
+}
+
+/* /metrics: queue depth, busy workers, build info, the daemon's process
+ * (resident memory, descriptors, CPU) and its render worker's, responses
+ * counted for every status class. */
+static void test_metrics(void **state)
+{
+    (void)state;
+    http_result r = http(&D, "GET", "/healthz", NULL, 0, NULL);
+    http_free(&r);
+    r = http(&D, "GET", "/v2/nothing", NULL, 0, NULL);
+    http_free(&r);
+    r = http(&D, "GET", "/metrics", NULL, 0, NULL);
+    assert_int_equal(r.status, 200);
+    static const char *const names[] = {"microray_queue_jobs", "microray_queue_frames", "microray_workers",
+                                        "microray_workers_busy", "microray_build_info{version=\"",
+                                        "process_cpu_seconds_total", "process_resident_memory_bytes",
+                                        "process_open_fds", "process_max_fds", "process_start_time_seconds",
+                                        "microray_worker_resident_memory_bytes{slot=\"0\"}"};
+    for (size_t i = 0; i < sizeof names / sizeof *names; i++)
+        if (!strstr(r.body, names[i]))
+            fail_msg("/metrics has no %s:\n%s", names[i], r.body);
+    assert_true(metric(r.body, "microray_workers") == 1);
+    assert_true(metric(r.body, "process_resident_memory_bytes") > 1e6);
+    assert_true(metric(r.body, "process_open_fds") >= 3);
+    assert_true(metric(r.body, "microray_worker_resident_memory_bytes{slot=\"0\"}") > 1e6);
+    assert_true(metric(r.body, "microray_http_responses_total{class=\"2xx\"}") >= 1);
+    assert_true(metric(r.body, "microray_http_responses_total{class=\"4xx\"}") >= 1);
+    assert_true(metric(r.body, "microray_http_responses_total{class=\"3xx\"}") >= 0);
+    http_free(&r);
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -861,6 +901,7 @@ int main(void)
         cmocka_unit_test(test_frames_collection_and_caching),
         cmocka_unit_test(test_event_stream_resumes),
         cmocka_unit_test(test_notify_on_completion),
+        cmocka_unit_test(test_metrics),
     };
     return cmocka_run_group_tests_name("api", tests, setup, teardown);
 }
