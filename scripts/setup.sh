@@ -2,7 +2,8 @@
 # Installs what microray needs, only what is missing:
 #  1. the Debian 12 packages (as root; elsewhere it says what to run), plus
 #     Debian's nodejs and npm when `node` or `npm` is not on the PATH;
-#  2. the schema test tools (ajv-cli, a JSON Schema 2020-12 validator) into
+#  2. the schema test tools (ajv-cli, a JSON Schema 2020-12 validator;
+#     js-yaml; Redocly's OpenAPI linter, @redocly/openapi-core) into
 #     tests/schema/node_modules with `npm ci`, pinned by the committed
 #     tests/schema/package-lock.json. Skipped when the installed tree was
 #     made from the same lock file (a copy of it is kept in node_modules).
