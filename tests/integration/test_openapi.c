@@ -261,6 +261,7 @@ static void concrete(const char *tmpl, char *out, size_t size)
 static void test_routes_match_the_table(void **state)
 {
     (void)state;
+    failures = 0;
     char path[2200];
     snprintf(path, sizeof path, "%s/server/http_routes.c", fx_src_dir);
     char *src = fx_slurp(path, NULL);
@@ -306,6 +307,7 @@ static void test_routes_match_the_table(void **state)
 static void test_operations(void **state)
 {
     (void)state;
+    failures = 0;
     char p[512];
     char *job = fx_small_job(1, 48, NULL);
     /* jobs */
@@ -458,6 +460,7 @@ static long announce_huge_body(const char *method, const char *path, char *ctype
 static void test_methods_and_caps(void **state)
 {
     (void)state;
+    failures = 0;
     const cJSON *item;
     cJSON_ArrayForEach(item, cJSON_GetObjectItemCaseSensitive(API, "paths")) {
         char path[512], want[128] = "", allow[128];
