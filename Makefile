@@ -9,6 +9,9 @@
 #   make fuzz-build  the libFuzzer harnesses of tests/fuzz (clang) into $(BUILD)/fuzz/
 #   make fuzz        run each harness FUZZ_SECONDS (600) long; make fuzz-short: 60 s each
 #                    (make test runs it), both re-running tests/fuzz/crashers first
+#   make man      the manual pages microrayd.1 and microray.1 (from each program's usage table)
+#   make install  binaries, man pages, bash completion, the systemd unit and the example jobs
+#                 under $(DESTDIR)$(PREFIX) (PREFIX /usr/local); make uninstall removes them
 #   make clean
 
 BUILD   ?= build
@@ -58,7 +61,8 @@ FUZZ_SAN     := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit
 FUZZ_SRC     := $(sort $(wildcard tests/fuzz/fuzz_*.c))
 FUZZ_BIN     := $(patsubst tests/fuzz/%.c,$(BUILD)/%,$(FUZZ_SRC))
 
-.PHONY: all setup test check bench run clean tests schema openapi fuzz-build fuzz-bins fuzz fuzz-short
+.PHONY: all setup test check bench run clean tests schema openapi fuzz-build fuzz-bins fuzz fuzz-short \
+        man install uninstall
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
 all: $(BUILD)/microrayd $(CLIENT_BIN)
@@ -145,6 +149,48 @@ run: setup
 schema: all
 	$(BUILD)/microrayd schema schemas/job.schema.json > schemas/job.schema.json.new
 	mv schemas/job.schema.json.new schemas/job.schema.json
+
+# Manual pages and bash completion, printed by the programs from the same
+# tables as their --help (server/usage.c, client/usage.c).
+MAN_PAGES  := $(BUILD)/man/microrayd.1 $(BUILD)/man/microray.1
+COMPLETION := $(BUILD)/completion/microrayd $(BUILD)/completion/microray
+
+man: $(MAN_PAGES)
+
+$(BUILD)/man/%.1: $(BUILD)/%
+	@mkdir -p $(dir $@)
+	$< man > $@.tmp && mv $@.tmp $@
+
+$(BUILD)/completion/%: $(BUILD)/%
+	@mkdir -p $(dir $@)
+	$< completion > $@.tmp && mv $@.tmp $@
+
+PREFIX  ?= /usr/local
+DESTDIR ?=
+BINDIR  := $(PREFIX)/bin
+MANDIR  := $(PREFIX)/share/man/man1
+DATADIR := $(PREFIX)/share/microray
+COMPDIR := $(PREFIX)/share/bash-completion/completions
+UNITDIR ?= $(PREFIX)/lib/systemd/system
+
+install: $(BUILD)/microrayd $(BUILD)/microray $(MAN_PAGES) $(COMPLETION)
+	install -d $(DESTDIR)$(BINDIR) $(DESTDIR)$(MANDIR) $(DESTDIR)$(COMPDIR) $(DESTDIR)$(UNITDIR) \
+	           $(DESTDIR)$(DATADIR)/examples
+	install -m 755 $(BUILD)/microrayd $(BUILD)/microray $(DESTDIR)$(BINDIR)/
+	install -m 644 $(MAN_PAGES) $(DESTDIR)$(MANDIR)/
+	install -m 644 $(COMPLETION) $(DESTDIR)$(COMPDIR)/
+	sed -e 's|@BINDIR@|$(BINDIR)|g' -e 's|@DATADIR@|$(DATADIR)|g' packaging/microrayd.service.in \
+	    > $(DESTDIR)$(UNITDIR)/microrayd.service
+	chmod 644 $(DESTDIR)$(UNITDIR)/microrayd.service
+	install -m 644 packaging/microrayd.default $(DESTDIR)$(DATADIR)/microrayd.default
+	install -m 644 examples/*.json $(DESTDIR)$(DATADIR)/examples/
+
+uninstall:
+	rm -f $(DESTDIR)$(BINDIR)/microrayd $(DESTDIR)$(BINDIR)/microray \
+	      $(DESTDIR)$(MANDIR)/microrayd.1 $(DESTDIR)$(MANDIR)/microray.1 \
+	      $(DESTDIR)$(COMPDIR)/microrayd $(DESTDIR)$(COMPDIR)/microray \
+	      $(DESTDIR)$(UNITDIR)/microrayd.service
+	rm -rf $(DESTDIR)$(DATADIR)
 
 clean:
 	rm -rf build out

@@ -3,6 +3,7 @@
  */
 #define _GNU_SOURCE
 #include "cluster.h"
+#include "usage.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -392,6 +393,7 @@ static int submit_merge(cluster_state *s, const char *partition, const char *tim
 typedef struct submit_opts {
     const char *job, *out, *partition, *time_limit, *microrayd;
     long chunk, threads;
+    bool json; /* the status as JSON instead of the array's id */
 } submit_opts;
 
 static int cluster_submit(const submit_opts *o, bool quiet, mrc_error *err)
@@ -495,7 +497,8 @@ static int cluster_submit(const submit_opts *o, bool quiet, mrc_error *err)
     if ((rc = submit_merge(&s, o->partition, o->time_limit, err)) != 0 ||
         (rc = state_save(&s, err)) != 0)
         goto done;
-    printf("%s\n", s.array);
+    if (!o->json)
+        printf("%s\n", s.array);
     if (!quiet)
         fprintf(stderr, "submitted %ld frames as %ld task%s of %ld (Slurm jobs: prepare %s, "
                 "array %s, merge %s); follow with: microray cluster wait %s\n", s.frames, s.tasks,
@@ -812,12 +815,11 @@ static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
 
 static int usage(void)
 {
-    fputs("usage: microray cluster submit --slurm JOB.json --out DIR --chunk N [--partition P]\n"
-          "                              [--time T] [--threads N] [--microrayd PATH]\n"
-          "       microray cluster status DIR [--json]\n"
-          "       microray cluster wait DIR\n"
-          "See docs/scale.md.\n",
-          stderr);
+    fputs("usage:\n", stderr);
+    static const char *const subs[] = {"cluster submit", "cluster status", "cluster wait"};
+    for (size_t i = 0; i < sizeof subs / sizeof *subs; i++)
+        mrc_usage_command_print(stderr, mrc_usage_find(subs[i]));
+    fputs("See docs/scale.md.\n", stderr);
     return MRC_EXIT_USAGE;
 }
 
@@ -892,7 +894,21 @@ int mrc_cluster_main(int argc, char **argv, bool quiet)
             return usage();
         }
         so.job = dir;
+        so.json = json;
         rc = cluster_submit(&so, quiet, &err);
+        if (rc == 0 && json) { /* what was submitted, as status says it */
+            cluster_state s;
+            char state_dir[4096];
+            snprintf(state_dir, sizeof state_dir, "%s", so.out);
+            if ((rc = state_load(state_dir, &s, &err)) == 0) {
+                snapshot sn;
+                if ((rc = gather(&s, &sn, &err)) == 0) {
+                    print_status(&s, &sn, true);
+                    snapshot_free(&sn);
+                }
+                state_free(&s);
+            }
+        }
     } else if (!strcmp(cmd, "status") || !strcmp(cmd, "wait")) {
         if (!dir || slurm || so.out || so.chunk)
             return usage();
@@ -907,6 +923,11 @@ int mrc_cluster_main(int argc, char **argv, bool quiet)
             }
         } else if (rc == 0) {
             rc = cluster_wait(&s, quiet, &err);
+            snapshot sn;
+            if (json && (rc == 0 || rc == -MRC_EXIT_JOB_FAILED) && gather(&s, &sn, &err) == 0) {
+                print_status(&s, &sn, true);
+                snapshot_free(&sn);
+            }
         }
         state_free(&s);
     } else {

@@ -542,7 +542,8 @@ cleanup:
     return rc;
 }
 
-int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_error *err)
+int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_fetch_result *out,
+                  mrc_error *err)
 {
     int rc = 0;
     follow f = {.http = h, .id = id, .opts = opts};
@@ -576,6 +577,13 @@ int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_
                     f.state[0] ? f.state : "?", f.total);
     }
 cleanup:
+    if (out) {
+        snprintf(out->state, sizeof out->state, "%s", f.state);
+        out->fetched = f.downloaded;
+        out->bytes = f.downloaded_bytes;
+        out->done = f.done;
+        out->total = f.total;
+    }
     follow_free(&f);
     return rc;
 }

@@ -26,8 +26,18 @@ typedef struct mrc_follow_opts {
  * (-MRC_EXIT_JOB_FAILED), or following itself fails (other negatives). */
 int mrc_job_wait(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_error *err);
 
+/* What a fetch did. */
+typedef struct mrc_fetch_result {
+    char state[16];      /* the job's, as seen */
+    int fetched;         /* frames downloaded */
+    int64_t bytes;
+    int done, total;     /* the job's frames done and in all */
+} mrc_fetch_result;
+
 /* Downloads every frame that is done, and stats.json when there is one,
- * into opts->out_dir, whatever the job's state. */
-int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_error *err);
+ * into opts->out_dir, whatever the job's state. out (may be NULL) says
+ * what came. */
+int mrc_job_fetch(mrc_http *h, const char *id, const mrc_follow_opts *opts, mrc_fetch_result *out,
+                  mrc_error *err);
 
 #endif

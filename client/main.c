@@ -13,6 +13,7 @@
 #include "client.h"
 #include "cluster.h"
 #include "jobs.h"
+#include "usage.h"
 
 #include <signal.h>
 #include <stdarg.h>
@@ -25,64 +26,6 @@
 
 #define JOB_FILE_LIMIT ((size_t)64 << 20) /* far above the daemon's cap, which answers 413 */
 #define MAX_POSITIONAL 4
-
-static void usage(FILE *out)
-{
-    fputs(
-        "usage: microray [--server URL] [--token-file FILE] [--quiet] COMMAND [ARGS]\n"
-        "\n"
-        "Submits render jobs to a microrayd daemon and follows and fetches their results.\n"
-        "\n"
-        "Commands:\n"
-        "  submit JOB.json [--wait] [--out DIR [--png]] [--idempotency-key KEY]\n"
-        "                        submit a job (\"-\" reads it from stdin), print its id;\n"
-        "                        --wait follows it to the end with a progress display,\n"
-        "                        --out DIR (implies --wait) downloads DIR/NNNN.exr and\n"
-        "                        DIR/stats.json; --png: 8-bit sRGB previews DIR/NNNN.png\n"
-        "                        and DIR/contact-sheet.png instead of the EXRs\n"
-        "  status ID [--json]    state, frame counts, timestamps and errors of a job\n"
-        "  list [--state S] [--name NAME] [--limit N] [--json]\n"
-        "                        jobs, newest first (every page, or the first N); S is\n"
-        "                        queued, running, succeeded, failed or canceled\n"
-        "  wait ID [--out DIR [--png]]\n"
-        "                        follow a job already submitted, like submit --wait\n"
-        "  fetch ID --out DIR [--png]\n"
-        "                        download the job's finished frames and stats.json\n"
-        "                        (--png: previews and contact sheet, not EXRs)\n"
-        "  cancel ID             cancel a queued or running job\n"
-        "  retry ID              re-queue the unfinished frames of a failed or canceled job\n"
-        "  delete ID             delete a job and its frames on the server\n"
-        "  upload FILE           store a model or image on the server, print its asset id\n"
-        "  health                check the daemon's /healthz and /readyz\n"
-        "  cluster submit --slurm JOB.json --out DIR --chunk N [--partition P] [--time T]\n"
-        "                 [--threads N] [--microrayd PATH]\n"
-        "  cluster status DIR [--json]\n"
-        "  cluster wait DIR      render a job on Slurm instead of a daemon: a job array of\n"
-        "                        chunks of N frames into shared DIR (docs/scale.md)\n"
-        "\n"
-        "Options (anywhere on the line):\n"
-        "  --server URL          the daemon (default: $MICRORAY_SERVER, else " MRC_DEFAULT_SERVER ")\n"
-        "  --token-file FILE     send the bearer token in FILE's first line (default:\n"
-        "                        $MICRORAY_TOKEN) to a daemon started with --token-file\n"
-        "  --quiet, -q           no progress or confirmations (ids and errors still print)\n"
-        "  --help, -h            this help\n"
-        "  --version, -V         the client's version\n"
-        "\n"
-        "Asset paths in a job are resolved on the server, not rewritten. To render a\n"
-        "local model, upload it and name its id in the job:\n"
-        "  microray upload hero.glb   ->   \"assets\": {\"hero\": {\"id\": \"<that id>\"}}\n"
-        "\n"
-        "Exit codes:\n"
-        "  0  success\n"
-        "  1  the job failed or was canceled (submit --wait, wait)\n"
-        "  2  usage error\n"
-        "  3  the server rejected the request (4xx)\n"
-        "  4  the server is unreachable, answered 5xx or answered nonsense\n"
-        "  5  a local file could not be read or written\n"
-        "\n"
-        "See docs/client.md.\n",
-        out);
-}
 
 static int usage_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static int usage_error(const char *fmt, ...)
@@ -105,15 +48,28 @@ typedef struct cmd_args {
     bool wait, json, png;
 } cmd_args;
 
-typedef struct opt_spec {
-    const char *name;
-    const char **value; /* options with a value */
-    bool *flag;         /* flags */
-} opt_spec;
+/* Where the value of an option of the usage table goes. */
+static bool *option_flag(cmd_args *a, const char *name)
+{
+    return !strcmp(name, "--wait") ? &a->wait : !strcmp(name, "--json") ? &a->json
+           : !strcmp(name, "--png")  ? &a->png
+                                     : NULL;
+}
 
-/* Parses one command's arguments against its options. "--name VALUE" and
- * "--name=VALUE" both work; after "--" everything is positional. */
-static int parse_command_args(int argc, char **argv, const opt_spec *specs, int min_pos,
+static const char **option_value(cmd_args *a, const char *name)
+{
+    return !strcmp(name, "--out")               ? &a->out
+           : !strcmp(name, "--idempotency-key") ? &a->idem
+           : !strcmp(name, "--state")           ? &a->state
+           : !strcmp(name, "--limit")           ? &a->limit
+           : !strcmp(name, "--name")            ? &a->name
+                                                : NULL;
+}
+
+/* Parses one command's arguments against its options in the usage table
+ * (usage.h). "--name VALUE" and "--name=VALUE" both work; after "--"
+ * everything is positional. */
+static int parse_command_args(int argc, char **argv, const mrc_usage_command *c, int min_pos,
                               int max_pos, cmd_args *a)
 {
     bool options_done = false;
@@ -125,23 +81,24 @@ static int parse_command_args(int argc, char **argv, const opt_spec *specs, int 
         }
         if (!options_done && arg[0] == '-' && arg[1] != '\0') {
             const char *eq = strchr(arg, '=');
-            size_t name_len = eq ? (size_t)(eq - arg) : strlen(arg);
-            const opt_spec *s = NULL;
-            for (const opt_spec *p = specs; p && p->name; p++)
-                if (strlen(p->name) == name_len && strncmp(p->name, arg, name_len) == 0)
-                    s = p;
-            if (!s)
-                return usage_error("unknown option '%s' for this command", arg);
-            if (s->flag) {
+            char name[64];
+            snprintf(name, sizeof name, "%.*s", (int)(eq ? (size_t)(eq - arg) : strlen(arg)), arg);
+            const mrc_usage_flag *f = mrc_usage_flag_find(c, name);
+            if (!f)
+                return usage_error("unknown option '%s' for %s", arg, c->name);
+            if (!f->arg) {
+                bool *flag = option_flag(a, name);
                 if (eq)
                     return usage_error("option '%s' takes no value", arg);
-                *s->flag = true;
-            } else if (eq) {
-                *s->value = eq + 1;
-            } else if (i + 1 < argc) {
-                *s->value = argv[++i];
+                if (flag)
+                    *flag = true;
             } else {
-                return usage_error("option '%s' needs a value", arg);
+                const char **value = option_value(a, name);
+                if (!eq && i + 1 >= argc)
+                    return usage_error("option '%s' needs a value", arg);
+                const char *v = eq ? eq + 1 : argv[++i];
+                if (value)
+                    *value = v;
             }
             continue;
         }
@@ -166,8 +123,6 @@ typedef struct globals {
 
 static int take_globals(int argc, char **argv, globals *g, char **rest, int *nrest)
 {
-    static const char *const valued[] = {"--out", "--idempotency-key", "--state", "--limit", "--name",
-                                         NULL};
     *nrest = 0;
     for (int i = 1; i < argc; i++) {
         const char *arg = argv[i];
@@ -196,9 +151,8 @@ static int take_globals(int argc, char **argv, globals *g, char **rest, int *nre
             g->version = true;
         } else {
             rest[(*nrest)++] = argv[i];
-            for (const char *const *v = valued; *v; v++)
-                if (strcmp(arg, *v) == 0 && i + 1 < argc)
-                    rest[(*nrest)++] = argv[++i];
+            if (mrc_usage_takes_value(arg) && i + 1 < argc)
+                rest[(*nrest)++] = argv[++i];
         }
     }
     return 0;
@@ -235,6 +189,75 @@ static int set_token(mrc_http *http, const char *file, mrc_error *err)
 
 /* ---- commands ------------------------------------------------------------- */
 
+static void print_json(const cJSON *doc)
+{
+    char *text = cJSON_Print(doc); /* re-serialised: control characters come out escaped */
+    if (text) {
+        puts(text);
+        free(text);
+    }
+}
+
+/* GET /v1/jobs/{id} printed as JSON (--json of status, wait, submit --wait). */
+static int print_job_json(mrc_http *h, const char *id, mrc_error *err)
+{
+    char path[256];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    mrc_response resp = {0};
+    cJSON *job = NULL;
+    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &job, err);
+    if (rc == 0 && job)
+        print_json(job);
+    cJSON_Delete(job);
+    mrc_response_free(&resp);
+    return rc;
+}
+
+/* Ctrl-C while following a job: the job goes on on the server; say how to
+ * follow it again (the text is made before the signal can come: only
+ * write() and _exit() run in the handler). */
+static char interrupt_text[1024];
+static size_t interrupt_len;
+
+static void on_interrupt(int sig)
+{
+    (void)sig;
+    ssize_t w = write(STDERR_FILENO, interrupt_text, interrupt_len);
+    (void)w;
+    _exit(130);
+}
+
+static void arm_interrupt(const char *id, const char *out)
+{
+    int n = snprintf(interrupt_text, sizeof interrupt_text,
+                     "\nmicroray: interrupted; job %s goes on on the server. Follow it again with:\n"
+                     "  microray wait %s%s%s\n"
+                     "or stop it with: microray cancel %s\n",
+                     id, id, out ? " --out " : "", out ? out : "", id);
+    interrupt_len = n > 0 && (size_t)n < sizeof interrupt_text ? (size_t)n : 0;
+    signal(SIGINT, on_interrupt);
+}
+
+/* Follows job id (submit --wait, wait): progress, downloads, and with
+ * --json the job as it ended on stdout. */
+static int follow_job(mrc_http *h, const char *id, const cmd_args *a, bool quiet, mrc_error *err)
+{
+    mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal(),
+                            .png = a->png};
+    arm_interrupt(id, a->out);
+    int rc = mrc_job_wait(h, id, &opts, err);
+    signal(SIGINT, SIG_DFL);
+    if (a->json && (rc == 0 || rc == -MRC_EXIT_JOB_FAILED)) {
+        mrc_error jerr = {0};
+        int jrc = print_job_json(h, id, &jerr);
+        if (jrc < 0) {
+            *err = jerr;
+            rc = jrc;
+        }
+    }
+    return rc;
+}
+
 static int cmd_submit(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err)
 {
     int rc = 0;
@@ -262,27 +285,19 @@ static int cmd_submit(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err
         goto cleanup;
     }
     snprintf(id, sizeof id, "%s", sid);
-    printf("%s\n", id);
+    bool follow = a->wait || a->out;
+    if (!a->json)
+        printf("%s\n", id);
+    else if (!follow)
+        print_json(doc); /* with --wait: the job as it ended, below */
     fflush(stdout);
-    if (a->wait || a->out) {
-        mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal(),
-                                .png = a->png};
-        rc = mrc_job_wait(h, id, &opts, err);
-    }
+    if (follow)
+        rc = follow_job(h, id, a, quiet, err);
 cleanup:
     cJSON_Delete(doc);
     mrc_response_free(&resp);
     free(body);
     return rc;
-}
-
-static void print_json(const cJSON *doc)
-{
-    char *text = cJSON_Print(doc); /* re-serialised: control characters come out escaped */
-    if (text) {
-        puts(text);
-        free(text);
-    }
 }
 
 static const char *safe_str(char *dst, size_t size, const cJSON *obj, const char *key)
@@ -499,6 +514,8 @@ static int cmd_action(mrc_http *h, const char *action, const cmd_args *a, bool q
     mrc_response resp = {0};
     cJSON *doc = NULL;
     int rc = mrc_http_json(h, "POST", path, NULL, 0, NULL, NULL, &resp, &doc, err);
+    if (rc == 0 && a->json)
+        print_json(doc);
     if (rc == 0 && !quiet) {
         safe_str(state, sizeof state, doc, "state");
         if (strcmp(action, "retry") == 0)
@@ -521,6 +538,15 @@ static int cmd_delete(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err
     int rc = mrc_http_request(h, "DELETE", path, NULL, 0, NULL, NULL, &resp, err);
     if (rc == 0)
         rc = mrc_http_check(&resp, err);
+    if (rc == 0 && a->json) {
+        char clean[160];
+        mrc_sanitize(clean, sizeof clean, a->pos[0]);
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "id", clean);
+        cJSON_AddBoolToObject(o, "deleted", true);
+        print_json(o);
+        cJSON_Delete(o);
+    }
     if (rc == 0 && !quiet)
         fprintf(stderr, "job %s deleted\n", a->pos[0]);
     mrc_response_free(&resp);
@@ -544,7 +570,10 @@ static int cmd_upload(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err
         rc = mrc_fail(err, MRC_EXIT_SERVER, "POST /v1/assets: the answer has no asset id");
         goto cleanup;
     }
-    printf("%s\n", id);
+    if (a->json)
+        print_json(doc);
+    else
+        printf("%s\n", id);
     fflush(stdout);
     if (!quiet) {
         char size[32];
@@ -560,28 +589,65 @@ cleanup:
     return rc;
 }
 
-static int cmd_health(mrc_http *h, mrc_error *err)
+static int cmd_health(mrc_http *h, const cmd_args *a, mrc_error *err)
 {
     mrc_response resp = {0};
+    long ready = 0;
     int rc = mrc_http_request(h, "GET", "/healthz", NULL, 0, NULL, NULL, &resp, err);
     if (rc == 0)
         rc = mrc_http_check(&resp, err);
     if (rc < 0)
         goto cleanup;
-    printf("healthz  ok\n");
+    if (!a->json)
+        printf("healthz  ok\n");
     rc = mrc_http_request(h, "GET", "/readyz", NULL, 0, NULL, NULL, &resp, err);
     if (rc < 0)
         goto cleanup;
-    if (resp.status == 200) {
+    ready = resp.status;
+    if (a->json) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "healthz", "ok");
+        cJSON_AddStringToObject(o, "readyz", ready == 200 ? "ready" : "not ready");
+        cJSON_AddNumberToObject(o, "readyz_status", (double)ready);
+        print_json(o);
+        cJSON_Delete(o);
+    } else if (ready == 200) {
         printf("readyz   ready\n");
     } else {
-        printf("readyz   not ready (%ld)\n", resp.status);
+        printf("readyz   not ready (%ld)\n", ready);
+    }
+    if (ready != 200) {
         mrc_http_check(&resp, err);
         rc = -err->code;
     }
 cleanup:
     fflush(stdout);
     mrc_response_free(&resp);
+    return rc;
+}
+
+/* fetch: the frames and stats.json into --out; with --json what came. */
+static int cmd_fetch(mrc_http *h, const cmd_args *a, bool quiet, mrc_error *err)
+{
+    mrc_follow_opts opts = {.out_dir = a->out, .quiet = quiet, .tty = stderr_is_terminal(),
+                            .png = a->png};
+    mrc_fetch_result res = {0};
+    int rc = mrc_job_fetch(h, a->pos[0], &opts, &res, err);
+    if (rc == 0 && a->json) {
+        char clean[160];
+        mrc_sanitize(clean, sizeof clean, a->pos[0]);
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "id", clean);
+        cJSON_AddStringToObject(o, "state", res.state);
+        cJSON_AddStringToObject(o, "out", a->out);
+        cJSON_AddNumberToObject(o, "frames_fetched", res.fetched);
+        cJSON_AddNumberToObject(o, "bytes", (double)res.bytes);
+        cJSON_AddNumberToObject(o, "frames_done", res.done);
+        cJSON_AddNumberToObject(o, "frames_total", res.total);
+        cJSON_AddBoolToObject(o, "png", a->png);
+        print_json(o);
+        cJSON_Delete(o);
+    }
     return rc;
 }
 
@@ -611,7 +677,19 @@ int main(int argc, char **argv)
     if (code)
         goto cleanup;
     if (g.help) {
-        usage(stdout);
+        /* with a command: that command's usage, on stdout, exit 0 */
+        char name[64] = "";
+        if (nrest > 0)
+            snprintf(name, sizeof name, "%s%s%s", rest[0],
+                     nrest > 1 && !strcmp(rest[0], "cluster") ? " " : "",
+                     nrest > 1 && !strcmp(rest[0], "cluster") ? rest[1] : "");
+        const mrc_usage_command *c = mrc_usage_find(name);
+        if (c) {
+            fputs("usage:\n", stdout);
+            mrc_usage_command_print(stdout, c);
+        } else {
+            mrc_usage_all(stdout);
+        }
         goto cleanup;
     }
     if (g.version) {
@@ -621,7 +699,7 @@ int main(int argc, char **argv)
         goto cleanup;
     }
     if (nrest == 0) {
-        usage(stderr);
+        mrc_usage_all(stderr);
         code = MRC_EXIT_USAGE;
         goto cleanup;
     }
@@ -632,42 +710,31 @@ int main(int argc, char **argv)
         code = mrc_cluster_main(cargc, cargv, g.quiet);
         goto cleanup;
     }
-    opt_spec none[] = {{NULL, NULL, NULL}};
-    int min_pos = 1, max_pos = 1;
-    const opt_spec *specs = none;
-    opt_spec submit_specs[] = {{"--wait", NULL, &a.wait},
-                               {"--out", &a.out, NULL},
-                               {"--idempotency-key", &a.idem, NULL},
-                               {"--png", NULL, &a.png},
-                               {NULL, NULL, NULL}};
-    opt_spec status_specs[] = {{"--json", NULL, &a.json}, {NULL, NULL, NULL}};
-    opt_spec list_specs[] = {{"--state", &a.state, NULL},
-                             {"--limit", &a.limit, NULL},
-                             {"--name", &a.name, NULL},
-                             {"--json", NULL, &a.json},
-                             {NULL, NULL, NULL}};
-    opt_spec fetch_specs[] = {{"--out", &a.out, NULL}, {"--png", NULL, &a.png}, {NULL, NULL, NULL}};
-
-    if (strcmp(cmd, "submit") == 0) {
-        specs = submit_specs;
-    } else if (strcmp(cmd, "status") == 0) {
-        specs = status_specs;
-    } else if (strcmp(cmd, "list") == 0) {
-        specs = list_specs;
-        min_pos = max_pos = 0;
-    } else if (strcmp(cmd, "fetch") == 0 || strcmp(cmd, "wait") == 0) {
-        specs = fetch_specs;
-    } else if (strcmp(cmd, "health") == 0) {
-        min_pos = max_pos = 0;
-    } else if (strcmp(cmd, "help") == 0) {
-        usage(stdout);
+    if (strcmp(cmd, "help") == 0) {
+        const mrc_usage_command *c = cargc > 0 ? mrc_usage_find(cargv[0]) : NULL;
+        if (c) {
+            fputs("usage:\n", stdout);
+            mrc_usage_command_print(stdout, c);
+        } else {
+            mrc_usage_all(stdout);
+        }
         goto cleanup;
-    } else if (strcmp(cmd, "cancel") != 0 && strcmp(cmd, "retry") != 0 &&
-               strcmp(cmd, "delete") != 0 && strcmp(cmd, "upload") != 0) {
+    }
+    if (strcmp(cmd, "man") == 0) { /* the manual page, from the usage table (make man) */
+        mrc_usage_man(stdout);
+        goto cleanup;
+    }
+    if (strcmp(cmd, "completion") == 0) { /* bash completion, from the usage table */
+        mrc_usage_completion(stdout);
+        goto cleanup;
+    }
+    const mrc_usage_command *spec = mrc_usage_find(cmd);
+    if (!spec) {
         code = usage_error("unknown command '%s'", cmd);
         goto cleanup;
     }
-    code = parse_command_args(cargc, cargv, specs, min_pos, max_pos, &a);
+    int pos = spec->args[0] ? 1 : 0; /* ID, FILE or JOB.json, or nothing */
+    code = parse_command_args(cargc, cargv, spec, pos, pos, &a);
     if (code)
         goto cleanup;
     if (strcmp(cmd, "fetch") == 0 && !a.out) {
@@ -720,22 +787,18 @@ int main(int argc, char **argv)
             rc = cmd_status(http, &a, &err);
         else if (strcmp(cmd, "list") == 0)
             rc = cmd_list(http, &a, &err);
-        else if (strcmp(cmd, "fetch") == 0) {
-            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal(),
-                                    .png = a.png};
-            rc = mrc_job_fetch(http, a.pos[0], &opts, &err);
-        } else if (strcmp(cmd, "wait") == 0) {
-            mrc_follow_opts opts = {.out_dir = a.out, .quiet = g.quiet, .tty = stderr_is_terminal(),
-                                    .png = a.png};
-            rc = mrc_job_wait(http, a.pos[0], &opts, &err);
-        } else if (strcmp(cmd, "cancel") == 0 || strcmp(cmd, "retry") == 0)
+        else if (strcmp(cmd, "fetch") == 0)
+            rc = cmd_fetch(http, &a, g.quiet, &err);
+        else if (strcmp(cmd, "wait") == 0)
+            rc = follow_job(http, a.pos[0], &a, g.quiet, &err);
+        else if (strcmp(cmd, "cancel") == 0 || strcmp(cmd, "retry") == 0)
             rc = cmd_action(http, cmd, &a, g.quiet, &err);
         else if (strcmp(cmd, "delete") == 0)
             rc = cmd_delete(http, &a, g.quiet, &err);
         else if (strcmp(cmd, "upload") == 0)
             rc = cmd_upload(http, &a, g.quiet, &err);
         else
-            rc = cmd_health(http, &err);
+            rc = cmd_health(http, &a, &err);
     }
     if (rc < 0) {
         code = -rc;

@@ -36,6 +36,8 @@ TEST_PACKAGES=(
   libcmocka-dev
   openssl                # self-signed certificates for the TLS test (test_http_auth)
   curl                   # the README's curl examples, run as written by test_api
+  groff-base             # test_cli: the manual pages pass groff's warnings
+  systemd                # test_cli: systemd-analyze verify of the installed microrayd.service
   wrk                    # HTTP load generator for make bench (loopback only)
   slurm-wlm munge        # a real single-node Slurm for the cluster test (test_slurm,
                          # scripts/slurm-local.sh; microray cluster, docs/scale.md)

@@ -9,33 +9,30 @@
 #include "render_proc.h"
 #include "render_cmd.h"
 #include "schema_gen.h"
-
-static void usage(FILE *to)
-{
-    fprintf(to,
-            "microrayd %s - ray traced frames of deforming, detailed geometry\n"
-            "usage:\n"
-            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--frames LIST | --prepare] [--png] [--quiet]\n"
-            "  microrayd plan JOB.json  (validate; frames and retries as JSON, for splitting the job)\n"
-            "  microrayd stats-merge DIR JOB.json  (stats.json of the parts render --frames wrote)\n"
-            "  microrayd compare A.exr B.exr [--diagonal D]\n"
-            "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
-            "                  [--threads N] [--http-threads N] [--cache-mb N]\n"
-            "                  [--max-connections N] [--per-ip-connections N] [--request-timeout S]\n"
-            "                  [--token-file FILE] [--insecure] [--tls-cert FILE --tls-key FILE]\n"
-            "                  [--port-file FILE] [--quiet]\n"
-            "  microrayd schema FILE [--check]  (the job schema's generated kind blocks)\n"
-            "  microrayd version\n",
-            MR_VERSION_STRING);
-}
+#include "usage.h"
 
 int main(int argc, char **argv)
 {
     if (argc < 2) {
-        usage(stderr);
+        mr_usage_all(stderr);
         return 2;
     }
     const char *cmd = argv[1];
+    /* `microrayd CMD --help`: that command's usage on stdout, exit 0 */
+    if (mr_usage_find(cmd))
+        for (int i = 2; i < argc; i++)
+            if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+                mr_usage_command_print(stdout, cmd);
+                return 0;
+            }
+    if (!strcmp(cmd, "man")) { /* the manual page, from the same table (make man) */
+        mr_usage_man(stdout);
+        return 0;
+    }
+    if (!strcmp(cmd, "completion")) { /* bash completion, from the same table */
+        mr_usage_completion(stdout);
+        return 0;
+    }
     if (!strcmp(cmd, "render"))
         return mr_cmd_render(argc - 2, argv + 2);
     if (!strcmp(cmd, "plan"))
@@ -57,10 +54,13 @@ int main(int argc, char **argv)
         return 0;
     }
     if (!strcmp(cmd, "help") || !strcmp(cmd, "--help") || !strcmp(cmd, "-h")) {
-        usage(stdout);
+        if (argc > 2 && mr_usage_find(argv[2]))
+            mr_usage_command_print(stdout, argv[2]);
+        else
+            mr_usage_all(stdout);
         return 0;
     }
     fprintf(stderr, "microrayd: unknown command '%s'\n", cmd);
-    usage(stderr);
+    mr_usage_all(stderr);
     return 2;
 }

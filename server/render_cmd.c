@@ -13,6 +13,7 @@
  * each film was in memory (no EXR is read back).
  */
 #include "render_cmd.h"
+#include "usage.h"
 
 #include <cJSON.h>
 #include <dirent.h>
@@ -274,22 +275,7 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 
 static void usage_render(void)
 {
-    fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
-                    "[--job-memory-mb N] [--frames LIST | --prepare] [--png] [--quiet]\n"
-                    "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
-                    "(created if missing)\n"
-                    "               and reuse it (default: derive it again every time)\n"
-                    "  --job-memory-mb N  what the job's geometry may hold (default: half of "
-                    "the machine's memory)\n"
-                    "  --png        also write DIR/NNNN.png (8-bit sRGB previews) and "
-                    "DIR/contact-sheet.png\n"
-                    "  --prepare    render nothing: import the assets and derive each kind's data "
-                    "into --cache\n"
-                    "               (the first task of a job split into parts)\n"
-                    "  --frames LIST  render only these frames (0-based: 3, 0-9, 0-9,20): the "
-                    "same files as a whole run,\n"
-                    "               statistics in DIR/stats.frames-LIST.json (microrayd "
-                    "stats-merge joins them)\n");
+    mr_usage_command_print(stderr, "render");
 }
 
 int mr_cmd_render(int argc, char **argv)
@@ -467,9 +453,7 @@ static bool load_job(const char *path, char **text, mr_job **job, int *status)
 int mr_cmd_plan(int argc, char **argv)
 {
     if (argc != 1) {
-        fprintf(stderr, "usage: microrayd plan JOB.json\n"
-                        "  validates the job as the daemon would and prints what splitting it "
-                        "needs, as JSON\n");
+        mr_usage_command_print(stderr, "plan");
         return EXIT_USAGE;
     }
     char *text = NULL;
@@ -500,9 +484,7 @@ int mr_cmd_plan(int argc, char **argv)
 int mr_cmd_stats_merge(int argc, char **argv)
 {
     if (argc != 2) {
-        fprintf(stderr, "usage: microrayd stats-merge DIR JOB.json\n"
-                        "  joins DIR/" PART_PREFIX "*.json (written by render --frames) into "
-                        "DIR/stats.json\n");
+        mr_usage_command_print(stderr, "stats-merge");
         return EXIT_USAGE;
     }
     const char *dir = argv[0];
@@ -637,7 +619,7 @@ int mr_cmd_compare(int argc, char **argv)
         }
     }
     if (npaths != 2) {
-        fprintf(stderr, "usage: microrayd compare A.exr B.exr [--diagonal D]\n");
+        mr_usage_command_print(stderr, "compare");
         return EXIT_USAGE;
     }
     int status = EXIT_OK;

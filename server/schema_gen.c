@@ -1,5 +1,6 @@
 /* schema_gen.c - kind blocks of the job schema from parameter tables (schema_gen.h). */
 #include "schema_gen.h"
+#include "usage.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -457,10 +458,7 @@ int mr_cmd_schema(int argc, char **argv)
             usage = true;
     }
     if (usage || !path) {
-        fprintf(stderr, "usage: microrayd schema FILE [--check]\n"
-                        "  prints FILE (schemas/job.schema.json) with its geometry-kind parts\n"
-                        "  generated from the kinds' parameter tables; --check: exit 1 if FILE\n"
-                        "  differs from that\n");
+        mr_usage_command_print(stderr, "schema");
         return 2;
     }
     char *text = NULL, *fresh = NULL;

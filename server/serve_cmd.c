@@ -24,6 +24,7 @@
 
 #include "daemon.h"
 #include "render_cmd.h"
+#include "usage.h"
 #include "microray.h"
 
 #define MR_DEFAULT_PORT 8470
@@ -31,14 +32,7 @@
 
 static void usage(void)
 {
-    fprintf(stderr, "usage: microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]...\n"
-                    "                       [--workers N] [--threads N] [--http-threads N] [--cache-mb N]\n"
-                    "                       [--job-memory-mb N] [--worker-memory-mb N] [--frame-timeout S]\n"
-                    "                       [--import-memory-mb N] [--import-timeout S]\n"
-                    "                       [--disk-reserve-mb N]\n"
-                    "                       [--max-connections N] [--per-ip-connections N]\n"
-                    "                       [--request-timeout S] [--token-file FILE] [--insecure]\n"
-                    "                       [--tls-cert FILE --tls-key FILE] [--port-file FILE] [--quiet]\n");
+    mr_usage_command_print(stderr, "serve");
 }
 
 static bool parse_uint(const char *s, unsigned long lo, unsigned long hi, unsigned long *out)
