@@ -281,6 +281,7 @@ static void test_client_json(void **state)
         {"retry %s --json", 3, NULL}, /* a succeeded job: 409, no JSON */
         {"upload '%s' --json", 0, "id"},
         {"health --json", 0, "readyz"},
+        {"status 123 --json", 3, NULL}, /* an id of the right characters the server does not know: 404 */
         {"delete %s --json", 0, "deleted"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
