@@ -17,7 +17,8 @@ PACKAGES=(
   libassimp-dev assimp-testmodels  # asset import, and the real models examples/tests use
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev
-  libpng-dev             # PNG previews and contact sheets (core/render/preview.c)
+  libpng-dev             # PNG previews and contact sheets (core/render/preview.c), PNG height maps
+  libjpeg-dev            # JPEG height maps and exemplars (core/asset/image.c)
   libcmocka-dev
   openssl                # self-signed certificates for the TLS test (test_http_auth)
   wrk                    # HTTP load generator for make bench (loopback only)
