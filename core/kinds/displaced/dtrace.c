@@ -42,6 +42,116 @@ static inline double gmax_of(const mr_dbase *b)
 
 static void tri_gbox(const mr_dbase *b, double *x0, double *x1, double *y0, double *y1);
 
+/* Distance from the origin to triangle (a, b, c) (its closest point,
+ * Ericson, Real-Time Collision Detection 5.1.5), in double. */
+static double origin_distance(const double *a, const double *b, const double *c)
+{
+    double ab[3], ac[3], ap[3];
+    for (int k = 0; k < 3; k++)
+        ab[k] = b[k] - a[k], ac[k] = c[k] - a[k], ap[k] = -a[k];
+#define DOT(u, v) ((u)[0] * (v)[0] + (u)[1] * (v)[1] + (u)[2] * (v)[2])
+    double d1 = DOT(ab, ap), d2 = DOT(ac, ap), p[3];
+    if (d1 <= 0 && d2 <= 0)
+        return sqrt(DOT(a, a));
+    double bp[3] = {-b[0], -b[1], -b[2]}, cp[3] = {-c[0], -c[1], -c[2]};
+    double d3 = DOT(ab, bp), d4 = DOT(ac, bp);
+    if (d3 >= 0 && d4 <= d3)
+        return sqrt(DOT(b, b));
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double v = d1 / (d1 - d3);
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + v * ab[k];
+        return sqrt(DOT(p, p));
+    }
+    double d5 = DOT(ab, cp), d6 = DOT(ac, cp);
+    if (d6 >= 0 && d5 <= d6)
+        return sqrt(DOT(c, c));
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double w = d2 / (d2 - d6);
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + w * ac[k];
+        return sqrt(DOT(p, p));
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        for (int k = 0; k < 3; k++)
+            p[k] = b[k] + w * (c[k] - b[k]);
+        return sqrt(DOT(p, p));
+    }
+    double den = 1 / (va + vb + vc), v = vb * den, w = vc * den;
+    for (int k = 0; k < 3; k++)
+        p[k] = a[k] + ab[k] * v + ac[k] * w;
+    return sqrt(DOT(p, p));
+#undef DOT
+}
+
+/* The local frame (dtrace.h): x = P0 + Px (qx - g0x) + Py (qy - g0y) + z f
+ * with f T's unit face normal; a micro-vertex of grid point q and height h
+ * lies at (q + h (a, b), h c) where (a, b, c) = inv N(q) / |N(q)|. Bounds
+ * of (a, b, c) over T: inv's rows are linear, so over the convex hull of
+ * the corner normals they lie between their values at the corners, and
+ * dividing by |N| in [dmin, 1] (dmin: the hull's distance from the origin)
+ * gives the unit normal's; a hull that reaches near the origin (opposing
+ * normals) gets the bound any unit vector has, which also holds the zero
+ * displacement of a vanishing normal. */
+static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
+{
+    double f[3] = {gr->Px[1] * gr->Py[2] - gr->Px[2] * gr->Py[1],
+                   gr->Px[2] * gr->Py[0] - gr->Px[0] * gr->Py[2],
+                   gr->Px[0] * gr->Py[1] - gr->Px[1] * gr->Py[0]};
+    double fl = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double px = sqrt(gr->Px[0] * gr->Px[0] + gr->Px[1] * gr->Px[1] + gr->Px[2] * gr->Px[2]);
+    double py = sqrt(gr->Py[0] * gr->Py[0] + gr->Py[1] * gr->Py[1] + gr->Py[2] * gr->Py[2]);
+    /* a well-shaped map only: T with area in space as well as in the grid */
+    if (!(fl > 1e-6 * px * py) || !isfinite(fl))
+        return;
+    double M[3][3];
+    for (int c = 0; c < 3; c++)
+        M[c][0] = gr->Px[c], M[c][1] = gr->Py[c], M[c][2] = f[c] / fl;
+    double C[3][3];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            int r1 = (r + 1) % 3, r2 = (r + 2) % 3, c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+            C[r][c] = M[r1][c1] * M[r2][c2] - M[r1][c2] * M[r2][c1];
+        }
+    double det = M[0][0] * C[0][0] + M[0][1] * C[0][1] + M[0][2] * C[0][2];
+    if (!isfinite(det) || det == 0)
+        return;
+    /* a micro-vertex is off its exact value by a float rounding of its
+     * coordinates (2^-24 of at most the pad's basis) plus the double work
+     * (far less): 2^-22 of the basis, through inv */
+    double basis = gr->pad / PAD_REL, err = 0x1p-22 * basis, dist;
+    dist = origin_distance(b->n[0], b->n[1], b->n[2]) * (1 - 1e-12);
+    for (int r = 0; r < 3; r++) {
+        double row = 0, lo = INFINITY, hi = -INFINITY;
+        for (int c = 0; c < 3; c++) {
+            gr->inv[r][c] = C[c][r] / det;
+            row += fabs(gr->inv[r][c]);
+        }
+        for (int k = 0; k < 3; k++) {
+            double v = gr->inv[r][0] * b->n[k][0] + gr->inv[r][1] * b->n[k][1] +
+                       gr->inv[r][2] * b->n[k][2];
+            lo = dmin(lo, v), hi = dmax(hi, v);
+        }
+        double slack = 1e-12 * row;
+        if (dist > 1e-6) {
+            lo = lo >= 0 ? lo - slack : lo / dist - slack;
+            hi = hi >= 0 ? hi / dist + slack : hi + slack;
+        } else {
+            lo = -row, hi = row;
+        }
+        gr->nb[r][0] = dmax(lo, -row);
+        gr->nb[r][1] = dmin(hi, row);
+        gr->lpad[r] = row * err + 1e-9 * (r < 2 ? 1 + gmax_of(b) : 1 + hm);
+    }
+    gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]) &&
+                isfinite(gr->nb[0][0] + gr->nb[0][1] + gr->nb[1][0] + gr->nb[1][1] +
+                         gr->nb[2][0] + gr->nb[2][1]);
+}
+
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
 {
     memset(gr, 0, sizeof *gr);
@@ -74,36 +184,8 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
                           !memcmp(b->n[0], b->n[2], sizeof b->n[0]);
     tri_gbox(b, &gr->gx0, &gr->gx1, &gr->gy0, &gr->gy1);
     gr->local = false;
-    if (gr->constant_normal && !b->flat) {
-        /* M = [Px Py n] (columns); inverse by cofactors */
-        double M[3][3];
-        for (int c = 0; c < 3; c++)
-            M[c][0] = gr->Px[c], M[c][1] = gr->Py[c], M[c][2] = gr->N0[c];
-        double C[3][3];
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++) {
-                int r1 = (r + 1) % 3, r2 = (r + 2) % 3, c1 = (c + 1) % 3, c2 = (c + 2) % 3;
-                C[r][c] = M[r1][c1] * M[r2][c2] - M[r1][c2] * M[r2][c1];
-            }
-        double det = M[0][0] * C[0][0] + M[0][1] * C[0][1] + M[0][2] * C[0][2];
-        double px = sqrt(gr->Px[0] * gr->Px[0] + gr->Px[1] * gr->Px[1] + gr->Px[2] * gr->Px[2]);
-        double py = sqrt(gr->Py[0] * gr->Py[0] + gr->Py[1] * gr->Py[1] + gr->Py[2] * gr->Py[2]);
-        if (isfinite(det) && fabs(det) > 1e-6 * px * py) {
-            /* a micro-vertex is off its exact value by a float rounding of
-             * its coordinates (2^-24 of at most the pad's basis) plus the
-             * double work (far less): 2^-22 of the basis, through inv */
-            double basis = gr->pad / PAD_REL, err = 0x1p-22 * basis;
-            for (int r = 0; r < 3; r++) {
-                double row = 0;
-                for (int c = 0; c < 3; c++) {
-                    gr->inv[r][c] = C[c][r] / det;
-                    row += fabs(gr->inv[r][c]);
-                }
-                gr->lpad[r] = row * err + 1e-9 * (r < 2 ? 1 + gmax_of(b) : 1 + hm);
-            }
-            gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]);
-        }
-    }
+    if (!b->flat)
+        local_frame(gr, b, hm);
 }
 
 /* ---- boxes ----------------------------------------------------------------------- */
@@ -268,6 +350,41 @@ void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad 
             l[c] = fmin(l[c], pl[c]), h[c] = fmax(h[c], ph[c]);
     }
     to_float_box(l, h, lo, hi);
+}
+
+/* ---- the local frame ------------------------------------------------------------- */
+
+/* A node's box in T's local frame (dtrace.h): the rectangle cut to T's
+ * grid box, moved by [h] times the normal's grid components, its height
+ * [h] times the normal's face component, padded. */
+static inline void local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                             double hlo, double hhi, double lo[3], double hi[3])
+{
+    double o[3][2];
+    for (int a = 0; a < 3; a++) {
+        double p0 = hlo * gr->nb[a][0], p1 = hlo * gr->nb[a][1];
+        double p2 = hhi * gr->nb[a][0], p3 = hhi * gr->nb[a][1];
+        o[a][0] = dmin(dmin(p0, p1), dmin(p2, p3)) - gr->lpad[a];
+        o[a][1] = dmax(dmax(p0, p1), dmax(p2, p3)) + gr->lpad[a];
+    }
+    lo[0] = dmax(x0, gr->gx0) + o[0][0], hi[0] = dmin(x1, gr->gx1) + o[0][1];
+    lo[1] = dmax(y0, gr->gy0) + o[1][0], hi[1] = dmin(y1, gr->gy1) + o[1][1];
+    lo[2] = o[2][0], hi[2] = o[2][1];
+}
+
+void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                         double hlo, double hhi, double lo[3], double hi[3])
+{
+    local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+}
+
+void mr_dtrace_local_point(const mr_dgrad *gr, const mr_dbase *b, mr_vec3 x, double out[3])
+{
+    double d[3] = {(double)x.x - gr->P0[0], (double)x.y - gr->P0[1], (double)x.z - gr->P0[2]};
+    for (int a = 0; a < 3; a++)
+        out[a] = gr->inv[a][0] * d[0] + gr->inv[a][1] * d[1] + gr->inv[a][2] * d[2];
+    out[0] += b->g[0][0];
+    out[1] += b->g[0][1];
 }
 
 /* ---- the overlap test ------------------------------------------------------------ */
@@ -728,9 +845,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
                 continue;
             node_heights(g, &ch[k], &hlo, &hhi);
             if (gr->local) {
-                lo[0] = dmax(x0, gr->gx0) - gr->lpad[0], hi[0] = dmin(x1, gr->gx1) + gr->lpad[0];
-                lo[1] = dmax(y0, gr->gy0) - gr->lpad[1], hi[1] = dmin(y1, gr->gy1) + gr->lpad[1];
-                lo[2] = hlo - gr->lpad[2], hi[2] = hhi + gr->lpad[2];
+                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
                 if (!slab(&lr, lo, hi, tmin, *tmax, &tn))
                     continue;
             } else {

@@ -27,17 +27,19 @@
  * parallelograms (corner k with half its two edges), each bounded as above
  * with the heights of the triangle's roots, boxes merged.
  *
- * Flat-normal triangles (the three corner normals equal, as on a plane or
- * a flat-shaded mesh) skip the 3D boxes: there x = P(q) + h n is an affine
- * map of (q, h), inverted once per triangle and frame, and a node is
- * exactly the box [its rectangle] x [its heights] in (grid x, grid y,
- * height) space; the ray is mapped into that space once per call (the map
- * keeps its parameter t), so a node costs a three-slab test. The local
- * boxes are widened by the image under the inverse map of 4 float
- * roundings of the largest coordinate (a micro-vertex is rounded to float
- * once), which keeps them conservative; triangles whose map is badly
- * conditioned (no area in space, such as a sphere's pole triangles) use
- * the 3D boxes.
+ * Faster, and used for every triangle with area in space: the traversal
+ * works in T's local frame, x = P(q) + z f (f the unit face normal), an
+ * affine map of (grid x, grid y, z) inverted once per triangle and frame
+ * (the ray is mapped once per call; the map keeps its parameter t). A
+ * micro-vertex of grid point q and height h lies at (q + h (a, b), h c)
+ * there, (a, b, c) the unit normal in the frame's basis, bounded once per
+ * triangle (dtrace.c local_frame): a node is the box [rectangle + [h] a] x
+ * [rectangle + [h] b] x [[h] c], a three-slab test. On a plane (normal =
+ * face normal) a = b = 0 and the boxes are exact. The local boxes are
+ * widened by the image under the inverse map of 4 float roundings of the
+ * largest coordinate (a micro-vertex is rounded to float once); triangles
+ * whose map is badly conditioned (no area in space, such as a sphere's
+ * pole triangles) use the 3D boxes.
  *
  * Traversal: the pyramid seen as an infinite quadtree over the repeating
  * grid (levels 0..L inside one period, whose top node covers the period;
@@ -82,7 +84,8 @@ typedef struct mr_dgrad {
      * (q, h), so nodes are tested as boxes in (grid x, grid y, height)
      * space, the ray mapped there once per call (dtrace.c). */
     bool local;
-    double inv[3][3];      /* (q - g0, h) = inv (x - P0) */
+    double inv[3][3];      /* (q - g0, z) = inv (x - P0) */
+    double nb[3][2];       /* bounds of inv N / |N| over T */
     double lpad[3];        /* pad of the local boxes */
 } mr_dgrad;
 
@@ -132,6 +135,12 @@ bool mr_dtrace_rect_box(const mr_dbase *b, const mr_dgrad *gr, double x0, double
 /* Conservative box of the whole displaced triangle (three parallelograms). */
 void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *gr, float lo[3],
                        float hi[3]);
+
+/* T's local frame (gr->local): the box of a grid rectangle with heights
+ * [hlo, hhi], and a point's local coordinates (tests). */
+void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                         double hlo, double hhi, double lo[3], double hi[3]);
+void mr_dtrace_local_point(const mr_dgrad *gr, const mr_dbase *b, mr_vec3 x, double out[3]);
 
 /* Whether T (in grid space) may overlap [x0, x1] x [y0, y1] (conservative). */
 bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
