@@ -328,12 +328,27 @@ static void flat_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *g
     }
 }
 
+/* Embree tests our per-triangle boxes in float: they get a pad of 2^-20 of
+ * the triangle's magnitude basis on top (16 float ulps: Embree's robust
+ * box test rounds by a few), so a ray through a micro-vertex on a box's
+ * face, or one whose hit on the next triangle is an ulp nearer than the
+ * current one, still reaches the triangle's traversal. */
+#define EMBREE_PAD_REL 0x1p-20
+
+static void widen_for_embree(const mr_dgrad *gr, double l[3], double h[3])
+{
+    double e = EMBREE_PAD_REL * (gr->pad / PAD_REL);
+    for (int c = 0; c < 3; c++)
+        l[c] -= e, h[c] += e;
+}
+
 void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *gr, float lo[3],
                        float hi[3])
 {
     double l[3] = {INFINITY, INFINITY, INFINITY}, h[3] = {-INFINITY, -INFINITY, -INFINITY};
     if (b->flat) {
         flat_box(b, hs, gr, l, h);
+        widen_for_embree(gr, l, h);
         to_float_box(l, h, lo, hi);
         return;
     }
@@ -349,6 +364,7 @@ void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad 
         for (int c = 0; c < 3; c++)
             l[c] = fmin(l[c], pl[c]), h[c] = fmax(h[c], ph[c]);
     }
+    widen_for_embree(gr, l, h);
     to_float_box(l, h, lo, hi);
 }
 
