@@ -32,6 +32,7 @@
 #include "kinds/displaced/dgrid.h"
 #include "kinds/displaced/dsurf.h"
 #include "kinds/displaced/dtrace.h"
+#include "kinds/displaced/tiling.h"
 #include "math/affine_arith.h"
 
 /* ---- affine arithmetic ---------------------------------------------------------- */
@@ -389,6 +390,195 @@ static void test_constant_texture_is_offset_base(void **state)
     mr_asset_free(tex);
 }
 
+/* ---- tiling and blending ------------------------------------------------------------ */
+
+/* The triforce subdivision (tiling.h) of a lattice triangle of leg R,
+ * taken down to leaves of leg 1, yields every cell half of the triangle
+ * exactly once (brute force over the triangle's cells), in both
+ * orientations. */
+static void collect_leaves(int64_t bx, int64_t by, int64_t s, int64_t (*out)[3], int *n)
+{
+    if (s == 1 || s == -1) {
+        out[*n][0] = s > 0 ? bx : bx - 1;
+        out[*n][1] = s > 0 ? by : by - 1;
+        out[*n][2] = s > 0 ? 0 : 1;
+        (*n)++;
+        return;
+    }
+    int64_t c[4][3];
+    mr_dproc_children(bx, by, s, c);
+    for (int k = 0; k < 4; k++)
+        collect_leaves(c[k][0], c[k][1], c[k][2], out, n);
+}
+
+static void test_triforce_against_brute_force(void **state)
+{
+    (void)state;
+    for (int64_t R = 1; R <= 32; R *= 2)
+        for (int o = 0; o < 2; o++) {
+            /* the lower triangle of square (3, -2), or its upper one */
+            int64_t bx = o ? 4 * R : 3 * R, by = o ? -1 * R : -2 * R, s = o ? -R : R;
+            static int64_t leaves[2048][3];
+            int n = 0;
+            collect_leaves(bx, by, s, leaves, &n);
+            assert_int_equal(n, (int)(R * R));
+            static unsigned char seen[64][64][2];
+            memset(seen, 0, sizeof seen);
+            for (int k = 0; k < n; k++) {
+                int64_t i = leaves[k][0] - 3 * R, j = leaves[k][1] + 2 * R;
+                assert_true(i >= 0 && i < R && j >= 0 && j < R);
+                /* a half lies in the lower lattice triangle when its cell
+                 * is below the square's anti-diagonal */
+                bool lower_half = leaves[k][2] == 0;
+                bool in_lower = lower_half ? i + j <= R - 1 : i + j <= R - 2;
+                assert_true(in_lower == !o);
+                assert_false(seen[i][j][leaves[k][2]]);
+                seen[i][j][leaves[k][2]] = 1;
+            }
+        }
+}
+
+static mr_asset *cracked(void)
+{
+    mr_asset *a = NULL;
+    mr_error err;
+    if (mr_asset_load("/usr/share/assimp/models/IRRMesh/crackedground_1-6.jpg", &a, &err) != MR_OK)
+        fail_msg("%s", err.msg);
+    return a;
+}
+
+/* Bounds of every triforce node hold the heights of its grid points (all
+ * of them, the three corners included), and the global bound holds all. */
+static void test_tiling_bounds(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dproc p;
+    mr_error err;
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 16, 0.2, -0.05, 2, &err),
+                     MR_OK);
+    double glo, ghi;
+    mr_dproc_global_heights(&p, &glo, &ghi);
+    long checked = 0;
+    for (int sq = 0; sq < 6; sq++)
+        for (int o = 0; o < 2; o++) {
+            int64_t ax = sq * 3 - 5, ay = 2 - sq;
+            int64_t bx = (o ? ax + 1 : ax) * 16, by = (o ? ay + 1 : ay) * 16, s = o ? -16 : 16;
+            /* every node of the subdivision */
+            int64_t stack[256][3];
+            int sp = 0;
+            stack[sp][0] = bx, stack[sp][1] = by, stack[sp++][2] = s;
+            while (sp) {
+                sp--;
+                int64_t x = stack[sp][0], y = stack[sp][1], l = stack[sp][2];
+                double lo, hi;
+                mr_dproc_tri_heights(&p, x, y, l, &lo, &hi);
+                int64_t a = l > 0 ? l : -l;
+                for (int64_t dj = 0; dj <= a; dj++)
+                    for (int64_t di = 0; di + dj <= a; di++) {
+                        int64_t gi = x + (l > 0 ? di : -di), gj = y + (l > 0 ? dj : -dj);
+                        double h = mr_dproc_height(&p, gi, gj);
+                        if (!(h >= lo && h <= hi && h >= glo && h <= ghi))
+                            fail_msg("node (%lld %lld %lld): height %.17g at (%lld %lld) outside "
+                                     "[%.17g, %.17g]", (long long)x, (long long)y, (long long)l, h,
+                                     (long long)gi, (long long)gj, lo, hi);
+                        checked++;
+                    }
+                if (a > 1) {
+                    int64_t c[4][3];
+                    mr_dproc_children(x, y, l, c);
+                    for (int k = 0; k < 4; k++)
+                        memcpy(stack[sp++], c[k], sizeof c[k]);
+                }
+            }
+        }
+    assert_true(checked > 10000);
+    mr_dproc_free(&p);
+    mr_asset_free(ex);
+}
+
+/* The histogram of the tiled-and-blended heights matches the example's
+ * (T^-1 restores it: HN18), and the texture does not repeat at the
+ * example's period (a plain repeat correlates 1 with itself there).
+ * Figures printed for the README. */
+static void test_tiling_histogram_and_period(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dproc p;
+    mr_error err;
+    /* one example tile per texture unit; grid points every 1/64 lattice */
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0, 0, 1, 0.25, 3, 64, 1.0, 0.0, 2, &err), MR_OK);
+    enum { BINS = 64, N = 512 };
+    double hex[BINS] = {0}, hp[BINS] = {0};
+    double unit = mr_image_unit(ex->image);
+    size_t ne = (size_t)ex->image->width * ex->image->height;
+    for (uint32_t y = 0; y < ex->image->height; y++)
+        for (uint32_t x = 0; x < ex->image->width; x++) {
+            int b = (int)(mr_image_sample(ex->image, x, y) / unit * BINS);
+            hex[b < BINS ? b : BINS - 1] += 1.0 / (double)ne;
+        }
+    /* a patch of the procedural texture sampled in texture space: the grid
+     * point nearest each sample (lattice = texture / 0.25, skewed) */
+    static double img[N][N];
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++) {
+            double g[2];
+            mr_dproc_grid_of(&p, (float)(x / 256.0 + 0.5), (float)(y / 256.0 + 0.5), g);
+            double h = mr_dproc_height(&p, (int64_t)floor(g[0]), (int64_t)floor(g[1]));
+            img[y][x] = h;
+            int b = (int)(h * BINS);
+            hp[b < 0 ? 0 : b < BINS ? b : BINS - 1] += 1.0 / (N * N);
+        }
+    /* histogram distance: half the L1 distance (total variation, 0..1) */
+    double tv = 0;
+    for (int b = 0; b < BINS; b++)
+        tv += 0.5 * fabs(hex[b] - hp[b]);
+    /* autocorrelation at one example period (256 samples = 1 texture unit) */
+    double mean = 0, var = 0, cov = 0;
+    int m = 0;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++)
+            mean += img[y][x];
+    mean /= N * N;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++)
+            var += (img[y][x] - mean) * (img[y][x] - mean);
+    var /= N * N;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x + 256 < N; x++, m++)
+            cov += (img[y][x] - mean) * (img[y][x + 256] - mean);
+    double ac = cov / m / var;
+    print_message("tiling and blending of crackedground_1-6.jpg: histogram distance (total "
+                  "variation, 64 bins) %.4f, autocorrelation at the example's period %.4f "
+                  "(a plain repeat: 1)\n", tv, ac);
+    assert_true(tv < 0.1);
+    assert_true(fabs(ac) < 0.2);
+    mr_dproc_free(&p);
+    mr_asset_free(ex);
+}
+
+static void test_procedural_against_brute_force(void **state)
+{
+    (void)state;
+    uint64_t seed = 41;
+    mr_asset *mesh = bumpy_grid(&seed, 1);
+    mr_asset *ex = cracked();
+    dfx f = {0};
+    dfx_params(&f, 0.15f, 0);
+    f.par.texture = 0;
+    f.par.procedural = true;
+    f.par.example = 2;
+    f.par.uv_scale = 0.5f;
+    f.par.range = 8;
+    dfx_open(&f, mesh, ex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(ex);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -400,6 +590,10 @@ int main(void)
         cmocka_unit_test(test_bumpy_mesh_against_brute_force),
         cmocka_unit_test(test_sphere_against_brute_force),
         cmocka_unit_test(test_constant_texture_is_offset_base),
+        cmocka_unit_test(test_triforce_against_brute_force),
+        cmocka_unit_test(test_tiling_bounds),
+        cmocka_unit_test(test_tiling_histogram_and_period),
+        cmocka_unit_test(test_procedural_against_brute_force),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

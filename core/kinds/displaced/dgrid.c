@@ -76,6 +76,42 @@ void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J
     *hi = ha > hb ? ha : hb;
 }
 
+static inline int64_t fdiv(int64_t a, int64_t b)
+{
+    int64_t q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+
+void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
+                            double *lo, double *hi)
+{
+    *lo = g->gmin;
+    *hi = g->gmax;
+    if (i1 - i0 >= (int64_t)g->w || j1 - j0 >= (int64_t)g->h)
+        return;
+    /* within one period per axis (possibly straddling its border): nodes
+     * of level l are indexed per period */
+    for (unsigned l = 0; l <= g->levels; l++) {
+        int64_t ti0 = fdiv(i0, g->w), ti1 = fdiv(i1, g->w), tj0 = fdiv(j0, g->h), tj1 = fdiv(j1, g->h);
+        int64_t x0 = ti0 * g->lw[l] + ((i0 - ti0 * g->w) >> l), x1 = ti1 * g->lw[l] + ((i1 - ti1 * g->w) >> l);
+        int64_t y0 = tj0 * g->lh[l] + ((j0 - tj0 * g->h) >> l), y1 = tj1 * g->lh[l] + ((j1 - tj1 * g->h) >> l);
+        if (x1 - x0 > 1 || y1 - y0 > 1)
+            continue;
+        double mn = INFINITY, mx = -INFINITY;
+        for (int64_t y = y0; y <= y1; y++)
+            for (int64_t x = x0; x <= x1; x++) {
+                double a, b;
+                mr_dgrid_node_samples(g, l, (uint32_t)mr_dgrid_wrap(x, g->lw[l]),
+                                      (uint32_t)mr_dgrid_wrap(y, g->lh[l]), &a, &b);
+                mn = a < mn ? a : mn;
+                mx = b > mx ? b : mx;
+            }
+        *lo = mn;
+        *hi = mx;
+        return;
+    }
+}
+
 /* ---- building ---------------------------------------------------------------- */
 
 typedef struct build_ctx {

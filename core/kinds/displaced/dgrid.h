@@ -98,6 +98,13 @@ static inline double mr_dgrid_height(const mr_dgrid *g, int64_t i, int64_t j)
  * period from its four corners, exactly. */
 void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
                            double *hi);
+/* Smallest and largest sample over the cells [i0, i1] x [j0, j1] of the
+ * repeating grid (any integers, i0 <= i1, j0 <= j1): the nodes of the
+ * lowest level at which the range spans at most two per axis (4.2.7's
+ * root selection), so at most four look-ups; ranges wider than a period
+ * get the texture's range. */
+void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
+                            double *lo, double *hi);
 /* The same as heights (ordered: scale may be negative). */
 void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
                            double *hi);

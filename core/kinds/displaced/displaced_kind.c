@@ -33,6 +33,7 @@
 #include "kinds/displaced/displaced_kind.h"
 #include "kinds/displaced/dsurf.h"
 #include "kinds/displaced/dtrace.h"
+#include "kinds/displaced/tiling.h"
 #include "util/clock.h"
 #include "util/parallel.h"
 
@@ -47,7 +48,9 @@ struct mr_geom {
     double *grid_uv;               /* per vertex: grid coordinates (2) */
     float *positions, *normals;    /* posed base vertices (3 each, + 1 float padding) */
     uint32_t *indices;             /* 3 per base triangle */
-    mr_dgrid grid;
+    mr_dgrid grid;                 /* texture source */
+    mr_dproc proc;                 /* procedural source */
+    bool procedural;
     mr_dbase *bases;
     mr_dgrad *grads;
     float *boxes;                  /* 6 per base triangle */
@@ -76,6 +79,7 @@ static void displaced_free(mr_geom *g)
     free(g->normals);
     free(g->indices);
     mr_dgrid_free(&g->grid);
+    mr_dproc_free(&g->proc);
     free(g->bases);
     free(g->grads);
     free(g->boxes);
@@ -89,6 +93,11 @@ static void displaced_free(mr_geom *g)
 static double grid_height(const void *src, int64_t i, int64_t j)
 {
     return mr_dgrid_height(src, i, j);
+}
+
+static double proc_height(const void *src, int64_t i, int64_t j)
+{
+    return mr_dproc_height(src, i, j);
 }
 
 /* ---- tessellation ------------------------------------------------------------------ */
@@ -333,17 +342,14 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
     if (!desc->params)
         return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its parameters");
     const mr_displaced_params *par = desc->params;
-    if (par->procedural)
-        return mr_error_set(err, MR_ERR_INVALID,
-                            "%s: procedural displacement is not available in this build",
-                            asset->path);
-    const mr_asset *tex = param_asset(ctx, par->texture);
+    const mr_asset *tex = param_asset(ctx, par->procedural ? par->example : par->texture);
     if (!tex)
-        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its height texture");
+        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its height %s",
+                            par->procedural ? "example" : "texture");
     if (!tex->image)
         return mr_error_set(err, MR_ERR_INVALID,
-                            "displaced texture %s is a model, not an image (PNG, JPEG or EXR)",
-                            tex->path);
+                            "displaced %s %s is a model, not an image (PNG, JPEG or EXR)",
+                            par->procedural ? "example" : "texture", tex->path);
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
@@ -381,19 +387,35 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
         !g->bases || !g->grads || !g->boxes)
         goto nomem;
     unsigned threads = ctx ? ctx->threads : 0;
-    if ((rc = mr_dgrid_init(&g->grid, tex->image, par->level, par->scale, par->offset, threads,
-                            err)) < 0)
-        goto fail;
-    g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .grid = &g->grid,
-                           .heights = {grid_height, &g->grid},
-                           .local = (mr_dlocal)par->local, .march_steps = par->steps};
+    g->procedural = par->procedural;
+    if (g->procedural) {
+        if ((rc = mr_dproc_init(&g->proc, tex->image, par->uv_offset[0], par->uv_offset[1],
+                                par->uv_scale, par->triangle_size, par->seed, par->range,
+                                par->scale, par->offset, threads, err)) < 0)
+            goto fail;
+        g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .proc = &g->proc,
+                               .heights = {proc_height, &g->proc},
+                               .local = (mr_dlocal)par->local, .march_steps = par->steps};
+    } else {
+        if ((rc = mr_dgrid_init(&g->grid, tex->image, par->level, par->scale, par->offset,
+                                threads, err)) < 0)
+            goto fail;
+        g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .grid = &g->grid,
+                               .heights = {grid_height, &g->grid},
+                               .local = (mr_dlocal)par->local, .march_steps = par->steps};
+    }
     uint32_t v0 = 0, t0 = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
         g->mesh_first_vertex[i] = v0;
         for (uint32_t k = 0; k < m->vertex_count; k++) {
-            g->grid_uv[(size_t)(v0 + k) * 2] = (double)m->uvs[k * 2] * g->grid.w;
-            g->grid_uv[(size_t)(v0 + k) * 2 + 1] = (double)m->uvs[k * 2 + 1] * g->grid.h;
+            double *gv = g->grid_uv + (size_t)(v0 + k) * 2;
+            if (g->procedural) {
+                mr_dproc_grid_of(&g->proc, m->uvs[k * 2], m->uvs[k * 2 + 1], gv);
+            } else {
+                gv[0] = (double)m->uvs[k * 2] * g->grid.w;
+                gv[1] = (double)m->uvs[k * 2 + 1] * g->grid.h;
+            }
             memcpy(g->positions + (size_t)(v0 + k) * 3, m->positions + (size_t)k * 3, 3 * sizeof(float));
             memcpy(g->normals + (size_t)(v0 + k) * 3, m->normals + (size_t)k * 3, 3 * sizeof(float));
         }
@@ -414,7 +436,13 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
         }
         mr_dbase_init(&g->bases[t], gg, p, n, &g->scene.heights);
         double hlo, hhi;
-        mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);
+        if (g->procedural) {
+            mr_dproc_global_heights(&g->proc, &hlo, &hhi);
+            for (int k = 0; k < 3; k++)
+                hlo = fmin(hlo, g->bases[t].h[k]), hhi = fmax(hhi, g->bases[t].h[k]);
+        } else {
+            mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);
+        }
         g->grads[t].hlo = hlo;
         g->grads[t].hhi = hhi;
     }
@@ -689,9 +717,14 @@ static size_t tess_bytes(const mr_geom *g)
            ((size_t)g->triangle_count + 1) * 2 * sizeof(uint32_t);
 }
 
+static size_t source_bytes(const mr_geom *g)
+{
+    return g->procedural ? mr_dproc_memory(&g->proc) : mr_dgrid_memory(&g->grid);
+}
+
 static size_t displaced_memory(const mr_geom *g)
 {
-    return base_bytes(g) + mr_dgrid_memory(&g->grid) + tess_bytes(g);
+    return base_bytes(g) + source_bytes(g) + tess_bytes(g);
 }
 
 static uint64_t displaced_primitives(const mr_geom *g)
@@ -710,7 +743,8 @@ static const mr_kind_stat STATS[] = {
                                  "divided by rays: traversal steps per ray"},
     {"displaced_tests", "count", "Micro-triangles (or bilinear patches) intersected"},
     {"displaced_base_bytes", "bytes", "Base mesh, per-triangle set-up and boxes"},
-    {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held"},
+    {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held (procedural: "
+                                        "the Gaussianised example and its pyramid)"},
 };
 
 static void displaced_frame_stats(const mr_geom *cg, double *v)
@@ -722,7 +756,7 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
     v[1] = (double)atomic_exchange(&g->nodes, 0);
     v[2] = (double)atomic_exchange(&g->tests, 0);
     v[3] = (double)base_bytes(g);
-    v[4] = (double)mr_dgrid_memory(&g->grid);
+    v[4] = (double)source_bytes(g);
     atomic_store(&g->calls, 0);
     atomic_store(&g->leaves, 0);
     g->bounds_s = 0;

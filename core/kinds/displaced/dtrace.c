@@ -5,6 +5,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "kinds/displaced/tiling.h"
 #include "math/affine_arith.h"
 
 /* NaN-free minimum and maximum: libm's fmin/fmax are calls (they must
@@ -712,11 +713,11 @@ static bool bilinear_hit(const mr_dray *r, const mr_vec3 q[4], float tmin, float
 }
 
 /* The micro-surface of T in cell (i, j). */
-static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, const mr_dray *r,
-                 float tmin, float *tmax, best *out, mr_dstats *st)
+static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, int half,
+                 const mr_dray *r, float tmin, float *tmax, best *out, mr_dstats *st)
 {
     mr_dcell c;
-    mr_dsurf_cell(b, i, j, 2, &c);
+    mr_dsurf_cell(b, i, j, half, &c);
     if (st)
         st->leaves++;
     if (!c.nt)
@@ -724,7 +725,7 @@ static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, co
     mr_vec3 V[2 * MR_DSURF_MAX_POLY];
     for (int k = 0; k < c.nv; k++)
         V[k] = mr_dsurf_vertex(b, &s->heights, &c.v[k]);
-    bool full = c.nv == 4 && c.nt == 2;
+    bool full = c.nv == 4 && c.nt == 2 && half == 2;
     for (int k = 0; full && k < 4; k++)
         full = c.v[k].kind == MR_DV_GRID;
     if (s->local == MR_DLOCAL_BILINEAR && full) {
@@ -800,6 +801,151 @@ static void finish(const mr_dbase *b, const best *bh, mr_dhit *hit)
 
 #define STACK_MAX 512
 
+/* The ray in T's local frame (grid x, grid y, face height). */
+static void local_ray(const mr_dgrad *gr, const mr_dbase *b, const mr_dray *r, mr_dray *lr)
+{
+    double od[3];
+    for (int c = 0; c < 3; c++)
+        od[c] = r->o[c] - gr->P0[c];
+    for (int a = 0; a < 3; a++) {
+        lr->o[a] = gr->inv[a][0] * od[0] + gr->inv[a][1] * od[1] + gr->inv[a][2] * od[2];
+        lr->d[a] = gr->inv[a][0] * r->d[0] + gr->inv[a][1] * r->d[1] + gr->inv[a][2] * r->d[2];
+        lr->par[a] = lr->d[a] == 0;
+        lr->inv[a] = lr->d[a] != 0 ? 1.0 / lr->d[a] : 0.0;
+    }
+    lr->o[0] += b->g[0][0];
+    lr->o[1] += b->g[0][1];
+}
+
+/* Entry distance of a node whose grid rectangle and heights are given (the
+ * local frame's box, or the 3D box), or false. */
+static inline bool node_hit(const mr_dbase *b, const mr_dgrad *gr, const mr_dray *r,
+                            const mr_dray *lr, double x0, double x1, double y0, double y1,
+                            double hlo, double hhi, double tmin, double tmax, double *tn)
+{
+    double lo[3], hi[3];
+    if (gr->local) {
+        local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+        return slab(lr, lo, hi, tmin, tmax, tn);
+    }
+    return rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, lo, hi) && slab(r, lo, hi, tmin, tmax, tn);
+}
+
+/* ---- the procedural source: lattice squares, then triforce triangles ------- */
+
+/* A node: a square of 2^level cells (level >= log2 range; x, y its index)
+ * or, level < 0, a triforce triangle with right-angle vertex (x, y) and
+ * signed leg s (tiling.h). */
+typedef struct pnode {
+    int level;
+    int64_t x, y, s;
+} pnode;
+
+static void pnode_rect(const pnode *n, double *x0, double *x1, double *y0, double *y1)
+{
+    if (n->level >= 0) {
+        double sz = ldexp(1.0, n->level);
+        *x0 = (double)n->x * sz, *x1 = ((double)n->x + 1) * sz;
+        *y0 = (double)n->y * sz, *y1 = ((double)n->y + 1) * sz;
+        return;
+    }
+    double a = (double)n->x, b = (double)(n->x + n->s), c = (double)n->y, d = (double)(n->y + n->s);
+    *x0 = dmin(a, b), *x1 = dmax(a, b), *y0 = dmin(c, d), *y1 = dmax(c, d);
+}
+
+static int pnode_children(const mr_dproc *p, const pnode *n, pnode out[4])
+{
+    int64_t R = (int64_t)p->range;
+    int top = 0;
+    while (((int64_t)1 << top) < R)
+        top++;
+    if (n->level > top) {
+        for (int k = 0; k < 4; k++)
+            out[k] = (pnode){n->level - 1, n->x * 2 + (k & 1), n->y * 2 + (k >> 1), 0};
+        return 4;
+    }
+    if (n->level == top) { /* a lattice square: its two lattice triangles */
+        out[0] = (pnode){-1, n->x * R, n->y * R, R};
+        out[1] = (pnode){-1, (n->x + 1) * R, (n->y + 1) * R, -R};
+        return 2;
+    }
+    int64_t c[4][3];
+    mr_dproc_children(n->x, n->y, n->s, c);
+    for (int k = 0; k < 4; k++)
+        out[k] = (pnode){-1, c[k][0], c[k][1], c[k][2]};
+    return 4;
+}
+
+static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
+                           const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
+                           mr_dhit *hit, mr_dstats *st)
+{
+    const mr_dproc *p = s->proc;
+    best bh = {0};
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    int top = 0;
+    while (((int64_t)1 << top) < (int64_t)p->range)
+        top++;
+    /* roots: the lowest square level (a lattice square or more) where T's
+     * cells span at most two nodes per axis */
+    int level = top;
+    while (level < 62 && ((i1 >> level) - (i0 >> level) > 1 || (j1 >> level) - (j0 >> level) > 1))
+        level++;
+    struct entry {
+        pnode n;
+        double tnear;
+    } stack[STACK_MAX];
+    int sp = 0;
+    for (int64_t y = j1 >> level; y >= (j0 >> level); y--)
+        for (int64_t x = i1 >> level; x >= (i0 >> level); x--)
+            stack[sp++] = (struct entry){{level, x, y, 0}, -INFINITY};
+    double glo, ghi;
+    mr_dproc_global_heights(p, &glo, &ghi);
+    while (sp > 0) {
+        struct entry e = stack[--sp];
+        if (e.tnear > *tmax)
+            continue;
+        if (e.n.level < 0 && (e.n.s == 1 || e.n.s == -1)) {
+            int64_t ci = e.n.s > 0 ? e.n.x : e.n.x - 1, cj = e.n.s > 0 ? e.n.y : e.n.y - 1;
+            leaf(s, b, ci, cj, e.n.s > 0 ? 0 : 1, r, tmin, tmax, &bh, st);
+            if (bh.hit && any)
+                break;
+            continue;
+        }
+        pnode ch[4];
+        int nc = pnode_children(p, &e.n, ch);
+        struct entry hitc[4];
+        int nh = 0;
+        for (int k = 0; k < nc; k++) {
+            double x0, x1, y0, y1, hlo, hhi, tn;
+            pnode_rect(&ch[k], &x0, &x1, &y0, &y1);
+            if (st)
+                st->nodes++;
+            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                continue;
+            if (ch[k].level >= 0)
+                hlo = glo, hhi = ghi;
+            else
+                mr_dproc_tri_heights(p, ch[k].x, ch[k].y, ch[k].s, &hlo, &hhi);
+            if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                continue;
+            hitc[nh++] = (struct entry){ch[k], tn};
+        }
+        for (int a = 1; a < nh; a++)
+            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
+                struct entry tmp = hitc[m];
+                hitc[m] = hitc[m - 1];
+                hitc[m - 1] = tmp;
+            }
+        for (int k = 0; k < nh && sp < STACK_MAX; k++)
+            stack[sp++] = hitc[k];
+    }
+    if (bh.hit)
+        finish(b, &bh, hit);
+    return bh.hit;
+}
+
 bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
                          bool any, mr_dhit *hit, mr_dstats *st)
 {
@@ -813,6 +959,11 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
             finish(b, &bh, hit);
         return bh.hit;
     }
+    mr_dray lr;
+    if (gr->local)
+        local_ray(gr, b, r, &lr);
+    if (s->proc)
+        return proc_intersect(s, b, gr, r, &lr, tmin, tmax, any, hit, st);
     struct entry {
         dnode n;
         double tnear;
@@ -822,28 +973,13 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
     int nr = roots(g, b, rs);
     for (int k = nr - 1; k >= 0; k--)
         stack[sp++] = (struct entry){rs[k], -INFINITY};
-    /* flat-normal triangles: the ray in (grid x, grid y, height) space */
-    mr_dray lr;
-    if (gr->local) {
-        double od[3];
-        for (int c = 0; c < 3; c++)
-            od[c] = r->o[c] - gr->P0[c];
-        for (int a = 0; a < 3; a++) {
-            lr.o[a] = gr->inv[a][0] * od[0] + gr->inv[a][1] * od[1] + gr->inv[a][2] * od[2];
-            lr.d[a] = gr->inv[a][0] * r->d[0] + gr->inv[a][1] * r->d[1] + gr->inv[a][2] * r->d[2];
-            lr.par[a] = lr.d[a] == 0;
-            lr.inv[a] = lr.d[a] != 0 ? 1.0 / lr.d[a] : 0.0;
-        }
-        lr.o[0] += b->g[0][0];
-        lr.o[1] += b->g[0][1];
-    }
     while (sp > 0) {
         struct entry e = stack[--sp];
         if (e.tnear > *tmax)
             continue;
         if (e.n.level == 0) {
             int64_t i = e.n.tx * g->w + e.n.I, j = e.n.ty * g->h + e.n.J;
-            leaf(s, b, i, j, r, tmin, tmax, &bh, st);
+            leaf(s, b, i, j, 2, r, tmin, tmax, &bh, st);
             if (bh.hit && any)
                 break;
             continue;
@@ -853,23 +989,15 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         struct entry hitc[4];
         int nh = 0;
         for (int k = 0; k < nc; k++) {
-            double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3], tn;
+            double x0, x1, y0, y1, hlo, hhi, tn;
             node_rect(g, &ch[k], &x0, &x1, &y0, &y1);
             if (st)
                 st->nodes++;
             if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                 continue;
             node_heights(g, &ch[k], &hlo, &hhi);
-            if (gr->local) {
-                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
-                if (!slab(&lr, lo, hi, tmin, *tmax, &tn))
-                    continue;
-            } else {
-                if (!rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, lo, hi))
-                    continue;
-                if (!slab(r, lo, hi, tmin, *tmax, &tn))
-                    continue;
-            }
+            if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                continue;
             hitc[nh++] = (struct entry){ch[k], tn};
         }
         /* push the farthest first, so the nearest is visited next */

@@ -95,7 +95,8 @@ typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal
 typedef struct mr_dscene {
     const mr_dbase *bases;
     const mr_dgrad *grads;
-    const mr_dgrid *grid;      /* texture source */
+    const mr_dgrid *grid;      /* texture source, or NULL */
+    const struct mr_dproc *proc; /* procedural source (tiling.h), or NULL */
     mr_dheights heights;
     mr_dlocal local;
     unsigned march_steps;      /* ray marcher */
