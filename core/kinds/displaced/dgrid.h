@@ -21,10 +21,11 @@
  * single node covering the period; level 0 (one cell) is read from its four
  * samples directly, which saves three quarters of the pyramid. Any W and H
  * (not only powers of two). Node values are the min and max sample of the
- * nodes' cells' corners, quantised to 16 bits over the texture's range
- * [gmin, gmax] with the minimum rounded down and the maximum up by one more
- * step, so a dequantised bound always contains the true one: 4 bytes per
- * node, 1.33 bytes per texel. A texture of one value has an exact pyramid.
+ * nodes' cells' corners, quantised to 16 bits over [gmin, gmax] (a float
+ * texture's range; an integer texture's type range, so no scan is needed)
+ * with the minimum rounded down and the maximum up by one more step, so a
+ * dequantised bound always contains the true one: 4 bytes per node, 1.33
+ * bytes per texel. The top node bounds the whole texture.
  */
 #ifndef MR_DGRID_H
 #define MR_DGRID_H
@@ -42,7 +43,8 @@ typedef struct mr_dgrid {
     const void *samples;       /* w * h in picture order (row 0 at the top) */
     void *owned;               /* samples when a mip level was made (float), else NULL */
     double unit, scale, offset;
-    double gmin, gmax;         /* smallest and largest sample */
+    double gmin, gmax;         /* the quantisation's range: the smallest and largest
+                                  sample (float), the type's range (8 and 16 bit) */
     double qstep;              /* (gmax - gmin) / 65535: one quantisation step, 0 when flat */
     unsigned levels;           /* top pyramid level (a single node); 0 for a 1x1 texture */
     uint32_t lw[MR_DGRID_MAX_LEVELS + 1], lh[MR_DGRID_MAX_LEVELS + 1];

@@ -493,9 +493,7 @@ static void node_heights(const mr_dgrid *g, const dnode *n, double *lo, double *
         mr_dgrid_node_heights(g, (unsigned)n->level, n->I, n->J, lo, hi);
         return;
     }
-    double a = mr_dgrid_height_of(g, g->gmin), b = mr_dgrid_height_of(g, g->gmax);
-    *lo = fmin(a, b);
-    *hi = fmax(a, b);
+    mr_dgrid_node_heights(g, g->levels, 0, 0, lo, hi); /* the whole texture */
 }
 
 static int children(const mr_dgrid *g, const dnode *n, dnode out[4])
