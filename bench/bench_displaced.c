@@ -30,7 +30,7 @@
 #define EXAMPLE "/usr/share/assimp/models/IRRMesh/crackedground_1-6.jpg"
 #define MAX_REPEATS 9
 
-static int width = 240, height = 135, repeats = 3;
+static int width = 160, height = 90, repeats = 3;
 
 typedef struct run {
     mr_job *job;

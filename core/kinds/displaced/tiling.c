@@ -2,6 +2,7 @@
 #include "kinds/displaced/tiling.h"
 
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -36,15 +37,6 @@ static int by_value(const void *a, const void *b)
     return x < y ? -1 : x > y ? 1 : 0;
 }
 
-void mr_dproc_free(mr_dproc *p)
-{
-    if (!p)
-        return;
-    mr_dgrid_free(&p->gex);
-    mr_image_free(p->gauss);
-    memset(p, 0, sizeof *p);
-}
-
 size_t mr_dproc_memory(const mr_dproc *p)
 {
     return sizeof *p + mr_image_bytes(p->gauss) + mr_dgrid_memory(&p->gex);
@@ -66,6 +58,9 @@ int mr_dproc_init(mr_dproc *p, const mr_image *ex, double uv_off_u, double uv_of
                   double scale, double offset, unsigned threads, mr_error *err)
 {
     memset(p, 0, sizeof *p);
+    /* a process-unique id keys the caches (never 0, never reused) */
+    static _Atomic uint64_t next_id = 1;
+    p->id = atomic_fetch_add(&next_id, 1);
     size_t n = (size_t)ex->width * ex->height;
     ranked *r = malloc(n * sizeof *r);
     int rc = mr_image_new(ex->width, ex->height, MR_SAMPLE_F32, &p->gauss, err);
@@ -201,9 +196,45 @@ double mr_dproc_blend(const mr_dproc *p, int64_t i, int64_t j)
     return num / sqrt(den) + 0.5;
 }
 
+/* Per-thread direct-mapped caches of grid heights and node bounds: rays
+ * near each other ask for the same ones, and each costs three bilinear
+ * look-ups of the example (bounds: three pyramid searches). A cache entry
+ * holds exactly what the computation returns, so results do not depend on
+ * it (or on which thread filled it). */
+#define HCACHE 8192
+#define BCACHE 4096
+
+typedef struct hentry {
+    uint64_t id;
+    int64_t i, j;
+    double h;
+} hentry;
+
+typedef struct bentry {
+    uint64_t id;
+    int64_t x, y, s;
+    double lo, hi;
+} bentry;
+
+static _Thread_local hentry hcache[HCACHE];
+static _Thread_local bentry bcache[BCACHE];
+
+static inline size_t slot_of(int64_t a, int64_t b, int64_t c, size_t n)
+{
+    uint64_t z = (uint64_t)a * 0x9e3779b97f4a7c15ull ^ (uint64_t)b * 0xc2b2ae3d27d4eb4full ^
+                 (uint64_t)c * 0x165667b19e3779f9ull;
+    z ^= z >> 29;
+    return (size_t)(z * 0xbf58476d1ce4e5b9ull >> 40) & (n - 1);
+}
+
 double mr_dproc_height(const mr_dproc *p, int64_t i, int64_t j)
 {
-    return mr_dproc_height_of_blend(p, mr_dproc_blend(p, i, j));
+    hentry *e = &hcache[slot_of(i, j, 0, HCACHE)];
+    if (e->id == p->id && e->i == i && e->j == j)
+        return e->h;
+    double h = mr_dproc_height_of_blend(p, mr_dproc_blend(p, i, j));
+    *e = (hentry){p->id, i, j, h};
+    return h;
 }
 
 /* ---- bounds ------------------------------------------------------------------------- */
@@ -220,8 +251,23 @@ void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi)
     heights_of(p, p->blend_lo, p->blend_hi, lo, hi);
 }
 
+static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                        double *hi);
+
 void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
                           double *hi)
+{
+    bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
+    if (e->id == p->id && e->x == bx && e->y == by && e->s == s) {
+        *lo = e->lo, *hi = e->hi;
+        return;
+    }
+    tri_heights(p, bx, by, s, lo, hi);
+    *e = (bentry){p->id, bx, by, s, *lo, *hi};
+}
+
+static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                        double *hi)
 {
     double q[3][2] = {{(double)bx, (double)by}, {(double)(bx + s), (double)by},
                       {(double)bx, (double)(by + s)}};
@@ -269,3 +315,14 @@ void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, 
     double blo = dmin(dmin(b0, b1), dmin(b2, b3)) + 0.5, bhi = dmax(dmax(b0, b1), dmax(b2, b3)) + 0.5;
     heights_of(p, blo, bhi, lo, hi);
 }
+
+void mr_dproc_free(mr_dproc *p)
+{
+    if (!p)
+        return;
+
+    mr_dgrid_free(&p->gex);
+    mr_image_free(p->gauss);
+    memset(p, 0, sizeof *p);
+}
+

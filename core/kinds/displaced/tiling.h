@@ -50,6 +50,7 @@
 #define MR_TILING_SIGMA (1.0 / 6.0)
 
 typedef struct mr_dproc {
+    uint64_t id;               /* unique in the process: keys the per-thread caches */
     mr_image *gauss;           /* the Gaussianised example (float samples) */
     mr_dgrid gex;              /* its repeating grid and min/max pyramid */
     float lut[MR_TILING_LUT];  /* T^-1 on [lut_lo, lut_hi], in example values (0..1) */
