@@ -1015,36 +1015,53 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
 
 /* ---- ray marching ------------------------------------------------------------------- */
 
-/* The signed height of x above the surface of T, measured along T's face
- * normal, and the barycentrics of x's projection. */
+/* The signed height of x above the surface of T: x is mapped back to its
+ * base point b by following the unit interpolated normal (x = P(b) + s
+ * N(b) / |N(b)|, the displacement's own direction, so the shells of
+ * neighbouring triangles meet without gaps), found by three fixed-point
+ * steps from the projection along the face normal (each: the plane point
+ * x - s n of the last normal n); the height above is s - h(b), and the
+ * barycentrics of b come back for the hit. */
 static double height_above(const mr_dscene *s, const mr_dbase *b, const double x[3],
                            const double fn[3], double *b1, double *b2)
 {
-    double e1[3], e2[3], w[3];
+    double e1[3], e2[3];
     for (int c = 0; c < 3; c++) {
         e1[c] = b->p[1][c] - b->p[0][c];
         e2[c] = b->p[2][c] - b->p[0][c];
-        w[c] = x[c] - b->p[0][c];
     }
     double d11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
     double d12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
     double d22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
-    double w1 = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2];
-    double w2 = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2];
     double det = d11 * d22 - d12 * d12;
-    *b1 = det != 0 ? (d22 * w1 - d12 * w2) / det : 0;
-    *b2 = det != 0 ? (d11 * w2 - d12 * w1) / det : 0;
-    double q[2], P[3], N[3];
+    double n[3] = {fn[0], fn[1], fn[2]}, dist = 0, P[3] = {0}, N[3];
+    for (int it = 0; it < 4; it++) {
+        double xn = (x[0] - b->p[0][0]) * fn[0] + (x[1] - b->p[0][1]) * fn[1] + (x[2] - b->p[0][2]) * fn[2];
+        double nf = n[0] * fn[0] + n[1] * fn[1] + n[2] * fn[2];
+        dist = nf > 1e-6 ? xn / nf : xn;
+        double w[3];
+        for (int c = 0; c < 3; c++)
+            w[c] = x[c] - dist * (nf > 1e-6 ? n[c] : fn[c]) - b->p[0][c];
+        double w1 = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2];
+        double w2 = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2];
+        *b1 = det != 0 ? (d22 * w1 - d12 * w2) / det : 0;
+        *b2 = det != 0 ? (d11 * w2 - d12 * w1) / det : 0;
+        for (int c = 0; c < 3; c++) {
+            P[c] = b->p[0][c] + *b1 * e1[c] + *b2 * e2[c];
+            N[c] = b->n[0][c] + *b1 * (b->n[1][c] - b->n[0][c]) + *b2 * (b->n[2][c] - b->n[0][c]);
+        }
+        double l = sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+        if (!(l > 1e-9))
+            break;
+        for (int c = 0; c < 3; c++)
+            n[c] = N[c] / l;
+    }
+    double q[2];
     for (int c = 0; c < 2; c++)
         q[c] = b->g[0][c] + *b1 * (b->g[1][c] - b->g[0][c]) + *b2 * (b->g[2][c] - b->g[0][c]);
-    for (int c = 0; c < 3; c++) {
-        P[c] = b->p[0][c] + *b1 * e1[c] + *b2 * e2[c];
-        N[c] = b->n[0][c] + *b1 * (b->n[1][c] - b->n[0][c]) + *b2 * (b->n[2][c] - b->n[0][c]);
-    }
-    double l = sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
     double h = mr_dsurf_height_at(&s->heights, q[0], q[1]);
-    double up = l > 0 ? (N[0] * fn[0] + N[1] * fn[1] + N[2] * fn[2]) / l : 0;
-    return ((x[0] - P[0]) * fn[0] + (x[1] - P[1]) * fn[1] + (x[2] - P[2]) * fn[2]) - h * up;
+    (void)P;
+    return dist - h;
 }
 
 bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
