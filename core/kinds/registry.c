@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "kinds/displaced/displaced_kind.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/mesh/mesh_kind.h"
 #include "kinds/svo/svo_kind.h"
@@ -21,6 +22,7 @@ static const mr_kind *const BUILTIN[] = {
     &mr_kind_mesh,
     &mr_kind_dmm,
     &mr_kind_svo,
+    &mr_kind_displaced,
 };
 
 #define BUILTIN_COUNT (sizeof BUILTIN / sizeof BUILTIN[0])
