@@ -9,6 +9,7 @@
 #include <sys/resource.h>
 
 #include "kinds/kind.h"
+#include "render/checkpoint.h"
 #include "render/device.h"
 #include "render/integrator.h"
 #include "util/clock.h"
@@ -22,6 +23,8 @@ typedef struct object_state {
     bool animated;   /* pose changes from frame to frame */
     bool posed_once;
     size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
+    char *checkpoints; /* the kind's folder when it keeps checkpoints there (checkpoint.h) */
+    uint32_t checkpoint_every;
 } object_state;
 
 struct mr_renderer {
@@ -87,6 +90,7 @@ void mr_renderer_free(mr_renderer *r)
         if (r->objects[i].geom)
             r->objects[i].kind->free(r->objects[i].geom);
         mr_pose_free(r->objects[i].pose);
+        free(r->objects[i].checkpoints);
     }
     mr_pose_free(r->cam_pose);
     free(r->stat_kinds);
@@ -218,6 +222,11 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev),
                                .memory_budget = r->opt.memory_budget};
         rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
+        if (rc == MR_OK && mr_checkpoint_kept(o->kind, o->geom, cache_dir)) {
+            o->checkpoints = cache_dir;
+            o->checkpoint_every = o->kind->checkpoint_every(o->geom);
+            cache_dir = NULL;
+        }
         free(cache_dir);
         if (rc < 0) {
             if (o->kind->self_posed) /* its errors name the pose fields under the object */
@@ -309,13 +318,38 @@ static int update_object(mr_renderer *r, object_state *o, size_t i, const mr_geo
     return rc;
 }
 
+/* After frames 0..o->stepped-1: a checkpoint when one is due (checkpoint.h).
+ * A checkpoint that cannot be written costs a later resume some replay,
+ * never this frame. */
+static void checkpoint_due(object_state *o)
+{
+    if (o->checkpoints && o->stepped % o->checkpoint_every == 0) {
+        mr_error ignored;
+        mr_checkpoint_store(o->checkpoints, o->kind, o->geom, o->stepped, &ignored);
+    }
+}
+
 /* The frame-order contract (kind.h): a SEQUENTIAL object about to show
  * frame `index` must have applied exactly frames 0..index-1. A frame out of
- * order (resumed job, retry, frame range) rewinds it and replays the
- * updates in between, untraced, so the result is the uninterrupted run's. */
-static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_error *err)
+ * order (resumed job, retry, frame range) restores the newest checkpoint
+ * at or before it (or rewinds) and replays the updates in between,
+ * untraced, so the result is the uninterrupted run's. */
+static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_frame_stats *st,
+                     mr_error *err)
 {
     int rc;
+    if (o->stepped == index)
+        return MR_OK;
+    size_t from = o->stepped > index ? 0 : o->stepped;
+    if (o->checkpoints)
+        for (size_t m = index - index % o->checkpoint_every; m > from; m -= o->checkpoint_every) {
+            mr_error miss;
+            if (mr_checkpoint_load(o->checkpoints, o->kind, o->geom, m, &miss) == MR_OK) {
+                o->stepped = m;
+                st->replay_checkpoint = (uint32_t)m;
+                break;
+            }
+        }
     if (o->stepped > index) {
         if ((rc = o->kind->rewind(o->geom, err)) < 0)
             return mr_error_prefix(err, "/objects/%zu: ", i);
@@ -329,6 +363,8 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
             (rc = update_object(r, o, i, &f, err)) < 0)
             return rc;
         o->stepped = k + 1;
+        st->replay_frames++;
+        checkpoint_due(o);
     }
     return MR_OK;
 }
@@ -384,11 +420,12 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
             continue;
         if (!o->posed_once || o->animated) {
             if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
-                (rc = replay_to(r, o, i, index, err)) < 0)
+                (rc = replay_to(r, o, i, index, st, err)) < 0)
                 return rc;
             if ((rc = update_object(r, o, i, &frame, err)) < 0)
                 return rc;
             o->stepped = index + 1;
+            checkpoint_due(o);
         }
         o->kind->commit(o->geom);
         o->posed_once = true;

@@ -97,6 +97,17 @@ void mr_derived_key_mesh_arrays(mr_derived_key_builder *kb, const mr_mesh *m, un
 /* The node count (u64), then per node its parent (i32 as u32, -1 for a
  * root) and rest transform (16 f32, mr_mat4.m order). */
 void mr_derived_key_nodes(mr_derived_key_builder *kb, const mr_asset *asset);
+/* A kind's parameter block (values of table t): every field in table
+ * order, INT/ENUM as u32, NUMBER as f32, BOOL as u32 0/1, VEC3 3 f32,
+ * QUAT 4 f32, TRANSFORM 16 f32, FLAG_OBJECT its flag then its sub table,
+ * ARRAY its count (u64) then each element; POSE fields are not fed (a
+ * builder that reads poses feeds them itself). */
+void mr_derived_key_params(mr_derived_key_builder *kb, const mr_param_table *t, const void *values);
+/* Raw bytes (a digest of something else, a name). */
+static inline void mr_derived_key_bytes(mr_derived_key_builder *kb, const void *data, size_t size)
+{
+    mr_sha256_feed_bytes(&kb->feed, data, size);
+}
 /* The key; kb is spent. */
 void mr_derived_key_end(mr_derived_key_builder *kb, uint8_t key[MR_DERIVED_KEY_BYTES]);
 

@@ -1,0 +1,665 @@
+/* map.c - the detailed mesh bound to the node grid (map.h). */
+#include "kinds/springmass/map.h"
+
+#include <math.h>
+#include <stdbool.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "util/parallel.h"
+
+/* An approximate normal is trusted where the unit vectors of its node sum
+ * to at least this (a node on a flat surface: 1 + 4 / sqrt 2 = 3.8; a
+ * node inside: 0), and the interpolated normal within 60 degrees of the
+ * triangle's. */
+#define NORMAL_STRENGTH_MIN 1.0f
+#define CURVATURE_COS_MIN 0.5
+/* Shells of cells searched for a nearest node before all nodes are. */
+#define SEARCH_SHELLS 4
+
+enum { BIND_CONSTANT = 0, BIND_CURVATURE, BIND_TRANSLATE };
+
+typedef struct tri_bind {
+    uint32_t c[3];   /* cells of p1, p2, p3 (BIND_TRANSLATE: c[0] only) */
+    float w[3];      /* eq. 4 */
+    float o[3], n[3];   /* offset and normal in the constant basis (eq. 7) */
+    float oc[3], nc[3]; /* in the interpolated basis at rest (BIND_CURVATURE) */
+    uint8_t mode;
+} tri_bind;
+
+typedef struct lin_bind {
+    int32_t corner[8]; /* >= 0: the node's cell; < 0: ghost -(g + 1) */
+    float u[3];        /* position in the cell, grid units */
+    float n[3];        /* rest normal */
+} lin_bind;
+
+typedef struct ghost {
+    uint32_t cell[4];
+    float w[4];
+    uint32_t count;
+} ghost;
+
+struct sm_map {
+    int mapping;
+    uint32_t vertex_count;
+    float h;
+    uint32_t *one;        /* one_to_one: cell per vertex */
+    tri_bind *tri;
+    lin_bind *lin;
+    ghost *ghosts;
+    size_t ghost_count;
+    float *gdisp;         /* 3 per ghost, this frame's */
+    float *rest_pos, *rest_nrm;
+    sm_map_info info;
+};
+
+void sm_map_free(sm_map *m)
+{
+    if (!m)
+        return;
+    free(m->one);
+    free(m->tri);
+    free(m->lin);
+    free(m->ghosts);
+    free(m->gdisp);
+    free(m->rest_pos);
+    free(m->rest_nrm);
+    free(m);
+}
+
+const sm_map_info *sm_map_get_info(const sm_map *m) { return &m->info; }
+
+size_t sm_map_bytes(const sm_map *m)
+{
+    size_t v = m->vertex_count;
+    return sizeof *m + v * 6 * sizeof(float) + (m->one ? v * sizeof *m->one : 0) +
+           (m->tri ? v * sizeof *m->tri : 0) + (m->lin ? v * sizeof *m->lin : 0) +
+           m->ghost_count * (sizeof *m->ghosts + 3 * sizeof(float));
+}
+
+/* ---- small vector helpers (double at set-up, float per frame) */
+
+static void d_sub(const double *a, const double *b, double *o)
+{
+    for (int i = 0; i < 3; i++)
+        o[i] = a[i] - b[i];
+}
+static double d_dot(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static void d_cross(const double *a, const double *b, double *o)
+{
+    double r[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+    memcpy(o, r, sizeof r);
+}
+static double d_norm(double *a)
+{
+    double l = sqrt(d_dot(a, a));
+    if (l > 0)
+        for (int i = 0; i < 3; i++)
+            a[i] /= l;
+    return l;
+}
+
+static inline void f_cross(const float *a, const float *b, float *o)
+{
+    float r[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+    memcpy(o, r, sizeof r);
+}
+static inline float f_norm(float *a)
+{
+    float l = sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    if (l > 0)
+        for (int i = 0; i < 3; i++)
+            a[i] /= l;
+    return l;
+}
+
+/* ---- grid look-ups */
+
+typedef struct grid_view {
+    const sm_grid *g;
+    const float *rest[3];
+    const float *nrm[3];
+    const float *nstr;
+} grid_view;
+
+static void cell_ijk(const sm_grid *g, size_t c, int64_t ijk[3])
+{
+    ijk[0] = (int64_t)(c % g->n[0]);
+    ijk[1] = (int64_t)((c / g->n[0]) % g->n[1]);
+    ijk[2] = (int64_t)(c / ((size_t)g->n[0] * g->n[1]));
+}
+
+static void cell_rest(const grid_view *gv, size_t c, double p[3])
+{
+    for (int a = 0; a < 3; a++)
+        p[a] = gv->rest[a][c];
+}
+
+/* The node (surface nodes only, if surface) nearest to p; ties: lowest
+ * cell. Shells of cells around p first, then every node. */
+static int64_t nearest_node(const grid_view *gv, const double p[3], bool surface)
+{
+    const sm_grid *g = gv->g;
+    int64_t center[3];
+    for (int a = 0; a < 3; a++) {
+        double f = floor((p[a] - g->origin[a]) / g->h + 0.5);
+        center[a] = f < 0 ? 0 : f > g->n[a] - 1 ? (int64_t)g->n[a] - 1 : (int64_t)f;
+    }
+    int64_t best = -1;
+    double best_d2 = INFINITY;
+    for (int r = 0; r <= SEARCH_SHELLS; r++) {
+        for (int64_t dk = -r; dk <= r; dk++)
+            for (int64_t dj = -r; dj <= r; dj++)
+                for (int64_t di = -r; di <= r; di++) {
+                    if (llabs(di) != r && llabs(dj) != r && llabs(dk) != r)
+                        continue; /* the shell only */
+                    int64_t q[3] = {center[0] + di, center[1] + dj, center[2] + dk};
+                    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= g->n[0] || q[1] >= g->n[1] || q[2] >= g->n[2])
+                        continue;
+                    size_t c = sm_grid_cell(g, (uint32_t)q[0], (uint32_t)q[1], (uint32_t)q[2]);
+                    if (!g->active[c] || (surface && !(g->flags[c] & SM_NODE_SURFACE)))
+                        continue;
+                    double np[3], d[3];
+                    cell_rest(gv, c, np);
+                    d_sub(np, p, d);
+                    double d2 = d_dot(d, d);
+                    if (d2 < best_d2 || (d2 == best_d2 && (int64_t)c < best)) {
+                        best_d2 = d2;
+                        best = (int64_t)c;
+                    }
+                }
+        /* every cell of the next shell is at least (r + 1/2) h away */
+        if (best >= 0 && sqrt(best_d2) <= (r + 0.5) * g->h)
+            return best;
+    }
+    for (size_t c = 0; c < g->cells; c++) {
+        if (!g->active[c] || (surface && !(g->flags[c] & SM_NODE_SURFACE)))
+            continue;
+        double np[3], d[3];
+        cell_rest(gv, c, np);
+        d_sub(np, p, d);
+        double d2 = d_dot(d, d);
+        if (d2 < best_d2) {
+            best_d2 = d2;
+            best = (int64_t)c;
+        }
+    }
+    return best;
+}
+
+/* ---- triangle bindings */
+
+/* The constant basis (eq. 6) of p1, p2, p3 (double). */
+static void basis_d(const double *p1, const double *p2, const double *p3, double T[3], double N[3], double B[3])
+{
+    double bt[3];
+    d_sub(p2, p1, T);
+    d_norm(T);
+    d_sub(p3, p1, bt);
+    d_norm(bt);
+    d_cross(T, bt, N);
+    d_norm(N);
+    d_cross(N, T, B);
+}
+
+typedef struct bind_ctx {
+    const grid_view *gv;
+    int mapping;
+    const float *pos, *nrm;
+    tri_bind *out;
+} bind_ctx;
+
+/* Whether cells a and b are 18-neighbours. */
+static bool neighbours18(const sm_grid *g, size_t a, size_t b)
+{
+    int64_t p[3], q[3];
+    cell_ijk(g, a, p);
+    cell_ijk(g, b, q);
+    int64_t s = 0;
+    for (int i = 0; i < 3; i++) {
+        int64_t d = llabs(p[i] - q[i]);
+        if (d > 1)
+            return false;
+        s += d;
+    }
+    return s == 1 || s == 2;
+}
+
+static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
+{
+    const grid_view *gv = x->gv;
+    const sm_grid *g = gv->g;
+    double p[3] = {x->pos[(size_t)v * 3], x->pos[(size_t)v * 3 + 1], x->pos[(size_t)v * 3 + 2]};
+    double vn[3] = {x->nrm[(size_t)v * 3], x->nrm[(size_t)v * 3 + 1], x->nrm[(size_t)v * 3 + 2]};
+    memset(tb, 0, sizeof *tb);
+    int64_t n1 = nearest_node(gv, p, true);
+    tb->c[0] = (uint32_t)n1;
+    if (d_norm(vn) == 0)
+        for (int a = 0; a < 3; a++)
+            vn[a] = gv->nrm[a][n1];
+    /* surface neighbours of n1 */
+    size_t nb[18], nn = 0;
+    for (int d = 0; d < 18; d++) {
+        size_t c = (size_t)((ptrdiff_t)n1 + sm_grid_offset(g, sm_neighbour_dir[d]));
+        if (g->active[c] && (g->flags[c] & SM_NODE_SURFACE))
+            nb[nn++] = c;
+    }
+    double best = INFINITY, bw[3] = {0, 0, 0};
+    size_t bc[3] = {(size_t)n1, 0, 0};
+    double p1[3];
+    cell_rest(gv, (size_t)n1, p1);
+    for (size_t i = 0; i < nn; i++)
+        for (size_t j = i + 1; j < nn; j++) {
+            if (!neighbours18(g, nb[i], nb[j]))
+                continue;
+            double p2[3], p3[3], e1[3], e2[3], q[3], n[3];
+            cell_rest(gv, nb[i], p2);
+            cell_rest(gv, nb[j], p3);
+            d_sub(p2, p1, e1);
+            d_sub(p3, p1, e2);
+            d_sub(p, p1, q);
+            double d00 = d_dot(e1, e1), d01 = d_dot(e1, e2), d11 = d_dot(e2, e2);
+            double d20 = d_dot(q, e1), d21 = d_dot(q, e2), den = d00 * d11 - d01 * d01;
+            if (!(den > 0))
+                continue;
+            double w2 = (d11 * d20 - d01 * d21) / den, w3 = (d00 * d21 - d01 * d20) / den, w1 = 1 - w2 - w3;
+            d_cross(e1, e2, n);
+            d_norm(n);
+            double outside = fmax(0, -w1) + fmax(0, -w2) + fmax(0, -w3);
+            double score = outside + 0.5 * (1 - fabs(d_dot(n, vn)));
+            if (score < best) {
+                best = score;
+                bc[1] = nb[i];
+                bc[2] = nb[j];
+                bw[0] = w1;
+                bw[1] = w2;
+                bw[2] = w3;
+            }
+        }
+    if (best == INFINITY) {
+        tb->mode = BIND_TRANSLATE;
+        return;
+    }
+    double P[3][3], T[3], N[3], B[3];
+    for (int k = 0; k < 3; k++)
+        cell_rest(gv, bc[k], P[k]);
+    basis_d(P[0], P[1], P[2], T, N, B);
+    if (d_dot(N, vn) < 0) { /* node order so that N faces the vertex normal */
+        size_t tc = bc[1];
+        bc[1] = bc[2];
+        bc[2] = tc;
+        double tw = bw[1];
+        bw[1] = bw[2];
+        bw[2] = tw;
+        for (int a = 0; a < 3; a++) {
+            double t = P[1][a];
+            P[1][a] = P[2][a];
+            P[2][a] = t;
+        }
+        basis_d(P[0], P[1], P[2], T, N, B);
+    }
+    double r[3], o[3], rn[3] = {x->nrm[(size_t)v * 3], x->nrm[(size_t)v * 3 + 1], x->nrm[(size_t)v * 3 + 2]};
+    for (int a = 0; a < 3; a++)
+        r[a] = bw[0] * P[0][a] + bw[1] * P[1][a] + bw[2] * P[2][a];
+    d_sub(p, r, o);
+    for (int k = 0; k < 3; k++) {
+        tb->c[k] = (uint32_t)bc[k];
+        tb->w[k] = (float)bw[k];
+    }
+    tb->o[0] = (float)d_dot(o, T);
+    tb->o[1] = (float)d_dot(o, N);
+    tb->o[2] = (float)d_dot(o, B);
+    tb->n[0] = (float)d_dot(rn, T);
+    tb->n[1] = (float)d_dot(rn, N);
+    tb->n[2] = (float)d_dot(rn, B);
+    tb->mode = BIND_CONSTANT;
+    if (x->mapping != MR_SPRINGMASS_TRIANGLE_CURVATURE)
+        return;
+    /* the interpolated basis at rest, where the approximate normals hold */
+    double Nc[3] = {0, 0, 0};
+    for (int k = 0; k < 3; k++) {
+        size_t c = bc[k];
+        if (gv->nstr[c] < NORMAL_STRENGTH_MIN || (g->flags[c] & SM_NODE_THIN))
+            return;
+        for (int a = 0; a < 3; a++)
+            Nc[a] += bw[k] * gv->nrm[a][c];
+    }
+    if (d_norm(Nc) == 0 || d_dot(Nc, N) < CURVATURE_COS_MIN)
+        return;
+    double Bc[3], Tc[3];
+    d_cross(Nc, T, Bc);
+    if (d_norm(Bc) < 0.1)
+        return;
+    d_cross(Bc, Nc, Tc);
+    tb->oc[0] = (float)d_dot(o, Tc);
+    tb->oc[1] = (float)d_dot(o, Nc);
+    tb->oc[2] = (float)d_dot(o, Bc);
+    tb->nc[0] = (float)d_dot(rn, Tc);
+    tb->nc[1] = (float)d_dot(rn, Nc);
+    tb->nc[2] = (float)d_dot(rn, Bc);
+    tb->mode = BIND_CURVATURE;
+}
+
+static void bind_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const bind_ctx *x = ctx;
+    for (size_t v = begin; v < end; v++)
+        bind_vertex(x, (uint32_t)v, &x->out[v]);
+}
+
+/* ---- trilinear set-up */
+
+/* The recipe of a cell that is not a node: its nearest node n and n's
+ * axis neighbours towards it (or away, if that side has none). */
+static ghost ghost_recipe(const grid_view *gv, size_t cell)
+{
+    const sm_grid *g = gv->g;
+    double p[3];
+    cell_rest(gv, cell, p);
+    ghost r = {{0}, {0}, 0};
+    int64_t n = nearest_node(gv, p, false);
+    int64_t gi[3], ni[3];
+    cell_ijk(g, cell, gi);
+    cell_ijk(g, (size_t)n, ni);
+    double wn = 1;
+    r.count = 1;
+    for (int a = 0; a < 3; a++) {
+        int64_t delta = gi[a] - ni[a];
+        if (delta == 0)
+            continue;
+        int8_t dir[3] = {0, 0, 0};
+        for (int side = 0; side < 2; side++) {
+            int s = (delta > 0) == (side == 0) ? 1 : -1;
+            dir[a] = (int8_t)s;
+            int64_t m = n + sm_grid_offset(g, dir);
+            int64_t mi = ni[a] + s;
+            if (mi < 0 || mi >= g->n[a] || !g->active[m])
+                continue;
+            /* d_g = d_n + delta * s (d_m - d_n) */
+            r.cell[r.count] = (uint32_t)m;
+            r.w[r.count++] = (float)(delta * s);
+            wn -= (double)delta * s;
+            break;
+        }
+    }
+    r.cell[0] = (uint32_t)n;
+    r.w[0] = (float)wn;
+    return r;
+}
+
+static int setup_trilinear(sm_map *m, const grid_view *gv, const float *pos, const float *nrm, mr_error *err)
+{
+    const sm_grid *g = gv->g;
+    int32_t *ghost_of = malloc(g->cells * sizeof *ghost_of);
+    m->lin = malloc((size_t)m->vertex_count * sizeof *m->lin);
+    if (!ghost_of || !m->lin) {
+        free(ghost_of);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", m->vertex_count);
+    }
+    for (size_t c = 0; c < g->cells; c++)
+        ghost_of[c] = -1;
+    size_t cap = 0;
+    for (uint32_t v = 0; v < m->vertex_count; v++) {
+        lin_bind *lb = &m->lin[v];
+        int64_t base[3];
+        for (int a = 0; a < 3; a++) {
+            double f = ((double)pos[(size_t)v * 3 + a] - g->origin[a]) / g->h;
+            double b = floor(f);
+            b = b < 0 ? 0 : b > g->n[a] - 2 ? g->n[a] - 2 : b;
+            base[a] = (int64_t)b;
+            lb->u[a] = (float)(f - b);
+            lb->n[a] = nrm[(size_t)v * 3 + a];
+        }
+        for (int k = 0; k < 8; k++) {
+            size_t c = sm_grid_cell(g, (uint32_t)(base[0] + (k & 1)), (uint32_t)(base[1] + ((k >> 1) & 1)),
+                                    (uint32_t)(base[2] + (k >> 2)));
+            if (g->active[c]) {
+                lb->corner[k] = (int32_t)c;
+                continue;
+            }
+            if (ghost_of[c] < 0) {
+                if (m->ghost_count == cap) {
+                    cap = cap ? cap * 2 : 1024;
+                    ghost *ng = realloc(m->ghosts, cap * sizeof *ng);
+                    if (!ng) {
+                        free(ghost_of);
+                        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices",
+                                            m->vertex_count);
+                    }
+                    m->ghosts = ng;
+                }
+                m->ghosts[m->ghost_count] = ghost_recipe(gv, c);
+                ghost_of[c] = (int32_t)m->ghost_count++;
+            }
+            lb->corner[k] = -(ghost_of[c] + 1);
+        }
+    }
+    free(ghost_of);
+    m->info.ghost_corners = m->ghost_count;
+    if (!(m->gdisp = calloc(m->ghost_count * 3 + 1, sizeof *m->gdisp)))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", m->vertex_count);
+    return MR_OK;
+}
+
+int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
+               uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err)
+{
+    *out = NULL;
+    sm_map *m = calloc(1, sizeof *m);
+    if (!m)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
+    m->mapping = mapping;
+    m->vertex_count = vertex_count;
+    grid_view gv = {.g = sm_sim_grid(sim), .nstr = sm_sim_normal_strength(sim)};
+    sm_sim_rest(sim, gv.rest);
+    sm_sim_normals(sim, gv.nrm);
+    m->h = (float)gv.g->h;
+    size_t bytes = (size_t)vertex_count * 3 * sizeof(float);
+    m->rest_pos = malloc(bytes + 1);
+    m->rest_nrm = malloc(bytes + 1);
+    if (!m->rest_pos || !m->rest_nrm)
+        goto nomem;
+    memcpy(m->rest_pos, rest_positions, bytes);
+    memcpy(m->rest_nrm, rest_normals, bytes);
+    int rc;
+    switch (mapping) {
+    case MR_SPRINGMASS_ONE_TO_ONE:
+        if (!(m->one = malloc((size_t)vertex_count * sizeof *m->one + 1)))
+            goto nomem;
+        for (uint32_t v = 0; v < vertex_count; v++) {
+            double p[3] = {rest_positions[(size_t)v * 3], rest_positions[(size_t)v * 3 + 1],
+                           rest_positions[(size_t)v * 3 + 2]};
+            m->one[v] = (uint32_t)nearest_node(&gv, p, true);
+        }
+        break;
+    case MR_SPRINGMASS_TRIANGLE_BASIS:
+    case MR_SPRINGMASS_TRIANGLE_CURVATURE: {
+        if (!(m->tri = malloc((size_t)vertex_count * sizeof *m->tri + 1)))
+            goto nomem;
+        bind_ctx bc = {&gv, mapping, rest_positions, rest_normals, m->tri};
+        mr_parallel_for(threads, vertex_count, 256, bind_range, &bc);
+        for (uint32_t v = 0; v < vertex_count; v++) {
+            m->info.translation_only += m->tri[v].mode == BIND_TRANSLATE;
+            m->info.constant_fallback +=
+                mapping == MR_SPRINGMASS_TRIANGLE_CURVATURE && m->tri[v].mode == BIND_CONSTANT;
+        }
+        break;
+    }
+    case MR_SPRINGMASS_TRILINEAR:
+        if ((rc = setup_trilinear(m, &gv, rest_positions, rest_normals, err)) < 0) {
+            sm_map_free(m);
+            return rc;
+        }
+        break;
+    default:
+        sm_map_free(m);
+        return mr_error_set(err, MR_ERR_INVALID, "unknown mapping %d", mapping);
+    }
+    *out = m;
+    return MR_OK;
+nomem:
+    sm_map_free(m);
+    return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", vertex_count);
+}
+
+/* ---- per frame */
+
+typedef struct apply_ctx {
+    const sm_map *m;
+    const float *pos[3], *rest[3], *nrm[3];
+    float *out_pos, *out_nrm;
+} apply_ctx;
+
+static void set3(float *dst, const float *src)
+{
+    dst[0] = src[0];
+    dst[1] = src[1];
+    dst[2] = src[2];
+}
+
+static void apply_one(const apply_ctx *x, uint32_t v)
+{
+    const sm_map *m = x->m;
+    uint32_t c = m->one[v];
+    float p[3] = {x->pos[0][c], x->pos[1][c], x->pos[2][c]};
+    float n[3] = {x->nrm[0][c], x->nrm[1][c], x->nrm[2][c]};
+    if (f_norm(n) == 0)
+        set3(n, m->rest_nrm + (size_t)v * 3);
+    set3(x->out_pos + (size_t)v * 3, p);
+    set3(x->out_nrm + (size_t)v * 3, n);
+}
+
+static void apply_tri(const apply_ctx *x, uint32_t v)
+{
+    const sm_map *m = x->m;
+    const tri_bind *tb = &m->tri[v];
+    float *op = x->out_pos + (size_t)v * 3, *on = x->out_nrm + (size_t)v * 3;
+    float P[3][3];
+    for (int k = 0; k < 3; k++)
+        for (int a = 0; a < 3; a++)
+            P[k][a] = x->pos[a][tb->c[k]];
+    if (tb->mode == BIND_TRANSLATE) {
+        for (int a = 0; a < 3; a++)
+            op[a] = m->rest_pos[(size_t)v * 3 + a] + (P[0][a] - x->rest[a][tb->c[0]]);
+        set3(on, m->rest_nrm + (size_t)v * 3);
+        return;
+    }
+    float r[3], T[3], Bt[3], N[3], B[3];
+    for (int a = 0; a < 3; a++) {
+        r[a] = tb->w[0] * P[0][a] + tb->w[1] * P[1][a] + tb->w[2] * P[2][a];
+        T[a] = P[1][a] - P[0][a];
+        Bt[a] = P[2][a] - P[0][a];
+    }
+    f_norm(T);
+    f_norm(Bt);
+    f_cross(T, Bt, N);
+    f_norm(N);
+    f_cross(N, T, B);
+    const float *o = tb->o, *n = tb->n;
+    if (tb->mode == BIND_CURVATURE) {
+        float Nc[3], Bc[3], Tc[3];
+        for (int a = 0; a < 3; a++)
+            Nc[a] = tb->w[0] * x->nrm[a][tb->c[0]] + tb->w[1] * x->nrm[a][tb->c[1]] + tb->w[2] * x->nrm[a][tb->c[2]];
+        if (f_norm(Nc) > 1e-3f) {
+            f_cross(Nc, T, Bc);
+            if (f_norm(Bc) > 1e-3f) { /* else this frame keeps the constant basis */
+                f_cross(Bc, Nc, Tc);
+                set3(T, Tc);
+                set3(N, Nc);
+                set3(B, Bc);
+                o = tb->oc;
+                n = tb->nc;
+            }
+        }
+    }
+    float nn[3];
+    for (int a = 0; a < 3; a++) {
+        op[a] = r[a] + (o[0] * T[a] + o[1] * N[a] + o[2] * B[a]);
+        nn[a] = n[0] * T[a] + n[1] * N[a] + n[2] * B[a];
+    }
+    f_norm(nn);
+    set3(on, nn);
+}
+
+/* Displacement of a corner: a node's, or a ghost's of this frame. */
+static inline void corner_disp(const apply_ctx *x, int32_t corner, float d[3])
+{
+    if (corner >= 0) {
+        for (int a = 0; a < 3; a++)
+            d[a] = x->pos[a][corner] - x->rest[a][corner];
+    } else {
+        set3(d, x->m->gdisp + (size_t)(-corner - 1) * 3);
+    }
+}
+
+static void apply_lin(const apply_ctx *x, uint32_t v)
+{
+    const sm_map *m = x->m;
+    const lin_bind *lb = &m->lin[v];
+    float *op = x->out_pos + (size_t)v * 3, *on = x->out_nrm + (size_t)v * 3;
+    const float u = lb->u[0], w = lb->u[1], s = lb->u[2];
+    float disp[3] = {0, 0, 0}, J[3][3] = {{0}}; /* J[axis][component]: d(disp)/d(axis), per h */
+    for (int k = 0; k < 8; k++) {
+        int bx = k & 1, by = (k >> 1) & 1, bz = k >> 2;
+        float fx = bx ? u : 1 - u, fy = by ? w : 1 - w, fz = bz ? s : 1 - s;
+        float gx = bx ? 1.0f : -1.0f, gy = by ? 1.0f : -1.0f, gz = bz ? 1.0f : -1.0f;
+        float wt = fx * fy * fz, dx = gx * fy * fz, dy = fx * gy * fz, dz = fx * fy * gz;
+        float d[3];
+        corner_disp(x, lb->corner[k], d);
+        for (int a = 0; a < 3; a++) {
+            disp[a] += wt * d[a];
+            J[0][a] += dx * d[a];
+            J[1][a] += dy * d[a];
+            J[2][a] += dz * d[a];
+        }
+    }
+    const float ih = 1.0f / m->h;
+    for (int a = 0; a < 3; a++) {
+        op[a] = m->rest_pos[(size_t)v * 3 + a] + disp[a];
+        for (int r = 0; r < 3; r++)
+            J[r][a] = J[r][a] * ih + (r == a ? 1.0f : 0.0f);
+    }
+    /* the cofactor of the Jacobian (columns J[0], J[1], J[2]) maps normals */
+    float c0[3], c1[3], c2[3], nn[3];
+    f_cross(J[1], J[2], c0);
+    f_cross(J[2], J[0], c1);
+    f_cross(J[0], J[1], c2);
+    for (int a = 0; a < 3; a++)
+        nn[a] = lb->n[0] * c0[a] + lb->n[1] * c1[a] + lb->n[2] * c2[a];
+    if (f_norm(nn) == 0)
+        set3(nn, lb->n);
+    set3(on, nn);
+}
+
+static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const apply_ctx *x = ctx;
+    for (size_t v = begin; v < end; v++) {
+        switch (x->m->mapping) {
+        case MR_SPRINGMASS_ONE_TO_ONE: apply_one(x, (uint32_t)v); break;
+        case MR_SPRINGMASS_TRILINEAR: apply_lin(x, (uint32_t)v); break;
+        default: apply_tri(x, (uint32_t)v); break;
+        }
+    }
+}
+
+void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, unsigned threads)
+{
+    apply_ctx x = {.m = m, .out_pos = positions, .out_nrm = normals};
+    sm_sim_positions(sim, x.pos);
+    sm_sim_rest(sim, x.rest);
+    sm_sim_normals(sim, x.nrm);
+    for (size_t q = 0; q < m->ghost_count; q++) {
+        const ghost *gh = &m->ghosts[q];
+        float d[3] = {0, 0, 0};
+        for (uint32_t r = 0; r < gh->count; r++) {
+            uint32_t c = gh->cell[r];
+            for (int a = 0; a < 3; a++)
+                d[a] += gh->w[r] * (x.pos[a][c] - x.rest[a][c]);
+        }
+        set3(m->gdisp + q * 3, d);
+    }
+    mr_parallel_for(threads, m->vertex_count, 2048, apply_range, &x);
+}
