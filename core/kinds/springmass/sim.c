@@ -34,9 +34,9 @@ struct sm_sim {
     uint8_t *pin_of;                    /* per cell: 0, or 1 + index of the pin holding it */
     mr_vec3 *pivot;                     /* per pin */
     int64_t *force_cell;                /* per force: the point force's node, -1 for wind */
-    double h_crit;
+    double h_crit;                      /* the stability bound of the last measured state */
     float h, hm, inv_den, mg[3];
-    uint32_t substeps;
+    uint32_t substeps, forced_substeps, last_substeps;
     bool driven;
     /* state */
     uint64_t steps;
@@ -149,7 +149,7 @@ void sm_sim_free(sm_sim *s)
 
 const sm_grid *sm_sim_grid(const sm_sim *s) { return &s->grid; }
 uint64_t sm_sim_steps(const sm_sim *s) { return s->steps; }
-uint32_t sm_sim_substeps(const sm_sim *s) { return s->substeps; }
+uint32_t sm_sim_substeps(const sm_sim *s) { return s->last_substeps ? s->last_substeps : s->substeps; }
 const sm_measure *sm_sim_measure(const sm_sim *s) { return &s->m; }
 
 void sm_sim_positions(const sm_sim *s, const float *xyz[3])
@@ -238,6 +238,22 @@ static float *alloc_cells(size_t n)
     return calloc(n + SM_SLACK, sizeof(float));
 }
 
+/* The substep h and the factors of the kick that depend on it. */
+static void set_step(sm_sim *s)
+{
+    s->h = (float)((double)s->p->dt / s->substeps);
+    s->hm = s->h / s->p->mass;
+    s->inv_den = 1.0f / (1.0f + s->h * s->p->damping / s->p->mass);
+}
+
+void sm_sim_set_substeps(sm_sim *s, uint32_t substeps, unsigned threads)
+{
+    s->forced_substeps = substeps;
+    s->substeps = substeps ? substeps : 1;
+    set_step(s);
+    sm_sim_reset(s, threads);
+}
+
 static bool in_box(const mr_springmass_pin *p, float x, float y, float z)
 {
     return x >= p->box_min.x && x <= p->box_max.x && y >= p->box_min.y && y <= p->box_max.y &&
@@ -315,9 +331,7 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
         sm_sim_free(s);
         return mr_error_set(err, MR_ERR_LIMIT, "dt needs more than %u substeps", SM_MAX_SUBSTEPS);
     }
-    s->h = (float)((double)p->dt / s->substeps);
-    s->hm = s->h / p->mass;
-    s->inv_den = 1.0f / (1.0f + s->h * p->damping / p->mass);
+    set_step(s);
     s->mg[0] = p->mass * p->gravity.x;
     s->mg[1] = p->mass * p->gravity.y;
     s->mg[2] = p->mass * p->gravity.z;
@@ -389,6 +403,7 @@ void sm_sim_reset(sm_sim *s, unsigned threads)
         memset(s->vel[a], 0, s->cells * sizeof(float));
     }
     s->steps = 0;
+    s->last_substeps = 0;
     s->failed_rc = MR_OK;
     s->failed_msg[0] = 0;
     s->energy_scale = 0;
@@ -422,9 +437,11 @@ static void constrain_rows(void *ctx, size_t begin, size_t end, unsigned worker)
                 const pin_motion *m = &x->pins[s->pin_of[c] - 1];
                 float d[3] = {s->rest[0][c] - m->pivot[0], s->rest[1][c] - m->pivot[1],
                               s->rest[2][c] - m->pivot[2]};
+                /* as a displacement from rest, so a pin that does not move
+                 * holds its nodes exactly at rest */
                 for (int a = 0; a < 3; a++)
-                    q[a] = m->pivot[a] + (m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) +
-                           m->t[a];
+                    q[a] = s->rest[a][c] +
+                           (((m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) - d[a]) + m->t[a]);
                 moved = true;
             } else {
                 for (size_t k = 0; k < p->probe_count; k++) {
@@ -506,9 +523,10 @@ static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
     }
 }
 
-/* Per row: 0 kinetic, 1 spring, 2 gravity, 3 shadow term, 4 strain max,
- * 5 inverted cells, 6 non-finite or out-of-range coordinates. */
-enum { RS_T, RS_V, RS_G, RS_SH, RS_STRAIN, RS_INV, RS_BAD, RS_N = 8 };
+/* Per row: kinetic, spring and gravity energy, the shadow term, the
+ * largest strain, inverted cells, non-finite or out-of-range coordinates,
+ * the largest stiffness bound B of a node (sim.h). */
+enum { RS_T, RS_V, RS_G, RS_SH, RS_STRAIN, RS_INV, RS_BAD, RS_BOUND, RS_N };
 
 /* Whether the cell c has a corner whose three edges span non-positive
  * volume (all 8 corners nodes; c is its low corner). */
@@ -553,7 +571,7 @@ static void measure_rows(void *ctx, size_t begin, size_t end, unsigned worker)
                 continue;
             float x = s->pos[0][c], y = s->pos[1][c], z = s->pos[2][c];
             float f[3] = {s->mg[0], s->mg[1], s->mg[2]}, u[3] = {0, 0, 0};
-            double vs = 0, strain = 0;
+            double vs = 0, strain = 0, S[6] = {0, 0, 0, 0, 0, 0}, transverse = 0;
             for (int d = 0; d < 18; d++) {
                 size_t n = (size_t)((ptrdiff_t)c + s->off[d]);
                 if (s->act[n] == 0)
@@ -568,11 +586,26 @@ static void measure_rows(void *ctx, size_t begin, size_t end, unsigned worker)
                 u[0] += dx / Lc;
                 u[1] += dy / Lc;
                 u[2] += dz / Lc;
+                /* the node's stiffness: sum k d d^T along the springs, plus
+                 * the transverse k (1 - l / |d|) of stretched ones */
+                double ux = dx / Lc, uy = dy / Lc, uz = dz / Lc, k = s->k[d];
+                S[0] += k * ux * ux;
+                S[1] += k * uy * uy;
+                S[2] += k * uz * uz;
+                S[3] += k * ux * uy;
+                S[4] += k * ux * uz;
+                S[5] += k * uy * uz;
+                double tv = 1.0 - (double)s->len[d] / Lc;
+                transverse += tv > 0 ? k * tv : 0;
                 double stretch = (double)L - s->len[d];
                 vs += 0.25 * s->k[d] * stretch * stretch; /* each spring seen from both ends */
                 double e = fabs((double)L / s->len[d] - 1.0);
                 strain = e > strain || e != e ? e : strain;
             }
+            double bound = fmax(fabs(S[0]) + fabs(S[3]) + fabs(S[4]),
+                                fmax(fabs(S[3]) + fabs(S[1]) + fabs(S[5]), fabs(S[4]) + fabs(S[5]) + fabs(S[2]))) +
+                           transverse;
+            sum[RS_BOUND] = bound > sum[RS_BOUND] || bound != bound ? bound : sum[RS_BOUND];
             float v[3] = {s->vel[0][c], s->vel[1][c], s->vel[2][c]};
             sum[RS_T] += 0.5 * mass * ((double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2]);
             sum[RS_V] += vs;
@@ -599,9 +632,10 @@ static int measure(sm_sim *s, unsigned threads)
 {
     mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, measure_rows, s);
     sm_measure m = {0};
-    double bad = 0, inv = 0;
+    double bad = 0, inv = 0, bound = 0;
     for (size_t r = 0; r < s->span_count; r++) {
         const double *sum = s->row_sums + r * RS_N;
+        bound = sum[RS_BOUND] > bound || sum[RS_BOUND] != sum[RS_BOUND] ? sum[RS_BOUND] : bound;
         m.kinetic += sum[RS_T];
         m.spring += sum[RS_V];
         m.gravity += sum[RS_G];
@@ -618,6 +652,13 @@ static int measure(sm_sim *s, unsigned threads)
     double scale = m.kinetic + m.spring + fabs(m.gravity);
     if (scale > s->energy_scale || !isfinite(scale))
         s->energy_scale = scale;
+    /* the stability bound of this state: omega^2 <= 2 B / m (sim.h) */
+    s->h_crit = bound > 0 ? sqrt(2.0 * s->p->mass / bound) : INFINITY;
+    if (!s->forced_substeps) {
+        double n = ceil((double)s->p->dt / (SM_STABLE_FRACTION * s->h_crit));
+        s->substeps = !(n >= 1) ? 1 : n > SM_MAX_SUBSTEPS ? SM_MAX_SUBSTEPS + 1 : (uint32_t)n;
+        set_step(s);
+    }
     return MR_OK;
 }
 
@@ -644,6 +685,10 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
     if (s->failed_rc < 0)
         return mr_error_set(err, s->failed_rc, "%s", s->failed_msg);
     mr_range_fn kernel = step_kernel();
+    s->last_substeps = s->substeps;
+    if (steps && s->substeps > SM_MAX_SUBSTEPS)
+        return fail(s, err, "the springs stiffened (stretched) until a step needs more than %u substeps",
+                    SM_MAX_SUBSTEPS);
     for (uint64_t k = 0; k < steps; k++) {
         double t = (double)s->steps * s->p->dt;
         for (uint32_t q = 0; q < s->substeps; q++)
