@@ -10,14 +10,28 @@
 
 /* An approximate normal is trusted where the unit vectors of its node sum
  * to at least this (a node on a flat surface: 1 + 4 / sqrt 2 = 3.8; a
- * node inside: 0), and the interpolated normal within 60 degrees of the
- * triangle's. */
+ * node inside: 0) and, at rest, it is within 60 degrees of the surface's
+ * normal there (the triangle's; one_to_one: the vertex's). A node of a
+ * one-node-thin part fails the second test for the faces of the sheet
+ * (no neighbour across it: its normal lies in the sheet) and passes it on
+ * the sheet's rim, where its normal does point outwards. */
 #define NORMAL_STRENGTH_MIN 1.0f
 #define CURVATURE_COS_MIN 0.5
+/* ... and N_c at least 17 degrees away from the triangle's first edge (eq.
+ * 8 crosses them). */
+#define CURVATURE_SIN_MIN 0.3
+/* What a triangle node below the surface adds to a candidate's score (in
+ * units of barycentric weight outside the triangle). */
+#define INNER_NODE_COST 0.1
+/* And a node whose approximate normal cannot stand for the vertex's
+ * surface (the curvature mapping would fall back to the constant basis). */
+#define ASTRAY_NORMAL_COST 0.25
 /* Shells of cells searched for a nearest node before all nodes are. */
 #define SEARCH_SHELLS 4
 
 enum { BIND_CONSTANT = 0, BIND_CURVATURE, BIND_TRANSLATE };
+/* one_to_one: the node's normal is not to be trusted (a flag on the cell). */
+#define ONE_WEAK_NORMAL 0x80000000u
 
 typedef struct tri_bind {
     uint32_t c[3];   /* cells of p1, p2, p3 (BIND_TRANSLATE: c[0] only) */
@@ -33,10 +47,20 @@ typedef struct lin_bind {
     float n[3];        /* rest normal */
 } lin_bind;
 
+/* A cell corner that is not a node: its nearest node n, and per axis how
+ * the position changes along it at n (D_a, per cell): from n's neighbour
+ * on that axis, or, on an axis without one (across a one-node-thin
+ * sheet), the cross product of the other two scaled by 1/h (exact for a
+ * rotation). Per frame d_g = d_n + sum_a delta_a (D_a - D_a at rest). */
+enum { AXIS_NONE = 0, AXIS_NEIGHBOUR, AXIS_CROSS };
+
 typedef struct ghost {
-    uint32_t cell[4];
-    float w[4];
-    uint32_t count;
+    uint32_t node;
+    uint32_t nb[3];    /* AXIS_NEIGHBOUR: the neighbour's cell */
+    uint8_t kind[3];
+    float sign[3];     /* the neighbour's side, +1 or -1 */
+    float delta[3];    /* from n to the corner, cells */
+    float rest_d[3][3];
 } ghost;
 
 struct sm_map {
@@ -120,6 +144,9 @@ typedef struct grid_view {
     const float *rest[3];
     const float *nrm[3];
     const float *nstr;
+    uint8_t *surface;  /* per cell: a surface node */
+    uint8_t *anchor;   /* per cell: a surface node with a triangle around it */
+    uint8_t *framed;   /* per cell: a node with a neighbour on two axes or three */
 } grid_view;
 
 static void cell_ijk(const sm_grid *g, size_t c, int64_t ijk[3])
@@ -135,9 +162,10 @@ static void cell_rest(const grid_view *gv, size_t c, double p[3])
         p[a] = gv->rest[a][c];
 }
 
-/* The node (surface nodes only, if surface) nearest to p; ties: lowest
- * cell. Shells of cells around p first, then every node. */
-static int64_t nearest_node(const grid_view *gv, const double p[3], bool surface)
+/* The node nearest to p among the cells whose eligible[] is set (NULL:
+ * every node); ties: lowest cell. Shells of cells around p first, then
+ * every cell. -1 when none is eligible. */
+static int64_t nearest_node(const grid_view *gv, const double p[3], const uint8_t *eligible)
 {
     const sm_grid *g = gv->g;
     int64_t center[3];
@@ -157,7 +185,7 @@ static int64_t nearest_node(const grid_view *gv, const double p[3], bool surface
                     if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= g->n[0] || q[1] >= g->n[1] || q[2] >= g->n[2])
                         continue;
                     size_t c = sm_grid_cell(g, (uint32_t)q[0], (uint32_t)q[1], (uint32_t)q[2]);
-                    if (!g->active[c] || (surface && !(g->flags[c] & SM_NODE_SURFACE)))
+                    if (!(eligible ? eligible[c] : g->active[c]))
                         continue;
                     double np[3], d[3];
                     cell_rest(gv, c, np);
@@ -173,7 +201,7 @@ static int64_t nearest_node(const grid_view *gv, const double p[3], bool surface
             return best;
     }
     for (size_t c = 0; c < g->cells; c++) {
-        if (!g->active[c] || (surface && !(g->flags[c] & SM_NODE_SURFACE)))
+        if (!(eligible ? eligible[c] : g->active[c]))
             continue;
         double np[3], d[3];
         cell_rest(gv, c, np);
@@ -225,6 +253,14 @@ static bool neighbours18(const sm_grid *g, size_t a, size_t b)
     return s == 1 || s == 2;
 }
 
+/* 1 when node c's approximate normal cannot stand for the surface with
+ * normal vn (weak, or more than 60 degrees off), else 0. */
+static double astray_normal(const grid_view *gv, size_t c, const double vn[3])
+{
+    double d = gv->nrm[0][c] * vn[0] + gv->nrm[1][c] * vn[1] + gv->nrm[2][c] * vn[2];
+    return gv->nstr[c] < NORMAL_STRENGTH_MIN || d < CURVATURE_COS_MIN ? 1.0 : 0.0;
+}
+
 static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
 {
     const grid_view *gv = x->gv;
@@ -232,16 +268,23 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
     double p[3] = {x->pos[(size_t)v * 3], x->pos[(size_t)v * 3 + 1], x->pos[(size_t)v * 3 + 2]};
     double vn[3] = {x->nrm[(size_t)v * 3], x->nrm[(size_t)v * 3 + 1], x->nrm[(size_t)v * 3 + 2]};
     memset(tb, 0, sizeof *tb);
-    int64_t n1 = nearest_node(gv, p, true);
+    /* the nearest surface node with a triangle around it (an isolated node,
+     * or a line of them, has none); any node if there is no such one */
+    int64_t n1 = nearest_node(gv, p, gv->anchor);
+    if (n1 < 0)
+        n1 = nearest_node(gv, p, NULL);
     tb->c[0] = (uint32_t)n1;
     if (d_norm(vn) == 0)
         for (int a = 0; a < 3; a++)
             vn[a] = gv->nrm[a][n1];
-    /* surface neighbours of n1 */
+    /* the nodes around n1: on a surface running diagonally through the
+     * grid, surface nodes alone are linked only in a zig-zag with no
+     * triangle between them, so nodes below the surface take part too (at
+     * a small cost in the score) */
     size_t nb[18], nn = 0;
     for (int d = 0; d < 18; d++) {
         size_t c = (size_t)((ptrdiff_t)n1 + sm_grid_offset(g, sm_neighbour_dir[d]));
-        if (g->active[c] && (g->flags[c] & SM_NODE_SURFACE))
+        if (g->active[c])
             nb[nn++] = c;
     }
     double best = INFINITY, bw[3] = {0, 0, 0};
@@ -266,7 +309,11 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
             d_cross(e1, e2, n);
             d_norm(n);
             double outside = fmax(0, -w1) + fmax(0, -w2) + fmax(0, -w3);
-            double score = outside + 0.5 * (1 - fabs(d_dot(n, vn)));
+            double below = !(g->flags[nb[i]] & SM_NODE_SURFACE) + !(g->flags[nb[j]] & SM_NODE_SURFACE);
+            double astray = astray_normal(gv, (size_t)n1, vn) + astray_normal(gv, nb[i], vn) +
+                            astray_normal(gv, nb[j], vn);
+            double score = outside + 0.5 * (1 - fabs(d_dot(n, vn))) + INNER_NODE_COST * below +
+                           ASTRAY_NORMAL_COST * astray;
             if (score < best) {
                 best = score;
                 bc[1] = nb[i];
@@ -319,16 +366,16 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
     double Nc[3] = {0, 0, 0};
     for (int k = 0; k < 3; k++) {
         size_t c = bc[k];
-        if (gv->nstr[c] < NORMAL_STRENGTH_MIN || (g->flags[c] & SM_NODE_THIN))
+        if (gv->nstr[c] < NORMAL_STRENGTH_MIN)
             return;
         for (int a = 0; a < 3; a++)
             Nc[a] += bw[k] * gv->nrm[a][c];
     }
-    if (d_norm(Nc) == 0 || d_dot(Nc, N) < CURVATURE_COS_MIN)
+    if (d_norm(Nc) == 0 || d_dot(Nc, vn) < CURVATURE_COS_MIN)
         return;
     double Bc[3], Tc[3];
     d_cross(Nc, T, Bc);
-    if (d_norm(Bc) < 0.1)
+    if (d_norm(Bc) < CURVATURE_SIN_MIN)
         return;
     d_cross(Bc, Nc, Tc);
     tb->oc[0] = (float)d_dot(o, Tc);
@@ -350,41 +397,63 @@ static void bind_range(void *ctx, size_t begin, size_t end, unsigned worker)
 
 /* ---- trilinear set-up */
 
-/* The recipe of a cell that is not a node: its nearest node n and n's
- * axis neighbours towards it (or away, if that side has none). */
+/* D_a for each axis from positions xyz (ghost recipe above). */
+static void ghost_derivatives(const ghost *gh, const float *const xyz[3], float inv_h, float D[3][3])
+{
+    for (int a = 0; a < 3; a++) {
+        for (int c = 0; c < 3; c++)
+            D[a][c] = 0;
+        if (gh->kind[a] == AXIS_NEIGHBOUR)
+            for (int c = 0; c < 3; c++)
+                D[a][c] = gh->sign[a] * (xyz[c][gh->nb[a]] - xyz[c][gh->node]);
+    }
+    for (int a = 0; a < 3; a++)
+        if (gh->kind[a] == AXIS_CROSS) {
+            const float *u = D[(a + 1) % 3], *w = D[(a + 2) % 3];
+            f_cross(u, w, D[a]);
+            for (int c = 0; c < 3; c++)
+                D[a][c] *= inv_h;
+        }
+}
+
 static ghost ghost_recipe(const grid_view *gv, size_t cell)
 {
     const sm_grid *g = gv->g;
     double p[3];
     cell_rest(gv, cell, p);
-    ghost r = {{0}, {0}, 0};
-    int64_t n = nearest_node(gv, p, false);
+    ghost r;
+    memset(&r, 0, sizeof r);
+    /* the nearest node with neighbours on two axes at least (the third then
+     * follows by a cross product); any node if there is none */
+    int64_t n = nearest_node(gv, p, gv->framed);
+    if (n < 0)
+        n = nearest_node(gv, p, NULL);
     int64_t gi[3], ni[3];
     cell_ijk(g, cell, gi);
     cell_ijk(g, (size_t)n, ni);
-    double wn = 1;
-    r.count = 1;
+    r.node = (uint32_t)n;
     for (int a = 0; a < 3; a++) {
-        int64_t delta = gi[a] - ni[a];
-        if (delta == 0)
-            continue;
+        r.delta[a] = (float)(gi[a] - ni[a]);
         int8_t dir[3] = {0, 0, 0};
         for (int side = 0; side < 2; side++) {
-            int s = (delta > 0) == (side == 0) ? 1 : -1;
-            dir[a] = (int8_t)s;
-            int64_t m = n + sm_grid_offset(g, dir);
+            int s = (gi[a] >= ni[a]) == (side == 0) ? 1 : -1; /* towards the corner first */
             int64_t mi = ni[a] + s;
-            if (mi < 0 || mi >= g->n[a] || !g->active[m])
+            dir[a] = (int8_t)s;
+            if (mi < 0 || mi >= g->n[a])
                 continue;
-            /* d_g = d_n + delta * s (d_m - d_n) */
-            r.cell[r.count] = (uint32_t)m;
-            r.w[r.count++] = (float)(delta * s);
-            wn -= (double)delta * s;
+            size_t m = (size_t)(n + sm_grid_offset(g, dir));
+            if (!g->active[m])
+                continue;
+            r.kind[a] = AXIS_NEIGHBOUR;
+            r.nb[a] = (uint32_t)m;
+            r.sign[a] = (float)s;
             break;
         }
     }
-    r.cell[0] = (uint32_t)n;
-    r.w[0] = (float)wn;
+    for (int a = 0; a < 3; a++)
+        if (r.kind[a] == AXIS_NONE && r.kind[(a + 1) % 3] == AXIS_NEIGHBOUR && r.kind[(a + 2) % 3] == AXIS_NEIGHBOUR)
+            r.kind[a] = AXIS_CROSS;
+    ghost_derivatives(&r, gv->rest, (float)(1.0 / g->h), r.rest_d);
     return r;
 }
 
@@ -442,6 +511,38 @@ static int setup_trilinear(sm_map *m, const grid_view *gv, const float *pos, con
     return MR_OK;
 }
 
+/* Surface nodes, and those with a triangle of pairwise 18-neighbours
+ * around them (bind_vertex's candidates). */
+static void mark_anchors(grid_view *gv)
+{
+    const sm_grid *g = gv->g;
+    for (size_t c = 0; c < g->cells; c++) {
+        if (!g->active[c])
+            continue;
+        int axes = 0;
+        for (int a = 0; a < 3; a++) {
+            ptrdiff_t o = sm_grid_offset(g, sm_neighbour_dir[2 * a]);
+            axes += g->active[c + o] || g->active[c - o];
+        }
+        gv->framed[c] = axes >= 2;
+        if (!(g->flags[c] & SM_NODE_SURFACE))
+            continue;
+        gv->surface[c] = 1;
+        size_t nb[18], nn = 0;
+        for (int d = 0; d < 18; d++) {
+            size_t q = (size_t)((ptrdiff_t)c + sm_grid_offset(g, sm_neighbour_dir[d]));
+            if (g->active[q])
+                nb[nn++] = q;
+        }
+        for (size_t i = 0; i < nn && !gv->anchor[c]; i++)
+            for (size_t j = i + 1; j < nn && !gv->anchor[c]; j++)
+                gv->anchor[c] = neighbours18(g, nb[i], nb[j]);
+    }
+}
+
+static int map_setup(sm_map *m, grid_view *gv, int mapping, const float *rest_positions,
+                     const float *rest_normals, uint32_t vertex_count, unsigned threads, mr_error *err);
+
 int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
                uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err)
 {
@@ -451,10 +552,34 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory");
     m->mapping = mapping;
     m->vertex_count = vertex_count;
-    grid_view gv = {.g = sm_sim_grid(sim), .nstr = sm_sim_normal_strength(sim)};
+    grid_view gv = {.g = sm_sim_grid(sim)};
     sm_sim_rest(sim, gv.rest);
-    sm_sim_normals(sim, gv.nrm);
+    sm_sim_rest_normals(sim, gv.nrm, &gv.nstr);
     m->h = (float)gv.g->h;
+    if (!(gv.surface = calloc(gv.g->cells, 1)) || !(gv.anchor = calloc(gv.g->cells, 1)) ||
+        !(gv.framed = calloc(gv.g->cells, 1))) {
+        free(gv.surface);
+        free(gv.anchor);
+        sm_map_free(m);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", vertex_count);
+    }
+    mark_anchors(&gv);
+    int rc = map_setup(m, &gv, mapping, rest_positions, rest_normals, vertex_count, threads, err);
+    free(gv.surface);
+    free(gv.anchor);
+    free(gv.framed);
+    if (rc < 0) {
+        sm_map_free(m);
+        return rc;
+    }
+    *out = m;
+    return MR_OK;
+}
+
+static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_positions,
+                     const float *rest_normals, uint32_t vertex_count, unsigned threads, mr_error *err)
+{
+    grid_view gv = *gv_;
     size_t bytes = (size_t)vertex_count * 3 * sizeof(float);
     m->rest_pos = malloc(bytes + 1);
     m->rest_nrm = malloc(bytes + 1);
@@ -462,17 +587,29 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
         goto nomem;
     memcpy(m->rest_pos, rest_positions, bytes);
     memcpy(m->rest_nrm, rest_normals, bytes);
-    int rc;
     switch (mapping) {
-    case MR_SPRINGMASS_ONE_TO_ONE:
-        if (!(m->one = malloc((size_t)vertex_count * sizeof *m->one + 1)))
+    case MR_SPRINGMASS_ONE_TO_ONE: {
+        /* where the node's approximate normal does not hold (3.5), the
+         * vertex's normal comes from a constant triangle basis instead */
+        if (!(m->one = malloc((size_t)vertex_count * sizeof *m->one + 1)) ||
+            !(m->tri = malloc((size_t)vertex_count * sizeof *m->tri + 1)))
             goto nomem;
+        bind_ctx bc = {&gv, MR_SPRINGMASS_TRIANGLE_BASIS, rest_positions, rest_normals, m->tri};
+        mr_parallel_for(threads, vertex_count, 256, bind_range, &bc);
         for (uint32_t v = 0; v < vertex_count; v++) {
             double p[3] = {rest_positions[(size_t)v * 3], rest_positions[(size_t)v * 3 + 1],
                            rest_positions[(size_t)v * 3 + 2]};
-            m->one[v] = (uint32_t)nearest_node(&gv, p, true);
+            uint32_t c = (uint32_t)nearest_node(&gv, p, gv.surface);
+            m->one[v] = c;
+            double facing = gv.nrm[0][c] * rest_normals[(size_t)v * 3] + gv.nrm[1][c] * rest_normals[(size_t)v * 3 + 1] +
+                            gv.nrm[2][c] * rest_normals[(size_t)v * 3 + 2];
+            if (gv.nstr[c] < NORMAL_STRENGTH_MIN || facing < CURVATURE_COS_MIN) {
+                m->one[v] |= ONE_WEAK_NORMAL;
+                m->info.constant_fallback++;
+            }
         }
         break;
+    }
     case MR_SPRINGMASS_TRIANGLE_BASIS:
     case MR_SPRINGMASS_TRIANGLE_CURVATURE: {
         if (!(m->tri = malloc((size_t)vertex_count * sizeof *m->tri + 1)))
@@ -487,19 +624,12 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
         break;
     }
     case MR_SPRINGMASS_TRILINEAR:
-        if ((rc = setup_trilinear(m, &gv, rest_positions, rest_normals, err)) < 0) {
-            sm_map_free(m);
-            return rc;
-        }
-        break;
+        return setup_trilinear(m, &gv, rest_positions, rest_normals, err);
     default:
-        sm_map_free(m);
         return mr_error_set(err, MR_ERR_INVALID, "unknown mapping %d", mapping);
     }
-    *out = m;
     return MR_OK;
 nomem:
-    sm_map_free(m);
     return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", vertex_count);
 }
 
@@ -518,14 +648,18 @@ static void set3(float *dst, const float *src)
     dst[2] = src[2];
 }
 
+static void apply_tri(const apply_ctx *x, uint32_t v);
+
 static void apply_one(const apply_ctx *x, uint32_t v)
 {
     const sm_map *m = x->m;
-    uint32_t c = m->one[v];
+    uint32_t c = m->one[v] & ~ONE_WEAK_NORMAL;
     float p[3] = {x->pos[0][c], x->pos[1][c], x->pos[2][c]};
     float n[3] = {x->nrm[0][c], x->nrm[1][c], x->nrm[2][c]};
-    if (f_norm(n) == 0)
-        set3(n, m->rest_nrm + (size_t)v * 3);
+    if ((m->one[v] & ONE_WEAK_NORMAL) || f_norm(n) == 0) {
+        apply_tri(x, v); /* the constant basis' normal; its position is overwritten */
+        set3(n, x->out_nrm + (size_t)v * 3);
+    }
     set3(x->out_pos + (size_t)v * 3, p);
     set3(x->out_nrm + (size_t)v * 3, n);
 }
@@ -651,13 +785,15 @@ void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals
     sm_sim_positions(sim, x.pos);
     sm_sim_rest(sim, x.rest);
     sm_sim_normals(sim, x.nrm);
+    const float inv_h = 1.0f / m->h;
     for (size_t q = 0; q < m->ghost_count; q++) {
         const ghost *gh = &m->ghosts[q];
-        float d[3] = {0, 0, 0};
-        for (uint32_t r = 0; r < gh->count; r++) {
-            uint32_t c = gh->cell[r];
+        float D[3][3], d[3];
+        ghost_derivatives(gh, x.pos, inv_h, D);
+        for (int c = 0; c < 3; c++) {
+            d[c] = x.pos[c][gh->node] - x.rest[c][gh->node];
             for (int a = 0; a < 3; a++)
-                d[a] += gh->w[r] * (x.pos[a][c] - x.rest[a][c]);
+                d[c] += gh->delta[a] * (D[a][c] - gh->rest_d[a][c]);
         }
         set3(m->gdisp + q * 3, d);
     }

@@ -5,7 +5,9 @@
  *
  * one_to_one (3.2): each vertex sits on its nearest surface node and takes
  * the node's approximate normal (eq. 3), the jagged look of the paper's
- * Fig. 2a.
+ * Fig. 2a; where that normal does not hold (a weak sum, or more than 60
+ * degrees from the vertex normal at rest) the vertex normal comes from the
+ * constant triangle basis (counted as a fallback).
  *
  * triangle_basis (3.3.1): each vertex is bound to a triangle of three
  * surface nodes (p1, p2, p3) that are pairwise 18-neighbours, chosen
@@ -23,24 +25,29 @@
  * interpolated: N_c = |sum w_i N_a(i)| from the nodes' approximate normals,
  * B_c = |N_c x T|, T_c = B_c x N_c (eq. 8, normalised), with the offset and
  * normal stored in the rest pose's interpolated basis. Where the
- * approximate normals are not defined (a node of a one-node-thin part, a
- * weak sum of unit vectors, or N_c more than 60 degrees from the triangle
- * normal at rest) the vertex keeps the constant basis (3.5 and the paper's
- * future work), counted in sm_map_info.
+ * approximate normals are not defined at rest (a weak sum of unit vectors,
+ * or N_c more than 60 degrees from the triangle normal: the faces of a
+ * one-node-thin part, whose nodes have no neighbour across it) the vertex
+ * keeps the constant basis (3.5 and the paper's future work), counted in
+ * sm_map_info.
  *
  * trilinear (the reference, SOFA's barycentric mapping): v' = v +
  * sum_c w_c(u) d_c over the 8 corners of the grid cell holding v (u its
  * position in the cell, d_c = p_c - rest_c), normals by the cofactor of
  * the map's Jacobian. Corners that are not nodes (cells around the surface
  * reach outside the node-filled inside) are extrapolated from their
- * nearest node n and its axis neighbours: d = d_n + sum_a delta_a (d_m -
- * d_n) / sigma_a, exact for any affine motion (rigid ones included); an
- * axis with no neighbour of n contributes nothing.
+ * nearest node n: d = d_n + sum_a delta_a (D_a - D_a at rest), delta the
+ * corner's offset from n in cells and D_a the change of position per cell
+ * along axis a at n, from n's neighbour on that axis (towards the corner
+ * if it is a node, else away): exact for any affine motion. Across a
+ * one-node-thin part (no neighbour on one axis) D_a is the cross product of
+ * the other two over h, exact for rigid motions; with two axes missing (a
+ * line of nodes, a single node) only n's translation is carried there.
  *
  * A vertex whose nearest surface node has no triangle (a grid of one or
  * two nodes) follows that node by translation in every triangle mapping
  * (counted). All mappings reproduce the rest mesh at rest and move it
- * rigidly under a rigid motion of the nodes (tests/hard/test_springmass_hard.c),
+ * rigidly under a rigid motion of the nodes (tests/unit/test_springmass_map.c),
  * up to float rounding. Results are the same for any thread count.
  */
 #ifndef SM_MAP_H
@@ -54,14 +61,14 @@
 typedef struct sm_map sm_map;
 
 typedef struct sm_map_info {
-    size_t constant_fallback; /* curvature mapping: vertices kept on the constant basis */
+    size_t constant_fallback; /* curvature (one_to_one): vertices (normals) kept on the constant basis */
     size_t translation_only;  /* triangle mappings: vertices with no triangle */
     size_t ghost_corners;     /* trilinear: cell corners extrapolated from nodes */
 } sm_map_info;
 
 /* Binds vertex_count vertices (world-space rest positions and unit normals,
  * 3 floats each) to sim's grid at rest for `mapping`
- * (mr_springmass_mapping). The sim must be at rest (sm_sim_reset). */
+ * (mr_springmass_mapping), whatever state the sim is in now. */
 int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
                uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err);
 void sm_map_free(sm_map *m);

@@ -27,6 +27,7 @@ struct sm_sim {
     size_t cells;
     float *act, *surf;                  /* per cell: node 1/0, surface node 1/0 */
     float *rest[3], *pos[3], *next[3], *vel[3], *nrm[3], *nstr;
+    float *rest_nrm[3], *rest_nstr;     /* the approximate normals at rest */
     ptrdiff_t off[18];
     float k[18], len[18], lmin[18];
     size_t span_count;
@@ -136,8 +137,10 @@ void sm_sim_free(sm_sim *s)
         free(s->next[a]);
         free(s->vel[a]);
         free(s->nrm[a]);
+        free(s->rest_nrm[a]);
     }
     free(s->nstr);
+    free(s->rest_nstr);
     free(s->span_begin);
     free(s->span_end);
     free(s->pin_of);
@@ -168,6 +171,12 @@ void sm_sim_normals(const sm_sim *s, const float *xyz[3])
         xyz[a] = s->nrm[a];
 }
 const float *sm_sim_normal_strength(const sm_sim *s) { return s->nstr; }
+void sm_sim_rest_normals(const sm_sim *s, const float *xyz[3], const float **strength)
+{
+    for (int a = 0; a < 3; a++)
+        xyz[a] = s->rest_nrm[a];
+    *strength = s->rest_nstr;
+}
 
 /* ---- paths */
 
@@ -279,12 +288,13 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
     s->act = alloc_cells(s->cells);
     s->surf = alloc_cells(s->cells);
     s->nstr = alloc_cells(s->cells);
+    s->rest_nstr = alloc_cells(s->cells);
     s->pin_of = calloc(s->cells + SM_SLACK, 1);
-    bool ok = s->act && s->surf && s->nstr && s->pin_of;
+    bool ok = s->act && s->surf && s->nstr && s->rest_nstr && s->pin_of;
     for (int a = 0; a < 3 && ok; a++)
         ok = (s->rest[a] = alloc_cells(s->cells)) && (s->pos[a] = alloc_cells(s->cells)) &&
              (s->next[a] = alloc_cells(s->cells)) && (s->vel[a] = alloc_cells(s->cells)) &&
-             (s->nrm[a] = alloc_cells(s->cells));
+             (s->nrm[a] = alloc_cells(s->cells)) && (s->rest_nrm[a] = alloc_cells(s->cells));
     if (!ok)
         goto nomem;
     for (uint32_t k = 0; k < g->n[2]; k++)
@@ -389,6 +399,9 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
     }
     *out = s;
     sm_sim_reset(s, threads);
+    for (int a = 0; a < 3; a++)
+        memcpy(s->rest_nrm[a], s->nrm[a], s->cells * sizeof(float));
+    memcpy(s->rest_nstr, s->nstr, s->cells * sizeof(float));
     return MR_OK;
 nomem:
     sm_sim_free(s);

@@ -116,6 +116,8 @@ void sm_sim_normals(const sm_sim *s, const float *xyz[3]);
 /* The approximate normal's length before normalising (the sum of up to 18
  * unit vectors), per cell: how well it is defined. */
 const float *sm_sim_normal_strength(const sm_sim *s);
+/* Both at rest (what the mappings bind with). */
+void sm_sim_rest_normals(const sm_sim *s, const float *xyz[3], const float **strength);
 
 /* Test hook: the step kernel's vector width (1, 4 or 8 lanes; 0: the
  * widest the CPU runs). Every width gives the same bits. */
