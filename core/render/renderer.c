@@ -392,6 +392,33 @@ static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
     return MR_OK;
 }
 
+/* Poses and deforms for frame `index` whatever moves (everything the first
+ * time), replaying sequential kinds as needed; *changed: something did. */
+static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *frame, mr_frame_stats *st,
+                          bool *changed, mr_error *err)
+{
+    int rc;
+    *changed = false;
+    for (size_t i = 0; i < r->object_count; i++) {
+        object_state *o = &r->objects[i];
+        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
+            continue;
+        if (!o->posed_once || o->animated) {
+            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
+                (rc = replay_to(r, o, i, index, st, err)) < 0)
+                return rc;
+            if ((rc = update_object(r, o, i, frame, err)) < 0)
+                return rc;
+            o->stepped = index + 1;
+            checkpoint_due(o);
+        }
+        o->kind->commit(o->geom);
+        o->posed_once = true;
+        *changed = true;
+    }
+    return MR_OK;
+}
+
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
 {
     const mr_job *job = r->job;
@@ -412,25 +439,29 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
         return rc;
 
+    /* An animated scene's tree is built at frame 0 and refitted after
+     * that; its topology decides which of two triangles sharing an edge a
+     * ray exactly on that edge hits. A renderer that starts at a later
+     * frame (a resumed job, a retry in a new render worker) builds its tree
+     * at frame 0 as well, so its hits are the uninterrupted run's bit for
+     * bit (tests/integration/test_springmass_daemon.c). */
+    if (r->refit && !r->built && index != 0) {
+        mr_geom_frame first = {.index = 0, .time = job->frame_times[0], .width = film->width,
+                               .height = film->height};
+        if ((rc = camera_for_frame(r, 0, first.time, &first.camera, err)) < 0)
+            return rc;
+        bool ignored;
+        if ((rc = update_objects(r, 0, &first, st, &ignored, err)) < 0)
+            return rc;
+        rtcCommitScene(r->scene);
+        r->built = true;
+        if ((rc = mr_device_check(r->dev, "rtcCommitScene", err)) < 0)
+            return rc;
+    }
     /* Pose and deform whatever moves (everything on the first frame). */
     bool changed = false;
-    for (size_t i = 0; i < r->object_count; i++) {
-        object_state *o = &r->objects[i];
-        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
-            continue;
-        if (!o->posed_once || o->animated) {
-            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
-                (rc = replay_to(r, o, i, index, st, err)) < 0)
-                return rc;
-            if ((rc = update_object(r, o, i, &frame, err)) < 0)
-                return rc;
-            o->stepped = index + 1;
-            checkpoint_due(o);
-        }
-        o->kind->commit(o->geom);
-        o->posed_once = true;
-        changed = true;
-    }
+    if ((rc = update_objects(r, index, &frame, st, &changed, err)) < 0)
+        return rc;
     double t1 = mr_now();
     st->pose_s = t1 - t0;
     for (size_t i = 0; i < r->object_count; i++) {
