@@ -31,10 +31,10 @@ static bool lattice_for(const double lo[3], const double hi[3], double h, size_t
         if (!(span < 1e7))
             return false;
         uint32_t m = (uint32_t)ceil(span) + 1;
-        if (m % 2 == 0)
-            m++; /* odd: the box centre is a lattice point */
+        if (m < 3)
+            m = 3; /* a box thinner than 2 h: its middle is a lattice point */
         lat->n[a] = m + 2 * SM_GRID_PAD;
-        lat->origin[a] = 0.5 * (lo[a] + hi[a]) - ((m - 1) / 2 + SM_GRID_PAD) * h;
+        lat->origin[a] = 0.5 * (lo[a] + hi[a]) - (0.5 * (m - 1) + SM_GRID_PAD) * h;
         cells *= lat->n[a];
     }
     lat->h = h;

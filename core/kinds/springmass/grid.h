@@ -4,10 +4,10 @@
  * neighbours (6 along the axes at distance h, 12 along face diagonals at
  * h sqrt 2), in world space.
  *
- * Lattice: axis-aligned, spacing h; along each axis an odd number of points
- * covering the mesh's bounding box, centred on it (so a part thinner than
- * h still gets its middle layer of nodes), plus SM_GRID_PAD empty layers
- * on every side, so every neighbour offset of a node, and of the cells the
+ * Lattice: axis-aligned, spacing h; along each axis the points covering
+ * the mesh's bounding box, centred on it (three at least, so a box thinner
+ * than 2 h still gets its middle layer of nodes), plus SM_GRID_PAD empty
+ * layers on every side, so every neighbour offset of a node, and of the cells the
  * mappings read around the surface, stays inside the arrays.
  * Nodes: the lattice points inside the mesh (inside.h). Flags per node:
  *  - surface: a node with an empty axis neighbour (its 18-neighbourhood
