@@ -69,6 +69,10 @@ struct sm_map {
     float h;
     uint32_t *one;        /* one_to_one: cell per vertex */
     tri_bind *tri;
+    uint32_t *tri_of;     /* triangle mappings: per vertex its triangle (of tris), UINT32_MAX: none */
+    uint32_t *tris;       /* the distinct triangles' cells, 3 each */
+    size_t tri_count;
+    float *tri_basis;     /* per triangle, this frame's T, N, B (eq. 6), 9 floats */
     lin_bind *lin;
     ghost *ghosts;
     size_t ghost_count;
@@ -83,6 +87,9 @@ void sm_map_free(sm_map *m)
         return;
     free(m->one);
     free(m->tri);
+    free(m->tri_of);
+    free(m->tris);
+    free(m->tri_basis);
     free(m->lin);
     free(m->ghosts);
     free(m->gdisp);
@@ -97,7 +104,8 @@ size_t sm_map_bytes(const sm_map *m)
 {
     size_t v = m->vertex_count;
     return sizeof *m + v * 6 * sizeof(float) + (m->one ? v * sizeof *m->one : 0) +
-           (m->tri ? v * sizeof *m->tri : 0) + (m->lin ? v * sizeof *m->lin : 0) +
+           (m->tri ? v * (sizeof *m->tri + sizeof *m->tri_of) : 0) + m->tri_count * 12 * sizeof(float) +
+           (m->lin ? v * sizeof *m->lin : 0) +
            m->ghost_count * (sizeof *m->ghosts + 3 * sizeof(float));
 }
 
@@ -131,9 +139,11 @@ static inline void f_cross(const float *a, const float *b, float *o)
 static inline float f_norm(float *a)
 {
     float l = sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-    if (l > 0)
+    if (l > 0) {
+        float inv = 1.0f / l;
         for (int i = 0; i < 3; i++)
-            a[i] /= l;
+            a[i] *= inv;
+    }
     return l;
 }
 
@@ -511,6 +521,56 @@ static int setup_trilinear(sm_map *m, const grid_view *gv, const float *pos, con
     return MR_OK;
 }
 
+typedef struct tri_key {
+    uint32_t c[3];
+    uint32_t vertex;
+} tri_key;
+
+static int tri_key_cmp(const void *pa, const void *pb)
+{
+    const tri_key *a = pa, *b = pb;
+    for (int k = 0; k < 3; k++)
+        if (a->c[k] != b->c[k])
+            return a->c[k] < b->c[k] ? -1 : 1;
+    return (a->vertex > b->vertex) - (a->vertex < b->vertex);
+}
+
+/* The distinct triangles of the bindings (their basis is made once per
+ * frame, not once per vertex). */
+static int index_triangles(sm_map *m, mr_error *err)
+{
+    uint32_t nv = m->vertex_count;
+    tri_key *keys = malloc((size_t)nv * sizeof *keys + 1);
+    m->tri_of = malloc((size_t)nv * sizeof *m->tri_of + 1);
+    if (!keys || !m->tri_of) {
+        free(keys);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
+    }
+    size_t n = 0;
+    for (uint32_t v = 0; v < nv; v++) {
+        m->tri_of[v] = UINT32_MAX;
+        if (m->tri[v].mode != BIND_TRANSLATE)
+            keys[n++] = (tri_key){{m->tri[v].c[0], m->tri[v].c[1], m->tri[v].c[2]}, v};
+    }
+    qsort(keys, n, sizeof *keys, tri_key_cmp);
+    m->tris = malloc(n * 3 * sizeof *m->tris + 1);
+    if (!m->tris) {
+        free(keys);
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (i == 0 || memcmp(keys[i].c, keys[i - 1].c, sizeof keys[i].c) != 0) {
+            memcpy(m->tris + m->tri_count * 3, keys[i].c, sizeof keys[i].c);
+            m->tri_count++;
+        }
+        m->tri_of[keys[i].vertex] = (uint32_t)(m->tri_count - 1);
+    }
+    free(keys);
+    if (!(m->tri_basis = malloc(m->tri_count * 9 * sizeof *m->tri_basis + 1)))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
+    return MR_OK;
+}
+
 /* Surface nodes, and those with a triangle of pairwise 18-neighbours
  * around them (bind_vertex's candidates). */
 static void mark_anchors(grid_view *gv)
@@ -628,7 +688,7 @@ static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_p
     default:
         return mr_error_set(err, MR_ERR_INVALID, "unknown mapping %d", mapping);
     }
-    return MR_OK;
+    return index_triangles(m, err);
 nomem:
     return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", vertex_count);
 }
@@ -669,27 +729,21 @@ static void apply_tri(const apply_ctx *x, uint32_t v)
     const sm_map *m = x->m;
     const tri_bind *tb = &m->tri[v];
     float *op = x->out_pos + (size_t)v * 3, *on = x->out_nrm + (size_t)v * 3;
-    float P[3][3];
-    for (int k = 0; k < 3; k++)
-        for (int a = 0; a < 3; a++)
-            P[k][a] = x->pos[a][tb->c[k]];
     if (tb->mode == BIND_TRANSLATE) {
+        uint32_t c = tb->c[0];
         for (int a = 0; a < 3; a++)
-            op[a] = m->rest_pos[(size_t)v * 3 + a] + (P[0][a] - x->rest[a][tb->c[0]]);
+            op[a] = m->rest_pos[(size_t)v * 3 + a] + (x->pos[a][c] - x->rest[a][c]);
         set3(on, m->rest_nrm + (size_t)v * 3);
         return;
     }
-    float r[3], T[3], Bt[3], N[3], B[3];
+    const float *basis = m->tri_basis + (size_t)m->tri_of[v] * 9;
+    float r[3], T[3], N[3], B[3];
     for (int a = 0; a < 3; a++) {
-        r[a] = tb->w[0] * P[0][a] + tb->w[1] * P[1][a] + tb->w[2] * P[2][a];
-        T[a] = P[1][a] - P[0][a];
-        Bt[a] = P[2][a] - P[0][a];
+        r[a] = tb->w[0] * x->pos[a][tb->c[0]] + tb->w[1] * x->pos[a][tb->c[1]] + tb->w[2] * x->pos[a][tb->c[2]];
+        T[a] = basis[a];
+        N[a] = basis[3 + a];
+        B[a] = basis[6 + a];
     }
-    f_norm(T);
-    f_norm(Bt);
-    f_cross(T, Bt, N);
-    f_norm(N);
-    f_cross(N, T, B);
     const float *o = tb->o, *n = tb->n;
     if (tb->mode == BIND_CURVATURE) {
         float Nc[3], Bc[3], Tc[3];
@@ -707,13 +761,36 @@ static void apply_tri(const apply_ctx *x, uint32_t v)
             }
         }
     }
-    float nn[3];
+    /* an orthonormal basis keeps the stored unit normal unit (to rounding) */
     for (int a = 0; a < 3; a++) {
         op[a] = r[a] + (o[0] * T[a] + o[1] * N[a] + o[2] * B[a]);
-        nn[a] = n[0] * T[a] + n[1] * N[a] + n[2] * B[a];
+        on[a] = n[0] * T[a] + n[1] * N[a] + n[2] * B[a];
     }
-    f_norm(nn);
-    set3(on, nn);
+}
+
+/* The constant basis (eq. 6) of each distinct triangle, this frame. */
+static void basis_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const apply_ctx *x = ctx;
+    const sm_map *m = x->m;
+    for (size_t t = begin; t < end; t++) {
+        const uint32_t *c = m->tris + t * 3;
+        float T[3], Bt[3], N[3], B[3];
+        for (int a = 0; a < 3; a++) {
+            T[a] = x->pos[a][c[1]] - x->pos[a][c[0]];
+            Bt[a] = x->pos[a][c[2]] - x->pos[a][c[0]];
+        }
+        f_norm(T);
+        f_norm(Bt);
+        f_cross(T, Bt, N);
+        f_norm(N);
+        f_cross(N, T, B);
+        float *out = m->tri_basis + t * 9;
+        set3(out, T);
+        set3(out + 3, N);
+        set3(out + 6, B);
+    }
 }
 
 /* Displacement of a corner: a node's, or a ghost's of this frame. */
@@ -797,5 +874,7 @@ void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals
         }
         set3(m->gdisp + q * 3, d);
     }
+    if (m->tri_count)
+        mr_parallel_for(threads, m->tri_count, 2048, basis_range, &x);
     mr_parallel_for(threads, m->vertex_count, 2048, apply_range, &x);
 }

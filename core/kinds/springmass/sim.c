@@ -28,8 +28,12 @@ struct sm_sim {
     float *act, *surf;                  /* per cell: node 1/0, surface node 1/0 */
     float *rest[3], *pos[3], *next[3], *vel[3], *nrm[3], *nstr;
     float *rest_nrm[3], *rest_nstr;     /* the approximate normals at rest */
+    /* the end-of-frame pass' per-cell figures (sim_kernel.h), summed per row */
+    float *cell_kinetic, *cell_spring, *cell_gravity, *cell_shadow, *cell_strain, *cell_bound, *cell_bad,
+        *cell_inv;
     ptrdiff_t off[18];
     float k[18], len[18], lmin[18];
+    double inv_len[18];
     size_t span_count;
     uint32_t *span_begin, *span_end;    /* rows of the grid holding nodes: [begin, end) cells */
     uint8_t *pin_of;                    /* per cell: 0, or 1 + index of the pin holding it */
@@ -56,36 +60,68 @@ typedef struct sm_step_ctx {
 #define SMK_CAT2(a, b) a##b
 #define SMK_CAT(a, b) SMK_CAT2(a, b)
 
+/* Per row: kinetic, spring and gravity energy, the shadow term, the
+ * largest strain, inverted cells, non-finite or out-of-range coordinates,
+ * the largest stiffness bound B of a node (sim.h). */
+enum { RS_T, RS_V, RS_G, RS_SH, RS_STRAIN, RS_INV, RS_BAD, RS_BOUND, RS_N };
+
+/* Row r's sums of the per-cell figures, in cell order (doubles), and its
+ * inverted cells. */
+static void measure_row_sum(sm_sim *s, size_t r)
+{
+    double *sum = s->row_sums + r * RS_N;
+    memset(sum, 0, RS_N * sizeof *sum);
+    for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
+        if (s->act[c] == 0)
+            continue;
+        sum[RS_T] += s->cell_kinetic[c];
+        sum[RS_V] += s->cell_spring[c];
+        sum[RS_G] += s->cell_gravity[c];
+        sum[RS_SH] += s->cell_shadow[c];
+        sum[RS_BAD] += s->cell_bad[c];
+        double e = s->cell_strain[c], bnd = s->cell_bound[c];
+        sum[RS_STRAIN] = e > sum[RS_STRAIN] || e != e ? e : sum[RS_STRAIN];
+        sum[RS_BOUND] = bnd > sum[RS_BOUND] || bnd != bnd ? bnd : sum[RS_BOUND];
+        sum[RS_INV] += s->cell_inv[c];
+    }
+}
+
 /* The one-lane kernel: the reference every width must match. */
 static inline float smk_sqrt1(float x) { return sqrtf(x); }
 #define SMK_W 1
 #define SMK_NAME step_rows_1
+#define SMK_MEASURE measure_rows_1
 #define SMK_ATTR
 #define SMK_SQRT(v) ((smk_v1){smk_sqrt1((v)[0])})
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
+#undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
 
 #ifdef SM_X86
 #define SMK_W 4
 #define SMK_NAME step_rows_4
+#define SMK_MEASURE measure_rows_4
 #define SMK_ATTR
 #define SMK_SQRT(v) ((smk_v4)_mm_sqrt_ps((__m128)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
+#undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
 
 #define SMK_W 8
 #define SMK_NAME step_rows_8
+#define SMK_MEASURE measure_rows_8
 #define SMK_ATTR __attribute__((target("avx")))
 #define SMK_SQRT(v) ((smk_v8)_mm256_sqrt_ps((__m256)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
+#undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
 #endif
@@ -96,19 +132,23 @@ static int forced_width;
 
 void sm_sim_force_width(int lanes) { forced_width = lanes; }
 
-static mr_range_fn step_kernel(void)
+typedef struct kernels {
+    mr_range_fn step, measure;
+} kernels;
+
+static kernels pick_kernels(void)
 {
 #ifdef SM_X86
     if (forced_width == 1)
-        return step_rows_1;
+        return (kernels){step_rows_1, measure_rows_1};
     if (forced_width == 4)
-        return step_rows_4;
+        return (kernels){step_rows_4, measure_rows_4};
     __builtin_cpu_init();
-    if (forced_width != 4 && __builtin_cpu_supports("avx"))
-        return step_rows_8;
-    return step_rows_4;
+    if (__builtin_cpu_supports("avx"))
+        return (kernels){step_rows_8, measure_rows_8};
+    return (kernels){step_rows_4, measure_rows_4};
 #else
-    return step_rows_1;
+    return (kernels){step_rows_1, measure_rows_1};
 #endif
 }
 
@@ -141,6 +181,14 @@ void sm_sim_free(sm_sim *s)
     }
     free(s->nstr);
     free(s->rest_nstr);
+    free(s->cell_kinetic);
+    free(s->cell_spring);
+    free(s->cell_gravity);
+    free(s->cell_shadow);
+    free(s->cell_strain);
+    free(s->cell_bound);
+    free(s->cell_bad);
+    free(s->cell_inv);
     free(s->span_begin);
     free(s->span_end);
     free(s->pin_of);
@@ -290,7 +338,17 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
     s->nstr = alloc_cells(s->cells);
     s->rest_nstr = alloc_cells(s->cells);
     s->pin_of = calloc(s->cells + SM_SLACK, 1);
-    bool ok = s->act && s->surf && s->nstr && s->rest_nstr && s->pin_of;
+    s->cell_kinetic = alloc_cells(s->cells);
+    s->cell_spring = alloc_cells(s->cells);
+    s->cell_gravity = alloc_cells(s->cells);
+    s->cell_shadow = alloc_cells(s->cells);
+    s->cell_strain = alloc_cells(s->cells);
+    s->cell_bound = alloc_cells(s->cells);
+    s->cell_bad = alloc_cells(s->cells);
+    s->cell_inv = alloc_cells(s->cells);
+    bool ok = s->act && s->surf && s->nstr && s->rest_nstr && s->pin_of && s->cell_kinetic && s->cell_spring &&
+              s->cell_gravity && s->cell_shadow && s->cell_strain && s->cell_bound && s->cell_bad &&
+              s->cell_inv;
     for (int a = 0; a < 3 && ok; a++)
         ok = (s->rest[a] = alloc_cells(s->cells)) && (s->pos[a] = alloc_cells(s->cells)) &&
              (s->next[a] = alloc_cells(s->cells)) && (s->vel[a] = alloc_cells(s->cells)) &&
@@ -335,6 +393,7 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
         s->k[d] = axis ? p->stiffness : p->shear_stiffness;
         s->len[d] = (float)(axis ? h : h * sqrt(2.0));
         s->lmin[d] = s->len[d] * 1e-6f;
+        s->inv_len[d] = 1.0 / s->len[d];
     }
     s->substeps = sm_substeps(p, &s->h_crit);
     if (s->substeps == 0) { /* the parser refuses such jobs */
@@ -536,114 +595,9 @@ static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
     }
 }
 
-/* Per row: kinetic, spring and gravity energy, the shadow term, the
- * largest strain, inverted cells, non-finite or out-of-range coordinates,
- * the largest stiffness bound B of a node (sim.h). */
-enum { RS_T, RS_V, RS_G, RS_SH, RS_STRAIN, RS_INV, RS_BAD, RS_BOUND, RS_N };
-
-/* Whether the cell c has a corner whose three edges span non-positive
- * volume (all 8 corners nodes; c is its low corner). */
-static bool cell_inverted(const sm_sim *s, size_t c)
-{
-    const ptrdiff_t ox = 1, oy = (ptrdiff_t)s->grid.n[0], oz = oy * (ptrdiff_t)s->grid.n[1];
-    for (int corner = 0; corner < 8; corner++) {
-        int bx = corner & 1, by = (corner >> 1) & 1, bz = corner >> 2;
-        size_t at = (size_t)((ptrdiff_t)c + bx * ox + by * oy + bz * oz);
-        /* edges towards the other corners along each axis, flipped where the
-         * corner sits at the high side; an odd number of flips turns the sign */
-        size_t ex = (size_t)((ptrdiff_t)at + (bx ? -ox : ox)), ey = (size_t)((ptrdiff_t)at + (by ? -oy : oy)),
-               ez = (size_t)((ptrdiff_t)at + (bz ? -oz : oz));
-        double e[3][3];
-        for (int a = 0; a < 3; a++) {
-            e[0][a] = (double)s->pos[a][ex] - s->pos[a][at];
-            e[1][a] = (double)s->pos[a][ey] - s->pos[a][at];
-            e[2][a] = (double)s->pos[a][ez] - s->pos[a][at];
-        }
-        double det = e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) -
-                     e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
-                     e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
-        if ((bx + by + bz) & 1)
-            det = -det;
-        if (!(det > 0))
-            return true;
-    }
-    return false;
-}
-
-static void measure_rows(void *ctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    sm_sim *s = ctx;
-    const float mass = s->p->mass;
-    const ptrdiff_t oy = (ptrdiff_t)s->grid.n[0], oz = oy * (ptrdiff_t)s->grid.n[1];
-    for (size_t r = begin; r < end; r++) {
-        double *sum = s->row_sums + r * RS_N;
-        memset(sum, 0, RS_N * sizeof *sum);
-        for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
-            if (s->act[c] == 0)
-                continue;
-            float x = s->pos[0][c], y = s->pos[1][c], z = s->pos[2][c];
-            float f[3] = {s->mg[0], s->mg[1], s->mg[2]}, u[3] = {0, 0, 0};
-            double vs = 0, strain = 0, S[6] = {0, 0, 0, 0, 0, 0}, transverse = 0;
-            for (int d = 0; d < 18; d++) {
-                size_t n = (size_t)((ptrdiff_t)c + s->off[d]);
-                if (s->act[n] == 0)
-                    continue;
-                float dx = s->pos[0][n] - x, dy = s->pos[1][n] - y, dz = s->pos[2][n] - z;
-                float L = sqrtf(dx * dx + dy * dy + dz * dz);
-                float Lc = L > s->lmin[d] ? L : s->lmin[d];
-                float sp = s->k[d] * (L - s->len[d]) / Lc;
-                f[0] += sp * dx;
-                f[1] += sp * dy;
-                f[2] += sp * dz;
-                u[0] += dx / Lc;
-                u[1] += dy / Lc;
-                u[2] += dz / Lc;
-                /* the node's stiffness: sum k d d^T along the springs, plus
-                 * the transverse k (1 - l / |d|) of stretched ones */
-                double ux = dx / Lc, uy = dy / Lc, uz = dz / Lc, k = s->k[d];
-                S[0] += k * ux * ux;
-                S[1] += k * uy * uy;
-                S[2] += k * uz * uz;
-                S[3] += k * ux * uy;
-                S[4] += k * ux * uz;
-                S[5] += k * uy * uz;
-                double tv = 1.0 - (double)s->len[d] / Lc;
-                transverse += tv > 0 ? k * tv : 0;
-                double stretch = (double)L - s->len[d];
-                vs += 0.25 * s->k[d] * stretch * stretch; /* each spring seen from both ends */
-                double e = fabs((double)L / s->len[d] - 1.0);
-                strain = e > strain || e != e ? e : strain;
-            }
-            double bound = fmax(fabs(S[0]) + fabs(S[3]) + fabs(S[4]),
-                                fmax(fabs(S[3]) + fabs(S[1]) + fabs(S[5]), fabs(S[4]) + fabs(S[5]) + fabs(S[2]))) +
-                           transverse;
-            sum[RS_BOUND] = bound > sum[RS_BOUND] || bound != bound ? bound : sum[RS_BOUND];
-            float v[3] = {s->vel[0][c], s->vel[1][c], s->vel[2][c]};
-            sum[RS_T] += 0.5 * mass * ((double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2]);
-            sum[RS_V] += vs;
-            sum[RS_G] -= (double)s->mg[0] * (x - s->rest[0][c]) + (double)s->mg[1] * (y - s->rest[1][c]) +
-                         (double)s->mg[2] * (z - s->rest[2][c]);
-            sum[RS_SH] += 0.5 * s->h * ((double)v[0] * f[0] + (double)v[1] * f[1] + (double)v[2] * f[2]);
-            sum[RS_STRAIN] = strain > sum[RS_STRAIN] || strain != strain ? strain : sum[RS_STRAIN];
-            if (!(fabsf(x) <= MR_MAX_COORDINATE && fabsf(y) <= MR_MAX_COORDINATE && fabsf(z) <= MR_MAX_COORDINATE))
-                sum[RS_BAD] += 1;
-            /* eq. 3: the sum of unit vectors from the neighbours to the node */
-            float len = sqrtf(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
-            s->nstr[c] = len;
-            for (int a = 0; a < 3; a++)
-                s->nrm[a][c] = len > 0 ? -u[a] / len : 0.0f;
-            /* the cell this node is the low corner of */
-            if (s->act[c + 1] && s->act[c + oy] && s->act[c + oy + 1] && s->act[c + oz] &&
-                s->act[c + oz + 1] && s->act[c + oz + oy] && s->act[c + oz + oy + 1] && cell_inverted(s, c))
-                sum[RS_INV] += 1;
-        }
-    }
-}
-
 static int measure(sm_sim *s, unsigned threads)
 {
-    mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, measure_rows, s);
+    mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, pick_kernels().measure, s);
     sm_measure m = {0};
     double bad = 0, inv = 0, bound = 0;
     for (size_t r = 0; r < s->span_count; r++) {
@@ -697,7 +651,7 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
 {
     if (s->failed_rc < 0)
         return mr_error_set(err, s->failed_rc, "%s", s->failed_msg);
-    mr_range_fn kernel = step_kernel();
+    mr_range_fn kernel = pick_kernels().step;
     s->last_substeps = s->substeps;
     if (steps && s->substeps > SM_MAX_SUBSTEPS)
         return fail(s, err, "the springs stiffened (stretched) until a step needs more than %u substeps",

@@ -15,11 +15,13 @@
  * Stability bound (docs/springmass.md). Symplectic Euler is stable while
  * h omega_max < 2 (omega_max^2 the largest eigenvalue of the stiffness
  * matrix K over m; the implicit damping only shrinks the growth factor).
- * For a node i let B_i = ||sum_j k_j u_j u_j^T||_inf + sum_j k_j
- * max(0, 1 - l_j / |d_j|) over its springs (u_j = d_j / |d_j|): the row
- * sums of its stiffness block plus the transverse stiffness stretched
- * springs add. Since (a - b)^2 <= 2 a^2 + 2 b^2, x^T K x <= 2 max_i B_i |x|^2,
- * so h_crit = sqrt(2 m / max_i B_i) is a bound. At rest an interior node
+ * For a node i let S_i = sum_j k_j u_j u_j^T over its springs (u_j =
+ * d_j / |d_j|) and B_i = q + 2 p + sum_j k_j max(0, 1 - l_j / |d_j|), with
+ * q = tr(S_i) / 3 and p = sqrt(|S_i - q I|_F^2 / 6): q + 2 p bounds the
+ * largest eigenvalue of S_i (Smith's closed form is q + 2 p cos phi) and
+ * the sum the transverse stiffness stretched springs add. Since (a - b)^2
+ * <= 2 a^2 + 2 b^2, x^T K x <= 2 max_i B_i |x|^2, so h_crit =
+ * sqrt(2 m / max_i B_i) is a bound (and a turned body keeps its bound). At rest an interior node
  * has B = 2 k_s + 4 k_d and the bound is attained (planes of nodes moving
  * against each other along an axis: eigenvalue 4 k_s + 8 k_d), so
  *   h_crit = sqrt(m / (k_s + 2 k_d))   at rest,
