@@ -284,7 +284,7 @@ static void test_state_round_trip(void **state)
     assert_int_equal(sm_sim_advance(a, 25, 2, &err), MR_OK);
     size_t n;
     uint8_t *mid = state_of(a, &n);
-    assert_int_equal(n, 24 + 24 * sm_sim_grid(a)->nodes);
+    assert_int_equal(n, 32 + 24 * sm_sim_grid(a)->nodes);
     assert_int_equal(sm_sim_advance(a, 25, 2, &err), MR_OK);
     /* b restored from the middle goes on exactly as a did */
     assert_int_equal(sm_sim_state_load(b, mid, n, 1, &err), MR_OK);
@@ -298,7 +298,7 @@ static void test_state_round_trip(void **state)
     uint8_t *bad = malloc(n);
     memcpy(bad, mid, n);
     float inf = INFINITY;
-    memcpy(bad + 24 + 4 * 7, &inf, 4);
+    memcpy(bad + 32 + 4 * 7, &inf, 4);
     assert_int_equal(sm_sim_state_load(b, bad, n, 1, &err), MR_ERR_FORMAT);
     assert_non_null(strstr(err.msg, "node 1"));
     free(sb);

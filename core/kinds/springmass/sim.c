@@ -46,6 +46,8 @@ struct sm_sim {
     /* state */
     uint64_t steps;
     double energy_ref, energy_scale;
+    double rounding_heat;               /* energy float rounding may have added so far (sim.h) */
+    double heat_per_substep;
     int failed_rc;
     char failed_msg[400];
     sm_measure m;
@@ -395,6 +397,22 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
         s->lmin[d] = s->len[d] * 1e-6f;
         s->inv_len[d] = 1.0 / s->len[d];
     }
+    /* float rounding of positions near the largest coordinate (ulp u)
+     * perturbs every spring's stretch by about u each substep: it may add
+     * k u^2 of energy per spring (sim.h) */
+    {
+        double springs = 0, big = 0;
+        for (size_t c = 0; c < s->cells; c++) {
+            if (!g->active[c])
+                continue;
+            for (int d = 0; d < 18; d++)
+                springs += g->active[(size_t)((ptrdiff_t)c + s->off[d])] ? 0.5 : 0;
+            for (int a = 0; a < 3; a++)
+                big = fmax(big, fabs((double)s->rest[a][c]));
+        }
+        double u = (big + g->h * g->n[0] + g->h * g->n[1] + g->h * g->n[2]) * ldexp(1.0, -23);
+        s->heat_per_substep = springs * fmax(p->stiffness, p->shear_stiffness) * u * u;
+    }
     s->substeps = sm_substeps(p, &s->h_crit);
     if (s->substeps == 0) { /* the parser refuses such jobs */
         sm_sim_free(s);
@@ -479,6 +497,7 @@ void sm_sim_reset(sm_sim *s, unsigned threads)
     s->failed_rc = MR_OK;
     s->failed_msg[0] = 0;
     s->energy_scale = 0;
+    s->rounding_heat = 0;
     measure(s, threads);
     s->energy_ref = s->m.shadow;
 }
@@ -661,6 +680,7 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
         for (uint32_t q = 0; q < s->substeps; q++)
             substep(s, t + (double)q * s->h, threads, kernel);
         s->steps++;
+        s->rounding_heat += s->heat_per_substep * s->substeps;
     }
     measure(s, threads);
     const sm_measure *m = &s->m;
@@ -668,7 +688,7 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
         return fail(s, err, "a node coordinate is not finite or beyond %g", MR_MAX_COORDINATE);
     if (m->max_strain > SM_MAX_STRAIN)
         return fail(s, err, "a spring is strained %.3g times its rest length", m->max_strain);
-    if (!s->driven && m->shadow > s->energy_ref + SM_ENERGY_GROWTH * s->energy_scale + 1e-30)
+    if (!s->driven && m->shadow > s->energy_ref + SM_ENERGY_GROWTH * s->energy_scale + s->rounding_heat + 1e-30)
         return fail(s, err, "the energy grew from %.6g to %.6g with nothing driving it", s->energy_ref,
                     m->shadow);
     return MR_OK;
@@ -692,7 +712,7 @@ void sm_sim_perturb(sm_sim *s, float amplitude, uint32_t seed, unsigned threads)
 
 /* ---- state */
 
-#define STATE_HEAD 24u
+#define STATE_HEAD 32u
 
 size_t sm_sim_state_bytes(const sm_sim *s) { return STATE_HEAD + s->grid.nodes * 24; }
 
@@ -701,6 +721,7 @@ void sm_sim_state_save(const sm_sim *s, uint8_t *buf)
     mr_le_put_u64(buf, s->steps);
     mr_le_put_f64(buf + 8, s->energy_ref);
     mr_le_put_f64(buf + 16, s->energy_scale);
+    mr_le_put_f64(buf + 24, s->rounding_heat);
     uint8_t *p = buf + STATE_HEAD;
     for (size_t c = 0; c < s->cells; c++) {
         if (!s->grid.active[c])
@@ -718,8 +739,8 @@ int sm_sim_state_load(sm_sim *s, const uint8_t *buf, size_t size, unsigned threa
     if (size != sm_sim_state_bytes(s))
         return mr_error_set(err, MR_ERR_FORMAT, "simulation state of %zu bytes, expected %zu for %zu nodes",
                             size, sm_sim_state_bytes(s), s->grid.nodes);
-    double ref = mr_le_get_f64(buf + 8), scale = mr_le_get_f64(buf + 16);
-    if (!isfinite(ref) || !isfinite(scale))
+    double ref = mr_le_get_f64(buf + 8), scale = mr_le_get_f64(buf + 16), heat = mr_le_get_f64(buf + 24);
+    if (!isfinite(ref) || !isfinite(scale) || !(heat >= 0 && heat < INFINITY))
         return mr_error_set(err, MR_ERR_FORMAT, "simulation state: energy reference is not finite");
     for (size_t i = 0; i < s->grid.nodes * 6; i++) {
         float v = mr_le_get_f32(buf + STATE_HEAD + 4 * i);
@@ -730,6 +751,7 @@ int sm_sim_state_load(sm_sim *s, const uint8_t *buf, size_t size, unsigned threa
     s->steps = mr_le_get_u64(buf);
     s->energy_ref = ref;
     s->energy_scale = scale;
+    s->rounding_heat = heat;
     s->failed_rc = MR_OK;
     s->failed_msg[0] = 0;
     const uint8_t *p = buf + STATE_HEAD;

@@ -19,7 +19,7 @@
 
 /* The simulation state's format and the builders' revision: in every
  * checkpoint id, so a checkpoint of another layout or grid is never used. */
-#define SM_STATE_VERSION 1u
+#define SM_STATE_VERSION 2u
 #define SM_REVISION 1u
 
 /* Bytes per grid cell the simulation holds (18 float arrays and the
