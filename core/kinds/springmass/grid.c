@@ -60,6 +60,62 @@ static int classify(const double *pos, const uint32_t *tris, uint32_t tri_count,
     return MR_OK;
 }
 
+/* Drops the nodes of components (linked by springs: 18-neighbours) that
+ * have fewer than SM_GRID_MIN_PART nodes and less than 1 % of all: bits
+ * of a thin part (a tail, a horn) the lattice caught without the part
+ * around them, which would float free of the body. */
+static int drop_specks(sm_grid *g, mr_error *err)
+{
+    uint32_t *label = calloc(g->cells, sizeof *label);
+    size_t *queue = malloc((g->nodes + 1) * sizeof *queue), *sizes = NULL;
+    size_t parts = 0, cap = 0;
+    int rc = MR_OK;
+    if (!label || !queue) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory for %zu nodes", g->nodes);
+        goto done;
+    }
+    for (size_t c = 0; c < g->cells; c++) {
+        if (!g->active[c] || label[c])
+            continue;
+        if (parts == cap) {
+            cap = cap ? cap * 2 : 64;
+            size_t *n = realloc(sizes, cap * sizeof *n);
+            if (!n) {
+                rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory for %zu nodes", g->nodes);
+                goto done;
+            }
+            sizes = n;
+        }
+        uint32_t id = (uint32_t)++parts;
+        size_t head = 0, tail = 0;
+        label[c] = id;
+        queue[tail++] = c;
+        while (head < tail) {
+            size_t q = queue[head++];
+            for (int d = 0; d < 18; d++) {
+                size_t n = (size_t)((ptrdiff_t)q + sm_grid_offset(g, sm_neighbour_dir[d]));
+                if (g->active[n] && !label[n]) {
+                    label[n] = id;
+                    queue[tail++] = n;
+                }
+            }
+        }
+        sizes[id - 1] = tail;
+    }
+    size_t keep_at = (size_t)fmax(1, fmin(SM_GRID_MIN_PART, 0.01 * (double)g->nodes));
+    for (size_t c = 0; c < g->cells; c++)
+        if (g->active[c] && sizes[label[c] - 1] < keep_at) {
+            g->active[c] = 0;
+            g->nodes--;
+            g->dropped++;
+        }
+done:
+    free(label);
+    free(queue);
+    free(sizes);
+    return rc;
+}
+
 static void flag_nodes(sm_grid *g)
 {
     g->surface_nodes = g->thin_nodes = 0;
@@ -133,6 +189,8 @@ int sm_grid_build(const double *pos, uint32_t vertex_count, const uint32_t *tris
             h *= cbrt(ratio);
         }
     }
+    if (out->nodes && (rc = drop_specks(out, err)) < 0)
+        goto fail;
     if (out->nodes == 0) {
         rc = mr_error_set(err, MR_ERR_INVALID,
                           "no grid node lies inside the mesh at a spacing of %g (is it closed? "

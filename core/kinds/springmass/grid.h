@@ -9,7 +9,11 @@
  * than 2 h still gets its middle layer of nodes), plus SM_GRID_PAD empty
  * layers on every side, so every neighbour offset of a node, and of the cells the
  * mappings read around the surface, stays inside the arrays.
- * Nodes: the lattice points inside the mesh (inside.h). Flags per node:
+ * Nodes: the lattice points inside the mesh (inside.h), less the specks:
+ * parts linked by springs to no more than SM_GRID_MIN_PART - 1 other nodes
+ * (and under 1 % of all), a few lattice points that caught a thin feature
+ * (a tail's tip) and would float free of the body; the mappings bind the
+ * surface there to the nearest nodes that remain. Flags per node:
  *  - surface: a node with an empty axis neighbour (its 18-neighbourhood
  *    reaches outside); the mappings bind vertices to surface nodes;
  *  - thin: a node with both axis neighbours empty along some axis, in a
@@ -35,6 +39,9 @@
  * have; the parameters are refused beyond them. */
 #define SM_GRID_MAX_CELLS (1u << 23)
 #define SM_GRID_MAX_NODES (1u << 21)
+/* Parts (nodes linked by springs) smaller than this, and than 1 % of the
+ * nodes, are dropped: specks of a thin feature the lattice caught alone. */
+#define SM_GRID_MIN_PART 8u
 
 enum { SM_NODE_SURFACE = 1u, SM_NODE_THIN = 2u };
 
@@ -46,6 +53,7 @@ typedef struct sm_grid {
     uint8_t *active;     /* per cell: 1 = a node */
     uint8_t *flags;      /* per cell: SM_NODE_* */
     size_t nodes, surface_nodes, thin_nodes;
+    size_t dropped;      /* nodes of specks dropped (below) */
     sm_inside_info inside;
 } sm_grid;
 

@@ -26,6 +26,9 @@
 /* And a node whose approximate normal cannot stand for the vertex's
  * surface (the curvature mapping would fall back to the constant basis). */
 #define ASTRAY_NORMAL_COST 0.25
+/* Cells around a vertex searched for the grid's surface (its faces lie in
+ * cells holding nodes, at most this many cells away). */
+#define BOUNDARY_REACH 2
 /* Shells of cells searched for a nearest node before all nodes are. */
 #define SEARCH_SHELLS 4
 
@@ -61,6 +64,7 @@ typedef struct ghost {
     float sign[3];     /* the neighbour's side, +1 or -1 */
     float delta[3];    /* from n to the corner, cells */
     float rest_d[3][3];
+    bool far;          /* two cells or more from n, with all three D: rigid (below) */
 } ghost;
 
 struct sm_map {
@@ -99,6 +103,11 @@ void sm_map_free(sm_map *m)
 }
 
 const sm_map_info *sm_map_get_info(const sm_map *m) { return &m->info; }
+
+uint32_t sm_map_triangle_of(const sm_map *m, uint32_t v)
+{
+    return m->tri_of && v < m->vertex_count ? m->tri_of[v] : UINT32_MAX;
+}
 
 size_t sm_map_bytes(const sm_map *m)
 {
@@ -147,6 +156,13 @@ static inline float f_norm(float *a)
     return l;
 }
 
+static void set3(float *dst, const float *src)
+{
+    dst[0] = src[0];
+    dst[1] = src[1];
+    dst[2] = src[2];
+}
+
 /* ---- grid look-ups */
 
 typedef struct grid_view {
@@ -157,6 +173,11 @@ typedef struct grid_view {
     uint8_t *surface;  /* per cell: a surface node */
     uint8_t *anchor;   /* per cell: a surface node with a triangle around it */
     uint8_t *framed;   /* per cell: a node with a neighbour on two axes or three */
+    /* the surface of the grid's solid (boundary faces of cells whose 8
+     * corners are nodes), two outward triangles per face, listed by the
+     * cell they belong to: the triangles of cell c are first[c]..first[c+1] */
+    uint32_t *btri;
+    uint32_t *bfirst;
 } grid_view;
 
 static void cell_ijk(const sm_grid *g, size_t c, int64_t ijk[3])
@@ -263,6 +284,94 @@ static bool neighbours18(const sm_grid *g, size_t a, size_t b)
     return s == 1 || s == 2;
 }
 
+/* The point of triangle (a, b, c) closest to p (Ericson, Real-Time
+ * Collision Detection 5.1.5), as barycentric weights of a, b, c. */
+static void closest_on_triangle(const double *p, const double *a, const double *b, const double *c, double w[3])
+{
+    double ab[3], ac[3], ap[3], bp[3], cp[3];
+    d_sub(b, a, ab);
+    d_sub(c, a, ac);
+    d_sub(p, a, ap);
+    double d1 = d_dot(ab, ap), d2 = d_dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) {
+        w[0] = 1, w[1] = 0, w[2] = 0;
+        return;
+    }
+    d_sub(p, b, bp);
+    double d3 = d_dot(ab, bp), d4 = d_dot(ac, bp);
+    if (d3 >= 0 && d4 <= d3) {
+        w[0] = 0, w[1] = 1, w[2] = 0;
+        return;
+    }
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double t = d1 / (d1 - d3);
+        w[0] = 1 - t, w[1] = t, w[2] = 0;
+        return;
+    }
+    d_sub(p, c, cp);
+    double d5 = d_dot(ab, cp), d6 = d_dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) {
+        w[0] = 0, w[1] = 0, w[2] = 1;
+        return;
+    }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double t = d2 / (d2 - d6);
+        w[0] = 1 - t, w[1] = 0, w[2] = t;
+        return;
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        w[0] = 0, w[1] = 1 - t, w[2] = t;
+        return;
+    }
+    double den = 1 / (va + vb + vc);
+    w[1] = vb * den;
+    w[2] = vc * den;
+    w[0] = 1 - w[1] - w[2];
+}
+
+/* The triangle of the grid's surface closest to p within BOUNDARY_REACH
+ * cells (ties: the first listed), into bc and bw; false if there is none
+ * that near. */
+static bool nearest_boundary(const grid_view *gv, const double p[3], size_t bc[3], double bw[3])
+{
+    const sm_grid *g = gv->g;
+    int64_t at[3];
+    for (int a = 0; a < 3; a++)
+        at[a] = (int64_t)floor((p[a] - g->origin[a]) / g->h);
+    double best = INFINITY;
+    for (int64_t dk = -BOUNDARY_REACH; dk <= BOUNDARY_REACH; dk++)
+        for (int64_t dj = -BOUNDARY_REACH; dj <= BOUNDARY_REACH; dj++)
+            for (int64_t di = -BOUNDARY_REACH; di <= BOUNDARY_REACH; di++) {
+                int64_t q[3] = {at[0] + di, at[1] + dj, at[2] + dk};
+                if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[0] >= g->n[0] || q[1] >= g->n[1] || q[2] >= g->n[2])
+                    continue;
+                size_t cell = sm_grid_cell(g, (uint32_t)q[0], (uint32_t)q[1], (uint32_t)q[2]);
+                for (uint32_t t = gv->bfirst[cell]; t < gv->bfirst[cell + 1]; t++) {
+                    const uint32_t *tri = gv->btri + (size_t)t * 3;
+                    double P[3][3], w[3], r[3], d[3];
+                    for (int k = 0; k < 3; k++)
+                        cell_rest(gv, tri[k], P[k]);
+                    closest_on_triangle(p, P[0], P[1], P[2], w);
+                    for (int a = 0; a < 3; a++)
+                        r[a] = w[0] * P[0][a] + w[1] * P[1][a] + w[2] * P[2][a];
+                    d_sub(p, r, d);
+                    double d2 = d_dot(d, d);
+                    if (d2 < best) {
+                        best = d2;
+                        for (int k = 0; k < 3; k++) {
+                            bc[k] = tri[k];
+                            bw[k] = w[k];
+                        }
+                    }
+                }
+            }
+    return best < INFINITY;
+}
+
 /* 1 when node c's approximate normal cannot stand for the surface with
  * normal vn (weak, or more than 60 degrees off), else 0. */
 static double astray_normal(const grid_view *gv, size_t c, const double vn[3])
@@ -278,15 +387,27 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
     double p[3] = {x->pos[(size_t)v * 3], x->pos[(size_t)v * 3 + 1], x->pos[(size_t)v * 3 + 2]};
     double vn[3] = {x->nrm[(size_t)v * 3], x->nrm[(size_t)v * 3 + 1], x->nrm[(size_t)v * 3 + 2]};
     memset(tb, 0, sizeof *tb);
-    /* the nearest surface node with a triangle around it (an isolated node,
-     * or a line of them, has none); any node if there is no such one */
+    size_t bc[3];
+    double bw[3];
+    double P[3][3], T[3], N[3], B[3];
+    if (d_norm(vn) == 0) {
+        int64_t c = nearest_node(gv, p, NULL);
+        for (int a = 0; a < 3; a++)
+            vn[a] = gv->nrm[a][c];
+    }
+    /* the surface of the simulated grid itself, where there is one near */
+    if (gv->btri && nearest_boundary(gv, p, bc, bw)) {
+        for (int k = 0; k < 3; k++)
+            cell_rest(gv, bc[k], P[k]);
+        basis_d(P[0], P[1], P[2], T, N, B);
+        goto bound;
+    }
+    /* else the nearest surface node with a triangle around it (an isolated
+     * node, or a line of them, has none); any node if there is no such one */
     int64_t n1 = nearest_node(gv, p, gv->anchor);
     if (n1 < 0)
         n1 = nearest_node(gv, p, NULL);
     tb->c[0] = (uint32_t)n1;
-    if (d_norm(vn) == 0)
-        for (int a = 0; a < 3; a++)
-            vn[a] = gv->nrm[a][n1];
     /* the nodes around n1: on a surface running diagonally through the
      * grid, surface nodes alone are linked only in a zig-zag with no
      * triangle between them, so nodes below the surface take part too (at
@@ -297,8 +418,9 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
         if (g->active[c])
             nb[nn++] = c;
     }
-    double best = INFINITY, bw[3] = {0, 0, 0};
-    size_t bc[3] = {(size_t)n1, 0, 0};
+    double best = INFINITY;
+    bc[0] = (size_t)n1;
+    bw[0] = bw[1] = bw[2] = 0;
     double p1[3];
     cell_rest(gv, (size_t)n1, p1);
     for (size_t i = 0; i < nn; i++)
@@ -337,7 +459,6 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
         tb->mode = BIND_TRANSLATE;
         return;
     }
-    double P[3][3], T[3], N[3], B[3];
     for (int k = 0; k < 3; k++)
         cell_rest(gv, bc[k], P[k]);
     basis_d(P[0], P[1], P[2], T, N, B);
@@ -355,6 +476,7 @@ static void bind_vertex(const bind_ctx *x, uint32_t v, tri_bind *tb)
         }
         basis_d(P[0], P[1], P[2], T, N, B);
     }
+bound:;
     double r[3], o[3], rn[3] = {x->nrm[(size_t)v * 3], x->nrm[(size_t)v * 3 + 1], x->nrm[(size_t)v * 3 + 2]};
     for (int a = 0; a < 3; a++)
         r[a] = bw[0] * P[0][a] + bw[1] * P[1][a] + bw[2] * P[2][a];
@@ -426,6 +548,21 @@ static void ghost_derivatives(const ghost *gh, const float *const xyz[3], float 
         }
 }
 
+/* An orthonormal frame (rows) from the axis derivatives D: Gram-Schmidt of
+ * D[0], D[1], then their cross product; a turned frame for a turned D. */
+static void frame_of(const float D[3][3], float R[3][3])
+{
+    float t[3];
+    set3(R[0], D[0]);
+    f_norm(R[0]);
+    float along = R[0][0] * D[1][0] + R[0][1] * D[1][1] + R[0][2] * D[1][2];
+    for (int c = 0; c < 3; c++)
+        t[c] = D[1][c] - along * R[0][c];
+    f_norm(t);
+    set3(R[1], t);
+    f_cross(R[0], R[1], R[2]);
+}
+
 static ghost ghost_recipe(const grid_view *gv, size_t cell)
 {
     const sm_grid *g = gv->g;
@@ -464,6 +601,8 @@ static ghost ghost_recipe(const grid_view *gv, size_t cell)
         if (r.kind[a] == AXIS_NONE && r.kind[(a + 1) % 3] == AXIS_NEIGHBOUR && r.kind[(a + 2) % 3] == AXIS_NEIGHBOUR)
             r.kind[a] = AXIS_CROSS;
     ghost_derivatives(&r, gv->rest, (float)(1.0 / g->h), r.rest_d);
+    bool framed = r.kind[0] != AXIS_NONE && r.kind[1] != AXIS_NONE && r.kind[2] != AXIS_NONE;
+    r.far = framed && (fabsf(r.delta[0]) >= 2 || fabsf(r.delta[1]) >= 2 || fabsf(r.delta[2]) >= 2);
     return r;
 }
 
@@ -603,6 +742,74 @@ static void mark_anchors(grid_view *gv)
 static int map_setup(sm_map *m, grid_view *gv, int mapping, const float *rest_positions,
                      const float *rest_normals, uint32_t vertex_count, unsigned threads, mr_error *err);
 
+/* Whether cell (i, j, k) and its 7 neighbours towards +x, +y, +z are all
+ * nodes: a solid cell of the grid. */
+static bool solid_cell(const sm_grid *g, int64_t i, int64_t j, int64_t k)
+{
+    if (i < 0 || j < 0 || k < 0 || i + 1 >= g->n[0] || j + 1 >= g->n[1] || k + 1 >= g->n[2])
+        return false;
+    for (int q = 0; q < 8; q++)
+        if (!g->active[sm_grid_cell(g, (uint32_t)(i + (q & 1)), (uint32_t)(j + ((q >> 1) & 1)),
+                                    (uint32_t)(k + (q >> 2)))])
+            return false;
+    return true;
+}
+
+/* The surface of the grid's solid cells (grid_view.btri/bfirst): each face
+ * of a solid cell that no solid cell shares, as two triangles whose normal
+ * points out of the solid. */
+static int build_boundary(grid_view *gv, mr_error *err)
+{
+    const sm_grid *g = gv->g;
+    size_t count = 0, cap = 0;
+    uint32_t *tri = NULL;
+    if (!(gv->bfirst = calloc(g->cells + 1, sizeof *gv->bfirst)))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for the grid's surface");
+    for (uint32_t k = 0; k < g->n[2]; k++)
+        for (uint32_t j = 0; j < g->n[1]; j++)
+            for (uint32_t i = 0; i < g->n[0]; i++) {
+                size_t c = sm_grid_cell(g, i, j, k);
+                gv->bfirst[c] = (uint32_t)count;
+                if (!solid_cell(g, i, j, k))
+                    continue;
+                int64_t ijk[3] = {i, j, k};
+                for (int a = 0; a < 3; a++)
+                    for (int side = 0; side < 2; side++) {
+                        int64_t n[3] = {ijk[0], ijk[1], ijk[2]};
+                        n[a] += side ? 1 : -1;
+                        if (solid_cell(g, n[0], n[1], n[2]))
+                            continue;
+                        /* the face's corners, counter-clockwise seen from outside */
+                        int b = (a + 1) % 3, d = (a + 2) % 3;
+                        static const int plus[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+                        static const int minus[4][2] = {{0, 0}, {0, 1}, {1, 1}, {1, 0}};
+                        uint32_t q[4];
+                        for (int v = 0; v < 4; v++) {
+                            int64_t at[3] = {ijk[0], ijk[1], ijk[2]};
+                            at[a] += side;
+                            at[b] += side ? plus[v][0] : minus[v][0];
+                            at[d] += side ? plus[v][1] : minus[v][1];
+                            q[v] = (uint32_t)sm_grid_cell(g, (uint32_t)at[0], (uint32_t)at[1], (uint32_t)at[2]);
+                        }
+                        if (count + 2 > cap) {
+                            cap = cap ? cap * 2 : 4096;
+                            uint32_t *grown = realloc(tri, cap * 3 * sizeof *grown);
+                            if (!grown) {
+                                free(tri);
+                                return mr_error_set(err, MR_ERR_NOMEM, "out of memory for the grid's surface");
+                            }
+                            tri = grown;
+                        }
+                        uint32_t t2[6] = {q[0], q[1], q[2], q[0], q[2], q[3]};
+                        memcpy(tri + count * 3, t2, sizeof t2);
+                        count += 2;
+                    }
+            }
+    gv->bfirst[g->cells] = (uint32_t)count;
+    gv->btri = tri;
+    return MR_OK;
+}
+
 int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
                uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err)
 {
@@ -624,10 +831,14 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", vertex_count);
     }
     mark_anchors(&gv);
-    int rc = map_setup(m, &gv, mapping, rest_positions, rest_normals, vertex_count, threads, err);
+    int rc = mapping == MR_SPRINGMASS_TRILINEAR ? MR_OK : build_boundary(&gv, err);
+    if (rc == MR_OK)
+        rc = map_setup(m, &gv, mapping, rest_positions, rest_normals, vertex_count, threads, err);
     free(gv.surface);
     free(gv.anchor);
     free(gv.framed);
+    free(gv.btri);
+    free(gv.bfirst);
     if (rc < 0) {
         sm_map_free(m);
         return rc;
@@ -701,12 +912,6 @@ typedef struct apply_ctx {
     float *out_pos, *out_nrm;
 } apply_ctx;
 
-static void set3(float *dst, const float *src)
-{
-    dst[0] = src[0];
-    dst[1] = src[1];
-    dst[2] = src[2];
-}
 
 static void apply_tri(const apply_ctx *x, uint32_t v);
 
@@ -867,10 +1072,27 @@ void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals
         const ghost *gh = &m->ghosts[q];
         float D[3][3], d[3];
         ghost_derivatives(gh, x.pos, inv_h, D);
-        for (int c = 0; c < 3; c++) {
+        for (int c = 0; c < 3; c++)
             d[c] = x.pos[c][gh->node] - x.rest[c][gh->node];
+        if (gh->far) {
+            /* the offset from n turned by n's rotation: the frames of D and of
+             * D at rest, orthonormalised (Gram-Schmidt), R R0^T o - o */
+            float R[3][3], R0[3][3], o[3] = {0, 0, 0}, local[3], turned[3];
+            frame_of(D, R);
+            frame_of(gh->rest_d, R0);
             for (int a = 0; a < 3; a++)
-                d[c] += gh->delta[a] * (D[a][c] - gh->rest_d[a][c]);
+                for (int c = 0; c < 3; c++)
+                    o[c] += gh->delta[a] * gh->rest_d[a][c];
+            for (int a = 0; a < 3; a++)
+                local[a] = R0[a][0] * o[0] + R0[a][1] * o[1] + R0[a][2] * o[2];
+            for (int c = 0; c < 3; c++) {
+                turned[c] = R[0][c] * local[0] + R[1][c] * local[1] + R[2][c] * local[2];
+                d[c] += turned[c] - o[c];
+            }
+        } else {
+            for (int c = 0; c < 3; c++)
+                for (int a = 0; a < 3; a++)
+                    d[c] += gh->delta[a] * (D[a][c] - gh->rest_d[a][c]);
         }
         set3(m->gdisp + q * 3, d);
     }

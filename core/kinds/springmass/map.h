@@ -42,7 +42,11 @@
  * if it is a node, else away): exact for any affine motion. Across a
  * one-node-thin part (no neighbour on one axis) D_a is the cross product of
  * the other two over h, exact for rigid motions; with two axes missing (a
- * line of nodes, a single node) only n's translation is carried there.
+ * line of nodes, a single node) only n's translation is carried there. A
+ * corner two cells or more from its node (a thin part of the mesh with no
+ * node in it: a tail, a horn) follows n rigidly instead: its offset from n
+ * turned by the rotation of n's frame (D orthonormalised), so a stretch
+ * at n is not multiplied along a long lever (it fanned a tail out).
  *
  * A vertex whose nearest surface node has no triangle (a grid of one or
  * two nodes) follows that node by translation in every triangle mapping
@@ -73,6 +77,10 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
                uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err);
 void sm_map_free(sm_map *m);
 const sm_map_info *sm_map_get_info(const sm_map *m);
+/* The triangle mappings' base triangle of vertex v (an index shared by
+ * the vertices bound to the same three nodes), UINT32_MAX for a vertex
+ * that follows a node by translation or a mapping without triangles. */
+uint32_t sm_map_triangle_of(const sm_map *m, uint32_t v);
 /* Bytes the binding holds. */
 size_t sm_map_bytes(const sm_map *m);
 
