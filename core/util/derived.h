@@ -1,8 +1,9 @@
 /*
  * derived.h - the one derived-data cache: what a geometry kind derives from
  * an asset at a cost (baked DMMs, voxelised assets; height-texture mipmaps
- * and simulation checkpoints next) is kept on disk, so it is derived once
- * per input, not once per job, and survives restarts.
+ * next) is kept on disk, so it is derived once per input, not once per
+ * job, and survives restarts. Simulation checkpoints (render/checkpoint.h)
+ * use its keys, envelope and atomic store too.
  *
  * A kind writes only its file format (serialise, parse) and its builder;
  * this module gives it the rest, the same way for every kind:
