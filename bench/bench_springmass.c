@@ -20,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "bench_util.h"
 #include "job_json.h"
@@ -141,6 +142,48 @@ static void run_interleaved(mr_device *dev, mr_job **jobs, mr_asset **assets, in
     "\"frames\":{\"fps\":24,\"start\":0,\"end\":10},"                                              \
     "\"output\":{\"width\":320,\"height\":240,\"samples\":1}}"
 
+static double cpu_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return (double)t.tv_sec + t.tv_nsec * 1e-9;
+}
+
+/* The work in a step and a mapping, apart from other processes on the
+ * machine: one thread, a 16x9 film (tracing all but free), the process's
+ * CPU seconds per frame split by the kind's own wall-clock fractions. */
+static void work_per_step(mr_job *job, mr_asset *asset, double *step_ms, double *map_ms)
+{
+    mr_error err;
+    mr_device *one = NULL;
+    mr_renderer *r = NULL;
+    mr_film *film = NULL;
+    job->output.width = 16;
+    job->output.height = 9;
+    job->output.spp = 1;
+    if (mr_device_new(1, &one, &err) < 0 || mr_renderer_new(one, job, &asset, NULL, &r, &err) < 0 ||
+        mr_film_new(16, 9, &film, &err) < 0)
+        die("renderer", err.msg);
+    double steps_ms[256], maps_ms[256];
+    int n = 0;
+    for (int f = 0; f < frames; f++) {
+        mr_frame_stats st;
+        double c0 = cpu_now();
+        if (mr_renderer_render(r, (size_t)f, film, &st, &err) < 0)
+            die("render", err.msg);
+        double cpu = cpu_now() - c0, wall = st.total_s, steps = extra(&st, "sim_steps");
+        if (f < 2 || !(wall > 0) || !(steps > 0))
+            continue;
+        steps_ms[n] = cpu * extra(&st, "simulate_s") / wall / steps * 1e3;
+        maps_ms[n++] = cpu * extra(&st, "map_s") / wall * 1e3;
+    }
+    *step_ms = median(steps_ms, n);
+    *map_ms = median(maps_ms, n);
+    mr_film_free(film);
+    mr_renderer_free(r);
+    mr_device_free(one);
+}
+
 static double med(const double *v, int n)
 {
     double tmp[256];
@@ -195,6 +238,13 @@ int main(int argc, char **argv)
     printf("\ngoals: <= 1.0 ms per step, <= 2.0 ms per curvature-corrected mapping, a frame within 2x of the\n"
            "undeformed mesh's (the paper, 2005 GPU: 2.22 ms per step, 6.67 / 5.26 ms per mapping with /\n"
            "without curvature correction)\n");
+    printf("\nthe work (one thread, CPU time, apart from the machine's other load): ");
+    for (int k = 0; k < 4; k++) {
+        double step_ms, map_ms;
+        work_per_step(jobs[k], refined, &step_ms, &map_ms);
+        printf("%s%s %.3f ms/step %.3f ms/mapping", k ? "; " : "", MAPPINGS[k], step_ms, map_ms);
+    }
+    printf("\n");
     for (int k = 0; k < RUNS; k++)
         mr_job_free(jobs[k]);
     mr_asset_free(refined);
@@ -205,9 +255,12 @@ int main(int argc, char **argv)
     mr_asset *box = load(&cube->assets[0]);
     series c;
     run_interleaved(dev, &cube, &box, 1, &c);
+    double cube_work, cube_map;
+    work_per_step(cube, box, &cube_work, &cube_map);
     printf("\n32^3 grid: %.0f nodes filling a unit cube, %u threads: %.3f ms per step (%.0f substeps, %.3f ms "
-           "each); Projective Dynamics: 3.1 ms per iteration for ~16k vertices (CPU)\n",
-           c.nodes, threads, med(c.step_ms, c.n), med(c.substeps, c.n), med(c.sub_ms, c.n));
+           "each; one thread's CPU time: %.3f ms per step); Projective Dynamics: 3.1 ms per iteration for ~16k "
+           "vertices (CPU)\n",
+           c.nodes, threads, med(c.step_ms, c.n), med(c.substeps, c.n), med(c.sub_ms, c.n), cube_work);
     mr_job_free(cube);
     mr_asset_free(box);
     mr_device_free(dev);
