@@ -117,7 +117,8 @@ static int axis_crossings(const double *pos, const uint32_t *tris, uint32_t tri_
                     return rc;
             }
     }
-    qsort(out->items, out->count, sizeof *out->items, crossing_cmp);
+    if (out->count)
+        qsort(out->items, out->count, sizeof *out->items, crossing_cmp);
     return MR_OK;
 }
 
