@@ -270,6 +270,36 @@ static void test_energy(void **state)
     sm_sim_free(s);
 }
 
+/* A pin by node set: the nodes nearest to three points hold still (and
+ * no other node), the ball hangs from them. */
+static void test_node_set_pin(void **state)
+{
+    (void)state;
+    mr_springmass_params p = sm_default_params();
+    mr_springmass_pin_point points[3] = {{{0, 0.9f, 0}}, {{0.2f, 0.85f, 0}}, {{-0.2f, 0.85f, 0.1f}}};
+    mr_springmass_pin pin = {.points = points, .point_count = 3, .points_only = true};
+    p.pins = &pin;
+    p.pin_count = 1;
+    sm_sim *s = sphere_sim(&p, 1500, 2);
+    mr_error err;
+    assert_int_equal(sm_sim_advance(s, 60, 2, &err), MR_OK);
+    const float *x[3], *r[3];
+    sm_sim_positions(s, x);
+    sm_sim_rest(s, r);
+    const sm_grid *g = sm_sim_grid(s);
+    size_t still = 0, moved = 0;
+    for (size_t c = 0; c < g->cells; c++) {
+        if (!g->active[c])
+            continue;
+        bool same = x[0][c] == r[0][c] && x[1][c] == r[1][c] && x[2][c] == r[2][c];
+        still += same;
+        moved += !same;
+    }
+    assert_int_equal(still, 3);
+    assert_true(moved == g->nodes - 3);
+    sm_sim_free(s);
+}
+
 static void test_state_round_trip(void **state)
 {
     (void)state;
@@ -366,7 +396,18 @@ static void test_job_block(void **state)
     assert_int_equal(p->pin_count, 1);
     assert_true(p->pins[0].box_min.x == -1e9f && !p->pins[0].has_pivot);
     assert_true(p->probes[0].radius == 0.1f && p->probes[0].path[0].position.y == 2);
+    assert_false(p->pins[0].points_only);
     mr_job_free(job);
+    /* a node set alone, and with a box */
+    const char *sets[] = {JOB("{\"pins\":[{\"points\":[{\"position\":[0,1,0]}]}]}"),
+                          JOB("{\"pins\":[{\"box_max\":[1,0,1],\"points\":[{\"position\":[0,1,0]}]}]}")};
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(mr_job_parse(sets[k], strlen(sets[k]), &job, &err), MR_OK);
+        p = job->objects[0].params;
+        assert_int_equal(p->pins[0].point_count, 1);
+        assert_int_equal(p->pins[0].points_only, k == 0);
+        mr_job_free(job);
+    }
 #undef JOB
 }
 
@@ -375,7 +416,8 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_substeps),    cmocka_unit_test(test_bound_is_tight),
         cmocka_unit_test(test_deterministic), cmocka_unit_test(test_rigid_pins),
-        cmocka_unit_test(test_energy),      cmocka_unit_test(test_state_round_trip),
+        cmocka_unit_test(test_energy),      cmocka_unit_test(test_node_set_pin),
+        cmocka_unit_test(test_state_round_trip),
         cmocka_unit_test(test_job_block),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

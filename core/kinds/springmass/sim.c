@@ -315,8 +315,45 @@ void sm_sim_set_substeps(sm_sim *s, uint32_t substeps, unsigned threads)
 
 static bool in_box(const mr_springmass_pin *p, float x, float y, float z)
 {
-    return x >= p->box_min.x && x <= p->box_max.x && y >= p->box_min.y && y <= p->box_max.y &&
+    return !p->points_only && x >= p->box_min.x && x <= p->box_max.x && y >= p->box_min.y && y <= p->box_max.y &&
            z >= p->box_min.z && z <= p->box_max.z;
+}
+
+/* The node nearest to q at rest (ties: the lowest cell): the lattice
+ * cells around q first, then every node. */
+static size_t nearest_node_at(const sm_sim *s, mr_vec3 q)
+{
+    const sm_grid *g = &s->grid;
+    double at[3] = {q.x, q.y, q.z}, best = INFINITY;
+    size_t found = SIZE_MAX;
+    int64_t c0[3];
+    for (int a = 0; a < 3; a++)
+        c0[a] = (int64_t)llround((at[a] - g->origin[a]) / g->h);
+    for (int64_t dk = -2; dk <= 2; dk++)
+        for (int64_t dj = -2; dj <= 2; dj++)
+            for (int64_t di = -2; di <= 2; di++) {
+                int64_t i = c0[0] + di, j = c0[1] + dj, k = c0[2] + dk;
+                if (i < 0 || j < 0 || k < 0 || i >= g->n[0] || j >= g->n[1] || k >= g->n[2])
+                    continue;
+                size_t c = sm_grid_cell(g, (uint32_t)i, (uint32_t)j, (uint32_t)k);
+                double dx = s->rest[0][c] - at[0], dy = s->rest[1][c] - at[1], dz = s->rest[2][c] - at[2];
+                double d2 = dx * dx + dy * dy + dz * dz;
+                if (g->active[c] && (d2 < best || (d2 == best && c < found))) {
+                    best = d2;
+                    found = c;
+                }
+            }
+    if (found != SIZE_MAX && sqrt(best) <= 1.5 * g->h) /* nothing closer lies outside the block */
+        return found;
+    for (size_t c = 0; c < s->cells; c++) {
+        double dx = s->rest[0][c] - at[0], dy = s->rest[1][c] - at[1], dz = s->rest[2][c] - at[2];
+        double d2 = dx * dx + dy * dy + dz * dz;
+        if (g->active[c] && d2 < best) {
+            best = d2;
+            found = c;
+        }
+    }
+    return found;
 }
 
 static int measure(sm_sim *s, unsigned threads);
@@ -422,18 +459,28 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
     s->mg[0] = p->mass * p->gravity.x;
     s->mg[1] = p->mass * p->gravity.y;
     s->mg[2] = p->mass * p->gravity.z;
-    /* pins: the first pin whose box holds a node's rest position takes it */
+    /* pins: the first pin whose box or node set holds a node takes it */
     if (p->pin_count) {
         if (!(s->pivot = calloc(p->pin_count, sizeof *s->pivot)))
             goto nomem;
         double *sum = calloc(p->pin_count * 4, sizeof *sum);
-        if (!sum)
+        uint8_t *in_set = calloc(s->cells + 1, 1); /* the first pin whose node set holds the cell */
+        if (!sum || !in_set) {
+            free(sum);
+            free(in_set);
             goto nomem;
+        }
+        for (size_t q = p->pin_count; q-- > 0;)
+            for (size_t k = 0; k < p->pins[q].point_count; k++) {
+                size_t c = nearest_node_at(s, p->pins[q].points[k].position);
+                if (c != SIZE_MAX)
+                    in_set[c] = (uint8_t)(q + 1);
+            }
         for (size_t c = 0; c < s->cells; c++) {
             if (!g->active[c])
                 continue;
             for (size_t q = 0; q < p->pin_count; q++)
-                if (in_box(&p->pins[q], s->rest[0][c], s->rest[1][c], s->rest[2][c])) {
+                if (in_set[c] == q + 1 || in_box(&p->pins[q], s->rest[0][c], s->rest[1][c], s->rest[2][c])) {
                     s->pin_of[c] = (uint8_t)(q + 1);
                     sum[q * 4] += s->rest[0][c];
                     sum[q * 4 + 1] += s->rest[1][c];
@@ -451,6 +498,7 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
             s->driven |= pin->path_count > 0;
         }
         free(sum);
+        free(in_set);
     }
     s->driven |= p->probe_count > 0 || p->force_count > 0;
     if (p->force_count) {

@@ -382,13 +382,29 @@ static int after_pin_box(void *values, const bool *given, mr_param_error *err)
     return MR_OK;
 }
 
+static int after_pin_points(void *values, const bool *given, mr_param_error *err)
+{
+    (void)err;
+    mr_springmass_pin *pin = values;
+    pin->points_only = given[2] && !given[0] && !given[1];
+    return MR_OK;
+}
+
 static int after_pin_pivot(void *values, const bool *given, mr_param_error *err)
 {
     (void)err;
     mr_springmass_pin *pin = values;
-    pin->has_pivot = given[2];
+    pin->has_pivot = given[3];
     return MR_OK;
 }
+
+static const mr_param PIN_POINT_PARAMS[] = {
+    {.field = "position", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin_point, position),
+     .lo = -1e9, .hi = 1e9, .description = "Where: the node nearest to it at rest is pinned."},
+};
+static const mr_param_table PIN_POINT_TABLE = {
+    .params = PIN_POINT_PARAMS, .count = 1, .size = sizeof(mr_springmass_pin_point), .expect = "a point object",
+    .plural = "point objects", .schema_rules = "{\"required\": [\"position\"]}"};
 
 static int after_probe_path(void *values, const bool *given, mr_param_error *err)
 {
@@ -431,7 +447,12 @@ static const mr_param PIN_PARAMS[] = {
      .description = "Low corner of the box whose nodes (rest positions, world space) are pinned."},
     {.field = "box_max", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin, box_max), .lo = -COORD,
      .hi = COORD, .def3 = {COORD, COORD, COORD}, .after = after_pin_box,
-     .description = "High corner of that box (default: every node)."},
+     .description = "High corner of that box (default: every node, unless points are given)."},
+    {.field = "points", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_pin, points),
+     .count_offset = offsetof(mr_springmass_pin, point_count), .max_items = MR_SPRINGMASS_MAX_POINTS,
+     .sub = &PIN_POINT_TABLE, .after = after_pin_points,
+     .description = "A node set: the nodes nearest to these points at rest (with a box, both; "
+                    "without one, only these)."},
     {.field = "pivot", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin, pivot), .lo = -COORD,
      .hi = COORD, .flags = MR_PARAM_NO_DEFAULT, .after = after_pin_pivot,
      .description = "Centre of the path's rotations (default: the pinned nodes' centroid)."},
@@ -441,7 +462,7 @@ static const mr_param PIN_PARAMS[] = {
      .description = "Keys moving the pinned nodes (default: they stay at rest)."},
 };
 static const mr_param_table PIN_TABLE = {
-    .params = PIN_PARAMS, .count = 4, .size = sizeof(mr_springmass_pin), .expect = "a pin object",
+    .params = PIN_PARAMS, .count = 5, .size = sizeof(mr_springmass_pin), .expect = "a pin object",
     .plural = "pin objects"};
 
 static const mr_param PROBE_KEY_PARAMS[] = {

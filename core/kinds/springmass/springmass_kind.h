@@ -24,6 +24,7 @@
 #define MR_SPRINGMASS_MAX_PROBES 8u
 #define MR_SPRINGMASS_MAX_FORCES 16u
 #define MR_SPRINGMASS_MAX_KEYS 1024u
+#define MR_SPRINGMASS_MAX_POINTS 4096u
 
 typedef enum mr_springmass_mapping {
     MR_SPRINGMASS_ONE_TO_ONE = 0,         /* 3.2: each vertex at its nearest surface node */
@@ -47,8 +48,16 @@ typedef struct mr_springmass_pin_key {
     mr_quat rotation;
 } mr_springmass_pin_key;
 
+/* A node of a pin's node set: the node nearest to position at rest. */
+typedef struct mr_springmass_pin_point {
+    mr_vec3 position;
+} mr_springmass_pin_point;
+
 typedef struct mr_springmass_pin {
     mr_vec3 box_min, box_max;  /* nodes whose rest position lies in the box */
+    bool points_only;          /* points given and no box: the box holds nothing */
+    mr_springmass_pin_point *points; /* a node set, besides (or instead of) the box */
+    size_t point_count;
     mr_vec3 pivot;             /* centre of rotation; default the pinned nodes' centroid */
     bool has_pivot;
     mr_springmass_pin_key *path;
