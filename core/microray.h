@@ -760,7 +760,9 @@ int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset
  * uint32_t: 0 when absent, else 1 + the index in mr_job.assets of the asset
  * the job names (a key of its "assets"; a kind reads that asset through
  * mr_kind_context.assets), NUMBERS -> float[max_items], given as an array of
- * exactly max_items numbers in lo..hi (def fills every element). */
+ * exactly max_items numbers in lo..hi (def fills every element), VEC3 ->
+ * mr_vec3 (three numbers, each in lo..hi; default def3), QUAT -> mr_quat
+ * ([x, y, z, w], any non-zero length, normalised; identity by default). */
 
 typedef enum mr_param_type {
     MR_PARAM_INT = 0,
@@ -772,11 +774,15 @@ typedef enum mr_param_type {
     MR_PARAM_TRANSFORM,
     MR_PARAM_POSE,
     MR_PARAM_ASSET,
-    MR_PARAM_NUMBERS
+    MR_PARAM_NUMBERS,
+    MR_PARAM_VEC3,
+    MR_PARAM_QUAT
 } mr_param_type;
 
-/* mr_param.flags: open ends of a number's range. */
-enum { MR_PARAM_LO_OPEN = 1u, MR_PARAM_HI_OPEN = 2u };
+/* mr_param.flags: open ends of a number's range; NO_DEFAULT: the value
+ * when absent depends on other fields (an after hook sets it), so the
+ * schema states no default. */
+enum { MR_PARAM_LO_OPEN = 1u, MR_PARAM_HI_OPEN = 2u, MR_PARAM_NO_DEFAULT = 4u };
 
 /* At most this many fields in one table (the reader tracks them in a
  * 32-bit set). */
@@ -805,6 +811,7 @@ typedef struct mr_param {
     const char *const *choices; /* ENUM: names in the order of the stored int */
     size_t choice_count;
     double def;                /* default: the number, 0/1, or the enum index */
+    double def3[3];            /* VEC3: default */
     const char *expect;        /* "expected ..." text instead of the generated one, or NULL */
     const char *description;   /* one line, for the schema and docs */
     const char *conflicts;     /* a later field of this table that may not be given with this one */
@@ -1092,7 +1099,7 @@ typedef enum mr_bvh_update {
 const char *mr_bvh_update_name(mr_bvh_update u);
 
 /* Most extras one frame carries: a few per kind, for a few kinds. */
-#define MR_FRAME_EXTRAS_MAX 8
+#define MR_FRAME_EXTRAS_MAX 16
 
 /* One per-frame field beyond the table's, e.g. {"simulate_s", "s", 0.02}. */
 typedef struct mr_frame_extra {
@@ -1125,6 +1132,8 @@ typedef struct mr_frame_stats {
     uint64_t peak_rss_bytes;  /* process peak resident set so far */
     float scene_diagonal;     /* bounding-box diagonal of the frame's scene */
     double speckle_pct;       /* isolated dark pixels, % of interior pixels (mr_film_speckles) */
+    uint32_t replay_frames;   /* frames of sequential kinds re-simulated untraced before this one */
+    uint32_t replay_checkpoint; /* the checkpoint (frames it holds) that replay started from, 0: none */
     uint32_t extra_count;     /* extras[0, extra_count) are set */
     mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
 } mr_frame_stats;
@@ -1176,8 +1185,9 @@ extern const mr_stat_field mr_frame_stat_fields[];
 extern const size_t mr_frame_stat_field_count;
 
 /* The groups "seconds" (the per-stage timings that job totals and medians
- * sum up), "bytes" and "cache". */
-extern const mr_stat_group mr_stat_group_seconds, mr_stat_group_bytes, mr_stat_group_cache;
+ * sum up), "bytes", "cache" and "replay". */
+extern const mr_stat_group mr_stat_group_seconds, mr_stat_group_bytes, mr_stat_group_cache,
+    mr_stat_group_replay;
 
 /* The value of a stored numeric field (INT, U32, U64, F32, F64, BVH) as a
  * double; 0 for derived types. */

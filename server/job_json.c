@@ -561,6 +561,14 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, const 
         TRY(parse_pose(c, v, PARAM_AT(values, p->offset, mr_pose_desc)));
         *PARAM_AT(values, p->present_offset, bool) = true;
         return MR_OK;
+    case MR_PARAM_VEC3: {
+        double d[3]; /* each number in the field's range, reported at its index */
+        TRY(json_get_numbers(c, v, 3, &spec, "an array of 3 numbers", d));
+        *PARAM_AT(values, p->offset, mr_vec3) = mr_v3((float)d[0], (float)d[1], (float)d[2]);
+        return MR_OK;
+    }
+    case MR_PARAM_QUAT:
+        return json_get_quat(c, v, PARAM_AT(values, p->offset, mr_quat));
     }
     return json_fail(c, MR_ERR_INVALID, "unsupported parameter type");
 }

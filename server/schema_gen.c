@@ -34,6 +34,8 @@ static cJSON *ref_to(const char *def)
 static bool default_in_range(const mr_param *p)
 {
     double d = p->def;
+    if (p->flags & MR_PARAM_NO_DEFAULT)
+        return false;
     if (d < p->lo || d > p->hi)
         return false;
     if ((p->flags & MR_PARAM_LO_OPEN) && d <= p->lo)
@@ -100,7 +102,10 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
         s = cJSON_CreateObject();
         ok = s && add(s, "type", cJSON_CreateString("string"));
         break;
-    case MR_PARAM_NUMBERS: {
+    case MR_PARAM_QUAT: s = ref_to("quat"); break;
+    case MR_PARAM_NUMBERS:
+    case MR_PARAM_VEC3: { /* an array of exactly n numbers in lo..hi */
+        size_t n = p->type == MR_PARAM_VEC3 ? 3 : p->max_items;
         s = cJSON_CreateObject();
         cJSON *item = cJSON_CreateObject();
         ok = s && item && add(item, "type", cJSON_CreateString("number")) &&
@@ -108,14 +113,13 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
                  cJSON_CreateNumber(p->lo)) &&
              add(item, (p->flags & MR_PARAM_HI_OPEN) ? "exclusiveMaximum" : "maximum",
                  cJSON_CreateNumber(p->hi));
-        if (!ok) {
+        ok = ok && add(s, "type", cJSON_CreateString("array")) &&
+             add(s, "minItems", cJSON_CreateNumber((double)n)) &&
+             add(s, "maxItems", cJSON_CreateNumber((double)n)) && add(s, "items", item);
+        if (!ok && item && !cJSON_GetObjectItem(s, "items"))
             cJSON_Delete(item);
-            break;
-        }
-        ok = add(s, "type", cJSON_CreateString("array")) &&
-             add(s, "minItems", cJSON_CreateNumber((double)p->max_items)) &&
-             add(s, "maxItems", cJSON_CreateNumber((double)p->max_items)) &&
-             add(s, "items", item);
+        if (ok && p->type == MR_PARAM_VEC3 && !(p->flags & MR_PARAM_NO_DEFAULT))
+            ok = add(s, "default", cJSON_CreateDoubleArray(p->def3, 3));
         break;
     }
     }

@@ -36,6 +36,17 @@
  *               extras (render/frame_stats.h), which reach stats.json, the
  *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
+ *   checkpoint_* (SEQUENTIAL kinds, optional: all four or none) the state
+ *               after the frames applied so far as bytes and back, so a
+ *               resumed or retried job starts from the nearest checkpoint
+ *               instead of frame 0 (render/checkpoint.h keeps them in the
+ *               kind's derived-data folder, keyed by checkpoint_id and the
+ *               frame count): checkpoint_every says how many frames apart
+ *               (0: none), checkpoint_id hashes everything the state after
+ *               N frames depends on (asset content, parameters, transform,
+ *               the state format's version), save writes the state after
+ *               `frames` frames, load restores it (validating what it
+ *               reads: all or nothing, MR_ERR_FORMAT on anything wrong).
  *   surface_step  (NULL: 0) the size, in world units after the last
  *               update, of the steps the kind's surface makes around the
  *               smooth one it stands for (a voxel's edge): faces of a
@@ -154,6 +165,12 @@ struct mr_kind {
     uint32_t (*geometry_ids)(const mr_geom *g);
     void (*frame_stats)(const mr_geom *g, double *values);
     int (*rewind)(mr_geom *g, mr_error *err);
+    uint32_t (*checkpoint_every)(const mr_geom *g);
+    void (*checkpoint_id)(const mr_geom *g, uint8_t id[32]);
+    int (*checkpoint_save)(const mr_geom *g, uint64_t frames, uint8_t **buf, size_t *size,
+                           mr_error *err);
+    int (*checkpoint_load)(mr_geom *g, uint64_t frames, const uint8_t *buf, size_t size,
+                           mr_error *err);
     float (*surface_step)(const mr_geom *g);
     bool (*shading_point)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                           mr_vec3 *out);

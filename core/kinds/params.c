@@ -39,6 +39,11 @@ void mr_params_defaults(const mr_param_table *t, void *values)
             for (size_t k = 0; k < p->max_items; k++)
                 AT(values, p->offset, float)[k] = (float)p->def;
             break;
+        case MR_PARAM_VEC3:
+            *AT(values, p->offset, mr_vec3) =
+                mr_v3((float)p->def3[0], (float)p->def3[1], (float)p->def3[2]);
+            break;
+        case MR_PARAM_QUAT: *AT(values, p->offset, mr_quat) = mr_quat_identity(); break;
         }
     }
 }

@@ -3,7 +3,7 @@
  *
  * Adding a kind is one line in BUILTIN (its descriptor, declared in its own
  * folder's header). Order matters only for messages and the generated
- * schema: "one of: \"mesh\", \"dmm\", \"svo\"".
+ * schema: "one of: \"mesh\", \"dmm\", \"svo\", ...".
  */
 #include "kinds/kind.h"
 
@@ -16,6 +16,7 @@
 #include "kinds/displaced/displaced_kind.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/mesh/mesh_kind.h"
+#include "kinds/springmass/springmass_kind.h"
 #include "kinds/svo/svo_kind.h"
 
 static const mr_kind *const BUILTIN[] = {
@@ -23,6 +24,7 @@ static const mr_kind *const BUILTIN[] = {
     &mr_kind_dmm,
     &mr_kind_svo,
     &mr_kind_displaced,
+    &mr_kind_springmass,
 };
 
 #define BUILTIN_COUNT (sizeof BUILTIN / sizeof BUILTIN[0])
@@ -65,6 +67,14 @@ int mr_kind_register(const mr_kind *kind, mr_error *err)
                             MR_FRAME_EXTRAS_MAX);
     if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
         return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
+                            kind->name);
+    bool any = kind->checkpoint_every || kind->checkpoint_id || kind->checkpoint_save ||
+               kind->checkpoint_load,
+         all = kind->checkpoint_every && kind->checkpoint_id && kind->checkpoint_save &&
+               kind->checkpoint_load;
+    if (any && (!all || kind->frame_order != MR_FRAMES_SEQUENTIAL))
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "kind \"%s\": checkpoints need all four ops and a sequential kind",
                             kind->name);
     if (added_count == MAX_ADDED)
         return mr_error_set(err, MR_ERR_LIMIT, "at most %d kinds can be added", MAX_ADDED);

@@ -9,6 +9,7 @@
 #include <sys/resource.h>
 
 #include "kinds/kind.h"
+#include "render/checkpoint.h"
 #include "render/device.h"
 #include "render/exr.h"
 #include "render/integrator.h"
@@ -24,6 +25,8 @@ typedef struct object_state {
     bool animated;   /* pose changes from frame to frame */
     bool posed_once;
     size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
+    char *checkpoints; /* the kind's folder when it keeps checkpoints there (checkpoint.h) */
+    uint32_t checkpoint_every;
 } object_state;
 
 struct mr_renderer {
@@ -90,6 +93,7 @@ void mr_renderer_free(mr_renderer *r)
         if (r->objects[i].geom)
             r->objects[i].kind->free(r->objects[i].geom);
         mr_pose_free(r->objects[i].pose);
+        free(r->objects[i].checkpoints);
     }
     mr_pose_free(r->cam_pose);
     free(r->stat_kinds);
@@ -241,6 +245,11 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
                                .assets = (const mr_asset *const *)assets,
                                .asset_count = job->asset_count};
         rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
+        if (rc == MR_OK && mr_checkpoint_kept(o->kind, o->geom, cache_dir)) {
+            o->checkpoints = cache_dir;
+            o->checkpoint_every = o->kind->checkpoint_every(o->geom);
+            cache_dir = NULL;
+        }
         free(cache_dir);
         if (rc < 0) {
             if (o->kind->self_posed) /* its errors name the pose fields under the object */
@@ -332,13 +341,38 @@ static int update_object(mr_renderer *r, object_state *o, size_t i, const mr_geo
     return rc;
 }
 
+/* After frames 0..o->stepped-1: a checkpoint when one is due (checkpoint.h).
+ * A checkpoint that cannot be written costs a later resume some replay,
+ * never this frame. */
+static void checkpoint_due(object_state *o)
+{
+    if (o->checkpoints && o->stepped % o->checkpoint_every == 0) {
+        mr_error ignored;
+        mr_checkpoint_store(o->checkpoints, o->kind, o->geom, o->stepped, &ignored);
+    }
+}
+
 /* The frame-order contract (kind.h): a SEQUENTIAL object about to show
  * frame `index` must have applied exactly frames 0..index-1. A frame out of
- * order (resumed job, retry, frame range) rewinds it and replays the
- * updates in between, untraced, so the result is the uninterrupted run's. */
-static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_error *err)
+ * order (resumed job, retry, frame range) restores the newest checkpoint
+ * at or before it (or rewinds) and replays the updates in between,
+ * untraced, so the result is the uninterrupted run's. */
+static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_frame_stats *st,
+                     mr_error *err)
 {
     int rc;
+    if (o->stepped == index)
+        return MR_OK;
+    size_t from = o->stepped > index ? 0 : o->stepped;
+    if (o->checkpoints)
+        for (size_t m = index - index % o->checkpoint_every; m > from; m -= o->checkpoint_every) {
+            mr_error miss;
+            if (mr_checkpoint_load(o->checkpoints, o->kind, o->geom, m, &miss) == MR_OK) {
+                o->stepped = m;
+                st->replay_checkpoint = (uint32_t)m;
+                break;
+            }
+        }
     if (o->stepped > index) {
         if ((rc = o->kind->rewind(o->geom, err)) < 0)
             return mr_error_prefix(err, "/objects/%zu: ", i);
@@ -352,6 +386,8 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
             (rc = update_object(r, o, i, &f, err)) < 0)
             return rc;
         o->stepped = k + 1;
+        st->replay_frames++;
+        checkpoint_due(o);
     }
     return MR_OK;
 }
@@ -386,6 +422,33 @@ static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
     return MR_OK;
 }
 
+/* Poses and deforms for frame `index` whatever moves (everything the first
+ * time), replaying sequential kinds as needed; *changed: something did. */
+static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *frame, mr_frame_stats *st,
+                          bool *changed, mr_error *err)
+{
+    int rc;
+    *changed = false;
+    for (size_t i = 0; i < r->object_count; i++) {
+        object_state *o = &r->objects[i];
+        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
+            continue;
+        if (!o->posed_once || o->animated) {
+            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
+                (rc = replay_to(r, o, i, index, st, err)) < 0)
+                return rc;
+            if ((rc = update_object(r, o, i, frame, err)) < 0)
+                return rc;
+            o->stepped = index + 1;
+            checkpoint_due(o);
+        }
+        o->kind->commit(o->geom);
+        o->posed_once = true;
+        *changed = true;
+    }
+    return MR_OK;
+}
+
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
 {
     const mr_job *job = r->job;
@@ -406,24 +469,29 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
         return rc;
 
+    /* An animated scene's tree is built at frame 0 and refitted after
+     * that; its topology decides which of two triangles sharing an edge a
+     * ray exactly on that edge hits. A renderer that starts at a later
+     * frame (a resumed job, a retry in a new render worker) builds its tree
+     * at frame 0 as well, so its hits are the uninterrupted run's bit for
+     * bit (tests/integration/test_springmass_daemon.c). */
+    if (r->refit && !r->built && index != 0) {
+        mr_geom_frame first = {.index = 0, .time = job->frame_times[0], .width = film->width,
+                               .height = film->height};
+        if ((rc = camera_for_frame(r, 0, first.time, &first.camera, err)) < 0)
+            return rc;
+        bool ignored;
+        if ((rc = update_objects(r, 0, &first, st, &ignored, err)) < 0)
+            return rc;
+        rtcCommitScene(r->scene);
+        r->built = true;
+        if ((rc = mr_device_check(r->dev, "rtcCommitScene", err)) < 0)
+            return rc;
+    }
     /* Pose and deform whatever moves (everything on the first frame). */
     bool changed = false;
-    for (size_t i = 0; i < r->object_count; i++) {
-        object_state *o = &r->objects[i];
-        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
-            continue;
-        if (!o->posed_once || o->animated) {
-            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
-                (rc = replay_to(r, o, i, index, err)) < 0)
-                return rc;
-            if ((rc = update_object(r, o, i, &frame, err)) < 0)
-                return rc;
-            o->stepped = index + 1;
-        }
-        o->kind->commit(o->geom);
-        o->posed_once = true;
-        changed = true;
-    }
+    if ((rc = update_objects(r, index, &frame, st, &changed, err)) < 0)
+        return rc;
     double t1 = mr_now();
     st->pose_s = t1 - t0;
     for (size_t i = 0; i < r->object_count; i++) {

@@ -449,6 +449,17 @@ static const parser_only_case PARSER_ONLY[] = {
      JOB(",'name':'a\\udc00'")},
     {"refine frequency 1e-50", "positive as a double, 0 as the 32-bit float the job stores",
      WITH_ASSETS("{'m':{'path':'/a.gltf','refine':{'frequency':1e-50}}}")},
+    {"springmass dt needing more than 1000 substeps",
+     "the stability bound is arithmetic on dt, mass and both stiffnesses",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'dt':0.01,'stiffness':1e9}}")},
+    {"springmass steps of a frame over 100000", "a product of steps_per_frame and the substeps",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'steps_per_frame':100000,'stiffness':1e6}}")},
+    {"springmass pin path keys not increasing", "a relation between array items",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'path':[{'t':1},{'t':0.5}]}]}}")},
+    {"springmass pin box upside down", "a relation between two fields (box_max >= box_min)",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'box_min':[0,0,0],'box_max':[1,-1,1]}]}}")},
+    {"springmass force ending before it starts", "a relation between two fields (end > start)",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'forces':[{'start':2,'end':1}]}}")},
 };
 
 /* ------------------------------------------------------------------------ */
