@@ -559,6 +559,11 @@ void mr_asset_free(mr_asset *asset);
 
 /* Triangles over all meshes. */
 size_t mr_asset_triangle_count(const mr_asset *asset);
+/* Animation clips (a job's pose names them by index or name), and the
+ * length of clip i in seconds (0 for a clip it does not have): what a
+ * client spreads its frame times over. */
+size_t mr_asset_clip_count(const mr_asset *asset);
+double mr_asset_clip_duration(const mr_asset *asset, size_t clip);
 /* Bytes held by the asset's arrays. */
 size_t mr_asset_memory(const mr_asset *asset);
 /* Address space the import's own thread reserves for its stack (asset.c:
@@ -725,6 +730,10 @@ typedef struct mr_kind_stat {
     const char *name;        /* stats.json key, unique among all fields */
     const char *unit;        /* "s", "count", "bytes", ... */
     const char *description; /* one line */
+    /* A figure of the object's creation (a derived-data build's seconds, a
+     * bake's counts): reported with the renderer's first frame and 0 on
+     * later ones, like load_s, so a sum over frames stays true. */
+    bool once;
 } mr_kind_stat;
 
 /* The registry: the built-in kinds, in a fixed order, then any added by
@@ -944,8 +953,12 @@ typedef enum mr_bvh_update {
 /* "none", "build" or "refit" (stats.json's "bvh"). */
 const char *mr_bvh_update_name(mr_bvh_update u);
 
-/* Most extras one frame carries: a few per kind, for a few kinds. */
-#define MR_FRAME_EXTRAS_MAX 8
+/* Most extras one frame carries: every registered kind's stats fields
+ * (mr_kind_stat; a job may hold all kinds) plus MR_FRAME_EXTRAS_CALLER of
+ * the caller's own (the one-shot renderer's png_s). Registering a kind
+ * whose fields would pass that fails. */
+#define MR_FRAME_EXTRAS_MAX 32
+#define MR_FRAME_EXTRAS_CALLER 4
 
 /* One per-frame field beyond the table's, e.g. {"simulate_s", "s", 0.02}. */
 typedef struct mr_frame_extra {
@@ -1087,5 +1100,24 @@ void mr_renderer_free(mr_renderer *r);
  * be job->output.width x height. */
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *stats,
                        mr_error *err);
+
+/* A plain triangle soup in world space. */
+typedef struct mr_trimesh {
+    uint32_t vertex_count, triangle_count;
+    float *positions;   /* 3 per vertex */
+    uint32_t *indices;  /* 3 per triangle */
+} mr_trimesh;
+
+/* Frees the arrays and zeroes *m; NULL is fine. */
+void mr_trimesh_free(mr_trimesh *m);
+
+/* The exact triangle reference of job object `object` (an index into
+ * job->objects) as the last mr_renderer_render posed it, in world space:
+ * what the object's kind stands for (a mesh: its own triangles; dmm: its
+ * micro-triangles; svo: the asset's triangles skinned with each instance's
+ * pose). For accuracy comparisons and baselines, such as a bare Embree
+ * loop over the same triangles. *out is the caller's (mr_trimesh_free).
+ * MR_ERR_INVALID for an object out of range; MR_ERR_LIMIT, MR_ERR_NOMEM. */
+int mr_renderer_tessellate(const mr_renderer *r, size_t object, mr_trimesh *out, mr_error *err);
 
 #endif /* MICRORAY_H */
