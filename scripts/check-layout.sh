@@ -55,8 +55,6 @@ fi
 bench_internal=(
   bench/bench_render.c     # a bare Embree loop on the renderer's device, beside the renderer
   bench/bench_dmm.c        # DMM bake, encoding and traversal, against tessellated meshes
-  bench/bench_svo.c        # octree build, radix sort and skinned voxel deformation
-  bench/bench_svo_render.c # voxelisation and extracted skeletons, beside the renderer
 )
 bench_public=()
 for f in bench/*.c bench/*.h; do
