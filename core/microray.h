@@ -37,6 +37,7 @@
 #include <stdatomic.h>
 #include <stdbool.h>
 #include <stddef.h>
+#include <math.h>
 #include <stdint.h>
 
 #define MR_VERSION_STRING "0.1.0"
@@ -230,13 +231,24 @@ int mr_fs_remove_dir(const char *dir, mr_error *err);
 int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *size,
                       const char *what, mr_error *err);
 
-/* ---- cores (util/parallel.c; core's parallel loop is util/parallel.h) ---- */
+/* ---- cores and the parallel loop (util/parallel.c) ---- */
 
 /* Most workers one parallel loop starts (and the cap on configured threads). */
 #define MR_MAX_THREADS 256
 
 /* Number of online cores (at least 1). */
 unsigned mr_cpu_count(void);
+
+/* The one way microray uses several cores: mr_parallel_for splits [0,
+ * count) into chunks of `grain` items handed out dynamically to `threads`
+ * workers (the calling thread is one of them; 0: all online cores), and
+ * falls back to running everything on the caller when threads cannot be
+ * started. fn gets a half-open range and the worker's index in [0,
+ * threads). Work must be independent per item, so results do not depend
+ * on the thread count or the order chunks are taken in (what keeps frames
+ * bit-identical for any thread count). */
+typedef void (*mr_range_fn)(void *ctx, size_t begin, size_t end, unsigned worker);
+void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn fn, void *ctx);
 
 /* Peak resident set size of the process, bytes (render/renderer.c). */
 uint64_t mr_peak_rss_bytes(void);
@@ -806,7 +818,7 @@ typedef struct mr_pose_desc {
  * parser allocates them) and zeroes it. */
 void mr_pose_desc_clear(mr_pose_desc *p);
 
-/* ---- camera paths (render/camera.c; cameras and rays are render/camera.h) ----
+/* ---- camera paths, cameras and their rays (render/camera.c) ----
  * A camera looks down its local -Z with +Y up (glTF's convention); its
  * orientation is a unit quaternion mapping camera space to world space.
  * A path is a list of keyframes sorted by time; between keys, position is
@@ -838,6 +850,42 @@ typedef struct mr_camera_path {
     size_t key_count;  /* >= 1 */
     mr_camera_key *keys;
 } mr_camera_path;
+
+/* The camera at one instant. */
+typedef struct mr_camera {
+    mr_vec3 position;
+    mr_quat rotation;  /* camera space to world space */
+    float yfov;        /* vertical field of view, radians */
+} mr_camera;
+
+/* Camera of the path at time t. */
+mr_camera mr_camera_path_eval(const mr_camera_path *path, double t);
+
+/* A camera set up for one film size: the rays the renderer shoots (its
+ * pixel-centre rays are (x + 0.5, y + 0.5)), for clients that trace the
+ * same rays themselves (a baseline, a picker). Ray directions are a corner
+ * plus multiples of per-pixel steps, so a ray costs a few multiply-adds and
+ * one normalisation (no trigonometry per ray). */
+typedef struct mr_camera_rays {
+    mr_vec3 origin;
+    mr_vec3 corner;  /* direction through film point (0, 0), unnormalised */
+    mr_vec3 step_x;  /* change per pixel to the right */
+    mr_vec3 step_y;  /* change per pixel downwards */
+} mr_camera_rays;
+
+mr_camera_rays mr_camera_rays_setup(const mr_camera *cam, int width, int height);
+
+/* Unit direction of the ray through film point (px, py) in pixels, (0,0)
+ * being the top-left corner of the image and (width, height) the
+ * bottom-right one. Inline: the renderer calls it once per ray. */
+static inline mr_vec3 mr_camera_rays_dir(const mr_camera_rays *r, float px, float py)
+{
+    float x = r->corner.x + px * r->step_x.x + py * r->step_y.x;
+    float y = r->corner.y + px * r->step_x.y + py * r->step_y.y;
+    float z = r->corner.z + px * r->step_x.z + py * r->step_y.z;
+    float s = 1.0f / sqrtf(x * x + y * y + z * z);
+    return mr_v3(x * s, y * s, z * s);
+}
 
 /* ---- the job ---- */
 
