@@ -211,20 +211,6 @@ static double peak_rss(void)
     return kib > 0 ? kib * 1024.0 : (double)mr_peak_rss_bytes();
 }
 
-static double mem_available(void)
-{
-    char line[256];
-    double kib = 0;
-    FILE *f = fopen("/proc/meminfo", "r");
-    if (!f)
-        return 8.0 * GIB;
-    while (fgets(line, sizeof line, f))
-        if (sscanf(line, "MemAvailable: %lf kB", &kib) == 1)
-            break;
-    fclose(f);
-    return kib * 1024.0;
-}
-
 /* ---- the dancer's rest-pose triangles and their bounds */
 
 typedef struct shape {
@@ -628,7 +614,7 @@ static void part_bc(bool quick)
     memory_row mem[3];
     int nrows = 0;
     double emit_ratio = 30; /* emit cells per voxel, refined by the previous depth */
-    const double budget = fmin(6.0 * GIB, 0.5 * mem_available());
+    const double budget = fmin(6.0 * GIB, 0.5 * bench_mem_available());
     mr_asset *asset = NULL;
     mr_error err = {0};
     if (mr_asset_load(MODEL, &asset, &err) < 0)
@@ -875,7 +861,7 @@ static void part_d(double deadline)
     shape sh;
     rest_triangles(asset, &m, &sh);
     mr_trimesh_free(&m);
-    const double budget = fmin(8.0 * GIB, 0.6 * mem_available());
+    const double budget = fmin(8.0 * GIB, 0.6 * bench_mem_available());
     const size_t n_max = 1u << 20;
     printf("\n### d. Instances (thesis: 10^6 instances of 6 models, 33.8 ms per frame, GTX 260)\n\n"
            "The dancer at depth 8 per instance, method resize, each with its own clip offset and a "

@@ -50,6 +50,7 @@
 
 static const char *const MODE_NAME[MODES] = {"mesh", "rigid", "direct", "resize", "emit"};
 static char cache_dir[512]; /* the renderers' cache root: octrees in cache_dir/svo */
+static size_t job_budget;   /* the jobs' memory budget (renderer option) */
 
 static void die(const char *what, const char *msg)
 {
@@ -61,7 +62,8 @@ static void die(const char *what, const char *msg)
 static mr_job *make_job(const char *object, const double *times, int frames, int width,
                         int height, const char *camera)
 {
-    size_t cap = 1u << 20;
+    /* the object (up to 65,536 instances) and the camera, plus the rest */
+    size_t cap = strlen(object) + strlen(camera) + 8192;
     char *text = malloc(cap), *ts = malloc(4096);
     if (!text || !ts)
         die("job", "out of memory");
@@ -103,7 +105,7 @@ static void open_run(mode_run *m, mr_job *job, mr_asset *asset)
 {
     mr_error err = {0};
     mr_asset *assets[1] = {asset};
-    mr_renderer_options opt = {.cache_dir = cache_dir};
+    mr_renderer_options opt = {.cache_dir = cache_dir, .memory_budget = job_budget};
     m->job = job;
     if (mr_device_new(0, &m->dev, &err) < 0 || mr_renderer_new(m->dev, job, assets, &opt, &m->r, &err) < 0 ||
         mr_film_new(job->output.width, job->output.height, &m->film, &err) < 0)
@@ -199,7 +201,9 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
 }
 
 /* Instances on a grid seen from afar (each a few pixels to a few dozen
- * tall), each with its own clip offset: update + build per frame. */
+ * tall), each with its own clip offset: update + build per frame; -1 when
+ * the frame passed the job's memory budget (each instance holds its own
+ * world octree). */
 static double instances_frame_s(mr_asset *asset, unsigned n, int frames, int width, int height,
                                 uint64_t *voxels)
 {
@@ -229,7 +233,14 @@ static double instances_frame_s(mr_asset *asset, unsigned n, int frames, int wid
     double t[MAX_FRAMES];
     for (int f = 0; f < frames; f++) {
         mr_frame_stats st;
-        render(&r, (size_t)f, &st);
+        mr_error err = {0};
+        if (mr_renderer_render(r.r, (size_t)f, r.film, &st, &err) < 0) {
+            if (err.code != MR_ERR_LIMIT)
+                die("instances", err.msg);
+            close_run(&r);
+            free(obj);
+            return -1;
+        }
         t[f] = st.pose_s + st.bvh_s;
         *voxels = st.triangles;
     }
@@ -314,6 +325,7 @@ int main(int argc, char **argv)
     const char *tmp = getenv("TMPDIR");
     snprintf(cache_dir, sizeof cache_dir, "%s/microray-bench-svo", tmp && *tmp ? tmp : "/tmp");
     mkdir(cache_dir, 0755);
+    job_budget = (size_t)fmin(8.0 * (1u << 30), 0.6 * bench_mem_available());
 
     mr_asset *asset = NULL;
     mr_error err = {0};
@@ -340,6 +352,11 @@ int main(int argc, char **argv)
         for (unsigned n = 1; n <= (quick ? 16u : 65536u); n *= 4) {
             uint64_t voxels = 0;
             double s = instances_frame_s(asset, n, 3, res[ri][0], res[ri][1], &voxels);
+            if (s < 0) {
+                printf("  %6u instances: over the jobs' memory budget of %.1f GiB\n", n,
+                       (double)job_budget / (1u << 30));
+                break;
+            }
             printf("  %6u instances: %9.2f ms per frame, %9llu voxels%s\n", n, s * 1e3,
                    (unsigned long long)voxels, s <= BUDGET_S ? "" : "  (over 33.8 ms)");
             if (s <= BUDGET_S)

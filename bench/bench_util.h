@@ -39,4 +39,21 @@ static inline double frame_extra(const mr_frame_stats *st, const char *name)
     exit(1);
 }
 
+/* Bytes the kernel says are available for new work (MemAvailable), or
+ * 8 GiB when it cannot be read: what the benchmarks size their jobs'
+ * memory budgets by on a machine shared with other work. */
+static inline double bench_mem_available(void)
+{
+    char line[256];
+    double kib = 0;
+    FILE *f = fopen("/proc/meminfo", "r");
+    if (!f)
+        return 8.0 * 1024 * 1024 * 1024;
+    while (fgets(line, sizeof line, f))
+        if (sscanf(line, "MemAvailable: %lf kB", &kib) == 1)
+            break;
+    fclose(f);
+    return kib * 1024.0;
+}
+
 #endif
