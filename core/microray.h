@@ -2,7 +2,7 @@
  * microray.h - the public API of libmicroray, the core renderer.
  *
  * This is the one core header that server/ (the daemon and the one-shot
- * command) and the service benchmarks include: everything they may use from
+ * command) and the benchmarks include: everything they may use from
  * core is declared here, and nothing here names an Embree, assimp or OpenEXR
  * type. The module headers beside the code (util/, math/, asset/, anim/,
  * kinds/, render/) include this file and add what only core itself (and the
