@@ -10,8 +10,8 @@
  *     threads, for the static human and the skinned dancer;
  *  2. per-frame BVH refit against a full rebuild with the same fast (LOW
  *     quality) builder for the skinned example, and what the refitted tree
- *     costs in trace time;
- *  3. EXR encode time as a share of frame time for each compression.
+ *     costs in trace time.
+ * EXR encoding is bench_encode.c.
  *
  * usage: bench_render [--repeats N] [--threads N]   (run from the repository root)
  */
@@ -283,48 +283,6 @@ static void bench_refit(mr_device *dev, const char *job_path, size_t frames)
     free_job(&lj);
 }
 
-static void bench_encode(mr_device *dev, const char *job_path)
-{
-    loaded_job lj = load_job(job_path);
-    mr_job *job = lj.job;
-    mr_error err = {0};
-    mr_renderer *r = NULL;
-    mr_film *film = NULL;
-    if (mr_renderer_new(dev, job, lj.assets, NULL, &r, &err) < 0 ||
-        mr_film_new(job->output.width, job->output.height, &film, &err) < 0)
-        die(job_path, err.msg);
-    mr_frame_stats st;
-    double frame[64];
-    for (int i = 0; i < repeats; i++) {
-        if (mr_renderer_render(r, (size_t)i % job->frame_count, film, &st, &err) < 0)
-            die(job_path, err.msg);
-        frame[i] = st.total_s;
-    }
-    double render_s = median(frame, repeats);
-    const mr_compression cs[] = {MR_COMPRESSION_NONE, MR_COMPRESSION_ZIP, MR_COMPRESSION_ZIPS, MR_COMPRESSION_PIZ};
-    mr_exr_meta meta = {.frame = 0, .scene_diagonal = st.scene_diagonal};
-    for (size_t c = 0; c < sizeof cs / sizeof cs[0]; c++) {
-        mr_exr_options opt = {.compression = cs[c], .zip_level = MR_ZIP_LEVEL_DEFAULT};
-        double enc[64];
-        size_t bytes = 0;
-        for (int i = 0; i < repeats; i++) {
-            uint8_t *data = NULL;
-            double t0 = mr_now();
-            if (mr_exr_write_memory(&data, &bytes, film, &opt, &meta, &err) < 0)
-                die("encode", err.msg);
-            enc[i] = mr_now() - t0;
-            free(data);
-        }
-        double e = median(enc, repeats);
-        printf("| %-5s | %4dx%-4d | %8.1f | %8.1f | %5.1f %% | %9.2f |\n", mr_compression_name(cs[c]),
-               job->output.width, job->output.height, e * 1e3, render_s * 1e3,
-               100.0 * e / (e + render_s), (double)bytes / (1024.0 * 1024.0));
-    }
-    mr_film_free(film);
-    mr_renderer_free(r);
-    free_job(&lj);
-}
-
 int main(int argc, char **argv)
 {
     for (int i = 1; i < argc; i++)
@@ -351,11 +309,6 @@ int main(int argc, char **argv)
     printf("| scene          | triangles | frames | refit     | rebuild   | speedup | trace refit | trace rebuild |\n");
     printf("|----------------|-----------|--------|-----------|-----------|---------|-------------|---------------|\n");
     bench_refit(dev, "examples/skinned-walk.json", 49);
-
-    printf("\nEXR encode (ms, share of frame time = encode / (render + encode), skinned example frame)\n\n");
-    printf("| codec | size      | encode ms | render ms | share   | MiB       |\n");
-    printf("|-------|-----------|-----------|-----------|---------|-----------|\n");
-    bench_encode(dev, "examples/skinned-walk.json");
     mr_device_free(dev);
     return 0;
 }

@@ -11,6 +11,7 @@
  */
 #include "api.h"
 #include "client.h"
+#include "cluster.h"
 #include "jobs.h"
 
 #include <signal.h>
@@ -53,6 +54,11 @@ static void usage(FILE *out)
         "  delete ID             delete a job and its frames on the server\n"
         "  upload FILE           store a model or image on the server, print its asset id\n"
         "  health                check the daemon's /healthz and /readyz\n"
+        "  cluster submit --slurm JOB.json --out DIR --chunk N [--partition P] [--time T]\n"
+        "                 [--threads N] [--microrayd PATH]\n"
+        "  cluster status DIR [--json]\n"
+        "  cluster wait DIR      render a job on Slurm instead of a daemon: a job array of\n"
+        "                        chunks of N frames into shared DIR (docs/scale.md)\n"
         "\n"
         "Options (anywhere on the line):\n"
         "  --server URL          the daemon (default: $MICRORAY_SERVER, else " MRC_DEFAULT_SERVER ")\n"
@@ -562,6 +568,10 @@ int main(int argc, char **argv)
     const char *cmd = rest[0];
     int cargc = nrest - 1;
     char **cargv = rest + 1;
+    if (strcmp(cmd, "cluster") == 0) { /* a batch scheduler, not a daemon: no HTTP */
+        code = mrc_cluster_main(cargc, cargv, g.quiet);
+        goto cleanup;
+    }
     opt_spec none[] = {{NULL, NULL, NULL}};
     int min_pos = 1, max_pos = 1;
     const opt_spec *specs = none;

@@ -46,3 +46,18 @@ void mr_job_free(mr_job *job)
     free(job->frame_times);
     free(job);
 }
+
+int mr_output_crypto_ranks(const mr_output_desc *out)
+{
+    if (!(out->aovs & MR_AOV_CRYPTOMATTE))
+        return 0;
+    int ranks = out->spp < MR_CRYPTO_MAX_RANKS ? out->spp : MR_CRYPTO_MAX_RANKS;
+    return ranks + (ranks & 1);
+}
+
+int mr_job_film_new(const mr_job *job, mr_film **out, mr_error *err)
+{
+    return mr_film_new_aovs(job->output.width, job->output.height,
+                            job->output.aovs ? job->output.aovs : MR_AOV_DEFAULT,
+                            mr_output_crypto_ranks(&job->output), out, err);
+}

@@ -289,36 +289,102 @@ mr_quat mr_quat_identity(void);
 bool mr_normalize_d(double *d, size_t n);
 
 /* ==== Film (render/film.c) ================================================
- * The frame buffer a render writes into: one plane per AOV.
+ * The frame buffer a render writes into: one plane per AOV channel, and
+ * only the planes of the passes asked for (a job's output.aovs): the
+ * integrator computes nothing for a pass the film lacks and the EXR writer
+ * writes exactly the film's passes.
  *
  * Planes are row-major, row 0 at the top of the image (EXR's increasing-y
  * order). Colour is linear and premultiplied by alpha.
  *
- * The data AOVs (z, n*, object_id, prim_id) describe the pixel-centre ray
- * (sample 0), so two renders of the same camera compare pixel by pixel
- * whatever their sample counts; colour and alpha average all samples.
- *  - z: distance along the (unit-length) ray to the hit; 0 where it missed.
+ * The data AOVs (z, n*, p*, object_id, prim_id) describe the pixel-centre
+ * ray (sample 0), so two renders of the same camera compare pixel by pixel
+ * whatever their sample counts; colour, alpha and the Cryptomatte coverage
+ * average all samples.
+ *  - z: depth of the hit in camera space: its distance from the camera's
+ *    image plane along the viewing direction (the z of the camera space of
+ *    OpenEXR's worldToCamera, positive in front; not the distance along the
+ *    ray), the convention of OpenEXR's deep images, RenderMan, Nuke's deep
+ *    nodes and Blender's Z pass. MR_DEPTH_MISS where the ray missed:
+ *    farther than anything, never 0 (which reads as nearest).
  *  - nx, ny, nz: world-space shading normal, unit length, facing the camera;
  *    0 where it missed.
+ *  - px, py, pz: world-space position of the hit; 0 where it missed.
  *  - object_id: 1-based index of the job object hit, 0 = miss.
- *  - prim_id: index of the primitive (triangle) within that object. */
+ *  - prim_id: the primitive within that object (per kind: README, "EXR
+ *    frames").
+ *  - crypto[layer][2k], crypto[layer][2k + 1]: Cryptomatte rank k of the
+ *    layer (MR_CRYPTO_OBJECT: object names, MR_CRYPTO_ASSET: asset names):
+ *    the name's hash as a float (mr_cryptomatte_float) and its coverage,
+ *    the fraction of the pixel's samples that hit it; ranks by falling
+ *    coverage, unused ranks 0, 0. Misses rank nothing. */
 
 /* Caps shared by the job parser and the film allocator (documented in README). */
 #define MR_MAX_RESOLUTION 8192                 /* per side, pixels */
 #define MR_MAX_PIXELS (4096u * 4096u)          /* width * height */
 
+/* Depth of a pixel whose ray missed: farther than any depth a valid job can
+ * produce (coordinates are capped at 1e9) and finite, so a compositor's
+ * filters and arithmetic never meet an Inf; 1e11 is also the value Blender
+ * fills an empty Z pass with. */
+#define MR_DEPTH_MISS 1e11f
+
+/* The passes (output.aovs), as bits. */
+typedef enum mr_aov {
+    MR_AOV_RGBA = 1u << 0,        /* R G B A: colour and alpha */
+    MR_AOV_Z = 1u << 1,           /* Z: camera-space depth */
+    MR_AOV_N = 1u << 2,           /* N.X N.Y N.Z: world-space normal */
+    MR_AOV_P = 1u << 3,           /* P.X P.Y P.Z: world-space position */
+    MR_AOV_ID = 1u << 4,          /* id.object id.primitive */
+    MR_AOV_CRYPTOMATTE = 1u << 5  /* CryptoObject00.R ..., CryptoAsset00.R ... */
+} mr_aov;
+#define MR_AOV_COUNT 6
+#define MR_AOV_ALL 0x3fu
+/* What a job gets without output.aovs, and what mr_film_new allocates. */
+#define MR_AOV_DEFAULT (MR_AOV_RGBA | MR_AOV_Z | MR_AOV_N | MR_AOV_ID)
+
+/* "rgba", "z", "n", "p", "id", "cryptomatte" (the job's names); NULL for
+ * anything but a single bit. */
+const char *mr_aov_name(mr_aov aov);
+/* The bit of a job name as above; false for anything else. */
+bool mr_aov_parse(const char *name, mr_aov *out);
+
+/* Cryptomatte layers and ranks (issue 13; the published Cryptomatte
+ * specification 1.1). Ranks per layer are even (each EXR layer
+ * <name>00, <name>01, ... holds two) and at most the specification's
+ * suggested 6. */
+enum { MR_CRYPTO_OBJECT = 0, MR_CRYPTO_ASSET = 1, MR_CRYPTO_LAYERS = 2 };
+#define MR_CRYPTO_MAX_RANKS 6
+
 typedef struct mr_film {
     int width, height;
-    float *r, *g, *b, *a;
-    float *z;
-    float *nx, *ny, *nz;
-    uint32_t *object_id, *prim_id;
+    unsigned aovs;                  /* mr_aov bits: the planes below that exist */
+    float *r, *g, *b, *a;           /* MR_AOV_RGBA */
+    float *z;                       /* MR_AOV_Z */
+    float *nx, *ny, *nz;            /* MR_AOV_N */
+    float *px, *py, *pz;            /* MR_AOV_P */
+    uint32_t *object_id, *prim_id;  /* MR_AOV_ID */
+    int crypto_ranks;               /* MR_AOV_CRYPTOMATTE: ranks per layer, else 0 */
+    float *crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS]; /* [0, 2 * crypto_ranks) exist */
+    /* The camera the film was rendered with (mr_renderer_render sets it):
+     * what the EXR header's worldToCamera, worldToNDC and screen window
+     * describe. Its local frame looks down -Z with +Y up. */
+    bool has_camera;
+    mr_mat4 camera_to_world;        /* rigid */
+    float yfov;                     /* vertical field of view, radians */
 } mr_film;
 
-/* Allocates a zeroed film. Fails with MR_ERR_LIMIT beyond the caps above. */
+/* Allocates a film of the passes in aovs (mr_aov bits, at least one) with
+ * crypto_ranks ranks per Cryptomatte layer (rounded up to even, 2..
+ * MR_CRYPTO_MAX_RANKS; ignored without MR_AOV_CRYPTOMATTE), cleared to
+ * "all miss" (mr_film_clear). Fails with MR_ERR_LIMIT beyond the caps
+ * above, MR_ERR_INVALID for no or unknown passes. */
+int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_film **out,
+                     mr_error *err);
+/* The same with MR_AOV_DEFAULT. */
 int mr_film_new(int width, int height, mr_film **out, mr_error *err);
 void mr_film_free(mr_film *film);
-/* Resets every plane to zero (miss). */
+/* Resets every plane to "miss": z to MR_DEPTH_MISS, everything else 0. */
 void mr_film_clear(mr_film *film);
 
 /* ---- comparison (render/compare.c) ----
@@ -372,18 +438,38 @@ typedef struct mr_speckle_result {
 void mr_film_speckles(const mr_film *f, mr_speckle_result *out);
 
 /* ---- EXR (render/exr.c, through the OpenEXR 3 C API) ----
- * A frame is one scanline part with these channels (EXR stores them sorted by
- * name; we always match channels by name, never by position):
- *   R G B A            HALF   linear, premultiplied colour
- *   Z                  FLOAT  distance along the ray, 0 = miss
- *   N.X N.Y N.Z        FLOAT  world-space normal
- *   id.object          UINT   1-based object index, 0 = miss
- *   id.primitive       UINT   primitive index within the object
+ * A frame is one scanline part with the channels of the film's passes (EXR
+ * stores them sorted by name; we always match channels by name, never by
+ * position):
+ *   R G B A            HALF   linear, premultiplied colour (rgba)
+ *   Z                  FLOAT  camera-space depth, MR_DEPTH_MISS = miss (z)
+ *   N.X N.Y N.Z        FLOAT  world-space normal (n; HALF with half_normals)
+ *   P.X P.Y P.Z        FLOAT  world-space position (p)
+ *   id.object          UINT   1-based object index, 0 = miss (id)
+ *   id.primitive       UINT   primitive index within the object (id)
+ *   CryptoObject00.R .. CryptoObjectNN.A, CryptoAsset00.R .. CryptoAssetNN.A
+ *                      FLOAT  Cryptomatte (id, coverage) rank pairs of object
+ *                             and asset names (cryptomatte)
  * and header attributes (string unless noted):
  *   microray.version, microray.job, microray.frame (int), microray.time
  *   (double, seconds on the job's timeline), microray.renderSeconds (double),
  *   microray.sceneDiagonal (float: bounding-box diagonal of the scene, the
- *   unit depth errors are expressed in). */
+ *   unit depth errors are expressed in);
+ *   the standard ones a compositor reads: worldToCamera and worldToNDC
+ *   (m44f, OpenEXR's row-vector convention: p' = p M; camera space is
+ *   OpenEXR's, +x right, +y up, +z the viewing direction, so the z of a
+ *   point in front is its depth Z; NDC (0, 0) is the display window's top
+ *   left and (1, 1) its bottom right, reached after the divide by w),
+ *   screenWindowWidth (float, the image's width on the z = 1 plane of
+ *   camera space) and screenWindowCenter (v2f, 0 0) when the film has a
+ *   camera; pixelAspectRatio (float, 1); chromaticities (linear Rec. 709
+ *   primaries and D65 white, as rendered); framesPerSecond (rational),
+ *   owner, comments, capDate ("YYYY:MM:DD hh:mm:ss", local time) and
+ *   utcOffset (float, seconds: UTC = local time + utcOffset) from the
+ *   meta; and per Cryptomatte layer cryptomatte/<key>/name, hash
+ *   ("MurmurHash3_32"), conversion ("uint32_to_float32") and manifest
+ *   (JSON: name -> 8 hex digits of the float's bits), key being the first 7
+ *   hex digits of the layer name's hash. */
 
 typedef enum mr_compression {
     MR_COMPRESSION_NONE = 0,
@@ -401,7 +487,13 @@ typedef struct mr_exr_options {
      * values above 256 act as 256. The written bytes are the same for every
      * value, so this is purely a speed setting. */
     unsigned threads;
+    /* N.X N.Y N.Z as HALF (11 significant bits: directions to about 0.03
+     * degrees) instead of FLOAT: 6 bytes a pixel less to store and encode. */
+    bool half_normals;
 } mr_exr_options;
+
+struct mr_job;
+struct mr_frame_stats;
 
 typedef struct mr_exr_meta {
     char job[128];          /* job name or id, may be empty */
@@ -409,7 +501,20 @@ typedef struct mr_exr_meta {
     double time;            /* frame time on the job's timeline, seconds */
     double render_seconds;  /* wall time spent rendering this frame */
     float scene_diagonal;   /* > 0 */
+    double fps;             /* framesPerSecond (as the nearest rational); 0: not written */
+    int64_t capture_time;   /* Unix seconds: capDate and utcOffset; 0: not written */
+    char owner[64];         /* owner; "": not written */
+    /* The job the frame belongs to: the comments and the Cryptomatte
+     * manifests (its objects' and assets' names). May be NULL; borrowed. */
+    const struct mr_job *source;
 } mr_exr_meta;
+
+/* The meta of frame st->frame of job as the renderers write it: the stats'
+ * time, render seconds and scene diagonal, the job's name and fps, the
+ * job itself (comments, manifests), the current time as capture time and
+ * the user the process runs as as owner. */
+void mr_exr_meta_for_frame(mr_exr_meta *meta, const struct mr_job *job,
+                           const struct mr_frame_stats *st);
 
 /* Name of a compression as used in jobs ("none", "zip", "zips", "piz"). */
 const char *mr_compression_name(mr_compression c);
@@ -417,10 +522,11 @@ const char *mr_compression_name(mr_compression c);
 bool mr_compression_parse(const char *name, mr_compression *out);
 
 /* opt may be NULL (same as a zeroed struct: no compression, default level,
- * all cores);
- * meta may be NULL (only microray.version is written). NaN/Inf pixels are
- * written as finite values (colour as above; Z and N: NaN -> 0,
- * +-Inf -> +-FLT_MAX). */
+ * all cores, float normals);
+ * meta may be NULL (only microray.version and the film's own attributes
+ * are written). The channels are the film's passes. NaN/Inf pixels are
+ * written as finite values (colour and half normals as above; Z, N and P:
+ * NaN -> 0, +-Inf -> +-FLT_MAX). */
 
 /* Writes film to path atomically (mr_fs_atomic: a unique temporary next to
  * path, fsynced and renamed over it on success, then the directory synced),
@@ -431,9 +537,11 @@ int mr_exr_write_file(const char *path, const mr_film *film, const mr_exr_option
 /* Writes film into a malloc'ed buffer (*data, *size); caller frees *data. */
 int mr_exr_write_memory(uint8_t **data, size_t *size, const mr_film *film,
                         const mr_exr_options *opt, const mr_exr_meta *meta, mr_error *err);
-/* Reads a microray EXR (any compression the library decodes) into a new film.
- * Missing channels are left zero; meta may be NULL. Fails with MR_ERR_FORMAT
- * for files that are not scanline EXR images. */
+/* Reads a microray EXR (any compression the library decodes) into a new film
+ * holding MR_AOV_DEFAULT's passes and any other pass the file has channels
+ * of; planes the file lacks stay "miss" (mr_film_clear); the camera is not
+ * read back. meta may be NULL (fps, capture time, owner and source are left
+ * 0). Fails with MR_ERR_FORMAT for files that are not scanline EXR images. */
 int mr_exr_read_file(const char *path, mr_film **out, mr_exr_meta *meta, mr_error *err);
 
 /* ---- PNG previews and contact sheets (render/preview.c, Debian's libpng) ----
@@ -940,8 +1048,14 @@ typedef struct mr_output_desc {
     int spp;                 /* samples per pixel, 1..MR_MAX_SPP */
     bool shadows;            /* trace shadow rays to directional lights */
     uint32_t seed;           /* jitter seed */
+    unsigned aovs;           /* the passes traced, kept and written: mr_aov bits (MR_AOV_DEFAULT) */
     mr_exr_options exr;
 } mr_output_desc;
+
+/* Cryptomatte ranks per layer a job's frames keep: its samples per pixel
+ * (the most names a pixel can see) rounded up to even, at most
+ * MR_CRYPTO_MAX_RANKS; 0 without the cryptomatte pass. */
+int mr_output_crypto_ranks(const mr_output_desc *out);
 
 #define MR_MAX_PRIORITY 1000     /* priorities run from -1000 to 1000 */
 #define MR_MAX_RETRIES 10        /* per frame */
@@ -973,6 +1087,10 @@ int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_
 
 /* Frees everything the job owns, then the job. NULL is fine. */
 void mr_job_free(mr_job *job);
+
+/* A film for the job's frames: its size, its passes (output.aovs) and
+ * Cryptomatte ranks (mr_output_crypto_ranks). */
+int mr_job_film_new(const mr_job *job, mr_film **out, mr_error *err);
 
 /* ==== Frame statistics (render/frame_stats.c) =============================
  * What a frame's statistics are: the struct the renderer, the worker and the
@@ -1024,6 +1142,7 @@ typedef struct mr_frame_stats {
     uint32_t assets_cached;   /* first frame: assets a scene cache already held */
     uint32_t assets_loaded;   /* first frame: assets imported for this job */
     double load_saved_s;      /* first frame: import seconds the cache saved */
+    double derive_s;          /* first frame: the renderer's set-up (derived data built or read) */
     double pose_s;            /* pose evaluation and skinning */
     double bvh_s;             /* Embree build or refit */
     mr_bvh_update bvh;        /* what happened to the BVH this frame */

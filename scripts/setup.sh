@@ -7,31 +7,52 @@
 #     tests/schema/package-lock.json. Skipped when the installed tree was
 #     made from the same lock file (a copy of it is kept in node_modules).
 # Runs as root on a fresh machine (CI, containers).
+#
+#   scripts/setup.sh           everything: build, test, bench and fuzz tools
+#   scripts/setup.sh --build   only what `make` needs to build microrayd and
+#                              microray (the container image, docker/)
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
+BUILD_ONLY=0
+case "${1:-}" in
+  --build) BUILD_ONLY=1 ;;
+  "") ;;
+  *) echo "usage: $0 [--build]" >&2; exit 2 ;;
+esac
 
-PACKAGES=(
+BUILD_PACKAGES=(
   build-essential pkg-config
   libembree-dev          # Embree 3 ray tracing kernels
   libopenexr-dev openexr # OpenEXR 3 C API, and exrheader used by the tests
-  libassimp-dev assimp-testmodels  # asset import, and the real models examples/tests use
+  libdeflate-dev         # the ZIP/ZIPS chunk compressor of the EXR writer
+  libassimp-dev          # asset import
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev
   libpng-dev             # PNG previews and contact sheets (core/render/preview.c)
+)
+TEST_PACKAGES=(
+  assimp-testmodels      # the real models the examples and tests use
   libcmocka-dev
   openssl                # self-signed certificates for the TLS test (test_http_auth)
   wrk                    # HTTP load generator for make bench (loopback only)
+  slurm-wlm munge        # a real single-node Slurm for the cluster test (test_slurm,
+                         # scripts/slurm-local.sh; microray cluster, docs/scale.md)
   clang libclang-rt-14-dev  # the libFuzzer harnesses (make fuzz-build): clang 14 and its
                             # fuzzer/ASan/UBSan runtimes (only recommended by clang-14)
 )
+
+PACKAGES=("${BUILD_PACKAGES[@]}")
+[ "$BUILD_ONLY" -eq 1 ] || PACKAGES+=("${TEST_PACKAGES[@]}")
 
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
 # By command, not by package: a machine may have node and npm from elsewhere.
-command -v node >/dev/null 2>&1 || missing+=(nodejs)
-command -v npm >/dev/null 2>&1 || missing+=(npm)
+if [ "$BUILD_ONLY" -eq 0 ]; then
+  command -v node >/dev/null 2>&1 || missing+=(nodejs)
+  command -v npm >/dev/null 2>&1 || missing+=(npm)
+fi
 
 if [ ${#missing[@]} -gt 0 ]; then
   echo "setup: installing ${missing[*]}" >&2
@@ -43,6 +64,8 @@ if [ ${#missing[@]} -gt 0 ]; then
   apt-get update -qq
   apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
+
+[ "$BUILD_ONLY" -eq 0 ] || exit 0
 
 # Schema test tools (tests/unit/test_schema). No root needed: a local folder.
 TOOLS="$ROOT/tests/schema"

@@ -944,9 +944,8 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
     mr_store *st = mr_daemon_store(h->d);
     mr_frame_record *frames = NULL;
     size_t count = 0, done = 0;
-    mr_frame_stats *fs = NULL;
     cJSON **stored = NULL;
-    char *doc_json = NULL, *text = NULL;
+    char *doc_json = NULL;
     mr_job *job = NULL;
     cJSON *root = NULL;
     mr_error err = {0};
@@ -955,10 +954,11 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
         res = http_send_error(r, c, rc, &err);
         goto cleanup;
     }
-    fs = calloc(count ? count : 1, sizeof *fs);
     stored = calloc(count ? count : 1, sizeof *stored);
-    if (!fs || !stored)
-        goto oom;
+    if (!stored) {
+        res = http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
+        goto cleanup;
+    }
     double threads = 0;
     for (size_t i = 0; i < count; i++) {
         if (frames[i].state != MR_FRAME_DONE || !frames[i].stats_json)
@@ -968,8 +968,6 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
             cJSON_Delete(o);
             continue;
         }
-        /* job totals and medians come from the one writer (stats_json.c) */
-        mr_frame_stats_from_json(o, frames[i].index, &fs[done]);
         threads = num_or(o, "threads", threads);
         stored[done++] = o;
     }
@@ -989,46 +987,20 @@ enum MHD_Result http_job_stats(req *r, struct MHD_Connection *c)
             threads = n > 0 ? (double)n : 1;
         }
     }
-    mr_job_stats stats = {.frame_count = done, .frames = fs, .threads = (unsigned)threads};
-    if ((rc = mr_stats_to_json(job ? job : &fallback, &stats, 0, &text, &err)) < 0) {
+    if ((rc = mr_stats_from_frames(job ? job : &fallback, stored, done, (unsigned)threads, &root,
+                                   &err)) < 0) {
         res = http_send_error(r, c, rc, &err);
         goto cleanup;
     }
-    if (!(root = cJSON_Parse(text)))
-        goto oom;
-
-    /* The frames list shows what the store recorded, exactly (and with the
-     * fields the daemon adds beyond stats.json's, such as cache hits); the
-     * regenerated entries only fill in what it lacks. */
-    cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "frames");
-    size_t i = 0;
-    for (cJSON *gen = arr ? arr->child : NULL; gen && i < done; gen = gen->next, i++)
-        for (const cJSON *kv = stored[i]->child; kv; kv = kv->next) {
-            if (!kv->string)
-                continue;
-            cJSON *dup = cJSON_Duplicate(kv, true);
-            bool added = dup && (cJSON_HasObjectItem(gen, kv->string)
-                                     ? cJSON_ReplaceItemInObjectCaseSensitive(gen, kv->string, dup)
-                                     : cJSON_AddItemToObject(gen, kv->string, dup));
-            if (!added) {
-                cJSON_Delete(dup);
-                goto oom;
-            }
-        }
     res = http_send_json(r, c, MHD_HTTP_OK, root);
     root = NULL;
-    goto cleanup;
-oom:
-    res = http_send_problem(r, c, P_INTERNAL, NULL, "out of memory");
 cleanup:
     cJSON_Delete(root);
-    free(text);
     mr_job_free(job);
     free(doc_json);
     for (size_t k = 0; stored && k < done; k++)
         cJSON_Delete(stored[k]);
     free(stored);
-    free(fs);
     mr_frame_records_free(frames, count);
     return res;
 }

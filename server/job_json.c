@@ -873,8 +873,35 @@ static int parse_camera(mr_json_ctx *c, const cJSON *v, mr_job *job)
     return MR_OK;
 }
 
-static const char *const OUTPUT_FIELDS[] = {"width",       "height", "samples",  "shadows",
-                                            "seed",        "compression", "zip_level"};
+static const char *const OUTPUT_FIELDS[] = {"width",       "height",    "samples", "shadows",
+                                            "seed",        "compression", "zip_level", "aovs",
+                                            "normals"};
+
+/* "aovs": a non-empty array of distinct pass names. */
+static int parse_aovs(mr_json_ctx *c, const cJSON *v, unsigned *aovs)
+{
+    static const char expect[] =
+        "an array of 1..6 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\"";
+    if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) == 0)
+        return json_fail_expected(c, expect, v);
+    unsigned set = 0;
+    size_t i = 0;
+    for (const cJSON *e = v->child; e; e = e->next, i++) {
+        mr_aov aov;
+        if (!cJSON_IsString(e) || !mr_aov_parse(e->valuestring, &aov)) {
+            json_push_index(c, i);
+            return json_fail_expected(c, "one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\"", e);
+        }
+        if (set & aov) {
+            json_push_index(c, i);
+            return json_fail(c, MR_ERR_INVALID, "expected each pass once, got \"%s\" again",
+                             e->valuestring);
+        }
+        set |= aov;
+    }
+    *aovs = set;
+    return MR_OK;
+}
 
 static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
 {
@@ -883,7 +910,8 @@ static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
     mr_output_desc *o = &job->output;
     const cJSON *w = json_field(v, "width"), *h = json_field(v, "height"), *spp = json_field(v, "samples"),
                 *shadows = json_field(v, "shadows"), *seed = json_field(v, "seed"),
-                *comp = json_field(v, "compression"), *zip = json_field(v, "zip_level");
+                *comp = json_field(v, "compression"), *zip = json_field(v, "zip_level"),
+                *aovs = json_field(v, "aovs"), *normals = json_field(v, "normals");
     double d;
     if (w) {
         AT_KEY(c, "width", json_get_num(c, w, &SPEC_SIZE, &d));
@@ -917,6 +945,16 @@ static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
         AT_KEY(c, "zip_level", json_get_num(c, zip, &SPEC_ZIP, &d));
         o->exr.zip_level = (int)d;
     }
+    if (aovs)
+        AT_KEY(c, "aovs", parse_aovs(c, aovs, &o->aovs));
+    if (normals) {
+        if (cJSON_IsString(normals) && strcmp(normals->valuestring, "half") == 0)
+            o->exr.half_normals = true;
+        else if (!(cJSON_IsString(normals) && strcmp(normals->valuestring, "float") == 0)) {
+            json_push_key(c, "normals");
+            return json_fail_expected(c, "one of: \"float\", \"half\"", normals);
+        }
+    }
     return MR_OK;
 }
 
@@ -928,7 +966,9 @@ static void set_defaults(mr_job *job)
 {
     job->ambient = mr_v3(0.15f, 0.15f, 0.15f);
     job->background = mr_v3(0.1f, 0.1f, 0.12f);
-    job->background_alpha = 1.0f;
+    /* Transparent: premultiplied colour over nothing, as renderers hand
+     * frames to a compositor (it was 1, opaque, before issue 13). */
+    job->background_alpha = 0.0f;
     job->fps = 24;
     job->max_retries = 2;
     job->output.width = 640;
@@ -938,6 +978,7 @@ static void set_defaults(mr_job *job)
     job->output.seed = 0;
     job->output.exr.compression = MR_COMPRESSION_ZIP;
     job->output.exr.zip_level = MR_ZIP_LEVEL_DEFAULT;
+    job->output.aovs = MR_AOV_DEFAULT;
 }
 
 static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)

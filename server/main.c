@@ -15,7 +15,9 @@ static void usage(FILE *to)
     fprintf(to,
             "microrayd %s - ray traced frames of deforming, detailed geometry\n"
             "usage:\n"
-            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--png] [--quiet]\n"
+            "  microrayd render JOB.json --out DIR [--threads N] [--cache DIR] [--frames LIST | --prepare] [--png] [--quiet]\n"
+            "  microrayd plan JOB.json  (validate; frames and retries as JSON, for splitting the job)\n"
+            "  microrayd stats-merge DIR JOB.json  (stats.json of the parts render --frames wrote)\n"
             "  microrayd compare A.exr B.exr [--diagonal D]\n"
             "  microrayd serve [--listen HOST:PORT] [--data DIR] [--asset-root DIR]... [--workers N]\n"
             "                  [--threads N] [--http-threads N] [--cache-mb N]\n"
@@ -36,6 +38,10 @@ int main(int argc, char **argv)
     const char *cmd = argv[1];
     if (!strcmp(cmd, "render"))
         return mr_cmd_render(argc - 2, argv + 2);
+    if (!strcmp(cmd, "plan"))
+        return mr_cmd_plan(argc - 2, argv + 2);
+    if (!strcmp(cmd, "stats-merge"))
+        return mr_cmd_stats_merge(argc - 2, argv + 2);
     if (!strcmp(cmd, "compare"))
         return mr_cmd_compare(argc - 2, argv + 2);
     if (!strcmp(cmd, "serve"))

@@ -15,10 +15,12 @@
 #include "render_cmd.h"
 
 #include <cJSON.h>
+#include <dirent.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "files.h"
@@ -52,6 +54,11 @@ typedef struct render_out {
     const mr_job *job;
     bool quiet;
     double stats_written; /* mr_now() of the last stats.json write */
+    /* --frames: the frames to render (NULL: all) and the statistics file
+     * of this part of the job (stats.json for a whole run) */
+    const uint8_t *wanted;
+    char stats_name[96];
+    uint8_t *rendered;    /* per frame: rendered in this run */
     /* --png: previews beside the EXRs, and the contact sheet's thumbnails */
     bool png;
     size_t sheet_count;
@@ -111,9 +118,8 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     char name[MR_FRAME_NAME_MAX], path[4200];
     mr_frame_file_name(index, name);
     snprintf(path, sizeof path, "%s/%s", o->dir, name);
-    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
-                        .scene_diagonal = st->scene_diagonal};
-    snprintf(meta.job, sizeof meta.job, "%s", o->job->name);
+    mr_exr_meta meta;
+    mr_exr_meta_for_frame(&meta, o->job, st);
     double t0 = mr_now();
     uint8_t *data = NULL;
     size_t size = 0;
@@ -124,7 +130,15 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
     st->encode_s = mr_now() - t0;
     if (rc == MR_OK && o->png)
         rc = write_preview(o, index, film, st, err);
+    if (rc == MR_OK)
+        o->rendered[index] = 1;
     return rc;
+}
+
+static bool render_wanted(void *user, size_t index)
+{
+    render_out *o = user;
+    return !o->wanted || o->wanted[index];
 }
 
 /* stats.json holds every frame so far; rewriting it after each frame would
@@ -132,14 +146,25 @@ static int write_frame(void *user, size_t index, const mr_film *film, mr_frame_s
  * every MR_STATS_INTERVAL seconds and once more when the job ends. */
 #define MR_STATS_INTERVAL 2.0
 
-/* Rewrites DIR/stats.json; on failure the previous one stays (never one
- * with frames missing) and err says why, naming the file. */
+/* Rewrites DIR/stats.json (or, for a part of the job, its own statistics
+ * file) with the frames rendered so far; on failure the previous one stays
+ * (never one with frames missing) and err says why, naming the file. */
 static int write_stats(render_out *o, const mr_job_stats *stats, mr_error *err)
 {
     char *json = NULL;
     char path[4200];
-    snprintf(path, sizeof path, "%s/stats.json", o->dir);
-    int rc = mr_stats_to_json(o->job, stats, 0, &json, err);
+    snprintf(path, sizeof path, "%s/%s", o->dir, o->stats_name);
+    /* the frames this run rendered, in order (a range need not start at 0) */
+    mr_frame_stats *fs = malloc((stats->frame_count ? stats->frame_count : 1) * sizeof *fs);
+    if (!fs)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", path);
+    size_t n = 0;
+    for (size_t i = 0; i < stats->frame_count; i++)
+        if (o->rendered[i])
+            fs[n++] = stats->frames[i];
+    mr_job_stats part = {.frame_count = n, .frames = fs, .threads = stats->threads};
+    int rc = mr_stats_to_json(o->job, &part, 0, &json, err);
+    free(fs);
     if (rc < 0)
         mr_error_prefix(err, "%s: ", path);
     else
@@ -147,6 +172,56 @@ static int write_stats(render_out *o, const mr_job_stats *stats, mr_error *err)
     free(json);
     o->stats_written = mr_now();
     return rc;
+}
+
+/* --frames A-B, A, or a list of both ("0-9,20,30-31"): wanted[i] = 1 for
+ * each frame named. Frames count from 0; a range must not run backwards and
+ * must lie inside the job (frame_count frames). On a bad spec, a message
+ * naming the flag in msg and false. */
+static bool parse_frames(const char *spec, size_t frame_count, uint8_t *wanted, char *msg,
+                         size_t msg_size)
+{
+    const char *p = spec;
+    if (!*p) {
+        snprintf(msg, msg_size, "--frames wants frame numbers or ranges, e.g. 0-9 or 0-9,20");
+        return false;
+    }
+    while (*p) {
+        char *end;
+        unsigned long a, b;
+        if (*p < '0' || *p > '9' || (a = strtoul(p, &end, 10), end == p)) {
+            snprintf(msg, msg_size, "--frames '%s': expected a frame number at '%s'", spec, p);
+            return false;
+        }
+        b = a;
+        p = end;
+        if (*p == '-') {
+            p++;
+            if (*p < '0' || *p > '9' || (b = strtoul(p, &end, 10), end == p)) {
+                snprintf(msg, msg_size, "--frames '%s': a range needs its last frame", spec);
+                return false;
+            }
+            p = end;
+        }
+        if (b < a) {
+            snprintf(msg, msg_size, "--frames '%s': the range %lu-%lu runs backwards", spec, a, b);
+            return false;
+        }
+        if (b >= frame_count) {
+            snprintf(msg, msg_size, "--frames '%s': frame %lu is not in the job (its frames are "
+                     "0-%zu)", spec, b, frame_count - 1);
+            return false;
+        }
+        for (unsigned long f = a; f <= b; f++)
+            wanted[f] = 1;
+        if (*p == ',' && p[1])
+            p++;
+        else if (*p) {
+            snprintf(msg, msg_size, "--frames '%s': unexpected '%c'", spec, *p);
+            return false;
+        }
+    }
+    return true;
 }
 
 static void report_progress(void *user, size_t index, const mr_job_stats *stats)
@@ -200,22 +275,29 @@ static int resolve_asset_paths(mr_job *job, const char *job_path, mr_error *err)
 static void usage_render(void)
 {
     fprintf(stderr, "usage: microrayd render JOB.json --out DIR [--threads N] [--cache DIR] "
-                    "[--job-memory-mb N] [--png] [--quiet]\n"
+                    "[--job-memory-mb N] [--frames LIST | --prepare] [--png] [--quiet]\n"
                     "  --cache DIR  keep derived data (bakes, voxelisations) in DIR/<kind>/ "
                     "(created if missing)\n"
                     "               and reuse it (default: derive it again every time)\n"
                     "  --job-memory-mb N  what the job's geometry may hold (default: half of "
                     "the machine's memory)\n"
                     "  --png        also write DIR/NNNN.png (8-bit sRGB previews) and "
-                    "DIR/contact-sheet.png\n");
+                    "DIR/contact-sheet.png\n"
+                    "  --prepare    render nothing: import the assets and derive each kind's data "
+                    "into --cache\n"
+                    "               (the first task of a job split into parts)\n"
+                    "  --frames LIST  render only these frames (0-based: 3, 0-9, 0-9,20): the "
+                    "same files as a whole run,\n"
+                    "               statistics in DIR/stats.frames-LIST.json (microrayd "
+                    "stats-merge joins them)\n");
 }
 
 int mr_cmd_render(int argc, char **argv)
 {
-    const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL;
+    const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL, *frames_spec = NULL;
     unsigned threads = 0;
     size_t memory_budget = mr_job_memory_default();
-    bool quiet = false, png = false;
+    bool quiet = false, png = false, prepare = false;
     for (int i = 0; i < argc; i++) {
         if (!strcmp(argv[i], "--out") && i + 1 < argc) {
             out_dir = argv[++i];
@@ -241,6 +323,10 @@ int mr_cmd_render(int argc, char **argv)
                 return EXIT_USAGE;
             }
             memory_budget = (size_t)v << 20;
+        } else if (!strcmp(argv[i], "--frames") && i + 1 < argc) {
+            frames_spec = argv[++i];
+        } else if (!strcmp(argv[i], "--prepare")) {
+            prepare = true;
         } else if (!strcmp(argv[i], "--quiet")) {
             quiet = true;
         } else if (!strcmp(argv[i], "--png")) {
@@ -252,7 +338,7 @@ int mr_cmd_render(int argc, char **argv)
             job_path = argv[i];
         }
     }
-    if (!job_path || !out_dir) {
+    if (!job_path || !out_dir || (prepare && (frames_spec || png))) {
         usage_render();
         return EXIT_USAGE;
     }
@@ -265,6 +351,7 @@ int mr_cmd_render(int argc, char **argv)
     mr_job_stats stats = {0};
     mr_error err = {0};
     mr_job_error jerr = {0};
+    uint8_t *wanted = NULL, *rendered = NULL;
 
     int rc;
     if ((rc = mr_file_read(job_path, MR_JOB_MAX_BYTES, &text, &len, &err)) < 0) {
@@ -289,26 +376,57 @@ int mr_cmd_render(int argc, char **argv)
         status = exit_status(rc);
         goto done;
     }
+    rendered = calloc(job->frame_count, 1);
+    if (!rendered || (frames_spec && !(wanted = calloc(job->frame_count, 1)))) {
+        fprintf(stderr, "microrayd: out of memory\n");
+        status = EXIT_RENDER;
+        goto done;
+    }
     render_out out = {.dir = out_dir, .job = job, .quiet = quiet, .stats_written = mr_now(),
-                      .png = png};
+                      .png = png, .wanted = wanted, .rendered = rendered};
+    snprintf(out.stats_name, sizeof out.stats_name, "stats.json");
+    if (prepare) {
+        /* no frame wanted: the assets are imported and each kind derives
+         * its data into --cache, for the parts that follow */
+        wanted = rendered;
+        out.wanted = wanted;
+    } else if (frames_spec) {
+        char msg[512];
+        if (strlen(frames_spec) > 64 || !parse_frames(frames_spec, job->frame_count, wanted, msg,
+                                                      sizeof msg)) {
+            fprintf(stderr, "microrayd: %s\n", strlen(frames_spec) > 64 ? "--frames: at most 64 "
+                    "characters (ranges, not a list of every frame)" : msg);
+            status = EXIT_USAGE;
+            goto done;
+        }
+        /* each part of a job its own statistics file; stats-merge makes
+         * stats.json of them */
+        snprintf(out.stats_name, sizeof out.stats_name, "stats.frames-%s.json", frames_spec);
+    }
     if (png)
         out.sheet_count = mr_contact_sheet_frames(job->frame_count, out.sheet_index);
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress,
-                       .cache_dir = cache_dir, .memory_budget = memory_budget};
+                       .wanted = render_wanted, .cache_dir = cache_dir,
+                       .memory_budget = memory_budget};
     if ((rc = mr_worker_run(dev, job, &io, &stats, &err)) < 0) {
         fprintf(stderr, "microrayd: %s: %s\n", job_path, err.msg);
         status = exit_status(rc);
         /* keep the figures of the frames that did finish */
         if (stats.frame_count > 0 && write_stats(&out, &stats, &err) < 0)
             fprintf(stderr, "microrayd: warning: %s\n", err.msg);
+    } else if (prepare) {
+        /* what the set-up cost, for whoever split the job (a cluster task's log) */
+        printf("{\"load_s\":%.6f,\"assets_loaded\":%u,\"derive_s\":%.6f}\n", stats.load_s,
+               stats.assets_loaded, stats.derive_s);
     } else if ((rc = write_stats(&out, &stats, &err)) < 0) {
         /* every frame rendered, but stats.json, an output of the job, is not
          * there or not up to date */
         fprintf(stderr, "microrayd: %s\n", err.msg);
         status = exit_status(rc);
     }
-    /* also after a failure: the frames that finished, the others as such */
-    if (png && stats.frame_count > 0 && (rc = write_contact_sheet(&out, &err)) < 0) {
+    /* also after a failure: the frames that finished, the others as such
+     * (a part of the job has no sheet of its own) */
+    if (png && !frames_spec && stats.frame_count > 0 && (rc = write_contact_sheet(&out, &err)) < 0) {
         fprintf(stderr, "microrayd: %s/contact-sheet.png: %s\n", out_dir, err.msg);
         if (status == EXIT_OK)
             status = exit_status(rc);
@@ -318,6 +436,181 @@ int mr_cmd_render(int argc, char **argv)
 done:
     mr_job_stats_free(&stats);
     mr_device_free(dev);
+    mr_job_free(job);
+    if (wanted != rendered)
+        free(wanted);
+    free(rendered);
+    free(text);
+    return status;
+}
+
+/* A job file read and parsed as the daemon would; false after saying why. */
+static bool load_job(const char *path, char **text, mr_job **job, int *status)
+{
+    size_t len = 0;
+    mr_error err = {0};
+    mr_job_error jerr = {0};
+    int rc = mr_file_read(path, MR_JOB_MAX_BYTES, text, &len, &err);
+    if (rc < 0) {
+        fprintf(stderr, "microrayd: %s\n", err.msg);
+        *status = exit_status(rc);
+        return false;
+    }
+    if ((rc = mr_job_parse(*text, len, job, &jerr)) < 0) {
+        fprintf(stderr, "microrayd: %s: invalid job at '%s': %s\n", path, jerr.pointer, jerr.message);
+        *status = exit_status(rc);
+        return false;
+    }
+    return true;
+}
+
+int mr_cmd_plan(int argc, char **argv)
+{
+    if (argc != 1) {
+        fprintf(stderr, "usage: microrayd plan JOB.json\n"
+                        "  validates the job as the daemon would and prints what splitting it "
+                        "needs, as JSON\n");
+        return EXIT_USAGE;
+    }
+    char *text = NULL;
+    mr_job *job = NULL;
+    int status = EXIT_OK;
+    if (load_job(argv[0], &text, &job, &status)) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "name", job->name ? job->name : "");
+        cJSON_AddNumberToObject(o, "frames", (double)job->frame_count);
+        cJSON_AddNumberToObject(o, "max_retries", job->max_retries);
+        cJSON_AddNumberToObject(o, "width", job->output.width);
+        cJSON_AddNumberToObject(o, "height", job->output.height);
+        char *out = cJSON_PrintUnformatted(o);
+        if (out)
+            printf("%s\n", out);
+        else
+            status = EXIT_RENDER;
+        free(out);
+        cJSON_Delete(o);
+    }
+    mr_job_free(job);
+    free(text);
+    return status;
+}
+
+#define PART_PREFIX "stats.frames-"
+
+int mr_cmd_stats_merge(int argc, char **argv)
+{
+    if (argc != 2) {
+        fprintf(stderr, "usage: microrayd stats-merge DIR JOB.json\n"
+                        "  joins DIR/" PART_PREFIX "*.json (written by render --frames) into "
+                        "DIR/stats.json\n");
+        return EXIT_USAGE;
+    }
+    const char *dir = argv[0];
+    char *text = NULL;
+    mr_job *job = NULL;
+    int status = EXIT_OK;
+    DIR *d = NULL;
+    cJSON **docs = NULL;
+    size_t ndocs = 0;
+    if (!load_job(argv[1], &text, &job, &status))
+        goto done;
+    /* per frame: the object of the newest part file that has it (a retried
+     * part rewrote its file) */
+    cJSON **frame = calloc(job->frame_count, sizeof *frame);
+    double *frame_mtime = calloc(job->frame_count, sizeof *frame_mtime);
+    if (!frame || !frame_mtime || !(d = opendir(dir))) {
+        fprintf(stderr, "microrayd: %s: %s\n", dir, d || !frame || !frame_mtime ? "out of memory"
+                                                                                : strerror(errno));
+        status = d ? EXIT_RENDER : EXIT_IO;
+        free(frame);
+        free(frame_mtime);
+        goto done;
+    }
+    double threads = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL) {
+        size_t n = strlen(e->d_name);
+        if (strncmp(e->d_name, PART_PREFIX, strlen(PART_PREFIX)) != 0 || n < 5 ||
+            strcmp(e->d_name + n - 5, ".json") != 0)
+            continue;
+        char path[4200], *json = NULL;
+        size_t len;
+        mr_error err = {0};
+        struct stat st;
+        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+        if (stat(path, &st) != 0 || mr_file_read(path, (size_t)256 << 20, &json, &len, &err) < 0) {
+            fprintf(stderr, "microrayd: %s: %s\n", path, err.msg[0] ? err.msg : strerror(errno));
+            status = EXIT_IO;
+            continue;
+        }
+        cJSON *doc = cJSON_Parse(json);
+        free(json);
+        cJSON **grown = realloc(docs, (ndocs + 1) * sizeof *docs);
+        if (!doc || !grown) {
+            fprintf(stderr, "microrayd: %s: %s\n", path, doc ? "out of memory" : "not JSON");
+            cJSON_Delete(doc);
+            if (grown)
+                docs = grown;
+            status = doc ? EXIT_RENDER : EXIT_INVALID_INPUT;
+            continue;
+        }
+        docs = grown;
+        docs[ndocs++] = doc;
+        const cJSON *t = cJSON_GetObjectItemCaseSensitive(doc, "threads");
+        if (cJSON_IsNumber(t) && t->valuedouble > threads)
+            threads = t->valuedouble;
+        double mtime = (double)st.st_mtim.tv_sec + 1e-9 * (double)st.st_mtim.tv_nsec;
+        const cJSON *f;
+        cJSON_ArrayForEach(f, cJSON_GetObjectItemCaseSensitive(doc, "frames")) {
+            const cJSON *idx = cJSON_GetObjectItemCaseSensitive(f, "frame");
+            if (!cJSON_IsNumber(idx) || idx->valuedouble < 0 ||
+                idx->valuedouble >= (double)job->frame_count)
+                continue;
+            size_t k = (size_t)idx->valuedouble;
+            if (!frame[k] || mtime >= frame_mtime[k]) {
+                frame[k] = (cJSON *)f;
+                frame_mtime[k] = mtime;
+            }
+        }
+    }
+    size_t n = 0, missing = 0;
+    char missing_list[256] = "";
+    for (size_t k = 0; k < job->frame_count; k++) {
+        if (frame[k]) {
+            frame[n++] = frame[k];
+        } else if (missing++ < 8) {
+            size_t at = strlen(missing_list);
+            snprintf(missing_list + at, sizeof missing_list - at, "%s%zu", at ? ", " : "", k);
+        }
+    }
+    free(frame_mtime);
+    cJSON *root = NULL;
+    mr_error err = {0};
+    char *out = NULL, path[4200];
+    snprintf(path, sizeof path, "%s/stats.json", dir);
+    int rc = mr_stats_from_frames(job, frame, n, threads >= 1 ? (unsigned)threads : 1, &root, &err);
+    if (rc == MR_OK && !(out = cJSON_Print(root)))
+        rc = mr_error_set(&err, MR_ERR_NOMEM, "out of memory");
+    if (rc == MR_OK)
+        rc = mr_fs_write_atomic(path, out, strlen(out), "stats.json", &err);
+    if (rc < 0) {
+        fprintf(stderr, "microrayd: %s: %s\n", path, err.msg);
+        status = exit_status(rc);
+    } else if (missing) {
+        fprintf(stderr, "microrayd: %s: %zu of %zu frames have no statistics (frames %s%s)\n", path,
+                missing, job->frame_count, missing_list, missing > 8 ? ", ..." : "");
+        if (status == EXIT_OK)
+            status = EXIT_RENDER;
+    }
+    free(out);
+    cJSON_Delete(root);
+    free(frame);
+done:
+    if (d)
+        closedir(d);
+    for (size_t i = 0; i < ndocs; i++)
+        cJSON_Delete(docs[i]);
+    free(docs);
     mr_job_free(job);
     free(text);
     return status;

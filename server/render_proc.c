@@ -217,12 +217,8 @@ static wait_result wait_message(mr_render_proc *p, const mr_render_session *s, b
     }
 }
 
-static const char *phase_words(phase ph)
-{
-    return ph == PREPARING ? "while preparing the job (importing assets, deriving data or "
-                             "building the scene)"
-                           : "between frames";
-}
+/* What preparing a job is, for messages. */
+#define PREPARING_WHAT "importing assets, deriving data or building the scene"
 
 /* The worker is gone (or broken): kill, reap and say how it ended. */
 static int worker_died(mr_render_proc *p, wait_result w, phase ph, long frame, mr_error *err)
@@ -231,15 +227,17 @@ static int worker_died(mr_render_proc *p, wait_result w, phase ph, long frame, m
     char where[160];
     if (ph == IN_FRAME)
         snprintf(where, sizeof where, "while rendering frame %ld", frame);
+    else if (ph == PREPARING)
+        snprintf(where, sizeof where, "while preparing the job (" PREPARING_WHAT ")");
     else
-        snprintf(where, sizeof where, "%s", phase_words(ph));
+        snprintf(where, sizeof where, "between frames");
     if (w == TOO_LONG) {
         if (ph == IN_FRAME)
             return mr_error_set(err, MR_ERR_LIMIT, "frame %ld took longer than %g s (the daemon's "
                                 "--frame-timeout)", frame, p->cfg.frame_timeout_s);
-        return mr_error_set(err, MR_ERR_LIMIT, "preparing the job (importing assets, deriving "
-                            "data, building the scene) took longer than %g s (the daemon's "
-                            "--frame-timeout)", p->cfg.frame_timeout_s);
+        return mr_error_set(err, MR_ERR_LIMIT, "preparing the job (" PREPARING_WHAT ") took "
+                            "longer than %g s (the daemon's --frame-timeout)",
+                            p->cfg.frame_timeout_s);
     }
     if (w == TOO_BIG) {
         char limit[MR_BYTES_TEXT];

@@ -97,9 +97,9 @@ static int w_frame_done(void *user, size_t index, const mr_film *film, mr_frame_
 {
     worker_ctx *c = user;
     double t0 = mr_now();
-    mr_exr_meta meta = {.frame = (int)index, .time = st->time, .render_seconds = st->total_s,
-                        .scene_diagonal = st->scene_diagonal};
-    snprintf(meta.job, sizeof meta.job, "%s", c->job_id);
+    mr_exr_meta meta;
+    mr_exr_meta_for_frame(&meta, c->job, st);
+    snprintf(meta.job, sizeof meta.job, "%s", c->job_id); /* the daemon names jobs by id */
     uint8_t *data = NULL;
     size_t size = 0;
     char *json = NULL;

@@ -184,3 +184,54 @@ done:
                             n);
     return MR_OK;
 }
+
+int mr_stats_from_frames(const mr_job *job, cJSON *const *frames, size_t n, unsigned threads,
+                         cJSON **out, mr_error *err)
+{
+    *out = NULL;
+    mr_frame_stats *fs = calloc(n ? n : 1, sizeof *fs);
+    char *text = NULL;
+    cJSON *root = NULL;
+    if (!fs)
+        goto oom;
+    for (size_t i = 0; i < n; i++) {
+        const cJSON *index = cJSON_GetObjectItemCaseSensitive(frames[i], "frame");
+        mr_frame_stats_from_json(frames[i], cJSON_IsNumber(index) ? (size_t)index->valuedouble : i,
+                                 &fs[i]);
+    }
+    mr_job_stats stats = {.frame_count = n, .frames = fs, .threads = threads};
+    int rc = mr_stats_to_json(job, &stats, 0, &text, err);
+    if (rc < 0) {
+        free(fs);
+        return rc;
+    }
+    if (!(root = cJSON_Parse(text)))
+        goto oom;
+    /* The frames list shows the given objects exactly (with the fields the
+     * table does not hold: kinds' extras, the daemon's cache figures); the
+     * regenerated entries only fill in what they lack. */
+    cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "frames");
+    size_t i = 0;
+    for (cJSON *gen = arr ? arr->child : NULL; gen && i < n; gen = gen->next, i++)
+        for (const cJSON *kv = frames[i]->child; kv; kv = kv->next) {
+            if (!kv->string)
+                continue;
+            cJSON *dup = cJSON_Duplicate(kv, true);
+            bool added = dup && (cJSON_HasObjectItem(gen, kv->string)
+                                     ? cJSON_ReplaceItemInObjectCaseSensitive(gen, kv->string, dup)
+                                     : cJSON_AddItemToObject(gen, kv->string, dup));
+            if (!added) {
+                cJSON_Delete(dup);
+                goto oom;
+            }
+        }
+    free(fs);
+    free(text);
+    *out = root;
+    return MR_OK;
+oom:
+    cJSON_Delete(root);
+    free(fs);
+    free(text);
+    return mr_error_set(err, MR_ERR_NOMEM, "out of memory gathering the statistics of %zu frames", n);
+}

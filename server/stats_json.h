@@ -27,4 +27,13 @@ char *mr_frame_stats_json(const mr_frame_stats *f);
  * (the stored text carries them). */
 void mr_frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f);
 
+/* The stats.json document (as a cJSON tree, *out) of frames given as their
+ * frame objects (in frame order; each with its "frame" index), as stored by
+ * the daemon or written in partial stats files: totals and medians
+ * computed by the one writer above, every frame object shown as given
+ * (kinds' extras and other fields kept). Used by the daemon's job stats
+ * and by `microrayd stats-merge`. */
+int mr_stats_from_frames(const mr_job *job, cJSON *const *frames, size_t n, unsigned threads,
+                         cJSON **out, mr_error *err);
+
 #endif

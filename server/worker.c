@@ -67,9 +67,11 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
 
     mr_renderer_options opt = {.cancel = io->cancel, .cache_dir = io->cache_dir,
                                .memory_budget = io->memory_budget};
+    t0 = mr_now();
     if ((rc = mr_renderer_new(dev, job, assets, &opt, &renderer, err)) < 0)
         goto done;
-    if ((rc = mr_film_new(job->output.width, job->output.height, &film, err)) < 0)
+    stats->derive_s = mr_now() - t0;
+    if ((rc = mr_job_film_new(job, &film, err)) < 0)
         goto done;
 
     bool first = true;
@@ -90,7 +92,8 @@ int mr_worker_run(mr_device *dev, const mr_job *job, const mr_worker_io *io, mr_
                 st->assets_cached = stats->assets_cached;
                 st->assets_loaded = stats->assets_loaded;
                 st->load_saved_s = stats->load_saved_s;
-                st->total_s += stats->load_s;
+                st->derive_s = stats->derive_s;
+                st->total_s += stats->load_s + stats->derive_s;
             }
             rc = io->frame_done(io->user, f, film, st, err);
         }

@@ -65,6 +65,7 @@ typedef struct mr_job_stats {
     unsigned assets_cached;  /* assets that came from the cache */
     unsigned assets_loaded;  /* assets imported for this job */
     double load_saved_s;     /* import seconds the cache saved */
+    double derive_s;         /* the renderer's set-up: derived data built or read */
     unsigned threads;
 } mr_job_stats;
 

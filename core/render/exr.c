@@ -11,14 +11,21 @@
  *    pipelines list them in that order: channels are always matched by name
  *    (openexr issue 1900: matching by insertion order silently scrambles
  *    planes).
+ *  - A frame's channels are those of the film's passes (film_channels:
+ *    one table of names, file types and planes for the writer, the reader
+ *    and the header's layout check).
  *  - Colour is converted to half here (mr_float_to_half), not by the
  *    library, so rounding, clamping and NaN/Inf handling are ours and tested.
- *    Our own convert_and_pack step writes the film straight into the
- *    library's packed chunk layout (one pass, no staging copy).
+ *    Our own packer writes the film straight into the packed chunk layout
+ *    (one pass, no staging copy).
  *  - Encoding (pack + compress) is most of a frame's time, so chunks are
- *    encoded on all cores (mr_parallel_for), each worker with its own
- *    exr_encode_pipeline_t: OpenEXRCore pipelines are per thread by design
- *    and only read the context once the header is written. Writing stays
+ *    encoded on all cores (mr_parallel_for). NONE, ZIP and ZIPS chunks are
+ *    ours from end to end: packed, for ZIP reordered and predicted as the
+ *    codec defines and deflated by libdeflate (several times faster than the
+ *    library's zlib at about the same size), then handed to the library as
+ *    finished chunks. PIZ goes through the library's pipeline, one
+ *    exr_encode_pipeline_t per worker (pipelines are per thread by design
+ *    and only read the context once the header is written). Writing stays
  *    on the calling thread in chunk order: exr_write_scanline_chunk moves
  *    the file offset and fills the chunk table, and the library refuses
  *    out-of-order chunks for INCREASING_Y files. A chunk's bytes depend
@@ -45,11 +52,19 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <pwd.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "util/file_io.h"
+#include "util/murmur3.h"
 #include "util/parallel.h"
+
+#include <libdeflate.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 /* ------------------------------------------------------------------ */
 /* half <-> float                                                      */
@@ -168,48 +183,81 @@ bool mr_compression_parse(const char *name, mr_compression *out)
 /* ------------------------------------------------------------------ */
 /* channel table                                                       */
 
-enum { CH_COUNT = 10 };
+/* Most channels a frame has: R G B A Z N.* P.* id.* and two Cryptomatte
+ * layers of MR_CRYPTO_MAX_RANKS ranks, two channels a rank. */
+enum { CH_MAX = 13 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS };
 
+/* One channel of a frame and the film plane behind it (4-byte samples:
+ * float, or uint32 for the ids). */
 typedef struct chan_def {
-    const char *name;
+    char name[32];
     exr_pixel_type_t type; /* type in the file */
+    mr_aov aov;            /* the pass it belongs to */
+    int rank;              /* Cryptomatte: the rank it holds (id or coverage); else -1 */
+    void *plane;
 } chan_def;
 
-/* The order here is ours (film order); the file's order is by name. */
-static const chan_def k_chans[CH_COUNT] = {
-    {"R", EXR_PIXEL_HALF},          {"G", EXR_PIXEL_HALF},
-    {"B", EXR_PIXEL_HALF},          {"A", EXR_PIXEL_HALF},
-    {"Z", EXR_PIXEL_FLOAT},         {"N.X", EXR_PIXEL_FLOAT},
-    {"N.Y", EXR_PIXEL_FLOAT},       {"N.Z", EXR_PIXEL_FLOAT},
-    {"id.object", EXR_PIXEL_UINT},  {"id.primitive", EXR_PIXEL_UINT},
-};
+static const char *const k_crypto_layer[MR_CRYPTO_LAYERS] = {"CryptoObject", "CryptoAsset"};
 
-/* Film plane for table index i (float or uint32, both 4 bytes). */
-static void *film_plane(const mr_film *film, int i)
+static void add_chan(chan_def *ch, int *n, const char *name, exr_pixel_type_t type, mr_aov aov,
+                     int rank, void *plane)
 {
-    switch (i) {
-    case 0: return film->r;
-    case 1: return film->g;
-    case 2: return film->b;
-    case 3: return film->a;
-    case 4: return film->z;
-    case 5: return film->nx;
-    case 6: return film->ny;
-    case 7: return film->nz;
-    case 8: return film->object_id;
-    case 9: return film->prim_id;
-    default: return NULL;
-    }
+    chan_def *c = &ch[(*n)++];
+    snprintf(c->name, sizeof c->name, "%s", name);
+    c->type = type;
+    c->aov = aov;
+    c->rank = rank;
+    c->plane = plane;
 }
 
-static int chan_index(const char *name)
+/* The channels of the film's passes, in our order (the file's is by
+ * name), each with its plane (NULL in a hand-made film that lacks it). */
+static int film_channels(const mr_film *f, bool half_normals, chan_def ch[CH_MAX])
 {
-    int i;
+    int n = 0;
+    if (f->aovs & MR_AOV_RGBA) {
+        add_chan(ch, &n, "R", EXR_PIXEL_HALF, MR_AOV_RGBA, -1, f->r);
+        add_chan(ch, &n, "G", EXR_PIXEL_HALF, MR_AOV_RGBA, -1, f->g);
+        add_chan(ch, &n, "B", EXR_PIXEL_HALF, MR_AOV_RGBA, -1, f->b);
+        add_chan(ch, &n, "A", EXR_PIXEL_HALF, MR_AOV_RGBA, -1, f->a);
+    }
+    if (f->aovs & MR_AOV_Z)
+        add_chan(ch, &n, "Z", EXR_PIXEL_FLOAT, MR_AOV_Z, -1, f->z);
+    if (f->aovs & MR_AOV_N) {
+        exr_pixel_type_t t = half_normals ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT;
+        add_chan(ch, &n, "N.X", t, MR_AOV_N, -1, f->nx);
+        add_chan(ch, &n, "N.Y", t, MR_AOV_N, -1, f->ny);
+        add_chan(ch, &n, "N.Z", t, MR_AOV_N, -1, f->nz);
+    }
+    if (f->aovs & MR_AOV_P) {
+        add_chan(ch, &n, "P.X", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->px);
+        add_chan(ch, &n, "P.Y", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->py);
+        add_chan(ch, &n, "P.Z", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->pz);
+    }
+    if (f->aovs & MR_AOV_ID) {
+        add_chan(ch, &n, "id.object", EXR_PIXEL_UINT, MR_AOV_ID, -1, f->object_id);
+        add_chan(ch, &n, "id.primitive", EXR_PIXEL_UINT, MR_AOV_ID, -1, f->prim_id);
+    }
+    if (f->aovs & MR_AOV_CRYPTOMATTE) {
+        /* <layer>NN.R/G: id and coverage of rank 2 NN, .B/.A: of rank 2 NN + 1 */
+        int ranks = f->crypto_ranks > MR_CRYPTO_MAX_RANKS ? MR_CRYPTO_MAX_RANKS : f->crypto_ranks;
+        for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+            for (int k = 0; k < 2 * ranks; k++) {
+                char name[32];
+                snprintf(name, sizeof name, "%s%02d.%c", k_crypto_layer[l], k / 4, "RGBA"[k % 4]);
+                add_chan(ch, &n, name, EXR_PIXEL_FLOAT, MR_AOV_CRYPTOMATTE, k / 2,
+                         f->crypto[l][k]);
+            }
+    }
+    return n;
+}
 
+static int chan_find(const chan_def *ch, int n, const char *name)
+{
     if (!name)
         return -1;
-    for (i = 0; i < CH_COUNT; i++)
-        if (strcmp(name, k_chans[i].name) == 0)
+    for (int i = 0; i < n; i++)
+        if (strcmp(name, ch[i].name) == 0)
             return i;
     return -1;
 }
@@ -368,7 +416,8 @@ static int exr_fail(mr_error *err, const exr_io *io, bool writing, const char *s
 
 static int check_film(const mr_film *film, mr_error *err)
 {
-    int i;
+    chan_def ch[CH_MAX];
+    int i, n;
 
     if (!film)
         return mr_error_set(err, MR_ERR_INVALID, "EXR write: film is NULL");
@@ -377,10 +426,19 @@ static int check_film(const mr_film *film, mr_error *err)
         (size_t)film->width * (size_t)film->height > (size_t)MR_MAX_PIXELS)
         return mr_error_set(err, MR_ERR_INVALID, "EXR write: bad film size %dx%d",
                             film->width, film->height);
-    for (i = 0; i < CH_COUNT; i++)
-        if (!film_plane(film, i))
+    if (film->aovs == 0 || (film->aovs & ~MR_AOV_ALL))
+        return mr_error_set(err, MR_ERR_INVALID, "EXR write: film passes 0x%x are not a "
+                            "non-empty set of mr_aov bits", film->aovs);
+    if ((film->aovs & MR_AOV_CRYPTOMATTE) &&
+        (film->crypto_ranks < 2 || film->crypto_ranks > MR_CRYPTO_MAX_RANKS ||
+         film->crypto_ranks % 2))
+        return mr_error_set(err, MR_ERR_INVALID, "EXR write: %d Cryptomatte ranks, expected "
+                            "an even number in 2..%d", film->crypto_ranks, MR_CRYPTO_MAX_RANKS);
+    n = film_channels(film, false, ch);
+    for (i = 0; i < n; i++)
+        if (!ch[i].plane)
             return mr_error_set(err, MR_ERR_INVALID, "EXR write: film plane %s is NULL",
-                                k_chans[i].name);
+                                ch[i].name);
     return MR_OK;
 }
 
@@ -422,6 +480,10 @@ static int check_meta(const mr_exr_meta *meta, mr_error *err)
     if (!isfinite(meta->scene_diagonal))
         return mr_error_set(err, MR_ERR_INVALID,
                             "EXR write: meta.scene_diagonal is not finite");
+    if (!(meta->fps >= 0 && meta->fps <= 1e6))
+        return mr_error_set(err, MR_ERR_INVALID, "EXR write: meta.fps is not in 0..1e6");
+    if (!memchr(meta->owner, '\0', sizeof meta->owner))
+        return mr_error_set(err, MR_ERR_INVALID, "EXR write: meta.owner is not terminated");
     return MR_OK;
 }
 
@@ -435,6 +497,19 @@ static int check_meta(const mr_exr_meta *meta, mr_error *err)
  * chunks that wait for their turn to be written. */
 #define ENC_BATCH_BYTES ((size_t)8 << 20)
 
+/* One channel of the file, in the file's (name) order. */
+typedef struct enc_chan {
+    const chan_def *def;    /* name, type in the file, film plane */
+} enc_chan;
+
+/* The channels as the library stored them (read back after the header is
+ * written, so the order is the library's, not our guess of it). */
+typedef struct enc_layout {
+    int count;
+    enc_chan ch[CH_MAX];
+    size_t pixel_bytes;     /* one pixel over all channels, as packed */
+} enc_layout;
+
 /* One chunk of the current batch. cinfo is filled on the calling thread,
  * the rest by the worker that encodes the chunk. */
 typedef struct enc_slot {
@@ -447,18 +522,29 @@ typedef struct enc_slot {
     char msg[384];      /* library message of a failure, from the worker */
 } enc_slot;
 
-/* Per worker index: its own pipeline (pipelines are not thread-safe, the
- * context is), reused for every chunk that worker takes. */
+/* Per worker index, reused for every chunk that worker takes: for PIZ the
+ * library's pipeline (pipelines are not thread-safe, the context is), for
+ * ZIP/ZIPS our own compressor and its two chunk-sized buffers. */
 typedef struct enc_worker {
     exr_encode_pipeline_t pipe;
     bool ready, routines;
-    const mr_film *film;
-    int map[CH_COUNT];  /* pipeline channel (file order) -> k_chans index */
+    const struct enc_batch *batch;
+    struct libdeflate_compressor *deflate;
+    uint8_t *packed[2], *predicted; /* packed[cur]: this chunk, packed[!cur]: the last one */
+    size_t buf_cap;
+    int cur;
+    size_t last_raw;                /* the last chunk compressed: its packed size ... */
+    uint8_t *last_out;              /* ... and what it compressed to */
+    size_t last_size, last_cap;
 } enc_worker;
 
 typedef struct enc_batch {
     exr_const_context_t ctxt;
     int part;
+    const mr_film *film;
+    enc_layout layout;
+    exr_compression_t ctype;
+    int level;          /* ZIP/ZIPS: the deflate level */
     enc_slot *slots;
     enc_worker *workers;
     atomic_bool failed; /* set by the first failing chunk: skip the rest */
@@ -578,30 +664,23 @@ static bool have_f16c(void)
 }
 #endif
 
-/* Our convert_and_pack step. It writes the layout the library's default
- * packer produces for unsampled scanline channels (per scanline, every
- * channel in file order, little-endian samples), but converts straight from
- * the film: no staging copy, and the half rounding stays ours. */
-static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
+/* Packs rows [y0, y0 + h) of the film in the layout of an uncompressed
+ * scanline chunk (per scanline, every channel in file order, little-endian
+ * samples), converting straight from the film: no staging copy, and the
+ * half rounding stays ours. Returns the bytes written (h * width *
+ * pixel_bytes). */
+static size_t pack_rows(const mr_film *film, const enc_layout *L, int y0, int h, uint8_t *dst)
 {
-    const enc_worker *w = p->encoding_user_data;
-    const mr_film *film = w->film;
-    size_t width = (size_t)film->width, need;
-    uint8_t *dst = p->packed_buffer;
+    size_t width = (size_t)film->width;
+    uint8_t *start = dst;
     bool f16c = have_f16c(); /* F16C implies AVX */
     int row, c;
 
-    need = (size_t)p->chunk.height * width * 32u; /* 4 x 2 + 6 x 4 bytes per pixel */
-    if (!dst || p->packed_alloc_size < need || p->chunk.start_y < 0 || p->chunk.height < 1 ||
-        p->chunk.start_y + p->chunk.height > film->height)
-        return EXR_ERR_INVALID_ARGUMENT;
-
-    for (row = 0; row < p->chunk.height; row++) {
-        size_t base = (size_t)(p->chunk.start_y + row) * width;
-        for (c = 0; c < CH_COUNT; c++) {
-            int ci = w->map[c];
-            const void *plane = film_plane(film, ci);
-            switch (k_chans[ci].type) {
+    for (row = 0; row < h; row++) {
+        size_t base = (size_t)(y0 + row) * width;
+        for (c = 0; c < L->count; c++) {
+            const void *plane = L->ch[c].def->plane;
+            switch (L->ch[c].def->type) {
             case EXR_PIXEL_HALF:
 #ifdef MR_EXR_F16C
                 if (f16c)
@@ -627,35 +706,107 @@ static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
             }
         }
     }
-    p->packed_bytes = (uint64_t)(dst - (uint8_t *)p->packed_buffer);
+    (void)f16c;
+    return (size_t)(dst - start);
+}
+
+/* Our convert_and_pack step in the library's pipeline (PIZ). */
+static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
+{
+    const enc_worker *w = p->encoding_user_data;
+    const enc_batch *b = w->batch;
+    const mr_film *film = b->film;
+    size_t need = (size_t)p->chunk.height * (size_t)film->width * b->layout.pixel_bytes;
+
+    if (!p->packed_buffer || p->packed_alloc_size < need || p->chunk.start_y < 0 ||
+        p->chunk.height < 1 || p->chunk.start_y + p->chunk.height > film->height)
+        return EXR_ERR_INVALID_ARGUMENT;
+    p->packed_bytes = pack_rows(film, &b->layout, p->chunk.start_y, p->chunk.height,
+                                p->packed_buffer);
     return EXR_ERR_SUCCESS;
 }
 
+/* The ZIP codec's byte order and predictor, applied to n packed bytes in
+ * one pass: the chunk is split into its even-indexed bytes followed by its
+ * odd-indexed bytes (t), and every byte of t but the first is stored as its
+ * difference to the previous one plus 128 (mod 256). OpenEXR's decoder
+ * undoes both after inflating (openexr internal_zip.c, ImfZip.cpp); the
+ * result is what the library's own encoder hands to zlib. The vector loop
+ * splits 32 input bytes into 16 even and 16 odd ones and subtracts each
+ * lane's predecessor (the lane before it, or the last lane of the previous
+ * block). */
+void mr_exr_zip_predict(const uint8_t *in, size_t n, uint8_t *out)
+{
+    size_t h = (n + 1) / 2, odd = n / 2, i = 1, j = 1;
+    uint8_t *eo = out, *oo = out + h;
+
+    if (n == 0)
+        return;
+    eo[0] = in[0];
+#if defined(__SSE2__)
+    {
+        const __m128i lo_mask = _mm_set1_epi16(0x00ff), bias = _mm_set1_epi8((char)0x80);
+        /* Lane 15 of prev_* holds the predecessor of the next block's lane
+         * 0: t[0] for the evens, in[1] (the first odd byte) for the odds;
+         * the first odd byte itself follows the last even one (scalar, below). */
+        __m128i prev_e = _mm_slli_si128(_mm_cvtsi32_si128(in[0]), 15);
+        __m128i prev_o = _mm_slli_si128(_mm_cvtsi32_si128(n > 1 ? in[1] : 0), 15);
+        while (i + 16 <= h && 2 * i + 32 <= n) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i));
+            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i + 16));
+            __m128i ev = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
+            __m128i pe = _mm_or_si128(_mm_slli_si128(ev, 1), _mm_srli_si128(prev_e, 15));
+            _mm_storeu_si128((__m128i *)(void *)(eo + i),
+                             _mm_add_epi8(_mm_sub_epi8(ev, pe), bias));
+            prev_e = ev;
+            i += 16;
+        }
+        while (j + 16 <= odd && 2 * j + 33 <= n) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 1));
+            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 17));
+            __m128i od = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
+            __m128i po = _mm_or_si128(_mm_slli_si128(od, 1), _mm_srli_si128(prev_o, 15));
+            _mm_storeu_si128((__m128i *)(void *)(oo + j),
+                             _mm_add_epi8(_mm_sub_epi8(od, po), bias));
+            prev_o = od;
+            j += 16;
+        }
+    }
+#endif
+    for (; i < h; i++)
+        eo[i] = (uint8_t)(in[2 * i] - in[2 * i - 2] + 128u);
+    if (odd >= 1)
+        oo[0] = (uint8_t)(in[1] - in[2 * (h - 1)] + 128u);
+    for (; j < odd; j++)
+        oo[j] = (uint8_t)(in[2 * j + 1] - in[2 * j - 1] + 128u);
+}
+
 /* Points the pipeline's channels at the chunk's rows and checks that the
- * library describes the layout we wrote the header for. */
+ * library describes the layout we wrote the header for (PIZ). */
 static exr_result_t setup_channels(enc_worker *w, const exr_chunk_info_t *cinfo)
 {
     exr_encode_pipeline_t *p = &w->pipe;
-    const mr_film *film = w->film;
+    const enc_layout *L = &w->batch->layout;
+    const mr_film *film = w->batch->film;
     int c;
 
-    if (p->channel_count != CH_COUNT)
+    if (p->channel_count != L->count)
         return EXR_ERR_INVALID_ARGUMENT;
-    for (c = 0; c < CH_COUNT; c++) {
+    for (c = 0; c < L->count; c++) {
         exr_coding_channel_info_t *ch = &p->channels[c];
-        int ci = chan_index(ch->channel_name);
-        if (ci < 0 || ch->data_type != (uint16_t)k_chans[ci].type || ch->x_samples != 1 ||
-            ch->y_samples != 1 || ch->width != film->width || ch->height != cinfo->height ||
-            ch->bytes_per_element != (k_chans[ci].type == EXR_PIXEL_HALF ? 2 : 4))
+        const chan_def *d = L->ch[c].def;
+        if (!ch->channel_name || strcmp(ch->channel_name, d->name) != 0 ||
+            ch->data_type != (uint16_t)d->type || ch->x_samples != 1 || ch->y_samples != 1 ||
+            ch->width != film->width || ch->height != cinfo->height ||
+            ch->bytes_per_element != (d->type == EXR_PIXEL_HALF ? 2 : 4))
             return EXR_ERR_INVALID_ARGUMENT;
-        w->map[c] = ci;
         /* pack_chunk reads the film itself; these describe the film planes
          * truthfully (4-byte float or uint rows) because exr_encoding_run
          * validates them. */
-        ch->encode_from_ptr = (const uint8_t *)((const uint32_t *)film_plane(film, ci) +
+        ch->encode_from_ptr = (const uint8_t *)((const uint32_t *)d->plane +
                                                 (size_t)cinfo->start_y * (size_t)film->width);
-        ch->user_data_type = (uint16_t)(k_chans[ci].type == EXR_PIXEL_UINT ? EXR_PIXEL_UINT
-                                                                           : EXR_PIXEL_FLOAT);
+        ch->user_data_type = (uint16_t)(d->type == EXR_PIXEL_UINT ? EXR_PIXEL_UINT
+                                                                  : EXR_PIXEL_FLOAT);
         ch->user_bytes_per_element = 4;
         ch->user_pixel_stride = 4;
         ch->user_line_stride = 4 * film->width;
@@ -663,10 +814,9 @@ static exr_result_t setup_channels(enc_worker *w, const exr_chunk_info_t *cinfo)
     return EXR_ERR_SUCCESS;
 }
 
-/* Packs and compresses one chunk into s->data. Only pipeline calls happen
- * here; everything that touches the file (chunk table, offsets) stays on
- * the calling thread. */
-static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
+/* PIZ: packs (our pack_chunk) and compresses one chunk through the
+ * library's pipeline into s->data. */
+static exr_result_t encode_chunk_library(enc_batch *b, enc_worker *w, enc_slot *s)
 {
     exr_encode_pipeline_t *p = &w->pipe;
     exr_result_t rv;
@@ -705,7 +855,6 @@ static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
     rv = exr_encoding_run(b->ctxt, b->part, p);
     if (rv != EXR_ERR_SUCCESS)
         return rv;
-    /* NONE (no compressor) leaves the packed bytes here too. */
     if (!p->compressed_buffer || p->compressed_bytes == 0)
         return EXR_ERR_INVALID_ARGUMENT;
     if (p->compressed_bytes > s->cap) {
@@ -719,6 +868,100 @@ static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
     memcpy(s->data, p->compressed_buffer, p->compressed_bytes);
     s->size = p->compressed_bytes;
     return EXR_ERR_SUCCESS;
+}
+
+static bool grow(uint8_t **buf, size_t *cap, size_t need)
+{
+    uint8_t *nd;
+    if (*cap >= need)
+        return true;
+    nd = realloc(*buf, need);
+    if (!nd)
+        return false;
+    *buf = nd;
+    *cap = need;
+    return true;
+}
+
+/* NONE, ZIP and ZIPS without the library's pipeline: the chunk is packed by
+ * pack_rows and, for the ZIP codecs, reordered and predicted as the codec
+ * expects and deflated by libdeflate into the zlib format (which zlib's
+ * inflate, used by OpenEXR's readers, decodes). As the library does, a
+ * chunk that does not shrink is stored packed: the readers take a chunk
+ * whose size equals its unpacked size as uncompressed, so a compressed
+ * chunk must be strictly smaller.
+ *
+ * Deflate costs about 1.5 ns per input byte even for a run of one value
+ * (its match finder visits every byte a match covers), and empty sky is
+ * most of a typical frame: a chunk whose packed bytes equal the last chunk
+ * this worker compressed (rows of background, all alike) reuses that
+ * chunk's compressed bytes. The bytes are the same as compressing again
+ * (libdeflate is deterministic), so the file does not depend on which
+ * worker took which chunk. */
+static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
+{
+    const mr_film *film = b->film;
+    size_t raw = (size_t)s->cinfo.height * (size_t)film->width * b->layout.pixel_bytes, got;
+    uint8_t *packed;
+
+    s->step = "packing a chunk (layout mismatch)";
+    if (raw != s->cinfo.unpacked_size || raw == 0)
+        return EXR_ERR_INVALID_ARGUMENT;
+    s->step = "keeping an encoded chunk";
+    if (!grow(&s->data, &s->cap, raw))
+        return EXR_ERR_OUT_OF_MEMORY;
+    if (b->ctype == EXR_COMPRESSION_NONE) {
+        s->size = pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, s->data);
+        return EXR_ERR_SUCCESS;
+    }
+    if (w->buf_cap < raw) {
+        size_t cap = 0;
+        for (int i = 0; i < 2; i++) {
+            cap = w->buf_cap;
+            if (!grow(&w->packed[i], &cap, raw))
+                return EXR_ERR_OUT_OF_MEMORY;
+        }
+        cap = w->buf_cap;
+        if (!grow(&w->predicted, &cap, raw))
+            return EXR_ERR_OUT_OF_MEMORY;
+        w->buf_cap = raw;
+        w->last_raw = 0; /* the last chunk's bytes did not survive the realloc */
+    }
+    if (!w->deflate) {
+        s->step = "libdeflate_alloc_compressor";
+        w->deflate = libdeflate_alloc_compressor(b->level);
+        if (!w->deflate)
+            return EXR_ERR_OUT_OF_MEMORY;
+    }
+    packed = w->packed[w->cur];
+    pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, packed);
+    if (w->last_raw == raw && memcmp(packed, w->packed[!w->cur], raw) == 0) {
+        memcpy(s->data, w->last_out, w->last_size);
+        s->size = w->last_size;
+        return EXR_ERR_SUCCESS;
+    }
+    mr_exr_zip_predict(packed, raw, w->predicted);
+    /* 0 when the stream would not fit in raw - 1 bytes: store packed. */
+    got = raw > 1 ? libdeflate_zlib_compress(w->deflate, w->predicted, raw, s->data, raw - 1) : 0;
+    if (got == 0) {
+        memcpy(s->data, packed, raw);
+        got = raw;
+    }
+    s->size = got;
+    s->step = "keeping an encoded chunk";
+    if (!grow(&w->last_out, &w->last_cap, got))
+        return EXR_ERR_OUT_OF_MEMORY;
+    memcpy(w->last_out, s->data, got);
+    w->last_size = got;
+    w->last_raw = raw;
+    w->cur = !w->cur;
+    return EXR_ERR_SUCCESS;
+}
+
+static exr_result_t encode_chunk(enc_batch *b, enc_worker *w, enc_slot *s)
+{
+    return b->ctype == EXR_COMPRESSION_PIZ ? encode_chunk_library(b, w, s)
+                                           : encode_chunk_own(b, w, s);
 }
 
 static void encode_range(void *ctx, size_t begin, size_t end, unsigned worker)
@@ -748,6 +991,300 @@ static void encode_range(void *ctx, size_t begin, size_t end, unsigned worker)
     t_sink = saved;
 }
 
+/* The written header's channel list as an enc_layout: file order, each
+ * channel one of the film's (ch[0, n)) with the type we asked for. */
+static int read_layout(exr_context_t ctxt, int part, const chan_def *ch, int n, enc_layout *L,
+                       const exr_io *io, mr_error *err)
+{
+    const exr_attr_chlist_t *chans = NULL;
+    int c;
+
+    memset(L, 0, sizeof *L);
+    if (exr_get_channels(ctxt, part, &chans) != EXR_ERR_SUCCESS || !chans ||
+        chans->num_channels != n)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: EXR write: unexpected channel list",
+                            io->name);
+    for (c = 0; c < chans->num_channels; c++) {
+        const exr_attr_chlist_entry_t *e = &chans->entries[c];
+        int ci = chan_find(ch, n, e->name.str);
+        if (ci < 0 || e->pixel_type != ch[ci].type)
+            return mr_error_set(err, MR_ERR_FORMAT,
+                                "%s: EXR write: unexpected channel '%s' in the header",
+                                io->name, e->name.str ? e->name.str : "");
+        L->ch[c].def = &ch[ci];
+        L->pixel_bytes += e->pixel_type == EXR_PIXEL_HALF ? 2u : 4u;
+    }
+    L->count = chans->num_channels;
+    return MR_OK;
+}
+
+/* ------------------------------------------------------------------ */
+/* standard attributes                                                 */
+
+/* An OpenEXR M44f (row vectors: p' = p M, translation in the last row) of
+ * our column-vector matrix a (p' = a p). */
+static exr_attr_m44f_t to_m44f(const double a[16])
+{
+    exr_attr_m44f_t m;
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++)
+            m.m[r * 4 + c] = (float)a[c * 4 + r];
+    return m;
+}
+
+static void mul4(const double a[16], const double b[16], double out[16])
+{
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++) {
+            double v = 0;
+            for (int k = 0; k < 4; k++)
+                v += a[r * 4 + k] * b[k * 4 + c];
+            out[r * 4 + c] = v;
+        }
+}
+
+/* World to OpenEXR camera space (+z the viewing direction) and to NDC, as
+ * column-vector matrices, from the film's camera; and the screen window's
+ * width on the z = 1 plane. The camera is rigid (rotation and
+ * translation), so its inverse is the transposed rotation. */
+static void camera_matrices(const mr_film *f, double w2c[16], double w2ndc[16], double *sw)
+{
+    const float *m = f->camera_to_world.m;
+    double th = tan(0.5 * (double)f->yfov), aspect = (double)f->width / (double)f->height;
+    double W = 2.0 * th * aspect, H = 2.0 * th;
+    /* inverse of [R t; 0 1] is [R^T, -R^T t], then z flipped: our camera
+     * looks down its -z, OpenEXR's down +z */
+    for (int r = 0; r < 3; r++) {
+        double flip = r == 2 ? -1.0 : 1.0, t = 0;
+        for (int c = 0; c < 3; c++) {
+            w2c[r * 4 + c] = flip * (double)m[c * 4 + r];
+            t += (double)m[c * 4 + r] * (double)m[c * 4 + 3];
+        }
+        w2c[r * 4 + 3] = -flip * t;
+    }
+    w2c[12] = w2c[13] = w2c[14] = 0;
+    w2c[15] = 1;
+    /* NDC: x = X / (Z W) + 1/2, y = 1/2 - Y / (Z H) after the divide by
+     * w = Z; z becomes 1 / Z (so the matrix stays invertible). */
+    const double proj[16] = {1.0 / W, 0, 0.5, 0, 0, -1.0 / H, 0.5, 0, 0, 0, 0, 1, 0, 0, 1, 0};
+    mul4(proj, w2c, w2ndc);
+    *sw = W;
+}
+
+/* fps as the rational the framesPerSecond attribute holds: the simplest
+ * fraction within 1e-9 relative (continued fractions; 24 -> 24/1,
+ * 29.97 -> 2997/100, 30000/1001 -> 30000/1001). */
+static exr_attr_rational_t fps_rational(double fps)
+{
+    double x = fps;
+    long long h0 = 1, h1 = 0, k0 = 0, k1 = 1; /* convergents h/k */
+    exr_attr_rational_t best = {(int32_t)lround(fps), 1};
+    for (int i = 0; i < 32; i++) {
+        double a = floor(x);
+        long long h = (long long)a * h0 + h1, k = (long long)a * k0 + k1;
+        if (h > INT32_MAX || k > (long long)UINT32_MAX)
+            break;
+        best.num = (int32_t)h;
+        best.denom = (uint32_t)k;
+        if (fabs((double)h / (double)k - fps) <= 1e-9 * fps || x - a < 1e-12)
+            break;
+        h1 = h0;
+        h0 = h;
+        k1 = k0;
+        k0 = k;
+        x = 1.0 / (x - a);
+    }
+    return best;
+}
+
+/* Appends name as a JSON string (quotes, backslashes and control bytes
+ * escaped; UTF-8 passes as it is). out has room for 6 * strlen + 3. */
+static size_t json_string(char *out, const char *name)
+{
+    size_t n = 0;
+    out[n++] = '"';
+    for (const unsigned char *p = (const unsigned char *)name; *p; p++) {
+        if (*p == '"' || *p == '\\') {
+            out[n++] = '\\';
+            out[n++] = (char)*p;
+        } else if (*p < 0x20 || *p == 0x7f) {
+            n += (size_t)sprintf(out + n, "\\u%04x", *p);
+        } else {
+            out[n++] = (char)*p;
+        }
+    }
+    out[n++] = '"';
+    out[n] = '\0';
+    return n;
+}
+
+const char *mr_crypto_name(const mr_job *job, int layer, size_t i, char buf[32])
+{
+    const char *name = layer == MR_CRYPTO_OBJECT ? job->objects[i].name : job->assets[i].name;
+    if (name)
+        return name;
+    snprintf(buf, 32, "%s%zu", layer == MR_CRYPTO_OBJECT ? "object" : "asset", i);
+    return buf;
+}
+
+/* The manifest of a Cryptomatte layer: {"name":"8 hex digits", ...}, each
+ * name once (objects may share a name, and then share an id). NULL when
+ * out of memory. */
+static char *crypto_manifest(const mr_job *job, int layer)
+{
+    size_t count = layer == MR_CRYPTO_OBJECT ? job->object_count : job->asset_count, cap = 3, n;
+    char buf[32], other_buf[32], *out;
+    for (size_t i = 0; i < count; i++)
+        cap += 6 * strlen(mr_crypto_name(job, layer, i, buf)) + 16;
+    out = malloc(cap);
+    if (!out)
+        return NULL;
+    n = 0;
+    out[n++] = '{';
+    for (size_t i = 0; i < count; i++) {
+        const char *name = mr_crypto_name(job, layer, i, buf);
+        bool seen = false;
+        for (size_t j = 0; j < i && !seen; j++)
+            seen = strcmp(mr_crypto_name(job, layer, j, other_buf), name) == 0;
+        if (seen)
+            continue;
+        if (n > 1)
+            out[n++] = ',';
+        n += json_string(out + n, name);
+        n += (size_t)sprintf(out + n, ":\"%08x\"", (unsigned)mr_cryptomatte_id_bits(name));
+    }
+    out[n++] = '}';
+    out[n] = '\0';
+    return out;
+}
+
+void mr_exr_meta_for_frame(mr_exr_meta *meta, const mr_job *job, const mr_frame_stats *st)
+{
+    struct passwd pw, *found = NULL;
+    char buf[1024];
+
+    memset(meta, 0, sizeof *meta);
+    if (job) {
+        snprintf(meta->job, sizeof meta->job, "%s", job->name ? job->name : "");
+        meta->fps = job->fps;
+        meta->source = job;
+    }
+    if (st) {
+        meta->frame = st->frame;
+        meta->time = st->time;
+        meta->render_seconds = st->total_s;
+        meta->scene_diagonal = st->scene_diagonal;
+    }
+    meta->capture_time = (int64_t)time(NULL);
+    if (getpwuid_r(geteuid(), &pw, buf, sizeof buf, &found) == 0 && found && pw.pw_name)
+        snprintf(meta->owner, sizeof meta->owner, "%s", pw.pw_name);
+    else
+        snprintf(meta->owner, sizeof meta->owner, "uid %u", (unsigned)geteuid());
+}
+
+/* The header attributes beyond the required ones (microray.h, "EXR"). */
+static exr_result_t write_attributes(exr_context_t ctxt, int part, const mr_film *film,
+                                     const mr_exr_meta *meta, const char **step)
+{
+    /* Rec. 709 primaries and D65 white: the linear RGB we shade in. */
+    static const exr_attr_chromaticities_t rec709 = {0.64f, 0.33f, 0.30f, 0.60f,
+                                                     0.15f, 0.06f, 0.3127f, 0.3290f};
+    exr_result_t rv;
+
+#define ATTR(call, what)                                                            \
+    do {                                                                            \
+        *step = (what);                                                             \
+        if ((rv = (call)) != EXR_ERR_SUCCESS)                                       \
+            return rv;                                                              \
+    } while (0)
+
+    ATTR(exr_attr_set_string(ctxt, part, "microray.version", MR_VERSION_STRING),
+         "exr_attr_set_string(microray.version)");
+    ATTR(exr_attr_set_chromaticities(ctxt, part, "chromaticities", &rec709),
+         "exr_attr_set_chromaticities(chromaticities)");
+    if (film->has_camera) {
+        double w2c[16], w2ndc[16], sw;
+        exr_attr_v2f_t center = {{{0.0f, 0.0f}}};
+        camera_matrices(film, w2c, w2ndc, &sw);
+        exr_attr_m44f_t a = to_m44f(w2c), b = to_m44f(w2ndc);
+        ATTR(exr_attr_set_m44f(ctxt, part, "worldToCamera", &a),
+             "exr_attr_set_m44f(worldToCamera)");
+        ATTR(exr_attr_set_m44f(ctxt, part, "worldToNDC", &b), "exr_attr_set_m44f(worldToNDC)");
+        ATTR(exr_set_screen_window_width(ctxt, part, (float)sw), "exr_set_screen_window_width");
+        ATTR(exr_set_screen_window_center(ctxt, part, &center),
+             "exr_set_screen_window_center");
+    }
+    if (film->aovs & MR_AOV_CRYPTOMATTE) {
+        for (int l = 0; l < MR_CRYPTO_LAYERS; l++) {
+            char key[16], name[64];
+            const char *layer = k_crypto_layer[l];
+            snprintf(key, sizeof key, "%08x", (unsigned)mr_murmur3_32(layer, strlen(layer), 0));
+            key[7] = '\0';
+            snprintf(name, sizeof name, "cryptomatte/%s/name", key);
+            ATTR(exr_attr_set_string(ctxt, part, name, layer), "exr_attr_set_string(cryptomatte)");
+            snprintf(name, sizeof name, "cryptomatte/%s/hash", key);
+            ATTR(exr_attr_set_string(ctxt, part, name, "MurmurHash3_32"),
+                 "exr_attr_set_string(cryptomatte)");
+            snprintf(name, sizeof name, "cryptomatte/%s/conversion", key);
+            ATTR(exr_attr_set_string(ctxt, part, name, "uint32_to_float32"),
+                 "exr_attr_set_string(cryptomatte)");
+            if (meta && meta->source) {
+                char *manifest = crypto_manifest(meta->source, l);
+                *step = "building a Cryptomatte manifest";
+                if (!manifest)
+                    return EXR_ERR_OUT_OF_MEMORY;
+                snprintf(name, sizeof name, "cryptomatte/%s/manifest", key);
+                rv = exr_attr_set_string(ctxt, part, name, manifest);
+                free(manifest);
+                ATTR(rv, "exr_attr_set_string(cryptomatte manifest)");
+            }
+        }
+    }
+    if (!meta)
+        return EXR_ERR_SUCCESS;
+    ATTR(exr_attr_set_string(ctxt, part, "microray.job", meta->job),
+         "exr_attr_set_string(microray.job)");
+    ATTR(exr_attr_set_int(ctxt, part, "microray.frame", meta->frame),
+         "exr_attr_set_int(microray.frame)");
+    ATTR(exr_attr_set_double(ctxt, part, "microray.time", meta->time),
+         "exr_attr_set_double(microray.time)");
+    ATTR(exr_attr_set_double(ctxt, part, "microray.renderSeconds", meta->render_seconds),
+         "exr_attr_set_double(microray.renderSeconds)");
+    ATTR(exr_attr_set_float(ctxt, part, "microray.sceneDiagonal", meta->scene_diagonal),
+         "exr_attr_set_float(microray.sceneDiagonal)");
+    if (meta->fps > 0) {
+        exr_attr_rational_t r = fps_rational(meta->fps);
+        ATTR(exr_attr_set_rational(ctxt, part, "framesPerSecond", &r),
+             "exr_attr_set_rational(framesPerSecond)");
+    }
+    if (meta->owner[0])
+        ATTR(exr_attr_set_string(ctxt, part, "owner", meta->owner), "exr_attr_set_string(owner)");
+    if (meta->capture_time) {
+        time_t t = (time_t)meta->capture_time;
+        struct tm local;
+        char date[96];
+        *step = "localtime_r (capDate)";
+        if (!localtime_r(&t, &local))
+            return EXR_ERR_INVALID_ARGUMENT;
+        snprintf(date, sizeof date, "%04d:%02d:%02d %02d:%02d:%02d", local.tm_year + 1900,
+                 local.tm_mon + 1, local.tm_mday, local.tm_hour, local.tm_min, local.tm_sec);
+        ATTR(exr_attr_set_string(ctxt, part, "capDate", date), "exr_attr_set_string(capDate)");
+        ATTR(exr_attr_set_float(ctxt, part, "utcOffset", (float)-local.tm_gmtoff),
+             "exr_attr_set_float(utcOffset)");
+    }
+    {
+        char comments[256];
+        snprintf(comments, sizeof comments,
+                 "Rendered by microray %s: job %s, frame %d at %.6g s on the job's timeline",
+                 MR_VERSION_STRING, meta->job[0] ? meta->job : "(unnamed)", meta->frame,
+                 meta->time);
+        ATTR(exr_attr_set_string(ctxt, part, "comments", comments),
+             "exr_attr_set_string(comments)");
+    }
+#undef ATTR
+    return EXR_ERR_SUCCESS;
+}
+
 static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt,
                       const mr_exr_meta *meta, mr_error *err)
 {
@@ -759,8 +1296,9 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
     size_t nslots = 0, chunks, first, k, chunk_bytes;
     unsigned threads, t;
     int32_t lines = 0;
-    int part = 0, level = 0, i, rc;
+    int part = 0, level = 0, i, rc, nch;
     const char *step = "";
+    chan_def ch[CH_MAX];
 
     memset(&b, 0, sizeof b);
     atomic_init(&b.failed, false);
@@ -789,33 +1327,16 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
     EXR_TRY(exr_initialize_required_attr_simple(ctxt, part, film->width, film->height,
                                                 ctype),
             "exr_initialize_required_attr_simple");
-    for (i = 0; i < CH_COUNT; i++) {
+    nch = film_channels(film, opt && opt->half_normals, ch);
+    for (i = 0; i < nch; i++) {
         /* pLinear only steers the lossy B44 codec, which we never use; 0 is
          * what the C++ library writes by default. */
-        EXR_TRY(exr_add_channel(ctxt, part, k_chans[i].name, k_chans[i].type,
+        EXR_TRY(exr_add_channel(ctxt, part, ch[i].name, ch[i].type,
                                 EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1),
                 "exr_add_channel");
     }
-    if (ctype == EXR_COMPRESSION_ZIP || ctype == EXR_COMPRESSION_ZIPS)
-        EXR_TRY(exr_set_zip_compression_level(ctxt, part, level),
-                "exr_set_zip_compression_level");
-
-    EXR_TRY(exr_attr_set_string(ctxt, part, "microray.version", MR_VERSION_STRING),
-            "exr_attr_set_string(microray.version)");
-    if (meta) {
-        EXR_TRY(exr_attr_set_string(ctxt, part, "microray.job", meta->job),
-                "exr_attr_set_string(microray.job)");
-        EXR_TRY(exr_attr_set_int(ctxt, part, "microray.frame", meta->frame),
-                "exr_attr_set_int(microray.frame)");
-        EXR_TRY(exr_attr_set_double(ctxt, part, "microray.time", meta->time),
-                "exr_attr_set_double(microray.time)");
-        EXR_TRY(exr_attr_set_double(ctxt, part, "microray.renderSeconds",
-                                    meta->render_seconds),
-                "exr_attr_set_double(microray.renderSeconds)");
-        EXR_TRY(exr_attr_set_float(ctxt, part, "microray.sceneDiagonal",
-                                   meta->scene_diagonal),
-                "exr_attr_set_float(microray.sceneDiagonal)");
-    }
+    if ((rv = write_attributes(ctxt, part, film, meta, &step)) != EXR_ERR_SUCCESS)
+        goto fail;
 
     EXR_TRY(exr_write_header(ctxt), "exr_write_header");
     EXR_TRY(exr_get_scanlines_per_chunk(ctxt, part, &lines), "exr_get_scanlines_per_chunk");
@@ -829,8 +1350,13 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
      * chunk order by this thread, which is the only one that touches the
      * file and the chunk table. The bytes of a chunk depend on nothing but
      * its pixels, so the file is the same for every thread count. */
+    if ((rc = read_layout(ctxt, part, ch, nch, &b.layout, io, err)) < 0)
+        goto cleanup;
+    b.film = film;
+    b.ctype = ctype;
+    b.level = level;
     chunks = ((size_t)film->height + (size_t)lines - 1) / (size_t)lines;
-    chunk_bytes = (size_t)lines * (size_t)film->width * 32u;
+    chunk_bytes = (size_t)lines * (size_t)film->width * b.layout.pixel_bytes;
     nslots = ENC_BATCH_BYTES / chunk_bytes;
     /* Several chunks per worker keep uneven chunks (sky compresses faster
      * than geometry) from idling workers at the end of a batch. */
@@ -847,7 +1373,7 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
         goto cleanup;
     }
     for (t = 0; t < threads; t++)
-        b.workers[t].film = film;
+        b.workers[t].batch = &b;
 
     for (first = 0; first < chunks; first += nslots) {
         size_t n = chunks - first < nslots ? chunks - first : nslots;
@@ -917,9 +1443,16 @@ fail:
     rc = exr_fail(err, io, true, step, rv);
 cleanup:
     if (b.workers) {
-        for (t = 0; t < threads; t++)
+        for (t = 0; t < threads; t++) {
             if (b.workers[t].ready)
                 exr_encoding_destroy(ctxt, &b.workers[t].pipe);
+            if (b.workers[t].deflate)
+                libdeflate_free_compressor(b.workers[t].deflate);
+            free(b.workers[t].packed[0]);
+            free(b.workers[t].packed[1]);
+            free(b.workers[t].predicted);
+            free(b.workers[t].last_out);
+        }
         free(b.workers);
     }
     if (b.slots) {
@@ -1026,10 +1559,31 @@ static void read_meta(exr_context_t ctxt, mr_exr_meta *meta)
 /* Whether a decoded channel goes into the film: a known name, full
  * resolution, and the chunk's size. */
 static bool channel_wanted(const exr_coding_channel_info_t *ch, const mr_film *film,
-                           const exr_chunk_info_t *cinfo)
+                           const exr_chunk_info_t *cinfo, const chan_def *known, int nknown)
 {
-    return chan_index(ch->channel_name) >= 0 && ch->x_samples == 1 && ch->y_samples == 1 &&
-           ch->width == film->width && ch->height == cinfo->height;
+    return chan_find(known, nknown, ch->channel_name) >= 0 && ch->x_samples == 1 &&
+           ch->y_samples == 1 && ch->width == film->width && ch->height == cinfo->height;
+}
+
+/* The passes (beyond MR_AOV_DEFAULT) and Cryptomatte ranks of a file's
+ * channels: every name we write is recognised; others are skipped. */
+static unsigned file_passes(const exr_attr_chlist_t *chans, int *ranks)
+{
+    mr_film every = {.aovs = MR_AOV_ALL, .crypto_ranks = MR_CRYPTO_MAX_RANKS};
+    chan_def ch[CH_MAX];
+    int n = film_channels(&every, false, ch);
+    unsigned aovs = MR_AOV_DEFAULT;
+    *ranks = 0;
+    for (int i = 0; chans && i < chans->num_channels; i++) {
+        const exr_attr_chlist_entry_t *e = &chans->entries[i];
+        int ci = chan_find(ch, n, e->name.str);
+        if (ci < 0 || e->x_sampling != 1 || e->y_sampling != 1)
+            continue;
+        aovs |= ch[ci].aov;
+        if (ch[ci].rank + 1 > *ranks)
+            *ranks = ch[ci].rank + 1;
+    }
+    return aovs;
 }
 
 static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err)
@@ -1047,7 +1601,9 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
     mr_film *film = NULL;
     int64_t w64, h64;
     int32_t lines = 0;
-    int count = 0, matched = 0, rc, i;
+    int count = 0, matched = 0, rc, i, ranks = 0, nknown = 0;
+    unsigned aovs;
+    chan_def known[CH_MAX];
     int64_t y;
     const char *step = "";
 
@@ -1097,22 +1653,25 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
                           io->name, (long long)w64, (long long)h64, MR_MAX_RESOLUTION);
         goto cleanup;
     }
-    rc = mr_film_new((int)w64, (int)h64, &film, err);
+    EXR_TRY(exr_get_channels(ctxt, 0, &chans), "exr_get_channels");
+    aovs = file_passes(chans, &ranks);
+    rc = mr_film_new_aovs((int)w64, (int)h64, aovs, ranks, &film, err);
     if (rc < 0)
         goto cleanup;
+    nknown = film_channels(film, false, known);
     if (meta) {
         memset(meta, 0, sizeof *meta);
         read_meta(ctxt, meta);
     }
 
-    EXR_TRY(exr_get_channels(ctxt, 0, &chans), "exr_get_channels");
     for (i = 0; chans && i < chans->num_channels; i++) {
         const exr_attr_chlist_entry_t *e = &chans->entries[i];
-        if (chan_index(e->name.str) >= 0 && e->x_sampling == 1 && e->y_sampling == 1)
+        if (chan_find(known, nknown, e->name.str) >= 0 && e->x_sampling == 1 &&
+            e->y_sampling == 1)
             matched++;
     }
     if (matched == 0)
-        goto done; /* nothing we know: an all-zero film, as documented */
+        goto done; /* nothing we know: an all-miss film, as documented */
 
     EXR_TRY(exr_get_scanlines_per_chunk(ctxt, 0, &lines), "exr_get_scanlines_per_chunk");
     if (lines < 1) {
@@ -1152,7 +1711,8 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
         size_t skip_need = 0;
         for (c = 0; c < dec.channel_count; c++) {
             const exr_coding_channel_info_t *ch = &dec.channels[c];
-            if (!channel_wanted(ch, film, &cinfo) && ch->width > 0 && ch->height > 0) {
+            if (!channel_wanted(ch, film, &cinfo, known, nknown) && ch->width > 0 &&
+                ch->height > 0) {
                 size_t need = (size_t)ch->width * (size_t)ch->height * 4u;
                 skip_need = need > skip_need ? need : skip_need;
             }
@@ -1168,8 +1728,8 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
         }
         for (c = 0; c < dec.channel_count; c++) {
             exr_coding_channel_info_t *ch = &dec.channels[c];
-            int ci = chan_index(ch->channel_name);
-            if (!channel_wanted(ch, film, &cinfo)) {
+            int ci = chan_find(known, nknown, ch->channel_name);
+            if (!channel_wanted(ch, film, &cinfo, known, nknown)) {
                 ch->decode_to_ptr = ch->width > 0 && ch->height > 0 ? scratch : NULL;
                 ch->user_data_type = ch->data_type;
                 ch->user_bytes_per_element = ch->bytes_per_element;
@@ -1177,11 +1737,10 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
                 ch->user_line_stride = ch->width * ch->bytes_per_element;
                 continue;
             }
-            ch->decode_to_ptr = (uint8_t *)((uint32_t *)film_plane(film, ci) +
+            ch->decode_to_ptr = (uint8_t *)((uint32_t *)known[ci].plane +
                                             (size_t)row * (size_t)film->width);
-            ch->user_data_type = (uint16_t)(k_chans[ci].type == EXR_PIXEL_UINT
-                                                ? EXR_PIXEL_UINT
-                                                : EXR_PIXEL_FLOAT);
+            ch->user_data_type = (uint16_t)(known[ci].type == EXR_PIXEL_UINT ? EXR_PIXEL_UINT
+                                                                             : EXR_PIXEL_FLOAT);
             ch->user_bytes_per_element = 4;
             ch->user_pixel_stride = 4;
             ch->user_line_stride = 4 * film->width;

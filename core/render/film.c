@@ -1,22 +1,66 @@
 /*
  * film.c - allocation of the per-AOV frame buffer (film.h).
  *
- * Every plane is its own calloc'ed block so a fresh film is already "all
- * miss" (zero) and so the EXR encoder and the comparison can walk planes
- * independently. The caps are checked before any size arithmetic, which
- * keeps width * height * sizeof(float) far from overflowing size_t.
+ * Every plane is its own block so the EXR encoder and the comparison can
+ * walk planes independently, and only the planes of the passes asked for
+ * exist (a NULL plane is a pass the film does not have). The caps are
+ * checked before any size arithmetic, which keeps width * height *
+ * sizeof(float) far from overflowing size_t.
  */
 #include "render/film.h"
 
 #include <stdlib.h>
 #include <string.h>
 
+static const char *const k_aov_names[MR_AOV_COUNT] = {"rgba", "z", "n", "p", "id", "cryptomatte"};
+
+const char *mr_aov_name(mr_aov aov)
+{
+    for (int i = 0; i < MR_AOV_COUNT; i++)
+        if ((unsigned)aov == 1u << i)
+            return k_aov_names[i];
+    return NULL;
+}
+
+bool mr_aov_parse(const char *name, mr_aov *out)
+{
+    if (!name)
+        return false;
+    for (int i = 0; i < MR_AOV_COUNT; i++)
+        if (strcmp(name, k_aov_names[i]) == 0) {
+            if (out)
+                *out = (mr_aov)(1u << i);
+            return true;
+        }
+    return false;
+}
+
 static size_t film_pixels(const mr_film *film)
 {
     return (size_t)film->width * (size_t)film->height;
 }
 
-int mr_film_new(int width, int height, mr_film **out, mr_error *err)
+#define FILM_SLOTS (13 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS)
+
+/* Where every plane pointer of the film lives (NULL or not), for
+ * freeing and clearing them alike. Returns how many (FILM_SLOTS). */
+static size_t film_slots(mr_film *f, void **slot[FILM_SLOTS])
+{
+    void **fixed[] = {(void **)&f->r,  (void **)&f->g,  (void **)&f->b,  (void **)&f->a,
+                      (void **)&f->z,  (void **)&f->nx, (void **)&f->ny, (void **)&f->nz,
+                      (void **)&f->px, (void **)&f->py, (void **)&f->pz,
+                      (void **)&f->object_id, (void **)&f->prim_id};
+    size_t n = 0;
+    for (size_t i = 0; i < sizeof fixed / sizeof fixed[0]; i++)
+        slot[n++] = fixed[i];
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
+            slot[n++] = (void **)&f->crypto[l][k];
+    return n;
+}
+
+int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_film **out,
+                     mr_error *err)
 {
     mr_film *film = NULL;
     size_t n;
@@ -24,6 +68,9 @@ int mr_film_new(int width, int height, mr_film **out, mr_error *err)
     if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "mr_film_new: out is NULL");
     *out = NULL;
+    if (aovs == 0 || (aovs & ~MR_AOV_ALL))
+        return mr_error_set(err, MR_ERR_INVALID, "film passes 0x%x: expected a non-empty set of "
+                            "rgba, z, n, p, id, cryptomatte", aovs);
     if (width <= 0 || height <= 0)
         return mr_error_set(err, MR_ERR_INVALID,
                             "film size %dx%d: width and height must be positive",
@@ -45,21 +92,31 @@ int mr_film_new(int width, int height, mr_film **out, mr_error *err)
         goto nomem;
     film->width = width;
     film->height = height;
-    /* calloc checks n * size for overflow itself; the caps above make it moot. */
-    film->r = calloc(n, sizeof(float));
-    film->g = calloc(n, sizeof(float));
-    film->b = calloc(n, sizeof(float));
-    film->a = calloc(n, sizeof(float));
-    film->z = calloc(n, sizeof(float));
-    film->nx = calloc(n, sizeof(float));
-    film->ny = calloc(n, sizeof(float));
-    film->nz = calloc(n, sizeof(float));
-    film->object_id = calloc(n, sizeof(uint32_t));
-    film->prim_id = calloc(n, sizeof(uint32_t));
-    if (!film->r || !film->g || !film->b || !film->a || !film->z || !film->nx ||
-        !film->ny || !film->nz || !film->object_id || !film->prim_id)
+    film->aovs = aovs;
+    /* malloc checks nothing for overflow, but the caps above make it moot. */
+#define PLANE(p) ((p) = malloc(n * 4u), (p) != NULL)
+    if ((aovs & MR_AOV_RGBA) &&
+        !(PLANE(film->r) && PLANE(film->g) && PLANE(film->b) && PLANE(film->a)))
         goto nomem;
-
+    if ((aovs & MR_AOV_Z) && !PLANE(film->z))
+        goto nomem;
+    if ((aovs & MR_AOV_N) && !(PLANE(film->nx) && PLANE(film->ny) && PLANE(film->nz)))
+        goto nomem;
+    if ((aovs & MR_AOV_P) && !(PLANE(film->px) && PLANE(film->py) && PLANE(film->pz)))
+        goto nomem;
+    if ((aovs & MR_AOV_ID) && !(PLANE(film->object_id) && PLANE(film->prim_id)))
+        goto nomem;
+    if (aovs & MR_AOV_CRYPTOMATTE) {
+        int ranks = crypto_ranks < 2 ? 2 : crypto_ranks > MR_CRYPTO_MAX_RANKS ? MR_CRYPTO_MAX_RANKS
+                                                                              : crypto_ranks;
+        film->crypto_ranks = ranks + (ranks & 1);
+        for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+            for (int k = 0; k < 2 * film->crypto_ranks; k++)
+                if (!PLANE(film->crypto[l][k]))
+                    goto nomem;
+    }
+#undef PLANE
+    mr_film_clear(film);
     *out = film;
     return MR_OK;
 
@@ -69,39 +126,39 @@ nomem:
                         height);
 }
 
+int mr_film_new(int width, int height, mr_film **out, mr_error *err)
+{
+    return mr_film_new_aovs(width, height, MR_AOV_DEFAULT, 0, out, err);
+}
+
 void mr_film_free(mr_film *film)
 {
+    void **slot[FILM_SLOTS];
+    size_t count;
+
     if (!film)
         return;
-    free(film->r);
-    free(film->g);
-    free(film->b);
-    free(film->a);
-    free(film->z);
-    free(film->nx);
-    free(film->ny);
-    free(film->nz);
-    free(film->object_id);
-    free(film->prim_id);
+    count = film_slots(film, slot);
+    for (size_t i = 0; i < count; i++)
+        free(*slot[i]);
     free(film);
 }
 
 void mr_film_clear(mr_film *film)
 {
-    size_t n;
+    void **slot[FILM_SLOTS];
+    size_t n, count;
 
     if (!film || film->width <= 0 || film->height <= 0)
         return;
     n = film_pixels(film);
-    /* All-zero bits are 0.0f in IEEE 754, i.e. "miss" for every plane. */
-    if (film->r) memset(film->r, 0, n * sizeof(float));
-    if (film->g) memset(film->g, 0, n * sizeof(float));
-    if (film->b) memset(film->b, 0, n * sizeof(float));
-    if (film->a) memset(film->a, 0, n * sizeof(float));
-    if (film->z) memset(film->z, 0, n * sizeof(float));
-    if (film->nx) memset(film->nx, 0, n * sizeof(float));
-    if (film->ny) memset(film->ny, 0, n * sizeof(float));
-    if (film->nz) memset(film->nz, 0, n * sizeof(float));
-    if (film->object_id) memset(film->object_id, 0, n * sizeof(uint32_t));
-    if (film->prim_id) memset(film->prim_id, 0, n * sizeof(uint32_t));
+    /* All-zero bits are 0.0f in IEEE 754, i.e. "miss" for every plane but
+     * depth. */
+    count = film_slots(film, slot);
+    for (size_t i = 0; i < count; i++)
+        if (*slot[i])
+            memset(*slot[i], 0, n * 4u);
+    if (film->z)
+        for (size_t i = 0; i < n; i++)
+            film->z[i] = MR_DEPTH_MISS;
 }

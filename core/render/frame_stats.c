@@ -35,6 +35,9 @@ const mr_stat_field mr_frame_stat_fields[] = {
     {NULL, "time", MR_STAT_F64, AT(time), "s", "The frame's time on the job's timeline."},
     DERIVED(NULL, "file", MR_STAT_FRAME_FILE, "The frame's EXR file, NNNN.exr."),
     SECONDS("load", load_s, "Asset import (or scene-cache lookup), charged to the first frame."),
+    SECONDS("derive", derive_s, "Setting up the job's objects: each kind's derived data (bakes, "
+                                "voxelisations) built, or read from the derived-data cache, "
+                                "charged to the first frame."),
     SECONDS("pose", pose_s, "Pose evaluation and deformation."),
     SECONDS("bvh", bvh_s, "Embree's build or refit of the tree."),
     SECONDS("trace", trace_s, "Primary and shadow rays with shading."),

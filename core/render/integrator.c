@@ -30,6 +30,7 @@ static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y
 typedef struct {
     const mr_trace_setup *s;
     mr_camera_rays rays_setup;
+    mr_vec3 forward;   /* the camera's viewing direction (unit): depth = t dir . forward */
     mr_film *film;
     int tiles_x;
     atomic_ullong rays;
@@ -42,6 +43,8 @@ typedef struct {
     mr_vec3 normal; /* shading normal, unit, facing the ray origin */
     uint32_t object, prim;
     mr_vec3 rgb;
+    float depth;    /* camera-space depth of the hit */
+    mr_vec3 pos;    /* world-space position of the hit */
 } sample_result;
 
 /* Moves a point off the surface along its (unit, geometric) normal so a ray
@@ -84,6 +87,9 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     out->normal = n;
     out->object = h->geom + 1;
     out->prim = h->prim;
+    out->rgb = mr_v3(0, 0, 0);
+    if (!(s->aovs & MR_AOV_RGBA))
+        return; /* nothing asks for light */
 
     mr_vec3 light = s->ambient;
     mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, h->t));
@@ -177,6 +183,8 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
         hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
         shade(s, &h, org, dir[i], &out[i], rays);
+        out[i].depth = h.t * mr_v3_dot(dir[i], c->forward);
+        out[i].pos = mr_v3_add(org, mr_v3_scale(dir[i], h.t));
     }
 }
 
@@ -184,38 +192,102 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
  * buffer and copied out row by row when done: neighbouring tiles go to
  * different workers, and writing the shared film pixel by pixel made them
  * fight over the cache lines at tile edges (false sharing halved the ray rate
- * on 2 cores). */
+ * on 2 cores). Only the film's planes are filled and copied. */
 typedef struct tile_buffer {
     float r[MR_TILE_PIXELS], g[MR_TILE_PIXELS], b[MR_TILE_PIXELS];
     float a[MR_TILE_PIXELS], z[MR_TILE_PIXELS];
     float nx[MR_TILE_PIXELS], ny[MR_TILE_PIXELS], nz[MR_TILE_PIXELS];
+    float px[MR_TILE_PIXELS], py[MR_TILE_PIXELS], pz[MR_TILE_PIXELS];
     uint32_t object_id[MR_TILE_PIXELS], prim_id[MR_TILE_PIXELS];
+    float crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS][MR_TILE_PIXELS];
 } tile_buffer;
+
+/* Cryptomatte: the ids one pixel's samples hit and how many samples hit
+ * each. A pixel sees at most spp ids; beyond the first CRYPTO_DISTINCT
+ * distinct ones (more objects than that in one pixel) later ones are not
+ * counted, which can only matter past the 6 ranks kept. */
+#define CRYPTO_DISTINCT 16
+typedef struct crypto_tally {
+    int count;
+    uint32_t id[CRYPTO_DISTINCT];   /* float bits */
+    uint32_t hits[CRYPTO_DISTINCT];
+} crypto_tally;
+
+static void tally_add(crypto_tally *t, float id)
+{
+    uint32_t bits;
+    memcpy(&bits, &id, sizeof bits);
+    for (int i = 0; i < t->count; i++)
+        if (t->id[i] == bits) {
+            t->hits[i]++;
+            return;
+        }
+    if (t->count < CRYPTO_DISTINCT) {
+        t->id[t->count] = bits;
+        t->hits[t->count++] = 1;
+    }
+}
+
+/* Writes the tally's ranks into the tile: by falling coverage (hits /
+ * samples), ties by the smaller id bits so the order never depends on the
+ * order samples came in; unused ranks 0, 0. */
+static void tally_write(crypto_tally *t, int ranks, int samples, float (*planes)[MR_TILE_PIXELS],
+                        size_t p)
+{
+    for (int k = 0; k < ranks; k++) {
+        int best = -1;
+        for (int i = 0; i < t->count; i++)
+            if (t->hits[i] && (best < 0 || t->hits[i] > t->hits[best] ||
+                               (t->hits[i] == t->hits[best] && t->id[i] < t->id[best])))
+                best = i;
+        float id = 0.0f, coverage = 0.0f;
+        if (best >= 0) {
+            memcpy(&id, &t->id[best], sizeof id);
+            coverage = (float)t->hits[best] / (float)samples;
+            t->hits[best] = 0;
+        }
+        planes[2 * k][p] = id;
+        planes[2 * k + 1][p] = coverage;
+    }
+}
 
 /* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index i0.. */
 static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *t, size_t i0,
                          uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
+    const bool colour = s->aovs & MR_AOV_RGBA, crypto = s->aovs & MR_AOV_CRYPTOMATTE;
+    /* sample 0 alone feeds the data passes */
+    const int samples = colour || crypto ? s->spp : 1;
     mr_vec3 rgb[MR_PACKET];
     float alpha[MR_PACKET];
+    crypto_tally tally[MR_PACKET][MR_CRYPTO_LAYERS];
     for (int i = 0; i < n; i++) {
         rgb[i] = mr_v3(0, 0, 0);
         alpha[i] = 0;
+        if (crypto)
+            for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+                tally[i][l].count = 0;
     }
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
-    for (int k = 0; k < s->spp; k++) {
+    for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
         trace_packet(c, x0, n, y, k, r, rays);
         for (int i = 0; i < n; i++) {
             rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
             alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
+            if (crypto && r[i].hit)
+                for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+                    tally_add(&tally[i][l], s->crypto_ids[l][r[i].object - 1]);
             if (k == 0) {
                 size_t p = i0 + (size_t)i;
-                t->z[p] = r[i].hit ? r[i].t : 0.0f;
+                t->z[p] = r[i].hit ? r[i].depth : MR_DEPTH_MISS;
                 t->nx[p] = r[i].hit ? r[i].normal.x : 0.0f;
                 t->ny[p] = r[i].hit ? r[i].normal.y : 0.0f;
                 t->nz[p] = r[i].hit ? r[i].normal.z : 0.0f;
+                t->px[p] = r[i].hit ? r[i].pos.x : 0.0f;
+                t->py[p] = r[i].hit ? r[i].pos.y : 0.0f;
+                t->pz[p] = r[i].hit ? r[i].pos.z : 0.0f;
                 t->object_id[p] = r[i].hit ? r[i].object : 0;
                 t->prim_id[p] = r[i].hit ? r[i].prim : 0;
             }
@@ -228,6 +300,9 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *
         t->g[p] = rgb[i].y * inv_spp;
         t->b[p] = rgb[i].z * inv_spp;
         t->a[p] = alpha[i] * inv_spp;
+        if (crypto)
+            for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+                tally_write(&tally[i][l], c->film->crypto_ranks, samples, t->crypto[l], p);
     }
 }
 
@@ -258,16 +333,16 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
             }
         for (int y = 0; y < th; y++) {
             size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
-            copy_out(f->r + dst, t.r + src, tw);
-            copy_out(f->g + dst, t.g + src, tw);
-            copy_out(f->b + dst, t.b + src, tw);
-            copy_out(f->a + dst, t.a + src, tw);
-            copy_out(f->z + dst, t.z + src, tw);
-            copy_out(f->nx + dst, t.nx + src, tw);
-            copy_out(f->ny + dst, t.ny + src, tw);
-            copy_out(f->nz + dst, t.nz + src, tw);
-            copy_out(f->object_id + dst, t.object_id + src, tw);
-            copy_out(f->prim_id + dst, t.prim_id + src, tw);
+            void *out[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
+                           f->px, f->py, f->pz, f->object_id, f->prim_id};
+            const void *in[] = {t.r, t.g, t.b, t.a, t.z, t.nx, t.ny, t.nz,
+                                t.px, t.py, t.pz, t.object_id, t.prim_id};
+            for (size_t k = 0; k < sizeof out / sizeof out[0]; k++)
+                if (out[k]) /* the film's passes only */
+                    copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, tw);
+            for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+                for (int k = 0; k < 2 * f->crypto_ranks; k++)
+                    copy_out(f->crypto[l][k] + dst, t.crypto[l][k] + src, tw);
         }
     }
     atomic_fetch_add(&c->rays, rays);
@@ -277,6 +352,7 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
 {
     trace_ctx c = {.s = setup, .film = film};
     c.rays_setup = mr_camera_rays_setup(&setup->camera, film->width, film->height);
+    c.forward = mr_quat_rotate(setup->camera.rotation, mr_v3(0, 0, -1));
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);

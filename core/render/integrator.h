@@ -7,6 +7,7 @@
  * sample), never on which worker traced it, so frames are bit-identical for
  * any thread count. Sample 0 goes through the pixel centre and feeds the data
  * AOVs (film.h); samples 1..spp-1 are uniformly jittered within the pixel.
+ * Only the film's passes are computed and written (mr_trace_setup.aovs).
  */
 #ifndef MR_INTEGRATOR_H
 #define MR_INTEGRATOR_H
@@ -55,6 +56,13 @@ typedef struct mr_trace_setup {
     bool shadows;
     uint32_t seed;
     uint32_t frame;
+    /* The passes to compute (the film's, mr_aov bits): without rgba no
+     * pixel is shaded (no light loop, no shadow rays) and only sample 0
+     * (the data passes) is traced, unless cryptomatte needs every sample. */
+    unsigned aovs;
+    /* Cryptomatte: each object's id (mr_cryptomatte_id of its name, and of
+     * its asset's name), indexed by object. NULL without the pass. */
+    const float *crypto_ids[MR_CRYPTO_LAYERS];
     float shadow_bias;              /* world units, ~1e-4 of the scene diagonal */
     unsigned threads;
     const atomic_bool *cancel;      /* may be NULL; checked before every tile */

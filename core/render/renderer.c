@@ -10,8 +10,10 @@
 
 #include "kinds/kind.h"
 #include "render/device.h"
+#include "render/exr.h"
 #include "render/integrator.h"
 #include "util/clock.h"
+#include "util/murmur3.h"
 
 typedef struct object_state {
     const mr_object_desc *desc;
@@ -46,6 +48,7 @@ struct mr_renderer {
     const mr_kind **stat_kinds; /* the job's kinds that report stats fields, each once */
     size_t stat_kind_count;
     bool reported_once;           /* a frame carried the kinds' creation figures */
+    float *crypto_ids[MR_CRYPTO_LAYERS]; /* Cryptomatte id of each object's name, its asset's */
 };
 
 uint64_t mr_peak_rss_bytes(void)
@@ -91,6 +94,8 @@ void mr_renderer_free(mr_renderer *r)
     }
     mr_pose_free(r->cam_pose);
     free(r->stat_kinds);
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        free(r->crypto_ids[l]);
     free(r->objects);
     free(r->shade);
     free(r->id_object);
@@ -153,9 +158,18 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
     r->objects = calloc(job->object_count, sizeof *r->objects);
     r->shade = calloc(job->object_count, sizeof *r->shade);
     r->stat_kinds = calloc(job->object_count ? job->object_count : 1, sizeof *r->stat_kinds);
-    if (!r->objects || !r->shade || !r->stat_kinds) {
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        r->crypto_ids[l] = calloc(job->object_count ? job->object_count : 1, sizeof(float));
+    if (!r->objects || !r->shade || !r->stat_kinds || !r->crypto_ids[0] || !r->crypto_ids[1]) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory creating the renderer");
         goto fail;
+    }
+    for (size_t i = 0; i < job->object_count; i++) {
+        char buf[32];
+        r->crypto_ids[MR_CRYPTO_OBJECT][i] =
+            mr_cryptomatte_id(mr_crypto_name(job, MR_CRYPTO_OBJECT, i, buf));
+        r->crypto_ids[MR_CRYPTO_ASSET][i] =
+            mr_cryptomatte_id(mr_crypto_name(job, MR_CRYPTO_ASSET, job->objects[i].asset, buf));
     }
     uint64_t triangles = 0;
     for (size_t i = 0; i < job->object_count; i++) {
@@ -437,11 +451,17 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         .shadows = job->output.shadows,
         .seed = job->output.seed,
         .frame = (uint32_t)index,
+        .aovs = film->aovs,
+        .crypto_ids = {r->crypto_ids[0], r->crypto_ids[1]},
         .shadow_bias = 1e-4f * diag,
         .threads = mr_device_threads(r->dev),
         .cancel = r->opt.cancel,
     };
     ts.camera = frame.camera;
+    film->has_camera = true;
+    film->camera_to_world = mr_mat4_from_trs(frame.camera.position, frame.camera.rotation,
+                                             mr_v3(1, 1, 1));
+    film->yfov = frame.camera.yfov;
     mr_vec3 cp = ts.camera.position;
     if (!(fabsf(cp.x) <= MR_MAX_COORDINATE && fabsf(cp.y) <= MR_MAX_COORDINATE && fabsf(cp.z) <= MR_MAX_COORDINATE))
         return mr_error_set(err, MR_ERR_INVALID, "/camera: frame %zu puts the camera at (%g, %g, %g), beyond %g",

@@ -23,6 +23,7 @@
 #include <unistd.h>
 
 #include "render/exr.h"
+#include "../support/film_fixture.h"
 
 static char src_dir[2048], bin[2200], tmp_dir[256];
 
@@ -200,15 +201,9 @@ static void test_same_pixels_for_1_and_2_threads(void **state)
     snprintf(d2, sizeof d2, "%s/t2", tmp_dir);
     for (int k = 0; k < 4; k++) {
         mr_film *a = read_frame(d1, k), *b = read_frame(d2, k);
-        size_t n = (size_t)a->width * a->height;
         assert_int_equal(a->width, 192);
         assert_int_equal(a->height, 108);
-        float *pa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz};
-        float *pb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz};
-        for (int c = 0; c < 8; c++)
-            assert_memory_equal(pa[c], pb[c], n * sizeof(float));
-        assert_memory_equal(a->object_id, b->object_id, n * sizeof(uint32_t));
-        assert_memory_equal(a->prim_id, b->prim_id, n * sizeof(uint32_t));
+        fx_assert_same_pixels(a, b, "1 and 2 threads");
         mr_film_free(a);
         mr_film_free(b);
     }
@@ -488,6 +483,85 @@ static void test_voxel_acne(void **state)
     }
 }
 
+/* --frames (issue 18): parts of a job rendered apart give the frames of
+ * one whole run, bit for bit (an animated mesh, a deformed octree; the
+ * daemon's resume covers a simulated kind: test_sequential_daemon, and
+ * the renderer replays it the same way); their statistics files join into a
+ * stats.json of every frame; bad ranges are refused naming the flag. */
+static void test_frame_ranges(void **state)
+{
+    (void)state;
+    static const struct {
+        const char *job, *parts[3];
+        int frames;
+    } cases[] = {
+        {"tests/data/skinned-small.json", {"2-3", "0", "1"}, 4},
+        {"tests/data/svo-acne.json", {"1", "0", NULL}, 2},
+    };
+    for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
+        char whole[512], parts[512], args[2048];
+        snprintf(whole, sizeof whole, "%s/ranges-whole-%zu", tmp_dir, c);
+        snprintf(parts, sizeof parts, "%s/ranges-parts-%zu", tmp_dir, c);
+        snprintf(args, sizeof args, "render %s --out '%s' --quiet", cases[c].job, whole);
+        assert_int_equal(microrayd(args, NULL, NULL), 0);
+        for (int p = 0; p < 3 && cases[c].parts[p]; p++) {
+            snprintf(args, sizeof args, "render %s --out '%s' --quiet --frames %s", cases[c].job,
+                     parts, cases[c].parts[p]);
+            assert_int_equal(microrayd(args, NULL, NULL), 0);
+        }
+        snprintf(args, sizeof args, "stats-merge '%s' %s", parts, cases[c].job);
+        assert_int_equal(microrayd(args, NULL, NULL), 0);
+        for (int k = 0; k < cases[c].frames; k++) {
+            mr_film *a = read_frame(whole, k), *b = read_frame(parts, k);
+            char what[600];
+            snprintf(what, sizeof what, "%s frame %d rendered apart", cases[c].job, k);
+            fx_assert_same_pixels(a, b, what);
+            mr_film_free(a);
+            mr_film_free(b);
+        }
+        char path[600];
+        snprintf(path, sizeof path, "%s/stats.json", parts);
+        char *stats = slurp(path);
+        assert_non_null(stats);
+        for (int k = 0; k < cases[c].frames; k++) {
+            char file[32];
+            snprintf(file, sizeof file, "\"%04d.exr\"", k);
+            assert_non_null(strstr(stats, file));
+        }
+        char done[64];
+        snprintf(done, sizeof done, "\"frames_done\":\t%d", cases[c].frames);
+        if (!strstr(stats, done))
+            fail_msg("merged stats.json lacks %s", done);
+        free(stats);
+    }
+    /* a part missing: stats-merge writes what there is and says which */
+    char args[1024], *err = NULL, dir[512];
+    snprintf(dir, sizeof dir, "%s/ranges-missing", tmp_dir);
+    snprintf(args, sizeof args, "render tests/data/skinned-small.json --out '%s' --quiet --frames 0,2-3", dir);
+    assert_int_equal(microrayd(args, NULL, NULL), 0);
+    snprintf(args, sizeof args, "stats-merge '%s' tests/data/skinned-small.json", dir);
+    assert_int_equal(microrayd(args, NULL, &err), 1);
+    assert_non_null(strstr(err, "1 of 4 frames have no statistics (frames 1)"));
+    free(err);
+    static const struct {
+        const char *spec, *says;
+    } bad[] = {
+        {"3-1", "--frames '3-1': the range 3-1 runs backwards"},
+        {"0-4", "--frames '0-4': frame 4 is not in the job (its frames are 0-3)"},
+        {"x", "--frames 'x': expected a frame number at 'x'"},
+        {"1-", "--frames '1-': a range needs its last frame"},
+        {"1;2", "--frames '1;2': unexpected ';'"},
+    };
+    for (size_t b = 0; b < sizeof bad / sizeof *bad; b++) {
+        snprintf(args, sizeof args, "render tests/data/skinned-small.json --out '%s/bad' --frames '%s'",
+                 tmp_dir, bad[b].spec);
+        assert_int_equal(microrayd(args, NULL, &err), 2);
+        if (!strstr(err, bad[b].says))
+            fail_msg("--frames %s: %s", bad[b].spec, err);
+        free(err);
+    }
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -519,6 +593,7 @@ int main(void)
         cmocka_unit_test(test_bad_input_is_answered),
         cmocka_unit_test(test_refined_asset_renders),
         cmocka_unit_test(test_voxel_acne),
+        cmocka_unit_test(test_frame_ranges),
     };
     return cmocka_run_group_tests_name("e2e_render", tests, setup, teardown);
 }

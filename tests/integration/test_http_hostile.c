@@ -246,17 +246,6 @@ static void test_slow_clients_leave_room(void **state)
     free(log);
 }
 
-static void submit(const daemon_proc *d, const char *job, char id[64])
-{
-    http_result r = http(d, "POST", "/v1/jobs", job, strlen(job), NULL);
-    if (r.status != 202)
-        fail_msg("submit: %ld %s", r.status, r.body);
-    cJSON *j = cJSON_Parse(r.body);
-    snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
-    cJSON_Delete(j);
-    http_free(&r);
-}
-
 static char *small_job(int frames, int width, int samples)
 {
     char *s = malloc(4096);
@@ -291,10 +280,10 @@ static void test_dropped_streams_free_slots(void **state)
     (void)state;
     /* about 35 s of rendering on one thread; deleted at the end */
     char *job = small_job(2000, 320, 4), busy[64], queued[64], path[128], buf[4096];
-    submit(&E, job, busy);
+    fx_submit(&E, job, busy);
     free(job);
     job = small_job(1, 48, 1);
-    submit(&E, job, queued);
+    fx_submit(&E, job, queued);
     free(job);
     enum { SLOTS = 64 };
     int fds[SLOTS];

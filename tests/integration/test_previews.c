@@ -44,46 +44,10 @@ static char *job_text(int frames_end_q, int width, const char *name)
     return s;
 }
 
-static void submit(const char *job, char id[64])
-{
-    http_result r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
-    if (r.status != 202)
-        fail_msg("submit: %ld %s", r.status, r.body);
-    cJSON *j = cJSON_Parse(r.body);
-    assert_non_null(j);
-    snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
-    cJSON_Delete(j);
-    http_free(&r);
-}
-
-/* The job document once it reached a final state (or at least `done` frames
- * are done when done > 0). */
-static cJSON *wait_job(const char *id, int done)
-{
-    char path[128];
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    for (int i = 0; i < 6000; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        assert_int_equal(r.status, 200);
-        cJSON *j = cJSON_Parse(r.body);
-        http_free(&r);
-        assert_non_null(j);
-        const char *st = cJSON_GetObjectItem(j, "state")->valuestring;
-        int n = cJSON_GetObjectItem(cJSON_GetObjectItem(j, "frames"), "done")->valueint;
-        if ((done > 0 && n >= done) || !strcmp(st, "succeeded") || !strcmp(st, "failed") ||
-            !strcmp(st, "canceled"))
-            return j;
-        cJSON_Delete(j);
-        fx_sleep_ms(20);
-    }
-    fail_msg("job %s did not get there in 120 s (daemon log %s)", id, D.log);
-    return NULL;
-}
-
 static void render_job(const char *job, char id[64])
 {
-    submit(job, id);
-    cJSON *j = wait_job(id, 0);
+    fx_submit(&D, job, id);
+    cJSON *j = fx_wait_job(&D, id, 120);
     if (strcmp(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded"))
         fail_msg("job %s ended %s (daemon log %s)", id, cJSON_GetObjectItem(j, "state")->valuestring, D.log);
     cJSON_Delete(j);
@@ -289,14 +253,14 @@ static void test_contact_sheet(void **state)
      * the first two cells, the last frames are not rendered */
     char id[64], path[160];
     char *job = job_text(400, 96, "png-sheet");
-    submit(job, id);
+    fx_submit(&D, job, id);
     free(job);
-    cJSON_Delete(wait_job(id, 7));
+    fx_wait_frames_done(&D, id, 7);
     snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
     http_result cr = http(&D, "POST", path, NULL, 0, NULL);
     assert_int_equal(cr.status, 202);
     http_free(&cr);
-    cJSON *j = wait_job(id, 0);
+    cJSON *j = fx_wait_job(&D, id, 120);
     assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "canceled");
     cJSON *states = cJSON_GetObjectItem(j, "frame_states");
     assert_int_equal(cJSON_GetArraySize(states), 401);
@@ -411,8 +375,8 @@ static void test_bad_cases(void **state)
     /* not rendered: a job held in the queue behind a long one */
     char *blocker = job_text(400, 64, "png-blocker"), *queued = job_text(0, 64, "png-queued");
     char bid[64], qid[64];
-    submit(blocker, bid);
-    submit(queued, qid);
+    fx_submit(&D, blocker, bid);
+    fx_submit(&D, queued, qid);
     free(blocker);
     free(queued);
     snprintf(path, sizeof path, "/v1/jobs/%s/frames/0.png", qid);

@@ -21,6 +21,7 @@
 #include <string.h>
 
 #include "daemon_fixture.h"
+#include "../support/film_fixture.h"
 #include "import_worker.h"
 #include "render/exr.h"
 #include "render_cmd.h"
@@ -53,21 +54,6 @@ static mr_film *read_frame(const char *id, int k)
     if (mr_exr_read_file(path, &f, NULL, &err) < 0)
         fail_msg("%s: %s", path, err.msg);
     return f;
-}
-
-/* Every plane of a and b holds the same bits. */
-static void assert_same_pixels(const mr_film *a, const mr_film *b, int frame)
-{
-    assert_int_equal(a->width, b->width);
-    assert_int_equal(a->height, b->height);
-    size_t n = (size_t)a->width * (size_t)a->height;
-    const float *fa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz};
-    const float *fb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz};
-    for (size_t p = 0; p < sizeof fa / sizeof *fa; p++)
-        if (memcmp(fa[p], fb[p], n * sizeof(float)) != 0)
-            fail_msg("frame %d: plane %zu differs from the uninterrupted run's", frame, p);
-    assert_memory_equal(a->object_id, b->object_id, n * sizeof(uint32_t));
-    assert_memory_equal(a->prim_id, b->prim_id, n * sizeof(uint32_t));
 }
 
 /* Polls the job until a frame with index >= min is running. */
@@ -134,7 +120,9 @@ static void test_resume_and_retry_replay_the_simulation(void **state)
     cJSON_Delete(j);
     for (int k = 0; k < FRAMES; k++) {
         mr_film *got = read_frame(id, k);
-        assert_same_pixels(got, ref[k], k);
+        char what[64];
+        snprintf(what, sizeof what, "frame %d against the uninterrupted run's", k);
+        fx_assert_same_pixels(got, ref[k], what);
         mr_film_free(got);
         mr_film_free(ref[k]);
     }

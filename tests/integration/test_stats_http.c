@@ -38,24 +38,11 @@ static const char JOB_DOC[] =
 static const char JOB_STATS[] =
     "{\"job\":\"skinned-small\",\"software\":\"microray " MR_VERSION_STRING "\",\"threads\":2,"
     "\"width\":192,\"height\":108,\"samples\":3,\"frames_total\":4,\"frames_done\":3,\"frames\":["
-    "{\"frame\":0,\"time\":0.5,\"file\":\"0000.exr\",\"seconds\":{\"load\":0.25,\"pose\":0.001,"
-    "\"bvh\":0.003,\"trace\":0.11,\"encode\":0.2,\"total\":0.36},\"bvh\":\"build\",\"rays\":1586211,"
-    "\"mrays_per_s\":14.4,\"triangles\":5126,\"bytes\":{\"geometry\":159188,\"bvh\":622592,"
-    "\"peak_rss\":52428800},\"scene_diagonal\":1.940000057220459,\"speckle_pct\":0.25,\"cache\":{\"result\":\"partial\","
-    "\"assets_cached\":1,\"assets_loaded\":2,\"saved_s\":0.125}},"
-    "{\"frame\":1,\"time\":0.75,\"file\":\"0001.exr\",\"seconds\":{\"load\":0,"
-    "\"pose\":0.33333333333333331,\"bvh\":0.1,\"trace\":2.5e-07,\"encode\":12345.678,\"total\":0.001},"
-    "\"bvh\":\"refit\",\"rays\":1099511627777,\"mrays_per_s\":0,\"triangles\":4294967296,"
-    "\"bytes\":{\"geometry\":1,\"bvh\":0,\"peak_rss\":123456789012},"
-    "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336},"
-    "{\"frame\":2,\"time\":2,\"file\":\"0002.exr\",\"seconds\":{\"load\":0,\"pose\":0,\"bvh\":0,"
-    "\"trace\":0,\"encode\":0,\"total\":0},\"bvh\":\"none\",\"rays\":0,\"mrays_per_s\":0,"
-    "\"triangles\":0,\"bytes\":{\"geometry\":0,\"bvh\":0,\"peak_rss\":0},\"scene_diagonal\":0,\"speckle_pct\":0,"
-    "\"cache\":{\"result\":\"hit\",\"assets_cached\":3,\"assets_loaded\":0,\"saved_s\":2}}],"
-    "\"totals\":{\"seconds\":{\"load\":0.25,\"pose\":0.33433333333333332,\"bvh\":0.103,"
+    FRAME0_TEXT "," FRAME1_TEXT "," FRAME2_TEXT "],"
+    "\"totals\":{\"seconds\":{\"load\":0.25,\"derive\":0.0625,\"pose\":0.33433333333333332,\"bvh\":0.103,"
     "\"trace\":0.11000025,\"encode\":12345.878,\"total\":0.361},\"rays\":1099513213988,"
     "\"peak_rss_bytes\":123456789012},"
-    "\"medians\":{\"seconds\":{\"load\":0,\"pose\":0.001,\"bvh\":0.003,\"trace\":2.5e-07,"
+    "\"medians\":{\"seconds\":{\"load\":0,\"derive\":0,\"pose\":0.001,\"bvh\":0.003,\"trace\":2.5e-07,"
     "\"encode\":0.2,\"total\":0.001},\"mrays_per_s\":0}}\n";
 
 /* Stores a job of four frames whose frames 0..2 are done with the given

@@ -18,7 +18,8 @@
 static inline mr_frame_stats frame_fixture(int i)
 {
     static const mr_frame_stats first = {
-        .time = 0.5, .load_s = 0.25, .assets_cached = 1, .assets_loaded = 2, .load_saved_s = 0.125,
+        .time = 0.5, .load_s = 0.25, .derive_s = 0.0625, .assets_cached = 1, .assets_loaded = 2,
+        .load_saved_s = 0.125,
         .pose_s = 0.001, .bvh_s = 0.003, .bvh = MR_BVH_BUILD, .trace_s = 0.11, .encode_s = 0.2,
         .total_s = 0.36, .rays = 1586211, .mrays_per_s = 14.4, .triangles = 5126,
         .geometry_bytes = 159188, .bvh_bytes = 622592, .peak_rss_bytes = 52428800,
@@ -58,25 +59,28 @@ static inline void expect_text(const char *got, const char *want)
     }
 }
 
-/* What mr_frame_stats_json gives for frame_fixture(0), (1) and (2). */
-static const char FRAME0[] =
-    "{\"frame\":0,\"time\":0.5,\"file\":\"0000.exr\",\"seconds\":{\"load\":0.25,\"pose\":0.001,"
-    "\"bvh\":0.003,\"trace\":0.11,\"encode\":0.2,\"total\":0.36},\"bvh\":\"build\",\"rays\":1586211,"
-    "\"mrays_per_s\":14.4,\"triangles\":5126,\"bytes\":{\"geometry\":159188,\"bvh\":622592,"
-    "\"peak_rss\":52428800},\"scene_diagonal\":1.940000057220459,\"speckle_pct\":0.25,\"cache\":{\"result\":\"partial\","
-    "\"assets_cached\":1,\"assets_loaded\":2,\"saved_s\":0.125}}";
+/* What mr_frame_stats_json gives for frame_fixture(0), (1) and (2) (as
+ * macros too, for documents that hold them). */
+#define FRAME0_TEXT \
+    "{\"frame\":0,\"time\":0.5,\"file\":\"0000.exr\",\"seconds\":{\"load\":0.25,\"derive\":0.0625,\"pose\":0.001," \
+    "\"bvh\":0.003,\"trace\":0.11,\"encode\":0.2,\"total\":0.36},\"bvh\":\"build\",\"rays\":1586211," \
+    "\"mrays_per_s\":14.4,\"triangles\":5126,\"bytes\":{\"geometry\":159188,\"bvh\":622592," \
+    "\"peak_rss\":52428800},\"scene_diagonal\":1.940000057220459,\"speckle_pct\":0.25,\"cache\":{\"result\":\"partial\"," \
+    "\"assets_cached\":1,\"assets_loaded\":2,\"saved_s\":0.125}}"
 
-static const char FRAME1[] =
-    "{\"frame\":1,\"time\":0.75,\"file\":\"0001.exr\",\"seconds\":{\"load\":0,"
-    "\"pose\":0.33333333333333331,\"bvh\":0.1,\"trace\":2.5e-07,\"encode\":12345.678,\"total\":0.001},"
-    "\"bvh\":\"refit\",\"rays\":1099511627777,\"mrays_per_s\":0,\"triangles\":4294967296,"
-    "\"bytes\":{\"geometry\":1,\"bvh\":0,\"peak_rss\":123456789012},"
-    "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336}";
+#define FRAME1_TEXT \
+    "{\"frame\":1,\"time\":0.75,\"file\":\"0001.exr\",\"seconds\":{\"load\":0,\"derive\":0," \
+    "\"pose\":0.33333333333333331,\"bvh\":0.1,\"trace\":2.5e-07,\"encode\":12345.678,\"total\":0.001}," \
+    "\"bvh\":\"refit\",\"rays\":1099511627777,\"mrays_per_s\":0,\"triangles\":4294967296," \
+    "\"bytes\":{\"geometry\":1,\"bvh\":0,\"peak_rss\":123456789012}," \
+    "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336}"
 
-static const char FRAME2[] =
-    "{\"frame\":2,\"time\":2,\"file\":\"0002.exr\",\"seconds\":{\"load\":0,\"pose\":0,\"bvh\":0,"
-    "\"trace\":0,\"encode\":0,\"total\":0},\"bvh\":\"none\",\"rays\":0,\"mrays_per_s\":0,"
-    "\"triangles\":0,\"bytes\":{\"geometry\":0,\"bvh\":0,\"peak_rss\":0},\"scene_diagonal\":0,\"speckle_pct\":0,"
-    "\"cache\":{\"result\":\"hit\",\"assets_cached\":3,\"assets_loaded\":0,\"saved_s\":2}}";
+#define FRAME2_TEXT \
+    "{\"frame\":2,\"time\":2,\"file\":\"0002.exr\",\"seconds\":{\"load\":0,\"derive\":0,\"pose\":0,\"bvh\":0," \
+    "\"trace\":0,\"encode\":0,\"total\":0},\"bvh\":\"none\",\"rays\":0,\"mrays_per_s\":0," \
+    "\"triangles\":0,\"bytes\":{\"geometry\":0,\"bvh\":0,\"peak_rss\":0},\"scene_diagonal\":0,\"speckle_pct\":0," \
+    "\"cache\":{\"result\":\"hit\",\"assets_cached\":3,\"assets_loaded\":0,\"saved_s\":2}}"
+
+static const char FRAME0[] = FRAME0_TEXT, FRAME1[] = FRAME1_TEXT, FRAME2[] = FRAME2_TEXT;
 
 #endif

@@ -551,7 +551,17 @@ static const bad_case BAD[] = {
      "duplicate field \"width\""},
     {"{" BASE ",'output':{'format':'exr'}}", MR_ERR_INVALID, "/output/format",
      "unknown field; expected one of: width, height, samples, shadows, seed, compression, "
-     "zip_level"},
+     "zip_level, aovs, normals"},
+    {"{" BASE ",'output':{'aovs':[]}}", MR_ERR_INVALID, "/output/aovs",
+     "expected an array of 1..6 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", "
+     "\"cryptomatte\", got an empty array"},
+    {"{" BASE ",'output':{'aovs':'z'}}", MR_ERR_INVALID, "/output/aovs", "got \"z\""},
+    {"{" BASE ",'output':{'aovs':['z','depth']}}", MR_ERR_INVALID, "/output/aovs/1",
+     "expected one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", got \"depth\""},
+    {"{" BASE ",'output':{'aovs':['z','n','z']}}", MR_ERR_INVALID, "/output/aovs/2",
+     "expected each pass once, got \"z\" again"},
+    {"{" BASE ",'output':{'normals':'double'}}", MR_ERR_INVALID, "/output/normals",
+     "expected one of: \"float\", \"half\", got \"double\""},
     {"{" BASE ",'output':null}", MR_ERR_INVALID, "/output", "expected an output object, got null"},
 };
 
@@ -646,7 +656,7 @@ static void test_defaults(void **state)
     assert_v3_eq(job->lights[0].color, mr_v3(1, 1, 1));
     assert_v3_eq(job->ambient, mr_v3(0.15f, 0.15f, 0.15f));
     assert_v3_eq(job->background, mr_v3(0.1f, 0.1f, 0.12f));
-    assert_true(job->background_alpha == 1.0f);
+    assert_true(job->background_alpha == 0.0f); /* transparent since issue 13 */
     /* Camera. */
     assert_int_equal(job->camera.source, MR_CAMERA_SOURCE_PATH);
     const mr_camera_path *p = &job->camera.path;
@@ -672,6 +682,9 @@ static void test_defaults(void **state)
     assert_int_equal(job->output.seed, 0);
     assert_int_equal(job->output.exr.compression, MR_COMPRESSION_ZIP);
     assert_int_equal(job->output.exr.zip_level, 4);
+    assert_int_equal(job->output.aovs, MR_AOV_RGBA | MR_AOV_Z | MR_AOV_N | MR_AOV_ID);
+    assert_false(job->output.exr.half_normals);
+    assert_int_equal(mr_output_crypto_ranks(&job->output), 0);
     mr_job_free(job);
 }
 
@@ -695,12 +708,12 @@ static void test_full_job(void **state)
         " {'asset':'hero','transform':{'scale':[1e-4,1e-4,1e-4]}}],"
         "'lights':[{'direction':[0,-2,0],'color':[1,0.5,0.25],'intensity':4},"
         "          {'direction':[1,1,1]}],"
-        "'ambient':[0,0.25,1000],'background':{'color':[1,2,3],'alpha':0},"
+        "'ambient':[0,0.25,1000],'background':{'color':[1,2,3],'alpha':1},"
         "'camera':{'interpolation':'linear','up':[0,0,2],'yfov':60,'path':["
         "  {'t':-1,'position':[0,0,5],'rotation':[0,0,0,3]},"
         "  {'t':0.5,'position':[1,0,5],'target':[0,0,0],'yfov':30}]},"
         "'output':{'width':1920,'height':1080,'samples':16,'shadows':false,'seed':4294967295,"
-        "'compression':'piz','zip_level':9}}");
+        "'compression':'piz','zip_level':9,'aovs':['cryptomatte','z','p'],'normals':'half'}}");
     assert_string_equal(job->name, "caf\xc3\xa9 run");
     assert_int_equal(job->asset_count, 2);
     assert_string_equal(job->assets[1].name, "set.v2-final_A");
@@ -765,7 +778,7 @@ static void test_full_job(void **state)
     assert_v3_eq(job->lights[1].color, mr_v3(1, 1, 1));
     assert_v3_eq(job->ambient, mr_v3(0, 0.25f, 1000));
     assert_v3_eq(job->background, mr_v3(1, 2, 3));
-    assert_true(job->background_alpha == 0);
+    assert_true(job->background_alpha == 1); /* an opaque background, asked for */
 
     /* Camera: radians, normalised rotation and up, per-key yfov default. */
     const mr_camera_path *cp = &job->camera.path;
@@ -786,6 +799,9 @@ static void test_full_job(void **state)
     assert_true(job->output.seed == 4294967295u);
     assert_int_equal(job->output.exr.compression, MR_COMPRESSION_PIZ);
     assert_int_equal(job->output.exr.zip_level, 9);
+    assert_int_equal(job->output.aovs, MR_AOV_CRYPTOMATTE | MR_AOV_Z | MR_AOV_P);
+    assert_true(job->output.exr.half_normals);
+    assert_int_equal(mr_output_crypto_ranks(&job->output), 6); /* 16 samples, capped */
     mr_job_free(job);
 }
 

@@ -340,7 +340,8 @@ static const agree_case AGREE[] = {
     /* Output. */
     {"output with every field", ACCEPT,
      WITH_OUTPUT("{'width':8192,'height':2048,'samples':1024,'shadows':false,'seed':4294967295,"
-                 "'compression':'piz','zip_level':9}")},
+                 "'compression':'piz','zip_level':9,'aovs':['id','rgba'],"
+                 "'normals':'half'}")},
     {"output integers written as 2.0 and 1e2", ACCEPT, WITH_OUTPUT("{'width':2.0,'height':1e2}")},
     {"output width 0", REJECT, WITH_OUTPUT("{'width':0}")},
     {"output width 8193", REJECT, WITH_OUTPUT("{'width':8193}")},
@@ -352,6 +353,19 @@ static const agree_case AGREE[] = {
     {"output zip_level 0", REJECT, WITH_OUTPUT("{'zip_level':0}")},
     {"output shadows a number", REJECT, WITH_OUTPUT("{'shadows':1}")},
     {"output unknown field", REJECT, WITH_OUTPUT("{'format':'exr'}")},
+    {"output aovs, every pass", ACCEPT,
+     WITH_OUTPUT("{'aovs':['rgba','z','n','p','id','cryptomatte']}")},
+    {"output aovs, one pass", ACCEPT, WITH_OUTPUT("{'aovs':['z']}")},
+    {"output aovs empty", REJECT, WITH_OUTPUT("{'aovs':[]}")},
+    {"output aovs with a pass twice", REJECT, WITH_OUTPUT("{'aovs':['z','rgba','z']}")},
+    {"output aovs unknown pass", REJECT, WITH_OUTPUT("{'aovs':['rgb']}")},
+    {"output aovs pass in upper case", REJECT, WITH_OUTPUT("{'aovs':['Z']}")},
+    {"output aovs a string", REJECT, WITH_OUTPUT("{'aovs':'rgba'}")},
+    {"output aovs with a number", REJECT, WITH_OUTPUT("{'aovs':['rgba',1]}")},
+    {"output normals half", ACCEPT, WITH_OUTPUT("{'normals':'half'}")},
+    {"output normals float", ACCEPT, WITH_OUTPUT("{'normals':'float'}")},
+    {"output normals double", REJECT, WITH_OUTPUT("{'normals':'double'}")},
+    {"output normals a boolean", REJECT, WITH_OUTPUT("{'normals':true}")},
 };
 
 static const parser_only_case PARSER_ONLY[] = {

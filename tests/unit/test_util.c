@@ -27,6 +27,7 @@
 #include "util/dup.h"
 #include "util/file_io.h"
 #include "util/hex.h"
+#include "util/murmur3.h"
 
 static void test_hex_encode(void **state)
 {
@@ -139,6 +140,68 @@ static void test_clock(void **state)
     assert_true((double)m0 >= s0 * 1e3 - 1.0 && (double)m1 <= s1 * 1e3 + 1.0);
 }
 
+/* MurmurHash3_x86_32 against published test vectors (the set widely used
+ * to check ports of Appleby's reference code: empty input with three
+ * seeds, the endianness probe 21 43 65 87, every tail length of zero bytes
+ * and of 21 43 65 87, and strings with seed 0x9747b28c), and the
+ * Cryptomatte ids of the specification's own example manifest. */
+static void test_murmur3(void **state)
+{
+    static const struct {
+        const char *data;
+        size_t len;
+        uint32_t seed, want;
+    } v[] = {
+        {"", 0, 0, 0},
+        {"", 0, 1, 0x514e28b7u},
+        {"", 0, 0xffffffffu, 0x81f16f39u},
+        {"\xff\xff\xff\xff", 4, 0, 0x76293b50u},
+        {"\x21\x43\x65\x87", 4, 0, 0xf55b516bu},
+        {"\x21\x43\x65\x87", 4, 0x5082edeeu, 0x2362f9deu},
+        {"\x21\x43\x65", 3, 0, 0x7e4a8634u},
+        {"\x21\x43", 2, 0, 0xa0f7b07au},
+        {"\x21", 1, 0, 0x72661cf4u},
+        {"\0\0\0\0", 4, 0, 0x2362f9deu},
+        {"\0\0\0", 3, 0, 0x85f0b427u},
+        {"\0\0", 2, 0, 0x30f4c306u},
+        {"\0", 1, 0, 0x514e28b7u},
+        {"aaaa", 4, 0x9747b28cu, 0x5a97808au},
+        {"aaa", 3, 0x9747b28cu, 0x283e0130u},
+        {"aa", 2, 0x9747b28cu, 0x5d211726u},
+        {"a", 1, 0x9747b28cu, 0x7fa09ea6u},
+        {"abcd", 4, 0x9747b28cu, 0xf0478627u},
+        {"abc", 3, 0x9747b28cu, 0xc84a62ddu},
+        {"ab", 2, 0x9747b28cu, 0x74875592u},
+        {"Hello, world!", 13, 0x9747b28cu, 0x24884cbau},
+        {"Hello, world!", 13, 1234, 0xfaf6cdb3u},
+        {"Hello, world!", 13, 4321, 0xbf505788u},
+    };
+    (void)state;
+    for (size_t i = 0; i < sizeof v / sizeof v[0]; i++) {
+        uint32_t got = mr_murmur3_32(v[i].data, v[i].len, v[i].seed);
+        if (got != v[i].want)
+            fail_msg("vector %zu (%zu bytes, seed %08x): %08x, expected %08x", i, v[i].len,
+                     v[i].seed, got, v[i].want);
+    }
+    /* The Cryptomatte specification's example manifest:
+     * {"bunny":"13851a76", "default":"42c9679f"}, CryptoMaterial
+     * {"bunny_porcelain_mat":"b24b26d4"}. */
+    assert_int_equal(mr_cryptomatte_id_bits("bunny"), 0x13851a76u);
+    assert_int_equal(mr_cryptomatte_id_bits("default"), 0x42c9679fu);
+    assert_int_equal(mr_cryptomatte_id_bits("bunny_porcelain_mat"), 0xb24b26d4u);
+    float f = mr_cryptomatte_id("bunny");
+    uint32_t bits;
+    memcpy(&bits, &f, sizeof bits);
+    assert_int_equal(bits, 0x13851a76u);
+    /* uint32_to_float32: the exponent is clamped to 1..254 (no denormal,
+     * Inf or NaN id), sign and mantissa are kept. */
+    assert_int_equal(mr_cryptomatte_bits(0x00000001u), 0x00800001u);
+    assert_int_equal(mr_cryptomatte_bits(0x807fffffu), 0x80ffffffu);
+    assert_int_equal(mr_cryptomatte_bits(0x7f800000u), 0x7f000000u);
+    assert_int_equal(mr_cryptomatte_bits(0xffc01234u), 0xff401234u);
+    assert_int_equal(mr_cryptomatte_bits(0x3f800000u), 0x3f800000u);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -147,6 +210,7 @@ int main(void)
         cmocka_unit_test(test_dup),
         cmocka_unit_test(test_fs),
         cmocka_unit_test(test_clock),
+        cmocka_unit_test(test_murmur3),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
