@@ -53,7 +53,6 @@ if [ -n "$hits" ]; then
 fi
 # Benchmarks that measure core internals, and may include internal headers:
 bench_internal=(
-  bench/bench_render.c     # a bare Embree loop on the renderer's device, beside the renderer
   bench/bench_dmm.c        # DMM bake, encoding and traversal, against tessellated meshes
 )
 bench_public=()
