@@ -777,7 +777,7 @@ enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_D
        S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_COUNT };
 
 static const mr_kind_stat SVO_STATS[S_COUNT] = {
-    [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)"},
+    [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", false},
     [S_BUILD] = {"svo_build_s", "s",
                  "building the shared octree at creation: voxelisation or its load from the "
                  "derived-data cache, and the selection's side data (first frame only)",
@@ -790,20 +790,20 @@ static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_THINNESS] = {"svo_thinness_pct", "%",
                     "thinness error of the extracted skeleton (thesis eq. 5.7.1; first frame "
                     "only)", .once = true},
-    [S_POSE] = {"svo_pose_s", "s", "instance poses and their skin matrices, summed over instances"},
+    [S_POSE] = {"svo_pose_s", "s", "instance poses and their skin matrices, summed over instances", false},
     [S_SELECT] = {"svo_select_s", "s",
-                  "screen-space selection and deformation of voxels, summed over instances"},
-    [S_DEFORMED] = {"svo_deformed", "count", "voxels deformed while selecting (selected or not)"},
-    [S_SELECTED] = {"svo_selected", "count", "voxels selected: the deformed boxes"},
+                  "screen-space selection and deformation of voxels, summed over instances", false},
+    [S_DEFORMED] = {"svo_deformed", "count", "voxels deformed while selecting (selected or not)", false},
+    [S_SELECTED] = {"svo_selected", "count", "voxels selected: the deformed boxes", false},
     [S_EMIT] = {"svo_emit_s", "s",
                 "resampling (resize, emit): cells emitted for the deformed boxes, summed over "
-                "instances"},
+                "instances", false},
     [S_REBUILD] = {"svo_rebuild_s", "s",
                    "resampling (resize, emit): radix sort, compaction and build of the "
-                   "per-instance world octrees, summed over instances"},
-    [S_CELLS] = {"svo_cells", "count", "cells emitted before compaction (resize, emit)"},
+                   "per-instance world octrees, summed over instances", false},
+    [S_CELLS] = {"svo_cells", "count", "cells emitted before compaction (resize, emit)", false},
     [S_OCTREE_BYTES] = {"svo_octree_bytes", "bytes",
-                        "the per-instance world octrees rebuilt this frame (resize, emit)"},
+                        "the per-instance world octrees rebuilt this frame (resize, emit)", false},
 };
 
 static void svo_frame_stats(const mr_geom *g, double *v)
