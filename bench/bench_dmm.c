@@ -8,7 +8,8 @@
  * triangles (~5k, the paper's figure), traced
  * with primary rays only (1 sample, no shadows), as the paper's Table 1.
  * For each level, five renderers run the same frames interleaved (frame f in
- * every mode before frame f + 1), so their timings are side by side:
+ * every mode before frame f + 1), so their timings are side by side (the
+ * DMMs with their default, smooth normals):
  *   tess-b  mode tessellated, deformation base   (pre-tessellated baseline)
  *   base    mode base         (skinned base mesh, prism bounds: Alg. 2/4)
  *   tess-i  mode tessellated, deformation interpolated
@@ -17,9 +18,13 @@
  * Reported per level: median trace time per frame and ratios; accuracy of
  * each tessellation-free mode against its own tessellation (must be exact up
  * to intersector rounding) and of both deformations against the ground
- * truth (coverage, depth RMS / diagonal, mean normal error); per-frame
- * acceleration update (pose + BVH) of the DMM against the pre-tessellated
- * refit; bytes per micro-triangle.
+ * truth (coverage, depth RMS / diagonal, mean normal error, stray pixels);
+ * the bake's own accuracy in the rest pose, where no deformation differs
+ * (the same figures against the detailed mesh, its normals taken both as
+ * its facets and as its smooth vertex normals, for the DMM's flat and its
+ * smooth normals); per-frame acceleration
+ * update (pose + BVH) of the DMM against the pre-tessellated refit; bytes
+ * per micro-triangle.
  *
  * Configurations are levels 2..5 (every base triangle at that level) and
  * "4a": adaptive levels up to 4 (each base triangle at the level matching
@@ -119,6 +124,7 @@ typedef struct level_result {
     double trace_ms[MODES], update_ms[MODES];
     mr_compare_result self[2];  /* base vs tess-b, interp vs tess-i (worst frame) */
     double truth_cov[4], truth_depth[4], truth_normal[4]; /* mean over frames, modes 0..3 */
+    size_t truth_strays[4];                               /* summed over frames */
     double bytes_dmm_stored, bytes_dmm_resident, bytes_tess;
 } level_result;
 
@@ -161,7 +167,8 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
                                             : m == 3 ? MR_DMM_INTERPOLATED
                                                      : MR_DMM_TESSELLATED,
                                     .deform = m >= 2 ? MR_DMM_DEFORM_INTERPOLATED
-                                                     : MR_DMM_DEFORM_BASE};
+                                                     : MR_DMM_DEFORM_BASE,
+                                    .normals = MR_DMM_NORMALS_SMOOTH};
         o->kind = m == 4 ? &mr_kind_mesh : &mr_kind_dmm;
         o->params = m == 4 ? NULL : &params[m];
         if (mr_device_new(0, &dev[m], &err) < 0 ||
@@ -195,6 +202,10 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
             res.truth_cov[m] += c.coverage_pct / frames;
             res.truth_depth[m] += c.depth_rmse / frames;
             res.truth_normal[m] += c.normal_mean_deg / frames;
+            mr_compare_result st_c;
+            if (mr_film_compare(film[m], film[4], diag, &st_c, &err) < 0)
+                die("compare", err.msg);
+            res.truth_strays[m] += st_c.strays;
         }
     }
     /* the first frame builds every BVH; the update figures are refits */
@@ -226,7 +237,8 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
     printf("Bake (rest pose, all meshes): size and distance of the DMM surface to the detailed "
            "mesh (relative to the rest-pose bounding-box diagonal):\n\n"
            "| level | base tris | micro-tris | bytes | bits/micro-tri | RMS distance | max "
-           "distance | quantisation max | bake s |\n|---|---|---|---|---|---|---|---|---|\n");
+           "distance | unmatched %% | quantisation max | bake s |\n"
+           "|---|---|---|---|---|---|---|---|---|---|\n");
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t i = 0; i < dancer->mesh_count; i++)
         for (uint32_t v = 0; v < dancer->meshes[i].vertex_count; v++)
@@ -243,7 +255,7 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
                        (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
                        (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
     for (int l = 0; l < count; l++) {
-        uint64_t base = 0, micro = 0, bytes = 0, samples = 0;
+        uint64_t base = 0, micro = 0, bytes = 0, samples = 0, unmatched = 0, vertices = 0;
         double sum2 = 0, worst = 0, quant = 0, t0 = mr_now();
         for (size_t i = 0; i < dancer->mesh_count; i++) {
             mr_dmm_bake_params bp = mr_dmm_bake_params_default();
@@ -261,9 +273,12 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
                               &err) < 0)
                 die("bake", err.msg);
             base += b->base_triangle_count;
-            for (uint32_t t = 0; t < b->base_triangle_count; t++)
+            for (uint32_t t = 0; t < b->base_triangle_count; t++) {
                 micro += topo.count[mr_dmm_info_level(b->tri_info[t])]
                                    [mr_dmm_info_decimate(b->tri_info[t])];
+                vertices += mr_umesh_vertex_count(mr_dmm_info_level(b->tri_info[t]));
+            }
+            unmatched += b->fallback_count;
             bytes += (uint64_t)enc->triangle_count + enc->records_bytes;
             sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
             samples += b->sample_count;
@@ -273,14 +288,146 @@ static void bake_report(const mr_asset *dancer, const config *cfg, int count, ba
             mr_dmm_bake_free(b);
         }
         out[l] = (bake_figures){.micro = micro, .stored = bytes};
-        printf("| %s | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.2e | %.2f |\n",
+        printf("| %s | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.3f | %.2e | %.2f |\n",
                config_name(cfg[l]),
                (unsigned long long)base, (unsigned long long)micro, (unsigned long long)bytes,
                8.0 * (double)bytes / (double)micro, sqrt(sum2 / (double)samples) / diag,
-               worst / diag, quant / diag, mr_now() - t0);
+               worst / diag, 100.0 * (double)unmatched / (double)vertices, quant / diag,
+               mr_now() - t0);
     }
     mr_umesh_topology_free(&topo);
     printf("\n");
+}
+
+/* The bake's own accuracy: every level in the rest pose (where the base
+ * and interpolated deformations are the identity alike, so only the bake
+ * and its encoding differ from the detailed mesh), tessellated (the same
+ * micro-triangles the tessellation-free modes hit), against the detailed
+ * mesh with its smooth vertex normals and with its facets' normals. A DMM
+ * carries no normals: its micro-triangles are shaded by their own, so as
+ * it converges to the detailed surface its normals converge to the
+ * detail's facets, not to the detail's interpolated vertex normals. */
+static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int count, int frames)
+{
+    mr_object_desc *o = &job->objects[0];
+    const mr_kind *job_kind = o->kind;
+    void *job_params = o->params;
+    size_t job_poses = o->pose_count;
+    o->pose_count = 0;
+    o->kind = &mr_kind_mesh;
+    o->params = NULL;
+    mr_error err = {0};
+    mr_device *dev = NULL;
+    if (mr_device_new(0, &dev, &err) < 0)
+        die("device", err.msg);
+    /* the detailed mesh in the rest pose, world space, by its facets */
+    mr_geom *mg = NULL;
+    mr_kind_context kc = {0};
+    mr_mat4 identity = mr_mat4_identity();
+    mr_geom_frame gf = {0};
+    mr_trimesh tm;
+    if (mr_kind_mesh.create(dancer, o, &kc, &mg, &err) < 0 ||
+        mr_kind_mesh.update(mg, &gf, NULL, &identity, 0, &err) < 0 ||
+        mr_kind_mesh.tessellate(mg, &tm, &err) < 0)
+        die("rest mesh", err.msg);
+    mr_kind_mesh.free(mg);
+    mr_asset *facets = NULL;
+    if (mr_asset_faceted("facets", tm.positions, tm.vertex_count, tm.indices, tm.triangle_count,
+                         &facets, &err) < 0)
+        die("facets", err.msg);
+    mr_trimesh_free(&tm);
+    mr_asset *smooth_assets[1] = {dancer}, *facet_assets[1] = {facets};
+    int w = job->output.width, h = job->output.height;
+    mr_renderer *smooth = NULL, *flat = NULL;
+    if (mr_renderer_new(dev, job, smooth_assets, NULL, &smooth, &err) < 0 ||
+        mr_renderer_new(dev, job, facet_assets, NULL, &flat, &err) < 0)
+        die("rest truth", err.msg);
+    mr_film *ts[MAX_FRAMES], *tf[MAX_FRAMES];
+    size_t index[MAX_FRAMES];
+    int n = 0;
+    size_t step = job->frame_count / (size_t)frames;
+    step = step ? step : 1;
+    double floor_deg = 0, diag = 1;
+    for (size_t f = step / 2; f < job->frame_count && n < frames; f += step, n++) {
+        mr_frame_stats st;
+        index[n] = f;
+        if (mr_film_new(w, h, &ts[n], &err) < 0 || mr_film_new(w, h, &tf[n], &err) < 0 ||
+            mr_renderer_render(smooth, f, ts[n], &st, &err) < 0 ||
+            mr_renderer_render(flat, f, tf[n], &st, &err) < 0)
+            die("rest truth", err.msg);
+        diag = st.scene_diagonal;
+        mr_compare_result c;
+        if (mr_film_compare(tf[n], ts[n], diag, &c, &err) < 0)
+            die("compare", err.msg);
+        floor_deg += c.normal_mean_deg / frames;
+    }
+    mr_renderer_free(smooth);
+    mr_renderer_free(flat);
+    printf("\nThe bake alone: rest pose, tessellated, against the detailed mesh (mean over %d "
+           "views; the detail's own facets differ from its smooth normals by %.2f deg):\n\n"
+           "| level | coverage %% | depth RMS | flat normals vs facets deg | flat vs smooth deg | "
+           "smooth normals vs smooth deg | strays |\n|---|---|---|---|---|---|---|\n",
+           n, floor_deg);
+    o->kind = &mr_kind_dmm;
+    for (int l = 0; l < count; l++) {
+        /* the same micro-triangles with flat normals and with smooth ones */
+        mr_dmm_params params[2];
+        mr_renderer *r[2] = {NULL, NULL};
+        mr_film *film[2] = {NULL, NULL};
+        for (int k = 0; k < 2; k++) {
+            params[k] = (mr_dmm_params){.level = cfg[l].level,
+                                        .levels = cfg[l].adaptive ? MR_DMM_LEVELS_ADAPTIVE
+                                                                  : MR_DMM_LEVELS_UNIFORM,
+                                        .base_ratio = 0.0625f,
+                                        .mode = MR_DMM_TESSELLATED,
+                                        .deform = MR_DMM_DEFORM_INTERPOLATED,
+                                        .normals = k ? MR_DMM_NORMALS_SMOOTH
+                                                     : MR_DMM_NORMALS_GEOMETRIC};
+            o->params = &params[k];
+            if (mr_renderer_new(dev, job, smooth_assets, NULL, &r[k], &err) < 0 ||
+                mr_film_new(w, h, &film[k], &err) < 0)
+                die("rest dmm", err.msg);
+        }
+        double cov = 0, depth = 0, nf = 0, nfs = 0, ns = 0;
+        size_t strays = 0;
+        for (int k = 0; k < n; k++) {
+            mr_frame_stats st;
+            mr_compare_result c;
+            if (mr_renderer_render(r[0], index[k], film[0], &st, &err) < 0 ||
+                mr_renderer_render(r[1], index[k], film[1], &st, &err) < 0 ||
+                mr_film_compare(tf[k], film[0], diag, &c, &err) < 0)
+                die("rest dmm", err.msg);
+            cov += c.coverage_pct / n;
+            depth += c.depth_rmse / n;
+            nf += c.normal_mean_deg / n;
+            if (mr_film_compare(ts[k], film[0], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            nfs += c.normal_mean_deg / n;
+            if (mr_film_compare(ts[k], film[1], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            ns += c.normal_mean_deg / n;
+            if (mr_film_compare(film[0], ts[k], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            strays += c.strays;
+        }
+        printf("| %s | %.3f | %.2e | %.2f | %.2f | %.2f | %zu |\n", config_name(cfg[l]), cov, depth,
+               nf, nfs, ns, strays);
+        fflush(stdout);
+        for (int k = 0; k < 2; k++) {
+            mr_film_free(film[k]);
+            mr_renderer_free(r[k]);
+        }
+    }
+    printf("\n");
+    for (int k = 0; k < n; k++) {
+        mr_film_free(ts[k]);
+        mr_film_free(tf[k]);
+    }
+    mr_asset_free(facets);
+    mr_device_free(dev);
+    o->kind = job_kind;
+    o->params = job_params;
+    o->pose_count = job_poses;
 }
 
 int main(int argc, char **argv)
@@ -314,6 +461,7 @@ int main(int argc, char **argv)
            mr_cpu_count());
     bake_figures bake[8];
     bake_report(dancer, cfg, count, bake);
+    rest_accuracy(job, dancer, cfg, count, frames);
     level_result res[8];
     for (int i = 0; i < count; i++) {
         res[i] = run_level(job, dancer, cfg[i], bake[i], frames);
@@ -335,13 +483,16 @@ int main(int argc, char **argv)
     for (int i = 0; i < count; i++)
         printf("| %s | %zu | %.2e | %zu | %.2e |\n", config_name(res[i].cfg), res[i].self[0].hit_one,
                res[i].self[0].depth_max, res[i].self[1].hit_one, res[i].self[1].depth_max);
-    printf("\nError against the detailed mesh skinned with LBS (mean over frames):\n\n"
-           "| level | base: coverage %% | base: depth RMS | base: normal deg | interp: coverage "
-           "%% | interp: depth RMS | interp: normal deg |\n|---|---|---|---|---|---|---|\n");
+    printf("\nError against the detailed mesh skinned with LBS (mean over frames; strays: "
+           "pixels hit more than one pixel away from the truth's silhouette, summed):\n\n"
+           "| level | base: coverage %% | base: depth RMS | base: normal deg | base: strays | "
+           "interp: coverage %% | interp: depth RMS | interp: normal deg | interp: strays "
+           "|\n|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < count; i++)
-        printf("| %s | %.3f | %.2e | %.2f | %.3f | %.2e | %.2f |\n", config_name(res[i].cfg),
-               res[i].truth_cov[1], res[i].truth_depth[1], res[i].truth_normal[1],
-               res[i].truth_cov[3], res[i].truth_depth[3], res[i].truth_normal[3]);
+        printf("| %s | %.3f | %.2e | %.2f | %zu | %.3f | %.2e | %.2f | %zu |\n",
+               config_name(res[i].cfg), res[i].truth_cov[1], res[i].truth_depth[1],
+               res[i].truth_normal[1], res[i].truth_strays[1], res[i].truth_cov[3],
+               res[i].truth_depth[3], res[i].truth_normal[3], res[i].truth_strays[3]);
     printf("\nPer-frame acceleration update (pose + BVH refit, median ms) and memory:\n\n"
            "| level | tess-b | base | interp | base/tess-b | DMM stored B/micro-tri | DMM "
            "resident B/micro-tri | tessellated B/micro-tri |\n|---|---|---|---|---|---|---|---|\n");

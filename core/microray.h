@@ -402,6 +402,11 @@ void mr_film_clear(mr_film *film);
  *  - holes: pixels the reference b hits, together with all 8 neighbours (so
  *    not on its silhouette), that a misses: gaps inside the reference's
  *    silhouette, as opposed to a silhouette that is a little off;
+ *  - strays: the converse, pixels a hits that the reference b misses,
+ *    together with all 8 neighbours (so more than one pixel from b's
+ *    silhouette): geometry floating beside the reference's outline, as
+ *    opposed to an outline a little off. As for holes, a pixel on the
+ *    frame border is never counted;
  *  - psnr_rgb: 10 log10(1 / MSE) over R, G, B of all pixels, colours clamped to
  *    [0, 1] first; reported as 999 when the images are identical (MSE = 0),
  *    which keeps JSON free of infinities. */
@@ -411,7 +416,7 @@ void mr_film_clear(mr_film *film);
 typedef struct mr_compare_result {
     size_t pixels;            /* width * height */
     size_t hit_either, hit_both, hit_one;
-    size_t holes;
+    size_t holes, strays;
     double coverage_pct;
     double depth_rmse, depth_max;  /* relative to scene_diagonal */
     double normal_mean_deg, normal_max_deg;
@@ -844,16 +849,20 @@ int mr_param_fail(mr_param_error *err, int code, const char *field, const char *
 /* A geometry kind: its descriptor, from the registry. */
 typedef struct mr_kind mr_kind;
 
+/* How a kind's stats field adds up over a job's objects of the kind: the
+ * sum (counts, seconds, bytes) or the largest (errors, ratios); ONCE is a
+ * figure of the objects' creation (a derived-data build's seconds), summed
+ * and reported with the renderer's first frame only, 0 on later ones (like
+ * load_s), so a sum over frames stays true. */
+typedef enum mr_stat_combine { MR_STAT_SUM = 0, MR_STAT_MAX, MR_STAT_ONCE } mr_stat_combine;
+
 /* One of a kind's own per-frame statistics fields (reported as a frame's
  * extras, see mr_frame_extra). */
 typedef struct mr_kind_stat {
     const char *name;        /* stats.json key, unique among all fields */
     const char *unit;        /* "s", "count", "bytes", ... */
     const char *description; /* one line */
-    /* A figure of the object's creation (a derived-data build's seconds, a
-     * bake's counts): reported with the renderer's first frame and 0 on
-     * later ones, like load_s, so a sum over frames stays true. */
-    bool once;
+    mr_stat_combine combine; /* over the job's objects and frames (default: sum) */
 } mr_kind_stat;
 
 /* The registry: the built-in kinds, in a fixed order, then any added by

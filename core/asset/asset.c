@@ -1719,6 +1719,56 @@ nomem:
     return rc;
 }
 
+int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_count,
+                     const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
+                     mr_error *err)
+{
+    if (!out)
+        return mr_error_set(err, MR_ERR_INVALID, "mr_asset_faceted: out is NULL");
+    *out = NULL;
+    if (!positions || !indices || vertex_count == 0 || triangle_count == 0)
+        return mr_error_set(err, MR_ERR_INVALID, "mesh '%s': no vertices or no triangles",
+                            name ? name : "");
+    if ((uint64_t)triangle_count * 3 > MR_MAX_ASSET_VERTICES)
+        return mr_error_set(err, MR_ERR_LIMIT, "mesh '%s': %u triangles need %llu corners (cap %u)",
+                            name ? name : "", triangle_count,
+                            (unsigned long long)triangle_count * 3, MR_MAX_ASSET_VERTICES);
+    size_t nt = triangle_count;
+    float *pos = malloc(nt * 9 * sizeof(float)), *nrm = malloc(nt * 9 * sizeof(float));
+    uint32_t *idx = malloc(nt * 3 * sizeof(uint32_t));
+    int rc = MR_OK;
+    if (!pos || !nrm || !idx) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "mesh '%s': out of memory", name ? name : "");
+        goto done;
+    }
+    for (size_t t = 0; t < nt; t++) {
+        const float *v[3];
+        for (int k = 0; k < 3; k++) {
+            if (indices[3 * t + k] >= vertex_count) {
+                rc = mr_error_set(err, MR_ERR_INVALID, "mesh '%s': triangle %zu uses vertex %u of %u",
+                                  name ? name : "", t, indices[3 * t + k], vertex_count);
+                goto done;
+            }
+            v[k] = positions + 3 * (size_t)indices[3 * t + k];
+        }
+        mr_vec3 n = mr_v3_normalize_or(
+            mr_v3_cross(mr_v3(v[1][0] - v[0][0], v[1][1] - v[0][1], v[1][2] - v[0][2]),
+                        mr_v3(v[2][0] - v[0][0], v[2][1] - v[0][1], v[2][2] - v[0][2])),
+            mr_v3(0, 0, 1));
+        for (int k = 0; k < 3; k++) {
+            memcpy(pos + 9 * t + 3 * k, v[k], 3 * sizeof(float));
+            nrm[9 * t + 3 * k] = n.x, nrm[9 * t + 3 * k + 1] = n.y, nrm[9 * t + 3 * k + 2] = n.z;
+            idx[3 * t + k] = (uint32_t)(3 * t + (size_t)k);
+        }
+    }
+    rc = mr_asset_from_mesh(name, pos, nrm, (uint32_t)(3 * nt), idx, triangle_count, out, err);
+done:
+    free(pos);
+    free(nrm);
+    free(idx);
+    return rc;
+}
+
 /* ---- the import's stack ----------------------------------------------------
  * assimp walks node hierarchies recursively while it parses, post-processes
  * and releases a scene: a 679 KB glTF whose 30,000 nodes are nested one in

@@ -92,6 +92,17 @@ int mr_asset_from_mesh(const char *name, const float *positions, const float *no
                        uint32_t vertex_count, const uint32_t *indices,
                        uint32_t triangle_count, mr_asset **out, mr_error *err);
 
+/* The same triangles shaded by their facets: an asset of one mesh whose
+ * triangles have corners of their own (3 per triangle) that carry the
+ * triangle's unit normal ((0, 0, 1) for a degenerate one). The reference
+ * for how a surface is oriented, as opposed to its interpolated vertex
+ * normals: what a kind that shades micro-triangles by their own normals
+ * (dmm) converges to. Errors as mr_asset_from_mesh (3 * triangle_count
+ * corners count against the vertex cap). */
+int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_count,
+                     const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
+                     mr_error *err);
+
 /* A deep copy of in's path, nodes (with room for extra_nodes more after
  * them; node_count counts the copied ones), clips and cameras, plus
  * mesh_count zeroed meshes and in's triangle_count, for a caller that makes

@@ -30,8 +30,9 @@
  *               the instance index (id - first) to normal as prim.
  *   frame_stats the values of the kind's own per-frame statistics fields
  *               (`stats`, in that order; at most MR_FRAME_EXTRAS_MAX) for
- *               the frame just updated; the renderer sums them over the
- *               job's objects of the kind and hands them on as the frame's
+ *               the frame just updated; the renderer combines them over
+ *               the job's objects of the kind (summed, or the largest:
+ *               mr_kind_stat.combine) and hands them on as the frame's
  *               extras (render/frame_stats.h), which reach stats.json, the
  *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
@@ -43,6 +44,18 @@
  *               normal alone and starts shadow rays that far along it,
  *               out of the staircase (the terminator problem; issue 13).
  *               Exact surfaces (triangles) have none.
+ *   shading_point  (NULL, or false: none) the point, near the hit point p
+ *               of primitive prim at (u, v), of the smooth surface the
+ *               kind's shading normals describe. A triangle mesh shaded by
+ *               interpolated vertex normals stands for a curved surface its
+ *               flat triangles cut through; where a triangle faces away
+ *               from a light its normals face towards, a shadow ray from
+ *               the flat triangle runs into the next one and the lit side
+ *               ends in the triangles' jagged outline (the shadow
+ *               terminator; issue 13). The renderer starts shadow rays from
+ *               this point instead, when it lies on the viewer's side of
+ *               the hit triangle, and then lets the shading normal alone
+ *               decide which lights face the surface.
  * self_posed: the kind evaluates poses itself (say one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to
  * update and leaves checking pose names to create.
@@ -130,6 +143,8 @@ struct mr_kind {
     void (*frame_stats)(const mr_geom *g, double *values);
     int (*rewind)(mr_geom *g, mr_error *err);
     float (*surface_step)(const mr_geom *g);
+    bool (*shading_point)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
+                          mr_vec3 *out);
     void (*free)(mr_geom *g);
 };
 

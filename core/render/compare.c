@@ -149,16 +149,20 @@ int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
     for (int y = 1; y + 1 < a->height; y++)
         for (int x = 1; x + 1 < a->width; x++) {
             size_t p = (size_t)y * (size_t)a->width + (size_t)x;
-            if (a->object_id[p] != 0 || b->object_id[p] == 0)
+            bool ha = a->object_id[p] != 0, hb = b->object_id[p] != 0;
+            if (ha == hb)
                 continue;
-            bool interior = true;
-            for (int dy = -1; dy <= 1 && interior; dy++)
+            /* a hole: b hits p and its 8 neighbours; a stray: b misses
+             * them all */
+            bool all = true;
+            for (int dy = -1; dy <= 1 && all; dy++)
                 for (int dx = -1; dx <= 1; dx++)
-                    if (b->object_id[p + (size_t)((ptrdiff_t)dy * a->width + dx)] == 0) {
-                        interior = false;
+                    if ((b->object_id[p + (size_t)((ptrdiff_t)dy * a->width + dx)] != 0) != hb) {
+                        all = false;
                         break;
                     }
-            res.holes += interior;
+            res.holes += all && hb;
+            res.strays += all && ha;
         }
     if (res.hit_either > 0)
         res.coverage_pct = 100.0 * (double)res.hit_one / (double)res.hit_either;

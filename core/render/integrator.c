@@ -93,6 +93,17 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
 
     mr_vec3 light = s->ambient;
     mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, h->t));
+    /* A surface shaded by smooth normals stands for the curved surface
+     * they describe: shadow rays start on it (kind.h shading_point), when
+     * it lies on the viewer's side of the hit triangle, and the shading
+     * normal alone says which lights face it (the shadow terminator). */
+    bool smooth = false;
+    mr_vec3 q;
+    if (obj->kind->shading_point && obj->kind->shading_point(obj->geom, h->prim, h->u, h->v, p, &q) &&
+        mr_v3_dot(mr_v3_sub(q, p), ng) >= 0) {
+        p = q;
+        smooth = true;
+    }
     mr_vec3 shadow_org = offset_from_surface(p, ng, s->shadow_bias);
     /* A surface of steps (voxels) stands for the smooth one its shading
      * normals describe: lit by those alone, its shadow rays start 3 steps
@@ -109,7 +120,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
         float cosine = mr_v3_dot(n, l);
-        if (cosine <= 0 || (!stepped && mr_v3_dot(ng, l) <= 0))
+        if (cosine <= 0 || (!stepped && !smooth && mr_v3_dot(ng, l) <= 0))
             continue;
         if (s->shadows) {
             struct RTCIntersectContext ctx;

@@ -348,23 +348,30 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
     return MR_OK;
 }
 
-/* The kinds' own per-frame fields (kind.h stats), each summed over the
- * job's objects of its kind, as the frame's extras; creation figures
- * (mr_kind_stat.once) only on the renderer's first frame. */
+/* The kinds' own per-frame fields (kind.h stats), each combined over the
+ * job's objects of its kind (summed, or the largest: mr_kind_stat.combine),
+ * as the frame's extras; creation figures (MR_STAT_ONCE) only on the
+ * renderer's first frame. */
 static int kind_stats(mr_renderer *r, mr_frame_stats *st, mr_error *err)
 {
     for (size_t s = 0; s < r->stat_kind_count; s++) {
         const mr_kind *k = r->stat_kinds[s];
         double sum[MR_FRAME_EXTRAS_MAX] = {0}, v[MR_FRAME_EXTRAS_MAX];
+        bool first = true;
         for (size_t j = 0; j < r->object_count; j++) {
             if (r->objects[j].kind != k)
                 continue;
             k->frame_stats(r->objects[j].geom, v);
-            for (size_t f = 0; f < k->stat_count; f++)
-                sum[f] += v[f];
+            for (size_t f = 0; f < k->stat_count; f++) {
+                if (k->stats[f].combine == MR_STAT_MAX)
+                    sum[f] = first ? v[f] : fmax(sum[f], v[f]);
+                else
+                    sum[f] += v[f];
+            }
+            first = false;
         }
         for (size_t f = 0; f < k->stat_count; f++) {
-            double value = k->stats[f].once && r->reported_once ? 0 : sum[f];
+            double value = k->stats[f].combine == MR_STAT_ONCE && r->reported_once ? 0 : sum[f];
             int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, value, err);
             if (rc < 0)
                 return mr_error_prefix(err, "kind \"%s\" stats: ", k->name);

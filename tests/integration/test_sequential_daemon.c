@@ -3,11 +3,13 @@
  * N needs frames 0..N-1 (a simulation; core/kinds/kind.h) honoured by the
  * real daemon (issue 11): resumed after kill -9 of the daemon, and retried
  * after the render worker died mid-frame, the job's frames are bit for bit
- * those of an uninterrupted run.
+ * those of an uninterrupted run; and by the one-shot renderer's --frames
+ * (issue 18): parts rendered apart are the whole run's frames.
  *
  * The kind is tests/support/sphere_kind.h, registered by this program
  * alone: the program is its own daemon and render worker. Run as
- * `test_sequential_daemon serve ...` (or `render-worker`, `import-worker`)
+ * `test_sequential_daemon serve ...` (or `render`, `render-worker`,
+ * `import-worker`)
  * it registers the kind and runs that microrayd command; the daemon's
  * children exec /proc/self/exe, this program again. Without arguments it
  * runs the tests, starting itself as the daemon.
@@ -135,6 +137,45 @@ static void test_resume_and_retry_replay_the_simulation(void **state)
     fx_assert_store_intact(D.data);
 }
 
+/* The one-shot renderer's --frames (issue 18) on the simulated kind: the
+ * parts of the job rendered apart, in any order, are bit for bit the
+ * frames of one whole run (each part replays the frames before it). */
+static void test_frame_ranges_replay_the_simulation(void **state)
+{
+    (void)state;
+    char job[400], whole[400], parts[400], cmd[2000];
+    snprintf(job, sizeof job, "%s/seq.json", fx_tmp);
+    snprintf(whole, sizeof whole, "%s/seq-whole", fx_tmp);
+    snprintf(parts, sizeof parts, "%s/seq-parts", fx_tmp);
+    FILE *f = fopen(job, "w");
+    assert_non_null(f);
+    fputs(JOB, f);
+    fclose(f);
+    /* this program is the renderer too (main) */
+    snprintf(cmd, sizeof cmd, "/proc/%d/exe render '%s' --out '%s' --quiet", (int)getpid(), job, whole);
+    assert_int_equal(system(cmd), 0);
+    static const char *const specs[] = {"5-7", "0,2", "1", "3-4"};
+    for (size_t k = 0; k < sizeof specs / sizeof *specs; k++) {
+        snprintf(cmd, sizeof cmd, "/proc/%d/exe render '%s' --out '%s' --quiet --frames %s",
+                 (int)getpid(), job, parts, specs[k]);
+        assert_int_equal(system(cmd), 0);
+    }
+    for (int k = 0; k < FRAMES; k++) {
+        char a[700], b[700];
+        snprintf(a, sizeof a, "%s/%04d.exr", whole, k);
+        snprintf(b, sizeof b, "%s/%04d.exr", parts, k);
+        mr_film *fa = NULL, *fb = NULL;
+        mr_error err;
+        if (mr_exr_read_file(a, &fa, NULL, &err) < 0 || mr_exr_read_file(b, &fb, NULL, &err) < 0)
+            fail_msg("%s", err.msg);
+        char what[64];
+        snprintf(what, sizeof what, "frame %d rendered in a part", k);
+        fx_assert_same_pixels(fb, fa, what);
+        mr_film_free(fa);
+        mr_film_free(fb);
+    }
+}
+
 static int setup(void **state)
 {
     (void)state;
@@ -162,6 +203,8 @@ int main(int argc, char **argv)
         }
         if (!strcmp(argv[1], "serve"))
             return mr_cmd_serve(argc - 2, argv + 2);
+        if (!strcmp(argv[1], "render"))
+            return mr_cmd_render(argc - 2, argv + 2);
         if (!strcmp(argv[1], "render-worker"))
             return mr_cmd_render_worker(argc - 2, argv + 2);
         if (!strcmp(argv[1], "import-worker"))
@@ -170,6 +213,7 @@ int main(int argc, char **argv)
     }
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_resume_and_retry_replay_the_simulation),
+        cmocka_unit_test(test_frame_ranges_replay_the_simulation),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -271,10 +271,10 @@ static size_t test_sphere_memory(const mr_geom *g)
 static uint64_t test_sphere_primitives(const mr_geom *g) { return g->triangle_count; }
 
 static const mr_kind_stat TEST_SPHERE_STATS[] = {
-    {"test_sphere_scale", "1", "the simulated scale after this frame", .once = false},
-    {"test_sphere_steps", "count", "updates applied since create or rewind", .once = false},
+    {"test_sphere_scale", "1", "the simulated scale after this frame", MR_STAT_MAX},
+    {"test_sphere_steps", "count", "updates applied since create or rewind", MR_STAT_SUM},
     {"test_sphere_cache_hit", "count", "1 if create read the sphere from the cache (first frame)",
-     .once = true},
+     MR_STAT_ONCE},
 };
 
 static void test_sphere_frame_stats(const mr_geom *g, double *values)

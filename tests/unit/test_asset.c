@@ -853,6 +853,40 @@ static void test_empty_face(void **state)
     tmp_remove(&t);
 }
 
+/* The same mesh shaded by its facets: every triangle gets corners of its
+ * own carrying its normal, where mr_asset_from_mesh blends them. */
+static void test_faceted(void **state)
+{
+    (void)state;
+    const float pos[] = {0, 0, 0, 2, 0, 0, 2, 1, 0, 0, 1, 0, 0, -0.1f, 0.1f};
+    const uint32_t idx[] = {0, 1, 2, 0, 2, 3, 0, 4, 1};
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_faceted("facets", pos, 5, idx, 3, &a, &err), MR_OK);
+    check_invariants(a);
+    const mr_mesh *m = &a->meshes[0];
+    assert_int_equal(m->vertex_count, 9);
+    assert_int_equal(m->triangle_count, 3);
+    for (int c = 0; c < 9; c++) {
+        /* corner c is corner c % 3 of triangle c / 3, at its position */
+        assert_memory_equal(m->positions + 3 * c, pos + 3 * idx[c], 3 * sizeof(float));
+        assert_int_equal(m->indices[c], c);
+    }
+    /* the quad's corners face +Z exactly; the sliver's (0, .2, .2) / |.| */
+    for (int c = 0; c < 6; c++)
+        near(m->normals[3 * c + 2], 1, 0, "quad facet");
+    for (int c = 6; c < 9; c++) {
+        near(m->normals[3 * c + 1], sqrt(0.5), 1e-6, "sliver facet y");
+        near(m->normals[3 * c + 2], sqrt(0.5), 1e-6, "sliver facet z");
+    }
+    mr_asset_free(a);
+    const uint32_t bad_idx[] = {0, 1, 5};
+    assert_int_equal(mr_asset_faceted("x", pos, 5, bad_idx, 1, &a, &err), MR_ERR_INVALID);
+    assert_non_null(strstr(err.msg, "5"));
+    assert_null(a);
+    assert_int_equal(mr_asset_faceted("x", pos, 5, idx, 0, &a, &err), MR_ERR_INVALID);
+}
+
 /* In-memory meshes: validation and computed area-weighted normals. */
 static void test_from_mesh(void **state)
 {
@@ -1059,6 +1093,7 @@ int main(void)
         cmocka_unit_test(test_smd_unterminated_name),
         cmocka_unit_test(test_empty_face),
         cmocka_unit_test(test_from_mesh),
+        cmocka_unit_test(test_faceted),
         cmocka_unit_test(test_model_files_confined),
         cmocka_unit_test(test_deep_hierarchy),
     };

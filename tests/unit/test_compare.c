@@ -280,8 +280,40 @@ static void test_holes(void **state)
         hit(a, p, 1.0f, 0, 0, 1);
     assert_int_equal(mr_film_compare(b, a, 1.0, &r, &err), MR_OK);
     assert_int_equal(r.holes, 9);
+    assert_int_equal(r.strays, 0);
     assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
     assert_int_equal(r.holes, 0);
+    assert_int_equal(r.strays, 9); /* the converse: a full frame against nothing */
+    mr_film_free(a);
+    mr_film_free(b);
+}
+
+/* Strays: hits beside the reference's silhouette, more than one pixel
+ * away from it. */
+static void test_strays(void **state)
+{
+    (void)state;
+    mr_film *a = film(7, 5), *b = film(7, 5);
+    mr_compare_result r;
+    mr_error err = {0};
+    /* the reference hits column 1 only */
+    for (int y = 0; y < 5; y++)
+        hit(b, y * 7 + 1, 1.0f, 0, 0, 1);
+    /* a hits the same, plus (2, 2) beside the outline and (4, 2) two
+     * columns away; (6, 2) is on the frame border */
+    for (int y = 0; y < 5; y++)
+        hit(a, y * 7 + 1, 1.0f, 0, 0, 1);
+    hit(a, 2 * 7 + 2, 1.0f, 0, 0, 1);
+    hit(a, 2 * 7 + 4, 1.0f, 0, 0, 1);
+    hit(a, 2 * 7 + 6, 1.0f, 0, 0, 1);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.strays, 1);  /* (4, 2); (2, 2) touches column 1 */
+    assert_int_equal(r.holes, 0);
+    assert_int_equal(r.hit_one, 3);
+    /* the reference reaching (3, 1) puts (4, 2) next to its silhouette */
+    hit(b, 1 * 7 + 3, 1.0f, 0, 0, 1);
+    assert_int_equal(mr_film_compare(a, b, 1.0, &r, &err), MR_OK);
+    assert_int_equal(r.strays, 0);
     mr_film_free(a);
     mr_film_free(b);
 }
@@ -392,7 +424,7 @@ int main(void)
         cmocka_unit_test(test_identical), cmocka_unit_test(test_coverage),
         cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
         cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
-        cmocka_unit_test(test_holes),     cmocka_unit_test(test_speckles),
+        cmocka_unit_test(test_holes),     cmocka_unit_test(test_strays),     cmocka_unit_test(test_speckles),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -355,7 +355,7 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'levels':'mixed'}}"), MR_ERR_INVALID,
      "/objects/0/dmm/levels", "expected one of: \"uniform\", \"adaptive\", got \"mixed\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'normals':true}}"), MR_ERR_INVALID,
-     "/objects/0/dmm/normals", "expected one of: \"geometric\", \"matrix\", got true"},
+     "/objects/0/dmm/normals", "expected one of: \"geometric\", \"matrix\", \"smooth\", got true"},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':'prism'}}"), MR_ERR_INVALID,
      "/objects/0/dmm/mode", "expected one of: \"tessellated\", \"base\", \"interpolated\", got \"prism\""},
     {WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':{'mode':1}}"), MR_ERR_INVALID,
@@ -887,7 +887,7 @@ static void test_order_and_variants(void **state)
     assert_int_equal(dmm_of(job, 2)->level, 0);
     assert_int_equal(dmm_of(job, 2)->base_triangles, 12);
     assert_int_equal(dmm_of(job, 0)->deform, MR_DMM_DEFORM_BASE);
-    assert_int_equal(dmm_of(job, 0)->normals, MR_DMM_NORMALS_GEOMETRIC);
+    assert_int_equal(dmm_of(job, 0)->normals, MR_DMM_NORMALS_SMOOTH); /* the default */
     /* mode interpolated implies its deformation */
     assert_int_equal(dmm_of(job, 3)->mode, MR_DMM_INTERPOLATED);
     assert_int_equal(dmm_of(job, 3)->deform, MR_DMM_DEFORM_INTERPOLATED);

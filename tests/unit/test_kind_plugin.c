@@ -309,6 +309,50 @@ static void test_worker_and_cache(void **state)
     remove_tree(root);
 }
 
+/* A job's objects of one kind add up per field as the field says: the
+ * simulated scale (the same for both spheres) is the largest, the steps
+ * are summed. */
+static void test_stats_combine(void **state)
+{
+    (void)state;
+    mr_device *dev = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_device_new(2, &dev, &err), MR_OK);
+    mr_job *job = NULL;
+    mr_job_error e = {0};
+    if (parse_object("{\"asset\": \"a\", \"kind\": \"test_sphere\", \"test_sphere\": "
+                     "{\"radius\": 0.8}}, {\"asset\": \"a\", \"kind\": \"test_sphere\", "
+                     "\"test_sphere\": {\"radius\": 0.3}}",
+                     &job, &e) < 0)
+        fail_msg("%s: %s", e.pointer, e.message);
+    const mr_asset *asset = NULL;
+    mr_asset *a = NULL;
+    assert_int_equal(mr_asset_load(BOX, &a, &err), MR_OK);
+    asset = a;
+    mr_job *one = sphere_job();
+    mr_renderer *r = NULL, *r1 = NULL;
+    assert_int_equal(mr_renderer_new(dev, job, (mr_asset *const *)&asset, NULL, &r, &err), MR_OK);
+    assert_int_equal(mr_renderer_new(dev, one, (mr_asset *const *)&asset, NULL, &r1, &err), MR_OK);
+    mr_film *film = NULL;
+    assert_int_equal(mr_film_new(48, 32, &film, &err), MR_OK);
+    mr_frame_stats st, st1;
+    for (size_t i = 0; i < 3; i++) {
+        assert_int_equal(mr_renderer_render(r, i, film, &st, &err), MR_OK);
+        assert_int_equal(mr_renderer_render(r1, i, film, &st1, &err), MR_OK);
+        assert_int_equal(st.extra_count, 3);
+        assert_true(st1.extras[0].value != 0);
+        assert_true(st.extras[0].value == st1.extras[0].value); /* the largest, not the sum */
+        assert_true(st.extras[1].value == 2.0 * st1.extras[1].value);
+    }
+    mr_film_free(film);
+    mr_renderer_free(r);
+    mr_renderer_free(r1);
+    mr_asset_free(a);
+    mr_job_free(job);
+    mr_job_free(one);
+    mr_device_free(dev);
+}
+
 static bool from_frame_4(void *user, size_t index) { return index >= 4; }
 
 /* Frame n of a SEQUENTIAL kind is the same whether frames 0..n-1 were just
@@ -378,6 +422,7 @@ int main(void)
         cmocka_unit_test(test_schema),
         cmocka_unit_test(test_worker_and_cache),
         cmocka_unit_test(test_frame_order),
+        cmocka_unit_test(test_stats_combine),
     };
     return cmocka_run_group_tests(tests, setup, NULL);
 }

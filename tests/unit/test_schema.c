@@ -236,7 +236,7 @@ static const agree_case AGREE[] = {
     {"dmm mode interpolated, deformation base", REJECT,
      WITH_DMM("{'mode':'interpolated','deformation':'base'}")},
     {"dmm deformation not in the enum", REJECT, WITH_DMM("{'deformation':'skinned'}")},
-    {"dmm normals not in the enum", REJECT, WITH_DMM("{'normals':'smooth'}")},
+    {"dmm normals not in the enum", REJECT, WITH_DMM("{'normals':'phong'}")},
     {"dmm levels not in the enum", REJECT, WITH_DMM("{'levels':'mixed'}")},
     {"dmm unknown field", REJECT, WITH_DMM("{'lod':1}")},
     {"dmm block an array", REJECT, WITH_DMM("[]")},

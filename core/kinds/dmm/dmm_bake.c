@@ -61,7 +61,7 @@ static d3 d3_sub(d3 a, d3 b) { return (d3){a.x - b.x, a.y - b.y, a.z - b.z}; }
 static double d3_dot(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
 static d3 d3_mad(d3 a, d3 b, double s) { return (d3){a.x + b.x * s, a.y + b.y * s, a.z + b.z * s}; }
 
-static double point_triangle_dist2(d3 p, d3 a, d3 b, d3 c)
+static double point_triangle_dist2(d3 p, d3 a, d3 b, d3 c, d3 *closest)
 {
     d3 ab = d3_sub(b, a), ac = d3_sub(c, a), ap = d3_sub(p, a), q;
     double d1 = d3_dot(ab, ap), d2 = d3_dot(ac, ap);
@@ -100,11 +100,13 @@ static double point_triangle_dist2(d3 p, d3 a, d3 b, d3 c)
         double denom = va + vb + vc;
         if (!(denom > 0)) { /* degenerate triangle: its vertices are close enough */
             double da = d3_dot(ap, ap), db = d3_dot(bp, bp), dc = d3_dot(cp, cp);
+            *closest = da <= db && da <= dc ? a : db <= dc ? b : c;
             return fmin(da, fmin(db, dc));
         }
         q = d3_mad(d3_mad(a, ab, vb / denom), ac, vc / denom);
     }
 done : {
+    *closest = q;
     d3 e = d3_sub(p, q);
     return d3_dot(e, e);
 }
@@ -114,6 +116,7 @@ typedef struct closest_ctx {
     const float *pos;
     const uint32_t *idx;
     double best2;
+    d3 best;
 } closest_ctx;
 
 static d3 vtx(const float *pos, uint32_t i) { return (d3){pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]}; }
@@ -123,9 +126,11 @@ static bool closest_cb(struct RTCPointQueryFunctionArguments *args)
     closest_ctx *c = args->userPtr;
     const uint32_t *t = c->idx + 3 * (size_t)args->primID;
     d3 p = {args->query->x, args->query->y, args->query->z};
-    double dd = point_triangle_dist2(p, vtx(c->pos, t[0]), vtx(c->pos, t[1]), vtx(c->pos, t[2]));
+    d3 q;
+    double dd = point_triangle_dist2(p, vtx(c->pos, t[0]), vtx(c->pos, t[1]), vtx(c->pos, t[2]), &q);
     if (dd < c->best2) {
         c->best2 = dd;
+        c->best = q;
         /* float radius rounded up so the true closest is never culled */
         args->query->radius = nextafterf((float)sqrt(dd), INFINITY);
         return true;
@@ -133,14 +138,19 @@ static bool closest_cb(struct RTCPointQueryFunctionArguments *args)
     return false;
 }
 
-static double closest_distance(RTCScene scene, const float *pos, const uint32_t *idx, mr_vec3 p)
+/* Distance from p to the detailed mesh; *at (may be NULL) gets the closest
+ * point. */
+static double closest_point(RTCScene scene, const float *pos, const uint32_t *idx, mr_vec3 p,
+                            d3 *at)
 {
     struct RTCPointQuery q;
     q.x = p.x, q.y = p.y, q.z = p.z, q.time = 0, q.radius = INFINITY;
     struct RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    closest_ctx c = {pos, idx, INFINITY};
+    closest_ctx c = {pos, idx, INFINITY, {0, 0, 0}};
     rtcPointQuery(scene, &q, &qc, closest_cb, &c);
+    if (at)
+        *at = c.best;
     return sqrt(c.best2);
 }
 
@@ -151,30 +161,53 @@ typedef struct bake_ctx {
     const float *detail_pos;      /* welded detailed positions */
     const uint32_t *detail_idx;   /* welded detailed indices */
     mr_dmm_bake *bake;
-    float tfar;
+    float max_displacement;       /* the parameter's bound, or INFINITY */
     uint32_t *fallbacks;          /* per base triangle */
     double *sum2;                 /* per base triangle */
     double *maxd;                 /* per base triangle */
     uint32_t *samples;            /* per base triangle: error report samples */
     mr_vec3 *scratch;             /* per worker: micro_vertex_count positions */
+    const float *reach;           /* per base vertex: its longest base edge */
     mr_umesh_topology topo;       /* surviving micro-triangles per level and mask */
 } bake_ctx;
 
-/* Hit distance along dir from org, or INFINITY. */
-static float cast(RTCScene scene, mr_vec3 org, mr_vec3 dir, float tfar)
+/* Most surfaces one displacement ray passes through before it gives up
+ * looking for one that faces its way (a bound on the work per ray). */
+#define MAX_CROSSINGS 16
+
+/* The first crossing of the detailed surface along org + t * sign * dir,
+ * 0 <= t <= tfar, where the surface faces the way dir points (its outward
+ * normal . dir > 0); INFINITY when there is none. */
+static float crossing(const bake_ctx *c, mr_vec3 org, mr_vec3 dir, float sign, float tfar)
 {
-    struct RTCRayHit rh;
-    memset(&rh, 0, sizeof rh);
-    rh.ray.org_x = org.x, rh.ray.org_y = org.y, rh.ray.org_z = org.z;
-    rh.ray.dir_x = dir.x, rh.ray.dir_y = dir.y, rh.ray.dir_z = dir.z;
-    rh.ray.tnear = 0.0f;
-    rh.ray.tfar = tfar;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    struct RTCIntersectContext ic;
-    rtcInitIntersectContext(&ic);
-    rtcIntersect1(scene, &ic, &rh);
-    return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? INFINITY : rh.ray.tfar;
+    float tnear = 0.0f;
+    mr_vec3 sd = mr_v3_scale(dir, sign);
+    for (int k = 0; k < MAX_CROSSINGS; k++) {
+        struct RTCRayHit rh;
+        memset(&rh, 0, sizeof rh);
+        rh.ray.org_x = org.x, rh.ray.org_y = org.y, rh.ray.org_z = org.z;
+        rh.ray.dir_x = sd.x, rh.ray.dir_y = sd.y, rh.ray.dir_z = sd.z;
+        rh.ray.tnear = tnear;
+        rh.ray.tfar = tfar;
+        rh.ray.mask = 0xFFFFFFFFu;
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        struct RTCIntersectContext ic;
+        rtcInitIntersectContext(&ic);
+        rtcIntersect1(c->scene, &ic, &rh);
+        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+            break;
+        float t = rh.ray.tfar;
+        const uint32_t *ix = c->detail_idx + 3 * (size_t)rh.hit.primID;
+        d3 p0 = vtx(c->detail_pos, ix[0]), e1 = d3_sub(vtx(c->detail_pos, ix[1]), p0),
+           e2 = d3_sub(vtx(c->detail_pos, ix[2]), p0);
+        d3 ng = {e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x};
+        if (d3_dot(ng, (d3){dir.x, dir.y, dir.z}) > 0)
+            return t;
+        if (!(t < tfar))
+            break;
+        tnear = nextafterf(t, INFINITY);
+    }
+    return INFINITY;
 }
 
 static mr_umesh_tri base_tri(const mr_dmm_bake *b, uint32_t t)
@@ -187,6 +220,42 @@ static mr_umesh_tri base_tri(const mr_dmm_bake *b, uint32_t t)
         tri.dir[k] = mr_v3(d[0], d[1], d[2]);
     }
     return tri;
+}
+
+/* Step 5 of dmm_bake.h for micro-vertex (a, b) of base triangle t: the
+ * search bound (in direction-length units) and the displacement; *unmatched
+ * is set when no crossing faced the right way within it. */
+static float displacement(const bake_ctx *c, const mr_umesh_tri *tri, const uint32_t *corner,
+                          unsigned level, uint32_t a, uint32_t b, bool *unmatched)
+{
+    mr_vec3 p, d;
+    mr_umesh_frame(tri, level, a, b, &p, &d, NULL);
+    *unmatched = false;
+    float len = sqrtf(mr_v3_dot(d, d));
+    if (!(len > 0))
+        return 0.0f;
+    /* the reach of the corners the micro-vertex depends on (a max, so the
+     * two triangles of a shared edge agree bit for bit) */
+    uint32_t n = mr_umesh_segments(level);
+    float reach = 0;
+    if (n - a - b > 0)
+        reach = fmaxf(reach, c->reach[corner[0]]);
+    if (a > 0)
+        reach = fmaxf(reach, c->reach[corner[1]]);
+    if (b > 0)
+        reach = fmaxf(reach, c->reach[corner[2]]);
+    float tfar = fminf(MR_DMM_BAKE_REACH * reach / len, c->max_displacement);
+    float tp = crossing(c, p, d, 1.0f, tfar), tn = crossing(c, p, d, -1.0f, tfar);
+    if (tp <= tn && tp < INFINITY)
+        return tp;
+    if (tn < INFINITY)
+        return -tn;
+    /* no crossing: the height, along d, of the nearest detailed point */
+    *unmatched = true;
+    d3 q;
+    closest_point(c->scene, c->detail_pos, c->detail_idx, p, &q);
+    double h = d3_dot(d3_sub(q, (d3){p.x, p.y, p.z}), (d3){d.x, d.y, d.z}) / ((double)len * len);
+    return (float)fmax(-(double)tfar, fmin((double)tfar, h));
 }
 
 static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
@@ -203,23 +272,10 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
         uint32_t fb = 0;
         for (uint32_t i = 0; i < mvc; i++) {
             uint32_t a, bb;
-            mr_vec3 p, d;
+            bool unmatched;
             mr_umesh_vertex_coords(level, i, &a, &bb);
-            mr_umesh_frame(&tri, level, a, bb, &p, &d, NULL);
-            float best = INFINITY, sign = 1.0f;
-            if (mr_v3_dot(d, d) > 0) {
-                float tp = cast(c->scene, p, d, c->tfar);
-                float tn = cast(c->scene, p, mr_v3_scale(d, -1.0f), c->tfar);
-                best = tp, sign = 1.0f;
-                if (tn < tp)
-                    best = tn, sign = -1.0f;
-            }
-            if (isinf(best)) {
-                disp[i] = 0.0f;
-                fb++;
-            } else {
-                disp[i] = sign * best;
-            }
+            disp[i] = displacement(c, &tri, b->base_indices + 3 * t, level, a, bb, &unmatched);
+            fb += unmatched;
         }
         c->fallbacks[t] = fb;
 
@@ -228,7 +284,7 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
         mr_umesh_eval_all(&tri, level, decimate, disp, pts, NULL);
         double s2 = 0, mx = 0;
         for (uint32_t i = 0; i < mvc; i++) {
-            double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, pts[i]);
+            double dd = closest_point(c->scene, c->detail_pos, c->detail_idx, pts[i], NULL);
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
@@ -237,7 +293,7 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
             const uint32_t *idx = c->topo.tris[level][decimate] + 3 * k;
             mr_vec3 cen = mr_v3_scale(mr_v3_add(mr_v3_add(pts[idx[0]], pts[idx[1]]), pts[idx[2]]),
                                       1.0f / 3.0f);
-            double dd = closest_distance(c->scene, c->detail_pos, c->detail_idx, cen);
+            double dd = closest_point(c->scene, c->detail_pos, c->detail_idx, cen, NULL);
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
@@ -424,7 +480,7 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
 {
     int rc = MR_OK;
     uint32_t *remap = NULL, *rep = NULL, *widx = NULL, *sidx = NULL, *bmap = NULL;
-    float *wpos = NULL;
+    float *wpos = NULL, *reach = NULL;
     mr_dmm_bake *b = NULL;
     RTCDevice device = NULL;
     RTCScene scene = NULL;
@@ -582,7 +638,20 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
     ctx.detail_pos = wpos;
     ctx.detail_idx = widx;
     ctx.bake = b;
-    ctx.tfar = params->max_displacement > 0 ? params->max_displacement : INFINITY;
+    ctx.max_displacement = params->max_displacement > 0 ? params->max_displacement : INFINITY;
+    reach = calloc(nbv, sizeof *reach);
+    if (!reach)
+        goto nomem;
+    for (uint32_t t = 0; t < nbt; t++)
+        for (int k = 0; k < 3; k++) {
+            uint32_t u = b->base_indices[3 * t + k], v = b->base_indices[3 * t + (k + 1) % 3];
+            d3 ed = d3_sub(vtx(b->base_positions, u), vtx(b->base_positions, v));
+            float len = (float)sqrt(d3_dot(ed, ed));
+            reach[u] = fmaxf(reach[u], len);
+            reach[v] = fmaxf(reach[v], len);
+        }
+    ctx.reach = reach;
+
     ctx.fallbacks = calloc(nbt, sizeof *ctx.fallbacks);
     ctx.sum2 = calloc(nbt, sizeof *ctx.sum2);
     ctx.maxd = calloc(nbt, sizeof *ctx.maxd);
@@ -614,6 +683,7 @@ cleanup:
     free(ctx.maxd);
     free(ctx.samples);
     free(ctx.scratch);
+    free(reach);
     mr_umesh_topology_free(&ctx.topo);
     if (scene)
         rtcReleaseScene(scene);

@@ -22,15 +22,39 @@
  *     an edge between levels l and l + 1 is decimated (micromesh.h). Without
  *     adaptive every triangle is at level L.
  *  5. For every micro-vertex of a triangle's subdivision, the signed distance
- *     along the interpolated direction to the detailed surface: two Embree
- *     rays from the undisplaced point, along +dir and -dir, nearest hit wins
- *     (ties go to +dir). Distances are in units of the unnormalised
- *     direction, i.e. exactly the d of eq. 5. Fallback: when neither ray
- *     hits within max_displacement, the displacement is 0 (the micro-vertex
- *     stays on the base surface) and fallback_count is incremented.
- *     Micro-vertices on a shared base edge get bit-identical rays from both
- *     triangles (micromesh.h's edge rule), and a ray query is a pure function
- *     of the ray, so both sides get the same displacement.
+ *     along the interpolated direction d to the detailed surface: rays from
+ *     the undisplaced point along +d and -d, each taking the first crossing
+ *     where the detailed surface faces the way d points (its outward normal
+ *     . d > 0: a ray that leaves the body through the detailed surface, or
+ *     enters it from outside going inward). A crossing facing the other way
+ *     is the inside of another part of the body (arm seen from the torso,
+ *     one leg from the other) and is passed through. The nearer of the two
+ *     wins (ties go to +d). Distances are in units of the unnormalised
+ *     direction, i.e. exactly the d of eq. 5.
+ *     The search is bounded, as production bakers bound theirs (a cage or a
+ *     "max frontal / rear distance"), by a reach derived from the base mesh:
+ *     MR_DMM_BAKE_REACH (a quarter) of the longest base edge at the corners
+ *     the micro-vertex interpolates (its nonzero barycentric weights; the
+ *     max of theirs, so both triangles of a shared edge use the same bound),
+ *     and by max_displacement when that is given. Why a quarter: the detail
+ *     a base edge of length L stands for lies within its sagitta of it; a
+ *     sagitta of L/4 is a circular arc of 106 degrees over the edge, more
+ *     bending than one base edge of a simplified surface represents. A
+ *     surface farther away along d is another part of the body: before the
+ *     bound, the bench dancer's rays found surfaces up to 36 % of its
+ *     diagonal away, and the micro-triangles spanning those vertices stood
+ *     up to 5.9 % of the diagonal off the detailed surface at every level.
+ *     Unmatched micro-vertices (no facing crossing within the bound: the
+ *     base surface passes a rim of an open mesh, or the detail folds away
+ *     from d) take the height along d of the nearest point of the detailed
+ *     surface (an Embree closest-point query), clamped to the bound, and
+ *     are counted in fallback_count: continuous with their matched
+ *     neighbours, where a displacement of 0 left steps that the encoder's
+ *     corrections then had to climb.
+ *     Micro-vertices on a shared base edge get bit-identical rays, bounds
+ *     and closest-point queries from both triangles (micromesh.h's edge
+ *     rule; each query is a pure function of its input), so both sides get
+ *     the same displacement.
  *  6. Error report: distance from the DMM surface to the detailed mesh,
  *     sampled at every displaced micro-vertex and every (surviving)
  *     micro-triangle centroid, by an exact closest-point query (Embree rtcPointQuery with a
@@ -49,6 +73,10 @@
 #include "asset/asset.h"
 #include "microray.h"
 
+/* The displacement search reaches this fraction of the longest base edge
+ * at the corners a micro-vertex interpolates (step 5). */
+#define MR_DMM_BAKE_REACH 0.25f
+
 typedef struct mr_dmm_bake_params {
     /* Target base triangle count; 0 means use target_ratio. */
     uint32_t target_triangles;
@@ -64,8 +92,8 @@ typedef struct mr_dmm_bake_params {
     unsigned level;
     /* Per-triangle levels from the detail's density (step 4). */
     bool adaptive;
-    /* Longest displacement searched, in direction-length units; 0 means
-     * unbounded. */
+    /* Longest displacement searched, in direction-length units, on top of
+     * the reach bound of step 5; 0 means the reach bound alone. */
     float max_displacement;
     /* Worker threads (0 = all cores). The result does not depend on it. */
     unsigned threads;
@@ -86,15 +114,16 @@ typedef struct mr_dmm_bake {
     uint8_t *tri_info;             /* per base triangle: level and decimation, mr_dmm_tri_info */
     float *displacements;          /* micro_vertex_count per base triangle, micromesh.h order;
                                       a triangle uses the vertex count of its own level */
-    uint64_t fallback_count;       /* micro-vertices where neither ray hit */
+    uint64_t fallback_count;       /* micro-vertices without a facing crossing within
+                                      the bound (step 5) */
     uint64_t sample_count;         /* samples of the error report */
     double rms_distance;           /* DMM surface to detailed mesh, model units */
     double max_distance;
     float simplify_error;          /* meshopt's result_error, absolute (model units) */
 } mr_dmm_bake;
 
-/* Defaults: target_ratio 0.05, level 3, no error or displacement bound, all
- * threads. */
+/* Defaults: target_ratio 0.05, level 3, no error bound, the reach bound
+ * alone, all threads. */
 mr_dmm_bake_params mr_dmm_bake_params_default(void);
 
 /* Bakes a DMM from a detailed mesh (its positions, indices and skin; normals

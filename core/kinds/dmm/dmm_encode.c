@@ -26,7 +26,7 @@ static const uint8_t file_magic[8] = {'M', 'R', 'D', 'M', 'M', 0, '\r', '\n'};
 
 void mr_dmm_default_bits(uint8_t bits[MR_UMESH_MAX_LEVEL + 1])
 {
-    static const uint8_t def[MR_UMESH_MAX_LEVEL + 1] = {11, 11, 10, 9, 8, 7};
+    static const uint8_t def[MR_UMESH_MAX_LEVEL + 1] = {16, 11, 10, 9, 8, 7};
     memcpy(bits, def, sizeof def);
 }
 

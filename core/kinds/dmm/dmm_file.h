@@ -49,7 +49,7 @@
 /* Bump when dmm_bake.c or dmm_encode.c change what they produce for the same
  * input: it is part of the cache key, so old cache files stop matching
  * instead of being rendered as if they were fresh bakes. */
-#define MR_DMM_BAKER_REVISION 2u
+#define MR_DMM_BAKER_REVISION 3u
 /* Bytes of the file header and of each mesh section header. */
 #define MR_DMM_FILE_HEADER_BYTES 68u
 #define MR_DMM_FILE_MESH_HEADER_BYTES 96u

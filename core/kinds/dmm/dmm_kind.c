@@ -82,6 +82,15 @@ struct mr_geom {
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
     size_t encoded_bytes;         /* bytes of the encoded records (what a file stores) */
+    double bake_quality[3];       /* the bake's own report, DMM_STATS order */
+    /* normals "smooth": per base triangle its coarse sublevel and, from
+     * coarse_first[t], the ids of its coarse lattice vertices (shared with
+     * its neighbours on shared edges and corners) into smooth_normals
+     * (rest pose, unit, 3 floats per id) */
+    uint8_t *coarse_level;
+    uint32_t *coarse_first, *coarse_id;
+    float *smooth_normals;
+    uint32_t smooth_count;        /* coarse vertices (smooth_normals holds 3 floats each) */
     RTCGeometry rtc;
 };
 
@@ -121,6 +130,10 @@ static void dmm_free(mr_geom *g)
     free(g->boxes);
     free(g->positions);
     free(g->indices);
+    free(g->coarse_level);
+    free(g->coarse_first);
+    free(g->coarse_id);
+    free(g->smooth_normals);
     free(g);
 }
 
@@ -186,7 +199,7 @@ static int check_desc(const mr_dmm_params *d, mr_error *err)
     if ((d->mode == MR_DMM_BASE && d->deform != MR_DMM_DEFORM_BASE) ||
         (d->mode == MR_DMM_INTERPOLATED && d->deform != MR_DMM_DEFORM_INTERPOLATED) ||
         d->mode > MR_DMM_INTERPOLATED || d->deform > MR_DMM_DEFORM_INTERPOLATED ||
-        d->normals > MR_DMM_NORMALS_MATRIX)
+        d->normals > MR_DMM_NORMALS_SMOOTH)
         return mr_error_set(err, MR_ERR_INVALID, "dmm mode %d cannot use deformation %d",
                             (int)d->mode, (int)d->deform);
     return MR_OK;
@@ -266,6 +279,245 @@ static int allocate(mr_geom *g, mr_error *err)
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
 }
 
+/* The bake's report (dmm_bake.h step 6) over the asset's meshes, in the
+ * units of DMM_STATS: distances as fractions of the rest-pose
+ * bounding-box diagonal of the asset's meshes (the space the bake works
+ * in), unmatched micro-vertices as % of all. */
+static void bake_quality(mr_geom *g)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    double sum2 = 0, worst = 0, samples = 0, unmatched = 0, vertices = 0;
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        const mr_mesh *m = &g->asset->meshes[i];
+        for (size_t v = 0; v < (size_t)m->vertex_count * 3; v++) {
+            lo[v % 3] = fmin(lo[v % 3], m->positions[v]);
+            hi[v % 3] = fmax(hi[v % 3], m->positions[v]);
+        }
+        const mr_dmm_bake *b = g->bakes[i];
+        if (!b)
+            continue;
+        sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
+        samples += (double)b->sample_count;
+        worst = fmax(worst, b->max_distance);
+        unmatched += (double)b->fallback_count;
+        for (uint32_t t = 0; t < b->base_triangle_count; t++)
+            vertices += mr_umesh_vertex_count(mr_dmm_info_level(b->tri_info[t]));
+    }
+    double d2 = 0;
+    for (int k = 0; k < 3; k++)
+        d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    double diag = sqrt(d2) > 0 ? sqrt(d2) : 1.0;
+    g->bake_quality[0] = samples > 0 ? sqrt(sum2 / samples) / diag : 0;
+    g->bake_quality[1] = worst / diag;
+    g->bake_quality[2] = vertices > 0 ? 100.0 * unmatched / vertices : 0;
+}
+
+/* ---- normals "smooth" ----
+ * A DMM stores no normals: shaded by its micro-triangles' own, it shows
+ * their facets, and the finer the level the more exactly it shows the
+ * detailed mesh's facets rather than the smooth surface the detailed
+ * mesh's own interpolated normals describe (bench_dmm: against those, flat
+ * normals are best at the level matching the detail's density and worse
+ * above it). Smooth normals are made at the detail's scale instead: on
+ * each base triangle a coarse lattice at the sublevel whose triangles
+ * match the detailed mesh's mean triangle area (per mesh, at most the
+ * triangle's level), each coarse vertex gets the area-weighted normal of
+ * the micro-surface in its coarse one-ring (every surviving micro-triangle's
+ * cross product added to the corners of the coarse sub-triangle holding
+ * it), in the rest pose, once at create; coarse vertices on shared base
+ * edges and corners are one vertex for all the triangles around them, so
+ * the normals are continuous across base edges. A hit interpolates its
+ * coarse sub-triangle's three normals barycentrically and moves the result
+ * by the cofactor of the interpolated matrix at the hit (as "matrix"). The
+ * finer the level, the closer the coarse normals are to the detailed
+ * surface's own area-weighted normals at that scale. */
+
+typedef struct coarse_key {
+    uint32_t kind, x, y, z; /* 0: base vertex x; 1: edge (x < y) at q = z/32 from x;
+                               2: interior (a, b) = (y, z) of triangle x */
+    uint32_t slot;          /* into coarse_id */
+} coarse_key;
+
+static int coarse_key_cmp(const void *pa, const void *pb)
+{
+    const coarse_key *a = pa, *b = pb;
+    if (a->kind != b->kind)
+        return a->kind < b->kind ? -1 : 1;
+    if (a->x != b->x)
+        return a->x < b->x ? -1 : 1;
+    if (a->y != b->y)
+        return a->y < b->y ? -1 : 1;
+    if (a->z != b->z)
+        return a->z < b->z ? -1 : 1;
+    return 0;
+}
+
+/* The key of coarse lattice vertex (a, b) at sublevel s of base triangle t. */
+static coarse_key coarse_key_of(const mr_geom *g, uint32_t t, unsigned s, uint32_t a, uint32_t b)
+{
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    uint32_t k;
+    int e = mr_umesh_vertex_edge(s, a, b, &k);
+    if (e == 3)
+        return (coarse_key){0, idx[k], 0, 0, 0};
+    if (e >= 0) {
+        uint32_t u = idx[e], w = idx[(e + 1) % 3], q = k << (MR_UMESH_MAX_LEVEL - s);
+        uint32_t full = 1u << MR_UMESH_MAX_LEVEL;
+        return u < w ? (coarse_key){1, u, w, q, 0} : (coarse_key){1, w, u, full - q, 0};
+    }
+    return (coarse_key){2, t, a, b, 0};
+}
+
+/* Barycentric weights of base-domain (u, v) in the sublevel-s lattice
+ * triangle (a[k], b[k]). */
+static void lattice_weights(unsigned s, float u, float v, const uint32_t a[3], const uint32_t b[3],
+                            float w[3])
+{
+    float n = (float)mr_umesh_segments(s);
+    float x = u * n - (float)a[0], y = v * n - (float)b[0];
+    float d1x = (float)a[1] - (float)a[0], d1y = (float)b[1] - (float)b[0];
+    float d2x = (float)a[2] - (float)a[0], d2y = (float)b[2] - (float)b[0];
+    float det = d1x * d2y - d1y * d2x;
+    w[1] = (x * d2y - y * d2x) / det;
+    w[2] = (d1x * y - d1y * x) / det;
+    w[0] = 1.0f - w[1] - w[2];
+}
+
+static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t);
+
+/* The base triangle t as a rest-pose patch. */
+static mr_dmm_patch rest_patch(const mr_geom *g, uint32_t t)
+{
+    mr_dmm_patch p = patch_of(g, t);
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    for (int k = 0; k < 3; k++) {
+        p.tri.pos[k] = mr_v3(g->rest_pos[idx[k] * 3], g->rest_pos[idx[k] * 3 + 1],
+                             g->rest_pos[idx[k] * 3 + 2]);
+        p.tri.dir[k] = mr_v3(g->rest_dir[idx[k] * 3], g->rest_dir[idx[k] * 3 + 1],
+                             g->rest_dir[idx[k] * 3 + 2]);
+        p.mats[k] = NULL;
+    }
+    return p;
+}
+
+static double tri_area(const float *pos, const uint32_t *ix)
+{
+    mr_vec3 p0 = mr_v3(pos[ix[0] * 3], pos[ix[0] * 3 + 1], pos[ix[0] * 3 + 2]);
+    mr_vec3 p1 = mr_v3(pos[ix[1] * 3], pos[ix[1] * 3 + 1], pos[ix[1] * 3 + 2]);
+    mr_vec3 p2 = mr_v3(pos[ix[2] * 3], pos[ix[2] * 3 + 1], pos[ix[2] * 3 + 2]);
+    return 0.5 * (double)mr_v3_len(mr_v3_cross(mr_v3_sub(p1, p0), mr_v3_sub(p2, p0)));
+}
+
+static int smooth_normals_build(mr_geom *g, mr_error *err)
+{
+    size_t nt = g->base_triangle_count, meshes = g->asset->mesh_count;
+    int rc = MR_OK;
+    double *base_area = calloc(meshes, sizeof(double)), *acc = NULL;
+    uint32_t *base_count = calloc(meshes, sizeof(uint32_t));
+    unsigned *mesh_level = calloc(meshes, sizeof(unsigned));
+    coarse_key *keys = NULL;
+    mr_vec3 *pts = malloc(mr_umesh_vertex_count(MR_UMESH_MAX_LEVEL) * sizeof(mr_vec3));
+    g->coarse_level = malloc(nt);
+    g->coarse_first = malloc((nt + 1) * sizeof(uint32_t));
+    if (!base_area || !base_count || !mesh_level || !pts || !g->coarse_level || !g->coarse_first)
+        goto nomem;
+    /* the coarse sublevel: micro-triangles of the detail's mean area */
+    for (size_t t = 0; t < nt; t++) {
+        base_area[g->tri_mesh[t]] += tri_area(g->rest_pos, g->base_indices + t * 3);
+        base_count[g->tri_mesh[t]]++;
+    }
+    for (size_t i = 0; i < meshes; i++) {
+        const mr_mesh *m = &g->asset->meshes[i];
+        double detail = 0;
+        for (size_t k = 0; k < m->triangle_count; k++)
+            detail += tri_area(m->positions, m->indices + 3 * k);
+        double ratio = base_count[i] && detail > 0
+                           ? (base_area[i] / base_count[i]) / (detail / m->triangle_count)
+                           : 1.0;
+        double l = ratio > 1 ? nearbyint(0.5 * log2(ratio)) : 0;
+        mesh_level[i] = (unsigned)fmin(fmax(l, 0), MR_UMESH_MAX_LEVEL);
+    }
+    uint64_t total = 0;
+    for (size_t t = 0; t < nt; t++) {
+        unsigned level = mr_dmm_info_level(g->tri_info[t]);
+        unsigned want = mesh_level[g->tri_mesh[t]];
+        g->coarse_level[t] = (uint8_t)(want < level ? want : level);
+        g->coarse_first[t] = (uint32_t)total;
+        total += mr_umesh_vertex_count(g->coarse_level[t]);
+    }
+    g->coarse_first[nt] = (uint32_t)total;
+    keys = malloc(total * sizeof *keys);
+    g->coarse_id = malloc(total * sizeof(uint32_t));
+    if (!keys || !g->coarse_id)
+        goto nomem;
+    for (size_t t = 0; t < nt; t++) {
+        unsigned s = g->coarse_level[t];
+        for (uint32_t i = 0; i < mr_umesh_vertex_count(s); i++) {
+            uint32_t a, b;
+            mr_umesh_vertex_coords(s, i, &a, &b);
+            coarse_key *k = &keys[g->coarse_first[t] + i];
+            *k = coarse_key_of(g, (uint32_t)t, s, a, b);
+            k->slot = g->coarse_first[t] + i;
+        }
+    }
+    qsort(keys, total, sizeof *keys, coarse_key_cmp);
+    uint32_t ids = 0;
+    for (size_t i = 0; i < total; i++) {
+        if (i > 0 && coarse_key_cmp(&keys[i - 1], &keys[i]) != 0)
+            ids++;
+        g->coarse_id[keys[i].slot] = ids;
+    }
+    ids = total ? ids + 1 : 0;
+    g->smooth_count = ids;
+    acc = calloc((size_t)ids * 3, sizeof(double));
+    g->smooth_normals = malloc((size_t)ids * 3 * sizeof(float));
+    if (!acc || !g->smooth_normals)
+        goto nomem;
+    /* every surviving micro-triangle's cross product to the corners of the
+     * coarse sub-triangle holding it (rest pose, decoded displacements) */
+    for (size_t t = 0; t < nt; t++) {
+        mr_dmm_patch p = rest_patch(g, (uint32_t)t);
+        unsigned level = p.level, s = g->coarse_level[t];
+        uint32_t n = mr_umesh_segments(level), count;
+        for (uint32_t b = 0; b <= n; b++)
+            for (uint32_t a = 0; a + b <= n; a++)
+                pts[mr_umesh_vertex_index(level, a, b)] = mr_dmm_vertex(&p, a, b);
+        const uint32_t *tris = local_tris(g, (uint32_t)t, &count);
+        for (uint32_t k = 0; k < count; k++) {
+            const uint32_t *ix = tris + 3 * k;
+            mr_vec3 c = mr_v3_cross(mr_v3_sub(pts[ix[1]], pts[ix[0]]), mr_v3_sub(pts[ix[2]], pts[ix[0]]));
+            uint32_t sa = 0, sb = 0, ca[3], cb[3];
+            for (int j = 0; j < 3; j++) {
+                uint32_t a, b;
+                mr_umesh_vertex_coords(level, ix[j], &a, &b);
+                sa += a, sb += b;
+            }
+            mr_dmm_locate(s, 0, (float)sa / (3.0f * (float)n), (float)sb / (3.0f * (float)n), ca, cb);
+            for (int j = 0; j < 3; j++) {
+                double *dst = acc + 3 * (size_t)g->coarse_id[g->coarse_first[t] +
+                                                            mr_umesh_vertex_index(s, ca[j], cb[j])];
+                dst[0] += c.x, dst[1] += c.y, dst[2] += c.z;
+            }
+        }
+    }
+    for (size_t i = 0; i < ids; i++) {
+        double *a = acc + 3 * i, len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        for (int k = 0; k < 3; k++)
+            g->smooth_normals[3 * i + k] = len > 0 ? (float)(a[k] / len) : 0.0f;
+    }
+    goto done;
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for smooth dmm normals", g->asset->path);
+done:
+    free(base_area);
+    free(base_count);
+    free(mesh_level);
+    free(keys);
+    free(acc);
+    free(pts);
+    return rc;
+}
+
 static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
                       const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
@@ -319,6 +571,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     g->base_vertex_count = (uint32_t)nv;
     g->base_triangle_count = (uint32_t)nt;
+    bake_quality(g);
     if ((rc = mr_umesh_topology_init(&g->topo, level, err)) < 0 || (rc = lay_out(g, err)) < 0 ||
         (rc = allocate(g, err)) < 0)
         goto fail;
@@ -341,6 +594,8 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     if (tessellated(g))
         fill_micro_indices(g, g->indices);
+    if (g->desc.normals == MR_DMM_NORMALS_SMOOTH && (rc = smooth_normals_build(g, err)) < 0)
+        goto fail;
     *out = g;
     return MR_OK;
 nomem:
@@ -656,6 +911,38 @@ static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
     return t;
 }
 
+/* The cofactor of the barycentric blend of base triangle t's corner
+ * matrices at base-domain (u, v): what moves a rest-pose normal there. */
+static mr_mat4 normal_matrix_at(const mr_geom *g, uint32_t t, float u, float v)
+{
+    const uint32_t *idx = g->base_indices + (size_t)t * 3;
+    float w[3] = {1.0f - u - v, u, v};
+    mr_mat4 m = mr_mat4_identity();
+    for (int e = 0; e < 12; e++)
+        m.m[e] = w[0] * g->mats[idx[0]].m[e] + w[1] * g->mats[idx[1]].m[e] +
+                 w[2] * g->mats[idx[2]].m[e];
+    return mr_mat4_normal_matrix(&m);
+}
+
+/* Normals "smooth" at base-domain (u, v) of base triangle t, rest pose:
+ * the coarse sub-triangle's corners (lattice (a[k], b[k]) at its coarse
+ * sublevel) and their normals n[k], interpolated into *out. */
+static void smooth_rest_normal(const mr_geom *g, uint32_t t, float u, float v, uint32_t a[3],
+                               uint32_t b[3], mr_vec3 n[3], mr_vec3 *out)
+{
+    unsigned s = g->coarse_level[t];
+    float w[3];
+    mr_dmm_locate(s, 0, u, v, a, b);
+    lattice_weights(s, u, v, a, b, w);
+    *out = mr_v3(0, 0, 0);
+    for (int k = 0; k < 3; k++) {
+        const float *x = g->smooth_normals +
+                         3 * (size_t)g->coarse_id[g->coarse_first[t] + mr_umesh_vertex_index(s, a[k], b[k])];
+        n[k] = mr_v3(x[0], x[1], x[2]);
+        *out = mr_v3_add(*out, mr_v3_scale(n[k], w[k]));
+    }
+}
+
 static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
     uint32_t t = hit_domain(g, prim, &u, &v);
@@ -663,6 +950,12 @@ static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
         return mr_v3(0, 0, 1);
     mr_dmm_patch p = patch_of(g, t);
     uint32_t a[3], b[3];
+    if (g->desc.normals == MR_DMM_NORMALS_SMOOTH) {
+        mr_vec3 n[3], rest;
+        smooth_rest_normal(g, t, u, v, a, b, n, &rest);
+        mr_mat4 cof = normal_matrix_at(g, t, u, v);
+        return mr_mat4_dir(&cof, rest);
+    }
     mr_dmm_locate(p.level, p.decimate, u, v, a, b);
     if (g->desc.normals == MR_DMM_NORMALS_GEOMETRIC) {
         mr_vec3 x[3];
@@ -672,24 +965,45 @@ static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
     }
     /* Interpolated-matrix normal: the rest micro-triangle's normal through
      * the cofactor of M(u, v). */
-    const uint32_t *idx = g->base_indices + (size_t)t * 3;
-    mr_dmm_patch rest = p;
-    for (int k = 0; k < 3; k++) {
-        rest.tri.pos[k] = load3(g->rest_pos, idx[k]);
-        rest.tri.dir[k] = load3(g->rest_dir, idx[k]);
-        rest.mats[k] = NULL;
-    }
+    mr_dmm_patch rest = rest_patch(g, t);
     mr_vec3 x[3];
     for (int k = 0; k < 3; k++)
         x[k] = mr_dmm_vertex(&rest, a[k], b[k]);
     mr_vec3 n = mr_v3_cross(mr_v3_sub(x[1], x[0]), mr_v3_sub(x[2], x[0]));
-    float w[3] = {1.0f - u - v, u, v};
-    mr_mat4 m = mr_mat4_identity();
-    for (int e = 0; e < 12; e++)
-        m.m[e] = w[0] * g->mats[idx[0]].m[e] + w[1] * g->mats[idx[1]].m[e] +
-                 w[2] * g->mats[idx[2]].m[e];
-    mr_mat4 cof = mr_mat4_normal_matrix(&m);
+    mr_mat4 cof = normal_matrix_at(g, t, u, v);
     return mr_mat4_dir(&cof, n);
+}
+
+/* Normals "smooth": the hit lifted onto the surface they describe, as the
+ * mesh kind does for its vertex normals (kind.h shading_point; Hanika
+ * 2021), with the coarse sub-triangle's posed corners and their normals:
+ * the micro-surface's own bumps keep shadowing each other, the facets of
+ * the coarse lattice do not. */
+static bool dmm_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
+                              mr_vec3 *out)
+{
+    if (g->desc.normals != MR_DMM_NORMALS_SMOOTH)
+        return false;
+    uint32_t t = hit_domain(g, prim, &u, &v);
+    if (t >= g->base_triangle_count)
+        return false;
+    mr_dmm_patch patch = patch_of(g, t);
+    uint32_t a[3], b[3];
+    mr_vec3 n[3], rest;
+    smooth_rest_normal(g, t, u, v, a, b, n, &rest);
+    unsigned shift = patch.level - g->coarse_level[t];
+    float w[3];
+    lattice_weights(g->coarse_level[t], u, v, a, b, w);
+    mr_mat4 cof = normal_matrix_at(g, t, u, v);
+    *out = p;
+    for (int k = 0; k < 3; k++) {
+        mr_vec3 x = mr_dmm_vertex(&patch, a[k] << shift, b[k] << shift);
+        mr_vec3 nk = mr_v3_normalize_or(mr_mat4_dir(&cof, n[k]), mr_v3(0, 0, 0));
+        float depth = mr_v3_dot(mr_v3_sub(p, x), nk);
+        if (depth < 0)
+            *out = mr_v3_add(*out, mr_v3_scale(nk, -depth * w[k]));
+    }
+    return true;
 }
 
 static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
@@ -736,6 +1050,10 @@ static size_t dmm_memory(const mr_geom *g)
     if (g->positions)
         bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
                  (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+    if (g->coarse_first)
+        bytes += nt * (1 + sizeof(uint32_t)) + sizeof(uint32_t) +
+                 (size_t)g->coarse_first[nt] * sizeof(uint32_t) +
+                 (size_t)g->smooth_count * 3 * sizeof(float);
     return bytes;
 }
 
@@ -744,12 +1062,33 @@ static uint64_t dmm_primitives(const mr_geom *g)
     return g->micro_first[g->base_triangle_count];
 }
 
+/* The bake's own quality (dmm_bake.h steps 5 and 6), the same every frame:
+ * what a user reads to judge a level or base ratio before looking at
+ * frames. */
+static const mr_kind_stat DMM_STATS[] = {
+    {"dmm_bake_rms_distance", "diagonal",
+     "RMS distance of the baked surface (its micro-vertices and micro-triangle centroids, rest "
+     "pose) to the detailed mesh, as a fraction of the asset's rest-pose bounding-box diagonal",
+     MR_STAT_MAX},
+    {"dmm_bake_max_distance", "diagonal",
+     "largest such distance, as a fraction of the same diagonal", MR_STAT_MAX},
+    {"dmm_bake_unmatched_pct", "%",
+     "micro-vertices whose displacement search found no detailed surface facing its way within "
+     "its reach (their height came from the nearest detailed point), as % of all",
+     MR_STAT_MAX},
+};
+
+static void dmm_frame_stats(const mr_geom *g, double *values)
+{
+    memcpy(values, g->bake_quality, sizeof g->bake_quality);
+}
+
 /* The "dmm" block. "deformation" chooses what mode "tessellated" expands
  * and must agree with the other modes; base_ratio and base_triangles are
  * alternatives. */
 static const char *const MODES[] = {"tessellated", "base", "interpolated"};
 static const char *const DEFORMS[] = {"base", "interpolated"};
-static const char *const NORMALS[] = {"geometric", "matrix"};
+static const char *const NORMALS[] = {"geometric", "matrix", "smooth"};
 static const char *const LEVELS[] = {"uniform", "adaptive"};
 
 enum { P_LEVEL, P_RATIO, P_TRIANGLES, P_MODE, P_DEFORM, P_NORMALS, P_LEVELS };
@@ -810,10 +1149,15 @@ static const mr_param DMM_PARAMS[] = {
                                  "value is refused."},
     [P_NORMALS] = {.field = "normals", .type = MR_PARAM_ENUM,
                    .offset = offsetof(mr_dmm_params, normals), MR_PARAM_CHOICES(NORMALS),
-                   .def = MR_DMM_NORMALS_GEOMETRIC,
-                   .description = "Shading normal: the hit micro-triangle's own normal (\"geometric\"), or the "
-                                  "rest-pose micro-triangle normal moved by the cofactor of the interpolated "
-                                  "matrix at the hit (\"matrix\", the paper's Fig. 1c), in any mode."},
+                   .def = MR_DMM_NORMALS_SMOOTH,
+                   .description = "Shading normal, in any mode. \"smooth\": normals at the detailed mesh's scale "
+                                  "(the area-weighted normal of the micro-surface around each vertex of a "
+                                  "coarse lattice whose triangles match the detailed mesh's, continuous across "
+                                  "base edges), interpolated and moved by the cofactor of the interpolated "
+                                  "matrix at the hit; shadow rays start on the smooth surface they describe. "
+                                  "\"geometric\": the hit micro-triangle's own normal (flat, shows the facets). "
+                                  "\"matrix\": the rest-pose micro-triangle normal moved by the cofactor of the "
+                                  "interpolated matrix at the hit (the paper's Fig. 1c)."},
     [P_LEVELS] = {.field = "levels", .type = MR_PARAM_ENUM,
                   .offset = offsetof(mr_dmm_params, levels), MR_PARAM_CHOICES(LEVELS),
                   .def = MR_DMM_LEVELS_UNIFORM,
@@ -855,8 +1199,12 @@ const mr_kind mr_kind_dmm = {
     .attach = dmm_attach,
     .commit = dmm_commit,
     .normal = dmm_normal,
+    .shading_point = dmm_shading_point,
     .tessellate = dmm_tessellate,
     .memory = dmm_memory,
     .primitives = dmm_primitives,
+    .stats = DMM_STATS,
+    .stat_count = sizeof DMM_STATS / sizeof DMM_STATS[0],
+    .frame_stats = dmm_frame_stats,
     .free = dmm_free,
 };

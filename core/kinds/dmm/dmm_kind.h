@@ -25,8 +25,13 @@ typedef enum mr_dmm_deform { MR_DMM_DEFORM_BASE = 0, MR_DMM_DEFORM_INTERPOLATED 
 
 /* Shading normal of a dmm hit: the micro-triangle's geometric normal, or
  * the rest-pose micro-triangle normal moved by the interpolated matrix at
- * the hit (the paper's Fig. 1c "interpolated-matrix normals"). */
-typedef enum mr_dmm_normals { MR_DMM_NORMALS_GEOMETRIC = 0, MR_DMM_NORMALS_MATRIX } mr_dmm_normals;
+ * the hit (the paper's Fig. 1c "interpolated-matrix normals"), or smooth
+ * normals at the detailed mesh's scale moved the same way (dmm_kind.c). */
+typedef enum mr_dmm_normals {
+    MR_DMM_NORMALS_GEOMETRIC = 0,
+    MR_DMM_NORMALS_MATRIX,
+    MR_DMM_NORMALS_SMOOTH
+} mr_dmm_normals;
 
 /* One level for every base triangle, or per-triangle levels from the
  * detail (dmm_bake.h). */

@@ -129,6 +129,33 @@ static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
                  w * n0[2] + u * n1[2] + v * n2[2]);
 }
 
+/* The hit lifted onto the surface the vertex normals describe (Hanika,
+ * "Hacking the shadow terminator", Ray Tracing Gems II, 2021): for each
+ * corner k whose tangent plane (position v_k, normal n_k) p lies below,
+ * p moves up along n_k by its depth below that plane, weighted by the
+ * corner's barycentric weight. Where the surface is convex the point rises
+ * off the flat triangle towards the curved surface the normals interpolate,
+ * about as far as that surface stands off it (quadratic in the distance to
+ * the corners, zero at them); where it is concave or flat the point stays.
+ * Shadow rays from there clear the neighbouring triangles a ray from the
+ * flat triangle would graze. */
+static bool mesh_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
+                               mr_vec3 *lifted)
+{
+    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const float w[3] = {1.0f - u - v, u, v};
+    mr_vec3 out = p;
+    for (int k = 0; k < 3; k++) {
+        const float *x = g->positions + (size_t)tri[k] * 3, *nn = g->normals + (size_t)tri[k] * 3;
+        mr_vec3 n = mr_v3_normalize_or(mr_v3(nn[0], nn[1], nn[2]), mr_v3(0, 0, 0));
+        float depth = mr_v3_dot(mr_v3_sub(p, mr_v3(x[0], x[1], x[2])), n);
+        if (depth < 0)
+            out = mr_v3_add(out, mr_v3_scale(n, -depth * w[k]));
+    }
+    *lifted = out;
+    return true;
+}
+
 static int mesh_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
     return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
@@ -150,6 +177,7 @@ const mr_kind mr_kind_mesh = {
     .attach = mesh_attach,
     .commit = mesh_commit,
     .normal = mesh_normal,
+    .shading_point = mesh_shading_point,
     .tessellate = mesh_tessellate,
     .memory = mesh_memory,
     .primitives = mesh_primitives,

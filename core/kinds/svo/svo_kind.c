@@ -777,33 +777,36 @@ enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_D
        S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_COUNT };
 
 static const mr_kind_stat SVO_STATS[S_COUNT] = {
-    [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", false},
+    [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", MR_STAT_SUM},
     [S_BUILD] = {"svo_build_s", "s",
                  "building the shared octree at creation: voxelisation or its load from the "
-                 "derived-data cache, and the selection's side data (first frame only)",
-                 .once = true},
+                 "derived-data cache, and the selection's side data", MR_STAT_ONCE},
     [S_SKELETON] = {"svo_skeleton_s", "s",
-                    "skeleton extraction and skinning to it at creation, with \"skeleton\" "
-                    "(first frame only)", .once = true},
-    [S_BONES] = {"svo_bones", "count", "bones of the extracted skeleton (first frame only)",
-                 .once = true},
+                    "skeleton extraction and skinning to it at creation, with \"skeleton\"",
+                    MR_STAT_ONCE},
+    [S_BONES] = {"svo_bones", "count", "bones of the extracted skeleton (0 without one)",
+                 MR_STAT_SUM},
     [S_THINNESS] = {"svo_thinness_pct", "%",
-                    "thinness error of the extracted skeleton (thesis eq. 5.7.1; first frame "
-                    "only)", .once = true},
-    [S_POSE] = {"svo_pose_s", "s", "instance poses and their skin matrices, summed over instances", false},
+                    "thinness error of the extracted skeleton (thesis eq. 5.7.1)", MR_STAT_MAX},
+    [S_POSE] = {"svo_pose_s", "s", "instance poses and their skin matrices, summed over instances",
+                MR_STAT_SUM},
     [S_SELECT] = {"svo_select_s", "s",
-                  "screen-space selection and deformation of voxels, summed over instances", false},
-    [S_DEFORMED] = {"svo_deformed", "count", "voxels deformed while selecting (selected or not)", false},
-    [S_SELECTED] = {"svo_selected", "count", "voxels selected: the deformed boxes", false},
+                  "screen-space selection and deformation of voxels, summed over instances",
+                  MR_STAT_SUM},
+    [S_DEFORMED] = {"svo_deformed", "count", "voxels deformed while selecting (selected or not)",
+                    MR_STAT_SUM},
+    [S_SELECTED] = {"svo_selected", "count", "voxels selected: the deformed boxes", MR_STAT_SUM},
     [S_EMIT] = {"svo_emit_s", "s",
                 "resampling (resize, emit): cells emitted for the deformed boxes, summed over "
-                "instances", false},
+                "instances", MR_STAT_SUM},
     [S_REBUILD] = {"svo_rebuild_s", "s",
                    "resampling (resize, emit): radix sort, compaction and build of the "
-                   "per-instance world octrees, summed over instances", false},
-    [S_CELLS] = {"svo_cells", "count", "cells emitted before compaction (resize, emit)", false},
+                   "per-instance world octrees, summed over instances", MR_STAT_SUM},
+    [S_CELLS] = {"svo_cells", "count", "cells emitted before compaction (resize, emit)",
+                 MR_STAT_SUM},
     [S_OCTREE_BYTES] = {"svo_octree_bytes", "bytes",
-                        "the per-instance world octrees rebuilt this frame (resize, emit)", false},
+                        "the per-instance world octrees rebuilt this frame (resize, emit)",
+                        MR_STAT_SUM},
 };
 
 static void svo_frame_stats(const mr_geom *g, double *v)

@@ -1,0 +1,282 @@
+/*
+ * bench_speckle.c - shading artefacts of every example against the same
+ * scene as triangle meshes (issue 13 part 1). Not a test: it prints figures
+ * and never fails.
+ *
+ * For each examples/<name>.json (sorted) the job is rendered as it is and
+ * as triangles: the same file with every object turned into plain mesh
+ * objects (kind and kind block dropped; an svo object becomes one mesh
+ * object per instance, with the instance's transform and pose, or the rest
+ * pose for method "rigid", which ignores poses). Same camera, lights,
+ * frames and poses; shadows on whatever the example says (the artefacts are
+ * mostly shadow acne). Reported per example, over all its frames:
+ *  - the median isolated-dark-pixel rate (mr_film_speckles, the
+ *    `speckle_pct` of every frame's stats) of the example and of its
+ *    triangle version, and their ratio (issue 13's goal: <= 1.2);
+ *  - strays: pixels the example hits more than one pixel away from the
+ *    triangle version's silhouette (mr_film_compare, summed over frames;
+ *    goal 0 for dmm) and holes, the converse.
+ * An example whose poses name joints the triangle mesh does not have (svo
+ * skeletons extract their own bones) has no triangle version and is
+ * reported alone.
+ *
+ * usage: bench_speckle [--examples a,b,...] [--frames N]  (from the
+ * repository root; --frames renders every k-th frame so at most N per
+ * example, default all)
+ */
+#include <dirent.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cJSON.h>
+
+#include "microray.h"
+#include "files.h"
+#include "job_json.h"
+#include "bench_util.h"
+
+#define MAX_EXAMPLES 64
+#define MAX_FRAMES 512
+
+static void die(const char *what, const char *msg)
+{
+    fprintf(stderr, "bench_speckle: %s: %s\n", what, msg);
+    exit(1);
+}
+
+/* The triangle version of one object, appended to out; false when there
+ * is none. */
+static bool to_triangles(const cJSON *o, cJSON *out)
+{
+    const cJSON *kind = cJSON_GetObjectItem(o, "kind");
+    const char *k = cJSON_IsString(kind) ? kind->valuestring : "mesh";
+    if (strcmp(k, "svo") != 0) {
+        cJSON *m = cJSON_Duplicate(o, true);
+        cJSON_DeleteItemFromObject(m, "kind");
+        cJSON_DeleteItemFromObject(m, k);
+        cJSON_AddItemToArray(out, m);
+        return true;
+    }
+    const cJSON *svo = cJSON_GetObjectItem(o, "svo");
+    const cJSON *method = cJSON_GetObjectItem(svo, "method");
+    bool rigid = !cJSON_IsString(method) || strcmp(method->valuestring, "rigid") == 0;
+    if (cJSON_IsTrue(cJSON_GetObjectItem(svo, "skeleton")) ||
+        cJSON_IsObject(cJSON_GetObjectItem(svo, "skeleton")))
+        return false; /* poses name the extracted bones */
+    if (cJSON_GetObjectItem(o, "transform"))
+        return false; /* not composed here; no example needs it */
+    const cJSON *instances = cJSON_GetObjectItem(svo, "instances");
+    int count = cJSON_IsArray(instances) ? cJSON_GetArraySize(instances) : 1;
+    for (int i = 0; i < count; i++) {
+        const cJSON *inst = cJSON_IsArray(instances) ? cJSON_GetArrayItem(instances, i) : NULL;
+        cJSON *m = cJSON_CreateObject();
+        cJSON_AddItemToObject(m, "asset", cJSON_Duplicate(cJSON_GetObjectItem(o, "asset"), true));
+        const cJSON *color = cJSON_GetObjectItem(o, "color");
+        if (color)
+            cJSON_AddItemToObject(m, "color", cJSON_Duplicate(color, true));
+        const cJSON *t = inst ? cJSON_GetObjectItem(inst, "transform") : NULL;
+        if (t)
+            cJSON_AddItemToObject(m, "transform", cJSON_Duplicate(t, true));
+        const cJSON *pose = inst ? cJSON_GetObjectItem(inst, "pose") : NULL;
+        if (!pose)
+            pose = cJSON_GetObjectItem(o, "pose");
+        if (pose && !rigid)
+            cJSON_AddItemToObject(m, "pose", cJSON_Duplicate(pose, true));
+        cJSON_AddItemToArray(out, m);
+    }
+    return true;
+}
+
+/* The example as parsed: shadows on; and its triangle version (NULL when
+ * it has none). */
+static void load_jobs(const char *path, mr_job **job, mr_job **tri)
+{
+    char *text;
+    size_t len;
+    mr_error err = {0};
+    if (mr_file_read(path, MR_JOB_MAX_BYTES, &text, &len, &err) < 0)
+        die(path, err.msg);
+    cJSON *doc = cJSON_ParseWithLength(text, len);
+    free(text);
+    if (!doc)
+        die(path, "not JSON");
+    cJSON *output = cJSON_GetObjectItem(doc, "output");
+    if (!output)
+        cJSON_AddItemToObject(doc, "output", output = cJSON_CreateObject());
+    cJSON_DeleteItemFromObject(output, "shadows");
+    cJSON_AddTrueToObject(output, "shadows");
+    cJSON *objects = cJSON_CreateArray(), *o;
+    bool convertible = true;
+    cJSON_ArrayForEach(o, cJSON_GetObjectItem(doc, "objects"))
+        convertible = convertible && to_triangles(o, objects);
+    char *as_is = cJSON_PrintUnformatted(doc);
+    cJSON_ReplaceItemInObject(doc, "objects", objects);
+    char *as_tri = cJSON_PrintUnformatted(doc);
+    cJSON_Delete(doc);
+    mr_job_error jerr = {0};
+    if (mr_job_parse(as_is, strlen(as_is), job, &jerr) < 0)
+        die(path, jerr.message);
+    *tri = NULL;
+    if (convertible && mr_job_parse(as_tri, strlen(as_tri), tri, &jerr) < 0)
+        die(path, jerr.message);
+    free(as_is);
+    free(as_tri);
+}
+
+static mr_asset **load_assets(const mr_job *job)
+{
+    mr_asset **assets = calloc(job->asset_count, sizeof *assets);
+    if (!assets)
+        die("assets", "out of memory");
+    for (size_t i = 0; i < job->asset_count; i++) {
+        const mr_asset_desc *d = &job->assets[i];
+        mr_error err = {0};
+        mr_asset *a = NULL;
+        if (mr_asset_load(d->path, &a, &err) < 0)
+            die(d->path, err.msg);
+        if (d->refine) {
+            mr_asset *r = NULL;
+            if (mr_refine_asset(a, &d->refine_params, &r, &err) < 0)
+                die(d->path, err.msg);
+            mr_asset_free(a);
+            a = r;
+        }
+        assets[i] = a;
+    }
+    return assets;
+}
+
+static void free_assets(mr_asset **assets, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        mr_asset_free(assets[i]);
+    free(assets);
+}
+
+static int by_name(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+static bool wanted(const char *name, const char *list)
+{
+    if (!list)
+        return true;
+    size_t n = strlen(name);
+    for (const char *s = list; (s = strstr(s, name)); s += n)
+        if ((s == list || s[-1] == ',') && (s[n] == ',' || s[n] == '\0'))
+            return true;
+    return false;
+}
+
+typedef struct row {
+    char name[128];
+    size_t frames;
+    double pct, tri_pct;
+    size_t strays, holes;
+    bool has_tri;
+} row;
+
+static row measure(const char *name, const char *path, int max_frames)
+{
+    row res = {.frames = 0};
+    snprintf(res.name, sizeof res.name, "%s", name);
+    mr_job *job[2];
+    load_jobs(path, &job[0], &job[1]);
+    res.has_tri = job[1] != NULL;
+    int modes = res.has_tri ? 2 : 1;
+    mr_device *dev = NULL;
+    mr_error err = {0};
+    if (mr_device_new(0, &dev, &err) < 0)
+        die("device", err.msg);
+    mr_asset **assets = load_assets(job[0]);
+    mr_renderer *r[2] = {0};
+    mr_film *film[2] = {0};
+    for (int m = 0; m < modes; m++)
+        if (mr_renderer_new(dev, job[m], assets, NULL, &r[m], &err) < 0 ||
+            mr_film_new(job[m]->output.width, job[m]->output.height, &film[m], &err) < 0)
+            die(name, err.msg);
+    size_t count = job[0]->frame_count, step = 1;
+    if (max_frames > 0 && count > (size_t)max_frames)
+        step = (count + (size_t)max_frames - 1) / (size_t)max_frames;
+    double pct[2][MAX_FRAMES];
+    for (size_t f = 0; f < count && res.frames < MAX_FRAMES; f += step, res.frames++) {
+        mr_frame_stats st[2];
+        for (int m = 0; m < modes; m++) {
+            if (mr_renderer_render(r[m], f, film[m], &st[m], &err) < 0)
+                die(name, err.msg);
+            pct[m][res.frames] = st[m].speckle_pct;
+        }
+        if (res.has_tri) {
+            mr_compare_result c;
+            if (mr_film_compare(film[0], film[1], st[1].scene_diagonal, &c, &err) < 0)
+                die(name, err.msg);
+            res.strays += c.strays;
+            res.holes += c.holes;
+        }
+    }
+    res.pct = median(pct[0], (int)res.frames);
+    res.tri_pct = res.has_tri ? median(pct[1], (int)res.frames) : 0;
+    for (int m = 0; m < modes; m++) {
+        mr_film_free(film[m]);
+        mr_renderer_free(r[m]);
+    }
+    free_assets(assets, job[0]->asset_count);
+    for (int m = 0; m < modes; m++)
+        mr_job_free(job[m]);
+    mr_device_free(dev);
+    return res;
+}
+
+int main(int argc, char **argv)
+{
+    const char *list = NULL;
+    int max_frames = 0;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--examples") == 0 && i + 1 < argc) {
+            list = argv[++i];
+        } else if (strcmp(argv[i], "--frames") == 0 && i + 1 < argc) {
+            max_frames = atoi(argv[++i]);
+        } else {
+            fprintf(stderr, "usage: bench_speckle [--examples a,b,...] [--frames N]\n");
+            return 2;
+        }
+    }
+    DIR *d = opendir("examples");
+    if (!d)
+        die("examples", "run from the repository root");
+    char *names[MAX_EXAMPLES];
+    int n = 0;
+    for (struct dirent *e; (e = readdir(d)) && n < MAX_EXAMPLES;) {
+        size_t len = strlen(e->d_name);
+        if (len > 5 && strcmp(e->d_name + len - 5, ".json") == 0) {
+            names[n] = strndup(e->d_name, len - 5);
+            if (wanted(names[n], list))
+                n++;
+            else
+                free(names[n]);
+        }
+    }
+    closedir(d);
+    qsort(names, (size_t)n, sizeof *names, by_name);
+    printf("\n## Shading artefacts (issue 13): isolated dark pixels of every example against "
+           "the same scene as triangle meshes, shadows on, median over its frames\n\n"
+           "| example | frames | speckle %% | as triangles %% | ratio | strays | holes |\n"
+           "|---|---|---|---|---|---|---|\n");
+    for (int i = 0; i < n; i++) {
+        char path[512];
+        snprintf(path, sizeof path, "examples/%s.json", names[i]);
+        row x = measure(names[i], path, max_frames);
+        if (x.has_tri)
+            printf("| %s | %zu | %.3f | %.3f | %.2f | %zu | %zu |\n", x.name, x.frames, x.pct,
+                   x.tri_pct, x.tri_pct > 0 ? x.pct / x.tri_pct : 0.0, x.strays, x.holes);
+        else
+            printf("| %s | %zu | %.3f | - | - | - | - |\n", x.name, x.frames, x.pct);
+        fflush(stdout);
+        free(names[i]);
+    }
+    printf("\nstrays: pixels an example hits more than one pixel away from its triangle "
+           "version's silhouette (summed over frames); holes: the converse.\n");
+    return 0;
+}
