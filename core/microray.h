@@ -682,6 +682,24 @@ typedef struct mr_asset mr_asset;
 int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
 void mr_asset_free(mr_asset *asset);
 
+/* Builds an asset from one in-memory triangle mesh (copied), with a single
+ * root node. For clients with meshes of their own (tests, generated fixtures,
+ * references a benchmark makes). normals may be NULL. */
+int mr_asset_from_mesh(const char *name, const float *positions, const float *normals,
+                       uint32_t vertex_count, const uint32_t *indices,
+                       uint32_t triangle_count, mr_asset **out, mr_error *err);
+
+/* The same triangles shaded by their facets: an asset of one mesh whose
+ * triangles have corners of their own (3 per triangle) that carry the
+ * triangle's unit normal ((0, 0, 1) for a degenerate one). The reference
+ * for how a surface is oriented, as opposed to its interpolated vertex
+ * normals: what a kind that shades micro-triangles by their own normals
+ * (dmm) converges to. Errors as mr_asset_from_mesh (3 * triangle_count
+ * corners count against the vertex cap). */
+int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_count,
+                     const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
+                     mr_error *err);
+
 /* Triangles over all meshes. */
 size_t mr_asset_triangle_count(const mr_asset *asset);
 /* Animation clips (a job's pose names them by index or name), and the
