@@ -908,9 +908,11 @@ static void part_d(double deadline)
          * marginal cost of the last doubling is what scales (a job holds at most
          * INSTANCES_PER_JOB at once) */
         const double held = (double)(n < INSTANCES_PER_JOB ? n : INSTANCES_PER_JOB);
-        const double bytes = (peak - base_rss) / held;
+        /* (Linux updates VmHWM lazily: a few pages below the RSS read
+         * after the reset read as 0) */
+        const double bytes = fmax(peak - base_rss, 0) / held;
         const double marginal = n > 1 && last_n < INSTANCES_PER_JOB
-                                    ? (peak - last_peak) / (held - (double)last_n)
+                                    ? fmax(peak - last_peak, 0) / (held - (double)last_n)
                                     : bytes;
         printf("| %zu | %.0f | %.1f | %.2f | %.2f | %.2f | %.3f | %.3f | %.3f | %.0f | %.0f | %.0f | "
                "%.0f | %.0f |\n",
