@@ -263,7 +263,7 @@ static void test_extras(void **state)
     assert_null(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 1), "springs"));
     cJSON_Delete(doc);
 
-    static char names[MR_FRAME_EXTRAS_MAX + 1][8]; /* borrowed by the stats: static */
+    static char names[MR_FRAME_EXTRAS_MAX + 1][16]; /* borrowed by the stats: static */
     for (int i = 0; i <= MR_FRAME_EXTRAS_MAX; i++)
         snprintf(names[i], sizeof names[i], "e%d", i);
     mr_frame_stats full = frame_fixture(1);
