@@ -700,6 +700,19 @@ int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_c
                      const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
                      mr_error *err);
 
+/* Images are assets too (height textures and tiling exemplars of the
+ * displacement kinds): a file that starts with a PNG, JPEG or OpenEXR
+ * signature is decoded by mr_asset_load into one channel of samples
+ * instead of being handed to assimp (asset/image.h: 8 and 16 bit PNG,
+ * JPEG, scanline EXR with a Y channel, R G B, or a single channel; colour
+ * becomes Rec. 709 luminance). Such an asset has no meshes. Images larger
+ * than these caps are refused before their pixels are allocated. */
+#define MR_MAX_IMAGE_SIDE 16384u
+#define MR_MAX_IMAGE_PIXELS (8192u * 8192u)
+/* Whether the asset is an image; its size in pixels when it is. */
+bool mr_asset_is_image(const mr_asset *asset);
+bool mr_asset_image_size(const mr_asset *asset, uint32_t *width, uint32_t *height);
+
 /* Triangles over all meshes. */
 size_t mr_asset_triangle_count(const mr_asset *asset);
 /* Animation clips (a job's pose names them by index or name), and the
@@ -778,7 +791,11 @@ int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset
  * FLAG_OBJECT -> bool at offset, given as true/false or as an object of the
  * sub table's fields (stored in the same struct; the bool then becomes
  * true), ARRAY -> a pointer at offset to count elements of sub->size bytes,
- * the count a size_t at count_offset, 1..max_items of them. */
+ * the count a size_t at count_offset, 1..max_items of them, ASSET -> a
+ * uint32_t: 0 when absent, else 1 + the index in mr_job.assets of the asset
+ * the job names (a key of its "assets"; a kind reads that asset through
+ * mr_kind_context.assets), NUMBERS -> float[max_items], given as an array of
+ * exactly max_items numbers in lo..hi (def fills every element). */
 
 typedef enum mr_param_type {
     MR_PARAM_INT = 0,
@@ -788,7 +805,9 @@ typedef enum mr_param_type {
     MR_PARAM_FLAG_OBJECT,
     MR_PARAM_ARRAY,
     MR_PARAM_TRANSFORM,
-    MR_PARAM_POSE
+    MR_PARAM_POSE,
+    MR_PARAM_ASSET,
+    MR_PARAM_NUMBERS
 } mr_param_type;
 
 /* mr_param.flags: open ends of a number's range. */
@@ -827,7 +846,7 @@ typedef struct mr_param {
     const mr_param_table *sub; /* FLAG_OBJECT: its object's fields; ARRAY: an element's */
     size_t present_offset;     /* POSE: bool set when the pose is given */
     size_t count_offset;       /* ARRAY: size_t element count */
-    size_t max_items;          /* ARRAY */
+    size_t max_items;          /* ARRAY: most elements; NUMBERS: the count (at most 16) */
     /* Runs after the field was read or found absent (given[i]: field i of
      * the table was in the job). Returns MR_OK or fills err and returns its
      * code. May adjust other values (a default that depends on this one). */

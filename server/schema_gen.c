@@ -96,6 +96,28 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
         break;
     case MR_PARAM_TRANSFORM: s = ref_to("transform"); break;
     case MR_PARAM_POSE: s = ref_to("pose"); break;
+    case MR_PARAM_ASSET:
+        s = cJSON_CreateObject();
+        ok = s && add(s, "type", cJSON_CreateString("string"));
+        break;
+    case MR_PARAM_NUMBERS: {
+        s = cJSON_CreateObject();
+        cJSON *item = cJSON_CreateObject();
+        ok = s && item && add(item, "type", cJSON_CreateString("number")) &&
+             add(item, (p->flags & MR_PARAM_LO_OPEN) ? "exclusiveMinimum" : "minimum",
+                 cJSON_CreateNumber(p->lo)) &&
+             add(item, (p->flags & MR_PARAM_HI_OPEN) ? "exclusiveMaximum" : "maximum",
+                 cJSON_CreateNumber(p->hi));
+        if (!ok) {
+            cJSON_Delete(item);
+            break;
+        }
+        ok = add(s, "type", cJSON_CreateString("array")) &&
+             add(s, "minItems", cJSON_CreateNumber((double)p->max_items)) &&
+             add(s, "maxItems", cJSON_CreateNumber((double)p->max_items)) &&
+             add(s, "items", item);
+        break;
+    }
     }
     if (ok && s && p->description)
         ok = add(s, "description", cJSON_CreateString(p->description));

@@ -76,8 +76,11 @@ typedef struct mr_camera_info {
     float aspect;      /* width / height, 0 if unknown */
 } mr_camera_info;
 
+typedef struct mr_image mr_image; /* asset/image.h */
+
 struct mr_asset {
     char *path;
+    mr_image *image;       /* an image asset (height texture, exemplar): no meshes; else NULL */
     size_t node_count, mesh_count, clip_count, camera_count;
     mr_node *nodes;
     mr_mesh *meshes;

@@ -109,6 +109,11 @@ typedef struct mr_kind_context {
     unsigned threads;      /* the job's thread count (0: all cores) */
     size_t memory_budget;  /* bytes the job's geometry may hold, 0: no limit
                               (mr_renderer_options.memory_budget) */
+    /* the job's imported assets (mr_job.assets order), for kinds whose
+     * parameters name more than the object's own asset (MR_PARAM_ASSET:
+     * a height texture); they outlive the kind's object */
+    const mr_asset *const *assets;
+    size_t asset_count;
 } mr_kind_context;
 
 typedef enum mr_frame_order {

@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "kinds/displaced/displaced_kind.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/mesh/mesh_kind.h"
 #include "kinds/svo/svo_kind.h"
@@ -21,6 +22,7 @@ static const mr_kind *const BUILTIN[] = {
     &mr_kind_mesh,
     &mr_kind_dmm,
     &mr_kind_svo,
+    &mr_kind_displaced,
 };
 
 #define BUILTIN_COUNT (sizeof BUILTIN / sizeof BUILTIN[0])
@@ -60,6 +62,9 @@ int mr_kind_register(const mr_kind *kind, mr_error *err)
     if (kind->stat_count && !kind->frame_stats)
         return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": stats fields need frame_stats",
                             kind->name);
+    if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
+        return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
+                            kind->name);
     /* a job may hold every kind: all their fields fit one frame's extras */
     size_t fields = kind->stat_count;
     for (size_t i = 0; i < mr_kind_count(); i++)
@@ -70,9 +75,6 @@ int mr_kind_register(const mr_kind *kind, mr_error *err)
                             "to %zu, more than the %d a frame carries besides the caller's %d",
                             kind->name, kind->stat_count, fields,
                             MR_FRAME_EXTRAS_MAX - MR_FRAME_EXTRAS_CALLER, MR_FRAME_EXTRAS_CALLER);
-    if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
-        return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
-                            kind->name);
     if (added_count == MAX_ADDED)
         return mr_error_set(err, MR_ERR_LIMIT, "at most %d kinds can be added", MAX_ADDED);
     added[added_count++] = kind;

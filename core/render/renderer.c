@@ -215,6 +215,13 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         o->desc = &job->objects[i];
         o->asset = assets[o->desc->asset];
         o->kind = o->desc->kind; /* never NULL: checked above */
+        if (mr_asset_is_image(o->asset)) {
+            rc = mr_error_set(err, MR_ERR_INVALID,
+                              "/objects/%zu/asset: \"%s\" is an image (%s), not a model; images "
+                              "are named by a kind's parameters (a height texture)",
+                              i, job->assets[o->desc->asset].name, o->asset->path);
+            goto fail;
+        }
         o->animated = object_is_animated(o->desc, job->frame_count);
         for (size_t k = 0; k < o->desc->pose_count && !o->kind->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
@@ -231,7 +238,9 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &cache_dir, err)) < 0)
             goto fail;
         mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev),
-                               .memory_budget = r->opt.memory_budget};
+                               .memory_budget = r->opt.memory_budget,
+                               .assets = (const mr_asset *const *)assets,
+                               .asset_count = job->asset_count};
         rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
         free(cache_dir);
         if (rc < 0) {

@@ -129,7 +129,7 @@ static void test_parse(void **state)
     expect_error("{\"asset\": \"a\", \"test_sphere\": {\"radius\": 1}}", "/objects/0/test_sphere",
                  "\"test_sphere\" parameters need \"kind\": \"test_sphere\"");
     expect_error("{\"asset\": \"a\", \"kind\": \"sphere\"}", "/objects/0/kind",
-                 "one of: \"mesh\", \"dmm\", \"svo\", \"test_sphere\"");
+                 "one of: \"mesh\", \"dmm\", \"svo\", \"displaced\", \"test_sphere\"");
     expect_error("{\"asset\": \"a\", \"kind\": \"test_sphere\", \"radius\": 1}", "/objects/0/radius",
                  "test_sphere, transform");
 }
