@@ -444,6 +444,16 @@ size_t mr_asset_triangle_count(const mr_asset *asset)
     return asset ? asset->triangle_count : 0;
 }
 
+size_t mr_asset_clip_count(const mr_asset *asset)
+{
+    return asset ? asset->clip_count : 0;
+}
+
+double mr_asset_clip_duration(const mr_asset *asset, size_t clip)
+{
+    return asset && clip < asset->clip_count ? asset->clips[clip].duration : 0.0;
+}
+
 size_t mr_asset_memory(const mr_asset *asset)
 {
     if (!asset)

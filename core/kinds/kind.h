@@ -105,13 +105,6 @@ typedef struct mr_geom mr_geom; /* a kind's own instance data */
  * work (about 1.8e19). */
 #define MR_MAX_COORDINATE 1e15
 
-/* A plain triangle soup in world space (tessellation output). */
-typedef struct mr_trimesh {
-    uint32_t vertex_count, triangle_count;
-    float *positions;   /* 3 per vertex */
-    uint32_t *indices;  /* 3 per triangle */
-} mr_trimesh;
-
 /* The frame being prepared. */
 typedef struct mr_geom_frame {
     size_t index;       /* frame number in the job */
@@ -186,7 +179,7 @@ int mr_kind_register(const mr_kind *kind, mr_error *err);
  * (and MR_OK) when root is NULL/empty or the kind keeps none. */
 int mr_kind_cache_dir(const mr_kind *kind, const char *root, char **out, mr_error *err);
 
-void mr_trimesh_free(mr_trimesh *m);
+/* mr_trimesh and mr_trimesh_free are public (microray.h, renderer). */
 /* A copy of a triangle soup (what a kind whose Embree form is already
  * triangles returns from tessellate). */
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,

@@ -50,6 +50,7 @@ struct mr_renderer {
     const object_state *cam_driver; /* object whose pose moves the camera's asset */
     const mr_kind **stat_kinds; /* the job's kinds that report stats fields, each once */
     size_t stat_kind_count;
+    bool reported_once;           /* a frame carried the kinds' creation figures */
     float *crypto_ids[MR_CRYPTO_LAYERS]; /* Cryptomatte id of each object's name, its asset's */
 };
 
@@ -394,8 +395,9 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
 
 /* The kinds' own per-frame fields (kind.h stats), each combined over the
  * job's objects of its kind (summed, or the largest: mr_kind_stat.combine),
- * as the frame's extras. */
-static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
+ * as the frame's extras; creation figures (MR_STAT_ONCE) only on the
+ * renderer's first frame. */
+static int kind_stats(mr_renderer *r, mr_frame_stats *st, mr_error *err)
 {
     for (size_t s = 0; s < r->stat_kind_count; s++) {
         const mr_kind *k = r->stat_kinds[s];
@@ -414,7 +416,8 @@ static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
             first = false;
         }
         for (size_t f = 0; f < k->stat_count; f++) {
-            int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, sum[f], err);
+            double value = k->stats[f].combine == MR_STAT_ONCE && r->reported_once ? 0 : sum[f];
+            int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, value, err);
             if (rc < 0)
                 return mr_error_prefix(err, "kind \"%s\" stats: ", k->name);
         }
@@ -567,5 +570,22 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     mr_speckle_result sp;
     mr_film_speckles(film, &sp);
     st->speckle_pct = sp.speckle_pct;
-    return kind_stats(r, st, err);
+    if ((rc = kind_stats(r, st, err)) < 0)
+        return rc;
+    r->reported_once = true;
+    return MR_OK;
+}
+
+int mr_renderer_tessellate(const mr_renderer *r, size_t object, mr_trimesh *out, mr_error *err)
+{
+    *out = (mr_trimesh){0};
+    if (object >= r->object_count)
+        return mr_error_set(err, MR_ERR_INVALID, "object %zu out of range (job has %zu)", object,
+                            r->object_count);
+    const object_state *o = &r->objects[object];
+    if (!o->kind->tessellate)
+        return mr_error_set(err, MR_ERR_INVALID, "/objects/%zu: kind \"%s\" has no triangle "
+                            "reference", object, o->kind->name);
+    int rc = o->kind->tessellate(o->geom, out, err);
+    return rc < 0 ? mr_error_prefix(err, "/objects/%zu: ", object) : MR_OK;
 }
