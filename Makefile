@@ -30,7 +30,7 @@ WARN    := -Wall -Wextra -Werror -Wshadow -Wno-unused-parameter
 CORE_CFLAGS := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vectorize -D_DEFAULT_SOURCE -Icore -I/usr/include/OpenEXR -MMD -MP $(SAN)
 CFLAGS  := $(CORE_CFLAGS) -Iserver -I/usr/include/cjson
 LDFLAGS := $(SAN)
-CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -ldeflate -lmeshoptimizer -lpng16 -lpthread -lm
+CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -ldeflate -lmeshoptimizer -lpng16 -ljpeg -lpthread -lm
 SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd -lcurl
 CLIENT_LIBS := -lcurl -lcjson
 TEST_LIBS   := -lcmocka -lcurl

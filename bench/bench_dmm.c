@@ -30,6 +30,16 @@
  * "4a": adaptive levels up to 4 (each base triangle at the level matching
  * the detail's density, dmm_bake.h).
  *
+ * Only the public API (microray.h) and the job reader: the modes are the
+ * dmm kind's parameters set by name through its parameter table; the
+ * bake's figures (base triangles, stored bytes, distances, unmatched
+ * micro-vertices, bake seconds) are the dmm_* stats fields of a frame; the
+ * detailed mesh's rest pose is the renderer's exact reference
+ * (mr_renderer_tessellate). The bake table used to bake and encode every
+ * mesh itself and also printed the encoding's largest quantisation error:
+ * an encoder internal no user sees (the 16-bit grid keeps it far below the
+ * bake's distances), so that column is gone.
+ *
  * usage: bench_dmm [--frames N] [--levels 2,3,4a,...]  (run from the repository root)
  */
 #include <math.h>
@@ -37,19 +47,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asset/asset.h"
-#include "asset/refine.h"
 #include "files.h"
-#include "kinds/dmm/dmm_bake.h"
-#include "kinds/dmm/dmm_encode.h"
-#include "kinds/dmm/dmm_kind.h"
-#include "kinds/dmm/micromesh.h"
-#include "kinds/mesh/mesh_kind.h"
 #include "job_json.h"
-#include "render/compare.h"
-#include "render/renderer.h"
-#include "util/clock.h"
-#include "util/parallel.h"
+#include "microray.h"
 #include "bench_util.h"
 
 #define JOB_PATH "examples/skinned-walk.json"
@@ -112,11 +112,85 @@ static const char *config_name(config c)
     return c.adaptive ? adaptive[c.level] : uniform[c.level];
 }
 
-/* What the bake report measured of a configuration. */
+/* A kind's parameter struct (calloc'ed, its table's size) through the
+ * kind's public parameter table: the defaults, then each "field=value" of
+ * spec (INT, NUMBER, or an ENUM by its name), as a job's block would set
+ * them. Release with free_params. */
+static void *kind_params(const mr_kind *kind, const char *spec)
+{
+    const mr_param_table *t = mr_kind_params(kind);
+    void *v = calloc(1, t->size);
+    if (!v)
+        die("params", "out of memory");
+    mr_params_defaults(t, v);
+    char buf[256];
+    snprintf(buf, sizeof buf, "%s", spec);
+    char *save = NULL;
+    for (char *tok = strtok_r(buf, " ", &save); tok; tok = strtok_r(NULL, " ", &save)) {
+        char *eq = strchr(tok, '=');
+        if (!eq)
+            die(spec, "expected field=value");
+        *eq = 0;
+        const mr_param *p = mr_param_find(t, tok);
+        if (!p)
+            die(tok, "no such parameter");
+        char *at = (char *)v + p->offset;
+        const char *val = eq + 1;
+        if (p->type == MR_PARAM_INT) {
+            *(uint32_t *)at = (uint32_t)strtoul(val, NULL, 10);
+        } else if (p->type == MR_PARAM_NUMBER) {
+            *(float *)at = strtof(val, NULL);
+        } else if (p->type == MR_PARAM_ENUM) {
+            size_t c = 0;
+            while (c < p->choice_count && strcmp(p->choices[c], val) != 0)
+                c++;
+            if (c == p->choice_count)
+                die(tok, val);
+            *(int *)at = (int)c;
+        } else {
+            die(tok, "not a number or a name");
+        }
+    }
+    return v;
+}
+
+static void free_params(const mr_kind *kind, void *v)
+{
+    if (v)
+        mr_params_clear(mr_kind_params(kind), v);
+    free(v);
+}
+
+/* The dmm parameters of a configuration in one mode. */
+static void *dmm_params(config cfg, const char *mode, const char *deformation, const char *normals)
+{
+    char spec[256];
+    snprintf(spec, sizeof spec, "level=%u levels=%s base_ratio=0.0625 mode=%s deformation=%s normals=%s",
+             cfg.level, cfg.adaptive ? "adaptive" : "uniform", mode, deformation, normals);
+    return kind_params(mr_kind_find("dmm"), spec);
+}
+
+/* What the bake report measured of a configuration: the dmm_* fields of
+ * the first frame of a tessellated object (each object bakes afresh: no
+ * cache). */
 typedef struct bake_figures {
+    uint64_t base;        /* base triangles */
     uint64_t micro;       /* micro-triangles (after decimation) */
     uint64_t stored;      /* bytes of the encodings: level bytes + records */
+    double rms, max, unmatched_pct; /* the bake's own report */
+    double seconds;       /* bake and encoding */
 } bake_figures;
+
+static bake_figures bake_of(const mr_frame_stats *st)
+{
+    return (bake_figures){.base = (uint64_t)frame_extra(st, "dmm_base_triangles"),
+                          .micro = st->triangles,
+                          .stored = (uint64_t)frame_extra(st, "dmm_stored_bytes"),
+                          .rms = frame_extra(st, "dmm_bake_rms_distance"),
+                          .max = frame_extra(st, "dmm_bake_max_distance"),
+                          .unmatched_pct = frame_extra(st, "dmm_bake_unmatched_pct"),
+                          .seconds = frame_extra(st, "dmm_bake_s")};
+}
 
 typedef struct level_result {
     config cfg;
@@ -157,20 +231,13 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
      * them) */
     const mr_kind *job_kind = o->kind;
     void *job_params = o->params;
-    mr_dmm_params params[MODES];
+    void *params[MODES] = {NULL};
     for (int m = 0; m < MODES; m++) {
-        params[m] = (mr_dmm_params){.level = cfg.level,
-                                    .levels = cfg.adaptive ? MR_DMM_LEVELS_ADAPTIVE
-                                                           : MR_DMM_LEVELS_UNIFORM,
-                                    .base_ratio = 0.0625f,
-                                    .mode = m == 1   ? MR_DMM_BASE
-                                            : m == 3 ? MR_DMM_INTERPOLATED
-                                                     : MR_DMM_TESSELLATED,
-                                    .deform = m >= 2 ? MR_DMM_DEFORM_INTERPOLATED
-                                                     : MR_DMM_DEFORM_BASE,
-                                    .normals = MR_DMM_NORMALS_SMOOTH};
-        o->kind = m == 4 ? &mr_kind_mesh : &mr_kind_dmm;
-        o->params = m == 4 ? NULL : &params[m];
+        if (m < 4)
+            params[m] = dmm_params(cfg, m == 1 ? "base" : m == 3 ? "interpolated" : "tessellated",
+                                   m >= 2 ? "interpolated" : "base", "smooth");
+        o->kind = mr_kind_find(m == 4 ? "mesh" : "dmm");
+        o->params = params[m];
         if (mr_device_new(0, &dev[m], &err) < 0 ||
             mr_renderer_new(dev[m], job, assets, NULL, &r[m], &err) < 0 ||
             mr_film_new(job->output.width, job->output.height, &film[m], &err) < 0)
@@ -224,120 +291,63 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
         mr_film_free(film[m]);
         mr_renderer_free(r[m]);
         mr_device_free(dev[m]);
+        free_params(mr_kind_find("dmm"), params[m]);
     }
     o->kind = job_kind;
     o->params = job_params;
     return res;
 }
 
-/* The baker's report in the rest pose (issue 4 part 1): what a DMM of each
- * level costs and how far its surface is from the detailed mesh. */
-static void bake_report(const mr_asset *dancer, const config *cfg, int count, bake_figures *out)
-{
-    printf("Bake (rest pose, all meshes): size and distance of the DMM surface to the detailed "
-           "mesh (relative to the rest-pose bounding-box diagonal):\n\n"
-           "| level | base tris | micro-tris | bytes | bits/micro-tri | RMS distance | max "
-           "distance | unmatched %% | quantisation max | bake s |\n"
-           "|---|---|---|---|---|---|---|---|---|---|\n");
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < dancer->mesh_count; i++)
-        for (uint32_t v = 0; v < dancer->meshes[i].vertex_count; v++)
-            for (int k = 0; k < 3; k++) {
-                float x = dancer->meshes[i].positions[v * 3 + k];
-                lo[k] = x < lo[k] ? x : lo[k];
-                hi[k] = x > hi[k] ? x : hi[k];
-            }
-    mr_umesh_topology topo;
-    mr_error terr = {0};
-    if (mr_umesh_topology_init(&topo, MR_UMESH_MAX_LEVEL, &terr) < 0)
-        die("topology", terr.msg);
-    double diag = sqrt((double)(hi[0] - lo[0]) * (hi[0] - lo[0]) +
-                       (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                       (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
-    for (int l = 0; l < count; l++) {
-        uint64_t base = 0, micro = 0, bytes = 0, samples = 0, unmatched = 0, vertices = 0;
-        double sum2 = 0, worst = 0, quant = 0, t0 = mr_now();
-        for (size_t i = 0; i < dancer->mesh_count; i++) {
-            mr_dmm_bake_params bp = mr_dmm_bake_params_default();
-            bp.level = cfg[l].level;
-            bp.adaptive = cfg[l].adaptive;
-            bp.target_ratio = 0.0625f;
-            mr_dmm_bake *b = NULL;
-            mr_dmm_encoded *enc = NULL;
-            mr_dmm_encode_stats es;
-            mr_error err = {0};
-            uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
-            mr_dmm_default_bits(bits);
-            if (mr_dmm_bake_run(&dancer->meshes[i], &bp, &b, &err) < 0 ||
-                mr_dmm_encode(b->level, bits, b->base_triangle_count, b->tri_info, b->displacements, &enc, &es,
-                              &err) < 0)
-                die("bake", err.msg);
-            base += b->base_triangle_count;
-            for (uint32_t t = 0; t < b->base_triangle_count; t++) {
-                micro += topo.count[mr_dmm_info_level(b->tri_info[t])]
-                                   [mr_dmm_info_decimate(b->tri_info[t])];
-                vertices += mr_umesh_vertex_count(mr_dmm_info_level(b->tri_info[t]));
-            }
-            unmatched += b->fallback_count;
-            bytes += (uint64_t)enc->triangle_count + enc->records_bytes;
-            sum2 += b->rms_distance * b->rms_distance * (double)b->sample_count;
-            samples += b->sample_count;
-            worst = b->max_distance > worst ? b->max_distance : worst;
-            quant = es.max_error > quant ? es.max_error : quant;
-            mr_dmm_encoded_free(enc);
-            mr_dmm_bake_free(b);
-        }
-        out[l] = (bake_figures){.micro = micro, .stored = bytes};
-        printf("| %s | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.3f | %.2e | %.2f |\n",
-               config_name(cfg[l]),
-               (unsigned long long)base, (unsigned long long)micro, (unsigned long long)bytes,
-               8.0 * (double)bytes / (double)micro, sqrt(sum2 / (double)samples) / diag,
-               worst / diag, 100.0 * (double)unmatched / (double)vertices, quant / diag,
-               mr_now() - t0);
-    }
-    mr_umesh_topology_free(&topo);
-    printf("\n");
-}
-
-/* The bake's own accuracy: every level in the rest pose (where the base
- * and interpolated deformations are the identity alike, so only the bake
- * and its encoding differ from the detailed mesh), tessellated (the same
- * micro-triangles the tessellation-free modes hit), against the detailed
- * mesh with its smooth vertex normals and with its facets' normals. A DMM
- * carries no normals: its micro-triangles are shaded by their own, so as
- * it converges to the detailed surface its normals converge to the
- * detail's facets, not to the detail's interpolated vertex normals. */
-static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int count, int frames)
+/* The bake's report and its own accuracy: every level in the rest pose
+ * (where the base and interpolated deformations are the identity alike, so
+ * only the bake and its encoding differ from the detailed mesh),
+ * tessellated (the same micro-triangles the tessellation-free modes hit),
+ * against the detailed mesh with its smooth vertex normals and with its
+ * facets' normals. A DMM carries no normals: its micro-triangles are shaded
+ * by their own, so as it converges to the detailed surface its normals
+ * converge to the detail's facets, not to the detail's interpolated vertex
+ * normals. The bake's figures (size, distances, time) are the dmm_* stats
+ * fields of the first frame of the flat-normals object; out receives them. */
+static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int count, int frames,
+                          bake_figures *out)
 {
     mr_object_desc *o = &job->objects[0];
     const mr_kind *job_kind = o->kind;
     void *job_params = o->params;
     size_t job_poses = o->pose_count;
     o->pose_count = 0;
-    o->kind = &mr_kind_mesh;
+    o->kind = mr_kind_find("mesh");
     o->params = NULL;
     mr_error err = {0};
     mr_device *dev = NULL;
     if (mr_device_new(0, &dev, &err) < 0)
         die("device", err.msg);
-    /* the detailed mesh in the rest pose, world space, by its facets */
-    mr_geom *mg = NULL;
-    mr_kind_context kc = {0};
-    mr_mat4 identity = mr_mat4_identity();
-    mr_geom_frame gf = {0};
-    mr_trimesh tm;
-    if (mr_kind_mesh.create(dancer, o, &kc, &mg, &err) < 0 ||
-        mr_kind_mesh.update(mg, &gf, NULL, &identity, 0, &err) < 0 ||
-        mr_kind_mesh.tessellate(mg, &tm, &err) < 0)
-        die("rest mesh", err.msg);
-    mr_kind_mesh.free(mg);
-    mr_asset *facets = NULL;
-    if (mr_asset_faceted("facets", tm.positions, tm.vertex_count, tm.indices, tm.triangle_count,
-                         &facets, &err) < 0)
-        die("facets", err.msg);
-    mr_trimesh_free(&tm);
-    mr_asset *smooth_assets[1] = {dancer}, *facet_assets[1] = {facets};
+    mr_asset *smooth_assets[1] = {dancer};
     int w = job->output.width, h = job->output.height;
+    /* the detailed mesh in the rest pose (the renderer's exact reference,
+     * in the object's own space: the facets asset is placed by the same
+     * object transform), by its facets */
+    mr_asset *facets = NULL;
+    {
+        const mr_mat4 placed = o->transform;
+        o->transform = mr_mat4_identity();
+        mr_renderer *rest = NULL;
+        mr_film *film = NULL;
+        mr_frame_stats st;
+        mr_trimesh tm;
+        if (mr_renderer_new(dev, job, smooth_assets, NULL, &rest, &err) < 0 ||
+            mr_film_new(w, h, &film, &err) < 0 || mr_renderer_render(rest, 0, film, &st, &err) < 0 ||
+            mr_renderer_tessellate(rest, 0, &tm, &err) < 0)
+            die("rest mesh", err.msg);
+        o->transform = placed;
+        if (mr_asset_faceted("facets", tm.positions, tm.vertex_count, tm.indices, tm.triangle_count,
+                             &facets, &err) < 0)
+            die("facets", err.msg);
+        mr_trimesh_free(&tm);
+        mr_film_free(film);
+        mr_renderer_free(rest);
+    }
+    mr_asset *facet_assets[1] = {facets};
     mr_renderer *smooth = NULL, *flat = NULL;
     if (mr_renderer_new(dev, job, smooth_assets, NULL, &smooth, &err) < 0 ||
         mr_renderer_new(dev, job, facet_assets, NULL, &flat, &err) < 0)
@@ -363,61 +373,76 @@ static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int 
     }
     mr_renderer_free(smooth);
     mr_renderer_free(flat);
+    typedef struct rest_row {
+        double cov, depth, nf, nfs, ns;
+        size_t strays;
+    } rest_row;
+    rest_row rows[8];
+    const mr_kind *dmm = mr_kind_find("dmm");
+    o->kind = dmm;
+    for (int l = 0; l < count; l++) {
+        /* the same micro-triangles with flat normals and with smooth ones */
+        void *params[2] = {NULL, NULL};
+        mr_renderer *r[2] = {NULL, NULL};
+        mr_film *film[2] = {NULL, NULL};
+        for (int k = 0; k < 2; k++) {
+            params[k] = dmm_params(cfg[l], "tessellated", "interpolated", k ? "smooth" : "geometric");
+            o->params = params[k];
+            if (mr_renderer_new(dev, job, smooth_assets, NULL, &r[k], &err) < 0 ||
+                mr_film_new(w, h, &film[k], &err) < 0)
+                die("rest dmm", err.msg);
+        }
+        rest_row *row = &rows[l];
+        memset(row, 0, sizeof *row);
+        for (int k = 0; k < n; k++) {
+            mr_frame_stats st;
+            mr_compare_result c;
+            if (mr_renderer_render(r[0], index[k], film[0], &st, &err) < 0)
+                die("rest dmm", err.msg);
+            if (k == 0)
+                out[l] = bake_of(&st);
+            if (mr_renderer_render(r[1], index[k], film[1], &st, &err) < 0 ||
+                mr_film_compare(tf[k], film[0], diag, &c, &err) < 0)
+                die("rest dmm", err.msg);
+            row->cov += c.coverage_pct / n;
+            row->depth += c.depth_rmse / n;
+            row->nf += c.normal_mean_deg / n;
+            if (mr_film_compare(ts[k], film[0], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            row->nfs += c.normal_mean_deg / n;
+            if (mr_film_compare(ts[k], film[1], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            row->ns += c.normal_mean_deg / n;
+            if (mr_film_compare(film[0], ts[k], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            row->strays += c.strays;
+        }
+        for (int k = 0; k < 2; k++) {
+            mr_film_free(film[k]);
+            mr_renderer_free(r[k]);
+            o->params = NULL;
+            free_params(dmm, params[k]);
+        }
+    }
+    printf("Bake (rest pose, all meshes; the dmm_* stats fields): size and distance of the DMM "
+           "surface to the detailed mesh (relative to the rest-pose bounding-box diagonal):\n\n"
+           "| level | base tris | micro-tris | bytes | bits/micro-tri | RMS distance | max "
+           "distance | unmatched %% | bake s |\n|---|---|---|---|---|---|---|---|---|\n");
+    for (int l = 0; l < count; l++) {
+        const bake_figures *b = &out[l];
+        printf("| %s | %llu | %llu | %llu | %.2f | %.2e | %.2e | %.3f | %.2f |\n",
+               config_name(cfg[l]), (unsigned long long)b->base, (unsigned long long)b->micro,
+               (unsigned long long)b->stored, 8.0 * (double)b->stored / (double)b->micro, b->rms,
+               b->max, b->unmatched_pct, b->seconds);
+    }
     printf("\nThe bake alone: rest pose, tessellated, against the detailed mesh (mean over %d "
            "views; the detail's own facets differ from its smooth normals by %.2f deg):\n\n"
            "| level | coverage %% | depth RMS | flat normals vs facets deg | flat vs smooth deg | "
            "smooth normals vs smooth deg | strays |\n|---|---|---|---|---|---|---|\n",
            n, floor_deg);
-    o->kind = &mr_kind_dmm;
-    for (int l = 0; l < count; l++) {
-        /* the same micro-triangles with flat normals and with smooth ones */
-        mr_dmm_params params[2];
-        mr_renderer *r[2] = {NULL, NULL};
-        mr_film *film[2] = {NULL, NULL};
-        for (int k = 0; k < 2; k++) {
-            params[k] = (mr_dmm_params){.level = cfg[l].level,
-                                        .levels = cfg[l].adaptive ? MR_DMM_LEVELS_ADAPTIVE
-                                                                  : MR_DMM_LEVELS_UNIFORM,
-                                        .base_ratio = 0.0625f,
-                                        .mode = MR_DMM_TESSELLATED,
-                                        .deform = MR_DMM_DEFORM_INTERPOLATED,
-                                        .normals = k ? MR_DMM_NORMALS_SMOOTH
-                                                     : MR_DMM_NORMALS_GEOMETRIC};
-            o->params = &params[k];
-            if (mr_renderer_new(dev, job, smooth_assets, NULL, &r[k], &err) < 0 ||
-                mr_film_new(w, h, &film[k], &err) < 0)
-                die("rest dmm", err.msg);
-        }
-        double cov = 0, depth = 0, nf = 0, nfs = 0, ns = 0;
-        size_t strays = 0;
-        for (int k = 0; k < n; k++) {
-            mr_frame_stats st;
-            mr_compare_result c;
-            if (mr_renderer_render(r[0], index[k], film[0], &st, &err) < 0 ||
-                mr_renderer_render(r[1], index[k], film[1], &st, &err) < 0 ||
-                mr_film_compare(tf[k], film[0], diag, &c, &err) < 0)
-                die("rest dmm", err.msg);
-            cov += c.coverage_pct / n;
-            depth += c.depth_rmse / n;
-            nf += c.normal_mean_deg / n;
-            if (mr_film_compare(ts[k], film[0], diag, &c, &err) < 0)
-                die("compare", err.msg);
-            nfs += c.normal_mean_deg / n;
-            if (mr_film_compare(ts[k], film[1], diag, &c, &err) < 0)
-                die("compare", err.msg);
-            ns += c.normal_mean_deg / n;
-            if (mr_film_compare(film[0], ts[k], diag, &c, &err) < 0)
-                die("compare", err.msg);
-            strays += c.strays;
-        }
-        printf("| %s | %.3f | %.2e | %.2f | %.2f | %.2f | %zu |\n", config_name(cfg[l]), cov, depth,
-               nf, nfs, ns, strays);
-        fflush(stdout);
-        for (int k = 0; k < 2; k++) {
-            mr_film_free(film[k]);
-            mr_renderer_free(r[k]);
-        }
-    }
+    for (int l = 0; l < count; l++)
+        printf("| %s | %.3f | %.2e | %.2f | %.2f | %.2f | %zu |\n", config_name(cfg[l]), rows[l].cov,
+               rows[l].depth, rows[l].nf, rows[l].nfs, rows[l].ns, rows[l].strays);
     printf("\n");
     for (int k = 0; k < n; k++) {
         mr_film_free(ts[k]);
@@ -452,16 +477,13 @@ int main(int argc, char **argv)
         frames = 5;
     mr_job *job = load_job();
     mr_asset *dancer = detailed_dancer(job->assets[0].path);
-    uint64_t detail = 0;
-    for (size_t i = 0; i < dancer->mesh_count; i++)
-        detail += dancer->meshes[i].triangle_count;
+    uint64_t detail = mr_asset_triangle_count(dancer);
     printf("\n## Displaced micro-meshes (paper 000): %s refined to %llu triangles, 1/16 as base "
            "triangles, %dx%d primary rays, %d frames, %u threads\n\n",
            JOB_PATH, (unsigned long long)detail, job->output.width, job->output.height, frames,
            mr_cpu_count());
     bake_figures bake[8];
-    bake_report(dancer, cfg, count, bake);
-    rest_accuracy(job, dancer, cfg, count, frames);
+    rest_accuracy(job, dancer, cfg, count, frames, bake);
     level_result res[8];
     for (int i = 0; i < count; i++) {
         res[i] = run_level(job, dancer, cfg[i], bake[i], frames);

@@ -6,12 +6,16 @@
  * as medians over repeats, because a 2-core machine's timings are noisy:
  *  1. primary-ray throughput of microray's renderer (shading and AOVs
  *     included, shadows off, 1 sample) against a bare Embree loop tracing
- *     the same pixel-centre rays through the same triangles on the same
- *     threads, for the static human and the skinned dancer;
+ *     the same pixel-centre rays (mr_camera_rays) through the same
+ *     triangles (the renderer's exact reference of the frame,
+ *     mr_renderer_tessellate) on the same number of threads
+ *     (mr_parallel_for; an Embree device of the bench's own), for the
+ *     static human and the skinned dancer;
  *  2. per-frame BVH refit against a full rebuild with the same fast (LOW
  *     quality) builder for the skinned example, and what the refitted tree
  *     costs in trace time.
- * EXR encoding is bench_encode.c.
+ * EXR encoding is bench_encode.c. Only the public API (microray.h), the
+ * server's job reader and Embree itself.
  *
  * usage: bench_render [--repeats N] [--threads N]   (run from the repository root)
  */
@@ -21,14 +25,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "asset/asset.h"
+#include <embree3/rtcore.h>
+
 #include "files.h"
-#include "kinds/kind.h"
 #include "job_json.h"
-#include "render/device.h"
-#include "render/renderer.h"
-#include "util/clock.h"
-#include "util/parallel.h"
+#include "microray.h"
 #include "bench_util.h"
 
 static int repeats = 5;
@@ -147,26 +148,18 @@ static void bare_tiles8(void *p, size_t begin, size_t end, unsigned worker)
     atomic_fetch_add(&c->hits, hits);
 }
 
-/* The job's frame-0 geometry, posed, as one plain Embree triangle scene. */
-static RTCScene bare_scene(mr_device *dev, const loaded_job *lj, size_t frame, uint64_t *tris)
+/* The job's geometry as the renderer's last frame posed it (its exact
+ * triangle reference, mr_renderer_tessellate), as one plain Embree
+ * triangle scene. */
+static RTCScene bare_scene(RTCDevice rtc, const mr_renderer *r, const mr_job *job, uint64_t *tris)
 {
-    RTCDevice rtc = mr_device_embree(dev);
     RTCScene scene = rtcNewScene(rtc);
     rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
     *tris = 0;
     mr_error err = {0};
-    for (size_t o = 0; o < lj->job->object_count; o++) {
-        const mr_object_desc *d = &lj->job->objects[o];
-        const mr_asset *a = lj->assets[d->asset];
-        mr_geom *g = NULL;
-        mr_pose *pose = NULL;
+    for (size_t o = 0; o < job->object_count; o++) {
         mr_trimesh tm;
-        const mr_kind *ops = d->kind;
-        if (ops->create(a, d, &(mr_kind_context){.cache_dir = NULL, .threads = 0}, &g, &err) < 0 || mr_pose_new(a, &pose, &err) < 0)
-            die("bare scene", err.msg);
-        const mr_pose_desc *pd = d->pose_count == 0 ? NULL : &d->poses[d->pose_count == 1 ? 0 : frame];
-        if (mr_pose_eval(pose, a, pd, lj->job->frame_times[frame], &err) < 0 ||
-            ops->update(g, NULL, pose, &d->transform, 0, &err) < 0 || ops->tessellate(g, &tm, &err) < 0)
+        if (mr_renderer_tessellate(r, o, &tm, &err) < 0)
             die("bare scene", err.msg);
         RTCGeometry geom = rtcNewGeometry(rtc, RTC_GEOMETRY_TYPE_TRIANGLE);
         float *v = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
@@ -180,8 +173,6 @@ static RTCScene bare_scene(mr_device *dev, const loaded_job *lj, size_t frame, u
         rtcReleaseGeometry(geom);
         *tris += tm.triangle_count;
         mr_trimesh_free(&tm);
-        mr_pose_free(pose);
-        ops->free(g);
     }
     rtcCommitScene(scene);
     return scene;
@@ -203,7 +194,15 @@ static void bench_throughput(mr_device *dev, const char *job_path, int width, in
     if (mr_renderer_new(dev, job, lj.assets, NULL, &r, &err) < 0 || mr_film_new(width, height, &film, &err) < 0)
         die(job_path, err.msg);
     uint64_t tris;
-    RTCScene bare = bare_scene(dev, &lj, 0, &tris);
+    mr_frame_stats st0;
+    if (mr_renderer_render(r, 0, film, &st0, &err) < 0) /* poses frame 0 */
+        die(job_path, err.msg);
+    char cfg[32];
+    snprintf(cfg, sizeof cfg, "threads=%u", mr_device_threads(dev));
+    RTCDevice rtc = rtcNewDevice(cfg);
+    if (!rtc)
+        die("embree", "rtcNewDevice failed");
+    RTCScene bare = bare_scene(rtc, r, job, &tris);
     mr_camera cam = mr_camera_path_eval(&job->camera.path, job->frame_times[0]);
     bare_ctx bc = {.scene = bare, .cam = mr_camera_rays_setup(&cam, width, height),
                    .width = width, .height = height, .tiles_x = (width + 15) / 16};
@@ -237,6 +236,7 @@ static void bench_throughput(mr_device *dev, const char *job_path, int width, in
     if (rays != (uint64_t)width * height)
         printf("  (note: renderer traced %llu rays for %d pixels)\n", (unsigned long long)rays, width * height);
     rtcReleaseScene(bare);
+    rtcReleaseDevice(rtc);
     mr_film_free(film);
     mr_renderer_free(r);
     free_job(&lj);

@@ -1,12 +1,18 @@
 /*
  * bench_util.h - what every benchmark program needs: medians of repeated
  * measurements (timings on a shared 2-core machine are noisy; the benchmarks
- * report medians of interleaved runs). Header-only, one include per program.
+ * report medians of interleaved runs) and a frame's stats fields by name.
+ * Header-only, one include per program. Benchmarks use the public API only
+ * (microray.h; scripts/check-layout.sh checks it).
  */
 #ifndef MR_BENCH_UTIL_H
 #define MR_BENCH_UTIL_H
 
+#include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+
+#include "microray.h"
 
 static int bench_cmp_double(const void *a, const void *b)
 {
@@ -19,6 +25,35 @@ static double median(double *v, int n)
 {
     qsort(v, (size_t)n, sizeof *v, bench_cmp_double);
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/* A kind's own field of a rendered frame (its extras: the svo_* figures,
+ * say); exits naming the field when the frame does not carry it, so a
+ * renamed field cannot print zeros silently. */
+static inline double frame_extra(const mr_frame_stats *st, const char *name)
+{
+    for (uint32_t i = 0; i < st->extra_count; i++)
+        if (strcmp(st->extras[i].name, name) == 0)
+            return st->extras[i].value;
+    fprintf(stderr, "bench: frame %d has no stats field %s\n", st->frame, name);
+    exit(1);
+}
+
+/* Bytes the kernel says are available for new work (MemAvailable), or
+ * 8 GiB when it cannot be read: what the benchmarks size their jobs'
+ * memory budgets by on a machine shared with other work. */
+static inline double bench_mem_available(void)
+{
+    char line[256];
+    double kib = 0;
+    FILE *f = fopen("/proc/meminfo", "r");
+    if (!f)
+        return 8.0 * 1024 * 1024 * 1024;
+    while (fgets(line, sizeof line, f))
+        if (sscanf(line, "MemAvailable: %lf kB", &kib) == 1)
+            break;
+    fclose(f);
+    return kib * 1024.0;
 }
 
 #endif

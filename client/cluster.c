@@ -736,15 +736,23 @@ static bool stderr_tty(void)
     return isatty(STDERR_FILENO) && !(term && strcmp(term, "dumb") == 0);
 }
 
+/* Rounds (about a second each) a refused requeue is tried again. */
+#define REQUEUE_TRIES 60
+
 static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
 {
     mrc_progress p;
     mrc_progress_init(&p, stderr, stderr_tty(), quiet);
+    int *refused = calloc((size_t)s->tasks, sizeof *refused); /* per task: requeues refused in a row */
+    if (!refused)
+        return mrc_fail(err, MRC_EXIT_LOCAL, "out of memory");
     for (;;) {
         snapshot sn;
         int rc = gather(s, &sn, err);
-        if (rc)
+        if (rc) {
+            free(refused);
             return rc;
+        }
         mrc_progress_update(&p, (int)sn.frames_done, (int)sn.frames_failed, (int)s->frames,
                             sn.state, false);
         bool requeued = false;
@@ -759,10 +767,19 @@ static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
             snprintf(start, sizeof start, "JobId=%s", id);
             char *args[] = {"scontrol", "requeue", id, NULL};
             char *now[] = {"scontrol", "update", start, "StartTime=now", NULL};
-            if ((rc = run_ok(args, NULL, err)) != 0 || (rc = run_ok(now, NULL, err)) != 0) {
-                snapshot_free(&sn);
-                return rc;
+            if ((rc = run_ok(args, NULL, err)) != 0) {
+                /* a task just killed may still be cleaning up on its node
+                 * ("Unexpected message received"): try again next round,
+                 * for a while */
+                if (++refused[t] > REQUEUE_TRIES) {
+                    snapshot_free(&sn);
+                    free(refused);
+                    return rc;
+                }
+                continue;
             }
+            refused[t] = 0;
+            run_ok(now, NULL, err); /* if it fails, Slurm's own delay applies */
             s->requeues[t]++;
             requeued = true;
             mrc_progress_message(&p, "task %ld (frames %ld-%ld) ended without its frames%s%s%s: "
@@ -778,6 +795,7 @@ static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
         if (remerge && strcmp(sn.state, "failed") != 0) {
             if (s->merges > 2 * s->tasks * (s->max_retries + 1) + 2) {
                 snapshot_free(&sn);
+                free(refused);
                 return mrc_fail(err, MRC_EXIT_JOB_FAILED, "the merge failed %ld times (see %s/"
                                 "cluster/logs/merge-*.out)", s->merges, s->dir);
             }
@@ -785,11 +803,13 @@ static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
             run(args, NULL, NULL); /* a merge that already ended: nothing to cancel */
             if ((rc = submit_merge(s, NULL, NULL, err)) != 0) {
                 snapshot_free(&sn);
+                free(refused);
                 return rc;
             }
         }
         if ((requeued || remerge) && (rc = state_save(s, err)) != 0) {
             snapshot_free(&sn);
+            free(refused);
             return rc;
         }
         const char *state = sn.state;
@@ -797,10 +817,12 @@ static int cluster_wait(cluster_state *s, bool quiet, mrc_error *err)
         if (strcmp(state, "succeeded") == 0) {
             mrc_progress_update(&p, (int)s->frames, 0, (int)s->frames, "succeeded", true);
             mrc_progress_finish(&p);
+            free(refused);
             return 0;
         }
         if (strcmp(state, "failed") == 0) {
             mrc_progress_finish(&p);
+            free(refused);
             return mrc_fail(err, MRC_EXIT_JOB_FAILED, "the job cannot finish: a task failed %ld "
                             "times or the prepare job failed; `microray cluster status %s` says "
                             "which, its log is in %s/cluster/logs/", s->max_retries + 1, s->dir,

@@ -2,7 +2,7 @@
  * microray.h - the public API of libmicroray, the core renderer.
  *
  * This is the one core header that server/ (the daemon and the one-shot
- * command) and the service benchmarks include: everything they may use from
+ * command) and the benchmarks include: everything they may use from
  * core is declared here, and nothing here names an Embree, assimp or OpenEXR
  * type. The module headers beside the code (util/, math/, asset/, anim/,
  * kinds/, render/) include this file and add what only core itself (and the
@@ -37,6 +37,7 @@
 #include <stdatomic.h>
 #include <stdbool.h>
 #include <stddef.h>
+#include <math.h>
 #include <stdint.h>
 
 #define MR_VERSION_STRING "0.1.0"
@@ -234,13 +235,24 @@ int mr_fs_remove_dir(const char *dir, mr_error *err);
 int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *size,
                       const char *what, mr_error *err);
 
-/* ---- cores (util/parallel.c; core's parallel loop is util/parallel.h) ---- */
+/* ---- cores and the parallel loop (util/parallel.c) ---- */
 
 /* Most workers one parallel loop starts (and the cap on configured threads). */
 #define MR_MAX_THREADS 256
 
 /* Number of online cores (at least 1). */
 unsigned mr_cpu_count(void);
+
+/* The one way microray uses several cores: mr_parallel_for splits [0,
+ * count) into chunks of `grain` items handed out dynamically to `threads`
+ * workers (the calling thread is one of them; 0: all online cores), and
+ * falls back to running everything on the caller when threads cannot be
+ * started. fn gets a half-open range and the worker's index in [0,
+ * threads). Work must be independent per item, so results do not depend
+ * on the thread count or the order chunks are taken in (what keeps frames
+ * bit-identical for any thread count). */
+typedef void (*mr_range_fn)(void *ctx, size_t begin, size_t end, unsigned worker);
+void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn fn, void *ctx);
 
 /* Peak resident set size of the process, bytes (render/renderer.c). */
 uint64_t mr_peak_rss_bytes(void);
@@ -676,8 +688,44 @@ typedef struct mr_asset mr_asset;
 int mr_asset_load(const char *path, mr_asset **out, mr_error *err);
 void mr_asset_free(mr_asset *asset);
 
+/* Builds an asset from one in-memory triangle mesh (copied), with a single
+ * root node. For clients with meshes of their own (tests, generated fixtures,
+ * references a benchmark makes). normals may be NULL. */
+int mr_asset_from_mesh(const char *name, const float *positions, const float *normals,
+                       uint32_t vertex_count, const uint32_t *indices,
+                       uint32_t triangle_count, mr_asset **out, mr_error *err);
+
+/* The same triangles shaded by their facets: an asset of one mesh whose
+ * triangles have corners of their own (3 per triangle) that carry the
+ * triangle's unit normal ((0, 0, 1) for a degenerate one). The reference
+ * for how a surface is oriented, as opposed to its interpolated vertex
+ * normals: what a kind that shades micro-triangles by their own normals
+ * (dmm) converges to. Errors as mr_asset_from_mesh (3 * triangle_count
+ * corners count against the vertex cap). */
+int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_count,
+                     const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
+                     mr_error *err);
+
+/* Images are assets too (height textures and tiling exemplars of the
+ * displacement kinds): a file that starts with a PNG, JPEG or OpenEXR
+ * signature is decoded by mr_asset_load into one channel of samples
+ * instead of being handed to assimp (asset/image.h: 8 and 16 bit PNG,
+ * JPEG, scanline EXR with a Y channel, R G B, or a single channel; colour
+ * becomes Rec. 709 luminance). Such an asset has no meshes. Images larger
+ * than these caps are refused before their pixels are allocated. */
+#define MR_MAX_IMAGE_SIDE 16384u
+#define MR_MAX_IMAGE_PIXELS (8192u * 8192u)
+/* Whether the asset is an image; its size in pixels when it is. */
+bool mr_asset_is_image(const mr_asset *asset);
+bool mr_asset_image_size(const mr_asset *asset, uint32_t *width, uint32_t *height);
+
 /* Triangles over all meshes. */
 size_t mr_asset_triangle_count(const mr_asset *asset);
+/* Animation clips (a job's pose names them by index or name), and the
+ * length of clip i in seconds (0 for a clip it does not have): what a
+ * client spreads its frame times over. */
+size_t mr_asset_clip_count(const mr_asset *asset);
+double mr_asset_clip_duration(const mr_asset *asset, size_t clip);
 /* Bytes held by the asset's arrays. */
 size_t mr_asset_memory(const mr_asset *asset);
 /* Address space the import's own thread reserves for its stack (asset.c:
@@ -749,7 +797,13 @@ int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset
  * FLAG_OBJECT -> bool at offset, given as true/false or as an object of the
  * sub table's fields (stored in the same struct; the bool then becomes
  * true), ARRAY -> a pointer at offset to count elements of sub->size bytes,
- * the count a size_t at count_offset, 1..max_items of them. */
+ * the count a size_t at count_offset, 1..max_items of them, ASSET -> a
+ * uint32_t: 0 when absent, else 1 + the index in mr_job.assets of the asset
+ * the job names (a key of its "assets"; a kind reads that asset through
+ * mr_kind_context.assets), NUMBERS -> float[max_items], given as an array of
+ * exactly max_items numbers in lo..hi (def fills every element), VEC3 ->
+ * mr_vec3 (three numbers, each in lo..hi; default def3), QUAT -> mr_quat
+ * ([x, y, z, w], any non-zero length, normalised; identity by default). */
 
 typedef enum mr_param_type {
     MR_PARAM_INT = 0,
@@ -759,11 +813,17 @@ typedef enum mr_param_type {
     MR_PARAM_FLAG_OBJECT,
     MR_PARAM_ARRAY,
     MR_PARAM_TRANSFORM,
-    MR_PARAM_POSE
+    MR_PARAM_POSE,
+    MR_PARAM_ASSET,
+    MR_PARAM_NUMBERS,
+    MR_PARAM_VEC3,
+    MR_PARAM_QUAT
 } mr_param_type;
 
-/* mr_param.flags: open ends of a number's range. */
-enum { MR_PARAM_LO_OPEN = 1u, MR_PARAM_HI_OPEN = 2u };
+/* mr_param.flags: open ends of a number's range; NO_DEFAULT: the value
+ * when absent depends on other fields (an after hook sets it), so the
+ * schema states no default. */
+enum { MR_PARAM_LO_OPEN = 1u, MR_PARAM_HI_OPEN = 2u, MR_PARAM_NO_DEFAULT = 4u };
 
 /* At most this many fields in one table (the reader tracks them in a
  * 32-bit set). */
@@ -792,13 +852,14 @@ typedef struct mr_param {
     const char *const *choices; /* ENUM: names in the order of the stored int */
     size_t choice_count;
     double def;                /* default: the number, 0/1, or the enum index */
+    double def3[3];            /* VEC3: default */
     const char *expect;        /* "expected ..." text instead of the generated one, or NULL */
     const char *description;   /* one line, for the schema and docs */
     const char *conflicts;     /* a later field of this table that may not be given with this one */
     const mr_param_table *sub; /* FLAG_OBJECT: its object's fields; ARRAY: an element's */
     size_t present_offset;     /* POSE: bool set when the pose is given */
     size_t count_offset;       /* ARRAY: size_t element count */
-    size_t max_items;          /* ARRAY */
+    size_t max_items;          /* ARRAY: most elements; NUMBERS: the count (at most 16) */
     /* Runs after the field was read or found absent (given[i]: field i of
      * the table was in the job). Returns MR_OK or fills err and returns its
      * code. May adjust other values (a default that depends on this one). */
@@ -839,8 +900,11 @@ int mr_param_fail(mr_param_error *err, int code, const char *field, const char *
 typedef struct mr_kind mr_kind;
 
 /* How a kind's stats field adds up over a job's objects of the kind: the
- * sum (counts, seconds, bytes) or the largest (errors, ratios). */
-typedef enum mr_stat_combine { MR_STAT_SUM = 0, MR_STAT_MAX } mr_stat_combine;
+ * sum (counts, seconds, bytes) or the largest (errors, ratios); ONCE is a
+ * figure of the objects' creation (a derived-data build's seconds), summed
+ * and reported with the renderer's first frame only, 0 on later ones (like
+ * load_s), so a sum over frames stays true. */
+typedef enum mr_stat_combine { MR_STAT_SUM = 0, MR_STAT_MAX, MR_STAT_ONCE } mr_stat_combine;
 
 /* One of a kind's own per-frame statistics fields (reported as a frame's
  * extras, see mr_frame_extra). */
@@ -848,7 +912,7 @@ typedef struct mr_kind_stat {
     const char *name;        /* stats.json key, unique among all fields */
     const char *unit;        /* "s", "count", "bytes", ... */
     const char *description; /* one line */
-    mr_stat_combine combine; /* over the job's objects of the kind (default: sum) */
+    mr_stat_combine combine; /* over the job's objects and frames (default: sum) */
 } mr_kind_stat;
 
 /* The registry: the built-in kinds, in a fixed order, then any added by
@@ -921,7 +985,7 @@ typedef struct mr_pose_desc {
  * parser allocates them) and zeroes it. */
 void mr_pose_desc_clear(mr_pose_desc *p);
 
-/* ---- camera paths (render/camera.c; cameras and rays are render/camera.h) ----
+/* ---- camera paths, cameras and their rays (render/camera.c) ----
  * A camera looks down its local -Z with +Y up (glTF's convention); its
  * orientation is a unit quaternion mapping camera space to world space.
  * A path is a list of keyframes sorted by time; between keys, position is
@@ -953,6 +1017,42 @@ typedef struct mr_camera_path {
     size_t key_count;  /* >= 1 */
     mr_camera_key *keys;
 } mr_camera_path;
+
+/* The camera at one instant. */
+typedef struct mr_camera {
+    mr_vec3 position;
+    mr_quat rotation;  /* camera space to world space */
+    float yfov;        /* vertical field of view, radians */
+} mr_camera;
+
+/* Camera of the path at time t. */
+mr_camera mr_camera_path_eval(const mr_camera_path *path, double t);
+
+/* A camera set up for one film size: the rays the renderer shoots (its
+ * pixel-centre rays are (x + 0.5, y + 0.5)), for clients that trace the
+ * same rays themselves (a baseline, a picker). Ray directions are a corner
+ * plus multiples of per-pixel steps, so a ray costs a few multiply-adds and
+ * one normalisation (no trigonometry per ray). */
+typedef struct mr_camera_rays {
+    mr_vec3 origin;
+    mr_vec3 corner;  /* direction through film point (0, 0), unnormalised */
+    mr_vec3 step_x;  /* change per pixel to the right */
+    mr_vec3 step_y;  /* change per pixel downwards */
+} mr_camera_rays;
+
+mr_camera_rays mr_camera_rays_setup(const mr_camera *cam, int width, int height);
+
+/* Unit direction of the ray through film point (px, py) in pixels, (0,0)
+ * being the top-left corner of the image and (width, height) the
+ * bottom-right one. Inline: the renderer calls it once per ray. */
+static inline mr_vec3 mr_camera_rays_dir(const mr_camera_rays *r, float px, float py)
+{
+    float x = r->corner.x + px * r->step_x.x + py * r->step_y.x;
+    float y = r->corner.y + px * r->step_x.y + py * r->step_y.y;
+    float z = r->corner.z + px * r->step_x.z + py * r->step_y.z;
+    float s = 1.0f / sqrtf(x * x + y * y + z * z);
+    return mr_v3(x * s, y * s, z * s);
+}
 
 /* ---- the job ---- */
 
@@ -1083,8 +1183,12 @@ typedef enum mr_bvh_update {
 /* "none", "build" or "refit" (stats.json's "bvh"). */
 const char *mr_bvh_update_name(mr_bvh_update u);
 
-/* Most extras one frame carries: a few per kind, for a few kinds. */
-#define MR_FRAME_EXTRAS_MAX 8
+/* Most extras one frame carries: every registered kind's stats fields
+ * (mr_kind_stat; a job may hold all kinds) plus MR_FRAME_EXTRAS_CALLER of
+ * the caller's own (the one-shot renderer's png_s). Registering a kind
+ * whose fields would pass that fails. */
+#define MR_FRAME_EXTRAS_MAX 48
+#define MR_FRAME_EXTRAS_CALLER 4
 
 /* One per-frame field beyond the table's, e.g. {"simulate_s", "s", 0.02}. */
 typedef struct mr_frame_extra {
@@ -1117,6 +1221,8 @@ typedef struct mr_frame_stats {
     uint64_t peak_rss_bytes;  /* process peak resident set so far */
     float scene_diagonal;     /* bounding-box diagonal of the frame's scene */
     double speckle_pct;       /* isolated dark pixels, % of interior pixels (mr_film_speckles) */
+    uint32_t replay_frames;   /* frames of sequential kinds re-simulated untraced before this one */
+    uint32_t replay_checkpoint; /* the checkpoint (frames it holds) that replay started from, 0: none */
     uint32_t extra_count;     /* extras[0, extra_count) are set */
     mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
 } mr_frame_stats;
@@ -1168,8 +1274,9 @@ extern const mr_stat_field mr_frame_stat_fields[];
 extern const size_t mr_frame_stat_field_count;
 
 /* The groups "seconds" (the per-stage timings that job totals and medians
- * sum up), "bytes" and "cache". */
-extern const mr_stat_group mr_stat_group_seconds, mr_stat_group_bytes, mr_stat_group_cache;
+ * sum up), "bytes", "cache" and "replay". */
+extern const mr_stat_group mr_stat_group_seconds, mr_stat_group_bytes, mr_stat_group_cache,
+    mr_stat_group_replay;
 
 /* The value of a stored numeric field (INT, U32, U64, F32, F64, BVH) as a
  * double; 0 for derived types. */
@@ -1227,5 +1334,24 @@ void mr_renderer_free(mr_renderer *r);
  * be job->output.width x height. */
 int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *stats,
                        mr_error *err);
+
+/* A plain triangle soup in world space. */
+typedef struct mr_trimesh {
+    uint32_t vertex_count, triangle_count;
+    float *positions;   /* 3 per vertex */
+    uint32_t *indices;  /* 3 per triangle */
+} mr_trimesh;
+
+/* Frees the arrays and zeroes *m; NULL is fine. */
+void mr_trimesh_free(mr_trimesh *m);
+
+/* The exact triangle reference of job object `object` (an index into
+ * job->objects) as the last mr_renderer_render posed it, in world space:
+ * what the object's kind stands for (a mesh: its own triangles; dmm: its
+ * micro-triangles; svo: the asset's triangles skinned with each instance's
+ * pose). For accuracy comparisons and baselines, such as a bare Embree
+ * loop over the same triangles. *out is the caller's (mr_trimesh_free).
+ * MR_ERR_INVALID for an object out of range; MR_ERR_LIMIT, MR_ERR_NOMEM. */
+int mr_renderer_tessellate(const mr_renderer *r, size_t object, mr_trimesh *out, mr_error *err);
 
 #endif /* MICRORAY_H */

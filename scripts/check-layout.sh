@@ -4,9 +4,9 @@
 #    mr_<kind>_ identifiers, or its folder) in server/, core/render/,
 #    core/job.[ch] or core/kinds/*.[ch]; only core/kinds/registry.c lists them;
 #  - core does not include server headers (it is compiled without -Iserver);
-#  - server/ includes from core only microray.h, the public API (tests/ may
-#    include internals); so do the benchmarks, but for the exceptions below,
-#    which measure core internals.
+#  - server/ and bench/ include from core only microray.h, the public API
+#    (tests/ may include internals; the benchmarks not even through the
+#    tests' support headers).
 # Prints each violation and exits 1 if there is any. Run by make test/check.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -51,20 +51,10 @@ if [ -n "$hits" ]; then
   echo "$hits" | sed 's/^/  /'
   status=1
 fi
-# Benchmarks that measure core internals, and may include internal headers:
-bench_internal=(
-  bench/bench_render.c     # a bare Embree loop on the renderer's device, beside the renderer
-  bench/bench_dmm.c        # DMM bake, encoding and traversal, against tessellated meshes
-  bench/bench_svo.c        # octree build, radix sort and skinned voxel deformation
-  bench/bench_svo_render.c # voxelisation and extracted skeletons, beside the renderer
-)
-bench_public=()
-for f in bench/*.c bench/*.h; do
-  [[ " ${bench_internal[*]} " == *" $f "* ]] || bench_public+=("$f")
-done
-hits=$(core_includes "${bench_public[@]}")
+hits=$(core_includes bench/*.c bench/*.h
+       grep -nE '^[[:space:]]*#[[:space:]]*include[[:space:]]*"[^"]*tests/' bench/*.c bench/*.h 2>/dev/null)
 if [ -n "$hits" ]; then
-  echo "check-layout: benchmarks outside the listed exceptions include core headers other than microray.h:"
+  echo "check-layout: benchmarks include core headers other than microray.h:"
   echo "$hits" | sed 's/^/  /'
   status=1
 fi

@@ -29,7 +29,8 @@ BUILD_PACKAGES=(
   libassimp-dev          # asset import
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev
-  libpng-dev             # PNG previews and contact sheets (core/render/preview.c)
+  libpng-dev             # PNG previews and contact sheets (core/render/preview.c), PNG height maps
+  libjpeg-dev            # JPEG height maps and exemplars (core/asset/image.c)
 )
 TEST_PACKAGES=(
   assimp-testmodels      # the real models the examples and tests use

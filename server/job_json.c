@@ -467,7 +467,8 @@ static json_num_spec param_spec(const mr_param *p)
     return (json_num_spec){p->lo, p->hi, flags, p->expect};
 }
 
-static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values);
+static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
+                        const mr_job *job, void *values);
 
 /* Fails at the hook's field with its message. */
 static int fail_param(mr_json_ctx *c, const mr_param_error *pe)
@@ -477,7 +478,8 @@ static int fail_param(mr_json_ctx *c, const mr_param_error *pe)
     return json_fail(c, pe->code ? pe->code : MR_ERR_INVALID, "%s", pe->message);
 }
 
-static int parse_param_array(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *values)
+static int parse_param_array(mr_json_ctx *c, const cJSON *v, const mr_param *p, const mr_job *job,
+                             void *values)
 {
     char expect[128];
     snprintf(expect, sizeof expect, "an array of 1..%zu %s", p->max_items, p->sub->plural);
@@ -495,12 +497,15 @@ static int parse_param_array(mr_json_ctx *c, const cJSON *v, const mr_param *p, 
     for (const cJSON *e = v->child; e; e = e->next, i++) {
         void *item = items + i * p->sub->size;
         mr_params_defaults(p->sub, item);
-        GO_ON_AT_INDEX(c, i, parse_params(c, e, p->sub, item));
+        GO_ON_AT_INDEX(c, i, parse_params(c, e, p->sub, job, item));
     }
     return MR_OK;
 }
 
-static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *values)
+#define MR_PARAM_MAX_NUMBERS 16
+
+static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, const mr_job *job,
+                       void *values)
 {
     double x;
     int choice;
@@ -531,17 +536,41 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *
             *PARAM_AT(values, p->offset, bool) = cJSON_IsTrue(v);
             return MR_OK;
         }
-        TRY(parse_params(c, v, p->sub, values));
+        TRY(parse_params(c, v, p->sub, job, values));
         *PARAM_AT(values, p->offset, bool) = true;
         return MR_OK;
     case MR_PARAM_ARRAY:
-        return parse_param_array(c, v, p, values);
+        return parse_param_array(c, v, p, job, values);
+    case MR_PARAM_ASSET: {
+        size_t index;
+        TRY(find_asset(c, v, job, &index));
+        *PARAM_AT(values, p->offset, uint32_t) = (uint32_t)index + 1;
+        return MR_OK;
+    }
+    case MR_PARAM_NUMBERS: {
+        double xs[MR_PARAM_MAX_NUMBERS];
+        char expect[64];
+        size_t n = p->max_items < MR_PARAM_MAX_NUMBERS ? p->max_items : MR_PARAM_MAX_NUMBERS;
+        snprintf(expect, sizeof expect, "an array of %zu numbers", n);
+        TRY(json_get_numbers(c, v, n, &spec, expect, xs));
+        for (size_t k = 0; k < n; k++)
+            PARAM_AT(values, p->offset, float)[k] = (float)xs[k];
+        return MR_OK;
+    }
     case MR_PARAM_TRANSFORM:
         return get_transform(c, v, PARAM_AT(values, p->offset, mr_mat4));
     case MR_PARAM_POSE:
         TRY(parse_pose(c, v, PARAM_AT(values, p->offset, mr_pose_desc)));
         *PARAM_AT(values, p->present_offset, bool) = true;
         return MR_OK;
+    case MR_PARAM_VEC3: {
+        double d[3]; /* each number in the field's range, reported at its index */
+        TRY(json_get_numbers(c, v, 3, &spec, "an array of 3 numbers", d));
+        *PARAM_AT(values, p->offset, mr_vec3) = mr_v3((float)d[0], (float)d[1], (float)d[2]);
+        return MR_OK;
+    }
+    case MR_PARAM_QUAT:
+        return json_get_quat(c, v, PARAM_AT(values, p->offset, mr_quat));
     }
     return json_fail(c, MR_ERR_INVALID, "unsupported parameter type");
 }
@@ -549,7 +578,8 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, void *
 /* Reads object v into values (already holding the table's defaults):
  * known and unique keys, then every field in table order, each followed by
  * its after hook. */
-static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t, void *values)
+static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
+                        const mr_job *job, void *values)
 {
     const char *names[MR_PARAM_MAX_FIELDS];
     const cJSON *fields[MR_PARAM_MAX_FIELDS];
@@ -573,7 +603,7 @@ static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
             }
         }
         if (fv) {
-            GO_ON_AT_KEY(c, p->field, parse_param(c, fv, p, values));
+            GO_ON_AT_KEY(c, p->field, parse_param(c, fv, p, job, values));
             if (c->failed) /* its checks would only repeat the problem */
                 continue;
         }
@@ -582,6 +612,20 @@ static int parse_params(mr_json_ctx *c, const cJSON *v, const mr_param_table *t,
             if (p->after(values, given, &pe) < 0)
                 GO_ON(c, fail_param(c, &pe));
         }
+    }
+    return MR_OK;
+}
+
+/* A kind's rules hold when its block is absent too: its after hooks run
+ * over the defaults (nothing given), so a kind that needs a field (a
+ * height source) says so at validation, pointing at the missing block. */
+static int check_absent_block(mr_json_ctx *c, const mr_param_table *t, void *values)
+{
+    bool given[MR_PARAM_MAX_FIELDS] = {false};
+    for (size_t i = 0; i < t->count; i++) {
+        mr_param_error pe = {0};
+        if (t->params[i].after && t->params[i].after(values, given, &pe) < 0)
+            return fail_param(c, &pe);
     }
     return MR_OK;
 }
@@ -661,8 +705,10 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
                                    kname));
             continue;
         }
-        GO_ON_AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), o->params));
+        GO_ON_AT_KEY(c, kname, parse_params(c, block, mr_kind_params(k), job, o->params));
     }
+    if (table && !json_field(v, mr_kind_name(o->kind)))
+        AT_KEY(c, mr_kind_name(o->kind), check_absent_block(c, table, o->params));
     o->transform = mr_mat4_identity();
     if (xf)
         GO_ON_AT_KEY(c, "transform", get_transform(c, xf, &o->transform));

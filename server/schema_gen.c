@@ -35,6 +35,8 @@ static cJSON *ref_to(const char *def)
 static bool default_in_range(const mr_param *p)
 {
     double d = p->def;
+    if (p->flags & MR_PARAM_NO_DEFAULT)
+        return false;
     if (d < p->lo || d > p->hi)
         return false;
     if ((p->flags & MR_PARAM_LO_OPEN) && d <= p->lo)
@@ -97,6 +99,30 @@ static cJSON *param_schema(const mr_param *p, mr_error *err)
         break;
     case MR_PARAM_TRANSFORM: s = ref_to("transform"); break;
     case MR_PARAM_POSE: s = ref_to("pose"); break;
+    case MR_PARAM_ASSET:
+        s = cJSON_CreateObject();
+        ok = s && add(s, "type", cJSON_CreateString("string"));
+        break;
+    case MR_PARAM_QUAT: s = ref_to("quat"); break;
+    case MR_PARAM_NUMBERS:
+    case MR_PARAM_VEC3: { /* an array of exactly n numbers in lo..hi */
+        size_t n = p->type == MR_PARAM_VEC3 ? 3 : p->max_items;
+        s = cJSON_CreateObject();
+        cJSON *item = cJSON_CreateObject();
+        ok = s && item && add(item, "type", cJSON_CreateString("number")) &&
+             add(item, (p->flags & MR_PARAM_LO_OPEN) ? "exclusiveMinimum" : "minimum",
+                 cJSON_CreateNumber(p->lo)) &&
+             add(item, (p->flags & MR_PARAM_HI_OPEN) ? "exclusiveMaximum" : "maximum",
+                 cJSON_CreateNumber(p->hi));
+        ok = ok && add(s, "type", cJSON_CreateString("array")) &&
+             add(s, "minItems", cJSON_CreateNumber((double)n)) &&
+             add(s, "maxItems", cJSON_CreateNumber((double)n)) && add(s, "items", item);
+        if (!ok && item && !cJSON_GetObjectItem(s, "items"))
+            cJSON_Delete(item);
+        if (ok && p->type == MR_PARAM_VEC3 && !(p->flags & MR_PARAM_NO_DEFAULT))
+            ok = add(s, "default", cJSON_CreateDoubleArray(p->def3, 3));
+        break;
+    }
     }
     if (ok && s && p->description)
         ok = add(s, "description", cJSON_CreateString(p->description));

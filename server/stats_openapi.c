@@ -126,14 +126,18 @@ char *mr_stats_openapi_block(void)
         group = fd->group;
     }
     /* the registered kinds' own fields (mr_kind_stat_at), summed over a job's
-     * objects of the kind or the largest of theirs */
+     * objects of the kind or the largest of theirs; creation figures on the
+     * first frame only */
     for (size_t k = 0; k < mr_kind_count(); k++) {
         const mr_kind *kind = mr_kind_at(k);
         for (size_t i = 0; i < mr_kind_stat_count(kind); i++) {
             const mr_kind_stat *st = mr_kind_stat_at(kind, i);
             char about[512];
-            snprintf(about, sizeof about, "Kind %s, %s over its objects: %s. Unit: %s.",
-                     mr_kind_name(kind), st->combine == MR_STAT_MAX ? "the largest" : "summed",
+            snprintf(about, sizeof about, "Kind %s, %s: %s. Unit: %s.", mr_kind_name(kind),
+                     st->combine == MR_STAT_MAX    ? "the largest over its objects"
+                     : st->combine == MR_STAT_ONCE ? "summed over its objects, on the first "
+                                                     "frame only (0 after)"
+                                                   : "summed over its objects",
                      st->description, st->unit);
             fprintf(f, "        %s: { type: number, description: ", st->name);
             put_quoted(f, about);

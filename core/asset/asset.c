@@ -42,7 +42,9 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "asset/image.h"
 #include "util/dup.h"
+#include "util/file_io.h"
 
 /* ---- the files assimp may open ------------------------------------------
  * A model may name other files: glTF buffers and images, an OBJ's .mtl,
@@ -422,12 +424,34 @@ void mr_asset_free(mr_asset *asset)
     for (size_t i = 0; i < asset->camera_count; i++)
         free(asset->cameras[i].name);
     free(asset->cameras);
+    mr_image_free(asset->image);
     free(asset);
+}
+
+bool mr_asset_is_image(const mr_asset *asset) { return asset && asset->image; }
+
+bool mr_asset_image_size(const mr_asset *asset, uint32_t *width, uint32_t *height)
+{
+    if (!asset || !asset->image)
+        return false;
+    *width = asset->image->width;
+    *height = asset->image->height;
+    return true;
 }
 
 size_t mr_asset_triangle_count(const mr_asset *asset)
 {
     return asset ? asset->triangle_count : 0;
+}
+
+size_t mr_asset_clip_count(const mr_asset *asset)
+{
+    return asset ? asset->clip_count : 0;
+}
+
+double mr_asset_clip_duration(const mr_asset *asset, size_t clip)
+{
+    return asset && clip < asset->clip_count ? asset->clips[clip].duration : 0.0;
 }
 
 size_t mr_asset_memory(const mr_asset *asset)
@@ -470,7 +494,7 @@ size_t mr_asset_memory(const mr_asset *asset)
     for (size_t i = 0; i < asset->camera_count; i++)
         if (asset->cameras[i].name)
             b += strlen(asset->cameras[i].name) + 1;
-    return b;
+    return b + mr_image_bytes(asset->image);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -1548,6 +1572,36 @@ static int check_faces(const struct aiScene *s, const char *path, mr_error *err)
     return MR_OK;
 }
 
+/* Whether the file starts with an image signature (asset/image.h): 1 yes,
+ * 0 no, or an error. */
+static int sniff_image(const char *path, mr_error *err)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+    if (fd < 0)
+        return mr_error_set(err, MR_ERR_IO, "%s: %s", path, strerror(errno));
+    uint8_t head[8];
+    ssize_t n = read(fd, head, sizeof head);
+    close(fd);
+    if (n < 0)
+        return mr_error_set(err, MR_ERR_IO, "%s: %s", path, strerror(errno));
+    return mr_image_sniff(head, (size_t)n) != MR_IMAGE_NONE;
+}
+
+/* An image asset: the whole file, decoded (asset/image.h). */
+static int load_image(const char *path, mr_asset **out, mr_error *err)
+{
+    uint8_t *data = NULL;
+    size_t size = 0;
+    mr_image *img = NULL;
+    int rc = mr_fs_read_capped(path, MR_MAX_ASSET_FILE_BYTES, &data, &size, "image", err);
+    if (rc == MR_OK)
+        rc = mr_image_decode(data, size, path, &img, err);
+    free(data);
+    if (rc < 0)
+        return rc;
+    return mr_asset_from_image(path, img, out, err);
+}
+
 /* The import itself, on whatever thread calls it (mr_asset_load gives it
  * a deep stack). */
 static int load_here(const char *path, mr_asset **out, mr_error *err)
@@ -1584,6 +1638,11 @@ static int load_here(const char *path, mr_asset **out, mr_error *err)
         fclose(f);
         return mr_error_set(err, MR_ERR_FORMAT, "%s: the file is empty", path);
     }
+    int image = sniff_image(path, err);
+    if (image < 0)
+        return image;
+    if (image)
+        return load_image(path, out, err);
     if ((rc = precheck_counts(path, (long long)st.st_size, err)) < 0)
         return rc;
 

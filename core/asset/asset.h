@@ -76,8 +76,11 @@ typedef struct mr_camera_info {
     float aspect;      /* width / height, 0 if unknown */
 } mr_camera_info;
 
+typedef struct mr_image mr_image; /* asset/image.h */
+
 struct mr_asset {
     char *path;
+    mr_image *image;       /* an image asset (height texture, exemplar): no meshes; else NULL */
     size_t node_count, mesh_count, clip_count, camera_count;
     mr_node *nodes;
     mr_mesh *meshes;
@@ -86,22 +89,8 @@ struct mr_asset {
     size_t triangle_count; /* over all meshes */
 };
 
-/* Builds an asset from one in-memory triangle mesh (copied), with a single
- * root node. Used by tests and generated fixtures. normals may be NULL. */
-int mr_asset_from_mesh(const char *name, const float *positions, const float *normals,
-                       uint32_t vertex_count, const uint32_t *indices,
-                       uint32_t triangle_count, mr_asset **out, mr_error *err);
-
-/* The same triangles shaded by their facets: an asset of one mesh whose
- * triangles have corners of their own (3 per triangle) that carry the
- * triangle's unit normal ((0, 0, 1) for a degenerate one). The reference
- * for how a surface is oriented, as opposed to its interpolated vertex
- * normals: what a kind that shades micro-triangles by their own normals
- * (dmm) converges to. Errors as mr_asset_from_mesh (3 * triangle_count
- * corners count against the vertex cap). */
-int mr_asset_faceted(const char *name, const float *positions, uint32_t vertex_count,
-                     const uint32_t *indices, uint32_t triangle_count, mr_asset **out,
-                     mr_error *err);
+/* mr_asset_from_mesh and mr_asset_faceted (assets made from arrays) are
+ * public: microray.h. */
 
 /* A deep copy of in's path, nodes (with room for extra_nodes more after
  * them; node_count counts the copied ones), clips and cameras, plus

@@ -9,6 +9,7 @@
  * they are: the blob never leaves the build that wrote it.
  */
 #include "asset/asset.h"
+#include "asset/image.h"
 
 #include <stdbool.h>
 #include <stdlib.h>
@@ -163,6 +164,15 @@ int mr_asset_blob_write(const mr_asset *a, uint8_t **out, size_t *size, mr_error
         c.aspect = src->aspect;
         put_string(&w, src->name);
         put(&w, &c, sizeof c);
+    }
+    /* an image asset: its four header words, then its samples */
+    const mr_image *img = a->image;
+    put_u64(&w, img != NULL);
+    if (img) {
+        uint32_t hdr[4] = {img->width, img->height, img->file_channels,
+                           (uint32_t)img->type | (uint32_t)img->format << 8};
+        put(&w, hdr, sizeof hdr);
+        put_array(&w, img->samples, (size_t)img->width * img->height, (size_t)img->type);
     }
     if (w.failed) {
         free(w.data);
@@ -333,6 +343,32 @@ int mr_asset_blob_read(const uint8_t *data, size_t size, mr_asset **out, mr_erro
         char *name = take_string(&r);
         take(&r, &a->cameras[i], sizeof a->cameras[i]);
         a->cameras[i].name = name;
+    }
+    uint64_t has_image = take_u64(&r);
+    if (has_image > 1)
+        r.bad = true;
+    if (has_image == 1 && !r.bad) {
+        uint32_t hdr[4];
+        take(&r, hdr, sizeof hdr);
+        mr_sample_type type = (mr_sample_type)(hdr[3] & 0xff);
+        mr_image_format format = (mr_image_format)(hdr[3] >> 8);
+        uint64_t px = (uint64_t)hdr[0] * hdr[1];
+        if (r.bad || (type != MR_SAMPLE_U8 && type != MR_SAMPLE_U16 && type != MR_SAMPLE_F32) ||
+            format > MR_IMAGE_EXR || hdr[0] == 0 || hdr[1] == 0 || hdr[0] > MR_MAX_IMAGE_SIDE ||
+            hdr[1] > MR_MAX_IMAGE_SIDE || px > MR_MAX_IMAGE_PIXELS) {
+            r.bad = true;
+        } else if (!(a->image = calloc(1, sizeof *a->image))) {
+            r.nomem = r.bad = true;
+        } else {
+            a->image->width = hdr[0];
+            a->image->height = hdr[1];
+            a->image->file_channels = hdr[2];
+            a->image->type = type;
+            a->image->format = format;
+            a->image->samples = take_array(&r, (size_t)type, (size_t)px, NULL);
+            if (!a->image->samples)
+                r.bad = true;
+        }
     }
     if (!r.bad && r.left != 0)
         r.bad = true;

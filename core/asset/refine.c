@@ -841,6 +841,9 @@ int mr_refine_asset(const mr_asset *in, const mr_refine_params *params, mr_asset
     *out = NULL;
     if (!in || !params)
         return mr_error_set(err, MR_ERR_INVALID, "refine: NULL asset or params");
+    if (in->image)
+        return mr_error_set(err, MR_ERR_INVALID, "%s is an image: only models can be refined",
+                            in->path);
     if (mr_asset_copy_shell(in, 0, &a) < 0)
         goto nomem;
     if (in->mesh_count) {

@@ -36,6 +36,17 @@
  *               extras (render/frame_stats.h), which reach stats.json, the
  *               HTTP stats and the events by the one generic path.
  *   rewind      (SEQUENTIAL kinds) back to the state before frame 0.
+ *   checkpoint_* (SEQUENTIAL kinds, optional: all four or none) the state
+ *               after the frames applied so far as bytes and back, so a
+ *               resumed or retried job starts from the nearest checkpoint
+ *               instead of frame 0 (render/checkpoint.h keeps them in the
+ *               kind's derived-data folder, keyed by checkpoint_id and the
+ *               frame count): checkpoint_every says how many frames apart
+ *               (0: none), checkpoint_id hashes everything the state after
+ *               N frames depends on (asset content, parameters, transform,
+ *               the state format's version), save writes the state after
+ *               `frames` frames, load restores it (validating what it
+ *               reads: all or nothing, MR_ERR_FORMAT on anything wrong).
  *   surface_step  (NULL: 0) the size, in world units after the last
  *               update, of the steps the kind's surface makes around the
  *               smooth one it stands for (a voxel's edge): faces of a
@@ -94,13 +105,6 @@ typedef struct mr_geom mr_geom; /* a kind's own instance data */
  * work (about 1.8e19). */
 #define MR_MAX_COORDINATE 1e15
 
-/* A plain triangle soup in world space (tessellation output). */
-typedef struct mr_trimesh {
-    uint32_t vertex_count, triangle_count;
-    float *positions;   /* 3 per vertex */
-    uint32_t *indices;  /* 3 per triangle */
-} mr_trimesh;
-
 /* The frame being prepared. */
 typedef struct mr_geom_frame {
     size_t index;       /* frame number in the job */
@@ -116,6 +120,11 @@ typedef struct mr_kind_context {
     unsigned threads;      /* the job's thread count (0: all cores) */
     size_t memory_budget;  /* bytes the job's geometry may hold, 0: no limit
                               (mr_renderer_options.memory_budget) */
+    /* the job's imported assets (mr_job.assets order), for kinds whose
+     * parameters name more than the object's own asset (MR_PARAM_ASSET:
+     * a height texture); they outlive the kind's object */
+    const mr_asset *const *assets;
+    size_t asset_count;
 } mr_kind_context;
 
 typedef enum mr_frame_order {
@@ -149,6 +158,12 @@ struct mr_kind {
     uint32_t (*geometry_ids)(const mr_geom *g);
     void (*frame_stats)(const mr_geom *g, double *values);
     int (*rewind)(mr_geom *g, mr_error *err);
+    uint32_t (*checkpoint_every)(const mr_geom *g);
+    void (*checkpoint_id)(const mr_geom *g, uint8_t id[32]);
+    int (*checkpoint_save)(const mr_geom *g, uint64_t frames, uint8_t **buf, size_t *size,
+                           mr_error *err);
+    int (*checkpoint_load)(mr_geom *g, uint64_t frames, const uint8_t *buf, size_t size,
+                           mr_error *err);
     float (*surface_step)(const mr_geom *g);
     bool (*shading_point)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                           mr_vec3 *out);
@@ -164,7 +179,7 @@ int mr_kind_register(const mr_kind *kind, mr_error *err);
  * (and MR_OK) when root is NULL/empty or the kind keeps none. */
 int mr_kind_cache_dir(const mr_kind *kind, const char *root, char **out, mr_error *err);
 
-void mr_trimesh_free(mr_trimesh *m);
+/* mr_trimesh and mr_trimesh_free are public (microray.h, renderer). */
 /* A copy of a triangle soup (what a kind whose Embree form is already
  * triangles returns from tessellate). */
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,

@@ -34,6 +34,16 @@ void mr_params_defaults(const mr_param_table *t, void *values)
             *AT(values, p->offset, mr_pose_desc) = (mr_pose_desc){0};
             *AT(values, p->present_offset, bool) = false;
             break;
+        case MR_PARAM_ASSET: *AT(values, p->offset, uint32_t) = 0; break;
+        case MR_PARAM_NUMBERS:
+            for (size_t k = 0; k < p->max_items; k++)
+                AT(values, p->offset, float)[k] = (float)p->def;
+            break;
+        case MR_PARAM_VEC3:
+            *AT(values, p->offset, mr_vec3) =
+                mr_v3((float)p->def3[0], (float)p->def3[1], (float)p->def3[2]);
+            break;
+        case MR_PARAM_QUAT: *AT(values, p->offset, mr_quat) = mr_quat_identity(); break;
         }
     }
 }

@@ -3,7 +3,7 @@
  *
  * Adding a kind is one line in BUILTIN (its descriptor, declared in its own
  * folder's header). Order matters only for messages and the generated
- * schema: "one of: \"mesh\", \"dmm\", \"svo\"".
+ * schema: "one of: \"mesh\", \"dmm\", \"svo\", ...".
  */
 #include "kinds/kind.h"
 
@@ -13,14 +13,18 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "kinds/displaced/displaced_kind.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/mesh/mesh_kind.h"
+#include "kinds/springmass/springmass_kind.h"
 #include "kinds/svo/svo_kind.h"
 
 static const mr_kind *const BUILTIN[] = {
     &mr_kind_mesh,
     &mr_kind_dmm,
     &mr_kind_svo,
+    &mr_kind_displaced,
+    &mr_kind_springmass,
 };
 
 #define BUILTIN_COUNT (sizeof BUILTIN / sizeof BUILTIN[0])
@@ -57,13 +61,30 @@ int mr_kind_register(const mr_kind *kind, mr_error *err)
     if (kind->params && kind->params->count > MR_PARAM_MAX_FIELDS)
         return mr_error_set(err, MR_ERR_LIMIT, "kind \"%s\": at most %u parameters", kind->name,
                             MR_PARAM_MAX_FIELDS);
-    if (kind->stat_count > MR_FRAME_EXTRAS_MAX || (kind->stat_count && !kind->frame_stats))
-        return mr_error_set(err, MR_ERR_INVALID,
-                            "kind \"%s\": at most %d stats fields, with frame_stats", kind->name,
-                            MR_FRAME_EXTRAS_MAX);
+    if (kind->stat_count && !kind->frame_stats)
+        return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": stats fields need frame_stats",
+                            kind->name);
     if (kind->frame_order == MR_FRAMES_SEQUENTIAL && !kind->rewind)
         return mr_error_set(err, MR_ERR_INVALID, "kind \"%s\": a sequential kind needs rewind",
                             kind->name);
+    bool any = kind->checkpoint_every || kind->checkpoint_id || kind->checkpoint_save ||
+               kind->checkpoint_load,
+         all = kind->checkpoint_every && kind->checkpoint_id && kind->checkpoint_save &&
+               kind->checkpoint_load;
+    if (any && (!all || kind->frame_order != MR_FRAMES_SEQUENTIAL))
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "kind \"%s\": checkpoints need all four ops and a sequential kind",
+                            kind->name);
+    /* a job may hold every kind: all their fields fit one frame's extras */
+    size_t fields = kind->stat_count;
+    for (size_t i = 0; i < mr_kind_count(); i++)
+        fields += mr_kind_at(i)->stat_count;
+    if (fields + MR_FRAME_EXTRAS_CALLER > MR_FRAME_EXTRAS_MAX)
+        return mr_error_set(err, MR_ERR_LIMIT,
+                            "kind \"%s\": its %zu stats fields would bring the registered kinds' "
+                            "to %zu, more than the %d a frame carries besides the caller's %d",
+                            kind->name, kind->stat_count, fields,
+                            MR_FRAME_EXTRAS_MAX - MR_FRAME_EXTRAS_CALLER, MR_FRAME_EXTRAS_CALLER);
     if (added_count == MAX_ADDED)
         return mr_error_set(err, MR_ERR_LIMIT, "at most %d kinds can be added", MAX_ADDED);
     added[added_count++] = kind;

@@ -21,6 +21,11 @@ const mr_stat_group mr_stat_group_bytes = {"bytes", "Memory held while the frame
 const mr_stat_group mr_stat_group_cache = {
     "cache", "What the scene cache did for the job's assets (only on the frame that asked it: the first).",
     true};
+const mr_stat_group mr_stat_group_replay = {
+    "replay",
+    "Frames of a simulation (a kind whose frame N needs frames 0..N-1) computed again, untraced, "
+    "before this frame: only on a frame rendered out of order (a resumed or retried job).",
+    true};
 
 #define AT(member) offsetof(mr_frame_stats, member)
 /* The per-stage timings (doubles of seconds) and the memory figures
@@ -64,6 +69,10 @@ const mr_stat_field mr_frame_stat_fields[] = {
     {&mr_stat_group_cache, "assets_loaded", MR_STAT_U32, AT(assets_loaded), "count",
      "Assets imported for this job."},
     {&mr_stat_group_cache, "saved_s", MR_STAT_F64, AT(load_saved_s), "s", "Import seconds the cache saved."},
+    {&mr_stat_group_replay, "frames", MR_STAT_U32, AT(replay_frames), "count",
+     "Frames simulated again before this one."},
+    {&mr_stat_group_replay, "checkpoint", MR_STAT_U32, AT(replay_checkpoint), "count",
+     "The frames held by the checkpoint the replay started from (0: from frame 0)."},
 };
 const size_t mr_frame_stat_field_count = sizeof mr_frame_stat_fields / sizeof *mr_frame_stat_fields;
 

@@ -9,6 +9,7 @@
 #include <sys/resource.h>
 
 #include "kinds/kind.h"
+#include "render/checkpoint.h"
 #include "render/device.h"
 #include "render/exr.h"
 #include "render/integrator.h"
@@ -24,6 +25,8 @@ typedef struct object_state {
     bool animated;   /* pose changes from frame to frame */
     bool posed_once;
     size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
+    char *checkpoints; /* the kind's folder when it keeps checkpoints there (checkpoint.h) */
+    uint32_t checkpoint_every;
 } object_state;
 
 struct mr_renderer {
@@ -47,6 +50,7 @@ struct mr_renderer {
     const object_state *cam_driver; /* object whose pose moves the camera's asset */
     const mr_kind **stat_kinds; /* the job's kinds that report stats fields, each once */
     size_t stat_kind_count;
+    bool reported_once;           /* a frame carried the kinds' creation figures */
     float *crypto_ids[MR_CRYPTO_LAYERS]; /* Cryptomatte id of each object's name, its asset's */
 };
 
@@ -90,6 +94,7 @@ void mr_renderer_free(mr_renderer *r)
         if (r->objects[i].geom)
             r->objects[i].kind->free(r->objects[i].geom);
         mr_pose_free(r->objects[i].pose);
+        free(r->objects[i].checkpoints);
     }
     mr_pose_free(r->cam_pose);
     free(r->stat_kinds);
@@ -214,6 +219,13 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         o->desc = &job->objects[i];
         o->asset = assets[o->desc->asset];
         o->kind = o->desc->kind; /* never NULL: checked above */
+        if (mr_asset_is_image(o->asset)) {
+            rc = mr_error_set(err, MR_ERR_INVALID,
+                              "/objects/%zu/asset: \"%s\" is an image (%s), not a model; images "
+                              "are named by a kind's parameters (a height texture)",
+                              i, job->assets[o->desc->asset].name, o->asset->path);
+            goto fail;
+        }
         o->animated = object_is_animated(o->desc, job->frame_count);
         for (size_t k = 0; k < o->desc->pose_count && !o->kind->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
@@ -230,8 +242,15 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         if ((rc = mr_kind_cache_dir(o->kind, r->opt.cache_dir, &cache_dir, err)) < 0)
             goto fail;
         mr_kind_context ctx = {.cache_dir = cache_dir, .threads = mr_device_threads(dev),
-                               .memory_budget = r->opt.memory_budget};
+                               .memory_budget = r->opt.memory_budget,
+                               .assets = (const mr_asset *const *)assets,
+                               .asset_count = job->asset_count};
         rc = o->kind->create(o->asset, o->desc, &ctx, &o->geom, err);
+        if (rc == MR_OK && mr_checkpoint_kept(o->kind, o->geom, cache_dir)) {
+            o->checkpoints = cache_dir;
+            o->checkpoint_every = o->kind->checkpoint_every(o->geom);
+            cache_dir = NULL;
+        }
         free(cache_dir);
         if (rc < 0) {
             if (o->kind->self_posed) /* its errors name the pose fields under the object */
@@ -323,13 +342,38 @@ static int update_object(mr_renderer *r, object_state *o, size_t i, const mr_geo
     return rc;
 }
 
+/* After frames 0..o->stepped-1: a checkpoint when one is due (checkpoint.h).
+ * A checkpoint that cannot be written costs a later resume some replay,
+ * never this frame. */
+static void checkpoint_due(object_state *o)
+{
+    if (o->checkpoints && o->stepped % o->checkpoint_every == 0) {
+        mr_error ignored;
+        mr_checkpoint_store(o->checkpoints, o->kind, o->geom, o->stepped, &ignored);
+    }
+}
+
 /* The frame-order contract (kind.h): a SEQUENTIAL object about to show
  * frame `index` must have applied exactly frames 0..index-1. A frame out of
- * order (resumed job, retry, frame range) rewinds it and replays the
- * updates in between, untraced, so the result is the uninterrupted run's. */
-static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_error *err)
+ * order (resumed job, retry, frame range) restores the newest checkpoint
+ * at or before it (or rewinds) and replays the updates in between,
+ * untraced, so the result is the uninterrupted run's. */
+static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr_frame_stats *st,
+                     mr_error *err)
 {
     int rc;
+    if (o->stepped == index)
+        return MR_OK;
+    size_t from = o->stepped > index ? 0 : o->stepped;
+    if (o->checkpoints)
+        for (size_t m = index - index % o->checkpoint_every; m > from; m -= o->checkpoint_every) {
+            mr_error miss;
+            if (mr_checkpoint_load(o->checkpoints, o->kind, o->geom, m, &miss) == MR_OK) {
+                o->stepped = m;
+                st->replay_checkpoint = (uint32_t)m;
+                break;
+            }
+        }
     if (o->stepped > index) {
         if ((rc = o->kind->rewind(o->geom, err)) < 0)
             return mr_error_prefix(err, "/objects/%zu: ", i);
@@ -343,14 +387,17 @@ static int replay_to(mr_renderer *r, object_state *o, size_t i, size_t index, mr
             (rc = update_object(r, o, i, &f, err)) < 0)
             return rc;
         o->stepped = k + 1;
+        st->replay_frames++;
+        checkpoint_due(o);
     }
     return MR_OK;
 }
 
 /* The kinds' own per-frame fields (kind.h stats), each combined over the
  * job's objects of its kind (summed, or the largest: mr_kind_stat.combine),
- * as the frame's extras. */
-static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
+ * as the frame's extras; creation figures (MR_STAT_ONCE) only on the
+ * renderer's first frame. */
+static int kind_stats(mr_renderer *r, mr_frame_stats *st, mr_error *err)
 {
     for (size_t s = 0; s < r->stat_kind_count; s++) {
         const mr_kind *k = r->stat_kinds[s];
@@ -369,10 +416,38 @@ static int kind_stats(const mr_renderer *r, mr_frame_stats *st, mr_error *err)
             first = false;
         }
         for (size_t f = 0; f < k->stat_count; f++) {
-            int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, sum[f], err);
+            double value = k->stats[f].combine == MR_STAT_ONCE && r->reported_once ? 0 : sum[f];
+            int rc = mr_frame_stats_add_extra(st, k->stats[f].name, k->stats[f].unit, value, err);
             if (rc < 0)
                 return mr_error_prefix(err, "kind \"%s\" stats: ", k->name);
         }
+    }
+    return MR_OK;
+}
+
+/* Poses and deforms for frame `index` whatever moves (everything the first
+ * time), replaying sequential kinds as needed; *changed: something did. */
+static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *frame, mr_frame_stats *st,
+                          bool *changed, mr_error *err)
+{
+    int rc;
+    *changed = false;
+    for (size_t i = 0; i < r->object_count; i++) {
+        object_state *o = &r->objects[i];
+        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
+            continue;
+        if (!o->posed_once || o->animated) {
+            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
+                (rc = replay_to(r, o, i, index, st, err)) < 0)
+                return rc;
+            if ((rc = update_object(r, o, i, frame, err)) < 0)
+                return rc;
+            o->stepped = index + 1;
+            checkpoint_due(o);
+        }
+        o->kind->commit(o->geom);
+        o->posed_once = true;
+        *changed = true;
     }
     return MR_OK;
 }
@@ -397,24 +472,29 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
         return rc;
 
+    /* An animated scene's tree is built at frame 0 and refitted after
+     * that; its topology decides which of two triangles sharing an edge a
+     * ray exactly on that edge hits. A renderer that starts at a later
+     * frame (a resumed job, a retry in a new render worker) builds its tree
+     * at frame 0 as well, so its hits are the uninterrupted run's bit for
+     * bit (tests/integration/test_springmass_daemon.c). */
+    if (r->refit && !r->built && index != 0) {
+        mr_geom_frame first = {.index = 0, .time = job->frame_times[0], .width = film->width,
+                               .height = film->height};
+        if ((rc = camera_for_frame(r, 0, first.time, &first.camera, err)) < 0)
+            return rc;
+        bool ignored;
+        if ((rc = update_objects(r, 0, &first, st, &ignored, err)) < 0)
+            return rc;
+        rtcCommitScene(r->scene);
+        r->built = true;
+        if ((rc = mr_device_check(r->dev, "rtcCommitScene", err)) < 0)
+            return rc;
+    }
     /* Pose and deform whatever moves (everything on the first frame). */
     bool changed = false;
-    for (size_t i = 0; i < r->object_count; i++) {
-        object_state *o = &r->objects[i];
-        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
-            continue;
-        if (!o->posed_once || o->animated) {
-            if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
-                (rc = replay_to(r, o, i, index, err)) < 0)
-                return rc;
-            if ((rc = update_object(r, o, i, &frame, err)) < 0)
-                return rc;
-            o->stepped = index + 1;
-        }
-        o->kind->commit(o->geom);
-        o->posed_once = true;
-        changed = true;
-    }
+    if ((rc = update_objects(r, index, &frame, st, &changed, err)) < 0)
+        return rc;
     double t1 = mr_now();
     st->pose_s = t1 - t0;
     for (size_t i = 0; i < r->object_count; i++) {
@@ -490,5 +570,22 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     mr_speckle_result sp;
     mr_film_speckles(film, &sp);
     st->speckle_pct = sp.speckle_pct;
-    return kind_stats(r, st, err);
+    if ((rc = kind_stats(r, st, err)) < 0)
+        return rc;
+    r->reported_once = true;
+    return MR_OK;
+}
+
+int mr_renderer_tessellate(const mr_renderer *r, size_t object, mr_trimesh *out, mr_error *err)
+{
+    *out = (mr_trimesh){0};
+    if (object >= r->object_count)
+        return mr_error_set(err, MR_ERR_INVALID, "object %zu out of range (job has %zu)", object,
+                            r->object_count);
+    const object_state *o = &r->objects[object];
+    if (!o->kind->tessellate)
+        return mr_error_set(err, MR_ERR_INVALID, "/objects/%zu: kind \"%s\" has no triangle "
+                            "reference", object, o->kind->name);
+    int rc = o->kind->tessellate(o->geom, out, err);
+    return rc < 0 ? mr_error_prefix(err, "/objects/%zu: ", object) : MR_OK;
 }

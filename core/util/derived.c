@@ -311,3 +311,48 @@ int mr_derived_get(const char *dir, const uint8_t key[MR_DERIVED_KEY_BYTES],
     free(path);
     return rc;
 }
+
+void mr_derived_key_params(mr_derived_key_builder *kb, const mr_param_table *t, const void *values)
+{
+    for (size_t i = 0; i < t->count; i++) {
+        const mr_param *p = &t->params[i];
+        const char *at = (const char *)values + p->offset;
+        switch (p->type) {
+        case MR_PARAM_INT: mr_derived_key_u32(kb, *(const uint32_t *)at); break;
+        case MR_PARAM_ENUM: mr_derived_key_u32(kb, (uint32_t) * (const int *)at); break;
+        case MR_PARAM_NUMBER: mr_derived_key_f32s(kb, (const float *)at, 1); break;
+        case MR_PARAM_BOOL: mr_derived_key_u32(kb, *(const bool *)at ? 1u : 0u); break;
+        case MR_PARAM_VEC3: {
+            const mr_vec3 *v = (const mr_vec3 *)at;
+            float f[3] = {v->x, v->y, v->z};
+            mr_derived_key_f32s(kb, f, 3);
+            break;
+        }
+        case MR_PARAM_QUAT: {
+            const mr_quat *q = (const mr_quat *)at;
+            float f[4] = {q->x, q->y, q->z, q->w};
+            mr_derived_key_f32s(kb, f, 4);
+            break;
+        }
+        case MR_PARAM_TRANSFORM: mr_derived_key_f32s(kb, ((const mr_mat4 *)at)->m, 16); break;
+        case MR_PARAM_FLAG_OBJECT:
+            mr_derived_key_u32(kb, *(const bool *)at ? 1u : 0u);
+            mr_derived_key_params(kb, p->sub, values);
+            break;
+        case MR_PARAM_ARRAY: {
+            const char *items = *(const char *const *)at;
+            size_t n = *(const size_t *)((const char *)values + p->count_offset);
+            mr_derived_key_u64(kb, n);
+            for (size_t k = 0; k < n; k++)
+                mr_derived_key_params(kb, p->sub, items + k * p->sub->size);
+            break;
+        }
+        case MR_PARAM_NUMBERS: mr_derived_key_f32s(kb, (const float *)at, p->max_items); break;
+        /* a pose animates, it does not derive; an asset parameter names
+         * another asset by its place in the job, not by its content: a
+         * kind that derives from one feeds that asset's content itself */
+        case MR_PARAM_POSE:
+        case MR_PARAM_ASSET: break;
+        }
+    }
+}

@@ -1,8 +1,9 @@
 /*
  * derived.h - the one derived-data cache: what a geometry kind derives from
  * an asset at a cost (baked DMMs, voxelised assets; height-texture mipmaps
- * and simulation checkpoints next) is kept on disk, so it is derived once
- * per input, not once per job, and survives restarts.
+ * next) is kept on disk, so it is derived once per input, not once per
+ * job, and survives restarts. Simulation checkpoints (render/checkpoint.h)
+ * use its keys, envelope and atomic store too.
  *
  * A kind writes only its file format (serialise, parse) and its builder;
  * this module gives it the rest, the same way for every kind:
@@ -97,6 +98,17 @@ void mr_derived_key_mesh_arrays(mr_derived_key_builder *kb, const mr_mesh *m, un
 /* The node count (u64), then per node its parent (i32 as u32, -1 for a
  * root) and rest transform (16 f32, mr_mat4.m order). */
 void mr_derived_key_nodes(mr_derived_key_builder *kb, const mr_asset *asset);
+/* A kind's parameter block (values of table t): every field in table
+ * order, INT/ENUM as u32, NUMBER as f32, BOOL as u32 0/1, VEC3 3 f32,
+ * QUAT 4 f32, TRANSFORM 16 f32, FLAG_OBJECT its flag then its sub table,
+ * ARRAY its count (u64) then each element; POSE fields are not fed (a
+ * builder that reads poses feeds them itself). */
+void mr_derived_key_params(mr_derived_key_builder *kb, const mr_param_table *t, const void *values);
+/* Raw bytes (a digest of something else, a name). */
+static inline void mr_derived_key_bytes(mr_derived_key_builder *kb, const void *data, size_t size)
+{
+    mr_sha256_feed_bytes(&kb->feed, data, size);
+}
 /* The key; kb is spent. */
 void mr_derived_key_end(mr_derived_key_builder *kb, uint8_t key[MR_DERIVED_KEY_BYTES]);
 

@@ -9,7 +9,10 @@
  * counts back.
  *
  * Input: the first byte picks the file's extension (assimp chooses its
- * reader by it, then by content), the rest is the file. Each input is
+ * reader by it, then by content), the rest is the file. Files that start
+ * with a PNG, JPEG or EXR signature are images (asset/image.c: libpng,
+ * libjpeg, OpenEXR) whatever the extension; the seed corpus holds one of
+ * each. Each input is
  * written to a fresh file in a private folder (on /dev/shm when there is
  * one) that holds nothing else, so a model naming other files (.mtl, glTF
  * buffers) finds none or is refused.
@@ -28,7 +31,8 @@
 #include "fuzz_tmp.h"
 #include "microray.h"
 
-static const char *const EXTS[] = {"obj", "ply", "off", "x", "gltf", "glb", "stl", "smd", "dae", "fbx"};
+static const char *const EXTS[] = {"obj", "ply", "off", "x",   "gltf", "glb", "stl",
+                                   "smd", "dae", "fbx", "png", "jpg", "exr"};
 #define EXT_COUNT (sizeof EXTS / sizeof EXTS[0])
 
 static char dir[128];
@@ -77,8 +81,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             die("an error without a message");
         return 0;
     }
-    if (!a || mr_asset_triangle_count(a) == 0)
+    /* a model has triangles; an image (a file with an image signature:
+     * PNG, JPEG, EXR) has pixels and none */
+    uint32_t w = 0, h = 0;
+    bool image = mr_asset_image_size(a, &w, &h);
+    if (!a || (!image && mr_asset_triangle_count(a) == 0))
         die("MR_OK without triangles");
+    if (image && (w == 0 || h == 0 || w > MR_MAX_IMAGE_SIDE || h > MR_MAX_IMAGE_SIDE ||
+                  (uint64_t)w * h > MR_MAX_IMAGE_PIXELS || mr_asset_triangle_count(a) != 0))
+        die("an image asset outside the caps or with triangles");
 
     uint8_t *blob = NULL;
     size_t blob_size = 0;

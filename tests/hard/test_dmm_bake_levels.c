@@ -156,6 +156,13 @@ static void test_error_falls_with_level(void **state)
          * of the asset's rest-pose diagonal) */
         bake_rms[l] = extra(&st, "dmm_bake_rms_distance");
         double worst = extra(&st, "dmm_bake_max_distance");
+        /* its size: uniform levels subdivide every base triangle 4^level
+         * times (nothing decimated), and the encoding takes more bytes the
+         * finer the level; the first view carries the bake's seconds */
+        const double base = extra(&st, "dmm_base_triangles");
+        assert_true(base > 0 && base * (double)(1u << (2 * level)) == (double)st.triangles);
+        assert_true(extra(&st, "dmm_stored_bytes") > base);
+        assert_true(extra(&st, "dmm_bake_s") > 0);
         fig[l] = (figures){0};
         for (size_t f = 0; f < VIEWS; f++) {
             mr_compare_result c;

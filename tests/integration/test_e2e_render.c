@@ -493,7 +493,8 @@ static void test_voxel_acne(void **state)
 }
 
 /* --frames (issue 18): parts of a job rendered apart give the frames of
- * one whole run, bit for bit (an animated mesh, a deformed octree; the
+ * one whole run, bit for bit (an animated mesh, a deformed octree, a
+ * skinned displaced micro-mesh; the
  * daemon's resume covers a simulated kind: test_sequential_daemon, and
  * the renderer replays it the same way); their statistics files join into a
  * stats.json of every frame; bad ranges are refused naming the flag. */
@@ -506,6 +507,7 @@ static void test_frame_ranges(void **state)
     } cases[] = {
         {"tests/data/skinned-small.json", {"2-3", "0", "1"}, 4},
         {"tests/data/svo-acne.json", {"1", "0", NULL}, 2},
+        {"tests/data/dmm-small.json", {"1-2", "0", NULL}, 3},
     };
     for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
         char whole[512], parts[512], args[2048];

@@ -185,9 +185,107 @@ static void test_methods_against_triangles(void **state)
     mr_asset_free(asset);
 }
 
+static double extra(const mr_frame_stats *st, const char *name)
+{
+    for (uint32_t i = 0; i < st->extra_count; i++)
+        if (!strcmp(st->extras[i].name, name))
+            return st->extras[i].value;
+    fail_msg("frame %d has no %s", st->frame, name);
+    return 0;
+}
+
+/* The public measurement hooks the benchmarks use (bench/bench_svo*.c):
+ * the kind's per-frame fields, its creation figures on the renderer's
+ * first frame only, the clip accessors and the exact triangle reference.
+ * Exact relations (no timing is asserted beyond >= 0):
+ *  - every selected voxel is a leaf or stands for at least one leaf below
+ *    it, so selected <= the shared octree's leaves <= ... and deformed >=
+ *    selected (every selected voxel was deformed on the way);
+ *  - resize emits exactly 2 x 2 x 2 cells per deformed box, and its output
+ *    octree (the frame's primitives) keeps at most the cells. */
+static void test_stats_and_hooks(void **state)
+{
+    (void)state;
+    mr_asset *asset = NULL;
+    mr_error err = {0};
+    if (mr_asset_load(MODEL, &asset, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_int_equal(mr_asset_clip_count(asset), asset->clip_count);
+    assert_true(mr_asset_clip_duration(asset, 0) == asset->clips[0].duration);
+    assert_true(mr_asset_clip_duration(asset, asset->clip_count) == 0.0);
+    assert_true(mr_asset_clip_duration(NULL, 0) == 0.0);
+
+    char text[2048];
+    snprintf(text, sizeof text,
+             "{\"assets\":{\"d\":{\"path\":\"" MODEL "\"}},"
+             "\"objects\":[{\"asset\":\"d\",\"kind\":\"svo\",\"pose\":{\"clip\":0},"
+             "\"svo\":{\"depth\":6,\"method\":\"resize\"}},{\"asset\":\"d\"}],"
+             "\"camera\":{\"yfov\":40,\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],"
+             "\"target\":[0,0,-0.1]}]},"
+             "\"frames\":{\"times\":[0.5,1.0,1.5]},"
+             "\"output\":{\"width\":96,\"height\":64,\"samples\":1}}");
+    mr_job *job = NULL;
+    mr_job_error jerr = {0};
+    if (mr_job_parse(text, strlen(text), &job, &jerr) < 0)
+        fail_msg("job: %s: %s", jerr.pointer, jerr.message);
+    mr_device *dev = NULL;
+    mr_renderer *r = NULL;
+    mr_film *film = NULL;
+    mr_asset *assets[1] = {asset};
+    if (mr_device_new(2, &dev, &err) < 0 || mr_renderer_new(dev, job, assets, NULL, &r, &err) < 0 ||
+        mr_film_new(96, 64, &film, &err) < 0)
+        fail_msg("renderer: %s", err.msg);
+    double voxels = 0;
+    for (size_t f = 0; f < 3; f++) {
+        mr_frame_stats st;
+        if (mr_renderer_render(r, f, film, &st, &err) < 0)
+            fail_msg("frame %zu: %s", f, err.msg);
+        double selected = extra(&st, "svo_selected"), cells = extra(&st, "svo_cells");
+        if (f == 0) {
+            voxels = extra(&st, "svo_voxels");
+            assert_true(extra(&st, "svo_build_s") > 0);
+        } else {
+            assert_true(extra(&st, "svo_voxels") == voxels);
+            assert_true(extra(&st, "svo_build_s") == 0); /* a creation figure: first frame only */
+        }
+        assert_true(extra(&st, "svo_skeleton_s") == 0 && extra(&st, "svo_bones") == 0);
+        assert_true(selected > 0 && selected <= voxels);
+        assert_true(extra(&st, "svo_deformed") >= selected);
+        assert_true(cells == 8 * selected);
+        /* the svo's output voxels plus the mesh object's triangles */
+        assert_true((double)st.triangles <= cells + (double)asset->triangle_count);
+        assert_true(extra(&st, "svo_octree_bytes") > 0);
+        const char *const seconds[] = {"svo_pose_s", "svo_select_s", "svo_emit_s", "svo_rebuild_s"};
+        for (int k = 0; k < 4; k++)
+            assert_true(extra(&st, seconds[k]) >= 0);
+    }
+    /* the exact references: the skinned triangles of each object, at the
+     * last frame's pose for the svo (posed), at rest for the mesh */
+    for (size_t o = 0; o < 2; o++) {
+        mr_trimesh m;
+        if (mr_renderer_tessellate(r, o, &m, &err) < 0)
+            fail_msg("tessellate %zu: %s", o, err.msg);
+        assert_int_equal(m.triangle_count, asset->triangle_count);
+        for (size_t i = 0; i < (size_t)m.triangle_count * 3; i++)
+            assert_true(m.indices[i] < m.vertex_count);
+        for (size_t i = 0; i < (size_t)m.vertex_count * 3; i++)
+            assert_true(isfinite(m.positions[i]));
+        mr_trimesh_free(&m);
+    }
+    mr_trimesh none;
+    assert_int_equal(mr_renderer_tessellate(r, 2, &none, &err), MR_ERR_INVALID);
+    assert_null(none.positions);
+    mr_film_free(film);
+    mr_renderer_free(r);
+    mr_device_free(dev);
+    mr_job_free(job);
+    mr_asset_free(asset);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_stats_and_hooks),
         cmocka_unit_test(test_methods_against_triangles),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -196,9 +196,9 @@ static const bad_case BAD[] = {
     {WITH_OBJECT("{'asset':'m'},{'asset':'x'}"), MR_ERR_INVALID, "/objects/1/asset",
      "expected the name of an entry in \"assets\", got \"x\""},
     {WITH_OBJECT("{'asset':'m','material':1}"), MR_ERR_INVALID, "/objects/0/material",
-     "unknown field; expected one of: name, asset, kind, dmm, svo, transform, color, pose"},
+     "unknown field; expected one of: name, asset, kind, dmm, svo, displaced, springmass, transform, color, pose"},
     {WITH_OBJECT("{'asset':'m','kind':'voxels'}"), MR_ERR_INVALID, "/objects/0/kind",
-     "expected one of: \"mesh\", \"dmm\", \"svo\", got \"voxels\""},
+     "expected one of: \"mesh\", \"dmm\", \"svo\", \"displaced\", \"springmass\", got \"voxels\""},
     /* svo objects (issue 5). */
     {WITH_OBJECT("{'asset':'m','svo':{'depth':4}}"), MR_ERR_INVALID, "/objects/0/svo",
      "\"svo\" parameters need \"kind\": \"svo\""},

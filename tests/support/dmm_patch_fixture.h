@@ -30,35 +30,7 @@
 #define STRICT_T 1
 #endif
 
-/* ---- deterministic random numbers (xorshift64) */
-
-static inline uint32_t rnd(uint64_t *s)
-{
-    *s ^= *s << 13;
-    *s ^= *s >> 7;
-    *s ^= *s << 17;
-    return (uint32_t)(*s >> 11);
-}
-
-static inline double rnd01(uint64_t *s) { return (double)(rnd(s) & 0xFFFFFFu) / 16777216.0; }
-
-static inline float rndf(uint64_t *s, float lo, float hi) { return lo + (hi - lo) * (float)rnd01(s); }
-
-static inline mr_vec3 rnd_vec(uint64_t *s, float lo, float hi)
-{
-    float x = rndf(s, lo, hi), y = rndf(s, lo, hi);
-    return mr_v3(x, y, rndf(s, lo, hi));
-}
-
-static inline mr_vec3 rnd_unit(uint64_t *s)
-{
-    for (;;) {
-        mr_vec3 v = rnd_vec(s, -1, 1);
-        float l = mr_v3_len(v);
-        if (l > 0.1f && l <= 1.0f)
-            return mr_v3_scale(v, 1.0f / l);
-    }
-}
+#include "rng_fixture.h"
 
 static inline uint32_t fbits(float f)
 {

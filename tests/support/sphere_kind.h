@@ -273,7 +273,8 @@ static uint64_t test_sphere_primitives(const mr_geom *g) { return g->triangle_co
 static const mr_kind_stat TEST_SPHERE_STATS[] = {
     {"test_sphere_scale", "1", "the simulated scale after this frame", MR_STAT_MAX},
     {"test_sphere_steps", "count", "updates applied since create or rewind", MR_STAT_SUM},
-    {"test_sphere_cache_hit", "count", "1 if create read the sphere from the cache", MR_STAT_SUM},
+    {"test_sphere_cache_hit", "count", "1 if create read the sphere from the cache (first frame)",
+     MR_STAT_ONCE},
 };
 
 static void test_sphere_frame_stats(const mr_geom *g, double *values)

@@ -1,8 +1,9 @@
 /*
  * svo_sweep.h - the resampling measurement of paper 004 (Willcocks, 3.4
- * "Measurement", Figs. 20-28), shared by tests/hard/test_svo_sweep.c (which
- * asserts its qualitative results) and bench/bench_svo.c (which prints the
- * sweep tables). Header-only and without cmocka, so both can include it.
+ * "Measurement", Figs. 20-28) on the kind's internals, for
+ * tests/hard/test_svo_sweep.c (which asserts its qualitative results).
+ * bench/bench_svo.c prints the sweep through the public API instead (jobs,
+ * films, stats fields). Header-only and without cmocka.
  *
  * Test shape: the thesis measures a low-resolution human. Ours is the real
  * skinned character BCN_Epileptic.X voxelised at a low depth in bind space

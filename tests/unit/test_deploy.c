@@ -152,6 +152,9 @@ static void test_runtime_stage_has_every_library(void **state)
                                build, bins[b]);
         assert_int_equal(status, 0);
         for (char *lib = strtok(needed, "\n"); lib; lib = strtok(NULL, "\n")) {
+            /* a sanitizer build's runtimes (make check) are not the image's */
+            if (!strncmp(lib, "libasan", 7) || !strncmp(lib, "libubsan", 8))
+                continue;
             char pkg[256];
             package_of(lib, pkg, sizeof pkg);
             if (!pkg[0])

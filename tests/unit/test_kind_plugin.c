@@ -90,6 +90,16 @@ static void test_registry(void **state)
     no_rewind.rewind = NULL; /* SEQUENTIAL needs it */
     assert_int_equal(mr_kind_register(&no_rewind, &err), MR_ERR_INVALID);
     assert_null(mr_kind_find("test_sphere_2"));
+    /* a job may hold every kind: their stats fields must fit one frame */
+    mr_kind wordy = test_sphere_kind;
+    wordy.name = "test_sphere_3";
+    wordy.stat_count = MR_FRAME_EXTRAS_MAX;
+    assert_int_equal(mr_kind_register(&wordy, &err), MR_ERR_LIMIT);
+    assert_null(mr_kind_find("test_sphere_3"));
+    size_t fields = 0;
+    for (size_t i = 0; i < mr_kind_count(); i++)
+        fields += mr_kind_stat_count(mr_kind_at(i));
+    assert_true(fields + MR_FRAME_EXTRAS_CALLER <= MR_FRAME_EXTRAS_MAX);
 }
 
 static void test_parse(void **state)
@@ -119,7 +129,7 @@ static void test_parse(void **state)
     expect_error("{\"asset\": \"a\", \"test_sphere\": {\"radius\": 1}}", "/objects/0/test_sphere",
                  "\"test_sphere\" parameters need \"kind\": \"test_sphere\"");
     expect_error("{\"asset\": \"a\", \"kind\": \"sphere\"}", "/objects/0/kind",
-                 "one of: \"mesh\", \"dmm\", \"svo\", \"test_sphere\"");
+                 "one of: \"mesh\", \"dmm\", \"svo\", \"displaced\", \"springmass\", \"test_sphere\"");
     expect_error("{\"asset\": \"a\", \"kind\": \"test_sphere\", \"radius\": 1}", "/objects/0/radius",
                  "test_sphere, transform");
 }
@@ -276,7 +286,8 @@ static void test_worker_and_cache(void **state)
             assert_int_equal(f->extra_count, 3);
             assert_string_equal(f->extras[0].name, "test_sphere_scale");
             assert_true(f->extras[1].value == (double)(i + 1));
-            assert_true(f->extras[2].value == (run == 1 ? 1.0 : 0.0));
+            /* a creation figure (once): on the first frame only */
+            assert_true(f->extras[2].value == (run == 1 && i == 0 ? 1.0 : 0.0));
         }
         /* and in stats.json, from the worker's own figures */
         char *json = NULL;
@@ -284,7 +295,9 @@ static void test_worker_and_cache(void **state)
         cJSON *doc = cJSON_Parse(json);
         const cJSON *last = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 6);
         assert_true(cJSON_GetObjectItem(last, "test_sphere_steps")->valuedouble == 7);
-        assert_true(cJSON_GetObjectItem(last, "test_sphere_cache_hit")->valuedouble == run);
+        const cJSON *first = cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 0);
+        assert_true(cJSON_GetObjectItem(first, "test_sphere_cache_hit")->valuedouble == run);
+        assert_true(cJSON_GetObjectItem(last, "test_sphere_cache_hit")->valuedouble == 0);
         assert_true(cJSON_GetObjectItem(last, "test_sphere_scale")->valuedouble > 0);
         cJSON_Delete(doc);
         free(json);

@@ -80,6 +80,7 @@ typedef struct parser_only_case {
 #define WITH_XF(t) WITH_OBJECT("{'asset':'m','transform':" t "}")
 #define WITH_DMM(d) WITH_OBJECT("{'asset':'m','kind':'dmm','dmm':" d "}")
 #define WITH_SVO(s) WITH_OBJECT("{'asset':'m','kind':'svo','svo':" s "}")
+#define WITH_DISP(d) WITH_OBJECT("{'asset':'m','kind':'displaced','displaced':" d "}")
 #define WITH_LIGHTS(l) JOB(",'lights':" l)
 #define WITH_OUTPUT(o) JOB(",'output':" o)
 /* A 4x4 matrix whose last row is given. */
@@ -274,6 +275,41 @@ static const agree_case AGREE[] = {
     {"svo instance transform with a 0 scale", REJECT,
      WITH_SVO("{'instances':[{'transform':{'scale':[0,1,1]}}]}")},
     {"svo unknown field", REJECT, WITH_SVO("{'radius':1}")},
+    /* The displaced kind: a height source (exactly one), its ranges, the
+     * fields that go with one source or one method only. */
+    {"displaced with a texture", ACCEPT, WITH_DISP("{'texture':'m'}")},
+    {"displaced texture, every field at its limits", ACCEPT,
+     WITH_DISP("{'texture':'m','scale':-1000000,'offset':1000000,'level':16,'method':'raymarch',"
+               "'steps':100000,'local':'bilinear'}")},
+    {"displaced procedural, every field at its limits", ACCEPT,
+     WITH_DISP("{'procedural':{'example':'m','offset':[-1000000,1000000],'scale':1000000,"
+               "'triangle_size':16,'seed':4294967295},'range':4096,'method':'tessellated'}")},
+    {"displaced procedural with its example only", ACCEPT,
+     WITH_DISP("{'procedural':{'example':'m'},'range':1}")},
+    {"displaced block empty", REJECT, WITH_DISP("{}")},
+    {"displaced texture and procedural", REJECT,
+     WITH_DISP("{'texture':'m','procedural':{'example':'m'}}")},
+    {"displaced texture not a string", REJECT, WITH_DISP("{'texture':1}")},
+    {"displaced level 17", REJECT, WITH_DISP("{'texture':'m','level':17}")},
+    {"displaced level with procedural", REJECT,
+     WITH_DISP("{'procedural':{'example':'m'},'level':1}")},
+    {"displaced range with a texture", REJECT, WITH_DISP("{'texture':'m','range':8}")},
+    {"displaced range 24 (not a power of two)", REJECT,
+     WITH_DISP("{'procedural':{'example':'m'},'range':24}")},
+    {"displaced range 8192", REJECT, WITH_DISP("{'procedural':{'example':'m'},'range':8192}")},
+    {"displaced steps without raymarch", REJECT, WITH_DISP("{'texture':'m','steps':64}")},
+    {"displaced steps 0", REJECT, WITH_DISP("{'texture':'m','method':'raymarch','steps':0}")},
+    {"displaced method not in the enum", REJECT, WITH_DISP("{'texture':'m','method':'rmip'}")},
+    {"displaced local not in the enum", REJECT, WITH_DISP("{'texture':'m','local':'boxes'}")},
+    {"displaced procedural without example", REJECT, WITH_DISP("{'procedural':{'seed':1}}")},
+    {"displaced procedural offset of 3 numbers", REJECT,
+     WITH_DISP("{'procedural':{'example':'m','offset':[0,0,0]}}")},
+    {"displaced procedural scale 0", REJECT, WITH_DISP("{'procedural':{'example':'m','scale':0}}")},
+    {"displaced procedural triangle_size 0", REJECT,
+     WITH_DISP("{'procedural':{'example':'m','triangle_size':0}}")},
+    {"displaced unknown field", REJECT, WITH_DISP("{'texture':'m','heights':'m'}")},
+    {"displaced block on a mesh object", REJECT,
+     WITH_OBJECT("{'asset':'m','kind':'mesh','displaced':{'texture':'m'}}")},
     {"svo block on a dmm object", REJECT, WITH_OBJECT("{'asset':'m','kind':'dmm','svo':{}}")},
     {"svo block without kind", REJECT, WITH_OBJECT("{'asset':'m','svo':{}}")},
     /* Lights and background. */
@@ -393,6 +429,13 @@ static const parser_only_case PARSER_ONLY[] = {
      WITH_XF("{'scale':[1e9,1e-9,1]}")},
     {"object asset names no asset", "a reference to a key of another object (\"assets\")",
      WITH_OBJECT("{'asset':'ghost'}")},
+    {"displaced texture names no asset", "a reference to a key of \"assets\"",
+     WITH_DISP("{'texture':'ghost'}")},
+    {"displaced kind without its block", "the kind's rules (a height source) hold when its block "
+     "is absent; the schema checks a block only where there is one",
+     WITH_OBJECT("{'asset':'m','kind':'displaced'}")},
+    {"displaced procedural true", "the flag object's boolean form is generic; this kind's needs "
+     "an example", WITH_DISP("{'procedural':true}")},
     {"camera node asset names no asset", "a reference to a key of \"assets\"",
      WITH_CAMERA("{'node':{'asset':'ghost','name':'cam'}}")},
     {"duplicate key", "a validator sees the parsed value, where the last duplicate wins",
@@ -406,6 +449,17 @@ static const parser_only_case PARSER_ONLY[] = {
      JOB(",'name':'a\\udc00'")},
     {"refine frequency 1e-50", "positive as a double, 0 as the 32-bit float the job stores",
      WITH_ASSETS("{'m':{'path':'/a.gltf','refine':{'frequency':1e-50}}}")},
+    {"springmass dt needing more than 1000 substeps",
+     "the stability bound is arithmetic on dt, mass and both stiffnesses",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'dt':0.01,'stiffness':1e9}}")},
+    {"springmass steps of a frame over 100000", "a product of steps_per_frame and the substeps",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'steps_per_frame':100000,'stiffness':1e6}}")},
+    {"springmass pin path keys not increasing", "a relation between array items",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'path':[{'t':1},{'t':0.5}]}]}}")},
+    {"springmass pin box upside down", "a relation between two fields (box_max >= box_min)",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'box_min':[0,0,0],'box_max':[1,-1,1]}]}}")},
+    {"springmass force ending before it starts", "a relation between two fields (end > start)",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'forces':[{'start':2,'end':1}]}}")},
 };
 
 /* ------------------------------------------------------------------------ */

@@ -83,6 +83,7 @@ struct mr_geom {
     uint32_t *indices;            /* 3 per micro-triangle */
     size_t encoded_bytes;         /* bytes of the encoded records (what a file stores) */
     double bake_quality[3];       /* the bake's own report, DMM_STATS order */
+    double bake_s;                /* create's bake and encoding, or their load from the cache */
     /* normals "smooth": per base triangle its coarse sublevel and, from
      * coarse_first[t], the ids of its coarse lattice vertices (shared with
      * its neighbours on shared edges and corners) into smooth_normals
@@ -549,9 +550,11 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     /* bake and encode, or load both from the disk cache (dmm_file.h) */
     uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
     mr_dmm_default_bits(bits);
+    double bake_start = mr_now();
     if ((rc = mr_dmm_bake_cached(asset, &bp, bits, ctx ? ctx->cache_dir : NULL, g->bakes, g->encoded, NULL,
                                  err)) < 0)
         goto fail;
+    g->bake_s = mr_now() - bake_start;
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         if (!g->bakes[i])
@@ -1064,8 +1067,9 @@ static uint64_t dmm_primitives(const mr_geom *g)
 
 /* The bake's own quality (dmm_bake.h steps 5 and 6), the same every frame:
  * what a user reads to judge a level or base ratio before looking at
- * frames. */
-static const mr_kind_stat DMM_STATS[] = {
+ * frames; its size; and (first frame) what making it took. */
+enum { S_RMS, S_MAX, S_UNMATCHED, S_BASE, S_STORED, S_BAKE_S, S_COUNT };
+static const mr_kind_stat DMM_STATS[S_COUNT] = {
     {"dmm_bake_rms_distance", "diagonal",
      "RMS distance of the baked surface (its micro-vertices and micro-triangle centroids, rest "
      "pose) to the detailed mesh, as a fraction of the asset's rest-pose bounding-box diagonal",
@@ -1076,11 +1080,21 @@ static const mr_kind_stat DMM_STATS[] = {
      "micro-vertices whose displacement search found no detailed surface facing its way within "
      "its reach (their height came from the nearest detailed point), as % of all",
      MR_STAT_MAX},
+    {"dmm_base_triangles", "count", "base triangles of the baked meshes", MR_STAT_SUM},
+    {"dmm_stored_bytes", "bytes",
+     "the encoded displacements as a file stores them: a level byte per base triangle and the "
+     "records", MR_STAT_SUM},
+    {"dmm_bake_s", "s",
+     "baking and encoding at creation, or loading both from the derived-data cache",
+     MR_STAT_ONCE},
 };
 
 static void dmm_frame_stats(const mr_geom *g, double *values)
 {
     memcpy(values, g->bake_quality, sizeof g->bake_quality);
+    values[S_BASE] = g->base_triangle_count;
+    values[S_STORED] = (double)g->encoded_bytes;
+    values[S_BAKE_S] = g->bake_s;
 }
 
 /* The "dmm" block. "deformation" chooses what mode "tessellated" expands
@@ -1204,7 +1218,7 @@ const mr_kind mr_kind_dmm = {
     .memory = dmm_memory,
     .primitives = dmm_primitives,
     .stats = DMM_STATS,
-    .stat_count = sizeof DMM_STATS / sizeof DMM_STATS[0],
+    .stat_count = S_COUNT,
     .frame_stats = dmm_frame_stats,
     .free = dmm_free,
 };

@@ -158,6 +158,7 @@ enum {
 struct mr_svo_workspace {
     void *p[WS_SLOTS];
     size_t bytes[WS_SLOTS];
+    double emit_s, rebuild_s; /* the phases of the last resample through it */
 };
 
 int mr_svo_workspace_new(mr_svo_workspace **out, mr_error *err)
@@ -183,6 +184,12 @@ void mr_svo_workspace_free(mr_svo_workspace *ws)
         return;
     ws_release(ws);
     free(ws);
+}
+
+void mr_svo_workspace_resample_times(const mr_svo_workspace *ws, double *emit_s, double *rebuild_s)
+{
+    *emit_s = ws ? ws->emit_s : 0;
+    *rebuild_s = ws ? ws->rebuild_s : 0;
 }
 
 size_t mr_svo_workspace_memory(const mr_svo_workspace *ws)
@@ -1171,6 +1178,9 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
 {
     if (cells)
         *cells = 0;
+    if (ws)
+        ws->emit_s = ws->rebuild_s = 0;
+    const double t_start = mr_now();
     if (!out)
         return mr_error_set(err, MR_ERR_INVALID, "svo resample: NULL output");
     mr_svo_free(out);
@@ -1296,6 +1306,7 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     c.pk = pk;
     c.payload = payload;
     mr_parallel_for(threads, chunks, 1, rs_write, &c);
+    const double t_sort = mr_now();
 
     if (c.packed) {
         uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
@@ -1341,6 +1352,8 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     out->leaf_keys = NULL;
     if (cells)
         *cells = total;
+    ws->emit_s = t_sort - t_start;
+    ws->rebuild_s = mr_now() - t_sort;
 
 cleanup:
     if (rc != MR_OK) {

@@ -176,6 +176,12 @@ int mr_svo_workspace_new(mr_svo_workspace **out, mr_error *err);
 void mr_svo_workspace_free(mr_svo_workspace *ws);
 /* Bytes the workspace holds now. */
 size_t mr_svo_workspace_memory(const mr_svo_workspace *ws);
+/* Where the last mr_svo_resample_ws through ws spent its time (0 for NULL,
+ * before any, after a failed or empty one): emitting cells (the cube, each
+ * box's level and cell range, the keys) and rebuilding (radix sort,
+ * compaction, octree build). The svo kind reports them per frame. */
+void mr_svo_workspace_resample_times(const mr_svo_workspace *ws, double *emit_s,
+                                     double *rebuild_s);
 
 /* Selects and deforms the voxels of svo for one instance (appends nothing:
  * out is reset, its buffers reused and grown). max_level: deepest level to

@@ -48,6 +48,9 @@ typedef struct worker_scratch {
     int rc;                       /* first failure of this worker ... */
     size_t failed_instance;       /* ... and the instance it came from */
     mr_error err;
+    /* where this frame's time went, over the instances this worker did */
+    double pose_s, select_s, emit_s, rebuild_s;
+    uint64_t cells;               /* emitted before compaction */
 } worker_scratch;
 
 struct mr_geom {
@@ -72,6 +75,13 @@ struct mr_geom {
     float *box;                   /* direct: all instances' boxes */
     mr_svo_leaf *box_leaf;
     uint64_t visited, cells;      /* voxels deformed / output voxels, last frame */
+    uint64_t selected, emitted;   /* voxels selected / cells emitted, last frame */
+    double pose_s, select_s, emit_s, rebuild_s; /* last frame, summed over instances */
+    size_t octree_bytes;          /* the per-instance octrees, last frame */
+    /* creation (reported with the renderer's first frame: SVO_STATS) */
+    double build_s, skeleton_s;
+    uint32_t bones;
+    double thinness_pct;
     size_t last_frame;            /* the frame of the last update (tessellate poses it) */
     double last_time;
     /* Embree */
@@ -159,16 +169,27 @@ static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *
     mr_geom *g = c->g;
     size_t frame = c->frame ? c->frame->index : 0;
     double t = c->frame ? c->frame->time : 0;
+    double t0 = mr_now();
     int rc = mr_pose_eval(s->pose, g->asset, instance_pose(g, k, frame), t, err);
     if (rc < 0)
         return rc;
     mr_svo_skin_pose(&s->skin, g->asset, s->pose, &g->world[k]);
+    double t1 = mr_now();
     rc = mr_svo_select_ws(g->svo, &g->extremes, &s->skin.d, &c->view, g->svo->depth, c->inner_threads, s->ws,
                           &g->sel[k], err);
-    if (rc == MR_OK && g->method != MR_SVO_DIRECT)
+    s->pose_s += t1 - t0;
+    s->select_s += mr_now() - t1;
+    if (rc == MR_OK && g->method != MR_SVO_DIRECT) {
+        uint64_t cells = 0;
+        double emit_s, rebuild_s;
         rc = mr_svo_resample_ws(&g->sel[k], g->method, g->out_depth, g->svo->palette,
-                                g->svo->palette_count, c->inner_threads, s->ws, &g->octree[k], NULL,
+                                g->svo->palette_count, c->inner_threads, s->ws, &g->octree[k], &cells,
                                 err);
+        mr_svo_workspace_resample_times(s->ws, &emit_s, &rebuild_s);
+        s->emit_s += emit_s;
+        s->rebuild_s += rebuild_s;
+        s->cells += cells;
+    }
     if (rc < 0)
         return rc;
     /* The creation estimate can be beaten by a frame that selects more:
@@ -323,7 +344,9 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
                     return rc;
             }
     }
-    g->visited = g->cells = 0;
+    g->visited = g->cells = g->selected = g->emitted = 0;
+    g->pose_s = g->select_s = g->emit_s = g->rebuild_s = 0;
+    g->octree_bytes = 0;
     g->last_frame = frame ? frame->index : 0;
     g->last_time = frame ? frame->time : 0;
     if (g->method == MR_SVO_RIGID)
@@ -345,8 +368,12 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         return rc;
     frame_ctx c = {.g = g, .frame = frame, .view = frame_view(g, frame),
                    .held = mr_svo_memory(g->svo)};
-    for (unsigned w = 0; w < g->workers; w++)
-        g->scratch[w].rc = 0;
+    for (unsigned w = 0; w < g->workers; w++) {
+        worker_scratch *s = &g->scratch[w];
+        s->rc = 0;
+        s->pose_s = s->select_s = s->emit_s = s->rebuild_s = 0;
+        s->cells = 0;
+    }
     if (per_instance) {
         c.inner_threads = 1;
         mr_parallel_for(workers, g->instance_count, 1, deform_range, &c);
@@ -364,11 +391,21 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
             mr_error_prefix(err, "svo/instances/%zu: ", bad->failed_instance);
         return bad->rc;
     }
+    for (unsigned w = 0; w < g->workers; w++) {
+        const worker_scratch *s = &g->scratch[w];
+        g->pose_s += s->pose_s;
+        g->select_s += s->select_s;
+        g->emit_s += s->emit_s;
+        g->rebuild_s += s->rebuild_s;
+        g->emitted += s->cells;
+    }
     for (size_t k = 0; k < g->instance_count; k++) {
         g->visited += g->sel[k].visited;
+        g->selected += g->sel[k].count;
         if (g->method == MR_SVO_DIRECT)
             continue;
         g->cells += g->octree[k].leaf_count;
+        g->octree_bytes += mr_svo_memory(&g->octree[k]);
         if ((rc = check_extent(octree_extent(&g->octree[k]), k, err)) < 0)
             return rc;
     }
@@ -732,6 +769,63 @@ static uint64_t svo_primitives(const mr_geom *g)
     return g->cells;
 }
 
+/* Where an svo object's time goes (paper 004's pipeline, per frame), and
+ * what its creation built. The phase seconds are summed over instances:
+ * with many instances they run in parallel on the job's threads, so their
+ * sum can pass the frame's pose_s (the wall time of all updates). */
+enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_DEFORMED,
+       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_COUNT };
+
+static const mr_kind_stat SVO_STATS[S_COUNT] = {
+    [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", MR_STAT_SUM},
+    [S_BUILD] = {"svo_build_s", "s",
+                 "building the shared octree at creation: voxelisation or its load from the "
+                 "derived-data cache, and the selection's side data", MR_STAT_ONCE},
+    [S_SKELETON] = {"svo_skeleton_s", "s",
+                    "skeleton extraction and skinning to it at creation, with \"skeleton\"",
+                    MR_STAT_ONCE},
+    [S_BONES] = {"svo_bones", "count", "bones of the extracted skeleton (0 without one)",
+                 MR_STAT_SUM},
+    [S_THINNESS] = {"svo_thinness_pct", "%",
+                    "thinness error of the extracted skeleton (thesis eq. 5.7.1)", MR_STAT_MAX},
+    [S_POSE] = {"svo_pose_s", "s", "instance poses and their skin matrices, summed over instances",
+                MR_STAT_SUM},
+    [S_SELECT] = {"svo_select_s", "s",
+                  "screen-space selection and deformation of voxels, summed over instances",
+                  MR_STAT_SUM},
+    [S_DEFORMED] = {"svo_deformed", "count", "voxels deformed while selecting (selected or not)",
+                    MR_STAT_SUM},
+    [S_SELECTED] = {"svo_selected", "count", "voxels selected: the deformed boxes", MR_STAT_SUM},
+    [S_EMIT] = {"svo_emit_s", "s",
+                "resampling (resize, emit): cells emitted for the deformed boxes, summed over "
+                "instances", MR_STAT_SUM},
+    [S_REBUILD] = {"svo_rebuild_s", "s",
+                   "resampling (resize, emit): radix sort, compaction and build of the "
+                   "per-instance world octrees, summed over instances", MR_STAT_SUM},
+    [S_CELLS] = {"svo_cells", "count", "cells emitted before compaction (resize, emit)",
+                 MR_STAT_SUM},
+    [S_OCTREE_BYTES] = {"svo_octree_bytes", "bytes",
+                        "the per-instance world octrees rebuilt this frame (resize, emit)",
+                        MR_STAT_SUM},
+};
+
+static void svo_frame_stats(const mr_geom *g, double *v)
+{
+    v[S_VOXELS] = g->svo->leaf_count;
+    v[S_BUILD] = g->build_s;
+    v[S_SKELETON] = g->skeleton_s;
+    v[S_BONES] = g->bones;
+    v[S_THINNESS] = g->thinness_pct;
+    v[S_POSE] = g->pose_s;
+    v[S_SELECT] = g->select_s;
+    v[S_DEFORMED] = (double)g->visited;
+    v[S_SELECTED] = (double)g->selected;
+    v[S_EMIT] = g->emit_s;
+    v[S_REBUILD] = g->rebuild_s;
+    v[S_CELLS] = (double)g->emitted;
+    v[S_OCTREE_BYTES] = (double)g->octree_bytes;
+}
+
 static uint32_t svo_geometry_ids(const mr_geom *g)
 {
     return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
@@ -823,9 +917,13 @@ static int rig_skeleton(mr_geom *g, mr_error *err)
     mr_svo_skeleton_params sp = {.omega = g->p->omega};
     mr_svo_skeleton sk = {0};
     mr_svo *rigged_svo = NULL;
+    double t0 = mr_now();
     int rc = mr_svo_skeletonize(g->svo, &sp, &sk, err);
     if (rc >= 0)
         rc = mr_svo_skeleton_rig(g->asset, g->svo, &sk, &sp, &g->rigged, &rigged_svo, err);
+    g->skeleton_s = mr_now() - t0;
+    g->bones = sk.bone_count;
+    g->thinness_pct = sk.thinness_error_percent;
     mr_svo_skeleton_free(&sk);
     if (rc < 0)
         return mr_error_prefix(err, "svo/skeleton: ");
@@ -909,7 +1007,9 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     mr_svo_voxelize_params vp = {.depth = p->depth, .mode = p->voxelize,
                                  .albedo = albedo, .threads = 0};
+    double t0 = mr_now();
     rc = mr_svo_voxelize_cached(asset, &vp, ctx ? ctx->cache_dir : NULL, &g->svo, NULL, err);
+    g->build_s = mr_now() - t0;
     free(albedo);
     if (rc < 0)
         goto fail;
@@ -947,9 +1047,11 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
         }
         /* one worker now, so an asset the methods cannot skin fails here;
          * update adds the workers the job's thread count asks for */
+        double t1 = mr_now();
         if ((rc = mr_svo_extremes_build(g->svo, &g->extremes, err)) < 0 ||
             (rc = ensure_workers(g, 1, err)) < 0)
             goto fail;
+        g->build_s += mr_now() - t1;
     }
     *out = g;
     return MR_OK;
@@ -1076,6 +1178,9 @@ const mr_kind mr_kind_svo = {
     .memory = svo_memory,
     .primitives = svo_primitives,
     .geometry_ids = svo_geometry_ids,
+    .stats = SVO_STATS,
+    .stat_count = S_COUNT,
+    .frame_stats = svo_frame_stats,
     .surface_step = svo_surface_step,
     .free = svo_free,
 };

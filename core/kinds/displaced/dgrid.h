@@ -1,0 +1,114 @@
+/*
+ * dgrid.h - a height texture as the displaced kind samples it: heights on
+ * the integer points of an infinite, repeating grid, and the min/max
+ * pyramid (the thesis' minmax mipmap, 4.2.2) the traversal bounds them
+ * with.
+ *
+ * Grid space: a texture of W x H samples (a mip level of the image) puts
+ * sample (i, j) at texture coordinates (i / W, j / H), repeating with
+ * period W and H: grid point (i, j) has height
+ *     H(i, j) = offset + scale * s(i mod W, j mod H) / unit
+ * where s is the sample (row 0 of the picture at the top: grid row j is
+ * picture row H - 1 - j, so v grows upwards as in OpenGL and assimp) and
+ * unit 255, 65535 or 1 for 8-bit, 16-bit and float samples. Cell (i, j) is
+ * the square [i, i+1] x [j, j+1]; its heights lie between the smallest and
+ * largest of its four corners, whatever the cell's surface (two triangles
+ * or a bilinear patch) does in between.
+ *
+ * The pyramid: level 1 has ceil(W/2) x ceil(H/2) nodes, node (I, J)
+ * covering the cells [2I, 2I+2) x [2J, 2J+2) that exist in one period (the
+ * last column of nodes covers one cell when W is odd), and so on up to a
+ * single node covering the period; level 0 (one cell) is read from its four
+ * samples directly, which saves three quarters of the pyramid. Any W and H
+ * (not only powers of two). Node values are the min and max sample of the
+ * nodes' cells' corners, quantised to 16 bits over [gmin, gmax] (a float
+ * texture's range; an integer texture's type range, so no scan is needed)
+ * with the minimum rounded down and the maximum up by one more step, so a
+ * dequantised bound always contains the true one: 4 bytes per node, 1.33
+ * bytes per texel. The top node bounds the whole texture.
+ */
+#ifndef MR_DGRID_H
+#define MR_DGRID_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "asset/image.h"
+
+#define MR_DGRID_MAX_LEVELS 32
+
+typedef struct mr_dgrid {
+    uint32_t w, h;             /* samples per period */
+    mr_sample_type type;
+    const void *samples;       /* w * h in picture order (row 0 at the top) */
+    void *owned;               /* samples when a mip level was made (float), else NULL */
+    double unit, scale, offset;
+    double gmin, gmax;         /* the quantisation's range: the smallest and largest
+                                  sample (float), the type's range (8 and 16 bit) */
+    double qstep;              /* (gmax - gmin) / 65535: one quantisation step, 0 when flat */
+    unsigned levels;           /* top pyramid level (a single node); 0 for a 1x1 texture */
+    uint32_t lw[MR_DGRID_MAX_LEVELS + 1], lh[MR_DGRID_MAX_LEVELS + 1];
+    size_t first[MR_DGRID_MAX_LEVELS + 1]; /* index of level l's node (0, 0) */
+    uint16_t *qmin, *qmax;     /* node values, levels 1..levels */
+} mr_dgrid;
+
+/* The grid of image img's mip level `level` (box filter of 2^level x
+ * 2^level texels, partial blocks at the edges averaged over the texels they
+ * have; level 0 borrows img's samples, which must then outlive the grid),
+ * with heights offset + scale * sample / unit, and its pyramid, built on
+ * `threads` threads. MR_ERR_NOMEM. */
+int mr_dgrid_init(mr_dgrid *g, const mr_image *img, unsigned level, double scale, double offset,
+                  unsigned threads, mr_error *err);
+/* Rebuilds the pyramid (after the samples changed in place). */
+void mr_dgrid_rebuild(mr_dgrid *g, unsigned threads);
+void mr_dgrid_free(mr_dgrid *g);
+size_t mr_dgrid_memory(const mr_dgrid *g); /* bytes owned: pyramid and made levels */
+
+static inline int64_t mr_dgrid_wrap(int64_t i, uint32_t n)
+{
+    int64_t r = i % (int64_t)n;
+    return r < 0 ? r + n : r;
+}
+
+/* Sample (i, j) of one period (0 <= i < w, 0 <= j < h), grid orientation. */
+static inline double mr_dgrid_sample(const mr_dgrid *g, uint32_t i, uint32_t j)
+{
+    size_t k = (size_t)(g->h - 1 - j) * g->w + i;
+    switch (g->type) {
+    case MR_SAMPLE_U8: return ((const uint8_t *)g->samples)[k];
+    case MR_SAMPLE_U16: return ((const uint16_t *)g->samples)[k];
+    default: return ((const float *)g->samples)[k];
+    }
+}
+
+/* Height of a sample value: the one formula every height goes through
+ * (monotone in s, so bounds of samples map to bounds of heights). */
+static inline double mr_dgrid_height_of(const mr_dgrid *g, double s)
+{
+    return g->offset + g->scale * (s / g->unit);
+}
+
+/* H(i, j) of any grid point. */
+static inline double mr_dgrid_height(const mr_dgrid *g, int64_t i, int64_t j)
+{
+    return mr_dgrid_height_of(g, mr_dgrid_sample(g, (uint32_t)mr_dgrid_wrap(i, g->w),
+                                                 (uint32_t)mr_dgrid_wrap(j, g->h)));
+}
+
+/* Smallest and largest sample of node (I, J) of level l (1..levels; I <
+ * lw[l], J < lh[l]), dequantised outward; level 0: cell (I, J) of the
+ * period from its four corners, exactly. */
+void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
+                           double *hi);
+/* Smallest and largest sample over the cells [i0, i1] x [j0, j1] of the
+ * repeating grid (any integers, i0 <= i1, j0 <= j1): the nodes of the
+ * lowest level at which the range spans at most two per axis (4.2.7's
+ * root selection), so at most four look-ups; ranges wider than a period
+ * get the texture's range. */
+void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
+                            double *lo, double *hi);
+/* The same as heights (ordered: scale may be negative). */
+void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
+                           double *hi);
+
+#endif

@@ -1,0 +1,949 @@
+/*
+ * displaced_kind.c - the displacement-mapped kind (paper 003, issue 14).
+ *
+ * create   merges the asset's meshes (every one needs texture coordinates)
+ *          into one base mesh, maps every corner to grid space (dgrid.h:
+ *          u W, v H of the texture's mip level) and sets up one mr_dbase per
+ *          base triangle (dsurf.h); the height texture's min/max pyramid is
+ *          built here (about 1 ms per million texels on two threads,
+ *          cheaper than reading it back from a disk cache, so the kind
+ *          keeps no derived data); mode tessellated also lays out the
+ *          micro-triangles (their count and order depend only on the
+ *          texture coordinates);
+ * update   poses the base mesh like the mesh kind (linear blend skinning,
+ *          the object transform), then per base triangle: the gradients of
+ *          P and N over grid space and the Embree box (three parallelograms,
+ *          dtrace.h), or, tessellated, every micro-vertex again;
+ * attach   tessellation_free and raymarch: one Embree USER geometry, one
+ *          primitive per base triangle, refit every frame for animated
+ *          objects (the renderer asks for REFIT); tessellated: TRIANGLE;
+ * normal   the geometric normal of the micro-triangle hit.
+ *
+ * Heights are in world units: the displacement does not scale with the
+ * object's transform or its bones (the normal is a unit vector, eq. 2.1).
+ */
+#include <math.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "asset/image.h"
+#include "kinds/displaced/dgrid.h"
+#include "kinds/displaced/displaced_kind.h"
+#include "kinds/displaced/dsurf.h"
+#include "kinds/displaced/dtrace.h"
+#include "kinds/displaced/tiling.h"
+#include "util/clock.h"
+#include "util/parallel.h"
+
+#define UPDATE_GRAIN 32
+
+struct mr_geom {
+    const mr_asset *asset;
+    mr_displaced_params par;
+    const char *texture_name;      /* for messages */
+    uint32_t vertex_count, triangle_count;
+    uint32_t *mesh_first_vertex;
+    double *grid_uv;               /* per vertex: grid coordinates (2) */
+    float *positions, *normals;    /* posed base vertices (3 each, + 1 float padding) */
+    uint32_t *indices;             /* 3 per base triangle */
+    mr_dgrid grid;                 /* texture source */
+    mr_dproc proc;                 /* procedural source */
+    bool procedural;
+    mr_dbase *bases;
+    mr_dgrad *grads;
+    float *boxes;                  /* 6 per base triangle */
+    mr_dscene scene;
+    /* tessellated */
+    uint32_t *tess_vfirst, *tess_tfirst; /* per base triangle + 1 */
+    uint32_t tess_vertices, tess_triangles;
+    float *tess_pos;               /* 3 per micro-vertex + 1 padding */
+    uint32_t *tess_idx;
+    double bounds_s;               /* last update's seconds */
+    _Atomic uint64_t calls, nodes, leaves, tests;
+    RTCGeometry rtc;
+};
+
+static bool tessellated(const mr_geom *g) { return g->par.method == MR_DISPLACED_TESSELLATED; }
+
+static void displaced_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    if (g->rtc)
+        rtcReleaseGeometry(g->rtc);
+    free(g->mesh_first_vertex);
+    free(g->grid_uv);
+    free(g->positions);
+    free(g->normals);
+    free(g->indices);
+    mr_dgrid_free(&g->grid);
+    mr_dproc_free(&g->proc);
+    free(g->bases);
+    free(g->grads);
+    free(g->boxes);
+    free(g->tess_vfirst);
+    free(g->tess_tfirst);
+    free(g->tess_pos);
+    free(g->tess_idx);
+    free(g);
+}
+
+static double grid_height(const void *src, int64_t i, int64_t j)
+{
+    return mr_dgrid_height(src, i, j);
+}
+
+static double proc_height(const void *src, int64_t i, int64_t j)
+{
+    return mr_dproc_height(src, i, j);
+}
+
+/* ---- tessellation ------------------------------------------------------------------ */
+
+/* Deduplication of one base triangle's micro-vertices by their records. */
+typedef struct vkey {
+    uint64_t k1, k2;
+} vkey;
+
+typedef struct vtable {
+    vkey *keys;
+    uint32_t *vals;
+    size_t cap; /* power of two; 0 unused slots have vals == UINT32_MAX */
+} vtable;
+
+static vkey key_of(const mr_dvert *v)
+{
+    vkey k = {(uint64_t)v->kind << 56 | (uint64_t)v->idx << 48 | (uint64_t)v->fam << 40, 0};
+    if (v->kind == MR_DV_GRID)
+        k.k2 = (uint64_t)(uint32_t)v->a | (uint64_t)(uint32_t)v->b << 32, k.k1 |= (uint64_t)((v->a >> 32) & 0xffff) << 16 | (uint64_t)((v->b >> 32) & 0xffff);
+    else if (v->kind == MR_DV_EDGE)
+        k.k2 = (uint64_t)v->a;
+    return k;
+}
+
+static bool vtable_reset(vtable *t, size_t want)
+{
+    size_t cap = 64;
+    while (cap < want * 2)
+        cap *= 2;
+    if (cap > t->cap) {
+        vkey *k = realloc(t->keys, cap * sizeof *k);
+        uint32_t *v = k ? realloc(t->vals, cap * sizeof *v) : NULL;
+        if (k)
+            t->keys = k;
+        if (!k || !v)
+            return false;
+        t->vals = v;
+        t->cap = cap;
+    }
+    memset(t->vals, 0xff, t->cap * sizeof *t->vals);
+    return true;
+}
+
+/* Index of k, or a new slot (*fresh) given index `next`. */
+static uint32_t vtable_get(vtable *t, vkey k, uint32_t next, bool *fresh)
+{
+    uint64_t h = (k.k1 * 0x9e3779b97f4a7c15ull) ^ (k.k2 * 0xc2b2ae3d27d4eb4full);
+    h ^= h >> 29;
+    size_t mask = t->cap - 1;
+    for (size_t s = (size_t)h & mask;; s = (s + 1) & mask) {
+        if (t->vals[s] == UINT32_MAX) {
+            t->keys[s] = k;
+            t->vals[s] = next;
+            *fresh = true;
+            return next;
+        }
+        if (t->keys[s].k1 == k.k1 && t->keys[s].k2 == k.k2) {
+            *fresh = false;
+            return t->vals[s];
+        }
+    }
+}
+
+/* The micro-triangles of base triangle t in the tessellation's order:
+ * calls emit_v for each new micro-vertex (in order) and emit_t per
+ * micro-triangle with local vertex indices. Returns false when out of
+ * memory. */
+typedef struct tess_sink {
+    void (*vertex)(void *user, const mr_dvert *v);
+    void (*triangle)(void *user, uint32_t a, uint32_t b, uint32_t c);
+    void *user;
+} tess_sink;
+
+static bool tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink)
+{
+    uint32_t nv = 0;
+    if (b->flat) {
+        static _Thread_local mr_dvert pts[1024];
+        int n = mr_dsurf_flat_boundary(b, pts, 1024);
+        for (int k = 0; k < n; k++)
+            sink->vertex(sink->user, &pts[k]);
+        for (int k = 1; k + 1 < n; k++)
+            sink->triangle(sink->user, 0, (uint32_t)k, (uint32_t)k + 1);
+        return true;
+    }
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    size_t cells = i1 >= i0 && j1 >= j0 ? (size_t)(i1 - i0 + 1) * (size_t)(j1 - j0 + 1) : 0;
+    if (!vtable_reset(vt, cells + 16))
+        return false;
+    for (int64_t j = j0; j <= j1; j++)
+        for (int64_t i = i0; i <= i1; i++) {
+            mr_dcell c;
+            mr_dsurf_cell(b, i, j, 2, &c);
+            uint32_t local[2 * MR_DSURF_MAX_POLY];
+            for (int k = 0; k < c.nv; k++) {
+                bool fresh;
+                local[k] = vtable_get(vt, key_of(&c.v[k]), nv, &fresh);
+                if (fresh) {
+                    sink->vertex(sink->user, &c.v[k]);
+                    nv++;
+                }
+            }
+            for (int k = 0; k < c.nt; k++)
+                sink->triangle(sink->user, local[c.tri[k][0]], local[c.tri[k][1]], local[c.tri[k][2]]);
+        }
+    return true;
+}
+
+/* Counting pass. */
+typedef struct count_sink {
+    uint64_t v, t;
+} count_sink;
+static void count_v(void *u, const mr_dvert *v) { (void)v, ((count_sink *)u)->v++; }
+static void count_t(void *u, uint32_t a, uint32_t b, uint32_t c)
+{
+    (void)a, (void)b, (void)c;
+    ((count_sink *)u)->t++;
+}
+
+/* Filling pass: positions from the current pose, indices offset. */
+typedef struct fill_sink {
+    const mr_geom *g;
+    const mr_dbase *b;
+    float *pos;
+    uint32_t *idx;
+    uint32_t v0, nv, nt;
+    bool indices;
+} fill_sink;
+
+static void fill_v(void *u, const mr_dvert *v)
+{
+    fill_sink *f = u;
+    mr_vec3 p = mr_dsurf_vertex(f->b, &f->g->scene.heights, v);
+    float *o = f->pos + (size_t)f->nv++ * 3;
+    o[0] = p.x, o[1] = p.y, o[2] = p.z;
+}
+
+static void fill_t(void *u, uint32_t a, uint32_t b, uint32_t c)
+{
+    fill_sink *f = u;
+    if (f->indices) {
+        uint32_t *o = f->idx + (size_t)f->nt * 3;
+        o[0] = f->v0 + a, o[1] = f->v0 + b, o[2] = f->v0 + c;
+    }
+    f->nt++;
+}
+
+static int tess_layout(mr_geom *g, const char *what, mr_error *err)
+{
+    size_t nt = g->triangle_count;
+    g->tess_vfirst = malloc((nt + 1) * sizeof(uint32_t));
+    g->tess_tfirst = malloc((nt + 1) * sizeof(uint32_t));
+    vtable vt = {0};
+    if (!g->tess_vfirst || !g->tess_tfirst)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", what);
+    uint64_t v = 0, t = 0;
+    for (size_t k = 0; k < nt; k++) {
+        g->tess_vfirst[k] = (uint32_t)v;
+        g->tess_tfirst[k] = (uint32_t)t;
+        count_sink c = {0};
+        tess_sink s = {count_v, count_t, &c};
+        if (!tessellate_base(&g->bases[k], &vt, &s)) {
+            free(vt.keys), free(vt.vals);
+            return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", what);
+        }
+        v += c.v;
+        t += c.t;
+        if (v > MR_MAX_ASSET_VERTICES || t > MR_MAX_ASSET_TRIANGLES) {
+            free(vt.keys), free(vt.vals);
+            return mr_error_set(err, MR_ERR_LIMIT,
+                                "%s: the tessellation would have more than %u micro-triangles "
+                                "(base triangle %zu reached %llu): use a coarser \"level\" or "
+                                "\"range\", or method \"tessellation_free\"",
+                                what, MR_MAX_ASSET_TRIANGLES, k, (unsigned long long)t);
+        }
+    }
+    free(vt.keys);
+    free(vt.vals);
+    g->tess_vfirst[nt] = (uint32_t)v;
+    g->tess_tfirst[nt] = (uint32_t)t;
+    g->tess_vertices = (uint32_t)v;
+    g->tess_triangles = (uint32_t)t;
+    g->tess_pos = calloc((size_t)v * 3 + 1, sizeof(float));
+    g->tess_idx = malloc(((size_t)t * 3 + 1) * sizeof(uint32_t));
+    if (!g->tess_pos || !g->tess_idx)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for %llu micro-triangles", what,
+                            (unsigned long long)t);
+    return MR_OK;
+}
+
+typedef struct tess_ctx {
+    mr_geom *g;
+    float *pos;
+    uint32_t *idx;
+    bool indices;
+    _Atomic bool failed;
+} tess_ctx;
+
+static void tess_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    tess_ctx *c = ctx;
+    vtable vt = {0};
+    for (size_t k = begin; k < end; k++) {
+        fill_sink f = {.g = c->g, .b = &c->g->bases[k],
+                       .pos = c->pos + (size_t)c->g->tess_vfirst[k] * 3,
+                       .idx = c->idx + (size_t)c->g->tess_tfirst[k] * 3,
+                       .v0 = c->g->tess_vfirst[k], .indices = c->indices};
+        tess_sink s = {fill_v, fill_t, &f};
+        if (!tessellate_base(f.b, &vt, &s))
+            atomic_store(&c->failed, true);
+    }
+    free(vt.keys);
+    free(vt.vals);
+}
+
+/* Micro-vertices (and indices) of the current pose into pos / idx. */
+static int tess_fill(mr_geom *g, float *pos, uint32_t *idx, bool indices, unsigned threads,
+                     mr_error *err)
+{
+    tess_ctx c = {.g = g, .pos = pos, .idx = idx, .indices = indices};
+    atomic_init(&c.failed, false);
+    mr_parallel_for(threads, g->triangle_count, 1, tess_range, &c);
+    if (atomic_load(&c.failed))
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", g->asset->path);
+    return MR_OK;
+}
+
+/* ---- create ------------------------------------------------------------------------ */
+
+static const mr_asset *param_asset(const mr_kind_context *ctx, uint32_t ref)
+{
+    return ref && ctx && ctx->assets && ref - 1 < ctx->asset_count ? ctx->assets[ref - 1] : NULL;
+}
+
+static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
+                            const mr_kind_context *ctx, mr_geom **out, mr_error *err)
+{
+    *out = NULL;
+    if (!desc->params)
+        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its parameters");
+    const mr_displaced_params *par = desc->params;
+    const mr_asset *tex = param_asset(ctx, par->procedural ? par->example : par->texture);
+    if (!tex)
+        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its height %s",
+                            par->procedural ? "example" : "texture");
+    if (!tex->image)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "displaced %s %s is a model, not an image (PNG, JPEG or EXR)",
+                            par->procedural ? "example" : "texture", tex->path);
+    uint64_t nv = 0, nt = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_mesh *m = &asset->meshes[i];
+        if (!m->uvs && m->triangle_count)
+            return mr_error_set(err, MR_ERR_FORMAT,
+                                "%s: mesh %zu (\"%s\") has no texture coordinates, which a "
+                                "displaced object needs",
+                                asset->path, i, m->name ? m->name : "");
+        nv += m->vertex_count;
+        nt += m->triangle_count;
+    }
+    if (nt == 0)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to render", asset->path);
+    if (nv > MR_MAX_ASSET_VERTICES || nt > MR_MAX_ASSET_TRIANGLES)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s: %llu vertices / %llu triangles exceed the caps",
+                            asset->path, (unsigned long long)nv, (unsigned long long)nt);
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a displaced object");
+    int rc = MR_OK;
+    g->asset = asset;
+    g->par = *par;
+    g->texture_name = tex->path;
+    g->vertex_count = (uint32_t)nv;
+    g->triangle_count = (uint32_t)nt;
+    g->mesh_first_vertex = calloc(asset->mesh_count ? asset->mesh_count : 1, sizeof(uint32_t));
+    g->grid_uv = malloc(nv * 2 * sizeof(double));
+    g->positions = calloc(nv * 3 + 1, sizeof(float));
+    g->normals = calloc(nv * 3 + 1, sizeof(float));
+    g->indices = malloc(nt * 3 * sizeof(uint32_t));
+    g->bases = calloc(nt, sizeof *g->bases);
+    g->grads = calloc(nt, sizeof *g->grads);
+    g->boxes = calloc(nt * 6, sizeof(float));
+    if (!g->mesh_first_vertex || !g->grid_uv || !g->positions || !g->normals || !g->indices ||
+        !g->bases || !g->grads || !g->boxes)
+        goto nomem;
+    unsigned threads = ctx ? ctx->threads : 0;
+    g->procedural = par->procedural;
+    if (g->procedural) {
+        if ((rc = mr_dproc_init(&g->proc, tex->image, par->uv_offset[0], par->uv_offset[1],
+                                par->uv_scale, par->triangle_size, par->seed, par->range,
+                                par->scale, par->offset, threads, err)) < 0)
+            goto fail;
+        g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .proc = &g->proc,
+                               .heights = {proc_height, &g->proc},
+                               .local = (mr_dlocal)par->local, .march_steps = par->steps};
+    } else {
+        if ((rc = mr_dgrid_init(&g->grid, tex->image, par->level, par->scale, par->offset,
+                                threads, err)) < 0)
+            goto fail;
+        g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .grid = &g->grid,
+                               .heights = {grid_height, &g->grid},
+                               .local = (mr_dlocal)par->local, .march_steps = par->steps};
+    }
+    uint32_t v0 = 0, t0 = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_mesh *m = &asset->meshes[i];
+        g->mesh_first_vertex[i] = v0;
+        for (uint32_t k = 0; k < m->vertex_count; k++) {
+            double *gv = g->grid_uv + (size_t)(v0 + k) * 2;
+            if (g->procedural) {
+                mr_dproc_grid_of(&g->proc, m->uvs[k * 2], m->uvs[k * 2 + 1], gv);
+            } else {
+                gv[0] = (double)m->uvs[k * 2] * g->grid.w;
+                gv[1] = (double)m->uvs[k * 2 + 1] * g->grid.h;
+            }
+            memcpy(g->positions + (size_t)(v0 + k) * 3, m->positions + (size_t)k * 3, 3 * sizeof(float));
+            memcpy(g->normals + (size_t)(v0 + k) * 3, m->normals + (size_t)k * 3, 3 * sizeof(float));
+        }
+        for (uint64_t k = 0; k < (uint64_t)m->triangle_count * 3; k++)
+            g->indices[(uint64_t)t0 * 3 + k] = m->indices[k] + v0;
+        v0 += m->vertex_count;
+        t0 += m->triangle_count;
+    }
+    for (size_t t = 0; t < nt; t++) {
+        const uint32_t *tri = g->indices + t * 3;
+        double gg[3][2];
+        const float *p[3], *n[3];
+        for (int k = 0; k < 3; k++) {
+            gg[k][0] = g->grid_uv[(size_t)tri[k] * 2];
+            gg[k][1] = g->grid_uv[(size_t)tri[k] * 2 + 1];
+            p[k] = g->positions + (size_t)tri[k] * 3;
+            n[k] = g->normals + (size_t)tri[k] * 3;
+        }
+        mr_dbase_init(&g->bases[t], gg, p, n, &g->scene.heights);
+        double hlo, hhi;
+        if (g->procedural) {
+            mr_dproc_global_heights(&g->proc, &hlo, &hhi);
+            for (int k = 0; k < 3; k++)
+                hlo = fmin(hlo, g->bases[t].h[k]), hhi = fmax(hhi, g->bases[t].h[k]);
+        } else {
+            mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);
+        }
+        g->grads[t].hlo = hlo;
+        g->grads[t].hhi = hhi;
+    }
+    if (tessellated(g)) {
+        if ((rc = tess_layout(g, asset->path, err)) < 0 ||
+            (rc = tess_fill(g, g->tess_pos, g->tess_idx, true, threads, err)) < 0)
+            goto fail;
+    }
+    *out = g;
+    return MR_OK;
+nomem:
+    rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for a displaced object", asset->path);
+fail:
+    displaced_free(g);
+    return rc;
+}
+
+/* ---- update ------------------------------------------------------------------------ */
+
+typedef struct update_ctx {
+    mr_geom *g;
+    uint32_t bad[MR_MAX_THREADS];
+} update_ctx;
+
+static bool finite_bounded(const float v[3])
+{
+    return fabsf(v[0]) <= MR_MAX_COORDINATE && fabsf(v[1]) <= MR_MAX_COORDINATE &&
+           fabsf(v[2]) <= MR_MAX_COORDINATE;
+}
+
+static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    update_ctx *c = ctx;
+    mr_geom *g = c->g;
+    for (size_t t = begin; t < end; t++) {
+        const uint32_t *tri = g->indices + t * 3;
+        const float *p[3], *n[3];
+        for (int k = 0; k < 3; k++) {
+            p[k] = g->positions + (size_t)tri[k] * 3;
+            n[k] = g->normals + (size_t)tri[k] * 3;
+        }
+        mr_dbase *b = &g->bases[t];
+        mr_dbase_pose(b, p, n);
+        mr_dgrad_init(&g->grads[t], b, g->grads[t].hlo, g->grads[t].hhi);
+        float *box = g->boxes + t * 6;
+        mr_dtrace_tri_box(b, &g->scene.heights, &g->grads[t], box, box + 3);
+        if (!finite_bounded(box) || !finite_bounded(box + 3))
+            if (!c->bad[worker])
+                c->bad[worker] = (uint32_t)t + 1;
+    }
+}
+
+static int displaced_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                            const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    (void)frame;
+    double t0 = mr_now();
+    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+        size_t off = (size_t)g->mesh_first_vertex[i] * 3;
+        mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
+    }
+    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++)
+        if (!(fabsf(g->positions[k]) <= MR_MAX_COORDINATE))
+            return mr_error_set(err, MR_ERR_INVALID,
+                                "%s: posed vertex %zu has a coordinate of %g (limit %g): check the "
+                                "object's transform and pose",
+                                g->asset->path, k / 3, (double)g->positions[k], MR_MAX_COORDINATE);
+    update_ctx *c = calloc(1, sizeof *c);
+    if (!c)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a displaced object");
+    c->g = g;
+    mr_parallel_for(threads, g->triangle_count, UPDATE_GRAIN, update_range, c);
+    uint32_t bad = 0;
+    for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+        if (c->bad[w] && (!bad || c->bad[w] < bad))
+            bad = c->bad[w];
+    free(c);
+    if (bad)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "%s: the displaced surface of base triangle %u is not finite or "
+                            "beyond %g: check the heights' scale and the object's transform",
+                            g->asset->path, bad - 1, MR_MAX_COORDINATE);
+    int rc = MR_OK;
+    if (tessellated(g) && (rc = tess_fill(g, g->tess_pos, g->tess_idx, false, threads, err)) == MR_OK)
+        for (size_t k = 0; k < (size_t)g->tess_vertices * 3; k++)
+            if (!(fabsf(g->tess_pos[k]) <= MR_MAX_COORDINATE)) {
+                rc = mr_error_set(err, MR_ERR_INVALID,
+                                  "%s: micro-vertex %zu is not finite or beyond %g: check the "
+                                  "heights' scale and the object's transform",
+                                  g->asset->path, k / 3, MR_MAX_COORDINATE);
+                break;
+            }
+    g->bounds_s = mr_now() - t0;
+    return rc;
+}
+
+/* ---- Embree ------------------------------------------------------------------------ */
+
+static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
+{
+    const mr_geom *g = args->geometryUserPtr;
+    const float *b = g->boxes + (size_t)args->primID * 6;
+    struct RTCBounds *o = args->bounds_o;
+    o->lower_x = b[0], o->lower_y = b[1], o->lower_z = b[2];
+    o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
+}
+
+/* Embree's RTCRayN / RTCHitN accessors are C++ only; the layout is
+ * structure-of-arrays (rtcore_ray.h): field f of ray i of an N-packet is
+ * element f * N + i, the hit following the ray's 12 fields. */
+enum { RAY_ORG = 0, RAY_TNEAR = 3, RAY_DIR = 4, RAY_TFAR = 8, RAY_FIELDS = 12 };
+enum { HIT_NG = 0, HIT_U = 3, HIT_V = 4, HIT_PRIM = 5, HIT_GEOM = 6, HIT_INST = 7 };
+
+static float *ray_f(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (float *)ray + field * N + i;
+}
+
+static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
+{
+    return (unsigned *)ray + field * N + i;
+}
+
+static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
+                      mr_dhit *h, mr_dstats *st)
+{
+    mr_vec3 o = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
+                      *ray_f(ray, N, RAY_ORG + 2, i));
+    mr_vec3 d = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
+                      *ray_f(ray, N, RAY_DIR + 2, i));
+    if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
+        return false;
+    mr_dray r = mr_dray_setup(o, d);
+    float *tfar = ray_f(ray, N, RAY_TFAR, i), tnear = *ray_f(ray, N, RAY_TNEAR, i);
+    st->calls++;
+    if (g->par.method == MR_DISPLACED_RAYMARCH)
+        return mr_dtrace_march(&g->scene, prim, &r, tnear, tfar, h, st);
+    return mr_dtrace_intersect(&g->scene, prim, &r, tnear, tfar, any, h, st);
+}
+
+static void add_stats(mr_geom *g, const mr_dstats *st)
+{
+    atomic_fetch_add_explicit(&g->nodes, st->nodes, memory_order_relaxed);
+    atomic_fetch_add_explicit(&g->leaves, st->leaves, memory_order_relaxed);
+    atomic_fetch_add_explicit(&g->tests, st->triangles, memory_order_relaxed);
+    atomic_fetch_add_explicit(&g->calls, st->calls, memory_order_relaxed);
+}
+
+static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
+{
+    mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    mr_dstats st = {0};
+    for (unsigned i = 0; i < N; i++) {
+        mr_dhit h;
+        if (args->valid[i] != -1 || !trace_one(g, args->primID, ray, N, i, false, &h, &st))
+            continue;
+        *ray_f(hit, N, HIT_NG, i) = h.ng.x;
+        *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
+        *ray_f(hit, N, HIT_NG + 2, i) = h.ng.z;
+        *ray_f(hit, N, HIT_U, i) = h.b1;
+        *ray_f(hit, N, HIT_V, i) = h.b2;
+        *ray_u(hit, N, HIT_PRIM, i) = args->primID;
+        *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
+        *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+    }
+    add_stats(g, &st);
+}
+
+static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
+{
+    mr_geom *g = args->geometryUserPtr;
+    unsigned N = args->N;
+    mr_dstats st = {0};
+    for (unsigned i = 0; i < N; i++)
+        if (args->valid[i] == -1 && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
+            *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
+    add_stats(g, &st);
+}
+
+static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                            enum RTCBuildQuality quality, mr_error *err)
+{
+    if (tessellated(g))
+        return mr_geom_attach_triangles(device, scene, geom_id, quality, g->tess_pos,
+                                        g->tess_vertices, g->tess_idx, g->tess_triangles, &g->rtc,
+                                        err);
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    if (!geom)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a user geometry (%d)",
+                            (int)rtcGetDeviceError(device));
+    rtcSetGeometryUserPrimitiveCount(geom, g->triangle_count);
+    rtcSetGeometryUserData(geom, g);
+    rtcSetGeometryBoundsFunction(geom, bounds_cb, NULL);
+    rtcSetGeometryIntersectFunction(geom, intersect_cb);
+    rtcSetGeometryOccludedFunction(geom, occluded_cb);
+    rtcSetGeometryBuildQuality(geom, quality);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(scene, geom, geom_id);
+    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
+        rtcReleaseGeometry(geom);
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the displaced user geometry");
+    }
+    g->rtc = geom;
+    return MR_OK;
+}
+
+static void displaced_commit(mr_geom *g)
+{
+    if (tessellated(g))
+        mr_geom_commit_vertices(g->rtc);
+    else
+        rtcCommitGeometry(g->rtc);
+}
+
+static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    if (tessellated(g)) {
+        if (prim >= g->tess_triangles)
+            return mr_v3(0, 0, 1);
+        const uint32_t *t = g->tess_idx + (size_t)prim * 3;
+        mr_vec3 p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = mr_v3(g->tess_pos[(size_t)t[k] * 3], g->tess_pos[(size_t)t[k] * 3 + 1],
+                         g->tess_pos[(size_t)t[k] * 3 + 2]);
+        return mr_v3_cross(mr_v3_sub(p[1], p[0]), mr_v3_sub(p[2], p[0]));
+    }
+    if (prim >= g->triangle_count)
+        return mr_v3(0, 0, 1);
+    return mr_dtrace_normal_at(&g->scene, prim, u, v);
+}
+
+static int displaced_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    if (tessellated(g))
+        return mr_trimesh_copy(g->tess_pos, g->tess_vertices, g->tess_idx, g->tess_triangles, out,
+                               err);
+    /* the exact reference of the traced surface: the same micro-triangles */
+    mr_geom tmp = *g;
+    tmp.tess_vfirst = tmp.tess_tfirst = NULL;
+    int rc = tess_layout(&tmp, g->asset->path, err);
+    if (rc == MR_OK)
+        rc = tess_fill(&tmp, tmp.tess_pos, tmp.tess_idx, true, 0, err);
+    if (rc == MR_OK) {
+        *out = (mr_trimesh){.vertex_count = tmp.tess_vertices, .triangle_count = tmp.tess_triangles,
+                            .positions = tmp.tess_pos, .indices = tmp.tess_idx};
+        tmp.tess_pos = NULL;
+        tmp.tess_idx = NULL;
+    }
+    free(tmp.tess_vfirst);
+    free(tmp.tess_tfirst);
+    free(tmp.tess_pos);
+    free(tmp.tess_idx);
+    return rc;
+}
+
+static size_t base_bytes(const mr_geom *g)
+{
+    size_t nv = g->vertex_count, nt = g->triangle_count;
+    return sizeof *g + nv * (2 * sizeof(double) + 6 * sizeof(float)) + nt * 3 * sizeof(uint32_t) +
+           nt * (sizeof(mr_dbase) + sizeof(mr_dgrad) + 6 * sizeof(float)) +
+           g->asset->mesh_count * sizeof(uint32_t);
+}
+
+static size_t tess_bytes(const mr_geom *g)
+{
+    if (!g->tess_pos)
+        return 0;
+    return ((size_t)g->tess_vertices * 3 + 1) * sizeof(float) +
+           ((size_t)g->tess_triangles * 3 + 1) * sizeof(uint32_t) +
+           ((size_t)g->triangle_count + 1) * 2 * sizeof(uint32_t);
+}
+
+static size_t source_bytes(const mr_geom *g)
+{
+    return g->procedural ? mr_dproc_memory(&g->proc) : mr_dgrid_memory(&g->grid);
+}
+
+static size_t displaced_memory(const mr_geom *g)
+{
+    return base_bytes(g) + source_bytes(g) + tess_bytes(g);
+}
+
+static uint64_t displaced_primitives(const mr_geom *g)
+{
+    return tessellated(g) ? g->tess_triangles : g->triangle_count;
+}
+
+/* Five fields (a frame carries at most MR_FRAME_EXTRAS_MAX extras over all
+ * its kinds). Steps per ray: displaced_nodes / rays. Embree's share of the
+ * memory is the frame's bvh bytes; the tessellation's is in its geometry
+ * bytes. */
+static const mr_kind_stat STATS[] = {
+    {"displaced_bounds_s", "s", "Seconds the displaced objects spent on this frame's bounds "
+                                "(per-triangle gradients and Embree boxes) or tessellation",
+     MR_STAT_SUM},
+    {"displaced_nodes", "count", "Pyramid nodes bounded and tested (ray marching: samples); "
+                                 "divided by rays: traversal steps per ray", MR_STAT_SUM},
+    {"displaced_tests", "count", "Micro-triangles (or bilinear patches) intersected", MR_STAT_SUM},
+    {"displaced_base_bytes", "bytes", "Base mesh, per-triangle set-up and boxes", MR_STAT_SUM},
+    {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held (procedural: "
+                                        "the Gaussianised example and its pyramid)", MR_STAT_SUM},
+};
+
+static void displaced_frame_stats(const mr_geom *cg, double *v)
+{
+    /* the counters are this frame's: read and cleared (only this object's
+     * callbacks update them, and they have all returned) */
+    mr_geom *g = (mr_geom *)cg;
+    v[0] = g->bounds_s;
+    v[1] = (double)atomic_exchange(&g->nodes, 0);
+    v[2] = (double)atomic_exchange(&g->tests, 0);
+    v[3] = (double)base_bytes(g);
+    v[4] = (double)source_bytes(g);
+    atomic_store(&g->calls, 0);
+    atomic_store(&g->leaves, 0);
+    g->bounds_s = 0;
+}
+
+/* ---- the "displaced" block ------------------------------------------------------------ */
+
+static const char *const METHODS[] = {"tessellation_free", "tessellated", "raymarch"};
+static const char *const LOCALS[] = {"triangles", "bilinear"};
+
+enum { P_TEXTURE, P_PROCEDURAL, P_SCALE, P_OFFSET, P_LEVEL, P_RANGE, P_METHOD, P_STEPS, P_LOCAL };
+enum { Q_EXAMPLE, Q_OFFSET, Q_SCALE, Q_TRIANGLE, Q_SEED };
+
+static int after_procedural(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_displaced_params *d = values;
+    if (!given[P_TEXTURE] && !given[P_PROCEDURAL])
+        return mr_param_fail(err, MR_ERR_INVALID, "",
+                             "a displaced object needs a height source: \"texture\" (an image "
+                             "asset) or \"procedural\" (tiling and blending of an example)");
+    if (given[P_PROCEDURAL] && (!d->procedural || !d->example))
+        return mr_param_fail(err, MR_ERR_INVALID, "procedural",
+                             "expected an object with an \"example\" (the name of an image asset)");
+    return MR_OK;
+}
+
+static int after_level(void *values, const bool *given, mr_param_error *err)
+{
+    (void)values;
+    if (given[P_LEVEL] && given[P_PROCEDURAL])
+        return mr_param_fail(err, MR_ERR_INVALID, "level",
+                             "\"level\" picks the height texture's mip level; a procedural "
+                             "source is sampled at \"range\"");
+    return MR_OK;
+}
+
+static int after_range(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_displaced_params *d = values;
+    if (given[P_RANGE] && given[P_TEXTURE])
+        return mr_param_fail(err, MR_ERR_INVALID, "range",
+                             "\"range\" subdivides a procedural source's lattice; a texture is "
+                             "sampled at its texels (\"level\" picks a mip level)");
+    if (d->range & (d->range - 1))
+        return mr_param_fail(err, MR_ERR_INVALID, "range", "expected a power of two, got %u",
+                             d->range);
+    return MR_OK;
+}
+
+static int after_steps(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_displaced_params *d = values;
+    if (given[P_STEPS] && d->method != MR_DISPLACED_RAYMARCH)
+        return mr_param_fail(err, MR_ERR_INVALID, "steps",
+                             "\"steps\" is for method \"raymarch\" only");
+    return MR_OK;
+}
+
+static int after_example(void *values, const bool *given, mr_param_error *err)
+{
+    (void)values;
+    if (!given[Q_EXAMPLE])
+        return mr_param_fail(err, MR_ERR_INVALID, "example",
+                             "expected \"example\": the name of an image asset to tile");
+    return MR_OK;
+}
+
+static const mr_param PROC_PARAMS[] = {
+    [Q_EXAMPLE] = {.field = "example", .type = MR_PARAM_ASSET,
+                   .offset = offsetof(mr_displaced_params, example), .after = after_example,
+                   .description = "The example image (an asset of the job's \"assets\") whose "
+                                  "tiles are blended (thesis 4.1, Heitz and Neyret 2018)."},
+    [Q_OFFSET] = {.field = "offset", .type = MR_PARAM_NUMBERS,
+                  .offset = offsetof(mr_displaced_params, uv_offset), .max_items = 2, .lo = -1e6,
+                  .hi = 1e6, .def = 0,
+                  .description = "Texture-space offset of the procedural texture (eq. 4.5)."},
+    [Q_SCALE] = {.field = "scale", .type = MR_PARAM_NUMBER,
+                 .offset = offsetof(mr_displaced_params, uv_scale), .lo = 0, .hi = 1e6,
+                 .flags = MR_PARAM_LO_OPEN, .def = 1,
+                 .description = "Texture-space scale of the procedural texture (eq. 4.5): uv' = "
+                                "offset + (uv - 0.5) scale."},
+    [Q_TRIANGLE] = {.field = "triangle_size", .type = MR_PARAM_NUMBER,
+                    .offset = offsetof(mr_displaced_params, triangle_size), .lo = 0, .hi = 16,
+                    .flags = MR_PARAM_LO_OPEN, .def = 0.25,
+                    .description = "Edge of a lattice triangle in the example's texture space "
+                                   "(eq. 4.6; 1/4 works well, HN19)."},
+    [Q_SEED] = {.field = "seed", .type = MR_PARAM_INT,
+                .offset = offsetof(mr_displaced_params, seed), .lo = 0, .hi = 4294967295.0,
+                .def = 0, .description = "Picks the lattice vertices' random example positions."},
+};
+
+static const mr_param_table PROC_TABLE = {
+    .params = PROC_PARAMS,
+    .count = sizeof PROC_PARAMS / sizeof PROC_PARAMS[0],
+    .size = sizeof(mr_displaced_params),
+    .expect = "an object of procedural texture parameters",
+    .schema_rules = "{\"required\": [\"example\"]}",
+};
+
+static const mr_param DISPLACED_PARAMS[] = {
+    [P_TEXTURE] = {.field = "texture", .type = MR_PARAM_ASSET,
+                   .offset = offsetof(mr_displaced_params, texture), .conflicts = "procedural",
+                   .description = "The height texture: an image asset of the job's \"assets\" "
+                                  "(PNG 8/16 bit, JPEG, or EXR with Y, R G B or one channel; "
+                                  "colour becomes luminance), repeating; sample (i, j) sits at "
+                                  "texture coordinates (i / width, j / height), the picture's "
+                                  "bottom row at v = 0."},
+    [P_PROCEDURAL] = {.field = "procedural", .type = MR_PARAM_FLAG_OBJECT,
+                      .offset = offsetof(mr_displaced_params, procedural), .sub = &PROC_TABLE,
+                      .after = after_procedural,
+                      .description = "An infinite by-example texture instead of a height "
+                                     "texture: tiling and blending of an example image "
+                                     "(thesis chapter 5)."},
+    [P_SCALE] = {.field = "scale", .type = MR_PARAM_NUMBER,
+                 .offset = offsetof(mr_displaced_params, scale), .lo = -1e6, .hi = 1e6, .def = 0.1,
+                 .description = "Height of a texture value of 1 (8 and 16 bit images read 0..1), "
+                                "in world units along the unit interpolated normal."},
+    [P_OFFSET] = {.field = "offset", .type = MR_PARAM_NUMBER,
+                  .offset = offsetof(mr_displaced_params, offset), .lo = -1e6, .hi = 1e6, .def = 0,
+                  .description = "Height of a texture value of 0: height = offset + scale * value."},
+    [P_LEVEL] = {.field = "level", .type = MR_PARAM_INT,
+                 .offset = offsetof(mr_displaced_params, level), .lo = 0,
+                 .hi = MR_DISPLACED_MAX_LEVEL, .def = 0, .after = after_level,
+                 .description = "Mip level of the height texture the surface samples (0: every "
+                                "texel; k: 2^k x 2^k texels averaged): the level of detail."},
+    [P_RANGE] = {.field = "range", .type = MR_PARAM_INT,
+                 .offset = offsetof(mr_displaced_params, range), .lo = 1,
+                 .hi = MR_DISPLACED_MAX_RANGE, .def = MR_DISPLACED_DEFAULT_RANGE,
+                 .after = after_range,
+                 .description = "Procedural source: subdivisions of a lattice square per side, a "
+                                "power of two (the thesis' range, its level of detail)."},
+    [P_METHOD] = {.field = "method", .type = MR_PARAM_ENUM,
+                  .offset = offsetof(mr_displaced_params, method), MR_PARAM_CHOICES(METHODS),
+                  .def = MR_DISPLACED_TESSELLATION_FREE,
+                  .description = "\"tessellation_free\": D-BVH traversal of the height pyramid in an "
+                                 "Embree user geometry (no micro-triangles stored). "
+                                 "\"tessellated\": the same micro-triangles as Embree triangles "
+                                 "(the exact reference and memory baseline). \"raymarch\": fixed-step "
+                                 "ray marching (the thesis' comparator; approximate)."},
+    [P_STEPS] = {.field = "steps", .type = MR_PARAM_INT,
+                 .offset = offsetof(mr_displaced_params, steps), .lo = 1,
+                 .hi = MR_DISPLACED_MAX_STEPS, .def = MR_DISPLACED_DEFAULT_STEPS,
+                 .after = after_steps,
+                 .description = "Ray marching: equal steps per ray over a base triangle's box."},
+    [P_LOCAL] = {.field = "local", .type = MR_PARAM_ENUM,
+                 .offset = offsetof(mr_displaced_params, local), MR_PARAM_CHOICES(LOCALS),
+                 .def = MR_DLOCAL_TRIANGLES,
+                 .description = "Leaf intersection of tessellation_free: \"triangles\" (two per "
+                                "texel, the tessellation's) or \"bilinear\" (cells wholly inside "
+                                "a base triangle as bilinear patches of their four corners)."},
+};
+
+static const mr_param_table DISPLACED_TABLE = {
+    .params = DISPLACED_PARAMS,
+    .count = sizeof DISPLACED_PARAMS / sizeof DISPLACED_PARAMS[0],
+    .size = sizeof(mr_displaced_params),
+    .expect = "an object of displacement parameters",
+    .schema_rules =
+        "{\"anyOf\": [{\"required\": [\"texture\"]}, {\"required\": [\"procedural\"]}],"
+        " \"allOf\": ["
+        "{\"if\": {\"required\": [\"procedural\"]}, \"then\": {\"not\": {\"required\": [\"level\"]}}},"
+        "{\"if\": {\"required\": [\"texture\"]}, \"then\": {\"not\": {\"required\": [\"range\"]}}},"
+        "{\"if\": {\"required\": [\"steps\"]}, \"then\": {\"required\": [\"method\"], "
+        "\"properties\": {\"method\": {\"const\": \"raymarch\"}}}},"
+        "{\"properties\": {\"range\": {\"enum\": [1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, "
+        "2048, 4096]}}}]}",
+};
+
+const mr_kind mr_kind_displaced = {
+    .name = "displaced",
+    .summary = "Parameters of a displacement-mapped object (kind \"displaced\", paper 003): the "
+               "asset's meshes, which need texture coordinates, displaced along their unit "
+               "interpolated normals by a height texture or a procedural tiling-and-blending "
+               "texture, two triangles per texel, posed (skinned) like any mesh, and traced "
+               "without tessellation.",
+    .params = &DISPLACED_TABLE,
+    .stats = STATS,
+    .stat_count = sizeof STATS / sizeof STATS[0],
+    .frame_stats = displaced_frame_stats,
+    .create = displaced_create,
+    .update = displaced_update,
+    .attach = displaced_attach,
+    .commit = displaced_commit,
+    .normal = displaced_normal,
+    .tessellate = displaced_tessellate,
+    .memory = displaced_memory,
+    .primitives = displaced_primitives,
+    .free = displaced_free,
+};

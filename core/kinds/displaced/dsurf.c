@@ -1,0 +1,452 @@
+/* dsurf.c - the displaced surface over a base triangle (dsurf.h). */
+#include "kinds/displaced/dsurf.h"
+
+#include <math.h>
+#include <string.h>
+
+/* A zero-area triangle in grid space: |det| at most this times the
+ * squared size of its grid bounding box (or not finite). */
+#define FLAT_REL 1e-12
+/* A cell whose corners are all at least this far (relative to the size of
+ * the grid coordinates) inside every edge of T is whole: cutting it would
+ * make crossings that all lie outside it (their rounding is ~1e-16 of the
+ * coordinates), so its two triangles are made directly (mr_dsurf_cell). */
+#define INSIDE_MARGIN 1e-9
+/* Interpolated normals shorter than this displace nothing (unit corner
+ * normals that cancel out: opposing normals, REFERENCE.md 003). */
+#define MIN_NORMAL 1e-9
+
+double mr_dsurf_height_at(const mr_dheights *hs, double x, double y)
+{
+    double fx0 = floor(x), fy0 = floor(y);
+    int64_t i = (int64_t)fx0, j = (int64_t)fy0;
+    double fx = x - fx0, fy = y - fy0;
+    if (fx + fy <= 1.0) {
+        double h00 = hs->at(hs->src, i, j);
+        return h00 + fx * (hs->at(hs->src, i + 1, j) - h00) + fy * (hs->at(hs->src, i, j + 1) - h00);
+    }
+    double h11 = hs->at(hs->src, i + 1, j + 1);
+    return h11 + (1.0 - fx) * (hs->at(hs->src, i, j + 1) - h11) +
+           (1.0 - fy) * (hs->at(hs->src, i + 1, j) - h11);
+}
+
+static void set_normal(double out[3], const float *n)
+{
+    double x = n[0], y = n[1], z = n[2];
+    double l = sqrt(x * x + y * y + z * z);
+    if (!(l > 0) || !isfinite(l)) {
+        out[0] = out[1] = out[2] = 0;
+        return;
+    }
+    out[0] = x / l, out[1] = y / l, out[2] = z / l;
+}
+
+void mr_dbase_pose(mr_dbase *b, const float *p[3], const float *n[3])
+{
+    for (int k = 0; k < 3; k++) {
+        for (int c = 0; c < 3; c++)
+            b->p[k][c] = p[k][c];
+        set_normal(b->n[k], n[k]);
+    }
+}
+
+static bool lex_less(const double a[2], const double b[2])
+{
+    return a[0] < b[0] || (a[0] == b[0] && a[1] < b[1]);
+}
+
+void mr_dbase_init(mr_dbase *b, const double g[3][2], const float *p[3], const float *n[3],
+                   const mr_dheights *hs)
+{
+    memset(b, 0, sizeof *b);
+    memcpy(b->g, g, sizeof b->g);
+    mr_dbase_pose(b, p, n);
+    for (int e = 0; e < 3; e++)
+        b->canon[e] = lex_less(g[(e + 1) % 3], g[e]) ? 1 : 0;
+    double ax = g[1][0] - g[0][0], ay = g[1][1] - g[0][1];
+    double bx = g[2][0] - g[0][0], by = g[2][1] - g[0][1];
+    double det = ax * by - ay * bx;
+    double ex = fmax(fmax(g[0][0], g[1][0]), g[2][0]) - fmin(fmin(g[0][0], g[1][0]), g[2][0]);
+    double ey = fmax(fmax(g[0][1], g[1][1]), g[2][1]) - fmin(fmin(g[0][1], g[1][1]), g[2][1]);
+    double size2 = fmax(ex, ey) * fmax(ex, ey);
+    b->flat = !isfinite(det) || !(fabs(det) > FLAT_REL * size2);
+    b->orient = det > 0 ? 1 : -1;
+    double gm = 0;
+    for (int k = 0; k < 3; k++)
+        gm = fmax(gm, fmax(fabs(g[k][0]), fabs(g[k][1])));
+    b->margin = INSIDE_MARGIN * (1 + gm);
+    for (int e = 0; e < 3; e++) {
+        const double *a = g[e], *c = g[(e + 1) % 3];
+        double nx = -(c[1] - a[1]), ny = c[0] - a[0], l = sqrt(nx * nx + ny * ny);
+        if (!(l > 0))
+            l = 1;
+        nx = b->orient * nx / l, ny = b->orient * ny / l;
+        b->edge[e][0] = nx;
+        b->edge[e][1] = ny;
+        b->edge[e][2] = -(nx * a[0] + ny * a[1]);
+    }
+    if (!b->flat) {
+        b->m[0] = by / det;
+        b->m[1] = -ay / det;
+        b->m[2] = -bx / det;
+        b->m[3] = ax / det;
+    }
+    for (int k = 0; k < 3; k++)
+        b->h[k] = mr_dsurf_height_at(hs, g[k][0], g[k][1]);
+}
+
+void mr_dbase_cells(const mr_dbase *b, int64_t *i0, int64_t *i1, int64_t *j0, int64_t *j1)
+{
+    double x0 = fmin(fmin(b->g[0][0], b->g[1][0]), b->g[2][0]);
+    double x1 = fmax(fmax(b->g[0][0], b->g[1][0]), b->g[2][0]);
+    double y0 = fmin(fmin(b->g[0][1], b->g[1][1]), b->g[2][1]);
+    double y1 = fmax(fmax(b->g[0][1], b->g[1][1]), b->g[2][1]);
+    /* closed squares touching the box: a box edge on a grid line touches
+     * the cells on both sides (clipping decides what is there) */
+    *i0 = (int64_t)floor(x0) - (x0 == floor(x0) ? 1 : 0);
+    *i1 = (int64_t)floor(x1);
+    *j0 = (int64_t)floor(y0) - (y0 == floor(y0) ? 1 : 0);
+    *j1 = (int64_t)floor(y1);
+}
+
+/* ---- cutting ------------------------------------------------------------------ */
+
+typedef struct line {
+    uint8_t fam;
+    int64_t value;
+    bool keep_ge; /* keep the side where the coordinate is >= value */
+} line;
+
+static inline double coord(const mr_dvert *v, uint8_t fam)
+{
+    if (v->kind == MR_DV_GRID)
+        return fam == MR_DLINE_X ? (double)v->a : fam == MR_DLINE_Y ? (double)v->b
+                                                                     : (double)(v->a + v->b);
+    return fam == MR_DLINE_X ? v->x : fam == MR_DLINE_Y ? v->y : v->x + v->y;
+}
+
+/* +1 inside, 0 on the line, -1 outside. */
+static inline int side(const mr_dvert *v, const line *l)
+{
+    double c = coord(v, l->fam), val = (double)l->value;
+    int s = c > val ? 1 : c < val ? -1 : 0;
+    return l->keep_ge ? s : -s;
+}
+
+/* Where base edge e crosses line l: from the edge's canonical endpoints. */
+static mr_dvert edge_cross(const mr_dbase *b, int e, const line *l)
+{
+    int ka = b->canon[e] ? (e + 1) % 3 : e, kb = b->canon[e] ? e : (e + 1) % 3;
+    const double *A = b->g[ka], *B = b->g[kb];
+    double ca, cb;
+    if (l->fam == MR_DLINE_X)
+        ca = A[0], cb = B[0];
+    else if (l->fam == MR_DLINE_Y)
+        ca = A[1], cb = B[1];
+    else
+        ca = A[0] + A[1], cb = B[0] + B[1];
+    double t = cb != ca ? ((double)l->value - ca) / (cb - ca) : 0.5;
+    t = t < 0 ? 0 : t > 1 ? 1 : t;
+    mr_dvert v = {.kind = MR_DV_EDGE, .idx = (uint8_t)e, .fam = l->fam, .a = l->value, .t = t};
+    v.x = l->fam == MR_DLINE_X ? (double)l->value : A[0] + t * (B[0] - A[0]);
+    v.y = l->fam == MR_DLINE_Y ? (double)l->value : A[1] + t * (B[1] - A[1]);
+    return v;
+}
+
+/* Where grid lines a and b (different families) meet: a grid point. */
+static mr_dvert grid_cross(const line *a, const line *b)
+{
+    int64_t x = 0, y = 0;
+    const line *l[2] = {a, b};
+    bool hx = false, hy = false;
+    int64_t d = 0;
+    bool hd = false;
+    for (int k = 0; k < 2; k++) {
+        if (l[k]->fam == MR_DLINE_X)
+            x = l[k]->value, hx = true;
+        else if (l[k]->fam == MR_DLINE_Y)
+            y = l[k]->value, hy = true;
+        else
+            d = l[k]->value, hd = true;
+    }
+    if (hd && hx)
+        y = d - x;
+    else if (hd && hy)
+        x = d - y;
+    (void)hx, (void)hy;
+    mr_dvert v = {.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
+    return v;
+}
+
+/* A polygon whose edge m (vertex m -> m + 1) lies on tag[m]: a base edge
+ * (0..2) or a cut line (3 + its index in the cut list). */
+typedef struct poly {
+    int n;
+    mr_dvert v[MR_DSURF_MAX_POLY];
+    uint8_t tag[MR_DSURF_MAX_POLY];
+} poly;
+
+static void cut(const mr_dbase *b, const poly *in, const line *lines, int li, poly *out)
+{
+    const line *l = &lines[li];
+    uint8_t ltag = (uint8_t)(3 + li);
+    out->n = 0;
+    bool wrap_line = false; /* the edge into the first output runs along l */
+    for (int m = 0; m < in->n; m++) {
+        int pm = m ? m - 1 : in->n - 1;
+        const mr_dvert *p = &in->v[pm], *q = &in->v[m];
+        uint8_t tpq = in->tag[pm], tq = in->tag[m];
+        int sp = side(p, l), sq = side(q, l);
+        if (sq >= 0) {
+            if (sp < 0) {
+                if (out->n)
+                    out->tag[out->n - 1] = ltag;
+                else
+                    wrap_line = true;
+                if (sq > 0 && out->n < MR_DSURF_MAX_POLY) {
+                    out->v[out->n] = tpq < 3 ? edge_cross(b, tpq, l) : grid_cross(&lines[tpq - 3], l);
+                    out->tag[out->n++] = tpq;
+                }
+            }
+            if (out->n < MR_DSURF_MAX_POLY) {
+                out->v[out->n] = *q;
+                out->tag[out->n++] = tq;
+            }
+        } else if (sp > 0) {
+            if (out->n < MR_DSURF_MAX_POLY) {
+                out->v[out->n] = tpq < 3 ? edge_cross(b, tpq, l) : grid_cross(&lines[tpq - 3], l);
+                out->tag[out->n++] = ltag;
+            }
+        } else if (sp == 0 && out->n) {
+            out->tag[out->n - 1] = ltag;
+        }
+    }
+    if (wrap_line && out->n)
+        out->tag[out->n - 1] = ltag;
+    if (out->n < 3)
+        out->n = 0;
+}
+
+static bool same_vert(const mr_dvert *a, const mr_dvert *b)
+{
+    if (a->kind != b->kind)
+        return false;
+    switch (a->kind) {
+    case MR_DV_BASE: return a->idx == b->idx;
+    case MR_DV_GRID: return a->a == b->a && a->b == b->b;
+    default: return a->idx == b->idx && a->fam == b->fam && a->a == b->a;
+    }
+}
+
+static int add_vert(mr_dcell *c, const mr_dvert *v)
+{
+    for (int k = 0; k < c->nv; k++)
+        if (same_vert(&c->v[k], v))
+            return k;
+    c->v[c->nv] = *v;
+    return c->nv++;
+}
+
+static void start(const mr_dbase *b, poly *p)
+{
+    p->n = 3;
+    for (int k = 0; k < 3; k++) {
+        p->v[k] = (mr_dvert){.kind = MR_DV_BASE, .idx = (uint8_t)k, .x = b->g[k][0], .y = b->g[k][1]};
+        p->tag[k] = (uint8_t)k;
+    }
+}
+
+/* Rotates a polygon to start at its lexicographically smallest vertex
+ * (x, then y): pieces then come out the same whichever corner of T the
+ * cutting started from, and whole cells match the direct path below. */
+static void rotate_canonical(poly *p)
+{
+    int m = 0;
+    for (int k = 1; k < p->n; k++)
+        if (p->v[k].x < p->v[m].x || (p->v[k].x == p->v[m].x && p->v[k].y < p->v[m].y))
+            m = k;
+    if (m == 0)
+        return;
+    poly q = *p;
+    for (int k = 0; k < p->n; k++) {
+        p->v[k] = q.v[(k + m) % p->n];
+        p->tag[k] = q.tag[(k + m) % p->n];
+    }
+}
+
+bool mr_dsurf_cell_inside(const mr_dbase *b, int64_t i, int64_t j)
+{
+    if (b->flat)
+        return false;
+    for (int e = 0; e < 3; e++) {
+        const double *l = b->edge[e];
+        for (int k = 0; k < 4; k++) {
+            double x = (double)(i + (k & 1)), y = (double)(j + (k >> 1));
+            if (!(l[0] * x + l[1] * y + l[2] > b->margin))
+                return false;
+        }
+    }
+    return true;
+}
+
+/* A whole cell: corners 0 (i, j), 1 (i+1, j), 2 (i, j+1), 3 (i+1, j+1) and
+ * the triangles the cutting would make (in T's orientation, starting at the
+ * smallest corner). */
+static void whole_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+{
+    out->nv = 4;
+    for (int k = 0; k < 4; k++) {
+        int64_t x = i + (k & 1), y = j + (k >> 1);
+        out->v[k] = (mr_dvert){.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
+    }
+    static const uint8_t CCW[2][3] = {{0, 1, 2}, {2, 1, 3}}, CW[2][3] = {{0, 2, 1}, {2, 3, 1}};
+    out->nt = 0;
+    for (int hf = 0; hf < 2; hf++) {
+        if (half != 2 && half != hf)
+            continue;
+        memcpy(out->tri[out->nt], b->orient > 0 ? CCW[hf] : CW[hf], 3);
+        out->half[out->nt++] = (uint8_t)hf;
+    }
+}
+
+void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+{
+    if (mr_dsurf_cell_inside(b, i, j))
+        whole_cell(b, i, j, half, out);
+    else
+        mr_dsurf_cell_cut(b, i, j, half, out);
+}
+
+void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+{
+    out->nv = out->nt = 0;
+    line lines[5] = {{MR_DLINE_X, i, true},
+                     {MR_DLINE_X, i + 1, false},
+                     {MR_DLINE_Y, j, true},
+                     {MR_DLINE_Y, j + 1, false},
+                     {MR_DLINE_D, i + j + 1, false}};
+    poly a, c;
+    start(b, &a);
+    cut(b, &a, lines, 0, &c);
+    cut(b, &c, lines, 1, &a);
+    cut(b, &a, lines, 2, &c);
+    cut(b, &c, lines, 3, &a);
+    if (!a.n)
+        return;
+    for (int hf = 0; hf < 2; hf++) {
+        if (half != 2 && half != hf)
+            continue;
+        lines[4].keep_ge = hf == 1;
+        cut(b, &a, lines, 4, &c);
+        if (!c.n)
+            continue;
+        rotate_canonical(&c);
+        int idx[MR_DSURF_MAX_POLY];
+        for (int k = 0; k < c.n; k++)
+            idx[k] = add_vert(out, &c.v[k]);
+        for (int k = 1; k + 1 < c.n; k++) {
+            out->tri[out->nt][0] = (uint8_t)idx[0];
+            out->tri[out->nt][1] = (uint8_t)idx[k];
+            out->tri[out->nt][2] = (uint8_t)idx[k + 1];
+            out->half[out->nt++] = (uint8_t)hf;
+        }
+    }
+}
+
+/* ---- evaluation ---------------------------------------------------------------- */
+
+static double edge_height(const mr_dheights *hs, const mr_dvert *v)
+{
+    int64_t k = v->a;
+    if (v->fam == MR_DLINE_X) {
+        double f0 = floor(v->y);
+        int64_t j0 = (int64_t)f0;
+        double f = v->y - f0, h0 = hs->at(hs->src, k, j0);
+        return h0 + f * (hs->at(hs->src, k, j0 + 1) - h0);
+    }
+    double f0 = floor(v->x);
+    int64_t i0 = (int64_t)f0;
+    double f = v->x - f0;
+    if (v->fam == MR_DLINE_Y) {
+        double h0 = hs->at(hs->src, i0, k);
+        return h0 + f * (hs->at(hs->src, i0 + 1, k) - h0);
+    }
+    double h0 = hs->at(hs->src, i0, k - i0);
+    return h0 + f * (hs->at(hs->src, i0 + 1, k - i0 - 1) - h0);
+}
+
+mr_vec3 mr_dsurf_vertex(const mr_dbase *b, const mr_dheights *hs, const mr_dvert *v)
+{
+    double P[3], N[3], h;
+    if (v->kind == MR_DV_BASE) {
+        memcpy(P, b->p[v->idx], sizeof P);
+        memcpy(N, b->n[v->idx], sizeof N);
+        h = b->h[v->idx];
+    } else if (v->kind == MR_DV_EDGE) {
+        int e = v->idx;
+        int ka = b->canon[e] ? (e + 1) % 3 : e, kb = b->canon[e] ? e : (e + 1) % 3;
+        for (int c = 0; c < 3; c++) {
+            P[c] = b->p[ka][c] + v->t * (b->p[kb][c] - b->p[ka][c]);
+            N[c] = b->n[ka][c] + v->t * (b->n[kb][c] - b->n[ka][c]);
+        }
+        h = edge_height(hs, v);
+    } else {
+        double b1, b2;
+        mr_dbase_bary(b, (double)v->a, (double)v->b, &b1, &b2);
+        for (int c = 0; c < 3; c++) {
+            P[c] = b->p[0][c] + b1 * (b->p[1][c] - b->p[0][c]) + b2 * (b->p[2][c] - b->p[0][c]);
+            N[c] = b->n[0][c] + b1 * (b->n[1][c] - b->n[0][c]) + b2 * (b->n[2][c] - b->n[0][c]);
+        }
+        h = hs->at(hs->src, v->a, v->b);
+    }
+    double l = sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+    double s = l > MIN_NORMAL ? h / l : 0.0;
+    return mr_v3((float)(P[0] + s * N[0]), (float)(P[1] + s * N[1]), (float)(P[2] + s * N[2]));
+}
+
+/* ---- flat triangles --------------------------------------------------------------- */
+
+/* Position along the boundary: corner k at (k, 0); an edge point on edge e
+ * at (e, its parameter from corner e). */
+static double boundary_key(const mr_dbase *b, const mr_dvert *v)
+{
+    if (v->kind == MR_DV_BASE)
+        return (double)v->idx * 2.0;
+    double s = b->canon[v->idx] ? 1.0 - v->t : v->t;
+    return (double)v->idx * 2.0 + (s <= 0 ? 1e-9 : s >= 1 ? 2.0 - 1e-9 : s * 2.0);
+}
+
+int mr_dsurf_flat_boundary(const mr_dbase *b, mr_dvert *out, int max)
+{
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    int n = 0;
+    for (int k = 0; k < 3 && n < max; k++)
+        out[n++] = (mr_dvert){.kind = MR_DV_BASE, .idx = (uint8_t)k, .x = b->g[k][0], .y = b->g[k][1]};
+    for (int64_t j = j0; j <= j1; j++)
+        for (int64_t i = i0; i <= i1; i++) {
+            mr_dcell c;
+            mr_dsurf_cell(b, i, j, 2, &c);
+            for (int k = 0; k < c.nv; k++) {
+                if (c.v[k].kind != MR_DV_EDGE)
+                    continue;
+                bool dup = false;
+                for (int m = 0; m < n && !dup; m++)
+                    dup = same_vert(&out[m], &c.v[k]);
+                if (!dup && n < max)
+                    out[n++] = c.v[k];
+            }
+        }
+    /* insertion sort by boundary position (few points) */
+    for (int a = 1; a < n; a++) {
+        mr_dvert v = out[a];
+        double key = boundary_key(b, &v);
+        int m = a - 1;
+        while (m >= 0 && boundary_key(b, &out[m]) > key) {
+            out[m + 1] = out[m];
+            m--;
+        }
+        out[m + 1] = v;
+    }
+    return n;
+}

@@ -1,0 +1,1165 @@
+/* dtrace.c - bounds, D-BVH traversal, local intersection and ray marching (dtrace.h). */
+#include "kinds/displaced/dtrace.h"
+
+#include <float.h>
+#include <math.h>
+#include <string.h>
+
+#include "kinds/displaced/tiling.h"
+#include "math/affine_arith.h"
+
+/* NaN-free minimum and maximum: libm's fmin/fmax are calls (they must
+ * handle NaN), and these run a few dozen times per node. */
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+
+/* The box pad: this fraction of a bound on every magnitude a micro-vertex
+ * is computed from (dtrace.h). */
+#define PAD_REL 0x1p-36
+/* A flat triangle's boundary fan has at most this many points. */
+#define FLAT_MAX 1024
+
+mr_dray mr_dray_setup(mr_vec3 o, mr_vec3 d)
+{
+    mr_dray r;
+    double od[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z};
+    for (int a = 0; a < 3; a++) {
+        r.o[a] = od[a];
+        r.d[a] = dd[a];
+        r.par[a] = dd[a] == 0;
+        r.inv[a] = dd[a] != 0 ? 1.0 / dd[a] : 0.0;
+    }
+    r.wt = mr_wt_ray_setup(o, d);
+    return r;
+}
+
+static inline double gmax_of(const mr_dbase *b)
+{
+    double m = 0;
+    for (int k = 0; k < 3; k++)
+        m = fmax(m, fmax(fabs(b->g[k][0]), fabs(b->g[k][1])));
+    return m;
+}
+
+static void tri_gbox(const mr_dbase *b, double *x0, double *x1, double *y0, double *y1);
+
+/* Distance from the origin to triangle (a, b, c) (its closest point,
+ * Ericson, Real-Time Collision Detection 5.1.5), in double. */
+static double origin_distance(const double *a, const double *b, const double *c)
+{
+    double ab[3], ac[3], ap[3];
+    for (int k = 0; k < 3; k++)
+        ab[k] = b[k] - a[k], ac[k] = c[k] - a[k], ap[k] = -a[k];
+#define DOT(u, v) ((u)[0] * (v)[0] + (u)[1] * (v)[1] + (u)[2] * (v)[2])
+    double d1 = DOT(ab, ap), d2 = DOT(ac, ap), p[3];
+    if (d1 <= 0 && d2 <= 0)
+        return sqrt(DOT(a, a));
+    double bp[3] = {-b[0], -b[1], -b[2]}, cp[3] = {-c[0], -c[1], -c[2]};
+    double d3 = DOT(ab, bp), d4 = DOT(ac, bp);
+    if (d3 >= 0 && d4 <= d3)
+        return sqrt(DOT(b, b));
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double v = d1 / (d1 - d3);
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + v * ab[k];
+        return sqrt(DOT(p, p));
+    }
+    double d5 = DOT(ab, cp), d6 = DOT(ac, cp);
+    if (d6 >= 0 && d5 <= d6)
+        return sqrt(DOT(c, c));
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double w = d2 / (d2 - d6);
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + w * ac[k];
+        return sqrt(DOT(p, p));
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        for (int k = 0; k < 3; k++)
+            p[k] = b[k] + w * (c[k] - b[k]);
+        return sqrt(DOT(p, p));
+    }
+    double den = 1 / (va + vb + vc), v = vb * den, w = vc * den;
+    for (int k = 0; k < 3; k++)
+        p[k] = a[k] + ab[k] * v + ac[k] * w;
+    return sqrt(DOT(p, p));
+#undef DOT
+}
+
+/* The local frame (dtrace.h): x = P0 + Px (qx - g0x) + Py (qy - g0y) + z f
+ * with f T's unit face normal; a micro-vertex of grid point q and height h
+ * lies at (q + h (a, b), h c) where (a, b, c) = inv N(q) / |N(q)|. Bounds
+ * of (a, b, c) over T: inv's rows are linear, so over the convex hull of
+ * the corner normals they lie between their values at the corners, and
+ * dividing by |N| in [dmin, 1] (dmin: the hull's distance from the origin)
+ * gives the unit normal's; a hull that reaches near the origin (opposing
+ * normals) gets the bound any unit vector has, which also holds the zero
+ * displacement of a vanishing normal. */
+static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
+{
+    double f[3] = {gr->Px[1] * gr->Py[2] - gr->Px[2] * gr->Py[1],
+                   gr->Px[2] * gr->Py[0] - gr->Px[0] * gr->Py[2],
+                   gr->Px[0] * gr->Py[1] - gr->Px[1] * gr->Py[0]};
+    double fl = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double px = sqrt(gr->Px[0] * gr->Px[0] + gr->Px[1] * gr->Px[1] + gr->Px[2] * gr->Px[2]);
+    double py = sqrt(gr->Py[0] * gr->Py[0] + gr->Py[1] * gr->Py[1] + gr->Py[2] * gr->Py[2]);
+    /* a well-shaped map only: T with area in space as well as in the grid */
+    if (!(fl > 1e-6 * px * py) || !isfinite(fl))
+        return;
+    double M[3][3];
+    for (int c = 0; c < 3; c++)
+        M[c][0] = gr->Px[c], M[c][1] = gr->Py[c], M[c][2] = f[c] / fl;
+    double C[3][3];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            int r1 = (r + 1) % 3, r2 = (r + 2) % 3, c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+            C[r][c] = M[r1][c1] * M[r2][c2] - M[r1][c2] * M[r2][c1];
+        }
+    double det = M[0][0] * C[0][0] + M[0][1] * C[0][1] + M[0][2] * C[0][2];
+    if (!isfinite(det) || det == 0)
+        return;
+    /* a micro-vertex is off its exact value by a float rounding of its
+     * coordinates (2^-24 of at most the pad's basis) plus the double work
+     * (far less): 2^-22 of the basis, through inv */
+    double basis = gr->pad / PAD_REL, err = 0x1p-22 * basis, dist;
+    dist = origin_distance(b->n[0], b->n[1], b->n[2]) * (1 - 1e-12);
+    for (int r = 0; r < 3; r++) {
+        double row = 0, lo = INFINITY, hi = -INFINITY;
+        for (int c = 0; c < 3; c++) {
+            gr->inv[r][c] = C[c][r] / det;
+            row += fabs(gr->inv[r][c]);
+        }
+        for (int k = 0; k < 3; k++) {
+            double v = gr->inv[r][0] * b->n[k][0] + gr->inv[r][1] * b->n[k][1] +
+                       gr->inv[r][2] * b->n[k][2];
+            lo = dmin(lo, v), hi = dmax(hi, v);
+        }
+        double slack = 1e-12 * row;
+        if (dist > 1e-6) {
+            lo = lo >= 0 ? lo - slack : lo / dist - slack;
+            hi = hi >= 0 ? hi / dist + slack : hi + slack;
+        } else {
+            lo = -row, hi = row;
+        }
+        gr->nb[r][0] = dmax(lo, -row);
+        gr->nb[r][1] = dmin(hi, row);
+        gr->lpad[r] = row * err + 1e-9 * (r < 2 ? 1 + gmax_of(b) : 1 + hm);
+    }
+    gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]) &&
+                isfinite(gr->nb[0][0] + gr->nb[0][1] + gr->nb[1][0] + gr->nb[1][1] +
+                         gr->nb[2][0] + gr->nb[2][1]);
+}
+
+void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
+{
+    memset(gr, 0, sizeof *gr);
+    gr->hlo = hlo;
+    gr->hhi = hhi;
+    double pm = 0, grad = 0;
+    for (int c = 0; c < 3; c++) {
+        double d1 = b->p[1][c] - b->p[0][c], d2 = b->p[2][c] - b->p[0][c];
+        double e1 = b->n[1][c] - b->n[0][c], e2 = b->n[2][c] - b->n[0][c];
+        gr->P0[c] = b->p[0][c];
+        gr->N0[c] = b->n[0][c];
+        if (!b->flat) {
+            gr->Px[c] = b->m[0] * d1 + b->m[1] * d2;
+            gr->Py[c] = b->m[2] * d1 + b->m[3] * d2;
+            gr->Nx[c] = b->m[0] * e1 + b->m[1] * e2;
+            gr->Ny[c] = b->m[2] * e1 + b->m[3] * e2;
+        }
+        for (int k = 0; k < 3; k++)
+            pm = fmax(pm, fabs(b->p[k][c]));
+        grad = fmax(grad, fabs(gr->Px[c]) + fabs(gr->Py[c]) + fabs(gr->Nx[c]) + fabs(gr->Ny[c]));
+    }
+    double hm = fmax(fabs(hlo), fabs(hhi));
+    for (int k = 0; k < 3; k++)
+        hm = fmax(hm, fabs(b->h[k]));
+    gr->pad = PAD_REL * (pm + hm + (grad * (1 + hm)) * (gmax_of(b) + 1));
+    gr->nxlen = sqrt(gr->Nx[0] * gr->Nx[0] + gr->Nx[1] * gr->Nx[1] + gr->Nx[2] * gr->Nx[2]);
+    gr->nylen = sqrt(gr->Ny[0] * gr->Ny[0] + gr->Ny[1] * gr->Ny[1] + gr->Ny[2] * gr->Ny[2]);
+    double n0 = sqrt(b->n[0][0] * b->n[0][0] + b->n[0][1] * b->n[0][1] + b->n[0][2] * b->n[0][2]);
+    gr->constant_normal = n0 > 0.5 && !memcmp(b->n[0], b->n[1], sizeof b->n[0]) &&
+                          !memcmp(b->n[0], b->n[2], sizeof b->n[0]);
+    tri_gbox(b, &gr->gx0, &gr->gx1, &gr->gy0, &gr->gy1);
+    gr->local = false;
+    if (!b->flat)
+        local_frame(gr, b, hm);
+}
+
+/* ---- boxes ----------------------------------------------------------------------- */
+
+static inline float down_f(double x)
+{
+    float f = (float)x;
+    return (double)f > x ? nextafterf(f, -INFINITY) : f;
+}
+
+static inline float up_f(double x)
+{
+    float f = (float)x;
+    return (double)f < x ? nextafterf(f, INFINITY) : f;
+}
+
+/* The box of S over the grid region X, Y (offsets from g0 as affine forms)
+ * with heights [hlo, hhi]; dtrace.h says why it is conservative. */
+static void box_of(const mr_dgrad *gr, mr_af X, mr_af Y, double hlo, double hhi, double lo[3],
+                   double hi[3])
+{
+    mr_af P[3], N[3];
+    for (int c = 0; c < 3; c++) {
+        P[c] = mr_af_add(mr_af_add(mr_af_const(gr->P0[c]), mr_af_scale(X, gr->Px[c])),
+                         mr_af_scale(Y, gr->Py[c]));
+        N[c] = mr_af_add(mr_af_add(mr_af_const(gr->N0[c]), mr_af_scale(X, gr->Nx[c])),
+                         mr_af_scale(Y, gr->Ny[c]));
+    }
+    mr_af len2 = mr_af_add(mr_af_add(mr_af_sqr(N[0]), mr_af_sqr(N[1])), mr_af_sqr(N[2]));
+    mr_interval len = mr_interval_sqrt(mr_af_interval(len2)), inv;
+    /* 2e-9: twice the length below which a micro-vertex is not displaced
+     * (dsurf.c MIN_NORMAL), so no vertex the bound normalises is one the
+     * evaluation left undisplaced */
+    bool unit = len.lo > 2e-9 && mr_interval_recip(len, &inv);
+    mr_af H = mr_af_from_interval((mr_interval){hlo, hhi});
+    for (int c = 0; c < 3; c++) {
+        mr_af nh;
+        if (unit) {
+            mr_af q = mr_af_mul(N[c], mr_af_from_interval(inv));
+            mr_interval qi = mr_af_interval(q);
+            nh = qi.lo >= -1 && qi.hi <= 1 ? q : mr_af_from_interval(mr_interval_clamp(qi, -1, 1));
+        } else {
+            nh = mr_af_from_interval((mr_interval){-1, 1});
+        }
+        mr_interval s = mr_af_interval(mr_af_add(P[c], mr_af_mul(H, nh)));
+        lo[c] = s.lo - gr->pad;
+        hi[c] = s.hi + gr->pad;
+    }
+}
+
+static void to_float_box(const double lo[3], const double hi[3], float flo[3], float fhi[3])
+{
+    for (int c = 0; c < 3; c++) {
+        flo[c] = down_f(lo[c]);
+        fhi[c] = up_f(hi[c]);
+    }
+}
+
+static void tri_gbox(const mr_dbase *b, double *x0, double *x1, double *y0, double *y1)
+{
+    double m = b->margin;
+    *x0 = fmin(fmin(b->g[0][0], b->g[1][0]), b->g[2][0]) - m;
+    *x1 = fmax(fmax(b->g[0][0], b->g[1][0]), b->g[2][0]) + m;
+    *y0 = fmin(fmin(b->g[0][1], b->g[1][1]), b->g[2][1]) - m;
+    *y1 = fmax(fmax(b->g[0][1], b->g[1][1]), b->g[2][1]) + m;
+}
+
+/* The traversal's node boxes: the same bound as box_of, written out for
+ * speed in plain double arithmetic (P and N are affine on the rectangle, so
+ * their centre-and-radius forms are exact but for rounding; the normal is
+ * divided by the interval of its length; the height enters as an interval
+ * product). Its few dozen roundings (each 2^-53 of a magnitude the pad's
+ * basis bounds) are covered by the pad, 2^-36 of that basis. Tested to
+ * contain box_of's rigorous result in tests/unit/test_displaced_trace.c. */
+static bool rect_box_d(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                       double y1, double hlo, double hhi, double lo[3], double hi[3])
+{
+    x0 = dmax(x0, gr->gx0), x1 = dmin(x1, gr->gx1), y0 = dmax(y0, gr->gy0), y1 = dmin(y1, gr->gy1);
+    if (x0 > x1 || y0 > y1)
+        return false;
+    double rx = 0.5 * (x1 - x0), ry = 0.5 * (y1 - y0);
+    double dx = 0.5 * (x0 + x1) - b->g[0][0], dy = 0.5 * (y0 + y1) - b->g[0][1];
+    double nlo[3], nhi[3];
+    if (gr->constant_normal) {
+        for (int c = 0; c < 3; c++)
+            nlo[c] = nhi[c] = gr->N0[c];
+    } else {
+        double nc[3], nr[3], len2 = 0;
+        for (int c = 0; c < 3; c++) {
+            nc[c] = gr->N0[c] + gr->Nx[c] * dx + gr->Ny[c] * dy;
+            nr[c] = fabs(gr->Nx[c]) * rx + fabs(gr->Ny[c]) * ry;
+            len2 += nc[c] * nc[c];
+        }
+        double len = sqrt(len2), dev = gr->nxlen * rx + gr->nylen * ry;
+        double llo = len - dev, lhi = len + dev;
+        for (int c = 0; c < 3; c++) {
+            if (llo > 2e-9) {
+                double a = nc[c] - nr[c], z = nc[c] + nr[c];
+                nlo[c] = dmax(-1.0, a / (a >= 0 ? lhi : llo));
+                nhi[c] = dmin(1.0, z / (z >= 0 ? llo : lhi));
+            } else {
+                nlo[c] = -1, nhi[c] = 1;
+            }
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        double pc = gr->P0[c] + gr->Px[c] * dx + gr->Py[c] * dy;
+        double pr = fabs(gr->Px[c]) * rx + fabs(gr->Py[c]) * ry;
+        double p0 = hlo * nlo[c], p1 = hlo * nhi[c], p2 = hhi * nlo[c], p3 = hhi * nhi[c];
+        double mn = dmin(dmin(p0, p1), dmin(p2, p3)), mx = dmax(dmax(p0, p1), dmax(p2, p3));
+        lo[c] = pc - pr + mn - gr->pad;
+        hi[c] = pc + pr + mx + gr->pad;
+    }
+    return true;
+}
+
+bool mr_dtrace_rect_box(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                        double y1, double hlo, double hhi, float lo[3], float hi[3])
+{
+    double l[3], h[3];
+    if (!rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, l, h))
+        return false;
+    to_float_box(l, h, lo, hi);
+    return true;
+}
+
+/* Box of the displaced micro-vertices of a flat triangle's boundary fan. */
+static void flat_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *gr, double lo[3],
+                     double hi[3])
+{
+    static _Thread_local mr_dvert pts[FLAT_MAX];
+    int n = mr_dsurf_flat_boundary(b, pts, FLAT_MAX);
+    for (int c = 0; c < 3; c++)
+        lo[c] = INFINITY, hi[c] = -INFINITY;
+    for (int k = 0; k < n; k++) {
+        mr_vec3 v = mr_dsurf_vertex(b, hs, &pts[k]);
+        double p[3] = {v.x, v.y, v.z};
+        for (int c = 0; c < 3; c++)
+            lo[c] = fmin(lo[c], p[c] - gr->pad), hi[c] = fmax(hi[c], p[c] + gr->pad);
+    }
+}
+
+/* Embree tests our per-triangle boxes in float: they get a pad of 2^-20 of
+ * the triangle's magnitude basis on top (16 float ulps: Embree's robust
+ * box test rounds by a few), so a ray through a micro-vertex on a box's
+ * face, or one whose hit on the next triangle is an ulp nearer than the
+ * current one, still reaches the triangle's traversal. */
+#define EMBREE_PAD_REL 0x1p-20
+
+static void widen_for_embree(const mr_dgrad *gr, double l[3], double h[3])
+{
+    double e = EMBREE_PAD_REL * (gr->pad / PAD_REL);
+    for (int c = 0; c < 3; c++)
+        l[c] -= e, h[c] += e;
+}
+
+void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *gr, float lo[3],
+                       float hi[3])
+{
+    double l[3] = {INFINITY, INFINITY, INFINITY}, h[3] = {-INFINITY, -INFINITY, -INFINITY};
+    if (b->flat) {
+        flat_box(b, hs, gr, l, h);
+        widen_for_embree(gr, l, h);
+        to_float_box(l, h, lo, hi);
+        return;
+    }
+    for (int k = 0; k < 3; k++) {
+        const double *o = b->g[k], *n1 = b->g[(k + 1) % 3], *n2 = b->g[(k + 2) % 3];
+        double ax = 0.5 * (n1[0] - o[0]), ay = 0.5 * (n1[1] - o[1]);
+        double bx = 0.5 * (n2[0] - o[0]), by = 0.5 * (n2[1] - o[1]);
+        /* g_k + s a + t b, s, t in [0, 1]: centre g_k + a/2 + b/2 */
+        mr_af X = mr_af_uv(o[0] - b->g[0][0] + 0.5 * ax + 0.5 * bx, 0.5 * ax, 0.5 * bx);
+        mr_af Y = mr_af_uv(o[1] - b->g[0][1] + 0.5 * ay + 0.5 * by, 0.5 * ay, 0.5 * by);
+        double pl[3], ph[3];
+        box_of(gr, X, Y, gr->hlo, gr->hhi, pl, ph);
+        for (int c = 0; c < 3; c++)
+            l[c] = fmin(l[c], pl[c]), h[c] = fmax(h[c], ph[c]);
+    }
+    widen_for_embree(gr, l, h);
+    to_float_box(l, h, lo, hi);
+}
+
+/* ---- the local frame ------------------------------------------------------------- */
+
+/* A node's box in T's local frame (dtrace.h): the rectangle cut to T's
+ * grid box, moved by [h] times the normal's grid components, its height
+ * [h] times the normal's face component, padded. */
+static inline void local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                             double hlo, double hhi, double lo[3], double hi[3])
+{
+    double o[3][2];
+    for (int a = 0; a < 3; a++) {
+        double p0 = hlo * gr->nb[a][0], p1 = hlo * gr->nb[a][1];
+        double p2 = hhi * gr->nb[a][0], p3 = hhi * gr->nb[a][1];
+        o[a][0] = dmin(dmin(p0, p1), dmin(p2, p3)) - gr->lpad[a];
+        o[a][1] = dmax(dmax(p0, p1), dmax(p2, p3)) + gr->lpad[a];
+    }
+    lo[0] = dmax(x0, gr->gx0) + o[0][0], hi[0] = dmin(x1, gr->gx1) + o[0][1];
+    lo[1] = dmax(y0, gr->gy0) + o[1][0], hi[1] = dmin(y1, gr->gy1) + o[1][1];
+    lo[2] = o[2][0], hi[2] = o[2][1];
+}
+
+void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                         double hlo, double hhi, double lo[3], double hi[3])
+{
+    local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+}
+
+void mr_dtrace_local_point(const mr_dgrad *gr, const mr_dbase *b, mr_vec3 x, double out[3])
+{
+    double d[3] = {(double)x.x - gr->P0[0], (double)x.y - gr->P0[1], (double)x.z - gr->P0[2]};
+    for (int a = 0; a < 3; a++)
+        out[a] = gr->inv[a][0] * d[0] + gr->inv[a][1] * d[1] + gr->inv[a][2] * d[2];
+    out[0] += b->g[0][0];
+    out[1] += b->g[0][1];
+}
+
+/* ---- the overlap test ------------------------------------------------------------ */
+
+bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                       double y1)
+{
+    if (x1 < gr->gx0 || x0 > gr->gx1 || y1 < gr->gy0 || y0 > gr->gy1)
+        return false;
+    if (b->flat)
+        return true;
+    /* separating axes: T's edges. The corner of the rectangle furthest
+     * inside each edge decides; "outside" needs a margin (a crossing
+     * computed a rounding outside T still overlaps) */
+    double m = b->margin;
+    for (int e = 0; e < 3; e++) {
+        const double *l = b->edge[e];
+        double x = l[0] > 0 ? x1 : x0, y = l[1] > 0 ? y1 : y0;
+        if (l[0] * x + l[1] * y + l[2] < -m)
+            return false;
+    }
+    return true;
+}
+
+/* ---- the texture's infinite quadtree ----------------------------------------------- */
+
+typedef struct dnode {
+    int level;
+    int64_t tx, ty; /* period (level <= L) or block of periods (level > L) */
+    uint32_t I, J;  /* node within the period (level <= L) */
+} dnode;
+
+static inline int64_t fdiv(int64_t a, int64_t b)
+{
+    int64_t q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+
+/* Index of the level-l node holding global cell c along one axis (n
+ * samples per period, nl nodes at level l). */
+static inline int64_t node_index(int64_t c, uint32_t n, uint32_t nl, int l, int top)
+{
+    int64_t tile = fdiv(c, n);
+    if (l <= top)
+        return tile * nl + ((c - tile * n) >> l);
+    int up = l - top;
+    return up >= 62 ? (tile < 0 ? -1 : 0) : fdiv(tile, (int64_t)1 << up);
+}
+
+static dnode node_at(const mr_dgrid *g, int l, int64_t gx, int64_t gy)
+{
+    dnode n = {.level = l};
+    int top = (int)g->levels;
+    if (l <= top) {
+        n.tx = fdiv(gx, g->lw[l]);
+        n.ty = fdiv(gy, g->lh[l]);
+        n.I = (uint32_t)(gx - n.tx * g->lw[l]);
+        n.J = (uint32_t)(gy - n.ty * g->lh[l]);
+    } else {
+        n.tx = gx;
+        n.ty = gy;
+    }
+    return n;
+}
+
+static void node_rect(const mr_dgrid *g, const dnode *n, double *x0, double *x1, double *y0,
+                      double *y1)
+{
+    int top = (int)g->levels;
+    if (n->level <= top) {
+        uint64_t s = (uint64_t)1 << n->level;
+        uint64_t a = n->I * s, b = (n->I + 1) * s, c = n->J * s, d = (n->J + 1) * s;
+        *x0 = (double)n->tx * g->w + (double)a;
+        *x1 = (double)n->tx * g->w + (double)(b < g->w ? b : g->w);
+        *y0 = (double)n->ty * g->h + (double)c;
+        *y1 = (double)n->ty * g->h + (double)(d < g->h ? d : g->h);
+    } else {
+        double s = ldexp(1.0, n->level - top);
+        *x0 = (double)n->tx * s * g->w;
+        *x1 = ((double)n->tx + 1) * s * g->w;
+        *y0 = (double)n->ty * s * g->h;
+        *y1 = ((double)n->ty + 1) * s * g->h;
+    }
+}
+
+static void node_heights(const mr_dgrid *g, const dnode *n, double *lo, double *hi)
+{
+    if (n->level <= (int)g->levels) {
+        mr_dgrid_node_heights(g, (unsigned)n->level, n->I, n->J, lo, hi);
+        return;
+    }
+    mr_dgrid_node_heights(g, g->levels, 0, 0, lo, hi); /* the whole texture */
+}
+
+static int children(const mr_dgrid *g, const dnode *n, dnode out[4])
+{
+    int top = (int)g->levels, k = 0;
+    for (int b = 0; b < 2; b++)
+        for (int a = 0; a < 2; a++) {
+            dnode c = {.level = n->level - 1};
+            if (n->level > top + 1) {
+                c.tx = n->tx * 2 + a;
+                c.ty = n->ty * 2 + b;
+            } else if (n->level == top + 1) {
+                c.tx = n->tx * 2 + a;
+                c.ty = n->ty * 2 + b;
+                c.I = c.J = 0;
+            } else {
+                c.tx = n->tx;
+                c.ty = n->ty;
+                c.I = n->I * 2 + (uint32_t)a;
+                c.J = n->J * 2 + (uint32_t)b;
+                if (c.I >= g->lw[c.level] || c.J >= g->lh[c.level])
+                    continue;
+            }
+            out[k++] = c;
+        }
+    return k;
+}
+
+/* The roots of T (4.2.7): the lowest level where T's cells span at most
+ * two nodes per axis. */
+static int roots(const mr_dgrid *g, const mr_dbase *b, dnode out[4])
+{
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    if (i1 < i0 || j1 < j0)
+        return 0;
+    int top = (int)g->levels;
+    for (int l = 0;; l++) {
+        uint32_t nw = l <= top ? g->lw[l] : 1, nh = l <= top ? g->lh[l] : 1;
+        int64_t x0 = node_index(i0, g->w, nw, l, top), x1 = node_index(i1, g->w, nw, l, top);
+        int64_t y0 = node_index(j0, g->h, nh, l, top), y1 = node_index(j1, g->h, nh, l, top);
+        if (x1 - x0 <= 1 && y1 - y0 <= 1) {
+            int k = 0;
+            for (int64_t y = y0; y <= y1; y++)
+                for (int64_t x = x0; x <= x1; x++)
+                    out[k++] = node_at(g, l, x, y);
+            return k;
+        }
+    }
+}
+
+void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
+{
+    dnode r[4];
+    int n = roots(g, b, r);
+    *hlo = INFINITY;
+    *hhi = -INFINITY;
+    for (int k = 0; k < n; k++) {
+        double lo, hi;
+        node_heights(g, &r[k], &lo, &hi);
+        *hlo = fmin(*hlo, lo);
+        *hhi = fmax(*hhi, hi);
+    }
+    if (n == 0) /* no cells: a degenerate box; the corners' heights */
+        *hlo = fmin(fmin(b->h[0], b->h[1]), b->h[2]), *hhi = fmax(fmax(b->h[0], b->h[1]), b->h[2]);
+    for (int k = 0; k < 3; k++)
+        *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
+}
+
+/* ---- ray tests ----------------------------------------------------------------------- */
+
+/* Entry distance of the ray into the box, or false. */
+static bool slab(const mr_dray *r, const double lo[3], const double hi[3], double tmin,
+                 double tmax, double *tnear)
+{
+    double t0 = tmin, t1 = tmax;
+    for (int a = 0; a < 3; a++) {
+        if (r->par[a]) {
+            if (r->o[a] < lo[a] || r->o[a] > hi[a])
+                return false;
+            continue;
+        }
+        double n = (lo[a] - r->o[a]) * r->inv[a], f = (hi[a] - r->o[a]) * r->inv[a];
+        if (n > f) {
+            double s = n;
+            n = f;
+            f = s;
+        }
+        f *= 1 + 4 * DBL_EPSILON; /* Ize 2013 */
+        t0 = n > t0 ? n : t0;
+        t1 = f < t1 ? f : t1;
+        if (t0 > t1)
+            return false;
+    }
+    *tnear = t0;
+    return true;
+}
+
+typedef struct best {
+    bool hit;
+    float t;
+    mr_vec3 v[3];
+    double q[3][2]; /* the micro-triangle's grid points */
+    float u, v2;    /* its barycentrics at the hit */
+} best;
+
+static void tri_test(const mr_dray *r, mr_vec3 a, mr_vec3 b, mr_vec3 c, const mr_dvert *va,
+                     const mr_dvert *vb, const mr_dvert *vc, float tmin, float *tmax, best *out,
+                     mr_dstats *st)
+{
+    mr_wt_hit h;
+    if (st)
+        st->triangles++;
+    if (!mr_wt_intersect(&r->wt, a, b, c, tmin, *tmax, &h))
+        return;
+    *tmax = h.t;
+    out->hit = true;
+    out->t = h.t;
+    out->v[0] = a, out->v[1] = b, out->v[2] = c;
+    out->q[0][0] = va->x, out->q[0][1] = va->y;
+    out->q[1][0] = vb->x, out->q[1][1] = vb->y;
+    out->q[2][0] = vc->x, out->q[2][1] = vc->y;
+    out->u = h.u;
+    out->v2 = h.v;
+}
+
+/* Ray / bilinear patch through p00 p10 p01 p11 (Reshetov, "Cool Patches",
+ * Ray Tracing Gems II ch. 8): the closest (t, u, v) with u, v in [0, 1]. */
+static bool bilinear_hit(const mr_dray *r, const mr_vec3 q[4], float tmin, float tmax, float *t_out,
+                         double *u_out, double *v_out)
+{
+    double o[3] = {r->o[0], r->o[1], r->o[2]}, d[3] = {r->d[0], r->d[1], r->d[2]};
+    double p00[3] = {q[0].x, q[0].y, q[0].z}, p10[3] = {q[1].x, q[1].y, q[1].z};
+    double p01[3] = {q[2].x, q[2].y, q[2].z}, p11[3] = {q[3].x, q[3].y, q[3].z};
+    double qn[3], e10[3], e11[3], e00[3], qo[3];
+    for (int c = 0; c < 3; c++) {
+        e10[c] = p10[c] - p00[c];
+        e11[c] = p11[c] - p10[c];
+        e00[c] = p01[c] - p00[c];
+        qo[c] = p00[c] - o[c];
+    }
+    /* qn = cross(e10, p01 - p11) */
+    double f[3] = {p01[0] - p11[0], p01[1] - p11[1], p01[2] - p11[2]};
+    qn[0] = e10[1] * f[2] - e10[2] * f[1];
+    qn[1] = e10[2] * f[0] - e10[0] * f[2];
+    qn[2] = e10[0] * f[1] - e10[1] * f[0];
+    double q10[3] = {p10[0] - o[0], p10[1] - o[1], p10[2] - o[2]};
+    /* a = dot(cross(qo, d), e00), c = dot(qn, d), b = dot(cross(q10, d), e11) - a - c */
+    double x[3];
+    x[0] = qo[1] * d[2] - qo[2] * d[1];
+    x[1] = qo[2] * d[0] - qo[0] * d[2];
+    x[2] = qo[0] * d[1] - qo[1] * d[0];
+    double A = x[0] * e00[0] + x[1] * e00[1] + x[2] * e00[2];
+    double C = qn[0] * d[0] + qn[1] * d[1] + qn[2] * d[2];
+    x[0] = q10[1] * d[2] - q10[2] * d[1];
+    x[1] = q10[2] * d[0] - q10[0] * d[2];
+    x[2] = q10[0] * d[1] - q10[1] * d[0];
+    double B = x[0] * e11[0] + x[1] * e11[1] + x[2] * e11[2];
+    B -= A + C;
+    double det = B * B - 4 * A * C;
+    if (det < 0)
+        return false;
+    det = sqrt(det);
+    double u1, u2;
+    if (C == 0) {
+        if (B == 0)
+            return false;
+        u1 = -A / B;
+        u2 = -1;
+    } else {
+        u1 = (-B - copysign(det, B)) / 2;
+        u2 = A / u1;
+        u1 /= C;
+    }
+    bool found = false;
+    double bt = tmax, bu = 0, bv = 0;
+    double us[2] = {u1, u2};
+    for (int k = 0; k < 2; k++) {
+        double u = us[k];
+        if (!(u >= 0 && u <= 1))
+            continue;
+        double pa[3], pb[3], n[3];
+        for (int c = 0; c < 3; c++) {
+            pa[c] = (1 - u) * qo[c] + u * q10[c];
+            pb[c] = (1 - u) * e00[c] + u * e11[c];
+        }
+        /* n = cross(d, pb) */
+        n[0] = d[1] * pb[2] - d[2] * pb[1];
+        n[1] = d[2] * pb[0] - d[0] * pb[2];
+        n[2] = d[0] * pb[1] - d[1] * pb[0];
+        double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+        if (!(n2 > 0))
+            continue;
+        /* v = det(pa, d, n) / n2, t = det(pa, pb, n) / n2 */
+        double c1[3];
+        c1[0] = pa[1] * d[2] - pa[2] * d[1];
+        c1[1] = pa[2] * d[0] - pa[0] * d[2];
+        c1[2] = pa[0] * d[1] - pa[1] * d[0];
+        double v = (c1[0] * n[0] + c1[1] * n[1] + c1[2] * n[2]) / n2;
+        c1[0] = pa[1] * pb[2] - pa[2] * pb[1];
+        c1[1] = pa[2] * pb[0] - pa[0] * pb[2];
+        c1[2] = pa[0] * pb[1] - pa[1] * pb[0];
+        double t = (c1[0] * n[0] + c1[1] * n[1] + c1[2] * n[2]) / n2;
+        if (v >= 0 && v <= 1 && t >= tmin && t <= bt) {
+            found = true;
+            bt = t, bu = u, bv = v;
+        }
+    }
+    if (!found)
+        return false;
+    *t_out = (float)bt;
+    *u_out = bu;
+    *v_out = bv;
+    return true;
+}
+
+/* The micro-surface of T in cell (i, j). */
+static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, int half,
+                 const mr_dray *r, float tmin, float *tmax, best *out, mr_dstats *st)
+{
+    mr_dcell c;
+    mr_dsurf_cell(b, i, j, half, &c);
+    if (st)
+        st->leaves++;
+    if (!c.nt)
+        return;
+    mr_vec3 V[2 * MR_DSURF_MAX_POLY];
+    for (int k = 0; k < c.nv; k++)
+        V[k] = mr_dsurf_vertex(b, &s->heights, &c.v[k]);
+    bool full = c.nv == 4 && c.nt == 2 && half == 2;
+    for (int k = 0; full && k < 4; k++)
+        full = c.v[k].kind == MR_DV_GRID;
+    if (s->local == MR_DLOCAL_BILINEAR && full) {
+        /* corners (i,j) (i+1,j) (i,j+1) (i+1,j+1) among the four */
+        mr_vec3 q[4];
+        const mr_dvert *qv[4] = {0};
+        for (int k = 0; k < 4; k++) {
+            int at = (int)(c.v[k].a - i) + 2 * (int)(c.v[k].b - j);
+            q[at] = V[k];
+            qv[at] = &c.v[k];
+        }
+        float t;
+        double u, v;
+        if (st)
+            st->triangles++;
+        if (bilinear_hit(r, q, tmin, *tmax, &t, &u, &v)) {
+            *tmax = t;
+            out->hit = true;
+            out->t = t;
+            /* normal: the patch's tangents at (u, v) */
+            mr_vec3 du = mr_v3_lerp(mr_v3_sub(q[1], q[0]), mr_v3_sub(q[3], q[2]), (float)v);
+            mr_vec3 dv = mr_v3_lerp(mr_v3_sub(q[2], q[0]), mr_v3_sub(q[3], q[1]), (float)u);
+            /* store as a degenerate triangle whose normal is du x dv */
+            out->v[0] = mr_v3(0, 0, 0);
+            out->v[1] = du;
+            out->v[2] = dv;
+            out->q[0][0] = (double)i + u, out->q[0][1] = (double)j + v;
+            out->q[1][0] = out->q[0][0], out->q[1][1] = out->q[0][1];
+            out->q[2][0] = out->q[0][0], out->q[2][1] = out->q[0][1];
+            out->u = out->v2 = 0;
+            (void)qv;
+        }
+        return;
+    }
+    for (int k = 0; k < c.nt; k++) {
+        const uint8_t *tr = c.tri[k];
+        tri_test(r, V[tr[0]], V[tr[1]], V[tr[2]], &c.v[tr[0]], &c.v[tr[1]], &c.v[tr[2]], tmin,
+                 tmax, out, st);
+    }
+}
+
+static void flat_leaf(const mr_dscene *s, const mr_dbase *b, const mr_dray *r, float tmin,
+                      float *tmax, best *out, mr_dstats *st)
+{
+    static _Thread_local mr_dvert pts[FLAT_MAX];
+    int n = mr_dsurf_flat_boundary(b, pts, FLAT_MAX);
+    if (n < 3)
+        return;
+    mr_vec3 v0 = mr_dsurf_vertex(b, &s->heights, &pts[0]);
+    mr_vec3 prev = mr_dsurf_vertex(b, &s->heights, &pts[1]);
+    for (int k = 2; k < n; k++) {
+        mr_vec3 cur = mr_dsurf_vertex(b, &s->heights, &pts[k]);
+        tri_test(r, v0, prev, cur, &pts[0], &pts[k - 1], &pts[k], tmin, tmax, out, st);
+        prev = cur;
+    }
+}
+
+static void finish(const mr_dbase *b, const best *bh, mr_dhit *hit)
+{
+    if (!hit)
+        return;
+    hit->t = bh->t;
+    hit->ng = mr_v3_cross(mr_v3_sub(bh->v[1], bh->v[0]), mr_v3_sub(bh->v[2], bh->v[0]));
+    double w0 = 1.0 - bh->u - bh->v2;
+    double x = w0 * bh->q[0][0] + bh->u * bh->q[1][0] + bh->v2 * bh->q[2][0];
+    double y = w0 * bh->q[0][1] + bh->u * bh->q[1][1] + bh->v2 * bh->q[2][1];
+    double b1 = 0, b2 = 0;
+    if (!b->flat)
+        mr_dbase_bary(b, x, y, &b1, &b2);
+    hit->b1 = (float)b1;
+    hit->b2 = (float)b2;
+}
+
+#define STACK_MAX 512
+
+/* The ray in T's local frame (grid x, grid y, face height). */
+static void local_ray(const mr_dgrad *gr, const mr_dbase *b, const mr_dray *r, mr_dray *lr)
+{
+    double od[3];
+    for (int c = 0; c < 3; c++)
+        od[c] = r->o[c] - gr->P0[c];
+    for (int a = 0; a < 3; a++) {
+        lr->o[a] = gr->inv[a][0] * od[0] + gr->inv[a][1] * od[1] + gr->inv[a][2] * od[2];
+        lr->d[a] = gr->inv[a][0] * r->d[0] + gr->inv[a][1] * r->d[1] + gr->inv[a][2] * r->d[2];
+        lr->par[a] = lr->d[a] == 0;
+        lr->inv[a] = lr->d[a] != 0 ? 1.0 / lr->d[a] : 0.0;
+    }
+    lr->o[0] += b->g[0][0];
+    lr->o[1] += b->g[0][1];
+}
+
+/* Entry distance of a node whose grid rectangle and heights are given (the
+ * local frame's box, or the 3D box), or false. */
+static inline bool node_hit(const mr_dbase *b, const mr_dgrad *gr, const mr_dray *r,
+                            const mr_dray *lr, double x0, double x1, double y0, double y1,
+                            double hlo, double hhi, double tmin, double tmax, double *tn)
+{
+    double lo[3], hi[3];
+    if (gr->local) {
+        local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+        return slab(lr, lo, hi, tmin, tmax, tn);
+    }
+    return rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, lo, hi) && slab(r, lo, hi, tmin, tmax, tn);
+}
+
+/* ---- the procedural source: lattice squares, then triforce triangles ------- */
+
+/* A node: a square of 2^level cells (level >= log2 range; x, y its index)
+ * or, level < 0, a triforce triangle with right-angle vertex (x, y) and
+ * signed leg s (tiling.h). */
+typedef struct pnode {
+    int level;
+    int64_t x, y, s;
+} pnode;
+
+static void pnode_rect(const pnode *n, double *x0, double *x1, double *y0, double *y1)
+{
+    if (n->level >= 0) {
+        double sz = ldexp(1.0, n->level);
+        *x0 = (double)n->x * sz, *x1 = ((double)n->x + 1) * sz;
+        *y0 = (double)n->y * sz, *y1 = ((double)n->y + 1) * sz;
+        return;
+    }
+    double a = (double)n->x, b = (double)(n->x + n->s), c = (double)n->y, d = (double)(n->y + n->s);
+    *x0 = dmin(a, b), *x1 = dmax(a, b), *y0 = dmin(c, d), *y1 = dmax(c, d);
+}
+
+static int pnode_children(const mr_dproc *p, const pnode *n, pnode out[4])
+{
+    int64_t R = (int64_t)p->range;
+    int top = 0;
+    while (((int64_t)1 << top) < R)
+        top++;
+    if (n->level > top) {
+        for (int k = 0; k < 4; k++)
+            out[k] = (pnode){n->level - 1, n->x * 2 + (k & 1), n->y * 2 + (k >> 1), 0};
+        return 4;
+    }
+    if (n->level == top) { /* a lattice square: its two lattice triangles */
+        out[0] = (pnode){-1, n->x * R, n->y * R, R};
+        out[1] = (pnode){-1, (n->x + 1) * R, (n->y + 1) * R, -R};
+        return 2;
+    }
+    int64_t c[4][3];
+    mr_dproc_children(n->x, n->y, n->s, c);
+    for (int k = 0; k < 4; k++)
+        out[k] = (pnode){-1, c[k][0], c[k][1], c[k][2]};
+    return 4;
+}
+
+static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
+                           const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
+                           mr_dhit *hit, mr_dstats *st)
+{
+    const mr_dproc *p = s->proc;
+    best bh = {0};
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    int top = 0;
+    while (((int64_t)1 << top) < (int64_t)p->range)
+        top++;
+    /* roots: the lowest square level (a lattice square or more) where T's
+     * cells span at most two nodes per axis */
+    int level = top;
+    while (level < 62 && ((i1 >> level) - (i0 >> level) > 1 || (j1 >> level) - (j0 >> level) > 1))
+        level++;
+    struct entry {
+        pnode n;
+        double tnear;
+    } stack[STACK_MAX];
+    int sp = 0;
+    for (int64_t y = j1 >> level; y >= (j0 >> level); y--)
+        for (int64_t x = i1 >> level; x >= (i0 >> level); x--)
+            stack[sp++] = (struct entry){{level, x, y, 0}, -INFINITY};
+    double glo, ghi;
+    mr_dproc_global_heights(p, &glo, &ghi);
+    while (sp > 0) {
+        struct entry e = stack[--sp];
+        if (e.tnear > *tmax)
+            continue;
+        if (e.n.level < 0 && (e.n.s == 1 || e.n.s == -1)) {
+            int64_t ci = e.n.s > 0 ? e.n.x : e.n.x - 1, cj = e.n.s > 0 ? e.n.y : e.n.y - 1;
+            leaf(s, b, ci, cj, e.n.s > 0 ? 0 : 1, r, tmin, tmax, &bh, st);
+            if (bh.hit && any)
+                break;
+            continue;
+        }
+        pnode ch[4];
+        int nc = pnode_children(p, &e.n, ch);
+        struct entry hitc[4];
+        int nh = 0;
+        for (int k = 0; k < nc; k++) {
+            double x0, x1, y0, y1, hlo, hhi, tn;
+            pnode_rect(&ch[k], &x0, &x1, &y0, &y1);
+            if (st)
+                st->nodes++;
+            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                continue;
+            if (ch[k].level >= 0)
+                hlo = glo, hhi = ghi;
+            else
+                mr_dproc_tri_heights(p, ch[k].x, ch[k].y, ch[k].s, &hlo, &hhi);
+            if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                continue;
+            hitc[nh++] = (struct entry){ch[k], tn};
+        }
+        for (int a = 1; a < nh; a++)
+            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
+                struct entry tmp = hitc[m];
+                hitc[m] = hitc[m - 1];
+                hitc[m - 1] = tmp;
+            }
+        for (int k = 0; k < nh && sp < STACK_MAX; k++)
+            stack[sp++] = hitc[k];
+    }
+    if (bh.hit)
+        finish(b, &bh, hit);
+    return bh.hit;
+}
+
+bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
+                         bool any, mr_dhit *hit, mr_dstats *st)
+{
+    const mr_dbase *b = &s->bases[t];
+    const mr_dgrad *gr = &s->grads[t];
+    const mr_dgrid *g = s->grid;
+    best bh = {0};
+    if (b->flat) {
+        flat_leaf(s, b, r, tmin, tmax, &bh, st);
+        if (bh.hit)
+            finish(b, &bh, hit);
+        return bh.hit;
+    }
+    mr_dray lr;
+    if (gr->local)
+        local_ray(gr, b, r, &lr);
+    if (s->proc)
+        return proc_intersect(s, b, gr, r, &lr, tmin, tmax, any, hit, st);
+    struct entry {
+        dnode n;
+        double tnear;
+    } stack[STACK_MAX];
+    int sp = 0;
+    dnode rs[4];
+    int nr = roots(g, b, rs);
+    for (int k = nr - 1; k >= 0; k--)
+        stack[sp++] = (struct entry){rs[k], -INFINITY};
+    while (sp > 0) {
+        struct entry e = stack[--sp];
+        if (e.tnear > *tmax)
+            continue;
+        if (e.n.level == 0) {
+            int64_t i = e.n.tx * g->w + e.n.I, j = e.n.ty * g->h + e.n.J;
+            leaf(s, b, i, j, 2, r, tmin, tmax, &bh, st);
+            if (bh.hit && any)
+                break;
+            continue;
+        }
+        dnode ch[4];
+        int nc = children(g, &e.n, ch);
+        struct entry hitc[4];
+        int nh = 0;
+        for (int k = 0; k < nc; k++) {
+            double x0, x1, y0, y1, hlo, hhi, tn;
+            node_rect(g, &ch[k], &x0, &x1, &y0, &y1);
+            if (st)
+                st->nodes++;
+            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                continue;
+            node_heights(g, &ch[k], &hlo, &hhi);
+            if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                continue;
+            hitc[nh++] = (struct entry){ch[k], tn};
+        }
+        /* push the farthest first, so the nearest is visited next */
+        for (int a = 1; a < nh; a++)
+            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
+                struct entry tmp = hitc[m];
+                hitc[m] = hitc[m - 1];
+                hitc[m - 1] = tmp;
+            }
+        for (int k = 0; k < nh && sp < STACK_MAX; k++)
+            stack[sp++] = hitc[k];
+    }
+    if (bh.hit)
+        finish(b, &bh, hit);
+    return bh.hit;
+}
+
+/* ---- ray marching ------------------------------------------------------------------- */
+
+/* The signed height of x above the surface of T: x is mapped back to its
+ * base point b by following the unit interpolated normal (x = P(b) + s
+ * N(b) / |N(b)|, the displacement's own direction, so the shells of
+ * neighbouring triangles meet without gaps), found by three fixed-point
+ * steps from the projection along the face normal (each: the plane point
+ * x - s n of the last normal n); the height above is s - h(b), and the
+ * barycentrics of b come back for the hit. */
+static double height_above(const mr_dscene *s, const mr_dbase *b, const double x[3],
+                           const double fn[3], double *b1, double *b2)
+{
+    double e1[3], e2[3];
+    for (int c = 0; c < 3; c++) {
+        e1[c] = b->p[1][c] - b->p[0][c];
+        e2[c] = b->p[2][c] - b->p[0][c];
+    }
+    double d11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    double d12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
+    double d22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    double det = d11 * d22 - d12 * d12;
+    double n[3] = {fn[0], fn[1], fn[2]}, dist = 0, P[3] = {0}, N[3];
+    for (int it = 0; it < 4; it++) {
+        double xn = (x[0] - b->p[0][0]) * fn[0] + (x[1] - b->p[0][1]) * fn[1] + (x[2] - b->p[0][2]) * fn[2];
+        double nf = n[0] * fn[0] + n[1] * fn[1] + n[2] * fn[2];
+        dist = nf > 1e-6 ? xn / nf : xn;
+        double w[3];
+        for (int c = 0; c < 3; c++)
+            w[c] = x[c] - dist * (nf > 1e-6 ? n[c] : fn[c]) - b->p[0][c];
+        double w1 = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2];
+        double w2 = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2];
+        *b1 = det != 0 ? (d22 * w1 - d12 * w2) / det : 0;
+        *b2 = det != 0 ? (d11 * w2 - d12 * w1) / det : 0;
+        for (int c = 0; c < 3; c++) {
+            P[c] = b->p[0][c] + *b1 * e1[c] + *b2 * e2[c];
+            N[c] = b->n[0][c] + *b1 * (b->n[1][c] - b->n[0][c]) + *b2 * (b->n[2][c] - b->n[0][c]);
+        }
+        double l = sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+        if (!(l > 1e-9))
+            break;
+        for (int c = 0; c < 3; c++)
+            n[c] = N[c] / l;
+    }
+    double q[2];
+    for (int c = 0; c < 2; c++)
+        q[c] = b->g[0][c] + *b1 * (b->g[1][c] - b->g[0][c]) + *b2 * (b->g[2][c] - b->g[0][c]);
+    double h = mr_dsurf_height_at(&s->heights, q[0], q[1]);
+    (void)P;
+    return dist - h;
+}
+
+bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
+                     mr_dhit *hit, mr_dstats *st)
+{
+    const mr_dbase *b = &s->bases[t];
+    const mr_dgrad *gr = &s->grads[t];
+    float flo[3], fhi[3];
+    mr_dtrace_tri_box(b, &s->heights, gr, flo, fhi);
+    double lo[3] = {flo[0], flo[1], flo[2]}, hi[3] = {fhi[0], fhi[1], fhi[2]}, t0;
+    if (!slab(r, lo, hi, tmin, *tmax, &t0))
+        return false;
+    /* the exit distance: the same slab test from the far side */
+    double t1 = *tmax;
+    for (int a = 0; a < 3; a++)
+        if (!r->par[a]) {
+            double n = (lo[a] - r->o[a]) * r->inv[a], f = (hi[a] - r->o[a]) * r->inv[a];
+            t1 = fmin(t1, fmax(n, f));
+        }
+    if (!(t1 > t0))
+        return false;
+    double e1[3], e2[3], fn[3];
+    for (int c = 0; c < 3; c++) {
+        e1[c] = b->p[1][c] - b->p[0][c];
+        e2[c] = b->p[2][c] - b->p[0][c];
+    }
+    fn[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    fn[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    fn[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double fl = sqrt(fn[0] * fn[0] + fn[1] * fn[1] + fn[2] * fn[2]);
+    if (!(fl > 0))
+        return false;
+    for (int c = 0; c < 3; c++)
+        fn[c] /= fl;
+    unsigned n = s->march_steps ? s->march_steps : 1;
+    double dt = (t1 - t0) / n, prev_f = 0, prev_t = t0;
+    for (unsigned k = 0; k <= n; k++) {
+        double tk = t0 + dt * k, x[3], b1, b2;
+        for (int c = 0; c < 3; c++)
+            x[c] = r->o[c] + tk * r->d[c];
+        double f = height_above(s, b, x, fn, &b1, &b2);
+        if (st)
+            st->nodes++;
+        if (k > 0 && ((prev_f > 0) != (f > 0))) {
+            double ts = prev_t + (tk - prev_t) * (prev_f / (prev_f - f));
+            for (int c = 0; c < 3; c++)
+                x[c] = r->o[c] + ts * r->d[c];
+            height_above(s, b, x, fn, &b1, &b2);
+            if (b1 >= 0 && b2 >= 0 && b1 + b2 <= 1 && ts >= tmin && ts <= *tmax) {
+                *tmax = (float)ts;
+                if (hit) {
+                    hit->t = (float)ts;
+                    hit->b1 = (float)b1;
+                    hit->b2 = (float)b2;
+                    hit->ng = mr_dtrace_normal_at(s, t, (float)b1, (float)b2);
+                }
+                return true;
+            }
+        }
+        prev_f = f;
+        prev_t = tk;
+    }
+    return false;
+}
+
+mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2)
+{
+    const mr_dbase *b = &s->bases[t];
+    mr_vec3 face = mr_v3((float)((b->p[1][1] - b->p[0][1]) * (b->p[2][2] - b->p[0][2]) -
+                                 (b->p[1][2] - b->p[0][2]) * (b->p[2][1] - b->p[0][1])),
+                         (float)((b->p[1][2] - b->p[0][2]) * (b->p[2][0] - b->p[0][0]) -
+                                 (b->p[1][0] - b->p[0][0]) * (b->p[2][2] - b->p[0][2])),
+                         (float)((b->p[1][0] - b->p[0][0]) * (b->p[2][1] - b->p[0][1]) -
+                                 (b->p[1][1] - b->p[0][1]) * (b->p[2][0] - b->p[0][0])));
+    if (b->flat)
+        return face;
+    double x = b->g[0][0] + b1 * (b->g[1][0] - b->g[0][0]) + b2 * (b->g[2][0] - b->g[0][0]);
+    double y = b->g[0][1] + b1 * (b->g[1][1] - b->g[0][1]) + b2 * (b->g[2][1] - b->g[0][1]);
+    double fx = floor(x), fy = floor(y);
+    mr_dcell c;
+    mr_dsurf_cell(b, (int64_t)fx, (int64_t)fy, 2, &c);
+    int bestk = -1;
+    double bestw = -INFINITY;
+    for (int k = 0; k < c.nt; k++) {
+        const mr_dvert *a = &c.v[c.tri[k][0]], *bb = &c.v[c.tri[k][1]], *cc = &c.v[c.tri[k][2]];
+        double d = (bb->x - a->x) * (cc->y - a->y) - (bb->y - a->y) * (cc->x - a->x);
+        if (d == 0)
+            continue;
+        double w1 = ((x - a->x) * (cc->y - a->y) - (y - a->y) * (cc->x - a->x)) / d;
+        double w2 = ((bb->x - a->x) * (y - a->y) - (bb->y - a->y) * (x - a->x)) / d;
+        double w = fmin(fmin(w1, w2), 1 - w1 - w2);
+        if (w > bestw)
+            bestw = w, bestk = k;
+    }
+    if (bestk < 0)
+        return face;
+    mr_vec3 v[3];
+    for (int k = 0; k < 3; k++)
+        v[k] = mr_dsurf_vertex(b, &s->heights, &c.v[c.tri[bestk][k]]);
+    return mr_v3_cross(mr_v3_sub(v[1], v[0]), mr_v3_sub(v[2], v[0]));
+}

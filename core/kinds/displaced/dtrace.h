@@ -1,0 +1,167 @@
+/*
+ * dtrace.h - tracing the displaced surface of dsurf.h without tessellating
+ * it: per-base-triangle bounds by affine arithmetic, the D-BVH traversal of
+ * the height texture's min/max pyramid (thesis Algorithm 4, 4.2.3-4.2.7) and
+ * the local intersection at its leaves; and the fixed-step ray marcher the
+ * thesis compares against (6.1).
+ *
+ * Bounds (4.2.4): a node is a rectangle R of grid space (a pyramid node, a
+ * period of the texture, a block of periods), cut down to T's bounding box.
+ * On R, P and N are affine in the rectangle's two parameters (e_u, e_v):
+ * exactly the affine forms of math/affine_arith.h, so [P] and [N] carry no
+ * K term but rounding. N is normalised by the interval 1 / sqrt([N].[N])
+ * when that interval stays away from 0 (and the result is clamped to
+ * [-1, 1]); otherwise (opposing or vanishing normals) each component of the
+ * unit normal is bounded by [-1, 1], which also contains the zero
+ * displacement of a vanishing normal. [h] is the node's height interval
+ * (pyramid), [S] = [P] + [h] [N / |N|] (eq. 4.17), and the box is its
+ * interval widened by the triangle's pad (dtrace.c: 2^-36 of a bound on
+ * every magnitude the micro-vertices are computed from, which covers their
+ * double rounding and grid points computed a rounding outside R) and
+ * rounded outward to float. Each micro-vertex then lies in the box of every
+ * node whose rectangle holds its grid point, and so does each
+ * micro-triangle of a cell: that is what makes the traversal miss nothing
+ * the tessellation would hit.
+ *
+ * Embree's per-triangle boxes (4.2.6-4.2.7): T split into three
+ * parallelograms (corner k with half its two edges), each bounded as above
+ * with the heights of the triangle's roots, boxes merged.
+ *
+ * Faster, and used for every triangle with area in space: the traversal
+ * works in T's local frame, x = P(q) + z f (f the unit face normal), an
+ * affine map of (grid x, grid y, z) inverted once per triangle and frame
+ * (the ray is mapped once per call; the map keeps its parameter t). A
+ * micro-vertex of grid point q and height h lies at (q + h (a, b), h c)
+ * there, (a, b, c) the unit normal in the frame's basis, bounded once per
+ * triangle (dtrace.c local_frame): a node is the box [rectangle + [h] a] x
+ * [rectangle + [h] b] x [[h] c], a three-slab test. On a plane (normal =
+ * face normal) a = b = 0 and the boxes are exact. The local boxes are
+ * widened by the image under the inverse map of 4 float roundings of the
+ * largest coordinate (a micro-vertex is rounded to float once); triangles
+ * whose map is badly conditioned (no area in space, such as a sphere's
+ * pole triangles) use the 3D boxes.
+ *
+ * Traversal: the pyramid seen as an infinite quadtree over the repeating
+ * grid (levels 0..L inside one period, whose top node covers the period;
+ * above L, blocks of 2^(l-L) x 2^(l-L) periods whose heights are the
+ * texture's range), entered at up to 4 roots: the nodes of the lowest level
+ * at which T's cells span at most two nodes in each direction (4.2.7).
+ * A node whose rectangle T does not overlap is discarded by a
+ * triangle-rectangle separating-axis test (the thesis' early texel
+ * discard) with a margin of 1e-9 of the grid coordinates' size, so no
+ * node whose cells hold a piece of T is dropped; the others are bounded,
+ * hit-tested (slab test in double, Ize's robust widening) and visited
+ * nearest first, skipping those beyond the closest hit so far. Leaves are
+ * cells: their micro-triangles (dsurf.h) are evaluated by the very function
+ * the tessellation uses and tested with the watertight test, so the hits
+ * are the tessellated reference's, vertex for vertex. "bilinear": a cell
+ * wholly inside T is the bilinear patch through its four displaced corners
+ * instead (ray-patch intersection, Reshetov 2019); cut cells keep their
+ * micro-triangles, so neighbouring base triangles still close up.
+ */
+#ifndef MR_DTRACE_H
+#define MR_DTRACE_H
+
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "kinds/displaced/dgrid.h"
+#include "kinds/displaced/dsurf.h"
+#include "math/watertight.h"
+
+/* Per base triangle and frame: P and N as affine functions of the grid
+ * point (P(q) = P0 + Px (x - g0x) + Py (y - g0y)), and the box pad. */
+typedef struct mr_dgrad {
+    double P0[3], Px[3], Py[3];
+    double N0[3], Nx[3], Ny[3];
+    double nxlen, nylen;   /* |Nx|, |Ny| (Euclidean): how fast |N| can change */
+    bool constant_normal;  /* the three corner normals are equal: N0 is the unit normal */
+    double pad;
+    double hlo, hhi;       /* heights of the triangle's roots */
+    double gx0, gx1, gy0, gy1; /* T's grid box, widened by the grid margin */
+    /* Constant normal and a well-shaped map: x = P(q) + h n is affine in
+     * (q, h), so nodes are tested as boxes in (grid x, grid y, height)
+     * space, the ray mapped there once per call (dtrace.c). */
+    bool local;
+    double inv[3][3];      /* (q - g0, z) = inv (x - P0) */
+    double nb[3][2];       /* bounds of inv N / |N| over T */
+    double lpad[3];        /* pad of the local boxes */
+} mr_dgrad;
+
+typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal;
+
+/* What a traversal reads about one object. */
+typedef struct mr_dscene {
+    const mr_dbase *bases;
+    const mr_dgrad *grads;
+    const mr_dgrid *grid;      /* texture source, or NULL */
+    const struct mr_dproc *proc; /* procedural source (tiling.h), or NULL */
+    mr_dheights heights;
+    mr_dlocal local;
+    unsigned march_steps;      /* ray marcher */
+} mr_dscene;
+
+typedef struct mr_dray {
+    double o[3], d[3], inv[3];
+    bool par[3];
+    mr_wt_ray wt;
+} mr_dray;
+
+typedef struct mr_dhit {
+    float t;
+    float b1, b2;      /* base-triangle barycentrics of the hit's grid point */
+    mr_vec3 ng;        /* geometric normal of the micro-surface hit, unnormalised */
+} mr_dhit;
+
+/* Work counters, summed by the caller. */
+typedef struct mr_dstats {
+    uint64_t calls, nodes, leaves, triangles;
+} mr_dstats;
+
+/* d finite and non-zero. */
+mr_dray mr_dray_setup(mr_vec3 o, mr_vec3 d);
+
+/* The gradient data of base triangle b for this frame (after mr_dbase_pose):
+ * needs the triangle's height range hlo..hhi (its roots'). */
+void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi);
+/* Heights of T's roots (the texture source). */
+void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi);
+
+/* Conservative box of the displaced surface over the grid rectangle
+ * [x0, x1] x [y0, y1] (cut to T's box here) with heights [hlo, hhi]: false
+ * when the rectangle misses T's box. */
+bool mr_dtrace_rect_box(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                        double y1, double hlo, double hhi, float lo[3], float hi[3]);
+/* Conservative box of the whole displaced triangle (three parallelograms). */
+void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad *gr, float lo[3],
+                       float hi[3]);
+
+/* T's local frame (gr->local): the box of a grid rectangle with heights
+ * [hlo, hhi], and a point's local coordinates (tests). */
+void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                         double hlo, double hhi, double lo[3], double hi[3]);
+void mr_dtrace_local_point(const mr_dgrad *gr, const mr_dbase *b, mr_vec3 x, double out[3]);
+
+/* Whether T (in grid space) may overlap [x0, x1] x [y0, y1] (conservative). */
+bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                       double y1);
+
+/* Closest hit of the ray with base triangle t's displaced surface at
+ * tmin <= t <= *tmax (texture source); *tmax shrinks on a hit; any: the
+ * first hit found will do. */
+bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
+                         bool any, mr_dhit *hit, mr_dstats *st);
+
+/* The same surface found by marching: s->march_steps equal steps over the
+ * ray's span in T's box, the first sign change of the height above the
+ * surface refined by one secant step. An approximation (the comparator of
+ * the thesis' 6.1), not exact. */
+bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
+                     mr_dhit *hit, mr_dstats *st);
+
+/* Geometric normal of the micro-triangle of base triangle t holding its
+ * barycentric point (b1, b2) (a hit's). */
+mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2);
+
+#endif

@@ -1,0 +1,328 @@
+/* tiling.c - tiling and blending heights and their bounds (tiling.h). */
+#include "kinds/displaced/tiling.h"
+
+#include <math.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define SQRT3 1.7320508075688772
+#define WIDEN 1e-12
+
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+
+/* erf^-1 by Newton's method on erf from Winitzki's approximation. */
+static double erfinv(double y)
+{
+    if (y <= -1)
+        return -6;
+    if (y >= 1)
+        return 6;
+    double a = 0.147, l = log(1 - y * y), t = 2 / (M_PI * a) + l / 2;
+    double x = copysign(sqrt(sqrt(t * t - l / a) - t), y);
+    for (int k = 0; k < 4; k++)
+        x -= (erf(x) - y) / (2 / sqrt(M_PI) * exp(-x * x));
+    return x;
+}
+
+typedef struct ranked {
+    double v;
+    uint32_t i;
+} ranked;
+
+static int by_value(const void *a, const void *b)
+{
+    double x = ((const ranked *)a)->v, y = ((const ranked *)b)->v;
+    return x < y ? -1 : x > y ? 1 : 0;
+}
+
+size_t mr_dproc_memory(const mr_dproc *p)
+{
+    return sizeof *p + mr_image_bytes(p->gauss) + mr_dgrid_memory(&p->gex);
+}
+
+double mr_dproc_height_of_blend(const mr_dproc *p, double b)
+{
+    double pos = (b - p->lut_lo) / (p->lut_hi - p->lut_lo) * (MR_TILING_LUT - 1);
+    pos = pos < 0 ? 0 : pos > MR_TILING_LUT - 1 ? MR_TILING_LUT - 1 : pos;
+    int k = (int)pos;
+    if (k > MR_TILING_LUT - 2)
+        k = MR_TILING_LUT - 2;
+    double f = pos - k, v = p->lut[k] + f * ((double)p->lut[k + 1] - p->lut[k]);
+    return p->offset + p->scale * v;
+}
+
+int mr_dproc_init(mr_dproc *p, const mr_image *ex, double uv_off_u, double uv_off_v,
+                  double uv_scale, double triangle_size, uint32_t seed, uint32_t range,
+                  double scale, double offset, unsigned threads, mr_error *err)
+{
+    memset(p, 0, sizeof *p);
+    /* a process-unique id keys the caches (never 0, never reused) */
+    static _Atomic uint64_t next_id = 1;
+    p->id = atomic_fetch_add(&next_id, 1);
+    size_t n = (size_t)ex->width * ex->height;
+    ranked *r = malloc(n * sizeof *r);
+    int rc = mr_image_new(ex->width, ex->height, MR_SAMPLE_F32, &p->gauss, err);
+    if (rc < 0 || !r) {
+        free(r);
+        mr_dproc_free(p);
+        return rc < 0 ? rc : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a procedural texture");
+    }
+    double unit = mr_image_unit(ex);
+    for (uint32_t y = 0; y < ex->height; y++)
+        for (uint32_t x = 0; x < ex->width; x++) {
+            size_t i = (size_t)y * ex->width + x;
+            r[i] = (ranked){mr_image_sample(ex, x, y) / unit, (uint32_t)i};
+        }
+    qsort(r, n, sizeof *r, by_value);
+    /* T (eq. 4.3): rank -> uniform -> Gaussian; equal values share a rank */
+    float *g = p->gauss->samples;
+    for (size_t a = 0; a < n;) {
+        size_t b = a;
+        while (b < n && r[b].v == r[a].v)
+            b++;
+        double u = ((double)(a + b - 1) / 2 + 0.5) / (double)n;
+        double t = 0.5 + MR_TILING_SIGMA * sqrt(2.0) * erfinv(2 * u - 1);
+        for (size_t k = a; k < b; k++)
+            g[r[k].i] = (float)t;
+        a = b;
+    }
+    p->range = range;
+    p->inv_range = 1.0 / range;
+    p->uv_off[0] = uv_off_u;
+    p->uv_off[1] = uv_off_v;
+    p->uv_scale = uv_scale;
+    p->tri = triangle_size;
+    p->seed = seed;
+    p->scale = scale;
+    p->offset = offset;
+    if ((rc = mr_dgrid_init(&p->gex, p->gauss, 0, 1.0, 0.0, threads, err)) < 0) {
+        free(r);
+        mr_dproc_free(p);
+        return rc;
+    }
+    /* the global blend bound (tiling.h) */
+    double nlo = p->gex.gmin - 0.5, nhi = p->gex.gmax - 0.5, dlo = 1 / SQRT3, dhi = 1;
+    p->blend_lo = dmin(nlo / dlo, nlo / dhi) + 0.5 - WIDEN;
+    p->blend_hi = dmax(nhi / dlo, nhi / dhi) + 0.5 + WIDEN;
+    /* T^-1 (eq. 4.4) on the blend's whole range */
+    p->lut_lo = p->blend_lo;
+    p->lut_hi = p->blend_hi > p->blend_lo ? p->blend_hi : p->blend_lo + 1e-9;
+    for (int k = 0; k < MR_TILING_LUT; k++) {
+        double y = p->lut_lo + (p->lut_hi - p->lut_lo) * k / (MR_TILING_LUT - 1);
+        double u = 0.5 * (1 + erf((y - 0.5) / (MR_TILING_SIGMA * sqrt(2.0))));
+        size_t idx = (size_t)(u * (double)n);
+        p->lut[k] = (float)r[idx < n ? idx : n - 1].v;
+    }
+    for (int k = 1; k < MR_TILING_LUT; k++) /* monotone whatever float does */
+        p->lut[k] = p->lut[k] < p->lut[k - 1] ? p->lut[k - 1] : p->lut[k];
+    free(r);
+    return MR_OK;
+}
+
+/* ---- spaces ------------------------------------------------------------------------ */
+
+void mr_dproc_grid_of(const mr_dproc *p, float u, float v, double g[2])
+{
+    double x = p->uv_off[0] + ((double)u - 0.5) * p->uv_scale;
+    double y = p->uv_off[1] + ((double)v - 0.5) * p->uv_scale;
+    /* uv' = lx e1 + ly e2: ly = y / (s sqrt3/2), lx = (x - ly s/2) / s */
+    double ly = y / (p->tri * SQRT3 / 2), lx = (x - ly * p->tri / 2) / p->tri;
+    g[0] = lx * p->range;
+    g[1] = ly * p->range;
+}
+
+/* Texture-space point of lattice point (lx, ly). */
+static inline void uv_of(const mr_dproc *p, double lx, double ly, double *x, double *y)
+{
+    *x = p->tri * lx + p->tri * 0.5 * ly;
+    *y = p->tri * SQRT3 * 0.5 * ly;
+}
+
+/* The random offset of lattice vertex (a, b): two numbers in [0, 1). */
+static inline void vertex_offset(const mr_dproc *p, int64_t a, int64_t b, double o[2])
+{
+    uint64_t z = (uint64_t)a * 0x9e3779b97f4a7c15ull ^ (uint64_t)b * 0xc2b2ae3d27d4eb4full ^
+                 ((uint64_t)p->seed << 17 | 0x5bd1e995ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    o[0] = (double)(z >> 40) / 16777216.0;
+    o[1] = (double)((z >> 16) & 0xffffff) / 16777216.0;
+}
+
+/* The Gaussianised example, bilinear and repeating, at texture point (x, y). */
+static inline double gauss_at(const mr_dproc *p, double x, double y)
+{
+    const mr_dgrid *g = &p->gex;
+    double fx = x * g->w, fy = y * g->h, x0 = floor(fx), y0 = floor(fy);
+    double tx = fx - x0, ty = fy - y0;
+    int64_t i = (int64_t)x0, j = (int64_t)y0;
+    uint32_t i0 = (uint32_t)mr_dgrid_wrap(i, g->w), i1 = (uint32_t)mr_dgrid_wrap(i + 1, g->w);
+    uint32_t j0 = (uint32_t)mr_dgrid_wrap(j, g->h), j1 = (uint32_t)mr_dgrid_wrap(j + 1, g->h);
+    double a = mr_dgrid_sample(g, i0, j0), b = mr_dgrid_sample(g, i1, j0);
+    double c = mr_dgrid_sample(g, i0, j1), d = mr_dgrid_sample(g, i1, j1);
+    return (a + tx * (b - a)) + ty * ((c + tx * (d - c)) - (a + tx * (b - a)));
+}
+
+/* The lattice triangle of lattice point (lx, ly): its vertices and weights. */
+static inline void lattice_tri(double lx, double ly, int64_t v[3][2], double w[3])
+{
+    double ax = floor(lx), ay = floor(ly), fx = lx - ax, fy = ly - ay;
+    int64_t a = (int64_t)ax, b = (int64_t)ay;
+    if (fx + fy <= 1) {
+        v[0][0] = a, v[0][1] = b, v[1][0] = a + 1, v[1][1] = b, v[2][0] = a, v[2][1] = b + 1;
+        w[0] = 1 - fx - fy, w[1] = fx, w[2] = fy;
+    } else {
+        v[0][0] = a + 1, v[0][1] = b + 1, v[1][0] = a, v[1][1] = b + 1, v[2][0] = a + 1, v[2][1] = b;
+        w[0] = fx + fy - 1, w[1] = 1 - fx, w[2] = 1 - fy;
+    }
+}
+
+double mr_dproc_blend(const mr_dproc *p, int64_t i, int64_t j)
+{
+    double lx = (double)i * p->inv_range, ly = (double)j * p->inv_range;
+    int64_t v[3][2];
+    double w[3], x, y, num = -0.5, den = 0;
+    lattice_tri(lx, ly, v, w);
+    uv_of(p, lx, ly, &x, &y);
+    for (int k = 0; k < 3; k++) {
+        double o[2];
+        vertex_offset(p, v[k][0], v[k][1], o);
+        num += w[k] * gauss_at(p, x + o[0], y + o[1]);
+        den += w[k] * w[k];
+    }
+    return num / sqrt(den) + 0.5;
+}
+
+/* Per-thread direct-mapped caches of grid heights and node bounds: rays
+ * near each other ask for the same ones, and each costs three bilinear
+ * look-ups of the example (bounds: three pyramid searches). A cache entry
+ * holds exactly what the computation returns, so results do not depend on
+ * it (or on which thread filled it). */
+#define HCACHE 8192
+#define BCACHE 4096
+
+typedef struct hentry {
+    uint64_t id;
+    int64_t i, j;
+    double h;
+} hentry;
+
+typedef struct bentry {
+    uint64_t id;
+    int64_t x, y, s;
+    double lo, hi;
+} bentry;
+
+static _Thread_local hentry hcache[HCACHE];
+static _Thread_local bentry bcache[BCACHE];
+
+static inline size_t slot_of(int64_t a, int64_t b, int64_t c, size_t n)
+{
+    uint64_t z = (uint64_t)a * 0x9e3779b97f4a7c15ull ^ (uint64_t)b * 0xc2b2ae3d27d4eb4full ^
+                 (uint64_t)c * 0x165667b19e3779f9ull;
+    z ^= z >> 29;
+    return (size_t)(z * 0xbf58476d1ce4e5b9ull >> 40) & (n - 1);
+}
+
+double mr_dproc_height(const mr_dproc *p, int64_t i, int64_t j)
+{
+    hentry *e = &hcache[slot_of(i, j, 0, HCACHE)];
+    if (e->id == p->id && e->i == i && e->j == j)
+        return e->h;
+    double h = mr_dproc_height_of_blend(p, mr_dproc_blend(p, i, j));
+    *e = (hentry){p->id, i, j, h};
+    return h;
+}
+
+/* ---- bounds ------------------------------------------------------------------------- */
+
+static void heights_of(const mr_dproc *p, double blo, double bhi, double *lo, double *hi)
+{
+    double a = mr_dproc_height_of_blend(p, blo - WIDEN), b = mr_dproc_height_of_blend(p, bhi + WIDEN);
+    *lo = dmin(a, b);
+    *hi = dmax(a, b);
+}
+
+void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi)
+{
+    heights_of(p, p->blend_lo, p->blend_hi, lo, hi);
+}
+
+static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                        double *hi);
+
+void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                          double *hi)
+{
+    bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
+    if (e->id == p->id && e->x == bx && e->y == by && e->s == s) {
+        *lo = e->lo, *hi = e->hi;
+        return;
+    }
+    tri_heights(p, bx, by, s, lo, hi);
+    *e = (bentry){p->id, bx, by, s, *lo, *hi};
+}
+
+static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                        double *hi)
+{
+    double q[3][2] = {{(double)bx, (double)by}, {(double)(bx + s), (double)by},
+                      {(double)bx, (double)(by + s)}};
+    /* the lattice triangle: the one holding the node's centroid */
+    double cx = (q[0][0] + q[1][0] + q[2][0]) / 3 * p->inv_range;
+    double cy = (q[0][1] + q[1][1] + q[2][1]) / 3 * p->inv_range;
+    int64_t v[3][2];
+    double wc[3];
+    lattice_tri(cx, cy, v, wc);
+    double wlo[3] = {INFINITY, INFINITY, INFINITY}, whi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    double ulo = INFINITY, uhi = -INFINITY, vlo = INFINITY, vhi = -INFINITY;
+    for (int m = 0; m < 3; m++) {
+        double lx = q[m][0] * p->inv_range, ly = q[m][1] * p->inv_range, x, y;
+        /* weights of the lattice triangle's vertices at this node vertex:
+         * from its right-angle vertex v0, legs +x +y (lower) or -x -y */
+        double sgn = v[1][0] == v[0][0] + 1 ? 1 : -1;
+        double dx = sgn * (lx - (double)v[0][0]), dy = sgn * (ly - (double)v[0][1]);
+        double w[3] = {1 - dx - dy, dx, dy};
+        for (int k = 0; k < 3; k++) {
+            double c = w[k] < 0 ? 0 : w[k] > 1 ? 1 : w[k];
+            wlo[k] = dmin(wlo[k], c), whi[k] = dmax(whi[k], c);
+        }
+        uv_of(p, lx, ly, &x, &y);
+        ulo = dmin(ulo, x), uhi = dmax(uhi, x), vlo = dmin(vlo, y), vhi = dmax(vhi, y);
+    }
+    double nlo = -0.5, nhi = -0.5, d2lo = 0, d2hi = 0;
+    const mr_dgrid *g = &p->gex;
+    for (int k = 0; k < 3; k++) {
+        double o[2], glo, ghi;
+        vertex_offset(p, v[k][0], v[k][1], o);
+        /* the footprint's cells in the example (bilinear reads a cell's corners) */
+        int64_t i0 = (int64_t)floor((ulo + o[0]) * g->w), i1 = (int64_t)floor((uhi + o[0]) * g->w);
+        int64_t j0 = (int64_t)floor((vlo + o[1]) * g->h), j1 = (int64_t)floor((vhi + o[1]) * g->h);
+        mr_dgrid_range_samples(g, i0, i1, j0, j1, &glo, &ghi);
+        double a = wlo[k] * glo, b = wlo[k] * ghi, c = whi[k] * glo, d = whi[k] * ghi;
+        nlo += dmin(dmin(a, b), dmin(c, d));
+        nhi += dmax(dmax(a, b), dmax(c, d));
+        d2lo += wlo[k] * wlo[k];
+        d2hi += whi[k] * whi[k];
+    }
+    double dlo = sqrt(dmax(d2lo, 1.0 / 3)), dhi = sqrt(dmin(dmax(d2hi, 1.0 / 3), 1.0));
+    if (dlo > dhi)
+        dlo = dhi;
+    double b0 = nlo / dlo, b1 = nlo / dhi, b2 = nhi / dlo, b3 = nhi / dhi;
+    double blo = dmin(dmin(b0, b1), dmin(b2, b3)) + 0.5, bhi = dmax(dmax(b0, b1), dmax(b2, b3)) + 0.5;
+    heights_of(p, blo, bhi, lo, hi);
+}
+
+void mr_dproc_free(mr_dproc *p)
+{
+    if (!p)
+        return;
+
+    mr_dgrid_free(&p->gex);
+    mr_image_free(p->gauss);
+    memset(p, 0, sizeof *p);
+}
+

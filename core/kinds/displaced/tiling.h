@@ -1,0 +1,103 @@
+/*
+ * tiling.h - procedural heights by tiling and blending an example image
+ * (thesis 4.1 and chapter 5; Heitz and Neyret 2018), on the grid of
+ * dsurf.h, with the bounds its traversal needs.
+ *
+ * Spaces. A mesh's texture coordinates uv go to the texture space of the
+ * example uv' = offset + (uv - 0.5) scale (eq. 4.5); lattice coordinates l
+ * satisfy uv' = l_x e1 + l_y e2 with e1 = (s, 0), e2 = (s/2, s sqrt(3)/2)
+ * and s the triangle size (eq. 4.6: lattice triangles are equilateral in
+ * texture space); grid coordinates are g = range l, so a lattice square is
+ * range x range cells and the two lattice triangles of square (a, b) are
+ * split by its anti-diagonal, which the grid's cell diagonals continue.
+ *
+ * Height of grid point q (a function of q alone, so every base triangle
+ * that uses it computes the same bits): p = q / range in lattice triangle
+ * v1 v2 v3 (the lower one when frac(p_x) + frac(p_y) <= 1), barycentric
+ * weights w_k, each vertex hashed (with the seed) to an offset o_k in
+ * [0, 1)^2 of texture space; G_k = the Gaussianised example, bilinear and
+ * repeating, at uv'(p) + o_k; the variance-preserving blend
+ *     B = (sum w_k G_k - 1/2) / sqrt(sum w_k^2) + 1/2         (eq. 4.8)
+ * and height = offset + scale T^-1(B), T^-1 the inverse histogram
+ * transform (eq. 4.4) as a monotone look-up table (linear between 4096
+ * entries). Gaussianisation (eq. 4.3): each example sample's rank
+ * u = (rank + 1/2) / N goes to 1/2 + sigma sqrt(2) erfinv(2u - 1), sigma =
+ * 1/6 (HN19); equal samples share their mean rank.
+ *
+ * Bounds (5.3.1, 5.4.2-5.4.3, with the errata fixed): over a sub-triangle
+ * of a lattice triangle (the triforce nodes) the weights range between
+ * their values at its three vertices (they are linear and its edges are
+ * parallel to the lattice triangle's); each G_k lies between the min and
+ * max of the Gaussianised example's pyramid over the sub-triangle's
+ * footprint moved by o_k (at most four nodes, the root-selection trick);
+ * the numerator sum w_k G_k - 1/2 by interval arithmetic, the denominator
+ * by intervals of the squares clamped to [1/sqrt 3, 1], the quotient's
+ * four corner values (5.17-5.20), then T^-1 (monotone). Larger regions
+ * use the global bound: sum w_k G_k is a convex combination, so it lies in
+ * [Gmin, Gmax], and dividing Gmin - 1/2 < 0 by the smallest denominator
+ * gives the lowest blend (5.1-5.2 written out). Every bound is widened by
+ * 1e-12 before T^-1, which covers the double rounding of the evaluation.
+ */
+#ifndef MR_TILING_H
+#define MR_TILING_H
+
+#include <stdint.h>
+
+#include "asset/image.h"
+#include "kinds/displaced/dgrid.h"
+
+#define MR_TILING_LUT 4096
+#define MR_TILING_SIGMA (1.0 / 6.0)
+
+typedef struct mr_dproc {
+    uint64_t id;               /* unique in the process: keys the per-thread caches */
+    mr_image *gauss;           /* the Gaussianised example (float samples) */
+    mr_dgrid gex;              /* its repeating grid and min/max pyramid */
+    float lut[MR_TILING_LUT];  /* T^-1 on [lut_lo, lut_hi], in example values (0..1) */
+    double lut_lo, lut_hi;
+    double range, inv_range;
+    double uv_off[2], uv_scale;
+    double tri;                /* lattice triangle size */
+    uint32_t seed;
+    double scale, offset;      /* height = offset + scale * example value */
+    double blend_lo, blend_hi; /* the global blend bound */
+} mr_dproc;
+
+/* Sets up the procedural texture of example image ex (borrowed only during
+ * the call). MR_ERR_NOMEM. */
+int mr_dproc_init(mr_dproc *p, const mr_image *ex, double uv_off_u, double uv_off_v,
+                  double uv_scale, double triangle_size, uint32_t seed, uint32_t range,
+                  double scale, double offset, unsigned threads, mr_error *err);
+void mr_dproc_free(mr_dproc *p);
+size_t mr_dproc_memory(const mr_dproc *p);
+
+/* Grid coordinates of mesh texture coordinates (u, v). */
+void mr_dproc_grid_of(const mr_dproc *p, float u, float v, double g[2]);
+
+/* The height of grid point (i, j) and the blend it comes from. */
+double mr_dproc_height(const mr_dproc *p, int64_t i, int64_t j);
+double mr_dproc_blend(const mr_dproc *p, int64_t i, int64_t j);
+/* T^-1 then the height formula (monotone in b). */
+double mr_dproc_height_of_blend(const mr_dproc *p, double b);
+
+/* Height bounds over the triforce node with right-angle vertex (bx, by)
+ * and signed leg s (grid units; vertices (bx, by), (bx + s, by),
+ * (bx, by + s)), which must lie in one lattice triangle. */
+void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                          double *hi);
+/* The global height bound (any region). */
+void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi);
+
+/* The triforce subdivision (5.4.1, Figure 5.1 derived): the four children
+ * of node (bx, by, s), |s| >= 2 even: three corner triangles of leg s/2
+ * with the parent's orientation and the middle one, right angle at
+ * (bx + s/2, by + s/2) and leg -s/2. */
+static inline void mr_dproc_children(int64_t bx, int64_t by, int64_t s, int64_t out[4][3])
+{
+    int64_t h = s / 2;
+    int64_t c[4][3] = {{bx, by, h}, {bx + h, by, h}, {bx, by + h, h}, {bx + h, by + h, -h}};
+    for (int k = 0; k < 4; k++)
+        out[k][0] = c[k][0], out[k][1] = c[k][1], out[k][2] = c[k][2];
+}
+
+#endif

@@ -1,0 +1,595 @@
+/*
+ * springmass_kind.c - the spring-mass kind's descriptor, parameter table
+ * and ops (springmass_kind.h): the asset's meshes at rest, placed by the
+ * object's transform, are filled with a node grid (grid.h), simulated
+ * (sim.h) and followed by the mapped detailed mesh (map.h), one Embree
+ * triangle geometry.
+ */
+#include "kinds/springmass/springmass_kind.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "kinds/springmass/map.h"
+#include "kinds/springmass/sim.h"
+#include "util/clock.h"
+#include "util/derived.h"
+
+/* The simulation state's format and the builders' revision: in every
+ * checkpoint id, so a checkpoint of another layout or grid is never used. */
+#define SM_STATE_VERSION 2u
+#define SM_REVISION 1u
+
+/* Bytes per grid cell the simulation holds (18 float arrays and the
+ * grid's two byte arrays), for the memory budget. */
+#define SM_BYTES_PER_CELL (18u * 4u + 2u)
+
+struct mr_geom {
+    const mr_springmass_params *p;
+    const char *asset_path;
+    unsigned threads;
+    uint32_t vertex_count, triangle_count;
+    float *rest_pos, *rest_nrm; /* world space, rest */
+    float *positions;           /* 3 per vertex + 1 padding (Embree) */
+    float *normals;
+    uint32_t *indices;
+    sm_sim *sim;
+    sm_map *map;
+    RTCGeometry rtc;
+    uint8_t id[32];             /* checkpoint id */
+    /* the last update's figures */
+    double simulate_s, map_s;
+    uint64_t steps;
+};
+
+static void springmass_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    if (g->rtc)
+        rtcReleaseGeometry(g->rtc);
+    sm_map_free(g->map);
+    sm_sim_free(g->sim);
+    free(g->rest_pos);
+    free(g->rest_nrm);
+    free(g->positions);
+    free(g->normals);
+    free(g->indices);
+    free(g);
+}
+
+/* The asset's meshes at rest, placed by the transform, merged. */
+static int rest_mesh(mr_geom *g, const mr_asset *asset, const mr_mat4 *transform, mr_error *err)
+{
+    uint64_t nv = 0, nt = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        nv += asset->meshes[i].vertex_count;
+        nt += asset->meshes[i].triangle_count;
+    }
+    if (nt == 0)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to simulate", asset->path);
+    if (nv > MR_MAX_ASSET_VERTICES || nt > MR_MAX_ASSET_TRIANGLES)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s: %llu vertices / %llu triangles exceed the caps",
+                            asset->path, (unsigned long long)nv, (unsigned long long)nt);
+    g->vertex_count = (uint32_t)nv;
+    g->triangle_count = (uint32_t)nt;
+    g->rest_pos = malloc(nv * 3 * sizeof(float) + 4);
+    g->rest_nrm = malloc(nv * 3 * sizeof(float) + 4);
+    g->positions = calloc(nv * 3 + 1, sizeof(float));
+    g->normals = calloc(nv * 3 + 1, sizeof(float));
+    g->indices = malloc(nt * 3 * sizeof(uint32_t));
+    if (!g->rest_pos || !g->rest_nrm || !g->positions || !g->normals || !g->indices)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for %llu vertices", asset->path,
+                            (unsigned long long)nv);
+    mr_pose *pose = NULL;
+    int rc = mr_pose_new(asset, &pose, err);
+    if (rc < 0)
+        return rc;
+    if ((rc = mr_pose_eval(pose, asset, NULL, 0, err)) < 0) {
+        mr_pose_free(pose);
+        return rc;
+    }
+    uint32_t v0 = 0, t0 = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_mesh *m = &asset->meshes[i];
+        mr_skin_mesh(asset, i, pose, transform, g->rest_pos + (size_t)v0 * 3, g->rest_nrm + (size_t)v0 * 3,
+                     g->threads);
+        for (uint64_t k = 0; k < (uint64_t)m->triangle_count * 3; k++)
+            g->indices[(uint64_t)t0 * 3 + k] = m->indices[k] + v0;
+        v0 += m->vertex_count;
+        t0 += m->triangle_count;
+    }
+    mr_pose_free(pose);
+    for (size_t k = 0; k < nv * 3; k++)
+        if (!(fabsf(g->rest_pos[k]) <= MR_MAX_COORDINATE))
+            return mr_error_set(err, MR_ERR_INVALID, "transform: vertex %zu lands at a coordinate of %g",
+                                k / 3, (double)g->rest_pos[k]);
+    return MR_OK;
+}
+
+static const mr_param_table SPRINGMASS_TABLE;
+
+static void state_id(mr_geom *g)
+{
+    mr_derived_key_builder kb;
+    mr_derived_key_begin(&kb, "microray springmass state", SM_STATE_VERSION, SM_REVISION);
+    mr_derived_key_u32(&kb, g->vertex_count);
+    mr_derived_key_u32(&kb, g->triangle_count);
+    mr_derived_key_f32s(&kb, g->rest_pos, (size_t)g->vertex_count * 3);
+    mr_derived_key_bytes(&kb, g->indices, (size_t)g->triangle_count * 3 * sizeof(uint32_t));
+    mr_derived_key_params(&kb, &SPRINGMASS_TABLE, g->p);
+    mr_derived_key_end(&kb, g->id);
+}
+
+static int springmass_create(const mr_asset *asset, const mr_object_desc *desc, const mr_kind_context *ctx,
+                             mr_geom **out, mr_error *err)
+{
+    *out = NULL;
+    if (desc->pose_count)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "pose: a springmass object is moved by its simulation and takes no pose");
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        return mr_error_set(err, MR_ERR_NOMEM, "springmass: out of memory");
+    g->p = desc->params;
+    g->asset_path = asset->path;
+    g->threads = ctx ? ctx->threads : 0;
+    const mr_springmass_params *p = g->p;
+    const char *grid_field = p->spacing > 0 ? "springmass/spacing" : "springmass/nodes";
+    int rc = rest_mesh(g, asset, &desc->transform, err);
+    if (rc < 0)
+        goto fail;
+    double *dpos = malloc((size_t)g->vertex_count * 3 * sizeof *dpos);
+    if (!dpos) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "springmass: out of memory");
+        goto fail;
+    }
+    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++)
+        dpos[k] = g->rest_pos[k];
+    size_t max_cells = ctx && ctx->memory_budget ? ctx->memory_budget / SM_BYTES_PER_CELL : 0;
+    sm_grid grid;
+    rc = sm_grid_build(dpos, g->vertex_count, g->indices, g->triangle_count, p->spacing, p->nodes,
+                       max_cells, g->threads, &grid, err);
+    free(dpos);
+    if (rc < 0) {
+        mr_error_prefix(err, "%s: %s: ", grid_field, asset->path);
+        goto fail;
+    }
+    if ((rc = sm_sim_new(&grid, p, g->threads, &g->sim, err)) < 0 ||
+        (rc = sm_map_new(g->sim, p->mapping, g->rest_pos, g->rest_nrm, g->vertex_count, g->threads,
+                         &g->map, err)) < 0) {
+        mr_error_prefix(err, "springmass: ");
+        goto fail;
+    }
+    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->threads);
+    state_id(g);
+    *out = g;
+    return MR_OK;
+fail:
+    springmass_free(g);
+    return rc;
+}
+
+static int springmass_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                             const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    (void)pose;
+    (void)transform; /* the simulation runs in world space: the transform placed the grid */
+    uint64_t target = (uint64_t)(frame ? frame->index : 0) * g->p->steps_per_frame;
+    uint64_t now = sm_sim_steps(g->sim);
+    if (target < now)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "springmass: frame %zu asked for after step %llu (rewind first)",
+                            frame ? frame->index : 0, (unsigned long long)now);
+    double t0 = mr_now();
+    int rc = sm_sim_advance(g->sim, target - now, threads, err);
+    double t1 = mr_now();
+    g->simulate_s = t1 - t0;
+    g->steps = target - now;
+    if (rc < 0)
+        return mr_error_prefix(err, "springmass: ");
+    sm_map_apply(g->map, g->sim, g->positions, g->normals, threads);
+    g->map_s = mr_now() - t1;
+    return MR_OK;
+}
+
+static int springmass_rewind(mr_geom *g, mr_error *err)
+{
+    (void)err;
+    sm_sim_reset(g->sim, g->threads);
+    return MR_OK;
+}
+
+static int springmass_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                             enum RTCBuildQuality quality, mr_error *err)
+{
+    return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions, g->vertex_count,
+                                    g->indices, g->triangle_count, &g->rtc, err);
+}
+
+static void springmass_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
+
+static mr_vec3 springmass_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const float *n0 = g->normals + (size_t)tri[0] * 3, *n1 = g->normals + (size_t)tri[1] * 3,
+                *n2 = g->normals + (size_t)tri[2] * 3;
+    float w = 1.0f - u - v;
+    return mr_v3(w * n0[0] + u * n1[0] + v * n2[0], w * n0[1] + u * n1[1] + v * n2[1],
+                 w * n0[2] + u * n1[2] + v * n2[2]);
+}
+
+static int springmass_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
+}
+
+static size_t springmass_memory(const mr_geom *g)
+{
+    return ((size_t)g->vertex_count * 12 + 2) * sizeof(float) +
+           (size_t)g->triangle_count * 3 * sizeof(uint32_t) + sm_sim_grid(g->sim)->cells * SM_BYTES_PER_CELL +
+           sm_map_bytes(g->map);
+}
+
+static uint64_t springmass_primitives(const mr_geom *g) { return g->triangle_count; }
+
+static const mr_kind_stat SPRINGMASS_STATS[] = {
+    {"simulate_s", "s", "Seconds the simulation steps of this frame took", MR_STAT_SUM},
+    {"map_s", "s", "Seconds mapping the detailed mesh to the nodes took", MR_STAT_SUM},
+    {"sim_steps", "count", "Steps of dt simulated for this frame", MR_STAT_SUM},
+    {"sim_substeps", "count", "Substeps per step the stability bound asks for (1: dt is below it)",
+     MR_STAT_MAX},
+    {"sim_energy", "energy",
+     "Kinetic plus spring plus gravity energy (gravity relative to rest) after the frame",
+     MR_STAT_SUM},
+    {"max_strain", "1", "Largest |length / rest length - 1| of a spring after the frame", MR_STAT_MAX},
+    {"inverted_cells", "count", "Grid cells with a corner of non-positive volume (inverted)",
+     MR_STAT_SUM},
+    {"sim_nodes", "count", "Nodes of the simulation grid", MR_STAT_SUM},
+};
+
+static void springmass_frame_stats(const mr_geom *g, double *values)
+{
+    const sm_measure *m = sm_sim_measure(g->sim);
+    values[0] = g->simulate_s;
+    values[1] = g->map_s;
+    values[2] = (double)g->steps;
+    values[3] = sm_sim_substeps(g->sim);
+    values[4] = m->kinetic + m->spring + m->gravity;
+    values[5] = m->max_strain;
+    values[6] = m->inverted_cells;
+    values[7] = (double)sm_sim_grid(g->sim)->nodes;
+}
+
+/* ---- checkpoints */
+
+static uint32_t springmass_checkpoint_every(const mr_geom *g) { return g->p->checkpoint_every; }
+
+static void springmass_checkpoint_id(const mr_geom *g, uint8_t id[32]) { memcpy(id, g->id, 32); }
+
+static int springmass_checkpoint_save(const mr_geom *g, uint64_t frames, uint8_t **buf, size_t *size,
+                                      mr_error *err)
+{
+    (void)frames;
+    size_t n = sm_sim_state_bytes(g->sim);
+    if (!(*buf = malloc(n)))
+        return mr_error_set(err, MR_ERR_NOMEM, "springmass: out of memory for a checkpoint");
+    sm_sim_state_save(g->sim, *buf);
+    *size = n;
+    return MR_OK;
+}
+
+static int springmass_checkpoint_load(mr_geom *g, uint64_t frames, const uint8_t *buf, size_t size,
+                                      mr_error *err)
+{
+    /* the state after `frames` frames has simulated up to frame frames - 1 */
+    uint64_t want = frames ? (frames - 1) * g->p->steps_per_frame : 0;
+    if (size >= 8) {
+        uint64_t steps = 0;
+        for (int i = 7; i >= 0; i--)
+            steps = steps << 8 | buf[i];
+        if (steps != want)
+            return mr_error_set(err, MR_ERR_FORMAT, "springmass state after %llu steps, want %llu",
+                                (unsigned long long)steps, (unsigned long long)want);
+    }
+    return sm_sim_state_load(g->sim, buf, size, g->threads, err);
+}
+
+/* ---- the "springmass" block */
+
+static const char *const MAPPINGS[] = {"one_to_one", "triangle_basis", "triangle_basis_curvature",
+                                       "trilinear"};
+static const char *const FORCE_TYPES[] = {"point", "wind"};
+
+enum { P_SPACING, P_NODES, P_STIFFNESS, P_SHEAR, P_DAMPING, P_MASS, P_GRAVITY, P_DT, P_STEPS };
+
+static int after_shear(void *values, const bool *given, mr_param_error *err)
+{
+    (void)err;
+    mr_springmass_params *p = values;
+    if (!given[P_SHEAR])
+        p->shear_stiffness = p->stiffness;
+    return MR_OK;
+}
+
+static int after_dt(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_springmass_params *p = values;
+    double h_crit;
+    if (sm_substeps(p, &h_crit) == 0)
+        return mr_param_fail(err, MR_ERR_LIMIT,
+                             given[P_DT] ? "dt" : given[P_STIFFNESS] ? "stiffness" : "mass",
+                             "dt %g s needs more than %u substeps under the stability bound %.3g s "
+                             "(sqrt(mass / (stiffness + 2 shear_stiffness)) = sqrt(%g / (%g + 2 x %g))): "
+                             "lower dt or the stiffness, or raise the mass",
+                             (double)p->dt, SM_MAX_SUBSTEPS, h_crit, (double)p->mass, (double)p->stiffness,
+                             (double)p->shear_stiffness);
+    return MR_OK;
+}
+
+static int after_steps(void *values, const bool *given, mr_param_error *err)
+{
+    (void)given;
+    const mr_springmass_params *p = values;
+    uint64_t per_frame = (uint64_t)p->steps_per_frame * sm_substeps(p, NULL);
+    if (per_frame > 100000)
+        return mr_param_fail(err, MR_ERR_LIMIT, "steps_per_frame",
+                             "%u steps of %u substeps each make %llu per frame, more than 100000",
+                             p->steps_per_frame, sm_substeps(p, NULL), (unsigned long long)per_frame);
+    return MR_OK;
+}
+
+/* Path keys in increasing time. */
+#define KEYS_INCREASING(type, keys, count, err)                                                    \
+    do {                                                                                           \
+        for (size_t k_ = 1; k_ < (count); k_++)                                                    \
+            if (!((keys)[k_].t > (keys)[k_ - 1].t))                                                \
+                return mr_param_fail(err, MR_ERR_INVALID, "path",                                  \
+                                     "keys must have increasing t: key %zu has t = %g, key %zu "   \
+                                     "t = %g",                                                     \
+                                     k_, (double)(keys)[k_].t, k_ - 1, (double)(keys)[k_ - 1].t);  \
+    } while (0)
+
+static int after_key_t(void *values, const bool *given, mr_param_error *err)
+{
+    (void)values;
+    if (!given[0])
+        return mr_param_fail(err, MR_ERR_INVALID, "", "a path key needs \"t\"");
+    return MR_OK;
+}
+
+static int after_probe_position(void *values, const bool *given, mr_param_error *err)
+{
+    (void)values;
+    if (!given[1])
+        return mr_param_fail(err, MR_ERR_INVALID, "", "a probe key needs \"position\"");
+    return MR_OK;
+}
+
+static int after_pin_path(void *values, const bool *given, mr_param_error *err)
+{
+    (void)given;
+    const mr_springmass_pin *pin = values;
+    KEYS_INCREASING(mr_springmass_pin_key, pin->path, pin->path_count, err);
+    return MR_OK;
+}
+
+static int after_pin_box(void *values, const bool *given, mr_param_error *err)
+{
+    (void)given;
+    const mr_springmass_pin *pin = values;
+    if (!(pin->box_min.x <= pin->box_max.x && pin->box_min.y <= pin->box_max.y &&
+          pin->box_min.z <= pin->box_max.z))
+        return mr_param_fail(err, MR_ERR_INVALID, "box_max", "expected box_max >= box_min on every axis");
+    return MR_OK;
+}
+
+static int after_pin_points(void *values, const bool *given, mr_param_error *err)
+{
+    (void)err;
+    mr_springmass_pin *pin = values;
+    pin->points_only = given[2] && !given[0] && !given[1];
+    return MR_OK;
+}
+
+static int after_pin_pivot(void *values, const bool *given, mr_param_error *err)
+{
+    (void)err;
+    mr_springmass_pin *pin = values;
+    pin->has_pivot = given[3];
+    return MR_OK;
+}
+
+static const mr_param PIN_POINT_PARAMS[] = {
+    {.field = "position", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin_point, position),
+     .lo = -1e9, .hi = 1e9, .description = "Where: the node nearest to it at rest is pinned."},
+};
+static const mr_param_table PIN_POINT_TABLE = {
+    .params = PIN_POINT_PARAMS, .count = 1, .size = sizeof(mr_springmass_pin_point), .expect = "a point object",
+    .plural = "point objects", .schema_rules = "{\"required\": [\"position\"]}"};
+
+static int after_probe_path(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_springmass_probe *pr = values;
+    if (!given[1])
+        return mr_param_fail(err, MR_ERR_INVALID, "", "a probe needs a path (one key or more)");
+    KEYS_INCREASING(mr_springmass_probe_key, pr->path, pr->path_count, err);
+    return MR_OK;
+}
+
+static int after_force_end(void *values, const bool *given, mr_param_error *err)
+{
+    (void)given;
+    const mr_springmass_force *f = values;
+    if (!(f->end > f->start))
+        return mr_param_fail(err, MR_ERR_INVALID, "end", "expected end > start (%g), got %g",
+                             (double)f->start, (double)f->end);
+    return MR_OK;
+}
+
+#define COORD 1e9
+#define BIG 1e12
+
+static const mr_param PIN_KEY_PARAMS[] = {
+    {.field = "t", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_pin_key, t), .lo = -1e9,
+     .hi = 1e9, .flags = MR_PARAM_NO_DEFAULT, .after = after_key_t,
+     .description = "Simulation time of the key, seconds."},
+    {.field = "translation", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin_key, translation),
+     .lo = -COORD, .hi = COORD, .description = "Where the pinned nodes are moved."},
+    {.field = "rotation", .type = MR_PARAM_QUAT, .offset = offsetof(mr_springmass_pin_key, rotation),
+     .description = "How they are turned about the pivot, [x, y, z, w]."},
+};
+static const mr_param_table PIN_KEY_TABLE = {
+    .params = PIN_KEY_PARAMS, .count = 3, .size = sizeof(mr_springmass_pin_key),
+    .expect = "a pin key object", .plural = "pin keys", .schema_rules = "{\"required\": [\"t\"]}"};
+
+static const mr_param PIN_PARAMS[] = {
+    {.field = "box_min", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin, box_min), .lo = -COORD,
+     .hi = COORD, .def3 = {-COORD, -COORD, -COORD},
+     .description = "Low corner of the box whose nodes (rest positions, world space) are pinned."},
+    {.field = "box_max", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin, box_max), .lo = -COORD,
+     .hi = COORD, .def3 = {COORD, COORD, COORD}, .after = after_pin_box,
+     .description = "High corner of that box (default: every node, unless points are given)."},
+    {.field = "points", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_pin, points),
+     .count_offset = offsetof(mr_springmass_pin, point_count), .max_items = MR_SPRINGMASS_MAX_POINTS,
+     .sub = &PIN_POINT_TABLE, .after = after_pin_points,
+     .description = "A node set: the nodes nearest to these points at rest (with a box, both; "
+                    "without one, only these)."},
+    {.field = "pivot", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_pin, pivot), .lo = -COORD,
+     .hi = COORD, .flags = MR_PARAM_NO_DEFAULT, .after = after_pin_pivot,
+     .description = "Centre of the path's rotations (default: the pinned nodes' centroid)."},
+    {.field = "path", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_pin, path),
+     .count_offset = offsetof(mr_springmass_pin, path_count), .max_items = MR_SPRINGMASS_MAX_KEYS,
+     .sub = &PIN_KEY_TABLE, .after = after_pin_path,
+     .description = "Keys moving the pinned nodes (default: they stay at rest)."},
+};
+static const mr_param_table PIN_TABLE = {
+    .params = PIN_PARAMS, .count = 5, .size = sizeof(mr_springmass_pin), .expect = "a pin object",
+    .plural = "pin objects"};
+
+static const mr_param PROBE_KEY_PARAMS[] = {
+    {.field = "t", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_probe_key, t), .lo = -1e9,
+     .hi = 1e9, .flags = MR_PARAM_NO_DEFAULT, .after = after_key_t,
+     .description = "Simulation time of the key, seconds."},
+    {.field = "position", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_probe_key, position),
+     .lo = -COORD, .hi = COORD, .flags = MR_PARAM_NO_DEFAULT, .after = after_probe_position,
+     .description = "The probe's centre, world space."},
+};
+static const mr_param_table PROBE_KEY_TABLE = {
+    .params = PROBE_KEY_PARAMS, .count = 2, .size = sizeof(mr_springmass_probe_key),
+    .expect = "a probe key object", .plural = "probe keys",
+    .schema_rules = "{\"required\": [\"t\", \"position\"]}"};
+
+static const mr_param PROBE_PARAMS[] = {
+    {.field = "radius", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_probe, radius), .lo = 0,
+     .hi = COORD, .flags = MR_PARAM_LO_OPEN, .def = 0.1, .description = "Radius of the spherical probe."},
+    {.field = "path", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_probe, path),
+     .count_offset = offsetof(mr_springmass_probe, path_count), .max_items = MR_SPRINGMASS_MAX_KEYS,
+     .sub = &PROBE_KEY_TABLE, .after = after_probe_path,
+     .description = "Keys of the probe's centre (linear between them)."},
+};
+static const mr_param_table PROBE_TABLE = {
+    .params = PROBE_PARAMS, .count = 2, .size = sizeof(mr_springmass_probe), .expect = "a probe object",
+    .plural = "probe objects", .schema_rules = "{\"required\": [\"path\"]}"};
+
+static const mr_param FORCE_PARAMS[] = {
+    {.field = "type", .type = MR_PARAM_ENUM, .offset = offsetof(mr_springmass_force, type),
+     MR_PARAM_CHOICES(FORCE_TYPES), .def = MR_SPRINGMASS_FORCE_POINT,
+     .description = "point: on the node nearest to position; wind: on every surface node."},
+    {.field = "position", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_force, position),
+     .lo = -COORD, .hi = COORD, .description = "Where a point force acts (its nearest node at rest)."},
+    {.field = "force", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_force, force), .lo = -BIG,
+     .hi = BIG, .description = "The force (wind: on each surface node)."},
+    {.field = "start", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_force, start), .lo = -1e9,
+     .hi = 1e9, .def = 0, .description = "Simulation time the force starts, seconds."},
+    {.field = "end", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_force, end), .lo = -1e9,
+     .hi = 1e9, .def = 1e9, .after = after_force_end,
+     .description = "Simulation time it stops (exclusive), seconds."},
+};
+static const mr_param_table FORCE_TABLE = {
+    .params = FORCE_PARAMS, .count = 5, .size = sizeof(mr_springmass_force), .expect = "a force object",
+    .plural = "force objects"};
+
+static const mr_param SPRINGMASS_PARAMS[] = {
+    [P_SPACING] = {.field = "spacing", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_params, spacing),
+                   .lo = 0, .hi = COORD, .flags = MR_PARAM_LO_OPEN | MR_PARAM_NO_DEFAULT, .conflicts = "nodes",
+                   .description = "Distance between neighbouring nodes, world units (instead of nodes)."},
+    [P_NODES] = {.field = "nodes", .type = MR_PARAM_INT, .offset = offsetof(mr_springmass_params, nodes),
+                 .lo = 1, .hi = SM_GRID_MAX_NODES, .def = 4096,
+                 .description = "About how many nodes fill the mesh (the spacing is found for it, within 5 %)."},
+    [P_STIFFNESS] = {.field = "stiffness", .type = MR_PARAM_NUMBER,
+                     .offset = offsetof(mr_springmass_params, stiffness), .lo = 0, .hi = BIG, .def = 1000,
+                     .description = "k of the 6 axis springs of a node (force per unit of stretch)."},
+    [P_SHEAR] = {.field = "shear_stiffness", .type = MR_PARAM_NUMBER,
+                 .offset = offsetof(mr_springmass_params, shear_stiffness), .lo = 0, .hi = BIG, .flags = MR_PARAM_NO_DEFAULT,
+                 .after = after_shear, .description = "k of the 12 diagonal springs (default: stiffness)."},
+    [P_DAMPING] = {.field = "damping", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_params, damping),
+                   .lo = 0, .hi = BIG, .def = 0.1,
+                   .description = "Viscous damping c: each node feels -c v (implicit: no stability cost)."},
+    [P_MASS] = {.field = "mass", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_params, mass),
+                .lo = 0, .hi = BIG, .flags = MR_PARAM_LO_OPEN, .def = 0.01, .description = "Mass of each node."},
+    [P_GRAVITY] = {.field = "gravity", .type = MR_PARAM_VEC3, .offset = offsetof(mr_springmass_params, gravity),
+                   .lo = -1e6, .hi = 1e6, .def3 = {0, -9.81, 0},
+                   .description = "Acceleration of gravity, world units per second squared."},
+    [P_DT] = {.field = "dt", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_springmass_params, dt), .lo = 0,
+              .hi = 1, .flags = MR_PARAM_LO_OPEN, .def = 1.0 / 360, .after = after_dt,
+              .description = "Seconds per step; above 0.9 of the stability bound sqrt(mass / (stiffness + "
+                             "2 shear_stiffness)) each step is split into substeps."},
+    [P_STEPS] = {.field = "steps_per_frame", .type = MR_PARAM_INT,
+                 .offset = offsetof(mr_springmass_params, steps_per_frame), .lo = 1, .hi = 100000, .def = 15,
+                 .after = after_steps,
+                 .description = "Steps between frames: frame k shows the simulation at k steps_per_frame dt."},
+    {.field = "mapping", .type = MR_PARAM_ENUM, .offset = offsetof(mr_springmass_params, mapping),
+     MR_PARAM_CHOICES(MAPPINGS), .def = MR_SPRINGMASS_TRIANGLE_CURVATURE,
+     .description = "How the detailed mesh follows the nodes: one_to_one (3.2), triangle_basis (3.3.1), "
+                    "triangle_basis_curvature (3.3.2) or trilinear (the cell's trilinear displacement, the "
+                    "reference)."},
+    {.field = "checkpoint_every", .type = MR_PARAM_INT,
+     .offset = offsetof(mr_springmass_params, checkpoint_every), .lo = 0, .hi = 100000, .def = 8,
+     .description = "Frames between checkpoints of the simulation state (0: none)."},
+    {.field = "pins", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_params, pins),
+     .count_offset = offsetof(mr_springmass_params, pin_count), .max_items = MR_SPRINGMASS_MAX_PINS,
+     .sub = &PIN_TABLE, .description = "Nodes held in place or moved along a path (the first pin holding a node wins)."},
+    {.field = "probes", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_params, probes),
+     .count_offset = offsetof(mr_springmass_params, probe_count), .max_items = MR_SPRINGMASS_MAX_PROBES,
+     .sub = &PROBE_TABLE, .description = "Spheres pressing nodes out of their way along a path."},
+    {.field = "forces", .type = MR_PARAM_ARRAY, .offset = offsetof(mr_springmass_params, forces),
+     .count_offset = offsetof(mr_springmass_params, force_count), .max_items = MR_SPRINGMASS_MAX_FORCES,
+     .sub = &FORCE_TABLE, .description = "Point forces and wind over time."},
+};
+
+static const mr_param_table SPRINGMASS_TABLE = {
+    .params = SPRINGMASS_PARAMS,
+    .count = sizeof SPRINGMASS_PARAMS / sizeof SPRINGMASS_PARAMS[0],
+    .size = sizeof(mr_springmass_params),
+    .expect = "an object of springmass parameters",
+};
+
+const mr_kind mr_kind_springmass = {
+    .name = "springmass",
+    .summary = "Parameters of a spring-mass object (kind \"springmass\", paper 001): a grid of nodes "
+               "filling the asset is simulated and the detailed mesh follows it through a mapping.",
+    .params = &SPRINGMASS_TABLE,
+    .frame_order = MR_FRAMES_SEQUENTIAL,
+    .has_derived = true,
+    .stats = SPRINGMASS_STATS,
+    .stat_count = sizeof SPRINGMASS_STATS / sizeof SPRINGMASS_STATS[0],
+    .self_posed = true,
+    .create = springmass_create,
+    .update = springmass_update,
+    .attach = springmass_attach,
+    .commit = springmass_commit,
+    .normal = springmass_normal,
+    .tessellate = springmass_tessellate,
+    .memory = springmass_memory,
+    .primitives = springmass_primitives,
+    .frame_stats = springmass_frame_stats,
+    .rewind = springmass_rewind,
+    .checkpoint_every = springmass_checkpoint_every,
+    .checkpoint_id = springmass_checkpoint_id,
+    .checkpoint_save = springmass_checkpoint_save,
+    .checkpoint_load = springmass_checkpoint_load,
+    .free = springmass_free,
+};

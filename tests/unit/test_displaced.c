@@ -1,0 +1,599 @@
+/*
+ * test_displaced.c - the displaced kind's parts (issue 14):
+ *  - affine arithmetic (math/affine_arith.h): every operation's interval
+ *    holds the exact value at sampled corners and interior points of its
+ *    parameter square (exact: computed in long double, whose 64-bit
+ *    mantissa holds the products of doubles' sums here far better than the
+ *    bounds' margin);
+ *  - the min/max pyramid of textures of any size and sample type: every
+ *    node's bounds hold every sample of its cells (brute force), and the
+ *    quantisation never cuts into them;
+ *  - the surface: a cell clearly inside a base triangle is made directly
+ *    with exactly the triangles (vertex records and order) that cutting it
+ *    makes;
+ *  - bounds: every micro-vertex lies in its triangle's Embree box and in the
+ *    box (3D and local frame) of the cell it belongs to;
+ *  - the traversal: rays through Embree and the kind's callbacks against the
+ *    brute force over the tessellation (displaced_fixture.h): identical hits,
+ *    t bit for bit, on a plane, a bumpy mesh with varying normals, and a
+ *    UV sphere (examples/models/sphere960.obj);
+ *  - a constant texture is the base mesh offset along its unit normals.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <float.h>
+#include <math.h>
+
+#include "../support/displaced_fixture.h"
+#include "kinds/displaced/dgrid.h"
+#include "kinds/displaced/dsurf.h"
+#include "kinds/displaced/dtrace.h"
+#include "kinds/displaced/tiling.h"
+#include "math/affine_arith.h"
+
+/* ---- affine arithmetic ---------------------------------------------------------- */
+
+typedef struct af_exact {
+    long double c, u, v; /* the form without its K term, evaluated exactly enough */
+} af_exact;
+
+static mr_af rnd_form(uint64_t *s)
+{
+    double scale = ldexp(1.0, (int)(rnd(s) % 40) - 20);
+    return (mr_af){(rnd01(s) - 0.5) * scale, (rnd01(s) - 0.5) * scale, (rnd01(s) - 0.5) * scale, 0};
+}
+
+static long double at(mr_af a, long double eu, long double ev)
+{
+    return (long double)a.c + (long double)a.u * eu + (long double)a.v * ev;
+}
+
+static void test_affine_arith(void **state)
+{
+    (void)state;
+    uint64_t s = 12345;
+    int fails = 0;
+    for (int k = 0; k < 20000; k++) {
+        mr_af a = rnd_form(&s), b = rnd_form(&s);
+        double sc = (rnd01(&s) - 0.5) * 1e3;
+        mr_af sum = mr_af_add(a, b), dif = mr_af_sub(a, b), pro = mr_af_mul(a, b),
+              sq = mr_af_sqr(a), scl = mr_af_scale(a, sc);
+        mr_interval is = mr_af_interval(sum), id = mr_af_interval(dif), ip = mr_af_interval(pro),
+                    iq = mr_af_interval(sq), ic = mr_af_interval(scl);
+        for (int e = 0; e < 9; e++) {
+            long double eu = e < 4 ? (e & 1 ? 1 : -1) : (long double)(rnd01(&s) * 2 - 1);
+            long double ev = e < 4 ? (e & 2 ? 1 : -1) : (long double)(rnd01(&s) * 2 - 1);
+            long double x = at(a, eu, ev), y = at(b, eu, ev);
+            long double vs = x + y, vd = x - y, vp = x * y, vq = x * x, vc = x * sc;
+            fails += vs < is.lo || vs > is.hi;
+            fails += vd < id.lo || vd > id.hi;
+            fails += vp < ip.lo || vp > ip.hi;
+            fails += vq < iq.lo || vq > iq.hi;
+            fails += vc < ic.lo || vc > ic.hi;
+        }
+        assert_true(sum.k >= 0 && pro.k >= 0 && sq.k >= 0);
+        assert_true(iq.lo >= -mr_af_radius(sq) - fabs(sq.c)); /* sanity */
+    }
+    assert_int_equal(fails, 0);
+    /* the hazards: sqrt of an interval reaching below 0, 1/x of one reaching 0 */
+    mr_interval r = mr_interval_sqrt((mr_interval){-1e-9, 4});
+    assert_true(r.lo == 0 && r.hi >= 2);
+    mr_interval inv;
+    assert_false(mr_interval_recip((mr_interval){0, 1}, &inv));
+    assert_false(mr_interval_recip((mr_interval){-1, 1}, &inv));
+    assert_true(mr_interval_recip((mr_interval){2, 4}, &inv));
+    assert_true(inv.lo <= 0.25 && inv.hi >= 0.5);
+}
+
+/* ---- the pyramid ----------------------------------------------------------------- */
+
+static void test_pyramid_any_size(void **state)
+{
+    (void)state;
+    static const uint32_t SIZES[][2] = {{1, 1}, {1, 7}, {7, 1}, {5, 3}, {64, 64}, {257, 129}, {400, 400}};
+    static const mr_sample_type TYPES[] = {MR_SAMPLE_U8, MR_SAMPLE_U16, MR_SAMPLE_F32};
+    uint64_t seed = 99;
+    for (size_t si = 0; si < sizeof SIZES / sizeof SIZES[0]; si++)
+        for (size_t ti = 0; ti < 3; ti++) {
+            mr_asset *tex = dfx_texture(SIZES[si][0], SIZES[si][1], TYPES[ti], dfx_noise, &seed);
+            if (TYPES[ti] == MR_SAMPLE_F32) /* signed, non-integer values */
+                for (size_t k = 0; k < (size_t)SIZES[si][0] * SIZES[si][1]; k++)
+                    ((float *)tex->image->samples)[k] = ((float *)tex->image->samples)[k] * 0.37f - 40;
+            mr_dgrid g;
+            mr_error err;
+            assert_int_equal(mr_dgrid_init(&g, tex->image, 0, -2.0, 0.5, 2, &err), MR_OK);
+            assert_true(g.lw[g.levels] == 1 && g.lh[g.levels] == 1);
+            for (unsigned l = 0; l <= g.levels; l++)
+                for (uint32_t J = 0; J < g.lh[l]; J++)
+                    for (uint32_t I = 0; I < g.lw[l]; I++) {
+                        double lo, hi;
+                        mr_dgrid_node_samples(&g, l, I, J, &lo, &hi);
+                        /* the node's cells' corners, by brute force */
+                        uint64_t x0 = (uint64_t)I << l, y0 = (uint64_t)J << l;
+                        uint64_t x1 = ((uint64_t)(I + 1) << l) < g.w ? (uint64_t)(I + 1) << l : g.w;
+                        uint64_t y1 = ((uint64_t)(J + 1) << l) < g.h ? (uint64_t)(J + 1) << l : g.h;
+                        double mn = INFINITY, mx = -INFINITY;
+                        for (uint64_t y = y0; y <= y1; y++)
+                            for (uint64_t x = x0; x <= x1; x++) {
+                                double v = mr_dgrid_sample(&g, (uint32_t)(x % g.w), (uint32_t)(y % g.h));
+                                mn = fmin(mn, v), mx = fmax(mx, v);
+                            }
+                        if (!(lo <= mn && hi >= mx))
+                            fail_msg("%ux%u type %d level %u node (%u, %u): [%g, %g] misses [%g, %g]",
+                                     g.w, g.h, (int)TYPES[ti], l, I, J, lo, hi, mn, mx);
+                        /* quantised, but never looser than one step and a bit */
+                        if (l > 0)
+                            assert_true(lo >= mn - 3 * g.qstep - 1e-12 && hi <= mx + 3 * g.qstep + 1e-12);
+                        double hl, hh;
+                        mr_dgrid_node_heights(&g, l, I, J, &hl, &hh);
+                        assert_true(hl <= mr_dgrid_height_of(&g, mx) && hh >= mr_dgrid_height_of(&g, mn));
+                    }
+            mr_dgrid_free(&g);
+            mr_asset_free(tex);
+        }
+}
+
+/* ---- the surface ------------------------------------------------------------------- */
+
+static double tex_height(const void *src, int64_t i, int64_t j)
+{
+    (void)src;
+    int64_t m = (i * 7 + j * 13) % 11;
+    return 0.01 * (double)(m < 0 ? m + 11 : m) - 0.03; /* in [-0.03, 0.07] */
+}
+
+static void rnd_base(uint64_t *s, mr_dbase *b, float P[3][3], float N[3][3], double scale)
+{
+    double g[3][2];
+    for (int k = 0; k < 3; k++) {
+        g[k][0] = (rnd01(s) - 0.5) * scale;
+        g[k][1] = (rnd01(s) - 0.5) * scale;
+        mr_vec3 p = rnd_vec(s, -1, 1), n = rnd_unit(s);
+        P[k][0] = p.x, P[k][1] = p.y, P[k][2] = p.z;
+        N[k][0] = n.x, N[k][1] = n.y, N[k][2] = n.z;
+        if (k) /* keep normals roughly agreeing */
+            for (int c = 0; c < 3; c++)
+                N[k][c] = 0.5f * N[k][c] + N[0][c];
+    }
+    const float *p[3] = {P[0], P[1], P[2]}, *n[3] = {N[0], N[1], N[2]};
+    mr_dheights hs = {tex_height, NULL};
+    mr_dbase_init(b, g, p, n, &hs);
+}
+
+static void test_whole_cells_are_cut_cells(void **state)
+{
+    (void)state;
+    uint64_t s = 7;
+    int whole = 0;
+    for (int k = 0; k < 300; k++) {
+        mr_dbase b;
+        float P[3][3], N[3][3];
+        rnd_base(&s, &b, P, N, 2 + 40 * rnd01(&s));
+        int64_t i0, i1, j0, j1;
+        mr_dbase_cells(&b, &i0, &i1, &j0, &j1);
+        for (int64_t j = j0; j <= j1; j++)
+            for (int64_t i = i0; i <= i1; i++) {
+                if (!mr_dsurf_cell_inside(&b, i, j))
+                    continue;
+                whole++;
+                mr_dcell fast, cut;
+                mr_dsurf_cell(&b, i, j, 2, &fast);
+                mr_dsurf_cell_cut(&b, i, j, 2, &cut);
+                assert_int_equal(fast.nt, cut.nt);
+                for (int t = 0; t < fast.nt; t++)
+                    for (int c = 0; c < 3; c++) {
+                        const mr_dvert *a = &fast.v[fast.tri[t][c]], *d = &cut.v[cut.tri[t][c]];
+                        assert_int_equal(a->kind, MR_DV_GRID);
+                        assert_int_equal(d->kind, MR_DV_GRID);
+                        assert_true(a->a == d->a && a->b == d->b);
+                    }
+            }
+    }
+    assert_true(whole > 1000);
+}
+
+/* Every micro-vertex lies in its triangle's box and its cell's boxes. */
+static void test_boxes_hold_micro_vertices(void **state)
+{
+    (void)state;
+    uint64_t s = 3;
+    mr_dheights hs = {tex_height, NULL};
+    long checked = 0;
+    for (int k = 0; k < 200; k++) {
+        mr_dbase b;
+        float P[3][3], N[3][3];
+        rnd_base(&s, &b, P, N, 3 + 20 * rnd01(&s));
+        if (b.flat)
+            continue;
+        mr_dgrad gr = {0};
+        mr_dgrad_init(&gr, &b, -0.03, 0.07);
+        float tlo[3], thi[3];
+        mr_dtrace_tri_box(&b, &hs, &gr, tlo, thi);
+        int64_t i0, i1, j0, j1;
+        mr_dbase_cells(&b, &i0, &i1, &j0, &j1);
+        for (int64_t j = j0; j <= j1; j++)
+            for (int64_t i = i0; i <= i1; i++) {
+                mr_dcell c;
+                mr_dsurf_cell(&b, i, j, 2, &c);
+                float clo[3], chi[3];
+                bool boxed = mr_dtrace_rect_box(&b, &gr, (double)i, (double)i + 1, (double)j,
+                                                (double)j + 1, -0.03, 0.07, clo, chi);
+                for (int v = 0; v < c.nv; v++) {
+                    mr_vec3 x = mr_dsurf_vertex(&b, &hs, &c.v[v]);
+                    float xv[3] = {x.x, x.y, x.z};
+                    assert_true(boxed);
+                    for (int a = 0; a < 3; a++) {
+                        assert_true(xv[a] >= tlo[a] && xv[a] <= thi[a]);
+                        assert_true(xv[a] >= clo[a] && xv[a] <= chi[a]);
+                    }
+                    double l[3];
+                    if (gr.local) {
+                        mr_dtrace_local_point(&gr, &b, x, l);
+                        double lo[3], hi[3];
+                        mr_dtrace_local_box(&gr, (double)i, (double)i + 1, (double)j,
+                                            (double)j + 1, -0.03, 0.07, lo, hi);
+                        for (int a = 0; a < 3; a++)
+                            if (!(l[a] >= lo[a] && l[a] <= hi[a]))
+                                fail_msg("local coordinate %d of a micro-vertex %.17g outside "
+                                         "[%.17g, %.17g]", a, l[a], lo[a], hi[a]);
+                    }
+                    checked++;
+                }
+            }
+    }
+    assert_true(checked > 10000);
+}
+
+/* ---- the traversal ----------------------------------------------------------------- */
+
+static const float PLANE_P[] = {-1, 0, 1, 1, 0, 1, 1, 0, -1, -1, 0, -1};
+static const float PLANE_N[] = {0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 0};
+static const float PLANE_UV[] = {0, 0, 1, 0, 1, 1, 0, 1};
+static const uint32_t PLANE_I[] = {0, 1, 2, 0, 2, 3};
+
+static void test_plane_against_brute_force(void **state)
+{
+    (void)state;
+    uint64_t seed = 11;
+    mr_asset *mesh = dfx_mesh(PLANE_P, PLANE_N, PLANE_UV, 4, PLANE_I, 2);
+    mr_asset *tex = dfx_texture(37, 23, MR_SAMPLE_U8, dfx_noise, &seed); /* not a power of two */
+    dfx f = {0};
+    dfx_params(&f, 0.2f, -0.05f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 3000), 0);
+    assert_true(f.hits > 1000);
+    /* straight down the middle of every texel corner: edges and vertices */
+    int bad = 0;
+    for (int j = 0; j <= 23; j++)
+        for (int i = 0; i <= 37; i++) {
+            float x = -1 + 2.0f * i / 37, z = 1 - 2.0f * j / 23;
+            bad += dfx_check_ray(&f, mr_v3(x, 2, z), mr_v3(0, -1, 0), 0, INFINITY);
+            bad += dfx_check_ray(&f, mr_v3(x + 0.3f, 1, z - 0.2f), mr_v3(-0.3f, -1, 0.2f), 0, INFINITY);
+        }
+    assert_int_equal(bad, 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
+/* A 5 x 4 grid of quads, bumpy, with random normals and UVs repeating 3x. */
+static mr_asset *bumpy_grid(uint64_t *s, float uv_repeat)
+{
+    enum { NX = 6, NY = 5 };
+    float P[NX * NY * 3], N[NX * NY * 3], UV[NX * NY * 2];
+    uint32_t I[(NX - 1) * (NY - 1) * 6];
+    for (int y = 0; y < NY; y++)
+        for (int x = 0; x < NX; x++) {
+            int v = y * NX + x;
+            P[v * 3] = (float)x * 0.4f - 1, P[v * 3 + 1] = rndf(s, -0.15f, 0.15f),
+            P[v * 3 + 2] = (float)y * 0.4f - 0.8f;
+            mr_vec3 n = mr_v3_normalize_or(mr_v3_add(mr_v3(0, 1.5f, 0), rnd_unit(s)), mr_v3(0, 1, 0));
+            N[v * 3] = n.x, N[v * 3 + 1] = n.y, N[v * 3 + 2] = n.z;
+            UV[v * 2] = uv_repeat * (float)x / (NX - 1);
+            UV[v * 2 + 1] = uv_repeat * (float)y / (NY - 1);
+        }
+    int k = 0;
+    for (int y = 0; y + 1 < NY; y++)
+        for (int x = 0; x + 1 < NX; x++) {
+            uint32_t a = (uint32_t)(y * NX + x), b = a + 1, c = a + NX, d = c + 1;
+            uint32_t q[6] = {a, b, d, a, d, c};
+            memcpy(I + k, q, sizeof q);
+            k += 6;
+        }
+    return dfx_mesh(P, N, UV, NX * NY, I, (NX - 1) * (NY - 1) * 2);
+}
+
+static void test_bumpy_mesh_against_brute_force(void **state)
+{
+    (void)state;
+    uint64_t seed = 21;
+    mr_asset *mesh = bumpy_grid(&seed, 3);
+    mr_asset *tex = dfx_texture(16, 9, MR_SAMPLE_U16, dfx_noise, &seed);
+    dfx f = {0};
+    dfx_params(&f, 0.3f, 0.0f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 3000), 0);
+    /* the same object at a mip level, and with bilinear leaves off: the
+     * tessellation is triangles, so only "triangles" is compared */
+    dfx_close(&f);
+    f.par.level = 2;
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 2000), 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
+static void test_sphere_against_brute_force(void **state)
+{
+    (void)state;
+    const char *dir = getenv("MR_SOURCE_DIR");
+    char path[1024];
+    snprintf(path, sizeof path, "%s/examples/models/sphere960.obj", dir ? dir : ".");
+    mr_asset *mesh = NULL;
+    mr_error err;
+    if (mr_asset_load(path, &mesh, &err) != MR_OK)
+        fail_msg("%s", err.msg);
+    assert_int_equal(mr_asset_triangle_count(mesh), 960);
+    uint64_t seed = 31;
+    mr_asset *tex = dfx_texture(40, 30, MR_SAMPLE_U8, dfx_noise, &seed);
+    dfx f = {0};
+    dfx_params(&f, 0.1f, 0.0f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
+/* A constant texture is the base mesh moved by offset + scale * value along
+ * its unit normals: on the plane, exactly the plane at that height. */
+static double constant(uint32_t x, uint32_t y, void *user)
+{
+    (void)x, (void)y, (void)user;
+    return 128;
+}
+
+static void test_constant_texture_is_offset_base(void **state)
+{
+    (void)state;
+    mr_asset *mesh = dfx_mesh(PLANE_P, PLANE_N, PLANE_UV, 4, PLANE_I, 2);
+    mr_asset *tex = dfx_texture(13, 7, MR_SAMPLE_U8, constant, NULL);
+    dfx f = {0};
+    dfx_params(&f, 0.255f, 0.1f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    float h = (float)(0.1 + 0.255 * (128.0 / 255.0));
+    for (uint32_t v = 0; v < f.tess.vertex_count; v++)
+        assert_true(fabsf(f.tess.positions[v * 3 + 1] - h) <= 1e-7f);
+    uint64_t seed = 5;
+    int bad = 0;
+    for (int k = 0; k < 500; k++) {
+        float x = rndf(&seed, -0.99f, 0.99f), z = rndf(&seed, -0.99f, 0.99f);
+        float t;
+        mr_vec3 ng;
+        assert_true(dfx_trace(&f, mr_v3(x, 3, z), mr_v3(0, -1, 0), 0, INFINITY, &t, &ng));
+        bad += fabsf(3 - t - h) > 1e-6f;
+        mr_vec3 n = mr_v3_normalize_or(ng, mr_v3(0, 0, 0));
+        bad += fabsf(fabsf(n.y) - 1) > 1e-5f;
+    }
+    assert_int_equal(bad, 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
+/* ---- tiling and blending ------------------------------------------------------------ */
+
+/* The triforce subdivision (tiling.h) of a lattice triangle of leg R,
+ * taken down to leaves of leg 1, yields every cell half of the triangle
+ * exactly once (brute force over the triangle's cells), in both
+ * orientations. */
+static void collect_leaves(int64_t bx, int64_t by, int64_t s, int64_t (*out)[3], int *n)
+{
+    if (s == 1 || s == -1) {
+        out[*n][0] = s > 0 ? bx : bx - 1;
+        out[*n][1] = s > 0 ? by : by - 1;
+        out[*n][2] = s > 0 ? 0 : 1;
+        (*n)++;
+        return;
+    }
+    int64_t c[4][3];
+    mr_dproc_children(bx, by, s, c);
+    for (int k = 0; k < 4; k++)
+        collect_leaves(c[k][0], c[k][1], c[k][2], out, n);
+}
+
+static void test_triforce_against_brute_force(void **state)
+{
+    (void)state;
+    for (int64_t R = 1; R <= 32; R *= 2)
+        for (int o = 0; o < 2; o++) {
+            /* the lower triangle of square (3, -2), or its upper one */
+            int64_t bx = o ? 4 * R : 3 * R, by = o ? -1 * R : -2 * R, s = o ? -R : R;
+            static int64_t leaves[2048][3];
+            int n = 0;
+            collect_leaves(bx, by, s, leaves, &n);
+            assert_int_equal(n, (int)(R * R));
+            static unsigned char seen[64][64][2];
+            memset(seen, 0, sizeof seen);
+            for (int k = 0; k < n; k++) {
+                int64_t i = leaves[k][0] - 3 * R, j = leaves[k][1] + 2 * R;
+                assert_true(i >= 0 && i < R && j >= 0 && j < R);
+                /* a half lies in the lower lattice triangle when its cell
+                 * is below the square's anti-diagonal */
+                bool lower_half = leaves[k][2] == 0;
+                bool in_lower = lower_half ? i + j <= R - 1 : i + j <= R - 2;
+                assert_true(in_lower == !o);
+                assert_false(seen[i][j][leaves[k][2]]);
+                seen[i][j][leaves[k][2]] = 1;
+            }
+        }
+}
+
+static mr_asset *cracked(void)
+{
+    mr_asset *a = NULL;
+    mr_error err;
+    if (mr_asset_load("/usr/share/assimp/models/IRRMesh/crackedground_1-6.jpg", &a, &err) != MR_OK)
+        fail_msg("%s", err.msg);
+    return a;
+}
+
+/* Bounds of every triforce node hold the heights of its grid points (all
+ * of them, the three corners included), and the global bound holds all. */
+static void test_tiling_bounds(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dproc p;
+    mr_error err;
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 16, 0.2, -0.05, 2, &err),
+                     MR_OK);
+    double glo, ghi;
+    mr_dproc_global_heights(&p, &glo, &ghi);
+    long checked = 0;
+    for (int sq = 0; sq < 6; sq++)
+        for (int o = 0; o < 2; o++) {
+            int64_t ax = sq * 3 - 5, ay = 2 - sq;
+            int64_t bx = (o ? ax + 1 : ax) * 16, by = (o ? ay + 1 : ay) * 16, s = o ? -16 : 16;
+            /* every node of the subdivision */
+            int64_t stack[256][3];
+            int sp = 0;
+            stack[sp][0] = bx, stack[sp][1] = by, stack[sp++][2] = s;
+            while (sp) {
+                sp--;
+                int64_t x = stack[sp][0], y = stack[sp][1], l = stack[sp][2];
+                double lo, hi;
+                mr_dproc_tri_heights(&p, x, y, l, &lo, &hi);
+                int64_t a = l > 0 ? l : -l;
+                for (int64_t dj = 0; dj <= a; dj++)
+                    for (int64_t di = 0; di + dj <= a; di++) {
+                        int64_t gi = x + (l > 0 ? di : -di), gj = y + (l > 0 ? dj : -dj);
+                        double h = mr_dproc_height(&p, gi, gj);
+                        if (!(h >= lo && h <= hi && h >= glo && h <= ghi))
+                            fail_msg("node (%lld %lld %lld): height %.17g at (%lld %lld) outside "
+                                     "[%.17g, %.17g]", (long long)x, (long long)y, (long long)l, h,
+                                     (long long)gi, (long long)gj, lo, hi);
+                        checked++;
+                    }
+                if (a > 1) {
+                    int64_t c[4][3];
+                    mr_dproc_children(x, y, l, c);
+                    for (int k = 0; k < 4; k++)
+                        memcpy(stack[sp++], c[k], sizeof c[k]);
+                }
+            }
+        }
+    assert_true(checked > 10000);
+    mr_dproc_free(&p);
+    mr_asset_free(ex);
+}
+
+/* The histogram of the tiled-and-blended heights matches the example's
+ * (T^-1 restores it: HN18), and the texture does not repeat at the
+ * example's period (a plain repeat correlates 1 with itself there).
+ * Figures printed for the README. */
+static void test_tiling_histogram_and_period(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dproc p;
+    mr_error err;
+    /* one example tile per texture unit; grid points every 1/64 lattice */
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0, 0, 1, 0.25, 3, 64, 1.0, 0.0, 2, &err), MR_OK);
+    enum { BINS = 64, N = 512 };
+    double hex[BINS] = {0}, hp[BINS] = {0};
+    double unit = mr_image_unit(ex->image);
+    size_t ne = (size_t)ex->image->width * ex->image->height;
+    for (uint32_t y = 0; y < ex->image->height; y++)
+        for (uint32_t x = 0; x < ex->image->width; x++) {
+            int b = (int)(mr_image_sample(ex->image, x, y) / unit * BINS);
+            hex[b < BINS ? b : BINS - 1] += 1.0 / (double)ne;
+        }
+    /* a patch of the procedural texture sampled in texture space: the grid
+     * point nearest each sample (lattice = texture / 0.25, skewed) */
+    static double img[N][N];
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++) {
+            double g[2];
+            mr_dproc_grid_of(&p, (float)(x / 256.0 + 0.5), (float)(y / 256.0 + 0.5), g);
+            double h = mr_dproc_height(&p, (int64_t)floor(g[0]), (int64_t)floor(g[1]));
+            img[y][x] = h;
+            int b = (int)(h * BINS);
+            hp[b < 0 ? 0 : b < BINS ? b : BINS - 1] += 1.0 / (N * N);
+        }
+    /* histogram distance: half the L1 distance (total variation, 0..1) */
+    double tv = 0;
+    for (int b = 0; b < BINS; b++)
+        tv += 0.5 * fabs(hex[b] - hp[b]);
+    /* autocorrelation at one example period (256 samples = 1 texture unit) */
+    double mean = 0, var = 0, cov = 0;
+    int m = 0;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++)
+            mean += img[y][x];
+    mean /= N * N;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++)
+            var += (img[y][x] - mean) * (img[y][x] - mean);
+    var /= N * N;
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x + 256 < N; x++, m++)
+            cov += (img[y][x] - mean) * (img[y][x + 256] - mean);
+    double ac = cov / m / var;
+    print_message("tiling and blending of crackedground_1-6.jpg: histogram distance (total "
+                  "variation, 64 bins) %.4f, autocorrelation at the example's period %.4f "
+                  "(a plain repeat: 1)\n", tv, ac);
+    assert_true(tv < 0.1);
+    assert_true(fabs(ac) < 0.2);
+    mr_dproc_free(&p);
+    mr_asset_free(ex);
+}
+
+static void test_procedural_against_brute_force(void **state)
+{
+    (void)state;
+    uint64_t seed = 41;
+    mr_asset *mesh = bumpy_grid(&seed, 1);
+    mr_asset *ex = cracked();
+    dfx f = {0};
+    dfx_params(&f, 0.15f, 0);
+    f.par.texture = 0;
+    f.par.procedural = true;
+    f.par.example = 2;
+    f.par.uv_scale = 0.5f;
+    f.par.range = 8;
+    dfx_open(&f, mesh, ex, NULL, NULL, 0);
+    assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(ex);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_affine_arith),
+        cmocka_unit_test(test_pyramid_any_size),
+        cmocka_unit_test(test_whole_cells_are_cut_cells),
+        cmocka_unit_test(test_boxes_hold_micro_vertices),
+        cmocka_unit_test(test_plane_against_brute_force),
+        cmocka_unit_test(test_bumpy_mesh_against_brute_force),
+        cmocka_unit_test(test_sphere_against_brute_force),
+        cmocka_unit_test(test_constant_texture_is_offset_base),
+        cmocka_unit_test(test_triforce_against_brute_force),
+        cmocka_unit_test(test_tiling_bounds),
+        cmocka_unit_test(test_tiling_histogram_and_period),
+        cmocka_unit_test(test_procedural_against_brute_force),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
