@@ -80,7 +80,19 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
         ng = mr_v3_scale(ng, -1.0f);
     mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v);
     n = mr_v3_normalize_or(n, ng);
-    if (mr_v3_dot(n, dir) > 0)
+    float step = obj->kind->surface_step ? obj->kind->surface_step(obj->geom, h->prim, h->u, h->v) : 0.0f;
+    /* A shading normal facing away from the viewer: a smooth surface seen
+     * from behind its interpolated normals is turned round. A voxel whose
+     * surface faces away is seen only because it sticks out past the
+     * silhouette of the surface it stands for (boxes hold the surface and
+     * more); there that surface is seen edge-on, its normal at right
+     * angles to the ray: the normal's part across the ray. Turned round
+     * instead, it lit silhouettes as if they faced the other way (dark
+     * pixels along creases and arms). */
+    float facing = mr_v3_dot(n, dir);
+    if (facing > 0 && step > 0)
+        n = mr_v3_normalize_or(mr_v3_sub(n, mr_v3_scale(dir, facing)), ng);
+    else if (facing > 0)
         n = mr_v3_scale(n, -1.0f);
     out->hit = true;
     out->t = h->t;
@@ -115,7 +127,6 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
      * / 2.12 / 2.14 % isolated dark pixels, the rigid crowd 5.19 / 5.26 /
      * 5.37 % and the skeleton 1.86 / 1.11 / 1.10 %: 3 keeps contact shadows
      * within 3 voxels (README, "Error metrics"). */
-    float step = obj->kind->surface_step ? obj->kind->surface_step(obj->geom, h->prim, h->u, h->v) : 0.0f;
     bool stepped = step > 0;
     if (stepped)
         shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * step));
