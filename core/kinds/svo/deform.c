@@ -236,8 +236,11 @@ void mr_svo_extremes_free(mr_svo_extremes *e)
         return;
     free(e->lo_attr);
     free(e->hi_attr);
+    free(e->normal);
     memset(e, 0, sizeof *e);
 }
+
+static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf);
 
 int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err)
 {
@@ -254,7 +257,10 @@ int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err
         return mr_error_set(err, MR_ERR_INVALID, "svo extremes: octree arrays missing");
     out->lo_attr = malloc((size_t)n * sizeof *out->lo_attr);
     out->hi_attr = malloc((size_t)n * sizeof *out->hi_attr);
-    if (!out->lo_attr || !out->hi_attr) {
+    out->normal = malloc((size_t)n * sizeof *out->normal);
+    double (*sum)[3] = calloc(n, sizeof *sum);
+    if (!out->lo_attr || !out->hi_attr || !out->normal || !sum) {
+        free(sum);
         mr_svo_extremes_free(out);
         return mr_error_set(err, MR_ERR_NOMEM, "svo extremes: out of memory (%u nodes)", n);
     }
@@ -263,6 +269,7 @@ int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err
      * than its parent: one reverse pass sees children before parents. */
     for (uint32_t k = n; k-- > 0;) {
         if (!masks_ok(svo, k)) {
+            free(sum);
             mr_svo_extremes_free(out);
             return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u has bad child masks", k);
         }
@@ -273,6 +280,7 @@ int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err
             bool leaf;
             uint32_t ci;
             if (!child_index(svo, k, side[s], &leaf, &ci)) {
+                free(sum);
                 mr_svo_extremes_free(out);
                 return mr_error_set(err, MR_ERR_FORMAT, "svo extremes: node %u child %u out of range", k,
                                     side[s]);
@@ -281,7 +289,32 @@ int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err
         }
         out->lo_attr[k] = attr[0];
         out->hi_attr[k] = attr[1];
+        for (unsigned c = 0; c < 8; c++) {
+            bool leaf;
+            uint32_t ci;
+            if (!(cm & (1u << c)) || !child_index(svo, k, c, &leaf, &ci))
+                continue;
+            if (leaf) {
+                mr_vec3 v = mr_svo_normal_decode(svo->leaves[ci].normal);
+                sum[k][0] += v.x;
+                sum[k][1] += v.y;
+                sum[k][2] += v.z;
+            } else {
+                for (int a = 0; a < 3; a++)
+                    sum[k][a] += sum[ci][a];
+            }
+        }
+        double len = sqrt(sum[k][0] * sum[k][0] + sum[k][1] * sum[k][1] + sum[k][2] * sum[k][2]);
+        uint32_t any;
+        if (len > 1e-9)
+            mr_svo_normal_encode(mr_v3((float)(sum[k][0] / len), (float)(sum[k][1] / len), (float)(sum[k][2] / len)),
+                                 out->normal[k]);
+        else if (lowest_leaf(svo, k, &any))
+            memcpy(out->normal[k], svo->leaves[any].normal, 2);
+        else
+            out->normal[k][0] = out->normal[k][1] = 0;
     }
+    free(sum);
     return MR_OK;
 }
 
@@ -591,7 +624,10 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 }
                 mr_svo_leaf *l = &c->leaf[i];
                 l->attr = (uint16_t)attr0;
-                const uint8_t *bn = svo->leaves[src].normal;
+                /* a coarse voxel stands for all its leaves: their mean
+                 * normal (one leaf's would light the whole voxel by
+                 * wherever that leaf's surface faces) */
+                const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
                 const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                 if (c->d->field || key != memo_key || attr1 != memo_hi) {
                     move_normal(&a0, &a1, bn, memo_out);

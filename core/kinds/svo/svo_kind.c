@@ -724,7 +724,7 @@ static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 
 static size_t svo_memory(const mr_geom *g)
 {
-    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 4;
+    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 6;
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
     for (unsigned w = 0; g->scratch && w < g->workers; w++)
         bytes += mr_svo_workspace_memory(g->scratch[w].ws);
