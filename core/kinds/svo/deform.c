@@ -1039,6 +1039,22 @@ static unsigned hold_level(const rs_ctx *c, double side)
     return (unsigned)h;
 }
 
+/* Level whose cells are the largest that fit in `side` (not wider), clamped
+ * to the depth: emit's level. The thesis' eq. 3.3.10 takes the smallest
+ * cells that hold the side (hold_level), up to twice as wide as the box's
+ * smallest side; rounded out to that grid, a deformed box then emits a
+ * block up to four times its width, and the deformed surface grew by about
+ * a cell on every side (20 % coverage error against the triangles at
+ * depth 8; creases closed to one dark pixel). The thesis itself measures
+ * that error and names one level of further oversampling as its remedy
+ * (3.4, Fig. 25). A box exactly one cell wide (undeformed, or scaled by a
+ * power of two) still emits that one cell. */
+static unsigned fit_level(const rs_ctx *c, double side)
+{
+    unsigned h = hold_level(c, side);
+    return h < c->depth && c->cell[h] > side ? h + 1 : h;
+}
+
 static inline uint64_t clamp_floor(double u, uint64_t lo, uint64_t hi)
 {
     const double f = floor(u);
@@ -1102,7 +1118,6 @@ static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6
      * thesis finds resize exact under uniform scale. Emit still covers the
      * whole box (its ranges use lo and hi). */
     const double slack = 4.0 * FLT_EPSILON * mag;
-    smin = dmax(smin - slack, 0.0);
     smax = dmax(smax - slack, 0.0);
     if (c->method == MR_SVO_RESIZE) {
         const unsigned h = hold_level(c, smax), l = h + 1 < c->depth ? h + 1 : c->depth;
@@ -1113,7 +1128,7 @@ static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6
         }
         return 8;
     }
-    unsigned h = hold_level(c, smin);
+    unsigned h = fit_level(c, smin + slack);
     for (;;) {
         uint64_t cnt = 1;
         for (int a = 0; a < 3; a++) {
