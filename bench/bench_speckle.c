@@ -5,7 +5,8 @@
  *
  * For each examples/<name>.json (sorted) the job is rendered as it is and
  * as triangles: the same file with every object turned into plain mesh
- * objects (kind and kind block dropped; an svo object becomes one mesh
+ * objects (kind and kind block dropped; a displaced object keeps its
+ * block with method "tessellated", its exact micro-triangles; an svo object becomes one mesh
  * object per instance, with the instance's transform and pose, or the rest
  * pose for method "rigid", which ignores poses). Same camera, lights,
  * frames and poses; shadows on whatever the example says (the artefacts are
@@ -61,8 +62,14 @@ static bool to_triangles(const cJSON *o, cJSON *out, uint32_t *group, uint32_t s
     const char *k = cJSON_IsString(kind) ? kind->valuestring : "mesh";
     if (strcmp(k, "svo") != 0) {
         cJSON *m = cJSON_Duplicate(o, true);
-        cJSON_DeleteItemFromObject(m, "kind");
-        cJSON_DeleteItemFromObject(m, k);
+        cJSON *block = cJSON_GetObjectItem(m, k);
+        if (strcmp(k, "displaced") == 0 && cJSON_IsObject(block)) {
+            cJSON_DeleteItemFromObject(block, "method");
+            cJSON_AddStringToObject(block, "method", "tessellated");
+        } else {
+            cJSON_DeleteItemFromObject(m, "kind");
+            cJSON_DeleteItemFromObject(m, k);
+        }
         cJSON_AddItemToArray(out, m);
         if (first < MAX_OBJECTS)
             group[first] = source;
@@ -98,6 +105,25 @@ static bool to_triangles(const cJSON *o, cJSON *out, uint32_t *group, uint32_t s
             group[first + i] = source;
     }
     return true;
+}
+
+/* Asset paths relative to the job file (as microrayd render reads them). */
+static void resolve_paths(mr_job *job, const char *job_path)
+{
+    const char *slash = strrchr(job_path, '/');
+    int dir = slash ? (int)(slash - job_path) : 1;
+    for (size_t i = 0; i < job->asset_count; i++) {
+        char *p = job->assets[i].path;
+        if (!p || p[0] == '/')
+            continue;
+        size_t n = (size_t)dir + strlen(p) + 2;
+        char *abs = malloc(n);
+        if (!abs)
+            die(job_path, "out of memory");
+        snprintf(abs, n, "%.*s/%s", dir, slash ? job_path : ".", p);
+        free(p);
+        job->assets[i].path = abs;
+    }
 }
 
 /* The example as parsed: shadows on; and its triangle version (NULL when
@@ -138,6 +164,9 @@ static void load_jobs(const char *path, mr_job **job, mr_job **tri, uint32_t *gr
         die(path, jerr.message);
     free(as_is);
     free(as_tri);
+    resolve_paths(*job, path);
+    if (*tri)
+        resolve_paths(*tri, path);
 }
 
 static mr_asset **load_assets(const mr_job *job)
