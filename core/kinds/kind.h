@@ -49,12 +49,16 @@
  *               reads: all or nothing, MR_ERR_FORMAT on anything wrong).
  *   surface_step  (NULL: 0) the size, in world units after the last
  *               update, of the steps the kind's surface makes around the
- *               smooth one it stands for (a voxel's edge): faces of a
- *               staircase of boxes point up to 90 degrees away from the
- *               surface, so with a step the renderer lights by the shading
- *               normal alone and starts shadow rays that far along it,
- *               out of the staircase (the terminator problem; issue 13).
- *               Exact surfaces (triangles) have none.
+ *               smooth one it stands for, where primitive prim is hit at
+ *               (u, v): the edge of the voxel hit. Faces of a staircase of
+ *               boxes point up to 90 degrees away from the surface, so with
+ *               a step the renderer lights by the shading normal alone and
+ *               starts shadow rays a few steps along it, out of the
+ *               staircase (the terminator problem; issue 13). Per hit,
+ *               because one surface can be made of steps of many sizes
+ *               (voxels selected coarser where they look small on screen,
+ *               stretched by skinning). Exact surfaces (triangles) have
+ *               none.
  *   shading_point  (NULL, or false: none) the point, near the hit point p
  *               of primitive prim at (u, v), of the smooth surface the
  *               kind's shading normals describe. A triangle mesh shaded by
@@ -164,7 +168,7 @@ struct mr_kind {
                            mr_error *err);
     int (*checkpoint_load)(mr_geom *g, uint64_t frames, const uint8_t *buf, size_t size,
                            mr_error *err);
-    float (*surface_step)(const mr_geom *g);
+    float (*surface_step)(const mr_geom *g, unsigned prim, float u, float v);
     bool (*shading_point)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                           mr_vec3 *out);
     void (*free)(mr_geom *g);

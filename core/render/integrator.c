@@ -80,7 +80,19 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
         ng = mr_v3_scale(ng, -1.0f);
     mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v);
     n = mr_v3_normalize_or(n, ng);
-    if (mr_v3_dot(n, dir) > 0)
+    float step = obj->kind->surface_step ? obj->kind->surface_step(obj->geom, h->prim, h->u, h->v) : 0.0f;
+    /* A shading normal facing away from the viewer: a smooth surface seen
+     * from behind its interpolated normals is turned round. A voxel whose
+     * surface faces away is seen only because it sticks out past the
+     * silhouette of the surface it stands for (boxes hold the surface and
+     * more); there that surface is seen edge-on, its normal at right
+     * angles to the ray: the normal's part across the ray. Turned round
+     * instead, it lit silhouettes as if they faced the other way (dark
+     * pixels along creases and arms). */
+    float facing = mr_v3_dot(n, dir);
+    if (facing > 0 && step > 0)
+        n = mr_v3_normalize_or(mr_v3_sub(n, mr_v3_scale(dir, facing)), ng);
+    else if (facing > 0)
         n = mr_v3_scale(n, -1.0f);
     out->hit = true;
     out->t = h->t;
@@ -108,15 +120,16 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     /* A surface of steps (voxels) stands for the smooth one its shading
      * normals describe: lit by those alone, its shadow rays start 3 steps
      * along them, so the staircase does not shadow itself (kind.h
-     * surface_step). Past one voxel's diagonal (1.73 edges) is the least;
-     * skinned voxels at bends are stretched and out of line, and measured
-     * on the voxel examples 1.5 / 3 / 6 steps gave the skinned dancers 3.7
-     * / 2.3 / 2.0 % isolated dark pixels and the rigid crowd 5.2 / 5.3 /
-     * 5.4 %: 3 takes most of the gain while keeping contact shadows within
-     * 3 voxels (README, "Error metrics"). */
-    bool stepped = obj->surface_step > 0;
+     * surface_step: the edge of the voxel hit, coarser than the finest
+     * one where voxels were selected for a distant view, stretched at
+     * bends). Past one voxel's diagonal (1.73 edges) is the least; measured
+     * with per-hit steps, 1.5 / 3 / 6 of them gave the skinned dancers 2.03
+     * / 2.12 / 2.14 % isolated dark pixels, the rigid crowd 5.19 / 5.26 /
+     * 5.37 % and the skeleton 1.86 / 1.11 / 1.10 %: 3 keeps contact shadows
+     * within 3 voxels (README, "Error metrics"). */
+    bool stepped = step > 0;
     if (stepped)
-        shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * obj->surface_step));
+        shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * step));
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
         float cosine = mr_v3_dot(n, l);

@@ -37,7 +37,6 @@ typedef struct mr_shade_object {
     const mr_geom *geom;
     mr_vec3 albedo;
     unsigned first_id;  /* its first Embree geometry id (kind.h geometry_ids) */
-    float surface_step; /* kind.h surface_step this frame; 0: an exact surface */
 } mr_shade_object;
 
 typedef struct mr_trace_setup {

@@ -284,7 +284,7 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             r->id_object[r->id_count + k] = (unsigned)i;
         if ((rc = o->kind->attach(o->geom, rtc, r->scene, r->id_count, quality, err)) < 0)
             goto fail;
-        r->shade[i] = (mr_shade_object){o->kind, o->geom, o->desc->color, r->id_count, 0.0f};
+        r->shade[i] = (mr_shade_object){o->kind, o->geom, o->desc->color, r->id_count};
         r->id_count += ids;
     }
     if (job->camera.source == MR_CAMERA_SOURCE_NODE && (rc = setup_camera_node(r, assets, err)) < 0)
@@ -497,10 +497,6 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
         return rc;
     double t1 = mr_now();
     st->pose_s = t1 - t0;
-    for (size_t i = 0; i < r->object_count; i++) {
-        const object_state *o = &r->objects[i];
-        r->shade[i].surface_step = o->kind->surface_step ? o->kind->surface_step(o->geom) : 0.0f;
-    }
 
     if (changed || !r->built) {
         st->bvh = r->built && r->refit ? MR_BVH_REFIT : MR_BVH_BUILD;

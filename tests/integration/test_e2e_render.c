@@ -476,9 +476,13 @@ static void speckles_of(const char *const jobs[2], double pct[2][2])
  * isolated dark pixels against the triangles' 1.9 % and 1.5 % (4.7x and
  * 3.9x); then 3.4 % and 3.0 % (1.8x and 2.0x); since triangle meshes start
  * shadow rays on the surface their normals describe (kind.h
- * shading_point), the triangles have 1.5 % and 1.4 % (2.2x and 2.2x). The
- * bound, 2.5x per frame, fails on the old cause and leaves room for the
- * noise of a changed pose or voxelisation; issue 13's goal is 1.2x. */
+ * shading_point), the triangles have 1.54 % and 1.36 %, the octree 2.74 %
+ * and 2.73 % (1.77x and 2.01x). Since shadow rays leave by the size of the
+ * voxel hit, silhouette voxels shade edge-on, coarse voxels by their
+ * leaves' mean normal and emit's cells fit its boxes: 2.06 % and 2.20 %
+ * (1.34x and 1.62x). The bound, 1.9x per frame, fails on the previous
+ * figures (2.01x) and leaves room for the noise of a changed pose or
+ * voxelisation (35 dark pixels of ~1,600 here); issue 13's goal is 1.2x. */
 static void test_voxel_acne(void **state)
 {
     (void)state;
@@ -488,7 +492,7 @@ static void test_voxel_acne(void **state)
     for (int f = 0; f < 2; f++) {
         print_message("[ acne     ] frame %d: voxels %.3f %%, triangles %.3f %% (%.2fx)\n", f,
                       pct[0][f], pct[1][f], pct[0][f] / pct[1][f]);
-        assert_true(pct[0][f] <= 2.5 * pct[1][f]);
+        assert_true(pct[0][f] <= 1.9 * pct[1][f]);
     }
 }
 

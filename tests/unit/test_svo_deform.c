@@ -191,6 +191,23 @@ static uint16_t walk_extreme(const mr_svo *s, uint32_t n, bool high)
     }
 }
 
+/* The sum of the unit normals of every leaf below node n (recursively). */
+static mr_vec3 walk_normal_sum(const mr_svo *s, uint32_t n)
+{
+    mr_vec3 sum = mr_v3(0, 0, 0);
+    const unsigned cm = s->child_mask[n], lm = s->leaf_mask[n];
+    for (unsigned c = 0; c < 8; c++) {
+        if (!(cm & (1u << c)))
+            continue;
+        const unsigned below = (1u << c) - 1u;
+        mr_vec3 v = (lm & (1u << c))
+                        ? mr_svo_normal_decode(s->leaves[s->first_leaf[n] + (uint32_t)__builtin_popcount(lm & below)].normal)
+                        : walk_normal_sum(s, s->first_node[n] + (uint32_t)__builtin_popcount(cm & ~lm & below));
+        sum = mr_v3_add(sum, v);
+    }
+    return sum;
+}
+
 static void test_extremes(void **state)
 {
     (void)state;
@@ -198,14 +215,23 @@ static void test_extremes(void **state)
         ex_seed = seed;
         svo_fx fx;
         fx_build(&fx, 1 + (unsigned)(seed % 6), mr_v3(0, 0, 0), 1.0f, ex_cls, NULL);
-        for (uint32_t i = 0; i < fx.svo.leaf_count; i++)
+        for (uint32_t i = 0; i < fx.svo.leaf_count; i++) {
             fx.svo.leaves[i].attr = (uint16_t)((i * 7919u) % 1000u);
+            /* normals all over the upper half sphere, so no sum cancels */
+            const double a = 0.37 * i, b = 0.05 + 1.4 * fmod(0.61 * i, 1.0);
+            mr_svo_normal_encode(mr_v3((float)(sin(b) * cos(a)), (float)(sin(b) * sin(a)), (float)cos(b)),
+                                 fx.svo.leaves[i].normal);
+        }
         mr_svo_extremes e;
         extremes(&fx.svo, &e);
         assert_int_equal(e.node_count, fx.svo.node_count);
         for (uint32_t n = 0; n < fx.svo.node_count; n++) {
             assert_int_equal(e.lo_attr[n], walk_extreme(&fx.svo, n, false));
             assert_int_equal(e.hi_attr[n], walk_extreme(&fx.svo, n, true));
+            /* the node's normal is its leaves' mean, within the octahedral
+             * encoding's ~1 degree */
+            const mr_vec3 mean = mr_v3_normalize_or(walk_normal_sum(&fx.svo, n), mr_v3(0, 0, 0));
+            assert_true(angle_deg(mr_svo_normal_decode(e.normal[n]), mean) < 1.5);
         }
         mr_svo_extremes_free(&e);
         fx_free(&fx);

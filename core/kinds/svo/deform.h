@@ -50,8 +50,9 @@
  * The cofactor is taken times the sign of the determinant, so a mirroring
  * matrix keeps normals outward (a voxel has no winding that would flip with
  * it); a matrix that collapses the normal (zero scale) keeps the bind
- * normal. A selected interior voxel takes the palette entry and bind
- * normal of its lowest descendant leaf (the b_min extreme's).
+ * normal. A selected interior voxel takes the palette entry of its lowest
+ * descendant leaf (the b_min extreme's) and the mean of its leaves' bind
+ * normals (mr_svo_extremes.normal).
  *
  * Numbers (deform.c): bind boxes and the deformation are evaluated in
  * double and the deformed box rounded outwards to float, so it always holds
@@ -151,10 +152,13 @@ typedef struct mr_svo_selection {
 } mr_svo_selection;
 
 /* Side data derived once per shared octree for the selection: the palette
- * entries mapped to each interior node's two extremes. */
+ * entries mapped to each interior node's two extremes, and the normal a
+ * node selected whole shades with: the normalised sum of its leaves' unit
+ * normals (the lowest leaf's when they cancel). */
 typedef struct mr_svo_extremes {
     uint32_t node_count;
     uint16_t *lo_attr, *hi_attr; /* node_count each */
+    uint8_t (*normal)[2];        /* node_count: the mean of its leaves' normals (encoded) */
 } mr_svo_extremes;
 
 /* out is zeroed first. Errors: MR_ERR_INVALID (NULL arguments, missing

@@ -15,8 +15,10 @@
  *  - resize / emit: each instance's selection is resampled into its own
  *    world-space octree, rebuilt every frame; one user geometry, one
  *    primitive per instance, each traced by svo_trace.h.
- * Rays hitting an octree report the leaf in u and v (its high and low 16
- * bits as small exact floats) so normal() can find the voxel's normal.
+ * Rays hitting an octree report the leaf and its level in u and v (u: the
+ * leaf's high 16 bits and the level above them, v: its low 16 bits; small
+ * exact floats) so normal() can find the voxel's normal and surface_step
+ * its size.
  * Instance poses are evaluated here (self_posed), one instance after the
  * other per worker, so memory does not grow with instances x joints.
  * With "skeleton" the asset has no usable skin: a skeleton is extracted
@@ -457,6 +459,18 @@ static const mr_svo *hit_octree(const mr_geom *g, unsigned prim)
     return g->method == MR_SVO_RIGID ? g->svo : &g->octree[prim];
 }
 
+/* The leaf and level an octree hit reports in u and v (octree_intersect);
+ * false for what no octree hit gives. */
+static bool hit_leaf(float u, float v, uint32_t *leaf, unsigned *level)
+{
+    if (!(u >= 0 && u < 0x200000 && v >= 0 && v < 0x10000))
+        return false;
+    uint32_t hi = (uint32_t)u;
+    *leaf = (hi & 0xffffu) << 16 | (uint32_t)v;
+    *level = hi >> 16;
+    return true;
+}
+
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
@@ -481,7 +495,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
         RAY_F(hit, N, i, H_NX) = ng.x;
         RAY_F(hit, N, i, H_NY) = ng.y;
         RAY_F(hit, N, i, H_NZ) = ng.z;
-        RAY_F(hit, N, i, H_U) = (float)(h.leaf >> 16);
+        RAY_F(hit, N, i, H_U) = (float)((h.leaf >> 16) | h.level << 16); /* < 2^21: exact */
         RAY_F(hit, N, i, H_V) = (float)(h.leaf & 0xffffu);
         RAY_U(hit, N, i, H_PRIM) = args->primID;
         RAY_U(hit, N, i, H_GEOM) = args->geomID;
@@ -681,9 +695,10 @@ static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
             return mr_v3(0, 0, 0);
         return mr_svo_normal_decode(g->box_leaf[prim].normal);
     }
-    if (prim >= g->instance_count || !(u >= 0 && v >= 0))
+    uint32_t leaf;
+    unsigned level;
+    if (prim >= g->instance_count || !hit_leaf(u, v, &leaf, &level))
         return mr_v3(0, 0, 0);
-    uint32_t leaf = ((uint32_t)u << 16) | (uint32_t)v;
     const mr_svo *o = hit_octree(g, prim);
     if (leaf >= o->leaf_count)
         return mr_v3(0, 0, 0);
@@ -746,7 +761,7 @@ static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 
 static size_t svo_memory(const mr_geom *g)
 {
-    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 4;
+    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 6;
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
     for (unsigned w = 0; g->scratch && w < g->workers; w++)
         bytes += mr_svo_workspace_memory(g->scratch[w].ws);
@@ -831,22 +846,42 @@ static uint32_t svo_geometry_ids(const mr_geom *g)
     return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
 }
 
-/* The finest voxel's edge in world units: the octree's at its depth, times
- * the largest scale any instance's matrix applies (a column's length).
- * Skinning moves voxels but rarely scales them; the matrices are what the
- * last update used. */
-static float svo_surface_step(const mr_geom *g)
+/* The largest scale matrix m applies (its longest column). */
+static double largest_scale(const mr_mat4 *m)
 {
     double scale = 0;
-    for (size_t k = 0; k < g->instance_count; k++)
-        for (int c = 0; c < 3; c++) {
-            const float *m = g->world[k].m;
-            double len = sqrt((double)m[c] * m[c] + (double)m[4 + c] * m[4 + c] +
-                              (double)m[8 + c] * m[8 + c]);
-            if (len > scale)
-                scale = len;
-        }
-    return (float)(scale * g->svo->size / (double)(1u << g->svo->depth));
+    for (int c = 0; c < 3; c++) {
+        const float *e = m->m;
+        double len = sqrt((double)e[c] * e[c] + (double)e[4 + c] * e[4 + c] + (double)e[8 + c] * e[8 + c]);
+        scale = len > scale ? len : scale;
+    }
+    return scale;
+}
+
+/* The edge, in world units, of the voxel hit (kind.h surface_step): a
+ * deformed box's largest side (direct); else the hit leaf's edge in its
+ * octree, times the instance's largest scale for the shared bind-space
+ * octree (rigid). Selected for the screen, voxels of a distant instance are
+ * coarser than the finest level, and resampled cells come in every size a
+ * deformed box asks for; one figure for the object (the finest voxel) left
+ * the shadow rays of coarse voxels starting inside the staircase. */
+static float svo_surface_step(const mr_geom *g, unsigned prim, float u, float v)
+{
+    if (g->method == MR_SVO_DIRECT) {
+        if (prim >= g->box_count)
+            return 0.0f;
+        const float *b = g->box + (size_t)prim * 6;
+        return fmaxf(b[3] - b[0], fmaxf(b[4] - b[1], b[5] - b[2]));
+    }
+    uint32_t leaf;
+    unsigned level;
+    if (prim >= g->instance_count || !hit_leaf(u, v, &leaf, &level))
+        return 0.0f;
+    const mr_svo *o = hit_octree(g, prim);
+    double edge = ldexp((double)o->size, -(int)level);
+    if (g->method == MR_SVO_RIGID)
+        edge *= largest_scale(&g->world[prim]);
+    return (float)edge;
 }
 
 static void svo_free(mr_geom *g)
