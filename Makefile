@@ -28,7 +28,8 @@ WARN    := -Wall -Wextra -Werror -Wshadow -Wno-unused-parameter
 # core/ (libmicroray) sees only its own headers: no -Iserver, so a core
 # file that includes a server header does not compile.
 CORE_CFLAGS := -std=c11 $(WARN) $(OPT) -g -ffp-contract=off -fno-tree-slp-vectorize -D_DEFAULT_SOURCE -Icore -I/usr/include/OpenEXR -MMD -MP $(SAN)
-CFLAGS  := $(CORE_CFLAGS) -Iserver -I/usr/include/cjson
+# common/: what both programs link (the usage-table printer), nothing else.
+CFLAGS  := $(CORE_CFLAGS) -Iserver -Icommon -I/usr/include/cjson
 LDFLAGS := $(SAN)
 CORE_LIBS   := -lassimp -lembree3 -lOpenEXRCore-3_1 -ldeflate -lmeshoptimizer -lpng16 -ljpeg -lpthread -lm
 SERVER_LIBS := -lcjson -lsqlite3 -lmicrohttpd -lcurl
@@ -38,6 +39,7 @@ TEST_LIBS   := -lcmocka -lcurl
 CORE_SRC   := $(sort $(wildcard core/*.c core/*/*.c core/*/*/*.c))
 SERVER_SRC := $(filter-out server/main.c,$(sort $(wildcard server/*.c)))
 CLIENT_SRC := $(sort $(wildcard client/*.c))
+COMMON_SRC := $(sort $(wildcard common/*.c))
 # Test programs: tests/<suite>/test_*.c -> $(BUILD)/tests/<suite>/test_*
 TEST_SRC   := $(sort $(wildcard tests/unit/test_*.c tests/hard/test_*.c tests/integration/test_*.c))
 BENCH_SRC  := $(sort $(wildcard bench/*.c))
@@ -46,7 +48,7 @@ TOOL_SRC   := $(sort $(wildcard tools/*.c))
 
 obj = $(patsubst %.c,$(BUILD)/obj/%.o,$(1))
 CORE_OBJ   := $(call obj,$(CORE_SRC))
-SERVER_OBJ := $(call obj,$(SERVER_SRC))
+SERVER_OBJ := $(call obj,$(SERVER_SRC) $(COMMON_SRC))
 TEST_BIN   := $(patsubst tests/%.c,$(BUILD)/tests/%,$(TEST_SRC))
 BENCH_BIN  := $(patsubst bench/%.c,$(BUILD)/bench/%,$(BENCH_SRC))
 TOOL_BIN   := $(patsubst tools/%.c,$(BUILD)/tools/%,$(TOOL_SRC))
@@ -86,7 +88,7 @@ $(BUILD)/libmicrorayd.a: $(SERVER_OBJ)
 $(BUILD)/microrayd: $(call obj,server/main.c) $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a
 	$(CC) $(LDFLAGS) -o $@ $^ $(SERVER_LIBS) $(CORE_LIBS)
 
-$(BUILD)/microray: $(call obj,$(CLIENT_SRC))
+$(BUILD)/microray: $(call obj,$(CLIENT_SRC) $(COMMON_SRC))
 	$(CC) $(LDFLAGS) -o $@ $^ $(CLIENT_LIBS)
 
 $(BUILD)/tests/%: $(BUILD)/obj/tests/%.o $(BUILD)/libmicrorayd.a $(BUILD)/libmicroray.a

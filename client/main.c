@@ -69,7 +69,7 @@ static const char **option_value(cmd_args *a, const char *name)
 /* Parses one command's arguments against its options in the usage table
  * (usage.h). "--name VALUE" and "--name=VALUE" both work; after "--"
  * everything is positional. */
-static int parse_command_args(int argc, char **argv, const mrc_usage_command *c, int min_pos,
+static int parse_command_args(int argc, char **argv, const mr_usage_command *c, int min_pos,
                               int max_pos, cmd_args *a)
 {
     bool options_done = false;
@@ -83,7 +83,7 @@ static int parse_command_args(int argc, char **argv, const mrc_usage_command *c,
             const char *eq = strchr(arg, '=');
             char name[64];
             snprintf(name, sizeof name, "%.*s", (int)(eq ? (size_t)(eq - arg) : strlen(arg)), arg);
-            const mrc_usage_flag *f = mrc_usage_flag_find(c, name);
+            const mr_usage_flag *f = mrc_usage_flag_find(c, name);
             if (!f)
                 return usage_error("unknown option '%s' for %s", arg, c->name);
             if (!f->arg) {
@@ -683,7 +683,7 @@ int main(int argc, char **argv)
             snprintf(name, sizeof name, "%s%s%s", rest[0],
                      nrest > 1 && !strcmp(rest[0], "cluster") ? " " : "",
                      nrest > 1 && !strcmp(rest[0], "cluster") ? rest[1] : "");
-        const mrc_usage_command *c = mrc_usage_find(name);
+        const mr_usage_command *c = mrc_usage_find(name);
         if (c) {
             fputs("usage:\n", stdout);
             mrc_usage_command_print(stdout, c);
@@ -711,7 +711,7 @@ int main(int argc, char **argv)
         goto cleanup;
     }
     if (strcmp(cmd, "help") == 0) {
-        const mrc_usage_command *c = cargc > 0 ? mrc_usage_find(cargv[0]) : NULL;
+        const mr_usage_command *c = cargc > 0 ? mrc_usage_find(cargv[0]) : NULL;
         if (c) {
             fputs("usage:\n", stdout);
             mrc_usage_command_print(stdout, c);
@@ -728,7 +728,7 @@ int main(int argc, char **argv)
         mrc_usage_completion(stdout);
         goto cleanup;
     }
-    const mrc_usage_command *spec = mrc_usage_find(cmd);
+    const mr_usage_command *spec = mrc_usage_find(cmd);
     if (!spec) {
         code = usage_error("unknown command '%s'", cmd);
         goto cleanup;

@@ -10,7 +10,7 @@
 #define COUNT(a) (sizeof(a) / sizeof((a)[0]))
 #define JSON_FLAG {"--json", NULL, "print the result as JSON on standard output"}
 
-static const mrc_usage_flag GLOBAL[] = {
+static const mr_usage_flag GLOBAL[] = {
     {"--server", "URL", "the daemon (default: $MICRORAY_SERVER, else " MRC_DEFAULT_SERVER ")"},
     {"--token-file", "FILE", "send the bearer token of FILE's first line (default: $MICRORAY_TOKEN)"},
     {"--quiet", NULL, "no progress or confirmations (-q; ids, tables, JSON and errors still print)"},
@@ -18,32 +18,32 @@ static const mrc_usage_flag GLOBAL[] = {
     {"--version", NULL, "the client's version (-V)"},
 };
 
-static const mrc_usage_flag SUBMIT[] = {
+static const mr_usage_flag SUBMIT[] = {
     {"--wait", NULL, "follow the job to its end with a progress display (exit 1 if it fails or is canceled)"},
     {"--out", "DIR", "download DIR/NNNN.exr and DIR/stats.json as frames finish (implies --wait)"},
     {"--png", NULL, "with --out: 8-bit sRGB previews DIR/NNNN.png and DIR/contact-sheet.png instead of the EXRs"},
     {"--idempotency-key", "KEY", "the same key with the same body returns the same job (1..200 printable ASCII characters)"},
     {"--json", NULL, "print the server's answer as JSON (with --wait: the job as it ended)"},
 };
-static const mrc_usage_flag STATUS[] = {JSON_FLAG};
-static const mrc_usage_flag LIST[] = {
+static const mr_usage_flag STATUS[] = {JSON_FLAG};
+static const mr_usage_flag LIST[] = {
     {"--state", "S", "only jobs in state S: queued, running, succeeded, failed or canceled"},
     {"--name", "NAME", "only jobs of this name"},
     {"--limit", "N", "at most N jobs (default: every page)"},
     JSON_FLAG,
 };
-static const mrc_usage_flag WAIT[] = {
+static const mr_usage_flag WAIT[] = {
     {"--out", "DIR", "download the frames and stats.json into DIR as they finish"},
     {"--png", NULL, "with --out: PNG previews and a contact sheet instead of EXRs"},
     {"--json", NULL, "print the job as it ended as JSON"},
 };
-static const mrc_usage_flag FETCH[] = {
+static const mr_usage_flag FETCH[] = {
     {"--out", "DIR", "where the frames and stats.json go (required)"},
     {"--png", NULL, "PNG previews and a contact sheet instead of EXRs"},
     {"--json", NULL, "print what was fetched as JSON"},
 };
-static const mrc_usage_flag ONLY_JSON[] = {JSON_FLAG};
-static const mrc_usage_flag CLUSTER_SUBMIT[] = {
+static const mr_usage_flag ONLY_JSON[] = {JSON_FLAG};
+static const mr_usage_flag CLUSTER_SUBMIT[] = {
     {"--slurm", NULL, "submit to Slurm (sbatch; the one scheduler supported)"},
     {"--out", "DIR", "shared folder of the frames, stats.json and the cluster's state"},
     {"--chunk", "N", "frames per array task"},
@@ -54,7 +54,7 @@ static const mrc_usage_flag CLUSTER_SUBMIT[] = {
     JSON_FLAG,
 };
 
-static const mrc_usage_command COMMANDS[] = {
+static const mr_usage_command COMMANDS[] = {
     {"submit", "JOB.json", "submit a job (\"-\" reads it from stdin) and print its id", NULL, SUBMIT, COUNT(SUBMIT)},
     {"status", "ID", "state, frame counts, timestamps and errors of a job", NULL, STATUS, COUNT(STATUS)},
     {"list", "", "jobs, newest first", NULL, LIST, COUNT(LIST)},
@@ -79,7 +79,7 @@ static const mrc_usage_command COMMANDS[] = {
     {"help", "[COMMAND]", "this help, or one command's", NULL, NULL, 0},
 };
 
-const mrc_usage_command *mrc_usage_find(const char *name)
+const mr_usage_command *mrc_usage_find(const char *name)
 {
     for (size_t i = 0; name && i < COUNT(COMMANDS); i++)
         if (!strcmp(COMMANDS[i].name, name))
@@ -87,7 +87,7 @@ const mrc_usage_command *mrc_usage_find(const char *name)
     return NULL;
 }
 
-const mrc_usage_flag *mrc_usage_flag_find(const mrc_usage_command *c, const char *name)
+const mr_usage_flag *mrc_usage_flag_find(const mr_usage_command *c, const char *name)
 {
     for (size_t i = 0; c && i < c->flag_count; i++)
         if (!strcmp(c->flags[i].name, name))
@@ -98,14 +98,14 @@ const mrc_usage_flag *mrc_usage_flag_find(const mrc_usage_command *c, const char
 bool mrc_usage_takes_value(const char *name)
 {
     for (size_t i = 0; i < COUNT(COMMANDS); i++) {
-        const mrc_usage_flag *f = mrc_usage_flag_find(&COMMANDS[i], name);
+        const mr_usage_flag *f = mrc_usage_flag_find(&COMMANDS[i], name);
         if (f && f->arg)
             return true;
     }
     return false;
 }
 
-const mrc_usage_flag *mrc_usage_global(const char *name)
+const mr_usage_flag *mrc_usage_global(const char *name)
 {
     for (size_t i = 0; i < COUNT(GLOBAL); i++)
         if (!strcmp(GLOBAL[i].name, name))
@@ -113,46 +113,9 @@ const mrc_usage_flag *mrc_usage_global(const char *name)
     return NULL;
 }
 
-static void print_flag(FILE *to, const mrc_usage_flag *f)
+void mrc_usage_command_print(FILE *to, const mr_usage_command *c)
 {
-    char head[64];
-    snprintf(head, sizeof head, "    %s%s%s", f->name, f->arg ? " " : "", f->arg ? f->arg : "");
-    fputs(head, to);
-    int col = (int)strlen(head);
-    const int indent = 28;
-    if (col >= indent - 1) {
-        fputc('\n', to);
-        col = 0;
-    }
-    fprintf(to, "%*s", indent - col, "");
-    col = indent;
-    for (const char *p = f->text; *p;) {
-        while (*p == ' ')
-            p++;
-        size_t w = strcspn(p, " ");
-        if (!w)
-            break;
-        if (col > indent && col + 1 + (int)w > 78) {
-            fprintf(to, "\n%*s", indent, "");
-            col = indent;
-        } else if (col > indent) {
-            fputc(' ', to);
-            col++;
-        }
-        fwrite(p, 1, w, to);
-        col += (int)w;
-        p += w;
-    }
-    fputc('\n', to);
-}
-
-void mrc_usage_command_print(FILE *to, const mrc_usage_command *c)
-{
-    fprintf(to, "  microray %s%s%s%s\n", c->name, c->args[0] ? " " : "", c->args,
-            c->flag_count ? " [OPTIONS]" : "");
-    fprintf(to, "      %s\n", c->summary);
-    for (size_t i = 0; i < c->flag_count; i++)
-        print_flag(to, &c->flags[i]);
+    mr_usage_print_command(to, "microray", c);
     if (c->text)
         fprintf(to, "      %s\n", c->text);
 }
@@ -167,7 +130,7 @@ void mrc_usage_all(FILE *to)
         mrc_usage_command_print(to, &COMMANDS[i]);
     fputs("\nOptions of every command (anywhere on the line):\n", to);
     for (size_t i = 0; i < COUNT(GLOBAL); i++)
-        print_flag(to, &GLOBAL[i]);
+        mr_usage_print_flag(to, &GLOBAL[i]);
     fputs("\nExit codes:\n"
           "  0  success\n"
           "  1  the job failed or was canceled (submit --wait, wait)\n"
@@ -177,34 +140,6 @@ void mrc_usage_all(FILE *to)
           "  5  a local file could not be read or written\n"
           "\nSee microray(1) and docs/client.md.\n",
           to);
-}
-
-static void roff(FILE *to, const char *s)
-{
-    if (*s == '.' || *s == '\'')
-        fputs("\\&", to);
-    for (; *s; s++) {
-        if (*s == '\\')
-            fputs("\\e", to);
-        else if (*s == '-')
-            fputs("\\-", to);
-        else
-            fputc(*s, to);
-    }
-}
-
-static void man_flag(FILE *to, const mrc_usage_flag *f)
-{
-    fputs(".TP\n.B ", to);
-    roff(to, f->name);
-    if (f->arg) {
-        fputs(" \\fI", to);
-        roff(to, f->arg);
-        fputs("\\fR", to);
-    }
-    fputs("\n", to);
-    roff(to, f->text);
-    fputs("\n", to);
 }
 
 void mrc_usage_man(FILE *to)
@@ -217,28 +152,11 @@ void mrc_usage_man(FILE *to)
           "and assets. Standard output carries only what a script may capture (ids, tables, JSON); "
           "progress, confirmations and errors go to standard error.\n.SH COMMANDS\n",
           to);
-    for (size_t i = 0; i < COUNT(COMMANDS); i++) {
-        const mrc_usage_command *c = &COMMANDS[i];
-        fputs(".SS ", to);
-        roff(to, c->name);
-        if (c->args[0]) {
-            fputc(' ', to);
-            roff(to, c->args);
-        }
-        fputs("\n", to);
-        roff(to, c->summary);
-        fputs(".\n", to);
-        if (c->text) {
-            fputs(".PP\n", to);
-            roff(to, c->text);
-            fputs("\n", to);
-        }
-        for (size_t k = 0; k < c->flag_count; k++)
-            man_flag(to, &c->flags[k]);
-    }
+    for (size_t i = 0; i < COUNT(COMMANDS); i++)
+        mr_usage_man_command(to, &COMMANDS[i]);
     fputs(".SH OPTIONS\nThese work with every command, anywhere on the line.\n", to);
     for (size_t i = 0; i < COUNT(GLOBAL); i++)
-        man_flag(to, &GLOBAL[i]);
+        mr_usage_man_flag(to, &GLOBAL[i]);
     fputs(".SH EXIT STATUS\n0 success; 1 the job failed or was canceled (submit \\-\\-wait, wait); "
           "2 usage error; 3 the server rejected the request (4xx); 4 the server is unreachable, "
           "answered 5xx or answered nonsense; 5 a local file could not be read or written.\n"

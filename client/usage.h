@@ -5,7 +5,7 @@
  * --help`, the manual page (`microray man`, installed as microray.1) and
  * the bash completion (`microray completion`) are printed from it, so none
  * can know an option the others do not. microrayd has its own table
- * (server/usage.h); the client keeps its own copy of everything.
+ * (server/usage.h); both print theirs with common/usage_text.h.
  */
 #ifndef MRC_USAGE_H
 #define MRC_USAGE_H
@@ -14,33 +14,20 @@
 #include <stddef.h>
 #include <stdio.h>
 
-typedef struct mrc_usage_flag {
-    const char *name;  /* "--out" */
-    const char *arg;   /* "DIR", or NULL for a switch */
-    const char *text;
-} mrc_usage_flag;
-
-typedef struct mrc_usage_command {
-    const char *name;     /* "submit", "cluster submit" */
-    const char *args;     /* "JOB.json" */
-    const char *summary;
-    const char *text;     /* NULL or a paragraph */
-    const mrc_usage_flag *flags;
-    size_t flag_count;
-} mrc_usage_command;
+#include "usage_text.h"
 
 /* name "submit" or "cluster submit"; NULL when there is none. */
-const mrc_usage_command *mrc_usage_find(const char *name);
+const mr_usage_command *mrc_usage_find(const char *name);
 /* The option of c named name ("--out"), or NULL. */
-const mrc_usage_flag *mrc_usage_flag_find(const mrc_usage_command *c, const char *name);
+const mr_usage_flag *mrc_usage_flag_find(const mr_usage_command *c, const char *name);
 /* Whether some command's option of this name takes a value (so the word
  * after it is not a command or a global option). */
 bool mrc_usage_takes_value(const char *name);
 /* The options every command takes (--server, --token-file, --quiet, ...). */
-const mrc_usage_flag *mrc_usage_global(const char *name);
+const mr_usage_flag *mrc_usage_global(const char *name);
 
 void mrc_usage_all(FILE *to);
-void mrc_usage_command_print(FILE *to, const mrc_usage_command *c);
+void mrc_usage_command_print(FILE *to, const mr_usage_command *c);
 void mrc_usage_man(FILE *to);
 void mrc_usage_completion(FILE *to);
 

@@ -92,55 +92,12 @@ const mr_usage_command *mr_usage_find(const char *name)
     return NULL;
 }
 
-/* "  --flag ARG" padded, then the text wrapped at 78 columns. */
-static void print_flag(FILE *to, const mr_usage_flag *f)
-{
-    char head[64];
-    snprintf(head, sizeof head, "    %s%s%s", f->name, f->arg ? " " : "", f->arg ? f->arg : "");
-    fputs(head, to);
-    int col = (int)strlen(head);
-    const int indent = 28;
-    if (col >= indent - 1) {
-        fputc('\n', to);
-        col = 0;
-    }
-    fprintf(to, "%*s", indent - col, "");
-    col = indent;
-    for (const char *p = f->text; *p;) {
-        while (*p == ' ')
-            p++;
-        size_t w = strcspn(p, " ");
-        if (!w)
-            break;
-        if (col > indent && col + 1 + (int)w > 78) {
-            fprintf(to, "\n%*s", indent, "");
-            col = indent;
-        } else if (col > indent) {
-            fputc(' ', to);
-            col++;
-        }
-        fwrite(p, 1, w, to);
-        col += (int)w;
-        p += w;
-    }
-    fputc('\n', to);
-}
-
-static void print_command(FILE *to, const mr_usage_command *c)
-{
-    fprintf(to, "  microrayd %s%s%s%s\n", c->name, c->args[0] ? " " : "", c->args,
-            c->flag_count ? " [OPTIONS]" : "");
-    fprintf(to, "      %s\n", c->summary);
-    for (size_t i = 0; i < c->flag_count; i++)
-        print_flag(to, &c->flags[i]);
-}
-
 void mr_usage_all(FILE *to)
 {
     fprintf(to, "microrayd %s - ray traced frames of deforming, detailed geometry\n\nusage:\n",
             MR_VERSION_STRING);
     for (size_t i = 0; i < COUNT(COMMANDS); i++)
-        print_command(to, &COMMANDS[i]);
+        mr_usage_print_command(to, "microrayd", &COMMANDS[i]);
     fputs("\nEvery command takes --help (its usage on standard output, exit 0).\n"
           "Exit codes: 0 success, 1 rendering failed on our side, 2 usage error, 3 invalid input\n"
           "(job, asset, EXR), 4 a file could not be read or written. See microrayd(1), README.md.\n",
@@ -153,24 +110,9 @@ void mr_usage_command_print(FILE *to, const char *name)
     if (!c)
         return;
     fputs("usage:\n", to);
-    print_command(to, c);
+    mr_usage_print_command(to, "microrayd", c);
     if (c->text)
         fprintf(to, "\n%s\n", c->text);
-}
-
-/* roff text: a leading '.' or '\'' escaped, backslashes doubled, '-' as \-. */
-static void roff(FILE *to, const char *s)
-{
-    if (*s == '.' || *s == '\'')
-        fputs("\\&", to);
-    for (; *s; s++) {
-        if (*s == '\\')
-            fputs("\\e", to);
-        else if (*s == '-')
-            fputs("\\-", to);
-        else
-            fputc(*s, to);
-    }
 }
 
 void mr_usage_man(FILE *to)
@@ -182,7 +124,7 @@ void mr_usage_man(FILE *to)
         fprintf(to, ".I %s", COMMANDS[i].name);
         if (COMMANDS[i].args[0]) {
             fputc(' ', to);
-            roff(to, COMMANDS[i].args);
+            mr_usage_roff(to, COMMANDS[i].args);
         }
         fputs(COMMANDS[i].flag_count ? " [OPTIONS]\n.br\n" : "\n.br\n", to);
     }
@@ -191,35 +133,8 @@ void mr_usage_man(FILE *to)
           "(render). Jobs are JSON documents; see the job format in the documentation.\n"
           ".SH COMMANDS\n",
           to);
-    for (size_t i = 0; i < COUNT(COMMANDS); i++) {
-        const mr_usage_command *c = &COMMANDS[i];
-        fputs(".SS ", to);
-        roff(to, c->name);
-        if (c->args[0]) {
-            fputc(' ', to);
-            roff(to, c->args);
-        }
-        fputs("\n", to);
-        roff(to, c->summary);
-        fputs(".\n", to);
-        if (c->text) {
-            fputs(".PP\n", to);
-            roff(to, c->text);
-            fputs("\n", to);
-        }
-        for (size_t k = 0; k < c->flag_count; k++) {
-            fputs(".TP\n.B ", to);
-            roff(to, c->flags[k].name);
-            if (c->flags[k].arg) {
-                fputs(" \\fI", to);
-                roff(to, c->flags[k].arg);
-                fputs("\\fR", to);
-            }
-            fputs("\n", to);
-            roff(to, c->flags[k].text);
-            fputs("\n", to);
-        }
-    }
+    for (size_t i = 0; i < COUNT(COMMANDS); i++)
+        mr_usage_man_command(to, &COMMANDS[i]);
     fputs(".SH OPTIONS\n.TP\n.B \\-\\-help\nafter a command: that command's usage on standard "
           "output (exit 0); alone: every command with every flag (also \\-h).\n"
           ".TP\n.B \\-\\-version\nthe version (also the command version).\n", to);

@@ -5,7 +5,7 @@
  * manual page (`microrayd man`, installed as microrayd.1) and the bash
  * completion (`microrayd completion`) are all printed from it, so none can
  * list a flag the others do not. The client keeps its own table
- * (client/usage.h), as it keeps its own copy of everything.
+ * (client/usage.h); both print theirs with common/usage_text.h.
  */
 #ifndef MR_USAGE_H
 #define MR_USAGE_H
@@ -13,20 +13,7 @@
 #include <stddef.h>
 #include <stdio.h>
 
-typedef struct mr_usage_flag {
-    const char *name;  /* "--threads" */
-    const char *arg;   /* "N", or NULL for a switch */
-    const char *text;  /* what it does, one sentence or two */
-} mr_usage_flag;
-
-typedef struct mr_usage_command {
-    const char *name;     /* "render" */
-    const char *args;     /* "JOB.json --out DIR" (positional and required parts) */
-    const char *summary;  /* one line */
-    const char *text;     /* a paragraph, or NULL */
-    const mr_usage_flag *flags;
-    size_t flag_count;
-} mr_usage_command;
+#include "usage_text.h"
 
 /* The command named name, or NULL (internal commands are not listed). */
 const mr_usage_command *mr_usage_find(const char *name);
