@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "microray.h"
 
@@ -37,6 +38,17 @@ static inline double frame_extra(const mr_frame_stats *st, const char *name)
             return st->extras[i].value;
     fprintf(stderr, "bench: frame %d has no stats field %s\n", st->frame, name);
     exit(1);
+}
+
+/* CPU seconds of the whole process: while a program measures one thing,
+ * that thing's work on all its threads, whatever else the machine runs
+ * (wall times on a shared 2-core machine swing with other load; this does
+ * much less). */
+static inline double bench_cpu_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
 /* Bytes the kernel says are available for new work (MemAvailable), or

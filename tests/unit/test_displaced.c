@@ -94,7 +94,12 @@ static void test_affine_arith(void **state)
 static void test_pyramid_any_size(void **state)
 {
     (void)state;
-    static const uint32_t SIZES[][2] = {{1, 1}, {1, 7}, {7, 1}, {5, 3}, {64, 64}, {257, 129}, {400, 400}};
+    /* widths around the builders' 16-wide steps (dgrid.c: a level-1 row of
+     * 8-bit samples 16 nodes at a time from 34 columns on, upper levels 8
+     * nodes at a time from 16 children on) and their scalar tails */
+    static const uint32_t SIZES[][2] = {{1, 1},    {1, 7},   {7, 1},   {5, 3},    {64, 64},
+                                        {257, 129}, {400, 400}, {33, 5}, {34, 6}, {35, 7},
+                                        {67, 9},    {1031, 3}};
     static const mr_sample_type TYPES[] = {MR_SAMPLE_U8, MR_SAMPLE_U16, MR_SAMPLE_F32};
     uint64_t seed = 99;
     for (size_t si = 0; si < sizeof SIZES / sizeof SIZES[0]; si++)
@@ -128,6 +133,18 @@ static void test_pyramid_any_size(void **state)
                         /* quantised, but never looser than one step and a bit */
                         if (l > 0)
                             assert_true(lo >= mn - 3 * g.qstep - 1e-12 && hi <= mx + 3 * g.qstep + 1e-12);
+                        /* and exactly the quantised extremes (dgrid.h: a step below the
+                         * rounded-down minimum, a step above the rounded-up maximum) */
+                        if (l > 0 && g.qstep > 0) {
+                            double ql = fmin(fmax(floor((mn - g.gmin) / g.qstep) - 1, 0), 65535);
+                            double qh = fmin(fmax(ceil((mx - g.gmin) / g.qstep) + 1, 0), 65535);
+                            double el = ql == 0 ? g.gmin : ql == 65535 ? g.gmax : g.gmin + ql * g.qstep;
+                            double eh = qh == 0 ? g.gmin : qh == 65535 ? g.gmax : g.gmin + qh * g.qstep;
+                            if (lo != el || hi != eh)
+                                fail_msg("%ux%u type %d level %u node (%u, %u): [%.17g, %.17g], "
+                                         "expected [%.17g, %.17g]",
+                                         g.w, g.h, (int)TYPES[ti], l, I, J, lo, hi, el, eh);
+                        }
                         double hl, hh;
                         mr_dgrid_node_heights(&g, l, I, J, &hl, &hh);
                         assert_true(hl <= mr_dgrid_height_of(&g, mx) && hh >= mr_dgrid_height_of(&g, mn));
