@@ -199,6 +199,18 @@ static void test_make_install(void **state)
     (void)state;
     char dest[600], cmd[6000], *out = NULL;
     snprintf(dest, sizeof dest, "%s/destdir", fx_tmp);
+    /* make install builds what is out of date, with the flags of its own
+     * command line: in build/check (sanitizers) that would relink the
+     * binaries the other tests run without them. Sources edited since this
+     * tree was built are not what this test is about. */
+    char query[8400];
+    snprintf(query, sizeof query, "make -s -q -C '%s' BUILD='%s' '%s/microrayd' '%s/microray'",
+             fx_src_dir, fx_build_dir, fx_build_dir, fx_build_dir);
+    if (run(query, NULL) != 0) {
+        print_message("skipped: %s is older than the sources (make install would rebuild it)\n",
+                      fx_build_dir);
+        skip();
+    }
     snprintf(cmd, sizeof cmd, "make -s -C '%s' install BUILD='%s' DESTDIR='%s' PREFIX=/usr 2>&1", fx_src_dir,
              fx_build_dir, dest);
     if (run(cmd, &out) != 0)
