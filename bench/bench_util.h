@@ -8,6 +8,7 @@
 #ifndef MR_BENCH_UTIL_H
 #define MR_BENCH_UTIL_H
 
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -49,6 +50,34 @@ static inline double bench_cpu_now(void)
     struct timespec t;
     clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* One point of a speed-against-error curve for bench/report.md: a method of
+ * a kind at one level (subdivision level, depth, range) on one scene, its
+ * time and its error against the named reference. Appended as a tab-
+ * separated line to $MR_BENCH_DATA/points.tsv when that folder is set
+ * (scripts/run-bench.sh sets it; bench/report.sh plots the points), else
+ * nothing. Names must not hold tabs or newlines. per_level: the error is
+ * against each level's own reference (not one truth for all levels), so
+ * the report compares methods within a level only (its Pareto front is
+ * found per level). */
+static inline void bench_point(const char *kind, const char *scene, const char *method,
+                               const char *level, double ms, const char *error_name,
+                               double error, bool per_level)
+{
+    const char *dir = getenv("MR_BENCH_DATA");
+    if (!dir || !*dir)
+        return;
+    char path[4096];
+    snprintf(path, sizeof path, "%s/points.tsv", dir);
+    FILE *f = fopen(path, "a");
+    if (!f) {
+        fprintf(stderr, "bench: cannot append to %s\n", path);
+        return;
+    }
+    fprintf(f, "%s\t%s\t%s\t%s\t%.6g\t%s\t%.6g\t%s\n", kind, scene, method, level, ms, error_name,
+            error, per_level ? level : "");
+    fclose(f);
 }
 
 /* Bytes the kernel says are available for new work (MemAvailable), or

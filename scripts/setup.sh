@@ -40,6 +40,7 @@ TEST_PACKAGES=(
   groff-base             # test_cli: the manual pages pass groff's warnings
   systemd                # test_cli: systemd-analyze verify of the installed microrayd.service
   wrk                    # HTTP load generator for make bench (loopback only)
+  gnuplot-nox            # make bench: the plots of bench/report.md (bench/report.sh)
   slurm-wlm munge        # a real single-node Slurm for the cluster test (test_slurm,
                          # scripts/slurm-local.sh; microray cluster, docs/scale.md)
   clang libclang-rt-14-dev  # the libFuzzer harnesses (make fuzz-build): clang 14 and its
