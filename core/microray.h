@@ -1086,6 +1086,8 @@ typedef struct mr_object_desc {
     mr_vec3 color;           /* Lambert albedo, linear */
     size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */
     mr_pose_desc *poses;
+    bool reference;          /* reference passes draw it as its references (its own
+                                "reference", else the job's; mr_reference_type) */
 } mr_object_desc;
 
 typedef struct mr_light_desc {
@@ -1136,7 +1138,14 @@ typedef struct mr_job {
     size_t frame_count;      /* 1..MR_MAX_FRAMES */
     double *frame_times;     /* seconds, one per frame */
     mr_output_desc output;
+    bool reference;          /* "reference": the objects' default (mr_object_desc.reference) */
 } mr_job;
+
+/* Whether any object of the job asks for reference passes. They compare
+ * colour, depth, normals and ids, so such a job's output.aovs holds
+ * MR_AOV_REFERENCE (the parser refuses it otherwise). */
+bool mr_job_has_reference(const mr_job *job);
+#define MR_AOV_REFERENCE (MR_AOV_RGBA | MR_AOV_Z | MR_AOV_N | MR_AOV_ID)
 
 /* Refuses (MR_ERR_LIMIT) a job whose objects surely need more than budget
  * bytes of geometry, from their parameters alone (each kind's memory
@@ -1214,6 +1223,11 @@ typedef enum mr_reference_type {
 
 /* "tessellated" or "ground_truth" (the stats' "reference"). */
 const char *mr_reference_name(mr_reference_type t);
+
+/* The reference passes the job's frames get: bit (1u << type) for each
+ * type some object that asks for references has (0: none asks, or none
+ * has any). From the parameters alone: nothing is imported. */
+int mr_job_reference_passes(const mr_job *job, unsigned *passes, mr_error *err);
 
 /* A frame against one reference frame of the same camera (mr_film_compare
  * of the frame, a, against the reference, b, depths relative to the

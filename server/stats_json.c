@@ -195,8 +195,9 @@ static bool add_job_errors(cJSON *root, const mr_frame_stats *fr, size_t n, doub
         if (!all && !(all = cJSON_AddObjectToObject(root, "error")))
             return false;
         cJSON *ref = cJSON_AddObjectToObject(all, mr_reference_name(t));
+        ok = cJSON_AddNumberToObject(ref, "frames", (double)count) != NULL;
         cJSON *med = cJSON_AddObjectToObject(ref, "medians"), *worst = cJSON_AddObjectToObject(ref, "worst");
-        ok = med && worst && cJSON_AddNumberToObject(ref, "frames", (double)count) != NULL;
+        ok = ok && med && worst;
         for (size_t k = 0; k < mr_frame_error_field_count && ok; k++) {
             const mr_stat_field *fd = &mr_frame_error_fields[k];
             if (fd->type == MR_STAT_REFERENCE)
