@@ -323,8 +323,8 @@ static void print_error_row(const char *frame_cols, const cJSON *e)
 
 /* status --errors: the job's stats (GET /v1/jobs/ID/stats) as a table of
  * time against error, a row per frame and reference it was compared with,
- * then each reference's medians and worst frames; --json prints the stats
- * document. */
+ * then per reference its medians, its worst values and the frames they
+ * came from; --json prints the stats document. */
 static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
 {
     char path[256];
@@ -371,22 +371,29 @@ static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
         const cJSON *worst = cJSON_GetObjectItemCaseSensitive(ref, "worst");
         char name[24];
         mrc_sanitize(name, sizeof name, ref->string ? ref->string : "?");
-        cJSON *row = cJSON_Duplicate(med, true);
-        if (row && cJSON_AddStringToObject(row, "reference", name)) {
+        cJSON *row = cJSON_Duplicate(med, true), *values = cJSON_CreateObject();
+        if (row && values && cJSON_AddStringToObject(row, "reference", name) &&
+            cJSON_AddStringToObject(values, "reference", name)) {
             char cols[64];
             snprintf(cols, sizeof cols, "%-21s", "median");
             print_error_row(cols, row);
+            /* the worst value of each figure, and the frame it came from */
+            static const char *const figures[] = {"coverage_error_pct", "holes", "depth_rmse",
+                                                  "depth_max", "normal_mean_deg", "psnr_rgb_db",
+                                                  "speckle_pct"};
+            long long at[7];
+            for (int k = 0; k < 7; k++) {
+                const cJSON *w = cJSON_GetObjectItemCaseSensitive(worst, figures[k]);
+                cJSON_AddNumberToObject(values, figures[k], mrc_json_num(w, "value", 0));
+                at[k] = mrc_json_int(w, "frame", -1, -1, 1LL << 40);
+            }
+            snprintf(cols, sizeof cols, "%-21s", "worst");
+            print_error_row(cols, values);
+            printf("%-21s  %-12s  %8lld  %5lld  %10lld  %10lld  %7lld  %7lld  %7lld\n", "  at frame", "",
+                   at[0], at[1], at[2], at[3], at[4], at[5], at[6]);
         }
         cJSON_Delete(row);
-        printf("worst (%s):", name);
-        const cJSON *w;
-        cJSON_ArrayForEach(w, worst) {
-            char key[40];
-            mrc_sanitize(key, sizeof key, w->string ? w->string : "?");
-            printf(" %s %.4g (frame %lld)%s", key, mrc_json_num(w, "value", 0),
-                   mrc_json_int(w, "frame", -1, -1, 1LL << 40), w->next ? "," : "");
-        }
-        printf("\n");
+        cJSON_Delete(values);
     }
 cleanup:
     cJSON_Delete(stats);
