@@ -666,8 +666,10 @@ static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
         mr_frame_stats ref;
         mr_compare_result c;
         if ((rc = render_frame(p->renderer, index, p->film, &ref, camera, err)) < 0 ||
-            (rc = mr_film_compare(film, p->film, ref.scene_diagonal, &c, err)) < 0)
-            return mr_error_prefix(err, "%s reference pass: ", name);
+            (rc = mr_film_compare(film, p->film, ref.scene_diagonal, &c, err)) < 0) {
+            mr_error_prefix(err, "%s reference pass: ", name);
+            return rc;
+        }
         st->errors[st->error_count++] = (mr_frame_error){
             .reference = p->pass.type,
             .coverage_error_pct = c.coverage_pct,
