@@ -45,15 +45,16 @@ typedef struct cmd_args {
     const char *pos[MAX_POSITIONAL];
     int npos;
     const char *out, *idem, *state, *limit, *name;
-    bool wait, json, png;
+    bool wait, json, png, errors;
 } cmd_args;
 
 /* Where the value of an option of the usage table goes. */
 static bool *option_flag(cmd_args *a, const char *name)
 {
     return !strcmp(name, "--wait") ? &a->wait : !strcmp(name, "--json") ? &a->json
-           : !strcmp(name, "--png")  ? &a->png
-                                     : NULL;
+           : !strcmp(name, "--png")    ? &a->png
+           : !strcmp(name, "--errors") ? &a->errors
+                                       : NULL;
 }
 
 static const char **option_value(cmd_args *a, const char *name)
@@ -307,9 +308,104 @@ static const char *safe_str(char *dst, size_t size, const cJSON *obj, const char
     return dst;
 }
 
+/* One row of the error table: the frame's columns (or blanks, for its
+ * second reference) and the figures of one error entry. */
+static void print_error_row(const char *frame_cols, const cJSON *e)
+{
+    char ref[24];
+    safe_str(ref, sizeof ref, e, "reference");
+    printf("%s  %-12s  %8.3f  %5lld  %10.3e  %10.3e  %7.3f  %7.2f  %7.3f\n", frame_cols, ref,
+           mrc_json_num(e, "coverage_error_pct", 0), mrc_json_int(e, "holes", 0, 0, 1LL << 52),
+           mrc_json_num(e, "depth_rmse", 0), mrc_json_num(e, "depth_max", 0),
+           mrc_json_num(e, "normal_mean_deg", 0), mrc_json_num(e, "psnr_rgb_db", 0),
+           mrc_json_num(e, "speckle_pct", 0));
+}
+
+/* status --errors: the job's stats (GET /v1/jobs/ID/stats) as a table of
+ * time against error, a row per frame and reference it was compared with,
+ * then per reference its medians, its worst values and the frames they
+ * came from; --json prints the stats document. */
+static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
+{
+    char path[256];
+    snprintf(path, sizeof path, "/v1/jobs/%s/stats", a->pos[0]);
+    mrc_response resp = {0};
+    cJSON *stats = NULL;
+    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &stats, err);
+    if (rc < 0 || !stats) {
+        if (rc == 0)
+            rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+        goto cleanup;
+    }
+    if (a->json) {
+        print_json(stats);
+        goto cleanup;
+    }
+    const cJSON *summary = cJSON_GetObjectItemCaseSensitive(stats, "error");
+    if (!cJSON_IsObject(summary) || !summary->child) {
+        printf("no reference passes: the job's frames done so far (%lld) were not compared with a "
+               "reference (submit it with \"reference\": true)\n",
+               mrc_json_int(stats, "frames_done", 0, 0, 1LL << 40));
+        goto cleanup;
+    }
+    printf("%5s  %7s  %5s  %-12s  %8s  %5s  %10s  %10s  %7s  %7s  %7s\n", "frame", "total s",
+           "ref s", "reference", "cover %", "holes", "depth rmse", "depth max", "normal", "PSNR dB",
+           "speck %");
+    const cJSON *fr;
+    cJSON_ArrayForEach(fr, cJSON_GetObjectItemCaseSensitive(stats, "frames")) {
+        const cJSON *secs = cJSON_GetObjectItemCaseSensitive(fr, "seconds"), *e;
+        char cols[64];
+        snprintf(cols, sizeof cols, "%5lld  %7.3f  %5.2f", mrc_json_int(fr, "frame", -1, -1, 1LL << 40),
+                 mrc_json_num(secs, "total", 0), mrc_json_num(secs, "reference", 0));
+        bool first = true;
+        cJSON_ArrayForEach(e, cJSON_GetObjectItemCaseSensitive(fr, "error")) {
+            print_error_row(first ? cols : "                     ", e);
+            first = false;
+        }
+        if (first)
+            printf("%s  (not compared)\n", cols);
+    }
+    const cJSON *ref;
+    cJSON_ArrayForEach(ref, summary) {
+        const cJSON *med = cJSON_GetObjectItemCaseSensitive(ref, "medians");
+        const cJSON *worst = cJSON_GetObjectItemCaseSensitive(ref, "worst");
+        char name[24];
+        mrc_sanitize(name, sizeof name, ref->string ? ref->string : "?");
+        cJSON *row = cJSON_Duplicate(med, true), *values = cJSON_CreateObject();
+        if (row && values && cJSON_AddStringToObject(row, "reference", name) &&
+            cJSON_AddStringToObject(values, "reference", name)) {
+            char cols[64];
+            snprintf(cols, sizeof cols, "%-21s", "median");
+            print_error_row(cols, row);
+            /* the worst value of each figure, and the frame it came from */
+            static const char *const figures[] = {"coverage_error_pct", "holes", "depth_rmse",
+                                                  "depth_max", "normal_mean_deg", "psnr_rgb_db",
+                                                  "speckle_pct"};
+            long long at[7];
+            for (int k = 0; k < 7; k++) {
+                const cJSON *w = cJSON_GetObjectItemCaseSensitive(worst, figures[k]);
+                cJSON_AddNumberToObject(values, figures[k], mrc_json_num(w, "value", 0));
+                at[k] = mrc_json_int(w, "frame", -1, -1, 1LL << 40);
+            }
+            snprintf(cols, sizeof cols, "%-21s", "worst");
+            print_error_row(cols, values);
+            printf("%-21s  %-12s  %8lld  %5lld  %10lld  %10lld  %7lld  %7lld  %7lld\n", "  at frame", "",
+                   at[0], at[1], at[2], at[3], at[4], at[5], at[6]);
+        }
+        cJSON_Delete(row);
+        cJSON_Delete(values);
+    }
+cleanup:
+    cJSON_Delete(stats);
+    mrc_response_free(&resp);
+    return rc;
+}
+
 static int cmd_status(mrc_http *h, const cmd_args *a, mrc_error *err)
 {
     char path[256], name[128], state[32], when[64], error[512];
+    if (a->errors)
+        return cmd_status_errors(h, a, err);
     snprintf(path, sizeof path, "/v1/jobs/%s", a->pos[0]);
     mrc_response resp = {0};
     cJSON *job = NULL;

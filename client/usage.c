@@ -25,7 +25,10 @@ static const mr_usage_flag SUBMIT[] = {
     {"--idempotency-key", "KEY", "the same key with the same body returns the same job (1..200 printable ASCII characters)"},
     {"--json", NULL, "print the server's answer as JSON (with --wait: the job as it ended)"},
 };
-static const mr_usage_flag STATUS[] = {JSON_FLAG};
+static const mr_usage_flag STATUS[] = {
+    {"--errors", NULL, "a table of time against error per frame and reference, with medians and worst frames (jobs with \"reference\": true)"},
+    JSON_FLAG,
+};
 static const mr_usage_flag LIST[] = {
     {"--state", "S", "only jobs in state S: queued, running, succeeded, failed or canceled"},
     {"--name", "NAME", "only jobs of this name"},

@@ -62,3 +62,11 @@ int mr_job_film_new(const mr_job *job, mr_film **out, mr_error *err)
                             job->output.aovs ? job->output.aovs : MR_AOV_DEFAULT,
                             mr_output_crypto_ranks(&job->output), out, err);
 }
+
+bool mr_job_has_reference(const mr_job *job)
+{
+    for (size_t i = 0; job && i < job->object_count; i++)
+        if (job->objects[i].reference)
+            return true;
+    return false;
+}

@@ -1086,6 +1086,8 @@ typedef struct mr_object_desc {
     mr_vec3 color;           /* Lambert albedo, linear */
     size_t pose_count;       /* 0 = rest pose; 1 = same for every frame; else one per frame */
     mr_pose_desc *poses;
+    bool reference;          /* reference passes draw it as its references (its own
+                                "reference", else the job's; mr_reference_type) */
 } mr_object_desc;
 
 typedef struct mr_light_desc {
@@ -1136,7 +1138,14 @@ typedef struct mr_job {
     size_t frame_count;      /* 1..MR_MAX_FRAMES */
     double *frame_times;     /* seconds, one per frame */
     mr_output_desc output;
+    bool reference;          /* "reference": the objects' default (mr_object_desc.reference) */
 } mr_job;
+
+/* Whether any object of the job asks for reference passes. They compare
+ * colour, depth, normals and ids, so such a job's output.aovs holds
+ * MR_AOV_REFERENCE (the parser refuses it otherwise). */
+bool mr_job_has_reference(const mr_job *job);
+#define MR_AOV_REFERENCE (MR_AOV_RGBA | MR_AOV_Z | MR_AOV_N | MR_AOV_ID)
 
 /* Refuses (MR_ERR_LIMIT) a job whose objects surely need more than budget
  * bytes of geometry, from their parameters alone (each kind's memory
@@ -1197,8 +1206,45 @@ typedef struct mr_frame_extra {
     double value;
 } mr_frame_extra;
 
-/* Per-frame statistics. Every member but the extras has a row in
- * mr_frame_stat_fields (test_stats_json checks they agree). */
+/* ---- reference passes ----
+ * A job (or one of its objects) with "reference": true renders every frame
+ * a second time through each object's reference, per reference type, and
+ * compares the frame with it (mr_film_compare): the figures land in the
+ * frame's stats as its error entries (mr_frame_error), one per reference
+ * the job's objects have. Which references an object has is its kind's to
+ * say (kinds/kind.h, `reference`). */
+typedef enum mr_reference_type {
+    MR_REFERENCE_TESSELLATED = 0, /* each object as its exact tessellation: the same surface as
+                                     plain triangles (a triangle mesh is its own) */
+    MR_REFERENCE_GROUND_TRUTH     /* what the object's kind approximates, where it has one (the
+                                     detailed mesh a DMM was baked from, skinned directly) */
+} mr_reference_type;
+#define MR_REFERENCE_TYPES 2
+
+/* "tessellated" or "ground_truth" (the stats' "reference"). */
+const char *mr_reference_name(mr_reference_type t);
+
+/* The reference passes the job's frames get: bit (1u << type) for each
+ * type some object that asks for references has (0: none asks, or none
+ * has any). From the parameters alone: nothing is imported. */
+int mr_job_reference_passes(const mr_job *job, unsigned *passes, mr_error *err);
+
+/* A frame against one reference frame of the same camera (mr_film_compare
+ * of the frame, a, against the reference, b, depths relative to the
+ * reference's scene diagonal). Every member has a row in
+ * mr_frame_error_fields. */
+typedef struct mr_frame_error {
+    mr_reference_type reference;
+    double coverage_error_pct; /* mr_compare_result.coverage_pct */
+    uint64_t holes;
+    double depth_rmse, depth_max;
+    double normal_mean_deg;
+    double psnr_rgb_db;        /* MR_PSNR_IDENTICAL for identical colour */
+    double speckle_pct;        /* the reference frame's own (beside the frame's speckle_pct) */
+} mr_frame_error;
+
+/* Per-frame statistics. Every member but the extras and the error entries
+ * has a row in mr_frame_stat_fields (test_stats_json checks they agree). */
 typedef struct mr_frame_stats {
     int frame;
     double time;              /* frame time on the job's timeline, s */
@@ -1213,6 +1259,7 @@ typedef struct mr_frame_stats {
     double trace_s;           /* primary + shadow rays and shading */
     double encode_s;          /* EXR encoding and writing (filled by the caller) */
     double total_s;           /* everything for this frame, encode included */
+    double reference_s;       /* the reference passes (never part of total_s); 0: none ran */
     uint64_t rays;            /* primary + shadow rays traced */
     double mrays_per_s;       /* rays / trace_s / 1e6 */
     uint64_t triangles;       /* primitives in the scene */
@@ -1225,6 +1272,8 @@ typedef struct mr_frame_stats {
     uint32_t replay_checkpoint; /* the checkpoint (frames it holds) that replay started from, 0: none */
     uint32_t extra_count;     /* extras[0, extra_count) are set */
     mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
+    uint32_t error_count;     /* errors[0, error_count) are set: one per reference pass */
+    mr_frame_error errors[MR_REFERENCE_TYPES];
 } mr_frame_stats;
 
 /* Appends an extra field to the frame. name must be a non-empty run of
@@ -1247,8 +1296,16 @@ typedef enum mr_stat_type {
     MR_STAT_F64,          /* double */
     MR_STAT_BVH,          /* mr_bvh_update, written as mr_bvh_update_name() */
     MR_STAT_FRAME_FILE,   /* the frame's EXR file name, from the frame index */
-    MR_STAT_CACHE_RESULT  /* "hit", "partial" or "miss", from assets_cached/assets_loaded */
+    MR_STAT_CACHE_RESULT, /* "hit", "partial" or "miss", from assets_cached/assets_loaded */
+    MR_STAT_REFERENCE     /* mr_reference_type, written as mr_reference_name() */
 } mr_stat_type;
+
+/* mr_stat_field.flags. OPTIONAL: written only when non-zero (a frame's
+ * seconds.reference, only where a reference pass ran; a job's totals and
+ * medians hold it when any frame does). LOWER_WORSE: an error figure whose
+ * worst value is its lowest (PSNR); the others' worst is their highest. */
+#define MR_STAT_OPTIONAL 1u
+#define MR_STAT_LOWER_WORSE 2u
 
 /* A JSON object some fields are nested in ("seconds": {...}). */
 typedef struct mr_stat_group {
@@ -1266,12 +1323,20 @@ typedef struct mr_stat_field {
     size_t offset;              /* offsetof(mr_frame_stats, ...) of the value */
     const char *unit;           /* "s", "bytes", "count", ... or "" */
     const char *description;    /* one sentence, for the API schema */
+    unsigned flags;             /* MR_STAT_OPTIONAL, MR_STAT_LOWER_WORSE */
 } mr_stat_field;
 
 /* The fields in the order they are written; a group's fields are
  * consecutive. */
 extern const mr_stat_field mr_frame_stat_fields[];
 extern const size_t mr_frame_stat_field_count;
+
+/* The fields of an error entry (mr_frame_error; offsets into it, no
+ * groups), in the order they are written: "reference" first. A frame's
+ * entries are written as its "error" array; a job's medians and worst
+ * frames of each figure per reference as its "error" object. */
+extern const mr_stat_field mr_frame_error_fields[];
+extern const size_t mr_frame_error_field_count;
 
 /* The groups "seconds" (the per-stage timings that job totals and medians
  * sum up), "bytes", "cache" and "replay". */
@@ -1285,6 +1350,11 @@ double mr_frame_stat_number(const mr_frame_stats *st, const mr_stat_field *f);
  * (integers truncate; negative, NaN and out-of-range counts become 0);
  * derived types are left alone. */
 void mr_frame_stat_set_number(mr_frame_stats *st, const mr_stat_field *f, double v);
+
+/* The same for a field of mr_frame_error_fields and an error entry
+ * (MR_STAT_REFERENCE reads as the type's number). */
+double mr_frame_error_number(const mr_frame_error *e, const mr_stat_field *f);
+void mr_frame_error_set_number(mr_frame_error *e, const mr_stat_field *f, double v);
 
 /* "hit" (every asset came from the cache), "partial" or "miss" for the
  * frame's cache counters. */

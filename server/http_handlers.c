@@ -154,8 +154,9 @@ static enum MHD_Result job_refused(req *r, struct MHD_Connection *c, int rc,
 }
 
 /* POST /v1/jobs?dry_run=1: what a submission would do, without queuing:
- * the job's size and work, the memory it surely needs, its assets' files
- * and which objects derive data (built on first use, then kept). */
+ * the job's size and work, the memory it surely needs, its assets' files,
+ * which objects derive data (built on first use, then kept) and the
+ * reference passes its frames get. */
 static enum MHD_Result job_estimate(req *r, struct MHD_Connection *c, const mr_job *job)
 {
     const mr_daemon_config *cfg = mr_daemon_config_of(r->h->d);
@@ -206,6 +207,14 @@ static enum MHD_Result job_estimate(req *r, struct MHD_Connection *c, const mr_j
             ok = false;
         }
     }
+    cJSON *refs = http_put(doc, "references", cJSON_CreateArray(), &ok);
+    unsigned passes = 0;
+    mr_error err = {0};
+    if (mr_job_reference_passes(job, &passes, &err) < 0)
+        ok = false;
+    for (int t = 0; t < MR_REFERENCE_TYPES && ok; t++)
+        if (passes & (1u << t))
+            ok = cJSON_AddItemToArray(refs, cJSON_CreateString(mr_reference_name(t)));
     return http_send_built(r, c, MHD_HTTP_OK, doc, ok);
 }
 

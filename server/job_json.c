@@ -631,7 +631,7 @@ static int check_absent_block(mr_json_ctx *c, const mr_param_table *t, void *val
 }
 
 static const char *const OBJECT_FIELDS_HEAD[] = {"name", "asset", "kind"};
-static const char *const OBJECT_FIELDS_TAIL[] = {"transform", "color", "pose"};
+static const char *const OBJECT_FIELDS_TAIL[] = {"transform", "color", "pose", "reference"};
 
 /* The keys an object may have: its own, and after "kind" each registered
  * kind's parameter block, in registry order. */
@@ -671,7 +671,7 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     GO_ON(c, json_require(c, v, "asset"));
     const cJSON *name = json_field(v, "name"), *kind = json_field(v, "kind"), *xf = json_field(v, "transform"),
                 *color = json_field(v, "color"), *pose = json_field(v, "pose"),
-                *asset = json_field(v, "asset");
+                *asset = json_field(v, "asset"), *reference = json_field(v, "reference");
     if (name) {
         GO_ON_AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
@@ -717,6 +717,9 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
         GO_ON_AT_KEY(c, "color", json_get_vec3(c, color, &SPEC_COLOR, &o->color));
     if (pose)
         GO_ON_AT_KEY(c, "pose", parse_object_pose(c, pose, o, job->frame_count));
+    o->reference = job->reference; /* parsed before "objects" */
+    if (reference)
+        GO_ON_AT_KEY(c, "reference", json_get_bool(c, reference, &o->reference));
     return MR_OK;
 }
 
@@ -1029,7 +1032,48 @@ static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
 
 static const char *const ROOT_FIELDS[] = {"name",   "priority", "max_retries", "assets",
                                           "objects", "lights", "ambient",     "background",
-                                          "camera",  "frames",   "output",      "notify"};
+                                          "camera",  "frames",   "output",      "notify",
+                                          "reference"};
+
+/* Reference passes compare colour, depth, normals and ids (mr_film_compare):
+ * a job that asks for them keeps those passes (at "output", whose "aovs"
+ * left them out). */
+static int check_reference_passes(mr_json_ctx *c, const mr_job *job)
+{
+    if (!mr_job_has_reference(job) || (job->output.aovs & MR_AOV_REFERENCE) == MR_AOV_REFERENCE)
+        return MR_OK;
+    return json_fail(c, MR_ERR_INVALID,
+                     "the job's reference passes compare colour, depth, normals and ids: expected "
+                     "\"aovs\" holding \"rgba\", \"z\", \"n\" and \"id\"");
+}
+
+/* A job asking for reference passes must get one: some asking object's
+ * kind has a reference for it (at "/reference", or the first asking
+ * object's when the job does not ask). */
+static int check_references_exist(mr_json_ctx *c, const mr_job *job)
+{
+    unsigned passes = 0;
+    mr_error err = {0};
+    if (!mr_job_has_reference(job))
+        return MR_OK;
+    if (mr_job_reference_passes(job, &passes, &err) < 0)
+        return json_fail(c, err.code, "%s", err.msg);
+    if (passes)
+        return MR_OK;
+    size_t first = 0;
+    while (!job->objects[first].reference)
+        first++;
+    size_t mark = json_push_key(c, job->reference ? "reference" : "objects");
+    if (!job->reference) {
+        json_push_index(c, first);
+        json_push_key(c, "reference");
+    }
+    int rc = json_fail(c, MR_ERR_INVALID,
+                       "no object asking for reference passes has a reference (each kind's are "
+                       "in docs/job-format.md)");
+    json_pop(c, mark);
+    return rc;
+}
 
 /* Longest notify URL. */
 #define MAX_NOTIFY_URL 2048
@@ -1104,6 +1148,9 @@ static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
     const cJSON *notify = json_field(root, "notify");
     if (notify)
         GO_ON_AT_KEY(c, "notify", parse_notify(c, notify, &job->notify));
+    const cJSON *reference = json_field(root, "reference");
+    if (reference) /* before "objects": their default */
+        GO_ON_AT_KEY(c, "reference", json_get_bool(c, reference, &job->reference));
     if (assets)
         GO_ON_AT_KEY(c, "assets", parse_assets(c, assets, job));
     /* Before "objects": per-frame pose arrays are checked against the count. */
@@ -1112,8 +1159,11 @@ static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
         if (c->failed)
             job->frame_count = 0; /* unknown: not compared (parse_object_pose) */
     }
-    if (objects)
+    if (objects) {
         GO_ON_AT_KEY(c, "objects", parse_objects(c, objects, job));
+        if (!c->failed)
+            GO_ON(c, check_references_exist(c, job));
+    }
     if (camera)
         GO_ON_AT_KEY(c, "camera", parse_camera(c, camera, job));
     GO_ON_AT_KEY(c, "lights", parse_lights(c, lights, job));
@@ -1123,6 +1173,11 @@ static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
         GO_ON_AT_KEY(c, "background", parse_background(c, background, job));
     if (output)
         GO_ON_AT_KEY(c, "output", parse_output(c, output, job));
+    if (output && json_field(output, "aovs") && !c->failed) {
+        size_t mark = json_push_key(c, "output");
+        json_push_key(c, "aovs");
+        GO_ON_PART(c, mark, check_reference_passes(c, job));
+    }
     return MR_OK;
 }
 

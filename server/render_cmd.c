@@ -466,6 +466,14 @@ int mr_cmd_plan(int argc, char **argv)
         cJSON_AddNumberToObject(o, "max_retries", job->max_retries);
         cJSON_AddNumberToObject(o, "width", job->output.width);
         cJSON_AddNumberToObject(o, "height", job->output.height);
+        cJSON *refs = cJSON_AddArrayToObject(o, "references");
+        unsigned passes = 0;
+        mr_error err = {0};
+        if (mr_job_reference_passes(job, &passes, &err) < 0)
+            status = EXIT_RENDER;
+        for (int t = 0; t < MR_REFERENCE_TYPES; t++)
+            if (passes & (1u << t))
+                cJSON_AddItemToArray(refs, cJSON_CreateString(mr_reference_name(t)));
         char *out = cJSON_PrintUnformatted(o);
         if (out)
             printf("%s\n", out);

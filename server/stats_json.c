@@ -64,6 +64,24 @@ static bool add_field(cJSON *o, const mr_stat_field *fd, const mr_frame_stats *f
     }
 }
 
+/* One error entry ({"reference": ..., figures}) added to array a. */
+static bool add_error_entry(cJSON *a, const mr_frame_error *e)
+{
+    cJSON *o = cJSON_CreateObject();
+    bool ok = o && cJSON_AddItemToArray(a, o);
+    if (!ok) {
+        cJSON_Delete(o);
+        return false;
+    }
+    for (size_t i = 0; i < mr_frame_error_field_count && ok; i++) {
+        const mr_stat_field *fd = &mr_frame_error_fields[i];
+        ok = fd->type == MR_STAT_REFERENCE
+                 ? cJSON_AddStringToObject(o, fd->name, mr_reference_name(e->reference)) != NULL
+                 : cJSON_AddNumberToObject(o, fd->name, mr_frame_error_number(e, fd)) != NULL;
+    }
+    return ok;
+}
+
 /* One frame's statistics as a cJSON object; NULL when out of memory. */
 static cJSON *frame_json(const mr_frame_stats *f)
 {
@@ -79,8 +97,15 @@ static cJSON *frame_json(const mr_frame_stats *f)
             into = !group ? o : present ? cJSON_AddObjectToObject(o, group->name) : NULL;
             ok = !present || into != NULL;
         }
-        if (into && ok)
+        bool skipped = (fd->flags & MR_STAT_OPTIONAL) && mr_frame_stat_number(f, fd) == 0;
+        if (into && ok && !skipped)
             ok = add_field(into, fd, f);
+    }
+    if (f->error_count && ok) {
+        cJSON *errors = cJSON_AddArrayToObject(o, "error");
+        ok = errors != NULL;
+        for (uint32_t i = 0; i < f->error_count && i < MR_REFERENCE_TYPES && ok; i++)
+            ok = add_error_entry(errors, &f->errors[i]);
     }
     for (uint32_t i = 0; i < f->extra_count && i < MR_FRAME_EXTRAS_MAX && ok; i++)
         ok = cJSON_AddNumberToObject(o, f->extras[i].name, f->extras[i].value) != NULL;
@@ -114,7 +139,91 @@ void mr_frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f)
             mr_frame_stat_set_number(f, fd, v->valuedouble);
         }
     }
+    const cJSON *entry;
+    cJSON_ArrayForEach(entry, cJSON_GetObjectItemCaseSensitive(o, "error"))
+    {
+        if (f->error_count == MR_REFERENCE_TYPES || !cJSON_IsObject(entry))
+            break;
+        mr_frame_error *e = &f->errors[f->error_count++];
+        for (size_t i = 0; i < mr_frame_error_field_count; i++) {
+            const mr_stat_field *fd = &mr_frame_error_fields[i];
+            const cJSON *v = cJSON_GetObjectItemCaseSensitive(entry, fd->name);
+            if (fd->type == MR_STAT_REFERENCE) {
+                for (int t = 0; t < MR_REFERENCE_TYPES; t++)
+                    if (cJSON_IsString(v) && !strcmp(v->valuestring, mr_reference_name(t)))
+                        mr_frame_error_set_number(e, fd, t);
+            } else if (cJSON_IsNumber(v)) {
+                mr_frame_error_set_number(e, fd, v->valuedouble);
+            }
+        }
+    }
     f->frame = (int)index;
+}
+
+/* Whether any of the n frames has a non-zero value of fd. */
+static bool any_frame_has(const mr_frame_stats *fr, size_t n, const mr_stat_field *fd)
+{
+    for (size_t i = 0; i < n; i++)
+        if (mr_frame_stat_number(&fr[i], fd) != 0)
+            return true;
+    return false;
+}
+
+/* The error entry of reference t of frame f, or NULL. */
+static const mr_frame_error *frame_error(const mr_frame_stats *f, int t)
+{
+    for (uint32_t i = 0; i < f->error_count && i < MR_REFERENCE_TYPES; i++)
+        if ((int)f->errors[i].reference == t)
+            return &f->errors[i];
+    return NULL;
+}
+
+/* The job's "error" object: per reference any frame was compared with,
+ * {"frames": how many, "medians": {figure: median}, "worst": {figure:
+ * {"frame", "value"}}} (worst: the highest, the lowest for LOWER_WORSE
+ * figures; the first such frame). tmp holds n doubles. */
+static bool add_job_errors(cJSON *root, const mr_frame_stats *fr, size_t n, double *tmp)
+{
+    cJSON *all = NULL;
+    bool ok = true;
+    for (int t = 0; t < MR_REFERENCE_TYPES && ok; t++) {
+        size_t count = 0;
+        for (size_t i = 0; i < n; i++)
+            count += frame_error(&fr[i], t) != NULL;
+        if (!count)
+            continue;
+        if (!all && !(all = cJSON_AddObjectToObject(root, "error")))
+            return false;
+        cJSON *ref = cJSON_AddObjectToObject(all, mr_reference_name(t));
+        ok = cJSON_AddNumberToObject(ref, "frames", (double)count) != NULL;
+        cJSON *med = cJSON_AddObjectToObject(ref, "medians"), *worst = cJSON_AddObjectToObject(ref, "worst");
+        ok = ok && med && worst;
+        for (size_t k = 0; k < mr_frame_error_field_count && ok; k++) {
+            const mr_stat_field *fd = &mr_frame_error_fields[k];
+            if (fd->type == MR_STAT_REFERENCE)
+                continue;
+            bool lower_worse = fd->flags & MR_STAT_LOWER_WORSE;
+            size_t m = 0;
+            int worst_frame = 0;
+            double worst_value = 0;
+            for (size_t i = 0; i < n; i++) {
+                const mr_frame_error *e = frame_error(&fr[i], t);
+                if (!e)
+                    continue;
+                double v = mr_frame_error_number(e, fd);
+                if (!m || (lower_worse ? v < worst_value : v > worst_value)) {
+                    worst_value = v;
+                    worst_frame = fr[i].frame;
+                }
+                tmp[m++] = v;
+            }
+            cJSON *w = cJSON_AddObjectToObject(worst, fd->name);
+            ok = cJSON_AddNumberToObject(med, fd->name, median(tmp, m)) != NULL && w &&
+                 cJSON_AddNumberToObject(w, "frame", worst_frame) != NULL &&
+                 cJSON_AddNumberToObject(w, "value", worst_value) != NULL;
+        }
+    }
+    return ok;
 }
 
 int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first, char **out,
@@ -158,7 +267,8 @@ int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first,
         rays += fr[i].rays;
     for (size_t k = 0; k < mr_frame_stat_field_count; k++) {
         const mr_stat_field *fd = &mr_frame_stat_fields[k];
-        if (fd->group != &mr_stat_group_seconds)
+        if (fd->group != &mr_stat_group_seconds ||
+            ((fd->flags & MR_STAT_OPTIONAL) && !any_frame_has(fr, n, fd)))
             continue;
         double sum = 0;
         for (size_t i = 0; i < n; i++)
@@ -174,6 +284,7 @@ int mr_stats_to_json(const mr_job *job, const mr_job_stats *stats, size_t first,
     for (size_t i = 0; i < n; i++)
         peak = fr[i].peak_rss_bytes > peak ? fr[i].peak_rss_bytes : peak;
     ok &= cJSON_AddNumberToObject(tot, "peak_rss_bytes", (double)peak) != NULL;
+    ok = ok && add_job_errors(root, fr, n, tmp);
     if (ok)
         ok = (*out = cJSON_Print(root)) != NULL;
 done:

@@ -44,6 +44,12 @@ static void put_field(FILE *f, const mr_stat_field *fd, int indent)
         break;
     case MR_STAT_FRAME_FILE: fputs("type: string", f); break;
     case MR_STAT_CACHE_RESULT: fputs("type: string, enum: [hit, partial, miss]", f); break;
+    case MR_STAT_REFERENCE:
+        fputs("type: string, enum: [", f);
+        for (int t = 0; t < MR_REFERENCE_TYPES; t++)
+            fprintf(f, "%s%s", t ? ", " : "", mr_reference_name(t));
+        fputc(']', f);
+        break;
     }
     char text[512];
     snprintf(text, sizeof text, "%s%s%s%s", fd->description, fd->unit[0] ? " Unit: " : "", fd->unit,
@@ -63,7 +69,7 @@ static void put_required(FILE *f, const mr_stat_group *group, int indent)
     for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
         const mr_stat_field *fd = &mr_frame_stat_fields[i];
         const char *name = NULL;
-        if (fd->group == group)
+        if (fd->group == group && !(fd->flags & MR_STAT_OPTIONAL))
             name = fd->name;
         else if (!group && fd->group != last && !fd->group->optional)
             name = fd->group->name;
@@ -90,6 +96,78 @@ static void put_group_fields(FILE *f, const mr_stat_group *g, int indent)
     for (size_t i = 0; i < mr_frame_stat_field_count; i++)
         if (mr_frame_stat_fields[i].group == g)
             put_field(f, &mr_frame_stat_fields[i], indent);
+}
+
+/* FrameError (an entry of a frame's "error") and JobErrors (the job's
+ * "error": medians and worst frames per reference), from the error-entry
+ * table. */
+static void put_error_schemas(FILE *f)
+{
+    fputs("\n    FrameError:\n"
+          "      type: object\n"
+          "      description: \"A frame against one reference frame of the same camera "
+          "(mr_film_compare; README, Error metrics).\"\n"
+          "      required: [",
+          f);
+    for (size_t i = 0; i < mr_frame_error_field_count; i++)
+        fprintf(f, "%s%s", i ? ", " : "", mr_frame_error_fields[i].name);
+    fputs("]\n      additionalProperties: false\n      properties:\n", f);
+    for (size_t i = 0; i < mr_frame_error_field_count; i++)
+        put_field(f, &mr_frame_error_fields[i], 8);
+
+    fputs("\n    ErrorFigures:\n"
+          "      type: object\n"
+          "      description: \"One number per figure of FrameError (its reference aside).\"\n"
+          "      required: [",
+          f);
+    const char *sep = "";
+    for (size_t i = 0; i < mr_frame_error_field_count; i++)
+        if (mr_frame_error_fields[i].type != MR_STAT_REFERENCE) {
+            fprintf(f, "%s%s", sep, mr_frame_error_fields[i].name);
+            sep = ", ";
+        }
+    fputs("]\n      additionalProperties: false\n      properties:\n", f);
+    for (size_t i = 0; i < mr_frame_error_field_count; i++)
+        if (mr_frame_error_fields[i].type != MR_STAT_REFERENCE)
+            fprintf(f, "        %s: { type: number }\n", mr_frame_error_fields[i].name);
+
+    fputs("\n    WorstFrames:\n"
+          "      type: object\n"
+          "      description: \"Per figure of FrameError, the worst frame (the first of equals) "
+          "and its value: the highest, the lowest for psnr_rgb_db.\"\n"
+          "      additionalProperties: false\n      properties:\n",
+          f);
+    for (size_t i = 0; i < mr_frame_error_field_count; i++)
+        if (mr_frame_error_fields[i].type != MR_STAT_REFERENCE)
+            fprintf(f, "        %s: { $ref: \"#/components/schemas/WorstFrame\" }\n",
+                    mr_frame_error_fields[i].name);
+    fputs("\n    WorstFrame:\n"
+          "      type: object\n"
+          "      required: [frame, value]\n"
+          "      additionalProperties: false\n"
+          "      properties:\n"
+          "        frame: { type: integer, minimum: 0 }\n"
+          "        value: { type: number }\n",
+          f);
+
+    fputs("\n    JobErrors:\n"
+          "      type: object\n"
+          "      description: \"Per reference the job's frames were compared with (only with the "
+          "job's `reference`): how many frames, the median of each figure over them and the "
+          "worst frames.\"\n"
+          "      additionalProperties: false\n      properties:\n",
+          f);
+    for (int t = 0; t < MR_REFERENCE_TYPES; t++)
+        fprintf(f,
+                "        %s:\n"
+                "          type: object\n"
+                "          required: [frames, medians, worst]\n"
+                "          additionalProperties: false\n"
+                "          properties:\n"
+                "            frames: { type: integer, minimum: 1 }\n"
+                "            medians: { $ref: \"#/components/schemas/ErrorFigures\" }\n"
+                "            worst: { $ref: \"#/components/schemas/WorstFrames\" }\n",
+                mr_reference_name(t));
 }
 
 char *mr_stats_openapi_block(void)
@@ -125,6 +203,12 @@ char *mr_stats_openapi_block(void)
         }
         group = fd->group;
     }
+    fputs("        error:\n"
+          "          type: array\n"
+          "          description: \"The frame against each reference it was rendered through "
+          "(only with the job's `reference`): one entry per reference.\"\n"
+          "          items: { $ref: \"#/components/schemas/FrameError\" }\n",
+          f);
     /* the registered kinds' own fields (mr_kind_stat_at), summed over a job's
      * objects of the kind or the largest of theirs; creation figures on the
      * first frame only */
@@ -147,6 +231,7 @@ char *mr_stats_openapi_block(void)
     fputs("      additionalProperties: { type: number, description: \"A geometry kind's own "
           "per-frame field (extras).\" }\n",
           f);
+    put_error_schemas(f);
     fputs(MR_STATS_OPENAPI_END, f);
     if (fclose(f) != 0) {
         free(text);

@@ -60,6 +60,51 @@ int mr_job_check_memory(const mr_job *job, size_t budget, char pointer[512], mr_
                         k->memory_field, cap);
 }
 
+/* ---- the objects of a reference pass ---- */
+
+int mr_reference_objects_add(mr_reference_objects *out, const mr_object_desc *desc, mr_error *err)
+{
+    if (out->count == out->cap) {
+        size_t cap = out->cap ? 2 * out->cap : 8;
+        mr_object_desc *grown = realloc(out->objects, cap * sizeof *grown);
+        if (!grown)
+            return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a reference pass's objects");
+        out->objects = grown;
+        out->cap = cap;
+    }
+    out->objects[out->count++] = *desc;
+    return MR_OK;
+}
+
+void *mr_reference_alloc(mr_reference_objects *out, size_t bytes, mr_error *err)
+{
+    if (out->block_count == out->block_cap) {
+        size_t cap = out->block_cap ? 2 * out->block_cap : 8;
+        void **grown = realloc(out->blocks, cap * sizeof *grown);
+        if (!grown) {
+            mr_error_set(err, MR_ERR_NOMEM, "out of memory for a reference pass's objects");
+            return NULL;
+        }
+        out->blocks = grown;
+        out->block_cap = cap;
+    }
+    void *p = calloc(1, bytes ? bytes : 1);
+    if (!p) {
+        mr_error_set(err, MR_ERR_NOMEM, "out of memory for a reference pass's objects");
+        return NULL;
+    }
+    return out->blocks[out->block_count++] = p;
+}
+
+void mr_reference_objects_clear(mr_reference_objects *out)
+{
+    for (size_t i = 0; i < out->block_count; i++)
+        free(out->blocks[i]);
+    free(out->blocks);
+    free(out->objects);
+    *out = (mr_reference_objects){0};
+}
+
 int mr_trimesh_copy(const float *positions, uint32_t vertex_count, const uint32_t *indices,
                     uint32_t triangle_count, mr_trimesh *out, mr_error *err)
 {

@@ -71,6 +71,23 @@
  *               this point instead, when it lies on the viewer's side of
  *               the hit triangle, and then lets the shading normal alone
  *               decide which lights face the surface.
+ *   reference   (NULL: the object is its own tessellation: a "tessellated"
+ *               pass draws it as it is, and it has no ground truth) what a
+ *               reference pass of type `type` draws for object obj of the
+ *               kind (the job's "reference"; render/reference.h): objects
+ *               appended to out, of any kind: its own kind with parameters
+ *               overridden (mode "tessellated": the same micro-triangles as
+ *               Embree triangles), or the asset as plain triangles
+ *               (mr_kind_triangles(): the detailed mesh skinned directly),
+ *               one per instance if need be; or nothing appended (MR_OK):
+ *               the object has no such reference, and the pass draws its
+ *               tessellation, or the object as it is, instead. Appended
+ *               objects borrow what they do not change from obj (name,
+ *               poses, the parameter block's arrays); a changed parameter
+ *               block is a shallow copy in memory from mr_reference_alloc.
+ *               The frame's error against a "tessellated" pass is the
+ *               traversal's (0 for an exact one); against "ground_truth",
+ *               the approximation's.
  * self_posed: the kind evaluates poses itself (say one per instance, maybe
  * of a skeleton it extracted): the renderer then passes a NULL pose to
  * update and leaves checking pose names to create.
@@ -131,6 +148,32 @@ typedef struct mr_kind_context {
     size_t asset_count;
 } mr_kind_context;
 
+/* The objects a reference pass draws for the job's objects (kind.h
+ * `reference`): object descriptions borrowing from the job's, and the
+ * blocks of memory they own (changed parameter blocks, pose arrays),
+ * freed with the list. */
+typedef struct mr_reference_objects {
+    mr_object_desc *objects;
+    size_t count, cap;
+    void **blocks;
+    size_t block_count, block_cap;
+} mr_reference_objects;
+
+/* Appends a shallow copy of *desc. */
+int mr_reference_objects_add(mr_reference_objects *out, const mr_object_desc *desc, mr_error *err);
+/* bytes of zeroed memory owned by out (freed with it): a parameter block
+ * to copy and change, an array of poses. */
+void *mr_reference_alloc(mr_reference_objects *out, size_t bytes, mr_error *err);
+/* Frees the list's arrays and blocks (never what its objects borrow) and
+ * zeroes it. */
+void mr_reference_objects_clear(mr_reference_objects *out);
+
+/* The kind of an object that names none: the asset's own triangles, skinned
+ * or rigid, as they are. A kind that approximates its asset's detailed mesh
+ * draws this as its ground truth (kind.h `reference`). Defined by the
+ * registry. */
+const mr_kind *mr_kind_triangles(void);
+
 typedef enum mr_frame_order {
     MR_FRAMES_INDEPENDENT = 0, /* any frame can be rendered alone */
     MR_FRAMES_SEQUENTIAL       /* frame N needs frames 0..N-1 (a simulation) */
@@ -171,6 +214,8 @@ struct mr_kind {
     float (*surface_step)(const mr_geom *g, unsigned prim, float u, float v);
     bool (*shading_point)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                           mr_vec3 *out);
+    int (*reference)(const mr_object_desc *obj, mr_reference_type type, mr_reference_objects *out,
+                     mr_error *err);
     void (*free)(mr_geom *g);
 };
 

@@ -35,6 +35,8 @@ static size_t added_count;
 
 size_t mr_kind_count(void) { return BUILTIN_COUNT + added_count; }
 
+const mr_kind *mr_kind_triangles(void) { return &mr_kind_mesh; }
+
 const mr_kind *mr_kind_at(size_t i)
 {
     if (i < BUILTIN_COUNT)

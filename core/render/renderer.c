@@ -13,6 +13,7 @@
 #include "render/device.h"
 #include "render/exr.h"
 #include "render/integrator.h"
+#include "render/reference.h"
 #include "util/clock.h"
 #include "util/murmur3.h"
 
@@ -52,6 +53,18 @@ struct mr_renderer {
     size_t stat_kind_count;
     bool reported_once;           /* a frame carried the kinds' creation figures */
     float *crypto_ids[MR_CRYPTO_LAYERS]; /* Cryptomatte id of each object's name, its asset's */
+    /* Reference passes (the job's "reference"; reference.h): each pass's
+     * job, renderer and film, set up at the first frame rendered (their
+     * time is the pass's, not derive's); none when no object asks. */
+    bool reference;               /* some object asks */
+    bool passes_ready;
+    mr_asset **assets;            /* a copy of the borrowed array, for the passes' renderers */
+    size_t pass_count;
+    struct pass {
+        mr_reference_pass pass;
+        mr_renderer *renderer;
+        mr_film *film;
+    } passes[MR_REFERENCE_TYPES];
 };
 
 uint64_t mr_peak_rss_bytes(void)
@@ -84,6 +97,17 @@ static bool object_is_animated(const mr_object_desc *d, size_t frame_count)
     return d->poses[0].has_clip && !d->poses[0].has_time;
 }
 
+static void passes_free(mr_renderer *r)
+{
+    for (size_t p = 0; p < r->pass_count; p++) {
+        mr_renderer_free(r->passes[p].renderer);
+        mr_film_free(r->passes[p].film);
+        mr_reference_pass_clear(&r->passes[p].pass);
+    }
+    r->pass_count = 0;
+    r->passes_ready = false;
+}
+
 void mr_renderer_free(mr_renderer *r)
 {
     if (!r)
@@ -97,6 +121,8 @@ void mr_renderer_free(mr_renderer *r)
         free(r->objects[i].checkpoints);
     }
     mr_pose_free(r->cam_pose);
+    passes_free(r);
+    free(r->assets);
     free(r->stat_kinds);
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         free(r->crypto_ids[l]);
@@ -291,6 +317,13 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
         goto fail;
     if ((rc = mr_device_check(dev, "scene setup", err)) < 0)
         goto fail;
+    if ((r->reference = mr_job_has_reference(job))) {
+        if (!(r->assets = malloc((job->asset_count ? job->asset_count : 1) * sizeof *r->assets))) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "out of memory creating the renderer");
+            goto fail;
+        }
+        memcpy(r->assets, assets, job->asset_count * sizeof *r->assets);
+    }
     *out = r;
     return MR_OK;
 fail:
@@ -452,7 +485,13 @@ static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *fra
     return MR_OK;
 }
 
-int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
+static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
+                            const mr_camera *camera, mr_frame_stats *st, mr_error *err);
+
+/* Frame `index` into film; camera: the frame's camera when given (a
+ * reference pass renders with the frame's own), else the job's. */
+static int render_frame(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st,
+                        const mr_camera *camera, mr_error *err)
 {
     const mr_job *job = r->job;
     int rc;
@@ -469,7 +508,9 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     double t0 = mr_now();
 
     mr_geom_frame frame = {.index = index, .time = t, .width = film->width, .height = film->height};
-    if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
+    if (camera)
+        frame.camera = *camera;
+    else if ((rc = camera_for_frame(r, index, t, &frame.camera, err)) < 0)
         return rc;
 
     /* An animated scene's tree is built at frame 0 and refitted after
@@ -569,6 +610,77 @@ int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_sta
     if ((rc = kind_stats(r, st, err)) < 0)
         return rc;
     r->reported_once = true;
+    if (r->reference) {
+        /* after the frame's own figures: never part of them */
+        double t4 = mr_now();
+        rc = reference_passes(r, index, film, &frame.camera, st, err);
+        st->reference_s = mr_now() - t4;
+        if (rc < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
+int mr_renderer_render(mr_renderer *r, size_t index, mr_film *film, mr_frame_stats *st, mr_error *err)
+{
+    return render_frame(r, index, film, st, NULL, err);
+}
+
+/* The renderers of the job's reference passes (reference.h), once; all or
+ * none (a frame that fails here tries again from scratch). */
+static int passes_setup(mr_renderer *r, mr_error *err)
+{
+    for (int t = 0; t < MR_REFERENCE_TYPES; t++) {
+        struct pass *p = &r->passes[r->pass_count];
+        bool present;
+        int rc = mr_reference_pass_init(r->job, (mr_reference_type)t, &p->pass, &present, err);
+        if (rc == MR_OK && present) {
+            r->pass_count++;
+            if ((rc = mr_renderer_new(r->dev, &p->pass.job, r->assets, &r->opt, &p->renderer, err)) < 0 ||
+                (rc = mr_job_film_new(&p->pass.job, &p->film, err)) < 0)
+                mr_error_prefix(err, "%s reference pass: ", mr_reference_name(p->pass.type));
+        }
+        if (rc < 0) {
+            passes_free(r);
+            return rc;
+        }
+    }
+    r->passes_ready = true;
+    return MR_OK;
+}
+
+/* Renders frame `index` through every reference pass with the frame's
+ * camera and compares the frame's film with each: one error entry per
+ * pass (the reference's scene diagonal is the unit of depth: a
+ * tessellation's box is the tighter, user geometry's boxes are
+ * conservative). */
+static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
+                            const mr_camera *camera, mr_frame_stats *st, mr_error *err)
+{
+    int rc;
+    if (!r->passes_ready && (rc = passes_setup(r, err)) < 0)
+        return rc;
+    for (size_t i = 0; i < r->pass_count; i++) {
+        struct pass *p = &r->passes[i];
+        const char *name = mr_reference_name(p->pass.type);
+        mr_frame_stats ref;
+        mr_compare_result c;
+        if ((rc = render_frame(p->renderer, index, p->film, &ref, camera, err)) < 0 ||
+            (rc = mr_film_compare(film, p->film, ref.scene_diagonal, &c, err)) < 0) {
+            mr_error_prefix(err, "%s reference pass: ", name);
+            return rc;
+        }
+        st->errors[st->error_count++] = (mr_frame_error){
+            .reference = p->pass.type,
+            .coverage_error_pct = c.coverage_pct,
+            .holes = c.holes,
+            .depth_rmse = c.depth_rmse,
+            .depth_max = c.depth_max,
+            .normal_mean_deg = c.normal_mean_deg,
+            .psnr_rgb_db = c.psnr_rgb,
+            .speckle_pct = ref.speckle_pct,
+        };
+    }
     return MR_OK;
 }
 

@@ -461,6 +461,18 @@ static void test_dry_run(void **state)
     struct stat st;
     assert_int_equal(stat("/usr/share/assimp/models/X/BCN_Epileptic.X", &st), 0);
     assert_true(cJSON_GetObjectItem(asset, "bytes")->valuedouble == (double)st.st_size);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "references")), 0);
+    cJSON_Delete(doc);
+    http_free(&r);
+    /* with reference passes: a mesh is its own tessellation, no ground truth */
+    job = fx_small_job(7, 160, "\"reference\":true,");
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", job, strlen(job), NULL);
+    free(job);
+    assert_int_equal(r.status, 200);
+    doc = cJSON_Parse(r.body);
+    cJSON *refs = cJSON_GetObjectItem(doc, "references");
+    assert_int_equal(cJSON_GetArraySize(refs), 1);
+    assert_string_equal(cJSON_GetArrayItem(refs, 0)->valuestring, "tessellated");
     cJSON_Delete(doc);
     http_free(&r);
 

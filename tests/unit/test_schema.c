@@ -402,6 +402,14 @@ static const agree_case AGREE[] = {
     {"output normals float", ACCEPT, WITH_OUTPUT("{'normals':'float'}")},
     {"output normals double", REJECT, WITH_OUTPUT("{'normals':'double'}")},
     {"output normals a boolean", REJECT, WITH_OUTPUT("{'normals':true}")},
+    /* Reference passes (issue 16). */
+    {"reference on the job", ACCEPT, JOB(",'reference':true")},
+    {"reference false", ACCEPT, JOB(",'reference':false")},
+    {"reference yes", REJECT, JOB(",'reference':'yes'")},
+    {"reference on an object", ACCEPT, WITH_DMM("{'mode':'base'},'reference':true")},
+    {"reference on an object a number", REJECT, WITH_OBJECT("{'asset':'m','reference':1}")},
+    {"reference with every compared pass", ACCEPT,
+     JOB(",'reference':true,'output':{'aovs':['id','n','z','rgba','p']}")},
 };
 
 static const parser_only_case PARSER_ONLY[] = {
@@ -458,6 +466,12 @@ static const parser_only_case PARSER_ONLY[] = {
      WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'path':[{'t':1},{'t':0.5}]}]}}")},
     {"springmass pin box upside down", "a relation between two fields (box_max >= box_min)",
      WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'pins':[{'box_min':[0,0,0],'box_max':[1,-1,1]}]}}")},
+    {"reference without the passes it compares",
+     "a relation between the job's and its objects' reference and output.aovs",
+     JOB(",'reference':true,'output':{'aovs':['rgba','z']}")},
+    {"reference with no object that has one",
+     "which objects have references is each kind's code (kinds/kind.h reference)",
+     WITH_SVO("{'skeleton':true},'reference':true")},
     {"springmass force ending before it starts", "a relation between two fields (end > start)",
      WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'forces':[{'start':2,'end':1}]}}")},
 };

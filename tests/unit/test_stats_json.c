@@ -206,6 +206,28 @@ static void test_field_table(void **state)
     }
     assert_true(end <= offsetof(mr_frame_stats, extra_count) &&
                 end + 8 > offsetof(mr_frame_stats, extra_count));
+
+    /* the same for an error entry: every member of mr_frame_error one row's */
+    n = 0;
+    for (size_t i = 0; i < mr_frame_error_field_count; i++) {
+        const mr_stat_field *f = &mr_frame_error_fields[i];
+        assert_null(f->group);
+        for (size_t j = 0; j < i; j++)
+            assert_string_not_equal(mr_frame_error_fields[j].name, f->name);
+        assert_true(n < 64);
+        stored[n++] = f;
+    }
+    qsort(stored, n, sizeof *stored, by_offset);
+    end = 0;
+    for (size_t i = 0; i < n; i++) {
+        size_t size = stored[i]->type == MR_STAT_REFERENCE ? sizeof(mr_reference_type)
+                                                           : type_size(stored[i]->type);
+        if (stored[i]->offset < end || stored[i]->offset >= end + 8)
+            fail_msg("error field '%s' at byte %zu: the member before it ends at %zu",
+                     stored[i]->name, stored[i]->offset, end);
+        end = stored[i]->offset + size;
+    }
+    assert_true(end <= sizeof(mr_frame_error) && end + 8 > sizeof(mr_frame_error));
 }
 
 static void test_read_back(void **state)
@@ -272,6 +294,109 @@ static void test_extras(void **state)
     assert_int_equal(mr_frame_stats_add_extra(&full, names[MR_FRAME_EXTRAS_MAX], "", 9, &err), MR_ERR_LIMIT);
 }
 
+/* A frame of a job with "reference": seconds.reference (optional: only
+ * where it is non-zero) and one error entry per reference pass, written
+ * after the table's fields and before the extras, read back, and the
+ * job's "error" summary: medians and worst frames per reference. */
+static mr_frame_stats reference_fixture(int i)
+{
+    mr_frame_stats f = frame_fixture(i);
+    f.reference_s = 0.5 + i;
+    f.error_count = 2;
+    f.errors[0] = (mr_frame_error){MR_REFERENCE_TESSELLATED, 0, 0, 1e-7 * i, 2.5e-7, 0.125,
+                                   MR_PSNR_IDENTICAL, 0.25};
+    f.errors[1] = (mr_frame_error){MR_REFERENCE_GROUND_TRUTH, 1.0 + i, (uint64_t)(3 * i), 0.001,
+                                   0.01 * (3 - i), 2.5, 40.0 - i, 1.0 / 3.0};
+    return f;
+}
+
+static void test_reference_errors(void **state)
+{
+    (void)state;
+    mr_frame_stats f = reference_fixture(1);
+    mr_error err = {0};
+    assert_int_equal(mr_frame_stats_add_extra(&f, "simulate_s", "s", 0.02, &err), MR_OK);
+    /* "error" is the entries' key: no extra may take it */
+    assert_int_equal(mr_frame_stats_add_extra(&f, "error", "", 1, &err), MR_ERR_INVALID);
+    char *s = mr_frame_stats_json(&f);
+    static const char want[] =
+        "{\"frame\":1,\"time\":0.75,\"file\":\"0001.exr\",\"seconds\":{\"load\":0,\"derive\":0,"
+        "\"pose\":0.33333333333333331,\"bvh\":0.1,\"trace\":2.5e-07,\"encode\":12345.678,\"total\":0.001,"
+        "\"reference\":1.5},"
+        "\"bvh\":\"refit\",\"rays\":1099511627777,\"mrays_per_s\":0,\"triangles\":4294967296,"
+        "\"bytes\":{\"geometry\":1,\"bvh\":0,\"peak_rss\":123456789012},"
+        "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336,"
+        "\"error\":[{\"reference\":\"tessellated\",\"coverage_error_pct\":0,\"holes\":0,"
+        "\"depth_rmse\":1e-07,\"depth_max\":2.5e-07,\"normal_mean_deg\":0.125,\"psnr_rgb_db\":999,"
+        "\"speckle_pct\":0.25},{\"reference\":\"ground_truth\",\"coverage_error_pct\":2,\"holes\":3,"
+        "\"depth_rmse\":0.001,\"depth_max\":0.02,\"normal_mean_deg\":2.5,\"psnr_rgb_db\":39,"
+        "\"speckle_pct\":0.33333333333333331}],\"simulate_s\":0.02}";
+    expect_text(s, want);
+
+    /* read back: the table's fields and the entries */
+    cJSON *o = cJSON_Parse(s);
+    free(s);
+    assert_non_null(o);
+    mr_frame_stats got;
+    mr_frame_stats_from_json(o, 1, &got);
+    cJSON_Delete(o);
+    assert_true(got.reference_s == 1.5);
+    assert_int_equal(got.error_count, 2);
+    for (int k = 0; k < 2; k++)
+        for (size_t i = 0; i < mr_frame_error_field_count; i++) {
+            const mr_stat_field *fd = &mr_frame_error_fields[i];
+            if (mr_frame_error_number(&got.errors[k], fd) != mr_frame_error_number(&f.errors[k], fd))
+                fail_msg("entry %d: %s read back as %.17g", k, fd->name,
+                         mr_frame_error_number(&got.errors[k], fd));
+        }
+
+    /* the job: seconds.reference in totals and medians, and the summary;
+     * frame 0 without a reference pass counts in neither */
+    mr_frame_stats frames[4] = {frame_fixture(0), reference_fixture(1), reference_fixture(2),
+                                reference_fixture(3)};
+    frames[3].error_count = 1; /* frame 3: no ground truth */
+    mr_job job = job_fixture();
+    mr_job_stats stats = {.frame_count = 4, .frames = frames, .threads = 2};
+    assert_int_equal(mr_stats_to_json(&job, &stats, 0, &s, &err), MR_OK);
+    cJSON *doc = cJSON_Parse(s);
+    free(s);
+    assert_non_null(doc);
+    assert_null(cJSON_GetObjectItem(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 0), "seconds"), "reference"));
+    assert_null(cJSON_GetObjectItem(cJSON_GetArrayItem(cJSON_GetObjectItem(doc, "frames"), 0), "error"));
+    cJSON *tot = cJSON_GetObjectItem(cJSON_GetObjectItem(doc, "totals"), "seconds");
+    cJSON *med = cJSON_GetObjectItem(cJSON_GetObjectItem(doc, "medians"), "seconds");
+    assert_true(cJSON_GetObjectItem(tot, "reference")->valuedouble == 1.5 + 2.5 + 3.5);
+    assert_true(cJSON_GetObjectItem(med, "reference")->valuedouble == 2.0); /* of 0, 1.5, 2.5, 3.5 */
+    cJSON *errors = cJSON_GetObjectItem(doc, "error");
+    cJSON *tess = cJSON_GetObjectItem(errors, "tessellated"), *truth = cJSON_GetObjectItem(errors, "ground_truth");
+    assert_int_equal(cJSON_GetObjectItem(tess, "frames")->valueint, 3);
+    assert_int_equal(cJSON_GetObjectItem(truth, "frames")->valueint, 2);
+    cJSON *tm = cJSON_GetObjectItem(tess, "medians"), *gm = cJSON_GetObjectItem(truth, "medians"),
+          *gw = cJSON_GetObjectItem(truth, "worst");
+    assert_true(cJSON_GetObjectItem(tm, "depth_rmse")->valuedouble == 2e-7);
+    assert_true(cJSON_GetObjectItem(gm, "coverage_error_pct")->valuedouble == 2.5); /* of 2, 3 */
+    /* worst: the highest, psnr the lowest; the first frame of equals */
+    cJSON *w = cJSON_GetObjectItem(gw, "coverage_error_pct");
+    assert_int_equal(cJSON_GetObjectItem(w, "frame")->valueint, 2);
+    assert_true(cJSON_GetObjectItem(w, "value")->valuedouble == 3.0);
+    w = cJSON_GetObjectItem(gw, "depth_max");
+    assert_int_equal(cJSON_GetObjectItem(w, "frame")->valueint, 1);
+    w = cJSON_GetObjectItem(gw, "psnr_rgb_db");
+    assert_int_equal(cJSON_GetObjectItem(w, "frame")->valueint, 2);
+    assert_true(cJSON_GetObjectItem(w, "value")->valuedouble == 38.0);
+    w = cJSON_GetObjectItem(gw, "speckle_pct");
+    assert_int_equal(cJSON_GetObjectItem(w, "frame")->valueint, 1);
+    cJSON_Delete(doc);
+
+    /* without any reference pass the job has no "error" and no seconds.reference */
+    mr_frame_stats plain[2] = {frame_fixture(0), frame_fixture(1)};
+    stats = (mr_job_stats){.frame_count = 2, .frames = plain, .threads = 2};
+    assert_int_equal(mr_stats_to_json(&job, &stats, 0, &s, &err), MR_OK);
+    assert_null(strstr(s, "\"error\""));
+    assert_null(strstr(s, "\"reference\""));
+    free(s);
+}
+
 static void test_openapi_current(void **state)
 {
     (void)state;
@@ -295,6 +420,7 @@ int main(void)
         cmocka_unit_test(test_field_table),
         cmocka_unit_test(test_read_back),
         cmocka_unit_test(test_extras),
+        cmocka_unit_test(test_reference_errors),
         cmocka_unit_test(test_openapi_current),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

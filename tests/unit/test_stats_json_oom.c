@@ -38,14 +38,24 @@ static void hooks_fail_at(size_t k)
 
 static void hooks_reset(void) { cJSON_InitHooks(NULL); }
 
+/* Frames 1 and up ran reference passes: seconds.reference, error entries
+ * (frame 2 one, the others two) and so the job's error summary. */
 static mr_frame_stats frame(int i)
 {
-    return (mr_frame_stats){.frame = i, .time = 0.25 * i, .pose_s = 0.01 * i, .bvh_s = 0.02,
-                            .bvh = i ? MR_BVH_REFIT : MR_BVH_BUILD, .trace_s = 0.1 + i,
-                            .encode_s = 0.03, .total_s = 0.2 + i, .rays = 1000u + (uint64_t)i,
-                            .mrays_per_s = 12.5, .triangles = 5126, .geometry_bytes = 4096,
-                            .bvh_bytes = 8192, .peak_rss_bytes = 1u << 20, .scene_diagonal = 2.5f,
-                            .assets_loaded = i == 0, .load_s = i == 0 ? 0.5 : 0};
+    mr_frame_stats f = {.frame = i, .time = 0.25 * i, .pose_s = 0.01 * i, .bvh_s = 0.02,
+                        .bvh = i ? MR_BVH_REFIT : MR_BVH_BUILD, .trace_s = 0.1 + i,
+                        .encode_s = 0.03, .total_s = 0.2 + i, .rays = 1000u + (uint64_t)i,
+                        .mrays_per_s = 12.5, .triangles = 5126, .geometry_bytes = 4096,
+                        .bvh_bytes = 8192, .peak_rss_bytes = 1u << 20, .scene_diagonal = 2.5f,
+                        .assets_loaded = i == 0, .load_s = i == 0 ? 0.5 : 0};
+    if (i > 0) {
+        f.reference_s = 0.05 * i;
+        f.error_count = i == 2 ? 1 : 2;
+        f.errors[0] = (mr_frame_error){MR_REFERENCE_TESSELLATED, 0, 0, 1e-7, 2e-7, 0.01, 140, 0.5};
+        f.errors[1] = (mr_frame_error){MR_REFERENCE_GROUND_TRUTH, 0.5 * i, (uint64_t)i, 1e-3, 1e-2,
+                                       3.0, 40 - i, 0.6};
+    }
+    return f;
 }
 
 static void test_stats_out_of_memory(void **state)
@@ -68,6 +78,7 @@ static void test_stats_out_of_memory(void **state)
     cJSON *doc = cJSON_Parse(want);
     assert_non_null(doc);
     assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "frames")), 4);
+    assert_non_null(cJSON_GetObjectItem(doc, "error"));
     cJSON_Delete(doc);
     assert_true(total > 20);
 
@@ -100,22 +111,24 @@ static void test_stats_out_of_memory(void **state)
 static void test_frame_stats_out_of_memory(void **state)
 {
     (void)state;
-    mr_frame_stats f = frame(0);
-    hooks_fail_at(0);
-    char *want = mr_frame_stats_json(&f);
-    size_t total = allocations;
-    hooks_reset();
-    assert_non_null(want);
-    assert_non_null(strstr(want, "\"cache\""));
-    for (size_t k = 1; k <= total; k++) {
-        hooks_fail_at(k);
-        char *got = mr_frame_stats_json(&f);
+    for (int i = 0; i < 2; i++) { /* with the cache group; with error entries */
+        mr_frame_stats f = frame(i);
+        hooks_fail_at(0);
+        char *want = mr_frame_stats_json(&f);
+        size_t total = allocations;
         hooks_reset();
-        if (got && strcmp(got, want) != 0)
-            fail_msg("allocation %zu of %zu failed, yet a frame came back: %s", k, total, got);
-        free(got);
+        assert_non_null(want);
+        assert_non_null(strstr(want, i ? "\"error\"" : "\"cache\""));
+        for (size_t k = 1; k <= total; k++) {
+            hooks_fail_at(k);
+            char *got = mr_frame_stats_json(&f);
+            hooks_reset();
+            if (got && strcmp(got, want) != 0)
+                fail_msg("allocation %zu of %zu failed, yet a frame came back: %s", k, total, got);
+            free(got);
+        }
+        free(want);
     }
-    free(want);
 }
 
 int main(void)

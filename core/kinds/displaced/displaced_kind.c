@@ -926,6 +926,37 @@ static const mr_param_table DISPLACED_TABLE = {
         "2048, 4096]}}}]}",
 };
 
+/* References (kind.h): "tessellated" is the same micro-triangles as Embree
+ * triangles (method "tessellated": exact, so tessellation_free must match
+ * it and ray marching shows its own error); "ground_truth" is a dense
+ * pre-tessellation: a height texture's every texel (mip level 0)
+ * tessellated, or, since a procedural source has no finest level, the next
+ * finer one (twice the range: four times the micro-triangles), which shows
+ * the detail the object's level leaves out. An object at level 0 has none
+ * beyond its tessellation (nor one at the largest range). */
+static int displaced_reference(const mr_object_desc *obj, mr_reference_type type,
+                               mr_reference_objects *out, mr_error *err)
+{
+    const mr_displaced_params *src = obj->params;
+    if (type == MR_REFERENCE_GROUND_TRUTH &&
+        (src->procedural ? src->range >= MR_DISPLACED_MAX_RANGE : src->level == 0))
+        return MR_OK;
+    mr_displaced_params *p = mr_reference_alloc(out, sizeof *p, err);
+    if (!p)
+        return MR_ERR_NOMEM;
+    *p = *src;
+    p->method = MR_DISPLACED_TESSELLATED;
+    if (type == MR_REFERENCE_GROUND_TRUTH) {
+        if (src->procedural)
+            p->range = 2 * src->range;
+        else
+            p->level = 0;
+    }
+    mr_object_desc d = *obj;
+    d.params = p;
+    return mr_reference_objects_add(out, &d, err);
+}
+
 const mr_kind mr_kind_displaced = {
     .name = "displaced",
     .summary = "Parameters of a displacement-mapped object (kind \"displaced\", paper 003): the "
@@ -945,5 +976,6 @@ const mr_kind mr_kind_displaced = {
     .tessellate = displaced_tessellate,
     .memory = displaced_memory,
     .primitives = displaced_primitives,
+    .reference = displaced_reference,
     .free = displaced_free,
 };

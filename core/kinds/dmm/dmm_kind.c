@@ -1195,6 +1195,30 @@ static const mr_param_table DMM_TABLE = {
         " \"then\": {\"properties\": {\"deformation\": {\"const\": \"interpolated\"}}}}]}",
 };
 
+/* References (kind.h): "tessellated" is the same micro-triangles as Embree
+ * triangles (mode "tessellated", expanding the deformation the object's
+ * mode implies: exact, so the tessellation-free modes must match it);
+ * "ground_truth" is the detailed mesh the micro-mesh was baked from (the
+ * object's asset) skinned directly as plain triangles, which the bake, the
+ * subdivision level and the deformation approximate. */
+static int dmm_reference(const mr_object_desc *obj, mr_reference_type type,
+                         mr_reference_objects *out, mr_error *err)
+{
+    mr_object_desc d = *obj;
+    if (type == MR_REFERENCE_GROUND_TRUTH) {
+        d.kind = mr_kind_triangles();
+        d.params = NULL;
+        return mr_reference_objects_add(out, &d, err);
+    }
+    mr_dmm_params *p = mr_reference_alloc(out, sizeof *p, err);
+    if (!p)
+        return MR_ERR_NOMEM;
+    *p = *(const mr_dmm_params *)obj->params;
+    p->mode = MR_DMM_TESSELLATED; /* p->deform is the mode's already (after_mode) */
+    d.params = p;
+    return mr_reference_objects_add(out, &d, err);
+}
+
 const mr_kind mr_kind_dmm = {
     .name = "dmm",
     .summary = "Parameters of a displaced micro-mesh object (kind \"dmm\", paper 000). Every "
@@ -1220,5 +1244,6 @@ const mr_kind mr_kind_dmm = {
     .stats = DMM_STATS,
     .stat_count = S_COUNT,
     .frame_stats = dmm_frame_stats,
+    .reference = dmm_reference,
     .free = dmm_free,
 };

@@ -567,6 +567,29 @@ static const mr_param_table SPRINGMASS_TABLE = {
     .expect = "an object of springmass parameters",
 };
 
+/* References (kind.h): "tessellated" is the object itself (its Embree form
+ * is the mapped mesh's own triangles); "ground_truth" is the same
+ * simulation followed by the trilinear mapping (each vertex displaced with
+ * its grid cell), which the paper's mappings approximate. An object mapped
+ * trilinearly has none beyond itself. */
+static int springmass_reference(const mr_object_desc *obj, mr_reference_type type,
+                                mr_reference_objects *out, mr_error *err)
+{
+    const mr_springmass_params *src = obj->params;
+    if (type == MR_REFERENCE_TESSELLATED)
+        return mr_reference_objects_add(out, obj, err);
+    if (src->mapping == MR_SPRINGMASS_TRILINEAR)
+        return MR_OK;
+    mr_springmass_params *p = mr_reference_alloc(out, sizeof *p, err);
+    if (!p)
+        return MR_ERR_NOMEM;
+    *p = *src;
+    p->mapping = MR_SPRINGMASS_TRILINEAR;
+    mr_object_desc d = *obj;
+    d.params = p;
+    return mr_reference_objects_add(out, &d, err);
+}
+
 const mr_kind mr_kind_springmass = {
     .name = "springmass",
     .summary = "Parameters of a spring-mass object (kind \"springmass\", paper 001): a grid of nodes "
@@ -591,5 +614,6 @@ const mr_kind mr_kind_springmass = {
     .checkpoint_id = springmass_checkpoint_id,
     .checkpoint_save = springmass_checkpoint_save,
     .checkpoint_load = springmass_checkpoint_load,
+    .reference = springmass_reference,
     .free = springmass_free,
 };

@@ -710,6 +710,42 @@ static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
 
 /* ---- reference, sizes, lifetime -------------------------------------- */
 
+/* References (kind.h): no "tessellated" (the voxels are traced as they are,
+ * boxes and octrees, with no triangle form in the renderer); "ground_truth"
+ * is what svo_tessellate gives, drawn by the triangle kind: the asset's
+ * triangles skinned with each instance's pose (rigid instances in the rest
+ * pose) and placed by its transform after the object's, one object per
+ * instance. An object with an extracted skeleton has none: its poses name
+ * bones the asset lacks. */
+static int svo_reference(const mr_object_desc *obj, mr_reference_type type,
+                         mr_reference_objects *out, mr_error *err)
+{
+    const mr_svo_params *s = obj->params;
+    if (type != MR_REFERENCE_GROUND_TRUTH || s->skeleton)
+        return MR_OK;
+    size_t n = s->instance_count ? s->instance_count : 1;
+    for (size_t k = 0; k < n; k++) {
+        mr_object_desc d = *obj;
+        d.kind = mr_kind_triangles();
+        d.params = NULL;
+        if (s->instance_count) {
+            d.transform = mr_mat4_mul(&obj->transform, &s->instances[k].transform);
+            if (s->instances[k].has_pose) {
+                d.pose_count = 1;
+                d.poses = &s->instances[k].pose;
+            }
+        }
+        if (s->method == MR_SVO_RIGID) {
+            d.pose_count = 0;
+            d.poses = NULL;
+        }
+        int rc = mr_reference_objects_add(out, &d, err);
+        if (rc < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
 static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
     *out = (mr_trimesh){0};
@@ -1217,5 +1253,6 @@ const mr_kind mr_kind_svo = {
     .stat_count = S_COUNT,
     .frame_stats = svo_frame_stats,
     .surface_step = svo_surface_step,
+    .reference = svo_reference,
     .free = svo_free,
 };
