@@ -61,15 +61,23 @@ for t in "${programs[@]}"; do
   grep -q __asan_init "$t" 2>/dev/null && asan=yes
   # the first line of each sanitizer report
   sanitizer=$(grep -E 'ERROR: (AddressSanitizer|LeakSanitizer)|runtime error:|SUMMARY: UndefinedBehaviorSanitizer' "$log" |
-              head -n 3 | sed -E 's/^==[0-9]+==//; s/[[:space:]]+/ /g' | paste -sd ';' -)
+              head -n 3 | sed -E 's/^==[0-9]+==//; s/ on address .*//; s/[[:space:]]+/ /g' | paste -sd ';' -)
   printf 'PROG\t%s\t%d\t%s\t%s\t%s\n' "$name" "$rc" "$seconds" "$sanitizer" "$asan" >>"$RECORDS"
   # cases (cmocka's status lines, the failure message before a FAILED) and
   # figures (hard_report.h's HARD lines)
   awk -v prog="$name" -F'\t' '
     function flush_run() { if (running != "") { printf "CASE\t%s\t%s\tcrashed\t%s\n", prog, running, msg; running = "" } }
     /^HARD\t/ { printf "FIG\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n", prog, $2, $3, $4, $5, $6, $7, $8, $9; next }
-    /^\[ RUN +\] / { flush_run(); running = $0; sub(/^\[ RUN +\] /, "", running); msg = ""; next }
-    /^\[ +ERROR +\] --- / { m = $0; sub(/^\[ +ERROR +\] --- /, "", m); gsub(/\t/, " ", m); if (msg == "") msg = m; next }
+    /^\[ RUN +\] / { flush_run(); running = $0; sub(/^\[ RUN +\] /, "", running); msg = ""; prev = ""; next }
+    # a failure: cmocka prints fail_msg texts as "ERROR: text", an assertion
+    # as its expression or values, then "[   LINE   ] --- file:line: error"
+    /^ERROR: / { if (msg == "") { msg = $0; sub(/^ERROR: /, "", msg) } next }
+    /\[   LINE   \] --- / {
+      loc = $0; sub(/.*\[   LINE   \] --- /, "", loc); sub(/: error:.*/, "", loc)
+      if (msg == "") msg = (prev != "" ? prev " " : "") "at " loc
+      gsub(/\t/, " ", msg); next
+    }
+    { prev = $0 }
     /^\[ +(OK|FAILED|SKIPPED) +\] [A-Za-z_][A-Za-z0-9_]*$/ {
       status = $0; sub(/^\[ +/, "", status); sub(/ .*/, "", status)
       c = $0; sub(/^\[[^]]*\] /, "", c)

@@ -38,6 +38,14 @@
 #error "define HARD_KIND (the kind the program's hard cases exercise) before hard_report.h"
 #endif
 
+/* stdout line by line, like stderr: cmocka prints its status lines to
+ * stdout and failure messages to stderr, and the runner reads them from one
+ * log in the order they happened (a file would get stdout in blocks). */
+__attribute__((constructor)) static void hard_report_line_buffered(void)
+{
+    setvbuf(stdout, NULL, _IOLBF, 0);
+}
+
 /* The larger / smaller of two figures; NaN if either is NaN. */
 static inline double hard_max(double a, double b)
 {
