@@ -125,8 +125,8 @@ static void test_far_from_origin(void **state)
         z_hi = hard_max(z_hi, f->z[i]);
     }
     HARD_CHECK("leaks", missed, "==", 0, "pixels missing the plane at 1e5 (of 1024)");
-    HARD_CHECK("error", z_lo, ">", 9.95f, "smallest z (plane 10 away)");
-    HARD_CHECK("error", z_hi, "<", 10.1f, "largest z (plane 10 away)");
+    HARD_CHECK("error", z_lo, ">", 9.95f, "smallest z at 1e5 (the plane 10 away)");
+    HARD_CHECK("error", z_hi, "<", 10.1f, "largest z at 1e5 (the plane 10 away)");
     HARD_NONFINITE(film_nonfinite(f), "non-finite film values (32 x 32 x 8)");
     /* Light at 45 degrees: with nothing else in the scene, shadow rays must
      * not find the plane they leave from, however far from the origin. */
