@@ -77,7 +77,7 @@ for t in "${programs[@]}"; do
       if (msg == "") msg = (prev != "" ? prev " " : "") "at " loc
       gsub(/\t/, " ", msg); next
     }
-    { prev = $0 }
+    { prev = $0; sub(/^\[ +ERROR +\] --- /, "", prev) }
     /^\[ +(OK|FAILED|SKIPPED) +\] [A-Za-z_][A-Za-z0-9_]*$/ {
       status = $0; sub(/^\[ +/, "", status); sub(/ .*/, "", status)
       c = $0; sub(/^\[[^]]*\] /, "", c)

@@ -266,7 +266,7 @@ static inline void fx_stats_add(fx_stats *a, const fx_stats *b)
     a->exact += b->exact;
     a->mismatches += b->mismatches;
     a->nonfinite += b->nonfinite;
-    if (!(b->worst_t <= a->worst_t))
+    if (!isnan(a->worst_t) && !(b->worst_t <= a->worst_t))
         a->worst_t = b->worst_t;
 }
 
@@ -373,8 +373,8 @@ static void check_ray(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, float 
         st->grazes++;
     }
     const double t_err = fabs((double)h.t - l0) / tol;
-    if (!(t_err <= st->worst_t))
-        st->worst_t = t_err; /* NaN included */
+    if (!isnan(st->worst_t) && !(t_err <= st->worst_t))
+        st->worst_t = t_err; /* a NaN stays */
     if (!(fabs((double)h.t - l0) <= tol)) {
         st->mismatches++;
         fail_msg("t %.9g vs its leaf's entry %.17g (tol %.3g)", (double)h.t, l0, tol);
