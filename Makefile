@@ -2,6 +2,9 @@
 #   make          build build/microrayd (and build/microray)
 #   make test     install missing Debian packages, build, run unit + end-to-end tests
 #   make check    the same tests built with AddressSanitizer + UBSan (build/check/)
+#   make hard     the hard cases (tests/hard) built as make check builds them, run, and a
+#                 table per kind of their figures against their tolerances, sanitizer
+#                 reports and NaN/Inf per program (scripts/run-hard.sh; CI runs it)
 #   make bench    print the benchmark table
 #   make run      set up, build, render examples/skinned-walk.json into out/skinned-walk/
 #   make schema   regenerate the kind blocks of schemas/job.schema.json
@@ -42,6 +45,7 @@ CLIENT_SRC := $(sort $(wildcard client/*.c))
 COMMON_SRC := $(sort $(wildcard common/*.c))
 # Test programs: tests/<suite>/test_*.c -> $(BUILD)/tests/<suite>/test_*
 TEST_SRC   := $(sort $(wildcard tests/unit/test_*.c tests/hard/test_*.c tests/integration/test_*.c))
+HARD_SRC   := $(sort $(wildcard tests/hard/test_*.c))
 BENCH_SRC  := $(sort $(wildcard bench/*.c))
 # Generators of checked-in text: tools/*.c -> $(BUILD)/tools/*
 TOOL_SRC   := $(sort $(wildcard tools/*.c))
@@ -63,7 +67,7 @@ FUZZ_SAN     := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit
 FUZZ_SRC     := $(sort $(wildcard tests/fuzz/fuzz_*.c))
 FUZZ_BIN     := $(patsubst tests/fuzz/%.c,$(BUILD)/%,$(FUZZ_SRC))
 
-.PHONY: all setup test check bench run clean tests schema openapi fuzz-build fuzz-bins fuzz fuzz-short \
+.PHONY: all setup test check hard bench run clean tests schema openapi fuzz-build fuzz-bins fuzz fuzz-short \
         man install uninstall
 # keep objects of test and bench programs (make would delete them as intermediates)
 .SECONDARY:
@@ -134,9 +138,18 @@ test: setup
 	$(MAKE) tests fuzz-build
 	bash scripts/run-tests.sh $(BUILD); t=$$?; bash scripts/run-fuzz.sh $(BUILD) 60 || exit 1; exit $$t
 
+# The sanitizer build of make check and make hard: the whole tree again in
+# build/check/, at -O1 with AddressSanitizer (LeakSanitizer included) and
+# UBSan, which stops at the first report.
+CHECK_BUILD := BUILD=build/check OPT=-O1 SAN="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all"
+
 check: setup
-	$(MAKE) tests BUILD=build/check OPT=-O1 SAN="-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all"
+	$(MAKE) tests $(CHECK_BUILD)
 	bash scripts/run-tests.sh build/check
+
+hard: setup
+	$(MAKE) $(patsubst tests/%.c,build/check/tests/%,$(HARD_SRC)) $(CHECK_BUILD)
+	bash scripts/run-hard.sh build/check
 
 bench: setup
 	$(MAKE) all $(BENCH_BIN)

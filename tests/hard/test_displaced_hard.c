@@ -17,6 +17,8 @@
  *  - a skinned base (FBX/animation_with_skeleton.fbx, a bending bar with
  *    texture coordinates) over its clip and in extreme joint poses (joints
  *    twisted by up to 170 degrees and scaled by 0.05 and 20).
+ * Each case reports for `make hard` (hard_report.h) the rays that disagree
+ * with the brute force (hit, t bit for bit, occlusion) and its own figures.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -28,6 +30,9 @@
 #include <math.h>
 
 #include "../support/displaced_fixture.h"
+
+#define HARD_KIND "displaced"
+#include "../support/hard_report.h"
 
 #define BAR "/usr/share/assimp/models/FBX/animation_with_skeleton.fbx"
 
@@ -70,14 +75,17 @@ static void uv_degenerate(int x, int z, float o[2])
 static void uv_repeats(int x, int z, float o[2]) { o[0] = 40 * x / 3.0f, o[1] = 40 * z / 3.0f; }
 static void uv_huge(int x, int z, float o[2]) { o[0] = 1e5f * x / 3.0f, o[1] = 1e5f * z / 3.0f; }
 
-static int run(mr_asset *mesh, mr_asset *tex, float scale, float offset, uint64_t *seed, int rays)
+/* Random rays at the displaced mesh against the brute force: returns the
+ * rays that disagree; the smallest share of rays that hit so far in
+ * *hit_share. */
+static int run(mr_asset *mesh, mr_asset *tex, float scale, float offset, uint64_t *seed, int rays,
+               double *hit_share)
 {
     dfx f = {0};
     dfx_params(&f, scale, offset);
     dfx_open(&f, mesh, tex, NULL, NULL, 0);
     int bad = dfx_random_rays(&f, seed, rays);
-    if (f.hits < (uint64_t)rays / 10)
-        fail_msg("only %llu of %d rays hit", (unsigned long long)f.hits, rays);
+    *hit_share = hard_min(*hit_share, (double)f.hits / rays);
     dfx_close(&f);
     mr_device_free(f.dev);
     return bad;
@@ -89,13 +97,15 @@ static void test_uv_cases(void **state)
     uint64_t seed = 101;
     mr_asset *tex = dfx_texture(11, 6, MR_SAMPLE_U8, dfx_noise, &seed);
     void (*cases[])(int, int, float[2]) = {uv_plain, uv_flipped, uv_degenerate, uv_repeats};
+    static const char *const NAMES[] = {"plain", "flipped", "degenerate (zero or collinear area)", "40-repeat"};
+    double hit_share = 1;
     for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
         mr_asset *mesh = grid_mesh(cases[k], NULL);
-        int bad = run(mesh, tex, 0.25f, 0, &seed, 1500);
-        if (bad)
-            fail_msg("uv case %zu: %d rays disagree", k, bad);
+        int bad = run(mesh, tex, 0.25f, 0, &seed, 1500, &hit_share);
+        HARD_CHECK("error", bad, "==", 0, "%s UVs: rays disagreeing with the brute force (of 1500)", NAMES[k]);
         mr_asset_free(mesh);
     }
+    HARD_CHECK("other", hit_share, ">=", 0.1, "smallest share of rays that hit");
     mr_asset_free(tex);
 }
 
@@ -134,7 +144,9 @@ static void test_huge_repeats(void **state)
         /* heights in [0, 0.1]: t in [0.9, 1] (to rounding) */
         bad += !hit || t < 0.9f - 1e-4f || t > 1.0f + 1e-4f;
     }
-    assert_int_equal(bad, 0);
+    HARD_CHECK("leaks", bad, "==", 0,
+               "downward rays missing the shell between the lowest and highest surface, or hitting outside it "
+               "(of 300; 100,000 repeats)");
     dfx_close(&f);
     mr_device_free(f.dev);
     mr_asset_free(mesh);
@@ -148,7 +160,9 @@ static void test_large_displacement_and_normals(void **state)
     mr_asset *tex = dfx_texture(9, 9, MR_SAMPLE_U16, dfx_noise, &seed);
     /* displacement 4x the triangles' size, both directions */
     mr_asset *mesh = grid_mesh(uv_plain, NULL);
-    assert_int_equal(run(mesh, tex, 3.0f, -1.5f, &seed, 1500), 0);
+    double hit_share = 1;
+    HARD_CHECK("error", run(mesh, tex, 3.0f, -1.5f, &seed, 1500, &hit_share), "==", 0,
+               "displacement 4x the triangles: rays disagreeing with the brute force (of 1500)");
     mr_asset_free(mesh);
     /* opposing normals (the interpolation passes through zero), near-zero
      * and sideways ones */
@@ -160,7 +174,9 @@ static void test_large_displacement_and_normals(void **state)
         nrm[v * 3] = n.x, nrm[v * 3 + 1] = n.y, nrm[v * 3 + 2] = n.z;
     }
     mesh = grid_mesh(uv_plain, nrm);
-    assert_int_equal(run(mesh, tex, 0.4f, 0.1f, &seed, 1500), 0);
+    HARD_CHECK("error", run(mesh, tex, 0.4f, 0.1f, &seed, 1500, &hit_share), "==", 0,
+               "opposing, near-zero and sideways normals: rays disagreeing with the brute force (of 1500)");
+    HARD_CHECK("other", hit_share, ">=", 0.1, "smallest share of rays that hit");
     mr_asset_free(mesh);
     mr_asset_free(tex);
 }
@@ -188,7 +204,9 @@ static void test_ray_directions(void **state)
         /* axis-parallel rays along the grid lines */
         bad += dfx_check_ray(&f, mr_v3(-2, y, (float)(k % 7 - 3) / 3.0f), mr_v3(1, 0, 0), 0, INFINITY);
     }
-    assert_int_equal(bad, 0);
+    HARD_CHECK("error", bad, "==", 0,
+               "rays parallel to the base, grazing it, from inside the shell, along grid lines: disagreeing with "
+               "the brute force (of %llu; %llu hit)", (unsigned long long)f.rays, (unsigned long long)f.hits);
     dfx_close(&f);
     mr_device_free(f.dev);
     mr_asset_free(mesh);
@@ -206,16 +224,18 @@ static void test_texture_sizes(void **state)
     (void)state;
     uint64_t seed = 404;
     static const uint32_t SIZES[][2] = {{1, 1}, {1, 13}, {13, 1}, {3, 7}, {31, 17}};
+    double hit_share = 1;
     for (size_t k = 0; k < sizeof SIZES / sizeof SIZES[0]; k++) {
         mr_asset *tex = k == 0 ? dfx_texture(1, 1, MR_SAMPLE_U8, one, NULL)
                                : dfx_texture(SIZES[k][0], SIZES[k][1], MR_SAMPLE_U8, dfx_noise, &seed);
         mr_asset *mesh = grid_mesh(uv_plain, NULL);
-        int bad = run(mesh, tex, 0.2f, 0, &seed, 1000);
-        if (bad)
-            fail_msg("%ux%u: %d rays disagree", SIZES[k][0], SIZES[k][1], bad);
+        int bad = run(mesh, tex, 0.2f, 0, &seed, 1000, &hit_share);
+        HARD_CHECK("error", bad, "==", 0, "%ux%u texture: rays disagreeing with the brute force (of 1000)",
+                   SIZES[k][0], SIZES[k][1]);
         mr_asset_free(mesh);
         mr_asset_free(tex);
     }
+    HARD_CHECK("other", hit_share, ">=", 0.1, "smallest share of rays that hit");
 }
 
 /* The bending bar: its clip, then joints twisted and scaled to extremes;
@@ -256,7 +276,9 @@ static void test_skinned_extreme_poses(void **state)
         dfx_repose(&f, &extreme, 0);
         bad += dfx_random_rays(&f, &seed, 150);
     }
-    assert_int_equal(bad, 0);
+    HARD_CHECK("error", bad, "==", 0,
+               "rays disagreeing with the brute force over 4 clip poses and 3 extreme ones (of %llu; %llu hit)",
+               (unsigned long long)f.rays, (unsigned long long)f.hits);
     dfx_close(&f);
     mr_device_free(f.dev);
     mr_asset_free(bar);

@@ -38,6 +38,12 @@
  *    within 1e-5 of 1 (measured error ~1e-7); axis-parallel rays pass
  *    through the vertex exactly (zero shear), t within 4 ulps of
  *    org - v along the axis.
+ *
+ * Each case reports for `make hard` (hard_report.h, report_rays below) the
+ * rays its check_ray calls failed on (0: the check stops at the first), the
+ * non-finite hits, how far t lay above the brute force's (ulps), and where
+ * it checks them the (u, v) and ng errors and micro-vertices outside the
+ * bounds, plus its own figures.
  */
 #include <float.h>
 #include <math.h>
@@ -56,6 +62,31 @@
 #include "math/watertight.h"
 
 #include "../support/dmm_patch_fixture.h"
+
+#define HARD_KIND "dmm"
+#include "../support/hard_report.h"
+
+/* The figures of a battery of check_ray calls, under the case test. fine:
+ * the rays were checked with CHECK_FINE ((u, v) and ng, 1e-3 each). */
+static void report_rays(const char *test, const check_stats *cs, bool fine)
+{
+    hard_check(test, "error", (double)cs->mismatches, "==", 0,
+               "rays disagreeing with the brute force (of %llu; %llu hit)",
+               (unsigned long long)cs->rays, (unsigned long long)cs->hits);
+    hard_check(test, "nan", (double)cs->nonfinite, "==", 0, "non-finite hits (t, u, v, ng)");
+    hard_check(test, "error", cs->worst_t_ulps, "<=", 4,
+               "largest t above the brute force's closest, ulps (ties at edges and vertices)");
+    if (fine) {
+        hard_check(test, "error", cs->worst_uv, "<=", 1e-3,
+                   "largest (u, v) outside the micro-triangle hit, lattice units");
+        hard_check(test, "error", cs->worst_ng, "<=", 1e-3,
+                   "largest angle between ng and the micro-triangle's normal, sine");
+    }
+    if (cs->vertices)
+        hard_check(test, "leaks", (double)cs->outside, "==", 0,
+                   "micro-vertices outside the patch bounds (of %llu)",
+                   (unsigned long long)cs->vertices);
+}
 
 
 /* ---- deformations */
@@ -133,7 +164,7 @@ static void hard_mats(int which, mr_affine m[3])
 static void run_patch(brute *bf, const mr_dmm_patch *p, uint64_t *s, uint32_t rays, int flags,
                       check_stats *cs)
 {
-    bounds_case(p);
+    bounds_case(p, cs);
     brute_init(bf, p);
     mr_vec3 lo, hi;
     assert_true(mr_dmm_patch_bounds(p, &lo, &hi));
@@ -183,6 +214,8 @@ static void test_bends(void **state)
     uint64_t s = 0x243f6a8885a308d3ull;
     brute *bf = malloc(sizeof *bf);
     assert_non_null(bf);
+    check_stats all = {0};
+    double hit_share = INFINITY; /* the smallest share of rays that hit, per level */
     for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++) {
         uint32_t vc = mr_umesh_vertex_count(level);
         float *disp = malloc(sizeof(float) * vc * 4);
@@ -204,9 +237,13 @@ static void test_bends(void **state)
         }
         print_cs("bends", level, &cs);
         assert_true(cs.hits > cs.rays / 5);
+        hit_share = hard_min(hit_share, (double)cs.hits / (double)cs.rays);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, false);
+    HARD_CHECK("other", hit_share, ">", 0.2, "smallest share of rays that hit, over levels 0-5");
     free(bf);
 }
 
@@ -233,6 +270,7 @@ static void test_degenerate_base(void **state)
         {{1, 0, 0}, {0, 1, 0}, {-1, 0, 0}},  /* tangential */
     };
     const unsigned levels[] = {0, 1, 3, 5};
+    check_stats all = {0};
     for (size_t li = 0; li < sizeof levels / sizeof *levels; li++) {
         unsigned level = levels[li];
         uint32_t vc = mr_umesh_vertex_count(level);
@@ -258,9 +296,11 @@ static void test_degenerate_base(void **state)
                 run_patch(bf, &p, &s, 40, flags, &cs);
             }
         print_cs("degenerate", level, &cs);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, false);
     free(bf);
 }
 
@@ -295,6 +335,8 @@ static void test_quantisation_limits(void **state)
     assert_non_null(bf);
     const char *names[] = {"zero", "max", "checker", "huge", "huger", "tiny", "denormal",
                            "narrow"};
+    check_stats all = {0};
+    uint64_t off_grid = 0; /* Q_MAX values not at the grid's ends */
     for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++) {
         uint32_t vc = mr_umesh_vertex_count(level);
         float *disp = malloc(sizeof(float) * vc * 2);
@@ -307,8 +349,8 @@ static void test_quantisation_limits(void **state)
                 uint8_t bits[MR_UMESH_MAX_LEVEL + 1];
                 mr_dmm_default_bits(bits);
                 for (uint32_t i = 0; i < vc; i++) {
-                    assert_int_equal(set.values[i], 0);
-                    assert_int_equal(set.values[vc + i], (1u << bits[0]) - 1u);
+                    HARD_EXPECT(off_grid, set.values[i] == 0);
+                    HARD_EXPECT(off_grid, set.values[vc + i] == (1u << bits[0]) - 1u);
                 }
             }
             check_stats cs = {0};
@@ -329,10 +371,13 @@ static void test_quantisation_limits(void **state)
             }
             if (level == MR_UMESH_MAX_LEVEL)
                 print_cs(names[kind], level, &cs);
+            check_stats_add(&all, &cs);
             set_free(&set);
         }
         free(disp);
     }
+    HARD_CHECK("other", off_grid, "==", 0, "displacements 0 and 1 not quantised to 0 and 2^bits - 1");
+    report_rays(__func__, &all, true);
     free(bf);
 }
 
@@ -346,6 +391,7 @@ static void test_grazing(void **state)
     assert_non_null(bf);
     const float eps[] = {0.1f, 1e-3f, 1e-5f, 1e-7f, 0};
     const unsigned levels[] = {0, 3, 5};
+    check_stats all = {0};
     for (size_t li = 0; li < 3; li++) {
         unsigned level = levels[li];
         uint32_t vc = mr_umesh_vertex_count(level);
@@ -390,9 +436,11 @@ static void test_grazing(void **state)
                     }
             }
         print_cs("grazing", level, &cs);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, false);
     free(bf);
 }
 
@@ -406,6 +454,7 @@ static void test_origin_inside(void **state)
     brute *bf = malloc(sizeof *bf);
     assert_non_null(bf);
     const unsigned levels[] = {0, 1, 3, 5};
+    check_stats all = {0};
     for (size_t li = 0; li < 4; li++) {
         unsigned level = levels[li];
         uint32_t vc = mr_umesh_vertex_count(level), n = mr_umesh_segments(level);
@@ -451,9 +500,11 @@ static void test_origin_inside(void **state)
                 }
             }
         print_cs("inside", level, &cs);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, true);
     free(bf);
 }
 
@@ -464,8 +515,11 @@ static bool v3_same_bits(mr_vec3 a, mr_vec3 b)
     return fbits(a.x) == fbits(b.x) && fbits(a.y) == fbits(b.y) && fbits(a.z) == fbits(b.z);
 }
 
+/* Adds the rays that must hit the union of the two patches to *required
+ * and those that missed both to *leaks. */
 static void shared_edge_case(unsigned level, bool interpolated, uint64_t *s, brute *ba,
-                             brute *bb, check_stats *cs)
+                             brute *bb, check_stats *cs, uint64_t *required_total,
+                             uint64_t *leaks_total)
 {
     uint32_t vc = mr_umesh_vertex_count(level), n = mr_umesh_segments(level);
     /* A = (p0, p1, p2), B = (p1, p0, p3): edge 0 of both, opposite ways */
@@ -497,8 +551,8 @@ static void shared_edge_case(unsigned level, bool interpolated, uint64_t *s, bru
     mr_dmm_patch pb = set_patch(&set, 1, &tb, interpolated ? mb : NULL);
     brute_init(ba, &pa);
     brute_init(bb, &pb);
-    bounds_case(&pa);
-    bounds_case(&pb);
+    bounds_case(&pa, cs);
+    bounds_case(&pb, cs);
     /* precondition: the shared edge's micro-vertices are bit-identical */
     mr_vec3 ev[33];
     for (uint32_t k = 0; k <= n; k++) {
@@ -561,10 +615,12 @@ static void shared_edge_case(unsigned level, bool interpolated, uint64_t *s, bru
         check_ray(bb, &pb, org, dir, 0, INFINITY, NULL, NULL, cs, CHECK_TIES);
     }
     if (leaks)
-        fail_msg("%llu of %llu rays at the shared edge leaked (level %u, %s)",
-                 (unsigned long long)leaks, (unsigned long long)required, level,
-                 interpolated ? "interpolated" : "base");
+        print_error("%llu of %llu rays at the shared edge leaked (level %u, %s)\n",
+                    (unsigned long long)leaks, (unsigned long long)required, level,
+                    interpolated ? "interpolated" : "base");
     assert_true(required > 0);
+    *required_total += required;
+    *leaks_total += leaks;
     set_free(&set);
     free(disp);
 }
@@ -575,20 +631,31 @@ static void test_shared_edge(void **state)
     uint64_t s = 0xbe5466cf34e90c6cull;
     brute *ba = malloc(sizeof *ba), *bb = malloc(sizeof *bb);
     assert_true(ba && bb);
+    check_stats all = {0};
+    uint64_t required = 0, leaks = 0;
     for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++)
         for (int mode = 0; mode < 2; mode++) {
             check_stats cs = {0};
             for (int rep = 0; rep < 2; rep++)
-                shared_edge_case(level, mode != 0, &s, ba, bb, &cs);
+                shared_edge_case(level, mode != 0, &s, ba, bb, &cs, &required, &leaks);
             print_cs(mode ? "shared edge interpolated" : "shared edge base", level, &cs);
+            check_stats_add(&all, &cs);
         }
+    HARD_CHECK("leaks", leaks, "==", 0,
+               "rays through the shared edge missing both patches (of %llu; levels 0-5, both modes)",
+               (unsigned long long)required);
+    report_rays(__func__, &all, true);
     free(ba);
     free(bb);
 }
 
 /* ---- a ray at every micro-vertex */
 
-static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *bf)
+/* Worst figures into *t_err (|t - 1| of the oblique rays) and *axis_err
+ * (|t - expected| / expected of the axis-parallel ones); rays that must hit
+ * their micro-vertex and missed into *missed, of *aimed. */
+static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *bf, check_stats *all,
+                        double *t_err, double *axis_err, uint64_t *aimed, uint64_t *missed)
 {
     uint32_t vc = mr_umesh_vertex_count(level), n = mr_umesh_segments(level);
     float *disp = malloc(sizeof(float) * vc);
@@ -606,8 +673,8 @@ static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *b
                              rnd_vec(s, 0.85f, 1.15f));
     mr_dmm_patch p = set_patch(&set, 0, &tri, interpolated ? mats : NULL);
     brute_init(bf, &p);
-    bounds_case(&p);
     check_stats cs = {0};
+    bounds_case(&p, &cs);
     double worst = 0;
     for (uint32_t b = 0; b <= n; b++)
         for (uint32_t a = 0; a + b <= n; a++) {
@@ -619,11 +686,14 @@ static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *b
                 float zo = side ? v.z + 1.5f : v.z - 1.5f;
                 mr_vec3 org = mr_v3(v.x, v.y, zo), dir = mr_v3(0, 0, side ? -1.0f : 1.0f);
                 mr_dmm_hit h;
+                (*aimed)++;
                 if (!check_ray(bf, &p, org, dir, 0, INFINITY, &h, NULL, &cs, CHECK_AIMED)) {
                     print_error("axis-parallel ray missed micro-vertex (%u, %u)\n", a, b);
-                    fail();
+                    (*missed)++;
+                    continue;
                 }
                 double expect = fabs((double)zo - (double)v.z);
+                *axis_err = hard_max(*axis_err, fabs(h.t - expect) / expect);
                 if (fabs(h.t - expect) > 4 * FLT_EPSILON * expect) {
                     print_error("vertex (%u, %u): t %a, expected %a\n", a, b, (double)h.t,
                                 expect);
@@ -636,12 +706,13 @@ static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *b
             mr_vec3 org = mr_v3_add(v, up), dir = mr_v3_sub(v, org);
             mr_dmm_hit h;
             bool hit = check_ray(bf, &p, org, dir, 0, INFINITY, &h, NULL, &cs, CHECK_AIMED);
+            *aimed += interior;
             if (interior && !hit) {
                 print_error("ray missed interior micro-vertex (%u, %u)\n", a, b);
-                fail();
+                (*missed)++;
             }
             if (hit) {
-                worst = fmax(worst, fabs(h.t - 1.0));
+                worst = hard_max(worst, fabs(h.t - 1.0));
                 if (fabs(h.t - 1.0) > 1e-5) {
                     print_error("vertex (%u, %u): t %.9g, expected 1\n", a, b, (double)h.t);
                     fail();
@@ -651,6 +722,8 @@ static void vertex_rays(unsigned level, bool interpolated, uint64_t *s, brute *b
     printf("  vertex rays level %u %s: %llu/%llu hit, worst |t - 1| %.2g\n", level,
            interpolated ? "interpolated" : "base", (unsigned long long)cs.hits,
            (unsigned long long)cs.rays, worst);
+    *t_err = hard_max(*t_err, worst);
+    check_stats_add(all, &cs);
     set_free(&set);
     free(disp);
 }
@@ -662,10 +735,20 @@ static void test_vertex_rays(void **state)
     brute *bf = malloc(sizeof *bf);
     assert_non_null(bf);
     const unsigned levels[] = {0, 3, 5};
+    check_stats all = {0};
+    double t_err = 0, axis_err = 0;
+    uint64_t aimed = 0, missed = 0;
     for (size_t li = 0; li < 3; li++)
         for (int mode = 0; mode < 2; mode++)
             for (int rep = 0; rep < 2; rep++)
-                vertex_rays(levels[li], mode != 0, &s, bf);
+                vertex_rays(levels[li], mode != 0, &s, bf, &all, &t_err, &axis_err, &aimed, &missed);
+    HARD_CHECK("leaks", missed, "==", 0,
+               "rays missing the micro-vertex they aim at (of %llu: axis-parallel at every one, "
+               "oblique at interior ones)", (unsigned long long)aimed);
+    HARD_CHECK("error", t_err, "<=", 1e-5, "largest |t - 1| of oblique rays at micro-vertices");
+    HARD_CHECK("error", axis_err, "<=", 4 * FLT_EPSILON,
+               "largest relative t error of axis-parallel rays through micro-vertices");
+    report_rays(__func__, &all, true);
     free(bf);
 }
 
@@ -677,6 +760,8 @@ static void test_axis_parallel(void **state)
     uint64_t s = 0x3f84d5b5b5470917ull;
     brute *bf = malloc(sizeof *bf);
     assert_non_null(bf);
+    check_stats all = {0};
+    double hit_share = INFINITY;
     for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++) {
         uint32_t vc = mr_umesh_vertex_count(level);
         float *disp = malloc(sizeof(float) * vc * 2);
@@ -716,9 +801,13 @@ static void test_axis_parallel(void **state)
             }
         print_cs("axis-parallel", level, &cs);
         assert_true(cs.hits > cs.rays / 3);
+        hit_share = hard_min(hit_share, (double)cs.hits / (double)cs.rays);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, true);
+    HARD_CHECK("other", hit_share, ">", 1.0 / 3, "smallest share of rays that hit, over levels 0-5");
     free(bf);
 }
 
@@ -731,6 +820,7 @@ static void test_far_origin(void **state)
     brute *bf = malloc(sizeof *bf);
     assert_non_null(bf);
     const float dist[] = {1e2f, 1e3f, 1e4f, 1e5f};
+    check_stats all = {0};
     for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++) {
         uint32_t vc = mr_umesh_vertex_count(level);
         float *disp = malloc(sizeof(float) * vc * 2);
@@ -755,9 +845,11 @@ static void test_far_origin(void **state)
                 }
             }
         print_cs("far origin", level, &cs);
+        check_stats_add(&all, &cs);
         set_free(&set);
         free(disp);
     }
+    report_rays(__func__, &all, false);
     free(bf);
 }
 
@@ -774,7 +866,8 @@ static void test_non_finite(void **state)
     mr_vec3 lo, hi;
     /* d * |dir| = 3e39 overflows float: the patch has no finite box and
      * the caller (the BVH build) must drop it */
-    assert_false(mr_dmm_patch_bounds(&p, &lo, &hi));
+    HARD_CHECK("nan", mr_dmm_patch_bounds(&p, &lo, &hi), "==", 0,
+               "boxes given to a patch whose displacement overflows float (d |dir| = 3e39)");
     set_free(&set);
 }
 

@@ -21,6 +21,7 @@
  *     midpoint from either side of the surface, through the tessellation-free
  *     Embree user geometry; every one must hit. Without decimation the fine
  *     side's odd micro-vertices leave slits exactly there.
+ * The figures of each part are reported for `make hard` (hard_report.h).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -29,6 +30,7 @@
 #include <stdio.h>
 #include <cmocka.h>
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -39,6 +41,9 @@
 #include "kinds/dmm/dmm_encode.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/kind.h"
+
+#define HARD_KIND "dmm"
+#include "../support/hard_report.h"
 
 #define LEVEL 4u
 #define BASE_RATIO 0.0625f
@@ -81,9 +86,17 @@ static edge *base_edges(const mr_dmm_bake *b)
     return e;
 }
 
-/* Part 1, and the number of unmatched micro-edges a crack-free
+/* What part 1 found, over the meshes of an asset. */
+typedef struct level_figures {
+    uint64_t edges, far_apart; /* shared base edges; those joining levels > 1 apart */
+    uint64_t decimation_wrong; /* edge sides decimated but not the finer, or the reverse */
+    uint64_t fewest_mixed;     /* the fewest base edges joining two levels in a mesh */
+    unsigned fewest_levels;    /* the fewest levels a mesh uses */
+} level_figures;
+
+/* Part 1 into *lf, and the number of unmatched micro-edges a crack-free
  * tessellation has (open base edges times their triangle's 2^level). */
-static uint64_t check_levels(const mr_dmm_bake *b)
+static uint64_t check_levels(const mr_dmm_bake *b, level_figures *lf)
 {
     edge *e = base_edges(b);
     size_t n = (size_t)b->base_triangle_count * 3;
@@ -98,27 +111,34 @@ static uint64_t check_levels(const mr_dmm_bake *b)
             lo = l < lo ? l : lo;
             hi = l > hi ? l : hi;
         }
-        assert_true(hi - lo <= 1);
+        lf->edges += j - i > 1;
+        HARD_EXPECT(lf->far_apart, hi - lo <= 1);
         mixed += hi > lo;
         for (size_t m = i; m < j; m++) {
             unsigned l = mr_dmm_info_level(b->tri_info[e[m].tri]);
             bool decimated = mr_dmm_info_decimate(b->tri_info[e[m].tri]) >> e[m].k & 1u;
-            assert_int_equal(decimated, l > lo);
+            HARD_EXPECT(lf->decimation_wrong, decimated == (l > lo));
         }
         if (j - i == 1)
             open += 1u << mr_dmm_info_level(b->tri_info[e[i].tri]);
     }
-    int distinct = 0;
+    unsigned distinct = 0;
     for (unsigned l = 0; l <= MR_UMESH_MAX_LEVEL; l++) {
         distinct += per_level[l] > 0;
         print_message("level %u: %u base triangles\n", l, per_level[l]);
     }
     print_message("%llu base edges join two levels\n", (unsigned long long)mixed);
-    assert_true(distinct >= 2);
-    assert_true(mixed > 0);
+    lf->fewest_levels = distinct < lf->fewest_levels ? distinct : lf->fewest_levels;
+    lf->fewest_mixed = mixed < lf->fewest_mixed ? mixed : lf->fewest_mixed;
     free(e);
     return open;
 }
+
+/* What parts 2 and 3 found in one mode. */
+typedef struct seam_figures {
+    uint64_t unmatched, want_unmatched; /* micro-edges used once; open base edges' share */
+    uint64_t rays, leaks;               /* rays at base-edge micro-edges, those that missed */
+} seam_figures;
 
 /* ---- the tessellation, welded by vertex bit pattern */
 
@@ -242,8 +262,9 @@ static bool hits(RTCScene scene, mr_vec3 org, mr_vec3 dir)
     return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
-static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
+static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
 {
+    seam_figures sf = {.want_unmatched = want_open};
     const mr_kind *ops = &mr_kind_dmm;
     mr_dmm_params params = adaptive_desc(mode);
     mr_object_desc o = {.kind = &mr_kind_dmm, .params = &params};
@@ -278,7 +299,7 @@ static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
                   "%llu)\n",
                   (int)mode, m.triangle_count, (unsigned long long)once,
                   (unsigned long long)want_open);
-    assert_int_equal(once, want_open);
+    sf.unmatched = once;
 
     /* 3. rays at every micro-edge along a base edge, from both sides,
      * through the tessellation-free traversal */
@@ -311,8 +332,8 @@ static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
     }
     print_message("mode %d: %llu rays at base-edge micro-edges, %llu leaked\n", (int)mode,
                   (unsigned long long)rays, (unsigned long long)leaks);
-    assert_true(rays > 1000);
-    assert_int_equal(leaks, 0);
+    sf.rays = rays;
+    sf.leaks = leaks;
 
     rtcReleaseScene(scene);
     ops->free(g);
@@ -322,6 +343,7 @@ static void check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
     free(w.dups);
     mr_trimesh_free(&m);
     mr_pose_free(pose);
+    return sf;
 }
 
 static void test_adaptive_levels_are_watertight(void **state)
@@ -336,17 +358,34 @@ static void test_adaptive_levels_are_watertight(void **state)
     bp.target_ratio = BASE_RATIO;
     uint64_t open = 0;
     mr_error err = {0};
+    level_figures lf = {.fewest_mixed = UINT64_MAX, .fewest_levels = UINT_MAX};
     for (size_t i = 0; i < a->mesh_count; i++) {
         if (a->meshes[i].triangle_count == 0)
             continue;
         mr_dmm_bake *b = NULL;
         if (mr_dmm_bake_run(&a->meshes[i], &bp, &b, &err) != MR_OK)
             fail_msg("bake: %s", err.msg);
-        open += check_levels(b);
+        open += check_levels(b, &lf);
         mr_dmm_bake_free(b);
     }
-    check_mode(a, MR_DMM_BASE, open);
-    check_mode(a, MR_DMM_INTERPOLATED, open);
+    HARD_CHECK("other", lf.fewest_levels, ">=", 2, "levels the adaptive bake uses, fewest in a mesh");
+    HARD_CHECK("other", lf.fewest_mixed, ">", 0,
+               "base edges joining two levels, fewest in a mesh (%llu shared edges in all)",
+               (unsigned long long)lf.edges);
+    HARD_CHECK("other", lf.far_apart, "==", 0, "shared base edges joining levels more than 1 apart");
+    HARD_CHECK("other", lf.decimation_wrong, "==", 0,
+               "base-edge sides decimated though not the finer, or finer and not decimated");
+    const mr_dmm_mode modes[2] = {MR_DMM_BASE, MR_DMM_INTERPOLATED};
+    for (int k = 0; k < 2; k++) {
+        const char *name = k ? "interpolated" : "base";
+        seam_figures sf = check_mode(a, modes[k], open);
+        HARD_CHECK("leaks", (double)sf.unmatched - (double)sf.want_unmatched, "==", 0,
+                   "%s: cracks, micro-edges used once beyond the open base edges' %llu", name,
+                   (unsigned long long)sf.want_unmatched);
+        HARD_CHECK("leaks", sf.leaks, "==", 0, "%s: rays at base-edge micro-edges that leaked (of %llu)",
+                   name, (unsigned long long)sf.rays);
+        HARD_CHECK("other", sf.rays, ">", 1000, "%s: rays at base-edge micro-edges", name);
+    }
     mr_asset_free(a);
 }
 

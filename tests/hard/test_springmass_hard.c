@@ -7,6 +7,7 @@
  * does not grow), a detailed vertex far outside the grid, a probe faster
  * than a node spacing per step, randomised initial positions. None of them
  * may produce a NaN: each ends finite or with an error that says why.
+ * Each case reports its figures for `make hard` (hard_report.h).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -16,6 +17,9 @@
 #include <stdio.h>
 
 #include "../support/springmass_fixture.h"
+
+#define HARD_KIND "springmass"
+#include "../support/hard_report.h"
 
 static sm_sim *mesh_sim(const sm_mesh *m, const mr_springmass_params *p, double spacing, uint32_t nodes)
 {
@@ -38,16 +42,16 @@ static sm_sim *ball(const mr_springmass_params *p, uint32_t nodes)
     return s;
 }
 
-/* Every node's position is finite. */
-static bool positions_finite(const sm_sim *s)
+/* How many nodes have a non-finite position. */
+static size_t nonfinite_nodes(const sm_sim *s)
 {
     const float *x[3];
     sm_sim_positions(s, x);
     const sm_grid *g = sm_sim_grid(s);
+    size_t bad = 0;
     for (size_t c = 0; c < g->cells; c++)
-        if (g->active[c] && !(isfinite(x[0][c]) && isfinite(x[1][c]) && isfinite(x[2][c])))
-            return false;
-    return true;
+        bad += g->active[c] && !(isfinite(x[0][c]) && isfinite(x[1][c]) && isfinite(x[2][c]));
+    return bad;
 }
 
 /* dt at the rest bound and 1.5x, 10x above it: split into substeps
@@ -57,6 +61,9 @@ static void test_dt_at_and_above_bound(void **state)
 {
     (void)state;
     const double factor[] = {1.0, 1.5, 10.0};
+    size_t nonfinite = 0;
+    double strain = 0;
+    int too_few = 0;
     for (size_t i = 0; i < 3; i++) {
         mr_springmass_params p = sm_default_params();
         mr_springmass_pin top = {.box_min = {-5, 0.7f, -5}, .box_max = {5, 5, 5}};
@@ -75,11 +82,14 @@ static void test_dt_at_and_above_bound(void **state)
         for (int f = 0; f < 40; f++)
             if (sm_sim_advance(s, 15, 2, &err) < 0)
                 fail_msg("dt = %.2f h_crit, frame %d: %s", factor[i], f, err.msg);
-        assert_true(sm_sim_substeps(s) >= want); /* stretched springs may ask for more */
-        assert_true(positions_finite(s));
-        assert_true(sm_sim_measure(s)->max_strain < 0.5);
+        HARD_EXPECT(too_few, sm_sim_substeps(s) >= want); /* stretched springs may ask for more */
+        nonfinite += nonfinite_nodes(s);
+        strain = hard_max(strain, sm_sim_measure(s)->max_strain);
         sm_sim_free(s);
     }
+    HARD_CHECK("other", too_few, "==", 0, "runs taking fewer substeps than ceil(dt / 0.9 h_crit) (of 3)");
+    HARD_NONFINITE(nonfinite, "non-finite node positions after 40 frames, dt = 1, 1.5, 10 h_crit");
+    HARD_CHECK("error", strain, "<", 0.5, "largest spring strain (stable: undriven, the pin still)");
 }
 
 /* k = 1e7: 169 substeps per step, the ball all but rigid under gravity.
@@ -98,9 +108,9 @@ static void test_stiff_and_soft(void **state)
     for (int f = 0; f < 4; f++)
         if (sm_sim_advance(s, 15, 2, &err) < 0)
             fail_msg("k = 1e7, frame %d: %s", f, err.msg);
-    assert_true(sm_sim_substeps(s) >= 150);
-    assert_true(sm_sim_measure(s)->max_strain < 1e-3);
-    assert_true(positions_finite(s));
+    HARD_CHECK("other", sm_sim_substeps(s), ">=", 150, "k = 1e7: substeps per step");
+    HARD_CHECK("error", sm_sim_measure(s)->max_strain, "<", 1e-3, "k = 1e7: largest spring strain (all but rigid)");
+    HARD_NONFINITE(nonfinite_nodes(s), "k = 1e7: non-finite node positions");
     sm_sim_free(s);
 
     p.stiffness = p.shear_stiffness = 1e-3f;
@@ -109,9 +119,10 @@ static void test_stiff_and_soft(void **state)
     for (int f = 0; f < 120 && rc == MR_OK; f++)
         rc = sm_sim_advance(s, 15, 2, &err);
     if (rc < 0)
-        assert_non_null(strstr(err.msg, "the simulation diverged"));
+        HARD_CHECK("other", strstr(err.msg, "the simulation diverged") == NULL, "==", 0,
+                   "k = 1e-3: errors that do not say \"the simulation diverged\"");
     else
-        assert_true(positions_finite(s));
+        HARD_NONFINITE(nonfinite_nodes(s), "k = 1e-3: non-finite node positions without an error (120 frames)");
     sm_sim_free(s);
 }
 
@@ -140,13 +151,17 @@ static void test_thin_sheet(void **state)
         assert_int_equal(sm_sim_advance(s, 15, 2, &err), MR_OK);
     float pos[24 * 3 + 1], nrm[24 * 3 + 1];
     sm_map_apply(map, s, pos, nrm, 2);
+    size_t nonfinite = 0;
+    double unit_err = 0;
     for (int v = 0; v < 24; v++) {
         double l = sqrt((double)nrm[v * 3] * nrm[v * 3] + (double)nrm[v * 3 + 1] * nrm[v * 3 + 1] +
                         (double)nrm[v * 3 + 2] * nrm[v * 3 + 2]);
-        assert_true(isfinite(pos[v * 3]) && isfinite(pos[v * 3 + 1]) && isfinite(pos[v * 3 + 2]));
-        assert_true(fabs(l - 1) < 1e-4);
+        nonfinite += !(isfinite(pos[v * 3]) && isfinite(pos[v * 3 + 1]) && isfinite(pos[v * 3 + 2]));
+        unit_err = hard_max(unit_err, fabs(l - 1));
     }
-    assert_true(pos[1] < m.fpos[1] || pos[4] < m.fpos[4]); /* it sagged somewhere */
+    HARD_NONFINITE(nonfinite, "non-finite mapped positions (24 vertices)");
+    HARD_CHECK("error", unit_err, "<", 1e-4, "largest |length of a mapped normal - 1|");
+    HARD_CHECK("other", pos[1] < m.fpos[1] || pos[4] < m.fpos[4], "==", 1, "the sheet sagged");
     sm_map_free(map);
     sm_sim_free(s);
     sm_mesh_free(&m);
@@ -174,18 +189,21 @@ static void test_single_node(void **state)
     assert_true(dy < -0.01f);
     size_t n3 = (size_t)m.vertex_count * 3;
     float *pos = malloc(n3 * 4 + 4), *nrm = malloc(n3 * 4 + 4);
+    double one_err = 0, carried_err = 0;
     for (int k = 0; k < 4; k++) {
         sm_map *map = NULL;
         assert_int_equal(sm_map_new(s, k, m.fpos, m.nrm, m.vertex_count, 2, &map, &err), MR_OK);
         sm_map_apply(map, s, pos, nrm, 2);
         for (uint32_t v = 0; v < m.vertex_count; v++) {
             if (k == MR_SPRINGMASS_ONE_TO_ONE)
-                assert_true(pos[v * 3 + 1] == x[1][node]);
+                one_err = hard_max(one_err, fabsf(pos[v * 3 + 1] - x[1][node]));
             else
-                assert_true(fabsf(pos[v * 3 + 1] - (m.fpos[v * 3 + 1] + dy)) < 1e-6f);
+                carried_err = hard_max(carried_err, fabsf(pos[v * 3 + 1] - (m.fpos[v * 3 + 1] + dy)));
         }
         sm_map_free(map);
     }
+    HARD_CHECK("error", one_err, "==", 0, "one_to_one: largest |vertex y - the node's y|");
+    HARD_CHECK("error", carried_err, "<", 1e-6f, "other mappings: largest |vertex y - (rest y + the node's drop)|");
     free(pos);
     free(nrm);
     sm_sim_free(s);
@@ -220,8 +238,8 @@ static void test_inverted_cells(void **state)
     if (rc < 0)
         fail_msg("crushing: %s", err.msg);
     printf("crushed block: up to %u inverted cells of %zu nodes\n", most, sm_sim_grid(s)->nodes);
-    assert_true(most > 0);
-    assert_true(positions_finite(s));
+    HARD_CHECK("other", most, ">", 0, "inverted cells counted, most in a frame (of %zu nodes)", sm_sim_grid(s)->nodes);
+    HARD_NONFINITE(nonfinite_nodes(s), "non-finite node positions after crushing");
     sm_sim_free(s);
     sm_mesh_free(&m);
 }
@@ -235,6 +253,7 @@ static void test_energy_pinned_and_free(void **state)
     mr_springmass_params p = sm_default_params();
     p.damping = 0;
     mr_springmass_pin all = {.box_min = {-5, -5, -5}, .box_max = {5, 5, 5}};
+    double pinned_change = 0, free_excess = -INFINITY;
     for (int pinned = 0; pinned < 2; pinned++) {
         p.pins = pinned ? &all : NULL;
         p.pin_count = pinned ? 1 : 0;
@@ -244,12 +263,15 @@ static void test_energy_pinned_and_free(void **state)
             assert_int_equal(sm_sim_advance(s, 15, 2, &err), MR_OK);
             const sm_measure *m = sm_sim_measure(s);
             if (pinned)
-                assert_true(m->shadow == e0);
-            else
-                assert_true(m->shadow <= e0 + 1e-6 * (m->kinetic + fabs(m->gravity)) + 1e-12);
+                pinned_change = hard_max(pinned_change, fabs(m->shadow - e0));
+            else /* above E0 by more than rounding: 1e-6 (K + |G|) + 1e-12 */
+                free_excess = hard_max(free_excess, m->shadow - (e0 + 1e-6 * (m->kinetic + fabs(m->gravity)) + 1e-12));
         }
         sm_sim_free(s);
     }
+    HARD_CHECK("error", pinned_change, "==", 0, "all pinned: largest |E - E0| over 100 frames");
+    HARD_CHECK("error", free_excess, "<=", 0,
+               "nothing pinned: largest E - E0 beyond rounding (1e-6 (K + |G|) + 1e-12), falling 100 frames");
 }
 
 /* A sphere and a stray triangle three radii away, far outside any cell
@@ -284,6 +306,7 @@ static void test_far_vertex(void **state)
     mr_error err;
     size_t n3 = (size_t)m.vertex_count * 3;
     float *pos = malloc(n3 * 4 + 4), *nrm = malloc(n3 * 4 + 4);
+    double worst = 0;
     for (int k = 1; k < 4; k++) { /* one_to_one puts it on a node by definition */
         sm_sim_reset(s, 2);
         sm_map *map = NULL;
@@ -294,12 +317,15 @@ static void test_far_vertex(void **state)
             const float *v = m.fpos + (size_t)(v0 + c) * 3;
             mr_vec3 want = mr_quat_rotate(q, mr_v3(v[0], v[1], v[2]));
             const float *got = pos + (size_t)(v0 + c) * 3;
-            double e = fmax(fabs(got[0] - (want.x + 0.2)), fmax(fabs(got[1] - (want.y + 0.1)), fabs(got[2] - want.z)));
+            double e = hard_max(fabs(got[0] - (want.x + 0.2)), hard_max(fabs(got[1] - (want.y + 0.1)), fabs(got[2] - want.z)));
             if (!(e < 1e-5 * 4))
-                fail_msg("mapping %d: the far vertex %d is off by %g", k, c, e);
+                print_error("mapping %d: the far vertex %d is off by %g\n", k, c, e);
+            worst = hard_max(worst, e);
         }
         sm_map_free(map);
     }
+    HARD_CHECK("error", worst, "<", 1e-5 * 4,
+               "largest error of a vertex 3 radii outside the grid carried rigidly (3 mappings, size 4)");
     free(pos);
     free(nrm);
     sm_sim_free(s);
@@ -328,7 +354,7 @@ static void test_fast_probe(void **state)
     mr_error err;
     const float *x[3];
     const sm_grid *g = sm_sim_grid(s);
-    double moved = 0;
+    double moved = 0, closest = INFINITY;
     const float *r[3];
     sm_sim_rest(s, r);
     for (int f = 0; f < 4; f++) {
@@ -342,11 +368,14 @@ static void test_fast_probe(void **state)
             double dx = x[0][c] - cx, dy = x[1][c], dz = x[2][c];
             double d = sqrt(dx * dx + dy * dy + dz * dz);
             if (!(d >= 0.2 * (1 - 1e-4)))
-                fail_msg("frame %d: a node is %g inside the probe", f, 0.2 - d);
-            moved = fmax(moved, fabs(x[1][c] - r[1][c]) + fabs(x[2][c] - r[2][c]));
+                print_error("frame %d: a node is %g inside the probe\n", f, 0.2 - d);
+            closest = hard_min(closest, d);
+            moved = hard_max(moved, fabs(x[1][c] - r[1][c]) + fabs(x[2][c] - r[2][c]));
         }
     }
-    assert_true(moved > 0.1); /* it did push nodes aside */
+    HARD_CHECK("leaks", closest, ">=", 0.2 * (1 - 1e-4),
+               "closest node to the probe's centre (radius 0.2, 6 spacings a step), 4 frames");
+    HARD_CHECK("other", moved, ">", 0.1, "largest sideways push of a node"); /* it did push nodes aside */
     sm_sim_free(s);
     sm_mesh_free(&m);
 }
@@ -367,8 +396,8 @@ static void test_random_initial(void **state)
     for (int f = 0; f < 60; f++)
         assert_int_equal(sm_sim_advance(s, 15, 2, &err), MR_OK);
     double e1 = sm_sim_measure(s)->kinetic + sm_sim_measure(s)->spring;
-    assert_true(e1 < 0.01 * e0);
-    assert_true(positions_finite(s));
+    HARD_CHECK("error", e1 / e0, "<", 0.01, "scattered by 0.3 spacing: energy left after 60 frames, of the start");
+    HARD_NONFINITE(nonfinite_nodes(s), "scattered by 0.3 spacing: non-finite node positions");
     sm_sim_free(s);
 
     s = ball(&p, 1200);
@@ -378,9 +407,10 @@ static void test_random_initial(void **state)
         rc = sm_sim_advance(s, 15, 2, &err);
     printf("tangled ball: %s\n", rc == MR_OK ? "recovered" : err.msg);
     if (rc < 0)
-        assert_non_null(strstr(err.msg, "the simulation diverged"));
+        HARD_CHECK("other", strstr(err.msg, "the simulation diverged") == NULL, "==", 0,
+                   "tangled (3 spacings): errors that do not say \"the simulation diverged\"");
     else
-        assert_true(positions_finite(s));
+        HARD_NONFINITE(nonfinite_nodes(s), "tangled (3 spacings): non-finite node positions without an error");
     sm_sim_free(s);
 }
 

@@ -20,6 +20,7 @@
  *  - the shading normal of a +z face hit points along +z within 45 degrees
  *    (octahedral normals of the voxels on the face; the cube's edge voxels
  *    take the nearest triangle's normal, which may be a side's).
+ * Each case reports its figures for `make hard` (hard_report.h).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -36,6 +37,9 @@
 #include "kinds/kind.h"
 #include "kinds/svo/svo_kind.h"
 #include "util/parallel.h"
+
+#define HARD_KIND "svo"
+#include "../support/hard_report.h"
 
 static mr_asset *cube(float half)
 {
@@ -144,6 +148,10 @@ static void check_methods(void **state)
         translate_scale(-5, 0, 0, 0, 0, 0), /* zero scale: nothing to see */
     };
     const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    /* the hit's depth below the face, in voxels (allowed: 2.5 + rounding), and
+     * above it (allowed: rounding), over methods and instances */
+    double below = -INFINITY, above = -INFINITY, below_far = -INFINITY, above_far = -INFINITY;
+    int bad_normal = 0, phantom = 0;
     for (size_t m = 0; m < 4; m++) {
         scene s;
         build(&s, a, methods[m], 4, inst, 4);
@@ -155,8 +163,12 @@ static void check_methods(void **state)
             float face = z0 - half;
             float tol = k == 1 ? 0.02f : 1e-3f;
             if (!(t >= face - voxel * 2.5f - tol && t <= face + tol))
-                fail_msg("method %zu instance %zu: hit at t %g, face at %g (voxel %g)", m, k,
-                         (double)t, (double)face, (double)voxel);
+                print_error("method %zu instance %zu: hit at t %g, face at %g (voxel %g)\n", m, k,
+                            (double)t, (double)face, (double)voxel);
+            /* t >= face - 2.5 voxel - tol and t <= face + tol, as margins */
+            double *lo = k == 1 ? &below_far : &below, *hi = k == 1 ? &above_far : &above;
+            *lo = hard_max(*lo, (double)((face - voxel * 2.5f - tol) - t));
+            *hi = hard_max(*hi, (double)(t - (face + tol)));
             if (methods[m] == MR_SVO_RIGID)
                 assert_int_equal(rh.hit.instID[0], k); /* the instance, by id */
             else if (methods[m] != MR_SVO_DIRECT)
@@ -165,21 +177,29 @@ static void check_methods(void **state)
             mr_vec3 n = mr_v3_normalize_or(s.ops->normal(s.g, prim, rh.hit.u, rh.hit.v),
                                            mr_v3(0, 0, 0));
             if (!(n.z > 0.7f))
-                fail_msg("method %zu instance %zu: normal (%g, %g, %g)", m, k, (double)n.x,
-                         (double)n.y, (double)n.z);
+                print_error("method %zu instance %zu: normal (%g, %g, %g)\n", m, k, (double)n.x,
+                            (double)n.y, (double)n.z);
+            HARD_EXPECT(bad_normal, n.z > 0.7f);
             /* Geometric normal: facing the ray, world space. */
             mr_vec3 ng = mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-            assert_true(ng.z > 0);
+            HARD_EXPECT(bad_normal, ng.z > 0);
             /* A ray beside the instance misses it. */
-            assert_true(isinf(shoot(&s, cx + 2.0f, cy, z0, &rh)) ||
-                        fabsf(rh.ray.tfar - face) > 1.0f);
+            HARD_EXPECT(phantom, isinf(shoot(&s, cx + 2.0f, cy, z0, &rh)) || fabsf(rh.ray.tfar - face) > 1.0f);
         }
         /* The zero-scale instance has no volume: no hit, no crash. */
         struct RTCRayHit rh;
         float t = shoot(&s, -5.0f + 0.1f, 0.05f, 10.0f, &rh);
-        assert_true(isinf(t));
+        HARD_EXPECT(phantom, isinf(t));
         release(&s);
     }
+    HARD_CHECK("error", below, "<=", 0,
+               "hits deeper than 2.5 voxels + 1e-3 below the +z face, worst excess (4 methods, instances at the "
+               "origin and mirrored)");
+    HARD_CHECK("error", above, "<=", 0, "hits above the +z face by more than 1e-3, worst excess");
+    HARD_CHECK("error", below_far, "<=", 0, "at 1e5: hits deeper than 2.5 voxels + 0.02 below the face, worst excess");
+    HARD_CHECK("error", above_far, "<=", 0, "at 1e5: hits above the face by more than 0.02, worst excess");
+    HARD_CHECK("other", bad_normal, "==", 0, "shading normals more than 45 deg off +z, or ng not facing the ray (of 24)");
+    HARD_CHECK("other", phantom, "==", 0, "hits beside an instance or on the zero-scale one (of 16 rays)");
     mr_asset_free(a);
 }
 
@@ -195,13 +215,15 @@ static void check_tiny(void **state)
     assert_int_equal(mr_asset_from_mesh("tri", p, NULL, 3, idx, 1, &a, &err), MR_OK);
     mr_mat4 id = mr_mat4_identity();
     const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    int missed = 0;
     for (size_t m = 0; m < 4; m++) {
         scene s;
         build(&s, a, methods[m], 1, &id, 1);
         struct RTCRayHit rh;
-        assert_false(isinf(shoot(&s, 0.25f, 0.25f, 5.0f, &rh)));
+        HARD_EXPECT(missed, !isinf(shoot(&s, 0.25f, 0.25f, 5.0f, &rh)));
         release(&s);
     }
+    HARD_CHECK("leaks", missed, "==", 0, "rays at the one-voxel asset that missed it (one per method)");
     mr_asset_free(a);
 }
 
@@ -229,6 +251,7 @@ static void check_far_pose_refused(void **state)
     mr_joint_override ov[2] = {{a->nodes[0].name, huge}, {a->nodes[joint].name, huge}};
     mr_pose_desc pose = {.clip_index = -1, .joint_count = 2, .joints = ov};
     const mr_svo_method methods[] = {MR_SVO_RIGID, MR_SVO_DIRECT, MR_SVO_RESIZE, MR_SVO_EMIT};
+    int wrong = 0;
     for (size_t m = 0; m < 4; m++) {
         mr_svo_params params = {.depth = 5, .method = methods[m], .delta = 1, .cull = true};
         mr_object_desc desc = {.kind = &mr_kind_svo, .params = &params, .transform = mr_mat4_identity(),
@@ -243,15 +266,16 @@ static void check_far_pose_refused(void **state)
         int rc = ops->update(g, NULL, NULL, &desc.transform, 2, &err);
         if (methods[m] == MR_SVO_RIGID) {
             /* rigid instances keep the rest pose: nothing moves far */
-            assert_int_equal(rc, MR_OK);
+            HARD_EXPECT(wrong, rc == MR_OK);
         } else {
-            assert_int_equal(rc, MR_ERR_INVALID);
-            assert_non_null(strstr(err.msg, "beyond"));
+            HARD_EXPECT(wrong, rc == MR_ERR_INVALID && strstr(err.msg, "beyond"));
         }
         ops->free(g);
         rtcReleaseScene(sc);
         rtcReleaseDevice(dev);
     }
+    HARD_CHECK("other", wrong, "==", 0,
+               "methods not refusing a pose beyond MR_MAX_COORDINATE (saying \"beyond\"), or rigid refusing it (of 4)");
     mr_asset_free(a);
 }
 
@@ -316,7 +340,9 @@ static void check_memory_budget(void **state)
     size_t held = ops->memory(g);
     print_message("[ budget   ] %zu of %zu bytes held at a %zu-byte budget (%zu per instance, "
                   "%zu besides)\n", held, all[1], budget, per_instance, fixed);
-    assert_true(held <= fixed + budget + 2 * per_instance);
+    HARD_CHECK("other", held, "<=", fixed + budget + 2 * per_instance,
+               "bytes held when the frame stops at a budget of %zu (the budget, what the object holds besides, "
+               "2 instances)", budget);
     ops->free(g);
     free(inst);
     mr_asset_free(a);
@@ -355,21 +381,22 @@ static void check_threads_beyond_cores(void **state)
                       &hits[i][y * N + x]);
         release(&s);
     }
-    if (!(memory[2] > memory[1]))
-        fail_msg("%u threads hold %zu bytes, %u threads %zu: the update did not use more "
-                 "threads than the %u cores", threads[2], memory[2], threads[1], memory[1], cores);
-    size_t hit = 0;
+    HARD_CHECK("other", memory[2], ">", memory[1],
+               "bytes held with %u threads (more than with %u, the cores: the update used them all)", threads[2],
+               threads[1]);
+    size_t hit = 0, differ = 0;
     for (int i = 1; i < 3; i++)
         for (int k = 0; k < N * N; k++) {
             const struct RTCRayHit *p = &hits[0][k], *q = &hits[i][k];
-            assert_int_equal(p->hit.geomID, q->hit.geomID);
-            assert_int_equal(p->hit.primID, q->hit.primID);
-            assert_memory_equal(&p->ray.tfar, &q->ray.tfar, sizeof(float));
-            assert_memory_equal(&p->hit.u, &q->hit.u, sizeof(float));
-            assert_memory_equal(&p->hit.v, &q->hit.v, sizeof(float));
+            HARD_EXPECT(differ, p->hit.geomID == q->hit.geomID && p->hit.primID == q->hit.primID &&
+                                    !memcmp(&p->ray.tfar, &q->ray.tfar, sizeof(float)) &&
+                                    !memcmp(&p->hit.u, &q->hit.u, sizeof(float)) &&
+                                    !memcmp(&p->hit.v, &q->hit.v, sizeof(float)));
             hit += i == 1 && p->hit.geomID != RTC_INVALID_GEOMETRY_ID;
         }
-    assert_true(hit > N * N / 2); /* the cube fills most of the grid */
+    HARD_CHECK("other", differ, "==", 0, "rays whose hit (id, t, u, v bits) differs from 1 thread's, with %u and %u "
+               "threads (of %d)", threads[1], threads[2], 2 * N * N);
+    HARD_CHECK("other", hit, ">", N * N / 2, "rays that hit the cube (of %d)", N * N); /* it fills most of the grid */
     mr_asset_free(a);
 }
 

@@ -18,6 +18,7 @@
  *  - emit covers every pixel direct covers, for every deformation (no
  *    holes: its cells contain each deformed box);
  *  - resize emits exactly 8 cells per voxel, emit at least one.
+ * Each case reports its figures for `make hard` (hard_report.h).
  */
 #include <math.h>
 #include <setjmp.h>
@@ -29,6 +30,9 @@
 #include <cmocka.h>
 
 #include "../support/svo_sweep.h"
+
+#define HARD_KIND "svo"
+#include "../support/hard_report.h"
 
 #define DEPTH 6
 #define STEPS 7 /* 0.2 * 2^k, k = 0 .. 6: 0.2 .. 12.8, the thesis' Tables 2-3 */
@@ -66,7 +70,24 @@ static int teardown(void **state)
     return 0;
 }
 
-static sw_result measure(const fixture *f, sw_kind kind, double amount)
+/* What every deformation must give, over the deformations a case measured. */
+typedef struct sweep_checks {
+    int deformations;
+    int wrong_cells;       /* resize not 8 cells per voxel, emit fewer than 1, selection not every leaf */
+    unsigned long long missing_emit; /* direct's pixels emit leaves uncovered */
+    unsigned long long fewest_px;    /* the smallest direct silhouette */
+} sweep_checks;
+
+static void report_sweep(const char *test, const sweep_checks *c)
+{
+    hard_check(test, "other", c->wrong_cells, "==", 0,
+               "deformations where resize gave other than 8 cells per voxel, emit fewer than 1, or the "
+               "selection missed a leaf (of %d)", c->deformations);
+    hard_check(test, "leaks", (double)c->missing_emit, "==", 0, "emit: pixels of the direct silhouette not covered");
+    hard_check(test, "other", (double)c->fewest_px, ">", 1000, "pixels of the direct silhouette, fewest");
+}
+
+static sw_result measure(const fixture *f, sw_kind kind, double amount, sweep_checks *c)
 {
     sw_field field = sw_field_make(kind, amount, &f->shape);
     sw_params p = {.threads = 2};
@@ -86,11 +107,12 @@ static sw_result measure(const fixture *f, sw_kind kind, double amount)
      * per voxel (eq. 3.3.9; nothing falls outside the output cube, which
      * encloses all boxes), emit at least one, and emit leaves no pixel of
      * the direct silhouette uncovered. */
-    assert_int_equal(r.voxels, f->svo->leaf_count);
-    assert_true(r.cells[SW_RESIZE] == 8ull * r.voxels);
-    assert_true(r.cells[SW_EMIT] >= r.voxels);
-    assert_true(r.direct_px > 1000);
-    assert_int_equal(r.missing[SW_EMIT], 0);
+    c->deformations++;
+    HARD_EXPECT(c->wrong_cells, r.voxels == f->svo->leaf_count && r.cells[SW_RESIZE] == 8ull * r.voxels &&
+                                    r.cells[SW_EMIT] >= r.voxels);
+    c->missing_emit += r.missing[SW_EMIT];
+    if (c->deformations == 1 || r.direct_px < c->fewest_px)
+        c->fewest_px = r.direct_px;
     return r;
 }
 
@@ -102,6 +124,8 @@ static void test_fields(void **state)
     const fixture *f = *state;
     const double h = f->shape.hi[1] - f->shape.lo[1];
     const sw_kind kinds[3] = {SW_SHEAR, SW_TWIST, SW_SCALE};
+    double map_err = 0, defining_err = 0; /* relative to the tolerances' scales below */
+    int varying = 0;
     for (int k = 0; k < 3; k++) {
         sw_field field = sw_field_make(kinds[k], k == 2 ? 1.7 : 3.2, &f->shape);
         mr_affine m0 = sw_field_matrix(&field, mr_v3(0, 0, 0));
@@ -115,21 +139,27 @@ static void test_fields(void **state)
             for (int r = 0; r < 3; r++) {
                 double v = m.m[4 * r] * p[0] + m.m[4 * r + 1] * p[1] + m.m[4 * r + 2] * p[2] +
                            m.m[4 * r + 3];
-                assert_true(fabs(v - q[r]) <= 1e-6 * h * (1 + fabs(field.amount)));
+                map_err = hard_max(map_err, fabs(v - q[r]) / (h * (1 + fabs(field.amount))));
             }
             if (kinds[k] != SW_TWIST)
-                assert_memory_equal(&m, &m0, sizeof m);
+                HARD_EXPECT(varying, memcmp(&m, &m0, sizeof m) == 0);
         }
         /* the map's defining property */
         const double top[3] = {field.c[0] + 0.1 * h, f->shape.hi[1], field.c[2]};
         double q[3];
         sw_field_apply(&field, top, q);
         if (kinds[k] == SW_SHEAR)
-            assert_true(fabs(q[0] - (top[0] + 3.2 * h)) <= 1e-9 * h);
-        else if (kinds[k] == SW_TWIST) /* 3.2 radians at the top */
-            assert_true(fabs(q[0] - (field.c[0] + 0.1 * h * cos(3.2))) <= 1e-9 * h &&
-                        fabs(q[2] - (field.c[2] - 0.1 * h * sin(3.2))) <= 1e-9 * h);
+            defining_err = hard_max(defining_err, fabs(q[0] - (top[0] + 3.2 * h)) / h);
+        else if (kinds[k] == SW_TWIST) { /* 3.2 radians at the top */
+            defining_err = hard_max(defining_err, fabs(q[0] - (field.c[0] + 0.1 * h * cos(3.2))) / h);
+            defining_err = hard_max(defining_err, fabs(q[2] - (field.c[2] - 0.1 * h * sin(3.2))) / h);
+        }
     }
+    HARD_CHECK("error", map_err, "<=", 1e-6,
+               "largest |matrix * p - field(p)|, of the shape's height times (1 + amount) (150 points)");
+    HARD_CHECK("error", defining_err, "<=", 1e-9, "largest error of the shear's and twist's defining property, "
+               "of the height");
+    HARD_CHECK("other", varying, "==", 0, "shear and scale matrices that vary over the shape (of 100)");
 }
 
 /* Uniform scale, powers of two and not. The thesis finds resize exact
@@ -148,11 +178,17 @@ static void test_scale(void **state)
 {
     const fixture *f = *state;
     const double factors[] = {0.37, 0.5, 0.8, 1.0, 1.3, 2.0, 3.7, 8.0};
+    sweep_checks c = {0};
+    double resize_err = 0;
+    unsigned long long resize_missing = 0;
     for (size_t i = 0; i < sizeof factors / sizeof *factors; i++) {
-        sw_result r = measure(f, SW_SCALE, factors[i]);
-        assert_true(r.error[SW_RESIZE] == 0.0);
-        assert_int_equal(r.missing[SW_RESIZE], 0);
+        sw_result r = measure(f, SW_SCALE, factors[i], &c);
+        resize_err = hard_max(resize_err, r.error[SW_RESIZE]);
+        resize_missing += r.missing[SW_RESIZE];
     }
+    HARD_CHECK("error", resize_err, "==", 0, "resize: largest coverage error (XOR / direct) over factors 0.37 .. 8");
+    HARD_CHECK("leaks", resize_missing, "==", 0, "resize: pixels of the direct silhouette not covered");
+    report_sweep(__func__, &c);
 }
 
 /* Shear and twist 0.2 .. 12.8 (measured at depth 6, error = XOR / direct):
@@ -173,21 +209,28 @@ static void test_scale(void **state)
  * emit <= 1.0 at every amount and <= 0.3 under twist; at 12.8 resize's
  * error is >= 10x its own at 0.2 and >= 5x emit's under shear, >= 1.5x
  * its own at 0.2 and >= 1.25x emit's under twist. */
-static void sweep(const fixture *f, sw_kind kind)
+static void sweep(const char *test, const fixture *f, sw_kind kind)
 {
     sw_result r[STEPS];
+    sweep_checks c = {0};
+    double emit_err = 0;
     for (int k = 0; k < STEPS; k++) {
-        r[k] = measure(f, kind, 0.2 * (double)(1 << k));
-        assert_true(r[k].error[SW_EMIT] <= (kind == SW_TWIST ? 0.3 : 1.0));
+        r[k] = measure(f, kind, 0.2 * (double)(1 << k), &c);
+        emit_err = hard_max(emit_err, r[k].error[SW_EMIT]);
     }
     const sw_result *first = &r[0], *last = &r[STEPS - 1];
     const double own = kind == SW_SHEAR ? 10.0 : 1.5, vs_emit = kind == SW_SHEAR ? 5.0 : 1.25;
-    assert_true(last->error[SW_RESIZE] >= own * first->error[SW_RESIZE]);
-    assert_true(last->error[SW_RESIZE] >= vs_emit * last->error[SW_EMIT]);
+    hard_check(test, "error", emit_err, "<=", kind == SW_TWIST ? 0.3 : 1.0,
+               "emit: largest coverage error (XOR / direct) over amounts 0.2 .. 12.8");
+    hard_check(test, "other", last->error[SW_RESIZE], ">=", own * first->error[SW_RESIZE],
+               "resize: coverage error at 12.8 (at least %g x its own at 0.2)", own);
+    hard_check(test, "other", last->error[SW_RESIZE], ">=", vs_emit * last->error[SW_EMIT],
+               "resize: coverage error at 12.8 (at least %g x emit's)", vs_emit);
+    report_sweep(test, &c);
 }
 
-static void test_shear(void **state) { sweep(*state, SW_SHEAR); }
-static void test_twist(void **state) { sweep(*state, SW_TWIST); }
+static void test_shear(void **state) { sweep(__func__, *state, SW_SHEAR); }
+static void test_twist(void **state) { sweep(__func__, *state, SW_TWIST); }
 
 int main(void)
 {

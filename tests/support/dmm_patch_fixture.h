@@ -245,7 +245,36 @@ typedef struct check_stats {
     uint64_t tied;     /* t a few ulps above the closest: a tie at an edge or vertex */
     double worst_uv;   /* lattice units outside the hit micro-triangle */
     double worst_ng;   /* sine of the angle between ng and the oracle's normal */
+    double worst_t_ulps; /* largest t above the brute force's closest, in ulps */
+    uint64_t mismatches; /* rays the check failed on (it stops at the first) */
+    uint64_t nonfinite;  /* hits with a non-finite field (t, u, v, ng) */
+    uint64_t vertices, outside; /* micro-vertices checked against the bounds, outside */
 } check_stats;
+
+/* Sums b's counts into a, keeps the worst of the worst figures. */
+static inline void check_stats_add(check_stats *a, const check_stats *b)
+{
+    a->rays += b->rays;
+    a->hits += b->hits;
+    a->rotated += b->rotated;
+    a->tied += b->tied;
+    a->worst_uv = fmax(a->worst_uv, b->worst_uv);
+    a->worst_ng = fmax(a->worst_ng, b->worst_ng);
+    a->worst_t_ulps = fmax(a->worst_t_ulps, b->worst_t_ulps);
+    a->mismatches += b->mismatches;
+    a->nonfinite += b->nonfinite;
+    a->vertices += b->vertices;
+    a->outside += b->outside;
+}
+
+/* How many floats lie above b up to a (negative: below). */
+static inline int64_t ulps_between(float b, float a)
+{
+    uint32_t ua = fbits(a), ub = fbits(b);
+    int64_t oa = ua >> 31 ? -(int64_t)(ua & 0x7fffffffu) : (int64_t)ua;
+    int64_t ob = ub >> 31 ? -(int64_t)(ub & 0x7fffffffu) : (int64_t)ub;
+    return oa - ob;
+}
 
 /* check_ray flags */
 enum {
@@ -270,8 +299,10 @@ static inline float ulps_up(float t, int n)
 }
 
 static inline void fail_ray(const char *what, const mr_dmm_patch *p, mr_vec3 org, mr_vec3 dir,
-                     float tmin, float tmax)
+                     float tmin, float tmax, check_stats *cs)
 {
+    if (cs)
+        cs->mismatches++;
     print_error("level %u %s: %s\n", p->level, p->mats[0] ? "interpolated" : "base", what);
     print_ray(org, dir, tmin, tmax);
     fail();
@@ -318,7 +349,7 @@ static inline void check_fine(const brute *bf, const mr_dmm_patch *p, const mr_d
                     (double)h->u, (double)h->v, (double)h->ng.x, (double)h->ng.y,
                     (double)h->ng.z, best, best_uv, best_ng);
         fail_ray("(u, v) or ng do not match the micro-triangle hit", p, r->org, r->dir, tmin,
-                 tmax);
+                 tmax, cs);
     }
     uint32_t la[3], lb[3];
     mr_dmm_locate(p->level, p->decimate, h->u, h->v, la, lb);
@@ -330,7 +361,7 @@ static inline void check_fine(const brute *bf, const mr_dmm_patch *p, const mr_d
     double w[3];
     lattice_bary(bf, best, x, y, w);
     if (!(same == 3 || fmin(w[0], fmin(w[1], w[2])) < 1e-3))
-        fail_ray("mr_dmm_locate names another micro-triangle", p, r->org, r->dir, tmin, tmax);
+        fail_ray("mr_dmm_locate names another micro-triangle", p, r->org, r->dir, tmin, tmax, cs);
 }
 
 /* Traces one ray through the traversal (closest and any hit) and the brute
@@ -373,20 +404,22 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
     if (hit != bhit && !loose) {
         snprintf(msg, sizeof msg, "traversal %s t=%a, brute force %s t=%a (micro-triangle %u)",
                  hit ? "hit" : "miss", (double)h.t, bhit ? "hit" : "miss", (double)bt, btri);
-        fail_ray(msg, p, org, dir, tmin, tmax);
+        fail_ray(msg, p, org, dir, tmin, tmax, cs);
     }
     if (!hit) {
         assert_true(fbits(tm) == fbits(tmax)); /* untouched on a miss */
     } else {
         if (!hit_finite(&h)) {
+            if (cs)
+                cs->nonfinite++;
             snprintf(msg, sizeof msg, "non-finite hit t=%g u=%g v=%g ng=(%g, %g, %g)",
                      (double)h.t, (double)h.u, (double)h.v, (double)h.ng.x, (double)h.ng.y,
                      (double)h.ng.z);
-            fail_ray(msg, p, org, dir, tmin, tmax);
+            fail_ray(msg, p, org, dir, tmin, tmax, cs);
         }
         if (!(h.t >= tmin && h.t <= tmax)) {
             snprintf(msg, sizeof msg, "hit t=%a outside [tmin, tmax]", (double)h.t);
-            fail_ray(msg, p, org, dir, tmin, tmax);
+            fail_ray(msg, p, org, dir, tmin, tmax, cs);
         }
         assert_true(fbits(tm) == fbits(h.t));
         /* base-domain barycentrics, whatever the geometry */
@@ -400,6 +433,8 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
             cs->rotated++;
         if (cs && src == 0 && fbits(h.t) != fbits(bt))
             cs->tied++;
+        if (cs && !loose)
+            cs->worst_t_ulps = fmax(cs->worst_t_ulps, (double)ulps_between(bt, h.t));
         if (src < 0 || (src == 1 && STRICT_T) ||
             (!loose && !(h.t >= bottom && h.t <= top))) {
             snprintf(msg, sizeof msg, "traversal t=%a, brute force t=%a (micro-triangle %u)%s",
@@ -408,7 +443,7 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
                                 "rotated (winding started at another corner)"
                      : src < 0 ? ": no micro-triangle has that t"
                                : "");
-            fail_ray(msg, p, org, dir, tmin, tmax);
+            fail_ray(msg, p, org, dir, tmin, tmax, cs);
         }
         if ((flags & CHECK_FINE) && !loose)
             check_fine(bf, p, &r, &h, tmin, tmax, cs);
@@ -423,20 +458,22 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
     if (any != bhit && !loose) {
         snprintf(msg, sizeof msg, "any-hit %s, brute force %s", any ? "hit" : "miss",
                  bhit ? "hit" : "miss");
-        fail_ray(msg, p, org, dir, tmin, tmax);
+        fail_ray(msg, p, org, dir, tmin, tmax, cs);
     }
     if (any) {
         if (!(hit_finite(&ah) && fbits(ta) == fbits(ah.t) && ta >= tmin && ta <= tmax)) {
+            if (cs && !hit_finite(&ah))
+                cs->nonfinite++;
             snprintf(msg, sizeof msg, "any-hit t=%a u=%g v=%g: not finite or outside the "
                      "interval", (double)ah.t, (double)ah.u, (double)ah.v);
-            fail_ray(msg, p, org, dir, tmin, tmax);
+            fail_ray(msg, p, org, dir, tmin, tmax, cs);
         }
         int src = source_of(bf, &r.wt, tmin, tmax, ta);
         if (src < 0 || (src == 1 && STRICT_T)) {
             snprintf(msg, sizeof msg, "any-hit t=%a is %s", (double)ta,
                      src < 0 ? "no micro-triangle's t"
                              : "a micro-triangle's t only with its vertices rotated");
-            fail_ray(msg, p, org, dir, tmin, tmax);
+            fail_ray(msg, p, org, dir, tmin, tmax, cs);
         }
     }
     return hit;
@@ -503,9 +540,9 @@ static inline bool inside(mr_vec3 v, mr_vec3 lo, mr_vec3 hi)
            v.z <= hi.z;
 }
 
-/* ---- bounds contain every micro-vertex */
+/* ---- bounds contain every micro-vertex (counted into cs, if given) */
 
-static inline void bounds_case(const mr_dmm_patch *p)
+static inline void bounds_case(const mr_dmm_patch *p, check_stats *cs)
 {
     mr_vec3 lo, hi;
     assert_true(mr_dmm_patch_bounds(p, &lo, &hi));
@@ -513,7 +550,11 @@ static inline void bounds_case(const mr_dmm_patch *p)
     for (uint32_t b = 0; b <= n; b++)
         for (uint32_t a = 0; a + b <= n; a++) {
             mr_vec3 v = mr_dmm_vertex(p, a, b);
+            if (cs)
+                cs->vertices++;
             if (!inside(v, lo, hi)) {
+                if (cs)
+                    cs->outside++;
                 print_error("level %u vertex (%u, %u) = (%a, %a, %a) outside (%a %a %a)-(%a %a "
                             "%a)\n",
                             p->level, a, b, (double)v.x, (double)v.y, (double)v.z,

@@ -76,15 +76,25 @@ static mr_film *fixture_render(scene_fixture *s, unsigned threads, mr_frame_stat
     return film;
 }
 
-/* Fails the test if any float plane of the film holds NaN or Inf. */
-static void assert_film_finite(const mr_film *f)
+/* How many values of the film's float planes (colour, alpha, depth,
+ * normal) are NaN or Inf; prints the first. */
+static inline size_t film_nonfinite(const mr_film *f)
 {
-    size_t n = (size_t)f->width * f->height;
+    size_t n = (size_t)f->width * f->height, bad = 0;
     const float *planes[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz};
     for (size_t p = 0; p < 8; p++)
         for (size_t i = 0; i < n; i++)
-            if (!isfinite(planes[p][i]))
-                fail_msg("plane %zu pixel %zu is not finite", p, i);
+            if (!isfinite(planes[p][i]) && bad++ == 0)
+                print_error("plane %zu pixel %zu is not finite\n", p, i);
+    return bad;
+}
+
+/* Fails the test if any float plane of the film holds NaN or Inf. */
+static inline void assert_film_finite(const mr_film *f)
+{
+    size_t bad = film_nonfinite(f);
+    if (bad)
+        fail_msg("%zu values of the film are not finite", bad);
 }
 
 #endif

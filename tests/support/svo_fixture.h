@@ -250,7 +250,30 @@ static bool fx_slab(const mr_svo *svo, const fx_box *b, const double org[3], con
 
 typedef struct fx_stats {
     long rays, hits, ties, grazes;
+    long exact;      /* rays checked by check_ray_exact */
+    long mismatches; /* rays a check failed on (it stops at the first) */
+    long nonfinite;  /* hits with a non-finite t or normal */
+    double worst_t;  /* largest |t - its leaf's entry| / fx_tol (check_ray: <= 1) */
 } fx_stats;
+
+/* Sums b's counts into a, keeps the worst t error (NaN included). */
+static inline void fx_stats_add(fx_stats *a, const fx_stats *b)
+{
+    a->rays += b->rays;
+    a->hits += b->hits;
+    a->ties += b->ties;
+    a->grazes += b->grazes;
+    a->exact += b->exact;
+    a->mismatches += b->mismatches;
+    a->nonfinite += b->nonfinite;
+    if (!isnan(a->worst_t) && !(b->worst_t <= a->worst_t))
+        a->worst_t = b->worst_t;
+}
+
+static bool fx_hit_finite(const mr_svo_hit *h)
+{
+    return isfinite(h->t) && isfinite(h->ng.x) && isfinite(h->ng.y) && isfinite(h->ng.z);
+}
 
 static double fx_tol(const mr_svo *svo, const double dir[3], double t)
 {
@@ -309,19 +332,23 @@ static void check_ray(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, float 
     memset(&h, 0xab, sizeof h);
     const bool hit = mr_svo_intersect(svo, o, d, tmin, tmax, &h);
     const bool occ = mr_svo_occluded(svo, o, d, tmin, tmax);
-    assert_int_equal(hit, occ);
     st->rays++;
+    st->mismatches += hit != occ;
+    assert_int_equal(hit, occ);
     if (!hit) {
-        if (best_proper < INFINITY)
+        if (best_proper < INFINITY) {
+            st->mismatches++;
             fail_msg("miss, brute force enters a leaf properly at t=%.17g (org %.9g %.9g %.9g dir %.9g %.9g "
                      "%.9g, [%.9g, %.9g])",
                      best_proper, o.x, o.y, o.z, d.x, d.y, d.z, tmin, tmax);
+        }
         if (any)
             st->grazes++;
         return;
     }
     st->hits++;
     const double tol = fx_tol(svo, dir, best);
+    st->nonfinite += !fx_hit_finite(&h);
     fx_check_hit_fields(fx, &h, org, dir, tmin, tol);
     /* The traversal's leaf must be touched (within tol) and entered at the
      * reported t, and nothing entered properly before it. */
@@ -345,17 +372,25 @@ static void check_ray(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, float 
         l0 = e;
         st->grazes++;
     }
-    if (!(fabs((double)h.t - l0) <= tol))
+    const double t_err = fabs((double)h.t - l0) / tol;
+    if (!isnan(st->worst_t) && !(t_err <= st->worst_t))
+        st->worst_t = t_err; /* a NaN stays */
+    if (!(fabs((double)h.t - l0) <= tol)) {
+        st->mismatches++;
         fail_msg("t %.9g vs its leaf's entry %.17g (tol %.3g)", (double)h.t, l0, tol);
-    if (!((double)h.t <= best_proper + tol))
+    }
+    if (!((double)h.t <= best_proper + tol)) {
+        st->mismatches++;
         fail_msg("t %.9g beyond a proper entry at %.17g", (double)h.t, best_proper);
+    }
     if (any && l0 != best)
         st->ties++;
 }
 
 /* Exact variant: the caller guarantees every plane's t is exact in both
- * computations, so hit/miss and t must agree exactly, grazes included. */
-static void check_ray_exact(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, float tmax)
+ * computations, so hit/miss and t must agree exactly, grazes included.
+ * Counted into st, if given. */
+static void check_ray_exact(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, float tmax, fx_stats *st)
 {
     const mr_svo *svo = &fx->svo;
     const double org[3] = {o.x, o.y, o.z}, dir[3] = {d.x, d.y, d.z};
@@ -367,7 +402,16 @@ static void check_ray_exact(const svo_fx *fx, mr_vec3 o, mr_vec3 d, float tmin, 
     }
     mr_svo_hit h;
     const bool hit = mr_svo_intersect(svo, o, d, tmin, tmax, &h);
-    assert_int_equal(hit, mr_svo_occluded(svo, o, d, tmin, tmax));
+    const bool occ = mr_svo_occluded(svo, o, d, tmin, tmax);
+    fx_stats none = {0};
+    if (!st)
+        st = &none;
+    st->rays++;
+    st->exact++;
+    st->hits += hit;
+    st->mismatches += hit != occ || hit != (best < INFINITY) || (hit && !((double)h.t == best));
+    st->nonfinite += hit && !fx_hit_finite(&h);
+    assert_int_equal(hit, occ);
     if (hit != (best < INFINITY))
         fail_msg("exact ray: traversal %s, brute force %s (t %.17g; org %.9g %.9g %.9g dir %.9g %.9g %.9g)",
                  hit ? "hits" : "misses", best < INFINITY ? "hits" : "misses", best, o.x, o.y, o.z, d.x, d.y,

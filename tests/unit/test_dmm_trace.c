@@ -169,11 +169,11 @@ static void test_bounds(void **state)
             mr_dmm_patch p = set_patch(&set, t, &tri, NULL);
             if (t % 2)
                 mr_dmm_patch_pad(&p, p.pad);
-            bounds_case(&p);
+            bounds_case(&p, NULL);
             p = set_patch(&set, t, &tri, mats);
             if (t % 2)
                 mr_dmm_patch_pad(&p, p.pad);
-            bounds_case(&p);
+            bounds_case(&p, NULL);
         }
         set_free(&set);
         free(disp);

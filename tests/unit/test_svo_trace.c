@@ -110,7 +110,7 @@ static void test_exact_grid_rays(void **state)
                 tmin = (float)fx_below(&r, 8) / 4.0f;
                 tmax = tmin + (float)fx_below(&r, 16) / 4.0f;
             }
-            check_ray_exact(&fx, mr_v3(ov[0], ov[1], ov[2]), mr_v3(dv[0], dv[1], dv[2]), tmin, tmax);
+            check_ray_exact(&fx, mr_v3(ov[0], ov[1], ov[2]), mr_v3(dv[0], dv[1], dv[2]), tmin, tmax, NULL);
         }
         fx_free(&fx);
     }
