@@ -57,6 +57,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/deflate.h"
 #include "util/file_io.h"
 #include "util/murmur3.h"
 #include "util/parallel.h"
@@ -524,11 +525,13 @@ typedef struct enc_slot {
 
 /* Per worker index, reused for every chunk that worker takes: for PIZ the
  * library's pipeline (pipelines are not thread-safe, the context is), for
- * ZIP/ZIPS our own compressor and its two chunk-sized buffers. */
+ * ZIP/ZIPS our own compressor (util/deflate.h, or libdeflate at levels
+ * from MR_ZIP_LEVEL_LIBDEFLATE up) and its two chunk-sized buffers. */
 typedef struct enc_worker {
     exr_encode_pipeline_t pipe;
     bool ready, routines;
     const struct enc_batch *batch;
+    mr_deflate *fast;
     struct libdeflate_compressor *deflate;
     uint8_t *packed[2], *predicted; /* packed[cur]: this chunk, packed[!cur]: the last one */
     size_t buf_cap;
@@ -545,6 +548,7 @@ typedef struct enc_batch {
     enc_layout layout;
     exr_compression_t ctype;
     int level;          /* ZIP/ZIPS: the deflate level */
+    size_t row;         /* ZIP/ZIPS: half a packed scanline (width * pixel_bytes / 2) */
     enc_slot *slots;
     enc_worker *workers;
     atomic_bool failed; /* set by the first failing chunk: skip the rest */
@@ -927,10 +931,13 @@ static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
         w->buf_cap = raw;
         w->last_raw = 0; /* the last chunk's bytes did not survive the realloc */
     }
-    if (!w->deflate) {
+    if (b->level < MR_ZIP_LEVEL_LIBDEFLATE && !w->fast) {
+        s->step = "mr_deflate_new";
+        if (!(w->fast = mr_deflate_new()))
+            return EXR_ERR_OUT_OF_MEMORY;
+    } else if (b->level >= MR_ZIP_LEVEL_LIBDEFLATE && !w->deflate) {
         s->step = "libdeflate_alloc_compressor";
-        w->deflate = libdeflate_alloc_compressor(b->level);
-        if (!w->deflate)
+        if (!(w->deflate = libdeflate_alloc_compressor(b->level)))
             return EXR_ERR_OUT_OF_MEMORY;
     }
     packed = w->packed[w->cur];
@@ -941,8 +948,15 @@ static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
         return EXR_ERR_SUCCESS;
     }
     mr_exr_zip_predict(packed, raw, w->predicted);
-    /* 0 when the stream would not fit in raw - 1 bytes: store packed. */
-    got = raw > 1 ? libdeflate_zlib_compress(w->deflate, w->predicted, raw, s->data, raw - 1) : 0;
+    /* 0 when the stream would not fit in raw - 1 bytes: store packed. A
+     * scanline is width * pixel_bytes bytes, half of them even-indexed, so
+     * the byte above one in the predicted halves is row bytes back. */
+    if (raw <= 1)
+        got = 0;
+    else if (w->fast)
+        got = mr_deflate_zlib(w->fast, w->predicted, raw, b->row, s->data, raw - 1);
+    else
+        got = libdeflate_zlib_compress(w->deflate, w->predicted, raw, s->data, raw - 1);
     if (got == 0) {
         memcpy(s->data, packed, raw);
         got = raw;
@@ -1355,6 +1369,7 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
     b.film = film;
     b.ctype = ctype;
     b.level = level;
+    b.row = (size_t)film->width * b.layout.pixel_bytes / 2;
     chunks = ((size_t)film->height + (size_t)lines - 1) / (size_t)lines;
     chunk_bytes = (size_t)lines * (size_t)film->width * b.layout.pixel_bytes;
     nslots = ENC_BATCH_BYTES / chunk_bytes;
@@ -1446,6 +1461,7 @@ cleanup:
         for (t = 0; t < threads; t++) {
             if (b.workers[t].ready)
                 exr_encoding_destroy(ctxt, &b.workers[t].pipe);
+            mr_deflate_free(b.workers[t].fast);
             if (b.workers[t].deflate)
                 libdeflate_free_compressor(b.workers[t].deflate);
             free(b.workers[t].packed[0]);
