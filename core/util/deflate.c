@@ -17,6 +17,9 @@
 #include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #define LITLEN_SYMS 286 /* 0-255 literals, 256 end of block, 257-285 lengths */
 #define END_OF_BLOCK 256
@@ -27,13 +30,8 @@
 #define WINDOW 32768u
 #define MIN_MATCH 3u
 #define MAX_MATCH 258u
-#define HASH_BITS 12
-#ifndef MR_DEFLATE_HASH
-#define MR_DEFLATE_HASH 1
-#endif
 
 struct mr_deflate {
-    uint32_t hash[1u << HASH_BITS]; /* 1 + position of the last string with this hash; 0 none */
     uint32_t tokens[MR_DEFLATE_BLOCK]; /* literal: the byte; match: length << 16 | distance */
     uint32_t lit_freq[LITLEN_SYMS], dist_freq[DIST_SYMS];
 };
@@ -349,6 +347,16 @@ static void write_block(mr_deflate *d, bit_out *w, size_t ntok, bool final)
 static inline size_t match_length(const uint8_t *a, const uint8_t *b, size_t max)
 {
     size_t l = 0;
+#if defined(__SSE2__)
+    while (l + 16 <= max) {
+        __m128i x = _mm_loadu_si128((const __m128i *)(const void *)(a + l));
+        __m128i y = _mm_loadu_si128((const __m128i *)(const void *)(b + l));
+        unsigned eq = (unsigned)_mm_movemask_epi8(_mm_cmpeq_epi8(x, y));
+        if (eq != 0xffffu)
+            return l + (size_t)__builtin_ctz(~eq);
+        l += 16;
+    }
+#endif
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
     while (l + 8 <= max) {
         uint64_t x, y;
@@ -362,13 +370,6 @@ static inline size_t match_length(const uint8_t *a, const uint8_t *b, size_t max
     while (l < max && a[l] == b[l])
         l++;
     return l;
-}
-
-static inline uint32_t hash4(const uint8_t *p)
-{
-    uint32_t v;
-    memcpy(&v, p, 4);
-    return (v * 2654435761u) >> (32 - HASH_BITS);
 }
 
 size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, uint8_t *out,
@@ -395,7 +396,6 @@ size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, u
     cand[ncand++] = 4;
     if (row > 4 && row <= WINDOW)
         cand[ncand++] = row;
-    memset(d->hash, 0, sizeof d->hash);
 
     do {
         size_t ntok = 0;
@@ -414,17 +414,6 @@ size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, u
                         dist = cand[k];
                         if (l == max)
                             break;
-                    }
-                }
-                if (MR_DEFLATE_HASH && best < max && max >= 4) {
-                    uint32_t h = hash4(in + i), p = d->hash[h];
-                    d->hash[h] = (uint32_t)i + 1;
-                    if (p && i - (p - 1) <= WINDOW && in[p - 1 + best] == in[i + best]) {
-                        size_t l = match_length(in + i, in + p - 1, max);
-                        if (l > best) {
-                            best = l;
-                            dist = i - (p - 1);
-                        }
                     }
                 }
             }
