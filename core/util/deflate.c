@@ -91,10 +91,25 @@ static void flush_bits(bit_out *w)
 /* ------------------------------------------------------------------ */
 /* Huffman codes                                                       */
 
-static int cmp_u32(const void *a, const void *b)
+/* Sorts key[0, m) ascending (keys below 2^24): three counting passes over
+ * bytes; tmp has room for m keys. */
+static void sort_keys(uint32_t *key, uint32_t *tmp, int m)
 {
-    uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
-    return (x > y) - (x < y);
+    uint32_t *from = key, *to = tmp, *t;
+    for (unsigned shift = 0; shift < 24; shift += 8) {
+        unsigned start[257] = {0};
+        int k;
+        for (k = 0; k < m; k++)
+            start[((from[k] >> shift) & 255u) + 1]++;
+        for (k = 1; k < 257; k++)
+            start[k] += start[k - 1];
+        for (k = 0; k < m; k++)
+            to[start[(from[k] >> shift) & 255u]++] = from[k];
+        t = from;
+        from = to;
+        to = t;
+    }
+    memcpy(key, from, (size_t)m * sizeof *key); /* three passes: the keys are in tmp */
 }
 
 /* Gives frequency to the lowest unused symbols until at least two are in
@@ -118,7 +133,7 @@ static void at_least_two(uint32_t *freq, int n)
  * flattens the tree (all ones give depth ceil(log2 n) <= limit). */
 static void huffman_lengths(const uint32_t *freq, int n, unsigned limit, uint8_t *len)
 {
-    uint32_t w[LITLEN_SYMS], key[LITLEN_SYMS];
+    uint32_t w[LITLEN_SYMS], key[LITLEN_SYMS], tmp[LITLEN_SYMS];
     uint32_t weight[2 * LITLEN_SYMS];
     uint16_t parent[2 * LITLEN_SYMS];
     uint8_t depth[2 * LITLEN_SYMS];
@@ -131,7 +146,8 @@ static void huffman_lengths(const uint32_t *freq, int n, unsigned limit, uint8_t
         int leaf = 0, inner, next, k;
         unsigned deepest = 0;
 
-        /* Frequencies stay below 2^23 (a block's tokens), symbols below 2^9. */
+        /* Frequencies stay below 2^15 (a block's tokens, MR_DEFLATE_BLOCK),
+         * symbols below 2^9: keys below 2^24. */
         for (m = 0, s = 0; s < n; s++)
             if (w[s])
                 key[m++] = w[s] << 9 | (uint32_t)s;
@@ -140,7 +156,7 @@ static void huffman_lengths(const uint32_t *freq, int n, unsigned limit, uint8_t
                 len[key[k] & 511u] = 1;
             return;
         }
-        qsort(key, (size_t)m, sizeof key[0], cmp_u32);
+        sort_keys(key, tmp, m);
         for (k = 0; k < m; k++)
             weight[k] = key[k] >> 9;
         inner = next = m;
@@ -188,13 +204,15 @@ static void canonical_codes(const uint8_t *len, int n, uint16_t *code)
         next[b] = c;
     }
     for (s = 0; s < n; s++) {
-        unsigned l = len[s], v, r = 0, i;
+        unsigned l = len[s], v;
         if (!l)
             continue;
-        v = next[l]++;
-        for (i = 0; i < l; i++)
-            r |= ((v >> i) & 1u) << (l - 1 - i);
-        code[s] = (uint16_t)r;
+        v = next[l]++; /* l bits, reversed: all 16 reversed, shifted down */
+        v = ((v >> 1) & 0x5555u) | ((v & 0x5555u) << 1);
+        v = ((v >> 2) & 0x3333u) | ((v & 0x3333u) << 2);
+        v = ((v >> 4) & 0x0f0fu) | ((v & 0x0f0fu) << 4);
+        v = ((v >> 8) & 0x00ffu) | ((v & 0x00ffu) << 8);
+        code[s] = (uint16_t)(v >> (16 - l));
     }
 }
 
