@@ -361,6 +361,18 @@ static void write_block(mr_deflate *d, bit_out *w, size_t ntok, bool final)
 /* ------------------------------------------------------------------ */
 /* matching                                                            */
 
+/* The 3 bytes at p (4 readable), as a number. */
+static inline uint32_t load24(const uint8_t *p)
+{
+    uint32_t v;
+    memcpy(&v, p, 4);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    return v >> 8;
+#else
+    return v & 0xffffffu;
+#endif
+}
+
 /* Equal leading bytes of a and b, at most max (a and b may overlap). */
 static inline size_t match_length(const uint8_t *a, const uint8_t *b, size_t max)
 {
@@ -421,9 +433,17 @@ size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, u
         memset(d->dist_freq, 0, sizeof d->dist_freq);
         while (i < n && ntok < MR_DEFLATE_BLOCK) {
             size_t max = n - i < MAX_MATCH ? n - i : MAX_MATCH, best = 0, dist = 0;
-            if (max >= MIN_MATCH) {
-                for (int k = 0; k < ncand && cand[k] <= i; k++) {
+            if (max >= 4) {
+                /* Which candidates share the next 3 bytes, without a branch
+                 * per candidate (at a literal, none does: one branch). */
+                uint32_t cur = load24(in + i);
+                unsigned hits = 0;
+                for (int k = 0; k < ncand && cand[k] <= i; k++)
+                    hits |= (unsigned)(load24(in + i - cand[k]) == cur) << k;
+                while (hits) {
+                    int k = __builtin_ctz(hits);
                     size_t l;
+                    hits &= hits - 1;
                     if (in[i + best] != in[i + best - cand[k]])
                         continue;
                     l = match_length(in + i, in + i - cand[k], max);
@@ -434,6 +454,12 @@ size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, u
                             break;
                     }
                 }
+            } else if (max == 3) { /* the last 3 bytes */
+                for (int k = 0; k < ncand && cand[k] <= i && !best; k++)
+                    if (match_length(in + i, in + i - cand[k], 3) == 3) {
+                        best = 3;
+                        dist = cand[k];
+                    }
             }
             if (best >= MIN_MATCH) {
                 unsigned nb, ex;
