@@ -497,8 +497,11 @@ static int check_meta(const mr_exr_meta *meta, mr_error *err)
  * there are chunks in a batch anyway. */
 #define ENC_MAX_THREADS 256u
 /* Raw (packed) bytes encoded per batch: bounds the memory holding encoded
- * chunks that wait for their turn to be written. */
-#define ENC_BATCH_BYTES ((size_t)8 << 20)
+ * chunks that wait for their turn to be written (at most their raw size
+ * each; compressed chunks hold only their compressed bytes). 16 MiB takes
+ * a 960x540 frame of the default passes in one batch: one start of the
+ * workers, and no core idle while the other writes. */
+#define ENC_BATCH_BYTES ((size_t)16 << 20)
 
 /* One channel of the file, in the file's (name) order. */
 typedef struct enc_chan {
@@ -535,12 +538,11 @@ typedef struct enc_worker {
     const struct enc_batch *batch;
     mr_deflate *fast;
     struct libdeflate_compressor *deflate;
-    uint8_t *predicted[2];  /* predicted[cur]: this chunk, predicted[!cur]: the last one */
+    uint8_t *predicted;     /* the chunk, packed and predicted */
     uint8_t *row_buf;       /* one channel's row, packed (4 * width bytes) */
-    size_t buf_cap;
-    int cur;
-    size_t last_raw;                /* the last chunk compressed: its size ... */
-    uint8_t *last_out;              /* ... and what it compressed to */
+    size_t predicted_cap;
+    int last_y, last_h;     /* the rows of the last chunk compressed (last_h 0: none) ... */
+    uint8_t *last_out;      /* ... and what they compressed to */
     size_t last_size, last_cap;
 } enc_worker;
 
@@ -956,6 +958,19 @@ static bool grow(uint8_t **buf, size_t *cap, size_t need)
     return true;
 }
 
+/* Whether rows [y, y + h) of every channel written hold the same bits as
+ * rows [y0, y0 + h) (film planes are 4-byte samples). */
+static bool same_rows(const mr_film *film, const enc_layout *L, int y, int y0, int h)
+{
+    size_t w = (size_t)film->width, n = (size_t)h * w * 4;
+    for (int c = 0; c < L->count; c++) {
+        const uint8_t *p = L->ch[c].def->plane;
+        if (memcmp(p + (size_t)y * w * 4, p + (size_t)y0 * w * 4, n) != 0)
+            return false;
+    }
+    return true;
+}
+
 /* NONE, ZIP and ZIPS without the library's pipeline: the chunk is packed by
  * pack_rows or, for the ZIP codecs, packed, reordered and predicted as the
  * codec expects in one pass (pack_predict_rows) and deflated into the zlib format (which zlib's inflate, used by
@@ -964,38 +979,39 @@ static bool grow(uint8_t **buf, size_t *cap, size_t need)
  * stored packed: the readers take a chunk whose size equals its unpacked
  * size as uncompressed, so a compressed chunk must be strictly smaller.
  *
- * Empty background is most of a typical frame: a chunk whose packed bytes
- * equal the last chunk this worker compressed (rows of background, all
- * alike) reuses that chunk's compressed bytes. The bytes are the same as
- * compressing again (both compressors are deterministic), so the file does
- * not depend on which worker took which chunk. */
+ * Empty background is most of a typical frame: a chunk whose film rows
+ * hold the same bits as those of the last chunk this worker compressed
+ * (rows of background, all alike) reuses that chunk's compressed bytes,
+ * found by comparing the film before anything is packed. The bytes are the
+ * same as compressing again (the packing and both compressors are
+ * deterministic), so the file does not depend on which worker took which
+ * chunk. */
 static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
 {
     const mr_film *film = b->film;
     size_t raw = (size_t)s->cinfo.height * (size_t)film->width * b->layout.pixel_bytes, got;
-    uint8_t *predicted;
+    int y = s->cinfo.start_y, h = s->cinfo.height;
 
     s->step = "packing a chunk (layout mismatch)";
     if (raw != s->cinfo.unpacked_size || raw == 0)
         return EXR_ERR_INVALID_ARGUMENT;
     s->step = "keeping an encoded chunk";
-    if (!grow(&s->data, &s->cap, raw))
-        return EXR_ERR_OUT_OF_MEMORY;
     if (b->ctype == EXR_COMPRESSION_NONE) {
-        s->size = pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, s->data);
+        if (!grow(&s->data, &s->cap, raw))
+            return EXR_ERR_OUT_OF_MEMORY;
+        s->size = pack_rows(film, &b->layout, y, h, s->data);
         return EXR_ERR_SUCCESS;
     }
-    if (w->buf_cap < raw) {
-        size_t cap = 0;
-        for (int i = 0; i < 2; i++) {
-            cap = w->buf_cap;
-            if (!grow(&w->predicted[i], &cap, raw))
-                return EXR_ERR_OUT_OF_MEMORY;
-        }
-        w->buf_cap = raw;
-        w->last_raw = 0; /* the last chunk's bytes did not survive the realloc */
+    if (w->last_h == h && same_rows(film, &b->layout, y, w->last_y, h)) {
+        if (!grow(&s->data, &s->cap, w->last_size))
+            return EXR_ERR_OUT_OF_MEMORY;
+        memcpy(s->data, w->last_out, w->last_size);
+        s->size = w->last_size;
+        return EXR_ERR_SUCCESS;
     }
-    if (!w->row_buf && !(w->row_buf = malloc(4 * (size_t)film->width)))
+    if (!grow(&w->predicted, &w->predicted_cap, raw) ||
+        !grow(&w->last_out, &w->last_cap, raw) ||
+        (!w->row_buf && !(w->row_buf = malloc(4 * (size_t)film->width))))
         return EXR_ERR_OUT_OF_MEMORY;
     if (b->level < MR_ZIP_LEVEL_LIBDEFLATE && !w->fast) {
         s->step = "mr_deflate_new";
@@ -1006,35 +1022,29 @@ static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
         if (!(w->deflate = libdeflate_alloc_compressor(b->level)))
             return EXR_ERR_OUT_OF_MEMORY;
     }
-    predicted = w->predicted[w->cur];
-    pack_predict_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, w->row_buf,
-                      predicted, raw);
-    /* Equal predicted bytes mean equal packed ones (the predictor is
-     * invertible): a repeat of the last chunk. */
-    if (w->last_raw == raw && memcmp(predicted, w->predicted[!w->cur], raw) == 0) {
-        memcpy(s->data, w->last_out, w->last_size);
-        s->size = w->last_size;
-        return EXR_ERR_SUCCESS;
-    }
-    /* 0 when the stream would not fit in raw - 1 bytes: store packed. A
-     * scanline is width * pixel_bytes bytes, half of them even-indexed, so
-     * the byte above one in the predicted halves is row bytes back. */
+    pack_predict_rows(film, &b->layout, y, h, w->row_buf, w->predicted, raw);
+    /* Into last_out (chunk-sized, kept by the worker), then only the
+     * compressed bytes to the slot. 0 when the stream would not fit in
+     * raw - 1 bytes: store packed. A scanline is width * pixel_bytes bytes,
+     * half of them even-indexed, so the byte above one in the predicted
+     * halves is row bytes back. */
+    w->last_h = 0; /* last_out is being overwritten */
     if (raw <= 1)
         got = 0;
     else if (w->fast)
-        got = mr_deflate_zlib(w->fast, predicted, raw, b->row, s->data, raw - 1);
+        got = mr_deflate_zlib(w->fast, w->predicted, raw, b->row, w->last_out, raw - 1);
     else
-        got = libdeflate_zlib_compress(w->deflate, predicted, raw, s->data, raw - 1);
+        got = libdeflate_zlib_compress(w->deflate, w->predicted, raw, w->last_out, raw - 1);
     if (got == 0)
-        got = pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, s->data);
-    s->size = got;
+        got = pack_rows(film, &b->layout, y, h, w->last_out);
     s->step = "keeping an encoded chunk";
-    if (!grow(&w->last_out, &w->last_cap, got))
+    if (!grow(&s->data, &s->cap, got))
         return EXR_ERR_OUT_OF_MEMORY;
-    memcpy(w->last_out, s->data, got);
+    memcpy(s->data, w->last_out, got);
+    s->size = got;
     w->last_size = got;
-    w->last_raw = raw;
-    w->cur = !w->cur;
+    w->last_y = y;
+    w->last_h = h;
     return EXR_ERR_SUCCESS;
 }
 
@@ -1530,8 +1540,7 @@ cleanup:
             mr_deflate_free(b.workers[t].fast);
             if (b.workers[t].deflate)
                 libdeflate_free_compressor(b.workers[t].deflate);
-            free(b.workers[t].predicted[0]);
-            free(b.workers[t].predicted[1]);
+            free(b.workers[t].predicted);
             free(b.workers[t].row_buf);
             free(b.workers[t].last_out);
         }
