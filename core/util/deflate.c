@@ -402,6 +402,30 @@ static inline size_t match_length(const uint8_t *a, const uint8_t *b, size_t max
     return l;
 }
 
+#if defined(__SSE2__)
+/* How many of the 16 positions from p on start no match of 3 bytes at any
+ * candidate distance (all of cand[0, ncand) reachable; p[0, 18) and
+ * p - cand[k] readable): the number before the first that does, 16 if
+ * none does. */
+static inline unsigned literal_run16(const uint8_t *p, const size_t *cand, int ncand)
+{
+    const __m128i a = _mm_loadu_si128((const __m128i *)(const void *)p);
+    const __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(p + 2));
+    unsigned starts = 0;
+    for (int k = 0; k < ncand; k++) {
+        const uint8_t *q = p - cand[k];
+        unsigned ea = (unsigned)_mm_movemask_epi8(
+            _mm_cmpeq_epi8(a, _mm_loadu_si128((const __m128i *)(const void *)q)));
+        unsigned eb = (unsigned)_mm_movemask_epi8(
+            _mm_cmpeq_epi8(b, _mm_loadu_si128((const __m128i *)(const void *)(q + 2))));
+        unsigned eq = ea | (eb >> 14) << 16; /* bit j: p[j] == q[j], j < 18 */
+        starts |= eq & (eq >> 1) & (eq >> 2);
+    }
+    starts &= 0xffffu;
+    return starts ? (unsigned)__builtin_ctz(starts) : 16u;
+}
+#endif
+
 size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, uint8_t *out,
                        size_t cap)
 {
@@ -433,6 +457,22 @@ size_t mr_deflate_zlib(mr_deflate *d, const uint8_t *in, size_t n, size_t row, u
         memset(d->dist_freq, 0, sizeof d->dist_freq);
         while (i < n && ntok < MR_DEFLATE_BLOCK) {
             size_t max = n - i < MAX_MATCH ? n - i : MAX_MATCH, best = 0, dist = 0;
+#if defined(__SSE2__)
+            /* Literals come in stretches (the detail between runs): 16
+             * positions at a time, those where no candidate repeats the
+             * next 3 bytes are literals, exactly as the test below finds. */
+            if (i >= 4 && n - i >= 18 + 16 && ntok + 16 <= MR_DEFLATE_BLOCK) {
+                unsigned lits = literal_run16(in + i, cand, i >= cand[ncand - 1] ? ncand : 3);
+                if (lits) {
+                    for (unsigned j = 0; j < lits; j++) {
+                        d->tokens[ntok++] = in[i + j];
+                        d->lit_freq[in[i + j]]++;
+                    }
+                    i += lits;
+                    continue;
+                }
+            }
+#endif
             if (max >= 4) {
                 /* Which candidates share the next 3 bytes, without a branch
                  * per candidate (at a literal, none does: one branch). */
