@@ -343,7 +343,52 @@ static void write_block(mr_deflate *d, bit_out *w, size_t ntok, bool final)
 
     canonical_codes(llen, LITLEN_SYMS, lcode);
     canonical_codes(dlen, DIST_SYMS, dcode);
-    for (t = 0; t < ntok; t++) {
+    t = 0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    /* With room for the worst case (48 bits a token) plus an 8-byte
+     * store, no check per token: each token is one put of at most 48 bits
+     * onto at most 7 held ones, and the whole 64-bit word is stored,
+     * advancing by the bytes completed. */
+    if ((size_t)(w->end - w->p) >= ntok * 6 + 8 + 4) {
+        uint64_t acc;
+        unsigned held;
+        uint8_t *p;
+        while (w->n >= 8) { /* hold at most 7 bits */
+            *w->p++ = (uint8_t)w->acc;
+            w->acc >>= 8;
+            w->n -= 8;
+        }
+        acc = w->acc;
+        held = w->n;
+        p = w->p;
+        for (; t < ntok; t++) {
+            uint32_t tok = d->tokens[t];
+            unsigned len = tok >> 16, nb, ex, ls, ds, bits;
+            uint64_t v;
+            if (!len) {
+                v = lcode[tok];
+                bits = llen[tok];
+            } else {
+                ls = length_symbol(len, &nb, &ex);
+                v = lcode[ls] | (uint64_t)ex << llen[ls];
+                bits = llen[ls] + nb;
+                ds = dist_symbol(tok & 0xffffu, &nb, &ex);
+                v |= (dcode[ds] | (uint64_t)ex << dlen[ds]) << bits;
+                bits += dlen[ds] + nb;
+            }
+            acc |= v << held;
+            held += bits;
+            memcpy(p, &acc, 8);
+            p += held >> 3;
+            acc >>= held & ~7u;
+            held &= 7u;
+        }
+        w->acc = acc;
+        w->n = held;
+        w->p = p;
+    }
+#endif
+    for (; t < ntok; t++) {
         uint32_t tok = d->tokens[t];
         unsigned len = tok >> 16, nb, ex, ls, ds;
         if (!len) {
