@@ -3,8 +3,8 @@
  *
  * Written from RFC 1950 (zlib wrapper) and RFC 1951 (deflate). Greedy
  * parsing: at each position the longest match among the candidate
- * distances (1, 2, 4, the row, the hash's last string) is taken if it is
- * at least 3 bytes long, else a literal. Only dynamic Huffman blocks are
+ * distances (1, 2, 4, the row) is taken if it is at least 3 bytes long,
+ * else a literal. Only dynamic Huffman blocks are
  * written; a block ends after MR_DEFLATE_BLOCK tokens. Code lengths are
  * Huffman's, limited to 15 (7 for the code-length code) by halving the
  * frequencies until they fit, which keeps every code complete; an

@@ -6,7 +6,8 @@
  *  - edge lengths (0, 1, 2, 3, around 8 and 258, a window and more);
  *  - content of every kind the encoder treats differently: runs of one
  *    value and of 2- and 4-byte patterns, rows repeating at the row
- *    distance, random bytes, text-like bytes the hash finds, matches at
+ *    distance, random bytes, text-like bytes (repeats at no candidate
+ *    distance: literals and short runs), matches at
  *    exactly the 32 KiB window and just beyond it, long inputs that take
  *    many blocks, and skewed (Fibonacci) symbol counts; the length limit
  *    of the codes (halving counts until the deepest code fits) runs for
@@ -130,8 +131,8 @@ static void fill_rows(uint8_t *p, size_t n, size_t row, uint64_t s)
     }
 }
 
-/* Words from a small vocabulary: repeats at arbitrary distances, which
- * only the hash finds. */
+/* Words from a small vocabulary: repeats at arbitrary distances, none of
+ * them a candidate's. */
 static void fill_words(uint8_t *p, size_t n, uint64_t s)
 {
     static const char *words[] = {"microray ", "render ", "frame ", "chunk ", "deflate ",
