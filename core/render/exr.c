@@ -680,6 +680,7 @@ static size_t pack_channel_row(const chan_def *def, size_t base, size_t width, b
                                uint8_t *dst)
 {
     const void *plane = def->plane;
+    (void)f16c; /* unused where there are no vector paths */
     switch (def->type) {
     case EXR_PIXEL_HALF:
 #ifdef MR_EXR_F16C
@@ -701,7 +702,6 @@ static size_t pack_channel_row(const chan_def *def, size_t base, size_t width, b
         uint_row((const uint32_t *)plane + base, dst, width);
         return 4 * width;
     }
-    (void)f16c;
 }
 
 /* Packs rows [y0, y0 + h) of the film in the layout of an uncompressed
