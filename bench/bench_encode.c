@@ -7,10 +7,12 @@
  * size), 1280x720, 1920x1080 and 3840x2160; each frame is then encoded
  * with every codec, all interleaved and repeated, and the table gives
  * medians: encode ms, render ms (the frame's total: pose, BVH and trace),
- * the share encode / (render + encode) and the file size; beside the
- * encode's wall time its CPU time (both threads), which other load on the
- * machine moves much less. Encoding uses all cores, as the renderer does. A second table does the same at the
- * example's size with the default codec for other choices of passes.
+ * the share encode / (render + encode) and the file size; beside the wall
+ * times the CPU times of encode and render (all threads) and the share of
+ * those, which other load on the machine moves much less (a busy machine
+ * stretches wall times, not the work done). Encoding uses all cores, as
+ * the renderer does. A second table does the same at the example's size
+ * with the default codec for other choices of passes.
  *
  * Written against the public API only (core/microray.h) plus the server's
  * job parser.
@@ -29,16 +31,6 @@
 
 static int repeats = 5;
 static unsigned threads = 0;
-
-/* CPU seconds of the whole process: during an encode that is the encoding
- * threads' work, whatever else the machine runs (wall times on a shared
- * 2-core machine swing with other load; this does much less). */
-static double cpu_now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
 
 static void die(const char *what, const char *msg)
 {
@@ -68,12 +60,14 @@ static void bench_size(mr_device *dev, mr_job *job, mr_asset **assets, int width
         mr_job_film_new(job, &film, &err) < 0)
         die("setup", err.msg);
 
-    double render[64], enc[CODECS][64], cpu[CODECS][64];
+    double render[64], render_cpu[64], enc[CODECS][64], cpu[CODECS][64];
     size_t bytes[CODECS] = {0};
     mr_frame_stats st;
     for (int i = 0; i < repeats; i++) {
+        double rc0 = bench_cpu_now();
         if (mr_renderer_render(r, 0, film, &st, &err) < 0)
             die("render", err.msg);
+        render_cpu[i] = bench_cpu_now() - rc0;
         render[i] = st.total_s;
         mr_exr_meta meta;
         mr_exr_meta_for_frame(&meta, job, &st);
@@ -82,20 +76,22 @@ static void bench_size(mr_device *dev, mr_job *job, mr_asset **assets, int width
             opt.compression = codecs[c];
             opt.threads = threads;
             uint8_t *data = NULL;
-            double t0 = mr_now(), c0 = cpu_now();
+            double t0 = mr_now(), c0 = bench_cpu_now();
             if (mr_exr_write_memory(&data, &bytes[c], film, &opt, &meta, &err) < 0)
                 die("encode", err.msg);
             enc[c][i] = mr_now() - t0;
-            cpu[c][i] = cpu_now() - c0;
+            cpu[c][i] = bench_cpu_now() - c0;
             free(data);
         }
     }
-    double rs = median(render, repeats);
+    double rs = median(render, repeats), rcs = median(render_cpu, repeats);
     for (size_t c = 0; c < ncodecs; c++) {
         double e = median(enc[c], repeats), ec = median(cpu[c], repeats);
-        printf("| %-24s | %4dx%-4d | %9.1f | %13.1f | %9.1f | %5.1f %% | %8.3f |\n",
+        printf("| %-24s | %4dx%-4d | %9.1f | %13.1f | %9.1f | %13.1f | %5.1f %% | %9.1f %% "
+               "| %8.3f |\n",
                label ? label : mr_compression_name(codecs[c]), width, height, e * 1e3, ec * 1e3,
-               rs * 1e3, 100.0 * e / (e + rs), (double)bytes[c] / (1024.0 * 1024.0));
+               rs * 1e3, rcs * 1e3, 100.0 * e / (e + rs), 100.0 * ec / (ec + rcs),
+               (double)bytes[c] / (1024.0 * 1024.0));
     }
     mr_film_free(film);
     mr_renderer_free(r);
@@ -134,10 +130,11 @@ int main(int argc, char **argv)
 
     printf("microray %s EXR encode: %u threads, medians of %d runs\n\n", MR_VERSION_STRING,
            mr_device_threads(dev), repeats);
-    printf("%s frame 0, %d samples, %s; share = encode / (render + encode)\n\n", job->name,
+    printf("%s frame 0, %d samples, %s; share = encode / (render + encode), CPU share the same "
+           "of CPU times\n\n", job->name,
            job->output.spp, job->output.shadows ? "shadows" : "no shadows");
-    printf("| codec                    | size      | encode ms | encode CPU ms | render ms | share   | MiB      |\n");
-    printf("|--------------------------|-----------|-----------|---------------|-----------|---------|----------|\n");
+    printf("| codec                    | size      | encode ms | encode CPU ms | render ms | render CPU ms | share   | CPU share   | MiB      |\n");
+    printf("|--------------------------|-----------|-----------|---------------|-----------|---------------|---------|-------------|----------|\n");
     for (size_t s = 0; s < SIZES; s++)
         bench_size(dev, job, assets, k_sizes[s][0], k_sizes[s][1], k_codecs, CODECS, NULL);
 
@@ -157,8 +154,8 @@ int main(int argc, char **argv)
     bool half = job->output.exr.half_normals;
     printf("\nPasses, %s, %dx%d (render ms includes what each choice traces)\n\n",
            mr_compression_name(job->output.exr.compression), 960, 540);
-    printf("| passes                   | size      | encode ms | encode CPU ms | render ms | share   | MiB      |\n");
-    printf("|--------------------------|-----------|-----------|---------------|-----------|---------|----------|\n");
+    printf("| passes                   | size      | encode ms | encode CPU ms | render ms | render CPU ms | share   | CPU share   | MiB      |\n");
+    printf("|--------------------------|-----------|-----------|---------------|-----------|---------------|---------|-------------|----------|\n");
     for (size_t p = 0; p < sizeof passes / sizeof passes[0]; p++) {
         job->output.aovs = passes[p].aovs;
         job->output.exr.half_normals = passes[p].half_normals;

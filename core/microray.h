@@ -490,6 +490,11 @@ typedef enum mr_compression {
 } mr_compression;
 
 #define MR_ZIP_LEVEL_DEFAULT 4
+/* ZIP/ZIPS levels below this deflate with microray's own encoder (one
+ * setting: the levels below give the same bytes), fast on rendered frames;
+ * this level and above with libdeflate's general match finder at that
+ * level, several times slower (README, "EXR encode"). */
+#define MR_ZIP_LEVEL_LIBDEFLATE 6
 
 typedef struct mr_exr_options {
     mr_compression compression;

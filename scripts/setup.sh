@@ -25,7 +25,7 @@ BUILD_PACKAGES=(
   build-essential pkg-config
   libembree-dev          # Embree 3 ray tracing kernels
   libopenexr-dev openexr # OpenEXR 3 C API, and exrheader used by the tests
-  libdeflate-dev         # the ZIP/ZIPS chunk compressor of the EXR writer
+  libdeflate-dev         # zip_level 6-9 of the EXR writer, and the Adler-32 of its own deflate
   libassimp-dev          # asset import
   libcjson-dev libsqlite3-dev libmicrohttpd-dev libcurl4-openssl-dev
   libmeshoptimizer-dev

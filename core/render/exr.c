@@ -21,9 +21,11 @@
  *  - Encoding (pack + compress) is most of a frame's time, so chunks are
  *    encoded on all cores (mr_parallel_for). NONE, ZIP and ZIPS chunks are
  *    ours from end to end: packed, for ZIP reordered and predicted as the
- *    codec defines and deflated by libdeflate (several times faster than the
- *    library's zlib at about the same size), then handed to the library as
- *    finished chunks. PIZ goes through the library's pipeline, one
+ *    codec defines and deflated by our own encoder (util/deflate.h: matches
+ *    where rendered rows repeat; several times faster than a general
+ *    deflate at a smaller size) or, at zip levels from
+ *    MR_ZIP_LEVEL_LIBDEFLATE up, by libdeflate, then handed to the library
+ *    as finished chunks. PIZ goes through the library's pipeline, one
  *    exr_encode_pipeline_t per worker (pipelines are per thread by design
  *    and only read the context once the header is written). Writing stays
  *    on the calling thread in chunk order: exr_write_scanline_chunk moves
@@ -57,6 +59,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "util/deflate.h"
 #include "util/file_io.h"
 #include "util/murmur3.h"
 #include "util/parallel.h"
@@ -494,8 +497,11 @@ static int check_meta(const mr_exr_meta *meta, mr_error *err)
  * there are chunks in a batch anyway. */
 #define ENC_MAX_THREADS 256u
 /* Raw (packed) bytes encoded per batch: bounds the memory holding encoded
- * chunks that wait for their turn to be written. */
-#define ENC_BATCH_BYTES ((size_t)8 << 20)
+ * chunks that wait for their turn to be written (at most their raw size
+ * each; compressed chunks hold only their compressed bytes). 16 MiB takes
+ * a 960x540 frame of the default passes in one batch: one start of the
+ * workers, and no core idle while the other writes. */
+#define ENC_BATCH_BYTES ((size_t)16 << 20)
 
 /* One channel of the file, in the file's (name) order. */
 typedef struct enc_chan {
@@ -524,17 +530,19 @@ typedef struct enc_slot {
 
 /* Per worker index, reused for every chunk that worker takes: for PIZ the
  * library's pipeline (pipelines are not thread-safe, the context is), for
- * ZIP/ZIPS our own compressor and its two chunk-sized buffers. */
+ * ZIP/ZIPS our own compressor (util/deflate.h, or libdeflate at levels
+ * from MR_ZIP_LEVEL_LIBDEFLATE up) and its two chunk-sized buffers. */
 typedef struct enc_worker {
     exr_encode_pipeline_t pipe;
     bool ready, routines;
     const struct enc_batch *batch;
+    mr_deflate *fast;
     struct libdeflate_compressor *deflate;
-    uint8_t *packed[2], *predicted; /* packed[cur]: this chunk, packed[!cur]: the last one */
-    size_t buf_cap;
-    int cur;
-    size_t last_raw;                /* the last chunk compressed: its packed size ... */
-    uint8_t *last_out;              /* ... and what it compressed to */
+    uint8_t *predicted;     /* the chunk, packed and predicted */
+    uint8_t *row_buf;       /* one channel's row, packed (4 * width bytes) */
+    size_t predicted_cap;
+    int last_y, last_h;     /* the rows of the last chunk compressed (last_h 0: none) ... */
+    uint8_t *last_out;      /* ... and what they compressed to */
     size_t last_size, last_cap;
 } enc_worker;
 
@@ -545,6 +553,7 @@ typedef struct enc_batch {
     enc_layout layout;
     exr_compression_t ctype;
     int level;          /* ZIP/ZIPS: the deflate level */
+    size_t row;         /* ZIP/ZIPS: half a packed scanline (width * pixel_bytes / 2) */
     enc_slot *slots;
     enc_worker *workers;
     atomic_bool failed; /* set by the first failing chunk: skip the rest */
@@ -664,6 +673,37 @@ static bool have_f16c(void)
 }
 #endif
 
+/* One channel's samples of one scanline (film pixels [base, base +
+ * width)) as the file stores them: little-endian, half rounding ours.
+ * Returns the bytes written (2 or 4 per sample). */
+static size_t pack_channel_row(const chan_def *def, size_t base, size_t width, bool f16c,
+                               uint8_t *dst)
+{
+    const void *plane = def->plane;
+    (void)f16c; /* unused where there are no vector paths */
+    switch (def->type) {
+    case EXR_PIXEL_HALF:
+#ifdef MR_EXR_F16C
+        if (f16c)
+            half_row_f16c((const float *)plane + base, dst, width);
+        else
+#endif
+            half_row((const float *)plane + base, dst, width);
+        return 2 * width;
+    case EXR_PIXEL_FLOAT:
+#ifdef MR_EXR_F16C
+        if (f16c)
+            float_row_avx((const float *)plane + base, dst, width);
+        else
+#endif
+            float_row((const float *)plane + base, dst, width);
+        return 4 * width;
+    default: /* UINT: ids go out untouched */
+        uint_row((const uint32_t *)plane + base, dst, width);
+        return 4 * width;
+    }
+}
+
 /* Packs rows [y0, y0 + h) of the film in the layout of an uncompressed
  * scanline chunk (per scanline, every channel in file order, little-endian
  * samples), converting straight from the film: no staging copy, and the
@@ -678,36 +718,158 @@ static size_t pack_rows(const mr_film *film, const enc_layout *L, int y0, int h,
 
     for (row = 0; row < h; row++) {
         size_t base = (size_t)(y0 + row) * width;
+        for (c = 0; c < L->count; c++)
+            dst += pack_channel_row(L->ch[c].def, base, width, f16c, dst);
+    }
+    return (size_t)(dst - start);
+}
+
+/* The ZIP codec's byte order and predictor (mr_exr_zip_predict) over a
+ * stream that arrives in pieces: the even-indexed bytes go to the first
+ * half, the odd-indexed ones to the second, each stored as its difference
+ * to the byte before it in that order plus 128 (mod 256). The byte before
+ * the first even one counts as 128, so that one is stored as it is; the
+ * byte before the first odd one is the last even one, known only at the
+ * end: zip_finish corrects it (its start value 128 keeps the odd byte
+ * itself until then). Every piece but the last must have an even length
+ * (each channel's row has), so a piece starts with an even-indexed byte. */
+typedef struct zip_stream {
+    uint8_t *even, *odd;      /* where the next byte of each half goes */
+    uint8_t *odd_start;
+    uint8_t last_even, last_odd;
+} zip_stream;
+
+static void zip_start(zip_stream *z, uint8_t *out, size_t n)
+{
+    z->even = out;
+    z->odd = z->odd_start = out + (n + 1) / 2;
+    z->last_even = z->last_odd = 128;
+}
+
+#ifdef MR_EXR_F16C
+/* zip_piece's vector loop 64 bytes at a time (AVX2): packus works within
+ * 128-bit lanes, so the packed evens (odds) are put in order by a 64-bit
+ * permute; each byte's predecessor comes from alignr over the vector and
+ * the one before it. Returns the bytes done (a multiple of 64). */
+__attribute__((target("avx2"))) static size_t zip_piece_avx2(const uint8_t *in, size_t m,
+                                                             uint8_t *even, uint8_t *odd,
+                                                             uint8_t *le, uint8_t *lo)
+{
+    const __m256i lo_mask = _mm256_set1_epi16(0x00ff), bias = _mm256_set1_epi8((char)0x80);
+    __m256i prev_e = _mm256_set1_epi8((char)*le), prev_o = _mm256_set1_epi8((char)*lo);
+    size_t k = 0;
+
+    for (; k + 64 <= m; k += 64) {
+        __m256i a = _mm256_loadu_si256((const __m256i *)(const void *)(in + k));
+        __m256i b = _mm256_loadu_si256((const __m256i *)(const void *)(in + k + 32));
+        __m256i ev = _mm256_permute4x64_epi64(
+            _mm256_packus_epi16(_mm256_and_si256(a, lo_mask), _mm256_and_si256(b, lo_mask)),
+            0xd8);
+        __m256i od = _mm256_permute4x64_epi64(
+            _mm256_packus_epi16(_mm256_srli_epi16(a, 8), _mm256_srli_epi16(b, 8)), 0xd8);
+        /* [last lane of prev | first lane of this]: the bytes before each lane */
+        __m256i pe = _mm256_alignr_epi8(ev, _mm256_permute2x128_si256(prev_e, ev, 0x21), 15);
+        __m256i po = _mm256_alignr_epi8(od, _mm256_permute2x128_si256(prev_o, od, 0x21), 15);
+        _mm256_storeu_si256((__m256i *)(void *)(even + k / 2),
+                            _mm256_add_epi8(_mm256_sub_epi8(ev, pe), bias));
+        _mm256_storeu_si256((__m256i *)(void *)(odd + k / 2),
+                            _mm256_add_epi8(_mm256_sub_epi8(od, po), bias));
+        prev_e = ev;
+        prev_o = od;
+    }
+    if (k) {
+        *le = in[k - 2];
+        *lo = in[k - 1];
+    }
+    return k;
+}
+#endif
+
+/* The vector loop splits 32 input bytes into 16 even and 16 odd ones and
+ * subtracts from each lane its predecessor: the lane before it, or for
+ * lane 0 the last lane of the block before. */
+static void zip_piece(zip_stream *z, const uint8_t *in, size_t m)
+{
+    uint8_t *even = z->even, *odd = z->odd, le = z->last_even, lo = z->last_odd;
+    size_t k = 0;
+#ifdef MR_EXR_F16C
+    if (m >= 64 && __builtin_cpu_supports("avx2")) {
+        k = zip_piece_avx2(in, m, even, odd, &le, &lo);
+        even += k / 2;
+        odd += k / 2;
+    }
+#endif
+#if defined(__SSE2__)
+    if (m - k >= 32) {
+        const __m128i lo_mask = _mm_set1_epi16(0x00ff), bias = _mm_set1_epi8((char)0x80);
+        __m128i prev_e = _mm_slli_si128(_mm_cvtsi32_si128(le), 15);
+        __m128i prev_o = _mm_slli_si128(_mm_cvtsi32_si128(lo), 15);
+        for (; k + 32 <= m; k += 32) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + k));
+            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + k + 16));
+            __m128i ev = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
+            __m128i od = _mm_packus_epi16(_mm_srli_epi16(a, 8), _mm_srli_epi16(b, 8));
+            __m128i pe = _mm_or_si128(_mm_slli_si128(ev, 1), _mm_srli_si128(prev_e, 15));
+            __m128i po = _mm_or_si128(_mm_slli_si128(od, 1), _mm_srli_si128(prev_o, 15));
+            _mm_storeu_si128((__m128i *)(void *)even, _mm_add_epi8(_mm_sub_epi8(ev, pe), bias));
+            _mm_storeu_si128((__m128i *)(void *)odd, _mm_add_epi8(_mm_sub_epi8(od, po), bias));
+            even += 16;
+            odd += 16;
+            prev_e = ev;
+            prev_o = od;
+        }
+        le = (uint8_t)(_mm_extract_epi16(prev_e, 7) >> 8);
+        lo = (uint8_t)(_mm_extract_epi16(prev_o, 7) >> 8);
+    }
+#endif
+    for (; k + 2 <= m; k += 2) {
+        *even++ = (uint8_t)(in[k] - le + 128u);
+        le = in[k];
+        *odd++ = (uint8_t)(in[k + 1] - lo + 128u);
+        lo = in[k + 1];
+    }
+    if (k < m) {
+        *even++ = (uint8_t)(in[k] - le + 128u);
+        le = in[k];
+    }
+    z->even = even;
+    z->odd = odd;
+    z->last_even = le;
+    z->last_odd = lo;
+}
+
+static void zip_finish(zip_stream *z)
+{
+    if (z->odd > z->odd_start)
+        z->odd_start[0] = (uint8_t)(z->odd_start[0] - z->last_even + 128u);
+}
+
+/* pack_rows and mr_exr_zip_predict in one pass: each channel's row is
+ * packed into row_buf (4 * width bytes, cache-resident) and predicted from
+ * there into out, so the packed chunk is never written out whole. */
+static void pack_predict_rows(const mr_film *film, const enc_layout *L, int y0, int h,
+                              uint8_t *row_buf, uint8_t *out, size_t raw)
+{
+    size_t width = (size_t)film->width;
+    bool f16c = have_f16c();
+    zip_stream z;
+    int row, c;
+
+    zip_start(&z, out, raw);
+    for (row = 0; row < h; row++) {
+        size_t base = (size_t)(y0 + row) * width;
         for (c = 0; c < L->count; c++) {
-            const void *plane = L->ch[c].def->plane;
-            switch (L->ch[c].def->type) {
-            case EXR_PIXEL_HALF:
-#ifdef MR_EXR_F16C
-                if (f16c)
-                    half_row_f16c((const float *)plane + base, dst, width);
-                else
-#endif
-                    half_row((const float *)plane + base, dst, width);
-                dst += 2 * width;
-                break;
-            case EXR_PIXEL_FLOAT:
-#ifdef MR_EXR_F16C
-                if (f16c)
-                    float_row_avx((const float *)plane + base, dst, width);
-                else
-#endif
-                    float_row((const float *)plane + base, dst, width);
-                dst += 4 * width;
-                break;
-            default: /* UINT: ids go out untouched */
-                uint_row((const uint32_t *)plane + base, dst, width);
-                dst += 4 * width;
-                break;
+            const chan_def *def = L->ch[c].def;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+            if (def->type == EXR_PIXEL_UINT) { /* already the file's bytes */
+                zip_piece(&z, (const uint8_t *)((const uint32_t *)def->plane + base), 4 * width);
+                continue;
             }
+#endif
+            zip_piece(&z, row_buf, pack_channel_row(def, base, width, f16c, row_buf));
         }
     }
-    (void)f16c;
-    return (size_t)(dst - start);
+    zip_finish(&z);
 }
 
 /* Our convert_and_pack step in the library's pipeline (PIZ). */
@@ -731,54 +893,13 @@ static exr_result_t pack_chunk(exr_encode_pipeline_t *p)
  * odd-indexed bytes (t), and every byte of t but the first is stored as its
  * difference to the previous one plus 128 (mod 256). OpenEXR's decoder
  * undoes both after inflating (openexr internal_zip.c, ImfZip.cpp); the
- * result is what the library's own encoder hands to zlib. The vector loop
- * splits 32 input bytes into 16 even and 16 odd ones and subtracts each
- * lane's predecessor (the lane before it, or the last lane of the previous
- * block). */
+ * result is what the library's own encoder hands to zlib. */
 void mr_exr_zip_predict(const uint8_t *in, size_t n, uint8_t *out)
 {
-    size_t h = (n + 1) / 2, odd = n / 2, i = 1, j = 1;
-    uint8_t *eo = out, *oo = out + h;
-
-    if (n == 0)
-        return;
-    eo[0] = in[0];
-#if defined(__SSE2__)
-    {
-        const __m128i lo_mask = _mm_set1_epi16(0x00ff), bias = _mm_set1_epi8((char)0x80);
-        /* Lane 15 of prev_* holds the predecessor of the next block's lane
-         * 0: t[0] for the evens, in[1] (the first odd byte) for the odds;
-         * the first odd byte itself follows the last even one (scalar, below). */
-        __m128i prev_e = _mm_slli_si128(_mm_cvtsi32_si128(in[0]), 15);
-        __m128i prev_o = _mm_slli_si128(_mm_cvtsi32_si128(n > 1 ? in[1] : 0), 15);
-        while (i + 16 <= h && 2 * i + 32 <= n) {
-            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i));
-            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i + 16));
-            __m128i ev = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
-            __m128i pe = _mm_or_si128(_mm_slli_si128(ev, 1), _mm_srli_si128(prev_e, 15));
-            _mm_storeu_si128((__m128i *)(void *)(eo + i),
-                             _mm_add_epi8(_mm_sub_epi8(ev, pe), bias));
-            prev_e = ev;
-            i += 16;
-        }
-        while (j + 16 <= odd && 2 * j + 33 <= n) {
-            __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 1));
-            __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * j + 17));
-            __m128i od = _mm_packus_epi16(_mm_and_si128(a, lo_mask), _mm_and_si128(b, lo_mask));
-            __m128i po = _mm_or_si128(_mm_slli_si128(od, 1), _mm_srli_si128(prev_o, 15));
-            _mm_storeu_si128((__m128i *)(void *)(oo + j),
-                             _mm_add_epi8(_mm_sub_epi8(od, po), bias));
-            prev_o = od;
-            j += 16;
-        }
-    }
-#endif
-    for (; i < h; i++)
-        eo[i] = (uint8_t)(in[2 * i] - in[2 * i - 2] + 128u);
-    if (odd >= 1)
-        oo[0] = (uint8_t)(in[1] - in[2 * (h - 1)] + 128u);
-    for (; j < odd; j++)
-        oo[j] = (uint8_t)(in[2 * j + 1] - in[2 * j - 1] + 128u);
+    zip_stream z;
+    zip_start(&z, out, n);
+    zip_piece(&z, in, n);
+    zip_finish(&z);
 }
 
 /* Points the pipeline's channels at the chunk's rows and checks that the
@@ -883,78 +1004,93 @@ static bool grow(uint8_t **buf, size_t *cap, size_t need)
     return true;
 }
 
+/* Whether rows [y, y + h) of every channel written hold the same bits as
+ * rows [y0, y0 + h) (film planes are 4-byte samples). */
+static bool same_rows(const mr_film *film, const enc_layout *L, int y, int y0, int h)
+{
+    size_t w = (size_t)film->width, n = (size_t)h * w * 4;
+    for (int c = 0; c < L->count; c++) {
+        const uint8_t *p = L->ch[c].def->plane;
+        if (memcmp(p + (size_t)y * w * 4, p + (size_t)y0 * w * 4, n) != 0)
+            return false;
+    }
+    return true;
+}
+
 /* NONE, ZIP and ZIPS without the library's pipeline: the chunk is packed by
- * pack_rows and, for the ZIP codecs, reordered and predicted as the codec
- * expects and deflated by libdeflate into the zlib format (which zlib's
- * inflate, used by OpenEXR's readers, decodes). As the library does, a
- * chunk that does not shrink is stored packed: the readers take a chunk
- * whose size equals its unpacked size as uncompressed, so a compressed
- * chunk must be strictly smaller.
+ * pack_rows or, for the ZIP codecs, packed, reordered and predicted as the
+ * codec expects in one pass (pack_predict_rows) and deflated into the zlib format (which zlib's inflate, used by
+ * OpenEXR's readers, decodes) by util/deflate.h or, at the levels that ask
+ * for it, libdeflate. As the library does, a chunk that does not shrink is
+ * stored packed: the readers take a chunk whose size equals its unpacked
+ * size as uncompressed, so a compressed chunk must be strictly smaller.
  *
- * Deflate costs about 1.5 ns per input byte even for a run of one value
- * (its match finder visits every byte a match covers), and empty sky is
- * most of a typical frame: a chunk whose packed bytes equal the last chunk
- * this worker compressed (rows of background, all alike) reuses that
- * chunk's compressed bytes. The bytes are the same as compressing again
- * (libdeflate is deterministic), so the file does not depend on which
- * worker took which chunk. */
+ * Empty background is most of a typical frame: a chunk whose film rows
+ * hold the same bits as those of the last chunk this worker compressed
+ * (rows of background, all alike) reuses that chunk's compressed bytes,
+ * found by comparing the film before anything is packed. The bytes are the
+ * same as compressing again (the packing and both compressors are
+ * deterministic), so the file does not depend on which worker took which
+ * chunk. */
 static exr_result_t encode_chunk_own(enc_batch *b, enc_worker *w, enc_slot *s)
 {
     const mr_film *film = b->film;
     size_t raw = (size_t)s->cinfo.height * (size_t)film->width * b->layout.pixel_bytes, got;
-    uint8_t *packed;
+    int y = s->cinfo.start_y, h = s->cinfo.height;
 
     s->step = "packing a chunk (layout mismatch)";
     if (raw != s->cinfo.unpacked_size || raw == 0)
         return EXR_ERR_INVALID_ARGUMENT;
     s->step = "keeping an encoded chunk";
-    if (!grow(&s->data, &s->cap, raw))
-        return EXR_ERR_OUT_OF_MEMORY;
     if (b->ctype == EXR_COMPRESSION_NONE) {
-        s->size = pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, s->data);
+        if (!grow(&s->data, &s->cap, raw))
+            return EXR_ERR_OUT_OF_MEMORY;
+        s->size = pack_rows(film, &b->layout, y, h, s->data);
         return EXR_ERR_SUCCESS;
     }
-    if (w->buf_cap < raw) {
-        size_t cap = 0;
-        for (int i = 0; i < 2; i++) {
-            cap = w->buf_cap;
-            if (!grow(&w->packed[i], &cap, raw))
-                return EXR_ERR_OUT_OF_MEMORY;
-        }
-        cap = w->buf_cap;
-        if (!grow(&w->predicted, &cap, raw))
+    if (w->last_h == h && same_rows(film, &b->layout, y, w->last_y, h)) {
+        if (!grow(&s->data, &s->cap, w->last_size))
             return EXR_ERR_OUT_OF_MEMORY;
-        w->buf_cap = raw;
-        w->last_raw = 0; /* the last chunk's bytes did not survive the realloc */
-    }
-    if (!w->deflate) {
-        s->step = "libdeflate_alloc_compressor";
-        w->deflate = libdeflate_alloc_compressor(b->level);
-        if (!w->deflate)
-            return EXR_ERR_OUT_OF_MEMORY;
-    }
-    packed = w->packed[w->cur];
-    pack_rows(film, &b->layout, s->cinfo.start_y, s->cinfo.height, packed);
-    if (w->last_raw == raw && memcmp(packed, w->packed[!w->cur], raw) == 0) {
         memcpy(s->data, w->last_out, w->last_size);
         s->size = w->last_size;
         return EXR_ERR_SUCCESS;
     }
-    mr_exr_zip_predict(packed, raw, w->predicted);
-    /* 0 when the stream would not fit in raw - 1 bytes: store packed. */
-    got = raw > 1 ? libdeflate_zlib_compress(w->deflate, w->predicted, raw, s->data, raw - 1) : 0;
-    if (got == 0) {
-        memcpy(s->data, packed, raw);
-        got = raw;
-    }
-    s->size = got;
-    s->step = "keeping an encoded chunk";
-    if (!grow(&w->last_out, &w->last_cap, got))
+    if (!grow(&w->predicted, &w->predicted_cap, raw) ||
+        !grow(&w->last_out, &w->last_cap, raw) ||
+        (!w->row_buf && !(w->row_buf = malloc(4 * (size_t)film->width))))
         return EXR_ERR_OUT_OF_MEMORY;
-    memcpy(w->last_out, s->data, got);
+    if (b->level < MR_ZIP_LEVEL_LIBDEFLATE && !w->fast) {
+        s->step = "mr_deflate_new";
+        if (!(w->fast = mr_deflate_new()))
+            return EXR_ERR_OUT_OF_MEMORY;
+    } else if (b->level >= MR_ZIP_LEVEL_LIBDEFLATE && !w->deflate) {
+        s->step = "libdeflate_alloc_compressor";
+        if (!(w->deflate = libdeflate_alloc_compressor(b->level)))
+            return EXR_ERR_OUT_OF_MEMORY;
+    }
+    pack_predict_rows(film, &b->layout, y, h, w->row_buf, w->predicted, raw);
+    /* Into last_out (chunk-sized, kept by the worker), then only the
+     * compressed bytes to the slot. 0 when the stream would not fit in
+     * raw - 1 bytes: store packed. A scanline is width * pixel_bytes bytes,
+     * half of them even-indexed, so the byte above one in the predicted
+     * halves is row bytes back. */
+    w->last_h = 0; /* last_out is being overwritten */
+    if (raw <= 1)
+        got = 0;
+    else if (w->fast)
+        got = mr_deflate_zlib(w->fast, w->predicted, raw, b->row, w->last_out, raw - 1);
+    else
+        got = libdeflate_zlib_compress(w->deflate, w->predicted, raw, w->last_out, raw - 1);
+    if (got == 0)
+        got = pack_rows(film, &b->layout, y, h, w->last_out);
+    s->step = "keeping an encoded chunk";
+    if (!grow(&s->data, &s->cap, got))
+        return EXR_ERR_OUT_OF_MEMORY;
+    memcpy(s->data, w->last_out, got);
+    s->size = got;
     w->last_size = got;
-    w->last_raw = raw;
-    w->cur = !w->cur;
+    w->last_y = y;
+    w->last_h = h;
     return EXR_ERR_SUCCESS;
 }
 
@@ -1355,6 +1491,7 @@ static int write_impl(exr_io *io, const mr_film *film, const mr_exr_options *opt
     b.film = film;
     b.ctype = ctype;
     b.level = level;
+    b.row = (size_t)film->width * b.layout.pixel_bytes / 2;
     chunks = ((size_t)film->height + (size_t)lines - 1) / (size_t)lines;
     chunk_bytes = (size_t)lines * (size_t)film->width * b.layout.pixel_bytes;
     nslots = ENC_BATCH_BYTES / chunk_bytes;
@@ -1446,11 +1583,11 @@ cleanup:
         for (t = 0; t < threads; t++) {
             if (b.workers[t].ready)
                 exr_encoding_destroy(ctxt, &b.workers[t].pipe);
+            mr_deflate_free(b.workers[t].fast);
             if (b.workers[t].deflate)
                 libdeflate_free_compressor(b.workers[t].deflate);
-            free(b.workers[t].packed[0]);
-            free(b.workers[t].packed[1]);
             free(b.workers[t].predicted);
+            free(b.workers[t].row_buf);
             free(b.workers[t].last_out);
         }
         free(b.workers);

@@ -457,19 +457,30 @@ static void test_roundtrip_piz(void **state)
 
 static void test_zip_level_changes_output(void **state)
 {
-    /* The level must reach zlib: levels 1 and 9 give different streams. */
+    /* Levels below MR_ZIP_LEVEL_LIBDEFLATE are our one deflate: the same
+     * bytes for each (and for 0, the default); from there on libdeflate's
+     * levels, which must reach it: 6 and 9 give different streams, and
+     * neither is ours. */
     mr_film *in = pattern_film();
-    mr_exr_options o1 = {MR_COMPRESSION_ZIP, 1, 0, false}, o9 = {MR_COMPRESSION_ZIP, 9, 0, false};
-    uint8_t *m1 = NULL, *m9 = NULL;
-    size_t s1 = 0, s9 = 0;
+    uint8_t *m[10] = {NULL};
+    size_t sz[10] = {0};
     mr_error err = {0};
     (void)state;
 
-    assert_int_equal(mr_exr_write_memory(&m1, &s1, in, &o1, &k_meta, &err), MR_OK);
-    assert_int_equal(mr_exr_write_memory(&m9, &s9, in, &o9, &k_meta, &err), MR_OK);
-    assert_true(s1 != s9 || memcmp(m1, m9, s1) != 0);
-    free(m1);
-    free(m9);
+    for (int level = 0; level <= 9; level++) {
+        mr_exr_options o = {MR_COMPRESSION_ZIP, level, 0, false};
+        assert_int_equal(mr_exr_write_memory(&m[level], &sz[level], in, &o, &k_meta, &err),
+                         MR_OK);
+    }
+    for (int level = 1; level < MR_ZIP_LEVEL_LIBDEFLATE; level++) {
+        assert_int_equal(sz[level], sz[0]);
+        if (memcmp(m[level], m[0], sz[0]) != 0)
+            fail_msg("zip level %d differs from the default", level);
+    }
+    assert_true(sz[6] != sz[9] || memcmp(m[6], m[9], sz[6]) != 0);
+    assert_true(sz[6] != sz[0] || memcmp(m[6], m[0], sz[0]) != 0);
+    for (int level = 0; level <= 9; level++)
+        free(m[level]);
     mr_film_free(in);
 }
 
@@ -1045,6 +1056,8 @@ static void test_parallel_identical(void **state)
     } cases[] = {
         {MR_COMPRESSION_NONE, 0, "compression (type compression): none\n"},
         {MR_COMPRESSION_ZIP, 0, "compression (type compression): zip, multi-scanline blocks\n"},
+        {MR_COMPRESSION_ZIP, MR_ZIP_LEVEL_LIBDEFLATE,
+         "compression (type compression): zip, multi-scanline blocks\n"},
         {MR_COMPRESSION_ZIPS, 1, "compression (type compression): zip, individual scanlines\n"},
         {MR_COMPRESSION_PIZ, 0, "compression (type compression): piz\n"},
     };
@@ -1335,8 +1348,13 @@ static uint8_t *reference_write_passes(const mr_film *f, bool half_normals, size
  * (exrmultiview reads every channel of every chunk) reads them too. */
 static void test_self_compressed_chunks_decode(void **state)
 {
-    static const mr_compression cs[] = {MR_COMPRESSION_NONE, MR_COMPRESSION_ZIP,
-                                        MR_COMPRESSION_ZIPS, MR_COMPRESSION_PIZ};
+    /* ZIP and ZIPS with our deflate (level 0: the default) and libdeflate's. */
+    static const struct {
+        mr_compression c;
+        int level;
+    } cs[] = {{MR_COMPRESSION_NONE, 0}, {MR_COMPRESSION_ZIP, 0},
+              {MR_COMPRESSION_ZIP, MR_ZIP_LEVEL_LIBDEFLATE}, {MR_COMPRESSION_ZIPS, 0},
+              {MR_COMPRESSION_ZIPS, 9}, {MR_COMPRESSION_PIZ, 0}};
     static const int sizes[][2] = {{1, 1}, {1, 17}, {4097, 3}, {64, 70}};
     size_t s, c;
 
@@ -1357,14 +1375,15 @@ static void test_self_compressed_chunks_decode(void **state)
             }
         }
         for (c = 0; c < sizeof cs / sizeof cs[0]; c++) {
-            mr_exr_options opt = {cs[c], 0, 2, false};
+            mr_exr_options opt = {cs[c].c, cs[c].level, 2, false};
             mr_error err = {0};
             uint8_t *ours = NULL, *ref;
             size_t ours_size = 0, ref_size = 0;
             char what[64], path[256], view[256], cmd[1024], *out;
             mr_film *back = NULL;
 
-            snprintf(what, sizeof what, "%s %dx%d", mr_compression_name(cs[c]), w, h);
+            snprintf(what, sizeof what, "%s level %d %dx%d", mr_compression_name(cs[c].c),
+                     cs[c].level, w, h);
             assert_int_equal(mr_exr_write_memory(&ours, &ours_size, in, &opt, &k_meta, &err),
                              MR_OK);
             ref = reference_write(in, MR_COMPRESSION_NONE, 0, &k_meta, &ref_size);
