@@ -11,7 +11,10 @@
 #   scripts/slurm-local.sh stop DIR    stops them (and any job left)
 #
 # Commands (sbatch, squeue, sacct, scontrol) find the cluster through
-# SLURM_CONF=DIR/slurm.conf. Finished tasks are recorded by jobcomp/filetxt
+# SLURM_CONF=DIR/slurm.conf. Each DIR is a cluster of its own: its own
+# munged (socket, pid, seed and log named after DIR under munge's folders),
+# its own two ports, and stop ends only its own job steps, so two clusters
+# (two test runs) on one machine do not stop each other. Finished tasks are recorded by jobcomp/filetxt
 # (DIR/jobcomp.txt), which `sacct --completion` reads: no slurmdbd needed.
 set -euo pipefail
 cmd=${1:-}
@@ -24,6 +27,11 @@ mkdir -p "$dir"
 dir=$(cd "$dir" && pwd)
 conf="$dir/slurm.conf"
 
+# this cluster's munge files (munged runs as munge: they go where it may write)
+id=$(printf '%s' "$dir" | cksum | cut -d' ' -f1)
+munge_socket=/run/munge/microray-$id.socket
+munge_pid=/run/munge/microray-$id.pid
+
 stop() {
   for pidfile in "$dir/slurmd.pid" "$dir/slurmctld.pid" "$dir/munged.pid"; do
     [ -f "$pidfile" ] || continue
@@ -33,8 +41,21 @@ stop() {
     kill -9 "$pid" 2>/dev/null || true
     rm -f "$pidfile"
   done
-  # job steps the node daemon left behind
-  pkill -f "slurmstepd: \[" 2>/dev/null || true
+  # job steps this node daemon left behind (they carry its SLURM_CONF)
+  for pid in $(pgrep -f "slurmstepd: \[" || true); do
+    if tr '\0' '\n' <"/proc/$pid/environ" 2>/dev/null | grep -qxF "SLURM_CONF=$conf"; then
+      kill -9 "$pid" 2>/dev/null || true
+    fi
+  done
+  rm -f "$munge_socket" "$munge_socket.lock"
+}
+
+# A port nothing listens on, from `from` on (connecting is the test: no
+# tool beyond bash needed).
+free_port() {
+  local p=$1
+  while (exec 3<>"/dev/tcp/127.0.0.1/$p") 2>/dev/null; do p=$((p + 1)); done
+  echo "$p"
 }
 
 case "$cmd" in
@@ -72,8 +93,11 @@ chmod 400 /etc/munge/munge.key
 mkdir -p /run/munge /var/lib/munge /var/log/munge
 chown munge:munge /run/munge /var/lib/munge /var/log/munge
 # (munged runs as munge: its pid and log go where munge may write)
-runuser -u munge -- munged --pid-file=/run/munge/microray-local.pid --force
-cp /run/munge/microray-local.pid "$dir/munged.pid"
+runuser -u munge -- munged --socket="$munge_socket" --pid-file="$munge_pid" \
+  --seed-file="/var/lib/munge/microray-$id.seed" --log-file="/var/log/munge/microray-$id.log" --force
+cp "$munge_pid" "$dir/munged.pid"
+ctld_port=$(free_port $((20000 + id % 20000 * 2)))
+slurmd_port=$(free_port $((ctld_port + 1)))
 
 cpus=$(nproc)
 mem=$(awk '/MemTotal/ {print int($2 / 1024 * 0.9)}' /proc/meminfo)
@@ -84,6 +108,9 @@ SlurmctldHost=localhost
 SlurmUser=root
 SlurmdUser=root
 AuthType=auth/munge
+AuthInfo=socket=$munge_socket
+SlurmctldPort=$ctld_port
+SlurmdPort=$slurmd_port
 StateSaveLocation=$dir/state
 SlurmdSpoolDir=$dir/spool
 SlurmctldPidFile=$dir/slurmctld.pid
