@@ -14,25 +14,6 @@
 
 #include "daemon_fixture.h"
 
-static char *slurp(const char *path)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return NULL;
-    fseek(f, 0, SEEK_END);
-    long n = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    char *s = malloc((size_t)n + 1);
-    if (s && fread(s, 1, (size_t)n, f) != (size_t)n) {
-        free(s);
-        s = NULL;
-    }
-    if (s)
-        s[n] = 0;
-    fclose(f);
-    return s;
-}
-
 static void write_file(const char *path, const char *text)
 {
     FILE *f = fopen(path, "w");
@@ -81,7 +62,7 @@ static void test_report_of_known_points(void **state)
              points, log, out);
     assert_int_equal(system(cmd), 0);
     snprintf(path, sizeof path, "%s/report.md", out);
-    char *r = slurp(path);
+    char *r = fx_slurp(path, NULL);
     assert_non_null(r);
     assert_non_null(strstr(r, "cores"));
     assert_non_null(strstr(r, "the benchmarks' own lines"));
@@ -91,7 +72,7 @@ static void test_report_of_known_points(void **state)
     static const char *const PNGS[] = {"k-scene-A.png", "k-scene-B.png"};
     for (int i = 0; i < 2; i++) {
         snprintf(path, sizeof path, "%s/plots/%s", out, PNGS[i]);
-        char *png = slurp(path);
+        char *png = fx_slurp(path, NULL);
         assert_non_null(png);
         assert_memory_equal(png, "\x89PNG", 4);
         free(png);
