@@ -477,6 +477,16 @@ int mrc_http_json(mrc_http *h, const char *method, const char *path, const void 
     return 0;
 }
 
+int mrc_http_get_json(mrc_http *h, const char *path, cJSON **json, mrc_error *err)
+{
+    mrc_response resp = {0};
+    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, json, err);
+    if (rc == 0 && !*json)
+        rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+    mrc_response_free(&resp);
+    return rc;
+}
+
 /* ---- downloads and uploads ------------------------------------------------ */
 
 int mrc_http_download(mrc_http *h, const char *path, const char *dest, int64_t *bytes,

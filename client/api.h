@@ -65,6 +65,10 @@ int mrc_http_json(mrc_http *h, const char *method, const char *path, const void 
                   size_t len, const char *content_type, const char *idempotency_key,
                   mrc_response *resp, cJSON **json, mrc_error *err);
 
+/* GET path as a JSON object; an answer without a body is an error
+ * (MRC_EXIT_SERVER) here. */
+int mrc_http_get_json(mrc_http *h, const char *path, cJSON **json, mrc_error *err);
+
 /* GET path into file dest, streamed (never held in memory): written to a
  * temporary name in dest's directory, fsync'ed and renamed over dest only
  * after the whole body arrived with a 2xx status. *bytes (may be NULL)

@@ -275,15 +275,11 @@ static int get_snapshot(follow *f, bool announce, mrc_error *err)
 {
     char path[256];
     snprintf(path, sizeof path, "/v1/jobs/%s", f->id);
-    mrc_response resp = {0};
     cJSON *job = NULL;
-    int rc = mrc_http_json(f->http, "GET", path, NULL, 0, NULL, NULL, &resp, &job, err);
-    if (rc == 0 && !job)
-        rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+    int rc = mrc_http_get_json(f->http, path, &job, err);
     if (rc == 0)
         rc = apply_snapshot(f, job, announce, err);
     cJSON_Delete(job);
-    mrc_response_free(&resp);
     return rc;
 }
 

@@ -329,14 +329,10 @@ static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
 {
     char path[256];
     snprintf(path, sizeof path, "/v1/jobs/%s/stats", a->pos[0]);
-    mrc_response resp = {0};
     cJSON *stats = NULL;
-    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &stats, err);
-    if (rc < 0 || !stats) {
-        if (rc == 0)
-            rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+    int rc = mrc_http_get_json(h, path, &stats, err);
+    if (rc < 0)
         goto cleanup;
-    }
     if (a->json) {
         print_json(stats);
         goto cleanup;
@@ -397,7 +393,6 @@ static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
     }
 cleanup:
     cJSON_Delete(stats);
-    mrc_response_free(&resp);
     return rc;
 }
 
@@ -407,14 +402,10 @@ static int cmd_status(mrc_http *h, const cmd_args *a, mrc_error *err)
     if (a->errors)
         return cmd_status_errors(h, a, err);
     snprintf(path, sizeof path, "/v1/jobs/%s", a->pos[0]);
-    mrc_response resp = {0};
     cJSON *job = NULL;
-    int rc = mrc_http_json(h, "GET", path, NULL, 0, NULL, NULL, &resp, &job, err);
-    if (rc < 0 || !job) {
-        if (rc == 0)
-            rc = mrc_fail(err, MRC_EXIT_SERVER, "GET %s: empty answer", path);
+    int rc = mrc_http_get_json(h, path, &job, err);
+    if (rc < 0)
         goto cleanup;
-    }
     if (a->json) {
         print_json(job);
         goto cleanup;
@@ -478,7 +469,6 @@ static int cmd_status(mrc_http *h, const cmd_args *a, mrc_error *err)
         printf("  ... and %d more\n", more);
 cleanup:
     cJSON_Delete(job);
-    mrc_response_free(&resp);
     return rc;
 }
 
