@@ -28,8 +28,14 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
     const float *restrict px = s->pos[0], *restrict py = s->pos[1], *restrict pz = s->pos[2];
     float *restrict nx = s->next[0], *restrict ny = s->next[1], *restrict nz = s->next[2];
     float *restrict vx = s->vel[0], *restrict vy = s->vel[1], *restrict vz = s->vel[2];
-    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, vk[18], vl[18], vlmin[18];
+    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, vk[18], vl[18], vlmin[18], lox, loy, loz, hix, hiy, hiz;
     for (int l = 0; l < SMK_W; l++) {
+        lox[l] = x->reach_lo[0];
+        loy[l] = x->reach_lo[1];
+        loz[l] = x->reach_lo[2];
+        hix[l] = x->reach_hi[0];
+        hiy[l] = x->reach_hi[1];
+        hiz[l] = x->reach_hi[2];
         vh[l] = s->h;
         vhm[l] = s->hm;
         vinv[l] = s->inv_den;
@@ -47,6 +53,7 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
     }
     for (size_t r = begin; r < end; r++) {
         const size_t b = s->span_begin[r], e = s->span_end[r];
+        SMK_I reached = {0}; /* lanes whose new position a probe may reach */
         for (size_t c = b; c < e; c += SMK_W) {
             SMK_V a, X, Y, Z, VX, VY, VZ, S;
             memcpy(&a, act + c, sizeof a);
@@ -81,6 +88,7 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
             VY = (VY + vhm * FY) * vinv;
             VZ = (VZ + vhm * FZ) * vinv;
             SMK_V NX = X + vh * VX, NY = Y + vh * VY, NZ = Z + vh * VZ;
+            reached |= (NX >= lox) & (NX <= hix) & (NY >= loy) & (NY <= hiy) & (NZ >= loz) & (NZ <= hiz);
             /* whole vectors inside the span; the last one lane by lane, so no
              * cell of another row (another thread's) is ever written */
             size_t lanes = e - c < (size_t)SMK_W ? e - c : (size_t)SMK_W;
@@ -101,6 +109,13 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
                     nz[c + l] = NZ[l];
                 }
             }
+        }
+        if (x->constrain) {
+            bool any = s->span_pinned[r];
+            for (int l = 0; l < SMK_W; l++)
+                any |= reached[l] != 0;
+            if (any)
+                constrain_row(x->constrain, r);
         }
     }
 }
