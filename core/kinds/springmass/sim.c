@@ -16,7 +16,6 @@
 #include "util/le.h"
 #include "util/parallel.h"
 
-#define SM_PAIRS 9
 /* Lanes read past a row's last cell by the widest kernel, plus slack. */
 #define SM_SLACK 16u
 /* Chunks per thread of a parallel pass over the rows: enough for one
@@ -30,10 +29,6 @@ struct sm_sim {
     const mr_springmass_params *p;
     size_t cells;
     float *act, *surf;                  /* per cell: node 1/0, surface node 1/0 */
-    /* per pair of opposite directions (sm_neighbour_dir 2q and 2q + 1), at
-     * the spring's endpoint of lower index: k (|d| - l) / |d| this substep */
-    float *spring[SM_PAIRS];
-    int pair_dir[SM_PAIRS];             /* the pair's direction with a positive offset */
     float *rest[3], *pos[3], *next[3], *vel[3], *nrm[3], *nstr;
     float *rest_nrm[3], *rest_nstr;     /* the approximate normals at rest */
     /* the end-of-frame pass' per-cell figures (sim_kernel.h), summed per row */
@@ -122,14 +117,12 @@ static void measure_row_sum(sm_sim *s, size_t r)
 static inline float smk_sqrt1(float x) { return sqrtf(x); }
 #define SMK_W 1
 #define SMK_NAME step_rows_1
-#define SMK_SPRINGS spring_rows_1
 #define SMK_MEASURE measure_rows_1
 #define SMK_ATTR
 #define SMK_SQRT(v) ((smk_v1){smk_sqrt1((v)[0])})
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
-#undef SMK_SPRINGS
 #undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
@@ -137,28 +130,24 @@ static inline float smk_sqrt1(float x) { return sqrtf(x); }
 #ifdef SM_X86
 #define SMK_W 4
 #define SMK_NAME step_rows_4
-#define SMK_SPRINGS spring_rows_4
 #define SMK_MEASURE measure_rows_4
 #define SMK_ATTR
 #define SMK_SQRT(v) ((smk_v4)_mm_sqrt_ps((__m128)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
-#undef SMK_SPRINGS
 #undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
 
 #define SMK_W 8
 #define SMK_NAME step_rows_8
-#define SMK_SPRINGS spring_rows_8
 #define SMK_MEASURE measure_rows_8
 #define SMK_ATTR __attribute__((target("avx")))
 #define SMK_SQRT(v) ((smk_v8)_mm256_sqrt_ps((__m256)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
 #undef SMK_NAME
-#undef SMK_SPRINGS
 #undef SMK_MEASURE
 #undef SMK_ATTR
 #undef SMK_SQRT
@@ -171,22 +160,22 @@ static int forced_width;
 void sm_sim_force_width(int lanes) { forced_width = lanes; }
 
 typedef struct kernels {
-    mr_range_fn springs, step, measure;
+    mr_range_fn step, measure;
 } kernels;
 
 static kernels pick_kernels(void)
 {
 #ifdef SM_X86
     if (forced_width == 1)
-        return (kernels){spring_rows_1, step_rows_1, measure_rows_1};
+        return (kernels){step_rows_1, measure_rows_1};
     if (forced_width == 4)
-        return (kernels){spring_rows_4, step_rows_4, measure_rows_4};
+        return (kernels){step_rows_4, measure_rows_4};
     __builtin_cpu_init();
     if (__builtin_cpu_supports("avx"))
-        return (kernels){spring_rows_8, step_rows_8, measure_rows_8};
-    return (kernels){spring_rows_4, step_rows_4, measure_rows_4};
+        return (kernels){step_rows_8, measure_rows_8};
+    return (kernels){step_rows_4, measure_rows_4};
 #else
-    return (kernels){spring_rows_1, step_rows_1, measure_rows_1};
+    return (kernels){step_rows_1, measure_rows_1};
 #endif
 }
 
@@ -208,8 +197,6 @@ void sm_sim_free(sm_sim *s)
         return;
     sm_grid_free(&s->grid);
     free(s->act);
-    for (int q = 0; q < SM_PAIRS; q++)
-        free(s->spring[q]);
     free(s->surf);
     for (int a = 0; a < 3; a++) {
         free(s->rest[a]);
@@ -420,8 +407,6 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
     bool ok = s->act && s->surf && s->nstr && s->rest_nstr && s->pin_of && s->cell_kinetic && s->cell_spring &&
               s->cell_gravity && s->cell_shadow && s->cell_strain && s->cell_bound && s->cell_bad &&
               s->cell_inv;
-    for (int q = 0; q < SM_PAIRS && ok; q++)
-        ok = (s->spring[q] = alloc_cells(s->cells)) != NULL;
     for (int a = 0; a < 3 && ok; a++)
         ok = (s->rest[a] = alloc_cells(s->cells)) && (s->pos[a] = alloc_cells(s->cells)) &&
              (s->next[a] = alloc_cells(s->cells)) && (s->vel[a] = alloc_cells(s->cells)) &&
@@ -468,8 +453,6 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
         s->lmin[d] = s->len[d] * 1e-6f;
         s->inv_len[d] = 1.0 / s->len[d];
     }
-    for (int q = 0; q < SM_PAIRS; q++)
-        s->pair_dir[q] = s->off[2 * q] > 0 ? 2 * q : 2 * q + 1;
     /* float rounding of positions near the largest coordinate (ulp u)
      * perturbs every spring's stretch by about u each substep: it may add
      * k u^2 of energy per spring (sim.h) */
@@ -686,7 +669,7 @@ static size_t row_grain(const sm_sim *s, unsigned threads)
     return g ? g : 1;
 }
 
-static void substep(sm_sim *s, double t0, unsigned threads, const kernels *kernel)
+static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
 {
     const mr_springmass_params *p = s->p;
     double t1 = t0 + s->h;
@@ -722,8 +705,7 @@ static void substep(sm_sim *s, double t0, unsigned threads, const kernels *kerne
         sc.constrain = &cc;
         probe_reach(p, c0, c1, sc.reach_lo, sc.reach_hi);
     }
-    mr_parallel_for(threads, s->span_count, row_grain(s, threads), kernel->springs, &sc);
-    mr_parallel_for(threads, s->span_count, row_grain(s, threads), kernel->step, &sc);
+    mr_parallel_for(threads, s->span_count, row_grain(s, threads), kernel, &sc);
     if (point_forces) {
         /* point forces: the kick and drift they add to their node */
         for (size_t f = 0; f < p->force_count; f++) {
@@ -804,7 +786,7 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
 {
     if (s->failed_rc < 0)
         return mr_error_set(err, s->failed_rc, "%s", s->failed_msg);
-    const kernels kernel = pick_kernels();
+    mr_range_fn kernel = pick_kernels().step;
     s->last_substeps = s->substeps;
     if (steps && s->substeps > SM_MAX_SUBSTEPS)
         return fail(s, err, "the springs stiffened (stretched) until a step needs more than %u substeps",
@@ -812,7 +794,7 @@ int sm_sim_advance(sm_sim *s, uint64_t steps, unsigned threads, mr_error *err)
     for (uint64_t k = 0; k < steps; k++) {
         double t = (double)s->steps * s->p->dt;
         for (uint32_t q = 0; q < s->substeps; q++)
-            substep(s, t + (double)q * s->h, threads, &kernel);
+            substep(s, t + (double)q * s->h, threads, kernel);
         s->steps++;
         s->rounding_heat += s->heat_per_substep * s->substeps;
     }

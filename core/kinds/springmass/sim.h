@@ -52,13 +52,6 @@
  * substeps so far (very stiff springs, k = 1e7, heat by about 0.01 per
  * frame of a 400-node ball: measured; damping holds it).
  *
- * A substep is two passes over the grid's rows: each spring's factor
- * k (|d| - l) / |d| once (from the endpoint with the lower cell index: the
- * factor is the same bits seen from either end), then per node the sum of
- * its 18 factors times the differences to its neighbours, the kick, the
- * drift, and pins and probes on the row's new positions. Half the square
- * roots and divisions of a per-node sum, which was bound by them.
- *
  * Determinism: every node's update reads only the previous positions, and
  * each sum runs over the 18 neighbours in sm_neighbour_dir order; lanes of
  * SIMD vectors compute exactly the scalar operation sequence (IEEE add,

@@ -3,8 +3,7 @@
  * node of a range of grid rows), included by sim.c once per vector width.
  * The includer defines:
  *   SMK_W      lanes per vector
- *   SMK_SPRINGS the step's first pass (each spring's factor, once)
- *   SMK_NAME   the step's second pass (forces, kick, drift, constraints)
+ *   SMK_NAME   the step function's name
  *   SMK_MEASURE the measure function's name (sim.c's end-of-frame pass:
  *              per node the approximate normal of eq. 3, its energies,
  *              largest strain and stiffness bound into per-cell arrays,
@@ -20,63 +19,6 @@ typedef int32_t SMK_CAT(smk_i, SMK_W) __attribute__((vector_size(4 * SMK_W)));
 #define SMK_V SMK_CAT(smk_v, SMK_W)
 #define SMK_I SMK_CAT(smk_i, SMK_W)
 
-/* Pass 1: each spring once, from its endpoint with the lower cell index
- * (the pair's direction with a positive offset): its factor
- * k (|d| - l) / |d| into spring[pair] at that endpoint. Both endpoints'
- * factors in the one-pass form are the same bits ((a_i a_j) k, and |d|
- * from the negated difference), so pass 2 sums exactly what every node
- * summed for itself before. */
-SMK_ATTR static void SMK_SPRINGS(void *ctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    const sm_step_ctx *x = ctx;
-    const sm_sim *s = x->sim;
-    const float *restrict act = s->act;
-    const float *restrict px = s->pos[0], *restrict py = s->pos[1], *restrict pz = s->pos[2];
-    SMK_V vk[SM_PAIRS], vl[SM_PAIRS], vlmin[SM_PAIRS];
-    for (int l = 0; l < SMK_W; l++)
-        for (int q = 0; q < SM_PAIRS; q++) {
-            vk[q][l] = s->k[s->pair_dir[q]];
-            vl[q][l] = s->len[s->pair_dir[q]];
-            vlmin[q][l] = s->lmin[s->pair_dir[q]];
-        }
-    for (size_t r = begin; r < end; r++) {
-        const size_t b = s->span_begin[r], e = s->span_end[r];
-        for (size_t c = b; c < e; c += SMK_W) {
-            const size_t lanes = e - c < (size_t)SMK_W ? e - c : (size_t)SMK_W;
-            SMK_V a, X, Y, Z;
-            memcpy(&a, act + c, sizeof a);
-            memcpy(&X, px + c, sizeof X);
-            memcpy(&Y, py + c, sizeof Y);
-            memcpy(&Z, pz + c, sizeof Z);
-            for (int q = 0; q < SM_PAIRS; q++) {
-                const size_t n = (size_t)((ptrdiff_t)c + s->off[s->pair_dir[q]]);
-                SMK_V an, xn, yn, zn;
-                memcpy(&an, act + n, sizeof an);
-                memcpy(&xn, px + n, sizeof xn);
-                memcpy(&yn, py + n, sizeof yn);
-                memcpy(&zn, pz + n, sizeof zn);
-                SMK_V dx = xn - X, dy = yn - Y, dz = zn - Z;
-                SMK_V L = SMK_SQRT(dx * dx + dy * dy + dz * dz);
-                SMK_I big = L > vlmin[q];
-                SMK_V Lc = (SMK_V)((big & (SMK_I)L) | (~big & (SMK_I)vlmin[q]));
-                SMK_V sp = (a * an * vk[q]) * (L - vl[q]) / Lc;
-                /* whole vectors inside the span; the last one lane by lane,
-                 * so no cell of another row (another thread's) is written */
-                float *out = s->spring[q] + c;
-                if (lanes == (size_t)SMK_W)
-                    memcpy(out, &sp, sizeof sp);
-                else
-                    for (size_t l = 0; l < lanes; l++)
-                        out[l] = sp[l];
-            }
-        }
-    }
-}
-
-/* Pass 2: per node the sum of its 18 springs in sm_neighbour_dir order
- * (the factor from pass 1 times the difference to the neighbour), kick,
- * drift, and (x->constrain) pins and probes on the row. */
 SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -86,10 +28,7 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
     const float *restrict px = s->pos[0], *restrict py = s->pos[1], *restrict pz = s->pos[2];
     float *restrict nx = s->next[0], *restrict ny = s->next[1], *restrict nz = s->next[2];
     float *restrict vx = s->vel[0], *restrict vy = s->vel[1], *restrict vz = s->vel[2];
-    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, lox, loy, loz, hix, hiy, hiz;
-    const float *spring[18];
-    for (int d = 0; d < 18; d++) /* the pair's factor sits at its lower cell */
-        spring[d] = s->spring[d >> 1] + (s->off[d] < 0 ? s->off[d] : 0);
+    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, vk[18], vl[18], vlmin[18], lox, loy, loz, hix, hiy, hiz;
     for (int l = 0; l < SMK_W; l++) {
         lox[l] = x->reach_lo[0];
         loy[l] = x->reach_lo[1];
@@ -106,6 +45,11 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
         vwx[l] = x->wind[0];
         vwy[l] = x->wind[1];
         vwz[l] = x->wind[2];
+        for (int d = 0; d < 18; d++) {
+            vk[d][l] = s->k[d];
+            vl[d][l] = s->len[d];
+            vlmin[d][l] = s->lmin[d];
+        }
     }
     for (size_t r = begin; r < end; r++) {
         const size_t b = s->span_begin[r], e = s->span_end[r];
@@ -123,14 +67,19 @@ SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned work
             SMK_V FX = {0}, FY = {0}, FZ = {0};
             for (int d = 0; d < 18; d++) {
                 const size_t n = (size_t)((ptrdiff_t)c + s->off[d]);
-                SMK_V sp, xn, yn, zn;
-                memcpy(&sp, spring[d] + c, sizeof sp);
+                SMK_V an, xn, yn, zn;
+                memcpy(&an, act + n, sizeof an);
                 memcpy(&xn, px + n, sizeof xn);
                 memcpy(&yn, py + n, sizeof yn);
                 memcpy(&zn, pz + n, sizeof zn);
-                FX += sp * (xn - X);
-                FY += sp * (yn - Y);
-                FZ += sp * (zn - Z);
+                SMK_V dx = xn - X, dy = yn - Y, dz = zn - Z;
+                SMK_V L = SMK_SQRT(dx * dx + dy * dy + dz * dz);
+                SMK_I big = L > vlmin[d];
+                SMK_V Lc = (SMK_V)((big & (SMK_I)L) | (~big & (SMK_I)vlmin[d]));
+                SMK_V sp = (a * an * vk[d]) * (L - vl[d]) / Lc;
+                FX += sp * dx;
+                FY += sp * dy;
+                FZ += sp * dz;
             }
             FX += a * vmgx + S * vwx;
             FY += a * vmgy + S * vwy;

@@ -22,9 +22,9 @@
 #define SM_STATE_VERSION 2u
 #define SM_REVISION 1u
 
-/* Bytes per grid cell the simulation holds (27 float arrays and the
+/* Bytes per grid cell the simulation holds (18 float arrays and the
  * grid's two byte arrays), for the memory budget. */
-#define SM_BYTES_PER_CELL (27u * 4u + 2u)
+#define SM_BYTES_PER_CELL (18u * 4u + 2u)
 
 struct mr_geom {
     const mr_springmass_params *p;
