@@ -141,12 +141,14 @@ static inline float smk_sqrt1(float x) { return sqrtf(x); }
 #undef SMK_SQRT
 
 #define SMK_W 8
+#define SMK_TAIL_W 4
 #define SMK_NAME step_rows_8
 #define SMK_MEASURE measure_rows_8
 #define SMK_ATTR __attribute__((target("avx")))
 #define SMK_SQRT(v) ((smk_v8)_mm256_sqrt_ps((__m256)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
+#undef SMK_TAIL_W
 #undef SMK_NAME
 #undef SMK_MEASURE
 #undef SMK_ATTR
