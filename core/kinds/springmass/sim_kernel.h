@@ -283,10 +283,19 @@ SMK_ATTR static void SMK_MEASURE(void *ctx, size_t begin, size_t end, unsigned w
                 const ptrdiff_t oy = (ptrdiff_t)s->grid.n[0], oz = oy * (ptrdiff_t)s->grid.n[1];
                 const ptrdiff_t co[8] = {0, 1, oy, oy + 1, oz, oz + 1, oz + oy, oz + oy + 1};
                 SMK_V P[8][3], all = a;
-                for (int k = 0; k < 8; k++) {
+                for (int k = 1; k < 8; k++) {
                     SMK_V ak;
                     memcpy(&ak, act + c + co[k], sizeof ak);
                     all = all * ak;
+                }
+                bool any_cell = false;
+                for (size_t l = 0; l < lanes; l++)
+                    any_cell |= all[l] != 0;
+                if (!any_cell) { /* no cell of 8 nodes here: none inverted */
+                    SMK_STORE(s->cell_inv + c, zero, lanes);
+                    continue;
+                }
+                for (int k = 0; k < 8; k++) {
                     memcpy(&P[k][0], px + c + co[k], sizeof P[k][0]);
                     memcpy(&P[k][1], py + c + co[k], sizeof P[k][1]);
                     memcpy(&P[k][2], pz + c + co[k], sizeof P[k][2]);
