@@ -56,6 +56,8 @@ typedef struct tri_hot {
     float o[3], n[3];
 } tri_hot;
 #define HOT_CURVATURE 0x80000000u
+/* Vertices ahead whose triangle record apply_range prefetches. */
+#define PREFETCH_AHEAD 8
 
 typedef struct lin_bind {
     int32_t corner[8]; /* >= 0: the node's cell; < 0: ghost -(g + 1) */
@@ -1105,8 +1107,26 @@ static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     const apply_ctx *x = ctx;
+    const sm_map *m = x->m;
+    if (m->mapping == MR_SPRINGMASS_TRIANGLE_BASIS || m->mapping == MR_SPRINGMASS_TRIANGLE_CURVATURE) {
+        /* a vertex's triangle record is anywhere in the table: ask for the
+         * one PREFETCH_AHEAD vertices on while this one is mapped */
+        for (size_t v = begin; v < end; v++) {
+            if (v + PREFETCH_AHEAD < end) {
+                uint32_t t = m->hot[v + PREFETCH_AHEAD].tri;
+                if (t != UINT32_MAX) {
+                    const char *rec = (const char *)&m->tri_frame[t & ~HOT_CURVATURE];
+                    __builtin_prefetch(rec);
+                    __builtin_prefetch(rec + 64);
+                    __builtin_prefetch(rec + sizeof(tri_frame) - 1);
+                }
+            }
+            apply_tri(x, (uint32_t)v);
+        }
+        return;
+    }
     for (size_t v = begin; v < end; v++) {
-        switch (x->m->mapping) {
+        switch (m->mapping) {
         case MR_SPRINGMASS_ONE_TO_ONE: apply_one(x, (uint32_t)v); break;
         case MR_SPRINGMASS_TRILINEAR: apply_lin(x, (uint32_t)v); break;
         default: apply_tri(x, (uint32_t)v); break;
