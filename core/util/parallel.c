@@ -19,8 +19,8 @@
  * for a worker that has not woken up (on a loaded machine that can be a
  * whole time slice), and waits only for the workers that took part, which
  * are at most finishing one chunk.
- * Waiting: spin a little (a loop often follows a loop: the spring-mass
- * solver's force pass, then its constraint pass), then sleep on the word
+ * Waiting: spin a little (a loop often follows a loop: the mappings'
+ * per-triangle pass, then their per-vertex one), then sleep on the word
  * with a futex; the other side wakes a sleeper only when its `sleeping`
  * flag is up (seq_cst store of the word, then load of the flag, against
  * store of the flag, then load of the word: one of the two sees the
@@ -117,10 +117,15 @@ enum { IDLE, POSTED, RUNNING, STOP };
 #define PHASE(v) ((v) & 3u)
 #define GEN(v) ((v) & ~3u)
 
-/* Pause-loop iterations a waiter spins before it sleeps (about 30-60 us on
- * the x86 cores measured; bench_springmass' pool figures). */
+/* Pause-loop iterations a waiter spins before it sleeps: about 3 us on
+ * the x86 cores measured (a pause is ~16 ns there), enough for a loop
+ * that follows at once. Longer spins cost more than they saved on the
+ * busy 2-core machine (a loop of 64 half-microsecond items on 2 threads:
+ * 62-72 us per call spinning 0 or 3 us, 72-84 us spinning 30 us, 110 us
+ * spinning 300 us): a spinning worker spends the time slices the
+ * scheduler would otherwise give it when it has work. */
 #ifndef MR_POOL_SPIN
-#define MR_POOL_SPIN 2000
+#define MR_POOL_SPIN 200
 #endif
 
 typedef struct slot {
