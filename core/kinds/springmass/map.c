@@ -196,8 +196,8 @@ static inline v4 v4_splat(float f) { return (v4){f, f, f, f}; }
 /* f_cross */
 static inline v4 v4_cross(v4 a, v4 b)
 {
-    const __attribute__((vector_size(16))) int yzx = {1, 2, 0, 3}, zxy = {2, 0, 1, 3};
-    return __builtin_shuffle(a, yzx) * __builtin_shuffle(b, zxy) - __builtin_shuffle(a, zxy) * __builtin_shuffle(b, yzx);
+    return __builtin_shufflevector(a, a, 1, 2, 0, 3) * __builtin_shufflevector(b, b, 2, 0, 1, 3) -
+           __builtin_shufflevector(a, a, 2, 0, 1, 3) * __builtin_shufflevector(b, b, 1, 2, 0, 3);
 }
 /* f_norm */
 static inline float v4_norm(v4 *a)

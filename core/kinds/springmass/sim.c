@@ -585,54 +585,52 @@ static void constrain_row(const constrain_ctx *x, size_t r)
     sm_sim *s = x->sim;
     const mr_springmass_params *p = s->p;
     const float inv_h = 1.0f / s->h;
-    {
-        for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
-            if (s->act[c] == 0)
-                continue;
-            float q[3] = {s->next[0][c], s->next[1][c], s->next[2][c]};
-            bool moved = false;
-            if (s->pin_of[c]) {
-                const pin_motion *m = &x->pins[s->pin_of[c] - 1];
-                float d[3] = {s->rest[0][c] - m->pivot[0], s->rest[1][c] - m->pivot[1],
-                              s->rest[2][c] - m->pivot[2]};
-                /* as a displacement from rest, so a pin that does not move
-                 * holds its nodes exactly at rest */
-                for (int a = 0; a < 3; a++)
-                    q[a] = s->rest[a][c] +
-                           (((m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) - d[a]) + m->t[a]);
+    for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
+        if (s->act[c] == 0)
+            continue;
+        float q[3] = {s->next[0][c], s->next[1][c], s->next[2][c]};
+        bool moved = false;
+        if (s->pin_of[c]) {
+            const pin_motion *m = &x->pins[s->pin_of[c] - 1];
+            float d[3] = {s->rest[0][c] - m->pivot[0], s->rest[1][c] - m->pivot[1],
+                          s->rest[2][c] - m->pivot[2]};
+            /* as a displacement from rest, so a pin that does not move
+             * holds its nodes exactly at rest */
+            for (int a = 0; a < 3; a++)
+                q[a] = s->rest[a][c] +
+                       (((m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) - d[a]) + m->t[a]);
+            moved = true;
+        } else {
+            for (size_t k = 0; k < p->probe_count; k++) {
+                const mr_vec3 c0 = x->probe0[k], c1 = x->probe1[k];
+                const float rad = p->probes[k].radius;
+                float seg[3] = {c1.x - c0.x, c1.y - c0.y, c1.z - c0.z};
+                float rel[3] = {q[0] - c0.x, q[1] - c0.y, q[2] - c0.z};
+                float ss = seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2];
+                float u = ss > 0 ? (rel[0] * seg[0] + rel[1] * seg[1] + rel[2] * seg[2]) / ss : 1.0f;
+                u = u < 0 ? 0 : u > 1 ? 1 : u;
+                float at[3] = {c0.x + u * seg[0], c0.y + u * seg[1], c0.z + u * seg[2]};
+                float dv[3] = {q[0] - at[0], q[1] - at[1], q[2] - at[2]};
+                float d2 = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2];
+                if (!(d2 < rad * rad))
+                    continue;
+                float dist = sqrtf(d2);
+                if (dist > rad * 1e-6f) {
+                    for (int a = 0; a < 3; a++)
+                        q[a] = at[a] + dv[a] * (rad / dist);
+                } else { /* on the path itself: out along +y */
+                    q[0] = at[0];
+                    q[1] = at[1] + rad;
+                    q[2] = at[2];
+                }
                 moved = true;
-            } else {
-                for (size_t k = 0; k < p->probe_count; k++) {
-                    const mr_vec3 c0 = x->probe0[k], c1 = x->probe1[k];
-                    const float rad = p->probes[k].radius;
-                    float seg[3] = {c1.x - c0.x, c1.y - c0.y, c1.z - c0.z};
-                    float rel[3] = {q[0] - c0.x, q[1] - c0.y, q[2] - c0.z};
-                    float ss = seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2];
-                    float u = ss > 0 ? (rel[0] * seg[0] + rel[1] * seg[1] + rel[2] * seg[2]) / ss : 1.0f;
-                    u = u < 0 ? 0 : u > 1 ? 1 : u;
-                    float at[3] = {c0.x + u * seg[0], c0.y + u * seg[1], c0.z + u * seg[2]};
-                    float dv[3] = {q[0] - at[0], q[1] - at[1], q[2] - at[2]};
-                    float d2 = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2];
-                    if (!(d2 < rad * rad))
-                        continue;
-                    float dist = sqrtf(d2);
-                    if (dist > rad * 1e-6f) {
-                        for (int a = 0; a < 3; a++)
-                            q[a] = at[a] + dv[a] * (rad / dist);
-                    } else { /* on the path itself: out along +y */
-                        q[0] = at[0];
-                        q[1] = at[1] + rad;
-                        q[2] = at[2];
-                    }
-                    moved = true;
-                }
             }
-            if (moved)
-                for (int a = 0; a < 3; a++) {
-                    s->vel[a][c] = (q[a] - s->pos[a][c]) * inv_h;
-                    s->next[a][c] = q[a];
-                }
         }
+        if (moved)
+            for (int a = 0; a < 3; a++) {
+                s->vel[a][c] = (q[a] - s->pos[a][c]) * inv_h;
+                s->next[a][c] = q[a];
+            }
     }
 }
 
