@@ -38,6 +38,8 @@
  *    forgets the parent's (the next call in the child starts its own).
  *    The daemon's children exec before touching the pool; the import
  *    worker without an executable (tests) imports in the forked image.
+ *    (A fork from inside a task would leave the child's copy of the loop
+ *    waiting for workers it does not have: nothing does that.)
  * Results do not depend on any of this: fn's items are independent.
  */
 #define _GNU_SOURCE
