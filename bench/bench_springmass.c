@@ -14,6 +14,10 @@
  * per mapping) and of the frame's seconds (pose + bvh + trace: a whole
  * frame without encoding). A 32^3 grid (32,768 nodes filling a unit cube)
  * gives ms per step against Projective Dynamics' 3.1 ms per iteration.
+ * Then the parallel loop's workers (issue 15): a short loop's cost per
+ * call, and the step and the curvature mapping on 1 and 2 threads with
+ * threads started per call (mr_parallel_use_pool(false), the way before)
+ * and on the pool, interleaved frame by frame.
  *
  * usage: bench_springmass [--frames N] [--threads N]   (run from the repository root)
  */
@@ -142,12 +146,6 @@ static void run_interleaved(mr_device *dev, mr_job **jobs, mr_asset **assets, in
     "\"frames\":{\"fps\":24,\"start\":0,\"end\":10},"                                              \
     "\"output\":{\"width\":320,\"height\":240,\"samples\":1}}"
 
-static double cpu_now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-    return (double)t.tv_sec + t.tv_nsec * 1e-9;
-}
 
 /* The work in a step and a mapping, apart from other processes on the
  * machine: one thread, a 16x9 film (tracing all but free), the process's
@@ -168,10 +166,10 @@ static void work_per_step(mr_job *job, mr_asset *asset, double *step_ms, double 
     int n = 0;
     for (int f = 0; f < frames; f++) {
         mr_frame_stats st;
-        double c0 = cpu_now();
+        double c0 = bench_cpu_now();
         if (mr_renderer_render(r, (size_t)f, film, &st, &err) < 0)
             die("render", err.msg);
-        double cpu = cpu_now() - c0, wall = st.total_s, steps = extra(&st, "sim_steps");
+        double cpu = bench_cpu_now() - c0, wall = st.total_s, steps = extra(&st, "sim_steps");
         if (f < 2 || !(wall > 0) || !(steps > 0))
             continue;
         steps_ms[n] = cpu * extra(&st, "simulate_s") / wall / steps * 1e3;
@@ -189,6 +187,105 @@ static double med(const double *v, int n)
     double tmp[256];
     memcpy(tmp, v, (size_t)n * sizeof *v);
     return median(tmp, n);
+}
+
+static double wall_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + t.tv_nsec * 1e-9;
+}
+
+/* ---- the parallel loop's workers: the pool against threads per call */
+
+/* About half a microsecond of arithmetic per item. */
+static void busy_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    volatile double *sink = ctx;
+    double x = 1.0;
+    for (size_t i = begin; i < end; i++)
+        for (int k = 0; k < 400; k++)
+            x = x * 1.0000001 + 1e-9;
+    *sink += x;
+}
+
+/* Microseconds per call of a loop of 64 half-microsecond items on
+ * `loop_threads` threads: what starting the workers costs a short loop. */
+static void loop_overhead(void)
+{
+    enum { CALLS = 300, REPEATS = 9 };
+    double us[2][3][REPEATS];
+    volatile double sink = 0;
+    for (int r = 0; r < REPEATS; r++)
+        for (int pool = 0; pool < 2; pool++)
+            for (unsigned t = 1; t <= 2; t++) {
+                mr_parallel_use_pool(pool);
+                double t0 = wall_now();
+                for (int c = 0; c < CALLS; c++)
+                    mr_parallel_for(t, 64, 1, busy_range, (void *)&sink);
+                us[pool][t][r] = (wall_now() - t0) / CALLS * 1e6;
+            }
+    mr_parallel_use_pool(true);
+    printf("\nthe parallel loop: a loop of 64 items of ~0.5 us, us per call (median of %d x %d calls): "
+           "1 thread %.1f; 2 threads started per call %.1f, on the pool %.1f\n",
+           REPEATS, CALLS, median(us[1][1], REPEATS), median(us[0][2], REPEATS), median(us[1][2], REPEATS));
+}
+
+/* The curvature-corrected job and the 32^3 cube, each on 1 and 2
+ * threads, with threads started per call and on the pool: 8 renderers
+ * (a 16x9 film: tracing all but free) interleaved frame by frame, wall
+ * clock of the kind's own phases. */
+static void pool_against_per_call(mr_job *curv, mr_asset *wuson, mr_job *cube, mr_asset *box)
+{
+    enum { CONFIGS = 8 };
+    mr_device *dev[3] = {NULL, NULL, NULL};
+    mr_renderer *r[CONFIGS];
+    mr_film *film = NULL;
+    mr_error err;
+    mr_job *jobs[2] = {curv, cube};
+    mr_asset *assets[2] = {wuson, box};
+    for (int k = 0; k < 2; k++) {
+        jobs[k]->output.width = 16;
+        jobs[k]->output.height = 9;
+        jobs[k]->output.spp = 1;
+    }
+    if (mr_device_new(1, &dev[1], &err) < 0 || mr_device_new(2, &dev[2], &err) < 0 ||
+        mr_film_new(16, 9, &film, &err) < 0)
+        die("device", err.msg);
+    /* config: job (k / 4), pool ((k / 2) % 2), threads (1 + k % 2) */
+    for (int k = 0; k < CONFIGS; k++)
+        if (mr_renderer_new(dev[1 + k % 2], jobs[k / 4], &assets[k / 4], NULL, &r[k], &err) < 0)
+            die("renderer", err.msg);
+    int n = 0, count = frames + 12;
+    static double step_ms[CONFIGS][256], map_ms[CONFIGS][256];
+    for (int f = 0; f < count; f++) {
+        for (int k = 0; k < CONFIGS; k++) {
+            mr_parallel_use_pool((k / 2) % 2);
+            mr_frame_stats st;
+            if (mr_renderer_render(r[k], (size_t)f, film, &st, &err) < 0)
+                die("render", err.msg);
+            if (f < 2)
+                continue;
+            double steps = extra(&st, "sim_steps");
+            step_ms[k][n] = steps > 0 ? extra(&st, "simulate_s") / steps * 1e3 : 0;
+            map_ms[k][n] = extra(&st, "map_s") * 1e3;
+        }
+        n += f >= 2;
+    }
+    mr_parallel_use_pool(true);
+    printf("\nworkers started per call (before issue 15's pool) against the pool, wall clock, medians over %d frames "
+           "interleaved (16x9 film):\n\n",
+           n);
+    printf("| workers | threads | ms/step | ms/mapping (curvature) | 32^3 ms/step |\n|---|---|---|---|---|\n");
+    for (int k = 0; k < 4; k++)
+        printf("| %s | %d | %.3f | %.3f | %.3f |\n", k / 2 ? "pool" : "per call", 1 + k % 2, med(step_ms[k], n),
+               med(map_ms[k], n), med(step_ms[k + 4], n));
+    for (int k = 0; k < CONFIGS; k++)
+        mr_renderer_free(r[k]);
+    mr_film_free(film);
+    mr_device_free(dev[1]);
+    mr_device_free(dev[2]);
 }
 
 int main(int argc, char **argv)
@@ -245,14 +342,18 @@ int main(int argc, char **argv)
         printf("%s%s %.3f ms/step %.3f ms/mapping", k ? "; " : "", MAPPINGS[k], step_ms, map_ms);
     }
     printf("\n");
-    for (int k = 0; k < RUNS; k++)
-        mr_job_free(jobs[k]);
-    mr_asset_free(refined);
 
     /* 32^3 nodes: a unit cube at spacing 1/32.5 (32 lattice points inside per axis) */
     snprintf(text, sizeof text, CUBE_JOB, 1.0 / 32.5);
     mr_job *cube = parse(text);
     mr_asset *box = load(&cube->assets[0]);
+    loop_overhead();
+    pool_against_per_call(jobs[2], refined, cube, box);
+    for (int k = 0; k < RUNS; k++)
+        mr_job_free(jobs[k]);
+    mr_asset_free(refined);
+    cube->output.width = 320; /* the cube's own run below: its job's film */
+    cube->output.height = 240;
     series c;
     run_interleaved(dev, &cube, &box, 1, &c);
     double cube_work, cube_map;

@@ -240,7 +240,7 @@ int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *siz
 /* Most workers one parallel loop starts (and the cap on configured threads). */
 #define MR_MAX_THREADS 256
 
-/* Number of online cores (at least 1). */
+/* Number of online cores (at least 1), as the process first asked. */
 unsigned mr_cpu_count(void);
 
 /* The one way microray uses several cores: mr_parallel_for splits [0,
@@ -253,6 +253,21 @@ unsigned mr_cpu_count(void);
  * bit-identical for any thread count). */
 typedef void (*mr_range_fn)(void *ctx, size_t begin, size_t end, unsigned worker);
 void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn fn, void *ctx);
+/* The workers are a pool started on first use and kept (sleeping when
+ * idle) for the process' life, one loop on it at a time:
+ *  - a call while another thread's loop runs on the pool runs on threads
+ *    started for that call (two renderers in one process each get theirs);
+ *  - a call from inside fn of a loop that runs on several threads runs
+ *    serially on the calling thread (worker 0): the outer loop already
+ *    has the threads, and waiting for the pool from its own task would
+ *    deadlock;
+ *  - the child of a fork starts a pool of its own if it calls.
+ * mr_parallel_shutdown joins the pool's workers (waiting for a running
+ * loop to end; a no-op from inside fn); a later call starts them again.
+ * mr_parallel_use_pool(false) makes every call start and join threads of
+ * its own, the way before the pool (benchmarks compare the two). */
+void mr_parallel_shutdown(void);
+void mr_parallel_use_pool(bool on);
 
 /* Peak resident set size of the process, bytes (render/renderer.c). */
 uint64_t mr_peak_rss_bytes(void);

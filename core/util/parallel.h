@@ -10,4 +10,10 @@
 
 #include "microray.h"
 
+/* Test hooks. Workers the pool has started; pause-loop iterations a
+ * waiting worker or caller spins before it sleeps (0: sleep at once;
+ * negative: the default, MR_POOL_SPIN in parallel.c). */
+unsigned mr_parallel_pool_workers(void);
+void mr_parallel_pool_spin(int iterations);
+
 #endif

@@ -44,6 +44,21 @@ typedef struct tri_bind {
     uint8_t mode;
 } tri_bind;
 
+/* What a frame reads of a triangle-bound vertex, packed (40 bytes rather
+ * than tri_bind's 76): its triangle (of tris; HOT_CURVATURE set when it
+ * maps by the interpolated basis; UINT32_MAX: BIND_TRANSLATE), weights,
+ * and the offset and normal in the basis it maps by (oc, nc for
+ * BIND_CURVATURE: the constant ones, for a frame whose N_c degenerates,
+ * stay in tri_bind). */
+typedef struct tri_hot {
+    uint32_t tri;
+    float w[3];
+    float o[3], n[3];
+} tri_hot;
+#define HOT_CURVATURE 0x80000000u
+/* Vertices ahead whose triangle record apply_range prefetches. */
+#define PREFETCH_AHEAD 8
+
 typedef struct lin_bind {
     int32_t corner[8]; /* >= 0: the node's cell; < 0: ghost -(g + 1) */
     float u[3];        /* position in the cell, grid units */
@@ -67,16 +82,29 @@ typedef struct ghost {
     bool far;          /* two cells or more from n, with all three D: rigid (below) */
 } ghost;
 
+/* Three floats in the first lanes of a 4-lane vector (the fourth is 0):
+ * the per-frame arithmetic on points and directions, lane by lane the
+ * scalar formulas' operations in their order, so the bits are those of
+ * three scalar evaluations. */
+typedef float v4 __attribute__((vector_size(16)));
+
+/* A triangle this frame: its constant basis T, N, B (eq. 6) and its nodes'
+ * positions P and approximate normals Q. */
+typedef struct tri_frame {
+    v4 T, N, B, P[3], Q[3];
+} tri_frame;
+
 struct sm_map {
     int mapping;
     uint32_t vertex_count;
     float h;
     uint32_t *one;        /* one_to_one: cell per vertex */
     tri_bind *tri;
+    tri_hot *hot;         /* triangle mappings: per vertex */
     uint32_t *tri_of;     /* triangle mappings: per vertex its triangle (of tris), UINT32_MAX: none */
     uint32_t *tris;       /* the distinct triangles' cells, 3 each */
     size_t tri_count;
-    float *tri_basis;     /* per triangle, this frame's T, N, B (eq. 6), 9 floats */
+    tri_frame *tri_frame; /* per triangle, this frame's basis and nodes */
     lin_bind *lin;
     ghost *ghosts;
     size_t ghost_count;
@@ -91,9 +119,10 @@ void sm_map_free(sm_map *m)
         return;
     free(m->one);
     free(m->tri);
+    free(m->hot);
     free(m->tri_of);
     free(m->tris);
-    free(m->tri_basis);
+    free(m->tri_frame);
     free(m->lin);
     free(m->ghosts);
     free(m->gdisp);
@@ -113,7 +142,8 @@ size_t sm_map_bytes(const sm_map *m)
 {
     size_t v = m->vertex_count;
     return sizeof *m + v * 6 * sizeof(float) + (m->one ? v * sizeof *m->one : 0) +
-           (m->tri ? v * (sizeof *m->tri + sizeof *m->tri_of) : 0) + m->tri_count * 12 * sizeof(float) +
+           (m->tri ? v * (sizeof *m->tri + sizeof *m->tri_of + sizeof *m->hot) : 0) +
+           m->tri_count * sizeof *m->tri_frame +
            (m->lin ? v * sizeof *m->lin : 0) +
            m->ghost_count * (sizeof *m->ghosts + 3 * sizeof(float));
 }
@@ -153,6 +183,29 @@ static inline float f_norm(float *a)
         for (int i = 0; i < 3; i++)
             a[i] *= inv;
     }
+    return l;
+}
+
+static inline void v4_store3(float *p, v4 a)
+{
+    p[0] = a[0];
+    p[1] = a[1];
+    p[2] = a[2];
+}
+static inline v4 v4_splat(float f) { return (v4){f, f, f, f}; }
+/* f_cross */
+static inline v4 v4_cross(v4 a, v4 b)
+{
+    return __builtin_shufflevector(a, a, 1, 2, 0, 3) * __builtin_shufflevector(b, b, 2, 0, 1, 3) -
+           __builtin_shufflevector(a, a, 2, 0, 1, 3) * __builtin_shufflevector(b, b, 1, 2, 0, 3);
+}
+/* f_norm */
+static inline float v4_norm(v4 *a)
+{
+    v4 sq = *a * *a;
+    float l = sqrtf(sq[0] + sq[1] + sq[2]);
+    if (l > 0)
+        *a *= v4_splat(1.0f / l);
     return l;
 }
 
@@ -705,7 +758,18 @@ static int index_triangles(sm_map *m, mr_error *err)
         m->tri_of[keys[i].vertex] = (uint32_t)(m->tri_count - 1);
     }
     free(keys);
-    if (!(m->tri_basis = malloc(m->tri_count * 9 * sizeof *m->tri_basis + 1)))
+    if (!(m->hot = malloc((size_t)nv * sizeof *m->hot + 1)))
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
+    for (uint32_t v = 0; v < nv; v++) {
+        const tri_bind *tb = &m->tri[v];
+        tri_hot *th = &m->hot[v];
+        bool curved = tb->mode == BIND_CURVATURE;
+        th->tri = tb->mode == BIND_TRANSLATE ? UINT32_MAX : m->tri_of[v] | (curved ? HOT_CURVATURE : 0);
+        set3(th->w, tb->w);
+        set3(th->o, curved ? tb->oc : tb->o);
+        set3(th->n, curved ? tb->nc : tb->n);
+    }
+    if (!(m->tri_frame = aligned_alloc(_Alignof(tri_frame), (m->tri_count + 1) * sizeof *m->tri_frame)))
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
     return MR_OK;
 }
@@ -932,48 +996,40 @@ static void apply_one(const apply_ctx *x, uint32_t v)
 static void apply_tri(const apply_ctx *x, uint32_t v)
 {
     const sm_map *m = x->m;
-    const tri_bind *tb = &m->tri[v];
+    const tri_hot *th = &m->hot[v];
     float *op = x->out_pos + (size_t)v * 3, *on = x->out_nrm + (size_t)v * 3;
-    if (tb->mode == BIND_TRANSLATE) {
-        uint32_t c = tb->c[0];
+    if (th->tri == UINT32_MAX) { /* BIND_TRANSLATE */
+        uint32_t c = m->tri[v].c[0];
         for (int a = 0; a < 3; a++)
             op[a] = m->rest_pos[(size_t)v * 3 + a] + (x->pos[a][c] - x->rest[a][c]);
         set3(on, m->rest_nrm + (size_t)v * 3);
         return;
     }
-    const float *basis = m->tri_basis + (size_t)m->tri_of[v] * 9;
-    float r[3], T[3], N[3], B[3];
-    for (int a = 0; a < 3; a++) {
-        r[a] = tb->w[0] * x->pos[a][tb->c[0]] + tb->w[1] * x->pos[a][tb->c[1]] + tb->w[2] * x->pos[a][tb->c[2]];
-        T[a] = basis[a];
-        N[a] = basis[3 + a];
-        B[a] = basis[6 + a];
-    }
-    const float *o = tb->o, *n = tb->n;
-    if (tb->mode == BIND_CURVATURE) {
-        float Nc[3], Bc[3], Tc[3];
-        for (int a = 0; a < 3; a++)
-            Nc[a] = tb->w[0] * x->nrm[a][tb->c[0]] + tb->w[1] * x->nrm[a][tb->c[1]] + tb->w[2] * x->nrm[a][tb->c[2]];
-        if (f_norm(Nc) > 1e-3f) {
-            f_cross(Nc, T, Bc);
-            if (f_norm(Bc) > 1e-3f) { /* else this frame keeps the constant basis */
-                f_cross(Bc, Nc, Tc);
-                set3(T, Tc);
-                set3(N, Nc);
-                set3(B, Bc);
-                o = tb->oc;
-                n = tb->nc;
-            }
+    const tri_frame *tf = &m->tri_frame[th->tri & ~HOT_CURVATURE];
+    const v4 w0 = v4_splat(th->w[0]), w1 = v4_splat(th->w[1]), w2 = v4_splat(th->w[2]);
+    const v4 r = w0 * tf->P[0] + w1 * tf->P[1] + w2 * tf->P[2];
+    v4 T = tf->T, N = tf->N, B = tf->B;
+    const float *o = th->o, *n = th->n;
+    if (th->tri & HOT_CURVATURE) {
+        v4 Nc = w0 * tf->Q[0] + w1 * tf->Q[1] + w2 * tf->Q[2];
+        v4 Bc = {0};
+        if (v4_norm(&Nc) > 1e-3f)
+            Bc = v4_cross(Nc, T);
+        if (v4_norm(&Bc) > 1e-3f) {
+            T = v4_cross(Bc, Nc);
+            N = Nc;
+            B = Bc;
+        } else { /* this frame keeps the constant basis */
+            o = m->tri[v].o;
+            n = m->tri[v].n;
         }
     }
     /* an orthonormal basis keeps the stored unit normal unit (to rounding) */
-    for (int a = 0; a < 3; a++) {
-        op[a] = r[a] + (o[0] * T[a] + o[1] * N[a] + o[2] * B[a]);
-        on[a] = n[0] * T[a] + n[1] * N[a] + n[2] * B[a];
-    }
+    v4_store3(op, r + (v4_splat(o[0]) * T + v4_splat(o[1]) * N + v4_splat(o[2]) * B));
+    v4_store3(on, v4_splat(n[0]) * T + v4_splat(n[1]) * N + v4_splat(n[2]) * B);
 }
 
-/* The constant basis (eq. 6) of each distinct triangle, this frame. */
+/* Each distinct triangle's constant basis (eq. 6) and nodes, this frame. */
 static void basis_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -981,20 +1037,19 @@ static void basis_range(void *ctx, size_t begin, size_t end, unsigned worker)
     const sm_map *m = x->m;
     for (size_t t = begin; t < end; t++) {
         const uint32_t *c = m->tris + t * 3;
-        float T[3], Bt[3], N[3], B[3];
-        for (int a = 0; a < 3; a++) {
-            T[a] = x->pos[a][c[1]] - x->pos[a][c[0]];
-            Bt[a] = x->pos[a][c[2]] - x->pos[a][c[0]];
+        tri_frame *tf = &m->tri_frame[t];
+        for (int k = 0; k < 3; k++) {
+            tf->P[k] = (v4){x->pos[0][c[k]], x->pos[1][c[k]], x->pos[2][c[k]], 0};
+            tf->Q[k] = (v4){x->nrm[0][c[k]], x->nrm[1][c[k]], x->nrm[2][c[k]], 0};
         }
-        f_norm(T);
-        f_norm(Bt);
-        f_cross(T, Bt, N);
-        f_norm(N);
-        f_cross(N, T, B);
-        float *out = m->tri_basis + t * 9;
-        set3(out, T);
-        set3(out + 3, N);
-        set3(out + 6, B);
+        v4 T = tf->P[1] - tf->P[0], Bt = tf->P[2] - tf->P[0];
+        v4_norm(&T);
+        v4_norm(&Bt);
+        v4 N = v4_cross(T, Bt);
+        v4_norm(&N);
+        tf->T = T;
+        tf->N = N;
+        tf->B = v4_cross(N, T);
     }
 }
 
@@ -1052,8 +1107,26 @@ static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     const apply_ctx *x = ctx;
+    const sm_map *m = x->m;
+    if (m->mapping == MR_SPRINGMASS_TRIANGLE_BASIS || m->mapping == MR_SPRINGMASS_TRIANGLE_CURVATURE) {
+        /* a vertex's triangle record is anywhere in the table: ask for the
+         * one PREFETCH_AHEAD vertices on while this one is mapped */
+        for (size_t v = begin; v < end; v++) {
+            if (v + PREFETCH_AHEAD < end) {
+                uint32_t t = m->hot[v + PREFETCH_AHEAD].tri;
+                if (t != UINT32_MAX) {
+                    const char *rec = (const char *)&m->tri_frame[t & ~HOT_CURVATURE];
+                    __builtin_prefetch(rec);
+                    __builtin_prefetch(rec + 64);
+                    __builtin_prefetch(rec + sizeof(tri_frame) - 1);
+                }
+            }
+            apply_tri(x, (uint32_t)v);
+        }
+        return;
+    }
     for (size_t v = begin; v < end; v++) {
-        switch (x->m->mapping) {
+        switch (m->mapping) {
         case MR_SPRINGMASS_ONE_TO_ONE: apply_one(x, (uint32_t)v); break;
         case MR_SPRINGMASS_TRILINEAR: apply_lin(x, (uint32_t)v); break;
         default: apply_tri(x, (uint32_t)v); break;

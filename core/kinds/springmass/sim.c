@@ -18,8 +18,11 @@
 
 /* Lanes read past a row's last cell by the widest kernel, plus slack. */
 #define SM_SLACK 16u
-/* Rows per chunk of a parallel pass. */
-#define SM_ROW_GRAIN 4u
+/* Chunks per thread of a parallel pass over the rows: enough for one
+ * thread to take over another's share when it is held up, few enough
+ * that taking a chunk (an atomic add on a line both threads write) costs
+ * nothing next to stepping it. */
+#define SM_CHUNKS_PER_THREAD 8u
 
 struct sm_sim {
     sm_grid grid;
@@ -36,6 +39,7 @@ struct sm_sim {
     double inv_len[18];
     size_t span_count;
     uint32_t *span_begin, *span_end;    /* rows of the grid holding nodes: [begin, end) cells */
+    uint8_t *span_pinned;               /* per span: holds a pinned node */
     uint8_t *pin_of;                    /* per cell: 0, or 1 + index of the pin holding it */
     mr_vec3 *pivot;                     /* per pin */
     int64_t *force_cell;                /* per force: the point force's node, -1 for wind */
@@ -54,9 +58,30 @@ struct sm_sim {
     double *row_sums;                   /* per span: measure partial sums */
 };
 
+/* A pin's motion at t: rotation matrix (row-major 3x3) and translation. */
+typedef struct pin_motion {
+    float r[9];
+    float t[3];
+    float pivot[3];
+} pin_motion;
+
+typedef struct constrain_ctx {
+    sm_sim *sim;
+    const pin_motion *pins;
+    const mr_vec3 *probe0, *probe1; /* probe centres at the substep's start and end */
+} constrain_ctx;
+
+static void constrain_row(const constrain_ctx *x, size_t r);
+
 typedef struct sm_step_ctx {
     const sm_sim *sim;
     float wind[3];
+    /* pins and probes, applied by the kernel to each row it has stepped
+     * when no point force comes between (substep): to the rows holding a
+     * pinned node and those with a new position inside `reach`, a box
+     * holding every probe's path over the substep with a margin */
+    const constrain_ctx *constrain;
+    float reach_lo[3], reach_hi[3];
 } sm_step_ctx;
 
 #define SMK_CAT2(a, b) a##b
@@ -116,12 +141,14 @@ static inline float smk_sqrt1(float x) { return sqrtf(x); }
 #undef SMK_SQRT
 
 #define SMK_W 8
+#define SMK_TAIL_W 4
 #define SMK_NAME step_rows_8
 #define SMK_MEASURE measure_rows_8
 #define SMK_ATTR __attribute__((target("avx")))
 #define SMK_SQRT(v) ((smk_v8)_mm256_sqrt_ps((__m256)(v)))
 #include "kinds/springmass/sim_kernel.h"
 #undef SMK_W
+#undef SMK_TAIL_W
 #undef SMK_NAME
 #undef SMK_MEASURE
 #undef SMK_ATTR
@@ -193,6 +220,7 @@ void sm_sim_free(sm_sim *s)
     free(s->cell_inv);
     free(s->span_begin);
     free(s->span_end);
+    free(s->span_pinned);
     free(s->pin_of);
     free(s->pivot);
     free(s->force_cell);
@@ -252,13 +280,6 @@ void sm_sim_rest_normals(const sm_sim *s, const float *xyz[3], const float **str
         }                                                                                          \
         u = i0 == i1 ? 0.0f : (float)(((t) - (keys)[i0].t) / ((keys)[i1].t - (keys)[i0].t));      \
     } while (0)
-
-/* A pin's motion at t: rotation matrix (row-major 3x3) and translation. */
-typedef struct pin_motion {
-    float r[9];
-    float t[3];
-    float pivot[3];
-} pin_motion;
 
 static pin_motion pin_at(const sm_sim *s, size_t pin, double t)
 {
@@ -500,6 +521,11 @@ int sm_sim_new(sm_grid *grid, const mr_springmass_params *p, unsigned threads, s
         free(sum);
         free(in_set);
     }
+    if (!(s->span_pinned = calloc(s->span_count + 1, 1)))
+        goto nomem;
+    for (size_t r = 0; r < s->span_count; r++)
+        for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++)
+            s->span_pinned[r] |= s->pin_of[c] != 0;
     s->driven |= p->probe_count > 0 || p->force_count > 0;
     if (p->force_count) {
         if (!(s->force_cell = malloc(p->force_count * sizeof *s->force_cell)))
@@ -552,68 +578,95 @@ void sm_sim_reset(sm_sim *s, unsigned threads)
 
 /* ---- the passes */
 
-typedef struct constrain_ctx {
-    sm_sim *sim;
-    const pin_motion *pins;
-    const mr_vec3 *probe0, *probe1; /* probe centres at the substep's start and end */
-} constrain_ctx;
-
-/* Pins and probes on next[] (pins win), velocities from the move. */
-static void constrain_rows(void *ctx, size_t begin, size_t end, unsigned worker)
+/* Pins and probes on next[] of row r's nodes (pins win), velocities from
+ * the move. */
+static void constrain_row(const constrain_ctx *x, size_t r)
 {
-    (void)worker;
-    constrain_ctx *x = ctx;
     sm_sim *s = x->sim;
     const mr_springmass_params *p = s->p;
     const float inv_h = 1.0f / s->h;
-    for (size_t r = begin; r < end; r++)
-        for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
-            if (s->act[c] == 0)
-                continue;
-            float q[3] = {s->next[0][c], s->next[1][c], s->next[2][c]};
-            bool moved = false;
-            if (s->pin_of[c]) {
-                const pin_motion *m = &x->pins[s->pin_of[c] - 1];
-                float d[3] = {s->rest[0][c] - m->pivot[0], s->rest[1][c] - m->pivot[1],
-                              s->rest[2][c] - m->pivot[2]};
-                /* as a displacement from rest, so a pin that does not move
-                 * holds its nodes exactly at rest */
-                for (int a = 0; a < 3; a++)
-                    q[a] = s->rest[a][c] +
-                           (((m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) - d[a]) + m->t[a]);
+    for (size_t c = s->span_begin[r]; c < s->span_end[r]; c++) {
+        if (s->act[c] == 0)
+            continue;
+        float q[3] = {s->next[0][c], s->next[1][c], s->next[2][c]};
+        bool moved = false;
+        if (s->pin_of[c]) {
+            const pin_motion *m = &x->pins[s->pin_of[c] - 1];
+            float d[3] = {s->rest[0][c] - m->pivot[0], s->rest[1][c] - m->pivot[1],
+                          s->rest[2][c] - m->pivot[2]};
+            /* as a displacement from rest, so a pin that does not move
+             * holds its nodes exactly at rest */
+            for (int a = 0; a < 3; a++)
+                q[a] = s->rest[a][c] +
+                       (((m->r[a * 3] * d[0] + m->r[a * 3 + 1] * d[1] + m->r[a * 3 + 2] * d[2]) - d[a]) + m->t[a]);
+            moved = true;
+        } else {
+            for (size_t k = 0; k < p->probe_count; k++) {
+                const mr_vec3 c0 = x->probe0[k], c1 = x->probe1[k];
+                const float rad = p->probes[k].radius;
+                float seg[3] = {c1.x - c0.x, c1.y - c0.y, c1.z - c0.z};
+                float rel[3] = {q[0] - c0.x, q[1] - c0.y, q[2] - c0.z};
+                float ss = seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2];
+                float u = ss > 0 ? (rel[0] * seg[0] + rel[1] * seg[1] + rel[2] * seg[2]) / ss : 1.0f;
+                u = u < 0 ? 0 : u > 1 ? 1 : u;
+                float at[3] = {c0.x + u * seg[0], c0.y + u * seg[1], c0.z + u * seg[2]};
+                float dv[3] = {q[0] - at[0], q[1] - at[1], q[2] - at[2]};
+                float d2 = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2];
+                if (!(d2 < rad * rad))
+                    continue;
+                float dist = sqrtf(d2);
+                if (dist > rad * 1e-6f) {
+                    for (int a = 0; a < 3; a++)
+                        q[a] = at[a] + dv[a] * (rad / dist);
+                } else { /* on the path itself: out along +y */
+                    q[0] = at[0];
+                    q[1] = at[1] + rad;
+                    q[2] = at[2];
+                }
                 moved = true;
-            } else {
-                for (size_t k = 0; k < p->probe_count; k++) {
-                    const mr_vec3 c0 = x->probe0[k], c1 = x->probe1[k];
-                    const float rad = p->probes[k].radius;
-                    float seg[3] = {c1.x - c0.x, c1.y - c0.y, c1.z - c0.z};
-                    float rel[3] = {q[0] - c0.x, q[1] - c0.y, q[2] - c0.z};
-                    float ss = seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2];
-                    float u = ss > 0 ? (rel[0] * seg[0] + rel[1] * seg[1] + rel[2] * seg[2]) / ss : 1.0f;
-                    u = u < 0 ? 0 : u > 1 ? 1 : u;
-                    float at[3] = {c0.x + u * seg[0], c0.y + u * seg[1], c0.z + u * seg[2]};
-                    float dv[3] = {q[0] - at[0], q[1] - at[1], q[2] - at[2]};
-                    float d2 = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2];
-                    if (!(d2 < rad * rad))
-                        continue;
-                    float dist = sqrtf(d2);
-                    if (dist > rad * 1e-6f) {
-                        for (int a = 0; a < 3; a++)
-                            q[a] = at[a] + dv[a] * (rad / dist);
-                    } else { /* on the path itself: out along +y */
-                        q[0] = at[0];
-                        q[1] = at[1] + rad;
-                        q[2] = at[2];
-                    }
-                    moved = true;
-                }
             }
-            if (moved)
-                for (int a = 0; a < 3; a++) {
-                    s->vel[a][c] = (q[a] - s->pos[a][c]) * inv_h;
-                    s->next[a][c] = q[a];
-                }
         }
+        if (moved)
+            for (int a = 0; a < 3; a++) {
+                s->vel[a][c] = (q[a] - s->pos[a][c]) * inv_h;
+                s->next[a][c] = q[a];
+            }
+    }
+}
+
+static void constrain_rows(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    for (size_t r = begin; r < end; r++)
+        constrain_row(ctx, r);
+}
+
+/* The box every node a probe may move this substep lies in: the probes'
+ * paths from c0 to c1 widened by their radius, plus a margin for the
+ * rounding of the test in constrain_row (its closest point on the path
+ * and squared distance). Empty (lo > hi) without probes. */
+static void probe_reach(const mr_springmass_params *p, const mr_vec3 *c0, const mr_vec3 *c1, float lo[3],
+                        float hi[3])
+{
+    for (int a = 0; a < 3; a++) {
+        lo[a] = INFINITY;
+        hi[a] = -INFINITY;
+    }
+    for (size_t k = 0; k < p->probe_count; k++) {
+        const float a0[3] = {c0[k].x, c0[k].y, c0[k].z}, a1[3] = {c1[k].x, c1[k].y, c1[k].z};
+        for (int a = 0; a < 3; a++) {
+            float big = fmaxf(fabsf(a0[a]), fabsf(a1[a]));
+            float margin = p->probes[k].radius * 1.001f + big * 1e-5f + 1e-30f;
+            lo[a] = fminf(lo[a], fminf(a0[a], a1[a]) - margin);
+            hi[a] = fmaxf(hi[a], fmaxf(a0[a], a1[a]) + margin);
+        }
+    }
+}
+
+static size_t row_grain(const sm_sim *s, unsigned threads)
+{
+    size_t g = s->span_count / ((size_t)(threads ? threads : mr_cpu_count()) * SM_CHUNKS_PER_THREAD);
+    return g ? g : 1;
 }
 
 static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
@@ -629,31 +682,46 @@ static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
             sc.wind[2] += fo->force.z;
         }
     }
-    mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, kernel, &sc);
-    /* point forces: the kick and drift they add to their node */
+    bool point_forces = false;
     for (size_t f = 0; f < p->force_count; f++) {
         const mr_springmass_force *fo = &p->forces[f];
-        int64_t c = s->force_cell[f];
-        if (c < 0 || !(t0 >= fo->start && t0 < fo->end))
-            continue;
-        float fv[3] = {fo->force.x, fo->force.y, fo->force.z};
-        for (int a = 0; a < 3; a++) {
-            float dv = s->hm * fv[a] * s->inv_den;
-            s->vel[a][c] += dv;
-            s->next[a][c] += s->h * dv;
-        }
+        point_forces |= s->force_cell[f] >= 0 && t0 >= fo->start && t0 < fo->end;
     }
-    if (p->pin_count || p->probe_count) {
-        pin_motion pins[MR_SPRINGMASS_MAX_PINS];
-        mr_vec3 c0[MR_SPRINGMASS_MAX_PROBES], c1[MR_SPRINGMASS_MAX_PROBES];
-        for (size_t q = 0; q < p->pin_count; q++)
-            pins[q] = pin_at(s, q, t1);
-        for (size_t q = 0; q < p->probe_count; q++) {
-            c0[q] = probe_at(&p->probes[q], t0);
-            c1[q] = probe_at(&p->probes[q], t1);
+    const bool constrained = p->pin_count || p->probe_count;
+    pin_motion pins[MR_SPRINGMASS_MAX_PINS];
+    mr_vec3 c0[MR_SPRINGMASS_MAX_PROBES], c1[MR_SPRINGMASS_MAX_PROBES];
+    for (size_t q = 0; q < p->pin_count; q++)
+        pins[q] = pin_at(s, q, t1);
+    for (size_t q = 0; q < p->probe_count; q++) {
+        c0[q] = probe_at(&p->probes[q], t0);
+        c1[q] = probe_at(&p->probes[q], t1);
+    }
+    constrain_ctx cc = {s, pins, c0, c1};
+    /* without point forces the kernel constrains each row right after
+     * stepping it (the same operations on the same values: a row's
+     * constraints read its own new positions and the old ones, which no
+     * other row's step writes), and only rows a pin or probe can touch */
+    if (constrained && !point_forces) {
+        sc.constrain = &cc;
+        probe_reach(p, c0, c1, sc.reach_lo, sc.reach_hi);
+    }
+    mr_parallel_for(threads, s->span_count, row_grain(s, threads), kernel, &sc);
+    if (point_forces) {
+        /* point forces: the kick and drift they add to their node */
+        for (size_t f = 0; f < p->force_count; f++) {
+            const mr_springmass_force *fo = &p->forces[f];
+            int64_t c = s->force_cell[f];
+            if (c < 0 || !(t0 >= fo->start && t0 < fo->end))
+                continue;
+            float fv[3] = {fo->force.x, fo->force.y, fo->force.z};
+            for (int a = 0; a < 3; a++) {
+                float dv = s->hm * fv[a] * s->inv_den;
+                s->vel[a][c] += dv;
+                s->next[a][c] += s->h * dv;
+            }
         }
-        constrain_ctx cc = {s, pins, c0, c1};
-        mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, constrain_rows, &cc);
+        if (constrained)
+            mr_parallel_for(threads, s->span_count, row_grain(s, threads), constrain_rows, &cc);
     }
     for (int a = 0; a < 3; a++) {
         float *t = s->pos[a];
@@ -664,7 +732,7 @@ static void substep(sm_sim *s, double t0, unsigned threads, mr_range_fn kernel)
 
 static int measure(sm_sim *s, unsigned threads)
 {
-    mr_parallel_for(threads, s->span_count, SM_ROW_GRAIN, pick_kernels().measure, s);
+    mr_parallel_for(threads, s->span_count, row_grain(s, threads), pick_kernels().measure, s);
     sm_measure m = {0};
     double bad = 0, inv = 0, bound = 0;
     for (size_t r = 0; r < s->span_count; r++) {

@@ -11,7 +11,11 @@
  *
  * Integrator: semi-implicit (symplectic) Euler with the damping implicit,
  *   v' = (v + h F(x) / m) / (1 + h c / m),   x' = x + h v',
- * then kinematic constraints on x' (pins, probes) with v' = (x' - x) / h.
+ * then kinematic constraints on x' (pins, probes) with v' = (x' - x) / h:
+ * applied by the step kernel to each row right after stepping it, to rows
+ * holding a pinned node or a new position within reach of a probe (a
+ * row's constraints read only its own new positions), or, when a point
+ * force acts in between, in a pass of their own.
  * Stability bound (docs/springmass.md). Symplectic Euler is stable while
  * h omega_max < 2 (omega_max^2 the largest eigenvalue of the stiffness
  * matrix K over m; the implicit damping only shrinks the growth factor).

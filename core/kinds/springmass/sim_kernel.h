@@ -8,6 +8,8 @@
  *              per node the approximate normal of eq. 3, its energies,
  *              largest strain and stiffness bound into per-cell arrays,
  *              then measure_row_sum for each row)
+ *   SMK_TAIL_W (optional) a narrower width included before, for the last
+ *              nodes of a row
  *   SMK_ATTR   function attributes (a target ISA), may be empty
  *   SMK_SQRT   vector square root (x)
  * Every lane computes exactly the operation sequence of one node, so all
@@ -19,89 +21,138 @@ typedef int32_t SMK_CAT(smk_i, SMK_W) __attribute__((vector_size(4 * SMK_W)));
 #define SMK_V SMK_CAT(smk_v, SMK_W)
 #define SMK_I SMK_CAT(smk_i, SMK_W)
 
-SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned worker)
+/* The step's constants, as vectors. */
+typedef struct SMK_CAT(smk_step_k, SMK_W) {
+    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, vk[18], vl[18], vlmin[18], lox, loy, loz, hix, hiy, hiz;
+} SMK_CAT(smk_step_k, SMK_W);
+
+SMK_ATTR static inline void SMK_CAT(step_consts_, SMK_W)(const sm_step_ctx *x, SMK_CAT(smk_step_k, SMK_W) *k)
 {
-    (void)worker;
-    const sm_step_ctx *x = ctx;
+    const sm_sim *s = x->sim;
+    for (int l = 0; l < SMK_W; l++) {
+        k->lox[l] = x->reach_lo[0];
+        k->loy[l] = x->reach_lo[1];
+        k->loz[l] = x->reach_lo[2];
+        k->hix[l] = x->reach_hi[0];
+        k->hiy[l] = x->reach_hi[1];
+        k->hiz[l] = x->reach_hi[2];
+        k->vh[l] = s->h;
+        k->vhm[l] = s->hm;
+        k->vinv[l] = s->inv_den;
+        k->vmgx[l] = s->mg[0];
+        k->vmgy[l] = s->mg[1];
+        k->vmgz[l] = s->mg[2];
+        k->vwx[l] = x->wind[0];
+        k->vwy[l] = x->wind[1];
+        k->vwz[l] = x->wind[2];
+        for (int d = 0; d < 18; d++) {
+            k->vk[d][l] = s->k[d];
+            k->vl[d][l] = s->len[d];
+            k->vlmin[d][l] = s->lmin[d];
+        }
+    }
+}
+
+/* Steps the vector of nodes from cell c, `lanes` of them in the row's
+ * span (the rest are computed and not stored: the next cells belong to
+ * another row, maybe another thread's). True when a probe may reach one
+ * of their new positions. */
+SMK_ATTR static inline __attribute__((always_inline)) bool SMK_CAT(step_vec_, SMK_W)(const sm_step_ctx *x, const SMK_CAT(smk_step_k, SMK_W) *k,
+                                                       size_t c, size_t lanes)
+{
     const sm_sim *s = x->sim;
     const float *restrict act = s->act, *restrict surf = s->surf;
     const float *restrict px = s->pos[0], *restrict py = s->pos[1], *restrict pz = s->pos[2];
     float *restrict nx = s->next[0], *restrict ny = s->next[1], *restrict nz = s->next[2];
     float *restrict vx = s->vel[0], *restrict vy = s->vel[1], *restrict vz = s->vel[2];
-    SMK_V vh, vhm, vinv, vmgx, vmgy, vmgz, vwx, vwy, vwz, vk[18], vl[18], vlmin[18];
-    for (int l = 0; l < SMK_W; l++) {
-        vh[l] = s->h;
-        vhm[l] = s->hm;
-        vinv[l] = s->inv_den;
-        vmgx[l] = s->mg[0];
-        vmgy[l] = s->mg[1];
-        vmgz[l] = s->mg[2];
-        vwx[l] = x->wind[0];
-        vwy[l] = x->wind[1];
-        vwz[l] = x->wind[2];
-        for (int d = 0; d < 18; d++) {
-            vk[d][l] = s->k[d];
-            vl[d][l] = s->len[d];
-            vlmin[d][l] = s->lmin[d];
+    SMK_V a, X, Y, Z, VX, VY, VZ, S;
+    memcpy(&a, act + c, sizeof a);
+    memcpy(&S, surf + c, sizeof S);
+    memcpy(&X, px + c, sizeof X);
+    memcpy(&Y, py + c, sizeof Y);
+    memcpy(&Z, pz + c, sizeof Z);
+    memcpy(&VX, vx + c, sizeof VX);
+    memcpy(&VY, vy + c, sizeof VY);
+    memcpy(&VZ, vz + c, sizeof VZ);
+    SMK_V FX = {0}, FY = {0}, FZ = {0};
+    for (int d = 0; d < 18; d++) {
+        const size_t n = (size_t)((ptrdiff_t)c + s->off[d]);
+        SMK_V an, xn, yn, zn;
+        memcpy(&an, act + n, sizeof an);
+        memcpy(&xn, px + n, sizeof xn);
+        memcpy(&yn, py + n, sizeof yn);
+        memcpy(&zn, pz + n, sizeof zn);
+        SMK_V dx = xn - X, dy = yn - Y, dz = zn - Z;
+        SMK_V L = SMK_SQRT(dx * dx + dy * dy + dz * dz);
+        SMK_I big = L > k->vlmin[d];
+        SMK_V Lc = (SMK_V)((big & (SMK_I)L) | (~big & (SMK_I)k->vlmin[d]));
+        SMK_V sp = (a * an * k->vk[d]) * (L - k->vl[d]) / Lc;
+        FX += sp * dx;
+        FY += sp * dy;
+        FZ += sp * dz;
+    }
+    FX += a * k->vmgx + S * k->vwx;
+    FY += a * k->vmgy + S * k->vwy;
+    FZ += a * k->vmgz + S * k->vwz;
+    VX = (VX + k->vhm * FX) * k->vinv;
+    VY = (VY + k->vhm * FY) * k->vinv;
+    VZ = (VZ + k->vhm * FZ) * k->vinv;
+    SMK_V NX = X + k->vh * VX, NY = Y + k->vh * VY, NZ = Z + k->vh * VZ;
+    SMK_I reached = (NX >= k->lox) & (NX <= k->hix) & (NY >= k->loy) & (NY <= k->hiy) & (NZ >= k->loz) &
+                    (NZ <= k->hiz);
+    if (lanes == (size_t)SMK_W) {
+        memcpy(vx + c, &VX, sizeof VX);
+        memcpy(vy + c, &VY, sizeof VY);
+        memcpy(vz + c, &VZ, sizeof VZ);
+        memcpy(nx + c, &NX, sizeof NX);
+        memcpy(ny + c, &NY, sizeof NY);
+        memcpy(nz + c, &NZ, sizeof NZ);
+    } else {
+        for (size_t l = 0; l < lanes; l++) {
+            vx[c + l] = VX[l];
+            vy[c + l] = VY[l];
+            vz[c + l] = VZ[l];
+            nx[c + l] = NX[l];
+            ny[c + l] = NY[l];
+            nz[c + l] = NZ[l];
         }
     }
+    bool any = false;
+    for (size_t l = 0; l < lanes; l++)
+        any |= reached[l] != 0;
+    return any;
+}
+
+/* A row's nodes in vectors of SMK_W lanes; a last part of at most
+ * SMK_TAIL_W nodes (when defined) in a vector of that many (a row of 17
+ * nodes: 8 + 8 + 4 lanes, not 8 + 8 + 8: rows are short and every lane
+ * costs 18 square roots and divisions; any width gives the same bits). */
+SMK_ATTR static void SMK_NAME(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const sm_step_ctx *x = ctx;
+    const sm_sim *s = x->sim;
+    SMK_CAT(smk_step_k, SMK_W) k;
+    SMK_CAT(step_consts_, SMK_W)(x, &k);
+#ifdef SMK_TAIL_W
+    SMK_CAT(smk_step_k, SMK_TAIL_W) tail;
+    SMK_CAT(step_consts_, SMK_TAIL_W)(x, &tail);
+#endif
     for (size_t r = begin; r < end; r++) {
         const size_t b = s->span_begin[r], e = s->span_end[r];
+        bool reached = false; /* a probe may reach a new position */
         for (size_t c = b; c < e; c += SMK_W) {
-            SMK_V a, X, Y, Z, VX, VY, VZ, S;
-            memcpy(&a, act + c, sizeof a);
-            memcpy(&S, surf + c, sizeof S);
-            memcpy(&X, px + c, sizeof X);
-            memcpy(&Y, py + c, sizeof Y);
-            memcpy(&Z, pz + c, sizeof Z);
-            memcpy(&VX, vx + c, sizeof VX);
-            memcpy(&VY, vy + c, sizeof VY);
-            memcpy(&VZ, vz + c, sizeof VZ);
-            SMK_V FX = {0}, FY = {0}, FZ = {0};
-            for (int d = 0; d < 18; d++) {
-                const size_t n = (size_t)((ptrdiff_t)c + s->off[d]);
-                SMK_V an, xn, yn, zn;
-                memcpy(&an, act + n, sizeof an);
-                memcpy(&xn, px + n, sizeof xn);
-                memcpy(&yn, py + n, sizeof yn);
-                memcpy(&zn, pz + n, sizeof zn);
-                SMK_V dx = xn - X, dy = yn - Y, dz = zn - Z;
-                SMK_V L = SMK_SQRT(dx * dx + dy * dy + dz * dz);
-                SMK_I big = L > vlmin[d];
-                SMK_V Lc = (SMK_V)((big & (SMK_I)L) | (~big & (SMK_I)vlmin[d]));
-                SMK_V sp = (a * an * vk[d]) * (L - vl[d]) / Lc;
-                FX += sp * dx;
-                FY += sp * dy;
-                FZ += sp * dz;
-            }
-            FX += a * vmgx + S * vwx;
-            FY += a * vmgy + S * vwy;
-            FZ += a * vmgz + S * vwz;
-            VX = (VX + vhm * FX) * vinv;
-            VY = (VY + vhm * FY) * vinv;
-            VZ = (VZ + vhm * FZ) * vinv;
-            SMK_V NX = X + vh * VX, NY = Y + vh * VY, NZ = Z + vh * VZ;
-            /* whole vectors inside the span; the last one lane by lane, so no
-             * cell of another row (another thread's) is ever written */
             size_t lanes = e - c < (size_t)SMK_W ? e - c : (size_t)SMK_W;
-            if (lanes == (size_t)SMK_W) {
-                memcpy(vx + c, &VX, sizeof VX);
-                memcpy(vy + c, &VY, sizeof VY);
-                memcpy(vz + c, &VZ, sizeof VZ);
-                memcpy(nx + c, &NX, sizeof NX);
-                memcpy(ny + c, &NY, sizeof NY);
-                memcpy(nz + c, &NZ, sizeof NZ);
-            } else {
-                for (size_t l = 0; l < lanes; l++) {
-                    vx[c + l] = VX[l];
-                    vy[c + l] = VY[l];
-                    vz[c + l] = VZ[l];
-                    nx[c + l] = NX[l];
-                    ny[c + l] = NY[l];
-                    nz[c + l] = NZ[l];
-                }
+#ifdef SMK_TAIL_W
+            if (lanes <= SMK_TAIL_W) {
+                reached |= SMK_CAT(step_vec_, SMK_TAIL_W)(x, &tail, c, lanes);
+                break;
             }
+#endif
+            reached |= SMK_CAT(step_vec_, SMK_W)(x, &k, c, lanes);
         }
+        if (x->constrain && (reached || s->span_pinned[r]))
+            constrain_row(x->constrain, r);
     }
 }
 
@@ -232,10 +283,19 @@ SMK_ATTR static void SMK_MEASURE(void *ctx, size_t begin, size_t end, unsigned w
                 const ptrdiff_t oy = (ptrdiff_t)s->grid.n[0], oz = oy * (ptrdiff_t)s->grid.n[1];
                 const ptrdiff_t co[8] = {0, 1, oy, oy + 1, oz, oz + 1, oz + oy, oz + oy + 1};
                 SMK_V P[8][3], all = a;
-                for (int k = 0; k < 8; k++) {
+                for (int k = 1; k < 8; k++) {
                     SMK_V ak;
                     memcpy(&ak, act + c + co[k], sizeof ak);
                     all = all * ak;
+                }
+                bool any_cell = false;
+                for (size_t l = 0; l < lanes; l++)
+                    any_cell |= all[l] != 0;
+                if (!any_cell) { /* no cell of 8 nodes here: none inverted */
+                    SMK_STORE(s->cell_inv + c, zero, lanes);
+                    continue;
+                }
+                for (int k = 0; k < 8; k++) {
                     memcpy(&P[k][0], px + c + co[k], sizeof P[k][0]);
                     memcpy(&P[k][1], py + c + co[k], sizeof P[k][1]);
                     memcpy(&P[k][2], pz + c + co[k], sizeof P[k][2]);
