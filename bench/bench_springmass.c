@@ -146,7 +146,6 @@ static void run_interleaved(mr_device *dev, mr_job **jobs, mr_asset **assets, in
     "\"frames\":{\"fps\":24,\"start\":0,\"end\":10},"                                              \
     "\"output\":{\"width\":320,\"height\":240,\"samples\":1}}"
 
-
 /* The work in a step and a mapping, apart from other processes on the
  * machine: one thread, a 16x9 film (tracing all but free), the process's
  * CPU seconds per frame split by the kind's own wall-clock fractions. */
