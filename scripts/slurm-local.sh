@@ -17,6 +17,7 @@
 # (two test runs) on one machine do not stop each other. Finished tasks are recorded by jobcomp/filetxt
 # (DIR/jobcomp.txt), which `sacct --completion` reads: no slurmdbd needed.
 set -euo pipefail
+trap 'echo "slurm-local: failed at line $LINENO: $BASH_COMMAND" >&2' ERR
 cmd=${1:-}
 dir=${2:-}
 if [ -z "$cmd" ] || [ -z "$dir" ]; then
@@ -47,14 +48,18 @@ stop() {
       kill -9 "$pid" 2>/dev/null || true
     fi
   done
-  rm -f "$munge_socket" "$munge_socket.lock"
+  rm -f "$munge_socket" "$munge_socket.lock" "$munge_pid"
 }
 
-# A port nothing listens on, from `from` on (connecting is the test: no
-# tool beyond bash needed).
+# A port no TCP socket of the machine holds (listening, connected or in
+# TIME_WAIT: /proc/net/tcp*), from $1 on.
 free_port() {
-  local p=$1
-  while (exec 3<>"/dev/tcp/127.0.0.1/$p") 2>/dev/null; do p=$((p + 1)); done
+  local p=$1 tables=()
+  for t in /proc/net/tcp /proc/net/tcp6; do [ -r "$t" ] && tables+=("$t"); done
+  while awk -v port="$(printf '%04X' "$p")" 'FNR > 1 { split($2, a, ":"); if (a[2] == port) found = 1 }
+                                             END { exit !found }' "${tables[@]}"; do
+    p=$((p + 1))
+  done
   echo "$p"
 }
 
@@ -95,8 +100,12 @@ chown munge:munge /run/munge /var/lib/munge /var/log/munge
 # (munged runs as munge: its pid and log go where munge may write)
 runuser -u munge -- munged --socket="$munge_socket" --pid-file="$munge_pid" \
   --seed-file="/var/lib/munge/microray-$id.seed" --log-file="/var/log/munge/microray-$id.log" --force
+# (munged may return before it has written its pid)
+for _ in $(seq 50); do [ -s "$munge_pid" ] && break; sleep 0.1; done
 cp "$munge_pid" "$dir/munged.pid"
-ctld_port=$(free_port $((20000 + id % 20000 * 2)))
+# below the kernel's ephemeral range (32768 on), where outgoing connections
+# take their ports
+ctld_port=$(free_port $((20000 + id % 6000 * 2)))
 slurmd_port=$(free_port $((ctld_port + 1)))
 
 cpus=$(nproc)
