@@ -21,6 +21,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "microray.h"
+
 typedef struct daemon_proc {
     pid_t pid;
     unsigned port;
@@ -438,6 +440,41 @@ static inline pid_t fx_freeze_worker_in_frame(const daemon_proc *d, const char *
     }
     fail_msg("the render worker of job %s was never caught inside a frame", id);
     return -1;
+}
+
+/* Frame k of job id as the daemon d stored it, read back by OpenEXR. */
+static inline mr_film *fx_read_frame(const daemon_proc *d, const char *id, int k)
+{
+    char path[800];
+    snprintf(path, sizeof path, "%s/frames/%s/%04d.exr", d->data, id, k);
+    mr_film *f = NULL;
+    mr_error err;
+    if (mr_exr_read_file(path, &f, NULL, &err) < 0)
+        fail_msg("%s: %s", path, err.msg);
+    return f;
+}
+
+/* Polls the job until a frame with index >= min is running (60 s at most). */
+static inline void fx_wait_frame_running_from(const daemon_proc *d, const char *id, int min)
+{
+    char path[128];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    for (int i = 0; i < 6000; i++) {
+        http_result r = http(d, "GET", path, NULL, 0, NULL);
+        cJSON *j = cJSON_Parse(r.body);
+        http_free(&r);
+        assert_non_null(j);
+        cJSON *f;
+        bool found = false;
+        cJSON_ArrayForEach(f, cJSON_GetObjectItem(j, "frame_states"))
+            found |= cJSON_GetObjectItem(f, "index")->valueint >= min &&
+                     !strcmp(cJSON_GetObjectItem(f, "state")->valuestring, "running");
+        cJSON_Delete(j);
+        if (found)
+            return;
+        fx_sleep_ms(10);
+    }
+    fail_msg("job %s: no frame from %d on started within 60 s", id, min);
 }
 
 #endif

@@ -47,40 +47,6 @@ static const char *JOB =
     "\"frames\":{\"fps\":4,\"start\":0,\"end\":1.75},"
     "\"output\":{\"width\":480,\"height\":270,\"samples\":64}}";
 
-static mr_film *read_frame(const char *id, int k)
-{
-    char path[800];
-    snprintf(path, sizeof path, "%s/frames/%s/%04d.exr", D.data, id, k);
-    mr_film *f = NULL;
-    mr_error err;
-    if (mr_exr_read_file(path, &f, NULL, &err) < 0)
-        fail_msg("%s: %s", path, err.msg);
-    return f;
-}
-
-/* Polls the job until a frame with index >= min is running. */
-static void wait_frame_running_from(const char *id, int min)
-{
-    char path[128];
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    for (int i = 0; i < 6000; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        cJSON *j = cJSON_Parse(r.body);
-        http_free(&r);
-        assert_non_null(j);
-        cJSON *f;
-        bool found = false;
-        cJSON_ArrayForEach(f, cJSON_GetObjectItem(j, "frame_states"))
-            found |= cJSON_GetObjectItem(f, "index")->valueint >= min &&
-                     !strcmp(cJSON_GetObjectItem(f, "state")->valuestring, "running");
-        cJSON_Delete(j);
-        if (found)
-            return;
-        fx_sleep_ms(10);
-    }
-    fail_msg("job %s: no frame from %d on started within 60 s", id, min);
-}
-
 static void test_resume_and_retry_replay_the_simulation(void **state)
 {
     (void)state;
@@ -93,7 +59,7 @@ static void test_resume_and_retry_replay_the_simulation(void **state)
     cJSON_Delete(j);
     mr_film *ref[FRAMES];
     for (int k = 0; k < FRAMES; k++)
-        ref[k] = read_frame(ref_id, k);
+        ref[k] = fx_read_frame(&D, ref_id, k);
     /* the simulation moves: consecutive frames differ (else equal frames
      * below would prove nothing) */
     size_t n = (size_t)ref[0]->width * (size_t)ref[0]->height;
@@ -110,7 +76,7 @@ static void test_resume_and_retry_replay_the_simulation(void **state)
     fx_wait_frames_done(&D, id, 2);
     assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
     daemon_start(&D, "interrupted");
-    wait_frame_running_from(id, 4);
+    fx_wait_frame_running_from(&D, id, 4);
     assert_int_equal(kill(fx_render_worker_pid(&D), SIGKILL), 0);
     j = fx_wait_job(&D, id, 300);
     assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded");
@@ -121,7 +87,7 @@ static void test_resume_and_retry_replay_the_simulation(void **state)
     assert_true(retried >= 1); /* the worker's death cost a frame an attempt */
     cJSON_Delete(j);
     for (int k = 0; k < FRAMES; k++) {
-        mr_film *got = read_frame(id, k);
+        mr_film *got = fx_read_frame(&D, id, k);
         char what[64];
         snprintf(what, sizeof what, "frame %d against the uninterrupted run's", k);
         fx_assert_same_pixels(got, ref[k], what);

@@ -19,6 +19,7 @@
 #include <string.h>
 
 #include "daemon_fixture.h"
+#include "../support/film_fixture.h"
 #include "render/exr.h"
 
 #define FRAMES 10
@@ -39,53 +40,6 @@ static const char *JOB =
     "\"camera\":{\"path\":[{\"t\":0,\"position\":[4,1.5,1],\"target\":[0,0.7,0]}]},"
     "\"frames\":{\"fps\":24,\"start\":0,\"end\":0.375},"
     "\"output\":{\"width\":320,\"height\":240,\"samples\":32}}";
-
-static mr_film *read_frame(const char *id, int k)
-{
-    char path[800];
-    snprintf(path, sizeof path, "%s/frames/%s/%04d.exr", D.data, id, k);
-    mr_film *f = NULL;
-    mr_error err;
-    if (mr_exr_read_file(path, &f, NULL, &err) < 0)
-        fail_msg("%s: %s", path, err.msg);
-    return f;
-}
-
-static void assert_same_pixels(const mr_film *a, const mr_film *b, int frame)
-{
-    assert_int_equal(a->width, b->width);
-    assert_int_equal(a->height, b->height);
-    size_t n = (size_t)a->width * (size_t)a->height;
-    const float *fa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz};
-    const float *fb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz};
-    for (size_t p = 0; p < sizeof fa / sizeof *fa; p++)
-        if (memcmp(fa[p], fb[p], n * sizeof(float)) != 0)
-            fail_msg("frame %d: plane %zu differs from the uninterrupted run's", frame, p);
-    assert_memory_equal(a->object_id, b->object_id, n * sizeof(uint32_t));
-    assert_memory_equal(a->prim_id, b->prim_id, n * sizeof(uint32_t));
-}
-
-static void wait_frame_running_from(const char *id, int min)
-{
-    char path[128];
-    snprintf(path, sizeof path, "/v1/jobs/%s", id);
-    for (int i = 0; i < 6000; i++) {
-        http_result r = http(&D, "GET", path, NULL, 0, NULL);
-        cJSON *j = cJSON_Parse(r.body);
-        http_free(&r);
-        assert_non_null(j);
-        cJSON *f;
-        bool found = false;
-        cJSON_ArrayForEach(f, cJSON_GetObjectItem(j, "frame_states"))
-            found |= cJSON_GetObjectItem(f, "index")->valueint >= min &&
-                     !strcmp(cJSON_GetObjectItem(f, "state")->valuestring, "running");
-        cJSON_Delete(j);
-        if (found)
-            return;
-        fx_sleep_ms(10);
-    }
-    fail_msg("job %s: no frame from %d on started within 60 s", id, min);
-}
 
 /* The frame's "replay" stats: frames replayed and the checkpoint replay
  * started from (both 0 when it was rendered in order). */
@@ -118,7 +72,7 @@ static void test_resume_and_retry(void **state)
     cJSON_Delete(j);
     mr_film *ref[FRAMES];
     for (int k = 0; k < FRAMES; k++)
-        ref[k] = read_frame(ref_id, k);
+        ref[k] = fx_read_frame(&D, ref_id, k);
     size_t n = (size_t)ref[0]->width * (size_t)ref[0]->height;
     for (int k = 1; k < FRAMES; k++)
         assert_true(memcmp(ref[k - 1]->z, ref[k]->z, n * sizeof(float)) != 0); /* it moves */
@@ -137,7 +91,7 @@ static void test_resume_and_retry(void **state)
     fx_wait_frames_done(&D, id, 3);
     assert_int_equal(daemon_stop(&D, SIGKILL), -SIGKILL);
     daemon_start(&D, "interrupted");
-    wait_frame_running_from(id, 6);
+    fx_wait_frame_running_from(&D, id, 6);
     assert_int_equal(kill(fx_render_worker_pid(&D), SIGKILL), 0);
     j = fx_wait_job(&D, id, 600);
     assert_string_equal(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded");
@@ -148,8 +102,10 @@ static void test_resume_and_retry(void **state)
     assert_true(retried >= 1);
     cJSON_Delete(j);
     for (int k = 0; k < FRAMES; k++) {
-        mr_film *got = read_frame(id, k);
-        assert_same_pixels(got, ref[k], k);
+        mr_film *got = fx_read_frame(&D, id, k);
+        char what[64];
+        snprintf(what, sizeof what, "frame %d against the uninterrupted run's", k);
+        fx_assert_same_pixels(got, ref[k], what);
         mr_film_free(got);
         mr_film_free(ref[k]);
     }
