@@ -314,11 +314,11 @@ static void print_error_row(const char *frame_cols, const cJSON *e)
 {
     char ref[24];
     safe_str(ref, sizeof ref, e, "reference");
-    printf("%s  %-12s  %8.3f  %5lld  %10.3e  %10.3e  %7.3f  %7.2f  %7.3f\n", frame_cols, ref,
+    printf("%s  %-12s  %8.3f  %5lld  %10.3e  %10.3e  %7.3f  %7.2f  %7.3f  %7.2f\n", frame_cols, ref,
            mrc_json_num(e, "coverage_error_pct", 0), mrc_json_int(e, "holes", 0, 0, 1LL << 52),
            mrc_json_num(e, "depth_rmse", 0), mrc_json_num(e, "depth_max", 0),
            mrc_json_num(e, "normal_mean_deg", 0), mrc_json_num(e, "psnr_rgb_db", 0),
-           mrc_json_num(e, "speckle_pct", 0));
+           mrc_json_num(e, "speckle_pct", 0), mrc_json_num(e, "surface_px", 0));
 }
 
 /* status --errors: the job's stats (GET /v1/jobs/ID/stats) as a table of
@@ -344,9 +344,9 @@ static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
                mrc_json_int(stats, "frames_done", 0, 0, 1LL << 40));
         goto cleanup;
     }
-    printf("%5s  %7s  %5s  %-12s  %8s  %5s  %10s  %10s  %7s  %7s  %7s\n", "frame", "total s",
+    printf("%5s  %7s  %5s  %-12s  %8s  %5s  %10s  %10s  %7s  %7s  %7s  %7s\n", "frame", "total s",
            "ref s", "reference", "cover %", "holes", "depth rmse", "depth max", "normal", "PSNR dB",
-           "speck %");
+           "speck %", "surf px");
     const cJSON *fr;
     cJSON_ArrayForEach(fr, cJSON_GetObjectItemCaseSensitive(stats, "frames")) {
         const cJSON *secs = cJSON_GetObjectItemCaseSensitive(fr, "seconds"), *e;
@@ -376,17 +376,18 @@ static int cmd_status_errors(mrc_http *h, const cmd_args *a, mrc_error *err)
             /* the worst value of each figure, and the frame it came from */
             static const char *const figures[] = {"coverage_error_pct", "holes", "depth_rmse",
                                                   "depth_max", "normal_mean_deg", "psnr_rgb_db",
-                                                  "speckle_pct"};
-            long long at[7];
-            for (int k = 0; k < 7; k++) {
+                                                  "speckle_pct", "surface_px"};
+            enum { FIGURES = sizeof figures / sizeof figures[0] };
+            long long at[FIGURES];
+            for (int k = 0; k < FIGURES; k++) {
                 const cJSON *w = cJSON_GetObjectItemCaseSensitive(worst, figures[k]);
                 cJSON_AddNumberToObject(values, figures[k], mrc_json_num(w, "value", 0));
                 at[k] = mrc_json_int(w, "frame", -1, -1, 1LL << 40);
             }
             snprintf(cols, sizeof cols, "%-21s", "worst");
             print_error_row(cols, values);
-            printf("%-21s  %-12s  %8lld  %5lld  %10lld  %10lld  %7lld  %7lld  %7lld\n", "  at frame", "",
-                   at[0], at[1], at[2], at[3], at[4], at[5], at[6]);
+            printf("%-21s  %-12s  %8lld  %5lld  %10lld  %10lld  %7lld  %7lld  %7lld  %7lld\n",
+                   "  at frame", "", at[0], at[1], at[2], at[3], at[4], at[5], at[6], at[7]);
         }
         cJSON_Delete(row);
         cJSON_Delete(values);

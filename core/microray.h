@@ -430,9 +430,25 @@ void mr_film_clear(mr_film *film);
  *    frame border is never counted;
  *  - psnr_rgb: 10 log10(1 / MSE) over R, G, B of all pixels, colours clamped to
  *    [0, 1] first; reported as 999 when the images are identical (MSE = 0),
- *    which keeps JSON free of infinities. */
+ *    which keeps JSON free of infinities;
+ *  - surface_px: how far apart the two surfaces are on screen, in pixels:
+ *    for every pixel p one film hits, the least over the other film's hits
+ *    q within MR_SURFACE_WINDOW pixels of the screen distance (|p - q| less
+ *    half a pixel for q != p: the other's edge lies between the centres) plus
+ *    their depth difference beyond the depths the two pixels span (half the
+ *    largest depth step to a neighbour: a surface at a grazing angle steps
+ *    far in depth from pixel to pixel), in pixels at p's depth (as a
+ *    tolerance projects a distance); the largest over both films. Equal
+ *    films give 0; a surface moved by d pixels on screen gives about d (to
+ *    within half a pixel), at silhouettes too; one moved by e along the view gives e in pixels at its
+ *    depth. Near depth edges it reads up to a pixel low (the span there
+ *    covers both sides). A pixel with no hit of the other within the window
+ *    counts MR_SURFACE_WINDOW + 1. Films without a camera (or depth): 0.
+ *    This is the figure a level-of-detail tolerance ("tolerance_px") is
+ *    held to. */
 
 #define MR_PSNR_IDENTICAL 999.0
+#define MR_SURFACE_WINDOW 8
 
 typedef struct mr_compare_result {
     size_t pixels;            /* width * height */
@@ -442,7 +458,28 @@ typedef struct mr_compare_result {
     double depth_rmse, depth_max;  /* relative to scene_diagonal */
     double normal_mean_deg, normal_max_deg;
     double psnr_rgb;
+    double surface_px;
 } mr_compare_result;
+
+/* A way to look at a film's surface between its pixel centres: the depth
+ * (as the z pass: camera-space, along the view) its scene shows at film
+ * position (px, py) in pixels ((0, 0) the top-left corner, pixel x covering
+ * [x, x + 1)), or 0 or less where it shows nothing. */
+typedef struct mr_surface_probe {
+    double (*depth_at)(void *ctx, double px, double py);
+    void *ctx;
+} mr_surface_probe;
+
+/* surface_px of the two films (mr_compare_result). With a probe of a
+ * film's scene (NULL: none), a pixel of the other film whose nearest match
+ * among that film's pixel centres is more than a quarter pixel away is
+ * looked for again between them, on a grid of quarter pixels: thin parts
+ * (a limb a fraction of a pixel wide, far away) cover pixel centres here
+ * and there, so the nearest centre they cover can lie pixels away from a
+ * surface that moved by less than one. The renderer's reference passes
+ * probe both scenes; mr_film_compare has no scene and passes none. */
+double mr_film_surface_px(const mr_film *a, const mr_film *b, const mr_surface_probe *probe_a,
+                          const mr_surface_probe *probe_b);
 
 /* Fails with MR_ERR_INVALID when sizes differ or scene_diagonal is not a
  * positive finite number. */
@@ -973,6 +1010,7 @@ const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i);
 #define MR_MAX_JOB_TRIANGLES (32u * 1024u * 1024u) /* over all objects (each holds its own copy) */
 #define MR_MAX_NAME 256         /* bytes in any name or id */
 #define MR_MAX_PATH 4096        /* bytes in an asset path */
+#define MR_MAX_TOLERANCE_PX 1000.0 /* "tolerance_px": pixels */
 
 /* ---- poses (anim/pose.c; evaluation is anim/pose.h) ----
  * A pose is the global transform of every node of an asset at one instant:
@@ -1108,6 +1146,9 @@ typedef struct mr_object_desc {
     mr_pose_desc *poses;
     bool reference;          /* reference passes draw it as its references (its own
                                 "reference", else the job's; mr_reference_type) */
+    double tolerance_px;     /* level of detail: the coarsest representation whose projected
+                                error stays below this many pixels, chosen per frame (its own
+                                "tolerance_px", else the job's); 0: off, the finest */
 } mr_object_desc;
 
 typedef struct mr_light_desc {
@@ -1159,6 +1200,7 @@ typedef struct mr_job {
     double *frame_times;     /* seconds, one per frame */
     mr_output_desc output;
     bool reference;          /* "reference": the objects' default (mr_object_desc.reference) */
+    double tolerance_px;     /* "tolerance_px": the objects' default (mr_object_desc.tolerance_px) */
 } mr_job;
 
 /* Whether any object of the job asks for reference passes. They compare
@@ -1261,6 +1303,7 @@ typedef struct mr_frame_error {
     double normal_mean_deg;
     double psnr_rgb_db;        /* MR_PSNR_IDENTICAL for identical colour */
     double speckle_pct;        /* the reference frame's own (beside the frame's speckle_pct) */
+    double surface_px;         /* mr_compare_result.surface_px */
 } mr_frame_error;
 
 /* Per-frame statistics. Every member but the extras and the error entries

@@ -631,7 +631,8 @@ static int check_absent_block(mr_json_ctx *c, const mr_param_table *t, void *val
 }
 
 static const char *const OBJECT_FIELDS_HEAD[] = {"name", "asset", "kind"};
-static const char *const OBJECT_FIELDS_TAIL[] = {"transform", "color", "pose", "reference"};
+static const char *const OBJECT_FIELDS_TAIL[] = {"transform", "color", "pose", "reference",
+                                                  "tolerance_px"};
 
 /* The keys an object may have: its own, and after "kind" each registered
  * kind's parameter block, in registry order. */
@@ -662,6 +663,18 @@ static int parse_kind(mr_json_ctx *c, const cJSON *v, const mr_kind **out)
     return MR_OK;
 }
 
+/* "tolerance_px": a number of pixels, or null (off: the finest level). */
+static int parse_tolerance(mr_json_ctx *c, const cJSON *v, double *out)
+{
+    static const json_num_spec spec = {0, MR_MAX_TOLERANCE_PX, JSON_NUM_LO_OPEN,
+                                       "null or a number of pixels in (0, 1000]"};
+    if (cJSON_IsNull(v)) {
+        *out = 0;
+        return MR_OK;
+    }
+    return json_get_num(c, v, &spec, out);
+}
+
 static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t index, mr_object_desc *o)
 {
     const char *fields[MR_PARAM_MAX_FIELDS];
@@ -671,7 +684,8 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     GO_ON(c, json_require(c, v, "asset"));
     const cJSON *name = json_field(v, "name"), *kind = json_field(v, "kind"), *xf = json_field(v, "transform"),
                 *color = json_field(v, "color"), *pose = json_field(v, "pose"),
-                *asset = json_field(v, "asset"), *reference = json_field(v, "reference");
+                *asset = json_field(v, "asset"), *reference = json_field(v, "reference"),
+                *tolerance = json_field(v, "tolerance_px");
     if (name) {
         GO_ON_AT_KEY(c, "name", json_get_string(c, name, MR_MAX_NAME, &o->name));
     } else {
@@ -720,6 +734,9 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     o->reference = job->reference; /* parsed before "objects" */
     if (reference)
         GO_ON_AT_KEY(c, "reference", json_get_bool(c, reference, &o->reference));
+    o->tolerance_px = job->tolerance_px; /* parsed before "objects" */
+    if (tolerance)
+        GO_ON_AT_KEY(c, "tolerance_px", parse_tolerance(c, tolerance, &o->tolerance_px));
     return MR_OK;
 }
 
@@ -1033,7 +1050,7 @@ static int parse_output(mr_json_ctx *c, const cJSON *v, mr_job *job)
 static const char *const ROOT_FIELDS[] = {"name",   "priority", "max_retries", "assets",
                                           "objects", "lights", "ambient",     "background",
                                           "camera",  "frames",   "output",      "notify",
-                                          "reference"};
+                                          "reference", "tolerance_px"};
 
 /* Reference passes compare colour, depth, normals and ids (mr_film_compare):
  * a job that asks for them keeps those passes (at "output", whose "aovs"
@@ -1151,6 +1168,9 @@ static int parse_root(mr_json_ctx *c, const cJSON *root, mr_job *job)
     const cJSON *reference = json_field(root, "reference");
     if (reference) /* before "objects": their default */
         GO_ON_AT_KEY(c, "reference", json_get_bool(c, reference, &job->reference));
+    const cJSON *tolerance = json_field(root, "tolerance_px");
+    if (tolerance) /* before "objects": their default */
+        GO_ON_AT_KEY(c, "tolerance_px", parse_tolerance(c, tolerance, &job->tolerance_px));
     if (assets)
         GO_ON_AT_KEY(c, "assets", parse_assets(c, assets, job));
     /* Before "objects": per-frame pose arrays are checked against the count. */

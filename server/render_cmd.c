@@ -665,6 +665,7 @@ int mr_cmd_compare(int argc, char **argv)
     cJSON_AddNumberToObject(o, "depth_max", r.depth_max);
     cJSON_AddNumberToObject(o, "normal_mean_deg", r.normal_mean_deg);
     cJSON_AddNumberToObject(o, "normal_max_deg", r.normal_max_deg);
+    cJSON_AddNumberToObject(o, "surface_px", r.surface_px);
     cJSON_AddNumberToObject(o, "holes", (double)r.holes);
     cJSON_AddNumberToObject(o, "strays", (double)r.strays);
     mr_speckle_result sa, sb;

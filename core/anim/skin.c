@@ -31,6 +31,7 @@ typedef struct skin_ctx {
     const mr_mat4 *skin;  /* K_j per joint; NULL: computed per use (allocation failed) */
     float *out_p, *out_n;
     mr_affine *out_m;
+    const uint32_t *subset; /* NULL: every vertex; else item k is vertex subset[k] */
 } skin_ctx;
 
 static mr_mat4 node_global(const skin_ctx *c, int node)
@@ -60,7 +61,8 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
     (void)worker;
     const skin_ctx *c = ctx;
     const mr_mesh *m = c->mesh;
-    for (size_t i = begin; i < end; i++) {
+    for (size_t item = begin; item < end; item++) {
+        size_t i = c->subset ? c->subset[item] : item;
         mr_vec3 p = mr_v3(m->positions[i * 3], m->positions[i * 3 + 1], m->positions[i * 3 + 2]);
         mr_vec3 n = mr_v3(m->normals[i * 3], m->normals[i * 3 + 1], m->normals[i * 3 + 2]);
         const mr_mat4 *M = &c->rigid;
@@ -101,16 +103,18 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
 }
 
 static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
-                 const mr_mat4 *object_transform, float *out_positions, float *out_normals,
-                 mr_affine *out_matrices, unsigned threads)
+                 const mr_mat4 *object_transform, const uint32_t *subset, size_t subset_count,
+                 float *out_positions, float *out_normals, mr_affine *out_matrices,
+                 unsigned threads)
 {
     if (!asset || mesh_index >= asset->mesh_count)
         return;
     const mr_mesh *m = &asset->meshes[mesh_index];
     if (m->vertex_count == 0 || !m->positions || !m->normals)
         return;
+    size_t items = subset ? subset_count : m->vertex_count;
     skin_ctx c = {.asset = asset, .mesh = m, .pose = pose, .out_p = out_positions,
-                  .out_n = out_normals, .out_m = out_matrices};
+                  .out_n = out_normals, .out_m = out_matrices, .subset = subset};
     c.object = object_transform ? *object_transform : mr_mat4_identity();
     mr_mat4 *mats = NULL;
     if (!pose || pose->node_count != asset->node_count || !pose->global) {
@@ -118,7 +122,7 @@ static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
          * object transform) rather than leaving the buffers undefined. */
         c.rigid = c.object;
         c.rigid_normal = mr_mat4_normal_matrix(&c.rigid);
-        mr_parallel_for(threads, m->vertex_count, SKIN_GRAIN, skin_range, &c);
+        mr_parallel_for(threads, items, SKIN_GRAIN, skin_range, &c);
         return;
     }
     mr_mat4 g = node_global(&c, m->node);
@@ -133,7 +137,7 @@ static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                 mats[j] = joint_matrix(&c, j);
         c.skin = mats;
     }
-    mr_parallel_for(threads, m->vertex_count, SKIN_GRAIN, skin_range, &c);
+    mr_parallel_for(threads, items, SKIN_GRAIN, skin_range, &c);
     free(mats);
 }
 
@@ -142,13 +146,22 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   float *out_normals, unsigned threads)
 {
     if (out_positions)
-        skin(asset, mesh_index, pose, object_transform, out_positions, out_normals, NULL,
+        skin(asset, mesh_index, pose, object_transform, NULL, 0, out_positions, out_normals, NULL,
              threads);
+}
+
+void mr_skin_mesh_vertices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                           const mr_mat4 *object_transform, const uint32_t *vertices, size_t count,
+                           float *out_positions, float *out_normals, unsigned threads)
+{
+    if (out_positions && vertices)
+        skin(asset, mesh_index, pose, object_transform, vertices, count, out_positions,
+             out_normals, NULL, threads);
 }
 
 void mr_skin_matrices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                       const mr_mat4 *object_transform, mr_affine *out_matrices, unsigned threads)
 {
     if (out_matrices)
-        skin(asset, mesh_index, pose, object_transform, NULL, NULL, out_matrices, threads);
+        skin(asset, mesh_index, pose, object_transform, NULL, 0, NULL, NULL, out_matrices, threads);
 }

@@ -100,6 +100,11 @@
  * before anything is imported or allocated (mr_job_check_memory; the
  * daemon answers 422 naming the field); what an object holds beyond its
  * floor is the kind's to check against the budget as it allocates.
+ * has_lod: the kind reads its objects' tolerance_px (microray.h) and picks
+ * a level of detail per frame from the camera: the renderer updates such
+ * an object every frame of a job of several, with view_only set when
+ * nothing but the camera moved since its last update (the kind keeps its
+ * posed geometry and re-picks its level).
  * frame_order: INDEPENDENT kinds can render any frame on its own;
  * SEQUENTIAL ones (a simulation) need frames 0..N-1 before N. The renderer
  * honours it: asked for frame N out of order (a resumed or retried job, a
@@ -132,6 +137,8 @@ typedef struct mr_geom_frame {
     double time;        /* seconds on the job's timeline */
     mr_camera camera;   /* this frame's camera */
     int width, height;  /* film size in pixels */
+    bool view_only;     /* only the camera moved since the last update: the object's pose
+                           and transform are as they were (has_lod kinds re-pick a level) */
 } mr_geom_frame;
 
 /* Where a kind builds from: its folder of derived data and its threads. */
@@ -188,6 +195,7 @@ struct mr_kind {
     const mr_kind_stat *stats;     /* its own per-frame stats fields */
     size_t stat_count;
     bool self_posed;
+    bool has_lod;
     bool (*animated)(const void *params);
     size_t (*memory_floor)(const void *params);
     const char *memory_field;

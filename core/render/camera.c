@@ -75,3 +75,21 @@ mr_camera_rays mr_camera_rays_setup(const mr_camera *cam, int width, int height)
     r.corner = mr_v3_add(fwd, mr_v3_add(mr_v3_scale(right, (float)(-th * aspect)), mr_v3_scale(up, (float)th)));
     return r;
 }
+
+double mr_camera_px_per_unit(const mr_camera *cam, int width, int height, mr_vec3 lo, mr_vec3 hi)
+{
+    if (width <= 0 || height <= 0)
+        return INFINITY;
+    mr_vec3 fwd = mr_quat_rotate(cam->rotation, mr_v3(0, 0, -1));
+    double zmin = INFINITY;
+    for (int k = 0; k < 8; k++) {
+        mr_vec3 c = mr_v3(k & 1 ? hi.x : lo.x, k & 2 ? hi.y : lo.y, k & 4 ? hi.z : lo.z);
+        mr_vec3 d = mr_v3_sub(c, cam->position);
+        zmin = fmin(zmin, (double)fwd.x * d.x + (double)fwd.y * d.y + (double)fwd.z * d.z);
+    }
+    if (!(zmin > 0))
+        return INFINITY;
+    double th = tan(0.5 * (double)cam->yfov), tw = th * (double)width / (double)height;
+    double pixel = 2.0 * th / (double)height; /* a pixel's size at depth 1 */
+    return sqrt(1.0 + th * th + tw * tw) / (zmin * pixel);
+}

@@ -28,4 +28,13 @@ mr_quat mr_camera_key_rotation(const mr_camera_key *key, mr_vec3 up);
 /* The same for one ray, without a setup (tests, one-off rays). */
 mr_vec3 mr_camera_ray_dir(const mr_camera *cam, int width, int height, double px, double py);
 
+/* Level of detail: the most pixels a segment of unit length anywhere in the
+ * world-space box [lo, hi] can span on a width x height film of cam, where
+ * it is in view. A point at depth Z moved by d lands (d_xy - (x/Z) d_z) /
+ * (Z * pixel) away, at most |d| sqrt(1 + (x/Z)^2 + (y/Z)^2) / (Z * pixel);
+ * in view, x/Z and y/Z are within the frustum's half-widths, and Z is at
+ * least the box's nearest depth (a corner's). INFINITY when the box
+ * reaches the camera's plane. */
+double mr_camera_px_per_unit(const mr_camera *cam, int width, int height, mr_vec3 lo, mr_vec3 hi);
+
 #endif

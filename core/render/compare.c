@@ -94,6 +94,109 @@ void mr_film_speckles(const mr_film *f, mr_speckle_result *out)
         out->speckle_pct = 100.0 * (double)out->speckles / (double)out->interior;
 }
 
+/* The depths pixel (x, y) of f may stand for: within the largest depth step
+ * to a 4-neighbour f also hits. A surface at a grazing angle steps far in
+ * depth from one pixel to the next, and a pixel at a depth edge may show
+ * either side once the edge moves by less than a pixel. */
+static double depth_span(const mr_film *f, int x, int y)
+{
+    size_t i = (size_t)y * (size_t)f->width + (size_t)x;
+    double z = f->z[i], span = 0;
+    static const int n[4][2] = {{-1, 0}, {1, 0}, {0, -1}, {0, 1}};
+    for (int k = 0; k < 4; k++) {
+        int qx = x + n[k][0], qy = y + n[k][1];
+        if (qx < 0 || qy < 0 || qx >= f->width || qy >= f->height)
+            continue;
+        size_t q = (size_t)qy * (size_t)f->width + (size_t)qx;
+        if (f->object_id[q])
+            span = fmax(span, fabs((double)f->z[q] - z));
+    }
+    return span;
+}
+
+/* Where pixel centres say b's surface is more than this far from p, a probe
+ * of b's scene looks between them (mr_film_surface_px). */
+#define PROBE_ABOVE 0.25
+/* ... on a grid of this step, in pixels. */
+#define PROBE_STEP 0.25
+
+/* The least, over probe rays of b's scene on a PROBE_STEP grid around p's
+ * centre (rings of growing Chebyshev radius, nearer than best), of the
+ * distance of the ray from p's centre plus the depth difference beyond p's
+ * span and the ray's share of the span of the pixel it lies in. */
+static double probe_between(const mr_film *b, const mr_surface_probe *probe, int x, int y,
+                            double za, double span_a, double to_px, double best)
+{
+    for (int k = 1; k * PROBE_STEP < best && k * PROBE_STEP <= MR_SURFACE_WINDOW; k++)
+        for (int j = -k; j <= k; j++)
+            for (int i = -k; i <= k; i += (j == -k || j == k) ? 1 : 2 * k) {
+                double ox = i * PROBE_STEP, oy = j * PROBE_STEP, d = sqrt(ox * ox + oy * oy);
+                if (d >= best)
+                    continue;
+                double fx = x + 0.5 + ox, fy = y + 0.5 + oy;
+                if (fx < 0 || fy < 0 || fx >= b->width || fy >= b->height)
+                    continue;
+                double z = probe->depth_at(probe->ctx, fx, fy);
+                if (!(z > 0))
+                    continue;
+                double dz = fabs(za - z) - span_a - PROBE_STEP * depth_span(b, (int)fx, (int)fy);
+                best = fmin(best, d + fmax(0.0, dz) * to_px);
+            }
+    return best;
+}
+
+/* The largest over a's hits of the pixels to b's surface (mr_compare_result
+ * surface_px): for pixel p, the least over b's hits q within
+ * MR_SURFACE_WINDOW of their screen distance (|p - q| - 1/2 for q != p: b's
+ * edge lies between the two centres, halfway on average) plus the depth
+ * difference beyond what the two pixels span (depth_span), in pixels at p's
+ * depth (1 / (z * pixel size at depth 1)). Rings of Chebyshev radius r are
+ * searched until a farther ring's screen distance alone, r + 1/2, cannot
+ * beat the best. With a probe of b's scene, a value above PROBE_ABOVE is
+ * then looked for between the pixel centres (probe_between). */
+static double surface_px_one_way(const mr_film *a, const mr_film *b, const mr_surface_probe *probe,
+                                 double pixel)
+{
+    int w = a->width, h = a->height;
+    double worst = 0;
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            size_t i = (size_t)y * (size_t)w + (size_t)x;
+            if (!a->object_id[i])
+                continue;
+            double za = a->z[i], span_a = depth_span(a, x, y), to_px = 1.0 / (za * pixel);
+            double best = MR_SURFACE_WINDOW + 1; /* what the window rules out */
+            for (int r = 0; r <= MR_SURFACE_WINDOW && best > r - 0.5; r++)
+                for (int dy = -r; dy <= r; dy++)
+                    for (int dx = -r; dx <= r; dx += (dy == -r || dy == r) ? 1 : 2 * r) {
+                        int qx = x + dx, qy = y + dy;
+                        if (qx < 0 || qy < 0 || qx >= w || qy >= h)
+                            continue;
+                        size_t q = (size_t)qy * (size_t)w + (size_t)qx;
+                        if (!b->object_id[q])
+                            continue;
+                        double dz = fabs(za - (double)b->z[q]) - span_a - depth_span(b, qx, qy);
+                        double screen = r ? sqrt((double)(dx * dx + dy * dy)) - 0.5 : 0.0;
+                        best = fmin(best, screen + fmax(0.0, dz) * to_px);
+                    }
+            if (probe && best > PROBE_ABOVE)
+                best = probe_between(b, probe, x, y, za, span_a, to_px, best);
+            worst = fmax(worst, best);
+        }
+    return worst;
+}
+
+double mr_film_surface_px(const mr_film *a, const mr_film *b, const mr_surface_probe *probe_a,
+                          const mr_surface_probe *probe_b)
+{
+    const mr_film *cam = a->has_camera ? a : b->has_camera ? b : NULL;
+    if (!cam || !a->z || !b->z || !a->object_id || !b->object_id || a->width != b->width ||
+        a->height != b->height)
+        return 0;
+    double pixel = 2.0 * tan(0.5 * (double)cam->yfov) / a->height; /* at depth 1 */
+    return fmax(surface_px_one_way(a, b, probe_b, pixel), surface_px_one_way(b, a, probe_a, pixel));
+}
+
 int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
                     mr_compare_result *out, mr_error *err)
 {
@@ -174,6 +277,7 @@ int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
     }
     mse = rgb_sq / (3.0 * (double)n);
     res.psnr_rgb = mse > 0.0 ? 10.0 * log10(1.0 / mse) : MR_PSNR_IDENTICAL;
+    res.surface_px = mr_film_surface_px(a, b, NULL, NULL);
 
     *out = res;
     return MR_OK;

@@ -106,6 +106,11 @@ const mr_stat_field mr_frame_error_fields[] = {
      "PSNR of the colour (RGB clamped to [0, 1]); 999 for identical colour.", MR_STAT_LOWER_WORSE},
     {NULL, "speckle_pct", MR_STAT_F64, ERR_AT(speckle_pct), "%",
      "The reference frame's own isolated dark pixels (the frame's speckle_pct beside it).", 0},
+    {NULL, "surface_px", MR_STAT_F64, ERR_AT(surface_px), "px",
+     "How far apart the frame's and the reference's surfaces are on screen: for every pixel one "
+     "of them hits, the least over the other's hits within 8 pixels of their screen distance "
+     "(less half a pixel) plus the depth difference beyond what the two pixels span, in pixels at "
+     "its depth; the largest (README, Error metrics; what \"tolerance_px\" is held to).", 0},
 };
 const size_t mr_frame_error_field_count = sizeof mr_frame_error_fields / sizeof *mr_frame_error_fields;
 

@@ -41,8 +41,13 @@ int mr_reference_pass_init(const mr_job *job, mr_reference_type type, mr_referen
             rc = mr_reference_objects_add(&out->objects, o, err);
         if (rc < 0)
             mr_error_prefix(err, "/objects/%zu: %s reference: ", i, mr_reference_name(type));
-        for (size_t k = first; k < out->objects.count; k++)
+        /* a reference is drawn at full detail, but the tessellated pass
+         * draws an object at the level it chose itself */
+        for (size_t k = first; k < out->objects.count; k++) {
             out->objects.objects[k].reference = false;
+            if (type == MR_REFERENCE_GROUND_TRUTH)
+                out->objects.objects[k].tolerance_px = 0;
+        }
     }
     if (rc < 0 || !*present) {
         mr_reference_pass_clear(out);

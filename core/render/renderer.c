@@ -24,6 +24,7 @@ typedef struct object_state {
     mr_geom *geom;
     mr_pose *pose;
     bool animated;   /* pose changes from frame to frame */
+    bool view_dependent; /* its level of detail follows the camera (kind.h has_lod) */
     bool posed_once;
     size_t stepped;  /* SEQUENTIAL kinds: frames 0..stepped-1 have been applied */
     char *checkpoints; /* the kind's folder when it keeps checkpoints there (checkpoint.h) */
@@ -253,6 +254,7 @@ int mr_renderer_new(mr_device *dev, const mr_job *job, mr_asset *const *assets,
             goto fail;
         }
         o->animated = object_is_animated(o->desc, job->frame_count);
+        o->view_dependent = o->kind->has_lod && o->desc->tolerance_px > 0 && job->frame_count >= 2;
         for (size_t k = 0; k < o->desc->pose_count && !o->kind->self_posed; k++)
             if ((rc = mr_pose_desc_check(o->asset, &o->desc->poses[k], err)) < 0) {
                 if (o->desc->pose_count == 1)
@@ -467,7 +469,7 @@ static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *fra
     *changed = false;
     for (size_t i = 0; i < r->object_count; i++) {
         object_state *o = &r->objects[i];
-        if (o->posed_once && !o->animated && !r->opt.force_rebuild)
+        if (o->posed_once && !o->animated && !o->view_dependent && !r->opt.force_rebuild)
             continue;
         if (!o->posed_once || o->animated) {
             if (o->kind->frame_order == MR_FRAMES_SEQUENTIAL &&
@@ -477,6 +479,12 @@ static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *fra
                 return rc;
             o->stepped = index + 1;
             checkpoint_due(o);
+        } else if (o->view_dependent) {
+            mr_geom_frame view = *frame;
+            view.view_only = true;
+            if ((rc = o->kind->update(o->geom, &view, o->kind->self_posed ? NULL : o->pose,
+                                      &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
+                return rc;
         }
         o->kind->commit(o->geom);
         o->posed_once = true;
@@ -654,6 +662,37 @@ static int passes_setup(mr_renderer *r, mr_error *err)
  * pass (the reference's scene diagonal is the unit of depth: a
  * tessellation's box is the tighter, user geometry's boxes are
  * conservative). */
+/* A renderer's scene as a surface probe (mr_surface_probe): one ray of the
+ * frame's camera per call. */
+typedef struct scene_probe {
+    mr_surface_probe probe;
+    RTCScene scene;
+    mr_camera_rays rays;
+    mr_vec3 forward;
+} scene_probe;
+
+static double probe_depth(void *ctx, double px, double py)
+{
+    const scene_probe *sp = ctx;
+    mr_vec3 d = mr_camera_rays_dir(&sp->rays, (float)px, (float)py);
+    struct RTCRayHit rh = {.ray = {.org_x = sp->rays.origin.x, .org_y = sp->rays.origin.y,
+                                   .org_z = sp->rays.origin.z, .dir_x = d.x, .dir_y = d.y,
+                                   .dir_z = d.z, .tnear = 0, .tfar = INFINITY, .mask = ~0u},
+                           .hit = {.geomID = RTC_INVALID_GEOMETRY_ID}};
+    struct RTCIntersectContext ctx1;
+    rtcInitIntersectContext(&ctx1);
+    rtcIntersect1(sp->scene, &ctx1, &rh);
+    return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? -1.0 : rh.ray.tfar * mr_v3_dot(d, sp->forward);
+}
+
+static scene_probe probe_of(const mr_renderer *r, const mr_camera *camera, const mr_film *film)
+{
+    scene_probe sp = {.scene = r->scene,
+                      .rays = mr_camera_rays_setup(camera, film->width, film->height),
+                      .forward = mr_quat_rotate(camera->rotation, mr_v3(0, 0, -1))};
+    return sp;
+}
+
 static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
                             const mr_camera *camera, mr_frame_stats *st, mr_error *err)
 {
@@ -670,6 +709,11 @@ static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
             mr_error_prefix(err, "%s reference pass: ", name);
             return rc;
         }
+        /* both scenes are posed for this frame: look between pixel centres */
+        scene_probe main = probe_of(r, camera, film), other = probe_of(p->renderer, camera, film);
+        main.probe = (mr_surface_probe){probe_depth, &main};
+        other.probe = (mr_surface_probe){probe_depth, &other};
+        c.surface_px = mr_film_surface_px(film, p->film, &main.probe, &other.probe);
         st->errors[st->error_count++] = (mr_frame_error){
             .reference = p->pass.type,
             .coverage_error_pct = c.coverage_pct,
@@ -679,6 +723,7 @@ static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
             .normal_mean_deg = c.normal_mean_deg,
             .psnr_rgb_db = c.psnr_rgb,
             .speckle_pct = ref.speckle_pct,
+            .surface_px = c.surface_px,
         };
     }
     return MR_OK;

@@ -418,6 +418,90 @@ static void test_speckles(void **state)
     mr_film_free(f);
 }
 
+/* A 40x30 film whose camera sees a pixel as 1/40 of a unit at depth 1
+ * (tan(yfov / 2) = 0.375), with a square of hits x in [10, 25), y in
+ * [8, 20) at depth z. */
+static mr_film *square(float z, int shift_x)
+{
+    mr_film *f = film(40, 30);
+    f->has_camera = true;
+    f->yfov = (float)(2.0 * atan(0.375));
+    for (int y = 8; y < 20; y++)
+        for (int x = 10 + shift_x; x < 25 + shift_x; x++)
+            hit(f, (size_t)y * 40 + (size_t)x, z, 0, 0, 1);
+    return f;
+}
+
+/* surface_px: how far apart two surfaces are on screen, in closed form. At
+ * depth 8 a unit spans 1 / (8 * 2 * 0.375 / 30) = 5 pixels. The only error
+ * is float yfov and double rounding: 1e-5 px. */
+static void test_surface_px(void **state)
+{
+    (void)state;
+    mr_compare_result r;
+    mr_error err = {0};
+    mr_film *a = square(8.0f, 0);
+
+    mr_film *b = square(8.0f, 0); /* equal films: 0 */
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_true(r.surface_px == 0.0);
+    mr_film_free(b);
+
+    /* moved 3 pixels sideways: the 3 uncovered columns of either are 3
+     * pixels from the other's nearest hit, less the half pixel the edge
+     * sits between centres */
+    b = square(8.0f, 3);
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_float_equal(r.surface_px, 2.5, 1e-5);
+    mr_film_free(b);
+
+    /* moved 0.4 away along the view: 0.4 * 5 = 2 pixels at a's depth (and
+     * 0.4 / (8.4 * 0.025) = 1.905 at b's: the larger counts), where depth_max
+     * gives the same 0.4 whatever the distance */
+    b = square(8.4f, 0);
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_float_equal(r.surface_px, 0.4 * 5.0, 1e-5);
+    mr_film_free(b);
+
+    /* a surface at a grazing angle (depth steps by 1 a pixel) moved 0.5
+     * along the view: within the depths its pixels span, so not counted,
+     * where depth_max reads 0.5 */
+    mr_film *g = square(8.0f, 0), *h = square(8.0f, 0);
+    for (int y = 8; y < 20; y++)
+        for (int x = 10; x < 25; x++) {
+            g->z[y * 40 + x] = 8.0f + (float)(x - 10);
+            h->z[y * 40 + x] = 8.5f + (float)(x - 10);
+        }
+    assert_int_equal(mr_film_compare(g, h, 1.0, &r, &err), MR_OK);
+    assert_true(r.surface_px == 0.0);
+    assert_float_equal(r.depth_max, 0.5, TOL);
+    /* ... but 3 steps off is not: h(x) = g(x + 3). A pixel whose
+     * neighbour column of h matches within the spans reads half a pixel;
+     * g's first column has none: its own pixel of h is 3 - (1 + 1) = 1
+     * unit beyond the spans, at depth 8: 5 pixels, the largest */
+    for (int y = 8; y < 20; y++)
+        for (int x = 10; x < 25; x++)
+            h->z[y * 40 + x] = 11.0f + (float)(x - 10);
+    assert_int_equal(mr_film_compare(g, h, 1.0, &r, &err), MR_OK);
+    assert_float_equal(r.surface_px, 5.0, 1e-5);
+    mr_film_free(g);
+    mr_film_free(h);
+
+    /* a hit with nothing of the other within the window (8 pixels) counts
+     * the window plus one */
+    b = square(8.0f, 0);
+    hit(b, 2 * 40 + 38, 8.0f, 0, 0, 1); /* (38, 2): 13 columns from the square */
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_true(r.surface_px == MR_SURFACE_WINDOW + 1);
+
+    /* films without a camera: no way to place the points; 0 */
+    a->has_camera = b->has_camera = false;
+    assert_int_equal(mr_film_compare(a, b, 10.0, &r, &err), MR_OK);
+    assert_true(r.surface_px == 0.0);
+    mr_film_free(b);
+    mr_film_free(a);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -425,6 +509,7 @@ int main(void)
         cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
         cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
         cmocka_unit_test(test_holes),     cmocka_unit_test(test_strays),     cmocka_unit_test(test_speckles),
+        cmocka_unit_test(test_surface_px),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

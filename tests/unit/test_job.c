@@ -245,6 +245,24 @@ static void test_rfc_numbers(void **state)
     mr_job_free(job);
 }
 
+/* "tolerance_px": the job's is every object's default, an object's own (or
+ * null: off) overrides it; absent everywhere: 0, off. */
+static void test_tolerance(void **state)
+{
+    (void)state;
+    mr_job *job = parse_ok("{" NO_OBJECTS ",'tolerance_px':2.5,'objects':[{'asset':'m'},"
+                           "{'asset':'m','tolerance_px':0.25},{'asset':'m','tolerance_px':null}]}");
+    assert_true(job->tolerance_px == 2.5);
+    assert_true(job->objects[0].tolerance_px == 2.5);
+    assert_true(job->objects[1].tolerance_px == 0.25);
+    assert_true(job->objects[2].tolerance_px == 0);
+    mr_job_free(job);
+    job = parse_ok("{" NO_OBJECTS ",'objects':[{'asset':'m'},{'asset':'m','tolerance_px':1000}]}");
+    assert_true(job->tolerance_px == 0 && job->objects[0].tolerance_px == 0);
+    assert_true(job->objects[1].tolerance_px == MR_MAX_TOLERANCE_PX);
+    mr_job_free(job);
+}
+
 static void test_defaults(void **state)
 {
     (void)state;
@@ -827,7 +845,8 @@ int main(void)
         cmocka_unit_test(test_frame_ranges),    cmocka_unit_test(test_order_and_variants),
         cmocka_unit_test(test_camera_node),     cmocka_unit_test(test_caps),
         cmocka_unit_test(test_raw_bytes),       cmocka_unit_test(test_examples),
-        cmocka_unit_test(test_daemon_fields),   cmocka_unit_test(test_asset_refine),
+        cmocka_unit_test(test_daemon_fields),
+        cmocka_unit_test(test_tolerance),   cmocka_unit_test(test_asset_refine),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -304,9 +304,9 @@ static mr_frame_stats reference_fixture(int i)
     f.reference_s = 0.5 + i;
     f.error_count = 2;
     f.errors[0] = (mr_frame_error){MR_REFERENCE_TESSELLATED, 0, 0, 1e-7 * i, 2.5e-7, 0.125,
-                                   MR_PSNR_IDENTICAL, 0.25};
+                                   MR_PSNR_IDENTICAL, 0.25, 0};
     f.errors[1] = (mr_frame_error){MR_REFERENCE_GROUND_TRUTH, 1.0 + i, (uint64_t)(3 * i), 0.001,
-                                   0.01 * (3 - i), 2.5, 40.0 - i, 1.0 / 3.0};
+                                   0.01 * (3 - i), 2.5, 40.0 - i, 1.0 / 3.0, 0.5 * i};
     return f;
 }
 
@@ -328,9 +328,9 @@ static void test_reference_errors(void **state)
         "\"scene_diagonal\":0.10000000149011612,\"speckle_pct\":33.333333333333336,"
         "\"error\":[{\"reference\":\"tessellated\",\"coverage_error_pct\":0,\"holes\":0,"
         "\"depth_rmse\":1e-07,\"depth_max\":2.5e-07,\"normal_mean_deg\":0.125,\"psnr_rgb_db\":999,"
-        "\"speckle_pct\":0.25},{\"reference\":\"ground_truth\",\"coverage_error_pct\":2,\"holes\":3,"
-        "\"depth_rmse\":0.001,\"depth_max\":0.02,\"normal_mean_deg\":2.5,\"psnr_rgb_db\":39,"
-        "\"speckle_pct\":0.33333333333333331}],\"simulate_s\":0.02}";
+        "\"speckle_pct\":0.25,\"surface_px\":0},{\"reference\":\"ground_truth\",\"coverage_error_pct\":2,"
+        "\"holes\":3,\"depth_rmse\":0.001,\"depth_max\":0.02,\"normal_mean_deg\":2.5,\"psnr_rgb_db\":39,"
+        "\"speckle_pct\":0.33333333333333331,\"surface_px\":0.5}],\"simulate_s\":0.02}";
     expect_text(s, want);
 
     /* read back: the table's fields and the entries */

@@ -51,9 +51,9 @@ static mr_frame_stats frame(int i)
     if (i > 0) {
         f.reference_s = 0.05 * i;
         f.error_count = i == 2 ? 1 : 2;
-        f.errors[0] = (mr_frame_error){MR_REFERENCE_TESSELLATED, 0, 0, 1e-7, 2e-7, 0.01, 140, 0.5};
+        f.errors[0] = (mr_frame_error){MR_REFERENCE_TESSELLATED, 0, 0, 1e-7, 2e-7, 0.01, 140, 0.5, 0};
         f.errors[1] = (mr_frame_error){MR_REFERENCE_GROUND_TRUTH, 0.5 * i, (uint64_t)i, 1e-3, 1e-2,
-                                       3.0, 40 - i, 0.6};
+                                       3.0, 40 - i, 0.6, 1.5};
     }
     return f;
 }

@@ -13,6 +13,7 @@
 
 #include "kinds/dmm/dmm_encode.h"
 #include "kinds/dmm/micromesh.h"
+#include "math/closest_mesh.h"
 #include "util/parallel.h"
 
 mr_dmm_bake_params mr_dmm_bake_params_default(void)
@@ -53,111 +54,30 @@ size_t mr_dmm_bake_memory(const mr_dmm_bake *b)
     return bytes;
 }
 
-/* ---- closest point on a triangle (Ericson, Real-Time Collision Detection,
- * 5.1.5, written here in double), for the error report ---- */
+/* ---- double-precision vectors ---- */
 
 typedef struct d3 { double x, y, z; } d3;
 static d3 d3_sub(d3 a, d3 b) { return (d3){a.x - b.x, a.y - b.y, a.z - b.z}; }
 static double d3_dot(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-static d3 d3_mad(d3 a, d3 b, double s) { return (d3){a.x + b.x * s, a.y + b.y * s, a.z + b.z * s}; }
-
-static double point_triangle_dist2(d3 p, d3 a, d3 b, d3 c, d3 *closest)
-{
-    d3 ab = d3_sub(b, a), ac = d3_sub(c, a), ap = d3_sub(p, a), q;
-    double d1 = d3_dot(ab, ap), d2 = d3_dot(ac, ap);
-    if (d1 <= 0 && d2 <= 0) {
-        q = a;
-        goto done;
-    }
-    d3 bp = d3_sub(p, b);
-    double d3v = d3_dot(ab, bp), d4 = d3_dot(ac, bp);
-    if (d3v >= 0 && d4 <= d3v) {
-        q = b;
-        goto done;
-    }
-    double vc = d1 * d4 - d3v * d2;
-    if (vc <= 0 && d1 >= 0 && d3v <= 0) {
-        q = d3_mad(a, ab, d1 / (d1 - d3v));
-        goto done;
-    }
-    d3 cp = d3_sub(p, c);
-    double d5 = d3_dot(ab, cp), d6 = d3_dot(ac, cp);
-    if (d6 >= 0 && d5 <= d6) {
-        q = c;
-        goto done;
-    }
-    double vb = d5 * d2 - d1 * d6;
-    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-        q = d3_mad(a, ac, d2 / (d2 - d6));
-        goto done;
-    }
-    double va = d3v * d6 - d5 * d4;
-    if (va <= 0 && (d4 - d3v) >= 0 && (d5 - d6) >= 0) {
-        q = d3_mad(b, d3_sub(c, b), (d4 - d3v) / ((d4 - d3v) + (d5 - d6)));
-        goto done;
-    }
-    {
-        double denom = va + vb + vc;
-        if (!(denom > 0)) { /* degenerate triangle: its vertices are close enough */
-            double da = d3_dot(ap, ap), db = d3_dot(bp, bp), dc = d3_dot(cp, cp);
-            *closest = da <= db && da <= dc ? a : db <= dc ? b : c;
-            return fmin(da, fmin(db, dc));
-        }
-        q = d3_mad(d3_mad(a, ab, vb / denom), ac, vc / denom);
-    }
-done : {
-    *closest = q;
-    d3 e = d3_sub(p, q);
-    return d3_dot(e, e);
-}
-}
-
-typedef struct closest_ctx {
-    const float *pos;
-    const uint32_t *idx;
-    double best2;
-    d3 best;
-} closest_ctx;
 
 static d3 vtx(const float *pos, uint32_t i) { return (d3){pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]}; }
 
-static bool closest_cb(struct RTCPointQueryFunctionArguments *args)
-{
-    closest_ctx *c = args->userPtr;
-    const uint32_t *t = c->idx + 3 * (size_t)args->primID;
-    d3 p = {args->query->x, args->query->y, args->query->z};
-    d3 q;
-    double dd = point_triangle_dist2(p, vtx(c->pos, t[0]), vtx(c->pos, t[1]), vtx(c->pos, t[2]), &q);
-    if (dd < c->best2) {
-        c->best2 = dd;
-        c->best = q;
-        /* float radius rounded up so the true closest is never culled */
-        args->query->radius = nextafterf((float)sqrt(dd), INFINITY);
-        return true;
-    }
-    return false;
-}
-
 /* Distance from p to the detailed mesh; *at (may be NULL) gets the closest
  * point. */
-static double closest_point(RTCScene scene, const float *pos, const uint32_t *idx, mr_vec3 p,
-                            d3 *at)
+static double closest_point(const mr_closest_mesh *m, mr_vec3 p, d3 *at)
 {
-    struct RTCPointQuery q;
-    q.x = p.x, q.y = p.y, q.z = p.z, q.time = 0, q.radius = INFINITY;
-    struct RTCPointQueryContext qc;
-    rtcInitPointQueryContext(&qc);
-    closest_ctx c = {pos, idx, INFINITY, {0, 0, 0}};
-    rtcPointQuery(scene, &q, &qc, closest_cb, &c);
+    double q[3] = {p.x, p.y, p.z}, c[3];
+    double d = mr_closest_mesh_distance(m, q, c);
     if (at)
-        *at = c.best;
-    return sqrt(c.best2);
+        *at = (d3){c[0], c[1], c[2]};
+    return d;
 }
 
 /* ---- per-triangle bake, run in parallel ---- */
 
 typedef struct bake_ctx {
-    RTCScene scene;
+    RTCScene scene;               /* the detailed mesh's (closest) */
+    const mr_closest_mesh *closest;
     const float *detail_pos;      /* welded detailed positions */
     const uint32_t *detail_idx;   /* welded detailed indices */
     mr_dmm_bake *bake;
@@ -253,7 +173,7 @@ static float displacement(const bake_ctx *c, const mr_umesh_tri *tri, const uint
     /* no crossing: the height, along d, of the nearest detailed point */
     *unmatched = true;
     d3 q;
-    closest_point(c->scene, c->detail_pos, c->detail_idx, p, &q);
+    closest_point(c->closest, p, &q);
     double h = d3_dot(d3_sub(q, (d3){p.x, p.y, p.z}), (d3){d.x, d.y, d.z}) / ((double)len * len);
     return (float)fmax(-(double)tfar, fmin((double)tfar, h));
 }
@@ -284,7 +204,7 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
         mr_umesh_eval_all(&tri, level, decimate, disp, pts, NULL);
         double s2 = 0, mx = 0;
         for (uint32_t i = 0; i < mvc; i++) {
-            double dd = closest_point(c->scene, c->detail_pos, c->detail_idx, pts[i], NULL);
+            double dd = closest_point(c->closest, pts[i], NULL);
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
@@ -293,7 +213,7 @@ static void bake_range(void *vctx, size_t begin, size_t end, unsigned worker)
             const uint32_t *idx = c->topo.tris[level][decimate] + 3 * k;
             mr_vec3 cen = mr_v3_scale(mr_v3_add(mr_v3_add(pts[idx[0]], pts[idx[1]]), pts[idx[2]]),
                                       1.0f / 3.0f);
-            double dd = closest_point(c->scene, c->detail_pos, c->detail_idx, cen, NULL);
+            double dd = closest_point(c->closest, cen, NULL);
             s2 += dd * dd;
             mx = fmax(mx, dd);
         }
@@ -482,8 +402,7 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
     uint32_t *remap = NULL, *rep = NULL, *widx = NULL, *sidx = NULL, *bmap = NULL;
     float *wpos = NULL, *reach = NULL;
     mr_dmm_bake *b = NULL;
-    RTCDevice device = NULL;
-    RTCScene scene = NULL;
+    mr_closest_mesh closest = {0};
     bake_ctx ctx;
     memset(&ctx, 0, sizeof ctx);
     if (out)
@@ -603,38 +522,16 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
         goto nomem;
 
     /* 4. Embree scene of the (welded) detailed mesh */
-    device = rtcNewDevice(NULL);
-    if (!device) {
-        rc = mr_error_set(err, MR_ERR_EMBREE, "dmm bake: rtcNewDevice failed");
+    if ((rc = mr_closest_mesh_init(&closest, NULL, wpos, nw, widx, (uint32_t)(wi / 3), "dmm bake",
+                                   err)) < 0)
         goto cleanup;
-    }
-    scene = rtcNewScene(device);
-    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
-    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    float *vb = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                        3 * sizeof(float), nw);
-    unsigned *ib = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                           3 * sizeof(unsigned), wi / 3);
-    if (vb && ib) {
-        memcpy(vb, wpos, nw * 3 * sizeof(float));
-        memcpy(ib, widx, wi * sizeof(unsigned));
-        rtcCommitGeometry(geom);
-        rtcAttachGeometry(scene, geom);
-    }
-    rtcReleaseGeometry(geom);
-    rtcCommitScene(scene);
-    enum RTCError e = rtcGetDeviceError(device);
-    if (e != RTC_ERROR_NONE || !vb || !ib) {
-        rc = mr_error_set(err, e == RTC_ERROR_OUT_OF_MEMORY ? MR_ERR_NOMEM : MR_ERR_EMBREE,
-                          "dmm bake: building the Embree scene failed (error %d)", (int)e);
-        goto cleanup;
-    }
 
     /* 5. displacements and error report per base triangle */
     unsigned threads = params->threads ? params->threads : mr_cpu_count();
     if (threads > MR_MAX_THREADS)
         threads = MR_MAX_THREADS;
-    ctx.scene = scene;
+    ctx.scene = closest.scene;
+    ctx.closest = &closest;
     ctx.detail_pos = wpos;
     ctx.detail_idx = widx;
     ctx.bake = b;
@@ -685,10 +582,7 @@ cleanup:
     free(ctx.scratch);
     free(reach);
     mr_umesh_topology_free(&ctx.topo);
-    if (scene)
-        rtcReleaseScene(scene);
-    if (device)
-        rtcReleaseDevice(device);
+    mr_closest_mesh_free(&closest);
     mr_dmm_bake_free(b);
     free(remap);
     free(rep);

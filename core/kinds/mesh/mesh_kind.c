@@ -9,6 +9,14 @@
  * one float of padding because Embree loads vertices with 16-byte reads.
  *
  * The exact reference of a triangle mesh is itself.
+ *
+ * With "tolerance_px" the mesh has levels of detail (mesh_lod.h): each
+ * level its own Embree geometry over the one skinned vertex array (so the
+ * object takes one geometry id per level), and each frame enables only the
+ * coarsest level whose error, projected by the frame's camera at the posed
+ * mesh's nearest depth, stays below the tolerance. Primitive ids, normals
+ * and the tessellation are the chosen level's; its ground truth is the
+ * full mesh (kind.h `reference`).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -16,23 +24,51 @@
 
 #include "kinds/mesh/mesh_kind.h"
 
+#include "kinds/mesh/mesh_lod.h"
+#include "util/clock.h"
+
 struct mr_geom {
     const mr_asset *asset;
     uint32_t vertex_count, triangle_count;
     uint32_t *mesh_first_vertex; /* per asset mesh: offset into the merged arrays */
     float *positions;            /* 3 per vertex + 1 float padding */
     float *normals;              /* 3 per vertex */
-    uint32_t *indices;           /* 3 per triangle, merged */
-    float max_coordinate;        /* largest |coordinate| after the last update */
-    RTCGeometry rtc;
+    uint32_t *indices;           /* 3 per triangle, merged: level 0 */
+    mr_vec3 lo, hi;              /* bounds of the posed mesh after the last update (with
+                                    levels: the coarsest's grown by its error) */
+    double tolerance_px;         /* 0: no levels of detail */
+    mr_mesh_lod lod;             /* level_count 1 without a tolerance */
+    double lod_build_s;
+    uint32_t level;              /* the level this frame traces */
+    double predicted_px;         /* its error projected by this frame's camera */
+    const uint32_t *cur_indices; /* lod.indices[level] */
+    uint32_t cur_triangles;
+    uint32_t enabled;            /* the level whose geometry is enabled, or UINT32_MAX */
+    uint32_t bounds_level;       /* the level whose bounds place the mesh each frame: the
+                                    coarsest within BOUNDS_ERROR of the diagonal */
+    uint32_t posed;              /* bit k: level k's vertices are posed for the current pose */
+    uint32_t dirty;              /* bit k: level k's vertices were posed since the last commit */
+    /* the vertices level k > 0 uses, as indices into asset mesh i:
+     * level_vertices[k][level_first[k][i] .. level_first[k][i + 1]) */
+    uint32_t *level_vertices[MR_MESH_LOD_MAX];
+    uint32_t *level_first[MR_MESH_LOD_MAX];
+    uint32_t *level_merged[MR_MESH_LOD_MAX]; /* the same vertices in the merged arrays */
+    RTCGeometry rtc[MR_MESH_LOD_MAX];
 };
 
 static void mesh_free(mr_geom *g)
 {
     if (!g)
         return;
-    if (g->rtc)
-        rtcReleaseGeometry(g->rtc);
+    for (uint32_t k = 0; k < MR_MESH_LOD_MAX; k++)
+        if (g->rtc[k])
+            rtcReleaseGeometry(g->rtc[k]);
+    for (uint32_t k = 1; k < MR_MESH_LOD_MAX; k++) {
+        free(g->level_vertices[k]);
+        free(g->level_first[k]);
+        free(g->level_merged[k]);
+    }
+    mr_mesh_lod_free(&g->lod);
     free(g->mesh_first_vertex);
     free(g->positions);
     free(g->normals);
@@ -40,11 +76,109 @@ static void mesh_free(mr_geom *g)
     free(g);
 }
 
+/* Each frame a level of detail places the mesh by the bounds of a coarse
+ * level grown by its error: the coarsest level whose error is within this
+ * fraction of the rest pose's bounding-box diagonal, so the growth moves
+ * the nearest depth by little. */
+#define BOUNDS_ERROR 0.02
+
+static double asset_diagonal(const mr_asset *a)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < a->mesh_count; i++)
+        for (size_t v = 0; v < (size_t)a->meshes[i].vertex_count * 3; v++) {
+            double x = a->meshes[i].positions[v];
+            lo[v % 3] = fmin(lo[v % 3], x);
+            hi[v % 3] = fmax(hi[v % 3], x);
+        }
+    double d2 = 0;
+    for (int c = 0; c < 3; c++)
+        d2 += hi[c] > lo[c] ? (hi[c] - lo[c]) * (hi[c] - lo[c]) : 0;
+    return sqrt(d2);
+}
+
+/* Poses of the object's clip the levels are measured in besides the rest
+ * pose, evenly over one run of the clip, and the share of the distinct
+ * positions sampled in each (the coarse levels' misfits in a pose span
+ * limbs, not single vertices). */
+#define LOD_POSES 4
+#define LOD_POSE_STRIDE 4
+
+/* The levels measured again in LOD_POSES poses of the object's first pose
+ * description (mesh_lod.h, mr_mesh_lod_measure), when it plays a clip or
+ * moves joints. */
+static int measure_in_poses(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    if (!desc || desc->pose_count == 0 || g->lod.level_count < 2)
+        return MR_OK;
+    const mr_pose_desc *d = &desc->poses[0];
+    double duration = 0;
+    if (d->has_clip && !d->has_time) {
+        int ci = d->clip_name ? mr_asset_find_clip(a, d->clip_name) : d->clip_index;
+        if (ci >= 0 && (size_t)ci < a->clip_count && d->speed != 0)
+            duration = a->clips[ci].duration / fabs(d->speed);
+    }
+    mr_pose *pose = NULL;
+    float *posed = malloc(((size_t)g->vertex_count * 3 + 1) * sizeof(float));
+    int rc = posed ? mr_pose_new(a, &pose, err)
+                   : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
+    for (int j = 0; j < LOD_POSES && rc == MR_OK; j++) {
+        /* a pose fixed in time (or without a clip) is one pose */
+        if (j > 0 && !(duration > 0))
+            break;
+        if ((rc = mr_pose_eval(pose, a, d, duration * (j + 0.5) / LOD_POSES, err)) < 0)
+            break;
+        for (size_t i = 0; i < a->mesh_count; i++)
+            mr_skin_mesh(a, i, pose, NULL, posed + (size_t)g->mesh_first_vertex[i] * 3, NULL,
+                         threads);
+        rc = mr_mesh_lod_measure(&g->lod, posed, g->vertex_count, LOD_POSE_STRIDE, threads,
+                                 a->path, err);
+    }
+    mr_pose_free(pose);
+    free(posed);
+    return rc;
+}
+
+/* Which vertices each level beyond 0 uses (mr_geom level_vertices). */
+static bool level_vertex_lists(mr_geom *g)
+{
+    const mr_asset *a = g->asset;
+    uint8_t *used = malloc(g->vertex_count ? g->vertex_count : 1);
+    if (!used)
+        return false;
+    bool ok = true;
+    for (uint32_t k = 1; k < g->lod.level_count && ok; k++) {
+        memset(used, 0, g->vertex_count);
+        uint32_t n = 0;
+        for (size_t e = 0; e < (size_t)g->lod.triangles[k] * 3; e++) {
+            n += !used[g->lod.indices[k][e]];
+            used[g->lod.indices[k][e]] = 1;
+        }
+        g->level_vertices[k] = malloc((n ? n : 1) * sizeof(uint32_t));
+        g->level_merged[k] = malloc((n ? n : 1) * sizeof(uint32_t));
+        g->level_first[k] = malloc((a->mesh_count + 1) * sizeof(uint32_t));
+        if (!(ok = g->level_vertices[k] && g->level_merged[k] && g->level_first[k]))
+            break;
+        uint32_t j = 0;
+        for (size_t i = 0; i < a->mesh_count; i++) {
+            g->level_first[k][i] = j;
+            uint32_t first = g->mesh_first_vertex[i];
+            for (uint32_t v = 0; v < a->meshes[i].vertex_count; v++)
+                if (used[first + v]) {
+                    g->level_vertices[k][j] = v;
+                    g->level_merged[k][j++] = first + v;
+                }
+        }
+        g->level_first[k][a->mesh_count] = j;
+    }
+    free(used);
+    return ok;
+}
+
 static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const mr_kind_context *ctx,
                        mr_geom **out, mr_error *err)
 {
-    (void)desc;
-    (void)ctx;
     *out = NULL;
     uint64_t nv = 0, nt = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
@@ -77,6 +211,39 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
         v0 += m->vertex_count;
         t0 += m->triangle_count;
     }
+    g->tolerance_px = desc ? desc->tolerance_px : 0;
+    g->lod = (mr_mesh_lod){.level_count = 1, .indices = {g->indices}, .triangles = {g->triangle_count}};
+    if (g->tolerance_px > 0) {
+        /* the rest pose's merged positions and normals (update overwrites them) */
+        for (size_t i = 0; i < asset->mesh_count; i++) {
+            size_t at = (size_t)g->mesh_first_vertex[i] * 3,
+                   bytes = (size_t)asset->meshes[i].vertex_count * 3 * sizeof(float);
+            memcpy(g->positions + at, asset->meshes[i].positions, bytes);
+            memcpy(g->normals + at, asset->meshes[i].normals, bytes);
+        }
+        double t = mr_now();
+        mr_error e;
+        int rc = mr_mesh_lod_build(&g->lod, g->positions, g->normals, g->vertex_count, g->indices,
+                                   g->triangle_count, ctx ? ctx->threads : 0, asset->path, &e);
+        if (rc < 0) {
+            mesh_free(g);
+            return mr_error_set(err, rc, "%s", e.msg);
+        }
+        g->lod_build_s = mr_now() - t;
+        if (!level_vertex_lists(g))
+            goto nomem;
+        if ((rc = measure_in_poses(g, desc, ctx ? ctx->threads : 0, &e)) < 0) {
+            mesh_free(g);
+            return mr_error_set(err, rc, "%s", e.msg);
+        }
+        double diag = asset_diagonal(asset);
+        for (uint32_t k = 1; k < g->lod.level_count; k++)
+            if (g->lod.error[k] <= BOUNDS_ERROR * diag)
+                g->bounds_level = k;
+    }
+    g->cur_indices = g->indices;
+    g->cur_triangles = g->triangle_count;
+    g->enabled = UINT32_MAX;
     *out = g;
     return MR_OK;
 nomem:
@@ -85,42 +252,130 @@ nomem:
                         (unsigned long long)nt);
 }
 
-static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
-                       mr_error *err)
+/* Poses level k's vertices (level 0: all of them) and checks them: a
+ * transform or pose can scale finite file data past what Embree can build
+ * over; the frame is refused rather than hand it inf or 1e30. */
+static int pose_level(mr_geom *g, uint32_t k, const mr_pose *pose, const mr_mat4 *transform,
+                      unsigned threads, mr_error *err)
 {
-    (void)frame; /* posed geometry does not depend on the view */
-    for (size_t i = 0; i < g->asset->mesh_count; i++) {
+    const mr_asset *a = g->asset;
+    for (size_t i = 0; i < a->mesh_count; i++) {
         size_t off = (size_t)g->mesh_first_vertex[i] * 3;
-        mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
+        if (k == 0)
+            mr_skin_mesh(a, i, pose, transform, g->positions + off, g->normals + off, threads);
+        else
+            mr_skin_mesh_vertices(a, i, pose, transform, g->level_vertices[k] + g->level_first[k][i],
+                                  g->level_first[k][i + 1] - g->level_first[k][i],
+                                  g->positions + off, g->normals + off, threads);
     }
-    /* A transform or pose can scale finite file data past what Embree can
-     * build over; refuse the frame rather than hand it inf or 1e30. */
-    float biggest = 0;
-    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++) {
-        float a = fabsf(g->positions[k]);
-        biggest = a > biggest ? a : biggest;
-        if (!(a <= MR_MAX_COORDINATE))
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "%s: posed vertex %zu has a coordinate of %g (limit %g): check the "
-                                "object's transform and pose",
-                                g->asset->path, k / 3, (double)g->positions[k], MR_MAX_COORDINATE);
+    size_t count = k == 0 ? g->vertex_count : g->level_first[k][a->mesh_count];
+    for (size_t j = 0; j < count; j++) {
+        size_t v = k == 0 ? j : g->level_merged[k][j];
+        for (int c = 0; c < 3; c++)
+            if (!(fabsf(g->positions[3 * v + c]) <= MR_MAX_COORDINATE))
+                return mr_error_set(err, MR_ERR_INVALID,
+                                    "%s: posed vertex %zu has a coordinate of %g (limit %g): check "
+                                    "the object's transform and pose",
+                                    a->path, v, (double)g->positions[3 * v + c], MR_MAX_COORDINATE);
     }
-    g->max_coordinate = biggest;
+    g->posed |= 1u << k;
+    g->dirty |= 1u << k;
     return MR_OK;
 }
 
+/* The bounds of level k's posed vertices grown by pad. */
+static void level_bounds(mr_geom *g, uint32_t k, float pad)
+{
+    mr_vec3 lo = mr_v3(INFINITY, INFINITY, INFINITY), hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    size_t count = k == 0 ? g->vertex_count : g->level_first[k][g->asset->mesh_count];
+    for (size_t j = 0; j < count; j++) {
+        size_t v = k == 0 ? j : g->level_merged[k][j];
+        mr_vec3 p = mr_v3(g->positions[3 * v], g->positions[3 * v + 1], g->positions[3 * v + 2]);
+        lo = mr_v3_min(lo, p);
+        hi = mr_v3_max(hi, p);
+    }
+    g->lo = mr_v3_sub(lo, mr_v3(pad, pad, pad));
+    g->hi = mr_v3_add(hi, mr_v3(pad, pad, pad));
+}
+
+/* Without levels: the whole mesh posed. With levels: the bounds level
+ * posed first; its bounds grown by its error (the full mesh lies within
+ * that distance of it) say how near the mesh comes to the camera, which
+ * picks the coarsest level whose error projected there stays below the
+ * tolerance; then that level's vertices are posed, unless they already are
+ * for this pose (a frame where only the camera moved). */
+static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                       mr_error *err)
+{
+    int rc;
+    if (!(frame && frame->view_only))
+        g->posed = 0;
+    uint32_t b = g->bounds_level;
+    if (!(g->posed & 1u << b)) {
+        if ((rc = pose_level(g, b, pose, transform, threads, err)) < 0)
+            return rc;
+        double stretch = transform ? mr_mesh_lod_stretch(transform) : 1.0;
+        level_bounds(g, b, (float)(g->lod.error[b] * stretch));
+    }
+    g->level = 0;
+    g->predicted_px = 0;
+    if (g->lod.level_count > 1 && frame) {
+        double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, g->lo, g->hi);
+        double stretch = transform ? mr_mesh_lod_stretch(transform) : 1.0;
+        g->level = mr_mesh_lod_pick(&g->lod, px * stretch, g->tolerance_px, &g->predicted_px);
+    }
+    if (!(g->posed & 1u << g->level) &&
+        (rc = pose_level(g, g->level, pose, transform, threads, err)) < 0)
+        return rc;
+    g->cur_indices = g->lod.indices[g->level];
+    g->cur_triangles = g->lod.triangles[g->level];
+    return MR_OK;
+}
+
+/* One geometry per level, all over the one vertex array; only the frame's
+ * level is enabled (commit). Levels are rebuilt (LOW), never refitted: a
+ * refitted tree keeps the topology of the pose it was built in, which would
+ * be the pose of the frame that first enabled the level, and a resumed job
+ * must trace the uninterrupted run's trees. */
 static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                        enum RTCBuildQuality quality, mr_error *err)
 {
-    return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions, g->vertex_count,
-                                    g->indices, g->triangle_count, &g->rtc, err);
+    if (g->lod.level_count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
+        quality = RTC_BUILD_QUALITY_LOW;
+    for (uint32_t k = 0; k < g->lod.level_count; k++) {
+        int rc = mr_geom_attach_triangles(device, scene, geom_id + k, quality, g->positions,
+                                          g->vertex_count, g->lod.indices[k], g->lod.triangles[k],
+                                          &g->rtc[k], err);
+        if (rc < 0)
+            return rc;
+        if (g->lod.level_count > 1)
+            rtcDisableGeometry(g->rtc[k]);
+    }
+    g->enabled = g->lod.level_count > 1 ? UINT32_MAX : 0;
+    return MR_OK;
 }
 
-static void mesh_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
+static void mesh_commit(mr_geom *g)
+{
+    if (g->enabled != g->level) {
+        if (g->enabled != UINT32_MAX)
+            rtcDisableGeometry(g->rtc[g->enabled]);
+        rtcEnableGeometry(g->rtc[g->level]);
+        g->enabled = g->level;
+    }
+    /* the levels posed since the last commit (a disabled one is built when
+     * it is enabled; one posed for an older pose is posed again first) */
+    for (uint32_t k = 0; k < g->lod.level_count; k++)
+        if (g->dirty & 1u << k)
+            mr_geom_commit_vertices(g->rtc[k]);
+    g->dirty = 0;
+}
+
+static uint32_t mesh_geometry_ids(const mr_geom *g) { return g->lod.level_count; }
 
 static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
-    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const uint32_t *tri = g->cur_indices + (size_t)prim * 3;
     const float *n0 = g->normals + (size_t)tri[0] * 3;
     const float *n1 = g->normals + (size_t)tri[1] * 3;
     const float *n2 = g->normals + (size_t)tri[2] * 3;
@@ -142,7 +397,7 @@ static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
 static bool mesh_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                                mr_vec3 *lifted)
 {
-    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const uint32_t *tri = g->cur_indices + (size_t)prim * 3;
     const float w[3] = {1.0f - u - v, u, v};
     mr_vec3 out = p;
     for (int k = 0; k < 3; k++) {
@@ -158,20 +413,69 @@ static bool mesh_shading_point(const mr_geom *g, unsigned prim, float u, float v
 
 static int mesh_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
-    return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
+    return mr_trimesh_copy(g->positions, g->vertex_count, g->cur_indices, g->cur_triangles, out, err);
+}
+
+/* The levels beyond 0: their triangles and the lists of their vertices. */
+static size_t lod_bytes(const mr_geom *g)
+{
+    size_t b = mr_mesh_lod_memory(&g->lod);
+    for (uint32_t k = 1; k < g->lod.level_count; k++)
+        b += (size_t)g->level_first[k][g->asset->mesh_count] * 2 * sizeof(uint32_t) +
+             (g->asset->mesh_count + 1) * sizeof(uint32_t);
+    return b;
 }
 
 static size_t mesh_memory(const mr_geom *g)
 {
     return ((size_t)g->vertex_count * 6 + 1) * sizeof(float) +
-           (size_t)g->triangle_count * 3 * sizeof(uint32_t);
+           (size_t)g->triangle_count * 3 * sizeof(uint32_t) + lod_bytes(g);
 }
 
-static uint64_t mesh_primitives(const mr_geom *g) { return g->triangle_count; }
+static uint64_t mesh_primitives(const mr_geom *g) { return g->cur_triangles; }
+
+/* Ground truth: with levels of detail, the full mesh (the reference pass
+ * draws its objects without a tolerance); without, none. */
+static int mesh_reference(const mr_object_desc *obj, mr_reference_type type,
+                          mr_reference_objects *out, mr_error *err)
+{
+    if (type == MR_REFERENCE_GROUND_TRUTH && !(obj->tolerance_px > 0))
+        return MR_OK;
+    return mr_reference_objects_add(out, obj, err);
+}
+
+enum { S_LEVEL, S_ERROR_PX, S_TRIANGLES, S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
+
+static const mr_kind_stat MESH_STATS[S_COUNT] = {
+    {"mesh_lod_level", "level",
+     "the level of detail traced (\"tolerance_px\"; 0: the full mesh, as without one)",
+     MR_STAT_MAX},
+    {"mesh_lod_error_px", "px",
+     "the level's predicted error: its measured distance to the full mesh, projected at the posed "
+     "mesh's nearest depth by this frame's camera", MR_STAT_MAX},
+    {"mesh_triangles", "count", "triangles traced (the chosen levels')", MR_STAT_SUM},
+    {"mesh_lod_bytes", "bytes", "what the levels beyond the full mesh hold (triangles, vertex lists)",
+     MR_STAT_SUM},
+    {"mesh_lod_build_s", "s", "simplifying the levels and measuring their error at creation",
+     MR_STAT_ONCE},
+};
+
+static void mesh_frame_stats(const mr_geom *g, double *values)
+{
+    values[S_LEVEL] = g->level;
+    values[S_ERROR_PX] = g->predicted_px;
+    values[S_TRIANGLES] = g->cur_triangles;
+    values[S_LOD_BYTES] = (double)lod_bytes(g);
+    values[S_LOD_BUILD_S] = g->lod_build_s;
+}
 
 const mr_kind mr_kind_mesh = {
     .name = "mesh",
     .summary = "triangle meshes, skinned or rigid (the default kind)",
+    .has_lod = true,
+    .stats = MESH_STATS,
+    .stat_count = S_COUNT,
+    .frame_stats = mesh_frame_stats,
     .create = mesh_create,
     .update = mesh_update,
     .attach = mesh_attach,
@@ -181,5 +485,7 @@ const mr_kind mr_kind_mesh = {
     .tessellate = mesh_tessellate,
     .memory = mesh_memory,
     .primitives = mesh_primitives,
+    .geometry_ids = mesh_geometry_ids,
+    .reference = mesh_reference,
     .free = mesh_free,
 };
