@@ -19,6 +19,7 @@ typedef struct error_ctx {
     const uint32_t *samples;           /* vertices at distinct positions (sample_count) */
     const uint32_t *level_idx;
     uint32_t sample_count;
+    uint32_t stride;                   /* every stride-th level triangle */
     double worst[MR_MAX_THREADS];
 } error_ctx;
 
@@ -28,8 +29,8 @@ static void vertex_point(const float *pos, uint32_t v, double p[3])
 }
 
 /* Items [0, sample_count): the full mesh's sampled positions against the
- * level; then one per level triangle: its centroid and edge midpoints
- * against the full mesh. */
+ * level; then one per stride-th level triangle: its centroid and edge
+ * midpoints against the full mesh. */
 static void error_range(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     error_ctx *c = vctx;
@@ -41,7 +42,7 @@ static void error_range(void *vctx, size_t begin, size_t end, unsigned worker)
             worst = fmax(worst, mr_closest_mesh_distance(c->level, p, NULL));
             continue;
         }
-        const uint32_t *t = c->level_idx + 3 * (i - c->sample_count);
+        const uint32_t *t = c->level_idx + 3 * (i - c->sample_count) * c->stride;
         double v[3][3];
         for (int k = 0; k < 3; k++)
             vertex_point(c->pos, t[k], v[k]);
@@ -85,8 +86,9 @@ int mr_mesh_lod_measure(mr_mesh_lod *lod, const float *pos, uint32_t nv, uint32_
                                        who, err)) < 0)
             break;
         error_ctx c = {.full = &full, .level = &lm, .pos = pos, .samples = samples,
-                       .level_idx = lod->indices[k], .sample_count = n};
-        mr_parallel_for(threads, (size_t)n + lod->triangles[k], 256, error_range, &c);
+                       .level_idx = lod->indices[k], .sample_count = n, .stride = stride};
+        size_t tris = (lod->triangles[k] + (size_t)stride - 1) / stride;
+        mr_parallel_for(threads, (size_t)n + tris, 256, error_range, &c);
         mr_closest_mesh_free(&lm);
         for (unsigned t = 0; t < MR_MAX_THREADS; t++)
             lod->error[k] = fmax(lod->error[k], c.worst[t]);

@@ -55,7 +55,7 @@ void mr_mesh_lod_free(mr_mesh_lod *lod);
 /* Measures the levels again over the mesh posed otherwise (pos: nv posed
  * vertices, the same triangles) and raises each level's error to what it
  * finds there: the same two-sided distance, from every stride-th distinct
- * position. Linear blend skinning moves a coarse triangle's corners by
+ * position and every stride-th triangle of each level. Linear blend skinning moves a coarse triangle's corners by
  * their own bones while the surface it stands for bends between them, so a
  * level can stray farther in a pose than at rest. */
 int mr_mesh_lod_measure(mr_mesh_lod *lod, const float *pos, uint32_t nv, uint32_t stride,
