@@ -174,21 +174,8 @@ static mr_asset **load_assets(const mr_job *job)
     mr_asset **assets = calloc(job->asset_count, sizeof *assets);
     if (!assets)
         die("assets", "out of memory");
-    for (size_t i = 0; i < job->asset_count; i++) {
-        const mr_asset_desc *d = &job->assets[i];
-        mr_error err = {0};
-        mr_asset *a = NULL;
-        if (mr_asset_load(d->path, &a, &err) < 0)
-            die(d->path, err.msg);
-        if (d->refine) {
-            mr_asset *r = NULL;
-            if (mr_refine_asset(a, &d->refine_params, &r, &err) < 0)
-                die(d->path, err.msg);
-            mr_asset_free(a);
-            a = r;
-        }
-        assets[i] = a;
-    }
+    for (size_t i = 0; i < job->asset_count; i++)
+        assets[i] = bench_load_asset(&job->assets[i], job->assets[i].refine_params.threads);
     return assets;
 }
 

@@ -65,22 +65,6 @@ static mr_job *parse(const char *text)
     return job;
 }
 
-static mr_asset *load(const mr_asset_desc *d)
-{
-    mr_asset *a = NULL, *r = NULL;
-    mr_error err;
-    if (mr_asset_load(d->path, &a, &err) < 0)
-        die(d->path, err.msg);
-    if (!d->refine)
-        return a;
-    mr_refine_params p = d->refine_params;
-    p.threads = threads;
-    if (mr_refine_asset(a, &p, &r, &err) < 0)
-        die("refine", err.msg);
-    mr_asset_free(a);
-    return r;
-}
-
 /* Renders frames 0..frames-1 of each job, interleaved, into its series. */
 static void run_interleaved(mr_device *dev, mr_job **jobs, mr_asset **assets, int count, series *out)
 {
@@ -311,7 +295,7 @@ int main(int argc, char **argv)
     }
     snprintf(text, sizeof text, PAPER_JOB, "mesh", "");
     jobs[4] = parse(text);
-    mr_asset *refined = load(&jobs[0]->assets[0]);
+    mr_asset *refined = bench_load_asset(&jobs[0]->assets[0], threads);
     for (int k = 0; k < RUNS; k++)
         assets[k] = refined;
     series s[RUNS];
@@ -345,7 +329,7 @@ int main(int argc, char **argv)
     /* 32^3 nodes: a unit cube at spacing 1/32.5 (32 lattice points inside per axis) */
     snprintf(text, sizeof text, CUBE_JOB, 1.0 / 32.5);
     mr_job *cube = parse(text);
-    mr_asset *box = load(&cube->assets[0]);
+    mr_asset *box = bench_load_asset(&cube->assets[0], threads);
     loop_overhead();
     pool_against_per_call(jobs[2], refined, cube, box);
     for (int k = 0; k < RUNS; k++)

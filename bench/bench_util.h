@@ -52,6 +52,29 @@ static inline double bench_cpu_now(void)
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
+/* A job's asset as the daemon's import gives it: the file, refined when
+ * the job says "refine" (on the given threads). Exits naming the file on
+ * failure. */
+static inline mr_asset *bench_load_asset(const mr_asset_desc *d, unsigned threads)
+{
+    mr_asset *a = NULL, *r = NULL;
+    mr_error err;
+    if (mr_asset_load(d->path, &a, &err) < 0) {
+        fprintf(stderr, "bench: %s: %s\n", d->path, err.msg);
+        exit(1);
+    }
+    if (!d->refine)
+        return a;
+    mr_refine_params p = d->refine_params;
+    p.threads = threads;
+    if (mr_refine_asset(a, &p, &r, &err) < 0) {
+        fprintf(stderr, "bench: refine %s: %s\n", d->path, err.msg);
+        exit(1);
+    }
+    mr_asset_free(a);
+    return r;
+}
+
 /* One point of a speed-against-error curve for bench/report.md: a method of
  * a kind at one level (subdivision level, depth, range) on one scene, its
  * time and its error against the named reference. Appended as a tab-
