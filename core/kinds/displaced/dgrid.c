@@ -126,11 +126,16 @@ typedef struct build_ctx {
     mr_dgrid *g;
     unsigned level;
     uint16_t *tlo, *thi; /* integer samples: their quantised bounds, by value */
+    bool linear8;        /* 8-bit samples whose tables are tlo[v] = max(257 v - 1, 0),
+                            thi[v] = min(257 v + 1, 65535) (the whole 0..255 range
+                            quantised: computed, not looked up) */
 } build_ctx;
 
 /* Level 1 of 8 or 16 bit samples: the same nodes as build_level1, read
- * straight from the rows (no conversion per sample) and quantised by table,
- * which is what makes a new height texture cheap. A node row's three sample
+ * straight from the rows (no conversion per sample) and quantised by table
+ * (8-bit samples over their whole range: by 257 v -+ 1, 16 at a time, when
+ * the tables are exactly that), which is what makes a new height texture
+ * cheap. A node row's three sample
  * rows are reduced column by column 16 bytes at a time (GCC vector
  * extensions: SSE2 on x86-64; unsigned compares select by mask), then each
  * node takes the smallest and largest of its three columns. */
@@ -140,10 +145,10 @@ typedef uint16_t v8u16 __attribute__((vector_size(16)));
 typedef int16_t v8i16 __attribute__((vector_size(16)));
 
 /* The smallest (or largest) of columns 2I, 2I+1, 2I+2 of c for 16 nodes
- * from node I on, into out[16]: triples at every column, then every other
- * one. Reads c[2I .. 2I+33]. */
+ * from node I on: triples at every column, then every other one. Reads
+ * c[2I .. 2I+33]. */
 #if defined(__SSE2__)
-static inline void triples_u8(const uint8_t *c, bool largest, uint8_t out[16])
+static inline __m128i triples_u8(const uint8_t *c, bool largest)
 {
     __m128i t[2];
     for (int h = 0; h < 2; h++) {
@@ -153,35 +158,53 @@ static inline void triples_u8(const uint8_t *c, bool largest, uint8_t out[16])
         t[h] = largest ? _mm_max_epu8(_mm_max_epu8(a, b), d) : _mm_min_epu8(_mm_min_epu8(a, b), d);
     }
     __m128i even = _mm_set1_epi16(0x00ff);
-    _mm_storeu_si128((__m128i *)out,
-                     _mm_packus_epi16(_mm_and_si128(t[0], even), _mm_and_si128(t[1], even)));
+    return _mm_packus_epi16(_mm_and_si128(t[0], even), _mm_and_si128(t[1], even));
+}
+
+/* 16 quantised bounds of 8-bit values v when the tables are 257 v -+ 1
+ * (build_ctx.linear8): v repeated in both bytes of a 16-bit lane is 257 v,
+ * and the saturating step is the tables' clamp to [0, 65535]. */
+static inline void quantise_u8(__m128i v, bool largest, uint16_t *out)
+{
+    __m128i one = _mm_set1_epi16(1);
+    __m128i a = _mm_unpacklo_epi8(v, v), b = _mm_unpackhi_epi8(v, v);
+    a = largest ? _mm_adds_epu16(a, one) : _mm_subs_epu16(a, one);
+    b = largest ? _mm_adds_epu16(b, one) : _mm_subs_epu16(b, one);
+    _mm_storeu_si128((__m128i *)out, a);
+    _mm_storeu_si128((__m128i *)(out + 8), b);
 }
 #endif
 
 /* Nodes [I, ...) of a level-1 row of 8-bit samples 16 at a time while all
  * their columns are in c[0 .. w]; returns the first node not done. */
-static uint32_t nodes_uint8_t(const uint8_t *cmin, const uint8_t *cmax, uint32_t I, uint32_t full,
-                         uint32_t w, const uint16_t *tlo, const uint16_t *thi, uint16_t *qmin,
-                         uint16_t *qmax)
+static uint32_t nodes_uint8_t(const build_ctx *c, const uint8_t *cmin, const uint8_t *cmax,
+                              uint32_t I, uint32_t full, uint32_t w, uint16_t *qmin, uint16_t *qmax)
 {
 #if defined(__SSE2__)
     for (; I + 16 <= full && 2 * I + 34 <= w + 1; I += 16) {
-        uint8_t lo[16], hi[16];
-        triples_u8(cmin + 2 * I, false, lo);
-        triples_u8(cmax + 2 * I, true, hi);
+        __m128i lo = triples_u8(cmin + 2 * I, false), hi = triples_u8(cmax + 2 * I, true);
+        if (c->linear8) {
+            quantise_u8(lo, false, qmin + I);
+            quantise_u8(hi, true, qmax + I);
+            continue;
+        }
+        uint8_t l[16], h[16];
+        _mm_storeu_si128((__m128i *)l, lo);
+        _mm_storeu_si128((__m128i *)h, hi);
         for (int k = 0; k < 16; k++) {
-            qmin[I + k] = tlo[lo[k]];
-            qmax[I + k] = thi[hi[k]];
+            qmin[I + k] = c->tlo[l[k]];
+            qmax[I + k] = c->thi[h[k]];
         }
     }
 #endif
     return I;
 }
 
-static uint32_t nodes_uint16_t(const uint16_t *cmin, const uint16_t *cmax, uint32_t I, uint32_t full,
-                          uint32_t w, const uint16_t *tlo, const uint16_t *thi, uint16_t *qmin,
-                          uint16_t *qmax)
+static uint32_t nodes_uint16_t(const build_ctx *c, const uint16_t *cmin, const uint16_t *cmax,
+                               uint32_t I, uint32_t full, uint32_t w, uint16_t *qmin,
+                               uint16_t *qmax)
 {
+    (void)c, (void)cmin, (void)cmax, (void)full, (void)w, (void)qmin, (void)qmax;
     return I;
 }
 
@@ -230,8 +253,7 @@ static uint32_t nodes_uint16_t(const uint16_t *cmin, const uint16_t *cmax, uint3
             cmin[w] = cmin[0], cmax[w] = cmax[0]; /* the repeat */                           \
             size_t k0 = g->first[1] + J * nw;                                                \
             uint32_t full = (w - 1) / 2; /* nodes with all three columns */                  \
-            uint32_t I0 = nodes_##T(cmin, cmax, 0, full, w, c->tlo, c->thi, g->qmin + k0,    \
-                                    g->qmax + k0);                                           \
+            uint32_t I0 = nodes_##T(c, cmin, cmax, 0, full, w, g->qmin + k0, g->qmax + k0);  \
             size_t k = k0 + I0;                                                              \
             for (uint32_t I = I0; I < full; I++, k++) {                                      \
                 const T *lo3 = cmin + 2 * I, *hi3 = cmax + 2 * I;                            \
@@ -414,9 +436,11 @@ void mr_dgrid_rebuild(mr_dgrid *g, unsigned threads)
         c.thi = malloc(values * sizeof *c.thi);
     }
     if (c.tlo && c.thi) {
+        c.linear8 = values == 256;
         for (size_t v = 0; v < values; v++) {
             c.tlo[v] = q_lo(g, (double)v);
             c.thi[v] = q_hi(g, (double)v);
+            c.linear8 &= c.tlo[v] == (v ? 257 * v - 1 : 0) && c.thi[v] == (v < 255 ? 257 * v + 1 : 65535);
         }
         mr_parallel_for(threads, g->lh[1], 16,
                         g->type == MR_SAMPLE_U8 ? build_level1_uint8_t : build_level1_uint16_t, &c);
