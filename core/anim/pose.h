@@ -58,6 +58,15 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   const mr_mat4 *object_transform, float *out_positions,
                   float *out_normals, unsigned threads);
 
+/* mr_skin_mesh plus the mesh's tangents (asset.h: mr_mesh.tangents; 3
+ * floats per vertex, world space, unit, orthogonal to the vertex's
+ * output normal: moved by the vertex's matrix and made orthogonal to the
+ * moved normal) into out_tangents; untouched when the mesh has no
+ * tangents or out_tangents is NULL. */
+void mr_skin_mesh_tangents(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                           const mr_mat4 *object_transform, float *out_positions,
+                           float *out_normals, float *out_tangents, unsigned threads);
+
 /* The matrix mr_skin_mesh applies to each vertex of the mesh (the blended
  * skin matrix, or object * mesh node for rigid meshes and vertices without
  * influences): the accumulated matrices M_a of paper 000 (eq. 1) that

@@ -38,6 +38,16 @@ static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, 
 
 /* Unit vector along a; returns fallback when |a| is zero or not finite. */
 mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback);
+/* A tangent made to fit a unit normal n: t's part orthogonal to n,
+ * normalised (Gram-Schmidt, the step taken twice so the result is
+ * orthogonal to n to rounding however close t was to n). Where that part
+ * is lost (t zero or
+ * not finite, or within MR_TANGENT_PARALLEL of n's direction): when
+ * any_if_lost, a unit vector orthogonal to n (n crossed with the
+ * coordinate axis least aligned with it: a fixed choice, so the same
+ * inputs give the same bits); else (0, 0, 0). */
+#define MR_TANGENT_PARALLEL 1e-3f /* |t's part across n| / |t|: 0.06 degrees */
+mr_vec3 mr_v3_tangent_to(mr_vec3 t, mr_vec3 n, bool any_if_lost);
 
 mr_mat4 mr_mat4_mul(const mr_mat4 *a, const mr_mat4 *b);
 mr_mat4 mr_mat4_transpose(const mr_mat4 *a);

@@ -8,6 +8,11 @@
  * monitor then counts only its acceleration structure. The vertex array has
  * one float of padding because Embree loads vertices with 16-byte reads.
  *
+ * Meshes with texture coordinates carry their tangents (asset.h), skinned
+ * with the vertices; the tangent at a hit interpolates the three vertices'
+ * (the renderer fits it to the shading normal). A mesh without them has
+ * none (zero tangents, no tangent at its hits).
+ *
  * The exact reference of a triangle mesh is itself.
  */
 #include <math.h>
@@ -22,6 +27,7 @@ struct mr_geom {
     uint32_t *mesh_first_vertex; /* per asset mesh: offset into the merged arrays */
     float *positions;            /* 3 per vertex + 1 float padding */
     float *normals;              /* 3 per vertex */
+    float *tangents;             /* 3 per vertex (0 for meshes without); NULL: no mesh has them */
     uint32_t *indices;           /* 3 per triangle, merged */
     float max_coordinate;        /* largest |coordinate| after the last update */
     RTCGeometry rtc;
@@ -36,6 +42,7 @@ static void mesh_free(mr_geom *g)
     free(g->mesh_first_vertex);
     free(g->positions);
     free(g->normals);
+    free(g->tangents);
     free(g->indices);
     free(g);
 }
@@ -68,6 +75,9 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
     g->indices = malloc(nt * 3 * sizeof(uint32_t));
     if (!g->mesh_first_vertex || !g->positions || !g->normals || !g->indices)
         goto nomem;
+    for (size_t i = 0; i < asset->mesh_count && !g->tangents; i++)
+        if (asset->meshes[i].tangents && !(g->tangents = calloc(nv * 3, sizeof(float))))
+            goto nomem;
     uint32_t v0 = 0, t0 = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
@@ -91,7 +101,8 @@ static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *po
     (void)frame; /* posed geometry does not depend on the view */
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         size_t off = (size_t)g->mesh_first_vertex[i] * 3;
-        mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
+        mr_skin_mesh_tangents(g->asset, i, pose, transform, g->positions + off, g->normals + off,
+                              g->tangents ? g->tangents + off : NULL, threads);
     }
     /* A transform or pose can scale finite file data past what Embree can
      * build over; refuse the frame rather than hand it inf or 1e30. */
@@ -129,6 +140,20 @@ static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
                  w * n0[2] + u * n1[2] + v * n2[2]);
 }
 
+static bool mesh_tangent(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out)
+{
+    if (!g->tangents)
+        return false;
+    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const float *t0 = g->tangents + (size_t)tri[0] * 3;
+    const float *t1 = g->tangents + (size_t)tri[1] * 3;
+    const float *t2 = g->tangents + (size_t)tri[2] * 3;
+    float w = 1.0f - u - v;
+    *out = mr_v3(w * t0[0] + u * t1[0] + v * t2[0], w * t0[1] + u * t1[1] + v * t2[1],
+                 w * t0[2] + u * t1[2] + v * t2[2]);
+    return out->x != 0.0f || out->y != 0.0f || out->z != 0.0f; /* 0: a mesh without */
+}
+
 /* The hit lifted onto the surface the vertex normals describe (Hanika,
  * "Hacking the shadow terminator", Ray Tracing Gems II, 2021): for each
  * corner k whose tangent plane (position v_k, normal n_k) p lies below,
@@ -163,7 +188,7 @@ static int mesh_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 
 static size_t mesh_memory(const mr_geom *g)
 {
-    return ((size_t)g->vertex_count * 6 + 1) * sizeof(float) +
+    return ((size_t)g->vertex_count * (g->tangents ? 9 : 6) + 1) * sizeof(float) +
            (size_t)g->triangle_count * 3 * sizeof(uint32_t);
 }
 
@@ -177,6 +202,7 @@ const mr_kind mr_kind_mesh = {
     .attach = mesh_attach,
     .commit = mesh_commit,
     .normal = mesh_normal,
+    .tangent = mesh_tangent,
     .shading_point = mesh_shading_point,
     .tessellate = mesh_tessellate,
     .memory = mesh_memory,
