@@ -722,9 +722,17 @@ int mr_mesh_tangents(mr_mesh *m)
     }
     for (size_t i = 0; i < nv; i++) {
         const double *s = &acc[i * 6];
+        /* the float normal made unit in double, so that the part of the
+         * sum along it goes whole however long the sum is against the rest */
         double n[3] = {m->normals[i * 3], m->normals[i * 3 + 1], m->normals[i * 3 + 2]};
+        double ln = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (int a = 0; a < 3 && ln > 0; a++)
+            n[a] /= ln;
         double along = n[0] * s[0] + n[1] * s[1] + n[2] * s[2];
         double t[3] = {s[0] - along * n[0], s[1] - along * n[1], s[2] - along * n[2]};
+        double again = n[0] * t[0] + n[1] * t[1] + n[2] * t[2];
+        for (int a = 0; a < 3; a++)
+            t[a] -= again * n[a];
         double ls = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
         double lt = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
         float *o = &out[i * 4];
