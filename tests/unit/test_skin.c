@@ -225,6 +225,11 @@ static void test_tangents(void **state)
     shear.m[1] = 0.8f; /* x += 0.8 y */
     shear.m[6] = 0.5f; /* y += 0.5 z */
     mr_skin_mesh_tangents(a, 0, pose, &shear, p, n, t, 1);
+    /* v0: S (1,0,0) = (1,0,0), its normal S^-T (0,0,1) = (0,0,1); v2:
+     * S Rz90 (1,0,0) = S (0,1,0) = (0.8,1,0), normal S^-T (-1,0,0) =
+     * (-1,0.8,-0.4), orthogonal to it already: (0.8,1,0)/sqrt(1.64) */
+    near3(&t[0], 1, 0, 0, "sheared t0");
+    near3(&t[6], 0.8 / sqrt(1.64), 1 / sqrt(1.64), 0, "sheared t2");
     for (int v = 0; v < 6; v++) {
         double len = sqrt((double)t[v * 3] * t[v * 3] + (double)t[v * 3 + 1] * t[v * 3 + 1] +
                           (double)t[v * 3 + 2] * t[v * 3 + 2]);
