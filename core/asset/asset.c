@@ -742,7 +742,7 @@ int mr_mesh_tangents(mr_mesh *m)
                 o[a] = (float)(t[a] / lt);
             o[3] = c[0] * s[3] + c[1] * s[4] + c[2] * s[5] < 0 ? -1.0f : 1.0f;
         } else {
-            mr_vec3 any = mr_v3_tangent_to(mr_v3(0, 0, 0), mr_v3((float)n[0], (float)n[1], (float)n[2]), true);
+            mr_vec3 any = mr_v3_any_orthogonal(mr_v3((float)n[0], (float)n[1], (float)n[2]));
             o[0] = any.x;
             o[1] = any.y;
             o[2] = any.z;

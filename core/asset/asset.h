@@ -132,7 +132,7 @@ int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t
  * Triangles whose uvs are collinear (no uv direction) add nothing; a
  * vertex that gets no direction (all its triangles have such uvs, or the
  * sum lies along the normal) gets a unit vector orthogonal to its normal
- * (mr_v3_tangent_to's fixed choice) and w = +1. Vertices split at uv
+ * (mr_v3_any_orthogonal) and w = +1. Vertices split at uv
  * seams (assimp splits them) get each side's own tangent. Returns MR_OK
  * or MR_ERR_NOMEM (tangents then NULL). */
 int mr_mesh_tangents(mr_mesh *mesh);

@@ -18,20 +18,8 @@ mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback)
     return mr_v3_scale(a, 1.0f / len);
 }
 
-mr_vec3 mr_v3_tangent_to(mr_vec3 t, mr_vec3 n, bool any_if_lost)
+mr_vec3 mr_v3_any_orthogonal(mr_vec3 n)
 {
-    float len = mr_v3_len(t);
-    mr_vec3 across = mr_v3_sub(t, mr_v3_scale(n, mr_v3_dot(n, t)));
-    float across_len = mr_v3_len(across);
-    if (len > 0.0f && isfinite(len) && across_len > MR_TANGENT_PARALLEL * len) {
-        /* twice: the rounding of a short difference leaves part of n in it,
-         * which the second step takes out ("twice is enough") */
-        across = mr_v3_scale(across, 1.0f / across_len);
-        across = mr_v3_sub(across, mr_v3_scale(n, mr_v3_dot(n, across)));
-        return mr_v3_scale(across, 1.0f / mr_v3_len(across));
-    }
-    if (!any_if_lost)
-        return mr_v3(0, 0, 0);
     float ax = fabsf(n.x), ay = fabsf(n.y), az = fabsf(n.z);
     mr_vec3 axis = ax <= ay && ax <= az ? mr_v3(1, 0, 0) : ay <= az ? mr_v3(0, 1, 0) : mr_v3(0, 0, 1);
     return mr_v3_normalize_or(mr_v3_cross(n, axis), mr_v3(1, 0, 0));
