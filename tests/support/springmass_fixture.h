@@ -46,6 +46,7 @@ static inline void sm_mesh_alloc(sm_mesh *m, uint32_t nv, uint32_t nt)
     m->fpos = calloc((size_t)nv * 3 + 1, sizeof *m->fpos);
     m->nrm = calloc((size_t)nv * 3 + 1, sizeof *m->nrm);
     m->tri = calloc((size_t)nt * 3, sizeof *m->tri);
+    m->tan = NULL; /* a mesh without tangents unless one is given */
 }
 
 static inline void sm_mesh_sync(sm_mesh *m)
