@@ -316,7 +316,7 @@ bool mr_normalize_d(double *d, size_t n);
  * Planes are row-major, row 0 at the top of the image (EXR's increasing-y
  * order). Colour is linear and premultiplied by alpha.
  *
- * The data AOVs (z, n*, p*, object_id, prim_id) describe the pixel-centre
+ * The data AOVs (z, n*, p*, t*, object_id, prim_id) describe the pixel-centre
  * ray (sample 0), so two renders of the same camera compare pixel by pixel
  * whatever their sample counts; colour, alpha and the Cryptomatte coverage
  * average all samples.
@@ -329,6 +329,11 @@ bool mr_normalize_d(double *d, size_t n);
  *  - nx, ny, nz: world-space shading normal, unit length, facing the camera;
  *    0 where it missed.
  *  - px, py, pz: world-space position of the hit; 0 where it missed.
+ *  - tx, ty, tz: world-space shading tangent at the hit, along increasing u
+ *    of the asset's texture coordinates, unit length and orthogonal to the
+ *    n pass's normal (the tangent space of normal mapping: paper 001,
+ *    3.3.4); 0 where it missed and where the object has none (a kind
+ *    without the tangent op, a mesh without texture coordinates).
  *  - object_id: 1-based index of the job object hit, 0 = miss.
  *  - prim_id: the primitive within that object (per kind: README, "EXR
  *    frames").
@@ -355,14 +360,15 @@ typedef enum mr_aov {
     MR_AOV_N = 1u << 2,           /* N.X N.Y N.Z: world-space normal */
     MR_AOV_P = 1u << 3,           /* P.X P.Y P.Z: world-space position */
     MR_AOV_ID = 1u << 4,          /* id.object id.primitive */
-    MR_AOV_CRYPTOMATTE = 1u << 5  /* CryptoObject00.R ..., CryptoAsset00.R ... */
+    MR_AOV_CRYPTOMATTE = 1u << 5, /* CryptoObject00.R ..., CryptoAsset00.R ... */
+    MR_AOV_T = 1u << 6            /* T.X T.Y T.Z: world-space shading tangent */
 } mr_aov;
-#define MR_AOV_COUNT 6
-#define MR_AOV_ALL 0x3fu
+#define MR_AOV_COUNT 7
+#define MR_AOV_ALL 0x7fu
 /* What a job gets without output.aovs, and what mr_film_new allocates. */
 #define MR_AOV_DEFAULT (MR_AOV_RGBA | MR_AOV_Z | MR_AOV_N | MR_AOV_ID)
 
-/* "rgba", "z", "n", "p", "id", "cryptomatte" (the job's names); NULL for
+/* "rgba", "z", "n", "p", "id", "cryptomatte", "t" (the job's names); NULL for
  * anything but a single bit. */
 const char *mr_aov_name(mr_aov aov);
 /* The bit of a job name as above; false for anything else. */
@@ -382,6 +388,7 @@ typedef struct mr_film {
     float *z;                       /* MR_AOV_Z */
     float *nx, *ny, *nz;            /* MR_AOV_N */
     float *px, *py, *pz;            /* MR_AOV_P */
+    float *tx, *ty, *tz;            /* MR_AOV_T */
     uint32_t *object_id, *prim_id;  /* MR_AOV_ID */
     int crypto_ranks;               /* MR_AOV_CRYPTOMATTE: ranks per layer, else 0 */
     float *crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS]; /* [0, 2 * crypto_ranks) exist */
@@ -508,6 +515,7 @@ void mr_film_speckles(const mr_film *f, mr_speckle_result *out);
  *   Z                  FLOAT  camera-space depth, MR_DEPTH_MISS = miss (z)
  *   N.X N.Y N.Z        FLOAT  world-space normal (n; HALF with half_normals)
  *   P.X P.Y P.Z        FLOAT  world-space position (p)
+ *   T.X T.Y T.Z        FLOAT  world-space unit shading tangent, 0 = none (t)
  *   id.object          UINT   1-based object index, 0 = miss (id)
  *   id.primitive       UINT   primitive index within the object (id)
  *   CryptoObject00.R .. CryptoObjectNN.A, CryptoAsset00.R .. CryptoAssetNN.A

@@ -963,7 +963,7 @@ static const char *const OUTPUT_FIELDS[] = {"width",       "height",    "samples
 static int parse_aovs(mr_json_ctx *c, const cJSON *v, unsigned *aovs)
 {
     static const char expect[] =
-        "an array of 1..6 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\"";
+        "an array of 1..7 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", \"t\"";
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) == 0)
         return json_fail_expected(c, expect, v);
     unsigned set = 0;
@@ -972,7 +972,7 @@ static int parse_aovs(mr_json_ctx *c, const cJSON *v, unsigned *aovs)
         mr_aov aov;
         if (!cJSON_IsString(e) || !mr_aov_parse(e->valuestring, &aov)) {
             json_push_index(c, i);
-            return json_fail_expected(c, "one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\"", e);
+            return json_fail_expected(c, "one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", \"t\"", e);
         }
         if (set & aov) {
             json_push_index(c, i);

@@ -58,14 +58,25 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                   const mr_mat4 *object_transform, float *out_positions,
                   float *out_normals, unsigned threads);
 
-/* mr_skin_mesh for the listed vertices only (count indices into the mesh,
- * each below its vertex count), each written at its own index of the
- * output arrays (the others are left as they are): the same bits as
- * mr_skin_mesh gives those vertices. A mesh's level of detail poses only
- * the vertices it uses. */
+/* mr_skin_mesh plus the mesh's tangents (asset.h: mr_mesh.tangents; 3
+ * floats per vertex, world space, unit, orthogonal to the vertex's
+ * output normal: moved by the vertex's matrix and made orthogonal to the
+ * moved normal) into out_tangents; untouched when the mesh has no
+ * tangents or out_tangents is NULL. */
+void mr_skin_mesh_tangents(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                           const mr_mat4 *object_transform, float *out_positions,
+                           float *out_normals, float *out_tangents, unsigned threads);
+
+/* mr_skin_mesh_tangents for the listed vertices only (count indices into
+ * the mesh, each below its vertex count; out_normals and out_tangents may
+ * be NULL), each written at its own index of the output arrays (the
+ * others are left as they are): the same bits as the whole mesh's call
+ * gives those vertices. A mesh's level of detail poses only the vertices
+ * it uses. */
 void mr_skin_mesh_vertices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                            const mr_mat4 *object_transform, const uint32_t *vertices, size_t count,
-                           float *out_positions, float *out_normals, unsigned threads);
+                           float *out_positions, float *out_normals, float *out_tangents,
+                           unsigned threads);
 
 /* The matrix mr_skin_mesh applies to each vertex of the mesh (the blended
  * skin matrix, or object * mesh node for rigid meshes and vertices without

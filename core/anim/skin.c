@@ -4,7 +4,9 @@
  * Per joint j the skin matrix is K_j = object * global(joint_j) *
  * inverse_bind_j (computed once per call). Per vertex the weighted sum
  * B = sum_i w_i K_{j_i} moves the position, and the cofactor of B (via
- * mr_mat4_normal_matrix) moves the normal, which is then renormalised. A
+ * mr_mat4_normal_matrix) moves the normal, which is then renormalised; a
+ * tangent (a direction in the surface) moves by B itself and is made
+ * orthogonal to the moved normal again (mr_v3_tangent_to). A
  * vertex without influences, and every vertex of a rigid mesh, uses
  * object * global(mesh node).
  *
@@ -29,7 +31,7 @@ typedef struct skin_ctx {
     mr_mat4 rigid_normal; /* its cofactor */
     bool skinned;         /* joint arrays present and usable */
     const mr_mat4 *skin;  /* K_j per joint; NULL: computed per use (allocation failed) */
-    float *out_p, *out_n;
+    float *out_p, *out_n, *out_t;
     mr_affine *out_m;
     const uint32_t *subset; /* NULL: every vertex; else item k is vertex subset[k] */
 } skin_ctx;
@@ -95,17 +97,23 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
             memcpy(c->out_m[i].m, M->m, sizeof c->out_m[i].m);
         if (c->out_p)
             put(c->out_p, i, mr_mat4_point(M, p));
-        if (c->out_n) {
+        if (c->out_n || c->out_t) {
             mr_vec3 fallback = mr_v3_normalize_or(n, mr_v3(0, 0, 1));
-            put(c->out_n, i, mr_v3_normalize_or(mr_mat4_dir(N, n), fallback));
+            mr_vec3 moved = mr_v3_normalize_or(mr_mat4_dir(N, n), fallback);
+            if (c->out_n)
+                put(c->out_n, i, moved);
+            if (c->out_t) {
+                const float *t = &m->tangents[i * 4];
+                put(c->out_t, i, mr_v3_tangent_to(mr_mat4_dir(M, mr_v3(t[0], t[1], t[2])), moved, true));
+            }
         }
     }
 }
 
 static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                  const mr_mat4 *object_transform, const uint32_t *subset, size_t subset_count,
-                 float *out_positions, float *out_normals, mr_affine *out_matrices,
-                 unsigned threads)
+                 float *out_positions, float *out_normals, float *out_tangents,
+                 mr_affine *out_matrices, unsigned threads)
 {
     if (!asset || mesh_index >= asset->mesh_count)
         return;
@@ -114,7 +122,8 @@ static void skin(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
         return;
     size_t items = subset ? subset_count : m->vertex_count;
     skin_ctx c = {.asset = asset, .mesh = m, .pose = pose, .out_p = out_positions,
-                  .out_n = out_normals, .out_m = out_matrices, .subset = subset};
+                  .out_n = out_normals, .out_t = m->tangents ? out_tangents : NULL,
+                  .out_m = out_matrices, .subset = subset};
     c.object = object_transform ? *object_transform : mr_mat4_identity();
     mr_mat4 *mats = NULL;
     if (!pose || pose->node_count != asset->node_count || !pose->global) {
@@ -147,21 +156,32 @@ void mr_skin_mesh(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
 {
     if (out_positions)
         skin(asset, mesh_index, pose, object_transform, NULL, 0, out_positions, out_normals, NULL,
-             threads);
+             NULL, threads);
+}
+
+void mr_skin_mesh_tangents(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
+                           const mr_mat4 *object_transform, float *out_positions,
+                           float *out_normals, float *out_tangents, unsigned threads)
+{
+    if (out_positions)
+        skin(asset, mesh_index, pose, object_transform, NULL, 0, out_positions, out_normals,
+             out_tangents, NULL, threads);
 }
 
 void mr_skin_mesh_vertices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                            const mr_mat4 *object_transform, const uint32_t *vertices, size_t count,
-                           float *out_positions, float *out_normals, unsigned threads)
+                           float *out_positions, float *out_normals, float *out_tangents,
+                           unsigned threads)
 {
     if (out_positions && vertices)
         skin(asset, mesh_index, pose, object_transform, vertices, count, out_positions,
-             out_normals, NULL, threads);
+             out_normals, out_tangents, NULL, threads);
 }
 
 void mr_skin_matrices(const mr_asset *asset, size_t mesh_index, const mr_pose *pose,
                       const mr_mat4 *object_transform, mr_affine *out_matrices, unsigned threads)
 {
     if (out_matrices)
-        skin(asset, mesh_index, pose, object_transform, NULL, 0, NULL, NULL, out_matrices, threads);
+        skin(asset, mesh_index, pose, object_transform, NULL, 0, NULL, NULL, NULL, out_matrices,
+             threads);
 }

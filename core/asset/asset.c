@@ -311,6 +311,7 @@ void mr_mesh_release(mr_mesh *m)
     free(m->positions);
     free(m->normals);
     free(m->uvs);
+    free(m->tangents);
     free(m->indices);
     free(m->joint_nodes);
     free(m->inverse_bind);
@@ -473,6 +474,8 @@ size_t mr_asset_memory(const mr_asset *asset)
         b += nv * 3 * sizeof(float) * 2; /* positions, normals */
         if (m->uvs)
             b += nv * 2 * sizeof(float);
+        if (m->tangents)
+            b += nv * 4 * sizeof(float);
         b += (size_t)m->triangle_count * 3 * sizeof(uint32_t);
         b += m->joint_count * (sizeof(int) + sizeof(mr_mat4));
         if (m->joints)
@@ -668,6 +671,87 @@ static int finish_normals(mr_mesh *m, const float *src)
         rc = compute_normals(m, bad);
     free(bad);
     return rc;
+}
+
+/* ------------------------------------------------------------------------ */
+/* tangents                                                                   */
+
+int mr_mesh_tangents(mr_mesh *m)
+{
+    free(m->tangents);
+    m->tangents = NULL;
+    if (!m->uvs || !m->normals || !m->positions || m->vertex_count == 0)
+        return MR_OK;
+    size_t nv = m->vertex_count;
+    double *acc = calloc(nv * 6, sizeof *acc); /* per vertex: tangent sum, bitangent sum */
+    float *out = malloc(nv * 4 * sizeof *out);
+    if (!acc || !out) {
+        free(acc);
+        free(out);
+        return MR_ERR_NOMEM;
+    }
+    const float *p = m->positions, *uv = m->uvs;
+    for (size_t t = 0; t < m->triangle_count; t++) {
+        const uint32_t *tri = &m->indices[t * 3];
+        double e1[3], e2[3];
+        for (int a = 0; a < 3; a++) {
+            e1[a] = (double)p[tri[1] * 3 + a] - p[tri[0] * 3 + a];
+            e2[a] = (double)p[tri[2] * 3 + a] - p[tri[0] * 3 + a];
+        }
+        double du1 = (double)uv[tri[1] * 2] - uv[tri[0] * 2], dv1 = (double)uv[tri[1] * 2 + 1] - uv[tri[0] * 2 + 1];
+        double du2 = (double)uv[tri[2] * 2] - uv[tri[0] * 2], dv2 = (double)uv[tri[2] * 2 + 1] - uv[tri[0] * 2 + 1];
+        double det = du1 * dv2 - du2 * dv1;
+        if (!(det != 0.0) || !isfinite(det))
+            continue; /* collinear uvs: no direction of u here */
+        double tg[3], bt[3], c[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                                     e1[0] * e2[1] - e1[1] * e2[0]};
+        for (int a = 0; a < 3; a++) {
+            tg[a] = (e1[a] * dv2 - e2[a] * dv1) / det; /* dp/du */
+            bt[a] = (e2[a] * du1 - e1[a] * du2) / det; /* dp/dv */
+        }
+        double area = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+        double lt = sqrt(tg[0] * tg[0] + tg[1] * tg[1] + tg[2] * tg[2]);
+        double lb = sqrt(bt[0] * bt[0] + bt[1] * bt[1] + bt[2] * bt[2]);
+        if (!(area > 0) || !(lt > 0) || !(lb > 0) || !isfinite(area * lt * lb))
+            continue;
+        for (int k = 0; k < 3; k++)
+            for (int a = 0; a < 3; a++) {
+                acc[(size_t)tri[k] * 6 + a] += area * tg[a] / lt;
+                acc[(size_t)tri[k] * 6 + 3 + a] += area * bt[a] / lb;
+            }
+    }
+    for (size_t i = 0; i < nv; i++) {
+        const double *s = &acc[i * 6];
+        /* the float normal made unit in double, so that the part of the
+         * sum along it goes whole however long the sum is against the rest */
+        double n[3] = {m->normals[i * 3], m->normals[i * 3 + 1], m->normals[i * 3 + 2]};
+        double ln = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (int a = 0; a < 3 && ln > 0; a++)
+            n[a] /= ln;
+        double along = n[0] * s[0] + n[1] * s[1] + n[2] * s[2];
+        double t[3] = {s[0] - along * n[0], s[1] - along * n[1], s[2] - along * n[2]};
+        double again = n[0] * t[0] + n[1] * t[1] + n[2] * t[2];
+        for (int a = 0; a < 3; a++)
+            t[a] -= again * n[a];
+        double ls = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+        double lt = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+        float *o = &out[i * 4];
+        if (ls > 0 && lt > (double)MR_TANGENT_PARALLEL * ls) {
+            double c[3] = {n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]};
+            for (int a = 0; a < 3; a++)
+                o[a] = (float)(t[a] / lt);
+            o[3] = c[0] * s[3] + c[1] * s[4] + c[2] * s[5] < 0 ? -1.0f : 1.0f;
+        } else {
+            mr_vec3 any = mr_v3_any_orthogonal(mr_v3((float)n[0], (float)n[1], (float)n[2]));
+            o[0] = any.x;
+            o[1] = any.y;
+            o[2] = any.z;
+            o[3] = 1.0f;
+        }
+    }
+    free(acc);
+    m->tangents = out;
+    return MR_OK;
 }
 
 /* ------------------------------------------------------------------------ */
@@ -958,6 +1042,8 @@ static int import_mesh(mr_asset *a, mr_mesh *m, const struct aiMesh *am, int nod
             m->uvs[i * 2] = isfinite(u) ? u : 0.0f;
             m->uvs[i * 2 + 1] = isfinite(v) ? v : 0.0f;
         }
+        if (mr_mesh_tangents(m) < 0)
+            return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory computing tangents", a->path);
     }
     if (am->mNumBones > 0)
         return import_skin(a, m, am, ix, label, err);

@@ -38,6 +38,11 @@ typedef struct mr_mesh {
     float *positions;          /* 3 per vertex, mesh space */
     float *normals;            /* 3 per vertex, unit; computed (area-weighted) when the file has none */
     float *uvs;                /* 2 per vertex or NULL */
+    /* 4 per vertex (mr_mesh_tangents) when uvs are there, else NULL: a unit
+     * tangent along increasing u orthogonal to the vertex normal, and the
+     * handedness w (+1 or -1: the bitangent, along increasing v, is
+     * w * normal x tangent), mesh space like the normals */
+    float *tangents;
     uint32_t *indices;         /* 3 per triangle, all < vertex_count */
     /* Skin; joint_count == 0 for rigid meshes (then the arrays below are NULL). */
     uint32_t joint_count;
@@ -115,6 +120,22 @@ void mr_mesh_release(mr_mesh *mesh);
 int mr_influences_normalize(const uint32_t *joints, const float *weights, size_t count,
                             uint16_t out_joints[MR_MAX_INFLUENCES],
                             float out_weights[MR_MAX_INFLUENCES]);
+
+/* Fills mesh->tangents (replacing any) from its positions, normals, uvs
+ * and indices, or frees them when it has no uvs. Per triangle the tangent
+ * and bitangent are the directions of increasing u and v in its plane
+ * (dp/du and dp/dv of the linear map from uv to position), normalised and
+ * summed into its three vertices weighted by the triangle's area (like
+ * the normals); per vertex the sum's part orthogonal to the normal,
+ * normalised, is the tangent, and the handedness says on which side of
+ * the normal's plane through the tangent the summed bitangent lies.
+ * Triangles whose uvs are collinear (no uv direction) add nothing; a
+ * vertex that gets no direction (all its triangles have such uvs, or the
+ * sum lies along the normal) gets a unit vector orthogonal to its normal
+ * (mr_v3_any_orthogonal) and w = +1. Vertices split at uv
+ * seams (assimp splits them) get each side's own tangent. Returns MR_OK
+ * or MR_ERR_NOMEM (tangents then NULL). */
+int mr_mesh_tangents(mr_mesh *mesh);
 
 /* Index of the node / clip with this exact name, or -1. */
 int mr_asset_find_node(const mr_asset *asset, const char *name);

@@ -16,6 +16,8 @@
 #include <string.h>
 
 #define BLOB_MAGIC 0x424f4c42736d726dull /* "mrsmBLOB" */
+/* The field list's revision, in the header: 2 added the meshes' tangents. */
+#define BLOB_VERSION 2u
 #define NO_STRING UINT64_MAX
 
 typedef struct writer {
@@ -89,7 +91,8 @@ static void put_vec3_keys(writer *w, const mr_vec3_key *k, size_t count)
 }
 
 /* The struct sizes the layout depends on: a blob from another build (or a
- * torn one) is refused at the header. */
+ * torn one) is refused at the header, and so is one of another field list
+ * (BLOB_VERSION). */
 static void header(uint64_t h[8])
 {
     h[0] = BLOB_MAGIC;
@@ -99,7 +102,8 @@ static void header(uint64_t h[8])
     h[4] = sizeof(mr_clip);
     h[5] = sizeof(mr_channel);
     h[6] = sizeof(mr_camera_info);
-    h[7] = sizeof(mr_mat4) | (uint64_t)sizeof(mr_vec3_key) << 16 | (uint64_t)sizeof(mr_quat_key) << 32;
+    h[7] = sizeof(mr_mat4) | (uint64_t)sizeof(mr_vec3_key) << 16 | (uint64_t)sizeof(mr_quat_key) << 32 |
+           (uint64_t)BLOB_VERSION << 48;
 }
 
 int mr_asset_blob_write(const mr_asset *a, uint8_t **out, size_t *size, mr_error *err)
@@ -131,6 +135,7 @@ int mr_asset_blob_write(const mr_asset *a, uint8_t **out, size_t *size, mr_error
         put_array(&w, m->positions, nv * 3, sizeof(float));
         put_array(&w, m->normals, nv * 3, sizeof(float));
         put_array(&w, m->uvs, nv * 2, sizeof(float));
+        put_array(&w, m->tangents, nv * 4, sizeof(float));
         put_array(&w, m->indices, nt * 3, sizeof(uint32_t));
         put_array(&w, m->joint_nodes, m->joint_count, sizeof(int));
         put_array(&w, m->inverse_bind, m->joint_count, sizeof(mr_mat4));
@@ -308,16 +313,17 @@ int mr_asset_blob_read(const uint8_t *data, size_t size, mr_asset **out, mr_erro
         take(&r, &m->triangle_count, sizeof m->triangle_count);
         take(&r, &m->joint_count, sizeof m->joint_count);
         size_t nv = m->vertex_count, nt = m->triangle_count, any = SIZE_MAX;
-        size_t uv_count = 0, joint_slots = 0, weight_slots = 0;
+        size_t uv_count = 0, tangent_count = 0, joint_slots = 0, weight_slots = 0;
         m->positions = take_array(&r, sizeof(float), nv * 3, NULL);
         m->normals = take_array(&r, sizeof(float), nv * 3, NULL);
         m->uvs = take_array(&r, sizeof(float), any, &uv_count);
+        m->tangents = take_array(&r, sizeof(float), any, &tangent_count);
         m->indices = take_array(&r, sizeof(uint32_t), nt * 3, NULL);
         m->joint_nodes = take_array(&r, sizeof(int), m->joint_count, NULL);
         m->inverse_bind = take_array(&r, sizeof(mr_mat4), m->joint_count, NULL);
         m->joints = take_array(&r, sizeof(uint16_t), any, &joint_slots);
         m->weights = take_array(&r, sizeof(float), any, &weight_slots);
-        if ((uv_count && uv_count != nv * 2) ||
+        if ((uv_count && uv_count != nv * 2) || (tangent_count && (tangent_count != nv * 4 || !uv_count)) ||
             (joint_slots && joint_slots != nv * MR_MAX_INFLUENCES) || joint_slots != weight_slots)
             r.bad = true;
     }

@@ -796,6 +796,8 @@ int mr_refine_mesh(const mr_mesh *in, const mr_refine_params *params, mr_mesh *o
             out->normals[w * 3 + d] = copy_normals ? in->normals[w * 3 + d] : (float)nrm[v * 3 + d];
         }
     }
+    if (mr_mesh_tangents(out) < 0) /* the refined surface's own, from its uvs */
+        goto nomem;
     if (skinned) {
         out->joint_count = in->joint_count;
         out->joint_nodes = mr_memdup(in->joint_nodes, in->joint_count * sizeof(int));

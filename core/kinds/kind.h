@@ -20,6 +20,13 @@
  *               animated objects; see the refit trap in REFERENCE.md);
  *   commit      tell Embree the data changed (after update);
  *   normal      world-space shading normal at a hit (unnormalised is fine);
+ *   tangent     (NULL: the kind has none) world-space tangent at a hit,
+ *               along increasing u of the asset's texture coordinates
+ *               (unnormalised is fine): false where the object has none
+ *               there (a mesh without texture coordinates). The renderer
+ *               makes it orthogonal to the shading normal and unit for the
+ *               "t" pass (MR_AOV_T), 0 where false (paper 001, 3.3.4: the
+ *               tangent space of normal mapping).
  *   tessellate  the kind's exact triangle reference, used for accuracy
  *               comparisons and as the pre-tessellation baseline;
  *   memory      bytes held by the kind's own data (not Embree's BVH).
@@ -207,6 +214,7 @@ struct mr_kind {
                   enum RTCBuildQuality quality, mr_error *err);
     void (*commit)(mr_geom *g);
     mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
+    bool (*tangent)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out);
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);
     size_t (*memory)(const mr_geom *g);
     uint64_t (*primitives)(const mr_geom *g);

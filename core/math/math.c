@@ -18,6 +18,13 @@ mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback)
     return mr_v3_scale(a, 1.0f / len);
 }
 
+mr_vec3 mr_v3_any_orthogonal(mr_vec3 n)
+{
+    float ax = fabsf(n.x), ay = fabsf(n.y), az = fabsf(n.z);
+    mr_vec3 axis = ax <= ay && ax <= az ? mr_v3(1, 0, 0) : ay <= az ? mr_v3(0, 1, 0) : mr_v3(0, 0, 1);
+    return mr_v3_normalize_or(mr_v3_cross(n, axis), mr_v3(1, 0, 0));
+}
+
 mr_mat4 mr_mat4_identity(void)
 {
     mr_mat4 r = {{0}};

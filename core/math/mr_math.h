@@ -38,6 +38,35 @@ static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, 
 
 /* Unit vector along a; returns fallback when |a| is zero or not finite. */
 mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback);
+/* A unit vector orthogonal to the unit vector n: n crossed with the
+ * coordinate axis least aligned with it (a fixed choice, so the same n
+ * gives the same bits). */
+mr_vec3 mr_v3_any_orthogonal(mr_vec3 n);
+
+/* A tangent made to fit a unit normal n: t's part orthogonal to n,
+ * normalised (Gram-Schmidt; taken twice where t was within 60 degrees of
+ * n's direction, so the result is orthogonal to n to rounding however
+ * close t was). Where that part is lost (t zero or not finite, or within
+ * MR_TANGENT_PARALLEL of n's direction): when any_if_lost,
+ * mr_v3_any_orthogonal(n); else (0, 0, 0). Inline: the per-vertex work
+ * of every tangent carried (skinning, the spring-mass mappings). */
+#define MR_TANGENT_PARALLEL 1e-3f /* |t's part across n| / |t|: 0.06 degrees */
+static inline mr_vec3 mr_v3_tangent_to(mr_vec3 t, mr_vec3 n, bool any_if_lost)
+{
+    float len2 = mr_v3_dot(t, t);
+    mr_vec3 across = mr_v3_sub(t, mr_v3_scale(n, mr_v3_dot(n, t)));
+    float across2 = mr_v3_dot(across, across);
+    if (!(across2 > MR_TANGENT_PARALLEL * MR_TANGENT_PARALLEL * len2) || !(len2 <= 3.4e38f))
+        return any_if_lost ? mr_v3_any_orthogonal(n) : mr_v3(0, 0, 0);
+    if (across2 < 0.25f * len2) {
+        /* the rounding of a short difference leaves part of n in it, which
+         * a second step takes out ("twice is enough") */
+        across = mr_v3_scale(across, 1.0f / sqrtf(across2));
+        across = mr_v3_sub(across, mr_v3_scale(n, mr_v3_dot(n, across)));
+        across2 = mr_v3_dot(across, across);
+    }
+    return mr_v3_scale(across, 1.0f / sqrtf(across2));
+}
 
 mr_mat4 mr_mat4_mul(const mr_mat4 *a, const mr_mat4 *b);
 mr_mat4 mr_mat4_transpose(const mr_mat4 *a);

@@ -186,9 +186,9 @@ bool mr_compression_parse(const char *name, mr_compression *out)
 /* ------------------------------------------------------------------ */
 /* channel table                                                       */
 
-/* Most channels a frame has: R G B A Z N.* P.* id.* and two Cryptomatte
- * layers of MR_CRYPTO_MAX_RANKS ranks, two channels a rank. */
-enum { CH_MAX = 13 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS };
+/* Most channels a frame has: R G B A Z N.* P.* T.* id.* and two
+ * Cryptomatte layers of MR_CRYPTO_MAX_RANKS ranks, two channels a rank. */
+enum { CH_MAX = 16 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS };
 
 /* One channel of a frame and the film plane behind it (4-byte samples:
  * float, or uint32 for the ids). */
@@ -236,6 +236,11 @@ static int film_channels(const mr_film *f, bool half_normals, chan_def ch[CH_MAX
         add_chan(ch, &n, "P.X", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->px);
         add_chan(ch, &n, "P.Y", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->py);
         add_chan(ch, &n, "P.Z", EXR_PIXEL_FLOAT, MR_AOV_P, -1, f->pz);
+    }
+    if (f->aovs & MR_AOV_T) {
+        add_chan(ch, &n, "T.X", EXR_PIXEL_FLOAT, MR_AOV_T, -1, f->tx);
+        add_chan(ch, &n, "T.Y", EXR_PIXEL_FLOAT, MR_AOV_T, -1, f->ty);
+        add_chan(ch, &n, "T.Z", EXR_PIXEL_FLOAT, MR_AOV_T, -1, f->tz);
     }
     if (f->aovs & MR_AOV_ID) {
         add_chan(ch, &n, "id.object", EXR_PIXEL_UINT, MR_AOV_ID, -1, f->object_id);

@@ -12,7 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const k_aov_names[MR_AOV_COUNT] = {"rgba", "z", "n", "p", "id", "cryptomatte"};
+static const char *const k_aov_names[MR_AOV_COUNT] = {"rgba", "z", "n", "p", "id", "cryptomatte", "t"};
 
 const char *mr_aov_name(mr_aov aov)
 {
@@ -40,7 +40,7 @@ static size_t film_pixels(const mr_film *film)
     return (size_t)film->width * (size_t)film->height;
 }
 
-#define FILM_SLOTS (13 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS)
+#define FILM_SLOTS (16 + MR_CRYPTO_LAYERS * 2 * MR_CRYPTO_MAX_RANKS)
 
 /* Where every plane pointer of the film lives (NULL or not), for
  * freeing and clearing them alike. Returns how many (FILM_SLOTS). */
@@ -49,6 +49,7 @@ static size_t film_slots(mr_film *f, void **slot[FILM_SLOTS])
     void **fixed[] = {(void **)&f->r,  (void **)&f->g,  (void **)&f->b,  (void **)&f->a,
                       (void **)&f->z,  (void **)&f->nx, (void **)&f->ny, (void **)&f->nz,
                       (void **)&f->px, (void **)&f->py, (void **)&f->pz,
+                      (void **)&f->tx, (void **)&f->ty, (void **)&f->tz,
                       (void **)&f->object_id, (void **)&f->prim_id};
     size_t n = 0;
     for (size_t i = 0; i < sizeof fixed / sizeof fixed[0]; i++)
@@ -73,7 +74,7 @@ size_t mr_film_bytes(int width, int height, unsigned aovs, int crypto_ranks)
         return 0;
     size_t planes = ((aovs & MR_AOV_RGBA) ? 4u : 0u) + ((aovs & MR_AOV_Z) ? 1u : 0u) +
                     ((aovs & MR_AOV_N) ? 3u : 0u) + ((aovs & MR_AOV_P) ? 3u : 0u) +
-                    ((aovs & MR_AOV_ID) ? 2u : 0u);
+                    ((aovs & MR_AOV_ID) ? 2u : 0u) + ((aovs & MR_AOV_T) ? 3u : 0u);
     if (aovs & MR_AOV_CRYPTOMATTE)
         planes += (size_t)MR_CRYPTO_LAYERS * 2u * (size_t)film_crypto_ranks(crypto_ranks);
     return (size_t)width * (size_t)height * planes * 4u;
@@ -90,7 +91,7 @@ int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_
     *out = NULL;
     if (aovs == 0 || (aovs & ~MR_AOV_ALL))
         return mr_error_set(err, MR_ERR_INVALID, "film passes 0x%x: expected a non-empty set of "
-                            "rgba, z, n, p, id, cryptomatte", aovs);
+                            "rgba, z, n, p, id, cryptomatte, t", aovs);
     if (width <= 0 || height <= 0)
         return mr_error_set(err, MR_ERR_INVALID,
                             "film size %dx%d: width and height must be positive",
@@ -125,6 +126,8 @@ int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_
     if ((aovs & MR_AOV_P) && !(PLANE(film->px) && PLANE(film->py) && PLANE(film->pz)))
         goto nomem;
     if ((aovs & MR_AOV_ID) && !(PLANE(film->object_id) && PLANE(film->prim_id)))
+        goto nomem;
+    if ((aovs & MR_AOV_T) && !(PLANE(film->tx) && PLANE(film->ty) && PLANE(film->tz)))
         goto nomem;
     if (aovs & MR_AOV_CRYPTOMATTE) {
         film->crypto_ranks = film_crypto_ranks(crypto_ranks);

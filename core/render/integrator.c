@@ -41,6 +41,7 @@ typedef struct {
     bool hit;
     float t;
     mr_vec3 normal; /* shading normal, unit, facing the ray origin */
+    mr_vec3 tangent; /* shading tangent, unit and orthogonal to normal; 0: none (MR_AOV_T) */
     uint32_t object, prim;
     mr_vec3 rgb;
     float depth;    /* camera-space depth of the hit */
@@ -97,6 +98,13 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     out->hit = true;
     out->t = h->t;
     out->normal = n;
+    /* the tangent along increasing u, fitted to the shading normal (its
+     * direction does not turn with the normal's side) */
+    mr_vec3 t;
+    out->tangent = (s->aovs & MR_AOV_T) && obj->kind->tangent &&
+                           obj->kind->tangent(obj->geom, h->prim, h->u, h->v, &t)
+                       ? mr_v3_tangent_to(t, n, false)
+                       : mr_v3(0, 0, 0);
     out->object = h->geom + 1;
     out->prim = h->prim;
     out->rgb = mr_v3(0, 0, 0);
@@ -222,6 +230,7 @@ typedef struct tile_buffer {
     float a[MR_TILE_PIXELS], z[MR_TILE_PIXELS];
     float nx[MR_TILE_PIXELS], ny[MR_TILE_PIXELS], nz[MR_TILE_PIXELS];
     float px[MR_TILE_PIXELS], py[MR_TILE_PIXELS], pz[MR_TILE_PIXELS];
+    float tx[MR_TILE_PIXELS], ty[MR_TILE_PIXELS], tz[MR_TILE_PIXELS];
     uint32_t object_id[MR_TILE_PIXELS], prim_id[MR_TILE_PIXELS];
     float crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS][MR_TILE_PIXELS];
 } tile_buffer;
@@ -312,6 +321,9 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *
                 t->px[p] = r[i].hit ? r[i].pos.x : 0.0f;
                 t->py[p] = r[i].hit ? r[i].pos.y : 0.0f;
                 t->pz[p] = r[i].hit ? r[i].pos.z : 0.0f;
+                t->tx[p] = r[i].hit ? r[i].tangent.x : 0.0f;
+                t->ty[p] = r[i].hit ? r[i].tangent.y : 0.0f;
+                t->tz[p] = r[i].hit ? r[i].tangent.z : 0.0f;
                 t->object_id[p] = r[i].hit ? r[i].object : 0;
                 t->prim_id[p] = r[i].hit ? r[i].prim : 0;
             }
@@ -358,9 +370,9 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
         for (int y = 0; y < th; y++) {
             size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
             void *out[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
-                           f->px, f->py, f->pz, f->object_id, f->prim_id};
+                           f->px, f->py, f->pz, f->tx, f->ty, f->tz, f->object_id, f->prim_id};
             const void *in[] = {t.r, t.g, t.b, t.a, t.z, t.nx, t.ny, t.nz,
-                                t.px, t.py, t.pz, t.object_id, t.prim_id};
+                                t.px, t.py, t.pz, t.tx, t.ty, t.tz, t.object_id, t.prim_id};
             for (size_t k = 0; k < sizeof out / sizeof out[0]; k++)
                 if (out[k]) /* the film's passes only */
                     copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, tw);

@@ -189,7 +189,7 @@ static void test_accuracy(void **state)
     size_t n3 = (size_t)m.vertex_count * 3;
     float *pos[4], *nrm[4];
     for (int k = 0; k < 4; k++) {
-        assert_int_equal(sm_map_new(sim, MAPPINGS[k], m.fpos, m.nrm, m.vertex_count, 2, &maps[k], &err), MR_OK);
+        assert_int_equal(sm_map_new(sim, MAPPINGS[k], m.fpos, m.nrm, NULL, m.vertex_count, 2, &maps[k], &err), MR_OK);
         pos[k] = malloc(n3 * 4 + 4);
         nrm[k] = malloc(n3 * 4 + 4);
     }
@@ -217,7 +217,7 @@ static void test_accuracy(void **state)
                sm_sim_measure(sim)->inverted_cells);
         mr_frame_stats st[4];
         for (int k = 0; k < 4; k++) {
-            sm_map_apply(maps[k], sim, pos[k], nrm[k], 2);
+            sm_map_apply(maps[k], sim, pos[k], nrm[k], NULL, 2);
             if (mr_renderer_render(r[k], (size_t)f, film[k], &st[k], &err) < 0)
                 fail_msg("frame %d, %s: %s", f, NAMES[k], err.msg);
         }
@@ -310,7 +310,7 @@ static void test_bending_seams(void **state)
     float *pos[2], *nrm[2];
     size_t n3 = (size_t)m.vertex_count * 3;
     for (int k = 0; k < 2; k++) {
-        assert_int_equal(sm_map_new(sim, MAPPINGS[k + 1], m.fpos, m.nrm, m.vertex_count, 2, &maps[k], &err), MR_OK);
+        assert_int_equal(sm_map_new(sim, MAPPINGS[k + 1], m.fpos, m.nrm, NULL, m.vertex_count, 2, &maps[k], &err), MR_OK);
         pos[k] = malloc(n3 * 4 + 4);
         nrm[k] = malloc(n3 * 4 + 4);
     }
@@ -323,7 +323,7 @@ static void test_bending_seams(void **state)
             fail_msg("frame %d: %s", f, err.msg);
         border_stats b[2];
         for (int k = 0; k < 2; k++) {
-            sm_map_apply(maps[k], sim, pos[k], nrm[k], 2);
+            sm_map_apply(maps[k], sim, pos[k], nrm[k], NULL, 2);
             b[k] = border(maps[k], &mesh, m.nrm, pos[k], nrm[k]);
             sum[k] += b[k].normal_mean;
             sum_stretch[k] += b[k].stretch_mean;

@@ -144,13 +144,13 @@ static void test_thin_sheet(void **state)
     assert_int_equal(sm_sim_grid(s)->thin_nodes, sm_sim_grid(s)->nodes);
     sm_map *map = NULL;
     mr_error err;
-    assert_int_equal(sm_map_new(s, MR_SPRINGMASS_TRIANGLE_CURVATURE, m.fpos, m.nrm, m.vertex_count, 2, &map, &err),
+    assert_int_equal(sm_map_new(s, MR_SPRINGMASS_TRIANGLE_CURVATURE, m.fpos, m.nrm, NULL, m.vertex_count, 2, &map, &err),
                      MR_OK);
     assert_true(sm_map_get_info(map)->constant_fallback >= 8);
     for (int f = 0; f < 30; f++)
         assert_int_equal(sm_sim_advance(s, 15, 2, &err), MR_OK);
     float pos[24 * 3 + 1], nrm[24 * 3 + 1];
-    sm_map_apply(map, s, pos, nrm, 2);
+    sm_map_apply(map, s, pos, nrm, NULL, 2);
     size_t nonfinite = 0;
     double unit_err = 0;
     for (int v = 0; v < 24; v++) {
@@ -192,8 +192,8 @@ static void test_single_node(void **state)
     double one_err = 0, carried_err = 0;
     for (int k = 0; k < 4; k++) {
         sm_map *map = NULL;
-        assert_int_equal(sm_map_new(s, k, m.fpos, m.nrm, m.vertex_count, 2, &map, &err), MR_OK);
-        sm_map_apply(map, s, pos, nrm, 2);
+        assert_int_equal(sm_map_new(s, k, m.fpos, m.nrm, NULL, m.vertex_count, 2, &map, &err), MR_OK);
+        sm_map_apply(map, s, pos, nrm, NULL, 2);
         for (uint32_t v = 0; v < m.vertex_count; v++) {
             if (k == MR_SPRINGMASS_ONE_TO_ONE)
                 one_err = hard_max(one_err, fabsf(pos[v * 3 + 1] - x[1][node]));
@@ -310,9 +310,9 @@ static void test_far_vertex(void **state)
     for (int k = 1; k < 4; k++) { /* one_to_one puts it on a node by definition */
         sm_sim_reset(s, 2);
         sm_map *map = NULL;
-        assert_int_equal(sm_map_new(s, k, m.fpos, m.nrm, m.vertex_count, 2, &map, &err), MR_OK);
+        assert_int_equal(sm_map_new(s, k, m.fpos, m.nrm, NULL, m.vertex_count, 2, &map, &err), MR_OK);
         assert_int_equal(sm_sim_advance(s, 360, 2, &err), MR_OK); /* t = 1 */
-        sm_map_apply(map, s, pos, nrm, 2);
+        sm_map_apply(map, s, pos, nrm, NULL, 2);
         for (int c = 0; c < 3; c++) {
             const float *v = m.fpos + (size_t)(v0 + c) * 3;
             mr_vec3 want = mr_quat_rotate(q, mr_v3(v[0], v[1], v[2]));

@@ -499,11 +499,11 @@ static const bad_case BAD[] = {
      "unknown field; expected one of: width, height, samples, shadows, seed, compression, "
      "zip_level, aovs, normals"},
     {"{" BASE ",'output':{'aovs':[]}}", MR_ERR_INVALID, "/output/aovs",
-     "expected an array of 1..6 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", "
-     "\"cryptomatte\", got an empty array"},
+     "expected an array of 1..7 distinct passes: \"rgba\", \"z\", \"n\", \"p\", \"id\", "
+     "\"cryptomatte\", \"t\", got an empty array"},
     {"{" BASE ",'output':{'aovs':'z'}}", MR_ERR_INVALID, "/output/aovs", "got \"z\""},
     {"{" BASE ",'output':{'aovs':['z','depth']}}", MR_ERR_INVALID, "/output/aovs/1",
-     "expected one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", got \"depth\""},
+     "expected one of: \"rgba\", \"z\", \"n\", \"p\", \"id\", \"cryptomatte\", \"t\", got \"depth\""},
     {"{" BASE ",'output':{'aovs':['z','n','z']}}", MR_ERR_INVALID, "/output/aovs/2",
      "expected each pass once, got \"z\" again"},
     {"{" BASE ",'output':{'normals':'double'}}", MR_ERR_INVALID, "/output/normals",

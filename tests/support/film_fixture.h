@@ -20,11 +20,11 @@ static inline void fx_assert_same_pixels(const mr_film *a, const mr_film *b, con
         fail_msg("%s: the passes differ (0x%x against 0x%x)", what, a->aovs, b->aovs);
     size_t n = (size_t)a->width * (size_t)a->height;
     const void *pa[] = {a->r, a->g, a->b, a->a, a->z, a->nx, a->ny, a->nz,
-                        a->px, a->py, a->pz, a->object_id, a->prim_id};
+                        a->px, a->py, a->pz, a->tx, a->ty, a->tz, a->object_id, a->prim_id};
     const void *pb[] = {b->r, b->g, b->b, b->a, b->z, b->nx, b->ny, b->nz,
-                        b->px, b->py, b->pz, b->object_id, b->prim_id};
+                        b->px, b->py, b->pz, b->tx, b->ty, b->tz, b->object_id, b->prim_id};
     static const char *const name[] = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z",
-                                       "P.X", "P.Y", "P.Z", "id.object", "id.primitive"};
+                                       "P.X", "P.Y", "P.Z", "T.X", "T.Y", "T.Z", "id.object", "id.primitive"};
     for (size_t p = 0; p < sizeof pa / sizeof *pa; p++)
         if (pa[p] && memcmp(pa[p], pb[p], n * 4) != 0) /* every plane: 4-byte values */
             fail_msg("%s: plane %s differs", what, name[p]);

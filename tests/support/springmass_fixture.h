@@ -2,7 +2,8 @@
  * springmass_fixture.h - meshes and set-ups for the spring-mass kind's
  * tests (core/kinds/springmass/): an indexed UV sphere (optionally with
  * holes), boxes (a slab thinner than a node spacing), and the kind's
- * default parameters.
+ * default parameters. Meshes may carry tangents (3.3.4): the sphere its
+ * analytic ones, others a fixed direction fitted to each normal.
  */
 #ifndef SPRINGMASS_FIXTURE_H
 #define SPRINGMASS_FIXTURE_H
@@ -12,6 +13,7 @@
 #include <string.h>
 
 #include "kinds/params.h"
+#include "math/mr_math.h"
 #include "kinds/springmass/grid.h"
 #include "kinds/springmass/map.h"
 #include "kinds/springmass/sim.h"
@@ -22,6 +24,7 @@ typedef struct sm_mesh {
     double *pos;     /* 3 per vertex */
     float *fpos;     /* the same as floats */
     float *nrm;      /* 3 per vertex, unit */
+    float *tan;      /* 3 per vertex, unit and orthogonal to nrm; NULL: none */
     uint32_t *tri;   /* 3 per triangle */
 } sm_mesh;
 
@@ -30,6 +33,7 @@ static inline void sm_mesh_free(sm_mesh *m)
     free(m->pos);
     free(m->fpos);
     free(m->nrm);
+    free(m->tan);
     free(m->tri);
     memset(m, 0, sizeof *m);
 }
@@ -42,6 +46,7 @@ static inline void sm_mesh_alloc(sm_mesh *m, uint32_t nv, uint32_t nt)
     m->fpos = calloc((size_t)nv * 3 + 1, sizeof *m->fpos);
     m->nrm = calloc((size_t)nv * 3 + 1, sizeof *m->nrm);
     m->tri = calloc((size_t)nt * 3, sizeof *m->tri);
+    m->tan = NULL; /* a mesh without tangents unless one is given */
 }
 
 static inline void sm_mesh_sync(sm_mesh *m)
@@ -74,6 +79,16 @@ static inline void sm_mesh_sphere(sm_mesh *m, double cx, double cy, double cz, d
         m->pos[v * 3 + 2] = cz + r * unit[2];
         for (int a = 0; a < 3; a++)
             m->nrm[v * 3 + a] = (float)unit[a];
+    }
+    /* tangents along the segments' direction (increasing longitude; x at
+     * the poles) */
+    m->tan = calloc((size_t)nv * 3 + 1, sizeof *m->tan);
+    for (uint32_t v = 0; v < nv; v++) {
+        double ph = v == 0 || v == nv - 1 ? 0 : 2 * M_PI * ((v - 1) % segments) / segments;
+        m->tan[v * 3] = (float)-sin(ph);
+        m->tan[v * 3 + 2] = (float)cos(ph);
+        if (v == 0 || v == nv - 1)
+            m->tan[v * 3] = 1, m->tan[v * 3 + 2] = 0;
     }
     uint32_t t = 0;
 #define RV(ring, seg) (1 + ((ring) - 1) * segments + (seg) % segments)
@@ -129,6 +144,20 @@ static inline void sm_mesh_box(sm_mesh *m, const double lo[3], const double hi[3
         memcpy(m->tri + f * 6, t, sizeof t);
     }
     sm_mesh_sync(m);
+}
+
+/* Tangents for a mesh that has none: dir fitted to each vertex normal
+ * (mr_v3_tangent_to, its fixed choice where dir lies along the normal). */
+static inline void sm_mesh_fit_tangents(sm_mesh *m, mr_vec3 dir)
+{
+    free(m->tan);
+    m->tan = calloc((size_t)m->vertex_count * 3 + 1, sizeof *m->tan);
+    for (uint32_t v = 0; v < m->vertex_count; v++) {
+        mr_vec3 t = mr_v3_tangent_to(dir, mr_v3(m->nrm[v * 3], m->nrm[v * 3 + 1], m->nrm[v * 3 + 2]), true);
+        m->tan[v * 3] = t.x;
+        m->tan[v * 3 + 1] = t.y;
+        m->tan[v * 3 + 2] = t.z;
+    }
 }
 
 /* The kind's defaults (its parameter table), as a job without a block gets. */

@@ -897,6 +897,122 @@ static void test_faceted(void **state)
 }
 
 /* In-memory meshes: validation and computed area-weighted normals. */
+/* The direction of increasing u (dp/du) and of increasing v in triangle
+ * t's plane, unnormalised; false for collinear uvs. */
+static bool uv_directions(const mr_mesh *m, size_t t, double du_dir[3], double dv_dir[3])
+{
+    const uint32_t *q = &m->indices[t * 3];
+    double e1[3], e2[3];
+    for (int a = 0; a < 3; a++) {
+        e1[a] = (double)m->positions[q[1] * 3 + a] - m->positions[q[0] * 3 + a];
+        e2[a] = (double)m->positions[q[2] * 3 + a] - m->positions[q[0] * 3 + a];
+    }
+    double du1 = (double)m->uvs[q[1] * 2] - m->uvs[q[0] * 2], dv1 = (double)m->uvs[q[1] * 2 + 1] - m->uvs[q[0] * 2 + 1];
+    double du2 = (double)m->uvs[q[2] * 2] - m->uvs[q[0] * 2], dv2 = (double)m->uvs[q[2] * 2 + 1] - m->uvs[q[0] * 2 + 1];
+    double det = du1 * dv2 - du2 * dv1;
+    if (det == 0)
+        return false;
+    for (int a = 0; a < 3; a++) {
+        du_dir[a] = (e1[a] * dv2 - e2[a] * dv1) / det;
+        dv_dir[a] = (e2[a] * du1 - e1[a] * du2) / det;
+    }
+    return true;
+}
+
+static double dot3d(const float *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static double len3d(const double *a) { return sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
+
+/* Every tangent unit (1e-6: one float normalisation of a double result)
+ * and orthogonal to its normal (1e-6), handedness +-1. */
+static void check_tangent_frames(const mr_mesh *m, const char *what)
+{
+    for (uint32_t v = 0; v < m->vertex_count; v++) {
+        const float *t = &m->tangents[v * 4], *n = &m->normals[v * 3];
+        double l = sqrt((double)t[0] * t[0] + (double)t[1] * t[1] + (double)t[2] * t[2]);
+        double d = (double)t[0] * n[0] + (double)t[1] * n[1] + (double)t[2] * n[2];
+        if (!(fabs(l - 1) < 1e-6 && fabs(d) < 1e-6 && (t[3] == 1.0f || t[3] == -1.0f)))
+            fail_msg("%s vertex %u: tangent (%g %g %g %g): length %.9g, . normal %.3g", what, v, t[0], t[1],
+                     t[2], t[3], l, d);
+    }
+}
+
+/* Tangents (mr_mesh_tangents) of meshes with texture coordinates: on the
+ * textured box (flat faces, vertices split per face) each vertex's tangent
+ * is its face's direction of increasing u (to 1e-6) and the handedness
+ * puts w n x t on the side of increasing v; on the skinned dancer (smooth,
+ * left- and right-handed parts) they follow increasing u of the faces
+ * around them; collinear uvs (WusonOBJ's are all one point) get a fixed
+ * unit tangent orthogonal to the normal; no uvs, no tangents; the blob
+ * carries them. */
+static void test_tangents(void **state)
+{
+    (void)state;
+    mr_asset *a = load_ok(MODELS "/glTF2/BoxTextured-glTF/BoxTextured.gltf");
+    const mr_mesh *m = &a->meshes[0];
+    assert_non_null(m->uvs);
+    assert_non_null(m->tangents);
+    check_tangent_frames(m, "box");
+    size_t left = 0;
+    for (size_t t = 0; t < m->triangle_count; t++) {
+        double du[3], dv[3];
+        assert_true(uv_directions(m, t, du, dv));
+        for (int k = 0; k < 3; k++) {
+            uint32_t v = m->indices[t * 3 + k];
+            const float *tg = &m->tangents[v * 4], *n = &m->normals[v * 3];
+            near(dot3d(tg, du) / len3d(du), 1, 1e-6, "box tangent along dp/du");
+            float b[3] = {tg[3] * (n[1] * tg[2] - n[2] * tg[1]), tg[3] * (n[2] * tg[0] - n[0] * tg[2]),
+                          tg[3] * (n[0] * tg[1] - n[1] * tg[0])};
+            assert_true(dot3d(b, dv) > 0);
+            left += tg[3] < 0;
+        }
+    }
+    assert_true(left > 0 && left < m->triangle_count * 3); /* both hands occur */
+    /* the blob carries them */
+    uint8_t *blob = NULL;
+    size_t size = 0;
+    mr_asset *back = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_blob_write(a, &blob, &size, &err), MR_OK);
+    assert_int_equal(mr_asset_blob_read(blob, size, &back, &err), MR_OK);
+    assert_memory_equal(back->meshes[0].tangents, m->tangents, (size_t)m->vertex_count * 4 * sizeof(float));
+    free(blob);
+    mr_asset_free(back);
+    mr_asset_free(a);
+
+    a = load_ok(MODELS "/X/BCN_Epileptic.X");
+    size_t along = 0, corners = 0;
+    for (size_t i = 0; i < a->mesh_count; i++) {
+        m = &a->meshes[i];
+        assert_non_null(m->tangents);
+        check_tangent_frames(m, m->name);
+        for (size_t t = 0; t < m->triangle_count; t++) {
+            double du[3], dv[3];
+            if (!uv_directions(m, t, du, dv))
+                continue;
+            for (int k = 0; k < 3; k++, corners++)
+                along += dot3d(&m->tangents[m->indices[t * 3 + k] * 4], du) > 0;
+        }
+    }
+    /* a smooth average: a corner's tangent points the face's way of
+     * increasing u but where the uv layout folds (measured: 99.8 %) */
+    printf("dancer: %zu of %zu triangle corners' tangents along their face's increasing u\n", along, corners);
+    assert_true(along > corners * 98 / 100);
+    mr_asset_free(a);
+
+    a = load_ok(MODELS "/OBJ/WusonOBJ.obj");
+    m = &a->meshes[0];
+    assert_non_null(m->tangents);
+    check_tangent_frames(m, "WusonOBJ");
+    for (uint32_t v = 0; v < m->vertex_count; v++)
+        assert_true(m->tangents[v * 4 + 3] == 1.0f);
+    mr_asset_free(a);
+
+    a = load_ok(MODELS "/OBJ/box.obj");
+    assert_null(a->meshes[0].uvs);
+    assert_null(a->meshes[0].tangents);
+    mr_asset_free(a);
+}
+
 static void test_from_mesh(void **state)
 {
     (void)state;
@@ -1102,6 +1218,7 @@ int main(void)
         cmocka_unit_test(test_smd_unterminated_name),
         cmocka_unit_test(test_empty_face),
         cmocka_unit_test(test_from_mesh),
+        cmocka_unit_test(test_tangents),
         cmocka_unit_test(test_faceted),
         cmocka_unit_test(test_model_files_confined),
         cmocka_unit_test(test_deep_hierarchy),

@@ -296,12 +296,16 @@ static void test_film_caps(void **state)
     /* Passes: at least one, and only known ones; a film has the planes of
      * its passes and no others; Cryptomatte ranks are even, 2..6. */
     assert_int_equal(mr_film_new_aovs(4, 4, 0, 0, &f, &err), MR_ERR_INVALID);
-    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_Z | 0x40u, 0, &f, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_Z | 0x80u, 0, &f, &err), MR_ERR_INVALID);
     assert_null(f);
     assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_P | MR_AOV_CRYPTOMATTE, 3, &f, &err), MR_OK);
-    assert_true(f->px && f->py && f->pz && !f->r && !f->z && !f->nx && !f->object_id);
+    assert_true(f->px && f->py && f->pz && !f->r && !f->z && !f->nx && !f->tx && !f->object_id);
     assert_int_equal(f->crypto_ranks, 4);
     assert_true(f->crypto[MR_CRYPTO_ASSET][7] && !f->crypto[MR_CRYPTO_ASSET][8]);
+    mr_film_free(f);
+    assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_T, 0, &f, &err), MR_OK);
+    assert_true(f->tx && f->ty && f->tz && !f->px && !f->nx && !f->r && f->tx[15] == 0.0f);
+    assert_int_equal(mr_film_bytes(4, 4, MR_AOV_T, 0), 4 * 4 * 3 * 4);
     mr_film_free(f);
     assert_int_equal(mr_film_new_aovs(4, 4, MR_AOV_CRYPTOMATTE, 100, &f, &err), MR_OK);
     assert_int_equal(f->crypto_ranks, MR_CRYPTO_MAX_RANKS);
@@ -1209,6 +1213,11 @@ static mr_film *varied_film(int w, int h, uint32_t seed, unsigned aovs)
             f->py[i] = -3.0f;
             f->pz[i] = (float)i;
         }
+        if (f->tx) {
+            f->tx[i] = 0.5f - u;
+            f->ty[i] = -0.125f * (float)(i % 5);
+            f->tz[i] = u * u;
+        }
         if (f->object_id) {
             f->object_id[i] = seed >> 30;
             f->prim_id[i] = seed;
@@ -1249,6 +1258,11 @@ static int ref_channels(const mr_film *f, bool half_normals, ref_chan ch[64])
         ADD("P.X", EXR_PIXEL_FLOAT, f->px);
         ADD("P.Y", EXR_PIXEL_FLOAT, f->py);
         ADD("P.Z", EXR_PIXEL_FLOAT, f->pz);
+    }
+    if (f->aovs & MR_AOV_T) {
+        ADD("T.X", EXR_PIXEL_FLOAT, f->tx);
+        ADD("T.Y", EXR_PIXEL_FLOAT, f->ty);
+        ADD("T.Z", EXR_PIXEL_FLOAT, f->tz);
     }
     if (f->aovs & MR_AOV_ID) {
         ADD("id.object", EXR_PIXEL_UINT, f->object_id);
@@ -1433,6 +1447,7 @@ static void test_self_compressed_passes_decode(void **state)
         {MR_AOV_ALL, false},
         {MR_AOV_ALL, true},
         {MR_AOV_Z | MR_AOV_P, false},
+        {MR_AOV_T | MR_AOV_RGBA, false},
         {MR_AOV_N, true},
         {MR_AOV_CRYPTOMATTE | MR_AOV_ID, false},
     };

@@ -1,5 +1,5 @@
 /*
- * test_math.c - quaternion slerp, matrix inverse and friends against values
+ * test_math.c - quaternion slerp, matrix inverse, tangent fitting and friends against values
  * known in closed form.
  *
  * Tolerance: 1e-6 absolute on O(1) values, a few float32 ulps (2^-23 ~ 1.2e-7)
@@ -154,6 +154,43 @@ static void test_look_rotation(void **state)
     assert_near(f.y, -1, 1e-6);
 }
 
+/* mr_v3_tangent_to: the part across n, unit; close to n's direction it is
+ * still orthogonal to n to rounding (1e-6: the second Gram-Schmidt step;
+ * one step leaves about 1e-7 / sin(angle) of n in it); along n, lost. */
+static void test_tangent_to(void **state)
+{
+    (void)state;
+    mr_vec3 n = mr_v3_normalize_or(mr_v3(0.3f, -0.5f, 0.8f), mr_v3(0, 0, 1));
+    mr_vec3 t = mr_v3_tangent_to(mr_v3(2, 0, 0), mr_v3(0, 0, 1), false);
+    assert_true(t.x == 1 && t.y == 0 && t.z == 0);
+    mr_vec3 side = mr_v3_normalize_or(mr_v3_cross(n, mr_v3(1, 0, 0)), mr_v3(0, 1, 0));
+    for (int k = 0; k < 6; k++) {
+        float angle = 0.5f * powf(0.25f, (float)k); /* 0.5 .. 5e-4 rad from n, the last under the 1e-3 bound */
+        mr_vec3 in = mr_v3_scale(mr_v3_add(mr_v3_scale(n, cosf(angle)), mr_v3_scale(side, sinf(angle))), 3.0f);
+        mr_vec3 out = mr_v3_tangent_to(in, n, false);
+        if (angle < 1e-3f) {
+            assert_true(out.x == 0 && out.y == 0 && out.z == 0);
+            mr_vec3 any = mr_v3_tangent_to(in, n, true);
+            assert_true(fabsf(mr_v3_len(any) - 1) < 1e-6f && fabsf(mr_v3_dot(any, n)) < 1e-6f);
+            continue;
+        }
+        if (!(fabsf(mr_v3_len(out) - 1) < 1e-6f && fabsf(mr_v3_dot(out, n)) < 1e-6f &&
+              mr_v3_dot(out, side) > 0.99999f))
+            fail_msg("%g rad from n: (%g %g %g), . n %g", (double)angle, (double)out.x, (double)out.y,
+                     (double)out.z, (double)mr_v3_dot(out, n));
+    }
+    /* nothing, or not finite: lost */
+    mr_vec3 z = mr_v3_tangent_to(mr_v3(0, 0, 0), n, false);
+    assert_true(z.x == 0 && z.y == 0 && z.z == 0);
+    z = mr_v3_tangent_to(mr_v3(NAN, 1, 0), n, false);
+    assert_true(z.x == 0 && z.y == 0 && z.z == 0);
+    z = mr_v3_tangent_to(mr_v3(INFINITY, 1, 0), n, true);
+    assert_true(fabsf(mr_v3_len(z) - 1) < 1e-6f && fabsf(mr_v3_dot(z, n)) < 1e-6f);
+    /* the fixed choice: the same bits for the same n */
+    mr_vec3 a = mr_v3_any_orthogonal(n), b = mr_v3_any_orthogonal(n);
+    assert_memory_equal(&a, &b, sizeof a);
+}
+
 static void test_catmull_rom_interpolates(void **state)
 {
     (void)state;
@@ -178,6 +215,7 @@ int main(void)
         cmocka_unit_test(test_normal_matrix_keeps_perpendicular),
         cmocka_unit_test(test_look_rotation),
         cmocka_unit_test(test_catmull_rom_interpolates),
+        cmocka_unit_test(test_tangent_to),
     };
     return cmocka_run_group_tests_name("math", tests, NULL, NULL);
 }

@@ -8,7 +8,8 @@
  *
  * The scene: two copies of the BCN dancer (objects "hero" and "double",
  * one asset "dancer") in front of a box scaled into a wall (object
- * "wall", asset "crate"), seen by a camera off every axis.
+ * "wall", asset "crate"), seen by a camera off every axis; the tangent
+ * pass on scenes of its own.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -24,6 +25,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "asset/asset.h"
 #include "job_json.h"
 #include "microray.h"
 #include "util/murmur3.h"
@@ -63,9 +65,10 @@ static char *dq(const char *s)
     return t;
 }
 
-/* Parses, renders frame 0 and writes it (as the renderers do: the meta
- * of mr_exr_meta_for_frame) to <dir>/<name>.exr. */
-static rendered render_job(const char *json, const char *name)
+/* Parses, renders frame `frame` (after the ones before it) and writes it
+ * (as the renderers do: the meta of mr_exr_meta_for_frame) to
+ * <dir>/<name>.exr. */
+static rendered render_job_frame(const char *json, const char *name, size_t frame)
 {
     rendered out;
     memset(&out, 0, sizeof out);
@@ -75,18 +78,20 @@ static rendered render_job(const char *json, const char *name)
     if (mr_job_parse(text, strlen(text), &out.job, &jerr) < 0)
         fail_msg("job: %s: %s", jerr.pointer, jerr.message);
     free(text);
-    mr_asset *assets[2] = {NULL, NULL};
-    assert_int_equal(out.job->asset_count, 2);
-    for (size_t i = 0; i < 2; i++)
+    mr_asset *assets[4] = {NULL, NULL, NULL, NULL};
+    assert_true(out.job->asset_count >= 1 && out.job->asset_count <= 4);
+    for (size_t i = 0; i < out.job->asset_count; i++)
         if (mr_asset_load(out.job->assets[i].path, &assets[i], &err) < 0)
             fail_msg("%s", err.msg);
     mr_device *dev = NULL;
     mr_renderer *r = NULL;
     if (mr_device_new(0, &dev, &err) < 0 ||
         mr_renderer_new(dev, out.job, assets, NULL, &r, &err) < 0 ||
-        mr_job_film_new(out.job, &out.film, &err) < 0 ||
-        mr_renderer_render(r, 0, out.film, &out.st, &err) < 0)
+        mr_job_film_new(out.job, &out.film, &err) < 0)
         fail_msg("render: %s", err.msg);
+    for (size_t k = 0; k <= frame; k++)
+        if (mr_renderer_render(r, k, out.film, &out.st, &err) < 0)
+            fail_msg("render frame %zu: %s", k, err.msg);
     mr_exr_meta meta;
     mr_exr_meta_for_frame(&meta, out.job, &out.st);
     snprintf(out.path, sizeof out.path, "%s/%s.exr", g_dir, name);
@@ -94,10 +99,12 @@ static rendered render_job(const char *json, const char *name)
         fail_msg("write: %s", err.msg);
     mr_renderer_free(r);
     mr_device_free(dev);
-    mr_asset_free(assets[0]);
-    mr_asset_free(assets[1]);
+    for (size_t i = 0; i < 4; i++)
+        mr_asset_free(assets[i]);
     return out;
 }
+
+static rendered render_job(const char *json, const char *name) { return render_job_frame(json, name, 0); }
 
 static void rendered_free(rendered *r)
 {
@@ -295,6 +302,7 @@ static void test_aovs_selection(void **state)
         {"['z']", "Z"},
         {"['n','id']", "N.X,N.Y,N.Z,id.object,id.primitive"},
         {"['p','z']", "P.X,P.Y,P.Z,Z"},
+        {"['t']", "T.X,T.Y,T.Z"},
         {"['cryptomatte']",
          "CryptoAsset00.A,CryptoAsset00.B,CryptoAsset00.G,CryptoAsset00.R,CryptoAsset01.A,"
          "CryptoAsset01.B,CryptoAsset01.G,CryptoAsset01.R,CryptoObject00.A,CryptoObject00.B,"
@@ -302,7 +310,7 @@ static void test_aovs_selection(void **state)
          "CryptoObject01.R"},
     };
     rendered all = render_job(SCENE("'output':{'width':160,'height':120,'samples':3,"
-                                    "'aovs':['rgba','z','n','p','id','cryptomatte']}"),
+                                    "'aovs':['rgba','z','n','p','id','cryptomatte','t']}"),
                               "all");
     mr_film *full = NULL;
     mr_error err = {0};
@@ -337,6 +345,8 @@ static void test_aovs_selection(void **state)
             assert_memory_equal(back->ny, full->ny, n * 4);
         if (a & MR_AOV_P)
             assert_memory_equal(back->px, full->px, n * 4);
+        if (a & MR_AOV_T)
+            assert_memory_equal(back->tz, full->tz, n * 4);
         if (a & MR_AOV_ID)
             assert_memory_equal(back->prim_id, full->prim_id, n * 4);
         if (a & MR_AOV_CRYPTOMATTE)
@@ -507,6 +517,192 @@ static void test_background_alpha(void **state)
     rendered_free(&opaque);
 }
 
+/* |T| of pixel i. */
+static double tangent_len(const mr_film *f, size_t i)
+{
+    return sqrt((double)f->tx[i] * f->tx[i] + (double)f->ty[i] * f->ty[i] + (double)f->tz[i] * f->tz[i]);
+}
+
+/* The tangent pass (output.aovs "t", paper 001 3.3.4), on a frame of
+ * objects that all have tangents: the skinned, posed dancer (mesh kind,
+ * its texture coordinates' tangents skinned with it) and Wuson as a
+ * spring-mass object bent by a probe (its tangents carried by the
+ * curvature mapping), with aovs ["rgba", "t"] at one sample (alpha then
+ * says whether the pixel's centre ray hit). Read back through OpenEXR's C
+ * library (mr_exr_read_file) and listed by exrheader: T.X T.Y T.Z are
+ * FLOAT, unit where the ray hit (1e-6: one float normalisation) and 0
+ * where it missed. On the passes' scene, whose wall is a box without
+ * texture coordinates, the wall's pixels are 0 and the dancers' unit. */
+static void test_tangent_pass(void **state)
+{
+    (void)state;
+    rendered r = render_job_frame(
+        "{'name':'tangents',"
+        "'assets':{'dancer':{'path':'/usr/share/assimp/models/X/BCN_Epileptic.X'},"
+        "          'wuson':{'path':'/usr/share/assimp/models/PLY/Wuson.ply'}},"
+        "'objects':[{'name':'hero','asset':'dancer','pose':{'clip':0},"
+        "            'transform':{'translation':[-0.6,0,0]}},"
+        "           {'name':'dough','asset':'wuson','kind':'springmass',"
+        "            'transform':{'translation':[0.7,0,0],'scale':[0.6,0.6,0.6]},"
+        "            'springmass':{'nodes':400,'pins':[{'box_max':[2,0.2,2]}],"
+        "              'probes':[{'radius':0.15,'path':[{'t':0,'position':[0.7,1.2,0]},"
+        "                                               {'t':0.2,'position':[0.7,0.8,0.05]}]}]}}],"
+        "'camera':{'yfov':42,'path':[{'t':0,'position':[0.1,0.6,2.4],'target':[0,0.45,0]}]},"
+        "'frames':{'fps':24,'start':0,'end':0.25},"
+        "'output':{'width':160,'height':120,'samples':1,'aovs':['rgba','t']}}",
+        "tangents", 5); /* frame 5: 75 steps, the probe pressed in */
+    char *h = exrheader(r.path);
+    char got[256];
+    channel_list(h, got, sizeof got);
+    assert_string_equal(got, "A,B,G,R,T.X,T.Y,T.Z");
+    assert_non_null(strstr(h, "    T.X, 32-bit floating-point, sampling 1 1\n"));
+    free(h);
+    mr_film *back = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_exr_read_file(r.path, &back, NULL, &err), MR_OK);
+    assert_true(back->tx && back->ty && back->tz);
+    size_t hits = 0, misses = 0, side[2] = {0, 0};
+    double worst = 0;
+    for (size_t i = 0; i < (size_t)W * H; i++) {
+        if (back->a[i] == 1.0f) {
+            worst = fmax(worst, fabs(tangent_len(back, i) - 1));
+            hits++;
+            side[i % W >= W / 2]++; /* the dancer left, the dough right */
+        } else {
+            assert_true(back->a[i] == 0.0f);
+            if (back->tx[i] != 0.0f || back->ty[i] != 0.0f || back->tz[i] != 0.0f)
+                fail_msg("pixel %zu missed but has a tangent (%g %g %g)", i, back->tx[i], back->ty[i], back->tz[i]);
+            misses++;
+        }
+    }
+    printf("tangent pass: %zu hits (%zu left, %zu right; |T| within %.2e of 1), %zu misses\n", hits, side[0],
+           side[1], worst, misses);
+    assert_true(side[0] > 1000 && side[1] > 1000 && misses > 2000);
+    if (!(worst < 1e-6))
+        fail_msg("a hit's tangent is %.3g off unit length", worst);
+    mr_film_free(back);
+    rendered_free(&r);
+
+    /* objects without tangents: the wall (box.obj has no uvs) */
+    r = render_job(SCENE("'output':{'width':160,'height':120,'aovs':['t','id']}"), "notan");
+    size_t wall = 0, dancers = 0;
+    for (size_t i = 0; i < (size_t)W * H; i++) {
+        double l = tangent_len(r.film, i);
+        if (r.film->object_id[i] == 3) {
+            assert_true(l == 0);
+            wall++;
+        } else if (r.film->object_id[i] != 0) {
+            assert_true(fabs(l - 1) < 1e-6);
+            dancers++;
+        }
+    }
+    assert_true(wall > 1000 && dancers > 1000);
+    rendered_free(&r);
+}
+
+/* The tangent pass of a mesh object agrees with its asset's tangents
+ * (asset.h, mr_mesh_tangents) at the hit: the spider (a rigid model whose
+ * 19 meshes share vertices, so tangents vary across triangles) placed by
+ * a rotation, a non-uniform scale and a translation. Per hit pixel: the
+ * triangle (id.primitive, over the meshes in order), the barycentric
+ * coordinates of P in the placed triangle, the corners' tangents placed
+ * (moved by the transform's linear part and fitted to their placed
+ * normals, as skinning places them) and interpolated with them, made
+ * orthogonal to N and unit: T within 1e-3 of that (the barycentric
+ * coordinates recovered from a float P are off by about 1e-7 of the
+ * coordinates over the triangle's size, and the tangents of a triangle's
+ * corners differ by up to a radian or so; measured: 1.2e-4). */
+static void test_tangent_pass_matches_asset(void **state)
+{
+    (void)state;
+    rendered r = render_job(
+        "{'name':'spider',"
+        "'assets':{'spider':{'path':'/usr/share/assimp/models/OBJ/spider.obj'}},"
+        "'objects':[{'name':'spider','asset':'spider',"
+        "            'transform':{'translation':[0.1,-0.05,0],'rotation':[0.2,0.3,0.1,0.927],"
+        "                         'scale':[0.012,0.009,0.01]}}],"
+        "'camera':{'yfov':45,'path':[{'t':0,'position':[0.4,1.6,2.6],'target':[0,0,0]}]},"
+        "'frames':{'fps':10,'times':[0]},"
+        "'output':{'width':160,'height':120,'aovs':['t','n','p','id']}}",
+        "spider");
+    mr_asset *a = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_asset_load(r.job->assets[0].path, &a, &err), MR_OK);
+    for (size_t k = 0; k < a->node_count; k++) /* OBJ: meshes placed by identity nodes */
+        for (int e = 0; e < 16; e++)
+            assert_true(a->nodes[k].local.m[e] == (e % 5 == 0 ? 1.0f : 0.0f));
+    const mr_mat4 *M = &r.job->objects[0].transform;
+    const mr_mat4 N = mr_mat4_normal_matrix(M);
+    const mr_film *f = r.film;
+    size_t hits = 0;
+    double worst = 0;
+    for (size_t i = 0; i < (size_t)W * H; i++) {
+        if (f->object_id[i] == 0)
+            continue;
+        hits++;
+        uint32_t prim = f->prim_id[i];
+        size_t mi = 0;
+        while (prim >= a->meshes[mi].triangle_count)
+            prim -= a->meshes[mi++].triangle_count;
+        const mr_mesh *m = &a->meshes[mi];
+        assert_non_null(m->tangents);
+        const uint32_t *q = &m->indices[(size_t)prim * 3];
+        double P[3][3], p[3] = {f->px[i], f->py[i], f->pz[i]};
+        for (int k = 0; k < 3; k++) {
+            mr_vec3 w = mr_mat4_point(M, mr_v3(m->positions[q[k] * 3], m->positions[q[k] * 3 + 1],
+                                               m->positions[q[k] * 3 + 2]));
+            P[k][0] = w.x, P[k][1] = w.y, P[k][2] = w.z;
+        }
+        /* barycentric coordinates of p in the placed triangle (least squares) */
+        double e1[3], e2[3], d[3];
+        for (int c = 0; c < 3; c++)
+            e1[c] = P[1][c] - P[0][c], e2[c] = P[2][c] - P[0][c], d[c] = p[c] - P[0][c];
+        double d00 = 0, d01 = 0, d11 = 0, d20 = 0, d21 = 0;
+        for (int c = 0; c < 3; c++) {
+            d00 += e1[c] * e1[c], d01 += e1[c] * e2[c], d11 += e2[c] * e2[c];
+            d20 += d[c] * e1[c], d21 += d[c] * e2[c];
+        }
+        double den = d00 * d11 - d01 * d01;
+        double bu = (d11 * d20 - d01 * d21) / den, bv = (d00 * d21 - d01 * d20) / den, bw = 1 - bu - bv;
+        /* each corner's tangent placed (moved by M, fitted to its placed
+         * normal, unit; in double), then interpolated */
+        double want[3] = {0, 0, 0}, n[3] = {f->nx[i], f->ny[i], f->nz[i]}, bary[3] = {bw, bu, bv};
+        for (int k = 0; k < 3; k++) {
+            const float *tk = &m->tangents[q[k] * 4], *nk = &m->normals[q[k] * 3];
+            mr_vec3 tm = mr_mat4_dir(M, mr_v3(tk[0], tk[1], tk[2]));
+            mr_vec3 nm = mr_mat4_dir(&N, mr_v3(nk[0], nk[1], nk[2]));
+            double tw[3] = {tm.x, tm.y, tm.z}, nw[3] = {nm.x, nm.y, nm.z}, nn = 0, tn = 0, tl = 0;
+            for (int c = 0; c < 3; c++)
+                nn += nw[c] * nw[c];
+            for (int c = 0; c < 3; c++)
+                tn += tw[c] * nw[c] / nn;
+            for (int c = 0; c < 3; c++) {
+                tw[c] -= tn * nw[c];
+                tl += tw[c] * tw[c];
+            }
+            for (int c = 0; c < 3; c++)
+                want[c] += bary[k] * tw[c] / sqrt(tl);
+        }
+        double along = want[0] * n[0] + want[1] * n[1] + want[2] * n[2], len = 0;
+        for (int c = 0; c < 3; c++) {
+            want[c] -= along * n[c];
+            len += want[c] * want[c];
+        }
+        len = sqrt(len);
+        double got[3] = {f->tx[i], f->ty[i], f->tz[i]}, off = 0;
+        for (int c = 0; c < 3; c++)
+            off = fmax(off, fabs(got[c] - want[c] / len));
+        worst = fmax(worst, off);
+    }
+    printf("spider: %zu hit pixels, tangent pass within %.2e of the asset's tangents at the hits\n", hits,
+           worst);
+    assert_true(hits > 1500);
+    if (!(worst < 1e-3))
+        fail_msg("the tangent pass is %.3g off the asset's tangent at a hit", worst);
+    mr_asset_free(a);
+    rendered_free(&r);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -515,6 +711,8 @@ int main(void)
         cmocka_unit_test(test_half_normals),
         cmocka_unit_test(test_cryptomatte),
         cmocka_unit_test(test_background_alpha),
+        cmocka_unit_test(test_tangent_pass),
+        cmocka_unit_test(test_tangent_pass_matches_asset),
     };
     return cmocka_run_group_tests_name("passes", tests, group_setup, group_teardown);
 }

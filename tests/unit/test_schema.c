@@ -390,7 +390,7 @@ static const agree_case AGREE[] = {
     {"output shadows a number", REJECT, WITH_OUTPUT("{'shadows':1}")},
     {"output unknown field", REJECT, WITH_OUTPUT("{'format':'exr'}")},
     {"output aovs, every pass", ACCEPT,
-     WITH_OUTPUT("{'aovs':['rgba','z','n','p','id','cryptomatte']}")},
+     WITH_OUTPUT("{'aovs':['rgba','z','n','p','id','cryptomatte','t']}")},
     {"output aovs, one pass", ACCEPT, WITH_OUTPUT("{'aovs':['z']}")},
     {"output aovs empty", REJECT, WITH_OUTPUT("{'aovs':[]}")},
     {"output aovs with a pass twice", REJECT, WITH_OUTPUT("{'aovs':['z','rgba','z']}")},

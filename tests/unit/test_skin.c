@@ -1,7 +1,8 @@
 /*
  * test_skin.c - pose evaluation, clip sampling and linear blend skinning on a
  * hand-built two-bone fixture whose results are worked out by hand below, plus
- * influence renormalisation and thread-count independence on a real model.
+ * tangents moved with it, influence renormalisation and thread-count
+ * independence on a real model.
  *
  * Tolerance: 1e-5 absolute unless stated. Every checked value is O(1) and goes
  * through a handful of float32 operations (two 4x4 products, a weighted sum, a
@@ -173,6 +174,76 @@ static void test_two_bone_skinning(void **state)
         near(p[i], a->meshes[0].positions[i], TOL, "rest position");
         near(n[i], a->meshes[0].normals[i], TOL, "rest normal");
     }
+    mr_pose_free(pose);
+    mr_asset_free(a);
+}
+
+/* Tangents (asset.h mr_mesh.tangents) move with the blended matrix and are
+ * made orthogonal to the moved normal: bone1 bent 90 degrees as above,
+ * every vertex's tangent +x. */
+static void test_tangents(void **state)
+{
+    (void)state;
+    mr_asset *a = make_fixture();
+    mr_mesh *m = &a->meshes[0];
+    m->tangents = calloc(6 * 4, sizeof(float));
+    assert_non_null(m->tangents);
+    for (int v = 0; v < 6; v++) {
+        m->tangents[v * 4] = 1;
+        m->tangents[v * 4 + 3] = v == 3 ? -1.0f : 1.0f; /* handedness: not moved */
+    }
+    mr_pose *pose = NULL;
+    mr_error err = {0};
+    assert_int_equal(mr_pose_new(a, &pose, &err), MR_OK);
+    mr_mat4 t1 = translate(1, 0, 0), r90 = rot_z(PI_F / 2);
+    mr_mat4 bent = mr_mat4_mul(&t1, &r90);
+    mr_joint_override ov = override_of("bone1", bent);
+    mr_pose_desc desc = {.joint_count = 1, .joints = &ov, .loop = true};
+    assert_int_equal(mr_pose_eval(pose, a, &desc, 0.0, &err), MR_OK);
+    float p[18], n[18], t[18], p2[18], n2[18];
+    mr_skin_mesh_tangents(a, 0, pose, NULL, p, n, t, 1);
+    /* positions and normals are mr_skin_mesh's, bit for bit */
+    mr_skin_mesh(a, 0, pose, NULL, p2, n2, 1);
+    assert_memory_equal(p, p2, sizeof p);
+    assert_memory_equal(n, n2, sizeof n);
+    /*
+     * v0, v5: K0 = I and rigid: (1,0,0). v2, v3: Rz90 (1,0,0) = (0,1,0).
+     * v1: B = (I + K1)/2, linear part 0.5 [[1,-1,0],[1,1,0],[0,0,2]]:
+     *     (1,0,0) -> (0.5,0.5,0), unit (1,1,0)/sqrt2; its normal (0,0,1)
+     *     is orthogonal to it already. v4: the same, and its normal
+     *     (-1,1,0)/sqrt2 is too (the blend turns both by 45 degrees).
+     */
+    near3(&t[0], 1, 0, 0, "t0");
+    near3(&t[3], M_SQRT1_2, M_SQRT1_2, 0, "t1");
+    near3(&t[6], 0, 1, 0, "t2");
+    near3(&t[9], 0, 1, 0, "t3");
+    near3(&t[12], M_SQRT1_2, M_SQRT1_2, 0, "t4");
+    near3(&t[15], 1, 0, 0, "t5");
+    /* a scale that does not keep angles: the tangent is fitted to the
+     * normal again (Gram-Schmidt), unit and orthogonal to it */
+    mr_mat4 shear = mr_mat4_identity();
+    shear.m[1] = 0.8f; /* x += 0.8 y */
+    shear.m[6] = 0.5f; /* y += 0.5 z */
+    mr_skin_mesh_tangents(a, 0, pose, &shear, p, n, t, 1);
+    /* v0: S (1,0,0) = (1,0,0), its normal S^-T (0,0,1) = (0,0,1); v2:
+     * S Rz90 (1,0,0) = S (0,1,0) = (0.8,1,0), normal S^-T (-1,0,0) =
+     * (-1,0.8,-0.4), orthogonal to it already: (0.8,1,0)/sqrt(1.64) */
+    near3(&t[0], 1, 0, 0, "sheared t0");
+    near3(&t[6], 0.8 / sqrt(1.64), 1 / sqrt(1.64), 0, "sheared t2");
+    for (int v = 0; v < 6; v++) {
+        double len = sqrt((double)t[v * 3] * t[v * 3] + (double)t[v * 3 + 1] * t[v * 3 + 1] +
+                          (double)t[v * 3 + 2] * t[v * 3 + 2]);
+        near(len, 1, TOL, "sheared tangent length");
+        near(t[v * 3] * n[v * 3] + t[v * 3 + 1] * n[v * 3 + 1] + t[v * 3 + 2] * n[v * 3 + 2], 0, TOL,
+             "sheared tangent . normal");
+    }
+    /* a mesh without tangents leaves the buffer alone */
+    free(m->tangents);
+    m->tangents = NULL;
+    memset(t, 0x7f, sizeof t);
+    mr_skin_mesh_tangents(a, 0, pose, NULL, p, n, t, 1);
+    for (int i = 0; i < 18; i++)
+        assert_true(t[i] == t[0] && t[0] > 1e30f);
     mr_pose_free(pose);
     mr_asset_free(a);
 }
@@ -482,11 +553,15 @@ static void test_thread_independence(void **state)
     m = &a->meshes[0];
     bytes = (size_t)m->vertex_count * 3 * sizeof(float);
     p1 = malloc(bytes), n1 = malloc(bytes), p2 = malloc(bytes), n2 = malloc(bytes);
-    assert_true(p1 && n1 && p2 && n2);
-    mr_skin_mesh(a, 0, pose, &obj, p1, n1, 1);
-    mr_skin_mesh(a, 0, pose, &obj, p2, n2, 2);
+    float *t1 = malloc(bytes), *t2 = malloc(bytes);
+    assert_true(p1 && n1 && p2 && n2 && t1 && t2 && m->tangents);
+    mr_skin_mesh_tangents(a, 0, pose, &obj, p1, n1, t1, 1);
+    mr_skin_mesh_tangents(a, 0, pose, &obj, p2, n2, t2, 2);
     assert_memory_equal(p1, p2, bytes);
     assert_memory_equal(n1, n2, bytes);
+    assert_memory_equal(t1, t2, bytes);
+    free(t1);
+    free(t2);
     free(p1);
     free(n1);
     free(p2);
@@ -524,6 +599,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_two_bone_skinning),
+        cmocka_unit_test(test_tangents),
         cmocka_unit_test(test_joint_override),
         cmocka_unit_test(test_clip_sampling),
         cmocka_unit_test(test_weights_renormalised),

@@ -4,7 +4,8 @@
  * newest checkpoint at or before them (render/checkpoint.h) and replay the
  * rest, bit-identical to the in-order run; a damaged checkpoint is refused,
  * removed and written again, and the next older one is used; another
- * parameter is another state id; the thread count changes no bit; the
+ * parameter is another state id; the thread count changes no bit (the
+ * tangent pass too); the
  * kind's stats fields; a pose and a diverging simulation are errors that
  * name the object.
  */
@@ -65,7 +66,8 @@ static void run_open(run *x, const mr_job *job, unsigned threads, const char *ca
     mr_renderer_options opt = {.cache_dir = cache};
     if (mr_renderer_new(x->dev, job, &x->asset, &opt, &x->r, &err) < 0)
         fail_msg("renderer: %s", err.msg);
-    assert_int_equal(mr_film_new(64, 48, &x->film, &err), MR_OK);
+    /* the default passes and the tangents (map.h carries them) */
+    assert_int_equal(mr_film_new_aovs(64, 48, MR_AOV_DEFAULT | MR_AOV_T, 0, &x->film, &err), MR_OK);
 }
 
 static void run_close(run *x)
@@ -80,10 +82,10 @@ static void run_close(run *x)
 static uint8_t *film_bytes(const mr_film *f, size_t *n)
 {
     size_t px = (size_t)f->width * f->height;
-    const float *planes[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz};
-    *n = px * (8 * sizeof(float) + 2 * sizeof(uint32_t));
+    const float *planes[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz, f->tx, f->ty, f->tz};
+    *n = px * (11 * sizeof(float) + 2 * sizeof(uint32_t));
     uint8_t *b = malloc(*n), *p = b;
-    for (size_t k = 0; k < 8; k++, p += px * sizeof(float))
+    for (size_t k = 0; k < 11; k++, p += px * sizeof(float))
         memcpy(p, planes[k], px * sizeof(float));
     memcpy(p, f->object_id, px * sizeof(uint32_t));
     memcpy(p + px * sizeof(uint32_t), f->prim_id, px * sizeof(uint32_t));

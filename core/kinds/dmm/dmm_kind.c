@@ -724,6 +724,7 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         m.positions = b->base_positions;
         m.normals = b->base_directions;
         m.uvs = NULL;
+        m.tangents = NULL; /* the asset's vertices', not the base's */
         m.indices = b->base_indices;
         m.joints = b->joints;
         m.weights = b->weights;

@@ -8,6 +8,11 @@
  * monitor then counts only its acceleration structure. The vertex array has
  * one float of padding because Embree loads vertices with 16-byte reads.
  *
+ * Meshes with texture coordinates carry their tangents (asset.h), skinned
+ * with the vertices; the tangent at a hit interpolates the three vertices'
+ * (the renderer fits it to the shading normal). A mesh without them has
+ * none (zero tangents, no tangent at its hits).
+ *
  * The exact reference of a triangle mesh is itself.
  *
  * With "tolerance_px" the mesh has levels of detail (mesh_lod.h): each
@@ -33,6 +38,7 @@ struct mr_geom {
     uint32_t *mesh_first_vertex; /* per asset mesh: offset into the merged arrays */
     float *positions;            /* 3 per vertex + 1 float padding */
     float *normals;              /* 3 per vertex */
+    float *tangents;             /* 3 per vertex (0 for meshes without); NULL: no mesh has them */
     uint32_t *indices;           /* 3 per triangle, merged: level 0 */
     mr_vec3 lo, hi;              /* bounds of the posed mesh after the last update (with
                                     levels: the coarsest's grown by its error) */
@@ -72,6 +78,7 @@ static void mesh_free(mr_geom *g)
     free(g->mesh_first_vertex);
     free(g->positions);
     free(g->normals);
+    free(g->tangents);
     free(g->indices);
     free(g);
 }
@@ -202,6 +209,9 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
     g->indices = malloc(nt * 3 * sizeof(uint32_t));
     if (!g->mesh_first_vertex || !g->positions || !g->normals || !g->indices)
         goto nomem;
+    for (size_t i = 0; i < asset->mesh_count && !g->tangents; i++)
+        if (asset->meshes[i].tangents && !(g->tangents = calloc(nv * 3, sizeof(float))))
+            goto nomem;
     uint32_t v0 = 0, t0 = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
@@ -261,12 +271,14 @@ static int pose_level(mr_geom *g, uint32_t k, const mr_pose *pose, const mr_mat4
     const mr_asset *a = g->asset;
     for (size_t i = 0; i < a->mesh_count; i++) {
         size_t off = (size_t)g->mesh_first_vertex[i] * 3;
+        float *tangents = g->tangents ? g->tangents + off : NULL;
         if (k == 0)
-            mr_skin_mesh(a, i, pose, transform, g->positions + off, g->normals + off, threads);
+            mr_skin_mesh_tangents(a, i, pose, transform, g->positions + off, g->normals + off,
+                                  tangents, threads);
         else
             mr_skin_mesh_vertices(a, i, pose, transform, g->level_vertices[k] + g->level_first[k][i],
                                   g->level_first[k][i + 1] - g->level_first[k][i],
-                                  g->positions + off, g->normals + off, threads);
+                                  g->positions + off, g->normals + off, tangents, threads);
     }
     size_t count = k == 0 ? g->vertex_count : g->level_first[k][a->mesh_count];
     for (size_t j = 0; j < count; j++) {
@@ -384,6 +396,20 @@ static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
                  w * n0[2] + u * n1[2] + v * n2[2]);
 }
 
+static bool mesh_tangent(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out)
+{
+    if (!g->tangents)
+        return false;
+    const uint32_t *tri = g->cur_indices + (size_t)prim * 3;
+    const float *t0 = g->tangents + (size_t)tri[0] * 3;
+    const float *t1 = g->tangents + (size_t)tri[1] * 3;
+    const float *t2 = g->tangents + (size_t)tri[2] * 3;
+    float w = 1.0f - u - v;
+    *out = mr_v3(w * t0[0] + u * t1[0] + v * t2[0], w * t0[1] + u * t1[1] + v * t2[1],
+                 w * t0[2] + u * t1[2] + v * t2[2]);
+    return out->x != 0.0f || out->y != 0.0f || out->z != 0.0f; /* 0: a mesh without */
+}
+
 /* The hit lifted onto the surface the vertex normals describe (Hanika,
  * "Hacking the shadow terminator", Ray Tracing Gems II, 2021): for each
  * corner k whose tangent plane (position v_k, normal n_k) p lies below,
@@ -428,7 +454,7 @@ static size_t lod_bytes(const mr_geom *g)
 
 static size_t mesh_memory(const mr_geom *g)
 {
-    return ((size_t)g->vertex_count * 6 + 1) * sizeof(float) +
+    return ((size_t)g->vertex_count * (g->tangents ? 9 : 6) + 1) * sizeof(float) +
            (size_t)g->triangle_count * 3 * sizeof(uint32_t) + lod_bytes(g);
 }
 
@@ -482,6 +508,7 @@ const mr_kind mr_kind_mesh = {
     .attach = mesh_attach,
     .commit = mesh_commit,
     .normal = mesh_normal,
+    .tangent = mesh_tangent,
     .shading_point = mesh_shading_point,
     .tessellate = mesh_tessellate,
     .memory = mesh_memory,

@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "math/mr_math.h"
 #include "util/parallel.h"
 
 /* An approximate normal is trusted where the unit vectors of its node sum
@@ -41,6 +42,7 @@ typedef struct tri_bind {
     float w[3];      /* eq. 4 */
     float o[3], n[3];   /* offset and normal in the constant basis (eq. 7) */
     float oc[3], nc[3]; /* in the interpolated basis at rest (BIND_CURVATURE) */
+    float t[3], tc[3];  /* the tangent in each (3.3.4; 0 without tangents) */
     uint8_t mode;
 } tri_bind;
 
@@ -110,6 +112,9 @@ struct sm_map {
     size_t ghost_count;
     float *gdisp;         /* 3 per ghost, this frame's */
     float *rest_pos, *rest_nrm;
+    float *rest_tan;      /* NULL: no tangents to carry */
+    float *hot_t;         /* triangle mappings and one_to_one, with tangents: per vertex
+                             the tangent in the basis of hot (3 floats) */
     sm_map_info info;
 };
 
@@ -128,6 +133,8 @@ void sm_map_free(sm_map *m)
     free(m->gdisp);
     free(m->rest_pos);
     free(m->rest_nrm);
+    free(m->rest_tan);
+    free(m->hot_t);
     free(m);
 }
 
@@ -141,7 +148,8 @@ uint32_t sm_map_triangle_of(const sm_map *m, uint32_t v)
 size_t sm_map_bytes(const sm_map *m)
 {
     size_t v = m->vertex_count;
-    return sizeof *m + v * 6 * sizeof(float) + (m->one ? v * sizeof *m->one : 0) +
+    return sizeof *m + v * 6 * sizeof(float) + (m->rest_tan ? v * 3 * sizeof(float) : 0) +
+           (m->hot_t ? v * 3 * sizeof(float) : 0) + (m->one ? v * sizeof *m->one : 0) +
            (m->tri ? v * (sizeof *m->tri + sizeof *m->tri_of + sizeof *m->hot) : 0) +
            m->tri_count * sizeof *m->tri_frame +
            (m->lin ? v * sizeof *m->lin : 0) +
@@ -317,7 +325,7 @@ static void basis_d(const double *p1, const double *p2, const double *p3, double
 typedef struct bind_ctx {
     const grid_view *gv;
     int mapping;
-    const float *pos, *nrm;
+    const float *pos, *nrm, *tan; /* tan: NULL without tangents */
     tri_bind *out;
 } bind_ctx;
 
@@ -544,6 +552,13 @@ bound:;
     tb->n[0] = (float)d_dot(rn, T);
     tb->n[1] = (float)d_dot(rn, N);
     tb->n[2] = (float)d_dot(rn, B);
+    double rt[3] = {0, 0, 0};
+    if (x->tan)
+        for (int a = 0; a < 3; a++)
+            rt[a] = x->tan[(size_t)v * 3 + a];
+    tb->t[0] = (float)d_dot(rt, T);
+    tb->t[1] = (float)d_dot(rt, N);
+    tb->t[2] = (float)d_dot(rt, B);
     tb->mode = BIND_CONSTANT;
     if (x->mapping != MR_SPRINGMASS_TRIANGLE_CURVATURE)
         return;
@@ -569,6 +584,9 @@ bound:;
     tb->nc[0] = (float)d_dot(rn, Tc);
     tb->nc[1] = (float)d_dot(rn, Nc);
     tb->nc[2] = (float)d_dot(rn, Bc);
+    tb->tc[0] = (float)d_dot(rt, Tc);
+    tb->tc[1] = (float)d_dot(rt, Nc);
+    tb->tc[2] = (float)d_dot(rt, Bc);
     tb->mode = BIND_CURVATURE;
 }
 
@@ -769,6 +787,12 @@ static int index_triangles(sm_map *m, mr_error *err)
         set3(th->o, curved ? tb->oc : tb->o);
         set3(th->n, curved ? tb->nc : tb->n);
     }
+    if (m->rest_tan) {
+        if (!(m->hot_t = malloc((size_t)nv * 3 * sizeof *m->hot_t + 1)))
+            return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
+        for (uint32_t v = 0; v < nv; v++)
+            set3(m->hot_t + (size_t)v * 3, m->tri[v].mode == BIND_CURVATURE ? m->tri[v].tc : m->tri[v].t);
+    }
     if (!(m->tri_frame = aligned_alloc(_Alignof(tri_frame), (m->tri_count + 1) * sizeof *m->tri_frame)))
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory binding %u vertices", nv);
     return MR_OK;
@@ -804,7 +828,8 @@ static void mark_anchors(grid_view *gv)
 }
 
 static int map_setup(sm_map *m, grid_view *gv, int mapping, const float *rest_positions,
-                     const float *rest_normals, uint32_t vertex_count, unsigned threads, mr_error *err);
+                     const float *rest_normals, const float *rest_tangents, uint32_t vertex_count,
+                     unsigned threads, mr_error *err);
 
 /* Whether cell (i, j, k) and its 7 neighbours towards +x, +y, +z are all
  * nodes: a solid cell of the grid. */
@@ -875,7 +900,7 @@ static int build_boundary(grid_view *gv, mr_error *err)
 }
 
 int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
-               uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err)
+               const float *rest_tangents, uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err)
 {
     *out = NULL;
     sm_map *m = calloc(1, sizeof *m);
@@ -897,7 +922,7 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
     mark_anchors(&gv);
     int rc = mapping == MR_SPRINGMASS_TRILINEAR ? MR_OK : build_boundary(&gv, err);
     if (rc == MR_OK)
-        rc = map_setup(m, &gv, mapping, rest_positions, rest_normals, vertex_count, threads, err);
+        rc = map_setup(m, &gv, mapping, rest_positions, rest_normals, rest_tangents, vertex_count, threads, err);
     free(gv.surface);
     free(gv.anchor);
     free(gv.framed);
@@ -912,7 +937,8 @@ int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, cons
 }
 
 static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_positions,
-                     const float *rest_normals, uint32_t vertex_count, unsigned threads, mr_error *err)
+                     const float *rest_normals, const float *rest_tangents, uint32_t vertex_count,
+                     unsigned threads, mr_error *err)
 {
     grid_view gv = *gv_;
     size_t bytes = (size_t)vertex_count * 3 * sizeof(float);
@@ -922,6 +948,11 @@ static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_p
         goto nomem;
     memcpy(m->rest_pos, rest_positions, bytes);
     memcpy(m->rest_nrm, rest_normals, bytes);
+    if (rest_tangents) {
+        if (!(m->rest_tan = malloc(bytes + 1)))
+            goto nomem;
+        memcpy(m->rest_tan, rest_tangents, bytes);
+    }
     switch (mapping) {
     case MR_SPRINGMASS_ONE_TO_ONE: {
         /* where the node's approximate normal does not hold (3.5), the
@@ -929,7 +960,7 @@ static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_p
         if (!(m->one = malloc((size_t)vertex_count * sizeof *m->one + 1)) ||
             !(m->tri = malloc((size_t)vertex_count * sizeof *m->tri + 1)))
             goto nomem;
-        bind_ctx bc = {&gv, MR_SPRINGMASS_TRIANGLE_BASIS, rest_positions, rest_normals, m->tri};
+        bind_ctx bc = {&gv, MR_SPRINGMASS_TRIANGLE_BASIS, rest_positions, rest_normals, rest_tangents, m->tri};
         mr_parallel_for(threads, vertex_count, 256, bind_range, &bc);
         for (uint32_t v = 0; v < vertex_count; v++) {
             double p[3] = {rest_positions[(size_t)v * 3], rest_positions[(size_t)v * 3 + 1],
@@ -949,7 +980,7 @@ static int map_setup(sm_map *m, grid_view *gv_, int mapping, const float *rest_p
     case MR_SPRINGMASS_TRIANGLE_CURVATURE: {
         if (!(m->tri = malloc((size_t)vertex_count * sizeof *m->tri + 1)))
             goto nomem;
-        bind_ctx bc = {&gv, mapping, rest_positions, rest_normals, m->tri};
+        bind_ctx bc = {&gv, mapping, rest_positions, rest_normals, rest_tangents, m->tri};
         mr_parallel_for(threads, vertex_count, 256, bind_range, &bc);
         for (uint32_t v = 0; v < vertex_count; v++) {
             m->info.translation_only += m->tri[v].mode == BIND_TRANSLATE;
@@ -974,11 +1005,29 @@ typedef struct apply_ctx {
     const sm_map *m;
     const float *pos[3], *rest[3], *nrm[3];
     float *out_pos, *out_nrm;
+    float *out_tan; /* NULL: no tangents (none asked for, or the map has none) */
 } apply_ctx;
 
 
 static void apply_tri(const apply_ctx *x, uint32_t v);
 
+/* A tangent carried some way made orthogonal to the unit normal n again
+ * (mr_v3_tangent_to); a zero one (a mesh without tangents) stays zero. */
+static inline void fit_tangent(const float t[3], const float n[3], float *out)
+{
+    mr_vec3 r = mr_v3(0, 0, 0);
+    if (t[0] != 0.0f || t[1] != 0.0f || t[2] != 0.0f)
+        r = mr_v3_tangent_to(mr_v3(t[0], t[1], t[2]), mr_v3(n[0], n[1], n[2]), true);
+    out[0] = r.x;
+    out[1] = r.y;
+    out[2] = r.z;
+}
+
+/* one_to_one (3.2) has only the node's approximate normal, no tangent
+ * frame (3.5): the vertex's tangent is carried by its constant triangle
+ * basis (the one its normal falls back to; the rest tangent moved by
+ * translation where it has no triangle) and made orthogonal to the node's
+ * normal. */
 static void apply_one(const apply_ctx *x, uint32_t v)
 {
     const sm_map *m = x->m;
@@ -986,11 +1035,25 @@ static void apply_one(const apply_ctx *x, uint32_t v)
     float p[3] = {x->pos[0][c], x->pos[1][c], x->pos[2][c]};
     float n[3] = {x->nrm[0][c], x->nrm[1][c], x->nrm[2][c]};
     if ((m->one[v] & ONE_WEAK_NORMAL) || f_norm(n) == 0) {
-        apply_tri(x, v); /* the constant basis' normal; its position is overwritten */
-        set3(n, x->out_nrm + (size_t)v * 3);
+        /* the constant basis' normal and tangent; its position is overwritten */
+        apply_tri(x, v);
+        set3(x->out_pos + (size_t)v * 3, p);
+        return;
     }
     set3(x->out_pos + (size_t)v * 3, p);
     set3(x->out_nrm + (size_t)v * 3, n);
+    if (x->out_tan) {
+        const tri_hot *th = &m->hot[v];
+        float t[3];
+        if (th->tri == UINT32_MAX) {
+            set3(t, m->rest_tan + (size_t)v * 3);
+        } else {
+            const tri_frame *tf = &m->tri_frame[th->tri];
+            const float *tt = m->hot_t + (size_t)v * 3;
+            v4_store3(t, v4_splat(tt[0]) * tf->T + v4_splat(tt[1]) * tf->N + v4_splat(tt[2]) * tf->B);
+        }
+        fit_tangent(t, n, x->out_tan + (size_t)v * 3);
+    }
 }
 
 static void apply_tri(const apply_ctx *x, uint32_t v)
@@ -1003,13 +1066,15 @@ static void apply_tri(const apply_ctx *x, uint32_t v)
         for (int a = 0; a < 3; a++)
             op[a] = m->rest_pos[(size_t)v * 3 + a] + (x->pos[a][c] - x->rest[a][c]);
         set3(on, m->rest_nrm + (size_t)v * 3);
+        if (x->out_tan)
+            set3(x->out_tan + (size_t)v * 3, m->rest_tan + (size_t)v * 3);
         return;
     }
     const tri_frame *tf = &m->tri_frame[th->tri & ~HOT_CURVATURE];
     const v4 w0 = v4_splat(th->w[0]), w1 = v4_splat(th->w[1]), w2 = v4_splat(th->w[2]);
     const v4 r = w0 * tf->P[0] + w1 * tf->P[1] + w2 * tf->P[2];
     v4 T = tf->T, N = tf->N, B = tf->B;
-    const float *o = th->o, *n = th->n;
+    const float *o = th->o, *n = th->n, *tt = m->hot_t ? m->hot_t + (size_t)v * 3 : NULL;
     if (th->tri & HOT_CURVATURE) {
         v4 Nc = w0 * tf->Q[0] + w1 * tf->Q[1] + w2 * tf->Q[2];
         v4 Bc = {0};
@@ -1022,11 +1087,15 @@ static void apply_tri(const apply_ctx *x, uint32_t v)
         } else { /* this frame keeps the constant basis */
             o = m->tri[v].o;
             n = m->tri[v].n;
+            tt = m->tri[v].t;
         }
     }
     /* an orthonormal basis keeps the stored unit normal unit (to rounding) */
     v4_store3(op, r + (v4_splat(o[0]) * T + v4_splat(o[1]) * N + v4_splat(o[2]) * B));
     v4_store3(on, v4_splat(n[0]) * T + v4_splat(n[1]) * N + v4_splat(n[2]) * B);
+    /* and so does the tangent, orthogonal to that normal (3.3.4) */
+    if (x->out_tan)
+        v4_store3(x->out_tan + (size_t)v * 3, v4_splat(tt[0]) * T + v4_splat(tt[1]) * N + v4_splat(tt[2]) * B);
 }
 
 /* Each distinct triangle's constant basis (eq. 6) and nodes, this frame. */
@@ -1101,6 +1170,15 @@ static void apply_lin(const apply_ctx *x, uint32_t v)
     if (f_norm(nn) == 0)
         set3(nn, lb->n);
     set3(on, nn);
+    /* the Jacobian itself maps directions in the surface: the tangent,
+     * made orthogonal to the mapped normal */
+    if (x->out_tan) {
+        const float *t0 = m->rest_tan + (size_t)v * 3;
+        float t[3];
+        for (int a = 0; a < 3; a++)
+            t[a] = t0[0] * J[0][a] + t0[1] * J[1][a] + t0[2] * J[2][a];
+        fit_tangent(t, nn, x->out_tan + (size_t)v * 3);
+    }
 }
 
 static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
@@ -1134,9 +1212,10 @@ static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, unsigned threads)
+void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, float *tangents,
+                  unsigned threads)
 {
-    apply_ctx x = {.m = m, .out_pos = positions, .out_nrm = normals};
+    apply_ctx x = {.m = m, .out_pos = positions, .out_nrm = normals, .out_tan = m->rest_tan ? tangents : NULL};
     sm_sim_positions(sim, x.pos);
     sm_sim_rest(sim, x.rest);
     sm_sim_normals(sim, x.nrm);

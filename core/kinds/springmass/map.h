@@ -48,6 +48,20 @@
  * turned by the rotation of n's frame (D orthonormalised), so a stretch
  * at n is not multiplied along a long lever (it fanned a tail out).
  *
+ * Tangents (3.3.4: "vectors defining the tangent space" carried like the
+ * normal), where the mesh has them: the triangle mappings store the rest
+ * tangent in the basis the vertex maps by, (t.T, t.N, t.B) in the constant
+ * basis and in the interpolated one, and rebuild it from this frame's
+ * basis exactly as the normal (a rotation: unit and orthogonal to the
+ * mapped normal to rounding; a frame whose N_c degenerates uses the
+ * constant basis' for both); one_to_one has only the node's approximate
+ * normal and no tangent frame (3.5), so the tangent is carried by the
+ * vertex's constant triangle basis and made orthogonal to the node's
+ * normal (Gram-Schmidt, mr_v3_tangent_to); trilinear moves it by the map's
+ * Jacobian and makes it orthogonal to the cofactor-mapped normal. A vertex
+ * following a node by translation keeps its rest tangent. A zero rest
+ * tangent (a mesh without texture coordinates) stays zero.
+ *
  * A vertex whose nearest surface node has no triangle (a grid of one or
  * two nodes) follows that node by translation in every triangle mapping
  * (counted). All mappings reproduce the rest mesh at rest and move it
@@ -71,10 +85,13 @@ typedef struct sm_map_info {
 } sm_map_info;
 
 /* Binds vertex_count vertices (world-space rest positions and unit normals,
- * 3 floats each) to sim's grid at rest for `mapping`
- * (mr_springmass_mapping), whatever state the sim is in now. */
+ * 3 floats each, and rest_tangents: unit and orthogonal to the normals, or
+ * 0 for a vertex without, 3 floats each; NULL: none to carry) to sim's
+ * grid at rest for `mapping` (mr_springmass_mapping), whatever state the
+ * sim is in now. */
 int sm_map_new(const sm_sim *sim, int mapping, const float *rest_positions, const float *rest_normals,
-               uint32_t vertex_count, unsigned threads, sm_map **out, mr_error *err);
+               const float *rest_tangents, uint32_t vertex_count, unsigned threads, sm_map **out,
+               mr_error *err);
 void sm_map_free(sm_map *m);
 const sm_map_info *sm_map_get_info(const sm_map *m);
 /* The triangle mappings' base triangle of vertex v (an index shared by
@@ -84,8 +101,10 @@ uint32_t sm_map_triangle_of(const sm_map *m, uint32_t v);
 /* Bytes the binding holds. */
 size_t sm_map_bytes(const sm_map *m);
 
-/* Positions and unit normals (3 floats per vertex each) from the sim's
+/* Positions, unit normals and (when the map has rest tangents and
+ * tangents is not NULL) tangents, 3 floats per vertex each, from the sim's
  * current nodes. */
-void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, unsigned threads);
+void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, float *tangents,
+                  unsigned threads);
 
 #endif

@@ -32,8 +32,10 @@ struct mr_geom {
     unsigned threads;
     uint32_t vertex_count, triangle_count;
     float *rest_pos, *rest_nrm; /* world space, rest */
+    float *rest_tan;            /* world space, rest, 0 for meshes without; NULL: no mesh has them */
     float *positions;           /* 3 per vertex + 1 padding (Embree) */
     float *normals;
+    float *tangents;            /* this frame's (with rest_tan) */
     uint32_t *indices;
     sm_sim *sim;
     sm_map *map;
@@ -54,8 +56,10 @@ static void springmass_free(mr_geom *g)
     sm_sim_free(g->sim);
     free(g->rest_pos);
     free(g->rest_nrm);
+    free(g->rest_tan);
     free(g->positions);
     free(g->normals);
+    free(g->tangents);
     free(g->indices);
     free(g);
 }
@@ -83,6 +87,11 @@ static int rest_mesh(mr_geom *g, const mr_asset *asset, const mr_mat4 *transform
     if (!g->rest_pos || !g->rest_nrm || !g->positions || !g->normals || !g->indices)
         return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for %llu vertices", asset->path,
                             (unsigned long long)nv);
+    for (size_t i = 0; i < asset->mesh_count && !g->rest_tan; i++)
+        if (asset->meshes[i].tangents &&
+            (!(g->rest_tan = calloc(nv * 3 + 1, sizeof(float))) || !(g->tangents = calloc(nv * 3 + 1, sizeof(float)))))
+            return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for %llu tangents", asset->path,
+                                (unsigned long long)nv);
     mr_pose *pose = NULL;
     int rc = mr_pose_new(asset, &pose, err);
     if (rc < 0)
@@ -94,8 +103,8 @@ static int rest_mesh(mr_geom *g, const mr_asset *asset, const mr_mat4 *transform
     uint32_t v0 = 0, t0 = 0;
     for (size_t i = 0; i < asset->mesh_count; i++) {
         const mr_mesh *m = &asset->meshes[i];
-        mr_skin_mesh(asset, i, pose, transform, g->rest_pos + (size_t)v0 * 3, g->rest_nrm + (size_t)v0 * 3,
-                     g->threads);
+        mr_skin_mesh_tangents(asset, i, pose, transform, g->rest_pos + (size_t)v0 * 3, g->rest_nrm + (size_t)v0 * 3,
+                              g->rest_tan ? g->rest_tan + (size_t)v0 * 3 : NULL, g->threads);
         for (uint64_t k = 0; k < (uint64_t)m->triangle_count * 3; k++)
             g->indices[(uint64_t)t0 * 3 + k] = m->indices[k] + v0;
         v0 += m->vertex_count;
@@ -158,12 +167,12 @@ static int springmass_create(const mr_asset *asset, const mr_object_desc *desc, 
         goto fail;
     }
     if ((rc = sm_sim_new(&grid, p, g->threads, &g->sim, err)) < 0 ||
-        (rc = sm_map_new(g->sim, p->mapping, g->rest_pos, g->rest_nrm, g->vertex_count, g->threads,
-                         &g->map, err)) < 0) {
+        (rc = sm_map_new(g->sim, p->mapping, g->rest_pos, g->rest_nrm, g->rest_tan, g->vertex_count,
+                         g->threads, &g->map, err)) < 0) {
         mr_error_prefix(err, "springmass: ");
         goto fail;
     }
-    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->threads);
+    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->tangents, g->threads);
     state_id(g);
     *out = g;
     return MR_OK;
@@ -190,7 +199,7 @@ static int springmass_update(mr_geom *g, const mr_geom_frame *frame, const mr_po
     g->steps = target - now;
     if (rc < 0)
         return mr_error_prefix(err, "springmass: ");
-    sm_map_apply(g->map, g->sim, g->positions, g->normals, threads);
+    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->tangents, threads);
     g->map_s = mr_now() - t1;
     return MR_OK;
 }
@@ -221,6 +230,20 @@ static mr_vec3 springmass_normal(const mr_geom *g, unsigned prim, float u, float
                  w * n0[2] + u * n1[2] + v * n2[2]);
 }
 
+/* The mapped tangents (map.h) interpolated like the normals. */
+static bool springmass_tangent(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out)
+{
+    if (!g->tangents)
+        return false;
+    const uint32_t *tri = g->indices + (size_t)prim * 3;
+    const float *t0 = g->tangents + (size_t)tri[0] * 3, *t1 = g->tangents + (size_t)tri[1] * 3,
+                *t2 = g->tangents + (size_t)tri[2] * 3;
+    float w = 1.0f - u - v;
+    *out = mr_v3(w * t0[0] + u * t1[0] + v * t2[0], w * t0[1] + u * t1[1] + v * t2[1],
+                 w * t0[2] + u * t1[2] + v * t2[2]);
+    return out->x != 0.0f || out->y != 0.0f || out->z != 0.0f; /* 0: a mesh without */
+}
+
 static int springmass_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
     return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
@@ -228,7 +251,7 @@ static int springmass_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *er
 
 static size_t springmass_memory(const mr_geom *g)
 {
-    return ((size_t)g->vertex_count * 12 + 2) * sizeof(float) +
+    return ((size_t)g->vertex_count * (g->rest_tan ? 18 : 12) + 2) * sizeof(float) +
            (size_t)g->triangle_count * 3 * sizeof(uint32_t) + sm_sim_grid(g->sim)->cells * SM_BYTES_PER_CELL +
            sm_map_bytes(g->map);
 }
@@ -605,6 +628,7 @@ const mr_kind mr_kind_springmass = {
     .attach = springmass_attach,
     .commit = springmass_commit,
     .normal = springmass_normal,
+    .tangent = springmass_tangent,
     .tessellate = springmass_tessellate,
     .memory = springmass_memory,
     .primitives = springmass_primitives,

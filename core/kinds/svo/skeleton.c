@@ -1616,6 +1616,8 @@ int mr_svo_skeleton_rig(const mr_asset *asset, const mr_svo *svo, const mr_svo_s
             dst->normals[3u * v + 1u] = n.y;
             dst->normals[3u * v + 2u] = n.z;
         }
+        if (mr_mesh_tangents(dst) < 0)
+            goto nomem;
         for (uint32_t b = 0; b < s->bone_count; b++) {
             dst->joint_nodes[b] = (int)(n0 + b);
             if (!mr_mat4_inverse(&rest2->global[n0 + b], &dst->inverse_bind[b])) {
