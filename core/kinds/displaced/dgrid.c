@@ -18,12 +18,14 @@ void mr_dgrid_free(mr_dgrid *g)
     free(g->owned);
     free(g->qmin);
     free(g->qmax);
+    free(g->bmin);
+    free(g->bmax);
     memset(g, 0, sizeof *g);
 }
 
 size_t mr_dgrid_memory(const mr_dgrid *g)
 {
-    size_t b = g->levels ? (g->first[g->levels] + 1) * 2 * sizeof(uint16_t) : 0;
+    size_t b = g->levels ? (g->first[g->levels] + 1) * 2 * (g->bmin ? 1 : sizeof(uint16_t)) : 0;
     if (g->owned)
         b += (size_t)g->w * g->h * sizeof(float);
     return b;
@@ -48,6 +50,23 @@ static inline uint16_t q_hi(const mr_dgrid *g, double s)
     return q <= 0 ? 0 : q >= 65535 ? 65535 : (uint16_t)q;
 }
 
+/* The quantised bounds of an 8-bit value over the whole 0..255 range: what
+ * q_lo and q_hi give there (linear8 checks it for the grid at hand). */
+static inline uint16_t linear8_lo(uint8_t v) { return v ? (uint16_t)(257 * v - 1) : 0; }
+static inline uint16_t linear8_hi(uint8_t v) { return v < 255 ? (uint16_t)(257 * v + 1) : 65535; }
+
+/* Whether an 8-bit grid's quantisation is exactly linear8_lo/hi (then its
+ * pyramid keeps the samples' own 8-bit extremes: half the memory). */
+static bool linear8(const mr_dgrid *g)
+{
+    if (g->type != MR_SAMPLE_U8)
+        return false;
+    for (unsigned v = 0; v < 256; v++)
+        if (q_lo(g, v) != linear8_lo((uint8_t)v) || q_hi(g, v) != linear8_hi((uint8_t)v))
+            return false;
+    return true;
+}
+
 static inline double dq(const mr_dgrid *g, uint16_t q)
 {
     return q == 0 ? g->gmin : q == 65535 ? g->gmax : g->gmin + q * g->qstep;
@@ -66,6 +85,11 @@ void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J
         return;
     }
     size_t k = g->first[l] + (size_t)J * g->lw[l] + I;
+    if (g->bmin) {
+        *lo = dq(g, linear8_lo(g->bmin[k]));
+        *hi = dq(g, linear8_hi(g->bmax[k]));
+        return;
+    }
     *lo = dq(g, g->qmin[k]);
     *hi = dq(g, g->qmax[k]);
 }
@@ -176,37 +200,58 @@ static inline void quantise_u8(__m128i v, bool largest, uint16_t *out)
 #endif
 
 /* Nodes [I, ...) of a level-1 row of 8-bit samples 16 at a time while all
- * their columns are in c[0 .. w]; returns the first node not done. */
+ * their columns are in c[0 .. w], node I at k0 + I; returns the first node
+ * not done. */
 static uint32_t nodes_uint8_t(const build_ctx *c, const uint8_t *cmin, const uint8_t *cmax,
-                              uint32_t I, uint32_t full, uint32_t w, uint16_t *qmin, uint16_t *qmax)
+                              uint32_t I, uint32_t full, uint32_t w, size_t k0)
 {
 #if defined(__SSE2__)
+    const mr_dgrid *g = c->g;
     for (; I + 16 <= full && 2 * I + 34 <= w + 1; I += 16) {
         __m128i lo = triples_u8(cmin + 2 * I, false), hi = triples_u8(cmax + 2 * I, true);
+        if (g->bmin) {
+            _mm_storeu_si128((__m128i *)(g->bmin + k0 + I), lo);
+            _mm_storeu_si128((__m128i *)(g->bmax + k0 + I), hi);
+            continue;
+        }
         if (c->linear8) {
-            quantise_u8(lo, false, qmin + I);
-            quantise_u8(hi, true, qmax + I);
+            quantise_u8(lo, false, g->qmin + k0 + I);
+            quantise_u8(hi, true, g->qmax + k0 + I);
             continue;
         }
         uint8_t l[16], h[16];
         _mm_storeu_si128((__m128i *)l, lo);
         _mm_storeu_si128((__m128i *)h, hi);
         for (int k = 0; k < 16; k++) {
-            qmin[I + k] = c->tlo[l[k]];
-            qmax[I + k] = c->thi[h[k]];
+            g->qmin[k0 + I + k] = c->tlo[l[k]];
+            g->qmax[k0 + I + k] = c->thi[h[k]];
         }
     }
+#else
+    (void)c, (void)cmin, (void)cmax, (void)full, (void)w, (void)k0;
 #endif
     return I;
 }
 
 static uint32_t nodes_uint16_t(const build_ctx *c, const uint16_t *cmin, const uint16_t *cmax,
-                               uint32_t I, uint32_t full, uint32_t w, uint16_t *qmin,
-                               uint16_t *qmax)
+                               uint32_t I, uint32_t full, uint32_t w, size_t k0)
 {
-    (void)c, (void)cmin, (void)cmax, (void)full, (void)w, (void)qmin, (void)qmax;
+    (void)c, (void)cmin, (void)cmax, (void)full, (void)w, (void)k0;
     return I;
 }
+
+/* Node k of level 1 from its samples' extremes lo, hi: the extremes
+ * themselves (8-bit pyramid) or their quantised bounds by table. */
+#define PUT_NODE(k, lo, hi)                                                                  \
+    do {                                                                                     \
+        if (g->bmin) {                                                                       \
+            g->bmin[k] = (uint8_t)(lo);                                                      \
+            g->bmax[k] = (uint8_t)(hi);                                                      \
+        } else {                                                                             \
+            g->qmin[k] = c->tlo[lo];                                                         \
+            g->qmax[k] = c->thi[hi];                                                         \
+        }                                                                                    \
+    } while (0)
 
 #define LEVEL1_INT(T, VT, VI)                                                                 \
     static void build_level1_##T(void *ctx, size_t begin, size_t end, unsigned worker)       \
@@ -253,7 +298,7 @@ static uint32_t nodes_uint16_t(const build_ctx *c, const uint16_t *cmin, const u
             cmin[w] = cmin[0], cmax[w] = cmax[0]; /* the repeat */                           \
             size_t k0 = g->first[1] + J * nw;                                                \
             uint32_t full = (w - 1) / 2; /* nodes with all three columns */                  \
-            uint32_t I0 = nodes_##T(c, cmin, cmax, 0, full, w, g->qmin + k0, g->qmax + k0);  \
+            uint32_t I0 = nodes_##T(c, cmin, cmax, 0, full, w, k0);                          \
             size_t k = k0 + I0;                                                              \
             for (uint32_t I = I0; I < full; I++, k++) {                                      \
                 const T *lo3 = cmin + 2 * I, *hi3 = cmax + 2 * I;                            \
@@ -261,8 +306,7 @@ static uint32_t nodes_uint16_t(const build_ctx *c, const uint16_t *cmin, const u
                 T hi = hi3[0] > hi3[1] ? hi3[0] : hi3[1];                                    \
                 lo = lo3[2] < lo ? lo3[2] : lo;                                              \
                 hi = hi3[2] > hi ? hi3[2] : hi;                                              \
-                g->qmin[k] = c->tlo[lo];                                                     \
-                g->qmax[k] = c->thi[hi];                                                     \
+                PUT_NODE(k, lo, hi);                                                         \
             }                                                                                \
             for (uint32_t I = full; I < nw; I++, k++) {                                      \
                 uint32_t i0 = I * 2, i1 = i0 + 2 < w ? i0 + 2 : w;                           \
@@ -271,8 +315,7 @@ static uint32_t nodes_uint16_t(const build_ctx *c, const uint16_t *cmin, const u
                     lo = cmin[i] < lo ? cmin[i] : lo;                                        \
                     hi = cmax[i] > hi ? cmax[i] : hi;                                        \
                 }                                                                            \
-                g->qmin[k] = c->tlo[lo];                                                     \
-                g->qmax[k] = c->thi[hi];                                                     \
+                PUT_NODE(k, lo, hi);                                                         \
             }                                                                                \
         }                                                                                    \
         free(cmin);                                                                          \
@@ -326,6 +369,59 @@ static inline void blocks_u16(const uint16_t *a, const uint16_t *b, bool largest
     _mm_storeu_si128((__m128i *)out, _mm_xor_si128(_mm_packs_epi32(h[0], h[1]), flip));
 }
 #endif
+
+/* The same for 8-bit values, 16 nodes from node I on (reads a and b at
+ * 2I .. 2I+31): the smaller (larger) of the rows, then of each byte pair. */
+#if defined(__SSE2__)
+static inline __m128i blocks_u8(const uint8_t *a, const uint8_t *b, bool largest)
+{
+    const __m128i low = _mm_set1_epi16(0x00ff);
+    __m128i h[2];
+    for (int k = 0; k < 2; k++) {
+        __m128i x = _mm_loadu_si128((const __m128i *)(a + 16 * k));
+        __m128i y = _mm_loadu_si128((const __m128i *)(b + 16 * k));
+        __m128i v = largest ? _mm_max_epu8(x, y) : _mm_min_epu8(x, y);
+        __m128i odd = _mm_srli_epi16(v, 8);
+        v = largest ? _mm_max_epu8(v, odd) : _mm_min_epu8(v, odd);
+        h[k] = _mm_and_si128(v, low);
+    }
+    return _mm_packus_epi16(h[0], h[1]);
+}
+#endif
+
+/* build_upper for the 8-bit pyramid. */
+static void build_upper_bytes(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    build_ctx *c = ctx;
+    const mr_dgrid *g = c->g;
+    unsigned l = c->level;
+    uint32_t cw = g->lw[l - 1], ch = g->lh[l - 1], nw = g->lw[l];
+    const uint8_t *cmin = g->bmin + g->first[l - 1], *cmax = g->bmax + g->first[l - 1];
+    for (size_t J = begin; J < end; J++) {
+        uint32_t cj = (uint32_t)J * 2;
+        const uint8_t *min0 = cmin + (size_t)cj * cw, *max0 = cmax + (size_t)cj * cw;
+        size_t down = cj + 1 < ch ? cw : 0;
+        const uint8_t *min1 = min0 + down, *max1 = max0 + down;
+        uint8_t *omin = g->bmin + g->first[l] + J * nw, *omax = g->bmax + g->first[l] + J * nw;
+        uint32_t I = 0;
+#if defined(__SSE2__)
+        for (; 2 * I + 32 <= cw; I += 16) {
+            _mm_storeu_si128((__m128i *)(omin + I), blocks_u8(min0 + 2 * I, min1 + 2 * I, false));
+            _mm_storeu_si128((__m128i *)(omax + I), blocks_u8(max0 + 2 * I, max1 + 2 * I, true));
+        }
+#endif
+        for (; I < nw; I++) {
+            uint32_t a = I * 2, b = a + 1 < cw ? a + 1 : a;
+            uint8_t lo0 = min0[a] < min0[b] ? min0[a] : min0[b];
+            uint8_t lo1 = min1[a] < min1[b] ? min1[a] : min1[b];
+            uint8_t hi0 = max0[a] > max0[b] ? max0[a] : max0[b];
+            uint8_t hi1 = max1[a] > max1[b] ? max1[a] : max1[b];
+            omin[I] = lo0 < lo1 ? lo0 : lo1;
+            omax[I] = hi0 > hi1 ? hi0 : hi1;
+        }
+    }
+}
 
 /* Level l > 1 from level l - 1 (quantised values combine exactly): a node
  * takes the 2x2 children that exist (the last column or row of children
@@ -436,11 +532,10 @@ void mr_dgrid_rebuild(mr_dgrid *g, unsigned threads)
         c.thi = malloc(values * sizeof *c.thi);
     }
     if (c.tlo && c.thi) {
-        c.linear8 = values == 256;
+        c.linear8 = linear8(g);
         for (size_t v = 0; v < values; v++) {
             c.tlo[v] = q_lo(g, (double)v);
             c.thi[v] = q_hi(g, (double)v);
-            c.linear8 &= c.tlo[v] == (v ? 257 * v - 1 : 0) && c.thi[v] == (v < 255 ? 257 * v + 1 : 65535);
         }
         mr_parallel_for(threads, g->lh[1], 16,
                         g->type == MR_SAMPLE_U8 ? build_level1_uint8_t : build_level1_uint16_t, &c);
@@ -451,7 +546,7 @@ void mr_dgrid_rebuild(mr_dgrid *g, unsigned threads)
     free(c.thi);
     for (unsigned l = 2; l <= g->levels; l++) {
         c.level = l;
-        mr_parallel_for(threads, g->lh[l], 16, build_upper, &c);
+        mr_parallel_for(threads, g->lh[l], 16, g->bmin ? build_upper_bytes : build_upper, &c);
     }
 }
 
@@ -513,7 +608,21 @@ int mr_dgrid_init(mr_dgrid *g, const mr_image *img, unsigned level, double scale
         total += (size_t)w * h;
     }
     g->levels = l;
-    if (total) {
+    /* 8-bit samples quantise over the type's range (mr_dgrid_rebuild): when
+     * that is linear8, the pyramid keeps their own extremes in bytes */
+    g->gmin = 0;
+    g->gmax = g->unit;
+    g->qstep = g->unit > 0 ? g->unit / 65535.0 : 0.0;
+    bool bytes = l > 0 && linear8(g);
+    if (total && bytes) {
+        g->bmin = malloc(total);
+        g->bmax = malloc(total);
+        if (!g->bmin || !g->bmax) {
+            mr_dgrid_free(g);
+            return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a %ux%u min/max pyramid",
+                                img->width, img->height);
+        }
+    } else if (total) {
         g->qmin = malloc(total * sizeof(uint16_t));
         g->qmax = malloc(total * sizeof(uint16_t));
         if (!g->qmin || !g->qmax) {

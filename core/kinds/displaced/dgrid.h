@@ -49,7 +49,10 @@ typedef struct mr_dgrid {
     unsigned levels;           /* top pyramid level (a single node); 0 for a 1x1 texture */
     uint32_t lw[MR_DGRID_MAX_LEVELS + 1], lh[MR_DGRID_MAX_LEVELS + 1];
     size_t first[MR_DGRID_MAX_LEVELS + 1]; /* index of level l's node (0, 0) */
-    uint16_t *qmin, *qmax;     /* node values, levels 1..levels */
+    uint16_t *qmin, *qmax;     /* node values, levels 1..levels, quantised to 16 bits */
+    uint8_t *bmin, *bmax;      /* instead, for 8-bit samples quantised over 0..255 (where the
+                                  16-bit bounds are 257 v -+ 1): the samples' own extremes,
+                                  half the memory; read through mr_dgrid_node_samples */
 } mr_dgrid;
 
 /* The grid of image img's mip level `level` (box filter of 2^level x
