@@ -4,7 +4,7 @@
  *
  * The oracle is the tessellation itself: every micro-triangle of the patch
  * (mr_umesh_triangles order, vertices from mr_dmm_vertex) tested with the
- * same watertight test (mr_wt_intersect), keeping the closest t. The
+ * same watertight test (mr_wtd_intersect), keeping the closest t. The
  * traversal claims to evaluate the very same micro-vertices with the very
  * same test, so hit/miss must agree exactly and t must agree bit for bit: no
  * tolerance there. Rays are random (fixed seeds, so failures reproduce) and

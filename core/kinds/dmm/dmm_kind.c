@@ -23,9 +23,16 @@
  *          tessellated, every micro-vertex with the same mr_dmm_vertex;
  * attach   tessellation-free modes: one Embree USER geometry, one primitive
  *          per base triangle, whose callbacks run dmm_trace.h's traversal;
- *          tessellated: one TRIANGLE geometry over the micro-triangles
- *          (base triangle after base triangle, each its surviving
- *          micro-triangles in micromesh.h row order: mr_umesh_triangles);
+ *          tessellated, intersector embree: one TRIANGLE geometry over the
+ *          micro-triangles (base triangle after base triangle, each its
+ *          surviving micro-triangles in micromesh.h row order:
+ *          mr_umesh_triangles); tessellated, intersector watertight (the
+ *          exact reference, issue 17): the tessellation-free modes' user
+ *          geometry and boxes (update checks they hold every micro-vertex),
+ *          whose callbacks test the base triangle's micro-triangles one by
+ *          one (mr_dmm_intersect_micro). In every user geometry hits at the
+ *          same t go to the smaller base triangle, then micro-triangle, so
+ *          the reference's frames equal the traversal's bit for bit;
  * normal   the hit micro-triangle's geometric normal, or (normals "matrix")
  *          the rest-pose micro-triangle normal moved by the cofactor of the
  *          interpolated matrix at the hit.

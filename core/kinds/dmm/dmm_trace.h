@@ -27,8 +27,11 @@
  * start beyond the closest hit so far; at the leaf sublevel (one above the
  * micro-triangles) it evaluates the 6 micro-vertices with exactly the
  * functions the tessellation uses (mr_dmm_vertex) and intersects the 4
- * micro-triangles with the watertight test. Hits are therefore those of the
- * tessellated micro-mesh, bit for bit in the vertices. Decimated edges
+ * micro-triangles with the watertight test in double precision
+ * (mr_wtd_intersect), each in the tessellation's vertex order; of hits at
+ * the same float t the micro-triangle first in row order wins. Hits are
+ * therefore those of the tessellation tested triangle by triangle
+ * (mr_dmm_intersect_micro), bit for bit. Decimated edges
  * (neighbour one level coarser) move their odd micro-vertices as
  * mr_umesh_triangles does; the collapsed micro-triangles have no area and
  * are never hit.
@@ -37,8 +40,13 @@
  * widened by a per-patch pad, 2^-19 of a bound on the magnitude of every
  * coordinate they are computed from (mr_dmm_patch_pad), which covers the
  * single float rounding of each micro-vertex (2^-24 relative) and the box
- * arithmetic with a wide margin; the slab test widens each axis's far
- * distance by 3 float ulps (Ize, "Robust BVH Ray Traversal", 2013). Rays
+ * arithmetic with a wide margin, and the double-precision test's own
+ * rounding (~1e-16 of the ray's distance, where the float test's ~1e-7
+ * would outgrow the pad for a distant camera); the box is widened before
+ * the ray origin is subtracted (so the pad survives any origin magnitude)
+ * and the slab test widens each axis's far distance by 3 float ulps (Ize,
+ * "Robust BVH Ray Traversal", 2013), which keeps a micro-triangle hit at
+ * exactly the current closest t inside the boxes it is in. Rays
  * parallel to a slab are handled explicitly, so no 0 * inf NaN can cull a
  * box. The four children of a node are bounded and tested together, one
  * SIMD lane each.
