@@ -42,4 +42,30 @@ mr_wt_ray mr_wt_ray_setup(mr_vec3 org, mr_vec3 dir);
 bool mr_wt_intersect(const mr_wt_ray *ray, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
                      float tmax, mr_wt_hit *hit);
 
+/* The same test in double precision (what the dmm kind's micro-triangles
+ * use). The float test's sheared vertices carry rounding errors of a few
+ * float ulps of their distance from the ray origin, so the edges it decides
+ * on sit up to ~1e-7 of that distance away from the true edges: more than
+ * a box padded relative to the geometry's own coordinates can cover when the
+ * origin is far, and enough for two different float tests (Embree's,
+ * this one) to decide a ray grazing a silhouette edge differently. In
+ * double the shear is ~1e-16 of the distance off, far inside any such pad,
+ * so bounds that contain a triangle's float vertices with a pad never cull
+ * a ray the test would hit. Watertight in the same way (both triangles of
+ * a shared edge compute its edge function from the same values, with
+ * opposite sign); hits on an edge or vertex count. t is computed in double
+ * and rounded to float once; [tmin, tmax] holds for the float t. */
+typedef struct mr_wtd_ray {
+    double org[3];
+    int kx, ky, kz;
+    double sx, sy, sz;
+} mr_wtd_ray;
+
+/* dir must be non-zero and finite. */
+mr_wtd_ray mr_wtd_ray_setup(mr_vec3 org, mr_vec3 dir);
+
+/* As mr_wt_intersect, in double precision. */
+bool mr_wtd_intersect(const mr_wtd_ray *ray, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
+                      float tmax, mr_wt_hit *hit);
+
 #endif

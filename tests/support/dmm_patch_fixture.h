@@ -164,16 +164,16 @@ static inline void brute_init(brute *bf, const mr_dmm_patch *p)
     }
 }
 
-static inline bool brute_tri(const brute *bf, const mr_wt_ray *r, uint32_t k, float tmin, float tmax,
+static inline bool brute_tri(const brute *bf, const mr_wtd_ray *r, uint32_t k, float tmin, float tmax,
                       mr_wt_hit *h)
 {
     const uint32_t *i = bf->idx + 3 * k;
-    return mr_wt_intersect(r, bf->v[i[0]], bf->v[i[1]], bf->v[i[2]], tmin, tmax, h);
+    return mr_wtd_intersect(r, bf->v[i[0]], bf->v[i[1]], bf->v[i[2]], tmin, tmax, h);
 }
 
 /* Closest hit over every micro-triangle; *tri gets the first one at that t.
  * Every micro-triangle's verdict is kept in bf->hits, bf->t. */
-static inline bool brute_hit(brute *bf, const mr_wt_ray *r, float tmin, float tmax, float *t,
+static inline bool brute_hit(brute *bf, const mr_wtd_ray *r, float tmin, float tmax, float *t,
                       uint32_t *tri)
 {
     bool found = false;
@@ -212,13 +212,13 @@ static inline mr_vec3 tri_normal(const brute *bf, uint32_t k)
  * in the tessellation's order, or (rotated) started at another corner of
  * the same winding. Rotation keeps the edge functions (the same floats, so
  * the same hit/miss) but sums det and the scaled t in another order. */
-static inline bool tri_has_t(const brute *bf, const mr_wt_ray *r, uint32_t k, float tmin, float tmax,
+static inline bool tri_has_t(const brute *bf, const mr_wtd_ray *r, uint32_t k, float tmin, float tmax,
                       float t, bool rotated)
 {
     const uint32_t *i = bf->idx + 3 * k;
     for (int s = rotated ? 1 : 0; s < (rotated ? 3 : 1); s++) {
         mr_wt_hit h;
-        if (mr_wt_intersect(r, bf->v[i[s]], bf->v[i[(s + 1) % 3]], bf->v[i[(s + 2) % 3]], tmin,
+        if (mr_wtd_intersect(r, bf->v[i[s]], bf->v[i[(s + 1) % 3]], bf->v[i[(s + 2) % 3]], tmin,
                             tmax, &h) &&
             fbits(h.t) == fbits(t))
             return true;
@@ -228,7 +228,7 @@ static inline bool tri_has_t(const brute *bf, const mr_wt_ray *r, uint32_t k, fl
 
 /* Some micro-triangle's t, in tessellation order (0), only rotated (1), or
  * no micro-triangle's (-1); r is the ray of the last brute_hit. */
-static inline int source_of(const brute *bf, const mr_wt_ray *r, float tmin, float tmax, float t)
+static inline int source_of(const brute *bf, const mr_wtd_ray *r, float tmin, float tmax, float t)
 {
     for (uint32_t k = 0; k < bf->ntri; k++)
         if (bf->hits[k] && fbits(bf->t[k]) == fbits(t))
@@ -394,7 +394,7 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
     float tm = tmax;
     mr_dmm_hit h;
     memset(&h, 0, sizeof h);
-    bool hit = mr_dmm_intersect(p, &r, tmin, &tm, false, &h, st);
+    bool hit = mr_dmm_intersect(p, &r, tmin, &tm, true, false, &h, st);
     bool loose = (flags & CHECK_LOOSE) != 0;
     char msg[200];
     if (cs) {
@@ -454,7 +454,7 @@ static inline bool check_ray(brute *bf, const mr_dmm_patch *p, mr_vec3 org, mr_v
     float ta = tmax;
     mr_dmm_hit ah;
     memset(&ah, 0, sizeof ah);
-    bool any = mr_dmm_intersect(p, &r, tmin, &ta, true, &ah, NULL);
+    bool any = mr_dmm_intersect(p, &r, tmin, &ta, true, true, &ah, NULL);
     if (any != bhit && !loose) {
         snprintf(msg, sizeof msg, "any-hit %s, brute force %s", any ? "hit" : "miss",
                  bhit ? "hit" : "miss");

@@ -4,7 +4,7 @@
  *
  * The oracle is the tessellation itself: every micro-triangle of the patch
  * (mr_umesh_triangles order, vertices from mr_dmm_vertex) tested with the
- * same watertight test (mr_wt_intersect), keeping the closest t. The
+ * same watertight test (mr_wtd_intersect), keeping the closest t. The
  * traversal claims to evaluate the very same micro-vertices with the very
  * same test, so hit/miss must agree exactly and t must agree bit for bit: no
  * tolerance there. Rays are random (fixed seeds, so failures reproduce) and
@@ -137,6 +137,138 @@ static void test_brute_interpolated(void **state)
 {
     (void)state;
     traversal_vs_brute(true, 0xd1b54a32d192ed03ull);
+}
+
+/* ---- 1b. traversal == the exact reference's per-triangle test (issue 17)
+ *
+ * mr_dmm_intersect_micro is what the dmm kind's watertight reference runs
+ * per base triangle: every surviving micro-triangle of the tessellation,
+ * same test, same vertex order, ties at equal t to the first in row order.
+ * The traversal must return the same hit bit for bit (t, u, v, ng), also
+ * for rays exactly through micro-vertices and micro-edge midpoints (where
+ * several micro-triangles share the closest t), for decimated edges, for a
+ * camera 1000 times the patch's size away (the double-precision test keeps
+ * the boxes' pad ahead of its rounding) and when the hit lands exactly on
+ * the incoming tmax (take_tmax decides who keeps it). No tolerance. */
+
+static void same_hit(const char *what, bool a, const mr_dmm_hit *ha, float ta, bool b,
+                     const mr_dmm_hit *hb, float tb)
+{
+    if (a != b || fbits(ta) != fbits(tb) ||
+        (a && (fbits(ha->t) != fbits(hb->t) || fbits(ha->u) != fbits(hb->u) ||
+               fbits(ha->v) != fbits(hb->v) || fbits(ha->ng.x) != fbits(hb->ng.x) ||
+               fbits(ha->ng.y) != fbits(hb->ng.y) || fbits(ha->ng.z) != fbits(hb->ng.z))))
+        fail_msg("%s: traversal %s t=%a u=%a v=%a, per-triangle %s t=%a u=%a v=%a", what,
+                 a ? "hit" : "miss", (double)ha->t, (double)ha->u, (double)ha->v,
+                 b ? "hit" : "miss", (double)hb->t, (double)hb->u, (double)hb->v);
+}
+
+static void test_traversal_equals_micro(void **state)
+{
+    (void)state;
+    uint64_t s = 0x2545f4914f6cdd1dull;
+    enum { PATCHES = 3, RAYS = 160 };
+    uint64_t rays = 0, hits = 0, ties = 0;
+    float *verts = malloc(sizeof(float) * 3 * MAX_VERTS);
+    uint32_t *tris = malloc(sizeof(uint32_t) * 3 * MAX_TRIS);
+    assert_true(verts && tris);
+    for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++) {
+        uint32_t vc = mr_umesh_vertex_count(level), n = mr_umesh_segments(level);
+        float *disp = malloc(sizeof(float) * vc * PATCHES);
+        assert_non_null(disp);
+        random_disp(&s, disp, vc * PATCHES, -0.3f, 0.5f);
+        patch_set set;
+        set_build(&set, level, PATCHES, disp);
+        for (uint32_t t = 0; t < PATCHES * 2; t++) {
+            bool interpolated = t % 2;
+            mr_umesh_tri tri = rnd_tri(&s);
+            mr_affine mats[3];
+            for (int k = 0; k < 3; k++)
+                mats[k] = rnd_affine(&s, 1.6f);
+            mr_dmm_patch p = set_patch(&set, t / 2, &tri, interpolated ? mats : NULL);
+            p.decimate = level ? (unsigned)(rnd(&s) % 8) : 0;
+            uint32_t count = mr_umesh_triangles(level, p.decimate, tris);
+            for (uint32_t b = 0; b <= n; b++)
+                for (uint32_t a = 0; a + b <= n; a++) {
+                    mr_vec3 v = mr_dmm_vertex(&p, a, b);
+                    float *o = verts + 3 * (size_t)mr_umesh_vertex_index(level, a, b);
+                    o[0] = v.x, o[1] = v.y, o[2] = v.z;
+                }
+            mr_vec3 lo, hi;
+            assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
+            mr_vec3 c = mr_v3_scale(mr_v3_add(lo, hi), 0.5f);
+            float size = mr_v3_len(mr_v3_sub(hi, lo)) + 1e-3f;
+            for (uint32_t i = 0; i < RAYS; i++) {
+                /* aimed at a micro-vertex (i % 3 == 0), the midpoint of a
+                 * micro-edge (1) or a random point of a micro-triangle */
+                const uint32_t *k = tris + 3 * (size_t)(rnd(&s) % count);
+                mr_vec3 x[3];
+                for (int j = 0; j < 3; j++)
+                    x[j] = mr_v3(verts[3 * k[j]], verts[3 * k[j] + 1], verts[3 * k[j] + 2]);
+                mr_vec3 target = x[0];
+                if (i % 3 == 1)
+                    target = mr_v3_scale(mr_v3_add(x[0], x[1]), 0.5f);
+                else if (i % 3 == 2) {
+                    float w1 = (float)rnd01(&s), w2 = (float)rnd01(&s);
+                    if (w1 + w2 > 1)
+                        w1 = 1 - w1, w2 = 1 - w2;
+                    target = mr_v3_add(mr_v3_scale(x[0], 1 - w1 - w2),
+                                       mr_v3_add(mr_v3_scale(x[1], w1), mr_v3_scale(x[2], w2)));
+                }
+                float far = i % 4 == 3 ? 1000.0f : 1.5f; /* a distant camera now and then */
+                mr_vec3 org = mr_v3_add(c, mr_v3_scale(rnd_unit(&s), far * size));
+                mr_vec3 dir = mr_v3_sub(target, org);
+                if (!(mr_v3_len(dir) > 0))
+                    continue;
+                mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
+                float ta = INFINITY, tb = INFINITY;
+                mr_dmm_hit ha = {0}, hb = {0};
+                bool a = mr_dmm_intersect(&p, &r, 0, &ta, true, false, &ha, NULL);
+                bool b = mr_dmm_intersect_micro(&p, verts, tris, count, &r, 0, &tb, true, false,
+                                                &hb);
+                same_hit("closest", a, &ha, ta, b, &hb, tb);
+                rays++;
+                hits += a;
+                /* any hit: the same verdict */
+                float aa = INFINITY, ab = INFINITY;
+                assert_int_equal(mr_dmm_intersect(&p, &r, 0, &aa, true, true, NULL, NULL),
+                                 mr_dmm_intersect_micro(&p, verts, tris, count, &r, 0, &ab, true,
+                                                        true, NULL));
+                if (!a)
+                    continue;
+                /* the hit exactly at the incoming tmax: taken or not, the same */
+                for (int take = 0; take < 2; take++) {
+                    float t1 = ha.t, t2 = ha.t;
+                    mr_dmm_hit h1 = {0}, h2 = {0};
+                    bool a1 = mr_dmm_intersect(&p, &r, 0, &t1, take, false, &h1, NULL);
+                    bool b1 = mr_dmm_intersect_micro(&p, verts, tris, count, &r, 0, &t2, take,
+                                                     false, &h2);
+                    same_hit(take ? "at tmax, taken" : "at tmax, kept", a1, &h1, t1, b1, &h2, t2);
+                    assert_int_equal(a1, take); /* taken: found again; kept: nothing closer */
+                }
+                /* several micro-triangles at that t: a tie the order decided */
+                uint32_t at_t = 0;
+                for (uint32_t m = 0; m < count; m++) {
+                    mr_vec3 y[3];
+                    for (int j = 0; j < 3; j++)
+                        y[j] = mr_v3(verts[3 * tris[3 * m + j]], verts[3 * tris[3 * m + j] + 1],
+                                     verts[3 * tris[3 * m + j] + 2]);
+                    mr_wt_hit w;
+                    at_t += mr_wtd_intersect(&r.wt, y[0], y[1], y[2], ha.t, ha.t, &w);
+                }
+                ties += at_t > 1;
+            }
+        }
+        set_free(&set);
+        free(disp);
+    }
+    printf("  %llu rays, %llu hit, %llu of them at a t several micro-triangles share: the same "
+           "hit from both\n",
+           (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)ties);
+    /* the rays at vertices and edges must have made ties, or the order was not tested */
+    assert_true(hits * 2 > rays && ties > 100);
+    free(verts);
+    free(tris);
 }
 
 static void test_bounds(void **state)
@@ -467,8 +599,8 @@ static void test_cached_pad(void **state)
                 memset(&h1, 0, sizeof h1);
                 memset(&h2, 0, sizeof h2);
                 float t1 = tmax, t2 = tmax;
-                bool a = mr_dmm_intersect(&p, &r, tmin, &t1, false, &h1, NULL);
-                bool b = mr_dmm_intersect(&q, &r, tmin, &t2, false, &h2, NULL);
+                bool a = mr_dmm_intersect(&p, &r, tmin, &t1, true, false, &h1, NULL);
+                bool b = mr_dmm_intersect(&q, &r, tmin, &t2, true, false, &h2, NULL);
                 assert_true(a == b && fbits(t1) == fbits(t2));
                 assert_memory_equal(&h1, &h2, sizeof h1);
             }
@@ -491,25 +623,25 @@ static void test_arguments(void **state)
     mr_dmm_ray r = mr_dmm_ray_setup(mr_v3(0.25f, 0.25f, 1), mr_v3(0, 0, -1));
     mr_dmm_hit h;
     float tmax = 5;
-    assert_true(mr_dmm_intersect(&p, &r, 0, &tmax, false, &h, NULL));
+    assert_true(mr_dmm_intersect(&p, &r, 0, &tmax, true, false, &h, NULL));
     assert_true(h.t == 1.0f && tmax == 1.0f);
     assert_true(fabsf(h.u - 0.25f) < 1e-6f && fabsf(h.v - 0.25f) < 1e-6f);
     tmax = 0.5f; /* hit beyond tmax */
-    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, false, &h, NULL));
+    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, true, false, &h, NULL));
     assert_true(tmax == 0.5f);
     tmax = 0.5f; /* empty interval */
-    assert_false(mr_dmm_intersect(&p, &r, 2.0f, &tmax, false, &h, NULL));
+    assert_false(mr_dmm_intersect(&p, &r, 2.0f, &tmax, true, false, &h, NULL));
     tmax = NAN;
-    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, false, &h, NULL));
+    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, true, false, &h, NULL));
     tmax = 5;
-    assert_false(mr_dmm_intersect(&p, &r, 1.5f, &tmax, false, &h, NULL)); /* behind tmin */
+    assert_false(mr_dmm_intersect(&p, &r, 1.5f, &tmax, true, false, &h, NULL)); /* behind tmin */
     assert_int_equal(mr_dmm_trace_leaf_sublevel(0), 0);
     assert_int_equal(mr_dmm_trace_leaf_sublevel(5), 4);
     assert_int_equal(mr_dmm_trace_pyramid_size(5), mr_dmm_pyramid_size(4));
     assert_int_equal(mr_dmm_trace_pyramid_size(0), 1);
     p.level = MR_UMESH_MAX_LEVEL + 1;
     tmax = 5;
-    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, false, &h, NULL));
+    assert_false(mr_dmm_intersect(&p, &r, 0, &tmax, true, false, &h, NULL));
     set_free(&set);
 }
 
@@ -519,6 +651,7 @@ int main(void)
         cmocka_unit_test(test_arguments),
         cmocka_unit_test(test_brute_base),
         cmocka_unit_test(test_brute_interpolated),
+        cmocka_unit_test(test_traversal_equals_micro),
         cmocka_unit_test(test_bounds),
         cmocka_unit_test(test_zero_base),
         cmocka_unit_test(test_zero_interpolated_bezier),

@@ -505,7 +505,7 @@ static void test_order_and_variants(void **state)
     /* dmm objects: defaults, every field, base_triangles instead of a ratio. */
     job = parse_ok(WITH_OBJECT("{'asset':'m','kind':'dmm'},"
                                "{'asset':'m','kind':'dmm','dmm':{'level':5,'base_ratio':1,"
-                               "'mode':'tessellated'}},"
+                               "'mode':'tessellated','intersector':'watertight'}},"
                                "{'asset':'m','kind':'dmm','dmm':{'level':0,'base_triangles':12}},"
                                "{'asset':'m','kind':'dmm','dmm':{'mode':'interpolated',"
                                "'normals':'matrix'}},"
@@ -517,6 +517,8 @@ static void test_order_and_variants(void **state)
     assert_true(dmm_of(job, 0)->base_ratio == 0.25f);
     assert_int_equal(dmm_of(job, 0)->base_triangles, 0);
     assert_int_equal(dmm_of(job, 0)->mode, MR_DMM_TESSELLATED);
+    assert_int_equal(dmm_of(job, 0)->intersector, MR_DMM_INTERSECT_EMBREE); /* the default */
+    assert_int_equal(dmm_of(job, 1)->intersector, MR_DMM_INTERSECT_WATERTIGHT);
     assert_int_equal(dmm_of(job, 1)->level, 5);
     assert_true(dmm_of(job, 1)->base_ratio == 1.0f);
     assert_int_equal(dmm_of(job, 2)->level, 0);

@@ -127,6 +127,8 @@ static void test_what_passes_draw(void **state)
     assert_ptr_equal(p.job.objects[0].kind, &mr_kind_dmm);
     assert_int_equal(d->mode, MR_DMM_TESSELLATED);
     assert_int_equal(d->deform, MR_DMM_DEFORM_INTERPOLATED);
+    /* the exact reference: the tessellation-free modes' own test */
+    assert_int_equal(d->intersector, MR_DMM_INTERSECT_WATERTIGHT);
     assert_int_equal(d->level, 3);
     assert_int_equal(src->mode, MR_DMM_INTERPOLATED); /* the job's own is left alone */
     assert_true(p.job.objects[0].color.z == 0.3f);

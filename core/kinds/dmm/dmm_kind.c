@@ -23,9 +23,16 @@
  *          tessellated, every micro-vertex with the same mr_dmm_vertex;
  * attach   tessellation-free modes: one Embree USER geometry, one primitive
  *          per base triangle, whose callbacks run dmm_trace.h's traversal;
- *          tessellated: one TRIANGLE geometry over the micro-triangles
- *          (base triangle after base triangle, each its surviving
- *          micro-triangles in micromesh.h row order: mr_umesh_triangles);
+ *          tessellated, intersector embree: one TRIANGLE geometry over the
+ *          micro-triangles (base triangle after base triangle, each its
+ *          surviving micro-triangles in micromesh.h row order:
+ *          mr_umesh_triangles); tessellated, intersector watertight (the
+ *          exact reference, issue 17): the tessellation-free modes' user
+ *          geometry and boxes (update checks they hold every micro-vertex),
+ *          whose callbacks test the base triangle's micro-triangles one by
+ *          one (mr_dmm_intersect_micro). In every user geometry hits at the
+ *          same t go to the smaller base triangle, then micro-triangle, so
+ *          the reference's frames equal the traversal's bit for bit;
  * normal   the hit micro-triangle's geometric normal, or (normals "matrix")
  *          the rest-pose micro-triangle normal moved by the cofactor of the
  *          interpolated matrix at the hit.
@@ -95,7 +102,21 @@ struct mr_geom {
     RTCGeometry rtc;
 };
 
+/* Mode tessellated: every micro-vertex evaluated per frame. */
 static bool tessellated(const mr_geom *g) { return g->desc.mode == MR_DMM_TESSELLATED; }
+/* ... and its micro-triangles given to Embree as triangles (prim: the
+ * micro-triangle); otherwise, tessellation-free or the watertight
+ * reference, a user geometry of base triangles over their boxes (prim: the
+ * base triangle, (u, v) in its domain). */
+static bool embree_triangles(const mr_geom *g)
+{
+    return tessellated(g) && g->desc.intersector == MR_DMM_INTERSECT_EMBREE;
+}
+/* Mode tessellated, intersector watertight: the exact reference. */
+static bool watertight_reference(const mr_geom *g)
+{
+    return tessellated(g) && g->desc.intersector == MR_DMM_INTERSECT_WATERTIGHT;
+}
 
 static void dmm_free(mr_geom *g)
 {
@@ -273,7 +294,8 @@ static int allocate(mr_geom *g, mr_error *err)
         g->positions = calloc((size_t)g->vertex_count * 3 + 1, sizeof(float));
         g->indices = malloc((size_t)g->triangle_count * 3 * sizeof(uint32_t));
         ok = ok && g->positions && g->indices;
-    } else {
+    }
+    if (!embree_triangles(g)) {
         g->boxes = calloc(nt * BOX_FLOATS, sizeof(float));
         ok = ok && g->boxes;
     }
@@ -664,7 +686,21 @@ static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
 typedef struct update_ctx {
     mr_geom *g;
     uint32_t bad[MR_MAX_THREADS]; /* per worker: first failing base triangle + 1, or 0 */
+    uint32_t outside[MR_MAX_THREADS]; /* the same for a micro-vertex outside its box */
 } update_ctx;
+
+/* The watertight reference tests micro-triangles only inside the boxes the
+ * tessellation-free modes trace (their Embree BVHs are then the same): it
+ * checks that those boxes hold every micro-vertex, so a box that cut one
+ * off is an error, not a hole both renders share. */
+static bool box_holds(const float *box, const float *v, uint32_t count)
+{
+    for (uint32_t i = 0; i < count; i++)
+        for (int k = 0; k < 3; k++)
+            if (!(v[3 * i + k] >= box[k] && v[3 * i + k] <= box[3 + k]))
+                return false;
+    return true;
+}
 
 static void note_bad(update_ctx *c, unsigned worker, size_t t)
 {
@@ -677,7 +713,7 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
     update_ctx *c = ctx;
     mr_geom *g = c->g;
     for (size_t t = begin; t < end; t++) {
-        if (!tessellated(g)) {
+        if (g->boxes) {
             /* the pad once: the bounds use it, and it is cached for the rays */
             mr_dmm_patch p = patch_of(g, (uint32_t)t);
             float *b = g->boxes + t * BOX_FLOATS;
@@ -687,10 +723,17 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
                 note_bad(c, worker, t);
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
-            continue;
         }
-        if (!eval_micro_vertices(g, (uint32_t)t, g->positions + (size_t)g->value_first[t] * 3))
+        if (!tessellated(g))
+            continue;
+        float *v = g->positions + (size_t)g->value_first[t] * 3;
+        if (!eval_micro_vertices(g, (uint32_t)t, v))
             note_bad(c, worker, t);
+        else if (watertight_reference(g) &&
+                 !box_holds(g->boxes + t * BOX_FLOATS, v,
+                            g->value_first[t + 1] - g->value_first[t]) &&
+                 c->outside[worker] == 0)
+            c->outside[worker] = (uint32_t)t + 1;
     }
 }
 
@@ -758,22 +801,31 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a dmm object");
     c->g = g;
     mr_parallel_for(threads, g->base_triangle_count, UPDATE_GRAIN, update_range, c);
-    uint32_t bad = 0;
-    for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+    uint32_t bad = 0, outside = 0;
+    for (unsigned w = 0; w < MR_MAX_THREADS; w++) {
         if (c->bad[w] && (bad == 0 || c->bad[w] < bad))
             bad = c->bad[w];
+        if (c->outside[w] && (outside == 0 || c->outside[w] < outside))
+            outside = c->outside[w];
+    }
     free(c);
     if (bad)
         return mr_error_set(err, MR_ERR_INVALID,
                             "%s: base triangle %u is not finite or beyond %g after posing: check "
                             "the object's transform and pose",
                             g->asset->path, bad - 1, MR_MAX_COORDINATE);
+    if (outside)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "%s: base triangle %u has a micro-vertex outside the box the "
+                            "tessellation-free traversal bounds it by (a bug in its bounds)",
+                            g->asset->path, outside - 1);
     memcpy(g->last_mats, g->mats, nb);
     g->evaluated = true;
     return MR_OK;
 }
 
-/* Embree user-geometry callbacks (tessellation-free modes). */
+/* Embree user-geometry callbacks (tessellation-free modes and the
+ * watertight reference: one primitive per base triangle, its box). */
 
 static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 {
@@ -806,9 +858,11 @@ static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
     return (unsigned *)ray + field * N + i;
 }
 
-/* Traces ray i of an N-packet against patch p; tfar shrinks on a hit. */
-static bool trace_one(const mr_dmm_patch *p, void *ray, unsigned N, unsigned i, bool any_hit,
-                      mr_dmm_hit *h)
+/* Traces ray i of an N-packet against base triangle t (patch p): the
+ * traversal, or the watertight reference's test of every micro-triangle;
+ * tfar shrinks on a hit. take_tmax: see mr_dmm_intersect. */
+static bool trace_one(const mr_geom *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
+                      unsigned i, bool take_tmax, bool any_hit, mr_dmm_hit *h)
 {
     mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
                         *ray_f(ray, N, RAY_ORG + 2, i));
@@ -818,7 +872,14 @@ static bool trace_one(const mr_dmm_patch *p, void *ray, unsigned N, unsigned i, 
         return false;
     mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
     float *tfar = ray_f(ray, N, RAY_TFAR, i);
-    return mr_dmm_intersect(p, &r, *ray_f(ray, N, RAY_TNEAR, i), tfar, any_hit, h, NULL);
+    float tnear = *ray_f(ray, N, RAY_TNEAR, i);
+    if (watertight_reference(g)) {
+        uint32_t count;
+        const uint32_t *tris = local_tris(g, t, &count);
+        return mr_dmm_intersect_micro(p, g->positions + (size_t)g->value_first[t] * 3, tris, count,
+                                      &r, tnear, tfar, take_tmax, any_hit, h);
+    }
+    return mr_dmm_intersect(p, &r, tnear, tfar, take_tmax, any_hit, h, NULL);
 }
 
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
@@ -829,7 +890,18 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
     mr_dmm_patch p = patch_of(g, args->primID);
     for (unsigned i = 0; i < N; i++) {
         mr_dmm_hit h;
-        if (args->valid[i] != -1 || !trace_one(&p, ray, N, i, false, &h))
+        if (args->valid[i] != -1)
+            continue;
+        /* A hit at exactly the ray's tfar beats the one held there when
+         * that is none, or one of this object's base triangles with a
+         * larger index: every mode orders equal-t hits by (base triangle,
+         * micro-triangle), whatever order Embree visits them in. */
+        unsigned held = *ray_u(hit, N, HIT_GEOM, i);
+        bool take_tmax = held == RTC_INVALID_GEOMETRY_ID ||
+                         (held == args->geomID &&
+                          *ray_u(hit, N, HIT_INST, i) == args->context->instID[0] &&
+                          args->primID < *ray_u(hit, N, HIT_PRIM, i));
+        if (!trace_one(g, args->primID, &p, ray, N, i, take_tmax, false, &h))
             continue;
         *ray_f(hit, N, HIT_NG, i) = h.ng.x;
         *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
@@ -848,14 +920,14 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     unsigned N = args->N;
     mr_dmm_patch p = patch_of(g, args->primID);
     for (unsigned i = 0; i < N; i++)
-        if (args->valid[i] == -1 && trace_one(&p, args->ray, N, i, true, NULL))
+        if (args->valid[i] == -1 && trace_one(g, args->primID, &p, args->ray, N, i, true, true, NULL))
             *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
 }
 
 static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                       enum RTCBuildQuality quality, mr_error *err)
 {
-    if (tessellated(g))
+    if (embree_triangles(g))
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
                                         g->vertex_count, g->indices, g->triangle_count, &g->rtc,
                                         err);
@@ -881,7 +953,7 @@ static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
 
 static void dmm_commit(mr_geom *g)
 {
-    if (tessellated(g))
+    if (embree_triangles(g))
         mr_geom_commit_vertices(g->rtc);
     else
         rtcCommitGeometry(g->rtc);
@@ -890,7 +962,7 @@ static void dmm_commit(mr_geom *g)
 /* Base triangle and base-domain (u, v) of a hit. */
 static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
 {
-    if (!tessellated(g))
+    if (!embree_triangles(g))
         return prim;
     if (prim >= g->micro_first[g->base_triangle_count])
         return UINT32_MAX;
@@ -1105,8 +1177,9 @@ static const char *const MODES[] = {"tessellated", "base", "interpolated"};
 static const char *const DEFORMS[] = {"base", "interpolated"};
 static const char *const NORMALS[] = {"geometric", "matrix", "smooth"};
 static const char *const LEVELS[] = {"uniform", "adaptive"};
+static const char *const INTERSECTORS[] = {"embree", "watertight"};
 
-enum { P_LEVEL, P_RATIO, P_TRIANGLES, P_MODE, P_DEFORM, P_NORMALS, P_LEVELS };
+enum { P_LEVEL, P_RATIO, P_TRIANGLES, P_MODE, P_DEFORM, P_NORMALS, P_LEVELS, P_INTERSECTOR };
 
 static mr_dmm_deform deform_of_mode(mr_dmm_mode m)
 {
@@ -1129,6 +1202,17 @@ static int after_deform(void *values, const bool *given, mr_param_error *err)
                              "mode \"%s\" deforms by \"%s\"; \"deformation\" only chooses what "
                              "mode \"tessellated\" expands",
                              MODES[d->mode], DEFORMS[implied]);
+    return MR_OK;
+}
+
+static int after_intersector(void *values, const bool *given, mr_param_error *err)
+{
+    const mr_dmm_params *d = values;
+    if (given[P_INTERSECTOR] && d->mode != MR_DMM_TESSELLATED)
+        return mr_param_fail(err, MR_ERR_INVALID, "intersector",
+                             "mode \"%s\" traces its own micro-triangles; \"intersector\" only "
+                             "chooses how mode \"tessellated\" intersects them",
+                             MODES[d->mode]);
     return MR_OK;
 }
 
@@ -1180,6 +1264,18 @@ static const mr_param DMM_PARAMS[] = {
                                  "the level (0..level) whose micro-triangles are closest in area to the detailed "
                                  "mesh's mean triangle; neighbours at most one level apart, the finer side's "
                                  "shared edge decimated (watertight)."},
+    [P_INTERSECTOR] = {.field = "intersector", .type = MR_PARAM_ENUM,
+                       .offset = offsetof(mr_dmm_params, intersector),
+                       MR_PARAM_CHOICES(INTERSECTORS), .def = MR_DMM_INTERSECT_EMBREE,
+                       .after = after_intersector,
+                       .description = "Mode \"tessellated\" only: what intersects its micro-triangles. \"embree\": "
+                                      "Embree's own triangle intersector over Embree triangles (the pre-tessellated "
+                                      "baseline; its float arithmetic decides rays within rounding of a silhouette "
+                                      "micro-edge, and its depths, slightly differently from the tessellation-free "
+                                      "modes). \"watertight\": the tessellation-free modes' own watertight test, "
+                                      "every micro-triangle of each base triangle whose box (theirs) the ray enters "
+                                      "(the exact reference: frames bit-identical to modes \"base\" and "
+                                      "\"interpolated\", and the reference pass's \"tessellated\"; slower)."},
 };
 
 static const mr_param_table DMM_TABLE = {
@@ -1193,12 +1289,16 @@ static const mr_param_table DMM_TABLE = {
         " \"then\": {\"properties\": {\"deformation\": {\"const\": \"base\"}}}},"
         "{\"if\": {\"required\": [\"mode\"], \"properties\": {\"mode\": {\"const\": "
         "\"interpolated\"}}},"
-        " \"then\": {\"properties\": {\"deformation\": {\"const\": \"interpolated\"}}}}]}",
+        " \"then\": {\"properties\": {\"deformation\": {\"const\": \"interpolated\"}}}},"
+        "{\"if\": {\"required\": [\"intersector\"]},"
+        " \"then\": {\"properties\": {\"mode\": {\"const\": \"tessellated\"}}}}]}",
 };
 
-/* References (kind.h): "tessellated" is the same micro-triangles as Embree
- * triangles (mode "tessellated", expanding the deformation the object's
- * mode implies: exact, so the tessellation-free modes must match it);
+/* References (kind.h): "tessellated" is the same micro-triangles (mode
+ * "tessellated", expanding the deformation the object's mode implies)
+ * intersected by the tessellation-free modes' own test (intersector
+ * "watertight"): exact, so the tessellation-free modes must match it bit
+ * for bit;
  * "ground_truth" is the detailed mesh the micro-mesh was baked from (the
  * object's asset) skinned directly as plain triangles, which the bake, the
  * subdivision level and the deformation approximate. */
@@ -1216,6 +1316,8 @@ static int dmm_reference(const mr_object_desc *obj, mr_reference_type type,
         return MR_ERR_NOMEM;
     *p = *(const mr_dmm_params *)obj->params;
     p->mode = MR_DMM_TESSELLATED; /* p->deform is the mode's already (after_mode) */
+    /* the exact reference: the same test, bit-identical frames */
+    p->intersector = MR_DMM_INTERSECT_WATERTIGHT;
     d.params = p;
     return mr_reference_objects_add(out, &d, err);
 }

@@ -37,6 +37,16 @@ typedef enum mr_dmm_normals {
  * detail (dmm_bake.h). */
 typedef enum mr_dmm_levels { MR_DMM_LEVELS_UNIFORM = 0, MR_DMM_LEVELS_ADAPTIVE } mr_dmm_levels;
 
+/* What mode TESSELLATED intersects its micro-triangles with: Embree's own
+ * triangle intersector over Embree triangles (the pre-tessellated
+ * baseline), or the tessellation-free modes' own watertight test, triangle
+ * by triangle inside each base triangle's box (dmm_kind.c: the exact
+ * reference, frames bit-identical to theirs). */
+typedef enum mr_dmm_intersector {
+    MR_DMM_INTERSECT_EMBREE = 0,
+    MR_DMM_INTERSECT_WATERTIGHT
+} mr_dmm_intersector;
+
 #define MR_DMM_DEFAULT_LEVEL 3u
 #define MR_DMM_DEFAULT_BASE_RATIO 0.25f
 
@@ -50,6 +60,7 @@ typedef struct mr_dmm_params {
     mr_dmm_deform deform;
     mr_dmm_normals normals;
     mr_dmm_levels levels;
+    mr_dmm_intersector intersector; /* mode TESSELLATED only */
 } mr_dmm_params;
 
 extern const mr_kind mr_kind_dmm;

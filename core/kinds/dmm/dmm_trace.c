@@ -42,6 +42,7 @@ typedef struct trace_ctx {
     uint32_t segments;  /* 2^level */
     float pad[3];       /* per-axis box widening */
     float tmin, tmax;
+    uint32_t best_key;  /* micro-triangle (row order) of the hit at tmax; see test_triangle */
     bool any_hit, found;
     mr_dmm_hit *hit;
     mr_dmm_trace_stats *stats;
@@ -62,7 +63,7 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir)
         r.parallel[k] = d[k] == 0.0f;
         r.inv[k] = r.parallel[k] ? 0.0f : 1.0f / d[k];
     }
-    r.wt = mr_wt_ray_setup(org, dir);
+    r.wt = mr_wtd_ray_setup(org, dir);
     return r;
 }
 
@@ -246,6 +247,26 @@ static fbox node_box(const trace_ctx *c, const lattice_pt *const L[3], const blo
 
 
 
+/* A micro-triangle's geometric normal (unnormalised): the float cross
+ * product of its edges, as the tessellation's users compute it. Where that
+ * overflows (coordinates beyond ~1e19, which the double-precision test
+ * still hits), the same cross product in double, scaled by its largest
+ * component, so a hit never carries a non-finite normal. */
+static mr_vec3 micro_normal(mr_vec3 v0, mr_vec3 v1, mr_vec3 v2)
+{
+    mr_vec3 n = mr_v3_cross(mr_v3_sub(v1, v0), mr_v3_sub(v2, v0));
+    if (isfinite(n.x) && isfinite(n.y) && isfinite(n.z))
+        return n;
+    double e1[3] = {(double)v1.x - v0.x, (double)v1.y - v0.y, (double)v1.z - v0.z};
+    double e2[3] = {(double)v2.x - v0.x, (double)v2.y - v0.y, (double)v2.z - v0.z};
+    double c[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                   e1[0] * e2[1] - e1[1] * e2[0]};
+    double m = fmax(fabs(c[0]), fmax(fabs(c[1]), fabs(c[2])));
+    if (!(m > 0) || !isfinite(m))
+        return mr_v3(0, 0, 0);
+    return mr_v3((float)(c[0] / m), (float)(c[1] / m), (float)(c[2] / m));
+}
+
 /* Tests micro-triangle (L[0], L[1], L[2]) with vertices v. The watertight
  * test's rounding depends on which vertex comes first, so the triangle is
  * rotated (winding kept) to start where the tessellation's row order starts
@@ -269,17 +290,27 @@ static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
     const lattice_pt *L[3] = {at[s], at[(s + 1) % 3], at[(s + 2) % 3]};
     const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
     mr_wt_hit h;
-    if (!mr_wt_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
+    if (!mr_wtd_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
         return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
+    /* Equal t (a ray through a shared edge or vertex hits both sides at the
+     * same float t): the micro-triangle first in row order wins, whatever
+     * order the traversal met them in, as in mr_dmm_intersect_micro. Row
+     * index of the micro-triangle: its first corner (smallest b, then a) and
+     * whether the second corner is a row up (inverted) or not (upright). */
+    uint32_t n0 = c->segments, a0 = Lin[s]->a, b0 = Lin[s]->b;
+    uint32_t key = b0 * (2 * n0 - b0) + 2 * a0 - (Lin[(s + 1) % 3]->b > b0 ? 1u : 0u);
+    if (h.t == c->tmax && !(key < c->best_key))
+        return;
     c->found = true;
     c->tmax = h.t;
+    c->best_key = key;
     if (!c->hit)
         return;
     float w0 = 1.0f - h.u - h.v, n = (float)c->segments;
     c->hit->t = h.t;
     c->hit->u = (w0 * (float)L[0]->a + h.u * (float)L[1]->a + h.v * (float)L[2]->a) / n;
     c->hit->v = (w0 * (float)L[0]->b + h.u * (float)L[1]->b + h.v * (float)L[2]->b) / n;
-    c->hit->ng = mr_v3_cross(mr_v3_sub(v[1], v[0]), mr_v3_sub(v[2], v[0]));
+    c->hit->ng = micro_normal(v[0], v[1], v[2]);
 }
 
 /* Children of sub-triangle (P0, P1, P2) with edge midpoints m01, m12, m20,
@@ -426,7 +457,11 @@ static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
     const float o[3] = {r->org.x, r->org.y, r->org.z};
     v4f t0 = vsplat(c->tmin), t1 = vsplat(c->tmax * SLAB_FAR_SCALE);
     for (int a = 0; a < 3; a++) {
-        v4f lo = b->lo[a] - vsplat(c->pad[a] + o[a]), hi = b->hi[a] + vsplat(c->pad[a] - o[a]);
+        /* widened first, then relative to the origin: fl(lo - pad) <= lo,
+         * so the box tested holds the unwidened one whatever the origin's
+         * magnitude (pad + o rounded first could lose the pad) */
+        v4f lo = (b->lo[a] - vsplat(c->pad[a])) - vsplat(o[a]);
+        v4f hi = (b->hi[a] + vsplat(c->pad[a])) - vsplat(o[a]);
         if (r->parallel[a]) {
             /* outside the slab: t1 = -inf on that lane */
             v4i out = (lo > vsplat(0.0f)) | (hi < vsplat(0.0f));
@@ -583,7 +618,7 @@ bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
 }
 
 bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, float *tmax,
-                      bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats)
+                      bool take_tmax, bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats)
 {
     if (p->level > MR_UMESH_MAX_LEVEL || !(tmin <= *tmax))
         return false;
@@ -593,6 +628,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
                    .segments = mr_umesh_segments(p->level),
                    .tmin = tmin,
                    .tmax = *tmax,
+                   .best_key = take_tmax ? UINT32_MAX : 0,
                    .any_hit = any_hit,
                    .hit = hit,
                    .stats = stats};
@@ -609,6 +645,54 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     if (c.found)
         *tmax = c.tmax;
     return c.found;
+}
+
+bool mr_dmm_intersect_micro(const mr_dmm_patch *p, const float *verts, const uint32_t *tris,
+                            uint32_t count, const mr_dmm_ray *ray, float tmin, float *tmax,
+                            bool take_tmax, bool any_hit, mr_dmm_hit *hit)
+{
+    if (p->level > MR_UMESH_MAX_LEVEL || !(tmin <= *tmax))
+        return false;
+    float best = *tmax;
+    uint32_t best_key = take_tmax ? UINT32_MAX : 0, found = UINT32_MAX;
+    mr_wt_hit best_h = {0};
+    for (uint32_t k = 0; k < count; k++) {
+        const uint32_t *i = tris + 3 * (size_t)k;
+        mr_vec3 v[3];
+        for (int j = 0; j < 3; j++)
+            v[j] = mr_v3(verts[3 * (size_t)i[j]], verts[3 * (size_t)i[j] + 1],
+                         verts[3 * (size_t)i[j] + 2]);
+        mr_wt_hit h;
+        if (!mr_wtd_intersect(&ray->wt, v[0], v[1], v[2], tmin, best, &h) ||
+            (h.t == best && !(k < best_key)))
+            continue;
+        best = h.t;
+        best_key = k;
+        found = k;
+        best_h = h;
+        if (any_hit)
+            break;
+    }
+    if (found == UINT32_MAX)
+        return false;
+    *tmax = best;
+    if (!hit)
+        return true;
+    /* the hit record exactly as test_triangle writes it */
+    const uint32_t *i = tris + 3 * (size_t)found;
+    mr_vec3 v[3];
+    uint32_t a[3], b[3];
+    for (int j = 0; j < 3; j++) {
+        v[j] = mr_v3(verts[3 * (size_t)i[j]], verts[3 * (size_t)i[j] + 1],
+                     verts[3 * (size_t)i[j] + 2]);
+        mr_umesh_vertex_coords(p->level, i[j], &a[j], &b[j]);
+    }
+    float w0 = 1.0f - best_h.u - best_h.v, n = (float)mr_umesh_segments(p->level);
+    hit->t = best_h.t;
+    hit->u = (w0 * (float)a[0] + best_h.u * (float)a[1] + best_h.v * (float)a[2]) / n;
+    hit->v = (w0 * (float)b[0] + best_h.u * (float)b[1] + best_h.v * (float)b[2]) / n;
+    hit->ng = micro_normal(v[0], v[1], v[2]);
+    return true;
 }
 
 static bool decimated_tri(unsigned level, unsigned decimate, uint32_t a[3], uint32_t b[3])

@@ -27,8 +27,11 @@
  * start beyond the closest hit so far; at the leaf sublevel (one above the
  * micro-triangles) it evaluates the 6 micro-vertices with exactly the
  * functions the tessellation uses (mr_dmm_vertex) and intersects the 4
- * micro-triangles with the watertight test. Hits are therefore those of the
- * tessellated micro-mesh, bit for bit in the vertices. Decimated edges
+ * micro-triangles with the watertight test in double precision
+ * (mr_wtd_intersect), each in the tessellation's vertex order; of hits at
+ * the same float t the micro-triangle first in row order wins. Hits are
+ * therefore those of the tessellation tested triangle by triangle
+ * (mr_dmm_intersect_micro), bit for bit. Decimated edges
  * (neighbour one level coarser) move their odd micro-vertices as
  * mr_umesh_triangles does; the collapsed micro-triangles have no area and
  * are never hit.
@@ -37,8 +40,13 @@
  * widened by a per-patch pad, 2^-19 of a bound on the magnitude of every
  * coordinate they are computed from (mr_dmm_patch_pad), which covers the
  * single float rounding of each micro-vertex (2^-24 relative) and the box
- * arithmetic with a wide margin; the slab test widens each axis's far
- * distance by 3 float ulps (Ize, "Robust BVH Ray Traversal", 2013). Rays
+ * arithmetic with a wide margin, and the double-precision test's own
+ * rounding (~1e-16 of the ray's distance, where the float test's ~1e-7
+ * would outgrow the pad for a distant camera); the box is widened before
+ * the ray origin is subtracted (so the pad survives any origin magnitude)
+ * and the slab test widens each axis's far distance by 3 float ulps (Ize,
+ * "Robust BVH Ray Traversal", 2013), which keeps a micro-triangle hit at
+ * exactly the current closest t inside the boxes it is in. Rays
  * parallel to a slab are handled explicitly, so no 0 * inf NaN can cull a
  * box. The four children of a node are bounded and tested together, one
  * SIMD lane each.
@@ -70,7 +78,7 @@ typedef struct mr_dmm_ray {
     mr_vec3 org, dir;
     float inv[3];      /* 1 / dir, 0 on axes where dir is 0 */
     bool parallel[3];  /* dir component is 0 */
-    mr_wt_ray wt;
+    mr_wtd_ray wt;     /* the micro-triangle test runs in double (watertight.h) */
 } mr_dmm_ray;
 
 typedef struct mr_dmm_hit {
@@ -108,9 +116,27 @@ void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3]);
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi);
 
 /* Closest hit with tmin <= t <= *tmax; on a hit *tmax becomes its t.
- * any_hit: stop at the first hit found (shadow rays). */
+ * Hits are ordered by (t, micro-triangle in row order): of several
+ * micro-triangles hit at the same float t (a ray through a shared edge or
+ * vertex) the first in row order wins, whatever order the traversal visits
+ * them in. take_tmax: whether a hit at exactly the incoming *tmax beats the
+ * hit the caller already holds there (a caller ordering its patches the
+ * same way: by their index). any_hit: stop at the first hit found (shadow
+ * rays). */
 bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, float *tmax,
-                      bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats);
+                      bool take_tmax, bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats);
+
+/* The same query answered by testing the patch's tessellation triangle by
+ * triangle (the exact reference the traversal must equal): verts holds its
+ * micro-vertices (3 floats each, micromesh.h index order, as mr_dmm_vertex
+ * evaluates them), tris its count surviving micro-triangles
+ * (mr_umesh_triangles with its level and decimation). The same test, the
+ * same vertex order and the same (t, row order) ordering as
+ * mr_dmm_intersect, so both return the same hit, bit for bit, whenever the
+ * traversal's boxes hold every micro-triangle the test hits. */
+bool mr_dmm_intersect_micro(const mr_dmm_patch *p, const float *verts, const uint32_t *tris,
+                            uint32_t count, const mr_dmm_ray *ray, float tmin, float *tmax,
+                            bool take_tmax, bool any_hit, mr_dmm_hit *hit);
 
 /* Micro-triangle of the patch containing base-domain point (u, v) after
  * decimation (a micro-triangle that decimation collapsed is replaced by the
