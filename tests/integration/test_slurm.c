@@ -110,7 +110,9 @@ static void test_job_array_with_a_killed_task(void **state)
     cJSON *rq = cJSON_GetObjectItem(s, "requeues");
     assert_int_equal(cJSON_GetArraySize(rq), 4);
     for (int t = 0; t < 4; t++)
-        assert_int_equal(cJSON_GetArrayItem(rq, t)->valueint, t == 2);
+        if (cJSON_GetArrayItem(rq, t)->valueint != (t == 2))
+            fail_msg("task %d requeued %d times; cluster wait said (its end): %s", t,
+                     cJSON_GetArrayItem(rq, t)->valueint, tail);
     cJSON_Delete(s);
 
     /* every frame once: in stats.json, and bit for bit the one-shot
