@@ -373,7 +373,7 @@ static inline void blocks_u16(const uint16_t *a, const uint16_t *b, bool largest
 /* The same for 8-bit values, 16 nodes from node I on (reads a and b at
  * 2I .. 2I+31): the smaller (larger) of the rows, then of each byte pair. */
 #if defined(__SSE2__)
-static inline __m128i blocks_u8(const uint8_t *a, const uint8_t *b, bool largest)
+static inline void blocks_u8(const uint8_t *a, const uint8_t *b, bool largest, uint8_t *out)
 {
     const __m128i low = _mm_set1_epi16(0x00ff);
     __m128i h[2];
@@ -385,80 +385,55 @@ static inline __m128i blocks_u8(const uint8_t *a, const uint8_t *b, bool largest
         v = largest ? _mm_max_epu8(v, odd) : _mm_min_epu8(v, odd);
         h[k] = _mm_and_si128(v, low);
     }
-    return _mm_packus_epi16(h[0], h[1]);
+    _mm_storeu_si128((__m128i *)out, _mm_packus_epi16(h[0], h[1]));
 }
 #endif
-
-/* build_upper for the 8-bit pyramid. */
-static void build_upper_bytes(void *ctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    build_ctx *c = ctx;
-    const mr_dgrid *g = c->g;
-    unsigned l = c->level;
-    uint32_t cw = g->lw[l - 1], ch = g->lh[l - 1], nw = g->lw[l];
-    const uint8_t *cmin = g->bmin + g->first[l - 1], *cmax = g->bmax + g->first[l - 1];
-    for (size_t J = begin; J < end; J++) {
-        uint32_t cj = (uint32_t)J * 2;
-        const uint8_t *min0 = cmin + (size_t)cj * cw, *max0 = cmax + (size_t)cj * cw;
-        size_t down = cj + 1 < ch ? cw : 0;
-        const uint8_t *min1 = min0 + down, *max1 = max0 + down;
-        uint8_t *omin = g->bmin + g->first[l] + J * nw, *omax = g->bmax + g->first[l] + J * nw;
-        uint32_t I = 0;
-#if defined(__SSE2__)
-        for (; 2 * I + 32 <= cw; I += 16) {
-            _mm_storeu_si128((__m128i *)(omin + I), blocks_u8(min0 + 2 * I, min1 + 2 * I, false));
-            _mm_storeu_si128((__m128i *)(omax + I), blocks_u8(max0 + 2 * I, max1 + 2 * I, true));
-        }
-#endif
-        for (; I < nw; I++) {
-            uint32_t a = I * 2, b = a + 1 < cw ? a + 1 : a;
-            uint8_t lo0 = min0[a] < min0[b] ? min0[a] : min0[b];
-            uint8_t lo1 = min1[a] < min1[b] ? min1[a] : min1[b];
-            uint8_t hi0 = max0[a] > max0[b] ? max0[a] : max0[b];
-            uint8_t hi1 = max1[a] > max1[b] ? max1[a] : max1[b];
-            omin[I] = lo0 < lo1 ? lo0 : lo1;
-            omax[I] = hi0 > hi1 ? hi0 : hi1;
-        }
-    }
-}
 
 /* Level l > 1 from level l - 1 (quantised values combine exactly): a node
  * takes the 2x2 children that exist (the last column or row of children
- * is missing when the level below has an odd count). */
-static void build_upper(void *ctx, size_t begin, size_t end, unsigned worker)
-{
-    (void)worker;
-    build_ctx *c = ctx;
-    const mr_dgrid *g = c->g;
-    unsigned l = c->level;
-    uint32_t cw = g->lw[l - 1], ch = g->lh[l - 1], nw = g->lw[l];
-    const uint16_t *cmin = g->qmin + g->first[l - 1], *cmax = g->qmax + g->first[l - 1];
-    for (size_t J = begin; J < end; J++) {
-        uint32_t cj = (uint32_t)J * 2;
-        const uint16_t *min0 = cmin + (size_t)cj * cw, *max0 = cmax + (size_t)cj * cw;
-        /* the second row of children, or the first again when it is missing */
-        size_t down = cj + 1 < ch ? cw : 0;
-        const uint16_t *min1 = min0 + down, *max1 = max0 + down;
-        uint16_t *omin = g->qmin + g->first[l] + J * nw, *omax = g->qmax + g->first[l] + J * nw;
-        uint32_t I = 0;
+ * is missing when the level below has an odd count). One function per node
+ * type: 16-bit values (lo, hi: qmin, qmax) and the 8-bit pyramid's (bmin,
+ * bmax), blocks of 16 bytes of nodes at a time with SSE2. */
 #if defined(__SSE2__)
-        for (; 2 * I + 16 <= cw; I += 8) {
-            blocks_u16(min0 + 2 * I, min1 + 2 * I, false, omin + I);
-            blocks_u16(max0 + 2 * I, max1 + 2 * I, true, omax + I);
-        }
-#endif
-        for (; I < nw; I++) {
-            uint32_t a = I * 2, b = a + 1 < cw ? a + 1 : a;
-            uint16_t lo0 = min0[a] < min0[b] ? min0[a] : min0[b];
-            uint16_t lo1 = min1[a] < min1[b] ? min1[a] : min1[b];
-            uint16_t hi0 = max0[a] > max0[b] ? max0[a] : max0[b];
-            uint16_t hi1 = max1[a] > max1[b] ? max1[a] : max1[b];
-            omin[I] = lo0 < lo1 ? lo0 : lo1;
-            omax[I] = hi0 > hi1 ? hi0 : hi1;
-        }
+#define UPPER_BLOCKS(blocks, T, min0, min1, max0, max1, omin, omax, I, cw)                       \
+    for (; 2 * I + 32 / sizeof(T) <= cw; I += 16 / sizeof(T)) {                                \
+        blocks(min0 + 2 * I, min1 + 2 * I, false, omin + I);                                   \
+        blocks(max0 + 2 * I, max1 + 2 * I, true, omax + I);                                    \
     }
-}
+#else
+#define UPPER_BLOCKS(blocks, T, min0, min1, max0, max1, omin, omax, I, cw)
+#endif
+#define BUILD_UPPER(name, T, lo, hi, blocks)                                                   \
+    static void name(void *ctx, size_t begin, size_t end, unsigned worker)                     \
+    {                                                                                          \
+        (void)worker;                                                                          \
+        build_ctx *c = ctx;                                                                    \
+        const mr_dgrid *g = c->g;                                                              \
+        unsigned l = c->level;                                                                 \
+        uint32_t cw = g->lw[l - 1], ch = g->lh[l - 1], nw = g->lw[l];                          \
+        const T *cmin = g->lo + g->first[l - 1], *cmax = g->hi + g->first[l - 1];              \
+        for (size_t J = begin; J < end; J++) {                                                 \
+            uint32_t cj = (uint32_t)J * 2;                                                     \
+            const T *min0 = cmin + (size_t)cj * cw, *max0 = cmax + (size_t)cj * cw;            \
+            /* the second row of children, or the first again when it is missing */           \
+            size_t down = cj + 1 < ch ? cw : 0;                                                \
+            const T *min1 = min0 + down, *max1 = max0 + down;                                  \
+            T *omin = g->lo + g->first[l] + J * nw, *omax = g->hi + g->first[l] + J * nw;      \
+            uint32_t I = 0;                                                                    \
+            UPPER_BLOCKS(blocks, T, min0, min1, max0, max1, omin, omax, I, cw)                 \
+            for (; I < nw; I++) {                                                              \
+                uint32_t a = I * 2, b = a + 1 < cw ? a + 1 : a;                                \
+                T lo0 = min0[a] < min0[b] ? min0[a] : min0[b];                                 \
+                T lo1 = min1[a] < min1[b] ? min1[a] : min1[b];                                 \
+                T hi0 = max0[a] > max0[b] ? max0[a] : max0[b];                                 \
+                T hi1 = max1[a] > max1[b] ? max1[a] : max1[b];                                 \
+                omin[I] = lo0 < lo1 ? lo0 : lo1;                                               \
+                omax[I] = hi0 > hi1 ? hi0 : hi1;                                               \
+            }                                                                                  \
+        }                                                                                      \
+    }
+BUILD_UPPER(build_upper, uint16_t, qmin, qmax, blocks_u16)
+BUILD_UPPER(build_upper_bytes, uint8_t, bmin, bmax, blocks_u8)
 
 typedef struct range_ctx {
     const mr_dgrid *g;
