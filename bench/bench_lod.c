@@ -1,7 +1,7 @@
 /*
  * bench_lod.c - level of detail by a pixel tolerance (issue 16, part 2):
  * examples/lod-flythrough.json (the refined dancer walking, the camera
- * flying in from 60 units to 2.6) at each tolerance, with reference passes
+ * flying in from 60 units to 3.2) at each tolerance, with reference passes
  * against the full mesh. Not a test: it prints figures, it never fails on
  * a time.
  *

@@ -20,6 +20,7 @@ typedef struct error_ctx {
     const uint32_t *level_idx;
     uint32_t sample_count;
     uint32_t stride;                   /* every stride-th level triangle */
+    uint32_t grid;                     /* mr_mesh_lod_grid of the level */
     double worst[MR_MAX_THREADS];
 } error_ctx;
 
@@ -28,9 +29,16 @@ static void vertex_point(const float *pos, uint32_t v, double p[3])
     p[0] = pos[3 * (size_t)v], p[1] = pos[3 * (size_t)v + 1], p[2] = pos[3 * (size_t)v + 2];
 }
 
+uint32_t mr_mesh_lod_grid(uint32_t triangles)
+{
+    double m = ceil(sqrt(2.0 * MR_MESH_LOD_SAMPLES / (triangles ? triangles : 1)));
+    return m < 2 ? 2 : m > 32 ? 32 : (uint32_t)m;
+}
+
 /* Items [0, sample_count): the full mesh's sampled positions against the
- * level; then one per stride-th level triangle: its centroid and edge
- * midpoints against the full mesh. */
+ * level; then one per stride-th level triangle: its centroid and the
+ * points of its barycentric grid (mr_mesh_lod_grid) but its corners,
+ * against the full mesh. */
 static void error_range(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     error_ctx *c = vctx;
@@ -49,11 +57,16 @@ static void error_range(void *vctx, size_t begin, size_t end, unsigned worker)
         for (int k = 0; k < 3; k++)
             p[k] = (v[0][k] + v[1][k] + v[2][k]) / 3.0;
         worst = fmax(worst, mr_closest_mesh_distance(c->full, p, NULL));
-        for (int e = 0; e < 3; e++) {
-            for (int k = 0; k < 3; k++)
-                p[k] = 0.5 * (v[e][k] + v[(e + 1) % 3][k]);
-            worst = fmax(worst, mr_closest_mesh_distance(c->full, p, NULL));
-        }
+        uint32_t m = c->grid;
+        for (uint32_t a = 0; a <= m; a++)
+            for (uint32_t b = 0; a + b <= m; b++) {
+                if ((a == m) + (b == m) + (a + b == 0) > 0)
+                    continue; /* a corner: a vertex of the full mesh */
+                double wa = (double)a / m, wb = (double)b / m, wc = 1.0 - wa - wb;
+                for (int k = 0; k < 3; k++)
+                    p[k] = wc * v[0][k] + wa * v[1][k] + wb * v[2][k];
+                worst = fmax(worst, mr_closest_mesh_distance(c->full, p, NULL));
+            }
     }
     c->worst[worker] = worst;
 }
@@ -85,9 +98,10 @@ int mr_mesh_lod_measure(mr_mesh_lod *lod, const float *pos, uint32_t nv, uint32_
         if ((rc = mr_closest_mesh_init(&lm, full.device, pos, nv, lod->indices[k], lod->triangles[k],
                                        who, err)) < 0)
             break;
-        error_ctx c = {.full = &full, .level = &lm, .pos = pos, .samples = samples,
-                       .level_idx = lod->indices[k], .sample_count = n, .stride = stride};
         size_t tris = (lod->triangles[k] + (size_t)stride - 1) / stride;
+        error_ctx c = {.full = &full, .level = &lm, .pos = pos, .samples = samples,
+                       .level_idx = lod->indices[k], .sample_count = n, .stride = stride,
+                       .grid = mr_mesh_lod_grid((uint32_t)tris)};
         mr_parallel_for(threads, (size_t)n + tris, 256, error_range, &c);
         mr_closest_mesh_free(&lm);
         for (unsigned t = 0; t < MR_MAX_THREADS; t++)

@@ -13,11 +13,14 @@
  * weld in mesh_lod.c): one skinned vertex array serves them all.
  *
  * A level's error is its two-sided distance to the full mesh, measured by
- * exact closest-point queries (math/closest_mesh.h) at every vertex of the
- * full mesh (against the level) and at the centroid and edge midpoints of
- * every level triangle (against the full mesh). It is the Hausdorff distance
- * at those points: between them it can be exceeded (a sampled bound, not a
- * proof), which the reference passes measure. Rigid transforms scale it by
+ * exact closest-point queries (math/closest_mesh.h) at every distinct vertex
+ * position of the full mesh (against the level) and, on every level
+ * triangle, at its centroid and the points of a barycentric grid but its
+ * corners (against the full mesh): an m x m grid, m = mr_mesh_lod_grid,
+ * about MR_MESH_LOD_SAMPLES points per level (at least the edge midpoints),
+ * so a coarse level's few large triangles are looked at inside too. It is
+ * the Hausdorff distance at those points: between them it can be exceeded
+ * (a sampled bound, not a proof), which the reference passes measure. Rigid transforms scale it by
  * at most the transform's largest stretch (mr_mesh_lod_stretch); skinning
  * by bones that do not stretch keeps each bone's part rigid, and where
  * weights blend two bones the level and the full mesh blend alike at
@@ -34,6 +37,8 @@
 #include "microray.h"
 
 #define MR_MESH_LOD_MAX 16
+/* Points a level's triangles are sampled at, about (mr_mesh_lod_grid). */
+#define MR_MESH_LOD_SAMPLES 8192
 
 typedef struct mr_mesh_lod {
     uint32_t level_count;                 /* 1.. MR_MESH_LOD_MAX */
@@ -60,6 +65,11 @@ void mr_mesh_lod_free(mr_mesh_lod *lod);
  * level can stray farther in a pose than at rest. */
 int mr_mesh_lod_measure(mr_mesh_lod *lod, const float *pos, uint32_t nv, uint32_t stride,
                         unsigned threads, const char *who, mr_error *err);
+/* The subdivisions of each edge of a level triangle the error samples at
+ * when the level (or the part measured) has `triangles` triangles: about
+ * MR_MESH_LOD_SAMPLES points in all, 2 (the edge midpoints) to 32. */
+uint32_t mr_mesh_lod_grid(uint32_t triangles);
+
 /* Bytes the levels beyond 0 hold. */
 size_t mr_mesh_lod_memory(const mr_mesh_lod *lod);
 
