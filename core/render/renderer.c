@@ -657,11 +657,6 @@ static int passes_setup(mr_renderer *r, mr_error *err)
     return MR_OK;
 }
 
-/* Renders frame `index` through every reference pass with the frame's
- * camera and compares the frame's film with each: one error entry per
- * pass (the reference's scene diagonal is the unit of depth: a
- * tessellation's box is the tighter, user geometry's boxes are
- * conservative). */
 /* A renderer's scene as a surface probe (mr_surface_probe): one ray of the
  * frame's camera per call. */
 typedef struct scene_probe {
@@ -693,6 +688,11 @@ static scene_probe probe_of(const mr_renderer *r, const mr_camera *camera, const
     return sp;
 }
 
+/* Renders frame `index` through every reference pass with the frame's
+ * camera and compares the frame's film with each: one error entry per
+ * pass (the reference's scene diagonal is the unit of depth: a
+ * tessellation's box is the tighter, user geometry's boxes are
+ * conservative). */
 static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
                             const mr_camera *camera, mr_frame_stats *st, mr_error *err)
 {
