@@ -150,16 +150,12 @@ typedef struct build_ctx {
     mr_dgrid *g;
     unsigned level;
     uint16_t *tlo, *thi; /* integer samples: their quantised bounds, by value */
-    bool linear8;        /* 8-bit samples whose tables are tlo[v] = max(257 v - 1, 0),
-                            thi[v] = min(257 v + 1, 65535) (the whole 0..255 range
-                            quantised: computed, not looked up) */
 } build_ctx;
 
 /* Level 1 of 8 or 16 bit samples: the same nodes as build_level1, read
  * straight from the rows (no conversion per sample) and quantised by table
- * (8-bit samples over their whole range: by 257 v -+ 1, 16 at a time, when
- * the tables are exactly that), which is what makes a new height texture
- * cheap. A node row's three sample
+ * (or, for the 8-bit pyramid, kept as they are), which is what makes a new
+ * height texture cheap. A node row's three sample
  * rows are reduced column by column 16 bytes at a time (GCC vector
  * extensions: SSE2 on x86-64; unsigned compares select by mask), then each
  * node takes the smallest and largest of its three columns. */
@@ -184,19 +180,6 @@ static inline __m128i triples_u8(const uint8_t *c, bool largest)
     __m128i even = _mm_set1_epi16(0x00ff);
     return _mm_packus_epi16(_mm_and_si128(t[0], even), _mm_and_si128(t[1], even));
 }
-
-/* 16 quantised bounds of 8-bit values v when the tables are 257 v -+ 1
- * (build_ctx.linear8): v repeated in both bytes of a 16-bit lane is 257 v,
- * and the saturating step is the tables' clamp to [0, 65535]. */
-static inline void quantise_u8(__m128i v, bool largest, uint16_t *out)
-{
-    __m128i one = _mm_set1_epi16(1);
-    __m128i a = _mm_unpacklo_epi8(v, v), b = _mm_unpackhi_epi8(v, v);
-    a = largest ? _mm_adds_epu16(a, one) : _mm_subs_epu16(a, one);
-    b = largest ? _mm_adds_epu16(b, one) : _mm_subs_epu16(b, one);
-    _mm_storeu_si128((__m128i *)out, a);
-    _mm_storeu_si128((__m128i *)(out + 8), b);
-}
 #endif
 
 /* Nodes [I, ...) of a level-1 row of 8-bit samples 16 at a time while all
@@ -212,11 +195,6 @@ static uint32_t nodes_uint8_t(const build_ctx *c, const uint8_t *cmin, const uin
         if (g->bmin) {
             _mm_storeu_si128((__m128i *)(g->bmin + k0 + I), lo);
             _mm_storeu_si128((__m128i *)(g->bmax + k0 + I), hi);
-            continue;
-        }
-        if (c->linear8) {
-            quantise_u8(lo, false, g->qmin + k0 + I);
-            quantise_u8(hi, true, g->qmax + k0 + I);
             continue;
         }
         uint8_t l[16], h[16];
@@ -507,7 +485,6 @@ void mr_dgrid_rebuild(mr_dgrid *g, unsigned threads)
         c.thi = malloc(values * sizeof *c.thi);
     }
     if (c.tlo && c.thi) {
-        c.linear8 = linear8(g);
         for (size_t v = 0; v < values; v++) {
             c.tlo[v] = q_lo(g, (double)v);
             c.thi[v] = q_hi(g, (double)v);
