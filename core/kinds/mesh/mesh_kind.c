@@ -40,8 +40,8 @@ struct mr_geom {
     float *normals;              /* 3 per vertex */
     float *tangents;             /* 3 per vertex (0 for meshes without); NULL: no mesh has them */
     uint32_t *indices;           /* 3 per triangle, merged: level 0 */
-    mr_vec3 lo, hi;              /* bounds of the posed mesh after the last update (with
-                                    levels: the coarsest's grown by its error) */
+    mr_vec3 lo, hi;              /* with levels: the bounds level's posed bounds grown by its
+                                    error, after the last update */
     double tolerance_px;         /* 0: no levels of detail */
     mr_mesh_lod lod;             /* level_count 1 without a tolerance */
     double lod_build_s;
@@ -322,18 +322,19 @@ static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *po
     int rc;
     if (!(frame && frame->view_only))
         g->posed = 0;
+    bool levels = g->lod.level_count > 1;
+    double stretch = levels && transform ? mr_mesh_lod_stretch(transform) : 1.0;
     uint32_t b = g->bounds_level;
     if (!(g->posed & 1u << b)) {
         if ((rc = pose_level(g, b, pose, transform, threads, err)) < 0)
             return rc;
-        double stretch = transform ? mr_mesh_lod_stretch(transform) : 1.0;
-        level_bounds(g, b, (float)(g->lod.error[b] * stretch));
+        if (levels) /* only a level's pick reads the bounds */
+            level_bounds(g, b, (float)(g->lod.error[b] * stretch));
     }
     g->level = 0;
     g->predicted_px = 0;
-    if (g->lod.level_count > 1 && frame) {
+    if (levels && frame) {
         double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, g->lo, g->hi);
-        double stretch = transform ? mr_mesh_lod_stretch(transform) : 1.0;
         g->level = mr_mesh_lod_pick(&g->lod, px * stretch, g->tolerance_px, &g->predicted_px);
     }
     if (!(g->posed & 1u << g->level) &&

@@ -71,19 +71,11 @@ static void error_range(void *vctx, size_t begin, size_t end, unsigned worker)
     c->worst[worker] = worst;
 }
 
-static unsigned thread_count(unsigned threads)
-{
-    if (!threads || threads > MR_MAX_THREADS)
-        threads = mr_cpu_count() < MR_MAX_THREADS ? mr_cpu_count() : MR_MAX_THREADS;
-    return threads;
-}
-
 int mr_mesh_lod_measure(mr_mesh_lod *lod, const float *pos, uint32_t nv, uint32_t stride,
                         unsigned threads, const char *who, mr_error *err)
 {
     if (lod->level_count < 2)
         return MR_OK;
-    threads = thread_count(threads);
     stride = stride ? stride : 1;
     uint32_t n = (lod->distinct_count + stride - 1) / stride;
     uint32_t *samples = malloc((n ? n : 1) * sizeof *samples);
