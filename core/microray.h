@@ -477,21 +477,22 @@ typedef struct mr_surface_probe {
     void *ctx;
 } mr_surface_probe;
 
-/* surface_px of the two films (mr_compare_result). With a probe of a
- * film's scene (NULL: none), a pixel of the other film whose nearest match
- * among that film's pixel centres is more than a quarter pixel away is
- * looked for again between them, on a grid of quarter pixels: thin parts
- * (a limb a fraction of a pixel wide, far away) cover pixel centres here
- * and there, so the nearest centre they cover can lie pixels away from a
- * surface that moved by less than one. The renderer's reference passes
- * probe both scenes; mr_film_compare has no scene and passes none. */
-double mr_film_surface_px(const mr_film *a, const mr_film *b, const mr_surface_probe *probe_a,
-                          const mr_surface_probe *probe_b);
-
 /* Fails with MR_ERR_INVALID when sizes differ or scene_diagonal is not a
  * positive finite number. */
 int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
                     mr_compare_result *out, mr_error *err);
+
+/* mr_film_compare with probes of the films' scenes (either NULL: none) for
+ * surface_px: a pixel of one film whose nearest match among the other's
+ * pixel centres is more than a quarter pixel away is looked for again
+ * between them, on a grid of quarter pixels. Thin parts (a limb a
+ * fraction of a pixel wide, far away) cover pixel centres here and there,
+ * so the nearest centre they cover can lie pixels away from a surface
+ * that moved by less than one. The renderer's reference passes probe both
+ * scenes; mr_film_compare (two EXR files, no scene) passes none. */
+int mr_film_compare_probed(const mr_film *a, const mr_film *b, double scene_diagonal,
+                           const mr_surface_probe *probe_a, const mr_surface_probe *probe_b,
+                           mr_compare_result *out, mr_error *err);
 
 /* Isolated dark pixels of one frame (speckles: shadow acne, pinholes,
  * floating dark pixels; issue 13). An interior pixel is one whose 8

@@ -115,7 +115,7 @@ static double depth_span(const mr_film *f, int x, int y)
 }
 
 /* Where pixel centres say b's surface is more than this far from p, a probe
- * of b's scene looks between them (mr_film_surface_px). */
+ * of b's scene looks between them (mr_film_compare_probed). */
 #define PROBE_ABOVE 0.25
 /* ... on a grid of this step, in pixels. */
 #define PROBE_STEP 0.25
@@ -186,8 +186,9 @@ static double surface_px_one_way(const mr_film *a, const mr_film *b, const mr_su
     return worst;
 }
 
-double mr_film_surface_px(const mr_film *a, const mr_film *b, const mr_surface_probe *probe_a,
-                          const mr_surface_probe *probe_b)
+/* surface_px (mr_compare_result), with probes of the scenes or none. */
+static double surface_px(const mr_film *a, const mr_film *b, const mr_surface_probe *probe_a,
+                         const mr_surface_probe *probe_b)
 {
     const mr_film *cam = a->has_camera ? a : b->has_camera ? b : NULL;
     if (!cam || !a->z || !b->z || !a->object_id || !b->object_id || a->width != b->width ||
@@ -199,6 +200,13 @@ double mr_film_surface_px(const mr_film *a, const mr_film *b, const mr_surface_p
 
 int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
                     mr_compare_result *out, mr_error *err)
+{
+    return mr_film_compare_probed(a, b, scene_diagonal, NULL, NULL, out, err);
+}
+
+int mr_film_compare_probed(const mr_film *a, const mr_film *b, double scene_diagonal,
+                           const mr_surface_probe *probe_a, const mr_surface_probe *probe_b,
+                           mr_compare_result *out, mr_error *err)
 {
     mr_compare_result res;
     double depth_sq = 0.0, depth_max = 0.0, normal_sum = 0.0, normal_max = 0.0;
@@ -277,7 +285,7 @@ int mr_film_compare(const mr_film *a, const mr_film *b, double scene_diagonal,
     }
     mse = rgb_sq / (3.0 * (double)n);
     res.psnr_rgb = mse > 0.0 ? 10.0 * log10(1.0 / mse) : MR_PSNR_IDENTICAL;
-    res.surface_px = mr_film_surface_px(a, b, NULL, NULL);
+    res.surface_px = surface_px(a, b, probe_a, probe_b);
 
     *out = res;
     return MR_OK;

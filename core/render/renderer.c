@@ -704,16 +704,16 @@ static int reference_passes(mr_renderer *r, size_t index, const mr_film *film,
         const char *name = mr_reference_name(p->pass.type);
         mr_frame_stats ref;
         mr_compare_result c;
-        if ((rc = render_frame(p->renderer, index, p->film, &ref, camera, err)) < 0 ||
-            (rc = mr_film_compare(film, p->film, ref.scene_diagonal, &c, err)) < 0) {
-            mr_error_prefix(err, "%s reference pass: ", name);
-            return rc;
-        }
-        /* both scenes are posed for this frame: look between pixel centres */
+        if ((rc = render_frame(p->renderer, index, p->film, &ref, camera, err)) < 0)
+            return mr_error_prefix(err, "%s reference pass: ", name);
+        /* both scenes are posed for this frame: surface_px looks between
+         * pixel centres */
         scene_probe main = probe_of(r, camera, film), other = probe_of(p->renderer, camera, film);
         main.probe = (mr_surface_probe){probe_depth, &main};
         other.probe = (mr_surface_probe){probe_depth, &other};
-        c.surface_px = mr_film_surface_px(film, p->film, &main.probe, &other.probe);
+        if ((rc = mr_film_compare_probed(film, p->film, ref.scene_diagonal, &main.probe,
+                                         &other.probe, &c, err)) < 0)
+            return mr_error_prefix(err, "%s reference pass: ", name);
         st->errors[st->error_count++] = (mr_frame_error){
             .reference = p->pass.type,
             .coverage_error_pct = c.coverage_pct,
