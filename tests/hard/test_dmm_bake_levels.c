@@ -49,6 +49,7 @@
 
 #define HARD_KIND "dmm"
 #include "../support/hard_report.h"
+#include "../support/film_fixture.h"
 
 #define VIEWS 3
 #define LEVELS 4 /* 2..5 */
@@ -96,15 +97,6 @@ static void render_views(mr_device *dev, mr_job *job, mr_asset *asset, mr_film *
 }
 
 /* A kind's own stats field of a frame, by name. */
-static double extra(const mr_frame_stats *st, const char *name)
-{
-    for (size_t i = 0; i < st->extra_count; i++)
-        if (strcmp(st->extras[i].name, name) == 0)
-            return st->extras[i].value;
-    fail_msg("no stats field %s", name);
-    return 0;
-}
-
 static void test_error_falls_with_level(void **state)
 {
     (void)state;
@@ -162,15 +154,15 @@ static void test_error_falls_with_level(void **state)
         o->params = job_params;
         /* the bake's own report, as every frame's stats carry it (fractions
          * of the asset's rest-pose diagonal) */
-        bake_rms[l] = extra(&st, "dmm_bake_rms_distance");
-        double worst = extra(&st, "dmm_bake_max_distance");
+        bake_rms[l] = fx_frame_extra(&st, "dmm_bake_rms_distance");
+        double worst = fx_frame_extra(&st, "dmm_bake_max_distance");
         /* its size: uniform levels subdivide every base triangle 4^level
          * times (nothing decimated), and the encoding takes more bytes the
          * finer the level; the first view carries the bake's seconds */
-        const double base = extra(&st, "dmm_base_triangles");
+        const double base = fx_frame_extra(&st, "dmm_base_triangles");
         assert_true(base > 0 && base * (double)(1u << (2 * level)) == (double)st.triangles);
-        assert_true(extra(&st, "dmm_stored_bytes") > base);
-        assert_true(extra(&st, "dmm_bake_s") > 0);
+        assert_true(fx_frame_extra(&st, "dmm_stored_bytes") > base);
+        assert_true(fx_frame_extra(&st, "dmm_bake_s") > 0);
         fig[l] = (figures){0};
         for (size_t f = 0; f < VIEWS; f++) {
             mr_compare_result c;

@@ -39,6 +39,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include "../support/film_fixture.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -185,15 +186,6 @@ static void test_methods_against_triangles(void **state)
     mr_asset_free(asset);
 }
 
-static double extra(const mr_frame_stats *st, const char *name)
-{
-    for (uint32_t i = 0; i < st->extra_count; i++)
-        if (!strcmp(st->extras[i].name, name))
-            return st->extras[i].value;
-    fail_msg("frame %d has no %s", st->frame, name);
-    return 0;
-}
-
 /* The public measurement hooks the benchmarks use (bench/bench_svo*.c):
  * the kind's per-frame fields, its creation figures on the renderer's
  * first frame only, the clip accessors and the exact triangle reference.
@@ -240,24 +232,24 @@ static void test_stats_and_hooks(void **state)
         mr_frame_stats st;
         if (mr_renderer_render(r, f, film, &st, &err) < 0)
             fail_msg("frame %zu: %s", f, err.msg);
-        double selected = extra(&st, "svo_selected"), cells = extra(&st, "svo_cells");
+        double selected = fx_frame_extra(&st, "svo_selected"), cells = fx_frame_extra(&st, "svo_cells");
         if (f == 0) {
-            voxels = extra(&st, "svo_voxels");
-            assert_true(extra(&st, "svo_build_s") > 0);
+            voxels = fx_frame_extra(&st, "svo_voxels");
+            assert_true(fx_frame_extra(&st, "svo_build_s") > 0);
         } else {
-            assert_true(extra(&st, "svo_voxels") == voxels);
-            assert_true(extra(&st, "svo_build_s") == 0); /* a creation figure: first frame only */
+            assert_true(fx_frame_extra(&st, "svo_voxels") == voxels);
+            assert_true(fx_frame_extra(&st, "svo_build_s") == 0); /* a creation figure: first frame only */
         }
-        assert_true(extra(&st, "svo_skeleton_s") == 0 && extra(&st, "svo_bones") == 0);
+        assert_true(fx_frame_extra(&st, "svo_skeleton_s") == 0 && fx_frame_extra(&st, "svo_bones") == 0);
         assert_true(selected > 0 && selected <= voxels);
-        assert_true(extra(&st, "svo_deformed") >= selected);
+        assert_true(fx_frame_extra(&st, "svo_deformed") >= selected);
         assert_true(cells == 8 * selected);
         /* the svo's output voxels plus the mesh object's triangles */
         assert_true((double)st.triangles <= cells + (double)asset->triangle_count);
-        assert_true(extra(&st, "svo_octree_bytes") > 0);
+        assert_true(fx_frame_extra(&st, "svo_octree_bytes") > 0);
         const char *const seconds[] = {"svo_pose_s", "svo_select_s", "svo_emit_s", "svo_rebuild_s"};
         for (int k = 0; k < 4; k++)
-            assert_true(extra(&st, seconds[k]) >= 0);
+            assert_true(fx_frame_extra(&st, seconds[k]) >= 0);
     }
     /* the exact references: the skinned triangles of each object, at the
      * last frame's pose for the svo (posed), at rest for the mesh */

@@ -1,7 +1,8 @@
 /*
  * film_fixture.h - bit-for-bit comparison of two films, for tests that
  * claim two renders are the same frame (thread counts, frame ranges,
- * resumed and retried jobs). Include after cmocka.h.
+ * resumed and retried jobs), and a rendered frame's own stats fields by
+ * name. Include after cmocka.h.
  */
 #ifndef MR_TEST_FILM_FIXTURE_H
 #define MR_TEST_FILM_FIXTURE_H
@@ -32,6 +33,18 @@ static inline void fx_assert_same_pixels(const mr_film *a, const mr_film *b, con
         for (int k = 0; k < 2 * a->crypto_ranks; k++)
             if (a->crypto[l][k] && memcmp(a->crypto[l][k], b->crypto[l][k], n * sizeof(float)) != 0)
                 fail_msg("%s: Cryptomatte layer %d plane %d differs", what, l, k);
+}
+
+/* The kind's stats field `name` of a rendered frame (its extras); fails the
+ * test naming the field when the frame does not carry it, so a renamed
+ * field cannot read as 0. */
+static inline double fx_frame_extra(const mr_frame_stats *st, const char *name)
+{
+    for (uint32_t i = 0; i < st->extra_count; i++)
+        if (strcmp(st->extras[i].name, name) == 0)
+            return st->extras[i].value;
+    fail_msg("frame %d has no stats field %s", st->frame, name);
+    return 0;
 }
 
 #endif

@@ -316,15 +316,6 @@ static mr_film *frame(run *x, size_t index, mr_frame_stats *st)
     return f;
 }
 
-static double extra(const mr_frame_stats *st, const char *name)
-{
-    for (uint32_t i = 0; i < st->extra_count; i++)
-        if (!strcmp(st->extras[i].name, name))
-            return st->extras[i].value;
-    fail_msg("no stats field %s", name);
-    return 0;
-}
-
 /* The example at 320x180 with reference passes; still: without its pose. */
 static char *example(bool still)
 {
@@ -387,10 +378,10 @@ static void flythrough(bool still, double bound)
             worst = fmax(worst, fe->surface_px);
             if (fe->surface_px > bound)
                 fail_msg("frame %zu: level %g predicted %.3f px, measured %.3f px (coverage %.3f %%)",
-                         i, extra(&st, "mesh_lod_level"), extra(&st, "mesh_lod_error_px"),
+                         i, fx_frame_extra(&st, "mesh_lod_level"), fx_frame_extra(&st, "mesh_lod_error_px"),
                          fe->surface_px, fe->coverage_error_pct);
         }
-        double level = extra(&st, "mesh_lod_level"), predicted = extra(&st, "mesh_lod_error_px");
+        double level = fx_frame_extra(&st, "mesh_lod_level"), predicted = fx_frame_extra(&st, "mesh_lod_error_px");
         assert_true(predicted <= tolerance);
         assert_true(level > 0 || predicted == 0);
         if (i == 0)

@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "../support/file_fixture.h"
+#include "../support/film_fixture.h"
 #include "job_json.h"
 #include "render/checkpoint.h"
 #include "render/device.h"
@@ -100,15 +101,6 @@ static uint8_t *render(run *x, size_t frame, mr_frame_stats *st, size_t *n)
     return film_bytes(x->film, n);
 }
 
-static double extra(const mr_frame_stats *st, const char *name)
-{
-    for (uint32_t i = 0; i < st->extra_count; i++)
-        if (!strcmp(st->extras[i].name, name))
-            return st->extras[i].value;
-    fail_msg("no stats field %s", name);
-    return 0;
-}
-
 static void test_checkpoints(void **state)
 {
     (void)state;
@@ -125,9 +117,9 @@ static void test_checkpoints(void **state)
     for (size_t k = 0; k < FRAMES; k++) {
         ref[k] = render(&a, k, &st, &n);
         assert_int_equal(st.replay_frames, 0);
-        assert_true(extra(&st, "sim_steps") == (k ? 15 : 0));
-        assert_true(extra(&st, "sim_nodes") > 1100 && extra(&st, "sim_nodes") < 1300);
-        assert_true(extra(&st, "sim_substeps") >= 2);
+        assert_true(fx_frame_extra(&st, "sim_steps") == (k ? 15 : 0));
+        assert_true(fx_frame_extra(&st, "sim_nodes") > 1100 && fx_frame_extra(&st, "sim_nodes") < 1300);
+        assert_true(fx_frame_extra(&st, "sim_substeps") >= 2);
         if (k)
             assert_true(memcmp(ref[k], ref[k - 1], n) != 0); /* it moves */
     }
