@@ -39,6 +39,7 @@
 #include "../support/bcn_fixture.h"
 #include "../support/film_fixture.h"
 #include "job_json.h"
+#include "kinds/lod.h"
 #include "kinds/mesh/mesh_lod.h"
 #include "kinds/svo/voxelize.h"
 #include "render/renderer.h"
@@ -255,22 +256,30 @@ static void test_faceted_model(void **state)
 static void test_pick_and_stretch(void **state)
 {
     (void)state;
-    mr_mesh_lod lod = {.level_count = 4, .error = {0, 0.01, 0.1, 1.0}};
+    const double error[4] = {0, 0.01, 0.1, 1.0};
     double px;
-    assert_int_equal(mr_mesh_lod_pick(&lod, 50, 1.0, &px), 1); /* 0.5 px; 5 px next */
+    assert_int_equal(mr_lod_pick(error, 4, 50, 1.0, &px), 1); /* 0.5 px; 5 px next */
     assert_float_equal(px, 0.5, 1e-12);
-    assert_int_equal(mr_mesh_lod_pick(&lod, 10, 1.0, &px), 2); /* exactly 1 px */
-    assert_int_equal(mr_mesh_lod_pick(&lod, 0.5, 1.0, &px), 3);
-    assert_int_equal(mr_mesh_lod_pick(&lod, 1000, 1.0, &px), 0);
+    assert_int_equal(mr_lod_pick(error, 4, 10, 1.0, &px), 2); /* exactly 1 px */
+    assert_int_equal(mr_lod_pick(error, 4, 0.5, 1.0, &px), 3);
+    assert_int_equal(mr_lod_pick(error, 4, 1000, 1.0, &px), 0);
     assert_true(px == 0);
-    assert_int_equal(mr_mesh_lod_pick(&lod, INFINITY, 1.0, &px), 0); /* camera inside */
+    assert_int_equal(mr_lod_pick(error, 4, INFINITY, 1.0, &px), 0); /* camera inside */
+    assert_true(px == 0);
+    /* a finest level that strays itself (an approximation's, measured
+     * against its ground truth): reported as it is, INFINITY up close */
+    const double approx[3] = {0.02, 0.05, 0.5};
+    assert_int_equal(mr_lod_pick(approx, 3, 100, 1.0, &px), 0);
+    assert_float_equal(px, 2.0, 1e-12);
+    assert_int_equal(mr_lod_pick(approx, 3, INFINITY, 1.0, &px), 0);
+    assert_true(isinf(px));
     /* rotation times scale 3: stretch 3 exactly; a shear: at least the
      * stretch of any direction */
     mr_mat4 r = mr_mat4_from_trs(mr_v3(5, 6, 7), (mr_quat){0.2f, 0.4f, 0.4f, 0.8f}, mr_v3(3, 3, 3));
-    assert_float_equal(mr_mesh_lod_stretch(&r), 3.0, 1e-5);
+    assert_float_equal(mr_lod_stretch(&r), 3.0, 1e-5);
     mr_mat4 s = mr_mat4_identity();
     s.m[1] = 2.0f; /* x += 2 y */
-    double bound = mr_mesh_lod_stretch(&s);
+    double bound = mr_lod_stretch(&s);
     for (int k = 0; k < 360; k++) {
         double c = cos(k * M_PI / 180), d = sin(k * M_PI / 180);
         double len = sqrt((c + 2 * d) * (c + 2 * d) + d * d);

@@ -29,6 +29,7 @@
 
 #include "kinds/mesh/mesh_kind.h"
 
+#include "kinds/lod.h"
 #include "kinds/mesh/mesh_lod.h"
 #include "util/clock.h"
 
@@ -323,7 +324,7 @@ static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *po
     if (!(frame && frame->view_only))
         g->posed = 0;
     bool levels = g->lod.level_count > 1;
-    double stretch = levels && transform ? mr_mesh_lod_stretch(transform) : 1.0;
+    double stretch = levels && transform ? mr_lod_stretch(transform) : 1.0;
     uint32_t b = g->bounds_level;
     if (!(g->posed & 1u << b)) {
         if ((rc = pose_level(g, b, pose, transform, threads, err)) < 0)
@@ -335,7 +336,8 @@ static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *po
     g->predicted_px = 0;
     if (levels && frame) {
         double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, g->lo, g->hi);
-        g->level = mr_mesh_lod_pick(&g->lod, px * stretch, g->tolerance_px, &g->predicted_px);
+        g->level = mr_lod_pick(g->lod.error, g->lod.level_count, px * stretch, g->tolerance_px,
+                               &g->predicted_px);
     }
     if (!(g->posed & 1u << g->level) &&
         (rc = pose_level(g, g->level, pose, transform, threads, err)) < 0)

@@ -258,32 +258,3 @@ size_t mr_mesh_lod_memory(const mr_mesh_lod *lod)
         b += (size_t)lod->triangles[k] * 3 * sizeof(uint32_t);
     return b;
 }
-
-uint32_t mr_mesh_lod_pick(const mr_mesh_lod *lod, double px_per_unit, double tolerance_px,
-                          double *predicted_px)
-{
-    uint32_t pick = 0;
-    if (isfinite(px_per_unit))
-        for (uint32_t k = 1; k < lod->level_count; k++)
-            if (lod->error[k] * px_per_unit <= tolerance_px)
-                pick = k;
-    *predicted_px = lod->error[pick] * (isfinite(px_per_unit) ? px_per_unit : 0);
-    return pick;
-}
-
-double mr_mesh_lod_stretch(const mr_mat4 *t)
-{
-    const float *m = t->m; /* row-major: row r is m[4r .. 4r + 2] */
-    double ata[3][3];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) {
-            double s = 0;
-            for (int r = 0; r < 3; r++)
-                s += (double)m[4 * r + i] * m[4 * r + j];
-            ata[i][j] = s;
-        }
-    double worst = 0;
-    for (int i = 0; i < 3; i++)
-        worst = fmax(worst, fabs(ata[i][0]) + fabs(ata[i][1]) + fabs(ata[i][2]));
-    return sqrt(worst);
-}

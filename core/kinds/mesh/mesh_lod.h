@@ -21,7 +21,7 @@
  * so a coarse level's few large triangles are looked at inside too. It is
  * the Hausdorff distance at those points: between them it can be exceeded
  * (a sampled bound, not a proof), which the reference passes measure. Rigid transforms scale it by
- * at most the transform's largest stretch (mr_mesh_lod_stretch); skinning
+ * at most the transform's largest stretch (mr_lod_stretch, kinds/lod.h); skinning
  * by bones that do not stretch keeps each bone's part rigid, and where
  * weights blend two bones the level and the full mesh blend alike at
  * shared vertices, so the rest-pose error is the prediction there too (not
@@ -72,17 +72,5 @@ uint32_t mr_mesh_lod_grid(uint32_t triangles);
 
 /* Bytes the levels beyond 0 hold. */
 size_t mr_mesh_lod_memory(const mr_mesh_lod *lod);
-
-/* The coarsest level whose error * px_per_unit is at most tolerance_px
- * (level 0 when none is, or px_per_unit is not finite); *predicted_px gets
- * that level's projected error. */
-uint32_t mr_mesh_lod_pick(const mr_mesh_lod *lod, double px_per_unit, double tolerance_px,
-                          double *predicted_px);
-
-/* An upper bound of the largest factor by which the transform's linear part
- * stretches a length: sqrt of the largest absolute row sum of A^T A (which
- * bounds its largest eigenvalue); exact for rotations times a uniform or an
- * axis-aligned scale. */
-double mr_mesh_lod_stretch(const mr_mat4 *transform);
 
 #endif

@@ -1,0 +1,39 @@
+/*
+ * lod.c - the level pick and transform stretch shared by kinds with levels
+ * of detail (lod.h).
+ */
+#include <math.h>
+
+#include "kinds/lod.h"
+
+uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, double tolerance_px,
+                     double *predicted_px)
+{
+    uint32_t pick = 0;
+    if (isfinite(px_per_unit))
+        for (uint32_t k = 1; k < count; k++)
+            if (error[k] * px_per_unit <= tolerance_px)
+                pick = k;
+    if (!isfinite(px_per_unit))
+        *predicted_px = error[0] > 0 ? INFINITY : 0;
+    else
+        *predicted_px = error[pick] * px_per_unit;
+    return pick;
+}
+
+double mr_lod_stretch(const mr_mat4 *t)
+{
+    const float *m = t->m; /* row-major: row r is m[4r .. 4r + 2] */
+    double ata[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double s = 0;
+            for (int r = 0; r < 3; r++)
+                s += (double)m[4 * r + i] * m[4 * r + j];
+            ata[i][j] = s;
+        }
+    double worst = 0;
+    for (int i = 0; i < 3; i++)
+        worst = fmax(worst, fabs(ata[i][0]) + fabs(ata[i][1]) + fabs(ata[i][2]));
+    return sqrt(worst);
+}

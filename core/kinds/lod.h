@@ -1,0 +1,33 @@
+/*
+ * lod.h - what every kind with levels of detail shares ("tolerance_px",
+ * issue 16; kind.h has_lod): the pick of a level from the errors its levels
+ * stray by, and the stretch of an object's transform that scales them.
+ *
+ * A kind measures, once, how far (in its rest space) each of its levels
+ * strays from its ground truth; per frame it projects those distances by
+ * mr_camera_px_per_unit (render/camera.h) at the object's nearest depth and
+ * traces the coarsest level that stays below the tolerance.
+ */
+#ifndef MR_LOD_H
+#define MR_LOD_H
+
+#include <stdint.h>
+
+#include "microray.h"
+
+/* Levels are ordered finest first: error[k] (world or rest-space units, >= 0)
+ * is how far level k strays. Returns the largest k < count whose
+ * error[k] * px_per_unit is at most tolerance_px, or 0 (the finest) when
+ * none is or px_per_unit is not finite (the object reaches the camera's
+ * plane). *predicted_px gets the picked level's projected error: INFINITY
+ * when px_per_unit is not finite and the level strays at all. */
+uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, double tolerance_px,
+                     double *predicted_px);
+
+/* An upper bound of the largest factor by which the transform's linear part
+ * stretches a length: sqrt of the largest absolute row sum of A^T A (which
+ * bounds its largest eigenvalue); exact for rotations times a uniform or an
+ * axis-aligned scale. */
+double mr_lod_stretch(const mr_mat4 *transform);
+
+#endif
