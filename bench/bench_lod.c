@@ -1,13 +1,16 @@
 /*
  * bench_lod.c - level of detail by a pixel tolerance (issue 16, part 2):
- * examples/lod-flythrough.json (the refined dancer walking, the camera
- * flying in from 60 units to 3.2) at each tolerance, with reference passes
- * against the full mesh. Not a test: it prints figures, it never fails on
- * a time.
+ * the fly-through examples at each tolerance, with reference passes against
+ * their ground truth: examples/lod-flythrough.json (the refined dancer
+ * walking, the camera flying in from 60 units to 3.2; the ground truth the
+ * full mesh) and examples/lod-displaced.json (the displaced sphere, the
+ * camera flying in from 40 units to 2.4; the ground truth mip level 0
+ * tessellated). Not a test: it prints figures, it never fails on a time.
  *
  * Per tolerance (off = the finest level, as without one): the median frame
  * time without encoding (pose + BVH + trace) on the far half and the near
- * half of the frames, the pose + BVH share, the median triangles traced,
+ * half of the frames, the pose + BVH share, the median level and
+ * primitives traced,
  * the set-up of the levels, memory, and the measured error: the worst
  * surface_px against the full mesh over all frames and how many frames
  * exceed the tolerance. Every tolerance renders the same frames in one
@@ -36,20 +39,47 @@ static void die(const char *what, const char *msg)
     exit(1);
 }
 
+/* A fly-through: its example and the stats fields its kind reports. */
+typedef struct flight {
+    const char *example;     /* under examples/ */
+    const char *kind;        /* bench_point's */
+    const char *what;        /* the table's title */
+    const char *truth;       /* what the ground truth is */
+    const char *far_note;    /* what the far half is */
+    const char *level_field, *build_field;
+} flight;
+
+static const flight FLIGHTS[] = {
+    {"lod-flythrough", "mesh", "dancer fly-through", "the full mesh",
+     "the dancer 60 to 31 units away", "mesh_lod_level", "mesh_lod_build_s"},
+    {"lod-displaced", "displaced", "displaced sphere fly-through", "mip level 0 tessellated",
+     "the sphere 40 to 21 units away", "displaced_lod_level", "displaced_lod_build_s"},
+};
+
 /* The example at the bench's size, with reference passes or without, and
  * the given tolerance (0: none). */
-static mr_job *job_at(double tolerance, bool reference)
+static mr_job *job_at(const flight *fl, double tolerance, bool reference)
 {
     uint8_t *text = NULL;
     size_t n = 0;
     mr_error err;
-    if (mr_fs_read_capped("examples/lod-flythrough.json", 1 << 20, &text, &n, "example", &err) < 0)
-        die("examples/lod-flythrough.json", err.msg);
+    char path[256];
+    snprintf(path, sizeof path, "examples/%s.json", fl->example);
+    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) < 0)
+        die(path, err.msg);
     mr_job *job = NULL;
     mr_job_error je;
     if (mr_job_parse((const char *)text, n, &job, &je) < 0)
         die(je.pointer, je.message);
     free(text);
+    /* asset paths relative to the examples folder */
+    for (size_t i = 0; i < job->asset_count; i++)
+        if (job->assets[i].path && job->assets[i].path[0] != '/') {
+            char full[1024];
+            snprintf(full, sizeof full, "examples/%s", job->assets[i].path);
+            free(job->assets[i].path);
+            job->assets[i].path = mr_strdup(full);
+        }
     job->output.width = width;
     job->output.height = height;
     job->reference = reference;
@@ -61,33 +91,32 @@ static mr_job *job_at(double tolerance, bool reference)
 }
 
 typedef struct series {
-    double far_ms[64], near_ms[64], geometry_ms[64], triangles[64];
+    double far_ms[64], near_ms[64], geometry_ms[64], levels[64], prims[64];
     int far, near, all;
     double worst_px, build_s, bytes_far, bytes_near;
     int over;
 } series;
 
-int main(int argc, char **argv)
+#define MAX_ASSETS 4
+
+static void fly(const flight *fl, mr_device *dev)
 {
-    for (int i = 1; i < argc; i++)
-        if (!strcmp(argv[i], "--size") && i + 1 < argc)
-            sscanf(argv[++i], "%dx%d", &width, &height);
-        else if (!strcmp(argv[i], "--threads") && i + 1 < argc)
-            threads = (unsigned)atoi(argv[++i]);
     mr_error err;
-    mr_device *dev = NULL;
-    if (mr_device_new(threads, &dev, &err) < 0)
-        die("device", err.msg);
     mr_job *jobs[RUNS];
     mr_renderer *r[RUNS];
     mr_film *film[RUNS];
     series s[RUNS];
     memset(s, 0, sizeof s);
     for (int k = 0; k < RUNS; k++)
-        jobs[k] = job_at(TOLERANCES[k], true);
-    mr_asset *asset = bench_load_asset(&jobs[0]->assets[0], threads);
+        jobs[k] = job_at(fl, TOLERANCES[k], true);
+    size_t asset_count = jobs[0]->asset_count;
+    if (asset_count > MAX_ASSETS)
+        die(fl->example, "too many assets");
+    mr_asset *assets[MAX_ASSETS];
+    for (size_t i = 0; i < asset_count; i++)
+        assets[i] = bench_load_asset(&jobs[0]->assets[i], threads);
     for (int k = 0; k < RUNS; k++) {
-        if (mr_renderer_new(dev, jobs[k], &asset, NULL, &r[k], &err) < 0 ||
+        if (mr_renderer_new(dev, jobs[k], assets, NULL, &r[k], &err) < 0 ||
             mr_job_film_new(jobs[k], &film[k], &err) < 0)
             die("renderer", err.msg);
     }
@@ -102,14 +131,15 @@ int main(int argc, char **argv)
             series *x = &s[k];
             double ms = (st.pose_s + st.bvh_s + st.trace_s) * 1e3;
             if (f == 0)
-                x->build_s = frame_extra(&st, "mesh_lod_build_s");
+                x->build_s = frame_extra(&st, fl->build_field);
             if (f > 0) { /* frame 0 builds */
                 if (f < frames / 2)
                     x->far_ms[x->far++] = ms;
                 else
                     x->near_ms[x->near++] = ms;
                 x->geometry_ms[x->all] = (st.pose_s + st.bvh_s) * 1e3;
-                x->triangles[x->all++] = frame_extra(&st, "mesh_triangles");
+                x->levels[x->all] = frame_extra(&st, fl->level_field);
+                x->prims[x->all++] = (double)st.triangles;
             }
             for (uint32_t e = 0; e < st.error_count; e++)
                 if (st.errors[e].reference == MR_REFERENCE_GROUND_TRUTH) {
@@ -124,9 +154,9 @@ int main(int argc, char **argv)
         mr_device *own = NULL;
         mr_renderer *alone = NULL;
         mr_film *fm = NULL;
-        mr_job *job = job_at(TOLERANCES[k], false);
+        mr_job *job = job_at(fl, TOLERANCES[k], false);
         if (mr_device_new(threads, &own, &err) < 0 ||
-            mr_renderer_new(own, job, &asset, NULL, &alone, &err) < 0 ||
+            mr_renderer_new(own, job, assets, NULL, &alone, &err) < 0 ||
             mr_job_film_new(job, &fm, &err) < 0)
             die("renderer", err.msg);
         for (size_t f = 0; f < frames; f++) {
@@ -143,12 +173,13 @@ int main(int argc, char **argv)
         mr_job_free(job);
         mr_device_free(own);
     }
-    printf("\n## Level of detail by a pixel tolerance (issue 16): examples/lod-flythrough.json, %dx%d, "
+    printf("\n## Level of detail by a pixel tolerance (issue 16): examples/%s.json, %dx%d, "
            "%zu frames, %u threads, tolerances interleaved frame by frame\n\n",
-           width, height, frames, mr_device_threads(dev));
-    printf("| tolerance px | far half ms | near half ms | far / finest | pose+BVH ms | triangles "
-           "(median) | set-up s | MiB frame 1 / last | worst surface px | frames over |\n");
-    printf("|---|---|---|---|---|---|---|---|---|---|\n");
+           fl->example, width, height, frames, mr_device_threads(dev));
+    printf("| tolerance px | far half ms | near half ms | far / finest | pose+BVH ms | level "
+           "(median) | primitives (median) | set-up s | MiB frame 1 / last | worst surface px | "
+           "frames over |\n");
+    printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
     double finest_far = median(s[0].far_ms, s[0].far);
     for (int k = 0; k < RUNS; k++) {
         series *x = &s[k];
@@ -160,25 +191,42 @@ int main(int argc, char **argv)
             snprintf(worst, sizeof worst, "%.3f", x->worst_px);
         else
             snprintf(worst, sizeof worst, "(reference)");
-        printf("| %s | %.2f | %.2f | %.2f | %.2f | %.0f | %.2f | %.1f / %.1f | %s | %s |\n", t,
-               far, near, far / finest_far, median(x->geometry_ms, x->all),
-               median(x->triangles, x->all), x->build_s, x->bytes_far / 1048576.0,
-               x->bytes_near / 1048576.0, worst, over);
-        /* one truth for every tolerance: the full mesh */
-        bench_point("mesh", "dancer fly-through, far half", "tolerance_px", t, far,
-                    "worst surface px against the full mesh", TOLERANCES[k] > 0 ? x->worst_px : 0,
-                    false);
+        printf("| %s | %.2f | %.2f | %.2f | %.2f | %.0f | %.0f | %.2f | %.1f / %.1f | %s | %s |\n",
+               t, far, near, far / finest_far, median(x->geometry_ms, x->all),
+               median(x->levels, x->all), median(x->prims, x->all), x->build_s,
+               x->bytes_far / 1048576.0, x->bytes_near / 1048576.0, worst, over);
+        char label[128];
+        snprintf(label, sizeof label, "%s, far half", fl->what);
+        /* one truth for every tolerance */
+        bench_point(fl->kind, label, "tolerance_px", t, far, "worst surface px against the ground truth",
+                    TOLERANCES[k] > 0 ? x->worst_px : 0, false);
     }
-    printf("\nfar half: frames 1..%zu (the dancer 60 to 31 units away); the goal: at t = 1 px at "
-           "least 2x lower than the finest level there, measured error within t on >= 99 %% of "
-           "frames; MiB: the kind's data and Embree's BVHs (levels enabled once keep theirs)\n",
-           frames / 2 - 1);
+    printf("\nfar half: frames 1..%zu (%s); ground truth: %s; the goal: at t = 1 px at least 2x "
+           "lower than the finest level there, measured error within t on >= 99 %% of frames; "
+           "MiB: the kind's data and Embree's BVHs (levels enabled once keep theirs)\n",
+           frames / 2 - 1, fl->far_note, fl->truth);
     for (int k = 0; k < RUNS; k++) {
         mr_renderer_free(r[k]);
         mr_film_free(film[k]);
         mr_job_free(jobs[k]);
     }
-    mr_asset_free(asset);
+    for (size_t i = 0; i < asset_count; i++)
+        mr_asset_free(assets[i]);
+}
+
+int main(int argc, char **argv)
+{
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--size") && i + 1 < argc)
+            sscanf(argv[++i], "%dx%d", &width, &height);
+        else if (!strcmp(argv[i], "--threads") && i + 1 < argc)
+            threads = (unsigned)atoi(argv[++i]);
+    mr_error err;
+    mr_device *dev = NULL;
+    if (mr_device_new(threads, &dev, &err) < 0)
+        die("device", err.msg);
+    for (size_t i = 0; i < sizeof FLIGHTS / sizeof FLIGHTS[0]; i++)
+        fly(&FLIGHTS[i], dev);
     mr_device_free(dev);
     return 0;
 }

@@ -1267,7 +1267,7 @@ const char *mr_bvh_update_name(mr_bvh_update u);
  * (mr_kind_stat; a job may hold all kinds) plus MR_FRAME_EXTRAS_CALLER of
  * the caller's own (the one-shot renderer's png_s). Registering a kind
  * whose fields would pass that fails. */
-#define MR_FRAME_EXTRAS_MAX 48
+#define MR_FRAME_EXTRAS_MAX 64
 #define MR_FRAME_EXTRAS_CALLER 4
 
 /* One per-frame field beyond the table's, e.g. {"simulate_s", "s", 0.02}. */

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "kinds/displaced/dsurf.h"
 #include "util/parallel.h"
 
 #if defined(__SSE2__)
@@ -585,4 +586,52 @@ int mr_dgrid_init(mr_dgrid *g, const mr_image *img, unsigned level, double scale
     }
     mr_dgrid_rebuild(g, threads);
     return MR_OK;
+}
+
+static double height_at(const void *g, int64_t i, int64_t j) { return mr_dgrid_height(g, i, j); }
+
+mr_dheights mr_dgrid_heights(const mr_dgrid *g) { return (mr_dheights){height_at, g}; }
+
+/* ---- distance between two grids (levels of detail) ---- */
+
+/* Worst height difference, per worker, between the samples of grid a and
+ * the height field of grid b at the same texture coordinates. */
+typedef struct stray_ctx {
+    const mr_dgrid *a, *b;
+    double worst[MR_MAX_THREADS];
+} stray_ctx;
+
+static void stray_rows(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    stray_ctx *c = ctx;
+    const mr_dheights hb = mr_dgrid_heights(c->b);
+    const double sx = (double)c->b->w / c->a->w, sy = (double)c->b->h / c->a->h;
+    double worst = c->worst[worker];
+    for (size_t j = begin; j < end; j++)
+        for (uint32_t i = 0; i < c->a->w; i++) {
+            double d = mr_dgrid_height(c->a, i, (int64_t)j) -
+                       mr_dsurf_height_at(&hb, i * sx, (double)j * sy);
+            worst = fmax(worst, fabs(d));
+        }
+    c->worst[worker] = worst;
+}
+
+static double stray(const mr_dgrid *a, const mr_dgrid *b, unsigned threads)
+{
+    stray_ctx *c = calloc(1, sizeof *c);
+    if (!c)
+        return INFINITY; /* unknown */
+    c->a = a;
+    c->b = b;
+    mr_parallel_for(threads, a->h, 16, stray_rows, c);
+    double worst = 0;
+    for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+        worst = fmax(worst, c->worst[w]);
+    free(c);
+    return worst;
+}
+
+double mr_dgrid_distance(const mr_dgrid *a, const mr_dgrid *b, unsigned threads)
+{
+    return fmax(stray(a, b, threads), stray(b, a, threads));
 }

@@ -34,6 +34,7 @@
 #include <stdint.h>
 
 #include "asset/image.h"
+#include "kinds/displaced/dsurf.h"
 
 #define MR_DGRID_MAX_LEVELS 32
 
@@ -110,6 +111,18 @@ void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J
  * get the texture's range. */
 void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
                             double *lo, double *hi);
+/* The grid as the surface's source of heights (dsurf.h): H(i, j). */
+mr_dheights mr_dgrid_heights(const mr_dgrid *g);
+/* How far apart the height fields of grids a and b (say two mip levels of
+ * one image, with the same scale and offset) are: the largest difference of
+ * their heights, each linear over its cell halves (dsurf.h,
+ * mr_dsurf_height_at), at every sample of either over one period, both
+ * grids mapped to texture coordinates (sample (i, j) at (i / w, j / h)).
+ * Between samples it can be exceeded where the two grids' cell edges cross
+ * away from any sample: for a mip level 2^k of a texture whose sides 2^k
+ * divides, every crossing is a sample of the finer one, and the figure is
+ * the largest difference anywhere. INFINITY when out of memory. */
+double mr_dgrid_distance(const mr_dgrid *a, const mr_dgrid *b, unsigned threads);
 /* The same as heights (ordered: scale may be negative). */
 void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
                            double *hi);

@@ -34,6 +34,7 @@
 #include "kinds/displaced/dsurf.h"
 #include "kinds/displaced/dtrace.h"
 #include "kinds/displaced/tiling.h"
+#include "kinds/lod.h"
 #include "util/clock.h"
 #include "util/parallel.h"
 
@@ -63,7 +64,27 @@ struct mr_geom {
     double bounds_s;               /* last update's seconds */
     _Atomic uint64_t calls, nodes, leaves, tests;
     RTCGeometry rtc;
+    /* Levels of detail ("tolerance_px", height texture; kinds/lod.h): this
+     * object is the finest (its "level"), coarser[k - 1] the same surface
+     * at mip level level + k over this object's posed base mesh (shares_base:
+     * its positions and normals are this object's). */
+    bool shares_base;
+    double tolerance_px;           /* 0: no levels */
+    uint32_t lod_count, lod_cur;   /* levels (1: none); the frame's */
+    uint32_t lod_enabled;          /* the level enabled in Embree, UINT32_MAX: none yet */
+    uint32_t lod_posed, lod_dirty; /* levels set up for this pose / since the last commit */
+    mr_geom *coarser[MR_DISPLACED_LOD_MAX - 1];
+    double lod_error[MR_DISPLACED_LOD_MAX]; /* finest first: distance to mip level 0 */
+    double height_reach;           /* the largest |height|: the surface lies within it of the
+                                      base mesh */
+    double predicted_px, lod_build_s;
 };
+
+/* The level traced this frame. */
+static mr_geom *traced(const mr_geom *g)
+{
+    return g->lod_cur == 0 ? (mr_geom *)g : g->coarser[g->lod_cur - 1];
+}
 
 static bool tessellated(const mr_geom *g) { return g->par.method == MR_DISPLACED_TESSELLATED; }
 
@@ -73,10 +94,14 @@ static void displaced_free(mr_geom *g)
         return;
     if (g->rtc)
         rtcReleaseGeometry(g->rtc);
+    for (uint32_t k = 1; k < g->lod_count; k++)
+        displaced_free(g->coarser[k - 1]);
     free(g->mesh_first_vertex);
     free(g->grid_uv);
-    free(g->positions);
-    free(g->normals);
+    if (!g->shares_base) {
+        free(g->positions);
+        free(g->normals);
+    }
     free(g->indices);
     mr_dgrid_free(&g->grid);
     mr_dproc_free(&g->proc);
@@ -88,11 +113,6 @@ static void displaced_free(mr_geom *g)
     free(g->tess_pos);
     free(g->tess_idx);
     free(g);
-}
-
-static double grid_height(const void *src, int64_t i, int64_t j)
-{
-    return mr_dgrid_height(src, i, j);
 }
 
 static double proc_height(const void *src, int64_t i, int64_t j)
@@ -335,37 +355,13 @@ static const mr_asset *param_asset(const mr_kind_context *ctx, uint32_t ref)
     return ref && ctx && ctx->assets && ref - 1 < ctx->asset_count ? ctx->assets[ref - 1] : NULL;
 }
 
-static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
-                            const mr_kind_context *ctx, mr_geom **out, mr_error *err)
+/* The surface of par over the asset's nv vertices and nt triangles; with
+ * share, over share's posed base mesh (a coarser level of detail). */
+static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
+                          const mr_asset *tex, uint32_t nv, uint32_t nt, unsigned threads,
+                          const mr_geom *share, mr_geom **out, mr_error *err)
 {
     *out = NULL;
-    if (!desc->params)
-        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its parameters");
-    const mr_displaced_params *par = desc->params;
-    const mr_asset *tex = param_asset(ctx, par->procedural ? par->example : par->texture);
-    if (!tex)
-        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its height %s",
-                            par->procedural ? "example" : "texture");
-    if (!tex->image)
-        return mr_error_set(err, MR_ERR_INVALID,
-                            "displaced %s %s is a model, not an image (PNG, JPEG or EXR)",
-                            par->procedural ? "example" : "texture", tex->path);
-    uint64_t nv = 0, nt = 0;
-    for (size_t i = 0; i < asset->mesh_count; i++) {
-        const mr_mesh *m = &asset->meshes[i];
-        if (!m->uvs && m->triangle_count)
-            return mr_error_set(err, MR_ERR_FORMAT,
-                                "%s: mesh %zu (\"%s\") has no texture coordinates, which a "
-                                "displaced object needs",
-                                asset->path, i, m->name ? m->name : "");
-        nv += m->vertex_count;
-        nt += m->triangle_count;
-    }
-    if (nt == 0)
-        return mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to render", asset->path);
-    if (nv > MR_MAX_ASSET_VERTICES || nt > MR_MAX_ASSET_TRIANGLES)
-        return mr_error_set(err, MR_ERR_LIMIT, "%s: %llu vertices / %llu triangles exceed the caps",
-                            asset->path, (unsigned long long)nv, (unsigned long long)nt);
     mr_geom *g = calloc(1, sizeof *g);
     if (!g)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a displaced object");
@@ -373,12 +369,13 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
     g->asset = asset;
     g->par = *par;
     g->texture_name = tex->path;
-    g->vertex_count = (uint32_t)nv;
-    g->triangle_count = (uint32_t)nt;
+    g->vertex_count = nv;
+    g->triangle_count = nt;
     g->mesh_first_vertex = calloc(asset->mesh_count ? asset->mesh_count : 1, sizeof(uint32_t));
-    g->grid_uv = malloc(nv * 2 * sizeof(double));
-    g->positions = calloc(nv * 3 + 1, sizeof(float));
-    g->normals = calloc(nv * 3 + 1, sizeof(float));
+    g->grid_uv = malloc((size_t)nv * 2 * sizeof(double));
+    g->shares_base = share != NULL;
+    g->positions = share ? share->positions : calloc((size_t)nv * 3 + 1, sizeof(float));
+    g->normals = share ? share->normals : calloc((size_t)nv * 3 + 1, sizeof(float));
     g->indices = malloc(nt * 3 * sizeof(uint32_t));
     g->bases = calloc(nt, sizeof *g->bases);
     g->grads = calloc(nt, sizeof *g->grads);
@@ -386,7 +383,6 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
     if (!g->mesh_first_vertex || !g->grid_uv || !g->positions || !g->normals || !g->indices ||
         !g->bases || !g->grads || !g->boxes)
         goto nomem;
-    unsigned threads = ctx ? ctx->threads : 0;
     g->procedural = par->procedural;
     if (g->procedural) {
         if ((rc = mr_dproc_init(&g->proc, tex->image, par->uv_offset[0], par->uv_offset[1],
@@ -401,7 +397,7 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
                                 threads, err)) < 0)
             goto fail;
         g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .grid = &g->grid,
-                               .heights = {grid_height, &g->grid},
+                               .heights = mr_dgrid_heights(&g->grid),
                                .local = (mr_dlocal)par->local, .march_steps = par->steps};
     }
     uint32_t v0 = 0, t0 = 0;
@@ -416,8 +412,12 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
                 gv[0] = (double)m->uvs[k * 2] * g->grid.w;
                 gv[1] = (double)m->uvs[k * 2 + 1] * g->grid.h;
             }
-            memcpy(g->positions + (size_t)(v0 + k) * 3, m->positions + (size_t)k * 3, 3 * sizeof(float));
-            memcpy(g->normals + (size_t)(v0 + k) * 3, m->normals + (size_t)k * 3, 3 * sizeof(float));
+            if (!share) {
+                memcpy(g->positions + (size_t)(v0 + k) * 3, m->positions + (size_t)k * 3,
+                       3 * sizeof(float));
+                memcpy(g->normals + (size_t)(v0 + k) * 3, m->normals + (size_t)k * 3,
+                       3 * sizeof(float));
+            }
         }
         for (uint64_t k = 0; k < (uint64_t)m->triangle_count * 3; k++)
             g->indices[(uint64_t)t0 * 3 + k] = m->indices[k] + v0;
@@ -460,6 +460,106 @@ fail:
     return rc;
 }
 
+/* ---- levels of detail ---------------------------------------------------------------- */
+
+/* How far the surface at mip level lv strays from the surface at mip level
+ * 0 (truth), the ground truth: the distance of their height fields
+ * (mr_dgrid_distance). At equal texture coordinates the two surfaces differ
+ * by their height difference along the unit normal (their base points are
+ * the same affine map of the texture coordinates), so it bounds how far
+ * apart they are, but for one second-order term: the interpolated normal
+ * turns across a coarse cell, which moves a height h by about h times the
+ * square of the angle it turns. The reference passes measure the whole
+ * (tests/unit/test_displaced_lod.c). */
+static double level_error(const mr_dgrid *truth, const mr_dgrid *lv, unsigned threads)
+{
+    return mr_dgrid_distance(truth, lv, threads);
+}
+
+/* Levels of detail: the texture's mip levels from the object's own up to
+ * the first of one sample (at most MR_DISPLACED_LOD_MAX), each with its
+ * distance to mip level 0, the ground truth (level_error). */
+static int create_levels(mr_geom *g, const mr_asset *tex, unsigned threads, mr_error *err)
+{
+    double t0 = mr_now();
+    mr_dgrid finest = {0};
+    const mr_dgrid *truth = &g->grid;
+    int rc = MR_OK;
+    if (g->par.level > 0) {
+        if ((rc = mr_dgrid_init(&finest, tex->image, 0, g->par.scale, g->par.offset, threads,
+                                err)) < 0)
+            return rc;
+        truth = &finest;
+        g->lod_error[0] = level_error(truth, &g->grid, threads);
+    }
+    const mr_dgrid *last = &g->grid;
+    while (g->lod_count < MR_DISPLACED_LOD_MAX && (last->w > 1 || last->h > 1) &&
+           g->par.level + g->lod_count <= MR_DISPLACED_MAX_LEVEL) {
+        mr_displaced_params p = g->par;
+        p.level += g->lod_count;
+        mr_geom *c;
+        if ((rc = create_surface(g->asset, &p, tex, g->vertex_count, g->triangle_count, threads,
+                                 g, &c, err)) < 0)
+            break;
+        g->coarser[g->lod_count - 1] = c;
+        g->lod_error[g->lod_count] = level_error(truth, &c->grid, threads);
+        g->lod_count++;
+        last = &c->grid;
+    }
+    mr_dgrid_free(&finest);
+    g->height_reach = fmax(fabs(mr_dgrid_height_of(&g->grid, g->grid.gmin)),
+                           fabs(mr_dgrid_height_of(&g->grid, g->grid.gmax)));
+    g->lod_build_s = mr_now() - t0;
+    return rc;
+}
+
+static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
+                            const mr_kind_context *ctx, mr_geom **out, mr_error *err)
+{
+    *out = NULL;
+    if (!desc->params)
+        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its parameters");
+    const mr_displaced_params *par = desc->params;
+    const mr_asset *tex = param_asset(ctx, par->procedural ? par->example : par->texture);
+    if (!tex)
+        return mr_error_set(err, MR_ERR_INVALID, "a displaced object needs its height %s",
+                            par->procedural ? "example" : "texture");
+    if (!tex->image)
+        return mr_error_set(err, MR_ERR_INVALID,
+                            "displaced %s %s is a model, not an image (PNG, JPEG or EXR)",
+                            par->procedural ? "example" : "texture", tex->path);
+    uint64_t nv = 0, nt = 0;
+    for (size_t i = 0; i < asset->mesh_count; i++) {
+        const mr_mesh *m = &asset->meshes[i];
+        if (!m->uvs && m->triangle_count)
+            return mr_error_set(err, MR_ERR_FORMAT,
+                                "%s: mesh %zu (\"%s\") has no texture coordinates, which a "
+                                "displaced object needs",
+                                asset->path, i, m->name ? m->name : "");
+        nv += m->vertex_count;
+        nt += m->triangle_count;
+    }
+    if (nt == 0)
+        return mr_error_set(err, MR_ERR_FORMAT, "%s: no triangles to render", asset->path);
+    if (nv > MR_MAX_ASSET_VERTICES || nt > MR_MAX_ASSET_TRIANGLES)
+        return mr_error_set(err, MR_ERR_LIMIT, "%s: %llu vertices / %llu triangles exceed the caps",
+                            asset->path, (unsigned long long)nv, (unsigned long long)nt);
+    unsigned threads = ctx ? ctx->threads : 0;
+    mr_geom *g;
+    int rc = create_surface(asset, par, tex, (uint32_t)nv, (uint32_t)nt, threads, NULL, &g, err);
+    if (rc < 0)
+        return rc;
+    g->lod_count = 1;
+    g->lod_enabled = UINT32_MAX;
+    g->tolerance_px = desc->tolerance_px > 0 && !par->procedural ? desc->tolerance_px : 0;
+    if (g->tolerance_px > 0 && (rc = create_levels(g, tex, threads, err)) < 0) {
+        displaced_free(g);
+        return rc;
+    }
+    *out = g;
+    return MR_OK;
+}
+
 /* ---- update ------------------------------------------------------------------------ */
 
 typedef struct update_ctx {
@@ -495,21 +595,10 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-static int displaced_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
-                            const mr_mat4 *transform, unsigned threads, mr_error *err)
+/* The surface of level g (its bases, gradients and boxes, or its
+ * micro-vertices) over its posed base mesh. */
+static int update_surface(mr_geom *g, unsigned threads, mr_error *err)
 {
-    (void)frame;
-    double t0 = mr_now();
-    for (size_t i = 0; i < g->asset->mesh_count; i++) {
-        size_t off = (size_t)g->mesh_first_vertex[i] * 3;
-        mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off, threads);
-    }
-    for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++)
-        if (!(fabsf(g->positions[k]) <= MR_MAX_COORDINATE))
-            return mr_error_set(err, MR_ERR_INVALID,
-                                "%s: posed vertex %zu has a coordinate of %g (limit %g): check the "
-                                "object's transform and pose",
-                                g->asset->path, k / 3, (double)g->positions[k], MR_MAX_COORDINATE);
     update_ctx *c = calloc(1, sizeof *c);
     if (!c)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a displaced object");
@@ -535,6 +624,60 @@ static int displaced_update(mr_geom *g, const mr_geom_frame *frame, const mr_pos
                                   g->asset->path, k / 3, MR_MAX_COORDINATE);
                 break;
             }
+    return rc;
+}
+
+/* The level whose distance to mip level 0, projected at the posed base
+ * mesh's nearest depth (its bounds grown by the largest height: the surface
+ * lies within them), stays below the tolerance. Heights are world units
+ * whatever the transform (the normal is a unit vector), so the distances
+ * need no stretch. */
+static void pick_level(mr_geom *g, const mr_geom_frame *frame)
+{
+    mr_vec3 lo = mr_v3(INFINITY, INFINITY, INFINITY), hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (size_t v = 0; v < g->vertex_count; v++) {
+        mr_vec3 p = mr_v3(g->positions[3 * v], g->positions[3 * v + 1], g->positions[3 * v + 2]);
+        lo = mr_v3_min(lo, p);
+        hi = mr_v3_max(hi, p);
+    }
+    float pad = (float)g->height_reach;
+    lo = mr_v3_sub(lo, mr_v3(pad, pad, pad));
+    hi = mr_v3_add(hi, mr_v3(pad, pad, pad));
+    double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi);
+    g->lod_cur = mr_lod_pick(g->lod_error, g->lod_count, px, g->tolerance_px, &g->predicted_px);
+}
+
+/* Poses the base mesh (unless only the camera moved), picks the level
+ * (with a tolerance) and sets up its surface, unless it already is for
+ * this pose. */
+static int displaced_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                            const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    double t0 = mr_now();
+    if (!(frame && frame->view_only)) {
+        for (size_t i = 0; i < g->asset->mesh_count; i++) {
+            size_t off = (size_t)g->mesh_first_vertex[i] * 3;
+            mr_skin_mesh(g->asset, i, pose, transform, g->positions + off, g->normals + off,
+                         threads);
+        }
+        for (size_t k = 0; k < (size_t)g->vertex_count * 3; k++)
+            if (!(fabsf(g->positions[k]) <= MR_MAX_COORDINATE))
+                return mr_error_set(err, MR_ERR_INVALID,
+                                    "%s: posed vertex %zu has a coordinate of %g (limit %g): "
+                                    "check the object's transform and pose",
+                                    g->asset->path, k / 3, (double)g->positions[k],
+                                    MR_MAX_COORDINATE);
+        g->lod_posed = 0;
+    }
+    if (g->lod_count > 1 && frame)
+        pick_level(g, frame);
+    int rc = MR_OK;
+    if (!(g->lod_posed & 1u << g->lod_cur)) {
+        if ((rc = update_surface(traced(g), threads, err)) < 0)
+            return rc;
+        g->lod_posed |= 1u << g->lod_cur;
+        g->lod_dirty |= 1u << g->lod_cur;
+    }
     g->bounds_s = mr_now() - t0;
     return rc;
 }
@@ -624,8 +767,8 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     add_stats(g, &st);
 }
 
-static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
-                            enum RTCBuildQuality quality, mr_error *err)
+static int attach_level(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                        enum RTCBuildQuality quality, mr_error *err)
 {
     if (tessellated(g))
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->tess_pos,
@@ -651,7 +794,28 @@ static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsign
     return MR_OK;
 }
 
-static void displaced_commit(mr_geom *g)
+/* One geometry per level, consecutive ids; only the frame's level is
+ * enabled (commit). Levels are rebuilt (LOW), never refitted: a refitted
+ * tree keeps the topology of the pose it was built in, which would be the
+ * pose of the frame that first enabled the level. */
+static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                            enum RTCBuildQuality quality, mr_error *err)
+{
+    if (g->lod_count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
+        quality = RTC_BUILD_QUALITY_LOW;
+    for (uint32_t k = 0; k < g->lod_count; k++) {
+        mr_geom *l = k == 0 ? g : g->coarser[k - 1];
+        int rc = attach_level(l, device, scene, geom_id + k, quality, err);
+        if (rc < 0)
+            return rc;
+        if (g->lod_count > 1)
+            rtcDisableGeometry(l->rtc);
+    }
+    g->lod_enabled = g->lod_count > 1 ? UINT32_MAX : 0;
+    return MR_OK;
+}
+
+static void commit_level(mr_geom *g)
 {
     if (tessellated(g))
         mr_geom_commit_vertices(g->rtc);
@@ -659,8 +823,25 @@ static void displaced_commit(mr_geom *g)
         rtcCommitGeometry(g->rtc);
 }
 
+static void displaced_commit(mr_geom *g)
+{
+    if (g->lod_enabled != g->lod_cur) {
+        if (g->lod_enabled != UINT32_MAX)
+            rtcDisableGeometry(g->lod_enabled == 0 ? g->rtc : g->coarser[g->lod_enabled - 1]->rtc);
+        rtcEnableGeometry(traced(g)->rtc);
+        g->lod_enabled = g->lod_cur;
+    }
+    for (uint32_t k = 0; k < g->lod_count; k++)
+        if (g->lod_dirty & 1u << k)
+            commit_level(k == 0 ? g : g->coarser[k - 1]);
+    g->lod_dirty = 0;
+}
+
+static uint32_t displaced_geometry_ids(const mr_geom *g) { return g->lod_count; }
+
 static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
+    g = traced(g);
     if (tessellated(g)) {
         if (prim >= g->tess_triangles)
             return mr_v3(0, 0, 1);
@@ -678,6 +859,7 @@ static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float 
 
 static int displaced_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
+    g = traced(g);
     if (tessellated(g))
         return mr_trimesh_copy(g->tess_pos, g->tess_vertices, g->tess_idx, g->tess_triangles, out,
                                err);
@@ -703,7 +885,9 @@ static int displaced_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err
 static size_t base_bytes(const mr_geom *g)
 {
     size_t nv = g->vertex_count, nt = g->triangle_count;
-    return sizeof *g + nv * (2 * sizeof(double) + 6 * sizeof(float)) + nt * 3 * sizeof(uint32_t) +
+    size_t floats = g->shares_base ? 0 : 6; /* posed positions and normals */
+    return sizeof *g + nv * (2 * sizeof(double) + floats * sizeof(float)) +
+           nt * 3 * sizeof(uint32_t) +
            nt * (sizeof(mr_dbase) + sizeof(mr_dgrad) + 6 * sizeof(float)) +
            g->asset->mesh_count * sizeof(uint32_t);
 }
@@ -722,21 +906,27 @@ static size_t source_bytes(const mr_geom *g)
     return g->procedural ? mr_dproc_memory(&g->proc) : mr_dgrid_memory(&g->grid);
 }
 
+/* Every level's. */
 static size_t displaced_memory(const mr_geom *g)
 {
-    return base_bytes(g) + source_bytes(g) + tess_bytes(g);
+    size_t b = base_bytes(g) + source_bytes(g) + tess_bytes(g);
+    for (uint32_t k = 1; k < g->lod_count; k++)
+        b += displaced_memory(g->coarser[k - 1]);
+    return b;
 }
 
 static uint64_t displaced_primitives(const mr_geom *g)
 {
+    g = traced(g);
     return tessellated(g) ? g->tess_triangles : g->triangle_count;
 }
 
-/* Five fields (a frame carries at most MR_FRAME_EXTRAS_MAX extras over all
- * its kinds). Steps per ray: displaced_nodes / rays. Embree's share of the
- * memory is the frame's bvh bytes; the tessellation's is in its geometry
- * bytes. */
-static const mr_kind_stat STATS[] = {
+/* Steps per ray: displaced_nodes / rays. Embree's share of the memory is
+ * the frame's bvh bytes; the tessellation's is in its geometry bytes. */
+enum { S_BOUNDS_S, S_NODES, S_TESTS, S_BASE_BYTES, S_MIPMAP_BYTES, S_LEVEL, S_ERROR_PX,
+       S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
+
+static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_bounds_s", "s", "Seconds the displaced objects spent on this frame's bounds "
                                 "(per-triangle gradients and Embree boxes) or tessellation",
      MR_STAT_SUM},
@@ -746,6 +936,17 @@ static const mr_kind_stat STATS[] = {
     {"displaced_base_bytes", "bytes", "Base mesh, per-triangle set-up and boxes", MR_STAT_SUM},
     {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held (procedural: "
                                         "the Gaussianised example and its pyramid)", MR_STAT_SUM},
+    {"displaced_lod_level", "level",
+     "the height texture's mip level traced (\"tolerance_px\" picks it; without, \"level\")",
+     MR_STAT_MAX},
+    {"displaced_lod_error_px", "px",
+     "the level's predicted error: its height difference to mip level 0, projected at the posed "
+     "surface's nearest depth by this frame's camera (0 without \"tolerance_px\")", MR_STAT_MAX},
+    {"displaced_lod_bytes", "bytes",
+     "what the levels coarser than \"level\" hold (their mip levels, pyramids and per-triangle "
+     "set-up)", MR_STAT_SUM},
+    {"displaced_lod_build_s", "s",
+     "making the coarser levels and measuring their error at creation", MR_STAT_ONCE},
 };
 
 static void displaced_frame_stats(const mr_geom *cg, double *v)
@@ -753,13 +954,21 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
     /* the counters are this frame's: read and cleared (only this object's
      * callbacks update them, and they have all returned) */
     mr_geom *g = (mr_geom *)cg;
-    v[0] = g->bounds_s;
-    v[1] = (double)atomic_exchange(&g->nodes, 0);
-    v[2] = (double)atomic_exchange(&g->tests, 0);
-    v[3] = (double)base_bytes(g);
-    v[4] = (double)source_bytes(g);
-    atomic_store(&g->calls, 0);
-    atomic_store(&g->leaves, 0);
+    v[S_BOUNDS_S] = g->bounds_s;
+    v[S_NODES] = v[S_TESTS] = 0;
+    for (uint32_t k = 0; k < g->lod_count; k++) {
+        mr_geom *l = k == 0 ? g : g->coarser[k - 1];
+        v[S_NODES] += (double)atomic_exchange(&l->nodes, 0);
+        v[S_TESTS] += (double)atomic_exchange(&l->tests, 0);
+        atomic_store(&l->calls, 0);
+        atomic_store(&l->leaves, 0);
+    }
+    v[S_BASE_BYTES] = (double)base_bytes(g);
+    v[S_MIPMAP_BYTES] = (double)source_bytes(g);
+    v[S_LEVEL] = traced(g)->par.level;
+    v[S_ERROR_PX] = g->predicted_px;
+    v[S_LOD_BYTES] = (double)(displaced_memory(g) - base_bytes(g) - source_bytes(g) - tess_bytes(g));
+    v[S_LOD_BUILD_S] = g->lod_build_s;
     g->bounds_s = 0;
 }
 
@@ -933,13 +1142,18 @@ static const mr_param_table DISPLACED_TABLE = {
  * tessellated, or, since a procedural source has no finest level, the next
  * finer one (twice the range: four times the micro-triangles), which shows
  * the detail the object's level leaves out. An object at level 0 has none
- * beyond its tessellation (nor one at the largest range). */
+ * beyond its tessellation (nor one at the largest range), unless it has a
+ * tolerance: it may then trace coarser levels. The reference passes draw
+ * their objects without a tolerance, so "tessellated" is the object's own
+ * "level" tessellated, and the error against it includes the coarser
+ * level's. */
 static int displaced_reference(const mr_object_desc *obj, mr_reference_type type,
                                mr_reference_objects *out, mr_error *err)
 {
     const mr_displaced_params *src = obj->params;
     if (type == MR_REFERENCE_GROUND_TRUTH &&
-        (src->procedural ? src->range >= MR_DISPLACED_MAX_RANGE : src->level == 0))
+        (src->procedural ? src->range >= MR_DISPLACED_MAX_RANGE
+                         : src->level == 0 && !(obj->tolerance_px > 0)))
         return MR_OK;
     mr_displaced_params *p = mr_reference_alloc(out, sizeof *p, err);
     if (!p)
@@ -967,11 +1181,13 @@ const mr_kind mr_kind_displaced = {
     .params = &DISPLACED_TABLE,
     .stats = STATS,
     .stat_count = sizeof STATS / sizeof STATS[0],
+    .has_lod = true,
     .frame_stats = displaced_frame_stats,
     .create = displaced_create,
     .update = displaced_update,
     .attach = displaced_attach,
     .commit = displaced_commit,
+    .geometry_ids = displaced_geometry_ids,
     .normal = displaced_normal,
     .tessellate = displaced_tessellate,
     .memory = displaced_memory,

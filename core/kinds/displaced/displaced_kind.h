@@ -21,6 +21,8 @@ typedef enum mr_displaced_method {
 } mr_displaced_method;
 
 #define MR_DISPLACED_MAX_LEVEL 16u
+/* Levels of detail an object with "tolerance_px" keeps (mip levels). */
+#define MR_DISPLACED_LOD_MAX 16u
 #define MR_DISPLACED_MAX_RANGE 4096u
 #define MR_DISPLACED_DEFAULT_RANGE 64u
 #define MR_DISPLACED_DEFAULT_STEPS 300u
