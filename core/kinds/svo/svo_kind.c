@@ -92,6 +92,9 @@ struct mr_geom {
     RTCGeometry *instances;       /* rigid: one instance geometry per instance */
     unsigned first_id;
     size_t budget;                /* bytes the object may hold (kind.h memory_budget), 0: any */
+    /* "tolerance_px" (selecting methods; 0: off, "delta" as given) and the
+     * last frame's predicted error (predicted_px) */
+    double tolerance_px, predicted_px;
 };
 
 /* The "method" names, in mr_svo_method order. */
@@ -114,8 +117,12 @@ static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t fram
     return object_pose(g->desc, frame);
 }
 
+#define SQRT3 1.7320508075688772
+
 /* Perspective projection of the frame's camera, far plane at infinity
- * (only the near plane culls), for the screen-space selection. */
+ * (only the near plane culls), for the screen-space selection. With a
+ * tolerance, voxels are refined until they project smaller than
+ * tolerance / sqrt(3) (svo_predicted_px says why). */
 static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
 {
     mr_svo_view v = {.enabled = false};
@@ -133,7 +140,7 @@ static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
     v.view_proj = mr_mat4_mul(&proj, &view);
     v.width = f->width;
     v.height = f->height;
-    v.delta = g->p->delta;
+    v.delta = g->tolerance_px > 0 ? (float)(g->tolerance_px / SQRT3) : g->p->delta;
     v.cull = g->p->cull;
     return v;
 }
@@ -304,10 +311,41 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
     return MR_OK;
 }
 
+/* The predicted error of the frame's selection ("tolerance_px"): the most
+ * pixels the diagonal of any selected voxel's deformed box spans
+ * (mr_camera_px_per_unit at the box). The detailed surface passes through
+ * every voxel it was voxelised into and the voxel's faces lie within its
+ * diagonal of it, so a voxel strays from the surface by at most that; the
+ * selection stops refining a voxel once its box projects below
+ * tolerance / sqrt(3) pixels on both axes, so coarse voxels keep within
+ * the tolerance, and leaves (which cannot be refined) show what the
+ * octree's depth allows: up close the prediction passes the tolerance,
+ * which then needs a deeper octree ("depth"). Deformation moves voxels
+ * off the skinned detailed mesh besides; the reference passes measure
+ * that. */
+static double predicted_px(const mr_geom *g, const mr_geom_frame *frame)
+{
+    double worst = 0;
+    for (size_t k = 0; k < g->instance_count; k++) {
+        const mr_svo_selection *sel = &g->sel[k];
+        for (size_t i = 0; i < sel->count; i++) {
+            const float *b = sel->box + i * 6;
+            mr_vec3 lo = mr_v3(b[0], b[1], b[2]), hi = mr_v3(b[3], b[4], b[5]);
+            double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi);
+            if (!isfinite(px))
+                continue; /* reaches the camera's plane: refined to its leaves, not projected */
+            worst = fmax(worst, px * mr_v3_len(mr_v3_sub(hi, lo)));
+        }
+    }
+    return worst;
+}
+
 static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                       const mr_mat4 *transform, unsigned threads, mr_error *err)
 {
     (void)pose; /* self_posed: each instance has its own */
+    if (frame && frame->view_only && g->method == MR_SVO_RIGID)
+        return MR_OK; /* nothing but the camera moved: the instances are where they were */
     mr_mat4 object = transform ? *transform : mr_mat4_identity();
     for (size_t k = 0; k < g->instance_count; k++) {
         const mr_mat4 inst = g->p->instance_count ? g->p->instances[k].transform
@@ -411,6 +449,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         if ((rc = check_extent(octree_extent(&g->octree[k]), k, err)) < 0)
             return rc;
     }
+    g->predicted_px = g->tolerance_px > 0 && frame ? predicted_px(g, frame) : 0;
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
     return MR_OK;
@@ -825,7 +864,7 @@ static uint64_t svo_primitives(const mr_geom *g)
  * with many instances they run in parallel on the job's threads, so their
  * sum can pass the frame's pose_s (the wall time of all updates). */
 enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_DEFORMED,
-       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_COUNT };
+       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_ERROR_PX, S_COUNT };
 
 static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", MR_STAT_SUM},
@@ -858,6 +897,10 @@ static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_OCTREE_BYTES] = {"svo_octree_bytes", "bytes",
                         "the per-instance world octrees rebuilt this frame (resize, emit)",
                         MR_STAT_SUM},
+    [S_ERROR_PX] = {"svo_lod_error_px", "px",
+                    "with \"tolerance_px\" (methods direct, resize, emit): the selection's "
+                    "predicted error, the most pixels a selected voxel's diagonal spans (0 "
+                    "without)", MR_STAT_MAX},
 };
 
 static void svo_frame_stats(const mr_geom *g, double *v)
@@ -875,6 +918,7 @@ static void svo_frame_stats(const mr_geom *g, double *v)
     v[S_REBUILD] = g->rebuild_s;
     v[S_CELLS] = (double)g->emitted;
     v[S_OCTREE_BYTES] = (double)g->octree_bytes;
+    v[S_ERROR_PX] = g->predicted_px;
 }
 
 static uint32_t svo_geometry_ids(const mr_geom *g)
@@ -1065,6 +1109,8 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
     g->p = p;
     g->method = p->method;
     g->instance_count = p->instance_count ? p->instance_count : 1;
+    /* rigid traces the whole shared octree: nothing to pick */
+    g->tolerance_px = g->method != MR_SVO_RIGID && desc->tolerance_px > 0 ? desc->tolerance_px : 0;
     int rc;
     float *albedo = malloc((asset->mesh_count ? asset->mesh_count : 1) * 3 * sizeof *albedo);
     if (!albedo) {
@@ -1202,7 +1248,8 @@ static const mr_param SVO_PARAMS[] = {
                  .lo = 0, .hi = 1e6, .flags = MR_PARAM_LO_OPEN, .def = MR_SVO_DEFAULT_DELTA,
                  .expect = "a number of pixels in (0, 1e6]",
                  .description = "Screen-space refinement threshold in pixels: voxels projecting smaller are not "
-                                "refined."},
+                                "refined. With \"tolerance_px\" t (methods direct, resize, emit), t / sqrt(3) "
+                                "instead."},
     [P_CULL] = {.field = "cull", .type = MR_PARAM_BOOL, .offset = offsetof(mr_svo_params, cull),
                 .def = 1,
                 .description = "Drop voxels outside the view frustum (they then cast no shadows into the view "
@@ -1237,6 +1284,7 @@ const mr_kind mr_kind_svo = {
     .params = &SVO_TABLE,
     .has_derived = true,
     .animated = svo_animated,
+    .has_lod = true,
     .memory_floor = svo_memory_floor,
     .memory_field = "instances",
     .self_posed = true,
