@@ -1315,8 +1315,22 @@ typedef struct mr_frame_error {
     double surface_px;         /* mr_compare_result.surface_px */
 } mr_frame_error;
 
-/* Per-frame statistics. Every member but the extras and the error entries
- * has a row in mr_frame_stat_fields (test_stats_json checks they agree). */
+/* The level of detail one object traced ("tolerance_px"): the level of
+ * its kind (what a level is, the kind says: README, Level of detail) and
+ * the error the level is predicted to make, in pixels at this frame's
+ * camera. */
+typedef struct mr_object_lod {
+    uint32_t object;  /* index in the job's objects */
+    uint32_t level;
+    double error_px;
+} mr_object_lod;
+/* Objects a frame lists (the first ones with a tolerance, in job order);
+ * the kinds' own stats fields combine all of them. */
+#define MR_FRAME_LOD_MAX 16
+
+/* Per-frame statistics. Every member but the extras, the error entries and
+ * the levels of detail has a row in mr_frame_stat_fields (test_stats_json
+ * checks they agree). */
 typedef struct mr_frame_stats {
     int frame;
     double time;              /* frame time on the job's timeline, s */
@@ -1346,6 +1360,8 @@ typedef struct mr_frame_stats {
     mr_frame_extra extras[MR_FRAME_EXTRAS_MAX];
     uint32_t error_count;     /* errors[0, error_count) are set: one per reference pass */
     mr_frame_error errors[MR_REFERENCE_TYPES];
+    uint32_t lod_count;       /* lod[0, lod_count) are set: objects with a tolerance */
+    mr_object_lod lod[MR_FRAME_LOD_MAX];
 } mr_frame_stats;
 
 /* Appends an extra field to the frame. name must be a non-empty run of

@@ -107,6 +107,17 @@ static cJSON *frame_json(const mr_frame_stats *f)
         for (uint32_t i = 0; i < f->error_count && i < MR_REFERENCE_TYPES && ok; i++)
             ok = add_error_entry(errors, &f->errors[i]);
     }
+    if (f->lod_count && ok) {
+        cJSON *lods = cJSON_AddArrayToObject(o, "lod");
+        ok = lods != NULL;
+        for (uint32_t i = 0; i < f->lod_count && i < MR_FRAME_LOD_MAX && ok; i++) {
+            cJSON *e = cJSON_CreateObject();
+            ok = e && cJSON_AddItemToArray(lods, e) &&
+                 cJSON_AddNumberToObject(e, "object", f->lod[i].object) &&
+                 cJSON_AddNumberToObject(e, "level", f->lod[i].level) &&
+                 cJSON_AddNumberToObject(e, "error_px", f->lod[i].error_px);
+        }
+    }
     for (uint32_t i = 0; i < f->extra_count && i < MR_FRAME_EXTRAS_MAX && ok; i++)
         ok = cJSON_AddNumberToObject(o, f->extras[i].name, f->extras[i].value) != NULL;
     if (!ok) {
@@ -156,6 +167,19 @@ void mr_frame_stats_from_json(const cJSON *o, size_t index, mr_frame_stats *f)
                 mr_frame_error_set_number(e, fd, v->valuedouble);
             }
         }
+    }
+    cJSON_ArrayForEach(entry, cJSON_GetObjectItemCaseSensitive(o, "lod"))
+    {
+        const cJSON *obj = cJSON_GetObjectItemCaseSensitive(entry, "object"),
+                    *level = cJSON_GetObjectItemCaseSensitive(entry, "level"),
+                    *px = cJSON_GetObjectItemCaseSensitive(entry, "error_px");
+        if (f->lod_count == MR_FRAME_LOD_MAX || !cJSON_IsNumber(obj) || !cJSON_IsNumber(level) ||
+            !cJSON_IsNumber(px) || !(obj->valuedouble >= 0 && obj->valuedouble < MR_MAX_OBJECTS) ||
+            !(level->valuedouble >= 0 && level->valuedouble <= UINT32_MAX))
+            break;
+        f->lod[f->lod_count++] = (mr_object_lod){.object = (uint32_t)obj->valuedouble,
+                                                 .level = (uint32_t)level->valuedouble,
+                                                 .error_px = px->valuedouble};
     }
     f->frame = (int)index;
 }

@@ -209,6 +209,14 @@ char *mr_stats_openapi_block(void)
           "(only with the job's `reference`): one entry per reference.\"\n"
           "          items: { $ref: \"#/components/schemas/FrameError\" }\n",
           f);
+    fprintf(f,
+            "        lod:\n"
+            "          type: array\n"
+            "          description: \"The level of detail each object with a `tolerance_px` traced "
+            "(the first %d such objects, in the job's order; README, Level of detail).\"\n"
+            "          maxItems: %d\n"
+            "          items: { $ref: \"#/components/schemas/ObjectLod\" }\n",
+            MR_FRAME_LOD_MAX, MR_FRAME_LOD_MAX);
     /* the registered kinds' own fields (mr_kind_stat_at), summed over a job's
      * objects of the kind or the largest of theirs; creation figures on the
      * first frame only */
@@ -232,6 +240,18 @@ char *mr_stats_openapi_block(void)
           "per-frame field (extras).\" }\n",
           f);
     put_error_schemas(f);
+    fputs("\n    ObjectLod:\n"
+          "      type: object\n"
+          "      required: [object, level, error_px]\n"
+          "      additionalProperties: false\n"
+          "      properties:\n"
+          "        object: { type: integer, minimum: 0, description: \"The object's index in the "
+          "job's `objects`.\" }\n"
+          "        level: { type: integer, minimum: 0, description: \"The level traced, as the "
+          "object's kind counts levels (README, Level of detail).\" }\n"
+          "        error_px: { type: number, minimum: 0, description: \"The level's predicted "
+          "error in pixels at this frame's camera.\" }\n",
+          f);
     fputs(MR_STATS_OPENAPI_END, f);
     if (fclose(f) != 0) {
         free(text);

@@ -35,6 +35,11 @@
  *               scene needs one id per instance: the renderer hands it the
  *               first, and maps a hit's instID back to the object, passing
  *               the instance index (id - first) to normal as prim.
+ *   lod         (NULL: none; has_lod kinds) the level of detail the frame
+ *               just updated traces and its predicted error in pixels
+ *               (mr_object_lod): false when the object picks none (it has
+ *               no tolerance). The renderer lists them per object in the
+ *               frame's stats.
  *   frame_stats the values of the kind's own per-frame statistics fields
  *               (`stats`, in that order; at most MR_FRAME_EXTRAS_MAX) for
  *               the frame just updated; the renderer combines them over
@@ -219,6 +224,7 @@ struct mr_kind {
     size_t (*memory)(const mr_geom *g);
     uint64_t (*primitives)(const mr_geom *g);
     uint32_t (*geometry_ids)(const mr_geom *g);
+    bool (*lod)(const mr_geom *g, uint32_t *level, double *error_px);
     void (*frame_stats)(const mr_geom *g, double *values);
     int (*rewind)(mr_geom *g, mr_error *err);
     uint32_t (*checkpoint_every)(const mr_geom *g);

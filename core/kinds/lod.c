@@ -15,7 +15,7 @@ uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, do
             if (error[k] * px_per_unit <= tolerance_px)
                 pick = k;
     if (!isfinite(px_per_unit))
-        *predicted_px = error[0] > 0 ? INFINITY : 0;
+        *predicted_px = error[0] > 0 ? MR_LOD_UNBOUNDED_PX : 0;
     else
         *predicted_px = error[pick] * px_per_unit;
     return pick;

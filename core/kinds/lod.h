@@ -15,12 +15,15 @@
 
 #include "microray.h"
 
+#define MR_LOD_UNBOUNDED_PX 1e9
+
 /* Levels are ordered finest first: error[k] (world or rest-space units, >= 0)
  * is how far level k strays. Returns the largest k < count whose
  * error[k] * px_per_unit is at most tolerance_px, or 0 (the finest) when
  * none is or px_per_unit is not finite (the object reaches the camera's
- * plane). *predicted_px gets the picked level's projected error: INFINITY
- * when px_per_unit is not finite and the level strays at all. */
+ * plane). *predicted_px gets the picked level's projected error: when
+ * px_per_unit is not finite and the level strays at all, unbounded, given
+ * as MR_LOD_UNBOUNDED_PX (stats are JSON numbers). */
 uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, double tolerance_px,
                      double *predicted_px);
 

@@ -178,10 +178,10 @@ const char *mr_frame_cache_result(const mr_frame_stats *st)
 }
 
 /* Whether name is taken by a field or group of the frame object, or by
- * its "error" entries. */
+ * its "error" or "lod" entries. */
 static bool table_name(const char *name)
 {
-    if (!strcmp(name, "error"))
+    if (!strcmp(name, "error") || !strcmp(name, "lod"))
         return true;
     for (size_t i = 0; i < mr_frame_stat_field_count; i++) {
         const mr_stat_field *f = &mr_frame_stat_fields[i];

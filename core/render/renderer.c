@@ -460,6 +460,19 @@ static int kind_stats(mr_renderer *r, mr_frame_stats *st, mr_error *err)
     return MR_OK;
 }
 
+/* Each object's level of detail (kind.h lod), the first MR_FRAME_LOD_MAX. */
+static void object_lods(const mr_renderer *r, mr_frame_stats *st)
+{
+    for (size_t j = 0; j < r->object_count && st->lod_count < MR_FRAME_LOD_MAX; j++) {
+        const object_state *o = &r->objects[j];
+        mr_object_lod *l = &st->lod[st->lod_count];
+        if (o->kind->lod && o->kind->lod(o->geom, &l->level, &l->error_px)) {
+            l->object = (uint32_t)j;
+            st->lod_count++;
+        }
+    }
+}
+
 /* Poses and deforms for frame `index` whatever moves (everything the first
  * time), replaying sequential kinds as needed; *changed: something did. */
 static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *frame, mr_frame_stats *st,
@@ -617,6 +630,7 @@ static int render_frame(mr_renderer *r, size_t index, mr_film *film, mr_frame_st
     st->speckle_pct = sp.speckle_pct;
     if ((rc = kind_stats(r, st, err)) < 0)
         return rc;
+    object_lods(r, st);
     r->reported_once = true;
     if (r->reference) {
         /* after the frame's own figures: never part of them */

@@ -202,6 +202,10 @@ static void test_flythrough(void **state)
          * figures: the same level */
         assert_true(fx_frame_extra(&ts, "displaced_lod_level") == levels[i]);
         assert_true(predicted <= 1.0);
+        /* the object's own entry says the same */
+        assert_int_equal(st.lod_count, 1);
+        assert_true(st.lod[0].object == 0 && st.lod[0].level == levels[i] &&
+                    st.lod[0].error_px == predicted);
         assert_int_equal(st.error_count, 2);
         for (uint32_t e = 0; e < st.error_count; e++) {
             const mr_frame_error *fe = &st.errors[e];

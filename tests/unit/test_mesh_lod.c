@@ -267,12 +267,12 @@ static void test_pick_and_stretch(void **state)
     assert_int_equal(mr_lod_pick(error, 4, INFINITY, 1.0, &px), 0); /* camera inside */
     assert_true(px == 0);
     /* a finest level that strays itself (an approximation's, measured
-     * against its ground truth): reported as it is, INFINITY up close */
+     * against its ground truth): reported as it is, unbounded up close */
     const double approx[3] = {0.02, 0.05, 0.5};
     assert_int_equal(mr_lod_pick(approx, 3, 100, 1.0, &px), 0);
     assert_float_equal(px, 2.0, 1e-12);
     assert_int_equal(mr_lod_pick(approx, 3, INFINITY, 1.0, &px), 0);
-    assert_true(isinf(px));
+    assert_true(px == MR_LOD_UNBOUNDED_PX);
     /* rotation times scale 3: stretch 3 exactly; a shear: at least the
      * stretch of any direction */
     mr_mat4 r = mr_mat4_from_trs(mr_v3(5, 6, 7), (mr_quat){0.2f, 0.4f, 0.4f, 0.8f}, mr_v3(3, 3, 3));
@@ -392,6 +392,8 @@ static void flythrough(bool still, double bound)
         }
         double level = fx_frame_extra(&st, "mesh_lod_level"), predicted = fx_frame_extra(&st, "mesh_lod_error_px");
         assert_true(predicted <= tolerance);
+        assert_int_equal(st.lod_count, 1); /* the object's own entry: the same */
+        assert_true(st.lod[0].object == 0 && st.lod[0].level == level && st.lod[0].error_px == predicted);
         assert_true(level > 0 || predicted == 0);
         if (i == 0)
             first_level = level;

@@ -307,6 +307,9 @@ static mr_frame_stats reference_fixture(int i)
                                    MR_PSNR_IDENTICAL, 0.25, 0};
     f.errors[1] = (mr_frame_error){MR_REFERENCE_GROUND_TRUTH, 1.0 + i, (uint64_t)(3 * i), 0.001,
                                    0.01 * (3 - i), 2.5, 40.0 - i, 1.0 / 3.0, 0.5 * i};
+    f.lod_count = 2;
+    f.lod[0] = (mr_object_lod){0, 7, 0.75};
+    f.lod[1] = (mr_object_lod){3, 0, 0};
     return f;
 }
 
@@ -316,8 +319,9 @@ static void test_reference_errors(void **state)
     mr_frame_stats f = reference_fixture(1);
     mr_error err = {0};
     assert_int_equal(mr_frame_stats_add_extra(&f, "simulate_s", "s", 0.02, &err), MR_OK);
-    /* "error" is the entries' key: no extra may take it */
+    /* "error" and "lod" are the entries' keys: no extra may take them */
     assert_int_equal(mr_frame_stats_add_extra(&f, "error", "", 1, &err), MR_ERR_INVALID);
+    assert_int_equal(mr_frame_stats_add_extra(&f, "lod", "", 1, &err), MR_ERR_INVALID);
     char *s = mr_frame_stats_json(&f);
     static const char want[] =
         "{\"frame\":1,\"time\":0.75,\"file\":\"0001.exr\",\"seconds\":{\"load\":0,\"derive\":0,"
@@ -330,7 +334,9 @@ static void test_reference_errors(void **state)
         "\"depth_rmse\":1e-07,\"depth_max\":2.5e-07,\"normal_mean_deg\":0.125,\"psnr_rgb_db\":999,"
         "\"speckle_pct\":0.25,\"surface_px\":0},{\"reference\":\"ground_truth\",\"coverage_error_pct\":2,"
         "\"holes\":3,\"depth_rmse\":0.001,\"depth_max\":0.02,\"normal_mean_deg\":2.5,\"psnr_rgb_db\":39,"
-        "\"speckle_pct\":0.33333333333333331,\"surface_px\":0.5}],\"simulate_s\":0.02}";
+        "\"speckle_pct\":0.33333333333333331,\"surface_px\":0.5}],"
+        "\"lod\":[{\"object\":0,\"level\":7,\"error_px\":0.75},{\"object\":3,\"level\":0,"
+        "\"error_px\":0}],\"simulate_s\":0.02}";
     expect_text(s, want);
 
     /* read back: the table's fields and the entries */
@@ -342,6 +348,8 @@ static void test_reference_errors(void **state)
     cJSON_Delete(o);
     assert_true(got.reference_s == 1.5);
     assert_int_equal(got.error_count, 2);
+    assert_int_equal(got.lod_count, 2);
+    assert_memory_equal(got.lod, f.lod, sizeof f.lod[0] * 2);
     for (int k = 0; k < 2; k++)
         for (size_t i = 0; i < mr_frame_error_field_count; i++) {
             const mr_stat_field *fd = &mr_frame_error_fields[i];

@@ -96,10 +96,16 @@ static flight flythrough(const char *method, const char *tolerance)
         out.over += measured > 1.0;
         out.leaf_limited += selected == all_leaves;
         out.worst = fmax(out.worst, measured);
-        if (strcmp(tolerance, "null"))
+        if (strcmp(tolerance, "null")) {
             out.worst_margin = fmax(out.worst_margin, measured - predicted);
-        else
-            assert_true(predicted == 0); /* no tolerance, no prediction */
+            /* the object's entry: the prediction and the deepest level
+             * selected (the octree's depth, 8, when every leaf is) */
+            assert_int_equal(st.lod_count, 1);
+            assert_true(st.lod[0].object == 0 && st.lod[0].error_px == predicted);
+            assert_true(st.lod[0].level <= 8 && (selected != all_leaves || st.lod[0].level == 8));
+        } else {
+            assert_true(predicted == 0 && st.lod_count == 0); /* no tolerance, no prediction */
+        }
         print_message("%s, tolerance %s, frame %2zu: predicted %.3f px, measured %.3f px, %g of %g "
                       "voxels selected, %.1f ms\n", method, tolerance, i, predicted, measured,
                       selected, all_leaves, 1e3 * (st.pose_s + st.bvh_s + st.trace_s));

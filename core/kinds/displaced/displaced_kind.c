@@ -949,6 +949,14 @@ static const mr_kind_stat STATS[S_COUNT] = {
      "making the coarser levels and measuring their error at creation", MR_STAT_ONCE},
 };
 
+/* The mip level traced (a procedural source has no levels: none). */
+static bool displaced_lod(const mr_geom *g, uint32_t *level, double *error_px)
+{
+    *level = traced(g)->par.level;
+    *error_px = g->predicted_px;
+    return g->tolerance_px > 0;
+}
+
 static void displaced_frame_stats(const mr_geom *cg, double *v)
 {
     /* the counters are this frame's: read and cleared (only this object's
@@ -1182,6 +1190,7 @@ const mr_kind mr_kind_displaced = {
     .stats = STATS,
     .stat_count = sizeof STATS / sizeof STATS[0],
     .has_lod = true,
+    .lod = displaced_lod,
     .frame_stats = displaced_frame_stats,
     .create = displaced_create,
     .update = displaced_update,

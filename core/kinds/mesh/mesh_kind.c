@@ -490,6 +490,13 @@ static const mr_kind_stat MESH_STATS[S_COUNT] = {
      MR_STAT_ONCE},
 };
 
+static bool mesh_lod(const mr_geom *g, uint32_t *level, double *error_px)
+{
+    *level = g->level;
+    *error_px = g->predicted_px;
+    return g->tolerance_px > 0;
+}
+
 static void mesh_frame_stats(const mr_geom *g, double *values)
 {
     values[S_LEVEL] = g->level;
@@ -503,6 +510,7 @@ const mr_kind mr_kind_mesh = {
     .name = "mesh",
     .summary = "triangle meshes, skinned or rigid (the default kind)",
     .has_lod = true,
+    .lod = mesh_lod,
     .stats = MESH_STATS,
     .stat_count = S_COUNT,
     .frame_stats = mesh_frame_stats,

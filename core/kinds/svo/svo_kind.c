@@ -92,9 +92,10 @@ struct mr_geom {
     RTCGeometry *instances;       /* rigid: one instance geometry per instance */
     unsigned first_id;
     size_t budget;                /* bytes the object may hold (kind.h memory_budget), 0: any */
-    /* "tolerance_px" (selecting methods; 0: off, "delta" as given) and the
-     * last frame's predicted error (predicted_px) */
+    /* "tolerance_px" (selecting methods; 0: off, "delta" as given), the
+     * last frame's predicted error and deepest level selected (predict) */
     double tolerance_px, predicted_px;
+    uint32_t deepest;
 };
 
 /* The "method" names, in mr_svo_method order. */
@@ -323,12 +324,14 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
  * which then needs a deeper octree ("depth"). Deformation moves voxels
  * off the skinned detailed mesh besides; the reference passes measure
  * that. */
-static double predicted_px(const mr_geom *g, const mr_geom_frame *frame)
+static void predict(mr_geom *g, const mr_geom_frame *frame)
 {
     double worst = 0;
+    uint32_t deepest = 0;
     for (size_t k = 0; k < g->instance_count; k++) {
         const mr_svo_selection *sel = &g->sel[k];
         for (size_t i = 0; i < sel->count; i++) {
+            deepest = sel->level[i] > deepest ? sel->level[i] : deepest;
             const float *b = sel->box + i * 6;
             mr_vec3 lo = mr_v3(b[0], b[1], b[2]), hi = mr_v3(b[3], b[4], b[5]);
             double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi);
@@ -337,7 +340,8 @@ static double predicted_px(const mr_geom *g, const mr_geom_frame *frame)
             worst = fmax(worst, px * mr_v3_len(mr_v3_sub(hi, lo)));
         }
     }
-    return worst;
+    g->predicted_px = worst;
+    g->deepest = deepest;
 }
 
 static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
@@ -449,7 +453,8 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         if ((rc = check_extent(octree_extent(&g->octree[k]), k, err)) < 0)
             return rc;
     }
-    g->predicted_px = g->tolerance_px > 0 && frame ? predicted_px(g, frame) : 0;
+    if (g->tolerance_px > 0 && frame)
+        predict(g, frame);
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
     return MR_OK;
@@ -921,6 +926,15 @@ static void svo_frame_stats(const mr_geom *g, double *v)
     v[S_ERROR_PX] = g->predicted_px;
 }
 
+/* Level: the deepest octree level the frame's selection reached (a
+ * selection mixes levels: it is where the octree's depth is felt). */
+static bool svo_lod(const mr_geom *g, uint32_t *level, double *error_px)
+{
+    *level = g->deepest;
+    *error_px = g->predicted_px;
+    return g->tolerance_px > 0;
+}
+
 static uint32_t svo_geometry_ids(const mr_geom *g)
 {
     return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
@@ -1285,6 +1299,7 @@ const mr_kind mr_kind_svo = {
     .has_derived = true,
     .animated = svo_animated,
     .has_lod = true,
+    .lod = svo_lod,
     .memory_floor = svo_memory_floor,
     .memory_field = "instances",
     .self_posed = true,
