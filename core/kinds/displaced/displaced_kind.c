@@ -1151,10 +1151,9 @@ static const mr_param_table DISPLACED_TABLE = {
  * finer one (twice the range: four times the micro-triangles), which shows
  * the detail the object's level leaves out. An object at level 0 has none
  * beyond its tessellation (nor one at the largest range), unless it has a
- * tolerance: it may then trace coarser levels. The reference passes draw
- * their objects without a tolerance, so "tessellated" is the object's own
- * "level" tessellated, and the error against it includes the coarser
- * level's. */
+ * tolerance: it may then trace coarser levels. The ground truth pass draws
+ * its objects without a tolerance; the tessellated pass keeps it, and so
+ * tessellates the level the object picks by the same rule. */
 static int displaced_reference(const mr_object_desc *obj, mr_reference_type type,
                                mr_reference_objects *out, mr_error *err)
 {

@@ -1212,20 +1212,21 @@ static void apply_range(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, float *tangents,
-                  unsigned threads)
+/* This frame's ghost displacements and triangle bases: what every vertex
+ * of the mapping reads. */
+static void prepare(apply_ctx *x, const sm_sim *sim, unsigned threads)
 {
-    apply_ctx x = {.m = m, .out_pos = positions, .out_nrm = normals, .out_tan = m->rest_tan ? tangents : NULL};
-    sm_sim_positions(sim, x.pos);
-    sm_sim_rest(sim, x.rest);
-    sm_sim_normals(sim, x.nrm);
+    sm_map *m = (sm_map *)x->m;
+    sm_sim_positions(sim, x->pos);
+    sm_sim_rest(sim, x->rest);
+    sm_sim_normals(sim, x->nrm);
     const float inv_h = 1.0f / m->h;
     for (size_t q = 0; q < m->ghost_count; q++) {
         const ghost *gh = &m->ghosts[q];
         float D[3][3], d[3];
-        ghost_derivatives(gh, x.pos, inv_h, D);
+        ghost_derivatives(gh, x->pos, inv_h, D);
         for (int c = 0; c < 3; c++)
-            d[c] = x.pos[c][gh->node] - x.rest[c][gh->node];
+            d[c] = x->pos[c][gh->node] - x->rest[c][gh->node];
         if (gh->far) {
             /* the offset from n turned by n's rotation: the frames of D and of
              * D at rest, orthonormalised (Gram-Schmidt), R R0^T o - o */
@@ -1249,6 +1250,41 @@ void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals
         set3(m->gdisp + q * 3, d);
     }
     if (m->tri_count)
-        mr_parallel_for(threads, m->tri_count, 2048, basis_range, &x);
+        mr_parallel_for(threads, m->tri_count, 2048, basis_range, x);
+}
+
+void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, float *tangents,
+                  unsigned threads)
+{
+    apply_ctx x = {.m = m, .out_pos = positions, .out_nrm = normals, .out_tan = m->rest_tan ? tangents : NULL};
+    prepare(&x, sim, threads);
     mr_parallel_for(threads, m->vertex_count, 2048, apply_range, &x);
+}
+
+typedef struct sample_ctx {
+    apply_ctx x;
+    uint32_t stride;
+} sample_ctx;
+
+static void sample_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const sample_ctx *c = ctx;
+    for (size_t k = begin; k < end; k++) {
+        uint32_t v = (uint32_t)(k * c->stride);
+        switch (c->x.m->mapping) {
+        case MR_SPRINGMASS_ONE_TO_ONE: apply_one(&c->x, v); break;
+        case MR_SPRINGMASS_TRILINEAR: apply_lin(&c->x, v); break;
+        default: apply_tri(&c->x, v); break;
+        }
+    }
+}
+
+void sm_map_apply_every(sm_map *m, const sm_sim *sim, uint32_t stride, float *positions,
+                        float *normals, unsigned threads)
+{
+    sample_ctx c = {.x = {.m = m, .out_pos = positions, .out_nrm = normals}, .stride = stride};
+    prepare(&c.x, sim, threads);
+    size_t samples = stride ? (m->vertex_count + stride - 1) / stride : 0;
+    mr_parallel_for(threads, samples, 256, sample_range, &c);
 }

@@ -106,5 +106,11 @@ size_t sm_map_bytes(const sm_map *m);
  * current nodes. */
 void sm_map_apply(sm_map *m, const sm_sim *sim, float *positions, float *normals, float *tangents,
                   unsigned threads);
+/* The same for every stride-th vertex only (v = 0, stride, 2 stride, ...),
+ * positions and normals, into full-size arrays whose other entries are
+ * left as they are: a sample of the mapping, to compare mappings by
+ * ("tolerance_px"). */
+void sm_map_apply_every(sm_map *m, const sm_sim *sim, uint32_t stride, float *positions,
+                        float *normals, unsigned threads);
 
 #endif

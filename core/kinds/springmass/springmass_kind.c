@@ -22,6 +22,18 @@
 #define SM_STATE_VERSION 2u
 #define SM_REVISION 1u
 
+/* Levels of detail ("tolerance_px"), finest first: the mappings an object
+ * with a tolerance picks from each frame. Trilinear is the ground truth
+ * (the references); the triangle mappings cost a fifth to a tenth of it
+ * (bench_springmass). one_to_one is left out: it costs more than
+ * triangle_basis and strays farther. */
+static const int LOD_MAPPINGS[] = {MR_SPRINGMASS_TRILINEAR, MR_SPRINGMASS_TRIANGLE_CURVATURE,
+                                   MR_SPRINGMASS_TRIANGLE_BASIS};
+#define LOD_LEVELS 3
+/* Every LOD_STRIDE-th vertex is also mapped trilinearly each frame: the
+ * sample a cheaper mapping is measured against. */
+#define LOD_STRIDE 16
+
 /* Bytes per grid cell the simulation holds (18 float arrays and the
  * grid's two byte arrays), for the memory budget. */
 #define SM_BYTES_PER_CELL (18u * 4u + 2u)
@@ -38,7 +50,12 @@ struct mr_geom {
     float *tangents;            /* this frame's (with rest_tan) */
     uint32_t *indices;
     sm_sim *sim;
-    sm_map *map;
+    /* maps[0]: the object's mapping; with a tolerance, maps[k] maps by
+     * LOD_MAPPINGS[k] and maps[level] placed this frame's mesh */
+    sm_map *maps[LOD_LEVELS];
+    uint32_t map_count, level;
+    double tolerance_px, predicted_px;
+    float *sample_pos, *sample_nrm; /* trilinear at every LOD_STRIDE-th vertex */
     RTCGeometry rtc;
     uint8_t id[32];             /* checkpoint id */
     /* the last update's figures */
@@ -52,7 +69,10 @@ static void springmass_free(mr_geom *g)
         return;
     if (g->rtc)
         rtcReleaseGeometry(g->rtc);
-    sm_map_free(g->map);
+    for (uint32_t k = 0; k < g->map_count; k++)
+        sm_map_free(g->maps[k]);
+    free(g->sample_pos);
+    free(g->sample_nrm);
     sm_sim_free(g->sim);
     free(g->rest_pos);
     free(g->rest_nrm);
@@ -166,19 +186,89 @@ static int springmass_create(const mr_asset *asset, const mr_object_desc *desc, 
         mr_error_prefix(err, "%s: %s: ", grid_field, asset->path);
         goto fail;
     }
-    if ((rc = sm_sim_new(&grid, p, g->threads, &g->sim, err)) < 0 ||
-        (rc = sm_map_new(g->sim, p->mapping, g->rest_pos, g->rest_nrm, g->rest_tan, g->vertex_count,
-                         g->threads, &g->map, err)) < 0) {
+    if ((rc = sm_sim_new(&grid, p, g->threads, &g->sim, err)) < 0) {
         mr_error_prefix(err, "springmass: ");
         goto fail;
     }
-    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->tangents, g->threads);
+    g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
+    g->map_count = g->tolerance_px > 0 ? LOD_LEVELS : 1;
+    for (uint32_t k = 0; k < g->map_count; k++)
+        if ((rc = sm_map_new(g->sim, g->map_count > 1 ? LOD_MAPPINGS[k] : p->mapping, g->rest_pos,
+                             g->rest_nrm, g->rest_tan, g->vertex_count, g->threads, &g->maps[k],
+                             err)) < 0) {
+            mr_error_prefix(err, "springmass: ");
+            goto fail;
+        }
+    if (g->map_count > 1 &&
+        (!(g->sample_pos = calloc((size_t)g->vertex_count * 3, sizeof(float))) ||
+         !(g->sample_nrm = calloc((size_t)g->vertex_count * 3, sizeof(float))))) {
+        rc = mr_error_set(err, MR_ERR_NOMEM, "springmass: out of memory");
+        goto fail;
+    }
+    sm_map_apply(g->maps[0], g->sim, g->positions, g->normals, g->tangents, g->threads);
     state_id(g);
     *out = g;
     return MR_OK;
 fail:
     springmass_free(g);
     return rc;
+}
+
+/* How far g->positions strays from the trilinear sample at the sampled
+ * vertices, and *px: the projection at the nearest depth of the box of
+ * positions (all of them, or the sampled ones) grown by that distance. */
+static double sample_distance(const mr_geom *g, const mr_geom_frame *frame, bool all, double *px)
+{
+    double worst = 0;
+    for (size_t v = 0; v < g->vertex_count; v += LOD_STRIDE) {
+        const float *a = g->positions + v * 3, *b = g->sample_pos + v * 3;
+        double dx = (double)a[0] - b[0], dy = (double)a[1] - b[1], dz = (double)a[2] - b[2];
+        worst = fmax(worst, sqrt(dx * dx + dy * dy + dz * dz));
+    }
+    mr_vec3 lo = mr_v3(INFINITY, INFINITY, INFINITY), hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (size_t v = 0; v < g->vertex_count; v += all ? 1 : LOD_STRIDE) {
+        mr_vec3 p = mr_v3(g->positions[v * 3], g->positions[v * 3 + 1], g->positions[v * 3 + 2]);
+        lo = mr_v3_min(lo, p);
+        hi = mr_v3_max(hi, p);
+    }
+    float pad = (float)worst;
+    *px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height,
+                                mr_v3_sub(lo, mr_v3(pad, pad, pad)), mr_v3_add(hi, mr_v3(pad, pad, pad)));
+    return worst;
+}
+
+/* "tolerance_px": the cheapest mapping whose distance to the trilinear one
+ * (the ground truth), projected at this frame's mesh's nearest depth (its
+ * bounds grown by the distance), stays below the tolerance; trilinear when
+ * none does. How far a mapping strays depends on how the grid deforms, so
+ * it is measured each frame, at every LOD_STRIDE-th vertex mapped both
+ * ways: the largest distance there is the prediction (a sample, not a
+ * bound: the reference passes measure the rest). A candidate that passes
+ * on the sample is mapped in full and checked again at the whole mesh's
+ * nearest depth. A frame costs the samples (an eighth of a trilinear
+ * mapping) and one full mapping. */
+static void pick_mapping(mr_geom *g, const mr_geom_frame *frame, unsigned threads)
+{
+    sm_map_apply_every(g->maps[0], g->sim, LOD_STRIDE, g->sample_pos, g->sample_nrm, threads);
+    for (uint32_t k = g->map_count - 1; k >= 1; k--) {
+        double px, d;
+        /* the candidate's sample, into the mesh's own arrays (mapped in
+         * full below, whatever wins) */
+        sm_map_apply_every(g->maps[k], g->sim, LOD_STRIDE, g->positions, g->normals, threads);
+        d = sample_distance(g, frame, false, &px);
+        if (!(isfinite(px) && d * px <= g->tolerance_px))
+            continue;
+        sm_map_apply(g->maps[k], g->sim, g->positions, g->normals, g->tangents, threads);
+        d = sample_distance(g, frame, true, &px);
+        if (isfinite(px) && d * px <= g->tolerance_px) {
+            g->level = k;
+            g->predicted_px = d * px;
+            return;
+        }
+    }
+    sm_map_apply(g->maps[0], g->sim, g->positions, g->normals, g->tangents, threads);
+    g->level = 0;
+    g->predicted_px = 0;
 }
 
 static int springmass_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
@@ -199,7 +289,10 @@ static int springmass_update(mr_geom *g, const mr_geom_frame *frame, const mr_po
     g->steps = target - now;
     if (rc < 0)
         return mr_error_prefix(err, "springmass: ");
-    sm_map_apply(g->map, g->sim, g->positions, g->normals, g->tangents, threads);
+    if (g->map_count > 1 && frame)
+        pick_mapping(g, frame, threads);
+    else
+        sm_map_apply(g->maps[0], g->sim, g->positions, g->normals, g->tangents, threads);
     g->map_s = mr_now() - t1;
     return MR_OK;
 }
@@ -249,11 +342,19 @@ static int springmass_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *er
     return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out, err);
 }
 
+static size_t maps_bytes(const mr_geom *g)
+{
+    size_t b = g->sample_pos ? (size_t)g->vertex_count * 6 * sizeof(float) : 0;
+    for (uint32_t k = 0; k < g->map_count; k++)
+        b += sm_map_bytes(g->maps[k]);
+    return b;
+}
+
 static size_t springmass_memory(const mr_geom *g)
 {
     return ((size_t)g->vertex_count * (g->rest_tan ? 18 : 12) + 2) * sizeof(float) +
            (size_t)g->triangle_count * 3 * sizeof(uint32_t) + sm_sim_grid(g->sim)->cells * SM_BYTES_PER_CELL +
-           sm_map_bytes(g->map);
+           maps_bytes(g);
 }
 
 static uint64_t springmass_primitives(const mr_geom *g) { return g->triangle_count; }
@@ -272,6 +373,14 @@ static const mr_kind_stat SPRINGMASS_STATS[] = {
      MR_STAT_SUM},
     {"sim_nodes", "count", "Nodes of the simulation grid", MR_STAT_SUM},
 };
+
+/* Level: 0 trilinear, 1 triangle_basis_curvature, 2 triangle_basis. */
+static bool springmass_lod(const mr_geom *g, uint32_t *level, double *error_px)
+{
+    *level = g->level;
+    *error_px = g->predicted_px;
+    return g->tolerance_px > 0;
+}
 
 static void springmass_frame_stats(const mr_geom *g, double *values)
 {
@@ -568,7 +677,8 @@ static const mr_param SPRINGMASS_PARAMS[] = {
      MR_PARAM_CHOICES(MAPPINGS), .def = MR_SPRINGMASS_TRIANGLE_CURVATURE,
      .description = "How the detailed mesh follows the nodes: one_to_one (3.2), triangle_basis (3.3.1), "
                     "triangle_basis_curvature (3.3.2) or trilinear (the cell's trilinear displacement, the "
-                    "reference)."},
+                    "reference). With \"tolerance_px\" each frame picks the cheapest of triangle_basis, "
+                    "triangle_basis_curvature and trilinear that stays within it instead."},
     {.field = "checkpoint_every", .type = MR_PARAM_INT,
      .offset = offsetof(mr_springmass_params, checkpoint_every), .lo = 0, .hi = 100000, .def = 8,
      .description = "Frames between checkpoints of the simulation state (0: none)."},
@@ -594,14 +704,15 @@ static const mr_param_table SPRINGMASS_TABLE = {
  * is the mapped mesh's own triangles); "ground_truth" is the same
  * simulation followed by the trilinear mapping (each vertex displaced with
  * its grid cell), which the paper's mappings approximate. An object mapped
- * trilinearly has none beyond itself. */
+ * trilinearly has none beyond itself, unless a tolerance lets it pick
+ * other mappings. */
 static int springmass_reference(const mr_object_desc *obj, mr_reference_type type,
                                 mr_reference_objects *out, mr_error *err)
 {
     const mr_springmass_params *src = obj->params;
     if (type == MR_REFERENCE_TESSELLATED)
         return mr_reference_objects_add(out, obj, err);
-    if (src->mapping == MR_SPRINGMASS_TRILINEAR)
+    if (src->mapping == MR_SPRINGMASS_TRILINEAR && !(obj->tolerance_px > 0))
         return MR_OK;
     mr_springmass_params *p = mr_reference_alloc(out, sizeof *p, err);
     if (!p)
@@ -632,6 +743,8 @@ const mr_kind mr_kind_springmass = {
     .tessellate = springmass_tessellate,
     .memory = springmass_memory,
     .primitives = springmass_primitives,
+    .has_lod = true,
+    .lod = springmass_lod,
     .frame_stats = springmass_frame_stats,
     .rewind = springmass_rewind,
     .checkpoint_every = springmass_checkpoint_every,
