@@ -1287,27 +1287,85 @@ static int rest_detail(const mr_asset *a, float **pos, uint32_t **idx, uint32_t 
     return MR_OK;
 }
 
-/* Every level's error (dmm_lod.h) and the bounds level. */
-static int measure_levels(mr_geom *g, unsigned threads, mr_error *err)
+/* Poses of the object's clip the levels are measured in besides the rest
+ * pose, evenly over one run of the clip, and the share of the samples taken
+ * in each (as the mesh kind's levels). */
+#define LOD_POSES 4
+#define LOD_POSE_STRIDE 4
+
+/* Every level's distance to the detail as posed: the rest pose (pose NULL:
+ * the bake's own positions, all samples) or a pose of the clip (both
+ * skinned without the object's transform, every LOD_POSE_STRIDE-th
+ * sample); each error raised to what it finds. detail: the merged detailed
+ * mesh (positions as posed). */
+static int measure_pose(mr_geom *g, const mr_pose *pose, const float *detail, uint32_t nv,
+                        const uint32_t *idx, uint32_t nt, unsigned threads, mr_error *err)
 {
     const mr_asset *a = g->asset;
-    float *pos = NULL;
-    uint32_t *idx = NULL, nv = 0, nt = 0;
     mr_dmm_lod_truth truth;
-    int rc = rest_detail(a, &pos, &idx, &nv, &nt, err);
-    if (rc == MR_OK && (rc = mr_dmm_lod_truth_init(&truth, pos, nv, idx, nt, a->path, err)) == MR_OK) {
-        for (uint32_t k = 0; k < g->count && rc == MR_OK; k++) {
-            mr_trimesh m;
-            if ((rc = micro_triangles(g->lv[k], true, &m, err)) < 0)
-                break;
-            rc = mr_dmm_lod_distance(&truth, m.positions, m.vertex_count, m.indices,
-                                     m.triangle_count, threads, a->path, &g->error[k], err);
-            mr_trimesh_free(&m);
-            if (k > 0) /* a coarser level never promises better */
-                g->error[k] = fmax(g->error[k], g->error[k - 1]);
-        }
-        mr_dmm_lod_truth_free(&truth);
+    int rc = mr_dmm_lod_truth_init(&truth, detail, nv, idx, nt, a->path, err);
+    for (uint32_t k = 0; k < g->count && rc == MR_OK; k++) {
+        mr_trimesh m;
+        if (pose && (rc = level_update(g->lv[k], NULL, pose, NULL, threads, err)) < 0)
+            break;
+        if ((rc = micro_triangles(g->lv[k], pose == NULL, &m, err)) < 0)
+            break;
+        double d;
+        rc = mr_dmm_lod_distance(&truth, m.positions, m.vertex_count, m.indices, m.triangle_count,
+                                 pose ? LOD_POSE_STRIDE : 1, threads, a->path, &d, err);
+        mr_trimesh_free(&m);
+        g->error[k] = fmax(g->error[k], d);
     }
+    if (truth.distinct)
+        mr_dmm_lod_truth_free(&truth);
+    return rc;
+}
+
+/* Every level's error (dmm_lod.h): in the rest pose and in LOD_POSES poses
+ * of the object's first pose description when it plays a clip or moves
+ * joints. The interpolated deformation (and the skinned base mesh) moves a
+ * micro-vertex by matrices blended from the base vertices', while the
+ * detailed mesh moves each vertex by its own bones: where a base triangle
+ * spans a joint the two part, the more the more the joint bends, at every
+ * level alike. Then the bounds level. */
+static int measure_levels(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    float *pos = NULL, *posed = NULL;
+    uint32_t *idx = NULL, nv = 0, nt = 0;
+    mr_pose *pose = NULL;
+    int rc = rest_detail(a, &pos, &idx, &nv, &nt, err);
+    if (rc == MR_OK)
+        rc = measure_pose(g, NULL, pos, nv, idx, nt, threads, err);
+    const mr_pose_desc *d = desc->pose_count > 0 ? &desc->poses[0] : NULL;
+    double duration = 0;
+    if (d && d->has_clip && !d->has_time) {
+        int ci = d->clip_name ? mr_asset_find_clip(a, d->clip_name) : d->clip_index;
+        if (ci >= 0 && (size_t)ci < a->clip_count && d->speed != 0)
+            duration = a->clips[ci].duration / fabs(d->speed);
+    }
+    if (rc == MR_OK && d) {
+        posed = malloc(((size_t)nv * 3 + 1) * sizeof(float));
+        rc = posed ? mr_pose_new(a, &pose, err)
+                   : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
+    }
+    for (int j = 0; j < LOD_POSES && rc == MR_OK && d; j++) {
+        /* a pose fixed in time (or without a clip) is one pose */
+        if (j > 0 && !(duration > 0))
+            break;
+        if ((rc = mr_pose_eval(pose, a, d, duration * (j + 0.5) / LOD_POSES, err)) < 0)
+            break;
+        size_t at = 0;
+        for (size_t i = 0; i < a->mesh_count; i++) {
+            mr_skin_mesh(a, i, pose, NULL, posed + at, NULL, threads);
+            at += (size_t)a->meshes[i].vertex_count * 3;
+        }
+        rc = measure_pose(g, pose, posed, nv, idx, nt, threads, err);
+    }
+    mr_pose_free(pose);
+    free(posed);
+    for (uint32_t k = 1; k < g->count; k++) /* a coarser level never promises better */
+        g->error[k] = fmax(g->error[k], g->error[k - 1]);
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, d2 = 0;
     for (size_t v = 0; rc == MR_OK && v < (size_t)nv * 3; v++) {
         lo[v % 3] = fmin(lo[v % 3], pos[v]);
@@ -1352,7 +1410,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     if (g->count > 1) {
         double t = mr_now();
-        if ((rc = measure_levels(g, ctx ? ctx->threads : 0, err)) < 0) {
+        if ((rc = measure_levels(g, desc, ctx ? ctx->threads : 0, err)) < 0) {
             dmm_free(g);
             return rc;
         }

@@ -51,6 +51,8 @@ typedef struct distance_ctx {
     const uint32_t *idx;
     const uint32_t *used;       /* the level's vertices some triangle uses */
     uint32_t used_count, nt;
+    uint32_t stride;            /* every stride-th sample of each kind */
+    uint32_t distinct_n, used_n, tri_n; /* how many of each are sampled */
     double worst[MR_MAX_THREADS];
 } distance_ctx;
 
@@ -69,16 +71,16 @@ static void distance_range(void *vctx, size_t begin, size_t end, unsigned worker
     double worst = c->worst[worker];
     for (size_t i = begin; i < end; i++) {
         double p[3];
-        if (i < t->distinct_count) {
-            point_of(t->pos, t->distinct[i], p);
+        if (i < c->distinct_n) {
+            point_of(t->pos, t->distinct[i * c->stride], p);
             worst = fmax(worst, mr_closest_mesh_distance(c->level, p, NULL));
             continue;
         }
-        size_t j = i - t->distinct_count;
-        if (j < c->used_count) {
-            point_of(c->pos, c->used[j], p);
+        size_t j = i - c->distinct_n;
+        if (j < c->used_n) {
+            point_of(c->pos, c->used[j * c->stride], p);
         } else {
-            const uint32_t *tri = c->idx + 3 * (j - c->used_count);
+            const uint32_t *tri = c->idx + 3 * (j - c->used_n) * c->stride;
             double a[3], b[3], d[3];
             point_of(c->pos, tri[0], a);
             point_of(c->pos, tri[1], b);
@@ -92,9 +94,10 @@ static void distance_range(void *vctx, size_t begin, size_t end, unsigned worker
 }
 
 int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv,
-                        const uint32_t *idx, uint32_t nt, unsigned threads, const char *who,
-                        double *out, mr_error *err)
+                        const uint32_t *idx, uint32_t nt, uint32_t stride, unsigned threads,
+                        const char *who, double *out, mr_error *err)
 {
+    stride = stride ? stride : 1;
     *out = 0;
     uint8_t *mark = calloc(nv ? nv : 1, 1);
     uint32_t *used = malloc((size_t)(nv ? nv : 1) * sizeof *used);
@@ -118,8 +121,11 @@ int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv
             rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory measuring levels of detail", who);
         } else {
             *c = (distance_ctx){.truth = t, .level = &level, .pos = pos, .idx = idx, .used = used,
-                                .used_count = used_count, .nt = nt};
-            mr_parallel_for(threads, (size_t)t->distinct_count + used_count + nt, 256,
+                                .used_count = used_count, .nt = nt, .stride = stride,
+                                .distinct_n = (t->distinct_count + stride - 1) / stride,
+                                .used_n = (used_count + stride - 1) / stride,
+                                .tri_n = (nt + stride - 1) / stride};
+            mr_parallel_for(threads, (size_t)c->distinct_n + c->used_n + c->tri_n, 256,
                             distance_range, c);
             for (unsigned w = 0; w < MR_MAX_THREADS; w++)
                 *out = fmax(*out, c->worst[w]);

@@ -51,9 +51,10 @@ void mr_dmm_lod_truth_free(mr_dmm_lod_truth *t);
 
 /* The two-sided sampled distance (above) between the truth and the nt
  * triangles idx over nv positions pos (a level's micro-triangles, in the
- * same space), on threads threads, into *out. */
+ * same space), on threads threads, into *out; from every stride-th sample
+ * of each kind (0 or 1: all of them). */
 int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv,
-                        const uint32_t *idx, uint32_t nt, unsigned threads, const char *who,
-                        double *out, mr_error *err);
+                        const uint32_t *idx, uint32_t nt, uint32_t stride, unsigned threads,
+                        const char *who, double *out, mr_error *err);
 
 #endif
