@@ -41,6 +41,13 @@
  * per-triangle array (decoded values, pyramid, micro-vertices and
  * micro-triangles) is packed, with a prefix offset per base triangle.
  *
+ * With "tolerance_px" the object keeps every subdivision level from its own
+ * down to 0, each its own Embree geometry, and each frame enables the
+ * coarsest whose measured distance to the detailed mesh (dmm_lod.h),
+ * projected by the frame's camera, stays below the tolerance (see "levels
+ * of detail" below). Primitive ids, normals, the tessellation and the stats
+ * are the traced level's.
+ *
  * Everything per base triangle is computed from that triangle's own data in
  * a fixed order, so results are bit-identical for any thread count, and
  * micromesh.h's edge rule makes shared-edge micro-vertices bit-identical on
@@ -56,8 +63,8 @@
 #include "kinds/dmm/dmm_trace.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/dmm/dmm_lod.h"
-#include "kinds/lod.h"
 #include "kinds/dmm/micromesh.h"
+#include "kinds/lod.h"
 #include "util/parallel.h"
 
 #define UPDATE_GRAIN 64
@@ -1725,7 +1732,10 @@ static const mr_param_table DMM_TABLE = {
  * "tessellated", expanding the deformation the object's mode implies)
  * intersected by the tessellation-free modes' own test (intersector
  * "watertight"): exact, so the tessellation-free modes must match it bit
- * for bit;
+ * for bit; with "tolerance_px" (which the tessellated pass keeps) at the
+ * level the object picked: the reference measures the same errors on the
+ * same micro-triangles and places the object by the same boxes, so it
+ * picks the same level each frame;
  * "ground_truth" is the detailed mesh the micro-mesh was baked from (the
  * object's asset) skinned directly as plain triangles, which the bake, the
  * subdivision level and the deformation approximate. */
