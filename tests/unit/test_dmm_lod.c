@@ -49,6 +49,7 @@
 #include "../support/film_fixture.h"
 #include "job_json.h"
 #include "kinds/dmm/dmm_kind.h"
+#include "kinds/dmm/dmm_lod.h"
 #include "kinds/dmm/micromesh.h"
 #include "kinds/kind.h"
 #include "kinds/svo/voxelize.h"
@@ -167,6 +168,76 @@ static void test_error_is_the_distance(void **state)
     assert_int_equal(level[0], 2);
     assert_true(error[0] == 0);
     assert_int_equal(mr_kind_dmm.geometry_ids(g), 1);
+    mr_kind_dmm.free(g);
+    mr_asset_free(a);
+}
+
+/* A surface with one triangle more: S's triangles and a copy of its first
+ * triangle moved by `shift` along x (new vertices appended). */
+static void with_extra(const mr_trimesh *s, float shift, float **pos, uint32_t **idx)
+{
+    *pos = malloc(((size_t)s->vertex_count + 3) * 3 * sizeof(float));
+    *idx = malloc(((size_t)s->triangle_count + 1) * 3 * sizeof(uint32_t));
+    assert_true(*pos && *idx);
+    memcpy(*pos, s->positions, (size_t)s->vertex_count * 3 * sizeof(float));
+    memcpy(*idx, s->indices, (size_t)s->triangle_count * 3 * sizeof(uint32_t));
+    for (int k = 0; k < 3; k++) {
+        const float *v = s->positions + 3 * (size_t)s->indices[k];
+        float *o = *pos + 3 * ((size_t)s->vertex_count + k);
+        o[0] = v[0] + shift, o[1] = v[1], o[2] = v[2];
+        (*idx)[3 * (size_t)s->triangle_count + k] = s->vertex_count + k;
+    }
+}
+
+/* Both sides count: a surface against itself with a triangle more (a
+ * spike the level lost, or one it grew) is as far as that triangle's
+ * farthest sample, brute force; measured one way each. */
+static void test_both_sides(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    mr_dmm_params p = {.level = 1, .base_ratio = 0.0625f, .mode = MR_DMM_BASE,
+                       .deform = MR_DMM_DEFORM_BASE, .normals = MR_DMM_NORMALS_GEOMETRIC};
+    mr_geom *g = create(a, &p, 1.0);
+    mr_trimesh s;
+    mr_error err;
+    if (mr_dmm_lod_rest_triangles(g, 1, &s, &err) < 0) /* level 0 */
+        fail_msg("%s", err.msg);
+    float *pos;
+    uint32_t *idx;
+    with_extra(&s, 0.1f, &pos, &idx);
+    uint32_t nv = s.vertex_count + 3, nt = s.triangle_count + 1;
+    /* the moved triangle's corners and centroid, brute force against S */
+    double spike = 0, c[3] = {0, 0, 0};
+    for (uint32_t k = 0; k < 3; k++) {
+        double q[3];
+        point(pos, s.vertex_count + k, q);
+        spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, q));
+        for (int j = 0; j < 3; j++)
+            c[j] += q[j] / 3.0;
+    }
+    double lost = spike; /* the truth's extra vertices against S */
+    spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, c));
+    assert_true(lost > 0.01);
+    /* the truth has the extra triangle: only the truth-to-level side sees it */
+    mr_dmm_lod_truth t;
+    double d;
+    assert_int_equal(mr_dmm_lod_truth_init(&t, pos, nv, idx, nt, "test", &err), MR_OK);
+    assert_int_equal(mr_dmm_lod_distance(&t, s.positions, s.vertex_count, s.indices, s.triangle_count,
+                                         1, 2, "test", &d, &err), MR_OK);
+    printf("truth with a triangle more: %.9g (brute force %.9g)\n", d, lost);
+    assert_float_equal(d, lost, 1e-9);
+    mr_dmm_lod_truth_free(&t);
+    /* the level has it: only the level-to-truth side sees it */
+    assert_int_equal(mr_dmm_lod_truth_init(&t, s.positions, s.vertex_count, s.indices,
+                                           s.triangle_count, "test", &err), MR_OK);
+    assert_int_equal(mr_dmm_lod_distance(&t, pos, nv, idx, nt, 1, 2, "test", &d, &err), MR_OK);
+    printf("level with a triangle more: %.9g (brute force %.9g)\n", d, spike);
+    assert_float_equal(d, spike, 1e-9);
+    mr_dmm_lod_truth_free(&t);
+    free(pos);
+    free(idx);
+    mr_trimesh_free(&s);
     mr_kind_dmm.free(g);
     mr_asset_free(a);
 }
@@ -427,6 +498,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_error_is_the_distance),
+        cmocka_unit_test(test_both_sides),
         cmocka_unit_test(test_flythrough_still),
         cmocka_unit_test(test_flythrough_walking),
         cmocka_unit_test(test_reference_picks_the_same_level),
