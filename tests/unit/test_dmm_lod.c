@@ -388,6 +388,11 @@ static void flythrough(mr_asset *dancer, bool still, double near, double level[F
         }
         level[i] = fx_frame_extra(&st, "dmm_lod_level");
         predicted[i] = fx_frame_extra(&st, "dmm_lod_error_px");
+        if (i == 0)
+            printf("frame 0: geometry %.1f MiB (coarser levels %.1f MiB), bakes %.2f s, measuring "
+                   "the levels %.2f s\n", (double)st.geometry_bytes / 1048576.0,
+                   fx_frame_extra(&st, "dmm_lod_bytes") / 1048576.0,
+                   fx_frame_extra(&st, "dmm_bake_s"), fx_frame_extra(&st, "dmm_lod_build_s"));
         seconds[i] = st.total_s;
         over += measured[i] > tolerance;
         if (!(predicted[i] <= tolerance))
@@ -404,6 +409,10 @@ static void flythrough(mr_asset *dancer, bool still, double near, double level[F
         mr_film_free(frame(&y, i, &st));
         assert_true(fx_frame_extra(&st, "dmm_lod_level") == 3);
         assert_true(fx_frame_extra(&st, "dmm_lod_error_px") == 0);
+        assert_true(fx_frame_extra(&st, "dmm_lod_bytes") == 0);
+        if (i == 0)
+            printf("finest level alone, frame 0: geometry %.1f MiB\n",
+                   (double)st.geometry_bytes / 1048576.0);
         finest_s[i] = st.total_s;
     }
     close_run(&y);
