@@ -40,7 +40,7 @@
  * 3), 3.42e-3 (levels 2 and 1) and 4.40e-3 units (level 0): at 1.13 units
  * the last frame traces level 3, predicted 0.985 px, the one before level 1
  * and the rest level 0. The walking dancer's levels all stray by 1.88e-2
- * units in the poses of its clip: level 0 fits down to about 6.3 units. */
+ * units in the poses of its clip: level 0 fits down to about 6 units. */
 #define STILL_NEAR 1.13
 #define WALKING_NEAR 6.5
 #define TMP_DIR_TEMPLATE "/tmp/mr-dmm-lod-XXXXXX"

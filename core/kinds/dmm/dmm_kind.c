@@ -554,7 +554,7 @@ done:
 }
 
 static int level_create(const mr_asset *asset, const mr_object_desc *desc,
-                      const mr_kind_context *ctx, dmm_level **out, mr_error *err)
+                        const mr_kind_context *ctx, dmm_level **out, mr_error *err)
 {
     *out = NULL;
     if (!desc->params)
@@ -769,7 +769,7 @@ static void pose_base_vertices(dmm_level *g)
 }
 
 static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
-                      mr_error *err)
+                        mr_error *err)
 {
     (void)frame; /* posed geometry does not depend on the view */
     /* Accumulated matrices of the base vertices: a one-mesh view of the
@@ -943,7 +943,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
 }
 
 static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned geom_id,
-                      enum RTCBuildQuality quality, mr_error *err)
+                        enum RTCBuildQuality quality, mr_error *err)
 {
     if (embree_triangles(g))
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
@@ -1074,7 +1074,7 @@ static mr_vec3 level_normal(const dmm_level *g, unsigned prim, float u, float v)
  * the micro-surface's own bumps keep shadowing each other, the facets of
  * the coarse lattice do not. */
 static bool level_shading_point(const dmm_level *g, unsigned prim, float u, float v, mr_vec3 p,
-                              mr_vec3 *out)
+                                mr_vec3 *out)
 {
     if (g->desc.normals != MR_DMM_NORMALS_SMOOTH)
         return false;
