@@ -37,3 +37,22 @@ double mr_lod_stretch(const mr_mat4 *t)
         worst = fmax(worst, fabs(ata[i][0]) + fabs(ata[i][1]) + fabs(ata[i][2]));
     return sqrt(worst);
 }
+
+uint32_t mr_lod_pose_times(const mr_asset *a, const mr_pose_desc *d, double *times)
+{
+    if (!d)
+        return 0;
+    double duration = 0;
+    if (d->has_clip && !d->has_time) {
+        int ci = d->clip_name ? mr_asset_find_clip(a, d->clip_name) : d->clip_index;
+        if (ci >= 0 && (size_t)ci < a->clip_count && d->speed != 0)
+            duration = a->clips[ci].duration / fabs(d->speed);
+    }
+    if (!(duration > 0)) {
+        times[0] = 0;
+        return 1;
+    }
+    for (uint32_t j = 0; j < MR_LOD_POSES; j++)
+        times[j] = duration * (j + 0.5) / MR_LOD_POSES;
+    return MR_LOD_POSES;
+}

@@ -13,6 +13,8 @@
 
 #include <stdint.h>
 
+#include "anim/pose.h"
+#include "asset/asset.h"
 #include "microray.h"
 
 #define MR_LOD_UNBOUNDED_PX 1e9
@@ -32,5 +34,18 @@ uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, do
  * bounds its largest eigenvalue); exact for rotations times a uniform or an
  * axis-aligned scale. */
 double mr_lod_stretch(const mr_mat4 *transform);
+
+/* Poses of an object's clip its levels are measured in besides the rest
+ * pose (skinning bends coarse geometry otherwise than the detail), and
+ * the share of the samples taken in each (every MR_LOD_POSE_STRIDE-th: the
+ * coarse levels' misfits in a pose span limbs, not single points). */
+#define MR_LOD_POSES 4
+#define MR_LOD_POSE_STRIDE 4
+
+/* The times of those poses in pose description d of asset a (the object's
+ * first): MR_LOD_POSES evenly over one run of its clip ((j + 0.5) / n of
+ * its duration); one (time 0) when d is fixed in time or plays no clip; none
+ * when d is NULL. Returns how many, into times[MR_LOD_POSES]. */
+uint32_t mr_lod_pose_times(const mr_asset *a, const mr_pose_desc *d, double *times);
 
 #endif

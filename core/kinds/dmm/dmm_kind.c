@@ -41,6 +41,13 @@
  * per-triangle array (decoded values, pyramid, micro-vertices and
  * micro-triangles) is packed, with a prefix offset per base triangle.
  *
+ * With "tolerance_px" the object keeps every subdivision level from its own
+ * down to 0, each its own Embree geometry, and each frame enables the
+ * coarsest whose measured distance to the detailed mesh (dmm_lod.h),
+ * projected by the frame's camera, stays below the tolerance (see "levels
+ * of detail" below). Primitive ids, normals, the tessellation and the stats
+ * are the traced level's.
+ *
  * Everything per base triangle is computed from that triangle's own data in
  * a fixed order, so results are bit-identical for any thread count, and
  * micromesh.h's edge rule makes shared-edge micro-vertices bit-identical on
@@ -55,14 +62,19 @@
 #include "kinds/dmm/dmm_file.h"
 #include "kinds/dmm/dmm_trace.h"
 #include "kinds/dmm/dmm_kind.h"
+#include "kinds/dmm/dmm_lod.h"
 #include "kinds/dmm/micromesh.h"
+#include "kinds/lod.h"
 #include "util/parallel.h"
 
 #define UPDATE_GRAIN 64
 /* Per base triangle and frame: box lo, hi, and the traversal's pad. */
 #define BOX_FLOATS 9
 
-struct mr_geom {
+/* One subdivision level of a dmm object: everything an object without
+ * levels of detail is (struct mr_geom holds one, or one per level). */
+typedef struct dmm_level dmm_level;
+struct dmm_level {
     const mr_asset *asset;
     mr_dmm_params desc;
     mr_umesh_topology topo;       /* surviving micro-triangles per level and decimation mask:
@@ -103,22 +115,22 @@ struct mr_geom {
 };
 
 /* Mode tessellated: every micro-vertex evaluated per frame. */
-static bool tessellated(const mr_geom *g) { return g->desc.mode == MR_DMM_TESSELLATED; }
+static bool tessellated(const dmm_level *g) { return g->desc.mode == MR_DMM_TESSELLATED; }
 /* ... and its micro-triangles given to Embree as triangles (prim: the
  * micro-triangle); otherwise, tessellation-free or the watertight
  * reference, a user geometry of base triangles over their boxes (prim: the
  * base triangle, (u, v) in its domain). */
-static bool embree_triangles(const mr_geom *g)
+static bool embree_triangles(const dmm_level *g)
 {
     return tessellated(g) && g->desc.intersector == MR_DMM_INTERSECT_EMBREE;
 }
 /* Mode tessellated, intersector watertight: the exact reference. */
-static bool watertight_reference(const mr_geom *g)
+static bool watertight_reference(const dmm_level *g)
 {
     return tessellated(g) && g->desc.intersector == MR_DMM_INTERSECT_WATERTIGHT;
 }
 
-static void dmm_free(mr_geom *g)
+static void level_free(dmm_level *g)
 {
     if (!g)
         return;
@@ -162,7 +174,7 @@ static void dmm_free(mr_geom *g)
 /* Decodes mesh i's values and pyramid prefixes into the packed arrays from
  * base triangle t0 on: freshly baked or from the disk cache, what is
  * rendered is the encoding. */
-static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
+static int quantise(dmm_level *g, size_t i, uint32_t t0, mr_error *err)
 {
     const mr_dmm_bake *b = g->bakes[i];
     int rc = MR_OK;
@@ -190,7 +202,7 @@ static int quantise(mr_geom *g, size_t i, uint32_t t0, mr_error *err)
 }
 
 /* Surviving micro-triangles of base triangle t (local vertex indices). */
-static const uint32_t *local_tris(const mr_geom *g, uint32_t t, uint32_t *count)
+static const uint32_t *local_tris(const dmm_level *g, uint32_t t, uint32_t *count)
 {
     unsigned l = mr_dmm_info_level(g->tri_info[t]), m = mr_dmm_info_decimate(g->tri_info[t]);
     *count = g->topo.count[l][m];
@@ -199,7 +211,7 @@ static const uint32_t *local_tris(const mr_geom *g, uint32_t t, uint32_t *count)
 
 /* The micro-triangle indices of every base triangle, each over its own
  * block of micro-vertices from value_first[t], into out. */
-static void fill_micro_indices(const mr_geom *g, uint32_t *out)
+static void fill_micro_indices(const dmm_level *g, uint32_t *out)
 {
     for (uint32_t t = 0; t < g->base_triangle_count; t++) {
         uint32_t count;
@@ -229,7 +241,7 @@ static int check_desc(const mr_dmm_params *d, mr_error *err)
 
 /* Per-triangle levels into the packed layout: tri_info and the prefix
  * offsets, within the asset caps. */
-static int lay_out(mr_geom *g, mr_error *err)
+static int lay_out(dmm_level *g, mr_error *err)
 {
     size_t nt = g->base_triangle_count;
     g->tri_info = malloc(nt);
@@ -268,7 +280,7 @@ static int lay_out(mr_geom *g, mr_error *err)
 }
 
 /* Allocates everything after the bake counts are known. */
-static int allocate(mr_geom *g, mr_error *err)
+static int allocate(dmm_level *g, mr_error *err)
 {
     size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
     size_t values = g->value_first[nt], pyramid = g->pyramid_first[nt];
@@ -306,7 +318,7 @@ static int allocate(mr_geom *g, mr_error *err)
  * units of DMM_STATS: distances as fractions of the rest-pose
  * bounding-box diagonal of the asset's meshes (the space the bake works
  * in), unmatched micro-vertices as % of all. */
-static void bake_quality(mr_geom *g)
+static void bake_quality(dmm_level *g)
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     double sum2 = 0, worst = 0, samples = 0, unmatched = 0, vertices = 0;
@@ -376,7 +388,7 @@ static int coarse_key_cmp(const void *pa, const void *pb)
 }
 
 /* The key of coarse lattice vertex (a, b) at sublevel s of base triangle t. */
-static coarse_key coarse_key_of(const mr_geom *g, uint32_t t, unsigned s, uint32_t a, uint32_t b)
+static coarse_key coarse_key_of(const dmm_level *g, uint32_t t, unsigned s, uint32_t a, uint32_t b)
 {
     const uint32_t *idx = g->base_indices + (size_t)t * 3;
     uint32_t k;
@@ -406,10 +418,10 @@ static void lattice_weights(unsigned s, float u, float v, const uint32_t a[3], c
     w[0] = 1.0f - w[1] - w[2];
 }
 
-static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t);
+static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t);
 
 /* The base triangle t as a rest-pose patch. */
-static mr_dmm_patch rest_patch(const mr_geom *g, uint32_t t)
+static mr_dmm_patch rest_patch(const dmm_level *g, uint32_t t)
 {
     mr_dmm_patch p = patch_of(g, t);
     const uint32_t *idx = g->base_indices + (size_t)t * 3;
@@ -431,7 +443,7 @@ static double tri_area(const float *pos, const uint32_t *ix)
     return 0.5 * (double)mr_v3_len(mr_v3_cross(mr_v3_sub(p1, p0), mr_v3_sub(p2, p0)));
 }
 
-static int smooth_normals_build(mr_geom *g, mr_error *err)
+static int smooth_normals_build(dmm_level *g, mr_error *err)
 {
     size_t nt = g->base_triangle_count, meshes = g->asset->mesh_count;
     int rc = MR_OK;
@@ -541,8 +553,8 @@ done:
     return rc;
 }
 
-static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
-                      const mr_kind_context *ctx, mr_geom **out, mr_error *err)
+static int level_create(const mr_asset *asset, const mr_object_desc *desc,
+                        const mr_kind_context *ctx, dmm_level **out, mr_error *err)
 {
     *out = NULL;
     if (!desc->params)
@@ -550,7 +562,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     int rc = check_desc(desc->params, err);
     if (rc < 0)
         return rc;
-    mr_geom *g = calloc(1, sizeof *g);
+    dmm_level *g = calloc(1, sizeof *g);
     if (!g)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
     g->asset = asset;
@@ -626,14 +638,14 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
 nomem:
     rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for a dmm object", asset->path);
 fail:
-    dmm_free(g);
+    level_free(g);
     return rc;
 }
 
 static mr_vec3 load3(const float *a, size_t i) { return mr_v3(a[i * 3], a[i * 3 + 1], a[i * 3 + 2]); }
 
 /* Base triangle t as a traversal patch for this frame. */
-static mr_dmm_patch patch_of(const mr_geom *g, uint32_t t)
+static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
 {
     mr_dmm_patch p = {.level = mr_dmm_info_level(g->tri_info[t]),
                       .decimate = mr_dmm_info_decimate(g->tri_info[t]),
@@ -668,9 +680,9 @@ static bool finite_bounded(mr_vec3 v)
  * all modes share) into dst, 3 floats each in micromesh.h order (vertices a
  * decimated edge collapses are evaluated too; no surviving micro-triangle
  * uses them); false if one is not finite or beyond MR_MAX_COORDINATE. */
-static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
+static bool eval_patch_vertices(const mr_dmm_patch *pp, float *dst)
 {
-    mr_dmm_patch p = patch_of(g, t);
+    mr_dmm_patch p = *pp;
     uint32_t n = mr_umesh_segments(p.level);
     bool ok = true;
     for (uint32_t b = 0; b <= n; b++)
@@ -683,8 +695,14 @@ static bool eval_micro_vertices(const mr_geom *g, uint32_t t, float *dst)
     return ok;
 }
 
+static bool eval_micro_vertices(const dmm_level *g, uint32_t t, float *dst)
+{
+    mr_dmm_patch p = patch_of(g, t);
+    return eval_patch_vertices(&p, dst);
+}
+
 typedef struct update_ctx {
-    mr_geom *g;
+    dmm_level *g;
     uint32_t bad[MR_MAX_THREADS]; /* per worker: first failing base triangle + 1, or 0 */
     uint32_t outside[MR_MAX_THREADS]; /* the same for a micro-vertex outside its box */
 } update_ctx;
@@ -711,7 +729,7 @@ static void note_bad(update_ctx *c, unsigned worker, size_t t)
 static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     update_ctx *c = ctx;
-    mr_geom *g = c->g;
+    dmm_level *g = c->g;
     for (size_t t = begin; t < end; t++) {
         if (g->boxes) {
             /* the pad once: the bounds use it, and it is cached for the rays */
@@ -738,7 +756,7 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
 }
 
 /* Mode base: v' = M v, n' = M n (eq. 4), per base vertex. */
-static void pose_base_vertices(mr_geom *g)
+static void pose_base_vertices(dmm_level *g)
 {
     for (size_t i = 0; i < g->base_vertex_count; i++) {
         const float *m = g->mats[i].m, *v = g->rest_pos + i * 3, *d = g->rest_dir + i * 3;
@@ -750,8 +768,8 @@ static void pose_base_vertices(mr_geom *g)
     }
 }
 
-static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
-                      mr_error *err)
+static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                        mr_error *err)
 {
     (void)frame; /* posed geometry does not depend on the view */
     /* Accumulated matrices of the base vertices: a one-mesh view of the
@@ -829,7 +847,7 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
 
 static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 {
-    const mr_geom *g = args->geometryUserPtr;
+    const dmm_level *g = args->geometryUserPtr;
     const float *b = g->boxes + (size_t)args->primID * BOX_FLOATS;
     struct RTCBounds *o = args->bounds_o;
     o->lower_x = b[0], o->lower_y = b[1], o->lower_z = b[2];
@@ -861,7 +879,7 @@ static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
 /* Traces ray i of an N-packet against base triangle t (patch p): the
  * traversal, or the watertight reference's test of every micro-triangle;
  * tfar shrinks on a hit. take_tmax: see mr_dmm_intersect. */
-static bool trace_one(const mr_geom *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
+static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
                       unsigned i, bool take_tmax, bool any_hit, mr_dmm_hit *h)
 {
     mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
@@ -884,7 +902,7 @@ static bool trace_one(const mr_geom *g, uint32_t t, const mr_dmm_patch *p, void 
 
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
-    const mr_geom *g = args->geometryUserPtr;
+    const dmm_level *g = args->geometryUserPtr;
     unsigned N = args->N;
     void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
     mr_dmm_patch p = patch_of(g, args->primID);
@@ -916,7 +934,7 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 
 static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
 {
-    const mr_geom *g = args->geometryUserPtr;
+    const dmm_level *g = args->geometryUserPtr;
     unsigned N = args->N;
     mr_dmm_patch p = patch_of(g, args->primID);
     for (unsigned i = 0; i < N; i++)
@@ -924,8 +942,8 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
             *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
 }
 
-static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
-                      enum RTCBuildQuality quality, mr_error *err)
+static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                        enum RTCBuildQuality quality, mr_error *err)
 {
     if (embree_triangles(g))
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
@@ -951,7 +969,7 @@ static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
     return MR_OK;
 }
 
-static void dmm_commit(mr_geom *g)
+static void level_commit(dmm_level *g)
 {
     if (embree_triangles(g))
         mr_geom_commit_vertices(g->rtc);
@@ -960,7 +978,7 @@ static void dmm_commit(mr_geom *g)
 }
 
 /* Base triangle and base-domain (u, v) of a hit. */
-static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
+static uint32_t hit_domain(const dmm_level *g, unsigned prim, float *u, float *v)
 {
     if (!embree_triangles(g))
         return prim;
@@ -989,7 +1007,7 @@ static uint32_t hit_domain(const mr_geom *g, unsigned prim, float *u, float *v)
 
 /* The cofactor of the barycentric blend of base triangle t's corner
  * matrices at base-domain (u, v): what moves a rest-pose normal there. */
-static mr_mat4 normal_matrix_at(const mr_geom *g, uint32_t t, float u, float v)
+static mr_mat4 normal_matrix_at(const dmm_level *g, uint32_t t, float u, float v)
 {
     const uint32_t *idx = g->base_indices + (size_t)t * 3;
     float w[3] = {1.0f - u - v, u, v};
@@ -1003,7 +1021,7 @@ static mr_mat4 normal_matrix_at(const mr_geom *g, uint32_t t, float u, float v)
 /* Normals "smooth" at base-domain (u, v) of base triangle t, rest pose:
  * the coarse sub-triangle's corners (lattice (a[k], b[k]) at its coarse
  * sublevel) and their normals n[k], interpolated into *out. */
-static void smooth_rest_normal(const mr_geom *g, uint32_t t, float u, float v, uint32_t a[3],
+static void smooth_rest_normal(const dmm_level *g, uint32_t t, float u, float v, uint32_t a[3],
                                uint32_t b[3], mr_vec3 n[3], mr_vec3 *out)
 {
     unsigned s = g->coarse_level[t];
@@ -1019,7 +1037,7 @@ static void smooth_rest_normal(const mr_geom *g, uint32_t t, float u, float v, u
     }
 }
 
-static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 level_normal(const dmm_level *g, unsigned prim, float u, float v)
 {
     uint32_t t = hit_domain(g, prim, &u, &v);
     if (t >= g->base_triangle_count)
@@ -1055,8 +1073,8 @@ static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
  * 2021), with the coarse sub-triangle's posed corners and their normals:
  * the micro-surface's own bumps keep shadowing each other, the facets of
  * the coarse lattice do not. */
-static bool dmm_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
-                              mr_vec3 *out)
+static bool level_shading_point(const dmm_level *g, unsigned prim, float u, float v, mr_vec3 p,
+                                mr_vec3 *out)
 {
     if (g->desc.normals != MR_DMM_NORMALS_SMOOTH)
         return false;
@@ -1082,9 +1100,10 @@ static bool dmm_shading_point(const mr_geom *g, unsigned prim, float u, float v,
     return true;
 }
 
-static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+/* The micro-triangles, posed (this frame's) or in the rest pose. */
+static int micro_triangles(const dmm_level *g, bool rest, mr_trimesh *out, mr_error *err)
 {
-    if (tessellated(g))
+    if (tessellated(g) && !rest)
         return mr_trimesh_copy(g->positions, g->vertex_count, g->indices, g->triangle_count, out,
                                err);
     /* The exact reference of a tessellation-free object: its micro-triangles
@@ -1099,15 +1118,23 @@ static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory tessellating a dmm object");
     }
     fill_micro_indices(g, out->indices);
-    /* update() already refused frames with non-finite micro-vertices */
-    for (uint32_t t = 0; t < g->base_triangle_count; t++)
-        eval_micro_vertices(g, t, out->positions + (size_t)g->value_first[t] * 3);
+    /* update() already refused frames with non-finite micro-vertices (the
+     * rest pose is the bake's, finite) */
+    for (uint32_t t = 0; t < g->base_triangle_count; t++) {
+        mr_dmm_patch p = rest ? rest_patch(g, t) : patch_of(g, t);
+        eval_patch_vertices(&p, out->positions + (size_t)g->value_first[t] * 3);
+    }
     out->vertex_count = (uint32_t)nv;
     out->triangle_count = (uint32_t)nt;
     return MR_OK;
 }
 
-static size_t dmm_memory(const mr_geom *g)
+static int level_tessellate(const dmm_level *g, mr_trimesh *out, mr_error *err)
+{
+    return micro_triangles(g, false, out, err);
+}
+
+static size_t level_memory(const dmm_level *g)
 {
     size_t nv = g->base_vertex_count, nt = g->base_triangle_count;
     size_t bytes = sizeof *g + g->asset->mesh_count * (2 * sizeof(void *) + sizeof(uint32_t));
@@ -1133,7 +1160,7 @@ static size_t dmm_memory(const mr_geom *g)
     return bytes;
 }
 
-static uint64_t dmm_primitives(const mr_geom *g)
+static uint64_t level_primitives(const dmm_level *g)
 {
     return g->micro_first[g->base_triangle_count];
 }
@@ -1141,7 +1168,8 @@ static uint64_t dmm_primitives(const mr_geom *g)
 /* The bake's own quality (dmm_bake.h steps 5 and 6), the same every frame:
  * what a user reads to judge a level or base ratio before looking at
  * frames; its size; and (first frame) what making it took. */
-enum { S_RMS, S_MAX, S_UNMATCHED, S_BASE, S_STORED, S_BAKE_S, S_COUNT };
+enum { S_RMS, S_MAX, S_UNMATCHED, S_BASE, S_STORED, S_BAKE_S, S_LEVEL, S_ERROR_PX, S_LOD_BYTES,
+       S_LOD_BUILD_S, S_COUNT };
 static const mr_kind_stat DMM_STATS[S_COUNT] = {
     {"dmm_bake_rms_distance", "diagonal",
      "RMS distance of the baked surface (its micro-vertices and micro-triangle centroids, rest "
@@ -1158,16 +1186,418 @@ static const mr_kind_stat DMM_STATS[S_COUNT] = {
      "the encoded displacements as a file stores them: a level byte per base triangle and the "
      "records", MR_STAT_SUM},
     {"dmm_bake_s", "s",
-     "baking and encoding at creation, or loading both from the derived-data cache",
+     "baking and encoding at creation (every level's, with \"tolerance_px\"), or loading them "
+     "from the derived-data cache",
+     MR_STAT_ONCE},
+    {"dmm_lod_level", "level",
+     "the subdivision level traced (\"tolerance_px\": the coarsest within the tolerance; without "
+     "one, the object's \"level\"); the bake figures above are that level's",
+     MR_STAT_MAX},
+    {"dmm_lod_error_px", "px",
+     "the traced level's predicted error: its measured two-sided distance to the detailed mesh, "
+     "projected at the posed object's nearest depth by this frame's camera (0 without a "
+     "tolerance)",
+     MR_STAT_MAX},
+    {"dmm_lod_bytes", "bytes",
+     "what the levels coarser than the object's \"level\" hold (\"tolerance_px\"; 0 without)",
+     MR_STAT_SUM},
+    {"dmm_lod_build_s", "s",
+     "measuring the levels' distances to the detailed mesh at creation (\"tolerance_px\")",
      MR_STAT_ONCE},
 };
 
-static void dmm_frame_stats(const mr_geom *g, double *values)
+static void level_frame_stats(const dmm_level *g, double *values)
 {
     memcpy(values, g->bake_quality, sizeof g->bake_quality);
     values[S_BASE] = g->base_triangle_count;
     values[S_STORED] = (double)g->encoded_bytes;
     values[S_BAKE_S] = g->bake_s;
+}
+
+/* ---- levels of detail ("tolerance_px", issue 16) ----
+ * An object with a tolerance keeps every subdivision level from its own
+ * ("level", L) down to 0, each a dmm_level baked as an object of that level
+ * would be (the bake is a function of the asset and the parameters, and the
+ * disk cache keys it by level: a repeated job loads them all), each its own
+ * Embree geometry (the object takes L + 1 geometry ids), finest first.
+ * Each level's error is its two-sided distance to the detailed mesh
+ * (dmm_lod.h), measured once in the rest pose. Each frame the coarsest
+ * level whose error, projected by the frame's camera at the posed object's
+ * nearest depth and stretched by the object's transform (kinds/lod.h),
+ * stays below the tolerance is enabled and traced; the rest are disabled.
+ * The nearest depth comes from the bounds of a coarse level (its base
+ * triangles' boxes, or micro-vertices with intersector "embree") grown by
+ * that level's error, so placing the object costs a coarse level's update.
+ * Skinning moves both surfaces by the same blended matrices at the base
+ * vertices, and bones that do not stretch keep each part rigid, so the
+ * rest-pose error is the prediction in a pose too (not a bound: the
+ * reference passes measure it). */
+
+/* The bounds level: the coarsest whose error is within this fraction of
+ * the detailed mesh's rest-pose bounding-box diagonal (as the mesh kind),
+ * so the growth moves the nearest depth by little. */
+#define BOUNDS_ERROR 0.02
+#define LOD_MAX (MR_UMESH_MAX_LEVEL + 1)
+
+struct mr_geom {
+    const mr_asset *asset;
+    uint32_t count;          /* levels: 1 without a tolerance (or at level 0) */
+    dmm_level *lv[LOD_MAX];  /* finest first: lv[k] subdivides at the object's level - k */
+    double error[LOD_MAX];   /* lv[k]'s distance to the detailed mesh (rest space), never
+                                below a finer level's */
+    double tolerance_px;     /* 0: no levels of detail */
+    uint32_t cur;            /* the level this frame traces */
+    double predicted_px;     /* its error projected by this frame's camera */
+    uint32_t bounds_level;
+    mr_vec3 lo, hi;          /* the bounds level's posed bounds grown by its error */
+    uint32_t posed;          /* bit k: lv[k] is posed for the current pose */
+    uint32_t dirty;          /* bit k: lv[k] was posed since the last commit */
+    uint32_t enabled;        /* the level whose geometry is enabled, or UINT32_MAX */
+    double lod_build_s;      /* measuring the errors */
+};
+
+static void dmm_free(mr_geom *g)
+{
+    if (!g)
+        return;
+    for (uint32_t k = 0; k < LOD_MAX; k++)
+        if (g->lv[k])
+            level_free(g->lv[k]);
+    free(g);
+}
+
+/* The detailed mesh in the rest pose: the asset's meshes merged. */
+static int rest_detail(const mr_asset *a, float **pos, uint32_t **idx, uint32_t *nv, uint32_t *nt,
+                       mr_error *err)
+{
+    uint64_t v = 0, t = 0;
+    for (size_t i = 0; i < a->mesh_count; i++) {
+        v += a->meshes[i].vertex_count;
+        t += a->meshes[i].triangle_count;
+    }
+    *pos = malloc((v ? v : 1) * 3 * sizeof(float));
+    *idx = malloc((t ? t : 1) * 3 * sizeof(uint32_t));
+    if (!*pos || !*idx)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory measuring levels of detail",
+                            a->path);
+    uint32_t v0 = 0, t0 = 0;
+    for (size_t i = 0; i < a->mesh_count; i++) {
+        const mr_mesh *m = &a->meshes[i];
+        memcpy(*pos + (size_t)v0 * 3, m->positions, (size_t)m->vertex_count * 3 * sizeof(float));
+        for (size_t k = 0; k < (size_t)m->triangle_count * 3; k++)
+            (*idx)[(size_t)t0 * 3 + k] = m->indices[k] + v0;
+        v0 += m->vertex_count;
+        t0 += m->triangle_count;
+    }
+    *nv = v0;
+    *nt = t0;
+    return MR_OK;
+}
+
+/* Every level's distance to the detail as posed: the rest pose (pose NULL:
+ * the bake's own positions, all samples) or a pose of the clip (both
+ * skinned without the object's transform, every MR_LOD_POSE_STRIDE-th
+ * sample); each error raised to what it finds. detail: the merged detailed
+ * mesh (positions as posed). */
+static int measure_pose(mr_geom *g, const mr_pose *pose, const float *detail, uint32_t nv,
+                        const uint32_t *idx, uint32_t nt, unsigned threads, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    mr_dmm_lod_truth truth;
+    int rc = mr_dmm_lod_truth_init(&truth, detail, nv, idx, nt, a->path, err);
+    for (uint32_t k = 0; k < g->count && rc == MR_OK; k++) {
+        mr_trimesh m;
+        if (pose && (rc = level_update(g->lv[k], NULL, pose, NULL, threads, err)) < 0)
+            break;
+        if ((rc = micro_triangles(g->lv[k], pose == NULL, &m, err)) < 0)
+            break;
+        double d;
+        rc = mr_dmm_lod_distance(&truth, m.positions, m.vertex_count, m.indices, m.triangle_count,
+                                 pose ? MR_LOD_POSE_STRIDE : 1, threads, a->path, &d, err);
+        mr_trimesh_free(&m);
+        g->error[k] = fmax(g->error[k], d);
+    }
+    if (truth.distinct)
+        mr_dmm_lod_truth_free(&truth);
+    return rc;
+}
+
+/* Every level's error (dmm_lod.h): in the rest pose and in the poses (mr_lod_pose_times)
+ * of the object's first pose description when it plays a clip or moves
+ * joints. The interpolated deformation (and the skinned base mesh) moves a
+ * micro-vertex by matrices blended from the base vertices', while the
+ * detailed mesh moves each vertex by its own bones: where a base triangle
+ * spans a joint the two part, the more the more the joint bends, at every
+ * level alike. Then the bounds level. */
+static int measure_levels(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    float *pos = NULL, *posed = NULL;
+    uint32_t *idx = NULL, nv = 0, nt = 0;
+    mr_pose *pose = NULL;
+    int rc = rest_detail(a, &pos, &idx, &nv, &nt, err);
+    if (rc == MR_OK)
+        rc = measure_pose(g, NULL, pos, nv, idx, nt, threads, err);
+    const mr_pose_desc *d = desc->pose_count > 0 ? &desc->poses[0] : NULL;
+    double times[MR_LOD_POSES];
+    uint32_t n = mr_lod_pose_times(a, d, times);
+    if (rc == MR_OK && n) {
+        posed = malloc(((size_t)nv * 3 + 1) * sizeof(float));
+        rc = posed ? mr_pose_new(a, &pose, err)
+                   : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
+    }
+    for (uint32_t j = 0; j < n && rc == MR_OK; j++) {
+        if ((rc = mr_pose_eval(pose, a, d, times[j], err)) < 0)
+            break;
+        size_t at = 0;
+        for (size_t i = 0; i < a->mesh_count; i++) {
+            mr_skin_mesh(a, i, pose, NULL, posed + at, NULL, threads);
+            at += (size_t)a->meshes[i].vertex_count * 3;
+        }
+        rc = measure_pose(g, pose, posed, nv, idx, nt, threads, err);
+    }
+    mr_pose_free(pose);
+    free(posed);
+    for (uint32_t k = 1; k < g->count; k++) /* a coarser level never promises better */
+        g->error[k] = fmax(g->error[k], g->error[k - 1]);
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, d2 = 0;
+    for (size_t v = 0; rc == MR_OK && v < (size_t)nv * 3; v++) {
+        lo[v % 3] = fmin(lo[v % 3], pos[v]);
+        hi[v % 3] = fmax(hi[v % 3], pos[v]);
+    }
+    for (int c = 0; c < 3 && nv; c++)
+        d2 += (hi[c] - lo[c]) * (hi[c] - lo[c]);
+    for (uint32_t k = 1; k < g->count && rc == MR_OK; k++)
+        if (g->error[k] <= BOUNDS_ERROR * sqrt(d2))
+            g->bounds_level = k;
+    free(pos);
+    free(idx);
+    return rc;
+}
+
+static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
+                      const mr_kind_context *ctx, mr_geom **out, mr_error *err)
+{
+    *out = NULL;
+    if (!desc->params)
+        return mr_error_set(err, MR_ERR_INVALID, "a dmm object needs its parameters");
+    const mr_dmm_params *p = desc->params;
+    int rc = check_desc(p, err);
+    if (rc < 0)
+        return rc;
+    mr_geom *g = calloc(1, sizeof *g);
+    if (!g)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
+    g->asset = asset;
+    g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
+    g->count = g->tolerance_px > 0 ? p->level + 1 : 1;
+    g->enabled = UINT32_MAX;
+    for (uint32_t k = 0; k < g->count; k++) {
+        mr_dmm_params lp = *p;
+        lp.level = p->level - k;
+        mr_object_desc d = *desc;
+        d.params = &lp;
+        if ((rc = level_create(asset, &d, ctx, &g->lv[k], err)) < 0) {
+            dmm_free(g);
+            return rc;
+        }
+    }
+    if (g->count > 1) {
+        double t = mr_now();
+        if ((rc = measure_levels(g, desc, ctx ? ctx->threads : 0, err)) < 0) {
+            dmm_free(g);
+            return rc;
+        }
+        g->lod_build_s = mr_now() - t;
+    }
+    *out = g;
+    return MR_OK;
+}
+
+/* The bounds of level k's posed surface: its base triangles' boxes (which
+ * hold its micro-vertices; the tessellation-free modes and the watertight
+ * reference compute the same ones, so both pick the same level), or its
+ * micro-vertices (intersector "embree"). */
+static void level_bounds(const dmm_level *l, mr_vec3 *lo, mr_vec3 *hi)
+{
+    *lo = mr_v3(INFINITY, INFINITY, INFINITY);
+    *hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    if (l->boxes) {
+        for (size_t t = 0; t < l->base_triangle_count; t++) {
+            const float *b = l->boxes + t * BOX_FLOATS;
+            *lo = mr_v3_min(*lo, mr_v3(b[0], b[1], b[2]));
+            *hi = mr_v3_max(*hi, mr_v3(b[3], b[4], b[5]));
+        }
+        return;
+    }
+    for (size_t v = 0; v < l->vertex_count; v++) {
+        mr_vec3 x = load3(l->positions, v);
+        *lo = mr_v3_min(*lo, x);
+        *hi = mr_v3_max(*hi, x);
+    }
+}
+
+static int pose_level(mr_geom *g, uint32_t k, const mr_geom_frame *frame, const mr_pose *pose,
+                      const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    int rc = level_update(g->lv[k], frame, pose, transform, threads, err);
+    if (rc < 0)
+        return rc;
+    g->posed |= 1u << k;
+    g->dirty |= 1u << k;
+    return MR_OK;
+}
+
+/* Without levels: the one level posed. With levels: the bounds level posed
+ * first (unless it is for this pose: a frame where only the camera moved),
+ * its bounds grown by its error say how near the object comes to the
+ * camera, which picks the level; then that level is posed, unless it
+ * already is for this pose. */
+static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
+                      const mr_mat4 *transform, unsigned threads, mr_error *err)
+{
+    if (g->count == 1)
+        return level_update(g->lv[0], frame, pose, transform, threads, err);
+    int rc;
+    if (!(frame && frame->view_only))
+        g->posed = 0;
+    double stretch = transform ? mr_lod_stretch(transform) : 1.0;
+    uint32_t b = g->bounds_level;
+    if (!(g->posed & 1u << b)) {
+        if ((rc = pose_level(g, b, frame, pose, transform, threads, err)) < 0)
+            return rc;
+        mr_vec3 lo, hi;
+        level_bounds(g->lv[b], &lo, &hi);
+        float pad = (float)(g->error[b] * stretch);
+        g->lo = mr_v3_sub(lo, mr_v3(pad, pad, pad));
+        g->hi = mr_v3_add(hi, mr_v3(pad, pad, pad));
+    }
+    g->cur = 0;
+    g->predicted_px = 0;
+    if (frame) {
+        double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, g->lo, g->hi);
+        g->cur = mr_lod_pick(g->error, g->count, px * stretch, g->tolerance_px, &g->predicted_px);
+    }
+    if (!(g->posed & 1u << g->cur) &&
+        (rc = pose_level(g, g->cur, frame, pose, transform, threads, err)) < 0)
+        return rc;
+    return MR_OK;
+}
+
+/* One geometry per level; only the frame's level is enabled (commit).
+ * Levels are rebuilt (LOW), never refitted: a refitted tree keeps the
+ * topology of the pose it was built in, which would be the pose of the
+ * frame that first enabled the level, and a resumed job must trace the
+ * uninterrupted run's trees (as the mesh kind's levels). */
+static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
+                      enum RTCBuildQuality quality, mr_error *err)
+{
+    if (g->count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
+        quality = RTC_BUILD_QUALITY_LOW;
+    for (uint32_t k = 0; k < g->count; k++) {
+        int rc = level_attach(g->lv[k], device, scene, geom_id + k, quality, err);
+        if (rc < 0)
+            return rc;
+        if (g->count > 1)
+            rtcDisableGeometry(g->lv[k]->rtc);
+    }
+    g->enabled = g->count > 1 ? UINT32_MAX : 0;
+    return MR_OK;
+}
+
+static void dmm_commit(mr_geom *g)
+{
+    if (g->count == 1) {
+        level_commit(g->lv[0]);
+        return;
+    }
+    if (g->enabled != g->cur) {
+        if (g->enabled != UINT32_MAX)
+            rtcDisableGeometry(g->lv[g->enabled]->rtc);
+        rtcEnableGeometry(g->lv[g->cur]->rtc);
+        g->enabled = g->cur;
+    }
+    /* the levels posed since the last commit (a disabled one is built when
+     * it is enabled; one posed for an older pose is posed again first) */
+    for (uint32_t k = 0; k < g->count; k++)
+        if (g->dirty & 1u << k)
+            level_commit(g->lv[k]);
+    g->dirty = 0;
+}
+
+static uint32_t dmm_geometry_ids(const mr_geom *g) { return g->count; }
+
+static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
+{
+    return level_normal(g->lv[g->cur], prim, u, v);
+}
+
+static bool dmm_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
+                              mr_vec3 *out)
+{
+    return level_shading_point(g->lv[g->cur], prim, u, v, p, out);
+}
+
+static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
+{
+    return level_tessellate(g->lv[g->cur], out, err);
+}
+
+/* The levels coarser than the object's own. */
+static size_t lod_bytes(const mr_geom *g)
+{
+    size_t b = 0;
+    for (uint32_t k = 1; k < g->count; k++)
+        b += level_memory(g->lv[k]);
+    return b;
+}
+
+static size_t dmm_memory(const mr_geom *g)
+{
+    return sizeof *g + level_memory(g->lv[0]) + lod_bytes(g);
+}
+
+static uint64_t dmm_primitives(const mr_geom *g) { return level_primitives(g->lv[g->cur]); }
+
+static void dmm_frame_stats(const mr_geom *g, double *values)
+{
+    level_frame_stats(g->lv[g->cur], values);
+    double bake_s = 0;
+    for (uint32_t k = 0; k < g->count; k++)
+        bake_s += g->lv[k]->bake_s;
+    values[S_BAKE_S] = bake_s;
+    values[S_LEVEL] = g->lv[g->cur]->desc.level;
+    values[S_ERROR_PX] = g->predicted_px;
+    values[S_LOD_BYTES] = (double)lod_bytes(g);
+    values[S_LOD_BUILD_S] = g->lod_build_s;
+}
+
+/* The subdivision level traced; an object at level 0 has no other to pick
+ * (and its one level is not measured). */
+static bool dmm_lod(const mr_geom *g, uint32_t *level, double *error_px)
+{
+    *level = g->lv[g->cur]->desc.level;
+    *error_px = g->predicted_px;
+    return g->count > 1;
+}
+
+uint32_t mr_dmm_lod_levels(const mr_geom *g, double *error, uint32_t *level)
+{
+    for (uint32_t k = 0; k < g->count; k++) {
+        if (error)
+            error[k] = g->error[k];
+        if (level)
+            level[k] = g->lv[k]->desc.level;
+    }
+    return g->count;
+}
+
+int mr_dmm_lod_rest_triangles(const mr_geom *g, uint32_t k, mr_trimesh *out, mr_error *err)
+{
+    if (k >= g->count)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm object: no level of detail %u (it has %u)", k,
+                            g->count);
+    return micro_triangles(g->lv[k], true, out, err);
 }
 
 /* The "dmm" block. "deformation" chooses what mode "tessellated" expands
@@ -1298,7 +1728,10 @@ static const mr_param_table DMM_TABLE = {
  * "tessellated", expanding the deformation the object's mode implies)
  * intersected by the tessellation-free modes' own test (intersector
  * "watertight"): exact, so the tessellation-free modes must match it bit
- * for bit;
+ * for bit; with "tolerance_px" (which the tessellated pass keeps) at the
+ * level the object picked: the reference measures the same errors on the
+ * same micro-triangles and places the object by the same boxes, so it
+ * picks the same level each frame;
  * "ground_truth" is the detailed mesh the micro-mesh was baked from (the
  * object's asset) skinned directly as plain triangles, which the bake, the
  * subdivision level and the deformation approximate. */
@@ -1335,6 +1768,8 @@ const mr_kind mr_kind_dmm = {
                "rest-pose displaced micro-vertex (eq. 6-8).",
     .params = &DMM_TABLE,
     .has_derived = true,
+    .has_lod = true,
+    .lod = dmm_lod,
     .create = dmm_create,
     .update = dmm_update,
     .attach = dmm_attach,
@@ -1344,6 +1779,7 @@ const mr_kind mr_kind_dmm = {
     .tessellate = dmm_tessellate,
     .memory = dmm_memory,
     .primitives = dmm_primitives,
+    .geometry_ids = dmm_geometry_ids,
     .stats = DMM_STATS,
     .stat_count = S_COUNT,
     .frame_stats = dmm_frame_stats,

@@ -65,4 +65,14 @@ typedef struct mr_dmm_params {
 
 extern const mr_kind mr_kind_dmm;
 
+/* A dmm object's levels of detail ("tolerance_px"; dmm_kind.c), finest
+ * first, for tests and tools: how many (1 without a tolerance), and into
+ * error / level (either may be NULL; room for MR_UMESH_MAX_LEVEL + 1) each
+ * level's measured distance to the detailed mesh (rest space; dmm_lod.h;
+ * 0 without a tolerance: not measured) and its subdivision level. */
+uint32_t mr_dmm_lod_levels(const mr_geom *g, double *error, uint32_t *level);
+/* Level k's micro-triangles in the rest pose (what its error is measured
+ * on), into out (mr_trimesh_free). */
+int mr_dmm_lod_rest_triangles(const mr_geom *g, uint32_t k, mr_trimesh *out, mr_error *err);
+
 #endif

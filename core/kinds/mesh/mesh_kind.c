@@ -105,42 +105,28 @@ static double asset_diagonal(const mr_asset *a)
     return sqrt(d2);
 }
 
-/* Poses of the object's clip the levels are measured in besides the rest
- * pose, evenly over one run of the clip, and the share of the distinct
- * positions sampled in each (the coarse levels' misfits in a pose span
- * limbs, not single vertices). */
-#define LOD_POSES 4
-#define LOD_POSE_STRIDE 4
-
-/* The levels measured again in LOD_POSES poses of the object's first pose
- * description (mesh_lod.h, mr_mesh_lod_measure), when it plays a clip or
- * moves joints. */
+/* The levels measured again in the poses of the object's first pose
+ * description (mesh_lod.h, mr_mesh_lod_measure; mr_lod_pose_times), when
+ * it plays a clip or moves joints. */
 static int measure_in_poses(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
 {
     const mr_asset *a = g->asset;
     if (!desc || desc->pose_count == 0 || g->lod.level_count < 2)
         return MR_OK;
     const mr_pose_desc *d = &desc->poses[0];
-    double duration = 0;
-    if (d->has_clip && !d->has_time) {
-        int ci = d->clip_name ? mr_asset_find_clip(a, d->clip_name) : d->clip_index;
-        if (ci >= 0 && (size_t)ci < a->clip_count && d->speed != 0)
-            duration = a->clips[ci].duration / fabs(d->speed);
-    }
+    double times[MR_LOD_POSES];
+    uint32_t n = mr_lod_pose_times(a, d, times);
     mr_pose *pose = NULL;
     float *posed = malloc(((size_t)g->vertex_count * 3 + 1) * sizeof(float));
     int rc = posed ? mr_pose_new(a, &pose, err)
                    : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
-    for (int j = 0; j < LOD_POSES && rc == MR_OK; j++) {
-        /* a pose fixed in time (or without a clip) is one pose */
-        if (j > 0 && !(duration > 0))
-            break;
-        if ((rc = mr_pose_eval(pose, a, d, duration * (j + 0.5) / LOD_POSES, err)) < 0)
+    for (uint32_t j = 0; j < n && rc == MR_OK; j++) {
+        if ((rc = mr_pose_eval(pose, a, d, times[j], err)) < 0)
             break;
         for (size_t i = 0; i < a->mesh_count; i++)
             mr_skin_mesh(a, i, pose, NULL, posed + (size_t)g->mesh_first_vertex[i] * 3, NULL,
                          threads);
-        rc = mr_mesh_lod_measure(&g->lod, posed, g->vertex_count, LOD_POSE_STRIDE, threads,
+        rc = mr_mesh_lod_measure(&g->lod, posed, g->vertex_count, MR_LOD_POSE_STRIDE, threads,
                                  a->path, err);
     }
     mr_pose_free(pose);

@@ -1,0 +1,520 @@
+/*
+ * test_dmm_lod.c - the dmm kind's levels of detail ("tolerance_px", issue 16;
+ * core/kinds/dmm/dmm_kind.c, dmm_lod.h) on a real model (BCN_Epileptic.X).
+ *
+ *  - each level's error is what it says: the two-sided sampled distance
+ *    between its rest-pose micro-triangles and the detailed mesh,
+ *    recomputed by brute force with another closest-point routine (svo's
+ *    mr_tri_closest_point); errors never shrink towards coarser levels;
+ *    without a tolerance the object is one level, as before;
+ *  - examples/dmm-skinned.json flown through from far to near with
+ *    "reference": true: the measured error against the ground truth
+ *    (surface_px) within the tolerance on at least 99 % of frames, the
+ *    tessellated reference (at the level the object picked) exact, coarse
+ *    levels far away and fine ones close up; per frame the level, the
+ *    predicted and measured pixels and the frame time against the finest
+ *    level alone are printed;
+ *  - the tessellation-free object and its exact reference (mode
+ *    "tessellated", intersector "watertight") with the same tolerance pick
+ *    the same level and render the same pixels, on frames at different
+ *    levels.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* the fly-through: frames a second, seconds, the camera's first distance */
+#define FPS 12
+#define DURATION 2
+#define FAR 20.0
+/* Where each fly-through ends: where the finest level still fits 1 px at
+ * 320x180. The still dancer's levels (rest pose) stray by 3.36e-3 (level
+ * 3), 3.42e-3 (levels 2 and 1) and 4.40e-3 units (level 0): at 1.13 units
+ * the last frame traces level 3, predicted 0.985 px, the one before level 1
+ * and the rest level 0. The walking dancer's levels all stray by 1.88e-2
+ * units in the poses of its clip: level 0 fits down to about 6 units. */
+#define STILL_NEAR 1.13
+#define WALKING_NEAR 6.5
+#define TMP_DIR_TEMPLATE "/tmp/mr-dmm-lod-XXXXXX"
+#include "../support/bcn_fixture.h"
+#include "../support/file_fixture.h"
+#include "../support/film_fixture.h"
+#include "job_json.h"
+#include "kinds/dmm/dmm_kind.h"
+#include "kinds/dmm/dmm_lod.h"
+#include "kinds/dmm/micromesh.h"
+#include "kinds/kind.h"
+#include "kinds/svo/voxelize.h"
+#include "render/renderer.h"
+#include "util/file_io.h"
+
+/* ---- each level's error ---- */
+
+static void point(const float *pos, uint32_t v, double p[3])
+{
+    for (int c = 0; c < 3; c++)
+        p[c] = pos[3 * (size_t)v + c];
+}
+
+/* Brute force: the distance from p to the nearest of nt triangles idx. */
+static double distance_to(const float *pos, const uint32_t *idx, uint32_t nt, const double p[3])
+{
+    double best = INFINITY;
+    for (uint32_t t = 0; t < nt; t++) {
+        double a[3], b[3], c[3], w[3];
+        point(pos, idx[3 * t], a);
+        point(pos, idx[3 * t + 1], b);
+        point(pos, idx[3 * t + 2], c);
+        best = fmin(best, mr_tri_closest_point(p, a, b, c, w));
+    }
+    return sqrt(best);
+}
+
+/* The two-sided distance of dmm_lod.h, brute force: every vertex of the
+ * detailed mesh (duplicates at one position give the same distance)
+ * against the level; every micro-vertex a micro-triangle uses and every
+ * micro-triangle's centroid against the detailed mesh. */
+static double brute_error(const mr_asset *a, const mr_trimesh *level)
+{
+    double worst = 0;
+    for (size_t i = 0; i < a->mesh_count; i++)
+        for (uint32_t v = 0; v < a->meshes[i].vertex_count; v++) {
+            double p[3];
+            point(a->meshes[i].positions, v, p);
+            worst = fmax(worst, distance_to(level->positions, level->indices, level->triangle_count, p));
+        }
+    uint8_t *used = calloc(level->vertex_count, 1);
+    assert_non_null(used);
+    for (size_t e = 0; e < (size_t)level->triangle_count * 3; e++)
+        used[level->indices[e]] = 1;
+    for (uint32_t k = 0; k < level->vertex_count + level->triangle_count; k++) {
+        double p[3];
+        if (k < level->vertex_count) {
+            if (!used[k])
+                continue;
+            point(level->positions, k, p);
+        } else {
+            const uint32_t *t = level->indices + 3 * (size_t)(k - level->vertex_count);
+            double c[3][3];
+            for (int j = 0; j < 3; j++)
+                point(level->positions, t[j], c[j]);
+            for (int j = 0; j < 3; j++)
+                p[j] = (c[0][j] + c[1][j] + c[2][j]) / 3.0;
+        }
+        double d = INFINITY;
+        for (size_t i = 0; i < a->mesh_count; i++)
+            d = fmin(d, distance_to(a->meshes[i].positions, a->meshes[i].indices,
+                                    a->meshes[i].triangle_count, p));
+        worst = fmax(worst, d);
+    }
+    free(used);
+    return worst;
+}
+
+static mr_geom *create(const mr_asset *a, mr_dmm_params *p, double tolerance_px)
+{
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = p, .tolerance_px = tolerance_px};
+    mr_geom *g = NULL;
+    mr_error err;
+    if (mr_kind_dmm.create(a, &o, &(mr_kind_context){.cache_dir = tmp_dir}, &g, &err) < 0)
+        fail_msg("create: %s", err.msg);
+    return g;
+}
+
+/* The plain dancer (5k triangles) at level 2 over 1/16 of its triangles:
+ * small enough for a brute force over every pair. Tolerance 1e-6 of the
+ * dancer's size (about 2 units): both compute in double from the same
+ * float points, the two closest-point routines round differently. */
+static void test_error_is_the_distance(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    mr_dmm_params p = {.level = 2, .base_ratio = 0.0625f, .mode = MR_DMM_BASE,
+                       .deform = MR_DMM_DEFORM_BASE, .normals = MR_DMM_NORMALS_GEOMETRIC};
+    mr_geom *g = create(a, &p, 1.0);
+    double error[MR_UMESH_MAX_LEVEL + 1];
+    uint32_t level[MR_UMESH_MAX_LEVEL + 1];
+    uint32_t n = mr_dmm_lod_levels(g, error, level);
+    assert_int_equal(n, 3); /* levels 2, 1, 0 */
+    assert_int_equal(mr_kind_dmm.geometry_ids(g), 3);
+    double finer = 0;
+    for (uint32_t k = 0; k < n; k++) {
+        assert_int_equal(level[k], 2 - k);
+        mr_trimesh m;
+        mr_error err;
+        if (mr_dmm_lod_rest_triangles(g, k, &m, &err) < 0)
+            fail_msg("%s", err.msg);
+        double brute = brute_error(a, &m);
+        printf("level %u: %u micro-triangles, error %.9g, brute force %.9g\n", level[k],
+               m.triangle_count, error[k], brute);
+        /* a coarser level never promises better than a finer one */
+        assert_float_equal(error[k], fmax(brute, finer), 1e-6);
+        assert_true(brute > 0);
+        finer = error[k];
+        mr_trimesh_free(&m);
+    }
+    mr_kind_dmm.free(g);
+    /* without a tolerance: one level, one geometry, no error measured */
+    g = create(a, &p, 0);
+    assert_int_equal(mr_dmm_lod_levels(g, error, level), 1);
+    assert_int_equal(level[0], 2);
+    assert_true(error[0] == 0);
+    assert_int_equal(mr_kind_dmm.geometry_ids(g), 1);
+    mr_kind_dmm.free(g);
+    mr_asset_free(a);
+}
+
+/* A surface with one triangle more: S's triangles and a copy of its first
+ * triangle moved by `shift` along x (new vertices appended). */
+static void with_extra(const mr_trimesh *s, float shift, float **pos, uint32_t **idx)
+{
+    *pos = malloc(((size_t)s->vertex_count + 3) * 3 * sizeof(float));
+    *idx = malloc(((size_t)s->triangle_count + 1) * 3 * sizeof(uint32_t));
+    assert_true(*pos && *idx);
+    memcpy(*pos, s->positions, (size_t)s->vertex_count * 3 * sizeof(float));
+    memcpy(*idx, s->indices, (size_t)s->triangle_count * 3 * sizeof(uint32_t));
+    for (int k = 0; k < 3; k++) {
+        const float *v = s->positions + 3 * (size_t)s->indices[k];
+        float *o = *pos + 3 * ((size_t)s->vertex_count + k);
+        o[0] = v[0] + shift, o[1] = v[1], o[2] = v[2];
+        (*idx)[3 * (size_t)s->triangle_count + k] = s->vertex_count + k;
+    }
+}
+
+/* Both sides count: a surface against itself with a triangle more (a
+ * spike the level lost, or one it grew) is as far as that triangle's
+ * farthest sample, brute force; measured one way each. */
+static void test_both_sides(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    mr_dmm_params p = {.level = 1, .base_ratio = 0.0625f, .mode = MR_DMM_BASE,
+                       .deform = MR_DMM_DEFORM_BASE, .normals = MR_DMM_NORMALS_GEOMETRIC};
+    mr_geom *g = create(a, &p, 1.0);
+    mr_trimesh s;
+    mr_error err;
+    if (mr_dmm_lod_rest_triangles(g, 1, &s, &err) < 0) /* level 0 */
+        fail_msg("%s", err.msg);
+    float *pos;
+    uint32_t *idx;
+    with_extra(&s, 0.1f, &pos, &idx);
+    uint32_t nv = s.vertex_count + 3, nt = s.triangle_count + 1;
+    /* the moved triangle's corners and centroid, brute force against S */
+    double spike = 0, c[3] = {0, 0, 0};
+    for (uint32_t k = 0; k < 3; k++) {
+        double q[3];
+        point(pos, s.vertex_count + k, q);
+        spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, q));
+        for (int j = 0; j < 3; j++)
+            c[j] += q[j] / 3.0;
+    }
+    double lost = spike; /* the truth's extra vertices against S */
+    spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, c));
+    assert_true(lost > 0.01);
+    /* the truth has the extra triangle: only the truth-to-level side sees it */
+    mr_dmm_lod_truth t;
+    double d;
+    assert_int_equal(mr_dmm_lod_truth_init(&t, pos, nv, idx, nt, "test", &err), MR_OK);
+    assert_int_equal(mr_dmm_lod_distance(&t, s.positions, s.vertex_count, s.indices, s.triangle_count,
+                                         1, 2, "test", &d, &err), MR_OK);
+    printf("truth with a triangle more: %.9g (brute force %.9g)\n", d, lost);
+    assert_float_equal(d, lost, 1e-9);
+    mr_dmm_lod_truth_free(&t);
+    /* the level has it: only the level-to-truth side sees it */
+    assert_int_equal(mr_dmm_lod_truth_init(&t, s.positions, s.vertex_count, s.indices,
+                                           s.triangle_count, "test", &err), MR_OK);
+    assert_int_equal(mr_dmm_lod_distance(&t, pos, nv, idx, nt, 1, 2, "test", &d, &err), MR_OK);
+    printf("level with a triangle more: %.9g (brute force %.9g)\n", d, spike);
+    assert_float_equal(d, spike, 1e-9);
+    mr_dmm_lod_truth_free(&t);
+    free(pos);
+    free(idx);
+    mr_trimesh_free(&s);
+    mr_kind_dmm.free(g);
+    mr_asset_free(a);
+}
+
+/* ---- the example flown through ---- */
+
+typedef struct run {
+    mr_job *job;
+    mr_asset *asset;
+    mr_device *dev;
+    mr_renderer *r;
+} run;
+
+static void open_run(run *x, const char *json, unsigned threads)
+{
+    mr_job_error je;
+    mr_error err;
+    if (mr_job_parse(json, strlen(json), &x->job, &je) != MR_OK)
+        fail_msg("job: %s at %s", je.message, je.pointer);
+    mr_renderer_options opt = {.cache_dir = tmp_dir};
+    if (mr_device_new(threads, &x->dev, &err) != MR_OK ||
+        mr_renderer_new(x->dev, x->job, &x->asset, &opt, &x->r, &err) != MR_OK)
+        fail_msg("%s", err.msg);
+}
+
+static void close_run(run *x)
+{
+    mr_renderer_free(x->r);
+    mr_device_free(x->dev);
+    mr_job_free(x->job);
+}
+
+static mr_film *frame(run *x, size_t index, mr_frame_stats *st)
+{
+    mr_film *f;
+    mr_error err;
+    if (mr_film_new(x->job->output.width, x->job->output.height, &f, &err) != MR_OK ||
+        mr_renderer_render(x->r, index, f, st, &err) != MR_OK)
+        fail_msg("frame %zu: %s", index, err.msg);
+    return f;
+}
+
+static cJSON *json_vec3(double x, double y, double z)
+{
+    const double v[3] = {x, y, z};
+    return cJSON_CreateDoubleArray(v, 3);
+}
+
+/* examples/dmm-skinned.json (the refined dancer, level 3, interpolated;
+ * still: without its clip) at 320x180 and 12 frames a second over 2 s, the
+ * camera flying straight at its chest from 20 units away to `near`, the
+ * distance shrinking by the same factor every frame (a key per frame);
+ * tolerance: its "tolerance_px" (0: none); reference passes when asked;
+ * mode: the object's (NULL: the example's), with the intersector given. */
+static char *example(bool still, double near, double tolerance, bool reference, const char *mode,
+                     const char *intersector)
+{
+    const char *dir = getenv("MR_SOURCE_DIR");
+    char path[1024];
+    snprintf(path, sizeof path, "%s/examples/dmm-skinned.json", dir ? dir : ".");
+    uint8_t *text = NULL;
+    size_t n = 0;
+    mr_error err;
+    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) != MR_OK)
+        fail_msg("%s", err.msg);
+    cJSON *o = cJSON_ParseWithLength((const char *)text, n);
+    free(text);
+    assert_non_null(o);
+    cJSON *out = cJSON_GetObjectItem(o, "output");
+    cJSON_ReplaceItemInObject(out, "width", cJSON_CreateNumber(320));
+    cJSON_ReplaceItemInObject(out, "height", cJSON_CreateNumber(180));
+    cJSON *frames = cJSON_GetObjectItem(o, "frames");
+    cJSON_ReplaceItemInObject(frames, "fps", cJSON_CreateNumber(FPS));
+    cJSON_ReplaceItemInObject(frames, "end", cJSON_CreateNumber(DURATION));
+    cJSON *cam = cJSON_CreateObject(), *keys = cJSON_AddArrayToObject(cam, "path");
+    cJSON_AddNumberToObject(cam, "yfov", 40);
+    for (int k = 0; k <= FPS * DURATION; k++) {
+        double t = (double)k / FPS, z = FAR * pow(near / FAR, t / DURATION);
+        cJSON *key = cJSON_CreateObject();
+        cJSON_AddNumberToObject(key, "t", t);
+        cJSON_AddItemToObject(key, "position", json_vec3(0.0, 0.0, z));
+        cJSON_AddItemToObject(key, "target", json_vec3(0.0, 0.0, 0.0));
+        cJSON_AddItemToArray(keys, key);
+    }
+    cJSON_ReplaceItemInObject(o, "camera", cam);
+    if (tolerance > 0)
+        cJSON_AddNumberToObject(o, "tolerance_px", tolerance);
+    if (reference)
+        cJSON_AddBoolToObject(o, "reference", true);
+    cJSON *obj = cJSON_GetArrayItem(cJSON_GetObjectItem(o, "objects"), 0);
+    if (still)
+        cJSON_DeleteItemFromObject(obj, "pose");
+    cJSON *dmm = cJSON_GetObjectItem(obj, "dmm");
+    if (mode) {
+        cJSON_ReplaceItemInObject(dmm, "mode", cJSON_CreateString(mode));
+        cJSON_AddStringToObject(dmm, "deformation", "interpolated");
+        cJSON_AddStringToObject(dmm, "intersector", intersector);
+    }
+    char *s = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return s;
+}
+
+static mr_asset *dancer_load(void)
+{
+    /* examples/dmm-skinned.json's "refine" (flythrough checks it) */
+    mr_refine_params rp = {.rounds = 2, .amplitude = 0.006f, .frequency = 12, .octaves = 3, .seed = 1};
+    return bcn_load_refined(&rp);
+}
+
+#define FRAMES (FPS * DURATION + 1)
+
+/* The example flown through to `near` with tolerance_px 1 and reference
+ * passes: every frame's tessellated reference (the object at the level it
+ * picked, traced triangle by triangle) exact, the predicted error within
+ * the tolerance (the path ends where the finest level still fits), and the
+ * error measured against the ground truth within it on at least 99 % of
+ * frames; then the same frames at the finest level alone (no tolerance) for
+ * time. Prints a row per frame; level[] gets the levels traced. */
+static void flythrough(mr_asset *dancer, bool still, double near, double level[FRAMES])
+{
+    char *json = example(still, near, 1.0, true, NULL, NULL);
+    run x = {.asset = dancer};
+    open_run(&x, json, 2);
+    const mr_asset_desc *ad = &x.job->assets[0];
+    assert_true(ad->refine && ad->refine_params.rounds == 2 && ad->refine_params.amplitude == 0.006f &&
+                ad->refine_params.seed == 1);
+    double tolerance = x.job->objects[0].tolerance_px;
+    assert_true(tolerance == 1.0);
+    size_t frames = x.job->frame_count, over = 0;
+    assert_int_equal(frames, FRAMES);
+    double predicted[FRAMES], measured[FRAMES], seconds[FRAMES], finest_s[FRAMES];
+    for (size_t i = 0; i < frames; i++) {
+        mr_frame_stats st;
+        mr_film_free(frame(&x, i, &st));
+        assert_int_equal(st.error_count, 2);
+        for (uint32_t e = 0; e < st.error_count; e++) {
+            const mr_frame_error *fe = &st.errors[e];
+            if (fe->reference == MR_REFERENCE_TESSELLATED) {
+                if (!(fe->coverage_error_pct == 0 && fe->surface_px == 0 &&
+                      fe->psnr_rgb_db == MR_PSNR_IDENTICAL))
+                    fail_msg("frame %zu: the tessellated reference differs (coverage %g %%, "
+                             "surface %g px, psnr %g dB)", i, fe->coverage_error_pct,
+                             fe->surface_px, fe->psnr_rgb_db);
+                continue;
+            }
+            measured[i] = fe->surface_px;
+        }
+        level[i] = fx_frame_extra(&st, "dmm_lod_level");
+        predicted[i] = fx_frame_extra(&st, "dmm_lod_error_px");
+        assert_int_equal(st.lod_count, 1); /* the object's own entry: the same */
+        assert_true(st.lod[0].object == 0 && st.lod[0].level == level[i] &&
+                    st.lod[0].error_px == predicted[i]);
+        if (i == 0)
+            printf("frame 0: geometry %.1f MiB (coarser levels %.1f MiB), bakes %.2f s, measuring "
+                   "the levels %.2f s\n", (double)st.geometry_bytes / 1048576.0,
+                   fx_frame_extra(&st, "dmm_lod_bytes") / 1048576.0,
+                   fx_frame_extra(&st, "dmm_bake_s"), fx_frame_extra(&st, "dmm_lod_build_s"));
+        seconds[i] = st.total_s;
+        over += measured[i] > tolerance;
+        if (!(predicted[i] <= tolerance))
+            fail_msg("frame %zu: level %g predicted %.3f px", i, level[i], predicted[i]);
+    }
+    close_run(&x);
+    cJSON_free(json);
+
+    json = example(still, near, 0, false, NULL, NULL);
+    run y = {.asset = dancer};
+    open_run(&y, json, 2);
+    for (size_t i = 0; i < frames; i++) {
+        mr_frame_stats st;
+        mr_film_free(frame(&y, i, &st));
+        assert_true(fx_frame_extra(&st, "dmm_lod_level") == 3);
+        assert_true(fx_frame_extra(&st, "dmm_lod_error_px") == 0);
+        assert_int_equal(st.lod_count, 0); /* no tolerance: no entry */
+        assert_true(fx_frame_extra(&st, "dmm_lod_bytes") == 0);
+        if (i == 0)
+            printf("finest level alone, frame 0: geometry %.1f MiB\n",
+                   (double)st.geometry_bytes / 1048576.0);
+        finest_s[i] = st.total_s;
+    }
+    close_run(&y);
+    cJSON_free(json);
+    double sum = 0, sum_finest = 0;
+    printf("%s: frame level predicted_px surface_px seconds finest_s ratio\n", still ? "still" : "walking");
+    for (size_t i = 0; i < frames; i++) {
+        printf("%5zu %5g %12.3f %10.3f %7.4f %8.4f %5.2f\n", i, level[i], predicted[i], measured[i],
+               seconds[i], finest_s[i], seconds[i] / finest_s[i]);
+        if (i > 0) { /* frame 0 carries the set-up */
+            sum += seconds[i];
+            sum_finest += finest_s[i];
+        }
+    }
+    printf("frames 1..%zu: %.3f s against %.3f s at the finest level (%.2fx); %zu of %zu frames "
+           "over %g px\n", frames - 1, sum, sum_finest, sum / sum_finest, over, frames, tolerance);
+    /* at least 99 % of frames within the tolerance: with 25 frames, all */
+    assert_true(over <= (size_t)(0.01 * (double)frames));
+}
+
+/* The dancer without its clip: the levels' errors are measured in the rest
+ * pose it stands in, and differ (at 320x180 the finest fits 1 px down to
+ * about 1 unit from the dancer). Coarse far away, fine close up. */
+static void test_flythrough_still(void **state)
+{
+    (void)state;
+    mr_asset *dancer = dancer_load();
+    double level[FRAMES];
+    flythrough(dancer, true, STILL_NEAR, level);
+    assert_true(level[0] == 0);          /* 20 units away: the base mesh's own level */
+    assert_true(level[FRAMES - 1] >= 1); /* close up: a finer one */
+    mr_asset_free(dancer);
+}
+
+/* The walking dancer: in the poses of its clip every level strays as far
+ * as the others (the interpolated deformation and the detailed mesh's own
+ * skinning part where a base triangle spans a joint, at every level
+ * alike), so the coarsest is traced wherever it fits; the path ends where
+ * it does. */
+static void test_flythrough_walking(void **state)
+{
+    (void)state;
+    mr_asset *dancer = dancer_load();
+    double level[FRAMES];
+    flythrough(dancer, false, WALKING_NEAR, level);
+    for (size_t i = 0; i < FRAMES; i++) /* equal errors: the coarsest */
+        assert_true(level[i] == 0);
+    mr_asset_free(dancer);
+}
+
+/* The tessellation-free object (mode "interpolated") and its exact
+ * reference (mode "tessellated", intersector "watertight") with the same
+ * tolerance: they measure the same errors on the same micro-triangles and
+ * place the object by the same boxes, so they pick the same level, and
+ * trace it to the same pixels (0 differing, every plane), on frames of the
+ * still fly-through at different levels. */
+static void test_reference_picks_the_same_level(void **state)
+{
+    (void)state;
+    mr_asset *dancer = dancer_load();
+    char *free_json = example(true, STILL_NEAR, 1.0, false, NULL, NULL);
+    char *ref_json = example(true, STILL_NEAR, 1.0, false, "tessellated", "watertight");
+    run x = {.asset = dancer}, y = {.asset = dancer};
+    open_run(&x, free_json, 2);
+    open_run(&y, ref_json, 2);
+    const size_t frames[] = {0, FRAMES - 3, FRAMES - 2, FRAMES - 1};
+    double levels_seen = 0, last = -1;
+    for (size_t k = 0; k < sizeof frames / sizeof *frames; k++) {
+        mr_frame_stats a, b;
+        mr_film *fa = frame(&x, frames[k], &a), *fb = frame(&y, frames[k], &b);
+        double la = fx_frame_extra(&a, "dmm_lod_level"), lb = fx_frame_extra(&b, "dmm_lod_level");
+        printf("frame %zu: level %g (tessellation-free) and %g (tessellated)\n", frames[k], la, lb);
+        assert_true(la == lb);
+        assert_true(fx_frame_extra(&a, "dmm_lod_error_px") == fx_frame_extra(&b, "dmm_lod_error_px"));
+        char what[64];
+        snprintf(what, sizeof what, "frame %zu at level %g", frames[k], la);
+        fx_assert_same_pixels(fa, fb, what);
+        levels_seen += la != last;
+        last = la;
+        mr_film_free(fa);
+        mr_film_free(fb);
+    }
+    assert_true(levels_seen >= 3); /* the frames span at least three levels */
+    close_run(&x);
+    close_run(&y);
+    cJSON_free(free_json);
+    cJSON_free(ref_json);
+    mr_asset_free(dancer);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_error_is_the_distance),
+        cmocka_unit_test(test_both_sides),
+        cmocka_unit_test(test_flythrough_still),
+        cmocka_unit_test(test_flythrough_walking),
+        cmocka_unit_test(test_reference_picks_the_same_level),
+    };
+    return cmocka_run_group_tests(tests, file_fixture_setup, file_fixture_teardown);
+}
