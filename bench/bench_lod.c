@@ -18,8 +18,13 @@
  * all alike. Reference passes run after each frame's own figures and never
  * count in its time.
  *
- * usage: bench_lod [--size WxH] [--threads N]   (run from the repository root)
+ * Then issue 16's goal on every example: each with tolerance_px 1 and
+ * reference passes, the frames within 1 px of its ground truth.
+ *
+ * usage: bench_lod [--size WxH] [--threads N] [--examples-only]
+ *        (run from the repository root)
  */
+#include <dirent.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,6 +37,7 @@
 static const double TOLERANCES[RUNS] = {0, 0.5, 1, 2, 4}; /* 0: off */
 static int width = 480, height = 270;
 static unsigned threads = 2;
+static bool examples_only = false;
 
 static void die(const char *what, const char *msg)
 {
@@ -56,9 +62,9 @@ static const flight FLIGHTS[] = {
      "the sphere 40 to 21 units away", "displaced_lod_level", "displaced_lod_build_s"},
 };
 
-/* The example at the bench's size, with reference passes or without, and
- * the given tolerance (0: none). */
-static mr_job *job_at(const flight *fl, double tolerance, bool reference)
+/* The example at the bench's size (halved: at half its own), with
+ * reference passes or without, and the given tolerance (0: none). */
+static mr_job *job_at(const flight *fl, double tolerance, bool reference, bool halved)
 {
     uint8_t *text = NULL;
     size_t n = 0;
@@ -80,8 +86,8 @@ static mr_job *job_at(const flight *fl, double tolerance, bool reference)
             free(job->assets[i].path);
             job->assets[i].path = mr_strdup(full);
         }
-    job->output.width = width;
-    job->output.height = height;
+    job->output.width = halved ? (job->output.width + 1) / 2 : width;
+    job->output.height = halved ? (job->output.height + 1) / 2 : height;
     job->reference = reference;
     for (size_t i = 0; i < job->object_count; i++) {
         job->objects[i].reference = reference;
@@ -108,7 +114,7 @@ static void fly(const flight *fl, mr_device *dev)
     series s[RUNS];
     memset(s, 0, sizeof s);
     for (int k = 0; k < RUNS; k++)
-        jobs[k] = job_at(fl, TOLERANCES[k], true);
+        jobs[k] = job_at(fl, TOLERANCES[k], true, false);
     size_t asset_count = jobs[0]->asset_count;
     if (asset_count > MAX_ASSETS)
         die(fl->example, "too many assets");
@@ -154,7 +160,7 @@ static void fly(const flight *fl, mr_device *dev)
         mr_device *own = NULL;
         mr_renderer *alone = NULL;
         mr_film *fm = NULL;
-        mr_job *job = job_at(fl, TOLERANCES[k], false);
+        mr_job *job = job_at(fl, TOLERANCES[k], false, false);
         if (mr_device_new(threads, &own, &err) < 0 ||
             mr_renderer_new(own, job, assets, NULL, &alone, &err) < 0 ||
             mr_job_film_new(job, &fm, &err) < 0)
@@ -214,6 +220,85 @@ static void fly(const flight *fl, mr_device *dev)
         mr_asset_free(assets[i]);
 }
 
+static int by_name(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+/* Issue 16's goal on every example: each rendered with tolerance_px 1 on
+ * every object and reference passes (at half its size, its first 24
+ * frames), the frames whose measured error (surface_px against the ground
+ * truth, or the tessellation where an object has none) stays within 1 px. */
+static void every_example(mr_device *dev)
+{
+    DIR *dir = opendir("examples");
+    if (!dir)
+        die("examples", "cannot open the folder");
+    char *names[64];
+    size_t count = 0;
+    for (struct dirent *e; (e = readdir(dir)) && count < 64;) {
+        size_t n = strlen(e->d_name);
+        if (n > 5 && !strcmp(e->d_name + n - 5, ".json"))
+            names[count++] = mr_strdup(e->d_name);
+    }
+    closedir(dir);
+    qsort(names, count, sizeof names[0], by_name);
+    printf("\n## Every example at tolerance_px 1 (issue 16), half size, first 24 frames, %u threads\n\n",
+           mr_device_threads(dev));
+    printf("| example | frames | within 1 px | worst surface px | levels (first / last frame) |\n");
+    printf("|---|---|---|---|---|\n");
+    for (size_t i = 0; i < count; i++) {
+        char stem[256];
+        snprintf(stem, sizeof stem, "%.*s", (int)(strlen(names[i]) - 5), names[i]);
+        flight fl = {.example = stem};
+        mr_job *job = job_at(&fl, 1.0, true, true);
+        mr_asset *assets[MAX_ASSETS] = {0};
+        mr_renderer *r = NULL;
+        mr_film *film = NULL;
+        mr_error err;
+        if (job->asset_count > MAX_ASSETS)
+            die(stem, "too many assets");
+        for (size_t a = 0; a < job->asset_count; a++)
+            assets[a] = bench_load_asset(&job->assets[a], threads);
+        if (mr_renderer_new(dev, job, assets, NULL, &r, &err) < 0 ||
+            mr_job_film_new(job, &film, &err) < 0)
+            die(stem, err.msg);
+        size_t frames = job->frame_count < 24 ? job->frame_count : 24, within = 0;
+        double worst = 0;
+        char first[64] = "-", last[64] = "-";
+        for (size_t f = 0; f < frames; f++) {
+            mr_frame_stats st;
+            if (mr_renderer_render(r, f, film, &st, &err) < 0)
+                die(stem, err.msg);
+            double px = 0;
+            for (uint32_t e = 0; e < st.error_count; e++)
+                if (st.errors[e].reference == MR_REFERENCE_GROUND_TRUTH || st.error_count == 1)
+                    px = st.errors[e].surface_px;
+            within += px <= 1.0;
+            worst = px > worst ? px : worst;
+            size_t at = 0;
+            last[0] = 0;
+            for (uint32_t l = 0; l < st.lod_count && at + 12 < sizeof last; l++)
+                at += (size_t)snprintf(last + at, sizeof last - at, "%s%u", l ? "," : "",
+                                       st.lod[l].level);
+            if (!st.lod_count)
+                snprintf(last, sizeof last, "-");
+            if (f == 0)
+                memcpy(first, last, sizeof first);
+        }
+        printf("| %s | %zu | %zu | %.3f | %s / %s |\n", stem, frames, within, worst, first, last);
+        fflush(stdout);
+        mr_renderer_free(r);
+        mr_film_free(film);
+        for (size_t a = 0; a < job->asset_count; a++)
+            mr_asset_free(assets[a]);
+        mr_job_free(job);
+        free(names[i]);
+    }
+    printf("\nlevels: per object with levels, as its kind counts them (README, Level of detail; "
+           "'-': none picked: rigid svo, procedural displacement, no frame to pick from)\n");
+}
+
 int main(int argc, char **argv)
 {
     for (int i = 1; i < argc; i++)
@@ -221,12 +306,15 @@ int main(int argc, char **argv)
             sscanf(argv[++i], "%dx%d", &width, &height);
         else if (!strcmp(argv[i], "--threads") && i + 1 < argc)
             threads = (unsigned)atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--examples-only"))
+            examples_only = true;
     mr_error err;
     mr_device *dev = NULL;
     if (mr_device_new(threads, &dev, &err) < 0)
         die("device", err.msg);
-    for (size_t i = 0; i < sizeof FLIGHTS / sizeof FLIGHTS[0]; i++)
+    for (size_t i = 0; i < sizeof FLIGHTS / sizeof FLIGHTS[0] && !examples_only; i++)
         fly(&FLIGHTS[i], dev);
+    every_example(dev);
     mr_device_free(dev);
     return 0;
 }
