@@ -3,6 +3,7 @@
 
 #include <float.h>
 #include <limits.h>
+#include <math.h>
 #include <stdatomic.h>
 #include <string.h>
 
@@ -31,6 +32,9 @@ typedef struct {
     const mr_trace_setup *s;
     mr_camera_rays rays_setup;
     mr_vec3 forward;   /* the camera's viewing direction (unit): depth = t dir . forward */
+    /* the film rectangle [x0, x1] x [y0, y1] (pixel coordinates) outside
+     * which a primary ray misses the whole scene (scene_rect) */
+    double x0, x1, y0, y1;
     mr_film *film;
     int tiles_x;
     atomic_ullong rays;
@@ -284,6 +288,46 @@ static void tally_write(crypto_tally *t, int ranks, int samples, float (*planes)
     }
 }
 
+/* Where on the film the scene can be seen: its bounding box (Embree's, of
+ * everything committed) projected, every corner in front of the camera (a
+ * convex box in front projects inside its corners' hull), grown by a pixel
+ * for the rounding of ray directions. A primary ray through a film point
+ * outside misses the box and so everything in it: such pixels are misses
+ * without a ray (a distant object leaves most of the film empty; its rays
+ * were the floor of a frame's time however few triangles it had). The
+ * whole film when a corner is behind or near the camera's plane; nothing
+ * when the scene is empty. */
+static void scene_rect(trace_ctx *c, const mr_trace_setup *s, int width, int height)
+{
+    c->x0 = 0, c->x1 = width, c->y0 = 0, c->y1 = height;
+    struct RTCBounds b;
+    rtcGetSceneBounds(s->scene, &b);
+    if (!(b.lower_x <= b.upper_x && b.lower_y <= b.upper_y && b.lower_z <= b.upper_z)) {
+        c->x0 = c->y0 = 1, c->x1 = c->y1 = -1; /* empty: every ray misses */
+        return;
+    }
+    const double th = tan(0.5 * (double)s->camera.yfov), aspect = (double)width / height;
+    mr_vec3 right = mr_quat_rotate(s->camera.rotation, mr_v3(1, 0, 0));
+    mr_vec3 up = mr_quat_rotate(s->camera.rotation, mr_v3(0, 1, 0));
+    double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+    for (int k = 0; k < 8; k++) {
+        mr_vec3 p = mr_v3(k & 1 ? b.upper_x : b.lower_x, k & 2 ? b.upper_y : b.lower_y,
+                          k & 4 ? b.upper_z : b.lower_z);
+        mr_vec3 d = mr_v3_sub(p, s->camera.position);
+        double z = (double)d.x * c->forward.x + (double)d.y * c->forward.y + (double)d.z * c->forward.z;
+        double len = sqrt((double)d.x * d.x + (double)d.y * d.y + (double)d.z * d.z);
+        if (!(z > 1e-4 * len) || !isfinite(z))
+            return; /* near or behind the camera's plane: the whole film */
+        double X = (double)d.x * right.x + (double)d.y * right.y + (double)d.z * right.z;
+        double Y = (double)d.x * up.x + (double)d.y * up.y + (double)d.z * up.z;
+        /* film point (px, py) looks along camera-space x = (2 px / w - 1) th aspect,
+         * y = (1 - 2 py / h) th (mr_camera_rays_setup) */
+        double px = (X / z / (th * aspect) + 1) * 0.5 * width, py = (1 - Y / z / th) * 0.5 * height;
+        x0 = fmin(x0, px), x1 = fmax(x1, px), y0 = fmin(y0, py), y1 = fmax(y1, py);
+    }
+    c->x0 = x0 - 1, c->x1 = x1 + 1, c->y0 = y0 - 1, c->y1 = y1 + 1;
+}
+
 /* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index i0.. */
 static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *t, size_t i0,
                          uint64_t *rays)
@@ -303,9 +347,15 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *
                 tally[i][l].count = 0;
     }
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
+    /* the pixels' samples lie in [x0, x0 + n] x [y, y + 1] */
+    const bool seen = x0 + n >= c->x0 && x0 <= c->x1 && y + 1 >= c->y0 && y <= c->y1;
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
-        trace_packet(c, x0, n, y, k, r, rays);
+        if (seen)
+            trace_packet(c, x0, n, y, k, r, rays);
+        else
+            for (int i = 0; i < n; i++)
+                r[i] = (sample_result){.hit = false};
         for (int i = 0; i < n; i++) {
             rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
             alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
@@ -389,6 +439,7 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
     trace_ctx c = {.s = setup, .film = film};
     c.rays_setup = mr_camera_rays_setup(&setup->camera, film->width, film->height);
     c.forward = mr_quat_rotate(setup->camera.rotation, mr_v3(0, 0, -1));
+    scene_rect(&c, setup, film->width, film->height);
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);

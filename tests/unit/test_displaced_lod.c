@@ -31,6 +31,7 @@
 
 #include "../support/displaced_fixture.h"
 #include "../support/film_fixture.h"
+#include "../support/lod_fixture.h"
 #include "job_json.h"
 #include "kinds/displaced/dgrid.h"
 #include "kinds/displaced/dsurf.h"
@@ -90,89 +91,15 @@ static void test_grid_distance(void **state)
 /* ---- the fly-through ---- */
 
 /* examples/lod-displaced.json at 320x180 with reference passes, its
- * object traced by the given method, its asset paths made absolute. */
+ * object traced by the given method. */
 static char *flythrough_json(const char *method)
 {
-    const char *dir = getenv("MR_SOURCE_DIR");
-    dir = dir ? dir : ".";
-    char path[1024];
-    snprintf(path, sizeof path, "%s/examples/lod-displaced.json", dir);
-    uint8_t *text = NULL;
-    size_t n = 0;
-    mr_error err;
-    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) != MR_OK)
-        fail_msg("%s", err.msg);
-    cJSON *o = cJSON_ParseWithLength((const char *)text, n);
-    free(text);
-    assert_non_null(o);
-    cJSON *out = cJSON_GetObjectItem(o, "output");
-    cJSON_ReplaceItemInObject(out, "width", cJSON_CreateNumber(320));
-    cJSON_ReplaceItemInObject(out, "height", cJSON_CreateNumber(180));
-    cJSON_AddBoolToObject(o, "reference", true);
+    cJSON *o = lod_example("lod-displaced", 320, 180);
     cJSON *obj = cJSON_GetArrayItem(cJSON_GetObjectItem(o, "objects"), 0);
     cJSON_AddStringToObject(cJSON_GetObjectItem(obj, "displaced"), "method", method);
-    cJSON *asset;
-    cJSON_ArrayForEach(asset, cJSON_GetObjectItem(o, "assets")) {
-        const char *p = cJSON_GetStringValue(cJSON_GetObjectItem(asset, "path"));
-        if (p && p[0] != '/') {
-            char full[2048];
-            snprintf(full, sizeof full, "%s/examples/%s", dir, p);
-            cJSON_ReplaceItemInObject(asset, "path", cJSON_CreateString(full));
-        }
-    }
     char *s = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
     return s;
-}
-
-typedef struct run {
-    mr_job *job;
-    mr_device *dev;
-    mr_renderer *r;
-} run;
-
-/* The job's two assets: the sphere and the texture. */
-static void load_assets(const char *json, mr_asset *assets[2])
-{
-    mr_job *job;
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    assert_int_equal(job->asset_count, 2);
-    for (size_t i = 0; i < 2; i++)
-        if (mr_asset_load(job->assets[i].path, &assets[i], &err) != MR_OK)
-            fail_msg("%s", err.msg);
-    mr_job_free(job);
-}
-
-/* assets: load_assets' */
-static void open_run(run *x, const char *json, mr_asset *const *assets, unsigned threads)
-{
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &x->job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    if (mr_device_new(threads, &x->dev, &err) != MR_OK ||
-        mr_renderer_new(x->dev, x->job, assets, NULL, &x->r, &err) != MR_OK)
-        fail_msg("%s", err.msg);
-}
-
-static void close_run(run *x)
-{
-    mr_renderer_free(x->r);
-    mr_device_free(x->dev);
-    mr_job_free(x->job);
-}
-
-static mr_film *frame(run *x, size_t index, mr_frame_stats *st)
-{
-    mr_film *f;
-    mr_error err;
-    if (mr_film_new(x->job->output.width, x->job->output.height, &f, &err) != MR_OK ||
-        mr_renderer_render(x->r, index, f, st, &err) != MR_OK)
-        fail_msg("frame %zu: %s", index, err.msg);
-    return f;
 }
 
 #define MAX_FRAMES 64
@@ -183,10 +110,10 @@ static void test_flythrough(void **state)
     char *json = flythrough_json("tessellation_free"), *tess_json = flythrough_json("tessellated");
     mr_asset *assets[2];
     mr_error err;
-    load_assets(json, assets);
-    run x, t;
-    open_run(&x, json, assets, 2);
-    open_run(&t, tess_json, assets, 2);
+    assert_int_equal(lod_load_assets(json, assets, 2), 2); /* the sphere and the texture */
+    lod_run x, t;
+    lod_open(&x, json, assets, NULL, 2);
+    lod_open(&t, tess_json, assets, NULL, 2);
     size_t frames = x.job->frame_count, probe = frames * 3 / 5;
     assert_true(frames >= 20 && frames <= MAX_FRAMES);
     mr_film *kept = NULL;
@@ -195,7 +122,7 @@ static void test_flythrough(void **state)
     double worst_dz = 0;
     for (size_t i = 0; i < frames; i++) {
         mr_frame_stats st, ts;
-        mr_film *f = frame(&x, i, &st), *g = frame(&t, i, &ts);
+        mr_film *f = lod_frame(&x, i, &st), *g = lod_frame(&t, i, &ts);
         levels[i] = fx_frame_extra(&st, "displaced_lod_level");
         double predicted = fx_frame_extra(&st, "displaced_lod_error_px");
         /* the tessellated object picks by the same rule from the same
@@ -259,18 +186,18 @@ static void test_flythrough(void **state)
      * now and then (test_displaced_accuracy explains each such pixel by
      * brute force): a handful of pixels in all, not a level's worth */
     assert_true(mismatched <= 16);
-    close_run(&t);
-    close_run(&x);
+    lod_close(&t);
+    lod_close(&x);
 
     /* the frame alone, on one thread: the same pixels */
-    run y;
-    open_run(&y, json, assets, 1);
+    lod_run y;
+    lod_open(&y, json, assets, NULL, 1);
     mr_frame_stats st;
-    mr_film *alone = frame(&y, probe, &st);
+    mr_film *alone = lod_frame(&y, probe, &st);
     fx_assert_same_pixels(kept, alone, "a frame rendered alone on one thread");
     mr_film_free(alone);
     mr_film_free(kept);
-    close_run(&y);
+    lod_close(&y);
     for (size_t i = 0; i < 2; i++)
         mr_asset_free(assets[i]);
     cJSON_free(json);

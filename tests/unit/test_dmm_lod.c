@@ -47,6 +47,7 @@
 #include "../support/bcn_fixture.h"
 #include "../support/file_fixture.h"
 #include "../support/film_fixture.h"
+#include "../support/lod_fixture.h"
 #include "job_json.h"
 #include "kinds/dmm/dmm_kind.h"
 #include "kinds/dmm/dmm_lod.h"
@@ -244,42 +245,6 @@ static void test_both_sides(void **state)
 
 /* ---- the example flown through ---- */
 
-typedef struct run {
-    mr_job *job;
-    mr_asset *asset;
-    mr_device *dev;
-    mr_renderer *r;
-} run;
-
-static void open_run(run *x, const char *json, unsigned threads)
-{
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &x->job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    mr_renderer_options opt = {.cache_dir = tmp_dir};
-    if (mr_device_new(threads, &x->dev, &err) != MR_OK ||
-        mr_renderer_new(x->dev, x->job, &x->asset, &opt, &x->r, &err) != MR_OK)
-        fail_msg("%s", err.msg);
-}
-
-static void close_run(run *x)
-{
-    mr_renderer_free(x->r);
-    mr_device_free(x->dev);
-    mr_job_free(x->job);
-}
-
-static mr_film *frame(run *x, size_t index, mr_frame_stats *st)
-{
-    mr_film *f;
-    mr_error err;
-    if (mr_film_new(x->job->output.width, x->job->output.height, &f, &err) != MR_OK ||
-        mr_renderer_render(x->r, index, f, st, &err) != MR_OK)
-        fail_msg("frame %zu: %s", index, err.msg);
-    return f;
-}
-
 static cJSON *json_vec3(double x, double y, double z)
 {
     const double v[3] = {x, y, z};
@@ -295,20 +260,9 @@ static cJSON *json_vec3(double x, double y, double z)
 static char *example(bool still, double near, double tolerance, bool reference, const char *mode,
                      const char *intersector)
 {
-    const char *dir = getenv("MR_SOURCE_DIR");
-    char path[1024];
-    snprintf(path, sizeof path, "%s/examples/dmm-skinned.json", dir ? dir : ".");
-    uint8_t *text = NULL;
-    size_t n = 0;
-    mr_error err;
-    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) != MR_OK)
-        fail_msg("%s", err.msg);
-    cJSON *o = cJSON_ParseWithLength((const char *)text, n);
-    free(text);
-    assert_non_null(o);
-    cJSON *out = cJSON_GetObjectItem(o, "output");
-    cJSON_ReplaceItemInObject(out, "width", cJSON_CreateNumber(320));
-    cJSON_ReplaceItemInObject(out, "height", cJSON_CreateNumber(180));
+    cJSON *o = lod_example("dmm-skinned", 320, 180);
+    if (!reference)
+        cJSON_DeleteItemFromObject(o, "reference");
     cJSON *frames = cJSON_GetObjectItem(o, "frames");
     cJSON_ReplaceItemInObject(frames, "fps", cJSON_CreateNumber(FPS));
     cJSON_ReplaceItemInObject(frames, "end", cJSON_CreateNumber(DURATION));
@@ -325,8 +279,6 @@ static char *example(bool still, double near, double tolerance, bool reference, 
     cJSON_ReplaceItemInObject(o, "camera", cam);
     if (tolerance > 0)
         cJSON_AddNumberToObject(o, "tolerance_px", tolerance);
-    if (reference)
-        cJSON_AddBoolToObject(o, "reference", true);
     cJSON *obj = cJSON_GetArrayItem(cJSON_GetObjectItem(o, "objects"), 0);
     if (still)
         cJSON_DeleteItemFromObject(obj, "pose");
@@ -360,8 +312,9 @@ static mr_asset *dancer_load(void)
 static void flythrough(mr_asset *dancer, bool still, double near, double level[FRAMES])
 {
     char *json = example(still, near, 1.0, true, NULL, NULL);
-    run x = {.asset = dancer};
-    open_run(&x, json, 2);
+    const mr_renderer_options opt = {.cache_dir = tmp_dir}; /* the bakes, once */
+    lod_run x;
+    lod_open(&x, json, &dancer, &opt, 2);
     const mr_asset_desc *ad = &x.job->assets[0];
     assert_true(ad->refine && ad->refine_params.rounds == 2 && ad->refine_params.amplitude == 0.006f &&
                 ad->refine_params.seed == 1);
@@ -372,7 +325,7 @@ static void flythrough(mr_asset *dancer, bool still, double near, double level[F
     double predicted[FRAMES], measured[FRAMES], seconds[FRAMES], finest_s[FRAMES];
     for (size_t i = 0; i < frames; i++) {
         mr_frame_stats st;
-        mr_film_free(frame(&x, i, &st));
+        mr_film_free(lod_frame(&x, i, &st));
         assert_int_equal(st.error_count, 2);
         for (uint32_t e = 0; e < st.error_count; e++) {
             const mr_frame_error *fe = &st.errors[e];
@@ -401,15 +354,15 @@ static void flythrough(mr_asset *dancer, bool still, double near, double level[F
         if (!(predicted[i] <= tolerance))
             fail_msg("frame %zu: level %g predicted %.3f px", i, level[i], predicted[i]);
     }
-    close_run(&x);
+    lod_close(&x);
     cJSON_free(json);
 
     json = example(still, near, 0, false, NULL, NULL);
-    run y = {.asset = dancer};
-    open_run(&y, json, 2);
+    lod_run y;
+    lod_open(&y, json, &dancer, &opt, 2);
     for (size_t i = 0; i < frames; i++) {
         mr_frame_stats st;
-        mr_film_free(frame(&y, i, &st));
+        mr_film_free(lod_frame(&y, i, &st));
         assert_true(fx_frame_extra(&st, "dmm_lod_level") == 3);
         assert_true(fx_frame_extra(&st, "dmm_lod_error_px") == 0);
         assert_int_equal(st.lod_count, 0); /* no tolerance: no entry */
@@ -419,7 +372,7 @@ static void flythrough(mr_asset *dancer, bool still, double near, double level[F
                    (double)st.geometry_bytes / 1048576.0);
         finest_s[i] = st.total_s;
     }
-    close_run(&y);
+    lod_close(&y);
     cJSON_free(json);
     double sum = 0, sum_finest = 0;
     printf("%s: frame level predicted_px surface_px seconds finest_s ratio\n", still ? "still" : "walking");
@@ -479,14 +432,15 @@ static void test_reference_picks_the_same_level(void **state)
     mr_asset *dancer = dancer_load();
     char *free_json = example(true, STILL_NEAR, 1.0, false, NULL, NULL);
     char *ref_json = example(true, STILL_NEAR, 1.0, false, "tessellated", "watertight");
-    run x = {.asset = dancer}, y = {.asset = dancer};
-    open_run(&x, free_json, 2);
-    open_run(&y, ref_json, 2);
+    const mr_renderer_options opt = {.cache_dir = tmp_dir};
+    lod_run x, y;
+    lod_open(&x, free_json, &dancer, &opt, 2);
+    lod_open(&y, ref_json, &dancer, &opt, 2);
     const size_t frames[] = {0, FRAMES - 3, FRAMES - 2, FRAMES - 1};
     double levels_seen = 0, last = -1;
     for (size_t k = 0; k < sizeof frames / sizeof *frames; k++) {
         mr_frame_stats a, b;
-        mr_film *fa = frame(&x, frames[k], &a), *fb = frame(&y, frames[k], &b);
+        mr_film *fa = lod_frame(&x, frames[k], &a), *fb = lod_frame(&y, frames[k], &b);
         double la = fx_frame_extra(&a, "dmm_lod_level"), lb = fx_frame_extra(&b, "dmm_lod_level");
         printf("frame %zu: level %g (tessellation-free) and %g (tessellated)\n", frames[k], la, lb);
         assert_true(la == lb);
@@ -500,8 +454,8 @@ static void test_reference_picks_the_same_level(void **state)
         mr_film_free(fb);
     }
     assert_true(levels_seen >= 3); /* the frames span at least three levels */
-    close_run(&x);
-    close_run(&y);
+    lod_close(&x);
+    lod_close(&y);
     cJSON_free(free_json);
     cJSON_free(ref_json);
     mr_asset_free(dancer);

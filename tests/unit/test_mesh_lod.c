@@ -38,6 +38,7 @@
 
 #include "../support/bcn_fixture.h"
 #include "../support/film_fixture.h"
+#include "../support/lod_fixture.h"
 #include "job_json.h"
 #include "kinds/lod.h"
 #include "kinds/mesh/mesh_lod.h"
@@ -290,59 +291,10 @@ static void test_pick_and_stretch(void **state)
 
 /* ---- the example rendered ---- */
 
-typedef struct run {
-    mr_job *job;
-    mr_asset *asset;
-    mr_device *dev;
-    mr_renderer *r;
-} run;
-
-static void open_run(run *x, const char *json, unsigned threads)
-{
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &x->job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    if (mr_device_new(threads, &x->dev, &err) != MR_OK ||
-        mr_renderer_new(x->dev, x->job, &x->asset, NULL, &x->r, &err) != MR_OK)
-        fail_msg("%s", err.msg);
-}
-
-static void close_run(run *x)
-{
-    mr_renderer_free(x->r);
-    mr_device_free(x->dev);
-    mr_job_free(x->job);
-}
-
-static mr_film *frame(run *x, size_t index, mr_frame_stats *st)
-{
-    mr_film *f;
-    mr_error err;
-    if (mr_film_new(x->job->output.width, x->job->output.height, &f, &err) != MR_OK ||
-        mr_renderer_render(x->r, index, f, st, &err) != MR_OK)
-        fail_msg("frame %zu: %s", index, err.msg);
-    return f;
-}
-
 /* The example at 320x180 with reference passes; still: without its pose. */
 static char *example(bool still)
 {
-    const char *dir = getenv("MR_SOURCE_DIR");
-    char path[1024];
-    snprintf(path, sizeof path, "%s/examples/lod-flythrough.json", dir ? dir : ".");
-    uint8_t *text = NULL;
-    size_t n = 0;
-    mr_error err;
-    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) != MR_OK)
-        fail_msg("%s", err.msg);
-    cJSON *o = cJSON_ParseWithLength((const char *)text, n);
-    free(text);
-    assert_non_null(o);
-    cJSON *out = cJSON_GetObjectItem(o, "output");
-    cJSON_ReplaceItemInObject(out, "width", cJSON_CreateNumber(320));
-    cJSON_ReplaceItemInObject(out, "height", cJSON_CreateNumber(180));
-    cJSON_AddBoolToObject(o, "reference", true);
+    cJSON *o = lod_example("lod-flythrough", 320, 180);
     if (still)
         cJSON_DeleteItemFromObject(cJSON_GetArrayItem(cJSON_GetObjectItem(o, "objects"), 0), "pose");
     char *s = cJSON_PrintUnformatted(o);
@@ -363,8 +315,8 @@ static void flythrough(bool still, double bound)
     char *json = example(still);
     mr_refine_params rp = example_refine();
     mr_asset *dancer = bcn_load_refined(&rp);
-    run x = {.asset = dancer};
-    open_run(&x, json, 2);
+    lod_run x;
+    lod_open(&x, json, &dancer, NULL, 2);
     /* the parsed example's refine is the one loaded here */
     assert_true(x.job->assets[0].refine && x.job->assets[0].refine_params.rounds == rp.rounds &&
                 x.job->assets[0].refine_params.amplitude == rp.amplitude &&
@@ -376,7 +328,7 @@ static void flythrough(bool still, double bound)
     double worst = 0, first_level = 0, last_level = 0;
     for (size_t i = 0; i < frames; i++) {
         mr_frame_stats st;
-        mr_film *f = frame(&x, i, &st);
+        mr_film *f = lod_frame(&x, i, &st);
         assert_int_equal(st.error_count, 2);
         for (uint32_t e = 0; e < st.error_count; e++) {
             const mr_frame_error *fe = &st.errors[e];
@@ -407,17 +359,17 @@ static void flythrough(bool still, double bound)
            still ? "still" : "walking", frames, first_level, last_level, worst);
     assert_true(first_level >= 8); /* 60 units away: at most a few hundred triangles */
     assert_true(last_level <= 5);  /* 3.2 units away, 320x180: thousands */
-    close_run(&x);
+    lod_close(&x);
 
     /* the frame alone, on one thread: the same pixels */
-    run y = {.asset = dancer};
-    open_run(&y, json, 1);
+    lod_run y;
+    lod_open(&y, json, &dancer, NULL, 1);
     mr_frame_stats st;
-    mr_film *alone = frame(&y, probe, &st);
+    mr_film *alone = lod_frame(&y, probe, &st);
     fx_assert_same_pixels(kept, alone, "a frame rendered alone on one thread");
     mr_film_free(alone);
     mr_film_free(kept);
-    close_run(&y);
+    lod_close(&y);
     mr_asset_free(dancer);
     cJSON_free(json);
 }

@@ -129,6 +129,47 @@ static void test_sphere_depth_and_silhouette(void **state)
     fixture_free(&s);
 }
 
+/* A small sphere off the film's centre: the film outside the scene's
+ * projected bounding box is not traced (integrator.c scene_rect), and every
+ * pixel still lands on the analytic side of the silhouette (the same
+ * margin), seen along the renderer's own pixel rays. */
+static void test_sphere_off_centre(void **state)
+{
+    (void)state;
+    const double dist = 12.0;
+    scene_fixture s;
+    fixture_init(&s, make_sphere(), mr_v3(0, 0, (float)dist), mr_v3(2.6f, 2.0f, 0), YFOV_DEG, W, H, 1);
+    mr_frame_stats st;
+    mr_film *f = fixture_render(&s, 0, &st);
+    mr_camera cam = {.position = s.key.position, .rotation = mr_camera_key_rotation(&s.key, mr_v3(0, 1, 0)),
+                     .yfov = s.key.yfov};
+    double alpha = asin(1.0 / dist), margin = 2e-4;
+    size_t inside = 0, outside = 0;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            mr_vec3 d = mr_camera_ray_dir(&cam, W, H, x + 0.5, y + 0.5);
+            /* the angle to the sphere's centre, straight down -z from the eye */
+            double c = -(double)d.z / sqrt((double)d.x * d.x + (double)d.y * d.y + (double)d.z * d.z);
+            double ang = acos(fmin(1.0, c));
+            size_t i = (size_t)y * W + x;
+            if (ang < alpha - margin) {
+                inside++;
+                if (f->object_id[i] != 1)
+                    fail_msg("pixel (%d,%d) at %.6f rad should hit (silhouette %.6f)", x, y, ang, alpha);
+            } else if (ang > alpha + margin) {
+                outside++;
+                if (f->object_id[i] != 0 || f->z[i] != MR_DEPTH_MISS || f->a[i] != 0.0f)
+                    fail_msg("pixel (%d,%d) at %.6f rad should miss (silhouette %.6f)", x, y, ang, alpha);
+            }
+        }
+    assert_true(inside > 200 && outside > 5000);
+    /* the sphere's box covers a few hundred pixels: far fewer primary rays
+     * than pixels, plus one shadow ray per hit */
+    assert_true(st.rays < (uint64_t)W * H / 4);
+    mr_film_free(f);
+    fixture_free(&s);
+}
+
 static void test_same_bytes_any_thread_count(void **state)
 {
     (void)state;
@@ -158,6 +199,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_sphere_depth_and_silhouette),
+        cmocka_unit_test(test_sphere_off_centre),
         cmocka_unit_test(test_same_bytes_any_thread_count),
     };
     return cmocka_run_group_tests_name("render", tests, NULL, NULL);

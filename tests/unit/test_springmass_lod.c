@@ -17,34 +17,19 @@
 #include <stdint.h>
 #include <cmocka.h>
 
-#include <cJSON.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "../support/film_fixture.h"
-#include "job_json.h"
+#include "../support/lod_fixture.h"
 
 /* The example at 320x180 over 1.5 s at 12 fps, reference passes, the
  * tolerance, and a camera flying in along its own line of sight. */
 static char *example(void)
 {
-    const char *dir = getenv("MR_SOURCE_DIR");
-    char path[1024];
-    snprintf(path, sizeof path, "%s/examples/springmass-probe.json", dir ? dir : ".");
-    uint8_t *text = NULL;
-    size_t n = 0;
-    mr_error err;
-    if (mr_fs_read_capped(path, 1 << 20, &text, &n, "example", &err) != MR_OK)
-        fail_msg("%s", err.msg);
-    cJSON *o = cJSON_ParseWithLength((const char *)text, n);
-    free(text);
-    assert_non_null(o);
-    cJSON *out = cJSON_GetObjectItem(o, "output");
-    cJSON_ReplaceItemInObject(out, "width", cJSON_CreateNumber(320));
-    cJSON_ReplaceItemInObject(out, "height", cJSON_CreateNumber(180));
-    cJSON_AddBoolToObject(o, "reference", true);
+    cJSON *o = lod_example("springmass-probe", 320, 180);
     cJSON_AddNumberToObject(o, "tolerance_px", 1);
     cJSON_ReplaceItemInObject(o, "frames", cJSON_Parse("{\"fps\": 12, \"start\": 0, \"end\": 1.5}"));
     /* the example's camera key, moved back along its line of sight */
@@ -72,32 +57,16 @@ static void test_flythrough(void **state)
 {
     (void)state;
     char *json = example();
-    mr_job *job;
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    mr_asset *asset = NULL;
-    mr_device *dev;
-    mr_renderer *r;
-    mr_film *f;
-    mr_asset *plain = NULL;
-    mr_refine_params rp = job->assets[0].refine_params; /* the example's "refine" */
-    rp.threads = 2;
-    if (mr_asset_load(job->assets[0].path, &plain, &err) != MR_OK ||
-        mr_refine_asset(plain, &rp, &asset, &err) != MR_OK)
-        fail_msg("%s", err.msg);
-    mr_asset_free(plain);
-    if (mr_device_new(2, &dev, &err) != MR_OK ||
-        mr_renderer_new(dev, job, &asset, NULL, &r, &err) != MR_OK ||
-        mr_film_new(320, 180, &f, &err) != MR_OK)
-        fail_msg("%s", err.msg);
+    mr_asset *asset;
+    assert_int_equal(lod_load_assets(json, &asset, 1), 1);
+    lod_run x;
+    lod_open(&x, json, &asset, NULL, 2);
+    const mr_job *job = x.job;
     double worst = 0;
     uint32_t first = 0, last = 0;
     for (size_t i = 0; i < job->frame_count; i++) {
         mr_frame_stats st;
-        if (mr_renderer_render(r, i, f, &st, &err) != MR_OK)
-            fail_msg("frame %zu: %s", i, err.msg);
+        mr_film_free(lod_frame(&x, i, &st));
         assert_int_equal(st.lod_count, 1);
         const mr_object_lod *l = &st.lod[0];
         assert_true(l->level <= 2);
@@ -122,10 +91,7 @@ static void test_flythrough(void **state)
     print_message("%zu frames, mapping levels %u .. %u, worst surface_px against trilinear %.3f\n",
                   job->frame_count, first, last, worst);
     assert_int_equal(first, 2); /* 40 units away: triangle_basis */
-    mr_film_free(f);
-    mr_renderer_free(r);
-    mr_device_free(dev);
-    mr_job_free(job);
+    lod_close(&x);
     mr_asset_free(asset);
     cJSON_free(json);
 }

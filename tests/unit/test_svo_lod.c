@@ -24,7 +24,7 @@
 #include <string.h>
 
 #include "../support/film_fixture.h"
-#include "job_json.h"
+#include "../support/lod_fixture.h"
 
 static const char JOB[] =
     "{\"name\": \"svo-lod\", \"assets\": {\"dancer\": {\"path\": "
@@ -38,35 +38,6 @@ static const char JOB[] =
     " \"frames\": {\"fps\": 12, \"start\": 0, \"end\": 2}, \"reference\": true,"
     " \"output\": {\"width\": 320, \"height\": 180, \"samples\": 1}}";
 
-typedef struct run {
-    mr_job *job;
-    mr_asset *asset;
-    mr_device *dev;
-    mr_renderer *r;
-} run;
-
-static void open_run(run *x, const char *method, const char *tolerance)
-{
-    char json[sizeof JOB + 64];
-    snprintf(json, sizeof json, JOB, method, tolerance);
-    mr_job_error je;
-    mr_error err;
-    if (mr_job_parse(json, strlen(json), &x->job, &je) != MR_OK)
-        fail_msg("job: %s at %s", je.message, je.pointer);
-    if (mr_asset_load(x->job->assets[0].path, &x->asset, &err) != MR_OK ||
-        mr_device_new(2, &x->dev, &err) != MR_OK ||
-        mr_renderer_new(x->dev, x->job, &x->asset, NULL, &x->r, &err) != MR_OK)
-        fail_msg("%s", err.msg);
-}
-
-static void close_run(run *x)
-{
-    mr_renderer_free(x->r);
-    mr_device_free(x->dev);
-    mr_job_free(x->job);
-    mr_asset_free(x->asset);
-}
-
 typedef struct flight {
     size_t frames, over;  /* frames, and those whose measured error passes 1 px */
     size_t leaf_limited;  /* frames that selected every leaf (the octree's depth is the limit) */
@@ -76,17 +47,17 @@ typedef struct flight {
 /* The fly-through; tolerance: a JSON number or null. */
 static flight flythrough(const char *method, const char *tolerance)
 {
-    run x;
-    open_run(&x, method, tolerance);
-    mr_film *f;
-    mr_error err;
-    assert_int_equal(mr_film_new(320, 180, &f, &err), MR_OK);
+    char json[sizeof JOB + 64];
+    snprintf(json, sizeof json, JOB, method, tolerance);
+    mr_asset *dancer;
+    assert_int_equal(lod_load_assets(json, &dancer, 1), 1);
+    lod_run x;
+    lod_open(&x, json, &dancer, NULL, 2);
     flight out = {.frames = x.job->frame_count, .worst_margin = -INFINITY};
     double all_leaves = 0;
     for (size_t i = 0; i < x.job->frame_count; i++) {
         mr_frame_stats st;
-        if (mr_renderer_render(x.r, i, f, &st, &err) != MR_OK)
-            fail_msg("frame %zu: %s", i, err.msg);
+        mr_film_free(lod_frame(&x, i, &st));
         assert_int_equal(st.error_count, 1);
         assert_true(st.errors[0].reference == MR_REFERENCE_GROUND_TRUTH);
         double measured = st.errors[0].surface_px, predicted = fx_frame_extra(&st, "svo_lod_error_px");
@@ -110,8 +81,8 @@ static flight flythrough(const char *method, const char *tolerance)
                       "voxels selected, %.1f ms\n", method, tolerance, i, predicted, measured,
                       selected, all_leaves, 1e3 * (st.pose_s + st.bvh_s + st.trace_s));
     }
-    mr_film_free(f);
-    close_run(&x);
+    lod_close(&x);
+    mr_asset_free(dancer);
     return out;
 }
 
