@@ -191,7 +191,9 @@ static void bench_throughput(mr_device *dev, const char *job_path, int width, in
     mr_error err = {0};
     mr_renderer *r = NULL;
     mr_film *film = NULL;
-    if (mr_renderer_new(dev, job, lj.assets, NULL, &r, &err) < 0 || mr_film_new(width, height, &film, &err) < 0)
+    /* the same work as the bare loops: a ray for every pixel */
+    mr_renderer_options every = {.trace_every_pixel = true};
+    if (mr_renderer_new(dev, job, lj.assets, &every, &r, &err) < 0 || mr_film_new(width, height, &film, &err) < 0)
         die(job_path, err.msg);
     uint64_t tris;
     mr_frame_stats st0;

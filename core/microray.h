@@ -1476,6 +1476,11 @@ typedef struct mr_renderer_options {
      * grows with their parameters (svo instances) estimate it before they
      * allocate and fail with MR_ERR_LIMIT, naming the field, beyond it. */
     size_t memory_budget;
+    /* Trace a primary ray for every pixel, also where the film shows none
+     * of the scene's bounding box (by default such pixels are misses
+     * without a ray): the same work as a plain ray loop, for benchmarks that
+     * compare ray rates. The frames are the same either way. */
+    bool trace_every_pixel;
 } mr_renderer_options;
 
 /* The budget a daemon or the one-shot renderer gives a job when none is

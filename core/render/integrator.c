@@ -295,11 +295,13 @@ static void tally_write(crypto_tally *t, int ranks, int samples, float (*planes)
  * outside misses the box and so everything in it: such pixels are misses
  * without a ray (a distant object leaves most of the film empty; its rays
  * were the floor of a frame's time however few triangles it had). The
- * whole film when a corner is behind or near the camera's plane; nothing
- * when the scene is empty. */
+ * whole film when a corner is behind or near the camera's plane (or the
+ * caller asks for every pixel); nothing when the scene is empty. */
 static void scene_rect(trace_ctx *c, const mr_trace_setup *s, int width, int height)
 {
     c->x0 = 0, c->x1 = width, c->y0 = 0, c->y1 = height;
+    if (s->trace_every_pixel)
+        return;
     struct RTCBounds b;
     rtcGetSceneBounds(s->scene, &b);
     if (!(b.lower_x <= b.upper_x && b.lower_y <= b.upper_y && b.lower_z <= b.upper_z)) {

@@ -65,6 +65,7 @@ typedef struct mr_trace_setup {
     float shadow_bias;              /* world units, ~1e-4 of the scene diagonal */
     unsigned threads;
     const atomic_bool *cancel;      /* may be NULL; checked before every tile */
+    bool trace_every_pixel;         /* no scene-rectangle cull (mr_renderer_options) */
 } mr_trace_setup;
 
 /* Traces the whole film; returns the number of rays traced. When *cancel

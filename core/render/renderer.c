@@ -598,6 +598,7 @@ static int render_frame(mr_renderer *r, size_t index, mr_film *film, mr_frame_st
         .shadow_bias = 1e-4f * diag,
         .threads = mr_device_threads(r->dev),
         .cancel = r->opt.cancel,
+        .trace_every_pixel = r->opt.trace_every_pixel,
     };
     ts.camera = frame.camera;
     film->has_camera = true;
