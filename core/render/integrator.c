@@ -4,6 +4,7 @@
 #include <float.h>
 #include <limits.h>
 #include <math.h>
+#include <stdlib.h>
 #include <stdatomic.h>
 #include <string.h>
 
@@ -35,6 +36,8 @@ typedef struct {
     /* the film rectangle [x0, x1] x [y0, y1] (pixel coordinates) outside
      * which a primary ray misses the whole scene (scene_rect) */
     double x0, x1, y0, y1;
+    uint32_t miss[16];  /* a missed pixel's bits in each film plane (miss_values) */
+    uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     mr_film *film;
     int tiles_x;
     atomic_ullong rays;
@@ -330,9 +333,18 @@ static void scene_rect(trace_ctx *c, const mr_trace_setup *s, int width, int hei
     c->x0 = x0 - 1, c->x1 = x1 + 1, c->y0 = y0 - 1, c->y1 = y1 + 1;
 }
 
-/* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index i0.. */
-static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *t, size_t i0,
-                         uint64_t *rays)
+/* Whether a primary ray through the film rectangle [x0, x1] x [y0, y1]
+ * can hit the scene (scene_rect). */
+static bool rect_seen(const trace_ctx *c, double x0, double x1, double y0, double y1)
+{
+    return x1 >= c->x0 && x0 <= c->x1 && y1 >= c->y0 && y0 <= c->y1;
+}
+
+/* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index
+ * i0..; seen: false when none of their rays can hit the scene (rect_seen):
+ * misses, untraced. */
+static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, tile_buffer *t,
+                         size_t i0, uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
     const bool colour = s->aovs & MR_AOV_RGBA, crypto = s->aovs & MR_AOV_CRYPTOMATTE;
@@ -349,8 +361,6 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *
                 tally[i][l].count = 0;
     }
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
-    /* the pixels' samples lie in [x0, x0 + n] x [y, y + 1] */
-    const bool seen = x0 + n >= c->x0 && x0 <= c->x1 && y + 1 >= c->y0 && y <= c->y1;
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
         if (seen)
@@ -398,6 +408,30 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, tile_buffer *
  * were tried here and measured no faster.) */
 static void copy_out(void *dst, const void *src, int n) { memcpy(dst, src, (size_t)n * 4); }
 
+/* The film's planes and a tile buffer's, in one order. */
+#define PLANES 16
+static void film_planes(mr_film *f, void *out[PLANES])
+{
+    void *o[PLANES] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
+                       f->px, f->py, f->pz, f->tx, f->ty, f->tz, f->object_id, f->prim_id};
+    memcpy(out, o, sizeof o);
+}
+
+static void tile_planes(tile_buffer *t, void *in[PLANES])
+{
+    void *i[PLANES] = {t->r, t->g, t->b, t->a, t->z, t->nx, t->ny, t->nz,
+                       t->px, t->py, t->pz, t->tx, t->ty, t->tz, t->object_id, t->prim_id};
+    memcpy(in, i, sizeof i);
+}
+
+/* Fills n 4-byte values of a film row with v. */
+static void fill_out(void *dst, uint32_t v, int n)
+{
+    uint32_t *d = dst;
+    for (int i = 0; i < n; i++)
+        d[i] = v;
+}
+
 static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -405,6 +439,9 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
     mr_film *f = c->film;
     uint64_t rays = 0;
     tile_buffer t;
+    void *out[PLANES], *in[PLANES];
+    film_planes(f, out);
+    tile_planes(&t, in);
     for (size_t tile = begin; tile < end; tile++) {
         if (c->s->cancel && atomic_load_explicit(c->s->cancel, memory_order_relaxed)) {
             atomic_store(&c->cancelled, true);
@@ -414,18 +451,29 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
         int y0 = (int)(tile / (size_t)c->tiles_x) * MR_TILE_H;
         int tw = f->width - x0 < MR_TILE_W ? f->width - x0 : MR_TILE_W;
         int th = f->height - y0 < MR_TILE_H ? f->height - y0 : MR_TILE_H;
+        if (!rect_seen(c, x0, x0 + tw, y0, y0 + th)) {
+            /* none of the scene in view: every pixel is the miss (c->miss) */
+            for (int y = 0; y < th; y++) {
+                size_t dst = (size_t)(y0 + y) * f->width + x0;
+                for (size_t k = 0; k < PLANES; k++)
+                    if (out[k])
+                        fill_out((uint32_t *)out[k] + dst, c->miss[k], tw);
+                for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+                    for (int k = 0; k < 2 * f->crypto_ranks; k++)
+                        fill_out(f->crypto[l][k] + dst, c->miss_crypto[l][k], tw);
+            }
+            continue;
+        }
         for (int y = 0; y < th; y++)
             for (int x = 0; x < tw; x += MR_PACKET) {
                 int n = tw - x < MR_PACKET ? tw - x : MR_PACKET;
-                trace_pixels(c, x0 + x, n, y0 + y, &t, (size_t)y * MR_TILE_W + x, &rays);
+                /* the pixels' samples lie in [x, x + n] x [y, y + 1] */
+                bool seen = rect_seen(c, x0 + x, x0 + x + n, y0 + y, y0 + y + 1);
+                trace_pixels(c, x0 + x, n, y0 + y, seen, &t, (size_t)y * MR_TILE_W + x, &rays);
             }
         for (int y = 0; y < th; y++) {
             size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
-            void *out[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
-                           f->px, f->py, f->pz, f->tx, f->ty, f->tz, f->object_id, f->prim_id};
-            const void *in[] = {t.r, t.g, t.b, t.a, t.z, t.nx, t.ny, t.nz,
-                                t.px, t.py, t.pz, t.tx, t.ty, t.tz, t.object_id, t.prim_id};
-            for (size_t k = 0; k < sizeof out / sizeof out[0]; k++)
+            for (size_t k = 0; k < PLANES; k++)
                 if (out[k]) /* the film's passes only */
                     copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, tw);
             for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
@@ -436,12 +484,34 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
     atomic_fetch_add(&c->rays, rays);
 }
 
+/* What a pixel no ray of which can hit the scene holds in every plane:
+ * the untraced path's own output for one such pixel, bit for bit. */
+static void miss_values(trace_ctx *c)
+{
+    tile_buffer *t = malloc(sizeof *t);
+    if (!t) { /* no template: cull nothing */
+        c->x0 = -INFINITY, c->x1 = INFINITY, c->y0 = -INFINITY, c->y1 = INFINITY;
+        return;
+    }
+    uint64_t rays = 0;
+    trace_pixels(c, 0, 1, 0, false, t, 0, &rays);
+    void *in[PLANES];
+    tile_planes(t, in);
+    for (size_t k = 0; k < PLANES; k++)
+        memcpy(&c->miss[k], in[k], 4);
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
+            memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
+    free(t);
+}
+
 uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancelled)
 {
     trace_ctx c = {.s = setup, .film = film};
     c.rays_setup = mr_camera_rays_setup(&setup->camera, film->width, film->height);
     c.forward = mr_quat_rotate(setup->camera.rotation, mr_v3(0, 0, -1));
     scene_rect(&c, setup, film->width, film->height);
+    miss_values(&c);
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);

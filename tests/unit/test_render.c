@@ -21,6 +21,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include "../support/film_fixture.h"
 #include "../support/scene_fixture.h"
 
 #define RINGS 128
@@ -170,6 +171,42 @@ static void test_sphere_off_centre(void **state)
     fixture_free(&s);
 }
 
+/* The same frame with every pixel traced (mr_renderer_options
+ * trace_every_pixel): the same bits in every plane, Cryptomatte included,
+ * over a coloured, half-transparent background and 4 jittered samples, so
+ * the pixels answered untraced (whole tiles and packets outside the scene's
+ * projected box) hold exactly what a traced miss would. */
+static void test_untraced_misses_are_misses(void **state)
+{
+    (void)state;
+    scene_fixture s;
+    fixture_init(&s, make_sphere(), mr_v3(0, 0, 12), mr_v3(2.6f, 2.0f, 0), YFOV_DEG, 150, 90, 4);
+    s.job.background = mr_v3(0.2f, 0.3f, 0.4f);
+    s.job.background_alpha = 0.5f;
+    s.job.output.aovs = MR_AOV_ALL;
+    mr_film *f[2];
+    uint64_t rays[2];
+    for (int every = 0; every < 2; every++) {
+        mr_error err = {0};
+        mr_device *dev = NULL;
+        mr_renderer *r = NULL;
+        mr_renderer_options opt = {.trace_every_pixel = every};
+        mr_frame_stats st;
+        if (mr_device_new(2, &dev, &err) < 0 || mr_renderer_new(dev, &s.job, &s.asset, &opt, &r, &err) < 0 ||
+            mr_job_film_new(&s.job, &f[every], &err) < 0 || mr_renderer_render(r, 0, f[every], &st, &err) < 0)
+            fail_msg("%s", err.msg);
+        assert_true(f[every]->crypto_ranks > 0);
+        rays[every] = st.rays;
+        mr_renderer_free(r);
+        mr_device_free(dev);
+    }
+    fx_assert_same_pixels(f[0], f[1], "untraced misses against traced ones");
+    assert_true(rays[0] * 4 < rays[1]); /* most of the film was not traced */
+    mr_film_free(f[0]);
+    mr_film_free(f[1]);
+    fixture_free(&s);
+}
+
 static void test_same_bytes_any_thread_count(void **state)
 {
     (void)state;
@@ -200,6 +237,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_sphere_depth_and_silhouette),
         cmocka_unit_test(test_sphere_off_centre),
+        cmocka_unit_test(test_untraced_misses_are_misses),
         cmocka_unit_test(test_same_bytes_any_thread_count),
     };
     return cmocka_run_group_tests_name("render", tests, NULL, NULL);
