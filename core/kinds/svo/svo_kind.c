@@ -123,7 +123,7 @@ static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t fram
 /* Perspective projection of the frame's camera, far plane at infinity
  * (only the near plane culls), for the screen-space selection. With a
  * tolerance, voxels are refined until they project smaller than
- * tolerance / sqrt(3) (svo_predicted_px says why). */
+ * tolerance / sqrt(3) (predict says why). */
 static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
 {
     mr_svo_view v = {.enabled = false};
