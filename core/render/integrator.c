@@ -30,6 +30,9 @@ static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y
     *jy = (float)((h >> 16) & 0xffffff) * (1.0f / 16777216.0f);
 }
 
+/* The film's float and id planes (film_planes), Cryptomatte aside. */
+#define PLANES 16
+
 typedef struct {
     const mr_trace_setup *s;
     mr_camera_rays rays_setup;
@@ -37,7 +40,7 @@ typedef struct {
     /* the film rectangle [x0, x1] x [y0, y1] (pixel coordinates) outside
      * which a primary ray misses the whole scene (scene_rect) */
     double x0, x1, y0, y1;
-    uint32_t miss[16];  /* a missed pixel's bits in each film plane (miss_values) */
+    uint32_t miss[PLANES]; /* a missed pixel's bits in each film plane (miss_values) */
     uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     mr_film *film;
     int tiles_x;
@@ -409,8 +412,7 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
  * were tried here and measured no faster.) */
 static void copy_out(void *dst, const void *src, int n) { memcpy(dst, src, (size_t)n * 4); }
 
-/* The film's planes and a tile buffer's, in one order. */
-#define PLANES 16
+/* The film's planes and a tile buffer's, in one order (PLANES). */
 static void film_planes(mr_film *f, void *out[PLANES])
 {
     void *o[PLANES] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
