@@ -38,6 +38,30 @@ double mr_lod_stretch(const mr_mat4 *t)
     return sqrt(worst);
 }
 
+enum RTCBuildQuality mr_lod_build_quality(uint32_t levels, enum RTCBuildQuality quality)
+{
+    return levels > 1 && quality == RTC_BUILD_QUALITY_REFIT ? RTC_BUILD_QUALITY_LOW : quality;
+}
+
+uint32_t mr_lod_bounds_level(const double *error, uint32_t count, const mr_asset *asset)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < asset->mesh_count; i++)
+        for (size_t v = 0; v < (size_t)asset->meshes[i].vertex_count * 3; v++) {
+            double x = asset->meshes[i].positions[v];
+            lo[v % 3] = fmin(lo[v % 3], x);
+            hi[v % 3] = fmax(hi[v % 3], x);
+        }
+    double d2 = 0;
+    for (int c = 0; c < 3; c++)
+        d2 += hi[c] > lo[c] ? (hi[c] - lo[c]) * (hi[c] - lo[c]) : 0;
+    uint32_t level = 0;
+    for (uint32_t k = 1; k < count; k++)
+        if (error[k] <= MR_LOD_BOUNDS_ERROR * sqrt(d2))
+            level = k;
+    return level;
+}
+
 uint32_t mr_lod_pose_times(const mr_asset *a, const mr_pose_desc *d, double *times)
 {
     if (!d)

@@ -13,6 +13,8 @@
 
 #include <stdint.h>
 
+#include <embree3/rtcore.h>
+
 #include "anim/pose.h"
 #include "asset/asset.h"
 #include "microray.h"
@@ -34,6 +36,22 @@ uint32_t mr_lod_pick(const double *error, uint32_t count, double px_per_unit, do
  * bounds its largest eigenvalue); exact for rotations times a uniform or an
  * axis-aligned scale. */
 double mr_lod_stretch(const mr_mat4 *transform);
+
+/* The build quality of a kind's level geometries (one Embree geometry per
+ * level, one enabled per frame) when the renderer asks for `quality`:
+ * with several levels, LOW instead of REFIT. A refitted tree keeps the
+ * topology of the pose it was built in, which would be the pose of the
+ * frame that first enabled the level, and a resumed job must trace the
+ * uninterrupted run's trees. */
+enum RTCBuildQuality mr_lod_build_quality(uint32_t levels, enum RTCBuildQuality quality);
+
+/* The level whose posed bounds, grown by its error, place an object for
+ * the pick each frame: the coarsest (of count, finest first) whose error
+ * is within MR_LOD_BOUNDS_ERROR of asset's rest-pose bounding-box
+ * diagonal, so the growth moves the nearest depth by little while the
+ * bounds cost a coarse level's vertices; 0 when none is. */
+#define MR_LOD_BOUNDS_ERROR 0.02
+uint32_t mr_lod_bounds_level(const double *error, uint32_t count, const mr_asset *asset);
 
 /* Poses of an object's clip its levels are measured in besides the rest
  * pose (skinning bends coarse geometry otherwise than the detail), and

@@ -795,14 +795,11 @@ static int attach_level(mr_geom *g, RTCDevice device, RTCScene scene, unsigned g
 }
 
 /* One geometry per level, consecutive ids; only the frame's level is
- * enabled (commit). Levels are rebuilt (LOW), never refitted: a refitted
- * tree keeps the topology of the pose it was built in, which would be the
- * pose of the frame that first enabled the level. */
+ * enabled (commit), built as mr_lod_build_quality says. */
 static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                             enum RTCBuildQuality quality, mr_error *err)
 {
-    if (g->lod_count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
-        quality = RTC_BUILD_QUALITY_LOW;
+    quality = mr_lod_build_quality(g->lod_count, quality);
     for (uint32_t k = 0; k < g->lod_count; k++) {
         mr_geom *l = k == 0 ? g : g->coarser[k - 1];
         int rc = attach_level(l, device, scene, geom_id + k, quality, err);

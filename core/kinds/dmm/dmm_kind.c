@@ -1233,10 +1233,6 @@ static void level_frame_stats(const dmm_level *g, double *values)
  * rest-pose error is the prediction in a pose too (not a bound: the
  * reference passes measure it). */
 
-/* The bounds level: the coarsest whose error is within this fraction of
- * the detailed mesh's rest-pose bounding-box diagonal (as the mesh kind),
- * so the growth moves the nearest depth by little. */
-#define BOUNDS_ERROR 0.02
 #define LOD_MAX (MR_UMESH_MAX_LEVEL + 1)
 
 struct mr_geom {
@@ -1360,16 +1356,8 @@ static int measure_levels(mr_geom *g, const mr_object_desc *desc, unsigned threa
     free(posed);
     for (uint32_t k = 1; k < g->count; k++) /* a coarser level never promises better */
         g->error[k] = fmax(g->error[k], g->error[k - 1]);
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, d2 = 0;
-    for (size_t v = 0; rc == MR_OK && v < (size_t)nv * 3; v++) {
-        lo[v % 3] = fmin(lo[v % 3], pos[v]);
-        hi[v % 3] = fmax(hi[v % 3], pos[v]);
-    }
-    for (int c = 0; c < 3 && nv; c++)
-        d2 += (hi[c] - lo[c]) * (hi[c] - lo[c]);
-    for (uint32_t k = 1; k < g->count && rc == MR_OK; k++)
-        if (g->error[k] <= BOUNDS_ERROR * sqrt(d2))
-            g->bounds_level = k;
+    if (rc == MR_OK)
+        g->bounds_level = mr_lod_bounds_level(g->error, g->count, a);
     free(pos);
     free(idx);
     return rc;
@@ -1485,15 +1473,11 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
 }
 
 /* One geometry per level; only the frame's level is enabled (commit).
- * Levels are rebuilt (LOW), never refitted: a refitted tree keeps the
- * topology of the pose it was built in, which would be the pose of the
- * frame that first enabled the level, and a resumed job must trace the
- * uninterrupted run's trees (as the mesh kind's levels). */
+ * Built as mr_lod_build_quality says. */
 static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                       enum RTCBuildQuality quality, mr_error *err)
 {
-    if (g->count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
-        quality = RTC_BUILD_QUALITY_LOW;
+    quality = mr_lod_build_quality(g->count, quality);
     for (uint32_t k = 0; k < g->count; k++) {
         int rc = level_attach(g->lv[k], device, scene, geom_id + k, quality, err);
         if (rc < 0)

@@ -51,8 +51,8 @@ struct mr_geom {
     const uint32_t *cur_indices; /* lod.indices[level] */
     uint32_t cur_triangles;
     uint32_t enabled;            /* the level whose geometry is enabled, or UINT32_MAX */
-    uint32_t bounds_level;       /* the level whose bounds place the mesh each frame: the
-                                    coarsest within BOUNDS_ERROR of the diagonal */
+    uint32_t bounds_level;       /* the level whose bounds place the mesh each frame
+                                    (mr_lod_bounds_level) */
     uint32_t posed;              /* bit k: level k's vertices are posed for the current pose */
     uint32_t dirty;              /* bit k: level k's vertices were posed since the last commit */
     /* the vertices level k > 0 uses, as indices into asset mesh i:
@@ -82,27 +82,6 @@ static void mesh_free(mr_geom *g)
     free(g->tangents);
     free(g->indices);
     free(g);
-}
-
-/* Each frame a level of detail places the mesh by the bounds of a coarse
- * level grown by its error: the coarsest level whose error is within this
- * fraction of the rest pose's bounding-box diagonal, so the growth moves
- * the nearest depth by little. */
-#define BOUNDS_ERROR 0.02
-
-static double asset_diagonal(const mr_asset *a)
-{
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < a->mesh_count; i++)
-        for (size_t v = 0; v < (size_t)a->meshes[i].vertex_count * 3; v++) {
-            double x = a->meshes[i].positions[v];
-            lo[v % 3] = fmin(lo[v % 3], x);
-            hi[v % 3] = fmax(hi[v % 3], x);
-        }
-    double d2 = 0;
-    for (int c = 0; c < 3; c++)
-        d2 += hi[c] > lo[c] ? (hi[c] - lo[c]) * (hi[c] - lo[c]) : 0;
-    return sqrt(d2);
 }
 
 /* The levels measured again in the poses of the object's first pose
@@ -233,10 +212,7 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
             return mr_error_set(err, rc, "%s", e.msg);
         }
         g->lod_build_s = mr_now() - t;
-        double diag = asset_diagonal(asset);
-        for (uint32_t k = 1; k < g->lod.level_count; k++)
-            if (g->lod.error[k] <= BOUNDS_ERROR * diag)
-                g->bounds_level = k;
+        g->bounds_level = mr_lod_bounds_level(g->lod.error, g->lod.level_count, asset);
     }
     g->cur_indices = g->indices;
     g->cur_triangles = g->triangle_count;
@@ -334,15 +310,11 @@ static int mesh_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *po
 }
 
 /* One geometry per level, all over the one vertex array; only the frame's
- * level is enabled (commit). Levels are rebuilt (LOW), never refitted: a
- * refitted tree keeps the topology of the pose it was built in, which would
- * be the pose of the frame that first enabled the level, and a resumed job
- * must trace the uninterrupted run's trees. */
+ * level is enabled (commit), built as mr_lod_build_quality says. */
 static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                        enum RTCBuildQuality quality, mr_error *err)
 {
-    if (g->lod.level_count > 1 && quality == RTC_BUILD_QUALITY_REFIT)
-        quality = RTC_BUILD_QUALITY_LOW;
+    quality = mr_lod_build_quality(g->lod.level_count, quality);
     for (uint32_t k = 0; k < g->lod.level_count; k++) {
         int rc = mr_geom_attach_triangles(device, scene, geom_id + k, quality, g->positions,
                                           g->vertex_count, g->lod.indices[k], g->lod.triangles[k],
