@@ -9,12 +9,38 @@
 #define MR_TEST_LOD_FIXTURE_H
 
 #include <cJSON.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "film_fixture.h"
 #include "job_json.h"
+#include "kinds/svo/voxelize.h" /* mr_tri_closest_point */
 #include "microray.h"
+
+/* Vertex v of pos (3 floats a vertex), in double. */
+static inline void lod_point(const float *pos, uint32_t v, double out[3])
+{
+    for (int c = 0; c < 3; c++)
+        out[c] = pos[3 * (size_t)v + c];
+}
+
+/* Brute force: the distance from p to the nearest of the nt triangles idx
+ * over pos (what a level's error is checked against). */
+static inline double lod_brute_distance(const float *pos, const uint32_t *idx, uint32_t nt,
+                                        const double p[3])
+{
+    double best = INFINITY;
+    for (uint32_t t = 0; t < nt; t++) {
+        double a[3], b[3], c[3], w[3];
+        lod_point(pos, idx[3 * t], a);
+        lod_point(pos, idx[3 * t + 1], b);
+        lod_point(pos, idx[3 * t + 2], c);
+        best = fmin(best, mr_tri_closest_point(p, a, b, c, w));
+    }
+    return sqrt(best);
+}
 
 /* examples/<name>.json (below $MR_SOURCE_DIR, else the current folder) at
  * width x height with "reference": true, asset paths relative to the
@@ -118,6 +144,22 @@ static inline mr_film *lod_frame(lod_run *x, size_t index, mr_frame_stats *st)
         mr_renderer_render(x->r, index, f, st, &err) != MR_OK)
         fail_msg("frame %zu: %s", index, err.msg);
     return f;
+}
+
+/* Frame `index` of job json rendered alone on one thread, by a renderer of
+ * its own with no frame before it, has the pixels of `kept` (the same
+ * frame rendered in sequence on two threads); frees kept. */
+static inline void lod_assert_frame_alone(const char *json, mr_asset *const *assets, size_t index,
+                                          mr_film *kept)
+{
+    lod_run y;
+    lod_open(&y, json, assets, NULL, 1);
+    mr_frame_stats st;
+    mr_film *alone = lod_frame(&y, index, &st);
+    fx_assert_same_pixels(kept, alone, "a frame rendered alone on one thread");
+    mr_film_free(alone);
+    mr_film_free(kept);
+    lod_close(&y);
 }
 
 #endif /* MR_TEST_LOD_FIXTURE_H */

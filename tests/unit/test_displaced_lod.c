@@ -189,15 +189,7 @@ static void test_flythrough(void **state)
     lod_close(&t);
     lod_close(&x);
 
-    /* the frame alone, on one thread: the same pixels */
-    lod_run y;
-    lod_open(&y, json, assets, NULL, 1);
-    mr_frame_stats st;
-    mr_film *alone = lod_frame(&y, probe, &st);
-    fx_assert_same_pixels(kept, alone, "a frame rendered alone on one thread");
-    mr_film_free(alone);
-    mr_film_free(kept);
-    lod_close(&y);
+    lod_assert_frame_alone(json, assets, probe, kept);
     for (size_t i = 0; i < 2; i++)
         mr_asset_free(assets[i]);
     cJSON_free(json);

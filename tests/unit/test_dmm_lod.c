@@ -59,26 +59,6 @@
 
 /* ---- each level's error ---- */
 
-static void point(const float *pos, uint32_t v, double p[3])
-{
-    for (int c = 0; c < 3; c++)
-        p[c] = pos[3 * (size_t)v + c];
-}
-
-/* Brute force: the distance from p to the nearest of nt triangles idx. */
-static double distance_to(const float *pos, const uint32_t *idx, uint32_t nt, const double p[3])
-{
-    double best = INFINITY;
-    for (uint32_t t = 0; t < nt; t++) {
-        double a[3], b[3], c[3], w[3];
-        point(pos, idx[3 * t], a);
-        point(pos, idx[3 * t + 1], b);
-        point(pos, idx[3 * t + 2], c);
-        best = fmin(best, mr_tri_closest_point(p, a, b, c, w));
-    }
-    return sqrt(best);
-}
-
 /* The two-sided distance of dmm_lod.h, brute force: every vertex of the
  * detailed mesh (duplicates at one position give the same distance)
  * against the level; every micro-vertex a micro-triangle uses and every
@@ -89,8 +69,8 @@ static double brute_error(const mr_asset *a, const mr_trimesh *level)
     for (size_t i = 0; i < a->mesh_count; i++)
         for (uint32_t v = 0; v < a->meshes[i].vertex_count; v++) {
             double p[3];
-            point(a->meshes[i].positions, v, p);
-            worst = fmax(worst, distance_to(level->positions, level->indices, level->triangle_count, p));
+            lod_point(a->meshes[i].positions, v, p);
+            worst = fmax(worst, lod_brute_distance(level->positions, level->indices, level->triangle_count, p));
         }
     uint8_t *used = calloc(level->vertex_count, 1);
     assert_non_null(used);
@@ -101,18 +81,18 @@ static double brute_error(const mr_asset *a, const mr_trimesh *level)
         if (k < level->vertex_count) {
             if (!used[k])
                 continue;
-            point(level->positions, k, p);
+            lod_point(level->positions, k, p);
         } else {
             const uint32_t *t = level->indices + 3 * (size_t)(k - level->vertex_count);
             double c[3][3];
             for (int j = 0; j < 3; j++)
-                point(level->positions, t[j], c[j]);
+                lod_point(level->positions, t[j], c[j]);
             for (int j = 0; j < 3; j++)
                 p[j] = (c[0][j] + c[1][j] + c[2][j]) / 3.0;
         }
         double d = INFINITY;
         for (size_t i = 0; i < a->mesh_count; i++)
-            d = fmin(d, distance_to(a->meshes[i].positions, a->meshes[i].indices,
+            d = fmin(d, lod_brute_distance(a->meshes[i].positions, a->meshes[i].indices,
                                     a->meshes[i].triangle_count, p));
         worst = fmax(worst, d);
     }
@@ -212,13 +192,13 @@ static void test_both_sides(void **state)
     double spike = 0, c[3] = {0, 0, 0};
     for (uint32_t k = 0; k < 3; k++) {
         double q[3];
-        point(pos, s.vertex_count + k, q);
-        spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, q));
+        lod_point(pos, s.vertex_count + k, q);
+        spike = fmax(spike, lod_brute_distance(s.positions, s.indices, s.triangle_count, q));
         for (int j = 0; j < 3; j++)
             c[j] += q[j] / 3.0;
     }
     double lost = spike; /* the truth's extra vertices against S */
-    spike = fmax(spike, distance_to(s.positions, s.indices, s.triangle_count, c));
+    spike = fmax(spike, lod_brute_distance(s.positions, s.indices, s.triangle_count, c));
     assert_true(lost > 0.01);
     /* the truth has the extra triangle: only the truth-to-level side sees it */
     mr_dmm_lod_truth t;

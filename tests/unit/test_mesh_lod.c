@@ -91,26 +91,6 @@ static void merged_free(merged *m)
     free(m->idx);
 }
 
-static void corner(const float *pos, uint32_t v, double out[3])
-{
-    for (int c = 0; c < 3; c++)
-        out[c] = pos[3 * (size_t)v + c];
-}
-
-/* Brute force: the distance from p to the nearest of nt triangles idx. */
-static double distance_to(const float *pos, const uint32_t *idx, uint32_t nt, const double p[3])
-{
-    double best = INFINITY;
-    for (uint32_t t = 0; t < nt; t++) {
-        double a[3], b[3], c[3], w[3];
-        corner(pos, idx[3 * t], a);
-        corner(pos, idx[3 * t + 1], b);
-        corner(pos, idx[3 * t + 2], c);
-        best = fmin(best, mr_tri_closest_point(p, a, b, c, w));
-    }
-    return sqrt(best);
-}
-
 static void check_chain(const mr_mesh_lod *lod, const merged *m)
 {
     assert_true(lod->error[0] == 0);
@@ -162,16 +142,16 @@ static double brute_error(const merged *m, const uint32_t *level, uint32_t tris)
     double worst = 0;
     for (uint32_t v = 0; v < m->nv; v++) {
         double p[3];
-        corner(m->pos, v, p);
-        worst = fmax(worst, distance_to(m->pos, level, tris, p));
+        lod_point(m->pos, v, p);
+        worst = fmax(worst, lod_brute_distance(m->pos, level, tris, p));
     }
     for (uint32_t t = 0; t < tris; t++) {
         double c[3][3], p[3];
         for (int k = 0; k < 3; k++)
-            corner(m->pos, level[3 * t + k], c[k]);
+            lod_point(m->pos, level[3 * t + k], c[k]);
         for (int k = 0; k < 3; k++)
             p[k] = (c[0][k] + c[1][k] + c[2][k]) / 3.0;
-        worst = fmax(worst, distance_to(m->pos, m->idx, m->nt, p));
+        worst = fmax(worst, lod_brute_distance(m->pos, m->idx, m->nt, p));
         uint32_t g = mr_mesh_lod_grid(tris);
         for (uint32_t i = 0; i <= g; i++)
             for (uint32_t j = 0; i + j <= g; j++) {
@@ -180,7 +160,7 @@ static double brute_error(const merged *m, const uint32_t *level, uint32_t tris)
                 double wa = (double)i / g, wb = (double)j / g;
                 for (int k = 0; k < 3; k++)
                     p[k] = (1.0 - wa - wb) * c[0][k] + wa * c[1][k] + wb * c[2][k];
-                worst = fmax(worst, distance_to(m->pos, m->idx, m->nt, p));
+                worst = fmax(worst, lod_brute_distance(m->pos, m->idx, m->nt, p));
             }
     }
     return worst;
@@ -231,7 +211,7 @@ static void test_faceted_model(void **state)
             const uint32_t *tri = lod.indices[k] + 3 * t;
             double c[3][3];
             for (int i = 0; i < 3; i++)
-                corner(m.pos, tri[i], c[i]);
+                lod_point(m.pos, tri[i], c[i]);
             double e1[3] = {c[1][0] - c[0][0], c[1][1] - c[0][1], c[1][2] - c[0][2]};
             double e2[3] = {c[2][0] - c[0][0], c[2][1] - c[0][1], c[2][2] - c[0][2]};
             double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
@@ -361,15 +341,7 @@ static void flythrough(bool still, double bound)
     assert_true(last_level <= 5);  /* 3.2 units away, 320x180: thousands */
     lod_close(&x);
 
-    /* the frame alone, on one thread: the same pixels */
-    lod_run y;
-    lod_open(&y, json, &dancer, NULL, 1);
-    mr_frame_stats st;
-    mr_film *alone = lod_frame(&y, probe, &st);
-    fx_assert_same_pixels(kept, alone, "a frame rendered alone on one thread");
-    mr_film_free(alone);
-    mr_film_free(kept);
-    lod_close(&y);
+    lod_assert_frame_alone(json, &dancer, probe, kept);
     mr_asset_free(dancer);
     cJSON_free(json);
 }
