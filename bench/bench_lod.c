@@ -24,7 +24,6 @@
  * usage: bench_lod [--size WxH] [--threads N] [--examples-only]
  *        (run from the repository root)
  */
-#include <dirent.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -220,36 +219,20 @@ static void fly(const flight *fl, mr_device *dev)
         mr_asset_free(assets[i]);
 }
 
-static int by_name(const void *a, const void *b)
-{
-    return strcmp(*(char *const *)a, *(char *const *)b);
-}
-
 /* Issue 16's goal on every example: each rendered with tolerance_px 1 on
  * every object and reference passes (at half its size, its first 24
  * frames), the frames whose measured error (surface_px against the ground
  * truth, or the tessellation where an object has none) stays within 1 px. */
 static void every_example(mr_device *dev)
 {
-    DIR *dir = opendir("examples");
-    if (!dir)
-        die("examples", "cannot open the folder");
     char *names[64];
-    size_t count = 0;
-    for (struct dirent *e; (e = readdir(dir)) && count < 64;) {
-        size_t n = strlen(e->d_name);
-        if (n > 5 && !strcmp(e->d_name + n - 5, ".json"))
-            names[count++] = mr_strdup(e->d_name);
-    }
-    closedir(dir);
-    qsort(names, count, sizeof names[0], by_name);
+    size_t count = bench_examples(names, 64);
     printf("\n## Every example at tolerance_px 1 (issue 16), half size, first 24 frames, %u threads\n\n",
            mr_device_threads(dev));
     printf("| example | frames | within 1 px | worst surface px | levels (first / last frame) |\n");
     printf("|---|---|---|---|---|\n");
     for (size_t i = 0; i < count; i++) {
-        char stem[256];
-        snprintf(stem, sizeof stem, "%.*s", (int)(strlen(names[i]) - 5), names[i]);
+        const char *stem = names[i];
         flight fl = {.example = stem};
         mr_job *job = job_at(&fl, 1.0, true, true);
         mr_asset *assets[MAX_ASSETS] = {0};

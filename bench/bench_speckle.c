@@ -30,7 +30,6 @@
  * repository root; --frames renders every k-th frame so at most N per
  * example, default all)
  */
-#include <dirent.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -186,11 +185,6 @@ static void free_assets(mr_asset **assets, size_t n)
     free(assets);
 }
 
-static int by_name(const void *a, const void *b)
-{
-    return strcmp(*(char *const *)a, *(char *const *)b);
-}
-
 static bool wanted(const char *name, const char *list)
 {
     if (!list)
@@ -293,23 +287,14 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    DIR *d = opendir("examples");
-    if (!d)
-        die("examples", "run from the repository root");
-    char *names[MAX_EXAMPLES];
+    char *all[MAX_EXAMPLES], *names[MAX_EXAMPLES];
+    size_t count = bench_examples(all, MAX_EXAMPLES);
     int n = 0;
-    for (struct dirent *e; (e = readdir(d)) && n < MAX_EXAMPLES;) {
-        size_t len = strlen(e->d_name);
-        if (len > 5 && strcmp(e->d_name + len - 5, ".json") == 0) {
-            names[n] = strndup(e->d_name, len - 5);
-            if (wanted(names[n], list))
-                n++;
-            else
-                free(names[n]);
-        }
-    }
-    closedir(d);
-    qsort(names, (size_t)n, sizeof *names, by_name);
+    for (size_t i = 0; i < count; i++)
+        if (wanted(all[i], list))
+            names[n++] = all[i];
+        else
+            free(all[i]);
     printf("\n## Shading artefacts (issue 13): isolated dark pixels of every example against "
            "the same scene as triangle meshes, shadows on, median over its frames\n\n"
            "| example | frames | speckle %% | as triangles %% | ratio | strays | holes |\n"

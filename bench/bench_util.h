@@ -8,6 +8,7 @@
 #ifndef MR_BENCH_UTIL_H
 #define MR_BENCH_UTIL_H
 
+#include <dirent.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -27,6 +28,32 @@ static double median(double *v, int n)
 {
     qsort(v, (size_t)n, sizeof *v, bench_cmp_double);
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+static int bench_cmp_name(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+/* The example jobs (examples/<stem>.json, run from the repository root):
+ * their stems, malloc'ed, sorted, at most max into names; exits when the
+ * folder cannot be read. Returns how many. */
+static inline size_t bench_examples(char **names, size_t max)
+{
+    DIR *d = opendir("examples");
+    if (!d) {
+        fprintf(stderr, "bench: examples: cannot open the folder (run from the repository root)\n");
+        exit(1);
+    }
+    size_t n = 0;
+    for (struct dirent *e; (e = readdir(d)) && n < max;) {
+        size_t len = strlen(e->d_name);
+        if (len > 5 && strcmp(e->d_name + len - 5, ".json") == 0)
+            names[n++] = strndup(e->d_name, len - 5);
+    }
+    closedir(d);
+    qsort(names, n, sizeof *names, bench_cmp_name);
+    return n;
 }
 
 /* A kind's own field of a rendered frame (its extras: the svo_* figures,
