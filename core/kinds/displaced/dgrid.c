@@ -95,8 +95,8 @@ void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J
     *hi = dq(g, g->qmax[k]);
 }
 
-void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
-                           double *hi)
+void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
+                                double *hi)
 {
     double a, b;
     mr_dgrid_node_samples(g, l, I, J, &a, &b);
@@ -585,6 +585,16 @@ int mr_dgrid_init(mr_dgrid *g, const mr_image *img, unsigned level, double scale
         }
     }
     mr_dgrid_rebuild(g, threads);
+    if (g->type == MR_SAMPLE_U8) {
+        for (unsigned v = 0; v < 256; v++) {
+            g->h8[v] = mr_dgrid_height_of(g, v);
+            if (g->bmin) {
+                g->lo8[v] = mr_dgrid_height_of(g, dq(g, linear8_lo((uint8_t)v)));
+                g->hi8[v] = mr_dgrid_height_of(g, dq(g, linear8_hi((uint8_t)v)));
+            }
+        }
+        g->lut8 = true;
+    }
     return MR_OK;
 }
 

@@ -54,6 +54,12 @@ typedef struct mr_dgrid {
     uint8_t *bmin, *bmax;      /* instead, for 8-bit samples quantised over 0..255 (where the
                                   16-bit bounds are 257 v -+ 1): the samples' own extremes,
                                   half the memory; read through mr_dgrid_node_samples */
+    /* 8-bit samples: the heights of every byte value, as mr_dgrid_height_of
+     * gives them (so equal bit for bit), looked up instead of computed by
+     * the traversal: a sample's (h8), and a byte pyramid node's lower and
+     * upper bound (lo8 of bmin, hi8 of bmax) */
+    bool lut8;
+    double h8[256], lo8[256], hi8[256];
 } mr_dgrid;
 
 /* The grid of image img's mip level `level` (box filter of 2^level x
@@ -124,7 +130,35 @@ mr_dheights mr_dgrid_heights(const mr_dgrid *g);
  * the largest difference anywhere. INFINITY when out of memory. */
 double mr_dgrid_distance(const mr_dgrid *a, const mr_dgrid *b, unsigned threads);
 /* The same as heights (ordered: scale may be negative). */
-void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
-                           double *hi);
+void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
+                                double *hi);
+static inline void mr_dgrid_node_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J,
+                                         double *lo, double *hi)
+{
+    double a, b;
+    if (!g->lut8) {
+        mr_dgrid_node_heights_slow(g, l, I, J, lo, hi);
+        return;
+    }
+    if (l == 0) { /* the cell's four corners; heights are monotone in the sample */
+        const uint8_t *s = g->samples;
+        uint32_t i1 = I + 1 == g->w ? 0 : I + 1, j1 = J + 1 == g->h ? 0 : J + 1;
+        size_t r0 = (size_t)(g->h - 1 - J) * g->w, r1 = (size_t)(g->h - 1 - j1) * g->w;
+        uint8_t c0 = s[r0 + I], c1 = s[r0 + i1], c2 = s[r1 + I], c3 = s[r1 + i1];
+        uint8_t m01 = c0 < c1 ? c0 : c1, m23 = c2 < c3 ? c2 : c3;
+        uint8_t M01 = c0 > c1 ? c0 : c1, M23 = c2 > c3 ? c2 : c3;
+        a = g->h8[m01 < m23 ? m01 : m23];
+        b = g->h8[M01 > M23 ? M01 : M23];
+    } else if (g->bmin) {
+        size_t k = g->first[l] + (size_t)J * g->lw[l] + I;
+        a = g->lo8[g->bmin[k]];
+        b = g->hi8[g->bmax[k]];
+    } else {
+        mr_dgrid_node_heights_slow(g, l, I, J, lo, hi);
+        return;
+    }
+    *lo = a < b ? a : b;
+    *hi = a > b ? a : b;
+}
 
 #endif

@@ -54,6 +54,7 @@ struct mr_geom {
     bool procedural;
     mr_dbase *bases;
     mr_dgrad *grads;
+    mr_droots *roots;              /* texture source: each triangle's roots (fixed by its UVs) */
     float *boxes;                  /* 6 per base triangle */
     mr_dscene scene;
     /* tessellated */
@@ -107,6 +108,7 @@ static void displaced_free(mr_geom *g)
     mr_dproc_free(&g->proc);
     free(g->bases);
     free(g->grads);
+    free(g->roots);
     free(g->boxes);
     free(g->tess_vfirst);
     free(g->tess_tfirst);
@@ -379,9 +381,10 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
     g->indices = malloc(nt * 3 * sizeof(uint32_t));
     g->bases = calloc(nt, sizeof *g->bases);
     g->grads = calloc(nt, sizeof *g->grads);
+    g->roots = par->procedural ? NULL : calloc(nt, sizeof *g->roots);
     g->boxes = calloc(nt * 6, sizeof(float));
     if (!g->mesh_first_vertex || !g->grid_uv || !g->positions || !g->normals || !g->indices ||
-        !g->bases || !g->grads || !g->boxes)
+        !g->bases || !g->grads || !g->boxes || (!par->procedural && !g->roots))
         goto nomem;
     g->procedural = par->procedural;
     if (g->procedural) {
@@ -397,6 +400,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
                                 threads, err)) < 0)
             goto fail;
         g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .grid = &g->grid,
+                               .roots = g->roots,
                                .heights = mr_dgrid_heights(&g->grid),
                                .local = (mr_dlocal)par->local, .march_steps = par->steps};
     }
@@ -441,6 +445,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
             for (int k = 0; k < 3; k++)
                 hlo = fmin(hlo, g->bases[t].h[k]), hhi = fmax(hhi, g->bases[t].h[k]);
         } else {
+            mr_dtrace_roots(&g->grid, &g->bases[t], &g->roots[t]);
             mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);
         }
         g->grads[t].hlo = hlo;
@@ -886,6 +891,7 @@ static size_t base_bytes(const mr_geom *g)
     return sizeof *g + nv * (2 * sizeof(double) + floats * sizeof(float)) +
            nt * 3 * sizeof(uint32_t) +
            nt * (sizeof(mr_dbase) + sizeof(mr_dgrad) + 6 * sizeof(float)) +
+           (g->roots ? nt * sizeof *g->roots : 0) +
            g->asset->mesh_count * sizeof(uint32_t);
 }
 
@@ -920,12 +926,15 @@ static uint64_t displaced_primitives(const mr_geom *g)
 
 /* Steps per ray: displaced_nodes / rays. Embree's share of the memory is
  * the frame's bvh bytes; the tessellation's is in its geometry bytes. */
-enum { S_BOUNDS_S, S_NODES, S_TESTS, S_BASE_BYTES, S_MIPMAP_BYTES, S_LEVEL, S_ERROR_PX,
+enum { S_BOUNDS_S, S_CALLS, S_NODES, S_TESTS, S_BASE_BYTES, S_MIPMAP_BYTES, S_LEVEL, S_ERROR_PX,
        S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
 
 static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_bounds_s", "s", "Seconds the displaced objects spent on this frame's bounds "
                                 "(per-triangle gradients and Embree boxes) or tessellation",
+     MR_STAT_SUM},
+    {"displaced_calls", "count", "Base triangles entered (rays whose path met a triangle's "
+                                 "Embree box); divided by rays: triangles entered per ray",
      MR_STAT_SUM},
     {"displaced_nodes", "count", "Pyramid nodes bounded and tested (ray marching: samples); "
                                  "divided by rays: traversal steps per ray", MR_STAT_SUM},
@@ -960,12 +969,12 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
      * callbacks update them, and they have all returned) */
     mr_geom *g = (mr_geom *)cg;
     v[S_BOUNDS_S] = g->bounds_s;
-    v[S_NODES] = v[S_TESTS] = 0;
+    v[S_CALLS] = v[S_NODES] = v[S_TESTS] = 0;
     for (uint32_t k = 0; k < g->lod_count; k++) {
         mr_geom *l = k == 0 ? g : g->coarser[k - 1];
         v[S_NODES] += (double)atomic_exchange(&l->nodes, 0);
         v[S_TESTS] += (double)atomic_exchange(&l->tests, 0);
-        atomic_store(&l->calls, 0);
+        v[S_CALLS] += (double)atomic_exchange(&l->calls, 0);
         atomic_store(&l->leaves, 0);
     }
     v[S_BASE_BYTES] = (double)base_bytes(g);

@@ -4,6 +4,9 @@
 #include <float.h>
 #include <math.h>
 #include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "kinds/displaced/tiling.h"
 #include "math/affine_arith.h"
@@ -428,11 +431,7 @@ bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double
 
 /* ---- the texture's infinite quadtree ----------------------------------------------- */
 
-typedef struct dnode {
-    int level;
-    int64_t tx, ty; /* period (level <= L) or block of periods (level > L) */
-    uint32_t I, J;  /* node within the period (level <= L) */
-} dnode;
+typedef mr_dnode dnode;
 
 static inline int64_t fdiv(int64_t a, int64_t b)
 {
@@ -543,6 +542,11 @@ static int roots(const mr_dgrid *g, const mr_dbase *b, dnode out[4])
             return k;
         }
     }
+}
+
+void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out)
+{
+    out->n = roots(g, b, out->r);
 }
 
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
@@ -829,6 +833,118 @@ static inline bool node_hit(const mr_dbase *b, const mr_dgrad *gr, const mr_dray
     return rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, lo, hi) && slab(r, lo, hi, tmin, tmax, tn);
 }
 
+/* ---- a texture node's children, two at a time ------------------------------------ */
+
+typedef struct tentry {
+    dnode n;
+    double tnear;
+} tentry;
+
+#if defined(__SSE2__)
+/* The children of node n (level 1 .. the pyramid's top) in T's local frame,
+ * a row of two at a time (SSE2): what mr_dtrace_overlaps, node_heights,
+ * local_box and slab compute for each child, the same operations in the
+ * same order lane by lane (min and max as a < b ? a : b and a > b ? a : b,
+ * which minpd and maxpd are), so the same children pass with the same
+ * entry distances as one by one. Passing children go to out in child
+ * order; returns how many. */
+static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
+                              const mr_dray *lr, const dnode *n, double tmin, double tmax,
+                              tentry out[4], mr_dstats *st)
+{
+    const int c = n->level - 1;
+    const uint32_t I0 = n->I * 2, J0 = n->J * 2;
+    const bool two_x = I0 + 1 < g->lw[c];
+    const uint64_t s = (uint64_t)1 << c;
+    const double bx = (double)n->tx * g->w, by = (double)n->ty * g->h;
+    /* the two columns' x extents (lane a: child I0 + a) */
+    uint64_t xa0 = I0 * s, xa1 = (I0 + 1) * s, xb1 = (I0 + 2) * s;
+    __m128d x0 = _mm_set_pd(bx + (double)xa1, bx + (double)xa0);
+    __m128d x1 = _mm_set_pd(bx + (double)(xb1 < g->w ? xb1 : g->w),
+                            bx + (double)(xa1 < g->w ? xa1 : g->w));
+    const __m128d gx0 = _mm_set1_pd(gr->gx0), gx1 = _mm_set1_pd(gr->gx1);
+    /* mr_dtrace_overlaps' x part, and the x terms of its edge tests */
+    __m128d xin = _mm_andnot_pd(_mm_or_pd(_mm_cmplt_pd(x1, gx0), _mm_cmpgt_pd(x0, gx1)),
+                                _mm_castsi128_pd(_mm_set1_epi32(-1)));
+    if (!two_x)
+        xin = _mm_and_pd(xin, _mm_castsi128_pd(_mm_set_epi32(0, 0, -1, -1)));
+    __m128d ex[3];
+    for (int e = 0; e < 3; e++)
+        ex[e] = _mm_mul_pd(_mm_set1_pd(b->edge[e][0]), b->edge[e][0] > 0 ? x1 : x0);
+    /* local_box's x extent before the height offsets */
+    const __m128d lx0 = _mm_max_pd(x0, gx0), lx1 = _mm_min_pd(x1, gx1);
+    const double m = b->margin;
+    int k = 0;
+    for (int r = 0; r < 2; r++) {
+        uint32_t J = J0 + (uint32_t)r;
+        if (J >= g->lh[c])
+            break;
+        if (st)
+            st->nodes += two_x ? 2 : 1;
+        uint64_t ya = J * s, yb = (J + 1) * s;
+        double y0 = by + (double)ya, y1 = by + (double)(yb < g->h ? yb : g->h);
+        if (y1 < gr->gy0 || y0 > gr->gy1)
+            continue;
+        __m128d in = xin;
+        for (int e = 0; e < 3; e++) {
+            const double *l = b->edge[e];
+            __m128d v = _mm_add_pd(_mm_add_pd(ex[e], _mm_set1_pd(l[1] * (l[1] > 0 ? y1 : y0))),
+                                   _mm_set1_pd(l[2]));
+            in = _mm_andnot_pd(_mm_cmplt_pd(v, _mm_set1_pd(-m)), in);
+        }
+        int inm = _mm_movemask_pd(in);
+        if (!inm)
+            continue;
+        double hl[2], hh[2];
+        mr_dgrid_node_heights(g, (unsigned)c, I0, J, &hl[0], &hh[0]);
+        if (inm & 2)
+            mr_dgrid_node_heights(g, (unsigned)c, I0 + 1, J, &hl[1], &hh[1]);
+        else
+            hl[1] = hl[0], hh[1] = hh[0];
+        const __m128d hlo = _mm_loadu_pd(hl), hhi = _mm_loadu_pd(hh);
+        /* local_box */
+        __m128d lo[3], hi[3];
+        for (int a = 0; a < 3; a++) {
+            __m128d n0 = _mm_set1_pd(gr->nb[a][0]), n1 = _mm_set1_pd(gr->nb[a][1]);
+            __m128d p0 = _mm_mul_pd(hlo, n0), p1 = _mm_mul_pd(hlo, n1);
+            __m128d p2 = _mm_mul_pd(hhi, n0), p3 = _mm_mul_pd(hhi, n1);
+            __m128d pad = _mm_set1_pd(gr->lpad[a]);
+            lo[a] = _mm_sub_pd(_mm_min_pd(_mm_min_pd(p0, p1), _mm_min_pd(p2, p3)), pad);
+            hi[a] = _mm_add_pd(_mm_max_pd(_mm_max_pd(p0, p1), _mm_max_pd(p2, p3)), pad);
+        }
+        lo[0] = _mm_add_pd(lx0, lo[0]);
+        hi[0] = _mm_add_pd(lx1, hi[0]);
+        lo[1] = _mm_add_pd(_mm_set1_pd(y0 > gr->gy0 ? y0 : gr->gy0), lo[1]);
+        hi[1] = _mm_add_pd(_mm_set1_pd(y1 < gr->gy1 ? y1 : gr->gy1), hi[1]);
+        /* slab */
+        __m128d t0 = _mm_set1_pd(tmin), t1 = _mm_set1_pd(tmax);
+        for (int a = 0; a < 3; a++) {
+            __m128d o = _mm_set1_pd(lr->o[a]);
+            if (lr->par[a]) {
+                in = _mm_andnot_pd(_mm_or_pd(_mm_cmplt_pd(o, lo[a]), _mm_cmpgt_pd(o, hi[a])), in);
+                continue;
+            }
+            __m128d inv = _mm_set1_pd(lr->inv[a]);
+            __m128d nn = _mm_mul_pd(_mm_sub_pd(lo[a], o), inv);
+            __m128d ff = _mm_mul_pd(_mm_sub_pd(hi[a], o), inv);
+            __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
+            far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
+            t0 = _mm_max_pd(near, t0);
+            t1 = _mm_min_pd(far, t1);
+        }
+        in = _mm_andnot_pd(_mm_cmpgt_pd(t0, t1), in);
+        inm = _mm_movemask_pd(in);
+        double tn[2];
+        _mm_storeu_pd(tn, t0);
+        for (int a = 0; a < 2; a++)
+            if (inm & (1 << a))
+                out[k++] = (tentry){{.level = c, .tx = n->tx, .ty = n->ty,
+                                     .I = I0 + (uint32_t)a, .J = J}, tn[a]};
+    }
+    return k;
+}
+#endif
+
 /* ---- the procedural source: lattice squares, then triforce triangles ------- */
 
 /* A node: a square of 2^level cells (level >= log2 range; x, y its index)
@@ -962,17 +1078,17 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         local_ray(gr, b, r, &lr);
     if (s->proc)
         return proc_intersect(s, b, gr, r, &lr, tmin, tmax, any, hit, st);
-    struct entry {
-        dnode n;
-        double tnear;
-    } stack[STACK_MAX];
+    tentry stack[STACK_MAX];
     int sp = 0;
-    dnode rs[4];
-    int nr = roots(g, b, rs);
-    for (int k = nr - 1; k >= 0; k--)
-        stack[sp++] = (struct entry){rs[k], -INFINITY};
+    mr_droots rs;
+    if (s->roots)
+        rs = s->roots[t];
+    else
+        mr_dtrace_roots(g, b, &rs);
+    for (int k = rs.n - 1; k >= 0; k--)
+        stack[sp++] = (tentry){rs.r[k], -INFINITY};
     while (sp > 0) {
-        struct entry e = stack[--sp];
+        tentry e = stack[--sp];
         if (e.tnear > *tmax)
             continue;
         if (e.n.level == 0) {
@@ -982,26 +1098,33 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
                 break;
             continue;
         }
-        dnode ch[4];
-        int nc = children(g, &e.n, ch);
-        struct entry hitc[4];
+        tentry hitc[4];
         int nh = 0;
-        for (int k = 0; k < nc; k++) {
-            double x0, x1, y0, y1, hlo, hhi, tn;
-            node_rect(g, &ch[k], &x0, &x1, &y0, &y1);
-            if (st)
-                st->nodes++;
-            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
-                continue;
-            node_heights(g, &ch[k], &hlo, &hhi);
-            if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
-                continue;
-            hitc[nh++] = (struct entry){ch[k], tn};
+#if defined(__SSE2__)
+        if (gr->local && e.n.level <= (int)g->levels) {
+            nh = tex_children_local(g, b, gr, &lr, &e.n, tmin, *tmax, hitc, st);
+        } else
+#endif
+        {
+            dnode ch[4];
+            int nc = children(g, &e.n, ch);
+            for (int k = 0; k < nc; k++) {
+                double x0, x1, y0, y1, hlo, hhi, tn;
+                node_rect(g, &ch[k], &x0, &x1, &y0, &y1);
+                if (st)
+                    st->nodes++;
+                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                    continue;
+                node_heights(g, &ch[k], &hlo, &hhi);
+                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                    continue;
+                hitc[nh++] = (tentry){ch[k], tn};
+            }
         }
         /* push the farthest first, so the nearest is visited next */
         for (int a = 1; a < nh; a++)
             for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
-                struct entry tmp = hitc[m];
+                tentry tmp = hitc[m];
                 hitc[m] = hitc[m - 1];
                 hitc[m - 1] = tmp;
             }

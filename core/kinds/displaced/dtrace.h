@@ -91,11 +91,29 @@ typedef struct mr_dgrad {
 
 typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal;
 
+/* A node of the texture's infinite quadtree: level <= the pyramid's top, a
+ * node (I, J) of period (tx, ty); above it, a block (tx, ty) of periods. */
+typedef struct mr_dnode {
+    int level;
+    int64_t tx, ty;
+    uint32_t I, J;
+} mr_dnode;
+
+/* A base triangle's roots (4.2.7): the nodes of the lowest level at which
+ * its cells span at most two per axis. They depend on its texture
+ * coordinates only, so they are found once, not per ray. */
+typedef struct mr_droots {
+    int n;
+    mr_dnode r[4];
+} mr_droots;
+
 /* What a traversal reads about one object. */
 typedef struct mr_dscene {
     const mr_dbase *bases;
     const mr_dgrad *grads;
     const mr_dgrid *grid;      /* texture source, or NULL */
+    const mr_droots *roots;    /* texture source: each base triangle's roots (or NULL: found
+                                  per call) */
     const struct mr_dproc *proc; /* procedural source (tiling.h), or NULL */
     mr_dheights heights;
     mr_dlocal local;
@@ -125,7 +143,8 @@ mr_dray mr_dray_setup(mr_vec3 o, mr_vec3 d);
 /* The gradient data of base triangle b for this frame (after mr_dbase_pose):
  * needs the triangle's height range hlo..hhi (its roots'). */
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi);
-/* Heights of T's roots (the texture source). */
+/* T's roots, and their heights (the texture source). */
+void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out);
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi);
 
 /* Conservative box of the displaced surface over the grid rectangle
