@@ -18,7 +18,8 @@
  *               id (the renderer's: it maps hits back to the object by it)
  *               with the build quality the renderer chose (REFIT for
  *               animated objects; see the refit trap in REFERENCE.md);
- *   commit      tell Embree the data changed (after update);
+ *   commit      tell Embree the data changed (after update); returns whether
+ *               anything did (false: the scene need not be committed again)
  *   normal      world-space shading normal at a hit (unnormalised is fine);
  *   tangent     (NULL: the kind has none) world-space tangent at a hit,
  *               along increasing u of the asset's texture coordinates
@@ -217,7 +218,7 @@ struct mr_kind {
                   const mr_mat4 *transform, unsigned threads, mr_error *err);
     int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                   enum RTCBuildQuality quality, mr_error *err);
-    void (*commit)(mr_geom *g);
+    bool (*commit)(mr_geom *g);
     mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
     bool (*tangent)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out);
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);

@@ -80,3 +80,22 @@ uint32_t mr_lod_pose_times(const mr_asset *a, const mr_pose_desc *d, double *tim
         times[j] = duration * (j + 0.5) / MR_LOD_POSES;
     return MR_LOD_POSES;
 }
+
+bool mr_lod_commit(mr_lod_switch *s, uint32_t cur, uint32_t count, void *ctx,
+                   RTCGeometry (*geometry)(void *ctx, uint32_t level),
+                   void (*commit)(void *ctx, uint32_t level))
+{
+    bool changed = s->dirty != 0;
+    if (s->enabled != cur) {
+        if (s->enabled != UINT32_MAX)
+            rtcDisableGeometry(geometry(ctx, s->enabled));
+        rtcEnableGeometry(geometry(ctx, cur));
+        s->enabled = cur;
+        changed = true;
+    }
+    for (uint32_t k = 0; k < count; k++)
+        if (s->dirty & 1u << k)
+            commit(ctx, k);
+    s->dirty = 0;
+    return changed;
+}

@@ -11,6 +11,7 @@
 #ifndef MR_LOD_H
 #define MR_LOD_H
 
+#include <stdbool.h>
 #include <stdint.h>
 
 #include <embree3/rtcore.h>
@@ -44,6 +45,23 @@ double mr_lod_stretch(const mr_mat4 *transform);
  * frame that first enabled the level, and a resumed job must trace the
  * uninterrupted run's trees. */
 enum RTCBuildQuality mr_lod_build_quality(uint32_t levels, enum RTCBuildQuality quality);
+
+/* A kind's levels in Embree: one geometry per level, only the frame's
+ * enabled. */
+typedef struct mr_lod_switch {
+    uint32_t enabled; /* the level enabled, UINT32_MAX: none yet */
+    uint32_t dirty;   /* bit k: level k was set up since the last commit */
+} mr_lod_switch;
+
+/* A kind's commit (kind.h) of its levels: enables level cur (disabling the
+ * one enabled before) and commits the dirty levels, geometry(ctx, k) giving
+ * level k's Embree geometry and commit(ctx, k) committing it (a disabled
+ * level is built when it is enabled; one set up for an older pose is set up
+ * again first). Returns whether anything changed: a camera that moved
+ * without changing the level leaves Embree's scene as it was. */
+bool mr_lod_commit(mr_lod_switch *s, uint32_t cur, uint32_t count, void *ctx,
+                   RTCGeometry (*geometry)(void *ctx, uint32_t level),
+                   void (*commit)(void *ctx, uint32_t level));
 
 /* The level whose posed bounds, grown by its error, place an object for
  * the pick each frame: the coarsest (of count, finest first) whose error

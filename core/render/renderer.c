@@ -493,11 +493,15 @@ static int update_objects(mr_renderer *r, size_t index, const mr_geom_frame *fra
             o->stepped = index + 1;
             checkpoint_due(o);
         } else if (o->view_dependent) {
+            /* only the camera moved: the scene changes only if the object's
+             * level (or what it selects) does */
             mr_geom_frame view = *frame;
             view.view_only = true;
             if ((rc = o->kind->update(o->geom, &view, o->kind->self_posed ? NULL : o->pose,
                                       &o->desc->transform, mr_device_threads(r->dev), err)) < 0)
                 return rc;
+            *changed |= o->kind->commit(o->geom);
+            continue;
         }
         o->kind->commit(o->geom);
         o->posed_once = true;

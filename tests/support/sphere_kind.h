@@ -247,7 +247,11 @@ static int test_sphere_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsi
                                     g->vertex_count, g->indices, g->triangle_count, &g->rtc, err);
 }
 
-static void test_sphere_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
+static bool test_sphere_commit(mr_geom *g)
+{
+    mr_geom_commit_vertices(g->rtc);
+    return true;
+}
 
 static mr_vec3 test_sphere_normal(const mr_geom *g, unsigned prim, float u, float v)
 {

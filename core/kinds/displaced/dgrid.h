@@ -76,6 +76,8 @@ size_t mr_dgrid_memory(const mr_dgrid *g); /* bytes owned: pyramid and made leve
 
 static inline int64_t mr_dgrid_wrap(int64_t i, uint32_t n)
 {
+    if ((uint64_t)i < n) /* within the first period: no division */
+        return i;
     int64_t r = i % (int64_t)n;
     return r < 0 ? r + n : r;
 }

@@ -72,8 +72,9 @@ struct mr_geom {
     bool shares_base;
     double tolerance_px;           /* 0: no levels */
     uint32_t lod_count, lod_cur;   /* levels (1: none); the frame's */
-    uint32_t lod_enabled;          /* the level enabled in Embree, UINT32_MAX: none yet */
-    uint32_t lod_posed, lod_dirty; /* levels set up for this pose / since the last commit */
+    uint32_t lod_posed;            /* levels set up for this pose */
+    mr_lod_switch lod_sw;          /* the level enabled in Embree; dirty: levels set up since
+                                      the last commit */
     mr_geom *coarser[MR_DISPLACED_LOD_MAX - 1];
     double lod_error[MR_DISPLACED_LOD_MAX]; /* finest first: distance to mip level 0 */
     double height_reach;           /* the largest |height|: the surface lies within it of the
@@ -555,7 +556,7 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
     if (rc < 0)
         return rc;
     g->lod_count = 1;
-    g->lod_enabled = UINT32_MAX;
+    g->lod_sw.enabled = UINT32_MAX;
     g->tolerance_px = desc->tolerance_px > 0 && !par->procedural ? desc->tolerance_px : 0;
     if (g->tolerance_px > 0 && (rc = create_levels(g, tex, threads, err)) < 0) {
         displaced_free(g);
@@ -681,7 +682,7 @@ static int displaced_update(mr_geom *g, const mr_geom_frame *frame, const mr_pos
         if ((rc = update_surface(traced(g), threads, err)) < 0)
             return rc;
         g->lod_posed |= 1u << g->lod_cur;
-        g->lod_dirty |= 1u << g->lod_cur;
+        g->lod_sw.dirty |= 1u << g->lod_cur;
     }
     g->bounds_s = mr_now() - t0;
     return rc;
@@ -723,7 +724,18 @@ static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned
                       *ray_f(ray, N, RAY_DIR + 2, i));
     if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
         return false;
-    mr_dray r = mr_dray_setup(o, d);
+    /* Embree enters a ray's triangles one after another: the last ray's
+     * set-up (reciprocals, the watertight test's shear) is kept per thread */
+    static _Thread_local struct {
+        float key[6];
+        mr_dray r;
+    } last;
+    float key[6] = {o.x, o.y, o.z, d.x, d.y, d.z};
+    if (memcmp(key, last.key, sizeof key)) {
+        last.r = mr_dray_setup(o, d);
+        memcpy(last.key, key, sizeof key);
+    }
+    const mr_dray r = last.r;
     float *tfar = ray_f(ray, N, RAY_TFAR, i), tnear = *ray_f(ray, N, RAY_TNEAR, i);
     st->calls++;
     if (g->par.method == MR_DISPLACED_RAYMARCH)
@@ -813,30 +825,26 @@ static int displaced_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsign
         if (g->lod_count > 1)
             rtcDisableGeometry(l->rtc);
     }
-    g->lod_enabled = g->lod_count > 1 ? UINT32_MAX : 0;
+    g->lod_sw.enabled = g->lod_count > 1 ? UINT32_MAX : 0;
     return MR_OK;
 }
 
-static void commit_level(mr_geom *g)
+static mr_geom *level_of(mr_geom *g, uint32_t k) { return k == 0 ? g : g->coarser[k - 1]; }
+
+static RTCGeometry level_geometry(void *g, uint32_t k) { return level_of(g, k)->rtc; }
+
+static void commit_level(void *g, uint32_t k)
 {
-    if (tessellated(g))
-        mr_geom_commit_vertices(g->rtc);
+    mr_geom *l = level_of(g, k);
+    if (tessellated(l))
+        mr_geom_commit_vertices(l->rtc);
     else
-        rtcCommitGeometry(g->rtc);
+        rtcCommitGeometry(l->rtc);
 }
 
-static void displaced_commit(mr_geom *g)
+static bool displaced_commit(mr_geom *g)
 {
-    if (g->lod_enabled != g->lod_cur) {
-        if (g->lod_enabled != UINT32_MAX)
-            rtcDisableGeometry(g->lod_enabled == 0 ? g->rtc : g->coarser[g->lod_enabled - 1]->rtc);
-        rtcEnableGeometry(traced(g)->rtc);
-        g->lod_enabled = g->lod_cur;
-    }
-    for (uint32_t k = 0; k < g->lod_count; k++)
-        if (g->lod_dirty & 1u << k)
-            commit_level(k == 0 ? g : g->coarser[k - 1]);
-    g->lod_dirty = 0;
+    return mr_lod_commit(&g->lod_sw, g->lod_cur, g->lod_count, g, level_geometry, commit_level);
 }
 
 static uint32_t displaced_geometry_ids(const mr_geom *g) { return g->lod_count; }

@@ -1247,8 +1247,8 @@ struct mr_geom {
     uint32_t bounds_level;
     mr_vec3 lo, hi;          /* the bounds level's posed bounds grown by its error */
     uint32_t posed;          /* bit k: lv[k] is posed for the current pose */
-    uint32_t dirty;          /* bit k: lv[k] was posed since the last commit */
-    uint32_t enabled;        /* the level whose geometry is enabled, or UINT32_MAX */
+    mr_lod_switch sw;        /* the level enabled in Embree; dirty: bit k, lv[k] was posed
+                                since the last commit */
     double lod_build_s;      /* measuring the errors */
 };
 
@@ -1379,7 +1379,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     g->asset = asset;
     g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
     g->count = g->tolerance_px > 0 ? p->level + 1 : 1;
-    g->enabled = UINT32_MAX;
+    g->sw.enabled = UINT32_MAX;
     for (uint32_t k = 0; k < g->count; k++) {
         mr_dmm_params lp = *p;
         lp.level = p->level - k;
@@ -1432,7 +1432,7 @@ static int pose_level(mr_geom *g, uint32_t k, const mr_geom_frame *frame, const 
     if (rc < 0)
         return rc;
     g->posed |= 1u << k;
-    g->dirty |= 1u << k;
+    g->sw.dirty |= 1u << k;
     return MR_OK;
 }
 
@@ -1485,28 +1485,21 @@ static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
         if (g->count > 1)
             rtcDisableGeometry(g->lv[k]->rtc);
     }
-    g->enabled = g->count > 1 ? UINT32_MAX : 0;
+    g->sw.enabled = g->count > 1 ? UINT32_MAX : 0;
     return MR_OK;
 }
 
-static void dmm_commit(mr_geom *g)
+static RTCGeometry lod_geometry(void *g, uint32_t k) { return ((mr_geom *)g)->lv[k]->rtc; }
+
+static void lod_commit(void *g, uint32_t k) { level_commit(((mr_geom *)g)->lv[k]); }
+
+static bool dmm_commit(mr_geom *g)
 {
     if (g->count == 1) {
         level_commit(g->lv[0]);
-        return;
+        return true;
     }
-    if (g->enabled != g->cur) {
-        if (g->enabled != UINT32_MAX)
-            rtcDisableGeometry(g->lv[g->enabled]->rtc);
-        rtcEnableGeometry(g->lv[g->cur]->rtc);
-        g->enabled = g->cur;
-    }
-    /* the levels posed since the last commit (a disabled one is built when
-     * it is enabled; one posed for an older pose is posed again first) */
-    for (uint32_t k = 0; k < g->count; k++)
-        if (g->dirty & 1u << k)
-            level_commit(g->lv[k]);
-    g->dirty = 0;
+    return mr_lod_commit(&g->sw, g->cur, g->count, g, lod_geometry, lod_commit);
 }
 
 static uint32_t dmm_geometry_ids(const mr_geom *g) { return g->count; }

@@ -50,11 +50,11 @@ struct mr_geom {
     double predicted_px;         /* its error projected by this frame's camera */
     const uint32_t *cur_indices; /* lod.indices[level] */
     uint32_t cur_triangles;
-    uint32_t enabled;            /* the level whose geometry is enabled, or UINT32_MAX */
     uint32_t bounds_level;       /* the level whose bounds place the mesh each frame
                                     (mr_lod_bounds_level) */
     uint32_t posed;              /* bit k: level k's vertices are posed for the current pose */
-    uint32_t dirty;              /* bit k: level k's vertices were posed since the last commit */
+    mr_lod_switch sw;            /* the level enabled in Embree; dirty: levels posed since the
+                                    last commit */
     /* the vertices level k > 0 uses, as indices into asset mesh i:
      * level_vertices[k][level_first[k][i] .. level_first[k][i + 1]) */
     uint32_t *level_vertices[MR_MESH_LOD_MAX];
@@ -216,7 +216,7 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
     }
     g->cur_indices = g->indices;
     g->cur_triangles = g->triangle_count;
-    g->enabled = UINT32_MAX;
+    g->sw.enabled = UINT32_MAX;
     *out = g;
     return MR_OK;
 nomem:
@@ -254,7 +254,7 @@ static int pose_level(mr_geom *g, uint32_t k, const mr_pose *pose, const mr_mat4
                                     a->path, v, (double)g->positions[3 * v + c], MR_MAX_COORDINATE);
     }
     g->posed |= 1u << k;
-    g->dirty |= 1u << k;
+    g->sw.dirty |= 1u << k;
     return MR_OK;
 }
 
@@ -324,24 +324,17 @@ static int mesh_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned ge
         if (g->lod.level_count > 1)
             rtcDisableGeometry(g->rtc[k]);
     }
-    g->enabled = g->lod.level_count > 1 ? UINT32_MAX : 0;
+    g->sw.enabled = g->lod.level_count > 1 ? UINT32_MAX : 0;
     return MR_OK;
 }
 
-static void mesh_commit(mr_geom *g)
+static RTCGeometry level_geometry(void *g, uint32_t k) { return ((mr_geom *)g)->rtc[k]; }
+
+static void level_commit(void *g, uint32_t k) { mr_geom_commit_vertices(((mr_geom *)g)->rtc[k]); }
+
+static bool mesh_commit(mr_geom *g)
 {
-    if (g->enabled != g->level) {
-        if (g->enabled != UINT32_MAX)
-            rtcDisableGeometry(g->rtc[g->enabled]);
-        rtcEnableGeometry(g->rtc[g->level]);
-        g->enabled = g->level;
-    }
-    /* the levels posed since the last commit (a disabled one is built when
-     * it is enabled; one posed for an older pose is posed again first) */
-    for (uint32_t k = 0; k < g->lod.level_count; k++)
-        if (g->dirty & 1u << k)
-            mr_geom_commit_vertices(g->rtc[k]);
-    g->dirty = 0;
+    return mr_lod_commit(&g->sw, g->level, g->lod.level_count, g, level_geometry, level_commit);
 }
 
 static uint32_t mesh_geometry_ids(const mr_geom *g) { return g->lod.level_count; }

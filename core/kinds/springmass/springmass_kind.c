@@ -311,7 +311,11 @@ static int springmass_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsig
                                     g->indices, g->triangle_count, &g->rtc, err);
 }
 
-static void springmass_commit(mr_geom *g) { mr_geom_commit_vertices(g->rtc); }
+static bool springmass_commit(mr_geom *g)
+{
+    mr_geom_commit_vertices(g->rtc);
+    return true;
+}
 
 static mr_vec3 springmass_normal(const mr_geom *g, unsigned prim, float u, float v)
 {

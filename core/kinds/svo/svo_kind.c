@@ -707,7 +707,7 @@ static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
     return MR_OK;
 }
 
-static void svo_commit(mr_geom *g)
+static bool svo_commit(mr_geom *g)
 {
     if (g->method == MR_SVO_RIGID) {
         for (size_t k = 0; k < g->instance_count; k++) {
@@ -725,11 +725,12 @@ static void svo_commit(mr_geom *g)
             rtcSetGeometryTransform(in, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, xfm);
             rtcCommitGeometry(in);
         }
-        return;
+        return true;
     }
     unsigned count = g->method == MR_SVO_DIRECT ? (unsigned)g->box_count : (unsigned)g->instance_count;
     rtcSetGeometryUserPrimitiveCount(g->user, count);
     rtcCommitGeometry(g->user);
+    return true;
 }
 
 static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
