@@ -715,27 +715,39 @@ static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
     return (unsigned *)ray + field * N + i;
 }
 
-static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
-                      mr_dhit *h, mr_dstats *st)
+/* Ray i of an N-packet set up for the traversal; false when its direction
+ * is zero or not finite (it hits nothing). Embree enters a ray's (or a
+ * packet's) triangles one after another: the last set-up (reciprocals, the
+ * watertight test's shear) of each lane is kept per thread. */
+static bool ray_setup(void *ray, unsigned N, unsigned i, mr_dray *out)
 {
-    mr_vec3 o = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
-                      *ray_f(ray, N, RAY_ORG + 2, i));
-    mr_vec3 d = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
-                      *ray_f(ray, N, RAY_DIR + 2, i));
-    if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
-        return false;
-    /* Embree enters a ray's triangles one after another: the last ray's
-     * set-up (reciprocals, the watertight test's shear) is kept per thread */
     static _Thread_local struct {
         float key[6];
         mr_dray r;
-    } last;
-    float key[6] = {o.x, o.y, o.z, d.x, d.y, d.z};
-    if (memcmp(key, last.key, sizeof key)) {
-        last.r = mr_dray_setup(o, d);
-        memcpy(last.key, key, sizeof key);
+    } last[MR_DPACKET_MAX];
+    float key[6];
+    for (int c = 0; c < 3; c++) {
+        key[c] = *ray_f(ray, N, RAY_ORG + c, i);
+        key[3 + c] = *ray_f(ray, N, RAY_DIR + c, i);
     }
-    const mr_dray r = last.r;
+    mr_vec3 d = mr_v3(key[3], key[4], key[5]);
+    if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
+        return false;
+    unsigned lane = i % MR_DPACKET_MAX;
+    if (memcmp(key, last[lane].key, sizeof key)) {
+        last[lane].r = mr_dray_setup(mr_v3(key[0], key[1], key[2]), d);
+        memcpy(last[lane].key, key, sizeof key);
+    }
+    *out = last[lane].r;
+    return true;
+}
+
+static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
+                      mr_dhit *h, mr_dstats *st)
+{
+    mr_dray r;
+    if (!ray_setup(ray, N, i, &r))
+        return false;
     float *tfar = ray_f(ray, N, RAY_TFAR, i), tnear = *ray_f(ray, N, RAY_TNEAR, i);
     st->calls++;
     if (g->par.method == MR_DISPLACED_RAYMARCH)
@@ -751,25 +763,84 @@ static void add_stats(mr_geom *g, const mr_dstats *st)
     atomic_fetch_add_explicit(&g->calls, st->calls, memory_order_relaxed);
 }
 
+static void write_hit(const struct RTCIntersectFunctionNArguments *args, unsigned i,
+                      const mr_dhit *h)
+{
+    unsigned N = args->N;
+    void *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    *ray_f(hit, N, HIT_NG, i) = h->ng.x;
+    *ray_f(hit, N, HIT_NG + 1, i) = h->ng.y;
+    *ray_f(hit, N, HIT_NG + 2, i) = h->ng.z;
+    *ray_f(hit, N, HIT_U, i) = h->b1;
+    *ray_f(hit, N, HIT_V, i) = h->b2;
+    *ray_u(hit, N, HIT_PRIM, i) = args->primID;
+    *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
+    *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+}
+
+/* A packet's rays through the triangle together (dtrace.h), at most
+ * MR_DPACKET_MAX at a time. */
+typedef struct ray_batch {
+    int n;
+    unsigned lane[MR_DPACKET_MAX];
+    mr_dray r[MR_DPACKET_MAX];
+    float tmin[MR_DPACKET_MAX], *tmax[MR_DPACKET_MAX];
+} ray_batch;
+
+static void trace_batch(mr_geom *g, const struct RTCIntersectFunctionNArguments *args,
+                        ray_batch *b, mr_dstats *st)
+{
+    mr_dhit hits[MR_DPACKET_MAX];
+    float before[MR_DPACKET_MAX];
+    for (int k = 0; k < b->n; k++)
+        before[k] = *b->tmax[k];
+    uint32_t hm = 0;
+    if (g->par.method == MR_DISPLACED_RAYMARCH) {
+        for (int k = 0; k < b->n; k++)
+            if (mr_dtrace_march(&g->scene, args->primID, &b->r[k], b->tmin[k], b->tmax[k],
+                                &hits[k], st))
+                hm |= 1u << k;
+    } else {
+        hm = mr_dtrace_intersect_packet(&g->scene, args->primID, b->n, b->r, b->tmin, b->tmax,
+                                        hits, st);
+    }
+    /* A hit at the distance of the ray's hit so far on another of this
+     * object's base triangles (a ray through a micro-vertex or edge on a
+     * shared base edge) goes to the lower triangle id, so the winner does
+     * not depend on the order Embree enters the triangles in (a packet
+     * enters them in another order than a single ray). */
+    unsigned N = args->N;
+    const void *hit = (const float *)args->rayhit + RAY_FIELDS * N;
+    for (int k = 0; k < b->n; k++) {
+        unsigned i = b->lane[k];
+        if (!(hm >> k & 1u) ||
+            (hits[k].t == before[k] && *ray_u((void *)hit, N, HIT_GEOM, i) == args->geomID &&
+             *ray_u((void *)hit, N, HIT_PRIM, i) < args->primID))
+            continue;
+        write_hit(args, i, &hits[k]);
+    }
+    b->n = 0;
+}
+
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
     mr_geom *g = args->geometryUserPtr;
     unsigned N = args->N;
-    void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
     mr_dstats st = {0};
+    ray_batch b;
+    b.n = 0;
     for (unsigned i = 0; i < N; i++) {
-        mr_dhit h;
-        if (args->valid[i] != -1 || !trace_one(g, args->primID, ray, N, i, false, &h, &st))
+        if (args->valid[i] != -1 || !ray_setup(args->rayhit, N, i, &b.r[b.n]))
             continue;
-        *ray_f(hit, N, HIT_NG, i) = h.ng.x;
-        *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
-        *ray_f(hit, N, HIT_NG + 2, i) = h.ng.z;
-        *ray_f(hit, N, HIT_U, i) = h.b1;
-        *ray_f(hit, N, HIT_V, i) = h.b2;
-        *ray_u(hit, N, HIT_PRIM, i) = args->primID;
-        *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
-        *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+        b.lane[b.n] = i;
+        b.tmin[b.n] = *ray_f(args->rayhit, N, RAY_TNEAR, i);
+        b.tmax[b.n] = ray_f(args->rayhit, N, RAY_TFAR, i);
+        st.calls++;
+        if (++b.n == MR_DPACKET_MAX)
+            trace_batch(g, args, &b, &st);
     }
+    if (b.n)
+        trace_batch(g, args, &b, &st);
     add_stats(g, &st);
 }
 
@@ -944,8 +1015,10 @@ static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_calls", "count", "Base triangles entered (rays whose path met a triangle's "
                                  "Embree box); divided by rays: triangles entered per ray",
      MR_STAT_SUM},
-    {"displaced_nodes", "count", "Pyramid nodes bounded and tested (ray marching: samples); "
-                                 "divided by rays: traversal steps per ray", MR_STAT_SUM},
+    {"displaced_nodes", "count", "Pyramid nodes bounded and tested (ray marching: samples); a "
+                                 "packet of rays through one triangle shares each node's box, "
+                                 "so divided by rays: traversal steps per ray of the packets",
+     MR_STAT_SUM},
     {"displaced_tests", "count", "Micro-triangles (or bilinear patches) intersected", MR_STAT_SUM},
     {"displaced_base_bytes", "bytes", "Base mesh, per-triangle set-up and boxes", MR_STAT_SUM},
     {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held (procedural: "

@@ -596,25 +596,64 @@ static bool slab(const mr_dray *r, const double lo[3], const double hi[3], doubl
     return true;
 }
 
+/* How far past the best hit so far a node may start and still be entered:
+ * 2^-20 of the distance (16 float ulps) further. A micro-triangle that
+ * touches the hit (a ray through a shared micro-vertex or edge) computes
+ * the same float t, but its node's box, padded far less than a float
+ * rounding of t, can start a rounding beyond that t: entered all the same,
+ * its micro-triangle is tested, and the tie goes by tri_test's rule, not
+ * by which was found first. */
+static inline double cull_limit(float tmax)
+{
+    return (double)tmax + fabs((double)tmax) * 0x1p-20;
+}
+
+/* Which micro-triangle of T: its cell (i, j), cell half and place in the
+ * cell's list (flat triangles: its place in the boundary fan). */
+typedef struct tri_key {
+    int64_t j, i;
+    int half, k;
+} tri_key;
+
+static inline bool key_less(const tri_key *a, const tri_key *b)
+{
+    if (a->j != b->j)
+        return a->j < b->j;
+    if (a->i != b->i)
+        return a->i < b->i;
+    return a->half != b->half ? a->half < b->half : a->k < b->k;
+}
+
 typedef struct best {
     bool hit;
     float t;
+    tri_key key;
     mr_vec3 v[3];
     double q[3][2]; /* the micro-triangle's grid points */
     float u, v2;    /* its barycentrics at the hit */
 } best;
 
+/* A hit at the same distance as the best so far (a ray through a shared
+ * micro-edge or vertex) goes to the micro-triangle first in (j, i, half,
+ * k) order, so the winner does not depend on the order cells are visited
+ * in (a packet of rays visits them in another order than one ray alone). */
 static void tri_test(const mr_dray *r, mr_vec3 a, mr_vec3 b, mr_vec3 c, const mr_dvert *va,
-                     const mr_dvert *vb, const mr_dvert *vc, float tmin, float *tmax, best *out,
-                     mr_dstats *st)
+                     const mr_dvert *vb, const mr_dvert *vc, tri_key key, float tmin, float *tmax,
+                     best *out, mr_dstats *st)
 {
     mr_wt_hit h;
     if (st)
         st->triangles++;
-    if (!mr_wt_intersect(&r->wt, a, b, c, tmin, *tmax, &h))
+    /* the test compares t with tmax before it divides t out, so a hit whose
+     * t rounds to tmax can fail it: asked up to a little further, then held
+     * to tmax in its float t */
+    if (!mr_wt_intersect(&r->wt, a, b, c, tmin, (float)cull_limit(*tmax), &h) || h.t > *tmax)
+        return;
+    if (out->hit && h.t == out->t && !key_less(&key, &out->key))
         return;
     *tmax = h.t;
     out->hit = true;
+    out->key = key;
     out->t = h.t;
     out->v[0] = a, out->v[1] = b, out->v[2] = c;
     out->q[0][0] = va->x, out->q[0][1] = va->y;
@@ -714,39 +753,65 @@ static bool bilinear_hit(const mr_dray *r, const mr_vec3 q[4], float tmin, float
     return true;
 }
 
+/* The micro-triangles of T in one cell: made once, tested against each ray
+ * that reaches the cell. */
+typedef struct cell_tris {
+    int64_t i, j;
+    mr_dcell c;
+    mr_vec3 V[2 * MR_DSURF_MAX_POLY];
+} cell_tris;
+
+static bool cell_make(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, int half,
+                      cell_tris *ct, mr_dstats *st)
+{
+    mr_dsurf_cell(b, i, j, half, &ct->c);
+    if (st)
+        st->leaves++;
+    ct->i = i, ct->j = j;
+    for (int k = 0; k < ct->c.nv; k++)
+        ct->V[k] = mr_dsurf_vertex(b, &s->heights, &ct->c.v[k]);
+    return ct->c.nt > 0;
+}
+
+static void cell_test(const cell_tris *ct, const mr_dray *r, float tmin, float *tmax, best *out,
+                      mr_dstats *st)
+{
+    const mr_dcell *c = &ct->c;
+    for (int k = 0; k < c->nt; k++) {
+        const uint8_t *tr = c->tri[k];
+        tri_test(r, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
+                 &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, tmin, tmax, out, st);
+    }
+}
+
 /* The micro-surface of T in cell (i, j). */
 static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, int half,
                  const mr_dray *r, float tmin, float *tmax, best *out, mr_dstats *st)
 {
-    mr_dcell c;
-    mr_dsurf_cell(b, i, j, half, &c);
-    if (st)
-        st->leaves++;
-    if (!c.nt)
+    cell_tris ct;
+    if (!cell_make(s, b, i, j, half, &ct, st))
         return;
-    mr_vec3 V[2 * MR_DSURF_MAX_POLY];
-    for (int k = 0; k < c.nv; k++)
-        V[k] = mr_dsurf_vertex(b, &s->heights, &c.v[k]);
-    bool full = c.nv == 4 && c.nt == 2 && half == 2;
+    const mr_dcell *c = &ct.c;
+    const mr_vec3 *V = ct.V;
+    bool full = c->nv == 4 && c->nt == 2 && half == 2;
     for (int k = 0; full && k < 4; k++)
-        full = c.v[k].kind == MR_DV_GRID;
+        full = c->v[k].kind == MR_DV_GRID;
     if (s->local == MR_DLOCAL_BILINEAR && full) {
         /* corners (i,j) (i+1,j) (i,j+1) (i+1,j+1) among the four */
         mr_vec3 q[4];
-        const mr_dvert *qv[4] = {0};
-        for (int k = 0; k < 4; k++) {
-            int at = (int)(c.v[k].a - i) + 2 * (int)(c.v[k].b - j);
-            q[at] = V[k];
-            qv[at] = &c.v[k];
-        }
+        for (int k = 0; k < 4; k++)
+            q[(int)(c->v[k].a - i) + 2 * (int)(c->v[k].b - j)] = V[k];
         float t;
         double u, v;
+        tri_key key = {j, i, 0, 0};
         if (st)
             st->triangles++;
-        if (bilinear_hit(r, q, tmin, *tmax, &t, &u, &v)) {
+        if (bilinear_hit(r, q, tmin, (float)cull_limit(*tmax), &t, &u, &v) && t <= *tmax &&
+            !(out->hit && t == out->t && !key_less(&key, &out->key))) {
             *tmax = t;
             out->hit = true;
             out->t = t;
+            out->key = key;
             /* normal: the patch's tangents at (u, v) */
             mr_vec3 du = mr_v3_lerp(mr_v3_sub(q[1], q[0]), mr_v3_sub(q[3], q[2]), (float)v);
             mr_vec3 dv = mr_v3_lerp(mr_v3_sub(q[2], q[0]), mr_v3_sub(q[3], q[1]), (float)u);
@@ -758,15 +823,10 @@ static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, in
             out->q[1][0] = out->q[0][0], out->q[1][1] = out->q[0][1];
             out->q[2][0] = out->q[0][0], out->q[2][1] = out->q[0][1];
             out->u = out->v2 = 0;
-            (void)qv;
         }
         return;
     }
-    for (int k = 0; k < c.nt; k++) {
-        const uint8_t *tr = c.tri[k];
-        tri_test(r, V[tr[0]], V[tr[1]], V[tr[2]], &c.v[tr[0]], &c.v[tr[1]], &c.v[tr[2]], tmin,
-                 tmax, out, st);
-    }
+    cell_test(&ct, r, tmin, tmax, out, st);
 }
 
 static void flat_leaf(const mr_dscene *s, const mr_dbase *b, const mr_dray *r, float tmin,
@@ -780,7 +840,8 @@ static void flat_leaf(const mr_dscene *s, const mr_dbase *b, const mr_dray *r, f
     mr_vec3 prev = mr_dsurf_vertex(b, &s->heights, &pts[1]);
     for (int k = 2; k < n; k++) {
         mr_vec3 cur = mr_dsurf_vertex(b, &s->heights, &pts[k]);
-        tri_test(r, v0, prev, cur, &pts[0], &pts[k - 1], &pts[k], tmin, tmax, out, st);
+        tri_test(r, v0, prev, cur, &pts[0], &pts[k - 1], &pts[k], (tri_key){0, 0, 0, k}, tmin,
+                 tmax, out, st);
         prev = cur;
     }
 }
@@ -1018,7 +1079,7 @@ static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad
     mr_dproc_global_heights(p, &glo, &ghi);
     while (sp > 0) {
         struct entry e = stack[--sp];
-        if (e.tnear > *tmax)
+        if (e.tnear > cull_limit(*tmax))
             continue;
         if (e.n.level < 0 && (e.n.s == 1 || e.n.s == -1)) {
             int64_t ci = e.n.s > 0 ? e.n.x : e.n.x - 1, cj = e.n.s > 0 ? e.n.y : e.n.y - 1;
@@ -1042,7 +1103,7 @@ static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad
                 hlo = glo, hhi = ghi;
             else
                 mr_dproc_tri_heights(p, ch[k].x, ch[k].y, ch[k].s, &hlo, &hhi);
-            if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+            if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
                 continue;
             hitc[nh++] = (struct entry){ch[k], tn};
         }
@@ -1089,7 +1150,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         stack[sp++] = (tentry){rs.r[k], -INFINITY};
     while (sp > 0) {
         tentry e = stack[--sp];
-        if (e.tnear > *tmax)
+        if (e.tnear > cull_limit(*tmax))
             continue;
         if (e.n.level == 0) {
             int64_t i = e.n.tx * g->w + e.n.I, j = e.n.ty * g->h + e.n.J;
@@ -1102,7 +1163,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         int nh = 0;
 #if defined(__SSE2__)
         if (gr->local && e.n.level <= (int)g->levels) {
-            nh = tex_children_local(g, b, gr, &lr, &e.n, tmin, *tmax, hitc, st);
+            nh = tex_children_local(g, b, gr, &lr, &e.n, tmin, cull_limit(*tmax), hitc, st);
         } else
 #endif
         {
@@ -1116,7 +1177,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
                 if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                     continue;
                 node_heights(g, &ch[k], &hlo, &hhi);
-                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, *tmax, &tn))
+                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
                     continue;
                 hitc[nh++] = (tentry){ch[k], tn};
             }
@@ -1134,6 +1195,173 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
     if (bh.hit)
         finish(b, &bh, hit);
     return bh.hit;
+}
+
+/* ---- packets of rays -------------------------------------------------------------- */
+
+#define PK MR_DPACKET_MAX
+
+/* The packet's rays in T's local frame, lane by lane (a lane outside the
+ * packet never passes: t0 > t1), and each ray's current [tmin, tmax]. */
+typedef struct pack {
+    double o[3][PK], inv[3][PK];
+    double t0[PK], t1[PK];
+} pack;
+
+typedef struct pentry {
+    dnode n;
+    uint32_t mask; /* the rays that entered the node */
+    double tnear;  /* the nearest of their entries */
+} pentry;
+
+/* Entry distances of the packet's rays `live` into the box lo..hi: the
+ * slab of one ray, lane by lane; returns the rays that enter. */
+static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], const double hi[3],
+                          double tn[PK])
+{
+    uint32_t m = 0;
+    for (int k = 0; k < PK; k += 2) {
+        if (!(live >> k & 3u))
+            continue;
+#if defined(__SSE2__)
+        __m128d t0 = _mm_loadu_pd(p->t0 + k), t1 = _mm_loadu_pd(p->t1 + k);
+        for (int a = 0; a < 3; a++) {
+            __m128d o = _mm_loadu_pd(p->o[a] + k), inv = _mm_loadu_pd(p->inv[a] + k);
+            __m128d nn = _mm_mul_pd(_mm_sub_pd(_mm_set1_pd(lo[a]), o), inv);
+            __m128d ff = _mm_mul_pd(_mm_sub_pd(_mm_set1_pd(hi[a]), o), inv);
+            __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
+            far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
+            t0 = _mm_max_pd(near, t0);
+            t1 = _mm_min_pd(far, t1);
+        }
+        _mm_storeu_pd(tn + k, t0);
+        m |= (uint32_t)(~_mm_movemask_pd(_mm_cmpgt_pd(t0, t1)) & 3) << k;
+#else
+        for (int q = k; q < k + 2; q++) {
+            double t0 = p->t0[q], t1 = p->t1[q];
+            for (int a = 0; a < 3; a++) {
+                double nn = (lo[a] - p->o[a][q]) * p->inv[a][q];
+                double ff = (hi[a] - p->o[a][q]) * p->inv[a][q];
+                double near = ff < nn ? ff : nn, far = nn > ff ? nn : ff;
+                far *= 1 + 4 * DBL_EPSILON;
+                t0 = near > t0 ? near : t0;
+                t1 = far < t1 ? far : t1;
+            }
+            tn[q] = t0;
+            m |= (uint32_t)!(t0 > t1) << q;
+        }
+#endif
+    }
+    return m & live;
+}
+
+uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
+                                    const float *tmin, float *const *tmax, mr_dhit *hits,
+                                    mr_dstats *st)
+{
+    const mr_dbase *b = &s->bases[t];
+    const mr_dgrad *gr = &s->grads[t];
+    const mr_dgrid *g = s->grid;
+    uint32_t hit = 0, inpack = 0;
+    pack p;
+    if (n > 1 && n <= PK && g && !s->proc && !b->flat && gr->local &&
+        s->local == MR_DLOCAL_TRIANGLES) {
+        memset(&p, 0, sizeof p);
+        for (int k = 0; k < PK; k++)
+            p.t0[k] = INFINITY, p.t1[k] = -INFINITY;
+        for (int k = 0; k < n; k++) {
+            mr_dray lr;
+            local_ray(gr, b, &r[k], &lr);
+            if (lr.par[0] || lr.par[1] || lr.par[2])
+                continue; /* alone (slab's parallel case) */
+            for (int a = 0; a < 3; a++)
+                p.o[a][k] = lr.o[a], p.inv[a][k] = lr.inv[a];
+            p.t0[k] = tmin[k];
+            p.t1[k] = cull_limit(*tmax[k]);
+            inpack |= 1u << k;
+        }
+        if (!(inpack & (inpack - 1)))
+            inpack = 0; /* one ray or none: no packet */
+    }
+    for (int k = 0; k < n; k++)
+        if (!(inpack >> k & 1u) && mr_dtrace_intersect(s, t, &r[k], tmin[k], tmax[k], false,
+                                                        &hits[k], st))
+            hit |= 1u << k;
+    if (!inpack)
+        return hit;
+    best bh[PK];
+    memset(bh, 0, sizeof bh);
+    pentry stack[STACK_MAX];
+    int sp = 0;
+    mr_droots rs;
+    if (s->roots)
+        rs = s->roots[t];
+    else
+        mr_dtrace_roots(g, b, &rs);
+    for (int k = rs.n - 1; k >= 0; k--)
+        stack[sp++] = (pentry){rs.r[k], inpack, -INFINITY};
+    while (sp > 0) {
+        pentry e = stack[--sp];
+        uint32_t live = 0;
+        for (uint32_t m = e.mask; m; m &= m - 1) {
+            int k = __builtin_ctz(m);
+            if (!(e.tnear > cull_limit(*tmax[k])))
+                live |= 1u << k;
+        }
+        if (!live)
+            continue;
+        if (e.n.level == 0) {
+            cell_tris ct;
+            if (!cell_make(s, b, e.n.tx * g->w + e.n.I, e.n.ty * g->h + e.n.J, 2, &ct, st))
+                continue;
+            for (uint32_t m = live; m; m &= m - 1) {
+                int k = __builtin_ctz(m);
+                cell_test(&ct, &r[k], tmin[k], tmax[k], &bh[k], st);
+                p.t1[k] = cull_limit(*tmax[k]);
+            }
+            continue;
+        }
+        dnode ch[4];
+        int nc = children(g, &e.n, ch);
+        pentry hitc[4];
+        int nh = 0;
+        for (int c = 0; c < nc; c++) {
+            double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3], tn[PK];
+            node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
+            if (st)
+                st->nodes++;
+            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                continue;
+            node_heights(g, &ch[c], &hlo, &hhi);
+            local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+            uint32_t in = slab_pack(&p, live, lo, hi, tn);
+            if (!in)
+                continue;
+            double near = INFINITY;
+            for (uint32_t m = in; m; m &= m - 1) {
+                int k = __builtin_ctz(m);
+                near = tn[k] < near ? tn[k] : near;
+            }
+            hitc[nh++] = (pentry){ch[c], in, near};
+        }
+        /* push the farthest first, so the nearest is visited next */
+        for (int a = 1; a < nh; a++)
+            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
+                pentry tmp = hitc[m];
+                hitc[m] = hitc[m - 1];
+                hitc[m - 1] = tmp;
+            }
+        for (int k = 0; k < nh && sp < STACK_MAX; k++)
+            stack[sp++] = hitc[k];
+    }
+    for (uint32_t m = inpack; m; m &= m - 1) {
+        int k = __builtin_ctz(m);
+        if (bh[k].hit) {
+            finish(b, &bh[k], &hits[k]);
+            hit |= 1u << k;
+        }
+    }
+    return hit;
 }
 
 /* ---- ray marching ------------------------------------------------------------------- */

@@ -172,6 +172,21 @@ bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double
 bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
                          bool any, mr_dhit *hit, mr_dstats *st);
 
+/* Up to this many rays traced through one base triangle together. */
+#define MR_DPACKET_MAX 8
+
+/* The closest hits of rays r[0 .. n) (n <= MR_DPACKET_MAX) with base
+ * triangle t's displaced surface, each at tmin[k] <= t <= *tmax[k]
+ * (shrunk on a hit, hits[k] filled): returns the mask of rays hit. A
+ * texture's rays traverse together: each node's box is made once and
+ * tested against every ray still in the packet, each cell's micro-triangles
+ * made once and tested against each ray that reaches it. The hits are
+ * mr_dtrace_intersect's ray by ray, bit for bit (a tie between
+ * micro-triangles goes to the same one whatever the order of the visit). */
+uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
+                                    const float *tmin, float *const *tmax, mr_dhit *hits,
+                                    mr_dstats *st);
+
 /* The same surface found by marching: s->march_steps equal steps over the
  * ray's span in T's box, the first sign change of the height above the
  * surface refined by one secant step. An approximation (the comparator of
