@@ -902,16 +902,16 @@ typedef struct tentry {
 } tentry;
 
 #if defined(__SSE2__)
-/* The children of node n (level 1 .. the pyramid's top) in T's local frame,
- * a row of two at a time (SSE2): what mr_dtrace_overlaps, node_heights,
- * local_box and slab compute for each child, the same operations in the
- * same order lane by lane (min and max as a < b ? a : b and a > b ? a : b,
- * which minpd and maxpd are), so the same children pass with the same
- * entry distances as one by one. Passing children go to out in child
- * order; returns how many. */
-static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
-                              const mr_dray *lr, const dnode *n, double tmin, double tmax,
-                              tentry out[4], mr_dstats *st)
+/* The boxes of node n's children (level 1 .. the pyramid's top) in T's
+ * local frame, a row of two at a time (SSE2): what mr_dtrace_overlaps,
+ * node_heights and local_box compute for each child, the same operations in
+ * the same order lane by lane (min and max as a < b ? a : b and
+ * a > b ? a : b, which minpd and maxpd are), so the boxes are the ones made
+ * one by one. Child 2 r + a is (2 I + a, 2 J + r); returns the mask of
+ * children that exist and may overlap T, their boxes in lo and hi
+ * [axis][child]. */
+static unsigned tex_child_boxes(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
+                                const dnode *n, double lo[3][4], double hi[3][4], mr_dstats *st)
 {
     const int c = n->level - 1;
     const uint32_t I0 = n->I * 2, J0 = n->J * 2;
@@ -935,7 +935,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
     /* local_box's x extent before the height offsets */
     const __m128d lx0 = _mm_max_pd(x0, gx0), lx1 = _mm_min_pd(x1, gx1);
     const double m = b->margin;
-    int k = 0;
+    unsigned mask = 0;
     for (int r = 0; r < 2; r++) {
         uint32_t J = J0 + (uint32_t)r;
         if (J >= g->lh[c])
@@ -953,7 +953,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
                                    _mm_set1_pd(l[2]));
             in = _mm_andnot_pd(_mm_cmplt_pd(v, _mm_set1_pd(-m)), in);
         }
-        int inm = _mm_movemask_pd(in);
+        unsigned inm = (unsigned)_mm_movemask_pd(in);
         if (!inm)
             continue;
         double hl[2], hh[2];
@@ -964,43 +964,71 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
             hl[1] = hl[0], hh[1] = hh[0];
         const __m128d hlo = _mm_loadu_pd(hl), hhi = _mm_loadu_pd(hh);
         /* local_box */
-        __m128d lo[3], hi[3];
+        __m128d l[3], h[3];
         for (int a = 0; a < 3; a++) {
             __m128d n0 = _mm_set1_pd(gr->nb[a][0]), n1 = _mm_set1_pd(gr->nb[a][1]);
             __m128d p0 = _mm_mul_pd(hlo, n0), p1 = _mm_mul_pd(hlo, n1);
             __m128d p2 = _mm_mul_pd(hhi, n0), p3 = _mm_mul_pd(hhi, n1);
             __m128d pad = _mm_set1_pd(gr->lpad[a]);
-            lo[a] = _mm_sub_pd(_mm_min_pd(_mm_min_pd(p0, p1), _mm_min_pd(p2, p3)), pad);
-            hi[a] = _mm_add_pd(_mm_max_pd(_mm_max_pd(p0, p1), _mm_max_pd(p2, p3)), pad);
+            l[a] = _mm_sub_pd(_mm_min_pd(_mm_min_pd(p0, p1), _mm_min_pd(p2, p3)), pad);
+            h[a] = _mm_add_pd(_mm_max_pd(_mm_max_pd(p0, p1), _mm_max_pd(p2, p3)), pad);
         }
-        lo[0] = _mm_add_pd(lx0, lo[0]);
-        hi[0] = _mm_add_pd(lx1, hi[0]);
-        lo[1] = _mm_add_pd(_mm_set1_pd(y0 > gr->gy0 ? y0 : gr->gy0), lo[1]);
-        hi[1] = _mm_add_pd(_mm_set1_pd(y1 < gr->gy1 ? y1 : gr->gy1), hi[1]);
-        /* slab */
+        l[0] = _mm_add_pd(lx0, l[0]);
+        h[0] = _mm_add_pd(lx1, h[0]);
+        l[1] = _mm_add_pd(_mm_set1_pd(y0 > gr->gy0 ? y0 : gr->gy0), l[1]);
+        h[1] = _mm_add_pd(_mm_set1_pd(y1 < gr->gy1 ? y1 : gr->gy1), h[1]);
+        for (int a = 0; a < 3; a++) {
+            _mm_storeu_pd(lo[a] + 2 * r, l[a]);
+            _mm_storeu_pd(hi[a] + 2 * r, h[a]);
+        }
+        mask |= inm << 2 * r;
+    }
+    return mask;
+}
+
+/* The children of node n (level 1 .. the pyramid's top) the ray enters,
+ * tested a row of two at a time: slab's operations lane by lane, so the
+ * same children pass with the same entry distances as one by one. Passing
+ * children go to out in child order; returns how many. */
+static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
+                              const mr_dray *lr, const dnode *n, double tmin, double tmax,
+                              tentry out[4], mr_dstats *st)
+{
+    double lo[3][4], hi[3][4];
+    unsigned mask = tex_child_boxes(g, b, gr, n, lo, hi, st);
+    int k = 0;
+    for (int r = 0; r < 2; r++) {
+        if (!(mask >> 2 * r & 3u))
+            continue;
+        __m128d in = _mm_castsi128_pd(_mm_set_epi32(mask >> (2 * r + 1) & 1u ? -1 : 0,
+                                                    mask >> (2 * r + 1) & 1u ? -1 : 0,
+                                                    mask >> 2 * r & 1u ? -1 : 0,
+                                                    mask >> 2 * r & 1u ? -1 : 0));
         __m128d t0 = _mm_set1_pd(tmin), t1 = _mm_set1_pd(tmax);
         for (int a = 0; a < 3; a++) {
             __m128d o = _mm_set1_pd(lr->o[a]);
+            __m128d l = _mm_loadu_pd(lo[a] + 2 * r), h = _mm_loadu_pd(hi[a] + 2 * r);
             if (lr->par[a]) {
-                in = _mm_andnot_pd(_mm_or_pd(_mm_cmplt_pd(o, lo[a]), _mm_cmpgt_pd(o, hi[a])), in);
+                in = _mm_andnot_pd(_mm_or_pd(_mm_cmplt_pd(o, l), _mm_cmpgt_pd(o, h)), in);
                 continue;
             }
             __m128d inv = _mm_set1_pd(lr->inv[a]);
-            __m128d nn = _mm_mul_pd(_mm_sub_pd(lo[a], o), inv);
-            __m128d ff = _mm_mul_pd(_mm_sub_pd(hi[a], o), inv);
+            __m128d nn = _mm_mul_pd(_mm_sub_pd(l, o), inv);
+            __m128d ff = _mm_mul_pd(_mm_sub_pd(h, o), inv);
             __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
             far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
             t0 = _mm_max_pd(near, t0);
             t1 = _mm_min_pd(far, t1);
         }
         in = _mm_andnot_pd(_mm_cmpgt_pd(t0, t1), in);
-        inm = _mm_movemask_pd(in);
+        int inm = _mm_movemask_pd(in);
         double tn[2];
         _mm_storeu_pd(tn, t0);
         for (int a = 0; a < 2; a++)
             if (inm & (1 << a))
-                out[k++] = (tentry){{.level = c, .tx = n->tx, .ty = n->ty,
-                                     .I = I0 + (uint32_t)a, .J = J}, tn[a]};
+                out[k++] = (tentry){{.level = n->level - 1, .tx = n->tx, .ty = n->ty,
+                                     .I = n->I * 2 + (uint32_t)a, .J = n->J * 2 + (uint32_t)r},
+                                    tn[a]};
     }
     return k;
 }
@@ -1305,7 +1333,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
         uint32_t live = 0;
         for (uint32_t m = e.mask; m; m &= m - 1) {
             int k = __builtin_ctz(m);
-            if (!(e.tnear > cull_limit(*tmax[k])))
+            if (!(e.tnear > p.t1[k])) /* p.t1: cull_limit of the ray's tmax */
                 live |= 1u << k;
         }
         if (!live)
@@ -1322,18 +1350,43 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             continue;
         }
         dnode ch[4];
-        int nc = children(g, &e.n, ch);
+        double blo[3][4], bhi[3][4];
+        unsigned boxed = 0;
+        int nc;
+#if defined(__SSE2__)
+        if (e.n.level <= (int)g->levels) { /* within a period: made two at a time */
+            boxed = tex_child_boxes(g, b, gr, &e.n, blo, bhi, st);
+            nc = 4;
+            for (int c = 0; c < 4; c++)
+                ch[c] = (dnode){.level = e.n.level - 1, .tx = e.n.tx, .ty = e.n.ty,
+                                .I = e.n.I * 2 + (uint32_t)(c & 1),
+                                .J = e.n.J * 2 + (uint32_t)(c >> 1)};
+        } else
+#endif
+        {
+            nc = children(g, &e.n, ch);
+            for (int c = 0; c < nc; c++) {
+                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
+                node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
+                if (st)
+                    st->nodes++;
+                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                    continue;
+                node_heights(g, &ch[c], &hlo, &hhi);
+                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+                for (int a = 0; a < 3; a++)
+                    blo[a][c] = lo[a], bhi[a][c] = hi[a];
+                boxed |= 1u << c;
+            }
+        }
         pentry hitc[4];
         int nh = 0;
         for (int c = 0; c < nc; c++) {
-            double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3], tn[PK];
-            node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
-            if (st)
-                st->nodes++;
-            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+            if (!(boxed >> c & 1u))
                 continue;
-            node_heights(g, &ch[c], &hlo, &hhi);
-            local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+            double lo[3] = {blo[0][c], blo[1][c], blo[2][c]};
+            double hi[3] = {bhi[0][c], bhi[1][c], bhi[2][c]};
+            double tn[PK];
             uint32_t in = slab_pack(&p, live, lo, hi, tn);
             if (!in)
                 continue;
