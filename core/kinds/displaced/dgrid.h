@@ -97,7 +97,8 @@ static inline double mr_dgrid_sample(const mr_dgrid *g, uint32_t i, uint32_t j)
  * (monotone in s, so bounds of samples map to bounds of heights). */
 static inline double mr_dgrid_height_of(const mr_dgrid *g, double s)
 {
-    return g->offset + g->scale * (s / g->unit);
+    /* (a float texture's unit is 1: no division, the same value) */
+    return g->offset + g->scale * (g->unit == 1 ? s : s / g->unit);
 }
 
 /* H(i, j) of any grid point. */

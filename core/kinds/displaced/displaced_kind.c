@@ -503,6 +503,17 @@ static int create_levels(mr_geom *g, const mr_asset *tex, unsigned threads, mr_e
            g->par.level + g->lod_count <= MR_DISPLACED_MAX_LEVEL) {
         mr_displaced_params p = g->par;
         p.level += g->lod_count;
+        /* A mip level with no more cells than the mesh has base triangles is
+         * a few micro-triangles per base triangle: traced as its
+         * tessellation, which holds less than the tessellation-free set-up
+         * of its triangles (their gradients, boxes and roots) and which
+         * Embree's own triangles intersect faster than a traversal per
+         * base triangle. */
+        uint32_t s = 1u << p.level;
+        uint64_t cells = (uint64_t)((tex->image->width + s - 1) / s) *
+                         ((tex->image->height + s - 1) / s);
+        if (p.method == MR_DISPLACED_TESSELLATION_FREE && cells <= g->triangle_count)
+            p.method = MR_DISPLACED_TESSELLATED;
         mr_geom *c;
         if ((rc = create_surface(g->asset, &p, tex, g->vertex_count, g->triangle_count, threads,
                                  g, &c, err)) < 0)
