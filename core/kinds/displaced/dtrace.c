@@ -1079,30 +1079,39 @@ static int pnode_children(const mr_dproc *p, const pnode *n, pnode out[4])
     return 4;
 }
 
+/* T's roots: the nodes of the lowest square level (a lattice square or
+ * more) where T's cells span at most two nodes per axis, in row order. */
+static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
+{
+    int64_t i0, i1, j0, j1;
+    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
+    int top = 0;
+    while (((int64_t)1 << top) < (int64_t)p->range)
+        top++;
+    int level = top;
+    while (level < 62 && ((i1 >> level) - (i0 >> level) > 1 || (j1 >> level) - (j0 >> level) > 1))
+        level++;
+    int n = 0;
+    for (int64_t y = j0 >> level; y <= (j1 >> level); y++)
+        for (int64_t x = i0 >> level; x <= (i1 >> level); x++)
+            out[n++] = (pnode){level, x, y, 0};
+    return n;
+}
+
 static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
                            const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
                            mr_dhit *hit, mr_dstats *st)
 {
     const mr_dproc *p = s->proc;
     best bh = {0};
-    int64_t i0, i1, j0, j1;
-    mr_dbase_cells(b, &i0, &i1, &j0, &j1);
-    int top = 0;
-    while (((int64_t)1 << top) < (int64_t)p->range)
-        top++;
-    /* roots: the lowest square level (a lattice square or more) where T's
-     * cells span at most two nodes per axis */
-    int level = top;
-    while (level < 62 && ((i1 >> level) - (i0 >> level) > 1 || (j1 >> level) - (j0 >> level) > 1))
-        level++;
     struct entry {
         pnode n;
         double tnear;
     } stack[STACK_MAX];
     int sp = 0;
-    for (int64_t y = j1 >> level; y >= (j0 >> level); y--)
-        for (int64_t x = i1 >> level; x >= (i0 >> level); x--)
-            stack[sp++] = (struct entry){{level, x, y, 0}, -INFINITY};
+    pnode rs[4];
+    for (int k = proc_roots(p, b, rs) - 1; k >= 0; k--)
+        stack[sp++] = (struct entry){rs[k], -INFINITY};
     double glo, ghi;
     mr_dproc_global_heights(p, &glo, &ghi);
     while (sp > 0) {
@@ -1237,7 +1246,10 @@ typedef struct pack {
 } pack;
 
 typedef struct pentry {
-    dnode n;
+    union {
+        dnode d; /* texture source */
+        pnode p; /* procedural source */
+    } n;
     uint32_t mask; /* the rays that entered the node */
     double tnear;  /* the nearest of their entries */
 } pentry;
@@ -1292,8 +1304,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     const mr_dgrid *g = s->grid;
     uint32_t hit = 0, inpack = 0;
     pack p;
-    if (n > 1 && n <= PK && g && !s->proc && !b->flat && gr->local &&
-        s->local == MR_DLOCAL_TRIANGLES) {
+    if (n > 1 && n <= PK && !b->flat && gr->local && s->local == MR_DLOCAL_TRIANGLES) {
         memset(&p, 0, sizeof p);
         for (int k = 0; k < PK; k++)
             p.t0[k] = INFINITY, p.t1[k] = -INFINITY;
@@ -1321,13 +1332,22 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     memset(bh, 0, sizeof bh);
     pentry stack[STACK_MAX];
     int sp = 0;
-    mr_droots rs;
-    if (s->roots)
-        rs = s->roots[t];
-    else
-        mr_dtrace_roots(g, b, &rs);
-    for (int k = rs.n - 1; k >= 0; k--)
-        stack[sp++] = (pentry){rs.r[k], inpack, -INFINITY};
+    const mr_dproc *pr = s->proc;
+    double glo = 0, ghi = 0;
+    if (pr) {
+        pnode rs[4];
+        for (int k = proc_roots(pr, b, rs) - 1; k >= 0; k--)
+            stack[sp++] = (pentry){{.p = rs[k]}, inpack, -INFINITY};
+        mr_dproc_global_heights(pr, &glo, &ghi);
+    } else {
+        mr_droots rs;
+        if (s->roots)
+            rs = s->roots[t];
+        else
+            mr_dtrace_roots(g, b, &rs);
+        for (int k = rs.n - 1; k >= 0; k--)
+            stack[sp++] = (pentry){{.d = rs.r[k]}, inpack, -INFINITY};
+    }
     while (sp > 0) {
         pentry e = stack[--sp];
         uint32_t live = 0;
@@ -1338,9 +1358,19 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
         }
         if (!live)
             continue;
-        if (e.n.level == 0) {
+        int64_t ci, cj;
+        int half = 2;
+        if (pr ? e.n.p.level < 0 && (e.n.p.s == 1 || e.n.p.s == -1) : e.n.d.level == 0) {
+            if (pr) { /* a triforce triangle of one cell half */
+                ci = e.n.p.s > 0 ? e.n.p.x : e.n.p.x - 1;
+                cj = e.n.p.s > 0 ? e.n.p.y : e.n.p.y - 1;
+                half = e.n.p.s > 0 ? 0 : 1;
+            } else {
+                ci = e.n.d.tx * g->w + e.n.d.I;
+                cj = e.n.d.ty * g->h + e.n.d.J;
+            }
             cell_tris ct;
-            if (!cell_make(s, b, e.n.tx * g->w + e.n.I, e.n.ty * g->h + e.n.J, 2, &ct, st))
+            if (!cell_make(s, b, ci, cj, half, &ct, st))
                 continue;
             for (uint32_t m = live; m; m &= m - 1) {
                 int k = __builtin_ctz(m);
@@ -1349,30 +1379,51 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             }
             continue;
         }
-        dnode ch[4];
+        pentry ch[4];
         double blo[3][4], bhi[3][4];
         unsigned boxed = 0;
         int nc;
-#if defined(__SSE2__)
-        if (e.n.level <= (int)g->levels) { /* within a period: made two at a time */
-            boxed = tex_child_boxes(g, b, gr, &e.n, blo, bhi, st);
-            nc = 4;
-            for (int c = 0; c < 4; c++)
-                ch[c] = (dnode){.level = e.n.level - 1, .tx = e.n.tx, .ty = e.n.ty,
-                                .I = e.n.I * 2 + (uint32_t)(c & 1),
-                                .J = e.n.J * 2 + (uint32_t)(c >> 1)};
-        } else
-#endif
-        {
-            nc = children(g, &e.n, ch);
+        if (pr) {
+            pnode pc[4];
+            nc = pnode_children(pr, &e.n.p, pc);
             for (int c = 0; c < nc; c++) {
-                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
-                node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
+                double x0, x1, y0, y1, hlo = glo, hhi = ghi, lo[3], hi[3];
+                ch[c].n.p = pc[c];
+                pnode_rect(&pc[c], &x0, &x1, &y0, &y1);
                 if (st)
                     st->nodes++;
                 if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                     continue;
-                node_heights(g, &ch[c], &hlo, &hhi);
+                if (pc[c].level < 0)
+                    mr_dproc_tri_heights(pr, pc[c].x, pc[c].y, pc[c].s, &hlo, &hhi);
+                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+                for (int a = 0; a < 3; a++)
+                    blo[a][c] = lo[a], bhi[a][c] = hi[a];
+                boxed |= 1u << c;
+            }
+        }
+#if defined(__SSE2__)
+        else if (e.n.d.level <= (int)g->levels) { /* within a period: made two at a time */
+            boxed = tex_child_boxes(g, b, gr, &e.n.d, blo, bhi, st);
+            nc = 4;
+            for (int c = 0; c < 4; c++)
+                ch[c].n.d = (dnode){.level = e.n.d.level - 1, .tx = e.n.d.tx, .ty = e.n.d.ty,
+                                    .I = e.n.d.I * 2 + (uint32_t)(c & 1),
+                                    .J = e.n.d.J * 2 + (uint32_t)(c >> 1)};
+        }
+#endif
+        else {
+            dnode dc[4];
+            nc = children(g, &e.n.d, dc);
+            for (int c = 0; c < nc; c++) {
+                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
+                ch[c].n.d = dc[c];
+                node_rect(g, &dc[c], &x0, &x1, &y0, &y1);
+                if (st)
+                    st->nodes++;
+                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                    continue;
+                node_heights(g, &dc[c], &hlo, &hhi);
                 local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
                 for (int a = 0; a < 3; a++)
                     blo[a][c] = lo[a], bhi[a][c] = hi[a];
@@ -1395,7 +1446,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
                 int k = __builtin_ctz(m);
                 near = tn[k] < near ? tn[k] : near;
             }
-            hitc[nh++] = (pentry){ch[c], in, near};
+            hitc[nh++] = (pentry){ch[c].n, in, near};
         }
         /* push the farthest first, so the nearest is visited next */
         for (int a = 1; a < nh; a++)
