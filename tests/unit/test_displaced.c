@@ -17,7 +17,8 @@
  *    brute force over the tessellation (displaced_fixture.h): identical hits,
  *    t bit for bit, on a plane, a bumpy mesh with varying normals, and a
  *    UV sphere (examples/models/sphere960.obj);
- *  - a constant texture is the base mesh offset along its unit normals.
+ *  - a constant texture is the base mesh offset along its unit normals;
+ *  - bilinear leaves: hits on the patches against their fine tessellation.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -407,6 +408,164 @@ static void test_constant_texture_is_offset_base(void **state)
     mr_asset_free(tex);
 }
 
+/* ---- bilinear leaves ---------------------------------------------------------------- */
+
+/* "local": "bilinear" makes a texel a bilinear patch through its four
+ * micro-vertices instead of two triangles. The reference: every patch
+ * tessellated finely (BL_SUB x BL_SUB quads), by brute force. A plane of
+ * two base triangles split along the texture's anti-diagonal x + y = N, so
+ * every texel lies whole in one base triangle; those that touch a base
+ * edge (the plane's border, the diagonal) are cut like any texel there,
+ * into triangles both sides of the edge share, so only the others are
+ * patches. Rays fall steeply (at most 11 degrees off vertical) on texels
+ * at least one away from any cut one, so their first hits are on
+ * patches. */
+#define BL_N 12
+#define BL_SUB 32
+
+/* Whether texel (i, j) touches no base edge (a patch). */
+static bool bl_patch(int i, int j)
+{
+    return i >= 1 && j >= 1 && i <= BL_N - 2 && j <= BL_N - 2 && abs(i + j - (BL_N - 1)) >= 2;
+}
+
+/* Whether texel (i, j) and its eight neighbours are patches. */
+static bool bl_deep(int i, int j)
+{
+    for (int b = -1; b <= 1; b++)
+        for (int a = -1; a <= 1; a++)
+            if (!bl_patch(i + a, j + b))
+                return false;
+    return true;
+}
+
+static double bl_height(const mr_image *img, const dfx *f, int i, int j)
+{
+    uint8_t s = ((const uint8_t *)img->samples)[(size_t)(BL_N - 1 - (j % BL_N)) * BL_N + (i % BL_N)];
+    return f->par.offset + f->par.scale * (s / 255.0);
+}
+
+static void bl_point(const mr_image *img, const dfx *f, int i, int j, double u, double v, double p[3])
+{
+    double h00 = bl_height(img, f, i, j), h10 = bl_height(img, f, i + 1, j);
+    double h01 = bl_height(img, f, i, j + 1), h11 = bl_height(img, f, i + 1, j + 1);
+    p[0] = -1 + 2.0 * (i + u) / BL_N;
+    p[1] = (1 - u) * (1 - v) * h00 + u * (1 - v) * h10 + (1 - u) * v * h01 + u * v * h11;
+    p[2] = 1 - 2.0 * (j + v) / BL_N;
+}
+
+/* Closest hit of the ray with the finely tessellated patches of texels off
+ * the base edge: t and the hit sub-triangle's normal. */
+static bool bl_brute(const mr_image *img, const dfx *f, mr_vec3 o, mr_vec3 d, float *t, mr_vec3 *ng)
+{
+    mr_wt_ray r = mr_wt_ray_setup(o, d);
+    float tmax = INFINITY;
+    bool hit = false;
+    for (int j = 0; j < BL_N; j++)
+        for (int i = 0; i < BL_N; i++) {
+            if (!bl_patch(i, j))
+                continue;
+            mr_vec3 q[BL_SUB + 1][BL_SUB + 1];
+            for (int b = 0; b <= BL_SUB; b++)
+                for (int a = 0; a <= BL_SUB; a++) {
+                    double p[3];
+                    bl_point(img, f, i, j, (double)a / BL_SUB, (double)b / BL_SUB, p);
+                    q[b][a] = mr_v3((float)p[0], (float)p[1], (float)p[2]);
+                }
+            for (int b = 0; b < BL_SUB; b++)
+                for (int a = 0; a < BL_SUB; a++) {
+                    mr_vec3 tri[2][3] = {{q[b][a], q[b][a + 1], q[b + 1][a]},
+                                         {q[b][a + 1], q[b + 1][a + 1], q[b + 1][a]}};
+                    for (int k = 0; k < 2; k++) {
+                        mr_wt_hit h;
+                        if (mr_wt_intersect(&r, tri[k][0], tri[k][1], tri[k][2], 0, tmax, &h)) {
+                            tmax = h.t;
+                            hit = true;
+                            *ng = mr_v3_cross(mr_v3_sub(tri[k][1], tri[k][0]),
+                                              mr_v3_sub(tri[k][2], tri[k][0]));
+                        }
+                    }
+                }
+        }
+    *t = tmax;
+    return hit;
+}
+
+static void test_bilinear_leaves(void **state)
+{
+    (void)state;
+    static const uint32_t ANTI[] = {0, 1, 3, 1, 2, 3}; /* split along uv (1, 0) - (0, 1) */
+    uint64_t seed = 41;
+    mr_asset *mesh = dfx_mesh(PLANE_P, PLANE_N, PLANE_UV, 4, ANTI, 2);
+    mr_asset *tex = dfx_texture(BL_N, BL_N, MR_SAMPLE_U8, dfx_noise, &seed);
+    dfx f = {0};
+    dfx_params(&f, 0.2f, 0.0f);
+    f.par.local = MR_DLOCAL_BILINEAR;
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    /* The tessellation differs from the patches by at most |twist| / (4
+     * BL_SUB^2) in height (twist = h00 - h10 - h01 + h11, at most twice the
+     * scale): 9.8e-5; along rays within 11 degrees of vertical onto slopes
+     * of at most 0.8 (0.2 over a texel of 0.25) that is at most 1.6e-4 of
+     * distance. Two triangles instead of the patch would be up to a quarter
+     * of the twist off (0.1). */
+    const double tol = 2e-4;
+    int rays = 0, bad = 0, bad_normal = 0, packet = 0;
+    double worst = 0;
+    while (rays < 300) {
+        /* a point on a texel whose neighbours are all patches */
+        double gx = rndf(&seed, 0, BL_N), gy = rndf(&seed, 0, BL_N);
+        if (!bl_deep((int)gx, (int)gy))
+            continue;
+        mr_vec3 target = mr_v3((float)(-1 + 2 * gx / BL_N), 0.1f, (float)(1 - 2 * gy / BL_N));
+        mr_vec3 d = mr_v3(rndf(&seed, -0.2f, 0.2f), -1, rndf(&seed, -0.2f, 0.2f));
+        d = mr_v3_normalize_or(d, mr_v3(0, -1, 0));
+        mr_vec3 o = mr_v3_sub(target, mr_v3_scale(d, 2.0f));
+        float tk, tb;
+        mr_vec3 nk, nb;
+        bool hk = dfx_trace(&f, o, d, 0, INFINITY, &tk, &nk);
+        bool hb = bl_brute(tex->image, &f, o, d, &tb, &nb);
+        packet += dfx_packet_check(&f, o, d, 0, INFINITY);
+        rays++;
+        if (!hk || !hb) {
+            print_error("ray %d: kind %s, patches %s\n", rays, hk ? "hit" : "miss", hb ? "hit" : "miss");
+            bad++;
+            continue;
+        }
+        double e = fabs((double)tk - (double)tb);
+        worst = fmax(worst, e);
+        bad += e > tol;
+        double c = mr_v3_dot(mr_v3_normalize_or(nk, mr_v3(0, 0, 0)), mr_v3_normalize_or(nb, mr_v3(0, 0, 0)));
+        bad_normal += fabs(c) < cos(2.0 * M_PI / 180); /* sub-triangles tilt by ~|twist| / BL_SUB */
+    }
+    print_message("bilinear leaves: %d rays, worst distance to the finely tessellated patches %.2e "
+                  "(tolerance %.0e)\n", rays, worst, tol);
+    assert_int_equal(bad, 0);
+    assert_int_equal(bad_normal, 0);
+    assert_int_equal(packet, 0);
+    /* and the patches are not the two triangles: the same rays with
+     * "triangles" leaves stray from them by far more than the tolerance */
+    dfx_close(&f);
+    f.par.local = MR_DLOCAL_TRIANGLES;
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    double tri_worst = 0;
+    for (int k = 0; k < 100; k++) {
+        double gx = rndf(&seed, 0, BL_N), gy = rndf(&seed, 0, BL_N);
+        if (!bl_deep((int)gx, (int)gy))
+            continue;
+        mr_vec3 o = mr_v3((float)(-1 + 2 * gx / BL_N), 2, (float)(1 - 2 * gy / BL_N));
+        float tk, tb;
+        mr_vec3 nk, nb;
+        if (dfx_trace(&f, o, mr_v3(0, -1, 0), 0, INFINITY, &tk, &nk) &&
+            bl_brute(tex->image, &f, o, mr_v3(0, -1, 0), &tb, &nb))
+            tri_worst = fmax(tri_worst, fabs((double)tk - (double)tb));
+    }
+    assert_true(tri_worst > 10 * tol);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
 /* ---- tiling and blending ------------------------------------------------------------ */
 
 /* The triforce subdivision (tiling.h) of a lattice triangle of leg R,
@@ -607,6 +766,7 @@ int main(void)
         cmocka_unit_test(test_bumpy_mesh_against_brute_force),
         cmocka_unit_test(test_sphere_against_brute_force),
         cmocka_unit_test(test_constant_texture_is_offset_base),
+        cmocka_unit_test(test_bilinear_leaves),
         cmocka_unit_test(test_triforce_against_brute_force),
         cmocka_unit_test(test_tiling_bounds),
         cmocka_unit_test(test_tiling_histogram_and_period),
