@@ -163,12 +163,46 @@ static void same_hit(const char *what, bool a, const mr_dmm_hit *ha, float ta, b
                  b ? "hit" : "miss", (double)hb->t, (double)hb->u, (double)hb->v);
 }
 
+/* The same rays through the patch as packets of up to 8
+ * (mr_dmm_intersect_packet: what Embree's packets of primary rays get),
+ * against each ray alone, bit for bit: closest hits from tmax = infinity,
+ * then from each hit's own t as the incoming tmax with take_tmax
+ * alternating by lane. */
+static void packet_check(const mr_dmm_patch *p, const mr_dmm_ray *r, int n)
+{
+    float tmin[8] = {0}, t[8], *tmax[8];
+    bool take[8];
+    mr_dmm_hit h[8];
+    for (int pass = 0; pass < 2; pass++) {
+        float alone_t[8];
+        mr_dmm_hit alone_h[8];
+        bool alone[8];
+        for (int k = 0; k < n; k++) {
+            float t0 = INFINITY;
+            mr_dmm_hit h0 = {0};
+            if (pass == 1) /* the ray's closest hit (if any), now its incoming tmax */
+                mr_dmm_intersect(p, &r[k], 0, &t0, true, false, &h0, NULL);
+            take[k] = pass == 0 || k % 2;
+            t[k] = alone_t[k] = t0;
+            tmax[k] = &t[k];
+            memset(&alone_h[k], 0, sizeof alone_h[k]);
+            memset(&h[k], 0, sizeof h[k]);
+            alone[k] = mr_dmm_intersect(p, &r[k], 0, &alone_t[k], take[k], false, &alone_h[k],
+                                        NULL);
+        }
+        uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, h, NULL);
+        for (int k = 0; k < n; k++)
+            same_hit(pass ? "packet, at tmax" : "packet", (m >> k & 1u) != 0, &h[k], t[k],
+                     alone[k], &alone_h[k], alone_t[k]);
+    }
+}
+
 static void test_traversal_equals_micro(void **state)
 {
     (void)state;
     uint64_t s = 0x2545f4914f6cdd1dull;
     enum { PATCHES = 3, RAYS = 160 };
-    uint64_t rays = 0, hits = 0, ties = 0;
+    uint64_t rays = 0, hits = 0, ties = 0, packets = 0;
     float *verts = malloc(sizeof(float) * 3 * MAX_VERTS);
     uint32_t *tris = malloc(sizeof(uint32_t) * 3 * MAX_TRIS);
     assert_true(verts && tris);
@@ -198,6 +232,8 @@ static void test_traversal_equals_micro(void **state)
             assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
             mr_vec3 c = mr_v3_scale(mr_v3_add(lo, hi), 0.5f);
             float size = mr_v3_len(mr_v3_sub(hi, lo)) + 1e-3f;
+            mr_dmm_ray pack[8];
+            int packed = 0;
             for (uint32_t i = 0; i < RAYS; i++) {
                 /* aimed at a micro-vertex (i % 3 == 0), the midpoint of a
                  * micro-edge (1) or a random point of a micro-triangle */
@@ -221,6 +257,12 @@ static void test_traversal_equals_micro(void **state)
                 if (!(mr_v3_len(dir) > 0))
                     continue;
                 mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
+                pack[packed++] = r;
+                if (packed == 8 || i + 1 == RAYS) {
+                    packet_check(&p, pack, packed);
+                    packets++;
+                    packed = 0;
+                }
                 float ta = INFINITY, tb = INFINITY;
                 mr_dmm_hit ha = {0}, hb = {0};
                 bool a = mr_dmm_intersect(&p, &r, 0, &ta, true, false, &ha, NULL);
@@ -263,8 +305,9 @@ static void test_traversal_equals_micro(void **state)
         free(disp);
     }
     printf("  %llu rays, %llu hit, %llu of them at a t several micro-triangles share: the same "
-           "hit from both\n",
-           (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)ties);
+           "hit from both, and from %llu packets of them\n",
+           (unsigned long long)rays, (unsigned long long)hits, (unsigned long long)ties,
+           (unsigned long long)packets);
     /* the rays at vertices and edges must have made ties, or the order was not tested */
     assert_true(hits * 2 > rays && ties > 100);
     free(verts);

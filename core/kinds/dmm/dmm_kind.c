@@ -900,12 +900,51 @@ static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, voi
     return mr_dmm_intersect(p, &r, tnear, tfar, take_tmax, any_hit, h, NULL);
 }
 
+static void write_hit(const struct RTCIntersectFunctionNArguments *args, unsigned i,
+                      const mr_dmm_hit *h)
+{
+    unsigned N = args->N;
+    void *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    *ray_f(hit, N, HIT_NG, i) = h->ng.x;
+    *ray_f(hit, N, HIT_NG + 1, i) = h->ng.y;
+    *ray_f(hit, N, HIT_NG + 2, i) = h->ng.z;
+    *ray_f(hit, N, HIT_U, i) = h->u;
+    *ray_f(hit, N, HIT_V, i) = h->v;
+    *ray_u(hit, N, HIT_PRIM, i) = args->primID;
+    *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
+    *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+}
+
+/* Up to MR_DMM_PACKET_MAX of a packet's rays through one patch together
+ * (mr_dmm_intersect_packet). */
+typedef struct ray_batch {
+    int n;
+    unsigned lane[MR_DMM_PACKET_MAX];
+    mr_dmm_ray r[MR_DMM_PACKET_MAX];
+    float tmin[MR_DMM_PACKET_MAX], *tmax[MR_DMM_PACKET_MAX];
+    bool take_tmax[MR_DMM_PACKET_MAX];
+} ray_batch;
+
+static void trace_batch(const struct RTCIntersectFunctionNArguments *args,
+                        const mr_dmm_patch *p, ray_batch *b)
+{
+    mr_dmm_hit hits[MR_DMM_PACKET_MAX];
+    uint32_t hm = mr_dmm_intersect_packet(p, b->n, b->r, b->tmin, b->tmax, b->take_tmax, hits,
+                                          NULL);
+    for (int k = 0; k < b->n; k++)
+        if (hm >> k & 1u)
+            write_hit(args, b->lane[k], &hits[k]);
+    b->n = 0;
+}
+
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
     const dmm_level *g = args->geometryUserPtr;
     unsigned N = args->N;
     void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
     mr_dmm_patch p = patch_of(g, args->primID);
+    ray_batch b;
+    b.n = 0;
     for (unsigned i = 0; i < N; i++) {
         mr_dmm_hit h;
         if (args->valid[i] != -1)
@@ -919,17 +958,28 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
                          (held == args->geomID &&
                           *ray_u(hit, N, HIT_INST, i) == args->context->instID[0] &&
                           args->primID < *ray_u(hit, N, HIT_PRIM, i));
-        if (!trace_one(g, args->primID, &p, ray, N, i, take_tmax, false, &h))
+        if (watertight_reference(g)) {
+            if (trace_one(g, args->primID, &p, ray, N, i, take_tmax, false, &h))
+                write_hit(args, i, &h);
             continue;
-        *ray_f(hit, N, HIT_NG, i) = h.ng.x;
-        *ray_f(hit, N, HIT_NG + 1, i) = h.ng.y;
-        *ray_f(hit, N, HIT_NG + 2, i) = h.ng.z;
-        *ray_f(hit, N, HIT_U, i) = h.u;
-        *ray_f(hit, N, HIT_V, i) = h.v;
-        *ray_u(hit, N, HIT_PRIM, i) = args->primID;
-        *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
-        *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
+        }
+        /* the traversal: the packet's rays together */
+        mr_vec3 dir = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
+                            *ray_f(ray, N, RAY_DIR + 2, i));
+        if (!ray_ok(dir))
+            continue;
+        mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
+                            *ray_f(ray, N, RAY_ORG + 2, i));
+        b.r[b.n] = mr_dmm_ray_setup(org, dir);
+        b.lane[b.n] = i;
+        b.tmin[b.n] = *ray_f(ray, N, RAY_TNEAR, i);
+        b.tmax[b.n] = ray_f(ray, N, RAY_TFAR, i);
+        b.take_tmax[b.n] = take_tmax;
+        if (++b.n == MR_DMM_PACKET_MAX)
+            trace_batch(args, &p, &b);
     }
+    if (b.n)
+        trace_batch(args, &p, &b);
 }
 
 static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)

@@ -333,46 +333,67 @@ static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
     }
 }
 
-static void leaf(trace_ctx *c, const lattice_pt *const P[3])
+/* A leaf's micro-triangles: made once, tested against each ray that
+ * reaches the leaf. */
+typedef struct leaf_tris {
+    int count;                /* 1 (level 0: the base triangle) or 4 */
+    lattice_pt mid[3], moved[6];
+    const lattice_pt *pts[6], *at[6];
+    mr_vec3 v[6];
+} leaf_tris;
+
+static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], leaf_tris *lt)
 {
-    const mr_dmm_patch *p = c->patch;
     if (p->level == 0) {
-        mr_vec3 v[3];
-        for (int k = 0; k < 3; k++)
-            v[k] = mr_dmm_vertex(p, P[k]->a, P[k]->b);
-        test_triangle(c, P, P, v);
+        lt->count = 1;
+        for (int k = 0; k < 3; k++) {
+            lt->pts[k] = lt->at[k] = P[k];
+            lt->v[k] = mr_dmm_vertex(p, P[k]->a, P[k]->b);
+        }
         return;
     }
+    lt->count = 4;
     /* Lattice coordinates are all the micro-triangle test needs here. */
-    lattice_pt mid[3];
     for (int e = 0; e < 3; e++) {
         const lattice_pt *x = P[e], *y = P[(e + 1) % 3];
-        mid[e].a = (x->a + y->a) / 2;
-        mid[e].b = (x->b + y->b) / 2;
+        lt->mid[e].a = (x->a + y->a) / 2;
+        lt->mid[e].b = (x->b + y->b) / 2;
     }
-    const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
+    const lattice_pt *pts[6] = {P[0], P[1], P[2], &lt->mid[0], &lt->mid[1], &lt->mid[2]};
     /* Decimated edges: a collapsed vertex moves to the even vertex before it
      * on the same base edge, a corner of this leaf (leaf edges on a base edge
      * start at even steps), so the leaf's box still bounds it. */
-    lattice_pt moved[6];
-    const lattice_pt *at[6];
     for (int k = 0; k < 6; k++) {
-        at[k] = pts[k];
+        lt->pts[k] = lt->at[k] = pts[k];
         if (p->decimate) {
-            moved[k].a = pts[k]->a, moved[k].b = pts[k]->b;
-            mr_umesh_remap_coords(p->level, p->decimate, &moved[k].a, &moved[k].b);
-            at[k] = &moved[k];
+            lt->moved[k].a = pts[k]->a, lt->moved[k].b = pts[k]->b;
+            mr_umesh_remap_coords(p->level, p->decimate, &lt->moved[k].a, &lt->moved[k].b);
+            lt->at[k] = &lt->moved[k];
         }
     }
-    mr_vec3 v[6];
     for (int k = 0; k < 6; k++)
-        v[k] = mr_dmm_vertex(p, at[k]->a, at[k]->b);
+        lt->v[k] = mr_dmm_vertex(p, lt->at[k]->a, lt->at[k]->b);
+}
+
+static void leaf_test(trace_ctx *c, const leaf_tris *lt)
+{
+    if (lt->count == 1) {
+        test_triangle(c, lt->pts, lt->at, lt->v);
+        return;
+    }
     for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
-        const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
-        const lattice_pt *A[3] = {at[CHILD[k][0]], at[CHILD[k][1]], at[CHILD[k][2]]};
-        const mr_vec3 tv[3] = {v[CHILD[k][0]], v[CHILD[k][1]], v[CHILD[k][2]]};
+        const lattice_pt *L[3] = {lt->pts[CHILD[k][0]], lt->pts[CHILD[k][1]], lt->pts[CHILD[k][2]]};
+        const lattice_pt *A[3] = {lt->at[CHILD[k][0]], lt->at[CHILD[k][1]], lt->at[CHILD[k][2]]};
+        const mr_vec3 tv[3] = {lt->v[CHILD[k][0]], lt->v[CHILD[k][1]], lt->v[CHILD[k][2]]};
         test_triangle(c, L, A, tv);
     }
+}
+
+static void leaf(trace_ctx *c, const lattice_pt *const P[3])
+{
+    leaf_tris lt;
+    leaf_make(c->patch, P, &lt);
+    leaf_test(c, &lt);
 }
 
 static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
@@ -515,6 +536,40 @@ static void subdivide(const blossom *const B[6], node_blossoms *store, const blo
     out[14] = &store->mc[2][2];
 }
 
+/* A node's four children: their corners, blossoms (interpolated patches)
+ * and boxes, made once however many rays then test them. */
+typedef struct node_children {
+    lattice_pt mid[3];
+    const lattice_pt *pts[6];
+    node_blossoms store;
+    const blossom *bl[15];
+    child_boxes boxes;
+} node_children;
+
+static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
+                          const lattice_pt *const P[3], const blossom *const B[6],
+                          node_children *nc)
+{
+    bool bezier = c->patch->mats[0] != NULL;
+    midpoints(P, nc->mid);
+    const lattice_pt *pts[6] = {P[0], P[1], P[2], &nc->mid[0], &nc->mid[1], &nc->mid[2]};
+    memcpy(nc->pts, pts, sizeof pts);
+    uint32_t first = level_start(sublevel + 1) + 4 * id;
+    const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
+    v4f dmin = {disp_bound(c, mn[0]), disp_bound(c, mn[1]), disp_bound(c, mn[2]),
+                disp_bound(c, mn[3])};
+    v4f dmax = {disp_bound(c, mx[0]), disp_bound(c, mx[1]), disp_bound(c, mx[2]),
+                disp_bound(c, mx[3])};
+    if (bezier) {
+        subdivide(B, &nc->store, nc->bl);
+        child_boxes_bezier(nc->bl, dmin, dmax, &nc->boxes);
+    } else {
+        child_boxes_prism(nc->pts, dmin, dmax, &nc->boxes);
+    }
+    if (c->stats)
+        c->stats->boxes += 4;
+}
+
 /* Sub-triangle `id` of `sublevel` whose box the ray already enters; B its
  * blossoms (interpolated patches). */
 static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3],
@@ -525,29 +580,13 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         return;
     }
     bool bezier = c->patch->mats[0] != NULL;
-    lattice_pt mid[3];
-    midpoints(P, mid);
-    const lattice_pt *pts[6] = {P[0], P[1], P[2], &mid[0], &mid[1], &mid[2]};
-    uint32_t first = level_start(sublevel + 1) + 4 * id;
-    const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
-    v4f dmin = {disp_bound(c, mn[0]), disp_bound(c, mn[1]), disp_bound(c, mn[2]),
-                disp_bound(c, mn[3])};
-    v4f dmax = {disp_bound(c, mx[0]), disp_bound(c, mx[1]), disp_bound(c, mx[2]),
-                disp_bound(c, mx[3])};
-    child_boxes boxes;
-    node_blossoms store;
-    const blossom *bl[15];
-    if (bezier) {
-        subdivide(B, &store, bl);
-        child_boxes_bezier(bl, dmin, dmax, &boxes);
-    } else {
-        child_boxes_prism(pts, dmin, dmax, &boxes);
-    }
-    if (c->stats)
-        c->stats->boxes += 4;
+    node_children nc;
+    make_children(c, sublevel, id, P, B, &nc);
+    const lattice_pt *const *pts = nc.pts;
+    const blossom *const *bl = nc.bl;
     float t[4], entry[4];
     int order[4], count = 0;
-    slab4(c, &boxes, t);
+    slab4(c, &nc.boxes, t);
     for (int k = 0; k < 4; k++) {
         if (t[k] == INFINITY)
             continue;
@@ -570,6 +609,67 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         for (int m = 0; m < 6 && bezier; m++)
             CB[m] = bl[CHILD_BLOSSOM[k][m]];
         visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
+    }
+}
+
+/* visit for the rays `live` of a packet (mr_dmm_intersect_packet), each
+ * with its own context in cs: the children and their boxes are made once,
+ * each ray tests them (slab4) and goes on into those it enters within its
+ * own tmax, nearest entry of any ray first; leaves are made once and
+ * tested against each ray that reaches them. Each ray visits every node it
+ * would visit alone that can hold a hit within its tmax, and equal-t hits
+ * are ordered by row (test_triangle), so its hit is what it gets alone. */
+static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32_t id,
+                         const lattice_pt *const P[3], const blossom *const B[6])
+{
+    const trace_ctx *c = &cs[__builtin_ctz(live)]; /* the patch, its leaf level and pads */
+    if (sublevel == c->leaf) {
+        leaf_tris lt;
+        leaf_make(c->patch, P, &lt);
+        for (uint32_t m = live; m; m &= m - 1)
+            leaf_test(&cs[__builtin_ctz(m)], &lt);
+        return;
+    }
+    bool bezier = c->patch->mats[0] != NULL;
+    node_children nc;
+    make_children(c, sublevel, id, P, B, &nc);
+    float t[MR_DMM_PACKET_MAX][4], near[4] = {INFINITY, INFINITY, INFINITY, INFINITY};
+    uint32_t enters[4] = {0};
+    for (uint32_t m = live; m; m &= m - 1) {
+        int r = __builtin_ctz(m);
+        slab4(&cs[r], &nc.boxes, t[r]);
+        for (int k = 0; k < 4; k++)
+            if (t[r][k] != INFINITY) {
+                enters[k] |= 1u << r;
+                near[k] = t[r][k] < near[k] ? t[r][k] : near[k];
+            }
+    }
+    int order[4], count = 0;
+    for (int k = 0; k < 4; k++) {
+        if (!enters[k])
+            continue;
+        int at = count++;
+        while (at > 0 && near[order[at - 1]] > near[k]) {
+            order[at] = order[at - 1];
+            at--;
+        }
+        order[at] = k;
+    }
+    for (int i = 0; i < count; i++) {
+        int k = order[i];
+        uint32_t go = 0;
+        for (uint32_t m = enters[k]; m; m &= m - 1) {
+            int r = __builtin_ctz(m);
+            if (!(t[r][k] > cs[r].tmax * SLAB_FAR_SCALE || (cs[r].any_hit && cs[r].found)))
+                go |= 1u << r;
+        }
+        if (!go)
+            continue;
+        const lattice_pt *L[3] = {nc.pts[CHILD[k][0]], nc.pts[CHILD[k][1]], nc.pts[CHILD[k][2]]};
+        const blossom *CB[6];
+        for (int m = 0; m < 6 && bezier; m++)
+            CB[m] = nc.bl[CHILD_BLOSSOM[k][m]];
+        visit_packet(cs, go, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
     }
 }
 
@@ -645,6 +745,54 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     if (c.found)
         *tmax = c.tmax;
     return c.found;
+}
+
+uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
+                                 const float *tmin, float *const *tmax, const bool *take_tmax,
+                                 mr_dmm_hit *hits, mr_dmm_trace_stats *stats)
+{
+    if (p->level > MR_UMESH_MAX_LEVEL || n <= 0 || n > MR_DMM_PACKET_MAX)
+        return 0;
+    trace_ctx cs[MR_DMM_PACKET_MAX];
+    uint32_t live = 0;
+    trace_ctx shared = {.patch = p};
+    patch_pad(&shared);
+    const float *pad = shared.pad;
+    for (int k = 0; k < n; k++) {
+        cs[k] = (trace_ctx){.patch = p,
+                            .ray = &rays[k],
+                            .leaf = mr_dmm_trace_leaf_sublevel(p->level),
+                            .segments = mr_umesh_segments(p->level),
+                            .pad = {pad[0], pad[1], pad[2]},
+                            .tmin = tmin[k],
+                            .tmax = *tmax[k],
+                            .best_key = take_tmax[k] ? UINT32_MAX : 0,
+                            .hit = &hits[k],
+                            .stats = k == 0 ? stats : NULL};
+        if (tmin[k] <= *tmax[k])
+            live |= 1u << k;
+    }
+    if (!live)
+        return 0;
+    if (stats && !(live & 1u)) /* the node counts go with the first live ray */
+        cs[__builtin_ctz(live)].stats = stats;
+    lattice_pt P[3];
+    root(&cs[0], P);
+    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
+    blossom bl[6];
+    const blossom *B[6] = {NULL};
+    if (p->mats[0])
+        root_blossoms(p, bl, B);
+    visit_packet(cs, live, 0, 0, L, p->mats[0] ? B : NULL);
+    uint32_t hit = 0;
+    for (uint32_t m = live; m; m &= m - 1) {
+        int k = __builtin_ctz(m);
+        if (cs[k].found) {
+            *tmax[k] = cs[k].tmax;
+            hit |= 1u << k;
+        }
+    }
+    return hit;
 }
 
 bool mr_dmm_intersect_micro(const mr_dmm_patch *p, const float *verts, const uint32_t *tris,
