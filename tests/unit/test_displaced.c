@@ -441,11 +441,13 @@ static bool bl_deep(int i, int j)
 
 static double bl_height(const mr_image *img, const dfx *f, int i, int j)
 {
-    uint8_t s = ((const uint8_t *)img->samples)[(size_t)(BL_N - 1 - (j % BL_N)) * BL_N + (i % BL_N)];
+    size_t at = (size_t)(BL_N - 1 - (j % BL_N)) * BL_N + (size_t)(i % BL_N);
+    uint8_t s = ((const uint8_t *)img->samples)[at];
     return f->par.offset + f->par.scale * (s / 255.0);
 }
 
-static void bl_point(const mr_image *img, const dfx *f, int i, int j, double u, double v, double p[3])
+static void bl_point(const mr_image *img, const dfx *f, int i, int j, double u, double v,
+                     double p[3])
 {
     double h00 = bl_height(img, f, i, j), h10 = bl_height(img, f, i + 1, j);
     double h01 = bl_height(img, f, i, j + 1), h11 = bl_height(img, f, i + 1, j + 1);
@@ -527,14 +529,16 @@ static void test_bilinear_leaves(void **state)
         packet += dfx_packet_check(&f, o, d, 0, INFINITY);
         rays++;
         if (!hk || !hb) {
-            print_error("ray %d: kind %s, patches %s\n", rays, hk ? "hit" : "miss", hb ? "hit" : "miss");
+            print_error("ray %d: kind %s, patches %s\n", rays, hk ? "hit" : "miss",
+                        hb ? "hit" : "miss");
             bad++;
             continue;
         }
         double e = fabs((double)tk - (double)tb);
         worst = fmax(worst, e);
         bad += e > tol;
-        double c = mr_v3_dot(mr_v3_normalize_or(nk, mr_v3(0, 0, 0)), mr_v3_normalize_or(nb, mr_v3(0, 0, 0)));
+        double c = mr_v3_dot(mr_v3_normalize_or(nk, mr_v3(0, 0, 0)),
+                             mr_v3_normalize_or(nb, mr_v3(0, 0, 0)));
         bad_normal += fabs(c) < cos(2.0 * M_PI / 180); /* sub-triangles tilt by ~|twist| / BL_SUB */
     }
     print_message("bilinear leaves: %d rays, worst distance to the finely tessellated patches %.2e "

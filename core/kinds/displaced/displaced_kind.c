@@ -35,6 +35,7 @@
 #include "kinds/displaced/dtrace.h"
 #include "kinds/displaced/tiling.h"
 #include "kinds/lod.h"
+#include "kinds/user_rays.h"
 #include "util/clock.h"
 #include "util/parallel.h"
 
@@ -710,22 +711,6 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
     o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
 }
 
-/* Embree's RTCRayN / RTCHitN accessors are C++ only; the layout is
- * structure-of-arrays (rtcore_ray.h): field f of ray i of an N-packet is
- * element f * N + i, the hit following the ray's 12 fields. */
-enum { RAY_ORG = 0, RAY_TNEAR = 3, RAY_DIR = 4, RAY_TFAR = 8, RAY_FIELDS = 12 };
-enum { HIT_NG = 0, HIT_U = 3, HIT_V = 4, HIT_PRIM = 5, HIT_GEOM = 6, HIT_INST = 7 };
-
-static float *ray_f(void *ray, unsigned N, unsigned field, unsigned i)
-{
-    return (float *)ray + field * N + i;
-}
-
-static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
-{
-    return (unsigned *)ray + field * N + i;
-}
-
 /* Ray i of an N-packet set up for the traversal; false when its direction
  * is zero or not finite (it hits nothing). Embree enters a ray's (or a
  * packet's) triangles one after another: the last set-up (reciprocals, the
@@ -738,8 +723,8 @@ static bool ray_setup(void *ray, unsigned N, unsigned i, mr_dray *out)
     } last[MR_DPACKET_MAX];
     float key[6];
     for (int c = 0; c < 3; c++) {
-        key[c] = *ray_f(ray, N, RAY_ORG + c, i);
-        key[3 + c] = *ray_f(ray, N, RAY_DIR + c, i);
+        key[c] = *mr_ray_f(ray, N, MR_RAY_ORG + c, i);
+        key[3 + c] = *mr_ray_f(ray, N, MR_RAY_DIR + c, i);
     }
     mr_vec3 d = mr_v3(key[3], key[4], key[5]);
     if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
@@ -759,7 +744,7 @@ static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned
     mr_dray r;
     if (!ray_setup(ray, N, i, &r))
         return false;
-    float *tfar = ray_f(ray, N, RAY_TFAR, i), tnear = *ray_f(ray, N, RAY_TNEAR, i);
+    float *tfar = mr_ray_f(ray, N, MR_RAY_TFAR, i), tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
     st->calls++;
     if (g->par.method == MR_DISPLACED_RAYMARCH)
         return mr_dtrace_march(&g->scene, prim, &r, tnear, tfar, h, st);
@@ -772,21 +757,6 @@ static void add_stats(mr_geom *g, const mr_dstats *st)
     atomic_fetch_add_explicit(&g->leaves, st->leaves, memory_order_relaxed);
     atomic_fetch_add_explicit(&g->tests, st->triangles, memory_order_relaxed);
     atomic_fetch_add_explicit(&g->calls, st->calls, memory_order_relaxed);
-}
-
-static void write_hit(const struct RTCIntersectFunctionNArguments *args, unsigned i,
-                      const mr_dhit *h)
-{
-    unsigned N = args->N;
-    void *hit = (float *)args->rayhit + RAY_FIELDS * N;
-    *ray_f(hit, N, HIT_NG, i) = h->ng.x;
-    *ray_f(hit, N, HIT_NG + 1, i) = h->ng.y;
-    *ray_f(hit, N, HIT_NG + 2, i) = h->ng.z;
-    *ray_f(hit, N, HIT_U, i) = h->b1;
-    *ray_f(hit, N, HIT_V, i) = h->b2;
-    *ray_u(hit, N, HIT_PRIM, i) = args->primID;
-    *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
-    *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
 }
 
 /* A packet's rays through the triangle together (dtrace.h), at most
@@ -821,14 +791,14 @@ static void trace_batch(mr_geom *g, const struct RTCIntersectFunctionNArguments 
      * not depend on the order Embree enters the triangles in (a packet
      * enters them in another order than a single ray). */
     unsigned N = args->N;
-    const void *hit = (const float *)args->rayhit + RAY_FIELDS * N;
+    const void *hit = (const float *)args->rayhit + MR_RAY_FIELDS * N;
     for (int k = 0; k < b->n; k++) {
         unsigned i = b->lane[k];
         if (!(hm >> k & 1u) ||
-            (hits[k].t == before[k] && *ray_u((void *)hit, N, HIT_GEOM, i) == args->geomID &&
-             *ray_u((void *)hit, N, HIT_PRIM, i) < args->primID))
+            (hits[k].t == before[k] && *mr_ray_u((void *)hit, N, MR_HIT_GEOM, i) == args->geomID &&
+             *mr_ray_u((void *)hit, N, MR_HIT_PRIM, i) < args->primID))
             continue;
-        write_hit(args, i, &hits[k]);
+        mr_ray_write_hit(args, i, hits[k].ng, hits[k].b1, hits[k].b2);
     }
     b->n = 0;
 }
@@ -844,8 +814,8 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
         if (args->valid[i] != -1 || !ray_setup(args->rayhit, N, i, &b.r[b.n]))
             continue;
         b.lane[b.n] = i;
-        b.tmin[b.n] = *ray_f(args->rayhit, N, RAY_TNEAR, i);
-        b.tmax[b.n] = ray_f(args->rayhit, N, RAY_TFAR, i);
+        b.tmin[b.n] = *mr_ray_f(args->rayhit, N, MR_RAY_TNEAR, i);
+        b.tmax[b.n] = mr_ray_f(args->rayhit, N, MR_RAY_TFAR, i);
         st.calls++;
         if (++b.n == MR_DPACKET_MAX)
             trace_batch(g, args, &b, &st);
@@ -862,7 +832,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     mr_dstats st = {0};
     for (unsigned i = 0; i < N; i++)
         if (args->valid[i] == -1 && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
-            *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
+            *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
     add_stats(g, &st);
 }
 

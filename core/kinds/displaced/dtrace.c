@@ -864,6 +864,21 @@ static void finish(const mr_dbase *b, const best *bh, mr_dhit *hit)
 
 #define STACK_MAX 512
 
+/* Pushes the nh children in hitc (entries with a tnear) onto the stack
+ * farthest first, so the nearest is visited next (ties keep their order):
+ * every traversal's entries, whatever else they hold. */
+#define PUSH_NEAREST_LAST(stack, sp, hitc, nh)                                              \
+    do {                                                                                    \
+        for (int a_ = 1; a_ < (nh); a_++)                                                   \
+            for (int m_ = a_; m_ > 0 && (hitc)[m_].tnear > (hitc)[m_ - 1].tnear; m_--) {    \
+                __typeof__((hitc)[0]) t_ = (hitc)[m_];                                      \
+                (hitc)[m_] = (hitc)[m_ - 1];                                                \
+                (hitc)[m_ - 1] = t_;                                                        \
+            }                                                                               \
+        for (int k_ = 0; k_ < (nh) && (sp) < STACK_MAX; k_++)                               \
+            (stack)[(sp)++] = (hitc)[k_];                                                   \
+    } while (0)
+
 /* The ray in T's local frame (grid x, grid y, face height). */
 static void local_ray(const mr_dgrad *gr, const mr_dbase *b, const mr_dray *r, mr_dray *lr)
 {
@@ -1144,14 +1159,7 @@ static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad
                 continue;
             hitc[nh++] = (struct entry){ch[k], tn};
         }
-        for (int a = 1; a < nh; a++)
-            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
-                struct entry tmp = hitc[m];
-                hitc[m] = hitc[m - 1];
-                hitc[m - 1] = tmp;
-            }
-        for (int k = 0; k < nh && sp < STACK_MAX; k++)
-            stack[sp++] = hitc[k];
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     if (bh.hit)
         finish(b, &bh, hit);
@@ -1214,20 +1222,13 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
                 if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                     continue;
                 node_heights(g, &ch[k], &hlo, &hhi);
-                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
+                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax),
+                              &tn))
                     continue;
                 hitc[nh++] = (tentry){ch[k], tn};
             }
         }
-        /* push the farthest first, so the nearest is visited next */
-        for (int a = 1; a < nh; a++)
-            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
-                tentry tmp = hitc[m];
-                hitc[m] = hitc[m - 1];
-                hitc[m - 1] = tmp;
-            }
-        for (int k = 0; k < nh && sp < STACK_MAX; k++)
-            stack[sp++] = hitc[k];
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     if (bh.hit)
         finish(b, &bh, hit);
@@ -1448,15 +1449,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             }
             hitc[nh++] = (pentry){ch[c].n, in, near};
         }
-        /* push the farthest first, so the nearest is visited next */
-        for (int a = 1; a < nh; a++)
-            for (int m = a; m > 0 && hitc[m].tnear > hitc[m - 1].tnear; m--) {
-                pentry tmp = hitc[m];
-                hitc[m] = hitc[m - 1];
-                hitc[m - 1] = tmp;
-            }
-        for (int k = 0; k < nh && sp < STACK_MAX; k++)
-            stack[sp++] = hitc[k];
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     for (uint32_t m = inpack; m; m &= m - 1) {
         int k = __builtin_ctz(m);

@@ -65,6 +65,7 @@
 #include "kinds/dmm/dmm_lod.h"
 #include "kinds/dmm/micromesh.h"
 #include "kinds/lod.h"
+#include "kinds/user_rays.h"
 #include "util/parallel.h"
 
 #define UPDATE_GRAIN 64
@@ -860,37 +861,21 @@ static bool ray_ok(mr_vec3 dir)
            isfinite(dir.z);
 }
 
-/* Embree's RTCRayN / RTCHitN accessors are C++ only. The layout is
- * structure-of-arrays: field f of ray i of an N-packet is element f * N + i
- * (rtcore_ray.h); the hit follows the ray's 12 fields. */
-enum { RAY_ORG = 0, RAY_TNEAR = 3, RAY_DIR = 4, RAY_TFAR = 8, RAY_FIELDS = 12 };
-enum { HIT_NG = 0, HIT_U = 3, HIT_V = 4, HIT_PRIM = 5, HIT_GEOM = 6, HIT_INST = 7 };
-
-static float *ray_f(void *ray, unsigned N, unsigned field, unsigned i)
-{
-    return (float *)ray + field * N + i;
-}
-
-static unsigned *ray_u(void *ray, unsigned N, unsigned field, unsigned i)
-{
-    return (unsigned *)ray + field * N + i;
-}
-
 /* Traces ray i of an N-packet against base triangle t (patch p): the
  * traversal, or the watertight reference's test of every micro-triangle;
  * tfar shrinks on a hit. take_tmax: see mr_dmm_intersect. */
 static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
                       unsigned i, bool take_tmax, bool any_hit, mr_dmm_hit *h)
 {
-    mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
-                        *ray_f(ray, N, RAY_ORG + 2, i));
-    mr_vec3 dir = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
-                        *ray_f(ray, N, RAY_DIR + 2, i));
+    mr_vec3 org = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i), *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),
+                        *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));
+    mr_vec3 dir = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i), *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),
+                        *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));
     if (!ray_ok(dir))
         return false;
     mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
-    float *tfar = ray_f(ray, N, RAY_TFAR, i);
-    float tnear = *ray_f(ray, N, RAY_TNEAR, i);
+    float *tfar = mr_ray_f(ray, N, MR_RAY_TFAR, i);
+    float tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
     if (watertight_reference(g)) {
         uint32_t count;
         const uint32_t *tris = local_tris(g, t, &count);
@@ -898,21 +883,6 @@ static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, voi
                                       &r, tnear, tfar, take_tmax, any_hit, h);
     }
     return mr_dmm_intersect(p, &r, tnear, tfar, take_tmax, any_hit, h, NULL);
-}
-
-static void write_hit(const struct RTCIntersectFunctionNArguments *args, unsigned i,
-                      const mr_dmm_hit *h)
-{
-    unsigned N = args->N;
-    void *hit = (float *)args->rayhit + RAY_FIELDS * N;
-    *ray_f(hit, N, HIT_NG, i) = h->ng.x;
-    *ray_f(hit, N, HIT_NG + 1, i) = h->ng.y;
-    *ray_f(hit, N, HIT_NG + 2, i) = h->ng.z;
-    *ray_f(hit, N, HIT_U, i) = h->u;
-    *ray_f(hit, N, HIT_V, i) = h->v;
-    *ray_u(hit, N, HIT_PRIM, i) = args->primID;
-    *ray_u(hit, N, HIT_GEOM, i) = args->geomID;
-    *ray_u(hit, N, HIT_INST, i) = args->context->instID[0];
 }
 
 /* Up to MR_DMM_PACKET_MAX of a packet's rays through one patch together
@@ -933,7 +903,7 @@ static void trace_batch(const struct RTCIntersectFunctionNArguments *args,
                                           NULL);
     for (int k = 0; k < b->n; k++)
         if (hm >> k & 1u)
-            write_hit(args, b->lane[k], &hits[k]);
+            mr_ray_write_hit(args, b->lane[k], hits[k].ng, hits[k].u, hits[k].v);
     b->n = 0;
 }
 
@@ -941,7 +911,7 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
     const dmm_level *g = args->geometryUserPtr;
     unsigned N = args->N;
-    void *ray = args->rayhit, *hit = (float *)args->rayhit + RAY_FIELDS * N;
+    void *ray = args->rayhit, *hit = (float *)args->rayhit + MR_RAY_FIELDS * N;
     mr_dmm_patch p = patch_of(g, args->primID);
     ray_batch b;
     b.n = 0;
@@ -953,27 +923,27 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
          * that is none, or one of this object's base triangles with a
          * larger index: every mode orders equal-t hits by (base triangle,
          * micro-triangle), whatever order Embree visits them in. */
-        unsigned held = *ray_u(hit, N, HIT_GEOM, i);
+        unsigned held = *mr_ray_u(hit, N, MR_HIT_GEOM, i);
         bool take_tmax = held == RTC_INVALID_GEOMETRY_ID ||
                          (held == args->geomID &&
-                          *ray_u(hit, N, HIT_INST, i) == args->context->instID[0] &&
-                          args->primID < *ray_u(hit, N, HIT_PRIM, i));
+                          *mr_ray_u(hit, N, MR_HIT_INST, i) == args->context->instID[0] &&
+                          args->primID < *mr_ray_u(hit, N, MR_HIT_PRIM, i));
         if (watertight_reference(g)) {
             if (trace_one(g, args->primID, &p, ray, N, i, take_tmax, false, &h))
-                write_hit(args, i, &h);
+                mr_ray_write_hit(args, i, h.ng, h.u, h.v);
             continue;
         }
         /* the traversal: the packet's rays together */
-        mr_vec3 dir = mr_v3(*ray_f(ray, N, RAY_DIR, i), *ray_f(ray, N, RAY_DIR + 1, i),
-                            *ray_f(ray, N, RAY_DIR + 2, i));
+        mr_vec3 dir = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i), *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),
+                            *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));
         if (!ray_ok(dir))
             continue;
-        mr_vec3 org = mr_v3(*ray_f(ray, N, RAY_ORG, i), *ray_f(ray, N, RAY_ORG + 1, i),
-                            *ray_f(ray, N, RAY_ORG + 2, i));
+        mr_vec3 org = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i), *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),
+                            *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));
         b.r[b.n] = mr_dmm_ray_setup(org, dir);
         b.lane[b.n] = i;
-        b.tmin[b.n] = *ray_f(ray, N, RAY_TNEAR, i);
-        b.tmax[b.n] = ray_f(ray, N, RAY_TFAR, i);
+        b.tmin[b.n] = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
+        b.tmax[b.n] = mr_ray_f(ray, N, MR_RAY_TFAR, i);
         b.take_tmax[b.n] = take_tmax;
         if (++b.n == MR_DMM_PACKET_MAX)
             trace_batch(args, &p, &b);
@@ -989,7 +959,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     mr_dmm_patch p = patch_of(g, args->primID);
     for (unsigned i = 0; i < N; i++)
         if (args->valid[i] == -1 && trace_one(g, args->primID, &p, args->ray, N, i, true, true, NULL))
-            *ray_f(args->ray, N, RAY_TFAR, i) = -INFINITY;
+            *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
 }
 
 static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned geom_id,
