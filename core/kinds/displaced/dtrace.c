@@ -549,6 +549,17 @@ void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out)
     out->n = roots(g, b, out->r);
 }
 
+/* Base triangle t's roots: the scene's, or found now (a scene without). */
+static mr_droots tri_roots(const mr_dscene *s, uint32_t t)
+{
+    mr_droots rs;
+    if (s->roots)
+        rs = s->roots[t];
+    else
+        mr_dtrace_roots(s->grid, &s->bases[t], &rs);
+    return rs;
+}
+
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
 {
     dnode r[4];
@@ -1186,11 +1197,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         return proc_intersect(s, b, gr, r, &lr, tmin, tmax, any, hit, st);
     tentry stack[STACK_MAX];
     int sp = 0;
-    mr_droots rs;
-    if (s->roots)
-        rs = s->roots[t];
-    else
-        mr_dtrace_roots(g, b, &rs);
+    mr_droots rs = tri_roots(s, t);
     for (int k = rs.n - 1; k >= 0; k--)
         stack[sp++] = (tentry){rs.r[k], -INFINITY};
     while (sp > 0) {
@@ -1341,11 +1348,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             stack[sp++] = (pentry){{.p = rs[k]}, inpack, -INFINITY};
         mr_dproc_global_heights(pr, &glo, &ghi);
     } else {
-        mr_droots rs;
-        if (s->roots)
-            rs = s->roots[t];
-        else
-            mr_dtrace_roots(g, b, &rs);
+        mr_droots rs = tri_roots(s, t);
         for (int k = rs.n - 1; k >= 0; k--)
             stack[sp++] = (pentry){{.d = rs.r[k]}, inpack, -INFINITY};
     }
