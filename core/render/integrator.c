@@ -83,9 +83,27 @@ typedef struct hit_view {
     mr_vec3 ng;
 } hit_view;
 
+/* Primary rays go to Embree as packets of MR_PACKET neighbouring pixels of
+ * one row: they are coherent, so Embree traverses the BVH for all of them at
+ * once with SIMD, which is what lets the renderer keep up with (and pass) a
+ * plain one-ray-at-a-time loop. Each lane's result is exactly the closest
+ * hit of its ray, so the packet width never changes an image. */
+#define MR_PACKET 8
+
+/* A lane's light so far and the shadow rays it still waits for: one per
+ * light that faces the hit (cosine > 0), all from org. */
+typedef struct light_wait {
+    bool waits;
+    mr_vec3 org, albedo, light;
+    float cosine[MR_MAX_LIGHTS]; /* 0: no shadow ray (the light does not reach) */
+} light_wait;
+
+/* Shades a hit but for its shadows: *lw gets the lights that face it and
+ * the ambient light, and waits when they need shadow rays (shadows). */
 static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_vec3 dir,
-                  sample_result *out, uint64_t *rays)
+                  sample_result *out, light_wait *lw)
 {
+    lw->waits = false;
     const mr_shade_object *obj = &s->objects[h->geom];
     mr_vec3 ng = mr_v3_normalize_or(h->ng, mr_v3(0, 0, 1));
     if (mr_v3_dot(ng, dir) > 0)
@@ -149,33 +167,68 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     bool stepped = step > 0;
     if (stepped)
         shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * step));
+    lw->org = shadow_org;
+    lw->albedo = obj->albedo;
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f); /* towards the light */
         float cosine = mr_v3_dot(n, l);
+        lw->cosine[i] = 0.0f;
         if (cosine <= 0 || (!stepped && !smooth && mr_v3_dot(ng, l) <= 0))
             continue;
         if (s->shadows) {
-            struct RTCIntersectContext ctx;
-            rtcInitIntersectContext(&ctx);
-            struct RTCRay ray = {.org_x = shadow_org.x, .org_y = shadow_org.y, .org_z = shadow_org.z,
-                                 .dir_x = l.x, .dir_y = l.y, .dir_z = l.z,
-                                 .tnear = 0.0f, .tfar = FLT_MAX, .mask = 0xffffffffu, .flags = 0};
-            rtcOccluded1(s->scene, &ctx, &ray);
-            (*rays)++;
-            if (ray.tfar < 0) /* Embree sets tfar = -inf when occluded */
-                continue;
+            lw->cosine[i] = cosine;
+            lw->waits = true;
+            continue;
         }
         light = mr_v3_add(light, mr_v3_scale(s->lights[i].color, cosine));
     }
+    lw->light = light;
     out->rgb = mr_v3_mul(obj->albedo, light);
 }
 
-/* Primary rays go to Embree as packets of MR_PACKET neighbouring pixels of
- * one row: they are coherent, so Embree traverses the BVH for all of them at
- * once with SIMD, which is what lets the renderer keep up with (and pass) a
- * plain one-ray-at-a-time loop. Each lane's result is exactly the closest
- * hit of its ray, so the packet width never changes an image. */
-#define MR_PACKET 8
+/* The shadow rays the lanes of a packet wait for, light by light, as
+ * packets too (rtcOccluded8: the lanes' rays to one light start at
+ * neighbouring points and run parallel); each lane adds the lights nothing
+ * blocks in the lights' order, as one ray at a time did. */
+static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result *out, int n,
+                          uint64_t *rays)
+{
+    for (size_t i = 0; i < s->light_count; i++) {
+        RTC_ALIGN(32) int valid[MR_PACKET];
+        struct RTCRay8 ray;
+        mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f);
+        int live = 0;
+        for (int k = 0; k < MR_PACKET; k++) {
+            bool on = k < n && lw[k].waits && lw[k].cosine[i] > 0;
+            valid[k] = on ? -1 : 0;
+            live += on;
+            mr_vec3 o = k < n ? lw[k].org : lw[0].org;
+            ray.org_x[k] = o.x, ray.org_y[k] = o.y, ray.org_z[k] = o.z;
+            ray.dir_x[k] = l.x, ray.dir_y[k] = l.y, ray.dir_z[k] = l.z;
+            ray.tnear[k] = 0.0f;
+            ray.tfar[k] = FLT_MAX;
+            ray.time[k] = 0.0f;
+            ray.mask[k] = 0xffffffffu;
+            ray.id[k] = (unsigned)k;
+            ray.flags[k] = 0;
+        }
+        if (!live)
+            continue;
+        struct RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+        rtcOccluded8(valid, s->scene, &ctx, &ray);
+        *rays += (uint64_t)live;
+        for (int k = 0; k < n; k++)
+            if (valid[k] && !(ray.tfar[k] < 0)) /* Embree sets tfar = -inf when occluded */
+                lw[k].light = mr_v3_add(lw[k].light,
+                                        mr_v3_scale(s->lights[i].color, lw[k].cosine[i]));
+    }
+    for (int k = 0; k < n; k++)
+        if (lw[k].waits)
+            out[k].rgb = mr_v3_mul(lw[k].albedo, lw[k].light);
+}
+
 
 /* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y). */
 static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
@@ -212,7 +265,10 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
     ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
     rtcIntersect8(valid, s->scene, &ctx, &rh);
     *rays += (uint64_t)n;
+    light_wait lw[MR_PACKET];
+    bool waits = false;
     for (int i = 0; i < n; i++) {
+        lw[i].waits = false;
         /* An instance hit names the instance's top-level id; the kind
          * learns which instance as prim (kind.h geometry_ids). */
         bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
@@ -225,10 +281,13 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
         unsigned prim = instanced ? id - s->objects[geom].first_id : rh.hit.primID[i];
         hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
-        shade(s, &h, org, dir[i], &out[i], rays);
+        shade(s, &h, org, dir[i], &out[i], &lw[i]);
+        waits |= lw[i].waits;
         out[i].depth = h.t * mr_v3_dot(dir[i], c->forward);
         out[i].pos = mr_v3_add(org, mr_v3_scale(dir[i], h.t));
     }
+    if (waits)
+        shadow_packet(s, lw, out, n, rays);
 }
 
 /* One tile's worth of every film plane. Tiles are traced into this private

@@ -226,8 +226,9 @@ static inline bool dfx_occluded(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, 
  * dtrace.h): lane 0 the ray itself, lane 1 the same ray again, lanes 2..7
  * rays from the same origin turned slightly (1e-2 .. 1e-6 of the
  * direction), as a camera's neighbouring pixels are. Each lane must get
- * what it gets alone: hit or miss, t and normal bit for bit. Returns how
- * many lanes differ. */
+ * what it gets alone: hit or miss, t and normal bit for bit, and the same
+ * verdict as an occlusion packet (rtcOccluded8). Returns how many lanes
+ * differ. */
 static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax)
 {
     static const float TURN[8][3] = {{0, 0, 0},         {0, 0, 0},          {1e-2f, 0, 0},
@@ -251,7 +252,9 @@ static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmi
     struct RTCIntersectContext ic;
     rtcInitIntersectContext(&ic);
     ic.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    struct RTCRay8 occ = rh.ray; /* the same rays as an occlusion packet */
     rtcIntersect8(valid, f->scene, &ic, &rh);
+    rtcOccluded8(valid, f->scene, &ic, &occ);
     int bad = 0;
     for (int k = 0; k < 8; k++) {
         float t;
@@ -259,6 +262,12 @@ static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmi
         bool h = dfx_trace(f, o, dk[k], tmin, tmax, &t, &ng);
         bool hp = rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
         mr_vec3 ngp = mr_v3(rh.hit.Ng_x[k], rh.hit.Ng_y[k], rh.hit.Ng_z[k]);
+        bool occluded = occ.tfar[k] < 0;
+        if (occluded != dfx_occluded(f, o, dk[k], tmin, tmax)) {
+            print_error("packet lane %d: occluded alone and in the packet differ\n", k);
+            bad++;
+            continue;
+        }
         if (h == hp && (!h || (t == rh.ray.tfar[k] && !memcmp(&ng, &ngp, sizeof ng))))
             continue;
         print_error("packet lane %d (ray o (%.9g %.9g %.9g) d (%.9g %.9g %.9g)): alone %s t %.9g "

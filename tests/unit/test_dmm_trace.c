@@ -190,10 +190,22 @@ static void packet_check(const mr_dmm_patch *p, const mr_dmm_ray *r, int n)
             alone[k] = mr_dmm_intersect(p, &r[k], 0, &alone_t[k], take[k], false, &alone_h[k],
                                         NULL);
         }
-        uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, h, NULL);
+        uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, false, h, NULL);
         for (int k = 0; k < n; k++)
             same_hit(pass ? "packet, at tmax" : "packet", (m >> k & 1u) != 0, &h[k], t[k],
                      alone[k], &alone_h[k], alone_t[k]);
+    }
+    /* any hit (shadow rays): the same verdict as alone */
+    for (int k = 0; k < n; k++) {
+        t[k] = INFINITY;
+        tmax[k] = &t[k];
+        take[k] = true;
+    }
+    uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, true, NULL, NULL);
+    for (int k = 0; k < n; k++) {
+        float ta = INFINITY;
+        assert_int_equal((m >> k & 1u) != 0,
+                         mr_dmm_intersect(p, &r[k], 0, &ta, true, true, NULL, NULL));
     }
 }
 

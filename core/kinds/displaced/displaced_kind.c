@@ -830,9 +830,36 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     mr_geom *g = args->geometryUserPtr;
     unsigned N = args->N;
     mr_dstats st = {0};
-    for (unsigned i = 0; i < N; i++)
-        if (args->valid[i] == -1 && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
-            *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
+    if (g->par.method == MR_DISPLACED_RAYMARCH || N == 1) {
+        for (unsigned i = 0; i < N; i++)
+            if (args->valid[i] == -1 && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
+                *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
+        add_stats(g, &st);
+        return;
+    }
+    /* a packet of shadow rays: traversed together like primary rays (their
+     * closest hits found, which costs a little more than any hit but shares
+     * the nodes) */
+    ray_batch b;
+    b.n = 0;
+    for (unsigned i = 0; i <= N; i++) {
+        if (i < N && args->valid[i] == -1 && ray_setup(args->ray, N, i, &b.r[b.n])) {
+            b.lane[b.n] = i;
+            b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
+            b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
+            st.calls++;
+            b.n++;
+        }
+        if (b.n == MR_DPACKET_MAX || (i == N && b.n)) {
+            mr_dhit hits[MR_DPACKET_MAX];
+            uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, b.n, b.r, b.tmin,
+                                                     b.tmax, hits, &st);
+            for (int k = 0; k < b.n; k++)
+                if (hm >> k & 1u)
+                    *b.tmax[k] = -INFINITY;
+            b.n = 0;
+        }
+    }
     add_stats(g, &st);
 }
 

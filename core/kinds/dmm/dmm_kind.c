@@ -899,8 +899,8 @@ static void trace_batch(const struct RTCIntersectFunctionNArguments *args,
                         const mr_dmm_patch *p, ray_batch *b)
 {
     mr_dmm_hit hits[MR_DMM_PACKET_MAX];
-    uint32_t hm = mr_dmm_intersect_packet(p, b->n, b->r, b->tmin, b->tmax, b->take_tmax, hits,
-                                          NULL);
+    uint32_t hm = mr_dmm_intersect_packet(p, b->n, b->r, b->tmin, b->tmax, b->take_tmax, false,
+                                          hits, NULL);
     for (int k = 0; k < b->n; k++)
         if (hm >> k & 1u)
             mr_ray_write_hit(args, b->lane[k], hits[k].ng, hits[k].u, hits[k].v);
@@ -957,9 +957,43 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     const dmm_level *g = args->geometryUserPtr;
     unsigned N = args->N;
     mr_dmm_patch p = patch_of(g, args->primID);
-    for (unsigned i = 0; i < N; i++)
-        if (args->valid[i] == -1 && trace_one(g, args->primID, &p, args->ray, N, i, true, true, NULL))
-            *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
+    if (watertight_reference(g) || N == 1) {
+        for (unsigned i = 0; i < N; i++)
+            if (args->valid[i] == -1 &&
+                trace_one(g, args->primID, &p, args->ray, N, i, true, true, NULL))
+                *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
+        return;
+    }
+    /* a packet of shadow rays through the patch together, each stopping at
+     * its first hit */
+    ray_batch b;
+    b.n = 0;
+    for (unsigned i = 0; i <= N; i++) {
+        if (i < N && args->valid[i] == -1) {
+            mr_vec3 dir = mr_v3(*mr_ray_f(args->ray, N, MR_RAY_DIR, i),
+                                *mr_ray_f(args->ray, N, MR_RAY_DIR + 1, i),
+                                *mr_ray_f(args->ray, N, MR_RAY_DIR + 2, i));
+            if (ray_ok(dir)) {
+                mr_vec3 org = mr_v3(*mr_ray_f(args->ray, N, MR_RAY_ORG, i),
+                                    *mr_ray_f(args->ray, N, MR_RAY_ORG + 1, i),
+                                    *mr_ray_f(args->ray, N, MR_RAY_ORG + 2, i));
+                b.r[b.n] = mr_dmm_ray_setup(org, dir);
+                b.lane[b.n] = i;
+                b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
+                b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
+                b.take_tmax[b.n] = true;
+                b.n++;
+            }
+        }
+        if (b.n == MR_DMM_PACKET_MAX || (i == N && b.n)) {
+            uint32_t hm = mr_dmm_intersect_packet(&p, b.n, b.r, b.tmin, b.tmax, b.take_tmax, true,
+                                                  NULL, NULL);
+            for (int k = 0; k < b.n; k++)
+                if (hm >> k & 1u)
+                    *b.tmax[k] = -INFINITY;
+            b.n = 0;
+        }
+    }
 }
 
 static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned geom_id,

@@ -749,7 +749,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
 
 uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
                                  const float *tmin, float *const *tmax, const bool *take_tmax,
-                                 mr_dmm_hit *hits, mr_dmm_trace_stats *stats)
+                                 bool any_hit, mr_dmm_hit *hits, mr_dmm_trace_stats *stats)
 {
     if (p->level > MR_UMESH_MAX_LEVEL || n <= 0 || n > MR_DMM_PACKET_MAX)
         return 0;
@@ -767,7 +767,8 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
                             .tmin = tmin[k],
                             .tmax = *tmax[k],
                             .best_key = take_tmax[k] ? UINT32_MAX : 0,
-                            .hit = &hits[k],
+                            .any_hit = any_hit,
+                            .hit = hits ? &hits[k] : NULL,
                             .stats = k == 0 ? stats : NULL};
         if (tmin[k] <= *tmax[k])
             live |= 1u << k;

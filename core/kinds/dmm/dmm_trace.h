@@ -129,16 +129,17 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
 /* Up to this many rays traced through one patch together. */
 #define MR_DMM_PACKET_MAX 8
 
-/* mr_dmm_intersect for rays[0 .. n) (n <= MR_DMM_PACKET_MAX; any_hit off)
- * through the patch together: each node's children and boxes are made once
- * and tested against every ray still in the packet, each leaf's
- * micro-triangles made once. Ray k's *tmax[k] shrinks on a hit and hits[k]
- * is filled then; returns the mask of rays hit. The hits are
+/* mr_dmm_intersect for rays[0 .. n) (n <= MR_DMM_PACKET_MAX) through the
+ * patch together: each node's children and boxes are made once and tested
+ * against every ray still in the packet, each leaf's micro-triangles made
+ * once. Ray k's *tmax[k] shrinks on a hit and hits[k] is filled then (hits
+ * may be NULL); returns the mask of rays hit. The hits are
  * mr_dmm_intersect's ray by ray, bit for bit (the same nodes can hold them,
- * and equal-t hits go by row order whatever the order of the visit). */
+ * and equal-t hits go by row order whatever the order of the visit); with
+ * any_hit, a ray stops at its first hit. */
 uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
                                  const float *tmin, float *const *tmax, const bool *take_tmax,
-                                 mr_dmm_hit *hits, mr_dmm_trace_stats *stats);
+                                 bool any_hit, mr_dmm_hit *hits, mr_dmm_trace_stats *stats);
 
 /* The same query answered by testing the patch's tessellation triangle by
  * triangle (the exact reference the traversal must equal): verts holds its
