@@ -202,7 +202,7 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
             bool on = k < n && lw[k].waits && lw[k].cosine[i] > 0;
             valid[k] = on ? -1 : 0;
             live += on;
-            mr_vec3 o = k < n ? lw[k].org : lw[0].org;
+            mr_vec3 o = on ? lw[k].org : mr_v3(0, 0, 0); /* idle lanes: any valid ray */
             ray.org_x[k] = o.x, ray.org_y[k] = o.y, ray.org_z[k] = o.z;
             ray.dir_x[k] = l.x, ray.dir_y[k] = l.y, ray.dir_z[k] = l.z;
             ray.tnear[k] = 0.0f;
@@ -228,7 +228,6 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
         if (lw[k].waits)
             out[k].rgb = mr_v3_mul(lw[k].albedo, lw[k].light);
 }
-
 
 /* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y). */
 static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
