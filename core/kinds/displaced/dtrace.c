@@ -922,6 +922,23 @@ static inline bool node_hit(const mr_dbase *b, const mr_dgrad *gr, const mr_dray
 
 /* ---- a texture node's children, two at a time ------------------------------------ */
 
+#if defined(__SSE2__)
+/* One axis of slab for two lanes: the box lo..hi, the rays' origins and
+ * reciprocal directions; narrows the entry t0 and exit t1 with slab's
+ * operations (min and max as a < b ? a : b and a > b ? a : b, which minpd
+ * and maxpd are), so each lane is what slab computes one by one. */
+static inline void slab_axis2(__m128d lo, __m128d hi, __m128d o, __m128d inv, __m128d *t0,
+                              __m128d *t1)
+{
+    __m128d nn = _mm_mul_pd(_mm_sub_pd(lo, o), inv);
+    __m128d ff = _mm_mul_pd(_mm_sub_pd(hi, o), inv);
+    __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
+    far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
+    *t0 = _mm_max_pd(near, *t0);
+    *t1 = _mm_min_pd(far, *t1);
+}
+#endif
+
 typedef struct tentry {
     dnode n;
     double tnear;
@@ -1038,13 +1055,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
                 in = _mm_andnot_pd(_mm_or_pd(_mm_cmplt_pd(o, l), _mm_cmpgt_pd(o, h)), in);
                 continue;
             }
-            __m128d inv = _mm_set1_pd(lr->inv[a]);
-            __m128d nn = _mm_mul_pd(_mm_sub_pd(l, o), inv);
-            __m128d ff = _mm_mul_pd(_mm_sub_pd(h, o), inv);
-            __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
-            far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
-            t0 = _mm_max_pd(near, t0);
-            t1 = _mm_min_pd(far, t1);
+            slab_axis2(l, h, o, _mm_set1_pd(lr->inv[a]), &t0, &t1);
         }
         in = _mm_andnot_pd(_mm_cmpgt_pd(t0, t1), in);
         int inm = _mm_movemask_pd(in);
@@ -1273,15 +1284,9 @@ static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], cons
             continue;
 #if defined(__SSE2__)
         __m128d t0 = _mm_loadu_pd(p->t0 + k), t1 = _mm_loadu_pd(p->t1 + k);
-        for (int a = 0; a < 3; a++) {
-            __m128d o = _mm_loadu_pd(p->o[a] + k), inv = _mm_loadu_pd(p->inv[a] + k);
-            __m128d nn = _mm_mul_pd(_mm_sub_pd(_mm_set1_pd(lo[a]), o), inv);
-            __m128d ff = _mm_mul_pd(_mm_sub_pd(_mm_set1_pd(hi[a]), o), inv);
-            __m128d near = _mm_min_pd(ff, nn), far = _mm_max_pd(nn, ff);
-            far = _mm_mul_pd(far, _mm_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
-            t0 = _mm_max_pd(near, t0);
-            t1 = _mm_min_pd(far, t1);
-        }
+        for (int a = 0; a < 3; a++)
+            slab_axis2(_mm_set1_pd(lo[a]), _mm_set1_pd(hi[a]), _mm_loadu_pd(p->o[a] + k),
+                       _mm_loadu_pd(p->inv[a] + k), &t0, &t1);
         _mm_storeu_pd(tn + k, t0);
         m |= (uint32_t)(~_mm_movemask_pd(_mm_cmpgt_pd(t0, t1)) & 3) << k;
 #else

@@ -769,14 +769,12 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
                             .best_key = take_tmax[k] ? UINT32_MAX : 0,
                             .any_hit = any_hit,
                             .hit = hits ? &hits[k] : NULL,
-                            .stats = k == 0 ? stats : NULL};
+                            .stats = stats};
         if (tmin[k] <= *tmax[k])
             live |= 1u << k;
     }
     if (!live)
         return 0;
-    if (stats && !(live & 1u)) /* the node counts go with the first live ray */
-        cs[__builtin_ctz(live)].stats = stats;
     lattice_pt P[3];
     root(&cs[0], P);
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};

@@ -136,7 +136,8 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
  * may be NULL); returns the mask of rays hit. The hits are
  * mr_dmm_intersect's ray by ray, bit for bit (the same nodes can hold them,
  * and equal-t hits go by row order whatever the order of the visit); with
- * any_hit, a ray stops at its first hit. */
+ * any_hit, a ray stops at its first hit. stats count each node's boxes
+ * once, as made, and each ray's micro-triangle tests. */
 uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
                                  const float *tmin, float *const *tmax, const bool *take_tmax,
                                  bool any_hit, mr_dmm_hit *hits, mr_dmm_trace_stats *stats);
