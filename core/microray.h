@@ -235,6 +235,17 @@ int mr_fs_remove_dir(const char *dir, mr_error *err);
 int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *size,
                       const char *what, mr_error *err);
 
+/* ---- the heap between frames (util/heap.c) ---- */
+
+/* For a process that renders frames (microrayd's render commands, the
+ * benchmarks): memory freed at the end of a frame stays in the process for
+ * the next frame instead of going back to the system and being faulted in
+ * again page by page (with glibc; elsewhere these do nothing). Call
+ * mr_heap_keep_freed once before rendering and mr_heap_release after a job
+ * to hand back what is free. Process-wide: a library host decides. */
+void mr_heap_keep_freed(void);
+void mr_heap_release(void);
+
 /* ---- cores and the parallel loop (util/parallel.c) ---- */
 
 /* Most workers one parallel loop starts (and the cap on configured threads). */

@@ -280,6 +280,7 @@ static void usage_render(void)
 
 int mr_cmd_render(int argc, char **argv)
 {
+    mr_heap_keep_freed();
     const char *job_path = NULL, *out_dir = NULL, *cache_dir = NULL, *frames_spec = NULL;
     unsigned threads = 0;
     size_t memory_budget = mr_job_memory_default();

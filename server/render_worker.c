@@ -303,6 +303,7 @@ end:;
     mr_job_free(job);
     c->job = NULL;
     c->job_id = NULL;
+    mr_heap_release(); /* the job's frames are done: the next may be small */
 }
 
 static bool parse_size(const char *s, size_t *out)
@@ -318,6 +319,7 @@ static bool parse_size(const char *s, size_t *out)
 
 int mr_cmd_render_worker(int argc, char **argv)
 {
+    mr_heap_keep_freed();
     worker_ctx c = {.fd = MR_CHILD_FD};
     size_t threads = 0, cache_bytes = 0;
     const char **roots = calloc((size_t)argc / 2 + 1, sizeof *roots);

@@ -12,12 +12,44 @@
 #include <math.h>
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
+#include <string.h>
 
 #include "microray.h"
 
 /* The top three rows of a row-major affine mr_mat4 (the bottom row is
  * 0 0 0 1): m[4r + c]. */
 typedef struct mr_affine { float m[12]; } mr_affine;
+
+/* v rounded to a float towards -inf (mr_float_down) or +inf (mr_float_up):
+ * the bound a float box needs to hold a double one. The nearest float,
+ * moved one step when it lies on the wrong side of v; the step is on the
+ * bit pattern (adjacent floats of one sign are adjacent integers, the sign
+ * says whether "down" is up in magnitude), without a branch: in a loop over
+ * boxes the side is a coin toss a branch would mispredict. -0 and +0 step
+ * to -/+ FLT_TRUE_MIN, an infinity that overshoots to +/-FLT_MAX, NaN stays
+ * NaN. */
+static inline float mr_float_down(double v)
+{
+    float f = (float)v;
+    uint32_t b;
+    memcpy(&b, &f, sizeof b);
+    const uint32_t step = (double)f > v, negative = b >> 31;
+    b += step * (2u * negative - 1u); /* modulo 2^32: -1 for a positive f */
+    memcpy(&f, &b, sizeof f);
+    return f;
+}
+
+static inline float mr_float_up(double v)
+{
+    float f = (float)v;
+    uint32_t b;
+    memcpy(&b, &f, sizeof b);
+    const uint32_t step = (double)f < v, negative = b >> 31;
+    b += step * (1u - 2u * negative);
+    memcpy(&f, &b, sizeof f);
+    return f;
+}
 
 static inline mr_vec3 mr_v3_add(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x + b.x, a.y + b.y, a.z + b.z); }
 static inline mr_vec3 mr_v3_sub(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x - b.x, a.y - b.y, a.z - b.z); }

@@ -11,6 +11,8 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <float.h>
+#include <math.h>
 
 #include "math/mr_math.h"
 
@@ -206,6 +208,28 @@ static void test_catmull_rom_interpolates(void **state)
     assert_near(q.x, 1.3, 1e-6); assert_near(q.z, 1.3, 1e-6);
 }
 
+/* mr_float_down / mr_float_up: the float bound on the named side of a
+ * double, exact when the double is a float; the bit-pattern step checked
+ * against nextafterf on both signs, at zero and at the ends of the range. */
+static void test_float_bounds(void **state)
+{
+    (void)state;
+    const double vs[] = {1.0, -1.0, 0.1, -0.1, 1.0 / 3.0, -1.0 / 3.0, 1e-50, -1e-50, 0.0, -0.0,
+                         3.4028235677973366e38 /* above FLT_MAX, rounds to it */, 1e39, -1e39,
+                         1.0 + 0x1p-30, 1.0 - 0x1p-30, -1.0 + 0x1p-30, 16777217.0};
+    for (size_t i = 0; i < sizeof vs / sizeof vs[0]; i++) {
+        const double v = vs[i];
+        const float f = (float)v, lo = mr_float_down(v), hi = mr_float_up(v);
+        assert_true((double)lo <= v && (double)hi >= v);
+        assert_true(lo == ((double)f > v ? nextafterf(f, -INFINITY) : f));
+        assert_true(hi == ((double)f < v ? nextafterf(f, INFINITY) : f));
+    }
+    assert_true(mr_float_down(-1e-50) == -FLT_TRUE_MIN && mr_float_up(1e-50) == FLT_TRUE_MIN);
+    assert_true(mr_float_down(1.0) == 1.0f && mr_float_up(-2.5) == -2.5f);
+    assert_true(mr_float_down(1e39) == FLT_MAX && isinf(mr_float_up(1e39)));
+    assert_true(isnan(mr_float_down(NAN)) && isnan(mr_float_up(NAN)));
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -216,6 +240,7 @@ int main(void)
         cmocka_unit_test(test_look_rotation),
         cmocka_unit_test(test_catmull_rom_interpolates),
         cmocka_unit_test(test_tangent_to),
+        cmocka_unit_test(test_float_bounds),
     };
     return cmocka_run_group_tests_name("math", tests, NULL, NULL);
 }

@@ -194,18 +194,6 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
 
 /* ---- boxes ----------------------------------------------------------------------- */
 
-static inline float down_f(double x)
-{
-    float f = (float)x;
-    return (double)f > x ? nextafterf(f, -INFINITY) : f;
-}
-
-static inline float up_f(double x)
-{
-    float f = (float)x;
-    return (double)f < x ? nextafterf(f, INFINITY) : f;
-}
-
 /* The box of S over the grid region X, Y (offsets from g0 as affine forms)
  * with heights [hlo, hhi]; dtrace.h says why it is conservative. */
 static void box_of(const mr_dgrad *gr, mr_af X, mr_af Y, double hlo, double hhi, double lo[3],
@@ -243,8 +231,8 @@ static void box_of(const mr_dgrad *gr, mr_af X, mr_af Y, double hlo, double hhi,
 static void to_float_box(const double lo[3], const double hi[3], float flo[3], float fhi[3])
 {
     for (int c = 0; c < 3; c++) {
-        flo[c] = down_f(lo[c]);
-        fhi[c] = up_f(hi[c]);
+        flo[c] = mr_float_down(lo[c]);
+        fhi[c] = mr_float_up(hi[c]);
     }
 }
 

@@ -73,36 +73,6 @@ static inline unsigned highest_bit(unsigned m) /* m != 0 */
 static inline double dmin(double a, double b) { return a < b ? a : b; }
 static inline double dmax(double a, double b) { return a > b ? a : b; }
 
-/* Nearest float on the low / high side of v (outward rounding, so a float
- * box always contains the double box it came from). */
-/* The next float towards -inf (up = false) or +inf of a finite f. */
-static inline float float_step(float f, bool up)
-{
-    if (f == 0.0f)
-        return up ? FLT_TRUE_MIN : -FLT_TRUE_MIN;
-    uint32_t b;
-    memcpy(&b, &f, sizeof b);
-    b = ((f > 0.0f) == up) ? b + 1u : b - 1u; /* magnitude up or down */
-    memcpy(&f, &b, sizeof f);
-    return f;
-}
-
-static inline float float_down(double v)
-{
-    float f = (float)v;
-    if ((double)f > v && isfinite(f))
-        f = float_step(f, false);
-    return f;
-}
-
-static inline float float_up(double v)
-{
-    float f = (float)v;
-    if ((double)f < v && isfinite(f))
-        f = float_step(f, true);
-    return f;
-}
-
 static bool affine_finite(const mr_affine *a)
 {
     for (int e = 0; e < 12; e++)
@@ -151,7 +121,7 @@ enum {
     WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
-    WS_RS_KEPT, WS_RS_LEAVES,
+    WS_RS_KEPT, WS_RS_LEAVES, WS_PALETTE,
     WS_SLOTS
 };
 
@@ -353,6 +323,15 @@ typedef struct sel_fail {
     double p[3];
 } sel_fail;
 
+/* One palette entry's matrices for a frame: its blended skin matrix and
+ * the normal matrix of a voxel whose two extremes both take it. */
+typedef struct pal_entry {
+    mr_affine a;
+    double normal[9]; /* normal_matrix(a, a); valid when has_normal */
+    bool ok;          /* false: the entry names a mesh or joint the deformer lacks */
+    bool has_normal;
+} pal_entry;
+
 typedef struct sel_ctx {
     const mr_svo *svo;
     const mr_svo_extremes *ex;
@@ -373,17 +352,14 @@ typedef struct sel_ctx {
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
+    /* every palette entry's matrices for this frame (pal_fill), once the
+     * frontier is large enough to pay for them; NULL before */
+    pal_entry *pal;
 } sel_ctx;
 
-/* Arvo's box transform applied once per matrix, union of the two (Fig. 16),
- * in the mr_affine convention: out_i = m[4i+3] + sum_j m[4i+j] * in_j. */
 /* The blended skin matrix of palette entry at (sum of weight * joint
- * matrix, in double; no weights: the mesh's matrix), or false when the
- * entry names a mesh or joint the deformer lacks. Blended (and checked) per
- * voxel extreme rather than for the whole palette up front: a far instance
- * selects a handful of voxels, while the palette of a character has
- * thousands of entries (doing them all cost ~1 ms per instance per frame).
- * The arithmetic is the same either way. */
+ * matrix, in double, rounded to float; no weights: the mesh's matrix), or
+ * false when the entry names a mesh or joint the deformer lacks. */
 static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affine *out)
 {
     if (at->mesh >= d->mesh_count)
@@ -411,60 +387,96 @@ static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affi
     return true;
 }
 
-static void deform_box(const mr_affine *a0, const mr_affine *a1, const double lo[3], const double hi[3],
-                       double olo[3], double ohi[3])
-{
-    for (int i = 0; i < 3; i++) {
-        olo[i] = INFINITY;
-        ohi[i] = -INFINITY;
-    }
-    for (int k = 0; k < 2; k++) {
-        const float *m = (k == 0 ? a0 : a1)->m;
-        for (int i = 0; i < 3; i++) {
-            double l = m[4 * i + 3], h = l;
-            for (int j = 0; j < 3; j++) {
-                const double p = (double)m[4 * i + j] * lo[j], q = (double)m[4 * i + j] * hi[j];
-                l += dmin(p, q);
-                h += dmax(p, q);
-            }
-            olo[i] = dmin(olo[i], l);
-            ohi[i] = dmax(ohi[i], h);
-        }
-    }
-}
-
-/* Bind normal moved by the cofactor of the mean matrix, sign-corrected by
- * its determinant so a mirroring transform keeps normals outward (a voxel
- * has no winding that would flip with it, unlike a triangle); a matrix that
- * collapses the normal keeps the bind normal. */
-static void move_normal(const mr_affine *a0, const mr_affine *a1, const uint8_t in[2], uint8_t out[2])
+/* The normal matrix of a voxel with extreme matrices a0 and a1: the
+ * cofactor of their mean (columns c1 x c2, c2 x c0, c0 x c1 of the mean's
+ * linear part), negated when the mean's determinant is negative, so a
+ * mirroring transform keeps normals outward (a voxel has no winding that
+ * would flip with it, unlike a triangle). r[3 * k + i]: row i of column k.
+ * Negating the matrix before it is applied gives bit for bit the negated
+ * product (rounding to nearest is symmetric). */
+static void normal_matrix(const mr_affine *a0, const mr_affine *a1, double r[9])
 {
     double c[3][3]; /* columns of the mean linear part */
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             c[j][i] = 0.5 * ((double)a0->m[4 * i + j] + (double)a1->m[4 * i + j]);
-    double r[3][3]; /* cofactor columns: c1 x c2, c2 x c0, c0 x c1 */
     for (int k = 0; k < 3; k++) {
         const double *u = c[(k + 1) % 3], *v = c[(k + 2) % 3];
-        r[k][0] = u[1] * v[2] - u[2] * v[1];
-        r[k][1] = u[2] * v[0] - u[0] * v[2];
-        r[k][2] = u[0] * v[1] - u[1] * v[0];
+        r[3 * k + 0] = u[1] * v[2] - u[2] * v[1];
+        r[3 * k + 1] = u[2] * v[0] - u[0] * v[2];
+        r[3 * k + 2] = u[0] * v[1] - u[1] * v[0];
     }
-    const double det = c[0][0] * r[0][0] + c[0][1] * r[0][1] + c[0][2] * r[0][2];
-    const mr_vec3 n = mr_svo_normal_decode(in);
+    const double det = c[0][0] * r[0] + c[0][1] * r[1] + c[0][2] * r[2];
+    if (det < 0.0)
+        for (int e = 0; e < 9; e++)
+            r[e] = -r[e];
+}
+
+/* Bind normal in moved by normal matrix r; a matrix that collapses the
+ * normal keeps the bind normal. The encoder needs a direction only: the
+ * bind direction is taken unnormalised and the moved one scaled onto the
+ * octahedron in double (so a huge or tiny matrix cannot overflow or
+ * underflow the float the encoder takes). */
+static void move_normal(const double r[9], const uint8_t in[2], uint8_t out[2])
+{
+    const mr_vec3 n = mr_svo_normal_direction(in);
     double m[3];
     for (int i = 0; i < 3; i++)
-        m[i] = r[0][i] * n.x + r[1][i] * n.y + r[2][i] * n.z;
-    if (det < 0.0)
-        for (int i = 0; i < 3; i++)
-            m[i] = -m[i];
-    const double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
-    if (!(len > 0.0) || !isfinite(len)) {
+        m[i] = r[i] * n.x + r[3 + i] * n.y + r[6 + i] * n.z;
+    const double l1 = fabs(m[0]) + fabs(m[1]) + fabs(m[2]);
+    if (!(l1 > 0.0) || !isfinite(l1)) {
         out[0] = in[0];
         out[1] = in[1];
         return;
     }
-    mr_svo_normal_encode(mr_v3((float)(m[0] / len), (float)(m[1] / len), (float)(m[2] / len)), out);
+    const double inv = 1.0 / l1;
+    mr_svo_normal_encode(mr_v3((float)(m[0] * inv), (float)(m[1] * inv), (float)(m[2] * inv)), out);
+}
+
+/* Entry attr's matrices: from the frame's table when it has been filled,
+ * else blended into *tmp (the same arithmetic either way, so the frontier
+ * size that decides which does not change a result). */
+static const pal_entry *pal_get(const sel_ctx *c, uint32_t attr, pal_entry *tmp)
+{
+    if (c->pal)
+        return &c->pal[attr];
+    tmp->ok = blend_entry(&c->svo->palette[attr], c->d, &tmp->a);
+    tmp->has_normal = false;
+    return tmp;
+}
+
+/* Fills entries [begin, end) of the frame's table (mr_range_fn). */
+static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const sel_ctx *c = vctx;
+    for (size_t i = begin; i < end; i++) {
+        pal_entry *p = &c->pal[i];
+        p->ok = blend_entry(&c->svo->palette[i], c->d, &p->a);
+        if (p->ok)
+            normal_matrix(&p->a, &p->a, p->normal);
+        p->has_normal = p->ok;
+    }
+}
+
+/* Arvo's box transform in the mr_affine convention (out_i = m[4i+3] +
+ * sum_j m[4i+j] * in_j), grown to hold what it gives: the union of the box
+ * through each matrix is the deformed box of Fig. 16. Products and sums in
+ * double (a float times a double of at most 46 significant bits). */
+static void deform_box_grow(const mr_affine *a, const double lo[3], const double hi[3], double olo[3],
+                            double ohi[3])
+{
+    const float *m = a->m;
+    for (int i = 0; i < 3; i++) {
+        double l = m[4 * i + 3], h = l;
+        for (int j = 0; j < 3; j++) {
+            const double p = (double)m[4 * i + j] * lo[j], q = (double)m[4 * i + j] * hi[j];
+            l += dmin(p, q);
+            h += dmax(p, q);
+        }
+        olo[i] = dmin(olo[i], l);
+        ohi[i] = dmax(ohi[i], h);
+    }
 }
 
 /* The leaf reached from interior node n by always taking the lowest child. */
@@ -537,33 +549,43 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                          NULL);
                 continue;
             }
-            mr_affine a0, a1;
+            /* the extremes' matrices: a0 and a1 point at them */
+            mr_affine f0, f1;
+            pal_entry t0, t1;
+            const pal_entry *p0 = NULL, *p1 = NULL;
+            const mr_affine *a0, *a1;
             if (c->d->field) {
-                a0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
-                a1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
-                if (!affine_finite(&a0) || !affine_finite(&a1)) {
-                    fail_set(fail, FAIL_FIELD, 0, 0, affine_finite(&a0) ? hi : lo);
+                f0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
+                f1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
+                if (!affine_finite(&f0) || !affine_finite(&f1)) {
+                    fail_set(fail, FAIL_FIELD, 0, 0, affine_finite(&f0) ? hi : lo);
                     continue;
                 }
+                a0 = &f0;
+                a1 = &f1;
             } else {
-                if (!blend_entry(&svo->palette[attr0], c->d, &a0)) {
+                p0 = pal_get(c, attr0, &t0);
+                if (!p0->ok) {
                     fail_set(fail, FAIL_PALETTE, attr0, 0, NULL);
                     continue;
                 }
-                if (attr1 == attr0) {
-                    a1 = a0;
-                } else if (!blend_entry(&svo->palette[attr1], c->d, &a1)) {
+                p1 = attr1 == attr0 ? p0 : pal_get(c, attr1, &t1);
+                if (!p1->ok) {
                     fail_set(fail, FAIL_PALETTE, attr1, 0, NULL);
                     continue;
                 }
+                a0 = &p0->a;
+                a1 = &p1->a;
             }
-            double dlo[3], dhi[3];
-            deform_box(&a0, &a1, lo, hi, dlo, dhi);
+            double dlo[3] = {INFINITY, INFINITY, INFINITY}, dhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            deform_box_grow(a0, lo, hi, dlo, dhi);
+            if (p0 == NULL || p1 != p0)
+                deform_box_grow(a1, lo, hi, dlo, dhi);
             float *b = &c->box[i * 6];
             bool finite = true;
             for (int a = 0; a < 3; a++) {
-                b[a] = float_down(dlo[a]);
-                b[3 + a] = float_up(dhi[a]);
+                b[a] = mr_float_down(dlo[a]);
+                b[3 + a] = mr_float_up(dhi[a]);
                 finite = finite && isfinite(b[a]) && isfinite(b[3 + a]);
             }
             if (!finite) {
@@ -637,7 +659,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
                 const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                 if (c->d->field || key != memo_key || attr1 != memo_hi) {
-                    move_normal(&a0, &a1, bn, memo_out);
+                    double r[9];
+                    if (p0 && p0 == p1 && p0->has_normal)
+                        move_normal(p0->normal, bn, memo_out);
+                    else {
+                        normal_matrix(a0, a1, r);
+                        move_normal(r, bn, memo_out);
+                    }
                     memo_key = key;
                     memo_hi = attr1;
                 }
@@ -908,6 +936,19 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
         c.chunk_sel = chunk_sel;
         c.chunk_child = chunk_child;
         c.chunk_fail = chunk_fail;
+        /* The frame's palette table once the voxels deformed so far reach
+         * a quarter of its entries: a far instance that selects a handful
+         * of voxels blends only theirs, a near one blends each entry once
+         * instead of once per voxel. */
+        if (!d->field && !c.pal && svo->palette_count > 0 && 4 * visited >= svo->palette_count) {
+            c.pal = ws_get(ws, WS_PALETTE, svo->palette_count, sizeof *c.pal);
+            if (!c.pal) {
+                rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%u palette entries)",
+                                  svo->palette_count);
+                goto cleanup;
+            }
+            mr_parallel_for(threads, svo->palette_count, 256, pal_fill, &c);
+        }
         mr_parallel_for(threads, chunks, 1, sel_pass1, &c);
         size_t sel_total = out->count, child_total = 0;
         for (size_t ch = 0; ch < chunks; ch++) {
@@ -1306,7 +1347,7 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
         extent = dmax(extent, hi[a] - lo[a]);
         maxabs = dmax(maxabs, dmax(fabs(lo[a]), fabs(hi[a])));
     }
-    float size = extent > 0.0 ? float_up(extent + extent * CUBE_GROWTH) : float_up(dmax(maxabs, 1.0) * CUBE_GROWTH);
+    float size = extent > 0.0 ? mr_float_up(extent + extent * CUBE_GROWTH) : mr_float_up(dmax(maxabs, 1.0) * CUBE_GROWTH);
     for (;;) {
         if (!isfinite(size)) {
             rc = mr_error_set(err, MR_ERR_INVALID, "svo resample: the boxes span %g, beyond float range", extent);

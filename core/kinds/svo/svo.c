@@ -56,43 +56,54 @@ size_t mr_svo_memory(const mr_svo *svo)
     return bytes;
 }
 
-static float sign_not_zero(float v) { return v < 0.0f ? -1.0f : 1.0f; }
-
-static mr_vec3 decode_uv(unsigned u, unsigned v)
+/* a when c, else b, chosen on the bit patterns so it stays a select and
+ * never becomes a branch: over a frame's voxels, which side is taken is a
+ * coin toss a branch would mispredict half the time. */
+static inline float select_f(bool c, float a, float b)
 {
-    float x = (float)u * (2.0f / 255.0f) - 1.0f;
-    float y = (float)v * (2.0f / 255.0f) - 1.0f;
-    float z = 1.0f - fabsf(x) - fabsf(y);
-    if (z < 0.0f) {
-        /* lower hemisphere: unfold the square's corners back over the diagonals */
-        float fx = (1.0f - fabsf(y)) * sign_not_zero(x);
-        float fy = (1.0f - fabsf(x)) * sign_not_zero(y);
-        x = fx;
-        y = fy;
-    }
-    float len = sqrtf(x * x + y * y + z * z);
-    return mr_v3(x / len, y / len, z / len);
+    uint32_t ia, ib;
+    memcpy(&ia, &a, sizeof ia);
+    memcpy(&ib, &b, sizeof ib);
+    const uint32_t m = 0u - (uint32_t)c, r = (ia & m) | (ib & ~m);
+    float f;
+    memcpy(&f, &r, sizeof f);
+    return f;
 }
 
-mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
+/* -1 for v < 0, else 1 (also for -0) */
+static inline float sign_not_zero(float v) { return select_f(v < 0.0f, -1.0f, 1.0f); }
+
+/* The lower hemisphere's (x, y) unfolded back over the square's diagonals:
+ * (1 - |y|) sign(x), (1 - |x|) sign(y) when below, (x, y) when not. */
+static inline void fold(bool below, float *x, float *y)
 {
-    return decode_uv(in[0], in[1]);
+    const float fx = (1.0f - fabsf(*y)) * sign_not_zero(*x);
+    const float fy = (1.0f - fabsf(*x)) * sign_not_zero(*y);
+    *x = select_f(below, fx, *x);
+    *y = select_f(below, fy, *y);
 }
 
-/* The decoded direction of code (u, v) before normalisation: the encoder
- * compares candidates by angle, for which the length does not matter. */
+/* The direction of code (u, v) on the octahedron |x| + |y| + |z| = 1 (not
+ * normalised). */
 static inline mr_vec3 unfold_uv(int u, int v)
 {
     float x = (float)u * (2.0f / 255.0f) - 1.0f;
     float y = (float)v * (2.0f / 255.0f) - 1.0f;
-    float z = 1.0f - fabsf(x) - fabsf(y);
-    if (z < 0.0f) {
-        float fx = (1.0f - fabsf(y)) * sign_not_zero(x);
-        float fy = (1.0f - fabsf(x)) * sign_not_zero(y);
-        x = fx;
-        y = fy;
-    }
+    const float z = 1.0f - fabsf(x) - fabsf(y);
+    fold(z < 0.0f, &x, &y);
     return mr_v3(x, y, z);
+}
+
+mr_vec3 mr_svo_normal_direction(const uint8_t in[2])
+{
+    return unfold_uv(in[0], in[1]);
+}
+
+mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
+{
+    const mr_vec3 d = unfold_uv(in[0], in[1]);
+    const float len = sqrtf(d.x * d.x + d.y * d.y + d.z * d.z);
+    return mr_v3(d.x / len, d.y / len, d.z / len);
 }
 
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
@@ -107,12 +118,7 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
     const float inv = 1.0f / l1;
     n = mr_v3(n.x * inv, n.y * inv, n.z * inv);
     float x = n.x, y = n.y;
-    if (n.z < 0.0f) {
-        float fx = (1.0f - fabsf(y)) * sign_not_zero(x);
-        float fy = (1.0f - fabsf(x)) * sign_not_zero(y);
-        x = fx;
-        y = fy;
-    }
+    fold(n.z < 0.0f, &x, &y);
     float fu = (x + 1.0f) * 127.5f, fv = (y + 1.0f) * 127.5f;
     /* floor without a libm call (fu, fv are within [-1, 256]) */
     int u0 = (int)fu, v0 = (int)fv;
@@ -121,28 +127,24 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
     /* The candidate with the smallest angle to n has the largest
      * dot / |d|; among candidates with dot > 0 that is the largest
      * dot^2 / |d|^2, compared cross-multiplied: no square root, no division
-     * (the decode of each candidate used to cost both). */
+     * (the decode of each candidate used to cost both). Candidates in
+     * order (u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1); a tie
+     * keeps the earlier; the winner is kept by selects (as above). */
     float best_dot = 0.0f, best_len2 = 1.0f;
-    bool have = false;
-    unsigned bu = 128, bv = 128;
-    for (int dv = 0; dv < 2; dv++) {
-        for (int du = 0; du < 2; du++) {
-            int u = u0 + du, v = v0 + dv;
-            u = u < 0 ? 0 : u > 255 ? 255 : u;
-            v = v < 0 ? 0 : v > 255 ? 255 : v;
-            const mr_vec3 d = unfold_uv(u, v);
-            const float dot = d.x * n.x + d.y * n.y + d.z * n.z;
-            const float len2 = d.x * d.x + d.y * d.y + d.z * d.z;
-            if (!(dot > 0.0f))
-                continue;
-            if (!have || dot * dot * best_len2 > best_dot * best_dot * len2) {
-                have = true;
-                best_dot = dot;
-                best_len2 = len2;
-                bu = (unsigned)u;
-                bv = (unsigned)v;
-            }
-        }
+    int have = 0, bu = 128, bv = 128;
+    for (int k = 0; k < 4; k++) {
+        int u = u0 + (k & 1), v = v0 + (k >> 1);
+        u = u < 0 ? 0 : u > 255 ? 255 : u;
+        v = v < 0 ? 0 : v > 255 ? 255 : v;
+        const mr_vec3 d = unfold_uv(u, v);
+        const float dot = d.x * n.x + d.y * n.y + d.z * n.z;
+        const float len2 = d.x * d.x + d.y * d.y + d.z * d.z;
+        const int better = (dot > 0.0f) & (!have | (dot * dot * best_len2 > best_dot * best_dot * len2));
+        have |= better;
+        best_dot = select_f(better, dot, best_dot);
+        best_len2 = select_f(better, len2, best_len2);
+        bu = better ? u : bu;
+        bv = better ? v : bv;
     }
     out[0] = (uint8_t)bu;
     out[1] = (uint8_t)bv;

@@ -111,5 +111,8 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
  * encodes +z. */
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
+/* The decoded direction before normalisation (on the octahedron |x| + |y| +
+ * |z| = 1): for code that only needs the direction. */
+mr_vec3 mr_svo_normal_direction(const uint8_t in[2]);
 
 #endif /* MR_SVO_H */

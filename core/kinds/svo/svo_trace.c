@@ -310,19 +310,6 @@ bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, fl
     return svo_walk(svo, org, dir, tmin, tmax, NULL);
 }
 
-/* Rounds a double down / up to a float, so float boxes stay conservative. */
-static float float_down(double v)
-{
-    float f = (float)v;
-    return (double)f > v ? nextafterf(f, -INFINITY) : f;
-}
-
-static float float_up(double v)
-{
-    float f = (float)v;
-    return (double)f < v ? nextafterf(f, INFINITY) : f;
-}
-
 bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
 {
     if (!svo) {
@@ -358,8 +345,8 @@ bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
     for (unsigned a = 0; a < 3; a++) {
         const double l = (low_used >> a) & 1u ? (double)c[a] : (double)c[a] + 0.5 * s;
         const double h = (high_used >> a) & 1u ? (double)c[a] + s : (double)c[a] + 0.5 * s;
-        lo[a] = float_down(l);
-        hi[a] = float_up(h);
+        lo[a] = mr_float_down(l);
+        hi[a] = mr_float_up(h);
     }
     return true;
 }
