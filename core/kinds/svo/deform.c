@@ -42,6 +42,9 @@
 /* Items per chunk: fixed, never derived from the thread count. */
 #define SEL_CHUNK 1024u
 #define RS_CHUNK 4096u
+/* Moved normals a selection chunk remembers (a power of two). */
+#define NORMAL_MEMO_BITS 11
+#define NORMAL_MEMO (1u << NORMAL_MEMO_BITS)
 /* Relative growth of the output cube's edge beyond the largest extent: two
  * finest cells at depth 21, invisible at the depths used, and enough that
  * the far face is never touched after rounding to float. */
@@ -479,6 +482,39 @@ static void deform_box_grow(const mr_affine *a, const double lo[3], const double
     }
 }
 
+/* eq. 3.2.1-3.2.3: the larger side, in pixels, of the screen rectangle of
+ * box b (lo xyz, hi xyz); INFINITY when a corner lies at or behind the eye
+ * plane, which makes the projection unbounded. A corner's clip x, y and w
+ * are sums of one product per axis (the corner takes lo or hi there) plus
+ * a constant: the 18 products are made once and each corner sums its three
+ * in the order (x + y) + z + constant, the order the full dot product of
+ * each corner would use. */
+static double projected_size(const sel_ctx *c, const float b[6])
+{
+    static const int row[3] = {0, 1, 3}; /* clip x, y, w */
+    double p[3][3][2];
+    for (int r = 0; r < 3; r++)
+        for (int a = 0; a < 3; a++) {
+            p[r][a][0] = c->vp[4 * row[r] + a] * (double)b[a];
+            p[r][a][1] = c->vp[4 * row[r] + a] * (double)b[3 + a];
+        }
+    double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
+    for (unsigned k = 0; k < 8; k++) {
+        const unsigned sx = k & 1u, sy = (k >> 1) & 1u, sz = k >> 2;
+        double cl[3];
+        for (int r = 0; r < 3; r++)
+            cl[r] = p[r][0][sx] + p[r][1][sy] + p[r][2][sz] + c->vp[4 * row[r] + 3];
+        if (!(cl[2] > 0.0))
+            return INFINITY;
+        const double x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
+        xmin = dmin(xmin, x);
+        xmax = dmax(xmax, x);
+        ymin = dmin(ymin, y);
+        ymax = dmax(ymax, y);
+    }
+    return dmax(c->width * (xmax - xmin), c->height * (ymax - ymin));
+}
+
 /* The leaf reached from interior node n by always taking the lowest child. */
 static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
 {
@@ -519,13 +555,14 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
         size_t nsel = 0, nchild = 0;
         sel_fail *fail = &c->chunk_fail[ch];
-        /* With skinning, the moved normal is a function of (palette entries,
-         * bind normal) only, and neighbours in Morton order often share
-         * both: remember the last one (the same value either way). */
-        /* memo_hi starts above every palette index (attr1 <= 65535), so the
-         * first voxel never matches the empty memo. */
-        uint32_t memo_key = UINT32_MAX, memo_hi = UINT32_MAX;
-        uint8_t memo_out[2] = {0, 0};
+        /* With skinning, a voxel whose extremes share one palette entry
+         * (every leaf) has a moved normal that is a function of (entry,
+         * bind normal) only, and the voxels of a chunk, neighbours in
+         * Morton order, repeat such pairs: the chunk remembers them in a
+         * small hash table (the same value either way, so what it holds
+         * changes no result). Entry: valid bit 48, key bits 16-47, code. */
+        uint64_t memo[NORMAL_MEMO];
+        memset(memo, 0, sizeof memo);
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
@@ -620,30 +657,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * above max_level is refined: leaves (most of what is visited)
              * and voxels at max_level are selected whatever it is. */
             if (c->view_on && !it->leaf && c->level < c->max_level) {
-                const double blo[3] = {b[0], b[1], b[2]}, bhi[3] = {b[3], b[4], b[5]};
-                /* eq. 3.2.1-3.2.3; a corner at or behind the eye plane makes
-                 * the projection unbounded. */
-                double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
-                bool behind = false;
-                for (unsigned k = 0; k < 8 && !behind; k++) {
-                    const double q[3] = {(k & 1) ? bhi[0] : blo[0], (k & 2) ? bhi[1] : blo[1],
-                                         (k & 4) ? bhi[2] : blo[2]};
-                    double cl[4];
-                    for (int r = 0; r < 4; r++)
-                        cl[r] = c->vp[4 * r] * q[0] + c->vp[4 * r + 1] * q[1] + c->vp[4 * r + 2] * q[2] +
-                                c->vp[4 * r + 3];
-                    if (!(cl[3] > 0.0)) {
-                        behind = true;
-                        break;
-                    }
-                    const double x = 0.5 * cl[0] / cl[3] + 0.5, y = 0.5 * cl[1] / cl[3] + 0.5;
-                    xmin = dmin(xmin, x);
-                    xmax = dmax(xmax, x);
-                    ymin = dmin(ymin, y);
-                    ymax = dmax(ymax, y);
-                }
-                if (!behind)
-                    size = dmax(c->width * (xmax - xmin), c->height * (ymax - ymin));
+                size = projected_size(c, b);
             }
             if (it->leaf || c->level >= c->max_level || size < c->delta) {
                 uint32_t src = it->index;
@@ -657,20 +671,21 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                  * normal (one leaf's would light the whole voxel by
                  * wherever that leaf's surface faces) */
                 const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
-                const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
-                if (c->d->field || key != memo_key || attr1 != memo_hi) {
-                    double r[9];
-                    if (p0 && p0 == p1 && p0->has_normal)
-                        move_normal(p0->normal, bn, memo_out);
-                    else {
-                        normal_matrix(a0, a1, r);
-                        move_normal(r, bn, memo_out);
+                if (p0 && p0 == p1 && p0->has_normal) {
+                    const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
+                    uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
+                    if ((*m >> 16) != ((uint64_t)1 << 32 | key)) {
+                        move_normal(p0->normal, bn, l->normal);
+                        *m = ((uint64_t)1 << 32 | key) << 16 | l->normal[0] | (uint64_t)l->normal[1] << 8;
+                    } else {
+                        l->normal[0] = (uint8_t)*m;
+                        l->normal[1] = (uint8_t)(*m >> 8);
                     }
-                    memo_key = key;
-                    memo_hi = attr1;
+                } else {
+                    double r[9];
+                    normal_matrix(a0, a1, r);
+                    move_normal(r, bn, l->normal);
                 }
-                l->normal[0] = memo_out[0];
-                l->normal[1] = memo_out[1];
                 c->outcome[i] = OUT_SELECTED;
                 nsel++;
                 continue;
