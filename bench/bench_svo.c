@@ -171,46 +171,6 @@ static void render(run *x, size_t f, mr_frame_stats *st)
         die("render", err.msg);
 }
 
-/* ---- process memory (Linux /proc; not microray's) */
-
-static double rss_now(void)
-{
-    long pages = 0, resident = 0;
-    FILE *f = fopen("/proc/self/statm", "r");
-    if (f) {
-        if (fscanf(f, "%ld %ld", &pages, &resident) != 2)
-            resident = 0;
-        fclose(f);
-    }
-    return (double)resident * (double)sysconf(_SC_PAGESIZE);
-}
-
-/* Peak RSS (VmHWM) since the last peak_reset (clear_refs "5"), so part d
- * measures its own peak after parts a-c. */
-static bool peak_reset(void)
-{
-    FILE *f = fopen("/proc/self/clear_refs", "w");
-    if (!f)
-        return false;
-    bool ok = fputs("5", f) >= 0;
-    ok = fclose(f) == 0 && ok;
-    return ok;
-}
-
-static double peak_rss(void)
-{
-    char line[256];
-    double kib = 0;
-    FILE *f = fopen("/proc/self/status", "r");
-    if (!f)
-        return (double)mr_peak_rss_bytes();
-    while (fgets(line, sizeof line, f))
-        if (sscanf(line, "VmHWM: %lf kB", &kib) == 1)
-            break;
-    fclose(f);
-    return kib > 0 ? kib * 1024.0 : (double)mr_peak_rss_bytes();
-}
-
 /* ---- the dancer's rest-pose triangles and their bounds */
 
 typedef struct shape {
@@ -875,8 +835,8 @@ static void part_d(double deadline)
     printf("| N | selected | voxels/instance | update ms | build ms | total ms | pose s | select s "
            "| resample s | cells | out voxels | peak RSS MiB | bytes/instance | marginal "
            "bytes/instance |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    const bool reset = peak_reset();
-    const double base_rss = rss_now();
+    const bool reset = bench_peak_reset();
+    const double base_rss = bench_rss_now();
     size_t fit = 0, last_n = 0;
     double first_ms = 0, last_bytes = 0, last_marginal = 0, last_peak = base_rss;
     inst_frame last = {0};
@@ -903,7 +863,7 @@ static void part_d(double deadline)
             stop = "the job's memory budget";
             break;
         }
-        const double total = median(tot, repeats), peak = peak_rss();
+        const double total = median(tot, repeats), peak = bench_peak_rss();
         /* peak RSS grows with the frame's transient buffers and the per-instance state; the
          * marginal cost of the last doubling is what scales (a job holds at most
          * INSTANCES_PER_JOB at once) */

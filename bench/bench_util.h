@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "microray.h"
 
@@ -149,6 +150,49 @@ static inline double bench_mem_available(void)
             break;
     fclose(f);
     return kib * 1024.0;
+}
+
+/* ---- process memory (Linux /proc; not microray's own accounting) ---- */
+
+/* Resident bytes now. */
+static inline double bench_rss_now(void)
+{
+    long pages = 0, resident = 0;
+    FILE *f = fopen("/proc/self/statm", "r");
+    if (f) {
+        if (fscanf(f, "%ld %ld", &pages, &resident) != 2)
+            resident = 0;
+        fclose(f);
+    }
+    return (double)resident * (double)sysconf(_SC_PAGESIZE);
+}
+
+/* Starts a new peak: bench_peak_rss then gives the peak resident bytes
+ * (VmHWM) since this call (clear_refs "5"), so one part of a benchmark
+ * measures its own peak after earlier parts. False when the kernel does
+ * not allow it (the peak is then the process'). */
+static inline bool bench_peak_reset(void)
+{
+    FILE *f = fopen("/proc/self/clear_refs", "w");
+    if (!f)
+        return false;
+    bool ok = fputs("5", f) >= 0;
+    ok = fclose(f) == 0 && ok;
+    return ok;
+}
+
+static inline double bench_peak_rss(void)
+{
+    char line[256];
+    double kib = 0;
+    FILE *f = fopen("/proc/self/status", "r");
+    if (!f)
+        return (double)mr_peak_rss_bytes();
+    while (fgets(line, sizeof line, f))
+        if (sscanf(line, "VmHWM: %lf kB", &kib) == 1)
+            break;
+    fclose(f);
+    return kib > 0 ? kib * 1024.0 : (double)mr_peak_rss_bytes();
 }
 
 #endif
