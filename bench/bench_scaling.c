@@ -168,24 +168,15 @@ static double copy_bandwidth(void)
 
 static double machine_gbs;
 
-/* Least-squares slope of log y against log x over rows with y > 0. */
+/* The growth exponent of one field of the rows against their work. */
 static double growth(const row *rows, int n, size_t field_offset)
 {
-    double sx = 0, sy = 0, sxx = 0, sxy = 0;
-    int m = 0;
+    double x[MAX_ROWS], y[MAX_ROWS];
     for (int i = 0; i < n; i++) {
-        const double y = *(const double *)((const char *)&rows[i] + field_offset);
-        if (!(y > 0) || !(rows[i].work > 0))
-            continue;
-        const double lx = log(rows[i].work), ly = log(y);
-        sx += lx;
-        sy += ly;
-        sxx += lx * lx;
-        sxy += lx * ly;
-        m++;
+        x[i] = rows[i].work;
+        y[i] = *(const double *)((const char *)&rows[i] + field_offset);
     }
-    const double d = m * sxx - sx * sx;
-    return m >= 2 && d > 0 ? (m * sxy - sx * sy) / d : NAN;
+    return bench_growth(x, y, n);
 }
 
 #define GROWTH(rows, n, field) growth(rows, n, offsetof(row, field))

@@ -835,8 +835,11 @@ static void part_d(double deadline)
     printf("| N | selected | voxels/instance | update ms | build ms | total ms | pose s | select s "
            "| resample s | cells | out voxels | peak RSS MiB | bytes/instance | marginal "
            "bytes/instance |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    mr_heap_release(); /* what earlier parts freed does not count */
     const bool reset = bench_peak_reset();
     const double base_rss = bench_rss_now();
+    double fit_n[64], fit_ms[64], fit_bytes[64];
+    int fit_rows = 0;
     size_t fit = 0, last_n = 0;
     double first_ms = 0, last_bytes = 0, last_marginal = 0, last_peak = base_rss;
     inst_frame last = {0};
@@ -880,6 +883,9 @@ static void part_d(double deadline)
                total, fr.pose_s, fr.select_s, fr.resample_s, fr.cells, fr.out, peak / (1024.0 * 1024.0),
                bytes, marginal);
         fflush(stdout);
+        fit_n[fit_rows] = (double)n;
+        fit_ms[fit_rows] = total;
+        fit_bytes[fit_rows++] = fmax(peak - base_rss, 0);
         if (total <= THESIS_MS)
             fit = n;
         if (n == 1)
@@ -902,6 +908,12 @@ static void part_d(double deadline)
             break;
         }
     }
+    const int half = fit_rows / 2;
+    printf("\nGrowth exponents (cost ~ N^b, least squares): total ms b = %.2f over all rows, %.2f over "
+           "the larger half (N >= %.0f); peak RSS growth b = %.2f, %.2f.\n",
+           bench_growth(fit_n, fit_ms, fit_rows), bench_growth(fit_n + half, fit_ms + half, fit_rows - half),
+           fit_rows > half ? fit_n[half] : 0.0, bench_growth(fit_n, fit_bytes, fit_rows),
+           bench_growth(fit_n + half, fit_bytes + half, fit_rows - half));
     printf("\nPer instance at N = %zu, thread time: pose and skin matrices %.1f us (svo_pose_s / "
            "N), selection %.1f us (svo_select_s / N; most instances far, a few voxels each).\n",
            last_n, last.pose_s / (double)last_n * 1e6, last.select_s / (double)last_n * 1e6);

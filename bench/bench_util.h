@@ -9,6 +9,7 @@
 #define MR_BENCH_UTIL_H
 
 #include <dirent.h>
+#include <math.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -150,6 +151,27 @@ static inline double bench_mem_available(void)
             break;
     fclose(f);
     return kib * 1024.0;
+}
+
+/* The growth exponent b of y ~ x^b: the least-squares slope of log y
+ * against log x over the pairs with both positive (NAN with fewer than
+ * two). 1 is linear, 0 flat. */
+static inline double bench_growth(const double *x, const double *y, int n)
+{
+    double sx = 0, sy = 0, sxx = 0, sxy = 0;
+    int m = 0;
+    for (int i = 0; i < n; i++) {
+        if (!(x[i] > 0) || !(y[i] > 0))
+            continue;
+        const double lx = log(x[i]), ly = log(y[i]);
+        sx += lx;
+        sy += ly;
+        sxx += lx * lx;
+        sxy += lx * ly;
+        m++;
+    }
+    const double d = m * sxx - sx * sx;
+    return m >= 2 && d > 0 ? (m * sxy - sx * sy) / d : NAN;
 }
 
 /* ---- process memory (Linux /proc; not microray's own accounting) ---- */
