@@ -241,8 +241,9 @@ int mr_fs_read_capped(const char *path, uint64_t max, uint8_t **buf, size_t *siz
  * benchmarks): memory freed at the end of a frame stays in the process for
  * the next frame instead of going back to the system and being faulted in
  * again page by page (with glibc; elsewhere these do nothing). Call
- * mr_heap_keep_freed once before rendering and mr_heap_release after a job
- * to hand back what is free. Process-wide: a library host decides. */
+ * mr_heap_keep_freed once before rendering and mr_heap_release after a job:
+ * it hands back what is free once that passes 256 MiB (less is kept for
+ * the next job). Process-wide: a library host decides. */
 void mr_heap_keep_freed(void);
 void mr_heap_release(void);
 
