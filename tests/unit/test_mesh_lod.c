@@ -37,11 +37,13 @@
 #include <string.h>
 
 #include "../support/bcn_fixture.h"
+#include "../support/file_fixture.h"
 #include "../support/film_fixture.h"
 #include "../support/lod_fixture.h"
 #include "job_json.h"
 #include "kinds/lod.h"
 #include "kinds/mesh/mesh_lod.h"
+#include "kinds/mesh/mesh_lod_file.h"
 #include "kinds/svo/voxelize.h"
 #include "render/renderer.h"
 
@@ -358,6 +360,116 @@ static void test_flythrough_still(void **state)
     flythrough(true, 2.0);
 }
 
+/* Every field of two chains over the same mesh, bit for bit. */
+static void assert_same_chain(const mr_mesh_lod *a, const mr_mesh_lod *b)
+{
+    assert_int_equal(a->level_count, b->level_count);
+    assert_int_equal(a->distinct_count, b->distinct_count);
+    assert_memory_equal(a->distinct, b->distinct, (size_t)a->distinct_count * sizeof(uint32_t));
+    for (uint32_t k = 0; k < a->level_count; k++) {
+        assert_int_equal(a->triangles[k], b->triangles[k]);
+        assert_memory_equal(&a->error[k], &b->error[k], sizeof(double));
+        assert_memory_equal(a->indices[k], b->indices[k], (size_t)a->triangles[k] * 3 * sizeof(uint32_t));
+    }
+}
+
+/* The one .mrlod file in dir other than `skip` (NULL: any), malloc'ed path. */
+static char *lod_file(const char *dir, const char *skip)
+{
+    DIR *d = opendir(dir);
+    assert_non_null(d);
+    char *found = NULL;
+    for (struct dirent *e; (e = readdir(d)) && !found;) {
+        size_t n = strlen(e->d_name);
+        if (n > 6 && strcmp(e->d_name + n - 6, ".mrlod") == 0 && (!skip || !strstr(skip, e->d_name))) {
+            found = malloc(strlen(dir) + n + 2);
+            assert_non_null(found);
+            sprintf(found, "%s/%s", dir, e->d_name);
+        }
+    }
+    closedir(d);
+    assert_non_null(found);
+    return found;
+}
+
+static void test_cached_chain(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    merged m = merge(a);
+    /* a "pose": the mesh moved and stretched (what the chain reads of a
+     * pose is its positions) */
+    float *posed = malloc((size_t)m.nv * 3 * sizeof(float)), *posed2 = malloc((size_t)m.nv * 3 * sizeof(float));
+    assert_true(posed && posed2);
+    for (size_t i = 0; i < (size_t)m.nv * 3; i++) {
+        posed[i] = m.pos[i] * (i % 3 == 1 ? 1.25f : 1.0f) + 0.5f;
+        posed2[i] = m.pos[i] * (i % 3 == 0 ? 1.25f : 1.0f);
+    }
+    const float *poses[1] = {posed}, *poses2[1] = {posed2};
+    char dir[128];
+    snprintf(dir, sizeof dir, "%s/mesh", tmp_dir);
+    mr_error err;
+    mr_mesh_lod built, first, again;
+    assert_int_equal(mr_mesh_lod_build(&built, m.pos, m.nrm, m.nv, m.idx, m.nt, 0, "dancer", &err), MR_OK);
+    assert_int_equal(mr_mesh_lod_measure(&built, posed, m.nv, MR_LOD_POSE_STRIDE, 0, "dancer", &err), MR_OK);
+    assert_true(built.level_count >= 3);
+    bool hit = true;
+    assert_int_equal(mr_mesh_lod_cached(dir, &first, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 2, "dancer",
+                                        &hit, &err),
+                     MR_OK);
+    assert_false(hit);
+    assert_same_chain(&first, &built);
+    /* one thread, from the file: the same chain */
+    assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 1, "dancer",
+                                        &hit, &err),
+                     MR_OK);
+    assert_true(hit);
+    assert_same_chain(&again, &built);
+    mr_mesh_lod_free(&again);
+    char *path = lod_file(dir, NULL);
+    /* another pose: another key, its own file */
+    mr_mesh_lod other;
+    assert_int_equal(mr_mesh_lod_cached(dir, &other, m.pos, m.nrm, m.nv, m.idx, m.nt, poses2, 1, 0, "dancer",
+                                        &hit, &err),
+                     MR_OK);
+    assert_false(hit);
+    char *path2 = lod_file(dir, path);
+    assert_string_not_equal(path, path2);
+    mr_mesh_lod_free(&other);
+    /* a payload byte flipped, then the file cut short: each a miss, built
+     * and stored again (the next read hits) */
+    size_t n;
+    uint8_t *bytes = file_get(path, &n);
+    for (int damage = 0; damage < 2; damage++) {
+        if (damage == 0) {
+            bytes[n - 5] ^= 0x40;
+            file_put(path, bytes, n);
+        } else {
+            file_put(path, bytes, n / 2);
+        }
+        assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 0, "dancer",
+                                            &hit, &err),
+                         MR_OK);
+        assert_false(hit);
+        assert_same_chain(&again, &built);
+        mr_mesh_lod_free(&again);
+        assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 0, "dancer",
+                                            &hit, &err),
+                         MR_OK);
+        assert_true(hit);
+        mr_mesh_lod_free(&again);
+    }
+    free(bytes);
+    free(path);
+    free(path2);
+    mr_mesh_lod_free(&first);
+    mr_mesh_lod_free(&built);
+    free(posed);
+    free(posed2);
+    merged_free(&m);
+    mr_asset_free(a);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -367,6 +479,7 @@ int main(void)
         cmocka_unit_test(test_pick_and_stretch),
         cmocka_unit_test(test_flythrough_walking),
         cmocka_unit_test(test_flythrough_still),
+        cmocka_unit_test(test_cached_chain),
     };
-    return cmocka_run_group_tests(tests, NULL, NULL);
+    return cmocka_run_group_tests(tests, file_fixture_setup, file_fixture_teardown);
 }

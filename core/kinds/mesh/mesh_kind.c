@@ -21,7 +21,8 @@
  * coarsest level whose error, projected by the frame's camera at the posed
  * mesh's nearest depth, stays below the tolerance. Primitive ids, normals
  * and the tessellation are the chosen level's; its ground truth is the
- * full mesh (kind.h `reference`).
+ * full mesh (kind.h `reference`). The chain is derived data: kept in the
+ * cache (<cache root>/mesh/, mesh_lod_file.h) and read by later jobs.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -31,6 +32,7 @@
 
 #include "kinds/lod.h"
 #include "kinds/mesh/mesh_lod.h"
+#include "kinds/mesh/mesh_lod_file.h"
 #include "util/clock.h"
 
 struct mr_geom {
@@ -84,32 +86,35 @@ static void mesh_free(mr_geom *g)
     free(g);
 }
 
-/* The levels measured again in the poses of the object's first pose
- * description (mesh_lod.h, mr_mesh_lod_measure; mr_lod_pose_times), when
- * it plays a clip or moves joints. */
-static int measure_in_poses(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
+/* The poses the levels are measured in (mesh_lod.h, mr_mesh_lod_measure;
+ * mr_lod_pose_times): those of the object's first pose description when it
+ * plays a clip or moves joints, as posed positions of every vertex (n
+ * arrays into posed[0..n), malloc'ed; none without a pose). */
+static int lod_poses(const mr_geom *g, const mr_object_desc *desc, unsigned threads,
+                     float *posed[MR_LOD_POSES], uint32_t *n, mr_error *err)
 {
     const mr_asset *a = g->asset;
-    if (!desc || desc->pose_count == 0 || g->lod.level_count < 2)
+    *n = 0;
+    if (!desc || desc->pose_count == 0)
         return MR_OK;
     const mr_pose_desc *d = &desc->poses[0];
     double times[MR_LOD_POSES];
-    uint32_t n = mr_lod_pose_times(a, d, times);
+    const uint32_t count = mr_lod_pose_times(a, d, times);
     mr_pose *pose = NULL;
-    float *posed = malloc(((size_t)g->vertex_count * 3 + 1) * sizeof(float));
-    int rc = posed ? mr_pose_new(a, &pose, err)
-                   : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
-    for (uint32_t j = 0; j < n && rc == MR_OK; j++) {
+    int rc = mr_pose_new(a, &pose, err);
+    for (uint32_t j = 0; j < count && rc == MR_OK; j++) {
+        float *p = malloc(((size_t)g->vertex_count * 3 + 1) * sizeof(float));
+        if (!p) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
+            break;
+        }
+        posed[(*n)++] = p;
         if ((rc = mr_pose_eval(pose, a, d, times[j], err)) < 0)
             break;
         for (size_t i = 0; i < a->mesh_count; i++)
-            mr_skin_mesh(a, i, pose, NULL, posed + (size_t)g->mesh_first_vertex[i] * 3, NULL,
-                         threads);
-        rc = mr_mesh_lod_measure(&g->lod, posed, g->vertex_count, MR_LOD_POSE_STRIDE, threads,
-                                 a->path, err);
+            mr_skin_mesh(a, i, pose, NULL, p + (size_t)g->mesh_first_vertex[i] * 3, NULL, threads);
     }
     mr_pose_free(pose);
-    free(posed);
     return rc;
 }
 
@@ -199,18 +204,22 @@ static int mesh_create(const mr_asset *asset, const mr_object_desc *desc, const 
         }
         double t = mr_now();
         mr_error e;
-        int rc = mr_mesh_lod_build(&g->lod, g->positions, g->normals, g->vertex_count, g->indices,
-                                   g->triangle_count, ctx ? ctx->threads : 0, asset->path, &e);
+        float *posed[MR_LOD_POSES] = {NULL};
+        uint32_t poses = 0;
+        const unsigned threads = ctx ? ctx->threads : 0;
+        int rc = lod_poses(g, desc, threads, posed, &poses, &e);
+        if (rc == MR_OK)
+            rc = mr_mesh_lod_cached(ctx ? ctx->cache_dir : NULL, &g->lod, g->positions, g->normals,
+                                    g->vertex_count, g->indices, g->triangle_count,
+                                    (const float *const *)posed, poses, threads, asset->path, NULL, &e);
+        for (uint32_t j = 0; j < poses; j++)
+            free(posed[j]);
         if (rc < 0) {
             mesh_free(g);
             return mr_error_set(err, rc, "%s", e.msg);
         }
         if (!level_vertex_lists(g))
             goto nomem;
-        if ((rc = measure_in_poses(g, desc, ctx ? ctx->threads : 0, &e)) < 0) {
-            mesh_free(g);
-            return mr_error_set(err, rc, "%s", e.msg);
-        }
         g->lod_build_s = mr_now() - t;
         g->bounds_level = mr_lod_bounds_level(g->lod.error, g->lod.level_count, asset);
     }
@@ -461,6 +470,7 @@ const mr_kind mr_kind_mesh = {
     .name = "mesh",
     .summary = "triangle meshes, skinned or rigid (the default kind)",
     .has_lod = true,
+    .has_derived = true, /* the levels of detail of an object with "tolerance_px" */
     .lod = mesh_lod,
     .stats = MESH_STATS,
     .stat_count = S_COUNT,
