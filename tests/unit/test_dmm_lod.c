@@ -17,7 +17,12 @@
  *  - the tessellation-free object and its exact reference (mode
  *    "tessellated", intersector "watertight") with the same tolerance pick
  *    the same level and render the same pixels, on frames at different
- *    levels.
+ *    levels;
+ *  - the errors through the derived-data cache (dmm_lod.h): the first
+ *    object measures and stores them, a second reads them (a valid file
+ *    with other errors shows it is the file that answers), a damaged file
+ *    is measured again and stored as before, other parameters are another
+ *    key.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -55,7 +60,9 @@
 #include "kinds/kind.h"
 #include "kinds/svo/voxelize.h"
 #include "render/renderer.h"
+#include "util/crc32.h"
 #include "util/file_io.h"
+#include "util/le.h"
 
 /* ---- each level's error ---- */
 
@@ -441,6 +448,91 @@ static void test_reference_picks_the_same_level(void **state)
     mr_asset_free(dancer);
 }
 
+/* The one file in dir whose name ends in ext other than `skip` (NULL:
+ * any), malloc'ed path; NULL when there is none. */
+static char *find_file(const char *dir, const char *ext, const char *skip)
+{
+    DIR *d = opendir(dir);
+    assert_non_null(d);
+    char *found = NULL;
+    const size_t el = strlen(ext);
+    for (struct dirent *e; (e = readdir(d)) && !found;) {
+        const size_t n = strlen(e->d_name);
+        if (n > el && strcmp(e->d_name + n - el, ext) == 0 && (!skip || !strstr(skip, e->d_name))) {
+            found = malloc(strlen(dir) + n + 2);
+            assert_non_null(found);
+            sprintf(found, "%s/%s", dir, e->d_name);
+        }
+    }
+    closedir(d);
+    return found;
+}
+
+static uint32_t levels_of(const mr_asset *a, mr_dmm_params *p, const char *cache, double *error)
+{
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = p, .tolerance_px = 1.0};
+    mr_geom *g = NULL;
+    mr_error err;
+    if (mr_kind_dmm.create(a, &o, &(mr_kind_context){.cache_dir = cache}, &g, &err) < 0)
+        fail_msg("create: %s", err.msg);
+    const uint32_t n = mr_dmm_lod_levels(g, error, NULL);
+    mr_kind_dmm.free(g);
+    return n;
+}
+
+static void test_errors_cached(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    char cache[128];
+    snprintf(cache, sizeof cache, "%s/errors", tmp_dir);
+    mr_dmm_params p = {.level = 2, .base_ratio = 0.0625f, .mode = MR_DMM_INTERPOLATED,
+                       .deform = MR_DMM_DEFORM_INTERPOLATED, .normals = MR_DMM_NORMALS_GEOMETRIC};
+    double measured[MR_UMESH_MAX_LEVEL + 1], again[MR_UMESH_MAX_LEVEL + 1];
+    const uint32_t n = levels_of(a, &p, cache, measured);
+    assert_int_equal(n, 3);
+    char *path = find_file(cache, ".mrdle", NULL);
+    assert_non_null(path);
+    size_t size;
+    uint8_t *bytes = file_get(path, &size);
+    assert_int_equal(size, 104);
+    assert_int_equal(levels_of(a, &p, cache, again), n);
+    assert_memory_equal(again, measured, n * sizeof *again);
+    /* a valid file with another level-0 error: read, not measured */
+    uint8_t *other = malloc(size);
+    assert_non_null(other);
+    memcpy(other, bytes, size);
+    mr_le_put_f64(other + 52, measured[0] * 0.5);
+    mr_crc32_table crc;
+    mr_crc32_init(&crc);
+    mr_le_put_u32(other + 100, mr_crc32(&crc, other, 100));
+    file_put(path, other, size);
+    levels_of(a, &p, cache, again);
+    assert_true(again[0] == measured[0] * 0.5);
+    assert_memory_equal(again + 1, measured + 1, (n - 1) * sizeof *again);
+    /* a damaged one (a byte of an error flipped, the CRC left): measured
+     * again and stored as it was */
+    other[60] ^= 0x10;
+    file_put(path, other, size);
+    levels_of(a, &p, cache, again);
+    assert_memory_equal(again, measured, n * sizeof *again);
+    size_t size2;
+    uint8_t *restored = file_get(path, &size2);
+    assert_int_equal(size2, size);
+    assert_memory_equal(restored, bytes, size);
+    /* other parameters: another key, another file */
+    p.base_ratio = 0.125f;
+    levels_of(a, &p, cache, again);
+    char *path2 = find_file(cache, ".mrdle", path);
+    assert_non_null(path2);
+    free(path2);
+    free(restored);
+    free(other);
+    free(bytes);
+    free(path);
+    mr_asset_free(a);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -449,6 +541,7 @@ int main(void)
         cmocka_unit_test(test_flythrough_still),
         cmocka_unit_test(test_flythrough_walking),
         cmocka_unit_test(test_reference_picks_the_same_level),
+        cmocka_unit_test(test_errors_cached),
     };
     return cmocka_run_group_tests(tests, file_fixture_setup, file_fixture_teardown);
 }

@@ -1288,6 +1288,7 @@ static void level_frame_stats(const dmm_level *g, double *values)
  * reference passes measure it). */
 
 #define LOD_MAX (MR_UMESH_MAX_LEVEL + 1)
+_Static_assert(LOD_MAX == MR_DMM_LOD_FILE_LEVELS, "the errors file holds every level");
 
 struct mr_geom {
     const mr_asset *asset;
@@ -1372,44 +1373,116 @@ static int measure_pose(mr_geom *g, const mr_pose *pose, const float *detail, ui
     return rc;
 }
 
-/* Every level's error (dmm_lod.h): in the rest pose and in the poses (mr_lod_pose_times)
- * of the object's first pose description when it plays a clip or moves
- * joints. The interpolated deformation (and the skinned base mesh) moves a
- * micro-vertex by matrices blended from the base vertices', while the
- * detailed mesh moves each vertex by its own bones: where a base triangle
- * spans a joint the two part, the more the more the joint bends, at every
- * level alike. Then the bounds level. */
-static int measure_levels(mr_geom *g, const mr_object_desc *desc, unsigned threads, mr_error *err)
+/* What measuring the levels reads, for measure_all. */
+typedef struct measure_ctx {
+    mr_geom *g;
+    const float *pos;      /* the merged detailed mesh at rest */
+    const uint32_t *idx;
+    uint32_t nv, nt;
+    mr_pose *poses[MR_LOD_POSES];
+    uint32_t pose_count;
+    unsigned threads;
+} measure_ctx;
+
+/* Every level's error (dmm_lod.h) into errors: in the rest pose and in the
+ * poses of m. The interpolated deformation (and the skinned base mesh)
+ * moves a micro-vertex by matrices blended from the base vertices', while
+ * the detailed mesh moves each vertex by its own bones: where a base
+ * triangle spans a joint the two part, the more the more the joint bends,
+ * at every level alike. A coarser level never promises better than a finer
+ * one. */
+static int measure_all(void *vctx, double *errors, mr_error *err)
 {
+    measure_ctx *m = vctx;
+    mr_geom *g = m->g;
     const mr_asset *a = g->asset;
-    float *pos = NULL, *posed = NULL;
-    uint32_t *idx = NULL, nv = 0, nt = 0;
-    mr_pose *pose = NULL;
-    int rc = rest_detail(a, &pos, &idx, &nv, &nt, err);
-    if (rc == MR_OK)
-        rc = measure_pose(g, NULL, pos, nv, idx, nt, threads, err);
-    const mr_pose_desc *d = desc->pose_count > 0 ? &desc->poses[0] : NULL;
-    double times[MR_LOD_POSES];
-    uint32_t n = mr_lod_pose_times(a, d, times);
-    if (rc == MR_OK && n) {
-        posed = malloc(((size_t)nv * 3 + 1) * sizeof(float));
-        rc = posed ? mr_pose_new(a, &pose, err)
-                   : mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
-    }
-    for (uint32_t j = 0; j < n && rc == MR_OK; j++) {
-        if ((rc = mr_pose_eval(pose, a, d, times[j], err)) < 0)
-            break;
+    for (uint32_t k = 0; k < g->count; k++)
+        g->error[k] = 0;
+    int rc = measure_pose(g, NULL, m->pos, m->nv, m->idx, m->nt, m->threads, err);
+    float *posed = NULL;
+    if (rc == MR_OK && m->pose_count && !(posed = malloc(((size_t)m->nv * 3 + 1) * sizeof(float))))
+        rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
+    for (uint32_t j = 0; j < m->pose_count && rc == MR_OK; j++) {
         size_t at = 0;
         for (size_t i = 0; i < a->mesh_count; i++) {
-            mr_skin_mesh(a, i, pose, NULL, posed + at, NULL, threads);
+            mr_skin_mesh(a, i, m->poses[j], NULL, posed + at, NULL, m->threads);
             at += (size_t)a->meshes[i].vertex_count * 3;
         }
-        rc = measure_pose(g, pose, posed, nv, idx, nt, threads, err);
+        rc = measure_pose(g, m->poses[j], posed, m->nv, m->idx, m->nt, m->threads, err);
     }
-    mr_pose_free(pose);
     free(posed);
-    for (uint32_t k = 1; k < g->count; k++) /* a coarser level never promises better */
+    for (uint32_t k = 1; k < g->count; k++)
         g->error[k] = fmax(g->error[k], g->error[k - 1]);
+    memcpy(errors, g->error, g->count * sizeof *errors);
+    return rc;
+}
+
+/* The key of the levels' errors (dmm_lod.h): everything the bakes and the
+ * measurement read. The asset (nodes; each mesh's node, counts, positions,
+ * normals, triangles and skin), the object's parameters (every level's
+ * bake follows from them) and each measured pose's node transforms (the
+ * detailed and the base mesh are skinned by them, whatever in the job
+ * chose them). */
+static void errors_key(const mr_geom *g, const mr_dmm_params *p, const measure_ctx *m,
+                       uint8_t key[MR_DERIVED_KEY_BYTES])
+{
+    const mr_asset *a = g->asset;
+    mr_derived_key_builder kb;
+    mr_derived_key_begin(&kb, "microray dmm lod errors", MR_DMM_LOD_FILE_VERSION, 1);
+    mr_derived_key_u32(&kb, g->count);
+    mr_derived_key_nodes(&kb, a);
+    mr_derived_key_u64(&kb, a->mesh_count);
+    const unsigned parts = MR_DERIVED_POSITIONS | MR_DERIVED_NORMALS | MR_DERIVED_INDICES | MR_DERIVED_SKIN;
+    for (size_t i = 0; i < a->mesh_count; i++) {
+        const mr_mesh *mesh = &a->meshes[i];
+        mr_derived_key_u32(&kb, (uint32_t)mesh->node);
+        mr_derived_key_mesh_counts(&kb, mesh);
+        mr_derived_key_u32(&kb, mr_derived_mesh_parts(mesh, parts));
+        mr_derived_key_mesh_arrays(&kb, mesh, parts);
+    }
+    mr_derived_key_u32(&kb, p->level);
+    mr_derived_key_f32s(&kb, &p->base_ratio, 1);
+    mr_derived_key_u32(&kb, p->base_triangles);
+    mr_derived_key_u32(&kb, (uint32_t)p->mode);
+    mr_derived_key_u32(&kb, (uint32_t)p->deform);
+    mr_derived_key_u32(&kb, (uint32_t)p->normals);
+    mr_derived_key_u32(&kb, (uint32_t)p->levels);
+    mr_derived_key_u32(&kb, (uint32_t)p->intersector);
+    mr_derived_key_u32(&kb, m->pose_count);
+    for (uint32_t j = 0; j < m->pose_count; j++)
+        for (size_t n = 0; n < m->poses[j]->node_count; n++)
+            mr_derived_key_f32s(&kb, m->poses[j]->global[n].m, 16);
+    mr_derived_key_end(&kb, key);
+}
+
+/* Every level's error, measured (measure_all) or read from the cache, in
+ * the poses (mr_lod_pose_times) of the object's first pose description
+ * when it plays a clip or moves joints; then the bounds level. */
+static int measure_levels(mr_geom *g, const mr_object_desc *desc, const mr_kind_context *ctx, mr_error *err)
+{
+    const mr_asset *a = g->asset;
+    float *pos = NULL;
+    uint32_t *idx = NULL;
+    measure_ctx m = {.g = g, .threads = ctx ? ctx->threads : 0};
+    int rc = rest_detail(a, &pos, &idx, &m.nv, &m.nt, err);
+    m.pos = pos;
+    m.idx = idx;
+    const mr_pose_desc *d = desc->pose_count > 0 ? &desc->poses[0] : NULL;
+    double times[MR_LOD_POSES];
+    const uint32_t n = mr_lod_pose_times(a, d, times);
+    for (uint32_t j = 0; j < n && rc == MR_OK; j++)
+        if ((rc = mr_pose_new(a, &m.poses[j], err)) == MR_OK) {
+            m.pose_count++;
+            rc = mr_pose_eval(m.poses[j], a, d, times[j], err);
+        }
+    if (rc == MR_OK) {
+        uint8_t key[MR_DERIVED_KEY_BYTES];
+        errors_key(g, desc->params, &m, key);
+        rc = mr_dmm_lod_errors_cached(ctx ? ctx->cache_dir : NULL, key, g->count, g->error, measure_all, &m,
+                                      NULL, err);
+    }
+    for (uint32_t j = 0; j < m.pose_count; j++)
+        mr_pose_free(m.poses[j]);
     if (rc == MR_OK)
         g->bounds_level = mr_lod_bounds_level(g->error, g->count, a);
     free(pos);
@@ -1446,7 +1519,7 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
     }
     if (g->count > 1) {
         double t = mr_now();
-        if ((rc = measure_levels(g, desc, ctx ? ctx->threads : 0, err)) < 0) {
+        if ((rc = measure_levels(g, desc, ctx, err)) < 0) {
             dmm_free(g);
             return rc;
         }

@@ -8,6 +8,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "util/le.h"
+
 int mr_dmm_lod_truth_init(mr_dmm_lod_truth *t, const float *pos, uint32_t nv, const uint32_t *idx,
                           uint32_t nt, const char *who, mr_error *err)
 {
@@ -135,4 +137,92 @@ int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv
     }
     free(used);
     return rc;
+}
+
+/* ---- the errors in the derived-data cache ---- */
+
+#define LOD_HEAD 104u /* errors end at 52 + 8 * 6 = 100, then the CRC */
+#define AT_COUNT 16u
+#define AT_KEY 20u
+#define AT_ERRORS 52u
+
+static const mr_derived_format ERRORS_FORMAT = {
+    .name = "dmm lod errors file",
+    .ext = "mrdle",
+    .magic = {'M', 'R', 'D', 'L', 'E', '\0', '\r', '\n'},
+    .version = MR_DMM_LOD_FILE_VERSION,
+    .header_bytes = LOD_HEAD,
+    .key_at = AT_KEY,
+    .max_bytes = LOD_HEAD,
+};
+
+typedef struct errors_request {
+    uint32_t count;
+    double *errors;
+    int (*measure)(void *ctx, double *errors, mr_error *err);
+    void *ctx;
+} errors_request;
+
+static int errors_parse(void *vctx, const uint8_t *buf, size_t size, mr_error *err)
+{
+    errors_request *q = vctx;
+    const mr_derived_format *f = &ERRORS_FORMAT;
+    if (size != LOD_HEAD)
+        return mr_derived_bad(f, err, "%zu bytes (the header's %u and nothing after it)", size, LOD_HEAD);
+    const uint32_t count = mr_le_get_u32(buf + AT_COUNT);
+    if (count != q->count)
+        return mr_derived_bad(f, err, "%u levels at byte offset %u (want %u)", count, AT_COUNT, q->count);
+    double e[MR_DMM_LOD_FILE_LEVELS];
+    for (uint32_t k = 0; k < count; k++) {
+        e[k] = mr_le_get_f64(buf + AT_ERRORS + 8 * k);
+        if (!isfinite(e[k]) || e[k] < 0.0 || (k > 0 && e[k] < e[k - 1]))
+            return mr_derived_bad(f, err, "level %u error %g at byte offset %u", k, e[k], AT_ERRORS + 8 * k);
+    }
+    memcpy(q->errors, e, count * sizeof *e);
+    return MR_OK;
+}
+
+static int errors_serialise(void *vctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t **out,
+                            size_t *out_size, mr_error *err)
+{
+    errors_request *q = vctx;
+    uint8_t *buf = NULL;
+    mr_derived_reader *check = NULL;
+    int rc = mr_derived_buffer(&ERRORS_FORMAT, LOD_HEAD, &buf, &check, err);
+    if (rc < 0)
+        return rc;
+    mr_le_put_u32(buf + AT_COUNT, q->count);
+    for (uint32_t k = 0; k < q->count; k++)
+        mr_le_put_f64(buf + AT_ERRORS + 8 * k, q->errors[k]);
+    mr_derived_header_seal(&ERRORS_FORMAT, &check->crc, key, buf);
+    free(check);
+    double back[MR_DMM_LOD_FILE_LEVELS];
+    errors_request readback = *q;
+    readback.errors = back;
+    if ((rc = errors_parse(&readback, buf, LOD_HEAD, err)) < 0) {
+        free(buf);
+        return mr_derived_readback_failed(&ERRORS_FORMAT, rc, err);
+    }
+    *out = buf;
+    *out_size = LOD_HEAD;
+    return MR_OK;
+}
+
+static int errors_build(void *vctx, mr_error *err)
+{
+    errors_request *q = vctx;
+    return q->measure(q->ctx, q->errors, err);
+}
+
+static const mr_derived_ops ERRORS_OPS = {errors_parse, errors_serialise, errors_build};
+
+int mr_dmm_lod_errors_cached(const char *cache_dir, const uint8_t key[MR_DERIVED_KEY_BYTES], uint32_t count,
+                             double *errors, int (*measure)(void *ctx, double *errors, mr_error *err),
+                             void *ctx, bool *hit, mr_error *err)
+{
+    if (count < 1 || count > MR_DMM_LOD_FILE_LEVELS)
+        return mr_error_set(err, MR_ERR_INVALID, "dmm lod errors: %u levels (1..%u)", count,
+                            MR_DMM_LOD_FILE_LEVELS);
+    errors_request q = {count, errors, measure, ctx};
+    return mr_derived_get(cache_dir, key, &ERRORS_FORMAT, &ERRORS_OPS, &q, hit, err);
 }

@@ -27,9 +27,11 @@
 #ifndef MR_DMM_LOD_H
 #define MR_DMM_LOD_H
 
+#include <stdbool.h>
 #include <stdint.h>
 
 #include "math/closest_mesh.h"
+#include "util/derived.h"
 #include "microray.h"
 
 /* The detailed mesh a level is measured against: the caller's positions
@@ -56,5 +58,26 @@ void mr_dmm_lod_truth_free(mr_dmm_lod_truth *t);
 int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv,
                         const uint32_t *idx, uint32_t nt, uint32_t stride, unsigned threads,
                         const char *who, double *out, mr_error *err);
+
+/* ---- the errors in the derived-data cache ----
+ * Measuring a dmm object's levels takes seconds (1.4 s for the skinned
+ * dancer's 4 levels, rest and 4 poses); the errors are kept in
+ * <cache root>/dmm/<key>.mrdle and read by a later job with the same key.
+ * The caller's key holds everything the measurement reads (dmm_kind.c:
+ * the asset, the object's parameters, each measured pose's node
+ * transforms). File (little-endian), a header of 104 bytes and nothing
+ * else: magic "MRDLE\0\r\n", version (1) at 8, header bytes (104) at 12,
+ * the level count (1..MR_DMM_LOD_FILE_LEVELS) at 16, the key at 20, the
+ * errors (f64, finest first, finite, >= 0 and never shrinking) at 52, zeros
+ * after the last, the header CRC-32 at 100. */
+#define MR_DMM_LOD_FILE_VERSION 1u
+#define MR_DMM_LOD_FILE_LEVELS 6u
+
+/* count errors for key: read from cache_dir when a file there has them,
+ * else measure(ctx, errors, err) and store them there (cache_dir NULL:
+ * measured only). *hit (may be NULL) says which; errors are measure's. */
+int mr_dmm_lod_errors_cached(const char *cache_dir, const uint8_t key[MR_DERIVED_KEY_BYTES], uint32_t count,
+                             double *errors, int (*measure)(void *ctx, double *errors, mr_error *err),
+                             void *ctx, bool *hit, mr_error *err);
 
 #endif
