@@ -9,6 +9,9 @@
 #define MR_USER_RAYS_H
 
 #include <embree3/rtcore.h>
+#include <math.h>
+#include <stdbool.h>
+#include <string.h>
 
 #include "math/mr_math.h"
 
@@ -42,5 +45,52 @@ static inline void mr_ray_write_hit(const struct RTCIntersectFunctionNArguments 
     *mr_ray_u(hit, N, MR_HIT_GEOM, i) = args->geomID;
     *mr_ray_u(hit, N, MR_HIT_INST, i) = args->context->instID[0];
 }
+
+/* Origin and direction of ray i (x, y, z each), as read from its packet. */
+typedef struct mr_ray_key {
+    float v[6];
+} mr_ray_key;
+
+static inline mr_ray_key mr_ray_key_of(void *ray, unsigned N, unsigned i)
+{
+    mr_ray_key k;
+    for (unsigned c = 0; c < 3; c++) {
+        k.v[c] = *mr_ray_f(ray, N, MR_RAY_ORG + c, i);
+        k.v[3 + c] = *mr_ray_f(ray, N, MR_RAY_DIR + c, i);
+    }
+    return k;
+}
+
+/* A direction that can hit something: not zero, every component finite. */
+static inline bool mr_ray_key_dir_ok(const mr_ray_key *k)
+{
+    const float *d = k->v + 3;
+    return (d[0] != 0 || d[1] != 0 || d[2] != 0) && isfinite(d[0]) && isfinite(d[1]) && isfinite(d[2]);
+}
+
+/* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
+ * ray i of an N-packet set up by setup(origin, direction) into *out; false
+ * when its direction cannot hit anything. Embree enters a ray's (or a
+ * packet's) primitives one after another, so each thread keeps the last
+ * set-up of each of `lanes` lanes and redoes it only when the lane's origin
+ * or direction changed (a set-up is a pure function of the two). */
+#define MR_RAY_SETUP_CACHE(name, type, setup, lanes)                                              \
+    static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
+    {                                                                                             \
+        static _Thread_local struct {                                                             \
+            mr_ray_key key;                                                                       \
+            type r;                                                                               \
+        } last[lanes];                                                                            \
+        const mr_ray_key k = mr_ray_key_of(ray, N, i);                                            \
+        if (!mr_ray_key_dir_ok(&k))                                                               \
+            return false;                                                                         \
+        const unsigned lane = i % (lanes);                                                        \
+        if (memcmp(&k, &last[lane].key, sizeof k) != 0) {                                         \
+            last[lane].r = setup(mr_v3(k.v[0], k.v[1], k.v[2]), mr_v3(k.v[3], k.v[4], k.v[5]));   \
+            last[lane].key = k;                                                                   \
+        }                                                                                         \
+        *out = last[lane].r;                                                                      \
+        return true;                                                                              \
+    }
 
 #endif

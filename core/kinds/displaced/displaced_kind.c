@@ -711,32 +711,8 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
     o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
 }
 
-/* Ray i of an N-packet set up for the traversal; false when its direction
- * is zero or not finite (it hits nothing). Embree enters a ray's (or a
- * packet's) triangles one after another: the last set-up (reciprocals, the
- * watertight test's shear) of each lane is kept per thread. */
-static bool ray_setup(void *ray, unsigned N, unsigned i, mr_dray *out)
-{
-    static _Thread_local struct {
-        float key[6];
-        mr_dray r;
-    } last[MR_DPACKET_MAX];
-    float key[6];
-    for (int c = 0; c < 3; c++) {
-        key[c] = *mr_ray_f(ray, N, MR_RAY_ORG + c, i);
-        key[3 + c] = *mr_ray_f(ray, N, MR_RAY_DIR + c, i);
-    }
-    mr_vec3 d = mr_v3(key[3], key[4], key[5]);
-    if ((d.x == 0 && d.y == 0 && d.z == 0) || !isfinite(d.x) || !isfinite(d.y) || !isfinite(d.z))
-        return false;
-    unsigned lane = i % MR_DPACKET_MAX;
-    if (memcmp(key, last[lane].key, sizeof key)) {
-        last[lane].r = mr_dray_setup(mr_v3(key[0], key[1], key[2]), d);
-        memcpy(last[lane].key, key, sizeof key);
-    }
-    *out = last[lane].r;
-    return true;
-}
+/* Ray i of an N-packet set up for the traversal (user_rays.h). */
+MR_RAY_SETUP_CACHE(ray_setup, mr_dray, mr_dray_setup, MR_DPACKET_MAX)
 
 static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
                       mr_dhit *h, mr_dstats *st)

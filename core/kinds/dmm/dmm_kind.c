@@ -855,11 +855,8 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
     o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
 }
 
-static bool ray_ok(mr_vec3 dir)
-{
-    return (dir.x != 0 || dir.y != 0 || dir.z != 0) && isfinite(dir.x) && isfinite(dir.y) &&
-           isfinite(dir.z);
-}
+/* Ray i of an N-packet set up for the traversal (user_rays.h). */
+MR_RAY_SETUP_CACHE(ray_setup, mr_dmm_ray, mr_dmm_ray_setup, MR_DMM_PACKET_MAX)
 
 /* Traces ray i of an N-packet against base triangle t (patch p): the
  * traversal, or the watertight reference's test of every micro-triangle;
@@ -867,13 +864,9 @@ static bool ray_ok(mr_vec3 dir)
 static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
                       unsigned i, bool take_tmax, bool any_hit, mr_dmm_hit *h)
 {
-    mr_vec3 org = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i), *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),
-                        *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));
-    mr_vec3 dir = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i), *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),
-                        *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));
-    if (!ray_ok(dir))
+    mr_dmm_ray r;
+    if (!ray_setup(ray, N, i, &r))
         return false;
-    mr_dmm_ray r = mr_dmm_ray_setup(org, dir);
     float *tfar = mr_ray_f(ray, N, MR_RAY_TFAR, i);
     float tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
     if (watertight_reference(g)) {
@@ -934,13 +927,8 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
             continue;
         }
         /* the traversal: the packet's rays together */
-        mr_vec3 dir = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i), *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),
-                            *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));
-        if (!ray_ok(dir))
+        if (!ray_setup(ray, N, i, &b.r[b.n]))
             continue;
-        mr_vec3 org = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i), *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),
-                            *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));
-        b.r[b.n] = mr_dmm_ray_setup(org, dir);
         b.lane[b.n] = i;
         b.tmin[b.n] = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
         b.tmax[b.n] = mr_ray_f(ray, N, MR_RAY_TFAR, i);
@@ -969,21 +957,12 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     ray_batch b;
     b.n = 0;
     for (unsigned i = 0; i <= N; i++) {
-        if (i < N && args->valid[i] == -1) {
-            mr_vec3 dir = mr_v3(*mr_ray_f(args->ray, N, MR_RAY_DIR, i),
-                                *mr_ray_f(args->ray, N, MR_RAY_DIR + 1, i),
-                                *mr_ray_f(args->ray, N, MR_RAY_DIR + 2, i));
-            if (ray_ok(dir)) {
-                mr_vec3 org = mr_v3(*mr_ray_f(args->ray, N, MR_RAY_ORG, i),
-                                    *mr_ray_f(args->ray, N, MR_RAY_ORG + 1, i),
-                                    *mr_ray_f(args->ray, N, MR_RAY_ORG + 2, i));
-                b.r[b.n] = mr_dmm_ray_setup(org, dir);
-                b.lane[b.n] = i;
-                b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
-                b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
-                b.take_tmax[b.n] = true;
-                b.n++;
-            }
+        if (i < N && args->valid[i] == -1 && ray_setup(args->ray, N, i, &b.r[b.n])) {
+            b.lane[b.n] = i;
+            b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
+            b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
+            b.take_tmax[b.n] = true;
+            b.n++;
         }
         if (b.n == MR_DMM_PACKET_MAX || (i == N && b.n)) {
             uint32_t hm = mr_dmm_intersect_packet(&p, b.n, b.r, b.tmin, b.tmax, b.take_tmax, true,
