@@ -11,7 +11,7 @@
 #include <embree3/rtcore.h>
 #include <math.h>
 #include <stdbool.h>
-#include <string.h>
+#include <stdint.h>
 
 #include "math/mr_math.h"
 
@@ -46,26 +46,39 @@ static inline void mr_ray_write_hit(const struct RTCIntersectFunctionNArguments 
     *mr_ray_u(hit, N, MR_HIT_INST, i) = args->context->instID[0];
 }
 
-/* Origin and direction of ray i (x, y, z each), as read from its packet. */
+/* Origin and direction of a ray (x, y, z each) as bit patterns. */
 typedef struct mr_ray_key {
-    float v[6];
+    uint32_t bits[6];
 } mr_ray_key;
+
+/* Whether ray i of an N-packet has the origin and direction of k, bit for
+ * bit: read straight from the packet and compared field by field (a key
+ * assembled on the stack first and compared whole stalls the load on the
+ * stores that made it). */
+static inline bool mr_ray_key_matches(void *ray, unsigned N, unsigned i, const mr_ray_key *k)
+{
+    bool same = true;
+    for (unsigned c = 0; c < 3; c++) {
+        same &= *mr_ray_u(ray, N, MR_RAY_ORG + c, i) == k->bits[c];
+        same &= *mr_ray_u(ray, N, MR_RAY_DIR + c, i) == k->bits[3 + c];
+    }
+    return same;
+}
 
 static inline mr_ray_key mr_ray_key_of(void *ray, unsigned N, unsigned i)
 {
     mr_ray_key k;
     for (unsigned c = 0; c < 3; c++) {
-        k.v[c] = *mr_ray_f(ray, N, MR_RAY_ORG + c, i);
-        k.v[3 + c] = *mr_ray_f(ray, N, MR_RAY_DIR + c, i);
+        k.bits[c] = *mr_ray_u(ray, N, MR_RAY_ORG + c, i);
+        k.bits[3 + c] = *mr_ray_u(ray, N, MR_RAY_DIR + c, i);
     }
     return k;
 }
 
 /* A direction that can hit something: not zero, every component finite. */
-static inline bool mr_ray_key_dir_ok(const mr_ray_key *k)
+static inline bool mr_ray_dir_ok(mr_vec3 d)
 {
-    const float *d = k->v + 3;
-    return (d[0] != 0 || d[1] != 0 || d[2] != 0) && isfinite(d[0]) && isfinite(d[1]) && isfinite(d[2]);
+    return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
 }
 
 /* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
@@ -73,21 +86,29 @@ static inline bool mr_ray_key_dir_ok(const mr_ray_key *k)
  * when its direction cannot hit anything. Embree enters a ray's (or a
  * packet's) primitives one after another, so each thread keeps the last
  * set-up of each of `lanes` lanes and redoes it only when the lane's origin
- * or direction changed (a set-up is a pure function of the two). */
+ * or direction changed (a set-up is a pure function of the two; a ray that
+ * cannot hit is never kept, so a kept one needs no check). */
 #define MR_RAY_SETUP_CACHE(name, type, setup, lanes)                                              \
     static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
     {                                                                                             \
         static _Thread_local struct {                                                             \
             mr_ray_key key;                                                                       \
+            bool kept;                                                                            \
             type r;                                                                               \
         } last[lanes];                                                                            \
-        const mr_ray_key k = mr_ray_key_of(ray, N, i);                                            \
-        if (!mr_ray_key_dir_ok(&k))                                                               \
-            return false;                                                                         \
         const unsigned lane = i % (lanes);                                                        \
-        if (memcmp(&k, &last[lane].key, sizeof k) != 0) {                                         \
-            last[lane].r = setup(mr_v3(k.v[0], k.v[1], k.v[2]), mr_v3(k.v[3], k.v[4], k.v[5]));   \
-            last[lane].key = k;                                                                   \
+        if (!last[lane].kept || !mr_ray_key_matches(ray, N, i, &last[lane].key)) {                \
+            const mr_vec3 o = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i),                             \
+                                    *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),                         \
+                                    *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));                        \
+            const mr_vec3 d = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i),                             \
+                                    *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),                         \
+                                    *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));                        \
+            if (!mr_ray_dir_ok(d))                                                                \
+                return false;                                                                     \
+            last[lane].r = setup(o, d);                                                           \
+            last[lane].key = mr_ray_key_of(ray, N, i);                                            \
+            last[lane].kept = true;                                                               \
         }                                                                                         \
         *out = last[lane].r;                                                                      \
         return true;                                                                              \
