@@ -98,8 +98,12 @@ static void skin_range(void *ctx, size_t begin, size_t end, unsigned worker)
         if (c->out_p)
             put(c->out_p, i, mr_mat4_point(M, p));
         if (c->out_n || c->out_t) {
-            mr_vec3 fallback = mr_v3_normalize_or(n, mr_v3(0, 0, 1));
-            mr_vec3 moved = mr_v3_normalize_or(mr_mat4_dir(N, n), fallback);
+            /* the bind normal (normalised) where the moved one collapses:
+             * made only then */
+            const mr_vec3 nan3 = mr_v3(NAN, NAN, NAN);
+            mr_vec3 moved = mr_v3_normalize_or(mr_mat4_dir(N, n), nan3);
+            if (isnan(moved.x))
+                moved = mr_v3_normalize_or(n, mr_v3(0, 0, 1));
             if (c->out_n)
                 put(c->out_n, i, moved);
             if (c->out_t) {

@@ -10,14 +10,6 @@
 
 #include <float.h>
 
-mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback)
-{
-    float len = mr_v3_len(a);
-    if (!(len > 0.0f) || !isfinite(len))
-        return fallback;
-    return mr_v3_scale(a, 1.0f / len);
-}
-
 mr_vec3 mr_v3_any_orthogonal(mr_vec3 n)
 {
     float ax = fabsf(n.x), ay = fabsf(n.y), az = fabsf(n.z);
@@ -115,14 +107,6 @@ mr_vec3 mr_mat4_point(const mr_mat4 *a, mr_vec3 p)
     return mr_v3(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
                  m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
                  m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
-}
-
-mr_vec3 mr_mat4_dir(const mr_mat4 *a, mr_vec3 d)
-{
-    const float *m = a->m;
-    return mr_v3(m[0] * d.x + m[1] * d.y + m[2] * d.z,
-                 m[4] * d.x + m[5] * d.y + m[6] * d.z,
-                 m[8] * d.x + m[9] * d.y + m[10] * d.z);
 }
 
 mr_mat4 mr_mat4_normal_matrix(const mr_mat4 *a)

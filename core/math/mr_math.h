@@ -68,8 +68,15 @@ static inline mr_vec3 mr_v3_lerp(mr_vec3 a, mr_vec3 b, float t)
 static inline mr_vec3 mr_v3_min(mr_vec3 a, mr_vec3 b) { return mr_v3(fminf(a.x, b.x), fminf(a.y, b.y), fminf(a.z, b.z)); }
 static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z)); }
 
-/* Unit vector along a; returns fallback when |a| is zero or not finite. */
-mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback);
+/* Unit vector along a; returns fallback when |a| is zero or not finite.
+ * (Inline, like mr_mat4_dir: skinning calls both for every vertex.) */
+static inline mr_vec3 mr_v3_normalize_or(mr_vec3 a, mr_vec3 fallback)
+{
+    float len = mr_v3_len(a);
+    if (!(len > 0.0f) || !isfinite(len))
+        return fallback;
+    return mr_v3_scale(a, 1.0f / len);
+}
 /* A unit vector orthogonal to the unit vector n: n crossed with the
  * coordinate axis least aligned with it (a fixed choice, so the same n
  * gives the same bits). */
@@ -102,7 +109,13 @@ static inline mr_vec3 mr_v3_tangent_to(mr_vec3 t, mr_vec3 n, bool any_if_lost)
 
 mr_mat4 mr_mat4_mul(const mr_mat4 *a, const mr_mat4 *b);
 mr_mat4 mr_mat4_transpose(const mr_mat4 *a);
-mr_vec3 mr_mat4_dir(const mr_mat4 *a, mr_vec3 d);    /* w = 0 */
+/* w = 0 */
+static inline mr_vec3 mr_mat4_dir(const mr_mat4 *a, mr_vec3 d)
+{
+    const float *m = a->m;
+    return mr_v3(m[0] * d.x + m[1] * d.y + m[2] * d.z, m[4] * d.x + m[5] * d.y + m[6] * d.z,
+                 m[8] * d.x + m[9] * d.y + m[10] * d.z);
+}
 /* Matrix that maps normals for transform a: inverse transpose of its linear
  * part, scaled by |det| so it also works for singular-ish skinning blends
  * (the cofactor matrix). Only the upper 3x3 is meaningful. Callers normalise. */
