@@ -392,6 +392,19 @@ static char *lod_file(const char *dir, const char *skip)
     return found;
 }
 
+/* The chain of m measured in the one pose poses[0], through the cache in
+ * dir on `threads` threads; whether it was read from a file. */
+static bool cached(const char *dir, mr_mesh_lod *out, const merged *m, const float *const *poses,
+                   unsigned threads)
+{
+    bool hit = false;
+    mr_error err;
+    if (mr_mesh_lod_cached(dir, out, m->pos, m->nrm, m->nv, m->idx, m->nt, poses, 1, threads, "dancer", &hit,
+                           &err) < 0)
+        fail_msg("%s", err.msg);
+    return hit;
+}
+
 static void test_cached_chain(void **state)
 {
     (void)state;
@@ -413,26 +426,16 @@ static void test_cached_chain(void **state)
     assert_int_equal(mr_mesh_lod_build(&built, m.pos, m.nrm, m.nv, m.idx, m.nt, 0, "dancer", &err), MR_OK);
     assert_int_equal(mr_mesh_lod_measure(&built, posed, m.nv, MR_LOD_POSE_STRIDE, 0, "dancer", &err), MR_OK);
     assert_true(built.level_count >= 3);
-    bool hit = true;
-    assert_int_equal(mr_mesh_lod_cached(dir, &first, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 2, "dancer",
-                                        &hit, &err),
-                     MR_OK);
-    assert_false(hit);
+    assert_false(cached(dir, &first, &m, poses, 2));
     assert_same_chain(&first, &built);
     /* one thread, from the file: the same chain */
-    assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 1, "dancer",
-                                        &hit, &err),
-                     MR_OK);
-    assert_true(hit);
+    assert_true(cached(dir, &again, &m, poses, 1));
     assert_same_chain(&again, &built);
     mr_mesh_lod_free(&again);
     char *path = lod_file(dir, NULL);
     /* another pose: another key, its own file */
     mr_mesh_lod other;
-    assert_int_equal(mr_mesh_lod_cached(dir, &other, m.pos, m.nrm, m.nv, m.idx, m.nt, poses2, 1, 0, "dancer",
-                                        &hit, &err),
-                     MR_OK);
-    assert_false(hit);
+    assert_false(cached(dir, &other, &m, poses2, 0));
     char *path2 = lod_file(dir, path);
     assert_string_not_equal(path, path2);
     mr_mesh_lod_free(&other);
@@ -447,16 +450,10 @@ static void test_cached_chain(void **state)
         } else {
             file_put(path, bytes, n / 2);
         }
-        assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 0, "dancer",
-                                            &hit, &err),
-                         MR_OK);
-        assert_false(hit);
+        assert_false(cached(dir, &again, &m, poses, 0));
         assert_same_chain(&again, &built);
         mr_mesh_lod_free(&again);
-        assert_int_equal(mr_mesh_lod_cached(dir, &again, m.pos, m.nrm, m.nv, m.idx, m.nt, poses, 1, 0, "dancer",
-                                            &hit, &err),
-                         MR_OK);
-        assert_true(hit);
+        assert_true(cached(dir, &again, &m, poses, 0));
         mr_mesh_lod_free(&again);
     }
     free(bytes);
