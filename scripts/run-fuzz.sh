@@ -113,7 +113,9 @@ for name in "${names[@]}"; do
       -artifact_prefix="$FUZZ/artifacts/$name/" "$FUZZ/work/$name" "${seeds[@]}" >"$log" 2>&1
     rc=$?
     cat "$log" >>"$FUZZ/logs/$name.all.log"
-    r=$(grep -oE 'stat::number_of_executed_units:[[:space:]]+[0-9]+' "$log" | grep -oE '[0-9]+$')
+    # (libFuzzer can print its final stats twice, e.g. once per worker
+    # thread's exit: the last figure counts)
+    r=$(grep -oE 'stat::number_of_executed_units:[[:space:]]+[0-9]+' "$log" | grep -oE '[0-9]+$' | tail -n 1)
     runs_total=$((runs_total + ${r:-0}))
     [ $rc -ne 0 ] && [ -n "$tolerate" ] && library_crash "$log" "$tolerate" || break
     lib_crashes=$((lib_crashes + 1))
@@ -133,7 +135,7 @@ for name in "${names[@]}"; do
   [ -n "$done_line" ] || done_line=$(grep -E '^#[0-9]+[[:space:]].* cov: ' "$FUZZ/logs/$name.all.log" | tail -n 1)
   runs=$runs_total
   rate=$((runs_total / (end - start > 0 ? end - start : 1)))
-  rss=$(grep -oE 'stat::peak_rss_mb:[[:space:]]+[0-9]+' "$log" | grep -oE '[0-9]+$')
+  rss=$(grep -oE 'stat::peak_rss_mb:[[:space:]]+[0-9]+' "$log" | grep -oE '[0-9]+$' | tail -n 1)
   cov=$(sed -nE 's/.* cov: ([0-9]+).*/\1/p' <<<"$done_line")
   ft=$(sed -nE 's/.* ft: ([0-9]+).*/\1/p' <<<"$done_line")
   corp=$(sed -nE 's/.* corp: ([0-9]+)\/.*/\1/p' <<<"$done_line")

@@ -671,13 +671,15 @@ static void test_crash_loop_gives_up(void **state)
     (void)state;
     daemon_proc saved = D;
     daemon_start(&D, "poison");
-    /* one frame slow enough (1280x720, 512 samples: about 10 s here) to
-     * be killed mid-frame */
-    char *job = fx_small_job(0, 1280, "\"max_retries\":1,"), id[64], slow[4200];
+    /* one frame slow enough to be killed mid-frame, 1.5 s after it
+     * started, on any machine: 1920x1080, 1024 samples takes about 5 s on
+     * the 2026-12 machine (1280x720 at 512 took 10 s on an earlier one, but
+     * only 1.2 s there: it finished before the kill) */
+    char *job = fx_small_job(0, 1920, "\"max_retries\":1,"), id[64], slow[4200];
     char *spp = strstr(job, "\"samples\":1}");
     assert_non_null(spp);
     *spp = '\0';
-    snprintf(slow, sizeof slow, "%s\"samples\":512}}", job);
+    snprintf(slow, sizeof slow, "%s\"samples\":1024}}", job);
     free(job);
     fx_submit(&D, slow, id);
     for (int death = 1; death <= 2; death++) {
