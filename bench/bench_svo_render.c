@@ -96,7 +96,9 @@ typedef struct mode_run {
     double update[MAX_FRAMES], bvh[MAX_FRAMES], trace[MAX_FRAMES], mrays[MAX_FRAMES];
     double build_s; /* svo_build_s of the first frame: voxelisation or cache load */
     uint64_t voxels;
-    uint64_t bytes;
+    uint64_t bytes;       /* bytes.geometry + bytes.bvh */
+    double shared;        /* svo_shared_bytes */
+    double scratch;       /* svo_scratch_bytes */
     double worst_cov, worst_depth, worst_normal;
     size_t worst_holes;
 } mode_run;
@@ -131,10 +133,14 @@ static void render(mode_run *m, size_t f, mr_frame_stats *st)
     m->mrays[f] = st->mrays_per_s;
     m->voxels = st->triangles;
     m->bytes = st->geometry_bytes + st->bvh_bytes;
-    if (f == 0)
-        for (uint32_t i = 0; i < st->extra_count; i++)
-            if (!strcmp(st->extras[i].name, "svo_build_s"))
-                m->build_s = st->extras[i].value;
+    for (uint32_t i = 0; i < st->extra_count; i++) {
+        if (f == 0 && !strcmp(st->extras[i].name, "svo_build_s"))
+            m->build_s = st->extras[i].value;
+        if (!strcmp(st->extras[i].name, "svo_scratch_bytes"))
+            m->scratch = st->extras[i].value;
+        if (!strcmp(st->extras[i].name, "svo_shared_bytes"))
+            m->shared = st->extras[i].value;
+    }
 }
 
 static void accumulate(mode_run *m, const mr_film *ref, double diag)
@@ -178,22 +184,26 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
         accumulate(&run[1], rest_ref.film, diag);
     }
     printf("\ndepth %u (%d frames over the clip, 640x360, primary rays)\n", depth, frames);
-    printf("  %-7s %10s %9s %9s %9s %11s %9s %8s %7s %6s %8s\n", "mode", "update ms", "bvh ms",
-           "trace ms", "Mrays/s", "voxels", "B/voxel", "cover %", "depth", "holes", "build s");
+    printf("  %-7s %10s %9s %9s %9s %11s %9s %9s %9s %8s %7s %6s %8s\n", "mode", "update ms", "bvh ms",
+           "trace ms", "Mrays/s", "voxels", "B/voxel", "-shared", "scratch", "cover %", "depth", "holes",
+           "build s");
     double mesh_trace = median(run[0].trace, frames);
     for (int m = 0; m < MODES; m++) {
         mode_run *r = &run[m];
         double up = median(r->update, frames) * 1e3, bvh = median(r->bvh, frames) * 1e3,
                tr = median(r->trace, frames), mr = median(r->mrays, frames);
         if (m == 0)
-            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9s %8s %7s %6s\n", MODE_NAME[m], up,
-                   bvh, tr * 1e3, mr, (unsigned long long)r->voxels, "-", "ref", "-", "-");
-        else
-            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9.1f %8.2f %7.1e %6zu %8.2f   trace "
+            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9s %9s %9s %8s %7s %6s\n", MODE_NAME[m], up,
+                   bvh, tr * 1e3, mr, (unsigned long long)r->voxels, "-", "-", "-", "ref", "-", "-");
+        else {
+            const double v = r->voxels ? (double)r->voxels : 1.0;
+            const double own = ((double)r->bytes - r->shared) / v;
+            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9.1f %9.1f %9.1f %8.2f %7.1e %6zu %8.2f   trace "
                    "x%.1f of mesh\n",
-                   MODE_NAME[m], up, bvh, tr * 1e3, mr, (unsigned long long)r->voxels,
-                   r->voxels ? (double)r->bytes / (double)r->voxels : 0.0, r->worst_cov,
-                   r->worst_depth, r->worst_holes, r->build_s, mesh_trace > 0 ? tr / mesh_trace : 0.0);
+                   MODE_NAME[m], up, bvh, tr * 1e3, mr, (unsigned long long)r->voxels, (double)r->bytes / v,
+                   own, r->scratch / v, r->worst_cov, r->worst_depth, r->worst_holes, r->build_s,
+                   mesh_trace > 0 ? tr / mesh_trace : 0.0);
+        }
     }
     /* the report's curves: a frame's update, build and trace against the
      * coverage error to the skinned triangles (rigid, measured against the
@@ -349,6 +359,10 @@ int main(int argc, char **argv)
     for (int f = 0; f < frames; f++)
         times[f] = dur * (f + 0.5) / frames;
     printf("bench_svo_render: sparse voxel octree instances against skinned triangles\n");
+    printf("voxels: the primitives traced (rigid: the shared octree's leaves; direct: the deformed boxes; "
+           "resize, emit: the rebuilt octree's leaves). B/voxel: (bytes.geometry + bytes.bvh) / voxels; "
+           "-shared: the same without svo_shared_bytes (the source octree and its side data, once per "
+           "object); scratch: svo_scratch_bytes / voxels (the workers' selection and resampling arrays, kept between frames)\n");
     for (unsigned d = 0; d < depth_count; d++)
         run_depth(asset, depths[d], times, frames);
 

@@ -73,6 +73,12 @@ static void resample_ok(const mr_svo_selection *sel, mr_svo_method m, unsigned d
     if (mr_svo_resample(sel, m, depth, src->palette, src->palette_count, threads, out, cells, &err) != MR_OK)
         fail_msg("resample: %s", err.msg);
     assert_null(out->leaf_keys);
+    /* the palette is the source's, shared and not counted again (a copy
+     * per instance was most of what an instance held) */
+    assert_ptr_equal(out->palette, src->palette);
+    assert_true(out->palette_borrowed);
+    assert_int_equal(mr_svo_memory(out), (size_t)out->node_count * (2 * sizeof(uint32_t) + 2) +
+                                             (size_t)out->leaf_count * sizeof(mr_svo_leaf));
 }
 
 static bool covered(const mr_svo *s, float x, float y, float z)

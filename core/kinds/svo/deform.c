@@ -124,7 +124,7 @@ enum {
     WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
-    WS_RS_KEPT, WS_RS_LEAVES, WS_PALETTE,
+    WS_RS_LEAVES, WS_PALETTE,
     WS_SLOTS
 };
 
@@ -185,9 +185,9 @@ static void *ws_get(mr_svo_workspace *ws, int slot, size_t count, size_t elem)
     const size_t need = count * elem;
     if (need <= ws->bytes[slot])
         return ws->p[slot];
-    size_t cap = ws->bytes[slot] ? ws->bytes[slot] : 256;
-    while (cap < need)
-        cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+    /* an eighth more than asked: frames of one scene ask for much the same,
+     * and a power of two would hold up to twice what they use */
+    const size_t cap = need > SIZE_MAX - need / 8 ? need : need + need / 8;
     void *q = malloc(cap);
     if (!q)
         return NULL;
@@ -1304,8 +1304,8 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
         return mr_error_set(err, MR_ERR_LIMIT, "svo resample: more than 2^32 - 1 voxels");
     if (sel->count == 0) {
         /* empty octree over a unit cube, keeping the palette */
-        int rc0 = mr_svo_build(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count, threads, out,
-                               err);
+        int rc0 = mr_svo_build_sharing_palette(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count,
+                                               threads, out, err);
         if (rc0 == MR_OK) {
             free(out->leaf_keys);
             out->leaf_keys = NULL;
@@ -1434,11 +1434,8 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     }
     if (rc != MR_OK)
         goto cleanup;
-    uint32_t *kept_from = ws_get(ws, WS_RS_KEPT, (size_t)total, sizeof *kept_from);
-    if (!kept_from) {
-        rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%llu cells)", (unsigned long long)total);
-        goto cleanup;
-    }
+    /* the payload array the sort did not end in is free now */
+    uint32_t *kept_from = payload == payload2 ? c.payload : payload2;
     size_t kept = 0;
     rc = mr_svo_compact(keys, (size_t)total, depth, kept_from, &kept, err);
     if (rc != MR_OK)
@@ -1450,8 +1447,9 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     }
     for (size_t i = 0; i < kept; i++)
         leaves[i] = sel->leaf[payload[kept_from[i]]];
-    rc = mr_svo_build(keys, leaves, kept, depth, mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]),
-                      size, palette, palette_count, threads, out, err);
+    rc = mr_svo_build_sharing_palette(keys, leaves, kept, depth,
+                                      mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]), size,
+                                      palette, palette_count, threads, out, err);
     if (rc != MR_OK)
         goto cleanup;
     /* the per-frame octree is never re-keyed */

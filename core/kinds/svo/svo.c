@@ -31,7 +31,8 @@ void mr_svo_free(mr_svo *svo)
     free(svo->leaf_mask);
     free(svo->leaves);
     free(svo->leaf_keys);
-    free(svo->palette);
+    if (!svo->palette_borrowed)
+        free(svo->palette);
     memset(svo, 0, sizeof *svo);
 }
 
@@ -52,7 +53,8 @@ size_t mr_svo_memory(const mr_svo *svo)
     bytes += (size_t)svo->leaf_count * sizeof *svo->leaves;
     if (svo->leaf_keys)
         bytes += (size_t)svo->leaf_count * sizeof *svo->leaf_keys;
-    bytes += (size_t)svo->palette_count * sizeof *svo->palette;
+    if (!svo->palette_borrowed)
+        bytes += (size_t)svo->palette_count * sizeof *svo->palette;
     return bytes;
 }
 

@@ -90,13 +90,16 @@ typedef struct mr_svo {
                             * files (svo_file.h) never store it: 16 bytes per leaf, more
                             * than the leaf itself. mr_svo_collect_keys recomputes it */
     mr_svo_attr *palette;  /* palette_count */
+    bool palette_borrowed; /* palette is another octree's (mr_svo_build_sharing_palette):
+                            * never written or freed through this one, not counted by
+                            * mr_svo_memory */
 } mr_svo;
 
 void mr_svo_free(mr_svo *svo);
 /* Frees leaf_keys and sets it to NULL (NULL svo is fine): nothing in the
  * renderer reads them, and they would double the octree's memory. */
 void mr_svo_drop_leaf_keys(mr_svo *svo);
-/* Bytes held by the octree's arrays. */
+/* Bytes held by the octree's own arrays (a borrowed palette is its owner's). */
 size_t mr_svo_memory(const mr_svo *svo);
 
 /* Walks the octree depth-first in child order and writes, for every leaf in

@@ -383,10 +383,9 @@ static void scan_fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
-                 unsigned depth, mr_vec3 origin, float size,
-                 const mr_svo_attr *palette, uint32_t palette_count,
-                 unsigned threads, mr_svo *out, mr_error *err)
+static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count, unsigned depth,
+                 mr_vec3 origin, float size, const mr_svo_attr *palette, uint32_t palette_count,
+                 bool share_palette, unsigned threads, mr_svo *out, mr_error *err)
 {
     int rc = MR_OK;
     build_ctx c;
@@ -417,7 +416,12 @@ int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     c.out = out;
     c.blocks = (count + BLK - 1) / BLK;
 
-    if (palette_count > 0) {
+    if (palette_count > 0 && share_palette) {
+        /* only the owner writes a palette (svo.h): the cast does not */
+        out->palette = (mr_svo_attr *)palette;
+        out->palette_borrowed = true;
+        out->palette_count = palette_count;
+    } else if (palette_count > 0) {
         out->palette = malloc(palette_count * sizeof *out->palette);
         if (!out->palette)
             goto nomem;
@@ -528,4 +532,20 @@ cleanup:
     if (rc < 0)
         mr_svo_free(out);
     return rc;
+}
+
+int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
+                 unsigned depth, mr_vec3 origin, float size,
+                 const mr_svo_attr *palette, uint32_t palette_count,
+                 unsigned threads, mr_svo *out, mr_error *err)
+{
+    return build(keys, leaves, count, depth, origin, size, palette, palette_count, false, threads, out, err);
+}
+
+int mr_svo_build_sharing_palette(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
+                                 unsigned depth, mr_vec3 origin, float size,
+                                 const mr_svo_attr *palette, uint32_t palette_count,
+                                 unsigned threads, mr_svo *out, mr_error *err)
+{
+    return build(keys, leaves, count, depth, origin, size, palette, palette_count, true, threads, out, err);
 }

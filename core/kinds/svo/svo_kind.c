@@ -47,12 +47,17 @@ typedef struct worker_scratch {
     mr_pose *pose;
     mr_svo_skin skin;
     mr_svo_workspace *ws;         /* selection / resampling scratch, kept across frames */
+    mr_svo_selection sel;         /* resize, emit: the instance being resampled (direct keeps
+                                   * each instance's selection in mr_geom.sel) */
     int rc;                       /* first failure of this worker ... */
     size_t failed_instance;       /* ... and the instance it came from */
     mr_error err;
     /* where this frame's time went, over the instances this worker did */
     double pose_s, select_s, emit_s, rebuild_s;
     uint64_t cells;               /* emitted before compaction */
+    uint64_t visited, selected;   /* voxels deformed / selected */
+    double worst_px;              /* with a tolerance: the worst selected voxel (predict) */
+    uint32_t deepest;             /* ... and the deepest level selected */
 } worker_scratch;
 
 struct mr_geom {
@@ -71,7 +76,8 @@ struct mr_geom {
     unsigned workers;
     worker_scratch *scratch;
     /* per frame */
-    mr_svo_selection *sel;        /* per instance */
+    mr_svo_selection *sel;        /* direct: per instance (resize and emit select into the
+                                   * worker's scratch and keep only the octree) */
     mr_svo *octree;               /* per instance (resize, emit) */
     size_t box_count, box_capacity;
     float *box;                   /* direct: all instances' boxes */
@@ -155,11 +161,16 @@ typedef struct frame_ctx {
     atomic_bool over_budget;      /* the failure is the object's, not one instance's */
 } frame_ctx;
 
-/* What instance k's per-frame data holds (its selection and octree). */
+static size_t selection_bytes(const mr_svo_selection *sel)
+{
+    return sel->capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf) + 1);
+}
+
+/* What instance k's per-frame data holds: its selection (direct) or its
+ * octree (resize, emit). */
 static size_t instance_bytes(const mr_geom *g, size_t k)
 {
-    size_t b = g->sel[k].capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf) + 1);
-    return g->octree ? b + mr_svo_memory(&g->octree[k]) : b;
+    return g->octree ? mr_svo_memory(&g->octree[k]) : selection_bytes(&g->sel[k]);
 }
 
 static int over_budget(frame_ctx *c, size_t held, mr_error *err)
@@ -174,6 +185,32 @@ static int over_budget(frame_ctx *c, size_t held, mr_error *err)
                         "depth, or method rigid)", c->g->instance_count, cap, have);
 }
 
+/* The predicted error of a selection ("tolerance_px"), gathered into the
+ * worker's scratch over its instances: the most
+ * pixels the diagonal of any selected voxel's deformed box spans
+ * (mr_camera_px_per_unit at the box). The detailed surface passes through
+ * every voxel it was voxelised into and the voxel's faces lie within its
+ * diagonal of it, so a voxel strays from the surface by at most that; the
+ * selection stops refining a voxel once its box projects below
+ * tolerance / sqrt(3) pixels on both axes, so coarse voxels keep within
+ * the tolerance, and leaves (which cannot be refined) show what the
+ * octree's depth allows: up close the prediction passes the tolerance,
+ * which then needs a deeper octree ("depth"). Deformation moves voxels
+ * off the skinned detailed mesh besides; the reference passes measure
+ * that. */
+static void predict(const mr_svo_selection *sel, const mr_geom_frame *frame, worker_scratch *s)
+{
+    for (size_t i = 0; i < sel->count; i++) {
+        s->deepest = sel->level[i] > s->deepest ? sel->level[i] : s->deepest;
+        const float *b = sel->box + i * 6;
+        mr_vec3 lo = mr_v3(b[0], b[1], b[2]), hi = mr_v3(b[3], b[4], b[5]);
+        double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi);
+        if (!isfinite(px))
+            continue; /* reaches the camera's plane: refined to its leaves, not projected */
+        s->worst_px = fmax(s->worst_px, px * mr_v3_len(mr_v3_sub(hi, lo)));
+    }
+}
+
 static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *err)
 {
     mr_geom *g = c->g;
@@ -185,14 +222,21 @@ static int deform_instance(frame_ctx *c, size_t k, worker_scratch *s, mr_error *
         return rc;
     mr_svo_skin_pose(&s->skin, g->asset, s->pose, &g->world[k]);
     double t1 = mr_now();
+    mr_svo_selection *sel = g->method == MR_SVO_DIRECT ? &g->sel[k] : &s->sel;
     rc = mr_svo_select_ws(g->svo, &g->extremes, &s->skin.d, &c->view, g->svo->depth, c->inner_threads, s->ws,
-                          &g->sel[k], err);
+                          sel, err);
     s->pose_s += t1 - t0;
     s->select_s += mr_now() - t1;
+    if (rc == MR_OK) {
+        s->visited += sel->visited;
+        s->selected += sel->count;
+        if (g->tolerance_px > 0 && c->frame)
+            predict(sel, c->frame, s);
+    }
     if (rc == MR_OK && g->method != MR_SVO_DIRECT) {
         uint64_t cells = 0;
         double emit_s, rebuild_s;
-        rc = mr_svo_resample_ws(&g->sel[k], g->method, g->out_depth, g->svo->palette,
+        rc = mr_svo_resample_ws(sel, g->method, g->out_depth, g->svo->palette,
                                 g->svo->palette_count, c->inner_threads, s->ws, &g->octree[k], &cells,
                                 err);
         mr_svo_workspace_resample_times(s->ws, &emit_s, &rebuild_s);
@@ -312,38 +356,6 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
     return MR_OK;
 }
 
-/* The predicted error of the frame's selection ("tolerance_px"): the most
- * pixels the diagonal of any selected voxel's deformed box spans
- * (mr_camera_px_per_unit at the box). The detailed surface passes through
- * every voxel it was voxelised into and the voxel's faces lie within its
- * diagonal of it, so a voxel strays from the surface by at most that; the
- * selection stops refining a voxel once its box projects below
- * tolerance / sqrt(3) pixels on both axes, so coarse voxels keep within
- * the tolerance, and leaves (which cannot be refined) show what the
- * octree's depth allows: up close the prediction passes the tolerance,
- * which then needs a deeper octree ("depth"). Deformation moves voxels
- * off the skinned detailed mesh besides; the reference passes measure
- * that. */
-static void predict(mr_geom *g, const mr_geom_frame *frame)
-{
-    double worst = 0;
-    uint32_t deepest = 0;
-    for (size_t k = 0; k < g->instance_count; k++) {
-        const mr_svo_selection *sel = &g->sel[k];
-        for (size_t i = 0; i < sel->count; i++) {
-            deepest = sel->level[i] > deepest ? sel->level[i] : deepest;
-            const float *b = sel->box + i * 6;
-            mr_vec3 lo = mr_v3(b[0], b[1], b[2]), hi = mr_v3(b[3], b[4], b[5]);
-            double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi);
-            if (!isfinite(px))
-                continue; /* reaches the camera's plane: refined to its leaves, not projected */
-            worst = fmax(worst, px * mr_v3_len(mr_v3_sub(hi, lo)));
-        }
-    }
-    g->predicted_px = worst;
-    g->deepest = deepest;
-}
-
 static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                       const mr_mat4 *transform, unsigned threads, mr_error *err)
 {
@@ -390,6 +402,8 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     }
     g->visited = g->cells = g->selected = g->emitted = 0;
     g->pose_s = g->select_s = g->emit_s = g->rebuild_s = 0;
+    g->predicted_px = 0;
+    g->deepest = 0;
     g->octree_bytes = 0;
     g->last_frame = frame ? frame->index : 0;
     g->last_time = frame ? frame->time : 0;
@@ -416,7 +430,9 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         worker_scratch *s = &g->scratch[w];
         s->rc = 0;
         s->pose_s = s->select_s = s->emit_s = s->rebuild_s = 0;
-        s->cells = 0;
+        s->cells = s->visited = s->selected = 0;
+        s->worst_px = 0;
+        s->deepest = 0;
     }
     if (per_instance) {
         c.inner_threads = 1;
@@ -442,19 +458,17 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
         g->emit_s += s->emit_s;
         g->rebuild_s += s->rebuild_s;
         g->emitted += s->cells;
+        g->visited += s->visited;
+        g->selected += s->selected;
+        g->predicted_px = fmax(g->predicted_px, s->worst_px);
+        g->deepest = s->deepest > g->deepest ? s->deepest : g->deepest;
     }
-    for (size_t k = 0; k < g->instance_count; k++) {
-        g->visited += g->sel[k].visited;
-        g->selected += g->sel[k].count;
-        if (g->method == MR_SVO_DIRECT)
-            continue;
+    for (size_t k = 0; k < g->instance_count && g->method != MR_SVO_DIRECT; k++) {
         g->cells += g->octree[k].leaf_count;
         g->octree_bytes += mr_svo_memory(&g->octree[k]);
         if ((rc = check_extent(octree_extent(&g->octree[k]), k, err)) < 0)
             return rc;
     }
-    if (g->tolerance_px > 0 && frame)
-        predict(g, frame);
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
     return MR_OK;
@@ -840,17 +854,31 @@ static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
     return MR_OK;
 }
 
+/* What the object's geometry holds: the shared octree with the
+ * selection's side data, and per instance what tracing reads (rebuilt
+ * octrees) or gathers from (direct: selections and the gathered boxes). */
+static size_t shared_memory(const mr_geom *g)
+{
+    return mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 6;
+}
+
 static size_t svo_memory(const mr_geom *g)
 {
-    size_t bytes = mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 6;
+    size_t bytes = shared_memory(g);
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
+    for (size_t k = 0; k < g->instance_count && (g->sel || g->octree); k++)
+        bytes += instance_bytes(g, k);
+    return bytes;
+}
+
+/* The workers' scratch, kept between frames so a frame allocates nothing:
+ * selection and resampling arrays (reported as svo_scratch_bytes, not as
+ * geometry: nothing traced reads them). */
+static size_t scratch_memory(const mr_geom *g)
+{
+    size_t bytes = 0;
     for (unsigned w = 0; g->scratch && w < g->workers; w++)
-        bytes += mr_svo_workspace_memory(g->scratch[w].ws);
-    for (size_t k = 0; k < g->instance_count && g->sel; k++) {
-        bytes += g->sel[k].capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf) + 1);
-        if (g->octree)
-            bytes += mr_svo_memory(&g->octree[k]);
-    }
+        bytes += mr_svo_workspace_memory(g->scratch[w].ws) + selection_bytes(&g->scratch[w].sel);
     return bytes;
 }
 
@@ -870,7 +898,7 @@ static uint64_t svo_primitives(const mr_geom *g)
  * with many instances they run in parallel on the job's threads, so their
  * sum can pass the frame's pose_s (the wall time of all updates). */
 enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_DEFORMED,
-       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_ERROR_PX, S_COUNT };
+       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_SHARED_BYTES, S_SCRATCH_BYTES, S_ERROR_PX, S_COUNT };
 
 static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", MR_STAT_SUM},
@@ -903,6 +931,12 @@ static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_OCTREE_BYTES] = {"svo_octree_bytes", "bytes",
                         "the per-instance world octrees rebuilt this frame (resize, emit)",
                         MR_STAT_SUM},
+    [S_SHARED_BYTES] = {"svo_shared_bytes", "bytes",
+                        "the shared bind-space octree with the selection's side data: held once "
+                        "per object, whatever its instances (in bytes.geometry)", MR_STAT_SUM},
+    [S_SCRATCH_BYTES] = {"svo_scratch_bytes", "bytes",
+                         "the workers' selection and resampling arrays, kept between frames "
+                         "(not in bytes.geometry: nothing traced reads them)", MR_STAT_SUM},
     [S_ERROR_PX] = {"svo_lod_error_px", "px",
                     "with \"tolerance_px\" (methods direct, resize, emit): the selection's "
                     "predicted error, the most pixels a selected voxel's diagonal spans (0 "
@@ -924,6 +958,8 @@ static void svo_frame_stats(const mr_geom *g, double *v)
     v[S_REBUILD] = g->rebuild_s;
     v[S_CELLS] = (double)g->emitted;
     v[S_OCTREE_BYTES] = (double)g->octree_bytes;
+    v[S_SHARED_BYTES] = (double)shared_memory(g);
+    v[S_SCRATCH_BYTES] = (double)scratch_memory(g);
     v[S_ERROR_PX] = g->predicted_px;
 }
 
@@ -1005,6 +1041,7 @@ static void svo_free(mr_geom *g)
             mr_pose_free(g->scratch[w].pose);
             mr_svo_skin_free(&g->scratch[w].skin);
             mr_svo_workspace_free(g->scratch[w].ws);
+            mr_svo_selection_free(&g->scratch[w].sel);
         }
     free(g->scratch);
     free(g->box);
@@ -1171,9 +1208,11 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
         goto fail;
     }
     if (g->method != MR_SVO_RIGID) {
-        g->sel = calloc(n, sizeof *g->sel);
-        g->octree = g->method == MR_SVO_DIRECT ? NULL : calloc(n, sizeof *g->octree);
-        if (!g->sel || (g->method != MR_SVO_DIRECT && !g->octree)) {
+        if (g->method == MR_SVO_DIRECT)
+            g->sel = calloc(n, sizeof *g->sel);
+        else
+            g->octree = calloc(n, sizeof *g->octree);
+        if (!g->sel && !g->octree) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
             goto fail;
         }
