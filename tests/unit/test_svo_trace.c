@@ -210,6 +210,66 @@ static void test_bounds(void **state)
     fx_free(&fx);
 }
 
+/* Two level-4 leaves, at cells (3, 5, 2) and (6, 4, 9) of the 16^3 grid:
+ * their box is a sliver of the root's halves. */
+static const uint32_t TWO_CELLS[2][3] = {{3, 5, 2}, {6, 4, 9}};
+
+static int cls_two_cells(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    (void)ctx;
+    for (int k = 0; k < 2; k++) {
+        const unsigned shift = 4 - level;
+        if (TWO_CELLS[k][0] >> shift == x && TWO_CELLS[k][1] >> shift == y && TWO_CELLS[k][2] >> shift == z)
+            return level == 4 ? FX_LEAF : FX_SPLIT;
+    }
+    return FX_EMPTY;
+}
+
+/* The leaves' box (mr_svo_fit_occupied on an octree put together by hand,
+ * mr_svo_build on its keys): bounds are that box rounded outwards by at
+ * most an ulp, where the halves of the root were 4x-8x its volume. */
+static void test_occupied_bounds(void **state)
+{
+    (void)state;
+    svo_fx fx;
+    const mr_vec3 origin = mr_v3(0.1f, -0.3f, 7.0f);
+    fx_build(&fx, 4, origin, 0.7f, cls_two_cells, NULL);
+    assert_int_equal(fx.svo.leaf_count, 2);
+    assert_false(fx.svo.has_occupied);
+    float halves_lo[3], halves_hi[3], lo[3], hi[3];
+    assert_true(mr_svo_bounds(&fx.svo, halves_lo, halves_hi));
+    mr_error err = {0};
+    assert_int_equal(mr_svo_fit_occupied(&fx.svo, &err), MR_OK);
+    assert_true(fx.svo.has_occupied);
+    assert_true(mr_svo_bounds(&fx.svo, lo, hi));
+    const double o[3] = {origin.x, origin.y, origin.z}, cell = 0.7f / 16.0;
+    const uint32_t elo[3] = {3, 4, 2}, ehi[3] = {7, 6, 10};
+    double shrunk = 1;
+    for (int a = 0; a < 3; a++) {
+        const double l = o[a] + elo[a] * cell, h = o[a] + ehi[a] * cell;
+        assert_int_equal(fx.svo.occupied_lo[a], elo[a]);
+        assert_int_equal(fx.svo.occupied_hi[a], ehi[a]);
+        assert_true((double)lo[a] <= l && (double)nextafterf(lo[a], INFINITY) > l);
+        assert_true((double)hi[a] >= h && (double)nextafterf(hi[a], -INFINITY) < h);
+        shrunk *= ((double)hi[a] - lo[a]) / ((double)halves_hi[a] - halves_lo[a]);
+    }
+    assert_true(shrunk < 0.25);
+
+    /* the builder fills the same box from the keys */
+    mr_svo_key keys[2];
+    mr_svo built;
+    assert_int_equal(mr_svo_collect_keys(&fx.svo, keys, NULL, &err), MR_OK);
+    mr_svo_attr attr = {0};
+    assert_int_equal(mr_svo_build(keys, NULL, 2, 4, origin, 0.7f, &attr, 1, 1, &built, &err), MR_OK);
+    assert_true(built.has_occupied);
+    for (int a = 0; a < 3; a++) {
+        assert_int_equal(built.occupied_lo[a], elo[a]);
+        assert_int_equal(built.occupied_hi[a], ehi[a]);
+    }
+    mr_svo_free(&built);
+    fx_free(&fx);
+}
+
 /* The same leaves through the real builder (mr_svo_build: breadth-first
  * nodes, leaves by level and code) must trace identically to the fixture's
  * depth-first layout: the walk order depends on geometry only, so hit/miss,
@@ -360,7 +420,8 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_random_shallow),  cmocka_unit_test(test_random_deep),
         cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
-        cmocka_unit_test(test_bounds),          cmocka_unit_test(test_build_crosscheck),
+        cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
+        cmocka_unit_test(test_build_crosscheck),
         cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -15,6 +15,7 @@
  * between candidates tied to float rounding.
  */
 #include "kinds/svo/svo.h"
+#include "util/morton.h"
 
 #include <math.h>
 #include <stdbool.h>
@@ -160,7 +161,66 @@ typedef struct {
     unsigned next;
 } walk_frame;
 
+/* Called for each leaf in Morton order with its key and index. */
+typedef void (*leaf_visit)(void *ctx, mr_svo_key key, uint32_t leaf_index);
+
+static int walk_leaves(const mr_svo *svo, leaf_visit visit, void *ctx, mr_error *err);
+
+typedef struct {
+    mr_svo_key *keys;
+    uint32_t *leaf_index;
+    uint32_t emitted;
+} collect_ctx;
+
+static void collect_leaf(void *ctx, mr_svo_key key, uint32_t li)
+{
+    collect_ctx *c = ctx;
+    if (c->keys)
+        c->keys[c->emitted] = key;
+    if (c->leaf_index)
+        c->leaf_index[c->emitted] = li;
+    c->emitted++;
+}
+
 int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_index, mr_error *err)
+{
+    collect_ctx c = {keys, leaf_index, 0};
+    return walk_leaves(svo, collect_leaf, &c, err);
+}
+
+typedef struct {
+    unsigned depth;
+    uint32_t lo[3], hi[3];
+} occupied_ctx;
+
+static void occupied_leaf(void *ctx, mr_svo_key key, uint32_t li)
+{
+    (void)li;
+    occupied_ctx *c = ctx;
+    uint32_t p[3];
+    mr_morton_decode(key.code, &p[0], &p[1], &p[2]);
+    const uint32_t edge = 1u << (c->depth - key.level);
+    for (int a = 0; a < 3; a++) {
+        c->lo[a] = p[a] < c->lo[a] ? p[a] : c->lo[a];
+        c->hi[a] = p[a] + edge > c->hi[a] ? p[a] + edge : c->hi[a];
+    }
+}
+
+int mr_svo_fit_occupied(mr_svo *svo, mr_error *err)
+{
+    if (!svo)
+        return mr_error_set(err, MR_ERR_INVALID, "svo occupied box: svo is NULL");
+    occupied_ctx c = {svo->depth, {UINT32_MAX, UINT32_MAX, UINT32_MAX}, {0, 0, 0}};
+    int rc = walk_leaves(svo, occupied_leaf, &c, err);
+    if (rc < 0)
+        return rc;
+    svo->has_occupied = svo->leaf_count > 0;
+    memcpy(svo->occupied_lo, c.lo, sizeof c.lo);
+    memcpy(svo->occupied_hi, c.hi, sizeof c.hi);
+    return MR_OK;
+}
+
+static int walk_leaves(const mr_svo *svo, leaf_visit visit, void *ctx, mr_error *err)
 {
     if (!svo)
         return mr_error_set(err, MR_ERR_INVALID, "svo collect: svo is NULL");
@@ -168,12 +228,8 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
     if (svo->node_count == 0) {
         if (svo->leaf_count > 1)
             return mr_error_set(err, MR_ERR_FORMAT, "svo collect: %u leaves but no nodes", svo->leaf_count);
-        if (svo->leaf_count == 1) {
-            if (keys)
-                keys[0] = (mr_svo_key){0, 0};
-            if (leaf_index)
-                leaf_index[0] = 0;
-        }
+        if (svo->leaf_count == 1)
+            visit(ctx, (mr_svo_key){0, 0}, 0);
         return MR_OK;
     }
     if (D < 1 || D > MR_SVO_MAX_DEPTH)
@@ -202,10 +258,7 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
             uint64_t li = (uint64_t)svo->first_leaf[i] + (unsigned)__builtin_popcount(lm & below);
             if (li >= svo->leaf_count || emitted >= svo->leaf_count)
                 return mr_error_set(err, MR_ERR_FORMAT, "svo collect: node %u leaf child %u out of range", i, ch);
-            if (keys)
-                keys[emitted] = (mr_svo_key){code, level};
-            if (leaf_index)
-                leaf_index[emitted] = (uint32_t)li;
+            visit(ctx, (mr_svo_key){code, level}, (uint32_t)li);
             emitted++;
         } else {
             uint64_t ni = (uint64_t)svo->first_node[i] + (unsigned)__builtin_popcount(cm & ~lm & below);

@@ -90,6 +90,10 @@ typedef struct mr_svo {
                             * files (svo_file.h) never store it: 16 bytes per leaf, more
                             * than the leaf itself. mr_svo_collect_keys recomputes it */
     mr_svo_attr *palette;  /* palette_count */
+    bool has_occupied;     /* occupied_lo/hi hold the leaves' box (mr_svo_build fills it,
+                            * mr_svo_fit_occupied for octrees made otherwise) */
+    uint32_t occupied_lo[3], occupied_hi[3]; /* finest-level cells: every leaf lies in
+                                              * [lo, hi) on each axis */
     bool palette_borrowed; /* palette is another octree's (mr_svo_build_sharing_palette):
                             * never written or freed through this one, not counted by
                             * mr_svo_memory */
@@ -108,6 +112,11 @@ size_t mr_svo_memory(const mr_svo *svo);
  * way: MR_ERR_FORMAT for masks, indices or depths that do not fit, or a leaf
  * count that differs from the leaves reached. */
 int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_index, mr_error *err);
+
+/* Fills svo's occupied box from its leaves (a walk over the octree, for
+ * octrees read from a file or put together without mr_svo_build); the
+ * same errors as mr_svo_collect_keys. An empty octree has none. */
+int mr_svo_fit_occupied(mr_svo *svo, mr_error *err);
 
 /* Octahedral unit-vector encoding, 8 bits per coordinate; decode gives a
  * unit vector within ~1 degree of the input. Non-finite or zero input

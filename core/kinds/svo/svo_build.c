@@ -31,6 +31,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "util/morton.h"
 #include "util/parallel.h"
 
 #define BLK 16384u
@@ -53,6 +54,7 @@ typedef struct {
     uint32_t *node_base; /* blocks * LEVELS */
     uint32_t *leaf_base; /* blocks * LEVELS */
     size_t *bad;      /* blocks: first invalid key or SIZE_MAX */
+    uint32_t (*occupied)[6]; /* blocks: the block's leaves' box in finest cells (lo, hi) */
     size_t node_blocks;
     uint32_t *scan;   /* node_blocks * 2 */
     mr_svo *out;
@@ -145,6 +147,7 @@ static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
         size_t lo, hi;
         block_keys(c, b, &lo, &hi);
         c->bad[b] = SIZE_MAX;
+        uint32_t box[6] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, 0, 0, 0};
         for (size_t i = lo; i < hi; i++) {
             if (key_problem(c->keys, i, c->depth, 1) ||
                 (c->in_leaves && c->in_leaves[i].attr >= c->palette_count) ||
@@ -152,7 +155,15 @@ static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
                 c->bad[b] = i;
                 break;
             }
+            uint32_t p[3];
+            mr_morton_decode(c->keys[i].code, &p[0], &p[1], &p[2]);
+            const uint32_t edge = 1u << (c->depth - c->keys[i].level);
+            for (int a = 0; a < 3; a++) {
+                box[a] = p[a] < box[a] ? p[a] : box[a];
+                box[3 + a] = p[a] + edge > box[3 + a] ? p[a] + edge : box[3 + a];
+            }
         }
+        memcpy(c->occupied[b], box, sizeof box);
     }
 }
 
@@ -432,7 +443,8 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
         return MR_OK;
 
     c.bad = malloc(c.blocks * sizeof *c.bad);
-    if (!c.bad)
+    c.occupied = malloc(c.blocks * sizeof *c.occupied);
+    if (!c.bad || !c.occupied)
         goto nomem;
     mr_parallel_for(threads, c.blocks, 1, validate_fn, &c);
     for (size_t b = 0; b < c.blocks; b++) {
@@ -446,6 +458,17 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
                           (unsigned long long)keys[i].code, keys[i].level, why);
         goto cleanup;
     }
+    for (int a = 0; a < 3; a++) {
+        out->occupied_lo[a] = UINT32_MAX;
+        out->occupied_hi[a] = 0;
+    }
+    for (size_t b = 0; b < c.blocks; b++)
+        for (int a = 0; a < 3; a++) {
+            out->occupied_lo[a] = c.occupied[b][a] < out->occupied_lo[a] ? c.occupied[b][a] : out->occupied_lo[a];
+            out->occupied_hi[a] = c.occupied[b][3 + a] > out->occupied_hi[a] ? c.occupied[b][3 + a]
+                                                                              : out->occupied_hi[a];
+        }
+    out->has_occupied = true;
 
     size_t ni = count > 1 ? count - 1 : 1;
     c.split = malloc(ni * sizeof *c.split);
@@ -522,6 +545,7 @@ nomem:
     rc = mr_error_set(err, MR_ERR_NOMEM, "svo build: out of memory for %zu keys", count);
 cleanup:
     free(c.bad);
+    free(c.occupied);
     free(c.split);
     free(c.info);
     free(c.pd_int);

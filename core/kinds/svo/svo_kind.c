@@ -1184,6 +1184,12 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
         goto fail;
     if (p->skeleton && (rc = rig_skeleton(g, err)) < 0)
         goto fail;
+    /* the leaves' box is what Embree bounds a rigid instance by (an octree
+     * read from the cache comes without it): the cube around a standing
+     * character is mostly air, and every ray into that air entered the
+     * octree */
+    if (!g->svo->has_occupied && (rc = mr_svo_fit_occupied(g->svo, err)) < 0)
+        goto fail;
     g->out_depth = p->depth + 2 < MR_SVO_MAX_DEPTH ? p->depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = check_poses(g, err)) < 0)
         goto fail;

@@ -341,10 +341,14 @@ bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
         if (m == 0)
             low_used = high_used = 7u; /* malformed: keep the cube */
     }
-    const double s = (double)svo->size;
+    const double s = (double)svo->size, cell = ldexp(s, -(int)svo->depth);
     for (unsigned a = 0; a < 3; a++) {
-        const double l = (low_used >> a) & 1u ? (double)c[a] : (double)c[a] + 0.5 * s;
-        const double h = (high_used >> a) & 1u ? (double)c[a] + s : (double)c[a] + 0.5 * s;
+        double l = (low_used >> a) & 1u ? (double)c[a] : (double)c[a] + 0.5 * s;
+        double h = (high_used >> a) & 1u ? (double)c[a] + s : (double)c[a] + 0.5 * s;
+        if (svo->has_occupied) { /* the leaves' own box (exact in double: 21-bit cells) */
+            l = (double)c[a] + svo->occupied_lo[a] * cell;
+            h = (double)c[a] + svo->occupied_hi[a] * cell;
+        }
         lo[a] = mr_float_down(l);
         hi[a] = mr_float_up(h);
     }

@@ -67,8 +67,9 @@ bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, f
 /* Whether any leaf meets the ray segment (same rules as mr_svo_intersect). */
 bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax);
 
-/* Object-space box of the occupied part of the octree: the cube, shrunk to
- * the halves of the root that hold children, rounded outwards to float so
+/* Object-space box of the occupied part of the octree: the leaves' box
+ * when the octree knows it (mr_svo.has_occupied), else the cube shrunk to
+ * the halves of the root that hold children; rounded outwards to float so
  * the box always contains every leaf. Returns false (lo = hi = origin) for
  * an empty octree or NULL svo. */
 bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3]);
