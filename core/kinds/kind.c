@@ -141,6 +141,36 @@ int mr_geom_attach_triangles(RTCDevice device, RTCScene scene, unsigned geom_id,
     return MR_OK;
 }
 
+int mr_geom_attach_user(RTCDevice device, RTCScene scene, unsigned geom_id,
+                        enum RTCBuildQuality quality, unsigned count, void *user,
+                        RTCBoundsFunction bounds, RTCIntersectFunctionN intersect,
+                        RTCOccludedFunctionN occluded, const char *what, RTCGeometry *out,
+                        mr_error *err)
+{
+    *out = NULL;
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    if (!geom)
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create the %s user geometry (%d)", what,
+                            (int)rtcGetDeviceError(device));
+    rtcSetGeometryUserPrimitiveCount(geom, count);
+    rtcSetGeometryUserData(geom, user);
+    rtcSetGeometryBoundsFunction(geom, bounds, NULL);
+    rtcSetGeometryIntersectFunction(geom, intersect);
+    rtcSetGeometryOccludedFunction(geom, occluded);
+    rtcSetGeometryBuildQuality(geom, quality == RTC_BUILD_QUALITY_REFIT ? RTC_BUILD_QUALITY_LOW : quality);
+    rtcCommitGeometry(geom);
+    if (geom_id == RTC_INVALID_GEOMETRY_ID)
+        rtcAttachGeometry(scene, geom);
+    else
+        rtcAttachGeometryByID(scene, geom, geom_id);
+    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
+        rtcReleaseGeometry(geom);
+        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the %s user geometry", what);
+    }
+    *out = geom;
+    return MR_OK;
+}
+
 void mr_geom_commit_vertices(RTCGeometry geom)
 {
     rtcUpdateGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0);

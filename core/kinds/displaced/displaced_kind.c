@@ -846,24 +846,8 @@ static int attach_level(mr_geom *g, RTCDevice device, RTCScene scene, unsigned g
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->tess_pos,
                                         g->tess_vertices, g->tess_idx, g->tess_triangles, &g->rtc,
                                         err);
-    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
-    if (!geom)
-        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a user geometry (%d)",
-                            (int)rtcGetDeviceError(device));
-    rtcSetGeometryUserPrimitiveCount(geom, g->triangle_count);
-    rtcSetGeometryUserData(geom, g);
-    rtcSetGeometryBoundsFunction(geom, bounds_cb, NULL);
-    rtcSetGeometryIntersectFunction(geom, intersect_cb);
-    rtcSetGeometryOccludedFunction(geom, occluded_cb);
-    rtcSetGeometryBuildQuality(geom, quality);
-    rtcCommitGeometry(geom);
-    rtcAttachGeometryByID(scene, geom, geom_id);
-    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
-        rtcReleaseGeometry(geom);
-        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the displaced user geometry");
-    }
-    g->rtc = geom;
-    return MR_OK;
+    return mr_geom_attach_user(device, scene, geom_id, quality, g->triangle_count, g, bounds_cb, intersect_cb,
+                               occluded_cb, "displaced", &g->rtc, err);
 }
 
 /* One geometry per level, consecutive ids; only the frame's level is

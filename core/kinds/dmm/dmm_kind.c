@@ -982,24 +982,8 @@ static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned
         return mr_geom_attach_triangles(device, scene, geom_id, quality, g->positions,
                                         g->vertex_count, g->indices, g->triangle_count, &g->rtc,
                                         err);
-    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
-    if (!geom)
-        return mr_error_set(err, MR_ERR_EMBREE, "Embree could not create a user geometry (%d)",
-                            (int)rtcGetDeviceError(device));
-    rtcSetGeometryUserPrimitiveCount(geom, g->base_triangle_count);
-    rtcSetGeometryUserData(geom, g);
-    rtcSetGeometryBoundsFunction(geom, bounds_cb, NULL);
-    rtcSetGeometryIntersectFunction(geom, intersect_cb);
-    rtcSetGeometryOccludedFunction(geom, occluded_cb);
-    rtcSetGeometryBuildQuality(geom, quality);
-    rtcCommitGeometry(geom);
-    rtcAttachGeometryByID(scene, geom, geom_id);
-    if (rtcGetDeviceError(device) != RTC_ERROR_NONE) {
-        rtcReleaseGeometry(geom);
-        return mr_error_set(err, MR_ERR_EMBREE, "Embree refused the dmm user geometry");
-    }
-    g->rtc = geom;
-    return MR_OK;
+    return mr_geom_attach_user(device, scene, geom_id, quality, g->base_triangle_count, g, bounds_cb,
+                               intersect_cb, occluded_cb, "dmm", &g->rtc, err);
 }
 
 static void level_commit(dmm_level *g)

@@ -666,19 +666,14 @@ static void boxes_occluded(const struct RTCOccludedFunctionNArguments *args)
     }
 }
 
-static RTCGeometry new_user_geometry(RTCDevice device, mr_geom *g, unsigned count,
-                                     enum RTCBuildQuality quality, bool boxes)
+/* The object's user geometry: octrees (rigid, resize, emit) or boxes. */
+static int attach_user(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id, unsigned count,
+                       enum RTCBuildQuality quality, RTCGeometry *out, mr_error *err)
 {
-    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
-    if (!geom)
-        return NULL;
-    rtcSetGeometryUserPrimitiveCount(geom, count);
-    rtcSetGeometryUserData(geom, g);
-    rtcSetGeometryBoundsFunction(geom, boxes ? box_bounds : octree_bounds, NULL);
-    rtcSetGeometryIntersectFunction(geom, boxes ? boxes_intersect : octree_intersect);
-    rtcSetGeometryOccludedFunction(geom, boxes ? boxes_occluded : octree_occluded);
-    rtcSetGeometryBuildQuality(geom, quality);
-    return geom;
+    const bool boxes = g->method == MR_SVO_DIRECT;
+    return mr_geom_attach_user(device, scene, geom_id, quality, count, g, boxes ? box_bounds : octree_bounds,
+                               boxes ? boxes_intersect : octree_intersect,
+                               boxes ? boxes_occluded : octree_occluded, "svo", out, err);
 }
 
 static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
@@ -688,21 +683,16 @@ static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
     if (g->method != MR_SVO_RIGID) {
         /* Primitive counts change every frame: always a fresh (LOW) build. */
         (void)quality;
-        g->user = new_user_geometry(device, g, 0, RTC_BUILD_QUALITY_LOW, g->method == MR_SVO_DIRECT);
-        if (!g->user)
-            return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create a user geometry");
-        rtcCommitGeometry(g->user);
-        rtcAttachGeometryByID(scene, g->user, geom_id);
-        return MR_OK;
+        return attach_user(g, device, scene, geom_id, 0, RTC_BUILD_QUALITY_LOW, &g->user, err);
     }
     g->shared_scene = rtcNewScene(device);
-    RTCGeometry oct = g->shared_scene ? new_user_geometry(device, g, 1, RTC_BUILD_QUALITY_HIGH, false)
-                                      : NULL;
-    if (!oct)
+    if (!g->shared_scene)
         return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create the octree scene");
-    rtcCommitGeometry(oct);
-    rtcAttachGeometry(g->shared_scene, oct);
-    rtcReleaseGeometry(oct);
+    RTCGeometry oct;
+    int rc = attach_user(g, device, g->shared_scene, RTC_INVALID_GEOMETRY_ID, 1, RTC_BUILD_QUALITY_HIGH, &oct, err);
+    if (rc < 0)
+        return rc;
+    rtcReleaseGeometry(oct); /* the scene holds it */
     /* The top scene's ROBUST does not reach into instanced scenes. */
     rtcSetSceneFlags(g->shared_scene, RTC_SCENE_FLAG_ROBUST);
     rtcCommitScene(g->shared_scene);
