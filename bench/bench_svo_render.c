@@ -362,7 +362,8 @@ int main(int argc, char **argv)
     printf("voxels: the primitives traced (rigid: the shared octree's leaves; direct: the deformed boxes; "
            "resize, emit: the rebuilt octree's leaves). B/voxel: (bytes.geometry + bytes.bvh) / voxels; "
            "-shared: the same without svo_shared_bytes (the source octree and its side data, once per "
-           "object); scratch: svo_scratch_bytes / voxels (the workers' selection and resampling arrays, kept between frames)\n");
+           "object); scratch: svo_scratch_bytes / voxels (the workers' selection and resampling arrays, "
+           "kept between frames)\n");
     for (unsigned d = 0; d < depth_count; d++)
         run_depth(asset, depths[d], times, frames);
 

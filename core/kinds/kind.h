@@ -270,12 +270,12 @@ void mr_geom_commit_vertices(RTCGeometry geom);
 
 /* A USER geometry of count primitives with the kind's callbacks (user data
  * = user), attached under geom_id (RTC_INVALID_GEOMETRY_ID: whichever id
- * the scene gives it). Built LOW where the renderer asks for
- * REFIT: over user primitives, the trees Embree builds to refit sent rays
- * into 2.2x as many primitives as LOW trees, even on the frame they were
- * built, and rebuilding a few thousand boxes costs far less than that
- * (README, the micro-mesh goals: 20-25 % off a skinned example's frame). *out is NULL on failure; what names the
- * geometry in the error. */
+ * the scene gives it). Built LOW where the renderer asks for REFIT: over
+ * user primitives, the trees Embree builds to refit sent rays into 2.2x
+ * as many primitives as LOW trees, even on the frame they were built, and
+ * rebuilding a few thousand boxes costs far less than that (README, the
+ * micro-mesh goals: 20-25 % off a skinned example's frame). *out is NULL
+ * on failure; what names the geometry in the error. */
 int mr_geom_attach_user(RTCDevice device, RTCScene scene, unsigned geom_id,
                         enum RTCBuildQuality quality, unsigned count, void *user,
                         RTCBoundsFunction bounds, RTCIntersectFunctionN intersect,

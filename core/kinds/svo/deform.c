@@ -1304,8 +1304,8 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
         return mr_error_set(err, MR_ERR_LIMIT, "svo resample: more than 2^32 - 1 voxels");
     if (sel->count == 0) {
         /* empty octree over a unit cube, keeping the palette */
-        int rc0 = mr_svo_build_sharing_palette(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count,
-                                               threads, out, err);
+        int rc0 = mr_svo_build_sharing_palette(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette,
+                                               palette_count, threads, out, err);
         if (rc0 == MR_OK) {
             free(out->leaf_keys);
             out->leaf_keys = NULL;

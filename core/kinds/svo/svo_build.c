@@ -464,9 +464,9 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     }
     for (size_t b = 0; b < c.blocks; b++)
         for (int a = 0; a < 3; a++) {
-            out->occupied_lo[a] = c.occupied[b][a] < out->occupied_lo[a] ? c.occupied[b][a] : out->occupied_lo[a];
-            out->occupied_hi[a] = c.occupied[b][3 + a] > out->occupied_hi[a] ? c.occupied[b][3 + a]
-                                                                              : out->occupied_hi[a];
+            const uint32_t l = c.occupied[b][a], h = c.occupied[b][3 + a];
+            out->occupied_lo[a] = l < out->occupied_lo[a] ? l : out->occupied_lo[a];
+            out->occupied_hi[a] = h > out->occupied_hi[a] ? h : out->occupied_hi[a];
         }
     out->has_occupied = true;
 

@@ -689,7 +689,8 @@ static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
     if (!g->shared_scene)
         return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create the octree scene");
     RTCGeometry oct;
-    int rc = attach_user(g, device, g->shared_scene, RTC_INVALID_GEOMETRY_ID, 1, RTC_BUILD_QUALITY_HIGH, &oct, err);
+    int rc = attach_user(g, device, g->shared_scene, RTC_INVALID_GEOMETRY_ID, 1, RTC_BUILD_QUALITY_HIGH,
+                         &oct, err);
     if (rc < 0)
         return rc;
     rtcReleaseGeometry(oct); /* the scene holds it */
@@ -888,7 +889,8 @@ static uint64_t svo_primitives(const mr_geom *g)
  * with many instances they run in parallel on the job's threads, so their
  * sum can pass the frame's pose_s (the wall time of all updates). */
 enum { S_VOXELS, S_BUILD, S_SKELETON, S_BONES, S_THINNESS, S_POSE, S_SELECT, S_DEFORMED,
-       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_SHARED_BYTES, S_SCRATCH_BYTES, S_ERROR_PX, S_COUNT };
+       S_SELECTED, S_EMIT, S_REBUILD, S_CELLS, S_OCTREE_BYTES, S_SHARED_BYTES, S_SCRATCH_BYTES,
+       S_ERROR_PX, S_COUNT };
 
 static const mr_kind_stat SVO_STATS[S_COUNT] = {
     [S_VOXELS] = {"svo_voxels", "count", "leaves of the shared octree (bind space)", MR_STAT_SUM},
