@@ -270,6 +270,136 @@ static void test_occupied_bounds(void **state)
     fx_free(&fx);
 }
 
+/* Subtrees (mr_svo_subtree) as the svo kind makes them: interior nodes at
+ * `level`, or nearer the root where a node has leaf children. */
+static size_t subtrees_of(const mr_svo *o, uint32_t node, unsigned level, unsigned at, const uint32_t xyz[3],
+                          mr_svo_subtree *out, size_t n)
+{
+    if (at == level || at + 1 >= o->depth || o->leaf_mask[node]) {
+        out[n] = (mr_svo_subtree){node, at, {xyz[0], xyz[1], xyz[2]}};
+        return n + 1;
+    }
+    uint32_t child = o->first_node[node];
+    for (unsigned ch = 0; ch < 8; ch++)
+        if (o->child_mask[node] >> ch & 1u) {
+            const uint32_t c[3] = {2 * xyz[0] + (ch & 1u), 2 * xyz[1] + (ch >> 1 & 1u), 2 * xyz[2] + (ch >> 2)};
+            n = subtrees_of(o, child++, level, at + 1, c, out, n);
+        }
+    return n;
+}
+
+/* Whether the face of `axis` that the ray enters leaf h through lies at
+ * h.t (in double: the grid rays' planes are exact). */
+static bool enters_through(const mr_svo *o, const mr_svo_hit *h, mr_vec3 org, mr_vec3 dir, int axis)
+{
+    if (axis < 0)
+        return false;
+    const double oo[3] = {org.x, org.y, org.z}, d[3] = {dir.x, dir.y, dir.z};
+    const double c[3] = {o->origin.x, o->origin.y, o->origin.z}, xyz[3] = {h->x, h->y, h->z};
+    const double cell = ldexp((double)o->size, -(int)h->level);
+    const double plane = c[axis] + (xyz[axis] + (d[axis] < 0 ? 1 : 0)) * cell;
+    return d[axis] != 0 && (float)((plane - oo[axis]) / d[axis]) == h->t;
+}
+
+/* A ray through the subtrees, one after the other in the given order (as
+ * Embree might visit them), keeping a hit at the held t only when its
+ * subtree comes first in mr_svo_subtree_order, as the svo kind does. */
+static size_t equal_t; /* hits at the held t in another subtree: the order rule decided */
+
+static bool trace_subtrees(const mr_svo *o, const mr_svo_subtree *st, size_t n, bool reverse, mr_vec3 org,
+                           mr_vec3 dir, float tmin, float tmax, mr_svo_hit *best)
+{
+    bool found = false;
+    size_t held = 0;
+    for (size_t k = 0; k < n; k++) {
+        const size_t i = reverse ? n - 1 - k : k;
+        mr_svo_hit h;
+        if (!mr_svo_intersect_subtree(o, &st[i], org, dir, tmin, tmax, &h))
+            continue;
+        equal_t += found && h.t == tmax;
+        if (found && h.t == tmax && mr_svo_subtree_order(&st[held], dir) < mr_svo_subtree_order(&st[i], dir))
+            continue;
+        *best = h;
+        found = true;
+        held = i;
+        tmax = h.t;
+    }
+    return found;
+}
+
+/* Tracing from subtrees finds what one walk from the root finds: the same
+ * t bit for bit and the same leaf, in whatever order the subtrees are
+ * visited; the entry axis may differ only at an edge or corner (both
+ * faces there lie at t). Grid rays (as test_exact_grid_rays) run along
+ * faces and through edges and corners, where subtrees meet at one t. */
+static void test_subtrees(void **state)
+{
+    (void)state;
+    size_t rays = 0, hits = 0, ties = 0;
+    for (unsigned depth = 3; depth <= 6; depth++) {
+        svo_fx fx;
+        fx_random p = {depth * 977u + 5u, 0.35, 0.5, 2};
+        fx_build(&fx, depth, mr_v3(-2, 0, 4), 4.0f, fx_random_cls, &p);
+        const mr_svo *o = &fx.svo;
+        if (o->node_count == 0) {
+            fx_free(&fx);
+            continue;
+        }
+        mr_svo_subtree *st = malloc(o->node_count * sizeof *st);
+        assert_non_null(st);
+        for (unsigned level = 1; level + 1 < depth; level++) {
+            const uint32_t root[3] = {0, 0, 0};
+            const size_t n = subtrees_of(o, 0, level, 0, root, st, 0);
+            fx_rng r = {depth * 31u + level};
+            const float comps[] = {0.0f, -0.0f, 1.0f, -1.0f, 2.0f, -2.0f, 0.5f, -0.5f};
+            for (int i = 0; i < 3000; i++) {
+                const float cells = (float)(1u << depth);
+                float ov[3], dv[3];
+                const float base[3] = {-2.0f, 0.0f, 4.0f};
+                for (int a = 0; a < 3; a++) {
+                    ov[a] = base[a] + 4.0f * (float)((int)fx_below(&r, (uint32_t)(3 * cells)) - (int)cells) / cells;
+                    if (fx_below(&r, 4) == 0)
+                        ov[a] += 2.0f / cells;
+                    dv[a] = comps[fx_below(&r, 8)];
+                }
+                const mr_vec3 org = mr_v3(ov[0], ov[1], ov[2]), dir = mr_v3(dv[0], dv[1], dv[2]);
+                mr_svo_hit whole, sub[2];
+                const bool w = mr_svo_intersect(o, org, dir, 0.0f, INFINITY, &whole);
+                bool any = false;
+                for (size_t k = 0; k < n; k++)
+                    any = any || mr_svo_occluded_subtree(o, &st[k], org, dir, 0.0f, INFINITY);
+                assert_int_equal(any, mr_svo_occluded(o, org, dir, 0.0f, INFINITY));
+                for (int rev = 0; rev < 2; rev++) {
+                    const bool f = trace_subtrees(o, st, n, rev, org, dir, 0.0f, INFINITY, &sub[rev]);
+                    assert_int_equal(f, w);
+                    if (!w)
+                        continue;
+                    const mr_svo_hit *h = &sub[rev];
+                    if (memcmp(&h->t, &whole.t, sizeof h->t) || h->leaf != whole.leaf || h->level != whole.level ||
+                        h->x != whole.x || h->y != whole.y || h->z != whole.z)
+                        fail_msg("depth %u, subtrees at %u, ray %d: subtree hit (t %a, leaf %u) is not the walk's "
+                                 "(t %a, leaf %u)", depth, level, i, (double)h->t, h->leaf, (double)whole.t,
+                                 whole.leaf);
+                    if (h->axis != whole.axis) {
+                        ties++;
+                        assert_true(enters_through(o, h, org, dir, h->axis));
+                        assert_true(enters_through(o, &whole, org, dir, whole.axis));
+                    }
+                }
+                rays++;
+                hits += w;
+            }
+        }
+        free(st);
+        fx_free(&fx);
+    }
+    print_message("[ subtrees ] %zu rays, %zu hits, %zu decided by the order at one t, %zu entry axes told apart "
+                  "at an edge or corner\n", rays, hits, equal_t, ties);
+    /* the mix has to reach leaves often, and subtrees meeting at one t */
+    assert_true(hits > rays / 10);
+    assert_true(equal_t > 0);
+}
+
 /* The same leaves through the real builder (mr_svo_build: breadth-first
  * nodes, leaves by level and code) must trace identically to the fixture's
  * depth-first layout: the walk order depends on geometry only, so hit/miss,
@@ -421,7 +551,7 @@ int main(void)
         cmocka_unit_test(test_random_shallow),  cmocka_unit_test(test_random_deep),
         cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
         cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
-        cmocka_unit_test(test_build_crosscheck),
+        cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
         cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

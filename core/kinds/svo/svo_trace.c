@@ -11,6 +11,7 @@
  * gets a new frame. A frame with nothing pending is popped.
  */
 #include "kinds/svo/svo_trace.h"
+#include "util/morton.h"
 
 #include <float.h>
 #include <math.h>
@@ -179,28 +180,31 @@ static void fill_hit(const svo_ray *r, mr_svo_hit *hit, uint32_t leaf, unsigned 
     hit->ng = mr_v3(n[0], n[1], n[2]);
 }
 
-/* The walk shared by both queries; hit may be NULL. */
-static inline bool svo_walk(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax,
-                            mr_svo_hit *hit)
+/* The walk shared by the queries, from interior node `start` at level
+ * `base` and cell xyz (the root: 0, 0, {0, 0, 0}); hit may be NULL. */
+static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz[3],
+                            mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)
 {
     svo_ray r;
     if (!svo || (svo->node_count == 0 && svo->leaf_count == 0))
         return false;
     if (!ray_setup(svo, org, dir, tmin, tmax, &r))
         return false;
+    const uint32_t bspan = GRID_CELLS >> base;
 
-    /* The root cube. The entry face is the axis whose near plane is the
-     * latest, if that is not before tmin (else the ray starts inside). */
+    /* The start node's cube. The entry face is the axis whose near plane is
+     * the latest, if that is not before tmin (else the ray starts inside). */
     double t0 = r.tmin, t1 = r.tmax;
     int axis = -1;
     for (int a = 0; a < 3; a++) {
+        const uint32_t k0 = bxyz[a] * bspan, k1 = k0 + bspan;
         if (r.par & (1u << a)) {
-            if (plane_s(&r, a, 0) > 0.0 || plane_s(&r, a, GRID_CELLS) < 0.0)
+            if (plane_s(&r, a, k0) > 0.0 || plane_s(&r, a, k1) < 0.0)
                 return false;
             continue;
         }
-        const double ta = plane_s(&r, a, 0) * r.inv[a];
-        const double tb = plane_s(&r, a, GRID_CELLS) * r.inv[a];
+        const double ta = plane_s(&r, a, k0) * r.inv[a];
+        const double tb = plane_s(&r, a, k1) * r.inv[a];
         const double near = DMIN(ta, tb), far = DMAX(ta, tb);
         if (near > t0 || (near == t0 && axis < 0)) {
             t0 = near;
@@ -220,14 +224,14 @@ static inline bool svo_walk(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float t
     }
 
     svo_frame stack[MR_SVO_MAX_DEPTH + 1];
-    int top = 0; /* == the top frame's level */
-    svo_frame *f = &stack[0];
-    f->node = 0;
-    f->xyz[0] = f->xyz[1] = f->xyz[2] = 0;
+    int top = (int)base; /* == the top frame's level */
+    svo_frame *f = &stack[base];
+    f->node = start;
+    f->xyz[0] = bxyz[0], f->xyz[1] = bxyz[1], f->xyz[2] = bxyz[2];
     f->t0 = t0;
     f->t1 = t1;
     f->axis = axis;
-    frame_enter(&r, svo, f, 0);
+    frame_enter(&r, svo, f, base);
 
     /* Nearest hit so far, kept only in the tie case (see below). */
     bool found = false;
@@ -235,7 +239,7 @@ static inline bool svo_walk(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float t
     for (;;) {
         f = &stack[top];
         if (f->pending == 0) {
-            if (top == 0)
+            if (top == (int)base)
                 return found;
             top--;
             continue;
@@ -300,14 +304,48 @@ static inline bool svo_walk(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float t
     }
 }
 
+static const uint32_t ROOT_XYZ[3] = {0, 0, 0};
+
 bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)
 {
-    return svo_walk(svo, org, dir, tmin, tmax, hit);
+    return svo_walk(svo, 0, 0, ROOT_XYZ, org, dir, tmin, tmax, hit);
 }
 
 bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax)
 {
-    return svo_walk(svo, org, dir, tmin, tmax, NULL);
+    return svo_walk(svo, 0, 0, ROOT_XYZ, org, dir, tmin, tmax, NULL);
+}
+
+/* A subtree's node must be interior and below the finest level. */
+static bool subtree_ok(const mr_svo *svo, const mr_svo_subtree *s)
+{
+    return s->node < svo->node_count && s->level < svo->depth;
+}
+
+bool mr_svo_intersect_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
+                              float tmax, mr_svo_hit *hit)
+{
+    return svo && subtree_ok(svo, s) && svo_walk(svo, s->node, s->level, s->xyz, org, dir, tmin, tmax, hit);
+}
+
+bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
+                             float tmax)
+{
+    return svo && subtree_ok(svo, s) && svo_walk(svo, s->node, s->level, s->xyz, org, dir, tmin, tmax, NULL);
+}
+
+uint64_t mr_svo_subtree_order(const mr_svo_subtree *s, mr_vec3 dir)
+{
+    const float d[3] = {dir.x, dir.y, dir.z};
+    uint32_t c[3];
+    for (int a = 0; a < 3; a++) {
+        /* mirrored along the axes the ray runs down: the walk's child order */
+        const uint32_t cells = s->level ? (1u << s->level) - 1u : 0u;
+        c[a] = d[a] < 0.0f ? cells - s->xyz[a] : s->xyz[a];
+    }
+    /* cells of coarser subtrees sort as their first finest-level cell */
+    const unsigned up = MR_SVO_MAX_DEPTH - s->level;
+    return mr_morton_encode(c[0] << up, c[1] << up, c[2] << up);
 }
 
 bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])

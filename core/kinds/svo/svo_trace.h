@@ -67,6 +67,29 @@ bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, f
 /* Whether any leaf meets the ray segment (same rules as mr_svo_intersect). */
 bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax);
 
+/* A subtree of the octree: interior node `node` at `level`, its cell xyz
+ * at that level. Tracing from subtrees lets Embree's tree (SIMD boxes)
+ * do the octree's top levels, where rays mostly cross empty space. */
+typedef struct mr_svo_subtree {
+    uint32_t node;
+    uint32_t level;
+    uint32_t xyz[3];
+} mr_svo_subtree;
+
+/* mr_svo_intersect / mr_svo_occluded over the leaves below s only: the
+ * same t (bit for bit) and leaf as the whole walk finds in that cell.
+ * False for a subtree that is not an interior node of svo. */
+bool mr_svo_intersect_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
+                              float tmax, mr_svo_hit *hit);
+bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
+                             float tmax);
+/* Where the whole walk meets subtree s along a ray of direction dir,
+ * relative to other disjoint subtrees: of two subtrees holding hits at
+ * one t, the whole walk reports the one with the smaller order (its child
+ * order is mirrored along the axes dir runs down, and a ray crosses
+ * mirrored cells in increasing order). */
+uint64_t mr_svo_subtree_order(const mr_svo_subtree *s, mr_vec3 dir);
+
 /* Object-space box of the occupied part of the octree: the leaves' box
  * when the octree knows it (mr_svo.has_occupied), else the cube shrunk to
  * the halves of the root that hold children; rounded outwards to float so
