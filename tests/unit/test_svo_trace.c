@@ -82,9 +82,28 @@ static void test_random_deep(void **state)
     run_random(21, 9, p, mr_v3(1e5f, 1e5f, 1e5f), 1000.0f, 3000);
 }
 
-/* Dyadic cube, rays with dyadic origins and directions in {0, +-1, +-2,
- * +-0.5}: every plane t is exact, so the comparison is exact. Origins on
- * grid points make rays run along faces and edges and through corners. */
+/* A ray through the cube at (-2, 0, 4) of edge 4 of a depth-`depth`
+ * octree, with a dyadic origin and a direction in {0, +-1, +-2, +-0.5}:
+ * every plane t is exact. Origins on grid points (also outside the cube)
+ * or half-cell points make rays run along faces and edges and through
+ * corners. */
+static void grid_ray(fx_rng *r, unsigned depth, mr_vec3 *org, mr_vec3 *dir)
+{
+    static const float comps[] = {0.0f, -0.0f, 1.0f, -1.0f, 2.0f, -2.0f, 0.5f, -0.5f};
+    const float n = (float)(1u << depth), base[3] = {-2.0f, 0.0f, 4.0f};
+    float ov[3], dv[3];
+    for (int a = 0; a < 3; a++) {
+        ov[a] = base[a] + 4.0f * (float)((int)fx_below(r, (uint32_t)(3 * n)) - (int)n) / n;
+        if (fx_below(r, 4) == 0)
+            ov[a] += 2.0f / n;
+        dv[a] = comps[fx_below(r, 8)];
+    }
+    *org = mr_v3(ov[0], ov[1], ov[2]);
+    *dir = mr_v3(dv[0], dv[1], dv[2]);
+}
+
+/* Dyadic cube, grid rays (grid_ray): every plane t is exact, so the
+ * comparison is exact. */
 static void test_exact_grid_rays(void **state)
 {
     (void)state;
@@ -93,24 +112,15 @@ static void test_exact_grid_rays(void **state)
         fx_random p = {depth * 1000u + 3u, 0.3, 0.35, 1};
         fx_build(&fx, depth, mr_v3(-2, 0, 4), 4.0f, fx_random_cls, &p);
         fx_rng r = {depth};
-        const float comps[] = {0.0f, -0.0f, 1.0f, -1.0f, 2.0f, -2.0f, 0.5f, -0.5f};
         for (int i = 0; i < 4000; i++) {
-            const float n = (float)(1u << depth);
-            float ov[3], dv[3];
-            const float base[3] = {-2.0f, 0.0f, 4.0f};
-            for (int a = 0; a < 3; a++) {
-                /* grid points, also outside the cube, or half-cell points */
-                ov[a] = base[a] + 4.0f * (float)((int)fx_below(&r, (uint32_t)(3 * n)) - (int)n) / n;
-                if (fx_below(&r, 4) == 0)
-                    ov[a] += 2.0f / n;
-                dv[a] = comps[fx_below(&r, 8)];
-            }
+            mr_vec3 org, dir;
+            grid_ray(&r, depth, &org, &dir);
             float tmin = 0.0f, tmax = INFINITY;
             if (fx_below(&r, 3) == 0) {
                 tmin = (float)fx_below(&r, 8) / 4.0f;
                 tmax = tmin + (float)fx_below(&r, 16) / 4.0f;
             }
-            check_ray_exact(&fx, mr_v3(ov[0], ov[1], ov[2]), mr_v3(dv[0], dv[1], dv[2]), tmin, tmax, NULL);
+            check_ray_exact(&fx, org, dir, tmin, tmax, NULL);
         }
         fx_free(&fx);
     }
@@ -270,24 +280,6 @@ static void test_occupied_bounds(void **state)
     fx_free(&fx);
 }
 
-/* Subtrees (mr_svo_subtree) as the svo kind makes them: interior nodes at
- * `level`, or nearer the root where a node has leaf children. */
-static size_t subtrees_of(const mr_svo *o, uint32_t node, unsigned level, unsigned at, const uint32_t xyz[3],
-                          mr_svo_subtree *out, size_t n)
-{
-    if (at == level || at + 1 >= o->depth || o->leaf_mask[node]) {
-        out[n] = (mr_svo_subtree){node, at, {xyz[0], xyz[1], xyz[2]}};
-        return n + 1;
-    }
-    uint32_t child = o->first_node[node];
-    for (unsigned ch = 0; ch < 8; ch++)
-        if (o->child_mask[node] >> ch & 1u) {
-            const uint32_t c[3] = {2 * xyz[0] + (ch & 1u), 2 * xyz[1] + (ch >> 1 & 1u), 2 * xyz[2] + (ch >> 2)};
-            n = subtrees_of(o, child++, level, at + 1, c, out, n);
-        }
-    return n;
-}
-
 /* Whether the face of `axis` that the ray enters leaf h through lies at
  * h.t (in double: the grid rays' planes are exact). */
 static bool enters_through(const mr_svo *o, const mr_svo_hit *h, mr_vec3 org, mr_vec3 dir, int axis)
@@ -327,11 +319,11 @@ static bool trace_subtrees(const mr_svo *o, const mr_svo_subtree *st, size_t n, 
     return found;
 }
 
-/* Tracing from subtrees finds what one walk from the root finds: the same
- * t bit for bit and the same leaf, in whatever order the subtrees are
- * visited; the entry axis may differ only at an edge or corner (both
- * faces there lie at t). Grid rays (as test_exact_grid_rays) run along
- * faces and through edges and corners, where subtrees meet at one t. */
+/* Tracing from subtrees (mr_svo_subtrees) finds what one walk from the
+ * root finds: the same t bit for bit and the same leaf, in whatever order
+ * the subtrees are visited; the entry axis may differ only at an edge or
+ * corner (both faces there lie at t). Grid rays run along faces and
+ * through edges and corners, where subtrees meet at one t. */
 static void test_subtrees(void **state)
 {
     (void)state;
@@ -345,24 +337,15 @@ static void test_subtrees(void **state)
             fx_free(&fx);
             continue;
         }
-        mr_svo_subtree *st = malloc(o->node_count * sizeof *st);
-        assert_non_null(st);
         for (unsigned level = 1; level + 1 < depth; level++) {
-            const uint32_t root[3] = {0, 0, 0};
-            const size_t n = subtrees_of(o, 0, level, 0, root, st, 0);
+            mr_svo_subtree *st;
+            uint32_t n;
+            mr_error err = {0};
+            assert_int_equal(mr_svo_subtrees(o, level, &st, &n, &err), MR_OK);
             fx_rng r = {depth * 31u + level};
-            const float comps[] = {0.0f, -0.0f, 1.0f, -1.0f, 2.0f, -2.0f, 0.5f, -0.5f};
             for (int i = 0; i < 3000; i++) {
-                const float cells = (float)(1u << depth);
-                float ov[3], dv[3];
-                const float base[3] = {-2.0f, 0.0f, 4.0f};
-                for (int a = 0; a < 3; a++) {
-                    ov[a] = base[a] + 4.0f * (float)((int)fx_below(&r, (uint32_t)(3 * cells)) - (int)cells) / cells;
-                    if (fx_below(&r, 4) == 0)
-                        ov[a] += 2.0f / cells;
-                    dv[a] = comps[fx_below(&r, 8)];
-                }
-                const mr_vec3 org = mr_v3(ov[0], ov[1], ov[2]), dir = mr_v3(dv[0], dv[1], dv[2]);
+                mr_vec3 org, dir;
+                grid_ray(&r, depth, &org, &dir);
                 mr_svo_hit whole, sub[2];
                 const bool w = mr_svo_intersect(o, org, dir, 0.0f, INFINITY, &whole);
                 bool any = false;
@@ -389,8 +372,8 @@ static void test_subtrees(void **state)
                 rays++;
                 hits += w;
             }
+            free(st);
         }
-        free(st);
         fx_free(&fx);
     }
     print_message("[ subtrees ] %zu rays, %zu hits, %zu decided by the order at one t, %zu entry axes told apart "

@@ -193,17 +193,22 @@ typedef struct {
     uint32_t lo[3], hi[3];
 } occupied_ctx;
 
+void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3])
+{
+    uint32_t p[3];
+    mr_morton_decode(key.code, &p[0], &p[1], &p[2]);
+    const uint32_t edge = 1u << (depth - key.level);
+    for (int a = 0; a < 3; a++) {
+        lo[a] = p[a] < lo[a] ? p[a] : lo[a];
+        hi[a] = p[a] + edge > hi[a] ? p[a] + edge : hi[a];
+    }
+}
+
 static void occupied_leaf(void *ctx, mr_svo_key key, uint32_t li)
 {
     (void)li;
     occupied_ctx *c = ctx;
-    uint32_t p[3];
-    mr_morton_decode(key.code, &p[0], &p[1], &p[2]);
-    const uint32_t edge = 1u << (c->depth - key.level);
-    for (int a = 0; a < 3; a++) {
-        c->lo[a] = p[a] < c->lo[a] ? p[a] : c->lo[a];
-        c->hi[a] = p[a] + edge > c->hi[a] ? p[a] + edge : c->hi[a];
-    }
+    mr_svo_key_box_grow(key, c->depth, c->lo, c->hi);
 }
 
 int mr_svo_fit_occupied(mr_svo *svo, mr_error *err)

@@ -113,6 +113,10 @@ size_t mr_svo_memory(const mr_svo *svo);
  * count that differs from the leaves reached. */
 int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_index, mr_error *err);
 
+/* Grows the box [lo, hi) of finest-level cells of an octree of the given
+ * depth by the cell of key (the occupied box of mr_svo). */
+void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3]);
+
 /* Fills svo's occupied box from its leaves (a walk over the octree, for
  * octrees read from a file or put together without mr_svo_build); the
  * same errors as mr_svo_collect_keys. An empty octree has none. */

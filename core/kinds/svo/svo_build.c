@@ -31,7 +31,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "util/morton.h"
 #include "util/parallel.h"
 
 #define BLK 16384u
@@ -147,7 +146,7 @@ static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
         size_t lo, hi;
         block_keys(c, b, &lo, &hi);
         c->bad[b] = SIZE_MAX;
-        uint32_t box[6] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, 0, 0, 0};
+        uint32_t lo_cell[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, hi_cell[3] = {0, 0, 0};
         for (size_t i = lo; i < hi; i++) {
             if (key_problem(c->keys, i, c->depth, 1) ||
                 (c->in_leaves && c->in_leaves[i].attr >= c->palette_count) ||
@@ -155,15 +154,10 @@ static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
                 c->bad[b] = i;
                 break;
             }
-            uint32_t p[3];
-            mr_morton_decode(c->keys[i].code, &p[0], &p[1], &p[2]);
-            const uint32_t edge = 1u << (c->depth - c->keys[i].level);
-            for (int a = 0; a < 3; a++) {
-                box[a] = p[a] < box[a] ? p[a] : box[a];
-                box[3 + a] = p[a] + edge > box[3 + a] ? p[a] + edge : box[3 + a];
-            }
+            mr_svo_key_box_grow(c->keys[i], c->depth, lo_cell, hi_cell);
         }
-        memcpy(c->occupied[b], box, sizeof box);
+        memcpy(c->occupied[b], lo_cell, sizeof lo_cell);
+        memcpy(c->occupied[b] + 3, hi_cell, sizeof hi_cell);
     }
 }
 

@@ -494,62 +494,29 @@ static void set_bounds(struct RTCBounds *b, const float lo[3], const float hi[3]
     b->upper_z = hi[2];
 }
 
-/* The rigid octree's primitives for Embree: its interior nodes at level
- * SUBTREE_LEVEL, or nearer the root where a node has leaf children. Embree's
- * tree over their boxes then does the octree's top levels, where rays
- * mostly cross empty space. The dancer at 640x360 (bench_svo_render),
+/* The rigid octree's primitives for Embree: its subtrees at level
+ * SUBTREE_LEVEL (mr_svo_subtrees). Embree's tree over their boxes then does
+ * the octree's top levels, where rays mostly cross empty space. The dancer at 640x360 (bench_svo_render),
  * trace time over the triangles' at depths 8 / 10 / 12: one walk from the
  * root 2.3 / 3.2 / 4.8; subtrees at level 3: 1.9 / 2.8 / 4.5, 4: 1.8 / 2.8 /
  * 4.4, 5: 1.7 / 2.6 / 4.2, 6: 1.7 / 2.7 / 4.2, with Embree's tree over them
  * at 0.1, 0.5, 2.2 and 6.6 bytes per voxel at depth 8. */
 #define SUBTREE_LEVEL 5u
 
-static int collect_subtrees(mr_geom *g, uint32_t node, unsigned level, const uint32_t xyz[3], size_t *cap,
-                            mr_error *err)
+/* The subtree primitive prim of a rigid object traced from subtrees, else
+ * NULL (one primitive: the whole octree). */
+static const mr_svo_subtree *rigid_subtree(const mr_geom *g, unsigned prim)
 {
-    const mr_svo *o = g->svo;
-    if (level == SUBTREE_LEVEL || level + 1 >= o->depth || o->leaf_mask[node]) {
-        if (g->subtree_count == *cap) {
-            size_t grown = *cap ? 2 * *cap : 256;
-            mr_svo_subtree *s = realloc(g->subtrees, grown * sizeof *s);
-            if (!s)
-                return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu subtrees", grown);
-            g->subtrees = s;
-            *cap = grown;
-        }
-        g->subtrees[g->subtree_count++] = (mr_svo_subtree){node, level, {xyz[0], xyz[1], xyz[2]}};
-        return MR_OK;
-    }
-    uint32_t child = o->first_node[node];
-    for (unsigned ch = 0; ch < 8; ch++) {
-        if (!(o->child_mask[node] >> ch & 1u))
-            continue;
-        if (child >= o->node_count)
-            return mr_error_set(err, MR_ERR_FORMAT, "svo: node %u's children out of range", node);
-        const uint32_t c[3] = {2 * xyz[0] + (ch & 1u), 2 * xyz[1] + (ch >> 1 & 1u), 2 * xyz[2] + (ch >> 2)};
-        int rc = collect_subtrees(g, child++, level + 1, c, cap, err);
-        if (rc < 0)
-            return rc;
-    }
-    return MR_OK;
+    return g->method == MR_SVO_RIGID && prim < g->subtree_count ? &g->subtrees[prim] : NULL;
 }
 
 static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
-    if (g->method == MR_SVO_RIGID && g->subtree_count) {
-        /* the subtree's cell within the leaves' box */
-        const mr_svo *o = g->svo;
-        const mr_svo_subtree *st = &g->subtrees[args->primID];
+    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
+    if (st) {
         float lo[3], hi[3];
-        mr_svo_bounds(o, lo, hi);
-        const double cell = ldexp((double)o->size, -(int)st->level);
-        const float c[3] = {o->origin.x, o->origin.y, o->origin.z};
-        for (int a = 0; a < 3; a++) {
-            const double l = (double)c[a] + st->xyz[a] * cell;
-            lo[a] = fmaxf(lo[a], mr_float_down(l));
-            hi[a] = fminf(hi[a], mr_float_up(l + cell));
-        }
+        mr_svo_subtree_bounds(g->svo, st, lo, hi);
         set_bounds(args->bounds_o, lo, hi);
         return;
     }
@@ -595,7 +562,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     float *ray = (float *)args->rayhit;
     float *hit = ray + 12 * N;
     unsigned inst = args->context->instID[0];
-    const mr_svo_subtree *st = g->method == MR_SVO_RIGID && g->subtree_count ? &g->subtrees[args->primID] : NULL;
+    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
@@ -638,7 +605,7 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
     const mr_svo *o = hit_octree(g, args->primID);
-    const mr_svo_subtree *st = g->method == MR_SVO_RIGID && g->subtree_count ? &g->subtrees[args->primID] : NULL;
+    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
     unsigned N = args->N;
     float *ray = (float *)args->ray;
     for (unsigned i = 0; i < N; i++) {
@@ -920,14 +887,15 @@ static int svo_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
     return MR_OK;
 }
 
-/* What the object's geometry holds: the shared octree with the
- * selection's side data, and per instance what tracing reads (rebuilt
- * octrees) or gathers from (direct: selections and the gathered boxes). */
+/* The shared octree with the selection's side data (svo_shared_bytes). */
 static size_t shared_memory(const mr_geom *g)
 {
     return mr_svo_memory(g->svo) + (size_t)g->extremes.node_count * 6;
 }
 
+/* What the object's geometry holds: the shared part, the rigid octree's
+ * subtrees, and per instance what tracing reads (rebuilt octrees) or
+ * gathers from (direct: selections and the gathered boxes). */
 static size_t svo_memory(const mr_geom *g)
 {
     size_t bytes = shared_memory(g) + (size_t)g->subtree_count * sizeof *g->subtrees;
@@ -1258,12 +1226,9 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
      * octree */
     if (!g->svo->has_occupied && (rc = mr_svo_fit_occupied(g->svo, err)) < 0)
         goto fail;
-    if (g->method == MR_SVO_RIGID && g->svo->node_count > 0) {
-        size_t cap = 0;
-        const uint32_t root[3] = {0, 0, 0};
-        if ((rc = collect_subtrees(g, 0, 0, root, &cap, err)) < 0)
-            goto fail;
-    }
+    if (g->method == MR_SVO_RIGID &&
+        (rc = mr_svo_subtrees(g->svo, SUBTREE_LEVEL, &g->subtrees, &g->subtree_count, err)) < 0)
+        goto fail;
     g->out_depth = p->depth + 2 < MR_SVO_MAX_DEPTH ? p->depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = check_poses(g, err)) < 0)
         goto fail;

@@ -15,6 +15,8 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
 /* Every plane is placed on the finest possible grid, 2^21 cells per axis,
  * whatever the octree's depth: a node at level l spans 2^(21 - l) cells. */
@@ -316,6 +318,72 @@ bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, fl
     return svo_walk(svo, 0, 0, ROOT_XYZ, org, dir, tmin, tmax, NULL);
 }
 
+typedef struct {
+    const mr_svo *svo;
+    unsigned level;
+    mr_svo_subtree *s;
+    uint32_t count, cap;
+} subtree_list;
+
+static int collect_subtrees(subtree_list *l, uint32_t node, unsigned level, const uint32_t xyz[3],
+                            mr_error *err)
+{
+    const mr_svo *o = l->svo;
+    if (level == l->level || level + 1 >= o->depth || o->leaf_mask[node]) {
+        if (l->count == l->cap) {
+            const uint32_t grown = l->cap ? 2 * l->cap : 256;
+            mr_svo_subtree *s = realloc(l->s, (size_t)grown * sizeof *s);
+            if (!s)
+                return mr_error_set(err, MR_ERR_NOMEM, "svo subtrees: out of memory for %u", grown);
+            l->s = s;
+            l->cap = grown;
+        }
+        l->s[l->count++] = (mr_svo_subtree){node, level, {xyz[0], xyz[1], xyz[2]}};
+        return MR_OK;
+    }
+    uint32_t child = o->first_node[node];
+    for (unsigned ch = 0; ch < 8; ch++) {
+        if (!(o->child_mask[node] >> ch & 1u))
+            continue;
+        if (child >= o->node_count)
+            return mr_error_set(err, MR_ERR_FORMAT, "svo subtrees: node %u's children out of range", node);
+        const uint32_t c[3] = {2 * xyz[0] + (ch & 1u), 2 * xyz[1] + (ch >> 1 & 1u), 2 * xyz[2] + (ch >> 2)};
+        int rc = collect_subtrees(l, child++, level + 1, c, err);
+        if (rc < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
+int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uint32_t *count, mr_error *err)
+{
+    *out = NULL;
+    *count = 0;
+    if (!svo || svo->node_count == 0)
+        return MR_OK;
+    subtree_list l = {.svo = svo, .level = level};
+    int rc = collect_subtrees(&l, 0, 0, ROOT_XYZ, err);
+    if (rc < 0) {
+        free(l.s);
+        return rc;
+    }
+    *out = l.s;
+    *count = l.count;
+    return MR_OK;
+}
+
+void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3])
+{
+    mr_svo_bounds(svo, lo, hi);
+    const double cell = ldexp((double)svo->size, -(int)s->level);
+    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
+    for (int a = 0; a < 3; a++) {
+        const double l = (double)c[a] + s->xyz[a] * cell;
+        lo[a] = fmaxf(lo[a], mr_float_down(l));
+        hi[a] = fminf(hi[a], mr_float_up(l + cell));
+    }
+}
+
 /* A subtree's node must be interior and below the finest level. */
 static bool subtree_ok(const mr_svo *svo, const mr_svo_subtree *s)
 {
@@ -361,34 +429,25 @@ bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
             lo[a] = hi[a] = c[a];
         return false;
     }
-    /* Which halves of the root hold anything, per axis. */
-    unsigned low_used = 7u, high_used = 7u;
-    if (svo->node_count > 0) {
+    /* In finest-level cells: the leaves' box, or else the halves of the
+     * root that hold anything, per axis. */
+    const uint32_t cells = 1u << svo->depth, half = cells / 2;
+    uint32_t lo_cell[3] = {0, 0, 0}, hi_cell[3] = {cells, cells, cells};
+    if (svo->has_occupied) {
+        memcpy(lo_cell, svo->occupied_lo, sizeof lo_cell);
+        memcpy(hi_cell, svo->occupied_hi, sizeof hi_cell);
+    } else if (svo->node_count > 0 && svo->child_mask[0] != 0) { /* 0: malformed, keep the cube */
         const unsigned m = svo->child_mask[0];
-        low_used = high_used = 0;
-        for (unsigned ch = 0; ch < 8; ch++) {
-            if (!((m >> ch) & 1u))
-                continue;
-            for (unsigned a = 0; a < 3; a++) {
-                if ((ch >> a) & 1u)
-                    high_used |= 1u << a;
-                else
-                    low_used |= 1u << a;
-            }
+        for (unsigned a = 0; a < 3; a++) {
+            const unsigned high = half_children[a][1]; /* the children on the high side of a */
+            lo_cell[a] = (m & ~high & 0xffu) ? 0 : half;
+            hi_cell[a] = (m & high) ? cells : half;
         }
-        if (m == 0)
-            low_used = high_used = 7u; /* malformed: keep the cube */
     }
-    const double s = (double)svo->size, cell = ldexp(s, -(int)svo->depth);
+    const double cell = ldexp((double)svo->size, -(int)svo->depth); /* cells * cell: exact */
     for (unsigned a = 0; a < 3; a++) {
-        double l = (low_used >> a) & 1u ? (double)c[a] : (double)c[a] + 0.5 * s;
-        double h = (high_used >> a) & 1u ? (double)c[a] + s : (double)c[a] + 0.5 * s;
-        if (svo->has_occupied) { /* the leaves' own box (exact in double: 21-bit cells) */
-            l = (double)c[a] + svo->occupied_lo[a] * cell;
-            h = (double)c[a] + svo->occupied_hi[a] * cell;
-        }
-        lo[a] = mr_float_down(l);
-        hi[a] = mr_float_up(h);
+        lo[a] = mr_float_down((double)c[a] + lo_cell[a] * cell);
+        hi[a] = mr_float_up((double)c[a] + hi_cell[a] * cell);
     }
     return true;
 }

@@ -76,6 +76,16 @@ typedef struct mr_svo_subtree {
     uint32_t xyz[3];
 } mr_svo_subtree;
 
+/* The subtrees to trace svo from: its interior nodes at `level`, or nearer
+ * the root where a node has leaf children, so that every leaf lies below
+ * exactly one. *out is allocated (free it with free()); an octree without
+ * interior nodes has none (*out NULL, *count 0). MR_ERR_NOMEM;
+ * MR_ERR_FORMAT for children beyond the node array. */
+int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uint32_t *count, mr_error *err);
+/* A box holding every leaf below s: its cell within the leaves' box
+ * (mr_svo_bounds), rounded outwards to float. */
+void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3]);
+
 /* mr_svo_intersect / mr_svo_occluded over the leaves below s only: the
  * same t (bit for bit) and leaf as the whole walk finds in that cell.
  * False for a subtree that is not an interior node of svo. */
