@@ -5,7 +5,10 @@
  * walking, the camera flying in from 60 units to 3.2; the ground truth the
  * full mesh) and examples/lod-displaced.json (the displaced sphere, the
  * camera flying in from 40 units to 2.4; the ground truth mip level 0
- * tessellated). Not a test: it prints figures, it never fails on a time.
+ * tessellated) and examples/lod-dmm.json (the dmm dancer walking, the
+ * camera flying in from 24 units to 1.6, a level per base triangle; the
+ * ground truth the detailed mesh). Not a test: it prints figures, it never
+ * fails on a time.
  *
  * Per tolerance (off = the finest level, as without one): the median frame
  * time without encoding (pose + BVH + trace) on the far half and the near
@@ -59,6 +62,9 @@ static const flight FLIGHTS[] = {
      "the dancer 60 to 31 units away", "mesh_lod_level", "mesh_lod_build_s"},
     {"lod-displaced", "displaced", "displaced sphere fly-through", "mip level 0 tessellated",
      "the sphere 40 to 21 units away", "displaced_lod_level", "displaced_lod_build_s"},
+    {"lod-dmm", "dmm", "dmm dancer fly-through", "the detailed mesh",
+     "the dancer 24 to 14 units away; level: the mean over the base triangles",
+     "dmm_lod_level_mean", "dmm_lod_build_s"},
 };
 
 /* The example at the bench's size (halved: at half its own), with
@@ -196,7 +202,7 @@ static void fly(const flight *fl, mr_device *dev)
             snprintf(worst, sizeof worst, "%.3f", x->worst_px);
         else
             snprintf(worst, sizeof worst, "(reference)");
-        printf("| %s | %.2f | %.2f | %.2f | %.2f | %.0f | %.0f | %.2f | %.1f / %.1f | %s | %s |\n",
+        printf("| %s | %.2f | %.2f | %.2f | %.2f | %.3g | %.0f | %.2f | %.1f / %.1f | %s | %s |\n",
                t, far, near, far / finest_far, median(x->geometry_ms, x->all),
                median(x->levels, x->all), median(x->prims, x->all), x->build_s,
                x->bytes_far / 1048576.0, x->bytes_near / 1048576.0, worst, over);

@@ -69,6 +69,7 @@ typedef struct query_ctx {
     const uint32_t *idx;
     double best2;
     d3 best;
+    uint32_t prim;
 } query_ctx;
 
 static d3 vtx(const float *pos, uint32_t i) { return (d3){pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]}; }
@@ -83,6 +84,7 @@ static bool query_cb(struct RTCPointQueryFunctionArguments *args)
     if (dd < c->best2) {
         c->best2 = dd;
         c->best = q;
+        c->prim = args->primID;
         /* float radius rounded up so the true closest is never culled */
         args->query->radius = nextafterf((float)sqrt(dd), INFINITY);
         return true;
@@ -124,17 +126,25 @@ int mr_closest_mesh_init(mr_closest_mesh *m, RTCDevice device, const float *pos,
     return MR_OK;
 }
 
-double mr_closest_mesh_distance(const mr_closest_mesh *m, const double p[3], double at[3])
+double mr_closest_mesh_nearest(const mr_closest_mesh *m, const double p[3], double at[3],
+                               uint32_t *prim)
 {
     struct RTCPointQuery q;
     q.x = (float)p[0], q.y = (float)p[1], q.z = (float)p[2], q.time = 0, q.radius = INFINITY;
     struct RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
-    query_ctx c = {m->pos, m->idx, INFINITY, {0, 0, 0}};
+    query_ctx c = {m->pos, m->idx, INFINITY, {0, 0, 0}, UINT32_MAX};
     rtcPointQuery(m->scene, &q, &qc, query_cb, &c);
     if (at)
         at[0] = c.best.x, at[1] = c.best.y, at[2] = c.best.z;
+    if (prim)
+        *prim = c.prim;
     return sqrt(c.best2);
+}
+
+double mr_closest_mesh_distance(const mr_closest_mesh *m, const double p[3], double at[3])
+{
+    return mr_closest_mesh_nearest(m, p, at, NULL);
 }
 
 void mr_closest_mesh_free(mr_closest_mesh *m)

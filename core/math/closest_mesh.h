@@ -34,6 +34,11 @@ int mr_closest_mesh_init(mr_closest_mesh *m, RTCDevice device, const float *pos,
 
 /* Distance from p to the mesh; at (may be NULL) gets the closest point. */
 double mr_closest_mesh_distance(const mr_closest_mesh *m, const double p[3], double at[3]);
+/* The same, and *prim (may be NULL) the triangle holding the closest point
+ * (UINT32_MAX for an empty mesh); of triangles at one distance, the first
+ * the query met. */
+double mr_closest_mesh_nearest(const mr_closest_mesh *m, const double p[3], double at[3],
+                               uint32_t *prim);
 
 void mr_closest_mesh_free(mr_closest_mesh *m);
 

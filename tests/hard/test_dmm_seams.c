@@ -21,6 +21,11 @@
  *     midpoint from either side of the surface, through the tessellation-free
  *     Embree user geometry; every one must hit. Without decimation the fine
  *     side's odd micro-vertices leave slits exactly there.
+ * Then the same three parts where a pixel tolerance ("tolerance_px", issue
+ * 16) picks a level per base triangle each frame (dmm_kind.c): the bake at
+ * its largest level 4 everywhere, the camera at three distances so the
+ * levels traced mix; the frame's levels and decimation must obey part 1's
+ * rules, and parts 2 and 3 hold on the surface traced.
  * The figures of each part are reported for `make hard` (hard_report.h).
  */
 #include <setjmp.h>
@@ -91,6 +96,7 @@ typedef struct level_figures {
     uint64_t edges, far_apart; /* shared base edges; those joining levels > 1 apart */
     uint64_t decimation_wrong; /* edge sides decimated but not the finer, or the reverse */
     uint64_t fewest_mixed;     /* the fewest base edges joining two levels in a mesh */
+    uint64_t mixed;            /* base edges joining two levels, in all */
     unsigned fewest_levels;    /* the fewest levels a mesh uses */
 } level_figures;
 
@@ -130,6 +136,7 @@ static uint64_t check_levels(const mr_dmm_bake *b, level_figures *lf)
     print_message("%llu base edges join two levels\n", (unsigned long long)mixed);
     lf->fewest_levels = distinct < lf->fewest_levels ? distinct : lf->fewest_levels;
     lf->fewest_mixed = mixed < lf->fewest_mixed ? mixed : lf->fewest_mixed;
+    lf->mixed += mixed;
     free(e);
     return open;
 }
@@ -262,12 +269,20 @@ static bool hits(RTCScene scene, mr_vec3 org, mr_vec3 dir)
     return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
-static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
+/* Parts 2 and 3 on the object of params in mode `mode`, posed a third into
+ * its clip; with a frame (levels of detail: params' tolerance), for its
+ * camera, and part 1 on the levels the frame traced into *lf (the bakes in
+ * b, per asset mesh, give the base edges). want_open: the unmatched
+ * micro-edges a crack-free tessellation has, or UINT64_MAX: count them
+ * from the frame's levels. */
+static seam_figures check_object(const mr_asset *a, mr_dmm_params params, double tolerance_px,
+                                 const mr_geom_frame *frame, mr_dmm_bake *const *b,
+                                 level_figures *lf, uint64_t want_open)
 {
     seam_figures sf = {.want_unmatched = want_open};
     const mr_kind *ops = &mr_kind_dmm;
-    mr_dmm_params params = adaptive_desc(mode);
-    mr_object_desc o = {.kind = &mr_kind_dmm, .params = &params};
+    const mr_dmm_mode mode = params.mode;
+    mr_object_desc o = {.kind = &mr_kind_dmm, .params = &params, .tolerance_px = tolerance_px};
     mr_geom *g = NULL;
     mr_pose *pose = NULL;
     mr_error err = {0};
@@ -279,8 +294,20 @@ static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t wan
     double t = a->clip_count ? a->clips[0].duration / 3 : 0;
     assert_int_equal(mr_pose_eval(pose, a, &pd, t, &err), MR_OK);
     mr_mat4 id = mr_mat4_identity();
-    if (ops->update(g, NULL, pose, &id, 2, &err) < 0)
+    if (ops->update(g, frame, pose, &id, 2, &err) < 0)
         fail_msg("update: %s", err.msg);
+    if (want_open == UINT64_MAX) { /* part 1 on the frame's levels */
+        const uint8_t *info = mr_dmm_frame_tri_info(g);
+        sf.want_unmatched = 0;
+        for (size_t i = 0, t0 = 0; i < a->mesh_count; i++) {
+            if (!b[i])
+                continue;
+            mr_dmm_bake frame_bake = *b[i];
+            frame_bake.tri_info = (uint8_t *)info + t0;
+            sf.want_unmatched += check_levels(&frame_bake, lf);
+            t0 += b[i]->base_triangle_count;
+        }
+    }
     mr_trimesh m;
     if (ops->tessellate(g, &m, &err) < 0)
         fail_msg("tessellate: %s", err.msg);
@@ -298,7 +325,7 @@ static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t wan
     print_message("mode %d: %u micro-triangles, %llu unmatched micro-edges (open base edges give "
                   "%llu)\n",
                   (int)mode, m.triangle_count, (unsigned long long)once,
-                  (unsigned long long)want_open);
+                  (unsigned long long)sf.want_unmatched);
     sf.unmatched = once;
 
     /* 3. rays at every micro-edge along a base edge, from both sides,
@@ -346,6 +373,11 @@ static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t wan
     return sf;
 }
 
+static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t want_open)
+{
+    return check_object(a, adaptive_desc(mode), 0, NULL, NULL, NULL, want_open);
+}
+
 static void test_adaptive_levels_are_watertight(void **state)
 {
     (void)state;
@@ -389,10 +421,69 @@ static void test_adaptive_levels_are_watertight(void **state)
     mr_asset_free(a);
 }
 
+/* Levels of detail: the bake at level 4 everywhere ("uniform"), a frame
+ * of 640x360 with the camera in front of the dancer at 6, 3 and 1.5 times
+ * its height, tolerance 1 px: each base triangle at its own level. */
+static void test_lod_levels_are_watertight(void **state)
+{
+    (void)state;
+    mr_refine_params rp = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
+    mr_asset *a = bcn_load_refined(&rp);
+    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+    bp.level = LEVEL;
+    bp.target_ratio = BASE_RATIO;
+    mr_error err = {0};
+    mr_dmm_bake **b = calloc(a->mesh_count, sizeof *b);
+    assert_non_null(b);
+    mr_vec3 lo = mr_v3(INFINITY, INFINITY, INFINITY), hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (size_t i = 0; i < a->mesh_count; i++) {
+        const mr_mesh *m = &a->meshes[i];
+        for (uint32_t v = 0; v < m->vertex_count; v++) {
+            mr_vec3 p = mr_v3(m->positions[3 * v], m->positions[3 * v + 1], m->positions[3 * v + 2]);
+            lo = mr_v3_min(lo, p);
+            hi = mr_v3_max(hi, p);
+        }
+        if (m->triangle_count && mr_dmm_bake_run(m, &bp, &b[i], &err) != MR_OK)
+            fail_msg("bake: %s", err.msg);
+    }
+    mr_vec3 centre = mr_v3_scale(mr_v3_add(lo, hi), 0.5f);
+    float height = hi.y - lo.y;
+    level_figures lf = {.fewest_mixed = UINT64_MAX, .fewest_levels = UINT_MAX};
+    uint64_t rays = 0, leaks = 0, cracks = 0;
+    const float away[3] = {6, 3, 1.5f};
+    for (int k = 0; k < 2; k++)
+        for (int d = 0; d < 3; d++) {
+            mr_dmm_params p = adaptive_desc(k ? MR_DMM_INTERPOLATED : MR_DMM_BASE);
+            p.levels = MR_DMM_LEVELS_UNIFORM;
+            mr_geom_frame f = {.width = 640, .height = 360,
+                               .camera = {mr_v3_add(centre, mr_v3(0, 0, away[d] * height)),
+                                          mr_quat_identity(), 0.7f}};
+            print_message("%s, camera %.1f heights away:\n", k ? "interpolated" : "base", away[d]);
+            seam_figures sf = check_object(a, p, 1.0, &f, b, &lf, UINT64_MAX);
+            cracks += (uint64_t)llabs((long long)sf.unmatched - (long long)sf.want_unmatched);
+            rays += sf.rays;
+            leaks += sf.leaks;
+        }
+    HARD_CHECK("other", lf.mixed, ">", 1000, "levels of detail: base edges joining two levels, "
+               "over the frames (%llu shared edges)", (unsigned long long)lf.edges);
+    HARD_CHECK("other", lf.far_apart, "==", 0, "shared base edges joining levels more than 1 apart");
+    HARD_CHECK("other", lf.decimation_wrong, "==", 0,
+               "base-edge sides decimated though not the finer, or finer and not decimated");
+    HARD_CHECK("leaks", cracks, "==", 0, "levels of detail: cracks, micro-edges used once beyond "
+               "the open base edges'");
+    HARD_CHECK("leaks", leaks, "==", 0, "levels of detail: rays at base-edge micro-edges that "
+               "leaked (of %llu)", (unsigned long long)rays);
+    for (size_t i = 0; i < a->mesh_count; i++)
+        mr_dmm_bake_free(b[i]);
+    free(b);
+    mr_asset_free(a);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_adaptive_levels_are_watertight),
+        cmocka_unit_test(test_lod_levels_are_watertight),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

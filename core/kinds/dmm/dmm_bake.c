@@ -313,86 +313,34 @@ static double tri_area(const float *pos, const uint32_t *ix)
     return 0.5 * sqrt(d3_dot(n, n));
 }
 
-/* A base triangle's edge k (micromesh.h: k = 0 is corner 0 -> 1), keyed by
- * its vertex pair so the triangles sharing it sort next to each other. */
-typedef struct edge_ref {
-    uint32_t lo, hi, tri, k;
-} edge_ref;
-
-static int edge_cmp(const void *x, const void *y)
-{
-    const edge_ref *a = x, *b = y;
-    if (a->lo != b->lo)
-        return a->lo < b->lo ? -1 : 1;
-    if (a->hi != b->hi)
-        return a->hi < b->hi ? -1 : 1;
-    return a->tri < b->tri ? -1 : a->tri > b->tri;
-}
-
 /* Step 4 of dmm_bake.h: b->tri_info from the detail's mean triangle area
  * (welded mesh wpos / widx, wi indices). */
 static bool assign_levels(mr_dmm_bake *b, const float *wpos, const uint32_t *widx, size_t wi,
                           bool adaptive)
 {
     uint32_t nt = b->base_triangle_count;
-    uint8_t *level = malloc(nt);
-    edge_ref *e = malloc((size_t)nt * 3 * sizeof *e);
-    if (!level || !e) {
-        free(level);
-        free(e);
-        return false;
-    }
-    double detail = 0;
-    for (size_t t = 0; adaptive && t < wi; t += 3)
-        detail += tri_area(wpos, widx + t);
-    detail /= (double)(wi / 3);
-    for (uint32_t t = 0; t < nt; t++) {
-        level[t] = (uint8_t)b->level;
-        double ratio = tri_area(b->base_positions, b->base_indices + 3 * t) / detail;
-        if (adaptive && ratio < INFINITY) /* else (no detail area) the finest */
-            level[t] = (uint8_t)(ratio > 1 ? fmin(nearbyint(0.5 * log2(ratio)), b->level) : 0);
-    }
-    for (uint32_t t = 0; t < nt; t++)
-        for (uint32_t k = 0; k < 3; k++) {
-            uint32_t u = b->base_indices[3 * t + k], v = b->base_indices[3 * t + (k + 1) % 3];
-            e[3 * t + k] = (edge_ref){u < v ? u : v, u < v ? v : u, t, k};
+    uint8_t *level = malloc(nt), *decimate = calloc(nt, 1);
+    mr_umesh_edges e = {0};
+    bool ok = level && decimate && mr_umesh_edges_init(&e, b->base_indices, nt, NULL) == MR_OK;
+    if (ok) {
+        double detail = 0;
+        for (size_t t = 0; adaptive && t < wi; t += 3)
+            detail += tri_area(wpos, widx + t);
+        detail /= (double)(wi / 3);
+        for (uint32_t t = 0; t < nt; t++) {
+            level[t] = (uint8_t)b->level;
+            double ratio = tri_area(b->base_positions, b->base_indices + 3 * t) / detail;
+            if (adaptive && ratio < INFINITY) /* else (no detail area) the finest */
+                level[t] = (uint8_t)(ratio > 1 ? fmin(nearbyint(0.5 * log2(ratio)), b->level) : 0);
         }
-    qsort(e, (size_t)nt * 3, sizeof *e, edge_cmp);
-    /* raise the coarse side of every edge joining levels more than one
-     * apart; levels only grow and are capped, so this ends */
-    for (bool changed = adaptive; changed;) {
-        changed = false;
-        for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
-            unsigned top = 0;
-            for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
-                top = level[e[j].tri] > top ? level[e[j].tri] : top;
-            for (size_t m = i; m < j; m++)
-                if (level[e[m].tri] + 1u < top) {
-                    level[e[m].tri] = (uint8_t)(top - 1);
-                    changed = true;
-                }
-        }
+        mr_umesh_balance(&e, level, decimate);
+        for (uint32_t t = 0; t < nt; t++)
+            b->tri_info[t] = mr_dmm_tri_info(level[t], decimate[t]);
     }
-    uint8_t *decimate = calloc(nt, 1);
-    if (!decimate) {
-        free(level);
-        free(e);
-        return false;
-    }
-    for (size_t i = 0, j; i < (size_t)nt * 3; i = j) {
-        unsigned low = UINT32_MAX;
-        for (j = i; j < (size_t)nt * 3 && e[j].lo == e[i].lo && e[j].hi == e[i].hi; j++)
-            low = level[e[j].tri] < low ? level[e[j].tri] : low;
-        for (size_t m = i; m < j; m++)
-            if (level[e[m].tri] > low)
-                decimate[e[m].tri] |= (uint8_t)(1u << e[m].k);
-    }
-    for (uint32_t t = 0; t < nt; t++)
-        b->tri_info[t] = mr_dmm_tri_info(level[t], decimate[t]);
+    mr_umesh_edges_free(&e);
     free(decimate);
     free(level);
-    free(e);
-    return true;
+    return ok;
 }
 
 int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_dmm_bake **out,

@@ -41,12 +41,10 @@
  * per-triangle array (decoded values, pyramid, micro-vertices and
  * micro-triangles) is packed, with a prefix offset per base triangle.
  *
- * With "tolerance_px" the object keeps every subdivision level from its own
- * down to 0, each its own Embree geometry, and each frame enables the
- * coarsest whose measured distance to the detailed mesh (dmm_lod.h),
- * projected by the frame's camera, stays below the tolerance (see "levels
- * of detail" below). Primitive ids, normals, the tessellation and the stats
- * are the traced level's.
+ * With "tolerance_px" every base triangle traces, each frame, the coarsest
+ * of its levels (its baked one down to 0) whose bound, projected by the
+ * frame's camera, stays below the tolerance (see "levels of detail"
+ * below): one Embree geometry whose base triangles change level.
  *
  * Everything per base triangle is computed from that triangle's own data in
  * a fixed order, so results are bit-identical for any thread count, and
@@ -112,6 +110,10 @@ struct dmm_level {
     uint32_t *coarse_first, *coarse_id;
     float *smooth_normals;
     uint32_t smooth_count;        /* coarse vertices (smooth_normals holds 3 floats each) */
+    bool relaid;                  /* levels of detail laid the arrays out again since the last
+                                     commit (Embree's triangle buffers change size) */
+    bool boxes_given;             /* levels of detail fill boxes (their baked levels' boxes,
+                                     which hold every coarser surface) before evaluating */
     RTCGeometry rtc;
 };
 
@@ -732,7 +734,11 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
     update_ctx *c = ctx;
     dmm_level *g = c->g;
     for (size_t t = begin; t < end; t++) {
-        if (g->boxes) {
+        if (g->boxes_given && g->boxes) {
+            const float *b = g->boxes + t * BOX_FLOATS;
+            if (!finite_bounded(mr_v3(b[0], b[1], b[2])) || !finite_bounded(mr_v3(b[3], b[4], b[5])))
+                note_bad(c, worker, t);
+        } else if (g->boxes) {
             /* the pad once: the bounds use it, and it is cached for the rays */
             mr_dmm_patch p = patch_of(g, (uint32_t)t);
             float *b = g->boxes + t * BOX_FLOATS;
@@ -750,7 +756,7 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             note_bad(c, worker, t);
         else if (watertight_reference(g) &&
                  !box_holds(g->boxes + t * BOX_FLOATS, v,
-                            g->value_first[t + 1] - g->value_first[t]) &&
+                            mr_umesh_vertex_count(mr_dmm_info_level(g->tri_info[t]))) &&
                  c->outside[worker] == 0)
             c->outside[worker] = (uint32_t)t + 1;
     }
@@ -769,13 +775,14 @@ static void pose_base_vertices(dmm_level *g)
     }
 }
 
-static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
-                        mr_error *err)
+/* The frame's accumulated matrix of every base vertex (a one-mesh view of
+ * the asset whose vertices are the base vertices with their own weights,
+ * which the bake kept) and, mode base, the skinned base vertices. *moved:
+ * whether they differ from the last evaluated frame's (static objects, and
+ * frames where nothing moved, keep their data). */
+static int level_pose(dmm_level *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                      bool *moved, mr_error *err)
 {
-    (void)frame; /* posed geometry does not depend on the view */
-    /* Accumulated matrices of the base vertices: a one-mesh view of the
-     * asset whose vertices are the base vertices with their own weights
-     * (the bake kept them). */
     for (size_t i = 0; i < g->asset->mesh_count; i++) {
         const mr_dmm_bake *b = g->bakes[i];
         if (!b)
@@ -803,8 +810,8 @@ static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose 
         mr_skin_matrices(&view, 0, pose, transform, g->mats + g->mesh_first_base[i], threads);
     }
     size_t nb = (size_t)g->base_vertex_count * sizeof(mr_affine);
-    /* Static objects (and frames where nothing moved) keep their data. */
-    if (g->evaluated && memcmp(g->mats, g->last_mats, nb) == 0)
+    *moved = !(g->evaluated && memcmp(g->mats, g->last_mats, nb) == 0);
+    if (!*moved)
         return MR_OK;
     g->evaluated = false;
     for (size_t k = 0; k < (size_t)g->base_vertex_count * 12; k++)
@@ -815,6 +822,13 @@ static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose 
                                 g->asset->path, k / 12);
     if (g->posed_pos)
         pose_base_vertices(g);
+    return MR_OK;
+}
+
+/* Every base triangle's box (and, tessellated, micro-vertices) for the
+ * posed base vertices. */
+static int level_evaluate(dmm_level *g, unsigned threads, mr_error *err)
+{
     update_ctx *c = calloc(1, sizeof *c);
     if (!c)
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory updating a dmm object");
@@ -838,9 +852,17 @@ static int level_update(dmm_level *g, const mr_geom_frame *frame, const mr_pose 
                             "%s: base triangle %u has a micro-vertex outside the box the "
                             "tessellation-free traversal bounds it by (a bug in its bounds)",
                             g->asset->path, outside - 1);
-    memcpy(g->last_mats, g->mats, nb);
+    memcpy(g->last_mats, g->mats, (size_t)g->base_vertex_count * sizeof(mr_affine));
     g->evaluated = true;
     return MR_OK;
+}
+
+static int level_update(dmm_level *g, const mr_pose *pose, const mr_mat4 *transform, unsigned threads,
+                        mr_error *err)
+{
+    bool moved;
+    int rc = level_pose(g, pose, transform, threads, &moved, err);
+    return rc < 0 || !moved ? rc : level_evaluate(g, threads, err);
 }
 
 /* Embree user-geometry callbacks (tessellation-free modes and the
@@ -988,10 +1010,17 @@ static int level_attach(dmm_level *g, RTCDevice device, RTCScene scene, unsigned
 
 static void level_commit(dmm_level *g)
 {
-    if (embree_triangles(g))
+    if (embree_triangles(g) && g->relaid) {
+        rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                   g->positions, 0, 3 * sizeof(float), g->vertex_count);
+        rtcSetSharedGeometryBuffer(g->rtc, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g->indices,
+                                   0, 3 * sizeof(uint32_t), g->triangle_count);
+        rtcCommitGeometry(g->rtc);
+    } else if (embree_triangles(g))
         mr_geom_commit_vertices(g->rtc);
     else
         rtcCommitGeometry(g->rtc);
+    g->relaid = false;
 }
 
 /* Base triangle and base-domain (u, v) of a hit. */
@@ -1035,20 +1064,31 @@ static mr_mat4 normal_matrix_at(const dmm_level *g, uint32_t t, float u, float v
     return mr_mat4_normal_matrix(&m);
 }
 
-/* Normals "smooth" at base-domain (u, v) of base triangle t, rest pose:
- * the coarse sub-triangle's corners (lattice (a[k], b[k]) at its coarse
- * sublevel) and their normals n[k], interpolated into *out. */
-static void smooth_rest_normal(const dmm_level *g, uint32_t t, float u, float v, uint32_t a[3],
-                               uint32_t b[3], mr_vec3 n[3], mr_vec3 *out)
+/* The sublevel smooth normals are interpolated at on base triangle t when
+ * it traces level `level`: its coarse sublevel, or the level itself where
+ * a level of detail traces it coarser (the normals then vary no finer than
+ * the surface does). */
+static unsigned smooth_sublevel(const dmm_level *g, uint32_t t, unsigned level)
 {
-    unsigned s = g->coarse_level[t];
+    return g->coarse_level[t] < level ? g->coarse_level[t] : level;
+}
+
+/* Normals "smooth" at base-domain (u, v) of base triangle t, rest pose:
+ * the sub-triangle of sublevel s (smooth_sublevel) holding it (lattice
+ * (a[k], b[k])), the normals n[k] of its corners, and their interpolation
+ * *out. */
+static void smooth_rest_normal(const dmm_level *g, uint32_t t, unsigned s, float u, float v,
+                               uint32_t a[3], uint32_t b[3], mr_vec3 n[3], mr_vec3 *out)
+{
+    unsigned coarse = g->coarse_level[t], up = coarse - s;
     float w[3];
     mr_dmm_locate(s, 0, u, v, a, b);
     lattice_weights(s, u, v, a, b, w);
     *out = mr_v3(0, 0, 0);
     for (int k = 0; k < 3; k++) {
         const float *x = g->smooth_normals +
-                         3 * (size_t)g->coarse_id[g->coarse_first[t] + mr_umesh_vertex_index(s, a[k], b[k])];
+                         3 * (size_t)g->coarse_id[g->coarse_first[t] +
+                                                  mr_umesh_vertex_index(coarse, a[k] << up, b[k] << up)];
         n[k] = mr_v3(x[0], x[1], x[2]);
         *out = mr_v3_add(*out, mr_v3_scale(n[k], w[k]));
     }
@@ -1063,7 +1103,7 @@ static mr_vec3 level_normal(const dmm_level *g, unsigned prim, float u, float v)
     uint32_t a[3], b[3];
     if (g->desc.normals == MR_DMM_NORMALS_SMOOTH) {
         mr_vec3 n[3], rest;
-        smooth_rest_normal(g, t, u, v, a, b, n, &rest);
+        smooth_rest_normal(g, t, smooth_sublevel(g, t, p.level), u, v, a, b, n, &rest);
         mr_mat4 cof = normal_matrix_at(g, t, u, v);
         return mr_mat4_dir(&cof, rest);
     }
@@ -1101,10 +1141,10 @@ static bool level_shading_point(const dmm_level *g, unsigned prim, float u, floa
     mr_dmm_patch patch = patch_of(g, t);
     uint32_t a[3], b[3];
     mr_vec3 n[3], rest;
-    smooth_rest_normal(g, t, u, v, a, b, n, &rest);
-    unsigned shift = patch.level - g->coarse_level[t];
+    unsigned s = smooth_sublevel(g, t, patch.level), shift = patch.level - s;
+    smooth_rest_normal(g, t, s, u, v, a, b, n, &rest);
     float w[3];
-    lattice_weights(g->coarse_level[t], u, v, a, b, w);
+    lattice_weights(s, u, v, a, b, w);
     mr_mat4 cof = normal_matrix_at(g, t, u, v);
     *out = p;
     for (int k = 0; k < 3; k++) {
@@ -1128,7 +1168,7 @@ static int micro_triangles(const dmm_level *g, bool rest, mr_trimesh *out, mr_er
     memset(out, 0, sizeof *out);
     uint64_t nv = g->value_first[g->base_triangle_count];
     uint64_t nt = g->micro_first[g->base_triangle_count];
-    out->positions = malloc(nv * 3 * sizeof(float) + sizeof(float));
+    out->positions = calloc(nv * 3 + 1, sizeof(float)); /* a coarser level leaves gaps */
     out->indices = malloc(nt * 3 * sizeof(uint32_t));
     if (!out->positions || !out->indices) {
         mr_trimesh_free(out);
@@ -1185,8 +1225,8 @@ static uint64_t level_primitives(const dmm_level *g)
 /* The bake's own quality (dmm_bake.h steps 5 and 6), the same every frame:
  * what a user reads to judge a level or base ratio before looking at
  * frames; its size; and (first frame) what making it took. */
-enum { S_RMS, S_MAX, S_UNMATCHED, S_BASE, S_STORED, S_BAKE_S, S_LEVEL, S_ERROR_PX, S_LOD_BYTES,
-       S_LOD_BUILD_S, S_COUNT };
+enum { S_RMS, S_MAX, S_UNMATCHED, S_BASE, S_STORED, S_BAKE_S, S_LEVEL, S_LEVEL_MEAN, S_ERROR_PX,
+       S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
 static const mr_kind_stat DMM_STATS[S_COUNT] = {
     {"dmm_bake_rms_distance", "diagonal",
      "RMS distance of the baked surface (its micro-vertices and micro-triangle centroids, rest "
@@ -1203,23 +1243,27 @@ static const mr_kind_stat DMM_STATS[S_COUNT] = {
      "the encoded displacements as a file stores them: a level byte per base triangle and the "
      "records", MR_STAT_SUM},
     {"dmm_bake_s", "s",
-     "baking and encoding at creation (every level's, with \"tolerance_px\"), or loading them "
-     "from the derived-data cache",
+     "baking and encoding at creation, or loading them from the derived-data cache",
      MR_STAT_ONCE},
     {"dmm_lod_level", "level",
-     "the subdivision level traced (\"tolerance_px\": the coarsest within the tolerance; without "
-     "one, the object's \"level\"); the bake figures above are that level's",
+     "the finest subdivision level traced (\"tolerance_px\": each base triangle at the coarsest "
+     "within the tolerance, neighbours at most one apart; without one, the object's \"level\")",
+     MR_STAT_MAX},
+    {"dmm_lod_level_mean", "level",
+     "the mean level over the base triangles (\"tolerance_px\"; without one, the object's "
+     "\"level\")",
      MR_STAT_MAX},
     {"dmm_lod_error_px", "px",
-     "the traced level's predicted error: its measured two-sided distance to the detailed mesh, "
-     "projected at the posed object's nearest depth by this frame's camera (0 without a "
-     "tolerance)",
+     "the predicted error: the largest over the base triangles of its level's bound on its "
+     "distance to the detailed mesh, projected at its nearest depth by this frame's camera (0 "
+     "without a tolerance)",
      MR_STAT_MAX},
     {"dmm_lod_bytes", "bytes",
-     "what the levels coarser than the object's \"level\" hold (\"tolerance_px\"; 0 without)",
+     "what the levels of detail hold: the baked layout while a frame traces another, the "
+     "bounds, the edges (\"tolerance_px\"; 0 without)",
      MR_STAT_SUM},
     {"dmm_lod_build_s", "s",
-     "measuring the levels' distances to the detailed mesh at creation (\"tolerance_px\")",
+     "measuring the bounds at creation (\"tolerance_px\")",
      MR_STAT_ONCE},
 };
 
@@ -1231,53 +1275,170 @@ static void level_frame_stats(const dmm_level *g, double *values)
     values[S_BAKE_S] = g->bake_s;
 }
 
-/* ---- levels of detail ("tolerance_px", issue 16) ----
- * An object with a tolerance keeps every subdivision level from its own
- * ("level", L) down to 0, each a dmm_level baked as an object of that level
- * would be (the bake is a function of the asset and the parameters, and the
- * disk cache keys it by level: a repeated job loads them all), each its own
- * Embree geometry (the object takes L + 1 geometry ids), finest first.
- * Each level's error is its two-sided distance to the detailed mesh
- * (dmm_lod.h), measured once in the rest pose. Each frame the coarsest
- * level whose error, projected by the frame's camera at the posed object's
- * nearest depth and stretched by the object's transform (kinds/lod.h),
- * stays below the tolerance is enabled and traced; the rest are disabled.
- * The nearest depth comes from the bounds of a coarse level (its base
- * triangles' boxes, or micro-vertices with intersector "embree") grown by
- * that level's error, so placing the object costs a coarse level's update.
- * Skinning moves both surfaces by the same blended matrices at the base
- * vertices, and bones that do not stretch keep each part rigid, so the
- * rest-pose error is the prediction in a pose too (not a bound: the
- * reference passes measure it). */
+/* ---- levels of detail ("tolerance_px", issue 16), per base triangle ----
+ * An object with a tolerance is its one bake. Each frame every base
+ * triangle t traces the coarsest level l <= its baked level L_t whose
+ * bound, projected by the frame's camera at t's nearest depth and
+ * stretched by the object's transform (kinds/lod.h), stays below the
+ * tolerance; then the coarse side of every shared edge joining levels more
+ * than one apart is raised and the finer side of every edge between levels
+ * decimated (mr_umesh_balance), as in an adaptive bake, so the surface
+ * stays watertight. A level-l surface is the encoding's own prefix
+ * (dmm_lod.h): a triangle whose level changes gets its values subsampled
+ * from the baked ones and its pyramid rebuilt, in the level's own arrays at
+ * its baked offsets, and everything else (traversal, tessellation,
+ * references) reads them as it reads a bake's.
+ *
+ * t's bound at level l is error[t][l] + fine[t]:
+ *  - fine[t]: t's share of the baked surface's two-sided distance to the
+ *    detailed mesh (dmm_lod.h: its own samples against the detail, and the
+ *    detail's points whose nearest baked point is on t), measured at rest
+ *    and in the poses of the object's clip (where a base triangle spans a
+ *    joint, the interpolated matrices and the detail's own skinning part);
+ *  - error[t][l]: how far t's level-l surface, under any decimation its
+ *    shared edges allow, strays from its baked lattice at equal domain
+ *    coordinates (mr_dmm_lod_coarsening, exact: not sampled), plus how far
+ *    the baked surface's own decimation strays from that lattice, at rest
+ *    and in the same poses; the largest over levels l..L_t, so raising a
+ *    level never raises its bound. error_whole[t][l] is the same for
+ *    level l alone without decimation: what a frame predicts for t when no
+ *    edge of its is decimated.
+ * By the triangle inequality a point of t's level-l surface is within the
+ * sum of the detailed mesh, and a point of the detailed mesh within
+ * fine[t'] of the baked surface of the triangle t' its nearest baked point
+ * is on, and so within t''s sum of the traced one. t's nearest depth: its
+ * box at its baked level (which holds every coarser surface: their
+ * micro-vertices are its own) grown by its coarsest bound. A triangle that
+ * no level fits with its edges decimated raises its neighbours to its level
+ * (as far as theirs reach), so none of its edges is. The pick reads only
+ * the frame, so a resumed job traces the uninterrupted run's levels. The
+ * bounds are kept in the derived-data cache (dmm_lod.h). */
 
-#define LOD_MAX (MR_UMESH_MAX_LEVEL + 1)
-_Static_assert(LOD_MAX == MR_DMM_LOD_FILE_LEVELS, "the errors file holds every level");
+#define LOD_LEVELS MR_DMM_LOD_LEVELS
+_Static_assert(LOD_LEVELS == MR_UMESH_MAX_LEVEL + 1, "a bound per level");
+
+typedef struct tri_lod {
+    /* the baked levels and data (the level's own arrays hold the frame's,
+     * at the same offsets: value_first, pyramid_first) */
+    uint8_t *info;
+    uint16_t *values, *minv, *maxv;
+    mr_umesh_edges edges;
+    uint8_t *shared;           /* per base triangle: the edges it shares (micromesh.h) */
+    double *error;             /* LOD_LEVELS per base triangle: error[t][l], l <= its baked level */
+    double *error_whole;       /* the same for level l with no edge decimated, alone (not the
+                                  largest over finer levels): what a frame predicts for it */
+    double *fine;              /* per base triangle: fine[t] (above) */
+    float *box;                /* 6 per base triangle: its posed box at its baked level */
+    double *px;                /* per base triangle: pixels per unit at its nearest depth */
+    uint8_t *level, *decimate; /* per base triangle: this frame's */
+    uint16_t *pyr_min, *pyr_max; /* a whole pyramid of the largest level: scratch */
+    bool boxed;                /* box holds the level's current pose */
+    unsigned level_max;        /* this frame's finest level and mean level */
+    double level_mean;
+} tri_lod;
 
 struct mr_geom {
     const mr_asset *asset;
-    uint32_t count;          /* levels: 1 without a tolerance (or at level 0) */
-    dmm_level *lv[LOD_MAX];  /* finest first: lv[k] subdivides at the object's level - k */
-    double error[LOD_MAX];   /* lv[k]'s distance to the detailed mesh (rest space), never
-                                below a finer level's */
-    double tolerance_px;     /* 0: no levels of detail */
-    uint32_t cur;            /* the level this frame traces */
-    double predicted_px;     /* its error projected by this frame's camera */
-    uint32_t bounds_level;
-    mr_vec3 lo, hi;          /* the bounds level's posed bounds grown by its error */
-    uint32_t posed;          /* bit k: lv[k] is posed for the current pose */
-    mr_lod_switch sw;        /* the level enabled in Embree; dirty: bit k, lv[k] was posed
-                                since the last commit */
-    double lod_build_s;      /* measuring the errors */
+    dmm_level *lv;
+    tri_lod *lod;              /* NULL without a tolerance (or at level 0) */
+    double tolerance_px;
+    double predicted_px;       /* this frame's largest projected bound */
+    bool changed;              /* posed or laid out again since the last commit */
+    double lod_build_s;        /* measuring the bounds */
 };
+
+static size_t lod_bytes(const tri_lod *d, uint32_t nt, uint32_t values, uint32_t pyramid)
+{
+    if (!d)
+        return 0;
+    return sizeof *d + (size_t)nt * (4 + (2 * LOD_LEVELS + 1) * sizeof(double) +
+                                     6 * sizeof(float) + sizeof(double)) +
+           ((size_t)values + 2 * (size_t)pyramid) * sizeof(uint16_t) +
+           d->edges.count * sizeof(mr_umesh_edge) +
+           2 * (size_t)mr_dmm_pyramid_size(MR_UMESH_MAX_LEVEL) * sizeof(uint16_t);
+}
+
+static void lod_free(tri_lod *d)
+{
+    if (!d)
+        return;
+    free(d->info);
+    free(d->values);
+    free(d->minv);
+    free(d->maxv);
+    mr_umesh_edges_free(&d->edges);
+    free(d->shared);
+    free(d->error);
+    free(d->error_whole);
+    free(d->fine);
+    free(d->box);
+    free(d->px);
+    free(d->level);
+    free(d->decimate);
+    free(d->pyr_min);
+    free(d->pyr_max);
+    free(d);
+}
 
 static void dmm_free(mr_geom *g)
 {
     if (!g)
         return;
-    for (uint32_t k = 0; k < LOD_MAX; k++)
-        if (g->lv[k])
-            level_free(g->lv[k]);
+    level_free(g->lv);
+    lod_free(g->lod);
     free(g);
+}
+
+/* Base triangle t at its baked level (rest: in the rest pose). */
+static mr_dmm_patch fine_patch(const dmm_level *g, const tri_lod *d, uint32_t t, bool rest)
+{
+    mr_dmm_patch p = rest ? rest_patch(g, t) : patch_of(g, t);
+    p.level = mr_dmm_info_level(d->info[t]);
+    p.decimate = mr_dmm_info_decimate(d->info[t]);
+    p.values = d->values + g->value_first[t];
+    p.minv = d->minv + g->pyramid_first[t];
+    p.maxv = d->maxv + g->pyramid_first[t];
+    p.pad[0] = p.pad[1] = p.pad[2] = 0;
+    return p;
+}
+
+/* A copy of the level's baked levels and data, its edges, and room for the
+ * rest. */
+static int lod_new(const dmm_level *g, tri_lod **out, mr_error *err)
+{
+    size_t nt = g->base_triangle_count, values = g->value_first[nt], pyramid = g->pyramid_first[nt];
+    size_t full = mr_dmm_pyramid_size(MR_UMESH_MAX_LEVEL);
+    tri_lod *d = calloc(1, sizeof *d);
+    *out = d;
+    if (!d)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for levels of detail", g->asset->path);
+    d->info = malloc(nt);
+    d->values = malloc(values * sizeof(uint16_t) + 1);
+    d->minv = malloc(pyramid * sizeof(uint16_t) + 1);
+    d->maxv = malloc(pyramid * sizeof(uint16_t) + 1);
+    d->shared = malloc(nt);
+    d->error = calloc(nt * LOD_LEVELS, sizeof(double));
+    d->error_whole = calloc(nt * LOD_LEVELS, sizeof(double));
+    d->fine = calloc(nt, sizeof(double));
+    d->box = calloc(nt * 6, sizeof(float));
+    d->px = calloc(nt, sizeof(double));
+    d->level = malloc(nt);
+    d->decimate = malloc(nt);
+    d->pyr_min = malloc(full * sizeof(uint16_t));
+    d->pyr_max = malloc(full * sizeof(uint16_t));
+    if (!d->info || !d->values || !d->minv || !d->maxv || !d->shared || !d->error ||
+        !d->error_whole || !d->fine || !d->box || !d->px || !d->level || !d->decimate ||
+        !d->pyr_min || !d->pyr_max)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for levels of detail", g->asset->path);
+    memcpy(d->info, g->tri_info, nt);
+    memcpy(d->values, g->values, values * sizeof(uint16_t));
+    memcpy(d->minv, g->minv, pyramid * sizeof(uint16_t));
+    memcpy(d->maxv, g->maxv, pyramid * sizeof(uint16_t));
+    int rc = mr_umesh_edges_init(&d->edges, g->base_indices, (uint32_t)nt, err);
+    if (rc < 0)
+        return rc;
+    mr_umesh_edges_shared(&d->edges, d->shared);
+    return MR_OK;
 }
 
 /* The detailed mesh in the rest pose: the asset's meshes merged. */
@@ -1308,35 +1469,41 @@ static int rest_detail(const mr_asset *a, float **pos, uint32_t **idx, uint32_t 
     return MR_OK;
 }
 
-/* Every level's distance to the detail as posed: the rest pose (pose NULL:
- * the bake's own positions, all samples) or a pose of the clip (both
- * skinned without the object's transform, every MR_LOD_POSE_STRIDE-th
- * sample); each error raised to what it finds. detail: the merged detailed
- * mesh (positions as posed). */
+/* The baked surface's distance to the detail as posed, per base triangle
+ * (dmm_lod.h's owners): the rest pose (pose NULL: the bake's own
+ * positions, all samples) or a pose of the clip (both skinned without the
+ * object's transform, every MR_LOD_POSE_STRIDE-th sample); error[t] raised
+ * to what it finds. detail: the merged detailed mesh (positions as posed). */
 static int measure_pose(mr_geom *g, const mr_pose *pose, const float *detail, uint32_t nv,
-                        const uint32_t *idx, uint32_t nt, unsigned threads, mr_error *err)
+                        const uint32_t *idx, uint32_t nt, unsigned threads, double *error,
+                        mr_error *err)
 {
     const mr_asset *a = g->asset;
+    const dmm_level *lv = g->lv;
     mr_dmm_lod_truth truth;
     int rc = mr_dmm_lod_truth_init(&truth, detail, nv, idx, nt, a->path, err);
-    for (uint32_t k = 0; k < g->count && rc == MR_OK; k++) {
-        mr_trimesh m;
-        if (pose && (rc = level_update(g->lv[k], NULL, pose, NULL, threads, err)) < 0)
-            break;
-        if ((rc = micro_triangles(g->lv[k], pose == NULL, &m, err)) < 0)
-            break;
-        double d;
+    mr_trimesh m = {0};
+    uint32_t *owner = NULL;
+    if (rc == MR_OK && pose)
+        rc = level_update(g->lv, pose, NULL, threads, err);
+    if (rc == MR_OK && (rc = micro_triangles(g->lv, pose == NULL, &m, err)) == MR_OK &&
+        !(owner = malloc(((size_t)m.triangle_count + 1) * sizeof *owner)))
+        rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory measuring levels of detail", a->path);
+    if (rc == MR_OK) {
+        for (uint32_t t = 0; t < lv->base_triangle_count; t++)
+            for (uint32_t k = lv->micro_first[t]; k < lv->micro_first[t + 1]; k++)
+                owner[k] = t;
         rc = mr_dmm_lod_distance(&truth, m.positions, m.vertex_count, m.indices, m.triangle_count,
-                                 pose ? MR_LOD_POSE_STRIDE : 1, threads, a->path, &d, err);
-        mr_trimesh_free(&m);
-        g->error[k] = fmax(g->error[k], d);
+                                 owner, pose ? MR_LOD_POSE_STRIDE : 1, threads, a->path, error, err);
     }
+    free(owner);
+    mr_trimesh_free(&m);
     if (truth.distinct)
         mr_dmm_lod_truth_free(&truth);
     return rc;
 }
 
-/* What measuring the levels reads, for measure_all. */
+/* What measuring reads, for measure_fine and measure_coarsening. */
 typedef struct measure_ctx {
     mr_geom *g;
     const float *pos;      /* the merged detailed mesh at rest */
@@ -1347,21 +1514,14 @@ typedef struct measure_ctx {
     unsigned threads;
 } measure_ctx;
 
-/* Every level's error (dmm_lod.h) into errors: in the rest pose and in the
- * poses of m. The interpolated deformation (and the skinned base mesh)
- * moves a micro-vertex by matrices blended from the base vertices', while
- * the detailed mesh moves each vertex by its own bones: where a base
- * triangle spans a joint the two part, the more the more the joint bends,
- * at every level alike. A coarser level never promises better than a finer
- * one. */
-static int measure_all(void *vctx, double *errors, mr_error *err)
+/* Each base triangle's fine bound (above) into error: in the rest pose and
+ * in the poses of m. */
+static int measure_fine(measure_ctx *m, double *error, mr_error *err)
 {
-    measure_ctx *m = vctx;
     mr_geom *g = m->g;
     const mr_asset *a = g->asset;
-    for (uint32_t k = 0; k < g->count; k++)
-        g->error[k] = 0;
-    int rc = measure_pose(g, NULL, m->pos, m->nv, m->idx, m->nt, m->threads, err);
+    memset(error, 0, g->lv->base_triangle_count * sizeof *error);
+    int rc = measure_pose(g, NULL, m->pos, m->nv, m->idx, m->nt, m->threads, error, err);
     float *posed = NULL;
     if (rc == MR_OK && m->pose_count && !(posed = malloc(((size_t)m->nv * 3 + 1) * sizeof(float))))
         rc = mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory posing levels", a->path);
@@ -1371,28 +1531,79 @@ static int measure_all(void *vctx, double *errors, mr_error *err)
             mr_skin_mesh(a, i, m->poses[j], NULL, posed + at, NULL, m->threads);
             at += (size_t)a->meshes[i].vertex_count * 3;
         }
-        rc = measure_pose(g, m->poses[j], posed, m->nv, m->idx, m->nt, m->threads, err);
+        rc = measure_pose(g, m->poses[j], posed, m->nv, m->idx, m->nt, m->threads, error, err);
     }
     free(posed);
-    for (uint32_t k = 1; k < g->count; k++)
-        g->error[k] = fmax(g->error[k], g->error[k - 1]);
-    memcpy(errors, g->error, g->count * sizeof *errors);
     return rc;
 }
 
-/* The key of the levels' errors (dmm_lod.h): everything the bakes and the
+typedef struct coarsen_ctx {
+    const mr_geom *g;
+    bool rest;
+} coarsen_ctx;
+
+/* error[t][l] raised to what base triangles [begin, end) show as posed. */
+static void coarsen_range(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    const coarsen_ctx *c = vctx;
+    const dmm_level *lv = c->g->lv;
+    tri_lod *d = c->g->lod;
+    float pos[3 * 561]; /* mr_umesh_vertex_count(MR_UMESH_MAX_LEVEL) */
+    _Static_assert(MR_UMESH_MAX_LEVEL == 5, "pos holds a level-5 lattice");
+    for (size_t t = begin; t < end; t++) {
+        mr_dmm_patch p = fine_patch(lv, d, (uint32_t)t, c->rest);
+        eval_patch_vertices(&p, pos);
+        unsigned top = p.level, own = p.decimate;
+        const mr_umesh_topology *tp = &lv->topo;
+        /* the baked surface against its lattice (0 unless decimated) */
+        double baked = mr_dmm_lod_coarsening(top, pos, top, tp->tris[top][own], tp->count[top][own]);
+        double *e = d->error + t * LOD_LEVELS, *whole = d->error_whole + t * LOD_LEVELS;
+        for (unsigned l = 0; l <= top; l++)
+            for (unsigned m = 0; m < (l ? 8u : 1u); m++)
+                if (!(m & ~d->shared[t])) {
+                    double x = baked + mr_dmm_lod_coarsening(top, pos, l, tp->tris[l][m], tp->count[l][m]);
+                    e[l] = fmax(e[l], x);
+                    if (m == 0)
+                        whole[l] = fmax(whole[l], x);
+                }
+    }
+}
+
+/* error[t][l] (above): in the rest pose and in the poses of m, then the
+ * largest over levels l and finer. */
+static int measure_coarsening(mr_geom *g, measure_ctx *m, mr_error *err)
+{
+    tri_lod *d = g->lod;
+    coarsen_ctx c = {g, true};
+    mr_parallel_for(m->threads, g->lv->base_triangle_count, UPDATE_GRAIN, coarsen_range, &c);
+    c.rest = false;
+    for (uint32_t j = 0; j < m->pose_count; j++) {
+        bool moved;
+        int rc = level_pose(g->lv, m->poses[j], NULL, m->threads, &moved, err);
+        if (rc < 0)
+            return rc;
+        mr_parallel_for(m->threads, g->lv->base_triangle_count, UPDATE_GRAIN, coarsen_range, &c);
+    }
+    for (size_t t = 0; t < g->lv->base_triangle_count; t++) {
+        double *e = d->error + t * LOD_LEVELS;
+        for (unsigned l = mr_dmm_info_level(d->info[t]); l-- > 0;)
+            e[l] = fmax(e[l], e[l + 1]);
+    }
+    return MR_OK;
+}
+
+/* The key of the bounds (dmm_lod.h): everything the bake and the
  * measurement read. The asset (nodes; each mesh's node, counts, positions,
- * normals, triangles and skin), the object's parameters (every level's
- * bake follows from them) and each measured pose's node transforms (the
- * detailed and the base mesh are skinned by them, whatever in the job
- * chose them). */
+ * normals, triangles and skin), the object's parameters (the bake follows
+ * from them) and each measured pose's node transforms (the detailed and the
+ * base mesh are skinned by them, whatever in the job chose them). */
 static void errors_key(const mr_geom *g, const mr_dmm_params *p, const measure_ctx *m,
                        uint8_t key[MR_DERIVED_KEY_BYTES])
 {
     const mr_asset *a = g->asset;
     mr_derived_key_builder kb;
-    mr_derived_key_begin(&kb, "microray dmm lod errors", MR_DMM_LOD_FILE_VERSION, 1);
-    mr_derived_key_u32(&kb, g->count);
+    mr_derived_key_begin(&kb, "microray dmm lod bounds", MR_DMM_LOD_FILE_VERSION, 1);
     mr_derived_key_nodes(&kb, a);
     mr_derived_key_u64(&kb, a->mesh_count);
     const unsigned parts = MR_DERIVED_POSITIONS | MR_DERIVED_NORMALS | MR_DERIVED_INDICES | MR_DERIVED_SKIN;
@@ -1418,9 +1629,18 @@ static void errors_key(const mr_geom *g, const mr_dmm_params *p, const measure_c
     mr_derived_key_end(&kb, key);
 }
 
-/* Every level's error, measured (measure_all) or read from the cache, in
- * the poses (mr_lod_pose_times) of the object's first pose description
- * when it plays a clip or moves joints; then the bounds level. */
+/* Both bounds of every base triangle (above), measured: for the
+ * derived-data cache (dmm_lod.h). */
+static int measure_all(void *vctx, mr_error *err)
+{
+    measure_ctx *m = vctx;
+    int rc = measure_fine(m, m->g->lod->fine, err);
+    return rc < 0 ? rc : measure_coarsening(m->g, m, err);
+}
+
+/* The bounds (above), in the poses (mr_lod_pose_times) of the object's
+ * first pose description when it plays a clip or moves joints, measured
+ * (measure_all) or read from the derived-data cache. */
 static int measure_levels(mr_geom *g, const mr_object_desc *desc, const mr_kind_context *ctx, mr_error *err)
 {
     const mr_asset *a = g->asset;
@@ -1441,13 +1661,14 @@ static int measure_levels(mr_geom *g, const mr_object_desc *desc, const mr_kind_
     if (rc == MR_OK) {
         uint8_t key[MR_DERIVED_KEY_BYTES];
         errors_key(g, desc->params, &m, key);
-        rc = mr_dmm_lod_errors_cached(ctx ? ctx->cache_dir : NULL, key, g->count, g->error, measure_all, &m,
-                                      NULL, err);
+        tri_lod *t = g->lod;
+        mr_dmm_lod_table table = {g->lv->base_triangle_count, t->fine, t->error, t->error_whole};
+        rc = mr_dmm_lod_table_cached(ctx ? ctx->cache_dir : NULL, key, &table, measure_all, &m, NULL,
+                                     err);
     }
+    g->lv->evaluated = false; /* posed for measuring: the first frame poses it again */
     for (uint32_t j = 0; j < m.pose_count; j++)
         mr_pose_free(m.poses[j]);
-    if (rc == MR_OK)
-        g->bounds_level = mr_lod_bounds_level(g->error, g->count, a);
     free(pos);
     free(idx);
     return rc;
@@ -1468,203 +1689,262 @@ static int dmm_create(const mr_asset *asset, const mr_object_desc *desc,
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory creating a dmm object");
     g->asset = asset;
     g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
-    g->count = g->tolerance_px > 0 ? p->level + 1 : 1;
-    g->sw.enabled = UINT32_MAX;
-    for (uint32_t k = 0; k < g->count; k++) {
-        mr_dmm_params lp = *p;
-        lp.level = p->level - k;
-        mr_object_desc d = *desc;
-        d.params = &lp;
-        if ((rc = level_create(asset, &d, ctx, &g->lv[k], err)) < 0) {
-            dmm_free(g);
-            return rc;
-        }
+    g->changed = true;
+    if ((rc = level_create(asset, desc, ctx, &g->lv, err)) < 0) {
+        dmm_free(g);
+        return rc;
     }
-    if (g->count > 1) {
+    if (g->tolerance_px > 0 && p->level > 0) {
         double t = mr_now();
-        if ((rc = measure_levels(g, desc, ctx, err)) < 0) {
+        if ((rc = lod_new(g->lv, &g->lod, err)) < 0 || (rc = measure_levels(g, desc, ctx, err)) < 0) {
             dmm_free(g);
             return rc;
         }
+        g->lv->boxes_given = true;
         g->lod_build_s = mr_now() - t;
     }
     *out = g;
     return MR_OK;
 }
 
-/* The bounds of level k's posed surface: its base triangles' boxes (which
- * hold its micro-vertices; the tessellation-free modes and the watertight
- * reference compute the same ones, so both pick the same level), or its
- * micro-vertices (intersector "embree"). */
-static void level_bounds(const dmm_level *l, mr_vec3 *lo, mr_vec3 *hi)
+/* Each base triangle's box at its baked level, as posed: what places it
+ * for the pick, and (user geometries) what Embree and the traversal bound
+ * it by at any level (a coarser level's micro-vertices are among its own,
+ * bit for bit, and its pad bounds their coordinates too). A box that is
+ * not finite is refused by level_evaluate's check of it. */
+static void lod_box_range(void *vctx, size_t begin, size_t end, unsigned worker)
 {
-    *lo = mr_v3(INFINITY, INFINITY, INFINITY);
-    *hi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
-    if (l->boxes) {
-        for (size_t t = 0; t < l->base_triangle_count; t++) {
-            const float *b = l->boxes + t * BOX_FLOATS;
-            *lo = mr_v3_min(*lo, mr_v3(b[0], b[1], b[2]));
-            *hi = mr_v3_max(*hi, mr_v3(b[3], b[4], b[5]));
+    (void)worker;
+    const mr_geom *g = vctx;
+    for (size_t t = begin; t < end; t++) {
+        mr_dmm_patch p = fine_patch(g->lv, g->lod, (uint32_t)t, false);
+        mr_vec3 lo = {0, 0, 0}, hi = {0, 0, 0};
+        mr_dmm_patch_pad(&p, p.pad);
+        if (!mr_dmm_patch_bounds(&p, &lo, &hi))
+            lo = hi = mr_v3(NAN, NAN, NAN);
+        float *b = g->lod->box + t * 6;
+        b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
+        if (g->lv->boxes) { /* the level's too, with the pad (the traversal's cache) */
+            float *to = g->lv->boxes + t * BOX_FLOATS;
+            memcpy(to, b, 6 * sizeof *b);
+            memcpy(to + 6, p.pad, sizeof p.pad);
         }
-        return;
-    }
-    for (size_t v = 0; v < l->vertex_count; v++) {
-        mr_vec3 x = load3(l->positions, v);
-        *lo = mr_v3_min(*lo, x);
-        *hi = mr_v3_max(*hi, x);
     }
 }
 
-static int pose_level(mr_geom *g, uint32_t k, const mr_geom_frame *frame, const mr_pose *pose,
-                      const mr_mat4 *transform, unsigned threads, mr_error *err)
+/* This frame's level of every base triangle (above; without a camera, the
+ * baked ones), balanced, and the predicted error. */
+static void lod_pick(mr_geom *g, const mr_geom_frame *frame, double stretch)
 {
-    int rc = level_update(g->lv[k], frame, pose, transform, threads, err);
-    if (rc < 0)
-        return rc;
-    g->posed |= 1u << k;
-    g->sw.dirty |= 1u << k;
-    return MR_OK;
+    tri_lod *d = g->lod;
+    size_t nt = g->lv->base_triangle_count;
+    for (size_t t = 0; t < nt; t++) {
+        unsigned top = mr_dmm_info_level(d->info[t]), l = 0;
+        const double *e = d->error + t * LOD_LEVELS;
+        d->px[t] = 0;
+        if (frame) {
+            const float *b = d->box + t * 6;
+            float grow = (float)((e[0] + d->fine[t]) * stretch);
+            mr_vec3 lo = mr_v3(b[0] - grow, b[1] - grow, b[2] - grow);
+            mr_vec3 hi = mr_v3(b[3] + grow, b[4] + grow, b[5] + grow);
+            d->px[t] = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi) * stretch;
+        }
+        while (l < top && !(frame && (e[l] + d->fine[t]) * d->px[t] <= g->tolerance_px))
+            l++;
+        d->level[t] = (uint8_t)l;
+        /* until the balance sets the masks: whether no level fits t with
+         * its edges decimated, so none of them may be */
+        d->decimate[t] = !(frame && (e[l] + d->fine[t]) * d->px[t] <= g->tolerance_px);
+    }
+    /* such a triangle's neighbours rise to its level, where theirs reach */
+    const mr_umesh_edge *ed = d->edges.e;
+    for (size_t i = 0, j; i < d->edges.count; i = j) {
+        unsigned want = 0;
+        for (j = i; j < d->edges.count && ed[j].lo == ed[i].lo && ed[j].hi == ed[i].hi; j++)
+            if (d->decimate[ed[j].tri] && d->level[ed[j].tri] > want)
+                want = d->level[ed[j].tri];
+        for (size_t m = i; m < j; m++) {
+            unsigned cap = mr_dmm_info_level(d->info[ed[m].tri]);
+            unsigned to = want < cap ? want : cap;
+            if (d->level[ed[m].tri] < to)
+                d->level[ed[m].tri] = (uint8_t)to;
+        }
+    }
+    mr_umesh_balance(&d->edges, d->level, d->decimate);
+    g->predicted_px = 0;
+    d->level_max = 0;
+    double sum = 0;
+    for (size_t t = 0; t < nt; t++) {
+        const double *bound = d->decimate[t] ? d->error : d->error_whole;
+        double e = bound[t * LOD_LEVELS + d->level[t]] + d->fine[t];
+        double px = e > 0 ? (isfinite(d->px[t]) ? e * d->px[t] : MR_LOD_UNBOUNDED_PX) : 0;
+        g->predicted_px = fmax(g->predicted_px, px);
+        d->level_max = d->level[t] > d->level_max ? d->level[t] : d->level_max;
+        sum += d->level[t];
+    }
+    d->level_mean = nt ? sum / (double)nt : 0;
 }
 
-/* Without levels: the one level posed. With levels: the bounds level posed
- * first (unless it is for this pose: a frame where only the camera moved),
- * its bounds grown by its error say how near the object comes to the
- * camera, which picks the level; then that level is posed, unless it
- * already is for this pose. */
+/* The level's arrays for this frame's levels: each base triangle whose
+ * level changed gets its values (subsampled from the baked ones) and its
+ * pyramid (rebuilt: a level's pyramid bounds its own values) at its baked
+ * offsets, which have room for any coarser level; the micro-triangles'
+ * offsets and indices follow. Whether anything changed. */
+static bool lod_lay_out(dmm_level *g, tri_lod *d)
+{
+    size_t nt = g->base_triangle_count;
+    bool changed = false;
+    for (size_t t = 0; t < nt; t++) {
+        uint8_t info = mr_dmm_tri_info(d->level[t], d->decimate[t]);
+        if (g->tri_info[t] == info)
+            continue;
+        changed = true;
+        unsigned was = mr_dmm_info_level(g->tri_info[t]);
+        g->tri_info[t] = info;
+        if (was == d->level[t])
+            continue; /* only its decimation changed */
+        unsigned l = d->level[t], top = mr_dmm_info_level(d->info[t]), up = top - l;
+        uint16_t *dst = g->values + g->value_first[t];
+        const uint16_t *src = d->values + g->value_first[t];
+        uint32_t n = mr_umesh_segments(l), keep = mr_dmm_trace_pyramid_size(l);
+        for (uint32_t b = 0; b <= n; b++)
+            for (uint32_t a = 0; a + b <= n; a++)
+                dst[mr_umesh_vertex_index(l, a, b)] = src[mr_umesh_vertex_index(top, a << up, b << up)];
+        const uint16_t *lo = d->minv + g->pyramid_first[t], *hi = d->maxv + g->pyramid_first[t];
+        if (up) { /* the baked data decoded and bounded fine: only the level can fail */
+            mr_dmm_pyramid_build(l, dst, d->pyr_min, d->pyr_max, NULL);
+            lo = d->pyr_min, hi = d->pyr_max;
+        }
+        memcpy(g->minv + g->pyramid_first[t], lo, keep * sizeof *lo);
+        memcpy(g->maxv + g->pyramid_first[t], hi, keep * sizeof *hi);
+    }
+    if (!changed)
+        return false;
+    uint32_t micro = 0;
+    for (size_t t = 0; t < nt; t++) {
+        uint32_t count;
+        g->micro_first[t] = micro;
+        local_tris(g, (uint32_t)t, &count);
+        micro += count;
+    }
+    g->micro_first[nt] = micro;
+    if (tessellated(g)) {
+        fill_micro_indices(g, g->indices);
+        g->triangle_count = micro;
+    }
+    g->evaluated = false;
+    g->relaid = true;
+    return true;
+}
+
+/* Without levels: the level posed. With levels: posed (its boxes at the
+ * baked levels again if it moved), the levels picked and laid out, and
+ * evaluated when either changed. */
 static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                       const mr_mat4 *transform, unsigned threads, mr_error *err)
 {
-    if (g->count == 1)
-        return level_update(g->lv[0], frame, pose, transform, threads, err);
-    int rc;
-    if (!(frame && frame->view_only))
-        g->posed = 0;
-    double stretch = transform ? mr_lod_stretch(transform) : 1.0;
-    uint32_t b = g->bounds_level;
-    if (!(g->posed & 1u << b)) {
-        if ((rc = pose_level(g, b, frame, pose, transform, threads, err)) < 0)
-            return rc;
-        mr_vec3 lo, hi;
-        level_bounds(g->lv[b], &lo, &hi);
-        float pad = (float)(g->error[b] * stretch);
-        g->lo = mr_v3_sub(lo, mr_v3(pad, pad, pad));
-        g->hi = mr_v3_add(hi, mr_v3(pad, pad, pad));
-    }
-    g->cur = 0;
-    g->predicted_px = 0;
-    if (frame) {
-        double px = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, g->lo, g->hi);
-        g->cur = mr_lod_pick(g->error, g->count, px * stretch, g->tolerance_px, &g->predicted_px);
-    }
-    if (!(g->posed & 1u << g->cur) &&
-        (rc = pose_level(g, g->cur, frame, pose, transform, threads, err)) < 0)
+    if (!g->lod)
+        return level_update(g->lv, pose, transform, threads, err);
+    bool moved;
+    int rc = level_pose(g->lv, pose, transform, threads, &moved, err);
+    if (rc < 0)
         return rc;
-    return MR_OK;
+    if (moved || !g->lod->boxed) {
+        mr_parallel_for(threads, g->lv->base_triangle_count, UPDATE_GRAIN, lod_box_range, g);
+        g->lod->boxed = true;
+    }
+    lod_pick(g, frame, transform ? mr_lod_stretch(transform) : 1.0);
+    bool relaid = lod_lay_out(g->lv, g->lod);
+    if (!moved && !relaid && g->lv->evaluated)
+        return MR_OK;
+    g->changed = true;
+    return level_evaluate(g->lv, threads, err);
 }
 
-/* One geometry per level; only the frame's level is enabled (commit).
- * Built as mr_lod_build_quality says. */
+/* One geometry, whose base triangles show any of LOD_LEVELS levels with
+ * levels of detail: built as mr_lod_build_quality says for several (the
+ * micro-triangles of intersector "embree" change with the levels, which a
+ * refit cannot follow, and a resumed job must trace the uninterrupted
+ * run's trees). */
 static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                       enum RTCBuildQuality quality, mr_error *err)
 {
-    quality = mr_lod_build_quality(g->count, quality);
-    for (uint32_t k = 0; k < g->count; k++) {
-        int rc = level_attach(g->lv[k], device, scene, geom_id + k, quality, err);
-        if (rc < 0)
-            return rc;
-        if (g->count > 1)
-            rtcDisableGeometry(g->lv[k]->rtc);
-    }
-    g->sw.enabled = g->count > 1 ? UINT32_MAX : 0;
-    return MR_OK;
+    return level_attach(g->lv, device, scene, geom_id,
+                        mr_lod_build_quality(g->lod ? LOD_LEVELS : 1, quality), err);
 }
 
-static RTCGeometry lod_geometry(void *g, uint32_t k) { return ((mr_geom *)g)->lv[k]->rtc; }
-
-static void lod_commit(void *g, uint32_t k) { level_commit(((mr_geom *)g)->lv[k]); }
-
+/* Always without levels of detail (as before them); with, only a frame
+ * that posed or laid out the level again. */
 static bool dmm_commit(mr_geom *g)
 {
-    if (g->count == 1) {
-        level_commit(g->lv[0]);
-        return true;
-    }
-    return mr_lod_commit(&g->sw, g->cur, g->count, g, lod_geometry, lod_commit);
+    if (g->lod && !g->changed)
+        return false;
+    level_commit(g->lv);
+    g->changed = false;
+    return true;
 }
 
-static uint32_t dmm_geometry_ids(const mr_geom *g) { return g->count; }
+static uint32_t dmm_geometry_ids(const mr_geom *g) { return 1; }
 
 static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
 {
-    return level_normal(g->lv[g->cur], prim, u, v);
+    return level_normal(g->lv, prim, u, v);
 }
 
 static bool dmm_shading_point(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 p,
                               mr_vec3 *out)
 {
-    return level_shading_point(g->lv[g->cur], prim, u, v, p, out);
+    return level_shading_point(g->lv, prim, u, v, p, out);
 }
 
 static int dmm_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
-    return level_tessellate(g->lv[g->cur], out, err);
+    return level_tessellate(g->lv, out, err);
 }
 
-/* The levels coarser than the object's own. */
-static size_t lod_bytes(const mr_geom *g)
+static size_t dmm_bytes_lod(const mr_geom *g)
 {
-    size_t b = 0;
-    for (uint32_t k = 1; k < g->count; k++)
-        b += level_memory(g->lv[k]);
-    return b;
+    const dmm_level *l = g->lv;
+    size_t nt = l->base_triangle_count;
+    return g->lod ? lod_bytes(g->lod, (uint32_t)nt, l->value_first[nt], l->pyramid_first[nt]) : 0;
 }
 
-static size_t dmm_memory(const mr_geom *g)
-{
-    return sizeof *g + level_memory(g->lv[0]) + lod_bytes(g);
-}
+static size_t dmm_memory(const mr_geom *g) { return sizeof *g + level_memory(g->lv) + dmm_bytes_lod(g); }
 
-static uint64_t dmm_primitives(const mr_geom *g) { return level_primitives(g->lv[g->cur]); }
+static uint64_t dmm_primitives(const mr_geom *g) { return level_primitives(g->lv); }
 
 static void dmm_frame_stats(const mr_geom *g, double *values)
 {
-    level_frame_stats(g->lv[g->cur], values);
-    double bake_s = 0;
-    for (uint32_t k = 0; k < g->count; k++)
-        bake_s += g->lv[k]->bake_s;
-    values[S_BAKE_S] = bake_s;
-    values[S_LEVEL] = g->lv[g->cur]->desc.level;
+    level_frame_stats(g->lv, values);
+    values[S_LEVEL] = g->lod ? g->lod->level_max : g->lv->desc.level;
+    values[S_LEVEL_MEAN] = g->lod ? g->lod->level_mean : g->lv->desc.level;
     values[S_ERROR_PX] = g->predicted_px;
-    values[S_LOD_BYTES] = (double)lod_bytes(g);
+    values[S_LOD_BYTES] = (double)dmm_bytes_lod(g);
     values[S_LOD_BUILD_S] = g->lod_build_s;
 }
 
-/* The subdivision level traced; an object at level 0 has no other to pick
- * (and its one level is not measured). */
+/* The finest level traced; an object at level 0 has no other to pick. */
 static bool dmm_lod(const mr_geom *g, uint32_t *level, double *error_px)
 {
-    *level = g->lv[g->cur]->desc.level;
+    *level = g->lod ? g->lod->level_max : g->lv->desc.level;
     *error_px = g->predicted_px;
-    return g->count > 1;
+    return g->lod != NULL;
 }
 
-uint32_t mr_dmm_lod_levels(const mr_geom *g, double *error, uint32_t *level)
+bool mr_dmm_lod_bounds(const mr_geom *g, mr_dmm_lod_table *out)
 {
-    for (uint32_t k = 0; k < g->count; k++) {
-        if (error)
-            error[k] = g->error[k];
-        if (level)
-            level[k] = g->lv[k]->desc.level;
-    }
-    return g->count;
+    if (!g->lod)
+        return false;
+    *out = (mr_dmm_lod_table){g->lv->base_triangle_count, g->lod->fine, g->lod->error,
+                              g->lod->error_whole};
+    return true;
 }
 
-int mr_dmm_lod_rest_triangles(const mr_geom *g, uint32_t k, mr_trimesh *out, mr_error *err)
+const uint8_t *mr_dmm_frame_tri_info(const mr_geom *g) { return g->lv->tri_info; }
+
+int mr_dmm_rest_triangles(const mr_geom *g, mr_trimesh *out, mr_error *err)
 {
-    if (k >= g->count)
-        return mr_error_set(err, MR_ERR_INVALID, "dmm object: no level of detail %u (it has %u)", k,
-                            g->count);
-    return micro_triangles(g->lv[k], true, out, err);
+    return micro_triangles(g->lv, true, out, err);
 }
 
 /* The "dmm" block. "deformation" chooses what mode "tessellated" expands

@@ -8,6 +8,7 @@
 
 #include <stdint.h>
 
+#include "kinds/dmm/dmm_lod.h"
 #include "kinds/kind.h"
 
 /* How a dmm object is traced (issue 4). */
@@ -65,14 +66,18 @@ typedef struct mr_dmm_params {
 
 extern const mr_kind mr_kind_dmm;
 
-/* A dmm object's levels of detail ("tolerance_px"; dmm_kind.c), finest
- * first, for tests and tools: how many (1 without a tolerance), and into
- * error / level (either may be NULL; room for MR_UMESH_MAX_LEVEL + 1) each
- * level's measured distance to the detailed mesh (rest space; dmm_lod.h;
- * 0 without a tolerance: not measured) and its subdivision level. */
-uint32_t mr_dmm_lod_levels(const mr_geom *g, double *error, uint32_t *level);
-/* Level k's micro-triangles in the rest pose (what its error is measured
+/* A dmm object's levels of detail ("tolerance_px"; dmm_kind.c, per base
+ * triangle), for tests and tools. mr_dmm_lod_bounds: false without a
+ * tolerance; else *out points at its bounds (dmm_lod.h's table: per base
+ * triangle its fine bound and, for each level up to its baked one, how far
+ * its level-l surface strays from the baked one under any decimation and
+ * without). mr_dmm_frame_tri_info: what the last frame traced, per base
+ * triangle its level and decimation (dmm_encode.h's byte; the bake's
+ * without a tolerance). */
+bool mr_dmm_lod_bounds(const mr_geom *g, mr_dmm_lod_table *out);
+const uint8_t *mr_dmm_frame_tri_info(const mr_geom *g);
+/* The baked micro-triangles in the rest pose (what the fine bounds are measured
  * on), into out (mr_trimesh_free). */
-int mr_dmm_lod_rest_triangles(const mr_geom *g, uint32_t k, mr_trimesh *out, mr_error *err);
+int mr_dmm_rest_triangles(const mr_geom *g, mr_trimesh *out, mr_error *err);
 
 #endif

@@ -53,31 +53,71 @@ void mr_dmm_lod_truth_free(mr_dmm_lod_truth *t);
 
 /* The two-sided sampled distance (above) between the truth and the nt
  * triangles idx over nv positions pos (a level's micro-triangles, in the
- * same space), on threads threads, into *out; from every stride-th sample
- * of each kind (0 or 1: all of them). */
+ * same space), on threads threads, from every stride-th sample of each kind
+ * (0 or 1: all of them), raising out (not reset). owner NULL: out[0] gets
+ * the whole distance. Else owner[k] names triangle k's owner (a base
+ * triangle) and out[o] gets owner o's share: of the level's samples, those
+ * of its triangles (a vertex counts for every triangle using it); of the
+ * truth's points, those nearest one of its triangles. The largest of out is
+ * the whole distance either way. */
 int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv,
-                        const uint32_t *idx, uint32_t nt, uint32_t stride, unsigned threads,
-                        const char *who, double *out, mr_error *err);
+                        const uint32_t *idx, uint32_t nt, const uint32_t *owner, uint32_t stride,
+                        unsigned threads, const char *who, double *out, mr_error *err);
 
-/* ---- the errors in the derived-data cache ----
- * Measuring a dmm object's levels takes seconds (1.4 s for the skinned
- * dancer's 4 levels, rest and 4 poses); the errors are kept in
- * <cache root>/dmm/<key>.mrdle and read by a later job with the same key.
- * The caller's key holds everything the measurement reads (dmm_kind.c:
- * the asset, the object's parameters, each measured pose's node
- * transforms). File (little-endian), a header of 104 bytes and nothing
- * else: magic "MRDLE\0\r\n", version (1) at 8, header bytes (104) at 12,
- * the level count (1..MR_DMM_LOD_FILE_LEVELS) at 16, the key at 20, the
- * errors (f64, finest first, finite, >= 0 and never shrinking) at 52, zeros
- * after the last, the header CRC-32 at 100. */
-#define MR_DMM_LOD_FILE_VERSION 1u
-#define MR_DMM_LOD_FILE_LEVELS 6u
+/* ---- the bounds in the derived-data cache ----
+ * Measuring a dmm object's bounds takes seconds (the skinned dancer, 5,125
+ * base triangles at level 3, rest and 4 poses: about 3 s on 2 cores); they
+ * are kept in <cache root>/<key>.mrdle and read by a later job with the
+ * same key. The caller's key holds everything the measurement reads
+ * (dmm_kind.c: the asset, the object's parameters, each measured pose's
+ * node transforms). File (little-endian): a header of 64 bytes, magic
+ * "MRDLE\0\r\n", version (2) at 8, header bytes (64) at 12, the base
+ * triangle count at 16, MR_DMM_LOD_LEVELS at 20, the key at 24, the
+ * payload's CRC-32 at 56, the header's at 60; then per base triangle 13
+ * f64: its fine bound, its MR_DMM_LOD_LEVELS error bounds (never growing
+ * towards finer levels) and its MR_DMM_LOD_LEVELS bounds without
+ * decimation (dmm_kind.c), each finite and >= 0. */
+#define MR_DMM_LOD_FILE_VERSION 2u
+#define MR_DMM_LOD_LEVELS 6u /* MR_UMESH_MAX_LEVEL + 1 */
 
-/* count errors for key: read from cache_dir when a file there has them,
- * else measure(ctx, errors, err) and store them there (cache_dir NULL:
- * measured only). *hit (may be NULL) says which; errors are measure's. */
-int mr_dmm_lod_errors_cached(const char *cache_dir, const uint8_t key[MR_DERIVED_KEY_BYTES], uint32_t count,
-                             double *errors, int (*measure)(void *ctx, double *errors, mr_error *err),
-                             void *ctx, bool *hit, mr_error *err);
+/* A dmm object's bounds, per base triangle (the caller's arrays): fine[t]
+ * and MR_DMM_LOD_LEVELS entries of error and of whole from t *
+ * MR_DMM_LOD_LEVELS. */
+typedef struct mr_dmm_lod_table {
+    uint32_t triangles;
+    double *fine, *error, *whole;
+} mr_dmm_lod_table;
+
+/* The table for key: read from cache_dir when a file there holds one for
+ * as many triangles, else measure(ctx, err) fills it and it is stored
+ * there (cache_dir NULL: measured only). *hit (may be NULL) says which. */
+int mr_dmm_lod_table_cached(const char *cache_dir, const uint8_t key[MR_DERIVED_KEY_BYTES],
+                            mr_dmm_lod_table *table, int (*measure)(void *ctx, mr_error *err),
+                            void *ctx, bool *hit, mr_error *err);
+
+/* ---- per-triangle levels ----
+ * With a tolerance every base triangle takes its own level l <= its baked
+ * level L (dmm_kind.c): its level-l surface is the one the same encoding
+ * holds (dmm_encode.h: the level-l values are a prefix of the level-L
+ * ones), so its micro-vertices are micro-vertices of level L, bit for bit
+ * (micromesh.h: a vertex's weights are k / n, the same number at every
+ * level). How far that surface strays from level L is measured at equal
+ * base-domain coordinates, which bounds the distance between the two
+ * surfaces both ways.
+ *
+ * mr_dmm_lod_coarsening computes it exactly (up to double rounding), not by
+ * samples: over the intersection of a coarse micro-triangle T with a
+ * level-L micro-triangle F both surfaces are affine, so their difference is
+ * largest at a corner of that convex polygon (F clipped by T's three
+ * half-planes); every such polygon is visited. A decimated edge
+ * re-triangulates a strip of T's (micromesh.h), not aligned with the
+ * level-L lattice: the same holds for them. */
+
+/* That distance for one base triangle: pos holds its level-fine
+ * micro-vertices (3 floats each, micromesh.h order, every lattice vertex,
+ * undecimated), tris the count surviving micro-triangles of the coarse
+ * surface (mr_umesh_triangles at level <= fine, with its decimation). */
+double mr_dmm_lod_coarsening(unsigned fine, const float *pos, unsigned level, const uint32_t *tris,
+                             uint32_t count);
 
 #endif

@@ -365,3 +365,82 @@ int mr_umesh_eval_all(const mr_umesh_tri *tri, unsigned level, unsigned decimate
     }
     return MR_OK;
 }
+
+static int edge_cmp(const void *x, const void *y)
+{
+    const mr_umesh_edge *a = x, *b = y;
+    if (a->lo != b->lo)
+        return a->lo < b->lo ? -1 : 1;
+    if (a->hi != b->hi)
+        return a->hi < b->hi ? -1 : 1;
+    return a->tri < b->tri ? -1 : a->tri > b->tri;
+}
+
+int mr_umesh_edges_init(mr_umesh_edges *out, const uint32_t *idx, uint32_t nt, mr_error *err)
+{
+    *out = (mr_umesh_edges){0};
+    out->e = malloc(((size_t)nt * 3 + 1) * sizeof *out->e);
+    if (!out->e)
+        return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a mesh's edges");
+    for (uint32_t t = 0; t < nt; t++)
+        for (uint32_t k = 0; k < 3; k++) {
+            uint32_t u = idx[3 * t + k], v = idx[3 * t + (k + 1) % 3];
+            out->e[3 * (size_t)t + k] = (mr_umesh_edge){u < v ? u : v, u < v ? v : u, t, k};
+        }
+    out->count = (size_t)nt * 3;
+    out->triangles = nt;
+    qsort(out->e, out->count, sizeof *out->e, edge_cmp);
+    return MR_OK;
+}
+
+void mr_umesh_edges_free(mr_umesh_edges *e)
+{
+    free(e->e);
+    *e = (mr_umesh_edges){0};
+}
+
+/* The end of the group of edges sharing e[i]'s vertex pair. */
+static size_t group_end(const mr_umesh_edges *e, size_t i)
+{
+    size_t j = i + 1;
+    while (j < e->count && e->e[j].lo == e->e[i].lo && e->e[j].hi == e->e[i].hi)
+        j++;
+    return j;
+}
+
+void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared)
+{
+    memset(shared, 0, e->triangles);
+    for (size_t i = 0, j; i < e->count; i = j)
+        if ((j = group_end(e, i)) - i > 1)
+            for (size_t m = i; m < j; m++)
+                shared[e->e[m].tri] |= (uint8_t)(1u << e->e[m].k);
+}
+
+void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate)
+{
+    for (bool changed = true; changed;) {
+        changed = false;
+        for (size_t i = 0, j; i < e->count; i = j) {
+            unsigned top = 0;
+            j = group_end(e, i);
+            for (size_t m = i; m < j; m++)
+                top = level[e->e[m].tri] > top ? level[e->e[m].tri] : top;
+            for (size_t m = i; m < j; m++)
+                if (level[e->e[m].tri] + 1u < top) {
+                    level[e->e[m].tri] = (uint8_t)(top - 1);
+                    changed = true;
+                }
+        }
+    }
+    memset(decimate, 0, e->triangles);
+    for (size_t i = 0, j; i < e->count; i = j) {
+        unsigned low = UINT32_MAX;
+        j = group_end(e, i);
+        for (size_t m = i; m < j; m++)
+            low = level[e->e[m].tri] < low ? level[e->e[m].tri] : low;
+        for (size_t m = i; m < j; m++)
+            if (level[e->e[m].tri] > low)
+                decimate[e->e[m].tri] |= (uint8_t)(1u << e->e[m].k);
+    }
+}

@@ -121,6 +121,35 @@ typedef struct mr_umesh_topology {
 int mr_umesh_topology_init(mr_umesh_topology *t, unsigned max_level, mr_error *err);
 void mr_umesh_topology_free(mr_umesh_topology *t);
 
+/* The edges of a mesh of base triangles, for levels that may differ by at
+ * most one across a shared edge (an adaptive bake, per-triangle levels of
+ * detail): every triangle's edge k (0: corner 0 -> 1, as above) keyed by
+ * its vertex pair, sorted so the triangles sharing an edge are adjacent. */
+typedef struct mr_umesh_edge {
+    uint32_t lo, hi, tri, k;
+} mr_umesh_edge;
+typedef struct mr_umesh_edges {
+    mr_umesh_edge *e;
+    size_t count;        /* 3 per triangle */
+    uint32_t triangles;
+} mr_umesh_edges;
+
+/* The edges of the nt triangles idx (3 vertex indices each). MR_ERR_NOMEM;
+ * *out needs no free on failure. */
+int mr_umesh_edges_init(mr_umesh_edges *out, const uint32_t *idx, uint32_t nt, mr_error *err);
+void mr_umesh_edges_free(mr_umesh_edges *e);
+
+/* Per triangle, the edges it shares with another triangle (bit k: edge k):
+ * the only edges a neighbour's level can decimate. */
+void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared);
+
+/* Balances per-triangle levels: raises the coarse side of every shared
+ * edge joining levels more than one apart until none does (levels only
+ * grow, never above the largest given, so this ends), then sets each
+ * triangle's decimation mask (bit k: edge k borders a triangle one level
+ * coarser). level and decimate hold one entry per triangle. */
+void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate);
+
 /* Undisplaced point and interpolated (unnormalised) direction at micro-vertex
  * (a, b), following the edge rule above. Fails (MR_ERR_INVALID) for a bad
  * level or coordinates. */
