@@ -24,7 +24,7 @@
  * Then issue 16's goal on every example: each with tolerance_px 1 and
  * reference passes, the frames within 1 px of its ground truth.
  *
- * usage: bench_lod [--size WxH] [--threads N] [--examples-only]
+ * usage: bench_lod [--size WxH] [--threads N] [--examples-only | --flight EXAMPLE]
  *        (run from the repository root)
  */
 #include <stdio.h>
@@ -40,6 +40,7 @@ static const double TOLERANCES[RUNS] = {0, 0.5, 1, 2, 4}; /* 0: off */
 static int width = 480, height = 270;
 static unsigned threads = 2;
 static bool examples_only = false;
+static const char *only_flight = NULL; /* --flight: that fly-through alone */
 
 static void die(const char *what, const char *msg)
 {
@@ -297,13 +298,17 @@ int main(int argc, char **argv)
             threads = (unsigned)atoi(argv[++i]);
         else if (!strcmp(argv[i], "--examples-only"))
             examples_only = true;
+        else if (!strcmp(argv[i], "--flight") && i + 1 < argc)
+            only_flight = argv[++i];
     mr_error err;
     mr_device *dev = NULL;
     if (mr_device_new(threads, &dev, &err) < 0)
         die("device", err.msg);
     for (size_t i = 0; i < sizeof FLIGHTS / sizeof FLIGHTS[0] && !examples_only; i++)
-        fly(&FLIGHTS[i], dev);
-    every_example(dev);
+        if (!only_flight || !strcmp(only_flight, FLIGHTS[i].example))
+            fly(&FLIGHTS[i], dev);
+    if (!only_flight)
+        every_example(dev);
     mr_device_free(dev);
     return 0;
 }

@@ -76,20 +76,33 @@ mr_camera_rays mr_camera_rays_setup(const mr_camera *cam, int width, int height)
     return r;
 }
 
-double mr_camera_px_per_unit(const mr_camera *cam, int width, int height, mr_vec3 lo, mr_vec3 hi)
+mr_px_scale mr_camera_px_scale(const mr_camera *cam, int width, int height)
 {
     if (width <= 0 || height <= 0)
-        return INFINITY;
-    mr_vec3 fwd = mr_quat_rotate(cam->rotation, mr_v3(0, 0, -1));
-    double zmin = INFINITY;
-    for (int k = 0; k < 8; k++) {
-        mr_vec3 c = mr_v3(k & 1 ? hi.x : lo.x, k & 2 ? hi.y : lo.y, k & 4 ? hi.z : lo.z);
-        mr_vec3 d = mr_v3_sub(c, cam->position);
-        zmin = fmin(zmin, (double)fwd.x * d.x + (double)fwd.y * d.y + (double)fwd.z * d.z);
-    }
-    if (!(zmin > 0))
-        return INFINITY;
+        return (mr_px_scale){.none = true};
     double th = tan(0.5 * (double)cam->yfov), tw = th * (double)width / (double)height;
     double pixel = 2.0 * th / (double)height; /* a pixel's size at depth 1 */
-    return sqrt(1.0 + th * th + tw * tw) / (zmin * pixel);
+    return (mr_px_scale){cam->position, mr_quat_rotate(cam->rotation, mr_v3(0, 0, -1)),
+                         sqrt(1.0 + th * th + tw * tw) / pixel, false};
+}
+
+double mr_px_scale_box(const mr_px_scale *s, mr_vec3 lo, mr_vec3 hi)
+{
+    if (s->none)
+        return INFINITY;
+    /* the nearest corner's depth: the centre's less the half extents
+     * along the view axis */
+    const double f[3] = {s->forward.x, s->forward.y, s->forward.z};
+    const double l[3] = {lo.x, lo.y, lo.z}, h[3] = {hi.x, hi.y, hi.z};
+    const double p[3] = {s->position.x, s->position.y, s->position.z};
+    double zmin = 0;
+    for (int i = 0; i < 3; i++)
+        zmin += f[i] * (0.5 * (l[i] + h[i]) - p[i]) - fabs(f[i]) * 0.5 * (h[i] - l[i]);
+    return zmin > 0 ? s->k / zmin : INFINITY;
+}
+
+double mr_camera_px_per_unit(const mr_camera *cam, int width, int height, mr_vec3 lo, mr_vec3 hi)
+{
+    mr_px_scale s = mr_camera_px_scale(cam, width, height);
+    return mr_px_scale_box(&s, lo, hi);
 }

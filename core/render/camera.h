@@ -37,4 +37,14 @@ mr_vec3 mr_camera_ray_dir(const mr_camera *cam, int width, int height, double px
  * reaches the camera's plane. */
 double mr_camera_px_per_unit(const mr_camera *cam, int width, int height, mr_vec3 lo, mr_vec3 hi);
 
+/* The same for many boxes of one frame (a kind placing each of its base
+ * triangles): what does not depend on the box, once. */
+typedef struct mr_px_scale {
+    mr_vec3 position, forward;
+    double k;     /* pixels per unit at depth 1 */
+    bool none;    /* an empty film: every box INFINITY */
+} mr_px_scale;
+mr_px_scale mr_camera_px_scale(const mr_camera *cam, int width, int height);
+double mr_px_scale_box(const mr_px_scale *s, mr_vec3 lo, mr_vec3 hi);
+
 #endif

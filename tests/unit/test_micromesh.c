@@ -403,6 +403,62 @@ static void test_bad_input(void **state)
     assert_int_equal(mr_umesh_triangles(0, 7, tris), 1);
 }
 
+/* mr_umesh_balance on a 12 x 12 grid of quads split in two (288
+ * triangles) with random levels, 50 times: the levels it ends at are the
+ * least that keep neighbours (sharing an edge) at most one apart, as a
+ * brute force that raises the coarse side of any pair until nothing moves
+ * finds them, and exactly the finer side of every edge between two levels
+ * is decimated. */
+static void test_balance_is_least(void **state)
+{
+    (void)state;
+    enum { N = 12, NT = 2 * N * N };
+    uint32_t idx[3 * NT];
+    for (uint32_t y = 0, t = 0; y < N; y++)
+        for (uint32_t x = 0; x < N; x++, t += 2) {
+            uint32_t a = y * (N + 1) + x, b = a + 1, c = a + N + 1, d = c + 1;
+            uint32_t q[6] = {a, b, c, b, d, c};
+            memcpy(idx + 3 * t, q, sizeof q);
+        }
+    mr_umesh_edges e;
+    mr_error err;
+    assert_int_equal(mr_umesh_edges_init(&e, idx, NT, &err), MR_OK);
+    uint32_t seed = 7;
+    for (int run = 0; run < 50; run++) {
+        uint8_t level[NT], want[NT], decimate[NT];
+        for (uint32_t t = 0; t < NT; t++) {
+            seed = seed * 1664525u + 1013904223u;
+            /* mostly coarse, a few fine: long raises */
+            level[t] = (seed >> 24) < 8 ? (uint8_t)(3 + (seed >> 8) % 3) : (uint8_t)((seed >> 8) % 2);
+        }
+        memcpy(want, level, sizeof want);
+        for (bool moved = true; moved;) {
+            moved = false;
+            for (uint32_t a = 0; a < NT; a++)
+                for (uint32_t b = 0; b < NT; b++) {
+                    int shared = 0;
+                    for (int i = 0; i < 3; i++)
+                        for (int j = 0; j < 3; j++)
+                            shared += idx[3 * a + i] == idx[3 * b + j];
+                    if (a != b && shared == 2 && want[a] + 1 < want[b]) {
+                        want[a] = (uint8_t)(want[b] - 1);
+                        moved = true;
+                    }
+                }
+        }
+        mr_umesh_balance(&e, level, decimate);
+        assert_memory_equal(level, want, sizeof want);
+        for (size_t i = 0; i < e.count; i++) {
+            const mr_umesh_edge *x = &e.e[i];
+            unsigned low = level[x->tri];
+            for (size_t m = e.group[i]; m < e.count && e.group[m] == e.group[i]; m++)
+                low = level[e.e[m].tri] < low ? level[e.e[m].tri] : low;
+            assert_int_equal(decimate[x->tri] >> x->k & 1u, level[x->tri] > low);
+        }
+    }
+    mr_umesh_edges_free(&e);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -414,6 +470,7 @@ int main(void)
         cmocka_unit_test(test_zero_displacement_is_flat),
         cmocka_unit_test(test_direction_not_normalised),
         cmocka_unit_test(test_bad_input),
+        cmocka_unit_test(test_balance_is_least),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

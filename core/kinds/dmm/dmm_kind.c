@@ -1738,6 +1738,9 @@ static void lod_pick(mr_geom *g, const mr_geom_frame *frame, double stretch)
 {
     tri_lod *d = g->lod;
     size_t nt = g->lv->base_triangle_count;
+    mr_px_scale scale = {.none = true};
+    if (frame)
+        scale = mr_camera_px_scale(&frame->camera, frame->width, frame->height);
     for (size_t t = 0; t < nt; t++) {
         unsigned top = mr_dmm_info_level(d->info[t]), l = 0;
         const double *e = d->error + t * LOD_LEVELS;
@@ -1747,7 +1750,7 @@ static void lod_pick(mr_geom *g, const mr_geom_frame *frame, double stretch)
             float grow = (float)((e[0] + d->fine[t]) * stretch);
             mr_vec3 lo = mr_v3(b[0] - grow, b[1] - grow, b[2] - grow);
             mr_vec3 hi = mr_v3(b[3] + grow, b[4] + grow, b[5] + grow);
-            d->px[t] = mr_camera_px_per_unit(&frame->camera, frame->width, frame->height, lo, hi) * stretch;
+            d->px[t] = mr_px_scale_box(&scale, lo, hi) * stretch;
         }
         while (l < top && !(frame && (e[l] + d->fine[t]) * d->px[t] <= g->tolerance_px))
             l++;
@@ -1845,8 +1848,10 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
 {
     if (!g->lod)
         return level_update(g->lv, pose, transform, threads, err);
-    bool moved;
-    int rc = level_pose(g->lv, pose, transform, threads, &moved, err);
+    bool moved = false; /* a frame where only the camera moved keeps the pose */
+    int rc = frame && frame->view_only && g->lv->evaluated
+                 ? MR_OK
+                 : level_pose(g->lv, pose, transform, threads, &moved, err);
     if (rc < 0)
         return rc;
     if (moved || !g->lod->boxed) {

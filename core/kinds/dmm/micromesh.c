@@ -379,23 +379,37 @@ static int edge_cmp(const void *x, const void *y)
 int mr_umesh_edges_init(mr_umesh_edges *out, const uint32_t *idx, uint32_t nt, mr_error *err)
 {
     *out = (mr_umesh_edges){0};
-    out->e = malloc(((size_t)nt * 3 + 1) * sizeof *out->e);
-    if (!out->e)
+    size_t n = (size_t)nt * 3;
+    out->e = malloc((n + 1) * sizeof *out->e);
+    out->group = malloc((n + 1) * sizeof *out->group);
+    out->at = malloc((n + 1) * sizeof *out->at);
+    out->order = malloc(((size_t)nt * 2 + 1) * sizeof *out->order);
+    if (!out->e || !out->group || !out->at || !out->order) {
+        mr_umesh_edges_free(out);
         return mr_error_set(err, MR_ERR_NOMEM, "out of memory for a mesh's edges");
+    }
     for (uint32_t t = 0; t < nt; t++)
         for (uint32_t k = 0; k < 3; k++) {
             uint32_t u = idx[3 * t + k], v = idx[3 * t + (k + 1) % 3];
             out->e[3 * (size_t)t + k] = (mr_umesh_edge){u < v ? u : v, u < v ? v : u, t, k};
         }
-    out->count = (size_t)nt * 3;
+    out->count = n;
     out->triangles = nt;
-    qsort(out->e, out->count, sizeof *out->e, edge_cmp);
+    qsort(out->e, n, sizeof *out->e, edge_cmp);
+    for (size_t i = 0; i < n; i++) {
+        bool same = i > 0 && out->e[i].lo == out->e[i - 1].lo && out->e[i].hi == out->e[i - 1].hi;
+        out->group[i] = same ? out->group[i - 1] : (uint32_t)i;
+        out->at[3 * (size_t)out->e[i].tri + out->e[i].k] = (uint32_t)i;
+    }
     return MR_OK;
 }
 
 void mr_umesh_edges_free(mr_umesh_edges *e)
 {
     free(e->e);
+    free(e->group);
+    free(e->at);
+    free(e->order);
     *e = (mr_umesh_edges){0};
 }
 
@@ -403,7 +417,7 @@ void mr_umesh_edges_free(mr_umesh_edges *e)
 static size_t group_end(const mr_umesh_edges *e, size_t i)
 {
     size_t j = i + 1;
-    while (j < e->count && e->e[j].lo == e->e[i].lo && e->e[j].hi == e->e[i].hi)
+    while (j < e->count && e->group[j] == e->group[i])
         j++;
     return j;
 }
@@ -419,21 +433,43 @@ void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared)
 
 void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate)
 {
-    for (bool changed = true; changed;) {
-        changed = false;
-        for (size_t i = 0, j; i < e->count; i = j) {
-            unsigned top = 0;
-            j = group_end(e, i);
-            for (size_t m = i; m < j; m++)
-                top = level[e->e[m].tri] > top ? level[e->e[m].tri] : top;
-            for (size_t m = i; m < j; m++)
-                if (level[e->e[m].tri] + 1u < top) {
-                    level[e->e[m].tri] = (uint8_t)(top - 1);
-                    changed = true;
+    const uint32_t nt = e->triangles;
+    /* the triangles finest first (counting sort), then, level by level,
+     * those raised to it while the level above was processed */
+    uint32_t *order = e->order, *raised = e->order + nt, count[MR_UMESH_MAX_LEVEL + 2] = {0};
+    for (uint32_t t = 0; t < nt; t++)
+        count[MR_UMESH_MAX_LEVEL - level[t] + 1]++;
+    for (unsigned l = 1; l <= MR_UMESH_MAX_LEVEL + 1; l++)
+        count[l] += count[l - 1];
+    uint32_t first[MR_UMESH_MAX_LEVEL + 2];
+    memcpy(first, count, sizeof first);
+    for (uint32_t t = 0; t < nt; t++)
+        order[count[MR_UMESH_MAX_LEVEL - level[t]]++] = t;
+    uint32_t pending = 0; /* raised[0 .. pending): at the level being processed */
+    for (int l = MR_UMESH_MAX_LEVEL; l >= 1; l--) {
+        uint32_t from = first[MR_UMESH_MAX_LEVEL - l], to = first[MR_UMESH_MAX_LEVEL - l + 1];
+        uint32_t was_pending = pending, next = 0;
+        for (uint32_t i = from; i < to + was_pending; i++) {
+            uint32_t t = i < to ? order[i] : raised[i - to];
+            if (level[t] != l)
+                continue; /* raised above the level it was sorted at */
+            for (uint32_t k = 0; k < 3; k++) {
+                uint32_t g = e->group[e->at[3 * (size_t)t + k]];
+                for (size_t m = g; m < e->count && e->group[m] == g; m++) {
+                    uint32_t u = e->e[m].tri;
+                    if (level[u] + 1 < l) {
+                        level[u] = (uint8_t)(l - 1);
+                        /* processed at l - 1: after this level's pending
+                         * ones are read (they sit below `next`) */
+                        raised[was_pending + next++] = u;
+                    }
                 }
+            }
         }
+        memmove(raised, raised + was_pending, next * sizeof *raised);
+        pending = next;
     }
-    memset(decimate, 0, e->triangles);
+    memset(decimate, 0, nt);
     for (size_t i = 0, j; i < e->count; i = j) {
         unsigned low = UINT32_MAX;
         j = group_end(e, i);

@@ -132,6 +132,9 @@ typedef struct mr_umesh_edges {
     mr_umesh_edge *e;
     size_t count;        /* 3 per triangle */
     uint32_t triangles;
+    uint32_t *group;     /* per entry of e: the first entry of its group (same vertex pair) */
+    uint32_t *at;        /* triangle t's edge k is entry at[3 t + k] of e */
+    uint32_t *order;     /* scratch of mr_umesh_balance: 2 per triangle */
 } mr_umesh_edges;
 
 /* The edges of the nt triangles idx (3 vertex indices each). MR_ERR_NOMEM;
@@ -144,10 +147,13 @@ void mr_umesh_edges_free(mr_umesh_edges *e);
 void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared);
 
 /* Balances per-triangle levels: raises the coarse side of every shared
- * edge joining levels more than one apart until none does (levels only
- * grow, never above the largest given, so this ends), then sets each
+ * edge joining levels more than one apart until none does, to the least
+ * levels that satisfy it (a triangle ends at the largest of its own level
+ * and every other's less its distance in shared edges), then sets each
  * triangle's decimation mask (bit k: edge k borders a triangle one level
- * coarser). level and decimate hold one entry per triangle. */
+ * coarser). level and decimate hold one entry per triangle. One sweep from
+ * the finest level down: a triangle is raised at most once, since a level
+ * processed later asks less of it. */
 void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate);
 
 /* Undisplaced point and interpolated (unnormalised) direction at micro-vertex
