@@ -286,7 +286,7 @@ static void every_example(mr_device *dev)
         free(names[i]);
     }
     printf("\nlevels: per object with levels, as its kind counts them (README, Level of detail; "
-           "'-': none picked: rigid svo, procedural displacement, no frame to pick from)\n");
+           "'-': none picked: rigid svo, no frame to pick from)\n");
 }
 
 int main(int argc, char **argv)

@@ -15,7 +15,12 @@
  *    tessellated) within the tolerance, levels coarse far away and level 0
  *    up close, a frame alone on one thread the same pixels;
  *  - the same fly-through with method "tessellated" picks the same levels
- *    and covers the same pixels (the traversal is exact at every level).
+ *    and covers the same pixels (the traversal is exact at every level);
+ *  - a procedural source's levels (its range halved): the distance of two
+ *    ranges (mr_dproc_distance) against dense sampling of both height
+ *    fields, and examples/displaced-ground.json flown over from far to
+ *    near with reference passes, every frame within 1 px of its ground
+ *    truth (twice the range, tessellated), coarse ranges far away.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -35,6 +40,7 @@
 #include "job_json.h"
 #include "kinds/displaced/dgrid.h"
 #include "kinds/displaced/dsurf.h"
+#include "kinds/displaced/tiling.h"
 
 /* ---- the distance of two grids ---- */
 
@@ -196,11 +202,129 @@ static void test_flythrough(void **state)
     cJSON_free(tess_json);
 }
 
+/* ---- a procedural source's levels ---- */
+
+/* mr_dproc_distance against dense sampling (16 x 16 points per fine cell)
+ * of both height fields over a triangle of grid space, ranges 16 against
+ * 8, 4 and 2: dense sampling holds every fine grid point, where the
+ * distance is attained, so it finds the same (to 1e-12: heights about 0.3
+ * in double), and nothing beyond it. */
+static void test_proc_distance(void **state)
+{
+    (void)state;
+    uint64_t seed = 11;
+    mr_asset *ex = dfx_texture(64, 64, MR_SAMPLE_U8, dfx_noise, &seed);
+    mr_error err;
+    mr_dproc fine;
+    assert_int_equal(mr_dproc_init(&fine, ex->image, 0.5, 0.5, 1.0, 0.25, 3, 16, 0.3, -0.1, 2, &err),
+                     MR_OK);
+    const double tri[6] = {-3.5, -2.25, 21.0, 1.5, 4.75, 19.0}; /* grid space of range 16 */
+    const mr_dheights hf = mr_dproc_heights(&fine);
+    for (uint32_t range = 8; range >= 2; range /= 2) {
+        mr_dproc coarse;
+        assert_int_equal(mr_dproc_init(&coarse, ex->image, 0.5, 0.5, 1.0, 0.25, 3, range, 0.3, -0.1,
+                                       2, &err), MR_OK);
+        const mr_dheights hc = mr_dproc_heights(&coarse);
+        double d = mr_dproc_distance(&fine, &coarse, tri, 1, 2), dense = 0;
+        const double k = 16.0 / range;
+        for (int y = -4 * 16; y <= 20 * 16; y++)
+            for (int x = -4 * 16; x <= 22 * 16; x++) {
+                double gx = x / 16.0, gy = y / 16.0;
+                /* inside the triangle's box, as the distance scans */
+                if (gx < -3.5 || gx > 21.0 || gy < -2.25 || gy > 19.0)
+                    continue;
+                double e = mr_dsurf_height_at(&hf, gx, gy) - mr_dsurf_height_at(&hc, gx / k, gy / k);
+                dense = fmax(dense, fabs(e));
+            }
+        print_message("range 16 against %u: distance %.6f, dense sampling %.6f\n", range, d, dense);
+        assert_true(dense <= d + 1e-12);
+        assert_true(d > 0.02); /* noise: a coarser range strays */
+        mr_dproc_free(&coarse);
+    }
+    mr_dproc_free(&fine);
+    mr_asset_free(ex);
+}
+
+/* examples/displaced-ground.json (the procedural ground, range 64) at
+ * 320x180 with reference passes and tolerance_px 1, the camera flying
+ * down at the ground from 30 units to its own 2.8: every frame within 1 px
+ * of the ground truth (range 128 tessellated), predicted within it where a
+ * coarser range is picked (up close the object's own range is predicted
+ * above 1 px: the bound is the largest difference anywhere on the ground,
+ * projected at its nearest point), the tessellated pass at the same level
+ * covering the same pixels; far away a coarse range, close up the
+ * object's own. */
+static void test_proc_flythrough(void **state)
+{
+    (void)state;
+    cJSON *o = lod_example("displaced-ground", 320, 180);
+    cJSON_AddNumberToObject(o, "tolerance_px", 1.0);
+    cJSON *frames = cJSON_CreateObject(); /* the example renders one time */
+    cJSON_ReplaceItemInObject(o, "frames", frames);
+    cJSON_AddNumberToObject(frames, "fps", 6);
+    cJSON_AddNumberToObject(frames, "start", 0);
+    cJSON_AddNumberToObject(frames, "end", 2);
+    cJSON *cam = cJSON_CreateObject(), *keys = cJSON_AddArrayToObject(cam, "path");
+    cJSON_AddNumberToObject(cam, "yfov", 40);
+    for (int k = 0; k <= 12; k++) {
+        /* the example's camera moved out along its own line of sight, from
+         * 30 / 2.8 times as far down to its own place */
+        double scale = pow(30.0 / 2.8, 1.0 - k / 12.0);
+        const double p[3] = {0.0, 1.4 * scale, 2.4 * scale}, target[3] = {0.0, 0.0, 0.0};
+        cJSON *key = cJSON_CreateObject();
+        cJSON_AddNumberToObject(key, "t", k / 6.0);
+        cJSON_AddItemToObject(key, "position", cJSON_CreateDoubleArray(p, 3));
+        cJSON_AddItemToObject(key, "target", cJSON_CreateDoubleArray(target, 3));
+        cJSON_AddItemToArray(keys, key);
+    }
+    cJSON_ReplaceItemInObject(o, "camera", cam);
+    char *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    mr_asset *assets[2];
+    assert_int_equal(lod_load_assets(json, assets, 2), 2); /* the plane and the example */
+    lod_run x;
+    lod_open(&x, json, assets, NULL, 2);
+    size_t frames_n = x.job->frame_count;
+    double levels[MAX_FRAMES] = {0}, worst = 0;
+    for (size_t i = 0; i < frames_n; i++) {
+        mr_frame_stats st;
+        mr_film *f = lod_frame(&x, i, &st);
+        levels[i] = fx_frame_extra(&st, "displaced_lod_level");
+        double predicted = fx_frame_extra(&st, "displaced_lod_error_px"), measured = -1;
+        /* the object's own range strays from twice it by more than 1 px
+         * up close: nothing finer to pick, it is traced and said */
+        assert_true(predicted <= 1.0 || levels[i] == 0);
+        assert_int_equal(st.error_count, 2);
+        for (uint32_t e = 0; e < st.error_count; e++) {
+            const mr_frame_error *fe = &st.errors[e];
+            if (fe->reference == MR_REFERENCE_TESSELLATED)
+                assert_true(fe->coverage_error_pct == 0 && fe->holes == 0);
+            else
+                measured = fe->surface_px;
+        }
+        print_message("frame %2zu: range / 2^%g, predicted %.3f px, measured %.3f px\n", i,
+                      levels[i], predicted, measured);
+        worst = fmax(worst, measured);
+        if (!(measured <= 1.0))
+            fail_msg("frame %zu: range / 2^%g measured %.3f px", i, levels[i], measured);
+        mr_film_free(f);
+    }
+    print_message("%zu frames, worst surface_px against twice the range %.3f\n", frames_n, worst);
+    assert_true(levels[0] >= 2);            /* far: at most a quarter of the range */
+    assert_true(levels[frames_n - 1] <= 1); /* at the example's own camera: fine */
+    lod_close(&x);
+    for (size_t i = 0; i < 2; i++)
+        mr_asset_free(assets[i]);
+    cJSON_free(json);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_grid_distance),
         cmocka_unit_test(test_flythrough),
+        cmocka_unit_test(test_proc_distance),
+        cmocka_unit_test(test_proc_flythrough),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

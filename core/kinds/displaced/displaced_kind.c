@@ -66,10 +66,11 @@ struct mr_geom {
     double bounds_s;               /* last update's seconds */
     _Atomic uint64_t calls, nodes, leaves, tests;
     RTCGeometry rtc;
-    /* Levels of detail ("tolerance_px", height texture; kinds/lod.h): this
-     * object is the finest (its "level"), coarser[k - 1] the same surface
-     * at mip level level + k over this object's posed base mesh (shares_base:
-     * its positions and normals are this object's). */
+    /* Levels of detail ("tolerance_px"; kinds/lod.h): this object is the
+     * finest (its "level" or "range"), coarser[k - 1] the same surface at
+     * mip level level + k (procedural: range / 2^k) over this object's
+     * posed base mesh (shares_base: its positions and normals are this
+     * object's). */
     bool shares_base;
     double tolerance_px;           /* 0: no levels */
     uint32_t lod_count, lod_cur;   /* levels (1: none); the frame's */
@@ -77,7 +78,7 @@ struct mr_geom {
     mr_lod_switch lod_sw;          /* the level enabled in Embree; dirty: levels set up since
                                       the last commit */
     mr_geom *coarser[MR_DISPLACED_LOD_MAX - 1];
-    double lod_error[MR_DISPLACED_LOD_MAX]; /* finest first: distance to mip level 0 */
+    double lod_error[MR_DISPLACED_LOD_MAX]; /* finest first: distance to the ground truth */
     double height_reach;           /* the largest |height|: the surface lies within it of the
                                       base mesh */
     double predicted_px, lod_build_s;
@@ -117,11 +118,6 @@ static void displaced_free(mr_geom *g)
     free(g->tess_pos);
     free(g->tess_idx);
     free(g);
-}
-
-static double proc_height(const void *src, int64_t i, int64_t j)
-{
-    return mr_dproc_height(src, i, j);
 }
 
 /* ---- tessellation ------------------------------------------------------------------ */
@@ -395,7 +391,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
                                 par->scale, par->offset, threads, err)) < 0)
             goto fail;
         g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .proc = &g->proc,
-                               .heights = {proc_height, &g->proc},
+                               .heights = mr_dproc_heights(&g->proc),
                                .local = (mr_dlocal)par->local, .march_steps = par->steps};
     } else {
         if ((rc = mr_dgrid_init(&g->grid, tex->image, par->level, par->scale, par->offset,
@@ -531,6 +527,60 @@ static int create_levels(mr_geom *g, const mr_asset *tex, unsigned threads, mr_e
     return rc;
 }
 
+/* Levels of detail, procedural source: the same tiling and blending at
+ * half the range, a quarter, ... down to 1 (at most MR_DISPLACED_LOD_MAX
+ * levels), each with its distance (mr_dproc_distance) to the ground truth
+ * its reference pass draws: the same texture at twice the object's range
+ * (at the largest range, the object's own). Heights are world units along
+ * the unit normal, as for a height texture (level_error). */
+static int create_proc_levels(mr_geom *g, const mr_asset *tex, unsigned threads, mr_error *err)
+{
+    double t0 = mr_now();
+    const mr_displaced_params *par = &g->par;
+    const size_t nt = g->triangle_count;
+    const uint32_t up = par->range < MR_DISPLACED_MAX_RANGE ? 2 : 1;
+    double *tri = malloc(nt * 6 * sizeof(double) + 1); /* in the truth's grid coordinates */
+    if (!tri)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory for levels of detail",
+                            g->asset->path);
+    for (size_t t = 0; t < nt; t++)
+        for (int k = 0; k < 3; k++)
+            for (int a = 0; a < 2; a++)
+                tri[6 * t + 2 * k + a] = g->grid_uv[(size_t)g->indices[3 * t + k] * 2 + a] * up;
+    mr_dproc finer = {0};
+    const mr_dproc *truth = &g->proc;
+    int rc = MR_OK;
+    if (up > 1) {
+        if ((rc = mr_dproc_init(&finer, tex->image, par->uv_offset[0], par->uv_offset[1],
+                                par->uv_scale, par->triangle_size, par->seed, par->range * up,
+                                par->scale, par->offset, threads, err)) < 0) {
+            free(tri);
+            return rc;
+        }
+        truth = &finer;
+        g->lod_error[0] = mr_dproc_distance(truth, &g->proc, tri, nt, threads);
+    }
+    for (uint32_t r = par->range / 2; r >= 1 && g->lod_count < MR_DISPLACED_LOD_MAX; r /= 2) {
+        mr_displaced_params p = *par;
+        p.range = r;
+        mr_geom *c;
+        if ((rc = create_surface(g->asset, &p, tex, g->vertex_count, g->triangle_count, threads, g,
+                                 &c, err)) < 0)
+            break;
+        g->coarser[g->lod_count - 1] = c;
+        g->lod_error[g->lod_count] = mr_dproc_distance(truth, &c->proc, tri, nt, threads);
+        g->lod_count++;
+    }
+    if (truth == &finer)
+        mr_dproc_free(&finer);
+    free(tri);
+    double lo, hi;
+    mr_dproc_global_heights(&g->proc, &lo, &hi);
+    g->height_reach = fmax(fabs(lo), fabs(hi));
+    g->lod_build_s = mr_now() - t0;
+    return rc;
+}
+
 static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
                             const mr_kind_context *ctx, mr_geom **out, mr_error *err)
 {
@@ -569,8 +619,9 @@ static int displaced_create(const mr_asset *asset, const mr_object_desc *desc,
         return rc;
     g->lod_count = 1;
     g->lod_sw.enabled = UINT32_MAX;
-    g->tolerance_px = desc->tolerance_px > 0 && !par->procedural ? desc->tolerance_px : 0;
-    if (g->tolerance_px > 0 && (rc = create_levels(g, tex, threads, err)) < 0) {
+    g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
+    if (g->tolerance_px > 0 &&
+        (rc = (par->procedural ? create_proc_levels : create_levels)(g, tex, threads, err)) < 0) {
         displaced_free(g);
         return rc;
     }
@@ -645,7 +696,7 @@ static int update_surface(mr_geom *g, unsigned threads, mr_error *err)
     return rc;
 }
 
-/* The level whose distance to mip level 0, projected at the posed base
+/* The level whose distance to the ground truth, projected at the posed base
  * mesh's nearest depth (its bounds grown by the largest height: the surface
  * lies within them), stays below the tolerance. Heights are world units
  * whatever the transform (the normal is a unit vector), so the distances
@@ -992,22 +1043,30 @@ static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_mipmap_bytes", "bytes", "Height texture pyramid and mip level held (procedural: "
                                         "the Gaussianised example and its pyramid)", MR_STAT_SUM},
     {"displaced_lod_level", "level",
-     "the height texture's mip level traced (\"tolerance_px\" picks it; without, \"level\")",
+     "the height texture's mip level traced, or how many times a procedural source's \"range\" "
+     "was halved (\"tolerance_px\" picks it; without, \"level\" or 0)",
      MR_STAT_MAX},
     {"displaced_lod_error_px", "px",
-     "the level's predicted error: its height difference to mip level 0, projected at the posed "
-     "surface's nearest depth by this frame's camera (0 without \"tolerance_px\")", MR_STAT_MAX},
+     "the level's predicted error: its height difference to the ground truth (mip level 0; "
+     "procedural: twice the range), projected at the posed surface's nearest depth by this "
+     "frame's camera (0 without \"tolerance_px\")", MR_STAT_MAX},
     {"displaced_lod_bytes", "bytes",
-     "what the levels coarser than \"level\" hold (their mip levels, pyramids and per-triangle "
-     "set-up)", MR_STAT_SUM},
+     "what the levels coarser than the object's own hold (their mip levels or procedural "
+     "textures, pyramids and per-triangle set-up)", MR_STAT_SUM},
     {"displaced_lod_build_s", "s",
      "making the coarser levels and measuring their error at creation", MR_STAT_ONCE},
 };
 
-/* The mip level traced (a procedural source has no levels: none). */
+/* The level traced: the height texture's mip level, or how many times a
+ * procedural source's range was halved. */
+static unsigned lod_level(const mr_geom *g)
+{
+    return g->procedural ? g->lod_cur : traced(g)->par.level;
+}
+
 static bool displaced_lod(const mr_geom *g, uint32_t *level, double *error_px)
 {
-    *level = traced(g)->par.level;
+    *level = lod_level(g);
     *error_px = g->predicted_px;
     return g->tolerance_px > 0;
 }
@@ -1028,7 +1087,7 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
     }
     v[S_BASE_BYTES] = (double)base_bytes(g);
     v[S_MIPMAP_BYTES] = (double)source_bytes(g);
-    v[S_LEVEL] = traced(g)->par.level;
+    v[S_LEVEL] = lod_level(g);
     v[S_ERROR_PX] = g->predicted_px;
     v[S_LOD_BYTES] = (double)(displaced_memory(g) - base_bytes(g) - source_bytes(g) - tess_bytes(g));
     v[S_LOD_BUILD_S] = g->lod_build_s;

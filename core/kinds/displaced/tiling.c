@@ -1,6 +1,8 @@
 /* tiling.c - tiling and blending heights and their bounds (tiling.h). */
 #include "kinds/displaced/tiling.h"
 
+#include "util/parallel.h"
+
 #include <math.h>
 #include <stdatomic.h>
 #include <stdlib.h>
@@ -237,6 +239,10 @@ double mr_dproc_height(const mr_dproc *p, int64_t i, int64_t j)
     return h;
 }
 
+static double height_at(const void *p, int64_t i, int64_t j) { return mr_dproc_height(p, i, j); }
+
+mr_dheights mr_dproc_heights(const mr_dproc *p) { return (mr_dheights){height_at, p}; }
+
 /* ---- bounds ------------------------------------------------------------------------- */
 
 static void heights_of(const mr_dproc *p, double blo, double bhi, double *lo, double *hi)
@@ -326,3 +332,60 @@ void mr_dproc_free(mr_dproc *p)
     memset(p, 0, sizeof *p);
 }
 
+
+/* ---- levels of detail ----------------------------------------------------------- */
+
+typedef struct distance_ctx {
+    const mr_dproc *fine, *coarse;
+    const double *tri;
+    int64_t step; /* fine grid units per coarse one */
+    double worst[MR_MAX_THREADS];
+} distance_ctx;
+
+static int64_t floor_div(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
+static void distance_range(void *vctx, size_t begin, size_t end, unsigned worker)
+{
+    distance_ctx *c = vctx;
+    const int64_t s = c->step;
+    double worst = c->worst[worker];
+    for (size_t t = begin; t < end; t++) {
+        const double *q = c->tri + 6 * t;
+        double lo[2] = {q[0], q[1]}, hi[2] = {q[0], q[1]};
+        for (int k = 1; k < 3; k++)
+            for (int a = 0; a < 2; a++)
+                lo[a] = dmin(lo[a], q[2 * k + a]), hi[a] = dmax(hi[a], q[2 * k + a]);
+        for (int64_t j = (int64_t)floor(lo[1]); j <= (int64_t)ceil(hi[1]); j++)
+            for (int64_t i = (int64_t)floor(lo[0]); i <= (int64_t)ceil(hi[0]); i++) {
+                int64_t ci = floor_div(i, s), cj = floor_div(j, s);
+                double fx = (double)(i - ci * s) / (double)s, fy = (double)(j - cj * s) / (double)s;
+                double h10 = mr_dproc_height(c->coarse, ci + 1, cj);
+                double h01 = mr_dproc_height(c->coarse, ci, cj + 1), h;
+                if (fx + fy <= 1) {
+                    double h00 = mr_dproc_height(c->coarse, ci, cj);
+                    h = h00 + fx * (h10 - h00) + fy * (h01 - h00);
+                } else {
+                    double h11 = mr_dproc_height(c->coarse, ci + 1, cj + 1);
+                    h = h11 + (1 - fx) * (h01 - h11) + (1 - fy) * (h10 - h11);
+                }
+                worst = dmax(worst, fabs(mr_dproc_height(c->fine, i, j) - h));
+            }
+    }
+    c->worst[worker] = worst;
+}
+
+double mr_dproc_distance(const mr_dproc *fine, const mr_dproc *coarse, const double *tri, size_t n,
+                         unsigned threads)
+{
+    distance_ctx *c = calloc(1, sizeof *c);
+    if (!c)
+        return INFINITY; /* no bound: the coarse level is never picked */
+    c->fine = fine, c->coarse = coarse, c->tri = tri;
+    c->step = (int64_t)llround(fine->range / coarse->range);
+    mr_parallel_for(threads, n, 1, distance_range, c);
+    double worst = 0;
+    for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+        worst = dmax(worst, c->worst[w]);
+    free(c);
+    return worst;
+}

@@ -77,6 +77,8 @@ void mr_dproc_grid_of(const mr_dproc *p, float u, float v, double g[2]);
 /* The height of grid point (i, j) and the blend it comes from. */
 double mr_dproc_height(const mr_dproc *p, int64_t i, int64_t j);
 double mr_dproc_blend(const mr_dproc *p, int64_t i, int64_t j);
+/* The heights of the grid points, as dsurf.h reads them. */
+mr_dheights mr_dproc_heights(const mr_dproc *p);
 /* T^-1 then the height formula (monotone in b). */
 double mr_dproc_height_of_blend(const mr_dproc *p, double b);
 
@@ -87,6 +89,20 @@ void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, 
                           double *hi);
 /* The global height bound (any region). */
 void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi);
+
+/* Levels of detail ("tolerance_px"): how far the heights of coarse (the
+ * same texture at range fine->range / 2^k) stray from those of fine over
+ * n grid-space triangles (tri: 6 doubles each, three points in fine's grid
+ * coordinates): the largest difference of the two height fields, each
+ * linear over its grid cells' halves. A coarse cell is 2^k x 2^k fine
+ * cells and its anti-diagonal continues theirs, so the difference is
+ * linear on every fine cell half and largest at a fine grid point; every
+ * fine grid point of each triangle's bounding box is visited (its
+ * neighbourhood too: a superset). Coarse grid points are fine ones, with
+ * the same heights (a height is a function of the lattice point q / range,
+ * the same number at both ranges). */
+double mr_dproc_distance(const mr_dproc *fine, const mr_dproc *coarse, const double *tri, size_t n,
+                         unsigned threads);
 
 /* The triforce subdivision (5.4.1, Figure 5.1 derived): the four children
  * of node (bx, by, s), |s| >= 2 even: three corner triangles of leg s/2
