@@ -2,26 +2,31 @@
  * test_dmm_lod.c - the dmm kind's levels of detail ("tolerance_px", issue 16;
  * core/kinds/dmm/dmm_kind.c, dmm_lod.h) on a real model (BCN_Epileptic.X).
  *
- *  - each level's error is what it says: the two-sided sampled distance
- *    between its rest-pose micro-triangles and the detailed mesh,
- *    recomputed by brute force with another closest-point routine (svo's
- *    mr_tri_closest_point); errors never shrink towards coarser levels;
- *    without a tolerance the object is one level, as before;
+ *  - the bounds are what they say: each base triangle's share of the baked
+ *    surface's two-sided distance to the detailed mesh, whose largest is
+ *    that distance recomputed by brute force with another closest-point
+ *    routine (svo's mr_tri_closest_point); the per-level bounds never
+ *    shrink towards coarser levels; without a tolerance nothing is
+ *    measured; mr_dmm_lod_coarsening (how far a coarser level strays from
+ *    the baked one, under any decimation) against dense sampling on a
+ *    random lattice: never beyond it, and reaching it;
  *  - examples/dmm-skinned.json flown through from far to near with
- *    "reference": true: the measured error against the ground truth
- *    (surface_px) within the tolerance on at least 99 % of frames, the
- *    tessellated reference (at the level the object picked) exact, coarse
- *    levels far away and fine ones close up; per frame the level, the
+ *    "reference": true, the dancer still and walking: the measured error
+ *    against the ground truth (surface_px) within the tolerance on at
+ *    least 99 % of frames and the prediction within it, the tessellated
+ *    reference (at the levels the object picked) exact, level 0 everywhere
+ *    far away and the finest level in places close up while most base
+ *    triangles stay coarser; per frame the finest and mean level, the
  *    predicted and measured pixels and the frame time against the finest
  *    level alone are printed;
  *  - the tessellation-free object and its exact reference (mode
  *    "tessellated", intersector "watertight") with the same tolerance pick
- *    the same level and render the same pixels, on frames at different
- *    levels;
- *  - the errors through the derived-data cache (dmm_lod.h): the first
+ *    the same levels and render the same pixels, on frames with different
+ *    mixes of levels;
+ *  - the bounds through the derived-data cache (dmm_lod.h): the first
  *    object measures and stores them, a second reads them (a valid file
- *    with other errors shows it is the file that answers), a damaged file
- *    is measured again and stored as before, other parameters are another
+ *    with another bound shows it is the file that answers), damaged files
+ *    are measured again and stored as before, other parameters are another
  *    key.
  */
 #include <setjmp.h>
@@ -40,12 +45,12 @@
 #define FPS 12
 #define DURATION 2
 #define FAR 20.0
-/* Where each fly-through ends: where the finest level still fits 1 px at
- * 320x180. The still dancer's levels (rest pose) stray by 3.36e-3 (level
- * 3), 3.42e-3 (levels 2 and 1) and 4.40e-3 units (level 0): at 1.13 units
- * the last frame traces level 3, predicted 0.985 px, the one before level 1
- * and the rest level 0. The walking dancer's levels all stray by 1.88e-2
- * units in the poses of its clip: level 0 fits down to about 6 units. */
+/* Where each fly-through ends: where the baked level still fits 1 px at
+ * 320x180. The still dancer's baked surface strays from the detailed mesh
+ * by up to 3.4e-3 units at rest: at 1.13 units the last frame traces level
+ * 3 in places, predicted 0.996 px. Walking, it strays by up to 1.9e-2
+ * units at the joints in the poses of its clip: those fit down to about
+ * 6.5 units. */
 #define STILL_NEAR 1.13
 #define WALKING_NEAR 6.5
 #define TMP_DIR_TEMPLATE "/tmp/mr-dmm-lod-XXXXXX"

@@ -1,9 +1,10 @@
 /*
- * dmm_lod.h - how far a dmm object's subdivision level strays from the
- * detailed mesh it was baked from, for "tolerance_px" (issue 16; the kind's
- * levels of detail are in dmm_kind.c).
+ * dmm_lod.h - how far a dmm object's surface strays from the detailed mesh
+ * it was baked from, and each base triangle's coarser levels from its baked
+ * one, for "tolerance_px" (issue 16; the kind's levels of detail, one per
+ * base triangle, are in dmm_kind.c).
  *
- * A level's error is the two-sided distance between its surface (its
+ * The baked surface's error is the two-sided distance between it (its
  * micro-triangles) and the detailed mesh, measured by exact closest-point
  * queries (math/closest_mesh.h) at every distinct vertex position of the
  * detailed mesh (against the level's micro-triangles) and at every
@@ -16,7 +17,9 @@
  * the detail everywhere (one side: no micro-triangle floats off it) and
  * the detail close to the level everywhere (the other side: no detail the
  * level cut off, a spike or a finger the base mesh lost). dmm_bake.h's own
- * report (dmm_bake_max_distance) is the first side alone.
+ * report (dmm_bake_max_distance) is the first side alone. Each sample is
+ * also given to its owner (mr_dmm_lod_distance's owner), so each base
+ * triangle gets its own share.
  *
  * It is a sampled bound, not a proof: between the samples the distance can
  * be larger (a micro-triangle is about as large as a detailed triangle, so
