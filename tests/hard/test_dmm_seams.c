@@ -378,16 +378,28 @@ static seam_figures check_mode(const mr_asset *a, mr_dmm_mode mode, uint64_t wan
     return check_object(a, adaptive_desc(mode), 0, NULL, NULL, NULL, want_open);
 }
 
+/* The subject: the rig refined once. */
+static mr_asset *subject(void)
+{
+    mr_refine_params rp = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
+    return bcn_load_refined(&rp);
+}
+
+/* The bake the kind makes of it (same parameters, deterministic). */
+static mr_dmm_bake_params subject_bake(bool adaptive)
+{
+    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
+    bp.level = LEVEL;
+    bp.adaptive = adaptive;
+    bp.target_ratio = BASE_RATIO;
+    return bp;
+}
+
 static void test_adaptive_levels_are_watertight(void **state)
 {
     (void)state;
-    mr_refine_params rp = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
-    mr_asset *a = bcn_load_refined(&rp);
-    /* the bake the kind makes (same parameters, deterministic) */
-    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
-    bp.level = LEVEL;
-    bp.adaptive = true;
-    bp.target_ratio = BASE_RATIO;
+    mr_asset *a = subject();
+    mr_dmm_bake_params bp = subject_bake(true);
     uint64_t open = 0;
     mr_error err = {0};
     level_figures lf = {.fewest_mixed = UINT64_MAX, .fewest_levels = UINT_MAX};
@@ -427,11 +439,8 @@ static void test_adaptive_levels_are_watertight(void **state)
 static void test_lod_levels_are_watertight(void **state)
 {
     (void)state;
-    mr_refine_params rp = {.rounds = 1, .amplitude = 0.004f, .frequency = 12.0f, .octaves = 2};
-    mr_asset *a = bcn_load_refined(&rp);
-    mr_dmm_bake_params bp = mr_dmm_bake_params_default();
-    bp.level = LEVEL;
-    bp.target_ratio = BASE_RATIO;
+    mr_asset *a = subject();
+    mr_dmm_bake_params bp = subject_bake(false);
     mr_error err = {0};
     mr_dmm_bake **b = calloc(a->mesh_count, sizeof *b);
     assert_non_null(b);
