@@ -1343,7 +1343,7 @@ struct mr_geom {
     tri_lod *lod;              /* NULL without a tolerance (or at level 0) */
     double tolerance_px;
     double predicted_px;       /* this frame's largest projected bound */
-    bool changed;              /* posed or laid out again since the last commit */
+    bool changed;              /* what Embree holds changed since the last commit */
     double lod_build_s;        /* measuring the bounds */
 };
 
@@ -1862,7 +1862,11 @@ static int dmm_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     bool relaid = lod_lay_out(g->lv, g->lod);
     if (!moved && !relaid && g->lv->evaluated)
         return MR_OK;
-    g->changed = true;
+    /* Embree needs the frame only when the boxes moved or, intersector
+     * "embree", the micro-triangles changed: a user geometry's boxes are
+     * the baked levels' whatever the levels, and its callbacks read the
+     * levels laid out */
+    g->changed = g->changed || moved || (relaid && embree_triangles(g->lv));
     return level_evaluate(g->lv, threads, err);
 }
 
@@ -1879,7 +1883,7 @@ static int dmm_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
 }
 
 /* Always without levels of detail (as before them); with, only a frame
- * that posed or laid out the level again. */
+ * that changed what Embree holds (dmm_update). */
 static bool dmm_commit(mr_geom *g)
 {
     if (g->lod && !g->changed)
