@@ -1598,7 +1598,7 @@ static int measure_coarsening(mr_geom *g, measure_ctx *m, mr_error *err)
  * normals, triangles and skin), the object's parameters (the bake follows
  * from them) and each measured pose's node transforms (the detailed and the
  * base mesh are skinned by them, whatever in the job chose them). */
-static void errors_key(const mr_geom *g, const mr_dmm_params *p, const measure_ctx *m,
+static void bounds_key(const mr_geom *g, const mr_dmm_params *p, const measure_ctx *m,
                        uint8_t key[MR_DERIVED_KEY_BYTES])
 {
     const mr_asset *a = g->asset;
@@ -1660,7 +1660,7 @@ static int measure_levels(mr_geom *g, const mr_object_desc *desc, const mr_kind_
         }
     if (rc == MR_OK) {
         uint8_t key[MR_DERIVED_KEY_BYTES];
-        errors_key(g, desc->params, &m, key);
+        bounds_key(g, desc->params, &m, key);
         tri_lod *t = g->lod;
         mr_dmm_lod_table table = {g->lv->base_triangle_count, t->fine, t->error, t->error_whole};
         rc = mr_dmm_lod_table_cached(ctx ? ctx->cache_dir : NULL, key, &table, measure_all, &m, NULL,
@@ -1763,9 +1763,10 @@ static void lod_pick(mr_geom *g, const mr_geom_frame *frame, double stretch)
     const mr_umesh_edge *ed = d->edges.e;
     for (size_t i = 0, j; i < d->edges.count; i = j) {
         unsigned want = 0;
-        for (j = i; j < d->edges.count && ed[j].lo == ed[i].lo && ed[j].hi == ed[i].hi; j++)
-            if (d->decimate[ed[j].tri] && d->level[ed[j].tri] > want)
-                want = d->level[ed[j].tri];
+        j = mr_umesh_edges_group_end(&d->edges, i);
+        for (size_t m = i; m < j; m++)
+            if (d->decimate[ed[m].tri] && d->level[ed[m].tri] > want)
+                want = d->level[ed[m].tri];
         for (size_t m = i; m < j; m++) {
             unsigned cap = mr_dmm_info_level(d->info[ed[m].tri]);
             unsigned to = want < cap ? want : cap;

@@ -102,7 +102,7 @@ int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv
 {
     stride = stride ? stride : 1;
     const uint32_t distinct_n = (t->distinct_count + stride - 1) / stride;
-    uint32_t *vsample = malloc((size_t)(nv ? nv : 1) * sizeof *vsample); /* vertex -> used sample */
+    uint32_t *vsample = calloc(nv ? nv : 1, sizeof *vsample); /* vertex -> used sample */
     uint32_t *used = malloc((size_t)(nv ? nv : 1) * sizeof *used);
     uint32_t *prim = malloc(((size_t)distinct_n + 1) * sizeof *prim);
     if (!vsample || !used || !prim) {
@@ -111,8 +111,6 @@ int mr_dmm_lod_distance(const mr_dmm_lod_truth *t, const float *pos, uint32_t nv
         free(prim);
         return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory measuring levels of detail", who);
     }
-    for (uint32_t v = 0; v < nv; v++)
-        vsample[v] = 0;
     for (size_t e = 0; e < (size_t)nt * 3; e++)
         vsample[idx[e]] = 1;
     uint32_t used_count = 0;

@@ -413,8 +413,7 @@ void mr_umesh_edges_free(mr_umesh_edges *e)
     *e = (mr_umesh_edges){0};
 }
 
-/* The end of the group of edges sharing e[i]'s vertex pair. */
-static size_t group_end(const mr_umesh_edges *e, size_t i)
+size_t mr_umesh_edges_group_end(const mr_umesh_edges *e, size_t i)
 {
     size_t j = i + 1;
     while (j < e->count && e->group[j] == e->group[i])
@@ -426,7 +425,7 @@ void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared)
 {
     memset(shared, 0, e->triangles);
     for (size_t i = 0, j; i < e->count; i = j)
-        if ((j = group_end(e, i)) - i > 1)
+        if ((j = mr_umesh_edges_group_end(e, i)) - i > 1)
             for (size_t m = i; m < j; m++)
                 shared[e->e[m].tri] |= (uint8_t)(1u << e->e[m].k);
 }
@@ -455,7 +454,7 @@ void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate
                 continue; /* raised above the level it was sorted at */
             for (uint32_t k = 0; k < 3; k++) {
                 uint32_t g = e->group[e->at[3 * (size_t)t + k]];
-                for (size_t m = g; m < e->count && e->group[m] == g; m++) {
+                for (size_t m = g, end = mr_umesh_edges_group_end(e, g); m < end; m++) {
                     uint32_t u = e->e[m].tri;
                     if (level[u] + 1 < l) {
                         level[u] = (uint8_t)(l - 1);
@@ -472,7 +471,7 @@ void mr_umesh_balance(const mr_umesh_edges *e, uint8_t *level, uint8_t *decimate
     memset(decimate, 0, nt);
     for (size_t i = 0, j; i < e->count; i = j) {
         unsigned low = UINT32_MAX;
-        j = group_end(e, i);
+        j = mr_umesh_edges_group_end(e, i);
         for (size_t m = i; m < j; m++)
             low = level[e->e[m].tri] < low ? level[e->e[m].tri] : low;
         for (size_t m = i; m < j; m++)

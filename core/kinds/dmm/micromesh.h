@@ -142,6 +142,10 @@ typedef struct mr_umesh_edges {
 int mr_umesh_edges_init(mr_umesh_edges *out, const uint32_t *idx, uint32_t nt, mr_error *err);
 void mr_umesh_edges_free(mr_umesh_edges *e);
 
+/* The end of the group of entries of e->e sharing entry i's vertex pair
+ * (they start at e->group[i]). */
+size_t mr_umesh_edges_group_end(const mr_umesh_edges *e, size_t i);
+
 /* Per triangle, the edges it shares with another triangle (bit k: edge k):
  * the only edges a neighbour's level can decimate. */
 void mr_umesh_edges_shared(const mr_umesh_edges *e, uint8_t *shared);
