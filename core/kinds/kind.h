@@ -21,6 +21,11 @@
  *   commit      tell Embree the data changed (after update); returns whether
  *               anything did (false: the scene need not be committed again)
  *   normal      world-space shading normal at a hit (unnormalised is fine);
+ *   id_primitive  (NULL: prim itself) what the id pass's id.primitive
+ *               names for a hit on primitive prim (as normal gets it),
+ *               for a kind whose Embree primitives are pieces of what its
+ *               users count (svo: an instance's octree traced as subtrees
+ *               names the instance).
  *   tangent     (NULL: the kind has none) world-space tangent at a hit,
  *               along increasing u of the asset's texture coordinates
  *               (unnormalised is fine): false where the object has none
@@ -220,6 +225,7 @@ struct mr_kind {
                   enum RTCBuildQuality quality, mr_error *err);
     bool (*commit)(mr_geom *g);
     mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
+    uint32_t (*id_primitive)(const mr_geom *g, unsigned prim);
     bool (*tangent)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out);
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);
     size_t (*memory)(const mr_geom *g);

@@ -135,7 +135,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
                        ? mr_v3_tangent_to(t, n, false)
                        : mr_v3(0, 0, 0);
     out->object = h->geom + 1;
-    out->prim = h->prim;
+    out->prim = obj->kind->id_primitive ? obj->kind->id_primitive(obj->geom, h->prim) : h->prim;
     out->rgb = mr_v3(0, 0, 0);
     if (!(s->aovs & MR_AOV_RGBA))
         return; /* nothing asks for light */

@@ -13,8 +13,10 @@
  *    the deformed voxel boxes of all instances are one user geometry, one
  *    primitive per box, over which Embree builds its BVH.
  *  - resize / emit: each instance's selection is resampled into its own
- *    world-space octree, rebuilt every frame; one user geometry, one
- *    primitive per instance, each traced by svo_trace.h.
+ *    world-space octree, rebuilt every frame; one user geometry whose
+ *    primitives are the instances' octrees, each as its subtrees (or whole
+ *    when small: octree_prim), traced by svo_trace.h. The id pass names
+ *    the instance (svo_id_primitive).
  * Rays hitting an octree report the leaf and its level in u and v (u: the
  * leaf's high 16 bits and the level above them, v: its low 16 bits; small
  * exact floats) so normal() can find the voxel's normal and surface_step
@@ -41,6 +43,14 @@
 #include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
 #include "util/parallel.h"
+
+/* A primitive of a resize / emit frame: instance `instance`'s octree, whole
+ * (whole) or below subtree st. */
+typedef struct octree_prim {
+    mr_svo_subtree st;
+    uint32_t instance;
+    bool whole;
+} octree_prim;
 
 /* Scratch of one worker: a pose and the matrices of one instance. */
 typedef struct worker_scratch {
@@ -79,6 +89,9 @@ struct mr_geom {
     mr_svo_selection *sel;        /* direct: per instance (resize and emit select into the
                                    * worker's scratch and keep only the octree) */
     mr_svo *octree;               /* per instance (resize, emit) */
+    octree_prim *prims;           /* resize, emit: what Embree traces, prim_count of them */
+    uint32_t prim_count;
+    size_t prim_capacity;
     size_t box_count, box_capacity;
     float *box;                   /* direct: all instances' boxes */
     mr_svo_leaf *box_leaf;
@@ -334,6 +347,73 @@ static int gather_boxes(mr_geom *g, mr_error *err)
     return MR_OK;
 }
 
+/* The octrees' primitives for Embree: their subtrees at level
+ * SUBTREE_LEVEL (mr_svo_subtrees). Embree's tree over their boxes then does
+ * the octree's top levels, where rays mostly cross empty space. The rigid
+ * dancer at 640x360 (bench_svo_render), trace time over the triangles' at
+ * depths 8 / 10 / 12: one walk from the
+ * root 2.3 / 3.2 / 4.8; subtrees at level 3: 1.9 / 2.8 / 4.5, 4: 1.8 / 2.8 /
+ * 4.4, 5: 1.7 / 2.6 / 4.2, 6: 1.7 / 2.7 / 4.2, with Embree's tree over them
+ * at 0.1, 0.5, 2.2 and 6.6 bytes per voxel at depth 8. */
+#define SUBTREE_LEVEL 5u
+/* Leaves a resize / emit octree's subtrees hold at least on average: an
+ * octree whose subtrees at SUBTREE_LEVEL hold fewer is cut nearer the
+ * root, or traced whole: Embree builds its tree over the pieces every
+ * frame, and small pieces cost more to build than they save in tracing
+ * (bench_svo d, 256 instances of ~5,000 voxels at level 5 always: 137 ms
+ * to build against 0.3 whole; 2.6 ms with this rule). The dancer at
+ * 640x360 (bench_svo_render, depths 8 / 10, resize) traces in 3.3 / 3.8 ms
+ * at 16 leaves a subtree, 3.6 / 3.9 at 256, 4.0 / 4.0 at 1024 and 4.8 /
+ * 5.1 whole. */
+#define LEAVES_PER_SUBTREE 256u
+
+/* The frame's primitives (resize, emit): each instance's octree as its
+ * subtrees, or whole when it is small or has no interior node; empty
+ * octrees give none. */
+static int gather_prims(mr_geom *g, mr_error *err)
+{
+    g->prim_count = 0;
+    for (size_t k = 0; k < g->instance_count; k++) {
+        const mr_svo *o = &g->octree[k];
+        if (o->leaf_count == 0)
+            continue;
+        mr_svo_subtree *st = NULL;
+        uint32_t n = 0;
+        for (unsigned level = SUBTREE_LEVEL; level > 0; level--) {
+            int rc = mr_svo_subtrees(o, level, &st, &n, err);
+            if (rc < 0)
+                return rc;
+            if (n <= 1 || (uint64_t)n * LEAVES_PER_SUBTREE <= o->leaf_count)
+                break;
+            free(st);
+            st = NULL;
+            n = 0;
+        }
+        const size_t need = (size_t)g->prim_count + (n ? n : 1);
+        if (need >= UINT32_MAX) {
+            free(st);
+            return mr_error_set(err, MR_ERR_LIMIT, "svo: %zu octree pieces in one frame, more than Embree takes",
+                                need);
+        }
+        if (need > g->prim_capacity) {
+            const size_t cap = need > 2 * g->prim_capacity ? need : 2 * g->prim_capacity;
+            octree_prim *q = realloc(g->prims, cap * sizeof *q);
+            if (!q) {
+                free(st);
+                return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu octree pieces", need);
+            }
+            g->prims = q;
+            g->prim_capacity = cap;
+        }
+        if (n == 0)
+            g->prims[g->prim_count++] = (octree_prim){.instance = (uint32_t)k, .whole = true};
+        for (uint32_t i = 0; i < n; i++)
+            g->prims[g->prim_count++] = (octree_prim){.st = st[i], .instance = (uint32_t)k};
+        free(st);
+    }
+    return MR_OK;
+}
+
 /* Scratch for `workers` workers (a pose, skin matrices and a workspace
  * each), grown as the job's thread count asks; kept across frames. */
 static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
@@ -473,7 +553,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     }
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
-    return MR_OK;
+    return gather_prims(g, err);
 }
 
 /* ---- Embree callbacks ------------------------------------------------ */
@@ -494,38 +574,56 @@ static void set_bounds(struct RTCBounds *b, const float lo[3], const float hi[3]
     b->upper_z = hi[2];
 }
 
-/* The rigid octree's primitives for Embree: its subtrees at level
- * SUBTREE_LEVEL (mr_svo_subtrees). Embree's tree over their boxes then does
- * the octree's top levels, where rays mostly cross empty space. The dancer at 640x360 (bench_svo_render),
- * trace time over the triangles' at depths 8 / 10 / 12: one walk from the
- * root 2.3 / 3.2 / 4.8; subtrees at level 3: 1.9 / 2.8 / 4.5, 4: 1.8 / 2.8 /
- * 4.4, 5: 1.7 / 2.6 / 4.2, 6: 1.7 / 2.7 / 4.2, with Embree's tree over them
- * at 0.1, 0.5, 2.2 and 6.6 bytes per voxel at depth 8. */
-#define SUBTREE_LEVEL 5u
-
-/* The subtree primitive prim of a rigid object traced from subtrees, else
- * NULL (one primitive: the whole octree). */
-static const mr_svo_subtree *rigid_subtree(const mr_geom *g, unsigned prim)
+/* The octree Embree primitive prim traces and in *st the subtree below
+ * which, or NULL when it traces the whole octree (rigid: the shared
+ * octree's subtrees, or the octree when it has none; resize, emit: the
+ * frame's octree_prim). NULL: no such primitive. */
+static const mr_svo *prim_octree(const mr_geom *g, unsigned prim, const mr_svo_subtree **st)
 {
-    return g->method == MR_SVO_RIGID && prim < g->subtree_count ? &g->subtrees[prim] : NULL;
+    *st = NULL;
+    if (g->method == MR_SVO_RIGID) {
+        if (prim < g->subtree_count)
+            *st = &g->subtrees[prim];
+        return g->svo;
+    }
+    if (prim >= g->prim_count)
+        return NULL;
+    const octree_prim *p = &g->prims[prim];
+    if (!p->whole)
+        *st = &p->st;
+    return &g->octree[p->instance];
 }
 
+/* An octree's or subtree's box, grown by 2^-24 of the octree's size on
+ * every side (at least one float step). The walk hits closed leaf boxes,
+ * so a ray lying in a face of the box (in the plane between two
+ * subtrees, parallel to it) can hit leaves on it; Embree tests such a ray
+ * against the box's slab with a huge finite reciprocal for the zero
+ * direction (rcp_safe: the ray then crosses the slab in a t interval of
+ * width/1e18 around where it starts), so an exact face held the ray for
+ * one neighbour and not the other, whichever the rule below prefers.
+ * Strictly inside both by this much, the ray enters each at any t below
+ * 2^-24 * 1e18 sizes, and the order rule decides (test_svo_instances
+ * check_pieces_whole_walk). */
 static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
-    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
-    if (st) {
-        float lo[3], hi[3];
-        mr_svo_subtree_bounds(g->svo, st, lo, hi);
-        set_bounds(args->bounds_o, lo, hi);
-        return;
-    }
-    const mr_svo *o = g->method == MR_SVO_RIGID ? g->svo : &g->octree[args->primID];
+    const mr_svo_subtree *st;
+    const mr_svo *o = prim_octree(g, args->primID, &st);
     float lo[3], hi[3];
-    if (!mr_svo_bounds(o, lo, hi)) {
+    if (o && st) {
+        mr_svo_subtree_bounds(o, st, lo, hi);
+    } else if (!o || !mr_svo_bounds(o, lo, hi)) {
         /* Empty: an inverted box, which Embree leaves out of its BVH. */
         lo[0] = lo[1] = lo[2] = 1;
         hi[0] = hi[1] = hi[2] = -1;
+        set_bounds(args->bounds_o, lo, hi);
+        return;
+    }
+    const double pad = ldexp((double)o->size, -24);
+    for (int a = 0; a < 3; a++) {
+        lo[a] = mr_float_down((double)lo[a] - pad);
+        hi[a] = mr_float_up((double)hi[a] + pad);
     }
     set_bounds(args->bounds_o, lo, hi);
 }
@@ -537,9 +635,19 @@ static void box_bounds(const struct RTCBoundsFunctionArguments *args)
     set_bounds(args->bounds_o, b, b + 3);
 }
 
-static const mr_svo *hit_octree(const mr_geom *g, unsigned prim)
+/* The instance a hit on primitive prim (as the renderer passes it: rigid,
+ * the instance; resize and emit, the Embree primitive) belongs to, or
+ * SIZE_MAX. */
+static size_t hit_instance(const mr_geom *g, unsigned prim)
 {
-    return g->method == MR_SVO_RIGID ? g->svo : &g->octree[prim];
+    if (g->method == MR_SVO_RIGID)
+        return prim < g->instance_count ? prim : SIZE_MAX;
+    return prim < g->prim_count ? g->prims[prim].instance : SIZE_MAX;
+}
+
+static const mr_svo *hit_octree(const mr_geom *g, size_t instance)
+{
+    return g->method == MR_SVO_RIGID ? g->svo : &g->octree[instance];
 }
 
 /* The leaf and level an octree hit reports in u and v (octree_intersect);
@@ -557,12 +665,14 @@ static bool hit_leaf(float u, float v, uint32_t *leaf, unsigned *level)
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
-    const mr_svo *o = hit_octree(g, args->primID);
+    const mr_svo_subtree *st;
+    const mr_svo *o = prim_octree(g, args->primID, &st);
+    if (!o)
+        return;
     unsigned N = args->N;
     float *ray = (float *)args->rayhit;
     float *hit = ray + 12 * N;
     unsigned inst = args->context->instID[0];
-    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
@@ -576,13 +686,13 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
         } else {
             if (!mr_svo_intersect_subtree(o, st, org, dir, RAY_F(ray, N, i, R_TNEAR), tfar, &h))
                 continue;
-            /* a hit at the t another subtree of this instance holds: the
-             * one the whole walk meets first, whatever order Embree
-             * visits them in */
-            const unsigned held = RAY_U(hit, N, i, H_PRIM);
+            /* a hit at the t another subtree of this instance's octree
+             * holds: the one the whole walk meets first, whatever order
+             * Embree visits them in */
+            const mr_svo_subtree *held = NULL;
             if (h.t == tfar && RAY_U(hit, N, i, H_GEOM) == args->geomID && RAY_U(hit, N, i, H_INST) == inst &&
-                held < g->subtree_count &&
-                mr_svo_subtree_order(&g->subtrees[held], dir) < mr_svo_subtree_order(st, dir))
+                prim_octree(g, RAY_U(hit, N, i, H_PRIM), &held) == o && held &&
+                mr_svo_subtree_order(held, dir) < mr_svo_subtree_order(st, dir))
                 continue;
         }
         mr_vec3 ng = h.axis >= 0 ? h.ng : mr_v3_scale(dir, -1.0f);
@@ -604,8 +714,10 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
 static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
-    const mr_svo *o = hit_octree(g, args->primID);
-    const mr_svo_subtree *st = rigid_subtree(g, args->primID);
+    const mr_svo_subtree *st;
+    const mr_svo *o = prim_octree(g, args->primID, &st);
+    if (!o)
+        return;
     unsigned N = args->N;
     float *ray = (float *)args->ray;
     for (unsigned i = 0; i < N; i++) {
@@ -774,7 +886,7 @@ static bool svo_commit(mr_geom *g)
         }
         return true;
     }
-    unsigned count = g->method == MR_SVO_DIRECT ? (unsigned)g->box_count : (unsigned)g->instance_count;
+    unsigned count = g->method == MR_SVO_DIRECT ? (unsigned)g->box_count : g->prim_count;
     rtcSetGeometryUserPrimitiveCount(g->user, count);
     rtcCommitGeometry(g->user);
     return true;
@@ -789,15 +901,41 @@ static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
     }
     uint32_t leaf;
     unsigned level;
-    if (prim >= g->instance_count || !hit_leaf(u, v, &leaf, &level))
+    const size_t k = hit_instance(g, prim);
+    if (k == SIZE_MAX || !hit_leaf(u, v, &leaf, &level))
         return mr_v3(0, 0, 0);
-    const mr_svo *o = hit_octree(g, prim);
+    const mr_svo *o = hit_octree(g, k);
     if (leaf >= o->leaf_count)
         return mr_v3(0, 0, 0);
     mr_vec3 n = mr_svo_normal_decode(o->leaves[leaf].normal);
     if (g->method == MR_SVO_RIGID)
-        n = mr_mat4_dir(&g->world_normal[prim], n);
+        n = mr_mat4_dir(&g->world_normal[k], n);
     return n;
+}
+
+const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces)
+{
+    *pieces = 0;
+    if (!g || g->method == MR_SVO_DIRECT || k >= g->instance_count)
+        return NULL;
+    if (g->method == MR_SVO_RIGID) {
+        *pieces = g->subtree_count ? g->subtree_count : 1;
+        return g->svo;
+    }
+    for (uint32_t i = 0; i < g->prim_count; i++)
+        *pieces += g->prims[i].instance == k;
+    return &g->octree[k];
+}
+
+/* The id pass names the instance hit (rigid: the renderer passes it as
+ * prim already), or the voxel box (direct). */
+static uint32_t svo_id_primitive(const mr_geom *g, unsigned prim)
+{
+    if (g->method == MR_SVO_RESIZE || g->method == MR_SVO_EMIT) {
+        const size_t k = hit_instance(g, prim);
+        return k == SIZE_MAX ? prim : (uint32_t)k;
+    }
+    return prim;
 }
 
 /* ---- reference, sizes, lifetime -------------------------------------- */
@@ -898,7 +1036,8 @@ static size_t shared_memory(const mr_geom *g)
  * gathers from (direct: selections and the gathered boxes). */
 static size_t svo_memory(const mr_geom *g)
 {
-    size_t bytes = shared_memory(g) + (size_t)g->subtree_count * sizeof *g->subtrees;
+    size_t bytes = shared_memory(g) + (size_t)g->subtree_count * sizeof *g->subtrees +
+                   g->prim_capacity * sizeof *g->prims;
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
     for (size_t k = 0; k < g->instance_count && (g->sel || g->octree); k++)
         bytes += instance_bytes(g, k);
@@ -1041,12 +1180,13 @@ static float svo_surface_step(const mr_geom *g, unsigned prim, float u, float v)
     }
     uint32_t leaf;
     unsigned level;
-    if (prim >= g->instance_count || !hit_leaf(u, v, &leaf, &level))
+    const size_t k = hit_instance(g, prim);
+    if (k == SIZE_MAX || !hit_leaf(u, v, &leaf, &level))
         return 0.0f;
-    const mr_svo *o = hit_octree(g, prim);
+    const mr_svo *o = hit_octree(g, k);
     double edge = ldexp((double)o->size, -(int)level);
     if (g->method == MR_SVO_RIGID)
-        edge *= largest_scale(&g->world[prim]);
+        edge *= largest_scale(&g->world[k]);
     return (float)edge;
 }
 
@@ -1082,6 +1222,7 @@ static void svo_free(mr_geom *g)
     free(g->box);
     free(g->box_leaf);
     free(g->subtrees);
+    free(g->prims);
     free(g->world);
     free(g->world_normal);
     free(g->invertible);
@@ -1393,6 +1534,7 @@ const mr_kind mr_kind_svo = {
     .attach = svo_attach,
     .commit = svo_commit,
     .normal = svo_normal,
+    .id_primitive = svo_id_primitive,
     .tessellate = svo_tessellate,
     .memory = svo_memory,
     .primitives = svo_primitives,

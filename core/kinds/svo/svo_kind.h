@@ -41,4 +41,10 @@ typedef struct mr_svo_params {
 
 extern const mr_kind mr_kind_svo;
 
+/* For tests: what the last update made instance k trace: its octree
+ * (resize, emit: the instance's world octree; rigid: the shared one) and
+ * in *pieces how many Embree primitives it is traced as (its subtrees, or
+ * 1 whole); NULL for direct or k out of range. */
+const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces);
+
 #endif
