@@ -24,8 +24,8 @@
  *   id_primitive  (NULL: prim itself) what the id pass's id.primitive
  *               names for a hit on primitive prim (as normal gets it),
  *               for a kind whose Embree primitives are pieces of what its
- *               users count (svo: an instance's octree traced as subtrees
- *               names the instance).
+ *               users count (an instance traced as several pieces names
+ *               the instance).
  *   tangent     (NULL: the kind has none) world-space tangent at a hit,
  *               along increasing u of the asset's texture coordinates
  *               (unnormalised is fine): false where the object has none
