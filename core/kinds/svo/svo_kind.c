@@ -379,7 +379,8 @@ static int gather_prims(mr_geom *g, mr_error *err)
             continue;
         mr_svo_subtree *st = NULL;
         uint32_t n = 0;
-        for (unsigned level = SUBTREE_LEVEL; level > 0; level--) {
+        /* (fewer than two subtrees' worth: whole, without looking) */
+        for (unsigned level = SUBTREE_LEVEL; level > 0 && o->leaf_count >= 2 * LEAVES_PER_SUBTREE; level--) {
             int rc = mr_svo_subtrees(o, level, &st, &n, err);
             if (rc < 0)
                 return rc;
