@@ -337,6 +337,16 @@ static void test_subtrees(void **state)
             fx_free(&fx);
             continue;
         }
+        uint32_t counts[8];
+        mr_error cerr = {0};
+        assert_int_equal(mr_svo_subtree_counts(o, depth, counts, &cerr), MR_OK);
+        for (unsigned level = 0; level <= depth; level++) { /* one walk counts what each level gives */
+            mr_svo_subtree *all;
+            uint32_t count;
+            assert_int_equal(mr_svo_subtrees(o, level, &all, &count, &cerr), MR_OK);
+            assert_int_equal(counts[level], count);
+            free(all);
+        }
         for (unsigned level = 1; level + 1 < depth; level++) {
             mr_svo_subtree *st;
             uint32_t n;

@@ -378,18 +378,20 @@ static int gather_prims(mr_geom *g, mr_error *err)
         if (o->leaf_count == 0)
             continue;
         mr_svo_subtree *st = NULL;
-        uint32_t n = 0;
-        /* (fewer than two subtrees' worth: whole, without looking) */
-        for (unsigned level = SUBTREE_LEVEL; level > 0 && o->leaf_count >= 2 * LEAVES_PER_SUBTREE; level--) {
-            int rc = mr_svo_subtrees(o, level, &st, &n, err);
-            if (rc < 0)
+        uint32_t n = 0, counts[SUBTREE_LEVEL + 1];
+        /* the deepest level whose subtrees hold enough (fewer than two
+         * subtrees' worth of leaves: whole, without looking) */
+        unsigned level = 0;
+        int rc;
+        if (o->leaf_count >= 2 * LEAVES_PER_SUBTREE) {
+            if ((rc = mr_svo_subtree_counts(o, SUBTREE_LEVEL, counts, err)) < 0)
                 return rc;
-            if (n <= 1 || (uint64_t)n * LEAVES_PER_SUBTREE <= o->leaf_count)
-                break;
-            free(st);
-            st = NULL;
-            n = 0;
+            for (level = SUBTREE_LEVEL; level > 0; level--)
+                if (counts[level] <= 1 || (uint64_t)counts[level] * LEAVES_PER_SUBTREE <= o->leaf_count)
+                    break;
         }
+        if (level > 0 && (rc = mr_svo_subtrees(o, level, &st, &n, err)) < 0)
+            return rc;
         const size_t need = (size_t)g->prim_count + (n ? n : 1);
         if (need >= UINT32_MAX) {
             free(st);

@@ -372,6 +372,40 @@ int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uin
     return MR_OK;
 }
 
+/* The subtrees node (at level) stands for at every level up to max: the
+ * stopping rule of collect_subtrees, for all levels at once. */
+static int count_subtrees(const mr_svo *o, uint32_t node, unsigned level, unsigned max, uint32_t *counts,
+                          mr_error *err)
+{
+    if (level + 1 >= o->depth || o->leaf_mask[node]) {
+        for (unsigned l = level; l <= max; l++)
+            counts[l]++; /* a subtree for every level from its own */
+        return MR_OK;
+    }
+    counts[level]++;
+    if (level == max)
+        return MR_OK;
+    uint32_t child = o->first_node[node];
+    for (unsigned ch = 0; ch < 8; ch++) {
+        if (!(o->child_mask[node] >> ch & 1u))
+            continue;
+        if (child >= o->node_count)
+            return mr_error_set(err, MR_ERR_FORMAT, "svo subtrees: node %u's children out of range", node);
+        int rc = count_subtrees(o, child++, level + 1, max, counts, err);
+        if (rc < 0)
+            return rc;
+    }
+    return MR_OK;
+}
+
+int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *counts, mr_error *err)
+{
+    memset(counts, 0, (max_level + 1) * sizeof *counts);
+    if (!svo || svo->node_count == 0)
+        return MR_OK;
+    return count_subtrees(svo, 0, 0, max_level, counts, err);
+}
+
 void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3])
 {
     mr_svo_bounds(svo, lo, hi);

@@ -82,6 +82,10 @@ typedef struct mr_svo_subtree {
  * interior nodes has none (*out NULL, *count 0). MR_ERR_NOMEM;
  * MR_ERR_FORMAT for children beyond the node array. */
 int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uint32_t *count, mr_error *err);
+/* counts[L] for L = 0 .. max_level: how many subtrees mr_svo_subtrees
+ * gives at level L, in one walk of the nodes above max_level (a caller
+ * choosing a level by their number). MR_ERR_FORMAT as mr_svo_subtrees. */
+int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *counts, mr_error *err);
 /* A box holding every leaf below s: its cell within the leaves' box
  * (mr_svo_bounds), rounded outwards to float. */
 void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3]);
