@@ -318,18 +318,30 @@ bool mr_svo_occluded(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, fl
     return svo_walk(svo, 0, 0, ROOT_XYZ, org, dir, tmin, tmax, NULL);
 }
 
+/* The walk of mr_svo_subtrees (the subtrees at `level` into s) and of
+ * mr_svo_subtree_counts (counts != NULL: how many there are at every
+ * level up to `level`, nothing collected). */
 typedef struct {
     const mr_svo *svo;
     unsigned level;
     mr_svo_subtree *s;
     uint32_t count, cap;
+    uint32_t *counts;
 } subtree_list;
 
 static int collect_subtrees(subtree_list *l, uint32_t node, unsigned level, const uint32_t xyz[3],
                             mr_error *err)
 {
     const mr_svo *o = l->svo;
-    if (level == l->level || level + 1 >= o->depth || o->leaf_mask[node]) {
+    /* a node with leaf children, or above the finest level, is a subtree at
+     * every level from its own */
+    const bool stops = level + 1 >= o->depth || o->leaf_mask[node];
+    if (l->counts) {
+        for (unsigned k = level; k <= (stops ? l->level : level); k++)
+            l->counts[k]++;
+        if (stops || level == l->level)
+            return MR_OK;
+    } else if (stops || level == l->level) {
         if (l->count == l->cap) {
             const uint32_t grown = l->cap ? 2 * l->cap : 256;
             mr_svo_subtree *s = realloc(l->s, (size_t)grown * sizeof *s);
@@ -372,38 +384,13 @@ int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uin
     return MR_OK;
 }
 
-/* The subtrees node (at level) stands for at every level up to max: the
- * stopping rule of collect_subtrees, for all levels at once. */
-static int count_subtrees(const mr_svo *o, uint32_t node, unsigned level, unsigned max, uint32_t *counts,
-                          mr_error *err)
-{
-    if (level + 1 >= o->depth || o->leaf_mask[node]) {
-        for (unsigned l = level; l <= max; l++)
-            counts[l]++; /* a subtree for every level from its own */
-        return MR_OK;
-    }
-    counts[level]++;
-    if (level == max)
-        return MR_OK;
-    uint32_t child = o->first_node[node];
-    for (unsigned ch = 0; ch < 8; ch++) {
-        if (!(o->child_mask[node] >> ch & 1u))
-            continue;
-        if (child >= o->node_count)
-            return mr_error_set(err, MR_ERR_FORMAT, "svo subtrees: node %u's children out of range", node);
-        int rc = count_subtrees(o, child++, level + 1, max, counts, err);
-        if (rc < 0)
-            return rc;
-    }
-    return MR_OK;
-}
-
 int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *counts, mr_error *err)
 {
     memset(counts, 0, (max_level + 1) * sizeof *counts);
     if (!svo || svo->node_count == 0)
         return MR_OK;
-    return count_subtrees(svo, 0, 0, max_level, counts, err);
+    subtree_list l = {.svo = svo, .level = max_level, .counts = counts};
+    return collect_subtrees(&l, 0, 0, ROOT_XYZ, err);
 }
 
 void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3])
