@@ -44,8 +44,9 @@
 #include "kinds/svo/voxelize.h"
 #include "util/parallel.h"
 
-/* A primitive of a resize / emit frame: instance `instance`'s octree, whole
- * (whole) or below subtree st. */
+/* An Embree primitive of an octree object: an octree (rigid: the shared
+ * one; resize, emit: instance `instance`'s), whole (whole) or below
+ * subtree st. */
 typedef struct octree_prim {
     mr_svo_subtree st;
     uint32_t instance;
@@ -89,7 +90,8 @@ struct mr_geom {
     mr_svo_selection *sel;        /* direct: per instance (resize and emit select into the
                                    * worker's scratch and keep only the octree) */
     mr_svo *octree;               /* per instance (resize, emit) */
-    octree_prim *prims;           /* resize, emit: what Embree traces, prim_count of them */
+    octree_prim *prims;           /* rigid (made once), resize, emit (each frame): what
+                                   * Embree traces, prim_count of them */
     uint32_t prim_count;
     size_t prim_capacity;
     size_t box_count, box_capacity;
@@ -107,8 +109,6 @@ struct mr_geom {
     double last_time;
     /* Embree */
     RTCScene shared_scene;        /* rigid: the octree as a user geometry */
-    mr_svo_subtree *subtrees;     /* rigid: its primitives (none: one, the whole octree) */
-    uint32_t subtree_count;
     RTCGeometry user;             /* direct / resize / emit: the object's user geometry */
     RTCGeometry *instances;       /* rigid: one instance geometry per instance */
     unsigned first_id;
@@ -367,6 +367,33 @@ static int gather_boxes(mr_geom *g, mr_error *err)
  * 5.1 whole. */
 #define LEAVES_PER_SUBTREE 256u
 
+/* Appends instance k's octree (rigid: the shared one) to the primitives as
+ * its n subtrees st, or whole when n is 0; frees st. */
+static int prims_add(mr_geom *g, size_t k, mr_svo_subtree *st, uint32_t n, mr_error *err)
+{
+    const size_t need = (size_t)g->prim_count + (n ? n : 1);
+    if (need >= UINT32_MAX) {
+        free(st);
+        return mr_error_set(err, MR_ERR_LIMIT, "svo: %zu octree pieces, more than Embree takes", need);
+    }
+    if (need > g->prim_capacity) {
+        const size_t cap = need > 2 * g->prim_capacity ? need : 2 * g->prim_capacity;
+        octree_prim *q = realloc(g->prims, cap * sizeof *q);
+        if (!q) {
+            free(st);
+            return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu octree pieces", need);
+        }
+        g->prims = q;
+        g->prim_capacity = cap;
+    }
+    if (n == 0)
+        g->prims[g->prim_count++] = (octree_prim){.instance = (uint32_t)k, .whole = true};
+    for (uint32_t i = 0; i < n; i++)
+        g->prims[g->prim_count++] = (octree_prim){.st = st[i], .instance = (uint32_t)k};
+    free(st);
+    return MR_OK;
+}
+
 /* The frame's primitives (resize, emit): each instance's octree as its
  * subtrees, or whole when it is small or has no interior node; empty
  * octrees give none. */
@@ -390,29 +417,9 @@ static int gather_prims(mr_geom *g, mr_error *err)
                 if (counts[level] <= 1 || (uint64_t)counts[level] * LEAVES_PER_SUBTREE <= o->leaf_count)
                     break;
         }
-        if (level > 0 && (rc = mr_svo_subtrees(o, level, &st, &n, err)) < 0)
+        if ((level > 0 && (rc = mr_svo_subtrees(o, level, &st, &n, err)) < 0) ||
+            (rc = prims_add(g, k, st, n, err)) < 0)
             return rc;
-        const size_t need = (size_t)g->prim_count + (n ? n : 1);
-        if (need >= UINT32_MAX) {
-            free(st);
-            return mr_error_set(err, MR_ERR_LIMIT, "svo: %zu octree pieces in one frame, more than Embree takes",
-                                need);
-        }
-        if (need > g->prim_capacity) {
-            const size_t cap = need > 2 * g->prim_capacity ? need : 2 * g->prim_capacity;
-            octree_prim *q = realloc(g->prims, cap * sizeof *q);
-            if (!q) {
-                free(st);
-                return mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu octree pieces", need);
-            }
-            g->prims = q;
-            g->prim_capacity = cap;
-        }
-        if (n == 0)
-            g->prims[g->prim_count++] = (octree_prim){.instance = (uint32_t)k, .whole = true};
-        for (uint32_t i = 0; i < n; i++)
-            g->prims[g->prim_count++] = (octree_prim){.st = st[i], .instance = (uint32_t)k};
-        free(st);
     }
     return MR_OK;
 }
@@ -577,24 +584,18 @@ static void set_bounds(struct RTCBounds *b, const float lo[3], const float hi[3]
     b->upper_z = hi[2];
 }
 
-/* The octree Embree primitive prim traces and in *st the subtree below
- * which, or NULL when it traces the whole octree (rigid: the shared
- * octree's subtrees, or the octree when it has none; resize, emit: the
- * frame's octree_prim). NULL: no such primitive. */
+/* The octree Embree primitive prim traces (octree_prim) and in *st the
+ * subtree below which, or NULL when it traces the whole octree. NULL: no
+ * such primitive. */
 static const mr_svo *prim_octree(const mr_geom *g, unsigned prim, const mr_svo_subtree **st)
 {
     *st = NULL;
-    if (g->method == MR_SVO_RIGID) {
-        if (prim < g->subtree_count)
-            *st = &g->subtrees[prim];
-        return g->svo;
-    }
     if (prim >= g->prim_count)
         return NULL;
     const octree_prim *p = &g->prims[prim];
     if (!p->whole)
         *st = &p->st;
-    return &g->octree[p->instance];
+    return g->method == MR_SVO_RIGID ? g->svo : &g->octree[p->instance];
 }
 
 /* An octree's or subtree's box, grown by 2^-24 of the octree's size on
@@ -847,7 +848,7 @@ static int svo_attach(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geo
         return mr_error_set(err, MR_ERR_EMBREE, "svo: Embree could not create the octree scene");
     RTCGeometry oct;
     int rc = attach_user(g, device, g->shared_scene, RTC_INVALID_GEOMETRY_ID,
-                         g->subtree_count ? g->subtree_count : 1, RTC_BUILD_QUALITY_HIGH, &oct, err);
+                         g->prim_count, RTC_BUILD_QUALITY_HIGH, &oct, err);
     if (rc < 0)
         return rc;
     rtcReleaseGeometry(oct); /* the scene holds it */
@@ -921,13 +922,9 @@ const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces)
     *pieces = 0;
     if (!g || g->method == MR_SVO_DIRECT || k >= g->instance_count)
         return NULL;
-    if (g->method == MR_SVO_RIGID) {
-        *pieces = g->subtree_count ? g->subtree_count : 1;
-        return g->svo;
-    }
-    for (uint32_t i = 0; i < g->prim_count; i++)
-        *pieces += g->prims[i].instance == k;
-    return &g->octree[k];
+    for (uint32_t i = 0; i < g->prim_count; i++) /* rigid: all are the shared octree's */
+        *pieces += g->method == MR_SVO_RIGID || g->prims[i].instance == k;
+    return g->method == MR_SVO_RIGID ? g->svo : &g->octree[k];
 }
 
 /* The id pass names the instance hit (rigid: the renderer passes it as
@@ -1039,8 +1036,7 @@ static size_t shared_memory(const mr_geom *g)
  * gathers from (direct: selections and the gathered boxes). */
 static size_t svo_memory(const mr_geom *g)
 {
-    size_t bytes = shared_memory(g) + (size_t)g->subtree_count * sizeof *g->subtrees +
-                   g->prim_capacity * sizeof *g->prims;
+    size_t bytes = shared_memory(g) + g->prim_capacity * sizeof *g->prims;
     bytes += g->box_capacity * (6 * sizeof(float) + sizeof(mr_svo_leaf));
     for (size_t k = 0; k < g->instance_count && (g->sel || g->octree); k++)
         bytes += instance_bytes(g, k);
@@ -1224,7 +1220,6 @@ static void svo_free(mr_geom *g)
     free(g->scratch);
     free(g->box);
     free(g->box_leaf);
-    free(g->subtrees);
     free(g->prims);
     free(g->world);
     free(g->world_normal);
@@ -1370,9 +1365,12 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
      * octree */
     if (!g->svo->has_occupied && (rc = mr_svo_fit_occupied(g->svo, err)) < 0)
         goto fail;
-    if (g->method == MR_SVO_RIGID &&
-        (rc = mr_svo_subtrees(g->svo, SUBTREE_LEVEL, &g->subtrees, &g->subtree_count, err)) < 0)
-        goto fail;
+    if (g->method == MR_SVO_RIGID) { /* its pieces for good */
+        mr_svo_subtree *st;
+        uint32_t n;
+        if ((rc = mr_svo_subtrees(g->svo, SUBTREE_LEVEL, &st, &n, err)) < 0 || (rc = prims_add(g, 0, st, n, err)) < 0)
+            goto fail;
+    }
     g->out_depth = p->depth + 2 < MR_SVO_MAX_DEPTH ? p->depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = check_poses(g, err)) < 0)
         goto fail;
