@@ -51,6 +51,13 @@ static inline float mr_float_up(double v)
     return f;
 }
 
+/* a / b rounded down (towards -infinity), b != 0. */
+static inline int64_t mr_floor_div(int64_t a, int64_t b)
+{
+    const int64_t q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+
 static inline mr_vec3 mr_v3_add(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x + b.x, a.y + b.y, a.z + b.z); }
 static inline mr_vec3 mr_v3_sub(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x - b.x, a.y - b.y, a.z - b.z); }
 static inline mr_vec3 mr_v3_scale(mr_vec3 a, float s) { return mr_v3(a.x * s, a.y * s, a.z * s); }

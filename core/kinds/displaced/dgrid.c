@@ -105,12 +105,6 @@ void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint3
     *hi = ha > hb ? ha : hb;
 }
 
-static inline int64_t fdiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
-}
-
 void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
                             double *lo, double *hi)
 {
@@ -125,7 +119,8 @@ void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j
     while (l0 < g->levels && ((int64_t)2 << l0) < span)
         l0++;
     for (unsigned l = l0; l <= g->levels; l++) {
-        int64_t ti0 = fdiv(i0, g->w), ti1 = fdiv(i1, g->w), tj0 = fdiv(j0, g->h), tj1 = fdiv(j1, g->h);
+        int64_t ti0 = mr_floor_div(i0, g->w), ti1 = mr_floor_div(i1, g->w);
+        int64_t tj0 = mr_floor_div(j0, g->h), tj1 = mr_floor_div(j1, g->h);
         int64_t x0 = ti0 * g->lw[l] + ((i0 - ti0 * g->w) >> l), x1 = ti1 * g->lw[l] + ((i1 - ti1 * g->w) >> l);
         int64_t y0 = tj0 * g->lh[l] + ((j0 - tj0 * g->h) >> l), y1 = tj1 * g->lh[l] + ((j1 - tj1 * g->h) >> l);
         if (x1 - x0 > 1 || y1 - y0 > 1)

@@ -421,21 +421,15 @@ bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double
 
 typedef mr_dnode dnode;
 
-static inline int64_t fdiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
-}
-
 /* Index of the level-l node holding global cell c along one axis (n
  * samples per period, nl nodes at level l). */
 static inline int64_t node_index(int64_t c, uint32_t n, uint32_t nl, int l, int top)
 {
-    int64_t tile = fdiv(c, n);
+    int64_t tile = mr_floor_div(c, n);
     if (l <= top)
         return tile * nl + ((c - tile * n) >> l);
     int up = l - top;
-    return up >= 62 ? (tile < 0 ? -1 : 0) : fdiv(tile, (int64_t)1 << up);
+    return up >= 62 ? (tile < 0 ? -1 : 0) : mr_floor_div(tile, (int64_t)1 << up);
 }
 
 static dnode node_at(const mr_dgrid *g, int l, int64_t gx, int64_t gy)
@@ -443,8 +437,8 @@ static dnode node_at(const mr_dgrid *g, int l, int64_t gx, int64_t gy)
     dnode n = {.level = l};
     int top = (int)g->levels;
     if (l <= top) {
-        n.tx = fdiv(gx, g->lw[l]);
-        n.ty = fdiv(gy, g->lh[l]);
+        n.tx = mr_floor_div(gx, g->lw[l]);
+        n.ty = mr_floor_div(gy, g->lh[l]);
         n.I = (uint32_t)(gx - n.tx * g->lw[l]);
         n.J = (uint32_t)(gy - n.ty * g->lh[l]);
     } else {

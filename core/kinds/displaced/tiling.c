@@ -342,8 +342,6 @@ typedef struct distance_ctx {
     double worst[MR_MAX_THREADS];
 } distance_ctx;
 
-static int64_t floor_div(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
-
 static void distance_range(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     distance_ctx *c = vctx;
@@ -357,7 +355,7 @@ static void distance_range(void *vctx, size_t begin, size_t end, unsigned worker
                 lo[a] = dmin(lo[a], q[2 * k + a]), hi[a] = dmax(hi[a], q[2 * k + a]);
         for (int64_t j = (int64_t)floor(lo[1]); j <= (int64_t)ceil(hi[1]); j++)
             for (int64_t i = (int64_t)floor(lo[0]); i <= (int64_t)ceil(hi[0]); i++) {
-                int64_t ci = floor_div(i, s), cj = floor_div(j, s);
+                int64_t ci = mr_floor_div(i, s), cj = mr_floor_div(j, s);
                 double fx = (double)(i - ci * s) / (double)s, fy = (double)(j - cj * s) / (double)s;
                 double h10 = mr_dproc_height(c->coarse, ci + 1, cj);
                 double h01 = mr_dproc_height(c->coarse, ci, cj + 1), h;
