@@ -142,18 +142,28 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
 
     mr_vec3 light = s->ambient;
     mr_vec3 p = mr_v3_add(org, mr_v3_scale(dir, h->t));
+    bool stepped = step > 0;
     /* A surface shaded by smooth normals stands for the curved surface
      * they describe: shadow rays start on it (kind.h shading_point), when
      * it lies on the viewer's side of the hit triangle, and the shading
-     * normal alone says which lights face it (the shadow terminator). */
-    bool smooth = false;
+     * normal alone says which lights face it (the shadow terminator).
+     * Without shadow rays the point itself goes nowhere: it is looked up
+     * only when some light faces the shading normal but not the hit
+     * triangle, the one case where being smooth changes the light (the
+     * same image, without the lookup on most hits). */
+    bool smooth = false, need_point = s->shadows;
+    for (size_t i = 0; i < s->light_count && !need_point && !stepped; i++) {
+        mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f);
+        need_point = mr_v3_dot(n, l) > 0 && mr_v3_dot(ng, l) <= 0;
+    }
     mr_vec3 q;
-    if (obj->kind->shading_point && obj->kind->shading_point(obj->geom, h->prim, h->u, h->v, p, &q) &&
+    if (need_point && obj->kind->shading_point &&
+        obj->kind->shading_point(obj->geom, h->prim, h->u, h->v, p, &q) &&
         mr_v3_dot(mr_v3_sub(q, p), ng) >= 0) {
         p = q;
         smooth = true;
     }
-    mr_vec3 shadow_org = offset_from_surface(p, ng, s->shadow_bias);
+    mr_vec3 shadow_org = s->shadows ? offset_from_surface(p, ng, s->shadow_bias) : p;
     /* A surface of steps (voxels) stands for the smooth one its shading
      * normals describe: lit by those alone, its shadow rays start 3 steps
      * along them, so the staircase does not shadow itself (kind.h
@@ -164,7 +174,6 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
      * / 2.12 / 2.14 % isolated dark pixels, the rigid crowd 5.19 / 5.26 /
      * 5.37 % and the skeleton 1.86 / 1.11 / 1.10 %: 3 keeps contact shadows
      * within 3 voxels (README, "Error metrics"). */
-    bool stepped = step > 0;
     if (stepped)
         shadow_org = mr_v3_add(shadow_org, mr_v3_scale(n, 3.0f * step));
     lw->org = shadow_org;
