@@ -89,6 +89,7 @@ typedef struct hit_view {
  * plain one-ray-at-a-time loop. Each lane's result is exactly the closest
  * hit of its ray, so the packet width never changes an image. */
 #define MR_PACKET 8
+_Static_assert(MR_PACKET == 8, "primary rays are made eight at a time (mr_camera_rays_dir8)");
 
 /* A lane's light so far and the shadow rays it still waits for: one per
  * light that faces the hit (cosine > 0), all from org. */
@@ -246,19 +247,22 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
     mr_vec3 org = c->rays_setup.origin, dir[MR_PACKET];
     RTC_ALIGN(32) int valid[MR_PACKET];
     struct RTCRayHit8 rh;
+    float px[MR_PACKET], py[MR_PACKET];
     for (int i = 0; i < MR_PACKET; i++) {
         int x = x0 + (i < n ? i : 0); /* idle lanes repeat a live ray: always a valid ray */
         float jx = 0.5f, jy = 0.5f;
         if (k > 0)
             sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
-        dir[i] = mr_camera_rays_dir(&c->rays_setup, (float)x + jx, (float)y + jy);
+        px[i] = (float)x + jx;
+        py[i] = (float)y + jy;
+    }
+    mr_camera_rays_dir8(&c->rays_setup, px, py, rh.ray.dir_x, rh.ray.dir_y, rh.ray.dir_z);
+    for (int i = 0; i < MR_PACKET; i++) {
+        dir[i] = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
         valid[i] = i < n ? -1 : 0;
         rh.ray.org_x[i] = org.x;
         rh.ray.org_y[i] = org.y;
         rh.ray.org_z[i] = org.z;
-        rh.ray.dir_x[i] = dir[i].x;
-        rh.ray.dir_y[i] = dir[i].y;
-        rh.ray.dir_z[i] = dir[i].z;
         rh.ray.tnear[i] = 0.0f;
         rh.ray.tfar[i] = FLT_MAX;
         rh.ray.time[i] = 0.0f;
