@@ -239,8 +239,9 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
             out[k].rgb = mr_v3_mul(lw[k].albedo, lw[k].light);
 }
 
-/* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y). */
-static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
+/* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y);
+ * returns the mask of lanes that hit. */
+static unsigned trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
                          uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
@@ -279,6 +280,7 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
     *rays += (uint64_t)n;
     light_wait lw[MR_PACKET];
     bool waits = false;
+    unsigned hits = 0;
     for (int i = 0; i < n; i++) {
         lw[i].waits = false;
         /* An instance hit names the instance's top-level id; the kind
@@ -294,12 +296,14 @@ static void trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample
         hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
         shade(s, &h, org, dir[i], &out[i], &lw[i]);
+        hits |= 1u << i;
         waits |= lw[i].waits;
         out[i].depth = h.t * mr_v3_dot(dir[i], c->forward);
         out[i].pos = mr_v3_add(org, mr_v3_scale(dir[i], h.t));
     }
     if (waits)
         shadow_packet(s, lw, out, n, rays);
+    return hits;
 }
 
 /* One tile's worth of every film plane. Tiles are traced into this private
@@ -438,11 +442,23 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
-        if (seen)
-            trace_packet(c, x0, n, y, k, r, rays);
-        else
-            for (int i = 0; i < n; i++)
-                r[i] = (sample_result){.hit = false};
+        if (!(seen && trace_packet(c, x0, n, y, k, r, rays))) {
+            /* every lane missed (or was not traced): what the loop below
+             * makes of misses, without looking at each lane */
+            for (int i = 0; i < n; i++) {
+                rgb[i] = mr_v3_add(rgb[i], miss_rgb);
+                alpha[i] += s->background_alpha;
+            }
+            if (k == 0)
+                for (size_t p = i0; p < i0 + (size_t)n; p++) {
+                    t->z[p] = MR_DEPTH_MISS;
+                    t->nx[p] = t->ny[p] = t->nz[p] = 0.0f;
+                    t->px[p] = t->py[p] = t->pz[p] = 0.0f;
+                    t->tx[p] = t->ty[p] = t->tz[p] = 0.0f;
+                    t->object_id[p] = t->prim_id[p] = 0;
+                }
+            continue;
+        }
         for (int i = 0; i < n; i++) {
             rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
             alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
