@@ -615,7 +615,17 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);
     atomic_init(&c.cancelled, false);
-    mr_parallel_for(setup->threads, (size_t)c.tiles_x * tiles_y, 1, trace_tiles, &c);
+    /* Workers take runs of tiles, up to a row of them: every run taken is
+     * an atomic add on a counter both cores write (and one on c.rays), and
+     * one per 64x4 tile cost a tenth of the trace (static-human, 1280x720,
+     * 1 sample: 15.8 -> 14.4 ms a frame with rows; skinned-walk, mostly
+     * background, 12.9 -> 10.6). At least 32 runs a thread keep the load
+     * balanced. Which worker traces a tile changes no pixel. */
+    size_t tiles = (size_t)c.tiles_x * tiles_y,
+           threads = setup->threads ? setup->threads : mr_cpu_count();
+    size_t run = tiles / (threads * 32);
+    run = run < 1 ? 1 : run > (size_t)c.tiles_x ? (size_t)c.tiles_x : run;
+    mr_parallel_for(setup->threads, tiles, run, trace_tiles, &c);
     if (cancelled)
         *cancelled = atomic_load(&c.cancelled);
     return atomic_load(&c.rays);
