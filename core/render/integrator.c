@@ -242,7 +242,7 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
 /* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y);
  * returns the mask of lanes that hit. */
 static unsigned trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
-                         uint64_t *rays)
+                             uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
     mr_vec3 org = c->rays_setup.origin, dir[MR_PACKET];
