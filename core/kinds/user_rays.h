@@ -81,22 +81,27 @@ static inline bool mr_ray_dir_ok(mr_vec3 d)
     return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
 }
 
+/* Lanes of the widest packet the renderer hands Embree (rtcIntersect16:
+ * 8x2 primary rays, integrator.c). */
+#define MR_RAY_CACHE_LANES 16
+
 /* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
  * ray i of an N-packet set up by setup(origin, direction) into *out; false
  * when its direction cannot hit anything. Embree enters a ray's (or a
  * packet's) primitives one after another, so each thread keeps the last
- * set-up of each of `lanes` lanes and redoes it only when the lane's origin
- * or direction changed (a set-up is a pure function of the two; a ray that
- * cannot hit is never kept, so a kept one needs no check). */
-#define MR_RAY_SETUP_CACHE(name, type, setup, lanes)                                              \
+ * set-up of each lane (MR_RAY_CACHE_LANES of them) and redoes it only when
+ * the lane's origin or direction changed (a set-up is a pure function of
+ * the two; a ray that cannot hit is never kept, so a kept one needs no
+ * check). */
+#define MR_RAY_SETUP_CACHE(name, type, setup)                                                    \
     static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
     {                                                                                             \
         static _Thread_local struct {                                                             \
             mr_ray_key key;                                                                       \
             bool kept;                                                                            \
             type r;                                                                               \
-        } last[lanes];                                                                            \
-        const unsigned lane = i % (lanes);                                                        \
+        } last[MR_RAY_CACHE_LANES];                                                               \
+        const unsigned lane = i % MR_RAY_CACHE_LANES;                                             \
         if (!last[lane].kept || !mr_ray_key_matches(ray, N, i, &last[lane].key)) {                \
             const mr_vec3 o = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i),                             \
                                     *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),                         \

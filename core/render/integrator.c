@@ -83,13 +83,41 @@ typedef struct hit_view {
     mr_vec3 ng;
 } hit_view;
 
-/* Primary rays go to Embree as packets of MR_PACKET neighbouring pixels of
- * one row: they are coherent, so Embree traverses the BVH for all of them at
- * once with SIMD, which is what lets the renderer keep up with (and pass) a
- * plain one-ray-at-a-time loop. Each lane's result is exactly the closest
- * hit of its ray, so the packet width never changes an image. */
-#define MR_PACKET 8
-_Static_assert(MR_PACKET == 8, "primary rays are made eight at a time (mr_camera_rays_dir8)");
+/* Primary rays go to Embree as packets of MR_PACKET neighbouring pixels,
+ * MR_PACKET_W columns of MR_PACKET_ROWS rows (lane i: column i %
+ * MR_PACKET_W of row i / MR_PACKET_W): they are coherent, so Embree
+ * traverses the BVH for all of them at once with SIMD, which is what lets
+ * the renderer keep up with (and pass) a plain one-ray-at-a-time loop.
+ * Each lane's result is exactly the closest hit of its ray, so the packet's
+ * shape never changes an image. 8x2 rather than 8x1: Embree's 16-wide path
+ * (AVX-512 here) and a squarer bundle of rays; bare loops over
+ * static-human at 1280x720 took 6.9 ms a frame in 8x1 packets, 6.1 in
+ * 16x1 and 5.6 in 8x2 (2026-12-03). */
+#define MR_PACKET_W 8
+#define MR_PACKET_ROWS 2
+#define MR_PACKET (MR_PACKET_W * MR_PACKET_ROWS)
+_Static_assert(MR_PACKET_W == 8, "a packet row's directions are made eight at a time (mr_camera_rays_dir8)");
+_Static_assert(MR_PACKET == 16, "packets go to Embree as RTCRayHit16");
+_Static_assert(MR_TILE_H % MR_PACKET_ROWS == 0, "a tile holds whole packet rows");
+
+/* The pixels of one packet: columns x0 .. x0 + cols - 1 of rows y .. y +
+ * rows - 1 (cols <= MR_PACKET_W, rows <= MR_PACKET_ROWS; a tile's right and
+ * bottom edges cut packets short); live: their lanes. Lane 0 is always
+ * live. */
+typedef struct packet_px {
+    int x0, y, cols, rows;
+    unsigned live;
+} packet_px;
+
+static packet_px packet_at(int x0, int y, int cols, int rows)
+{
+    unsigned row = (1u << cols) - 1u, live = 0;
+    for (int r = 0; r < rows; r++)
+        live |= row << (r * MR_PACKET_W);
+    return (packet_px){x0, y, cols, rows, live};
+}
+
+static bool lane_live(unsigned live, int i) { return live >> i & 1u; }
 
 /* A lane's light so far and the shadow rays it still waits for: one per
  * light that faces the hit (cosine > 0), all from org. */
@@ -197,70 +225,79 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
 }
 
 /* The shadow rays the lanes of a packet wait for, light by light, as
- * packets too (rtcOccluded8: the lanes' rays to one light start at
- * neighbouring points and run parallel); each lane adds the lights nothing
- * blocks in the lights' order, as one ray at a time did. */
-static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result *out, int n,
-                          uint64_t *rays)
+ * packets too, one per packet row (rtcOccluded8: the lanes' rays to one
+ * light start at neighbouring points and run parallel); each lane adds the
+ * lights nothing blocks in the lights' order, as one ray at a time did.
+ * Eight wide, not sixteen: rtcOccluded16 never returned on the crowd
+ * example's instanced user geometries (Embree 3.13.5 kept calling the
+ * kind's occlusion callback; 16-wide primary rays are fine there). */
+static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result *out,
+                          unsigned lanes, uint64_t *rays)
 {
     for (size_t i = 0; i < s->light_count; i++) {
-        RTC_ALIGN(32) int valid[MR_PACKET];
-        struct RTCRay8 ray;
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f);
-        int live = 0;
-        for (int k = 0; k < MR_PACKET; k++) {
-            bool on = k < n && lw[k].waits && lw[k].cosine[i] > 0;
-            valid[k] = on ? -1 : 0;
-            live += on;
-            mr_vec3 o = on ? lw[k].org : mr_v3(0, 0, 0); /* idle lanes: any valid ray */
-            ray.org_x[k] = o.x, ray.org_y[k] = o.y, ray.org_z[k] = o.z;
-            ray.dir_x[k] = l.x, ray.dir_y[k] = l.y, ray.dir_z[k] = l.z;
-            ray.tnear[k] = 0.0f;
-            ray.tfar[k] = FLT_MAX;
-            ray.time[k] = 0.0f;
-            ray.mask[k] = 0xffffffffu;
-            ray.id[k] = (unsigned)k;
-            ray.flags[k] = 0;
+        for (int row = 0; row < MR_PACKET; row += MR_PACKET_W) {
+            RTC_ALIGN(32) int valid[MR_PACKET_W];
+            struct RTCRay8 ray;
+            int live = 0;
+            for (int j = 0; j < MR_PACKET_W; j++) {
+                int k = row + j;
+                bool on = lane_live(lanes, k) && lw[k].waits && lw[k].cosine[i] > 0;
+                valid[j] = on ? -1 : 0;
+                live += on;
+                mr_vec3 o = on ? lw[k].org : mr_v3(0, 0, 0); /* idle lanes: any valid ray */
+                ray.org_x[j] = o.x, ray.org_y[j] = o.y, ray.org_z[j] = o.z;
+                ray.dir_x[j] = l.x, ray.dir_y[j] = l.y, ray.dir_z[j] = l.z;
+                ray.tnear[j] = 0.0f;
+                ray.tfar[j] = FLT_MAX;
+                ray.time[j] = 0.0f;
+                ray.mask[j] = 0xffffffffu;
+                ray.id[j] = (unsigned)j;
+                ray.flags[j] = 0;
+            }
+            if (!live)
+                continue;
+            struct RTCIntersectContext ctx;
+            rtcInitIntersectContext(&ctx);
+            ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+            rtcOccluded8(valid, s->scene, &ctx, &ray);
+            *rays += (uint64_t)live;
+            for (int j = 0; j < MR_PACKET_W; j++)
+                if (valid[j] && !(ray.tfar[j] < 0)) /* Embree sets tfar = -inf when occluded */
+                    lw[row + j].light = mr_v3_add(
+                        lw[row + j].light, mr_v3_scale(s->lights[i].color, lw[row + j].cosine[i]));
         }
-        if (!live)
-            continue;
-        struct RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
-        ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-        rtcOccluded8(valid, s->scene, &ctx, &ray);
-        *rays += (uint64_t)live;
-        for (int k = 0; k < n; k++)
-            if (valid[k] && !(ray.tfar[k] < 0)) /* Embree sets tfar = -inf when occluded */
-                lw[k].light = mr_v3_add(lw[k].light,
-                                        mr_v3_scale(s->lights[i].color, lw[k].cosine[i]));
     }
-    for (int k = 0; k < n; k++)
-        if (lw[k].waits)
+    for (int k = 0; k < MR_PACKET; k++)
+        if (lane_live(lanes, k) && lw[k].waits)
             out[k].rgb = mr_v3_mul(lw[k].albedo, lw[k].light);
 }
 
-/* Traces sample k of the n (<= MR_PACKET) pixels (x0 .. x0+n-1, y);
- * returns the mask of lanes that hit. */
-static unsigned trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sample_result *out,
+/* Traces sample k of the packet's pixels; returns the mask of lanes that
+ * hit. */
+static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sample_result *out,
                              uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
     mr_vec3 org = c->rays_setup.origin, dir[MR_PACKET];
-    RTC_ALIGN(32) int valid[MR_PACKET];
-    struct RTCRayHit8 rh;
+    RTC_ALIGN(64) int valid[MR_PACKET];
+    struct RTCRayHit16 rh;
     float px[MR_PACKET], py[MR_PACKET];
     for (int i = 0; i < MR_PACKET; i++) {
-        int x = x0 + (i < n ? i : 0); /* idle lanes repeat a live ray: always a valid ray */
+        int l = lane_live(pk->live, i) ? i : 0; /* idle lanes repeat lane 0: always a valid ray */
+        int x = pk->x0 + l % MR_PACKET_W, y = pk->y + l / MR_PACKET_W;
         float jx = 0.5f, jy = 0.5f;
         if (k > 0)
             sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
         px[i] = (float)x + jx;
         py[i] = (float)y + jy;
     }
-    mr_camera_rays_dir8(&c->rays_setup, px, py, rh.ray.dir_x, rh.ray.dir_y, rh.ray.dir_z);
+    for (int h = 0; h < MR_PACKET; h += MR_PACKET_W)
+        mr_camera_rays_dir8(&c->rays_setup, px + h, py + h, rh.ray.dir_x + h, rh.ray.dir_y + h,
+                            rh.ray.dir_z + h);
     for (int i = 0; i < MR_PACKET; i++) {
         dir[i] = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
-        valid[i] = i < n ? -1 : 0;
+        valid[i] = lane_live(pk->live, i) ? -1 : 0;
         rh.ray.org_x[i] = org.x;
         rh.ray.org_y[i] = org.y;
         rh.ray.org_z[i] = org.z;
@@ -276,12 +313,13 @@ static unsigned trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sa
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-    rtcIntersect8(valid, s->scene, &ctx, &rh);
-    *rays += (uint64_t)n;
+    rtcIntersect16(valid, s->scene, &ctx, &rh);
+    *rays += (uint64_t)__builtin_popcount(pk->live);
     light_wait lw[MR_PACKET];
     bool waits = false;
     unsigned hits = 0;
-    for (int i = 0; i < n; i++) {
+    for (unsigned m = pk->live; m; m &= m - 1) {
+        int i = __builtin_ctz(m);
         lw[i].waits = false;
         /* An instance hit names the instance's top-level id; the kind
          * learns which instance as prim (kind.h geometry_ids). */
@@ -302,7 +340,7 @@ static unsigned trace_packet(const trace_ctx *c, int x0, int n, int y, int k, sa
         out[i].pos = mr_v3_add(org, mr_v3_scale(dir[i], h.t));
     }
     if (waits)
-        shadow_packet(s, lw, out, n, rays);
+        shadow_packet(s, lw, out, pk->live, rays);
     return hits;
 }
 
@@ -419,12 +457,15 @@ static bool rect_seen(const trace_ctx *c, double x0, double x1, double y0, doubl
     return x1 >= c->x0 && x0 <= c->x1 && y1 >= c->y0 && y0 <= c->y1;
 }
 
-/* All samples of the n pixels (x0 .. x0+n-1, y); results go to tile index
- * i0..; seen: false when none of their rays can hit the scene (rect_seen):
- * misses, untraced. */
-static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, tile_buffer *t,
+/* All samples of the packet's pixels; results go to the tile from index i0
+ * (the packet's first pixel); seen: false when none of their rays can hit
+ * the scene (rect_seen): misses, untraced. */
+static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, tile_buffer *t,
                          size_t i0, uint64_t *rays)
 {
+    size_t at[MR_PACKET]; /* each lane's tile index */
+    for (int i = 0; i < MR_PACKET; i++)
+        at[i] = i0 + (size_t)(i / MR_PACKET_W) * MR_TILE_W + (size_t)(i % MR_PACKET_W);
     const mr_trace_setup *s = c->s;
     const bool colour = s->aovs & MR_AOV_RGBA, crypto = s->aovs & MR_AOV_CRYPTOMATTE;
     /* sample 0 alone feeds the data passes */
@@ -432,7 +473,7 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
     mr_vec3 rgb[MR_PACKET];
     float alpha[MR_PACKET];
     crypto_tally tally[MR_PACKET][MR_CRYPTO_LAYERS];
-    for (int i = 0; i < n; i++) {
+    for (int i = 0; i < MR_PACKET; i++) {
         rgb[i] = mr_v3(0, 0, 0);
         alpha[i] = 0;
         if (crypto)
@@ -442,15 +483,16 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
-        if (!(seen && trace_packet(c, x0, n, y, k, r, rays))) {
+        if (!(seen && trace_packet(c, pk, k, r, rays))) {
             /* every lane missed (or was not traced): what the loop below
              * makes of misses, without looking at each lane */
-            for (int i = 0; i < n; i++) {
+            for (int i = 0; i < MR_PACKET; i++) {
                 rgb[i] = mr_v3_add(rgb[i], miss_rgb);
                 alpha[i] += s->background_alpha;
             }
             if (k == 0)
-                for (size_t p = i0; p < i0 + (size_t)n; p++) {
+                for (unsigned m = pk->live; m; m &= m - 1) {
+                    size_t p = at[__builtin_ctz(m)];
                     t->z[p] = MR_DEPTH_MISS;
                     t->nx[p] = t->ny[p] = t->nz[p] = 0.0f;
                     t->px[p] = t->py[p] = t->pz[p] = 0.0f;
@@ -459,14 +501,15 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
                 }
             continue;
         }
-        for (int i = 0; i < n; i++) {
+        for (unsigned m = pk->live; m; m &= m - 1) {
+            int i = __builtin_ctz(m);
             rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
             alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
             if (crypto && r[i].hit)
                 for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
                     tally_add(&tally[i][l], s->crypto_ids[l][r[i].object - 1]);
             if (k == 0) {
-                size_t p = i0 + (size_t)i;
+                size_t p = at[i];
                 t->z[p] = r[i].hit ? r[i].depth : MR_DEPTH_MISS;
                 t->nx[p] = r[i].hit ? r[i].normal.x : 0.0f;
                 t->ny[p] = r[i].hit ? r[i].normal.y : 0.0f;
@@ -483,8 +526,9 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
         }
     }
     float inv_spp = 1.0f / (float)s->spp;
-    for (int i = 0; i < n; i++) {
-        size_t p = i0 + (size_t)i;
+    for (unsigned m = pk->live; m; m &= m - 1) {
+        int i = __builtin_ctz(m);
+        size_t p = at[i];
         t->r[p] = rgb[i].x * inv_spp;
         t->g[p] = rgb[i].y * inv_spp;
         t->b[p] = rgb[i].z * inv_spp;
@@ -496,7 +540,8 @@ static void trace_pixels(const trace_ctx *c, int x0, int n, int y, bool seen, ti
 }
 
 /* Copies n 4-byte values from a tile row into the film. (Streaming stores
- * were tried here and measured no faster.) */
+ * cut the trace but cost the EXR encoder, which reads the film next, as
+ * much: README, Benchmarks.) */
 static void copy_out(void *dst, const void *src, int n) { memcpy(dst, src, (size_t)n * 4); }
 
 /* The film's planes and a tile buffer's, in one order (PLANES). */
@@ -562,12 +607,14 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
             }
             continue;
         }
-        for (int y = 0; y < th; y++)
-            for (int x = 0; x < tw; x += MR_PACKET) {
-                int n = tw - x < MR_PACKET ? tw - x : MR_PACKET;
-                /* the pixels' samples lie in [x, x + n] x [y, y + 1] */
-                bool seen = rect_seen(c, x0 + x, x0 + x + n, y0 + y, y0 + y + 1);
-                trace_pixels(c, x0 + x, n, y0 + y, seen, &t, (size_t)y * MR_TILE_W + x, &rays);
+        for (int y = 0; y < th; y += MR_PACKET_ROWS)
+            for (int x = 0; x < tw; x += MR_PACKET_W) {
+                int cols = tw - x < MR_PACKET_W ? tw - x : MR_PACKET_W;
+                int rows = th - y < MR_PACKET_ROWS ? th - y : MR_PACKET_ROWS;
+                packet_px pk = packet_at(x0 + x, y0 + y, cols, rows);
+                /* the pixels' samples lie in [x, x + cols] x [y, y + rows] */
+                bool seen = rect_seen(c, x0 + x, x0 + x + cols, y0 + y, y0 + y + rows);
+                trace_pixels(c, &pk, seen, &t, (size_t)y * MR_TILE_W + x, &rays);
             }
         for (int y = 0; y < th; y++) {
             size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
@@ -593,7 +640,8 @@ static void miss_values(trace_ctx *c)
         return;
     }
     uint64_t rays = 0;
-    trace_pixels(c, 0, 1, 0, false, t, 0, &rays);
+    packet_px one = packet_at(0, 0, 1, 1);
+    trace_pixels(c, &one, false, t, 0, &rays);
     void *in[PLANES];
     tile_planes(t, in);
     for (size_t k = 0; k < PLANES; k++)

@@ -776,7 +776,7 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 }
 
 /* Ray i of an N-packet set up for the traversal (user_rays.h). */
-MR_RAY_SETUP_CACHE(ray_setup, mr_dray, mr_dray_setup, MR_DPACKET_MAX)
+MR_RAY_SETUP_CACHE(ray_setup, mr_dray, mr_dray_setup)
 
 static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
                       mr_dhit *h, mr_dstats *st)

@@ -173,7 +173,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
                          bool any, mr_dhit *hit, mr_dstats *st);
 
 /* Up to this many rays traced through one base triangle together. */
-#define MR_DPACKET_MAX 8
+#define MR_DPACKET_MAX 16
 
 /* The closest hits of rays r[0 .. n) (n <= MR_DPACKET_MAX) with base
  * triangle t's displaced surface, each at tmin[k] <= t <= *tmax[k]

@@ -878,7 +878,7 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 }
 
 /* Ray i of an N-packet set up for the traversal (user_rays.h). */
-MR_RAY_SETUP_CACHE(ray_setup, mr_dmm_ray, mr_dmm_ray_setup, MR_DMM_PACKET_MAX)
+MR_RAY_SETUP_CACHE(ray_setup, mr_dmm_ray, mr_dmm_ray_setup)
 
 /* Traces ray i of an N-packet against base triangle t (patch p): the
  * traversal, or the watertight reference's test of every micro-triangle;

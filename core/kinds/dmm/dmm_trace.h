@@ -127,7 +127,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
                       bool take_tmax, bool any_hit, mr_dmm_hit *hit, mr_dmm_trace_stats *stats);
 
 /* Up to this many rays traced through one patch together. */
-#define MR_DMM_PACKET_MAX 8
+#define MR_DMM_PACKET_MAX 16
 
 /* mr_dmm_intersect for rays[0 .. n) (n <= MR_DMM_PACKET_MAX) through the
  * patch together: each node's children and boxes are made once and tested
