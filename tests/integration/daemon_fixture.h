@@ -328,6 +328,20 @@ static inline char *fx_slurp(const char *path, size_t *len)
     return s;
 }
 
+/* Runs cmd through sh; its standard output in *out (malloc'ed; out may be
+ * NULL), the exit status (128 + signal when killed). */
+static inline int fx_run(const char *cmd, char **out)
+{
+    char file[600], full[16384];
+    snprintf(file, sizeof file, "%s/run.out", fx_tmp);
+    if (snprintf(full, sizeof full, "%s > '%s'", cmd, file) >= (int)sizeof full)
+        fail_msg("command too long: %.200s...", cmd);
+    int st = system(full);
+    if (out)
+        *out = fx_slurp(file, NULL);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
 /* The small skinned job with a different output size per test, so jobs never
  * share an idempotency or cache story by accident. */
 static inline char *fx_small_job(int frames_end_q, int width, const char *extra)

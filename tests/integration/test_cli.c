@@ -25,18 +25,6 @@
 
 static daemon_proc D;
 
-/* Runs cmd through sh; its stdout in *out (malloc'ed), the exit status. */
-static int run(const char *cmd, char **out)
-{
-    char file[600], full[8192];
-    snprintf(file, sizeof file, "%s/run.out", fx_tmp);
-    snprintf(full, sizeof full, "%s > '%s'", cmd, file);
-    int st = system(full);
-    if (out)
-        *out = fx_slurp(file, NULL);
-    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-}
-
 /* Every "--flag" string literal of a source file (after prefix, when it
  * is not ""), into flags (space separated). */
 static void source_flags_after(const char *rel, const char *prefix, char *flags, size_t size)
@@ -86,7 +74,7 @@ static void test_help_lists_every_flag(void **state)
     (void)state;
     char cmd[3000], *all = NULL, *out = NULL;
     snprintf(cmd, sizeof cmd, "'%s/microrayd' --help", fx_build_dir);
-    assert_int_equal(run(cmd, &all), 0);
+    assert_int_equal(fx_run(cmd, &all), 0);
     char flags[4096] = "";
     source_flags("server/serve_cmd.c", flags, sizeof flags);
     source_flags("server/render_cmd.c", flags, sizeof flags);
@@ -97,13 +85,13 @@ static void test_help_lists_every_flag(void **state)
                                            "version", "help"};
     for (size_t i = 0; i < sizeof commands / sizeof *commands; i++) {
         snprintf(cmd, sizeof cmd, "'%s/microrayd' %s --help 2>/dev/null", fx_build_dir, commands[i]);
-        int st = run(cmd, &out);
+        int st = fx_run(cmd, &out);
         if (st != 0 || !strstr(out, "usage:") || !strstr(out, commands[i]))
             fail_msg("microrayd %s --help: exit %d, '%s'", commands[i], st, out);
         free(out);
     }
     snprintf(cmd, sizeof cmd, "'%s/microrayd' serve --help", fx_build_dir);
-    assert_int_equal(run(cmd, &out), 0);
+    assert_int_equal(fx_run(cmd, &out), 0);
     char serve_flags[4096] = "";
     source_flags("server/serve_cmd.c", serve_flags, sizeof serve_flags);
     flags_in(serve_flags, out, "microrayd serve --help");
@@ -112,7 +100,7 @@ static void test_help_lists_every_flag(void **state)
 
     /* the client: every option its sources know, in --help; each command's --help */
     snprintf(cmd, sizeof cmd, "'%s/microray' --help", fx_build_dir);
-    assert_int_equal(run(cmd, &all), 0);
+    assert_int_equal(fx_run(cmd, &all), 0);
     char cflags[4096] = "";
     source_flags("client/usage.c", cflags, sizeof cflags);
     source_flags("client/main.c", cflags, sizeof cflags);
@@ -125,7 +113,7 @@ static void test_help_lists_every_flag(void **state)
                                             "cluster status", "cluster wait"};
     for (size_t i = 0; i < sizeof ccommands / sizeof *ccommands; i++) {
         snprintf(cmd, sizeof cmd, "'%s/microray' %s --help 2>/dev/null", fx_build_dir, ccommands[i]);
-        int st = run(cmd, &out);
+        int st = fx_run(cmd, &out);
         if (st != 0 || !strstr(out, "usage:") || !strstr(out, ccommands[i]))
             fail_msg("microray %s --help: exit %d, '%s'", ccommands[i], st, out);
         free(out);
@@ -141,19 +129,19 @@ static void test_man_pages_and_completion(void **state)
     for (size_t i = 0; i < 2; i++) {
         char cmd[6000], *man = NULL, *help = NULL, *warn = NULL;
         snprintf(cmd, sizeof cmd, "'%s/%s' man", fx_build_dir, progs[i]);
-        assert_int_equal(run(cmd, &man), 0);
+        assert_int_equal(fx_run(cmd, &man), 0);
         /* groff's warnings of every kind: none */
         snprintf(cmd, sizeof cmd, "'%s/%s' man | groff -man -ww -z 2>&1", fx_build_dir, progs[i]);
-        assert_int_equal(run(cmd, &warn), 0);
+        assert_int_equal(fx_run(cmd, &warn), 0);
         if (warn[0])
             fail_msg("groff warns about %s.1: %s", progs[i], warn);
         /* every flag of --help is in the page (written \-\- in roff) */
         snprintf(cmd, sizeof cmd, "'%s/%s' man | groff -man -Tascii -P-cbou 2>/dev/null", fx_build_dir,
                  progs[i]);
         char *page = NULL;
-        assert_int_equal(run(cmd, &page), 0);
+        assert_int_equal(fx_run(cmd, &page), 0);
         snprintf(cmd, sizeof cmd, "'%s/%s' --help", fx_build_dir, progs[i]);
-        assert_int_equal(run(cmd, &help), 0);
+        assert_int_equal(fx_run(cmd, &help), 0);
         char flags[4096] = "";
         for (const char *p = help; (p = strstr(p, "--")); p += 2) {
             size_t n = strspn(p + 2, "-abcdefghijklmnopqrstuvwxyz");
@@ -174,21 +162,21 @@ static void test_man_pages_and_completion(void **state)
         snprintf(comp, sizeof comp, "%s/%s.bash", fx_tmp, progs[i]);
         snprintf(cmd, sizeof cmd, "'%s/%s' completion > '%s' && bash -n '%s'", fx_build_dir, progs[i], comp,
                  comp);
-        assert_int_equal(run(cmd, NULL), 0);
+        assert_int_equal(fx_run(cmd, NULL), 0);
     }
     char cmd[6000], *out = NULL;
     snprintf(cmd, sizeof cmd,
              "bash -c 'source \"%s/microray.bash\"; COMP_WORDS=(microray list --st); COMP_CWORD=2; "
              "_microray; echo \"${COMPREPLY[@]}\"'",
              fx_tmp);
-    assert_int_equal(run(cmd, &out), 0);
+    assert_int_equal(fx_run(cmd, &out), 0);
     assert_non_null(strstr(out, "--state"));
     free(out);
     snprintf(cmd, sizeof cmd,
              "bash -c 'source \"%s/microrayd.bash\"; COMP_WORDS=(microrayd serve --asset); COMP_CWORD=2; "
              "_microrayd; echo \"${COMPREPLY[@]}\"'",
              fx_tmp);
-    assert_int_equal(run(cmd, &out), 0);
+    assert_int_equal(fx_run(cmd, &out), 0);
     assert_non_null(strstr(out, "--asset-root"));
     free(out);
 }
@@ -206,14 +194,14 @@ static void test_make_install(void **state)
     char query[8400];
     snprintf(query, sizeof query, "make -s -q -C '%s' BUILD='%s' '%s/microrayd' '%s/microray'",
              fx_src_dir, fx_build_dir, fx_build_dir, fx_build_dir);
-    if (run(query, NULL) != 0) {
+    if (fx_run(query, NULL) != 0) {
         print_message("skipped: %s is older than the sources (make install would rebuild it)\n",
                       fx_build_dir);
         skip();
     }
     snprintf(cmd, sizeof cmd, "make -s -C '%s' install BUILD='%s' DESTDIR='%s' PREFIX=/usr 2>&1", fx_src_dir,
              fx_build_dir, dest);
-    if (run(cmd, &out) != 0)
+    if (fx_run(cmd, &out) != 0)
         fail_msg("make install: %s", out);
     free(out);
     static const char *const files[] = {
@@ -229,7 +217,7 @@ static void test_make_install(void **state)
             fail_msg("make install left no %s", files[i]);
     }
     snprintf(cmd, sizeof cmd, "'%s/usr/bin/microrayd' version && '%s/usr/bin/microray' --version", dest, dest);
-    assert_int_equal(run(cmd, &out), 0);
+    assert_int_equal(fx_run(cmd, &out), 0);
     free(out);
     /* the unit: sandboxed, the installed binary, and systemd finds nothing
      * wrong with it (its ExecStart pointed into the DESTDIR for the check) */
@@ -249,17 +237,17 @@ static void test_make_install(void **state)
              "'%s' > '%s/verify/microrayd.service' && cd '%s/verify' && "
              "systemd-analyze verify --man=no ./microrayd.service 2>&1",
              fx_tmp, dest, unit, fx_tmp, fx_tmp);
-    if (run(cmd, &out) != 0)
+    if (fx_run(cmd, &out) != 0)
         fail_msg("systemd-analyze verify: %s", out);
     free(out);
     /* every flag the unit's example options give, serve knows */
     snprintf(cmd, sizeof cmd, "'%s/usr/bin/microrayd' serve --asset-root /usr/share/assimp/models "
              "--listen 127.0.0.1:70000 2>&1", dest);
-    assert_int_equal(run(cmd, &out), 2); /* a bad port: usage error, so the flag before was taken */
+    assert_int_equal(fx_run(cmd, &out), 2); /* a bad port: usage error, so the flag before was taken */
     free(out);
     snprintf(cmd, sizeof cmd, "make -s -C '%s' uninstall BUILD='%s' DESTDIR='%s' PREFIX=/usr && "
              "test -z \"$(find '%s' -type f)\"", fx_src_dir, fx_build_dir, dest, dest);
-    assert_int_equal(run(cmd, NULL), 0);
+    assert_int_equal(fx_run(cmd, NULL), 0);
 }
 
 /* --json on every client command: one JSON document on standard output. */
@@ -308,7 +296,7 @@ static void test_client_json(void **state)
             snprintf(args, sizeof args, cases[i].args, id);
         snprintf(cmd, sizeof cmd, "'%s/microray' --server %s --quiet %s 2>/dev/null", fx_build_dir, D.base, args);
         char *out = NULL;
-        int st = run(cmd, &out);
+        int st = fx_run(cmd, &out);
         if (st != cases[i].exit)
             fail_msg("microray %s: exit %d, want %d: %s", args, st, cases[i].exit, out);
         if (cases[i].key) {

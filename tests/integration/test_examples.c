@@ -20,19 +20,6 @@
 
 #include "daemon_fixture.h"
 
-/* Runs cmd through sh; its stdout in *out (malloc'ed, may be NULL), the
- * exit status. */
-static int run(const char *cmd, char **out)
-{
-    char file[600], full[8192];
-    snprintf(file, sizeof file, "%s/run.out", fx_tmp);
-    snprintf(full, sizeof full, "%s > '%s' 2>&1", cmd, file);
-    int st = system(full);
-    if (out)
-        *out = fx_slurp(file, NULL);
-    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-}
-
 /* The example at path, its asset paths made absolute and its frame at most
  * 160 pixels wide (aspect kept), written to out. */
 static void shrink_job(const char *path, const char *examples, const char *out)
@@ -97,11 +84,11 @@ static void test_every_example(void **state)
             /* a hang guard, not a time limit: each render takes under a
              * second here, set-up included */
             snprintf(cmd, sizeof cmd,
-                     "timeout 600 '%s/microrayd' render '%s' --out '%s' --frames 0 --threads %d "
-                     "--quiet --cache '%s/cache'",
+                     "(exec 2>&1; timeout 600 '%s/microrayd' render '%s' --out '%s' --frames 0 "
+                     "--threads %d --quiet --cache '%s/cache')",
                      fx_build_dir, job, out[t], t + 1, fx_tmp);
             char *log = NULL;
-            int rc = run(cmd, &log);
+            int rc = fx_run(cmd, &log);
             if (rc != 0)
                 fail_msg("%s on %d thread(s): exit %d: %s", name, t + 1, rc, log ? log : "");
             free(log);
@@ -109,7 +96,7 @@ static void test_every_example(void **state)
         snprintf(cmd, sizeof cmd, "'%s/microrayd' compare '%s/0000.exr' '%s/0000.exr'", fx_build_dir,
                  out[0], out[1]);
         char *report = NULL;
-        assert_int_equal(run(cmd, &report), 0);
+        assert_int_equal(fx_run(cmd, &report), 0);
         cJSON *c = cJSON_Parse(report);
         if (!c)
             fail_msg("%s: compare printed %s", name, report ? report : "nothing");
