@@ -100,21 +100,22 @@ _Static_assert(MR_PACKET_W == 8, "a packet row's directions are made eight at a 
 _Static_assert(MR_PACKET == 16, "packets go to Embree as RTCRayHit16");
 _Static_assert(MR_TILE_H % MR_PACKET_ROWS == 0, "a tile holds whole packet rows");
 
-/* The pixels of one packet: columns x0 .. x0 + cols - 1 of rows y .. y +
- * rows - 1 (cols <= MR_PACKET_W, rows <= MR_PACKET_ROWS; a tile's right and
- * bottom edges cut packets short); live: their lanes. Lane 0 is always
- * live. */
+/* The pixels of one packet: lane i is pixel (x0 + i % MR_PACKET_W, y + i /
+ * MR_PACKET_W); live: the lanes that are pixels of the tile (a tile's right
+ * and bottom edges cut packets short). Lane 0 is always live. */
 typedef struct packet_px {
-    int x0, y, cols, rows;
+    int x0, y;
     unsigned live;
 } packet_px;
 
+/* The packet of columns x0 .. x0 + cols - 1 of rows y .. y + rows - 1
+ * (cols <= MR_PACKET_W, rows <= MR_PACKET_ROWS, both >= 1). */
 static packet_px packet_at(int x0, int y, int cols, int rows)
 {
     unsigned row = (1u << cols) - 1u, live = 0;
     for (int r = 0; r < rows; r++)
         live |= row << (r * MR_PACKET_W);
-    return (packet_px){x0, y, cols, rows, live};
+    return (packet_px){x0, y, live};
 }
 
 static bool lane_live(unsigned live, int i) { return live >> i & 1u; }
