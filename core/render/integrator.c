@@ -48,8 +48,9 @@ typedef struct {
     atomic_bool cancelled;
 } trace_ctx;
 
+/* What one sample of a lane that hit gives (trace_packet's hit mask says
+ * which lanes did). */
 typedef struct {
-    bool hit;
     float t;
     mr_vec3 normal; /* shading normal, unit, facing the ray origin */
     mr_vec3 tangent; /* shading tangent, unit and orthogonal to normal; 0: none (MR_AOV_T) */
@@ -154,7 +155,6 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
         n = mr_v3_normalize_or(mr_v3_sub(n, mr_v3_scale(dir, facing)), ng);
     else if (facing > 0)
         n = mr_v3_scale(n, -1.0f);
-    out->hit = true;
     out->t = h->t;
     out->normal = n;
     /* the tangent along increasing u, fitted to the shading normal (its
@@ -275,7 +275,7 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
 }
 
 /* Traces sample k of the packet's pixels; returns the mask of lanes that
- * hit. */
+ * hit (only their out[] is written). */
 static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sample_result *out,
                              uint64_t *rays)
 {
@@ -327,10 +327,8 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
         bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
         unsigned id = instanced ? rh.hit.instID[0][i] : rh.hit.geomID[i];
         unsigned geom = s->id_object ? (id < s->id_count ? s->id_object[id] : UINT_MAX) : id;
-        if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count) {
-            out[i] = (sample_result){.hit = false};
+        if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count)
             continue;
-        }
         unsigned prim = instanced ? id - s->objects[geom].first_id : rh.hit.primID[i];
         hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
@@ -458,6 +456,28 @@ static bool rect_seen(const trace_ctx *c, double x0, double x1, double y0, doubl
     return x1 >= c->x0 && x0 <= c->x1 && y1 >= c->y0 && y0 <= c->y1;
 }
 
+/* The data planes (depth, normal, position, tangent, ids) of n pixels of
+ * a tile row from index p as a miss leaves them: depth MR_DEPTH_MISS,
+ * every other 0. A packet row at a time (n = MR_PACKET_W but at the
+ * tile's right edge): a few wide stores, where writing each missed lane's
+ * planes one by one took a tenth of the trace (static-human). */
+static void store_miss_row(tile_buffer *t, size_t p, int n)
+{
+    void *zero[] = {t->nx + p, t->ny + p, t->nz + p, t->px + p, t->py + p, t->pz + p,
+                    t->tx + p, t->ty + p, t->tz + p, t->object_id + p, t->prim_id + p};
+    if (n == MR_PACKET_W) { /* sizes the compiler knows: inline stores */
+        for (size_t k = 0; k < sizeof zero / sizeof zero[0]; k++)
+            memset(zero[k], 0, MR_PACKET_W * 4);
+        for (int i = 0; i < MR_PACKET_W; i++)
+            t->z[p + i] = MR_DEPTH_MISS;
+        return;
+    }
+    for (size_t k = 0; k < sizeof zero / sizeof zero[0]; k++)
+        memset(zero[k], 0, (size_t)n * 4);
+    for (int i = 0; i < n; i++)
+        t->z[p + i] = MR_DEPTH_MISS;
+}
+
 /* All samples of the packet's pixels; results go to the tile from index i0
  * (the packet's first pixel); seen: false when none of their rays can hit
  * the scene (rect_seen): misses, untraced. */
@@ -484,45 +504,35 @@ static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
-        if (!(seen && trace_packet(c, pk, k, r, rays))) {
-            /* every lane missed (or was not traced): what the loop below
-             * makes of misses, without looking at each lane */
-            for (int i = 0; i < MR_PACKET; i++) {
-                rgb[i] = mr_v3_add(rgb[i], miss_rgb);
-                alpha[i] += s->background_alpha;
-            }
-            if (k == 0)
-                for (unsigned m = pk->live; m; m &= m - 1) {
-                    size_t p = at[__builtin_ctz(m)];
-                    t->z[p] = MR_DEPTH_MISS;
-                    t->nx[p] = t->ny[p] = t->nz[p] = 0.0f;
-                    t->px[p] = t->py[p] = t->pz[p] = 0.0f;
-                    t->tx[p] = t->ty[p] = t->tz[p] = 0.0f;
-                    t->object_id[p] = t->prim_id[p] = 0;
-                }
-            continue;
+        unsigned hits = seen ? trace_packet(c, pk, k, r, rays) : 0;
+        for (int i = 0; i < MR_PACKET; i++) {
+            bool hit = hits >> i & 1u;
+            rgb[i] = mr_v3_add(rgb[i], hit ? r[i].rgb : miss_rgb);
+            alpha[i] += hit ? 1.0f : s->background_alpha;
         }
-        for (unsigned m = pk->live; m; m &= m - 1) {
+        if (k == 0) /* the data planes: the misses' values, then the hits' */
+            for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
+                store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
+                               __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu));
+        for (unsigned m = hits; m; m &= m - 1) {
             int i = __builtin_ctz(m);
-            rgb[i] = mr_v3_add(rgb[i], r[i].hit ? r[i].rgb : miss_rgb);
-            alpha[i] += r[i].hit ? 1.0f : s->background_alpha;
-            if (crypto && r[i].hit)
+            if (crypto)
                 for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
                     tally_add(&tally[i][l], s->crypto_ids[l][r[i].object - 1]);
             if (k == 0) {
                 size_t p = at[i];
-                t->z[p] = r[i].hit ? r[i].depth : MR_DEPTH_MISS;
-                t->nx[p] = r[i].hit ? r[i].normal.x : 0.0f;
-                t->ny[p] = r[i].hit ? r[i].normal.y : 0.0f;
-                t->nz[p] = r[i].hit ? r[i].normal.z : 0.0f;
-                t->px[p] = r[i].hit ? r[i].pos.x : 0.0f;
-                t->py[p] = r[i].hit ? r[i].pos.y : 0.0f;
-                t->pz[p] = r[i].hit ? r[i].pos.z : 0.0f;
-                t->tx[p] = r[i].hit ? r[i].tangent.x : 0.0f;
-                t->ty[p] = r[i].hit ? r[i].tangent.y : 0.0f;
-                t->tz[p] = r[i].hit ? r[i].tangent.z : 0.0f;
-                t->object_id[p] = r[i].hit ? r[i].object : 0;
-                t->prim_id[p] = r[i].hit ? r[i].prim : 0;
+                t->z[p] = r[i].depth;
+                t->nx[p] = r[i].normal.x;
+                t->ny[p] = r[i].normal.y;
+                t->nz[p] = r[i].normal.z;
+                t->px[p] = r[i].pos.x;
+                t->py[p] = r[i].pos.y;
+                t->pz[p] = r[i].pos.z;
+                t->tx[p] = r[i].tangent.x;
+                t->ty[p] = r[i].tangent.y;
+                t->tz[p] = r[i].tangent.z;
+                t->object_id[p] = r[i].object;
+                t->prim_id[p] = r[i].prim;
             }
         }
     }
