@@ -13,6 +13,7 @@
 #include <cmocka.h>
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "render/compare.h"
@@ -418,6 +419,89 @@ static void test_speckles(void **state)
     mr_film_free(f);
 }
 
+/* The definition of a speckle, pixel by pixel and plainly (a full sort
+ * of the eight neighbours' luminances): what mr_film_speckles must count,
+ * whatever shortcuts it takes and however it splits the film. */
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+static float plain_luminance(const mr_film *f, size_t p)
+{
+    float y = 0.2126f * f->r[p] + 0.7152f * f->g[p] + 0.0722f * f->b[p];
+    return y == y ? y : 0.0f;
+}
+
+static mr_speckle_result plain_speckles(const mr_film *f)
+{
+    mr_speckle_result r = {0};
+    const int w = f->width;
+    for (int y = 1; y + 1 < f->height; y++)
+        for (int x = 1; x + 1 < w; x++) {
+            size_t p = (size_t)y * (size_t)w + (size_t)x;
+            size_t q[8] = {p - w - 1, p - w, p - w + 1, p - 1, p + 1, p + w - 1, p + w, p + w + 1};
+            bool inside = f->object_id[q[0]] != 0;
+            float lum[8];
+            for (int k = 0; k < 8; k++) {
+                inside = inside && f->object_id[q[k]] == f->object_id[q[0]];
+                lum[k] = plain_luminance(f, q[k]);
+            }
+            if (!inside)
+                continue;
+            qsort(lum, 8, sizeof lum[0], cmp_float);
+            r.interior++;
+            r.speckles += plain_luminance(f, p) < (float)MR_SPECKLE_RATIO * (0.5f * (lum[3] + lum[4]));
+        }
+    return r;
+}
+
+/* Random films against the definition: objects in patches with misses
+ * between them, colours from dark to bright, with ties (a few levels), or
+ * nearly even with dark pixels around the threshold; negative values, NaN
+ * and infinities, on sizes that leave a partial last
+ * chunk of rows. Exact counts: the test fails on one pixel counted
+ * differently. */
+static void test_speckles_random(void **state)
+{
+    (void)state;
+    uint64_t seed = 0x9e3779b97f4a7c15ull;
+    const int sizes[4][2] = {{3, 3}, {67, 41}, {300, 53}, {129, 200}};
+    size_t speckles = 0;
+    for (int round = 0; round < 24; round++) {
+        int w = sizes[round % 4][0], h = sizes[round % 4][1];
+        mr_film *f = film(w, h);
+        for (size_t i = 0; i < (size_t)w * (size_t)h; i++) {
+            seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+            uint32_t bits = (uint32_t)(seed >> 32);
+            int px = (int)(i % (size_t)w), py = (int)(i / (size_t)w);
+            f->object_id[i] = (bits & 63u) == 0 ? 0u : 1u + (uint32_t)((px / 9 + py / 7) % 3);
+            float u = (float)(bits >> 8 & 0xffffu) / 65535.0f, v = u;
+            if (round % 3 == 1)
+                v = (float)(bits >> 8 & 3u) * 0.4f; /* ties */
+            else if (round % 3 == 2) /* a smooth surface, dark pixels near the threshold */
+                v = (bits >> 24 & 7u) ? 0.95f + 0.05f * u : 0.5f + 0.15f * u;
+            switch (bits >> 28) {
+            case 0: v = NAN; break;
+            case 1: v = -v; break;
+            case 2: v = bits & 1u ? INFINITY : -INFINITY; break;
+            default: break;
+            }
+            f->r[i] = v;
+            f->g[i] = (bits >> 24 & 1u) ? v : 0.5f * v;
+            f->b[i] = v;
+        }
+        mr_speckle_result want = plain_speckles(f), got;
+        mr_film_speckles(f, &got);
+        assert_int_equal(got.interior, want.interior);
+        assert_int_equal(got.speckles, want.speckles);
+        speckles += want.speckles;
+        mr_film_free(f);
+    }
+    assert_true(speckles > 100); /* the films do have speckles to count */
+}
+
 /* A 40x30 film whose camera sees a pixel as 1/40 of a unit at depth 1
  * (tan(yfov / 2) = 0.375), with a square of hits x in [10, 25), y in
  * [8, 20) at depth z. */
@@ -509,6 +593,7 @@ int main(void)
         cmocka_unit_test(test_depth),     cmocka_unit_test(test_normals),
         cmocka_unit_test(test_psnr),      cmocka_unit_test(test_invalid),
         cmocka_unit_test(test_holes),     cmocka_unit_test(test_strays),     cmocka_unit_test(test_speckles),
+        cmocka_unit_test(test_speckles_random),
         cmocka_unit_test(test_surface_px),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
