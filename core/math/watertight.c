@@ -96,25 +96,6 @@ mr_wtd_ray mr_wtd_ray_setup(mr_vec3 org, mr_vec3 dir)
 bool mr_wtd_intersect(const mr_wtd_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
                       float tmax, mr_wt_hit *hit)
 {
-    const double a[3] = {v0.x - r->org[0], v0.y - r->org[1], v0.z - r->org[2]};
-    const double b[3] = {v1.x - r->org[0], v1.y - r->org[1], v1.z - r->org[2]};
-    const double c[3] = {v2.x - r->org[0], v2.y - r->org[1], v2.z - r->org[2]};
-    double az = a[r->kz], bz = b[r->kz], cz = c[r->kz];
-    double ax = a[r->kx] - r->sx * az, ay = a[r->ky] - r->sy * az;
-    double bx = b[r->kx] - r->sx * bz, by = b[r->ky] - r->sy * bz;
-    double cx = c[r->kx] - r->sx * cz, cy = c[r->ky] - r->sy * cz;
-    double u = cx * by - cy * bx, v = ax * cy - ay * cx, w = bx * ay - by * ax;
-    if ((u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0))
-        return false;
-    double det = u + v + w;
-    if (!(fabs(det) >= DBL_MIN)) /* in the triangle's plane, or degenerate */
-        return false;
-    double t = (u * (az * r->sz) + v * (bz * r->sz) + w * (cz * r->sz)) / det;
-    float tf = (float)t;
-    if (!(tf >= tmin && tf <= tmax && tf < INFINITY))
-        return false;
-    hit->t = tf;
-    hit->u = (float)(v / det);
-    hit->v = (float)(w / det);
-    return true;
+    const mr_wtd_vertex a = mr_wtd_shear(r, v0), b = mr_wtd_shear(r, v1), c = mr_wtd_shear(r, v2);
+    return mr_wtd_intersect_sheared(&a, &b, &c, tmin, tmax, hit);
 }

@@ -15,6 +15,8 @@
 #ifndef MR_WATERTIGHT_H
 #define MR_WATERTIGHT_H
 
+#include <float.h>
+#include <math.h>
 #include <stdbool.h>
 
 #include "math/mr_math.h"
@@ -67,5 +69,43 @@ mr_wtd_ray mr_wtd_ray_setup(mr_vec3 org, mr_vec3 dir);
 /* As mr_wt_intersect, in double precision. */
 bool mr_wtd_intersect(const mr_wtd_ray *ray, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
                       float tmax, mr_wt_hit *hit);
+
+/* mr_wtd_intersect in two steps, for triangles that share vertices (a
+ * ray's test of a micro-mesh leaf): each vertex sheared into the ray's
+ * space once (x, y: the 2D coordinates the edge functions take; z: the
+ * scaled distance along the ray), then each triangle's test from its
+ * sheared vertices. The same operations as mr_wtd_intersect, so the same
+ * results bit for bit. */
+typedef struct mr_wtd_vertex {
+    double x, y, z;
+} mr_wtd_vertex;
+
+/* (Inline: a leaf's tests are the dmm trace's innermost loop.) */
+static inline mr_wtd_vertex mr_wtd_shear(const mr_wtd_ray *r, mr_vec3 v)
+{
+    const double a[3] = {v.x - r->org[0], v.y - r->org[1], v.z - r->org[2]};
+    double z = a[r->kz];
+    return (mr_wtd_vertex){a[r->kx] - r->sx * z, a[r->ky] - r->sy * z, z * r->sz};
+}
+
+static inline bool mr_wtd_intersect_sheared(const mr_wtd_vertex *a, const mr_wtd_vertex *b,
+                                            const mr_wtd_vertex *c, float tmin, float tmax, mr_wt_hit *hit)
+{
+    double u = c->x * b->y - c->y * b->x, v = a->x * c->y - a->y * c->x,
+           w = b->x * a->y - b->y * a->x;
+    if ((u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0))
+        return false;
+    double det = u + v + w;
+    if (!(fabs(det) >= DBL_MIN)) /* in the triangle's plane, or degenerate */
+        return false;
+    double t = (u * a->z + v * b->z + w * c->z) / det;
+    float tf = (float)t;
+    if (!(tf >= tmin && tf <= tmax && tf < INFINITY))
+        return false;
+    hit->t = tf;
+    hit->u = (float)(v / det);
+    hit->v = (float)(w / det);
+    return true;
+}
 
 #endif

@@ -279,7 +279,8 @@ static mr_vec3 micro_normal(mr_vec3 v0, mr_vec3 v1, mr_vec3 v2)
  * vertices v were evaluated there; a collapsed micro-triangle has two equal
  * vertices, so a zero determinant and no hit). */
 static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
-                          const lattice_pt *const at[3], const mr_vec3 vin[3])
+                          const lattice_pt *const at[3], const mr_vec3 vin[3],
+                          const mr_wtd_vertex *const sin[3])
 {
     if (c->stats)
         c->stats->triangles++;
@@ -290,7 +291,8 @@ static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
     const lattice_pt *L[3] = {at[s], at[(s + 1) % 3], at[(s + 2) % 3]};
     const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
     mr_wt_hit h;
-    if (!mr_wtd_intersect(&c->ray->wt, v[0], v[1], v[2], c->tmin, c->tmax, &h))
+    if (!mr_wtd_intersect_sheared(sin[s], sin[(s + 1) % 3], sin[(s + 2) % 3], c->tmin, c->tmax,
+                                  &h))
         return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
     /* Equal t (a ray through a shared edge or vertex hits both sides at the
      * same float t): the micro-triangle first in row order wins, whatever
@@ -375,17 +377,25 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], leaf_
         lt->v[k] = mr_dmm_vertex(p, lt->at[k]->a, lt->at[k]->b);
 }
 
+/* The ray's test of a leaf's micro-triangles: their (up to six) vertices
+ * sheared into the ray's space once, for all of them (mr_wtd_shear: the
+ * same results as testing each alone). */
 static void leaf_test(trace_ctx *c, const leaf_tris *lt)
 {
+    mr_wtd_vertex sh[6];
+    for (int k = 0; k < (lt->count == 1 ? 3 : 6); k++)
+        sh[k] = mr_wtd_shear(&c->ray->wt, lt->v[k]);
     if (lt->count == 1) {
-        test_triangle(c, lt->pts, lt->at, lt->v);
+        const mr_wtd_vertex *S[3] = {&sh[0], &sh[1], &sh[2]};
+        test_triangle(c, lt->pts, lt->at, lt->v, S);
         return;
     }
     for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
         const lattice_pt *L[3] = {lt->pts[CHILD[k][0]], lt->pts[CHILD[k][1]], lt->pts[CHILD[k][2]]};
         const lattice_pt *A[3] = {lt->at[CHILD[k][0]], lt->at[CHILD[k][1]], lt->at[CHILD[k][2]]};
         const mr_vec3 tv[3] = {lt->v[CHILD[k][0]], lt->v[CHILD[k][1]], lt->v[CHILD[k][2]]};
-        test_triangle(c, L, A, tv);
+        const mr_wtd_vertex *S[3] = {&sh[CHILD[k][0]], &sh[CHILD[k][1]], &sh[CHILD[k][2]]};
+        test_triangle(c, L, A, tv, S);
     }
 }
 
