@@ -267,54 +267,6 @@ static mr_vec3 micro_normal(mr_vec3 v0, mr_vec3 v1, mr_vec3 v2)
     return mr_v3((float)(c[0] / m), (float)(c[1] / m), (float)(c[2] / m));
 }
 
-/* Tests micro-triangle (L[0], L[1], L[2]) with vertices v. The watertight
- * test's rounding depends on which vertex comes first, so the triangle is
- * rotated (winding kept) to start where the tessellation's row order starts
- * it: at the vertex with the smallest b, then the smallest a. Hits are then
- * bit-identical to the tessellated micro-mesh's under the same test. */
-/* Lin: the micro-triangle's lattice corners as the quadtree has them; the
- * tessellation (mr_umesh_triangle) lists them starting at the smallest
- * (b, a), and starting there keeps the watertight test's result bit-equal
- * to the tessellation's. at: the corners after edge decimation (the
- * vertices v were evaluated there; a collapsed micro-triangle has two equal
- * vertices, so a zero determinant and no hit). */
-static void test_triangle(trace_ctx *c, const lattice_pt *const Lin[3],
-                          const lattice_pt *const at[3], const mr_vec3 vin[3],
-                          const mr_wtd_vertex *const sin[3])
-{
-    if (c->stats)
-        c->stats->triangles++;
-    int s = 0;
-    for (int k = 1; k < 3; k++)
-        if (Lin[k]->b < Lin[s]->b || (Lin[k]->b == Lin[s]->b && Lin[k]->a < Lin[s]->a))
-            s = k;
-    const lattice_pt *L[3] = {at[s], at[(s + 1) % 3], at[(s + 2) % 3]};
-    const mr_vec3 v[3] = {vin[s], vin[(s + 1) % 3], vin[(s + 2) % 3]};
-    mr_wt_hit h;
-    if (!mr_wtd_intersect_sheared(sin[s], sin[(s + 1) % 3], sin[(s + 2) % 3], c->tmin, c->tmax,
-                                  &h))
-        return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
-    /* Equal t (a ray through a shared edge or vertex hits both sides at the
-     * same float t): the micro-triangle first in row order wins, whatever
-     * order the traversal met them in, as in mr_dmm_intersect_micro. Row
-     * index of the micro-triangle: its first corner (smallest b, then a) and
-     * whether the second corner is a row up (inverted) or not (upright). */
-    uint32_t n0 = c->segments, a0 = Lin[s]->a, b0 = Lin[s]->b;
-    uint32_t key = b0 * (2 * n0 - b0) + 2 * a0 - (Lin[(s + 1) % 3]->b > b0 ? 1u : 0u);
-    if (h.t == c->tmax && !(key < c->best_key))
-        return;
-    c->found = true;
-    c->tmax = h.t;
-    c->best_key = key;
-    if (!c->hit)
-        return;
-    float w0 = 1.0f - h.u - h.v, n = (float)c->segments;
-    c->hit->t = h.t;
-    c->hit->u = (w0 * (float)L[0]->a + h.u * (float)L[1]->a + h.v * (float)L[2]->a) / n;
-    c->hit->v = (w0 * (float)L[0]->b + h.u * (float)L[1]->b + h.v * (float)L[2]->b) / n;
-    c->hit->ng = micro_normal(v[0], v[1], v[2]);
-}
-
 /* Children of sub-triangle (P0, P1, P2) with edge midpoints m01, m12, m20,
  * in pyramid order (dmm_encode.h): (P0, m01, m20), (m01, P1, m12),
  * (m20, m12, P2), (m12, m20, m01). Indices into {P0, P1, P2, m01, m12, m20}. */
@@ -336,15 +288,43 @@ static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
 }
 
 /* A leaf's micro-triangles: made once, tested against each ray that
- * reaches the leaf. */
+ * reaches the leaf. The watertight test's rounding depends on which vertex
+ * comes first, so each micro-triangle is rotated (winding kept) to start
+ * where the tessellation (mr_umesh_triangle) starts it: at the corner with
+ * the smallest b, then the smallest a; its hits are then bit-identical to
+ * the tessellated micro-mesh's under the same test. Which corner that is,
+ * and the micro-triangle's place in row order (what orders equal-t hits),
+ * depend on the leaf alone: worked out here, not per ray. */
 typedef struct leaf_tris {
     int count;                /* 1 (level 0: the base triangle) or 4 */
     lattice_pt mid[3], moved[6];
+    /* pts: the corners as the quadtree has them; at: after edge decimation
+     * (v was evaluated there; a collapsed micro-triangle has two equal
+     * vertices, so a zero determinant and no hit) */
     const lattice_pt *pts[6], *at[6];
     mr_vec3 v[6];
+    uint8_t corner[4][3]; /* micro-triangle k: indices into pts, at, v, rotated */
+    uint32_t key[4];      /* micro-triangle k's index in row order */
 } leaf_tris;
 
-static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], leaf_tris *lt)
+/* Micro-triangle k of lt with corners (indices) c: its rotation and row
+ * index. Row index: its first corner (smallest b, then a) and whether the
+ * second corner is a row up (inverted) or not (upright). */
+static void leaf_order(leaf_tris *lt, int k, const int c[3], uint32_t segments)
+{
+    const lattice_pt *const *P = lt->pts;
+    int s = 0;
+    for (int i = 1; i < 3; i++)
+        if (P[c[i]]->b < P[c[s]]->b || (P[c[i]]->b == P[c[s]]->b && P[c[i]]->a < P[c[s]]->a))
+            s = i;
+    for (int i = 0; i < 3; i++)
+        lt->corner[k][i] = (uint8_t)c[(s + i) % 3];
+    uint32_t a0 = P[c[s]]->a, b0 = P[c[s]]->b;
+    lt->key[k] = b0 * (2 * segments - b0) + 2 * a0 - (P[c[(s + 1) % 3]]->b > b0 ? 1u : 0u);
+}
+
+static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint32_t segments,
+                      leaf_tris *lt)
 {
     if (p->level == 0) {
         lt->count = 1;
@@ -352,6 +332,7 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], leaf_
             lt->pts[k] = lt->at[k] = P[k];
             lt->v[k] = mr_dmm_vertex(p, P[k]->a, P[k]->b);
         }
+        leaf_order(lt, 0, (const int[3]){0, 1, 2}, segments);
         return;
     }
     lt->count = 4;
@@ -375,6 +356,36 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], leaf_
     }
     for (int k = 0; k < 6; k++)
         lt->v[k] = mr_dmm_vertex(p, lt->at[k]->a, lt->at[k]->b);
+    for (int k = 0; k < 4; k++)
+        leaf_order(lt, k, CHILD[k], segments);
+}
+
+/* Tests micro-triangle k of lt, whose vertices the ray has sheared (sh). */
+static void test_triangle(trace_ctx *c, const leaf_tris *lt, int k, const mr_wtd_vertex sh[6])
+{
+    if (c->stats)
+        c->stats->triangles++;
+    const uint8_t *q = lt->corner[k];
+    mr_wt_hit h;
+    if (!mr_wtd_intersect_sheared(&sh[q[0]], &sh[q[1]], &sh[q[2]], c->tmin, c->tmax, &h))
+        return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
+    /* Equal t (a ray through a shared edge or vertex hits both sides at the
+     * same float t): the micro-triangle first in row order wins, whatever
+     * order the traversal met them in, as in mr_dmm_intersect_micro. */
+    uint32_t key = lt->key[k];
+    if (h.t == c->tmax && !(key < c->best_key))
+        return;
+    c->found = true;
+    c->tmax = h.t;
+    c->best_key = key;
+    if (!c->hit)
+        return;
+    const lattice_pt *L[3] = {lt->at[q[0]], lt->at[q[1]], lt->at[q[2]]};
+    float w0 = 1.0f - h.u - h.v, n = (float)c->segments;
+    c->hit->t = h.t;
+    c->hit->u = (w0 * (float)L[0]->a + h.u * (float)L[1]->a + h.v * (float)L[2]->a) / n;
+    c->hit->v = (w0 * (float)L[0]->b + h.u * (float)L[1]->b + h.v * (float)L[2]->b) / n;
+    c->hit->ng = micro_normal(lt->v[q[0]], lt->v[q[1]], lt->v[q[2]]);
 }
 
 /* The ray's test of a leaf's micro-triangles: their (up to six) vertices
@@ -385,24 +396,14 @@ static void leaf_test(trace_ctx *c, const leaf_tris *lt)
     mr_wtd_vertex sh[6];
     for (int k = 0; k < (lt->count == 1 ? 3 : 6); k++)
         sh[k] = mr_wtd_shear(&c->ray->wt, lt->v[k]);
-    if (lt->count == 1) {
-        const mr_wtd_vertex *S[3] = {&sh[0], &sh[1], &sh[2]};
-        test_triangle(c, lt->pts, lt->at, lt->v, S);
-        return;
-    }
-    for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
-        const lattice_pt *L[3] = {lt->pts[CHILD[k][0]], lt->pts[CHILD[k][1]], lt->pts[CHILD[k][2]]};
-        const lattice_pt *A[3] = {lt->at[CHILD[k][0]], lt->at[CHILD[k][1]], lt->at[CHILD[k][2]]};
-        const mr_vec3 tv[3] = {lt->v[CHILD[k][0]], lt->v[CHILD[k][1]], lt->v[CHILD[k][2]]};
-        const mr_wtd_vertex *S[3] = {&sh[CHILD[k][0]], &sh[CHILD[k][1]], &sh[CHILD[k][2]]};
-        test_triangle(c, L, A, tv, S);
-    }
+    for (int k = 0; k < lt->count && !(c->any_hit && c->found); k++)
+        test_triangle(c, lt, k, sh);
 }
 
 static void leaf(trace_ctx *c, const lattice_pt *const P[3])
 {
     leaf_tris lt;
-    leaf_make(c->patch, P, &lt);
+    leaf_make(c->patch, P, c->segments, &lt);
     leaf_test(c, &lt);
 }
 
@@ -635,7 +636,7 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
     const trace_ctx *c = &cs[__builtin_ctz(live)]; /* the patch, its leaf level and pads */
     if (sublevel == c->leaf) {
         leaf_tris lt;
-        leaf_make(c->patch, P, &lt);
+        leaf_make(c->patch, P, c->segments, &lt);
         for (uint32_t m = live; m; m &= m - 1)
             leaf_test(&cs[__builtin_ctz(m)], &lt);
         return;
