@@ -93,7 +93,9 @@ static inline bool mr_wtd_intersect_sheared(const mr_wtd_vertex *a, const mr_wtd
 {
     double u = c->x * b->y - c->y * b->x, v = a->x * c->y - a->y * c->x,
            w = b->x * a->y - b->y * a->x;
-    if ((u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0))
+    /* edge functions of both signs: outside (one branch, not six: most
+     * tests miss, in no order a predictor learns) */
+    if (((u < 0) | (v < 0) | (w < 0)) & ((u > 0) | (v > 0) | (w > 0)))
         return false;
     double det = u + v + w;
     if (!(fabs(det) >= DBL_MIN)) /* in the triangle's plane, or degenerate */
