@@ -7,6 +7,9 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
 
 #include "kinds/displaced/tiling.h"
 #include "math/affine_arith.h"
@@ -1290,6 +1293,43 @@ static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], cons
     return m & live;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* slab_pack four lanes at a time, for CPUs with AVX2: the same operations
+ * lane by lane as the SSE2 loop (sub, mul, minpd / maxpd, the far bound's
+ * scaling, an ordered greater-than), so the same entries and the same
+ * lanes bit for bit; half its instructions, in the displaced kind's
+ * hottest loop. */
+__attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, uint32_t live,
+                                                                const double lo[3],
+                                                                const double hi[3], double tn[PK])
+{
+    _Static_assert(PK % 4 == 0, "packets are whole AVX2 vectors");
+    uint32_t m = 0;
+    for (int k = 0; k < PK; k += 4) {
+        if (!(live >> k & 15u))
+            continue;
+        __m256d t0 = _mm256_loadu_pd(p->t0 + k), t1 = _mm256_loadu_pd(p->t1 + k);
+        for (int a = 0; a < 3; a++) {
+            __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
+            __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
+            __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
+            __m256d near = _mm256_min_pd(ff, nn), far = _mm256_max_pd(nn, ff);
+            far = _mm256_mul_pd(far, _mm256_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
+            t0 = _mm256_max_pd(near, t0);
+            t1 = _mm256_min_pd(far, t1);
+        }
+        _mm256_storeu_pd(tn + k, t0);
+        m |= (uint32_t)(~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & 15) << k;
+    }
+    return m & live;
+}
+#define SLAB_PACK(p, live, lo, hi, tn)                                                            \
+    (__builtin_cpu_supports("avx2") ? slab_pack_avx2(p, live, lo, hi, tn)                         \
+                                    : slab_pack(p, live, lo, hi, tn))
+#else
+#define SLAB_PACK slab_pack
+#endif
+
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
                                     const float *tmin, float *const *tmax, mr_dhit *hits,
                                     mr_dstats *st)
@@ -1342,10 +1382,9 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     while (sp > 0) {
         pentry e = stack[--sp];
         uint32_t live = 0;
-        for (uint32_t m = e.mask; m; m &= m - 1) {
+        for (uint32_t m = e.mask; m; m &= m - 1) { /* p.t1: cull_limit of the ray's tmax */
             int k = __builtin_ctz(m);
-            if (!(e.tnear > p.t1[k])) /* p.t1: cull_limit of the ray's tmax */
-                live |= 1u << k;
+            live |= (uint32_t)!(e.tnear > p.t1[k]) << k;
         }
         if (!live)
             continue;
@@ -1429,7 +1468,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             double lo[3] = {blo[0][c], blo[1][c], blo[2][c]};
             double hi[3] = {bhi[0][c], bhi[1][c], bhi[2][c]};
             double tn[PK];
-            uint32_t in = slab_pack(&p, live, lo, hi, tn);
+            uint32_t in = SLAB_PACK(&p, live, lo, hi, tn);
             if (!in)
                 continue;
             double near = INFINITY;
