@@ -280,7 +280,7 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
                              uint64_t *rays)
 {
     const mr_trace_setup *s = c->s;
-    mr_vec3 org = c->rays_setup.origin, dir[MR_PACKET];
+    mr_vec3 org = c->rays_setup.origin;
     RTC_ALIGN(64) int valid[MR_PACKET];
     struct RTCRayHit16 rh;
     float px[MR_PACKET], py[MR_PACKET];
@@ -296,17 +296,20 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     for (int h = 0; h < MR_PACKET; h += MR_PACKET_W)
         mr_camera_rays_dir8(&c->rays_setup, px + h, py + h, rh.ray.dir_x + h, rh.ray.dir_y + h,
                             rh.ray.dir_z + h);
-    for (int i = 0; i < MR_PACKET; i++) {
-        dir[i] = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
+    for (int i = 0; i < MR_PACKET; i++) { /* (loops of one field each: filled as vectors) */
         valid[i] = lane_live(pk->live, i) ? -1 : 0;
+        rh.ray.id[i] = (unsigned)i;
+    }
+    for (int i = 0; i < MR_PACKET; i++) {
         rh.ray.org_x[i] = org.x;
         rh.ray.org_y[i] = org.y;
         rh.ray.org_z[i] = org.z;
         rh.ray.tnear[i] = 0.0f;
         rh.ray.tfar[i] = FLT_MAX;
         rh.ray.time[i] = 0.0f;
+    }
+    for (int i = 0; i < MR_PACKET; i++) {
         rh.ray.mask[i] = 0xffffffffu;
-        rh.ray.id[i] = (unsigned)i;
         rh.ray.flags[i] = 0;
         rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
         rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
@@ -318,28 +321,30 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     *rays += (uint64_t)__builtin_popcount(pk->live);
     light_wait lw[MR_PACKET];
     bool waits = false;
-    unsigned hits = 0;
-    for (unsigned m = pk->live; m; m &= m - 1) {
+    unsigned hits = 0, reached = 0;
+    for (int i = 0; i < MR_PACKET; i++)
+        reached |= (unsigned)(rh.hit.geomID[i] != RTC_INVALID_GEOMETRY_ID) << i;
+    for (unsigned m = pk->live & reached; m; m &= m - 1) {
         int i = __builtin_ctz(m);
-        lw[i].waits = false;
         /* An instance hit names the instance's top-level id; the kind
          * learns which instance as prim (kind.h geometry_ids). */
         bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
         unsigned id = instanced ? rh.hit.instID[0][i] : rh.hit.geomID[i];
         unsigned geom = s->id_object ? (id < s->id_count ? s->id_object[id] : UINT_MAX) : id;
-        if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID || geom >= s->object_count)
+        if (geom >= s->object_count)
             continue;
         unsigned prim = instanced ? id - s->objects[geom].first_id : rh.hit.primID[i];
         hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
                       mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
-        shade(s, &h, org, dir[i], &out[i], &lw[i]);
+        mr_vec3 dir = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
+        shade(s, &h, org, dir, &out[i], &lw[i]);
         hits |= 1u << i;
         waits |= lw[i].waits;
-        out[i].depth = h.t * mr_v3_dot(dir[i], c->forward);
-        out[i].pos = mr_v3_add(org, mr_v3_scale(dir[i], h.t));
+        out[i].depth = h.t * mr_v3_dot(dir, c->forward);
+        out[i].pos = mr_v3_add(org, mr_v3_scale(dir, h.t));
     }
     if (waits)
-        shadow_packet(s, lw, out, pk->live, rays);
+        shadow_packet(s, lw, out, hits, rays);
     return hits;
 }
 
