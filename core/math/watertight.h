@@ -89,7 +89,8 @@ static inline mr_wtd_vertex mr_wtd_shear(const mr_wtd_ray *r, mr_vec3 v)
 }
 
 static inline bool mr_wtd_intersect_sheared(const mr_wtd_vertex *a, const mr_wtd_vertex *b,
-                                            const mr_wtd_vertex *c, float tmin, float tmax, mr_wt_hit *hit)
+                                            const mr_wtd_vertex *c, float tmin, float tmax,
+                                            mr_wt_hit *hit)
 {
     double u = c->x * b->y - c->y * b->x, v = a->x * c->y - a->y * c->x,
            w = b->x * a->y - b->y * a->x;
