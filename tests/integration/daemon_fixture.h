@@ -62,6 +62,21 @@ static inline bool fx_cleanup_dirs(void)
     return removed;
 }
 
+/* cmocka group set-up and teardown of a test that runs no daemon of its
+ * own: the directories alone (fx_init_dirs, fx_cleanup_dirs). */
+static inline int fx_dirs_setup(void **state)
+{
+    (void)state;
+    fx_init_dirs();
+    return 0;
+}
+
+static inline int fx_dirs_teardown(void **state)
+{
+    (void)state;
+    return fx_cleanup_dirs() ? 0 : -1;
+}
+
 /* The daemon's database in data_dir passes sqlite's integrity check (read
  * with a connection of its own, the daemon stopped or not). */
 static inline void fx_assert_store_intact(const char *data_dir)

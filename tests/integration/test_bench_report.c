@@ -94,23 +94,10 @@ static void test_report_of_known_points(void **state)
     free(r);
 }
 
-static int setup(void **state)
-{
-    (void)state;
-    fx_init_dirs();
-    return 0;
-}
-
-static int teardown(void **state)
-{
-    (void)state;
-    return fx_cleanup_dirs() ? 0 : -1;
-}
-
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_report_of_known_points),
     };
-    return cmocka_run_group_tests_name("bench_report", tests, setup, teardown);
+    return cmocka_run_group_tests_name("bench_report", tests, fx_dirs_setup, fx_dirs_teardown);
 }

@@ -120,21 +120,8 @@ static void test_every_example(void **state)
     assert_true(count >= 16);
 }
 
-static int setup(void **state)
-{
-    (void)state;
-    fx_init_dirs();
-    return 0;
-}
-
-static int teardown(void **state)
-{
-    (void)state;
-    return fx_cleanup_dirs() ? 0 : -1;
-}
-
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(test_every_example)};
-    return cmocka_run_group_tests(tests, setup, teardown);
+    return cmocka_run_group_tests(tests, fx_dirs_setup, fx_dirs_teardown);
 }
