@@ -466,21 +466,22 @@ static bool rect_seen(const trace_ctx *c, double x0, double x1, double y0, doubl
  * every other 0. A packet row at a time (n = MR_PACKET_W but at the
  * tile's right edge): a few wide stores, where writing each missed lane's
  * planes one by one took a tenth of the trace (static-human). */
-static void store_miss_row(tile_buffer *t, size_t p, int n)
+static inline void fill_miss_row(tile_buffer *t, size_t p, size_t n)
 {
     void *zero[] = {t->nx + p, t->ny + p, t->nz + p, t->px + p, t->py + p, t->pz + p,
                     t->tx + p, t->ty + p, t->tz + p, t->object_id + p, t->prim_id + p};
-    if (n == MR_PACKET_W) { /* sizes the compiler knows: inline stores */
-        for (size_t k = 0; k < sizeof zero / sizeof zero[0]; k++)
-            memset(zero[k], 0, MR_PACKET_W * 4);
-        for (int i = 0; i < MR_PACKET_W; i++)
-            t->z[p + i] = MR_DEPTH_MISS;
-        return;
-    }
     for (size_t k = 0; k < sizeof zero / sizeof zero[0]; k++)
-        memset(zero[k], 0, (size_t)n * 4);
-    for (int i = 0; i < n; i++)
+        memset(zero[k], 0, n * 4);
+    for (size_t i = 0; i < n; i++)
         t->z[p + i] = MR_DEPTH_MISS;
+}
+
+static void store_miss_row(tile_buffer *t, size_t p, int n)
+{
+    if (n == MR_PACKET_W)
+        fill_miss_row(t, p, MR_PACKET_W); /* a size the compiler knows: inline stores */
+    else
+        fill_miss_row(t, p, (size_t)n);
 }
 
 /* All samples of the packet's pixels; results go to the tile from index i0
