@@ -589,6 +589,42 @@ static void test_normals(void **state)
     }
 }
 
+/* Four lanes at once give each lane the code it gets alone, whatever its
+ * neighbours hold (non-finite, zero, huge, tiny, other hemispheres). */
+static void test_normals_four(void **state)
+{
+    (void)state;
+    uint64_t s = 29;
+    const mr_vec3 odd[] = {{0, 0, 0}, {NAN, 0, 1}, {INFINITY, 0, 0}, {0, -INFINITY, 0}, {1e-30f, -1e-30f, 1e-30f},
+                           {3e38f, 3e38f, -3e38f}, {-0.0f, -0.0f, -1}, {0, 0, -0.0f}};
+    const unsigned nodd = sizeof odd / sizeof odd[0];
+    for (unsigned round = 0; round < 200000; round++) {
+        float x[4], y[4], z[4];
+        mr_vec3 n[4];
+        for (int k = 0; k < 4; k++) {
+            if (rng_next(&s) % 8 == 0) {
+                n[k] = odd[rng_next(&s) % nodd];
+            } else {
+                const double sc = pow(10.0, 6.0 * rng_unit(&s) - 3.0);
+                n[k] = mr_v3((float)((2 * rng_unit(&s) - 1) * sc), (float)((2 * rng_unit(&s) - 1) * sc),
+                             (float)((2 * rng_unit(&s) - 1) * sc));
+            }
+            x[k] = n[k].x;
+            y[k] = n[k].y;
+            z[k] = n[k].z;
+        }
+        uint8_t four[4][2];
+        mr_svo_normal_encode4(x, y, z, four);
+        for (int k = 0; k < 4; k++) {
+            uint8_t one[2];
+            mr_svo_normal_encode(n[k], one);
+            if (one[0] != four[k][0] || one[1] != four[k][1])
+                fail_msg("lane %d of (%g, %g, %g): (%u, %u) alone, (%u, %u) in four", k, n[k].x, n[k].y, n[k].z,
+                         one[0], one[1], four[k][0], four[k][1]);
+        }
+    }
+}
+
 /* ---- timing ---- */
 
 /* Surface voxels of a few spheres at depth 12 (shell of half-width 0.87
@@ -675,6 +711,7 @@ int main(void)
         cmocka_unit_test(test_build_invalid),
         cmocka_unit_test(test_collect_rejects_broken),
         cmocka_unit_test(test_normals),
+        cmocka_unit_test(test_normals_four),
         cmocka_unit_test(test_build_timing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

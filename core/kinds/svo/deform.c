@@ -415,25 +415,85 @@ static void normal_matrix(const mr_affine *a0, const mr_affine *a1, double r[9])
             r[e] = -r[e];
 }
 
-/* Bind normal in moved by normal matrix r; a matrix that collapses the
- * normal keeps the bind normal. The encoder needs a direction only: the
- * bind direction is taken unnormalised and the moved one scaled onto the
- * octahedron in double (so a huge or tiny matrix cannot overflow or
- * underflow the float the encoder takes). */
-static void move_normal(const double r[9], const uint8_t in[2], uint8_t out[2])
+/* Bind normal code in moved by normal matrix r, scaled onto the
+ * octahedron (the encoder needs a direction only: the bind direction is
+ * taken unnormalised and the moved one scaled in double, so a huge or tiny
+ * matrix cannot overflow or underflow the float the encoder takes); false
+ * when the matrix collapses the normal, which then keeps its bind code. */
+static bool moved_direction(const double r[9], const uint8_t in[2], float out[3])
 {
     const mr_vec3 n = mr_svo_normal_direction(in);
     double m[3];
     for (int i = 0; i < 3; i++)
         m[i] = r[i] * n.x + r[3 + i] * n.y + r[6 + i] * n.z;
     const double l1 = fabs(m[0]) + fabs(m[1]) + fabs(m[2]);
-    if (!(l1 > 0.0) || !isfinite(l1)) {
+    if (!(l1 > 0.0) || !isfinite(l1))
+        return false;
+    const double inv = 1.0 / l1;
+    for (int i = 0; i < 3; i++)
+        out[i] = (float)(m[i] * inv);
+    return true;
+}
+
+/* Moved normals waiting to be encoded four at a time
+ * (mr_svo_normal_encode4): each one's direction, where its code goes, and
+ * the chunk's memo entry to fill with it (NULL: none). */
+typedef struct normal_queue {
+    float x[4], y[4], z[4];
+    uint8_t *dst[4];
+    uint64_t *memo[4];
+    uint32_t key[4];
+    unsigned n;
+} normal_queue;
+
+/* A memo entry: valid bit 48, key bits 16-47, code bits 0-15. */
+static inline uint64_t memo_entry(uint32_t key, const uint8_t code[2])
+{
+    return ((uint64_t)1 << 32 | key) << 16 | code[0] | (uint64_t)code[1] << 8;
+}
+
+static void nq_flush(normal_queue *q)
+{
+    if (q->n == 0)
+        return;
+    for (unsigned i = q->n; i < 4; i++) { /* idle lanes: +z */
+        q->x[i] = q->y[i] = 0.0f;
+        q->z[i] = 1.0f;
+    }
+    uint8_t code[4][2];
+    mr_svo_normal_encode4(q->x, q->y, q->z, code);
+    for (unsigned i = 0; i < q->n; i++) {
+        q->dst[i][0] = code[i][0];
+        q->dst[i][1] = code[i][1];
+        if (q->memo[i])
+            *q->memo[i] = memo_entry(q->key[i], code[i]);
+    }
+    q->n = 0;
+}
+
+/* Bind normal code in moved by normal matrix r into out, now (a collapsed
+ * normal) or at the queue's next flush; memo (NULL: none) is filled with
+ * the code under key. */
+static void move_normal(normal_queue *q, const double r[9], const uint8_t in[2], uint8_t out[2],
+                        uint64_t *memo, uint32_t key)
+{
+    float d[3];
+    if (!moved_direction(r, in, d)) {
         out[0] = in[0];
         out[1] = in[1];
+        if (memo)
+            *memo = memo_entry(key, out);
         return;
     }
-    const double inv = 1.0 / l1;
-    mr_svo_normal_encode(mr_v3((float)(m[0] * inv), (float)(m[1] * inv), (float)(m[2] * inv)), out);
+    const unsigned i = q->n++;
+    q->x[i] = d[0];
+    q->y[i] = d[1];
+    q->z[i] = d[2];
+    q->dst[i] = out;
+    q->memo[i] = memo;
+    q->key[i] = key;
+    if (q->n == 4)
+        nq_flush(q);
 }
 
 /* Entry attr's matrices: from the frame's table when it has been filled,
@@ -560,9 +620,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
          * bind normal) only, and the voxels of a chunk, neighbours in
          * Morton order, repeat such pairs: the chunk remembers them in a
          * small hash table (the same value either way, so what it holds
-         * changes no result). Entry: valid bit 48, key bits 16-47, code. */
+         * changes no result; memo_entry). Moved normals are encoded four
+         * at a time, the chunk's last ones at its end. */
         uint64_t memo[NORMAL_MEMO];
         memset(memo, 0, sizeof memo);
+        normal_queue queue;
+        queue.n = 0;
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
@@ -675,8 +738,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                     uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
                     if ((*m >> 16) != ((uint64_t)1 << 32 | key)) {
-                        move_normal(p0->normal, bn, l->normal);
-                        *m = ((uint64_t)1 << 32 | key) << 16 | l->normal[0] | (uint64_t)l->normal[1] << 8;
+                        move_normal(&queue, p0->normal, bn, l->normal, m, key);
                     } else {
                         l->normal[0] = (uint8_t)*m;
                         l->normal[1] = (uint8_t)(*m >> 8);
@@ -684,7 +746,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 } else {
                     double r[9];
                     normal_matrix(a0, a1, r);
-                    move_normal(r, bn, l->normal);
+                    move_normal(&queue, r, bn, l->normal, NULL, 0);
                 }
                 c->outcome[i] = OUT_SELECTED;
                 nsel++;
@@ -710,6 +772,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             c->outcome[i] = OUT_EXPANDED;
             nchild += popcount8(cm);
         }
+        nq_flush(&queue);
         c->chunk_sel[ch] = nsel;
         c->chunk_child[ch] = nchild;
     }

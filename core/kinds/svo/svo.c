@@ -17,6 +17,8 @@
 #include "kinds/svo/svo.h"
 #include "util/morton.h"
 
+#include <emmintrin.h>
+#include <float.h>
 #include <math.h>
 #include <stdbool.h>
 #include <stdlib.h>
@@ -59,98 +61,115 @@ size_t mr_svo_memory(const mr_svo *svo)
     return bytes;
 }
 
-/* a when c, else b, chosen on the bit patterns so it stays a select and
- * never becomes a branch: over a frame's voxels, which side is taken is a
- * coin toss a branch would mispredict half the time. */
-static inline float select_f(bool c, float a, float b)
-{
-    uint32_t ia, ib;
-    memcpy(&ia, &a, sizeof ia);
-    memcpy(&ib, &b, sizeof ib);
-    const uint32_t m = 0u - (uint32_t)c, r = (ia & m) | (ib & ~m);
-    float f;
-    memcpy(&f, &r, sizeof f);
-    return f;
-}
-
-/* -1 for v < 0, else 1 (also for -0) */
-static inline float sign_not_zero(float v) { return select_f(v < 0.0f, -1.0f, 1.0f); }
-
-/* The lower hemisphere's (x, y) unfolded back over the square's diagonals:
- * (1 - |y|) sign(x), (1 - |x|) sign(y) when below, (x, y) when not. */
-static inline void fold(bool below, float *x, float *y)
-{
-    const float fx = (1.0f - fabsf(*y)) * sign_not_zero(*x);
-    const float fy = (1.0f - fabsf(*x)) * sign_not_zero(*y);
-    *x = select_f(below, fx, *x);
-    *y = select_f(below, fy, *y);
-}
-
 /* The direction of code (u, v) on the octahedron |x| + |y| + |z| = 1 (not
- * normalised). */
-static inline mr_vec3 unfold_uv(int u, int v)
-{
-    float x = (float)u * (2.0f / 255.0f) - 1.0f;
-    float y = (float)v * (2.0f / 255.0f) - 1.0f;
-    const float z = 1.0f - fabsf(x) - fabsf(y);
-    fold(z < 0.0f, &x, &y);
-    return mr_v3(x, y, z);
-}
-
+ * normalised): the square's point, the lower hemisphere's (|x| + |y| > 1)
+ * unfolded back over the diagonals, (1 - |y|) sign(x), (1 - |x|) sign(y),
+ * sign(-0) = 1. */
 mr_vec3 mr_svo_normal_direction(const uint8_t in[2])
 {
-    return unfold_uv(in[0], in[1]);
+    const float x = (float)in[0] * (2.0f / 255.0f) - 1.0f;
+    const float y = (float)in[1] * (2.0f / 255.0f) - 1.0f;
+    const float z = 1.0f - fabsf(x) - fabsf(y);
+    if (z < 0.0f)
+        return mr_v3((1.0f - fabsf(y)) * (x < 0.0f ? -1.0f : 1.0f), (1.0f - fabsf(x)) * (y < 0.0f ? -1.0f : 1.0f), z);
+    return mr_v3(x, y, z);
 }
 
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
 {
-    const mr_vec3 d = unfold_uv(in[0], in[1]);
+    const mr_vec3 d = mr_svo_normal_direction(in);
     const float len = sqrtf(d.x * d.x + d.y * d.y + d.z * d.z);
     return mr_v3(d.x / len, d.y / len, d.z / len);
 }
 
-void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
+/* Four lanes, SSE2 (every x86-64 has it). Selects are bit masks: over a
+ * frame's voxels which side is taken is a coin toss a branch would
+ * mispredict half the time. Every operation is the scalar one lane by
+ * lane, in the same order, so a lane's code does not depend on its
+ * neighbours. */
+static inline __m128 sel4(__m128 m, __m128 a, __m128 b) { return _mm_or_ps(_mm_and_ps(m, a), _mm_andnot_ps(m, b)); }
+
+static inline __m128 abs4(__m128 v) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), v); }
+
+/* (x, y) folded over the square's diagonals where below: (1 - |y|) sign(x),
+ * (1 - |x|) sign(y), sign(-0) = 1; unchanged elsewhere. */
+static inline void fold4(__m128 below, __m128 *x, __m128 *y)
 {
-    float l1 = fabsf(n.x) + fabsf(n.y) + fabsf(n.z);
-    if (!isfinite(l1) || !(l1 > 0.0f)) {
-        n = mr_v3(0.0f, 0.0f, 1.0f);
-        l1 = 1.0f;
-    }
+    const __m128 one = _mm_set1_ps(1.0f), minus = _mm_set1_ps(-1.0f), zero = _mm_setzero_ps();
+    const __m128 fx = _mm_mul_ps(_mm_sub_ps(one, abs4(*y)), sel4(_mm_cmplt_ps(*x, zero), minus, one));
+    const __m128 fy = _mm_mul_ps(_mm_sub_ps(one, abs4(*x)), sel4(_mm_cmplt_ps(*y, zero), minus, one));
+    *x = sel4(below, fx, *x);
+    *y = sel4(below, fy, *y);
+}
+
+void mr_svo_normal_encode4(const float nx[4], const float ny[4], const float nz[4], uint8_t out[4][2])
+{
+    const __m128 one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
+    __m128 x = _mm_loadu_ps(nx), y = _mm_loadu_ps(ny), z = _mm_loadu_ps(nz);
+    __m128 l1 = _mm_add_ps(_mm_add_ps(abs4(x), abs4(y)), abs4(z));
+    /* not finite or not positive (NaN fails both comparisons): +z */
+    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(l1, zero), _mm_cmple_ps(l1, _mm_set1_ps(FLT_MAX)));
+    x = _mm_and_ps(ok, x);
+    y = _mm_and_ps(ok, y);
+    z = sel4(ok, z, one);
+    l1 = sel4(ok, l1, one);
     /* On the octahedron (|x| + |y| + |z| = 1): the comparison below then
      * works on numbers near 1 whatever the input's length. */
-    const float inv = 1.0f / l1;
-    n = mr_v3(n.x * inv, n.y * inv, n.z * inv);
-    float x = n.x, y = n.y;
-    fold(n.z < 0.0f, &x, &y);
-    float fu = (x + 1.0f) * 127.5f, fv = (y + 1.0f) * 127.5f;
-    /* floor without a libm call (fu, fv are within [-1, 256]) */
-    int u0 = (int)fu, v0 = (int)fv;
-    u0 -= (float)u0 > fu;
-    v0 -= (float)v0 > fv;
+    const __m128 inv = _mm_div_ps(one, l1);
+    x = _mm_mul_ps(x, inv);
+    y = _mm_mul_ps(y, inv);
+    z = _mm_mul_ps(z, inv);
+    __m128 px = x, py = y;
+    fold4(_mm_cmplt_ps(z, zero), &px, &py);
+    const __m128 half255 = _mm_set1_ps(127.5f);
+    const __m128 fu = _mm_mul_ps(_mm_add_ps(px, one), half255), fv = _mm_mul_ps(_mm_add_ps(py, one), half255);
+    /* floor (fu, fv are within [0, 255]) */
+    __m128 u0 = _mm_cvtepi32_ps(_mm_cvttps_epi32(fu)), v0 = _mm_cvtepi32_ps(_mm_cvttps_epi32(fv));
+    u0 = _mm_sub_ps(u0, _mm_and_ps(_mm_cmpgt_ps(u0, fu), one));
+    v0 = _mm_sub_ps(v0, _mm_and_ps(_mm_cmpgt_ps(v0, fv), one));
     /* The candidate with the smallest angle to n has the largest
      * dot / |d|; among candidates with dot > 0 that is the largest
-     * dot^2 / |d|^2, compared cross-multiplied: no square root, no division
-     * (the decode of each candidate used to cost both). Candidates in
-     * order (u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1); a tie
-     * keeps the earlier; the winner is kept by selects (as above). */
-    float best_dot = 0.0f, best_len2 = 1.0f;
-    int have = 0, bu = 128, bv = 128;
+     * dot^2 / |d|^2, compared cross-multiplied: no square root, no division.
+     * Candidates in order (u0, v0), (u0 + 1, v0), (u0, v0 + 1),
+     * (u0 + 1, v0 + 1); a tie keeps the earlier. Codes are whole floats
+     * (clamped to 0..255 exactly). */
+    const __m128 top = _mm_set1_ps(255.0f), step = _mm_set1_ps(2.0f / 255.0f);
+    __m128 best_dot = zero, best_len2 = one, have = zero;
+    __m128 bu = _mm_set1_ps(128.0f), bv = bu;
     for (int k = 0; k < 4; k++) {
-        int u = u0 + (k & 1), v = v0 + (k >> 1);
-        u = u < 0 ? 0 : u > 255 ? 255 : u;
-        v = v < 0 ? 0 : v > 255 ? 255 : v;
-        const mr_vec3 d = unfold_uv(u, v);
-        const float dot = d.x * n.x + d.y * n.y + d.z * n.z;
-        const float len2 = d.x * d.x + d.y * d.y + d.z * d.z;
-        const int better = (dot > 0.0f) & (!have | (dot * dot * best_len2 > best_dot * best_dot * len2));
-        have |= better;
-        best_dot = select_f(better, dot, best_dot);
-        best_len2 = select_f(better, len2, best_len2);
-        bu = better ? u : bu;
-        bv = better ? v : bv;
+        const __m128 u = _mm_min_ps(_mm_max_ps(_mm_add_ps(u0, _mm_set1_ps((float)(k & 1))), zero), top);
+        const __m128 v = _mm_min_ps(_mm_max_ps(_mm_add_ps(v0, _mm_set1_ps((float)(k >> 1))), zero), top);
+        __m128 dx = _mm_sub_ps(_mm_mul_ps(u, step), one), dy = _mm_sub_ps(_mm_mul_ps(v, step), one);
+        const __m128 dz = _mm_sub_ps(_mm_sub_ps(one, abs4(dx)), abs4(dy));
+        fold4(_mm_cmplt_ps(dz, zero), &dx, &dy);
+        const __m128 dot = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, x), _mm_mul_ps(dy, y)), _mm_mul_ps(dz, z));
+        const __m128 len2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+        const __m128 closer = _mm_cmpgt_ps(_mm_mul_ps(_mm_mul_ps(dot, dot), best_len2),
+                                           _mm_mul_ps(_mm_mul_ps(best_dot, best_dot), len2));
+        /* have: all ones (a NaN, never equal to 0) or zero */
+        const __m128 better = _mm_and_ps(_mm_cmpgt_ps(dot, zero), _mm_or_ps(_mm_cmpeq_ps(have, zero), closer));
+        have = _mm_or_ps(have, better);
+        best_dot = sel4(better, dot, best_dot);
+        best_len2 = sel4(better, len2, best_len2);
+        bu = sel4(better, u, bu);
+        bv = sel4(better, v, bv);
     }
-    out[0] = (uint8_t)bu;
-    out[1] = (uint8_t)bv;
+    int32_t iu[4], iv[4];
+    _mm_storeu_si128((__m128i *)iu, _mm_cvttps_epi32(bu));
+    _mm_storeu_si128((__m128i *)iv, _mm_cvttps_epi32(bv));
+    for (int i = 0; i < 4; i++) {
+        out[i][0] = (uint8_t)iu[i];
+        out[i][1] = (uint8_t)iv[i];
+    }
+}
+
+void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
+{
+    const float x[4] = {n.x}, y[4] = {n.y}, z[4] = {n.z};
+    uint8_t o[4][2];
+    mr_svo_normal_encode4(x, y, z, o);
+    out[0] = o[0][0];
+    out[1] = o[0][1];
 }
 
 /* One level of the walk: a node, its cell, and the next child to visit. */
