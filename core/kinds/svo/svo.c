@@ -61,20 +61,6 @@ size_t mr_svo_memory(const mr_svo *svo)
     return bytes;
 }
 
-/* The direction of code (u, v) on the octahedron |x| + |y| + |z| = 1 (not
- * normalised): the square's point, the lower hemisphere's (|x| + |y| > 1)
- * unfolded back over the diagonals, (1 - |y|) sign(x), (1 - |x|) sign(y),
- * sign(-0) = 1. */
-mr_vec3 mr_svo_normal_direction(const uint8_t in[2])
-{
-    const float x = (float)in[0] * (2.0f / 255.0f) - 1.0f;
-    const float y = (float)in[1] * (2.0f / 255.0f) - 1.0f;
-    const float z = 1.0f - fabsf(x) - fabsf(y);
-    if (z < 0.0f)
-        return mr_v3((1.0f - fabsf(y)) * (x < 0.0f ? -1.0f : 1.0f), (1.0f - fabsf(x)) * (y < 0.0f ? -1.0f : 1.0f), z);
-    return mr_v3(x, y, z);
-}
-
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
 {
     const mr_vec3 d = mr_svo_normal_direction(in);

@@ -132,7 +132,18 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
 void mr_svo_normal_encode4(const float nx[4], const float ny[4], const float nz[4], uint8_t out[4][2]);
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
 /* The decoded direction before normalisation (on the octahedron |x| + |y| +
- * |z| = 1): for code that only needs the direction. */
-mr_vec3 mr_svo_normal_direction(const uint8_t in[2]);
+ * |z| = 1): for code that only needs the direction. The square's point,
+ * the lower hemisphere's (|x| + |y| > 1) unfolded back over the diagonals,
+ * (1 - |y|) sign(x), (1 - |x|) sign(y) with sign(-0) = 1. Inline: the
+ * selection takes it for every moved normal. */
+static inline mr_vec3 mr_svo_normal_direction(const uint8_t in[2])
+{
+    const float x = (float)in[0] * (2.0f / 255.0f) - 1.0f;
+    const float y = (float)in[1] * (2.0f / 255.0f) - 1.0f;
+    const float z = 1.0f - fabsf(x) - fabsf(y);
+    if (z < 0.0f)
+        return mr_v3((1.0f - fabsf(y)) * (x < 0.0f ? -1.0f : 1.0f), (1.0f - fabsf(x)) * (y < 0.0f ? -1.0f : 1.0f), z);
+    return mr_v3(x, y, z);
+}
 
 #endif /* MR_SVO_H */
