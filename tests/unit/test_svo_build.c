@@ -599,9 +599,9 @@ static void test_normals_four(void **state)
                            {3e38f, 3e38f, -3e38f}, {-0.0f, -0.0f, -1}, {0, 0, -0.0f}};
     const unsigned nodd = sizeof odd / sizeof odd[0];
     for (unsigned round = 0; round < 200000; round++) {
-        float x[4], y[4], z[4];
-        mr_vec3 n[4];
-        for (int k = 0; k < 4; k++) {
+        float x[MR_SVO_NORMAL_LANES], y[MR_SVO_NORMAL_LANES], z[MR_SVO_NORMAL_LANES];
+        mr_vec3 n[MR_SVO_NORMAL_LANES];
+        for (int k = 0; k < MR_SVO_NORMAL_LANES; k++) {
             if (rng_next(&s) % 8 == 0) {
                 n[k] = odd[rng_next(&s) % nodd];
             } else {
@@ -613,9 +613,9 @@ static void test_normals_four(void **state)
             y[k] = n[k].y;
             z[k] = n[k].z;
         }
-        uint8_t four[4][2];
-        mr_svo_normal_encode4(x, y, z, four);
-        for (int k = 0; k < 4; k++) {
+        uint8_t four[MR_SVO_NORMAL_LANES][2];
+        mr_svo_normal_encode_lanes(x, y, z, four);
+        for (int k = 0; k < MR_SVO_NORMAL_LANES; k++) {
             uint8_t one[2];
             mr_svo_normal_encode(n[k], one);
             if (one[0] != four[k][0] || one[1] != four[k][1])

@@ -435,14 +435,14 @@ static bool moved_direction(const double r[9], const uint8_t in[2], float out[3]
     return true;
 }
 
-/* Moved normals waiting to be encoded four at a time
- * (mr_svo_normal_encode4): each one's direction, where its code goes, and
+/* Moved normals waiting to be encoded MR_SVO_NORMAL_LANES at a time
+ * (mr_svo_normal_encode_lanes): each one's direction, where its code goes, and
  * the chunk's memo entry to fill with it (NULL: none). */
 typedef struct normal_queue {
-    float x[4], y[4], z[4];
-    uint8_t *dst[4];
-    uint64_t *memo[4];
-    uint32_t key[4];
+    float x[MR_SVO_NORMAL_LANES], y[MR_SVO_NORMAL_LANES], z[MR_SVO_NORMAL_LANES];
+    uint8_t *dst[MR_SVO_NORMAL_LANES];
+    uint64_t *memo[MR_SVO_NORMAL_LANES];
+    uint32_t key[MR_SVO_NORMAL_LANES];
     unsigned n;
 } normal_queue;
 
@@ -456,12 +456,12 @@ static void nq_flush(normal_queue *q)
 {
     if (q->n == 0)
         return;
-    for (unsigned i = q->n; i < 4; i++) { /* idle lanes: +z */
+    for (unsigned i = q->n; i < MR_SVO_NORMAL_LANES; i++) { /* idle lanes: +z */
         q->x[i] = q->y[i] = 0.0f;
         q->z[i] = 1.0f;
     }
-    uint8_t code[4][2];
-    mr_svo_normal_encode4(q->x, q->y, q->z, code);
+    uint8_t code[MR_SVO_NORMAL_LANES][2];
+    mr_svo_normal_encode_lanes(q->x, q->y, q->z, code);
     for (unsigned i = 0; i < q->n; i++) {
         q->dst[i][0] = code[i][0];
         q->dst[i][1] = code[i][1];
@@ -492,7 +492,7 @@ static void move_normal(normal_queue *q, const double r[9], const uint8_t in[2],
     q->dst[i] = out;
     q->memo[i] = memo;
     q->key[i] = key;
-    if (q->n == 4)
+    if (q->n == MR_SVO_NORMAL_LANES)
         nq_flush(q);
 }
 
@@ -620,8 +620,8 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
          * bind normal) only, and the voxels of a chunk, neighbours in
          * Morton order, repeat such pairs: the chunk remembers them in a
          * small hash table (the same value either way, so what it holds
-         * changes no result; memo_entry). Moved normals are encoded four
-         * at a time, the chunk's last ones at its end. */
+         * changes no result; memo_entry). Moved normals are encoded
+         * several at a time, the chunk's last ones at its end. */
         uint64_t memo[NORMAL_MEMO];
         memset(memo, 0, sizeof memo);
         normal_queue queue;

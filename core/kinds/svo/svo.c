@@ -17,7 +17,6 @@
 #include "kinds/svo/svo.h"
 #include "util/morton.h"
 
-#include <emmintrin.h>
 #include <float.h>
 #include <math.h>
 #include <stdbool.h>
@@ -68,82 +67,98 @@ mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
     return mr_v3(d.x / len, d.y / len, d.z / len);
 }
 
-/* Four lanes, SSE2 (every x86-64 has it). Selects are bit masks: over a
- * frame's voxels which side is taken is a coin toss a branch would
- * mispredict half the time. Every operation is the scalar one lane by
- * lane, in the same order, so a lane's code does not depend on its
- * neighbours. */
-static inline __m128 sel4(__m128 m, __m128 a, __m128 b) { return _mm_or_ps(_mm_and_ps(m, a), _mm_andnot_ps(m, b)); }
+/* MR_SVO_NORMAL_LANES lanes in GCC vector types: one body, compiled for
+ * AVX2 (one register per value) and for baseline x86-64 (two SSE2
+ * registers each), picked when the program loads (target_clones). Selects
+ * are bit masks: over a frame's voxels which side is taken is a coin toss
+ * a branch would mispredict half the time. Every operation is the scalar
+ * one lane by lane, in the same order, so a lane's code does not depend on
+ * its neighbours or on the CPU. */
+#define LANES MR_SVO_NORMAL_LANES
+/* The helpers pass 32-byte vectors by value; they are inlined into the
+ * one function below, so no call crosses an ABI boundary. */
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef float vfloat __attribute__((vector_size(4 * LANES)));
+typedef int32_t vint __attribute__((vector_size(4 * LANES)));
 
-static inline __m128 abs4(__m128 v) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), v); }
+static inline vfloat vsplat(float f) { return (vfloat){0} + f; }
+
+/* a where m (all ones), else b */
+static inline vfloat vsel(vint m, vfloat a, vfloat b) { return (vfloat)((m & (vint)a) | (~m & (vint)b)); }
+
+static inline vfloat vabs(vfloat v) { return (vfloat)((vint)v & 0x7fffffff); }
+
+/* SSE's min and max: a < b ? a : b, a > b ? a : b */
+static inline vfloat vmin(vfloat a, vfloat b) { return vsel(a < b, a, b); }
+static inline vfloat vmax(vfloat a, vfloat b) { return vsel(a > b, a, b); }
 
 /* (x, y) folded over the square's diagonals where below: (1 - |y|) sign(x),
  * (1 - |x|) sign(y), sign(-0) = 1; unchanged elsewhere. */
-static inline void fold4(__m128 below, __m128 *x, __m128 *y)
+static inline void vfold(vint below, vfloat *x, vfloat *y)
 {
-    const __m128 one = _mm_set1_ps(1.0f), minus = _mm_set1_ps(-1.0f), zero = _mm_setzero_ps();
-    const __m128 fx = _mm_mul_ps(_mm_sub_ps(one, abs4(*y)), sel4(_mm_cmplt_ps(*x, zero), minus, one));
-    const __m128 fy = _mm_mul_ps(_mm_sub_ps(one, abs4(*x)), sel4(_mm_cmplt_ps(*y, zero), minus, one));
-    *x = sel4(below, fx, *x);
-    *y = sel4(below, fy, *y);
+    const vfloat one = vsplat(1.0f), minus = vsplat(-1.0f);
+    const vfloat fx = (one - vabs(*y)) * vsel(*x < 0.0f, minus, one);
+    const vfloat fy = (one - vabs(*x)) * vsel(*y < 0.0f, minus, one);
+    *x = vsel(below, fx, *x);
+    *y = vsel(below, fy, *y);
 }
 
-void mr_svo_normal_encode4(const float nx[4], const float ny[4], const float nz[4], uint8_t out[4][2])
+__attribute__((target_clones("avx2", "default")))
+void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
+                                const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2])
 {
-    const __m128 one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
-    __m128 x = _mm_loadu_ps(nx), y = _mm_loadu_ps(ny), z = _mm_loadu_ps(nz);
-    __m128 l1 = _mm_add_ps(_mm_add_ps(abs4(x), abs4(y)), abs4(z));
+    const vfloat one = vsplat(1.0f), zero = vsplat(0.0f);
+    vfloat x, y, z;
+    memcpy(&x, nx, sizeof x);
+    memcpy(&y, ny, sizeof y);
+    memcpy(&z, nz, sizeof z);
+    vfloat l1 = vabs(x) + vabs(y) + vabs(z);
     /* not finite or not positive (NaN fails both comparisons): +z */
-    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(l1, zero), _mm_cmple_ps(l1, _mm_set1_ps(FLT_MAX)));
-    x = _mm_and_ps(ok, x);
-    y = _mm_and_ps(ok, y);
-    z = sel4(ok, z, one);
-    l1 = sel4(ok, l1, one);
+    const vint ok = (l1 > 0.0f) & (l1 <= FLT_MAX);
+    x = (vfloat)(ok & (vint)x);
+    y = (vfloat)(ok & (vint)y);
+    z = vsel(ok, z, one);
+    l1 = vsel(ok, l1, one);
     /* On the octahedron (|x| + |y| + |z| = 1): the comparison below then
      * works on numbers near 1 whatever the input's length. */
-    const __m128 inv = _mm_div_ps(one, l1);
-    x = _mm_mul_ps(x, inv);
-    y = _mm_mul_ps(y, inv);
-    z = _mm_mul_ps(z, inv);
-    __m128 px = x, py = y;
-    fold4(_mm_cmplt_ps(z, zero), &px, &py);
-    const __m128 half255 = _mm_set1_ps(127.5f);
-    const __m128 fu = _mm_mul_ps(_mm_add_ps(px, one), half255), fv = _mm_mul_ps(_mm_add_ps(py, one), half255);
+    const vfloat inv = one / l1;
+    x = x * inv;
+    y = y * inv;
+    z = z * inv;
+    vfloat px = x, py = y;
+    vfold(z < 0.0f, &px, &py);
+    const vfloat fu = (px + one) * 127.5f, fv = (py + one) * 127.5f;
     /* floor (fu, fv are within [0, 255]) */
-    __m128 u0 = _mm_cvtepi32_ps(_mm_cvttps_epi32(fu)), v0 = _mm_cvtepi32_ps(_mm_cvttps_epi32(fv));
-    u0 = _mm_sub_ps(u0, _mm_and_ps(_mm_cmpgt_ps(u0, fu), one));
-    v0 = _mm_sub_ps(v0, _mm_and_ps(_mm_cmpgt_ps(v0, fv), one));
+    vfloat u0 = __builtin_convertvector(__builtin_convertvector(fu, vint), vfloat);
+    vfloat v0 = __builtin_convertvector(__builtin_convertvector(fv, vint), vfloat);
+    u0 = u0 - (vfloat)((u0 > fu) & (vint)one);
+    v0 = v0 - (vfloat)((v0 > fv) & (vint)one);
     /* The candidate with the smallest angle to n has the largest
      * dot / |d|; among candidates with dot > 0 that is the largest
      * dot^2 / |d|^2, compared cross-multiplied: no square root, no division.
      * Candidates in order (u0, v0), (u0 + 1, v0), (u0, v0 + 1),
      * (u0 + 1, v0 + 1); a tie keeps the earlier. Codes are whole floats
      * (clamped to 0..255 exactly). */
-    const __m128 top = _mm_set1_ps(255.0f), step = _mm_set1_ps(2.0f / 255.0f);
-    __m128 best_dot = zero, best_len2 = one, have = zero;
-    __m128 bu = _mm_set1_ps(128.0f), bv = bu;
+    const vfloat top = vsplat(255.0f);
+    vfloat best_dot = zero, best_len2 = one, bu = vsplat(128.0f), bv = bu;
+    vint have = (vint){0};
     for (int k = 0; k < 4; k++) {
-        const __m128 u = _mm_min_ps(_mm_max_ps(_mm_add_ps(u0, _mm_set1_ps((float)(k & 1))), zero), top);
-        const __m128 v = _mm_min_ps(_mm_max_ps(_mm_add_ps(v0, _mm_set1_ps((float)(k >> 1))), zero), top);
-        __m128 dx = _mm_sub_ps(_mm_mul_ps(u, step), one), dy = _mm_sub_ps(_mm_mul_ps(v, step), one);
-        const __m128 dz = _mm_sub_ps(_mm_sub_ps(one, abs4(dx)), abs4(dy));
-        fold4(_mm_cmplt_ps(dz, zero), &dx, &dy);
-        const __m128 dot = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, x), _mm_mul_ps(dy, y)), _mm_mul_ps(dz, z));
-        const __m128 len2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
-        const __m128 closer = _mm_cmpgt_ps(_mm_mul_ps(_mm_mul_ps(dot, dot), best_len2),
-                                           _mm_mul_ps(_mm_mul_ps(best_dot, best_dot), len2));
-        /* have: all ones (a NaN, never equal to 0) or zero */
-        const __m128 better = _mm_and_ps(_mm_cmpgt_ps(dot, zero), _mm_or_ps(_mm_cmpeq_ps(have, zero), closer));
-        have = _mm_or_ps(have, better);
-        best_dot = sel4(better, dot, best_dot);
-        best_len2 = sel4(better, len2, best_len2);
-        bu = sel4(better, u, bu);
-        bv = sel4(better, v, bv);
+        const vfloat u = vmin(vmax(u0 + (float)(k & 1), zero), top);
+        const vfloat v = vmin(vmax(v0 + (float)(k >> 1), zero), top);
+        vfloat dx = u * (2.0f / 255.0f) - one, dy = v * (2.0f / 255.0f) - one;
+        const vfloat dz = one - vabs(dx) - vabs(dy);
+        vfold(dz < 0.0f, &dx, &dy);
+        const vfloat dot = dx * x + dy * y + dz * z;
+        const vfloat len2 = dx * dx + dy * dy + dz * dz;
+        const vint better = (dot > 0.0f) & (~have | (dot * dot * best_len2 > best_dot * best_dot * len2));
+        have |= better;
+        best_dot = vsel(better, dot, best_dot);
+        best_len2 = vsel(better, len2, best_len2);
+        bu = vsel(better, u, bu);
+        bv = vsel(better, v, bv);
     }
-    int32_t iu[4], iv[4];
-    _mm_storeu_si128((__m128i *)iu, _mm_cvttps_epi32(bu));
-    _mm_storeu_si128((__m128i *)iv, _mm_cvttps_epi32(bv));
-    for (int i = 0; i < 4; i++) {
+    const vint iu = __builtin_convertvector(bu, vint), iv = __builtin_convertvector(bv, vint);
+    for (int i = 0; i < LANES; i++) {
         out[i][0] = (uint8_t)iu[i];
         out[i][1] = (uint8_t)iv[i];
     }
@@ -151,9 +166,9 @@ void mr_svo_normal_encode4(const float nx[4], const float ny[4], const float nz[
 
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
 {
-    const float x[4] = {n.x}, y[4] = {n.y}, z[4] = {n.z};
-    uint8_t o[4][2];
-    mr_svo_normal_encode4(x, y, z, o);
+    const float x[LANES] = {n.x}, y[LANES] = {n.y}, z[LANES] = {n.z};
+    uint8_t o[LANES][2];
+    mr_svo_normal_encode_lanes(x, y, z, o);
     out[0] = o[0][0];
     out[1] = o[0][1];
 }

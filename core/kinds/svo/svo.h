@@ -126,10 +126,12 @@ int mr_svo_fit_occupied(mr_svo *svo, mr_error *err);
  * unit vector within ~1 degree of the input. Non-finite or zero input
  * encodes +z. */
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
-/* Four at once (lane i: nx[i], ny[i], nz[i]), each lane's code exactly
- * mr_svo_normal_encode's: for callers with many normals (selection
- * re-encodes every moved normal each frame). */
-void mr_svo_normal_encode4(const float nx[4], const float ny[4], const float nz[4], uint8_t out[4][2]);
+/* MR_SVO_NORMAL_LANES at once (lane i: nx[i], ny[i], nz[i]), each lane's
+ * code exactly mr_svo_normal_encode's: for callers with many normals
+ * (selection re-encodes every moved normal each frame). */
+#define MR_SVO_NORMAL_LANES 8
+void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
+                                const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2]);
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
 /* The decoded direction before normalisation (on the octahedron |x| + |y| +
  * |z| = 1): for code that only needs the direction. The square's point,
