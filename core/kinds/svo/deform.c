@@ -6,8 +6,10 @@
  * Selection is level-synchronous: the frontier of one level (the voxels to
  * deform there) is split into fixed chunks of SEL_CHUNK items. Pass 1
  * deforms every item and decides removed / selected / expanded, with
- * per-chunk counts; a serial prefix sum over the chunks gives each chunk's
- * place in the selection and in the next frontier; pass 2 writes them.
+ * per-chunk counts, keeping the chunk's selected voxels packed from its
+ * first slot and a list of its expanded ones; a serial prefix sum over the
+ * chunks gives each chunk's place in the selection and in the next
+ * frontier; pass 2 copies the selected run and writes the children.
  * Chunk boundaries depend on the frontier only, so the order of the output
  * is the same for any thread count, and every number is computed by the
  * same operations whichever worker runs it.
@@ -121,7 +123,7 @@ static bool masks_ok(const mr_svo *svo, uint32_t n)
  * caller keeps one workspace, so after the first frame nothing is
  * allocated and no fresh page is faulted in (both showed in profiles). */
 enum {
-    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_OUTCOME, WS_CH_SEL, WS_CH_CHILD, WS_CH_FAIL,
+    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
     WS_RS_LEAVES, WS_PALETTE,
@@ -309,8 +311,6 @@ typedef struct sel_item {
     uint32_t leaf;
 } sel_item;
 
-enum { OUT_REMOVED = 0, OUT_SELECTED = 1, OUT_EXPANDED = 2 };
-
 enum {
     FAIL_NONE = 0,
     FAIL_ATTR,     /* a: voxel's palette entry, b: palette count */
@@ -350,8 +350,10 @@ typedef struct sel_ctx {
     size_t n;
     float *box;
     mr_svo_leaf *leaf;
-    uint8_t *outcome;
+    uint32_t *expand;                      /* a chunk's expanded items, from its first slot */
     size_t *chunk_sel, *chunk_child; /* counts, then offsets */
+    size_t *chunk_expand;            /* expanded items */
+    size_t chunks, sel_end;          /* chunks of the level; selected voxels after it */
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
@@ -613,7 +615,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
     const mr_svo *svo = c->svo;
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
-        size_t nsel = 0, nchild = 0;
+        size_t nsel = 0, nchild = 0, nexpand = 0;
         sel_fail *fail = &c->chunk_fail[ch];
         /* With skinning, a voxel whose extremes share one palette entry
          * (every leaf) has a moved normal that is a function of (entry,
@@ -629,7 +631,6 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
-            c->outcome[i] = OUT_REMOVED;
             const uint32_t xyz[3] = {(uint32_t)(it->xyz & 0x1fffffu), (uint32_t)((it->xyz >> 21) & 0x1fffffu),
                                      (uint32_t)((it->xyz >> 42) & 0x1fffffu)};
             double lo[3], hi[3];
@@ -681,7 +682,10 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             deform_box_grow(a0, lo, hi, dlo, dhi);
             if (p0 == NULL || p1 != p0)
                 deform_box_grow(a1, lo, hi, dlo, dhi);
-            float *b = &c->box[i * 6];
+            /* the chunk's selected voxels fill its slots from the first
+             * (this one's until a later one takes it when it is not
+             * selected), so pass 2 copies them in one run */
+            float *b = &c->box[(i0 + nsel) * 6];
             bool finite = true;
             for (int a = 0; a < 3; a++) {
                 b[a] = mr_float_down(dlo[a]);
@@ -728,7 +732,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                     continue;
                 }
-                mr_svo_leaf *l = &c->leaf[i];
+                mr_svo_leaf *l = &c->leaf[i0 + nsel];
                 l->attr = (uint16_t)attr0;
                 /* a coarse voxel stands for all its leaves: their mean
                  * normal (one leaf's would light the whole voxel by
@@ -748,7 +752,6 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     normal_matrix(a0, a1, r);
                     move_normal(&queue, r, bn, l->normal, NULL, 0);
                 }
-                c->outcome[i] = OUT_SELECTED;
                 nsel++;
                 continue;
             }
@@ -769,12 +772,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                 continue;
             }
-            c->outcome[i] = OUT_EXPANDED;
+            c->expand[i0 + nexpand++] = (uint32_t)i;
             nchild += popcount8(cm);
         }
         nq_flush(&queue);
         c->chunk_sel[ch] = nsel;
         c->chunk_child[ch] = nchild;
+        c->chunk_expand[ch] = nexpand;
     }
 }
 
@@ -786,31 +790,26 @@ static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
     const mr_svo *svo = c->svo;
     mr_svo_selection *out = c->out;
     for (size_t ch = begin; ch < end; ch++) {
-        const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
-        size_t s = c->chunk_sel[ch], k = c->chunk_child[ch];
-        for (size_t i = i0; i < i1; i++) {
-            if (c->outcome[i] == OUT_SELECTED) {
-                memcpy(&out->box[s * 6], &c->box[i * 6], 6 * sizeof(float));
-                out->leaf[s] = c->leaf[i];
-                out->level[s] = (uint8_t)c->level;
-                s++;
-            } else if (c->outcome[i] == OUT_EXPANDED) {
-                const sel_item *it = &c->items[i];
-                const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu,
-                               z = (it->xyz >> 42) & 0x1fffffu;
-                const unsigned cm = svo->child_mask[it->index];
-                for (unsigned ci = 0; ci < 8; ci++) {
-                    if (!(cm & (1u << ci)))
-                        continue;
-                    bool is_leaf = false;
-                    uint32_t idx = 0;
-                    (void)child_index(svo, it->index, ci, &is_leaf, &idx); /* checked in pass 1 */
-                    sel_item *o = &c->next[k++];
-                    o->xyz = (2 * x + (ci & 1u)) | ((2 * y + ((ci >> 1) & 1u)) << 21) |
-                             ((2 * z + (ci >> 2)) << 42);
-                    o->index = idx;
-                    o->leaf = is_leaf;
-                }
+        const size_t i0 = ch * SEL_CHUNK;
+        const size_t s = c->chunk_sel[ch], nsel = (ch + 1 < c->chunks ? c->chunk_sel[ch + 1] : c->sel_end) - s;
+        memcpy(&out->box[s * 6], &c->box[i0 * 6], nsel * 6 * sizeof(float));
+        memcpy(&out->leaf[s], &c->leaf[i0], nsel * sizeof(mr_svo_leaf));
+        memset(&out->level[s], (int)c->level, nsel);
+        size_t k = c->chunk_child[ch];
+        for (size_t e = 0; e < c->chunk_expand[ch]; e++) {
+            const sel_item *it = &c->items[c->expand[i0 + e]];
+            const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu, z = (it->xyz >> 42) & 0x1fffffu;
+            const unsigned cm = svo->child_mask[it->index];
+            for (unsigned ci = 0; ci < 8; ci++) {
+                if (!(cm & (1u << ci)))
+                    continue;
+                bool is_leaf = false;
+                uint32_t idx = 0;
+                (void)child_index(svo, it->index, ci, &is_leaf, &idx); /* checked in pass 1 */
+                sel_item *o = &c->next[k++];
+                o->xyz = (2 * x + (ci & 1u)) | ((2 * y + ((ci >> 1) & 1u)) << 21) | ((2 * z + (ci >> 2)) << 42);
+                o->index = idx;
+                o->leaf = is_leaf;
             }
         }
     }
@@ -996,11 +995,12 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
         const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
         float *box = ws_get(ws, WS_BOX, n, 6 * sizeof *box);
         mr_svo_leaf *leaf = ws_get(ws, WS_LEAF, n, sizeof *leaf);
-        uint8_t *outcome = ws_get(ws, WS_OUTCOME, n, 1);
+        uint32_t *expand = ws_get(ws, WS_EXPAND, n, sizeof *expand);
+        size_t *chunk_expand = ws_get(ws, WS_CH_EXPAND, chunks, sizeof *chunk_expand);
         size_t *chunk_sel = ws_get(ws, WS_CH_SEL, chunks, sizeof *chunk_sel);
         size_t *chunk_child = ws_get(ws, WS_CH_CHILD, chunks, sizeof *chunk_child);
         sel_fail *chunk_fail = ws_get(ws, WS_CH_FAIL, chunks, sizeof *chunk_fail);
-        if (!box || !leaf || !outcome || !chunk_sel || !chunk_child || !chunk_fail) {
+        if (!box || !leaf || !expand || !chunk_sel || !chunk_child || !chunk_expand || !chunk_fail) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", n, level);
             goto cleanup;
         }
@@ -1010,7 +1010,9 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
         c.n = n;
         c.box = box;
         c.leaf = leaf;
-        c.outcome = outcome;
+        c.expand = expand;
+        c.chunk_expand = chunk_expand;
+        c.chunks = chunks;
         c.chunk_sel = chunk_sel;
         c.chunk_child = chunk_child;
         c.chunk_fail = chunk_fail;
@@ -1058,6 +1060,7 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             goto cleanup;
         }
         c.next = next;
+        c.sel_end = sel_total;
         mr_parallel_for(threads, chunks, 1, sel_pass2, &c);
         out->count = sel_total;
         ws_swap(ws, WS_CUR, WS_NEXT);
