@@ -458,12 +458,8 @@ static void nq_flush(normal_queue *q)
 {
     if (q->n == 0)
         return;
-    for (unsigned i = q->n; i < MR_SVO_NORMAL_LANES; i++) { /* idle lanes: +z */
-        q->x[i] = q->y[i] = 0.0f;
-        q->z[i] = 1.0f;
-    }
     uint8_t code[MR_SVO_NORMAL_LANES][2];
-    mr_svo_normal_encode_lanes(q->x, q->y, q->z, code);
+    mr_svo_normal_encode_first(q->n, q->x, q->y, q->z, code);
     for (unsigned i = 0; i < q->n; i++) {
         q->dst[i][0] = code[i][0];
         q->dst[i][1] = code[i][1];

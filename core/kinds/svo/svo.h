@@ -132,6 +132,12 @@ void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
 #define MR_SVO_NORMAL_LANES 8
 void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
                                 const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2]);
+/* The first n (<= MR_SVO_NORMAL_LANES) lanes' codes; the other lanes of
+ * nx, ny, nz are overwritten. For a batch's last, partly filled round, and
+ * for one normal (mr_svo_normal_encode costs a whole round: callers with
+ * many normals gather them). */
+void mr_svo_normal_encode_first(unsigned n, float nx[MR_SVO_NORMAL_LANES], float ny[MR_SVO_NORMAL_LANES],
+                                float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2]);
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
 /* The decoded direction before normalisation (on the octahedron |x| + |y| +
  * |z| = 1): for code that only needs the direction. The square's point,

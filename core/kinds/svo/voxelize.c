@@ -804,8 +804,10 @@ typedef struct influence {
     float w;
 } influence;
 
-static void voxel_attr(const vctx *c, uint64_t code, uint32_t t, mr_svo_leaf *leaf,
-                       mr_svo_attr *attr)
+/* Voxel code's attributes from its triangle t, and its unit normal into
+ * *normal (the caller encodes normals several at a time). */
+static void voxel_attr(const vctx *c, uint64_t code, uint32_t t, mr_svo_leaf *leaf, mr_svo_attr *attr,
+                       mr_vec3 *normal)
 {
     uint32_t x, y, z, idx[3];
     mr_morton_decode(code, &x, &y, &z);
@@ -830,7 +832,7 @@ static void voxel_attr(const vctx *c, uint64_t code, uint32_t t, mr_svo_leaf *le
                            (float)(v[2][2] - v[0][2]));
         n = mr_v3_cross(e1, e2);
     }
-    mr_svo_normal_encode(mr_v3_normalize_or(n, mr_v3(0, 0, 1)), leaf->normal);
+    *normal = mr_v3_normalize_or(n, mr_v3(0, 0, 1));
     leaf->attr = 0;
 
     memset(attr, 0, sizeof *attr);
@@ -885,8 +887,22 @@ static void attr_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     vctx *c = ctx;
-    for (size_t i = begin; i < end; i++)
-        voxel_attr(c, c->codes[i], c->vtris[i], &c->leaves[i], &c->attrs[i]);
+    for (size_t i0 = begin; i0 < end; i0 += MR_SVO_NORMAL_LANES) {
+        const unsigned n = end - i0 < MR_SVO_NORMAL_LANES ? (unsigned)(end - i0) : MR_SVO_NORMAL_LANES;
+        float x[MR_SVO_NORMAL_LANES], y[MR_SVO_NORMAL_LANES], z[MR_SVO_NORMAL_LANES];
+        for (unsigned k = 0; k < n; k++) {
+            const size_t i = i0 + k;
+            mr_vec3 nv;
+            voxel_attr(c, c->codes[i], c->vtris[i], &c->leaves[i], &c->attrs[i], &nv);
+            x[k] = nv.x;
+            y[k] = nv.y;
+            z[k] = nv.z;
+        }
+        uint8_t code[MR_SVO_NORMAL_LANES][2];
+        mr_svo_normal_encode_first(n, x, y, z, code);
+        for (unsigned k = 0; k < n; k++)
+            memcpy(c->leaves[i0 + k].normal, code[k], 2);
+    }
 }
 
 static uint64_t attr_hash(const mr_svo_attr *a)
