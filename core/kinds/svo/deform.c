@@ -116,6 +116,17 @@ static bool masks_ok(const mr_svo *svo, uint32_t n)
     return cm != 0 && (lm & ~cm) == 0;
 }
 
+/* child_index would succeed for every child of n (masks_ok): the last
+ * leaf child and the last interior child are inside the octree and the
+ * first interior child comes after n. */
+static bool children_ok(const mr_svo *svo, uint32_t n)
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    const unsigned leaves = popcount8(lm), nodes = popcount8(cm & ~lm);
+    return (leaves == 0 || (uint64_t)svo->first_leaf[n] + leaves - 1 < svo->leaf_count) &&
+           (nodes == 0 || ((uint64_t)svo->first_node[n] + nodes - 1 < svo->node_count && svo->first_node[n] > n));
+}
+
 /* ------------------------------------------------------------------------ */
 /* Workspace                                                                */
 
@@ -520,24 +531,36 @@ static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
+/* Four double lanes, lane i the axis i (lane 3 idle): GCC vector types,
+ * one register with AVX2 and two SSE2 registers without (sel_pass1 is
+ * compiled for both, target_clones). The helpers pass 32-byte vectors by
+ * value and are inlined, so no call crosses an ABI boundary. */
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef double vdouble __attribute__((vector_size(32)));
+typedef int64_t vlong __attribute__((vector_size(32)));
+
+/* a where m (all ones), else b */
+static inline vdouble vsel(vlong m, vdouble a, vdouble b) { return (vdouble)((m & (vlong)a) | (~m & (vlong)b)); }
+
 /* Arvo's box transform in the mr_affine convention (out_i = m[4i+3] +
  * sum_j m[4i+j] * in_j), grown to hold what it gives: the union of the box
  * through each matrix is the deformed box of Fig. 16. Products and sums in
- * double (a float times a double of at most 46 significant bits). */
-static void deform_box_grow(const mr_affine *a, const double lo[3], const double hi[3], double olo[3],
-                            double ohi[3])
+ * double (a float times a double of at most 46 significant bits); every
+ * axis the scalar operations l += min(p, q) in the order j = 0, 1, 2, with
+ * min(a, b) = a < b ? a : b and max(a, b) = a > b ? a : b. */
+static inline void deform_box_grow(const mr_affine *a, const double lo[3], const double hi[3], vdouble *olo,
+                                   vdouble *ohi)
 {
     const float *m = a->m;
-    for (int i = 0; i < 3; i++) {
-        double l = m[4 * i + 3], h = l;
-        for (int j = 0; j < 3; j++) {
-            const double p = (double)m[4 * i + j] * lo[j], q = (double)m[4 * i + j] * hi[j];
-            l += dmin(p, q);
-            h += dmax(p, q);
-        }
-        olo[i] = dmin(olo[i], l);
-        ohi[i] = dmax(ohi[i], h);
+    vdouble l = {m[3], m[7], m[11], 0.0}, h = l;
+    for (int j = 0; j < 3; j++) {
+        const vdouble col = {m[j], m[4 + j], m[8 + j], 0.0};
+        const vdouble p = col * lo[j], q = col * hi[j];
+        l += vsel(p < q, p, q);
+        h += vsel(p > q, p, q);
     }
+    *olo = vsel(*olo < l, *olo, l);
+    *ohi = vsel(*ohi > h, *ohi, h);
 }
 
 /* eq. 3.2.1-3.2.3: the larger side, in pixels, of the screen rectangle of
@@ -604,6 +627,7 @@ static void fail_set(sel_fail *f, int kind, uint32_t a, uint32_t b, const double
 }
 
 /* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
+__attribute__((target_clones("avx2", "default")))
 static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -674,10 +698,10 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 a0 = &p0->a;
                 a1 = &p1->a;
             }
-            double dlo[3] = {INFINITY, INFINITY, INFINITY}, dhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-            deform_box_grow(a0, lo, hi, dlo, dhi);
+            vdouble dlo = {INFINITY, INFINITY, INFINITY, 0.0}, dhi = {-INFINITY, -INFINITY, -INFINITY, 0.0};
+            deform_box_grow(a0, lo, hi, &dlo, &dhi);
             if (p0 == NULL || p1 != p0)
-                deform_box_grow(a1, lo, hi, dlo, dhi);
+                deform_box_grow(a1, lo, hi, &dlo, &dhi);
             /* the chunk's selected voxels fill its slots from the first
              * (this one's until a later one takes it when it is not
              * selected), so pass 2 copies them in one run */
@@ -757,14 +781,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 continue;
             }
             const unsigned cm = svo->child_mask[it->index];
-            bool ok = true;
-            for (unsigned ci = 0; ci < 8 && ok; ci++) {
-                bool is_leaf;
-                uint32_t idx;
-                if (cm & (1u << ci))
-                    ok = child_index(svo, it->index, ci, &is_leaf, &idx);
-            }
-            if (!ok) {
+            if (!children_ok(svo, it->index)) {
                 fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                 continue;
             }
@@ -795,16 +812,16 @@ static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
         for (size_t e = 0; e < c->chunk_expand[ch]; e++) {
             const sel_item *it = &c->items[c->expand[i0 + e]];
             const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu, z = (it->xyz >> 42) & 0x1fffffu;
-            const unsigned cm = svo->child_mask[it->index];
+            const unsigned cm = svo->child_mask[it->index], lm = svo->leaf_mask[it->index];
+            /* child_index's numbering, counted along (checked in pass 1) */
+            uint32_t next_leaf = svo->first_leaf[it->index], next_node = svo->first_node[it->index];
             for (unsigned ci = 0; ci < 8; ci++) {
                 if (!(cm & (1u << ci)))
                     continue;
-                bool is_leaf = false;
-                uint32_t idx = 0;
-                (void)child_index(svo, it->index, ci, &is_leaf, &idx); /* checked in pass 1 */
+                const bool is_leaf = lm & (1u << ci);
                 sel_item *o = &c->next[k++];
                 o->xyz = (2 * x + (ci & 1u)) | ((2 * y + ((ci >> 1) & 1u)) << 21) | ((2 * z + (ci >> 2)) << 42);
-                o->index = idx;
+                o->index = is_leaf ? next_leaf++ : next_node++;
                 o->leaf = is_leaf;
             }
         }
