@@ -539,8 +539,24 @@ static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
 typedef double vdouble __attribute__((vector_size(32)));
 typedef int64_t vlong __attribute__((vector_size(32)));
 
+typedef float vfloat __attribute__((vector_size(16)));
+typedef int32_t vint __attribute__((vector_size(16)));
+
 /* a where m (all ones), else b */
 static inline vdouble vsel(vlong m, vdouble a, vdouble b) { return (vdouble)((m & (vlong)a) | (~m & (vlong)b)); }
+
+/* mr_float_down (down) or mr_float_up (!down) of each lane: the nearest
+ * float, one step along its bit pattern when it lies on the wrong side. */
+static inline vfloat vfloat_round(vdouble v, bool down)
+{
+    const vfloat f = __builtin_convertvector(v, vfloat);
+    const vdouble back = __builtin_convertvector(f, vdouble);
+    const vint wrong = __builtin_convertvector(down ? back > v : back < v, vint); /* -1 or 0 */
+    const vint negative2 = ((vint)f >> 31) & 2;                                  /* 2 or 0 */
+    /* down: -1 for a positive float, +1 for a negative one; up: the reverse */
+    const vint step = down ? negative2 - 1 : 1 - negative2;
+    return (vfloat)((vint)f + (wrong & step));
+}
 
 /* Arvo's box transform in the mr_affine convention (out_i = m[4i+3] +
  * sum_j m[4i+j] * in_j), grown to hold what it gives: the union of the box
@@ -706,13 +722,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * (this one's until a later one takes it when it is not
              * selected), so pass 2 copies them in one run */
             float *b = &c->box[(i0 + nsel) * 6];
-            bool finite = true;
-            for (int a = 0; a < 3; a++) {
-                b[a] = mr_float_down(dlo[a]);
-                b[3 + a] = mr_float_up(dhi[a]);
-                finite = finite && isfinite(b[a]) && isfinite(b[3 + a]);
-            }
-            if (!finite) {
+            const vfloat flo = vfloat_round(dlo, true), fhi = vfloat_round(dhi, false);
+            memcpy(b, &flo, 3 * sizeof(float));
+            memcpy(b + 3, &fhi, 3 * sizeof(float));
+            /* every lane finite (the idle one is 0): an exponent of all
+             * ones is an infinity or a NaN */
+            const vint finite = (((vint)flo & 0x7f800000) != 0x7f800000) & (((vint)fhi & 0x7f800000) != 0x7f800000);
+            if (!(finite[0] & finite[1] & finite[2])) {
                 fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
