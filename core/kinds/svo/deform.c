@@ -579,37 +579,52 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
     *ohi = vsel(*ohi > h, *ohi, h);
 }
 
-/* eq. 3.2.1-3.2.3: the larger side, in pixels, of the screen rectangle of
- * box b (lo xyz, hi xyz); INFINITY when a corner lies at or behind the eye
- * plane, which makes the projection unbounded. A corner's clip x, y and w
- * are sums of one product per axis (the corner takes lo or hi there) plus
- * a constant: the 18 products are made once and each corner sums its three
- * in the order (x + y) + z + constant, the order the full dot product of
- * each corner would use. */
-static double projected_size(const sel_ctx *c, const float b[6])
+/* eq. 3.2.1-3.2.3: whether the larger side, in pixels, of the screen
+ * rectangle of box b (lo xyz, hi xyz) is below c->delta; never when a
+ * corner lies at or behind the eye plane, which makes the projection
+ * unbounded. A corner's clip x, y and w are sums of one product per axis
+ * (the corner takes lo or hi there) plus a constant: the 18 products are
+ * made once and each corner sums its three in the order (x + y) + z +
+ * constant, the order the full dot product of each corner would use.
+ * Corners go four at a time, lane k the corner (k & 1, k >> 1, half) with
+ * half = 0, then 1 (a lane's operations are the scalar ones; the minimum
+ * and maximum over corners are exact in any order). The rectangle only
+ * grows, so the answer is no when the first half's already reaches delta:
+ * the same answer as measuring all eight. */
+__attribute__((always_inline)) static inline bool projects_below(const sel_ctx *c, const float b[6])
 {
     static const int row[3] = {0, 1, 3}; /* clip x, y, w */
-    double p[3][3][2];
-    for (int r = 0; r < 3; r++)
-        for (int a = 0; a < 3; a++) {
-            p[r][a][0] = c->vp[4 * row[r] + a] * (double)b[a];
-            p[r][a][1] = c->vp[4 * row[r] + a] * (double)b[3 + a];
-        }
-    double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
-    for (unsigned k = 0; k < 8; k++) {
-        const unsigned sx = k & 1u, sy = (k >> 1) & 1u, sz = k >> 2;
-        double cl[3];
-        for (int r = 0; r < 3; r++)
-            cl[r] = p[r][0][sx] + p[r][1][sy] + p[r][2][sz] + c->vp[4 * row[r] + 3];
-        if (!(cl[2] > 0.0))
-            return INFINITY;
-        const double x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
-        xmin = dmin(xmin, x);
-        xmax = dmax(xmax, x);
-        ymin = dmin(ymin, y);
-        ymax = dmax(ymax, y);
+    vdouble cx[3], cy[3], cz[3][2];       /* per row: products by corner lane */
+    for (int r = 0; r < 3; r++) {
+        const double *m = &c->vp[4 * row[r]];
+        const double x0 = m[0] * (double)b[0], x1 = m[0] * (double)b[3];
+        const double y0 = m[1] * (double)b[1], y1 = m[1] * (double)b[4];
+        cx[r] = (vdouble){x0, x1, x0, x1};
+        cy[r] = (vdouble){y0, y0, y1, y1};
+        cz[r][0] = (vdouble){0} + m[2] * (double)b[2];
+        cz[r][1] = (vdouble){0} + m[2] * (double)b[5];
     }
-    return dmax(c->width * (xmax - xmin), c->height * (ymax - ymin));
+    vdouble xmin = (vdouble){0} + INFINITY, xmax = -xmin, ymin = xmin, ymax = xmax;
+    for (int half = 0; half < 2; half++) {
+        vdouble cl[3];
+        for (int r = 0; r < 3; r++)
+            cl[r] = cx[r] + cy[r] + cz[r][half] + c->vp[4 * row[r] + 3];
+        const vlong ahead = cl[2] > 0.0;
+        if (!(ahead[0] & ahead[1] & ahead[2] & ahead[3]))
+            return false;
+        const vdouble x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
+        xmin = vsel(x < xmin, x, xmin);
+        xmax = vsel(x > xmax, x, xmax);
+        ymin = vsel(y < ymin, y, ymin);
+        ymax = vsel(y > ymax, y, ymax);
+        const double x0 = dmin(dmin(xmin[0], xmin[1]), dmin(xmin[2], xmin[3]));
+        const double x1 = dmax(dmax(xmax[0], xmax[1]), dmax(xmax[2], xmax[3]));
+        const double y0 = dmin(dmin(ymin[0], ymin[1]), dmin(ymin[2], ymin[3]));
+        const double y1 = dmax(dmax(ymax[0], ymax[1]), dmax(ymax[2], ymax[3]));
+        if (!(dmax(c->width * (x1 - x0), c->height * (y1 - y0)) < c->delta))
+            return false;
+    }
+    return true;
 }
 
 /* The leaf reached from interior node n by always taking the lowest child. */
@@ -732,7 +747,6 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
-            double size = INFINITY;
             if (c->view_on) {
                 double blo[3], bhi[3], g = 0.0;
                 for (int a = 0; a < 3; a++) {
@@ -759,10 +773,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             /* The projected size only decides whether an interior voxel
              * above max_level is refined: leaves (most of what is visited)
              * and voxels at max_level are selected whatever it is. */
-            if (c->view_on && !it->leaf && c->level < c->max_level) {
-                size = projected_size(c, b);
-            }
-            if (it->leaf || c->level >= c->max_level || size < c->delta) {
+            if (it->leaf || c->level >= c->max_level || (c->view_on && projects_below(c, b))) {
                 uint32_t src = it->index;
                 if (!it->leaf && !lowest_leaf(svo, it->index, &src)) {
                     fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
