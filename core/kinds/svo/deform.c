@@ -747,28 +747,26 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
-            if (c->view_on) {
+            if (c->view_on && c->cull) {
+                /* Predicate (a): the box grown by its largest side (room for
+                 * what descendants' own matrices may do) entirely on the
+                 * outer side of one plane, or entirely behind the eye. */
                 double blo[3], bhi[3], g = 0.0;
                 for (int a = 0; a < 3; a++) {
                     blo[a] = b[a];
                     bhi[a] = b[3 + a];
                     g = dmax(g, bhi[a] - blo[a]);
                 }
-                if (c->cull) {
-                    /* Predicate (a): the box grown by its largest side (room for
-                     * what descendants' own matrices may do) entirely on the
-                     * outer side of one plane, or entirely behind the eye. */
-                    bool outside = false;
-                    for (int p = 0; p < 7 && !outside; p++) {
-                        const double *pl = c->planes[p];
-                        double mx = pl[3];
-                        for (int a = 0; a < 3; a++)
-                            mx += dmax(pl[a] * (blo[a] - g), pl[a] * (bhi[a] + g));
-                        outside = p == 6 ? !(mx > 0.0) : mx < 0.0;
-                    }
-                    if (outside)
-                        continue; /* removed */
+                bool outside = false;
+                for (int p = 0; p < 7 && !outside; p++) {
+                    const double *pl = c->planes[p];
+                    double mx = pl[3];
+                    for (int a = 0; a < 3; a++)
+                        mx += dmax(pl[a] * (blo[a] - g), pl[a] * (bhi[a] + g));
+                    outside = p == 6 ? !(mx > 0.0) : mx < 0.0;
                 }
+                if (outside)
+                    continue; /* removed */
             }
             /* The projected size only decides whether an interior voxel
              * above max_level is refined: leaves (most of what is visited)
