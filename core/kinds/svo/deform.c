@@ -1408,13 +1408,8 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
         return mr_error_set(err, MR_ERR_LIMIT, "svo resample: more than 2^32 - 1 voxels");
     if (sel->count == 0) {
         /* empty octree over a unit cube, keeping the palette */
-        int rc0 = mr_svo_build_sharing_palette(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette,
-                                               palette_count, threads, out, err);
-        if (rc0 == MR_OK) {
-            free(out->leaf_keys);
-            out->leaf_keys = NULL;
-        }
-        return rc0;
+        return mr_svo_build_frame(NULL, NULL, 0, depth, mr_v3(0, 0, 0), 1.0f, palette, palette_count, threads, out,
+                                  err);
     }
 
     mr_svo_workspace local;
@@ -1551,14 +1546,10 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     }
     for (size_t i = 0; i < kept; i++)
         leaves[i] = sel->leaf[payload[kept_from[i]]];
-    rc = mr_svo_build_sharing_palette(keys, leaves, kept, depth,
-                                      mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]), size,
-                                      palette, palette_count, threads, out, err);
+    rc = mr_svo_build_frame(keys, leaves, kept, depth, mr_v3((float)c.origin[0], (float)c.origin[1], (float)c.origin[2]),
+                            size, palette, palette_count, threads, out, err);
     if (rc != MR_OK)
         goto cleanup;
-    /* the per-frame octree is never re-keyed */
-    free(out->leaf_keys);
-    out->leaf_keys = NULL;
     if (cells)
         *cells = total;
     ws->emit_s = t_sort - t_start;

@@ -212,7 +212,7 @@ void mr_svo_selection_free(mr_svo_selection *s);
  * mr_svo_free; zeroed on error), a world-space octree of depth `depth`
  * (1..MR_SVO_MAX_DEPTH) over the cube around all boxes (edge = largest
  * extent, grown so no box touches its far faces). palette: the shared
- * octree's, which out borrows (mr_svo_build_sharing_palette: it must
+ * octree's, which out borrows (mr_svo_build_frame: it must
  * outlive out). cells: NULL or receives the number of cells
  * emitted before compaction. Errors: MR_ERR_INVALID (bad method, depth,
  * non-finite boxes), MR_ERR_LIMIT, MR_ERR_NOMEM. An empty selection gives

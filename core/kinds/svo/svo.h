@@ -94,7 +94,7 @@ typedef struct mr_svo {
                             * mr_svo_fit_occupied for octrees made otherwise) */
     uint32_t occupied_lo[3], occupied_hi[3]; /* finest-level cells: every leaf lies in
                                               * [lo, hi) on each axis */
-    bool palette_borrowed; /* palette is another octree's (mr_svo_build_sharing_palette):
+    bool palette_borrowed; /* palette is another octree's (mr_svo_build_frame):
                             * never written or freed through this one, not counted by
                             * mr_svo_memory */
 } mr_svo;

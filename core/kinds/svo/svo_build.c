@@ -325,7 +325,8 @@ static void fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
                 o->leaf_mask[pos] = (uint32_t)L + 1 == level ? bit : 0;
             }
             uint32_t lp = lrun[level]++;
-            o->leaf_keys[lp] = c->keys[f];
+            if (o->leaf_keys)
+                o->leaf_keys[lp] = c->keys[f];
             if (c->in_leaves) {
                 o->leaves[lp] = c->in_leaves[f];
             } else {
@@ -390,7 +391,7 @@ static void scan_fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
 
 static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count, unsigned depth,
                  mr_vec3 origin, float size, const mr_svo_attr *palette, uint32_t palette_count,
-                 bool share_palette, unsigned threads, mr_svo *out, mr_error *err)
+                 bool per_frame, unsigned threads, mr_svo *out, mr_error *err)
 {
     int rc = MR_OK;
     build_ctx c;
@@ -421,7 +422,7 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     c.out = out;
     c.blocks = (count + BLK - 1) / BLK;
 
-    if (palette_count > 0 && share_palette) {
+    if (palette_count > 0 && per_frame) {
         /* only the owner writes a palette (svo.h): the cast does not */
         out->palette = (mr_svo_attr *)palette;
         out->palette_borrowed = true;
@@ -505,8 +506,9 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
             goto nomem;
     }
     out->leaves = malloc(leaf_total * sizeof *out->leaves);
-    out->leaf_keys = malloc(leaf_total * sizeof *out->leaf_keys);
-    if (!out->leaves || !out->leaf_keys)
+    if (!per_frame)
+        out->leaf_keys = malloc(leaf_total * sizeof *out->leaf_keys);
+    if (!out->leaves || (!per_frame && !out->leaf_keys))
         goto nomem;
     mr_parallel_for(threads, c.blocks, 1, fill_fn, &c);
 
@@ -560,10 +562,9 @@ int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     return build(keys, leaves, count, depth, origin, size, palette, palette_count, false, threads, out, err);
 }
 
-int mr_svo_build_sharing_palette(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
-                                 unsigned depth, mr_vec3 origin, float size,
-                                 const mr_svo_attr *palette, uint32_t palette_count,
-                                 unsigned threads, mr_svo *out, mr_error *err)
+int mr_svo_build_frame(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count, unsigned depth,
+                       mr_vec3 origin, float size, const mr_svo_attr *palette, uint32_t palette_count,
+                       unsigned threads, mr_svo *out, mr_error *err)
 {
     return build(keys, leaves, count, depth, origin, size, palette, palette_count, true, threads, out, err);
 }

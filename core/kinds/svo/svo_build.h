@@ -10,7 +10,7 @@
  * node 0 is the root and the interior children of every node are
  * consecutive; leaves ordered by (level, code), so a node's leaf children are
  * consecutive too. For surface voxels all at the finest level the leaves are
- * in Morton order. leaf_keys is always filled.
+ * in Morton order. leaf_keys is filled (but for mr_svo_build_frame).
  */
 #ifndef MR_SVO_BUILD_H
 #define MR_SVO_BUILD_H
@@ -47,15 +47,15 @@ int mr_svo_build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
                  const mr_svo_attr *palette, uint32_t palette_count,
                  unsigned threads, mr_svo *out, mr_error *err);
 
-/* mr_svo_build, but out shares palette instead of copying it: out->palette
- * points at palette, which must outlive out and not change while out is in
- * use (out->palette_borrowed: mr_svo_free leaves it, mr_svo_memory does not
- * count it). The per-frame octrees of the resampling methods share their
- * source's palette this way: a copy per instance was 245 KB for the dancer,
- * most of what an instance held. */
-int mr_svo_build_sharing_palette(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count,
-                                 unsigned depth, mr_vec3 origin, float size,
-                                 const mr_svo_attr *palette, uint32_t palette_count,
-                                 unsigned threads, mr_svo *out, mr_error *err);
+/* mr_svo_build for a per-frame octree of the resampling methods: out
+ * shares palette instead of copying it, and has no leaf_keys (it is never
+ * re-keyed). out->palette points at palette, which must outlive out and not
+ * change while out is in use (out->palette_borrowed: mr_svo_free leaves it,
+ * mr_svo_memory does not count it): a copy per instance was 245 KB for the
+ * dancer, most of what an instance held. The keys were 16 bytes a leaf
+ * written and freed every frame (36 MB at depth 12 for the dancer). */
+int mr_svo_build_frame(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count, unsigned depth,
+                       mr_vec3 origin, float size, const mr_svo_attr *palette, uint32_t palette_count,
+                       unsigned threads, mr_svo *out, mr_error *err);
 
 #endif /* MR_SVO_BUILD_H */
