@@ -830,9 +830,11 @@ static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * SEL_CHUNK;
         const size_t s = c->chunk_sel[ch], nsel = (ch + 1 < c->chunks ? c->chunk_sel[ch + 1] : c->sel_end) - s;
-        memcpy(&out->box[s * 6], &c->box[i0 * 6], nsel * 6 * sizeof(float));
-        memcpy(&out->leaf[s], &c->leaf[i0], nsel * sizeof(mr_svo_leaf));
-        memset(&out->level[s], (int)c->level, nsel);
+        if (nsel > 0) { /* the selection's arrays are NULL while it is empty */
+            memcpy(&out->box[s * 6], &c->box[i0 * 6], nsel * 6 * sizeof(float));
+            memcpy(&out->leaf[s], &c->leaf[i0], nsel * sizeof(mr_svo_leaf));
+            memset(&out->level[s], (int)c->level, nsel);
+        }
         size_t k = c->chunk_child[ch];
         for (size_t e = 0; e < c->chunk_expand[ch]; e++) {
             const sel_item *it = &c->items[c->expand[i0 + e]];
