@@ -155,52 +155,6 @@ static void test_skinned_example_renders_and_moves(void **state)
     }
 }
 
-/* Every example job renders (skinned-walk is covered above, in full). */
-static void test_every_example_renders(void **state)
-{
-    (void)state;
-    char dir_path[2100];
-    snprintf(dir_path, sizeof dir_path, "%s/examples", src_dir);
-    DIR *dir = opendir(dir_path);
-    assert_non_null(dir);
-    struct dirent *e;
-    int rendered = 0;
-    while ((e = readdir(dir)) != NULL) {
-        size_t n = strlen(e->d_name);
-        if (n < 6 || strcmp(e->d_name + n - 5, ".json") || !strcmp(e->d_name, "skinned-walk.json"))
-            continue;
-        char args[1024], out[600], *err = NULL;
-        snprintf(out, sizeof out, "%s/example-%.*s", tmp_dir, (int)(n - 5), e->d_name);
-        snprintf(args, sizeof args, "render 'examples/%s' --out '%s' --quiet", e->d_name, out);
-        int rc = microrayd(args, NULL, &err);
-        if (rc != 0)
-            fail_msg("%s: exit %d: %s", e->d_name, rc, err ? err : "");
-        free(err);
-        /* the first frame, or the last (a fly-through may start far away) */
-        size_t hit = 0, last = 0;
-        DIR *frames = opendir(out);
-        assert_non_null(frames);
-        for (struct dirent *fe; (fe = readdir(frames));)
-            last += strstr(fe->d_name, ".exr") != NULL;
-        closedir(frames);
-        assert_true(last > 0);
-        last--;
-        for (size_t k = 0; k <= last; k += last ? last : 1) {
-            mr_film *f = read_frame(out, (int)k);
-            size_t in_frame = 0;
-            for (size_t i = 0; i < (size_t)f->width * f->height; i++)
-                in_frame += f->object_id[i] != 0;
-            hit = in_frame > hit ? in_frame : hit;
-            mr_film_free(f);
-        }
-        if (hit < 1000)
-            fail_msg("%s: only %zu pixels show the scene", e->d_name, hit);
-        rendered++;
-    }
-    closedir(dir);
-    assert_true(rendered >= 2); /* static-human and dmm-static at least */
-}
-
 static void render_small(const char *name, int threads)
 {
     char args[1024];
@@ -644,7 +598,6 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_skinned_example_renders_and_moves),
-        cmocka_unit_test(test_every_example_renders),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
         cmocka_unit_test(test_render_owns_its_temporaries),
         cmocka_unit_test(test_render_fails_without_stats_json),
