@@ -601,10 +601,10 @@ __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *
         const double y0 = m[1] * (double)b[1], y1 = m[1] * (double)b[4];
         cx[r] = (vdouble){x0, x1, x0, x1};
         cy[r] = (vdouble){y0, y0, y1, y1};
-        cz[r][0] = (vdouble){0} + m[2] * (double)b[2];
-        cz[r][1] = (vdouble){0} + m[2] * (double)b[5];
+        cz[r][0] = m[2] * (double)b[2] - (vdouble){0}; /* in every lane (x - 0 is x, -0 too) */
+        cz[r][1] = m[2] * (double)b[5] - (vdouble){0};
     }
-    vdouble xmin = (vdouble){0} + INFINITY, xmax = -xmin, ymin = xmin, ymax = xmax;
+    vdouble xmin = INFINITY - (vdouble){0}, xmax = -xmin, ymin = xmin, ymax = xmax;
     for (int half = 0; half < 2; half++) {
         vdouble cl[3];
         for (int r = 0; r < 3; r++)

@@ -81,7 +81,8 @@ mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
 typedef float vfloat __attribute__((vector_size(4 * LANES)));
 typedef int32_t vint __attribute__((vector_size(4 * LANES)));
 
-static inline vfloat vsplat(float f) { return (vfloat){0} + f; }
+/* f in every lane (f - 0 is f, -0 included) */
+static inline vfloat vsplat(float f) { return f - (vfloat){0}; }
 
 /* a where m (all ones), else b */
 static inline vfloat vsel(vint m, vfloat a, vfloat b) { return (vfloat)((m & (vint)a) | (~m & (vint)b)); }
