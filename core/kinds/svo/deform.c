@@ -533,26 +533,26 @@ static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
 
 /* Four double lanes, lane i the axis i (lane 3 idle): GCC vector types,
  * one register with AVX2 and two SSE2 registers without (sel_pass1 is
- * compiled for both, target_clones). The helpers pass 32-byte vectors by
- * value and are inlined, so no call crosses an ABI boundary. */
-#pragma GCC diagnostic ignored "-Wpsabi"
+ * compiled for both, target_clones). No function takes or returns a
+ * 32-byte vector by value: outside AVX that changes the ABI (GCC warns,
+ * clang refuses the call in the baseline clone). */
 typedef double vdouble __attribute__((vector_size(32)));
 typedef int64_t vlong __attribute__((vector_size(32)));
-
 typedef float vfloat __attribute__((vector_size(16)));
 typedef int32_t vint __attribute__((vector_size(16)));
 
 /* a where m (all ones), else b */
-static inline vdouble vsel(vlong m, vdouble a, vdouble b) { return (vdouble)((m & (vlong)a) | (~m & (vlong)b)); }
+#define VSEL(m, a, b) ((vdouble)(((m) & (vlong)(a)) | (~(m) & (vlong)(b))))
 
-/* mr_float_down (down) or mr_float_up (!down) of each lane: the nearest
- * float, one step along its bit pattern when it lies on the wrong side. */
-static inline vfloat vfloat_round(vdouble v, bool down)
+/* mr_float_down (down) or mr_float_up (!down) of each lane of *v: the
+ * nearest float, one step along its bit pattern when it lies on the wrong
+ * side. */
+static inline vfloat vfloat_round(const vdouble *v, bool down)
 {
-    const vfloat f = __builtin_convertvector(v, vfloat);
+    const vfloat f = __builtin_convertvector(*v, vfloat);
     const vdouble back = __builtin_convertvector(f, vdouble);
-    const vint wrong = __builtin_convertvector(down ? back > v : back < v, vint); /* -1 or 0 */
-    const vint negative2 = ((vint)f >> 31) & 2;                                  /* 2 or 0 */
+    const vint wrong = __builtin_convertvector(down ? back > *v : back < *v, vint); /* -1 or 0 */
+    const vint negative2 = ((vint)f >> 31) & 2;                                    /* 2 or 0 */
     /* down: -1 for a positive float, +1 for a negative one; up: the reverse */
     const vint step = down ? negative2 - 1 : 1 - negative2;
     return (vfloat)((vint)f + (wrong & step));
@@ -572,11 +572,11 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
     for (int j = 0; j < 3; j++) {
         const vdouble col = {m[j], m[4 + j], m[8 + j], 0.0};
         const vdouble p = col * lo[j], q = col * hi[j];
-        l += vsel(p < q, p, q);
-        h += vsel(p > q, p, q);
+        l += VSEL(p < q, p, q);
+        h += VSEL(p > q, p, q);
     }
-    *olo = vsel(*olo < l, *olo, l);
-    *ohi = vsel(*ohi > h, *ohi, h);
+    *olo = VSEL(*olo < l, *olo, l);
+    *ohi = VSEL(*ohi > h, *ohi, h);
 }
 
 /* eq. 3.2.1-3.2.3: whether the larger side, in pixels, of the screen
@@ -613,10 +613,10 @@ __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *
         if (!(ahead[0] & ahead[1] & ahead[2] & ahead[3]))
             return false;
         const vdouble x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
-        xmin = vsel(x < xmin, x, xmin);
-        xmax = vsel(x > xmax, x, xmax);
-        ymin = vsel(y < ymin, y, ymin);
-        ymax = vsel(y > ymax, y, ymax);
+        xmin = VSEL(x < xmin, x, xmin);
+        xmax = VSEL(x > xmax, x, xmax);
+        ymin = VSEL(y < ymin, y, ymin);
+        ymax = VSEL(y > ymax, y, ymax);
         const double x0 = dmin(dmin(xmin[0], xmin[1]), dmin(xmin[2], xmin[3]));
         const double x1 = dmax(dmax(xmax[0], xmax[1]), dmax(xmax[2], xmax[3]));
         const double y0 = dmin(dmin(ymin[0], ymin[1]), dmin(ymin[2], ymin[3]));
@@ -737,7 +737,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * (this one's until a later one takes it when it is not
              * selected), so pass 2 copies them in one run */
             float *b = &c->box[(i0 + nsel) * 6];
-            const vfloat flo = vfloat_round(dlo, true), fhi = vfloat_round(dhi, false);
+            const vfloat flo = vfloat_round(&dlo, true), fhi = vfloat_round(&dhi, false);
             memcpy(b, &flo, 3 * sizeof(float));
             memcpy(b + 3, &fhi, 3 * sizeof(float));
             /* every lane finite (the idle one is 0): an exponent of all

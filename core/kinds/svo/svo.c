@@ -75,51 +75,47 @@ mr_vec3 mr_svo_normal_decode(const uint8_t in[2])
  * one lane by lane, in the same order, so a lane's code does not depend on
  * its neighbours or on the CPU. */
 #define LANES MR_SVO_NORMAL_LANES
-/* The helpers pass 32-byte vectors by value; they are inlined into the
- * one function below, so no call crosses an ABI boundary. */
-#pragma GCC diagnostic ignored "-Wpsabi"
 typedef float vfloat __attribute__((vector_size(4 * LANES)));
 typedef int32_t vint __attribute__((vector_size(4 * LANES)));
 
-/* f in every lane (f - 0 is f, -0 included) */
-static inline vfloat vsplat(float f) { return f - (vfloat){0}; }
+/* Macros, not functions: a 32-byte vector passed or returned by value
+ * outside AVX changes the ABI (GCC warns, clang refuses the call in the
+ * baseline clone). VSPLAT: f in every lane (f - 0 is f, -0 included);
+ * VSEL: a where m (all ones), else b; VMIN, VMAX: SSE's a < b ? a : b and
+ * a > b ? a : b. */
+#define VSPLAT(f) ((f) - (vfloat){0})
+#define VSEL(m, a, b) ((vfloat)(((m) & (vint)(a)) | (~(m) & (vint)(b))))
+#define VABS(v) ((vfloat)((vint)(v) & 0x7fffffff))
+#define VMIN(a, b) VSEL((a) < (b), (a), (b))
+#define VMAX(a, b) VSEL((a) > (b), (a), (b))
 
-/* a where m (all ones), else b */
-static inline vfloat vsel(vint m, vfloat a, vfloat b) { return (vfloat)((m & (vint)a) | (~m & (vint)b)); }
-
-static inline vfloat vabs(vfloat v) { return (vfloat)((vint)v & 0x7fffffff); }
-
-/* SSE's min and max: a < b ? a : b, a > b ? a : b */
-static inline vfloat vmin(vfloat a, vfloat b) { return vsel(a < b, a, b); }
-static inline vfloat vmax(vfloat a, vfloat b) { return vsel(a > b, a, b); }
-
-/* (x, y) folded over the square's diagonals where below: (1 - |y|) sign(x),
- * (1 - |x|) sign(y), sign(-0) = 1; unchanged elsewhere. */
-static inline void vfold(vint below, vfloat *x, vfloat *y)
+/* (x, y) folded over the square's diagonals where *below: (1 - |y|)
+ * sign(x), (1 - |x|) sign(y), sign(-0) = 1; unchanged elsewhere. */
+static inline void vfold(const vint *below, vfloat *x, vfloat *y)
 {
-    const vfloat one = vsplat(1.0f), minus = vsplat(-1.0f);
-    const vfloat fx = (one - vabs(*y)) * vsel(*x < 0.0f, minus, one);
-    const vfloat fy = (one - vabs(*x)) * vsel(*y < 0.0f, minus, one);
-    *x = vsel(below, fx, *x);
-    *y = vsel(below, fy, *y);
+    const vfloat one = VSPLAT(1.0f), minus = VSPLAT(-1.0f);
+    const vfloat fx = (one - VABS(*y)) * VSEL(*x < 0.0f, minus, one);
+    const vfloat fy = (one - VABS(*x)) * VSEL(*y < 0.0f, minus, one);
+    *x = VSEL(*below, fx, *x);
+    *y = VSEL(*below, fy, *y);
 }
 
 __attribute__((target_clones("avx2", "default")))
 void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
                                 const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2])
 {
-    const vfloat one = vsplat(1.0f), zero = vsplat(0.0f);
+    const vfloat one = VSPLAT(1.0f), zero = VSPLAT(0.0f);
     vfloat x, y, z;
     memcpy(&x, nx, sizeof x);
     memcpy(&y, ny, sizeof y);
     memcpy(&z, nz, sizeof z);
-    vfloat l1 = vabs(x) + vabs(y) + vabs(z);
+    vfloat l1 = VABS(x) + VABS(y) + VABS(z);
     /* not finite or not positive (NaN fails both comparisons): +z */
     const vint ok = (l1 > 0.0f) & (l1 <= FLT_MAX);
     x = (vfloat)(ok & (vint)x);
     y = (vfloat)(ok & (vint)y);
-    z = vsel(ok, z, one);
-    l1 = vsel(ok, l1, one);
+    z = VSEL(ok, z, one);
+    l1 = VSEL(ok, l1, one);
     /* On the octahedron (|x| + |y| + |z| = 1): the comparison below then
      * works on numbers near 1 whatever the input's length. */
     const vfloat inv = one / l1;
@@ -127,7 +123,8 @@ void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float
     y = y * inv;
     z = z * inv;
     vfloat px = x, py = y;
-    vfold(z < 0.0f, &px, &py);
+    const vint below = z < 0.0f;
+    vfold(&below, &px, &py);
     const vfloat fu = (px + one) * 127.5f, fv = (py + one) * 127.5f;
     /* floor (fu, fv are within [0, 255]) */
     vfloat u0 = __builtin_convertvector(__builtin_convertvector(fu, vint), vfloat);
@@ -140,23 +137,24 @@ void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float
      * Candidates in order (u0, v0), (u0 + 1, v0), (u0, v0 + 1),
      * (u0 + 1, v0 + 1); a tie keeps the earlier. Codes are whole floats
      * (clamped to 0..255 exactly). */
-    const vfloat top = vsplat(255.0f);
-    vfloat best_dot = zero, best_len2 = one, bu = vsplat(128.0f), bv = bu;
+    const vfloat top = VSPLAT(255.0f);
+    vfloat best_dot = zero, best_len2 = one, bu = VSPLAT(128.0f), bv = bu;
     vint have = (vint){0};
     for (int k = 0; k < 4; k++) {
-        const vfloat u = vmin(vmax(u0 + (float)(k & 1), zero), top);
-        const vfloat v = vmin(vmax(v0 + (float)(k >> 1), zero), top);
+        const vfloat u = VMIN(VMAX(u0 + (float)(k & 1), zero), top);
+        const vfloat v = VMIN(VMAX(v0 + (float)(k >> 1), zero), top);
         vfloat dx = u * (2.0f / 255.0f) - one, dy = v * (2.0f / 255.0f) - one;
-        const vfloat dz = one - vabs(dx) - vabs(dy);
-        vfold(dz < 0.0f, &dx, &dy);
+        const vfloat dz = one - VABS(dx) - VABS(dy);
+        const vint dbelow = dz < 0.0f;
+        vfold(&dbelow, &dx, &dy);
         const vfloat dot = dx * x + dy * y + dz * z;
         const vfloat len2 = dx * dx + dy * dy + dz * dz;
         const vint better = (dot > 0.0f) & (~have | (dot * dot * best_len2 > best_dot * best_dot * len2));
         have |= better;
-        best_dot = vsel(better, dot, best_dot);
-        best_len2 = vsel(better, len2, best_len2);
-        bu = vsel(better, u, bu);
-        bv = vsel(better, v, bv);
+        best_dot = VSEL(better, dot, best_dot);
+        best_len2 = VSEL(better, len2, best_len2);
+        bu = VSEL(better, u, bu);
+        bv = VSEL(better, v, bv);
     }
     const vint iu = __builtin_convertvector(bu, vint), iv = __builtin_convertvector(bv, vint);
     for (int i = 0; i < LANES; i++) {
