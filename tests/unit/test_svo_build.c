@@ -589,9 +589,9 @@ static void test_normals(void **state)
     }
 }
 
-/* Four lanes at once give each lane the code it gets alone, whatever its
+/* All lanes at once give each lane the code it gets alone, whatever its
  * neighbours hold (non-finite, zero, huge, tiny, other hemispheres). */
-static void test_normals_four(void **state)
+static void test_normals_lanes(void **state)
 {
     (void)state;
     uint64_t s = 29;
@@ -613,14 +613,14 @@ static void test_normals_four(void **state)
             y[k] = n[k].y;
             z[k] = n[k].z;
         }
-        uint8_t four[MR_SVO_NORMAL_LANES][2];
-        mr_svo_normal_encode_lanes(x, y, z, four);
+        uint8_t lanes[MR_SVO_NORMAL_LANES][2];
+        mr_svo_normal_encode_lanes(MR_SVO_NORMAL_LANES, x, y, z, lanes);
         for (int k = 0; k < MR_SVO_NORMAL_LANES; k++) {
             uint8_t one[2];
             mr_svo_normal_encode(n[k], one);
-            if (one[0] != four[k][0] || one[1] != four[k][1])
-                fail_msg("lane %d of (%g, %g, %g): (%u, %u) alone, (%u, %u) in four", k, n[k].x, n[k].y, n[k].z,
-                         one[0], one[1], four[k][0], four[k][1]);
+            if (one[0] != lanes[k][0] || one[1] != lanes[k][1])
+                fail_msg("lane %d of (%g, %g, %g): (%u, %u) alone, (%u, %u) among the lanes", k, n[k].x, n[k].y,
+                         n[k].z, one[0], one[1], lanes[k][0], lanes[k][1]);
         }
     }
 }
@@ -711,7 +711,7 @@ int main(void)
         cmocka_unit_test(test_build_invalid),
         cmocka_unit_test(test_collect_rejects_broken),
         cmocka_unit_test(test_normals),
-        cmocka_unit_test(test_normals_four),
+        cmocka_unit_test(test_normals_lanes),
         cmocka_unit_test(test_build_timing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -116,11 +116,13 @@ static bool masks_ok(const mr_svo *svo, uint32_t n)
     return cm != 0 && (lm & ~cm) == 0;
 }
 
-/* child_index would succeed for every child of n (masks_ok): the last
- * leaf child and the last interior child are inside the octree and the
- * first interior child comes after n. */
+/* n's masks are sound (masks_ok) and child_index would succeed for every
+ * child: the last leaf child and the last interior child are inside the
+ * octree and the first interior child comes after n. */
 static bool children_ok(const mr_svo *svo, uint32_t n)
 {
+    if (!masks_ok(svo, n))
+        return false;
     const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
     const unsigned leaves = popcount8(lm), nodes = popcount8(cm & ~lm);
     return (leaves == 0 || (uint64_t)svo->first_leaf[n] + leaves - 1 < svo->leaf_count) &&
@@ -449,8 +451,8 @@ static bool moved_direction(const double r[9], const uint8_t in[2], float out[3]
 }
 
 /* Moved normals waiting to be encoded MR_SVO_NORMAL_LANES at a time
- * (mr_svo_normal_encode_lanes): each one's direction, where its code goes, and
- * the chunk's memo entry to fill with it (NULL: none). */
+ * (mr_svo_normal_encode_lanes): each one's direction, where its code goes,
+ * and the chunk's memo entry to fill with it (NULL: none). */
 typedef struct normal_queue {
     float x[MR_SVO_NORMAL_LANES], y[MR_SVO_NORMAL_LANES], z[MR_SVO_NORMAL_LANES];
     uint8_t *dst[MR_SVO_NORMAL_LANES];
@@ -465,12 +467,15 @@ static inline uint64_t memo_entry(uint32_t key, const uint8_t code[2])
     return ((uint64_t)1 << 32 | key) << 16 | code[0] | (uint64_t)code[1] << 8;
 }
 
+/* Whether memo entry m holds key's code. */
+static inline bool memo_holds(uint64_t m, uint32_t key) { return (m >> 16) == ((uint64_t)1 << 32 | key); }
+
 static void nq_flush(normal_queue *q)
 {
     if (q->n == 0)
         return;
     uint8_t code[MR_SVO_NORMAL_LANES][2];
-    mr_svo_normal_encode_first(q->n, q->x, q->y, q->z, code);
+    mr_svo_normal_encode_lanes(q->n, q->x, q->y, q->z, code);
     for (unsigned i = 0; i < q->n; i++) {
         q->dst[i][0] = code[i][0];
         q->dst[i][1] = code[i][1];
@@ -786,11 +791,11 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 if (p0 && p0 == p1 && p0->has_normal) {
                     const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                     uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
-                    if ((*m >> 16) != ((uint64_t)1 << 32 | key)) {
-                        move_normal(&queue, p0->normal, bn, l->normal, m, key);
-                    } else {
+                    if (memo_holds(*m, key)) {
                         l->normal[0] = (uint8_t)*m;
                         l->normal[1] = (uint8_t)(*m >> 8);
+                    } else {
+                        move_normal(&queue, p0->normal, bn, l->normal, m, key);
                     }
                 } else {
                     double r[9];
@@ -801,17 +806,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 continue;
             }
             /* expand: check every child now so pass 2 cannot fail */
-            if (!masks_ok(svo, it->index)) {
-                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
-                continue;
-            }
-            const unsigned cm = svo->child_mask[it->index];
             if (!children_ok(svo, it->index)) {
                 fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                 continue;
             }
             c->expand[i0 + nexpand++] = (uint32_t)i;
-            nchild += popcount8(cm);
+            nchild += popcount8(svo->child_mask[it->index]);
         }
         nq_flush(&queue);
         c->chunk_sel[ch] = nsel;

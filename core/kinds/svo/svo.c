@@ -100,9 +100,9 @@ static inline void vfold(const vint *below, vfloat *x, vfloat *y)
     *y = VSEL(*below, fy, *y);
 }
 
+/* Every lane's code (mr_svo_normal_encode_lanes pads the idle ones). */
 __attribute__((target_clones("avx2", "default")))
-void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
-                                const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2])
+static void encode_round(const float nx[LANES], const float ny[LANES], const float nz[LANES], uint8_t out[LANES][2])
 {
     const vfloat one = VSPLAT(1.0f), zero = VSPLAT(0.0f);
     vfloat x, y, z;
@@ -163,21 +163,21 @@ void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float
     }
 }
 
-void mr_svo_normal_encode_first(unsigned n, float nx[MR_SVO_NORMAL_LANES], float ny[MR_SVO_NORMAL_LANES],
+void mr_svo_normal_encode_lanes(unsigned n, float nx[MR_SVO_NORMAL_LANES], float ny[MR_SVO_NORMAL_LANES],
                                 float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2])
 {
     for (unsigned i = n; i < LANES; i++) { /* idle lanes: +z */
         nx[i] = ny[i] = 0.0f;
         nz[i] = 1.0f;
     }
-    mr_svo_normal_encode_lanes(nx, ny, nz, out);
+    encode_round(nx, ny, nz, out);
 }
 
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2])
 {
     float x[LANES] = {n.x}, y[LANES] = {n.y}, z[LANES] = {n.z};
     uint8_t o[LANES][2];
-    mr_svo_normal_encode_first(1, x, y, z, o);
+    mr_svo_normal_encode_lanes(1, x, y, z, o);
     out[0] = o[0][0];
     out[1] = o[0][1];
 }

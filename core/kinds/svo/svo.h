@@ -126,17 +126,13 @@ int mr_svo_fit_occupied(mr_svo *svo, mr_error *err);
  * unit vector within ~1 degree of the input. Non-finite or zero input
  * encodes +z. */
 void mr_svo_normal_encode(mr_vec3 n, uint8_t out[2]);
-/* MR_SVO_NORMAL_LANES at once (lane i: nx[i], ny[i], nz[i]), each lane's
- * code exactly mr_svo_normal_encode's: for callers with many normals
- * (selection re-encodes every moved normal each frame). */
+/* The first n (<= MR_SVO_NORMAL_LANES) normals at once (lane i: nx[i],
+ * ny[i], nz[i]), each lane's code exactly mr_svo_normal_encode's; lanes
+ * n.. of nx, ny, nz are overwritten. For callers with many normals
+ * (selection re-encodes every moved normal each frame): one normal costs
+ * a whole round, as mr_svo_normal_encode does, so they gather them. */
 #define MR_SVO_NORMAL_LANES 8
-void mr_svo_normal_encode_lanes(const float nx[MR_SVO_NORMAL_LANES], const float ny[MR_SVO_NORMAL_LANES],
-                                const float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2]);
-/* The first n (<= MR_SVO_NORMAL_LANES) lanes' codes; the other lanes of
- * nx, ny, nz are overwritten. For a batch's last, partly filled round, and
- * for one normal (mr_svo_normal_encode costs a whole round: callers with
- * many normals gather them). */
-void mr_svo_normal_encode_first(unsigned n, float nx[MR_SVO_NORMAL_LANES], float ny[MR_SVO_NORMAL_LANES],
+void mr_svo_normal_encode_lanes(unsigned n, float nx[MR_SVO_NORMAL_LANES], float ny[MR_SVO_NORMAL_LANES],
                                 float nz[MR_SVO_NORMAL_LANES], uint8_t out[MR_SVO_NORMAL_LANES][2]);
 mr_vec3 mr_svo_normal_decode(const uint8_t in[2]);
 /* The decoded direction before normalisation (on the octahedron |x| + |y| +

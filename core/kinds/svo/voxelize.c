@@ -899,7 +899,7 @@ static void attr_range(void *ctx, size_t begin, size_t end, unsigned worker)
             z[k] = nv.z;
         }
         uint8_t code[MR_SVO_NORMAL_LANES][2];
-        mr_svo_normal_encode_first(n, x, y, z, code);
+        mr_svo_normal_encode_lanes(n, x, y, z, code);
         for (unsigned k = 0; k < n; k++)
             memcpy(c->leaves[i0 + k].normal, code[k], 2);
     }
