@@ -22,6 +22,7 @@
 #include <math.h>
 
 #include "daemon_fixture.h"
+#include "../support/json_fixture.h"
 
 /* The example at path, its asset paths made absolute and its frame at most
  * 160 pixels wide (aspect kept), written to out; *scale: the small frame's
@@ -81,14 +82,6 @@ static cJSON *compare(const char *a, const char *b)
     return c;
 }
 
-static double number(const cJSON *c, const char *field)
-{
-    const cJSON *v = cJSON_GetObjectItem(c, field);
-    if (!cJSON_IsNumber(v))
-        fail_msg("compare's report has no number %s", field);
-    return v->valuedouble;
-}
-
 static void test_every_example(void **state)
 {
     (void)state;
@@ -126,9 +119,9 @@ static void test_every_example(void **state)
         for (int t = 0; t < 2; t++)
             snprintf(first[t], sizeof first[t], "%s/0000.exr", out[t]);
         cJSON *c = compare(first[0], first[1]);
-        const double psnr = number(c, "psnr_rgb_db"), depth = number(c, "depth_max"),
-                     normal = number(c, "normal_max_deg");
-        double hit = number(c, "pixels_hit_either");
+        const double psnr = fx_json_number(c, "psnr_rgb_db"), depth = fx_json_number(c, "depth_max"),
+                     normal = fx_json_number(c, "normal_max_deg");
+        double hit = fx_json_number(c, "pixels_hit_either");
         cJSON_Delete(c);
         if (psnr != 999 || depth != 0 || normal != 0)
             fail_msg("%s: 1 and 2 threads differ (%g dB, depth %g, normals %g deg)", name, psnr,
@@ -142,7 +135,7 @@ static void test_every_example(void **state)
         if (frames > 1) {
             snprintf(last, sizeof last, "%s/%04zu.exr", out[0], frames - 1);
             c = compare(last, last);
-            const double hit_last = number(c, "pixels_hit_either");
+            const double hit_last = fx_json_number(c, "pixels_hit_either");
             hit = hit_last > hit ? hit_last : hit;
             cJSON_Delete(c);
         }

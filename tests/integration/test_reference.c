@@ -66,6 +66,7 @@
 
 #include "files.h"
 #include "render/exr.h"
+#include "../support/json_fixture.h"
 
 static char src_dir[2048], bin[2200], tmp_dir[256];
 
@@ -101,14 +102,6 @@ static cJSON *render(const char *name, const char *job)
     return doc;
 }
 
-static double num(const cJSON *o, const char *key)
-{
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, key);
-    if (!cJSON_IsNumber(v))
-        fail_msg("no number \"%s\"", key);
-    return v->valuedouble;
-}
-
 /* The frame's entry of reference `ref`, NULL without one. */
 static const cJSON *entry(const cJSON *frame, const char *ref)
 {
@@ -139,12 +132,12 @@ static void check(const char *name, const cJSON *stats, const bounds *tess, cons
     const cJSON *fr;
     cJSON_ArrayForEach(fr, cJSON_GetObjectItemCaseSensitive(stats, "frames")) {
         const cJSON *s = cJSON_GetObjectItemCaseSensitive(fr, "seconds");
-        double stages = num(s, "load") + num(s, "derive") + num(s, "pose") + num(s, "bvh") +
-                        num(s, "trace") + num(s, "encode");
-        assert_true(num(s, "reference") > 0);
-        if (fabs(num(s, "total") - stages) > 1e-9 * (1 + stages))
+        double stages = fx_json_number(s, "load") + fx_json_number(s, "derive") + fx_json_number(s, "pose") + fx_json_number(s, "bvh") +
+                        fx_json_number(s, "trace") + fx_json_number(s, "encode");
+        assert_true(fx_json_number(s, "reference") > 0);
+        if (fabs(fx_json_number(s, "total") - stages) > 1e-9 * (1 + stages))
             fail_msg("%s frame %d: total %.9g is not the sum of its stages %.9g", name, frames,
-                     num(s, "total"), stages);
+                     fx_json_number(s, "total"), stages);
         assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(fr, "error")),
                          (tess != NULL) + (truth != NULL));
         for (int k = 0; k < 2; k++) {
@@ -154,15 +147,15 @@ static void check(const char *name, const cJSON *stats, const bounds *tess, cons
                 continue;
             }
             assert_non_null(e);
-            double cov = num(e, "coverage_error_pct"), rmse = num(e, "depth_rmse"),
-                   dmax = num(e, "depth_max"), holes = num(e, "holes");
+            double cov = fx_json_number(e, "coverage_error_pct"), rmse = fx_json_number(e, "depth_rmse"),
+                   dmax = fx_json_number(e, "depth_max"), holes = fx_json_number(e, "holes");
             print_message("  %-10s frame %d %-12s coverage %.4f %% holes %.0f depth rmse %.2e max "
                           "%.2e normal %.3f deg psnr %.1f dB\n",
-                          name, frames, refs[k], cov, holes, rmse, dmax, num(e, "normal_mean_deg"),
-                          num(e, "psnr_rgb_db"));
+                          name, frames, refs[k], cov, holes, rmse, dmax, fx_json_number(e, "normal_mean_deg"),
+                          fx_json_number(e, "psnr_rgb_db"));
             if (want[k]->exact) {
                 assert_true(cov == 0 && holes == 0 && rmse == 0 && dmax == 0 &&
-                            num(e, "normal_mean_deg") == 0 && num(e, "psnr_rgb_db") == 999);
+                            fx_json_number(e, "normal_mean_deg") == 0 && fx_json_number(e, "psnr_rgb_db") == 999);
             } else {
                 if (!(cov <= want[k]->coverage_pct && rmse <= want[k]->depth_rmse &&
                       dmax <= want[k]->depth_max))
@@ -188,13 +181,13 @@ static void check(const char *name, const cJSON *stats, const bounds *tess, cons
             assert_null(r);
             continue;
         }
-        assert_int_equal((int)num(r, "frames"), frames);
+        assert_int_equal((int)fx_json_number(r, "frames"), frames);
         const cJSON *worst = cJSON_GetObjectItemCaseSensitive(r, "worst");
-        assert_true(num(cJSON_GetObjectItemCaseSensitive(worst, "coverage_error_pct"), "value") == worst_cov[k]);
-        assert_true(num(cJSON_GetObjectItemCaseSensitive(worst, "depth_rmse"), "value") == worst_rmse[k]);
-        assert_true(num(cJSON_GetObjectItemCaseSensitive(worst, "depth_max"), "value") == worst_max[k]);
+        assert_true(fx_json_number(cJSON_GetObjectItemCaseSensitive(worst, "coverage_error_pct"), "value") == worst_cov[k]);
+        assert_true(fx_json_number(cJSON_GetObjectItemCaseSensitive(worst, "depth_rmse"), "value") == worst_rmse[k]);
+        assert_true(fx_json_number(cJSON_GetObjectItemCaseSensitive(worst, "depth_max"), "value") == worst_max[k]);
         const cJSON *med = cJSON_GetObjectItemCaseSensitive(r, "medians");
-        assert_true(num(med, "coverage_error_pct") <= worst_cov[k]);
+        assert_true(fx_json_number(med, "coverage_error_pct") <= worst_cov[k]);
     }
     assert_non_null(cJSON_GetObjectItemCaseSensitive(
         cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(stats, "totals"), "seconds"),
