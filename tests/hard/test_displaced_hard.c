@@ -257,7 +257,7 @@ static void test_skinned_extreme_poses(void **state)
     double dur = bar->clip_count ? bar->clips[0].duration : 1;
     int bad = 0;
     for (int k = 0; k < 4; k++) {
-        dfx_repose(&f, &clip, dur * k / 4);
+        dfx_repose(&f, &clip, NULL, dur * k / 4);
         bad += dfx_random_rays(&f, &seed, 150);
     }
     /* extreme joint transforms on every skinned joint */
@@ -273,7 +273,7 @@ static void test_skinned_extreme_poses(void **state)
             ov[j].local = mr_mat4_from_trs(mr_v3(0, 0, 0), q, mr_v3(s, s, s));
         }
         mr_pose_desc extreme = {.joint_count = n, .joints = ov};
-        dfx_repose(&f, &extreme, 0);
+        dfx_repose(&f, &extreme, NULL, 0);
         bad += dfx_random_rays(&f, &seed, 150);
     }
     HARD_CHECK("error", bad, "==", 0,

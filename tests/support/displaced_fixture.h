@@ -132,14 +132,15 @@ static inline void dfx_open(dfx *f, mr_asset *mesh, mr_asset *tex, const mr_pose
         fail_msg("tessellate: %s", err.msg);
 }
 
-/* A new pose of the same object (skinned bases): update, refit, tessellate. */
-static inline void dfx_repose(dfx *f, const mr_pose_desc *pose_desc, double time)
+/* A new pose of the same object (skinned bases; transform may be NULL):
+ * update, refit, tessellate. */
+static inline void dfx_repose(dfx *f, const mr_pose_desc *pose_desc, const mr_mat4 *transform, double time)
 {
     mr_error err = {0};
     mr_mat4 id = mr_mat4_identity();
     mr_geom_frame fr = {0};
     if (mr_pose_eval(f->pose, f->assets[0], pose_desc, time, &err) != MR_OK ||
-        mr_kind_displaced.update(f->geom, &fr, f->pose, &id, 2, &err) != MR_OK)
+        mr_kind_displaced.update(f->geom, &fr, f->pose, transform ? transform : &id, 2, &err) != MR_OK)
         fail_msg("repose: %s", err.msg);
     mr_kind_displaced.commit(f->geom);
     rtcCommitScene(f->scene);

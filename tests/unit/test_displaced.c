@@ -299,6 +299,47 @@ static void test_plane_against_brute_force(void **state)
     mr_asset_free(tex);
 }
 
+/* The traversal keeps the cells it made per thread, valid for one pose of
+ * the bases (dtrace.c cell_get): a small object whose every cell fits in
+ * that cache, traced, moved (a new transform: new bases under the same
+ * Embree geometry), traced again, must meet its new surface, not the
+ * cells of the old one. Fails when a new pose keeps the old pose's id. */
+static void test_new_pose_new_cells(void **state)
+{
+    (void)state;
+    uint64_t seed = 17;
+    mr_asset *mesh = dfx_mesh(PLANE_P, PLANE_N, PLANE_UV, 4, PLANE_I, 2);
+    mr_asset *tex = dfx_texture(3, 2, MR_SAMPLE_U8, dfx_noise, &seed);
+    dfx f = {0};
+    dfx_params(&f, 0.3f, 0.0f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    static const float LIFT[] = {0.0f, 0.05f, 0.4f, -0.7f};
+    for (int k = 0; k < 4; k++) {
+        if (k > 0) {
+            mr_mat4 m = mr_mat4_from_trs(mr_v3(0.1f * (float)k, LIFT[k], 0),
+                                         mr_quat_from_axis_angle(mr_v3(1, 0, 0), 0.2f * (float)k),
+                                         mr_v3(1, 1, 1));
+            dfx_repose(&f, NULL, &m, 0);
+        }
+        /* straight down through every cell's middle and corners, then
+         * random rays: each pose's own tessellation is the reference */
+        int bad = 0;
+        for (int j = 0; j <= 4; j++)
+            for (int i = 0; i <= 6; i++) {
+                mr_vec3 o = mr_v3(-1 + (float)i / 3, 3, 1 - (float)j / 2);
+                bad += dfx_check_ray(&f, o, mr_v3(0.05f, -1, 0.02f), 0, INFINITY);
+            }
+        bad += dfx_random_rays(&f, &seed, 300);
+        if (bad)
+            fail_msg("pose %d: %d rays disagree with the brute force", k, bad);
+    }
+    assert_true(f.hits > 500);
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
 /* A 5 x 4 grid of quads, bumpy, with random normals and UVs repeating 3x. */
 static mr_asset *bumpy_grid(uint64_t *s, float uv_repeat)
 {
@@ -768,6 +809,7 @@ int main(void)
         cmocka_unit_test(test_whole_cells_are_cut_cells),
         cmocka_unit_test(test_boxes_hold_micro_vertices),
         cmocka_unit_test(test_plane_against_brute_force),
+        cmocka_unit_test(test_new_pose_new_cells),
         cmocka_unit_test(test_bumpy_mesh_against_brute_force),
         cmocka_unit_test(test_sphere_against_brute_force),
         cmocka_unit_test(test_constant_texture_is_offset_base),

@@ -691,6 +691,7 @@ static int update_surface(mr_geom *g, unsigned threads, mr_error *err)
         if (c->bad[w] && (!bad || c->bad[w] < bad))
             bad = c->bad[w];
     free(c);
+    g->scene.pose = mr_dscene_new_pose(); /* the bases moved: cells made before are stale */
     if (bad)
         return mr_error_set(err, MR_ERR_INVALID,
                             "%s: the displaced surface of base triangle %u is not finite or "

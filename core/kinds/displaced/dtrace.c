@@ -3,6 +3,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <string.h>
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -769,6 +770,53 @@ static bool cell_make(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t 
     return ct->c.nt > 0;
 }
 
+/* Cells made this pose, per thread: rays of neighbouring packets and
+ * pixels meet the same cells of the same base triangle, and making one
+ * (cutting it by T's edges, evaluating its micro-vertices) costs more than
+ * testing a ray against it. Direct-mapped by (triangle, cell, half); an
+ * entry holds exactly what cell_make returns, valid for the scene's pose
+ * that made it (mr_dscene.pose, unique per pose: entries of an earlier
+ * pose or another scene never match), so what the cache holds changes no
+ * result. The last slot is the scratch of scenes without a pose id. */
+#define CELL_CACHE_BITS 7
+#define CELL_CACHE (1u << CELL_CACHE_BITS)
+
+typedef struct cell_slot {
+    uint64_t pose;
+    uint32_t t;
+    int half;
+    bool any; /* cell_make's answer: the cell has micro-triangles */
+    cell_tris ct;
+} cell_slot;
+
+static _Thread_local cell_slot cell_cache[CELL_CACHE + 1];
+
+/* The micro-triangles of base triangle t (b) in cell (i, j), half, or NULL
+ * when it has none; valid until the thread's next cell_get. */
+static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase *b, int64_t i, int64_t j,
+                                 int half, mr_dstats *st)
+{
+    cell_slot *e = &cell_cache[CELL_CACHE];
+    if (s->pose) {
+        uint64_t h = ((uint64_t)t * 0x9e3779b97f4a7c15ull) ^ ((uint64_t)i * 0xc2b2ae3d27d4eb4full) ^
+                     ((uint64_t)j * 0x165667b19e3779f9ull) ^ (uint64_t)half;
+        e = &cell_cache[(h ^ h >> 29) * 0xbf58476d1ce4e5b9ull >> (64 - CELL_CACHE_BITS)];
+        if (e->pose == s->pose && e->t == t && e->half == half && e->ct.i == i && e->ct.j == j)
+            return e->any ? &e->ct : NULL;
+    }
+    e->pose = s->pose;
+    e->t = t;
+    e->half = half;
+    e->any = cell_make(s, b, i, j, half, &e->ct, st);
+    return e->any ? &e->ct : NULL;
+}
+
+uint64_t mr_dscene_new_pose(void)
+{
+    static _Atomic uint64_t next = 1;
+    return atomic_fetch_add_explicit(&next, 1, memory_order_relaxed);
+}
+
 static void cell_test(const cell_tris *ct, const mr_dray *r, float tmin, float *tmax, best *out,
                       mr_dstats *st)
 {
@@ -781,14 +829,14 @@ static void cell_test(const cell_tris *ct, const mr_dray *r, float tmin, float *
 }
 
 /* The micro-surface of T in cell (i, j). */
-static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, int half,
+static void leaf(const mr_dscene *s, uint32_t t, const mr_dbase *b, int64_t i, int64_t j, int half,
                  const mr_dray *r, float tmin, float *tmax, best *out, mr_dstats *st)
 {
-    cell_tris ct;
-    if (!cell_make(s, b, i, j, half, &ct, st))
+    const cell_tris *ct = cell_get(s, t, b, i, j, half, st);
+    if (!ct)
         return;
-    const mr_dcell *c = &ct.c;
-    const mr_vec3 *V = ct.V;
+    const mr_dcell *c = &ct->c;
+    const mr_vec3 *V = ct->V;
     bool full = c->nv == 4 && c->nt == 2 && half == 2;
     for (int k = 0; full && k < 4; k++)
         full = c->v[k].kind == MR_DV_GRID;
@@ -797,16 +845,16 @@ static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, in
         mr_vec3 q[4];
         for (int k = 0; k < 4; k++)
             q[(int)(c->v[k].a - i) + 2 * (int)(c->v[k].b - j)] = V[k];
-        float t;
+        float th;
         double u, v;
         tri_key key = {j, i, 0, 0};
         if (st)
             st->triangles++;
-        if (bilinear_hit(r, q, tmin, (float)cull_limit(*tmax), &t, &u, &v) && t <= *tmax &&
-            !(out->hit && t == out->t && !key_less(&key, &out->key))) {
-            *tmax = t;
+        if (bilinear_hit(r, q, tmin, (float)cull_limit(*tmax), &th, &u, &v) && th <= *tmax &&
+            !(out->hit && th == out->t && !key_less(&key, &out->key))) {
+            *tmax = th;
             out->hit = true;
-            out->t = t;
+            out->t = th;
             out->key = key;
             /* normal: the patch's tangents at (u, v) */
             mr_vec3 du = mr_v3_lerp(mr_v3_sub(q[1], q[0]), mr_v3_sub(q[3], q[2]), (float)v);
@@ -822,7 +870,7 @@ static void leaf(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t j, in
         }
         return;
     }
-    cell_test(&ct, r, tmin, tmax, out, st);
+    cell_test(ct, r, tmin, tmax, out, st);
 }
 
 static void flat_leaf(const mr_dscene *s, const mr_dbase *b, const mr_dray *r, float tmin,
@@ -1120,7 +1168,7 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
-static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
+static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, const mr_dgrad *gr,
                            const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
                            mr_dhit *hit, mr_dstats *st)
 {
@@ -1142,7 +1190,7 @@ static bool proc_intersect(const mr_dscene *s, const mr_dbase *b, const mr_dgrad
             continue;
         if (e.n.level < 0 && (e.n.s == 1 || e.n.s == -1)) {
             int64_t ci = e.n.s > 0 ? e.n.x : e.n.x - 1, cj = e.n.s > 0 ? e.n.y : e.n.y - 1;
-            leaf(s, b, ci, cj, e.n.s > 0 ? 0 : 1, r, tmin, tmax, &bh, st);
+            leaf(s, t, b, ci, cj, e.n.s > 0 ? 0 : 1, r, tmin, tmax, &bh, st);
             if (bh.hit && any)
                 break;
             continue;
@@ -1190,7 +1238,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
     if (gr->local)
         local_ray(gr, b, r, &lr);
     if (s->proc)
-        return proc_intersect(s, b, gr, r, &lr, tmin, tmax, any, hit, st);
+        return proc_intersect(s, t, b, gr, r, &lr, tmin, tmax, any, hit, st);
     tentry stack[STACK_MAX];
     int sp = 0;
     mr_droots rs = tri_roots(s, t);
@@ -1202,7 +1250,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
             continue;
         if (e.n.level == 0) {
             int64_t i = e.n.tx * g->w + e.n.I, j = e.n.ty * g->h + e.n.J;
-            leaf(s, b, i, j, 2, r, tmin, tmax, &bh, st);
+            leaf(s, t, b, i, j, 2, r, tmin, tmax, &bh, st);
             if (bh.hit && any)
                 break;
             continue;
@@ -1399,12 +1447,12 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
                 ci = e.n.d.tx * g->w + e.n.d.I;
                 cj = e.n.d.ty * g->h + e.n.d.J;
             }
-            cell_tris ct;
-            if (!cell_make(s, b, ci, cj, half, &ct, st))
+            const cell_tris *ct = cell_get(s, t, b, ci, cj, half, st);
+            if (!ct)
                 continue;
             for (uint32_t m = live; m; m &= m - 1) {
                 int k = __builtin_ctz(m);
-                cell_test(&ct, &r[k], tmin[k], tmax[k], &bh[k], st);
+                cell_test(ct, &r[k], tmin[k], tmax[k], &bh[k], st);
                 p.t1[k] = cull_limit(*tmax[k]);
             }
             continue;
@@ -1617,13 +1665,15 @@ mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2)
         return face;
     double x = b->g[0][0] + b1 * (b->g[1][0] - b->g[0][0]) + b2 * (b->g[2][0] - b->g[0][0]);
     double y = b->g[0][1] + b1 * (b->g[1][1] - b->g[0][1]) + b2 * (b->g[2][1] - b->g[0][1]);
-    double fx = floor(x), fy = floor(y);
-    mr_dcell c;
-    mr_dsurf_cell(b, (int64_t)fx, (int64_t)fy, 2, &c);
+    /* the hit's cell: usually the one the traversal just made */
+    const cell_tris *ct = cell_get(s, t, b, (int64_t)floor(x), (int64_t)floor(y), 2, NULL);
+    if (!ct)
+        return face;
+    const mr_dcell *c = &ct->c;
     int bestk = -1;
     double bestw = -INFINITY;
-    for (int k = 0; k < c.nt; k++) {
-        const mr_dvert *a = &c.v[c.tri[k][0]], *bb = &c.v[c.tri[k][1]], *cc = &c.v[c.tri[k][2]];
+    for (int k = 0; k < c->nt; k++) {
+        const mr_dvert *a = &c->v[c->tri[k][0]], *bb = &c->v[c->tri[k][1]], *cc = &c->v[c->tri[k][2]];
         double d = (bb->x - a->x) * (cc->y - a->y) - (bb->y - a->y) * (cc->x - a->x);
         if (d == 0)
             continue;
@@ -1635,8 +1685,6 @@ mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2)
     }
     if (bestk < 0)
         return face;
-    mr_vec3 v[3];
-    for (int k = 0; k < 3; k++)
-        v[k] = mr_dsurf_vertex(b, &s->heights, &c.v[c.tri[bestk][k]]);
-    return mr_v3_cross(mr_v3_sub(v[1], v[0]), mr_v3_sub(v[2], v[0]));
+    const uint8_t *v = c->tri[bestk];
+    return mr_v3_cross(mr_v3_sub(ct->V[v[1]], ct->V[v[0]]), mr_v3_sub(ct->V[v[2]], ct->V[v[0]]));
 }

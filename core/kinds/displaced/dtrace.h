@@ -118,7 +118,12 @@ typedef struct mr_dscene {
     mr_dheights heights;
     mr_dlocal local;
     unsigned march_steps;      /* ray marcher */
+    uint64_t pose;             /* this pose of the bases: mr_dscene_new_pose() after each
+                                  posing (0: none; the traversal then keeps no cells) */
 } mr_dscene;
+
+/* A pose id no scene has had (the traversal's per-thread cell cache). */
+uint64_t mr_dscene_new_pose(void);
 
 typedef struct mr_dray {
     double o[3], d[3], inv[3];
