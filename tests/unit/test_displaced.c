@@ -299,6 +299,19 @@ static void test_plane_against_brute_force(void **state)
     mr_asset_free(tex);
 }
 
+/* This frame's value of the kind's stats field `name` (read and cleared). */
+static double frame_stat(const dfx *f, const char *name)
+{
+    double v[32] = {0};
+    assert_true(mr_kind_displaced.stat_count <= 32);
+    mr_kind_displaced.frame_stats(f->geom, v);
+    for (size_t k = 0; k < mr_kind_displaced.stat_count; k++)
+        if (!strcmp(mr_kind_displaced.stats[k].name, name))
+            return v[k];
+    fail_msg("no stats field %s", name);
+    return 0;
+}
+
 /* The traversal keeps the cells it made per thread, valid for one pose of
  * the bases (dtrace.c cell_get): a small object whose every cell fits in
  * that cache, traced, moved (a new transform: new bases under the same
@@ -313,6 +326,20 @@ static void test_new_pose_new_cells(void **state)
     dfx f = {0};
     dfx_params(&f, 0.3f, 0.0f);
     dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    /* The same rays twice in one pose (each alone, in packets of 8 and as
+     * occlusion queries): the first time each cell is made once (a 3 x 2
+     * texture: the two triangles' boxes touch at most 2 x 5 x 4 cells,
+     * with the cells along their edges), the second time every one comes
+     * from this thread's cache. A direct-mapped cache made 622 and 598
+     * here: two cells of the two triangles shared a slot. */
+    for (int pass = 0; pass < 2; pass++) {
+        frame_stat(&f, "displaced_cells"); /* clears */
+        uint64_t again = 99;
+        assert_int_equal(dfx_random_rays(&f, &again, 200), 0);
+        double cells = frame_stat(&f, "displaced_cells");
+        if (pass == 0 ? !(cells >= 6 && cells <= 40) : cells != 0)
+            fail_msg("pass %d: %g cells made", pass, cells);
+    }
     static const float LIFT[] = {0.0f, 0.05f, 0.4f, -0.7f};
     for (int k = 0; k < 4; k++) {
         if (k > 0) {

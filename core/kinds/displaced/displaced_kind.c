@@ -50,7 +50,7 @@
  * 113 ms shared, 106 striped, 108 counting nothing). */
 #define COUNT_STRIPES 8
 typedef struct count_stripe {
-    _Atomic uint64_t calls, nodes, leaves, tests;
+    _Atomic uint64_t calls, nodes, cells, tests;
     char apart[96];
 } count_stripe;
 
@@ -806,7 +806,7 @@ static void add_stats(mr_geom *g, const mr_dstats *st)
 {
     count_stripe *c = &g->counts[my_stripe()];
     atomic_fetch_add_explicit(&c->nodes, st->nodes, memory_order_relaxed);
-    atomic_fetch_add_explicit(&c->leaves, st->leaves, memory_order_relaxed);
+    atomic_fetch_add_explicit(&c->cells, st->cells, memory_order_relaxed);
     atomic_fetch_add_explicit(&c->tests, st->triangles, memory_order_relaxed);
     atomic_fetch_add_explicit(&c->calls, st->calls, memory_order_relaxed);
 }
@@ -1049,8 +1049,8 @@ static uint64_t displaced_primitives(const mr_geom *g)
 
 /* Steps per ray: displaced_nodes / rays. Embree's share of the memory is
  * the frame's bvh bytes; the tessellation's is in its geometry bytes. */
-enum { S_BOUNDS_S, S_CALLS, S_NODES, S_TESTS, S_BASE_BYTES, S_MIPMAP_BYTES, S_LEVEL, S_ERROR_PX,
-       S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
+enum { S_BOUNDS_S, S_CALLS, S_NODES, S_CELLS, S_TESTS, S_BASE_BYTES, S_MIPMAP_BYTES, S_LEVEL,
+       S_ERROR_PX, S_LOD_BYTES, S_LOD_BUILD_S, S_COUNT };
 
 static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_bounds_s", "s", "Seconds the displaced objects spent on this frame's bounds "
@@ -1062,6 +1062,10 @@ static const mr_kind_stat STATS[S_COUNT] = {
     {"displaced_nodes", "count", "Pyramid nodes bounded and tested (ray marching: samples); a "
                                  "packet of rays through one triangle shares each node's box, "
                                  "so divided by rays: traversal steps per ray of the packets",
+     MR_STAT_SUM},
+    {"displaced_cells", "count", "Texels (grid cells) the traversal cut into micro-triangles; a "
+                                 "thread keeps the cells it made for the pose, so a cell met "
+                                 "again is counted once per thread",
      MR_STAT_SUM},
     {"displaced_tests", "count", "Micro-triangles (or bilinear patches) intersected", MR_STAT_SUM},
     {"displaced_base_bytes", "bytes", "Base mesh, per-triangle set-up and boxes", MR_STAT_SUM},
@@ -1102,7 +1106,7 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
      * callbacks update them, and they have all returned) */
     mr_geom *g = (mr_geom *)cg;
     v[S_BOUNDS_S] = g->bounds_s;
-    v[S_CALLS] = v[S_NODES] = v[S_TESTS] = 0;
+    v[S_CALLS] = v[S_NODES] = v[S_CELLS] = v[S_TESTS] = 0;
     for (uint32_t k = 0; k < g->lod_count; k++) {
         mr_geom *l = k == 0 ? g : g->coarser[k - 1];
         for (int c = 0; c < COUNT_STRIPES; c++) {
@@ -1110,7 +1114,7 @@ static void displaced_frame_stats(const mr_geom *cg, double *v)
             v[S_NODES] += (double)atomic_exchange(&cs->nodes, 0);
             v[S_TESTS] += (double)atomic_exchange(&cs->tests, 0);
             v[S_CALLS] += (double)atomic_exchange(&cs->calls, 0);
-            atomic_store(&cs->leaves, 0);
+            v[S_CELLS] += (double)atomic_exchange(&cs->cells, 0);
         }
     }
     v[S_BASE_BYTES] = (double)base_bytes(g);

@@ -763,7 +763,7 @@ static bool cell_make(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t 
 {
     mr_dsurf_cell(b, i, j, half, &ct->c);
     if (st)
-        st->leaves++;
+        st->cells++;
     ct->i = i, ct->j = j;
     for (int k = 0; k < ct->c.nv; k++)
         ct->V[k] = mr_dsurf_vertex(b, &s->heights, &ct->c.v[k]);
@@ -773,16 +773,21 @@ static bool cell_make(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t 
 /* Cells made this pose, per thread: rays of neighbouring packets and
  * pixels meet the same cells of the same base triangle, and making one
  * (cutting it by T's edges, evaluating its micro-vertices) costs more than
- * testing a ray against it. Direct-mapped by (triangle, cell, half); an
- * entry holds exactly what cell_make returns, valid for the scene's pose
- * that made it (mr_dscene.pose, unique per pose: entries of an earlier
- * pose or another scene never match), so what the cache holds changes no
- * result. The last slot is the scratch of scenes without a pose id. */
-#define CELL_CACHE_BITS 7
-#define CELL_CACHE (1u << CELL_CACHE_BITS)
+ * testing a ray against it. Four-way set-associative by (triangle, cell,
+ * half), the least recently used way replaced (direct-mapped, two cells
+ * of neighbouring triangles that shared a slot evicted each other on every
+ * ray); an entry holds exactly what cell_make returns, valid for the
+ * scene's pose that made it (mr_dscene.pose, unique per pose: entries of
+ * an earlier pose or another scene never match), so what the cache holds
+ * changes no result. The last slot is the scratch of scenes without a
+ * pose id. */
+#define CELL_WAYS 4
+#define CELL_SETS 32
+#define CELL_CACHE (CELL_WAYS * CELL_SETS)
 
 typedef struct cell_slot {
     uint64_t pose;
+    uint64_t used; /* the thread's look-up count when last used: the eviction order */
     uint32_t t;
     int half;
     bool any; /* cell_make's answer: the cell has micro-triangles */
@@ -790,6 +795,15 @@ typedef struct cell_slot {
 } cell_slot;
 
 static _Thread_local cell_slot cell_cache[CELL_CACHE + 1];
+static _Thread_local uint64_t cell_clock;
+
+/* splitmix64's finaliser: every input bit reaches the set index. */
+static inline uint64_t mix64(uint64_t z)
+{
+    z = (z ^ z >> 30) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ z >> 27) * 0x94d049bb133111ebull;
+    return z ^ z >> 31;
+}
 
 /* The micro-triangles of base triangle t (b) in cell (i, j), half, or NULL
  * when it has none; valid until the thread's next cell_get. */
@@ -798,11 +812,19 @@ static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase 
 {
     cell_slot *e = &cell_cache[CELL_CACHE];
     if (s->pose) {
-        uint64_t h = ((uint64_t)t * 0x9e3779b97f4a7c15ull) ^ ((uint64_t)i * 0xc2b2ae3d27d4eb4full) ^
-                     ((uint64_t)j * 0x165667b19e3779f9ull) ^ (uint64_t)half;
-        e = &cell_cache[(h ^ h >> 29) * 0xbf58476d1ce4e5b9ull >> (64 - CELL_CACHE_BITS)];
-        if (e->pose == s->pose && e->t == t && e->half == half && e->ct.i == i && e->ct.j == j)
-            return e->any ? &e->ct : NULL;
+        const uint64_t h = mix64((uint64_t)t ^ mix64((uint64_t)i ^ mix64((uint64_t)j * 4 + (uint64_t)half)));
+        cell_slot *set = &cell_cache[(h % CELL_SETS) * CELL_WAYS];
+        e = set;
+        for (int w = 0; w < CELL_WAYS; w++) {
+            cell_slot *x = &set[w];
+            if (x->pose == s->pose && x->t == t && x->half == half && x->ct.i == i && x->ct.j == j) {
+                x->used = ++cell_clock;
+                return x->any ? &x->ct : NULL;
+            }
+            if (x->used < e->used)
+                e = x;
+        }
+        e->used = ++cell_clock;
     }
     e->pose = s->pose;
     e->t = t;

@@ -137,9 +137,10 @@ typedef struct mr_dhit {
     mr_vec3 ng;        /* geometric normal of the micro-surface hit, unnormalised */
 } mr_dhit;
 
-/* Work counters, summed by the caller. */
+/* Work counters, summed by the caller; cells: cells cut into
+ * micro-triangles (made, not taken from the thread's cache). */
 typedef struct mr_dstats {
-    uint64_t calls, nodes, leaves, triangles;
+    uint64_t calls, nodes, cells, triangles;
 } mr_dstats;
 
 /* d finite and non-zero. */
