@@ -51,6 +51,16 @@ static inline float mr_float_up(double v)
     return f;
 }
 
+/* splitmix64's finaliser: every input bit reaches every output bit; cheap
+ * and stateless (per-pixel jitter, procedural lattice offsets, cache set
+ * indices). */
+static inline uint64_t mr_mix64(uint64_t z)
+{
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+}
+
 /* a / b rounded down (towards -infinity), b != 0. */
 static inline int64_t mr_floor_div(int64_t a, int64_t b)
 {

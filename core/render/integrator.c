@@ -11,21 +11,13 @@
 
 #include "util/parallel.h"
 
-/* splitmix64 finaliser: a good 64-bit mix, cheap, and stateless, which is
- * what per-pixel determinism needs. */
-static inline uint64_t mix64(uint64_t z)
-{
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return z ^ (z >> 31);
-}
-
 /* Two uniform floats in [0,1) for one sample. */
 static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y, uint32_t k, float *jx,
                                  float *jy)
 {
-    uint64_t h = mix64(((uint64_t)s->seed << 32 | s->frame) ^ mix64((uint64_t)y << 32 | x) ^
-                       mix64((uint64_t)k + 0x9e3779b97f4a7c15ull));
+    /* stateless, which per-pixel determinism needs */
+    uint64_t h = mr_mix64(((uint64_t)s->seed << 32 | s->frame) ^ mr_mix64((uint64_t)y << 32 | x) ^
+                          mr_mix64((uint64_t)k + 0x9e3779b97f4a7c15ull));
     *jx = (float)(h >> 40) * (1.0f / 16777216.0f);
     *jy = (float)((h >> 16) & 0xffffff) * (1.0f / 16777216.0f);
 }

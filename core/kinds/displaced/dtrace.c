@@ -797,14 +797,6 @@ typedef struct cell_slot {
 static _Thread_local cell_slot cell_cache[CELL_CACHE + 1];
 static _Thread_local uint64_t cell_clock;
 
-/* splitmix64's finaliser: every input bit reaches the set index. */
-static inline uint64_t mix64(uint64_t z)
-{
-    z = (z ^ z >> 30) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ z >> 27) * 0x94d049bb133111ebull;
-    return z ^ z >> 31;
-}
-
 /* The micro-triangles of base triangle t (b) in cell (i, j), half, or NULL
  * when it has none; valid until the thread's next cell_get. */
 static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase *b, int64_t i, int64_t j,
@@ -812,7 +804,8 @@ static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase 
 {
     cell_slot *e = &cell_cache[CELL_CACHE];
     if (s->pose) {
-        const uint64_t h = mix64((uint64_t)t ^ mix64((uint64_t)i ^ mix64((uint64_t)j * 4 + (uint64_t)half)));
+        const uint64_t h =
+            mr_mix64((uint64_t)t ^ mr_mix64((uint64_t)i ^ mr_mix64((uint64_t)j * 4 + (uint64_t)half)));
         cell_slot *set = &cell_cache[(h % CELL_SETS) * CELL_WAYS];
         e = set;
         for (int w = 0; w < CELL_WAYS; w++) {

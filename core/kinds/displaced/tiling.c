@@ -145,11 +145,8 @@ static inline void uv_of(const mr_dproc *p, double lx, double ly, double *x, dou
 /* The random offset of lattice vertex (a, b): two numbers in [0, 1). */
 static inline void vertex_offset(const mr_dproc *p, int64_t a, int64_t b, double o[2])
 {
-    uint64_t z = (uint64_t)a * 0x9e3779b97f4a7c15ull ^ (uint64_t)b * 0xc2b2ae3d27d4eb4full ^
-                 ((uint64_t)p->seed << 17 | 0x5bd1e995ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
+    const uint64_t z = mr_mix64((uint64_t)a * 0x9e3779b97f4a7c15ull ^ (uint64_t)b * 0xc2b2ae3d27d4eb4full ^
+                                ((uint64_t)p->seed << 17 | 0x5bd1e995ull));
     o[0] = (double)(z >> 40) / 16777216.0;
     o[1] = (double)((z >> 16) & 0xffffff) / 16777216.0;
 }
