@@ -41,6 +41,7 @@
 
 #define HARD_KIND "svo"
 #include "../support/hard_report.h"
+#include "../support/kind_stat_fixture.h"
 
 static mr_asset *cube(float half)
 {
@@ -465,18 +466,6 @@ static void check_memory_budget(void **state)
  * svo_scratch_bytes counts. One instance is resampled on all the threads, so going
  * from C (the cores) to 2C threads doubles those histograms. The traced
  * voxels are the same for 1, C and 2C threads, bit for bit. */
-/* The object's svo_scratch_bytes this frame (its stats field). */
-static double scratch_bytes(const scene *s)
-{
-    double v[MR_FRAME_EXTRAS_MAX] = {0};
-    s->ops->frame_stats(s->g, v);
-    for (size_t i = 0; i < s->ops->stat_count; i++)
-        if (!strcmp(s->ops->stats[i].name, "svo_scratch_bytes"))
-            return v[i];
-    fail_msg("the svo kind has no svo_scratch_bytes field");
-    return 0;
-}
-
 static void check_threads_beyond_cores(void **state)
 {
     (void)state;
@@ -494,7 +483,7 @@ static void check_threads_beyond_cores(void **state)
         build_threads(&s, a, MR_SVO_RESIZE, 7, &id, 1, threads[i]);
         /* enough keys for 2C blocks (the leaves alone are fewer) */
         assert_true(s.ops->primitives(s.g) >= 2ull * cores * 32768u);
-        scratch[i] = scratch_bytes(&s);
+        scratch[i] = fx_kind_stat(s.ops, s.g, "svo_scratch_bytes");
         for (int y = 0; y < N; y++)
             for (int x = 0; x < N; x++)
                 shoot(&s, -0.6f + 1.2f * (x + 0.5f) / N, -0.6f + 1.2f * (y + 0.37f) / N, 10.0f,

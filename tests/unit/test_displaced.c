@@ -30,6 +30,7 @@
 #include <math.h>
 
 #include "../support/displaced_fixture.h"
+#include "../support/kind_stat_fixture.h"
 #include "kinds/displaced/dgrid.h"
 #include "kinds/displaced/dsurf.h"
 #include "kinds/displaced/dtrace.h"
@@ -299,19 +300,6 @@ static void test_plane_against_brute_force(void **state)
     mr_asset_free(tex);
 }
 
-/* This frame's value of the kind's stats field `name` (read and cleared). */
-static double frame_stat(const dfx *f, const char *name)
-{
-    double v[32] = {0};
-    assert_true(mr_kind_displaced.stat_count <= 32);
-    mr_kind_displaced.frame_stats(f->geom, v);
-    for (size_t k = 0; k < mr_kind_displaced.stat_count; k++)
-        if (!strcmp(mr_kind_displaced.stats[k].name, name))
-            return v[k];
-    fail_msg("no stats field %s", name);
-    return 0;
-}
-
 /* The traversal keeps the cells it made per thread, valid for one pose of
  * the bases (dtrace.c cell_get): a small object whose every cell fits in
  * that cache, traced, moved (a new transform: new bases under the same
@@ -333,10 +321,10 @@ static void test_new_pose_new_cells(void **state)
      * from this thread's cache. A direct-mapped cache made 622 and 598
      * here: two cells of the two triangles shared a slot. */
     for (int pass = 0; pass < 2; pass++) {
-        frame_stat(&f, "displaced_cells"); /* clears */
+        fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_cells"); /* clears */
         uint64_t again = 99;
         assert_int_equal(dfx_random_rays(&f, &again, 200), 0);
-        double cells = frame_stat(&f, "displaced_cells");
+        double cells = fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_cells");
         if (pass == 0 ? !(cells >= 6 && cells <= 40) : cells != 0)
             fail_msg("pass %d: %g cells made", pass, cells);
     }
