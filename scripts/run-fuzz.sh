@@ -35,25 +35,14 @@ fi
 fail() { # name, log, what
   failed=$((failed + 1)); failed_names+=("$1")
   printf 'FAIL %-24s %s (log: %s)\n' "fuzz/$1" "$3" "$2"
-  grep -E '^(==[0-9]+==ERROR|SUMMARY|.*runtime error|artifact_prefix|Test unit written|fuzz_[a-z_]*: )' "$2" |
+  grep -E '^(==[0-9]+== ?ERROR|SUMMARY|.*runtime error|artifact_prefix|Test unit written|fuzz_[a-z_]*: )' "$2" |
     head -n 12 | sed 's/^/    | /'
   tail -n 25 "$2" | sed 's/^/    | /'
 }
 
 # Whether the failure in log $1 happened inside a library matching the
-# extended regex $2: a timeout or OOM, or a crash whose first stack frame
-# outside libc, the sanitizers and libFuzzer is in such a library.
-library_crash() {
-  [ -n "$2" ] || return 1
-  grep -qE 'ERROR: libFuzzer: (timeout|out-of-memory)|ai_assert failure' "$1" && return 0
-  awk -v lib="$2" '
-    /ERROR: (AddressSanitizer|UndefinedBehaviorSanitizer|libFuzzer)/ { on = 1; next }
-    on && /^[[:space:]]*#[0-9]+ / {
-      if ($0 ~ /libc\.so|sanitizer|fuzzer::|__interceptor|__asan|__ubsan|\/nptl\/|abort\.c|raise\.c|pthread_kill|libclang_rt/) next
-      found = ($0 ~ lib); exit
-    }
-    END { exit found ? 0 : 1 }' "$1"
-}
+# extended regex $2 (scripts/fuzz-crash-site.sh).
+library_crash() { bash scripts/fuzz-crash-site.sh "$1" "$2"; }
 
 for name in "${names[@]}"; do
   bin="$FUZZ/$name"

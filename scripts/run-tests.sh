@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the layout check and every test program (tests/unit, tests/hard,
+# Runs the layout check, the fuzz crash-site check and every test program (tests/unit, tests/hard,
 # tests/integration) against the build in $1 (default build/). Prints one line per test program and a final
 # "N passed, N failed" line; exits non-zero if anything failed.
 set -uo pipefail
@@ -29,6 +29,9 @@ run() { # name, command...
 # the layout rules a grep can check (a kind is named only in its folder)
 mkdir -p "$LOG_DIR/layout"
 run layout/check-layout bash scripts/check-layout.sh
+# which fuzz failures run-fuzz.sh puts in a tolerated library (stored logs)
+mkdir -p "$LOG_DIR/fuzz"
+run fuzz/crash-site bash tests/fuzz/crash-site/run.sh
 
 for suite in unit hard integration; do
   mkdir -p "$LOG_DIR/$suite"
