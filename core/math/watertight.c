@@ -31,12 +31,14 @@ bool mr_wt_intersect(const mr_wt_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, flo
                      mr_wt_hit *hit)
 {
     /* vertices relative to the origin, sheared so the ray runs along +z */
-    mr_vec3 a = mr_v3_sub(v0, r->org), b = mr_v3_sub(v1, r->org), c = mr_v3_sub(v2, r->org);
-    float az = comp(a, r->kz), bz = comp(b, r->kz), cz = comp(c, r->kz);
-    float ax = comp(a, r->kx) - r->sx * az, ay = comp(a, r->ky) - r->sy * az;
-    float bx = comp(b, r->kx) - r->sx * bz, by = comp(b, r->ky) - r->sy * bz;
-    float cx = comp(c, r->kx) - r->sx * cz, cy = comp(c, r->ky) - r->sy * cz;
+    const mr_wt_vertex a = mr_wt_shear(r, v0), b = mr_wt_shear(r, v1), c = mr_wt_shear(r, v2);
+    return mr_wt_intersect_sheared(&a, &b, &c, tmin, tmax, hit);
+}
 
+bool mr_wt_intersect_sheared(const mr_wt_vertex *A, const mr_wt_vertex *B, const mr_wt_vertex *C,
+                             float tmin, float tmax, mr_wt_hit *hit)
+{
+    const float ax = A->x, ay = A->y, bx = B->x, by = B->y, cx = C->x, cy = C->y;
     /* scaled barycentrics: 2D edge functions of the sheared triangle */
     float u = cx * by - cy * bx, v = ax * cy - ay * cx, w = bx * ay - by * ax;
     if (u == 0.0f || v == 0.0f || w == 0.0f) {
@@ -56,10 +58,7 @@ bool mr_wt_intersect(const mr_wt_ray *r, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, flo
         return false;
 
     /* scaled hit distance, compared without dividing */
-    az *= r->sz;
-    bz *= r->sz;
-    cz *= r->sz;
-    float t_scaled = u * az + v * bz + w * cz;
+    float t_scaled = u * A->z + v * B->z + w * C->z;
     if (det < 0) {
         if (t_scaled > tmin * det || t_scaled < tmax * det)
             return false;

@@ -44,6 +44,26 @@ mr_wt_ray mr_wt_ray_setup(mr_vec3 org, mr_vec3 dir);
 bool mr_wt_intersect(const mr_wt_ray *ray, mr_vec3 v0, mr_vec3 v1, mr_vec3 v2, float tmin,
                      float tmax, mr_wt_hit *hit);
 
+/* mr_wt_intersect in two steps, for triangles that share vertices (a
+ * ray's test of a displaced cell's micro-triangles): each vertex sheared
+ * into the ray's space once (x, y: the 2D coordinates the edge functions
+ * take; z: the distance along the ray, scaled), then each triangle's test
+ * from its sheared vertices. The same operations as mr_wt_intersect (which
+ * is made of them), so the same results bit for bit. */
+typedef struct mr_wt_vertex {
+    float x, y, z;
+} mr_wt_vertex;
+
+static inline mr_wt_vertex mr_wt_shear(const mr_wt_ray *r, mr_vec3 v)
+{
+    const float a[3] = {v.x - r->org.x, v.y - r->org.y, v.z - r->org.z};
+    const float z = a[r->kz];
+    return (mr_wt_vertex){a[r->kx] - r->sx * z, a[r->ky] - r->sy * z, z * r->sz};
+}
+
+bool mr_wt_intersect_sheared(const mr_wt_vertex *a, const mr_wt_vertex *b, const mr_wt_vertex *c,
+                             float tmin, float tmax, mr_wt_hit *hit);
+
 /* The same test in double precision (what the dmm kind's micro-triangles
  * use). The float test's sheared vertices carry rounding errors of a few
  * float ulps of their distance from the ray origin, so the edges it decides

@@ -804,11 +804,17 @@ static unsigned my_stripe(void)
 
 static void add_stats(mr_geom *g, const mr_dstats *st)
 {
+    /* (a locked add costs even when it adds 0, and most calls make no
+     * cell and, at coarse levels, visit no node) */
     count_stripe *c = &g->counts[my_stripe()];
-    atomic_fetch_add_explicit(&c->nodes, st->nodes, memory_order_relaxed);
-    atomic_fetch_add_explicit(&c->cells, st->cells, memory_order_relaxed);
-    atomic_fetch_add_explicit(&c->tests, st->triangles, memory_order_relaxed);
-    atomic_fetch_add_explicit(&c->calls, st->calls, memory_order_relaxed);
+    if (st->nodes)
+        atomic_fetch_add_explicit(&c->nodes, st->nodes, memory_order_relaxed);
+    if (st->cells)
+        atomic_fetch_add_explicit(&c->cells, st->cells, memory_order_relaxed);
+    if (st->triangles)
+        atomic_fetch_add_explicit(&c->tests, st->triangles, memory_order_relaxed);
+    if (st->calls)
+        atomic_fetch_add_explicit(&c->calls, st->calls, memory_order_relaxed);
 }
 
 /* A packet's rays through the triangle together (dtrace.h), at most

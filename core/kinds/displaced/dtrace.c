@@ -630,10 +630,34 @@ typedef struct best {
     float u, v2;    /* its barycentrics at the hit */
 } best;
 
-/* A hit at the same distance as the best so far (a ray through a shared
- * micro-edge or vertex) goes to the micro-triangle first in (j, i, half,
- * k) order, so the winner does not depend on the order cells are visited
- * in (a packet of rays visits them in another order than one ray alone). */
+/* Keeps hit h of micro-triangle (a, b, c) when it is the ray's best so
+ * far. A hit at the same distance as the best so far (a ray through a
+ * shared micro-edge or vertex) goes to the micro-triangle first in (j, i,
+ * half, k) order, so the winner does not depend on the order cells are
+ * visited in (a packet of rays visits them in another order than one ray
+ * alone). The test compares t with tmax before it divides t out, so a hit
+ * whose t rounds to tmax can fail it: the test is asked up to a little
+ * further (cull_limit), the hit then held to tmax in its float t. */
+static inline void tri_keep(const mr_wt_hit *h, mr_vec3 a, mr_vec3 b, mr_vec3 c, const mr_dvert *va,
+                            const mr_dvert *vb, const mr_dvert *vc, tri_key key, float *tmax,
+                            best *out)
+{
+    if (h->t > *tmax)
+        return;
+    if (out->hit && h->t == out->t && !key_less(&key, &out->key))
+        return;
+    *tmax = h->t;
+    out->hit = true;
+    out->key = key;
+    out->t = h->t;
+    out->v[0] = a, out->v[1] = b, out->v[2] = c;
+    out->q[0][0] = va->x, out->q[0][1] = va->y;
+    out->q[1][0] = vb->x, out->q[1][1] = vb->y;
+    out->q[2][0] = vc->x, out->q[2][1] = vc->y;
+    out->u = h->u;
+    out->v2 = h->v;
+}
+
 static void tri_test(const mr_dray *r, mr_vec3 a, mr_vec3 b, mr_vec3 c, const mr_dvert *va,
                      const mr_dvert *vb, const mr_dvert *vc, tri_key key, float tmin, float *tmax,
                      best *out, mr_dstats *st)
@@ -641,23 +665,8 @@ static void tri_test(const mr_dray *r, mr_vec3 a, mr_vec3 b, mr_vec3 c, const mr
     mr_wt_hit h;
     if (st)
         st->triangles++;
-    /* the test compares t with tmax before it divides t out, so a hit whose
-     * t rounds to tmax can fail it: asked up to a little further, then held
-     * to tmax in its float t */
-    if (!mr_wt_intersect(&r->wt, a, b, c, tmin, (float)cull_limit(*tmax), &h) || h.t > *tmax)
-        return;
-    if (out->hit && h.t == out->t && !key_less(&key, &out->key))
-        return;
-    *tmax = h.t;
-    out->hit = true;
-    out->key = key;
-    out->t = h.t;
-    out->v[0] = a, out->v[1] = b, out->v[2] = c;
-    out->q[0][0] = va->x, out->q[0][1] = va->y;
-    out->q[1][0] = vb->x, out->q[1][1] = vb->y;
-    out->q[2][0] = vc->x, out->q[2][1] = vc->y;
-    out->u = h.u;
-    out->v2 = h.v;
+    if (mr_wt_intersect(&r->wt, a, b, c, tmin, (float)cull_limit(*tmax), &h))
+        tri_keep(&h, a, b, c, va, vb, vc, key, tmax, out);
 }
 
 /* Ray / bilinear patch through p00 p10 p01 p11 (Reshetov, "Cool Patches",
@@ -832,14 +841,26 @@ uint64_t mr_dscene_new_pose(void)
     return atomic_fetch_add_explicit(&next, 1, memory_order_relaxed);
 }
 
+/* The ray against the cell's micro-triangles, each micro-vertex sheared
+ * into the ray's space once (the triangles share them: two per cell share
+ * two of four, a cut cell's fan shares more); the same answers as
+ * tri_test on each triangle (watertight.h). */
 static void cell_test(const cell_tris *ct, const mr_dray *r, float tmin, float *tmax, best *out,
                       mr_dstats *st)
 {
     const mr_dcell *c = &ct->c;
+    mr_wt_vertex sv[2 * MR_DSURF_MAX_POLY];
+    for (int k = 0; k < c->nv; k++)
+        sv[k] = mr_wt_shear(&r->wt, ct->V[k]);
+    if (st)
+        st->triangles += (uint64_t)c->nt;
     for (int k = 0; k < c->nt; k++) {
         const uint8_t *tr = c->tri[k];
-        tri_test(r, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
-                 &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, tmin, tmax, out, st);
+        mr_wt_hit h;
+        if (mr_wt_intersect_sheared(&sv[tr[0]], &sv[tr[1]], &sv[tr[2]], tmin,
+                                    (float)cull_limit(*tmax), &h))
+            tri_keep(&h, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
+                     &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, tmax, out);
     }
 }
 
@@ -966,6 +987,22 @@ static inline bool node_hit(const mr_dbase *b, const mr_dgrad *gr, const mr_dray
         return slab(lr, lo, hi, tmin, tmax, tn);
     }
     return rect_box_d(b, gr, x0, x1, y0, y1, hlo, hhi, lo, hi) && slab(r, lo, hi, tmin, tmax, tn);
+}
+
+/* Texture node n's box in T's local frame (mr_dgrad.local), or false
+ * when n cannot overlap T. */
+static bool dnode_local_box(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
+                            const dnode *n, double lo[3], double hi[3], mr_dstats *st)
+{
+    double x0, x1, y0, y1, hlo, hhi;
+    node_rect(g, n, &x0, &x1, &y0, &y1);
+    if (st)
+        st->nodes++;
+    if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+        return false;
+    node_heights(g, n, &hlo, &hhi);
+    local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+    return true;
 }
 
 /* ---- a texture node's children, two at a time ------------------------------------ */
@@ -1256,9 +1293,24 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         return proc_intersect(s, t, b, gr, r, &lr, tmin, tmax, any, hit, st);
     tentry stack[STACK_MAX];
     int sp = 0;
-    mr_droots rs = tri_roots(s, t);
-    for (int k = rs.n - 1; k >= 0; k--)
-        stack[sp++] = (tentry){rs.r[k], -INFINITY};
+    {
+        /* the roots the ray enters, nearest first: at coarse levels they
+         * are the cells themselves, whose micro-triangles a ray would
+         * otherwise test without a box */
+        mr_droots rs = tri_roots(s, t);
+        tentry hitc[4];
+        int nh = 0;
+        for (int k = 0; k < rs.n; k++) {
+            double x0, x1, y0, y1, hlo, hhi, tn;
+            node_rect(g, &rs.r[k], &x0, &x1, &y0, &y1);
+            node_heights(g, &rs.r[k], &hlo, &hhi);
+            if (st)
+                st->nodes++;
+            if (node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
+                hitc[nh++] = (tentry){rs.r[k], tn};
+        }
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
+    }
     while (sp > 0) {
         tentry e = stack[--sp];
         if (e.tnear > cull_limit(*tmax))
@@ -1393,6 +1445,17 @@ __attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, ui
 #define SLAB_PACK slab_pack
 #endif
 
+/* The nearest entry distance among the rays `in`. */
+static inline double nearest_entry(uint32_t in, const double tn[PK])
+{
+    double near = INFINITY;
+    for (uint32_t m = in; m; m &= m - 1) {
+        int k = __builtin_ctz(m);
+        near = tn[k] < near ? tn[k] : near;
+    }
+    return near;
+}
+
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
                                     const float *tmin, float *const *tmax, mr_dhit *hits,
                                     mr_dstats *st)
@@ -1437,10 +1500,19 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
         for (int k = proc_roots(pr, b, rs) - 1; k >= 0; k--)
             stack[sp++] = (pentry){{.p = rs[k]}, inpack, -INFINITY};
         mr_dproc_global_heights(pr, &glo, &ghi);
-    } else {
+    } else { /* the roots the rays enter (as mr_dtrace_intersect) */
         mr_droots rs = tri_roots(s, t);
-        for (int k = rs.n - 1; k >= 0; k--)
-            stack[sp++] = (pentry){{.d = rs.r[k]}, inpack, -INFINITY};
+        pentry hitc[4];
+        int nh = 0;
+        for (int k = 0; k < rs.n; k++) {
+            double lo[3], hi[3], tn[PK];
+            if (!dnode_local_box(g, b, gr, &rs.r[k], lo, hi, st))
+                continue;
+            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, tn);
+            if (in)
+                hitc[nh++] = (pentry){{.d = rs.r[k]}, in, nearest_entry(in, tn)};
+        }
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     while (sp > 0) {
         pentry e = stack[--sp];
@@ -1509,15 +1581,10 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             dnode dc[4];
             nc = children(g, &e.n.d, dc);
             for (int c = 0; c < nc; c++) {
-                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
+                double lo[3], hi[3];
                 ch[c].n.d = dc[c];
-                node_rect(g, &dc[c], &x0, &x1, &y0, &y1);
-                if (st)
-                    st->nodes++;
-                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                if (!dnode_local_box(g, b, gr, &dc[c], lo, hi, st))
                     continue;
-                node_heights(g, &dc[c], &hlo, &hhi);
-                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
                 for (int a = 0; a < 3; a++)
                     blo[a][c] = lo[a], bhi[a][c] = hi[a];
                 boxed |= 1u << c;
@@ -1532,14 +1599,8 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             double hi[3] = {bhi[0][c], bhi[1][c], bhi[2][c]};
             double tn[PK];
             uint32_t in = SLAB_PACK(&p, live, lo, hi, tn);
-            if (!in)
-                continue;
-            double near = INFINITY;
-            for (uint32_t m = in; m; m &= m - 1) {
-                int k = __builtin_ctz(m);
-                near = tn[k] < near ? tn[k] : near;
-            }
-            hitc[nh++] = (pentry){ch[c].n, in, near};
+            if (in)
+                hitc[nh++] = (pentry){ch[c].n, in, nearest_entry(in, tn)};
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
