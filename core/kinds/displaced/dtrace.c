@@ -1373,11 +1373,24 @@ typedef struct pentry {
     double tnear;  /* the nearest of their entries */
 } pentry;
 
-/* Entry distances of the packet's rays `live` into the box lo..hi: the
- * slab of one ray, lane by lane; returns the rays that enter. */
-static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], const double hi[3],
-                          double tn[PK])
+/* The nearest entry distance among the rays `in` (entries tn). */
+static inline double nearest_entry(uint32_t in, const double tn[PK])
 {
+    double near = INFINITY;
+    for (uint32_t m = in; m; m &= m - 1) {
+        int k = __builtin_ctz(m);
+        near = tn[k] < near ? tn[k] : near;
+    }
+    return near;
+}
+
+/* The packet's rays `live` into the box lo..hi: the slab of one ray, lane
+ * by lane; returns the rays that enter, and the nearest of their entry
+ * distances in *near. */
+static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], const double hi[3],
+                          double *near)
+{
+    double tn[PK];
     uint32_t m = 0;
     for (int k = 0; k < PK; k += 2) {
         if (!(live >> k & 3u))
@@ -1405,7 +1418,9 @@ static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], cons
         }
 #endif
     }
-    return m & live;
+    m &= live;
+    *near = nearest_entry(m, tn);
+    return m;
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -1416,44 +1431,66 @@ static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], cons
  * hottest loop. */
 __attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, uint32_t live,
                                                                 const double lo[3],
-                                                                const double hi[3], double tn[PK])
+                                                                const double hi[3], double *near)
 {
     _Static_assert(PK % 4 == 0, "packets are whole AVX2 vectors");
+    const __m256d inf = _mm256_set1_pd(INFINITY);
+    __m256d nearv = inf;
     uint32_t m = 0;
     for (int k = 0; k < PK; k += 4) {
-        if (!(live >> k & 15u))
+        const uint32_t lanes = live >> k & 15u;
+        if (!lanes)
             continue;
         __m256d t0 = _mm256_loadu_pd(p->t0 + k), t1 = _mm256_loadu_pd(p->t1 + k);
         for (int a = 0; a < 3; a++) {
             __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
             __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
             __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
-            __m256d near = _mm256_min_pd(ff, nn), far = _mm256_max_pd(nn, ff);
+            __m256d n = _mm256_min_pd(ff, nn), far = _mm256_max_pd(nn, ff);
             far = _mm256_mul_pd(far, _mm256_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
-            t0 = _mm256_max_pd(near, t0);
+            t0 = _mm256_max_pd(n, t0);
             t1 = _mm256_min_pd(far, t1);
         }
-        _mm256_storeu_pd(tn + k, t0);
-        m |= (uint32_t)(~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & 15) << k;
+        const uint32_t in = (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & lanes;
+        if (!in)
+            continue;
+        m |= in << k;
+        /* the nearest entry of the lanes that enter: min_pd is
+         * a < b ? a : b, nearest_entry's rule (a NaN entry never wins) */
+        const __m256d sel = _mm256_castsi256_pd(_mm256_set_epi64x(
+            -(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u), -(int64_t)(in >> 1 & 1u),
+            -(int64_t)(in & 1u)));
+        nearv = _mm256_min_pd(_mm256_blendv_pd(inf, t0, sel), nearv);
     }
-    return m & live;
+    double n4[4];
+    _mm256_storeu_pd(n4, nearv);
+    double nearest = INFINITY;
+    for (int k = 0; k < 4; k++)
+        nearest = n4[k] < nearest ? n4[k] : nearest;
+    *near = nearest;
+    return m;
 }
-#define SLAB_PACK(p, live, lo, hi, tn)                                                            \
-    (__builtin_cpu_supports("avx2") ? slab_pack_avx2(p, live, lo, hi, tn)                         \
-                                    : slab_pack(p, live, lo, hi, tn))
+#define SLAB_PACK(p, live, lo, hi, near)                                                          \
+    (__builtin_cpu_supports("avx2") ? slab_pack_avx2(p, live, lo, hi, near)                       \
+                                    : slab_pack(p, live, lo, hi, near))
 #else
 #define SLAB_PACK slab_pack
 #endif
 
-/* The nearest entry distance among the rays `in`. */
-static inline double nearest_entry(uint32_t in, const double tn[PK])
+/* The rays of mask whose tmax (p->t1: its cull_limit) a node entered at
+ * tnear does not lie beyond. */
+static inline uint32_t rays_before(const pack *p, uint32_t mask, double tnear)
 {
-    double near = INFINITY;
-    for (uint32_t m = in; m; m &= m - 1) {
-        int k = __builtin_ctz(m);
-        near = tn[k] < near ? tn[k] : near;
-    }
-    return near;
+    uint32_t past = 0;
+#if defined(__SSE2__)
+    const __m128d tv = _mm_set1_pd(tnear);
+    for (int k = 0; k < PK; k += 2)
+        past |= (uint32_t)_mm_movemask_pd(_mm_cmpgt_pd(tv, _mm_loadu_pd(p->t1 + k))) << k;
+#else
+    for (int k = 0; k < PK; k++)
+        past |= (uint32_t)(tnear > p->t1[k]) << k;
+#endif
+    return mask & ~past;
 }
 
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
@@ -1505,22 +1542,18 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
         pentry hitc[4];
         int nh = 0;
         for (int k = 0; k < rs.n; k++) {
-            double lo[3], hi[3], tn[PK];
+            double lo[3], hi[3], near;
             if (!dnode_local_box(g, b, gr, &rs.r[k], lo, hi, st))
                 continue;
-            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, tn);
+            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
             if (in)
-                hitc[nh++] = (pentry){{.d = rs.r[k]}, in, nearest_entry(in, tn)};
+                hitc[nh++] = (pentry){{.d = rs.r[k]}, in, near};
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     while (sp > 0) {
         pentry e = stack[--sp];
-        uint32_t live = 0;
-        for (uint32_t m = e.mask; m; m &= m - 1) { /* p.t1: cull_limit of the ray's tmax */
-            int k = __builtin_ctz(m);
-            live |= (uint32_t)!(e.tnear > p.t1[k]) << k;
-        }
+        uint32_t live = rays_before(&p, e.mask, e.tnear);
         if (!live)
             continue;
         int64_t ci, cj;
@@ -1597,10 +1630,10 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
                 continue;
             double lo[3] = {blo[0][c], blo[1][c], blo[2][c]};
             double hi[3] = {bhi[0][c], bhi[1][c], bhi[2][c]};
-            double tn[PK];
-            uint32_t in = SLAB_PACK(&p, live, lo, hi, tn);
+            double near;
+            uint32_t in = SLAB_PACK(&p, live, lo, hi, &near);
             if (in)
-                hitc[nh++] = (pentry){ch[c].n, in, nearest_entry(in, tn)};
+                hitc[nh++] = (pentry){ch[c].n, in, near};
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
