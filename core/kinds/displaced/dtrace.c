@@ -1462,12 +1462,9 @@ __attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, ui
             -(int64_t)(in & 1u)));
         nearv = _mm256_min_pd(_mm256_blendv_pd(inf, t0, sel), nearv);
     }
-    double n4[4];
-    _mm256_storeu_pd(n4, nearv);
-    double nearest = INFINITY;
-    for (int k = 0; k < 4; k++)
-        nearest = n4[k] < nearest ? n4[k] : nearest;
-    *near = nearest;
+    /* (no lane of nearv is NaN: the least of its four in registers) */
+    __m128d two = _mm_min_pd(_mm256_castpd256_pd128(nearv), _mm256_extractf128_pd(nearv, 1));
+    *near = _mm_cvtsd_f64(_mm_min_sd(two, _mm_unpackhi_pd(two, two)));
     return m;
 }
 #define SLAB_PACK(p, live, lo, hi, near)                                                          \
