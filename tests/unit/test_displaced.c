@@ -355,6 +355,65 @@ static void test_new_pose_new_cells(void **state)
     mr_asset_free(tex);
 }
 
+/* A ray tests only the micro-triangles of the cells whose boxes it enters,
+ * also where the grid is so coarse that a base triangle's roots are its
+ * cells (a 2 x 2 texture on the plane's two triangles). Straight down
+ * through a point of each cell, alone and as a packet of 8 such rays, a
+ * ray tests the micro-triangles of the cell at that point only: the plane
+ * is flat, so a cell's box holds the rays through its own square (a cell
+ * cut by the texture's edge is a fan of 3; one cut by the base diagonal,
+ * two parts of 3 in the two triangles: at most 6). Before the roots had
+ * boxes every ray tested all 18 micro-triangles of both triangles. */
+static void test_coarse_roots_culled(void **state)
+{
+    (void)state;
+    uint64_t seed = 5;
+    /* UVs inside the texture's square, so each triangle's cells span two
+     * per axis and the roots are level 0 */
+    static const float UV[] = {0.05f, 0.05f, 0.95f, 0.05f, 0.95f, 0.95f, 0.05f, 0.95f};
+    mr_asset *mesh = dfx_mesh(PLANE_P, PLANE_N, UV, 4, PLANE_I, 2);
+    mr_asset *tex = dfx_texture(2, 2, MR_SAMPLE_U8, dfx_noise, &seed);
+    dfx f = {0};
+    dfx_params(&f, 0.3f, 0.0f);
+    dfx_open(&f, mesh, tex, NULL, NULL, 0);
+    for (int j = 0; j < 2; j++)
+        for (int i = 0; i < 2; i++) {
+            /* (u, v) a little off the cell's centre, off the base diagonal */
+            float u = ((float)i + 0.35f) / 2, v = ((float)j + 0.6f) / 2;
+            float su = (u - 0.05f) / 0.9f, sv = (v - 0.05f) / 0.9f; /* across the plane */
+            mr_vec3 o = mr_v3(-1 + 2 * su, 3, 1 - 2 * sv), d = mr_v3(0, -1, 0);
+            fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_tests"); /* clears */
+            float t;
+            assert_true(dfx_trace(&f, o, d, 0, INFINITY, &t, NULL));
+            double alone = fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_tests");
+            RTC_ALIGN(32) int valid[8];
+            struct RTCRayHit8 rh;
+            memset(&rh, 0, sizeof rh);
+            for (int k = 0; k < 8; k++) {
+                valid[k] = -1;
+                rh.ray.org_x[k] = o.x, rh.ray.org_y[k] = o.y, rh.ray.org_z[k] = o.z;
+                rh.ray.dir_y[k] = -1;
+                rh.ray.tfar[k] = INFINITY;
+                rh.ray.mask[k] = 0xffffffffu;
+                rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+            }
+            struct RTCIntersectContext ic;
+            rtcInitIntersectContext(&ic);
+            ic.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+            rtcIntersect8(valid, f.scene, &ic, &rh);
+            double packet = fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_tests");
+            for (int k = 0; k < 8; k++)
+                assert_true(rh.ray.tfar[k] == t);
+            if (!(alone >= 2 && alone <= 6) || packet != 8 * alone)
+                fail_msg("cell (%d, %d): %g micro-triangle tests alone, %g for 8 such rays in a "
+                         "packet (2 .. 6 per ray expected)", i, j, alone, packet);
+        }
+    dfx_close(&f);
+    mr_device_free(f.dev);
+    mr_asset_free(mesh);
+    mr_asset_free(tex);
+}
+
 /* A 5 x 4 grid of quads, bumpy, with random normals and UVs repeating 3x. */
 static mr_asset *bumpy_grid(uint64_t *s, float uv_repeat)
 {
@@ -825,6 +884,7 @@ int main(void)
         cmocka_unit_test(test_boxes_hold_micro_vertices),
         cmocka_unit_test(test_plane_against_brute_force),
         cmocka_unit_test(test_new_pose_new_cells),
+        cmocka_unit_test(test_coarse_roots_culled),
         cmocka_unit_test(test_bumpy_mesh_against_brute_force),
         cmocka_unit_test(test_sphere_against_brute_force),
         cmocka_unit_test(test_constant_texture_is_offset_base),
