@@ -222,6 +222,23 @@ static inline bool dfx_occluded(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, 
     return r.tfar < 0;
 }
 
+/* A packet of 8 rays from o along d[0 .. 8), every lane valid, not yet
+ * traced. */
+static inline void dfx_packet_rays(mr_vec3 o, const mr_vec3 d[8], float tmin, float tmax,
+                                   int valid[8], struct RTCRayHit8 *rh)
+{
+    memset(rh, 0, sizeof *rh);
+    for (int k = 0; k < 8; k++) {
+        valid[k] = -1;
+        rh->ray.org_x[k] = o.x, rh->ray.org_y[k] = o.y, rh->ray.org_z[k] = o.z;
+        rh->ray.dir_x[k] = d[k].x, rh->ray.dir_y[k] = d[k].y, rh->ray.dir_z[k] = d[k].z;
+        rh->ray.tnear[k] = tmin;
+        rh->ray.tfar[k] = tmax;
+        rh->ray.mask[k] = 0xffffffffu;
+        rh->hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+    }
+}
+
 /* The ray traced inside a packet of 8 (rtcIntersect8: Embree hands the
  * kind's callback the packet, whose rays the kind traverses together,
  * dtrace.h): lane 0 the ray itself, lane 1 the same ray again, lanes 2..7
@@ -238,18 +255,10 @@ static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmi
     float len = mr_v3_len(d);
     RTC_ALIGN(32) int valid[8];
     struct RTCRayHit8 rh;
-    memset(&rh, 0, sizeof rh);
     mr_vec3 dk[8];
-    for (int k = 0; k < 8; k++) {
-        valid[k] = -1;
+    for (int k = 0; k < 8; k++)
         dk[k] = mr_v3_add(d, mr_v3_scale(mr_v3(TURN[k][0], TURN[k][1], TURN[k][2]), len));
-        rh.ray.org_x[k] = o.x, rh.ray.org_y[k] = o.y, rh.ray.org_z[k] = o.z;
-        rh.ray.dir_x[k] = dk[k].x, rh.ray.dir_y[k] = dk[k].y, rh.ray.dir_z[k] = dk[k].z;
-        rh.ray.tnear[k] = tmin;
-        rh.ray.tfar[k] = tmax;
-        rh.ray.mask[k] = 0xffffffffu;
-        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-    }
+    dfx_packet_rays(o, dk, tmin, tmax, valid, &rh);
     struct RTCIntersectContext ic;
     rtcInitIntersectContext(&ic);
     ic.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;

@@ -388,15 +388,8 @@ static void test_coarse_roots_culled(void **state)
             double alone = fx_kind_stat(&mr_kind_displaced, f.geom, "displaced_tests");
             RTC_ALIGN(32) int valid[8];
             struct RTCRayHit8 rh;
-            memset(&rh, 0, sizeof rh);
-            for (int k = 0; k < 8; k++) {
-                valid[k] = -1;
-                rh.ray.org_x[k] = o.x, rh.ray.org_y[k] = o.y, rh.ray.org_z[k] = o.z;
-                rh.ray.dir_y[k] = -1;
-                rh.ray.tfar[k] = INFINITY;
-                rh.ray.mask[k] = 0xffffffffu;
-                rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-            }
+            const mr_vec3 same[8] = {d, d, d, d, d, d, d, d};
+            dfx_packet_rays(o, same, 0, INFINITY, valid, &rh);
             struct RTCIntersectContext ic;
             rtcInitIntersectContext(&ic);
             ic.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
