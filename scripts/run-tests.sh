@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Runs the layout check, the fuzz crash-site check and every test program (tests/unit, tests/hard,
-# tests/integration) against the build in $1 (default build/). Prints one line per test program and a final
+# Runs the layout check, the fuzz crash-site check and every test program
+# (tests/unit, tests/hard, tests/integration) against the build in $1
+# (default build/). Prints one line per test program and a final
 # "N passed, N failed" line; exits non-zero if anything failed.
 set -uo pipefail
 BUILD=${1:-build}

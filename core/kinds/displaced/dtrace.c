@@ -1273,6 +1273,28 @@ static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, co
     return bh.hit;
 }
 
+/* The texture nodes of nodes[0 .. n) that may overlap T and the ray
+ * enters before tmax (cull_limit), with their entry distances, in order;
+ * returns how many. */
+static int dnodes_entered(const mr_dgrid *g, const mr_dbase *b, const mr_dgrad *gr,
+                          const mr_dray *r, const mr_dray *lr, const dnode *nodes, int n,
+                          float tmin, float tmax, tentry out[4], mr_dstats *st)
+{
+    int nh = 0;
+    for (int k = 0; k < n; k++) {
+        double x0, x1, y0, y1, hlo, hhi, tn;
+        node_rect(g, &nodes[k], &x0, &x1, &y0, &y1);
+        if (st)
+            st->nodes++;
+        if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+            continue;
+        node_heights(g, &nodes[k], &hlo, &hhi);
+        if (node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(tmax), &tn))
+            out[nh++] = (tentry){nodes[k], tn};
+    }
+    return nh;
+}
+
 bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
                          bool any, mr_dhit *hit, mr_dstats *st)
 {
@@ -1299,16 +1321,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
          * otherwise test without a box */
         mr_droots rs = tri_roots(s, t);
         tentry hitc[4];
-        int nh = 0;
-        for (int k = 0; k < rs.n; k++) {
-            double x0, x1, y0, y1, hlo, hhi, tn;
-            node_rect(g, &rs.r[k], &x0, &x1, &y0, &y1);
-            node_heights(g, &rs.r[k], &hlo, &hhi);
-            if (st)
-                st->nodes++;
-            if (node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
-                hitc[nh++] = (tentry){rs.r[k], tn};
-        }
+        int nh = dnodes_entered(g, b, gr, r, &lr, rs.r, rs.n, tmin, *tmax, hitc, st);
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     while (sp > 0) {
@@ -1332,19 +1345,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
         {
             dnode ch[4];
             int nc = children(g, &e.n, ch);
-            for (int k = 0; k < nc; k++) {
-                double x0, x1, y0, y1, hlo, hhi, tn;
-                node_rect(g, &ch[k], &x0, &x1, &y0, &y1);
-                if (st)
-                    st->nodes++;
-                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
-                    continue;
-                node_heights(g, &ch[k], &hlo, &hhi);
-                if (!node_hit(b, gr, r, &lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax),
-                              &tn))
-                    continue;
-                hitc[nh++] = (tentry){ch[k], tn};
-            }
+            nh = dnodes_entered(g, b, gr, r, &lr, ch, nc, tmin, *tmax, hitc, st);
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
