@@ -21,6 +21,8 @@
  *   commit      tell Embree the data changed (after update); returns whether
  *               anything did (false: the scene need not be committed again)
  *   normal      world-space shading normal at a hit (unnormalised is fine);
+ *               ng is the hit's geometric normal as Embree returned it (the
+ *               kind's own, for user geometry), for kinds that shade by it;
  *   id_primitive  (NULL: prim itself) what the id pass's id.primitive
  *               names for a hit on primitive prim (as normal gets it),
  *               for a kind whose Embree primitives are pieces of what its
@@ -224,7 +226,7 @@ struct mr_kind {
     int (*attach)(mr_geom *g, RTCDevice device, RTCScene scene, unsigned geom_id,
                   enum RTCBuildQuality quality, mr_error *err);
     bool (*commit)(mr_geom *g);
-    mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v);
+    mr_vec3 (*normal)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng);
     uint32_t (*id_primitive)(const mr_geom *g, unsigned prim);
     bool (*tangent)(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 *out);
     int (*tessellate)(const mr_geom *g, mr_trimesh *out, mr_error *err);

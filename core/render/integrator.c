@@ -131,7 +131,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_ve
     mr_vec3 ng = mr_v3_normalize_or(h->ng, mr_v3(0, 0, 1));
     if (mr_v3_dot(ng, dir) > 0)
         ng = mr_v3_scale(ng, -1.0f);
-    mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v);
+    mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v, h->ng);
     n = mr_v3_normalize_or(n, ng);
     float step = obj->kind->surface_step ? obj->kind->surface_step(obj->geom, h->prim, h->u, h->v) : 0.0f;
     /* A shading normal facing away from the viewer: a smooth surface seen

@@ -176,7 +176,8 @@ static void check_methods(void **state)
                 assert_int_equal(rh.hit.instID[0], k); /* the instance, by id */
             else if (methods[m] != MR_SVO_DIRECT)      /* a piece of the instance's octree */
                 assert_int_equal(s.ops->id_primitive(s.g, prim), k);
-            mr_vec3 n = mr_v3_normalize_or(s.ops->normal(s.g, prim, rh.hit.u, rh.hit.v),
+            mr_vec3 n = mr_v3_normalize_or(s.ops->normal(s.g, prim, rh.hit.u, rh.hit.v,
+                                                          mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z)),
                                            mr_v3(0, 0, 0));
             if (!(n.z > 0.7f))
                 print_error("method %zu instance %zu: normal (%g, %g, %g)\n", m, k, (double)n.x,

@@ -185,7 +185,9 @@ static inline bool dfx_brute(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, flo
     return hit;
 }
 
-/* The ray through the kind (Embree + its traversal). */
+/* The ray through the kind (Embree + its traversal); *ng: the normal the
+ * renderer shades the hit by (the kind's normal op, given Embree's
+ * geometric normal). */
 static inline bool dfx_trace(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax, float *t,
                              mr_vec3 *ng)
 {
@@ -201,9 +203,12 @@ static inline bool dfx_trace(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, flo
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(f->scene, &ic, &rh);
     *t = rh.ray.tfar;
+    bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
     if (ng)
-        *ng = mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        *ng = hit ? mr_kind_displaced.normal(f->geom, rh.hit.primID, rh.hit.u, rh.hit.v,
+                                             mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z))
+                  : mr_v3(0, 0, 0);
+    return hit;
 }
 
 /* The occlusion query through the kind. */

@@ -253,7 +253,7 @@ static bool test_sphere_commit(mr_geom *g)
     return true;
 }
 
-static mr_vec3 test_sphere_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 test_sphere_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     const float *a = g->unit + (size_t)prim * 9;
     float w = 1.0f - u - v;

@@ -319,9 +319,9 @@ static void test_matrix_normals_match_geometric_when_rigid(void **state)
                     u = ((float)ia + 1.0f / 3) / (float)n;
                     v = ((float)ib + 1.0f / 3) / (float)n;
                 }
-                mr_vec3 g = mr_v3_normalize_or(ops->normal(geo[0], (unsigned)prim, u, v),
+                mr_vec3 g = mr_v3_normalize_or(ops->normal(geo[0], (unsigned)prim, u, v, mr_v3(0, 0, 0)),
                                                mr_v3(0, 0, 0));
-                mr_vec3 x = mr_v3_normalize_or(ops->normal(geo[1], (unsigned)prim, u, v),
+                mr_vec3 x = mr_v3_normalize_or(ops->normal(geo[1], (unsigned)prim, u, v, mr_v3(0, 0, 0)),
                                                mr_v3(0, 0, 0));
                 double c = mr_v3_dot(g, x);
                 worst = c < worst ? c : worst;
@@ -398,14 +398,14 @@ static void test_smooth_normals(void **state)
                 mr_mat4_dir(&rs, mr_v3(r.x / scale.x, r.y / scale.y, r.z / scale.z)),
                 mr_v3(0, 0, 0));
             for (int k = 0; k < 2; k++) {
-                mr_vec3 n = mr_v3_normalize_or(ops->normal(geo[k], b, u, v), mr_v3(0, 0, 0));
+                mr_vec3 n = mr_v3_normalize_or(ops->normal(geo[k], b, u, v, mr_v3(0, 0, 0)), mr_v3(0, 0, 0));
                 sum[k] += acos(fmin(1.0, fabs((double)mr_v3_dot(n, truth)))) * 180 / M_PI;
             }
             samples++;
             /* a convex surface: the shading point stands off it, outwards */
             mr_vec3 lifted;
             assert_true(ops->shading_point(geo[1], b, u, v, p, &lifted));
-            mr_vec3 n = ops->normal(geo[1], b, u, v);
+            mr_vec3 n = ops->normal(geo[1], b, u, v, mr_v3(0, 0, 0));
             assert_true(mr_v3_dot(mr_v3_sub(lifted, p), n) >= 0);
         }
         /* every edge shared with a later triangle, sampled from both sides */
@@ -423,8 +423,8 @@ static void test_smooth_normals(void **state)
                         float sp = (float)j / 8, so = 1 - sp;
                         float ub[2] = {e == 0 ? sp : e == 1 ? 1 - sp : 0, e == 1 ? sp : e == 2 ? 1 - sp : 0};
                         float uo[2] = {f == 0 ? so : f == 1 ? 1 - so : 0, f == 1 ? so : f == 2 ? 1 - so : 0};
-                        mr_vec3 nb_ = mr_v3_normalize_or(ops->normal(geo[1], b, ub[0], ub[1]), mr_v3(0, 0, 0));
-                        mr_vec3 no = mr_v3_normalize_or(ops->normal(geo[1], o, uo[0], uo[1]), mr_v3(0, 0, 0));
+                        mr_vec3 nb_ = mr_v3_normalize_or(ops->normal(geo[1], b, ub[0], ub[1], mr_v3(0, 0, 0)), mr_v3(0, 0, 0));
+                        mr_vec3 no = mr_v3_normalize_or(ops->normal(geo[1], o, uo[0], uo[1], mr_v3(0, 0, 0)), mr_v3(0, 0, 0));
                         double c = mr_v3_dot(nb_, no);
                         worst_edge = c < worst_edge ? c : worst_edge;
                     }

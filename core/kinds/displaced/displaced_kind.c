@@ -970,7 +970,7 @@ static bool displaced_commit(mr_geom *g)
 
 static uint32_t displaced_geometry_ids(const mr_geom *g) { return g->lod_count; }
 
-static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     g = traced(g);
     if (tessellated(g)) {
@@ -983,9 +983,10 @@ static mr_vec3 displaced_normal(const mr_geom *g, unsigned prim, float u, float 
                          g->tess_pos[(size_t)t[k] * 3 + 2]);
         return mr_v3_cross(mr_v3_sub(p[1], p[0]), mr_v3_sub(p[2], p[0]));
     }
-    if (prim >= g->triangle_count)
-        return mr_v3(0, 0, 1);
-    return mr_dtrace_normal_at(&g->scene, prim, u, v);
+    /* the micro-triangle the ray hit (tessellation-free) or the one under
+     * the marched hit point (raymarch, mr_dtrace_march): the normal the
+     * traversal handed Embree */
+    return ng;
 }
 
 static int displaced_tessellate(const mr_geom *g, mr_trimesh *out, mr_error *err)

@@ -1896,7 +1896,7 @@ static bool dmm_commit(mr_geom *g)
 
 static uint32_t dmm_geometry_ids(const mr_geom *g) { return 1; }
 
-static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 dmm_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     return level_normal(g->lv, prim, u, v);
 }

@@ -348,7 +348,7 @@ static bool mesh_commit(mr_geom *g)
 
 static uint32_t mesh_geometry_ids(const mr_geom *g) { return g->lod.level_count; }
 
-static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 mesh_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     const uint32_t *tri = g->cur_indices + (size_t)prim * 3;
     const float *n0 = g->normals + (size_t)tri[0] * 3;

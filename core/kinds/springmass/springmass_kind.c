@@ -317,7 +317,7 @@ static bool springmass_commit(mr_geom *g)
     return true;
 }
 
-static mr_vec3 springmass_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 springmass_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     const uint32_t *tri = g->indices + (size_t)prim * 3;
     const float *n0 = g->normals + (size_t)tri[0] * 3, *n1 = g->normals + (size_t)tri[1] * 3,

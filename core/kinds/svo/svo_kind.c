@@ -896,7 +896,7 @@ static bool svo_commit(mr_geom *g)
     return true;
 }
 
-static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v)
+static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v, mr_vec3 ng)
 {
     if (g->method == MR_SVO_DIRECT) {
         if (prim >= g->box_count)
