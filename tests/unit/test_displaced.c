@@ -737,7 +737,9 @@ static mr_asset *cracked(void)
 }
 
 /* Bounds of every triforce node hold the heights of its grid points (all
- * of them, the three corners included), and the global bound holds all. */
+ * of them, the three corners included), and the global bound holds all;
+ * nodes of leg up to MR_DPROC_EXACT_LEG are bounded by exactly their grid
+ * points' least and largest heights (tiling.h), larger ones more widely. */
 static void test_tiling_bounds(void **state)
 {
     (void)state;
@@ -748,7 +750,7 @@ static void test_tiling_bounds(void **state)
                      MR_OK);
     double glo, ghi;
     mr_dproc_global_heights(&p, &glo, &ghi);
-    long checked = 0;
+    long checked = 0, exact = 0, wide = 0;
     for (int sq = 0; sq < 6; sq++)
         for (int o = 0; o < 2; o++) {
             int64_t ax = sq * 3 - 5, ay = 2 - sq;
@@ -763,6 +765,7 @@ static void test_tiling_bounds(void **state)
                 double lo, hi;
                 mr_dproc_tri_heights(&p, x, y, l, &lo, &hi);
                 int64_t a = l > 0 ? l : -l;
+                double least = INFINITY, largest = -INFINITY;
                 for (int64_t dj = 0; dj <= a; dj++)
                     for (int64_t di = 0; di + dj <= a; di++) {
                         int64_t gi = x + (l > 0 ? di : -di), gj = y + (l > 0 ? dj : -dj);
@@ -771,8 +774,15 @@ static void test_tiling_bounds(void **state)
                             fail_msg("node (%lld %lld %lld): height %.17g at (%lld %lld) outside "
                                      "[%.17g, %.17g]", (long long)x, (long long)y, (long long)l, h,
                                      (long long)gi, (long long)gj, lo, hi);
+                        least = fmin(least, h), largest = fmax(largest, h);
                         checked++;
                     }
+                if (a <= MR_DPROC_EXACT_LEG) {
+                    assert_true(lo == least && hi == largest);
+                    exact++;
+                } else {
+                    wide += lo < least && hi > largest;
+                }
                 if (a > 1) {
                     int64_t c[4][3];
                     mr_dproc_children(x, y, l, c);
@@ -782,6 +792,10 @@ static void test_tiling_bounds(void **state)
             }
         }
     assert_true(checked > 10000);
+    /* 12 lattice triangles of leg 16: 4 nodes of leg 8 and everything
+     * below each, and the leg-16 roots themselves bounded more widely */
+    assert_int_equal(exact, 12 * 4 * (1 + 4 + 16 + 64));
+    assert_int_equal(wide, 12);
     mr_dproc_free(&p);
     mr_asset_free(ex);
 }

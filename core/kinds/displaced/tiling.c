@@ -272,6 +272,21 @@ void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, 
 static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
                         double *hi)
 {
+    if (s >= -MR_DPROC_EXACT_LEG && s <= MR_DPROC_EXACT_LEG) {
+        /* a few cell halves: the surface over each is linear between its
+         * three grid points (every micro-vertex in it interpolates their
+         * heights), so the node's grid points bound it exactly, where the
+         * bound below is as wide as the three tiles' samples around it */
+        int64_t n = s < 0 ? -s : s, sg = s < 0 ? -1 : 1;
+        double l = INFINITY, h = -INFINITY;
+        for (int64_t j = 0; j <= n; j++)
+            for (int64_t i = 0; i + j <= n; i++) {
+                double v = mr_dproc_height(p, bx + sg * i, by + sg * j);
+                l = dmin(l, v), h = dmax(h, v);
+            }
+        *lo = l, *hi = h;
+        return;
+    }
     double q[3][2] = {{(double)bx, (double)by}, {(double)(bx + s), (double)by},
                       {(double)bx, (double)(by + s)}};
     /* the lattice triangle: the one holding the node's centroid */
