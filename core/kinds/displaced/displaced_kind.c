@@ -452,9 +452,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
         mr_dbase_init(&g->bases[t], gg, p, n, &g->scene.heights);
         double hlo, hhi;
         if (g->procedural) {
-            mr_dproc_global_heights(&g->proc, &hlo, &hhi);
-            for (int k = 0; k < 3; k++)
-                hlo = fmin(hlo, g->bases[t].h[k]), hhi = fmax(hhi, g->bases[t].h[k]);
+            mr_dtrace_proc_heights(&g->proc, &g->bases[t], &hlo, &hhi);
         } else {
             mr_dtrace_roots(&g->grid, &g->bases[t], &g->roots[t]);
             mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);

@@ -401,10 +401,12 @@ void mr_dtrace_local_point(const mr_dgrad *gr, const mr_dbase *b, mr_vec3 x, dou
 
 /* ---- the overlap test ------------------------------------------------------------ */
 
-bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
-                       double y1)
+/* Whether the grid rectangle may overlap T, whose grid box (tri_gbox) is
+ * gx0 .. gy1. */
+static bool rect_overlaps(const mr_dbase *b, double gx0, double gx1, double gy0, double gy1,
+                          double x0, double x1, double y0, double y1)
 {
-    if (x1 < gr->gx0 || x0 > gr->gx1 || y1 < gr->gy0 || y0 > gr->gy1)
+    if (x1 < gx0 || x0 > gx1 || y1 < gy0 || y0 > gy1)
         return false;
     if (b->flat)
         return true;
@@ -419,6 +421,12 @@ bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double
             return false;
     }
     return true;
+}
+
+bool mr_dtrace_overlaps(const mr_dbase *b, const mr_dgrad *gr, double x0, double x1, double y0,
+                       double y1)
+{
+    return rect_overlaps(b, gr->gx0, gr->gx1, gr->gy0, gr->gy1, x0, x1, y0, y1);
 }
 
 /* ---- the texture's infinite quadtree ----------------------------------------------- */
@@ -1220,6 +1228,64 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
+/* Nodes mr_dtrace_proc_heights splits T's region into at most. */
+#define PROC_BOUND_NODES 256
+
+void mr_dtrace_proc_heights(const mr_dproc *p, const mr_dbase *b, double *hlo, double *hhi)
+{
+    double gx0, gx1, gy0, gy1, glo, ghi;
+    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
+    mr_dproc_global_heights(p, &glo, &ghi);
+    /* the nodes over T, a level at a time (siblings share their size) */
+    static _Thread_local pnode cur[PROC_BOUND_NODES], next[PROC_BOUND_NODES];
+    int n = proc_roots(p, b, cur);
+    for (;;) {
+        bool exact = n > 0 && cur[0].level < 0 &&
+                     cur[0].s >= -MR_DPROC_EXACT_LEG && cur[0].s <= MR_DPROC_EXACT_LEG;
+        int m = 0;
+        for (int k = 0; k < n && !exact && m >= 0; k++) {
+            pnode ch[4];
+            int nc = pnode_children(p, &cur[k], ch);
+            for (int c = 0; c < nc && m >= 0; c++) {
+                double x0, x1, y0, y1;
+                pnode_rect(&ch[c], &x0, &x1, &y0, &y1);
+                if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
+                    continue;
+                if (m == PROC_BOUND_NODES)
+                    m = -1; /* too many: bound by this level */
+                else
+                    next[m++] = ch[c];
+            }
+        }
+        if (exact || m <= 0)
+            break; /* (m = 0: cells T only touches; the level above keeps them) */
+        memcpy(cur, next, (size_t)m * sizeof *cur);
+        n = m;
+    }
+    *hlo = INFINITY, *hhi = -INFINITY;
+    for (int k = 0; k < n; k++) {
+        double lo = glo, hi = ghi;
+        if (cur[k].level < 0)
+            mr_dproc_tri_heights(p, cur[k].x, cur[k].y, cur[k].s, &lo, &hi);
+        *hlo = fmin(*hlo, lo), *hhi = fmax(*hhi, hi);
+    }
+    for (int k = 0; k < 3; k++) /* (no cells: the corners alone) */
+        *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
+}
+
+/* Node n's heights over T: its own bound (squares: the global one),
+ * capped by T's (mr_dtrace_proc_heights). */
+static void pnode_heights(const mr_dproc *p, const mr_dgrad *gr, const pnode *n, double *lo,
+                          double *hi)
+{
+    if (n->level >= 0) {
+        *lo = gr->hlo, *hi = gr->hhi;
+        return;
+    }
+    mr_dproc_tri_heights(p, n->x, n->y, n->s, lo, hi);
+    *lo = dmax(*lo, gr->hlo), *hi = dmin(*hi, gr->hhi);
+}
+
 static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, const mr_dgrad *gr,
                            const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
                            mr_dhit *hit, mr_dstats *st)
@@ -1234,8 +1300,6 @@ static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, co
     pnode rs[4];
     for (int k = proc_roots(p, b, rs) - 1; k >= 0; k--)
         stack[sp++] = (struct entry){rs[k], -INFINITY};
-    double glo, ghi;
-    mr_dproc_global_heights(p, &glo, &ghi);
     while (sp > 0) {
         struct entry e = stack[--sp];
         if (e.tnear > cull_limit(*tmax))
@@ -1258,10 +1322,7 @@ static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, co
                 st->nodes++;
             if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                 continue;
-            if (ch[k].level >= 0)
-                hlo = glo, hhi = ghi;
-            else
-                mr_dproc_tri_heights(p, ch[k].x, ch[k].y, ch[k].s, &hlo, &hhi);
+            pnode_heights(p, gr, &ch[k], &hlo, &hhi);
             if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
                 continue;
             hitc[nh++] = (struct entry){ch[k], tn};
@@ -1529,12 +1590,10 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     pentry stack[STACK_MAX];
     int sp = 0;
     const mr_dproc *pr = s->proc;
-    double glo = 0, ghi = 0;
     if (pr) {
         pnode rs[4];
         for (int k = proc_roots(pr, b, rs) - 1; k >= 0; k--)
             stack[sp++] = (pentry){{.p = rs[k]}, inpack, -INFINITY};
-        mr_dproc_global_heights(pr, &glo, &ghi);
     } else { /* the roots the rays enter (as mr_dtrace_intersect) */
         mr_droots rs = tri_roots(s, t);
         pentry hitc[4];
@@ -1583,15 +1642,14 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             pnode pc[4];
             nc = pnode_children(pr, &e.n.p, pc);
             for (int c = 0; c < nc; c++) {
-                double x0, x1, y0, y1, hlo = glo, hhi = ghi, lo[3], hi[3];
+                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
                 ch[c].n.p = pc[c];
                 pnode_rect(&pc[c], &x0, &x1, &y0, &y1);
                 if (st)
                     st->nodes++;
                 if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
                     continue;
-                if (pc[c].level < 0)
-                    mr_dproc_tri_heights(pr, pc[c].x, pc[c].y, pc[c].s, &hlo, &hhi);
+                pnode_heights(pr, gr, &pc[c], &hlo, &hhi);
                 local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
                 for (int a = 0; a < 3; a++)
                     blo[a][c] = lo[a], bhi[a][c] = hi[a];

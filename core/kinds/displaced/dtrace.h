@@ -152,6 +152,12 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi);
 /* T's roots, and their heights (the texture source). */
 void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out);
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi);
+/* T's heights from the procedural source: the union of the bounds of the
+ * triforce nodes over T, split level by level while they number at most
+ * 256, down to the exactly bounded ones (tiling.h), and T's corner
+ * heights. Fixed by T's grid coordinates, so computed once. The traversal
+ * caps every node's bound by it: only T's part of a node is traced. */
+void mr_dtrace_proc_heights(const struct mr_dproc *p, const mr_dbase *b, double *hlo, double *hhi);
 
 /* Conservative box of the displaced surface over the grid rectangle
  * [x0, x1] x [y0, y1] (cut to T's box here) with heights [hlo, hhi]: false
