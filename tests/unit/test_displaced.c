@@ -800,11 +800,31 @@ static void test_tiling_bounds(void **state)
     mr_asset_free(ex);
 }
 
-/* A base triangle's procedural height bound (mr_dtrace_proc_heights: its
- * Embree box's and every node's cap) holds the heights of every grid point
- * of every cell where T has micro-triangles, and of T's corners; over a
- * few cells it is far narrower than the global bound it replaced. */
-static void test_proc_triangle_heights(void **state)
+/* A base triangle's procedural roots and height bound
+ * (mr_dtrace_proc_roots; the bound is its Embree box's and every node's
+ * cap): the roots, at most four, cover every cell where T has
+ * micro-triangles, and the bound holds the heights of those cells' grid
+ * points and of T's corners; over a few cells it is far narrower than the
+ * global bound it replaced. */
+static bool proot_covers(const mr_dproots *rs, int64_t i, int64_t j)
+{
+    for (int k = 0; k < rs->n; k++) {
+        const mr_dpnode *n = &rs->r[k];
+        if (n->level >= 0) {
+            if (i >> n->level == n->x && j >> n->level == n->y)
+                return true;
+            continue;
+        }
+        /* a triforce triangle: the cell's centre inside it */
+        double dx = ((double)i + 0.5 - (double)n->x) / (double)n->s;
+        double dy = ((double)j + 0.5 - (double)n->y) / (double)n->s;
+        if (dx >= 0 && dy >= 0 && dx + dy <= 1)
+            return true;
+    }
+    return false;
+}
+
+static void test_proc_triangle_roots(void **state)
 {
     (void)state;
     mr_asset *ex = cracked();
@@ -818,7 +838,7 @@ static void test_proc_triangle_heights(void **state)
         mr_dheights hs = mr_dproc_heights(&p);
         double glo, ghi, small_width = 0;
         mr_dproc_global_heights(&p, &glo, &ghi);
-        long checked = 0, small = 0;
+        long checked = 0, small = 0, roots = 0;
         for (int k = 0; k < 120; k++) {
             /* a triangle over 2 to 30 cells, or (one in four) up to 600 */
             double size = k % 4 ? 2 + 28 * rnd01(&s) : 2 + 600 * rnd01(&s);
@@ -830,7 +850,10 @@ static void test_proc_triangle_heights(void **state)
             mr_dbase b;
             mr_dbase_init(&b, g, pp, nn, &hs);
             double lo, hi;
-            mr_dtrace_proc_heights(&p, &b, &lo, &hi);
+            mr_dproots rs;
+            mr_dtrace_proc_roots(&p, &b, &rs, &lo, &hi);
+            assert_true(rs.n >= 1 && rs.n <= 4);
+            roots += rs.n;
             for (int c = 0; c < 3; c++)
                 assert_true(b.h[c] >= lo && b.h[c] <= hi);
             int64_t i0, i1, j0, j1;
@@ -841,6 +864,9 @@ static void test_proc_triangle_heights(void **state)
                     mr_dsurf_cell(&b, i, j, 2, &c);
                     if (c.nt == 0)
                         continue;
+                    if (!proot_covers(&rs, i, j))
+                        fail_msg("range %u triangle %d: cell (%lld %lld) under none of its %d "
+                                 "roots", range, k, (long long)i, (long long)j, rs.n);
                     for (int q = 0; q < 4; q++) {
                         double h = mr_dproc_height(&p, i + (q & 1), j + (q >> 1));
                         if (!(h >= lo && h <= hi))
@@ -855,11 +881,12 @@ static void test_proc_triangle_heights(void **state)
                 small++;
             }
         }
-        print_message("range %u: %ld grid heights checked; triangles over < 10 cells: mean bound "
-                      "%.3f of the global one\n", range, checked, small_width / (double)small);
+        print_message("range %u: %ld grid heights checked, %.2f roots per triangle; triangles "
+                      "over < 10 cells: mean bound %.3f of the global one\n", range, checked,
+                      (double)roots / 120, small_width / (double)small);
         assert_true(checked > 5000);
-        /* measured 0.63 (range 8) and 0.53 (64); the global bound is 1 */
-        assert_true(small > 10 && small_width / (double)small < 0.75);
+        /* measured 0.42 (range 8) and 0.29 (64); the global bound is 1 */
+        assert_true(small > 10 && small_width / (double)small < 0.5);
         mr_dproc_free(&p);
     }
     mr_asset_free(ex);
@@ -964,7 +991,7 @@ int main(void)
         cmocka_unit_test(test_triforce_against_brute_force),
         cmocka_unit_test(test_tiling_bounds),
         cmocka_unit_test(test_tiling_histogram_and_period),
-        cmocka_unit_test(test_proc_triangle_heights),
+        cmocka_unit_test(test_proc_triangle_roots),
         cmocka_unit_test(test_procedural_against_brute_force),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

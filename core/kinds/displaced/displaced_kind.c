@@ -69,6 +69,7 @@ struct mr_geom {
     mr_dbase *bases;
     mr_dgrad *grads;
     mr_droots *roots;              /* texture source: each triangle's roots (fixed by its UVs) */
+    mr_dproots *proots;            /* procedural source: the same */
     float *boxes;                  /* 6 per base triangle */
     mr_dscene scene;
     /* tessellated */
@@ -125,6 +126,7 @@ static void displaced_free(mr_geom *g)
     free(g->bases);
     free(g->grads);
     free(g->roots);
+    free(g->proots);
     free(g->boxes);
     free(g->tess_vfirst);
     free(g->tess_tfirst);
@@ -393,9 +395,10 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
     g->bases = calloc(nt, sizeof *g->bases);
     g->grads = calloc(nt, sizeof *g->grads);
     g->roots = par->procedural ? NULL : calloc(nt, sizeof *g->roots);
+    g->proots = par->procedural ? calloc(nt, sizeof *g->proots) : NULL;
     g->boxes = calloc(nt * 6, sizeof(float));
     if (!g->mesh_first_vertex || !g->grid_uv || !g->positions || !g->normals || !g->indices ||
-        !g->bases || !g->grads || !g->boxes || (!par->procedural && !g->roots))
+        !g->bases || !g->grads || !g->boxes || (par->procedural ? !g->proots : !g->roots))
         goto nomem;
     g->procedural = par->procedural;
     if (g->procedural) {
@@ -404,7 +407,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
                                 par->scale, par->offset, threads, err)) < 0)
             goto fail;
         g->scene = (mr_dscene){.bases = g->bases, .grads = g->grads, .proc = &g->proc,
-                               .heights = mr_dproc_heights(&g->proc),
+                               .proots = g->proots, .heights = mr_dproc_heights(&g->proc),
                                .local = (mr_dlocal)par->local, .march_steps = par->steps};
     } else {
         if ((rc = mr_dgrid_init(&g->grid, tex->image, par->level, par->scale, par->offset,
@@ -452,7 +455,7 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
         mr_dbase_init(&g->bases[t], gg, p, n, &g->scene.heights);
         double hlo, hhi;
         if (g->procedural) {
-            mr_dtrace_proc_heights(&g->proc, &g->bases[t], &hlo, &hhi);
+            mr_dtrace_proc_roots(&g->proc, &g->bases[t], &g->proots[t], &hlo, &hhi);
         } else {
             mr_dtrace_roots(&g->grid, &g->bases[t], &g->roots[t]);
             mr_dtrace_root_heights(&g->grid, &g->bases[t], &hlo, &hhi);
@@ -1019,7 +1022,7 @@ static size_t base_bytes(const mr_geom *g)
     return sizeof *g + nv * (2 * sizeof(double) + floats * sizeof(float)) +
            nt * 3 * sizeof(uint32_t) +
            nt * (sizeof(mr_dbase) + sizeof(mr_dgrad) + 6 * sizeof(float)) +
-           (g->roots ? nt * sizeof *g->roots : 0) +
+           (g->roots ? nt * sizeof *g->roots : 0) + (g->proots ? nt * sizeof *g->proots : 0) +
            g->asset->mesh_count * sizeof(uint32_t);
 }
 

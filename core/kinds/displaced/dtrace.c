@@ -1166,13 +1166,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
 
 /* ---- the procedural source: lattice squares, then triforce triangles ------- */
 
-/* A node: a square of 2^level cells (level >= log2 range; x, y its index)
- * or, level < 0, a triforce triangle with right-angle vertex (x, y) and
- * signed leg s (tiling.h). */
-typedef struct pnode {
-    int level;
-    int64_t x, y, s;
-} pnode;
+typedef mr_dpnode pnode;
 
 static void pnode_rect(const pnode *n, double *x0, double *x1, double *y0, double *y1)
 {
@@ -1228,22 +1222,39 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
-/* Nodes mr_dtrace_proc_heights splits T's region into at most. */
+/* Nodes mr_dtrace_proc_roots splits T's region into at most. */
 #define PROC_BOUND_NODES 256
 
-void mr_dtrace_proc_heights(const mr_dproc *p, const mr_dbase *b, double *hlo, double *hhi)
+/* The union of the height bounds of nodes n[0 .. count) (squares: the
+ * global one). */
+static void pnodes_heights(const mr_dproc *p, const pnode *n, int count, double *lo, double *hi)
 {
-    double gx0, gx1, gy0, gy1, glo, ghi;
-    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
+    double glo, ghi;
     mr_dproc_global_heights(p, &glo, &ghi);
-    /* the nodes over T, a level at a time (siblings share their size) */
+    *lo = INFINITY, *hi = -INFINITY;
+    for (int k = 0; k < count; k++) {
+        double l = glo, h = ghi;
+        if (n[k].level < 0)
+            mr_dproc_tri_heights(p, n[k].x, n[k].y, n[k].s, &l, &h);
+        *lo = fmin(*lo, l), *hi = fmax(*hi, h);
+    }
+}
+
+void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
+                          double *hhi)
+{
+    double gx0, gx1, gy0, gy1;
+    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
+    /* the nodes over T, a level at a time (siblings share their size):
+     * each level's bound holds T's heights, so their intersection does */
     static _Thread_local pnode cur[PROC_BOUND_NODES], next[PROC_BOUND_NODES];
     int n = proc_roots(p, b, cur);
-    for (;;) {
-        bool exact = n > 0 && cur[0].level < 0 &&
-                     cur[0].s >= -MR_DPROC_EXACT_LEG && cur[0].s <= MR_DPROC_EXACT_LEG;
+    out->n = n;
+    memcpy(out->r, cur, (size_t)n * sizeof *cur);
+    pnodes_heights(p, cur, n, hlo, hhi);
+    while (!(cur[0].level < 0 && (cur[0].s == 1 || cur[0].s == -1))) { /* down to the leaves */
         int m = 0;
-        for (int k = 0; k < n && !exact && m >= 0; k++) {
+        for (int k = 0; k < n && m >= 0; k++) {
             pnode ch[4];
             int nc = pnode_children(p, &cur[k], ch);
             for (int c = 0; c < nc && m >= 0; c++) {
@@ -1252,22 +1263,22 @@ void mr_dtrace_proc_heights(const mr_dproc *p, const mr_dbase *b, double *hlo, d
                 if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
                     continue;
                 if (m == PROC_BOUND_NODES)
-                    m = -1; /* too many: bound by this level */
+                    m = -1; /* too many: stop at this level */
                 else
                     next[m++] = ch[c];
             }
         }
-        if (exact || m <= 0)
+        if (m <= 0)
             break; /* (m = 0: cells T only touches; the level above keeps them) */
         memcpy(cur, next, (size_t)m * sizeof *cur);
         n = m;
-    }
-    *hlo = INFINITY, *hhi = -INFINITY;
-    for (int k = 0; k < n; k++) {
-        double lo = glo, hi = ghi;
-        if (cur[k].level < 0)
-            mr_dproc_tri_heights(p, cur[k].x, cur[k].y, cur[k].s, &lo, &hi);
-        *hlo = fmin(*hlo, lo), *hhi = fmax(*hhi, hi);
+        if (n <= 4) {
+            out->n = n;
+            memcpy(out->r, cur, (size_t)n * sizeof *cur);
+        }
+        double lo, hi;
+        pnodes_heights(p, cur, n, &lo, &hi);
+        *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
     }
     for (int k = 0; k < 3; k++) /* (no cells: the corners alone) */
         *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
@@ -1286,22 +1297,77 @@ static void pnode_heights(const mr_dproc *p, const mr_dgrad *gr, const pnode *n,
     *lo = dmax(*lo, gr->hlo), *hi = dmin(*hi, gr->hhi);
 }
 
+static mr_dproots tri_proots(const mr_dscene *s, uint32_t t)
+{
+    mr_dproots rs;
+    if (s->proots) {
+        rs = s->proots[t];
+    } else {
+        double lo, hi;
+        mr_dtrace_proc_roots(s->proc, &s->bases[t], &rs, &lo, &hi);
+    }
+    return rs;
+}
+
+/* Procedural node n's box in T's local frame (mr_dgrad.local), or false
+ * when n cannot overlap T. */
+static bool pnode_local_box(const mr_dproc *p, const mr_dbase *b, const mr_dgrad *gr,
+                            const pnode *n, double lo[3], double hi[3], mr_dstats *st)
+{
+    double x0, x1, y0, y1, hlo, hhi;
+    pnode_rect(n, &x0, &x1, &y0, &y1);
+    if (st)
+        st->nodes++;
+    if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+        return false;
+    pnode_heights(p, gr, n, &hlo, &hhi);
+    local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
+    return true;
+}
+
+typedef struct pentry1 {
+    pnode n;
+    double tnear;
+} pentry1;
+
+/* The procedural nodes of nodes[0 .. n) that may overlap T and the ray
+ * enters before tmax (cull_limit), with their entry distances, in order;
+ * returns how many. */
+static int pnodes_entered(const mr_dproc *p, const mr_dbase *b, const mr_dgrad *gr,
+                          const mr_dray *r, const mr_dray *lr, const pnode *nodes, int n,
+                          float tmin, float tmax, pentry1 out[4], mr_dstats *st)
+{
+    int nh = 0;
+    for (int k = 0; k < n; k++) {
+        double x0, x1, y0, y1, hlo, hhi, tn;
+        pnode_rect(&nodes[k], &x0, &x1, &y0, &y1);
+        if (st)
+            st->nodes++;
+        if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+            continue;
+        pnode_heights(p, gr, &nodes[k], &hlo, &hhi);
+        if (node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(tmax), &tn))
+            out[nh++] = (pentry1){nodes[k], tn};
+    }
+    return nh;
+}
+
 static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, const mr_dgrad *gr,
                            const mr_dray *r, const mr_dray *lr, float tmin, float *tmax, bool any,
                            mr_dhit *hit, mr_dstats *st)
 {
     const mr_dproc *p = s->proc;
     best bh = {0};
-    struct entry {
-        pnode n;
-        double tnear;
-    } stack[STACK_MAX];
+    pentry1 stack[STACK_MAX];
     int sp = 0;
-    pnode rs[4];
-    for (int k = proc_roots(p, b, rs) - 1; k >= 0; k--)
-        stack[sp++] = (struct entry){rs[k], -INFINITY};
+    {
+        mr_dproots rs = tri_proots(s, t);
+        pentry1 hitc[4];
+        int nh = pnodes_entered(p, b, gr, r, lr, rs.r, rs.n, tmin, *tmax, hitc, st);
+        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
+    }
     while (sp > 0) {
-        struct entry e = stack[--sp];
+        pentry1 e = stack[--sp];
         if (e.tnear > cull_limit(*tmax))
             continue;
         if (e.n.level < 0 && (e.n.s == 1 || e.n.s == -1)) {
@@ -1313,20 +1379,8 @@ static bool proc_intersect(const mr_dscene *s, uint32_t t, const mr_dbase *b, co
         }
         pnode ch[4];
         int nc = pnode_children(p, &e.n, ch);
-        struct entry hitc[4];
-        int nh = 0;
-        for (int k = 0; k < nc; k++) {
-            double x0, x1, y0, y1, hlo, hhi, tn;
-            pnode_rect(&ch[k], &x0, &x1, &y0, &y1);
-            if (st)
-                st->nodes++;
-            if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
-                continue;
-            pnode_heights(p, gr, &ch[k], &hlo, &hhi);
-            if (!node_hit(b, gr, r, lr, x0, x1, y0, y1, hlo, hhi, tmin, cull_limit(*tmax), &tn))
-                continue;
-            hitc[nh++] = (struct entry){ch[k], tn};
-        }
+        pentry1 hitc[4];
+        int nh = pnodes_entered(p, b, gr, r, lr, ch, nc, tmin, *tmax, hitc, st);
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     if (bh.hit)
@@ -1590,21 +1644,29 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     pentry stack[STACK_MAX];
     int sp = 0;
     const mr_dproc *pr = s->proc;
-    if (pr) {
-        pnode rs[4];
-        for (int k = proc_roots(pr, b, rs) - 1; k >= 0; k--)
-            stack[sp++] = (pentry){{.p = rs[k]}, inpack, -INFINITY};
-    } else { /* the roots the rays enter (as mr_dtrace_intersect) */
-        mr_droots rs = tri_roots(s, t);
+    { /* the roots the rays enter (as mr_dtrace_intersect) */
         pentry hitc[4];
         int nh = 0;
-        for (int k = 0; k < rs.n; k++) {
-            double lo[3], hi[3], near;
-            if (!dnode_local_box(g, b, gr, &rs.r[k], lo, hi, st))
-                continue;
-            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
-            if (in)
-                hitc[nh++] = (pentry){{.d = rs.r[k]}, in, near};
+        if (pr) {
+            mr_dproots rs = tri_proots(s, t);
+            for (int k = 0; k < rs.n; k++) {
+                double lo[3], hi[3], near;
+                if (!pnode_local_box(pr, b, gr, &rs.r[k], lo, hi, st))
+                    continue;
+                uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
+                if (in)
+                    hitc[nh++] = (pentry){{.p = rs.r[k]}, in, near};
+            }
+        } else {
+            mr_droots rs = tri_roots(s, t);
+            for (int k = 0; k < rs.n; k++) {
+                double lo[3], hi[3], near;
+                if (!dnode_local_box(g, b, gr, &rs.r[k], lo, hi, st))
+                    continue;
+                uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
+                if (in)
+                    hitc[nh++] = (pentry){{.d = rs.r[k]}, in, near};
+            }
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
@@ -1642,15 +1704,10 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             pnode pc[4];
             nc = pnode_children(pr, &e.n.p, pc);
             for (int c = 0; c < nc; c++) {
-                double x0, x1, y0, y1, hlo, hhi, lo[3], hi[3];
+                double lo[3], hi[3];
                 ch[c].n.p = pc[c];
-                pnode_rect(&pc[c], &x0, &x1, &y0, &y1);
-                if (st)
-                    st->nodes++;
-                if (!mr_dtrace_overlaps(b, gr, x0, x1, y0, y1))
+                if (!pnode_local_box(pr, b, gr, &pc[c], lo, hi, st))
                     continue;
-                pnode_heights(pr, gr, &pc[c], &hlo, &hhi);
-                local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
                 for (int a = 0; a < 3; a++)
                     blo[a][c] = lo[a], bhi[a][c] = hi[a];
                 boxed |= 1u << c;

@@ -107,6 +107,20 @@ typedef struct mr_droots {
     mr_dnode r[4];
 } mr_droots;
 
+/* A node of the procedural source: a square of 2^level cells (level >=
+ * log2 range; x, y its index) or, level < 0, a triforce triangle with
+ * right-angle vertex (x, y) and signed leg s (tiling.h). */
+typedef struct mr_dpnode {
+    int level;
+    int64_t x, y, s;
+} mr_dpnode;
+
+/* A base triangle's procedural roots (mr_dtrace_proc_roots). */
+typedef struct mr_dproots {
+    int n;
+    mr_dpnode r[4];
+} mr_dproots;
+
 /* What a traversal reads about one object. */
 typedef struct mr_dscene {
     const mr_dbase *bases;
@@ -115,6 +129,7 @@ typedef struct mr_dscene {
     const mr_droots *roots;    /* texture source: each base triangle's roots (or NULL: found
                                   per call) */
     const struct mr_dproc *proc; /* procedural source (tiling.h), or NULL */
+    const mr_dproots *proots;  /* procedural source: each base triangle's roots */
     mr_dheights heights;
     mr_dlocal local;
     unsigned march_steps;      /* ray marcher */
@@ -152,12 +167,15 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi);
 /* T's roots, and their heights (the texture source). */
 void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out);
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi);
-/* T's heights from the procedural source: the union of the bounds of the
- * triforce nodes over T, split level by level while they number at most
- * 256, down to the exactly bounded ones (tiling.h), and T's corner
- * heights. Fixed by T's grid coordinates, so computed once. The traversal
- * caps every node's bound by it: only T's part of a node is traced. */
-void mr_dtrace_proc_heights(const struct mr_dproc *p, const mr_dbase *b, double *hlo, double *hhi);
+/* T's roots and heights from the procedural source: the nodes over T (those
+ * the overlap test passes), a level at a time from the lattice squares
+ * while they number at most 256; the roots are the deepest level of at
+ * most four, the heights the tightest of the levels' bounds (the exact
+ * ones of tiling.h near the leaves) and T's corner heights. Fixed by T's
+ * grid coordinates, so found once. The traversal caps every node's bound
+ * by these heights: only T's part of a node is traced. */
+void mr_dtrace_proc_roots(const struct mr_dproc *p, const mr_dbase *b, mr_dproots *out,
+                          double *hlo, double *hhi);
 
 /* Conservative box of the displaced surface over the grid rectangle
  * [x0, x1] x [y0, y1] (cut to T's box here) with heights [hlo, hhi]: false
