@@ -792,10 +792,11 @@ static void test_tiling_bounds(void **state)
             }
         }
     assert_true(checked > 10000);
-    /* 12 lattice triangles of leg 16: 4 nodes of leg 8 and everything
-     * below each, and the leg-16 roots themselves bounded more widely */
-    assert_int_equal(exact, 12 * 4 * (1 + 4 + 16 + 64));
-    assert_int_equal(wide, 12);
+    /* 12 lattice triangles of leg 16: 16 nodes of leg 4 and everything
+     * below each exact, the nodes of legs 16 and 8 bounded more widely */
+    _Static_assert(MR_DPROC_EXACT_LEG == 4, "the counts below are for leg 4");
+    assert_int_equal(exact, 12 * 16 * (1 + 4 + 16));
+    assert_int_equal(wide, 12 * (1 + 4));
     mr_dproc_free(&p);
     mr_asset_free(ex);
 }

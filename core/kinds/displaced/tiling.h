@@ -56,9 +56,11 @@
 #define MR_TILING_LUT 4096
 /* Triforce nodes of leg up to this get the exact bound of their
  * (leg + 1)(leg + 2) / 2 grid points; past it the blend bound costs less
- * than the heights (procedural sphere at range 64, 640x360, trace ms by
- * this leg: 55 (1), 41 (4), 40 (8), 43 (16), 52 (32)). */
-#define MR_DPROC_EXACT_LEG 8
+ * than the heights. Trace ms by this leg (2 / 4 / 8; 1: 55 on the sphere):
+ * procedural sphere at range 64, 640x360: - / 41 / 40; plane at range 64,
+ * 640x360: 78 / 78 / 78; plane at range 512, 640x360: 684 / 720 / 860;
+ * at 160x90, where fewer rays share a node: 123 / 125 / 249. */
+#define MR_DPROC_EXACT_LEG 4
 #define MR_TILING_SIGMA (1.0 / 6.0)
 
 typedef struct mr_dproc {
