@@ -893,6 +893,78 @@ static void test_proc_triangle_roots(void **state)
     mr_asset_free(ex);
 }
 
+/* A base triangle's texture height bound (mr_dtrace_root_heights: its
+ * Embree box's) holds the heights of every grid point of every cell where
+ * T has micro-triangles, and of T's corners, and is at most its roots'
+ * union (what it was before it looked below them). */
+static void test_texture_triangle_heights(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dgrid g;
+    mr_error err;
+    assert_int_equal(mr_dgrid_init(&g, ex->image, 0, 0.2, -0.05, 2, &err), MR_OK);
+    mr_dheights hs = mr_dgrid_heights(&g);
+    uint64_t s = 9;
+    long checked = 0;
+    double ratio = 0;
+    int tris = 0;
+    for (int k = 0; k < 150; k++) {
+        /* a triangle over 2 to 60 texels */
+        double size = 2 + 58 * rnd01(&s), gg[3][2];
+        float P[3][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, N[3][3] = {{0, 0, 1}, {0, 0, 1}, {0, 0, 1}};
+        for (int c = 0; c < 3; c++)
+            gg[c][0] = (rnd01(&s) - 0.5) * size + 37 * k, gg[c][1] = (rnd01(&s) - 0.5) * size - 11 * k;
+        const float *pp[3] = {P[0], P[1], P[2]}, *nn[3] = {N[0], N[1], N[2]};
+        mr_dbase b;
+        mr_dbase_init(&b, gg, pp, nn, &hs);
+        if (b.flat)
+            continue;
+        double lo, hi, rlo = INFINITY, rhi = -INFINITY;
+        mr_dtrace_root_heights(&g, &b, &lo, &hi);
+        mr_droots rs;
+        mr_dtrace_roots(&g, &b, &rs);
+        for (int r = 0; r < rs.n; r++) {
+            double l, h;
+            assert_true(rs.r[r].level <= (int)g.levels);
+            mr_dgrid_node_heights(&g, (unsigned)rs.r[r].level, rs.r[r].I, rs.r[r].J, &l, &h);
+            rlo = fmin(rlo, l), rhi = fmax(rhi, h);
+        }
+        for (int c = 0; c < 3; c++) {
+            rlo = fmin(rlo, b.h[c]), rhi = fmax(rhi, b.h[c]);
+            assert_true(b.h[c] >= lo && b.h[c] <= hi);
+        }
+        assert_true(lo >= rlo && hi <= rhi);
+        int64_t i0, i1, j0, j1;
+        mr_dbase_cells(&b, &i0, &i1, &j0, &j1);
+        for (int64_t j = j0; j <= j1; j++)
+            for (int64_t i = i0; i <= i1; i++) {
+                mr_dcell c;
+                mr_dsurf_cell(&b, i, j, 2, &c);
+                if (c.nt == 0)
+                    continue;
+                for (int q = 0; q < 4; q++) {
+                    double h = hs.at(hs.src, i + (q & 1), j + (q >> 1));
+                    if (!(h >= lo && h <= hi))
+                        fail_msg("triangle %d: cell (%lld %lld) height %.17g outside [%.17g, "
+                                 "%.17g]", k, (long long)i, (long long)j, h, lo, hi);
+                    checked++;
+                }
+            }
+        if (rhi > rlo) {
+            ratio += (hi - lo) / (rhi - rlo);
+            tris++;
+        }
+    }
+    print_message("%ld grid heights checked; bound / the roots' bound: mean %.3f\n", checked,
+                  ratio / tris);
+    assert_true(checked > 10000);
+    /* measured 0.71; the roots' union reads 1 */
+    assert_true(tris > 100 && ratio / tris < 0.8);
+    mr_dgrid_free(&g);
+    mr_asset_free(ex);
+}
+
 /* The histogram of the tiled-and-blended heights matches the example's
  * (T^-1 restores it: HN18), and the texture does not repeat at the
  * example's period (a plain repeat correlates 1 with itself there).
@@ -993,6 +1065,7 @@ int main(void)
         cmocka_unit_test(test_tiling_bounds),
         cmocka_unit_test(test_tiling_histogram_and_period),
         cmocka_unit_test(test_proc_triangle_roots),
+        cmocka_unit_test(test_texture_triangle_heights),
         cmocka_unit_test(test_procedural_against_brute_force),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

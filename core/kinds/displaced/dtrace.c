@@ -554,20 +554,57 @@ static mr_droots tri_roots(const mr_dscene *s, uint32_t t)
     return rs;
 }
 
+/* Nodes a base triangle's height bound splits its region into at most
+ * (mr_dtrace_root_heights, mr_dtrace_proc_roots). */
+#define BOUND_NODES 256
+
+/* The union of the height bounds of texture nodes n[0 .. count). */
+static void dnodes_heights(const mr_dgrid *g, const dnode *n, int count, double *lo, double *hi)
+{
+    *lo = INFINITY, *hi = -INFINITY;
+    for (int k = 0; k < count; k++) {
+        double l, h;
+        node_heights(g, &n[k], &l, &h);
+        *lo = fmin(*lo, l), *hi = fmax(*hi, h);
+    }
+}
+
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
 {
-    dnode r[4];
-    int n = roots(g, b, r);
-    *hlo = INFINITY;
-    *hhi = -INFINITY;
-    for (int k = 0; k < n; k++) {
+    /* the roots' bound, then each level's below them over T (those the
+     * overlap test passes) while they number at most BOUND_NODES: each
+     * holds T's heights, so their intersection does */
+    static _Thread_local dnode cur[BOUND_NODES], next[BOUND_NODES];
+    double gx0, gx1, gy0, gy1;
+    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
+    int n = roots(g, b, cur);
+    dnodes_heights(g, cur, n, hlo, hhi);
+    while (n > 0 && cur[0].level > 0) {
+        int m = 0;
+        for (int k = 0; k < n && m >= 0; k++) {
+            dnode ch[4];
+            int nc = children(g, &cur[k], ch);
+            for (int c = 0; c < nc && m >= 0; c++) {
+                double x0, x1, y0, y1;
+                node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
+                if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
+                    continue;
+                if (m == BOUND_NODES)
+                    m = -1; /* too many: stop at this level */
+                else
+                    next[m++] = ch[c];
+            }
+        }
+        if (m <= 0)
+            break;
+        memcpy(cur, next, (size_t)m * sizeof *cur);
+        n = m;
         double lo, hi;
-        node_heights(g, &r[k], &lo, &hi);
-        *hlo = fmin(*hlo, lo);
-        *hhi = fmax(*hhi, hi);
+        dnodes_heights(g, cur, n, &lo, &hi);
+        *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
     }
     if (n == 0) /* no cells: a degenerate box; the corners' heights */
-        *hlo = fmin(fmin(b->h[0], b->h[1]), b->h[2]), *hhi = fmax(fmax(b->h[0], b->h[1]), b->h[2]);
+        *hlo = INFINITY, *hhi = -INFINITY;
     for (int k = 0; k < 3; k++)
         *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
 }
@@ -1222,9 +1259,6 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
-/* Nodes mr_dtrace_proc_roots splits T's region into at most. */
-#define PROC_BOUND_NODES 256
-
 /* The union of the height bounds of nodes n[0 .. count) (squares: the
  * global one). */
 static void pnodes_heights(const mr_dproc *p, const pnode *n, int count, double *lo, double *hi)
@@ -1247,7 +1281,7 @@ void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out,
     tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
     /* the nodes over T, a level at a time (siblings share their size):
      * each level's bound holds T's heights, so their intersection does */
-    static _Thread_local pnode cur[PROC_BOUND_NODES], next[PROC_BOUND_NODES];
+    static _Thread_local pnode cur[BOUND_NODES], next[BOUND_NODES];
     int n = proc_roots(p, b, cur);
     out->n = n;
     memcpy(out->r, cur, (size_t)n * sizeof *cur);
@@ -1262,7 +1296,7 @@ void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out,
                 pnode_rect(&ch[c], &x0, &x1, &y0, &y1);
                 if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
                     continue;
-                if (m == PROC_BOUND_NODES)
+                if (m == BOUND_NODES)
                     m = -1; /* too many: stop at this level */
                 else
                     next[m++] = ch[c];
