@@ -554,61 +554,6 @@ static mr_droots tri_roots(const mr_dscene *s, uint32_t t)
     return rs;
 }
 
-/* Nodes a base triangle's height bound splits its region into at most
- * (mr_dtrace_root_heights, mr_dtrace_proc_roots). */
-#define BOUND_NODES 256
-
-/* The union of the height bounds of texture nodes n[0 .. count). */
-static void dnodes_heights(const mr_dgrid *g, const dnode *n, int count, double *lo, double *hi)
-{
-    *lo = INFINITY, *hi = -INFINITY;
-    for (int k = 0; k < count; k++) {
-        double l, h;
-        node_heights(g, &n[k], &l, &h);
-        *lo = fmin(*lo, l), *hi = fmax(*hi, h);
-    }
-}
-
-void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
-{
-    /* the roots' bound, then each level's below them over T (those the
-     * overlap test passes) while they number at most BOUND_NODES: each
-     * holds T's heights, so their intersection does */
-    static _Thread_local dnode cur[BOUND_NODES], next[BOUND_NODES];
-    double gx0, gx1, gy0, gy1;
-    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
-    int n = roots(g, b, cur);
-    dnodes_heights(g, cur, n, hlo, hhi);
-    while (n > 0 && cur[0].level > 0) {
-        int m = 0;
-        for (int k = 0; k < n && m >= 0; k++) {
-            dnode ch[4];
-            int nc = children(g, &cur[k], ch);
-            for (int c = 0; c < nc && m >= 0; c++) {
-                double x0, x1, y0, y1;
-                node_rect(g, &ch[c], &x0, &x1, &y0, &y1);
-                if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
-                    continue;
-                if (m == BOUND_NODES)
-                    m = -1; /* too many: stop at this level */
-                else
-                    next[m++] = ch[c];
-            }
-        }
-        if (m <= 0)
-            break;
-        memcpy(cur, next, (size_t)m * sizeof *cur);
-        n = m;
-        double lo, hi;
-        dnodes_heights(g, cur, n, &lo, &hi);
-        *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
-    }
-    if (n == 0) /* no cells: a degenerate box; the corners' heights */
-        *hlo = INFINITY, *hhi = -INFINITY;
-    for (int k = 0; k < 3; k++)
-        *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
-}
-
 /* ---- ray tests ----------------------------------------------------------------------- */
 
 /* Entry distance of the ray into the box, or false. */
@@ -1259,41 +1204,73 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
-/* The union of the height bounds of nodes n[0 .. count) (squares: the
- * global one). */
-static void pnodes_heights(const mr_dproc *p, const pnode *n, int count, double *lo, double *hi)
+/* ---- a base triangle's nodes, once per object ------------------------------------ */
+
+/* A node of either source. */
+typedef union tnode {
+    dnode d; /* texture source */
+    pnode p; /* procedural source */
+} tnode;
+
+/* Nodes a base triangle's height bound splits its region into at most. */
+#define BOUND_NODES 256
+
+/* The union of the height bounds of nodes n[0 .. count) of the texture g
+ * or, p not NULL, the procedural source (squares: its global bound). */
+static void tnodes_heights(const mr_dgrid *g, const mr_dproc *p, const tnode *n, int count,
+                           double *lo, double *hi)
 {
-    double glo, ghi;
-    mr_dproc_global_heights(p, &glo, &ghi);
+    double glo = 0, ghi = 0;
+    if (p)
+        mr_dproc_global_heights(p, &glo, &ghi);
     *lo = INFINITY, *hi = -INFINITY;
     for (int k = 0; k < count; k++) {
         double l = glo, h = ghi;
-        if (n[k].level < 0)
-            mr_dproc_tri_heights(p, n[k].x, n[k].y, n[k].s, &l, &h);
+        if (!p)
+            node_heights(g, &n[k].d, &l, &h);
+        else if (n[k].p.level < 0)
+            mr_dproc_tri_heights(p, n[k].p.x, n[k].p.y, n[k].p.s, &l, &h);
         *lo = fmin(*lo, l), *hi = fmax(*hi, h);
     }
 }
 
-void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
-                          double *hhi)
+/* T's nodes below cur[0 .. n) (its roots), a level at a time, those the
+ * overlap test passes while they number at most BOUND_NODES: *hlo, *hhi
+ * the tightest of the levels' height bounds (each holds T's heights, so
+ * their intersection does) and T's corner heights; deep[0 .. *ndeep) the
+ * deepest level of at most four nodes. cur is scratch of BOUND_NODES. */
+static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b, tnode *cur,
+                        int n, double *hlo, double *hhi, tnode deep[4], int *ndeep)
 {
+    static _Thread_local tnode next[BOUND_NODES];
     double gx0, gx1, gy0, gy1;
     tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
-    /* the nodes over T, a level at a time (siblings share their size):
-     * each level's bound holds T's heights, so their intersection does */
-    static _Thread_local pnode cur[BOUND_NODES], next[BOUND_NODES];
-    int n = proc_roots(p, b, cur);
-    out->n = n;
-    memcpy(out->r, cur, (size_t)n * sizeof *cur);
-    pnodes_heights(p, cur, n, hlo, hhi);
-    while (!(cur[0].level < 0 && (cur[0].s == 1 || cur[0].s == -1))) { /* down to the leaves */
+    *ndeep = n;
+    memcpy(deep, cur, (size_t)n * sizeof *cur);
+    tnodes_heights(g, p, cur, n, hlo, hhi);
+    while (n > 0 && (p ? !(cur[0].p.level < 0 && (cur[0].p.s == 1 || cur[0].p.s == -1))
+                       : cur[0].d.level > 0)) { /* down to the leaves */
         int m = 0;
         for (int k = 0; k < n && m >= 0; k++) {
-            pnode ch[4];
-            int nc = pnode_children(p, &cur[k], ch);
+            tnode ch[4];
+            int nc;
+            if (p) {
+                pnode pc[4];
+                nc = pnode_children(p, &cur[k].p, pc);
+                for (int c = 0; c < nc; c++)
+                    ch[c].p = pc[c];
+            } else {
+                dnode dc[4];
+                nc = children(g, &cur[k].d, dc);
+                for (int c = 0; c < nc; c++)
+                    ch[c].d = dc[c];
+            }
             for (int c = 0; c < nc && m >= 0; c++) {
                 double x0, x1, y0, y1;
-                pnode_rect(&ch[c], &x0, &x1, &y0, &y1);
+                if (p)
+                    pnode_rect(&ch[c].p, &x0, &x1, &y0, &y1);
+                else
+                    node_rect(g, &ch[c].d, &x0, &x1, &y0, &y1);
                 if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
                     continue;
                 if (m == BOUND_NODES)
@@ -1307,15 +1284,42 @@ void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out,
         memcpy(cur, next, (size_t)m * sizeof *cur);
         n = m;
         if (n <= 4) {
-            out->n = n;
-            memcpy(out->r, cur, (size_t)n * sizeof *cur);
+            *ndeep = n;
+            memcpy(deep, cur, (size_t)n * sizeof *cur);
         }
         double lo, hi;
-        pnodes_heights(p, cur, n, &lo, &hi);
+        tnodes_heights(g, p, cur, n, &lo, &hi);
         *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
     }
-    for (int k = 0; k < 3; k++) /* (no cells: the corners alone) */
+    if (n == 0) /* no cells: a degenerate box; the corners' heights */
+        *hlo = INFINITY, *hhi = -INFINITY;
+    for (int k = 0; k < 3; k++)
         *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
+}
+
+void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
+{
+    static _Thread_local tnode cur[BOUND_NODES];
+    dnode r[4];
+    int n = roots(g, b, r), nd;
+    for (int k = 0; k < n; k++)
+        cur[k].d = r[k];
+    tnode deep[4];
+    nodes_below(g, NULL, b, cur, n, hlo, hhi, deep, &nd);
+}
+
+void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
+                          double *hhi)
+{
+    static _Thread_local tnode cur[BOUND_NODES];
+    pnode r[4];
+    int n = proc_roots(p, b, r);
+    for (int k = 0; k < n; k++)
+        cur[k].p = r[k];
+    tnode deep[4];
+    nodes_below(NULL, p, b, cur, n, hlo, hhi, deep, &out->n);
+    for (int k = 0; k < out->n; k++)
+        out->r[k] = deep[k].p;
 }
 
 /* Node n's heights over T: its own bound (squares: the global one),
@@ -1515,10 +1519,7 @@ typedef struct pack {
 } pack;
 
 typedef struct pentry {
-    union {
-        dnode d; /* texture source */
-        pnode p; /* procedural source */
-    } n;
+    tnode n;
     uint32_t mask; /* the rays that entered the node */
     double tnear;  /* the nearest of their entries */
 } pentry;
@@ -1679,28 +1680,27 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     int sp = 0;
     const mr_dproc *pr = s->proc;
     { /* the roots the rays enter (as mr_dtrace_intersect) */
+        tnode rs[4];
+        int nr;
+        if (pr) {
+            mr_dproots tr = tri_proots(s, t);
+            for (nr = 0; nr < tr.n; nr++)
+                rs[nr].p = tr.r[nr];
+        } else {
+            mr_droots tr = tri_roots(s, t);
+            for (nr = 0; nr < tr.n; nr++)
+                rs[nr].d = tr.r[nr];
+        }
         pentry hitc[4];
         int nh = 0;
-        if (pr) {
-            mr_dproots rs = tri_proots(s, t);
-            for (int k = 0; k < rs.n; k++) {
-                double lo[3], hi[3], near;
-                if (!pnode_local_box(pr, b, gr, &rs.r[k], lo, hi, st))
-                    continue;
-                uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
-                if (in)
-                    hitc[nh++] = (pentry){{.p = rs.r[k]}, in, near};
-            }
-        } else {
-            mr_droots rs = tri_roots(s, t);
-            for (int k = 0; k < rs.n; k++) {
-                double lo[3], hi[3], near;
-                if (!dnode_local_box(g, b, gr, &rs.r[k], lo, hi, st))
-                    continue;
-                uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
-                if (in)
-                    hitc[nh++] = (pentry){{.d = rs.r[k]}, in, near};
-            }
+        for (int k = 0; k < nr; k++) {
+            double lo[3], hi[3], near;
+            if (!(pr ? pnode_local_box(pr, b, gr, &rs[k].p, lo, hi, st)
+                     : dnode_local_box(g, b, gr, &rs[k].d, lo, hi, st)))
+                continue;
+            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
+            if (in)
+                hitc[nh++] = (pentry){rs[k], in, near};
         }
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
