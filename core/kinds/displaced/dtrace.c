@@ -1194,120 +1194,8 @@ static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
     return n;
 }
 
-/* ---- a base triangle's nodes, once per object ------------------------------------ */
-
-/* Nodes a base triangle's height bound splits its region into at most. */
-#define BOUND_NODES 256
-
-/* The union of the height bounds of nodes n[0 .. count) of the texture g
- * or, p not NULL, the procedural source (squares: its global bound). */
-static void tnodes_heights(const mr_dgrid *g, const mr_dproc *p, const tnode *n, int count,
-                           double *lo, double *hi)
-{
-    double glo = 0, ghi = 0;
-    if (p)
-        mr_dproc_global_heights(p, &glo, &ghi);
-    *lo = INFINITY, *hi = -INFINITY;
-    for (int k = 0; k < count; k++) {
-        double l = glo, h = ghi;
-        if (!p)
-            node_heights(g, &n[k].d, &l, &h);
-        else if (n[k].p.level < 0)
-            mr_dproc_tri_heights(p, n[k].p.x, n[k].p.y, n[k].p.s, &l, &h);
-        *lo = fmin(*lo, l), *hi = fmax(*hi, h);
-    }
-}
-
-/* T's nodes below cur[0 .. n) (its roots), a level at a time, those the
- * overlap test passes while they number at most BOUND_NODES: *hlo, *hhi
- * the tightest of the levels' height bounds (each holds T's heights, so
- * their intersection does) and T's corner heights; deep[0 .. *ndeep) the
- * deepest level of at most four nodes. cur is scratch of BOUND_NODES. */
-static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b, tnode *cur,
-                        int n, double *hlo, double *hhi, tnode deep[4], int *ndeep)
-{
-    static _Thread_local tnode next[BOUND_NODES];
-    double gx0, gx1, gy0, gy1;
-    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
-    *ndeep = n;
-    memcpy(deep, cur, (size_t)n * sizeof *cur);
-    tnodes_heights(g, p, cur, n, hlo, hhi);
-    while (n > 0 && (p ? !(cur[0].p.level < 0 && (cur[0].p.s == 1 || cur[0].p.s == -1))
-                       : cur[0].d.level > 0)) { /* down to the leaves */
-        int m = 0;
-        for (int k = 0; k < n && m >= 0; k++) {
-            tnode ch[4];
-            int nc;
-            if (p) {
-                pnode pc[4];
-                nc = pnode_children(p, &cur[k].p, pc);
-                for (int c = 0; c < nc; c++)
-                    ch[c].p = pc[c];
-            } else {
-                dnode dc[4];
-                nc = children(g, &cur[k].d, dc);
-                for (int c = 0; c < nc; c++)
-                    ch[c].d = dc[c];
-            }
-            for (int c = 0; c < nc && m >= 0; c++) {
-                double x0, x1, y0, y1;
-                if (p)
-                    pnode_rect(&ch[c].p, &x0, &x1, &y0, &y1);
-                else
-                    node_rect(g, &ch[c].d, &x0, &x1, &y0, &y1);
-                if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
-                    continue;
-                if (m == BOUND_NODES)
-                    m = -1; /* too many: stop at this level */
-                else
-                    next[m++] = ch[c];
-            }
-        }
-        if (m <= 0)
-            break; /* (m = 0: cells T only touches; the level above keeps them) */
-        memcpy(cur, next, (size_t)m * sizeof *cur);
-        n = m;
-        if (n <= 4) {
-            *ndeep = n;
-            memcpy(deep, cur, (size_t)n * sizeof *cur);
-        }
-        double lo, hi;
-        tnodes_heights(g, p, cur, n, &lo, &hi);
-        *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
-    }
-    if (n == 0) /* no cells: a degenerate box; the corners' heights */
-        *hlo = INFINITY, *hhi = -INFINITY;
-    for (int k = 0; k < 3; k++)
-        *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
-}
-
-void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
-{
-    static _Thread_local tnode cur[BOUND_NODES];
-    dnode r[4];
-    int n = roots(g, b, r), nd;
-    for (int k = 0; k < n; k++)
-        cur[k].d = r[k];
-    tnode deep[4];
-    nodes_below(g, NULL, b, cur, n, hlo, hhi, deep, &nd);
-}
-
-void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
-                          double *hhi)
-{
-    static _Thread_local tnode cur[BOUND_NODES];
-    pnode r[4];
-    int n = proc_roots(p, b, r);
-    for (int k = 0; k < n; k++)
-        cur[k].p = r[k];
-    tnode deep[4];
-    nodes_below(NULL, p, b, cur, n, hlo, hhi, deep, &out->n);
-    for (int k = 0; k < out->n; k++)
-        out->r[k] = deep[k].p;
-}
-
 /* Node n's heights over T: its own bound (squares: the global one),
- * capped by T's (mr_dtrace_proc_heights). */
+ * capped by T's (mr_dtrace_proc_roots). */
 static void pnode_heights(const mr_dproc *p, const mr_dgrad *gr, const pnode *n, double *lo,
                           double *hi)
 {
@@ -1387,6 +1275,16 @@ static inline int tnode_children(const mr_dscene *s, const tnode *n, tnode out[4
     return k;
 }
 
+/* n's grid rectangle. */
+static inline void tnode_rect(const mr_dscene *s, const tnode *n, double *x0, double *x1,
+                              double *y0, double *y1)
+{
+    if (s->proc)
+        pnode_rect(&n->p, x0, x1, y0, y1);
+    else
+        node_rect(s->grid, &n->d, x0, x1, y0, y1);
+}
+
 /* n's grid rectangle and heights over T, or false when it cannot overlap
  * T. (Inlined into its two callers: called, it cost the procedural
  * sphere 4 % of its trace.) */
@@ -1394,10 +1292,7 @@ __attribute__((always_inline)) static inline bool
 tnode_region(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr, const tnode *n, double *x0,
              double *x1, double *y0, double *y1, double *hlo, double *hhi, mr_dstats *st)
 {
-    if (s->proc)
-        pnode_rect(&n->p, x0, x1, y0, y1);
-    else
-        node_rect(s->grid, &n->d, x0, x1, y0, y1);
+    tnode_rect(s, n, x0, x1, y0, y1);
     if (st)
         st->nodes++;
     if (!mr_dtrace_overlaps(b, gr, *x0, *x1, *y0, *y1))
@@ -1436,6 +1331,106 @@ static int tnodes_entered(const mr_dscene *s, const mr_dbase *b, const mr_dgrad 
             out[nh++] = (tentry){nodes[k], tn};
     }
     return nh;
+}
+
+/* ---- a base triangle's nodes, once per object ------------------------------------ */
+
+/* Nodes a base triangle's height bound splits its region into at most. */
+#define BOUND_NODES 256
+
+/* The union of the height bounds of nodes n[0 .. count) of the texture g
+ * or, p not NULL, the procedural source (squares: its global bound). */
+static void tnodes_heights(const mr_dgrid *g, const mr_dproc *p, const tnode *n, int count,
+                           double *lo, double *hi)
+{
+    double glo = 0, ghi = 0;
+    if (p)
+        mr_dproc_global_heights(p, &glo, &ghi);
+    *lo = INFINITY, *hi = -INFINITY;
+    for (int k = 0; k < count; k++) {
+        double l = glo, h = ghi;
+        if (!p)
+            node_heights(g, &n[k].d, &l, &h);
+        else if (n[k].p.level < 0)
+            mr_dproc_tri_heights(p, n[k].p.x, n[k].p.y, n[k].p.s, &l, &h);
+        *lo = fmin(*lo, l), *hi = fmax(*hi, h);
+    }
+}
+
+/* T's nodes below cur[0 .. n) (its roots), a level at a time, those the
+ * overlap test passes while they number at most BOUND_NODES: *hlo, *hhi
+ * the tightest of the levels' height bounds (each holds T's heights, so
+ * their intersection does) and T's corner heights; deep[0 .. *ndeep) the
+ * deepest level of at most four nodes. cur is scratch of BOUND_NODES. */
+static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b, tnode *cur,
+                        int n, double *hlo, double *hhi, tnode deep[4], int *ndeep)
+{
+    static _Thread_local tnode next[BOUND_NODES];
+    double gx0, gx1, gy0, gy1;
+    tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
+    *ndeep = n;
+    memcpy(deep, cur, (size_t)n * sizeof *cur);
+    tnodes_heights(g, p, cur, n, hlo, hhi);
+    const mr_dscene src = {.grid = g, .proc = p}; /* (the source alone) */
+    int64_t li, lj;
+    int lh;
+    while (n > 0 && !tnode_leaf(&src, &cur[0], &li, &lj, &lh)) { /* down to the leaves */
+        int m = 0;
+        for (int k = 0; k < n && m >= 0; k++) {
+            tnode ch[4];
+            int nc = tnode_children(&src, &cur[k], ch);
+            for (int c = 0; c < nc && m >= 0; c++) {
+                double x0, x1, y0, y1;
+                tnode_rect(&src, &ch[c], &x0, &x1, &y0, &y1);
+                if (!rect_overlaps(b, gx0, gx1, gy0, gy1, x0, x1, y0, y1))
+                    continue;
+                if (m == BOUND_NODES)
+                    m = -1; /* too many: stop at this level */
+                else
+                    next[m++] = ch[c];
+            }
+        }
+        if (m <= 0)
+            break; /* (m = 0: cells T only touches; the level above keeps them) */
+        memcpy(cur, next, (size_t)m * sizeof *cur);
+        n = m;
+        if (n <= 4) {
+            *ndeep = n;
+            memcpy(deep, cur, (size_t)n * sizeof *cur);
+        }
+        double lo, hi;
+        tnodes_heights(g, p, cur, n, &lo, &hi);
+        *hlo = fmax(*hlo, lo), *hhi = fmin(*hhi, hi);
+    }
+    if (n == 0) /* no cells: a degenerate box; the corners' heights */
+        *hlo = INFINITY, *hhi = -INFINITY;
+    for (int k = 0; k < 3; k++)
+        *hlo = fmin(*hlo, b->h[k]), *hhi = fmax(*hhi, b->h[k]);
+}
+
+void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
+{
+    static _Thread_local tnode cur[BOUND_NODES];
+    dnode r[4];
+    int n = roots(g, b, r), nd;
+    for (int k = 0; k < n; k++)
+        cur[k].d = r[k];
+    tnode deep[4];
+    nodes_below(g, NULL, b, cur, n, hlo, hhi, deep, &nd);
+}
+
+void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
+                          double *hhi)
+{
+    static _Thread_local tnode cur[BOUND_NODES];
+    pnode r[4];
+    int n = proc_roots(p, b, r);
+    for (int k = 0; k < n; k++)
+        cur[k].p = r[k];
+    tnode deep[4];
+    nodes_below(NULL, p, b, cur, n, hlo, hhi, deep, &out->n);
+    for (int k = 0; k < out->n; k++)
+        out->r[k] = deep[k].p;
 }
 
 bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,

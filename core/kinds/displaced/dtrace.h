@@ -78,7 +78,7 @@ typedef struct mr_dgrad {
     double nxlen, nylen;   /* |Nx|, |Ny| (Euclidean): how fast |N| can change */
     bool constant_normal;  /* the three corner normals are equal: N0 is the unit normal */
     double pad;
-    double hlo, hhi;       /* heights of the triangle's roots */
+    double hlo, hhi;       /* T's height bound (mr_dtrace_root_heights, _proc_roots) */
     double gx0, gx1, gy0, gy1; /* T's grid box, widened by the grid margin */
     /* Constant normal and a well-shaped map: x = P(q) + h n is affine in
      * (q, h), so nodes are tested as boxes in (grid x, grid y, height)
@@ -164,7 +164,9 @@ mr_dray mr_dray_setup(mr_vec3 o, mr_vec3 d);
 /* The gradient data of base triangle b for this frame (after mr_dbase_pose):
  * needs the triangle's height range hlo..hhi (its roots'). */
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi);
-/* T's roots, and their heights (the texture source). */
+/* T's roots, and its heights (the texture source): the tightest bound of
+ * the levels over T from its roots down while they number at most 256, as
+ * mr_dtrace_proc_roots, and T's corner heights. */
 void mr_dtrace_roots(const mr_dgrid *g, const mr_dbase *b, mr_droots *out);
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi);
 /* T's roots and heights from the procedural source: the nodes over T (those

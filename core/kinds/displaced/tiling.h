@@ -56,10 +56,11 @@
 #define MR_TILING_LUT 4096
 /* Triforce nodes of leg up to this get the exact bound of their
  * (leg + 1)(leg + 2) / 2 grid points; past it the blend bound costs less
- * than the heights. Trace ms by this leg (2 / 4 / 8; 1: 55 on the sphere):
- * procedural sphere at range 64, 640x360: - / 41 / 40; plane at range 64,
- * 640x360: 78 / 78 / 78; plane at range 512, 640x360: 684 / 720 / 860;
- * at 160x90, where fewer rays share a node: 123 / 125 / 249. */
+ * than the heights. Trace ms by this leg (2 / 4 / 8), builds interleaved:
+ * plane at range 64, 640x360: 86 / 78 / 78-81; at range 512: 720 / 684 /
+ * 828-860, and at 160x90, where fewer rays share a node: 125 / 123 /
+ * 229-249; procedural sphere at range 64, 640x360: 41 at 4, 40 at 8 (55
+ * with exact cell halves alone). */
 #define MR_DPROC_EXACT_LEG 4
 #define MR_TILING_SIGMA (1.0 / 6.0)
 
