@@ -824,7 +824,24 @@ static double b_size(const mr_dbase *b)
     return w;
 }
 
-static bool proot_covers(const mr_dproots *rs, int64_t i, int64_t j);
+/* Whether cell (i, j) lies under one of the roots rs. */
+static bool proot_covers(const mr_dproots *rs, int64_t i, int64_t j)
+{
+    for (int k = 0; k < rs->n; k++) {
+        const mr_dpnode *n = &rs->r[k];
+        if (n->level >= 0) {
+            if (i >> n->level == n->x && j >> n->level == n->y)
+                return true;
+            continue;
+        }
+        /* a triforce triangle: the cell's centre inside it */
+        double dx = ((double)i + 0.5 - (double)n->x) / (double)n->s;
+        double dy = ((double)j + 0.5 - (double)n->y) / (double)n->s;
+        if (dx >= 0 && dy >= 0 && dx + dy <= 1)
+            return true;
+    }
+    return false;
+}
 
 /* Fails unless lo .. hi holds T's corner heights and those of the grid
  * points of every cell where T has micro-triangles (and, rs not NULL, the
@@ -863,24 +880,6 @@ static long cells_within(const mr_dbase *b, const mr_dheights *hs, double lo, do
  * micro-triangles, and the bound holds the heights of those cells' grid
  * points and of T's corners; over a few cells it is far narrower than the
  * global bound it replaced. */
-static bool proot_covers(const mr_dproots *rs, int64_t i, int64_t j)
-{
-    for (int k = 0; k < rs->n; k++) {
-        const mr_dpnode *n = &rs->r[k];
-        if (n->level >= 0) {
-            if (i >> n->level == n->x && j >> n->level == n->y)
-                return true;
-            continue;
-        }
-        /* a triforce triangle: the cell's centre inside it */
-        double dx = ((double)i + 0.5 - (double)n->x) / (double)n->s;
-        double dy = ((double)j + 0.5 - (double)n->y) / (double)n->s;
-        if (dx >= 0 && dy >= 0 && dx + dy <= 1)
-            return true;
-    }
-    return false;
-}
-
 static void test_proc_triangle_roots(void **state)
 {
     (void)state;
