@@ -1307,7 +1307,7 @@ tnode_region(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr, const tn
 /* Node n's box in T's local frame (mr_dgrad.local), or false when n cannot
  * overlap T. */
 static inline bool tnode_local_box(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
-                            const tnode *n, double lo[3], double hi[3], mr_dstats *st)
+                                   const tnode *n, double lo[3], double hi[3], mr_dstats *st)
 {
     double x0, x1, y0, y1, hlo, hhi;
     if (!tnode_region(s, b, gr, n, &x0, &x1, &y0, &y1, &hlo, &hhi, st))
@@ -1357,15 +1357,17 @@ static void tnodes_heights(const mr_dgrid *g, const mr_dproc *p, const tnode *n,
     }
 }
 
-/* T's nodes below cur[0 .. n) (its roots), a level at a time, those the
- * overlap test passes while they number at most BOUND_NODES: *hlo, *hhi
- * the tightest of the levels' height bounds (each holds T's heights, so
- * their intersection does) and T's corner heights; deep[0 .. *ndeep) the
- * deepest level of at most four nodes. cur is scratch of BOUND_NODES. */
-static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b, tnode *cur,
-                        int n, double *hlo, double *hhi, tnode deep[4], int *ndeep)
+/* T's nodes below roots[0 .. n), a level at a time, those the overlap test
+ * passes while they number at most BOUND_NODES: *hlo, *hhi the tightest
+ * of the levels' height bounds (each holds T's heights, so their
+ * intersection does) and T's corner heights; deep[0 .. *ndeep) the
+ * deepest level of at most four nodes. */
+static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b,
+                        const tnode roots[4], int n, double *hlo, double *hhi, tnode deep[4],
+                        int *ndeep)
 {
-    static _Thread_local tnode next[BOUND_NODES];
+    static _Thread_local tnode cur[BOUND_NODES], next[BOUND_NODES];
+    memcpy(cur, roots, (size_t)n * sizeof *cur);
     double gx0, gx1, gy0, gy1;
     tri_gbox(b, &gx0, &gx1, &gy0, &gy1);
     *ndeep = n;
@@ -1410,25 +1412,23 @@ static void nodes_below(const mr_dgrid *g, const mr_dproc *p, const mr_dbase *b,
 
 void mr_dtrace_root_heights(const mr_dgrid *g, const mr_dbase *b, double *hlo, double *hhi)
 {
-    static _Thread_local tnode cur[BOUND_NODES];
     dnode r[4];
+    tnode rs[4], deep[4];
     int n = roots(g, b, r), nd;
     for (int k = 0; k < n; k++)
-        cur[k].d = r[k];
-    tnode deep[4];
-    nodes_below(g, NULL, b, cur, n, hlo, hhi, deep, &nd);
+        rs[k].d = r[k];
+    nodes_below(g, NULL, b, rs, n, hlo, hhi, deep, &nd);
 }
 
 void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out, double *hlo,
                           double *hhi)
 {
-    static _Thread_local tnode cur[BOUND_NODES];
     pnode r[4];
+    tnode rs[4], deep[4];
     int n = proc_roots(p, b, r);
     for (int k = 0; k < n; k++)
-        cur[k].p = r[k];
-    tnode deep[4];
-    nodes_below(NULL, p, b, cur, n, hlo, hhi, deep, &out->n);
+        rs[k].p = r[k];
+    nodes_below(NULL, p, b, rs, n, hlo, hhi, deep, &out->n);
     for (int k = 0; k < out->n; k++)
         out->r[k] = deep[k].p;
 }
@@ -1856,6 +1856,45 @@ static double height_above(const mr_dscene *s, const mr_dbase *b, const double x
     return dist - h;
 }
 
+/* Geometric normal of the micro-triangle of base triangle t holding its
+ * barycentric point (b1, b2): a marched hit's. */
+static mr_vec3 marched_normal(const mr_dscene *s, uint32_t t, float b1, float b2)
+{
+    const mr_dbase *b = &s->bases[t];
+    mr_vec3 face = mr_v3((float)((b->p[1][1] - b->p[0][1]) * (b->p[2][2] - b->p[0][2]) -
+                                 (b->p[1][2] - b->p[0][2]) * (b->p[2][1] - b->p[0][1])),
+                         (float)((b->p[1][2] - b->p[0][2]) * (b->p[2][0] - b->p[0][0]) -
+                                 (b->p[1][0] - b->p[0][0]) * (b->p[2][2] - b->p[0][2])),
+                         (float)((b->p[1][0] - b->p[0][0]) * (b->p[2][1] - b->p[0][1]) -
+                                 (b->p[1][1] - b->p[0][1]) * (b->p[2][0] - b->p[0][0])));
+    if (b->flat)
+        return face;
+    double x = b->g[0][0] + b1 * (b->g[1][0] - b->g[0][0]) + b2 * (b->g[2][0] - b->g[0][0]);
+    double y = b->g[0][1] + b1 * (b->g[1][1] - b->g[0][1]) + b2 * (b->g[2][1] - b->g[0][1]);
+    /* the hit's cell: usually the one the traversal just made */
+    const cell_tris *ct = cell_get(s, t, b, (int64_t)floor(x), (int64_t)floor(y), 2, NULL);
+    if (!ct)
+        return face;
+    const mr_dcell *c = &ct->c;
+    int bestk = -1;
+    double bestw = -INFINITY;
+    for (int k = 0; k < c->nt; k++) {
+        const mr_dvert *a = &c->v[c->tri[k][0]], *bb = &c->v[c->tri[k][1]], *cc = &c->v[c->tri[k][2]];
+        double d = (bb->x - a->x) * (cc->y - a->y) - (bb->y - a->y) * (cc->x - a->x);
+        if (d == 0)
+            continue;
+        double w1 = ((x - a->x) * (cc->y - a->y) - (y - a->y) * (cc->x - a->x)) / d;
+        double w2 = ((bb->x - a->x) * (y - a->y) - (bb->y - a->y) * (x - a->x)) / d;
+        double w = fmin(fmin(w1, w2), 1 - w1 - w2);
+        if (w > bestw)
+            bestw = w, bestk = k;
+    }
+    if (bestk < 0)
+        return face;
+    const uint8_t *v = c->tri[bestk];
+    return mr_v3_cross(mr_v3_sub(ct->V[v[1]], ct->V[v[0]]), mr_v3_sub(ct->V[v[2]], ct->V[v[0]]));
+}
+
 bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
                      mr_dhit *hit, mr_dstats *st)
 {
@@ -1908,7 +1947,7 @@ bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmi
                     hit->t = (float)ts;
                     hit->b1 = (float)b1;
                     hit->b2 = (float)b2;
-                    hit->ng = mr_dtrace_normal_at(s, t, (float)b1, (float)b2);
+                    hit->ng = marched_normal(s, t, (float)b1, (float)b2);
                 }
                 return true;
             }
@@ -1917,41 +1956,4 @@ bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmi
         prev_t = tk;
     }
     return false;
-}
-
-mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2)
-{
-    const mr_dbase *b = &s->bases[t];
-    mr_vec3 face = mr_v3((float)((b->p[1][1] - b->p[0][1]) * (b->p[2][2] - b->p[0][2]) -
-                                 (b->p[1][2] - b->p[0][2]) * (b->p[2][1] - b->p[0][1])),
-                         (float)((b->p[1][2] - b->p[0][2]) * (b->p[2][0] - b->p[0][0]) -
-                                 (b->p[1][0] - b->p[0][0]) * (b->p[2][2] - b->p[0][2])),
-                         (float)((b->p[1][0] - b->p[0][0]) * (b->p[2][1] - b->p[0][1]) -
-                                 (b->p[1][1] - b->p[0][1]) * (b->p[2][0] - b->p[0][0])));
-    if (b->flat)
-        return face;
-    double x = b->g[0][0] + b1 * (b->g[1][0] - b->g[0][0]) + b2 * (b->g[2][0] - b->g[0][0]);
-    double y = b->g[0][1] + b1 * (b->g[1][1] - b->g[0][1]) + b2 * (b->g[2][1] - b->g[0][1]);
-    /* the hit's cell: usually the one the traversal just made */
-    const cell_tris *ct = cell_get(s, t, b, (int64_t)floor(x), (int64_t)floor(y), 2, NULL);
-    if (!ct)
-        return face;
-    const mr_dcell *c = &ct->c;
-    int bestk = -1;
-    double bestw = -INFINITY;
-    for (int k = 0; k < c->nt; k++) {
-        const mr_dvert *a = &c->v[c->tri[k][0]], *bb = &c->v[c->tri[k][1]], *cc = &c->v[c->tri[k][2]];
-        double d = (bb->x - a->x) * (cc->y - a->y) - (bb->y - a->y) * (cc->x - a->x);
-        if (d == 0)
-            continue;
-        double w1 = ((x - a->x) * (cc->y - a->y) - (y - a->y) * (cc->x - a->x)) / d;
-        double w2 = ((bb->x - a->x) * (y - a->y) - (bb->y - a->y) * (x - a->x)) / d;
-        double w = fmin(fmin(w1, w2), 1 - w1 - w2);
-        if (w > bestw)
-            bestw = w, bestk = k;
-    }
-    if (bestk < 0)
-        return face;
-    const uint8_t *v = c->tri[bestk];
-    return mr_v3_cross(mr_v3_sub(ct->V[v[1]], ct->V[v[0]]), mr_v3_sub(ct->V[v[2]], ct->V[v[0]]));
 }

@@ -226,8 +226,4 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
 bool mr_dtrace_march(const mr_dscene *s, uint32_t t, const mr_dray *r, float tmin, float *tmax,
                      mr_dhit *hit, mr_dstats *st);
 
-/* Geometric normal of the micro-triangle of base triangle t holding its
- * barycentric point (b1, b2) (a hit's). */
-mr_vec3 mr_dtrace_normal_at(const mr_dscene *s, uint32_t t, float b1, float b2);
-
 #endif
