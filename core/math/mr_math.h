@@ -61,6 +61,15 @@ static inline uint64_t mr_mix64(uint64_t z)
     return z ^ (z >> 31);
 }
 
+/* floor(x) for finite |x| < 2^63 without a call into libm (which the
+ * baseline x86-64 target makes of floor): the same value, but that -0
+ * gives +0. */
+static inline double mr_floor_small(double x)
+{
+    const double t = (double)(int64_t)x;
+    return t > x ? t - 1 : t;
+}
+
 /* a / b rounded down (towards -infinity), b != 0. */
 static inline int64_t mr_floor_div(int64_t a, int64_t b)
 {
