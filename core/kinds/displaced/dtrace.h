@@ -214,7 +214,11 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
  * tested against every ray still in the packet, each cell's micro-triangles
  * made once and tested against each ray that reaches it. The hits are
  * mr_dtrace_intersect's ray by ray, bit for bit (a tie between
- * micro-triangles goes to the same one whatever the order of the visit). */
+ * micro-triangles goes to the same one whatever the order of the visit).
+ * Procedural source: a node whose exact bound (its grid points' heights,
+ * tiling.h) is not at hand is first tested with its parent's heights when
+ * the parent's are tighter than T's, and made only for the rays that enter
+ * that box (plane at range 512, 160x90: half of them are not; 89 -> 69 ms). */
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
                                     const float *tmin, float *const *tmax, mr_dhit *hits,
                                     mr_dstats *st);

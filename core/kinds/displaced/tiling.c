@@ -283,14 +283,23 @@ void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi)
 static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
                         double *hi);
 
+bool mr_dproc_tri_heights_kept(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                               double *hi)
+{
+    const bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
+    if (e->id == p->id && e->x == bx && e->y == by && e->s == s) {
+        *lo = e->lo, *hi = e->hi;
+        return true;
+    }
+    return false;
+}
+
 void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
                           double *hi)
 {
-    bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
-    if (e->id == p->id && e->x == bx && e->y == by && e->s == s) {
-        *lo = e->lo, *hi = e->hi;
+    if (mr_dproc_tri_heights_kept(p, bx, by, s, lo, hi))
         return;
-    }
+    bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
     tri_heights(p, bx, by, s, lo, hi);
     *e = (bentry){p->id, bx, by, s, *lo, *hi};
 }

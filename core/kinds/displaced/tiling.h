@@ -102,6 +102,10 @@ double mr_dproc_height_of_blend(const mr_dproc *p, double b);
  * (bx, by + s)), which must lie in one lattice triangle. */
 void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
                           double *hi);
+/* The same bound when this thread has it at hand (made before and still
+ * kept), else false: nothing is made. */
+bool mr_dproc_tri_heights_kept(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                               double *hi);
 /* The global height bound (any region). */
 void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi);
 
