@@ -1219,14 +1219,15 @@ static mr_dproots tri_proots(const mr_dscene *s, uint32_t t)
     return rs;
 }
 
-/* Whether node n's own bound is exact (its grid points' heights: tiling.h)
- * and dear enough to be worth a test with its parent's first: the largest
- * such nodes (15 heights, seldom made before; the smaller ones' grid points
- * are their parent's, whose heights were just made). */
+/* Whether node n's own bound is dear enough to be worth a test with its
+ * parent's heights first: the blend bound of the large triforce nodes (three
+ * pyramid searches) and the exact bound of the largest exact ones (15
+ * heights, seldom made before), not the smaller exact ones, whose grid
+ * points are their parent's, just made (plane at range 512, 160x90: 89 ->
+ * 73 ms with the exact ones alone, -> 67 with the blend ones too). */
 static inline bool exact_prefilter(const pnode *n)
 {
-    return n->level < 0 && (n->s > MR_DPROC_EXACT_LEG / 2 || n->s < -MR_DPROC_EXACT_LEG / 2) &&
-           n->s >= -MR_DPROC_EXACT_LEG && n->s <= MR_DPROC_EXACT_LEG;
+    return n->level < 0 && (n->s > MR_DPROC_EXACT_LEG / 2 || n->s < -MR_DPROC_EXACT_LEG / 2);
 }
 
 /* ---- either source ------------------------------------------------------------- */
