@@ -105,6 +105,12 @@ void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint3
     *hi = ha > hb ? ha : hb;
 }
 
+/* The period holding cell i of a grid of n cells per period. */
+static inline int64_t period_of(int64_t i, uint32_t n)
+{
+    return (uint64_t)i < n ? 0 : mr_floor_div(i, n);
+}
+
 void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
                             double *lo, double *hi)
 {
@@ -118,11 +124,14 @@ void mr_dgrid_range_samples(const mr_dgrid *g, int64_t i0, int64_t i1, int64_t j
     unsigned l0 = 0;
     while (l0 < g->levels && ((int64_t)2 << l0) < span)
         l0++;
+    /* the periods of the corners and the cells within them, once for every
+     * level (and divisions only outside the first period) */
+    int64_t ti0 = period_of(i0, g->w), ti1 = period_of(i1, g->w);
+    int64_t tj0 = period_of(j0, g->h), tj1 = period_of(j1, g->h);
+    int64_t ri0 = i0 - ti0 * g->w, ri1 = i1 - ti1 * g->w, rj0 = j0 - tj0 * g->h, rj1 = j1 - tj1 * g->h;
     for (unsigned l = l0; l <= g->levels; l++) {
-        int64_t ti0 = mr_floor_div(i0, g->w), ti1 = mr_floor_div(i1, g->w);
-        int64_t tj0 = mr_floor_div(j0, g->h), tj1 = mr_floor_div(j1, g->h);
-        int64_t x0 = ti0 * g->lw[l] + ((i0 - ti0 * g->w) >> l), x1 = ti1 * g->lw[l] + ((i1 - ti1 * g->w) >> l);
-        int64_t y0 = tj0 * g->lh[l] + ((j0 - tj0 * g->h) >> l), y1 = tj1 * g->lh[l] + ((j1 - tj1 * g->h) >> l);
+        int64_t x0 = ti0 * g->lw[l] + (ri0 >> l), x1 = ti1 * g->lw[l] + (ri1 >> l);
+        int64_t y0 = tj0 * g->lh[l] + (rj0 >> l), y1 = tj1 * g->lh[l] + (rj1 >> l);
         if (x1 - x0 > 1 || y1 - y0 > 1)
             continue;
         double mn = INFINITY, mx = -INFINITY;
