@@ -1033,23 +1033,29 @@ static void test_tiling_histogram_and_period(void **state)
     mr_asset_free(ex);
 }
 
+/* Range 8: the triforce levels from the lattice triangle (leg 8) down;
+ * range 64 adds the large nodes' blend bounds and the parent-heights test
+ * before them and before the exact ones (mr_dtrace_intersect_packet). */
 static void test_procedural_against_brute_force(void **state)
 {
     (void)state;
     uint64_t seed = 41;
     mr_asset *mesh = bumpy_grid(&seed, 1);
     mr_asset *ex = cracked();
-    dfx f = {0};
-    dfx_params(&f, 0.15f, 0);
-    f.par.texture = 0;
-    f.par.procedural = true;
-    f.par.example = 2;
-    f.par.uv_scale = 0.5f;
-    f.par.range = 8;
-    dfx_open(&f, mesh, ex, NULL, NULL, 0);
-    assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
-    dfx_close(&f);
-    mr_device_free(f.dev);
+    static const uint32_t RANGES[] = {8, 64};
+    for (size_t k = 0; k < sizeof RANGES / sizeof RANGES[0]; k++) {
+        dfx f = {0};
+        dfx_params(&f, 0.15f, 0);
+        f.par.texture = 0;
+        f.par.procedural = true;
+        f.par.example = 2;
+        f.par.uv_scale = 0.5f;
+        f.par.range = RANGES[k];
+        dfx_open(&f, mesh, ex, NULL, NULL, 0);
+        assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
+        dfx_close(&f);
+        mr_device_free(f.dev);
+    }
     mr_asset_free(mesh);
     mr_asset_free(ex);
 }
