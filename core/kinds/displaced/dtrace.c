@@ -145,6 +145,10 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
             lo = dmin(lo, v), hi = dmax(hi, v);
         }
         double slack = 1e-12 * row;
+        gr->nrow[r] = row;
+        gr->nl[r][0] = gr->inv[r][0] * gr->N0[0] + gr->inv[r][1] * gr->N0[1] + gr->inv[r][2] * gr->N0[2];
+        gr->nl[r][1] = gr->inv[r][0] * gr->Nx[0] + gr->inv[r][1] * gr->Nx[1] + gr->inv[r][2] * gr->Nx[2];
+        gr->nl[r][2] = gr->inv[r][0] * gr->Ny[0] + gr->inv[r][1] * gr->Ny[1] + gr->inv[r][2] * gr->Ny[2];
         if (dist > 1e-6) {
             lo = lo >= 0 ? lo - slack : lo / dist - slack;
             hi = hi >= 0 ? hi / dist + slack : hi + slack;
@@ -158,6 +162,15 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
     gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]) &&
                 isfinite(gr->nb[0][0] + gr->nb[0][1] + gr->nb[1][0] + gr->nb[1][1] +
                          gr->nb[2][0] + gr->nb[2][1]);
+    gr->g0[0] = b->g[0][0], gr->g0[1] = b->g[0][1];
+    gr->inv_ndist = dist > 1e-6 ? 1 / dist : 0;
+    /* worth it where the normal's turn over T moves the displaced surface
+     * sideways by a quarter of a cell or more (a constant normal: not at
+     * all; coarse cells: seldom, and each box then costs 4 % more) */
+    double sideways = hm * dmax(gr->nb[0][1] - gr->nb[0][0], gr->nb[1][1] - gr->nb[1][0]);
+    gr->nrect = dist > 1e-6 && !gr->constant_normal && sideways > 0.25;
+    for (int r = 0; r < 3; r++)
+        gr->nrect = gr->nrect && isfinite(gr->nl[r][0] + gr->nl[r][1] + gr->nl[r][2]);
 }
 
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
@@ -366,21 +379,57 @@ void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad 
 
 /* ---- the local frame ------------------------------------------------------------- */
 
+/* Bounds of the unit normal's local components inv N / |N| over grid
+ * rectangle [x0, x1] x [y0, y1] (cut to T's grid box, which holds every
+ * micro-vertex of T): inv N is affine in the grid point, so over the
+ * rectangle it lies between the values its corners give, each component
+ * reached at the corner its two slopes pick; then local_frame's division
+ * by |N| in [least, 1], with a slack of 1e-12 of the terms' size (the
+ * double evaluation is off by a few ulps of them), and T's own bounds
+ * narrowed by the result. A curved base's boxes were as wide as the turn
+ * of its normal over all of T times the height, for every node. */
+static inline void rect_normals(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
+                                double nlo[3], double nhi[3])
+{
+    const double dx0 = x0 - gr->g0[0], dx1 = x1 - gr->g0[0];
+    const double dy0 = y0 - gr->g0[1], dy1 = y1 - gr->g0[1];
+    for (int a = 0; a < 3; a++) {
+        const double *c = gr->nl[a];
+        double ax0 = c[1] * dx0, ax1 = c[1] * dx1, ay0 = c[2] * dy0, ay1 = c[2] * dy1;
+        double lo = c[0] + dmin(ax0, ax1) + dmin(ay0, ay1);
+        double hi = c[0] + dmax(ax0, ax1) + dmax(ay0, ay1);
+        double slack = 1e-12 * (gr->nrow[a] + fabs(c[0]) + fabs(ax0) + fabs(ax1) + fabs(ay0) + fabs(ay1));
+        lo = lo >= 0 ? lo - slack : lo * gr->inv_ndist - slack;
+        hi = hi >= 0 ? hi * gr->inv_ndist + slack : hi + slack;
+        nlo[a] = dmax(lo, gr->nb[a][0]), nhi[a] = dmin(hi, gr->nb[a][1]);
+        if (!(nlo[a] <= nhi[a]))
+            nlo[a] = gr->nb[a][0], nhi[a] = gr->nb[a][1];
+    }
+}
+
 /* A node's box in T's local frame (dtrace.h): the rectangle cut to T's
- * grid box, moved by [h] times the normal's grid components, its height
- * [h] times the normal's face component, padded. */
+ * grid box, moved by [h] times the normal's grid components over it, its
+ * height [h] times the normal's face component, padded. */
 static inline void local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
                              double hlo, double hhi, double lo[3], double hi[3])
 {
-    double o[3][2];
+    double o[3][2], nlo[3], nhi[3];
+    const double cx0 = dmax(x0, gr->gx0), cx1 = dmin(x1, gr->gx1);
+    const double cy0 = dmax(y0, gr->gy0), cy1 = dmin(y1, gr->gy1);
+    if (gr->nrect) {
+        rect_normals(gr, cx0, cx1, cy0, cy1, nlo, nhi);
+    } else {
+        for (int a = 0; a < 3; a++)
+            nlo[a] = gr->nb[a][0], nhi[a] = gr->nb[a][1];
+    }
     for (int a = 0; a < 3; a++) {
-        double p0 = hlo * gr->nb[a][0], p1 = hlo * gr->nb[a][1];
-        double p2 = hhi * gr->nb[a][0], p3 = hhi * gr->nb[a][1];
+        double p0 = hlo * nlo[a], p1 = hlo * nhi[a];
+        double p2 = hhi * nlo[a], p3 = hhi * nhi[a];
         o[a][0] = dmin(dmin(p0, p1), dmin(p2, p3)) - gr->lpad[a];
         o[a][1] = dmax(dmax(p0, p1), dmax(p2, p3)) + gr->lpad[a];
     }
-    lo[0] = dmax(x0, gr->gx0) + o[0][0], hi[0] = dmin(x1, gr->gx1) + o[0][1];
-    lo[1] = dmax(y0, gr->gy0) + o[1][0], hi[1] = dmin(y1, gr->gy1) + o[1][1];
+    lo[0] = cx0 + o[0][0], hi[0] = cx1 + o[0][1];
+    lo[1] = cy0 + o[1][0], hi[1] = cy1 + o[1][1];
     lo[2] = o[2][0], hi[2] = o[2][1];
 }
 
@@ -1072,10 +1121,25 @@ static unsigned tex_child_boxes(const mr_dgrid *g, const mr_dbase *b, const mr_d
         else
             hl[1] = hl[0], hh[1] = hh[0];
         const __m128d hlo = _mm_loadu_pd(hl), hhi = _mm_loadu_pd(hh);
-        /* local_box */
+        /* local_box (each lane's normal bounds from its own rectangle) */
+        const double ry0 = y0 > gr->gy0 ? y0 : gr->gy0, ry1 = y1 < gr->gy1 ? y1 : gr->gy1;
+        double nlo[2][3], nhi[2][3];
+        {
+            double rx0[2], rx1[2];
+            _mm_storeu_pd(rx0, lx0);
+            _mm_storeu_pd(rx1, lx1);
+            for (int k = 0; k < 2; k++) {
+                if (gr->nrect) {
+                    rect_normals(gr, rx0[k], rx1[k], ry0, ry1, nlo[k], nhi[k]);
+                } else {
+                    for (int a = 0; a < 3; a++)
+                        nlo[k][a] = gr->nb[a][0], nhi[k][a] = gr->nb[a][1];
+                }
+            }
+        }
         __m128d l[3], h[3];
         for (int a = 0; a < 3; a++) {
-            __m128d n0 = _mm_set1_pd(gr->nb[a][0]), n1 = _mm_set1_pd(gr->nb[a][1]);
+            __m128d n0 = _mm_set_pd(nlo[1][a], nlo[0][a]), n1 = _mm_set_pd(nhi[1][a], nhi[0][a]);
             __m128d p0 = _mm_mul_pd(hlo, n0), p1 = _mm_mul_pd(hlo, n1);
             __m128d p2 = _mm_mul_pd(hhi, n0), p3 = _mm_mul_pd(hhi, n1);
             __m128d pad = _mm_set1_pd(gr->lpad[a]);
@@ -1084,8 +1148,8 @@ static unsigned tex_child_boxes(const mr_dgrid *g, const mr_dbase *b, const mr_d
         }
         l[0] = _mm_add_pd(lx0, l[0]);
         h[0] = _mm_add_pd(lx1, h[0]);
-        l[1] = _mm_add_pd(_mm_set1_pd(y0 > gr->gy0 ? y0 : gr->gy0), l[1]);
-        h[1] = _mm_add_pd(_mm_set1_pd(y1 < gr->gy1 ? y1 : gr->gy1), h[1]);
+        l[1] = _mm_add_pd(_mm_set1_pd(ry0), l[1]);
+        h[1] = _mm_add_pd(_mm_set1_pd(ry1), h[1]);
         for (int a = 0; a < 3; a++) {
             _mm_storeu_pd(lo[a] + 2 * r, l[a]);
             _mm_storeu_pd(hi[a] + 2 * r, h[a]);
