@@ -1060,6 +1060,39 @@ typedef struct tentry {
 } tentry;
 
 #if defined(__SSE2__)
+/* rect_normals for two rectangles [x0, x1] (lanes) x [y0, y1]: its
+ * operations lane by lane (min and max as minpd and maxpd are, a < b ? a :
+ * b and a > b ? a : b; the selections by mask), so the same bounds. */
+static inline void rect_normals2(const mr_dgrad *gr, __m128d x0, __m128d x1, double y0, double y1,
+                                 __m128d nlo[3], __m128d nhi[3])
+{
+    const __m128d gx = _mm_set1_pd(gr->g0[0]), sign = _mm_set1_pd(-0.0), zero = _mm_setzero_pd();
+    const __m128d dx0 = _mm_sub_pd(x0, gx), dx1 = _mm_sub_pd(x1, gx);
+    const double dy0 = y0 - gr->g0[1], dy1 = y1 - gr->g0[1];
+    const __m128d inv = _mm_set1_pd(gr->inv_ndist);
+    for (int a = 0; a < 3; a++) {
+        const double *c = gr->nl[a];
+        const __m128d c1 = _mm_set1_pd(c[1]);
+        __m128d ax0 = _mm_mul_pd(c1, dx0), ax1 = _mm_mul_pd(c1, dx1);
+        double ay0 = c[2] * dy0, ay1 = c[2] * dy1;
+        __m128d lo = _mm_add_pd(_mm_add_pd(_mm_set1_pd(c[0]), _mm_min_pd(ax0, ax1)),
+                                _mm_set1_pd(dmin(ay0, ay1)));
+        __m128d hi = _mm_add_pd(_mm_add_pd(_mm_set1_pd(c[0]), _mm_max_pd(ax0, ax1)),
+                                _mm_set1_pd(dmax(ay0, ay1)));
+        __m128d sum = _mm_add_pd(_mm_set1_pd(gr->nrow[a] + fabs(c[0])), _mm_andnot_pd(sign, ax0));
+        sum = _mm_add_pd(_mm_add_pd(sum, _mm_andnot_pd(sign, ax1)), _mm_set1_pd(fabs(ay0)));
+        __m128d slack = _mm_mul_pd(_mm_set1_pd(1e-12), _mm_add_pd(sum, _mm_set1_pd(fabs(ay1))));
+        __m128d lpos = _mm_cmpge_pd(lo, zero), hpos = _mm_cmpge_pd(hi, zero);
+        lo = _mm_sub_pd(_mm_or_pd(_mm_and_pd(lpos, lo), _mm_andnot_pd(lpos, _mm_mul_pd(lo, inv))), slack);
+        hi = _mm_add_pd(_mm_or_pd(_mm_and_pd(hpos, _mm_mul_pd(hi, inv)), _mm_andnot_pd(hpos, hi)), slack);
+        const __m128d b0 = _mm_set1_pd(gr->nb[a][0]), b1 = _mm_set1_pd(gr->nb[a][1]);
+        lo = _mm_max_pd(lo, b0), hi = _mm_min_pd(hi, b1);
+        __m128d ok = _mm_cmple_pd(lo, hi);
+        nlo[a] = _mm_or_pd(_mm_and_pd(ok, lo), _mm_andnot_pd(ok, b0));
+        nhi[a] = _mm_or_pd(_mm_and_pd(ok, hi), _mm_andnot_pd(ok, b1));
+    }
+}
+
 /* The boxes of node n's children (level 1 .. the pyramid's top) in T's
  * local frame, a row of two at a time (SSE2): what mr_dtrace_overlaps,
  * node_heights and local_box compute for each child, the same operations in
@@ -1123,23 +1156,16 @@ static unsigned tex_child_boxes(const mr_dgrid *g, const mr_dbase *b, const mr_d
         const __m128d hlo = _mm_loadu_pd(hl), hhi = _mm_loadu_pd(hh);
         /* local_box (each lane's normal bounds from its own rectangle) */
         const double ry0 = y0 > gr->gy0 ? y0 : gr->gy0, ry1 = y1 < gr->gy1 ? y1 : gr->gy1;
-        double nlo[2][3], nhi[2][3];
-        {
-            double rx0[2], rx1[2];
-            _mm_storeu_pd(rx0, lx0);
-            _mm_storeu_pd(rx1, lx1);
-            for (int k = 0; k < 2; k++) {
-                if (gr->nrect) {
-                    rect_normals(gr, rx0[k], rx1[k], ry0, ry1, nlo[k], nhi[k]);
-                } else {
-                    for (int a = 0; a < 3; a++)
-                        nlo[k][a] = gr->nb[a][0], nhi[k][a] = gr->nb[a][1];
-                }
-            }
+        __m128d nlo[3], nhi[3];
+        if (gr->nrect) {
+            rect_normals2(gr, lx0, lx1, ry0, ry1, nlo, nhi);
+        } else {
+            for (int a = 0; a < 3; a++)
+                nlo[a] = _mm_set1_pd(gr->nb[a][0]), nhi[a] = _mm_set1_pd(gr->nb[a][1]);
         }
         __m128d l[3], h[3];
         for (int a = 0; a < 3; a++) {
-            __m128d n0 = _mm_set_pd(nlo[1][a], nlo[0][a]), n1 = _mm_set_pd(nhi[1][a], nhi[0][a]);
+            __m128d n0 = nlo[a], n1 = nhi[a];
             __m128d p0 = _mm_mul_pd(hlo, n0), p1 = _mm_mul_pd(hlo, n1);
             __m128d p2 = _mm_mul_pd(hhi, n0), p3 = _mm_mul_pd(hhi, n1);
             __m128d pad = _mm_set1_pd(gr->lpad[a]);
