@@ -164,6 +164,11 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
                          gr->nb[2][0] + gr->nb[2][1]);
     gr->g0[0] = b->g[0][0], gr->g0[1] = b->g[0][1];
     gr->inv_ndist = dist > 1e-6 ? 1 / dist : 0;
+    double dxm = dmax(fabs(gr->gx0 - gr->g0[0]), fabs(gr->gx1 - gr->g0[0]));
+    double dym = dmax(fabs(gr->gy0 - gr->g0[1]), fabs(gr->gy1 - gr->g0[1]));
+    for (int r = 0; r < 2; r++)
+        gr->nslack[r] = 1e-12 * (gr->nrow[r] + fabs(gr->nl[r][0]) + 2 * fabs(gr->nl[r][1]) * dxm +
+                                 2 * fabs(gr->nl[r][2]) * dym);
     /* worth it where the normal's turn over T moves the displaced surface
      * sideways by a quarter of a cell or more (a constant normal: not at
      * all; coarse cells: seldom, and each box then costs 4 % more) */
@@ -384,27 +389,29 @@ void mr_dtrace_tri_box(const mr_dbase *b, const mr_dheights *hs, const mr_dgrad 
  * micro-vertex of T): inv N is affine in the grid point, so over the
  * rectangle it lies between the values its corners give, each component
  * reached at the corner its two slopes pick; then local_frame's division
- * by |N| in [least, 1], with a slack of 1e-12 of the terms' size (the
- * double evaluation is off by a few ulps of them), and T's own bounds
- * narrowed by the result. A curved base's boxes were as wide as the turn
- * of its normal over all of T times the height, for every node. */
+ * by |N| in [least, 1], with a slack of 1e-12 of the terms' largest size
+ * over T's grid box (the double evaluation is off by a few ulps of them),
+ * and T's own bounds narrowed by the result. The grid components only:
+ * the face component (about 1) moves a box by its heights' turn, little.
+ * A curved base's boxes were as wide as the turn of its normal over all
+ * of T times the height, for every node. */
 static inline void rect_normals(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
                                 double nlo[3], double nhi[3])
 {
     const double dx0 = x0 - gr->g0[0], dx1 = x1 - gr->g0[0];
     const double dy0 = y0 - gr->g0[1], dy1 = y1 - gr->g0[1];
-    for (int a = 0; a < 3; a++) {
+    for (int a = 0; a < 2; a++) {
         const double *c = gr->nl[a];
         double ax0 = c[1] * dx0, ax1 = c[1] * dx1, ay0 = c[2] * dy0, ay1 = c[2] * dy1;
         double lo = c[0] + dmin(ax0, ax1) + dmin(ay0, ay1);
         double hi = c[0] + dmax(ax0, ax1) + dmax(ay0, ay1);
-        double slack = 1e-12 * (gr->nrow[a] + fabs(c[0]) + fabs(ax0) + fabs(ax1) + fabs(ay0) + fabs(ay1));
-        lo = lo >= 0 ? lo - slack : lo * gr->inv_ndist - slack;
-        hi = hi >= 0 ? hi * gr->inv_ndist + slack : hi + slack;
+        lo = lo >= 0 ? lo - gr->nslack[a] : lo * gr->inv_ndist - gr->nslack[a];
+        hi = hi >= 0 ? hi * gr->inv_ndist + gr->nslack[a] : hi + gr->nslack[a];
         nlo[a] = dmax(lo, gr->nb[a][0]), nhi[a] = dmin(hi, gr->nb[a][1]);
         if (!(nlo[a] <= nhi[a]))
             nlo[a] = gr->nb[a][0], nhi[a] = gr->nb[a][1];
     }
+    nlo[2] = gr->nb[2][0], nhi[2] = gr->nb[2][1];
 }
 
 /* A node's box in T's local frame (dtrace.h): the rectangle cut to T's
@@ -1066,11 +1073,11 @@ typedef struct tentry {
 static inline void rect_normals2(const mr_dgrad *gr, __m128d x0, __m128d x1, double y0, double y1,
                                  __m128d nlo[3], __m128d nhi[3])
 {
-    const __m128d gx = _mm_set1_pd(gr->g0[0]), sign = _mm_set1_pd(-0.0), zero = _mm_setzero_pd();
+    const __m128d gx = _mm_set1_pd(gr->g0[0]), zero = _mm_setzero_pd();
     const __m128d dx0 = _mm_sub_pd(x0, gx), dx1 = _mm_sub_pd(x1, gx);
     const double dy0 = y0 - gr->g0[1], dy1 = y1 - gr->g0[1];
     const __m128d inv = _mm_set1_pd(gr->inv_ndist);
-    for (int a = 0; a < 3; a++) {
+    for (int a = 0; a < 2; a++) {
         const double *c = gr->nl[a];
         const __m128d c1 = _mm_set1_pd(c[1]);
         __m128d ax0 = _mm_mul_pd(c1, dx0), ax1 = _mm_mul_pd(c1, dx1);
@@ -1079,9 +1086,7 @@ static inline void rect_normals2(const mr_dgrad *gr, __m128d x0, __m128d x1, dou
                                 _mm_set1_pd(dmin(ay0, ay1)));
         __m128d hi = _mm_add_pd(_mm_add_pd(_mm_set1_pd(c[0]), _mm_max_pd(ax0, ax1)),
                                 _mm_set1_pd(dmax(ay0, ay1)));
-        __m128d sum = _mm_add_pd(_mm_set1_pd(gr->nrow[a] + fabs(c[0])), _mm_andnot_pd(sign, ax0));
-        sum = _mm_add_pd(_mm_add_pd(sum, _mm_andnot_pd(sign, ax1)), _mm_set1_pd(fabs(ay0)));
-        __m128d slack = _mm_mul_pd(_mm_set1_pd(1e-12), _mm_add_pd(sum, _mm_set1_pd(fabs(ay1))));
+        const __m128d slack = _mm_set1_pd(gr->nslack[a]);
         __m128d lpos = _mm_cmpge_pd(lo, zero), hpos = _mm_cmpge_pd(hi, zero);
         lo = _mm_sub_pd(_mm_or_pd(_mm_and_pd(lpos, lo), _mm_andnot_pd(lpos, _mm_mul_pd(lo, inv))), slack);
         hi = _mm_add_pd(_mm_or_pd(_mm_and_pd(hpos, _mm_mul_pd(hi, inv)), _mm_andnot_pd(hpos, hi)), slack);
@@ -1091,6 +1096,7 @@ static inline void rect_normals2(const mr_dgrad *gr, __m128d x0, __m128d x1, dou
         nlo[a] = _mm_or_pd(_mm_and_pd(ok, lo), _mm_andnot_pd(ok, b0));
         nhi[a] = _mm_or_pd(_mm_and_pd(ok, hi), _mm_andnot_pd(ok, b1));
     }
+    nlo[2] = _mm_set1_pd(gr->nb[2][0]), nhi[2] = _mm_set1_pd(gr->nb[2][1]);
 }
 
 /* The boxes of node n's children (level 1 .. the pyramid's top) in T's
