@@ -133,6 +133,7 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
      * (far less): 2^-22 of the basis, through inv */
     double basis = gr->pad / PAD_REL, err = 0x1p-22 * basis, dist;
     dist = origin_distance(b->n[0], b->n[1], b->n[2]) * (1 - 1e-12);
+    double rows[3];
     for (int r = 0; r < 3; r++) {
         double row = 0, lo = INFINITY, hi = -INFINITY;
         for (int c = 0; c < 3; c++) {
@@ -145,10 +146,7 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
             lo = dmin(lo, v), hi = dmax(hi, v);
         }
         double slack = 1e-12 * row;
-        gr->nrow[r] = row;
-        gr->nl[r][0] = gr->inv[r][0] * gr->N0[0] + gr->inv[r][1] * gr->N0[1] + gr->inv[r][2] * gr->N0[2];
-        gr->nl[r][1] = gr->inv[r][0] * gr->Nx[0] + gr->inv[r][1] * gr->Nx[1] + gr->inv[r][2] * gr->Nx[2];
-        gr->nl[r][2] = gr->inv[r][0] * gr->Ny[0] + gr->inv[r][1] * gr->Ny[1] + gr->inv[r][2] * gr->Ny[2];
+        rows[r] = row;
         if (dist > 1e-6) {
             lo = lo >= 0 ? lo - slack : lo / dist - slack;
             hi = hi >= 0 ? hi / dist + slack : hi + slack;
@@ -162,20 +160,24 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
     gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]) &&
                 isfinite(gr->nb[0][0] + gr->nb[0][1] + gr->nb[1][0] + gr->nb[1][1] +
                          gr->nb[2][0] + gr->nb[2][1]);
+    /* a node's own normal bounds (rect_normals): worth it where the
+     * normal's turn over T moves the displaced surface sideways by a
+     * quarter of a cell or more (a constant normal: not at all; coarse
+     * cells: seldom, and each box then costs 4 % more) */
+    double sideways = hm * dmax(gr->nb[0][1] - gr->nb[0][0], gr->nb[1][1] - gr->nb[1][0]);
+    gr->nrect = dist > 1e-6 && !gr->constant_normal && sideways > 0.25;
     gr->g0[0] = b->g[0][0], gr->g0[1] = b->g[0][1];
     gr->inv_ndist = dist > 1e-6 ? 1 / dist : 0;
     double dxm = dmax(fabs(gr->gx0 - gr->g0[0]), fabs(gr->gx1 - gr->g0[0]));
     double dym = dmax(fabs(gr->gy0 - gr->g0[1]), fabs(gr->gy1 - gr->g0[1]));
-    for (int r = 0; r < 2; r++)
-        gr->nslack[r] = 1e-12 * (gr->nrow[r] + fabs(gr->nl[r][0]) + 2 * fabs(gr->nl[r][1]) * dxm +
+    for (int r = 0; r < 2; r++) {
+        gr->nl[r][0] = gr->inv[r][0] * gr->N0[0] + gr->inv[r][1] * gr->N0[1] + gr->inv[r][2] * gr->N0[2];
+        gr->nl[r][1] = gr->inv[r][0] * gr->Nx[0] + gr->inv[r][1] * gr->Nx[1] + gr->inv[r][2] * gr->Nx[2];
+        gr->nl[r][2] = gr->inv[r][0] * gr->Ny[0] + gr->inv[r][1] * gr->Ny[1] + gr->inv[r][2] * gr->Ny[2];
+        gr->nslack[r] = 1e-12 * (rows[r] + fabs(gr->nl[r][0]) + 2 * fabs(gr->nl[r][1]) * dxm +
                                  2 * fabs(gr->nl[r][2]) * dym);
-    /* worth it where the normal's turn over T moves the displaced surface
-     * sideways by a quarter of a cell or more (a constant normal: not at
-     * all; coarse cells: seldom, and each box then costs 4 % more) */
-    double sideways = hm * dmax(gr->nb[0][1] - gr->nb[0][0], gr->nb[1][1] - gr->nb[1][0]);
-    gr->nrect = dist > 1e-6 && !gr->constant_normal && sideways > 0.25;
-    for (int r = 0; r < 3; r++)
-        gr->nrect = gr->nrect && isfinite(gr->nl[r][0] + gr->nl[r][1] + gr->nl[r][2]);
+        gr->nrect = gr->nrect && isfinite(gr->nl[r][0] + gr->nl[r][1] + gr->nl[r][2] + gr->nslack[r]);
+    }
 }
 
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)

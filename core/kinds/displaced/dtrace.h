@@ -87,13 +87,12 @@ typedef struct mr_dgrad {
     double inv[3][3];      /* (q - g0, z) = inv (x - P0) */
     double nb[3][2];       /* bounds of inv N / |N| over T */
     double lpad[3];        /* pad of the local boxes */
-    /* inv N as affine functions of the grid point (value at T's grid
-     * vertex 0 g0, then per unit of x and of y), the largest size of
-     * their values (|inv row|_1), 1 / the least |N| over T, and g0:
-     * a node's own normal bounds (rect_normals, dtrace.c) with their
-     * slack; none when the corner normals nearly oppose (then T's bounds) */
+    /* A node's own normal bounds (rect_normals, dtrace.c), where nrect:
+     * the grid rows of inv N as affine functions of the grid point (value
+     * at T's grid vertex 0 g0, then per unit of x and of y), their
+     * rounding slack, and 1 / the least |N| over T. */
     bool nrect;
-    double nl[3][3], nrow[3], nslack[2], inv_ndist, g0[2];
+    double nl[2][3], nslack[2], inv_ndist, g0[2];
 } mr_dgrad;
 
 typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal;
