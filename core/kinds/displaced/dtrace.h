@@ -34,8 +34,11 @@
  * micro-vertex of grid point q and height h lies at (q + h (a, b), h c)
  * there, (a, b, c) the unit normal in the frame's basis, bounded once per
  * triangle (dtrace.c local_frame): a node is the box [rectangle + [h] a] x
- * [rectangle + [h] b] x [[h] c], a three-slab test. On a plane (normal =
- * face normal) a = b = 0 and the boxes are exact. The local boxes are
+ * [rectangle + [h] b] x [[h] c], a three-slab test. Where T's normal turns
+ * enough to move the surface a quarter cell sideways, a and b are bounded
+ * over the node's own rectangle instead (rect_normals: inv N is affine in
+ * the grid point), so small nodes are not widened by the turn over all of
+ * T. On a plane (normal = face normal) a = b = 0 and the boxes are exact. The local boxes are
  * widened by the image under the inverse map of 4 float roundings of the
  * largest coordinate (a micro-vertex is rounded to float once); triangles
  * whose map is badly conditioned (no area in space, such as a sphere's
