@@ -1344,7 +1344,7 @@ static mr_dproots tri_proots(const mr_dscene *s, uint32_t t)
  * heights, seldom made before), not the smaller exact ones, whose grid
  * points are their parent's, just made (plane at range 512, 160x90: 89 ->
  * 73 ms with the exact ones alone, -> 67 with the blend ones too). */
-static inline bool exact_prefilter(const pnode *n)
+static inline bool worth_parent_test(const pnode *n)
 {
     return n->level < 0 && (n->s > MR_DPROC_EXACT_LEG / 2 || n->s < -MR_DPROC_EXACT_LEG / 2);
 }
@@ -1431,18 +1431,6 @@ tnode_region(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr, const tn
         pnode_heights(s->proc, gr, &n->p, hlo, hhi);
     else
         node_heights(s->grid, &n->d, hlo, hhi);
-    return true;
-}
-
-/* Node n's box in T's local frame (mr_dgrad.local), or false when n cannot
- * overlap T. */
-static inline bool tnode_local_box(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr,
-                                   const tnode *n, double lo[3], double hi[3], mr_dstats *st)
-{
-    double x0, x1, y0, y1, hlo, hhi;
-    if (!tnode_region(s, b, gr, n, &x0, &x1, &y0, &y1, &hlo, &hhi, st))
-        return false;
-    local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
     return true;
 }
 
@@ -1912,11 +1900,11 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
                 /* (where the parent's heights are T's, T's box test was
                  * already this one but for the rectangle: it seldom culls,
                  * and cost the procedural sphere at range 64 up to 6 %) */
-                if (pr && (e.hlo > gr->hlo || e.hhi < gr->hhi) && exact_prefilter(&ch[c].p) &&
+                if (pr && (e.hlo > gr->hlo || e.hhi < gr->hhi) && worth_parent_test(&ch[c].p) &&
                     !mr_dproc_tri_heights_kept(pr, ch[c].p.x, ch[c].p.y, ch[c].p.s, &klo, &khi)) {
                     /* the parent's heights bound the child's: rays that
-                     * miss that box miss it, and its exact bound (its grid
-                     * points' heights) need not be made */
+                     * miss that box miss it, and its own bound need not be
+                     * made */
                     double near;
                     pnode_rect(&ch[c].p, &x0, &x1, &y0, &y1);
                     local_rect(gr, x0, x1, y0, y1, &lrc);

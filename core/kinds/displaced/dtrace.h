@@ -38,11 +38,11 @@
  * enough to move the surface a quarter cell sideways, a and b are bounded
  * over the node's own rectangle instead (rect_normals: inv N is affine in
  * the grid point), so small nodes are not widened by the turn over all of
- * T. On a plane (normal = face normal) a = b = 0 and the boxes are exact. The local boxes are
- * widened by the image under the inverse map of 4 float roundings of the
- * largest coordinate (a micro-vertex is rounded to float once); triangles
- * whose map is badly conditioned (no area in space, such as a sphere's
- * pole triangles) use the 3D boxes.
+ * T. On a plane (normal = face normal) a = b = 0 and the boxes are exact.
+ * The local boxes are widened by the image under the inverse map of 4
+ * float roundings of the largest coordinate (a micro-vertex is rounded to
+ * float once); triangles whose map is badly conditioned (no area in space,
+ * such as a sphere's pole triangles) use the 3D boxes.
  *
  * Traversal: the pyramid seen as an infinite quadtree over the repeating
  * grid (levels 0..L inside one period, whose top node covers the period;
