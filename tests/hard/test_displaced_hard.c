@@ -24,6 +24,7 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 #include <cmocka.h>
 
 #include <float.h>
@@ -74,6 +75,7 @@ static void uv_degenerate(int x, int z, float o[2])
 }
 static void uv_repeats(int x, int z, float o[2]) { o[0] = 40 * x / 3.0f, o[1] = 40 * z / 3.0f; }
 static void uv_huge(int x, int z, float o[2]) { o[0] = 1e5f * x / 3.0f, o[1] = 1e5f * z / 3.0f; }
+static void uv_finer(int x, int z, float o[2]) { o[0] = 1e7f * x / 3.0f, o[1] = 1e7f * z / 3.0f; }
 
 /* Random rays at the displaced mesh against the brute force: returns the
  * rays that disagree; the smallest share of rays that hit so far in
@@ -150,6 +152,17 @@ static void test_huge_repeats(void **state)
     dfx_close(&f);
     mr_device_free(f.dev);
     mr_asset_free(mesh);
+    /* 10,000,000 repeats: cells finer than floats can place a micro-vertex
+     * (a frame of such a plane ran for minutes): refused, naming what to
+     * change */
+    mr_asset *finer = grid_mesh(uv_finer, NULL);
+    f.assets[0] = finer;
+    mr_geom *g = NULL;
+    err = (mr_error){0};
+    int rc = mr_kind_displaced.create(finer, &f.desc, &ctx, &g, &err);
+    HARD_CHECK("other", rc == MR_ERR_INVALID && !g && strstr(err.msg, "displaced.range") ? 0 : 1,
+               "==", 0, "10^7 repeats refused with an error naming displaced.range (%s)", err.msg);
+    mr_asset_free(finer);
     mr_asset_free(tex);
 }
 

@@ -462,6 +462,22 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
         }
         g->grads[t].hlo = hlo;
         g->grads[t].hhi = hhi;
+        if (g->par.method == MR_DISPLACED_TESSELLATION_FREE) {
+            /* cells that floats can place (MR_DTRACE_MAX_PAD_CELLS), in the
+             * rest pose: a pose that shrinks a triangle pads its boxes by
+             * more cells, but it has no more cells to visit than before */
+            mr_dgrad rest;
+            mr_dgrad_init(&rest, &g->bases[t], hlo, hhi);
+            if (rest.local && !(fmax(rest.lpad[0], rest.lpad[1]) <= MR_DTRACE_MAX_PAD_CELLS)) {
+                rc = mr_error_set(err, MR_ERR_INVALID,
+                                  "%s: base triangle %zu spans so many height cells that float "
+                                  "coordinates cannot place its micro-vertices within %g cells: "
+                                  "lower displaced.range, raise displaced.level, or shrink the "
+                                  "texture coordinates' span",
+                                  asset->path, t, MR_DTRACE_MAX_PAD_CELLS);
+                goto fail;
+            }
+        }
     }
     if (tessellated(g)) {
         if ((rc = tess_layout(g, asset->path, err)) < 0 ||
@@ -698,6 +714,7 @@ static int update_surface(mr_geom *g, unsigned threads, mr_error *err)
                             "%s: the displaced surface of base triangle %u is not finite or "
                             "beyond %g: check the heights' scale and the object's transform",
                             g->asset->path, bad - 1, MR_MAX_COORDINATE);
+
     int rc = MR_OK;
     if (tessellated(g) && (rc = tess_fill(g, g->tess_pos, g->tess_idx, false, threads, err)) == MR_OK)
         for (size_t k = 0; k < (size_t)g->tess_vertices * 3; k++)

@@ -98,6 +98,16 @@ typedef struct mr_dgrad {
     double nl[2][3], nslack[2], inv_ndist, g0[2];
 } mr_dgrad;
 
+/* The most grid cells a base triangle's local boxes may be padded by (the
+ * float rounding of its micro-vertices, mr_dgrad.lpad): past it its cells
+ * are finer than floats can place a micro-vertex, the micro-triangles
+ * degenerate, and every ray would enter the square of that many leaf
+ * boxes (UVs spanning 10^7 repeats hung a frame). The kind refuses such a
+ * surface in its rest pose (a pose that shrinks a triangle pads more cells,
+ * but has no more cells to visit); real ones are thousands of times below
+ * (the plane at range 512: 5e-4 cells). */
+#define MR_DTRACE_MAX_PAD_CELLS 4.0
+
 typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal;
 
 /* A node of the texture's infinite quadtree: level <= the pyramid's top, a
