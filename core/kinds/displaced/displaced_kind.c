@@ -714,7 +714,6 @@ static int update_surface(mr_geom *g, unsigned threads, mr_error *err)
                             "%s: the displaced surface of base triangle %u is not finite or "
                             "beyond %g: check the heights' scale and the object's transform",
                             g->asset->path, bad - 1, MR_MAX_COORDINATE);
-
     int rc = MR_OK;
     if (tessellated(g) && (rc = tess_fill(g, g->tess_pos, g->tess_idx, false, threads, err)) == MR_OK)
         for (size_t k = 0; k < (size_t)g->tess_vertices * 3; k++)

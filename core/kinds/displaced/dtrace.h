@@ -105,7 +105,7 @@ typedef struct mr_dgrad {
  * boxes (UVs spanning 10^7 repeats hung a frame). The kind refuses such a
  * surface in its rest pose (a pose that shrinks a triangle pads more cells,
  * but has no more cells to visit); real ones are thousands of times below
- * (the plane at range 512: 5e-4 cells). */
+ * (the plane at range 512, by lpad's formula: about 5e-4 cells). */
 #define MR_DTRACE_MAX_PAD_CELLS 4.0
 
 typedef enum mr_dlocal { MR_DLOCAL_TRIANGLES = 0, MR_DLOCAL_BILINEAR } mr_dlocal;
