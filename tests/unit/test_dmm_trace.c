@@ -367,6 +367,79 @@ static void test_bounds(void **state)
     }
 }
 
+/* A base triangle whose corner directions oppose (+x at corner 0, -x at
+ * corner 1, as across a thin part of a body), with the bake's kind of
+ * displacements: a fixed distance (half the triangle's size) along the
+ * direction interpolated to nearly nothing, so d reaches 8 times that where
+ * the direction is smallest (exactly 0 at the midpoint of edge 01, a
+ * lattice vertex at level 4, which takes the same 8). The box of the
+ * corners' unit directions times [dmin, dmax] is over 4 times the triangle;
+ * the patch's box must be the micro-vertices' own (widened by the patch's
+ * pad, mr_dmm_patch_pad: within twice that, for the pad's own rounding), still
+ * hold every micro-vertex, and the traversal must still equal the brute
+ * force on rays aimed at it. Both modes. */
+static void test_loose_bounds(void **state)
+{
+    (void)state;
+    const unsigned level = 4;
+    const uint32_t n = mr_umesh_segments(level), vc = mr_umesh_vertex_count(level);
+    const float size = 0.02f, dist = 0.5f * size;
+    mr_umesh_tri tri = {.pos = {mr_v3(0, 0, 0), mr_v3(size, 0, 0), mr_v3(0.3f * size, size, 0)},
+                        .dir = {mr_v3(1, 0, 0), mr_v3(-1, 0, 0), mr_v3(0, 0, 1)}};
+    float *disp = malloc(sizeof(float) * vc);
+    assert_non_null(disp);
+    for (uint32_t b = 0; b <= n; b++)
+        for (uint32_t a = 0; a + b <= n; a++) {
+            float w1 = (float)a / (float)n, w2 = (float)b / (float)n, w0 = 1 - w1 - w2;
+            mr_vec3 d = mr_v3_add(mr_v3_scale(tri.dir[0], w0),
+                                  mr_v3_add(mr_v3_scale(tri.dir[1], w1), mr_v3_scale(tri.dir[2], w2)));
+            disp[mr_umesh_vertex_index(level, a, b)] = fminf(dist / mr_v3_len(d), 8.0f * dist);
+        }
+    patch_set set;
+    set_build(&set, level, 1, disp);
+    mr_affine mats[3];
+    for (int k = 0; k < 3; k++) /* a little bend: interpolated matrices differ */
+        mats[k] = affine_trs(mr_v3(0.1f * size * (float)k, 0, 0), mr_v3(0, 0, 1), 0.1f * (float)k,
+                             mr_v3(1, 1, 1));
+    brute *bf = malloc(sizeof *bf);
+    assert_non_null(bf);
+    uint64_t s = 77;
+    for (int interpolated = 0; interpolated < 2; interpolated++) {
+        mr_dmm_patch p = set_patch(&set, 0, &tri, interpolated ? mats : NULL);
+        bounds_case(&p, NULL);
+        mr_vec3 lo, hi, vlo = mr_v3(INFINITY, INFINITY, INFINITY), vhi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+        assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
+        for (uint32_t b = 0; b <= n; b++)
+            for (uint32_t a = 0; a + b <= n; a++) {
+                mr_vec3 v = mr_dmm_vertex(&p, a, b);
+                vlo = mr_v3(fminf(vlo.x, v.x), fminf(vlo.y, v.y), fminf(vlo.z, v.z));
+                vhi = mr_v3(fmaxf(vhi.x, v.x), fmaxf(vhi.y, v.y), fmaxf(vhi.z, v.z));
+            }
+        float pad[3];
+        mr_dmm_patch_pad(&p, pad);
+        printf("  %s: box (%g %g %g)-(%g %g %g), micro-vertices (%g %g %g)-(%g %g %g)\n",
+               interpolated ? "interpolated" : "base", (double)lo.x, (double)lo.y, (double)lo.z,
+               (double)hi.x, (double)hi.y, (double)hi.z, (double)vlo.x, (double)vlo.y,
+               (double)vlo.z, (double)vhi.x, (double)vhi.y, (double)vhi.z);
+        for (int k = 0; k < 3; k++) {
+            assert_true(comp(lo, k) >= comp(vlo, k) - 2 * pad[k]);
+            assert_true(comp(hi, k) <= comp(vhi, k) + 2 * pad[k]);
+        }
+        brute_init(bf, &p);
+        check_stats cs = {0};
+        for (uint32_t i = 0; i < 400; i++) {
+            mr_vec3 org, dir;
+            float tmin, tmax;
+            rnd_ray(bf, lo, hi, &s, i, &org, &dir, &tmin, &tmax);
+            check_ray(bf, &p, org, dir, tmin, tmax, NULL, NULL, &cs, CHECK_FINE);
+        }
+        assert_true(cs.hits * 4 > cs.rays);
+    }
+    free(bf);
+    set_free(&set);
+    free(disp);
+}
+
 /* ---- 3. zero displacement */
 
 static void test_zero_base(void **state)
@@ -708,6 +781,7 @@ int main(void)
         cmocka_unit_test(test_brute_interpolated),
         cmocka_unit_test(test_traversal_equals_micro),
         cmocka_unit_test(test_bounds),
+        cmocka_unit_test(test_loose_bounds),
         cmocka_unit_test(test_zero_base),
         cmocka_unit_test(test_zero_interpolated_bezier),
         cmocka_unit_test(test_equal_matrices),

@@ -25,6 +25,9 @@
 #define BOX_PAD 0x1p-19f
 /* Far-distance widening of the slab test: 1 + 2 * gamma(3) in float. */
 #define SLAB_FAR_SCALE (1.0f + 2.0f * 3.0f * FLT_EPSILON)
+/* A patch box over this many times its base triangle's size is cut to its
+ * micro-vertices' box (loose, mr_dmm_patch_bounds). */
+#define BOX_LOOSE 4.0f
 
 /* A lattice point of the patch with its interpolated frame, in float (the
  * boxes are made conservative by the pad; micro-vertices themselves are
@@ -721,6 +724,28 @@ static void root_blossoms(const mr_dmm_patch *p, blossom bl[6], const blossom *B
         B[i] = &bl[i];
 }
 
+/* Whether box b is over BOX_LOOSE times the size of the posed base
+ * triangle with corners x[0..2] (the sum of the extents of either box): a
+ * triangle across a thin part whose corner directions nearly oppose, where
+ * the bake's distances, divided by a direction interpolated to almost
+ * nothing, make displacement ranges that the corners' unit directions turn
+ * into boxes many times the surface (Testwuson.X: boxes 25 units wide on a
+ * character 1.5 tall, entered by every ray of their rows). */
+static bool loose(const float *const x[3], const fbox *b)
+{
+    float box = 0, tri = 0;
+    for (int k = 0; k < 3; k++) {
+        float lo = x[0][k], hi = lo;
+        for (int i = 1; i < 3; i++) {
+            lo = x[i][k] < lo ? x[i][k] : lo;
+            hi = x[i][k] > hi ? x[i][k] : hi;
+        }
+        box += b->hi[k] - b->lo[k];
+        tri += hi - lo;
+    }
+    return box > BOX_LOOSE * tri;
+}
+
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
 {
     trace_ctx c = {.patch = p, .segments = mr_umesh_segments(p->level)};
@@ -733,6 +758,27 @@ bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
     if (p->mats[0])
         root_blossoms(p, bl, B);
     fbox b = node_box(&c, L, B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
+    /* the posed corners: base patches' own, interpolated ones' blossoms
+     * (i, i) at d = 0 (M_i p_i) */
+    const float *corner[3] = {P[0].p, P[1].p, P[2].p};
+    if (p->mats[0])
+        for (int i = 0; i < 3; i++)
+            corner[i] = bl[i].s;
+    if (loose(corner, &b)) {
+        /* the micro-triangles lie in their vertices' box: cut to it (every
+         * micro-vertex, those a decimated edge collapses too) */
+        fbox v = empty_box();
+        for (uint32_t vb = 0; vb <= c.segments; vb++)
+            for (uint32_t va = 0; va + vb <= c.segments; va++) {
+                mr_vec3 x = mr_dmm_vertex(p, va, vb);
+                grow(&v, (const float[3]){x.x, x.y, x.z});
+            }
+        widen(&c, &v);
+        for (int k = 0; k < 3; k++) {
+            b.lo[k] = v.lo[k] > b.lo[k] ? v.lo[k] : b.lo[k];
+            b.hi[k] = v.hi[k] < b.hi[k] ? v.hi[k] : b.hi[k];
+        }
+    }
     *lo = mr_v3(b.lo[0], b.lo[1], b.lo[2]);
     *hi = mr_v3(b.hi[0], b.hi[1], b.hi[2]);
     return isfinite(lo->x) && isfinite(lo->y) && isfinite(lo->z) && isfinite(hi->x) &&

@@ -111,8 +111,13 @@ mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b);
  * tracing many rays per frame computes it once with the bounds. */
 void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3]);
 
-/* Conservative box of the whole patch (what Embree's BVH gets); false when
- * it is not finite. */
+/* Conservative box of the whole patch (what Embree's BVH gets): the root's
+ * prism or Bezier box, cut to the box of all its micro-vertices (widened by
+ * the pad) where it is over 4 times the posed base triangle's size (corner
+ * directions that nearly oppose: a displacement range that holds the
+ * micro-vertices near the triangle, times unit corner directions, makes a
+ * box many times the surface, entered by every ray that passes it). False
+ * when it is not finite. */
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi);
 
 /* Closest hit with tmin <= t <= *tmax; on a hit *tmax becomes its t.
