@@ -95,6 +95,7 @@ struct dmm_level {
     mr_affine *mats, *last_mats;  /* per base vertex: accumulated matrix this / last frame */
     float *posed_pos, *posed_dir; /* mode base: skinned base vertices, 3 each */
     bool evaluated;
+    uint64_t stamp;               /* this evaluation's (mr_dmm_patch.stamp), 0: none */
     float *boxes;                 /* tessellation-free: BOX_FLOATS per base triangle */
     uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
@@ -668,8 +669,10 @@ static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
             p.tri.dir[k] = load3(g->posed_dir, idx[k]);
         }
     }
-    if (g->boxes && g->evaluated)
+    if (g->boxes && g->evaluated) {
         memcpy(p.pad, g->boxes + (size_t)t * BOX_FLOATS + 6, sizeof p.pad);
+        p.stamp = g->stamp;
+    }
     return p;
 }
 
@@ -854,6 +857,9 @@ static int level_evaluate(dmm_level *g, unsigned threads, mr_error *err)
                             g->asset->path, outside - 1);
     memcpy(g->last_mats, g->mats, (size_t)g->base_vertex_count * sizeof(mr_affine));
     g->evaluated = true;
+    /* levels of detail lay the values out anew between evaluations: no
+     * micro-vertex kept across calls there */
+    g->stamp = g->boxes_given ? 0 : mr_dmm_stamp();
     return MR_OK;
 }
 

@@ -71,7 +71,15 @@ typedef struct mr_dmm_patch {
     const uint16_t *minv, *maxv;   /* pyramid, at least mr_dmm_trace_pyramid_size(level) entries */
     float pad[3];                  /* optional: mr_dmm_patch_pad's result, cached by the
                                       caller; all 0 = computed on every call */
+    uint64_t stamp;                /* optional: nonzero when no other patch data or pose
+                                      ever had this number with these values: the
+                                      traversal then keeps the micro-vertices it
+                                      evaluates per thread (mr_dmm_stamp); 0 = evaluated
+                                      afresh every time */
 } mr_dmm_patch;
+
+/* A new nonzero patch stamp, never returned before in this process. */
+uint64_t mr_dmm_stamp(void);
 
 /* Per-ray precomputation. */
 typedef struct mr_dmm_ray {
