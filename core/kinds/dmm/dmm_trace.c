@@ -293,10 +293,11 @@ static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
     }
 }
 
-/* Micro-vertices the traversal evaluated, per thread, for patches with a
- * stamp: neighbouring leaves share vertices, and the next packets of rays
- * reach the same leaves (4,096 entries found 44-62 % of a frame's leaf
- * vertices on the bench's dancer and wuson, 16,384 hardly more).
+/* Micro-vertices the traversal evaluated, per thread, for interpolated
+ * patches with a stamp: neighbouring leaves share vertices, and the next
+ * packets of rays reach the same leaves (4,096 entries hold 44-62 % of
+ * the leaf vertices a frame of the bench's dancer and wuson asks for,
+ * 16,384 hardly more).
  * Direct-mapped on (values, stamp, level, a, b); an entry holds what
  * mr_dmm_vertex returned for exactly that, so a hit gives the same bits. A
  * stamp kept across a pose would trace last frame's vertices:

@@ -73,9 +73,9 @@ typedef struct mr_dmm_patch {
                                       caller; all 0 = computed on every call */
     uint64_t stamp;                /* optional: nonzero when no other patch data or pose
                                       ever had this number with these values: the
-                                      traversal then keeps the micro-vertices it
-                                      evaluates per thread (mr_dmm_stamp); 0 = evaluated
-                                      afresh every time */
+                                      traversal then keeps the micro-vertices of
+                                      interpolated patches it evaluates, per thread
+                                      (mr_dmm_stamp); 0 = evaluated afresh every time */
 } mr_dmm_patch;
 
 /* A new nonzero patch stamp, never returned before in this process. */
