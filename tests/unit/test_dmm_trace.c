@@ -375,9 +375,9 @@ static void test_bounds(void **state)
  * lattice vertex at level 4, which takes the same 8). The box of the
  * corners' unit directions times [dmin, dmax] is over 4 times the triangle;
  * the patch's box must be the micro-vertices' own (widened by the patch's
- * pad, mr_dmm_patch_pad: within twice that, for the pad's own rounding), still
- * hold every micro-vertex, and the traversal must still equal the brute
- * force on rays aimed at it. Both modes. */
+ * pad, mr_dmm_patch_pad: within twice that, for the pad's own rounding),
+ * still hold every micro-vertex, and the traversal must still equal the
+ * brute force on rays aimed at it. Both modes. */
 static void test_loose_bounds(void **state)
 {
     (void)state;
@@ -407,7 +407,8 @@ static void test_loose_bounds(void **state)
     for (int interpolated = 0; interpolated < 2; interpolated++) {
         mr_dmm_patch p = set_patch(&set, 0, &tri, interpolated ? mats : NULL);
         bounds_case(&p, NULL);
-        mr_vec3 lo, hi, vlo = mr_v3(INFINITY, INFINITY, INFINITY), vhi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
+        mr_vec3 lo, hi, vlo = mr_v3(INFINITY, INFINITY, INFINITY),
+                        vhi = mr_v3(-INFINITY, -INFINITY, -INFINITY);
         assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
         for (uint32_t b = 0; b <= n; b++)
             for (uint32_t a = 0; a + b <= n; a++) {
