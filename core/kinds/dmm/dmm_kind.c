@@ -436,6 +436,7 @@ static mr_dmm_patch rest_patch(const dmm_level *g, uint32_t t)
                              g->rest_dir[idx[k] * 3 + 2]);
         p.mats[k] = NULL;
     }
+    p.stamp = 0; /* not this evaluation's data: no kept micro-vertices */
     return p;
 }
 
@@ -1405,6 +1406,7 @@ static mr_dmm_patch fine_patch(const dmm_level *g, const tri_lod *d, uint32_t t,
     p.minv = d->minv + g->pyramid_first[t];
     p.maxv = d->maxv + g->pyramid_first[t];
     p.pad[0] = p.pad[1] = p.pad[2] = 0;
+    p.stamp = 0; /* values laid out anew per level: no kept micro-vertices */
     return p;
 }
 
