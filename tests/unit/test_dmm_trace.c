@@ -441,6 +441,68 @@ static void test_loose_bounds(void **state)
     free(disp);
 }
 
+/* An encoding whose bias is large against some patches' displacements (one
+ * encoding per mesh: Testwuson.X's reaches -11.3 on the belly seam's
+ * patches, while its others displace by ~1e-5). Patch 0 spans [-11, 2]; the
+ * other patches lie near the origin (so their pads, a bound on their own
+ * coordinates times 2^-19, are ~1e-8) with displacements of a few 1e-5:
+ * their grid values are near the top of the range, and bias + scale * V in
+ * float cancels to an error of ~2^-24 * 11 = 6.6e-7, tens of pads. The
+ * boxes must take the displacements as the micro-vertices do: every
+ * micro-vertex in the patch's box and the traversal (whose node boxes use
+ * the same bounds) equal to the brute force. With the float sum the first
+ * patch's corner lay outside its box. */
+static void test_cancelling_bias(void **state)
+{
+    (void)state;
+    enum { PATCHES = 16 };
+    const unsigned level = 3;
+    const uint32_t vc = mr_umesh_vertex_count(level);
+    uint64_t s = 0x2b992ddfa23249d6ull;
+    float *disp = malloc(sizeof(float) * vc * PATCHES);
+    assert_non_null(disp);
+    random_disp(&s, disp, vc, -11.0f, 2.0f);
+    for (uint32_t t = 1; t < PATCHES; t++)
+        random_disp(&s, disp + (size_t)t * vc, vc, 1e-5f * (float)t, 1.5e-5f * (float)t);
+    patch_set set;
+    set_build(&set, level, PATCHES, disp);
+    brute *bf = malloc(sizeof *bf);
+    assert_non_null(bf);
+    check_stats cs = {0};
+    for (uint32_t t = 1; t < PATCHES; t++) {
+        const float size = 2e-3f;
+        mr_umesh_tri tri;
+        for (int k = 0; k < 3; k++) {
+            tri.pos[k] = rnd_vec(&s, -size, size);
+            tri.dir[k] = rnd_unit(&s);
+        }
+        mr_affine mats[3];
+        for (int k = 0; k < 3; k++)
+            mats[k] = affine_trs(rnd_vec(&s, -size, size), rnd_unit(&s), rndf(&s, -0.2f, 0.2f),
+                                 mr_v3(1, 1, 1));
+        for (int interpolated = 0; interpolated < 2; interpolated++) {
+            mr_dmm_patch p = set_patch(&set, t, &tri, interpolated ? mats : NULL);
+            bounds_case(&p, &cs);
+            mr_vec3 lo, hi;
+            assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
+            brute_init(bf, &p);
+            for (uint32_t i = 0; i < 200; i++) {
+                mr_vec3 org, dir;
+                float tmin, tmax;
+                rnd_ray(bf, lo, hi, &s, i, &org, &dir, &tmin, &tmax);
+                check_ray(bf, &p, org, dir, tmin, tmax, NULL, NULL, &cs, CHECK_FINE);
+            }
+        }
+    }
+    printf("  %llu rays, %llu hit; %llu micro-vertices, all inside their boxes\n",
+           (unsigned long long)cs.rays, (unsigned long long)cs.hits,
+           (unsigned long long)cs.vertices);
+    assert_true(cs.hits * 4 > cs.rays);
+    free(bf);
+    set_free(&set);
+    free(disp);
+}
+
 /* ---- 3. zero displacement */
 
 static void test_zero_base(void **state)
@@ -783,6 +845,7 @@ int main(void)
         cmocka_unit_test(test_traversal_equals_micro),
         cmocka_unit_test(test_bounds),
         cmocka_unit_test(test_loose_bounds),
+        cmocka_unit_test(test_cancelling_bias),
         cmocka_unit_test(test_zero_base),
         cmocka_unit_test(test_zero_interpolated_bezier),
         cmocka_unit_test(test_equal_matrices),

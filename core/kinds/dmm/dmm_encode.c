@@ -7,7 +7,6 @@
  */
 #include "kinds/dmm/dmm_encode.h"
 
-#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -376,12 +375,6 @@ int mr_dmm_decode_values(const mr_dmm_encoded *enc, uint32_t tri, uint16_t *valu
     decode_triangle(mr_dmm_tri_level(enc, tri), enc->bits, enc->records + enc->record_offset[tri],
                     values);
     return MR_OK;
-}
-
-float mr_dmm_value_to_float(const mr_dmm_encoded *enc, uint16_t v)
-{
-    double d = (double)enc->bias + (double)enc->scale * (double)v;
-    return (float)(d > FLT_MAX ? FLT_MAX : d < -FLT_MAX ? -FLT_MAX : d);
 }
 
 int mr_dmm_decode_floats(const mr_dmm_encoded *enc, uint32_t tri, float *out, mr_error *err)

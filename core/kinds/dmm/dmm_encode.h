@@ -53,6 +53,7 @@
 #ifndef MR_DMM_ENCODE_H
 #define MR_DMM_ENCODE_H
 
+#include <float.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -139,8 +140,13 @@ int mr_dmm_decode_values(const mr_dmm_encoded *enc, uint32_t tri, uint16_t *valu
                          mr_error *err);
 /* Grid value to displacement: bias + scale * V in double, clamped to the
  * finite float range (scale is rounded, so a range near FLT_MAX could
- * otherwise overflow), rounded once. */
-float mr_dmm_value_to_float(const mr_dmm_encoded *enc, uint16_t v);
+ * otherwise overflow), rounded once. Inline: the traversal's boxes take
+ * their displacement bounds from it too (dmm_trace.c). */
+static inline float mr_dmm_value_to_float(const mr_dmm_encoded *enc, uint16_t v)
+{
+    double d = (double)enc->bias + (double)enc->scale * (double)v;
+    return (float)(d > FLT_MAX ? FLT_MAX : d < -FLT_MAX ? -FLT_MAX : d);
+}
 /* Decodes triangle tri to float displacements. */
 int mr_dmm_decode_floats(const mr_dmm_encoded *enc, uint32_t tri, float *out, mr_error *err);
 
