@@ -7,7 +7,7 @@
  * detail, 82k triangles), baked to DMMs with 1/16 of its triangles as base
  * triangles (~5k, the paper's figure), traced
  * with primary rays only (1 sample, no shadows), as the paper's Table 1.
- * For each level, five renderers run the same frames interleaved (frame f in
+ * For each level, seven renderers run the same frames interleaved (frame f in
  * every mode before frame f + 1), so their timings are side by side (the
  * DMMs with their default, smooth normals):
  *   tess-b  mode tessellated, deformation base   (pre-tessellated baseline)
@@ -15,9 +15,14 @@
  *   tess-i  mode tessellated, deformation interpolated
  *   interp  mode interpolated (interpolated matrices, Bezier bounds: Alg. 1/3)
  *   truth   the detailed mesh skinned directly with LBS (ground truth)
+ * and, not timed, each tessellation-free mode's exact reference:
+ *   ref-b, ref-i  mode tessellated, intersector watertight (the same
+ *           micro-triangles under the traversal's own test; its update
+ *           also refuses a box that misses a micro-vertex)
  * Reported per level: median trace time per frame and ratios; accuracy of
- * each tessellation-free mode against its own tessellation (must be exact up
- * to intersector rounding) and of both deformations against the ground
+ * each tessellation-free mode against its exact reference (must be exact:
+ * 0 pixels, depth difference 0) and against its Embree tessellation (up to
+ * the two intersectors' rounding) and of both deformations against the ground
  * truth (coverage, depth RMS / diagonal, mean normal error, stray pixels);
  * the bake's own accuracy in the rest pose, where no deformation differs
  * (the same figures against the detailed mesh, its normals taken both as
@@ -56,10 +61,11 @@
 #include "bench_util.h"
 
 #define JOB_PATH "examples/skinned-walk.json"
-#define MODES 5
+#define MODES 7
 #define MAX_FRAMES 64
 
-static const char *const MODE_NAME[MODES] = {"tess-b", "base", "tess-i", "interp", "truth"};
+static const char *const MODE_NAME[MODES] = {"tess-b", "base",  "tess-i", "interp",
+                                             "truth",  "ref-b", "ref-i"};
 
 static void die(const char *what, const char *msg)
 {
@@ -165,11 +171,14 @@ static void free_params(const mr_kind *kind, void *v)
 }
 
 /* The dmm parameters of a configuration in one mode. */
-static void *dmm_params(config cfg, const char *mode, const char *deformation, const char *normals)
+static void *dmm_params(config cfg, const char *mode, const char *deformation, const char *normals,
+                        const char *intersector)
 {
     char spec[256];
-    snprintf(spec, sizeof spec, "level=%u levels=%s base_ratio=0.0625 mode=%s deformation=%s normals=%s",
-             cfg.level, cfg.adaptive ? "adaptive" : "uniform", mode, deformation, normals);
+    snprintf(spec, sizeof spec,
+             "level=%u levels=%s base_ratio=0.0625 mode=%s deformation=%s normals=%s intersector=%s",
+             cfg.level, cfg.adaptive ? "adaptive" : "uniform", mode, deformation, normals,
+             intersector);
     return kind_params(mr_kind_find("dmm"), spec);
 }
 
@@ -199,7 +208,8 @@ typedef struct level_result {
     config cfg;
     uint64_t micro;
     double trace_ms[MODES], update_ms[MODES];
-    mr_compare_result self[2];  /* base vs tess-b, interp vs tess-i (worst frame) */
+    mr_compare_result self[2];   /* base vs ref-b, interp vs ref-i (worst frame) */
+    mr_compare_result embree[2]; /* base vs tess-b, interp vs tess-i (worst frame) */
     double truth_cov[4], truth_depth[4], truth_normal[4]; /* mean over frames, modes 0..3 */
     size_t truth_strays[4];                               /* summed over frames */
     double bytes_dmm_stored, bytes_dmm_resident, bytes_tess;
@@ -239,7 +249,10 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
     for (int m = 0; m < MODES; m++) {
         if (m < 4)
             params[m] = dmm_params(cfg, m == 1 ? "base" : m == 3 ? "interpolated" : "tessellated",
-                                   m >= 2 ? "interpolated" : "base", "smooth");
+                                   m >= 2 ? "interpolated" : "base", "smooth", "embree");
+        else if (m > 4) /* the exact references (not timed) */
+            params[m] = dmm_params(cfg, "tessellated", m == 5 ? "base" : "interpolated", "smooth",
+                                   "watertight");
         o->kind = mr_kind_find(m == 4 ? "mesh" : "dmm");
         o->params = params[m];
         if (mr_device_new(0, &dev[m], &err) < 0 ||
@@ -267,9 +280,12 @@ static level_result run_level(mr_job *job, mr_asset *dancer, config cfg, bake_fi
         res.hit_pct += 100.0 * (double)hit / (double)pixels; /* a sum until the loop ends */
         mr_compare_result c;
         for (int k = 0; k < 2; k++) {
-            if (mr_film_compare(film[2 * k], film[2 * k + 1], diag, &c, &err) < 0)
+            if (mr_film_compare(film[5 + k], film[2 * k + 1], diag, &c, &err) < 0)
                 die("compare", err.msg);
             worst(&res.self[k], &c, n == 0);
+            if (mr_film_compare(film[2 * k], film[2 * k + 1], diag, &c, &err) < 0)
+                die("compare", err.msg);
+            worst(&res.embree[k], &c, n == 0);
         }
         for (int m = 0; m < 4; m++) {
             if (mr_film_compare(film[4], film[m], diag, &c, &err) < 0)
@@ -397,7 +413,8 @@ static void rest_accuracy(mr_job *job, mr_asset *dancer, const config *cfg, int 
         mr_renderer *r[2] = {NULL, NULL};
         mr_film *film[2] = {NULL, NULL};
         for (int k = 0; k < 2; k++) {
-            params[k] = dmm_params(cfg[l], "tessellated", "interpolated", k ? "smooth" : "geometric");
+            params[k] = dmm_params(cfg[l], "tessellated", "interpolated", k ? "smooth" : "geometric",
+                                   "embree");
             o->params = params[k];
             if (mr_renderer_new(dev, job, smooth_assets, NULL, &r[k], &err) < 0 ||
                 mr_film_new(w, h, &film[k], &err) < 0)
@@ -495,17 +512,18 @@ static void second_asset(int frames, const level_result *dancer_level3)
            "1/16 as base triangles, %llu micro-triangles; the same modes, 480x270 primary rays, "
            "%d frames) beside the dancer's level 3 above:\n\n"
            "| asset | pixels hit %% | tess-b | base | tess-i | interp | base/tess-b | "
-           "interp/tess-i | base: pixels differing | interp: pixels differing |\n"
+           "interp/tess-i | base: pixels differing (exact / Embree) | interp: pixels differing (exact / "
+           "Embree) |\n"
            "|---|---|---|---|---|---|---|---|---|---|\n",
            (unsigned long long)mr_asset_triangle_count(wuson), (unsigned long long)r.micro, frames);
     const level_result *rows[2] = {dancer_level3, &r};
     const char *const names[2] = {"dancer", "wuson"};
     for (int i = 0; i < 2; i++) {
         const level_result *x = rows[i];
-        printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f | %zu | %zu |\n", names[i],
-               x->hit_pct, x->trace_ms[0], x->trace_ms[1], x->trace_ms[2], x->trace_ms[3],
+        printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f | %zu / %zu | %zu / %zu |\n",
+               names[i], x->hit_pct, x->trace_ms[0], x->trace_ms[1], x->trace_ms[2], x->trace_ms[3],
                x->trace_ms[1] / x->trace_ms[0], x->trace_ms[3] / x->trace_ms[2], x->self[0].hit_one,
-               x->self[1].hit_one);
+               x->embree[0].hit_one, x->self[1].hit_one, x->embree[1].hit_one);
     }
     mr_asset_free(wuson);
     mr_job_free(job);
@@ -555,12 +573,19 @@ int main(int argc, char **argv)
                x->trace_ms[2], x->trace_ms[3], x->trace_ms[4], x->trace_ms[1] / x->trace_ms[0],
                x->trace_ms[3] / x->trace_ms[2], x->trace_ms[3] / x->trace_ms[1]);
     }
-    printf("\nTessellation-free vs its own tessellation (worst frame; diagonal-relative depth):\n\n"
-           "| level | base: pixels differing | base: depth max | interp: pixels differing | "
-           "interp: depth max |\n|---|---|---|---|---|\n");
+    printf("\nTessellation-free vs its exact reference (ref-b, ref-i: mode tessellated, intersector "
+           "watertight, the same micro-triangles under the same test: must be 0 and 0) and vs "
+           "its tessellation intersected by Embree (tess-b, tess-i: float rounding at silhouettes) "
+           "(worst frame; pixels hit by one only; diagonal-relative depth):\n\n"
+           "| level | base: pixels differing | base: depth max | base vs Embree: pixels | "
+           "base vs Embree: depth max | interp: pixels differing | interp: depth max | "
+           "interp vs Embree: pixels | interp vs Embree: depth max |\n"
+           "|---|---|---|---|---|---|---|---|---|\n");
     for (int i = 0; i < count; i++)
-        printf("| %s | %zu | %.2e | %zu | %.2e |\n", config_name(res[i].cfg), res[i].self[0].hit_one,
-               res[i].self[0].depth_max, res[i].self[1].hit_one, res[i].self[1].depth_max);
+        printf("| %s | %zu | %.2e | %zu | %.2e | %zu | %.2e | %zu | %.2e |\n", config_name(res[i].cfg),
+               res[i].self[0].hit_one, res[i].self[0].depth_max, res[i].embree[0].hit_one,
+               res[i].embree[0].depth_max, res[i].self[1].hit_one, res[i].self[1].depth_max,
+               res[i].embree[1].hit_one, res[i].embree[1].depth_max);
     printf("\nError against the detailed mesh skinned with LBS (mean over frames; strays: "
            "pixels hit more than one pixel away from the truth's silhouette, summed):\n\n"
            "| level | base: coverage %% | base: depth RMS | base: normal deg | base: strays | "
