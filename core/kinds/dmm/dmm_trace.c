@@ -73,20 +73,11 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir)
     return r;
 }
 
-static float disp_of(const mr_dmm_patch *p, uint32_t a, uint32_t b)
-{
-    return mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index(p->level, a, b)]);
-}
-
 mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
 {
-    mr_vec3 out = {0, 0, 0};
-    float d = disp_of(p, a, b);
-    if (p->mats[0])
-        mr_umesh_eval_interpolated(&p->tri, p->mats, p->level, a, b, d, &out, NULL);
-    else
-        mr_umesh_eval(&p->tri, p->level, a, b, d, &out, NULL);
-    return out;
+    const float d = mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index_at(p->level, a, b)]);
+    return p->mats[0] ? mr_umesh_eval_interpolated_at(&p->tri, p->mats, p->level, a, b, d)
+                      : mr_umesh_eval_at(&p->tri, p->level, a, b, d);
 }
 
 /* Larger of two (no NaN care: non-finite patches are refused before tracing);

@@ -111,7 +111,8 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir);
 
 /* Displaced micro-vertex (a, b) of the patch: mr_umesh_eval (base) or
  * mr_umesh_eval_interpolated (interpolated) of its decoded displacement.
- * The one definition both the traversal and the tessellation use. */
+ * The one definition both the traversal and the tessellation use. Unchecked:
+ * (a, b) must lie on the lattice of the patch's level (<= MR_UMESH_MAX_LEVEL). */
 mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b);
 
 /* Per-axis widening the patch's boxes need (a bound on its coordinates'

@@ -74,6 +74,13 @@ uint32_t mr_umesh_triangle_count(unsigned level);
 
 /* Index of micro-vertex (a, b); UINT32_MAX when a + b > n or level is bad. */
 uint32_t mr_umesh_vertex_index(unsigned level, uint32_t a, uint32_t b);
+/* The same without the checks: (a, b) on the lattice of level <=
+ * MR_UMESH_MAX_LEVEL (rows 0..b-1 hold n+1, n, ..., n-b+2 vertices). */
+static inline uint32_t mr_umesh_vertex_index_at(unsigned level, uint32_t a, uint32_t b)
+{
+    const uint32_t n = 1u << level;
+    return b * (n + 1) - b * (b - 1) / 2 + a;
+}
 /* Inverse of mr_umesh_vertex_index; false for an index out of range. */
 bool mr_umesh_vertex_coords(unsigned level, uint32_t index, uint32_t *a, uint32_t *b);
 /* Barycentric (u, v) = (a/n, b/n) of a micro-vertex (exact in float). */
@@ -171,6 +178,11 @@ int mr_umesh_frame(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t
 int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, float disp,
                   mr_vec3 *out, mr_error *err);
 
+/* mr_umesh_eval without the checks, for callers whose (a, b) lie on the
+ * level's lattice by construction (the traversal): the same evaluation. */
+mr_vec3 mr_umesh_eval_at(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b,
+                         float disp);
+
 /* Micro-vertex (a, b) under interpolated matrices (paper 000, eq. 6-7): the
  * rest-pose displaced point x = sum w_i v_i + disp * sum w_i n_i (tri holds
  * the REST pose) moved by M(w) = sum w_i M_i, the barycentric blend of the
@@ -181,6 +193,9 @@ int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t 
 int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const mats[3],
                                unsigned level, uint32_t a, uint32_t b, float disp, mr_vec3 *out,
                                mr_error *err);
+/* mr_umesh_eval_interpolated without the checks (as mr_umesh_eval_at). */
+mr_vec3 mr_umesh_eval_interpolated_at(const mr_umesh_tri *rest, const mr_affine *const mats[3],
+                                      unsigned level, uint32_t a, uint32_t b, float disp);
 
 /* All micro-vertices of a triangle: disp holds one displacement per
  * micro-vertex (vertex index order) or is NULL for zero displacement; out gets
