@@ -320,12 +320,20 @@ mr_vec3 mr_umesh_eval_interpolated_at(const mr_umesh_tri *rest, const mr_affine 
     corner_weights cw = weights_of(rest, level, a, b);
     dvec3 p = blend(rest->pos, &cw), d = blend(rest->dir, &cw);
     double s = disp, x[3] = {p.x + s * d.x, p.y + s * d.y, p.z + s * d.z};
+    /* M(w): summed in cw's order, one body per corner count as in blend */
+    const double *w = cw.w;
+    const float *m0 = mats[cw.corner[0]]->m, *m1 = mats[cw.corner[1]]->m,
+                *m2 = mats[cw.corner[2]]->m;
     double m[12];
-    for (int e = 0; e < 12; e++) {
-        m[e] = cw.w[0] * mats[cw.corner[0]]->m[e];
-        for (int i = 1; i < cw.count; i++)
-            m[e] += cw.w[i] * mats[cw.corner[i]]->m[e];
-    }
+    if (cw.count == 3)
+        for (int e = 0; e < 12; e++)
+            m[e] = w[0] * m0[e] + w[1] * m1[e] + w[2] * m2[e];
+    else if (cw.count == 2)
+        for (int e = 0; e < 12; e++)
+            m[e] = w[0] * m0[e] + w[1] * m1[e];
+    else
+        for (int e = 0; e < 12; e++)
+            m[e] = w[0] * m0[e];
     double r[3];
     for (int row = 0; row < 3; row++)
         r[row] = m[row * 4] * x[0] + m[row * 4 + 1] * x[1] + m[row * 4 + 2] * x[2] + m[row * 4 + 3];
