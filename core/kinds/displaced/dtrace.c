@@ -1754,11 +1754,10 @@ static uint32_t pack_rays(const mr_dgrad *gr, const mr_dbase *b, const mr_dray *
     for (int k = 0; k < n; k++) {
         mr_dray lr;
         local_ray(gr, b, &r[k], &lr);
-        if (lr.par[0] || lr.par[1] || lr.par[2])
-            continue;
-        for (int a = 0; a < 3; a++)
-            p->o[a][k] = lr.o[a], p->inv[a][k] = lr.inv[a];
-        in |= 1u << k;
+        const bool par = lr.par[0] || lr.par[1] || lr.par[2];
+        for (int a = 0; a < 3; a++) /* a lane left out still holds numbers (slab_pack's pairs) */
+            p->o[a][k] = par ? 0 : lr.o[a], p->inv[a][k] = par ? 0 : lr.inv[a];
+        in |= (uint32_t)!par << k;
     }
     return in;
 }
@@ -1819,9 +1818,16 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     uint32_t hit = 0, inpack = 0;
     pack p;
     if (n > 1 && n <= PK && !b->flat && gr->local && s->local == MR_DLOCAL_TRIANGLES) {
-        memset(&p, 0, sizeof p);
-        for (int k = 0; k < PK; k++)
+        /* lanes from n on hold zeros, the rays' lanes PACK_RAYS's numbers:
+         * the slab tests run on whole pairs or quads of lanes (no memset of
+         * the whole pack: a `rep stos` of 1 KB per packet and base
+         * triangle) */
+        for (int k = 0; k < PK; k++) {
             p.t0[k] = INFINITY, p.t1[k] = -INFINITY;
+            if (k >= n)
+                for (int a = 0; a < 3; a++)
+                    p.o[a][k] = p.inv[a][k] = 0;
+        }
         inpack = PACK_RAYS(gr, b, r, n, &p);
         for (uint32_t m = inpack; m; m &= m - 1) {
             int k = __builtin_ctz(m);
@@ -1837,8 +1843,9 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
             hit |= 1u << k;
     if (!inpack)
         return hit;
-    best bh[PK];
-    memset(bh, 0, sizeof bh);
+    best bh[PK]; /* the packed rays' (a hit's fields are read once .hit is set) */
+    for (uint32_t m = inpack; m; m &= m - 1)
+        bh[__builtin_ctz(m)].hit = false;
     pentry stack[STACK_MAX];
     int sp = 0;
     const mr_dproc *pr = s->proc;

@@ -652,12 +652,15 @@ static mr_vec3 load3(const float *a, size_t i) { return mr_v3(a[i * 3], a[i * 3 
 /* Base triangle t as a traversal patch for this frame. */
 static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
 {
-    mr_dmm_patch p = {.level = mr_dmm_info_level(g->tri_info[t]),
-                      .decimate = mr_dmm_info_decimate(g->tri_info[t]),
-                      .enc = g->encoded[g->tri_mesh[t]],
-                      .values = g->values + g->value_first[t],
-                      .minv = g->minv + g->pyramid_first[t],
-                      .maxv = g->maxv + g->pyramid_first[t]};
+    /* every field assigned, none zero-filled first: an initializer's fill
+     * of the rest was a `rep stos`, a tenth of a callback's set-up */
+    mr_dmm_patch p;
+    p.level = mr_dmm_info_level(g->tri_info[t]);
+    p.decimate = mr_dmm_info_decimate(g->tri_info[t]);
+    p.enc = g->encoded[g->tri_mesh[t]];
+    p.values = g->values + g->value_first[t];
+    p.minv = g->minv + g->pyramid_first[t];
+    p.maxv = g->maxv + g->pyramid_first[t];
     const uint32_t *idx = g->base_indices + (size_t)t * 3;
     bool interpolated = g->desc.deform == MR_DMM_DEFORM_INTERPOLATED;
     for (int k = 0; k < 3; k++) {
@@ -668,11 +671,15 @@ static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
         } else {
             p.tri.pos[k] = load3(g->posed_pos, idx[k]);
             p.tri.dir[k] = load3(g->posed_dir, idx[k]);
+            p.mats[k] = NULL;
         }
     }
     if (g->boxes && g->evaluated) {
         memcpy(p.pad, g->boxes + (size_t)t * BOX_FLOATS + 6, sizeof p.pad);
         p.stamp = g->stamp;
+    } else {
+        p.pad[0] = p.pad[1] = p.pad[2] = 0;
+        p.stamp = 0;
     }
     return p;
 }
