@@ -75,7 +75,8 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir)
 
 mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
 {
-    const float d = mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index_at(p->level, a, b)]);
+    const uint16_t v = p->values[mr_umesh_vertex_index_at(p->level, a, b)];
+    const float d = mr_dmm_value_to_float(p->enc, v);
     return p->mats[0] ? mr_umesh_eval_interpolated_at(&p->tri, p->mats, p->level, a, b, d)
                       : mr_umesh_eval_at(&p->tri, p->level, a, b, d);
 }

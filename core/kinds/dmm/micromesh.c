@@ -208,15 +208,16 @@ typedef struct corner_weights {
 static const double INV_SEGMENTS[MR_UMESH_MAX_LEVEL + 1] = {1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125};
 
 /* level <= MR_UMESH_MAX_LEVEL, (a, b) on its lattice. Inlined, as blend
- * below: called, their 40- and 24-byte results went through memory (a
- * micro-vertex 22 -> 15 ns). */
-static inline __attribute__((always_inline)) corner_weights weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
+ * below (called, their 40- and 24-byte results go through memory). */
+static inline __attribute__((always_inline)) corner_weights
+weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
 {
     const uint32_t n = 1u << level;
     const double inv = INV_SEGMENTS[level];
     uint32_t k;
     if (a > 0 && b > 0 && a + b < n) /* interior: most micro-vertices */
-        return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) * inv, (double)a * inv, (double)b * inv}};
+        return (corner_weights){3, {0, 1, 2},
+                                {(double)(n - a - b) * inv, (double)a * inv, (double)b * inv}};
     int e = vertex_edge(n, a, b, &k);
     if (e == 3)
         return (corner_weights){1, {(int)k, 0, 0}, {1.0, 0, 0}};
@@ -231,13 +232,15 @@ static inline __attribute__((always_inline)) corner_weights weights_of(const mr_
         }
         return (corner_weights){2, {i0, i1, 0}, {(double)k0 * inv, (double)k1 * inv, 0}};
     }
-    return (corner_weights){3, {0, 1, 2}, {(double)(n - a - b) * inv, (double)a * inv, (double)b * inv}};
+    return (corner_weights){3, {0, 1, 2},
+                            {(double)(n - a - b) * inv, (double)a * inv, (double)b * inv}};
 }
 
 /* sum w_i v_i in the order of cw, each term added to the sum before it.
  * One body per count (a loop over the count kept the compiler from
  * scheduling the three sums together). */
-static inline __attribute__((always_inline)) dvec3 blend(const mr_vec3 *v, const corner_weights *cw)
+static inline __attribute__((always_inline)) dvec3 blend(const mr_vec3 *v,
+                                                         const corner_weights *cw)
 {
     const int *c = cw->corner;
     const double *w = cw->w;
