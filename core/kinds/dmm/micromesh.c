@@ -236,9 +236,8 @@ weights_of(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b)
                             {(double)(n - a - b) * inv, (double)a * inv, (double)b * inv}};
 }
 
-/* sum w_i v_i in the order of cw, each term added to the sum before it.
- * One body per count (a loop over the count kept the compiler from
- * scheduling the three sums together). */
+/* sum w_i v_i in the order of cw, each term added to the sum before it;
+ * one body per corner count rather than a loop over it. */
 static inline __attribute__((always_inline)) dvec3 blend(const mr_vec3 *v,
                                                          const corner_weights *cw)
 {
