@@ -405,9 +405,7 @@ int mr_umesh_eval_all(const mr_umesh_tri *tri, unsigned level, unsigned decimate
     for (uint32_t i = 0; i < count; i++) {
         uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, i), a, b;
         mr_umesh_vertex_coords(level, r, &a, &b);
-        dvec3 p, d;
-        frame_d(tri, level, a, b, &p, &d);
-        out[i] = displace(p, d, disp ? disp[r] : 0.0f);
+        out[i] = mr_umesh_eval_at(tri, level, a, b, disp ? disp[r] : 0.0f);
     }
     return MR_OK;
 }
