@@ -878,15 +878,35 @@ static void trace_batch(mr_geom *g, const struct RTCIntersectFunctionNArguments 
     b->n = 0;
 }
 
+/* The lanes of an N-packet a callback for base triangle t traces: the
+ * valid ones whose ray can meet t's box (mr_rays_in_box; the box holds the
+ * displaced surface, mr_dtrace_tri_box), or every valid one for ray
+ * marching, the comparator, left as it was. */
+static uint32_t lanes_to_trace(const mr_geom *g, void *ray, unsigned N, const int *valid,
+                               uint32_t t)
+{
+    if (g->par.method == MR_DISPLACED_RAYMARCH) {
+        uint32_t all = 0;
+        for (unsigned i = 0; i < N; i++)
+            all |= (uint32_t)(valid[i] == -1) << i;
+        return all;
+    }
+    const float *box = g->boxes + (size_t)t * 6;
+    return mr_rays_in_box(ray, N, valid, box, box + 3);
+}
+
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
     mr_geom *g = args->geometryUserPtr;
     unsigned N = args->N;
+    const uint32_t lanes = lanes_to_trace(g, args->rayhit, N, args->valid, args->primID);
+    if (!lanes)
+        return;
     mr_dstats st = {0};
     ray_batch b;
     b.n = 0;
     for (unsigned i = 0; i < N; i++) {
-        if (args->valid[i] != -1 || !ray_setup(args->rayhit, N, i, &b.r[b.n]))
+        if (!(lanes >> i & 1u) || !ray_setup(args->rayhit, N, i, &b.r[b.n]))
             continue;
         b.lane[b.n] = i;
         b.tmin[b.n] = *mr_ray_f(args->rayhit, N, MR_RAY_TNEAR, i);
@@ -904,10 +924,13 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
 {
     mr_geom *g = args->geometryUserPtr;
     unsigned N = args->N;
+    const uint32_t lanes = lanes_to_trace(g, args->ray, N, args->valid, args->primID);
+    if (!lanes)
+        return;
     mr_dstats st = {0};
     if (g->par.method == MR_DISPLACED_RAYMARCH || N == 1) {
         for (unsigned i = 0; i < N; i++)
-            if (args->valid[i] == -1 && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
+            if ((lanes >> i & 1u) && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
                 *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
         add_stats(g, &st);
         return;
@@ -918,7 +941,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     ray_batch b;
     b.n = 0;
     for (unsigned i = 0; i <= N; i++) {
-        if (i < N && args->valid[i] == -1 && ray_setup(args->ray, N, i, &b.r[b.n])) {
+        if (i < N && (lanes >> i & 1u) && ray_setup(args->ray, N, i, &b.r[b.n])) {
             b.lane[b.n] = i;
             b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
             b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
