@@ -42,6 +42,7 @@
 #include "kinds/svo/svo_file.h"
 #include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
+#include "kinds/user_rays.h"
 #include "util/parallel.h"
 
 /* An Embree primitive of an octree object: an octree (rigid: the shared
@@ -609,27 +610,41 @@ static const mr_svo *prim_octree(const mr_geom *g, unsigned prim, const mr_svo_s
  * Strictly inside both by this much, the ray enters each at any t below
  * 2^-24 * 1e18 sizes, and the order rule decides (test_svo_instances
  * check_pieces_whole_walk). */
-static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
+static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3])
 {
-    const mr_geom *g = args->geometryUserPtr;
     const mr_svo_subtree *st;
-    const mr_svo *o = prim_octree(g, args->primID, &st);
-    float lo[3], hi[3];
-    if (o && st) {
+    const mr_svo *o = prim_octree(g, prim, &st);
+    if (o && st)
         mr_svo_subtree_bounds(o, st, lo, hi);
-    } else if (!o || !mr_svo_bounds(o, lo, hi)) {
-        /* Empty: an inverted box, which Embree leaves out of its BVH. */
-        lo[0] = lo[1] = lo[2] = 1;
-        hi[0] = hi[1] = hi[2] = -1;
-        set_bounds(args->bounds_o, lo, hi);
-        return;
-    }
+    else if (!o || !mr_svo_bounds(o, lo, hi))
+        return false;
     const double pad = ldexp((double)o->size, -24);
     for (int a = 0; a < 3; a++) {
         lo[a] = mr_float_down((double)lo[a] - pad);
         hi[a] = mr_float_up((double)hi[a] + pad);
     }
+    return true;
+}
+
+static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
+{
+    float lo[3], hi[3];
+    if (!prim_box(args->geometryUserPtr, args->primID, lo, hi)) {
+        /* Empty: an inverted box, which Embree leaves out of its BVH. */
+        lo[0] = lo[1] = lo[2] = 1;
+        hi[0] = hi[1] = hi[2] = -1;
+    }
     set_bounds(args->bounds_o, lo, hi);
+}
+
+/* The lanes of an N-packet whose ray can meet primitive prim's box
+ * (mr_rays_in_box): Embree hands a primitive the rays of a leaf of its
+ * tree, which holds several. */
+static uint32_t lanes_to_trace(const mr_geom *g, unsigned prim, void *ray, unsigned N,
+                               const int *valid)
+{
+    float lo[3], hi[3];
+    return prim_box(g, prim, lo, hi) ? mr_rays_in_box(ray, N, valid, lo, hi) : 0;
 }
 
 static void box_bounds(const struct RTCBoundsFunctionArguments *args)
@@ -677,8 +692,9 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     float *ray = (float *)args->rayhit;
     float *hit = ray + 12 * N;
     unsigned inst = args->context->instID[0];
+    const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
     for (unsigned i = 0; i < N; i++) {
-        if (!args->valid[i])
+        if (!(lanes >> i & 1u))
             continue;
         mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
         mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
@@ -724,8 +740,9 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
         return;
     unsigned N = args->N;
     float *ray = (float *)args->ray;
+    const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
     for (unsigned i = 0; i < N; i++) {
-        if (!args->valid[i])
+        if (!(lanes >> i & 1u))
             continue;
         mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
         mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
