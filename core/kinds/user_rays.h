@@ -87,12 +87,12 @@ static inline bool mr_ray_dir_ok(mr_vec3 d)
  * hands a user primitive the rays that entered a leaf of its tree, which
  * holds several primitives: most of them miss this one's box (dmm, the
  * dancer at level 2: 3 in 4). The test is conservative: the slab
- * distances (lo - o) / d, each within two roundings (2^-23 relative) of
- * their exact value, are moved outwards by 2^-20 of themselves (a
- * product, so an infinite distance stays infinite), an axis along which
- * the ray does not move constrains only by its origin, exactly, and a lane
- * whose numbers are not finite (a NaN distance) is kept, as before. Four
- * lanes at a time in SSE. */
+ * distances (lo - o) * (1 / d), each within three roundings (under 2^-22
+ * relative) of their exact value, are moved outwards by 2^-20 of
+ * themselves (a product, so an infinite distance stays infinite), an axis
+ * along which the ray does not move constrains only by its origin,
+ * exactly, and a lane whose numbers are not finite (a NaN distance) is
+ * kept, as before. Four lanes at a time in SSE. */
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -105,6 +105,9 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
     if (N % 4 == 0) {
         const __m128 zero = _mm_setzero_ps(), vup = _mm_set1_ps(up), vdown = _mm_set1_ps(down);
         for (unsigned k = 0; k < N; k += 4) {
+            const __m128 v = _mm_castsi128_ps(_mm_loadu_si128((const __m128i *)(valid + k)));
+            if (!_mm_movemask_ps(v))
+                continue;
             __m128 entry = _mm_loadu_ps(mr_ray_f(ray, N, MR_RAY_TNEAR, k));
             __m128 exit = _mm_loadu_ps(mr_ray_f(ray, N, MR_RAY_TFAR, k));
             __m128 out = zero;
@@ -115,8 +118,9 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
                 const __m128 par = _mm_cmpeq_ps(d, zero);
                 out = _mm_or_ps(out, _mm_and_ps(par, _mm_or_ps(_mm_cmplt_ps(o, l),
                                                                _mm_cmpgt_ps(o, h))));
-                const __m128 t1 = _mm_div_ps(_mm_sub_ps(l, o), d);
-                const __m128 t2 = _mm_div_ps(_mm_sub_ps(h, o), d);
+                const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d);
+                const __m128 t1 = _mm_mul_ps(_mm_sub_ps(l, o), inv);
+                const __m128 t2 = _mm_mul_ps(_mm_sub_ps(h, o), inv);
                 __m128 near = _mm_min_ps(t1, t2), far = _mm_max_ps(t1, t2);
                 const __m128 npos = _mm_cmpgt_ps(near, zero), fpos = _mm_cmpgt_ps(far, zero);
                 near = _mm_mul_ps(near, _mm_or_ps(_mm_and_ps(npos, vdown), _mm_andnot_ps(npos, vup)));
@@ -130,8 +134,7 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
             }
             /* kept: entry <= exit, or either NaN */
             const __m128 keep = _mm_andnot_ps(out, _mm_cmpngt_ps(entry, exit));
-            const __m128i v = _mm_loadu_si128((const __m128i *)(valid + k));
-            const int m = _mm_movemask_ps(_mm_and_ps(keep, _mm_castsi128_ps(v)));
+            const int m = _mm_movemask_ps(_mm_and_ps(keep, v));
             in |= (uint32_t)m << k;
         }
         return in;
@@ -148,7 +151,7 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
                 out |= o < lo[a] || o > hi[a];
                 continue;
             }
-            const float t1 = (lo[a] - o) / d, t2 = (hi[a] - o) / d;
+            const float inv = 1.0f / d, t1 = (lo[a] - o) * inv, t2 = (hi[a] - o) * inv;
             float near = t1 < t2 ? t1 : t2, far = t1 < t2 ? t2 : t1;
             near *= near > 0 ? down : up;
             far *= far > 0 ? up : down;
