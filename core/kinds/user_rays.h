@@ -85,8 +85,8 @@ static inline bool mr_ray_dir_ok(mr_vec3 d)
  * `valid` (Embree's -1 per lane) whose ray can meet a point of the box
  * lo..hi at a distance within its [tnear, tfar], as a bit mask. Embree
  * hands a user primitive the rays that entered a leaf of its tree, which
- * holds several primitives: most of them miss this one's box (dmm, the
- * dancer at level 2: 3 in 4). The test is conservative: the slab
+ * holds several primitives: most of them miss this one's box (3 in 4 on
+ * a micro-mesh's base triangles). The test is conservative: the slab
  * distances (lo - o) * (1 / d), each within three roundings (under 2^-22
  * relative) of their exact value, are moved outwards by 2^-20 of
  * themselves (a product, so an infinite distance stays infinite), an axis
