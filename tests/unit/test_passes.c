@@ -517,6 +517,51 @@ static void test_background_alpha(void **state)
     rendered_free(&opaque);
 }
 
+/* A packet's colour sums over samples when some of them miss: the
+ * integrator sums the samples that hit nothing before any sample of the
+ * packet hit once for all its pixels, and each pixel's own only once one
+ * hits (integrator.c). Checked against what a pixel must hold whatever
+ * the order: with 3 samples, a background of alpha 0.25 and Cryptomatte,
+ * whose coverages are the fraction c of the pixel's samples that hit,
+ * alpha is c + (1 - c) 0.25 (1e-6: a few float roundings of sums below
+ * 1), which a sample's miss dropped or counted twice moves by 1/12; a
+ * pixel no sample hits holds the background's premultiplied colour; and
+ * the colour is the same bit for bit without Cryptomatte, where a packet
+ * that hits nothing takes its colour in one go. */
+static void test_missed_samples_sum(void **state)
+{
+    (void)state;
+#define OUT(aovs)                                                                              \
+    "'background':{'color':[0.25,0.5,1],'alpha':0.25},"                                        \
+    "'output':{'width':160,'height':120,'samples':3,'aovs':" aovs "}"
+    rendered crypto = render_job(SCENE(OUT("['rgba','id','cryptomatte']")), "misses-crypto");
+    rendered plain = render_job(SCENE(OUT("['rgba','id']")), "misses-plain");
+#undef OUT
+    const mr_film *f = crypto.film;
+    size_t none = 0, some = 0;
+    for (size_t i = 0; i < (size_t)W * H; i++) {
+        float c = 0;
+        for (int k = 0; k < f->crypto_ranks; k++)
+            c += f->crypto[MR_CRYPTO_OBJECT][2 * k + 1][i];
+        if (fabsf(f->a[i] - (c + (1 - c) * 0.25f)) > 1e-6f)
+            fail_msg("pixel %zu: alpha %g, coverage %g", i, f->a[i], c);
+        if (c == 0) {
+            none++;
+            assert_true(f->r[i] == 0.0625f && f->g[i] == 0.125f && f->b[i] == 0.25f);
+        } else if (c < 1) {
+            some++;
+        }
+        assert_memory_equal(&plain.film->r[i], &f->r[i], 4);
+        assert_memory_equal(&plain.film->g[i], &f->g[i], 4);
+        assert_memory_equal(&plain.film->b[i], &f->b[i], 4);
+        assert_memory_equal(&plain.film->a[i], &f->a[i], 4);
+    }
+    assert_true(none > 1000); /* the background */
+    assert_true(some > 100);  /* silhouettes: samples that miss beside ones that hit */
+    rendered_free(&crypto);
+    rendered_free(&plain);
+}
+
 /* |T| of pixel i. */
 static double tangent_len(const mr_film *f, size_t i)
 {
@@ -711,6 +756,7 @@ int main(void)
         cmocka_unit_test(test_half_normals),
         cmocka_unit_test(test_cryptomatte),
         cmocka_unit_test(test_background_alpha),
+        cmocka_unit_test(test_missed_samples_sum),
         cmocka_unit_test(test_tangent_pass),
         cmocka_unit_test(test_tangent_pass_matches_asset),
     };
