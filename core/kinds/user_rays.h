@@ -127,8 +127,6 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
                 far = _mm_mul_ps(far, _mm_or_ps(_mm_and_ps(fpos, vup), _mm_andnot_ps(fpos, vdown)));
                 /* parallel lanes: no constraint but `out`; max/min return
                  * their second operand when the first is NaN */
-                near = _mm_andnot_ps(par, near);
-                far = _mm_andnot_ps(par, far);
                 entry = _mm_or_ps(_mm_and_ps(par, entry), _mm_andnot_ps(par, _mm_max_ps(near, entry)));
                 exit = _mm_or_ps(_mm_and_ps(par, exit), _mm_andnot_ps(par, _mm_min_ps(far, exit)));
             }
