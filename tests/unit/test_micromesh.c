@@ -305,6 +305,30 @@ static int count_leaks(unsigned mask_a)
     return leaks;
 }
 
+/* mr_umesh_remap_coords works on lattice coordinates directly; it must
+ * move every vertex where mr_umesh_vertex_remap moves its index (every
+ * level, every decimation mask), and leave coordinates off the lattice. */
+static void test_remap_coords_matches_remap(void **state)
+{
+    (void)state;
+    unsigned moved = 0;
+    for (unsigned level = 0; level <= MR_UMESH_MAX_LEVEL; level++)
+        for (unsigned mask = 0; mask < 8; mask++)
+            for (uint32_t i = 0; i < mr_umesh_vertex_count(level); i++) {
+                uint32_t a, b, wa, wb;
+                assert_true(mr_umesh_vertex_coords(level, i, &a, &b));
+                assert_true(mr_umesh_vertex_coords(level, mr_umesh_vertex_remap(level, mask, i), &wa, &wb));
+                const uint32_t a0 = a, b0 = b;
+                mr_umesh_remap_coords(level, mask, &a, &b);
+                assert_true(a == wa && b == wb);
+                moved += a != a0 || b != b0;
+            }
+    assert_true(moved > 0);
+    uint32_t a = 3, b = 2; /* a + b > 4 at level 2 */
+    mr_umesh_remap_coords(2, 7, &a, &b);
+    assert_true(a == 3 && b == 2);
+}
+
 static void test_level_difference_no_crack(void **state)
 {
     (void)state;
@@ -466,6 +490,7 @@ int main(void)
         cmocka_unit_test(test_index_round_trip),
         cmocka_unit_test(test_triangles_cover_once),
         cmocka_unit_test(test_shared_edge_bit_identical),
+        cmocka_unit_test(test_remap_coords_matches_remap),
         cmocka_unit_test(test_level_difference_no_crack),
         cmocka_unit_test(test_zero_displacement_is_flat),
         cmocka_unit_test(test_direction_not_normalised),

@@ -146,9 +146,22 @@ uint32_t mr_umesh_vertex_remap(unsigned level, unsigned decimate_mask, uint32_t 
 
 void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, uint32_t *b)
 {
-    uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, mr_umesh_vertex_index(level, *a, *b));
-    if (r != UINT32_MAX)
-        mr_umesh_vertex_coords(level, r, a, b);
+    /* mr_umesh_vertex_remap on lattice coordinates, without going through
+     * the vertex index and back (a walk over the rows; the traversal remaps
+     * every vertex of a decimated patch's leaves) */
+    const uint32_t n = mr_umesh_segments(level);
+    uint32_t k;
+    if (!n || *a + *b > n)
+        return;
+    const int e = vertex_edge(n, *a, *b, &k);
+    if (e < 0 || e > 2 || !(decimate_mask & (1u << e)) || k % 2 == 0)
+        return;
+    const uint32_t j = k - 1; /* the even vertex before it on the same edge */
+    switch (e) {
+    case 0: *a = j, *b = 0; break;
+    case 1: *a = n - j, *b = j; break;
+    default: *a = 0, *b = n - j; break;
+    }
 }
 
 uint32_t mr_umesh_triangles(unsigned level, unsigned decimate_mask, uint32_t *out)
