@@ -15,6 +15,10 @@
 
 #include "math/mr_math.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 enum { MR_RAY_ORG = 0, MR_RAY_TNEAR = 3, MR_RAY_DIR = 4, MR_RAY_TFAR = 8, MR_RAY_FIELDS = 12 };
 enum { MR_HIT_NG = 0, MR_HIT_U = 3, MR_HIT_V = 4, MR_HIT_PRIM = 5, MR_HIT_GEOM = 6,
        MR_HIT_INST = 7 };
@@ -65,14 +69,33 @@ static inline bool mr_ray_key_matches(void *ray, unsigned N, unsigned i, const m
     return same;
 }
 
-static inline mr_ray_key mr_ray_key_of(void *ray, unsigned N, unsigned i)
+/* Writes ray i's key into *k in place (a key made on the stack and copied
+ * whole is read back in pieces wider than the stores that made it). */
+static inline void mr_ray_key_store(void *ray, unsigned N, unsigned i, mr_ray_key *k)
 {
-    mr_ray_key k;
     for (unsigned c = 0; c < 3; c++) {
-        k.bits[c] = *mr_ray_u(ray, N, MR_RAY_ORG + c, i);
-        k.bits[3 + c] = *mr_ray_u(ray, N, MR_RAY_DIR + c, i);
+        k->bits[c] = *mr_ray_u(ray, N, MR_RAY_ORG + c, i);
+        k->bits[3 + c] = *mr_ray_u(ray, N, MR_RAY_DIR + c, i);
     }
-    return k;
+}
+
+/* Field f, f + 1, f + 2 of ray i of an N-packet as a vector. x and y are
+ * put together in a register and stored as one 8-byte piece: passed on by
+ * value, a vector is read as one 8-byte load, which the store buffer
+ * cannot forward from two 4-byte stores (perf put a sixth of the
+ * callbacks' set-up on that). */
+static inline mr_vec3 mr_ray_v3(void *ray, unsigned N, unsigned f, unsigned i)
+{
+#if defined(__SSE2__)
+    const __m128 xy = _mm_unpacklo_ps(_mm_load_ss(mr_ray_f(ray, N, f, i)),
+                                      _mm_load_ss(mr_ray_f(ray, N, f + 1, i)));
+    mr_vec3 v;
+    _mm_storel_pi((__m64 *)&v, xy);
+    v.z = *mr_ray_f(ray, N, f + 2, i);
+    return v;
+#else
+    return mr_v3(*mr_ray_f(ray, N, f, i), *mr_ray_f(ray, N, f + 1, i), *mr_ray_f(ray, N, f + 2, i));
+#endif
 }
 
 /* A direction that can hit something: not zero, every component finite. */
@@ -93,9 +116,6 @@ static inline bool mr_ray_dir_ok(mr_vec3 d)
  * along which the ray does not move constrains only by its origin,
  * exactly, and a lane whose numbers are not finite (a NaN distance) is
  * kept, as before. Four lanes at a time in SSE. */
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, const float lo[3],
                                       const float hi[3])
 {
@@ -183,16 +203,12 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
         } last[MR_RAY_CACHE_LANES];                                                               \
         const unsigned lane = i % MR_RAY_CACHE_LANES;                                             \
         if (!last[lane].kept || !mr_ray_key_matches(ray, N, i, &last[lane].key)) {                \
-            const mr_vec3 o = mr_v3(*mr_ray_f(ray, N, MR_RAY_ORG, i),                             \
-                                    *mr_ray_f(ray, N, MR_RAY_ORG + 1, i),                         \
-                                    *mr_ray_f(ray, N, MR_RAY_ORG + 2, i));                        \
-            const mr_vec3 d = mr_v3(*mr_ray_f(ray, N, MR_RAY_DIR, i),                             \
-                                    *mr_ray_f(ray, N, MR_RAY_DIR + 1, i),                         \
-                                    *mr_ray_f(ray, N, MR_RAY_DIR + 2, i));                        \
+            const mr_vec3 o = mr_ray_v3(ray, N, MR_RAY_ORG, i);                                   \
+            const mr_vec3 d = mr_ray_v3(ray, N, MR_RAY_DIR, i);                                   \
             if (!mr_ray_dir_ok(d))                                                                \
                 return false;                                                                     \
             last[lane].r = setup(o, d);                                                           \
-            last[lane].key = mr_ray_key_of(ray, N, i);                                            \
+            mr_ray_key_store(ray, N, i, &last[lane].key);                                         \
             last[lane].kept = true;                                                               \
         }                                                                                         \
         *out = last[lane].r;                                                                      \

@@ -28,13 +28,14 @@ static inline double dmax(double a, double b) { return a > b ? a : b; }
 
 mr_dray mr_dray_setup(mr_vec3 o, mr_vec3 d)
 {
+    /* written field by field: arrays of the converted components copied
+     * whole were 16-byte loads of 8-byte stores, which stall */
     mr_dray r;
-    double od[3] = {o.x, o.y, o.z}, dd[3] = {d.x, d.y, d.z};
+    r.o[0] = o.x, r.o[1] = o.y, r.o[2] = o.z;
+    r.d[0] = d.x, r.d[1] = d.y, r.d[2] = d.z;
     for (int a = 0; a < 3; a++) {
-        r.o[a] = od[a];
-        r.d[a] = dd[a];
-        r.par[a] = dd[a] == 0;
-        r.inv[a] = dd[a] != 0 ? 1.0 / dd[a] : 0.0;
+        r.par[a] = r.d[a] == 0;
+        r.inv[a] = r.d[a] != 0 ? 1.0 / r.d[a] : 0.0;
     }
     r.wt = mr_wt_ray_setup(o, d);
     return r;
