@@ -560,8 +560,11 @@ static void slab4(const trace_ctx *c, const child_boxes *b, float entry[4])
         t0 = vmax(t0, vmin(u, w));
         t1 = vmin(t1, vmax(u, w) * vsplat(SLAB_FAR_SCALE));
     }
-    for (int k = 0; k < 4; k++)
-        entry[k] = t0[k] <= t1[k] ? t0[k] : INFINITY;
+    /* one 16-byte store: the callers read the four as one vector, which
+     * four 4-byte stores cannot forward */
+    const v4i in = t0 <= t1;
+    const v4f e = (v4f)((in & (v4i)t0) | (~in & (v4i)vsplat(INFINITY)));
+    memcpy(entry, &e, sizeof e);
 }
 
 /* The blossoms a node's children need, computed into `store`. */
