@@ -52,6 +52,8 @@ typedef struct octree_prim {
     mr_svo_subtree st;
     uint32_t instance;
     bool whole;
+    bool empty;          /* no leaf: no box */
+    float lo[3], hi[3];  /* the box Embree gets (prim_box), made when the piece is */
 } octree_prim;
 
 /* Scratch of one worker: a pose and the matrices of one instance. */
@@ -368,6 +370,8 @@ static int gather_boxes(mr_geom *g, mr_error *err)
  * 5.1 whole. */
 #define LEAVES_PER_SUBTREE 256u
 
+static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3]);
+
 /* Appends instance k's octree (rigid: the shared one) to the primitives as
  * its n subtrees st, or whole when n is 0; frees st. */
 static int prims_add(mr_geom *g, size_t k, mr_svo_subtree *st, uint32_t n, mr_error *err)
@@ -387,10 +391,15 @@ static int prims_add(mr_geom *g, size_t k, mr_svo_subtree *st, uint32_t n, mr_er
         g->prims = q;
         g->prim_capacity = cap;
     }
+    const uint32_t first = g->prim_count;
     if (n == 0)
         g->prims[g->prim_count++] = (octree_prim){.instance = (uint32_t)k, .whole = true};
     for (uint32_t i = 0; i < n; i++)
         g->prims[g->prim_count++] = (octree_prim){.st = st[i], .instance = (uint32_t)k};
+    for (uint32_t i = first; i < g->prim_count; i++) {
+        octree_prim *p = &g->prims[i];
+        p->empty = !prim_box(g, i, p->lo, p->hi);
+    }
     free(st);
     return MR_OK;
 }
@@ -628,13 +637,15 @@ static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3])
 
 static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
 {
-    float lo[3], hi[3];
-    if (!prim_box(args->geometryUserPtr, args->primID, lo, hi)) {
+    const mr_geom *g = args->geometryUserPtr;
+    const octree_prim *p = args->primID < g->prim_count ? &g->prims[args->primID] : NULL;
+    if (!p || p->empty) {
         /* Empty: an inverted box, which Embree leaves out of its BVH. */
-        lo[0] = lo[1] = lo[2] = 1;
-        hi[0] = hi[1] = hi[2] = -1;
+        const float lo[3] = {1, 1, 1}, hi[3] = {-1, -1, -1};
+        set_bounds(args->bounds_o, lo, hi);
+        return;
     }
-    set_bounds(args->bounds_o, lo, hi);
+    set_bounds(args->bounds_o, p->lo, p->hi);
 }
 
 /* The lanes of an N-packet whose ray can meet primitive prim's box
@@ -643,8 +654,10 @@ static void octree_bounds(const struct RTCBoundsFunctionArguments *args)
 static uint32_t lanes_to_trace(const mr_geom *g, unsigned prim, void *ray, unsigned N,
                                const int *valid)
 {
-    float lo[3], hi[3];
-    return prim_box(g, prim, lo, hi) ? mr_rays_in_box(ray, N, valid, lo, hi) : 0;
+    if (prim >= g->prim_count || g->prims[prim].empty)
+        return 0;
+    const octree_prim *p = &g->prims[prim];
+    return mr_rays_in_box(ray, N, valid, p->lo, p->hi);
 }
 
 static void box_bounds(const struct RTCBoundsFunctionArguments *args)
@@ -696,8 +709,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     for (unsigned i = 0; i < N; i++) {
         if (!(lanes >> i & 1u))
             continue;
-        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
-        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         mr_svo_hit h;
         const float tfar = RAY_F(ray, N, i, R_TFAR);
         if (!st) {
@@ -744,8 +756,7 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
     for (unsigned i = 0; i < N; i++) {
         if (!(lanes >> i & 1u))
             continue;
-        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
-        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         const float tnear = RAY_F(ray, N, i, R_TNEAR), tfar = RAY_F(ray, N, i, R_TFAR);
         if (st ? mr_svo_occluded_subtree(o, st, org, dir, tnear, tfar) : mr_svo_occluded(o, org, dir, tnear, tfar))
             RAY_F(ray, N, i, R_TFAR) = -INFINITY;
@@ -797,8 +808,7 @@ static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
-        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
-        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         float t;
         int axis;
         if (!box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
@@ -832,8 +842,7 @@ static void boxes_occluded(const struct RTCOccludedFunctionNArguments *args)
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
-        mr_vec3 org = mr_v3(RAY_F(ray, N, i, R_OX), RAY_F(ray, N, i, R_OY), RAY_F(ray, N, i, R_OZ));
-        mr_vec3 dir = mr_v3(RAY_F(ray, N, i, R_DX), RAY_F(ray, N, i, R_DY), RAY_F(ray, N, i, R_DZ));
+        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         float t;
         int axis;
         if (box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
