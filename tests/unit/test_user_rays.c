@@ -64,12 +64,24 @@ static bool meets(const one_ray *r, const float lo[3], const float hi[3])
     return entry <= exit;
 }
 
+/* Whether the filter keeps ray r: asked one ray at a time (the scalar
+ * code) and as every lane of packets of 4, 8 and 16 (SSE), which must
+ * agree. */
 static uint32_t kept_one(const one_ray *r, const float lo[3], const float hi[3])
 {
     float soa[MR_RAY_FIELDS * 16];
+    one_ray same[16];
+    int valid[16];
+    for (int i = 0; i < 16; i++)
+        same[i] = *r, valid[i] = -1;
     pack(r, 1, soa);
-    const int valid[1] = {-1};
-    return mr_rays_in_box(soa, 1, valid, lo, hi);
+    const uint32_t one = mr_rays_in_box(soa, 1, valid, lo, hi);
+    for (unsigned N = 4; N <= 16; N *= 2) {
+        pack(same, N, soa);
+        const uint32_t all = (1u << N) - 1u;
+        assert_int_equal(mr_rays_in_box(soa, N, valid, lo, hi), one ? all : 0u);
+    }
+    return one;
 }
 
 static void random_box(uint64_t *s, float lo[3], float hi[3])
