@@ -104,6 +104,15 @@ static inline bool mr_ray_dir_ok(mr_vec3 d)
     return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
 }
 
+/* The lanes Embree marks valid (-1) in an N-packet, as a bit mask. */
+static inline uint32_t mr_valid_lanes(unsigned N, const int *valid)
+{
+    uint32_t all = 0;
+    for (unsigned i = 0; i < N; i++)
+        all |= (uint32_t)(valid[i] == -1) << i;
+    return all;
+}
+
 /* The lanes of an N-packet (N = 1 or a multiple of 4, at most 32) among
  * `valid` (Embree's -1 per lane) whose ray can meet a point of the box
  * lo..hi at a distance within its [tnear, tfar], as a bit mask. Embree

@@ -885,12 +885,8 @@ static void trace_batch(mr_geom *g, const struct RTCIntersectFunctionNArguments 
 static uint32_t lanes_to_trace(const mr_geom *g, void *ray, unsigned N, const int *valid,
                                uint32_t t)
 {
-    if (g->par.method == MR_DISPLACED_RAYMARCH) {
-        uint32_t all = 0;
-        for (unsigned i = 0; i < N; i++)
-            all |= (uint32_t)(valid[i] == -1) << i;
-        return all;
-    }
+    if (g->par.method == MR_DISPLACED_RAYMARCH)
+        return mr_valid_lanes(N, valid);
     const float *box = g->boxes + (size_t)t * 6;
     return mr_rays_in_box(ray, N, valid, box, box + 3);
 }

@@ -903,12 +903,8 @@ MR_RAY_SETUP_CACHE(ray_setup, mr_dmm_ray, mr_dmm_ray_setup)
 static uint32_t lanes_to_trace(const dmm_level *g, void *ray, unsigned N, const int *valid,
                                uint32_t t)
 {
-    if (watertight_reference(g)) {
-        uint32_t all = 0;
-        for (unsigned i = 0; i < N; i++)
-            all |= (uint32_t)(valid[i] == -1) << i;
-        return all;
-    }
+    if (watertight_reference(g))
+        return mr_valid_lanes(N, valid);
     const float *box = g->boxes + (size_t)t * BOX_FLOATS;
     return mr_rays_in_box(ray, N, valid, box, box + 3);
 }
