@@ -130,28 +130,18 @@ bool mr_umesh_triangle(unsigned level, uint32_t tri, uint32_t idx[3])
 
 uint32_t mr_umesh_vertex_remap(unsigned level, unsigned decimate_mask, uint32_t index)
 {
-    uint32_t a, b, k;
+    uint32_t a, b;
     if (!mr_umesh_vertex_coords(level, index, &a, &b))
         return UINT32_MAX;
-    uint32_t n = mr_umesh_segments(level);
-    int e = mr_umesh_vertex_edge(level, a, b, &k);
-    if (e < 0 || e > 2 || !(decimate_mask & (1u << e)) || k % 2 == 0)
-        return index;
-    /* odd vertex: collapse onto step k-1 of the same edge (k-1 >= 0 is even,
-     * so it is a corner or an even edge vertex, which is never moved) */
-    uint32_t j = k - 1;
-    switch (e) {
-    case 0: return mr_umesh_vertex_index(level, j, 0);
-    case 1: return mr_umesh_vertex_index(level, n - j, j);
-    default: return mr_umesh_vertex_index(level, 0, n - j);
-    }
+    mr_umesh_remap_coords(level, decimate_mask, &a, &b);
+    return mr_umesh_vertex_index(level, a, b);
 }
 
 void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, uint32_t *b)
 {
-    /* mr_umesh_vertex_remap on lattice coordinates, without going through
-     * the vertex index and back (a walk over the rows; the traversal remaps
-     * every vertex of a decimated patch's leaves) */
+    /* on lattice coordinates, not vertex indices: the traversal remaps
+     * every vertex of a decimated patch's leaves, and an index's
+     * coordinates are a walk over the rows */
     const uint32_t n = mr_umesh_segments(level);
     uint32_t k;
     if (!n || *a + *b > n)
@@ -159,7 +149,9 @@ void mr_umesh_remap_coords(unsigned level, unsigned decimate_mask, uint32_t *a, 
     const int e = vertex_edge(n, *a, *b, &k);
     if (e < 0 || e > 2 || !(decimate_mask & (1u << e)) || k % 2 == 0)
         return;
-    const uint32_t j = k - 1; /* the even vertex before it on the same edge */
+    /* odd vertex: collapse onto step k-1 of the same edge (k-1 >= 0 is even,
+     * so it is a corner or an even edge vertex, which is never moved) */
+    const uint32_t j = k - 1;
     switch (e) {
     case 0: *a = j, *b = 0; break;
     case 1: *a = n - j, *b = j; break;
