@@ -476,15 +476,16 @@ static void store_miss_row(tile_buffer *t, size_t p, int n)
         fill_miss_row(t, p, (size_t)n);
 }
 
-/* n missed samples into every lane's colour and alpha sums. */
-static void add_misses(mr_vec3 rgb[MR_PACKET], float alpha[MR_PACKET], int n, mr_vec3 miss_rgb,
-                       float miss_alpha)
+/* The colour and alpha sums of n missed samples, from zero, added in
+ * order: what every lane holds after them. */
+static void miss_sums(int n, mr_vec3 miss_rgb, float miss_alpha, mr_vec3 *rgb, float *alpha)
 {
-    for (int i = 0; i < MR_PACKET; i++)
-        for (int j = 0; j < n; j++) {
-            rgb[i] = mr_v3_add(rgb[i], miss_rgb);
-            alpha[i] += miss_alpha;
-        }
+    *rgb = mr_v3(0, 0, 0);
+    *alpha = 0;
+    for (int j = 0; j < n; j++) {
+        *rgb = mr_v3_add(*rgb, miss_rgb);
+        *alpha += miss_alpha;
+    }
 }
 
 /* All samples of the packet's pixels; results go to the tile from index i0
@@ -512,18 +513,24 @@ static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
     }
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     /* Samples that hit nothing before any sample hit: every lane's sums
-     * would be the same, so they are made once (below) unless a later
-     * sample hits, when each lane's are made first, in the same order. */
+     * are the same, made once (miss_sums) and handed to the lanes when a
+     * later sample hits; a packet no sample hits keeps them as its one
+     * colour. */
     int lead = 0;
     unsigned any = 0;
+    mr_vec3 lead_rgb = mr_v3(0, 0, 0);
+    float lead_alpha = 0;
     for (int k = 0; k < samples; k++) {
         sample_result r[MR_PACKET];
         unsigned hits = seen ? trace_packet(c, pk, k, r, rays) : 0;
         if (!(any | hits)) {
             lead++;
         } else {
-            if (!any)
-                add_misses(rgb, alpha, lead, miss_rgb, s->background_alpha);
+            if (!any && lead) {
+                miss_sums(lead, miss_rgb, s->background_alpha, &lead_rgb, &lead_alpha);
+                for (int i = 0; i < MR_PACKET; i++)
+                    rgb[i] = lead_rgb, alpha[i] = lead_alpha;
+            }
             any |= hits;
             for (int i = 0; i < MR_PACKET; i++) {
                 bool hit = hits >> i & 1u;
@@ -558,19 +565,17 @@ static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
         }
     }
     float inv_spp = 1.0f / (float)s->spp;
+    if (!any)
+        miss_sums(lead, miss_rgb, s->background_alpha, &lead_rgb, &lead_alpha);
     if (!any && crypto)
-        add_misses(rgb, alpha, lead, miss_rgb, s->background_alpha);
+        for (int i = 0; i < MR_PACKET; i++)
+            rgb[i] = lead_rgb, alpha[i] = lead_alpha;
     if (!any && !crypto) {
         /* no sample hit: one colour for the packet, a row at a time (most
          * packets of a frame; lane by lane it cost skinned-walk ~3 % of
          * its 1280x720 trace) */
-        mr_vec3 sum = mr_v3(0, 0, 0);
-        float a = 0;
-        for (int j = 0; j < lead; j++) {
-            sum = mr_v3_add(sum, miss_rgb);
-            a += s->background_alpha;
-        }
-        const float v[4] = {sum.x * inv_spp, sum.y * inv_spp, sum.z * inv_spp, a * inv_spp};
+        const float v[4] = {lead_rgb.x * inv_spp, lead_rgb.y * inv_spp, lead_rgb.z * inv_spp,
+                            lead_alpha * inv_spp};
         float *plane[4] = {t->r, t->g, t->b, t->a};
         for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++) {
             const int n = __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu);
