@@ -578,12 +578,6 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
 
 /* ---- Embree callbacks ------------------------------------------------ */
 
-/* SOA packet access (rtcore_ray.h gives these only to C++). */
-#define RAY_F(r, N, i, field) (((float *)(r))[(field) * (N) + (i)])
-#define RAY_U(r, N, i, field) (((unsigned *)(r))[(field) * (N) + (i)])
-enum { R_OX, R_OY, R_OZ, R_TNEAR, R_DX, R_DY, R_DZ, R_TIME, R_TFAR, R_MASK, R_ID, R_FLAGS };
-enum { H_NX, H_NY, H_NZ, H_U, H_V, H_PRIM, H_GEOM, H_INST };
-
 static void set_bounds(struct RTCBounds *b, const float lo[3], const float hi[3])
 {
     b->lower_x = lo[0];
@@ -703,7 +697,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
         return;
     unsigned N = args->N;
     float *ray = (float *)args->rayhit;
-    float *hit = ray + 12 * N;
+    float *hit = ray + MR_RAY_FIELDS * N;
     unsigned inst = args->context->instID[0];
     const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
     for (unsigned i = 0; i < N; i++) {
@@ -711,19 +705,20 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
             continue;
         const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         mr_svo_hit h;
-        const float tfar = RAY_F(ray, N, i, R_TFAR);
+        const float tfar = *mr_ray_f(ray, N, MR_RAY_TFAR, i);
         if (!st) {
-            if (!mr_svo_intersect(o, org, dir, RAY_F(ray, N, i, R_TNEAR), tfar, &h))
+            if (!mr_svo_intersect(o, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar, &h))
                 continue;
         } else {
-            if (!mr_svo_intersect_subtree(o, st, org, dir, RAY_F(ray, N, i, R_TNEAR), tfar, &h))
+            if (!mr_svo_intersect_subtree(o, st, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar, &h))
                 continue;
             /* a hit at the t another subtree of this instance's octree
              * holds: the one the whole walk meets first, whatever order
              * Embree visits them in */
             const mr_svo_subtree *held = NULL;
-            if (h.t == tfar && RAY_U(hit, N, i, H_GEOM) == args->geomID && RAY_U(hit, N, i, H_INST) == inst &&
-                prim_octree(g, RAY_U(hit, N, i, H_PRIM), &held) == o && held &&
+            if (h.t == tfar && *mr_ray_u(hit, N, MR_HIT_GEOM, i) == args->geomID &&
+                *mr_ray_u(hit, N, MR_HIT_INST, i) == inst &&
+                prim_octree(g, *mr_ray_u(hit, N, MR_HIT_PRIM, i), &held) == o && held &&
                 mr_svo_subtree_order(held, dir) < mr_svo_subtree_order(st, dir))
                 continue;
         }
@@ -731,15 +726,10 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
         if (g->method == MR_SVO_RIGID && inst != RTC_INVALID_GEOMETRY_ID && inst >= g->first_id &&
             inst - g->first_id < g->instance_count)
             ng = mr_mat4_dir(&g->world_normal[inst - g->first_id], ng); /* world space */
-        RAY_F(ray, N, i, R_TFAR) = h.t;
-        RAY_F(hit, N, i, H_NX) = ng.x;
-        RAY_F(hit, N, i, H_NY) = ng.y;
-        RAY_F(hit, N, i, H_NZ) = ng.z;
-        RAY_F(hit, N, i, H_U) = (float)((h.leaf >> 16) | h.level << 16); /* < 2^21: exact */
-        RAY_F(hit, N, i, H_V) = (float)(h.leaf & 0xffffu);
-        RAY_U(hit, N, i, H_PRIM) = args->primID;
-        RAY_U(hit, N, i, H_GEOM) = args->geomID;
-        RAY_U(hit, N, i, H_INST) = inst;
+        *mr_ray_f(ray, N, MR_RAY_TFAR, i) = h.t;
+        /* u: the leaf's high bits and level, v: its low bits (< 2^21: exact) */
+        mr_ray_write_hit(args, i, ng, (float)((h.leaf >> 16) | h.level << 16),
+                         (float)(h.leaf & 0xffffu));
     }
 }
 
@@ -757,9 +747,9 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
         if (!(lanes >> i & 1u))
             continue;
         const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
-        const float tnear = RAY_F(ray, N, i, R_TNEAR), tfar = RAY_F(ray, N, i, R_TFAR);
+        const float tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar = *mr_ray_f(ray, N, MR_RAY_TFAR, i);
         if (st ? mr_svo_occluded_subtree(o, st, org, dir, tnear, tfar) : mr_svo_occluded(o, org, dir, tnear, tfar))
-            RAY_F(ray, N, i, R_TFAR) = -INFINITY;
+            *mr_ray_f(ray, N, MR_RAY_TFAR, i) = -INFINITY;
     }
 }
 
@@ -804,14 +794,14 @@ static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
     const float *b = g->box + (size_t)args->primID * 6;
     unsigned N = args->N;
     float *ray = (float *)args->rayhit;
-    float *hit = ray + 12 * N;
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
         const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         float t;
         int axis;
-        if (!box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
+        if (!box_hit(b, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i),
+                     *mr_ray_f(ray, N, MR_RAY_TFAR, i), &t, &axis))
             continue;
         float n[3] = {0, 0, 0};
         if (axis >= 0)
@@ -821,15 +811,8 @@ static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
             n[1] = -dir.y;
             n[2] = -dir.z;
         }
-        RAY_F(ray, N, i, R_TFAR) = t;
-        RAY_F(hit, N, i, H_NX) = n[0];
-        RAY_F(hit, N, i, H_NY) = n[1];
-        RAY_F(hit, N, i, H_NZ) = n[2];
-        RAY_F(hit, N, i, H_U) = 0;
-        RAY_F(hit, N, i, H_V) = 0;
-        RAY_U(hit, N, i, H_PRIM) = args->primID;
-        RAY_U(hit, N, i, H_GEOM) = args->geomID;
-        RAY_U(hit, N, i, H_INST) = args->context->instID[0];
+        *mr_ray_f(ray, N, MR_RAY_TFAR, i) = t;
+        mr_ray_write_hit(args, i, mr_v3(n[0], n[1], n[2]), 0, 0);
     }
 }
 
@@ -845,8 +828,9 @@ static void boxes_occluded(const struct RTCOccludedFunctionNArguments *args)
         const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
         float t;
         int axis;
-        if (box_hit(b, org, dir, RAY_F(ray, N, i, R_TNEAR), RAY_F(ray, N, i, R_TFAR), &t, &axis))
-            RAY_F(ray, N, i, R_TFAR) = -INFINITY;
+        if (box_hit(b, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i),
+                    *mr_ray_f(ray, N, MR_RAY_TFAR, i), &t, &axis))
+            *mr_ray_f(ray, N, MR_RAY_TFAR, i) = -INFINITY;
     }
 }
 
