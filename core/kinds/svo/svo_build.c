@@ -2,8 +2,8 @@
  * svo_build.c - compaction and the parallel octree build (svo_build.h).
  *
  * Build, for n sorted keys with pairwise disjoint cells (codes unique):
- *  1. Binary radix tree (Karras 2012, one independent search per internal
- *     node, parallel): node i's range, split and common prefix length in
+ *  1. Binary radix tree (Karras 2012's layout, built in one linear pass
+ *     with a stack: radix_tree): node i's range, split and common prefix length in
  *     bits of the 3D-bit codes. Each node writes its own prefix length into
  *     its two children ("parent prefix"), so no parent pointers are kept.
  *  2. Octree interior nodes are the cells that strictly contain a key. A
@@ -161,59 +161,66 @@ static void validate_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* Common prefix length (leading equal bits of the 64-bit words) of keys i
- * and j, -1 when j is outside the array (Karras' delta). */
-static inline int delta(const mr_svo_key *k, int64_t n, int64_t i, int64_t j)
+/* Writes internal node `node` of the radix tree: it splits keys [first,
+ * last] between keys gamma and gamma + 1, whose codes share their leading
+ * `prefix` bits. */
+static inline void radix_node(build_ctx *c, size_t node, size_t first, size_t last, size_t gamma, int prefix)
 {
-    if (j < 0 || j >= n)
-        return -1;
-    return __builtin_clzll(k[i].code ^ k[j].code); /* codes are unique */
+    const int bits = prefix - (64 - 3 * (int)c->depth); /* top bits every code has zero */
+    uint8_t info = (uint8_t)bits;
+    if (first == gamma) {
+        info |= LEAF_LEFT;
+        c->pd_leaf[gamma] = (int8_t)bits;
+    } else {
+        c->pd_int[gamma] = (int8_t)bits;
+    }
+    if (last == gamma + 1) {
+        info |= LEAF_RIGHT;
+        c->pd_leaf[gamma + 1] = (int8_t)bits;
+    } else {
+        c->pd_int[gamma + 1] = (int8_t)bits;
+    }
+    c->split[node] = (uint32_t)gamma;
+    c->info[node] = info;
 }
 
-static void radix_fn(void *vctx, size_t begin, size_t end, unsigned worker)
+/* The binary radix tree of the n >= 2 sorted unique keys, in Karras'
+ * numbering, in one pass. Internal nodes are the n - 1 splits: split p lies
+ * between keys p and p + 1, whose codes share d(p) leading bits. Its node
+ * covers the keys back to the nearest split on the left with a shorter
+ * common prefix (l) and on to the nearest on the right (r): [l + 1, r].
+ * (Two splits with equal d have a shorter one between them: the bit after
+ * the prefix rises once in a sorted run.) Its parent is whichever of l and
+ * r has the longer prefix; as the parent's right child the node is
+ * numbered by its first key, as its left child by its last (the root: 0),
+ * which is Karras' numbering (each node's range has its number at one end).
+ * A stack of splits with rising d finds both neighbours: a split is popped
+ * by its right one, and the one below it is its left. d rises strictly up
+ * the stack, so it holds at most 64 splits. Sequential and linear, where
+ * Karras' binary searches per node jumped across the keys. */
+static void radix_tree(build_ctx *c)
 {
-    (void)worker;
-    build_ctx *c = vctx;
     const mr_svo_key *k = c->keys;
-    const int64_t n = (int64_t)c->n;
-    const int unused = 64 - 3 * (int)c->depth; /* top bits every code has zero */
-    for (size_t ui = begin; ui < end; ui++) {
-        const int64_t i = (int64_t)ui;
-        const int64_t d = delta(k, n, i, i + 1) > delta(k, n, i, i - 1) ? 1 : -1;
-        const int dmin = delta(k, n, i, i - d);
-        int64_t lmax = 2;
-        while (delta(k, n, i, i + lmax * d) > dmin)
-            lmax *= 2;
-        int64_t l = 0;
-        for (int64_t t = lmax / 2; t >= 1; t /= 2)
-            if (delta(k, n, i, i + (l + t) * d) > dmin)
-                l += t;
-        const int64_t j = i + l * d;
-        const int dnode = delta(k, n, i, j);
-        int64_t s = 0, t = l;
-        do {
-            t = (t + 1) / 2;
-            if (delta(k, n, i, i + (s + t) * d) > dnode)
-                s += t;
-        } while (t > 1);
-        const int64_t gamma = i + s * d + (d < 0 ? -1 : 0);
-        const int64_t first = i < j ? i : j, last = i < j ? j : i;
-        const int bits = dnode - unused;
-        uint8_t info = (uint8_t)bits;
-        if (first == gamma) {
-            info |= LEAF_LEFT;
-            c->pd_leaf[gamma] = (int8_t)bits;
-        } else {
-            c->pd_int[gamma] = (int8_t)bits;
+    const size_t n = c->n;
+    struct {
+        uint32_t split;
+        int8_t d;
+    } stack[65];
+    int top = 0;
+    for (size_t p = 0; p + 1 <= n; p++) {
+        /* the split after the last key closes every open one (d = -1) */
+        const int d = p + 1 < n ? __builtin_clzll(k[p].code ^ k[p + 1].code) : -1;
+        while (top > 0 && stack[top - 1].d > d) {
+            const size_t q = stack[--top].split;
+            const int dl = top > 0 ? stack[top - 1].d : -1; /* left neighbour's prefix */
+            const size_t first = top > 0 ? (size_t)stack[top - 1].split + 1 : 0, last = p;
+            radix_node(c, dl > d ? first : d > dl ? last : 0, first, last, q, stack[top].d);
         }
-        if (last == gamma + 1) {
-            info |= LEAF_RIGHT;
-            c->pd_leaf[gamma + 1] = (int8_t)bits;
-        } else {
-            c->pd_int[gamma + 1] = (int8_t)bits;
+        if (d >= 0) {
+            stack[top].split = (uint32_t)p;
+            stack[top].d = (int8_t)d;
+            top++;
         }
-        c->split[i] = (uint32_t)gamma;
-        c->info[i] = info;
     }
 }
 
@@ -477,7 +484,7 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     c.pd_int[0] = -1; /* the radix root (or the only key) has no parent */
     c.pd_leaf[0] = -1;
     if (count > 1)
-        mr_parallel_for(threads, count - 1, 4096, radix_fn, &c);
+        radix_tree(&c);
     mr_parallel_for(threads, c.blocks, 1, count_fn, &c);
 
     /* Per-level totals, then each block's first position per level. */
