@@ -136,7 +136,7 @@ static bool children_ok(const mr_svo *svo, uint32_t n)
  * caller keeps one workspace, so after the first frame nothing is
  * allocated and no fresh page is faulted in (both showed in profiles). */
 enum {
-    WS_CUR, WS_NEXT, WS_BOX, WS_LEAF, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
+    WS_CUR, WS_NEXT, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
     WS_RS_LEAVES, WS_PALETTE,
@@ -361,12 +361,11 @@ typedef struct sel_ctx {
     /* the level being processed */
     const sel_item *items;
     size_t n;
-    float *box;
-    mr_svo_leaf *leaf;
+    size_t out_base;                       /* out's count before the level */
     uint32_t *expand;                      /* a chunk's expanded items, from its first slot */
     size_t *chunk_sel, *chunk_child; /* counts, then offsets */
     size_t *chunk_expand;            /* expanded items */
-    size_t chunks, sel_end;          /* chunks of the level; selected voxels after it */
+    size_t chunks;                   /* chunks of the level */
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
@@ -738,10 +737,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             deform_box_grow(a0, lo, hi, &dlo, &dhi);
             if (p0 == NULL || p1 != p0)
                 deform_box_grow(a1, lo, hi, &dlo, &dhi);
-            /* the chunk's selected voxels fill its slots from the first
-             * (this one's until a later one takes it when it is not
-             * selected), so pass 2 copies them in one run */
-            float *b = &c->box[(i0 + nsel) * 6];
+            /* the chunk's selected voxels fill its slots of the output
+             * (item i0's slot out_base + i0 and on) from the first, this
+             * one's until a later one takes it when it is not selected:
+             * they are written where they stay unless an earlier chunk
+             * kept fewer than all of its items (select_ws closes such gaps) */
+            const size_t slot = c->out_base + i0 + nsel;
+            float *b = &c->out->box[slot * 6];
             const vfloat flo = vfloat_round(&dlo, true), fhi = vfloat_round(&dhi, false);
             memcpy(b, &flo, 3 * sizeof(float));
             memcpy(b + 3, &fhi, 3 * sizeof(float));
@@ -782,7 +784,8 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                     continue;
                 }
-                mr_svo_leaf *l = &c->leaf[i0 + nsel];
+                mr_svo_leaf *l = &c->out->leaf[slot];
+                c->out->level[slot] = (uint8_t)c->level;
                 l->attr = (uint16_t)attr0;
                 /* a coarse voxel stands for all its leaves: their mean
                  * normal (one leaf's would light the whole voxel by
@@ -820,21 +823,14 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* Pass 2: write the chunk's selected voxels and children at its offsets. */
+/* Pass 2: write the chunk's children at its offsets. */
 static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     sel_ctx *c = vctx;
     const mr_svo *svo = c->svo;
-    mr_svo_selection *out = c->out;
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * SEL_CHUNK;
-        const size_t s = c->chunk_sel[ch], nsel = (ch + 1 < c->chunks ? c->chunk_sel[ch + 1] : c->sel_end) - s;
-        if (nsel > 0) { /* the selection's arrays are NULL while it is empty */
-            memcpy(&out->box[s * 6], &c->box[i0 * 6], nsel * 6 * sizeof(float));
-            memcpy(&out->leaf[s], &c->leaf[i0], nsel * sizeof(mr_svo_leaf));
-            memset(&out->level[s], (int)c->level, nsel);
-        }
         size_t k = c->chunk_child[ch];
         for (size_t e = 0; e < c->chunk_expand[ch]; e++) {
             const sel_item *it = &c->items[c->expand[i0 + e]];
@@ -1033,14 +1029,16 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             goto cleanup;
         }
         const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
-        float *box = ws_get(ws, WS_BOX, n, 6 * sizeof *box);
-        mr_svo_leaf *leaf = ws_get(ws, WS_LEAF, n, sizeof *leaf);
+        /* room for every item of the level to be selected: pass 1 writes
+         * the voxels it selects straight into the output */
+        if ((rc = selection_reserve(out, out->count + n, err)) != MR_OK)
+            goto cleanup;
         uint32_t *expand = ws_get(ws, WS_EXPAND, n, sizeof *expand);
         size_t *chunk_expand = ws_get(ws, WS_CH_EXPAND, chunks, sizeof *chunk_expand);
         size_t *chunk_sel = ws_get(ws, WS_CH_SEL, chunks, sizeof *chunk_sel);
         size_t *chunk_child = ws_get(ws, WS_CH_CHILD, chunks, sizeof *chunk_child);
         sel_fail *chunk_fail = ws_get(ws, WS_CH_FAIL, chunks, sizeof *chunk_fail);
-        if (!box || !leaf || !expand || !chunk_sel || !chunk_child || !chunk_expand || !chunk_fail) {
+        if (!expand || !chunk_sel || !chunk_child || !chunk_expand || !chunk_fail) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", n, level);
             goto cleanup;
         }
@@ -1048,8 +1046,7 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
         c.cell = (double)svo->size * ldexp(1.0, -(int)level); /* exact */
         c.items = cur;
         c.n = n;
-        c.box = box;
-        c.leaf = leaf;
+        c.out_base = out->count;
         c.expand = expand;
         c.chunk_expand = chunk_expand;
         c.chunks = chunks;
@@ -1090,9 +1087,17 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             rc = mr_error_set(err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
             goto cleanup;
         }
-        rc = selection_reserve(out, sel_total, err);
-        if (rc != MR_OK)
-            goto cleanup;
+        /* close the gaps chunks that kept fewer than all their items left,
+         * in order: a run only moves down, past the runs already placed */
+        for (size_t ch = 0; ch < chunks; ch++) {
+            const size_t from = c.out_base + ch * SEL_CHUNK, to = chunk_sel[ch];
+            const size_t count = (ch + 1 < chunks ? chunk_sel[ch + 1] : sel_total) - to;
+            if (count > 0 && from != to) {
+                memmove(&out->box[to * 6], &out->box[from * 6], count * 6 * sizeof *out->box);
+                memmove(&out->leaf[to], &out->leaf[from], count * sizeof *out->leaf);
+                memmove(&out->level[to], &out->level[from], count);
+            }
+        }
         sel_item *next = ws_get(ws, WS_NEXT, child_total, sizeof *next);
         if (!next) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%zu voxels at level %u)", child_total,
@@ -1100,7 +1105,6 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             goto cleanup;
         }
         c.next = next;
-        c.sel_end = sel_total;
         mr_parallel_for(threads, chunks, 1, sel_pass2, &c);
         out->count = sel_total;
         ws_swap(ws, WS_CUR, WS_NEXT);
