@@ -8,6 +8,7 @@
  * sizeof(float) far from overflowing size_t.
  */
 #include "render/film.h"
+#include "util/large_alloc.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -115,7 +116,7 @@ int mr_film_new_aovs(int width, int height, unsigned aovs, int crypto_ranks, mr_
     film->height = height;
     film->aovs = aovs;
     /* malloc checks nothing for overflow, but the caps above make it moot. */
-#define PLANE(p) ((p) = malloc(n * 4u), (p) != NULL)
+#define PLANE(p) ((p) = mr_large_alloc(n * 4u), (p) != NULL)
     if ((aovs & MR_AOV_RGBA) &&
         !(PLANE(film->r) && PLANE(film->g) && PLANE(film->b) && PLANE(film->a)))
         goto nomem;

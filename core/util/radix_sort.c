@@ -26,6 +26,7 @@
 #include <string.h>
 
 #include "util/parallel.h"
+#include "util/large_alloc.h"
 
 #ifndef DIGIT_BITS
 #define DIGIT_BITS 11u
@@ -194,7 +195,7 @@ int mr_svo_radix_sort_payload(mr_svo_key *keys, uint32_t *payload, size_t count,
         return mr_error_set(err, MR_ERR_LIMIT, "radix sort: %zu keys exceed 2^32 - 1", count);
 
     if (!key_scratch) {
-        own_k = malloc(count * sizeof *own_k);
+        own_k = mr_large_alloc(count * sizeof *own_k);
         if (!own_k) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "radix sort: no memory for %zu scratch keys", count);
             goto cleanup;
@@ -202,7 +203,7 @@ int mr_svo_radix_sort_payload(mr_svo_key *keys, uint32_t *payload, size_t count,
         key_scratch = own_k;
     }
     if (payload && !payload_scratch) {
-        own_p = malloc(count * sizeof *own_p);
+        own_p = mr_large_alloc(count * sizeof *own_p);
         if (!own_p) {
             rc = mr_error_set(err, MR_ERR_NOMEM, "radix sort: no memory for %zu scratch payloads", count);
             goto cleanup;

@@ -36,6 +36,7 @@
 
 #include "util/morton.h"
 #include "util/radix_sort.h"
+#include "util/large_alloc.h"
 #include "kinds/svo/svo_build.h"
 #include "util/parallel.h"
 
@@ -203,7 +204,7 @@ static void *ws_get(mr_svo_workspace *ws, int slot, size_t count, size_t elem)
     /* an eighth more than asked: frames of one scene ask for much the same,
      * and a power of two would hold up to twice what they use */
     const size_t cap = need > SIZE_MAX - need / 8 ? need : need + need / 8;
-    void *q = malloc(cap);
+    void *q = mr_large_alloc(cap);
     if (!q)
         return NULL;
     free(ws->p[slot]);
@@ -870,13 +871,14 @@ static int selection_reserve(mr_svo_selection *s, size_t need, mr_error *err)
         cap = cap > SIZE_MAX / 2 ? need : cap * 2;
     if (cap > SIZE_MAX / (6 * sizeof(float)))
         return mr_error_set(err, MR_ERR_NOMEM, "svo select: %zu voxels do not fit in memory", need);
-    float *box = realloc(s->box, cap * 6 * sizeof *box);
+    /* the voxels so far are kept (earlier levels' selections) */
+    float *box = mr_large_realloc(s->box, s->capacity * 6 * sizeof *box, cap * 6 * sizeof *box);
     if (box)
         s->box = box;
-    mr_svo_leaf *leaf = realloc(s->leaf, cap * sizeof *leaf);
+    mr_svo_leaf *leaf = mr_large_realloc(s->leaf, s->capacity * sizeof *leaf, cap * sizeof *leaf);
     if (leaf)
         s->leaf = leaf;
-    uint8_t *level = realloc(s->level, cap);
+    uint8_t *level = mr_large_realloc(s->level, s->capacity, cap);
     if (level)
         s->level = level;
     if (!box || !leaf || !level)

@@ -32,6 +32,7 @@
 #include <string.h>
 
 #include "util/parallel.h"
+#include "util/large_alloc.h"
 
 #define BLK 16384u
 #define LEVELS (MR_SVO_MAX_DEPTH + 1u)
@@ -473,10 +474,10 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     out->has_occupied = true;
 
     size_t ni = count > 1 ? count - 1 : 1;
-    c.split = malloc(ni * sizeof *c.split);
-    c.info = malloc(ni);
-    c.pd_int = malloc(ni);
-    c.pd_leaf = malloc(count);
+    c.split = mr_large_alloc(ni * sizeof *c.split);
+    c.info = mr_large_alloc(ni);
+    c.pd_int = mr_large_alloc(ni);
+    c.pd_leaf = mr_large_alloc(count);
     c.node_base = malloc(c.blocks * LEVELS * sizeof *c.node_base);
     c.leaf_base = malloc(c.blocks * LEVELS * sizeof *c.leaf_base);
     if (!c.split || !c.info || !c.pd_int || !c.pd_leaf || !c.node_base || !c.leaf_base)
@@ -505,16 +506,16 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
     out->node_count = (uint32_t)node_total;
     out->leaf_count = (uint32_t)leaf_total;
     if (node_total > 0) {
-        out->first_node = malloc(node_total * sizeof *out->first_node);
-        out->first_leaf = malloc(node_total * sizeof *out->first_leaf);
-        out->child_mask = malloc(node_total);
-        out->leaf_mask = malloc(node_total);
+        out->first_node = mr_large_alloc(node_total * sizeof *out->first_node);
+        out->first_leaf = mr_large_alloc(node_total * sizeof *out->first_leaf);
+        out->child_mask = mr_large_alloc(node_total);
+        out->leaf_mask = mr_large_alloc(node_total);
         if (!out->first_node || !out->first_leaf || !out->child_mask || !out->leaf_mask)
             goto nomem;
     }
-    out->leaves = malloc(leaf_total * sizeof *out->leaves);
+    out->leaves = mr_large_alloc(leaf_total * sizeof *out->leaves);
     if (!per_frame)
-        out->leaf_keys = malloc(leaf_total * sizeof *out->leaf_keys);
+        out->leaf_keys = mr_large_alloc(leaf_total * sizeof *out->leaf_keys);
     if (!out->leaves || (!per_frame && !out->leaf_keys))
         goto nomem;
     mr_parallel_for(threads, c.blocks, 1, fill_fn, &c);
