@@ -1,8 +1,9 @@
 /*
  * large_alloc.h - allocations of large arrays written whole (per-frame
  * octrees, sort keys, selections): from MR_LARGE_ALLOC_MIN bytes up they
- * are aligned to 2 MiB and advised as transparent huge pages, so the
- * kernel faults them in 2 MiB at a time instead of 4 KiB. A job's first
+ * are aligned to 2 MiB and their whole 2 MiB pages advised as transparent
+ * huge pages, so the kernel faults them in 2 MiB at a time instead of
+ * 4 KiB. A job's first
  * frame writes every array fresh, and page faults were most of it: the
  * dancer at depth 12 (resize, every leaf) updated in 27.9 s, 7.4 s with
  * huge pages (README, Benchmarks). Smaller blocks are plain malloc; where
