@@ -1,6 +1,6 @@
 /*
  * test_large_alloc.c - large_alloc.h: blocks from MR_LARGE_ALLOC_MIN up are
- * 2 MiB aligned and advised as huge pages (the kernel marks such a range
+ * 2 MiB aligned and their whole 2 MiB pages advised as huge pages (the kernel marks such a range
  * "hg" in /proc/self/smaps wherever it has transparent huge pages at all),
  * smaller ones are plain; every block is writable over its whole size, the
  * realloc keeps the bytes it is told to keep across every change of class,
@@ -77,7 +77,7 @@ static void test_large_blocks_are_aligned_and_advised(void **state)
 {
     (void)state;
     const bool thp = access("/sys/kernel/mm/transparent_hugepage/enabled", F_OK) == 0;
-    const size_t sizes[] = {MR_LARGE_ALLOC_MIN, MR_LARGE_ALLOC_MIN + 1, 5 * MIB + 3};
+    const size_t sizes[] = {MR_LARGE_ALLOC_MIN, MR_LARGE_ALLOC_MIN + 1, MR_LARGE_ALLOC_MIN + 3 * MIB + 3};
     for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; k++) {
         uint8_t *p = mr_large_alloc(sizes[k]);
         assert_non_null(p);
@@ -96,27 +96,28 @@ static void test_realloc_keeps_what_it_is_told(void **state)
 {
     (void)state;
     /* small -> large -> larger -> small, each keeping the bytes before */
+    const size_t large = MR_LARGE_ALLOC_MIN + MIB, larger = 2 * MR_LARGE_ALLOC_MIN + 5;
     uint8_t *p = mr_large_alloc(1000);
     assert_non_null(p);
     fill(p, 1000, 11);
-    p = mr_large_realloc(p, 1000, 3 * MIB);
+    p = mr_large_realloc(p, 1000, large);
     assert_non_null(p);
     assert_int_equal((uintptr_t)p % (2 * MIB), 0);
     check(p, 1000, 11);
-    fill(p, 3 * MIB, 12);
-    p = mr_large_realloc(p, 3 * MIB, 9 * MIB);
+    fill(p, large, 12);
+    p = mr_large_realloc(p, large, larger);
     assert_non_null(p);
-    check(p, 3 * MIB, 12);
-    fill(p, 9 * MIB, 13);
+    check(p, large, 12);
+    fill(p, larger, 13);
     /* keep larger than the new size: the new size's bytes */
-    p = mr_large_realloc(p, 9 * MIB, 5000);
+    p = mr_large_realloc(p, larger, 5000);
     assert_non_null(p);
     check(p, 5000, 13);
     /* NULL starts a block */
-    uint8_t *q = mr_large_realloc(NULL, 0, 4 * MIB);
+    uint8_t *q = mr_large_realloc(NULL, 0, large);
     assert_non_null(q);
-    fill(q, 4 * MIB, 1);
-    check(q, 4 * MIB, 1);
+    fill(q, large, 1);
+    check(q, large, 1);
     free(q);
     free(p);
 }
