@@ -6,10 +6,12 @@
  * Selection is level-synchronous: the frontier of one level (the voxels to
  * deform there) is split into fixed chunks of SEL_CHUNK items. Pass 1
  * deforms every item and decides removed / selected / expanded, with
- * per-chunk counts, keeping the chunk's selected voxels packed from its
- * first slot and a list of its expanded ones; a serial prefix sum over the
- * chunks gives each chunk's place in the selection and in the next
- * frontier; pass 2 copies the selected run and writes the children.
+ * per-chunk counts, writing the chunk's selected voxels into the
+ * selection packed from its first item's slot, and a list of its expanded
+ * ones; a serial prefix sum over the chunks gives each chunk's place in
+ * the selection and in the next frontier, a serial pass moves the runs of
+ * chunks behind a gap down to their places, and pass 2 writes the
+ * children.
  * Chunk boundaries depend on the frontier only, so the order of the output
  * is the same for any thread count, and every number is computed by the
  * same operations whichever worker runs it.
