@@ -410,6 +410,14 @@ typedef struct mr_film {
     bool has_camera;
     mr_mat4 camera_to_world;        /* rigid */
     float yfov;                     /* vertical field of view, radians */
+    /* What the renderer knows of the planes' contents (integrator.c): the
+     * blocks of pixels that hold exactly what a miss leaves there, written
+     * by an earlier frame. A frame writes such a block again only where it
+     * hits something, so an animation's background is written once. NULL:
+     * nothing known. Code that writes the planes itself calls
+     * mr_film_clear, which forgets it, before rendering into the film
+     * again. */
+    struct mr_film_misses *misses;
 } mr_film;
 
 /* Allocates a film of the passes in aovs (mr_aov bits, at least one) with
@@ -424,7 +432,8 @@ int mr_film_new(int width, int height, mr_film **out, mr_error *err);
 /* Bytes the planes of such a film take (0 for a size that is none). */
 size_t mr_film_bytes(int width, int height, unsigned aovs, int crypto_ranks);
 void mr_film_free(mr_film *film);
-/* Resets every plane to "miss": z to MR_DEPTH_MISS, everything else 0. */
+/* Resets every plane to "miss": z to MR_DEPTH_MISS, everything else 0,
+ * and forgets what the renderer knew of them (misses). */
 void mr_film_clear(mr_film *film);
 
 /* ---- comparison (render/compare.c) ----

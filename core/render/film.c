@@ -163,6 +163,7 @@ void mr_film_free(mr_film *film)
     count = film_slots(film, slot);
     for (size_t i = 0; i < count; i++)
         free(*slot[i]);
+    free(film->misses); /* one block (integrator.c) */
     free(film);
 }
 
@@ -173,6 +174,8 @@ void mr_film_clear(mr_film *film)
 
     if (!film || film->width <= 0 || film->height <= 0)
         return;
+    free(film->misses);
+    film->misses = NULL;
     n = film_pixels(film);
     /* All-zero bits are 0.0f in IEEE 754, i.e. "miss" for every plane but
      * depth. */

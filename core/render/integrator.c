@@ -35,7 +35,10 @@ typedef struct {
     uint32_t miss[PLANES]; /* a missed pixel's bits in each film plane (miss_values) */
     uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     mr_film *film;
-    int tiles_x;
+    /* per packet block of the film (film_blocks): 1 where the film holds
+     * the miss values above; NULL: nothing known, every block is written */
+    uint8_t *held;
+    int tiles_x, blocks_x;
     atomic_ullong rays;
     atomic_bool cancelled;
 } trace_ctx;
@@ -490,8 +493,9 @@ static void miss_sums(int n, mr_vec3 miss_rgb, float miss_alpha, mr_vec3 *rgb, f
 
 /* All samples of the packet's pixels; results go to the tile from index i0
  * (the packet's first pixel); seen: false when none of their rays can hit
- * the scene (rect_seen): misses, untraced. */
-static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, tile_buffer *t,
+ * the scene (rect_seen): misses, untraced. Returns whether any sample hit
+ * (if not, every pixel holds the miss values, miss_values). */
+static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, tile_buffer *t,
                          size_t i0, uint64_t *rays)
 {
     size_t at[MR_PACKET]; /* each lane's tile index */
@@ -584,7 +588,7 @@ static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                 for (int i = 0; i < n; i++)
                     plane[q][p + (size_t)i] = v[q];
         }
-        return;
+        return false;
     }
     for (unsigned m = pk->live; m; m &= m - 1) {
         int i = __builtin_ctz(m);
@@ -597,6 +601,7 @@ static void trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
             for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
                 tally_write(&tally[i][l], c->film->crypto_ranks, samples, t->crypto[l], p);
     }
+    return any != 0;
 }
 
 /* Copies n 4-byte values from a tile row into the film. (Streaming stores
@@ -635,6 +640,50 @@ static void fill_out(void *dst, uint32_t v, int n)
         d[i] = v;
 }
 
+/* Packet blocks of a tile per row and per column. */
+enum { TILE_BLOCKS_X = MR_TILE_W / MR_PACKET_W, TILE_BLOCKS_Y = MR_TILE_H / MR_PACKET_ROWS };
+_Static_assert(MR_TILE_W % MR_PACKET_W == 0 && TILE_BLOCKS_X <= 16,
+               "a tile row holds whole packets, a 16-bit mask of them");
+
+/* Pixels [x, x + n) of film row y (from the tile's left edge x0): from
+ * tile row ty of t (its planes in), or, t NULL, the miss values (streaming
+ * stores: lines the film does not read in first). */
+static void put_pixels(const trace_ctx *c, void *const out[PLANES], const tile_buffer *t,
+                       void *const in[PLANES], int ty, int x0, int y, int x, int n)
+{
+    mr_film *f = c->film;
+    const size_t dst = (size_t)y * f->width + x0 + x, src = (size_t)ty * MR_TILE_W + x;
+    for (size_t k = 0; k < PLANES; k++)
+        if (out[k]) { /* the film's passes only */
+            if (t)
+                copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, n);
+            else
+                fill_out((uint32_t *)out[k] + dst, c->miss[k], n);
+        }
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * f->crypto_ranks; k++) {
+            if (t)
+                copy_out(f->crypto[l][k] + dst, t->crypto[l][k] + src, n);
+            else
+                fill_out(f->crypto[l][k] + dst, c->miss_crypto[l][k], n);
+        }
+}
+
+/* Writes the tile's blocks of mask (bit i: block column i) over film rows
+ * [y, y + rows), tile rows from ty, runs of neighbouring blocks at once. */
+static void put_blocks(const trace_ctx *c, void *const out[PLANES], const tile_buffer *t,
+                       void *const in[PLANES], unsigned mask, int ty, int x0, int y, int rows,
+                       int tw)
+{
+    while (mask) {
+        const int a = __builtin_ctz(mask), b = a + __builtin_ctz(~(mask >> a));
+        mask &= ~((1u << b) - 1u);
+        const int px = a * MR_PACKET_W, pe = b * MR_PACKET_W < tw ? b * MR_PACKET_W : tw;
+        for (int r = 0; r < rows; r++)
+            put_pixels(c, out, t, in, ty + r, x0, y + r, px, pe - px);
+    }
+}
+
 static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -654,36 +703,40 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
         int y0 = (int)(tile / (size_t)c->tiles_x) * MR_TILE_H;
         int tw = f->width - x0 < MR_TILE_W ? f->width - x0 : MR_TILE_W;
         int th = f->height - y0 < MR_TILE_H ? f->height - y0 : MR_TILE_H;
-        if (!rect_seen(c, x0, x0 + tw, y0, y0 + th)) {
-            /* none of the scene in view: every pixel is the miss (c->miss) */
-            for (int y = 0; y < th; y++) {
-                size_t dst = (size_t)(y0 + y) * f->width + x0;
-                for (size_t k = 0; k < PLANES; k++)
-                    if (out[k])
-                        fill_out((uint32_t *)out[k] + dst, c->miss[k], tw);
-                for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
-                    for (int k = 0; k < 2 * f->crypto_ranks; k++)
-                        fill_out(f->crypto[l][k] + dst, c->miss_crypto[l][k], tw);
-            }
-            continue;
+        const unsigned blocks = (1u << ((tw + MR_PACKET_W - 1) / MR_PACKET_W)) - 1u;
+        /* the tile's blocks in the film's record (c->held), a row of them
+         * at a time: which hold the miss values already */
+        uint8_t *held[TILE_BLOCKS_Y] = {0};
+        unsigned kept[TILE_BLOCKS_Y] = {0};
+        for (int by = 0; by * MR_PACKET_ROWS < th; by++) {
+            if (!c->held)
+                continue;
+            held[by] = c->held + (size_t)(y0 / MR_PACKET_ROWS + by) * c->blocks_x + x0 / MR_PACKET_W;
+            for (unsigned m = blocks; m; m &= m - 1)
+                kept[by] |= (unsigned)held[by][__builtin_ctz(m)] << __builtin_ctz(m);
         }
-        for (int y = 0; y < th; y += MR_PACKET_ROWS)
-            for (int x = 0; x < tw; x += MR_PACKET_W) {
-                int cols = tw - x < MR_PACKET_W ? tw - x : MR_PACKET_W;
-                int rows = th - y < MR_PACKET_ROWS ? th - y : MR_PACKET_ROWS;
-                packet_px pk = packet_at(x0 + x, y0 + y, cols, rows);
-                /* the pixels' samples lie in [x, x + cols] x [y, y + rows] */
-                bool seen = rect_seen(c, x0 + x, x0 + x + cols, y0 + y, y0 + y + rows);
-                trace_pixels(c, &pk, seen, &t, (size_t)y * MR_TILE_W + x, &rays);
-            }
-        for (int y = 0; y < th; y++) {
-            size_t src = (size_t)y * MR_TILE_W, dst = (size_t)(y0 + y) * f->width + x0;
-            for (size_t k = 0; k < PLANES; k++)
-                if (out[k]) /* the film's passes only */
-                    copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, tw);
-            for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
-                for (int k = 0; k < 2 * f->crypto_ranks; k++)
-                    copy_out(f->crypto[l][k] + dst, t.crypto[l][k] + src, tw);
+        const bool seen_tile = rect_seen(c, x0, x0 + tw, y0, y0 + th);
+        for (int by = 0; by * MR_PACKET_ROWS < th; by++) {
+            const int y = by * MR_PACKET_ROWS;
+            const int rows = th - y < MR_PACKET_ROWS ? th - y : MR_PACKET_ROWS;
+            unsigned hit = 0;
+            if (seen_tile)
+                for (int x = 0; x < tw; x += MR_PACKET_W) {
+                    int cols = tw - x < MR_PACKET_W ? tw - x : MR_PACKET_W;
+                    packet_px pk = packet_at(x0 + x, y0 + y, cols, rows);
+                    /* the pixels' samples lie in [x, x + cols] x [y, y + rows] */
+                    bool seen = rect_seen(c, x0 + x, x0 + x + cols, y0 + y, y0 + y + rows);
+                    if (trace_pixels(c, &pk, seen, &t, (size_t)y * MR_TILE_W + x, &rays))
+                        hit |= 1u << (x / MR_PACKET_W);
+                }
+            /* blocks that hit something, and misses the film does not
+             * hold yet; a tile none of the scene is in (!seen_tile) has no
+             * rays and its misses come from c->miss */
+            const unsigned put = (hit | ~kept[by]) & blocks;
+            put_blocks(c, out, seen_tile ? &t : NULL, in, put, y, x0, y0 + y, rows, tw);
+            if (held[by])
+                for (unsigned m = put; m; m &= m - 1)
+                    held[by][__builtin_ctz(m)] = !(hit >> __builtin_ctz(m) & 1u);
         }
     }
     _mm_sfence(); /* the streaming stores (fill_out) before the join says the tiles are done */
@@ -692,12 +745,12 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
 
 /* What a pixel no ray of which can hit the scene holds in every plane:
  * the untraced path's own output for one such pixel, bit for bit. */
-static void miss_values(trace_ctx *c)
+static bool miss_values(trace_ctx *c)
 {
     tile_buffer *t = malloc(sizeof *t);
     if (!t) { /* no template: cull nothing */
         c->x0 = -INFINITY, c->x1 = INFINITY, c->y0 = -INFINITY, c->y1 = INFINITY;
-        return;
+        return false;
     }
     uint64_t rays = 0;
     packet_px one = packet_at(0, 0, 1, 1);
@@ -710,7 +763,36 @@ static void miss_values(trace_ctx *c)
         for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
             memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
     free(t);
+    return true;
 }
+
+/* The film's record of its blocks that hold a miss's values (mr_film's
+ * misses): blocks of MR_PACKET_W x MR_PACKET_ROWS pixels, row-major. */
+struct mr_film_misses {
+    uint32_t miss[PLANES]; /* the values they hold (trace_ctx's) */
+    uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
+    uint8_t held[];        /* per block: 1 holds them */
+};
+
+/* The film's record for this frame's miss values (c->miss): its own when
+ * it was made for the same values, else a new one that knows nothing (a
+ * new background, say); NULL when out of memory. */
+static uint8_t *film_record(trace_ctx *c, int blocks_y)
+{
+    mr_film *f = c->film;
+    struct mr_film_misses *m = f->misses;
+    if (m && !memcmp(m->miss, c->miss, sizeof m->miss) &&
+        !memcmp(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto))
+        return m->held;
+    free(m);
+    f->misses = m = calloc(1, sizeof *m + (size_t)c->blocks_x * (size_t)blocks_y);
+    if (!m)
+        return NULL;
+    memcpy(m->miss, c->miss, sizeof m->miss);
+    memcpy(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto);
+    return m->held;
+}
+
 
 uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancelled)
 {
@@ -718,8 +800,10 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
     c.rays_setup = mr_camera_rays_setup(&setup->camera, film->width, film->height);
     c.forward = mr_quat_rotate(setup->camera.rotation, mr_v3(0, 0, -1));
     scene_rect(&c, setup, film->width, film->height);
-    miss_values(&c);
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
+    c.blocks_x = (film->width + MR_PACKET_W - 1) / MR_PACKET_W;
+    if (miss_values(&c))
+        c.held = film_record(&c, (film->height + MR_PACKET_ROWS - 1) / MR_PACKET_ROWS);
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);
     atomic_init(&c.cancelled, false);

@@ -19,6 +19,7 @@
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <cmocka.h>
 
 #include "../support/film_fixture.h"
@@ -207,6 +208,81 @@ static void test_untraced_misses_are_misses(void **state)
     fixture_free(&s);
 }
 
+/* A film rendered into frame after frame keeps a record of the blocks that
+ * hold a miss's values (mr_film's misses) and a frame writes only where
+ * that changes: over a camera that sweeps the sphere across the film,
+ * under a coloured, half-transparent background, 2 jittered samples and
+ * every pass, each frame of the one film holds exactly the bits of the same
+ * frame rendered into a new film. A new background (another renderer, the
+ * same film) is written everywhere; a pixel written behind the renderer's
+ * back stays (the record is the film's), and mr_film_clear forgets the
+ * record, after which the frame is whole again. */
+static void test_film_remembers_misses(void **state)
+{
+    (void)state;
+    scene_fixture s;
+    fixture_init(&s, make_sphere(), mr_v3(0, 0, 12), mr_v3(0, 0, 0), YFOV_DEG, 150, 90, 2);
+    mr_camera_key keys[2] = {s.key, s.key};
+    keys[0].position = mr_v3(-3, 1, 12), keys[0].target = mr_v3(-3, 1, 0);
+    keys[1].t = 1, keys[1].position = mr_v3(3, -1, 12), keys[1].target = mr_v3(3, -1, 0);
+    double times[6] = {0, 0.2, 0.4, 0.6, 0.8, 1};
+    s.job.camera.path.keys = keys, s.job.camera.path.key_count = 2;
+    s.job.frame_times = times, s.job.frame_count = 6;
+    s.job.background = mr_v3(0.2f, 0.3f, 0.4f);
+    s.job.background_alpha = 0.5f;
+    s.job.output.aovs = MR_AOV_ALL;
+    mr_job other = s.job; /* the same scene over another background */
+    other.background = mr_v3(0.5f, 0.1f, 0.0f);
+    mr_error err = {0};
+    mr_device *dev = NULL;
+    mr_renderer *r = NULL, *r2 = NULL;
+    mr_film *kept = NULL;
+    mr_frame_stats st;
+    if (mr_device_new(2, &dev, &err) < 0 || mr_renderer_new(dev, &s.job, &s.asset, NULL, &r, &err) < 0 ||
+        mr_renderer_new(dev, &other, &s.asset, NULL, &r2, &err) < 0 ||
+        mr_job_film_new(&s.job, &kept, &err) < 0)
+        fail_msg("%s", err.msg);
+    /* frames 0..5, then 5..0 back: blocks the sphere leaves and enters */
+    for (int k = 0; k < 12; k++) {
+        const size_t frame = (size_t)(k < 6 ? k : 11 - k);
+        mr_film *fresh = NULL;
+        if (mr_job_film_new(&s.job, &fresh, &err) < 0 ||
+            mr_renderer_render(r, frame, kept, &st, &err) < 0 ||
+            mr_renderer_render(r, frame, fresh, &st, &err) < 0)
+            fail_msg("frame %zu: %s", frame, err.msg);
+        assert_non_null(kept->misses);
+        char what[64];
+        snprintf(what, sizeof what, "frame %zu (pass %d) into the kept film", frame, k);
+        fx_assert_same_pixels(kept, fresh, what);
+        mr_film_free(fresh);
+    }
+    /* a background pixel written behind the renderer's back */
+    const size_t corner = 0;
+    assert_int_equal(kept->object_id[corner], 0);
+    const float red = kept->r[corner];
+    kept->r[corner] = 7.0f;
+    if (mr_renderer_render(r, 0, kept, &st, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_true(kept->r[corner] == 7.0f); /* not written again: the record says it holds a miss */
+    mr_film_clear(kept);
+    assert_null(kept->misses);
+    if (mr_renderer_render(r, 0, kept, &st, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_true(kept->r[corner] == red);
+    /* another background into the same film: every block written */
+    mr_film *fresh = NULL;
+    if (mr_job_film_new(&other, &fresh, &err) < 0 || mr_renderer_render(r2, 3, kept, &st, &err) < 0 ||
+        mr_renderer_render(r2, 3, fresh, &st, &err) < 0)
+        fail_msg("%s", err.msg);
+    fx_assert_same_pixels(kept, fresh, "another background into the kept film");
+    mr_film_free(fresh);
+    mr_film_free(kept);
+    mr_renderer_free(r);
+    mr_renderer_free(r2);
+    mr_device_free(dev);
+    fixture_free(&s);
+}
+
 static void test_same_bytes_any_thread_count(void **state)
 {
     (void)state;
@@ -239,6 +315,7 @@ int main(void)
         cmocka_unit_test(test_sphere_off_centre),
         cmocka_unit_test(test_untraced_misses_are_misses),
         cmocka_unit_test(test_same_bytes_any_thread_count),
+        cmocka_unit_test(test_film_remembers_misses),
     };
     return cmocka_run_group_tests_name("render", tests, NULL, NULL);
 }
