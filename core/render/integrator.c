@@ -33,6 +33,10 @@ typedef struct {
      * which a primary ray misses the whole scene (scene_rect) */
     double x0, x1, y0, y1;
     uint32_t miss[PLANES]; /* a missed pixel's bits in each film plane (miss_values) */
+    /* trace_pixels writes a packet that hits nothing into the tile too:
+     * for miss_values, which makes c->miss from it, and in a frame
+     * without c->miss (no memory for miss_values) */
+    bool misses_to_tile;
     uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     mr_film *film;
     /* per packet block of the film (film_blocks): 1 where the film holds
@@ -479,6 +483,14 @@ static void store_miss_row(tile_buffer *t, size_t p, int n)
         fill_miss_row(t, p, (size_t)n);
 }
 
+/* The data planes of packet pk's pixels (tile index i0 on) as misses. */
+static void store_miss_rows(tile_buffer *t, const packet_px *pk, size_t i0)
+{
+    for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
+        store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
+                       __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu));
+}
+
 /* The colour and alpha sums of n missed samples, from zero, added in
  * order: what every lane holds after them. */
 static void miss_sums(int n, mr_vec3 miss_rgb, float miss_alpha, mr_vec3 *rgb, float *alpha)
@@ -493,8 +505,9 @@ static void miss_sums(int n, mr_vec3 miss_rgb, float miss_alpha, mr_vec3 *rgb, f
 
 /* All samples of the packet's pixels; results go to the tile from index i0
  * (the packet's first pixel); seen: false when none of their rays can hit
- * the scene (rect_seen): misses, untraced. Returns whether any sample hit
- * (if not, every pixel holds the miss values, miss_values). */
+ * the scene (rect_seen): misses, untraced. Returns whether any sample hit;
+ * if none did, every pixel is the miss values (c->miss), which go to the
+ * tile only for c->misses_to_tile. */
 static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, tile_buffer *t,
                          size_t i0, uint64_t *rays)
 {
@@ -522,6 +535,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
      * colour. */
     int lead = 0;
     unsigned any = 0;
+    bool data = false; /* the data planes written */
     mr_vec3 lead_rgb = mr_v3(0, 0, 0);
     float lead_alpha = 0;
     for (int k = 0; k < samples; k++) {
@@ -542,10 +556,10 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                 alpha[i] += hit ? 1.0f : s->background_alpha;
             }
         }
-        if (k == 0) /* the data planes: the misses' values, then the hits' */
-            for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
-                store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
-                               __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu));
+        /* the data planes: the misses' values, then the hits' (sample 0
+         * alone; a packet it misses whole is written below, if at all) */
+        if (k == 0 && hits)
+            store_miss_rows(t, pk, i0), data = true;
         for (unsigned m = hits; m; m &= m - 1) {
             int i = __builtin_ctz(m);
             if (crypto)
@@ -568,6 +582,10 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
             }
         }
     }
+    if (!any && !c->misses_to_tile)
+        return false;
+    if (!data) /* sample 0 hit nothing */
+        store_miss_rows(t, pk, i0);
     float inv_spp = 1.0f / (float)s->spp;
     if (!any)
         miss_sums(lead, miss_rgb, s->background_alpha, &lead_rgb, &lead_alpha);
@@ -729,11 +747,12 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
                     if (trace_pixels(c, &pk, seen, &t, (size_t)y * MR_TILE_W + x, &rays))
                         hit |= 1u << (x / MR_PACKET_W);
                 }
-            /* blocks that hit something, and misses the film does not
-             * hold yet; a tile none of the scene is in (!seen_tile) has no
-             * rays and its misses come from c->miss */
+            /* blocks that hit something, from the tile, and misses the
+             * film does not hold yet, from c->miss */
             const unsigned put = (hit | ~kept[by]) & blocks;
-            put_blocks(c, out, seen_tile ? &t : NULL, in, put, y, x0, y0 + y, rows, tw);
+            const unsigned from_tile = (c->misses_to_tile ? ~0u : hit) & blocks;
+            put_blocks(c, out, &t, in, from_tile, y, x0, y0 + y, rows, tw);
+            put_blocks(c, out, NULL, in, put & ~from_tile, y, x0, y0 + y, rows, tw);
             if (held[by])
                 for (unsigned m = put; m; m &= m - 1)
                     held[by][__builtin_ctz(m)] = !(hit >> __builtin_ctz(m) & 1u);
@@ -754,11 +773,13 @@ static bool miss_values(trace_ctx *c)
     }
     uint64_t rays = 0;
     packet_px one = packet_at(0, 0, 1, 1);
+    c->misses_to_tile = true;
     trace_pixels(c, &one, false, t, 0, &rays);
     void *in[PLANES];
     tile_planes(t, in);
     for (size_t k = 0; k < PLANES; k++)
         memcpy(&c->miss[k], in[k], 4);
+    c->misses_to_tile = false;
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
             memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
@@ -804,6 +825,8 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
     c.blocks_x = (film->width + MR_PACKET_W - 1) / MR_PACKET_W;
     if (miss_values(&c))
         c.held = film_record(&c, (film->height + MR_PACKET_ROWS - 1) / MR_PACKET_ROWS);
+    else
+        c.misses_to_tile = true;
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);
     atomic_init(&c.cancelled, false);
