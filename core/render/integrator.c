@@ -33,13 +33,13 @@ typedef struct {
      * which a primary ray misses the whole scene (scene_rect) */
     double x0, x1, y0, y1;
     uint32_t miss[PLANES]; /* a missed pixel's bits in each film plane (miss_values) */
+    uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     /* trace_pixels writes a packet that hits nothing into the tile too:
      * for miss_values, which makes c->miss from it, and in a frame
      * without c->miss (no memory for miss_values) */
     bool misses_to_tile;
-    uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     mr_film *film;
-    /* per packet block of the film (film_blocks): 1 where the film holds
+    /* per packet block of the film (film_record): 1 where the film holds
      * the miss values above; NULL: nothing known, every block is written */
     uint8_t *held;
     int tiles_x, blocks_x;
@@ -775,11 +775,11 @@ static bool miss_values(trace_ctx *c)
     packet_px one = packet_at(0, 0, 1, 1);
     c->misses_to_tile = true;
     trace_pixels(c, &one, false, t, 0, &rays);
+    c->misses_to_tile = false;
     void *in[PLANES];
     tile_planes(t, in);
     for (size_t k = 0; k < PLANES; k++)
         memcpy(&c->miss[k], in[k], 4);
-    c->misses_to_tile = false;
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
             memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
@@ -813,7 +813,6 @@ static uint8_t *film_record(trace_ctx *c, int blocks_y)
     memcpy(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto);
     return m->held;
 }
-
 
 uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancelled)
 {
