@@ -11,6 +11,7 @@
  */
 #include <float.h>
 #include <math.h>
+#include <pthread.h>
 #include <string.h>
 #if defined(__SSE__)
 #include <xmmintrin.h>
@@ -370,8 +371,55 @@ static void leaf_order(leaf_tris *lt, int k, const int c[3], uint32_t segments)
     lt->key[k] = b0 * (2 * segments - b0) + 2 * a0 - (P[c[(s + 1) % 3]]->b > b0 ? 1u : 0u);
 }
 
+static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
+
+/* Which corner each micro-triangle of a leaf starts at and its row index
+ * (leaf_order) depend on the leaf's lattice corners alone, which its
+ * level and its id in the quadtree (as the traversal numbers them: child k
+ * of node id is 4 id + k, corners by CHILD) fix: worked out once for
+ * every leaf of levels 1..MR_UMESH_MAX_LEVEL (4^(level - 1) each, from
+ * level_start(level - 1)) instead of at every leaf made (3 % of a
+ * level-2 dancer's frame). */
+typedef struct leaf_shape {
+    uint8_t corner[4][3];
+    uint32_t key[4];
+} leaf_shape;
+static leaf_shape leaf_shapes[((1u << (2 * MR_UMESH_MAX_LEVEL)) - 1) / 3];
+static pthread_once_t leaf_shapes_once = PTHREAD_ONCE_INIT;
+
+static void shapes_node(unsigned level, unsigned sublevel, uint32_t id, const lattice_pt *const P[3])
+{
+    lattice_pt m[3];
+    midpoints(P, m);
+    const lattice_pt *pts[6] = {P[0], P[1], P[2], &m[0], &m[1], &m[2]};
+    if (sublevel + 1 == level) { /* a leaf */
+        leaf_tris lt;
+        memcpy(lt.pts, pts, sizeof pts);
+        for (int k = 0; k < 4; k++)
+            leaf_order(&lt, k, CHILD[k], mr_umesh_segments(level));
+        leaf_shape *sh = &leaf_shapes[level_start(level - 1) + id];
+        memcpy(sh->corner, lt.corner, sizeof sh->corner);
+        memcpy(sh->key, lt.key, sizeof sh->key);
+        return;
+    }
+    for (int k = 0; k < 4; k++) {
+        const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
+        shapes_node(level, sublevel + 1, 4 * id + (uint32_t)k, L);
+    }
+}
+
+static void shapes_build(void)
+{
+    for (unsigned level = 1; level <= MR_UMESH_MAX_LEVEL; level++) {
+        uint32_t n = mr_umesh_segments(level);
+        lattice_pt P[3] = {{.a = 0, .b = 0}, {.a = n, .b = 0}, {.a = 0, .b = n}};
+        shapes_node(level, 0, 0, (const lattice_pt *const[3]){&P[0], &P[1], &P[2]});
+    }
+}
+
+/* Leaf id (at sublevel level - 1) of a patch of level p->level, corners P. */
 static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint32_t segments,
-                      leaf_tris *lt)
+                      uint32_t id, leaf_tris *lt)
 {
     if (p->level == 0) {
         lt->count = 1;
@@ -403,8 +451,10 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
     }
     for (int k = 0; k < 6; k++)
         lt->v[k] = leaf_vertex(p, lt->at[k]->a, lt->at[k]->b);
-    for (int k = 0; k < 4; k++)
-        leaf_order(lt, k, CHILD[k], segments);
+    pthread_once(&leaf_shapes_once, shapes_build);
+    const leaf_shape *sh = &leaf_shapes[level_start(p->level - 1) + id];
+    memcpy(lt->corner, sh->corner, sizeof lt->corner);
+    memcpy(lt->key, sh->key, sizeof lt->key);
 }
 
 /* Tests micro-triangle k of lt, whose vertices the ray has sheared (sh). */
@@ -447,14 +497,12 @@ static void leaf_test(trace_ctx *c, const leaf_tris *lt)
         test_triangle(c, lt, k, sh);
 }
 
-static void leaf(trace_ctx *c, const lattice_pt *const P[3])
+static void leaf(trace_ctx *c, uint32_t id, const lattice_pt *const P[3])
 {
     leaf_tris lt;
-    leaf_make(c->patch, P, c->segments, &lt);
+    leaf_make(c->patch, P, c->segments, id, &lt);
     leaf_test(c, &lt);
 }
-
-static uint32_t level_start(unsigned sublevel) { return ((1u << (2 * sublevel)) - 1) / 3; }
 
 /* EDGE: the corner pairs of the 4 children (indices into {P0, P1, P2, m01,
  * m12, m20}) that are edges of some child, i.e. the blossoms a node needs
@@ -646,7 +694,7 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
                   const blossom *const B[6])
 {
     if (sublevel == c->leaf) {
-        leaf(c, P);
+        leaf(c, id, P);
         return;
     }
     bool bezier = c->patch->mats[0] != NULL;
@@ -695,7 +743,7 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
     const trace_ctx *c = &cs[__builtin_ctz(live)]; /* the patch, its leaf level and pads */
     if (sublevel == c->leaf) {
         leaf_tris lt;
-        leaf_make(c->patch, P, c->segments, &lt);
+        leaf_make(c->patch, P, c->segments, id, &lt);
         for (uint32_t m = live; m; m &= m - 1)
             leaf_test(&cs[__builtin_ctz(m)], &lt);
         return;
