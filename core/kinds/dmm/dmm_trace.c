@@ -417,7 +417,8 @@ static void shapes_build(void)
     }
 }
 
-/* Leaf id (at sublevel level - 1) of a patch of level p->level, corners P. */
+/* Patch p's leaf with corners P, number id at sublevel p->level - 1 (level
+ * 0: the base triangle itself), into lt. */
 static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint32_t segments,
                       uint32_t id, leaf_tris *lt)
 {
