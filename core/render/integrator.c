@@ -726,9 +726,7 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
          * at a time: which hold the miss values already */
         uint8_t *held[TILE_BLOCKS_Y] = {0};
         unsigned kept[TILE_BLOCKS_Y] = {0};
-        for (int by = 0; by * MR_PACKET_ROWS < th; by++) {
-            if (!c->held)
-                continue;
+        for (int by = 0; c->held && by * MR_PACKET_ROWS < th; by++) {
             held[by] = c->held + (size_t)(y0 / MR_PACKET_ROWS + by) * c->blocks_x + x0 / MR_PACKET_W;
             for (unsigned m = blocks; m; m &= m - 1)
                 kept[by] |= (unsigned)held[by][__builtin_ctz(m)] << __builtin_ctz(m);

@@ -1,7 +1,8 @@
 /*
  * test_large_alloc.c - large_alloc.h: blocks from MR_LARGE_ALLOC_MIN up are
- * 2 MiB aligned and their whole 2 MiB pages advised as huge pages (the kernel marks such a range
- * "hg" in /proc/self/smaps wherever it has transparent huge pages at all),
+ * 2 MiB aligned and their whole 2 MiB pages advised as huge pages (the
+ * kernel marks such a range "hg" in /proc/self/smaps wherever it has
+ * transparent huge pages at all),
  * smaller ones are plain; every block is writable over its whole size, the
  * realloc keeps the bytes it is told to keep across every change of class,
  * and free() releases them all (ASan and LeakSanitizer check that).
