@@ -751,8 +751,11 @@ static void test_counters(void **state)
     free(bf);
 }
 
-/* A pad cached by the caller (mr_dmm_patch_pad) gives exactly the results of
- * the pad computed per call: same bounds, same hits bit for bit. */
+/* A pad and root children cached by the caller (mr_dmm_patch_pad,
+ * mr_dmm_patch_root_children) give exactly the results of those computed
+ * per call: same bounds, same hits bit for bit, one ray at a time and in
+ * packets. Root children boxed far away lose every hit: the traversal
+ * reads them. */
 static void test_cached_pad(void **state)
 {
     (void)state;
@@ -775,6 +778,16 @@ static void test_cached_pad(void **state)
             mr_dmm_patch_pad(&q, q.pad);
             for (int k = 0; k < 3; k++)
                 assert_true(q.pad[k] > 0 && isfinite(q.pad[k]));
+            float kids[MR_DMM_ROOT_CHILDREN_FLOATS], none[MR_DMM_ROOT_CHILDREN_FLOATS];
+            assert_int_equal(mr_dmm_patch_root_children(&q, kids), level >= 2);
+            for (int k = 0; k < MR_DMM_ROOT_CHILDREN_FLOATS; k++)
+                none[k] = 1e30f; /* four boxes far from every ray's span */
+            mr_dmm_patch empty = q;
+            if (level >= 2) {
+                q.root_children = kids;
+                empty.root_children = none;
+            }
+            unsigned hits = 0;
             mr_vec3 lo, hi, lo2, hi2;
             assert_true(mr_dmm_patch_bounds(&p, &lo, &hi));
             assert_true(mr_dmm_patch_bounds(&q, &lo2, &hi2));
@@ -794,7 +807,26 @@ static void test_cached_pad(void **state)
                 bool b = mr_dmm_intersect(&q, &r, tmin, &t2, true, false, &h2, NULL);
                 assert_true(a == b && fbits(t1) == fbits(t2));
                 assert_memory_equal(&h1, &h2, sizeof h1);
+                hits += a;
+                /* the same ray twice in a packet of three with the cache */
+                mr_dmm_ray rs[3] = {r, mr_dmm_ray_setup(mr_v3(0, 0, 0), mr_v3(1, 1, 1)), r};
+                float tm[3] = {tmin, tmin, tmin}, tx[3] = {tmax, tmax, tmax};
+                float *txp[3] = {&tx[0], &tx[1], &tx[2]};
+                const bool take[3] = {true, true, true};
+                mr_dmm_hit hp[3];
+                memset(hp, 0, sizeof hp);
+                uint32_t m = mr_dmm_intersect_packet(&q, 3, rs, tm, txp, take, false, hp, NULL);
+                assert_true((m & 1u) == a && (m >> 2 & 1u) == a);
+                if (a) {
+                    assert_true(fbits(tx[0]) == fbits(t1) && fbits(tx[2]) == fbits(t1));
+                    assert_memory_equal(&hp[0], &h1, sizeof h1);
+                    assert_memory_equal(&hp[2], &h1, sizeof h1);
+                }
+                float t3 = tmax;
+                if (level >= 2)
+                    assert_false(mr_dmm_intersect(&empty, &r, tmin, &t3, true, false, NULL, NULL));
             }
+            assert_true(hits > 10); /* most rays are aimed at the surface */
         }
         set_free(&set);
         free(disp);

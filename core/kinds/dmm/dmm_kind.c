@@ -97,6 +97,8 @@ struct dmm_level {
     bool evaluated;
     uint64_t stamp;               /* this evaluation's (mr_dmm_patch.stamp), 0: none */
     float *boxes;                 /* tessellation-free: BOX_FLOATS per base triangle */
+    float *root_children;         /* tessellation-free: MR_DMM_ROOT_CHILDREN_FLOATS per base
+                                     triangle (levels >= 2), made with its box */
     uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
@@ -166,6 +168,7 @@ static void level_free(dmm_level *g)
     free(g->posed_pos);
     free(g->posed_dir);
     free(g->boxes);
+    free(g->root_children);
     free(g->positions);
     free(g->indices);
     free(g->coarse_level);
@@ -315,6 +318,10 @@ static int allocate(dmm_level *g, mr_error *err)
         g->boxes = calloc(nt * BOX_FLOATS, sizeof(float));
         ok = ok && g->boxes;
     }
+    if (!tessellated(g) && g->desc.deform == MR_DMM_DEFORM_INTERPOLATED) {
+        g->root_children = calloc(nt * MR_DMM_ROOT_CHILDREN_FLOATS, sizeof(float));
+        ok = ok && g->root_children;
+    }
     return ok ? MR_OK : mr_error_set(err, MR_ERR_NOMEM, "out of memory for a dmm object");
 }
 
@@ -436,7 +443,8 @@ static mr_dmm_patch rest_patch(const dmm_level *g, uint32_t t)
                              g->rest_dir[idx[k] * 3 + 2]);
         p.mats[k] = NULL;
     }
-    p.stamp = 0; /* not this evaluation's data: no kept micro-vertices */
+    p.stamp = 0; /* not this evaluation's data: no kept micro-vertices or boxes */
+    p.root_children = NULL;
     return p;
 }
 
@@ -681,6 +689,9 @@ static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
         p.pad[0] = p.pad[1] = p.pad[2] = 0;
         p.stamp = 0;
     }
+    p.root_children = g->root_children && g->evaluated && p.level >= 2
+                          ? g->root_children + (size_t)t * MR_DMM_ROOT_CHILDREN_FLOATS
+                          : NULL;
     return p;
 }
 
@@ -759,6 +770,10 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
             if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
                 note_bad(c, worker, t);
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
+        }
+        if (g->root_children) { /* (made afresh: a level of detail changes t's level) */
+            mr_dmm_patch p = patch_of(g, (uint32_t)t);
+            mr_dmm_patch_root_children(&p, g->root_children + t * MR_DMM_ROOT_CHILDREN_FLOATS);
         }
         if (!tessellated(g))
             continue;
@@ -1242,6 +1257,8 @@ static size_t level_memory(const dmm_level *g)
         bytes += nv * 6 * sizeof(float);
     if (g->boxes)
         bytes += nt * BOX_FLOATS * sizeof(float);
+    if (g->root_children)
+        bytes += nt * MR_DMM_ROOT_CHILDREN_FLOATS * sizeof(float);
     if (g->positions)
         bytes += ((size_t)g->vertex_count * 3 + 1) * sizeof(float) +
                  (size_t)g->triangle_count * 3 * sizeof(uint32_t);

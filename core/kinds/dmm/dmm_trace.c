@@ -665,6 +665,17 @@ typedef struct node_children {
     child_boxes boxes;
 } node_children;
 
+_Static_assert(sizeof(child_boxes) == MR_DMM_ROOT_CHILDREN_FLOATS * sizeof(float),
+               "the root's children's boxes fit the patch's cache");
+
+/* Whether the children of node (sublevel, id) need their blossoms
+ * (interpolated patches): for their own children's boxes. A leaf's
+ * micro-vertices come from the lattice. */
+static bool children_blossoms(const trace_ctx *c, unsigned sublevel)
+{
+    return c->patch->mats[0] != NULL && sublevel + 1 < c->leaf;
+}
+
 static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
                           const lattice_pt *const P[3], const blossom *const B[6],
                           node_children *nc)
@@ -673,6 +684,15 @@ static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
     midpoints(P, nc->mid);
     const lattice_pt *pts[6] = {P[0], P[1], P[2], &nc->mid[0], &nc->mid[1], &nc->mid[2]};
     memcpy(nc->pts, pts, sizeof pts);
+    if (c->stats)
+        c->stats->boxes += 4;
+    const float *kept = sublevel == 0 ? c->patch->root_children : NULL;
+    if (kept) { /* the boxes made with the patch's bounds */
+        if (children_blossoms(c, sublevel))
+            subdivide(B, &nc->store, nc->bl);
+        memcpy(&nc->boxes, kept, sizeof nc->boxes);
+        return;
+    }
     uint32_t first = level_start(sublevel + 1) + 4 * id;
     const uint16_t *mn = c->patch->minv + first, *mx = c->patch->maxv + first;
     v4f dmin = {disp_bound(c, mn[0]), disp_bound(c, mn[1]), disp_bound(c, mn[2]),
@@ -685,8 +705,6 @@ static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
     } else {
         child_boxes_prism(nc->pts, dmin, dmax, &nc->boxes);
     }
-    if (c->stats)
-        c->stats->boxes += 4;
 }
 
 /* Sub-triangle `id` of `sublevel` whose box the ray already enters; B its
@@ -698,7 +716,7 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         leaf(c, id, P);
         return;
     }
-    bool bezier = c->patch->mats[0] != NULL;
+    const bool kids = children_blossoms(c, sublevel);
     node_children nc;
     make_children(c, sublevel, id, P, B, &nc);
     const lattice_pt *const *pts = nc.pts;
@@ -725,9 +743,9 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         int k = order[i];
         const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
         const blossom *CB[6];
-        for (int m = 0; m < 6 && bezier; m++)
+        for (int m = 0; m < 6 && kids; m++)
             CB[m] = bl[CHILD_BLOSSOM[k][m]];
-        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
+        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, kids ? CB : NULL);
     }
 }
 
@@ -749,7 +767,7 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
             leaf_test(&cs[__builtin_ctz(m)], &lt);
         return;
     }
-    bool bezier = c->patch->mats[0] != NULL;
+    const bool kids = children_blossoms(c, sublevel);
     node_children nc;
     make_children(c, sublevel, id, P, B, &nc);
     float t[MR_DMM_PACKET_MAX][4], near[4] = {INFINITY, INFINITY, INFINITY, INFINITY};
@@ -785,9 +803,9 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
             continue;
         const lattice_pt *L[3] = {nc.pts[CHILD[k][0]], nc.pts[CHILD[k][1]], nc.pts[CHILD[k][2]]};
         const blossom *CB[6];
-        for (int m = 0; m < 6 && bezier; m++)
+        for (int m = 0; m < 6 && kids; m++)
             CB[m] = nc.bl[CHILD_BLOSSOM[k][m]];
-        visit_packet(cs, go, sublevel + 1, 4 * id + (uint32_t)k, L, bezier ? CB : NULL);
+        visit_packet(cs, go, sublevel + 1, 4 * id + (uint32_t)k, L, kids ? CB : NULL);
     }
 }
 
@@ -817,6 +835,14 @@ static void root_blossoms(const mr_dmm_patch *p, blossom bl[6], const blossom *B
         B[i] = &bl[i];
 }
 
+/* Whether a traversal of an interpolated patch needs the root's blossoms:
+ * for its children's boxes, unless the patch holds them, and for their
+ * own children's. */
+static bool root_blossoms_needed(const trace_ctx *c)
+{
+    return c->patch->mats[0] != NULL && (!c->patch->root_children || children_blossoms(c, 0));
+}
+
 /* Whether box b is over BOX_LOOSE times the size of the posed base
  * triangle with corners x[0..2] (the sum of the extents of either box): a
  * triangle across a thin part whose corner directions nearly oppose, where
@@ -837,6 +863,28 @@ static bool loose(const float *const x[3], const fbox *b)
         tri += hi - lo;
     }
     return box > BOX_LOOSE * tri;
+}
+
+bool mr_dmm_patch_root_children(const mr_dmm_patch *p, float out[MR_DMM_ROOT_CHILDREN_FLOATS])
+{
+    if (p->level > MR_UMESH_MAX_LEVEL || mr_dmm_trace_leaf_sublevel(p->level) == 0)
+        return false;
+    mr_dmm_patch own = *p;
+    own.root_children = NULL; /* made, not read */
+    trace_ctx c = {.patch = &own,
+                   .leaf = mr_dmm_trace_leaf_sublevel(p->level),
+                   .segments = mr_umesh_segments(p->level)};
+    lattice_pt P[3];
+    root(&c, P);
+    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
+    blossom bl[6];
+    const blossom *B[6] = {NULL};
+    if (p->mats[0])
+        root_blossoms(p, bl, B);
+    node_children nc;
+    make_children(&c, 0, 0, L, B, &nc);
+    memcpy(out, &nc.boxes, sizeof nc.boxes);
+    return true;
 }
 
 bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
@@ -899,10 +947,11 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
     blossom bl[6];
     const blossom *B[6] = {NULL};
-    if (p->mats[0])
+    const bool blossoms = root_blossoms_needed(&c);
+    if (blossoms)
         root_blossoms(p, bl, B);
     /* The caller's BVH has tested the patch box; the root needs no test. */
-    visit(&c, 0, 0, L, p->mats[0] ? B : NULL);
+    visit(&c, 0, 0, L, blossoms ? B : NULL);
     if (c.found)
         *tmax = c.tmax;
     return c.found;
@@ -941,9 +990,10 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
     const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
     blossom bl[6];
     const blossom *B[6] = {NULL};
-    if (p->mats[0])
+    const bool blossoms = root_blossoms_needed(&cs[0]);
+    if (blossoms)
         root_blossoms(p, bl, B);
-    visit_packet(cs, live, 0, 0, L, p->mats[0] ? B : NULL);
+    visit_packet(cs, live, 0, 0, L, blossoms ? B : NULL);
     uint32_t hit = 0;
     for (uint32_t m = live; m; m &= m - 1) {
         int k = __builtin_ctz(m);

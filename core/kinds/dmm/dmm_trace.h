@@ -71,6 +71,9 @@ typedef struct mr_dmm_patch {
     const uint16_t *minv, *maxv;   /* pyramid, at least mr_dmm_trace_pyramid_size(level) entries */
     float pad[3];                  /* optional: mr_dmm_patch_pad's result, cached by the
                                       caller; all 0 = computed on every call */
+    const float *root_children;    /* optional: mr_dmm_patch_root_children's result for this
+                                      patch and pose, cached by the caller; NULL = made on
+                                      every call */
     uint64_t stamp;                /* optional: nonzero when no other patch data or pose
                                       ever had this number with these values: the
                                       traversal then keeps the micro-vertices of
@@ -119,6 +122,16 @@ mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b);
  * magnitude times 2^-19): depends on the patch's data only, so a caller
  * tracing many rays per frame computes it once with the bounds. */
 void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3]);
+
+/* Floats in a patch's cached root children (mr_dmm_patch.root_children). */
+#define MR_DMM_ROOT_CHILDREN_FLOATS 24
+
+/* The boxes of the root's four children (sub-triangles of sublevel 1),
+ * which every ray into the patch tests: a caller tracing many rays per
+ * frame makes them once with the bounds (the same arithmetic as the
+ * traversal's, so the same boxes bit for bit). False, out untouched, for a
+ * patch whose root is a leaf (levels 0 and 1). */
+bool mr_dmm_patch_root_children(const mr_dmm_patch *p, float out[MR_DMM_ROOT_CHILDREN_FLOATS]);
 
 /* Conservative box of the whole patch (what Embree's BVH gets): the root's
  * prism or Bezier box, cut to the box of all its micro-vertices (widened by
