@@ -809,30 +809,36 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
     }
 }
 
-static void root(const trace_ctx *c, lattice_pt P[3])
+/* The base triangle as the traversal's root: its corners P (L points at
+ * them) and, with blossoms (interpolated patches), its six blossoms bl (B
+ * points at them; NULL without). */
+typedef struct root_node {
+    lattice_pt P[3];
+    const lattice_pt *L[3];
+    blossom bl[6];
+    const blossom *B[6];
+} root_node;
+
+static void root_make(const trace_ctx *c, bool blossoms, root_node *r)
 {
     const mr_dmm_patch *p = c->patch;
     uint32_t n = c->segments;
     const uint32_t a[3] = {0, n, 0}, b[3] = {0, 0, n};
     for (int i = 0; i < 3; i++) {
-        P[i].a = a[i];
-        P[i].b = b[i];
+        r->P[i].a = a[i];
+        r->P[i].b = b[i];
         for (int k = 0; k < 3; k++) {
-            P[i].p[k] = comp(p->tri.pos[i], k);
-            P[i].n[k] = comp(p->tri.dir[i], k);
+            r->P[i].p[k] = comp(p->tri.pos[i], k);
+            r->P[i].n[k] = comp(p->tri.dir[i], k);
         }
+        r->L[i] = &r->P[i];
     }
-}
-
-/* The top-level patch's six blossoms (interpolated patches). */
-static void root_blossoms(const mr_dmm_patch *p, blossom bl[6], const blossom *B[6])
-{
-    for (int i = 0; i < 3; i++) {
-        bl[i] = top_blossom(p, i, i);
-        bl[3 + i] = top_blossom(p, i, (i + 1) % 3);
+    for (int i = 0; i < 3 && blossoms; i++) {
+        r->bl[i] = top_blossom(p, i, i);
+        r->bl[3 + i] = top_blossom(p, i, (i + 1) % 3);
     }
     for (int i = 0; i < 6; i++)
-        B[i] = &bl[i];
+        r->B[i] = blossoms ? &r->bl[i] : NULL;
 }
 
 /* Whether a traversal of an interpolated patch needs the root's blossoms:
@@ -874,15 +880,10 @@ bool mr_dmm_patch_root_children(const mr_dmm_patch *p, float out[MR_DMM_ROOT_CHI
     trace_ctx c = {.patch = &own,
                    .leaf = mr_dmm_trace_leaf_sublevel(p->level),
                    .segments = mr_umesh_segments(p->level)};
-    lattice_pt P[3];
-    root(&c, P);
-    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
-    blossom bl[6];
-    const blossom *B[6] = {NULL};
-    if (p->mats[0])
-        root_blossoms(p, bl, B);
+    root_node r;
+    root_make(&c, p->mats[0] != NULL, &r);
     node_children nc;
-    make_children(&c, 0, 0, L, B, &nc);
+    make_children(&c, 0, 0, r.L, r.B, &nc);
     memcpy(out, &nc.boxes, sizeof nc.boxes);
     return true;
 }
@@ -891,20 +892,15 @@ bool mr_dmm_patch_bounds(const mr_dmm_patch *p, mr_vec3 *lo, mr_vec3 *hi)
 {
     trace_ctx c = {.patch = p, .segments = mr_umesh_segments(p->level)};
     patch_pad(&c);
-    lattice_pt P[3];
-    root(&c, P);
-    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
-    blossom bl[6];
-    const blossom *B[6] = {NULL};
-    if (p->mats[0])
-        root_blossoms(p, bl, B);
-    fbox b = node_box(&c, L, B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
+    root_node r;
+    root_make(&c, p->mats[0] != NULL, &r);
+    fbox b = node_box(&c, r.L, r.B, disp_bound(&c, p->minv[0]), disp_bound(&c, p->maxv[0]));
     /* the posed corners: base patches' own, interpolated ones' blossoms
      * (i, i) at d = 0 (M_i p_i) */
-    const float *corner[3] = {P[0].p, P[1].p, P[2].p};
+    const float *corner[3] = {r.P[0].p, r.P[1].p, r.P[2].p};
     if (p->mats[0])
         for (int i = 0; i < 3; i++)
-            corner[i] = bl[i].s;
+            corner[i] = r.bl[i].s;
     if (loose(corner, &b)) {
         /* the micro-triangles lie in their vertices' box: cut to it (every
          * micro-vertex, those a decimated edge collapses too) */
@@ -942,16 +938,11 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
                    .hit = hit,
                    .stats = stats};
     patch_pad(&c);
-    lattice_pt P[3];
-    root(&c, P);
-    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
-    blossom bl[6];
-    const blossom *B[6] = {NULL};
+    root_node r;
     const bool blossoms = root_blossoms_needed(&c);
-    if (blossoms)
-        root_blossoms(p, bl, B);
+    root_make(&c, blossoms, &r);
     /* The caller's BVH has tested the patch box; the root needs no test. */
-    visit(&c, 0, 0, L, blossoms ? B : NULL);
+    visit(&c, 0, 0, r.L, blossoms ? r.B : NULL);
     if (c.found)
         *tmax = c.tmax;
     return c.found;
@@ -985,15 +976,10 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
     }
     if (!live)
         return 0;
-    lattice_pt P[3];
-    root(&cs[0], P);
-    const lattice_pt *L[3] = {&P[0], &P[1], &P[2]};
-    blossom bl[6];
-    const blossom *B[6] = {NULL};
+    root_node r;
     const bool blossoms = root_blossoms_needed(&cs[0]);
-    if (blossoms)
-        root_blossoms(p, bl, B);
-    visit_packet(cs, live, 0, 0, L, blossoms ? B : NULL);
+    root_make(&cs[0], blossoms, &r);
+    visit_packet(cs, live, 0, 0, r.L, blossoms ? r.B : NULL);
     uint32_t hit = 0;
     for (uint32_t m = live; m; m &= m - 1) {
         int k = __builtin_ctz(m);
