@@ -756,7 +756,7 @@ static void test_counters(void **state)
  * per call: same bounds, same hits bit for bit, one ray at a time and in
  * packets. Root children boxed far away lose every hit: the traversal
  * reads them. */
-static void test_cached_pad(void **state)
+static void test_caller_caches(void **state)
 {
     (void)state;
     uint64_t s = 0x6a09e667f3bcc908ull;
@@ -882,7 +882,7 @@ int main(void)
         cmocka_unit_test(test_zero_interpolated_bezier),
         cmocka_unit_test(test_equal_matrices),
         cmocka_unit_test(test_counters),
-        cmocka_unit_test(test_cached_pad),
+        cmocka_unit_test(test_caller_caches),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
