@@ -418,6 +418,12 @@ typedef struct mr_film {
      * mr_film_clear, which forgets it, before rendering into the film
      * again. */
     struct mr_film_misses *misses;
+    /* Whether the planes hold what mr_film_clear left and nothing since
+     * (mr_film_new's films too): a first frame then leaves out a miss's
+     * planes that hold its values already. The renderer resets it; code
+     * that writes the planes itself calls mr_film_clear first, or sets it
+     * false. */
+    bool cleared;
 } mr_film;
 
 /* Allocates a film of the passes in aovs (mr_aov bits, at least one) with

@@ -1814,6 +1814,7 @@ static int read_impl(exr_io *io, mr_film **out, mr_exr_meta *meta, mr_error *err
     }
     if (matched == 0)
         goto done; /* nothing we know: an all-miss film, as documented */
+    film->cleared = false; /* its planes get the file's values */
 
     EXR_TRY(exr_get_scanlines_per_chunk(ctxt, 0, &lines), "exr_get_scanlines_per_chunk");
     if (lines < 1) {

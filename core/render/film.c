@@ -186,4 +186,5 @@ void mr_film_clear(mr_film *film)
     if (film->z)
         for (size_t i = 0; i < n; i++)
             film->z[i] = MR_DEPTH_MISS;
+    film->cleared = true;
 }

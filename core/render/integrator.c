@@ -25,6 +25,11 @@ static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y
 /* The film's float and id planes (film_planes), Cryptomatte aside. */
 #define PLANES 16
 
+/* What a packet block of the film holds, by the film's record
+ * (film_record): nothing known; the frame's miss values in every plane;
+ * what mr_film_clear left, untouched since. */
+enum block_state { BLOCK_UNKNOWN = 0, BLOCK_MISS = 1, BLOCK_CLEARED = 2 };
+
 typedef struct {
     const mr_trace_setup *s;
     mr_camera_rays rays_setup;
@@ -39,9 +44,13 @@ typedef struct {
      * without c->miss (no memory for miss_values) */
     bool misses_to_tile;
     mr_film *film;
-    /* per packet block of the film (film_record): 1 where the film holds
-     * the miss values above; NULL: nothing known, every block is written */
+    /* per packet block of the film (film_record): what it holds
+     * (block_state); NULL: nothing known, every block is written */
     uint8_t *held;
+    /* per plane: whether a miss's bits there are what mr_film_clear leaves
+     * (a BLOCK_CLEARED block needs no miss written into that plane) */
+    bool miss_cleared[PLANES];
+    bool miss_crypto_cleared[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     int tiles_x, blocks_x;
     atomic_ullong rays;
     atomic_bool cancelled;
@@ -665,9 +674,11 @@ _Static_assert(MR_TILE_W % MR_PACKET_W == 0 && TILE_BLOCKS_X <= 16,
 
 /* Pixels [x, x + n) of film row y (from the tile's left edge x0): from
  * tile row ty of t (its planes in), or, t NULL, the miss values (streaming
- * stores: lines the film does not read in first). */
+ * stores: lines the film does not read in first), but for the planes
+ * where a cleared film holds them already when `cleared`. */
 static void put_pixels(const trace_ctx *c, void *const out[PLANES], const tile_buffer *t,
-                       void *const in[PLANES], int ty, int x0, int y, int x, int n)
+                       void *const in[PLANES], bool cleared, int ty, int x0, int y, int x,
+                       int n)
 {
     mr_film *f = c->film;
     const size_t dst = (size_t)y * f->width + x0 + x, src = (size_t)ty * MR_TILE_W + x;
@@ -675,30 +686,31 @@ static void put_pixels(const trace_ctx *c, void *const out[PLANES], const tile_b
         if (out[k]) { /* the film's passes only */
             if (t)
                 copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, n);
-            else
+            else if (!(cleared && c->miss_cleared[k]))
                 fill_out((uint32_t *)out[k] + dst, c->miss[k], n);
         }
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * f->crypto_ranks; k++) {
             if (t)
                 copy_out(f->crypto[l][k] + dst, t->crypto[l][k] + src, n);
-            else
+            else if (!(cleared && c->miss_crypto_cleared[l][k]))
                 fill_out(f->crypto[l][k] + dst, c->miss_crypto[l][k], n);
         }
 }
 
 /* Writes the tile's blocks of mask (bit i: block column i) over film rows
- * [y, y + rows), tile rows from ty, runs of neighbouring blocks at once. */
+ * [y, y + rows), tile rows from ty, runs of neighbouring blocks at once
+ * (t NULL: the miss values; cleared: blocks that hold a cleared film's). */
 static void put_blocks(const trace_ctx *c, void *const out[PLANES], const tile_buffer *t,
-                       void *const in[PLANES], unsigned mask, int ty, int x0, int y, int rows,
-                       int tw)
+                       void *const in[PLANES], bool cleared, unsigned mask, int ty, int x0,
+                       int y, int rows, int tw)
 {
     while (mask) {
         const int a = __builtin_ctz(mask), b = a + __builtin_ctz(~(mask >> a));
         mask &= ~((1u << b) - 1u);
         const int px = a * MR_PACKET_W, pe = b * MR_PACKET_W < tw ? b * MR_PACKET_W : tw;
         for (int r = 0; r < rows; r++)
-            put_pixels(c, out, t, in, ty + r, x0, y + r, px, pe - px);
+            put_pixels(c, out, t, in, cleared, ty + r, x0, y + r, px, pe - px);
     }
 }
 
@@ -723,13 +735,17 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
         int th = f->height - y0 < MR_TILE_H ? f->height - y0 : MR_TILE_H;
         const unsigned blocks = (1u << ((tw + MR_PACKET_W - 1) / MR_PACKET_W)) - 1u;
         /* the tile's blocks in the film's record (c->held), a row of them
-         * at a time: which hold the miss values already */
+         * at a time: which hold the miss values already, which a cleared
+         * film's */
         uint8_t *held[TILE_BLOCKS_Y] = {0};
-        unsigned kept[TILE_BLOCKS_Y] = {0};
+        unsigned kept[TILE_BLOCKS_Y] = {0}, cleared[TILE_BLOCKS_Y] = {0};
         for (int by = 0; c->held && by * MR_PACKET_ROWS < th; by++) {
             held[by] = c->held + (size_t)(y0 / MR_PACKET_ROWS + by) * c->blocks_x + x0 / MR_PACKET_W;
-            for (unsigned m = blocks; m; m &= m - 1)
-                kept[by] |= (unsigned)held[by][__builtin_ctz(m)] << __builtin_ctz(m);
+            for (unsigned m = blocks; m; m &= m - 1) {
+                const uint8_t h = held[by][__builtin_ctz(m)];
+                kept[by] |= (unsigned)(h == BLOCK_MISS) << __builtin_ctz(m);
+                cleared[by] |= (unsigned)(h == BLOCK_CLEARED) << __builtin_ctz(m);
+            }
         }
         const bool seen_tile = rect_seen(c, x0, x0 + tw, y0, y0 + th);
         for (int by = 0; by * MR_PACKET_ROWS < th; by++) {
@@ -749,11 +765,14 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
              * film does not hold yet, from c->miss */
             const unsigned put = (hit | ~kept[by]) & blocks;
             const unsigned from_tile = (c->misses_to_tile ? ~0u : hit) & blocks;
-            put_blocks(c, out, &t, in, from_tile, y, x0, y0 + y, rows, tw);
-            put_blocks(c, out, NULL, in, put & ~from_tile, y, x0, y0 + y, rows, tw);
+            const unsigned misses = put & ~from_tile;
+            put_blocks(c, out, &t, in, false, from_tile, y, x0, y0 + y, rows, tw);
+            put_blocks(c, out, NULL, in, false, misses & ~cleared[by], y, x0, y0 + y, rows, tw);
+            put_blocks(c, out, NULL, in, true, misses & cleared[by], y, x0, y0 + y, rows, tw);
             if (held[by])
                 for (unsigned m = put; m; m &= m - 1)
-                    held[by][__builtin_ctz(m)] = !(hit >> __builtin_ctz(m) & 1u);
+                    held[by][__builtin_ctz(m)] =
+                        hit >> __builtin_ctz(m) & 1u ? BLOCK_UNKNOWN : BLOCK_MISS;
         }
     }
     _mm_sfence(); /* the streaming stores (fill_out) before the join says the tiles are done */
@@ -790,25 +809,39 @@ static bool miss_values(trace_ctx *c)
 struct mr_film_misses {
     uint32_t miss[PLANES]; /* the values they hold (trace_ctx's) */
     uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
-    uint8_t held[];        /* per block: 1 holds them */
+    uint8_t held[];        /* per block: its block_state */
 };
 
 /* The film's record for this frame's miss values (c->miss): its own when
  * it was made for the same values, else a new one that knows nothing (a
- * new background, say); NULL when out of memory. */
+ * new background, say) but what a cleared film holds (mr_film.cleared);
+ * NULL when out of memory. Sets c->miss_cleared: the planes where a miss
+ * leaves what mr_film_clear does (z MR_DEPTH_MISS, every other plane 0). */
 static uint8_t *film_record(trace_ctx *c, int blocks_y)
 {
     mr_film *f = c->film;
+    void *out[PLANES];
+    film_planes(f, out);
+    const float depth_miss = MR_DEPTH_MISS;
+    uint32_t z_cleared;
+    memcpy(&z_cleared, &depth_miss, sizeof z_cleared);
+    for (size_t k = 0; k < PLANES; k++)
+        c->miss_cleared[k] = c->miss[k] == (out[k] == (void *)f->z ? z_cleared : 0u);
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
+            c->miss_crypto_cleared[l][k] = c->miss_crypto[l][k] == 0u;
     struct mr_film_misses *m = f->misses;
     if (m && !memcmp(m->miss, c->miss, sizeof m->miss) &&
         !memcmp(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto))
         return m->held;
     free(m);
-    f->misses = m = calloc(1, sizeof *m + (size_t)c->blocks_x * (size_t)blocks_y);
+    const size_t blocks = (size_t)c->blocks_x * (size_t)blocks_y;
+    f->misses = m = malloc(sizeof *m + blocks);
     if (!m)
         return NULL;
     memcpy(m->miss, c->miss, sizeof m->miss);
     memcpy(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto);
+    memset(m->held, f->cleared ? BLOCK_CLEARED : BLOCK_UNKNOWN, blocks);
     return m->held;
 }
 
@@ -824,6 +857,7 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
         c.held = film_record(&c, (film->height + MR_PACKET_ROWS - 1) / MR_PACKET_ROWS);
     else
         c.misses_to_tile = true;
+    film->cleared = false; /* (written from here on) */
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);
     atomic_init(&c.cancelled, false);

@@ -20,6 +20,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <string.h>
 #include <cmocka.h>
 
 #include "../support/film_fixture.h"
@@ -208,6 +209,21 @@ static void test_untraced_misses_are_misses(void **state)
     fixture_free(&s);
 }
 
+/* Every plane of f (MR_AOV_ALL, Cryptomatte's too) set to bytes b. */
+static void fill_planes(mr_film *f, int b)
+{
+    const size_t n = (size_t)f->width * f->height * 4u;
+    float *planes[] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
+                       f->px, f->py, f->pz, f->tx, f->ty, f->tz};
+    for (size_t k = 0; k < sizeof planes / sizeof *planes; k++)
+        memset(planes[k], b, n);
+    memset(f->object_id, b, n);
+    memset(f->prim_id, b, n);
+    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
+        for (int k = 0; k < 2 * f->crypto_ranks; k++)
+            memset(f->crypto[l][k], b, n);
+}
+
 /* A film rendered into frame after frame keeps a record of the blocks that
  * hold a miss's values (mr_film's misses) and a frame writes only where
  * that changes: over a camera that sweeps the sphere across the film,
@@ -216,7 +232,9 @@ static void test_untraced_misses_are_misses(void **state)
  * frame rendered into a new film. A new background (another renderer, the
  * same film) is written everywhere; a pixel written behind the renderer's
  * back stays (the record is the film's), and mr_film_clear forgets the
- * record, after which the frame is whole again. */
+ * record, after which the frame is whole again. A film of other contents
+ * (mr_film.cleared false) gets every plane; a film said to be cleared gets
+ * only the planes where a miss leaves something else. */
 static void test_film_remembers_misses(void **state)
 {
     (void)state;
@@ -256,6 +274,30 @@ static void test_film_remembers_misses(void **state)
         fx_assert_same_pixels(kept, fresh, what);
         mr_film_free(fresh);
     }
+    /* a film of other contents that the renderer knows nothing of: every
+     * plane written; one said to be cleared keeps what a miss would write
+     * there already (a background pixel's normal, 0), and only that */
+    mr_film *junk = NULL, *fresh3 = NULL;
+    if (mr_job_film_new(&s.job, &junk, &err) < 0 || mr_job_film_new(&s.job, &fresh3, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_true(junk->cleared && fresh3->cleared);
+    fill_planes(junk, 0x5a);
+    junk->cleared = false;
+    if (mr_renderer_render(r, 3, junk, &st, &err) < 0 || mr_renderer_render(r, 3, fresh3, &st, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_false(junk->cleared || fresh3->cleared);
+    fx_assert_same_pixels(junk, fresh3, "frame 3 into a film of other contents");
+    mr_film_clear(junk);
+    const size_t far = (size_t)junk->width * junk->height - 1; /* a background pixel */
+    assert_int_equal(fresh3->object_id[far], 0);
+    assert_true(fresh3->nx[far] == 0.0f && fresh3->r[far] != 0.0f);
+    junk->nx[far] = 5.0f, junk->r[far] = 5.0f; /* behind the renderer's back, the flag kept */
+    if (mr_renderer_render(r, 3, junk, &st, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_true(junk->nx[far] == 5.0f);     /* a miss's 0: held by a cleared film */
+    assert_true(junk->r[far] == fresh3->r[far]); /* the background: written */
+    mr_film_free(junk);
+    mr_film_free(fresh3);
     /* a background pixel written behind the renderer's back */
     const size_t corner = 0;
     assert_int_equal(kept->object_id[corner], 0);
