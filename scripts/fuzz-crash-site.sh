@@ -11,8 +11,11 @@
 # the allocator entry points the sanitizer intercepts (free, malloc, ...):
 # a library that corrupts the heap is caught when it next calls free, in a
 # frame of our binary's ASan interceptor, and the frame below it names the
-# caller (the library, or our code for our own bad free). A leak report is
-# always ours (we release what a library hands us).
+# caller (the library, or our code for our own bad free); so is one that
+# corrupts ASan's own chunk headers, which ASan reports as a failed CHECK
+# of its allocator (no "ERROR:" line) when it recycles its quarantine
+# inside that free. A leak report is always ours (we release what a
+# library hands us).
 # Tested by tests/fuzz/crash-site/run.sh on stored logs.
 set -uo pipefail
 log=${1:?usage: fuzz-crash-site.sh LOG REGEX}
@@ -20,7 +23,7 @@ lib=${2:-}
 [ -n "$lib" ] || exit 1
 grep -qE 'ERROR: libFuzzer: (timeout|out-of-memory)|ai_assert failure' "$log" && exit 0
 awk -v lib="$lib" '
-  /ERROR: (AddressSanitizer|UndefinedBehaviorSanitizer|libFuzzer)/ { on = 1; next }
+  /ERROR: (AddressSanitizer|UndefinedBehaviorSanitizer|libFuzzer)|AddressSanitizer: CHECK failed/ { on = 1; next }
   on && /^[[:space:]]*#[0-9]+ / {
     if ($0 ~ /libc\.so|sanitizer|fuzzer::|__interceptor|__asan|__ubsan|\/nptl\/|abort\.c|raise\.c|pthread_kill|libclang_rt/) next
     if ($0 ~ / in (free|malloc|calloc|realloc|reallocarray|posix_memalign|aligned_alloc|memalign|valloc|operator new|operator delete)([ (<]|\[\])/) next

@@ -6,7 +6,10 @@
 # is a real one; library-assimp-heap-corruption is the stack of a CI run on
 # 2026-12-03 whose ASan heap was corrupted by assimp's PLY reader and that
 # was counted as ours, where the first frame past the runtime was ASan's
-# free interceptor). Run by scripts/run-tests.sh.
+# free interceptor; library-assimp-quarantine-check is the CI run of
+# 2026-12-05 whose assimp PLY reader overwrote ASan's chunk header, reported
+# as a failed CHECK of ASan's allocator, not an "ERROR:"). Run by
+# scripts/run-tests.sh.
 set -uo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 classify="$here/../../../scripts/fuzz-crash-site.sh"
@@ -27,6 +30,6 @@ for log in "$here"/*.log; do
     echo "FAIL $name: put in a library with no library tolerated"; bad=$((bad + 1))
   fi
 done
-[ "$n" -ge 6 ] || { echo "FAIL only $n logs in $here"; exit 1; }
+[ "$n" -ge 7 ] || { echo "FAIL only $n logs in $here"; exit 1; }
 echo "$n logs, $bad wrong"
 [ "$bad" -eq 0 ]
