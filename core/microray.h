@@ -412,17 +412,18 @@ typedef struct mr_film {
     float yfov;                     /* vertical field of view, radians */
     /* What the renderer knows of the planes' contents (integrator.c): the
      * blocks of pixels that hold exactly what a miss leaves there, written
-     * by an earlier frame. A frame writes such a block again only where it
-     * hits something, so an animation's background is written once. NULL:
-     * nothing known. Code that writes the planes itself calls
-     * mr_film_clear, which forgets it, before rendering into the film
-     * again. */
+     * by an earlier frame, or what mr_film_clear left. A frame writes such
+     * a block again only where it hits something (or, a cleared block,
+     * only the planes a miss changes), so an animation's background is
+     * written once. NULL: nothing known. */
     struct mr_film_misses *misses;
     /* Whether the planes hold what mr_film_clear left and nothing since
      * (mr_film_new's films too): a first frame then leaves out a miss's
-     * planes that hold its values already. The renderer resets it; code
-     * that writes the planes itself calls mr_film_clear first, or sets it
-     * false. */
+     * planes that hold its values already. The renderer and the EXR reader
+     * (mr_exr_read_file) reset it. Code that writes the planes itself
+     * and then renders into the film frees misses (setting it NULL) and
+     * sets this false after its writes, or calls mr_film_clear (which
+     * resets the planes too) before rendering. */
     bool cleared;
 } mr_film;
 

@@ -14,8 +14,11 @@
 # caller (the library, or our code for our own bad free); so is one that
 # corrupts ASan's own chunk headers, which ASan reports as a failed CHECK
 # of its allocator (no "ERROR:" line) when it recycles its quarantine
-# inside that free. A leak report is always ours (we release what a
-# library hands us).
+# inside some later free. That caller need not be the one that did the
+# damage (any free may recycle the quarantine): a heuristic, sound here
+# because our code is instrumented, so its own bad write is reported with
+# an "ERROR:" line where it happens. A leak report is always ours (we
+# release what a library hands us).
 # Tested by tests/fuzz/crash-site/run.sh on stored logs.
 set -uo pipefail
 log=${1:?usage: fuzz-crash-site.sh LOG REGEX}

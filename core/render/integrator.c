@@ -24,6 +24,8 @@ static inline void sample_jitter(const mr_trace_setup *s, uint32_t x, uint32_t y
 
 /* The film's float and id planes (film_planes), Cryptomatte aside. */
 #define PLANES 16
+/* The depth plane's place among them (film_planes, tile_planes). */
+#define PLANE_Z 4
 
 /* What a packet block of the film holds, by the film's record
  * (film_record): nothing known; the frame's miss values in every plane;
@@ -639,14 +641,14 @@ static void copy_out(void *dst, const void *src, int n) { memcpy(dst, src, (size
 /* The film's planes and a tile buffer's, in one order (PLANES). */
 static void film_planes(mr_film *f, void *out[PLANES])
 {
-    void *o[PLANES] = {f->r, f->g, f->b, f->a, f->z, f->nx, f->ny, f->nz,
+    void *o[PLANES] = {f->r, f->g, f->b, f->a, f->z /* PLANE_Z */, f->nx, f->ny, f->nz,
                        f->px, f->py, f->pz, f->tx, f->ty, f->tz, f->object_id, f->prim_id};
     memcpy(out, o, sizeof o);
 }
 
 static void tile_planes(tile_buffer *t, void *in[PLANES])
 {
-    void *i[PLANES] = {t->r, t->g, t->b, t->a, t->z, t->nx, t->ny, t->nz,
+    void *i[PLANES] = {t->r, t->g, t->b, t->a, t->z /* PLANE_Z */, t->nx, t->ny, t->nz,
                        t->px, t->py, t->pz, t->tx, t->ty, t->tz, t->object_id, t->prim_id};
     memcpy(in, i, sizeof i);
 }
@@ -765,10 +767,11 @@ static void trace_tiles(void *p, size_t begin, size_t end, unsigned worker)
              * film does not hold yet, from c->miss */
             const unsigned put = (hit | ~kept[by]) & blocks;
             const unsigned from_tile = (c->misses_to_tile ? ~0u : hit) & blocks;
-            const unsigned misses = put & ~from_tile;
+            const unsigned miss_blocks = put & ~from_tile;
             put_blocks(c, out, &t, in, false, from_tile, y, x0, y0 + y, rows, tw);
-            put_blocks(c, out, NULL, in, false, misses & ~cleared[by], y, x0, y0 + y, rows, tw);
-            put_blocks(c, out, NULL, in, true, misses & cleared[by], y, x0, y0 + y, rows, tw);
+            put_blocks(c, out, NULL, in, false, miss_blocks & ~cleared[by], y, x0, y0 + y, rows,
+                       tw);
+            put_blocks(c, out, NULL, in, true, miss_blocks & cleared[by], y, x0, y0 + y, rows, tw);
             if (held[by])
                 for (unsigned m = put; m; m &= m - 1)
                     held[by][__builtin_ctz(m)] =
@@ -797,15 +800,21 @@ static bool miss_values(trace_ctx *c)
     tile_planes(t, in);
     for (size_t k = 0; k < PLANES; k++)
         memcpy(&c->miss[k], in[k], 4);
+    /* (the film's Cryptomatte ranks only: the tile holds nothing else) */
+    const int ranks = c->s->aovs & MR_AOV_CRYPTOMATTE ? 2 * c->film->crypto_ranks : 0;
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
-        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
-            memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
+        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++) {
+            c->miss_crypto[l][k] = 0;
+            if (k < ranks)
+                memcpy(&c->miss_crypto[l][k], &t->crypto[l][k][0], 4);
+        }
     free(t);
     return true;
 }
 
-/* The film's record of its blocks that hold a miss's values (mr_film's
- * misses): blocks of MR_PACKET_W x MR_PACKET_ROWS pixels, row-major. */
+/* The film's record of what its blocks hold (mr_film's misses): a miss's
+ * values or a cleared film's (block_state), blocks of MR_PACKET_W x
+ * MR_PACKET_ROWS pixels, row-major. */
 struct mr_film_misses {
     uint32_t miss[PLANES]; /* the values they hold (trace_ctx's) */
     uint32_t miss_crypto[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
@@ -820,13 +829,11 @@ struct mr_film_misses {
 static uint8_t *film_record(trace_ctx *c, int blocks_y)
 {
     mr_film *f = c->film;
-    void *out[PLANES];
-    film_planes(f, out);
     const float depth_miss = MR_DEPTH_MISS;
     uint32_t z_cleared;
     memcpy(&z_cleared, &depth_miss, sizeof z_cleared);
     for (size_t k = 0; k < PLANES; k++)
-        c->miss_cleared[k] = c->miss[k] == (out[k] == (void *)f->z ? z_cleared : 0u);
+        c->miss_cleared[k] = c->miss[k] == (k == PLANE_Z ? z_cleared : 0u);
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
             c->miss_crypto_cleared[l][k] = c->miss_crypto[l][k] == 0u;
@@ -853,10 +860,13 @@ uint64_t mr_trace_frame(const mr_trace_setup *setup, mr_film *film, bool *cancel
     scene_rect(&c, setup, film->width, film->height);
     c.tiles_x = (film->width + MR_TILE_W - 1) / MR_TILE_W;
     c.blocks_x = (film->width + MR_PACKET_W - 1) / MR_PACKET_W;
-    if (miss_values(&c))
+    if (miss_values(&c)) {
         c.held = film_record(&c, (film->height + MR_PACKET_ROWS - 1) / MR_PACKET_ROWS);
-    else
+    } else { /* every block written, and no record kept of this frame's */
         c.misses_to_tile = true;
+        free(film->misses);
+        film->misses = NULL;
+    }
     film->cleared = false; /* (written from here on) */
     int tiles_y = (film->height + MR_TILE_H - 1) / MR_TILE_H;
     atomic_init(&c.rays, 0);

@@ -407,6 +407,7 @@ static void roundtrip(void **state, mr_compression c, int zip_level, const char 
     if (rc != MR_OK)
         fail_msg("read %s: %s", name, err.msg);
     check_same_film(in, out);
+    assert_false(out->cleared); /* the file's values: a render must write every plane */
     assert_string_equal(meta.job, "job-42");
     assert_int_equal(meta.frame, 7);
     assert_true(meta.time == 2.5);

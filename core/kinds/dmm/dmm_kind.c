@@ -97,8 +97,9 @@ struct dmm_level {
     bool evaluated;
     uint64_t stamp;               /* this evaluation's (mr_dmm_patch.stamp), 0: none */
     float *boxes;                 /* tessellation-free: BOX_FLOATS per base triangle */
-    float *root_children;         /* tessellation-free: MR_DMM_ROOT_CHILDREN_FLOATS per base
-                                     triangle (levels >= 2), made with its box */
+    float *root_children;         /* interpolated, tessellation-free: per base triangle of
+                                     level >= 2, MR_DMM_ROOT_CHILDREN_FLOATS, made by each
+                                     evaluation (update_range) */
     uint32_t vertex_count, triangle_count; /* tessellated: micro-vertices / micro-triangles */
     float *positions;             /* 3 per micro-vertex + 1 float padding (Embree 16-byte loads) */
     uint32_t *indices;            /* 3 per micro-triangle */
@@ -689,7 +690,7 @@ static mr_dmm_patch patch_of(const dmm_level *g, uint32_t t)
         p.pad[0] = p.pad[1] = p.pad[2] = 0;
         p.stamp = 0;
     }
-    p.root_children = g->root_children && g->evaluated && p.level >= 2
+    p.root_children = g->root_children && g->evaluated && mr_dmm_trace_leaf_sublevel(p.level) > 0
                           ? g->root_children + (size_t)t * MR_DMM_ROOT_CHILDREN_FLOATS
                           : NULL;
     return p;
@@ -756,13 +757,13 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
     update_ctx *c = ctx;
     dmm_level *g = c->g;
     for (size_t t = begin; t < end; t++) {
+        mr_dmm_patch p = patch_of(g, (uint32_t)t);
         if (g->boxes_given && g->boxes) {
             const float *b = g->boxes + t * BOX_FLOATS;
             if (!finite_bounded(mr_v3(b[0], b[1], b[2])) || !finite_bounded(mr_v3(b[3], b[4], b[5])))
                 note_bad(c, worker, t);
         } else if (g->boxes) {
             /* the pad once: the bounds use it, and it is cached for the rays */
-            mr_dmm_patch p = patch_of(g, (uint32_t)t);
             float *b = g->boxes + t * BOX_FLOATS;
             mr_dmm_patch_pad(&p, p.pad);
             memcpy(b + 6, p.pad, sizeof p.pad);
@@ -771,10 +772,11 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
                 note_bad(c, worker, t);
             b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
         }
-        if (g->root_children) { /* (made afresh: a level of detail changes t's level) */
-            mr_dmm_patch p = patch_of(g, (uint32_t)t);
+        /* the root's children with every evaluation, given boxes or not:
+         * levels of detail give the baked level's boxes, and the children
+         * are this evaluation's level's */
+        if (g->root_children)
             mr_dmm_patch_root_children(&p, g->root_children + t * MR_DMM_ROOT_CHILDREN_FLOATS);
-        }
         if (!tessellated(g))
             continue;
         float *v = g->positions + (size_t)g->value_first[t] * 3;
@@ -1452,6 +1454,7 @@ static mr_dmm_patch fine_patch(const dmm_level *g, const tri_lod *d, uint32_t t,
     p.maxv = d->maxv + g->pyramid_first[t];
     p.pad[0] = p.pad[1] = p.pad[2] = 0;
     p.stamp = 0; /* values laid out anew per level: no kept micro-vertices */
+    p.root_children = NULL; /* (another level's pyramid: not those boxes) */
     return p;
 }
 

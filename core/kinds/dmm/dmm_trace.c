@@ -668,10 +668,10 @@ typedef struct node_children {
 _Static_assert(sizeof(child_boxes) == MR_DMM_ROOT_CHILDREN_FLOATS * sizeof(float),
                "the root's children's boxes fit the patch's cache");
 
-/* Whether the children of node (sublevel, id) need their blossoms
+/* Whether the children of a node of `sublevel` need their blossoms
  * (interpolated patches): for their own children's boxes. A leaf's
  * micro-vertices come from the lattice. */
-static bool children_blossoms(const trace_ctx *c, unsigned sublevel)
+static bool children_need_blossoms(const trace_ctx *c, unsigned sublevel)
 {
     return c->patch->mats[0] != NULL && sublevel + 1 < c->leaf;
 }
@@ -688,7 +688,7 @@ static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
         c->stats->boxes += 4;
     const float *kept = sublevel == 0 ? c->patch->root_children : NULL;
     if (kept) { /* the boxes made with the patch's bounds */
-        if (children_blossoms(c, sublevel))
+        if (children_need_blossoms(c, sublevel))
             subdivide(B, &nc->store, nc->bl);
         memcpy(&nc->boxes, kept, sizeof nc->boxes);
         return;
@@ -708,7 +708,8 @@ static void make_children(const trace_ctx *c, unsigned sublevel, uint32_t id,
 }
 
 /* Sub-triangle `id` of `sublevel` whose box the ray already enters; B its
- * blossoms (interpolated patches). */
+ * blossoms (interpolated patches, where its children's boxes need them:
+ * else NULL, or NULLs). */
 static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt *const P[3],
                   const blossom *const B[6])
 {
@@ -716,7 +717,7 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         leaf(c, id, P);
         return;
     }
-    const bool kids = children_blossoms(c, sublevel);
+    const bool child_blossoms = children_need_blossoms(c, sublevel);
     node_children nc;
     make_children(c, sublevel, id, P, B, &nc);
     const lattice_pt *const *pts = nc.pts;
@@ -743,9 +744,9 @@ static void visit(trace_ctx *c, unsigned sublevel, uint32_t id, const lattice_pt
         int k = order[i];
         const lattice_pt *L[3] = {pts[CHILD[k][0]], pts[CHILD[k][1]], pts[CHILD[k][2]]};
         const blossom *CB[6];
-        for (int m = 0; m < 6 && kids; m++)
+        for (int m = 0; m < 6 && child_blossoms; m++)
             CB[m] = bl[CHILD_BLOSSOM[k][m]];
-        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, kids ? CB : NULL);
+        visit(c, sublevel + 1, 4 * id + (uint32_t)k, L, child_blossoms ? CB : NULL);
     }
 }
 
@@ -767,7 +768,7 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
             leaf_test(&cs[__builtin_ctz(m)], &lt);
         return;
     }
-    const bool kids = children_blossoms(c, sublevel);
+    const bool child_blossoms = children_need_blossoms(c, sublevel);
     node_children nc;
     make_children(c, sublevel, id, P, B, &nc);
     float t[MR_DMM_PACKET_MAX][4], near[4] = {INFINITY, INFINITY, INFINITY, INFINITY};
@@ -803,9 +804,9 @@ static void visit_packet(trace_ctx *cs, uint32_t live, unsigned sublevel, uint32
             continue;
         const lattice_pt *L[3] = {nc.pts[CHILD[k][0]], nc.pts[CHILD[k][1]], nc.pts[CHILD[k][2]]};
         const blossom *CB[6];
-        for (int m = 0; m < 6 && kids; m++)
+        for (int m = 0; m < 6 && child_blossoms; m++)
             CB[m] = nc.bl[CHILD_BLOSSOM[k][m]];
-        visit_packet(cs, go, sublevel + 1, 4 * id + (uint32_t)k, L, kids ? CB : NULL);
+        visit_packet(cs, go, sublevel + 1, 4 * id + (uint32_t)k, L, child_blossoms ? CB : NULL);
     }
 }
 
@@ -846,7 +847,7 @@ static void root_make(const trace_ctx *c, bool blossoms, root_node *r)
  * own children's. */
 static bool root_blossoms_needed(const trace_ctx *c)
 {
-    return c->patch->mats[0] != NULL && (!c->patch->root_children || children_blossoms(c, 0));
+    return c->patch->mats[0] != NULL && (!c->patch->root_children || children_need_blossoms(c, 0));
 }
 
 /* Whether box b is over BOX_LOOSE times the size of the posed base
@@ -939,10 +940,9 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
                    .stats = stats};
     patch_pad(&c);
     root_node r;
-    const bool blossoms = root_blossoms_needed(&c);
-    root_make(&c, blossoms, &r);
+    root_make(&c, root_blossoms_needed(&c), &r);
     /* The caller's BVH has tested the patch box; the root needs no test. */
-    visit(&c, 0, 0, r.L, blossoms ? r.B : NULL);
+    visit(&c, 0, 0, r.L, r.B);
     if (c.found)
         *tmax = c.tmax;
     return c.found;
@@ -977,9 +977,8 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
     if (!live)
         return 0;
     root_node r;
-    const bool blossoms = root_blossoms_needed(&cs[0]);
-    root_make(&cs[0], blossoms, &r);
-    visit_packet(cs, live, 0, 0, r.L, blossoms ? r.B : NULL);
+    root_make(&cs[0], root_blossoms_needed(&cs[0]), &r);
+    visit_packet(cs, live, 0, 0, r.L, r.B);
     uint32_t hit = 0;
     for (uint32_t m = live; m; m &= m - 1) {
         int k = __builtin_ctz(m);

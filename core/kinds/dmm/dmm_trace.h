@@ -130,7 +130,8 @@ void mr_dmm_patch_pad(const mr_dmm_patch *p, float pad[3]);
  * which every ray into the patch tests: a caller tracing many rays per
  * frame makes them once with the bounds (the same arithmetic as the
  * traversal's, so the same boxes bit for bit). False, out untouched, for a
- * patch whose root is a leaf (levels 0 and 1). */
+ * patch whose root is a leaf (levels 0 and 1) or whose level is beyond
+ * MR_UMESH_MAX_LEVEL. */
 bool mr_dmm_patch_root_children(const mr_dmm_patch *p, float out[MR_DMM_ROOT_CHILDREN_FLOATS]);
 
 /* Conservative box of the whole patch (what Embree's BVH gets): the root's

@@ -597,26 +597,28 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
  * half = 0, then 1 (a lane's operations are the scalar ones; the minimum
  * and maximum over corners are exact in any order). The rectangle only
  * grows, so the answer is no when the first half's already reaches delta:
- * the same answer as measuring all eight. So it is when two corners alone
- * (lanes 0 and 1 of the first half, apart along x) are delta apart across:
- * measured first, by the same operations, it answers most interior voxels
- * of a fine selection (delta far below their size) for a quarter of the
- * work (svo-skinned at depth 10, every leaf, one thread: selection 60.7
- * -> 54.3 ms, 49-53 with no projection at all; two threads 37-38 -> 42 M
- * voxels/s). test_screen_space and test_flythrough fail if this test
- * measures twice the width. */
+ * the same answer as measuring all eight. The answer is no as well when
+ * two corners alone (lanes 0 and 1 of the first half, apart along x) are
+ * delta apart across, measured by the same operations (each product its
+ * own statement, as above, so no contraction can round them otherwise):
+ * measured first, that answers most interior voxels of a fine selection
+ * (delta far below their size) for a quarter of the work (svo-skinned at
+ * depth 10, every leaf, one thread: selection 60.7 -> 54.3 ms, 49-53 with
+ * no projection at all; two threads 37-38 -> 42 M voxels/s).
+ * test_svo_deform's test_screen_space and test_svo_lod's test_flythrough
+ * fail if this measures twice the width. */
 __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *c, const float b[6])
 {
     static const int row[3] = {0, 1, 3}; /* clip x, y, w */
     {
         const double *mx = &c->vp[0], *mw = &c->vp[12];
         /* clip x and w of corners (lo, lo, lo) and (hi, lo, lo) */
+        const double x_x0 = mx[0] * (double)b[0], x_x1 = mx[0] * (double)b[3];
         const double x_y = mx[1] * (double)b[1], x_z = mx[2] * (double)b[2];
+        const double w_x0 = mw[0] * (double)b[0], w_x1 = mw[0] * (double)b[3];
         const double w_y = mw[1] * (double)b[1], w_z = mw[2] * (double)b[2];
-        const double x0 = mx[0] * (double)b[0] + x_y + x_z + mx[3];
-        const double x1 = mx[0] * (double)b[3] + x_y + x_z + mx[3];
-        const double w0 = mw[0] * (double)b[0] + w_y + w_z + mw[3];
-        const double w1 = mw[0] * (double)b[3] + w_y + w_z + mw[3];
+        const double x0 = x_x0 + x_y + x_z + mx[3], x1 = x_x1 + x_y + x_z + mx[3];
+        const double w0 = w_x0 + w_y + w_z + mw[3], w1 = w_x1 + w_y + w_z + mw[3];
         const double s0 = 0.5 * x0 / w0 + 0.5, s1 = 0.5 * x1 / w1 + 0.5;
         if (c->width * (dmax(s0, s1) - dmin(s0, s1)) >= c->delta)
             return false;
