@@ -49,10 +49,6 @@ typedef struct {
     /* per packet block of the film (film_record): what it holds
      * (block_state); NULL: nothing known, every block is written */
     uint8_t *held;
-    /* per plane: whether a miss's bits there are what mr_film_clear leaves
-     * (a BLOCK_CLEARED block needs no miss written into that plane) */
-    bool miss_cleared[PLANES];
-    bool miss_crypto_cleared[MR_CRYPTO_LAYERS][2 * MR_CRYPTO_MAX_RANKS];
     int tiles_x, blocks_x;
     atomic_ullong rays;
     atomic_bool cancelled;
@@ -674,6 +670,16 @@ enum { TILE_BLOCKS_X = MR_TILE_W / MR_PACKET_W, TILE_BLOCKS_Y = MR_TILE_H / MR_P
 _Static_assert(MR_TILE_W % MR_PACKET_W == 0 && TILE_BLOCKS_X <= 16,
                "a tile row holds whole packets, a 16-bit mask of them");
 
+/* The bits plane k (film_planes' order) holds where mr_film_clear left it;
+ * 0 in every Cryptomatte plane. */
+static uint32_t cleared_bits(size_t k)
+{
+    const float depth_miss = MR_DEPTH_MISS;
+    uint32_t z;
+    memcpy(&z, &depth_miss, sizeof z);
+    return k == PLANE_Z ? z : 0u;
+}
+
 /* Pixels [x, x + n) of film row y (from the tile's left edge x0): from
  * tile row ty of t (its planes in), or, t NULL, the miss values (streaming
  * stores: lines the film does not read in first), but for the planes
@@ -688,14 +694,14 @@ static void put_pixels(const trace_ctx *c, void *const out[PLANES], const tile_b
         if (out[k]) { /* the film's passes only */
             if (t)
                 copy_out((uint32_t *)out[k] + dst, (const uint32_t *)in[k] + src, n);
-            else if (!(cleared && c->miss_cleared[k]))
+            else if (!(cleared && c->miss[k] == cleared_bits(k)))
                 fill_out((uint32_t *)out[k] + dst, c->miss[k], n);
         }
     for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
         for (int k = 0; k < 2 * f->crypto_ranks; k++) {
             if (t)
                 copy_out(f->crypto[l][k] + dst, t->crypto[l][k] + src, n);
-            else if (!(cleared && c->miss_crypto_cleared[l][k]))
+            else if (!(cleared && c->miss_crypto[l][k] == 0u))
                 fill_out(f->crypto[l][k] + dst, c->miss_crypto[l][k], n);
         }
 }
@@ -824,19 +830,10 @@ struct mr_film_misses {
 /* The film's record for this frame's miss values (c->miss): its own when
  * it was made for the same values, else a new one that knows nothing (a
  * new background, say) but what a cleared film holds (mr_film.cleared);
- * NULL when out of memory. Sets c->miss_cleared: the planes where a miss
- * leaves what mr_film_clear does (z MR_DEPTH_MISS, every other plane 0). */
+ * NULL when out of memory. */
 static uint8_t *film_record(trace_ctx *c, int blocks_y)
 {
     mr_film *f = c->film;
-    const float depth_miss = MR_DEPTH_MISS;
-    uint32_t z_cleared;
-    memcpy(&z_cleared, &depth_miss, sizeof z_cleared);
-    for (size_t k = 0; k < PLANES; k++)
-        c->miss_cleared[k] = c->miss[k] == (k == PLANE_Z ? z_cleared : 0u);
-    for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
-        for (int k = 0; k < 2 * MR_CRYPTO_MAX_RANKS; k++)
-            c->miss_crypto_cleared[l][k] = c->miss_crypto[l][k] == 0u;
     struct mr_film_misses *m = f->misses;
     if (m && !memcmp(m->miss, c->miss, sizeof m->miss) &&
         !memcmp(m->miss_crypto, c->miss_crypto, sizeof m->miss_crypto))
