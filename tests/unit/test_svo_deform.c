@@ -931,6 +931,88 @@ static void test_threads(void **state)
     mr_asset_free(a);
 }
 
+/* ---- repeated cells */
+
+/* sel with a copy of voxel i at 2i + 1 (adjacent: repeats within one
+ * resampling chunk) or at count + i (after all: repeats in other chunks),
+ * the copy with another palette entry and normal. */
+static void with_copies(const mr_svo_selection *sel, bool adjacent, uint32_t palette_count, mr_svo_selection *out)
+{
+    const size_t n = sel->count;
+    out->count = out->capacity = 2 * n;
+    out->box = malloc(2 * n * 6 * sizeof *out->box);
+    out->leaf = malloc(2 * n * sizeof *out->leaf);
+    out->level = malloc(2 * n);
+    assert_non_null(out->box);
+    assert_non_null(out->leaf);
+    assert_non_null(out->level);
+    for (size_t i = 0; i < n; i++)
+        for (int copy = 0; copy < 2; copy++) {
+            const size_t at = adjacent ? 2 * i + (size_t)copy : (size_t)copy * n + i;
+            memcpy(&out->box[6 * at], &sel->box[6 * i], 6 * sizeof *out->box);
+            out->level[at] = sel->level[i];
+            out->leaf[at] = sel->leaf[i];
+            if (copy) {
+                out->leaf[at].attr = (uint16_t)((sel->leaf[i].attr + 1u) % palette_count);
+                out->leaf[at].normal[0] ^= 0x55;
+                out->leaf[at].normal[1] ^= 0x55;
+            }
+        }
+}
+
+/* A cell emitted again by a later voxel (resize's 2 x 2 x 2 blocks overlap
+ * their neighbours'; the resampling leaves repeats out before its sort)
+ * takes the first voxel's leaf, wherever the repeat comes: every voxel
+ * followed by a copy of itself with another leaf, or all the copies after
+ * all the voxels, resamples to the same octree bit for bit. Fails if a
+ * repeat's leaf wins anywhere or a cell that is no repeat is left out. */
+static void test_repeated_cells(void **state)
+{
+    (void)state;
+    mr_asset *a = bcn_load();
+    const unsigned D = 8;
+    mr_svo *s = voxelize(a, D);
+    mr_svo_extremes e;
+    extremes(s, &e);
+    mr_pose *pose;
+    pose_at(a, 0.23 * a->clips[0].duration, &pose);
+    const double h = 0.5 * s->size;
+    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
+                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
+    mr_svo_skin r;
+    skin_posed(&r, a, pose, &place);
+    mr_svo_view v = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256, .height = 256,
+                     .delta = 1.0f, .cull = true};
+    mr_svo_selection sel = {0}, twice[2] = {{0}};
+    select_ok(s, &e, &r.d, &v, D, 2, &sel);
+    assert_true(sel.count > 3 * 4096); /* several resampling chunks */
+    assert_true(s->palette_count > 1);
+    for (int k = 0; k < 2; k++)
+        with_copies(&sel, k == 0, s->palette_count, &twice[k]);
+    for (int m = 0; m < 2; m++) {
+        const mr_svo_method method = m ? MR_SVO_EMIT : MR_SVO_RESIZE;
+        mr_svo ref = {0}, got = {0};
+        uint64_t cells = 0, cells2 = 0;
+        resample_ok(&sel, method, D + 2, s, 2, &ref, &cells);
+        assert_true(ref.leaf_count > 0 && cells > ref.leaf_count);
+        for (int k = 0; k < 2; k++) {
+            resample_ok(&twice[k], method, D + 2, s, 2, &got, &cells2);
+            assert_int_equal(cells2, 2 * cells);
+            assert_true(svos_equal(&ref, &got));
+            mr_svo_free(&got);
+        }
+        mr_svo_free(&ref);
+    }
+    for (int k = 0; k < 2; k++)
+        mr_svo_selection_free(&twice[k]);
+    mr_svo_selection_free(&sel);
+    mr_svo_skin_free(&r);
+    mr_pose_free(pose);
+    mr_svo_extremes_free(&e);
+    mr_svo_voxelize_free(s);
+    mr_asset_free(a);
+}
+
 /* ---- workspaces */
 
 /* A workspace kept across calls (as per frame) gives exactly what the calls
@@ -1092,6 +1174,7 @@ int main(void)
         cmocka_unit_test(test_screen_space),
         cmocka_unit_test(test_skinned_rig),
         cmocka_unit_test(test_threads),
+        cmocka_unit_test(test_repeated_cells),
         cmocka_unit_test(test_workspace),
         cmocka_unit_test(test_invalid_input),
     };

@@ -142,7 +142,7 @@ enum {
     WS_CUR, WS_NEXT, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
-    WS_RS_LEAVES, WS_PALETTE,
+    WS_RS_LEAVES, WS_PALETTE, WS_RS_WRITTEN,
     WS_SLOTS
 };
 
@@ -1182,6 +1182,7 @@ typedef struct rs_ctx {
     uint8_t *box_level;
     uint32_t *box_range;   /* 6 per box: first cell x, y, z, then end x, y, z */
     uint64_t *chunk_cells; /* counts, then offsets */
+    uint64_t *chunk_written; /* packed: the cells written from the offset (rs_write) */
     uint64_t *chunk_bits;  /* 2 per chunk: OR and AND of its packed keys */
     bool packed;
     mr_svo_key *keys;      /* !packed */
@@ -1366,6 +1367,17 @@ static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
+/* Packed keys a chunk has written, direct-mapped (RS_SEEN entries): a
+ * cell a neighbouring box of the chunk already emitted (resize's 2 x 2 x 2
+ * blocks overlap most of their neighbours') is not written again. Only
+ * exact repeats are left out, and of those never the first, which is the
+ * one the stable sort puts first among its equals and compaction keeps
+ * (a repeat never survives compaction), so the octree is the same bit for
+ * bit; a repeat the table has forgotten is sorted and dropped as before.
+ * UINT64_MAX is no packed key (at most 3 * 19 + 5 bits). */
+#define RS_SEEN_BITS 11u
+#define RS_SEEN (1u << RS_SEEN_BITS)
+
 /* The dilated coordinate d of one axis (mask m) moved by one cell whose
  * dilated width is unit: the carry runs through the other axes' bits. */
 static inline uint64_t dilated_next(uint64_t d, uint64_t m, uint64_t unit)
@@ -1377,9 +1389,12 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     rs_ctx *c = vctx;
+    uint64_t seen[RS_SEEN];
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * RS_CHUNK, i1 = i0 + RS_CHUNK < c->sel->count ? i0 + RS_CHUNK : c->sel->count;
         uint64_t o = c->chunk_cells[ch], bits_or = 0, bits_and = ~(uint64_t)0;
+        if (c->packed)
+            memset(seen, 0xff, sizeof seen);
         for (size_t i = i0; i < i1; i++) {
             const unsigned l = c->box_level[i], sh = c->depth - l;
             const uint32_t *r = &c->box_range[6 * i];
@@ -1395,6 +1410,10 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
                         const uint64_t code = dx | dy | dz;
                         if (c->packed) {
                             const uint64_t k = mr_svo_key_pack(code, l);
+                            uint64_t *seen_at = &seen[(k * 0x9E3779B97F4A7C15ull) >> (64 - RS_SEEN_BITS)];
+                            if (*seen_at == k)
+                                continue;
+                            *seen_at = k;
                             c->pk[o] = k;
                             bits_or |= k;
                             bits_and &= k;
@@ -1410,6 +1429,7 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
         }
         c->chunk_bits[2 * ch] = bits_or;
         c->chunk_bits[2 * ch + 1] = bits_and;
+        c->chunk_written[ch] = o - c->chunk_cells[ch];
     }
 }
 
@@ -1465,11 +1485,12 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     c.chunk_hi = ws_get(ws, WS_RS_HI, chunks, sizeof *c.chunk_hi);
     c.chunk_bad = ws_get(ws, WS_RS_BAD, chunks, sizeof *c.chunk_bad);
     c.chunk_cells = ws_get(ws, WS_RS_CELLS, chunks, sizeof *c.chunk_cells);
+    c.chunk_written = ws_get(ws, WS_RS_WRITTEN, chunks, sizeof *c.chunk_written);
     c.chunk_bits = ws_get(ws, WS_RS_BITS, chunks, 2 * sizeof *c.chunk_bits);
     c.box_level = ws_get(ws, WS_RS_LEVEL, n, 1);
     c.box_range = ws_get(ws, WS_RS_RANGE, n, 6 * sizeof *c.box_range);
-    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.chunk_bits || !c.box_level ||
-        !c.box_range) {
+    if (!c.chunk_lo || !c.chunk_hi || !c.chunk_bad || !c.chunk_cells || !c.chunk_written || !c.chunk_bits ||
+        !c.box_level || !c.box_range) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo resample: out of memory (%zu boxes)", n);
         goto cleanup;
     }
@@ -1551,14 +1572,23 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     mr_parallel_for(threads, chunks, 1, rs_write, &c);
     const double t_sort = mr_now();
 
+    size_t sorted = (size_t)total; /* the cells written */
     if (c.packed) {
         uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
+        sorted = 0;
         for (size_t ch = 0; ch < chunks; ch++) {
             bits_or |= c.chunk_bits[2 * ch];
             bits_and &= c.chunk_bits[2 * ch + 1];
+            /* each chunk's cells down to the end of the one before, in order */
+            const size_t from = (size_t)c.chunk_cells[ch], m = (size_t)c.chunk_written[ch];
+            if (from != sorted) {
+                memmove(pk + sorted, pk + from, m * sizeof *pk);
+                memmove(payload + sorted, payload + from, m * sizeof *payload);
+            }
+            sorted += m;
         }
         mr_radix_u64 sort = {.keys = pk, .key_scratch = pk2, .payload = payload,
-                             .payload_scratch = payload2, .count = (size_t)total,
+                             .payload_scratch = payload2, .count = sorted,
                              .varying = bits_or ^ bits_and, .unpack = keys, .threads = threads};
         sort.hist = ws_get(ws, WS_RS_HIST, mr_radix_sort_u64_hist_words(&sort), sizeof *sort.hist);
         if (!sort.hist)
@@ -1573,7 +1603,7 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     /* the payload array the sort did not end in is free now */
     uint32_t *kept_from = payload == payload2 ? c.payload : payload2;
     size_t kept = 0;
-    rc = mr_svo_compact(keys, (size_t)total, depth, kept_from, &kept, err);
+    rc = mr_svo_compact(keys, sorted, depth, kept_from, &kept, err);
     if (rc != MR_OK)
         goto cleanup;
     mr_svo_leaf *leaves = ws_get(ws, WS_RS_LEAVES, kept, sizeof *leaves);
