@@ -1409,20 +1409,24 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
                     for (uint32_t x = r[0]; x < r[3]; x++, dx = dilated_next(dx, mx, ux)) {
                         const uint64_t code = dx | dy | dz;
                         if (c->packed) {
+                            /* written either way, kept by moving on: no
+                             * branch (about half are repeats, in no order
+                             * a predictor learns) */
                             const uint64_t k = mr_svo_key_pack(code, l);
                             uint64_t *seen_at = &seen[(k * 0x9E3779B97F4A7C15ull) >> (64 - RS_SEEN_BITS)];
-                            if (*seen_at == k)
-                                continue;
+                            const bool repeat = *seen_at == k;
                             *seen_at = k;
                             c->pk[o] = k;
+                            c->payload[o] = (uint32_t)i;
                             bits_or |= k;
                             bits_and &= k;
+                            o += !repeat;
                         } else {
                             c->keys[o].code = code;
                             c->keys[o].level = l;
+                            c->payload[o] = (uint32_t)i;
+                            o++;
                         }
-                        c->payload[o] = (uint32_t)i;
-                        o++;
                     }
                 }
             }
