@@ -11,8 +11,10 @@
  * height texture itself (range = texels per unit: the image's mip levels).
  * Per row: median trace ms of interleaved repeats, primary Mrays/s, the
  * error against tess (coverage %, depth RMS / diagonal, holes), and bytes
- * (microray's geometry + Embree's). Then the cost of a new 4096^2 height
- * texture: creating the object (pyramid) and its first frame's bounds.
+ * (microray's geometry + Embree's). Then tf against tess alone at 640x360
+ * (the goal's ratio: at 160x90 the frame's fixed costs move it towards 1),
+ * and the cost of a new 4096^2 height texture: creating the object
+ * (pyramid) and its first frame's bounds.
  * Not a test: it prints figures and never fails on a time.
  *
  * usage: bench_displaced [--quick] [--edit] [--size WxH] [--repeats N]
@@ -192,6 +194,46 @@ static void table(const char *scene, const char *mesh, const char *cam, bool pro
     }
 }
 
+/* tf against tess alone at a larger frame (no marching, whose 1000 steps
+ * would take minutes there): at 160x90 the frame's fixed costs weigh on
+ * both and move their ratio towards 1 (the plane at 200 texels per unit:
+ * 0.44 there, 0.28 at 640x360). */
+static void ratio_table(const char *scene, const char *mesh, const char *cam, bool procedural,
+                        const int *ranges, int nranges, int tess_max)
+{
+    for (int ri = 0; ri < nranges; ri++) {
+        const int range = ranges[ri];
+        if (range > tess_max && procedural)
+            continue;
+        run x[2];
+        for (int m = 0; m < 2; m++) {
+            char src[256], block[512];
+            if (procedural)
+                snprintf(src, sizeof src,
+                         "\"procedural\": {\"example\": \"t\", \"scale\": 1, \"seed\": 7}, "
+                         "\"range\": %d", range);
+            else
+                snprintf(src, sizeof src, "\"texture\": \"t\", \"level\": %d", range);
+            snprintf(block, sizeof block, "{%s, \"scale\": 0.1, \"method\": \"%s\"}", src,
+                     m ? "tessellated" : "tessellation_free");
+            run_open(&x[m], devs[m], mesh, block, cam);
+        }
+        for (int rep = 0; rep < repeats; rep++)
+            for (int m = 0; m < 2; m++)
+                run_frame(&x[m], rep);
+        const int shown = procedural ? range : (int)ceil(400.0 / (1 << range));
+        if (x[0].ok && x[1].ok) {
+            const double tf = median(x[0].trace, repeats), tess = median(x[1].trace, repeats);
+            printf("| %s | %d | %.2f | %.2f | **%.2f** |\n", scene, shown, tf * 1e3, tess * 1e3, tess / tf);
+        } else {
+            printf("| %s | %d | %s | | |\n", scene, shown, x[0].ok ? x[1].err : x[0].err);
+        }
+        for (int m = 0; m < 2; m++)
+            run_free(&x[m]);
+        fflush(stdout);
+    }
+}
+
 /* A new 4096^2 height texture: the object's creation (pyramid) against a
  * 1x1 texture's, and the first frame's bounds. */
 static void edit_cost(void)
@@ -297,6 +339,18 @@ int main(int argc, char **argv)
     table("sphere, procedural", "examples/models/sphere960.obj", CAM_SPHERE, true, pr, n, 128);
     table("plane, texture", "examples/models/plane.obj", CAM_PLANE, false, tl, n, 99);
     table("sphere, texture", "examples/models/sphere960.obj", CAM_SPHERE, false, tl, n, 99);
+    const int small_w = width, small_h = height;
+    width = 640;
+    height = 360;
+    printf("\n## tf against tess at %dx%d (issue 14's goal: tf at least 0.35 of tess's Mrays/s), "
+           "medians of %d interleaved repeats\n\n", width, height, repeats);
+    printf("| scene | range | tf ms | tess ms | tess / tf |\n|---|---|---|---|---|\n");
+    ratio_table("plane, procedural", "examples/models/plane.obj", CAM_PLANE, true, pr, n, 128);
+    ratio_table("sphere, procedural", "examples/models/sphere960.obj", CAM_SPHERE, true, pr, n, 128);
+    ratio_table("plane, texture", "examples/models/plane.obj", CAM_PLANE, false, tl, n, 99);
+    ratio_table("sphere, texture", "examples/models/sphere960.obj", CAM_SPHERE, false, tl, n, 99);
+    width = small_w;
+    height = small_h;
     edit_cost();
     for (int m = 0; m < 5; m++)
         mr_device_free(devs[m]);
