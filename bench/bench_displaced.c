@@ -197,7 +197,8 @@ static void table(const char *scene, const char *mesh, const char *cam, bool pro
 /* tf against tess alone at a larger frame (no marching, whose 1000 steps
  * would take minutes there): at 160x90 the frame's fixed costs weigh on
  * both and move their ratio towards 1 (the plane at 200 texels per unit:
- * 0.44 there, 0.28 at 640x360). */
+ * 0.44-0.45 there, 0.27-0.29 at 640x360). Procedural ranges above
+ * tess_max have no tessellation to compare with and no row. */
 static void ratio_table(const char *scene, const char *mesh, const char *cam, bool procedural,
                         const int *ranges, int nranges, int tess_max)
 {

@@ -1192,7 +1192,7 @@ typedef struct rs_ctx {
     uint8_t *box_level;
     uint32_t *box_range;   /* 6 per box: first cell x, y, z, then end x, y, z */
     uint64_t *chunk_cells; /* counts, then offsets */
-    uint64_t *chunk_written; /* packed: the cells written from the offset (rs_write) */
+    uint64_t *chunk_written; /* the cells rs_write kept, from the chunk's offset */
     uint64_t *chunk_bits;  /* 2 per chunk: OR and AND of its packed keys */
     bool packed;
     mr_svo_key *keys;      /* !packed */
@@ -1377,9 +1377,9 @@ static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* Packed keys a chunk has written, direct-mapped (RS_SEEN entries): a
- * cell a neighbouring box of the chunk already emitted (resize's 2 x 2 x 2
- * blocks overlap most of their neighbours') is not written again. Only
+/* Packed keys a chunk has kept, direct-mapped (RS_SEEN entries): a cell
+ * a neighbouring box of the same chunk already emitted (resize's 2 x 2 x
+ * 2 blocks overlap most of their neighbours') is not kept again. Only
  * exact repeats are left out, and of those never the first, which is the
  * one the stable sort puts first among its equals and compaction keeps
  * (a repeat never survives compaction), so the octree is the same bit for
@@ -1586,7 +1586,7 @@ int mr_svo_resample_ws(const mr_svo_selection *sel, mr_svo_method method, unsign
     mr_parallel_for(threads, chunks, 1, rs_write, &c);
     const double t_sort = mr_now();
 
-    size_t sorted = (size_t)total; /* the cells written */
+    size_t sorted = (size_t)total; /* the cells kept */
     if (c.packed) {
         uint64_t bits_or = 0, bits_and = ~(uint64_t)0;
         sorted = 0;

@@ -43,8 +43,9 @@
  *    MR_SVO_EMIT_MAX_CELLS cells are emitted at a coarser level instead.
  *  Levels are clamped to the output depth. The cells become keys (morton.h),
  *  are radix sorted and compacted keeping the coarsest (svo_build.h), and
- *  built into the output octree. A cell emitted again by a later box is
- *  not sorted where the emission still remembers it (deform.c rs_write):
+ *  built into the output octree. A cell emitted again by a later box of
+ *  the same chunk of boxes is not sorted where the emission still
+ *  remembers it (deform.c rs_write; packed keys, output depth <= 19):
  *  compaction would drop it, so the octree is the same.
  * Output voxels keep their source leaf's palette entry; their normal is the
  * bind-space normal moved by the cofactor of the mean of the two extreme

@@ -798,6 +798,7 @@ static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
     const float *b = g->box + (size_t)args->primID * 6;
     unsigned N = args->N;
     float *ray = (float *)args->rayhit;
+    bool any = false;
     for (unsigned i = 0; i < N; i++) {
         if (!args->valid[i])
             continue;
@@ -815,10 +816,12 @@ static void boxes_intersect(const struct RTCIntersectFunctionNArguments *args)
             n[1] = -dir.y;
             n[2] = -dir.z;
         }
-        __builtin_prefetch(&g->box_leaf[args->primID]); /* as octree_intersect does */
         *mr_ray_f(ray, N, MR_RAY_TFAR, i) = t;
         mr_ray_write_hit(args, i, mr_v3(n[0], n[1], n[2]), 0, 0);
+        any = true;
     }
+    if (any)
+        __builtin_prefetch(&g->box_leaf[args->primID]); /* as octree_intersect does */
 }
 
 static void boxes_occluded(const struct RTCOccludedFunctionNArguments *args)
