@@ -154,6 +154,28 @@ static void row(const char *scene, int range, const char *method, run *x, run *r
 static const char *CAM_PLANE = "{\"t\": 0, \"position\": [0, 1.4, 2.4], \"target\": [0, 0, 0]}";
 static const char *CAM_SPHERE = "{\"t\": 0, \"position\": [0, 0.6, 3.6], \"target\": [0, 0, 0]}";
 
+/* Methods of the table, as the object's "displaced" block has them. */
+static const char *const METHOD_FIELDS[] = {"\"method\": \"tessellation_free\"",
+                                            "\"method\": \"tessellated\"",
+                                            "\"method\": \"raymarch\", \"steps\": 64",
+                                            "\"method\": \"raymarch\", \"steps\": 300",
+                                            "\"method\": \"raymarch\", \"steps\": 1000"};
+
+/* The object's "displaced" block: the example as a procedural source at
+ * range, or as a height texture at mip level range (texels per unit:
+ * 400 / 2^range), with method m of METHOD_FIELDS. */
+static void displaced_block(char *block, size_t n, bool procedural, int range, int m)
+{
+    char src[256];
+    if (procedural)
+        snprintf(src, sizeof src,
+                 "\"procedural\": {\"example\": \"t\", \"scale\": 1, \"seed\": 7}, "
+                 "\"range\": %d", range);
+    else
+        snprintf(src, sizeof src, "\"texture\": \"t\", \"level\": %d", range);
+    snprintf(block, n, "{%s, \"scale\": 0.1, %s}", src, METHOD_FIELDS[m]);
+}
+
 static void table(const char *scene, const char *mesh, const char *cam, bool procedural,
                   const int *ranges, int nranges, int tess_max)
 {
@@ -162,19 +184,8 @@ static void table(const char *scene, const char *mesh, const char *cam, bool pro
         int range = ranges[ri];
         run x[5];
         for (int m = 0; m < 5; m++) {
-            char src[256], block[512];
-            if (procedural)
-                snprintf(src, sizeof src,
-                         "\"procedural\": {\"example\": \"t\", \"scale\": 1, \"seed\": 7}, "
-                         "\"range\": %d", range);
-            else /* texels per unit: the mip level of the 400 x 400 example */
-                snprintf(src, sizeof src, "\"texture\": \"t\", \"level\": %d", range);
-            static const char *M[] = {"\"method\": \"tessellation_free\"",
-                                      "\"method\": \"tessellated\"",
-                                      "\"method\": \"raymarch\", \"steps\": 64",
-                                      "\"method\": \"raymarch\", \"steps\": 300",
-                                      "\"method\": \"raymarch\", \"steps\": 1000"};
-            snprintf(block, sizeof block, "{%s, \"scale\": 0.1, %s}", src, M[m]);
+            char block[512];
+            displaced_block(block, sizeof block, procedural, range, m);
             if (m == 1 && range > tess_max) {
                 memset(&x[m], 0, sizeof x[m]);
                 snprintf(x[m].err, sizeof x[m].err, "not run (over %d: minutes and GBs)", tess_max);
@@ -208,15 +219,8 @@ static void ratio_table(const char *scene, const char *mesh, const char *cam, bo
             continue;
         run x[2];
         for (int m = 0; m < 2; m++) {
-            char src[256], block[512];
-            if (procedural)
-                snprintf(src, sizeof src,
-                         "\"procedural\": {\"example\": \"t\", \"scale\": 1, \"seed\": 7}, "
-                         "\"range\": %d", range);
-            else
-                snprintf(src, sizeof src, "\"texture\": \"t\", \"level\": %d", range);
-            snprintf(block, sizeof block, "{%s, \"scale\": 0.1, \"method\": \"%s\"}", src,
-                     m ? "tessellated" : "tessellation_free");
+            char block[512];
+            displaced_block(block, sizeof block, procedural, range, m);
             run_open(&x[m], devs[m], mesh, block, cam);
         }
         for (int rep = 0; rep < repeats; rep++)

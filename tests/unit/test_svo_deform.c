@@ -881,33 +881,64 @@ static void test_skinned_rig(void **state)
     mr_asset_free(a);
 }
 
+/* The dancer voxelised at depth D, skinned at a fraction of its clip and
+ * placed 4 units in front of the camera of perspective() (the view of the
+ * thread, repeat and workspace tests). */
+typedef struct posed_dancer {
+    mr_asset *a;
+    mr_svo *s;
+    mr_svo_extremes e;
+    mr_pose *pose;
+    mr_svo_skin r;
+} posed_dancer;
+
+static void posed_open(posed_dancer *f, unsigned D, double clip_fraction)
+{
+    f->a = bcn_load();
+    f->s = voxelize(f->a, D);
+    extremes(f->s, &f->e);
+    pose_at(f->a, clip_fraction * f->a->clips[0].duration, &f->pose);
+    const mr_svo *s = f->s;
+    const double h = 0.5 * s->size;
+    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
+                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
+    skin_posed(&f->r, f->a, f->pose, &place);
+}
+
+/* Its camera: 256 x 256, screen-space selection at delta 1, culling on. */
+static mr_svo_view posed_view(void)
+{
+    return (mr_svo_view){.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256,
+                         .height = 256, .delta = 1.0f, .cull = true};
+}
+
+static void posed_close(posed_dancer *f)
+{
+    mr_svo_skin_free(&f->r);
+    mr_pose_free(f->pose);
+    mr_svo_extremes_free(&f->e);
+    mr_svo_voxelize_free(f->s);
+    mr_asset_free(f->a);
+}
+
 /* ---- thread counts */
 
 static void test_threads(void **state)
 {
     (void)state;
-    mr_asset *a = bcn_load();
     const unsigned D = 8;
-    mr_svo *s = voxelize(a, D);
-    mr_svo_extremes e;
-    extremes(s, &e);
-    mr_pose *pose;
-    pose_at(a, 0.61 * a->clips[0].duration, &pose);
-    const double h = 0.5 * s->size;
-    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
-                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
-    mr_svo_skin r;
-    skin_posed(&r, a, pose, &place);
-    mr_svo_view v = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256, .height = 256,
-                     .delta = 1.0f, .cull = true};
+    posed_dancer f;
+    posed_open(&f, D, 0.61);
+    const mr_svo *s = f.s;
+    const mr_svo_view v = posed_view();
     mr_svo_selection sel[3] = {{0}};
     for (unsigned t = 1; t <= 3; t++)
-        select_ok(s, &e, &r.d, &v, D, t, &sel[t - 1]);
+        select_ok(s, &f.e, &f.r.d, &v, D, t, &sel[t - 1]);
     assert_true(sel[0].count > 1000);
     assert_true(selections_equal(&sel[0], &sel[1]));
     assert_true(selections_equal(&sel[0], &sel[2]));
     /* reusing a selection's buffers gives the same again */
-    select_ok(s, &e, &r.d, &v, D, 2, &sel[2]);
+    select_ok(s, &f.e, &f.r.d, &v, D, 2, &sel[2]);
     assert_true(selections_equal(&sel[0], &sel[2]));
     for (int m = 0; m < 2; m++) {
         const mr_svo_method method = m ? MR_SVO_EMIT : MR_SVO_RESIZE;
@@ -924,11 +955,7 @@ static void test_threads(void **state)
     }
     for (int t = 0; t < 3; t++)
         mr_svo_selection_free(&sel[t]);
-    mr_svo_skin_free(&r);
-    mr_pose_free(pose);
-    mr_svo_extremes_free(&e);
-    mr_svo_voxelize_free(s);
-    mr_asset_free(a);
+    posed_close(&f);
 }
 
 /* ---- repeated cells */
@@ -969,22 +996,13 @@ static void with_copies(const mr_svo_selection *sel, bool adjacent, uint32_t pal
 static void test_repeated_cells(void **state)
 {
     (void)state;
-    mr_asset *a = bcn_load();
     const unsigned D = 8;
-    mr_svo *s = voxelize(a, D);
-    mr_svo_extremes e;
-    extremes(s, &e);
-    mr_pose *pose;
-    pose_at(a, 0.23 * a->clips[0].duration, &pose);
-    const double h = 0.5 * s->size;
-    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
-                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
-    mr_svo_skin r;
-    skin_posed(&r, a, pose, &place);
-    mr_svo_view v = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256, .height = 256,
-                     .delta = 1.0f, .cull = true};
+    posed_dancer f;
+    posed_open(&f, D, 0.23);
+    const mr_svo *s = f.s;
+    const mr_svo_view v = posed_view();
     mr_svo_selection sel = {0}, twice[2] = {{0}};
-    select_ok(s, &e, &r.d, &v, D, 2, &sel);
+    select_ok(s, &f.e, &f.r.d, &v, D, 2, &sel);
     assert_true(sel.count > 3 * 4096); /* several resampling chunks */
     assert_true(s->palette_count > 1);
     for (int k = 0; k < 2; k++)
@@ -1006,11 +1024,7 @@ static void test_repeated_cells(void **state)
     for (int k = 0; k < 2; k++)
         mr_svo_selection_free(&twice[k]);
     mr_svo_selection_free(&sel);
-    mr_svo_skin_free(&r);
-    mr_pose_free(pose);
-    mr_svo_extremes_free(&e);
-    mr_svo_voxelize_free(s);
-    mr_asset_free(a);
+    posed_close(&f);
 }
 
 /* ---- workspaces */
@@ -1022,20 +1036,11 @@ static void test_repeated_cells(void **state)
 static void test_workspace(void **state)
 {
     (void)state;
-    mr_asset *a = bcn_load();
     const unsigned D = 8;
-    mr_svo *s = voxelize(a, D);
-    mr_svo_extremes e;
-    extremes(s, &e);
-    mr_pose *pose;
-    pose_at(a, 0.37 * a->clips[0].duration, &pose);
-    const double h = 0.5 * s->size;
-    const mr_mat4 place = {{1, 0, 0, (float)(-s->origin.x - h), 0, 1, 0, (float)(-s->origin.y - h), 0, 0, 1,
-                            (float)(-s->origin.z - h - 4.0), 0, 0, 0, 1}};
-    mr_svo_skin r;
-    skin_posed(&r, a, pose, &place);
-    mr_svo_view near = {.enabled = true, .view_proj = perspective(50, 1.0, 0.1, 100), .width = 256,
-                        .height = 256, .delta = 1.0f, .cull = true};
+    posed_dancer f;
+    posed_open(&f, D, 0.37);
+    const mr_svo *s = f.s;
+    const mr_svo_view near = posed_view();
     mr_svo_view far = near;
     far.width = far.height = 16;
     mr_svo_workspace *ws = NULL;
@@ -1045,8 +1050,8 @@ static void test_workspace(void **state)
     const unsigned depths[3] = {D + 1, 20, D + 1};
     for (int k = 0; k < 3; k++) {
         mr_svo_selection ref = {0}, got = {0};
-        select_ok(s, &e, &r.d, views[k], D, 1, &ref);
-        assert_int_equal(mr_svo_select_ws(s, &e, &r.d, views[k], D, 2, ws, &got, &err), MR_OK);
+        select_ok(s, &f.e, &f.r.d, views[k], D, 1, &ref);
+        assert_int_equal(mr_svo_select_ws(s, &f.e, &f.r.d, views[k], D, 2, ws, &got, &err), MR_OK);
         assert_true(ref.count > 0);
         assert_true(selections_equal(&ref, &got));
         for (int m = 0; m < 2; m++) {
@@ -1065,7 +1070,7 @@ static void test_workspace(void **state)
         /* a failing call leaves the workspace usable */
         mr_svo_view bad = near;
         bad.delta = 0.0f;
-        assert_int_equal(mr_svo_select_ws(s, &e, &r.d, &bad, D, 2, ws, &got, &err), MR_ERR_INVALID);
+        assert_int_equal(mr_svo_select_ws(s, &f.e, &f.r.d, &bad, D, 2, ws, &got, &err), MR_ERR_INVALID);
         assert_int_equal(got.count, 0);
         mr_svo_selection_free(&ref);
         mr_svo_selection_free(&got);
@@ -1074,11 +1079,7 @@ static void test_workspace(void **state)
     mr_svo_workspace_free(ws);
     mr_svo_workspace_free(NULL);
     assert_int_equal(mr_svo_workspace_new(NULL, &err), MR_ERR_INVALID);
-    mr_svo_skin_free(&r);
-    mr_pose_free(pose);
-    mr_svo_extremes_free(&e);
-    mr_svo_voxelize_free(s);
-    mr_asset_free(a);
+    posed_close(&f);
 }
 
 /* ---- validation */
