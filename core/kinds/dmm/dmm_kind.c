@@ -756,27 +756,31 @@ static void update_range(void *ctx, size_t begin, size_t end, unsigned worker)
 {
     update_ctx *c = ctx;
     dmm_level *g = c->g;
+    const bool own_boxes = g->boxes && !g->boxes_given;
     for (size_t t = begin; t < end; t++) {
-        mr_dmm_patch p = patch_of(g, (uint32_t)t);
         if (g->boxes_given && g->boxes) {
             const float *b = g->boxes + t * BOX_FLOATS;
             if (!finite_bounded(mr_v3(b[0], b[1], b[2])) || !finite_bounded(mr_v3(b[3], b[4], b[5])))
                 note_bad(c, worker, t);
-        } else if (g->boxes) {
-            /* the pad once: the bounds use it, and it is cached for the rays */
-            float *b = g->boxes + t * BOX_FLOATS;
-            mr_dmm_patch_pad(&p, p.pad);
-            memcpy(b + 6, p.pad, sizeof p.pad);
-            mr_vec3 lo, hi;
-            if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
-                note_bad(c, worker, t);
-            b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
         }
-        /* the root's children with every evaluation, given boxes or not:
-         * levels of detail give the baked level's boxes, and the children
-         * are this evaluation's level's */
-        if (g->root_children)
-            mr_dmm_patch_root_children(&p, g->root_children + t * MR_DMM_ROOT_CHILDREN_FLOATS);
+        if (own_boxes || g->root_children) { /* (a tessellation needs no patch) */
+            mr_dmm_patch p = patch_of(g, (uint32_t)t);
+            if (own_boxes) {
+                /* the pad once: the bounds use it, and it is cached for the rays */
+                float *b = g->boxes + t * BOX_FLOATS;
+                mr_dmm_patch_pad(&p, p.pad);
+                memcpy(b + 6, p.pad, sizeof p.pad);
+                mr_vec3 lo, hi;
+                if (!mr_dmm_patch_bounds(&p, &lo, &hi) || !finite_bounded(lo) || !finite_bounded(hi))
+                    note_bad(c, worker, t);
+                b[0] = lo.x, b[1] = lo.y, b[2] = lo.z, b[3] = hi.x, b[4] = hi.y, b[5] = hi.z;
+            }
+            /* the root's children with every evaluation, given boxes or
+             * not: levels of detail give the baked level's boxes, and the
+             * children are this evaluation's level's */
+            if (g->root_children)
+                mr_dmm_patch_root_children(&p, g->root_children + t * MR_DMM_ROOT_CHILDREN_FLOATS);
+        }
         if (!tessellated(g))
             continue;
         float *v = g->positions + (size_t)g->value_first[t] * 3;
