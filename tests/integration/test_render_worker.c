@@ -252,7 +252,8 @@ static void test_memory_limits(void **state)
  * sanitized worker on a loaded machine (two busy loops beside the test)
  * prepared for over 1 s, a box of 6 faces as well, and the job failed in
  * its preparation. So the limit is 5 s, the asset the box (a sanitized
- * worker prepares it in 0.2 s here) and the frame far slower: the box
+ * one-shot render of it takes 0.4 s here, 0.7 s beside the two busy
+ * loops) and the frame far slower: the box
  * filling a 1280x720 film at 1024 samples a pixel (about 39 s here). */
 static void test_frame_timeout(void **state)
 {
