@@ -654,11 +654,11 @@ static void part_bc(bool quick)
              * and looked faster than two threads. The timed pass is each
              * run's steady state, what a clip's later frames see; the
              * untimed pass's first frame is shown apart. The untimed pass
-             * renders frames [0, frames), the timed one the last `frames`
-             * of the job's. */
+             * renders the job's frames [0, frames), the timed one its last
+             * `frames`; fr is the slot in either. */
             for (int pass = 0; pass < 2; pass++)
-                for (int jf = pass ? job_frames - frames : 0; jf < (pass ? job_frames : frames); jf++) {
-                    const int fr = pass ? jf - (job_frames - frames) : jf; /* the timed frame's slot */
+                for (int fr = 0; fr < frames; fr++) {
+                    const int jf = (pass ? job_frames - frames : 0) + fr; /* the job's frame */
                     mr_frame_stats st;
                     for (int k = 0; k < 2; k++) {
                         phase *ph = &row->every[k];
