@@ -4,7 +4,8 @@
  * depth 1..8, 12 and 21 (some far from the origin), with random rays from
  * outside and inside, axis-parallel rays (also lying exactly on cell
  * planes) and rays aimed at voxel corners, edges and faces; plus the root
- * leaf, the empty octree, mr_svo_bounds and a one-off throughput figure.
+ * leaf, the empty octree, mr_svo_bounds, subtrees and their boxes, and a
+ * one-off throughput figure.
  *
  * The harness (tests/support/svo_fixture.h: an octree builder from a
  * classification function, the brute force and the comparison of one ray)
@@ -405,25 +406,37 @@ static int cmp_key(const void *pa, const void *pb)
     return a->level < b->level ? -1 : a->level > b->level;
 }
 
-static void crosscheck_build(unsigned depth, fx_random p, mr_vec3 origin, float size, int rays)
+/* The fixture's leaves through the real builder into *built (free it with
+ * mr_svo_free): no interior node without leaves below, which the fixture
+ * can have. */
+static void build_fixture(const svo_fx *fx, mr_svo *built)
 {
-    svo_fx fx;
-    fx_build(&fx, depth, origin, size, fx_random_cls, &p);
-    const uint32_t n = fx.svo.leaf_count;
+    const unsigned depth = fx->svo.depth;
+    const uint32_t n = fx->svo.leaf_count;
     mr_svo_key *keys = calloc(n ? n : 1, sizeof *keys);
     assert_non_null(keys);
     for (uint32_t i = 0; i < n; i++) {
-        const fx_box *b = &fx.boxes[i];
+        const fx_box *b = &fx->boxes[i];
         const unsigned sh = depth - b->level;
         keys[i].code = mr_morton_encode(b->xyz[0] << sh, b->xyz[1] << sh, b->xyz[2] << sh);
         keys[i].level = b->level;
     }
     qsort(keys, n, sizeof *keys, cmp_key);
     const mr_svo_attr pal = {{128, 128, 128}, 0, {0, 0, 0, 0}, {0, 0, 0, 0}};
-    mr_svo built;
     mr_error err;
-    assert_int_equal(mr_svo_build(keys, NULL, n, depth, origin, size, &pal, 1, 1, &built, &err), MR_OK);
-    assert_int_equal(built.leaf_count, n);
+    assert_int_equal(mr_svo_build(keys, NULL, n, depth, fx->svo.origin, fx->svo.size, &pal, 1, 1, built, &err),
+                     MR_OK);
+    assert_int_equal(built->leaf_count, n);
+    free(keys);
+}
+
+static void crosscheck_build(unsigned depth, fx_random p, mr_vec3 origin, float size, int rays)
+{
+    svo_fx fx;
+    fx_build(&fx, depth, origin, size, fx_random_cls, &p);
+    const uint32_t n = fx.svo.leaf_count;
+    mr_svo built;
+    build_fixture(&fx, &built);
     assert_non_null(built.leaf_keys);
     fx_rng r = {depth * 31u + 7u};
     long hits = 0;
@@ -451,7 +464,6 @@ static void crosscheck_build(unsigned depth, fx_random p, mr_vec3 origin, float 
     }
     assert_true(n == 0 || hits > 0);
     mr_svo_free(&built);
-    free(keys);
     fx_free(&fx);
 }
 
@@ -488,6 +500,99 @@ static int cls_shell(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t
     if (dmin > s->r * s->r || dmax < s->r * s->r)
         return FX_EMPTY;
     return FX_SPLIT;
+}
+
+/* A subtree's box (mr_svo_subtree_bounds) `below` levels down, on random
+ * octrees put together by the builder (build_fixture): the union of
+ * its leaves' cells, each coarsened to the level `below` under the
+ * subtree where it lies deeper, in finest-level cells, by brute force over
+ * the fixture's leaves; then within the leaves' box and rounded outwards as
+ * mr_svo_bounds does. Exact equality: the walk must find those cells, not
+ * merely a box holding them (a walk that skipped a child, or counted the
+ * children of another node, finds another box). Every leaf's box lies
+ * inside whatever `below`. */
+static void test_subtree_bounds(void **state)
+{
+    (void)state;
+    size_t boxes = 0, shrunk = 0;
+    for (unsigned depth = 3; depth <= 7; depth++) {
+        svo_fx fx;
+        fx_random p = {depth * 131u + 7u, 0.1, 0.25, 2};
+        const mr_vec3 origin = mr_v3(-1.3f, 0.25f, 3.0f);
+        fx_build(&fx, depth, origin, 2.5f, fx_random_cls, &p);
+        mr_svo built;
+        build_fixture(&fx, &built);
+        const mr_svo *o = &built;
+        float olo[3], ohi[3];
+        if (o->node_count == 0 || !mr_svo_bounds(o, olo, ohi)) {
+            mr_svo_free(&built);
+            fx_free(&fx);
+            continue;
+        }
+        const double c[3] = {origin.x, origin.y, origin.z}, cell = ldexp(2.5, -(int)depth);
+        for (unsigned level = 1; level + 1 < depth; level++) {
+            mr_svo_subtree *st;
+            uint32_t n;
+            mr_error err = {0};
+            assert_int_equal(mr_svo_subtrees(o, level, &st, &n, &err), MR_OK);
+            for (uint32_t k = 0; k < n; k++) {
+                const mr_svo_subtree *s = &st[k];
+                for (unsigned below = 0; below <= depth - s->level + 1; below++) {
+                    const unsigned stop = s->level + below < depth ? s->level + below : depth;
+                    uint32_t elo[3], ehi[3];
+                    for (int a = 0; a < 3; a++) {
+                        elo[a] = below ? UINT32_MAX : s->xyz[a] << (depth - s->level);
+                        ehi[a] = below ? 0 : (s->xyz[a] + 1) << (depth - s->level);
+                    }
+                    for (uint32_t l = 0; l < o->leaf_count && below; l++) {
+                        const fx_box *b = &fx.boxes[l];
+                        if (b->level <= s->level || (b->xyz[0] >> (b->level - s->level)) != s->xyz[0] ||
+                            (b->xyz[1] >> (b->level - s->level)) != s->xyz[1] ||
+                            (b->xyz[2] >> (b->level - s->level)) != s->xyz[2])
+                            continue; /* not below s */
+                        const unsigned lv = b->level < stop ? b->level : stop;
+                        for (int a = 0; a < 3; a++) {
+                            const uint32_t x = b->xyz[a] >> (b->level - lv);
+                            elo[a] = (x << (depth - lv)) < elo[a] ? x << (depth - lv) : elo[a];
+                            ehi[a] = ((x + 1) << (depth - lv)) > ehi[a] ? (x + 1) << (depth - lv) : ehi[a];
+                        }
+                    }
+                    assert_true(elo[0] < ehi[0]); /* a subtree holds a leaf */
+                    float lo[3], hi[3];
+                    mr_svo_subtree_bounds(o, s, below, lo, hi);
+                    bool smaller = false;
+                    for (int a = 0; a < 3; a++) {
+                        const float el = fmaxf(olo[a], mr_float_down(c[a] + elo[a] * cell));
+                        const float eh = fminf(ohi[a], mr_float_up(c[a] + ehi[a] * cell));
+                        if (lo[a] != el || hi[a] != eh)
+                            fail_msg("depth %u, subtree %u at level %u, %u below: axis %d box [%a, %a], expected "
+                                     "[%a, %a]", depth, k, s->level, below, a, (double)lo[a], (double)hi[a],
+                                     (double)el, (double)eh);
+                        smaller |= ehi[a] - elo[a] < 1u << (depth - s->level);
+                    }
+                    for (uint32_t l = 0; l < o->leaf_count; l++) { /* every leaf below s inside */
+                        const fx_box *b = &fx.boxes[l];
+                        if (b->level <= s->level || (b->xyz[0] >> (b->level - s->level)) != s->xyz[0] ||
+                            (b->xyz[1] >> (b->level - s->level)) != s->xyz[1] ||
+                            (b->xyz[2] >> (b->level - s->level)) != s->xyz[2])
+                            continue;
+                        for (int a = 0; a < 3; a++) {
+                            double bl, bh;
+                            fx_box_planes(o, b, a, &bl, &bh);
+                            assert_true((double)lo[a] <= bl && bh <= (double)hi[a]);
+                        }
+                    }
+                    boxes++;
+                    shrunk += smaller;
+                }
+            }
+            free(st);
+        }
+        mr_svo_free(&built);
+        fx_free(&fx);
+    }
+    print_message("[ subtree bounds ] %zu boxes, %zu smaller than the subtree's cell\n", boxes, shrunk);
+    assert_true(shrunk > boxes / 4); /* the octrees are sparse enough to tell the walk from the cell */
 }
 
 /* Throughput on ~1M leaves, printed once, never asserted. Also spot-checks
@@ -545,7 +650,7 @@ int main(void)
         cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
         cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
-        cmocka_unit_test(test_throughput),
+        cmocka_unit_test(test_subtree_bounds),        cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -164,6 +164,14 @@ static inline __attribute__((always_inline)) void frame_enter(svo_ray *r, const 
     keep &= DROP(me[0] <= mx[2], 0x0au) & DROP(me[2] <= mx[0], 0x50u);
     keep &= DROP(me[1] <= mx[2], 0x0cu) & DROP(me[2] <= mx[1], 0x30u);
     f->pending = keep & mirror_mask(svo->child_mask[f->node], r->mirror);
+    /* The interior children's fields, side by side in each array: the
+     * walk descends into one of them next, and at depth 10 and beyond the
+     * child's mask was the walk's costliest load (a cache miss a level). */
+    const uint32_t fn = svo->first_node[f->node];
+    __builtin_prefetch(&svo->child_mask[fn]);
+    __builtin_prefetch(&svo->leaf_mask[fn]);
+    __builtin_prefetch(&svo->first_node[fn]);
+    __builtin_prefetch(&svo->first_leaf[fn]);
 }
 
 static void fill_hit(const svo_ray *r, mr_svo_hit *hit, uint32_t leaf, unsigned level, const uint32_t xyz[3],
@@ -393,15 +401,57 @@ int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *count
     return collect_subtrees(&l, 0, 0, ROOT_XYZ, err);
 }
 
-void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, float lo[3], float hi[3])
+/* Grows the finest-level cell ranges lo..hi by the occupied cells below
+ * node n (at `level`, cell xyz) down to level `stop`: its leaf children,
+ * and its interior children whole at `stop` or walked further above it.
+ * A child beyond the node array (a malformed octree) counts whole. */
+static void occupied_cells(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,
+                           uint32_t lo[3], uint32_t hi[3])
+{
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    const unsigned shift = svo->depth - (level + 1); /* a child's side in finest cells: 2^shift */
+    uint32_t node = svo->first_node[n];
+    for (unsigned c = 0; c < 8; c++) {
+        if (!(cm >> c & 1u))
+            continue;
+        const uint32_t cxyz[3] = {2 * xyz[0] + (c & 1u), 2 * xyz[1] + (c >> 1 & 1u), 2 * xyz[2] + (c >> 2)};
+        const bool leaf = lm >> c & 1u;
+        if (leaf || level + 1 >= stop || node >= svo->node_count) {
+            for (int a = 0; a < 3; a++) {
+                const uint32_t k0 = cxyz[a] << shift, k1 = (cxyz[a] + 1u) << shift;
+                lo[a] = k0 < lo[a] ? k0 : lo[a];
+                hi[a] = k1 > hi[a] ? k1 : hi[a];
+            }
+        } else {
+            occupied_cells(svo, node, level + 1, cxyz, stop, lo, hi);
+        }
+        node += !leaf;
+    }
+}
+
+void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, float lo[3], float hi[3])
 {
     mr_svo_bounds(svo, lo, hi);
-    const double cell = ldexp((double)svo->size, -(int)s->level);
+    /* in finest-level cells: s's cell, or its occupied cells `below` levels down */
+    const unsigned shift = svo->depth - s->level;
+    uint32_t clo[3], chi[3];
+    for (int a = 0; a < 3; a++) {
+        clo[a] = s->xyz[a] << shift;
+        chi[a] = (s->xyz[a] + 1u) << shift;
+    }
+    if (below && s->node < svo->node_count) {
+        for (int a = 0; a < 3; a++)
+            clo[a] = UINT32_MAX, chi[a] = 0;
+        occupied_cells(svo, s->node, s->level, s->xyz, s->level + below < svo->depth ? s->level + below : svo->depth,
+                       clo, chi);
+    }
+    const double cell = ldexp((double)svo->size, -(int)svo->depth); /* cells * cell: exact */
     const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
     for (int a = 0; a < 3; a++) {
-        const double l = (double)c[a] + s->xyz[a] * cell;
-        lo[a] = fmaxf(lo[a], mr_float_down(l));
-        hi[a] = fminf(hi[a], mr_float_up(l + cell));
+        if (clo[a] >= chi[a])
+            continue; /* no occupied cell (an interior node without children) */
+        lo[a] = fmaxf(lo[a], mr_float_down((double)c[a] + clo[a] * cell));
+        hi[a] = fminf(hi[a], mr_float_up((double)c[a] + chi[a] * cell));
     }
 }
 
