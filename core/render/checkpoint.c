@@ -71,9 +71,7 @@ static int parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
     if (payload != size - HEAD)
         return mr_derived_bad(f, err, "payload of %llu bytes at byte offset %u, the file holds %zu",
                               (unsigned long long)payload, AT_PAYLOAD_BYTES, size - HEAD);
-    mr_crc32_table crc;
-    mr_crc32_init(&crc);
-    if (mr_crc32(&crc, buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (mr_crc32(buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
         return mr_derived_bad(f, err, "payload checksum mismatch (bytes %u..%zu)", HEAD, size - 1);
     int rc = q->kind->checkpoint_load(q->geom, q->frames, buf + HEAD, size - HEAD, err);
     if (rc < 0)
@@ -99,10 +97,10 @@ static int serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t
     mr_le_put_u64(buf + AT_FRAMES, q->frames);
     mr_le_put_u64(buf + AT_PAYLOAD_BYTES, state_size);
     memcpy(buf + HEAD, state, state_size);
-    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(&check->crc, buf + HEAD, state_size));
+    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(buf + HEAD, state_size));
     memcpy(buf + AT_KIND, q->kind->name, strlen(q->kind->name));
     memcpy(buf + AT_ID, q->id, sizeof q->id);
-    mr_derived_header_seal(&CHECKPOINT_FORMAT, &check->crc, key, buf);
+    mr_derived_header_seal(&CHECKPOINT_FORMAT, key, buf);
     free(state);
     free(check);
     *out = buf;

@@ -114,14 +114,8 @@ int mr_derived_parse(const mr_derived_format *f, const uint8_t *buf, size_t size
 {
     if (!buf && size)
         return mr_error_set(err, MR_ERR_INVALID, "%s read: bad arguments", f->name);
-    mr_derived_reader *r = malloc(sizeof *r);
-    if (!r)
-        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory", f->name);
-    *r = (mr_derived_reader){.format = f, .buf = buf, .size = size, .keep = true, .err = err};
-    mr_crc32_init(&r->crc);
-    int rc = parse(r, out);
-    free(r);
-    return rc;
+    mr_derived_reader r = {.format = f, .buf = buf, .size = size, .keep = true, .err = err};
+    return parse(&r, out);
 }
 
 int mr_derived_header_check(mr_derived_reader *r)
@@ -144,7 +138,7 @@ int mr_derived_header_check(mr_derived_reader *r)
     if (hb != f->header_bytes)
         return mr_derived_bad(f, r->err, "header_bytes %u at byte offset %u (want %u)", hb,
                               MR_DERIVED_AT_HEADER_BYTES, f->header_bytes);
-    if (mr_le_get_u32(buf + at_crc) != mr_crc32(&r->crc, buf, at_crc))
+    if (mr_le_get_u32(buf + at_crc) != mr_crc32(buf, at_crc))
         return mr_derived_bad(f, r->err, "header checksum mismatch at byte offset %u (bytes "
                               "0..%u corrupted)", at_crc, at_crc - 1);
     return MR_OK;
@@ -175,14 +169,12 @@ int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
     }
     *r = (mr_derived_reader){.format = f, .buf = b, .size = (size_t)size, .keep = false,
                              .err = err};
-    mr_crc32_init(&r->crc);
     *buf = b;
     *check = r;
     return MR_OK;
 }
 
-void mr_derived_header_seal(const mr_derived_format *f, const mr_crc32_table *crc,
-                            const uint8_t *key, uint8_t *buf)
+void mr_derived_header_seal(const mr_derived_format *f, const uint8_t *key, uint8_t *buf)
 {
     memcpy(buf, f->magic, sizeof f->magic);
     mr_le_put_u32(buf + MR_DERIVED_AT_VERSION, f->version);
@@ -192,7 +184,7 @@ void mr_derived_header_seal(const mr_derived_format *f, const mr_crc32_table *cr
     else
         memset(buf + f->key_at, 0, MR_DERIVED_KEY_BYTES);
     const uint32_t at_crc = f->header_bytes - 4;
-    mr_le_put_u32(buf + at_crc, mr_crc32(crc, buf, at_crc));
+    mr_le_put_u32(buf + at_crc, mr_crc32(buf, at_crc));
 }
 
 int mr_derived_readback_failed(const mr_derived_format *f, int rc, mr_error *err)

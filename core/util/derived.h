@@ -149,7 +149,6 @@ typedef struct mr_derived_reader {
     const uint8_t *buf;
     size_t size;
     bool keep;           /* build the result, or only check (a parser may build anyway) */
-    mr_crc32_table crc;  /* for the envelope's and the format's own checksums */
     mr_error *err;
 } mr_derived_reader;
 
@@ -161,8 +160,8 @@ int mr_derived_bad(const mr_derived_format *f, mr_error *err, const char *fmt, .
     ;
 
 /* Runs parse(r, out) over size bytes at buf with a reader that keeps what
- * it parses (on the heap: its CRC table is 1 KB). MR_ERR_INVALID when buf
- * is NULL but size is not, MR_ERR_NOMEM, else parse's result. */
+ * it parses. MR_ERR_INVALID when buf is NULL but size is not, else parse's
+ * result. */
 int mr_derived_parse(const mr_derived_format *f, const uint8_t *buf, size_t size,
                      int (*parse)(mr_derived_reader *r, void *out), void *out, mr_error *err);
 /* Checks the header at r->buf in this order: size, magic, version,
@@ -171,9 +170,8 @@ int mr_derived_parse(const mr_derived_format *f, const uint8_t *buf, size_t size
 int mr_derived_header_check(mr_derived_reader *r);
 
 /* A writer's start: a zeroed buffer of size bytes (*buf) and a reader over
- * it that only checks (*check, keep false), whose CRC table the writer
- * uses for its checksums before it reads its bytes back with the format's
- * parser. The caller frees both. MR_ERR_LIMIT above f->max_bytes (no reader
+ * it that only checks (*check, keep false), with which the writer reads
+ * its bytes back through the format's parser. The caller frees both. MR_ERR_LIMIT above f->max_bytes (no reader
  * would take it), MR_ERR_INVALID for a format constant whose key does not
  * fit its header or a size below the header, MR_ERR_NOMEM. */
 int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
@@ -181,8 +179,7 @@ int mr_derived_buffer(const mr_derived_format *f, uint64_t size, uint8_t **buf,
 /* Writes magic, version, header_bytes, key (NULL: all zero) and, last, the
  * header CRC into buf (at least header_bytes): call it after the format's
  * own header fields are in place. */
-void mr_derived_header_seal(const mr_derived_format *f, const mr_crc32_table *crc,
-                            const uint8_t *key, uint8_t *buf);
+void mr_derived_header_seal(const mr_derived_format *f, const uint8_t *key, uint8_t *buf);
 /* What a writer returns when its bytes fail its read-back (rc from the
  * parser): the message gets "<name> write: would not read back: " in front
  * and MR_ERR_FORMAT becomes MR_ERR_INVALID (the data, not a file, is bad). */

@@ -72,7 +72,7 @@ static int parse_tally(mr_derived_reader *r, void *out)
     if (mr_le_get_u32(r->buf + 56) != 0)
         return mr_derived_bad(r->format, r->err, "reserved field at byte offset 56 is not 0");
     size_t at = TALLY_HEADER + 4u * n;
-    if (mr_le_get_u32(r->buf + at) != mr_crc32(&r->crc, r->buf + TALLY_HEADER, 4u * n))
+    if (mr_le_get_u32(r->buf + at) != mr_crc32(r->buf + TALLY_HEADER, 4u * n))
         return mr_derived_bad(r->format, r->err, "values checksum mismatch at byte offset %zu",
                               at);
     if (!r->keep)
@@ -111,10 +111,10 @@ static int tally_serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], u
     mr_le_put_u32(b + 20, t->seed);
     memcpy(other, key, sizeof other);
     other[0] ^= 1;
-    mr_derived_header_seal(&tally_format, &check->crc, t->foreign_key ? other : key, b);
+    mr_derived_header_seal(&tally_format, t->foreign_key ? other : key, b);
     for (uint32_t i = 0; i < t->n; i++)
         mr_le_put_u32(b + TALLY_HEADER + 4 * i, t->values[i]);
-    mr_le_put_u32(b + total - 4, mr_crc32(&check->crc, b + TALLY_HEADER, 4u * t->n));
+    mr_le_put_u32(b + total - 4, mr_crc32(b + TALLY_HEADER, 4u * t->n));
     if ((rc = parse_tally(check, NULL)) < 0) {
         rc = mr_derived_readback_failed(&tally_format, rc, err);
         free(b);
@@ -189,9 +189,7 @@ static ino_t inode(const char *path)
 
 static void fix_header_crc(uint8_t *b)
 {
-    mr_crc32_table tab;
-    mr_crc32_init(&tab);
-    mr_le_put_u32(b + TALLY_HEADER - 4, mr_crc32(&tab, b, TALLY_HEADER - 4));
+    mr_le_put_u32(b + TALLY_HEADER - 4, mr_crc32(b, TALLY_HEADER - 4));
 }
 
 /* ---- the key builder */

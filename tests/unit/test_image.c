@@ -237,9 +237,7 @@ static void patch_ihdr(uint8_t *png, uint32_t w, uint32_t h)
         ihdr[8 + i] = (uint8_t)(w >> (24 - 8 * i));
         ihdr[12 + i] = (uint8_t)(h >> (24 - 8 * i));
     }
-    mr_crc32_table tab;
-    mr_crc32_init(&tab);
-    uint32_t crc = mr_crc32(&tab, ihdr + 4, 17);
+    uint32_t crc = mr_crc32(ihdr + 4, 17);
     for (int i = 0; i < 4; i++)
         ihdr[21 + i] = (uint8_t)(crc >> (24 - 8 * i));
 }

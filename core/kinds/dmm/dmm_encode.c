@@ -477,8 +477,6 @@ int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_erro
     uint8_t *p = calloc(1, total);
     if (!p)
         return mr_error_set(err, MR_ERR_NOMEM, "dmm write: out of memory for %zu bytes", total);
-    mr_crc32_table crc;
-    mr_crc32_init(&crc);
     memcpy(p, file_magic, 8);
     mr_le_put_u32(p + 8, FILE_VERSION);
     mr_le_put_u32(p + 12, MR_DMM_HEADER_BYTES);
@@ -489,11 +487,11 @@ int mr_dmm_write(const mr_dmm_encoded *enc, uint8_t **buf, size_t *size, mr_erro
     mr_le_put_u32(p + 32, enc->records_bytes);
     mr_le_put_f32(p + 36, enc->bias);
     mr_le_put_f32(p + 40, enc->scale);
-    mr_le_put_u32(p + 44, mr_crc32(&crc, p, 44));
+    mr_le_put_u32(p + 44, mr_crc32(p, 44));
     memcpy(p + MR_DMM_HEADER_BYTES, enc->tri_info, info);
     memcpy(p + MR_DMM_HEADER_BYTES + info, enc->records, body);
     mr_le_put_u32(p + MR_DMM_HEADER_BYTES + info + body,
-            mr_crc32(&crc, p + MR_DMM_HEADER_BYTES, info + body));
+            mr_crc32(p + MR_DMM_HEADER_BYTES, info + body));
     *buf = p;
     *size = total;
     return MR_OK;
@@ -521,9 +519,7 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header size %u at byte offset 12 (want %u)",
                             mr_le_get_u32(buf + 12), MR_DMM_HEADER_BYTES);
-    mr_crc32_table crc;
-    mr_crc32_init(&crc);
-    if (mr_le_get_u32(buf + 44) != mr_crc32(&crc, buf, 44))
+    if (mr_le_get_u32(buf + 44) != mr_crc32(buf, 44))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header checksum mismatch at byte offset 44 "
                             "(bytes 0..43 corrupted)");
@@ -568,7 +564,7 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
                             (unsigned long long)want);
     const uint8_t *info = buf + MR_DMM_HEADER_BYTES;
     uint64_t body_end = MR_DMM_HEADER_BYTES + (uint64_t)count + declared;
-    if (mr_le_get_u32(buf + body_end) != mr_crc32(&crc, info, (size_t)(count + (uint64_t)declared)))
+    if (mr_le_get_u32(buf + body_end) != mr_crc32(info, (size_t)(count + (uint64_t)declared)))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: record checksum mismatch at byte offset %llu (bytes "
                             "%u..%llu corrupted)",

@@ -114,7 +114,7 @@ static int parse_mesh_header(parser *p, const mr_dmm_file *f, uint32_t i, size_t
     for (size_t k = 0; k < sizeof mesh_tag; k++)
         if (h[k] != mesh_tag[k])
             return bad(p, "mesh %u: bad section tag at byte offset %zu", i, off + k);
-    if (mr_le_get_u32(h + M_CRC) != mr_crc32(&p->crc, h, M_CRC))
+    if (mr_le_get_u32(h + M_CRC) != mr_crc32(h, M_CRC))
         return bad(p, "mesh %u: header checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + M_CRC, off, off + M_CRC - 1);
 #define FIELD(o) (off + (size_t)(o))
@@ -230,7 +230,7 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
     const uint8_t *a = p->buf + off;
     bool skinned = flags & FLAG_SKINNED;
     size_t n = (size_t)nv * (VERTEX_BYTES + (skinned ? SKIN_BYTES : 0)) + (size_t)nt * TRIANGLE_BYTES;
-    if (mr_le_get_u32(a + n) != mr_crc32(&p->crc, a, n))
+    if (mr_le_get_u32(a + n) != mr_crc32(a, n))
         return bad(p, "mesh %u: array checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + n, off, off + n - 1);
     size_t pos_at = 0, dir_at = pos_at + (size_t)nv * 12, idx_at = dir_at + (size_t)nv * 12;
@@ -468,7 +468,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
     mr_le_put_u32(out + H_MESHES, f->mesh_count);
     mr_le_put_u32(out + H_LEVEL, f->level);
     memcpy(out + H_BITS, bits, f->level + 1);
-    mr_derived_header_seal(FORMAT, &p->crc, f->key, out);
+    mr_derived_header_seal(FORMAT, f->key, out);
     size_t off = MR_DMM_FILE_HEADER_BYTES;
     for (uint32_t i = 0; i < f->mesh_count; i++) {
         const mr_dmm_file_mesh *m = &f->meshes[i];
@@ -480,7 +480,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
         mr_le_put_u32(h + M_SRC_JOINTS, m->source_joint_count);
         off += MR_DMM_FILE_MESH_HEADER_BYTES;
         if (!b) {
-            mr_le_put_u32(h + M_CRC, mr_crc32(&p->crc, h, M_CRC));
+            mr_le_put_u32(h + M_CRC, mr_crc32(h, M_CRC));
             continue;
         }
         uint32_t nv = b->base_vertex_count, nt = b->base_triangle_count;
@@ -503,7 +503,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
         mr_le_put_f32(h + M_SIMPLIFY, b->simplify_error);
         mr_le_put_u64(h + M_ARRAY_BYTES, arrays);
         mr_le_put_u64(h + M_DMM_BYTES, block_size);
-        mr_le_put_u32(h + M_CRC, mr_crc32(&p->crc, h, M_CRC));
+        mr_le_put_u32(h + M_CRC, mr_crc32(h, M_CRC));
         uint8_t *a = out + off;
         for (size_t k = 0; k < (size_t)nv * 3; k++)
             mr_le_put_f32(a + k * 4, b->base_positions[k]);
@@ -524,7 +524,7 @@ int mr_dmm_file_write(const mr_dmm_file *f, uint8_t **buf, size_t *size, mr_erro
             for (size_t k = 0; k < (size_t)nv * MR_MAX_INFLUENCES; k++)
                 mr_le_put_f32(a + k * 4, b->weights[k]);
         }
-        mr_le_put_u32(out + off + arrays, mr_crc32(&p->crc, out + off, arrays));
+        mr_le_put_u32(out + off + arrays, mr_crc32(out + off, arrays));
         off += arrays + 4;
         /* the size check above used the same record size mr_dmm_write does */
         memcpy(out + off, block, block_size);

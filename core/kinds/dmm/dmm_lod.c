@@ -206,9 +206,7 @@ static int table_parse_into(const mr_dmm_lod_table *t, bool keep, const uint8_t 
     if (size != want)
         return mr_derived_bad(f, err, "%zu bytes (want %llu for %u base triangles)", size,
                               (unsigned long long)want, t->triangles);
-    mr_crc32_table crc;
-    mr_crc32_init(&crc);
-    if (mr_crc32(&crc, buf + LOD_HEAD, size - LOD_HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (mr_crc32(buf + LOD_HEAD, size - LOD_HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
         return mr_derived_bad(f, err, "payload CRC mismatch at byte offset %u", AT_PAYLOAD_CRC);
     for (uint32_t tri = 0; tri < t->triangles; tri++)
         for (uint32_t k = 0; k < PER_TRIANGLE; k++) {
@@ -249,8 +247,8 @@ static int table_serialise(void *vctx, const uint8_t key[MR_DERIVED_KEY_BYTES], 
     for (uint32_t tri = 0; tri < t->triangles; tri++)
         for (uint32_t k = 0; k < PER_TRIANGLE; k++)
             mr_le_put_f64(buf + LOD_HEAD + 8 * ((size_t)tri * PER_TRIANGLE + k), *table_slot(t, tri, k));
-    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(&check->crc, buf + LOD_HEAD, size - LOD_HEAD));
-    mr_derived_header_seal(&TABLE_FORMAT, &check->crc, key, buf);
+    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(buf + LOD_HEAD, size - LOD_HEAD));
+    mr_derived_header_seal(&TABLE_FORMAT, key, buf);
     free(check);
     if ((rc = table_parse_into(t, false, buf, size, err)) < 0) {
         free(buf);

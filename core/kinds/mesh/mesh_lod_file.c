@@ -80,9 +80,7 @@ static int parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
         return mr_derived_bad(f, err, "payload of %llu bytes at byte offset %u, the file holds %zu",
                               (unsigned long long)mr_le_get_u64(buf + AT_PAYLOAD_BYTES), AT_PAYLOAD_BYTES,
                               size - HEAD);
-    mr_crc32_table crc;
-    mr_crc32_init(&crc);
-    if (mr_crc32(&crc, buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (mr_crc32(buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
         return mr_derived_bad(f, err, "payload checksum mismatch (bytes %u..%zu)", HEAD, size - 1);
     mr_mesh_lod lod = {.level_count = levels, .indices = {(uint32_t *)q->idx}, .distinct_count = distinct};
     uint64_t need = (uint64_t)LEVEL_BYTES * levels + 4ull * distinct;
@@ -153,8 +151,8 @@ static int serialise(void *ctx, const uint8_t key[MR_DERIVED_KEY_BYTES], uint8_t
             mr_le_put_u32(p, lod->indices[k][i]);
     for (uint32_t i = 0; i < lod->distinct_count; i++, p += 4)
         mr_le_put_u32(p, lod->distinct[i]);
-    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(&check->crc, buf + HEAD, (size_t)payload));
-    mr_derived_header_seal(&LOD_FORMAT, &check->crc, key, buf);
+    mr_le_put_u32(buf + AT_PAYLOAD_CRC, mr_crc32(buf + HEAD, (size_t)payload));
+    mr_derived_header_seal(&LOD_FORMAT, key, buf);
     /* read back with the parser, into a scratch chain (never a file the
      * reader refuses) */
     mr_mesh_lod scratch;

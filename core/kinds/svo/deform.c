@@ -55,13 +55,6 @@
  * the far face is never touched after rounding to float. */
 #define CUBE_GROWTH 0x1p-20
 
-static inline unsigned popcount8(unsigned v)
-{
-    v = v - ((v >> 1) & 0x55u);
-    v = (v & 0x33u) + ((v >> 2) & 0x33u);
-    return (v + (v >> 4)) & 0x0fu;
-}
-
 static inline unsigned lowest_bit(unsigned m) /* m != 0 */
 {
     unsigned c = 0;
@@ -98,12 +91,12 @@ static bool child_index(const mr_svo *svo, uint32_t n, unsigned c, bool *is_leaf
     uint64_t i;
     if (lm & (1u << c)) {
         *is_leaf = true;
-        i = (uint64_t)svo->first_leaf[n] + popcount8(lm & below);
+        i = (uint64_t)svo->first_leaf[n] + mr_svo_popcount8(lm & below);
         if (i >= svo->leaf_count)
             return false;
     } else {
         *is_leaf = false;
-        i = (uint64_t)svo->first_node[n] + popcount8(cm & ~lm & below);
+        i = (uint64_t)svo->first_node[n] + mr_svo_popcount8(cm & ~lm & below);
         /* Breadth-first: children come after their parent, which also rules
          * out cycles in a corrupt octree. */
         if (i >= svo->node_count || i <= n)
@@ -127,7 +120,7 @@ static bool children_ok(const mr_svo *svo, uint32_t n)
     if (!masks_ok(svo, n))
         return false;
     const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
-    const unsigned leaves = popcount8(lm), nodes = popcount8(cm & ~lm);
+    const unsigned leaves = mr_svo_popcount8(lm), nodes = mr_svo_popcount8(cm & ~lm);
     return (leaves == 0 || (uint64_t)svo->first_leaf[n] + leaves - 1 < svo->leaf_count) &&
            (nodes == 0 || ((uint64_t)svo->first_node[n] + nodes - 1 < svo->node_count && svo->first_node[n] > n));
 }
@@ -853,7 +846,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 continue;
             }
             c->expand[i0 + nexpand++] = (uint32_t)i;
-            nchild += popcount8(svo->child_mask[it->index]);
+            nchild += mr_svo_popcount8(svo->child_mask[it->index]);
         }
         nq_flush(&queue);
         c->chunk_sel[ch] = nsel;

@@ -1336,10 +1336,10 @@ static int64_t sk_find_leaf(const mr_svo *svo, uint32_t x, uint32_t y, uint32_t 
         if (!(cm & (1u << ch)))
             return -1;
         if (lm & (1u << ch)) {
-            const uint64_t li = (uint64_t)svo->first_leaf[node] + (unsigned)__builtin_popcount(lm & below);
+            const uint64_t li = (uint64_t)svo->first_leaf[node] + mr_svo_popcount8(lm & below);
             return li < svo->leaf_count ? (int64_t)li : -1;
         }
-        const uint64_t ni = (uint64_t)svo->first_node[node] + (unsigned)__builtin_popcount(cm & ~lm & below);
+        const uint64_t ni = (uint64_t)svo->first_node[node] + mr_svo_popcount8(cm & ~lm & below);
         if (ni >= svo->node_count)
             return -1;
         node = (uint32_t)ni;

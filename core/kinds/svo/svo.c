@@ -217,11 +217,6 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
     return walk_leaves(svo, collect_leaf, &c, err);
 }
 
-typedef struct {
-    unsigned depth;
-    uint32_t lo[3], hi[3];
-} occupied_ctx;
-
 void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3])
 {
     uint32_t p[3];
@@ -233,24 +228,69 @@ void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_
     }
 }
 
-static void occupied_leaf(void *ctx, mr_svo_key key, uint32_t li)
+int mr_svo_grow_occupied(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,
+                         uint32_t lo[3], uint32_t hi[3], mr_error *err)
 {
-    (void)li;
-    occupied_ctx *c = ctx;
-    mr_svo_key_box_grow(key, c->depth, c->lo, c->hi);
+    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
+    if (cm == 0 || (lm & ~cm) != 0)
+        return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: node %u has masks %#x / %#x", n, cm, lm);
+    const unsigned shift = svo->depth - (level + 1); /* a child's side in finest cells: 2^shift */
+    uint64_t node = svo->first_node[n];
+    for (unsigned c = 0; c < 8; c++) {
+        if (!(cm >> c & 1u))
+            continue;
+        const bool leaf = lm >> c & 1u;
+        const uint64_t child = node; /* its index, when interior */
+        node += !leaf;
+        const uint32_t cxyz[3] = {2 * xyz[0] + (c & 1u), 2 * xyz[1] + (c >> 1 & 1u), 2 * xyz[2] + (c >> 2)};
+        bool held = true;
+        uint32_t k0[3], k1[3];
+        for (int a = 0; a < 3; a++) {
+            k0[a] = cxyz[a] << shift;
+            k1[a] = (cxyz[a] + 1u) << shift;
+            held = held && lo[a] <= k0[a] && k1[a] <= hi[a];
+        }
+        if (!leaf && (child >= svo->node_count || level + 1 >= svo->depth))
+            return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: node %u interior child %u out of range", n,
+                                c);
+        if (held)
+            continue;
+        if (leaf || level + 1 >= stop) {
+            for (int a = 0; a < 3; a++) {
+                lo[a] = k0[a] < lo[a] ? k0[a] : lo[a];
+                hi[a] = k1[a] > hi[a] ? k1[a] : hi[a];
+            }
+            continue;
+        }
+        int rc = mr_svo_grow_occupied(svo, (uint32_t)child, level + 1, cxyz, stop, lo, hi, err);
+        if (rc < 0)
+            return rc;
+    }
+    return MR_OK;
 }
 
 int mr_svo_fit_occupied(mr_svo *svo, mr_error *err)
 {
     if (!svo)
         return mr_error_set(err, MR_ERR_INVALID, "svo occupied box: svo is NULL");
-    occupied_ctx c = {svo->depth, {UINT32_MAX, UINT32_MAX, UINT32_MAX}, {0, 0, 0}};
-    int rc = walk_leaves(svo, occupied_leaf, &c, err);
-    if (rc < 0)
-        return rc;
+    uint32_t lo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, hi[3] = {0, 0, 0};
+    if (svo->node_count == 0) {
+        if (svo->leaf_count > 1)
+            return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: %u leaves but no nodes", svo->leaf_count);
+        for (int a = 0; a < 3 && svo->leaf_count == 1; a++) /* the root leaf: the cube */
+            lo[a] = 0, hi[a] = 1u << svo->depth;
+    } else {
+        if (svo->depth < 1 || svo->depth > MR_SVO_MAX_DEPTH)
+            return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: depth %u not in 1..%u", svo->depth,
+                                MR_SVO_MAX_DEPTH);
+        const uint32_t root[3] = {0, 0, 0};
+        int rc = mr_svo_grow_occupied(svo, 0, 0, root, svo->depth, lo, hi, err);
+        if (rc < 0)
+            return rc;
+    }
     svo->has_occupied = svo->leaf_count > 0;
-    memcpy(svo->occupied_lo, c.lo, sizeof c.lo);
-    memcpy(svo->occupied_hi, c.hi, sizeof c.hi);
+    memcpy(svo->occupied_lo, lo, sizeof lo);
+    memcpy(svo->occupied_hi, hi, sizeof hi);
     return MR_OK;
 }
 
@@ -289,13 +329,13 @@ static int walk_leaves(const mr_svo *svo, leaf_visit visit, void *ctx, mr_error 
         const uint32_t level = f->level + 1;
         const uint64_t code = f->code | ((uint64_t)ch << (3u * (D - level)));
         if (lm & (1u << ch)) {
-            uint64_t li = (uint64_t)svo->first_leaf[i] + (unsigned)__builtin_popcount(lm & below);
+            uint64_t li = (uint64_t)svo->first_leaf[i] + mr_svo_popcount8(lm & below);
             if (li >= svo->leaf_count || emitted >= svo->leaf_count)
                 return mr_error_set(err, MR_ERR_FORMAT, "svo collect: node %u leaf child %u out of range", i, ch);
             visit(ctx, (mr_svo_key){code, level}, (uint32_t)li);
             emitted++;
         } else {
-            uint64_t ni = (uint64_t)svo->first_node[i] + (unsigned)__builtin_popcount(cm & ~lm & below);
+            uint64_t ni = (uint64_t)svo->first_node[i] + mr_svo_popcount8(cm & ~lm & below);
             if (ni >= svo->node_count || level >= D)
                 return mr_error_set(err, MR_ERR_FORMAT, "svo collect: node %u interior child %u out of range", i, ch);
             stack[sp++] = (walk_frame){(uint32_t)ni, level, code, 0};

@@ -44,6 +44,16 @@
 
 /* Deepest level: 21 bits per axis in a 63-bit Morton code. */
 #define MR_SVO_MAX_DEPTH 21u
+
+/* Bits set in a child or leaf mask (SWAR: the build flags have no -mpopcnt,
+ * and __builtin_popcount is a library call there). */
+static inline unsigned mr_svo_popcount8(unsigned v)
+{
+    v &= 0xffu;
+    v = v - ((v >> 1) & 0x55u);
+    v = (v & 0x33u) + ((v >> 2) & 0x33u);
+    return (v + (v >> 4)) & 0x0fu;
+}
 /* Skin influences kept per palette entry. */
 #define MR_SVO_INFLUENCES 4u
 /* Palette entries are indexed by 16 bits. */
@@ -117,9 +127,20 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
  * depth by the cell of key (the occupied box of mr_svo). */
 void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3]);
 
-/* Fills svo's occupied box from its leaves (a walk over the octree, for
- * octrees read from a file or put together without mr_svo_build); the
- * same errors as mr_svo_collect_keys. An empty octree has none. */
+/* Grows the box [lo, hi) of finest-level cells by the occupied cells below
+ * interior node n (at `level`, cell xyz) down to level `stop` (> level):
+ * its leaves, and its interior nodes at `stop` whole. Children whose cell
+ * the box already holds are skipped (nothing below them can grow it), so
+ * once the box spans the model most of the octree is not visited.
+ * MR_ERR_FORMAT for masks or child indices that do not fit, among the
+ * nodes it visits. */
+int mr_svo_grow_occupied(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,
+                         uint32_t lo[3], uint32_t hi[3], mr_error *err);
+
+/* Fills svo's occupied box from its leaves (mr_svo_grow_occupied from the
+ * root, for octrees read from a file or put together without
+ * mr_svo_build). An empty octree has none. MR_ERR_FORMAT as
+ * mr_svo_grow_occupied, and for leaves without nodes. */
 int mr_svo_fit_occupied(mr_svo *svo, mr_error *err);
 
 /* Octahedral unit-vector encoding, 8 bits per coordinate; decode gives a

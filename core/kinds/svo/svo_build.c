@@ -346,15 +346,6 @@ static void fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* Bits set in an 8-bit mask (SWAR: the build flags have no -mpopcnt, and
- * __builtin_popcount would be a library call). */
-static inline uint32_t pop8(unsigned v)
-{
-    v = v - ((v >> 1) & 0x55u);
-    v = (v & 0x33u) + ((v >> 2) & 0x33u);
-    return (v + (v >> 4)) & 0x0fu;
-}
-
 static void block_nodes(const build_ctx *c, size_t b, size_t *lo, size_t *hi)
 {
     *lo = b * BLK;
@@ -371,8 +362,8 @@ static void scan_sum_fn(void *vctx, size_t begin, size_t end, unsigned worker)
         block_nodes(c, b, &lo, &hi);
         uint32_t ni = 0, nl = 0;
         for (size_t p = lo; p < hi; p++) {
-            ni += pop8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
-            nl += pop8(o->leaf_mask[p]);
+            ni += mr_svo_popcount8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
+            nl += mr_svo_popcount8(o->leaf_mask[p]);
         }
         c->scan[2 * b] = ni;
         c->scan[2 * b + 1] = nl;
@@ -391,8 +382,8 @@ static void scan_fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
         for (size_t p = lo; p < hi; p++) {
             o->first_node[p] = ni;
             o->first_leaf[p] = nl;
-            ni += pop8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
-            nl += pop8(o->leaf_mask[p]);
+            ni += mr_svo_popcount8(o->child_mask[p] & (uint8_t)~o->leaf_mask[p]);
+            nl += mr_svo_popcount8(o->leaf_mask[p]);
         }
     }
 }

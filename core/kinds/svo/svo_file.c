@@ -143,8 +143,6 @@ static int parse_header(parser *p, mr_svo *s, mr_svo_file_meta *meta)
     return MR_OK;
 }
 
-static unsigned popcount8(unsigned v) { return (unsigned)__builtin_popcount(v & 0xFFu); }
-
 /* The node arrays: decoded into s, checked against mr_svo_build's layout
  * (children consecutive, numbered breadth-first as prefix sums of the
  * children counts: then every node but the root and every leaf has exactly
@@ -192,7 +190,7 @@ static int parse_nodes(parser *p, const layout *o, mr_svo *s)
                      "numbered breadth-first)", i, fl, fl_at, (unsigned long long)next_leaf);
             goto done;
         }
-        const unsigned inner = popcount8(cm & ~lm), leafs = popcount8(lm);
+        const unsigned inner = mr_svo_popcount8(cm & ~lm), leafs = mr_svo_popcount8(lm);
         if (inner > 0 && level[i] + 1u >= s->depth) {
             rc = bad(p, "node %u at level %u: child_mask %#x at byte offset %zu / leaf_mask %#x "
                      "at byte offset %zu give it interior children at the finest level %u", i,
@@ -270,7 +268,7 @@ static int parse(parser *p, mr_svo **out, mr_svo_file_meta *meta)
     if (rc < 0)
         goto fail;
     const layout o = layout_of(s->node_count, s->leaf_count, s->palette_count);
-    if (mr_le_get_u32(p->buf + o.crc) != mr_crc32(&p->crc, p->buf + o.first_node, o.crc - o.first_node)) {
+    if (mr_le_get_u32(p->buf + o.crc) != mr_crc32(p->buf + o.first_node, o.crc - o.first_node)) {
         rc = bad(p, "payload checksum mismatch at byte offset %zu (bytes %zu..%zu corrupted)",
                  o.crc, o.first_node, o.crc - 1);
         goto fail;
@@ -393,7 +391,7 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
     mr_le_put_u32(b + H_LEAVES, l);
     mr_le_put_u32(b + H_PALETTE, pc);
     mr_le_put_u64(b + H_PAYLOAD, total - MR_SVO_FILE_HEADER_BYTES - 4);
-    mr_derived_header_seal(FORMAT, &p->crc, meta ? meta->key : NULL, b);
+    mr_derived_header_seal(FORMAT, meta ? meta->key : NULL, b);
     const layout o = layout_of(n, l, pc);
     for (uint32_t i = 0; i < n; i++) {
         mr_le_put_u32(b + o.first_node + (size_t)i * 4, svo->first_node[i]);
@@ -419,7 +417,7 @@ int mr_svo_file_write_meta(const mr_svo *svo, const mr_svo_file_meta *meta, uint
             q[12 + k] = a->weights[k];
         }
     }
-    mr_le_put_u32(b + o.crc, mr_crc32(&p->crc, b + o.first_node, o.crc - o.first_node));
+    mr_le_put_u32(b + o.crc, mr_crc32(b + o.first_node, o.crc - o.first_node));
     mr_svo_file_meta m;
     if ((rc = parse(p, &back, &m)) < 0) {
         rc = mr_derived_readback_failed(FORMAT, rc, err);

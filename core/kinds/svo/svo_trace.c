@@ -60,14 +60,6 @@ static inline double plane_s(const svo_ray *r, int a, uint32_t k)
     return r->d0[a] + (double)k * r->cell;
 }
 
-/* Bits set in a byte (no popcnt instruction is assumed). */
-static inline unsigned popcount8(unsigned v)
-{
-    v = v - ((v >> 1) & 0x55u);
-    v = (v & 0x33u) + ((v >> 2) & 0x33u);
-    return (v + (v >> 4)) & 0x0fu;
-}
-
 /* Sets up the ray; false when it cannot hit anything (non-finite input,
  * empty [tmin, tmax]). */
 static bool ray_setup(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, svo_ray *r)
@@ -277,7 +269,7 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         const uint32_t cxyz[3] = {f->xyz[0] * 2u + (c & 1u), f->xyz[1] * 2u + ((c >> 1) & 1u),
                                   f->xyz[2] * 2u + (c >> 2)};
         if (lmask & cbit) {
-            const uint32_t leaf = svo->first_leaf[f->node] + popcount8(lmask & (cbit - 1u));
+            const uint32_t leaf = svo->first_leaf[f->node] + mr_svo_popcount8(lmask & (cbit - 1u));
             if (leaf >= svo->leaf_count)
                 continue; /* malformed octree: skip rather than read out of bounds */
             if (!hit)
@@ -299,7 +291,7 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         }
         /* Interior children never sit at the finest level. */
         const unsigned nmask = svo->child_mask[f->node] & ~lmask;
-        const uint32_t node = svo->first_node[f->node] + popcount8(nmask & (cbit - 1u));
+        const uint32_t node = svo->first_node[f->node] + mr_svo_popcount8(nmask & (cbit - 1u));
         if (clevel >= GRID_BITS || node >= svo->node_count)
             continue;
         svo_frame *g = &stack[++top];
@@ -401,34 +393,6 @@ int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *count
     return collect_subtrees(&l, 0, 0, ROOT_XYZ, err);
 }
 
-/* Grows the finest-level cell ranges lo..hi by the occupied cells below
- * node n (at `level`, cell xyz) down to level `stop`: its leaf children,
- * and its interior children whole at `stop` or walked further above it.
- * A child beyond the node array (a malformed octree) counts whole. */
-static void occupied_cells(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,
-                           uint32_t lo[3], uint32_t hi[3])
-{
-    const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
-    const unsigned shift = svo->depth - (level + 1); /* a child's side in finest cells: 2^shift */
-    uint32_t node = svo->first_node[n];
-    for (unsigned c = 0; c < 8; c++) {
-        if (!(cm >> c & 1u))
-            continue;
-        const uint32_t cxyz[3] = {2 * xyz[0] + (c & 1u), 2 * xyz[1] + (c >> 1 & 1u), 2 * xyz[2] + (c >> 2)};
-        const bool leaf = lm >> c & 1u;
-        if (leaf || level + 1 >= stop || node >= svo->node_count) {
-            for (int a = 0; a < 3; a++) {
-                const uint32_t k0 = cxyz[a] << shift, k1 = (cxyz[a] + 1u) << shift;
-                lo[a] = k0 < lo[a] ? k0 : lo[a];
-                hi[a] = k1 > hi[a] ? k1 : hi[a];
-            }
-        } else {
-            occupied_cells(svo, node, level + 1, cxyz, stop, lo, hi);
-        }
-        node += !leaf;
-    }
-}
-
 void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, float lo[3], float hi[3])
 {
     mr_svo_bounds(svo, lo, hi);
@@ -440,10 +404,13 @@ void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned 
         chi[a] = (s->xyz[a] + 1u) << shift;
     }
     if (below && s->node < svo->node_count) {
-        for (int a = 0; a < 3; a++)
-            clo[a] = UINT32_MAX, chi[a] = 0;
-        occupied_cells(svo, s->node, s->level, s->xyz, s->level + below < svo->depth ? s->level + below : svo->depth,
-                       clo, chi);
+        uint32_t olo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, ohi[3] = {0, 0, 0};
+        mr_error err; /* a malformed octree keeps the cell */
+        if (mr_svo_grow_occupied(svo, s->node, s->level, s->xyz,
+                                 s->level + below < svo->depth ? s->level + below : svo->depth, olo, ohi, &err) == MR_OK) {
+            memcpy(clo, olo, sizeof clo);
+            memcpy(chi, ohi, sizeof chi);
+        }
     }
     const double cell = ldexp((double)svo->size, -(int)svo->depth); /* cells * cell: exact */
     const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
