@@ -510,7 +510,8 @@ static int cls_shell(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t
  * mr_svo_bounds does. Exact equality: the walk must find those cells, not
  * merely a box holding them (a walk that skipped a child, or counted the
  * children of another node, finds another box). Every leaf's box lies
- * inside whatever `below`. */
+ * inside whatever `below`. A subtree that names no node of the octree
+ * keeps its cell, one that names no cell the leaves' box. */
 static void test_subtree_bounds(void **state)
 {
     (void)state;
@@ -588,6 +589,17 @@ static void test_subtree_bounds(void **state)
             }
             free(st);
         }
+        /* no walk past the arrays: a subtree naming no node keeps its
+         * cell, one deeper than the octree the leaves' box */
+        float lo[3], hi[3], cell_lo[3], cell_hi[3];
+        const mr_svo_subtree nowhere = {o->node_count + 5u, 1, {1, 0, 1}}, deep = {0, depth + 1, {0, 0, 0}};
+        mr_svo_subtree_bounds(o, &nowhere, 0, cell_lo, cell_hi);
+        mr_svo_subtree_bounds(o, &nowhere, 3, lo, hi);
+        assert_memory_equal(lo, cell_lo, sizeof lo);
+        assert_memory_equal(hi, cell_hi, sizeof hi);
+        mr_svo_subtree_bounds(o, &deep, 3, lo, hi);
+        assert_memory_equal(lo, olo, sizeof lo);
+        assert_memory_equal(hi, ohi, sizeof hi);
         mr_svo_free(&built);
         fx_free(&fx);
     }

@@ -231,6 +231,9 @@ void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_
 int mr_svo_grow_occupied(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,
                          uint32_t lo[3], uint32_t hi[3], mr_error *err)
 {
+    if (n >= svo->node_count || level >= svo->depth || svo->depth > MR_SVO_MAX_DEPTH)
+        return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: node %u at level %u of an octree of %u nodes, "
+                            "depth %u", n, level, svo->node_count, svo->depth);
     const unsigned cm = svo->child_mask[n], lm = svo->leaf_mask[n];
     if (cm == 0 || (lm & ~cm) != 0)
         return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: node %u has masks %#x / %#x", n, cm, lm);
@@ -280,9 +283,6 @@ int mr_svo_fit_occupied(mr_svo *svo, mr_error *err)
         for (int a = 0; a < 3 && svo->leaf_count == 1; a++) /* the root leaf: the cube */
             lo[a] = 0, hi[a] = 1u << svo->depth;
     } else {
-        if (svo->depth < 1 || svo->depth > MR_SVO_MAX_DEPTH)
-            return mr_error_set(err, MR_ERR_FORMAT, "svo occupied box: depth %u not in 1..%u", svo->depth,
-                                MR_SVO_MAX_DEPTH);
         const uint32_t root[3] = {0, 0, 0};
         int rc = mr_svo_grow_occupied(svo, 0, 0, root, svo->depth, lo, hi, err);
         if (rc < 0)
