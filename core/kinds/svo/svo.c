@@ -15,7 +15,6 @@
  * between candidates tied to float rounding.
  */
 #include "kinds/svo/svo.h"
-#include "util/morton.h"
 
 #include <float.h>
 #include <math.h>
@@ -215,17 +214,6 @@ int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_inde
 {
     collect_ctx c = {keys, leaf_index, 0};
     return walk_leaves(svo, collect_leaf, &c, err);
-}
-
-void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3])
-{
-    uint32_t p[3];
-    mr_morton_decode(key.code, &p[0], &p[1], &p[2]);
-    const uint32_t edge = 1u << (depth - key.level);
-    for (int a = 0; a < 3; a++) {
-        lo[a] = p[a] < lo[a] ? p[a] : lo[a];
-        hi[a] = p[a] + edge > hi[a] ? p[a] + edge : hi[a];
-    }
 }
 
 int mr_svo_grow_occupied(const mr_svo *svo, uint32_t n, unsigned level, const uint32_t xyz[3], unsigned stop,

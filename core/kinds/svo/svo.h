@@ -123,10 +123,6 @@ size_t mr_svo_memory(const mr_svo *svo);
  * count that differs from the leaves reached. */
 int mr_svo_collect_keys(const mr_svo *svo, mr_svo_key *keys, uint32_t *leaf_index, mr_error *err);
 
-/* Grows the box [lo, hi) of finest-level cells of an octree of the given
- * depth by the cell of key (the occupied box of mr_svo). */
-void mr_svo_key_box_grow(mr_svo_key key, unsigned depth, uint32_t lo[3], uint32_t hi[3]);
-
 /* Grows the box [lo, hi) of finest-level cells by the occupied cells below
  * interior node n (at `level`, cell xyz) down to level `stop` (> level):
  * its leaves, and its interior nodes at `stop` whole. Children whose cell
