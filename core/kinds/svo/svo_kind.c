@@ -381,8 +381,8 @@ static int gather_boxes(mr_geom *g, mr_error *err)
  * 2.98-3.10 / 5.18-6.04, 3 levels 1.58-1.70 / 2.22-2.77 / 4.83-5.31, every
  * level 1.50-1.76 / 2.38-2.63 / 4.70-5.25. Resize and emit pieces keep
  * their cubes: their boxes are made every frame, and at depth 10 fitting
- * them 2 levels down cost 0.2 ms of the frame's serial part (1,250 pieces),
- * 3 levels 1.3 ms, for 0.1-0.2 ms less trace. */
+ * them 2 levels down cost 0.2-0.3 ms of the frame's serial part (about
+ * 1,100 pieces), 3 levels 0.9-1.4 ms, for 0.1-0.2 ms less trace. */
 #define RIGID_BOX_LEVELS 3u
 
 static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3]);
