@@ -502,6 +502,17 @@ static int cls_shell(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t
     return FX_SPLIT;
 }
 
+/* Whether the fixture's leaf b lies below subtree s. */
+static bool leaf_below(const fx_box *b, const mr_svo_subtree *s)
+{
+    if (b->level <= s->level)
+        return false;
+    for (int a = 0; a < 3; a++)
+        if (b->xyz[a] >> (b->level - s->level) != s->xyz[a])
+            return false;
+    return true;
+}
+
 /* A subtree's box (mr_svo_subtree_bounds) `below` levels down, on random
  * octrees put together by the builder (build_fixture): the union of
  * its leaves' cells, each coarsened to the level `below` under the
@@ -547,9 +558,7 @@ static void test_subtree_bounds(void **state)
                     }
                     for (uint32_t l = 0; l < o->leaf_count && below; l++) {
                         const fx_box *b = &fx.boxes[l];
-                        if (b->level <= s->level || (b->xyz[0] >> (b->level - s->level)) != s->xyz[0] ||
-                            (b->xyz[1] >> (b->level - s->level)) != s->xyz[1] ||
-                            (b->xyz[2] >> (b->level - s->level)) != s->xyz[2])
+                        if (!leaf_below(b, s))
                             continue; /* not below s */
                         const unsigned lv = b->level < stop ? b->level : stop;
                         for (int a = 0; a < 3; a++) {
@@ -573,9 +582,7 @@ static void test_subtree_bounds(void **state)
                     }
                     for (uint32_t l = 0; l < o->leaf_count; l++) { /* every leaf below s inside */
                         const fx_box *b = &fx.boxes[l];
-                        if (b->level <= s->level || (b->xyz[0] >> (b->level - s->level)) != s->xyz[0] ||
-                            (b->xyz[1] >> (b->level - s->level)) != s->xyz[1] ||
-                            (b->xyz[2] >> (b->level - s->level)) != s->xyz[2])
+                        if (!leaf_below(b, s))
                             continue;
                         for (int a = 0; a < 3; a++) {
                             double bl, bh;

@@ -54,6 +54,7 @@ static inline unsigned mr_svo_popcount8(unsigned v)
     v = (v & 0x33u) + ((v >> 2) & 0x33u);
     return (v + (v >> 4)) & 0x0fu;
 }
+
 /* Skin influences kept per palette entry. */
 #define MR_SVO_INFLUENCES 4u
 /* Palette entries are indexed by 16 bits. */
