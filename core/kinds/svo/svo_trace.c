@@ -40,10 +40,13 @@ typedef struct svo_ray {
 } svo_ray;
 
 typedef struct svo_frame {
-    /* Midplane t per axis, as the entry of the far half (mid_en) and the
-     * exit of the near half (mid_ex): the same value, except on parallel
-     * axes, where the halves span all t (-inf, +inf). */
-    double mid_en[3], mid_ex[3];
+    /* Per axis and half h (mirrored: 0 near, 1 far), the t where the
+     * half's slab starts (en) and ends (ex) within the node: the far half
+     * starts and the near half ends at the midplane's t, the others are
+     * -inf and +inf, and on parallel axes both halves span all t. A child's
+     * interval is then [max(t0, en), min(t1, ex)] over its three halves,
+     * without a branch on which halves those are. */
+    double en[3][2], ex[3][2];
     double t0, t1;    /* the node's interval, clipped */
     uint32_t node;
     uint32_t xyz[3];  /* integer coordinates at the frame's level */
@@ -54,6 +57,9 @@ typedef struct svo_frame {
 /* Children of mirrored index i with bit a equal to h, for a parallel axis
  * that rules one half out. */
 static const uint8_t half_children[3][2] = {{0x55, 0xaa}, {0x33, 0xcc}, {0x0f, 0xf0}};
+
+/* The lowest axis in a nonzero 3-bit mask of axes. */
+static const int8_t FIRST_AXIS[8] = {-1, 0, 1, 0, 2, 0, 1, 0};
 
 static inline double plane_s(const svo_ray *r, int a, uint32_t k)
 {
@@ -129,6 +135,7 @@ static inline __attribute__((always_inline)) void frame_enter(svo_ray *r, const 
     __builtin_prefetch(&svo->first_node[f->node]);
     const uint32_t span = GRID_CELLS >> level;
     unsigned keep = 0xffu;
+    double me[3], mx[3]; /* the far half's entry, the near half's exit */
     for (int a = 0; a < 3; a++) {
         const uint32_t kmid = f->xyz[a] * span + (span >> 1);
         if (r->par & (1u << a)) {
@@ -141,13 +148,16 @@ static inline __attribute__((always_inline)) void frame_enter(svo_ray *r, const 
                 keep &= half_children[a][0];
             else
                 r->tie = true;
-            f->mid_en[a] = -INFINITY;
-            f->mid_ex[a] = INFINITY;
+            me[a] = -INFINITY;
+            mx[a] = INFINITY;
         } else {
-            f->mid_en[a] = f->mid_ex[a] = plane_s(r, a, kmid) * r->inv[a];
+            me[a] = mx[a] = plane_s(r, a, kmid) * r->inv[a];
         }
+        f->en[a][0] = -INFINITY;
+        f->en[a][1] = me[a];
+        f->ex[a][0] = mx[a];
+        f->ex[a][1] = INFINITY;
     }
-    const double *me = f->mid_en, *mx = f->mid_ex;
     keep &= DROP(mx[0] >= f->t0, 0x55u) & DROP(me[0] <= f->t1, 0xaau);
     keep &= DROP(mx[1] >= f->t0, 0x33u) & DROP(me[1] <= f->t1, 0xccu);
     keep &= DROP(mx[2] >= f->t0, 0x0fu) & DROP(me[2] <= f->t1, 0xf0u);
@@ -249,18 +259,15 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         const unsigned i = (unsigned)__builtin_ctz(f->pending);
         f->pending &= f->pending - 1u;
         const unsigned c = i ^ r.mirror;
-        double c0 = f->t0, c1 = DMIN(f->t1, best);
-        int caxis = f->axis;
-        for (int a = 0; a < 3; a++) {
-            if ((i >> a) & 1u) {
-                if (f->mid_en[a] > c0 || (f->mid_en[a] == c0 && caxis < 0)) {
-                    c0 = f->mid_en[a];
-                    caxis = a;
-                }
-            } else {
-                c1 = DMIN(c1, f->mid_ex[a]);
-            }
-        }
+        /* The child's interval, and the axis of its entry face: the first
+         * axis whose half starts at c0 when that is past t0, or when t0 is
+         * tmin (axis -1) and some half starts there too; else the node's. */
+        const double e0 = f->en[0][i & 1u], e1 = f->en[1][(i >> 1) & 1u], e2 = f->en[2][i >> 2];
+        const double c0 = DMAX(DMAX(f->t0, e0), DMAX(e1, e2));
+        const double c1 = DMIN(DMIN(DMIN(f->t1, best), f->ex[0][i & 1u]),
+                               DMIN(f->ex[1][(i >> 1) & 1u], f->ex[2][i >> 2]));
+        const unsigned starts = (unsigned)(e0 == c0) | (unsigned)(e1 == c0) << 1 | (unsigned)(e2 == c0) << 2;
+        const int caxis = starts && (c0 > f->t0 || f->axis < 0) ? FIRST_AXIS[starts] : f->axis;
         if (!(c0 <= c1))
             continue; /* only after a hit in the tie case */
         const unsigned cbit = 1u << c;
