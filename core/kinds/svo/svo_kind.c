@@ -373,22 +373,26 @@ static int gather_boxes(mr_geom *g, mr_error *err)
  * at 16 leaves a subtree, 3.6 / 3.9 at 256, 4.0 / 4.0 at 1024 and 4.8 /
  * 5.1 whole. */
 #define LEAVES_PER_SUBTREE 256u
-/* How far below a rigid octree's piece its box is fitted to the occupied
- * cells (mr_svo_subtree_bounds), once when the object is made: a piece's
- * cube around a sheet of surface is mostly air, and every ray through that
- * air called the piece. The rigid dancer at 640x360, trace ms at depths
- * 8 / 10 / 12 (three runs each, side by side): the cube 1.94-1.96 /
- * 2.98-3.10 / 5.18-6.04, 3 levels 1.58-1.70 / 2.22-2.77 / 4.83-5.31, every
- * level 1.50-1.76 / 2.38-2.63 / 4.70-5.25. Resize and emit pieces keep
- * their cubes: their boxes are made every frame, and at depth 10 fitting
- * them 2 levels down cost 0.2-0.3 ms of the frame's serial part (about
- * 1,100 pieces), 3 levels 0.9-1.4 ms, for 0.1-0.2 ms less trace. */
+/* How far below an octree's piece its box is fitted to the occupied cells
+ * (mr_svo_subtree_bounds): a piece's cube around a sheet of surface is
+ * mostly air, and every ray through that air called the piece. The rigid
+ * dancer at 640x360, trace ms at depths 8 / 10 / 12 (three runs each, side
+ * by side): the cube 1.94-1.96 / 2.98-3.10 / 5.18-6.04, 3 levels 1.58-1.70
+ * / 2.22-2.77 / 4.83-5.31, every level 1.50-1.76 / 2.38-2.63 / 4.70-5.25.
+ * Rigid pieces get their boxes once, when the object is made. Resize and
+ * emit pieces get theirs every frame, on the job's threads (fit_boxes),
+ * and two levels down: the dancer resized at depth 10 (about 1,000
+ * pieces, two threads) traced in 2.06-2.14 ms with cubes, 1.79-1.87 two
+ * levels down and 1.70-1.77 three, but three levels took 0.43-0.50 ms to
+ * fit and two take 0.19-0.23. */
 #define RIGID_BOX_LEVELS 3u
+#define FRAME_BOX_LEVELS 2u
 
 static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3]);
 
 /* Appends instance k's octree (rigid: the shared one) to the primitives as
- * its n subtrees st, or whole when n is 0; frees st. */
+ * its n subtrees st, or whole when n is 0; frees st. Their boxes are made
+ * afterwards, by fit_boxes. */
 static int prims_add(mr_geom *g, size_t k, mr_svo_subtree *st, uint32_t n, mr_error *err)
 {
     const size_t need = (size_t)g->prim_count + (n ? n : 1);
@@ -406,23 +410,35 @@ static int prims_add(mr_geom *g, size_t k, mr_svo_subtree *st, uint32_t n, mr_er
         g->prims = q;
         g->prim_capacity = cap;
     }
-    const uint32_t first = g->prim_count;
     if (n == 0)
         g->prims[g->prim_count++] = (octree_prim){.instance = (uint32_t)k, .whole = true};
     for (uint32_t i = 0; i < n; i++)
         g->prims[g->prim_count++] = (octree_prim){.st = st[i], .instance = (uint32_t)k};
-    for (uint32_t i = first; i < g->prim_count; i++) {
-        octree_prim *p = &g->prims[i];
-        p->empty = !prim_box(g, i, p->lo, p->hi);
-    }
     free(st);
     return MR_OK;
 }
 
+static void fit_range(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    (void)worker;
+    mr_geom *g = ctx;
+    for (size_t i = begin; i < end; i++) {
+        octree_prim *p = &g->prims[i];
+        p->empty = !prim_box(g, (unsigned)i, p->lo, p->hi);
+    }
+}
+
+/* Every primitive's box (prim_box), on `threads` threads: each box is its
+ * piece's alone, so they are the same for any thread count. */
+static void fit_boxes(mr_geom *g, unsigned threads)
+{
+    mr_parallel_for(threads, g->prim_count, 64, fit_range, g);
+}
+
 /* The frame's primitives (resize, emit): each instance's octree as its
  * subtrees, or whole when it is small or has no interior node; empty
- * octrees give none. */
-static int gather_prims(mr_geom *g, mr_error *err)
+ * octrees give none; their boxes on `threads` threads. */
+static int gather_prims(mr_geom *g, unsigned threads, mr_error *err)
 {
     g->prim_count = 0;
     for (size_t k = 0; k < g->instance_count; k++) {
@@ -446,6 +462,7 @@ static int gather_prims(mr_geom *g, mr_error *err)
             (rc = prims_add(g, k, st, n, err)) < 0)
             return rc;
     }
+    fit_boxes(g, threads);
     return MR_OK;
 }
 
@@ -588,7 +605,7 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     }
     if (g->method == MR_SVO_DIRECT)
         return gather_boxes(g, err);
-    return gather_prims(g, err);
+    return gather_prims(g, workers, err);
 }
 
 /* ---- Embree callbacks ------------------------------------------------ */
@@ -633,7 +650,7 @@ static bool prim_box(const mr_geom *g, unsigned prim, float lo[3], float hi[3])
     const mr_svo_subtree *st;
     const mr_svo *o = prim_octree(g, prim, &st);
     if (o && st)
-        mr_svo_subtree_bounds(o, st, g->method == MR_SVO_RIGID ? RIGID_BOX_LEVELS : 0, lo, hi);
+        mr_svo_subtree_bounds(o, st, g->method == MR_SVO_RIGID ? RIGID_BOX_LEVELS : FRAME_BOX_LEVELS, lo, hi);
     else if (!o || !mr_svo_bounds(o, lo, hi))
         return false;
     const double pad = ldexp((double)o->size, -24);
@@ -1403,6 +1420,7 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
         uint32_t n;
         if ((rc = mr_svo_subtrees(g->svo, SUBTREE_LEVEL, &st, &n, err)) < 0 || (rc = prims_add(g, 0, st, n, err)) < 0)
             goto fail;
+        fit_boxes(g, 1);
     }
     g->out_depth = p->depth + 2 < MR_SVO_MAX_DEPTH ? p->depth + 2 : MR_SVO_MAX_DEPTH;
     if ((rc = check_poses(g, err)) < 0)
