@@ -24,6 +24,8 @@
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
 #include "kinds/dmm/micromesh.h"
+#include "util/crc32.h"
+#include "util/le.h"
 
 /* Deterministic generator (xorshift), so failures reproduce. */
 static uint32_t rnd(uint64_t *s)
@@ -434,23 +436,6 @@ static void test_file_roundtrip(void **state)
     mr_dmm_encoded_free(enc);
 }
 
-static uint32_t crc32_ref(const uint8_t *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = c & 1 ? (c >> 1) ^ 0xEDB88320u : c >> 1;
-    }
-    return ~c;
-}
-
-static void le32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
 /* Reads a corrupted copy: must fail with MR_ERR_FORMAT, a message with the
  * byte offset (and want, if given), and no output. */
 static void expect_format(const uint8_t *buf, size_t size, const char *want)
@@ -518,8 +503,8 @@ static void test_file_corruptions(void **state)
     };
     for (size_t k = 0; k < sizeof table / sizeof table[0]; k++) {
         memcpy(c, buf, size);
-        le32(c + table[k].off, table[k].value);
-        le32(c + 44, crc32_ref(c, 44));
+        mr_le_put_u32(c + table[k].off, table[k].value);
+        mr_le_put_u32(c + 44, mr_crc32(c, 44));
         expect_format(c, size, table[k].want);
     }
     /* a record byte changed: the record checksum names its own offset */
@@ -741,7 +726,7 @@ static void test_level_bytes(void **state)
     for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
         memcpy(c, buf, size);
         c[MR_DMM_HEADER_BYTES + 1] = cases[k].byte;
-        le32(c + size - 4, crc32_ref(c + MR_DMM_HEADER_BYTES, size - 4 - MR_DMM_HEADER_BYTES));
+        mr_le_put_u32(c + size - 4, mr_crc32(c + MR_DMM_HEADER_BYTES, size - 4 - MR_DMM_HEADER_BYTES));
         expect_format(c, size, cases[k].want);
     }
     free(c);

@@ -28,6 +28,8 @@
 #include "../support/bcn_fixture.h"
 #include "asset/asset.h"
 #include "kinds/dmm/dmm_file.h"
+#include "util/crc32.h"
+#include "util/le.h"
 
 
 /* ---- fixtures */
@@ -319,28 +321,6 @@ static void test_truncations_and_bit_flips(void **state)
 
 /* ---- corruptions behind valid checksums */
 
-static uint32_t crc32_ref(const uint8_t *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = (c & 1u) ? (c >> 1) ^ 0xEDB88320u : c >> 1;
-    }
-    return ~c;
-}
-
-static void le32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static uint32_t rd32(const uint8_t *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-
 /* Offsets of the small file's sections, from the documented layout. */
 typedef struct layout {
     size_t mesh0, arrays0, arrays_crc0, block0, mesh1;
@@ -351,10 +331,10 @@ static layout layout_of(const uint8_t *buf)
 {
     layout l;
     l.mesh0 = 68;
-    l.nv = rd32(buf + l.mesh0 + 20);
-    l.nt = rd32(buf + l.mesh0 + 24);
+    l.nv = mr_le_get_u32(buf + l.mesh0 + 20);
+    l.nt = mr_le_get_u32(buf + l.mesh0 + 24);
     l.arrays0 = l.mesh0 + 96;
-    uint64_t arrays = rd32(buf + l.mesh0 + 72), block = rd32(buf + l.mesh0 + 80);
+    uint64_t arrays = mr_le_get_u32(buf + l.mesh0 + 72), block = mr_le_get_u32(buf + l.mesh0 + 80);
     assert_int_equal(arrays, (uint64_t)l.nv * (28 + 48) + (uint64_t)l.nt * 12);
     l.arrays_crc0 = l.arrays0 + arrays;
     l.block0 = l.arrays_crc0 + 4;
@@ -364,10 +344,10 @@ static layout layout_of(const uint8_t *buf)
 
 static void fix_crcs(uint8_t *buf, const layout *l)
 {
-    le32(buf + 64, crc32_ref(buf, 64));
-    le32(buf + l->mesh0 + 92, crc32_ref(buf + l->mesh0, 92));
-    le32(buf + l->arrays_crc0, crc32_ref(buf + l->arrays0, l->arrays_crc0 - l->arrays0));
-    le32(buf + l->mesh1 + 92, crc32_ref(buf + l->mesh1, 92));
+    mr_le_put_u32(buf + 64, mr_crc32(buf, 64));
+    mr_le_put_u32(buf + l->mesh0 + 92, mr_crc32(buf + l->mesh0, 92));
+    mr_le_put_u32(buf + l->arrays_crc0, mr_crc32(buf + l->arrays0, l->arrays_crc0 - l->arrays0));
+    mr_le_put_u32(buf + l->mesh1 + 92, mr_crc32(buf + l->mesh1, 92));
 }
 
 /* Sets the u32 at off to v, fixes every checksum, expects MR_ERR_FORMAT with
@@ -379,7 +359,7 @@ static void corrupt(const uint8_t *good, size_t size, size_t off, uint32_t v, si
     assert_non_null(buf);
     memcpy(buf, good, size);
     layout l = layout_of(good);
-    le32(buf + off, v);
+    mr_le_put_u32(buf + off, v);
     fix_crcs(buf, &l);
     mr_dmm_file *r = NULL;
     mr_error err = {0};
@@ -453,7 +433,7 @@ static void test_field_corruptions(void **state)
             break;
         }
     size_t jslot = joints + (size_t)vmax * MR_MAX_INFLUENCES * 2; /* u16; and its neighbour */
-    uint32_t pair = rd32(g + jslot);
+    uint32_t pair = mr_le_get_u32(g + jslot);
     corrupt(g, n, jslot, (pair & 0xFFFF0000u) | 2u, jslot, "used joint 2 of 2");
     /* an unused slot (weight 0) may name any joint: not an error */
     {
@@ -461,7 +441,7 @@ static void test_field_corruptions(void **state)
         assert_non_null(buf);
         memcpy(buf, g, n);
         size_t unused = joints + (size_t)vmax * MR_MAX_INFLUENCES * 2 + 6; /* slots 3, 4 */
-        le32(buf + unused, 0xFFFFFFFFu);
+        mr_le_put_u32(buf + unused, 0xFFFFFFFFu);
         fix_crcs(buf, &l);
         mr_dmm_file *r = NULL;
         mr_error err = {0};

@@ -34,6 +34,8 @@
 #include "kinds/svo/svo_build.h"
 #include "kinds/svo/svo_file.h"
 #include "kinds/svo/voxelize.h"
+#include "util/crc32.h"
+#include "util/le.h"
 
 /* ---- fixtures */
 
@@ -115,33 +117,9 @@ static mr_svo *read_buf(const uint8_t *buf, size_t size)
     return r;
 }
 
-/* ---- an independent serializer, written from docs/svo-format.md */
-
-static uint32_t crc32_ref(const uint8_t *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = (c & 1u) ? (c >> 1) ^ 0xEDB88320u : c >> 1;
-    }
-    return ~c;
-}
-
-static void w16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v, p[1] = (uint8_t)(v >> 8); }
-
-static void w32(uint8_t *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (uint8_t)(v >> (8 * i));
-}
-
-static void wf(uint8_t *p, float f)
-{
-    uint32_t v;
-    memcpy(&v, &f, 4);
-    w32(p, v);
-}
+/* ---- an independent serializer, written from docs/svo-format.md (with
+ * the shared byte order and CRC helpers, util/le.h and util/crc32.h, which
+ * test_util_io checks against the documented bytes and a bit-by-bit CRC) */
 
 /* Offsets of the arrays for counts n, l, pc (the document's table). */
 typedef struct offs {
@@ -162,7 +140,7 @@ static offs offs_of(uint32_t n, uint32_t l, uint32_t pc)
     return o;
 }
 
-static void fix_header_crc(uint8_t *b) { w32(b + 96, crc32_ref(b, 96)); }
+static void fix_header_crc(uint8_t *b) { mr_le_put_u32(b + 96, mr_crc32(b, 96)); }
 
 /* Serializes s as the document says, whatever its values. */
 static uint8_t *serialize(const mr_svo *s, uint32_t flags, const uint8_t *key, size_t *size)
@@ -172,44 +150,44 @@ static uint8_t *serialize(const mr_svo *s, uint32_t flags, const uint8_t *key, s
     uint8_t *b = calloc(1, o.end);
     assert_non_null(b);
     memcpy(b, "MRSVO\0\r\n", 8);
-    w32(b + 8, 1);
-    w32(b + 12, 100);
-    w32(b + 16, flags);
-    w32(b + 20, s->depth);
-    wf(b + 24, s->origin.x);
-    wf(b + 28, s->origin.y);
-    wf(b + 32, s->origin.z);
-    wf(b + 36, s->size);
-    w32(b + 40, n);
-    w32(b + 44, l);
-    w32(b + 48, pc);
+    mr_le_put_u32(b + 8, 1);
+    mr_le_put_u32(b + 12, 100);
+    mr_le_put_u32(b + 16, flags);
+    mr_le_put_u32(b + 20, s->depth);
+    mr_le_put_f32(b + 24, s->origin.x);
+    mr_le_put_f32(b + 28, s->origin.y);
+    mr_le_put_f32(b + 32, s->origin.z);
+    mr_le_put_f32(b + 36, s->size);
+    mr_le_put_u32(b + 40, n);
+    mr_le_put_u32(b + 44, l);
+    mr_le_put_u32(b + 48, pc);
     uint64_t payload = o.crc - o.fn;
-    w32(b + 56, (uint32_t)payload);
-    w32(b + 60, (uint32_t)(payload >> 32));
+    mr_le_put_u32(b + 56, (uint32_t)payload);
+    mr_le_put_u32(b + 60, (uint32_t)(payload >> 32));
     if (key)
         memcpy(b + 64, key, 32);
     fix_header_crc(b);
     for (uint32_t i = 0; i < n; i++) {
-        w32(b + o.fn + 4 * i, s->first_node[i]);
-        w32(b + o.fl + 4 * i, s->first_leaf[i]);
+        mr_le_put_u32(b + o.fn + 4 * i, s->first_node[i]);
+        mr_le_put_u32(b + o.fl + 4 * i, s->first_leaf[i]);
         b[o.cm + i] = s->child_mask[i];
         b[o.lm + i] = s->leaf_mask[i];
     }
     for (uint32_t i = 0; i < l; i++) {
         b[o.lv + 4 * i] = s->leaves[i].normal[0];
         b[o.lv + 4 * i + 1] = s->leaves[i].normal[1];
-        w16(b + o.lv + 4 * i + 2, s->leaves[i].attr);
+        mr_le_put_u16(b + o.lv + 4 * i + 2, s->leaves[i].attr);
     }
     for (uint32_t i = 0; i < pc; i++) {
         uint8_t *q = b + o.pal + 16 * i;
         memcpy(q, s->palette[i].albedo, 3);
         q[3] = s->palette[i].mesh;
         for (int k = 0; k < 4; k++) {
-            w16(q + 4 + 2 * k, s->palette[i].joints[k]);
+            mr_le_put_u16(q + 4 + 2 * k, s->palette[i].joints[k]);
             q[12 + k] = s->palette[i].weights[k];
         }
     }
-    w32(b + o.crc, crc32_ref(b + o.fn, o.crc - o.fn));
+    mr_le_put_u32(b + o.crc, mr_crc32(b + o.fn, o.crc - o.fn));
     *size = o.end;
     return b;
 }
@@ -593,7 +571,7 @@ static void test_crafted_structure(void **state)
         uint8_t *b = malloc(size);
         assert_non_null(b);
         memcpy(b, g, size);
-        w32(b + hdr[i].at, hdr[i].v);
+        mr_le_put_u32(b + hdr[i].at, hdr[i].v);
         fix_header_crc(b);
         char what[64];
         snprintf(what, sizeof what, "u32 %#x at %zu", hdr[i].v, hdr[i].at);
@@ -605,16 +583,16 @@ static void test_crafted_structure(void **state)
         uint8_t *b = malloc(size);
         assert_non_null(b);
         memcpy(b, g, size);
-        w32(b + 44, L + 1);
-        w32(b + 56, (uint32_t)(o.crc - o.fn + 4));
+        mr_le_put_u32(b + 44, L + 1);
+        mr_le_put_u32(b + 56, (uint32_t)(o.crc - o.fn + 4));
         fix_header_crc(b);
         expect_bad(b, size, size, "truncated", "one leaf more than the bytes hold");
         /* counts that would need more than the limit */
-        w32(b + 40, 0xFFFFFFF0u);
-        w32(b + 44, 0xFFFFFFF0u);
+        mr_le_put_u32(b + 40, 0xFFFFFFF0u);
+        mr_le_put_u32(b + 44, 0xFFFFFFF0u);
         uint64_t payload = 0xFFFFFFF0ull * 14 + 16ull * P;
-        w32(b + 56, (uint32_t)payload);
-        w32(b + 60, (uint32_t)(payload >> 32));
+        mr_le_put_u32(b + 56, (uint32_t)payload);
+        mr_le_put_u32(b + 60, (uint32_t)(payload >> 32));
         fix_header_crc(b);
         expect_bad(b, size, 40, "limit", "counts beyond the file limit");
         free(b);
