@@ -1082,6 +1082,41 @@ static void test_workspace(void **state)
     posed_close(&f);
 }
 
+/* A workspace kept across frames stops growing after the first: calling
+ * again with the same octree and view allocates nothing more. Every leaf
+ * (no camera) makes nine levels at depth 8, an odd number: the level arrays
+ * swapped at each level must come back to their places, or the next call
+ * puts its widest level in the other array and grows that one too. */
+static void test_workspace_steady(void **state)
+{
+    (void)state;
+    const unsigned D = 8;
+    posed_dancer f;
+    posed_open(&f, D, 0.37);
+    const mr_svo_view every = {.enabled = false}, near = posed_view();
+    const mr_svo_view *views[2] = {&every, &near};
+    for (int v = 0; v < 2; v++) {
+        mr_svo_workspace *ws = NULL;
+        mr_error err = {0};
+        assert_int_equal(mr_svo_workspace_new(&ws, &err), MR_OK);
+        size_t bytes[3];
+        for (int call = 0; call < 3; call++) {
+            mr_svo_selection sel = {0};
+            assert_int_equal(mr_svo_select_ws(f.s, &f.e, &f.r.d, views[v], D, 2, ws, &sel, &err), MR_OK);
+            assert_true(sel.count > 0);
+            if (v == 0)
+                assert_int_equal(sel.count, f.s->leaf_count);
+            bytes[call] = mr_svo_workspace_memory(ws);
+            mr_svo_selection_free(&sel);
+        }
+        assert_true(bytes[0] > 0);
+        assert_int_equal(bytes[1], bytes[0]);
+        assert_int_equal(bytes[2], bytes[0]);
+        mr_svo_workspace_free(ws);
+    }
+    posed_close(&f);
+}
+
 /* ---- validation */
 
 static void test_invalid_input(void **state)
@@ -1177,6 +1212,7 @@ int main(void)
         cmocka_unit_test(test_threads),
         cmocka_unit_test(test_repeated_cells),
         cmocka_unit_test(test_workspace),
+        cmocka_unit_test(test_workspace_steady),
         cmocka_unit_test(test_invalid_input),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
