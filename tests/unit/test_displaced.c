@@ -147,9 +147,16 @@ static void test_pyramid_any_size(void **state)
                                          "expected [%.17g, %.17g]",
                                          g.w, g.h, (int)TYPES[ti], l, I, J, lo, hi, el, eh);
                         }
-                        double hl, hh;
+                        double hl, hh, sl, sh;
                         mr_dgrid_node_heights(&g, l, I, J, &hl, &hh);
                         assert_true(hl <= mr_dgrid_height_of(&g, mx) && hh >= mr_dgrid_height_of(&g, mn));
+                        /* the traversal's inline path (8-bit heights looked up)
+                         * gives the reference's bits */
+                        mr_dgrid_node_heights_slow(&g, l, I, J, &sl, &sh);
+                        if (hl != sl || hh != sh)
+                            fail_msg("%ux%u type %d level %u node (%u, %u): heights [%.17g, %.17g], "
+                                     "reference [%.17g, %.17g]",
+                                     g.w, g.h, (int)TYPES[ti], l, I, J, hl, hh, sl, sh);
                     }
             mr_dgrid_free(&g);
             mr_asset_free(tex);
