@@ -256,8 +256,11 @@ void mr_heap_release(void);
 unsigned mr_cpu_count(void);
 
 /* The one way microray uses several cores: mr_parallel_for splits [0,
- * count) into chunks of `grain` items handed out dynamically to `threads`
- * workers (the calling thread is one of them; 0: all online cores), and
+ * count) into chunks of `grain` items run by `threads` workers (the
+ * calling thread is one of them; 0: all online cores), each taking the
+ * chunks of its own contiguous share first and then any left in the
+ * others' (so successive loops over the same items mostly run where they
+ * ran before, on data in that core's cache), and
  * falls back to running everything on the caller when threads cannot be
  * started. fn gets a half-open range and the worker's index in [0,
  * threads). Work must be independent per item, so results do not depend

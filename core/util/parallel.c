@@ -1,5 +1,5 @@
 /*
- * parallel.c - dynamic chunked parallel-for (microray.h, "cores and the
+ * parallel.c - chunked parallel-for (microray.h, "cores and the
  * parallel loop") on a persistent pool of worker threads.
  *
  * Why a pool: starting and joining threads on every call cost tens of
@@ -41,6 +41,19 @@
  *    (A fork from inside a task would leave the child's copy of the loop
  *    waiting for workers it does not have: nothing does that.)
  * Results do not depend on any of this: fn's items are independent.
+ *
+ * Which thread runs which items. A loop's chunks are split into one
+ * contiguous range per thread; a thread takes chunks from its own range
+ * first and then from the others', front first, so a slow or sleeping
+ * worker holds up nobody. Successive loops over the same items (a frame's
+ * levels, the next frame's) then run mostly where they ran before, and
+ * find the lines they wrote in their own core's cache: on the 2-vCPU
+ * machine a cache line written by one core reaches the other in about
+ * 220 ns (a ping-pong between the two measured 445 ns a round trip).
+ * Every chunk taken from one shared counter, as before, sent half of a
+ * loop's data across each time: the dancer's selection at depth 8 on two
+ * threads took 2.71-2.74 ms that way and 2.27-2.38 ms with the ranges
+ * (1 thread: 3.4-3.5 ms).
  */
 #define _GNU_SOURCE
 #include "util/parallel.h"
@@ -59,24 +72,38 @@
 typedef struct job {
     mr_range_fn fn;
     void *ctx;
-    size_t count, grain;
-    atomic_size_t next;
+    size_t grain;
+    unsigned ranges;     /* one per thread of the loop */
+    struct range *range;
 } job_t;
+
+/* Thread w's share of a loop's items, [next, end): taken a grain at a time
+ * by w, then by the others once their own are done. A cache line each:
+ * owners count on their own counters without moving a line between cores. */
+typedef struct range {
+    _Alignas(64) atomic_size_t next;
+    size_t end;
+} range_t;
 
 /* Worker or caller: inside a task of a loop that runs on several threads
  * (a nested call runs serially). */
 static _Thread_local bool in_task;
 
+/* Runs chunks until none is left: the worker's own range, then the
+ * others' in turn. */
 static void run_chunks(job_t *job, unsigned worker)
 {
-    for (;;) {
-        size_t begin = atomic_fetch_add_explicit(&job->next, job->grain, memory_order_relaxed);
-        if (begin >= job->count)
-            return;
-        size_t end = begin + job->grain;
-        if (end > job->count)
-            end = job->count;
-        job->fn(job->ctx, begin, end, worker);
+    for (unsigned k = 0; k < job->ranges; k++) {
+        range_t *r = &job->range[(worker + k) % job->ranges];
+        for (;;) {
+            size_t begin = atomic_fetch_add_explicit(&r->next, job->grain, memory_order_relaxed);
+            if (begin >= r->end)
+                break;
+            size_t end = begin + job->grain;
+            if (end > r->end)
+                end = r->end;
+            job->fn(job->ctx, begin, end, worker);
+        }
     }
 }
 
@@ -311,8 +338,14 @@ void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn f
     if (in_task)
         threads = 1; /* nested: the outer loop has the threads */
 
-    job_t job = {.fn = fn, .ctx = ctx, .count = count, .grain = grain};
-    atomic_init(&job.next, 0);
+    /* chunks [chunks * w / threads, chunks * (w + 1) / threads) are w's */
+    range_t range[threads];
+    for (unsigned w = 0; w < threads; w++) {
+        atomic_init(&range[w].next, (size_t)((uint64_t)chunks * w / threads) * grain);
+        const size_t end = (size_t)((uint64_t)chunks * (w + 1) / threads) * grain;
+        range[w].end = end < count ? end : count;
+    }
+    job_t job = {.fn = fn, .ctx = ctx, .grain = grain, .ranges = threads, .range = range};
     if (threads <= 1) {
         run_chunks(&job, 0);
         return;

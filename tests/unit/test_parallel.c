@@ -1,5 +1,7 @@
 /*
  * test_parallel.c - mr_parallel_for on its pool of workers (util/parallel.c):
+ *  - each worker starts at the front of its own contiguous share of the
+ *    items;
  *  - every item is handed out exactly once and a worker index is never
  *    used by two threads at the same time, for 1..17 threads, over many
  *    back-to-back calls (the pool's workers spinning) and calls with gaps
@@ -107,6 +109,82 @@ static void test_many_calls(void **state)
     }
     mr_parallel_pool_spin(-1);
     free(c);
+}
+
+/* ---- each worker's own share first ---- */
+
+#define SHARE_ITEMS 12
+
+typedef struct share_ctx {
+    unsigned threads;
+    atomic_int first[MR_MAX_THREADS]; /* the first item each worker ran, -1: none */
+    atomic_uint started[SHARE_ITEMS];
+    atomic_uint waited_ok; /* item 0 saw every other share's first item start */
+} share_ctx;
+
+static unsigned share_start(const share_ctx *c, unsigned w) { return SHARE_ITEMS * w / c->threads; }
+
+static void share_item(void *ctx, size_t begin, size_t end, unsigned worker)
+{
+    share_ctx *c = ctx;
+    int none = -1;
+    atomic_compare_exchange_strong(&c->first[worker], &none, (int)begin);
+    for (size_t i = begin; i < end; i++)
+        atomic_store(&c->started[i], 1);
+    if (begin != 0)
+        return;
+    /* item 0 (worker 0's first) holds worker 0 until the other shares'
+     * first items have started, for at most a second: the other workers
+     * must have taken them, as nothing else could */
+    for (int tick = 0; tick < 1000; tick++) {
+        unsigned all = 1;
+        for (unsigned w = 1; w < c->threads; w++)
+            all &= atomic_load(&c->started[share_start(c, w)]);
+        if (all) {
+            atomic_store(&c->waited_ok, 1);
+            return;
+        }
+        usleep(1000);
+    }
+}
+
+/* Worker w starts at the front of its own share, chunks [w n / T, (w + 1)
+ * n / T): with one counter for all, as before, a helper would start at
+ * item 1 (worker 0 holds item 0).
+ * A worker that has not woken within a second of its post (a loaded
+ * machine) gets another try; ten in a row would mean a broken pool. */
+static void test_own_share_first(void **state)
+{
+    (void)state;
+    for (unsigned threads = 2; threads <= 3; threads++) {
+        share_ctx c;
+        bool done = false;
+        for (int attempt = 0; attempt < 10 && !done; attempt++) {
+            memset(&c, 0, sizeof c);
+            c.threads = threads;
+            for (unsigned w = 0; w < MR_MAX_THREADS; w++)
+                atomic_init(&c.first[w], -1);
+            mr_parallel_for(threads, SHARE_ITEMS, 1, share_item, &c);
+            for (unsigned i = 0; i < SHARE_ITEMS; i++)
+                assert_int_equal(atomic_load(&c.started[i]), 1);
+            done = atomic_load(&c.waited_ok);
+        }
+        assert_true(done);
+        /* worker 0 held item 0 while the other shares' fronts started: a
+         * helper took each, and every helper that ran began at its own
+         * front (one that woke late may have found its share taken by
+         * another helper, and ran nothing) */
+        unsigned helpers = 0;
+        assert_int_equal(atomic_load(&c.first[0]), 0);
+        for (unsigned w = 1; w < threads; w++) {
+            const int first = atomic_load(&c.first[w]);
+            if (first < 0)
+                continue;
+            assert_int_equal(first, (int)share_start(&c, w));
+            helpers++;
+        }
+        assert_true(helpers > 0);
+    }
 }
 
 /* ---- nested calls ---- */
@@ -241,6 +319,7 @@ int main(void)
     alarm(300); /* deadlock guard (see the head of the file) */
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_thread_counts),  cmocka_unit_test(test_many_calls),
+        cmocka_unit_test(test_own_share_first),
         cmocka_unit_test(test_nested),         cmocka_unit_test(test_two_callers),
         cmocka_unit_test(test_shutdown_restart), cmocka_unit_test(test_fork),
     };
