@@ -135,7 +135,7 @@ enum {
     WS_CUR, WS_NEXT, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
-    WS_RS_LEAVES, WS_PALETTE, WS_PAL_FILLED, WS_RS_WRITTEN,
+    WS_RS_LEAVES, WS_PALETTE, WS_RS_WRITTEN,
     WS_SLOTS
 };
 
@@ -365,22 +365,14 @@ typedef struct sel_ctx {
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
-    /* The palette entries' matrices for this frame, once the frontier is
-     * large enough to pay for a table of them; NULL before. On one thread
-     * (instances deformed in parallel) every entry's skin matrix is blended
-     * up front (pal_fill; filled is NULL). On several, each worker has a
-     * table of its own (pal + worker * palette_count), whose entries it
-     * blends when its voxels first ask for them (bit attr of its words of
-     * `filled`, filled_words each): a table shared by the workers had half
-     * of its lines made on the other core, and on the 2-vCPU machine a line
-     * takes ~220 ns to cross (the dancer at depth 8, every leaf, two
-     * threads: 2.27-2.38 -> 2.14-2.32 ms with the pool's own shares, see
-     * parallel.c). Normal matrices are made in either table when a
-     * selected voxel first needs one (a small instance needs few: 64
-     * instances at 640x360 174-183 -> 165-169 ms of thread time). */
+    /* every palette entry's matrices for this frame (pal_fill), once the
+     * frontier is large enough to pay for them; NULL before */
     pal_entry *pal;
-    uint64_t *filled;
-    size_t filled_words;
+    /* on one thread (instances deformed in parallel): pal's normal
+     * matrices are made when a selected voxel first needs one, not all
+     * with the table (a small instance needs few: selection of 64
+     * instances at 640x360 174-183 -> 165-169 ms of thread time) */
+    bool lazy_normals;
 } sel_ctx;
 
 /* The blended skin matrix of palette entry at (sum of weight * joint
@@ -518,41 +510,30 @@ static void move_normal(normal_queue *q, const double r[9], const uint8_t in[2],
         nq_flush(q);
 }
 
-static void pal_blend(const sel_ctx *c, uint32_t attr, pal_entry *p)
+/* Entry attr's matrices: from the frame's table when it has been filled,
+ * else blended into *tmp (the same arithmetic either way, so the frontier
+ * size that decides which does not change a result). */
+static pal_entry *pal_get(const sel_ctx *c, uint32_t attr, pal_entry *tmp)
 {
-    p->ok = blend_entry(&c->svo->palette[attr], c->d, &p->a);
-    p->has_normal = false;
-}
-
-/* Entry attr's matrices for `worker`: from the frame's table (blended now
- * if this worker's table lacks it), or before there is a table blended
- * into *tmp. The same arithmetic either way, so neither the frontier size
- * that decides nor which worker asks changes a result. */
-static pal_entry *pal_get(const sel_ctx *c, unsigned worker, uint32_t attr, pal_entry *tmp)
-{
-    if (!c->pal) {
-        pal_blend(c, attr, tmp);
-        return tmp;
-    }
-    if (!c->filled)
+    if (c->pal)
         return &c->pal[attr];
-    pal_entry *p = &c->pal[(size_t)worker * c->svo->palette_count + attr];
-    uint64_t *word = &c->filled[(size_t)worker * c->filled_words + attr / 64];
-    const uint64_t bit = (uint64_t)1 << (attr % 64);
-    if (!(*word & bit)) {
-        pal_blend(c, attr, p);
-        *word |= bit;
-    }
-    return p;
+    tmp->ok = blend_entry(&c->svo->palette[attr], c->d, &tmp->a);
+    tmp->has_normal = false;
+    return tmp;
 }
 
-/* Blends entries [begin, end) of the one-thread table (mr_range_fn). */
+/* Fills entries [begin, end) of the frame's table (mr_range_fn). */
 static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
     const sel_ctx *c = vctx;
-    for (size_t i = begin; i < end; i++)
-        pal_blend(c, (uint32_t)i, &c->pal[i]);
+    for (size_t i = begin; i < end; i++) {
+        pal_entry *p = &c->pal[i];
+        p->ok = blend_entry(&c->svo->palette[i], c->d, &p->a);
+        if (p->ok && !c->lazy_normals)
+            normal_matrix(&p->a, &p->a, p->normal);
+        p->has_normal = p->ok && !c->lazy_normals;
+    }
 }
 
 /* Four double lanes, lane i the axis i (lane 3 idle): GCC vector types,
@@ -712,6 +693,7 @@ static void fail_set(sel_fail *f, int kind, uint32_t a, uint32_t b, const double
 __attribute__((target_clones("avx2", "default")))
 static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
 {
+    (void)worker;
     sel_ctx *c = vctx;
     const mr_svo *svo = c->svo;
     for (size_t ch = begin; ch < end; ch++) {
@@ -766,12 +748,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 a0 = &f0;
                 a1 = &f1;
             } else {
-                p0 = pal_get(c, worker, attr0, &t0);
+                p0 = pal_get(c, attr0, &t0);
                 if (!p0->ok) {
                     fail_set(fail, FAIL_PALETTE, attr0, 0, NULL);
                     continue;
                 }
-                p1 = attr1 == attr0 ? p0 : pal_get(c, worker, attr1, &t1);
+                p1 = attr1 == attr0 ? p0 : pal_get(c, attr1, &t1);
                 if (!p1->ok) {
                     fail_set(fail, FAIL_PALETTE, attr1, 0, NULL);
                     continue;
@@ -837,7 +819,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                  * normal (one leaf's would light the whole voxel by
                  * wherever that leaf's surface faces) */
                 const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
-                if (p0 && p0 == p1 && !p0->has_normal) { /* its first */
+                if (p0 && p0 == p1 && c->lazy_normals && !p0->has_normal) { /* its first */
                     normal_matrix(&p0->a, &p0->a, p0->normal);
                     p0->has_normal = true;
                 }
@@ -1110,25 +1092,14 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
          * of voxels blends only theirs, a near one blends each entry once
          * instead of once per voxel. */
         if (!d->field && !c.pal && svo->palette_count > 0 && 4 * visited >= svo->palette_count) {
-            /* mr_parallel_for numbers its workers below this */
-            unsigned workers = threads ? threads : mr_cpu_count();
-            if (workers > MR_MAX_THREADS)
-                workers = MR_MAX_THREADS;
-            c.pal = ws_get(ws, WS_PALETTE, (size_t)workers * svo->palette_count, sizeof *c.pal);
-            if (c.pal && workers > 1) {
-                /* each worker's bits on cache lines of their own */
-                c.filled_words = ((svo->palette_count + 63u) / 64u + 7u) / 8u * 8u;
-                c.filled = ws_get(ws, WS_PAL_FILLED, workers * c.filled_words, sizeof *c.filled);
-            }
-            if (!c.pal || (workers > 1 && !c.filled)) {
+            c.pal = ws_get(ws, WS_PALETTE, svo->palette_count, sizeof *c.pal);
+            if (!c.pal) {
                 rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%u palette entries)",
                                   svo->palette_count);
                 goto cleanup;
             }
-            if (c.filled)
-                memset(c.filled, 0, workers * c.filled_words * sizeof *c.filled);
-            else
-                pal_fill(&c, 0, svo->palette_count, 0);
+            c.lazy_normals = threads == 1;
+            mr_parallel_for(threads, svo->palette_count, 256, pal_fill, &c);
         }
         mr_parallel_for(threads, chunks, 1, sel_pass1, &c);
         size_t sel_total = out->count, child_total = 0;
