@@ -34,30 +34,20 @@
 #define RADIX (1u << DIGIT_BITS)
 #define LEVEL_PASSES ((32u + DIGIT_BITS - 1u) / DIGIT_BITS)
 #define PASSES (LEVEL_PASSES + (64u + DIGIT_BITS - 1u) / DIGIT_BITS)
-/* Below this many keys per worker, threads cost more than they save. A
- * parallel pass sends about half of the keys it scatters to the other
- * core, and counts its own digits (one block counts every pass in one
- * read): on the 2-vCPU machine, whose cores pass a cache line in ~220 ns,
- * a resample's sort (resize at depths 8 / 9, 0.45 / 1.8 million keys)
- * took 2.44-2.49 / 5.6-5.8 ms on two blocks and 1.86-1.95 / 5.1-5.4 on
- * one, while emit at depth 9 (3.3 million) took 5.1-5.3 on two and 8.1-8.2
- * on one (32768 keys per block until stop 48). */
-#define MIN_PER_BLOCK 1048576u
-static size_t min_per_block = MIN_PER_BLOCK; /* mr_radix_sort_min_per_block */
+/* Below this many keys per worker, threads cost more than they save. */
+#define MIN_PER_BLOCK 32768u
 #define MAX_BLOCKS 64u
 /* Digits of the 64-bit sort: 2^10 buckets of 8 + 4 bytes stay in L2. */
 #define U64_MAX_BITS 10u
 
 /* ---- shared by both layouts ------------------------------------------- */
 
-void mr_radix_sort_min_per_block(size_t keys) { min_per_block = keys ? keys : MIN_PER_BLOCK; }
-
 /* Blocks (workers) for count keys on `threads` (0 = all cores). */
 static size_t block_count(size_t count, unsigned threads)
 {
     if (threads == 0)
         threads = mr_cpu_count();
-    size_t blocks = count / min_per_block;
+    size_t blocks = count / MIN_PER_BLOCK;
     if (blocks > threads)
         blocks = threads;
     if (blocks > MAX_BLOCKS)

@@ -23,12 +23,6 @@
 #include "microray.h"
 #include "kinds/svo/svo.h"
 
-/* Test hook: a sort runs on one block per thread only where each block
- * gets at least `keys` keys (0: the default, MIN_PER_BLOCK in
- * radix_sort.c); tests lower it to sort small inputs on several blocks. Not
- * thread-safe: set it while no sort runs. */
-void mr_radix_sort_min_per_block(size_t keys);
-
 /* ---- 16-byte keys --------------------------------------------------------
  * 11-bit digits; keys of a depth-D octree with one level cost
  * ceil(3D / 11) passes. */

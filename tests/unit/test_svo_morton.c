@@ -401,9 +401,6 @@ static void test_u64_sort_matches_key_sort(void **state)
 
 int main(void)
 {
-    /* blocks of 32768 keys or more (the default asks for a million): the
-     * sizes below then run on one block and on several */
-    mr_radix_sort_min_per_block(32768);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_known_answers),
         cmocka_unit_test(test_round_trip),
