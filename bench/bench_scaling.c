@@ -5,7 +5,8 @@
  * 3840x2160), with the renderer's accounted memory and the process' peak
  * resident memory, and next to each table the growth exponent fitted to
  * it (least squares of log cost against log work: 1 is linear, 0 is
- * flat). The svo instance-count sweep (1 to ~10^5) is bench_svo d; its
+ * flat); first the machine's limits: its copy bandwidth, and the time a
+ * cache line takes from one core to another. The svo instance-count sweep (1 to ~10^5) is bench_svo d; its
  * exponent is printed there. Not a test: it prints figures, it never fails
  * on a time.
  *
@@ -20,6 +21,8 @@
  * usage: bench_scaling   (run from the repository root)
  */
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -168,6 +171,51 @@ static double copy_bandwidth(void)
 
 static double machine_gbs;
 
+/* ---- how far apart the cores are: the time a cache line written on one
+ * core takes to reach another, which every loop pays that hands its data
+ * from one thread to the next (core/util/parallel.c keeps each thread on
+ * its own share for that) */
+
+#define PING_ROUNDS 200000
+
+static _Alignas(64) atomic_int ping_flag;
+
+static void *pong(void *arg)
+{
+    (void)arg;
+    for (int i = 0; i < PING_ROUNDS; i++) {
+        while (atomic_load_explicit(&ping_flag, memory_order_acquire) != 1)
+            ;
+        atomic_store_explicit(&ping_flag, 0, memory_order_release);
+    }
+    return NULL;
+}
+
+/* Median round trip (ns) of a flag passed back and forth between two
+ * threads, 5 runs of PING_ROUNDS; 0 on one core, where the two would take
+ * turns on it. */
+static double ping_pong_ns(void)
+{
+    if (mr_cpu_count() < 2)
+        return 0;
+    double ns[5];
+    for (int r = 0; r < 5; r++) {
+        atomic_store(&ping_flag, 0);
+        pthread_t t;
+        if (pthread_create(&t, NULL, pong, NULL) != 0)
+            return 0;
+        const double t0 = mr_now();
+        for (int i = 0; i < PING_ROUNDS; i++) {
+            atomic_store_explicit(&ping_flag, 1, memory_order_release);
+            while (atomic_load_explicit(&ping_flag, memory_order_acquire) != 0)
+                ;
+        }
+        ns[r] = (mr_now() - t0) / PING_ROUNDS * 1e9;
+        pthread_join(t, NULL);
+    }
+    return median(ns, 5);
+}
+
 /* The growth exponent of one field of the rows against their work. */
 static double growth(const row *rows, int n, size_t field_offset)
 {
@@ -292,12 +340,19 @@ int main(void)
         die("cache", "cannot make a temporary folder");
     const double t0 = mr_now();
     machine_gbs = copy_bandwidth();
+    const double ping = ping_pong_ns();
     printf("\n## Scaling (issue 17): how each cost grows with its work, %u threads\n\n"
            "The machine copies %.1f GB/s (bytes read + written, every core, memcpy of 512 MiB). "
            "\"its GB/s\" below is a frame's geometry + BVH bytes over its frame time: the least "
            "it moves when every frame touches all of its geometry (skinning, refit); near the "
            "copy rate the machine's memory, not the algorithm, sets the pace.\n\n",
            mr_cpu_count(), machine_gbs);
+    if (ping > 0)
+        printf("A flag passed back and forth between two threads takes %.0f ns a round trip: a cache "
+               "line written on one core reaches the other in about %.0f ns. A loop that hands its "
+               "data from one thread to the other pays that per line, which is why each thread of "
+               "a parallel loop takes its own share of the items first (core/util/parallel.c).\n\n",
+               ping, ping / 2);
     triangles_mesh(cache);
     triangles_dmm(cache);
     resolution(cache);
