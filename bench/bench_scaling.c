@@ -6,9 +6,9 @@
  * resident memory, and next to each table the growth exponent fitted to
  * it (least squares of log cost against log work: 1 is linear, 0 is
  * flat); first the machine's limits: its copy bandwidth, and the time a
- * cache line takes from one core to another. The svo instance-count sweep (1 to ~10^5) is bench_svo d; its
- * exponent is printed there. Not a test: it prints figures, it never fails
- * on a time.
+ * cache line takes from one core to another. The svo instance-count sweep
+ * (1 to ~10^5) is bench_svo d; its exponent is printed there. Not a test:
+ * it prints figures, it never fails on a time.
  *
  * Scenes: the skinned dancer of the examples (BCN_Epileptic.X, its clip)
  * made detailed by Loop rounds (refine.h), shadows on, 1 sample, 2

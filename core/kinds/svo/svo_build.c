@@ -180,20 +180,6 @@ static inline void radix_node(build_ctx *c, size_t node, size_t first, size_t la
     c->info[node] = info;
 }
 
-/* The binary radix tree of the n >= 2 sorted unique keys, in Karras'
- * numbering, in one pass. Internal nodes are the n - 1 splits: split p lies
- * between keys p and p + 1, whose codes share d(p) leading bits. Its node
- * covers the keys back to the nearest split on the left with a shorter
- * common prefix (l) and on to the nearest on the right (r): [l + 1, r].
- * (Two splits with equal d have a shorter one between them: the bit after
- * the prefix rises once in a sorted run.) Its parent is whichever of l and
- * r has the longer prefix; as the parent's right child the node is
- * numbered by its first key, as its left child by its last (the root: 0),
- * which is Karras' numbering (each node's range has its number at one end).
- * A stack of splits with rising d finds both neighbours: a split is popped
- * by its right one, and the one below it is its left. d rises strictly up
- * the stack, so it holds at most 64 splits. Sequential and linear, where
- * Karras' binary searches per node jumped across the keys. */
 typedef struct split_entry {
     uint32_t split;
     int8_t d;
@@ -218,6 +204,20 @@ static void close_splits(build_ctx *c, split_entry *stack, int *top, int bottom,
     }
 }
 
+/* The binary radix tree of the n >= 2 sorted unique keys, in Karras'
+ * numbering, in one pass. Internal nodes are the n - 1 splits: split p lies
+ * between keys p and p + 1, whose codes share d(p) leading bits. Its node
+ * covers the keys back to the nearest split on the left with a shorter
+ * common prefix (l) and on to the nearest on the right (r): [l + 1, r].
+ * (Two splits with equal d have a shorter one between them: the bit after
+ * the prefix rises once in a sorted run.) Its parent is whichever of l and
+ * r has the longer prefix; as the parent's right child the node is
+ * numbered by its first key, as its left child by its last (the root: 0),
+ * which is Karras' numbering (each node's range has its number at one end).
+ * A stack of splits with rising d finds both neighbours: a split is popped
+ * by its right one, and the one below it is its left. d rises strictly up
+ * the stack, so it holds at most 64 splits. Sequential and linear, where
+ * Karras' binary searches per node jumped across the keys. */
 static void radix_tree(build_ctx *c)
 {
     split_entry stack[65];
