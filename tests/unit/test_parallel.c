@@ -114,15 +114,13 @@ static void test_many_calls(void **state)
 /* ---- each worker's own share first ---- */
 
 #define SHARE_ITEMS 12
+#define HELPER_FRONT (SHARE_ITEMS / 2) /* the first item of the helper's share, on two threads */
 
 typedef struct share_ctx {
-    unsigned threads;
-    atomic_int first[MR_MAX_THREADS]; /* the first item each worker ran, -1: none */
+    atomic_int first[2];   /* the first item each worker ran, -1: none */
     atomic_uint started[SHARE_ITEMS];
     atomic_uint waited_ok; /* item 0 saw the helper's front start */
 } share_ctx;
-
-static unsigned share_start(const share_ctx *c, unsigned w) { return SHARE_ITEMS * w / c->threads; }
 
 static void share_item(void *ctx, size_t begin, size_t end, unsigned worker)
 {
@@ -137,7 +135,7 @@ static void share_item(void *ctx, size_t begin, size_t end, unsigned worker)
      * front has started, for at most a second: worker 0 cannot take that
      * front before it (its own share comes first) nor while holding it */
     for (int tick = 0; tick < 1000; tick++) {
-        if (atomic_load(&c->started[share_start(c, 1)])) {
+        if (atomic_load(&c->started[HELPER_FRONT])) {
             atomic_store(&c->waited_ok, 1);
             return;
         }
@@ -145,11 +143,12 @@ static void share_item(void *ctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
-/* The helper starts at the front of its own share, chunks [n / 2, n): with
- * one counter for all, as before, it would start at item 0 or 1. Two threads only: with more, a helper that wakes late may find
- * its front taken by another helper, and start elsewhere. A helper that has
- * not woken within a second of its post (a loaded machine) gets another
- * try; ten in a row would mean a broken pool. */
+/* On two threads the helper starts at the front of its own share, chunks
+ * [n / 2, n): with one counter for all, as before, it would start at item
+ * 0 or 1. Two threads only: with more, a helper that wakes late may find
+ * its front taken by another helper, and start elsewhere. A helper that
+ * has not woken within a second of its post (a loaded machine) gets
+ * another try; ten in a row would mean a broken pool. */
 static void test_own_share_first(void **state)
 {
     (void)state;
@@ -157,9 +156,8 @@ static void test_own_share_first(void **state)
     bool done = false;
     for (int attempt = 0; attempt < 10 && !done; attempt++) {
         memset(&c, 0, sizeof c);
-        c.threads = 2;
-        for (unsigned w = 0; w < MR_MAX_THREADS; w++)
-            atomic_init(&c.first[w], -1);
+        atomic_init(&c.first[0], -1);
+        atomic_init(&c.first[1], -1);
         mr_parallel_for(2, SHARE_ITEMS, 1, share_item, &c);
         for (unsigned i = 0; i < SHARE_ITEMS; i++)
             assert_int_equal(atomic_load(&c.started[i]), 1);
@@ -170,7 +168,7 @@ static void test_own_share_first(void **state)
      * only other thread, was either holding it or had not started (the
      * helper, awake first, may run worker 0's share once its own is
      * done): the helper took its front, first */
-    assert_int_equal(atomic_load(&c.first[1]), (int)share_start(&c, 1));
+    assert_int_equal(atomic_load(&c.first[1]), HELPER_FRONT);
 }
 
 /* ---- nested calls ---- */

@@ -218,16 +218,24 @@ static void close_splits(build_ctx *c, split_entry *stack, int *top, int bottom,
  * by its right one, and the one below it is its left. d rises strictly up
  * the stack, so it holds at most 64 splits. Sequential and linear, where
  * Karras' binary searches per node jumped across the keys. */
+/* The stack pass over splits [from, to), every one of them below n - 1:
+ * each closes what it can, then waits on the stack for its right
+ * neighbour. */
+static void walk_splits(build_ctx *c, split_entry *stack, int *top, size_t from, size_t to)
+{
+    for (size_t p = from; p < to; p++) {
+        const int d = split_d(c, p);
+        close_splits(c, stack, top, 0, p, d);
+        stack[(*top)++] = (split_entry){(uint32_t)p, (int8_t)d};
+    }
+}
+
 static void radix_tree(build_ctx *c)
 {
     split_entry stack[65];
     int top = 0;
-    for (size_t p = 0; p + 1 <= c->n; p++) {
-        const int d = split_d(c, p);
-        close_splits(c, stack, &top, 0, p, d);
-        if (d >= 0)
-            stack[top++] = (split_entry){(uint32_t)p, (int8_t)d};
-    }
+    walk_splits(c, stack, &top, 0, c->n - 1);
+    close_splits(c, stack, &top, 0, c->n - 1, -1); /* the split after the last key */
 }
 
 /* The same tree from two halves of the splits walked at once (radix_tree's
@@ -268,11 +276,7 @@ static void radix_half(void *vctx, size_t begin, size_t end, unsigned worker)
     build_ctx *c = h->c;
     for (size_t half = begin; half < end; half++) {
         if (half == 0) {
-            for (size_t p = 0; p < h->m; p++) {
-                const int d = split_d(c, p);
-                close_splits(c, h->left, &h->left_top, 0, p, d);
-                h->left[h->left_top++] = (split_entry){(uint32_t)p, (int8_t)d};
-            }
+            walk_splits(c, h->left, &h->left_top, 0, h->m);
             continue;
         }
         split_entry *stack = h->right;
