@@ -704,6 +704,21 @@ static void test_screen_space(void **state)
     select_ok(s, &e, &side_r.d, &v, D, 2, &side);
     print_message("half out of view: %zu voxels culled to %zu\n", tmp.count, side.count);
     assert_true(side.count > 0 && side.count < tmp.count);
+    /* wholly past each of the frustum's planes (left, right, below, above,
+     * beyond the far plane at 1e4): removed at the root, each plane in its
+     * lane of predicate (a)'s two vectors */
+    const double out_of_view[5][3] = {{-40, 0, -3}, {40, 0, -3}, {0, -40, -3}, {0, 40, -3}, {0, 0, -3e4}};
+    for (int k = 0; k < 5; k++) {
+        rig out_r;
+        const double *o = out_of_view[k];
+        rig_uniform(&out_r, a,
+                    affine_rows(1, 0, 0, (float)(o[0] - c[0]), 0, 1, 0, (float)(o[1] - c[1]), 0, 0, 1,
+                                (float)(o[2] - c[2])));
+        select_ok(s, &e, &out_r.d, &v, D, 2, &tmp);
+        assert_int_equal(tmp.count, 0);
+        assert_int_equal(tmp.visited, 1);
+        rig_free(&out_r);
+    }
     /* without a camera behind it counts as unbounded, so everything refines */
     v.cull = false;
     select_ok(s, &e, &back_r.d, &v, D, 2, &tmp);

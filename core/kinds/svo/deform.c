@@ -312,6 +312,40 @@ int mr_svo_extremes_build(const mr_svo *svo, mr_svo_extremes *out, mr_error *err
 /* ------------------------------------------------------------------------ */
 /* Selection                                                                */
 
+/* Four double lanes, lane i the axis i (lane 3 idle): GCC vector types,
+ * one register with AVX2 and two SSE2 registers without (sel_pass1 and
+ * pal_fill are compiled for both, target_clones). No function takes or returns a
+ * 32-byte vector by value: outside AVX that changes the ABI (GCC warns,
+ * clang refuses the call in the baseline clone). */
+typedef double vdouble __attribute__((vector_size(32)));
+typedef int64_t vlong __attribute__((vector_size(32)));
+typedef float vfloat __attribute__((vector_size(16)));
+typedef int32_t vint __attribute__((vector_size(16)));
+
+/* a where m (all ones), else b */
+#define VSEL(m, a, b) ((vdouble)(((m) & (vlong)(a)) | (~(m) & (vlong)(b))))
+/* v's lanes a, b, c (lane 3 kept) */
+#define VSHUF(v, a, b, c) __builtin_shuffle((v), (vlong){a, b, c, 3})
+
+/* Four doubles anywhere in memory as one vector (a memcpy of 32 bytes
+ * became two 16-byte stores to the stack and a 32-byte load: a
+ * store-forwarding stall). */
+typedef double vdouble_u __attribute__((vector_size(32), aligned(8), may_alias));
+
+/* Three columns of a 3x3 matrix in four lanes each (lane 3 zero), as
+ * twelve doubles (the normal table lives in memory the allocator aligns to
+ * 16 bytes only). */
+static inline void vcols_load(const double in[12], vdouble out[3])
+{
+    for (int k = 0; k < 3; k++)
+        out[k] = *(const vdouble_u *)(in + 4 * k);
+}
+static inline void vcols_store(const vdouble in[3], double out[12])
+{
+    for (int k = 0; k < 3; k++)
+        *(vdouble_u *)(out + 4 * k) = in[k];
+}
+
 /* One voxel to deform: its coordinates at the frontier's level (21 bits
  * each, x | y << 21 | z << 42) and its node or leaf index. */
 typedef struct sel_item {
@@ -339,7 +373,7 @@ typedef struct sel_fail {
  * the normal matrix of a voxel whose two extremes both take it. */
 typedef struct pal_entry {
     mr_affine a;
-    double normal[9]; /* normal_matrix(a, a); valid when has_normal */
+    double normal[12]; /* normal_matrix(a, a) (vcols_store); valid when has_normal */
     bool ok;          /* false: the entry names a mesh or joint the deformer lacks */
     bool has_normal;
 } pal_entry;
@@ -350,7 +384,11 @@ typedef struct sel_ctx {
     const mr_svo_deformer *d;
     bool view_on, cull;
     double vp[16];
-    double planes[7][4]; /* clip-space half spaces p . (x, y, z, 1) >= 0 */
+    /* clip-space half spaces p . (x, y, z, 1) >= 0 by coefficient: lane
+     * q of planes[e][k] is plane 4k + q's e; plane 7 is (0, 0, 0, 1),
+     * which never removes a voxel: predicate (a) tests the seven in two
+     * vectors */
+    vdouble planes[4][2];
     double width, height, delta;
     unsigned level, max_level;
     double origin[3], cell;
@@ -378,12 +416,15 @@ typedef struct sel_ctx {
 /* The blended skin matrix of palette entry at (sum of weight * joint
  * matrix, in double, rounded to float; no weights: the mesh's matrix), or
  * false when the entry names a mesh or joint the deformer lacks. */
-static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affine *out)
+__attribute__((always_inline)) static inline bool blend_entry(const mr_svo_attr *at,
+                                                              const mr_svo_deformer *d, mr_affine *out)
 {
     if (at->mesh >= d->mesh_count)
         return false;
     const uint32_t jc = d->joint_count ? d->joint_count[at->mesh] : 0;
-    double acc[12] = {0};
+    /* the twelve elements in three vectors: each element's sum is the
+     * scalar acc[e] += w * j[e] over the influences in order */
+    vdouble acc[3] = {{0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}};
     bool any = false;
     for (unsigned k = 0; k < MR_SVO_INFLUENCES; k++) {
         if (at->weights[k] == 0)
@@ -392,16 +433,17 @@ static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affi
             return false;
         const double w = at->weights[k] / 255.0;
         const float *j = d->joint[at->mesh][at->joints[k]].m;
-        for (int e = 0; e < 12; e++)
-            acc[e] += w * (double)j[e];
+        for (int q = 0; q < 3; q++)
+            acc[q] += (vdouble){w, w, w, w} * (vdouble){j[4 * q], j[4 * q + 1], j[4 * q + 2], j[4 * q + 3]};
         any = true;
     }
     if (!any) {
         *out = d->mesh[at->mesh];
         return true;
     }
-    for (int e = 0; e < 12; e++)
-        out->m[e] = (float)acc[e];
+    for (int q = 0; q < 3; q++)
+        for (int e = 0; e < 4; e++)
+            out->m[4 * q + e] = (float)acc[q][e];
     return true;
 }
 
@@ -409,25 +451,27 @@ static bool blend_entry(const mr_svo_attr *at, const mr_svo_deformer *d, mr_affi
  * cofactor of their mean (columns c1 x c2, c2 x c0, c0 x c1 of the mean's
  * linear part), negated when the mean's determinant is negative, so a
  * mirroring transform keeps normals outward (a voxel has no winding that
- * would flip with it, unlike a triangle). r[3 * k + i]: row i of column k.
+ * would flip with it, unlike a triangle). Lane i of r[k]: row i of column
+ * k (lane 3 zero); every element the scalar operations of the formula.
  * Negating the matrix before it is applied gives bit for bit the negated
  * product (rounding to nearest is symmetric). */
-static void normal_matrix(const mr_affine *a0, const mr_affine *a1, double r[9])
+__attribute__((always_inline)) static inline void normal_matrix(const mr_affine *a0, const mr_affine *a1,
+                                                                vdouble r[3])
 {
-    double c[3][3]; /* columns of the mean linear part */
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            c[j][i] = 0.5 * ((double)a0->m[4 * i + j] + (double)a1->m[4 * i + j]);
+    vdouble c[3]; /* columns of the mean linear part */
+    for (int j = 0; j < 3; j++)
+        c[j] = 0.5 * ((vdouble){a0->m[j], a0->m[4 + j], a0->m[8 + j], 0.0} +
+                      (vdouble){a1->m[j], a1->m[4 + j], a1->m[8 + j], 0.0});
+    /* column k = u x v: lane i the scalar u[i+1] v[i+2] - u[i+2] v[i+1] */
     for (int k = 0; k < 3; k++) {
-        const double *u = c[(k + 1) % 3], *v = c[(k + 2) % 3];
-        r[3 * k + 0] = u[1] * v[2] - u[2] * v[1];
-        r[3 * k + 1] = u[2] * v[0] - u[0] * v[2];
-        r[3 * k + 2] = u[0] * v[1] - u[1] * v[0];
+        const vdouble u = c[(k + 1) % 3], v = c[(k + 2) % 3];
+        r[k] = VSHUF(u, 1, 2, 0) * VSHUF(v, 2, 0, 1) - VSHUF(u, 2, 0, 1) * VSHUF(v, 1, 2, 0);
     }
-    const double det = c[0][0] * r[0] + c[0][1] * r[1] + c[0][2] * r[2];
+    const vdouble p = c[0] * r[0];
+    const double det = p[0] + p[1] + p[2];
     if (det < 0.0)
-        for (int e = 0; e < 9; e++)
-            r[e] = -r[e];
+        for (int k = 0; k < 3; k++)
+            r[k] = -r[k];
 }
 
 /* Bind normal code in moved by normal matrix r, scaled onto the
@@ -435,12 +479,13 @@ static void normal_matrix(const mr_affine *a0, const mr_affine *a1, double r[9])
  * taken unnormalised and the moved one scaled in double, so a huge or tiny
  * matrix cannot overflow or underflow the float the encoder takes); false
  * when the matrix collapses the normal, which then keeps its bind code. */
-static bool moved_direction(const double r[9], const uint8_t in[2], float out[3])
+__attribute__((always_inline)) static inline bool moved_direction(const vdouble r[3], const uint8_t in[2],
+                                                                  float out[3])
 {
     const mr_vec3 n = mr_svo_normal_direction(in);
-    double m[3];
-    for (int i = 0; i < 3; i++)
-        m[i] = r[i] * n.x + r[3 + i] * n.y + r[6 + i] * n.z;
+    const double nx = n.x, ny = n.y, nz = n.z;
+    const vdouble m = r[0] * (vdouble){nx, nx, nx, nx} + r[1] * (vdouble){ny, ny, ny, ny} +
+                      r[2] * (vdouble){nz, nz, nz, nz};
     const double l1 = fabs(m[0]) + fabs(m[1]) + fabs(m[2]);
     if (!(l1 > 0.0) || !isfinite(l1))
         return false;
@@ -488,8 +533,9 @@ static void nq_flush(normal_queue *q)
 /* Bind normal code in moved by normal matrix r into out, now (a collapsed
  * normal) or at the queue's next flush; memo (NULL: none) is filled with
  * the code under key. */
-static void move_normal(normal_queue *q, const double r[9], const uint8_t in[2], uint8_t out[2],
-                        uint64_t *memo, uint32_t key)
+__attribute__((always_inline)) static inline void move_normal(normal_queue *q, const vdouble r[3],
+                                                              const uint8_t in[2], uint8_t out[2],
+                                                              uint64_t *memo, uint32_t key)
 {
     float d[3];
     if (!moved_direction(r, in, d)) {
@@ -513,7 +559,8 @@ static void move_normal(normal_queue *q, const double r[9], const uint8_t in[2],
 /* Entry attr's matrices: from the frame's table when it has been filled,
  * else blended into *tmp (the same arithmetic either way, so the frontier
  * size that decides which does not change a result). */
-static pal_entry *pal_get(const sel_ctx *c, uint32_t attr, pal_entry *tmp)
+__attribute__((always_inline)) static inline pal_entry *pal_get(const sel_ctx *c, uint32_t attr,
+                                                               pal_entry *tmp)
 {
     if (c->pal)
         return &c->pal[attr];
@@ -523,6 +570,7 @@ static pal_entry *pal_get(const sel_ctx *c, uint32_t attr, pal_entry *tmp)
 }
 
 /* Fills entries [begin, end) of the frame's table (mr_range_fn). */
+__attribute__((target_clones("avx2", "default")))
 static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -530,24 +578,14 @@ static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
     for (size_t i = begin; i < end; i++) {
         pal_entry *p = &c->pal[i];
         p->ok = blend_entry(&c->svo->palette[i], c->d, &p->a);
-        if (p->ok && !c->lazy_normals)
-            normal_matrix(&p->a, &p->a, p->normal);
+        if (p->ok && !c->lazy_normals) {
+            vdouble r[3];
+            normal_matrix(&p->a, &p->a, r);
+            vcols_store(r, p->normal);
+        }
         p->has_normal = p->ok && !c->lazy_normals;
     }
 }
-
-/* Four double lanes, lane i the axis i (lane 3 idle): GCC vector types,
- * one register with AVX2 and two SSE2 registers without (sel_pass1 is
- * compiled for both, target_clones). No function takes or returns a
- * 32-byte vector by value: outside AVX that changes the ABI (GCC warns,
- * clang refuses the call in the baseline clone). */
-typedef double vdouble __attribute__((vector_size(32)));
-typedef int64_t vlong __attribute__((vector_size(32)));
-typedef float vfloat __attribute__((vector_size(16)));
-typedef int32_t vint __attribute__((vector_size(16)));
-
-/* a where m (all ones), else b */
-#define VSEL(m, a, b) ((vdouble)(((m) & (vlong)(a)) | (~(m) & (vlong)(b))))
 
 /* mr_float_down (down) or mr_float_up (!down) of each lane of *v: the
  * nearest float, one step along its bit pattern when it lies on the wrong
@@ -792,14 +830,20 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                     bhi[a] = b[3 + a];
                     g = dmax(g, bhi[a] - blo[a]);
                 }
-                bool outside = false;
-                for (int p = 0; p < 7 && !outside; p++) {
-                    const double *pl = c->planes[p];
-                    double mx = pl[3];
-                    for (int a = 0; a < 3; a++)
-                        mx += dmax(pl[a] * (blo[a] - g), pl[a] * (bhi[a] + g));
-                    outside = p == 6 ? !(mx > 0.0) : mx < 0.0;
+                /* each plane's lane: mx = pl[3], then for a = 0, 1, 2
+                 * mx += max(pl[a] * (lo - g), pl[a] * (hi + g)) */
+                vdouble mx[2] = {c->planes[3][0], c->planes[3][1]};
+                for (int a = 0; a < 3; a++) {
+                    const double l = blo[a] - g, h = bhi[a] + g;
+                    for (int k = 0; k < 2; k++) {
+                        const vdouble p = c->planes[a][k] * l, q = c->planes[a][k] * h;
+                        mx[k] += VSEL(p > q, p, q);
+                    }
                 }
+                /* planes 0-5: mx < 0; plane 6 (w > 0): !(mx > 0) */
+                const vlong below0 = mx[0] < 0.0, below1 = mx[1] < 0.0, ahead = mx[1] > 0.0;
+                const bool outside =
+                    (below0[0] | below0[1] | below0[2] | below0[3] | below1[0] | below1[1] | ~ahead[2]) != 0;
                 if (outside)
                     continue; /* removed */
             }
@@ -820,7 +864,9 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                  * wherever that leaf's surface faces) */
                 const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
                 if (p0 && p0 == p1 && c->lazy_normals && !p0->has_normal) { /* its first */
-                    normal_matrix(&p0->a, &p0->a, p0->normal);
+                    vdouble r[3];
+                    normal_matrix(&p0->a, &p0->a, r);
+                    vcols_store(r, p0->normal);
                     p0->has_normal = true;
                 }
                 if (p0 && p0 == p1 && p0->has_normal) {
@@ -830,10 +876,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                         l->normal[0] = (uint8_t)*m;
                         l->normal[1] = (uint8_t)(*m >> 8);
                     } else {
-                        move_normal(&queue, p0->normal, bn, l->normal, m, key);
+                        vdouble r[3];
+                        vcols_load(p0->normal, r);
+                        move_normal(&queue, r, bn, l->normal, m, key);
                     }
                 } else {
-                    double r[9];
+                    vdouble r[3];
                     normal_matrix(a0, a1, r);
                     move_normal(&queue, r, bn, l->normal, NULL, 0);
                 }
@@ -964,12 +1012,16 @@ static int view_setup(sel_ctx *c, const mr_svo_view *view, mr_error *err)
     /* Rows of view_proj give clip x, y, z, w as linear functions of the
      * point: w + x, w - x, w + y, w - y, w + z, w - z >= 0, and w > 0. */
     const double *r = c->vp;
-    for (int a = 0; a < 3; a++)
-        for (int s = 0; s < 2; s++)
-            for (int e = 0; e < 4; e++)
-                c->planes[2 * a + s][e] = r[12 + e] + (s ? -1.0 : 1.0) * r[4 * a + e];
-    for (int e = 0; e < 4; e++)
-        c->planes[6][e] = r[12 + e];
+    for (int e = 0; e < 4; e++) {
+        double pl[8];
+        for (int a = 0; a < 3; a++)
+            for (int s = 0; s < 2; s++)
+                pl[2 * a + s] = r[12 + e] + (s ? -1.0 : 1.0) * r[4 * a + e];
+        pl[6] = r[12 + e];
+        pl[7] = e == 3 ? 1.0 : 0.0;
+        for (int k = 0; k < 2; k++)
+            c->planes[e][k] = (vdouble){pl[4 * k], pl[4 * k + 1], pl[4 * k + 2], pl[4 * k + 3]};
+    }
     return MR_OK;
 }
 
