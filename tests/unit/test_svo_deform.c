@@ -642,6 +642,81 @@ static void test_uniform_scale_resize_exact(void **state)
     }
 }
 
+/* Every leaf of a full depth-3 cube (512 leaves), its normal leaning off
+ * +z by its index, under one joint per palette entry: entry k turns by
+ * (k mod 4) quarter turns about z. */
+static int full_cls(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    (void)ctx, (void)level, (void)x, (void)y, (void)z;
+    return FX_SPLIT;
+}
+
+static mr_affine quarter_turns(int q, float tx)
+{
+    static const float c[4] = {1, 0, -1, 0}, s[4] = {0, 1, 0, -1};
+    return affine_rows(c[q], -s[q], 0, tx, s[q], c[q], 0, 0, 0, 0, 1, 0);
+}
+
+/* Each selected leaf's normal is its bind normal turned by its own entry's
+ * matrix, within the octahedral code's 1 degree (a neighbouring entry's is
+ * 90 degrees off): with few entries and many leaves to each (the selection
+ * keeps each entry's normal matrix in its table, made at once on two
+ * threads, when first needed on one) and with an entry for every few
+ * leaves (made per voxel). */
+static void test_moved_normals(void **state)
+{
+    (void)state;
+    svo_fx fx;
+    fx_build(&fx, 3, mr_v3(0, 0, 0), 8.0f, full_cls, NULL);
+    assert_int_equal(fx.svo.leaf_count, 512);
+    enum { ENTRIES_MAX = 256 };
+    mr_svo_attr palette[ENTRIES_MAX];
+    mr_affine joints[ENTRIES_MAX];
+    for (int k = 0; k < ENTRIES_MAX; k++) {
+        palette[k] = (mr_svo_attr){{10, 20, 30}, 0, {(uint16_t)k, 0, 0, 0}, {255, 0, 0, 0}};
+        joints[k] = quarter_turns(k % 4, (float)k);
+    }
+    for (uint32_t i = 0; i < fx.svo.leaf_count; i++) {
+        const double a = 0.1 + 0.01 * (i % 97), b = 0.3 * (i % 7);
+        mr_svo_normal_encode(mr_v3((float)(sin(a) * cos(b)), (float)(sin(a) * sin(b)), (float)cos(a)),
+                             fx.svo.leaves[i].normal);
+    }
+    fx.svo.palette = palette;
+    const uint32_t joint_count = ENTRIES_MAX;
+    const mr_affine *joint_sets[1] = {joints};
+    const mr_affine mesh = affine_identity();
+    const mr_svo_deformer d = {.mesh_count = 1, .joint = joint_sets, .joint_count = &joint_count, .mesh = &mesh};
+    const uint32_t entries[2] = {2, ENTRIES_MAX}; /* 256 leaves an entry; 2 */
+    for (int e = 0; e < 2; e++) {
+        fx.svo.palette_count = entries[e];
+        for (uint32_t i = 0; i < fx.svo.leaf_count; i++)
+            fx.svo.leaves[i].attr = (uint16_t)(i % entries[e]);
+        mr_svo_extremes ex;
+        extremes(&fx.svo, &ex);
+        for (unsigned threads = 1; threads <= 2; threads++) {
+            mr_svo_selection sel = {0};
+            select_ok(&fx.svo, &ex, &d, NULL, 3, threads, &sel);
+            assert_int_equal(sel.count, 512);
+            /* the selection keeps the leaves' order (a full cube: leaf i
+             * is the ith selected) */
+            for (uint32_t i = 0; i < sel.count; i++) {
+                const mr_svo_leaf *src = &fx.svo.leaves[i];
+                assert_int_equal(sel.leaf[i].attr, src->attr);
+                const mr_affine *m = &joints[src->attr];
+                const mr_vec3 n = mr_svo_normal_decode(src->normal);
+                const mr_vec3 want = mr_v3(m->m[0] * n.x + m->m[1] * n.y, m->m[4] * n.x + m->m[5] * n.y, n.z);
+                const double off = angle_deg(mr_svo_normal_decode(sel.leaf[i].normal), want);
+                if (!(off < 1.5))
+                    fail_msg("%u entries, %u threads: leaf %u (entry %u) %.1f degrees off", entries[e], threads, i,
+                             src->attr, off);
+            }
+            mr_svo_selection_free(&sel);
+        }
+        mr_svo_extremes_free(&ex);
+    }
+    fx_free(&fx);
+}
+
 /* ---- screen space */
 
 static void test_screen_space(void **state)
@@ -1220,6 +1295,7 @@ int main(void)
         cmocka_unit_test(test_extremes),
         cmocka_unit_test(test_identity),
         cmocka_unit_test(test_fig16_convention),
+        cmocka_unit_test(test_moved_normals),
         cmocka_unit_test(test_emit_covers_shear_twist),
         cmocka_unit_test(test_uniform_scale_resize_exact),
         cmocka_unit_test(test_screen_space),

@@ -50,6 +50,9 @@
 /* Moved normals a selection chunk remembers (a power of two). */
 #define NORMAL_MEMO_BITS 11
 #define NORMAL_MEMO (1u << NORMAL_MEMO_BITS)
+/* Leaves an entry of the palette from which its normal matrix is kept
+ * (sel_ctx.pal_normal). */
+#define NORMALS_KEPT_LEAVES 8u
 /* Relative growth of the output cube's edge beyond the largest extent: two
  * finest cells at depth 21, invisible at the depths used, and enough that
  * the far face is never touched after rounding to float. */
@@ -135,7 +138,7 @@ enum {
     WS_CUR, WS_NEXT, WS_EXPAND, WS_CH_SEL, WS_CH_CHILD, WS_CH_EXPAND, WS_CH_FAIL,
     WS_RS_LO, WS_RS_HI, WS_RS_BAD, WS_RS_CELLS, WS_RS_BITS, WS_RS_LEVEL, WS_RS_RANGE,
     WS_RS_KEYS, WS_RS_KEYS2, WS_RS_PACKED, WS_RS_PACKED2, WS_RS_PAY, WS_RS_PAY2, WS_RS_HIST,
-    WS_RS_LEAVES, WS_PALETTE, WS_RS_WRITTEN,
+    WS_RS_LEAVES, WS_PALETTE, WS_PAL_NORMAL, WS_RS_WRITTEN,
     WS_SLOTS
 };
 
@@ -369,14 +372,16 @@ typedef struct sel_fail {
     double p[3];
 } sel_fail;
 
-/* One palette entry's matrices for a frame: its blended skin matrix and
- * the normal matrix of a voxel whose two extremes both take it. */
+/* One palette entry's blended skin matrix for a frame, a cache line each
+ * (the table is read in the order of the voxels' entries, which is no
+ * order: each entry one miss). */
 typedef struct pal_entry {
     mr_affine a;
-    double normal[12]; /* normal_matrix(a, a) (vcols_store); valid when has_normal */
-    bool ok;          /* false: the entry names a mesh or joint the deformer lacks */
-    bool has_normal;
+    bool ok;         /* false: the entry names a mesh or joint the deformer lacks */
+    bool has_normal; /* its row of sel_ctx.pal_normal is made */
+    char pad[64 - sizeof(mr_affine) - 2 * sizeof(bool)];
 } pal_entry;
+_Static_assert(sizeof(pal_entry) == 64, "a palette entry is one cache line");
 
 typedef struct sel_ctx {
     const mr_svo *svo;
@@ -403,13 +408,19 @@ typedef struct sel_ctx {
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
-    /* every palette entry's matrices for this frame (pal_fill), once the
+    /* every palette entry's matrix for this frame (pal_fill), once the
      * frontier is large enough to pay for them; NULL before */
     pal_entry *pal;
-    /* on one thread (instances deformed in parallel): pal's normal
-     * matrices are made when a selected voxel first needs one, not all
-     * with the table (a small instance needs few: selection of 64
-     * instances at 640x360 174-183 -> 165-169 ms of thread time) */
+    /* With pal, where the octree's leaves are many to an entry (at least
+     * NORMALS_KEPT_LEAVES; otherwise NULL): the normal matrix of a voxel
+     * whose extremes both take an entry, normal_matrix(a, a), made once an
+     * entry instead of per voxel (vcols_store). The dancer has 3.8 leaves
+     * an entry at depth 8 and 29 at depth 10: kept at depth 8 the table's
+     * 96 more bytes an entry made a selection wait on its misses (2.04 ->
+     * 2.24 ms a selection, two threads), made per voxel at depth 10 they
+     * cost 24.6 -> 26.2 ms. On one thread (instances deformed in parallel)
+     * a row is made when a selected voxel first needs it (lazy_normals). */
+    double (*pal_normal)[12];
     bool lazy_normals;
 } sel_ctx;
 
@@ -565,7 +576,6 @@ __attribute__((always_inline)) static inline pal_entry *pal_get(const sel_ctx *c
     if (c->pal)
         return &c->pal[attr];
     tmp->ok = blend_entry(&c->svo->palette[attr], c->d, &tmp->a);
-    tmp->has_normal = false;
     return tmp;
 }
 
@@ -578,12 +588,13 @@ static void pal_fill(void *vctx, size_t begin, size_t end, unsigned worker)
     for (size_t i = begin; i < end; i++) {
         pal_entry *p = &c->pal[i];
         p->ok = blend_entry(&c->svo->palette[i], c->d, &p->a);
-        if (p->ok && !c->lazy_normals) {
+        p->has_normal = false;
+        if (p->ok && c->pal_normal && !c->lazy_normals) {
             vdouble r[3];
             normal_matrix(&p->a, &p->a, r);
-            vcols_store(r, p->normal);
+            vcols_store(r, c->pal_normal[i]);
+            p->has_normal = true;
         }
-        p->has_normal = p->ok && !c->lazy_normals;
     }
 }
 
@@ -863,13 +874,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                  * normal (one leaf's would light the whole voxel by
                  * wherever that leaf's surface faces) */
                 const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
-                if (p0 && p0 == p1 && c->lazy_normals && !p0->has_normal) { /* its first */
-                    vdouble r[3];
-                    normal_matrix(&p0->a, &p0->a, r);
-                    vcols_store(r, p0->normal);
-                    p0->has_normal = true;
-                }
-                if (p0 && p0 == p1 && p0->has_normal) {
+                if (p0 && p0 == p1) {
                     const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                     uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
                     if (memo_holds(*m, key)) {
@@ -877,7 +882,15 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                         l->normal[1] = (uint8_t)(*m >> 8);
                     } else {
                         vdouble r[3];
-                        vcols_load(p0->normal, r);
+                        if (c->pal_normal && p0->has_normal) {
+                            vcols_load(c->pal_normal[attr0], r);
+                        } else {
+                            normal_matrix(a0, a0, r);
+                            if (c->pal_normal) { /* lazy_normals: its first */
+                                vcols_store(r, c->pal_normal[attr0]);
+                                p0->has_normal = true;
+                            }
+                        }
                         move_normal(&queue, r, bn, l->normal, m, key);
                     }
                 } else {
@@ -1144,13 +1157,18 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
          * of voxels blends only theirs, a near one blends each entry once
          * instead of once per voxel. */
         if (!d->field && !c.pal && svo->palette_count > 0 && 4 * visited >= svo->palette_count) {
-            c.pal = ws_get(ws, WS_PALETTE, svo->palette_count, sizeof *c.pal);
-            if (!c.pal) {
+            /* one entry more, to start the table on a line */
+            void *raw = ws_get(ws, WS_PALETTE, (size_t)svo->palette_count + 1, sizeof *c.pal);
+            c.pal = raw ? (pal_entry *)(((uintptr_t)raw + 63u) & ~(uintptr_t)63u) : NULL;
+            c.pal_normal = NULL;
+            if (svo->leaf_count / NORMALS_KEPT_LEAVES >= svo->palette_count)
+                c.pal_normal = ws_get(ws, WS_PAL_NORMAL, svo->palette_count, sizeof *c.pal_normal);
+            c.lazy_normals = threads == 1;
+            if (!c.pal || (!c.pal_normal && svo->leaf_count / NORMALS_KEPT_LEAVES >= svo->palette_count)) {
                 rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%u palette entries)",
                                   svo->palette_count);
                 goto cleanup;
             }
-            c.lazy_normals = threads == 1;
             mr_parallel_for(threads, svo->palette_count, 256, pal_fill, &c);
         }
         mr_parallel_for(threads, chunks, 1, sel_pass1, &c);
