@@ -53,6 +53,7 @@
 /* Leaves an entry of the palette from which its normal matrix is kept
  * (sel_ctx.pal_normal). */
 #define NORMALS_KEPT_LEAVES 8u
+#define PAL_AHEAD 8
 /* Relative growth of the output cube's edge beyond the largest extent: two
  * finest cells at depth 21, invisible at the depths used, and enough that
  * the far face is never touched after rounding to float. */
@@ -763,6 +764,15 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         fail->kind = FAIL_NONE;
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
+            if (c->pal && i + PAL_AHEAD < i1) { /* (a miss each otherwise: entries in no order) */
+                const sel_item *ahead = it + PAL_AHEAD;
+                const uint32_t lo = ahead->leaf ? svo->leaves[ahead->index].attr : c->ex->lo_attr[ahead->index];
+                const uint32_t hi = ahead->leaf ? lo : c->ex->hi_attr[ahead->index];
+                if (lo < svo->palette_count)
+                    __builtin_prefetch(&c->pal[lo]);
+                if (hi != lo && hi < svo->palette_count)
+                    __builtin_prefetch(&c->pal[hi]);
+            }
             const uint32_t xyz[3] = {(uint32_t)(it->xyz & 0x1fffffu), (uint32_t)((it->xyz >> 21) & 0x1fffffu),
                                      (uint32_t)((it->xyz >> 42) & 0x1fffffu)};
             double lo[3], hi[3];
