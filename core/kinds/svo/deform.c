@@ -330,8 +330,8 @@ typedef int32_t vint __attribute__((vector_size(16)));
 
 /* a where m (all ones), else b */
 #define VSEL(m, a, b) ((vdouble)(((m) & (vlong)(a)) | (~(m) & (vlong)(b))))
-/* v's lanes a, b, c (lane 3 kept) */
-#define VSHUF(v, a, b, c) __builtin_shuffle((v), (vlong){a, b, c, 3})
+/* v's lanes a, b, c (lane 3 kept; GCC 12 and clang both have the builtin) */
+#define VSHUF(v, a, b, c) __builtin_shufflevector((v), (v), a, b, c, 3)
 
 /* Four doubles anywhere in memory as one vector (a memcpy of 32 bytes
  * became two 16-byte stores to the stack and a 32-byte load: a
