@@ -741,6 +741,17 @@ static void fail_set(sel_fail *f, int kind, uint32_t a, uint32_t b, const double
         f->p[i] = p ? p[i] : 0.0;
 }
 
+/* The palette entries of an item's two extremes (a leaf's own for both). */
+static inline void item_attrs(const sel_ctx *c, const sel_item *it, uint32_t *lo, uint32_t *hi)
+{
+    if (it->leaf) {
+        *lo = *hi = c->svo->leaves[it->index].attr;
+    } else {
+        *lo = c->ex->lo_attr[it->index];
+        *hi = c->ex->hi_attr[it->index];
+    }
+}
+
 /* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
 __attribute__((target_clones("avx2", "default")))
 static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
@@ -767,9 +778,8 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
             if (c->pal && i + PAL_AHEAD < i1) { /* (a miss each otherwise: entries in no order) */
-                const sel_item *ahead = it + PAL_AHEAD;
-                const uint32_t lo = ahead->leaf ? svo->leaves[ahead->index].attr : c->ex->lo_attr[ahead->index];
-                const uint32_t hi = ahead->leaf ? lo : c->ex->hi_attr[ahead->index];
+                uint32_t lo, hi;
+                item_attrs(c, it + PAL_AHEAD, &lo, &hi);
                 if (lo < svo->palette_count)
                     __builtin_prefetch(&c->pal[lo]);
                 if (hi != lo && hi < svo->palette_count)
@@ -783,12 +793,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 hi[a] = c->origin[a] + (double)(xyz[a] + 1u) * c->cell;
             }
             uint32_t attr0, attr1;
-            if (it->leaf) {
-                attr0 = attr1 = svo->leaves[it->index].attr;
-            } else {
-                attr0 = c->ex->lo_attr[it->index];
-                attr1 = c->ex->hi_attr[it->index];
-            }
+            item_attrs(c, it, &attr0, &attr1);
             if (attr0 >= svo->palette_count || attr1 >= svo->palette_count) {
                 fail_set(fail, FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count,
                          NULL);
@@ -1176,11 +1181,10 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             /* one entry more, to start the table on a line */
             void *raw = ws_get(ws, WS_PALETTE, (size_t)svo->palette_count + 1, sizeof *c.pal);
             c.pal = raw ? (pal_entry *)(((uintptr_t)raw + 63u) & ~(uintptr_t)63u) : NULL;
-            c.pal_normal = NULL;
-            if (svo->leaf_count / NORMALS_KEPT_LEAVES >= svo->palette_count)
-                c.pal_normal = ws_get(ws, WS_PAL_NORMAL, svo->palette_count, sizeof *c.pal_normal);
+            const bool keep_normals = svo->leaf_count / NORMALS_KEPT_LEAVES >= svo->palette_count;
+            c.pal_normal = keep_normals ? ws_get(ws, WS_PAL_NORMAL, svo->palette_count, sizeof *c.pal_normal) : NULL;
             c.lazy_normals = threads == 1;
-            if (!c.pal || (!c.pal_normal && svo->leaf_count / NORMALS_KEPT_LEAVES >= svo->palette_count)) {
+            if (!c.pal || (keep_normals && !c.pal_normal)) {
                 rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory (%u palette entries)",
                                   svo->palette_count);
                 goto cleanup;

@@ -204,6 +204,18 @@ static void close_splits(build_ctx *c, split_entry *stack, int *top, int bottom,
     }
 }
 
+/* The stack pass over splits [from, to), every one of them below n - 1:
+ * each closes what it can, then waits on the stack for its right
+ * neighbour. */
+static void walk_splits(build_ctx *c, split_entry *stack, int *top, size_t from, size_t to)
+{
+    for (size_t p = from; p < to; p++) {
+        const int d = split_d(c, p);
+        close_splits(c, stack, top, 0, p, d);
+        stack[(*top)++] = (split_entry){(uint32_t)p, (int8_t)d};
+    }
+}
+
 /* The binary radix tree of the n >= 2 sorted unique keys, in Karras'
  * numbering, in one pass. Internal nodes are the n - 1 splits: split p lies
  * between keys p and p + 1, whose codes share d(p) leading bits. Its node
@@ -218,18 +230,6 @@ static void close_splits(build_ctx *c, split_entry *stack, int *top, int bottom,
  * by its right one, and the one below it is its left. d rises strictly up
  * the stack, so it holds at most 64 splits. Sequential and linear, where
  * Karras' binary searches per node jumped across the keys. */
-/* The stack pass over splits [from, to), every one of them below n - 1:
- * each closes what it can, then waits on the stack for its right
- * neighbour. */
-static void walk_splits(build_ctx *c, split_entry *stack, int *top, size_t from, size_t to)
-{
-    for (size_t p = from; p < to; p++) {
-        const int d = split_d(c, p);
-        close_splits(c, stack, top, 0, p, d);
-        stack[(*top)++] = (split_entry){(uint32_t)p, (int8_t)d};
-    }
-}
-
 static void radix_tree(build_ctx *c)
 {
     split_entry stack[65];
