@@ -394,6 +394,88 @@ static void test_subtrees(void **state)
     assert_true(equal_t > 0);
 }
 
+/* mr_svo_intersect_rays gives each ray what its own query gives, bit for
+ * bit: hit or miss, t, leaf, voxel, entry axis and normal, and leaves a
+ * missed ray's hit untouched; with hit NULL, mr_svo_occluded's answer.
+ * Batches of 1 to 32 rays (more than MR_SVO_RAYS take turns in groups),
+ * over the whole octree and over each of its subtrees, with random rays
+ * (inside and outside, axis-parallel, on cell planes) and grid rays on a
+ * dyadic cube (in midplanes they are parallel to: the walk's tie case). */
+static bool same_hit(const mr_svo_hit *a, const mr_svo_hit *b)
+{
+    return !memcmp(&a->t, &b->t, sizeof a->t) && a->leaf == b->leaf && a->level == b->level && a->x == b->x &&
+           a->y == b->y && a->z == b->z && a->axis == b->axis && !memcmp(&a->ng, &b->ng, sizeof a->ng);
+}
+
+static void check_batch(const mr_svo *o, const mr_svo_subtree *st, unsigned n, const mr_vec3 *org,
+                        const mr_vec3 *dir, const float *tmin, const float *tmax, size_t *hits)
+{
+    mr_svo_hit together[32], alone;
+    memset(together, 0xa5, sizeof together);
+    const uint32_t mask = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, together);
+    const uint32_t any = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, NULL);
+    for (unsigned i = 0; i < n; i++) {
+        const bool h = st ? mr_svo_intersect_subtree(o, st, org[i], dir[i], tmin[i], tmax[i], &alone)
+                          : mr_svo_intersect(o, org[i], dir[i], tmin[i], tmax[i], &alone);
+        const bool occ = st ? mr_svo_occluded_subtree(o, st, org[i], dir[i], tmin[i], tmax[i])
+                            : mr_svo_occluded(o, org[i], dir[i], tmin[i], tmax[i]);
+        assert_int_equal(mask >> i & 1u, h);
+        assert_int_equal(any >> i & 1u, occ);
+        if (h) {
+            if (!same_hit(&together[i], &alone))
+                fail_msg("ray %u of %u: together t %a leaf %u, alone t %a leaf %u", i, n, (double)together[i].t,
+                         together[i].leaf, (double)alone.t, alone.leaf);
+            ++*hits;
+        } else {
+            const unsigned char *b = (const unsigned char *)&together[i];
+            for (size_t k = 0; k < sizeof together[i]; k++)
+                assert_int_equal(b[k], 0xa5);
+        }
+    }
+    if (n < 32)
+        assert_int_equal(mask >> n, 0); /* no bit for a ray not asked about */
+}
+
+static void test_rays_together(void **state)
+{
+    (void)state;
+    size_t batches = 0, hits = 0;
+    for (unsigned depth = 3; depth <= 12; depth += 3) {
+        svo_fx fx;
+        fx_random p = {depth * 613u + 1u, 0.25, depth < 9 ? 0.35 : 0.17, 2};
+        const bool grid = depth <= 6; /* the dyadic cube grid_ray aims at */
+        fx_build(&fx, depth, grid ? mr_v3(-2, 0, 4) : mr_v3(-0.75f, 0.3f, 2.5f), grid ? 4.0f : 3.0f,
+                 fx_random_cls, &p);
+        const mr_svo *o = &fx.svo;
+        mr_svo_subtree *st = NULL;
+        uint32_t nst = 0;
+        mr_error err = {0};
+        assert_int_equal(mr_svo_subtrees(o, depth / 2, &st, &nst, &err), MR_OK);
+        fx_rng r = {depth * 97u + 3u};
+        for (unsigned n = 1; n <= 32; n++) {
+            mr_vec3 org[32], dir[32];
+            float tmin[32], tmax[32];
+            for (unsigned i = 0; i < n; i++) {
+                if (grid && fx_below(&r, 2)) {
+                    grid_ray(&r, depth, &org[i], &dir[i]);
+                    tmin[i] = 0.0f;
+                    tmax[i] = INFINITY;
+                } else {
+                    fx_random_ray(&fx, &r, (int)(n * 32 + i), &org[i], &dir[i], &tmin[i], &tmax[i]);
+                }
+            }
+            check_batch(o, NULL, n, org, dir, tmin, tmax, &hits);
+            for (uint32_t k = 0; k < nst; k++)
+                check_batch(o, &st[k], n, org, dir, tmin, tmax, &hits);
+            batches += 1 + nst;
+        }
+        free(st);
+        fx_free(&fx);
+    }
+    print_message("[ rays together ] %zu batches, %zu hits\n", batches, hits);
+    assert_true(hits > 1000);
+}
+
 /* The same leaves through the real builder (mr_svo_build: breadth-first
  * nodes, leaves by level and code) must trace identically to the fixture's
  * depth-first layout: the walk order depends on geometry only, so hit/miss,
@@ -669,7 +751,8 @@ int main(void)
         cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
         cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
-        cmocka_unit_test(test_subtree_bounds),        cmocka_unit_test(test_throughput),
+        cmocka_unit_test(test_subtree_bounds),        cmocka_unit_test(test_rays_together),
+        cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

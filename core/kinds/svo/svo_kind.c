@@ -720,6 +720,31 @@ static bool hit_leaf(float u, float v, uint32_t *leaf, unsigned *level)
     return true;
 }
 
+/* The rays of a packet's lanes to trace, gathered for
+ * mr_svo_intersect_rays: the octree walks of a packet's rays take turns,
+ * so one ray's cache misses overlap the others' work. */
+typedef struct packet_rays {
+    unsigned n;
+    unsigned lane[MR_RAY_CACHE_LANES];
+    mr_vec3 org[MR_RAY_CACHE_LANES], dir[MR_RAY_CACHE_LANES];
+    float tnear[MR_RAY_CACHE_LANES], tfar[MR_RAY_CACHE_LANES];
+} packet_rays;
+
+static void gather_rays(packet_rays *p, float *ray, unsigned N, uint32_t lanes)
+{
+    p->n = 0;
+    for (unsigned i = 0; i < N && i < MR_RAY_CACHE_LANES; i++) {
+        if (!(lanes >> i & 1u))
+            continue;
+        const unsigned k = p->n++;
+        p->lane[k] = i;
+        p->org[k] = mr_ray_v3(ray, N, MR_RAY_ORG, i);
+        p->dir[k] = mr_ray_v3(ray, N, MR_RAY_DIR, i);
+        p->tnear[k] = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
+        p->tfar[k] = *mr_ray_f(ray, N, MR_RAY_TFAR, i);
+    }
+}
+
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
@@ -732,23 +757,22 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     float *hit = ray + MR_RAY_FIELDS * N;
     unsigned inst = args->context->instID[0];
     const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
-    for (unsigned i = 0; i < N; i++) {
-        if (!(lanes >> i & 1u))
+    packet_rays p;
+    gather_rays(&p, ray, N, lanes);
+    mr_svo_hit hits[MR_RAY_CACHE_LANES];
+    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, hits);
+    for (unsigned k = 0; k < p.n; k++) {
+        if (!(hit_mask >> k & 1u))
             continue;
-        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
-        mr_svo_hit h;
-        const float tfar = *mr_ray_f(ray, N, MR_RAY_TFAR, i);
-        if (!st) {
-            if (!mr_svo_intersect(o, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar, &h))
-                continue;
-        } else {
-            if (!mr_svo_intersect_subtree(o, st, org, dir, *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar, &h))
-                continue;
+        const unsigned i = p.lane[k];
+        const mr_vec3 dir = p.dir[k];
+        const mr_svo_hit h = hits[k];
+        if (st) {
             /* a hit at the t another subtree of this instance's octree
              * holds: the one the whole walk meets first, whatever order
              * Embree visits them in */
             const mr_svo_subtree *held = NULL;
-            if (h.t == tfar && *mr_ray_u(hit, N, MR_HIT_GEOM, i) == args->geomID &&
+            if (h.t == p.tfar[k] && *mr_ray_u(hit, N, MR_HIT_GEOM, i) == args->geomID &&
                 *mr_ray_u(hit, N, MR_HIT_INST, i) == inst &&
                 prim_octree(g, *mr_ray_u(hit, N, MR_HIT_PRIM, i), &held) == o && held &&
                 mr_svo_subtree_order(held, dir) < mr_svo_subtree_order(st, dir))
@@ -759,7 +783,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
             inst - g->first_id < g->instance_count)
             ng = mr_mat4_dir(&g->world_normal[inst - g->first_id], ng); /* world space */
         /* the shading reads the leaf's normal (svo_normal): its line
-         * comes in while the rest of the packet is traced (it was a cache
+         * comes in while Embree goes on with the packet (it was a cache
          * miss at every hit, a tenth of a rigid frame) */
         __builtin_prefetch(&o->leaves[h.leaf]);
         *mr_ray_f(ray, N, MR_RAY_TFAR, i) = h.t;
@@ -779,14 +803,12 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
     unsigned N = args->N;
     float *ray = (float *)args->ray;
     const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
-    for (unsigned i = 0; i < N; i++) {
-        if (!(lanes >> i & 1u))
-            continue;
-        const mr_vec3 org = mr_ray_v3(ray, N, MR_RAY_ORG, i), dir = mr_ray_v3(ray, N, MR_RAY_DIR, i);
-        const float tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i), tfar = *mr_ray_f(ray, N, MR_RAY_TFAR, i);
-        if (st ? mr_svo_occluded_subtree(o, st, org, dir, tnear, tfar) : mr_svo_occluded(o, org, dir, tnear, tfar))
-            *mr_ray_f(ray, N, MR_RAY_TFAR, i) = -INFINITY;
-    }
+    packet_rays p;
+    gather_rays(&p, ray, N, lanes);
+    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, NULL);
+    for (unsigned k = 0; k < p.n; k++)
+        if (hit_mask >> k & 1u)
+            *mr_ray_f(ray, N, MR_RAY_TFAR, p.lane[k]) = -INFINITY;
 }
 
 /* Closed slab test of one deformed box: entry t (clipped to tnear) and the

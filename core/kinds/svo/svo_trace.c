@@ -9,6 +9,12 @@
  * (in mirrored order, computed once when the node is entered). The walk takes the lowest pending child of the top frame: a
  * leaf ends the walk (it is the nearest, see the header), an interior child
  * gets a new frame. A frame with nothing pending is popped.
+ *
+ * Entering a node prefetches its children's fields. A single ray then
+ * waits for them one level after another; mr_svo_intersect_rays keeps
+ * each ray's walk in a walker of its own and steps the rays in turn, one
+ * entered node each, so the fetches of one overlap the others' work.
+ * Each ray's sequence of steps is the single walk's, so its hit is too.
  */
 #include "kinds/svo/svo_trace.h"
 #include "util/morton.h"
@@ -192,31 +198,47 @@ static void fill_hit(const svo_ray *r, mr_svo_hit *hit, uint32_t leaf, unsigned 
     hit->ng = mr_v3(n[0], n[1], n[2]);
 }
 
-/* The walk shared by the queries, from interior node `start` at level
- * `base` and cell xyz (the root: 0, 0, {0, 0, 0}); hit may be NULL. */
-static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz[3],
-                            mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)
-{
+/* One ray's walk, a step at a time (svo_walk runs one to its end;
+ * mr_svo_intersect_rays runs several, taking turns). */
+typedef struct svo_walker {
     svo_ray r;
+    mr_svo_hit *hit; /* NULL: any hit ends the walk */
+    int base;        /* the start node's level */
+    int top;         /* == the top frame's level */
+    bool found;      /* tie case: a hit so far, at t best */
+    double best;
+    svo_frame stack[MR_SVO_MAX_DEPTH + 1];
+} svo_walker;
+
+typedef enum { WALK_MISS, WALK_HIT, WALK_ON } walk_state;
+
+/* Starts w's walk from interior node `start` at level `base` and cell
+ * bxyz (the root: 0, 0, {0, 0, 0}); hit may be NULL. WALK_ON when it
+ * entered the start node, else the walk's answer. */
+static inline __attribute__((always_inline)) walk_state
+walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz[3], mr_vec3 org, mr_vec3 dir,
+           float tmin, float tmax, mr_svo_hit *hit, svo_walker *w)
+{
+    svo_ray *r = &w->r;
     if (!svo || (svo->node_count == 0 && svo->leaf_count == 0))
-        return false;
-    if (!ray_setup(svo, org, dir, tmin, tmax, &r))
-        return false;
+        return WALK_MISS;
+    if (!ray_setup(svo, org, dir, tmin, tmax, r))
+        return WALK_MISS;
     const uint32_t bspan = GRID_CELLS >> base;
 
     /* The start node's cube. The entry face is the axis whose near plane is
      * the latest, if that is not before tmin (else the ray starts inside). */
-    double t0 = r.tmin, t1 = r.tmax;
+    double t0 = r->tmin, t1 = r->tmax;
     int axis = -1;
     for (int a = 0; a < 3; a++) {
         const uint32_t k0 = bxyz[a] * bspan, k1 = k0 + bspan;
-        if (r.par & (1u << a)) {
-            if (plane_s(&r, a, k0) > 0.0 || plane_s(&r, a, k1) < 0.0)
-                return false;
+        if (r->par & (1u << a)) {
+            if (plane_s(r, a, k0) > 0.0 || plane_s(r, a, k1) < 0.0)
+                return WALK_MISS;
             continue;
         }
-        const double ta = plane_s(&r, a, k0) * r.inv[a];
-        const double tb = plane_s(&r, a, k1) * r.inv[a];
+        const double ta = plane_s(r, a, k0) * r->inv[a];
+        const double tb = plane_s(r, a, k1) * r->inv[a];
         const double near = DMIN(ta, tb), far = DMAX(ta, tb);
         if (near > t0 || (near == t0 && axis < 0)) {
             t0 = near;
@@ -225,46 +247,53 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         t1 = DMIN(t1, far);
     }
     if (!(t0 <= t1))
-        return false;
+        return WALK_MISS;
     if (svo->node_count == 0) {
         /* The root is a leaf. */
         if (hit) {
             const uint32_t zero[3] = {0, 0, 0};
-            fill_hit(&r, hit, 0, 0, zero, axis, t0);
+            fill_hit(r, hit, 0, 0, zero, axis, t0);
         }
-        return true;
+        return WALK_HIT;
     }
 
-    svo_frame stack[MR_SVO_MAX_DEPTH + 1];
-    int top = (int)base; /* == the top frame's level */
-    svo_frame *f = &stack[base];
+    w->hit = hit;
+    w->base = (int)base;
+    w->top = (int)base;
+    w->found = false;
+    w->best = r->tmax;
+    svo_frame *f = &w->stack[base];
     f->node = start;
     f->xyz[0] = bxyz[0], f->xyz[1] = bxyz[1], f->xyz[2] = bxyz[2];
     f->t0 = t0;
     f->t1 = t1;
     f->axis = axis;
-    frame_enter(&r, svo, f, base);
+    frame_enter(r, svo, f, base);
+    return WALK_ON;
+}
 
-    /* Nearest hit so far, kept only in the tie case (see below). */
-    bool found = false;
-    double best = r.tmax;
+/* Goes on with w's walk until it enters a node (WALK_ON: the node's
+ * children are being fetched, a good time to step another ray) or ends. */
+static inline __attribute__((always_inline)) walk_state walk_step(const mr_svo *svo, svo_walker *w)
+{
+    svo_ray *r = &w->r;
     for (;;) {
-        f = &stack[top];
+        svo_frame *f = &w->stack[w->top];
         if (f->pending == 0) {
-            if (top == (int)base)
-                return found;
-            top--;
+            if (w->top == w->base)
+                return w->found ? WALK_HIT : WALK_MISS;
+            w->top--;
             continue;
         }
         const unsigned i = (unsigned)__builtin_ctz(f->pending);
         f->pending &= f->pending - 1u;
-        const unsigned c = i ^ r.mirror;
+        const unsigned c = i ^ r->mirror;
         /* The child's interval, and the axis of its entry face: the first
          * axis whose half starts at c0 when that is past t0, or when t0 is
          * tmin (axis -1) and some half starts there too; else the node's. */
         const double e0 = f->en[0][i & 1u], e1 = f->en[1][(i >> 1) & 1u], e2 = f->en[2][i >> 2];
         const double c0 = DMAX(DMAX(f->t0, e0), DMAX(e1, e2));
-        const double c1 = DMIN(DMIN(DMIN(f->t1, best), f->ex[0][i & 1u]),
+        const double c1 = DMIN(DMIN(DMIN(f->t1, w->best), f->ex[0][i & 1u]),
                                DMIN(f->ex[1][(i >> 1) & 1u], f->ex[2][i >> 2]));
         const unsigned starts = (unsigned)(e0 == c0) | (unsigned)(e1 == c0) << 1 | (unsigned)(e2 == c0) << 2;
         const int caxis = starts && (c0 > f->t0 || f->axis < 0) ? FIRST_AXIS[starts] : f->axis;
@@ -272,27 +301,27 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
             continue; /* only after a hit in the tie case */
         const unsigned cbit = 1u << c;
         const unsigned lmask = svo->leaf_mask[f->node];
-        const unsigned clevel = (unsigned)top + 1u;
+        const unsigned clevel = (unsigned)w->top + 1u;
         const uint32_t cxyz[3] = {f->xyz[0] * 2u + (c & 1u), f->xyz[1] * 2u + ((c >> 1) & 1u),
                                   f->xyz[2] * 2u + (c >> 2)};
         if (lmask & cbit) {
             const uint32_t leaf = svo->first_leaf[f->node] + mr_svo_popcount8(lmask & (cbit - 1u));
             if (leaf >= svo->leaf_count)
                 continue; /* malformed octree: skip rather than read out of bounds */
-            if (!hit)
-                return true;
+            if (!w->hit)
+                return WALK_HIT;
             /* The first leaf met is the nearest unless the ray lies in a
              * midplane it is parallel to: then the two halves along that
              * axis share one t interval and the walk finishes the other
              * half, keeping the nearest (ties: the first). */
-            if (!r.tie || c0 <= r.tmin) {
-                fill_hit(&r, hit, leaf, clevel, cxyz, caxis, c0);
-                return true;
+            if (!r->tie || c0 <= r->tmin) {
+                fill_hit(r, w->hit, leaf, clevel, cxyz, caxis, c0);
+                return WALK_HIT;
             }
-            if (!found || c0 < best) {
-                fill_hit(&r, hit, leaf, clevel, cxyz, caxis, c0);
-                found = true;
-                best = c0;
+            if (!w->found || c0 < w->best) {
+                fill_hit(r, w->hit, leaf, clevel, cxyz, caxis, c0);
+                w->found = true;
+                w->best = c0;
             }
             continue;
         }
@@ -301,7 +330,7 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         const uint32_t node = svo->first_node[f->node] + mr_svo_popcount8(nmask & (cbit - 1u));
         if (clevel >= GRID_BITS || node >= svo->node_count)
             continue;
-        svo_frame *g = &stack[++top];
+        svo_frame *g = &w->stack[++w->top];
         g->node = node;
         g->xyz[0] = cxyz[0];
         g->xyz[1] = cxyz[1];
@@ -309,9 +338,22 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
         g->t0 = c0;
         g->t1 = c1;
         g->axis = caxis;
-        frame_enter(&r, svo, g, clevel);
+        frame_enter(r, svo, g, clevel);
+        return WALK_ON;
     }
 }
+
+/* The walk shared by the single-ray queries. */
+static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz[3],
+                            mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)
+{
+    svo_walker w;
+    walk_state st = walk_start(svo, start, base, bxyz, org, dir, tmin, tmax, hit, &w);
+    while (st == WALK_ON)
+        st = walk_step(svo, &w);
+    return st == WALK_HIT;
+}
+
 
 static const uint32_t ROOT_XYZ[3] = {0, 0, 0};
 
@@ -433,6 +475,43 @@ void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned 
 static bool subtree_ok(const mr_svo *svo, const mr_svo_subtree *s)
 {
     return s->node < svo->node_count && s->level < svo->depth;
+}
+
+uint32_t mr_svo_intersect_rays(const mr_svo *svo, const mr_svo_subtree *s, unsigned n, const mr_vec3 *org,
+                               const mr_vec3 *dir, const float *tmin, const float *tmax, mr_svo_hit *hit)
+{
+    if (!svo || (s && !subtree_ok(svo, s)))
+        return 0;
+    n = n < 32 ? n : 32;
+    const uint32_t start = s ? s->node : 0;
+    const unsigned base = s ? s->level : 0;
+    const uint32_t *bxyz = s ? s->xyz : ROOT_XYZ;
+    svo_walker w[MR_SVO_RAYS];
+    uint32_t hits = 0;
+    for (unsigned first = 0; first < n; first += MR_SVO_RAYS) {
+        const unsigned count = n - first < MR_SVO_RAYS ? n - first : MR_SVO_RAYS;
+        uint32_t on = 0;
+        for (unsigned k = 0; k < count; k++) {
+            const unsigned i = first + k;
+            const walk_state st = walk_start(svo, start, base, bxyz, org[i], dir[i], tmin[i], tmax[i],
+                                             hit ? &hit[i] : NULL, &w[k]);
+            on |= (uint32_t)(st == WALK_ON) << k;
+            hits |= (uint32_t)(st == WALK_HIT) << i;
+        }
+        /* Round robin: a walk that entered a node has its children on the
+         * way from memory while the others take their steps. */
+        while (on) {
+            for (uint32_t left = on; left; left &= left - 1u) {
+                const unsigned k = (unsigned)__builtin_ctz(left);
+                const walk_state st = walk_step(svo, &w[k]);
+                if (st != WALK_ON) {
+                    on &= ~(1u << k);
+                    hits |= (uint32_t)(st == WALK_HIT) << (first + k);
+                }
+            }
+        }
+    }
+    return hits;
 }
 
 bool mr_svo_intersect_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
