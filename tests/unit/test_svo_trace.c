@@ -407,6 +407,8 @@ static bool same_hit(const mr_svo_hit *a, const mr_svo_hit *b)
            a->y == b->y && a->z == b->z && a->axis == b->axis && !memcmp(&a->ng, &b->ng, sizeof a->ng);
 }
 
+static size_t negative_zero_t; /* hits at t = -0: which of two equal zeros a max keeps shows */
+
 static void check_batch(const mr_svo *o, const mr_svo_subtree *st, unsigned n, const mr_vec3 *org,
                         const mr_vec3 *dir, const float *tmin, const float *tmax, size_t *hits)
 {
@@ -426,6 +428,7 @@ static void check_batch(const mr_svo *o, const mr_svo_subtree *st, unsigned n, c
                 fail_msg("ray %u of %u: together t %a leaf %u, alone t %a leaf %u", i, n, (double)together[i].t,
                          together[i].leaf, (double)alone.t, alone.leaf);
             ++*hits;
+            negative_zero_t += alone.t == 0.0f && signbit(alone.t);
         } else {
             const unsigned char *b = (const unsigned char *)&together[i];
             for (size_t k = 0; k < sizeof together[i]; k++)
@@ -469,11 +472,34 @@ static void test_rays_together(void **state)
                 check_batch(o, &st[k], n, org, dir, tmin, tmax, &hits);
             batches += 1 + nst;
         }
+        /* Packets from grid points inside the cube, every direction
+         * component nonzero and of one sign per batch: rays starting on a
+         * midplane, where a child's entry t is +0 or -0. */
+        for (int b = 0; grid && b < 64; b++) {
+            static const float comps[] = {1.0f, 2.0f, 0.5f};
+            const unsigned m = fx_below(&r, 8), cells = 1u << depth;
+            mr_vec3 org[16], dir[16];
+            float tmin[16], tmax[16];
+            for (unsigned i = 0; i < 16; i++) {
+                float ov[3], dv[3];
+                for (int a = 0; a < 3; a++) {
+                    ov[a] = (a == 0 ? -2.0f : a == 1 ? 0.0f : 4.0f) + 4.0f * (float)fx_below(&r, cells + 1) / (float)cells;
+                    dv[a] = comps[fx_below(&r, 3)] * (m >> a & 1u ? -1.0f : 1.0f);
+                }
+                org[i] = mr_v3(ov[0], ov[1], ov[2]);
+                dir[i] = mr_v3(dv[0], dv[1], dv[2]);
+                tmin[i] = 0.0f;
+                tmax[i] = INFINITY;
+            }
+            check_batch(o, NULL, 16, org, dir, tmin, tmax, &hits);
+            batches++;
+        }
         free(st);
         fx_free(&fx);
     }
-    print_message("[ rays together ] %zu batches, %zu hits\n", batches, hits);
+    print_message("[ rays together ] %zu batches, %zu hits, %zu at t = -0\n", batches, hits, negative_zero_t);
     assert_true(hits > 1000);
+    assert_true(negative_zero_t > 0);
 }
 
 /* The same leaves through the real builder (mr_svo_build: breadth-first
