@@ -354,7 +354,6 @@ static inline bool svo_walk(const mr_svo *svo, uint32_t start, unsigned base, co
     return st == WALK_HIT;
 }
 
-
 static const uint32_t ROOT_XYZ[3] = {0, 0, 0};
 
 bool mr_svo_intersect(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, mr_svo_hit *hit)

@@ -99,16 +99,17 @@ bool mr_svo_intersect_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec
                               float tmax, mr_svo_hit *hit);
 bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
                              float tmax);
-/* Up to 32 rays at once (n <= 32): ray i is org[i] + t dir[i], t in
- * [tmin[i], tmax[i]], traced over the leaves below s (NULL: the whole
- * octree). With hit, the nearest leaf of each ray, in hit[i] (untouched
- * for a ray without one); hit NULL: any leaf (mr_svo_occluded). Returns
- * the mask of the rays that hit, bit i for ray i, and the same hits, bit
- * for bit, as one query per ray. The rays take turns in groups of
- * MR_SVO_RAYS: one goes on until it enters a node, whose children then
- * come from memory while the others step. Below the top levels the rays
- * of a packet part ways, and deep octrees wait on memory at every level
- * (one miss after another, for a single ray). */
+/* n rays at once (n <= 32; rays past the 32nd are not traced): ray i is
+ * org[i] + t dir[i], t in [tmin[i], tmax[i]], traced over the leaves
+ * below s (NULL: the whole octree). With hit, the nearest leaf of each
+ * ray, in hit[i] (untouched for a ray without one); hit NULL: any leaf
+ * (mr_svo_occluded). Returns the mask of the rays that hit, bit i for ray
+ * i: the same hits, bit for bit, as one query per ray. The rays take
+ * turns in groups of MR_SVO_RAYS: one goes on until it enters a node,
+ * whose children then come from memory while the others step. A single
+ * ray in a deep octree waits for one miss after another, a level at a
+ * time; the rays of a packet part ways below the top levels, so their
+ * misses can overlap. */
 #define MR_SVO_RAYS 8
 uint32_t mr_svo_intersect_rays(const mr_svo *svo, const mr_svo_subtree *s, unsigned n, const mr_vec3 *org,
                                const mr_vec3 *dir, const float *tmin, const float *tmax, mr_svo_hit *hit);
