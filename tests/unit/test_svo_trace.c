@@ -476,14 +476,14 @@ static void test_rays_together(void **state)
          * component nonzero and of one sign per batch: rays starting on a
          * midplane, where a child's entry t is +0 or -0. */
         for (int b = 0; grid && b < 64; b++) {
-            static const float comps[] = {1.0f, 2.0f, 0.5f};
+            static const float comps[] = {1.0f, 2.0f, 0.5f}, corner[3] = {-2.0f, 0.0f, 4.0f}; /* the cube's */
             const unsigned m = fx_below(&r, 8), cells = 1u << depth;
             mr_vec3 org[16], dir[16];
             float tmin[16], tmax[16];
             for (unsigned i = 0; i < 16; i++) {
                 float ov[3], dv[3];
                 for (int a = 0; a < 3; a++) {
-                    ov[a] = (a == 0 ? -2.0f : a == 1 ? 0.0f : 4.0f) + 4.0f * (float)fx_below(&r, cells + 1) / (float)cells;
+                    ov[a] = corner[a] + 4.0f * (float)fx_below(&r, cells + 1) / (float)cells;
                     dv[a] = comps[fx_below(&r, 3)] * (m >> a & 1u ? -1.0f : 1.0f);
                 }
                 org[i] = mr_v3(ov[0], ov[1], ov[2]);
