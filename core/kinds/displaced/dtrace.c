@@ -1809,6 +1809,93 @@ __attribute__((target("avx2"))) static uint32_t pack_rays_avx2(const mr_dgrad *g
 #define PACK_RAYS pack_rays
 #endif
 
+/* Where a packet's rays start down T's texture pyramid: the nodes of the
+ * lowest level (T's roots' at most) whose rectangles hold, at most two per
+ * axis, every grid point a hit of the rays `live` can lie over; returns how
+ * many (0: no ray meets T's box, so none hits). A packet of a camera's
+ * neighbouring pixels falls on a few cells, and every packet walked down
+ * from T's roots through the same upper nodes.
+ *
+ * Why no hit is lost: a hit lies on a micro-triangle of T, inside T's
+ * local box (every micro-vertex is in it), so at a t where the ray is in
+ * that box; its local x and y are those of a grid point q of the hit's
+ * cell moved by h (a, b) (h in T's heights, (a, b) in the normal's bounds
+ * nb) and the local box's pad, so q lies within E of the rays' footprint
+ * F (the x and y they cross while inside the box). The level-l nodes that
+ * hold the cells within E of F hold the hit's cell, and every node on the
+ * way down from them to it holds the hit point in its box: the walk from
+ * them finds what the walk from T's roots finds. The rounding of x and y
+ * (o + t / inv) is covered by a margin of 1e-9 of their size plus 1e-6 of
+ * a cell; the cells touching F's edges are taken on both sides. */
+static int packet_start(const mr_dscene *s, uint32_t t, const mr_dbase *b, const mr_dgrad *gr,
+                        const pack *p, uint32_t live, tnode out[4])
+{
+    const mr_dgrid *g = s->grid;
+    const mr_droots rs = tri_roots(s, t);
+    const int top = (int)g->levels;
+    if (rs.n == 0 || rs.r[0].level == 0) {
+        for (int k = 0; k < rs.n; k++)
+            out[k].d = rs.r[k];
+        return rs.n;
+    }
+    double lo[3], hi[3];
+    local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, lo, hi);
+    double f[2][2] = {{INFINITY, -INFINITY}, {INFINITY, -INFINITY}}, size = 0;
+    for (uint32_t m = live; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        double t0 = p->t0[k], t1 = p->t1[k];
+        for (int a = 0; a < 3; a++) {
+            double nn = (lo[a] - p->o[a][k]) * p->inv[a][k];
+            double ff = (hi[a] - p->o[a][k]) * p->inv[a][k];
+            t0 = dmax(dmin(nn, ff), t0);
+            t1 = dmin(dmax(nn, ff) * (1 + 4 * DBL_EPSILON), t1);
+        }
+        if (!(t0 <= t1))
+            continue;
+        for (int a = 0; a < 2; a++) {
+            const double x0 = p->o[a][k] + t0 / p->inv[a][k], x1 = p->o[a][k] + t1 / p->inv[a][k];
+            f[a][0] = dmin(f[a][0], dmin(x0, x1));
+            f[a][1] = dmax(f[a][1], dmax(x0, x1));
+            size = dmax(size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
+        }
+    }
+    if (!(f[0][0] <= f[0][1]))
+        return 0;
+    const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi)), margin = 1e-6 + 1e-9 * size;
+    int64_t c[2][2], cells[2][2];
+    mr_dbase_cells(b, &cells[0][0], &cells[0][1], &cells[1][0], &cells[1][1]);
+    for (int a = 0; a < 2; a++) {
+        const double e = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a] + margin;
+        const double x0 = f[a][0] - e, x1 = f[a][1] + e;
+        if (!(x0 >= -0x1p60 && x1 <= 0x1p60)) { /* (no cell index to take) */
+            for (int k = 0; k < rs.n; k++)
+                out[k].d = rs.r[k];
+            return rs.n;
+        }
+        c[a][0] = (int64_t)floor(x0), c[a][1] = (int64_t)floor(x1);
+        c[a][0] = c[a][0] > cells[a][0] ? c[a][0] : cells[a][0];
+        c[a][1] = c[a][1] < cells[a][1] ? c[a][1] : cells[a][1];
+        if (c[a][1] < c[a][0])
+            return 0;
+    }
+    for (int l = 0; l < rs.r[0].level && l <= top; l++) {
+        const int64_t x0 = node_index(c[0][0], g->w, g->lw[l], l, top);
+        const int64_t x1 = node_index(c[0][1], g->w, g->lw[l], l, top);
+        const int64_t y0 = node_index(c[1][0], g->h, g->lh[l], l, top);
+        const int64_t y1 = node_index(c[1][1], g->h, g->lh[l], l, top);
+        if (x1 - x0 > 1 || y1 - y0 > 1)
+            continue;
+        int k = 0;
+        for (int64_t y = y0; y <= y1; y++)
+            for (int64_t x = x0; x <= x1; x++)
+                out[k++].d = node_at(g, l, x, y);
+        return k;
+    }
+    for (int k = 0; k < rs.n; k++)
+        out[k].d = rs.r[k];
+    return rs.n;
+}
+
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
                                     const float *tmin, float *const *tmax, mr_dhit *hits,
                                     mr_dstats *st)
@@ -1850,9 +1937,10 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     pentry stack[STACK_MAX];
     int sp = 0;
     const mr_dproc *pr = s->proc;
-    { /* the roots the rays enter (as mr_dtrace_intersect) */
+    { /* the roots the rays enter (as mr_dtrace_intersect), or for a
+       * texture the nodes their footprint starts at */
         tnode rs[4];
-        int nr = tri_tnodes(s, t, rs);
+        int nr = pr ? tri_tnodes(s, t, rs) : packet_start(s, t, b, gr, &p, inpack, rs);
         pentry hitc[4];
         int nh = 0;
         for (int k = 0; k < nr; k++) {
