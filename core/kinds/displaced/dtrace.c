@@ -1809,38 +1809,24 @@ __attribute__((target("avx2"))) static uint32_t pack_rays_avx2(const mr_dgrad *g
 #define PACK_RAYS pack_rays
 #endif
 
-/* Where a packet's rays start down T's texture pyramid: the nodes of the
- * lowest level (T's roots' at most) whose rectangles hold, at most two per
- * axis, every grid point a hit of the rays `live` can lie over; returns how
- * many (0: no ray meets T's box, so none hits). A packet of a camera's
- * neighbouring pixels falls on a few cells, and every packet walked down
- * from T's roots through the same upper nodes.
+/* The grid rectangle f ([axis][lo, hi]) that holds every grid point a hit
+ * of the packet's rays `live` on T can lie over: 1; 0 when no ray meets
+ * T's box (none hits); -1 when it cannot be told (a NaN or an infinity).
  *
- * Why no hit is lost: a hit lies on a micro-triangle of T, inside T's
- * local box (every micro-vertex is in it), so at a t where the ray is in
- * that box; its local x and y are those of a grid point q of the hit's
- * cell moved by h (a, b) (h in T's heights, (a, b) in the normal's bounds
- * nb) and the local box's pad, so q lies within E of the rays' footprint
- * F (the x and y they cross while inside the box). The level-l nodes that
- * hold the cells within E of F hold the hit's cell, and every node on the
- * way down from them to it holds the hit point in its box: the walk from
- * them finds what the walk from T's roots finds. The rounding of x and y
- * (o + t / inv) is covered by a margin of 1e-9 of their size plus 1e-6 of
- * a cell; the cells touching F's edges are taken on both sides. */
-static int packet_start(const mr_dscene *s, uint32_t t, const mr_dbase *b, const mr_dgrad *gr,
-                        const pack *p, uint32_t live, tnode out[4])
+ * Why: a hit lies on a micro-triangle of T, inside T's local box (every
+ * micro-vertex is in it), so at a t where the ray is in that box; its
+ * local x and y are those of a grid point q of T moved by h (a, b) (h in
+ * T's heights, (a, b) in the normal's bounds nb) and the local box's pad,
+ * so q lies within e of the x and y the ray crosses while inside the box,
+ * and within T's grid box. The rounding of x and y (o + t / inv) is
+ * covered by a margin of 1e-9 of their size plus 1e-6 of a cell. */
+static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
 {
-    const mr_dgrid *g = s->grid;
-    const mr_droots rs = tri_roots(s, t);
-    const int top = (int)g->levels;
-    if (rs.n == 0 || rs.r[0].level == 0) {
-        for (int k = 0; k < rs.n; k++)
-            out[k].d = rs.r[k];
-        return rs.n;
-    }
     double lo[3], hi[3];
     local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, lo, hi);
-    double f[2][2] = {{INFINITY, -INFINITY}, {INFINITY, -INFINITY}}, size = 0;
+    double size = 0;
+    bool entered = false;
+    f[0][0] = f[1][0] = INFINITY, f[0][1] = f[1][1] = -INFINITY;
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
         double t0 = p->t0[k], t1 = p->t1[k];
@@ -1850,8 +1836,9 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dbase *b, const
             t0 = dmax(dmin(nn, ff), t0);
             t1 = dmin(dmax(nn, ff) * (1 + 4 * DBL_EPSILON), t1);
         }
-        if (!(t0 <= t1))
+        if (t0 > t1) /* (a NaN stays, as slab_pack keeps it) */
             continue;
+        entered = true;
         for (int a = 0; a < 2; a++) {
             const double x0 = p->o[a][k] + t0 / p->inv[a][k], x1 = p->o[a][k] + t1 / p->inv[a][k];
             f[a][0] = dmin(f[a][0], dmin(x0, x1));
@@ -1859,26 +1846,34 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dbase *b, const
             size = dmax(size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
         }
     }
-    if (!(f[0][0] <= f[0][1]))
+    if (!entered)
         return 0;
     const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi)), margin = 1e-6 + 1e-9 * size;
-    int64_t c[2][2], cells[2][2];
-    mr_dbase_cells(b, &cells[0][0], &cells[0][1], &cells[1][0], &cells[1][1]);
+    const double gb[2][2] = {{gr->gx0, gr->gx1}, {gr->gy0, gr->gy1}};
     for (int a = 0; a < 2; a++) {
         const double e = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a] + margin;
-        const double x0 = f[a][0] - e, x1 = f[a][1] + e;
-        if (!(x0 >= -0x1p60 && x1 <= 0x1p60)) { /* (no cell index to take) */
-            for (int k = 0; k < rs.n; k++)
-                out[k].d = rs.r[k];
-            return rs.n;
-        }
-        c[a][0] = (int64_t)floor(x0), c[a][1] = (int64_t)floor(x1);
-        c[a][0] = c[a][0] > cells[a][0] ? c[a][0] : cells[a][0];
-        c[a][1] = c[a][1] < cells[a][1] ? c[a][1] : cells[a][1];
-        if (c[a][1] < c[a][0])
+        if (!isfinite(f[a][0] - e) || !isfinite(f[a][1] + e))
+            return -1;
+        f[a][0] = dmax(f[a][0] - e, gb[a][0]), f[a][1] = dmin(f[a][1] + e, gb[a][1]);
+        if (f[a][0] > f[a][1])
             return 0;
+        if (!(fabs(f[a][0]) < 0x1p60 && fabs(f[a][1]) < 0x1p60)) /* (no cell index to take) */
+            return -1;
     }
-    for (int l = 0; l < rs.r[0].level && l <= top; l++) {
+    return 1;
+}
+
+/* A texture's nodes over the grid rectangle f: the lowest level below T's
+ * roots (at most the pyramid's top) at which f's cells span at most two
+ * nodes per axis (as roots), those nodes; 0 when there is none. Cells are
+ * closed squares, so a grid point on a node's edge takes the nodes on both
+ * sides (f's margin). */
+static int tex_start(const mr_dgrid *g, int root_level, const double f[2][2], tnode out[4])
+{
+    const int top = (int)g->levels;
+    const int64_t c[2][2] = {{(int64_t)floor(f[0][0]), (int64_t)floor(f[0][1])},
+                             {(int64_t)floor(f[1][0]), (int64_t)floor(f[1][1])}};
+    for (int l = 0; l < root_level && l <= top; l++) {
         const int64_t x0 = node_index(c[0][0], g->w, g->lw[l], l, top);
         const int64_t x1 = node_index(c[0][1], g->w, g->lw[l], l, top);
         const int64_t y0 = node_index(c[1][0], g->h, g->lh[l], l, top);
@@ -1891,9 +1886,59 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dbase *b, const
                 out[k++].d = node_at(g, l, x, y);
         return k;
     }
-    for (int k = 0; k < rs.n; k++)
-        out[k].d = rs.r[k];
-    return rs.n;
+    return 0;
+}
+
+/* A procedural source's nodes over the grid rectangle f: the triforce
+ * triangles of leg h (1 .. range) are the two halves of the squares of
+ * side h cut by their anti-diagonals (the lower-left one (i h, j h, h), the
+ * upper-right one ((i + 1) h, (j + 1) h, -h); mr_dproc_children). The
+ * least h at which f meets at most two squares, the halves of them f
+ * meets (closed: a point on a diagonal takes both); 0 when there is none. */
+static int proc_start(const mr_dproc *pr, const double f[2][2], tnode out[4])
+{
+    for (int64_t h = 1; h <= (int64_t)pr->range; h *= 2) {
+        const int64_t i0 = mr_floor_div((int64_t)floor(f[0][0]), h);
+        const int64_t i1 = mr_floor_div((int64_t)floor(f[0][1]), h);
+        const int64_t j0 = mr_floor_div((int64_t)floor(f[1][0]), h);
+        const int64_t j1 = mr_floor_div((int64_t)floor(f[1][1]), h);
+        if ((i1 - i0 + 1) * (j1 - j0 + 1) > 2)
+            continue;
+        int k = 0;
+        for (int64_t j = j0; j <= j1; j++)
+            for (int64_t i = i0; i <= i1; i++) {
+                const double x = (double)(i * h), y = (double)(j * h), side = (double)h;
+                if ((dmax(f[0][0], x) - x) + (dmax(f[1][0], y) - y) <= side)
+                    out[k++].p = (pnode){-1, i * h, j * h, h};
+                if ((dmin(f[0][1], x + side) - x) + (dmin(f[1][1], y + side) - y) >= side)
+                    out[k++].p = (pnode){-1, (i + 1) * h, (j + 1) * h, -h};
+            }
+        return k;
+    }
+    return 0;
+}
+
+/* Where a packet's rays start down T's nodes: the few nodes over their
+ * footprint (packet_footprint; a walk from them finds what a walk from
+ * T's roots finds, as every node above a hit's leaf holds the hit point in
+ * its box), or T's roots; returns how many (0: no ray hits). A packet of a
+ * camera's neighbouring pixels falls on a few cells, and every packet
+ * walked down from T's roots through the same upper nodes. */
+static int packet_start(const mr_dscene *s, uint32_t t, const mr_dgrad *gr, const pack *p,
+                        uint32_t live, tnode out[4])
+{
+    const int nr = tri_tnodes(s, t, out);
+    double f[2][2];
+    const int fp = nr ? packet_footprint(gr, p, live, f) : -1;
+    if (fp <= 0)
+        return fp == 0 ? 0 : nr;
+    tnode st[4];
+    const int n = s->proc ? proc_start(s->proc, f, st) : tex_start(s->grid, out[0].d.level, f, st);
+    if (!n)
+        return nr;
+    for (int k = 0; k < n; k++)
+        out[k] = st[k];
+    return n;
 }
 
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
@@ -1937,10 +1982,9 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
     pentry stack[STACK_MAX];
     int sp = 0;
     const mr_dproc *pr = s->proc;
-    { /* the roots the rays enter (as mr_dtrace_intersect), or for a
-       * texture the nodes their footprint starts at */
+    { /* the nodes the rays start at (packet_start) that they enter */
         tnode rs[4];
-        int nr = pr ? tri_tnodes(s, t, rs) : packet_start(s, t, b, gr, &p, inpack, rs);
+        int nr = packet_start(s, t, gr, &p, inpack, rs);
         pentry hitc[4];
         int nh = 0;
         for (int k = 0; k < nr; k++) {
