@@ -1619,6 +1619,7 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
  * packet never passes: t0 > t1), and each ray's current [tmin, tmax]. */
 typedef struct pack {
     double o[3][PK], inv[3][PK];
+    double d[2][PK]; /* x and y of the direction (packet_footprint) */
     double t0[PK], t1[PK];
 } pack;
 
@@ -1758,6 +1759,8 @@ static uint32_t pack_rays(const mr_dgrad *gr, const mr_dbase *b, const mr_dray *
         const bool par = lr.par[0] || lr.par[1] || lr.par[2];
         for (int a = 0; a < 3; a++) /* a lane left out still holds numbers (slab_pack's pairs) */
             p->o[a][k] = par ? 0 : lr.o[a], p->inv[a][k] = par ? 0 : lr.inv[a];
+        for (int a = 0; a < 2; a++)
+            p->d[a][k] = par ? 0 : lr.d[a];
         in |= (uint32_t)!par << k;
     }
     return in;
@@ -1797,6 +1800,8 @@ __attribute__((target("avx2"))) static uint32_t pack_rays_avx2(const mr_dgrad *g
             __m256d inv = _mm256_andnot_pd(zero, _mm256_div_pd(_mm256_set1_pd(1.0), ld));
             _mm256_storeu_pd(p->o[a] + k, lo);
             _mm256_storeu_pd(p->inv[a] + k, inv);
+            if (a < 2)
+                _mm256_storeu_pd(p->d[a] + k, ld);
         }
         uint32_t lanes = n - k >= 4 ? 15u : (1u << (n - k)) - 1u;
         in |= ((uint32_t)~_mm256_movemask_pd(par) & lanes) << k;
@@ -1818,7 +1823,7 @@ __attribute__((target("avx2"))) static uint32_t pack_rays_avx2(const mr_dgrad *g
  * local x and y are those of a grid point q of T moved by h (a, b) (h in
  * T's heights, (a, b) in the normal's bounds nb) and the local box's pad,
  * so q lies within e of the x and y the ray crosses while inside the box,
- * and within T's grid box. The rounding of x and y (o + t / inv) is
+ * and within T's grid box. The rounding of x and y (o + t d) is
  * covered by a margin of 1e-9 of their size plus 1e-6 of a cell. */
 static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
 {
@@ -1840,7 +1845,7 @@ static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, do
             continue;
         entered = true;
         for (int a = 0; a < 2; a++) {
-            const double x0 = p->o[a][k] + t0 / p->inv[a][k], x1 = p->o[a][k] + t1 / p->inv[a][k];
+            const double x0 = p->o[a][k] + t0 * p->d[a][k], x1 = p->o[a][k] + t1 * p->d[a][k];
             f[a][0] = dmin(f[a][0], dmin(x0, x1));
             f[a][1] = dmax(f[a][1], dmax(x0, x1));
             size = dmax(size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
@@ -1928,6 +1933,8 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dgrad *gr, cons
                         uint32_t live, tnode out[4])
 {
     const int nr = tri_tnodes(s, t, out);
+    if (!s->proc && nr && out[0].d.level == 0)
+        return nr; /* (already at the leaves) */
     double f[2][2];
     const int fp = nr ? packet_footprint(gr, p, live, f) : -1;
     if (fp <= 0)
