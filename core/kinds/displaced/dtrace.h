@@ -231,7 +231,11 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
  * (shrunk on a hit, hits[k] filled): returns the mask of rays hit. A
  * texture's rays traverse together: each node's box is made once and
  * tested against every ray still in the packet, each cell's micro-triangles
- * made once and tested against each ray that reaches it. The hits are
+ * made once and tested against each ray that reaches it. The packet starts
+ * not at T's roots but at the few nodes (at most four, of the lowest level
+ * that allows) over its footprint: the grid points its hits can lie over,
+ * from where its rays cross T's box (dtrace.c packet_start; the texture
+ * plane at 50 texels per unit: 3.1 node boxes a ray -> 0.6). The hits are
  * mr_dtrace_intersect's ray by ray, bit for bit (a tie between
  * micro-triangles goes to the same one whatever the order of the visit).
  * Procedural source: a triforce node's bound, when not at hand, is first
