@@ -1814,24 +1814,15 @@ __attribute__((target("avx2"))) static uint32_t pack_rays_avx2(const mr_dgrad *g
 #define PACK_RAYS pack_rays
 #endif
 
-/* The grid rectangle f ([axis][lo, hi]) that holds every grid point a hit
- * of the packet's rays `live` on T can lie over: 1; 0 when no ray meets
- * T's box (none hits); -1 when it cannot be told (a NaN or an infinity).
- *
- * Why: a hit lies on a micro-triangle of T, inside T's local box (every
- * micro-vertex is in it), so at a t where the ray is in that box; its
- * local x and y are those of a grid point q of T moved by h (a, b) (h in
- * T's heights, (a, b) in the normal's bounds nb) and the local box's pad,
- * so q lies within e of the x and y the ray crosses while inside the box,
- * and within T's grid box. The rounding of x and y (o + t d) is
- * covered by a margin of 1e-9 of their size plus 1e-6 of a cell. */
-static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
+/* packet_footprint's rays: the x and y the rays `live` cross inside the
+ * box lo..hi into f, the largest magnitude among them and their origins'
+ * into *size; 0 when no ray enters the box, -1 on a NaN. */
+static int footprint_rays(const pack *p, uint32_t live, const double lo[3], const double hi[3],
+                          double f[2][2], double *size)
 {
-    double lo[3], hi[3];
-    local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, lo, hi);
-    double size = 0;
     bool entered = false;
     f[0][0] = f[1][0] = INFINITY, f[0][1] = f[1][1] = -INFINITY;
+    *size = 0;
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
         double t0 = p->t0[k], t1 = p->t1[k];
@@ -1846,13 +1837,98 @@ static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, do
         entered = true;
         for (int a = 0; a < 2; a++) {
             const double x0 = p->o[a][k] + t0 * p->d[a][k], x1 = p->o[a][k] + t1 * p->d[a][k];
+            if (isnan(x0) || isnan(x1))
+                return -1;
             f[a][0] = dmin(f[a][0], dmin(x0, x1));
             f[a][1] = dmax(f[a][1], dmax(x0, x1));
-            size = dmax(size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
+            *size = dmax(*size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
         }
     }
-    if (!entered)
-        return 0;
+    return entered;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* footprint_rays four lanes at a time, for CPUs with AVX2 (the same
+ * bounds: min and max are a < b ? a : b and a > b ? a : b in both, and
+ * lanes left out hold infinities). */
+__attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, uint32_t live,
+                                                               const double lo[3],
+                                                               const double hi[3],
+                                                               double f[2][2], double *size)
+{
+    const __m256d inf = _mm256_set1_pd(INFINITY), ninf = _mm256_set1_pd(-INFINITY);
+    const __m256d sign = _mm256_set1_pd(-0.0);
+    __m256d fl[2] = {inf, inf}, fh[2] = {ninf, ninf}, sz = _mm256_setzero_pd();
+    uint32_t entered = 0, nan = 0;
+    for (int k = 0; k < PK; k += 4) {
+        const uint32_t lanes = live >> k & 15u;
+        if (!lanes)
+            continue;
+        __m256d t0 = _mm256_loadu_pd(p->t0 + k), t1 = _mm256_loadu_pd(p->t1 + k);
+        for (int a = 0; a < 3; a++) {
+            __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
+            __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
+            __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
+            t0 = _mm256_max_pd(_mm256_min_pd(nn, ff), t0);
+            t1 = _mm256_min_pd(_mm256_mul_pd(_mm256_max_pd(nn, ff), _mm256_set1_pd(1 + 4 * DBL_EPSILON)), t1);
+        }
+        const uint32_t in = (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & lanes;
+        if (!in)
+            continue;
+        entered |= in;
+        const __m256d sel = _mm256_castsi256_pd(_mm256_set_epi64x(
+            -(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u), -(int64_t)(in >> 1 & 1u),
+            -(int64_t)(in & 1u)));
+        for (int a = 0; a < 2; a++) {
+            const __m256d o = _mm256_loadu_pd(p->o[a] + k), d = _mm256_loadu_pd(p->d[a] + k);
+            const __m256d x0 = _mm256_add_pd(o, _mm256_mul_pd(t0, d));
+            const __m256d x1 = _mm256_add_pd(o, _mm256_mul_pd(t1, d));
+            nan |= (uint32_t)_mm256_movemask_pd(_mm256_cmp_pd(x0, x1, _CMP_UNORD_Q)) & in;
+            fl[a] = _mm256_min_pd(_mm256_blendv_pd(inf, _mm256_min_pd(x0, x1), sel), fl[a]);
+            fh[a] = _mm256_max_pd(_mm256_blendv_pd(ninf, _mm256_max_pd(x0, x1), sel), fh[a]);
+            const __m256d m = _mm256_max_pd(_mm256_max_pd(_mm256_andnot_pd(sign, x0), _mm256_andnot_pd(sign, x1)),
+                                            _mm256_andnot_pd(sign, o));
+            sz = _mm256_max_pd(_mm256_and_pd(sel, m), sz);
+        }
+    }
+    if (nan)
+        return -1;
+    double v[4];
+    for (int a = 0; a < 2; a++) {
+        _mm256_storeu_pd(v, fl[a]);
+        f[a][0] = dmin(dmin(v[0], v[1]), dmin(v[2], v[3]));
+        _mm256_storeu_pd(v, fh[a]);
+        f[a][1] = dmax(dmax(v[0], v[1]), dmax(v[2], v[3]));
+    }
+    _mm256_storeu_pd(v, sz);
+    *size = dmax(dmax(v[0], v[1]), dmax(v[2], v[3]));
+    return entered != 0;
+}
+#define FOOTPRINT_RAYS(p, live, lo, hi, f, size)                                                \
+    (__builtin_cpu_supports("avx2") ? footprint_rays_avx2(p, live, lo, hi, f, size)           \
+                                    : footprint_rays(p, live, lo, hi, f, size))
+#else
+#define FOOTPRINT_RAYS footprint_rays
+#endif
+
+/* The grid rectangle f ([axis][lo, hi]) that holds every grid point a hit
+ * of the packet's rays `live` on T can lie over: 1; 0 when no ray meets
+ * T's box (none hits); -1 when it cannot be told (a NaN or an infinity).
+ *
+ * Why: a hit lies on a micro-triangle of T, inside T's local box (every
+ * micro-vertex is in it), so at a t where the ray is in that box; its
+ * local x and y are those of a grid point q of T moved by h (a, b) (h in
+ * T's heights, (a, b) in the normal's bounds nb) and the local box's pad,
+ * so q lies within e of the x and y the ray crosses while inside the box,
+ * and within T's grid box. The rounding of x and y (o + t d) is
+ * covered by a margin of 1e-9 of their size plus 1e-6 of a cell. */
+static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
+{
+    double lo[3], hi[3], size;
+    local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, lo, hi);
+    const int in = FOOTPRINT_RAYS(p, live, lo, hi, f, &size);
+    if (in <= 0)
+        return in;
     const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi)), margin = 1e-6 + 1e-9 * size;
     const double gb[2][2] = {{gr->gx0, gr->gx1}, {gr->gy0, gr->gy1}};
     for (int a = 0; a < 2; a++) {
@@ -1964,9 +2040,11 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const
          * triangle) */
         for (int k = 0; k < PK; k++) {
             p.t0[k] = INFINITY, p.t1[k] = -INFINITY;
-            if (k >= n)
+            if (k >= n) {
                 for (int a = 0; a < 3; a++)
                     p.o[a][k] = p.inv[a][k] = 0;
+                p.d[0][k] = p.d[1][k] = 0;
+            }
         }
         inpack = PACK_RAYS(gr, b, r, n, &p);
         for (uint32_t m = inpack; m; m &= m - 1) {
