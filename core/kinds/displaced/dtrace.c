@@ -1857,7 +1857,7 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
                                                                double f[2][2], double *size)
 {
     const __m256d inf = _mm256_set1_pd(INFINITY), ninf = _mm256_set1_pd(-INFINITY);
-    const __m256d sign = _mm256_set1_pd(-0.0);
+    const __m256d sign = _mm256_set1_pd(-0.0), widen = _mm256_set1_pd(1 + 4 * DBL_EPSILON);
     __m256d fl[2] = {inf, inf}, fh[2] = {ninf, ninf}, sz = _mm256_setzero_pd();
     uint32_t entered = 0, nan = 0;
     for (int k = 0; k < PK; k += 4) {
@@ -1870,9 +1870,10 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
             __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
             __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
             t0 = _mm256_max_pd(_mm256_min_pd(nn, ff), t0);
-            t1 = _mm256_min_pd(_mm256_mul_pd(_mm256_max_pd(nn, ff), _mm256_set1_pd(1 + 4 * DBL_EPSILON)), t1);
+            t1 = _mm256_min_pd(_mm256_mul_pd(_mm256_max_pd(nn, ff), widen), t1);
         }
-        const uint32_t in = (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & lanes;
+        const __m256d out = _mm256_cmp_pd(t0, t1, _CMP_GT_OQ);
+        const uint32_t in = (uint32_t)~_mm256_movemask_pd(out) & lanes;
         if (!in)
             continue;
         entered |= in;
@@ -1886,8 +1887,8 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
             nan |= (uint32_t)_mm256_movemask_pd(_mm256_cmp_pd(x0, x1, _CMP_UNORD_Q)) & in;
             fl[a] = _mm256_min_pd(_mm256_blendv_pd(inf, _mm256_min_pd(x0, x1), sel), fl[a]);
             fh[a] = _mm256_max_pd(_mm256_blendv_pd(ninf, _mm256_max_pd(x0, x1), sel), fh[a]);
-            const __m256d m = _mm256_max_pd(_mm256_max_pd(_mm256_andnot_pd(sign, x0), _mm256_andnot_pd(sign, x1)),
-                                            _mm256_andnot_pd(sign, o));
+            const __m256d ax0 = _mm256_andnot_pd(sign, x0), ax1 = _mm256_andnot_pd(sign, x1);
+            const __m256d m = _mm256_max_pd(_mm256_max_pd(ax0, ax1), _mm256_andnot_pd(sign, o));
             sz = _mm256_max_pd(_mm256_and_pd(sel, m), sz);
         }
     }
