@@ -1681,6 +1681,38 @@ static uint32_t slab_pack(const pack *p, uint32_t live, const double lo[3], cons
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
+/* Lanes k .. k + 3 of the packet against the box lo..hi (AVX2): slab's
+ * operations lane by lane narrow each lane's entry and exit from p->t0
+ * and p->t1 into *t0 and *t1; returns the lanes of `lanes` (bit q: lane k
+ * + q) that enter (0 at once, *t0 and *t1 unset, when `lanes` is 0). */
+__attribute__((target("avx2"))) static inline uint32_t slab_quad_avx2(const pack *p, int k,
+                                                                       uint32_t lanes,
+                                                                       const double lo[3],
+                                                                       const double hi[3],
+                                                                       __m256d *t0, __m256d *t1)
+{
+    if (!lanes)
+        return 0;
+    *t0 = _mm256_loadu_pd(p->t0 + k), *t1 = _mm256_loadu_pd(p->t1 + k);
+    for (int a = 0; a < 3; a++) {
+        __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
+        __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
+        __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
+        __m256d n = _mm256_min_pd(ff, nn), far = _mm256_max_pd(nn, ff);
+        far = _mm256_mul_pd(far, _mm256_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
+        *t0 = _mm256_max_pd(n, *t0);
+        *t1 = _mm256_min_pd(far, *t1);
+    }
+    return (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(*t0, *t1, _CMP_GT_OQ)) & lanes;
+}
+
+/* A vector selecting lanes q of in (bit q set: all ones). */
+__attribute__((target("avx2"))) static inline __m256d lanes_avx2(uint32_t in)
+{
+    return _mm256_castsi256_pd(_mm256_set_epi64x(-(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u),
+                                                 -(int64_t)(in >> 1 & 1u), -(int64_t)(in & 1u)));
+}
+
 /* slab_pack four lanes at a time, for CPUs with AVX2: the same operations
  * lane by lane as the SSE2 loop (sub, mul, minpd / maxpd, the far bound's
  * scaling, an ordered greater-than), so the same entries and the same
@@ -1695,29 +1727,14 @@ __attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, ui
     __m256d nearv = inf;
     uint32_t m = 0;
     for (int k = 0; k < PK; k += 4) {
-        const uint32_t lanes = live >> k & 15u;
-        if (!lanes)
-            continue;
-        __m256d t0 = _mm256_loadu_pd(p->t0 + k), t1 = _mm256_loadu_pd(p->t1 + k);
-        for (int a = 0; a < 3; a++) {
-            __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
-            __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
-            __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
-            __m256d n = _mm256_min_pd(ff, nn), far = _mm256_max_pd(nn, ff);
-            far = _mm256_mul_pd(far, _mm256_set1_pd(1 + 4 * DBL_EPSILON)); /* Ize 2013 */
-            t0 = _mm256_max_pd(n, t0);
-            t1 = _mm256_min_pd(far, t1);
-        }
-        const uint32_t in = (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(t0, t1, _CMP_GT_OQ)) & lanes;
+        __m256d t0, t1;
+        const uint32_t in = slab_quad_avx2(p, k, live >> k & 15u, lo, hi, &t0, &t1);
         if (!in)
             continue;
         m |= in << k;
         /* the nearest entry of the lanes that enter: min_pd is
          * a < b ? a : b, nearest_entry's rule (a NaN entry never wins) */
-        const __m256d sel = _mm256_castsi256_pd(_mm256_set_epi64x(
-            -(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u), -(int64_t)(in >> 1 & 1u),
-            -(int64_t)(in & 1u)));
-        nearv = _mm256_min_pd(_mm256_blendv_pd(inf, t0, sel), nearv);
+        nearv = _mm256_min_pd(_mm256_blendv_pd(inf, t0, lanes_avx2(in)), nearv);
     }
     /* (no lane of nearv is NaN: the least of its four in registers) */
     __m128d two = _mm_min_pd(_mm256_castpd256_pd128(nearv), _mm256_extractf128_pd(nearv, 1));
@@ -1829,7 +1846,7 @@ static int footprint_rays(const pack *p, uint32_t live, const double lo[3], cons
         for (int a = 0; a < 3; a++) {
             double nn = (lo[a] - p->o[a][k]) * p->inv[a][k];
             double ff = (hi[a] - p->o[a][k]) * p->inv[a][k];
-            t0 = dmax(dmin(nn, ff), t0);
+            t0 = dmax(dmin(ff, nn), t0);
             t1 = dmin(dmax(nn, ff) * (1 + 4 * DBL_EPSILON), t1);
         }
         if (t0 > t1) /* (a NaN stays, as slab_pack keeps it) */
@@ -1849,37 +1866,25 @@ static int footprint_rays(const pack *p, uint32_t live, const double lo[3], cons
 
 #if defined(__x86_64__) && defined(__GNUC__)
 /* footprint_rays four lanes at a time, for CPUs with AVX2 (the same
- * bounds: min and max are a < b ? a : b and a > b ? a : b in both, and
- * lanes left out hold infinities). */
+ * rectangle: slab_quad_avx2 is slab_pack's test, min and max are
+ * a < b ? a : b and a > b ? a : b in both, and lanes left out hold
+ * infinities). */
 __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, uint32_t live,
                                                                const double lo[3],
                                                                const double hi[3],
                                                                double f[2][2], double *size)
 {
     const __m256d inf = _mm256_set1_pd(INFINITY), ninf = _mm256_set1_pd(-INFINITY);
-    const __m256d sign = _mm256_set1_pd(-0.0), widen = _mm256_set1_pd(1 + 4 * DBL_EPSILON);
+    const __m256d sign = _mm256_set1_pd(-0.0);
     __m256d fl[2] = {inf, inf}, fh[2] = {ninf, ninf}, sz = _mm256_setzero_pd();
     uint32_t entered = 0, nan = 0;
     for (int k = 0; k < PK; k += 4) {
-        const uint32_t lanes = live >> k & 15u;
-        if (!lanes)
-            continue;
-        __m256d t0 = _mm256_loadu_pd(p->t0 + k), t1 = _mm256_loadu_pd(p->t1 + k);
-        for (int a = 0; a < 3; a++) {
-            __m256d o = _mm256_loadu_pd(p->o[a] + k), inv = _mm256_loadu_pd(p->inv[a] + k);
-            __m256d nn = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(lo[a]), o), inv);
-            __m256d ff = _mm256_mul_pd(_mm256_sub_pd(_mm256_set1_pd(hi[a]), o), inv);
-            t0 = _mm256_max_pd(_mm256_min_pd(nn, ff), t0);
-            t1 = _mm256_min_pd(_mm256_mul_pd(_mm256_max_pd(nn, ff), widen), t1);
-        }
-        const __m256d out = _mm256_cmp_pd(t0, t1, _CMP_GT_OQ);
-        const uint32_t in = (uint32_t)~_mm256_movemask_pd(out) & lanes;
+        __m256d t0, t1;
+        const uint32_t in = slab_quad_avx2(p, k, live >> k & 15u, lo, hi, &t0, &t1);
         if (!in)
             continue;
         entered |= in;
-        const __m256d sel = _mm256_castsi256_pd(_mm256_set_epi64x(
-            -(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u), -(int64_t)(in >> 1 & 1u),
-            -(int64_t)(in & 1u)));
+        const __m256d sel = lanes_avx2(in);
         for (int a = 0; a < 2; a++) {
             const __m256d o = _mm256_loadu_pd(p->o[a] + k), d = _mm256_loadu_pd(p->d[a] + k);
             const __m256d x0 = _mm256_add_pd(o, _mm256_mul_pd(t0, d));
