@@ -181,6 +181,8 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
     }
 }
 
+static void footprint_frame(mr_dgrad *gr);
+
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
 {
     memset(gr, 0, sizeof *gr);
@@ -215,6 +217,8 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
     gr->local = false;
     if (!b->flat)
         local_frame(gr, b, hm);
+    if (gr->local)
+        footprint_frame(gr);
 }
 
 /* ---- boxes ----------------------------------------------------------------------- */
@@ -462,6 +466,15 @@ static inline void local_box(const mr_dgrad *gr, double x0, double x1, double y0
     lrect r;
     local_rect(gr, x0, x1, y0, y1, &r);
     lrect_box(gr, &r, hlo, hhi, lo, hi);
+}
+
+/* mr_dgrad's footprint fields (a local T's). */
+static void footprint_frame(mr_dgrad *gr)
+{
+    local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, gr->tlo, gr->thi);
+    const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi));
+    for (int a = 0; a < 2; a++)
+        gr->reach[a] = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a];
 }
 
 void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
@@ -1930,15 +1943,14 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
  * covered by a margin of 1e-9 of their size plus 1e-6 of a cell. */
 static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
 {
-    double lo[3], hi[3], size;
-    local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, lo, hi);
-    const int in = FOOTPRINT_RAYS(p, live, lo, hi, f, &size);
+    double size;
+    const int in = FOOTPRINT_RAYS(p, live, gr->tlo, gr->thi, f, &size);
     if (in <= 0)
         return in;
-    const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi)), margin = 1e-6 + 1e-9 * size;
+    const double margin = 1e-6 + 1e-9 * size;
     const double gb[2][2] = {{gr->gx0, gr->gx1}, {gr->gy0, gr->gy1}};
     for (int a = 0; a < 2; a++) {
-        const double e = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a] + margin;
+        const double e = gr->reach[a] + margin;
         if (!isfinite(f[a][0] - e) || !isfinite(f[a][1] + e))
             return -1;
         f[a][0] = dmax(f[a][0] - e, gb[a][0]), f[a][1] = dmin(f[a][1] + e, gb[a][1]);

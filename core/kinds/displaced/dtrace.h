@@ -96,6 +96,11 @@ typedef struct mr_dgrad {
      * rounding slack, and 1 / the least |N| over T. */
     bool nrect;
     double nl[2][3], nslack[2], inv_ndist, g0[2];
+    /* A packet's footprint (dtrace.c packet_footprint), where local: T's
+     * local box (its grid box with its heights) and how far a micro-vertex
+     * can sit from its grid point along grid x and y (T's largest height
+     * times the normal's bound, plus the local boxes' pad). */
+    double tlo[3], thi[3], reach[2];
 } mr_dgrad;
 
 /* The most grid cells a base triangle's local boxes may be padded by (the
