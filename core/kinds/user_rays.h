@@ -194,16 +194,18 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
  * 8x2 primary rays, integrator.c). */
 #define MR_RAY_CACHE_LANES 16
 
-/* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
- * ray i of an N-packet set up by setup(origin, direction) into *out; false
- * when its direction cannot hit anything. Embree enters a ray's (or a
- * packet's) primitives one after another, so each thread keeps the last
- * set-up of each lane (MR_RAY_CACHE_LANES of them) and redoes it only when
- * the lane's origin or direction changed (a set-up is a pure function of
- * the two; a ray that cannot hit is never kept, so a kept one needs no
- * check). */
-#define MR_RAY_SETUP_CACHE(name, type, setup)                                                    \
-    static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
+/* Defines `static const type *name(void *ray, unsigned N, unsigned i)`:
+ * ray i of an N-packet set up by setup(origin, direction), or NULL when
+ * its direction cannot hit anything. Embree enters a ray's (or a packet's)
+ * primitives one after another, so each thread keeps the last set-up of
+ * each lane (MR_RAY_CACHE_LANES of them) and redoes it only when the
+ * lane's origin or direction changed (a set-up is a pure function of the
+ * two; a ray that cannot hit is never kept, so a kept one needs no check).
+ * The set-up returned is the kept one, not a copy: it stays as it is until
+ * this thread sets up the same lane again, so a callback may hold one for
+ * each of its lanes. */
+#define MR_RAY_SETUP_CACHE_REF(name, type, setup)                                                \
+    static const type *name(void *ray, unsigned N, unsigned i)                                   \
     {                                                                                             \
         static _Thread_local struct {                                                             \
             mr_ray_key key;                                                                       \
@@ -215,13 +217,25 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
             const mr_vec3 o = mr_ray_v3(ray, N, MR_RAY_ORG, i);                                   \
             const mr_vec3 d = mr_ray_v3(ray, N, MR_RAY_DIR, i);                                   \
             if (!mr_ray_dir_ok(d))                                                                \
-                return false;                                                                     \
+                return NULL;                                                                      \
             last[lane].r = setup(o, d);                                                           \
             mr_ray_key_store(ray, N, i, &last[lane].key);                                         \
             last[lane].kept = true;                                                               \
         }                                                                                         \
-        *out = last[lane].r;                                                                      \
-        return true;                                                                              \
+        return &last[lane].r;                                                                     \
+    }
+
+/* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
+ * MR_RAY_SETUP_CACHE_REF's set-up copied into *out; false when the ray
+ * cannot hit anything. */
+#define MR_RAY_SETUP_CACHE(name, type, setup)                                                    \
+    MR_RAY_SETUP_CACHE_REF(name##_kept, type, setup)                                              \
+    static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
+    {                                                                                             \
+        const type *r = name##_kept(ray, N, i);                                                   \
+        if (r)                                                                                    \
+            *out = *r;                                                                            \
+        return r != NULL;                                                                         \
     }
 
 #endif

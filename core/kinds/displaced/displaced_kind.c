@@ -793,20 +793,21 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
     o->upper_x = b[3], o->upper_y = b[4], o->upper_z = b[5];
 }
 
-/* Ray i of an N-packet set up for the traversal (user_rays.h). */
-MR_RAY_SETUP_CACHE(ray_setup, mr_dray, mr_dray_setup)
+/* Ray i of an N-packet set up for the traversal, the thread's kept copy
+ * (user_rays.h). */
+MR_RAY_SETUP_CACHE_REF(ray_setup, mr_dray, mr_dray_setup)
 
 static bool trace_one(mr_geom *g, unsigned prim, void *ray, unsigned N, unsigned i, bool any,
                       mr_dhit *h, mr_dstats *st)
 {
-    mr_dray r;
-    if (!ray_setup(ray, N, i, &r))
+    const mr_dray *r = ray_setup(ray, N, i);
+    if (!r)
         return false;
     float *tfar = mr_ray_f(ray, N, MR_RAY_TFAR, i), tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
     st->calls++;
     if (g->par.method == MR_DISPLACED_RAYMARCH)
-        return mr_dtrace_march(&g->scene, prim, &r, tnear, tfar, h, st);
-    return mr_dtrace_intersect(&g->scene, prim, &r, tnear, tfar, any, h, st);
+        return mr_dtrace_march(&g->scene, prim, r, tnear, tfar, h, st);
+    return mr_dtrace_intersect(&g->scene, prim, r, tnear, tfar, any, h, st);
 }
 
 /* This thread's stripe of the counters. */
@@ -834,48 +835,36 @@ static void add_stats(mr_geom *g, const mr_dstats *st)
         atomic_fetch_add_explicit(&c->calls, st->calls, memory_order_relaxed);
 }
 
-/* A packet's rays through the triangle together (dtrace.h), at most
- * MR_DPACKET_MAX at a time. */
-typedef struct ray_batch {
-    int n;
-    unsigned lane[MR_DPACKET_MAX];
-    mr_dray r[MR_DPACKET_MAX];
-    float tmin[MR_DPACKET_MAX], *tmax[MR_DPACKET_MAX];
-} ray_batch;
-
-static void trace_batch(mr_geom *g, const struct RTCIntersectFunctionNArguments *args,
-                        ray_batch *b, mr_dstats *st)
+/* Writes hit h of lane i, whose tfar was `before` when the callback
+ * began. A hit at the distance of the ray's hit so far on another of this
+ * object's base triangles (a ray through a micro-vertex or edge on a
+ * shared base edge) goes to the lower triangle id, so the winner does not
+ * depend on the order Embree enters the triangles in (a packet enters
+ * them in another order than a single ray). */
+static void write_hit(const struct RTCIntersectFunctionNArguments *args, unsigned i,
+                      const mr_dhit *h, float before)
 {
-    mr_dhit hits[MR_DPACKET_MAX];
-    float before[MR_DPACKET_MAX];
-    for (int k = 0; k < b->n; k++)
-        before[k] = *b->tmax[k];
-    uint32_t hm = 0;
-    if (g->par.method == MR_DISPLACED_RAYMARCH) {
-        for (int k = 0; k < b->n; k++)
-            if (mr_dtrace_march(&g->scene, args->primID, &b->r[k], b->tmin[k], b->tmax[k],
-                                &hits[k], st))
-                hm |= 1u << k;
-    } else {
-        hm = mr_dtrace_intersect_packet(&g->scene, args->primID, b->n, b->r, b->tmin, b->tmax,
-                                        hits, st);
-    }
-    /* A hit at the distance of the ray's hit so far on another of this
-     * object's base triangles (a ray through a micro-vertex or edge on a
-     * shared base edge) goes to the lower triangle id, so the winner does
-     * not depend on the order Embree enters the triangles in (a packet
-     * enters them in another order than a single ray). */
     unsigned N = args->N;
-    const void *hit = (const float *)args->rayhit + MR_RAY_FIELDS * N;
-    for (int k = 0; k < b->n; k++) {
-        unsigned i = b->lane[k];
-        if (!(hm >> k & 1u) ||
-            (hits[k].t == before[k] && *mr_ray_u((void *)hit, N, MR_HIT_GEOM, i) == args->geomID &&
-             *mr_ray_u((void *)hit, N, MR_HIT_PRIM, i) < args->primID))
-            continue;
-        mr_ray_write_hit(args, i, hits[k].ng, hits[k].b1, hits[k].b2);
-    }
-    b->n = 0;
+    void *hit = (float *)args->rayhit + MR_RAY_FIELDS * N;
+    if (h->t == before && *mr_ray_u(hit, N, MR_HIT_GEOM, i) == args->geomID &&
+        *mr_ray_u(hit, N, MR_HIT_PRIM, i) < args->primID)
+        return;
+    mr_ray_write_hit(args, i, h->ng, h->b1, h->b2);
+}
+
+/* An N-packet's rays as mr_dtrace_intersect_packet takes them, set up on
+ * demand by ray_setup. */
+static mr_drays packet_rays(void *ray, unsigned N)
+{
+    return (mr_drays){.n = (int)N,
+                      .o = {mr_ray_f(ray, N, MR_RAY_ORG, 0), mr_ray_f(ray, N, MR_RAY_ORG + 1, 0),
+                            mr_ray_f(ray, N, MR_RAY_ORG + 2, 0)},
+                      .d = {mr_ray_f(ray, N, MR_RAY_DIR, 0), mr_ray_f(ray, N, MR_RAY_DIR + 1, 0),
+                            mr_ray_f(ray, N, MR_RAY_DIR + 2, 0)},
+                      .tmin = mr_ray_f(ray, N, MR_RAY_TNEAR, 0),
+                      .tmax = mr_ray_f(ray, N, MR_RAY_TFAR, 0),
+                      .setup = ray_setup,
+                      .ctx = ray};
 }
 
 /* The lanes of an N-packet a callback for base triangle t traces: the
@@ -891,6 +880,13 @@ static uint32_t lanes_to_trace(const mr_geom *g, void *ray, unsigned N, const in
     return mr_rays_in_box(ray, N, valid, box, box + 3);
 }
 
+/* Ray marching and packets wider than the tracer's go ray by ray; the
+ * others together (mr_dtrace_intersect_packet). */
+static bool by_lane(const mr_geom *g, unsigned N)
+{
+    return g->par.method == MR_DISPLACED_RAYMARCH || N > MR_DPACKET_MAX;
+}
+
 static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
 {
     mr_geom *g = args->geometryUserPtr;
@@ -899,20 +895,30 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
     if (!lanes)
         return;
     mr_dstats st = {0};
-    ray_batch b;
-    b.n = 0;
-    for (unsigned i = 0; i < N; i++) {
-        if (!(lanes >> i & 1u) || !ray_setup(args->rayhit, N, i, &b.r[b.n]))
-            continue;
-        b.lane[b.n] = i;
-        b.tmin[b.n] = *mr_ray_f(args->rayhit, N, MR_RAY_TNEAR, i);
-        b.tmax[b.n] = mr_ray_f(args->rayhit, N, MR_RAY_TFAR, i);
-        st.calls++;
-        if (++b.n == MR_DPACKET_MAX)
-            trace_batch(g, args, &b, &st);
+    if (by_lane(g, N)) {
+        for (uint32_t m = lanes; m; m &= m - 1) {
+            const unsigned i = (unsigned)__builtin_ctz(m);
+            const float before = *mr_ray_f(args->rayhit, N, MR_RAY_TFAR, i);
+            mr_dhit h;
+            if (trace_one(g, args->primID, args->rayhit, N, i, false, &h, &st))
+                write_hit(args, i, &h, before);
+        }
+    } else {
+        float before[MR_DPACKET_MAX];
+        for (uint32_t m = lanes; m; m &= m - 1) {
+            const unsigned i = (unsigned)__builtin_ctz(m);
+            before[i] = *mr_ray_f(args->rayhit, N, MR_RAY_TFAR, i);
+        }
+        const mr_drays rays = packet_rays(args->rayhit, N);
+        mr_dhit hits[MR_DPACKET_MAX];
+        st.calls += (uint64_t)__builtin_popcount(lanes);
+        const uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, &rays, lanes,
+                                                       hits, &st);
+        for (uint32_t m = hm; m; m &= m - 1) {
+            const unsigned i = (unsigned)__builtin_ctz(m);
+            write_hit(args, i, &hits[i], before[i]);
+        }
     }
-    if (b.n)
-        trace_batch(g, args, &b, &st);
     add_stats(g, &st);
 }
 
@@ -924,35 +930,22 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     if (!lanes)
         return;
     mr_dstats st = {0};
-    if (g->par.method == MR_DISPLACED_RAYMARCH || N == 1) {
-        for (unsigned i = 0; i < N; i++)
-            if ((lanes >> i & 1u) && trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
+    if (by_lane(g, N) || N == 1) {
+        for (uint32_t m = lanes; m; m &= m - 1) {
+            const unsigned i = (unsigned)__builtin_ctz(m);
+            if (trace_one(g, args->primID, args->ray, N, i, true, NULL, &st))
                 *mr_ray_f(args->ray, N, MR_RAY_TFAR, i) = -INFINITY;
-        add_stats(g, &st);
-        return;
-    }
-    /* a packet of shadow rays: traversed together like primary rays (their
-     * closest hits found, which costs a little more than any hit but shares
-     * the nodes) */
-    ray_batch b;
-    b.n = 0;
-    for (unsigned i = 0; i <= N; i++) {
-        if (i < N && (lanes >> i & 1u) && ray_setup(args->ray, N, i, &b.r[b.n])) {
-            b.lane[b.n] = i;
-            b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
-            b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);
-            st.calls++;
-            b.n++;
         }
-        if (b.n == MR_DPACKET_MAX || (i == N && b.n)) {
-            mr_dhit hits[MR_DPACKET_MAX];
-            uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, b.n, b.r, b.tmin,
-                                                     b.tmax, hits, &st);
-            for (int k = 0; k < b.n; k++)
-                if (hm >> k & 1u)
-                    *b.tmax[k] = -INFINITY;
-            b.n = 0;
-        }
+    } else {
+        /* a packet of shadow rays: traversed together like primary rays
+         * (their closest hits found, which costs a little more than any
+         * hit but shares the nodes) */
+        const mr_drays rays = packet_rays(args->ray, N);
+        mr_dhit hits[MR_DPACKET_MAX];
+        st.calls += (uint64_t)__builtin_popcount(lanes);
+        uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, &rays, lanes, hits, &st);
+        for (uint32_t m = hm; m; m &= m - 1)
+            *mr_ray_f(args->ray, N, MR_RAY_TFAR, (unsigned)__builtin_ctz(m)) = -INFINITY;
     }
     add_stats(g, &st);
 }

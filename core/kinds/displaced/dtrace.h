@@ -231,25 +231,44 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
 /* Up to this many rays traced through one base triangle together. */
 #define MR_DPACKET_MAX 16
 
-/* The closest hits of rays r[0 .. n) (n <= MR_DPACKET_MAX) with base
- * triangle t's displaced surface, each at tmin[k] <= t <= *tmax[k]
- * (shrunk on a hit, hits[k] filled): returns the mask of rays hit. A
- * texture's rays traverse together: each node's box is made once and
- * tested against every ray still in the packet, each cell's micro-triangles
- * made once and tested against each ray that reaches it. The packet starts
- * not at T's roots but at the few nodes (at most four, of the lowest level
- * that allows) over its footprint: the grid points its hits can lie over,
- * from where its rays cross T's box (dtrace.c packet_start; the texture
- * plane at 50 texels per unit: 3.1 node boxes a ray -> 0.6). The hits are
- * mr_dtrace_intersect's ray by ray, bit for bit (a tie between
- * micro-triangles goes to the same one whatever the order of the visit).
- * Procedural source: a triforce node's bound, when not at hand, is first
- * tested with its parent's heights where the parent's are tighter than
- * T's, and made only for the rays that enter that box (plane at range 512,
- * 160x90: half of the exact ones are not made; 89 -> 67 ms). */
-uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, int n, const mr_dray *r,
-                                    const float *tmin, float *const *tmax, mr_dhit *hits,
-                                    mr_dstats *st);
+/* A callback's packet of rays as Embree hands it (structure of arrays):
+ * lane k's origin o[a][k] and direction d[a][k] (a = x, y, z), its span
+ * tmin[k] .. tmax[k], and its set-up for the traversal, made on demand:
+ * setup(ctx, n, k) returns it (mr_dray_setup of the same origin and
+ * direction, valid for the rest of the call), or NULL when the ray cannot
+ * hit anything. */
+typedef struct mr_drays {
+    int n;
+    const float *o[3], *d[3];
+    const float *tmin;
+    float *tmax;
+    const mr_dray *(*setup)(void *ctx, unsigned n, unsigned k);
+    void *ctx;
+} mr_drays;
+
+/* The closest hits of the rays of `lanes` (rays->n <= MR_DPACKET_MAX) with
+ * base triangle t's displaced surface, each at tmin[k] <= t <= tmax[k]
+ * (shrunk on a hit, hits[k] filled): returns the mask of rays hit. The
+ * rays first go into T's local frame straight from the packet, and those
+ * that do not enter T's box there are done: T's Embree box is axis-aligned
+ * in the world, much looser (the sphere of 960 faces: 40 % of the calls
+ * had no ray in T's box), and a ray is set up (rays->setup) only when it
+ * reaches a cell or must go alone. A texture's rays traverse together:
+ * each node's box is made once and tested against every ray still in the
+ * packet, each cell's micro-triangles made once and tested against each
+ * ray that reaches it. The packet starts not at T's roots but at the few
+ * nodes (at most four, of the lowest level that allows) over its
+ * footprint: the grid points its hits can lie over, from where its rays
+ * cross T's box (dtrace.c packet_start; the texture plane at 50 texels per
+ * unit: 3.1 node boxes a ray -> 0.6). The hits are mr_dtrace_intersect's
+ * ray by ray, bit for bit (a tie between micro-triangles goes to the same
+ * one whatever the order of the visit). Procedural source: a triforce
+ * node's bound, when not at hand, is first tested with its parent's
+ * heights where the parent's are tighter than T's, and made only for the
+ * rays that enter that box (plane at range 512, 160x90: half of the exact
+ * ones are not made; 89 -> 67 ms). */
+uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_drays *rays,
+                                    uint32_t lanes, mr_dhit hits[MR_DPACKET_MAX], mr_dstats *st);
 
 /* The same surface found by marching: s->march_steps equal steps over the
  * ray's span in T's box, the first sign change of the height above the
