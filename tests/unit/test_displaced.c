@@ -222,6 +222,68 @@ static void test_whole_cells_are_cut_cells(void **state)
     assert_true(whole > 1000);
 }
 
+/* The same micro-triangles, in the same order, made of the same vertex
+ * records (bit for bit): what the traversal tests and evaluates. (A whole
+ * cell keeps all four corners when one half is asked for.) */
+static void assert_same_cell(const mr_dcell *a, const mr_dcell *c)
+{
+    assert_int_equal(a->nt, c->nt);
+    for (int t = 0; t < a->nt; t++) {
+        assert_int_equal(a->half[t], c->half[t]);
+        for (int k = 0; k < 3; k++) {
+            const mr_dvert *p = &a->v[a->tri[t][k]], *q = &c->v[c->tri[t][k]];
+            assert_int_equal(p->kind, q->kind);
+            assert_int_equal(p->idx, q->idx);
+            assert_int_equal(p->fam, q->fam);
+            assert_true(p->a == q->a && p->b == q->b);
+            assert_true(p->x == q->x && p->y == q->y && p->t == q->t);
+        }
+    }
+}
+
+/* mr_dsurf_cell takes two short cuts, a whole cell and a cell crossed by
+ * one edge of T alone; both must make exactly what cutting T by the
+ * cell's lines makes (the same vertices, bit for bit, in the same order,
+ * the same triangles), or the micro-surface (and its seams with the
+ * neighbouring triangles) would depend on the path. Random triangles, and
+ * triangles whose corners sit on the grid's lines and half-lines, where
+ * an edge runs through cell corners (no short cut may be taken there), in
+ * both orientations, both halves and each alone. */
+static void test_cells_are_their_cuts(void **state)
+{
+    (void)state;
+    uint64_t s = 11;
+    long compared = 0, crossed = 0;
+    for (int k = 0; k < 600; k++) {
+        mr_dbase b;
+        float P[3][3], N[3][3];
+        rnd_base(&s, &b, P, N, 2 + 30 * rnd01(&s));
+        if (k % 2) { /* snap to halves of cells: edges through corners */
+            double g[3][2];
+            for (int v = 0; v < 3; v++)
+                for (int c = 0; c < 2; c++)
+                    g[v][c] = floor(b.g[v][c] * 2) / 2;
+            const float *p[3] = {P[0], P[1], P[2]}, *n[3] = {N[0], N[1], N[2]};
+            mr_dheights hs = {tex_height, NULL};
+            mr_dbase_init(&b, g, p, n, &hs);
+        }
+        int64_t i0, i1, j0, j1;
+        mr_dbase_cells(&b, &i0, &i1, &j0, &j1);
+        for (int64_t j = j0; j <= j1; j++)
+            for (int64_t i = i0; i <= i1; i++)
+                for (int half = 0; half <= 2; half++) {
+                    mr_dcell fast, cut;
+                    mr_dsurf_cell(&b, i, j, half, &fast);
+                    mr_dsurf_cell_cut(&b, i, j, half, &cut);
+                    assert_same_cell(&fast, &cut);
+                    compared++;
+                    crossed += half == 2 && !mr_dsurf_cell_inside(&b, i, j) && cut.nt > 0;
+                }
+    }
+    assert_true(compared > 100000);
+    assert_true(crossed > 10000);
+}
+
 /* Every micro-vertex lies in its triangle's box and its cell's boxes. */
 static void test_boxes_hold_micro_vertices(void **state)
 {
@@ -1073,6 +1135,7 @@ int main(void)
         cmocka_unit_test(test_affine_arith),
         cmocka_unit_test(test_pyramid_any_size),
         cmocka_unit_test(test_whole_cells_are_cut_cells),
+        cmocka_unit_test(test_cells_are_their_cuts),
         cmocka_unit_test(test_boxes_hold_micro_vertices),
         cmocka_unit_test(test_plane_against_brute_force),
         cmocka_unit_test(test_new_pose_new_cells),

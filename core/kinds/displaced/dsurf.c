@@ -274,19 +274,44 @@ static void rotate_canonical(poly *p)
     }
 }
 
-bool mr_dsurf_cell_inside(const mr_dbase *b, int64_t i, int64_t j)
+/* How T meets cell (i, j), from the signs of T's three edge lines at the
+ * cell's four corners, each taken only when clearly away from the line
+ * (b->margin, INSIDE_MARGIN): */
+enum {
+    CELL_WHOLE, /* every corner clearly inside every edge: the whole cell */
+    CELL_EDGE,  /* clearly inside two edges, clearly on both sides of the
+                 * third (*edge): the square cut by that edge alone */
+    CELL_CUT    /* anything else: T cut by the cell's lines */
+};
+
+static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge)
 {
     if (b->flat)
-        return false;
+        return CELL_CUT;
+    int crossing = -1;
     for (int e = 0; e < 3; e++) {
         const double *l = b->edge[e];
+        int in = 0, out = 0;
         for (int k = 0; k < 4; k++) {
             double x = (double)(i + (k & 1)), y = (double)(j + (k >> 1));
-            if (!(l[0] * x + l[1] * y + l[2] > b->margin))
-                return false;
+            double v = l[0] * x + l[1] * y + l[2];
+            in += v > b->margin;
+            out += v < -b->margin;
         }
+        if (in == 4)
+            continue;
+        if (in + out < 4 || crossing >= 0) /* (a NaN counts as neither) */
+            return CELL_CUT;
+        crossing = e;
     }
-    return true;
+    *edge = crossing;
+    return crossing < 0 ? CELL_WHOLE : CELL_EDGE;
+}
+
+bool mr_dsurf_cell_inside(const mr_dbase *b, int64_t i, int64_t j)
+{
+    int e;
+    return cell_case(b, i, j, &e) == CELL_WHOLE;
 }
 
 /* A whole cell: corners 0 (i, j), 1 (i+1, j), 2 (i, j+1), 3 (i+1, j+1) and
@@ -309,35 +334,83 @@ static void whole_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dce
     }
 }
 
-void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+/* The cell's lines: x = i and x = i + 1, y = j and y = j + 1 (T's piece
+ * keeps the side towards the cell), and the diagonal x + y = i + j + 1
+ * (which side: set per half). */
+static void cell_lines(int64_t i, int64_t j, line lines[5])
 {
-    if (mr_dsurf_cell_inside(b, i, j))
-        whole_cell(b, i, j, half, out);
-    else
-        mr_dsurf_cell_cut(b, i, j, half, out);
+    lines[0] = (line){MR_DLINE_X, i, true};
+    lines[1] = (line){MR_DLINE_X, i + 1, false};
+    lines[2] = (line){MR_DLINE_Y, j, true};
+    lines[3] = (line){MR_DLINE_Y, j + 1, false};
+    lines[4] = (line){MR_DLINE_D, i + j + 1, false};
 }
 
-void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+/* T's piece of the cell: T cut by the cell's four lines (the definition). */
+static void cut_piece(const mr_dbase *b, const line lines[5], poly *out)
 {
-    out->nv = out->nt = 0;
-    line lines[5] = {{MR_DLINE_X, i, true},
-                     {MR_DLINE_X, i + 1, false},
-                     {MR_DLINE_Y, j, true},
-                     {MR_DLINE_Y, j + 1, false},
-                     {MR_DLINE_D, i + j + 1, false}};
     poly a, c;
     start(b, &a);
     cut(b, &a, lines, 0, &c);
     cut(b, &c, lines, 1, &a);
     cut(b, &a, lines, 2, &c);
-    cut(b, &c, lines, 3, &a);
-    if (!a.n)
+    cut(b, &c, lines, 3, out);
+}
+
+/* T's piece of a CELL_EDGE cell: its square, corners in T's orientation,
+ * cut by edge e. The polygon cut_piece makes, up to where it starts: the
+ * same corners (grid points, as grid_cross makes them), the same two
+ * crossings (edge_cross of e with the same lines), the same edge tags
+ * (a side of the square: its line's; the stretch along e: e). Every
+ * decision cut_piece takes on the way follows the exact geometry, as no
+ * corner, and so no crossing, lies within the margin of a line (the
+ * crossings' rounding is ~1e-16 of the coordinates). Where the cutting
+ * starts does not matter: fan_halves' cut gives the same polygon from
+ * each start, and rotate_canonical starts it at the same vertex. */
+static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, const line lines[5],
+                       poly *out)
+{
+    /* the square's corners counter-clockwise from (i, j), and the line
+     * the side from corner k to corner k + 1 lies on */
+    static const int X[4] = {0, 1, 1, 0}, Y[4] = {0, 0, 1, 1}, SIDE[4] = {2, 1, 3, 0};
+    mr_dvert c[4];
+    uint8_t tag[4];
+    bool in[4];
+    for (int k = 0; k < 4; k++) {
+        /* clockwise: (i, j), (i, j + 1), (i + 1, j + 1), (i + 1, j) */
+        const int q = b->orient > 0 ? k : (4 - k) % 4, next = b->orient > 0 ? q : (q + 3) % 4;
+        const int64_t x = i + X[q], y = j + Y[q];
+        c[k] = (mr_dvert){.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
+        tag[k] = (uint8_t)(3 + SIDE[next]);
+        in[k] = b->edge[e][0] * (double)x + b->edge[e][1] * (double)y + b->edge[e][2] > 0;
+    }
+    out->n = 0;
+    for (int m = 0; m < 4; m++) {
+        const int pm = (m + 3) % 4;
+        if (in[m] != in[pm]) { /* the side from pm to m crosses e */
+            out->v[out->n] = edge_cross(b, e, &lines[tag[pm] - 3]);
+            out->tag[out->n++] = in[m] ? tag[pm] : (uint8_t)e;
+        }
+        if (in[m]) {
+            out->v[out->n] = c[m];
+            out->tag[out->n++] = tag[m];
+        }
+    }
+}
+
+/* The micro-triangles of T's piece a of the cell: each half of it (the
+ * piece cut by the diagonal), started at its smallest vertex and fanned. */
+static void fan_halves(const mr_dbase *b, const poly *a, line lines[5], int half, mr_dcell *out)
+{
+    out->nv = out->nt = 0;
+    if (!a->n)
         return;
     for (int hf = 0; hf < 2; hf++) {
         if (half != 2 && half != hf)
             continue;
+        poly c;
         lines[4].keep_ge = hf == 1;
-        cut(b, &a, lines, 4, &c);
+        cut(b, a, lines, 4, &c);
         if (!c.n)
             continue;
         rotate_canonical(&c);
@@ -351,6 +424,33 @@ void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dce
             out->half[out->nt++] = (uint8_t)hf;
         }
     }
+}
+
+void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+{
+    int e;
+    const int how = cell_case(b, i, j, &e);
+    if (how == CELL_WHOLE) {
+        whole_cell(b, i, j, half, out);
+        return;
+    }
+    line lines[5];
+    cell_lines(i, j, lines);
+    poly a;
+    if (how == CELL_EDGE)
+        edge_piece(b, i, j, e, lines, &a);
+    else
+        cut_piece(b, lines, &a);
+    fan_halves(b, &a, lines, half, out);
+}
+
+void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
+{
+    line lines[5];
+    cell_lines(i, j, lines);
+    poly a;
+    cut_piece(b, lines, &a);
+    fan_halves(b, &a, lines, half, out);
 }
 
 /* ---- evaluation ---------------------------------------------------------------- */

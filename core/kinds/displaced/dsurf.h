@@ -116,8 +116,11 @@ void mr_dbase_cells(const mr_dbase *b, int64_t *i0, int64_t *i1, int64_t *j0, in
 bool mr_dsurf_cell_inside(const mr_dbase *b, int64_t i, int64_t j);
 
 /* The micro-triangles of T in cell (i, j), half 0, 1 or 2 (both): a cell
- * clearly inside T directly, others cut (the same triangles a cut of a
- * whole cell makes: tested). */
+ * clearly inside T directly, a cell clearly crossed by one edge of T alone
+ * as its square cut by that edge (most of the cut cells of small
+ * triangles: the sphere of 960 faces at 50 texels per unit), others by
+ * cutting T. The same triangles of the same vertex records as
+ * mr_dsurf_cell_cut makes (tested). */
 void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out);
 /* Always by cutting (the definition; tests). */
 void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out);
