@@ -267,10 +267,14 @@ static void rotate_canonical(poly *p)
             m = k;
     if (m == 0)
         return;
-    poly q = *p;
+    /* (only the n vertices copied: the whole polygon is 600 bytes) */
+    mr_dvert v[MR_DSURF_MAX_POLY];
+    uint8_t tag[MR_DSURF_MAX_POLY];
+    memcpy(v, p->v, (size_t)p->n * sizeof *v);
+    memcpy(tag, p->tag, (size_t)p->n);
     for (int k = 0; k < p->n; k++) {
-        p->v[k] = q.v[(k + m) % p->n];
-        p->tag[k] = q.tag[(k + m) % p->n];
+        p->v[k] = v[(k + m) % p->n];
+        p->tag[k] = tag[(k + m) % p->n];
     }
 }
 
