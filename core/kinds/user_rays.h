@@ -98,12 +98,6 @@ static inline mr_vec3 mr_ray_v3(void *ray, unsigned N, unsigned f, unsigned i)
 #endif
 }
 
-/* A direction that can hit something: not zero, every component finite. */
-static inline bool mr_ray_dir_ok(mr_vec3 d)
-{
-    return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
-}
-
 /* The lanes Embree marks valid (-1) in an N-packet, as a bit mask. */
 static inline uint32_t mr_valid_lanes(unsigned N, const int *valid)
 {
@@ -216,7 +210,7 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
         if (!last[lane].kept || !mr_ray_key_matches(ray, N, i, &last[lane].key)) {                \
             const mr_vec3 o = mr_ray_v3(ray, N, MR_RAY_ORG, i);                                   \
             const mr_vec3 d = mr_ray_v3(ray, N, MR_RAY_DIR, i);                                   \
-            if (!mr_ray_dir_ok(d))                                                                \
+            if (!mr_v3_is_dir(d))                                                                 \
                 return NULL;                                                                      \
             last[lane].r = setup(o, d);                                                           \
             mr_ray_key_store(ray, N, i, &last[lane].key);                                         \

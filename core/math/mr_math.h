@@ -91,6 +91,11 @@ static inline mr_vec3 mr_v3_lerp(mr_vec3 a, mr_vec3 b, float t)
 {
     return mr_v3(a.x + (b.x - a.x) * t, a.y + (b.y - a.y) * t, a.z + (b.z - a.z) * t);
 }
+/* A direction a ray can have: not zero, every component finite. */
+static inline bool mr_v3_is_dir(mr_vec3 d)
+{
+    return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
+}
 static inline mr_vec3 mr_v3_min(mr_vec3 a, mr_vec3 b) { return mr_v3(fminf(a.x, b.x), fminf(a.y, b.y), fminf(a.z, b.z)); }
 static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z)); }
 

@@ -232,11 +232,11 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
 #define MR_DPACKET_MAX 16
 
 /* A callback's packet of rays as Embree hands it (structure of arrays):
- * lane k's origin o[a][k] and direction d[a][k] (a = x, y, z), its span
- * tmin[k] .. tmax[k], and its set-up for the traversal, made on demand:
- * setup(ctx, n, k) returns it (mr_dray_setup of the same origin and
- * direction, valid for the rest of the call), or NULL when the ray cannot
- * hit anything. */
+ * lane k's origin o[a][k] and direction d[a][k] (a = x, y, z) and its span
+ * tmin[k] .. tmax[k]. A ray that goes alone (mr_dtrace_intersect: one in
+ * the packet, or parallel to an axis of T's local frame) is set up by
+ * setup(ctx, n, k): mr_dray_setup of the same origin and direction, valid
+ * for the rest of the call, or NULL when the ray cannot hit anything. */
 typedef struct mr_drays {
     int n;
     const float *o[3], *d[3];
@@ -252,8 +252,8 @@ typedef struct mr_drays {
  * rays first go into T's local frame straight from the packet, and those
  * that do not enter T's box there are done: T's Embree box is axis-aligned
  * in the world, much looser (the sphere of 960 faces: 40 % of the calls
- * had no ray in T's box), and a ray is set up (rays->setup) only when it
- * reaches a cell or must go alone. A texture's rays traverse together:
+ * had no ray in T's box); a packed ray is set up for the micro-triangle
+ * test only when it reaches a cell. A texture's rays traverse together:
  * each node's box is made once and tested against every ray still in the
  * packet, each cell's micro-triangles made once and tested against each
  * ray that reaches it. The packet starts not at T's roots but at the few
