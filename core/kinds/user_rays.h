@@ -79,23 +79,11 @@ static inline void mr_ray_key_store(void *ray, unsigned N, unsigned i, mr_ray_ke
     }
 }
 
-/* Field f, f + 1, f + 2 of ray i of an N-packet as a vector. x and y are
- * put together in a register and stored as one 8-byte piece: passed on by
- * value, a vector is read as one 8-byte load, which the store buffer
- * cannot forward from two 4-byte stores (perf put a sixth of the
- * callbacks' set-up on that). */
+/* Field f, f + 1, f + 2 of ray i of an N-packet as a vector (mr_v3_gather). */
 static inline mr_vec3 mr_ray_v3(void *ray, unsigned N, unsigned f, unsigned i)
 {
-#if defined(__SSE2__)
-    const __m128 xy = _mm_unpacklo_ps(_mm_load_ss(mr_ray_f(ray, N, f, i)),
-                                      _mm_load_ss(mr_ray_f(ray, N, f + 1, i)));
-    mr_vec3 v;
-    _mm_storel_pi((__m64 *)&v, xy);
-    v.z = *mr_ray_f(ray, N, f + 2, i);
-    return v;
-#else
-    return mr_v3(*mr_ray_f(ray, N, f, i), *mr_ray_f(ray, N, f + 1, i), *mr_ray_f(ray, N, f + 2, i));
-#endif
+    return mr_v3_gather(mr_ray_f(ray, N, f, i), mr_ray_f(ray, N, f + 1, i),
+                        mr_ray_f(ray, N, f + 2, i));
 }
 
 /* The lanes Embree marks valid (-1) in an N-packet, as a bit mask. */

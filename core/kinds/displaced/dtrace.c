@@ -2117,10 +2117,10 @@ static inline const mr_wt_ray *lane_wt(const mr_drays *rays, mr_wt_ray wt[PK], u
                                        int k)
 {
     if (!(*made >> k & 1u)) {
-        const mr_vec3 d = mr_v3(rays->d[0][k], rays->d[1][k], rays->d[2][k]);
+        const mr_vec3 d = mr_v3_gather(rays->d[0] + k, rays->d[1] + k, rays->d[2] + k);
         if (!mr_v3_is_dir(d))
             return NULL;
-        wt[k] = mr_wt_ray_setup(mr_v3(rays->o[0][k], rays->o[1][k], rays->o[2][k]), d);
+        wt[k] = mr_wt_ray_setup(mr_v3_gather(rays->o[0] + k, rays->o[1] + k, rays->o[2] + k), d);
         *made |= 1u << k;
     }
     return &wt[k];
