@@ -95,6 +95,7 @@ static inline mr_vec3 mr_v3_lerp(mr_vec3 a, mr_vec3 b, float t)
 {
     return mr_v3(a.x + (b.x - a.x) * t, a.y + (b.y - a.y) * t, a.z + (b.z - a.z) * t);
 }
+
 /* The vector (*x, *y, *z) from three separate floats (a structure of
  * arrays). x and y are put together in a register and stored as one
  * 8-byte piece: passed on by value, a vector is read as one 8-byte load,
@@ -118,6 +119,7 @@ static inline bool mr_v3_is_dir(mr_vec3 d)
 {
     return (d.x != 0 || d.y != 0 || d.z != 0) && isfinite(d.x) && isfinite(d.y) && isfinite(d.z);
 }
+
 static inline mr_vec3 mr_v3_min(mr_vec3 a, mr_vec3 b) { return mr_v3(fminf(a.x, b.x), fminf(a.y, b.y), fminf(a.z, b.z)); }
 static inline mr_vec3 mr_v3_max(mr_vec3 a, mr_vec3 b) { return mr_v3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z)); }
 

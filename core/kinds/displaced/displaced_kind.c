@@ -870,7 +870,7 @@ static mr_drays packet_rays(void *ray, unsigned N)
 /* The lanes of an N-packet a callback for base triangle t traces: a
  * packet's valid lanes (mr_dtrace_intersect_packet tests them against T's
  * box in T's own frame, tighter than its Embree box: testing that too
- * first cost more than it saved, texture plane at 50 texels per unit:
+ * first cost more than it saved, texture plane at 100 texels per unit:
  * trace 0.96 without it), a single valid ray if it can meet t's Embree
  * box (mr_rays_in_box; the box holds the displaced surface,
  * mr_dtrace_tri_box), or every valid one for ray marching, the

@@ -2094,25 +2094,12 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dgrad *gr, cons
     return n;
 }
 
-/* Lane k's ray set up (rays->setup), kept in r[k] for the rest of the
- * call (bit k of *made: r[k] is set; no array to clear per call, whose
- * `rep stos` was 8 % of this function); NULL when it cannot hit anything. */
-static inline const mr_dray *lane_ray(const mr_drays *rays, const mr_dray *r[PK], uint32_t *made,
-                                      int k)
-{
-    if (!(*made >> k & 1u)) {
-        r[k] = rays->setup(rays->ctx, (unsigned)rays->n, (unsigned)k);
-        *made |= 1u << k;
-    }
-    return r[k];
-}
-
 /* Lane k's watertight set-up (the micro-triangle test's: mr_dray_setup's
  * wt, of the same floats), made from the packet on the lane's first cell
  * and kept in wt[k] for the rest of the call (bit k of *made); NULL when
  * its direction hits nothing. A packed ray needs no more of its set-up:
  * the rest of mr_dray (and the set-ups' cache across calls) cost 6 % of
- * the sphere's frame at 50 texels per unit. */
+ * the sphere's frame at 100 texels per unit. */
 static inline const mr_wt_ray *lane_wt(const mr_drays *rays, mr_wt_ray wt[PK], uint32_t *made,
                                        int k)
 {
@@ -2133,9 +2120,8 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     const mr_dgrad *gr = &s->grads[t];
     const mr_dgrid *g = s->grid;
     uint32_t hit = 0, inpack = 0;
-    const mr_dray *r[PK];            /* the rays that go alone (lane_ray) */
-    mr_wt_ray wt[PK];                /* the packed ones at a cell (lane_wt) */
-    uint32_t made = 0, wt_made = 0;
+    mr_wt_ray wt[PK]; /* the packed rays' at a cell (lane_wt) */
+    uint32_t wt_made = 0;
     pack p;
     if (packs(s, b, gr)) {
         for (int k = 0; k < PK; k++)
@@ -2160,7 +2146,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     }
     for (uint32_t m = lanes & ~inpack; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
-        const mr_dray *rk = lane_ray(rays, r, &made, k);
+        const mr_dray *rk = rays->setup(rays->ctx, (unsigned)rays->n, (unsigned)k);
         if (rk && mr_dtrace_intersect(s, t, rk, rays->tmin[k], &rays->tmax[k], false, &hits[k], st))
             hit |= 1u << k;
     }
