@@ -1634,6 +1634,7 @@ typedef struct pack {
     double o[3][PK], inv[3][PK];
     double d[2][PK]; /* x and y of the direction (packet_footprint) */
     double t0[PK], t1[PK];
+    double s0[PK], s1[PK]; /* the part of each span inside T's box (tbox_lanes) */
 } pack;
 
 typedef struct pentry {
@@ -1896,29 +1897,41 @@ static bool packs(const mr_dscene *s, const mr_dbase *b, const mr_dgrad *gr)
     return !b->flat && gr->local && s->local == MR_DLOCAL_TRIANGLES;
 }
 
-/* packet_footprint's rays: the x and y the rays `live` cross inside the
- * box lo..hi into f, the largest magnitude among them and their origins'
- * into *size; 0 when no ray enters the box, -1 on a NaN. */
-static int footprint_rays(const pack *p, uint32_t live, const double lo[3], const double hi[3],
-                          double f[2][2], double *size)
+/* The lanes of `live` whose rays enter T's box (gr->tlo .. thi) within
+ * their spans, and the part of each span inside it into p->s0, p->s1:
+ * slab_pack's test lane by lane (a NaN lane is kept, as slab_pack keeps
+ * it). Every micro-vertex lies in that box, so a ray that misses it
+ * misses T. */
+static uint32_t tbox_lanes(const mr_dgrad *gr, pack *p, uint32_t live)
 {
-    bool entered = false;
-    f[0][0] = f[1][0] = INFINITY, f[0][1] = f[1][1] = -INFINITY;
-    *size = 0;
+    uint32_t in = 0;
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
         double t0 = p->t0[k], t1 = p->t1[k];
         for (int a = 0; a < 3; a++) {
-            double nn = (lo[a] - p->o[a][k]) * p->inv[a][k];
-            double ff = (hi[a] - p->o[a][k]) * p->inv[a][k];
+            double nn = (gr->tlo[a] - p->o[a][k]) * p->inv[a][k];
+            double ff = (gr->thi[a] - p->o[a][k]) * p->inv[a][k];
             t0 = dmax(dmin(ff, nn), t0);
             t1 = dmin(dmax(nn, ff) * (1 + 4 * DBL_EPSILON), t1);
         }
-        if (t0 > t1) /* (a NaN stays, as slab_pack keeps it) */
-            continue;
-        entered = true;
+        p->s0[k] = t0, p->s1[k] = t1;
+        in |= (uint32_t)!(t0 > t1) << k;
+    }
+    return in;
+}
+
+/* packet_footprint's rays: the x and y the rays `live` (which enter T's
+ * box: tbox_lanes) cross inside it into f, the largest magnitude among
+ * them and their origins' into *size; -1 on a NaN. */
+static int footprint_rays(const pack *p, uint32_t live, double f[2][2], double *size)
+{
+    f[0][0] = f[1][0] = INFINITY, f[0][1] = f[1][1] = -INFINITY;
+    *size = 0;
+    for (uint32_t m = live; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
         for (int a = 0; a < 2; a++) {
-            const double x0 = p->o[a][k] + t0 * p->d[a][k], x1 = p->o[a][k] + t1 * p->d[a][k];
+            const double x0 = p->o[a][k] + p->s0[k] * p->d[a][k];
+            const double x1 = p->o[a][k] + p->s1[k] * p->d[a][k];
             if (isnan(x0) || isnan(x1))
                 return -1;
             f[a][0] = dmin(f[a][0], dmin(x0, x1));
@@ -1926,29 +1939,44 @@ static int footprint_rays(const pack *p, uint32_t live, const double lo[3], cons
             *size = dmax(*size, dmax(dmax(fabs(x0), fabs(x1)), fabs(p->o[a][k])));
         }
     }
-    return entered;
+    return 0;
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
+/* tbox_lanes four lanes at a time, for CPUs with AVX2 (slab_quad_avx2:
+ * slab_pack's test). */
+__attribute__((target("avx2"))) static uint32_t tbox_lanes_avx2(const mr_dgrad *gr, pack *p,
+                                                                 uint32_t live)
+{
+    uint32_t in = 0;
+    for (int k = 0; k < PK; k += 4) {
+        const uint32_t lanes = live >> k & 15u;
+        if (!lanes)
+            continue;
+        __m256d t0, t1;
+        in |= slab_quad_avx2(p, k, lanes, gr->tlo, gr->thi, &t0, &t1) << k;
+        _mm256_storeu_pd(p->s0 + k, t0), _mm256_storeu_pd(p->s1 + k, t1);
+    }
+    return in;
+}
+#define TBOX_LANES(gr, p, live)                                                                   \
+    (__builtin_cpu_supports("avx2") ? tbox_lanes_avx2(gr, p, live) : tbox_lanes(gr, p, live))
+
 /* footprint_rays four lanes at a time, for CPUs with AVX2 (the same
- * rectangle: slab_quad_avx2 is slab_pack's test, min and max are
- * a < b ? a : b and a > b ? a : b in both, and lanes left out hold
- * infinities). */
+ * rectangle: min and max are a < b ? a : b and a > b ? a : b in both, and
+ * lanes left out hold infinities). */
 __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, uint32_t live,
-                                                               const double lo[3],
-                                                               const double hi[3],
                                                                double f[2][2], double *size)
 {
     const __m256d inf = _mm256_set1_pd(INFINITY), ninf = _mm256_set1_pd(-INFINITY);
     const __m256d sign = _mm256_set1_pd(-0.0);
     __m256d fl[2] = {inf, inf}, fh[2] = {ninf, ninf}, sz = _mm256_setzero_pd();
-    uint32_t entered = 0, nan = 0;
+    uint32_t nan = 0;
     for (int k = 0; k < PK; k += 4) {
-        __m256d t0, t1;
-        const uint32_t in = slab_quad_avx2(p, k, live >> k & 15u, lo, hi, &t0, &t1);
+        const uint32_t in = live >> k & 15u;
         if (!in)
             continue;
-        entered |= in;
+        const __m256d t0 = _mm256_loadu_pd(p->s0 + k), t1 = _mm256_loadu_pd(p->s1 + k);
         const __m256d sel = lanes_avx2(in);
         for (int a = 0; a < 2; a++) {
             const __m256d o = _mm256_loadu_pd(p->o[a] + k), d = _mm256_loadu_pd(p->d[a] + k);
@@ -1973,18 +2001,20 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
     }
     _mm256_storeu_pd(v, sz);
     *size = dmax(dmax(v[0], v[1]), dmax(v[2], v[3]));
-    return entered != 0;
+    return 0;
 }
-#define FOOTPRINT_RAYS(p, live, lo, hi, f, size)                                                \
-    (__builtin_cpu_supports("avx2") ? footprint_rays_avx2(p, live, lo, hi, f, size)           \
-                                    : footprint_rays(p, live, lo, hi, f, size))
+#define FOOTPRINT_RAYS(p, live, f, size)                                                        \
+    (__builtin_cpu_supports("avx2") ? footprint_rays_avx2(p, live, f, size)                   \
+                                    : footprint_rays(p, live, f, size))
 #else
+#define TBOX_LANES tbox_lanes
 #define FOOTPRINT_RAYS footprint_rays
 #endif
 
 /* The grid rectangle f ([axis][lo, hi]) that holds every grid point a hit
- * of the packet's rays `live` on T can lie over: 1; 0 when no ray meets
- * T's box (none hits); -1 when it cannot be told (a NaN or an infinity).
+ * of the packet's rays `live` (which enter T's box: tbox_lanes) on T can
+ * lie over: 1; 0 when none is left (none hits); -1 when it cannot be told
+ * (a NaN or an infinity).
  *
  * Why: a hit lies on a micro-triangle of T, inside T's local box (every
  * micro-vertex is in it), so at a t where the ray is in that box; its
@@ -1996,9 +2026,8 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
 static int packet_footprint(const mr_dgrad *gr, const pack *p, uint32_t live, double f[2][2])
 {
     double size;
-    const int in = FOOTPRINT_RAYS(p, live, gr->tlo, gr->thi, f, &size);
-    if (in <= 0)
-        return in;
+    if (FOOTPRINT_RAYS(p, live, f, &size) < 0)
+        return -1;
     const double margin = 1e-6 + 1e-9 * size;
     const double gb[2][2] = {{gr->gx0, gr->gx1}, {gr->gy0, gr->gy1}};
     for (int a = 0; a < 2; a++) {
@@ -2135,8 +2164,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
         /* T's box, in its frame: much tighter than its Embree box, which
          * is axis-aligned in the world (the sphere of 960 faces: 40 % of
          * the calls had no ray in it); the rays that miss it miss T */
-        double near;
-        const uint32_t near_t = SLAB_PACK(&p, inpack, gr->tlo, gr->thi, &near);
+        const uint32_t near_t = TBOX_LANES(gr, &p, inpack);
         for (uint32_t m = inpack & ~near_t; m; m &= m - 1)
             p.t1[__builtin_ctz(m)] = -INFINITY;
         lanes &= ~(inpack & ~near_t);
