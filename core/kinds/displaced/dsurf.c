@@ -284,11 +284,13 @@ static void rotate_canonical(poly *p)
 enum {
     CELL_WHOLE, /* every corner clearly inside every edge: the whole cell */
     CELL_EDGE,  /* clearly inside two edges, clearly on both sides of the
-                 * third (*edge): the square cut by that edge alone */
+                 * third (*edge; *inside: its corners k (i + (k & 1),
+                 * j + (k >> 1)) inside it): the square cut by that edge
+                 * alone */
     CELL_CUT    /* anything else: T cut by the cell's lines */
 };
 
-static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge)
+static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge, unsigned *inside)
 {
     if (b->flat)
         return CELL_CUT;
@@ -296,17 +298,20 @@ static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge)
     for (int e = 0; e < 3; e++) {
         const double *l = b->edge[e];
         int in = 0, out = 0;
+        unsigned corners = 0;
         for (int k = 0; k < 4; k++) {
             double x = (double)(i + (k & 1)), y = (double)(j + (k >> 1));
             double v = l[0] * x + l[1] * y + l[2];
             in += v > b->margin;
             out += v < -b->margin;
+            corners |= (unsigned)(v > b->margin) << k;
         }
         if (in == 4)
             continue;
         if (in + out < 4 || crossing >= 0) /* (a NaN counts as neither) */
             return CELL_CUT;
         crossing = e;
+        *inside = corners;
     }
     *edge = crossing;
     return crossing < 0 ? CELL_WHOLE : CELL_EDGE;
@@ -315,7 +320,8 @@ static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge)
 bool mr_dsurf_cell_inside(const mr_dbase *b, int64_t i, int64_t j)
 {
     int e;
-    return cell_case(b, i, j, &e) == CELL_WHOLE;
+    unsigned inside;
+    return cell_case(b, i, j, &e, &inside) == CELL_WHOLE;
 }
 
 /* A whole cell: corners 0 (i, j), 1 (i+1, j), 2 (i, j+1), 3 (i+1, j+1) and
@@ -362,7 +368,7 @@ static void cut_piece(const mr_dbase *b, const line lines[5], poly *out)
 }
 
 /* T's piece of a CELL_EDGE cell: its square, corners in T's orientation,
- * cut by edge e. The polygon cut_piece makes, up to where it starts: the
+ * cut by edge e (inside: cell_case's corners inside e). The polygon cut_piece makes, up to where it starts: the
  * same corners (grid points, as grid_cross makes them), the same two
  * crossings (edge_cross of e with the same lines), the same edge tags
  * (a side of the square: its line's; the stretch along e: e). Every
@@ -371,8 +377,8 @@ static void cut_piece(const mr_dbase *b, const line lines[5], poly *out)
  * crossings' rounding is ~1e-16 of the coordinates). Where the cutting
  * starts does not matter: fan_halves' cut gives the same polygon from
  * each start, and rotate_canonical starts it at the same vertex. */
-static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, const line lines[5],
-                       poly *out)
+static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, unsigned inside,
+                       const line lines[5], poly *out)
 {
     /* the square's corners counter-clockwise from (i, j), and the line
      * the side from corner k to corner k + 1 lies on */
@@ -386,7 +392,7 @@ static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, const lin
         const int64_t x = i + X[q], y = j + Y[q];
         c[k] = (mr_dvert){.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
         tag[k] = (uint8_t)(3 + SIDE[next]);
-        in[k] = b->edge[e][0] * (double)x + b->edge[e][1] * (double)y + b->edge[e][2] > 0;
+        in[k] = inside >> (X[q] + 2 * Y[q]) & 1u;
     }
     out->n = 0;
     for (int m = 0; m < 4; m++) {
@@ -433,7 +439,8 @@ static void fan_halves(const mr_dbase *b, const poly *a, line lines[5], int half
 void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
 {
     int e;
-    const int how = cell_case(b, i, j, &e);
+    unsigned inside;
+    const int how = cell_case(b, i, j, &e, &inside);
     if (how == CELL_WHOLE) {
         whole_cell(b, i, j, half, out);
         return;
@@ -442,7 +449,7 @@ void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *
     cell_lines(i, j, lines);
     poly a;
     if (how == CELL_EDGE)
-        edge_piece(b, i, j, e, lines, &a);
+        edge_piece(b, i, j, e, inside, lines, &a);
     else
         cut_piece(b, lines, &a);
     fan_halves(b, &a, lines, half, out);
