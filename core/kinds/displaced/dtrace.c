@@ -2169,6 +2169,40 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dgrad *gr, cons
     return n;
 }
 
+/* The nodes n[0 .. count) (at most 4) the packet's rays `live` enter:
+ * node c, when bit c of `boxed` is set, has its box in lo[.][c] ..
+ * hi[.][c] and its heights in hlo[c], hhi[c]. The entered ones go to out
+ * in node order, each with its rays and their nearest entry; returns how
+ * many. */
+static int packet_enters(const pack *p, uint32_t live, const tnode *n, int count, unsigned boxed,
+                         const double lo[3][4], const double hi[3][4], const double hlo[4],
+                         const double hhi[4], pentry out[4])
+{
+    int nh = 0;
+#if HAS_SLAB_FOUR
+    if (boxed && __builtin_cpu_supports("avx2")) {
+        uint32_t in[4];
+        double near[4];
+        slab_four_avx2(p, live, lo, hi, in, near);
+        for (int c = 0; c < count; c++)
+            if ((boxed >> c & 1u) && in[c])
+                out[nh++] = (pentry){n[c], in[c], near[c], hlo[c], hhi[c]};
+        return nh;
+    }
+#endif
+    for (int c = 0; c < count; c++) {
+        if (!(boxed >> c & 1u))
+            continue;
+        const double l[3] = {lo[0][c], lo[1][c], lo[2][c]};
+        const double h[3] = {hi[0][c], hi[1][c], hi[2][c]};
+        double near;
+        const uint32_t in = SLAB_PACK(p, live, l, h, &near);
+        if (in)
+            out[nh++] = (pentry){n[c], in, near, hlo[c], hhi[c]};
+    }
+    return nh;
+}
+
 /* Lane k's watertight set-up (the micro-triangle test's: mr_dray_setup's
  * wt, of the same floats), made from the packet on the lane's first cell
  * and kept in wt[k] for the rest of the call (bit k of *made); NULL when
@@ -2234,18 +2268,20 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     const mr_dproc *pr = s->proc;
     { /* the nodes the rays start at (packet_start) that they enter */
         tnode rs[4];
-        int nr = packet_start(s, t, gr, &p, inpack, rs);
-        pentry hitc[4];
-        int nh = 0;
+        const int nr = packet_start(s, t, gr, &p, inpack, rs);
+        double blo[3][4], bhi[3][4], rhlo[4] = {0}, rhhi[4] = {0};
+        unsigned boxed = 0;
         for (int k = 0; k < nr; k++) {
-            double lo[3], hi[3], near, x0, x1, y0, y1, hlo, hhi;
-            if (!tnode_region(s, b, gr, &rs[k], &x0, &x1, &y0, &y1, &hlo, &hhi, st))
+            double lo[3], hi[3], x0, x1, y0, y1;
+            if (!tnode_region(s, b, gr, &rs[k], &x0, &x1, &y0, &y1, &rhlo[k], &rhhi[k], st))
                 continue;
-            local_box(gr, x0, x1, y0, y1, hlo, hhi, lo, hi);
-            uint32_t in = SLAB_PACK(&p, inpack, lo, hi, &near);
-            if (in)
-                hitc[nh++] = (pentry){rs[k], in, near, hlo, hhi};
+            local_box(gr, x0, x1, y0, y1, rhlo[k], rhhi[k], lo, hi);
+            for (int a = 0; a < 3; a++)
+                blo[a][k] = lo[a], bhi[a][k] = hi[a];
+            boxed |= 1u << k;
         }
+        pentry hitc[4];
+        const int nh = packet_enters(&p, inpack, rs, nr, boxed, blo, bhi, rhlo, rhhi, hitc);
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     while (sp > 0) {
@@ -2319,27 +2355,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
             }
         }
         pentry hitc[4];
-        int nh = 0;
-#if HAS_SLAB_FOUR
-        if (boxed && __builtin_cpu_supports("avx2")) {
-            uint32_t in[4];
-            double near[4];
-            slab_four_avx2(&p, live, blo, bhi, in, near);
-            for (int c = 0; c < nc; c++)
-                if ((boxed >> c & 1u) && in[c])
-                    hitc[nh++] = (pentry){ch[c], in[c], near[c], chlo[c], chhi[c]};
-        } else
-#endif
-            for (int c = 0; c < nc; c++) {
-                if (!(boxed >> c & 1u))
-                    continue;
-                double lo[3] = {blo[0][c], blo[1][c], blo[2][c]};
-                double hi[3] = {bhi[0][c], bhi[1][c], bhi[2][c]};
-                double near;
-                uint32_t in = SLAB_PACK(&p, live, lo, hi, &near);
-                if (in)
-                    hitc[nh++] = (pentry){ch[c], in, near, chlo[c], chhi[c]};
-            }
+        const int nh = packet_enters(&p, live, ch, nc, boxed, blo, bhi, chlo, chhi, hitc);
         PUSH_NEAREST_LAST(stack, sp, hitc, nh);
     }
     for (uint32_t m = inpack; m; m &= m - 1) {
