@@ -1228,6 +1228,150 @@ static unsigned tex_child_boxes(const mr_dgrid *g, const mr_dbase *b, const mr_d
     return mask;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* A vector selecting lanes q of in (bit q set: all ones). */
+__attribute__((target("avx2"))) static inline __m256d lanes_avx2(uint32_t in)
+{
+    return _mm256_castsi256_pd(_mm256_set_epi64x(-(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u),
+                                                 -(int64_t)(in >> 1 & 1u), -(int64_t)(in & 1u)));
+}
+
+/* rect_normals2 for four rectangles [x0, x1] x [y0, y1] (lanes), AVX2:
+ * its operations lane by lane (its scalar y terms' dmin and dmax are
+ * minpd and maxpd), so the same bounds. */
+__attribute__((target("avx2"))) static inline void rect_normals4(const mr_dgrad *gr, __m256d x0,
+                                                                  __m256d x1, __m256d y0,
+                                                                  __m256d y1, __m256d nlo[3],
+                                                                  __m256d nhi[3])
+{
+    const __m256d gx = _mm256_set1_pd(gr->g0[0]), gy = _mm256_set1_pd(gr->g0[1]);
+    const __m256d zero = _mm256_setzero_pd(), inv = _mm256_set1_pd(gr->inv_ndist);
+    const __m256d dx0 = _mm256_sub_pd(x0, gx), dx1 = _mm256_sub_pd(x1, gx);
+    const __m256d dy0 = _mm256_sub_pd(y0, gy), dy1 = _mm256_sub_pd(y1, gy);
+    for (int a = 0; a < 2; a++) {
+        const double *c = gr->nl[a];
+        const __m256d c0 = _mm256_set1_pd(c[0]), c1 = _mm256_set1_pd(c[1]),
+                      c2 = _mm256_set1_pd(c[2]);
+        const __m256d ax0 = _mm256_mul_pd(c1, dx0), ax1 = _mm256_mul_pd(c1, dx1);
+        const __m256d ay0 = _mm256_mul_pd(c2, dy0), ay1 = _mm256_mul_pd(c2, dy1);
+        __m256d lo = _mm256_add_pd(_mm256_add_pd(c0, _mm256_min_pd(ax0, ax1)),
+                                   _mm256_min_pd(ay0, ay1));
+        __m256d hi = _mm256_add_pd(_mm256_add_pd(c0, _mm256_max_pd(ax0, ax1)),
+                                   _mm256_max_pd(ay0, ay1));
+        const __m256d slack = _mm256_set1_pd(gr->nslack[a]);
+        const __m256d lpos = _mm256_cmp_pd(lo, zero, _CMP_GE_OQ);
+        const __m256d hpos = _mm256_cmp_pd(hi, zero, _CMP_GE_OQ);
+        lo = _mm256_sub_pd(_mm256_blendv_pd(_mm256_mul_pd(lo, inv), lo, lpos), slack);
+        hi = _mm256_add_pd(_mm256_blendv_pd(hi, _mm256_mul_pd(hi, inv), hpos), slack);
+        const __m256d b0 = _mm256_set1_pd(gr->nb[a][0]), b1 = _mm256_set1_pd(gr->nb[a][1]);
+        lo = _mm256_max_pd(lo, b0), hi = _mm256_min_pd(hi, b1);
+        const __m256d ok = _mm256_cmp_pd(lo, hi, _CMP_LE_OQ);
+        nlo[a] = _mm256_blendv_pd(b0, lo, ok);
+        nhi[a] = _mm256_blendv_pd(b1, hi, ok);
+    }
+    nlo[2] = _mm256_set1_pd(gr->nb[2][0]), nhi[2] = _mm256_set1_pd(gr->nb[2][1]);
+}
+
+/* tex_child_boxes with the four children in one AVX2 vector (child c in
+ * lane c: column c & 1, row c >> 1), for CPUs that have it: its
+ * operations lane by lane (the row's scalar y terms made per lane), so
+ * the same boxes, mask and node count. */
+__attribute__((target("avx2"))) static unsigned tex_child_boxes_avx2(const mr_dgrid *g,
+                                                                      const mr_dbase *b,
+                                                                      const mr_dgrad *gr,
+                                                                      const dnode *n,
+                                                                      double lo[3][4],
+                                                                      double hi[3][4],
+                                                                      mr_dstats *st)
+{
+    const int c = n->level - 1;
+    const uint32_t I0 = n->I * 2, J0 = n->J * 2;
+    const bool two_x = I0 + 1 < g->lw[c];
+    const uint64_t s = (uint64_t)1 << c;
+    const double bx = (double)n->tx * g->w, by = (double)n->ty * g->h;
+    /* the rows that exist and meet T's grid box, and their y extents */
+    unsigned rows = 0;
+    double y0[2] = {by, by}, y1[2] = {by, by};
+    for (int r = 0; r < 2; r++) {
+        const uint32_t J = J0 + (uint32_t)r;
+        if (J >= g->lh[c])
+            break;
+        if (st)
+            st->nodes += two_x ? 2 : 1;
+        const uint64_t ya = J * s, yb = (J + 1) * s;
+        y0[r] = by + (double)ya, y1[r] = by + (double)(yb < g->h ? yb : g->h);
+        if (!(y1[r] < gr->gy0 || y0[r] > gr->gy1))
+            rows |= 3u << 2 * r;
+    }
+    if (!two_x)
+        rows &= 5u;
+    if (!rows)
+        return 0;
+    const uint64_t xa0 = I0 * s, xa1 = (I0 + 1) * s, xb1 = (I0 + 2) * s;
+    const double cx0 = bx + (double)xa0, cx1 = bx + (double)xa1;
+    const double dx0 = bx + (double)(xa1 < g->w ? xa1 : g->w);
+    const double dx1 = bx + (double)(xb1 < g->w ? xb1 : g->w);
+    const __m256d x0 = _mm256_set_pd(cx1, cx0, cx1, cx0), x1 = _mm256_set_pd(dx1, dx0, dx1, dx0);
+    const __m256d ylo = _mm256_set_pd(y0[1], y0[1], y0[0], y0[0]);
+    const __m256d yhi = _mm256_set_pd(y1[1], y1[1], y1[0], y1[0]);
+    const __m256d gx0 = _mm256_set1_pd(gr->gx0), gx1 = _mm256_set1_pd(gr->gx1);
+    /* mr_dtrace_overlaps' x part and its edge tests */
+    __m256d in = _mm256_andnot_pd(_mm256_or_pd(_mm256_cmp_pd(x1, gx0, _CMP_LT_OQ),
+                                               _mm256_cmp_pd(x0, gx1, _CMP_GT_OQ)),
+                                  lanes_avx2(rows));
+    const __m256d negm = _mm256_set1_pd(-b->margin);
+    for (int e = 0; e < 3; e++) {
+        const double *l = b->edge[e];
+        const __m256d ex = _mm256_mul_pd(_mm256_set1_pd(l[0]), l[0] > 0 ? x1 : x0);
+        const __m256d ey = _mm256_mul_pd(_mm256_set1_pd(l[1]), l[1] > 0 ? yhi : ylo);
+        const __m256d v = _mm256_add_pd(_mm256_add_pd(ex, ey), _mm256_set1_pd(l[2]));
+        in = _mm256_andnot_pd(_mm256_cmp_pd(v, negm, _CMP_LT_OQ), in);
+    }
+    const unsigned inm = (unsigned)_mm256_movemask_pd(in);
+    if (!inm)
+        return 0;
+    double hl[4] = {0}, hh[4] = {0};
+    for (unsigned m = inm; m; m &= m - 1) {
+        const unsigned k = (unsigned)__builtin_ctz(m);
+        mr_dgrid_node_heights(g, (unsigned)c, I0 + (k & 1u), J0 + (k >> 1), &hl[k], &hh[k]);
+    }
+    const __m256d hlo = _mm256_loadu_pd(hl), hhi = _mm256_loadu_pd(hh);
+    /* local_box (each lane's normal bounds from its own rectangle) */
+    const __m256d lx0 = _mm256_max_pd(x0, gx0), lx1 = _mm256_min_pd(x1, gx1);
+    const __m256d ry0 = _mm256_max_pd(ylo, _mm256_set1_pd(gr->gy0));
+    const __m256d ry1 = _mm256_min_pd(yhi, _mm256_set1_pd(gr->gy1));
+    __m256d nlo[3], nhi[3];
+    if (gr->nrect) {
+        rect_normals4(gr, lx0, lx1, ry0, ry1, nlo, nhi);
+    } else {
+        for (int a = 0; a < 3; a++)
+            nlo[a] = _mm256_set1_pd(gr->nb[a][0]), nhi[a] = _mm256_set1_pd(gr->nb[a][1]);
+    }
+    __m256d l[3], h[3];
+    for (int a = 0; a < 3; a++) {
+        const __m256d p0 = _mm256_mul_pd(hlo, nlo[a]), p1 = _mm256_mul_pd(hlo, nhi[a]);
+        const __m256d p2 = _mm256_mul_pd(hhi, nlo[a]), p3 = _mm256_mul_pd(hhi, nhi[a]);
+        const __m256d pad = _mm256_set1_pd(gr->lpad[a]);
+        l[a] = _mm256_sub_pd(_mm256_min_pd(_mm256_min_pd(p0, p1), _mm256_min_pd(p2, p3)), pad);
+        h[a] = _mm256_add_pd(_mm256_max_pd(_mm256_max_pd(p0, p1), _mm256_max_pd(p2, p3)), pad);
+    }
+    l[0] = _mm256_add_pd(lx0, l[0]);
+    h[0] = _mm256_add_pd(lx1, h[0]);
+    l[1] = _mm256_add_pd(ry0, l[1]);
+    h[1] = _mm256_add_pd(ry1, h[1]);
+    for (int a = 0; a < 3; a++) {
+        _mm256_storeu_pd(lo[a], l[a]);
+        _mm256_storeu_pd(hi[a], h[a]);
+    }
+    return inm;
+}
+#define TEX_CHILD_BOXES(g, b, gr, n, lo, hi, st)                                                   \
+    (__builtin_cpu_supports("avx2") ? tex_child_boxes_avx2(g, b, gr, n, lo, hi, st)                \
+                                    : tex_child_boxes(g, b, gr, n, lo, hi, st))
+#else
+#define TEX_CHILD_BOXES tex_child_boxes
+#endif
+
 /* The children of node n (level 1 .. the pyramid's top) the ray enters,
  * tested a row of two at a time: slab's operations lane by lane, so the
  * same children pass with the same entry distances as one by one. Passing
@@ -1237,7 +1381,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
                               tentry out[4], mr_dstats *st)
 {
     double lo[3][4], hi[3][4];
-    unsigned mask = tex_child_boxes(g, b, gr, n, lo, hi, st);
+    unsigned mask = TEX_CHILD_BOXES(g, b, gr, n, lo, hi, st);
     int k = 0;
     for (int r = 0; r < 2; r++) {
         if (!(mask >> 2 * r & 3u))
@@ -1718,13 +1862,6 @@ __attribute__((target("avx2"))) static inline uint32_t slab_quad_avx2(const pack
         *t1 = _mm256_min_pd(far, *t1);
     }
     return (uint32_t)~_mm256_movemask_pd(_mm256_cmp_pd(*t0, *t1, _CMP_GT_OQ)) & lanes;
-}
-
-/* A vector selecting lanes q of in (bit q set: all ones). */
-__attribute__((target("avx2"))) static inline __m256d lanes_avx2(uint32_t in)
-{
-    return _mm256_castsi256_pd(_mm256_set_epi64x(-(int64_t)(in >> 3 & 1u), -(int64_t)(in >> 2 & 1u),
-                                                 -(int64_t)(in >> 1 & 1u), -(int64_t)(in & 1u)));
 }
 
 /* slab_pack four lanes at a time, for CPUs with AVX2: the same operations
@@ -2313,7 +2450,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
         int nc;
 #if defined(__SSE2__)
         if (!pr && e.n.d.level <= (int)g->levels) { /* within a period: made two at a time */
-            boxed = tex_child_boxes(g, b, gr, &e.n.d, blo, bhi, st);
+            boxed = TEX_CHILD_BOXES(g, b, gr, &e.n.d, blo, bhi, st);
             nc = 4;
             for (int c = 0; c < 4; c++)
                 ch[c].d = (dnode){.level = e.n.d.level - 1, .tx = e.n.d.tx, .ty = e.n.d.ty,
