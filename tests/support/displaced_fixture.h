@@ -188,8 +188,8 @@ static inline bool dfx_brute(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, flo
 /* The ray through the kind (Embree + its traversal); *ng: the normal the
  * renderer shades the hit by (the kind's normal op, given Embree's
  * geometric normal). */
-static inline bool dfx_trace(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax, float *t,
-                             mr_vec3 *ng)
+static inline bool dfx_trace_uv(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax,
+                                float *t, mr_vec3 *ng, float uv[2])
 {
     struct RTCIntersectContext ic;
     rtcInitIntersectContext(&ic);
@@ -203,12 +203,21 @@ static inline bool dfx_trace(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, flo
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(f->scene, &ic, &rh);
     *t = rh.ray.tfar;
+    if (uv)
+        uv[0] = rh.hit.u, uv[1] = rh.hit.v;
     bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
     if (ng)
         *ng = hit ? mr_kind_displaced.normal(f->geom, rh.hit.primID, rh.hit.u, rh.hit.v,
                                              mr_v3(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z))
                   : mr_v3(0, 0, 0);
     return hit;
+}
+
+/* dfx_trace without the hit's (u, v). */
+static inline bool dfx_trace(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax, float *t,
+                             mr_vec3 *ng)
+{
+    return dfx_trace_uv(f, o, d, tmin, tmax, t, ng, NULL);
 }
 
 /* The occlusion query through the kind. */
@@ -249,9 +258,9 @@ static inline void dfx_packet_rays(mr_vec3 o, const mr_vec3 d[8], float tmin, fl
  * dtrace.h): lane 0 the ray itself, lane 1 the same ray again, lanes 2..7
  * rays from the same origin turned slightly (1e-2 .. 1e-6 of the
  * direction), as a camera's neighbouring pixels are. Each lane must get
- * what it gets alone: hit or miss, t and normal bit for bit, and the same
- * verdict as an occlusion packet (rtcOccluded8). Returns how many lanes
- * differ. */
+ * what it gets alone: hit or miss, t, normal and (u, v) bit for bit, and
+ * the same verdict as an occlusion packet (rtcOccluded8). Returns how many
+ * lanes differ. */
 static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax)
 {
     static const float TURN[8][3] = {{0, 0, 0},         {0, 0, 0},          {1e-2f, 0, 0},
@@ -272,18 +281,20 @@ static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmi
     rtcOccluded8(valid, f->scene, &ic, &occ);
     int bad = 0;
     for (int k = 0; k < 8; k++) {
-        float t;
+        float t, uv[2] = {0, 0};
         mr_vec3 ng = mr_v3(0, 0, 0);
-        bool h = dfx_trace(f, o, dk[k], tmin, tmax, &t, &ng);
+        bool h = dfx_trace_uv(f, o, dk[k], tmin, tmax, &t, &ng, uv);
         bool hp = rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
         mr_vec3 ngp = mr_v3(rh.hit.Ng_x[k], rh.hit.Ng_y[k], rh.hit.Ng_z[k]);
+        const float uvp[2] = {rh.hit.u[k], rh.hit.v[k]};
         bool occluded = occ.tfar[k] < 0;
         if (occluded != dfx_occluded(f, o, dk[k], tmin, tmax)) {
             print_error("packet lane %d: occluded alone and in the packet differ\n", k);
             bad++;
             continue;
         }
-        if (h == hp && (!h || (t == rh.ray.tfar[k] && !memcmp(&ng, &ngp, sizeof ng))))
+        if (h == hp && (!h || (t == rh.ray.tfar[k] && !memcmp(&ng, &ngp, sizeof ng) &&
+                               !memcmp(uv, uvp, sizeof uv))))
             continue;
         print_error("packet lane %d (ray o (%.9g %.9g %.9g) d (%.9g %.9g %.9g)): alone %s t %.9g "
                     "normal (%.9g %.9g %.9g), in the packet %s t %.9g normal (%.9g %.9g %.9g)\n",

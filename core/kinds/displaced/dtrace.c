@@ -2340,23 +2340,207 @@ static int packet_enters(const pack *p, uint32_t live, const tnode *n, int count
     return nh;
 }
 
-/* Lane k's watertight set-up (the micro-triangle test's: mr_dray_setup's
- * wt, of the same floats), made from the packet on the lane's first cell
- * and kept in wt[k] for the rest of the call (bit k of *made); NULL when
- * its direction hits nothing. A packed ray needs no more of its set-up:
- * the rest of mr_dray (and the set-ups' cache across calls) cost 6 % of
- * the sphere's frame at 100 texels per unit. */
-static inline const mr_wt_ray *lane_wt(const mr_drays *rays, mr_wt_ray wt[PK], uint32_t *made,
-                                       int k)
+/* The packed rays' watertight set-ups (the micro-triangle test's:
+ * mr_dray_setup's wt, of the same floats), made on a lane's first cell
+ * (lane_wt) and kept for the rest of the call: each as a record, and its
+ * fields as columns, lane k in column element k, which cell_test8 reads
+ * eight lanes at a time. A packed ray needs no more of its set-up: the
+ * rest of mr_dray (and the set-ups' cache across calls) cost 6 % of the
+ * sphere's frame at 100 texels per unit. */
+typedef struct pack_wt {
+    uint32_t made, cols; /* the lanes set up; those also in the columns */
+    mr_wt_ray r[PK];
+    float col[6][PK];    /* org x, y, z; sx, sy, sz */
+    int32_t axis[3][PK]; /* kx, ky, kz */
+} pack_wt;
+
+/* Lane k's watertight set-up (pack_wt), made if it is not yet; NULL when
+ * its direction hits nothing. */
+static inline const mr_wt_ray *lane_wt(const mr_drays *rays, pack_wt *w, int k)
 {
-    if (!(*made >> k & 1u)) {
+    if (!(w->made >> k & 1u)) {
         const mr_vec3 d = mr_v3_gather(rays->d[0] + k, rays->d[1] + k, rays->d[2] + k);
         if (!mr_v3_is_dir(d))
             return NULL;
-        wt[k] = mr_wt_ray_setup(mr_v3_gather(rays->o[0] + k, rays->o[1] + k, rays->o[2] + k), d);
-        *made |= 1u << k;
+        w->r[k] = mr_wt_ray_setup(mr_v3_gather(rays->o[0] + k, rays->o[1] + k, rays->o[2] + k), d);
+        w->made |= 1u << k;
     }
-    return &wt[k];
+    return &w->r[k];
+}
+
+/* The fewest of a half packet's rays at a cell that cell_test8 takes
+ * together (fewer go one by one: the eight lanes cost about what two
+ * rays' scalar tests do). */
+#define CELL8_MIN 3
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* cell_test for the rays `lanes` (bits 0 .. 7) of half h of the packet
+ * (lanes 8 h .. 8 h + 7) at once, AVX2: lane q of every vector is packet
+ * lane 8 h + q, its set-up read from w's columns (every lane of `lanes`
+ * set up), its span rays->tmin .. rays->tmax, its best bh. mr_wt_shear's
+ * and mr_wt_intersect_sheared's float operations in their order lane by
+ * lane, no fused multiply-add, the same ordered comparisons, so the same
+ * hits bit for bit; a lane whose edge function comes out exactly 0 takes
+ * the scalar test (its recomputation in double). The triangles go in the
+ * cell's order, each ray's tmax shrinking after each, as in cell_test. */
+__attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, const pack_wt *w, int h,
+                                                        uint32_t lanes, const mr_drays *rays,
+                                                        best *bh, mr_dstats *st)
+{
+    const mr_dcell *c = &ct->c;
+    const int o = 8 * h;
+    if (st)
+        st->triangles += (uint64_t)c->nt * (uint64_t)__builtin_popcount(lanes);
+    /* (lanes not in `lanes` compute on whatever their columns hold; their
+     * results are never read) */
+    const __m256 ox = _mm256_loadu_ps(w->col[0] + o), oy = _mm256_loadu_ps(w->col[1] + o);
+    const __m256 oz = _mm256_loadu_ps(w->col[2] + o), sx = _mm256_loadu_ps(w->col[3] + o);
+    const __m256 sy = _mm256_loadu_ps(w->col[4] + o), sz = _mm256_loadu_ps(w->col[5] + o);
+    __m256 is0[3], is1[3]; /* per permuted axis: the lanes where it is x, where y */
+    for (int a = 0; a < 3; a++) {
+        const __m256i k = _mm256_loadu_si256((const __m256i *)(w->axis[a] + o));
+        is0[a] = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_setzero_si256()));
+        is1[a] = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_set1_epi32(1)));
+    }
+    __m256 X[2 * MR_DSURF_MAX_POLY], Y[2 * MR_DSURF_MAX_POLY], Z[2 * MR_DSURF_MAX_POLY];
+    for (int v = 0; v < c->nv; v++) {
+        const __m256 a0 = _mm256_sub_ps(_mm256_set1_ps(ct->V[v].x), ox);
+        const __m256 a1 = _mm256_sub_ps(_mm256_set1_ps(ct->V[v].y), oy);
+        const __m256 a2 = _mm256_sub_ps(_mm256_set1_ps(ct->V[v].z), oz);
+        __m256 p[3];
+        for (int a = 0; a < 3; a++)
+            p[a] = _mm256_blendv_ps(_mm256_blendv_ps(a2, a1, is1[a]), a0, is0[a]);
+        X[v] = _mm256_sub_ps(p[0], _mm256_mul_ps(sx, p[2]));
+        Y[v] = _mm256_sub_ps(p[1], _mm256_mul_ps(sy, p[2]));
+        Z[v] = _mm256_mul_ps(p[2], sz);
+    }
+    _Static_assert(PK % 8 == 0, "packets are whole halves");
+    float lim[8] = {0}, tmin[8] = {0}; /* (a packet of four has lanes 0 .. 3) */
+    for (int q = 0; q < 8 && o + q < rays->n; q++)
+        lim[q] = (float)cull_limit(rays->tmax[o + q]), tmin[q] = rays->tmin[o + q];
+    const __m256 vtmin = _mm256_loadu_ps(tmin), zero = _mm256_setzero_ps();
+    for (int k = 0; k < c->nt; k++) {
+        const uint8_t *tr = c->tri[k];
+        const __m256 ax = X[tr[0]], ay = Y[tr[0]], bx = X[tr[1]], by = Y[tr[1]];
+        const __m256 cx = X[tr[2]], cy = Y[tr[2]];
+        const __m256 u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
+        const __m256 v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
+        const __m256 wv = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
+        /* the lanes where an edge function is exactly 0, negative, positive */
+        const __m256 zu = _mm256_cmp_ps(u, zero, _CMP_EQ_OQ), zv = _mm256_cmp_ps(v, zero, _CMP_EQ_OQ);
+        const __m256 zw = _mm256_cmp_ps(wv, zero, _CMP_EQ_OQ);
+        const uint32_t edge0 =
+            (uint32_t)_mm256_movemask_ps(_mm256_or_ps(_mm256_or_ps(zu, zv), zw)) & lanes;
+        const __m256 nu = _mm256_cmp_ps(u, zero, _CMP_LT_OQ), nv = _mm256_cmp_ps(v, zero, _CMP_LT_OQ);
+        const __m256 nw = _mm256_cmp_ps(wv, zero, _CMP_LT_OQ);
+        const __m256 pu = _mm256_cmp_ps(u, zero, _CMP_GT_OQ), pv = _mm256_cmp_ps(v, zero, _CMP_GT_OQ);
+        const __m256 pw = _mm256_cmp_ps(wv, zero, _CMP_GT_OQ);
+        const __m256 neg = _mm256_or_ps(_mm256_or_ps(nu, nv), nw);
+        const __m256 pos = _mm256_or_ps(_mm256_or_ps(pu, pv), pw);
+        const __m256 det = _mm256_add_ps(_mm256_add_ps(u, v), wv);
+        const __m256 adet = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), det);
+        __m256 ok = _mm256_andnot_ps(_mm256_and_ps(neg, pos),
+                                     _mm256_cmp_ps(adet, _mm256_set1_ps(FLT_MIN), _CMP_GE_OQ));
+        const __m256 ts = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(u, Z[tr[0]]), _mm256_mul_ps(v, Z[tr[1]])),
+            _mm256_mul_ps(wv, Z[tr[2]]));
+        const __m256 vlim = _mm256_loadu_ps(lim);
+        const __m256 lo = _mm256_mul_ps(vtmin, det), hi = _mm256_mul_ps(vlim, det);
+        const __m256 dneg = _mm256_cmp_ps(det, zero, _CMP_LT_OQ);
+        const __m256 out_neg =
+            _mm256_or_ps(_mm256_cmp_ps(ts, lo, _CMP_GT_OQ), _mm256_cmp_ps(ts, hi, _CMP_LT_OQ));
+        const __m256 out_pos =
+            _mm256_or_ps(_mm256_cmp_ps(ts, lo, _CMP_LT_OQ), _mm256_cmp_ps(ts, hi, _CMP_GT_OQ));
+        ok = _mm256_andnot_ps(_mm256_blendv_ps(out_pos, out_neg, dneg), ok);
+        const __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), det);
+        const __m256 t = _mm256_mul_ps(ts, inv);
+        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(t, vtmin, _CMP_GE_OQ),
+                                             _mm256_cmp_ps(t, vlim, _CMP_LE_OQ)));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(t, _mm256_set1_ps(INFINITY), _CMP_LT_OQ));
+        const uint32_t hits = (uint32_t)_mm256_movemask_ps(ok) & lanes & ~edge0;
+        if (!(hits | edge0))
+            continue;
+        float tv[8], uv[8], vv[8];
+        _mm256_storeu_ps(tv, t);
+        _mm256_storeu_ps(uv, _mm256_mul_ps(v, inv));
+        _mm256_storeu_ps(vv, _mm256_mul_ps(wv, inv));
+        for (uint32_t m = hits | edge0; m; m &= m - 1) {
+            const int q = __builtin_ctz(m);
+            mr_wt_hit hit = {tv[q], uv[q], vv[q]};
+            if (edge0 >> q & 1u) { /* the scalar test, from this lane's sheared vertices */
+                mr_wt_vertex sv[3];
+                for (int e = 0; e < 3; e++) {
+                    float xs[8], ys[8], zs[8];
+                    _mm256_storeu_ps(xs, X[tr[e]]), _mm256_storeu_ps(ys, Y[tr[e]]);
+                    _mm256_storeu_ps(zs, Z[tr[e]]);
+                    sv[e] = (mr_wt_vertex){xs[q], ys[q], zs[q]};
+                }
+                if (!mr_wt_intersect_sheared(&sv[0], &sv[1], &sv[2], tmin[q], lim[q], &hit))
+                    continue;
+            }
+            tri_keep(&hit, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
+                     &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, &rays->tmax[o + q],
+                     &bh[o + q]);
+            lim[q] = (float)cull_limit(rays->tmax[o + q]);
+        }
+    }
+}
+#define HAS_CELL8 1
+#else
+#define HAS_CELL8 0
+#endif
+
+/* The packet's rays `live` against the cell's micro-triangles (cell_test
+ * each, or eight at a time); each one's span limit p->t1 follows its tmax. */
+static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_wt *w, uint32_t live,
+                      best *bh, mr_dstats *st)
+{
+    if (!HAS_CELL8 || __builtin_popcount(live) < CELL8_MIN) { /* one by one */
+        for (uint32_t m = live; m; m &= m - 1) {
+            const int k = __builtin_ctz(m);
+            const mr_wt_ray *wk = lane_wt(rays, w, k);
+            if (!wk) { /* (a direction that hits nothing) */
+                p->t1[k] = -INFINITY;
+                continue;
+            }
+            cell_test(ct, wk, rays->tmin[k], &rays->tmax[k], &bh[k], st);
+            p->t1[k] = cull_limit(rays->tmax[k]);
+        }
+        return;
+    }
+    uint32_t ready = 0;
+    for (uint32_t m = live; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        if (lane_wt(rays, w, k))
+            ready |= 1u << k;
+        else /* (a direction that hits nothing) */
+            p->t1[k] = -INFINITY;
+    }
+    for (int h = 0; h < PK / 8; h++) {
+        uint32_t half = ready >> 8 * h & 0xffu;
+#if HAS_CELL8
+        if (__builtin_popcount(half) >= CELL8_MIN && __builtin_cpu_supports("avx2")) {
+            for (uint32_t m = half << 8 * h & ~w->cols; m; m &= m - 1) {
+                const int k = __builtin_ctz(m);
+                const mr_wt_ray *r = &w->r[k];
+                w->col[0][k] = r->org.x, w->col[1][k] = r->org.y, w->col[2][k] = r->org.z;
+                w->col[3][k] = r->sx, w->col[4][k] = r->sy, w->col[5][k] = r->sz;
+                w->axis[0][k] = r->kx, w->axis[1][k] = r->ky, w->axis[2][k] = r->kz;
+                w->cols |= 1u << k;
+            }
+            cell_test8(ct, w, h, half, rays, bh, st);
+            half = 0;
+        }
+#endif
+        for (uint32_t m = half; m; m &= m - 1) {
+            const int k = 8 * h + __builtin_ctz(m);
+            cell_test(ct, &w->r[k], rays->tmin[k], &rays->tmax[k], &bh[k], st);
+        }
+    }
+    for (uint32_t m = ready; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        p->t1[k] = cull_limit(rays->tmax[k]);
+    }
 }
 
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_drays *rays,
@@ -2366,8 +2550,8 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     const mr_dgrad *gr = &s->grads[t];
     const mr_dgrid *g = s->grid;
     uint32_t hit = 0, inpack = 0;
-    mr_wt_ray wt[PK]; /* the packed rays' at a cell (lane_wt) */
-    uint32_t wt_made = 0;
+    pack_wt wt; /* the packed rays' set-ups at cells */
+    wt.made = wt.cols = 0;
     pack p;
     if (packs(s, b, gr)) {
         for (int k = 0; k < PK; k++)
@@ -2430,18 +2614,8 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
         int half;
         if (tnode_leaf(s, &e.n, &ci, &cj, &half)) {
             const cell_tris *ct = cell_get(s, t, b, ci, cj, half, st);
-            if (!ct)
-                continue;
-            for (uint32_t m = live; m; m &= m - 1) {
-                int k = __builtin_ctz(m);
-                const mr_wt_ray *wk = lane_wt(rays, wt, &wt_made, k);
-                if (!wk) { /* (a direction that hits nothing) */
-                    p.t1[k] = -INFINITY;
-                    continue;
-                }
-                cell_test(ct, wk, rays->tmin[k], &rays->tmax[k], &bh[k], st);
-                p.t1[k] = cull_limit(rays->tmax[k]);
-            }
+            if (ct)
+                cell_rays(ct, rays, &p, &wt, live, bh, st);
             continue;
         }
         tnode ch[4];
