@@ -362,6 +362,22 @@ static void test_plane_against_brute_force(void **state)
             bad += dfx_check_ray(&f, mr_v3(x, 2, z), mr_v3(0, -1, 0), 0, INFINITY);
             bad += dfx_check_ray(&f, mr_v3(x + 0.3f, 1, z - 0.2f), mr_v3(-0.3f, -1, 0.2f), 0, INFINITY);
         }
+    /* directions whose largest components tie in magnitude, each sign: the
+     * watertight set-up's axis choice (its ties broken one way, made one
+     * ray at a time or eight at once) must be the same alone and in a
+     * packet */
+    static const float TIED[4][3] = {{1, -1, 0.2f}, {0.2f, -1, 1}, {1, -0.5f, 1}, {1, -1, 1}};
+    for (int d = 0; d < 4; d++)
+        for (int sg = 0; sg < 4; sg++) {
+            const mr_vec3 dir = mr_v3(sg & 1 ? -TIED[d][0] : TIED[d][0], TIED[d][1],
+                                      sg & 2 ? -TIED[d][2] : TIED[d][2]);
+            for (int j = 0; j < 7; j++)
+                for (int i = 0; i < 7; i++) {
+                    const mr_vec3 at = mr_v3(-0.9f + 0.3f * i, 0, -0.9f + 0.3f * j);
+                    bad += dfx_check_ray(&f, mr_v3_sub(at, mr_v3_scale(dir, 1.5f)), dir, 0,
+                                         INFINITY);
+                }
+        }
     assert_int_equal(bad, 0);
     dfx_close(&f);
     mr_device_free(f.dev);

@@ -2341,32 +2341,104 @@ static int packet_enters(const pack *p, uint32_t live, const tnode *n, int count
 }
 
 /* The packed rays' watertight set-ups (the micro-triangle test's:
- * mr_dray_setup's wt, of the same floats), made on a lane's first cell
- * (lane_wt) and kept for the rest of the call: each as a record, and its
- * fields as columns, lane k in column element k, which cell_test8 reads
- * eight lanes at a time. A packed ray needs no more of its set-up: the
- * rest of mr_dray (and the set-ups' cache across calls) cost 6 % of the
- * sphere's frame at 100 texels per unit. */
+ * mr_dray_setup's wt, of the same floats), made on a lane's first cell and
+ * kept for the rest of the call, as columns: lane k's fields in element k,
+ * which cell_test8 reads eight lanes at a time. A packed ray needs no more
+ * of its set-up: the rest of mr_dray (and the set-ups' cache across calls)
+ * cost 6 % of the sphere's frame at 100 texels per unit. */
 typedef struct pack_wt {
-    uint32_t made, cols; /* the lanes set up; those also in the columns */
-    mr_wt_ray r[PK];
+    uint32_t made;       /* the lanes set up */
     float col[6][PK];    /* org x, y, z; sx, sy, sz */
     int32_t axis[3][PK]; /* kx, ky, kz */
 } pack_wt;
 
-/* Lane k's watertight set-up (pack_wt), made if it is not yet; NULL when
- * its direction hits nothing. */
-static inline const mr_wt_ray *lane_wt(const mr_drays *rays, pack_wt *w, int k)
+/* Lane k's set-up as a record (made). */
+static inline mr_wt_ray wt_get(const pack_wt *w, int k)
 {
-    if (!(w->made >> k & 1u)) {
-        const mr_vec3 d = mr_v3_gather(rays->d[0] + k, rays->d[1] + k, rays->d[2] + k);
-        if (!mr_v3_is_dir(d))
-            return NULL;
-        w->r[k] = mr_wt_ray_setup(mr_v3_gather(rays->o[0] + k, rays->o[1] + k, rays->o[2] + k), d);
-        w->made |= 1u << k;
-    }
-    return &w->r[k];
+    return (mr_wt_ray){.org = {w->col[0][k], w->col[1][k], w->col[2][k]},
+                       .kx = w->axis[0][k],
+                       .ky = w->axis[1][k],
+                       .kz = w->axis[2][k],
+                       .sx = w->col[3][k],
+                       .sy = w->col[4][k],
+                       .sz = w->col[5][k]};
 }
+
+/* Sets up lane k (pack_wt) if it is not yet; false when its direction
+ * hits nothing. */
+static inline bool lane_wt(const mr_drays *rays, pack_wt *w, int k)
+{
+    if (w->made >> k & 1u)
+        return true;
+    const mr_vec3 d = mr_v3_gather(rays->d[0] + k, rays->d[1] + k, rays->d[2] + k);
+    if (!mr_v3_is_dir(d))
+        return false;
+    const mr_wt_ray r =
+        mr_wt_ray_setup(mr_v3_gather(rays->o[0] + k, rays->o[1] + k, rays->o[2] + k), d);
+    w->col[0][k] = r.org.x, w->col[1][k] = r.org.y, w->col[2][k] = r.org.z;
+    w->col[3][k] = r.sx, w->col[4][k] = r.sy, w->col[5][k] = r.sz;
+    w->axis[0][k] = r.kx, w->axis[1][k] = r.ky, w->axis[2][k] = r.kz;
+    w->made |= 1u << k;
+    return true;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* lane_wt for the eight lanes of half h of the packet at once (AVX2, the
+ * packet has them: rays->n >= 8 h + 8): mr_v3_is_dir's and
+ * mr_wt_ray_setup's float comparisons and divisions lane by lane, their
+ * choices as selections, so the same set-ups bit for bit. Returns the
+ * lanes (bits 0 .. 7) whose direction can hit, which are then set up. */
+__attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *rays, pack_wt *w,
+                                                              int h)
+{
+    const int o = 8 * h;
+    const __m256 dx = _mm256_loadu_ps(rays->d[0] + o), dy = _mm256_loadu_ps(rays->d[1] + o);
+    const __m256 dz = _mm256_loadu_ps(rays->d[2] + o);
+    const __m256 sign = _mm256_set1_ps(-0.0f), inf = _mm256_set1_ps(INFINITY);
+    const __m256 zero = _mm256_setzero_ps();
+    const __m256 ax = _mm256_andnot_ps(sign, dx), ay = _mm256_andnot_ps(sign, dy);
+    const __m256 az = _mm256_andnot_ps(sign, dz);
+    /* mr_v3_is_dir: some component not 0, all finite */
+    const __m256 nonzero = _mm256_or_ps(
+        _mm256_or_ps(_mm256_cmp_ps(dx, zero, _CMP_NEQ_UQ), _mm256_cmp_ps(dy, zero, _CMP_NEQ_UQ)),
+        _mm256_cmp_ps(dz, zero, _CMP_NEQ_UQ));
+    const __m256 finite = _mm256_and_ps(
+        _mm256_and_ps(_mm256_cmp_ps(ax, inf, _CMP_LT_OQ), _mm256_cmp_ps(ay, inf, _CMP_LT_OQ)),
+        _mm256_cmp_ps(az, inf, _CMP_LT_OQ));
+    const uint32_t ok = (uint32_t)_mm256_movemask_ps(_mm256_and_ps(nonzero, finite));
+    /* kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2) */
+    const __m256 x_over_y = _mm256_cmp_ps(ax, ay, _CMP_GT_OQ);
+    const __m256 z0 = _mm256_and_ps(x_over_y, _mm256_cmp_ps(ax, az, _CMP_GT_OQ));
+    const __m256 z1 = _mm256_andnot_ps(x_over_y, _mm256_cmp_ps(ay, az, _CMP_GT_OQ));
+    /* along kz; then kx = kz + 1, ky = kz + 2 (mod 3), swapped where the
+     * ray runs along -kz */
+    const __m256 along = _mm256_blendv_ps(_mm256_blendv_ps(dz, dy, z1), dx, z0);
+    const __m256 swap = _mm256_cmp_ps(along, zero, _CMP_LT_OQ);
+    const __m256 next = _mm256_blendv_ps(_mm256_blendv_ps(dx, dz, z1), dy, z0);
+    const __m256 after = _mm256_blendv_ps(_mm256_blendv_ps(dy, dx, z1), dz, z0);
+    const __m256 cx = _mm256_blendv_ps(next, after, swap);
+    const __m256 cy = _mm256_blendv_ps(after, next, swap);
+    _mm256_storeu_ps(w->col[3] + o, _mm256_div_ps(cx, along));
+    _mm256_storeu_ps(w->col[4] + o, _mm256_div_ps(cy, along));
+    _mm256_storeu_ps(w->col[5] + o, _mm256_div_ps(_mm256_set1_ps(1.0f), along));
+    const __m256i kz = _mm256_castps_si256(_mm256_blendv_ps(
+        _mm256_blendv_ps(_mm256_castsi256_ps(_mm256_set1_epi32(2)),
+                         _mm256_castsi256_ps(_mm256_set1_epi32(1)), z1),
+        _mm256_castsi256_ps(_mm256_setzero_si256()), z0));
+    const __m256i three = _mm256_set1_epi32(3), one = _mm256_set1_epi32(1);
+    __m256i kx = _mm256_add_epi32(kz, one), ky = _mm256_add_epi32(kz, _mm256_set1_epi32(2));
+    kx = _mm256_sub_epi32(kx, _mm256_and_si256(_mm256_cmpgt_epi32(kx, _mm256_set1_epi32(2)), three));
+    ky = _mm256_sub_epi32(ky, _mm256_and_si256(_mm256_cmpgt_epi32(ky, _mm256_set1_epi32(2)), three));
+    const __m256i sw = _mm256_castps_si256(swap);
+    _mm256_storeu_si256((__m256i *)(w->axis[0] + o), _mm256_blendv_epi8(kx, ky, sw));
+    _mm256_storeu_si256((__m256i *)(w->axis[1] + o), _mm256_blendv_epi8(ky, kx, sw));
+    _mm256_storeu_si256((__m256i *)(w->axis[2] + o), kz);
+    for (int a = 0; a < 3; a++)
+        _mm256_storeu_ps(w->col[a] + o, _mm256_loadu_ps(rays->o[a] + o));
+    w->made |= ok << o;
+    return ok;
+}
+#endif
 
 /* The fewest of a half packet's rays at a cell that cell_test8 takes
  * together (fewer go one by one: the eight lanes cost about what two
@@ -2491,55 +2563,39 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
 #endif
 
 /* The packet's rays `live` against the cell's micro-triangles (cell_test
- * each, or eight at a time); each one's span limit p->t1 follows its tmax. */
+ * each, or eight at a time); each one's span limit p->t1 follows its tmax
+ * (a ray whose direction hits nothing: -inf). */
 static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_wt *w, uint32_t live,
                       best *bh, mr_dstats *st)
 {
-    if (!HAS_CELL8 || __builtin_popcount(live) < CELL8_MIN) { /* one by one */
-        for (uint32_t m = live; m; m &= m - 1) {
-            const int k = __builtin_ctz(m);
-            const mr_wt_ray *wk = lane_wt(rays, w, k);
-            if (!wk) { /* (a direction that hits nothing) */
-                p->t1[k] = -INFINITY;
-                continue;
-            }
-            cell_test(ct, wk, rays->tmin[k], &rays->tmax[k], &bh[k], st);
-            p->t1[k] = cull_limit(rays->tmax[k]);
-        }
-        return;
-    }
     uint32_t ready = 0;
-    for (uint32_t m = live; m; m &= m - 1) {
-        const int k = __builtin_ctz(m);
-        if (lane_wt(rays, w, k))
-            ready |= 1u << k;
-        else /* (a direction that hits nothing) */
-            p->t1[k] = -INFINITY;
-    }
     for (int h = 0; h < PK / 8; h++) {
-        uint32_t half = ready >> 8 * h & 0xffu;
+        uint32_t half = live >> 8 * h & 0xffu;
+        if (!half)
+            continue;
 #if HAS_CELL8
-        if (__builtin_popcount(half) >= CELL8_MIN && __builtin_cpu_supports("avx2")) {
-            for (uint32_t m = half << 8 * h & ~w->cols; m; m &= m - 1) {
-                const int k = __builtin_ctz(m);
-                const mr_wt_ray *r = &w->r[k];
-                w->col[0][k] = r->org.x, w->col[1][k] = r->org.y, w->col[2][k] = r->org.z;
-                w->col[3][k] = r->sx, w->col[4][k] = r->sy, w->col[5][k] = r->sz;
-                w->axis[0][k] = r->kx, w->axis[1][k] = r->ky, w->axis[2][k] = r->kz;
-                w->cols |= 1u << k;
-            }
+        if (__builtin_popcount(half) >= CELL8_MIN && rays->n >= 8 * h + 8 &&
+            __builtin_cpu_supports("avx2")) {
+            if (half & ~(w->made >> 8 * h))
+                half_wt_avx2(rays, w, h);
+            half &= w->made >> 8 * h;
             cell_test8(ct, w, h, half, rays, bh, st);
-            half = 0;
+            ready |= half << 8 * h;
+            continue;
         }
 #endif
         for (uint32_t m = half; m; m &= m - 1) {
             const int k = 8 * h + __builtin_ctz(m);
-            cell_test(ct, &w->r[k], rays->tmin[k], &rays->tmax[k], &bh[k], st);
+            if (!lane_wt(rays, w, k))
+                continue;
+            const mr_wt_ray wk = wt_get(w, k);
+            cell_test(ct, &wk, rays->tmin[k], &rays->tmax[k], &bh[k], st);
+            ready |= 1u << k;
         }
     }
-    for (uint32_t m = ready; m; m &= m - 1) {
+    for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
-        p->t1[k] = cull_limit(rays->tmax[k]);
+        p->t1[k] = ready >> k & 1u ? cull_limit(rays->tmax[k]) : -INFINITY;
     }
 }
 
@@ -2551,7 +2607,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     const mr_dgrid *g = s->grid;
     uint32_t hit = 0, inpack = 0;
     pack_wt wt; /* the packed rays' set-ups at cells */
-    wt.made = wt.cols = 0;
+    wt.made = 0;
     pack p;
     if (packs(s, b, gr)) {
         for (int k = 0; k < PK; k++)
