@@ -2383,6 +2383,16 @@ static inline bool lane_wt(const mr_drays *rays, pack_wt *w, int k)
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
+/* Per lane: v0 where z0, else v1 where z1, else v2. */
+__attribute__((target("avx2"))) static inline __m256i pick3_avx2(__m256 z0, __m256 z1, int v0,
+                                                                  int v1, int v2)
+{
+    const __m256 a = _mm256_castsi256_ps(_mm256_set1_epi32(v0));
+    const __m256 b = _mm256_castsi256_ps(_mm256_set1_epi32(v1));
+    const __m256 c = _mm256_castsi256_ps(_mm256_set1_epi32(v2));
+    return _mm256_castps_si256(_mm256_blendv_ps(_mm256_blendv_ps(c, b, z1), a, z0));
+}
+
 /* lane_wt for the eight lanes of half h of the packet at once (AVX2, the
  * packet has them: rays->n >= 8 h + 8): mr_v3_is_dir's and
  * mr_wt_ray_setup's float comparisons and divisions lane by lane, their
@@ -2421,14 +2431,8 @@ __attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *ray
     _mm256_storeu_ps(w->col[3] + o, _mm256_div_ps(cx, along));
     _mm256_storeu_ps(w->col[4] + o, _mm256_div_ps(cy, along));
     _mm256_storeu_ps(w->col[5] + o, _mm256_div_ps(_mm256_set1_ps(1.0f), along));
-    const __m256i kz = _mm256_castps_si256(_mm256_blendv_ps(
-        _mm256_blendv_ps(_mm256_castsi256_ps(_mm256_set1_epi32(2)),
-                         _mm256_castsi256_ps(_mm256_set1_epi32(1)), z1),
-        _mm256_castsi256_ps(_mm256_setzero_si256()), z0));
-    const __m256i three = _mm256_set1_epi32(3), one = _mm256_set1_epi32(1);
-    __m256i kx = _mm256_add_epi32(kz, one), ky = _mm256_add_epi32(kz, _mm256_set1_epi32(2));
-    kx = _mm256_sub_epi32(kx, _mm256_and_si256(_mm256_cmpgt_epi32(kx, _mm256_set1_epi32(2)), three));
-    ky = _mm256_sub_epi32(ky, _mm256_and_si256(_mm256_cmpgt_epi32(ky, _mm256_set1_epi32(2)), three));
+    const __m256i kz = pick3_avx2(z0, z1, 0, 1, 2), kx = pick3_avx2(z0, z1, 1, 2, 0);
+    const __m256i ky = pick3_avx2(z0, z1, 2, 0, 1);
     const __m256i sw = _mm256_castps_si256(swap);
     _mm256_storeu_si256((__m256i *)(w->axis[0] + o), _mm256_blendv_epi8(kx, ky, sw));
     _mm256_storeu_si256((__m256i *)(w->axis[1] + o), _mm256_blendv_epi8(ky, kx, sw));
