@@ -2038,39 +2038,6 @@ __attribute__((target("avx2"))) static inline uint32_t local_quad_avx2(const mr_
     return (uint32_t)_mm256_movemask_pd(par);
 }
 
-/* pack_lanes four lanes at a time, for CPUs with AVX2 (rays->n a multiple
- * of four; local_quad_avx2). A quad with no lane holds zeros; the other
- * lanes of a quad with one hold their rays' numbers. */
-__attribute__((target("avx2"))) static uint32_t pack_lanes_avx2(const mr_dgrad *gr,
-                                                                 const mr_dbase *b,
-                                                                 const mr_drays *rays,
-                                                                 uint32_t lanes, pack *p)
-{
-    uint32_t in = 0;
-    for (int k = 0; k < PK; k += 4) {
-        if (!(lanes >> k & 15u)) {
-            const __m256d zero = _mm256_setzero_pd();
-            for (int a = 0; a < 3; a++) {
-                _mm256_storeu_pd(p->o[a] + k, zero), _mm256_storeu_pd(p->inv[a] + k, zero);
-                if (a < 2)
-                    _mm256_storeu_pd(p->d[a] + k, zero);
-            }
-            continue;
-        }
-        __m256d o[3], d[3];
-        for (int a = 0; a < 3; a++) {
-            o[a] = _mm256_cvtps_pd(_mm_loadu_ps(rays->o[a] + k));
-            d[a] = _mm256_cvtps_pd(_mm_loadu_ps(rays->d[a] + k));
-        }
-        in |= (~local_quad_avx2(gr, b, o, d, p, k) & 15u) << k;
-    }
-    return in & lanes;
-}
-#define PACK_LANES(gr, b, rays, lanes, p)                                                         \
-    (__builtin_cpu_supports("avx2") && rays->n % 4 == 0 ? pack_lanes_avx2(gr, b, rays, lanes, p)  \
-                                                        : pack_lanes(gr, b, rays, lanes, p))
-#else
-#define PACK_LANES pack_lanes
 #endif
 
 /* Whether base triangle t's rays go through mr_dtrace_intersect_packet's
@@ -2103,6 +2070,88 @@ static uint32_t tbox_lanes(const mr_dgrad *gr, pack *p, uint32_t live)
     return in;
 }
 
+/* The lanes `lanes` of a callback's rays in T's local frame with their
+ * spans [tmin, cull_limit(tmax)] (pack_lanes), and those of them whose
+ * rays enter T's box (tbox_lanes), which it returns; the lanes that went
+ * into the packet go to *packed. Every other lane's span is empty. */
+static uint32_t pack_enter(const mr_dgrad *gr, const mr_dbase *b, const mr_drays *rays,
+                           uint32_t lanes, pack *p, uint32_t *packed)
+{
+    for (int k = 0; k < PK; k++)
+        p->t0[k] = INFINITY, p->t1[k] = -INFINITY;
+    const uint32_t in = pack_lanes(gr, b, rays, lanes, p);
+    for (uint32_t m = in; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        p->t0[k] = rays->tmin[k];
+        p->t1[k] = cull_limit(rays->tmax[k]);
+    }
+    const uint32_t near = tbox_lanes(gr, p, in);
+    for (uint32_t m = in & ~near; m; m &= m - 1)
+        p->t1[__builtin_ctz(m)] = -INFINITY;
+    *packed = in;
+    return near;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* pack_enter four lanes at a time, for CPUs with AVX2 (rays->n a multiple
+ * of four): local_quad_avx2, the spans (cull_limit's operations) and
+ * slab_quad_avx2's test of T's box, each quad's numbers kept in registers
+ * between them; the same lanes and numbers. A quad with no lane holds
+ * zeros and empty spans. */
+__attribute__((target("avx2"))) static uint32_t pack_enter_avx2(const mr_dgrad *gr,
+                                                                 const mr_dbase *b,
+                                                                 const mr_drays *rays,
+                                                                 uint32_t lanes, pack *p,
+                                                                 uint32_t *packed)
+{
+    const __m256d inf = _mm256_set1_pd(INFINITY), ninf = _mm256_set1_pd(-INFINITY);
+    uint32_t in = 0, near = 0;
+    for (int k = 0; k < PK; k += 4) {
+        const uint32_t lq = lanes >> k & 15u;
+        if (!lq) {
+            const __m256d zero = _mm256_setzero_pd();
+            for (int a = 0; a < 3; a++) {
+                _mm256_storeu_pd(p->o[a] + k, zero), _mm256_storeu_pd(p->inv[a] + k, zero);
+                if (a < 2)
+                    _mm256_storeu_pd(p->d[a] + k, zero);
+            }
+            _mm256_storeu_pd(p->t0 + k, inf), _mm256_storeu_pd(p->t1 + k, ninf);
+            continue;
+        }
+        __m256d o[3], d[3];
+        for (int a = 0; a < 3; a++) {
+            o[a] = _mm256_cvtps_pd(_mm_loadu_ps(rays->o[a] + k));
+            d[a] = _mm256_cvtps_pd(_mm_loadu_ps(rays->d[a] + k));
+        }
+        const uint32_t iq = ~local_quad_avx2(gr, b, o, d, p, k) & lq;
+        const __m256d sel = lanes_avx2(iq);
+        const __m256d tmax = _mm256_cvtps_pd(_mm_loadu_ps(rays->tmax + k));
+        const __m256d lim = _mm256_add_pd(
+            tmax, _mm256_mul_pd(_mm256_andnot_pd(_mm256_set1_pd(-0.0), tmax),
+                                _mm256_set1_pd(0x1p-20))); /* cull_limit */
+        const __m256d t0 = _mm256_blendv_pd(inf, _mm256_cvtps_pd(_mm_loadu_ps(rays->tmin + k)), sel);
+        const __m256d t1 = _mm256_blendv_pd(ninf, lim, sel);
+        _mm256_storeu_pd(p->t0 + k, t0), _mm256_storeu_pd(p->t1 + k, t1);
+        __m256d s0, s1;
+        const uint32_t nq = slab_quad_avx2(p, k, iq, gr->tlo, gr->thi, &s0, &s1);
+        if (iq) {
+            _mm256_storeu_pd(p->s0 + k, s0), _mm256_storeu_pd(p->s1 + k, s1);
+            /* the packed lanes that miss T's box: an empty span */
+            _mm256_storeu_pd(p->t1 + k, _mm256_blendv_pd(t1, ninf, lanes_avx2(iq & ~nq)));
+        }
+        in |= iq << k, near |= nq << k;
+    }
+    *packed = in;
+    return near;
+}
+#define PACK_ENTER(gr, b, rays, lanes, p, packed)                                                 \
+    (__builtin_cpu_supports("avx2") && rays->n % 4 == 0                                           \
+         ? pack_enter_avx2(gr, b, rays, lanes, p, packed)                                         \
+         : pack_enter(gr, b, rays, lanes, p, packed))
+#else
+#define PACK_ENTER pack_enter
+#endif
+
 /* packet_footprint's rays: the x and y the rays `live` (which enter T's
  * box: tbox_lanes) cross inside it into f, the largest magnitude among
  * them and their origins' into *size; -1 on a NaN. */
@@ -2126,25 +2175,6 @@ static int footprint_rays(const pack *p, uint32_t live, double f[2][2], double *
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
-/* tbox_lanes four lanes at a time, for CPUs with AVX2 (slab_quad_avx2:
- * slab_pack's test). */
-__attribute__((target("avx2"))) static uint32_t tbox_lanes_avx2(const mr_dgrad *gr, pack *p,
-                                                                 uint32_t live)
-{
-    uint32_t in = 0;
-    for (int k = 0; k < PK; k += 4) {
-        const uint32_t lanes = live >> k & 15u;
-        if (!lanes)
-            continue;
-        __m256d t0, t1;
-        in |= slab_quad_avx2(p, k, lanes, gr->tlo, gr->thi, &t0, &t1) << k;
-        _mm256_storeu_pd(p->s0 + k, t0), _mm256_storeu_pd(p->s1 + k, t1);
-    }
-    return in;
-}
-#define TBOX_LANES(gr, p, live)                                                                   \
-    (__builtin_cpu_supports("avx2") ? tbox_lanes_avx2(gr, p, live) : tbox_lanes(gr, p, live))
-
 /* footprint_rays four lanes at a time, for CPUs with AVX2 (the same
  * rectangle: min and max are a < b ? a : b and a > b ? a : b in both, and
  * lanes left out hold infinities). */
@@ -2190,7 +2220,6 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
     (__builtin_cpu_supports("avx2") ? footprint_rays_avx2(p, live, f, size)                   \
                                     : footprint_rays(p, live, f, size))
 #else
-#define TBOX_LANES tbox_lanes
 #define FOOTPRINT_RAYS footprint_rays
 #endif
 
@@ -2614,21 +2643,12 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
     wt.made = 0;
     pack p;
     if (packs(s, b, gr)) {
-        for (int k = 0; k < PK; k++)
-            p.t0[k] = INFINITY, p.t1[k] = -INFINITY;
-        inpack = PACK_LANES(gr, b, rays, lanes, &p);
-        for (uint32_t m = inpack; m; m &= m - 1) {
-            int k = __builtin_ctz(m);
-            p.t0[k] = rays->tmin[k];
-            p.t1[k] = cull_limit(rays->tmax[k]);
-        }
         /* T's box, in its frame: much tighter than its Embree box, which
          * is axis-aligned in the world (the sphere of 960 faces: 40 % of
          * the calls had no ray in it); the rays that miss it miss T */
-        const uint32_t near_t = TBOX_LANES(gr, &p, inpack);
-        for (uint32_t m = inpack & ~near_t; m; m &= m - 1)
-            p.t1[__builtin_ctz(m)] = -INFINITY;
-        lanes &= ~(inpack & ~near_t);
+        uint32_t packed;
+        const uint32_t near_t = PACK_ENTER(gr, b, rays, lanes, &p, &packed);
+        lanes &= ~(packed & ~near_t);
         inpack = near_t;
         if (!(inpack & (inpack - 1)))
             inpack = 0; /* one ray or none: no packet */
