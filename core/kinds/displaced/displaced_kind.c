@@ -825,7 +825,8 @@ static pthread_once_t stripe_once = PTHREAD_ONCE_INIT;
 static void stripe_give_back(void *owned)
 {
     const unsigned s = (unsigned)(uintptr_t)owned - 1;
-    atomic_fetch_and_explicit(&stripes_owned, ~(1u << s), memory_order_relaxed);
+    /* (release: the next owner, which acquires, sees this thread's counts) */
+    atomic_fetch_and_explicit(&stripes_owned, ~(1u << s), memory_order_release);
 }
 
 static void stripe_key_make(void)
@@ -849,10 +850,11 @@ static unsigned my_stripe(void)
             return mine = SHARED_STRIPE;
         const unsigned s = (unsigned)__builtin_ctz(free);
         if (atomic_compare_exchange_weak_explicit(&stripes_owned, &owned, owned | 1u << s,
-                                                  memory_order_relaxed, memory_order_relaxed)) {
+                                                  memory_order_acquire, memory_order_relaxed)) {
             if (pthread_setspecific(stripe_key, (void *)(uintptr_t)(s + 1)) == 0)
                 return mine = s;
-            stripe_give_back((void *)(uintptr_t)(s + 1)); /* (it could not be given back) */
+            /* no way to give it back at exit: share instead */
+            stripe_give_back((void *)(uintptr_t)(s + 1));
             return mine = SHARED_STRIPE;
         }
     }
