@@ -2474,9 +2474,10 @@ __attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *ray
 #endif
 
 /* The fewest of a half packet's rays at a cell that cell_test8 takes
- * together (fewer go one by one: the eight lanes cost about what two
- * rays' scalar tests do). */
-#define CELL8_MIN 3
+ * together: a lone ray's scalar test costs less than the eight lanes, two
+ * rays' more (with 2 rather than 3, trace 0.97-0.99 on the sphere at 100
+ * and 400 texels per unit and the plane at 200; with 1, 1.00-1.03). */
+#define CELL8_MIN 2
 
 #if defined(__x86_64__) && defined(__GNUC__)
 /* cell_test for the rays `lanes` (bits 0 .. 7) of half h of the packet
