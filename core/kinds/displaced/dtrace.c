@@ -2095,9 +2095,9 @@ static uint32_t pack_enter(const mr_dgrad *gr, const mr_dbase *b, const mr_drays
 #if defined(__x86_64__) && defined(__GNUC__)
 /* pack_enter four lanes at a time, for CPUs with AVX2 (rays->n a multiple
  * of four): local_quad_avx2, the spans (cull_limit's operations) and
- * slab_quad_avx2's test of T's box, each quad's numbers kept in registers
- * between them; the same lanes and numbers. A quad with no lane holds
- * zeros and empty spans. */
+ * slab_quad_avx2's test of T's box, one quad after another, so each test
+ * reads what the step before just wrote; the same lanes and numbers. A
+ * quad with no lane holds zeros and empty spans. */
 __attribute__((target("avx2"))) static uint32_t pack_enter_avx2(const mr_dgrad *gr,
                                                                  const mr_dbase *b,
                                                                  const mr_drays *rays,
@@ -2425,10 +2425,9 @@ __attribute__((target("avx2"))) static inline __m256i pick3_avx2(__m256 z0, __m2
 /* lane_wt for the eight lanes of half h of the packet at once (AVX2, the
  * packet has them: rays->n >= 8 h + 8): mr_v3_is_dir's and
  * mr_wt_ray_setup's float comparisons and divisions lane by lane, their
- * choices as selections, so the same set-ups bit for bit. Returns the
- * lanes (bits 0 .. 7) whose direction can hit, which are then set up. */
-__attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *rays, pack_wt *w,
-                                                              int h)
+ * choices as selections, so the same set-ups bit for bit. The lanes
+ * whose direction can hit are then set up (w->made). */
+__attribute__((target("avx2"))) static void half_wt_avx2(const mr_drays *rays, pack_wt *w, int h)
 {
     const int o = 8 * h;
     const __m256 dx = _mm256_loadu_ps(rays->d[0] + o), dy = _mm256_loadu_ps(rays->d[1] + o);
@@ -2469,7 +2468,6 @@ __attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *ray
     for (int a = 0; a < 3; a++)
         _mm256_storeu_ps(w->col[a] + o, _mm256_loadu_ps(rays->o[a] + o));
     w->made |= ok << o;
-    return ok;
 }
 #endif
 
@@ -2481,7 +2479,8 @@ __attribute__((target("avx2"))) static uint32_t half_wt_avx2(const mr_drays *ray
 
 #if defined(__x86_64__) && defined(__GNUC__)
 /* cell_test for the rays `lanes` (bits 0 .. 7) of half h of the packet
- * (lanes 8 h .. 8 h + 7) at once, AVX2: lane q of every vector is packet
+ * (lanes 8 h .. 8 h + 7, which the packet has: rays->n >= 8 h + 8) at
+ * once, AVX2: lane q of every vector is packet
  * lane 8 h + q, its set-up read from w's columns (every lane of `lanes`
  * set up), its span rays->tmin .. rays->tmax, its best bh. mr_wt_shear's
  * and mr_wt_intersect_sheared's float operations in their order lane by
@@ -2521,9 +2520,10 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
         Z[v] = _mm256_mul_ps(p[2], sz);
     }
     _Static_assert(PK % 8 == 0, "packets are whole halves");
-    float lim[8] = {0}, tmin[8] = {0}; /* (a packet of four has lanes 0 .. 3) */
-    for (int q = 0; q < 8 && o + q < rays->n; q++)
-        lim[q] = (float)cull_limit(rays->tmax[o + q]), tmin[q] = rays->tmin[o + q];
+    float lim[8];
+    for (int q = 0; q < 8; q++)
+        lim[q] = (float)cull_limit(rays->tmax[o + q]);
+    const float *tmin = rays->tmin + o;
     const __m256 vtmin = _mm256_loadu_ps(tmin), zero = _mm256_setzero_ps();
     for (int k = 0; k < c->nt; k++) {
         const uint8_t *tr = c->tri[k];
@@ -2704,7 +2704,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
         unsigned boxed = 0;
         int nc;
 #if defined(__SSE2__)
-        if (!pr && e.n.d.level <= (int)g->levels) { /* within a period: made two at a time */
+        if (!pr && e.n.d.level <= (int)g->levels) { /* within a period: made together */
             boxed = TEX_CHILD_BOXES(g, b, gr, &e.n.d, blo, bhi, st);
             nc = 4;
             for (int c = 0; c < 4; c++)
