@@ -9,6 +9,7 @@
  * whose sides have levels 3 and 2, and requires every ray to hit; a control
  * without decimation must leak, which shows the rays can see a crack.
  */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -235,6 +236,54 @@ static void test_shared_edge_bit_identical(void **state)
         if (l1 >= 2 && l1 == l2) {
             uint32_t mid = mr_umesh_vertex_index(l1, 1, 1);
             assert_true(d1[mid] != d2[mid]);
+        }
+    }
+}
+
+/* A coordinate for test_eval_many: often exactly +0 or -0 (the signs of
+ * zero are where summing other corners' zero terms, as a vectorised sum
+ * might, changes the bits), else of any magnitude up to scale, 2^-40 of it
+ * at the least (where the order of a sum's terms decides its rounding). */
+static float odd_float(uint32_t *s, float scale)
+{
+    switch (rng_next(s) % 4) {
+    case 0: return 0.0f;
+    case 1: return -0.0f;
+    default: return ldexpf(rng_float(s, -scale, scale), -(int)(rng_next(s) % 41));
+    }
+}
+
+/* mr_umesh_eval_many gives mr_umesh_eval_at's bits for every vertex of
+ * every level: interior, edge (either endpoint order) and corner vertices,
+ * in a scrambled order, with corners and displacements of both signs of
+ * zero. */
+static void test_eval_many(void **state)
+{
+    (void)state;
+    uint32_t seed = 777;
+    static uint32_t a[561], b[561];
+    static float disp[561];
+    static mr_vec3 many[561];
+    for (int trial = 0; trial < 600; trial++) {
+        mr_umesh_tri t;
+        for (int i = 0; i < 3; i++) {
+            float s = trial % 2 ? 1e4f : 2.0f;
+            t.pos[i] = mr_v3(odd_float(&seed, s), odd_float(&seed, s), odd_float(&seed, s));
+            t.dir[i] = mr_v3(odd_float(&seed, 1), odd_float(&seed, 1), odd_float(&seed, 1));
+        }
+        if (trial % 5 == 0) /* two corners alike: the edge rule's tie */
+            t.pos[1] = t.pos[0], t.dir[1] = t.dir[0];
+        unsigned level = (unsigned)trial % 6;
+        uint32_t count = mr_umesh_vertex_count(level);
+        for (uint32_t i = 0; i < count; i++) {
+            uint32_t j = (i * 7 + (uint32_t)trial) % count; /* 7 is prime to every count */
+            assert_true(mr_umesh_vertex_coords(level, j, &a[i], &b[i]));
+            disp[i] = odd_float(&seed, 0.3f);
+        }
+        mr_umesh_eval_many(&t, level, (int)count, a, b, disp, many);
+        for (uint32_t i = 0; i < count; i++) {
+            mr_vec3 one = mr_umesh_eval_at(&t, level, a[i], b[i], disp[i]);
+            assert_memory_equal(&many[i], &one, sizeof one);
         }
     }
 }
@@ -504,6 +553,7 @@ int main(void)
         cmocka_unit_test(test_index_round_trip),
         cmocka_unit_test(test_triangles_cover_once),
         cmocka_unit_test(test_shared_edge_bit_identical),
+        cmocka_unit_test(test_eval_many),
         cmocka_unit_test(test_remap_follows_the_edge_rule),
         cmocka_unit_test(test_level_difference_no_crack),
         cmocka_unit_test(test_zero_displacement_is_flat),

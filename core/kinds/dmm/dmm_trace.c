@@ -450,8 +450,18 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
             lt->at[k] = &lt->moved[k];
         }
     }
-    for (int k = 0; k < 6; k++)
-        lt->v[k] = leaf_vertex(p, lt->at[k]->a, lt->at[k]->b);
+    if (p->mats[0]) {
+        for (int k = 0; k < 6; k++)
+            lt->v[k] = leaf_vertex(p, lt->at[k]->a, lt->at[k]->b);
+    } else { /* mr_dmm_vertex's evaluation, the six together */
+        uint32_t a[6], b[6];
+        float d[6];
+        for (int k = 0; k < 6; k++) {
+            a[k] = lt->at[k]->a, b[k] = lt->at[k]->b;
+            d[k] = mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index_at(p->level, a[k], b[k])]);
+        }
+        mr_umesh_eval_many(&p->tri, p->level, 6, a, b, d, lt->v);
+    }
     pthread_once(&leaf_shapes_once, shapes_build);
     const leaf_shape *sh = &leaf_shapes[level_start(p->level - 1) + id];
     memcpy(lt->corner, sh->corner, sizeof lt->corner);

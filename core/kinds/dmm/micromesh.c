@@ -8,7 +8,9 @@
 
 #include <stdlib.h>
 #include <string.h>
-#if defined(__SSE2__)
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#elif defined(__SSE2__)
 #include <emmintrin.h>
 #endif
 
@@ -330,6 +332,66 @@ mr_vec3 mr_umesh_eval_at(const mr_umesh_tri *tri, unsigned level, uint32_t a, ui
 {
     corner_weights cw = weights_of(tri, level, a, b);
     return displace(blend(tri->pos, &cw), blend(tri->dir, &cw), disp);
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* mr_umesh_eval_many with AVX2: a vertex's x, y, z in one vector of four
+ * doubles (the fourth lane unused), the corners converted once for all of
+ * them. weights_of's three cases are one sum here: every vertex takes the
+ * interior weights (n - a - b, a, b) / n, which are an edge vertex's
+ * two weights and a corner's 1 where those apply and 0 for the corners it
+ * does not depend on. An absent corner's term is -0.0, which adds nothing
+ * to any double (x + -0.0 is x, -0.0 included), so (t0 + t1) + t2 is blend's
+ * sum term for term: the interior sum in its order, an edge's two products
+ * in either order (a sum of two is the same both ways round), a corner's
+ * product alone. */
+__attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *tri, unsigned level,
+                                                           int count, const uint32_t *a,
+                                                           const uint32_t *b, const float *disp,
+                                                           mr_vec3 *out)
+{
+    const mr_vec3 *P = tri->pos, *D = tri->dir;
+    const __m256d p0 = _mm256_cvtps_pd(_mm_setr_ps(P[0].x, P[0].y, P[0].z, 0.0f)),
+                  p1 = _mm256_cvtps_pd(_mm_setr_ps(P[1].x, P[1].y, P[1].z, 0.0f)),
+                  p2 = _mm256_cvtps_pd(_mm_setr_ps(P[2].x, P[2].y, P[2].z, 0.0f)),
+                  d0 = _mm256_cvtps_pd(_mm_setr_ps(D[0].x, D[0].y, D[0].z, 0.0f)),
+                  d1 = _mm256_cvtps_pd(_mm_setr_ps(D[1].x, D[1].y, D[1].z, 0.0f)),
+                  d2 = _mm256_cvtps_pd(_mm_setr_ps(D[2].x, D[2].y, D[2].z, 0.0f));
+    const uint32_t n = 1u << level;
+    const double inv = INV_SEGMENTS[level];
+    const __m256d none = _mm256_set1_pd(-0.0), zero = _mm256_setzero_pd();
+    for (int k = 0; k < count; k++) {
+        const __m256d w0 = _mm256_set1_pd((double)(n - a[k] - b[k]) * inv),
+                      w1 = _mm256_set1_pd((double)a[k] * inv),
+                      w2 = _mm256_set1_pd((double)b[k] * inv);
+        const __m256d off0 = _mm256_cmp_pd(w0, zero, _CMP_EQ_OQ),
+                      off1 = _mm256_cmp_pd(w1, zero, _CMP_EQ_OQ),
+                      off2 = _mm256_cmp_pd(w2, zero, _CMP_EQ_OQ);
+#define TERM(w, x, off) _mm256_blendv_pd(_mm256_mul_pd(w, x), none, off)
+        const __m256d p = _mm256_add_pd(_mm256_add_pd(TERM(w0, p0, off0), TERM(w1, p1, off1)),
+                                        TERM(w2, p2, off2));
+        const __m256d d = _mm256_add_pd(_mm256_add_pd(TERM(w0, d0, off0), TERM(w1, d1, off1)),
+                                        TERM(w2, d2, off2));
+#undef TERM
+        const __m256d x = _mm256_add_pd(p, _mm256_mul_pd(_mm256_set1_pd((double)disp[k]), d));
+        const __m128 f = _mm256_cvtpd_ps(x);
+        _mm_storel_pi((__m64 *)&out[k], f);
+        out[k].z = _mm_cvtss_f32(_mm_movehl_ps(f, f));
+    }
+}
+#endif
+
+void mr_umesh_eval_many(const mr_umesh_tri *tri, unsigned level, int count, const uint32_t *a,
+                        const uint32_t *b, const float *disp, mr_vec3 *out)
+{
+#if defined(__x86_64__) && defined(__GNUC__)
+    if (__builtin_cpu_supports("avx2")) {
+        eval_many_avx2(tri, level, count, a, b, disp, out);
+        return;
+    }
+#endif
+    for (int k = 0; k < count; k++)
+        out[k] = mr_umesh_eval_at(tri, level, a[k], b[k], disp[k]);
 }
 
 int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, float disp,

@@ -182,6 +182,11 @@ int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t 
  * level's lattice by construction (the traversal): the same evaluation. */
 mr_vec3 mr_umesh_eval_at(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b,
                          float disp);
+/* mr_umesh_eval_at for count vertices (a[k], b[k]) with displacements
+ * disp[k] into out[k]: the same bits, evaluated together (AVX2 where the
+ * CPU has it; the traversal's leaves, six vertices each). */
+void mr_umesh_eval_many(const mr_umesh_tri *tri, unsigned level, int count, const uint32_t *a,
+                        const uint32_t *b, const float *disp, mr_vec3 *out);
 
 /* Micro-vertex (a, b) under interpolated matrices (paper 000, eq. 6-7): the
  * rest-pose displaced point x = sum w_i v_i + disp * sum w_i n_i (tri holds
