@@ -364,10 +364,11 @@ __attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *t
         const __m256d w0 = _mm256_set1_pd((double)(n - a[k] - b[k]) * inv),
                       w1 = _mm256_set1_pd((double)a[k] * inv),
                       w2 = _mm256_set1_pd((double)b[k] * inv);
-        const __m256d off0 = _mm256_cmp_pd(w0, zero, _CMP_EQ_OQ),
-                      off1 = _mm256_cmp_pd(w1, zero, _CMP_EQ_OQ),
-                      off2 = _mm256_cmp_pd(w2, zero, _CMP_EQ_OQ);
-#define TERM(w, x, off) _mm256_blendv_pd(_mm256_mul_pd(w, x), none, off)
+        /* an absent corner's product is +-0: its sign bit set makes it -0 */
+        const __m256d off0 = _mm256_and_pd(_mm256_cmp_pd(w0, zero, _CMP_EQ_OQ), none),
+                      off1 = _mm256_and_pd(_mm256_cmp_pd(w1, zero, _CMP_EQ_OQ), none),
+                      off2 = _mm256_and_pd(_mm256_cmp_pd(w2, zero, _CMP_EQ_OQ), none);
+#define TERM(w, x, off) _mm256_or_pd(_mm256_mul_pd(w, x), off)
         const __m256d p = _mm256_add_pd(_mm256_add_pd(TERM(w0, p0, off0), TERM(w1, p1, off1)),
                                         TERM(w2, p2, off2));
         const __m256d d = _mm256_add_pd(_mm256_add_pd(TERM(w0, d0, off0), TERM(w1, d1, off1)),
