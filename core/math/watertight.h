@@ -108,6 +108,26 @@ static inline mr_wtd_vertex mr_wtd_shear(const mr_wtd_ray *r, mr_vec3 v)
     return (mr_wtd_vertex){a[r->kx] - r->sx * z, a[r->ky] - r->sy * z, z * r->sz};
 }
 
+/* The second half of mr_wtd_intersect_sheared, for a triangle whose edge
+ * functions u, v, w (of a, b, c's sheared x and y) have no two of opposite
+ * signs; az, bz, cz: its corners' sheared z. (Its own function for tests
+ * that compute the edge functions of several triangles at once.) */
+static inline bool mr_wtd_hit_inside(double u, double v, double w, double az, double bz,
+                                     double cz, float tmin, float tmax, mr_wt_hit *hit)
+{
+    double det = u + v + w;
+    if (!(fabs(det) >= DBL_MIN)) /* in the triangle's plane, or degenerate */
+        return false;
+    double t = (u * az + v * bz + w * cz) / det;
+    float tf = (float)t;
+    if (!(tf >= tmin && tf <= tmax && tf < INFINITY))
+        return false;
+    hit->t = tf;
+    hit->u = (float)(v / det);
+    hit->v = (float)(w / det);
+    return true;
+}
+
 static inline bool mr_wtd_intersect_sheared(const mr_wtd_vertex *a, const mr_wtd_vertex *b,
                                             const mr_wtd_vertex *c, float tmin, float tmax,
                                             mr_wt_hit *hit)
@@ -118,17 +138,7 @@ static inline bool mr_wtd_intersect_sheared(const mr_wtd_vertex *a, const mr_wtd
      * tests miss, in no order a predictor learns) */
     if (((u < 0) | (v < 0) | (w < 0)) & ((u > 0) | (v > 0) | (w > 0)))
         return false;
-    double det = u + v + w;
-    if (!(fabs(det) >= DBL_MIN)) /* in the triangle's plane, or degenerate */
-        return false;
-    double t = (u * a->z + v * b->z + w * c->z) / det;
-    float tf = (float)t;
-    if (!(tf >= tmin && tf <= tmax && tf < INFINITY))
-        return false;
-    hit->t = tf;
-    hit->u = (float)(v / det);
-    hit->v = (float)(w / det);
-    return true;
+    return mr_wtd_hit_inside(u, v, w, a->z, b->z, c->z, tmin, tmax, hit);
 }
 
 #endif

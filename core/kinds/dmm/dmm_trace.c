@@ -13,7 +13,10 @@
 #include <math.h>
 #include <pthread.h>
 #include <string.h>
-#if defined(__SSE__)
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define LEAF_LANES 1 /* leaf_test_avx2 */
+#elif defined(__SSE__)
 #include <xmmintrin.h>
 #endif
 
@@ -353,6 +356,12 @@ typedef struct leaf_tris {
     mr_vec3 v[6];
     uint8_t corner[4][3]; /* micro-triangle k: indices into pts, at, v, rotated */
     uint32_t key[4];      /* micro-triangle k's index in row order */
+#ifdef LEAF_LANES
+    /* for leaf_test_avx2 (lanes_made): coordinate j of micro-triangle k's
+     * corner i (v[corner[k][i]]) in lane k of lanes[i][j], in double */
+    bool lanes_made;
+    double lanes[3][3][4] __attribute__((aligned(32)));
+#endif
 } leaf_tris;
 
 /* Micro-triangle k of lt with corners (indices) c: its rotation and row
@@ -417,6 +426,25 @@ static void shapes_build(void)
     }
 }
 
+#ifdef LEAF_LANES
+/* A leaf's four micro-triangles' corners in lanes (lt->lanes), for
+ * leaf_test_avx2: made once per leaf, read by every ray that tests it. */
+static void leaf_lanes(leaf_tris *lt)
+{
+    lt->lanes_made = lt->count == 4 && __builtin_cpu_supports("avx2");
+    if (!lt->lanes_made)
+        return;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 4; k++) {
+            const mr_vec3 v = lt->v[lt->corner[k][i]];
+            lt->lanes[i][0][k] = v.x;
+            lt->lanes[i][1][k] = v.y;
+            lt->lanes[i][2][k] = v.z;
+        }
+}
+
+#endif
+
 /* Patch p's leaf with corners P, number id at sublevel p->level - 1 (level
  * 0: the base triangle itself), into lt. */
 static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint32_t segments,
@@ -429,6 +457,9 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
             lt->v[k] = leaf_vertex(p, P[k]->a, P[k]->b);
         }
         leaf_order(lt, 0, (const int[3]){0, 1, 2}, segments);
+#ifdef LEAF_LANES
+        lt->lanes_made = false;
+#endif
         return;
     }
     lt->count = 4;
@@ -466,6 +497,33 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
     const leaf_shape *sh = &leaf_shapes[level_start(p->level - 1) + id];
     memcpy(lt->corner, sh->corner, sizeof lt->corner);
     memcpy(lt->key, sh->key, sizeof lt->key);
+#ifdef LEAF_LANES
+    leaf_lanes(lt);
+#endif
+}
+
+/* Micro-triangle k of lt hit at h (a hit's t is finite and within [tmin,
+ * tmax]: watertight.h): kept, unless a hit at the same t is. */
+static void take_hit(trace_ctx *c, const leaf_tris *lt, int k, const mr_wt_hit *h)
+{
+    const uint8_t *q = lt->corner[k];
+    /* Equal t (a ray through a shared edge or vertex hits both sides at the
+     * same float t): the micro-triangle first in row order wins, whatever
+     * order the traversal met them in, as in mr_dmm_intersect_micro. */
+    uint32_t key = lt->key[k];
+    if (h->t == c->tmax && !(key < c->best_key))
+        return;
+    c->found = true;
+    c->tmax = h->t;
+    c->best_key = key;
+    if (!c->hit)
+        return;
+    const lattice_pt *L[3] = {lt->at[q[0]], lt->at[q[1]], lt->at[q[2]]};
+    float w0 = 1.0f - h->u - h->v, n = (float)c->segments;
+    c->hit->t = h->t;
+    c->hit->u = (w0 * (float)L[0]->a + h->u * (float)L[1]->a + h->v * (float)L[2]->a) / n;
+    c->hit->v = (w0 * (float)L[0]->b + h->u * (float)L[1]->b + h->v * (float)L[2]->b) / n;
+    c->hit->ng = micro_normal(lt->v[q[0]], lt->v[q[1]], lt->v[q[2]]);
 }
 
 /* Tests micro-triangle k of lt, whose vertices the ray has sheared (sh). */
@@ -475,37 +533,84 @@ static void test_triangle(trace_ctx *c, const leaf_tris *lt, int k, const mr_wtd
         c->stats->triangles++;
     const uint8_t *q = lt->corner[k];
     mr_wt_hit h;
-    if (!mr_wtd_intersect_sheared(&sh[q[0]], &sh[q[1]], &sh[q[2]], c->tmin, c->tmax, &h))
-        return; /* (a hit's t is finite and within [tmin, tmax]: watertight.h) */
-    /* Equal t (a ray through a shared edge or vertex hits both sides at the
-     * same float t): the micro-triangle first in row order wins, whatever
-     * order the traversal met them in, as in mr_dmm_intersect_micro. */
-    uint32_t key = lt->key[k];
-    if (h.t == c->tmax && !(key < c->best_key))
-        return;
-    c->found = true;
-    c->tmax = h.t;
-    c->best_key = key;
-    if (!c->hit)
-        return;
-    const lattice_pt *L[3] = {lt->at[q[0]], lt->at[q[1]], lt->at[q[2]]};
-    float w0 = 1.0f - h.u - h.v, n = (float)c->segments;
-    c->hit->t = h.t;
-    c->hit->u = (w0 * (float)L[0]->a + h.u * (float)L[1]->a + h.v * (float)L[2]->a) / n;
-    c->hit->v = (w0 * (float)L[0]->b + h.u * (float)L[1]->b + h.v * (float)L[2]->b) / n;
-    c->hit->ng = micro_normal(lt->v[q[0]], lt->v[q[1]], lt->v[q[2]]);
+    if (mr_wtd_intersect_sheared(&sh[q[0]], &sh[q[1]], &sh[q[2]], c->tmin, c->tmax, &h))
+        take_hit(c, lt, k, &h);
 }
 
 /* The ray's test of a leaf's micro-triangles: their (up to six) vertices
  * sheared into the ray's space once, for all of them (mr_wtd_shear: the
  * same results as testing each alone). */
-static void leaf_test(trace_ctx *c, const leaf_tris *lt)
+static void leaf_test_plain(trace_ctx *c, const leaf_tris *lt)
 {
     mr_wtd_vertex sh[6];
     for (int k = 0; k < (lt->count == 1 ? 3 : 6); k++)
         sh[k] = mr_wtd_shear(&c->ray->wt, lt->v[k]);
     for (int k = 0; k < lt->count && !(c->any_hit && c->found); k++)
         test_triangle(c, lt, k, sh);
+}
+
+#ifdef LEAF_LANES
+/* leaf_test for the four micro-triangles at once, one per AVX2 lane: each
+ * lane shears its corners (mr_wtd_shear's operations) and takes their
+ * edge functions (mr_wtd_intersect_sheared's), and the lanes inside go on,
+ * in micro-triangle order as leaf_test_plain's, to the rest of the test
+ * (mr_wtd_hit_inside) and take_hit: the same hits and counts, bit for
+ * bit. */
+__attribute__((target("avx2"))) static void leaf_test_avx2(trace_ctx *c, const leaf_tris *lt)
+{
+    const mr_wtd_ray *r = &c->ray->wt;
+    const __m256d sx = _mm256_set1_pd(r->sx), sy = _mm256_set1_pd(r->sy),
+                  sz = _mm256_set1_pd(r->sz);
+    __m256d x[3], y[3], z[3];
+    for (int i = 0; i < 3; i++) {
+        __m256d a[3];
+        for (int j = 0; j < 3; j++)
+            a[j] = _mm256_sub_pd(_mm256_load_pd(lt->lanes[i][j]), _mm256_set1_pd(r->org[j]));
+        const __m256d d = a[r->kz];
+        x[i] = _mm256_sub_pd(a[r->kx], _mm256_mul_pd(sx, d));
+        y[i] = _mm256_sub_pd(a[r->ky], _mm256_mul_pd(sy, d));
+        z[i] = _mm256_mul_pd(d, sz);
+    }
+    const __m256d u = _mm256_sub_pd(_mm256_mul_pd(x[2], y[1]), _mm256_mul_pd(y[2], x[1])),
+                  v = _mm256_sub_pd(_mm256_mul_pd(x[0], y[2]), _mm256_mul_pd(y[0], x[2])),
+                  w = _mm256_sub_pd(_mm256_mul_pd(x[1], y[0]), _mm256_mul_pd(y[1], x[0]));
+    const __m256d zero = _mm256_setzero_pd();
+    const __m256d neg = _mm256_or_pd(_mm256_or_pd(_mm256_cmp_pd(u, zero, _CMP_LT_OQ),
+                                                  _mm256_cmp_pd(v, zero, _CMP_LT_OQ)),
+                                     _mm256_cmp_pd(w, zero, _CMP_LT_OQ));
+    const __m256d pos = _mm256_or_pd(_mm256_or_pd(_mm256_cmp_pd(u, zero, _CMP_GT_OQ),
+                                                  _mm256_cmp_pd(v, zero, _CMP_GT_OQ)),
+                                     _mm256_cmp_pd(w, zero, _CMP_GT_OQ));
+    /* edge functions of both signs: outside */
+    const unsigned inside = ~(unsigned)_mm256_movemask_pd(_mm256_and_pd(neg, pos)) & 0xFu;
+    double U[4], V[4], W[4], Z[3][4];
+    if (inside) {
+        _mm256_storeu_pd(U, u);
+        _mm256_storeu_pd(V, v);
+        _mm256_storeu_pd(W, w);
+        for (int i = 0; i < 3; i++)
+            _mm256_storeu_pd(Z[i], z[i]);
+    }
+    for (int k = 0; k < 4 && !(c->any_hit && c->found); k++) {
+        if (c->stats)
+            c->stats->triangles++;
+        mr_wt_hit h;
+        if ((inside >> k & 1u) &&
+            mr_wtd_hit_inside(U[k], V[k], W[k], Z[0][k], Z[1][k], Z[2][k], c->tmin, c->tmax, &h))
+            take_hit(c, lt, k, &h);
+    }
+}
+#endif
+
+static void leaf_test(trace_ctx *c, const leaf_tris *lt)
+{
+#ifdef LEAF_LANES
+    if (lt->lanes_made) {
+        leaf_test_avx2(c, lt);
+        return;
+    }
+#endif
+    leaf_test_plain(c, lt);
 }
 
 static void leaf(trace_ctx *c, uint32_t id, const lattice_pt *const P[3])
