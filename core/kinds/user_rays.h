@@ -97,20 +97,8 @@ static inline uint32_t mr_valid_lanes(unsigned N, const int *valid)
     return all;
 }
 
-/* The lanes of an N-packet (N = 1 or a multiple of 4, at most 32) among
- * `valid` (Embree's -1 per lane) whose ray can meet a point of the box
- * lo..hi at a distance within its [tnear, tfar], as a bit mask. Embree
- * hands a user primitive the rays that entered a leaf of its tree, which
- * holds several primitives: most of them miss this one's box (3 in 4 on
- * a micro-mesh's base triangles). The test is conservative: the slab
- * distances (lo - o) * (1 / d), each within three roundings (under 2^-22
- * relative) of their exact value, are moved outwards by 2^-20 of
- * themselves (a product, so an infinite distance stays infinite), an axis
- * along which the ray does not move constrains only by its origin,
- * exactly, and a lane whose numbers are not finite (a NaN distance) is
- * kept, as before. Four lanes at a time in SSE. */
 #if defined(__x86_64__) && defined(__GNUC__)
-/* mr_rays_in_box eight lanes at a time (N a multiple of 8), for CPUs
+/* mr_rays_in_box (below) eight lanes at a time (N a multiple of 8), for CPUs
  * with AVX2: the SSE loop's operations lane by lane. */
 __attribute__((target("avx2"))) static inline uint32_t
 mr_rays_in_box_avx2(void *ray, unsigned N, const int *valid, const float lo[3], const float hi[3])
@@ -150,6 +138,18 @@ mr_rays_in_box_avx2(void *ray, unsigned N, const int *valid, const float lo[3], 
 }
 #endif
 
+/* The lanes of an N-packet (N = 1 or a multiple of 4, at most 32) among
+ * `valid` (Embree's -1 per lane) whose ray can meet a point of the box
+ * lo..hi at a distance within its [tnear, tfar], as a bit mask. Embree
+ * hands a user primitive the rays that entered a leaf of its tree, which
+ * holds several primitives: most of them miss this one's box (3 in 4 on
+ * a micro-mesh's base triangles). The test is conservative: the slab
+ * distances (lo - o) * (1 / d), each within three roundings (under 2^-22
+ * relative) of their exact value, are moved outwards by 2^-20 of
+ * themselves (a product, so an infinite distance stays infinite), an axis
+ * along which the ray does not move constrains only by its origin,
+ * exactly, and a lane whose numbers are not finite (a NaN distance) is
+ * kept, as before. Four lanes at a time in SSE, eight with AVX2. */
 static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, const float lo[3],
                                       const float hi[3])
 {

@@ -489,7 +489,8 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
         float d[6];
         for (int k = 0; k < 6; k++) {
             a[k] = lt->at[k]->a, b[k] = lt->at[k]->b;
-            d[k] = mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index_at(p->level, a[k], b[k])]);
+            const uint32_t at = mr_umesh_vertex_index_at(p->level, a[k], b[k]);
+            d[k] = mr_dmm_value_to_float(p->enc, p->values[at]);
         }
         mr_umesh_eval_many(&p->tri, p->level, 6, a, b, d, lt->v);
     }
