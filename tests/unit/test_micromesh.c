@@ -256,14 +256,15 @@ static float odd_float(uint32_t *s, float scale)
 /* mr_umesh_eval_many gives mr_umesh_eval_at's bits for every vertex of
  * every level: interior, edge (either endpoint order) and corner vertices,
  * in a scrambled order, with corners and displacements of both signs of
- * zero. */
+ * zero; mr_umesh_eval_interpolated_many mr_umesh_eval_interpolated_at's,
+ * under corner matrices of such elements too. */
 static void test_eval_many(void **state)
 {
     (void)state;
     uint32_t seed = 777;
     static uint32_t a[561], b[561];
     static float disp[561];
-    static mr_vec3 many[561];
+    static mr_vec3 many[561], interpolated[561];
     for (int trial = 0; trial < 600; trial++) {
         mr_umesh_tri t;
         for (int i = 0; i < 3; i++) {
@@ -280,10 +281,20 @@ static void test_eval_many(void **state)
             assert_true(mr_umesh_vertex_coords(level, j, &a[i], &b[i]));
             disp[i] = odd_float(&seed, 0.3f);
         }
+        mr_affine m[3];
+        for (int i = 0; i < 3; i++)
+            for (int e = 0; e < 12; e++)
+                m[i].m[e] = odd_float(&seed, 4.0f);
+        if (trial % 7 == 0) /* two corners' matrices alike */
+            m[2] = m[0];
+        const mr_affine *const mats[3] = {&m[0], &m[1], &m[2]};
         mr_umesh_eval_many(&t, level, (int)count, a, b, disp, many);
+        mr_umesh_eval_interpolated_many(&t, mats, level, (int)count, a, b, disp, interpolated);
         for (uint32_t i = 0; i < count; i++) {
             mr_vec3 one = mr_umesh_eval_at(&t, level, a[i], b[i], disp[i]);
             assert_memory_equal(&many[i], &one, sizeof one);
+            one = mr_umesh_eval_interpolated_at(&t, mats, level, a[i], b[i], disp[i]);
+            assert_memory_equal(&interpolated[i], &one, sizeof one);
         }
     }
 }

@@ -300,9 +300,10 @@ static void midpoints(const lattice_pt *const P[3], lattice_pt m[3])
  * the leaf vertices a frame of the bench's dancer and wuson asks for,
  * 16,384 hardly more).
  * Direct-mapped on (values, stamp, level, a, b); an entry holds what
- * mr_dmm_vertex returned for exactly that, so a hit gives the same bits. A
- * stamp kept across a pose would trace last frame's vertices:
- * test_dmm_accuracy's frames against the exact reference then differ. */
+ * mr_dmm_vertex returns for exactly that (its bits, made by
+ * leaf_vertices), so a hit gives the same bits. A stamp kept across a
+ * pose would trace last frame's vertices: test_dmm_accuracy's frames
+ * against the exact reference then differ. */
 #define VERTEX_CACHE_BITS 12
 typedef struct vertex_entry {
     const uint16_t *values;
@@ -318,24 +319,62 @@ uint64_t mr_dmm_stamp(void)
     return next++;
 }
 
-static mr_vec3 leaf_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
+/* The micro-vertices at[0 .. n) of patch p into v (n <= 6): mr_dmm_vertex's
+ * evaluation, those of a leaf together (mr_umesh_eval_many,
+ * mr_umesh_eval_interpolated_many: the same bits). Interpolated patches
+ * with a stamp go through the thread's vertex cache first: a base
+ * patch's vertex (two blends) costs about what a look-up that misses the
+ * cache's lines does, an interpolated one more (the matrices' blend too;
+ * the cache bought ~3 % on the wuson at stop 39, nothing measurable on
+ * the dancer). */
+static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const at[6],
+                          mr_vec3 v[6])
 {
-    /* base patches' vertices (two blends, 16 ns) cost about what a look-up
-     * that misses the cache's lines does: kept for interpolated ones only
-     * (31 ns since stop 39; the cache then bought ~3 % on the wuson and
-     * nothing measurable on the dancer) */
-    if (!p->stamp || !p->mats[0])
-        return mr_dmm_vertex(p, a, b);
-    const uint32_t key = p->level << 24 | a << 12 | b; /* a, b <= 2^MR_UMESH_MAX_LEVEL */
-    uint64_t h = ((uintptr_t)p->values ^ p->stamp * 0x9E3779B97F4A7C15ull) + key * 0xC2B2AE3Du;
-    vertex_entry *e = &vertex_cache[(h * 0x9E3779B97F4A7C15ull) >> (64 - VERTEX_CACHE_BITS)];
-    if (e->values != p->values || e->stamp != p->stamp || e->key != key) {
-        e->values = p->values;
-        e->stamp = p->stamp;
-        e->key = key;
-        e->v = mr_dmm_vertex(p, a, b);
+    uint32_t a[6], b[6];
+    float d[6];
+    if (!p->mats[0] || !p->stamp) {
+        for (int k = 0; k < n; k++) {
+            a[k] = at[k]->a, b[k] = at[k]->b;
+            const uint32_t i = mr_umesh_vertex_index_at(p->level, a[k], b[k]);
+            d[k] = mr_dmm_value_to_float(p->enc, p->values[i]);
+        }
+        if (p->mats[0])
+            mr_umesh_eval_interpolated_many(&p->tri, p->mats, p->level, n, a, b, d, v);
+        else
+            mr_umesh_eval_many(&p->tri, p->level, n, a, b, d, v);
+        return;
     }
-    return e->v;
+    /* through the cache: the misses evaluated together, then kept */
+    int slot[6], misses = 0; /* slot[i]: where in v miss i goes */
+    vertex_entry *entry[6];
+    for (int k = 0; k < n; k++) {
+        const uint32_t ak = at[k]->a, bk = at[k]->b;
+        const uint32_t key = p->level << 24 | ak << 12 | bk; /* a, b <= 2^MR_UMESH_MAX_LEVEL */
+        const uint64_t h =
+            ((uintptr_t)p->values ^ p->stamp * 0x9E3779B97F4A7C15ull) + key * 0xC2B2AE3Du;
+        vertex_entry *e =
+            &vertex_cache[(h * 0x9E3779B97F4A7C15ull) >> (64 - VERTEX_CACHE_BITS)];
+        if (e->values == p->values && e->stamp == p->stamp && e->key == key) {
+            v[k] = e->v;
+            continue;
+        }
+        entry[misses] = e;
+        a[misses] = ak, b[misses] = bk;
+        const uint32_t i = mr_umesh_vertex_index_at(p->level, ak, bk);
+        d[misses] = mr_dmm_value_to_float(p->enc, p->values[i]);
+        slot[misses++] = k;
+    }
+    if (!misses)
+        return;
+    mr_vec3 out[6];
+    mr_umesh_eval_interpolated_many(&p->tri, p->mats, p->level, misses, a, b, d, out);
+    for (int i = 0; i < misses; i++) {
+        v[slot[i]] = out[i];
+        entry[i]->values = p->values; /* two misses in one entry: the last kept */
+        entry[i]->stamp = p->stamp;
+        entry[i]->key = p->level << 24 | a[i] << 12 | b[i];
+        entry[i]->v = out[i];
+    }
 }
 
 /* A leaf's micro-triangles: made once, tested against each ray that
@@ -452,10 +491,9 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
 {
     if (p->level == 0) {
         lt->count = 1;
-        for (int k = 0; k < 3; k++) {
+        for (int k = 0; k < 3; k++)
             lt->pts[k] = lt->at[k] = P[k];
-            lt->v[k] = leaf_vertex(p, P[k]->a, P[k]->b);
-        }
+        leaf_vertices(p, 3, lt->at, lt->v);
         leaf_order(lt, 0, (const int[3]){0, 1, 2}, segments);
 #ifdef LEAF_LANES
         lt->lanes_made = false;
@@ -481,19 +519,7 @@ static void leaf_make(const mr_dmm_patch *p, const lattice_pt *const P[3], uint3
             lt->at[k] = &lt->moved[k];
         }
     }
-    if (p->mats[0]) {
-        for (int k = 0; k < 6; k++)
-            lt->v[k] = leaf_vertex(p, lt->at[k]->a, lt->at[k]->b);
-    } else { /* mr_dmm_vertex's evaluation, the six together */
-        uint32_t a[6], b[6];
-        float d[6];
-        for (int k = 0; k < 6; k++) {
-            a[k] = lt->at[k]->a, b[k] = lt->at[k]->b;
-            const uint32_t at = mr_umesh_vertex_index_at(p->level, a[k], b[k]);
-            d[k] = mr_dmm_value_to_float(p->enc, p->values[at]);
-        }
-        mr_umesh_eval_many(&p->tri, p->level, 6, a, b, d, lt->v);
-    }
+    leaf_vertices(p, 6, lt->at, lt->v);
     pthread_once(&leaf_shapes_once, shapes_build);
     const leaf_shape *sh = &leaf_shapes[level_start(p->level - 1) + id];
     memcpy(lt->corner, sh->corner, sizeof lt->corner);

@@ -201,6 +201,11 @@ int mr_umesh_eval_interpolated(const mr_umesh_tri *rest, const mr_affine *const 
 /* mr_umesh_eval_interpolated without the checks (as mr_umesh_eval_at). */
 mr_vec3 mr_umesh_eval_interpolated_at(const mr_umesh_tri *rest, const mr_affine *const mats[3],
                                       unsigned level, uint32_t a, uint32_t b, float disp);
+/* mr_umesh_eval_interpolated_at for count vertices, as mr_umesh_eval_many
+ * is mr_umesh_eval_at's: the same bits. */
+void mr_umesh_eval_interpolated_many(const mr_umesh_tri *rest, const mr_affine *const mats[3],
+                                     unsigned level, int count, const uint32_t *a,
+                                     const uint32_t *b, const float *disp, mr_vec3 *out);
 
 /* All micro-vertices of a triangle: disp holds one displacement per
  * micro-vertex (vertex index order) or is NULL for zero displacement; out gets
