@@ -335,7 +335,8 @@ mr_vec3 mr_umesh_eval_at(const mr_umesh_tri *tri, unsigned level, uint32_t a, ui
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
-/* mr_umesh_eval_many with AVX2: a vertex's x, y, z in one vector of four
+/* mr_umesh_eval_many (mats NULL) and mr_umesh_eval_interpolated_many
+ * (tri the rest pose) with AVX2: a vertex's x, y, z in one vector of four
  * doubles (the fourth lane unused), the corners converted once for all of
  * them. weights_of's three cases are one sum here: every vertex takes the
  * interior weights (n - a - b, a, b) / n, which are an edge vertex's
@@ -344,11 +345,15 @@ mr_vec3 mr_umesh_eval_at(const mr_umesh_tri *tri, unsigned level, uint32_t a, ui
  * to any double (x + -0.0 is x, -0.0 included), so (t0 + t1) + t2 is blend's
  * sum term for term: the interior sum in its order, an edge's two products
  * in either order (a sum of two is the same both ways round), a corner's
- * product alone. */
-__attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *tri, unsigned level,
-                                                           int count, const uint32_t *a,
-                                                           const uint32_t *b, const float *disp,
-                                                           mr_vec3 *out)
+ * product alone. With matrices, the matrix is blended so column by column
+ * (lane r of column j: element r * 4 + j), element by element the sums of
+ * mr_umesh_eval_interpolated_at, and row r of the product, ((m[r][0] x +
+ * m[r][1] y) + m[r][2] z) + m[r][3], comes out in lane r. */
+__attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *tri,
+                                                           const mr_affine *const *mats,
+                                                           unsigned level, int count,
+                                                           const uint32_t *a, const uint32_t *b,
+                                                           const float *disp, mr_vec3 *out)
 {
     const mr_vec3 *P = tri->pos, *D = tri->dir;
     const __m256d p0 = _mm256_cvtps_pd(_mm_setr_ps(P[0].x, P[0].y, P[0].z, 0.0f)),
@@ -357,6 +362,11 @@ __attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *t
                   d0 = _mm256_cvtps_pd(_mm_setr_ps(D[0].x, D[0].y, D[0].z, 0.0f)),
                   d1 = _mm256_cvtps_pd(_mm_setr_ps(D[1].x, D[1].y, D[1].z, 0.0f)),
                   d2 = _mm256_cvtps_pd(_mm_setr_ps(D[2].x, D[2].y, D[2].z, 0.0f));
+    __m256d c[3][4]; /* c[i][j]: column j of corner i's matrix */
+    for (int i = 0; i < 3 && mats; i++)
+        for (int j = 0; j < 4; j++)
+            c[i][j] = _mm256_cvtps_pd(
+                _mm_setr_ps(mats[i]->m[j], mats[i]->m[4 + j], mats[i]->m[8 + j], 0.0f));
     const uint32_t n = 1u << level;
     const double inv = INV_SEGMENTS[level];
     const __m256d none = _mm256_set1_pd(-0.0), zero = _mm256_setzero_pd();
@@ -369,12 +379,22 @@ __attribute__((target("avx2"))) static void eval_many_avx2(const mr_umesh_tri *t
                       off1 = _mm256_and_pd(_mm256_cmp_pd(w1, zero, _CMP_EQ_OQ), none),
                       off2 = _mm256_and_pd(_mm256_cmp_pd(w2, zero, _CMP_EQ_OQ), none);
 #define TERM(w, x, off) _mm256_or_pd(_mm256_mul_pd(w, x), off)
-        const __m256d p = _mm256_add_pd(_mm256_add_pd(TERM(w0, p0, off0), TERM(w1, p1, off1)),
-                                        TERM(w2, p2, off2));
-        const __m256d d = _mm256_add_pd(_mm256_add_pd(TERM(w0, d0, off0), TERM(w1, d1, off1)),
-                                        TERM(w2, d2, off2));
+#define BLEND(x0, x1, x2)                                                                          \
+    _mm256_add_pd(_mm256_add_pd(TERM(w0, x0, off0), TERM(w1, x1, off1)), TERM(w2, x2, off2))
+        __m256d x = _mm256_add_pd(BLEND(p0, p1, p2),
+                                  _mm256_mul_pd(_mm256_set1_pd((double)disp[k]), BLEND(d0, d1, d2)));
+        if (mats) {
+            const __m256d x0 = _mm256_permute4x64_pd(x, 0x00),
+                          x1 = _mm256_permute4x64_pd(x, 0x55),
+                          x2 = _mm256_permute4x64_pd(x, 0xAA);
+            x = _mm256_add_pd(
+                _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(BLEND(c[0][0], c[1][0], c[2][0]), x0),
+                                            _mm256_mul_pd(BLEND(c[0][1], c[1][1], c[2][1]), x1)),
+                              _mm256_mul_pd(BLEND(c[0][2], c[1][2], c[2][2]), x2)),
+                BLEND(c[0][3], c[1][3], c[2][3]));
+        }
+#undef BLEND
 #undef TERM
-        const __m256d x = _mm256_add_pd(p, _mm256_mul_pd(_mm256_set1_pd((double)disp[k]), d));
         const __m128 f = _mm256_cvtpd_ps(x);
         _mm_storel_pi((__m64 *)&out[k], f);
         out[k].z = _mm_cvtss_f32(_mm_movehl_ps(f, f));
@@ -387,70 +407,13 @@ void mr_umesh_eval_many(const mr_umesh_tri *tri, unsigned level, int count, cons
 {
 #if defined(__x86_64__) && defined(__GNUC__)
     if (__builtin_cpu_supports("avx2")) {
-        eval_many_avx2(tri, level, count, a, b, disp, out);
+        eval_many_avx2(tri, NULL, level, count, a, b, disp, out);
         return;
     }
 #endif
     for (int k = 0; k < count; k++)
         out[k] = mr_umesh_eval_at(tri, level, a[k], b[k], disp[k]);
 }
-
-#if defined(__x86_64__) && defined(__GNUC__)
-/* mr_umesh_eval_interpolated_many with AVX2, as eval_many_avx2 (its
- * weights, its -0.0 for an absent corner's term, its point p + disp d in
- * double); the matrix blended column by column (lane r of column j:
- * element r * 4 + j), the same sums as mr_umesh_eval_interpolated_at's
- * element by element, and row r of the product, ((m[r][0] x + m[r][1] y)
- * + m[r][2] z) + m[r][3], in lane r. */
-__attribute__((target("avx2"))) static void
-eval_interpolated_many_avx2(const mr_umesh_tri *rest, const mr_affine *const mats[3],
-                            unsigned level, int count, const uint32_t *a, const uint32_t *b,
-                            const float *disp, mr_vec3 *out)
-{
-    const mr_vec3 *P = rest->pos, *D = rest->dir;
-    const __m256d p0 = _mm256_cvtps_pd(_mm_setr_ps(P[0].x, P[0].y, P[0].z, 0.0f)),
-                  p1 = _mm256_cvtps_pd(_mm_setr_ps(P[1].x, P[1].y, P[1].z, 0.0f)),
-                  p2 = _mm256_cvtps_pd(_mm_setr_ps(P[2].x, P[2].y, P[2].z, 0.0f)),
-                  d0 = _mm256_cvtps_pd(_mm_setr_ps(D[0].x, D[0].y, D[0].z, 0.0f)),
-                  d1 = _mm256_cvtps_pd(_mm_setr_ps(D[1].x, D[1].y, D[1].z, 0.0f)),
-                  d2 = _mm256_cvtps_pd(_mm_setr_ps(D[2].x, D[2].y, D[2].z, 0.0f));
-#define COLUMN(i, j)                                                                               \
-    _mm256_cvtps_pd(_mm_setr_ps(mats[i]->m[j], mats[i]->m[4 + j], mats[i]->m[8 + j], 0.0f))
-    const __m256d c00 = COLUMN(0, 0), c01 = COLUMN(0, 1), c02 = COLUMN(0, 2), c03 = COLUMN(0, 3),
-                  c10 = COLUMN(1, 0), c11 = COLUMN(1, 1), c12 = COLUMN(1, 2), c13 = COLUMN(1, 3),
-                  c20 = COLUMN(2, 0), c21 = COLUMN(2, 1), c22 = COLUMN(2, 2), c23 = COLUMN(2, 3);
-#undef COLUMN
-    const uint32_t n = 1u << level;
-    const double inv = INV_SEGMENTS[level];
-    const __m256d none = _mm256_set1_pd(-0.0), zero = _mm256_setzero_pd();
-    for (int k = 0; k < count; k++) {
-        const __m256d w0 = _mm256_set1_pd((double)(n - a[k] - b[k]) * inv),
-                      w1 = _mm256_set1_pd((double)a[k] * inv),
-                      w2 = _mm256_set1_pd((double)b[k] * inv);
-        const __m256d off0 = _mm256_and_pd(_mm256_cmp_pd(w0, zero, _CMP_EQ_OQ), none),
-                      off1 = _mm256_and_pd(_mm256_cmp_pd(w1, zero, _CMP_EQ_OQ), none),
-                      off2 = _mm256_and_pd(_mm256_cmp_pd(w2, zero, _CMP_EQ_OQ), none);
-#define TERM(w, x, off) _mm256_or_pd(_mm256_mul_pd(w, x), off)
-#define BLEND(x0, x1, x2)                                                                          \
-    _mm256_add_pd(_mm256_add_pd(TERM(w0, x0, off0), TERM(w1, x1, off1)), TERM(w2, x2, off2))
-        const __m256d x = _mm256_add_pd(BLEND(p0, p1, p2),
-                                        _mm256_mul_pd(_mm256_set1_pd((double)disp[k]),
-                                                      BLEND(d0, d1, d2)));
-        const __m256d x0 = _mm256_permute4x64_pd(x, 0x00), x1 = _mm256_permute4x64_pd(x, 0x55),
-                      x2 = _mm256_permute4x64_pd(x, 0xAA);
-        const __m256d r = _mm256_add_pd(
-            _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(BLEND(c00, c10, c20), x0),
-                                        _mm256_mul_pd(BLEND(c01, c11, c21), x1)),
-                          _mm256_mul_pd(BLEND(c02, c12, c22), x2)),
-            BLEND(c03, c13, c23));
-#undef BLEND
-#undef TERM
-        const __m128 f = _mm256_cvtpd_ps(r);
-        _mm_storel_pi((__m64 *)&out[k], f);
-        out[k].z = _mm_cvtss_f32(_mm_movehl_ps(f, f));
-    }
-}
-#endif
 
 int mr_umesh_eval(const mr_umesh_tri *tri, unsigned level, uint32_t a, uint32_t b, float disp,
                   mr_vec3 *out, mr_error *err)
@@ -494,7 +457,7 @@ void mr_umesh_eval_interpolated_many(const mr_umesh_tri *rest, const mr_affine *
 {
 #if defined(__x86_64__) && defined(__GNUC__)
     if (__builtin_cpu_supports("avx2")) {
-        eval_interpolated_many_avx2(rest, mats, level, count, a, b, disp, out);
+        eval_many_avx2(rest, mats, level, count, a, b, disp, out);
         return;
     }
 #endif
