@@ -97,14 +97,17 @@ static inline uint32_t mr_valid_lanes(unsigned N, const int *valid)
     return all;
 }
 
+/* mr_rays_in_box's outward move of the slab distances, relative. */
+#define MR_RAYS_IN_BOX_OUT 0x1p-20f
+
 #if defined(__x86_64__) && defined(__GNUC__)
 /* mr_rays_in_box (below) eight lanes at a time (N a multiple of 8), for CPUs
  * with AVX2: the SSE loop's operations lane by lane. */
 __attribute__((target("avx2"))) static inline uint32_t
 mr_rays_in_box_avx2(void *ray, unsigned N, const int *valid, const float lo[3], const float hi[3])
 {
-    const __m256 zero = _mm256_setzero_ps(), vup = _mm256_set1_ps(1.0f + 0x1p-20f),
-                 vdown = _mm256_set1_ps(1.0f - 0x1p-20f), one = _mm256_set1_ps(1.0f);
+    const __m256 zero = _mm256_setzero_ps(), vup = _mm256_set1_ps(1.0f + MR_RAYS_IN_BOX_OUT),
+                 vdown = _mm256_set1_ps(1.0f - MR_RAYS_IN_BOX_OUT), one = _mm256_set1_ps(1.0f);
     uint32_t in = 0;
     for (unsigned k = 0; k < N; k += 8) {
         const __m256 v = _mm256_castsi256_ps(_mm256_loadu_si256((const __m256i *)(valid + k)));
@@ -153,7 +156,7 @@ mr_rays_in_box_avx2(void *ray, unsigned N, const int *valid, const float lo[3], 
 static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, const float lo[3],
                                       const float hi[3])
 {
-    const float up = 1.0f + 0x1p-20f, down = 1.0f - 0x1p-20f;
+    const float up = 1.0f + MR_RAYS_IN_BOX_OUT, down = 1.0f - MR_RAYS_IN_BOX_OUT;
     uint32_t in = 0;
 #if defined(__x86_64__) && defined(__GNUC__)
     if (N % 8 == 0 && __builtin_cpu_supports("avx2"))

@@ -77,10 +77,15 @@ mr_dmm_ray mr_dmm_ray_setup(mr_vec3 org, mr_vec3 dir)
     return r;
 }
 
+/* The decoded displacement of micro-vertex (a, b) of patch p. */
+static float vertex_disp(const mr_dmm_patch *p, uint32_t a, uint32_t b)
+{
+    return mr_dmm_value_to_float(p->enc, p->values[mr_umesh_vertex_index_at(p->level, a, b)]);
+}
+
 mr_vec3 mr_dmm_vertex(const mr_dmm_patch *p, uint32_t a, uint32_t b)
 {
-    const uint16_t v = p->values[mr_umesh_vertex_index_at(p->level, a, b)];
-    const float d = mr_dmm_value_to_float(p->enc, v);
+    const float d = vertex_disp(p, a, b);
     return p->mats[0] ? mr_umesh_eval_interpolated_at(&p->tri, p->mats, p->level, a, b, d)
                       : mr_umesh_eval_at(&p->tri, p->level, a, b, d);
 }
@@ -335,8 +340,7 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
     if (!p->mats[0] || !p->stamp) {
         for (int k = 0; k < n; k++) {
             a[k] = at[k]->a, b[k] = at[k]->b;
-            const uint32_t i = mr_umesh_vertex_index_at(p->level, a[k], b[k]);
-            d[k] = mr_dmm_value_to_float(p->enc, p->values[i]);
+            d[k] = vertex_disp(p, a[k], b[k]);
         }
         if (p->mats[0])
             mr_umesh_eval_interpolated_many(&p->tri, p->mats, p->level, n, a, b, d, v);
@@ -347,6 +351,7 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
     /* through the cache: the misses evaluated together, then kept */
     int slot[6], misses = 0; /* slot[i]: where in v miss i goes */
     vertex_entry *entry[6];
+    uint32_t keys[6];
     for (int k = 0; k < n; k++) {
         const uint32_t ak = at[k]->a, bk = at[k]->b;
         const uint32_t key = p->level << 24 | ak << 12 | bk; /* a, b <= 2^MR_UMESH_MAX_LEVEL */
@@ -359,9 +364,9 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
             continue;
         }
         entry[misses] = e;
+        keys[misses] = key;
         a[misses] = ak, b[misses] = bk;
-        const uint32_t i = mr_umesh_vertex_index_at(p->level, ak, bk);
-        d[misses] = mr_dmm_value_to_float(p->enc, p->values[i]);
+        d[misses] = vertex_disp(p, ak, bk);
         slot[misses++] = k;
     }
     if (!misses)
@@ -372,7 +377,7 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
         v[slot[i]] = out[i];
         entry[i]->values = p->values; /* two misses in one entry: the last kept */
         entry[i]->stamp = p->stamp;
-        entry[i]->key = p->level << 24 | a[i] << 12 | b[i];
+        entry[i]->key = keys[i];
         entry[i]->v = out[i];
     }
 }
