@@ -7,13 +7,15 @@
  *
  * Scene: the skinned-walk example's dancer (X/BCN_Epileptic.X, real rig
  * and clip) seen from the front at 640 x 360, primary rays only (1 sample,
- * no shadows), frames spread over the whole clip. For each depth, five
+ * no shadows), frames spread over the whole clip. For each depth, six
  * renderers run the same frames interleaved (frame f in every mode before
  * frame f + 1):
  *   mesh    the skinned triangles (the reference)
  *   rigid   the shared octree as Embree instances (rest pose: its accuracy
  *           is measured against a rest-pose mesh, rendered alongside)
  *   direct, resize, emit   deformed every frame (deform.h)
+ *   rigid t1   rigid cast to the level of detail of "tolerance_px": 1
+ *           (svo_trace.h, mr_svo_lod), measured as rigid
  * Reported per mode: median per-frame update (pose, selection, deformation,
  * resampling), Embree build and trace times, primary Mrays/s, voxels traced,
  * worst coverage / depth / normal error and holes against the reference.
@@ -47,11 +49,12 @@
 #include "bench_util.h"
 
 #define MODEL "/usr/share/assimp/models/X/BCN_Epileptic.X"
-#define MODES 5
+#define MODES 6
+#define RIGID_LOD 5 /* rigid cast to the level of detail of "tolerance_px": 1 */
 #define MAX_FRAMES 32
 #define BUDGET_S 0.0338
 
-static const char *const MODE_NAME[MODES] = {"mesh", "rigid", "direct", "resize", "emit"};
+static const char *const MODE_NAME[MODES] = {"mesh", "rigid", "direct", "resize", "emit", "rigid t1"};
 static char cache_dir[512]; /* the renderers' cache root: octrees in cache_dir/svo */
 static size_t job_budget;   /* the jobs' memory budget (renderer option) */
 
@@ -171,8 +174,8 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
         else
             snprintf(obj, sizeof obj,
                      "{\"asset\":\"d\",\"kind\":\"svo\",\"pose\":{\"clip\":0},"
-                     "\"svo\":{\"depth\":%u,\"method\":\"%s\"}}",
-                     depth, MODE_NAME[m]);
+                     "\"svo\":{\"depth\":%u,\"method\":\"%s\"}%s}",
+                     depth, m == RIGID_LOD ? "rigid" : MODE_NAME[m], m == RIGID_LOD ? ",\"tolerance_px\":1" : "");
         open_run(&run[m], make_job(obj, times, frames, 640, 360, FRONT), asset);
     }
     open_run(&rest_ref, make_job("{\"asset\":\"d\"}", times, frames, 640, 360, FRONT), asset);
@@ -183,11 +186,13 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
         render(&rest_ref, (size_t)f, &st);
         double diag = st.scene_diagonal;
         for (int m = 2; m < MODES; m++)
-            accumulate(&run[m], run[0].film, diag);
+            if (m != RIGID_LOD)
+                accumulate(&run[m], run[0].film, diag);
         accumulate(&run[1], rest_ref.film, diag);
+        accumulate(&run[RIGID_LOD], rest_ref.film, diag);
     }
     printf("\ndepth %u (%d frames over the clip, 640x360, primary rays)\n", depth, frames);
-    printf("  %-7s %10s %9s %9s %9s %11s %9s %9s %9s %8s %7s %6s %8s\n", "mode", "update ms", "bvh ms",
+    printf("  %-8s %10s %9s %9s %9s %11s %9s %9s %9s %8s %7s %6s %8s\n", "mode", "update ms", "bvh ms",
            "trace ms", "Mrays/s", "voxels", "B/voxel", "-shared", "scratch", "cover %", "depth", "holes",
            "build s");
     double mesh_trace = median(run[0].trace, frames);
@@ -196,12 +201,12 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
         double up = median(r->update, frames) * 1e3, bvh = median(r->bvh, frames) * 1e3,
                tr = median(r->trace, frames), mr = median(r->mrays, frames);
         if (m == 0)
-            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9s %9s %9s %8s %7s %6s\n", MODE_NAME[m], up,
+            printf("  %-8s %10.2f %9.2f %9.2f %9.2f %11llu %9s %9s %9s %8s %7s %6s\n", MODE_NAME[m], up,
                    bvh, tr * 1e3, mr, (unsigned long long)r->voxels, "-", "-", "-", "ref", "-", "-");
         else {
             const double v = r->voxels ? (double)r->voxels : 1.0;
             const double own = ((double)r->bytes - r->shared) / v;
-            printf("  %-7s %10.2f %9.2f %9.2f %9.2f %11llu %9.1f %9.1f %9.1f %8.2f %7.1e %6zu %8.2f   trace "
+            printf("  %-8s %10.2f %9.2f %9.2f %9.2f %11llu %9.1f %9.1f %9.1f %8.2f %7.1e %6zu %8.2f   trace "
                    "x%.1f of mesh\n",
                    MODE_NAME[m], up, bvh, tr * 1e3, mr, (unsigned long long)r->voxels, (double)r->bytes / v,
                    own, r->scratch / v, r->worst_cov, r->worst_depth, r->worst_holes, r->build_s,
@@ -214,7 +219,7 @@ static void run_depth(mr_asset *asset, unsigned depth, const double *times, int 
     char level[16];
     snprintf(level, sizeof level, "%u", depth);
     for (int m = 0; m < MODES; m++) {
-        if (m == 1)
+        if (m == 1 || m == RIGID_LOD)
             continue;
         double frame_ms = (median(run[m].update, frames) + median(run[m].bvh, frames) +
                            median(run[m].trace, frames)) * 1e3;

@@ -4,8 +4,10 @@
  * depth 1..8, 12 and 21 (some far from the origin), with random rays from
  * outside and inside, axis-parallel rays (also lying exactly on cell
  * planes) and rays aimed at voxel corners, edges and faces; plus the root
- * leaf, the empty octree, mr_svo_bounds, subtrees and their boxes, and a
- * one-off throughput figure.
+ * leaf, the empty octree, mr_svo_bounds, subtrees and their boxes, casts
+ * with a level of detail (mr_svo_lod: against the octree cut at one level,
+ * and against a brute force of the rule where the bound varies along the
+ * ray), and a one-off throughput figure.
  *
  * The harness (tests/support/svo_fixture.h: an octree builder from a
  * classification function, the brute force and the comparison of one ray)
@@ -414,8 +416,8 @@ static void check_batch(const mr_svo *o, const mr_svo_subtree *st, unsigned n, c
 {
     mr_svo_hit together[32], alone;
     memset(together, 0xa5, sizeof together);
-    const uint32_t mask = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, together);
-    const uint32_t any = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, NULL);
+    const uint32_t mask = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, NULL, together);
+    const uint32_t any = mr_svo_intersect_rays(o, st, n, org, dir, tmin, tmax, NULL, NULL);
     for (unsigned i = 0; i < n; i++) {
         const bool h = st ? mr_svo_intersect_subtree(o, st, org[i], dir[i], tmin[i], tmax[i], &alone)
                           : mr_svo_intersect(o, org[i], dir[i], tmin[i], tmax[i], &alone);
@@ -770,6 +772,271 @@ static void test_throughput(void **state)
     fx_free(&fx);
 }
 
+/* ---- level of detail (mr_svo_lod) */
+
+/* The octree a level of detail at level L gives: the random one with every
+ * cell of level L that would be split taken as a leaf. */
+typedef struct lod_cut {
+    fx_random *p;
+    unsigned level;
+} lod_cut;
+
+static int cls_cut(void *ctx, unsigned level, uint32_t x, uint32_t y, uint32_t z)
+{
+    const lod_cut *c = ctx;
+    const int k = fx_random_cls(c->p, level, x, y, z);
+    return level == c->level && k == FX_SPLIT ? FX_LEAF : k;
+}
+
+/* Each interior node's cell (level in [3], coordinates in [0..2]). */
+static void node_cells(const mr_svo *o, uint32_t n, unsigned level, const uint32_t xyz[3], uint32_t (*cell)[4])
+{
+    cell[n][0] = xyz[0], cell[n][1] = xyz[1], cell[n][2] = xyz[2], cell[n][3] = level;
+    const unsigned inner = o->child_mask[n] & ~o->leaf_mask[n];
+    for (unsigned c = 0; c < 8; c++)
+        if (inner >> c & 1u) {
+            const uint32_t cxyz[3] = {xyz[0] * 2 + (c & 1), xyz[1] * 2 + ((c >> 1) & 1), xyz[2] * 2 + (c >> 2)};
+            node_cells(o, o->first_node[n] + mr_svo_popcount8(inner & ((1u << c) - 1u)), level + 1, cxyz, cell);
+        }
+}
+
+static mr_svo_hit lod_hit_of(const mr_svo *o, const mr_svo_lod *lod, mr_vec3 org, mr_vec3 dir, float tmin,
+                             float tmax, bool *hit)
+{
+    mr_svo_hit h;
+    memset(&h, 0, sizeof h);
+    *hit = mr_svo_intersect_rays(o, NULL, 1, &org, &dir, &tmin, &tmax, lod, &h) & 1u;
+    return h;
+}
+
+/* A level of detail whose bound is one cell edge everywhere (a = 0, b the
+ * edge of level L) makes every interior node of level L a leaf: the walk
+ * must then give, ray by ray, what the plain walk gives over the octree cut
+ * at L, bit for bit (t, level, cell, entry axis, normal), and name a node
+ * (leaf_count + n) exactly where the cut octree's leaf is a cut node; any
+ * hit alike (occlusion). b just above or below the edge moves the cut by
+ * no level or one (a node is cut when its edge is at most b). */
+static void test_lod_cut(void **state)
+{
+    (void)state;
+    size_t rays = 0, node_hits = 0;
+    for (unsigned depth = 4; depth <= 12; depth += 4) {
+        fx_random p = {depth * 31u + 7u, 0.2, depth < 9 ? 0.4 : 0.2, 2};
+        svo_fx fx;
+        fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, fx_random_cls, &p);
+        const mr_svo *o = &fx.svo;
+        uint32_t(*cell)[4] = malloc((o->node_count + 1) * sizeof *cell);
+        assert_non_null(cell);
+        const uint32_t root[3] = {0, 0, 0};
+        if (o->node_count)
+            node_cells(o, 0, 0, root, cell);
+        for (unsigned level = 1; level < depth; level += depth / 4) {
+            lod_cut cut = {&p, level};
+            svo_fx cf;
+            fx_build(&cf, depth, o->origin, o->size, cls_cut, &cut);
+            const double edge = ldexp((double)o->size, -(int)level);
+            const mr_svo_lod at = {{0, 0, 0}, edge}, below = {{0, 0, 0}, nextafter(edge, 0.0)};
+            fx_rng r = {depth * 7u + level};
+            for (int i = 0; i < 600; i++) {
+                mr_vec3 org, dir;
+                float tmin, tmax;
+                fx_random_ray(&fx, &r, i, &org, &dir, &tmin, &tmax);
+                mr_svo_hit want;
+                const bool wh = mr_svo_intersect(&cf.svo, org, dir, tmin, tmax, &want);
+                bool h;
+                const mr_svo_hit got = lod_hit_of(o, &at, org, dir, tmin, tmax, &h);
+                assert_int_equal(h, wh);
+                const mr_svo_lod none = {{0, 0, 0}, -INFINITY};
+                assert_int_equal(mr_svo_intersect_rays(o, NULL, 1, &org, &dir, &tmin, &tmax, &at, NULL) & 1u,
+                                 mr_svo_occluded(&cf.svo, org, dir, tmin, tmax));
+                rays++;
+                /* below the edge: the cut one level further down, or none */
+                bool hb;
+                const mr_svo_hit gb = lod_hit_of(o, &below, org, dir, tmin, tmax, &hb);
+                if (hb)
+                    assert_true(gb.level != level || gb.leaf < o->leaf_count);
+                /* b = -inf: the plain walk */
+                bool hn;
+                mr_svo_hit plain;
+                const mr_svo_hit gn = lod_hit_of(o, &none, org, dir, tmin, tmax, &hn);
+                assert_int_equal(hn, mr_svo_intersect(o, org, dir, tmin, tmax, &plain));
+                if (hn)
+                    assert_true(same_hit(&gn, &plain));
+                if (!h)
+                    continue;
+                if (memcmp(&got.t, &want.t, sizeof got.t) || got.level != want.level || got.x != want.x ||
+                    got.y != want.y || got.z != want.z || got.axis != want.axis ||
+                    memcmp(&got.ng, &want.ng, sizeof got.ng))
+                    fail_msg("depth %u cut at %u, ray %d: t %a level %u, the cut octree's t %a level %u", depth,
+                             level, i, (double)got.t, got.level, (double)want.t, want.level);
+                /* a node exactly where the cut octree's leaf was a split cell */
+                const fx_box *wb = &cf.boxes[want.leaf];
+                const bool cut_cell = wb->level == level &&
+                                      fx_random_cls(&p, level, wb->xyz[0], wb->xyz[1], wb->xyz[2]) == FX_SPLIT;
+                assert_int_equal(got.leaf >= o->leaf_count, cut_cell);
+                /* the leaf or node named is the cell hit */
+                const uint32_t *named = NULL;
+                if (cut_cell) {
+                    assert_true(got.leaf - o->leaf_count < o->node_count);
+                    named = cell[got.leaf - o->leaf_count];
+                    assert_int_equal(named[3], got.level);
+                    node_hits++;
+                } else {
+                    assert_true(got.leaf < o->leaf_count);
+                    named = fx.boxes[got.leaf].xyz;
+                    assert_int_equal(fx.boxes[got.leaf].level, got.level);
+                }
+                assert_true(named[0] == got.x && named[1] == got.y && named[2] == got.z);
+            }
+            fx_free(&cf);
+        }
+        free(cell);
+        fx_free(&fx);
+    }
+    print_message("[ lod cut ] %zu rays, %zu node hits\n", rays, node_hits);
+    assert_true(node_hits > 500);
+}
+
+/* The brute force of a cast with a level of detail: the nearest of the
+ * cells the rule selects (a leaf, or a node whose edge is at most the
+ * bound where the ray enters it, below no selected node), every cell by
+ * the fixture's slab test. Its entry t rounds differently from the walk's
+ * (fx_slab divides), so a ray with a decision within rounding of the
+ * bound (near) or two candidates within tol of the nearest (tie) is
+ * compared by t only. */
+typedef struct lod_ref {
+    bool hit, near, tie;
+    double t;
+    unsigned level;
+    uint32_t xyz[3];
+} lod_ref;
+
+static void lod_brute(const mr_svo *o, const mr_svo_lod *lod, uint32_t n, unsigned level, const uint32_t xyz[3],
+                      const double org[3], const double dir[3], double tmin, double tmax, double tol,
+                      lod_ref *best)
+{
+    const double z0 = lod->a[0] * org[0] + lod->a[1] * org[1] + lod->a[2] * org[2] + lod->b;
+    const double zd = lod->a[0] * dir[0] + lod->a[1] * dir[1] + lod->a[2] * dir[2];
+    const unsigned cm = o->child_mask[n], lm = o->leaf_mask[n];
+    for (unsigned c = 0; c < 8; c++) {
+        if (!(cm >> c & 1u))
+            continue;
+        const fx_box b = {level + 1, {xyz[0] * 2 + (c & 1), xyz[1] * 2 + ((c >> 1) & 1), xyz[2] * 2 + (c >> 2)}};
+        double t0, t1;
+        if (!fx_slab(o, &b, org, dir, tmin, tmax, &t0, &t1))
+            continue;
+        if (!(lm >> c & 1u)) {
+            const double edge = ldexp((double)o->size, -(int)(level + 1)), bound = z0 + t0 * zd;
+            best->near |= fabs(bound - edge) <= 1e-9 * (fabs(bound) + edge) + fabs(zd) * tol;
+            if (!(edge <= bound)) {
+                const unsigned inner = cm & ~lm;
+                lod_brute(o, lod, o->first_node[n] + mr_svo_popcount8(inner & ((1u << c) - 1u)), level + 1,
+                          b.xyz, org, dir, tmin, tmax, tol, best);
+                continue;
+            }
+        }
+        if (best->hit && fabs(t0 - best->t) <= tol)
+            best->tie = true;
+        if (!best->hit || t0 < best->t) {
+            best->tie = best->hit && best->t - t0 <= tol;
+            *best = (lod_ref){true, best->near, best->tie, t0, b.level, {b.xyz[0], b.xyz[1], b.xyz[2]}};
+        }
+    }
+}
+
+/* A level of detail that grows with distance (a . p + b, as the camera's
+ * depth makes it): no ray loses its hit or meets it later than the plain
+ * walk does (the cut cell holds the leaves), a node hit's cell is at most
+ * the bound at its entry point, and rays traced together get what each
+ * gets alone. */
+static void test_lod_depth(void **state)
+{
+    (void)state;
+    size_t hits = 0, nodes = 0, batches = 0;
+    unsigned node_levels = 0; /* bit l: a node of level l was hit */
+    size_t far_cuts = 0, checked = 0; /* hits whose cell the brute force decided alone */
+    for (unsigned depth = 9; depth <= 12; depth += 3) {
+        fx_random p = {depth * 53u + 1u, 0.25, 0.17, 2};
+        svo_fx fx;
+        fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, fx_random_cls, &p);
+        const mr_svo *o = &fx.svo;
+        /* a camera at z = 2.4 looking down +z, near the cube's face at z
+         * = 2.5: the bound runs from a cell of level depth - 1 there to
+         * one about five levels coarser at the far face (z = 5.5), and is
+         * negative (no cut) behind the camera; depths of 9 and more, so
+         * the coarsest cut stays below level 1 (the walk never cuts the
+         * root's children's parent) */
+        const double scale = 10.0 * ldexp((double)o->size, 1 - (int)depth);
+        const mr_svo_lod lod = {{0, 0, scale}, -2.4 * scale};
+        fx_rng r = {depth * 11u + 5u};
+        for (unsigned round = 0; round < 128; round++) {
+            const unsigned n = round % 32 + 1;
+            mr_vec3 org[32], dir[32];
+            float tmin[32], tmax[32];
+            for (unsigned i = 0; i < n; i++)
+                fx_random_ray(&fx, &r, (int)(round * 32 + i), &org[i], &dir[i], &tmin[i], &tmax[i]);
+            mr_svo_hit together[32];
+            const uint32_t mask = mr_svo_intersect_rays(o, NULL, n, org, dir, tmin, tmax, &lod, together);
+            const uint32_t any = mr_svo_intersect_rays(o, NULL, n, org, dir, tmin, tmax, &lod, NULL);
+            assert_int_equal(mask, any);
+            for (unsigned i = 0; i < n; i++) {
+                bool h;
+                const mr_svo_hit alone = lod_hit_of(o, &lod, org[i], dir[i], tmin[i], tmax[i], &h);
+                assert_int_equal(mask >> i & 1u, h);
+                mr_svo_hit plain;
+                const bool ph = mr_svo_intersect(o, org[i], dir[i], tmin[i], tmax[i], &plain);
+                if (ph)
+                    assert_true(h); /* no holes */
+                const double od[3] = {org[i].x, org[i].y, org[i].z}, dd[3] = {dir[i].x, dir[i].y, dir[i].z};
+                const double tol = fx_tol(o, dd, h ? (double)alone.t : 0.0);
+                lod_ref ref = {0};
+                const uint32_t root[3] = {0, 0, 0};
+                if (o->node_count)
+                    lod_brute(o, &lod, 0, 0, root, od, dd, tmin[i], tmax[i], tol, &ref);
+                assert_true(h == ref.hit || ref.near);
+                if (!h)
+                    continue;
+                assert_true(same_hit(&together[i], &alone));
+                if (ph)
+                    assert_true(alone.t <= plain.t);
+                /* the brute force's cell, where rounding cannot decide */
+                if (ref.hit && !ref.near) {
+                    if (fabs((double)alone.t - ref.t) > tol)
+                        fail_msg("depth %u: t %.9g, the brute force's %.9g", depth, (double)alone.t, ref.t);
+                    if (!ref.tie) {
+                        assert_int_equal(alone.level, ref.level);
+                        assert_true(alone.x == ref.xyz[0] && alone.y == ref.xyz[1] && alone.z == ref.xyz[2]);
+                        checked++;
+                    }
+                }
+                hits++;
+                if (alone.leaf >= o->leaf_count) {
+                    nodes++;
+                    node_levels |= 1u << alone.level;
+                    /* cut coarser than where the ray entered the cube
+                     * allows: the walk tests the bound along the ray */
+                    far_cuts += dir[i].z > 0 && alone.level + 2 < depth;
+                    const double z = (double)org[i].z + (double)alone.t * (double)dir[i].z;
+                    const double bound = scale * z - 2.4 * scale, e = ldexp((double)o->size, -(int)alone.level);
+                    /* the walk's own entry t is a double; the hit's t is
+                     * it rounded to float: a float ulp of t along dir */
+                    const double slack = 4.0 * FLT_EPSILON * (fabs((double)alone.t) + 1.0) * fabs((double)dir[i].z) * scale;
+                    assert_true(e <= bound + slack);
+                    assert_true(alone.level < depth);
+                }
+            }
+            batches++;
+        }
+        fx_free(&fx);
+    }
+    print_message("[ lod depth ] %zu batches, %zu hits (%zu cells checked against the brute force), %zu on "
+                  "nodes of %u levels, %zu cut coarser going away\n", batches, hits, checked, nodes,
+                  (unsigned)__builtin_popcount(node_levels), far_cuts);
+    assert_true(far_cuts > 10 && checked > hits / 2);
+    assert_true(nodes > 100 && nodes < hits);
+    assert_true(__builtin_popcount(node_levels) >= 4); /* the bound varies along the rays */
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -778,6 +1045,7 @@ int main(void)
         cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
         cmocka_unit_test(test_subtree_bounds),        cmocka_unit_test(test_rays_together),
+        cmocka_unit_test(test_lod_cut),          cmocka_unit_test(test_lod_depth),
         cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -87,6 +87,8 @@ struct mr_geom {
     mr_mat4 *world;               /* per instance: object transform * instance transform */
     mr_mat4 *world_normal;        /* per instance: its normal matrix */
     bool *invertible;             /* per instance (rigid instances need an inverse) */
+    mr_svo_lod *lod;              /* rigid with "tolerance_px": per instance, the cast's level
+                                   * of detail for the frame's camera (rigid_lod); else NULL */
     unsigned workers;
     worker_scratch *scratch;
     /* per frame */
@@ -116,8 +118,9 @@ struct mr_geom {
     RTCGeometry *instances;       /* rigid: one instance geometry per instance */
     unsigned first_id;
     size_t budget;                /* bytes the object may hold (kind.h memory_budget), 0: any */
-    /* "tolerance_px" (selecting methods; 0: off, "delta" as given), the
-     * last frame's predicted error and deepest level selected (predict) */
+    /* "tolerance_px" (0: off; the selecting methods' delta, rigid's cast
+     * level of detail), the last frame's predicted error and deepest
+     * level selected (predict; rigid: the tolerance and the depth) */
     double tolerance_px, predicted_px;
     uint32_t deepest;
 };
@@ -143,6 +146,18 @@ static const mr_pose_desc *instance_pose(const mr_geom *g, size_t k, size_t fram
 }
 
 #define SQRT3 1.7320508075688772
+
+/* The largest scale matrix m applies (its longest column). */
+static double largest_scale(const mr_mat4 *m)
+{
+    double scale = 0;
+    for (int c = 0; c < 3; c++) {
+        const float *e = m->m;
+        double len = sqrt((double)e[c] * e[c] + (double)e[4 + c] * e[4 + c] + (double)e[8 + c] * e[8 + c]);
+        scale = len > scale ? len : scale;
+    }
+    return scale;
+}
 
 /* Perspective projection of the frame's camera, far plane at infinity
  * (only the near plane culls), for the screen-space selection. With a
@@ -490,12 +505,51 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
     return MR_OK;
 }
 
+/* Rigid with a tolerance: each instance's level of detail (mr_svo_lod)
+ * for the frame's camera. A hit on a cell of edge e (bind space) rather
+ * than on the leaves inside it moves by at most sqrt(3) e s in the world
+ * (s the instance's largest scale), which spans at most sqrt(3) e s k / z
+ * pixels (mr_camera_px_scale: k pixels per unit at depth 1, the frustum's
+ * corners included; z the camera depth of the hit, to first order in e /
+ * z). That is within the tolerance t when e <= t z / (sqrt(3) s k), and z
+ * is affine in the bind-space point p: z = (W^T f) . p + (w - c) . f, W
+ * and w the instance's linear part and translation, c and f the camera's
+ * position and forward axis. Without a camera (or a degenerate scale) the
+ * cast keeps every level: b = -inf turns the walk's test off. */
+static void rigid_lod(mr_geom *g, const mr_geom_frame *frame)
+{
+    if (!g->lod)
+        return;
+    const mr_px_scale px = frame ? mr_camera_px_scale(&frame->camera, frame->width, frame->height)
+                                 : (mr_px_scale){.none = true};
+    const double f[3] = {px.forward.x, px.forward.y, px.forward.z};
+    const double c[3] = {px.position.x, px.position.y, px.position.z};
+    for (size_t k = 0; k < g->instance_count; k++) {
+        mr_svo_lod *l = &g->lod[k];
+        const double s = largest_scale(&g->world[k]);
+        const double q = px.none ? 0.0 : g->tolerance_px / (SQRT3 * s * px.k);
+        if (!(q > 0.0) || !isfinite(q)) {
+            *l = (mr_svo_lod){{0.0, 0.0, 0.0}, -INFINITY};
+            continue;
+        }
+        const float *w = g->world[k].m;
+        double b = 0.0;
+        for (int a = 0; a < 3; a++) {
+            l->a[a] = q * ((double)w[a] * f[0] + (double)w[4 + a] * f[1] + (double)w[8 + a] * f[2]);
+            b += ((double)w[4 * a + 3] - c[a]) * f[a];
+        }
+        l->b = q * b;
+    }
+}
+
 static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pose,
                       const mr_mat4 *transform, unsigned threads, mr_error *err)
 {
     (void)pose; /* self_posed: each instance has its own */
-    if (frame && frame->view_only && g->method == MR_SVO_RIGID)
-        return MR_OK; /* nothing but the camera moved: the instances are where they were */
+    if (frame && frame->view_only && g->method == MR_SVO_RIGID) {
+        rigid_lod(g, frame); /* nothing but the camera moved: the instances are where they were */
+        return MR_OK;
+    }
     mr_mat4 object = transform ? *transform : mr_mat4_identity();
     for (size_t k = 0; k < g->instance_count; k++) {
         const mr_mat4 inst = g->p->instance_count ? g->p->instances[k].transform
@@ -541,8 +595,14 @@ static int svo_update(mr_geom *g, const mr_geom_frame *frame, const mr_pose *pos
     g->octree_bytes = 0;
     g->last_frame = frame ? frame->index : 0;
     g->last_time = frame ? frame->time : 0;
-    if (g->method == MR_SVO_RIGID)
+    if (g->method == MR_SVO_RIGID) {
+        rigid_lod(g, frame);
+        if (g->lod) {
+            g->predicted_px = g->tolerance_px;
+            g->deepest = g->svo->depth;
+        }
         return MR_OK;
+    }
 
     /* The job's thread count (the renderer's device), not the machine's
      * cores: a job asked to use T threads uses T, and holds scratch for no
@@ -745,6 +805,15 @@ static void gather_rays(packet_rays *p, float *ray, unsigned N, uint32_t lanes)
     }
 }
 
+/* The cast's level of detail for Embree instance inst (rigid with a
+ * tolerance), or NULL. */
+static const mr_svo_lod *instance_lod(const mr_geom *g, unsigned inst)
+{
+    if (!g->lod || inst == RTC_INVALID_GEOMETRY_ID || inst < g->first_id || inst - g->first_id >= g->instance_count)
+        return NULL;
+    return &g->lod[inst - g->first_id];
+}
+
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
 {
     const mr_geom *g = args->geometryUserPtr;
@@ -760,7 +829,8 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     packet_rays p;
     gather_rays(&p, ray, N, lanes);
     mr_svo_hit hits[MR_RAY_CACHE_LANES];
-    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, hits);
+    const uint32_t hit_mask =
+        mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, instance_lod(g, inst), hits);
     for (unsigned k = 0; k < p.n; k++) {
         if (!(hit_mask >> k & 1u))
             continue;
@@ -785,7 +855,8 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
         /* the shading reads the leaf's normal (svo_normal): its line
          * comes in while Embree goes on with the packet (it was a cache
          * miss at every hit, a tenth of a rigid frame) */
-        __builtin_prefetch(&o->leaves[h.leaf]);
+        if (h.leaf < o->leaf_count)
+            __builtin_prefetch(&o->leaves[h.leaf]);
         *mr_ray_f(ray, N, MR_RAY_TFAR, i) = h.t;
         /* u: the leaf's high bits and level, v: its low bits (< 2^21: exact) */
         mr_ray_write_hit(args, i, ng, (float)((h.leaf >> 16) | h.level << 16),
@@ -805,7 +876,8 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
     const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
     packet_rays p;
     gather_rays(&p, ray, N, lanes);
-    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, NULL);
+    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar,
+                                                    instance_lod(g, args->context->instID[0]), NULL);
     for (unsigned k = 0; k < p.n; k++)
         if (hit_mask >> k & 1u)
             *mr_ray_f(ray, N, MR_RAY_TFAR, p.lane[k]) = -INFINITY;
@@ -981,9 +1053,13 @@ static mr_vec3 svo_normal(const mr_geom *g, unsigned prim, float u, float v, mr_
     if (k == SIZE_MAX || !hit_leaf(u, v, &leaf, &level))
         return mr_v3(0, 0, 0);
     const mr_svo *o = hit_octree(g, k);
-    if (leaf >= o->leaf_count)
+    mr_vec3 n;
+    if (leaf < o->leaf_count)
+        n = mr_svo_normal_decode(o->leaves[leaf].normal);
+    else if (g->lod && leaf - o->leaf_count < g->extremes.node_count)
+        n = mr_svo_normal_decode(g->extremes.normal[leaf - o->leaf_count]); /* a node's (rigid_lod) */
+    else
         return mr_v3(0, 0, 0);
-    mr_vec3 n = mr_svo_normal_decode(o->leaves[leaf].normal);
     if (g->method == MR_SVO_RIGID)
         n = mr_mat4_dir(&g->world_normal[k], n);
     return n;
@@ -1183,9 +1259,9 @@ static const mr_kind_stat SVO_STATS[S_COUNT] = {
                          "the workers' selection and resampling arrays, kept between frames "
                          "(not in bytes.geometry: nothing traced reads them)", MR_STAT_SUM},
     [S_ERROR_PX] = {"svo_lod_error_px", "px",
-                    "with \"tolerance_px\" (methods direct, resize, emit): the selection's "
-                    "predicted error, the most pixels a selected voxel's diagonal spans (0 "
-                    "without)", MR_STAT_MAX},
+                    "with \"tolerance_px\": the selection's predicted error, the most pixels a "
+                    "selected voxel's diagonal spans (methods direct, resize, emit); the tolerance "
+                    "the cast keeps (rigid); 0 without", MR_STAT_MAX},
 };
 
 static void svo_frame_stats(const mr_geom *g, double *v)
@@ -1220,18 +1296,6 @@ static bool svo_lod(const mr_geom *g, uint32_t *level, double *error_px)
 static uint32_t svo_geometry_ids(const mr_geom *g)
 {
     return g->method == MR_SVO_RIGID ? (uint32_t)g->instance_count : 1u;
-}
-
-/* The largest scale matrix m applies (its longest column). */
-static double largest_scale(const mr_mat4 *m)
-{
-    double scale = 0;
-    for (int c = 0; c < 3; c++) {
-        const float *e = m->m;
-        double len = sqrt((double)e[c] * e[c] + (double)e[4 + c] * e[4 + c] + (double)e[8 + c] * e[8 + c]);
-        scale = len > scale ? len : scale;
-    }
-    return scale;
 }
 
 /* The edge, in world units, of the voxel hit (kind.h surface_step): a
@@ -1296,6 +1360,7 @@ static void svo_free(mr_geom *g)
     free(g->world);
     free(g->world_normal);
     free(g->invertible);
+    free(g->lod);
     mr_svo_extremes_free(&g->extremes);
     mr_svo_voxelize_free(g->svo);
     if (g->rigged)
@@ -1408,8 +1473,7 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
     g->p = p;
     g->method = p->method;
     g->instance_count = p->instance_count ? p->instance_count : 1;
-    /* rigid traces the whole shared octree: nothing to pick */
-    g->tolerance_px = g->method != MR_SVO_RIGID && desc->tolerance_px > 0 ? desc->tolerance_px : 0;
+    g->tolerance_px = desc->tolerance_px > 0 ? desc->tolerance_px : 0;
     int rc;
     float *albedo = malloc((asset->mesh_count ? asset->mesh_count : 1) * 3 * sizeof *albedo);
     if (!albedo) {
@@ -1466,6 +1530,18 @@ static int svo_create(const mr_asset *asset, const mr_object_desc *desc,
     if (!g->world || !g->world_normal || !g->invertible) {
         rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
         goto fail;
+    }
+    if (g->method == MR_SVO_RIGID && g->tolerance_px > 0) {
+        /* the cast's level of detail: its nodes' normals (the mean of
+         * their leaves', as a selected node's) */
+        double t1 = mr_now();
+        if (!(g->lod = calloc(n, sizeof *g->lod))) {
+            rc = mr_error_set(err, MR_ERR_NOMEM, "svo: out of memory for %zu instances", n);
+            goto fail;
+        }
+        if ((rc = mr_svo_extremes_build(g->svo, &g->extremes, err)) < 0)
+            goto fail;
+        g->build_s += mr_now() - t1;
     }
     if (g->method != MR_SVO_RIGID) {
         if (g->method == MR_SVO_DIRECT)
@@ -1563,7 +1639,8 @@ static const mr_param SVO_PARAMS[] = {
                  .expect = "a number of pixels in (0, 1e6]",
                  .description = "Screen-space refinement threshold in pixels: voxels projecting smaller are not "
                                 "refined. With \"tolerance_px\" t (methods direct, resize, emit), t / sqrt(3) "
-                                "instead."},
+                                "instead; method rigid casts to the level of detail t gives (nodes spanning "
+                                "at most t / sqrt(3) pixels hit as leaves)."},
     [P_CULL] = {.field = "cull", .type = MR_PARAM_BOOL, .offset = offsetof(mr_svo_params, cull),
                 .def = 1,
                 .description = "Drop voxels outside the view frustum (they then cast no shadows into the view "

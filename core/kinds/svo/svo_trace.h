@@ -48,7 +48,8 @@
 
 typedef struct mr_svo_hit {
     float t;          /* where the ray enters the leaf's box, clipped to tmin */
-    uint32_t leaf;    /* index into svo->leaves */
+    uint32_t leaf;    /* index into svo->leaves; with a level of detail
+                         (mr_svo_lod), leaf_count + n for interior node n */
     unsigned level;   /* the leaf's level, 0 (root leaf) .. depth */
     uint32_t x, y, z; /* its integer coordinates at that level, [0, 2^level) */
     int axis;         /* axis of the face the ray enters through (0, 1, 2; at an
@@ -99,6 +100,17 @@ bool mr_svo_intersect_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec
                               float tmax, mr_svo_hit *hit);
 bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3 org, mr_vec3 dir, float tmin,
                              float tmax);
+/* A level of detail for a cast: the walk hits an interior node as if it
+ * were a leaf when its cell's edge is at most a . p + b, p the point (in
+ * the octree's space) where the ray enters the cell. The caller makes a . p
+ * + b what the screen allows at p (svo_kind.c: the camera's depth of p
+ * times the tolerance over the focal length in pixels). The cell holds the
+ * node's leaves, so the walk never hits later than without it (no holes),
+ * and a ray's hits stay the same whatever rays it is traced with. */
+typedef struct mr_svo_lod {
+    double a[3], b;
+} mr_svo_lod;
+
 /* n rays at once (n <= 32; rays past the 32nd are not traced): ray i is
  * org[i] + t dir[i], t in [tmin[i], tmax[i]], traced over the leaves
  * below s (NULL: the whole octree). With hit, the nearest leaf of each
@@ -109,10 +121,12 @@ bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3
  * whose children then come from memory while the others step. A single
  * ray in a deep octree waits for one miss after another, a level at a
  * time; the rays of a packet part ways below the top levels, so their
- * misses can overlap. */
+ * misses can overlap. lod: NULL, or the level of detail above (an octree
+ * whose leaf_count + node_count passes 2^32 - 1 is walked without it). */
 #define MR_SVO_RAYS 8
 uint32_t mr_svo_intersect_rays(const mr_svo *svo, const mr_svo_subtree *s, unsigned n, const mr_vec3 *org,
-                               const mr_vec3 *dir, const float *tmin, const float *tmax, mr_svo_hit *hit);
+                               const mr_vec3 *dir, const float *tmin, const float *tmax, const mr_svo_lod *lod,
+                               mr_svo_hit *hit);
 
 /* Where the whole walk meets subtree s along a ray of direction dir,
  * relative to other disjoint subtrees: of two subtrees holding hits at
