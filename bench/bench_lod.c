@@ -285,8 +285,8 @@ static void every_example(mr_device *dev)
         mr_job_free(job);
         free(names[i]);
     }
-    printf("\nlevels: per object with levels, as its kind counts them (README, Level of detail; "
-           "'-': none picked: rigid svo, no frame to pick from)\n");
+    printf("\nlevels: per object with levels, as its kind counts them (README, Level of detail; rigid "
+           "svo: the octree's depth, the deepest its cast may reach; '-': no object picked one)\n");
 }
 
 int main(int argc, char **argv)
