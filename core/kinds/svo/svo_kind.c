@@ -805,13 +805,22 @@ static void gather_rays(packet_rays *p, float *ray, unsigned N, uint32_t lanes)
     }
 }
 
+/* Which of a rigid object's instances Embree instance inst is, or
+ * SIZE_MAX (another method, or no instance of this object). */
+static size_t rigid_instance(const mr_geom *g, unsigned inst)
+{
+    if (g->method != MR_SVO_RIGID || inst == RTC_INVALID_GEOMETRY_ID || inst < g->first_id ||
+        inst - g->first_id >= g->instance_count)
+        return SIZE_MAX;
+    return inst - g->first_id;
+}
+
 /* The cast's level of detail for Embree instance inst (rigid with a
  * tolerance), or NULL. */
 static const mr_svo_lod *instance_lod(const mr_geom *g, unsigned inst)
 {
-    if (!g->lod || inst == RTC_INVALID_GEOMETRY_ID || inst < g->first_id || inst - g->first_id >= g->instance_count)
-        return NULL;
-    return &g->lod[inst - g->first_id];
+    const size_t k = rigid_instance(g, inst);
+    return g->lod && k != SIZE_MAX ? &g->lod[k] : NULL;
 }
 
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
@@ -831,6 +840,7 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     mr_svo_hit hits[MR_RAY_CACHE_LANES];
     const uint32_t hit_mask =
         mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, instance_lod(g, inst), hits);
+    const size_t rk = rigid_instance(g, inst); /* its world normal matrix */
     for (unsigned k = 0; k < p.n; k++) {
         if (!(hit_mask >> k & 1u))
             continue;
@@ -849,9 +859,8 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
                 continue;
         }
         mr_vec3 ng = h.axis >= 0 ? h.ng : mr_v3_scale(dir, -1.0f);
-        if (g->method == MR_SVO_RIGID && inst != RTC_INVALID_GEOMETRY_ID && inst >= g->first_id &&
-            inst - g->first_id < g->instance_count)
-            ng = mr_mat4_dir(&g->world_normal[inst - g->first_id], ng); /* world space */
+        if (rk != SIZE_MAX)
+            ng = mr_mat4_dir(&g->world_normal[rk], ng); /* world space */
         /* the shading reads the leaf's normal (svo_normal): its line
          * comes in while Embree goes on with the packet (it was a cache
          * miss at every hit, a tenth of a rigid frame) */

@@ -75,6 +75,13 @@ static inline double plane_s(const svo_ray *r, int a, uint32_t k)
     return r->d0[a] + (double)k * r->cell;
 }
 
+/* The edge of a cell of the given level (exact: a power of 2 times the
+ * cube's size). */
+static inline double cell_edge(const svo_ray *r, unsigned level)
+{
+    return (double)(GRID_CELLS >> level) * r->cell;
+}
+
 /* Sets up the ray; false when it cannot hit anything (non-finite input,
  * empty [tmin, tmax]). */
 static bool ray_setup(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, float tmax, const mr_svo_lod *lod,
@@ -269,7 +276,7 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
     if (r->lod) {
         const double most = DMAX(r->lz0 + t0 * r->lzd, r->lz0 + t1 * r->lzd);
         for (unsigned l = base + 1u; l < svo->depth && l <= GRID_BITS; l++)
-            if ((double)(GRID_CELLS >> l) * r->cell <= most) {
+            if (cell_edge(r, l) <= most) {
                 r->cut_from = l;
                 break;
             }
@@ -341,7 +348,7 @@ static inline __attribute__((always_inline)) walk_state walk_step(const mr_svo *
             const uint32_t node = svo->first_node[f->node] + mr_svo_popcount8(nmask & (cbit - 1u));
             if (clevel >= GRID_BITS || node >= svo->node_count)
                 continue;
-            if (clevel < r->cut_from || (double)(GRID_CELLS >> clevel) * r->cell > r->lz0 + c0 * r->lzd) {
+            if (clevel < r->cut_from || cell_edge(r, clevel) > r->lz0 + c0 * r->lzd) {
                 svo_frame *g = &w->stack[++w->top];
                 g->node = node;
                 g->xyz[0] = cxyz[0];
