@@ -23,8 +23,9 @@
  *    triangle version's silhouette (mr_film_compare, summed over frames;
  *    goal 0 for dmm) and holes, the converse.
  * An example whose poses name joints the triangle mesh does not have (svo
- * skeletons extract their own bones) has no triangle version and is
- * reported alone.
+ * skeletons extract their own bones), or that is triangles already (a
+ * spring-mass surface is its mapped mesh's triangles), has no triangle
+ * version and is reported alone.
  *
  * usage: bench_speckle [--examples a,b,...] [--frames N]  (from the
  * repository root; --frames renders every k-th frame so at most N per
@@ -59,6 +60,8 @@ static bool to_triangles(const cJSON *o, cJSON *out, uint32_t *group, uint32_t s
     int first = cJSON_GetArraySize(out);
     const cJSON *kind = cJSON_GetObjectItem(o, "kind");
     const char *k = cJSON_IsString(kind) ? kind->valuestring : "mesh";
+    if (strcmp(k, "springmass") == 0)
+        return false; /* traced as its own triangles already; without its kind it was the mesh unsimulated */
     if (strcmp(k, "svo") != 0) {
         cJSON *m = cJSON_Duplicate(o, true);
         cJSON *block = cJSON_GetObjectItem(m, k);

@@ -217,19 +217,29 @@ static void check_methods(void **state)
  * grid (not dyadic) rarely offers (none in 8 frames of svo-skinned): the
  * rays here run down each axis on the piece boundaries that happen to be
  * floats exactly, where neighbouring leaves of two pieces tie. The order
- * itself is test_svo_trace's test_subtrees. */
+ * itself is test_svo_trace's test_subtrees. The cases: each method at
+ * depth 6; the rigid octree at depth 8, where its pieces lie a level
+ * deeper (svo_kind.c RIGID_SUBTREE_LEVEL; every 8th plane and ray of it,
+ * its pieces are many); resize 1e5 from the origin, where a float step is
+ * 1/64 and the pieces' boxes (made from their cells when a ray asks,
+ * prim_box) must still hold their leaves. */
 static void check_pieces_whole_walk(void **state)
 {
     (void)state;
     mr_asset *a = cube(0.5f);
-    const mr_mat4 one = mr_mat4_identity();
-    const mr_svo_method methods[3] = {MR_SVO_RIGID, MR_SVO_RESIZE, MR_SVO_EMIT};
+    const mr_mat4 one = mr_mat4_identity(), far = translate_scale(1e5f, -3e4f, 2e5f, 1, 1, 1);
+    const struct {
+        mr_svo_method method;
+        unsigned depth, every; /* every k-th plane and ray */
+        const mr_mat4 *where;
+    } cases[] = {{MR_SVO_RIGID, 6, 1, &one},  {MR_SVO_RESIZE, 6, 1, &one}, {MR_SVO_EMIT, 6, 1, &one},
+                 {MR_SVO_RIGID, 8, 8, &one},  {MR_SVO_RESIZE, 6, 1, &far}};
     int wrong = 0;
     unsigned long rays = 0, hits = 0, ties = 0;
-    uint32_t fewest = UINT32_MAX;
-    for (int m = 0; m < 3; m++) {
+    uint32_t fewest = UINT32_MAX, deepest = 0;
+    for (int m = 0; m < (int)(sizeof cases / sizeof cases[0]); m++) {
         scene s;
-        build(&s, a, methods[m], 6, &one, 1);
+        build(&s, a, cases[m].method, cases[m].depth, cases[m].where, 1);
         uint32_t pieces;
         const mr_svo *o = mr_svo_kind_octree(s.g, 0, &pieces);
         assert_non_null(o);
@@ -238,7 +248,7 @@ static void check_pieces_whole_walk(void **state)
         mr_svo_subtree *st = NULL;
         uint32_t n = 0, level = 0;
         mr_error err = {0};
-        for (level = 5; level > 0; level--) {
+        for (level = 6; level > 0; level--) {
             assert_int_equal(mr_svo_subtrees(o, level, &st, &n, &err), MR_OK);
             if (n == pieces)
                 break;
@@ -246,17 +256,19 @@ static void check_pieces_whole_walk(void **state)
             st = NULL;
         }
         assert_true(level > 0);
+        deepest = level > deepest ? level : deepest;
+        const unsigned every = cases[m].every;
         const double org[3] = {o->origin.x, o->origin.y, o->origin.z}, cell = ldexp(o->size, -(int)level);
         for (int a0 = 0; a0 < 3; a0++)           /* the boundary's axis */
             for (int along = 0; along < 3; along++) { /* the ray's */
                 if (along == a0)
                     continue;
                 const int other = 3 - a0 - along;
-                for (uint32_t K = 1; K < (1u << level); K++) {
+                for (uint32_t K = every; K < (1u << level); K += every) {
                     const double plane = org[a0] + K * cell;
                     if ((double)(float)plane != plane)
                         continue; /* not a float: no ray lies on it */
-                    for (int j = 1; j < 64; j++)
+                    for (int j = (int)every; j < 64; j += (int)every)
                         for (int sign = 0; sign < 2; sign++) {
                             float p[3], d[3] = {0, 0, 0};
                             p[a0] = (float)plane;
@@ -284,7 +296,7 @@ static void check_pieces_whole_walk(void **state)
                             const uint32_t u = (uint32_t)rh.hit.u, leaf = (u & 0xffffu) << 16 | (uint32_t)rh.hit.v;
                             const bool same = memcmp(&rh.ray.tfar, &whole.t, sizeof whole.t) == 0 && leaf == whole.leaf;
                             if (!same)
-                                print_error("method %d: ray on plane %d = %a along %d: hit t %a leaf %u, whole walk t %a "
+                                print_error("case %d: ray on plane %d = %a along %d: hit t %a leaf %u, whole walk t %a "
                                             "leaf %u\n", m, a0, plane, along, (double)rh.ray.tfar, leaf,
                                             (double)whole.t, whole.leaf);
                             HARD_EXPECT(wrong, same);
@@ -301,9 +313,10 @@ static void check_pieces_whole_walk(void **state)
         free(st);
         release(&s);
     }
-    print_message("[ pieces   ] %lu rays, %lu hits, %lu with hits at one t in two pieces; >= %u pieces\n", rays,
-                  hits, ties, fewest);
+    print_message("[ pieces   ] %lu rays, %lu hits, %lu with hits at one t in two pieces; >= %u pieces, down to "
+                  "level %u\n", rays, hits, ties, fewest, deepest);
     assert_true(fewest > 1);   /* traced as pieces at all */
+    assert_int_equal(deepest, 6); /* the rigid octree's pieces at level 6 among them */
     assert_true(ties > 100);   /* and the rays do tie */
     HARD_CHECK("other", wrong, "==", 0, "rays whose hit through Embree is not the whole walk's (t, leaf), of %lu",
                rays);

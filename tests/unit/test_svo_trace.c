@@ -623,17 +623,16 @@ static bool leaf_below(const fx_box *b, const mr_svo_subtree *s)
     return true;
 }
 
-/* A subtree's box (mr_svo_subtree_bounds) `below` levels down, on random
- * octrees put together by the builder (build_fixture): the union of
- * its leaves' cells, each coarsened to the level `below` under the
- * subtree where it lies deeper, in finest-level cells, by brute force over
- * the fixture's leaves; then within the leaves' box and rounded outwards as
- * mr_svo_bounds does. Exact equality: the walk must find those cells, not
+/* A subtree's cells (mr_svo_subtree_cells) `below` levels down, on random
+ * octrees put together by the builder (build_fixture): the union of its
+ * leaves' cells, each coarsened to the level `below` under the subtree
+ * where it lies deeper, in finest-level cells, by brute force over the
+ * fixture's leaves. Exact equality: the walk must find those cells, not
  * merely a box holding them (a walk that skipped a child, or counted the
- * children of another node, finds another box). Every leaf's box lies
- * inside whatever `below`. A subtree that names no node of the octree
- * keeps its cell, one that names no cell the leaves' box. */
-static void test_subtree_bounds(void **state)
+ * children of another node, finds another box). Every leaf lies inside
+ * whatever `below`. A subtree that names no node of the octree keeps its
+ * cell, one that names no cell has none. */
+static void test_subtree_cells(void **state)
 {
     (void)state;
     size_t boxes = 0, shrunk = 0;
@@ -651,7 +650,6 @@ static void test_subtree_bounds(void **state)
             fx_free(&fx);
             continue;
         }
-        const double c[3] = {origin.x, origin.y, origin.z}, cell = ldexp(2.5, -(int)depth);
         for (unsigned level = 1; level + 1 < depth; level++) {
             mr_svo_subtree *st;
             uint32_t n;
@@ -678,16 +676,13 @@ static void test_subtree_bounds(void **state)
                         }
                     }
                     assert_true(elo[0] < ehi[0]); /* a subtree holds a leaf */
-                    float lo[3], hi[3];
-                    mr_svo_subtree_bounds(o, s, below, lo, hi);
+                    uint32_t lo[3], hi[3];
+                    assert_true(mr_svo_subtree_cells(o, s, below, lo, hi));
                     bool smaller = false;
                     for (int a = 0; a < 3; a++) {
-                        const float el = fmaxf(olo[a], mr_float_down(c[a] + elo[a] * cell));
-                        const float eh = fminf(ohi[a], mr_float_up(c[a] + ehi[a] * cell));
-                        if (lo[a] != el || hi[a] != eh)
-                            fail_msg("depth %u, subtree %u at level %u, %u below: axis %d box [%a, %a], expected "
-                                     "[%a, %a]", depth, k, s->level, below, a, (double)lo[a], (double)hi[a],
-                                     (double)el, (double)eh);
+                        if (lo[a] != elo[a] || hi[a] != ehi[a])
+                            fail_msg("depth %u, subtree %u at level %u, %u below: axis %d cells [%u, %u), expected "
+                                     "[%u, %u)", depth, k, s->level, below, a, lo[a], hi[a], elo[a], ehi[a]);
                         smaller |= ehi[a] - elo[a] < 1u << (depth - s->level);
                     }
                     for (uint32_t l = 0; l < o->leaf_count; l++) { /* every leaf below s inside */
@@ -695,9 +690,8 @@ static void test_subtree_bounds(void **state)
                         if (!leaf_below(b, s))
                             continue;
                         for (int a = 0; a < 3; a++) {
-                            double bl, bh;
-                            fx_box_planes(o, b, a, &bl, &bh);
-                            assert_true((double)lo[a] <= bl && bh <= (double)hi[a]);
+                            const uint32_t first = b->xyz[a] << (depth - b->level);
+                            assert_true(lo[a] <= first && first + (1u << (depth - b->level)) <= hi[a]);
                         }
                     }
                     boxes++;
@@ -707,20 +701,21 @@ static void test_subtree_bounds(void **state)
             free(st);
         }
         /* no walk past the arrays: a subtree naming no node keeps its
-         * cell, one deeper than the octree the leaves' box */
-        float lo[3], hi[3], cell_lo[3], cell_hi[3];
-        const mr_svo_subtree nowhere = {o->node_count + 5u, 1, {1, 0, 1}}, deep = {0, depth + 1, {0, 0, 0}};
-        mr_svo_subtree_bounds(o, &nowhere, 0, cell_lo, cell_hi);
-        mr_svo_subtree_bounds(o, &nowhere, 3, lo, hi);
+         * cell, one deeper than the octree or outside it has none */
+        uint32_t lo[3], hi[3];
+        const mr_svo_subtree nowhere = {o->node_count + 5u, 1, {1, 0, 1}}, deep = {0, depth + 1, {0, 0, 0}},
+                             outside = {0, 1, {2, 0, 0}};
+        assert_true(mr_svo_subtree_cells(o, &nowhere, 3, lo, hi));
+        const uint32_t half = 1u << (depth - 1);
+        const uint32_t cell_lo[3] = {half, 0, half}, cell_hi[3] = {2 * half, half, 2 * half};
         assert_memory_equal(lo, cell_lo, sizeof lo);
         assert_memory_equal(hi, cell_hi, sizeof hi);
-        mr_svo_subtree_bounds(o, &deep, 3, lo, hi);
-        assert_memory_equal(lo, olo, sizeof lo);
-        assert_memory_equal(hi, ohi, sizeof hi);
+        assert_false(mr_svo_subtree_cells(o, &deep, 3, lo, hi));
+        assert_false(mr_svo_subtree_cells(o, &outside, 0, lo, hi));
         mr_svo_free(&built);
         fx_free(&fx);
     }
-    print_message("[ subtree bounds ] %zu boxes, %zu smaller than the subtree's cell\n", boxes, shrunk);
+    print_message("[ subtree cells ] %zu boxes, %zu smaller than the subtree's cell\n", boxes, shrunk);
     assert_true(shrunk > boxes / 4); /* the octrees are sparse enough to tell the walk from the cell */
 }
 
@@ -1044,7 +1039,7 @@ int main(void)
         cmocka_unit_test(test_exact_grid_rays), cmocka_unit_test(test_root_leaf_and_empty),
         cmocka_unit_test(test_bounds),          cmocka_unit_test(test_occupied_bounds),
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
-        cmocka_unit_test(test_subtree_bounds),        cmocka_unit_test(test_rays_together),
+        cmocka_unit_test(test_subtree_cells),        cmocka_unit_test(test_rays_together),
         cmocka_unit_test(test_lod_cut),          cmocka_unit_test(test_lod_depth),
         cmocka_unit_test(test_throughput),
     };

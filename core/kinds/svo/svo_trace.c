@@ -479,33 +479,26 @@ int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *count
     return collect_subtrees(&l, 0, 0, ROOT_XYZ, err);
 }
 
-void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, float lo[3], float hi[3])
+bool mr_svo_subtree_cells(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, uint32_t lo[3],
+                          uint32_t hi[3])
 {
-    mr_svo_bounds(svo, lo, hi);
-    if (svo->depth > MR_SVO_MAX_DEPTH || s->level > svo->depth || (s->xyz[0] | s->xyz[1] | s->xyz[2]) >> s->level)
-        return; /* no cell of svo: the leaves' box */
-    /* in finest-level cells: s's cell, or its occupied cells `below` levels down */
+    if (!svo || svo->depth > MR_SVO_MAX_DEPTH || s->level > svo->depth || (s->xyz[0] | s->xyz[1] | s->xyz[2]) >> s->level)
+        return false;
     const unsigned shift = svo->depth - s->level;
-    uint32_t clo[3], chi[3];
     for (int a = 0; a < 3; a++) {
-        clo[a] = s->xyz[a] << shift;
-        chi[a] = (s->xyz[a] + 1u) << shift;
+        lo[a] = s->xyz[a] << shift;
+        hi[a] = (s->xyz[a] + 1u) << shift;
     }
     if (below) {
         uint32_t olo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, ohi[3] = {0, 0, 0};
         mr_error err; /* a malformed octree keeps the cell */
         if (mr_svo_grow_occupied(svo, s->node, s->level, s->xyz,
                                  s->level + below < svo->depth ? s->level + below : svo->depth, olo, ohi, &err) == MR_OK) {
-            memcpy(clo, olo, sizeof clo);
-            memcpy(chi, ohi, sizeof chi);
+            memcpy(lo, olo, sizeof olo);
+            memcpy(hi, ohi, sizeof ohi);
         }
     }
-    const double cell = ldexp((double)svo->size, -(int)svo->depth); /* cells * cell: exact */
-    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
-    for (int a = 0; a < 3; a++) { /* clo < chi: the walk's first child grows the box */
-        lo[a] = fmaxf(lo[a], mr_float_down((double)c[a] + clo[a] * cell));
-        hi[a] = fminf(hi[a], mr_float_up((double)c[a] + chi[a] * cell));
-    }
+    return true;
 }
 
 /* A subtree's node must be interior and below the finest level. */

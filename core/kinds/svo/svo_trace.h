@@ -87,11 +87,13 @@ int mr_svo_subtrees(const mr_svo *svo, unsigned level, mr_svo_subtree **out, uin
  * gives at level L, in one walk of the nodes above max_level (a caller
  * choosing a level by their number). MR_ERR_FORMAT as mr_svo_subtrees. */
 int mr_svo_subtree_counts(const mr_svo *svo, unsigned max_level, uint32_t *counts, mr_error *err);
-/* A box holding every leaf below s, within the leaves' box (mr_svo_bounds),
- * rounded outwards to float: s's cell (below 0), or the box of its
- * occupied cells `below` levels under it (or its leaves, where they lie
- * nearer), found by walking that many levels of its nodes. */
-void mr_svo_subtree_bounds(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, float lo[3], float hi[3]);
+/* The finest-level cells [lo, hi) per axis that hold every leaf below s:
+ * s's cell (below 0), or the box of its occupied cells `below` levels
+ * under it (or its leaves, where they lie nearer), found by walking that
+ * many levels of its nodes (a malformed octree: s's cell). False when s is
+ * no cell of svo. */
+bool mr_svo_subtree_cells(const mr_svo *svo, const mr_svo_subtree *s, unsigned below, uint32_t lo[3],
+                          uint32_t hi[3]);
 
 /* mr_svo_intersect / mr_svo_occluded over the leaves below s only: the
  * same t (bit for bit) and leaf as the whole walk finds in that cell.
