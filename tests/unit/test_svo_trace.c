@@ -1032,6 +1032,81 @@ static void test_lod_depth(void **state)
     assert_true(__builtin_popcount(node_levels) >= 4); /* the bound varies along the rays */
 }
 
+/* The level of detail walked from pieces (mr_svo_intersect_rays from the
+ * subtrees at level L, as the svo kind traces an octree) cuts where the
+ * whole walk does: a piece tests its own node as the whole walk tests it
+ * when it enters that cell. A sphere's shell (leaves at the finest level
+ * only, so the subtrees lie at L), z from 3.15 to 4.85; the bound is the
+ * edge of level L + 1 at z = 3.2 and grows along z to that of L at 3.7
+ * and L - 1 at 4.7, so the whole walk cuts below L, at L (the pieces' own
+ * nodes) and above: a cut above the pieces has no piece to match, those
+ * rays are counted, not compared. Every other ray gets from the nearest
+ * piece hit the whole walk's t, and its cell when that t is one piece's
+ * alone (at one t two pieces can hold hits: the kind keeps the one the
+ * whole walk meets first). */
+static void test_lod_pieces(void **state)
+{
+    (void)state;
+    const unsigned depth = 9, L = 4;
+    fx_shell sh = {256.0, 145.0, depth}; /* leaves at the finest level only: pieces at L */
+    svo_fx fx;
+    fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, cls_shell, &sh);
+    const mr_svo *o = &fx.svo;
+    const double edge = ldexp((double)o->size, -(int)L), slope = edge;
+    const mr_svo_lod lod = {{0, 0, slope}, edge / 2.0 - 3.2 * slope};
+    mr_svo_subtree *st;
+    uint32_t n;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_subtrees(o, L, &st, &n, &err), MR_OK);
+    assert_true(n > 8);
+    size_t compared = 0, root_cuts = 0, above = 0, hits = 0;
+    fx_rng r = {77};
+    for (int k = 0; k < 4000; k++) {
+        mr_vec3 org, dir;
+        float tmin, tmax;
+        fx_random_ray(&fx, &r, k, &org, &dir, &tmin, &tmax);
+        bool h;
+        const mr_svo_hit whole = lod_hit_of(o, &lod, org, dir, tmin, tmax, &h);
+        if (h && whole.leaf >= o->leaf_count && whole.level < L) {
+            above++;
+            continue;
+        }
+        bool any = false, near_root = false;
+        unsigned holders = 0;
+        mr_svo_hit near;
+        memset(&near, 0, sizeof near);
+        for (uint32_t i = 0; i < n; i++) {
+            mr_svo_hit ph;
+            if (!(mr_svo_intersect_rays(o, &st[i], 1, &org, &dir, &tmin, &tmax, &lod, &ph) & 1u))
+                continue;
+            if (any && ph.t == near.t)
+                holders++;
+            if (!any || ph.t < near.t) {
+                near = ph;
+                holders = 1;
+                near_root = ph.level == st[i].level && ph.leaf == o->leaf_count + st[i].node;
+            }
+            any = true;
+        }
+        assert_int_equal(any, h);
+        compared++;
+        if (!h)
+            continue;
+        hits++;
+        root_cuts += near_root;
+        if (memcmp(&near.t, &whole.t, sizeof near.t) != 0)
+            fail_msg("ray %d: pieces' nearest t %a, the whole walk's %a", k, (double)near.t, (double)whole.t);
+        if (holders == 1)
+            assert_true(near.leaf == whole.leaf && near.level == whole.level && near.x == whole.x &&
+                        near.y == whole.y && near.z == whole.z);
+    }
+    print_message("[ lod pieces ] %zu rays compared (%zu hits), %zu cut above the pieces' level %u, %zu piece "
+                  "nodes cut there\n", compared, hits, above, L, root_cuts);
+    assert_true(hits > 500 && root_cuts > 100 && hits - root_cuts > 100 && above > 100);
+    free(st);
+    fx_free(&fx);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1041,6 +1116,7 @@ int main(void)
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
         cmocka_unit_test(test_subtree_cells),        cmocka_unit_test(test_rays_together),
         cmocka_unit_test(test_lod_cut),          cmocka_unit_test(test_lod_depth),
+        cmocka_unit_test(test_lod_pieces),
         cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -289,6 +289,15 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
         }
         return WALK_HIT;
     }
+    /* A walk from a subtree's node (a piece) tests that node as the whole
+     * walk tests it when it comes to it, at the t where the ray enters its
+     * cell: the same cut whatever level the pieces are cut at. The root is
+     * never cut (nor by the whole walk). */
+    if (r->lod && base > 0 && cell_edge(r, base) <= r->lz0 + t0 * r->lzd) {
+        if (hit)
+            fill_hit(r, hit, svo->leaf_count + start, base, bxyz, axis, t0);
+        return WALK_HIT;
+    }
 
     w->hit = hit;
     w->base = (int)base;
