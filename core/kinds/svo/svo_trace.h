@@ -104,7 +104,9 @@ bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3
                              float tmax);
 /* A level of detail for a cast: the walk hits an interior node as if it
  * were a leaf when its cell's edge is at most a . p + b, p the point (in
- * the octree's space) where the ray enters the cell. The caller makes a . p
+ * the octree's space) where the ray enters the cell; every node but the
+ * root, a walk below a subtree its own node too (the whole walk's test of
+ * that node: the same cut from any pieces). The caller makes a . p
  * + b what the screen allows at p (svo_kind.c: the camera's depth of p
  * times the tolerance over the focal length in pixels). The cell holds the
  * node's leaves, so the walk never hits later than without it (no holes),
