@@ -766,52 +766,6 @@ static void test_bilinear_leaves(void **state)
 
 /* ---- tiling and blending ------------------------------------------------------------ */
 
-/* The triforce subdivision (tiling.h) of a lattice triangle of leg R,
- * taken down to leaves of leg 1, yields every cell half of the triangle
- * exactly once (brute force over the triangle's cells), in both
- * orientations. */
-static void collect_leaves(int64_t bx, int64_t by, int64_t s, int64_t (*out)[3], int *n)
-{
-    if (s == 1 || s == -1) {
-        out[*n][0] = s > 0 ? bx : bx - 1;
-        out[*n][1] = s > 0 ? by : by - 1;
-        out[*n][2] = s > 0 ? 0 : 1;
-        (*n)++;
-        return;
-    }
-    int64_t c[4][3];
-    mr_dproc_children(bx, by, s, c);
-    for (int k = 0; k < 4; k++)
-        collect_leaves(c[k][0], c[k][1], c[k][2], out, n);
-}
-
-static void test_triforce_against_brute_force(void **state)
-{
-    (void)state;
-    for (int64_t R = 1; R <= 32; R *= 2)
-        for (int o = 0; o < 2; o++) {
-            /* the lower triangle of square (3, -2), or its upper one */
-            int64_t bx = o ? 4 * R : 3 * R, by = o ? -1 * R : -2 * R, s = o ? -R : R;
-            static int64_t leaves[2048][3];
-            int n = 0;
-            collect_leaves(bx, by, s, leaves, &n);
-            assert_int_equal(n, (int)(R * R));
-            static unsigned char seen[64][64][2];
-            memset(seen, 0, sizeof seen);
-            for (int k = 0; k < n; k++) {
-                int64_t i = leaves[k][0] - 3 * R, j = leaves[k][1] + 2 * R;
-                assert_true(i >= 0 && i < R && j >= 0 && j < R);
-                /* a half lies in the lower lattice triangle when its cell
-                 * is below the square's anti-diagonal */
-                bool lower_half = leaves[k][2] == 0;
-                bool in_lower = lower_half ? i + j <= R - 1 : i + j <= R - 2;
-                assert_true(in_lower == !o);
-                assert_false(seen[i][j][leaves[k][2]]);
-                seen[i][j][leaves[k][2]] = 1;
-            }
-        }
-}
-
 static mr_asset *cracked(void)
 {
     mr_asset *a = NULL;
@@ -821,10 +775,38 @@ static mr_asset *cracked(void)
     return a;
 }
 
-/* Bounds of every triforce node hold the heights of its grid points (all
- * of them, the three corners included), and the global bound holds all;
- * nodes of leg up to MR_DPROC_EXACT_LEG are bounded by exactly their grid
- * points' least and largest heights (tiling.h), larger ones more widely. */
+/* Fails unless [lo, hi] holds the heights of grid points (bx + sg i, by +
+ * sg j) for 0 <= i, j <= n (and i + j <= n when tri), and the global bound
+ * too; *least and *largest their extremes; returns how many it checked. */
+static long points_within(const mr_dproc *p, int64_t bx, int64_t by, int64_t sg, int64_t n,
+                          bool tri, double lo, double hi, double *least, double *largest)
+{
+    double glo, ghi;
+    mr_dproc_global_heights(p, &glo, &ghi);
+    long checked = 0;
+    *least = INFINITY, *largest = -INFINITY;
+    for (int64_t j = 0; j <= n; j++)
+        for (int64_t i = 0; i <= n && !(tri && i + j > n); i++) {
+            int64_t gi = bx + sg * i, gj = by + sg * j;
+            double h = mr_dproc_height(p, gi, gj);
+            if (!(h >= lo && h <= hi && h >= glo && h <= ghi))
+                fail_msg("(%lld %lld %lld%s): height %.17g at (%lld %lld) outside [%.17g, %.17g]",
+                         (long long)bx, (long long)by, (long long)(sg * n), tri ? ", triforce" : "",
+                         h, (long long)gi, (long long)gj, lo, hi);
+            *least = fmin(*least, h), *largest = fmax(*largest, h);
+            checked++;
+        }
+    return checked;
+}
+
+/* The traversal's nodes are squares of 2^l x 2^l cells (mr_dtrace); their
+ * halves, cut by the anti-diagonal, are the triforce nodes of leg 2^l.
+ * Over six lattice squares of range 16 (two of them at negative indices),
+ * every square of every level holds the heights of its grid points, and
+ * so does each of its halves; squares of side up to MR_DPROC_EXACT_LEG are
+ * bounded by exactly their grid points' least and largest heights
+ * (tiling.h), larger ones more widely; a square larger than a lattice
+ * square gets the global bound; a bound made is kept, the same bits. */
 static void test_tiling_bounds(void **state)
 {
     (void)state;
@@ -833,56 +815,55 @@ static void test_tiling_bounds(void **state)
     mr_error err;
     assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 16, 0.2, -0.05, 2, &err),
                      MR_OK);
+    assert_int_equal(p.top, 4);
     double glo, ghi;
     mr_dproc_global_heights(&p, &glo, &ghi);
     long checked = 0, exact = 0, wide = 0;
-    for (int sq = 0; sq < 6; sq++)
-        for (int o = 0; o < 2; o++) {
-            int64_t ax = sq * 3 - 5, ay = 2 - sq;
-            int64_t bx = (o ? ax + 1 : ax) * 16, by = (o ? ay + 1 : ay) * 16, s = o ? -16 : 16;
-            /* every node of the subdivision */
-            int64_t stack[256][3];
-            int sp = 0;
-            stack[sp][0] = bx, stack[sp][1] = by, stack[sp++][2] = s;
-            while (sp) {
-                sp--;
-                int64_t x = stack[sp][0], y = stack[sp][1], l = stack[sp][2];
-                double lo, hi;
-                mr_dproc_tri_heights(&p, x, y, l, &lo, &hi);
-                int64_t a = l > 0 ? l : -l;
-                double least = INFINITY, largest = -INFINITY;
-                for (int64_t dj = 0; dj <= a; dj++)
-                    for (int64_t di = 0; di + dj <= a; di++) {
-                        int64_t gi = x + (l > 0 ? di : -di), gj = y + (l > 0 ? dj : -dj);
-                        double h = mr_dproc_height(&p, gi, gj);
-                        if (!(h >= lo && h <= hi && h >= glo && h <= ghi))
-                            fail_msg("node (%lld %lld %lld): height %.17g at (%lld %lld) outside "
-                                     "[%.17g, %.17g]", (long long)x, (long long)y, (long long)l, h,
-                                     (long long)gi, (long long)gj, lo, hi);
-                        least = fmin(least, h), largest = fmax(largest, h);
-                        checked++;
+    for (int sq = 0; sq < 6; sq++) {
+        const int64_t ax = sq * 3 - 5, ay = 2 - sq;
+        for (int l = 0; l <= 4; l++) {
+            const int64_t n = (int64_t)1 << l, per = 16 / n;
+            for (int64_t y = ay * per; y < (ay + 1) * per; y++)
+                for (int64_t x = ax * per; x < (ax + 1) * per; x++) {
+                    double lo, hi, least, largest, klo, khi;
+                    mr_dproc_square_heights(&p, l, x, y, &lo, &hi);
+                    assert_true(mr_dproc_square_heights_kept(&p, l, x, y, &klo, &khi));
+                    assert_true(klo == lo && khi == hi);
+                    checked += points_within(&p, x * n, y * n, 1, n, false, lo, hi, &least,
+                                             &largest);
+                    if (n <= MR_DPROC_EXACT_LEG) {
+                        assert_true(lo == least && hi == largest);
+                        exact++;
+                    } else {
+                        wide += lo < least && hi > largest;
                     }
-                if (a <= MR_DPROC_EXACT_LEG) {
-                    assert_true(lo == least && hi == largest);
-                    exact++;
-                } else {
-                    wide += lo < least && hi > largest;
+                    /* its halves (the lower-left one, the upper-right one) */
+                    double tlo[2], thi[2];
+                    for (int o = 0; o < 2; o++) {
+                        int64_t bx = (x + o) * n, by = (y + o) * n, sg = o ? -1 : 1;
+                        mr_dproc_tri_heights(&p, bx, by, sg * n, &tlo[o], &thi[o]);
+                        checked += points_within(&p, bx, by, sg, n, true, tlo[o], thi[o], &least,
+                                                 &largest);
+                        if (n <= MR_DPROC_EXACT_LEG)
+                            assert_true(tlo[o] == least && thi[o] == largest);
+                    }
+                    assert_true(lo == fmin(tlo[0], tlo[1]) && hi == fmax(thi[0], thi[1]));
                 }
-                if (a > 1) {
-                    int64_t c[4][3];
-                    mr_dproc_children(x, y, l, c);
-                    for (int k = 0; k < 4; k++)
-                        memcpy(stack[sp++], c[k], sizeof c[k]);
-                }
-            }
         }
+        double lo, hi;
+        mr_dproc_square_heights(&p, 5, ax / 2, ay / 2, &lo, &hi);
+        assert_true(lo == glo && hi == ghi);
+    }
     assert_true(checked > 10000);
-    /* 12 lattice triangles of leg 16: 16 nodes of leg 4 and everything
-     * below each exact, the nodes of legs 16 and 8 bounded more widely */
+    /* per lattice square, the 256 + 64 + 16 squares of sides 1, 2 and 4
+     * exact, the 4 + 1 of sides 8 and 16 bounded more widely */
     _Static_assert(MR_DPROC_EXACT_LEG == 4, "the counts below are for leg 4");
-    assert_int_equal(exact, 12 * 16 * (1 + 4 + 16));
-    assert_int_equal(wide, 12 * (1 + 4));
+    assert_int_equal(exact, 6 * (256 + 64 + 16));
+    assert_int_equal(wide, 6 * (4 + 1));
     mr_dproc_free(&p);
+    /* a range not a power of two has no squares of lattice squares */
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 12, 0.2, -0.05, 2, &err),
+                     MR_ERR_INVALID);
     mr_asset_free(ex);
 }
 
@@ -914,15 +895,7 @@ static bool proot_covers(const mr_dproots *rs, int64_t i, int64_t j)
 {
     for (int k = 0; k < rs->n; k++) {
         const mr_dpnode *n = &rs->r[k];
-        if (n->level >= 0) {
-            if (i >> n->level == n->x && j >> n->level == n->y)
-                return true;
-            continue;
-        }
-        /* a triforce triangle: the cell's centre inside it */
-        double dx = ((double)i + 0.5 - (double)n->x) / (double)n->s;
-        double dy = ((double)j + 0.5 - (double)n->y) / (double)n->s;
-        if (dx >= 0 && dy >= 0 && dx + dy <= 1)
+        if (i >> n->level == n->x && j >> n->level == n->y)
             return true;
     }
     return false;
@@ -1118,9 +1091,9 @@ static void test_tiling_histogram_and_period(void **state)
     mr_asset_free(ex);
 }
 
-/* Range 8: the triforce levels from the lattice triangle (leg 8) down;
- * range 64 adds the large nodes' blend bounds and the parent-heights test
- * before them and before the exact ones (mr_dtrace_intersect_packet). */
+/* Range 8: the squares from the lattice square (side 8) down; range 64
+ * adds the large squares' blend bounds and the parent-heights test before
+ * them and before the exact ones (mr_dtrace_intersect_packet). */
 static void test_procedural_against_brute_force(void **state)
 {
     (void)state;
@@ -1160,7 +1133,6 @@ int main(void)
         cmocka_unit_test(test_sphere_against_brute_force),
         cmocka_unit_test(test_constant_texture_is_offset_base),
         cmocka_unit_test(test_bilinear_leaves),
-        cmocka_unit_test(test_triforce_against_brute_force),
         cmocka_unit_test(test_tiling_bounds),
         cmocka_unit_test(test_tiling_histogram_and_period),
         cmocka_unit_test(test_proc_triangle_roots),

@@ -1419,68 +1419,44 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
 
 static void pnode_rect(const pnode *n, double *x0, double *x1, double *y0, double *y1)
 {
-    if (n->level >= 0) {
-        double sz = ldexp(1.0, n->level);
-        *x0 = (double)n->x * sz, *x1 = ((double)n->x + 1) * sz;
-        *y0 = (double)n->y * sz, *y1 = ((double)n->y + 1) * sz;
-        return;
-    }
-    double a = (double)n->x, b = (double)(n->x + n->s), c = (double)n->y, d = (double)(n->y + n->s);
-    *x0 = dmin(a, b), *x1 = dmax(a, b), *y0 = dmin(c, d), *y1 = dmax(c, d);
+    double sz = ldexp(1.0, n->level);
+    *x0 = (double)n->x * sz, *x1 = ((double)n->x + 1) * sz;
+    *y0 = (double)n->y * sz, *y1 = ((double)n->y + 1) * sz;
 }
 
-static int pnode_children(const mr_dproc *p, const pnode *n, pnode out[4])
+static int pnode_children(const pnode *n, pnode out[4])
 {
-    int64_t R = (int64_t)p->range;
-    int top = 0;
-    while (((int64_t)1 << top) < R)
-        top++;
-    if (n->level > top) {
-        for (int k = 0; k < 4; k++)
-            out[k] = (pnode){n->level - 1, n->x * 2 + (k & 1), n->y * 2 + (k >> 1), 0};
-        return 4;
-    }
-    if (n->level == top) { /* a lattice square: its two lattice triangles */
-        out[0] = (pnode){-1, n->x * R, n->y * R, R};
-        out[1] = (pnode){-1, (n->x + 1) * R, (n->y + 1) * R, -R};
-        return 2;
-    }
-    int64_t c[4][3];
-    mr_dproc_children(n->x, n->y, n->s, c);
     for (int k = 0; k < 4; k++)
-        out[k] = (pnode){-1, c[k][0], c[k][1], c[k][2]};
+        out[k] = (pnode){n->level - 1, n->x * 2 + (k & 1), n->y * 2 + (k >> 1)};
     return 4;
 }
 
-/* T's roots: the nodes of the lowest square level (a lattice square or
- * more) where T's cells span at most two nodes per axis, in row order. */
-static int proc_roots(const mr_dproc *p, const mr_dbase *b, pnode out[4])
+/* T's roots: the squares of the lowest level where T's cells span at most
+ * two per axis, in row order. */
+static int proc_roots(const mr_dbase *b, pnode out[4])
 {
     int64_t i0, i1, j0, j1;
     mr_dbase_cells(b, &i0, &i1, &j0, &j1);
-    int top = 0;
-    while (((int64_t)1 << top) < (int64_t)p->range)
-        top++;
-    int level = top;
+    int level = 0;
     while (level < 62 && ((i1 >> level) - (i0 >> level) > 1 || (j1 >> level) - (j0 >> level) > 1))
         level++;
     int n = 0;
     for (int64_t y = j0 >> level; y <= (j1 >> level); y++)
         for (int64_t x = i0 >> level; x <= (i1 >> level); x++)
-            out[n++] = (pnode){level, x, y, 0};
+            out[n++] = (pnode){level, x, y};
     return n;
 }
 
-/* Node n's heights over T: its own bound (squares: the global one),
- * capped by T's (mr_dtrace_proc_roots). */
+/* Node n's heights over T: its own bound (above a lattice square: the
+ * global one), capped by T's (mr_dtrace_proc_roots). */
 static void pnode_heights(const mr_dproc *p, const mr_dgrad *gr, const pnode *n, double *lo,
                           double *hi)
 {
-    if (n->level >= 0) {
+    if (n->level > p->top) {
         *lo = gr->hlo, *hi = gr->hhi;
         return;
     }
-    mr_dproc_tri_heights(p, n->x, n->y, n->s, lo, hi);
+    mr_dproc_square_heights(p, n->level, n->x, n->y, lo, hi);
     *lo = dmax(*lo, gr->hlo), *hi = dmin(*hi, gr->hhi);
 }
 
@@ -1497,14 +1473,15 @@ static mr_dproots tri_proots(const mr_dscene *s, uint32_t t)
 }
 
 /* Whether node n's own bound is dear enough to be worth a test with its
- * parent's heights first: the blend bound of the large triforce nodes (three
- * pyramid searches) and the exact bound of the largest exact ones (15
- * heights, seldom made before), not the smaller exact ones, whose grid
- * points are their parent's, just made (plane at range 512, 160x90: 89 ->
- * 73 ms with the exact ones alone, -> 67 with the blend ones too). */
-static inline bool worth_parent_test(const pnode *n)
+ * parent's heights first: the blend bounds within a lattice square (three
+ * pyramid searches a half) and the exact bound of the largest exact
+ * squares (25 heights, seldom made before), not the smaller exact ones,
+ * whose grid points are their parent's, just made (plane at range 512,
+ * 160x90, with triforce nodes: 89 -> 73 ms with the exact ones alone, ->
+ * 67 with the blend ones too). */
+static inline bool worth_parent_test(const mr_dproc *p, const pnode *n)
 {
-    return n->level < 0 && (n->s > MR_DPROC_EXACT_LEG / 2 || n->s < -MR_DPROC_EXACT_LEG / 2);
+    return n->level <= p->top && ((int64_t)1 << n->level) > MR_DPROC_EXACT_LEG / 2;
 }
 
 /* ---- either source ------------------------------------------------------------- */
@@ -1529,12 +1506,12 @@ static int tri_tnodes(const mr_dscene *s, uint32_t t, tnode rs[4])
  * upper, 2 both) that it stands for. */
 static inline bool tnode_leaf(const mr_dscene *s, const tnode *n, int64_t *i, int64_t *j, int *half)
 {
-    if (s->proc) { /* a triforce triangle of one cell half */
-        if (!(n->p.level < 0 && (n->p.s == 1 || n->p.s == -1)))
+    if (s->proc) { /* a square of one cell */
+        if (n->p.level != 0)
             return false;
-        *i = n->p.s > 0 ? n->p.x : n->p.x - 1;
-        *j = n->p.s > 0 ? n->p.y : n->p.y - 1;
-        *half = n->p.s > 0 ? 0 : 1;
+        *i = n->p.x;
+        *j = n->p.y;
+        *half = 2;
         return true;
     }
     if (n->d.level != 0)
@@ -1551,7 +1528,7 @@ static inline int tnode_children(const mr_dscene *s, const tnode *n, tnode out[4
     int k;
     if (s->proc) {
         pnode c[4];
-        k = pnode_children(s->proc, &n->p, c);
+        k = pnode_children(&n->p, c);
         for (int a = 0; a < k; a++)
             out[a].p = c[a];
     } else {
@@ -1627,8 +1604,8 @@ static void tnodes_heights(const mr_dgrid *g, const mr_dproc *p, const tnode *n,
         double l = glo, h = ghi;
         if (!p)
             node_heights(g, &n[k].d, &l, &h);
-        else if (n[k].p.level < 0)
-            mr_dproc_tri_heights(p, n[k].p.x, n[k].p.y, n[k].p.s, &l, &h);
+        else
+            mr_dproc_square_heights(p, n[k].p.level, n[k].p.x, n[k].p.y, &l, &h);
         *lo = fmin(*lo, l), *hi = fmax(*hi, h);
     }
 }
@@ -1701,7 +1678,7 @@ void mr_dtrace_proc_roots(const mr_dproc *p, const mr_dbase *b, mr_dproots *out,
 {
     pnode r[4];
     tnode rs[4], deep[4];
-    int n = proc_roots(p, b, r);
+    int n = proc_roots(b, r);
     for (int k = 0; k < n; k++)
         rs[k].p = r[k];
     nodes_below(NULL, p, b, rs, n, hlo, hhi, deep, &out->n);
@@ -2281,30 +2258,21 @@ static int tex_start(const mr_dgrid *g, int root_level, const double f[2][2], tn
     return 0;
 }
 
-/* A procedural source's nodes over the grid rectangle f: the triforce
- * triangles of leg h (1 .. range) are the two halves of the squares of
- * side h cut by their anti-diagonals (the lower-left one (i h, j h, h), the
- * upper-right one ((i + 1) h, (j + 1) h, -h); mr_dproc_children). The
- * least h at which f meets at most two squares, the halves of them f
- * meets (closed: a point on a diagonal takes both); 0 when there is none. */
+/* A procedural source's nodes over the grid rectangle f: the least side
+ * h (1 .. range) at which f's cells span at most two squares per axis,
+ * those squares; 0 when there is none. Cells are closed squares, so a
+ * grid point on a square's edge takes the squares on both sides. */
 static int proc_start(const mr_dproc *pr, const double f[2][2], tnode out[4])
 {
-    for (int64_t h = 1; h <= (int64_t)pr->range; h *= 2) {
-        const int64_t i0 = mr_floor_div((int64_t)floor(f[0][0]), h);
-        const int64_t i1 = mr_floor_div((int64_t)floor(f[0][1]), h);
-        const int64_t j0 = mr_floor_div((int64_t)floor(f[1][0]), h);
-        const int64_t j1 = mr_floor_div((int64_t)floor(f[1][1]), h);
-        if ((i1 - i0 + 1) * (j1 - j0 + 1) > 2)
+    for (int l = 0; l <= pr->top; l++) {
+        const int64_t i0 = (int64_t)floor(f[0][0]) >> l, i1 = (int64_t)floor(f[0][1]) >> l;
+        const int64_t j0 = (int64_t)floor(f[1][0]) >> l, j1 = (int64_t)floor(f[1][1]) >> l;
+        if (i1 - i0 > 1 || j1 - j0 > 1)
             continue;
         int k = 0;
         for (int64_t j = j0; j <= j1; j++)
-            for (int64_t i = i0; i <= i1; i++) {
-                const double x = (double)(i * h), y = (double)(j * h), side = (double)h;
-                if ((dmax(f[0][0], x) - x) + (dmax(f[1][0], y) - y) <= side)
-                    out[k++].p = (pnode){-1, i * h, j * h, h};
-                if ((dmin(f[0][1], x + side) - x) + (dmin(f[1][1], y + side) - y) >= side)
-                    out[k++].p = (pnode){-1, (i + 1) * h, (j + 1) * h, -h};
-            }
+            for (int64_t i = i0; i <= i1; i++)
+                out[k++].p = (pnode){l, i, j};
         return k;
     }
     return 0;
@@ -2723,8 +2691,9 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
                 /* (where the parent's heights are T's, T's box test was
                  * already this one but for the rectangle: it seldom culls,
                  * and cost the procedural sphere at range 64 up to 6 %) */
-                if (pr && (e.hlo > gr->hlo || e.hhi < gr->hhi) && worth_parent_test(&ch[c].p) &&
-                    !mr_dproc_tri_heights_kept(pr, ch[c].p.x, ch[c].p.y, ch[c].p.s, &klo, &khi)) {
+                if (pr && (e.hlo > gr->hlo || e.hhi < gr->hhi) && worth_parent_test(pr, &ch[c].p) &&
+                    !mr_dproc_square_heights_kept(pr, ch[c].p.level, ch[c].p.x, ch[c].p.y, &klo,
+                                                  &khi)) {
                     /* the parent's heights bound the child's: rays that
                      * miss that box miss it, and its own bound need not be
                      * made */

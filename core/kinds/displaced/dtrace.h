@@ -131,12 +131,12 @@ typedef struct mr_droots {
     mr_dnode r[4];
 } mr_droots;
 
-/* A node of the procedural source: a square of 2^level cells (level >=
- * log2 range; x, y its index) or, level < 0, a triforce triangle with
- * right-angle vertex (x, y) and signed leg s (tiling.h). */
+/* A node of the procedural source: the square of 2^level x 2^level grid
+ * cells with index (x, y), its heights bounded by
+ * mr_dproc_square_heights (tiling.h). */
 typedef struct mr_dpnode {
     int level;
-    int64_t x, y, s;
+    int64_t x, y;
 } mr_dpnode;
 
 /* A base triangle's procedural roots (mr_dtrace_proc_roots). */

@@ -60,6 +60,9 @@ int mr_dproc_init(mr_dproc *p, const mr_image *ex, double uv_off_u, double uv_of
                   double scale, double offset, unsigned threads, mr_error *err)
 {
     memset(p, 0, sizeof *p);
+    if (range == 0 || (range & (range - 1)))
+        return mr_error_set(err, MR_ERR_INVALID, "a procedural range must be a power of two, got %u",
+                            range);
     /* a process-unique id keys the caches (never 0, never reused) */
     static _Atomic uint64_t next_id = 1;
     p->id = atomic_fetch_add(&next_id, 1);
@@ -92,6 +95,8 @@ int mr_dproc_init(mr_dproc *p, const mr_image *ex, double uv_off_u, double uv_of
     }
     p->range = range;
     p->inv_range = 1.0 / range;
+    while ((1u << p->top) < range)
+        p->top++;
     p->uv_off[0] = uv_off_u;
     p->uv_off[1] = uv_off_v;
     p->uv_scale = uv_scale;
@@ -237,7 +242,8 @@ typedef struct hentry {
 
 typedef struct bentry {
     uint64_t id;
-    int64_t x, y, s;
+    int64_t x, y;
+    int level;
     double lo, hi;
 } bentry;
 
@@ -280,32 +286,36 @@ void mr_dproc_global_heights(const mr_dproc *p, double *lo, double *hi)
     heights_of(p, p->blend_lo, p->blend_hi, lo, hi);
 }
 
-static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
-                        double *hi);
-
-bool mr_dproc_tri_heights_kept(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
-                               double *hi)
+bool mr_dproc_square_heights_kept(const mr_dproc *p, int level, int64_t x, int64_t y, double *lo,
+                                  double *hi)
 {
-    const bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
-    if (e->id == p->id && e->x == bx && e->y == by && e->s == s) {
+    const bentry *e = &bcache[slot_of(x, y, level, BCACHE)];
+    if (e->id == p->id && e->x == x && e->y == y && e->level == level) {
         *lo = e->lo, *hi = e->hi;
         return true;
     }
     return false;
 }
 
-void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
-                          double *hi)
+void mr_dproc_square_heights(const mr_dproc *p, int level, int64_t x, int64_t y, double *lo,
+                             double *hi)
 {
-    if (mr_dproc_tri_heights_kept(p, bx, by, s, lo, hi))
+    if (level > p->top) {
+        mr_dproc_global_heights(p, lo, hi);
         return;
-    bentry *e = &bcache[slot_of(bx, by, s, BCACHE)];
-    tri_heights(p, bx, by, s, lo, hi);
-    *e = (bentry){p->id, bx, by, s, *lo, *hi};
+    }
+    if (mr_dproc_square_heights_kept(p, level, x, y, lo, hi))
+        return;
+    const int64_t n = (int64_t)1 << level;
+    double l2, h2;
+    mr_dproc_tri_heights(p, x * n, y * n, n, lo, hi);
+    mr_dproc_tri_heights(p, (x + 1) * n, (y + 1) * n, -n, &l2, &h2);
+    *lo = dmin(*lo, l2), *hi = dmax(*hi, h2);
+    bcache[slot_of(x, y, level, BCACHE)] = (bentry){p->id, x, y, level, *lo, *hi};
 }
 
-static void tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
-                        double *hi)
+void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, double *lo,
+                          double *hi)
 {
     if (s >= -MR_DPROC_EXACT_LEG && s <= MR_DPROC_EXACT_LEG) {
         /* a few cell halves: the surface over each is linear between its
