@@ -1272,6 +1272,70 @@ __attribute__((target("avx2"))) static inline void rect_normals4(const mr_dgrad 
     nlo[2] = _mm256_set1_pd(gr->nb[2][0]), nhi[2] = _mm256_set1_pd(gr->nb[2][1]);
 }
 
+/* mr_dtrace_overlaps' x part and edge tests for four rectangles [x0, x1]
+ * x [ylo, yhi] (lanes) of the lanes `lanes` (whose rows already meet T's
+ * grid box): its operations lane by lane, so the same answers; returns
+ * the mask of those that may overlap T. */
+__attribute__((target("avx2"))) static inline unsigned overlaps4_avx2(const mr_dbase *b,
+                                                                      const mr_dgrad *gr,
+                                                                      __m256d x0, __m256d x1,
+                                                                      __m256d ylo, __m256d yhi,
+                                                                      unsigned lanes)
+{
+    const __m256d gx0 = _mm256_set1_pd(gr->gx0), gx1 = _mm256_set1_pd(gr->gx1);
+    __m256d in = _mm256_andnot_pd(_mm256_or_pd(_mm256_cmp_pd(x1, gx0, _CMP_LT_OQ),
+                                               _mm256_cmp_pd(x0, gx1, _CMP_GT_OQ)),
+                                  lanes_avx2(lanes));
+    const __m256d negm = _mm256_set1_pd(-b->margin);
+    for (int e = 0; e < 3; e++) {
+        const double *l = b->edge[e];
+        const __m256d ex = _mm256_mul_pd(_mm256_set1_pd(l[0]), l[0] > 0 ? x1 : x0);
+        const __m256d ey = _mm256_mul_pd(_mm256_set1_pd(l[1]), l[1] > 0 ? yhi : ylo);
+        const __m256d v = _mm256_add_pd(_mm256_add_pd(ex, ey), _mm256_set1_pd(l[2]));
+        in = _mm256_andnot_pd(_mm256_cmp_pd(v, negm, _CMP_LT_OQ), in);
+    }
+    return (unsigned)_mm256_movemask_pd(in);
+}
+
+/* local_box for four rectangles [x0, x1] x [ylo, yhi] (lanes) with heights
+ * [hl, hh]: its operations lane by lane (each lane's normal bounds from its
+ * own rectangle), so the same boxes, in lo and hi [axis][lane]. */
+__attribute__((target("avx2"))) static inline void boxes4_avx2(const mr_dgrad *gr, __m256d x0,
+                                                              __m256d x1, __m256d ylo,
+                                                              __m256d yhi, const double hl[4],
+                                                              const double hh[4],
+                                                              double lo[3][4], double hi[3][4])
+{
+    const __m256d hlo = _mm256_loadu_pd(hl), hhi = _mm256_loadu_pd(hh);
+    const __m256d lx0 = _mm256_max_pd(x0, _mm256_set1_pd(gr->gx0));
+    const __m256d lx1 = _mm256_min_pd(x1, _mm256_set1_pd(gr->gx1));
+    const __m256d ry0 = _mm256_max_pd(ylo, _mm256_set1_pd(gr->gy0));
+    const __m256d ry1 = _mm256_min_pd(yhi, _mm256_set1_pd(gr->gy1));
+    __m256d nlo[3], nhi[3];
+    if (gr->nrect) {
+        rect_normals4(gr, lx0, lx1, ry0, ry1, nlo, nhi);
+    } else {
+        for (int a = 0; a < 3; a++)
+            nlo[a] = _mm256_set1_pd(gr->nb[a][0]), nhi[a] = _mm256_set1_pd(gr->nb[a][1]);
+    }
+    __m256d l[3], h[3];
+    for (int a = 0; a < 3; a++) {
+        const __m256d p0 = _mm256_mul_pd(hlo, nlo[a]), p1 = _mm256_mul_pd(hlo, nhi[a]);
+        const __m256d p2 = _mm256_mul_pd(hhi, nlo[a]), p3 = _mm256_mul_pd(hhi, nhi[a]);
+        const __m256d pad = _mm256_set1_pd(gr->lpad[a]);
+        l[a] = _mm256_sub_pd(_mm256_min_pd(_mm256_min_pd(p0, p1), _mm256_min_pd(p2, p3)), pad);
+        h[a] = _mm256_add_pd(_mm256_max_pd(_mm256_max_pd(p0, p1), _mm256_max_pd(p2, p3)), pad);
+    }
+    l[0] = _mm256_add_pd(lx0, l[0]);
+    h[0] = _mm256_add_pd(lx1, h[0]);
+    l[1] = _mm256_add_pd(ry0, l[1]);
+    h[1] = _mm256_add_pd(ry1, h[1]);
+    for (int a = 0; a < 3; a++) {
+        _mm256_storeu_pd(lo[a], l[a]);
+        _mm256_storeu_pd(hi[a], h[a]);
+    }
+}
+
 /* tex_child_boxes with the four children in one AVX2 vector (child c in
  * lane c: column c & 1, row c >> 1), for CPUs that have it: its
  * operations lane by lane (the row's scalar y terms made per lane), so
@@ -1314,20 +1378,7 @@ __attribute__((target("avx2"))) static unsigned tex_child_boxes_avx2(const mr_dg
     const __m256d x0 = _mm256_set_pd(cx1, cx0, cx1, cx0), x1 = _mm256_set_pd(dx1, dx0, dx1, dx0);
     const __m256d ylo = _mm256_set_pd(y0[1], y0[1], y0[0], y0[0]);
     const __m256d yhi = _mm256_set_pd(y1[1], y1[1], y1[0], y1[0]);
-    const __m256d gx0 = _mm256_set1_pd(gr->gx0), gx1 = _mm256_set1_pd(gr->gx1);
-    /* mr_dtrace_overlaps' x part and its edge tests */
-    __m256d in = _mm256_andnot_pd(_mm256_or_pd(_mm256_cmp_pd(x1, gx0, _CMP_LT_OQ),
-                                               _mm256_cmp_pd(x0, gx1, _CMP_GT_OQ)),
-                                  lanes_avx2(rows));
-    const __m256d negm = _mm256_set1_pd(-b->margin);
-    for (int e = 0; e < 3; e++) {
-        const double *l = b->edge[e];
-        const __m256d ex = _mm256_mul_pd(_mm256_set1_pd(l[0]), l[0] > 0 ? x1 : x0);
-        const __m256d ey = _mm256_mul_pd(_mm256_set1_pd(l[1]), l[1] > 0 ? yhi : ylo);
-        const __m256d v = _mm256_add_pd(_mm256_add_pd(ex, ey), _mm256_set1_pd(l[2]));
-        in = _mm256_andnot_pd(_mm256_cmp_pd(v, negm, _CMP_LT_OQ), in);
-    }
-    const unsigned inm = (unsigned)_mm256_movemask_pd(in);
+    const unsigned inm = overlaps4_avx2(b, gr, x0, x1, ylo, yhi, rows);
     if (!inm)
         return 0;
     double hl[4] = {0}, hh[4] = {0};
@@ -1335,34 +1386,7 @@ __attribute__((target("avx2"))) static unsigned tex_child_boxes_avx2(const mr_dg
         const unsigned k = (unsigned)__builtin_ctz(m);
         mr_dgrid_node_heights(g, (unsigned)c, I0 + (k & 1u), J0 + (k >> 1), &hl[k], &hh[k]);
     }
-    const __m256d hlo = _mm256_loadu_pd(hl), hhi = _mm256_loadu_pd(hh);
-    /* local_box (each lane's normal bounds from its own rectangle) */
-    const __m256d lx0 = _mm256_max_pd(x0, gx0), lx1 = _mm256_min_pd(x1, gx1);
-    const __m256d ry0 = _mm256_max_pd(ylo, _mm256_set1_pd(gr->gy0));
-    const __m256d ry1 = _mm256_min_pd(yhi, _mm256_set1_pd(gr->gy1));
-    __m256d nlo[3], nhi[3];
-    if (gr->nrect) {
-        rect_normals4(gr, lx0, lx1, ry0, ry1, nlo, nhi);
-    } else {
-        for (int a = 0; a < 3; a++)
-            nlo[a] = _mm256_set1_pd(gr->nb[a][0]), nhi[a] = _mm256_set1_pd(gr->nb[a][1]);
-    }
-    __m256d l[3], h[3];
-    for (int a = 0; a < 3; a++) {
-        const __m256d p0 = _mm256_mul_pd(hlo, nlo[a]), p1 = _mm256_mul_pd(hlo, nhi[a]);
-        const __m256d p2 = _mm256_mul_pd(hhi, nlo[a]), p3 = _mm256_mul_pd(hhi, nhi[a]);
-        const __m256d pad = _mm256_set1_pd(gr->lpad[a]);
-        l[a] = _mm256_sub_pd(_mm256_min_pd(_mm256_min_pd(p0, p1), _mm256_min_pd(p2, p3)), pad);
-        h[a] = _mm256_add_pd(_mm256_max_pd(_mm256_max_pd(p0, p1), _mm256_max_pd(p2, p3)), pad);
-    }
-    l[0] = _mm256_add_pd(lx0, l[0]);
-    h[0] = _mm256_add_pd(lx1, h[0]);
-    l[1] = _mm256_add_pd(ry0, l[1]);
-    h[1] = _mm256_add_pd(ry1, h[1]);
-    for (int a = 0; a < 3; a++) {
-        _mm256_storeu_pd(lo[a], l[a]);
-        _mm256_storeu_pd(hi[a], h[a]);
-    }
+    boxes4_avx2(gr, x0, x1, ylo, yhi, hl, hh, lo, hi);
     return inm;
 }
 #define TEX_CHILD_BOXES(g, b, gr, n, lo, hi, st)                                                   \
@@ -1917,6 +1941,79 @@ __attribute__((target("avx2"))) static void slab_four_avx2(const pack *p, uint32
     _mm256_storeu_pd(near, nearv);
 }
 #define HAS_SLAB_FOUR 1
+
+/* The boxes of procedural square e->n's four children (child c: column c
+ * & 1, row c >> 1; level 0 .. ) in T's local frame, four lanes at once
+ * (AVX2): what tnode_region and local_box make for each child one by one.
+ * A child whose own bound is dear and not at hand (worth_parent_test) is
+ * first boxed with its parent's heights, which bound its own: when none of
+ * the packet's rays `live` enters that box, its bound is not made and it
+ * is dropped. Returns the mask of children boxed (their heights, capped by
+ * T's, in hl and hh); the children in out. */
+__attribute__((target("avx2"))) static unsigned proc_child_boxes_avx2(
+    const mr_dproc *pr, const mr_dbase *b, const mr_dgrad *gr, const pentry *e, const pack *p,
+    uint32_t live, tnode out[4], double lo[3][4], double hi[3][4], double hl[4], double hh[4],
+    mr_dstats *st)
+{
+    const pnode *n = &e->n.p;
+    const int c = n->level - 1;
+    const double side = (double)((uint64_t)1 << c);
+    unsigned rows = 0;
+    double y0[2], y1[2];
+    for (int r = 0; r < 2; r++) {
+        y0[r] = (double)(n->y * 2 + r) * side, y1[r] = y0[r] + side;
+        if (!(y1[r] < gr->gy0 || y0[r] > gr->gy1))
+            rows |= 3u << 2 * r;
+    }
+    for (int k = 0; k < 4; k++)
+        out[k].p = (pnode){c, n->x * 2 + (k & 1), n->y * 2 + (k >> 1)};
+    if (st)
+        st->nodes += 4;
+    if (!rows)
+        return 0;
+    const double cx0 = (double)(n->x * 2) * side, cx1 = cx0 + side, dx1 = cx1 + side;
+    const __m256d x0 = _mm256_set_pd(cx1, cx0, cx1, cx0), x1 = _mm256_set_pd(dx1, cx1, dx1, cx1);
+    const __m256d ylo = _mm256_set_pd(y0[1], y0[1], y0[0], y0[0]);
+    const __m256d yhi = _mm256_set_pd(y1[1], y1[1], y1[0], y1[0]);
+    unsigned inm = overlaps4_avx2(b, gr, x0, x1, ylo, yhi, rows);
+    if (!inm)
+        return 0;
+    /* the bounds at hand; the children whose bounds are to be made */
+    unsigned make = 0, test = 0;
+    const bool tighter = e->hlo > gr->hlo || e->hhi < gr->hhi;
+    for (unsigned m = inm; m; m &= m - 1) {
+        const unsigned k = (unsigned)__builtin_ctz(m);
+        if (c > pr->top) {
+            hl[k] = gr->hlo, hh[k] = gr->hhi;
+        } else if (!mr_dproc_square_heights_kept(pr, c, out[k].p.x, out[k].p.y, &hl[k], &hh[k])) {
+            make |= 1u << k;
+            if (tighter && worth_parent_test(pr, &out[k].p))
+                test |= 1u << k;
+        }
+    }
+    if (test) { /* the parent's heights first */
+        double ph[4] = {e->hlo, e->hlo, e->hlo, e->hlo}, pH[4] = {e->hhi, e->hhi, e->hhi, e->hhi};
+        uint32_t in[4];
+        double near[4];
+        boxes4_avx2(gr, x0, x1, ylo, yhi, ph, pH, lo, hi);
+        slab_four_avx2(p, live, lo, hi, in, near);
+        for (unsigned m = test; m; m &= m - 1) {
+            const unsigned k = (unsigned)__builtin_ctz(m);
+            if (!in[k])
+                inm &= ~(1u << k), make &= ~(1u << k);
+        }
+    }
+    for (unsigned m = make; m; m &= m - 1) {
+        const unsigned k = (unsigned)__builtin_ctz(m);
+        mr_dproc_square_heights(pr, c, out[k].p.x, out[k].p.y, &hl[k], &hh[k]);
+    }
+    for (unsigned m = inm; m; m &= m - 1) {
+        const unsigned k = (unsigned)__builtin_ctz(m);
+        hl[k] = dmax(hl[k], gr->hlo), hh[k] = dmin(hh[k], gr->hhi);
+    }
+    boxes4_avx2(gr, x0, x1, ylo, yhi, hl, hh, lo, hi);
+    return inm;
+}
 #else
 #define SLAB_PACK slab_pack
 #define HAS_SLAB_FOUR 0
@@ -2679,6 +2776,12 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
                 ch[c].d = (dnode){.level = e.n.d.level - 1, .tx = e.n.d.tx, .ty = e.n.d.ty,
                                   .I = e.n.d.I * 2 + (uint32_t)(c & 1),
                                   .J = e.n.d.J * 2 + (uint32_t)(c >> 1)};
+        } else
+#endif
+#if HAS_SLAB_FOUR
+        if (pr && __builtin_cpu_supports("avx2")) {
+            boxed = proc_child_boxes_avx2(pr, b, gr, &e, &p, live, ch, blo, bhi, chlo, chhi, st);
+            nc = 4;
         } else
 #endif
         {
