@@ -70,6 +70,9 @@ typedef struct mr_dproc {
     mr_dgrid gex;              /* its repeating grid and min/max pyramid */
     float lut[MR_TILING_LUT];  /* T^-1 on [lut_lo, lut_hi], in example values (0..1) */
     double lut_lo, lut_hi;
+    double lut_per_blend;      /* entries per unit of blend: (MR_TILING_LUT - 1) / (lut_hi -
+                                  lut_lo), a product where a quotient cost 3 % of a dense
+                                  procedural frame */
     double range, inv_range;
     int top;                   /* log2 range: the level of a lattice square's cell square */
     double uv_off[2], uv_scale;
