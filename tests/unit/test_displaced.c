@@ -806,7 +806,8 @@ static long points_within(const mr_dproc *p, int64_t bx, int64_t by, int64_t sg,
  * so does each of its halves; squares of side up to MR_DPROC_EXACT_LEG are
  * bounded by exactly their grid points' least and largest heights
  * (tiling.h), larger ones more widely; a square larger than a lattice
- * square gets the global bound; a bound made is kept, the same bits. */
+ * square gets the global bound; a bound made is kept, the same bits; the
+ * children of an exact square, made together, have their own bounds. */
 static void test_tiling_bounds(void **state)
 {
     (void)state;
@@ -818,7 +819,7 @@ static void test_tiling_bounds(void **state)
     assert_int_equal(p.top, 4);
     double glo, ghi;
     mr_dproc_global_heights(&p, &glo, &ghi);
-    long checked = 0, exact = 0, wide = 0;
+    long checked = 0, exact = 0, wide = 0, children = 0;
     for (int sq = 0; sq < 6; sq++) {
         const int64_t ax = sq * 3 - 5, ay = 2 - sq;
         for (int l = 0; l <= 4; l++) {
@@ -848,6 +849,17 @@ static void test_tiling_bounds(void **state)
                             assert_true(tlo[o] == least && thi[o] == largest);
                     }
                     assert_true(lo == fmin(tlo[0], tlo[1]) && hi == fmax(thi[0], thi[1]));
+                    if (l >= 1 && n <= MR_DPROC_EXACT_LEG) { /* its children from one tile */
+                        double clo[4], chi[4];
+                        mr_dproc_child_heights(&p, l, x, y, clo, chi);
+                        for (int k = 0; k < 4; k++) {
+                            double sl, sh;
+                            mr_dproc_square_heights(&p, l - 1, 2 * x + (k & 1), 2 * y + (k >> 1),
+                                                    &sl, &sh);
+                            assert_true(clo[k] == sl && chi[k] == sh);
+                        }
+                        children++;
+                    }
                 }
         }
         double lo, hi;
@@ -860,6 +872,7 @@ static void test_tiling_bounds(void **state)
     _Static_assert(MR_DPROC_EXACT_LEG == 4, "the counts below are for leg 4");
     assert_int_equal(exact, 6 * (256 + 64 + 16));
     assert_int_equal(wide, 6 * (4 + 1));
+    assert_int_equal(children, 6 * (64 + 16));
     mr_dproc_free(&p);
     /* a range not a power of two has no squares of lattice squares */
     assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 12, 0.2, -0.05, 2, &err),

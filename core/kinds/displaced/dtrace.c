@@ -1978,6 +1978,14 @@ __attribute__((target("avx2"))) static unsigned proc_child_boxes_avx2(
     unsigned inm = overlaps4_avx2(b, gr, x0, x1, ylo, yhi, rows);
     if (!inm)
         return 0;
+    if (n->level <= pr->top && ((int64_t)1 << n->level) <= MR_DPROC_EXACT_LEG) {
+        /* exact bounds from one tile of heights (cheap: no parent test) */
+        mr_dproc_child_heights(pr, n->level, n->x, n->y, hl, hh);
+        for (int k = 0; k < 4; k++)
+            hl[k] = dmax(hl[k], gr->hlo), hh[k] = dmin(hh[k], gr->hhi);
+        boxes4_avx2(gr, x0, x1, ylo, yhi, hl, hh, lo, hi);
+        return inm;
+    }
     /* the bounds at hand; the children whose bounds are to be made */
     unsigned make = 0, test = 0;
     const bool tighter = e->hlo > gr->hlo || e->hhi < gr->hhi;

@@ -343,6 +343,23 @@ static void tile_bound(const htile *t, int level, int64_t x, int64_t y, double *
     *lo = l, *hi = h;
 }
 
+void mr_dproc_child_heights(const mr_dproc *p, int level, int64_t x, int64_t y, double lo[4],
+                            double hi[4])
+{
+    const int sh = TILE_LOG - level, m = 1 << (level - 1);
+    htile spare;
+    const htile *t = tile_of(p, x >> sh, y >> sh, &spare);
+    const int i0 = (int)(x & ((1 << sh) - 1)) << level, j0 = (int)(y & ((1 << sh) - 1)) << level;
+    for (int k = 0; k < 4; k++) {
+        const int a = i0 + (k & 1) * m, b = j0 + (k >> 1) * m;
+        double l = INFINITY, h = -INFINITY;
+        for (int j = b; j <= b + m; j++)
+            for (int i = a; i <= a + m; i++)
+                l = dmin(l, t->h[j][i]), h = dmax(h, t->h[j][i]);
+        lo[k] = l, hi[k] = h;
+    }
+}
+
 static double height_at(const void *p, int64_t i, int64_t j) { return mr_dproc_height(p, i, j); }
 
 mr_dheights mr_dproc_heights(const mr_dproc *p) { return (mr_dheights){height_at, p}; }

@@ -119,6 +119,12 @@ void mr_dproc_tri_heights(const mr_dproc *p, int64_t bx, int64_t by, int64_t s, 
  * texture of like density). Kept per thread. */
 void mr_dproc_square_heights(const mr_dproc *p, int level, int64_t x, int64_t y, double *lo,
                              double *hi);
+/* The bounds of the four children of square (level, x, y), 1 <= level <=
+ * log2 MR_DPROC_EXACT_LEG and level <= top (child k: (2 x + (k & 1), 2 y
+ * + (k >> 1))), as mr_dproc_square_heights gives them (exact), made from
+ * the one tile of heights that holds them all. */
+void mr_dproc_child_heights(const mr_dproc *p, int level, int64_t x, int64_t y, double lo[4],
+                            double hi[4]);
 /* The same bound when this thread has it at hand (made before and still
  * kept), else false: nothing is made. */
 bool mr_dproc_square_heights_kept(const mr_dproc *p, int level, int64_t x, int64_t y, double *lo,
