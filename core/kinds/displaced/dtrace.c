@@ -1439,7 +1439,7 @@ static int tex_children_local(const mr_dgrid *g, const mr_dbase *b, const mr_dgr
 }
 #endif
 
-/* ---- the procedural source: lattice squares, then triforce triangles ------- */
+/* ---- the procedural source: squares of cells --------------------------------- */
 
 static void pnode_rect(const pnode *n, double *x0, double *x1, double *y0, double *y1)
 {

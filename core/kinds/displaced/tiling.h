@@ -54,9 +54,10 @@
 #include "kinds/displaced/dgrid.h"
 
 #define MR_TILING_LUT 4096
-/* Triforce nodes of leg up to this get the exact bound of their
- * (leg + 1)(leg + 2) / 2 grid points; past it the blend bound costs less
- * than the heights. Trace ms by this leg (2 / 4 / 8), builds interleaved:
+/* Triforce nodes of leg up to this (and squares of this side) get the
+ * exact bound of their grid points; past it the blend bound costs less
+ * than the heights. Measured when the walk's nodes were the triforce
+ * triangles, trace ms by this leg (2 / 4 / 8), builds interleaved:
  * plane at range 64, 640x360: 86 / 78 / 78-81; at range 512: 720 / 684 /
  * 828-860, and at 160x90, where fewer rays share a node: 125 / 123 /
  * 229-249; procedural sphere at range 64, 640x360: 41 at 4, 40 at 8 (55
