@@ -1276,7 +1276,7 @@ __attribute__((target("avx2"))) static inline void rect_normals4(const mr_dgrad 
  * x [ylo, yhi] (lanes) of the lanes `lanes` (whose rows already meet T's
  * grid box): its operations lane by lane, so the same answers; returns
  * the mask of those that may overlap T. */
-__attribute__((target("avx2"))) static inline unsigned overlaps4_avx2(const mr_dbase *b,
+__attribute__((target("avx2"), always_inline)) static inline unsigned overlaps4_avx2(const mr_dbase *b,
                                                                       const mr_dgrad *gr,
                                                                       __m256d x0, __m256d x1,
                                                                       __m256d ylo, __m256d yhi,
@@ -1300,7 +1300,7 @@ __attribute__((target("avx2"))) static inline unsigned overlaps4_avx2(const mr_d
 /* local_box for four rectangles [x0, x1] x [ylo, yhi] (lanes) with heights
  * [hl, hh]: its operations lane by lane (each lane's normal bounds from its
  * own rectangle), so the same boxes, in lo and hi [axis][lane]. */
-__attribute__((target("avx2"))) static inline void boxes4_avx2(const mr_dgrad *gr, __m256d x0,
+__attribute__((target("avx2"), always_inline)) static inline void boxes4_avx2(const mr_dgrad *gr, __m256d x0,
                                                               __m256d x1, __m256d ylo,
                                                               __m256d yhi, const double hl[4],
                                                               const double hh[4],
