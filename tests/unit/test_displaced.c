@@ -1043,6 +1043,53 @@ static void test_texture_triangle_heights(void **state)
     mr_asset_free(ex);
 }
 
+/* A grid point's height, read from the thread's tiles of heights, is the
+ * blend's height bit for bit, whichever tile was made first and however
+ * many were made in between: points around the origin (negative indices,
+ * tiles' edges and corners, which two to four tiles hold) visited in a
+ * shuffled order, then again after points far apart have taken every
+ * slot of the cache, then a second texture's points (its own id). */
+static void test_tiled_heights(void **state)
+{
+    (void)state;
+    mr_asset *ex = cracked();
+    mr_dproc p, q;
+    mr_error err;
+    assert_int_equal(mr_dproc_init(&p, ex->image, 0.3, 0.7, 1.5, 0.25, 9, 16, 0.2, -0.05, 2, &err),
+                     MR_OK);
+    assert_int_equal(mr_dproc_init(&q, ex->image, 0.1, 0.2, 1.0, 0.25, 5, 16, 0.3, 0.1, 2, &err),
+                     MR_OK);
+    enum { SIDE = 19 }; /* points -9 .. 9 */
+    int order[SIDE * SIDE];
+    for (int k = 0; k < SIDE * SIDE; k++)
+        order[k] = k;
+    uint64_t seed = 3;
+    for (int k = SIDE * SIDE - 1; k > 0; k--) {
+        int m = (int)(rnd01(&seed) * (k + 1));
+        m = m > k ? k : m;
+        int t = order[k];
+        order[k] = order[m], order[m] = t;
+    }
+    long checked = 0;
+    for (int pass = 0; pass < 3; pass++) {
+        const mr_dproc *d = pass == 2 ? &q : &p;
+        for (int k = 0; k < SIDE * SIDE; k++) {
+            const int64_t i = order[k] % SIDE - 9, j = order[k] / SIDE - 9;
+            const double direct = mr_dproc_height_of_blend(d, mr_dproc_blend(d, i, j));
+            if (mr_dproc_height(d, i, j) != direct)
+                fail_msg("pass %d: height of (%lld %lld) %.17g, the blend's %.17g", pass,
+                         (long long)i, (long long)j, mr_dproc_height(d, i, j), direct);
+            checked++;
+        }
+        for (int64_t f = 0; f < 20000; f++) /* every slot taken by far points */
+            (void)mr_dproc_height(&p, 100000 + 7 * f, -50000 - 13 * f);
+    }
+    assert_int_equal(checked, 3 * SIDE * SIDE);
+    mr_dproc_free(&q);
+    mr_dproc_free(&p);
+    mr_asset_free(ex);
+}
+
 /* The histogram of the tiled-and-blended heights matches the example's
  * (T^-1 restores it: HN18), and the texture does not repeat at the
  * example's period (a plain repeat correlates 1 with itself there).
@@ -1147,6 +1194,7 @@ int main(void)
         cmocka_unit_test(test_constant_texture_is_offset_base),
         cmocka_unit_test(test_bilinear_leaves),
         cmocka_unit_test(test_tiling_bounds),
+        cmocka_unit_test(test_tiled_heights),
         cmocka_unit_test(test_tiling_histogram_and_period),
         cmocka_unit_test(test_proc_triangle_roots),
         cmocka_unit_test(test_texture_triangle_heights),
