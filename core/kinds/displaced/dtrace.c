@@ -1276,11 +1276,9 @@ __attribute__((target("avx2"))) static inline void rect_normals4(const mr_dgrad 
  * x [ylo, yhi] (lanes) of the lanes `lanes` (whose rows already meet T's
  * grid box): its operations lane by lane, so the same answers; returns
  * the mask of those that may overlap T. */
-__attribute__((target("avx2"), always_inline)) static inline unsigned overlaps4_avx2(const mr_dbase *b,
-                                                                      const mr_dgrad *gr,
-                                                                      __m256d x0, __m256d x1,
-                                                                      __m256d ylo, __m256d yhi,
-                                                                      unsigned lanes)
+__attribute__((target("avx2"), always_inline)) static inline unsigned
+overlaps4_avx2(const mr_dbase *b, const mr_dgrad *gr, __m256d x0, __m256d x1, __m256d ylo,
+               __m256d yhi, unsigned lanes)
 {
     const __m256d gx0 = _mm256_set1_pd(gr->gx0), gx1 = _mm256_set1_pd(gr->gx1);
     __m256d in = _mm256_andnot_pd(_mm256_or_pd(_mm256_cmp_pd(x1, gx0, _CMP_LT_OQ),
@@ -1300,11 +1298,9 @@ __attribute__((target("avx2"), always_inline)) static inline unsigned overlaps4_
 /* local_box for four rectangles [x0, x1] x [ylo, yhi] (lanes) with heights
  * [hl, hh]: its operations lane by lane (each lane's normal bounds from its
  * own rectangle), so the same boxes, in lo and hi [axis][lane]. */
-__attribute__((target("avx2"), always_inline)) static inline void boxes4_avx2(const mr_dgrad *gr, __m256d x0,
-                                                              __m256d x1, __m256d ylo,
-                                                              __m256d yhi, const double hl[4],
-                                                              const double hh[4],
-                                                              double lo[3][4], double hi[3][4])
+__attribute__((target("avx2"), always_inline)) static inline void
+boxes4_avx2(const mr_dgrad *gr, __m256d x0, __m256d x1, __m256d ylo, __m256d yhi,
+            const double hl[4], const double hh[4], double lo[3][4], double hi[3][4])
 {
     const __m256d hlo = _mm256_loadu_pd(hl), hhi = _mm256_loadu_pd(hh);
     const __m256d lx0 = _mm256_max_pd(x0, _mm256_set1_pd(gr->gx0));
