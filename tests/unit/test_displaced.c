@@ -1044,8 +1044,9 @@ static void test_texture_triangle_heights(void **state)
 }
 
 /* A grid point's height, read from the thread's tiles of heights, is the
- * blend's height bit for bit, whichever tile was made first and however
- * many were made in between: points around the origin (negative indices,
+ * blend's height bit for bit, whichever tile was made first (a tile takes
+ * its edges from the neighbours kept) and however many were made in
+ * between: points around the origin (negative indices,
  * tiles' edges and corners, which two to four tiles hold) visited in a
  * shuffled order, then again after points far apart have taken every
  * slot of the cache, then a second texture's points (its own id). */

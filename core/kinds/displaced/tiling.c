@@ -307,11 +307,29 @@ static inline const htile *tile_kept(const mr_dproc *p, int64_t x, int64_t y)
     return e && e->id == p->id && e->x == x && e->y == y ? e : NULL;
 }
 
+/* Makes tile (x, y) into *e: the grid points on its edges that a kept
+ * neighbour holds are copied from it (the same bits), the rest blended. */
 static void tile_make(const mr_dproc *p, int64_t x, int64_t y, htile *e)
 {
+    double h[TILE + 1][TILE + 1];
+    bool known[TILE + 1][TILE + 1] = {{false}};
+    const htile *l = tile_kept(p, x - 1, y), *r = tile_kept(p, x + 1, y);
+    const htile *d = tile_kept(p, x, y - 1), *u = tile_kept(p, x, y + 1);
+    for (int k = 0; k <= TILE; k++) {
+        if (l)
+            h[k][0] = l->h[k][TILE], known[k][0] = true;
+        if (r)
+            h[k][TILE] = r->h[k][0], known[k][TILE] = true;
+        if (d)
+            h[0][k] = d->h[TILE][k], known[0][k] = true;
+        if (u)
+            h[TILE][k] = u->h[0][k], known[TILE][k] = true;
+    }
     for (int j = 0; j <= TILE; j++)
         for (int i = 0; i <= TILE; i++)
-            e->h[j][i] = mr_dproc_height_of_blend(p, mr_dproc_blend(p, x * TILE + i, y * TILE + j));
+            if (!known[j][i])
+                h[j][i] = mr_dproc_height_of_blend(p, mr_dproc_blend(p, x * TILE + i, y * TILE + j));
+    memcpy(e->h, h, sizeof h);
     e->id = p->id, e->x = x, e->y = y;
 }
 
