@@ -1977,39 +1977,38 @@ __attribute__((target("avx2"))) static unsigned proc_child_boxes_avx2(
     if (n->level <= pr->top && ((int64_t)1 << n->level) <= MR_DPROC_EXACT_LEG) {
         /* exact bounds from one tile of heights (cheap: no parent test) */
         mr_dproc_child_heights(pr, n->level, n->x, n->y, hl, hh);
-        for (int k = 0; k < 4; k++)
-            hl[k] = dmax(hl[k], gr->hlo), hh[k] = dmin(hh[k], gr->hhi);
-        boxes4_avx2(gr, x0, x1, ylo, yhi, hl, hh, lo, hi);
-        return inm;
-    }
-    /* the bounds at hand; the children whose bounds are to be made */
-    unsigned make = 0, test = 0;
-    const bool tighter = e->hlo > gr->hlo || e->hhi < gr->hhi;
-    for (unsigned m = inm; m; m &= m - 1) {
-        const unsigned k = (unsigned)__builtin_ctz(m);
-        if (c > pr->top) {
-            hl[k] = gr->hlo, hh[k] = gr->hhi;
-        } else if (!mr_dproc_square_heights_kept(pr, c, out[k].p.x, out[k].p.y, &hl[k], &hh[k])) {
-            make |= 1u << k;
-            if (tighter && worth_parent_test(pr, &out[k].p))
-                test |= 1u << k;
-        }
-    }
-    if (test) { /* the parent's heights first */
-        double ph[4] = {e->hlo, e->hlo, e->hlo, e->hlo}, pH[4] = {e->hhi, e->hhi, e->hhi, e->hhi};
-        uint32_t in[4];
-        double near[4];
-        boxes4_avx2(gr, x0, x1, ylo, yhi, ph, pH, lo, hi);
-        slab_four_avx2(p, live, lo, hi, in, near);
-        for (unsigned m = test; m; m &= m - 1) {
+    } else {
+        /* the bounds at hand; the children whose bounds are to be made */
+        unsigned make = 0, test = 0;
+        const bool tighter = e->hlo > gr->hlo || e->hhi < gr->hhi;
+        for (unsigned m = inm; m; m &= m - 1) {
             const unsigned k = (unsigned)__builtin_ctz(m);
-            if (!in[k])
-                inm &= ~(1u << k), make &= ~(1u << k);
+            if (c > pr->top) {
+                hl[k] = gr->hlo, hh[k] = gr->hhi;
+            } else if (!mr_dproc_square_heights_kept(pr, c, out[k].p.x, out[k].p.y, &hl[k],
+                                                     &hh[k])) {
+                make |= 1u << k;
+                if (tighter && worth_parent_test(pr, &out[k].p))
+                    test |= 1u << k;
+            }
         }
-    }
-    for (unsigned m = make; m; m &= m - 1) {
-        const unsigned k = (unsigned)__builtin_ctz(m);
-        mr_dproc_square_heights(pr, c, out[k].p.x, out[k].p.y, &hl[k], &hh[k]);
+        if (test) { /* the parent's heights first */
+            double ph[4] = {e->hlo, e->hlo, e->hlo, e->hlo};
+            double pH[4] = {e->hhi, e->hhi, e->hhi, e->hhi};
+            uint32_t in[4];
+            double near[4];
+            boxes4_avx2(gr, x0, x1, ylo, yhi, ph, pH, lo, hi);
+            slab_four_avx2(p, live, lo, hi, in, near);
+            for (unsigned m = test; m; m &= m - 1) {
+                const unsigned k = (unsigned)__builtin_ctz(m);
+                if (!in[k])
+                    inm &= ~(1u << k), make &= ~(1u << k);
+            }
+        }
+        for (unsigned m = make; m; m &= m - 1) {
+            const unsigned k = (unsigned)__builtin_ctz(m);
+            mr_dproc_square_heights(pr, c, out[k].p.x, out[k].p.y, &hl[k], &hh[k]);
+        }
     }
     for (unsigned m = inm; m; m &= m - 1) {
         const unsigned k = (unsigned)__builtin_ctz(m);

@@ -238,10 +238,9 @@ double mr_dproc_blend(const mr_dproc *p, int64_t i, int64_t j)
  * from one look-up, where a cache of single heights was looked up 6.0 M
  * times a frame for the plane at range 128 (bounds of squares of sides 1,
  * 2 and 4 asked for 6, 12 and 30 heights, a cell for 4) and missed a
- * sixth of them. The
- * blend bounds of larger squares are kept one a square. An entry holds
- * exactly what the computation returns, so results do not depend on it
- * (or on which thread filled it). */
+ * sixth of them. The blend bounds of larger squares are kept one a
+ * square. An entry holds exactly what the computation returns, so results
+ * do not depend on it (or on which thread filled it). */
 #define TILE_LOG 2
 #define TILE (1 << TILE_LOG)
 _Static_assert(TILE == MR_DPROC_EXACT_LEG, "a tile is a square of the exact bound's largest side");
@@ -336,10 +335,12 @@ static void tile_make(const mr_dproc *p, int64_t x, int64_t y, htile *e)
 /* Tile (x, y): kept, or made (into *spare when there is no cache). */
 static const htile *tile_of(const mr_dproc *p, int64_t x, int64_t y, htile *spare)
 {
+    const htile *t = tile_kept(p, x, y);
+    if (t)
+        return t;
     caches *c = my_caches();
     htile *e = c ? &c->tiles[slot_of(x, y, 0, TCACHE)] : spare;
-    if (!(c && e->id == p->id && e->x == x && e->y == y))
-        tile_make(p, x, y, e);
+    tile_make(p, x, y, e);
     return e;
 }
 
