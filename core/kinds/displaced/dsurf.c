@@ -178,25 +178,44 @@ static mr_dvert grid_cross(const line *a, const line *b)
     return v;
 }
 
+/* The vertices one cell's cutting makes: T's corners (or the square's
+ * four), then each crossing as it is made (each takes a place in the
+ * cut's polygon: at most MR_DSURF_MAX_POLY a cut, six cuts). Polygons name
+ * them by index, so a cut moves a byte a vertex, not the record. */
+#define POOL_MAX (4 + 6 * MR_DSURF_MAX_POLY)
+
+typedef struct pool {
+    int n;
+    mr_dvert v[POOL_MAX];
+} pool;
+
 /* A polygon whose edge m (vertex m -> m + 1) lies on tag[m]: a base edge
- * (0..2) or a cut line (3 + its index in the cut list). */
+ * (0..2) or a cut line (3 + its index in the cut list); its vertices are
+ * the pool's v[m]. */
 typedef struct poly {
     int n;
-    mr_dvert v[MR_DSURF_MAX_POLY];
+    uint8_t v[MR_DSURF_MAX_POLY];
     uint8_t tag[MR_DSURF_MAX_POLY];
 } poly;
 
-static void cut(const mr_dbase *b, const poly *in, const line *lines, int li, poly *out)
+/* A crossing made from the edge tagged t and line l into the pool: its index. */
+static uint8_t add_cross(const mr_dbase *b, pool *pl, uint8_t t, const line *lines, const line *l)
+{
+    pl->v[pl->n] = t < 3 ? edge_cross(b, t, l) : grid_cross(&lines[t - 3], l);
+    return (uint8_t)pl->n++;
+}
+
+static void cut(const mr_dbase *b, pool *pl, const poly *in, const line *lines, int li, poly *out)
 {
     const line *l = &lines[li];
     uint8_t ltag = (uint8_t)(3 + li);
     out->n = 0;
     bool wrap_line = false; /* the edge into the first output runs along l */
+    int sp = in->n ? side(&pl->v[in->v[in->n - 1]], l) : 0;
     for (int m = 0; m < in->n; m++) {
         int pm = m ? m - 1 : in->n - 1;
-        const mr_dvert *p = &in->v[pm], *q = &in->v[m];
         uint8_t tpq = in->tag[pm], tq = in->tag[m];
-        int sp = side(p, l), sq = side(q, l);
+        int sq = side(&pl->v[in->v[m]], l);
         if (sq >= 0) {
             if (sp < 0) {
                 if (out->n)
@@ -204,22 +223,23 @@ static void cut(const mr_dbase *b, const poly *in, const line *lines, int li, po
                 else
                     wrap_line = true;
                 if (sq > 0 && out->n < MR_DSURF_MAX_POLY) {
-                    out->v[out->n] = tpq < 3 ? edge_cross(b, tpq, l) : grid_cross(&lines[tpq - 3], l);
+                    out->v[out->n] = add_cross(b, pl, tpq, lines, l);
                     out->tag[out->n++] = tpq;
                 }
             }
             if (out->n < MR_DSURF_MAX_POLY) {
-                out->v[out->n] = *q;
+                out->v[out->n] = in->v[m];
                 out->tag[out->n++] = tq;
             }
         } else if (sp > 0) {
             if (out->n < MR_DSURF_MAX_POLY) {
-                out->v[out->n] = tpq < 3 ? edge_cross(b, tpq, l) : grid_cross(&lines[tpq - 3], l);
+                out->v[out->n] = add_cross(b, pl, tpq, lines, l);
                 out->tag[out->n++] = ltag;
             }
         } else if (sp == 0 && out->n) {
             out->tag[out->n - 1] = ltag;
         }
+        sp = sq;
     }
     if (wrap_line && out->n)
         out->tag[out->n - 1] = ltag;
@@ -247,11 +267,13 @@ static int add_vert(mr_dcell *c, const mr_dvert *v)
     return c->nv++;
 }
 
-static void start(const mr_dbase *b, poly *p)
+/* T as the first polygon, its corners the pool's first three vertices. */
+static void start(const mr_dbase *b, pool *pl, poly *p)
 {
-    p->n = 3;
+    pl->n = p->n = 3;
     for (int k = 0; k < 3; k++) {
-        p->v[k] = (mr_dvert){.kind = MR_DV_BASE, .idx = (uint8_t)k, .x = b->g[k][0], .y = b->g[k][1]};
+        pl->v[k] = (mr_dvert){.kind = MR_DV_BASE, .idx = (uint8_t)k, .x = b->g[k][0], .y = b->g[k][1]};
+        p->v[k] = (uint8_t)k;
         p->tag[k] = (uint8_t)k;
     }
 }
@@ -259,18 +281,18 @@ static void start(const mr_dbase *b, poly *p)
 /* Rotates a polygon to start at its lexicographically smallest vertex
  * (x, then y): pieces then come out the same whichever corner of T the
  * cutting started from, and whole cells match the direct path below. */
-static void rotate_canonical(poly *p)
+static void rotate_canonical(const pool *pl, poly *p)
 {
     int m = 0;
-    for (int k = 1; k < p->n; k++)
-        if (p->v[k].x < p->v[m].x || (p->v[k].x == p->v[m].x && p->v[k].y < p->v[m].y))
+    for (int k = 1; k < p->n; k++) {
+        const mr_dvert *a = &pl->v[p->v[k]], *c = &pl->v[p->v[m]];
+        if (a->x < c->x || (a->x == c->x && a->y < c->y))
             m = k;
+    }
     if (m == 0)
         return;
-    /* (only the n vertices copied: the whole polygon is 600 bytes) */
-    mr_dvert v[MR_DSURF_MAX_POLY];
-    uint8_t tag[MR_DSURF_MAX_POLY];
-    memcpy(v, p->v, (size_t)p->n * sizeof *v);
+    uint8_t v[MR_DSURF_MAX_POLY], tag[MR_DSURF_MAX_POLY];
+    memcpy(v, p->v, (size_t)p->n);
     memcpy(tag, p->tag, (size_t)p->n);
     for (int k = 0; k < p->n; k++) {
         p->v[k] = v[(k + m) % p->n];
@@ -357,14 +379,14 @@ static void cell_lines(int64_t i, int64_t j, line lines[5])
 }
 
 /* T's piece of the cell: T cut by the cell's four lines (the definition). */
-static void cut_piece(const mr_dbase *b, const line lines[5], poly *out)
+static void cut_piece(const mr_dbase *b, const line lines[5], pool *pl, poly *out)
 {
     poly a, c;
-    start(b, &a);
-    cut(b, &a, lines, 0, &c);
-    cut(b, &c, lines, 1, &a);
-    cut(b, &a, lines, 2, &c);
-    cut(b, &c, lines, 3, out);
+    start(b, pl, &a);
+    cut(b, pl, &a, lines, 0, &c);
+    cut(b, pl, &c, lines, 1, &a);
+    cut(b, pl, &a, lines, 2, &c);
+    cut(b, pl, &c, lines, 3, out);
 }
 
 /* T's piece of a CELL_EDGE cell: its square, corners in T's orientation,
@@ -378,31 +400,31 @@ static void cut_piece(const mr_dbase *b, const line lines[5], poly *out)
  * starts does not matter: fan_halves' cut gives the same polygon from
  * each start, and rotate_canonical starts it at the same vertex. */
 static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, unsigned inside,
-                       const line lines[5], poly *out)
+                       const line lines[5], pool *pl, poly *out)
 {
     /* the square's corners counter-clockwise from (i, j), and the line
      * the side from corner k to corner k + 1 lies on */
     static const int X[4] = {0, 1, 1, 0}, Y[4] = {0, 0, 1, 1}, SIDE[4] = {2, 1, 3, 0};
-    mr_dvert c[4];
     uint8_t tag[4];
     bool in[4];
     for (int k = 0; k < 4; k++) {
         /* clockwise: (i, j), (i, j + 1), (i + 1, j + 1), (i + 1, j) */
         const int q = b->orient > 0 ? k : (4 - k) % 4, next = b->orient > 0 ? q : (q + 3) % 4;
         const int64_t x = i + X[q], y = j + Y[q];
-        c[k] = (mr_dvert){.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
+        pl->v[k] = (mr_dvert){.kind = MR_DV_GRID, .a = x, .b = y, .x = (double)x, .y = (double)y};
         tag[k] = (uint8_t)(3 + SIDE[next]);
         in[k] = inside >> (X[q] + 2 * Y[q]) & 1u;
     }
+    pl->n = 4;
     out->n = 0;
     for (int m = 0; m < 4; m++) {
         const int pm = (m + 3) % 4;
         if (in[m] != in[pm]) { /* the side from pm to m crosses e */
-            out->v[out->n] = edge_cross(b, e, &lines[tag[pm] - 3]);
+            out->v[out->n] = add_cross(b, pl, (uint8_t)e, lines, &lines[tag[pm] - 3]);
             out->tag[out->n++] = in[m] ? tag[pm] : (uint8_t)e;
         }
         if (in[m]) {
-            out->v[out->n] = c[m];
+            out->v[out->n] = (uint8_t)m;
             out->tag[out->n++] = tag[m];
         }
     }
@@ -410,7 +432,8 @@ static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, unsigned 
 
 /* The micro-triangles of T's piece a of the cell: each half of it (the
  * piece cut by the diagonal), started at its smallest vertex and fanned. */
-static void fan_halves(const mr_dbase *b, const poly *a, line lines[5], int half, mr_dcell *out)
+static void fan_halves(const mr_dbase *b, pool *pl, const poly *a, line lines[5], int half,
+                       mr_dcell *out)
 {
     out->nv = out->nt = 0;
     if (!a->n)
@@ -420,13 +443,13 @@ static void fan_halves(const mr_dbase *b, const poly *a, line lines[5], int half
             continue;
         poly c;
         lines[4].keep_ge = hf == 1;
-        cut(b, a, lines, 4, &c);
+        cut(b, pl, a, lines, 4, &c);
         if (!c.n)
             continue;
-        rotate_canonical(&c);
+        rotate_canonical(pl, &c);
         int idx[MR_DSURF_MAX_POLY];
         for (int k = 0; k < c.n; k++)
-            idx[k] = add_vert(out, &c.v[k]);
+            idx[k] = add_vert(out, &pl->v[c.v[k]]);
         for (int k = 1; k + 1 < c.n; k++) {
             out->tri[out->nt][0] = (uint8_t)idx[0];
             out->tri[out->nt][1] = (uint8_t)idx[k];
@@ -447,21 +470,23 @@ void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *
     }
     line lines[5];
     cell_lines(i, j, lines);
+    pool pl;
     poly a;
     if (how == CELL_EDGE)
-        edge_piece(b, i, j, e, inside, lines, &a);
+        edge_piece(b, i, j, e, inside, lines, &pl, &a);
     else
-        cut_piece(b, lines, &a);
-    fan_halves(b, &a, lines, half, out);
+        cut_piece(b, lines, &pl, &a);
+    fan_halves(b, &pl, &a, lines, half, out);
 }
 
 void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
 {
     line lines[5];
     cell_lines(i, j, lines);
+    pool pl;
     poly a;
-    cut_piece(b, lines, &a);
-    fan_halves(b, &a, lines, half, out);
+    cut_piece(b, lines, &pl, &a);
+    fan_halves(b, &pl, &a, lines, half, out);
 }
 
 /* ---- evaluation ---------------------------------------------------------------- */

@@ -2,9 +2,9 @@
 #include "kinds/displaced/tiling.h"
 
 #include "util/parallel.h"
+#include "util/thread_block.h"
 
 #include <math.h>
-#include <pthread.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
@@ -260,35 +260,20 @@ typedef struct bentry {
     double lo, hi;
 } bentry;
 
-/* A thread's caches, 1.1 MB: on the heap, as thread-local storage comes
- * out of every thread's stack (a tile cache of 1,024 in it: the plane at
- * range 128 in 1.08-1.20 of the time). */
+/* A thread's caches, 1.1 MB: on the heap (thread_block.h; a tile cache
+ * of 1,024 in thread-local storage: the plane at range 128 in 1.08-1.20
+ * of the time). */
 typedef struct caches {
     htile tiles[TCACHE];
     bentry bounds[BCACHE];
 } caches;
 
-static _Thread_local caches *my;
-static pthread_key_t caches_key;
-static pthread_once_t caches_once = PTHREAD_ONCE_INIT;
-static bool caches_keyed;
+static mr_thread_block caches_block = MR_THREAD_BLOCK_INIT;
+static _Thread_local void *my;
 
-static void caches_key_make(void) { caches_keyed = pthread_key_create(&caches_key, free) == 0; }
-
-/* This thread's caches (made on its first call, freed when it ends), or
- * NULL when out of memory: then nothing is kept. */
-static caches *my_caches(void)
-{
-    if (my)
-        return my;
-    pthread_once(&caches_once, caches_key_make);
-    caches *c = caches_keyed ? calloc(1, sizeof *c) : NULL; /* (id 0: no entry) */
-    if (c && pthread_setspecific(caches_key, c) != 0) {
-        free(c);
-        c = NULL;
-    }
-    return my = c;
-}
+/* This thread's caches (zeroed: id 0 is no entry), or NULL: then nothing
+ * is kept. */
+static caches *my_caches(void) { return mr_thread_block_get(&caches_block, &my, sizeof(caches)); }
 
 static inline size_t slot_of(int64_t a, int64_t b, int64_t c, size_t n)
 {
