@@ -893,8 +893,8 @@ static bool cell_make(const mr_dscene *s, const mr_dbase *b, int64_t i, int64_t 
  * and bounds besides their boxes (a texture's heights come from its
  * pyramid, where keeping the boxes bought nothing). Four-way
  * set-associative like the cells: 512 squares hit 64 % of the look-ups
- * on that sphere; 4,096 hit 79 % but missed the processor's caches, 1.03
- * of the time. */
+ * on that sphere; 4,096 hit 79 % but missed the processor's caches,
+ * 1.03-1.04 of the time. */
 #define NODE_WAYS 4
 #define NODE_SETS 128
 #define NODE_CACHE (NODE_WAYS * NODE_SETS)
@@ -2094,15 +2094,14 @@ __attribute__((target("avx2"))) static unsigned proc_child_boxes_kept(
     const uint64_t h = mr_mix64((uint64_t)t ^
                                 mr_mix64((uint64_t)n->x ^ mr_mix64((uint64_t)n->y * 64 + (uint64_t)n->level)));
     size_t w;
-    node_boxes *nb = &wc->nodes[0];
-    if (walk_find(wc, wc->node_keys, NODE_WAYS, NODE_SETS, h, &k, &w)) {
-        nb = &wc->nodes[w];
+    const bool kept = walk_find(wc, wc->node_keys, NODE_WAYS, NODE_SETS, h, &k, &w);
+    node_boxes *nb = &wc->nodes[w];
+    if (kept) {
         for (int c = 0; c < 4; c++)
             out[c].p = (pnode){n->level - 1, n->x * 2 + (c & 1), n->y * 2 + (c >> 1)};
         if (st)
-            st->nodes += 4;
+            st->nodes += 4; /* (as proc_child_boxes_avx2 counts them) */
     } else {
-        nb = &wc->nodes[w];
         nb->boxed = proc_child_boxes_avx2(s->proc, b, gr, e, NULL, 0, out, nb->lo, nb->hi, nb->hl,
                                           nb->hh, st);
     }
