@@ -21,6 +21,7 @@
 #endif
 
 #include "kinds/dmm/dmm_trace.h"
+#include "util/thread_block.h"
 
 /* Widening of every box, relative to the patch's magnitude bound (see
  * patch_pad): covers the final float rounding of a micro-vertex (2^-24
@@ -316,7 +317,11 @@ typedef struct vertex_entry {
     uint32_t key; /* level, a, b */
     mr_vec3 v;
 } vertex_entry;
-static _Thread_local vertex_entry vertex_cache[1u << VERTEX_CACHE_BITS];
+/* A thread's cache (128 KB) is on the heap (thread_block.h): thread-local
+ * storage comes out of every thread's stack. Zeroed: no entry's stamp is
+ * 0, the stamp of patches that are not kept. */
+static mr_thread_block vertex_block = MR_THREAD_BLOCK_INIT;
+static _Thread_local void *my_vertices;
 
 uint64_t mr_dmm_stamp(void)
 {
@@ -337,7 +342,12 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
 {
     uint32_t a[6], b[6];
     float d[6];
-    if (!p->mats[0] || !p->stamp) {
+    vertex_entry *cache =
+        p->mats[0] && p->stamp
+            ? mr_thread_block_get(&vertex_block, &my_vertices,
+                                  sizeof(vertex_entry) << VERTEX_CACHE_BITS)
+            : NULL;
+    if (!cache) { /* (nothing kept: no stamp, or no memory) */
         for (int k = 0; k < n; k++) {
             a[k] = at[k]->a, b[k] = at[k]->b;
             d[k] = vertex_disp(p, a[k], b[k]);
@@ -358,7 +368,7 @@ static void leaf_vertices(const mr_dmm_patch *p, int n, const lattice_pt *const 
         const uint64_t h =
             ((uintptr_t)p->values ^ p->stamp * 0x9E3779B97F4A7C15ull) + key * 0xC2B2AE3Du;
         vertex_entry *e =
-            &vertex_cache[(h * 0x9E3779B97F4A7C15ull) >> (64 - VERTEX_CACHE_BITS)];
+            &cache[(h * 0x9E3779B97F4A7C15ull) >> (64 - VERTEX_CACHE_BITS)];
         if (e->values == p->values && e->stamp == p->stamp && e->key == key) {
             v[k] = e->v;
             continue;
