@@ -292,7 +292,8 @@ static inline const htile *tile_kept(const mr_dproc *p, int64_t x, int64_t y)
 }
 
 /* Makes tile (x, y) into *e: the grid points on its edges that a kept
- * neighbour holds are copied from it (the same bits), the rest blended. */
+ * neighbour holds are copied from it (the same bits), the rest blended
+ * (into h first: a neighbour may sit in e's own slot). */
 static void tile_make(const mr_dproc *p, int64_t x, int64_t y, htile *e)
 {
     double h[TILE + 1][TILE + 1];
