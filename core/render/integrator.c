@@ -127,6 +127,12 @@ static packet_px packet_at(int x0, int y, int cols, int rows)
 
 static bool lane_live(unsigned live, int i) { return live >> i & 1u; }
 
+/* Lane i's pixel in a tile whose packet starts at index i0. */
+static size_t lane_at(size_t i0, int i)
+{
+    return i0 + (size_t)(i / MR_PACKET_W) * MR_TILE_W + (size_t)(i % MR_PACKET_W);
+}
+
 /* A lane's light so far and the shadow rays it still waits for: one per
  * light that faces the hit (cosine > 0), all from org. */
 typedef struct light_wait {
@@ -136,17 +142,17 @@ typedef struct light_wait {
 } light_wait;
 
 /* Shades a hit but for its shadows: *lw gets the lights that face it and
- * the ambient light, and waits when they need shadow rays (shadows). */
-static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 org, mr_vec3 dir,
-                  sample_result *out, light_wait *lw)
+ * the ambient light, and waits when they need shadow rays (shadows).
+ * normal: the kind's normal at the hit (kind.h normal), asked for before. */
+static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 normal, mr_vec3 org,
+                  mr_vec3 dir, sample_result *out, light_wait *lw)
 {
     lw->waits = false;
     const mr_shade_object *obj = &s->objects[h->geom];
     mr_vec3 ng = mr_v3_normalize_or(h->ng, mr_v3(0, 0, 1));
     if (mr_v3_dot(ng, dir) > 0)
         ng = mr_v3_scale(ng, -1.0f);
-    mr_vec3 n = obj->kind->normal(obj->geom, h->prim, h->u, h->v, h->ng);
-    n = mr_v3_normalize_or(n, ng);
+    mr_vec3 n = mr_v3_normalize_or(normal, ng);
     float step = obj->kind->surface_step ? obj->kind->surface_step(obj->geom, h->prim, h->u, h->v) : 0.0f;
     /* A shading normal facing away from the viewer: a smooth surface seen
      * from behind its interpolated normals is turned round. A voxel whose
@@ -280,6 +286,27 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
             out[k].rgb = mr_v3_mul(lw[k].albedo, lw[k].light);
 }
 
+/* The packet's lanes for Embree, four at a time: valid (-1: a pixel of the
+ * tile, 0: idle) and the film points of sample 0, the pixels' centres (x +
+ * 0.5, y + 0.5); an idle lane takes lane 0's pixel (always a valid ray). */
+static inline void packet_lanes(const packet_px *pk, int valid[MR_PACKET], float px[MR_PACKET],
+                                float py[MR_PACKET])
+{
+    const __m128i live = _mm_set1_epi32((int)pk->live);
+    const __m128 h = _mm_set1_ps(0.5f);
+    for (int i = 0; i < MR_PACKET; i += 4) {
+        const __m128i lane = _mm_setr_epi32(i, i + 1, i + 2, i + 3);
+        const __m128i bit = _mm_setr_epi32(1 << i, 1 << (i + 1), 1 << (i + 2), 1 << (i + 3));
+        const __m128i on = _mm_cmpeq_epi32(_mm_and_si128(live, bit), bit);
+        const __m128i l = _mm_and_si128(lane, on);
+        const __m128i x = _mm_add_epi32(_mm_set1_epi32(pk->x0), _mm_and_si128(l, _mm_set1_epi32(7)));
+        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, 3)); /* l / 8 */
+        _mm_store_si128((__m128i *)(valid + i), on);
+        _mm_store_ps(px + i, _mm_add_ps(_mm_cvtepi32_ps(x), h));
+        _mm_store_ps(py + i, _mm_add_ps(_mm_cvtepi32_ps(y), h));
+    }
+}
+
 /* Traces sample k of the packet's pixels; returns the mask of lanes that
  * hit (only their out[] is written). */
 static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sample_result *out,
@@ -289,23 +316,22 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     mr_vec3 org = c->rays_setup.origin;
     RTC_ALIGN(64) int valid[MR_PACKET];
     struct RTCRayHit16 rh;
-    float px[MR_PACKET], py[MR_PACKET];
-    for (int i = 0; i < MR_PACKET; i++) {
-        int l = lane_live(pk->live, i) ? i : 0; /* idle lanes repeat lane 0: always a valid ray */
-        int x = pk->x0 + l % MR_PACKET_W, y = pk->y + l / MR_PACKET_W;
-        float jx = 0.5f, jy = 0.5f;
-        if (k > 0)
+    RTC_ALIGN(16) float px[MR_PACKET], py[MR_PACKET];
+    packet_lanes(pk, valid, px, py);
+    if (k > 0)
+        for (int i = 0; i < MR_PACKET; i++) {
+            int l = lane_live(pk->live, i) ? i : 0; /* idle lanes repeat lane 0: a valid ray */
+            int x = pk->x0 + l % MR_PACKET_W, y = pk->y + l / MR_PACKET_W;
+            float jx, jy;
             sample_jitter(s, (uint32_t)x, (uint32_t)y, (uint32_t)k, &jx, &jy);
-        px[i] = (float)x + jx;
-        py[i] = (float)y + jy;
-    }
+            px[i] = (float)x + jx;
+            py[i] = (float)y + jy;
+        }
     for (int h = 0; h < MR_PACKET; h += MR_PACKET_W)
         mr_camera_rays_dir8(&c->rays_setup, px + h, py + h, rh.ray.dir_x + h, rh.ray.dir_y + h,
                             rh.ray.dir_z + h);
-    for (int i = 0; i < MR_PACKET; i++) { /* (loops of one field each: filled as vectors) */
-        valid[i] = lane_live(pk->live, i) ? -1 : 0;
+    for (int i = 0; i < MR_PACKET; i++) /* (loops of one field each: filled as vectors) */
         rh.ray.id[i] = (unsigned)i;
-    }
     for (int i = 0; i < MR_PACKET; i++) {
         rh.ray.org_x[i] = org.x;
         rh.ray.org_y[i] = org.y;
@@ -328,8 +354,17 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     light_wait lw[MR_PACKET];
     bool waits = false;
     unsigned hits = 0, reached = 0;
-    for (int i = 0; i < MR_PACKET; i++)
-        reached |= (unsigned)(rh.hit.geomID[i] != RTC_INVALID_GEOMETRY_ID) << i;
+    _Static_assert(RTC_INVALID_GEOMETRY_ID == 0xffffffffu, "a miss's geomID is all ones");
+    for (int h = 0; h < MR_PACKET; h += 4) /* the lanes whose geomID is not all ones */
+        reached |= (unsigned)(~_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(
+                                  _mm_loadu_si128((const __m128i *)(rh.hit.geomID + h)),
+                                  _mm_set1_epi32(-1)))) & 15) << h;
+    /* The hits and their kinds' normals first, in a loop of their own: the
+     * normals' loads (a mesh's indices and vertex normals, often not in
+     * cache) of all the lanes under way at once, not one lane's at a time
+     * between the shading of the others. */
+    hit_view hv[MR_PACKET];
+    mr_vec3 normal[MR_PACKET];
     for (unsigned m = pk->live & reached; m; m &= m - 1) {
         int i = __builtin_ctz(m);
         /* An instance hit names the instance's top-level id; the kind
@@ -337,13 +372,21 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
         bool instanced = rh.hit.instID[0][i] != RTC_INVALID_GEOMETRY_ID;
         unsigned id = instanced ? rh.hit.instID[0][i] : rh.hit.geomID[i];
         unsigned geom = s->id_object ? (id < s->id_count ? s->id_object[id] : UINT_MAX) : id;
-        if (geom >= s->object_count)
+        if (geom >= s->object_count) {
+            reached &= ~(1u << i);
             continue;
+        }
         unsigned prim = instanced ? id - s->objects[geom].first_id : rh.hit.primID[i];
-        hit_view h = {geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
-                      mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
+        hv[i] = (hit_view){geom, prim, rh.hit.u[i], rh.hit.v[i], rh.ray.tfar[i],
+                           mr_v3(rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i])};
+        const mr_shade_object *obj = &s->objects[geom];
+        normal[i] = obj->kind->normal(obj->geom, prim, hv[i].u, hv[i].v, hv[i].ng);
+    }
+    for (unsigned m = pk->live & reached; m; m &= m - 1) {
+        int i = __builtin_ctz(m);
+        const hit_view h = hv[i];
         mr_vec3 dir = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
-        shade(s, &h, org, dir, &out[i], &lw[i]);
+        shade(s, &h, normal[i], org, dir, &out[i], &lw[i]);
         hits |= 1u << i;
         waits |= lw[i].waits;
         out[i].depth = h.t * mr_v3_dot(dir, c->forward);
@@ -518,23 +561,19 @@ static void miss_sums(int n, mr_vec3 miss_rgb, float miss_alpha, mr_vec3 *rgb, f
 static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, tile_buffer *t,
                          size_t i0, uint64_t *rays)
 {
-    size_t at[MR_PACKET]; /* each lane's tile index */
-    for (int i = 0; i < MR_PACKET; i++)
-        at[i] = i0 + (size_t)(i / MR_PACKET_W) * MR_TILE_W + (size_t)(i % MR_PACKET_W);
     const mr_trace_setup *s = c->s;
     const bool colour = s->aovs & MR_AOV_RGBA, crypto = s->aovs & MR_AOV_CRYPTOMATTE;
     /* sample 0 alone feeds the data passes */
     const int samples = colour || crypto ? s->spp : 1;
+    /* the lanes' sums, set when a sample first hits (a packet no sample
+     * hits, most of a frame's, never reads them) */
     mr_vec3 rgb[MR_PACKET];
     float alpha[MR_PACKET];
     crypto_tally tally[MR_PACKET][MR_CRYPTO_LAYERS];
-    for (int i = 0; i < MR_PACKET; i++) {
-        rgb[i] = mr_v3(0, 0, 0);
-        alpha[i] = 0;
-        if (crypto)
+    if (crypto)
+        for (int i = 0; i < MR_PACKET; i++)
             for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
                 tally[i][l].count = 0;
-    }
     mr_vec3 miss_rgb = mr_v3_scale(s->background, s->background_alpha);
     /* Samples that hit nothing before any sample hit: every lane's sums
      * are the same, made once (miss_sums) and handed to the lanes when a
@@ -551,7 +590,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
         if (!(any | hits)) {
             lead++;
         } else {
-            if (!any && lead) {
+            if (!any) {
                 miss_sums(lead, miss_rgb, s->background_alpha, &lead_rgb, &lead_alpha);
                 for (int i = 0; i < MR_PACKET; i++)
                     rgb[i] = lead_rgb, alpha[i] = lead_alpha;
@@ -573,7 +612,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                 for (int l = 0; l < MR_CRYPTO_LAYERS; l++)
                     tally_add(&tally[i][l], s->crypto_ids[l][r[i].object - 1]);
             if (k == 0) {
-                size_t p = at[i];
+                size_t p = lane_at(i0, i);
                 t->z[p] = r[i].depth;
                 t->nx[p] = r[i].normal.x;
                 t->ny[p] = r[i].normal.y;
@@ -617,7 +656,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
     }
     for (unsigned m = pk->live; m; m &= m - 1) {
         int i = __builtin_ctz(m);
-        size_t p = at[i];
+        size_t p = lane_at(i0, i);
         t->r[p] = rgb[i].x * inv_spp;
         t->g[p] = rgb[i].y * inv_spp;
         t->b[p] = rgb[i].z * inv_spp;
