@@ -73,8 +73,11 @@ static inline double dq(const mr_dgrid *g, uint16_t q)
     return q == 0 ? g->gmin : q == 65535 ? g->gmax : g->gmin + q * g->qstep;
 }
 
-void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
-                           double *hi)
+/* mr_dgrid_node_samples, inline in both its callers here (the traversal
+ * asks for a node's heights every time it makes the node's box). */
+static inline __attribute__((always_inline)) void node_samples(const mr_dgrid *g, unsigned l,
+                                                               uint32_t I, uint32_t J, double *lo,
+                                                               double *hi)
 {
     if (l == 0) {
         uint32_t i1 = I + 1 == g->w ? 0 : I + 1, j1 = J + 1 == g->h ? 0 : J + 1;
@@ -95,11 +98,17 @@ void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J
     *hi = dq(g, g->qmax[k]);
 }
 
+void mr_dgrid_node_samples(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
+                           double *hi)
+{
+    node_samples(g, l, I, J, lo, hi);
+}
+
 void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J, double *lo,
                                 double *hi)
 {
     double a, b;
-    mr_dgrid_node_samples(g, l, I, J, &a, &b);
+    node_samples(g, l, I, J, &a, &b);
     double ha = mr_dgrid_height_of(g, a), hb = mr_dgrid_height_of(g, b);
     *lo = ha < hb ? ha : hb;
     *hi = ha > hb ? ha : hb;
