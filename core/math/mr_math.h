@@ -75,6 +75,16 @@ static inline double mr_floor_small(double x)
 }
 
 /* a / b rounded down (towards -infinity), b != 0. */
+/* Bits set in v (SWAR: the build flags have no -mpopcnt, and
+ * __builtin_popcount is a call into libgcc there, which the hot loops of
+ * the renderer and the displaced kind paid at every packet). */
+static inline unsigned mr_popcount32(uint32_t v)
+{
+    v = v - ((v >> 1) & 0x55555555u);
+    v = (v & 0x33333333u) + ((v >> 2) & 0x33333333u);
+    return (((v + (v >> 4)) & 0x0f0f0f0fu) * 0x01010101u) >> 24;
+}
+
 static inline int64_t mr_floor_div(int64_t a, int64_t b)
 {
     const int64_t q = a / b;

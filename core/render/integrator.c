@@ -350,7 +350,7 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     rtcInitIntersectContext(&ctx);
     ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
     rtcIntersect16(valid, s->scene, &ctx, &rh);
-    *rays += (uint64_t)__builtin_popcount(pk->live);
+    *rays += (uint64_t)mr_popcount32(pk->live);
     light_wait lw[MR_PACKET];
     bool waits = false;
     unsigned hits = 0, reached = 0;
@@ -538,7 +538,7 @@ static void store_miss_rows(tile_buffer *t, const packet_px *pk, size_t i0)
 {
     for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
         store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
-                       __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu));
+                       mr_popcount32(pk->live >> (row * MR_PACKET_W) & 0xffu));
 }
 
 /* The colour and alpha sums of n missed samples, from zero, added in
@@ -646,7 +646,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                             lead_alpha * inv_spp};
         float *plane[4] = {t->r, t->g, t->b, t->a};
         for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++) {
-            const int n = __builtin_popcount(pk->live >> (row * MR_PACKET_W) & 0xffu);
+            const int n = mr_popcount32(pk->live >> (row * MR_PACKET_W) & 0xffu);
             const size_t p = i0 + (size_t)row * MR_TILE_W;
             for (int q = 0; q < 4; q++)
                 for (int i = 0; i < n; i++)

@@ -230,6 +230,35 @@ static void test_float_bounds(void **state)
     assert_true(isnan(mr_float_down(NAN)) && isnan(mr_float_up(NAN)));
 }
 
+/* mr_popcount32 against a bit-by-bit count: every 16-bit value (the
+ * renderer's packet masks) and a stream of 32-bit ones from a fixed
+ * generator, with the edges (0, all ones, single bits). */
+static unsigned count_bits(uint32_t v)
+{
+    unsigned n = 0;
+    for (int b = 0; b < 32; b++)
+        n += v >> b & 1u;
+    return n;
+}
+
+static void test_popcount32(void **state)
+{
+    (void)state;
+    for (uint32_t v = 0; v <= 0xffffu; v++)
+        assert_int_equal(mr_popcount32(v), count_bits(v));
+    assert_int_equal(mr_popcount32(0xffffffffu), 32);
+    for (int b = 0; b < 32; b++) {
+        assert_int_equal(mr_popcount32(1u << b), 1);
+        assert_int_equal(mr_popcount32(~(1u << b)), 31);
+    }
+    uint64_t x = 0x9e3779b97f4a7c15ull;
+    for (int k = 0; k < 100000; k++) {
+        x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+        const uint32_t v = (uint32_t)(x >> 16);
+        assert_int_equal(mr_popcount32(v), count_bits(v));
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -241,6 +270,7 @@ int main(void)
         cmocka_unit_test(test_catmull_rom_interpolates),
         cmocka_unit_test(test_tangent_to),
         cmocka_unit_test(test_float_bounds),
+        cmocka_unit_test(test_popcount32),
     };
     return cmocka_run_group_tests_name("math", tests, NULL, NULL);
 }

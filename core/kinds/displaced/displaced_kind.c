@@ -965,7 +965,7 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
         }
         const mr_drays rays = packet_rays(args->rayhit, N);
         mr_dhit hits[MR_DPACKET_MAX];
-        st.calls += (uint64_t)__builtin_popcount(lanes);
+        st.calls += (uint64_t)mr_popcount32(lanes);
         const uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, &rays, lanes,
                                                        hits, &st);
         for (uint32_t m = hm; m; m &= m - 1) {
@@ -996,7 +996,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
          * hit but shares the nodes) */
         const mr_drays rays = packet_rays(args->ray, N);
         mr_dhit hits[MR_DPACKET_MAX];
-        st.calls += (uint64_t)__builtin_popcount(lanes);
+        st.calls += (uint64_t)mr_popcount32(lanes);
         uint32_t hm = mr_dtrace_intersect_packet(&g->scene, args->primID, &rays, lanes, hits, &st);
         for (uint32_t m = hm; m; m &= m - 1)
             *mr_ray_f(args->ray, N, MR_RAY_TFAR, (unsigned)__builtin_ctz(m)) = -INFINITY;

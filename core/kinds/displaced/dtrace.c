@@ -2655,7 +2655,7 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
     const mr_dcell *c = &ct->c;
     const int o = 8 * h;
     if (st)
-        st->triangles += (uint64_t)c->nt * (uint64_t)__builtin_popcount(lanes);
+        st->triangles += (uint64_t)c->nt * (uint64_t)mr_popcount32(lanes);
     /* (lanes not in `lanes` compute on whatever their columns hold; their
      * results are never read) */
     const __m256 ox = _mm256_loadu_ps(w->col[0] + o), oy = _mm256_loadu_ps(w->col[1] + o);
@@ -2768,7 +2768,7 @@ static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_w
         if (!half)
             continue;
 #if HAS_CELL8
-        if (__builtin_popcount(half) >= CELL8_MIN && rays->n >= 8 * h + 8 &&
+        if (mr_popcount32(half) >= CELL8_MIN && rays->n >= 8 * h + 8 &&
             __builtin_cpu_supports("avx2")) {
             if (half & ~(w->made >> 8 * h))
                 half_wt_avx2(rays, w, h);
