@@ -23,6 +23,10 @@
  *   normal      world-space shading normal at a hit (unnormalised is fine);
  *               ng is the hit's geometric normal as Embree returned it (the
  *               kind's own, for user geometry), for kinds that shade by it;
+ *               the renderer asks for all of a packet's hits' normals
+ *               before it shades any of them (their loads under way
+ *               together): like every op a hit is shaded by, it reads the
+ *               geometry and changes nothing, so their order is free;
  *   id_primitive  (NULL: prim itself) what the id pass's id.primitive
  *               names for a hit on primitive prim (as normal gets it),
  *               for a kind whose Embree primitives are pieces of what its
