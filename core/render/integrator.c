@@ -384,13 +384,12 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
     }
     for (unsigned m = pk->live & reached; m; m &= m - 1) {
         int i = __builtin_ctz(m);
-        const hit_view h = hv[i];
         mr_vec3 dir = mr_v3(rh.ray.dir_x[i], rh.ray.dir_y[i], rh.ray.dir_z[i]);
-        shade(s, &h, normal[i], org, dir, &out[i], &lw[i]);
+        shade(s, &hv[i], normal[i], org, dir, &out[i], &lw[i]);
         hits |= 1u << i;
         waits |= lw[i].waits;
-        out[i].depth = h.t * mr_v3_dot(dir, c->forward);
-        out[i].pos = mr_v3_add(org, mr_v3_scale(dir, h.t));
+        out[i].depth = hv[i].t * mr_v3_dot(dir, c->forward);
+        out[i].pos = mr_v3_add(org, mr_v3_scale(dir, hv[i].t));
     }
     if (waits)
         shadow_packet(s, lw, out, hits, rays);
