@@ -325,6 +325,8 @@ unsigned mr_cpu_count(void)
     return n;
 }
 
+bool mr_parallel_nested(void) { return in_task; }
+
 void mr_parallel_for(unsigned threads, size_t count, size_t grain, mr_range_fn fn, void *ctx)
 {
     if (count == 0)

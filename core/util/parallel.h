@@ -10,6 +10,10 @@
 
 #include "microray.h"
 
+/* Whether the calling thread runs a task of a loop on several threads: a
+ * loop it calls then runs serially on it (microray.h). */
+bool mr_parallel_nested(void);
+
 /* Test hooks. Workers the pool has started; pause-loop iterations a
  * waiting worker or caller spins before it sleeps (0: sleep at once;
  * negative: the default, MR_POOL_SPIN in parallel.c). */

@@ -1048,6 +1048,74 @@ static void test_threads(void **state)
     posed_close(&f);
 }
 
+/* On two threads a selection runs its top levels (frontiers of one chunk)
+ * while the other thread fills the frame's palette table (deform.c,
+ * top_and_fill): selections that end within those levels, that go past
+ * them, and that fail within or after them give what one thread gives,
+ * and a workspace that saw the failure selects as a fresh one. */
+static void test_top_levels_beside_the_table(void **state)
+{
+    (void)state;
+    const unsigned D = 8;
+    posed_dancer f;
+    posed_open(&f, D, 0.37);
+    const mr_svo *s = f.s;
+    assert_true(s->leaf_count > s->palette_count); /* the octree takes that path */
+    mr_svo_view v = posed_view();
+    mr_svo_selection one = {0}, two = {0};
+    /* ending at level 3 (every voxel there selected), at a coarse delta
+     * (a few levels) and at delta 1 (to the leaves) */
+    const unsigned max_level[3] = {3, D, D};
+    const float delta[3] = {1.0f, 64.0f, 1.0f};
+    for (int k = 0; k < 3; k++) {
+        v.delta = delta[k];
+        select_ok(s, &f.e, &f.r.d, &v, max_level[k], 1, &one);
+        select_ok(s, &f.e, &f.r.d, &v, max_level[k], 2, &two);
+        unsigned deepest = 0;
+        for (size_t i = 0; i < two.count; i++)
+            deepest = two.level[i] > deepest ? two.level[i] : deepest;
+        print_message("max level %u, delta %g: %zu voxels, deepest level %u, visited %llu\n", max_level[k],
+                      (double)delta[k], two.count, deepest, (unsigned long long)two.visited);
+        assert_true(two.count > 0);
+        assert_true(selections_equal(&one, &two));
+        /* the first two end within the top levels (fewer voxels in all
+         * than a chunk's 1,024, so every frontier fits one), the third
+         * goes on past them */
+        if (k < 2)
+            assert_true(two.visited < 1024);
+        else
+            assert_true(two.visited > 10000);
+    }
+    /* a palette entry naming a joint the deformer lacks: the same failure
+     * on one and two threads, and the workspace that saw it then selects
+     * as a fresh one */
+    v.delta = 1.0f;
+    uint32_t *counts = malloc(f.r.d.mesh_count * sizeof *counts);
+    assert_non_null(counts);
+    memcpy(counts, f.r.d.joint_count, f.r.d.mesh_count * sizeof *counts);
+    counts[0] = counts[0] / 2;
+    mr_svo_deformer bad = f.r.d;
+    bad.joint_count = counts;
+    mr_error err1 = {0}, err2 = {0};
+    assert_int_equal(mr_svo_select(s, &f.e, &bad, &v, D, 1, &one, &err1), MR_ERR_INVALID);
+    mr_svo_workspace *ws = NULL;
+    assert_int_equal(mr_svo_workspace_new(&ws, &err2), MR_OK);
+    assert_int_equal(mr_svo_select_ws(s, &f.e, &bad, &v, D, 2, ws, &two, &err2), MR_ERR_INVALID);
+    print_message("a missing joint: %s\n", err2.msg);
+    assert_non_null(strstr(err2.msg, "palette entry"));
+    assert_string_equal(err1.msg, err2.msg);
+    assert_int_equal(two.count, 0);
+    select_ok(s, &f.e, &f.r.d, &v, D, 1, &one);
+    mr_error err = {0};
+    assert_int_equal(mr_svo_select_ws(s, &f.e, &f.r.d, &v, D, 2, ws, &two, &err), MR_OK);
+    assert_true(selections_equal(&one, &two));
+    mr_svo_workspace_free(ws);
+    free(counts);
+    mr_svo_selection_free(&one);
+    mr_svo_selection_free(&two);
+    posed_close(&f);
+}
+
 /* ---- repeated cells */
 
 /* sel with a copy of voxel i at 2i + 1 (adjacent: repeats within one
@@ -1301,6 +1369,7 @@ int main(void)
         cmocka_unit_test(test_screen_space),
         cmocka_unit_test(test_skinned_rig),
         cmocka_unit_test(test_threads),
+        cmocka_unit_test(test_top_levels_beside_the_table),
         cmocka_unit_test(test_repeated_cells),
         cmocka_unit_test(test_workspace),
         cmocka_unit_test(test_workspace_steady),
