@@ -11,7 +11,10 @@
  * ones; a serial prefix sum over the chunks gives each chunk's place in
  * the selection and in the next frontier, a serial pass moves the runs of
  * chunks behind a gap down to their places, and pass 2 writes the
- * children.
+ * children. The voxels' palette entries are blended into a table for the
+ * frame once enough voxels need them (select_level), or, on several
+ * threads, by the other threads while the top levels, whose frontiers fit
+ * one chunk, run on one (top_and_fill).
  * Chunk boundaries depend on the frontier only, so the order of the output
  * is the same for any thread count, and every number is computed by the
  * same operations whichever worker runs it.
@@ -414,8 +417,9 @@ typedef struct sel_ctx {
     sel_fail *chunk_fail;
     sel_item *next;
     mr_svo_selection *out;
-    /* every palette entry's matrix for this frame (pal_fill), once the
-     * frontier is large enough to pay for them; NULL before */
+    /* every palette entry's matrix for this frame (pal_fill), once enough
+     * voxels need them or the top levels are done (select_level,
+     * top_and_fill); NULL before */
     pal_entry *pal;
     /* With pal, where the octree's leaves are many to an entry (at least
      * NORMALS_KEPT_LEAVES; otherwise NULL): the normal matrix of a voxel
@@ -1342,9 +1346,9 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
      * there to fill it (not inside another parallel loop, whose tasks run
      * loops serially) and the octree has more leaves than entries (else
      * the selection may well end before the table pays) */
-    if (r.n > 0 && (threads ? threads : mr_cpu_count()) >= 2 && !mr_parallel_nested() && !d->field &&
-        svo->palette_count > 0 &&
-        svo->leaf_count > svo->palette_count && (rc = top_and_fill(&r)) != MR_OK)
+    const bool beside = (threads ? threads : mr_cpu_count()) >= 2 && !mr_parallel_nested() && !d->field &&
+                        svo->palette_count > 0 && svo->leaf_count > svo->palette_count;
+    if (r.n > 0 && beside && (rc = top_and_fill(&r)) != MR_OK)
         goto cleanup;
     while (r.n > 0)
         if ((rc = select_level(&r)) != MR_OK)
