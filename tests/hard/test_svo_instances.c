@@ -452,6 +452,23 @@ static void check_memory_budget(void **state)
      * the split is approximate: what is not per instance is at least 0 */
     size_t per_instance = (all[1] - all[0]) / (SOME / 2);
     size_t fixed = all[1] > SOME * per_instance ? all[1] - SOME * per_instance : 0;
+    /* how far apart the instances' sizes lie: each alone, the object's
+     * bytes less its smallest such (no instance is larger than the mean
+     * by more than that) */
+    size_t alone_min = SIZE_MAX, alone_max = 0;
+    for (size_t k = 0; k < SOME; k++) {
+        params = (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
+                                 .instance_count = 1, .instances = inst + k};
+        if (ops->create(a, &desc, &ctx, &g, &err) < 0 || ops->update(g, NULL, NULL, &desc.transform, 2, &err) < 0)
+            fail_msg("instance %zu alone: %s", k, err.msg);
+        const size_t m = ops->memory(g);
+        alone_min = m < alone_min ? m : alone_min;
+        alone_max = m > alone_max ? m : alone_max;
+        ops->free(g);
+    }
+    const size_t spread = alone_max - alone_min;
+    params = (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
+                             .instance_count = SOME, .instances = inst};
     size_t budget = all[1] / 4;
     ctx.memory_budget = budget;
     if (ops->create(a, &desc, &ctx, &g, &err) < 0)
@@ -459,13 +476,15 @@ static void check_memory_budget(void **state)
     assert_int_equal(ops->update(g, NULL, NULL, &desc.transform, 2, &err), MR_ERR_LIMIT);
     if (!strstr(err.msg, "svo/instances: 400 instances hold more than the job's memory budget"))
         fail_msg("%s", err.msg);
-    /* two workers: each may finish one instance past the budget */
+    /* two workers: each may finish one instance past the budget, an
+     * instance at most the mean and the spread of their sizes (a bound by
+     * the mean alone failed once in twelve runs, by 1 KB) */
     size_t held = ops->memory(g);
-    print_message("[ budget   ] %zu of %zu bytes held at a %zu-byte budget (%zu per instance, "
-                  "%zu besides)\n", held, all[1], budget, per_instance, fixed);
-    HARD_CHECK("other", held, "<=", fixed + budget + 2 * per_instance,
+    print_message("[ budget   ] %zu of %zu bytes held at a %zu-byte budget (%zu per instance, spread %zu, "
+                  "%zu besides)\n", held, all[1], budget, per_instance, spread, fixed);
+    HARD_CHECK("other", held, "<=", fixed + budget + 2 * (per_instance + spread),
                "bytes held when the frame stops at a budget of %zu (the budget, what the object holds besides, "
-               "2 instances)", budget);
+               "2 of the largest instances)", budget);
     ops->free(g);
     free(inst);
     mr_asset_free(a);
