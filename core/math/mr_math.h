@@ -74,7 +74,6 @@ static inline double mr_floor_small(double x)
     return t > x ? t - 1 : t;
 }
 
-/* a / b rounded down (towards -infinity), b != 0. */
 /* Bits set in v (SWAR: the build flags have no -mpopcnt, and
  * __builtin_popcount is a call into libgcc there, which the hot loops of
  * the renderer and the displaced kind paid at every packet). */
@@ -85,6 +84,7 @@ static inline unsigned mr_popcount32(uint32_t v)
     return (((v + (v >> 4)) & 0x0f0f0f0fu) * 0x01010101u) >> 24;
 }
 
+/* a / b rounded down (towards -infinity), b != 0. */
 static inline int64_t mr_floor_div(int64_t a, int64_t b)
 {
     const int64_t q = a / b;

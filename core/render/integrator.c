@@ -299,8 +299,9 @@ static inline void packet_lanes(const packet_px *pk, int valid[MR_PACKET], float
         const __m128i bit = _mm_setr_epi32(1 << i, 1 << (i + 1), 1 << (i + 2), 1 << (i + 3));
         const __m128i on = _mm_cmpeq_epi32(_mm_and_si128(live, bit), bit);
         const __m128i l = _mm_and_si128(lane, on);
-        const __m128i x = _mm_add_epi32(_mm_set1_epi32(pk->x0), _mm_and_si128(l, _mm_set1_epi32(7)));
-        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, 3)); /* l / 8 */
+        /* l % MR_PACKET_W and l / MR_PACKET_W (8, asserted above) */
+        const __m128i x = _mm_add_epi32(_mm_set1_epi32(pk->x0), _mm_and_si128(l, _mm_set1_epi32(MR_PACKET_W - 1)));
+        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, 3));
         _mm_store_si128((__m128i *)(valid + i), on);
         _mm_store_ps(px + i, _mm_add_ps(_mm_cvtepi32_ps(x), h));
         _mm_store_ps(py + i, _mm_add_ps(_mm_cvtepi32_ps(y), h));

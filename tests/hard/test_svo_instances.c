@@ -405,6 +405,13 @@ static void check_far_pose_refused(void **state)
  * an instance hold is counted as the frame is built, and the frame fails
  * once the count passes the budget, holding at most one instance per
  * worker beyond it. */
+/* count emit instances inst[0 .. count), every leaf selected (no camera). */
+static mr_svo_params emit_instances(size_t count, mr_svo_instance *inst)
+{
+    return (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
+                           .instance_count = count, .instances = inst};
+}
+
 static void check_memory_budget(void **state)
 {
     (void)state;
@@ -439,8 +446,7 @@ static void check_memory_budget(void **state)
      * stops the frame. */
     size_t all[2];
     for (int run = 0; run < 2; run++) {
-        params = (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
-                                 .instance_count = SOME / 2 * (size_t)(run + 1), .instances = inst};
+        params = emit_instances(SOME / 2 * (size_t)(run + 1), inst);
         ctx.memory_budget = 0;
         if (ops->create(a, &desc, &ctx, &g, &err) < 0 ||
             ops->update(g, NULL, NULL, &desc.transform, 2, &err) < 0)
@@ -452,13 +458,12 @@ static void check_memory_budget(void **state)
      * the split is approximate: what is not per instance is at least 0 */
     size_t per_instance = (all[1] - all[0]) / (SOME / 2);
     size_t fixed = all[1] > SOME * per_instance ? all[1] - SOME * per_instance : 0;
-    /* how far apart the instances' sizes lie: each alone, the object's
-     * bytes less its smallest such (no instance is larger than the mean
-     * by more than that) */
+    /* how far apart the instances' sizes lie: the object's bytes with
+     * each instance alone, the largest less the smallest (no instance is
+     * larger than the mean by more than that) */
     size_t alone_min = SIZE_MAX, alone_max = 0;
     for (size_t k = 0; k < SOME; k++) {
-        params = (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
-                                 .instance_count = 1, .instances = inst + k};
+        params = emit_instances(1, inst + k);
         if (ops->create(a, &desc, &ctx, &g, &err) < 0 || ops->update(g, NULL, NULL, &desc.transform, 2, &err) < 0)
             fail_msg("instance %zu alone: %s", k, err.msg);
         const size_t m = ops->memory(g);
@@ -467,8 +472,7 @@ static void check_memory_budget(void **state)
         ops->free(g);
     }
     const size_t spread = alone_max - alone_min;
-    params = (mr_svo_params){.depth = 5, .method = MR_SVO_EMIT, .delta = 1, .cull = true,
-                             .instance_count = SOME, .instances = inst};
+    params = emit_instances(SOME, inst);
     size_t budget = all[1] / 4;
     ctx.memory_budget = budget;
     if (ops->create(a, &desc, &ctx, &g, &err) < 0)
