@@ -223,7 +223,7 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
 }
 
 /* Lanes of the widest packet the renderer hands Embree (rtcIntersect16:
- * 8x2 primary rays, integrator.c). */
+ * 4x4 primary rays, integrator.c). */
 #define MR_RAY_CACHE_LANES 16
 
 /* Defines `static const type *name(void *ray, unsigned N, unsigned i)`:

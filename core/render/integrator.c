@@ -96,14 +96,20 @@ typedef struct hit_view {
  * traverses the BVH for all of them at once with SIMD, which is what lets
  * the renderer keep up with (and pass) a plain one-ray-at-a-time loop.
  * Each lane's result is exactly the closest hit of its ray, so the packet's
- * shape never changes an image. 8x2 rather than 8x1: Embree's 16-wide path
- * (AVX-512 here) and a squarer bundle of rays; bare loops over
- * static-human at 1280x720 took 6.9 ms a frame in 8x1 packets, 6.1 in
- * 16x1 and 5.6 in 8x2 (2026-12-03). */
-#define MR_PACKET_W 8
-#define MR_PACKET_ROWS 2
+ * shape never changes an image. The squarest bundle of sixteen: bare loops
+ * over static-human at 1280x720 took 6.9 ms a frame in 8x1 packets, 6.1 in
+ * 16x1 and 5.6 in 8x2 (2026-12-03); 4x4 instead of 8x2 (stop 61, the same
+ * frames bit for bit) traced static-human and skinned-walk at 1.01-1.02 and
+ * 1.10-1.13 of the bare 8-packet loop's rate against 0.97-0.99 and
+ * 1.06-1.08, and the kinds whose callbacks walk a packet together in less
+ * time: the displaced sphere at 200 texels per unit 0.95 (its tessellation
+ * 0.96), the plane 0.96, the wuson's dmm 0.93, svo-crowd 0.93. */
+#define MR_PACKET_W 4
+#define MR_PACKET_W_LOG2 2
+#define MR_PACKET_ROWS 4
 #define MR_PACKET (MR_PACKET_W * MR_PACKET_ROWS)
-_Static_assert(MR_PACKET_W == 8, "a packet row's directions are made eight at a time (mr_camera_rays_dir8)");
+_Static_assert(1 << MR_PACKET_W_LOG2 == MR_PACKET_W, "MR_PACKET_W_LOG2 is the width's log2");
+_Static_assert(MR_PACKET % 8 == 0, "a packet's directions are made eight at a time (mr_camera_rays_dir8)");
 _Static_assert(MR_PACKET == 16, "packets go to Embree as RTCRayHit16");
 _Static_assert(MR_TILE_H % MR_PACKET_ROWS == 0, "a tile holds whole packet rows");
 
@@ -238,7 +244,7 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 normal, mr
 }
 
 /* The shadow rays the lanes of a packet wait for, light by light, as
- * packets too, one per packet row (rtcOccluded8: the lanes' rays to one
+ * packets too, one per eight lanes (rtcOccluded8: the lanes' rays to one
  * light start at neighbouring points and run parallel); each lane adds the
  * lights nothing blocks in the lights' order, as one ray at a time did.
  * Eight wide, not sixteen: rtcOccluded16 never returned on the crowd
@@ -249,11 +255,11 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
 {
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f);
-        for (int row = 0; row < MR_PACKET; row += MR_PACKET_W) {
-            RTC_ALIGN(32) int valid[MR_PACKET_W];
+        for (int row = 0; row < MR_PACKET; row += 8) {
+            RTC_ALIGN(32) int valid[8];
             struct RTCRay8 ray;
             int live = 0;
-            for (int j = 0; j < MR_PACKET_W; j++) {
+            for (int j = 0; j < 8; j++) {
                 int k = row + j;
                 bool on = lane_live(lanes, k) && lw[k].waits && lw[k].cosine[i] > 0;
                 valid[j] = on ? -1 : 0;
@@ -275,7 +281,7 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
             ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
             rtcOccluded8(valid, s->scene, &ctx, &ray);
             *rays += (uint64_t)live;
-            for (int j = 0; j < MR_PACKET_W; j++)
+            for (int j = 0; j < 8; j++)
                 if (valid[j] && !(ray.tfar[j] < 0)) /* Embree sets tfar = -inf when occluded */
                     lw[row + j].light = mr_v3_add(
                         lw[row + j].light, mr_v3_scale(s->lights[i].color, lw[row + j].cosine[i]));
@@ -299,9 +305,9 @@ static inline void packet_lanes(const packet_px *pk, int valid[MR_PACKET], float
         const __m128i bit = _mm_setr_epi32(1 << i, 1 << (i + 1), 1 << (i + 2), 1 << (i + 3));
         const __m128i on = _mm_cmpeq_epi32(_mm_and_si128(live, bit), bit);
         const __m128i l = _mm_and_si128(lane, on);
-        /* l % MR_PACKET_W and l / MR_PACKET_W (8, asserted above) */
+        /* l % MR_PACKET_W and l / MR_PACKET_W (a power of 2, asserted above) */
         const __m128i x = _mm_add_epi32(_mm_set1_epi32(pk->x0), _mm_and_si128(l, _mm_set1_epi32(MR_PACKET_W - 1)));
-        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, 3));
+        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, MR_PACKET_W_LOG2));
         _mm_store_si128((__m128i *)(valid + i), on);
         _mm_store_ps(px + i, _mm_add_ps(_mm_cvtepi32_ps(x), h));
         _mm_store_ps(py + i, _mm_add_ps(_mm_cvtepi32_ps(y), h));
@@ -328,7 +334,7 @@ static unsigned trace_packet(const trace_ctx *c, const packet_px *pk, int k, sam
             px[i] = (float)x + jx;
             py[i] = (float)y + jy;
         }
-    for (int h = 0; h < MR_PACKET; h += MR_PACKET_W)
+    for (int h = 0; h < MR_PACKET; h += 8)
         mr_camera_rays_dir8(&c->rays_setup, px + h, py + h, rh.ray.dir_x + h, rh.ray.dir_y + h,
                             rh.ray.dir_z + h);
     for (int i = 0; i < MR_PACKET; i++) /* (loops of one field each: filled as vectors) */
@@ -538,7 +544,7 @@ static void store_miss_rows(tile_buffer *t, const packet_px *pk, size_t i0)
 {
     for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
         store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
-                       mr_popcount32(pk->live >> (row * MR_PACKET_W) & 0xffu));
+                       mr_popcount32(pk->live >> (row * MR_PACKET_W) & ((1u << MR_PACKET_W) - 1u)));
 }
 
 /* The colour and alpha sums of n missed samples, from zero, added in
@@ -646,7 +652,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                             lead_alpha * inv_spp};
         float *plane[4] = {t->r, t->g, t->b, t->a};
         for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++) {
-            const int n = mr_popcount32(pk->live >> (row * MR_PACKET_W) & 0xffu);
+            const int n = mr_popcount32(pk->live >> (row * MR_PACKET_W) & ((1u << MR_PACKET_W) - 1u));
             const size_t p = i0 + (size_t)row * MR_TILE_W;
             for (int q = 0; q < 4; q++)
                 for (int i = 0; i < n; i++)

@@ -1958,7 +1958,7 @@ __attribute__((target("avx2"))) static uint32_t slab_pack_avx2(const pack *p, ui
  * slab_pack_avx2(p, live, box c) returns, bit for bit (the nearest entry
  * is a min over the same entries, and min_pd never lets a NaN in). A
  * node's rays are few and spread over the packet's quads (a camera
- * packet is 8 x 2 pixels), so one pass per ray does fewer operations
+ * packet is 4 x 4 pixels), so one pass per ray does fewer operations
  * than one pass per box over every quad holding a ray. */
 __attribute__((target("avx2"))) static void slab_four_avx2(const pack *p, uint32_t live,
                                                             const double lo[3][4],
