@@ -101,9 +101,8 @@ typedef struct hit_view {
  * 16x1 and 5.6 in 8x2 (2026-12-03); 4x4 instead of 8x2 (stop 61, the same
  * frames bit for bit) traced static-human and skinned-walk at 1.01-1.02 and
  * 1.10-1.13 of the bare 8-packet loop's rate against 0.97-0.99 and
- * 1.06-1.08, and the kinds whose callbacks walk a packet together in less
- * time: the displaced sphere at 200 texels per unit 0.95 (its tessellation
- * 0.96), the plane 0.96, the wuson's dmm 0.93, svo-crowd 0.93. */
+ * 1.06-1.08, and the kinds whose callbacks walk a packet's rays together
+ * traced in 0.93-0.96 of the time (docs/performance.md, primary rays). */
 #define MR_PACKET_W 4
 #define MR_PACKET_W_LOG2 2
 #define MR_PACKET_ROWS 4
