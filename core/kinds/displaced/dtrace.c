@@ -931,6 +931,10 @@ typedef struct vert_entry {
  * hold changes no result. 430 KB, on the heap (thread_block.h). */
 typedef struct walk_cache {
     uint64_t clock; /* look-ups made */
+    /* per way, a tag of its key (walk_tag; 0: empty): a look-up reads its
+     * set's four in one load and a key only where a tag matches */
+    uint32_t cell_tags[CELL_CACHE];
+    uint32_t node_tags[NODE_CACHE];
     walk_key cell_keys[CELL_CACHE];
     walk_key node_keys[NODE_CACHE];
     cell_tris cells[CELL_CACHE];
@@ -948,26 +952,35 @@ static walk_cache *walk_cache_of(const mr_dscene *s)
     return s->pose ? mr_thread_block_get(&walk_block, &my_walk, sizeof(walk_cache)) : NULL;
 }
 
-/* The way of key k in its set of `ways` in keys (from hash h, sets of
- * them, a power of 2: the set by a mask, where h % sets, a division since
- * sets is no constant here, took a sixth of the look-up's samples): its
- * index and true when there; else the least recently used way's, given k. */
-static bool walk_find(walk_cache *wc, walk_key *keys, int ways, size_t sets, uint64_t h,
+/* The way of key k in its set of `ways` (4) in keys (from hash h of k's
+ * other fields, sets of them, a power of 2): its index and true when there;
+ * else the least recently used way's, given k. The set's tags are compared
+ * together and a key read only where its tag matches: comparing the keys
+ * field by field, a set's three lines of them, took 8 % of the procedural
+ * plane's frame at range 64 (h % sets, a division since sets is no
+ * constant here, a sixth of that). */
+static bool walk_find(walk_cache *wc, uint32_t *tags, walk_key *keys, int ways, size_t sets, uint64_t h,
                       const walk_key *k, size_t *at)
 {
     const size_t set = (size_t)(h & (sets - 1u)) * (size_t)ways;
-    size_t e = set;
-    for (size_t w = set; w < set + (size_t)ways; w++) {
-        walk_key *x = &keys[w];
-        if (x->pose == k->pose && x->t == k->t && x->x == k->x && x->y == k->y &&
-            x->which == k->which) {
+    /* (nonzero: an empty way's tag is 0) */
+    const uint32_t tag = (uint32_t)((h ^ k->pose * 0x9e3779b97f4a7c15ull) >> 32) | 1u;
+    unsigned cand = 0;
+    for (int w = 0; w < ways; w++)
+        cand |= (unsigned)(tags[set + (size_t)w] == tag) << w;
+    for (; cand; cand &= cand - 1) {
+        walk_key *x = &keys[set + (size_t)__builtin_ctz(cand)];
+        if (x->pose == k->pose && x->t == k->t && x->x == k->x && x->y == k->y && x->which == k->which) {
             x->used = ++wc->clock;
-            *at = w;
+            *at = (size_t)(x - keys);
             return true;
         }
-        if (x->used < keys[e].used)
-            e = w;
     }
+    size_t e = set;
+    for (size_t w = set; w < set + (size_t)ways; w++)
+        if (keys[w].used < keys[e].used)
+            e = w;
+    tags[e] = tag;
     keys[e] = *k;
     keys[e].used = ++wc->clock;
     *at = e;
@@ -1016,7 +1029,7 @@ static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase 
     const uint64_t h =
         mr_mix64((uint64_t)t ^ mr_mix64((uint64_t)i ^ mr_mix64((uint64_t)j * 4 + (uint64_t)half)));
     size_t w;
-    if (!walk_find(wc, wc->cell_keys, CELL_WAYS, CELL_SETS, h, &k, &w))
+    if (!walk_find(wc, wc->cell_tags, wc->cell_keys, CELL_WAYS, CELL_SETS, h, &k, &w))
         wc->cell_keys[w].any = cell_make(s, wc, t, b, i, j, half, &wc->cells[w], st);
     return wc->cell_keys[w].any ? &wc->cells[w] : NULL;
 }
@@ -2132,7 +2145,7 @@ __attribute__((target("avx2"))) static unsigned proc_child_boxes_kept(
     const uint64_t h = mr_mix64((uint64_t)t ^
                                 mr_mix64((uint64_t)n->x ^ mr_mix64((uint64_t)n->y * 64 + (uint64_t)n->level)));
     size_t w;
-    const bool kept = walk_find(wc, wc->node_keys, NODE_WAYS, NODE_SETS, h, &k, &w);
+    const bool kept = walk_find(wc, wc->node_tags, wc->node_keys, NODE_WAYS, NODE_SETS, h, &k, &w);
     node_boxes *nb = &wc->nodes[w];
     if (kept) {
         for (int c = 0; c < 4; c++)
