@@ -931,8 +931,9 @@ typedef struct vert_entry {
  * hold changes no result. 430 KB, on the heap (thread_block.h). */
 typedef struct walk_cache {
     uint64_t clock; /* look-ups made */
-    /* per way, a tag of its key (walk_tag; 0: empty): a look-up reads its
-     * set's four in one load and a key only where a tag matches */
+    /* per way, a tag of its key (walk_find: 32 bits of the key's hash
+     * with its pose; 0: empty): a look-up reads a key only where its tag
+     * matches */
     uint32_t cell_tags[CELL_CACHE];
     uint32_t node_tags[NODE_CACHE];
     walk_key cell_keys[CELL_CACHE];
@@ -952,7 +953,7 @@ static walk_cache *walk_cache_of(const mr_dscene *s)
     return s->pose ? mr_thread_block_get(&walk_block, &my_walk, sizeof(walk_cache)) : NULL;
 }
 
-/* The way of key k in its set of `ways` (4) in keys (from hash h of k's
+/* The way of key k in its set of `ways` (at most 32) in keys (from hash h of k's
  * other fields, sets of them, a power of 2): its index and true when there;
  * else the least recently used way's, given k. The set's tags are compared
  * together and a key read only where its tag matches: comparing the keys
