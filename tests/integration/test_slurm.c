@@ -26,14 +26,18 @@
 
 static char slurm_dir[400];
 
-/* 48 frames at 16 fps of the dancer; 64 samples so that a task lasts long
- * enough (a few seconds) to be killed while it renders. */
+/* 48 frames at 16 fps of the dancer; 512 samples so that a task lasts long
+ * enough to be killed while it renders. With 64 a task's twelve frames
+ * took 0.3 s on one thread (stop 61's renderer and machine: 21 ms a
+ * frame), so a task was often done before the kill 300 ms after Slurm
+ * said it ran, and nothing was requeued; with 512 a task takes about 2 s
+ * there. */
 static const char JOB[] =
     "{\"name\":\"cluster\",\"assets\":{\"d\":{\"path\":\"/usr/share/assimp/models/X/BCN_Epileptic.X\"}},"
     "\"objects\":[{\"asset\":\"d\",\"pose\":{\"clip\":0}}],"
     "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0.2,4.3],\"target\":[0,0,-0.1]}]},"
     "\"frames\":{\"fps\":16,\"start\":0,\"end\":2.9375},"
-    "\"output\":{\"width\":320,\"height\":180,\"samples\":64}}";
+    "\"output\":{\"width\":320,\"height\":180,\"samples\":512}}";
 
 /* Runs a shell command line; its exit status (-1 if it did not exit). */
 static int sh(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -74,11 +78,12 @@ static void test_job_array_with_a_killed_task(void **state)
     double t0 = mr_now();
     assert_int_equal(sh("'%s/microray' cluster submit --slurm '%s' --out '%s' --chunk 12 --threads 1 "
                         "-q > '%s/array-id'", fx_build_dir, job, out, fx_tmp), 0);
-    /* kill task 2 while it runs */
+    /* kill task 2 while it runs (soon after Slurm says it does: the task
+     * takes seconds, the kill about 0.1 s) */
     int killed = 1;
     for (int i = 0; i < 1200 && killed != 0; i++) {
         if (sh("squeue -h -r -o '%%i %%T' | grep -q '_2 RUNNING'") == 0) {
-            fx_sleep_ms(300);
+            fx_sleep_ms(100);
             killed = sh("scancel \"$(cat '%s/array-id')_2\"", fx_tmp);
         } else {
             fx_sleep_ms(50);
