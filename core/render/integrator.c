@@ -95,19 +95,20 @@ typedef struct hit_view {
  * MR_PACKET_W of row i / MR_PACKET_W): they are coherent, so Embree
  * traverses the BVH for all of them at once with SIMD, which is what lets
  * the renderer keep up with (and pass) a plain one-ray-at-a-time loop.
- * Each lane's result is exactly the closest hit of its ray, so the packet's
- * shape never changes an image. The squarest bundle of sixteen: bare loops
+ * Each lane's result is the closest hit of its ray, so the packet's shape
+ * changes no image, as long as no kind reports a hit nearer than its
+ * primitive's bounds (then which hit is nearest depends on Embree's order:
+ * one pixel in some frames of a level-of-detail example changed with 4x4
+ * packets, docs/performance.md, stop 61). The squarest bundle of sixteen: bare loops
  * over static-human at 1280x720 took 6.9 ms a frame in 8x1 packets, 6.1 in
- * 16x1 and 5.6 in 8x2 (2026-12-03); 4x4 instead of 8x2 (stop 61, the same
- * frames bit for bit) traced static-human and skinned-walk at 1.01-1.02 and
+ * 16x1 and 5.6 in 8x2 (2026-12-03); 4x4 instead of 8x2 (stop 61) traced static-human and skinned-walk at 1.01-1.02 and
  * 1.10-1.13 of the bare 8-packet loop's rate against 0.97-0.99 and
  * 1.06-1.08, and the kinds whose callbacks walk a packet's rays together
  * traced in 0.93-0.96 of the time (docs/performance.md, primary rays). */
 #define MR_PACKET_W 4
-#define MR_PACKET_W_LOG2 2
 #define MR_PACKET_ROWS 4
 #define MR_PACKET (MR_PACKET_W * MR_PACKET_ROWS)
-_Static_assert(1 << MR_PACKET_W_LOG2 == MR_PACKET_W, "MR_PACKET_W_LOG2 is the width's log2");
+_Static_assert((MR_PACKET_W & (MR_PACKET_W - 1)) == 0, "a lane's column and row are a mask and a shift");
 _Static_assert(MR_PACKET % 8 == 0, "a packet's directions are made eight at a time (mr_camera_rays_dir8)");
 _Static_assert(MR_PACKET == 16, "packets go to Embree as RTCRayHit16");
 _Static_assert(MR_TILE_H % MR_PACKET_ROWS == 0, "a tile holds whole packet rows");
@@ -131,6 +132,12 @@ static packet_px packet_at(int x0, int y, int cols, int rows)
 }
 
 static bool lane_live(unsigned live, int i) { return live >> i & 1u; }
+
+/* How many pixels packet row `row` of pk has (its live lanes). */
+static int row_pixels(const packet_px *pk, int row)
+{
+    return mr_popcount32(pk->live >> (row * MR_PACKET_W) & ((1u << MR_PACKET_W) - 1u));
+}
 
 /* Lane i's pixel in a tile whose packet starts at index i0. */
 static size_t lane_at(size_t i0, int i)
@@ -242,6 +249,9 @@ static void shade(const mr_trace_setup *s, const hit_view *h, mr_vec3 normal, mr
     out->rgb = mr_v3_mul(obj->albedo, light);
 }
 
+#define SHADOW_LANES 8 /* rtcOccluded8 */
+_Static_assert(MR_PACKET % SHADOW_LANES == 0, "a packet is whole shadow packets");
+
 /* The shadow rays the lanes of a packet wait for, light by light, as
  * packets too, one per eight lanes (rtcOccluded8: the lanes' rays to one
  * light start at neighbouring points and run parallel); each lane adds the
@@ -254,11 +264,11 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
 {
     for (size_t i = 0; i < s->light_count; i++) {
         mr_vec3 l = mr_v3_scale(s->lights[i].direction, -1.0f);
-        for (int row = 0; row < MR_PACKET; row += 8) {
-            RTC_ALIGN(32) int valid[8];
+        for (int row = 0; row < MR_PACKET; row += SHADOW_LANES) {
+            RTC_ALIGN(32) int valid[SHADOW_LANES];
             struct RTCRay8 ray;
             int live = 0;
-            for (int j = 0; j < 8; j++) {
+            for (int j = 0; j < SHADOW_LANES; j++) {
                 int k = row + j;
                 bool on = lane_live(lanes, k) && lw[k].waits && lw[k].cosine[i] > 0;
                 valid[j] = on ? -1 : 0;
@@ -280,7 +290,7 @@ static void shadow_packet(const mr_trace_setup *s, light_wait *lw, sample_result
             ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
             rtcOccluded8(valid, s->scene, &ctx, &ray);
             *rays += (uint64_t)live;
-            for (int j = 0; j < 8; j++)
+            for (int j = 0; j < SHADOW_LANES; j++)
                 if (valid[j] && !(ray.tfar[j] < 0)) /* Embree sets tfar = -inf when occluded */
                     lw[row + j].light = mr_v3_add(
                         lw[row + j].light, mr_v3_scale(s->lights[i].color, lw[row + j].cosine[i]));
@@ -306,7 +316,7 @@ static inline void packet_lanes(const packet_px *pk, int valid[MR_PACKET], float
         const __m128i l = _mm_and_si128(lane, on);
         /* l % MR_PACKET_W and l / MR_PACKET_W (a power of 2, asserted above) */
         const __m128i x = _mm_add_epi32(_mm_set1_epi32(pk->x0), _mm_and_si128(l, _mm_set1_epi32(MR_PACKET_W - 1)));
-        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, MR_PACKET_W_LOG2));
+        const __m128i y = _mm_add_epi32(_mm_set1_epi32(pk->y), _mm_srli_epi32(l, __builtin_ctz(MR_PACKET_W)));
         _mm_store_si128((__m128i *)(valid + i), on);
         _mm_store_ps(px + i, _mm_add_ps(_mm_cvtepi32_ps(x), h));
         _mm_store_ps(py + i, _mm_add_ps(_mm_cvtepi32_ps(y), h));
@@ -542,8 +552,7 @@ static void store_miss_row(tile_buffer *t, size_t p, int n)
 static void store_miss_rows(tile_buffer *t, const packet_px *pk, size_t i0)
 {
     for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++)
-        store_miss_row(t, i0 + (size_t)row * MR_TILE_W,
-                       mr_popcount32(pk->live >> (row * MR_PACKET_W) & ((1u << MR_PACKET_W) - 1u)));
+        store_miss_row(t, i0 + (size_t)row * MR_TILE_W, row_pixels(pk, row));
 }
 
 /* The colour and alpha sums of n missed samples, from zero, added in
@@ -651,7 +660,7 @@ static bool trace_pixels(const trace_ctx *c, const packet_px *pk, bool seen, til
                             lead_alpha * inv_spp};
         float *plane[4] = {t->r, t->g, t->b, t->a};
         for (int row = 0; row < MR_PACKET_ROWS && lane_live(pk->live, row * MR_PACKET_W); row++) {
-            const int n = mr_popcount32(pk->live >> (row * MR_PACKET_W) & ((1u << MR_PACKET_W) - 1u));
+            const int n = row_pixels(pk, row);
             const size_t p = i0 + (size_t)row * MR_TILE_W;
             for (int q = 0; q < 4; q++)
                 for (int i = 0; i < n; i++)

@@ -399,12 +399,6 @@ static void check_far_pose_refused(void **state)
     mr_asset_free(a);
 }
 
-/* The job's memory budget (issue 12: 100,000 emit instances at 64x64 grew
- * past 23 GB and took the daemon down). What every instance surely holds is
- * refused before anything per instance is allocated; what the view makes
- * an instance hold is counted as the frame is built, and the frame fails
- * once the count passes the budget, holding at most one instance per
- * worker beyond it. */
 /* count emit instances inst[0 .. count), every leaf selected (no camera). */
 static mr_svo_params emit_instances(size_t count, mr_svo_instance *inst)
 {
@@ -412,6 +406,12 @@ static mr_svo_params emit_instances(size_t count, mr_svo_instance *inst)
                            .instance_count = count, .instances = inst};
 }
 
+/* The job's memory budget (issue 12: 100,000 emit instances at 64x64 grew
+ * past 23 GB and took the daemon down). What every instance surely holds is
+ * refused before anything per instance is allocated; what the view makes
+ * an instance hold is counted as the frame is built, and the frame fails
+ * once the count passes the budget, holding at most one instance per
+ * worker beyond it. */
 static void check_memory_budget(void **state)
 {
     (void)state;
