@@ -810,7 +810,8 @@ static mr_svo_hit lod_hit_of(const mr_svo *o, const mr_svo_lod *lod, mr_vec3 org
  * at L, bit for bit (t, level, cell, entry axis, normal), and name a node
  * (leaf_count + n) exactly where the cut octree's leaf is a cut node; any
  * hit alike (occlusion). b just above or below the edge moves the cut by
- * no level or one (a node is cut when its edge is at most b). */
+ * no level or one (a node is cut when its edge is at most b); so does a
+ * first level one below L (no node above it is cut). */
 static void test_lod_cut(void **state)
 {
     (void)state;
@@ -830,7 +831,9 @@ static void test_lod_cut(void **state)
             svo_fx cf;
             fx_build(&cf, depth, o->origin, o->size, cls_cut, &cut);
             const double edge = ldexp((double)o->size, -(int)level);
-            const mr_svo_lod at = {{0, 0, 0}, edge}, below = {{0, 0, 0}, nextafter(edge, 0.0)};
+            const mr_svo_lod at = {{0, 0, 0}, edge, 0}, below = {{0, 0, 0}, nextafter(edge, 0.0), 0};
+            /* no cut above level + 1: the cut one level further down, as below */
+            const mr_svo_lod from_next = {{0, 0, 0}, edge, level + 1u};
             fx_rng r = {depth * 7u + level};
             for (int i = 0; i < 600; i++) {
                 mr_vec3 org, dir;
@@ -841,7 +844,7 @@ static void test_lod_cut(void **state)
                 bool h;
                 const mr_svo_hit got = lod_hit_of(o, &at, org, dir, tmin, tmax, &h);
                 assert_int_equal(h, wh);
-                const mr_svo_lod none = {{0, 0, 0}, -INFINITY};
+                const mr_svo_lod none = {{0, 0, 0}, -INFINITY, 0};
                 assert_int_equal(mr_svo_intersect_rays(o, NULL, 1, &org, &dir, &tmin, &tmax, &at, NULL) & 1u,
                                  mr_svo_occluded(&cf.svo, org, dir, tmin, tmax));
                 rays++;
@@ -850,6 +853,11 @@ static void test_lod_cut(void **state)
                 const mr_svo_hit gb = lod_hit_of(o, &below, org, dir, tmin, tmax, &hb);
                 if (hb)
                     assert_true(gb.level != level || gb.leaf < o->leaf_count);
+                bool hf;
+                const mr_svo_hit gf = lod_hit_of(o, &from_next, org, dir, tmin, tmax, &hf);
+                assert_int_equal(hf, hb);
+                if (hf)
+                    assert_true(same_hit(&gf, &gb));
                 /* b = -inf: the plain walk */
                 bool hn;
                 mr_svo_hit plain;
@@ -962,7 +970,7 @@ static void test_lod_depth(void **state)
          * the coarsest cut stays below level 1 (the walk never cuts the
          * root's children's parent) */
         const double scale = 10.0 * ldexp((double)o->size, 1 - (int)depth);
-        const mr_svo_lod lod = {{0, 0, scale}, -2.4 * scale};
+        const mr_svo_lod lod = {{0, 0, scale}, -2.4 * scale, 0};
         fx_rng r = {depth * 11u + 5u};
         for (unsigned round = 0; round < 128; round++) {
             const unsigned n = round % 32 + 1;
@@ -1053,7 +1061,7 @@ static void test_lod_pieces(void **state)
     fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, cls_shell, &sh);
     const mr_svo *o = &fx.svo;
     const double edge = ldexp((double)o->size, -(int)L), slope = edge;
-    const mr_svo_lod lod = {{0, 0, slope}, edge / 2.0 - 3.2 * slope};
+    const mr_svo_lod lod = {{0, 0, slope}, edge / 2.0 - 3.2 * slope, 0};
     mr_svo_subtree *st;
     uint32_t n;
     mr_error err = {0};

@@ -430,6 +430,7 @@ _Static_assert(SUBTREE_LEVEL <= 8 && RIGID_SUBTREE_LEVEL <= 8, "a piece's cell f
 _Static_assert(RIGID_BOX_LEVELS <= 3 && FRAME_BOX_LEVELS <= 3, "a piece's box ends fit in 4 bits");
 
 static void prim_fit(const mr_geom *g, octree_prim *p);
+static unsigned fit_levels(const mr_geom *g, const mr_svo *o, unsigned level);
 
 /* Appends instance k's octree (rigid: the shared one) to the primitives as
  * its n subtrees st, or whole when n is 0; frees st. Their boxes are made
@@ -533,6 +534,24 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
     return MR_OK;
 }
 
+/* The level the rigid octree's pieces' boxes are fitted at (fit_levels;
+ * whole, its leaves'): its cast cuts no node above it. A cut node's cell
+ * then lies in its piece's box, so a ray that hits it enters the box, and
+ * Embree calls the piece for it whatever else it traces. A cut cell that
+ * reached out of the box (one at the piece's level, a cube around a sheet
+ * of surface) was hit only by the rays Embree called the piece for, and
+ * for a ray grazing the box that depended on the rays traced with it
+ * (examples/lod-svo.json: one pixel in three of seven frames between 8 x 2
+ * and 4 x 4 packets). With it the pieces' hits are the whole walk's
+ * (test_svo_instances check_lod_pieces_whole_walk). */
+static unsigned rigid_first_cut(const mr_geom *g)
+{
+    const octree_prim *p = g->prims;
+    if (g->prim_count == 0 || (p->flags & PRIM_WHOLE))
+        return g->svo->depth;
+    return p->level + fit_levels(g, g->svo, p->level);
+}
+
 /* Rigid with a tolerance: each instance's level of detail (mr_svo_lod)
  * for the frame's camera. A hit on a cell of edge e (bind space) rather
  * than on the leaves inside it moves by at most sqrt(3) e s in the world
@@ -548,6 +567,7 @@ static void rigid_lod(mr_geom *g, const mr_geom_frame *frame)
 {
     if (!g->lod)
         return;
+    const unsigned first = rigid_first_cut(g);
     const mr_px_scale px = frame ? mr_camera_px_scale(&frame->camera, frame->width, frame->height)
                                  : (mr_px_scale){.none = true};
     const double f[3] = {px.forward.x, px.forward.y, px.forward.z};
@@ -557,9 +577,10 @@ static void rigid_lod(mr_geom *g, const mr_geom_frame *frame)
         const double s = largest_scale(&g->world[k]);
         const double q = px.none ? 0.0 : g->tolerance_px / (SQRT3 * s * px.k);
         if (!(q > 0.0) || !isfinite(q)) {
-            *l = (mr_svo_lod){{0.0, 0.0, 0.0}, -INFINITY};
+            *l = (mr_svo_lod){{0.0, 0.0, 0.0}, -INFINITY, first};
             continue;
         }
+        l->first_level = first;
         const float *w = g->world[k].m;
         double b = 0.0;
         for (int a = 0; a < 3; a++) {
@@ -1179,6 +1200,11 @@ const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces)
     for (uint32_t i = 0; i < g->prim_count; i++) /* rigid: all are the shared octree's */
         *pieces += g->method == MR_SVO_RIGID || g->prims[i].instance == k;
     return g->method == MR_SVO_RIGID ? g->svo : &g->octree[k];
+}
+
+const mr_svo_lod *mr_svo_kind_lod(const mr_geom *g, size_t k)
+{
+    return g && g->lod && k < g->instance_count ? &g->lod[k] : NULL;
 }
 
 /* The id pass names the instance hit (rigid: the renderer passes it as

@@ -47,4 +47,9 @@ extern const mr_kind mr_kind_svo;
  * 1 whole); NULL for direct or k out of range. */
 const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces);
 
+/* For tests: the level of detail instance k's cast has after the last
+ * update (rigid with "tolerance_px"), or NULL. */
+struct mr_svo_lod;
+const struct mr_svo_lod *mr_svo_kind_lod(const mr_geom *g, size_t k);
+
 #endif

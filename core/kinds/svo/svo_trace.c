@@ -44,7 +44,8 @@ typedef struct svo_ray {
     bool tie;        /* the ray lies in a midplane it is parallel to (see frame_enter) */
     bool lod;        /* a level of detail (mr_svo_lod): lz0 + t lzd bounds a hit cell's edge */
     double lz0, lzd;
-    unsigned cut_from; /* no node above this level is small enough (walk_start) */
+    unsigned lod_first; /* no node above this level is cut (mr_svo_lod.first_level) */
+    unsigned cut_from; /* no node above this level is cut (walk_start) */
     double tmin, tmax;
 } svo_ray;
 
@@ -116,6 +117,7 @@ static bool ray_setup(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, f
     if (lod) {
         r->lz0 = lod->a[0] * (double)o[0] + lod->a[1] * (double)o[1] + lod->a[2] * (double)o[2] + lod->b;
         r->lzd = lod->a[0] * (double)d[0] + lod->a[1] * (double)d[1] + lod->a[2] * (double)d[2];
+        r->lod_first = lod->first_level;
         /* (a node's hit reports leaf_count + node: a uint32_t) */
         r->lod = isfinite(r->lz0) && isfinite(r->lzd) &&
                  (uint64_t)svo->leaf_count + svo->node_count <= UINT32_MAX;
@@ -275,7 +277,7 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
     r->cut_from = GRID_BITS + 1u;
     if (r->lod) {
         const double most = DMAX(r->lz0 + t0 * r->lzd, r->lz0 + t1 * r->lzd);
-        for (unsigned l = base + 1u; l < svo->depth && l <= GRID_BITS; l++)
+        for (unsigned l = DMAX(base + 1u, r->lod_first); l < svo->depth && l <= GRID_BITS; l++)
             if (cell_edge(r, l) <= most) {
                 r->cut_from = l;
                 break;
@@ -293,7 +295,7 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
      * walk tests it when it comes to it, at the t where the ray enters its
      * cell: the same cut whatever level the pieces are cut at. The root is
      * never cut (nor by the whole walk). */
-    if (r->lod && base > 0 && cell_edge(r, base) <= r->lz0 + t0 * r->lzd) {
+    if (r->lod && base > 0 && base >= r->lod_first && cell_edge(r, base) <= r->lz0 + t0 * r->lzd) {
         if (hit)
             fill_hit(r, hit, svo->leaf_count + start, base, bxyz, axis, t0);
         return WALK_HIT;

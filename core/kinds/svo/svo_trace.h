@@ -113,6 +113,7 @@ bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3
  * and a ray's hits stay the same whatever rays it is traced with. */
 typedef struct mr_svo_lod {
     double a[3], b;
+    unsigned first_level; /* and no node above this level (0: any but the root) */
 } mr_svo_lod;
 
 /* n rays at once (n <= 32; rays past the 32nd are not traced): ray i is
