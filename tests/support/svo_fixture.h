@@ -221,14 +221,31 @@ static void fx_box_planes(const mr_svo *svo, const fx_box *b, int a, double *lo,
     *hi = o[a] + (double)((b->xyz[a] + 1) * span) * cell;
 }
 
-/* Closed slab test; interval clipped to [tmin, min(tmax, FLT_MAX)]. */
-static bool fx_slab(const mr_svo *svo, const fx_box *b, const double org[3], const double dir[3], double tmin,
-                    double tmax, double *t0, double *t1)
+/* A box of cells of one level, [lo, hi) (a level of detail's clip,
+ * mr_svo_lod). */
+typedef struct fx_clip {
+    unsigned level;
+    uint32_t lo[3], hi[3];
+} fx_clip;
+
+/* Closed slab test of box b, or of its part within clip when clip is not
+ * NULL; interval clipped to [tmin, min(tmax, FLT_MAX)]. */
+static bool fx_slab_within(const mr_svo *svo, const fx_box *b, const fx_clip *clip, const double org[3],
+                           const double dir[3], double tmin, double tmax, double *t0, double *t1)
 {
     double e = tmin, x = tmax < FLT_MAX ? tmax : FLT_MAX;
     for (int a = 0; a < 3; a++) {
         double lo, hi;
         fx_box_planes(svo, b, a, &lo, &hi);
+        if (clip) {
+            const double cell = ldexp((double)svo->size, -(int)clip->level), o = a == 0 ? svo->origin.x
+                                                                              : a == 1 ? svo->origin.y
+                                                                                       : svo->origin.z;
+            lo = fmax(lo, o + clip->lo[a] * cell);
+            hi = fmin(hi, o + clip->hi[a] * cell);
+            if (!(lo < hi))
+                return false;
+        }
         if (dir[a] == 0.0) {
             if (org[a] < lo || org[a] > hi)
                 return false;
@@ -246,6 +263,12 @@ static bool fx_slab(const mr_svo *svo, const fx_box *b, const double org[3], con
     *t0 = e;
     *t1 = x;
     return e <= x;
+}
+
+static bool fx_slab(const mr_svo *svo, const fx_box *b, const double org[3], const double dir[3], double tmin,
+                    double tmax, double *t0, double *t1)
+{
+    return fx_slab_within(svo, b, NULL, org, dir, tmin, tmax, t0, t1);
 }
 
 typedef struct fx_stats {

@@ -810,8 +810,7 @@ static mr_svo_hit lod_hit_of(const mr_svo *o, const mr_svo_lod *lod, mr_vec3 org
  * at L, bit for bit (t, level, cell, entry axis, normal), and name a node
  * (leaf_count + n) exactly where the cut octree's leaf is a cut node; any
  * hit alike (occlusion). b just above or below the edge moves the cut by
- * no level or one (a node is cut when its edge is at most b); so does a
- * first level one below L (no node above it is cut). */
+ * no level or one (a node is cut when its edge is at most b). */
 static void test_lod_cut(void **state)
 {
     (void)state;
@@ -831,9 +830,7 @@ static void test_lod_cut(void **state)
             svo_fx cf;
             fx_build(&cf, depth, o->origin, o->size, cls_cut, &cut);
             const double edge = ldexp((double)o->size, -(int)level);
-            const mr_svo_lod at = {{0, 0, 0}, edge, 0}, below = {{0, 0, 0}, nextafter(edge, 0.0), 0};
-            /* no cut above level + 1: the cut one level further down, as below */
-            const mr_svo_lod from_next = {{0, 0, 0}, edge, level + 1u};
+            const mr_svo_lod at = {.b = edge}, below = {.b = nextafter(edge, 0.0)};
             fx_rng r = {depth * 7u + level};
             for (int i = 0; i < 600; i++) {
                 mr_vec3 org, dir;
@@ -844,7 +841,7 @@ static void test_lod_cut(void **state)
                 bool h;
                 const mr_svo_hit got = lod_hit_of(o, &at, org, dir, tmin, tmax, &h);
                 assert_int_equal(h, wh);
-                const mr_svo_lod none = {{0, 0, 0}, -INFINITY, 0};
+                const mr_svo_lod none = {.b = -INFINITY};
                 assert_int_equal(mr_svo_intersect_rays(o, NULL, 1, &org, &dir, &tmin, &tmax, &at, NULL) & 1u,
                                  mr_svo_occluded(&cf.svo, org, dir, tmin, tmax));
                 rays++;
@@ -853,11 +850,6 @@ static void test_lod_cut(void **state)
                 const mr_svo_hit gb = lod_hit_of(o, &below, org, dir, tmin, tmax, &hb);
                 if (hb)
                     assert_true(gb.level != level || gb.leaf < o->leaf_count);
-                bool hf;
-                const mr_svo_hit gf = lod_hit_of(o, &from_next, org, dir, tmin, tmax, &hf);
-                assert_int_equal(hf, hb);
-                if (hf)
-                    assert_true(same_hit(&gf, &gb));
                 /* b = -inf: the plain walk */
                 bool hn;
                 mr_svo_hit plain;
@@ -914,36 +906,47 @@ typedef struct lod_ref {
     uint32_t xyz[3];
 } lod_ref;
 
-static void lod_brute(const mr_svo *o, const mr_svo_lod *lod, uint32_t n, unsigned level, const uint32_t xyz[3],
+/* Cell b of node n (leaf: a leaf cell, n unused); interior nodes below
+ * the root are cut where the rule says, the part within lod's clip box
+ * when it has one. */
+static void lod_brute(const mr_svo *o, const mr_svo_lod *lod, bool leaf, uint32_t n, const fx_box *b,
                       const double org[3], const double dir[3], double tmin, double tmax, double tol,
                       lod_ref *best)
 {
-    const double z0 = lod->a[0] * org[0] + lod->a[1] * org[1] + lod->a[2] * org[2] + lod->b;
-    const double zd = lod->a[0] * dir[0] + lod->a[1] * dir[1] + lod->a[2] * dir[2];
-    const unsigned cm = o->child_mask[n], lm = o->leaf_mask[n];
-    for (unsigned c = 0; c < 8; c++) {
-        if (!(cm >> c & 1u))
-            continue;
-        const fx_box b = {level + 1, {xyz[0] * 2 + (c & 1), xyz[1] * 2 + ((c >> 1) & 1), xyz[2] * 2 + (c >> 2)}};
-        double t0, t1;
-        if (!fx_slab(o, &b, org, dir, tmin, tmax, &t0, &t1))
-            continue;
-        if (!(lm >> c & 1u)) {
-            const double edge = ldexp((double)o->size, -(int)(level + 1)), bound = z0 + t0 * zd;
+    double t0, t1;
+    if (!fx_slab(o, b, org, dir, tmin, tmax, &t0, &t1))
+        return;
+    if (!leaf) {
+        const double z0 = lod->a[0] * org[0] + lod->a[1] * org[1] + lod->a[2] * org[2] + lod->b;
+        const double zd = lod->a[0] * dir[0] + lod->a[1] * dir[1] + lod->a[2] * dir[2];
+        const double edge = ldexp((double)o->size, -(int)b->level), bound = z0 + t0 * zd;
+        if (b->level > 0)
             best->near |= fabs(bound - edge) <= 1e-9 * (fabs(bound) + edge) + fabs(zd) * tol;
-            if (!(edge <= bound)) {
-                const unsigned inner = cm & ~lm;
-                lod_brute(o, lod, o->first_node[n] + mr_svo_popcount8(inner & ((1u << c) - 1u)), level + 1,
-                          b.xyz, org, dir, tmin, tmax, tol, best);
-                continue;
+        if (b->level == 0 || !(edge <= bound)) {
+            const unsigned cm = o->child_mask[n], lm = o->leaf_mask[n], inner = cm & ~lm;
+            for (unsigned c = 0; c < 8; c++) {
+                if (!(cm >> c & 1u))
+                    continue;
+                const fx_box cb = {b->level + 1, {b->xyz[0] * 2 + (c & 1), b->xyz[1] * 2 + ((c >> 1) & 1),
+                                                  b->xyz[2] * 2 + (c >> 2)}};
+                const bool cl = lm >> c & 1u;
+                lod_brute(o, lod, cl, cl ? 0 : o->first_node[n] + mr_svo_popcount8(inner & ((1u << c) - 1u)), &cb,
+                          org, dir, tmin, tmax, tol, best);
             }
+            return;
         }
-        if (best->hit && fabs(t0 - best->t) <= tol)
-            best->tie = true;
-        if (!best->hit || t0 < best->t) {
-            best->tie = best->hit && best->t - t0 <= tol;
-            *best = (lod_ref){true, best->near, best->tie, t0, b.level, {b.xyz[0], b.xyz[1], b.xyz[2]}};
-        }
+        /* cut: the cell's part within the clip box */
+        const fx_clip clip = {lod->clip_level,
+                              {lod->clip_lo[0], lod->clip_lo[1], lod->clip_lo[2]},
+                              {lod->clip_hi[0], lod->clip_hi[1], lod->clip_hi[2]}};
+        if (lod->clip && !fx_slab_within(o, b, &clip, org, dir, tmin, tmax, &t0, &t1))
+            return;
+    }
+    if (best->hit && fabs(t0 - best->t) <= tol)
+        best->tie = true;
+    if (!best->hit || t0 < best->t) {
+        best->tie = best->hit && best->t - t0 <= tol;
+        *best = (lod_ref){true, best->near, best->tie, t0, b->level, {b->xyz[0], b->xyz[1], b->xyz[2]}};
     }
 }
 
@@ -970,7 +973,7 @@ static void test_lod_depth(void **state)
          * the coarsest cut stays below level 1 (the walk never cuts the
          * root's children's parent) */
         const double scale = 10.0 * ldexp((double)o->size, 1 - (int)depth);
-        const mr_svo_lod lod = {{0, 0, scale}, -2.4 * scale, 0};
+        const mr_svo_lod lod = {.a = {0, 0, scale}, .b = -2.4 * scale};
         fx_rng r = {depth * 11u + 5u};
         for (unsigned round = 0; round < 128; round++) {
             const unsigned n = round % 32 + 1;
@@ -993,9 +996,9 @@ static void test_lod_depth(void **state)
                 const double od[3] = {org[i].x, org[i].y, org[i].z}, dd[3] = {dir[i].x, dir[i].y, dir[i].z};
                 const double tol = fx_tol(o, dd, h ? (double)alone.t : 0.0);
                 lod_ref ref = {0};
-                const uint32_t root[3] = {0, 0, 0};
+                const fx_box root = {0, {0, 0, 0}};
                 if (o->node_count)
-                    lod_brute(o, &lod, 0, 0, root, od, dd, tmin[i], tmax[i], tol, &ref);
+                    lod_brute(o, &lod, false, 0, &root, od, dd, tmin[i], tmax[i], tol, &ref);
                 assert_true(h == ref.hit || ref.near);
                 if (!h)
                     continue;
@@ -1061,7 +1064,7 @@ static void test_lod_pieces(void **state)
     fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, cls_shell, &sh);
     const mr_svo *o = &fx.svo;
     const double edge = ldexp((double)o->size, -(int)L), slope = edge;
-    const mr_svo_lod lod = {{0, 0, slope}, edge / 2.0 - 3.2 * slope, 0};
+    const mr_svo_lod lod = {.a = {0, 0, slope}, .b = edge / 2.0 - 3.2 * slope};
     mr_svo_subtree *st;
     uint32_t n;
     mr_error err = {0};
@@ -1115,6 +1118,91 @@ static void test_lod_pieces(void **state)
     fx_free(&fx);
 }
 
+/* The level of detail clipped to a box (mr_svo_lod.clip), as the svo kind
+ * casts a piece: the box its occupied cells fill one and two levels below
+ * it (mr_svo_subtree_cells), the pieces and bound of test_lod_pieces, so
+ * nodes are cut at the pieces' level and the next, above the box's
+ * level. A cut node is hit where the ray enters the part of its cell
+ * within the box: against the brute force (t within tol, the cell where
+ * rounding cannot decide); the hit point lies in the box (within tol); no
+ * ray loses its hit or meets it later than the piece's leaves. */
+static void test_lod_clip(void **state)
+{
+    (void)state;
+    const unsigned depth = 9, L = 4;
+    fx_shell sh = {256.0, 145.0, depth};
+    svo_fx fx;
+    fx_build(&fx, depth, mr_v3(-0.75f, 0.3f, 2.5f), 3.0f, cls_shell, &sh);
+    const mr_svo *o = &fx.svo;
+    const double edge = ldexp((double)o->size, -(int)L);
+    mr_svo_subtree *st;
+    uint32_t n;
+    mr_error err = {0};
+    assert_int_equal(mr_svo_subtrees(o, L, &st, &n, &err), MR_OK);
+    size_t hits = 0, outside = 0, checked = 0;
+    fx_rng r = {91};
+    for (int k = 0; k < 3000; k++) {
+        mr_vec3 org, dir;
+        float tmin, tmax;
+        fx_random_ray(&fx, &r, k, &org, &dir, &tmin, &tmax);
+        const double od[3] = {org.x, org.y, org.z}, dd[3] = {dir.x, dir.y, dir.z};
+        for (uint32_t i = 0; i < n; i++) {
+            mr_svo_lod lod = {.a = {0, 0, edge}, .b = edge / 2.0 - 3.2 * edge, .clip = true,
+                              .clip_level = L + 1u + (unsigned)(k & 1)};
+            const unsigned below = lod.clip_level - L, shift = depth - lod.clip_level;
+            uint32_t lo[3], hi[3];
+            assert_true(mr_svo_subtree_cells(o, &st[i], below, lo, hi));
+            for (int a = 0; a < 3; a++) {
+                lod.clip_lo[a] = lo[a] >> shift;
+                lod.clip_hi[a] = ((hi[a] - 1u) >> shift) + 1u;
+            }
+            mr_svo_hit h, plain;
+            const bool got = mr_svo_intersect_rays(o, &st[i], 1, &org, &dir, &tmin, &tmax, &lod, &h) & 1u;
+            if (mr_svo_intersect_subtree(o, &st[i], org, dir, tmin, tmax, &plain))
+                assert_true(got && h.t <= plain.t); /* no holes */
+            const double tol = fx_tol(o, dd, got ? (double)h.t : 0.0);
+            lod_ref ref = {0};
+            const fx_box piece = {L, {st[i].xyz[0], st[i].xyz[1], st[i].xyz[2]}};
+            lod_brute(o, &lod, false, st[i].node, &piece, od, dd, tmin, tmax, tol, &ref);
+            assert_true(got == ref.hit || ref.near);
+            if (!got)
+                continue;
+            hits++;
+            if (ref.hit && !ref.near) {
+                if (fabs((double)h.t - ref.t) > tol)
+                    fail_msg("ray %d, piece %u: t %.9g, the brute force's %.9g", k, i, (double)h.t, ref.t);
+                if (!ref.tie) {
+                    assert_true(h.level == ref.level && h.x == ref.xyz[0] && h.y == ref.xyz[1] &&
+                                h.z == ref.xyz[2]);
+                    checked++;
+                }
+            }
+            /* in the box, and where a cut cell reaches out of it */
+            const double cell = ldexp((double)o->size, -(int)lod.clip_level);
+            const double c[3] = {o->origin.x, o->origin.y, o->origin.z};
+            const double span = ldexp(1.0, -(int)h.level) / ldexp(1.0, -(int)lod.clip_level);
+            const uint32_t hxyz[3] = {h.x, h.y, h.z};
+            bool reaches = false;
+            for (int a = 0; a < 3; a++) {
+                const double p = od[a] + (double)h.t * dd[a];
+                const double slack = tol * fabs(dd[a]); /* t within tol */
+                if (!(p >= c[a] + lod.clip_lo[a] * cell - slack && p <= c[a] + lod.clip_hi[a] * cell + slack))
+                    fail_msg("ray %d, piece %u: hit at %.9g on axis %d, outside [%.9g, %.9g]; t %.9g level %u leaf %d "
+                             "axis %d tmin %.9g", k, i, p, a, c[a] + lod.clip_lo[a] * cell,
+                             c[a] + lod.clip_hi[a] * cell, (double)h.t, h.level, h.leaf < o->leaf_count, h.axis,
+                             (double)tmin);
+                reaches |= hxyz[a] * span < lod.clip_lo[a] || (hxyz[a] + 1) * span > lod.clip_hi[a];
+            }
+            outside += reaches;
+        }
+    }
+    print_message("[ lod clip ] %zu piece hits (%zu cells checked against the brute force), %zu on cut cells "
+                  "reaching out of the box\n", hits, checked, outside);
+    assert_true(hits > 500 && checked > hits / 2 && outside > 100);
+    free(st);
+    fx_free(&fx);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1124,7 +1212,7 @@ int main(void)
         cmocka_unit_test(test_build_crosscheck), cmocka_unit_test(test_subtrees),
         cmocka_unit_test(test_subtree_cells),        cmocka_unit_test(test_rays_together),
         cmocka_unit_test(test_lod_cut),          cmocka_unit_test(test_lod_depth),
-        cmocka_unit_test(test_lod_pieces),
+        cmocka_unit_test(test_lod_pieces),      cmocka_unit_test(test_lod_clip),
         cmocka_unit_test(test_throughput),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

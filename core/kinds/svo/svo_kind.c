@@ -430,7 +430,6 @@ _Static_assert(SUBTREE_LEVEL <= 8 && RIGID_SUBTREE_LEVEL <= 8, "a piece's cell f
 _Static_assert(RIGID_BOX_LEVELS <= 3 && FRAME_BOX_LEVELS <= 3, "a piece's box ends fit in 4 bits");
 
 static void prim_fit(const mr_geom *g, octree_prim *p);
-static unsigned fit_levels(const mr_geom *g, const mr_svo *o, unsigned level);
 
 /* Appends instance k's octree (rigid: the shared one) to the primitives as
  * its n subtrees st, or whole when n is 0; frees st. Their boxes are made
@@ -534,24 +533,6 @@ static int ensure_workers(mr_geom *g, unsigned workers, mr_error *err)
     return MR_OK;
 }
 
-/* The level the rigid octree's pieces' boxes are fitted at (fit_levels;
- * whole, its leaves'): its cast cuts no node above it. A cut node's cell
- * then lies in its piece's box, so a ray that hits it enters the box, and
- * Embree calls the piece for it whatever else it traces. A cut cell that
- * reached out of the box (one at the piece's level, a cube around a sheet
- * of surface) was hit only by the rays Embree called the piece for, and
- * for a ray grazing the box that depended on the rays traced with it
- * (examples/lod-svo.json: one pixel in three of seven frames between 8 x 2
- * and 4 x 4 packets). With it the pieces' hits are the whole walk's
- * (test_svo_instances check_lod_pieces_whole_walk). */
-static unsigned rigid_first_cut(const mr_geom *g)
-{
-    const octree_prim *p = g->prims;
-    if (g->prim_count == 0 || (p->flags & PRIM_WHOLE))
-        return g->svo->depth;
-    return p->level + fit_levels(g, g->svo, p->level);
-}
-
 /* Rigid with a tolerance: each instance's level of detail (mr_svo_lod)
  * for the frame's camera. A hit on a cell of edge e (bind space) rather
  * than on the leaves inside it moves by at most sqrt(3) e s in the world
@@ -567,7 +548,6 @@ static void rigid_lod(mr_geom *g, const mr_geom_frame *frame)
 {
     if (!g->lod)
         return;
-    const unsigned first = rigid_first_cut(g);
     const mr_px_scale px = frame ? mr_camera_px_scale(&frame->camera, frame->width, frame->height)
                                  : (mr_px_scale){.none = true};
     const double f[3] = {px.forward.x, px.forward.y, px.forward.z};
@@ -577,10 +557,9 @@ static void rigid_lod(mr_geom *g, const mr_geom_frame *frame)
         const double s = largest_scale(&g->world[k]);
         const double q = px.none ? 0.0 : g->tolerance_px / (SQRT3 * s * px.k);
         if (!(q > 0.0) || !isfinite(q)) {
-            *l = (mr_svo_lod){{0.0, 0.0, 0.0}, -INFINITY, first};
+            *l = (mr_svo_lod){.b = -INFINITY};
             continue;
         }
-        l->first_level = first;
         const float *w = g->world[k].m;
         double b = 0.0;
         for (int a = 0; a < 3; a++) {
@@ -930,12 +909,37 @@ static size_t rigid_instance(const mr_geom *g, unsigned inst)
     return inst - g->first_id;
 }
 
-/* The cast's level of detail for Embree instance inst (rigid with a
- * tolerance), or NULL. */
-static const mr_svo_lod *instance_lod(const mr_geom *g, unsigned inst)
+/* The level of detail piece prim of Embree instance inst is cast with
+ * (rigid with a tolerance; else NULL): the instance's, its cut nodes
+ * clipped to the piece's box (mr_svo_lod.clip). A cut node's cell reaches
+ * out of that box where the piece's leaves fill only part of it (a sheet
+ * of surface in a cube). Unclipped, a hit there was found only for the
+ * rays Embree called the piece for, and for a ray grazing the box that
+ * depended on the rays traced with it (examples/lod-svo.json: one pixel in
+ * three of seven frames changed from 8 x 2 to 4 x 4 packets). Within the
+ * box, Embree calls the piece for every ray that can hit it, in any order
+ * (test_svo_instances check_lod_pieces_any_order). */
+static const mr_svo_lod *piece_lod(const mr_geom *g, unsigned prim, unsigned inst, mr_svo_lod *buf)
 {
     const size_t k = rigid_instance(g, inst);
-    return g->lod && k != SIZE_MAX ? &g->lod[k] : NULL;
+    if (!g->lod || k == SIZE_MAX || prim >= g->prim_count)
+        return NULL;
+    *buf = g->lod[k];
+    buf->clip = true;
+    const octree_prim *p = &g->prims[prim];
+    if (p->flags & PRIM_WHOLE) {
+        buf->clip_level = g->svo->depth;
+        mr_svo_bounds_cells(g->svo, buf->clip_lo, buf->clip_hi);
+        return buf;
+    }
+    const unsigned b = fit_levels(g, g->svo, p->level);
+    buf->clip_level = p->level + b;
+    for (int a = 0; a < 3; a++) {
+        const uint32_t first = (uint32_t)p->xyz[a] << b;
+        buf->clip_lo[a] = first + (p->fit[a] & 15u);
+        buf->clip_hi[a] = first + (p->fit[a] >> 4);
+    }
+    return buf;
 }
 
 static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
@@ -954,8 +958,9 @@ static void octree_intersect(const struct RTCIntersectFunctionNArguments *args)
     packet_rays p;
     gather_rays(&p, ray, N, lanes);
     mr_svo_hit hits[MR_RAY_CACHE_LANES];
-    const uint32_t hit_mask =
-        mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar, instance_lod(g, inst), hits);
+    mr_svo_lod lod;
+    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar,
+                                                    piece_lod(g, args->primID, inst, &lod), hits);
     const size_t rk = rigid_instance(g, inst); /* its world normal matrix */
     for (unsigned k = 0; k < p.n; k++) {
         if (!(hit_mask >> k & 1u))
@@ -1003,8 +1008,9 @@ static void octree_occluded(const struct RTCOccludedFunctionNArguments *args)
     const uint32_t lanes = lanes_to_trace(g, args->primID, ray, N, args->valid);
     packet_rays p;
     gather_rays(&p, ray, N, lanes);
-    const uint32_t hit_mask = mr_svo_intersect_rays(o, st, p.n, p.org, p.dir, p.tnear, p.tfar,
-                                                    instance_lod(g, args->context->instID[0]), NULL);
+    mr_svo_lod lod;
+    const uint32_t hit_mask = mr_svo_intersect_rays(
+        o, st, p.n, p.org, p.dir, p.tnear, p.tfar, piece_lod(g, args->primID, args->context->instID[0], &lod), NULL);
     for (unsigned k = 0; k < p.n; k++)
         if (hit_mask >> k & 1u)
             *mr_ray_f(ray, N, MR_RAY_TFAR, p.lane[k]) = -INFINITY;
@@ -1202,9 +1208,34 @@ const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces)
     return g->method == MR_SVO_RIGID ? g->svo : &g->octree[k];
 }
 
-const mr_svo_lod *mr_svo_kind_lod(const mr_geom *g, size_t k)
+bool mr_svo_kind_cast(const mr_geom *g, size_t k, mr_vec3 org, mr_vec3 dir, mr_svo_hit *hit)
 {
-    return g && g->lod && k < g->instance_count ? &g->lod[k] : NULL;
+    if (!g || g->method != MR_SVO_RIGID || k >= g->instance_count)
+        return false;
+    bool found = false;
+    const mr_svo_subtree *held = NULL;
+    mr_svo_subtree held_buf;
+    for (unsigned prim = 0; prim < g->prim_count; prim++) {
+        const mr_svo_subtree *st;
+        mr_svo_subtree buf;
+        const mr_svo *o = prim_octree(g, prim, &buf, &st);
+        mr_svo_lod buf_lod;
+        const mr_svo_lod *lod = piece_lod(g, prim, g->first_id + (unsigned)k, &buf_lod);
+        const float tmin = 0.0f, tmax = found ? hit->t : INFINITY;
+        mr_svo_hit h;
+        if (!(mr_svo_intersect_rays(o, st, 1, &org, &dir, &tmin, &tmax, lod, &h) & 1u))
+            continue;
+        /* a tie: the piece the whole walk meets first, as octree_intersect */
+        if (found && h.t == hit->t && st && held && mr_svo_subtree_order(held, dir) < mr_svo_subtree_order(st, dir))
+            continue;
+        *hit = h;
+        found = true;
+        if (st) {
+            held_buf = *st;
+            held = &held_buf;
+        }
+    }
+    return found;
 }
 
 /* The id pass names the instance hit (rigid: the renderer passes it as

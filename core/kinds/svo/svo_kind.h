@@ -10,6 +10,7 @@
 
 #include "kinds/kind.h"
 #include "kinds/svo/deform.h"
+#include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
 
 #define MR_SVO_DEFAULT_DEPTH 8u
@@ -47,9 +48,11 @@ extern const mr_kind mr_kind_svo;
  * 1 whole); NULL for direct or k out of range. */
 const mr_svo *mr_svo_kind_octree(const mr_geom *g, size_t k, uint32_t *pieces);
 
-/* For tests: the level of detail instance k's cast has after the last
- * update (rigid with "tolerance_px"), or NULL. */
-struct mr_svo_lod;
-const struct mr_svo_lod *mr_svo_kind_lod(const mr_geom *g, size_t k);
+/* For tests: a rigid object's cast of one ray (object space, t from 0)
+ * at instance k as the last update left it (with its level of detail):
+ * every piece walked in turn, without Embree's tree and its culling, the
+ * nearest hit kept (a tie: the piece the whole walk meets first). What
+ * Embree's calls must give in any order. False: no hit, or not rigid. */
+bool mr_svo_kind_cast(const mr_geom *g, size_t k, mr_vec3 org, mr_vec3 dir, mr_svo_hit *hit);
 
 #endif

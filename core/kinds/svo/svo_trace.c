@@ -44,8 +44,9 @@ typedef struct svo_ray {
     bool tie;        /* the ray lies in a midplane it is parallel to (see frame_enter) */
     bool lod;        /* a level of detail (mr_svo_lod): lz0 + t lzd bounds a hit cell's edge */
     double lz0, lzd;
-    unsigned lod_first; /* no node above this level is cut (mr_svo_lod.first_level) */
-    unsigned cut_from; /* no node above this level is cut (walk_start) */
+    unsigned cut_from; /* no node above this level is small enough (walk_start) */
+    bool clip;       /* cut nodes are clipped to the box [clip_lo, clip_hi) (mr_svo_lod) */
+    uint32_t clip_lo[3], clip_hi[3]; /* finest-grid positions */
     double tmin, tmax;
 } svo_ray;
 
@@ -117,10 +118,22 @@ static bool ray_setup(const mr_svo *svo, mr_vec3 org, mr_vec3 dir, float tmin, f
     if (lod) {
         r->lz0 = lod->a[0] * (double)o[0] + lod->a[1] * (double)o[1] + lod->a[2] * (double)o[2] + lod->b;
         r->lzd = lod->a[0] * (double)d[0] + lod->a[1] * (double)d[1] + lod->a[2] * (double)d[2];
-        r->lod_first = lod->first_level;
         /* (a node's hit reports leaf_count + node: a uint32_t) */
         r->lod = isfinite(r->lz0) && isfinite(r->lzd) &&
                  (uint64_t)svo->leaf_count + svo->node_count <= UINT32_MAX;
+        r->clip = lod->clip;
+        if (r->clip) {
+            if (lod->clip_level > GRID_BITS)
+                return false;
+            const unsigned shift = GRID_BITS - lod->clip_level;
+            for (int a = 0; a < 3; a++) {
+                const uint64_t lo = (uint64_t)lod->clip_lo[a] << shift, hi = (uint64_t)lod->clip_hi[a] << shift;
+                if (!(lo < hi && hi <= GRID_CELLS))
+                    return false; /* an empty or malformed box holds no leaf */
+                r->clip_lo[a] = (uint32_t)lo;
+                r->clip_hi[a] = (uint32_t)hi;
+            }
+        }
     }
     r->tmin = (double)tmin;
     /* A t past FLT_MAX could not be reported as a float. */
@@ -219,6 +232,37 @@ static void fill_hit(const svo_ray *r, mr_svo_hit *hit, uint32_t leaf, unsigned 
     hit->ng = mr_v3(n[0], n[1], n[2]);
 }
 
+/* A cut node's cell at level, xyz clipped to r's box: *t, *axis (the ray
+ * enters the cell there, through that face, and leaves it by t1) become
+ * where the ray enters the part of the cell within the box; false when it
+ * misses that part. Plane t's as the walk makes them (plane_s * inv), so a
+ * box face that is a cell face gives the walk's own t. */
+static bool clip_cut(const svo_ray *r, unsigned level, const uint32_t xyz[3], double *t, int *axis, double t1)
+{
+    const uint32_t span = GRID_CELLS >> level;
+    for (int a = 0; a < 3; a++) {
+        const uint32_t k0 = xyz[a] * span, k1 = k0 + span;
+        const uint32_t lo = k0 > r->clip_lo[a] ? k0 : r->clip_lo[a], hi = k1 < r->clip_hi[a] ? k1 : r->clip_hi[a];
+        if (lo >= hi)
+            return false;
+        if (lo == k0 && hi == k1)
+            continue; /* the cell's own faces on this axis */
+        if (r->par & (1u << a)) {
+            if (plane_s(r, a, lo) > 0.0 || plane_s(r, a, hi) < 0.0)
+                return false;
+            continue;
+        }
+        const double ta = plane_s(r, a, lo) * r->inv[a], tb = plane_s(r, a, hi) * r->inv[a];
+        const double near = DMIN(ta, tb), far = DMAX(ta, tb);
+        if (near > *t) {
+            *t = near;
+            *axis = a;
+        }
+        t1 = DMIN(t1, far);
+    }
+    return *t <= t1;
+}
+
 /* One ray's walk, a step at a time (svo_walk runs one to its end;
  * mr_svo_intersect_rays runs several, taking turns). */
 typedef struct svo_walker {
@@ -277,7 +321,7 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
     r->cut_from = GRID_BITS + 1u;
     if (r->lod) {
         const double most = DMAX(r->lz0 + t0 * r->lzd, r->lz0 + t1 * r->lzd);
-        for (unsigned l = DMAX(base + 1u, r->lod_first); l < svo->depth && l <= GRID_BITS; l++)
+        for (unsigned l = base + 1u; l < svo->depth && l <= GRID_BITS; l++)
             if (cell_edge(r, l) <= most) {
                 r->cut_from = l;
                 break;
@@ -295,7 +339,9 @@ walk_start(const mr_svo *svo, uint32_t start, unsigned base, const uint32_t bxyz
      * walk tests it when it comes to it, at the t where the ray enters its
      * cell: the same cut whatever level the pieces are cut at. The root is
      * never cut (nor by the whole walk). */
-    if (r->lod && base > 0 && base >= r->lod_first && cell_edge(r, base) <= r->lz0 + t0 * r->lzd) {
+    if (r->lod && base > 0 && cell_edge(r, base) <= r->lz0 + t0 * r->lzd) {
+        if (r->clip && !clip_cut(r, base, bxyz, &t0, &axis, t1))
+            return WALK_MISS;
         if (hit)
             fill_hit(r, hit, svo->leaf_count + start, base, bxyz, axis, t0);
         return WALK_HIT;
@@ -349,6 +395,8 @@ static inline __attribute__((always_inline)) walk_state walk_step(const mr_svo *
         const uint32_t cxyz[3] = {f->xyz[0] * 2u + (c & 1u), f->xyz[1] * 2u + ((c >> 1) & 1u),
                                   f->xyz[2] * 2u + (c >> 2)};
         uint32_t leaf; /* what the walk hits: a leaf, or a node that stands for its leaves */
+        double t = c0;  /* ... where, and the axis of that face */
+        int axis = caxis;
         if (lmask & cbit) {
             leaf = svo->first_leaf[f->node] + mr_svo_popcount8(lmask & (cbit - 1u));
             if (leaf >= svo->leaf_count)
@@ -373,6 +421,8 @@ static inline __attribute__((always_inline)) walk_state walk_step(const mr_svo *
             }
             /* small enough for the level of detail: hit as a leaf */
             leaf = svo->leaf_count + node;
+            if (r->clip && !clip_cut(r, clevel, cxyz, &t, &axis, c1))
+                continue;
         }
         if (!w->hit)
             return WALK_HIT;
@@ -380,14 +430,14 @@ static inline __attribute__((always_inline)) walk_state walk_step(const mr_svo *
          * midplane it is parallel to: then the two halves along that
          * axis share one t interval and the walk finishes the other
          * half, keeping the nearest (ties: the first). */
-        if (!r->tie || c0 <= r->tmin) {
-            fill_hit(r, w->hit, leaf, clevel, cxyz, caxis, c0);
+        if (!r->tie || t <= r->tmin) {
+            fill_hit(r, w->hit, leaf, clevel, cxyz, axis, t);
             return WALK_HIT;
         }
-        if (!w->found || c0 < w->best) {
-            fill_hit(r, w->hit, leaf, clevel, cxyz, caxis, c0);
+        if (!w->found || t < w->best) {
+            fill_hit(r, w->hit, leaf, clevel, cxyz, axis, t);
             w->found = true;
-            w->best = c0;
+            w->best = t;
         }
     }
 }
@@ -582,26 +632,20 @@ uint64_t mr_svo_subtree_order(const mr_svo_subtree *s, mr_vec3 dir)
     return mr_morton_encode(c[0] << up, c[1] << up, c[2] << up);
 }
 
-bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
+bool mr_svo_bounds_cells(const mr_svo *svo, uint32_t lo_cell[3], uint32_t hi_cell[3])
 {
-    if (!svo) {
-        for (int a = 0; a < 3; a++)
-            lo[a] = hi[a] = 0.0f;
+    for (int a = 0; a < 3; a++)
+        lo_cell[a] = hi_cell[a] = 0;
+    if (!svo || (svo->node_count == 0 && svo->leaf_count == 0))
         return false;
-    }
-    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
-    if (svo->node_count == 0 && svo->leaf_count == 0) {
-        for (int a = 0; a < 3; a++)
-            lo[a] = hi[a] = c[a];
-        return false;
-    }
-    /* In finest-level cells: the leaves' box, or else the halves of the
-     * root that hold anything, per axis. */
+    /* The leaves' box, or else the halves of the root that hold anything,
+     * per axis. */
     const uint32_t cells = 1u << svo->depth, half = cells / 2;
-    uint32_t lo_cell[3] = {0, 0, 0}, hi_cell[3] = {cells, cells, cells};
+    for (int a = 0; a < 3; a++)
+        hi_cell[a] = cells;
     if (svo->has_occupied) {
-        memcpy(lo_cell, svo->occupied_lo, sizeof lo_cell);
-        memcpy(hi_cell, svo->occupied_hi, sizeof hi_cell);
+        memcpy(lo_cell, svo->occupied_lo, sizeof svo->occupied_lo);
+        memcpy(hi_cell, svo->occupied_hi, sizeof svo->occupied_hi);
     } else if (svo->node_count > 0 && svo->child_mask[0] != 0) { /* 0: malformed, keep the cube */
         const unsigned m = svo->child_mask[0];
         for (unsigned a = 0; a < 3; a++) {
@@ -610,6 +654,18 @@ bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
             hi_cell[a] = (m & high) ? cells : half;
         }
     }
+    return true;
+}
+
+bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3])
+{
+    uint32_t lo_cell[3], hi_cell[3];
+    if (!mr_svo_bounds_cells(svo, lo_cell, hi_cell)) {
+        const mr_vec3 c = svo ? svo->origin : mr_v3(0.0f, 0.0f, 0.0f);
+        lo[0] = hi[0] = c.x, lo[1] = hi[1] = c.y, lo[2] = hi[2] = c.z;
+        return false;
+    }
+    const float c[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
     const double cell = ldexp((double)svo->size, -(int)svo->depth); /* cells * cell: exact */
     for (unsigned a = 0; a < 3; a++) {
         lo[a] = mr_float_down((double)c[a] + lo_cell[a] * cell);

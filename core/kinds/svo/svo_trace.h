@@ -110,10 +110,17 @@ bool mr_svo_occluded_subtree(const mr_svo *svo, const mr_svo_subtree *s, mr_vec3
  * + b what the screen allows at p (svo_kind.c: the camera's depth of p
  * times the tolerance over the focal length in pixels). The cell holds the
  * node's leaves, so the walk never hits later than without it (no holes),
- * and a ray's hits stay the same whatever rays it is traced with. */
+ * and a ray's hits stay the same whatever rays it is traced with.
+ * clip: a cut node is hit where the ray enters the part of its cell within
+ * the box [clip_lo, clip_hi) of cells of level clip_level, which must hold
+ * every leaf of the walk (a piece's box: svo_kind.c hands Embree that box,
+ * and with the cut clipped to it no hit lies outside it), and missed when
+ * the ray misses that part. */
 typedef struct mr_svo_lod {
     double a[3], b;
-    unsigned first_level; /* and no node above this level (0: any but the root) */
+    bool clip;
+    unsigned clip_level;
+    uint32_t clip_lo[3], clip_hi[3];
 } mr_svo_lod;
 
 /* n rays at once (n <= 32; rays past the 32nd are not traced): ray i is
@@ -146,5 +153,7 @@ uint64_t mr_svo_subtree_order(const mr_svo_subtree *s, mr_vec3 dir);
  * the box always contains every leaf. Returns false (lo = hi = origin) for
  * an empty octree or NULL svo. */
 bool mr_svo_bounds(const mr_svo *svo, float lo[3], float hi[3]);
+/* The same box in cells of the finest level, [lo, hi) (not rounded). */
+bool mr_svo_bounds_cells(const mr_svo *svo, uint32_t lo[3], uint32_t hi[3]);
 
 #endif /* MR_SVO_TRACE_H */
