@@ -182,7 +182,7 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
     }
 }
 
-static void footprint_frame(mr_dgrad *gr);
+static void footprint_frame(mr_dgrad *gr, const mr_dbase *b);
 
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
 {
@@ -219,7 +219,7 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
     if (!b->flat)
         local_frame(gr, b, hm);
     if (gr->local)
-        footprint_frame(gr);
+        footprint_frame(gr, b);
 }
 
 /* ---- boxes ----------------------------------------------------------------------- */
@@ -469,13 +469,34 @@ static inline void local_box(const mr_dgrad *gr, double x0, double x1, double y0
     lrect_box(gr, &r, hlo, hhi, lo, hi);
 }
 
-/* mr_dgrad's footprint fields (a local T's). */
-static void footprint_frame(mr_dgrad *gr)
+/* mr_dgrad's footprint fields (a local T's): its box, its reach, and its
+ * edges' half-planes. A micro-vertex over grid point q of T (a grid point
+ * inside it, a corner or an edge crossing: dsurf.h) sits at local (x, y)
+ * q + h (a, b) plus the pad, within reach of q; a hit, on a micro-triangle,
+ * within reach of T. So it lies on T's side of each edge's line moved out
+ * by reach along that edge's normal (the normal's components times reach
+ * per axis), and a margin: 1e-9 of the coordinates' size for the rounding
+ * of the ray's x and y and of the products (as packet_footprint's). */
+static void footprint_frame(mr_dgrad *gr, const mr_dbase *b)
 {
     local_box(gr, gr->gx0, gr->gx1, gr->gy0, gr->gy1, gr->hlo, gr->hhi, gr->tlo, gr->thi);
     const double hm = dmax(fabs(gr->hlo), fabs(gr->hhi));
     for (int a = 0; a < 2; a++)
         gr->reach[a] = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a];
+    const double ex[2] = {gr->reach[0] + 1e-6, gr->reach[1] + 1e-6};
+    const double size = dmax(dmax(fabs(gr->gx0), fabs(gr->gx1)), dmax(fabs(gr->gy0), fabs(gr->gy1))) +
+                        dmax(ex[0], ex[1]);
+    const double *g[3] = {b->g[0], b->g[1], b->g[2]};
+    const double area = (g[1][0] - g[0][0]) * (g[2][1] - g[0][1]) - (g[1][1] - g[0][1]) * (g[2][0] - g[0][0]);
+    const double out = area > 0 ? 1.0 : -1.0; /* (a T with a local frame is not flat) */
+    for (int k = 0; k < 3; k++) {
+        const double *p = g[k], *q = g[(k + 1) % 3];
+        gr->en[k][0] = out * (q[1] - p[1]);
+        gr->en[k][1] = -out * (q[0] - p[0]);
+        const double nl = fabs(gr->en[k][0]) + fabs(gr->en[k][1]);
+        gr->ec[k] = gr->en[k][0] * p[0] + gr->en[k][1] * p[1] + fabs(gr->en[k][0]) * ex[0] +
+                    fabs(gr->en[k][1]) * ex[1] + 1e-9 * nl * size;
+    }
 }
 
 void mr_dtrace_local_box(const mr_dgrad *gr, double x0, double x1, double y0, double y1,
@@ -2373,6 +2394,58 @@ __attribute__((target("avx2"))) static uint32_t pack_enter_avx2(const mr_dgrad *
 #define PACK_ENTER pack_enter
 #endif
 
+/* The lanes of `live` (rays that enter T's box: tbox_lanes) whose x and y
+ * while in the box come near enough T to hit it: each ray's segment from
+ * its entry to its exit is not wholly beyond one of T's edges moved out by
+ * reach (mr_dgrad.en, ec; footprint_frame). T's box is its grid box, twice
+ * T's area: a ray that hits T's neighbour across the box's diagonal enters
+ * it too (a NaN lane is kept). */
+static uint32_t tri_lanes(const mr_dgrad *gr, const pack *p, uint32_t live)
+{
+    uint32_t in = live;
+    for (uint32_t m = live; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        const double x0 = p->o[0][k] + p->s0[k] * p->d[0][k], y0 = p->o[1][k] + p->s0[k] * p->d[1][k];
+        const double x1 = p->o[0][k] + p->s1[k] * p->d[0][k], y1 = p->o[1][k] + p->s1[k] * p->d[1][k];
+        for (int e = 0; e < 3; e++)
+            if (gr->en[e][0] * x0 + gr->en[e][1] * y0 > gr->ec[e] && gr->en[e][0] * x1 + gr->en[e][1] * y1 > gr->ec[e])
+                in &= ~(1u << k);
+    }
+    return in;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* tri_lanes four lanes at a time, for CPUs with AVX2: the same operations
+ * lane by lane (no fused multiply-add), so the same lanes. */
+__attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *gr, const pack *p, uint32_t live)
+{
+    uint32_t in = 0;
+    for (int k = 0; k < PK; k += 4) {
+        const uint32_t lq = live >> k & 15u;
+        if (!lq)
+            continue;
+        const __m256d s0 = _mm256_loadu_pd(p->s0 + k), s1 = _mm256_loadu_pd(p->s1 + k);
+        const __m256d ox = _mm256_loadu_pd(p->o[0] + k), oy = _mm256_loadu_pd(p->o[1] + k);
+        const __m256d dx = _mm256_loadu_pd(p->d[0] + k), dy = _mm256_loadu_pd(p->d[1] + k);
+        const __m256d x0 = _mm256_add_pd(ox, _mm256_mul_pd(s0, dx)), y0 = _mm256_add_pd(oy, _mm256_mul_pd(s0, dy));
+        const __m256d x1 = _mm256_add_pd(ox, _mm256_mul_pd(s1, dx)), y1 = _mm256_add_pd(oy, _mm256_mul_pd(s1, dy));
+        __m256d out = _mm256_setzero_pd();
+        for (int e = 0; e < 3; e++) {
+            const __m256d ex = _mm256_set1_pd(gr->en[e][0]), ey = _mm256_set1_pd(gr->en[e][1]);
+            const __m256d c = _mm256_set1_pd(gr->ec[e]);
+            const __m256d v0 = _mm256_add_pd(_mm256_mul_pd(ex, x0), _mm256_mul_pd(ey, y0));
+            const __m256d v1 = _mm256_add_pd(_mm256_mul_pd(ex, x1), _mm256_mul_pd(ey, y1));
+            out = _mm256_or_pd(out, _mm256_and_pd(_mm256_cmp_pd(v0, c, _CMP_GT_OQ), _mm256_cmp_pd(v1, c, _CMP_GT_OQ)));
+        }
+        in |= (lq & ~(uint32_t)_mm256_movemask_pd(out)) << k;
+    }
+    return in;
+}
+#define TRI_LANES(gr, p, live) (__builtin_cpu_supports("avx2") ? tri_lanes_avx2(gr, p, live) : tri_lanes(gr, p, live))
+#else
+#define TRI_LANES tri_lanes
+#endif
+
 /* packet_footprint's rays: the x and y the rays `live` (which enter T's
  * box: tbox_lanes) cross inside it into f, the largest magnitude among
  * them and their origins' into *size; -1 on a NaN. */
@@ -2860,7 +2933,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
          * is axis-aligned in the world (the sphere of 960 faces: 40 % of
          * the calls had no ray in it); the rays that miss it miss T */
         uint32_t packed;
-        const uint32_t near_t = PACK_ENTER(gr, b, rays, lanes, &p, &packed);
+        const uint32_t near_t = TRI_LANES(gr, &p, PACK_ENTER(gr, b, rays, lanes, &p, &packed));
         lanes &= ~(packed & ~near_t);
         inpack = near_t;
         if (!(inpack & (inpack - 1)))

@@ -101,6 +101,10 @@ typedef struct mr_dgrad {
      * can sit from its grid point along grid x and y (T's largest height
      * times the normal's bound, plus the local boxes' pad). */
     double tlo[3], thi[3], reach[2];
+    /* T's edges in the grid, where local: a hit lies on the side of edge
+     * k's line where en[k] . (x, y) <= ec[k], which holds T grown by
+     * reach (and a rounding margin); dtrace.c tri_lanes. */
+    double en[3][2], ec[3];
 } mr_dgrad;
 
 /* The most grid cells a base triangle's local boxes may be padded by (the
