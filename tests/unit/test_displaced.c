@@ -558,6 +558,21 @@ static void test_sphere_against_brute_force(void **state)
     dfx_params(&f, 0.1f, 0.0f);
     dfx_open(&f, mesh, tex, NULL, NULL, 0);
     assert_int_equal(dfx_random_rays(&f, &seed, 1500), 0);
+    /* the poles (y = +-1): each a fan of triangles with two corners at
+     * the pole, whose map has no area in space (no local frame: rays are
+     * culled by an oriented box, mr_dgrad.ob); rays from around at
+     * micro-vertices near them */
+    int near_poles = 0, bad = 0;
+    for (uint32_t i = 0; i < f.tess.vertex_count && near_poles < 800; i++) {
+        const mr_vec3 v = dfx_vertex(&f.tess, i);
+        if (fabsf(v.y) < 0.97f)
+            continue;
+        const mr_vec3 o = mr_v3_add(v, mr_v3_scale(rnd_unit(&seed), 3.0f));
+        bad += dfx_check_ray(&f, o, mr_v3_sub(v, o), 0.0f, INFINITY);
+        near_poles++;
+    }
+    assert_true(near_poles == 800);
+    assert_int_equal(bad, 0);
     dfx_close(&f);
     mr_device_free(f.dev);
     mr_asset_free(mesh);

@@ -20,6 +20,7 @@
  * handle NaN), and these run a few dozen times per node. */
 static inline double dmin(double a, double b) { return a < b ? a : b; }
 static inline double dmax(double a, double b) { return a > b ? a : b; }
+static inline double dot3(const double *u, const double *v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
 
 /* The box pad: this fraction of a bound on every magnitude a micro-vertex
  * is computed from (dtrace.h). */
@@ -184,6 +185,87 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
 
 static void footprint_frame(mr_dgrad *gr, const mr_dbase *b);
 
+/* mr_dgrad's oriented box (T without a local frame). A point of T's
+ * surface is P(q) + h N(q) / |N(q)|: P(q) in the triangle of T's corners,
+ * h in [hlo, hhi], and along a unit axis a the unit normal's component
+ * lies within the corners' (a . n_k) divided by |N| in [dist, 1], as
+ * local_frame bounds it. Padded by a micro-vertex's float rounding
+ * (local_frame's 2^-22 of the basis) and 1e-9 of the coordinates for the
+ * projections' own. No box (ob false) when T has no direction to take. */
+static void oriented_box(mr_dgrad *gr, const mr_dbase *b, double hm)
+{
+    double e[3][3], len[3];
+    for (int k = 0; k < 3; k++) {
+        for (int c = 0; c < 3; c++)
+            e[k][c] = b->p[(k + 1) % 3][c] - b->p[k][c];
+        len[k] = sqrt(dot3(e[k], e[k]));
+    }
+    const int lk = len[0] >= len[1] && len[0] >= len[2] ? 0 : len[1] >= len[2] ? 1 : 2;
+    double n[3] = {b->n[0][0] + b->n[1][0] + b->n[2][0], b->n[0][1] + b->n[1][1] + b->n[2][1],
+                   b->n[0][2] + b->n[1][2] + b->n[2][2]};
+    if (!(len[lk] > 0) || !isfinite(len[lk]))
+        return;
+    double *u = gr->ob_axis[0], *v = gr->ob_axis[1], *w = gr->ob_axis[2];
+    for (int c = 0; c < 3; c++)
+        u[c] = e[lk][c] / len[lk];
+    const double nu = dot3(n, u);
+    for (int c = 0; c < 3; c++)
+        v[c] = n[c] - nu * u[c];
+    const double vl = sqrt(dot3(v, v));
+    if (!(vl > 1e-6 * sqrt(dot3(n, n))) || !isfinite(vl))
+        return; /* the normal along the edge, or none */
+    for (int c = 0; c < 3; c++)
+        v[c] /= vl;
+    w[0] = u[1] * v[2] - u[2] * v[1], w[1] = u[2] * v[0] - u[0] * v[2], w[2] = u[0] * v[1] - u[1] * v[0];
+    const double dist = origin_distance(b->n[0], b->n[1], b->n[2]) * (1 - 1e-12);
+    double pm = 0;
+    for (int k = 0; k < 3; k++)
+        for (int c = 0; c < 3; c++)
+            pm = dmax(pm, fabs(b->p[k][c]));
+    const double pad = 0x1p-22 * (gr->pad / PAD_REL) + 1e-9 * (pm + hm);
+    for (int a = 0; a < 3; a++) {
+        const double *x = gr->ob_axis[a];
+        double plo = INFINITY, phi = -INFINITY, nlo = INFINITY, nhi = -INFINITY;
+        for (int k = 0; k < 3; k++) {
+            plo = dmin(plo, dot3(x, b->p[k])), phi = dmax(phi, dot3(x, b->p[k]));
+            nlo = dmin(nlo, dot3(x, b->n[k])), nhi = dmax(nhi, dot3(x, b->n[k]));
+        }
+        if (dist > 1e-6) {
+            nlo = nlo >= 0 ? nlo : nlo / dist;
+            nhi = nhi >= 0 ? nhi / dist : nhi;
+        } else {
+            nlo = -1, nhi = 1;
+        }
+        nlo = dmax(nlo - 1e-12, -1), nhi = dmin(nhi + 1e-12, 1);
+        const double h[4] = {gr->hlo * nlo, gr->hlo * nhi, gr->hhi * nlo, gr->hhi * nhi};
+        gr->ob_lo[a] = plo + dmin(dmin(h[0], h[1]), dmin(h[2], h[3])) - pad;
+        gr->ob_hi[a] = phi + dmax(dmax(h[0], h[1]), dmax(h[2], h[3])) + pad;
+        if (!isfinite(gr->ob_lo[a]) || !isfinite(gr->ob_hi[a]))
+            return;
+    }
+    gr->ob = true;
+}
+
+/* Whether ray r can meet T's oriented box at a t in [tmin, tmax]: the slab
+ * test in the box's frame, its exit widened as slab widens it. */
+static bool oriented_hit(const mr_dgrad *gr, const mr_dray *r, double tmin, double tmax)
+{
+    double t0 = tmin, t1 = tmax;
+    for (int a = 0; a < 3; a++) {
+        const double *x = gr->ob_axis[a];
+        const double o = dot3(x, r->o), d = dot3(x, r->d);
+        if (d == 0) {
+            if (o < gr->ob_lo[a] || o > gr->ob_hi[a])
+                return false;
+            continue;
+        }
+        const double ta = (gr->ob_lo[a] - o) / d, tb = (gr->ob_hi[a] - o) / d;
+        t0 = dmax(t0, dmin(ta, tb));
+        t1 = dmin(t1, dmax(ta, tb) * (1 + 4 * DBL_EPSILON));
+    }
+    return t0 <= t1;
+}
+
 void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
 {
     memset(gr, 0, sizeof *gr);
@@ -216,10 +298,13 @@ void mr_dgrad_init(mr_dgrad *gr, const mr_dbase *b, double hlo, double hhi)
                           !memcmp(b->n[0], b->n[2], sizeof b->n[0]);
     tri_gbox(b, &gr->gx0, &gr->gx1, &gr->gy0, &gr->gy1);
     gr->local = false;
+    gr->ob = false;
     if (!b->flat)
         local_frame(gr, b, hm);
     if (gr->local)
         footprint_frame(gr, b);
+    else if (!b->flat)
+        oriented_box(gr, b, hm);
 }
 
 /* ---- boxes ----------------------------------------------------------------------- */
@@ -1850,6 +1935,8 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
             finish(b, &bh, hit);
         return bh.hit;
     }
+    if (gr->ob && !oriented_hit(gr, r, tmin, cull_limit(*tmax)))
+        return false;
     mr_dray lr;
     if (gr->local)
         local_ray(gr, b, r, &lr);
