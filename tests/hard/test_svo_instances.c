@@ -4,7 +4,9 @@
  * attach, commit, normal): every method with instances at the origin, far
  * from it (1e5), mirrored, and of zero scale; a one-voxel asset; a pose
  * that throws voxels beyond MR_MAX_COORDINATE; the job's thread count used
- * as given, also beyond the machine's cores, with identical hits.
+ * as given, also beyond the machine's cores, with identical hits; a rigid
+ * cast with a level of detail the same through Embree, one ray or a
+ * packet at a time, as every piece walked in turn (the dancer).
  *
  * The asset is a unit cube voxelised at depth 4 (voxels of 1/16, a little
  * more since the voxel cube is padded); rays come straight at each

@@ -238,11 +238,10 @@ static bool fx_slab_within(const mr_svo *svo, const fx_box *b, const fx_clip *cl
         double lo, hi;
         fx_box_planes(svo, b, a, &lo, &hi);
         if (clip) {
-            const double cell = ldexp((double)svo->size, -(int)clip->level), o = a == 0 ? svo->origin.x
-                                                                              : a == 1 ? svo->origin.y
-                                                                                       : svo->origin.z;
-            lo = fmax(lo, o + clip->lo[a] * cell);
-            hi = fmin(hi, o + clip->hi[a] * cell);
+            const double o[3] = {svo->origin.x, svo->origin.y, svo->origin.z};
+            const double cell = ldexp((double)svo->size, -(int)clip->level);
+            lo = fmax(lo, o[a] + clip->lo[a] * cell);
+            hi = fmin(hi, o[a] + clip->hi[a] * cell);
             if (!(lo < hi))
                 return false;
         }

@@ -20,7 +20,10 @@
  * handle NaN), and these run a few dozen times per node. */
 static inline double dmin(double a, double b) { return a < b ? a : b; }
 static inline double dmax(double a, double b) { return a > b ? a : b; }
-static inline double dot3(const double *u, const double *v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
+static inline double dot3(const double *u, const double *v)
+{
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+}
 
 /* The box pad: this fraction of a bound on every magnitude a micro-vertex
  * is computed from (dtrace.h). */
@@ -216,7 +219,9 @@ static void oriented_box(mr_dgrad *gr, const mr_dbase *b, double hm)
         return; /* the normal along the edge, or none */
     for (int c = 0; c < 3; c++)
         v[c] /= vl;
-    w[0] = u[1] * v[2] - u[2] * v[1], w[1] = u[2] * v[0] - u[0] * v[2], w[2] = u[0] * v[1] - u[1] * v[0];
+    w[0] = u[1] * v[2] - u[2] * v[1];
+    w[1] = u[2] * v[0] - u[0] * v[2];
+    w[2] = u[0] * v[1] - u[1] * v[0];
     const double dist = origin_distance(b->n[0], b->n[1], b->n[2]) * (1 - 1e-12);
     double pm = 0;
     for (int k = 0; k < 3; k++)
@@ -569,10 +574,11 @@ static void footprint_frame(mr_dgrad *gr, const mr_dbase *b)
     for (int a = 0; a < 2; a++)
         gr->reach[a] = hm * dmax(fabs(gr->nb[a][0]), fabs(gr->nb[a][1])) + gr->lpad[a];
     const double ex[2] = {gr->reach[0] + 1e-6, gr->reach[1] + 1e-6};
-    const double size = dmax(dmax(fabs(gr->gx0), fabs(gr->gx1)), dmax(fabs(gr->gy0), fabs(gr->gy1))) +
-                        dmax(ex[0], ex[1]);
+    const double size =
+        dmax(dmax(fabs(gr->gx0), fabs(gr->gx1)), dmax(fabs(gr->gy0), fabs(gr->gy1))) + dmax(ex[0], ex[1]);
     const double *g[3] = {b->g[0], b->g[1], b->g[2]};
-    const double area = (g[1][0] - g[0][0]) * (g[2][1] - g[0][1]) - (g[1][1] - g[0][1]) * (g[2][0] - g[0][0]);
+    const double area =
+        (g[1][0] - g[0][0]) * (g[2][1] - g[0][1]) - (g[1][1] - g[0][1]) * (g[2][0] - g[0][0]);
     const double out = area > 0 ? 1.0 : -1.0; /* (a T with a local frame is not flat) */
     for (int k = 0; k < 3; k++) {
         const double *p = g[k], *q = g[(k + 1) % 3];
@@ -2495,7 +2501,8 @@ static uint32_t tri_lanes(const mr_dgrad *gr, const pack *p, uint32_t live)
         const double x0 = p->o[0][k] + p->s0[k] * p->d[0][k], y0 = p->o[1][k] + p->s0[k] * p->d[1][k];
         const double x1 = p->o[0][k] + p->s1[k] * p->d[0][k], y1 = p->o[1][k] + p->s1[k] * p->d[1][k];
         for (int e = 0; e < 3; e++)
-            if (gr->en[e][0] * x0 + gr->en[e][1] * y0 > gr->ec[e] && gr->en[e][0] * x1 + gr->en[e][1] * y1 > gr->ec[e])
+            if (gr->en[e][0] * x0 + gr->en[e][1] * y0 > gr->ec[e] &&
+                gr->en[e][0] * x1 + gr->en[e][1] * y1 > gr->ec[e])
                 in &= ~(1u << k);
     }
     return in;
@@ -2504,7 +2511,8 @@ static uint32_t tri_lanes(const mr_dgrad *gr, const pack *p, uint32_t live)
 #if defined(__x86_64__) && defined(__GNUC__)
 /* tri_lanes four lanes at a time, for CPUs with AVX2: the same operations
  * lane by lane (no fused multiply-add), so the same lanes. */
-__attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *gr, const pack *p, uint32_t live)
+__attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *gr, const pack *p,
+                                                                uint32_t live)
 {
     uint32_t in = 0;
     for (int k = 0; k < PK; k += 4) {
@@ -2514,21 +2522,25 @@ __attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *g
         const __m256d s0 = _mm256_loadu_pd(p->s0 + k), s1 = _mm256_loadu_pd(p->s1 + k);
         const __m256d ox = _mm256_loadu_pd(p->o[0] + k), oy = _mm256_loadu_pd(p->o[1] + k);
         const __m256d dx = _mm256_loadu_pd(p->d[0] + k), dy = _mm256_loadu_pd(p->d[1] + k);
-        const __m256d x0 = _mm256_add_pd(ox, _mm256_mul_pd(s0, dx)), y0 = _mm256_add_pd(oy, _mm256_mul_pd(s0, dy));
-        const __m256d x1 = _mm256_add_pd(ox, _mm256_mul_pd(s1, dx)), y1 = _mm256_add_pd(oy, _mm256_mul_pd(s1, dy));
+        const __m256d x0 = _mm256_add_pd(ox, _mm256_mul_pd(s0, dx));
+        const __m256d y0 = _mm256_add_pd(oy, _mm256_mul_pd(s0, dy));
+        const __m256d x1 = _mm256_add_pd(ox, _mm256_mul_pd(s1, dx));
+        const __m256d y1 = _mm256_add_pd(oy, _mm256_mul_pd(s1, dy));
         __m256d out = _mm256_setzero_pd();
         for (int e = 0; e < 3; e++) {
             const __m256d ex = _mm256_set1_pd(gr->en[e][0]), ey = _mm256_set1_pd(gr->en[e][1]);
             const __m256d c = _mm256_set1_pd(gr->ec[e]);
             const __m256d v0 = _mm256_add_pd(_mm256_mul_pd(ex, x0), _mm256_mul_pd(ey, y0));
             const __m256d v1 = _mm256_add_pd(_mm256_mul_pd(ex, x1), _mm256_mul_pd(ey, y1));
-            out = _mm256_or_pd(out, _mm256_and_pd(_mm256_cmp_pd(v0, c, _CMP_GT_OQ), _mm256_cmp_pd(v1, c, _CMP_GT_OQ)));
+            const __m256d beyond0 = _mm256_cmp_pd(v0, c, _CMP_GT_OQ), beyond1 = _mm256_cmp_pd(v1, c, _CMP_GT_OQ);
+            out = _mm256_or_pd(out, _mm256_and_pd(beyond0, beyond1));
         }
         in |= (lq & ~(uint32_t)_mm256_movemask_pd(out)) << k;
     }
     return in;
 }
-#define TRI_LANES(gr, p, live) (__builtin_cpu_supports("avx2") ? tri_lanes_avx2(gr, p, live) : tri_lanes(gr, p, live))
+#define TRI_LANES(gr, p, live)                                                                    \
+    (__builtin_cpu_supports("avx2") ? tri_lanes_avx2(gr, p, live) : tri_lanes(gr, p, live))
 #else
 #define TRI_LANES tri_lanes
 #endif
