@@ -101,17 +101,23 @@ typedef struct mr_dgrad {
      * can sit from its grid point along grid x and y (T's largest height
      * times the normal's bound, plus the local boxes' pad). */
     double tlo[3], thi[3], reach[2];
-    /* T's edges in the grid, where local: a hit lies on the side of edge
-     * k's line where en[k] . (x, y) <= ec[k], which holds T grown by
-     * reach (and a rounding margin); dtrace.c tri_lanes. */
-    double en[3][2], ec[3];
-    /* Without a local frame (a map of no area in space: a UV sphere's
-     * pole, where a fan's triangles have two corners at the pole), a box
-     * of T's surface in an oriented frame (rows of ob_axis: T's longest
-     * edge, the normal, their cross product): rays that miss it skip T's
-     * walk (dtrace.c oriented_box). */
-    bool ob;
-    double ob_axis[3][3], ob_lo[3], ob_hi[3];
+    bool ob; /* the oriented box below is set */
+    union {
+        /* Where local: T's edges in the grid; a hit lies on the side of
+         * edge k's line where en[k] . (x, y) <= ec[k], which holds T grown
+         * by reach (and a rounding margin); dtrace.c tri_lanes. */
+        struct {
+            double en[3][2], ec[3];
+        };
+        /* Without a local frame (a map of no area in space: a UV sphere's
+         * pole, where a fan's triangles have two corners at the pole), a
+         * box of T's surface in an oriented frame (rows of ob_axis: T's
+         * longest edge, the normal, their cross product): rays that miss
+         * it skip T's walk (dtrace.c oriented_box). */
+        struct {
+            double ob_axis[3][3], ob_lo[3], ob_hi[3];
+        };
+    };
 } mr_dgrad;
 
 /* The most grid cells a base triangle's local boxes may be padded by (the
