@@ -128,21 +128,26 @@ static void release(scene *s)
     free(s->params.instances);
 }
 
-/* A ray down -z at (x, y) from z0; returns the hit t (or INFINITY). */
-static float shoot(const scene *s, float x, float y, float z0, struct RTCRayHit *rh)
+/* The ray org + t dir, t in [0, tfar], through the scene one at a time
+ * (rtcIntersect1) into rh. */
+static void trace1(const scene *s, mr_vec3 org, mr_vec3 dir, float tfar, struct RTCRayHit *rh)
 {
     memset(rh, 0, sizeof *rh);
-    rh->ray.org_x = x;
-    rh->ray.org_y = y;
-    rh->ray.org_z = z0;
-    rh->ray.dir_z = -1;
-    rh->ray.tfar = FLT_MAX;
+    rh->ray.org_x = org.x, rh->ray.org_y = org.y, rh->ray.org_z = org.z;
+    rh->ray.dir_x = dir.x, rh->ray.dir_y = dir.y, rh->ray.dir_z = dir.z;
+    rh->ray.tfar = tfar;
     rh->ray.mask = 0xffffffffu;
     rh->hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     rtcIntersect1(s->scene, &ctx, rh);
+}
+
+/* A ray down -z at (x, y) from z0; returns the hit t (or INFINITY). */
+static float shoot(const scene *s, float x, float y, float z0, struct RTCRayHit *rh)
+{
+    trace1(s, mr_v3(x, y, z0), mr_v3(0, 0, -1), FLT_MAX, rh);
     return rh->hit.geomID == RTC_INVALID_GEOMETRY_ID ? INFINITY : rh->ray.tfar;
 }
 
@@ -290,17 +295,9 @@ static void check_pieces_whole_walk(void **state)
                             p[along] = sign ? (float)(org[along] - 1.0) : (float)(org[along] + o->size + 1.0);
                             d[along] = sign ? 1.0f : -1.0f;
                             struct RTCRayHit rh;
-                            memset(&rh, 0, sizeof rh);
-                            rh.ray.org_x = p[0], rh.ray.org_y = p[1], rh.ray.org_z = p[2];
-                            rh.ray.dir_x = d[0], rh.ray.dir_y = d[1], rh.ray.dir_z = d[2];
-                            rh.ray.tfar = INFINITY;
-                            rh.ray.mask = 0xffffffffu;
-                            rh.hit.geomID = rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-                            struct RTCIntersectContext ctx;
-                            rtcInitIntersectContext(&ctx);
-                            rtcIntersect1(s.scene, &ctx, &rh);
-                            mr_svo_hit whole;
                             const mr_vec3 ov = mr_v3(p[0], p[1], p[2]), dv = mr_v3(d[0], d[1], d[2]);
+                            trace1(&s, ov, dv, INFINITY, &rh);
+                            mr_svo_hit whole;
                             const bool w = mr_svo_intersect(o, ov, dv, 0.0f, INFINITY, &whole);
                             rays++;
                             HARD_EXPECT(wrong, w == (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID));
@@ -398,14 +395,7 @@ static void check_lod_pieces_any_order(void **state)
                 rtcIntersect16(valid, s.scene, &ctx, &packet);
                 for (int i = 0; i < 16; i++) {
                     struct RTCRayHit rh;
-                    memset(&rh, 0, sizeof rh);
-                    rh.ray.org_x = key.position.x, rh.ray.org_y = key.position.y, rh.ray.org_z = key.position.z;
-                    rh.ray.dir_x = dir[i].x, rh.ray.dir_y = dir[i].y, rh.ray.dir_z = dir[i].z;
-                    rh.ray.tfar = INFINITY;
-                    rh.ray.mask = 0xffffffffu;
-                    rh.hit.geomID = rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-                    rtcInitIntersectContext(&ctx);
-                    rtcIntersect1(s.scene, &ctx, &rh);
+                    trace1(&s, key.position, dir[i], INFINITY, &rh);
                     mr_svo_hit want;
                     const bool w = mr_svo_kind_cast(s.g, 0, key.position, dir[i], &want);
                     rays++;

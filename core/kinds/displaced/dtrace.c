@@ -102,6 +102,24 @@ static double origin_distance(const double *a, const double *b, const double *c)
 #undef DOT
 }
 
+/* Bounds of u . N / |N| over T for a linear functional u, from the least
+ * and greatest of u . n_k at its corner normals (lo, hi): u . N lies
+ * between them over the hull of the corner normals, and |N| in [dist, 1]
+ * (dist: the hull's distance from the origin, local_frame); a hull that
+ * reaches near the origin gets the bound any unit vector has, cap (u's
+ * 1-norm, or 1 for a unit u). Widened by slack, within [-cap, cap]. */
+static void unit_normal_bounds(double lo, double hi, double dist, double slack, double cap, double out[2])
+{
+    if (dist > 1e-6) {
+        lo = lo >= 0 ? lo - slack : lo / dist - slack;
+        hi = hi >= 0 ? hi / dist + slack : hi + slack;
+    } else {
+        lo = -cap, hi = cap;
+    }
+    out[0] = dmax(lo, -cap);
+    out[1] = dmin(hi, cap);
+}
+
 /* The local frame (dtrace.h): x = P0 + Px (qx - g0x) + Py (qy - g0y) + z f
  * with f T's unit face normal; a micro-vertex of grid point q and height h
  * lies at (q + h (a, b), h c) where (a, b, c) = inv N(q) / |N(q)|. Bounds
@@ -151,16 +169,8 @@ static void local_frame(mr_dgrad *gr, const mr_dbase *b, double hm)
                        gr->inv[r][2] * b->n[k][2];
             lo = dmin(lo, v), hi = dmax(hi, v);
         }
-        double slack = 1e-12 * row;
         rows[r] = row;
-        if (dist > 1e-6) {
-            lo = lo >= 0 ? lo - slack : lo / dist - slack;
-            hi = hi >= 0 ? hi / dist + slack : hi + slack;
-        } else {
-            lo = -row, hi = row;
-        }
-        gr->nb[r][0] = dmax(lo, -row);
-        gr->nb[r][1] = dmin(hi, row);
+        unit_normal_bounds(lo, hi, dist, 1e-12 * row, row, gr->nb[r]);
         gr->lpad[r] = row * err + 1e-9 * (r < 2 ? 1 + gmax_of(b) : 1 + hm);
     }
     gr->local = isfinite(gr->lpad[0]) && isfinite(gr->lpad[1]) && isfinite(gr->lpad[2]) &&
@@ -191,8 +201,7 @@ static void footprint_frame(mr_dgrad *gr, const mr_dbase *b);
 /* mr_dgrad's oriented box (T without a local frame). A point of T's
  * surface is P(q) + h N(q) / |N(q)|: P(q) in the triangle of T's corners,
  * h in [hlo, hhi], and along a unit axis a the unit normal's component
- * lies within the corners' (a . n_k) divided by |N| in [dist, 1], as
- * local_frame bounds it. Padded by a micro-vertex's float rounding
+ * within unit_normal_bounds, as local_frame bounds it. Padded by a micro-vertex's float rounding
  * (local_frame's 2^-22 of the basis) and 1e-9 of the coordinates for the
  * projections' own. No box (ob false) when T has no direction to take. */
 static void oriented_box(mr_dgrad *gr, const mr_dbase *b, double hm)
@@ -235,14 +244,9 @@ static void oriented_box(mr_dgrad *gr, const mr_dbase *b, double hm)
             plo = dmin(plo, dot3(x, b->p[k])), phi = dmax(phi, dot3(x, b->p[k]));
             nlo = dmin(nlo, dot3(x, b->n[k])), nhi = dmax(nhi, dot3(x, b->n[k]));
         }
-        if (dist > 1e-6) {
-            nlo = nlo >= 0 ? nlo : nlo / dist;
-            nhi = nhi >= 0 ? nhi / dist : nhi;
-        } else {
-            nlo = -1, nhi = 1;
-        }
-        nlo = dmax(nlo - 1e-12, -1), nhi = dmin(nhi + 1e-12, 1);
-        const double h[4] = {gr->hlo * nlo, gr->hlo * nhi, gr->hhi * nlo, gr->hhi * nhi};
+        double nb[2];
+        unit_normal_bounds(nlo, nhi, dist, 1e-12, 1, nb);
+        const double h[4] = {gr->hlo * nb[0], gr->hlo * nb[1], gr->hhi * nb[0], gr->hhi * nb[1]};
         gr->ob_lo[a] = plo + dmin(dmin(h[0], h[1]), dmin(h[2], h[3])) - pad;
         gr->ob_hi[a] = phi + dmax(dmax(h[0], h[1]), dmax(h[2], h[3])) + pad;
         if (!isfinite(gr->ob_lo[a]) || !isfinite(gr->ob_hi[a]))
@@ -2487,6 +2491,25 @@ __attribute__((target("avx2"))) static uint32_t pack_enter_avx2(const mr_dgrad *
 #define PACK_ENTER pack_enter
 #endif
 
+/* Lane k's grid coordinate along axis a (0: x, 1: y) where its ray enters
+ * T's box (x0) and leaves it (x1): tbox_lanes' span s0 .. s1. */
+static inline void span_ends(const pack *p, int a, int k, double *x0, double *x1)
+{
+    *x0 = p->o[a][k] + p->s0[k] * p->d[a][k];
+    *x1 = p->o[a][k] + p->s1[k] * p->d[a][k];
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* span_ends for lanes k .. k + 3 (AVX2): the same operations lane by lane. */
+__attribute__((target("avx2"))) static inline void span_ends_avx2(const pack *p, int a, int k, __m256d *x0,
+                                                                  __m256d *x1)
+{
+    const __m256d o = _mm256_loadu_pd(p->o[a] + k), d = _mm256_loadu_pd(p->d[a] + k);
+    *x0 = _mm256_add_pd(o, _mm256_mul_pd(_mm256_loadu_pd(p->s0 + k), d));
+    *x1 = _mm256_add_pd(o, _mm256_mul_pd(_mm256_loadu_pd(p->s1 + k), d));
+}
+#endif
+
 /* The lanes of `live` (rays that enter T's box: tbox_lanes) whose x and y
  * while in the box come near enough T to hit it: each ray's segment from
  * its entry to its exit is not wholly beyond one of T's edges moved out by
@@ -2498,8 +2521,9 @@ static uint32_t tri_lanes(const mr_dgrad *gr, const pack *p, uint32_t live)
     uint32_t in = live;
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
-        const double x0 = p->o[0][k] + p->s0[k] * p->d[0][k], y0 = p->o[1][k] + p->s0[k] * p->d[1][k];
-        const double x1 = p->o[0][k] + p->s1[k] * p->d[0][k], y1 = p->o[1][k] + p->s1[k] * p->d[1][k];
+        double x0, x1, y0, y1;
+        span_ends(p, 0, k, &x0, &x1);
+        span_ends(p, 1, k, &y0, &y1);
         for (int e = 0; e < 3; e++)
             if (gr->en[e][0] * x0 + gr->en[e][1] * y0 > gr->ec[e] &&
                 gr->en[e][0] * x1 + gr->en[e][1] * y1 > gr->ec[e])
@@ -2519,13 +2543,9 @@ __attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *g
         const uint32_t lq = live >> k & 15u;
         if (!lq)
             continue;
-        const __m256d s0 = _mm256_loadu_pd(p->s0 + k), s1 = _mm256_loadu_pd(p->s1 + k);
-        const __m256d ox = _mm256_loadu_pd(p->o[0] + k), oy = _mm256_loadu_pd(p->o[1] + k);
-        const __m256d dx = _mm256_loadu_pd(p->d[0] + k), dy = _mm256_loadu_pd(p->d[1] + k);
-        const __m256d x0 = _mm256_add_pd(ox, _mm256_mul_pd(s0, dx));
-        const __m256d y0 = _mm256_add_pd(oy, _mm256_mul_pd(s0, dy));
-        const __m256d x1 = _mm256_add_pd(ox, _mm256_mul_pd(s1, dx));
-        const __m256d y1 = _mm256_add_pd(oy, _mm256_mul_pd(s1, dy));
+        __m256d x0, x1, y0, y1;
+        span_ends_avx2(p, 0, k, &x0, &x1);
+        span_ends_avx2(p, 1, k, &y0, &y1);
         __m256d out = _mm256_setzero_pd();
         for (int e = 0; e < 3; e++) {
             const __m256d ex = _mm256_set1_pd(gr->en[e][0]), ey = _mm256_set1_pd(gr->en[e][1]);
@@ -2555,8 +2575,8 @@ static int footprint_rays(const pack *p, uint32_t live, double f[2][2], double *
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
         for (int a = 0; a < 2; a++) {
-            const double x0 = p->o[a][k] + p->s0[k] * p->d[a][k];
-            const double x1 = p->o[a][k] + p->s1[k] * p->d[a][k];
+            double x0, x1;
+            span_ends(p, a, k, &x0, &x1);
             if (isnan(x0) || isnan(x1))
                 return -1;
             f[a][0] = dmin(f[a][0], dmin(x0, x1));
@@ -2582,12 +2602,11 @@ __attribute__((target("avx2"))) static int footprint_rays_avx2(const pack *p, ui
         const uint32_t in = live >> k & 15u;
         if (!in)
             continue;
-        const __m256d t0 = _mm256_loadu_pd(p->s0 + k), t1 = _mm256_loadu_pd(p->s1 + k);
         const __m256d sel = lanes_avx2(in);
         for (int a = 0; a < 2; a++) {
-            const __m256d o = _mm256_loadu_pd(p->o[a] + k), d = _mm256_loadu_pd(p->d[a] + k);
-            const __m256d x0 = _mm256_add_pd(o, _mm256_mul_pd(t0, d));
-            const __m256d x1 = _mm256_add_pd(o, _mm256_mul_pd(t1, d));
+            __m256d x0, x1;
+            span_ends_avx2(p, a, k, &x0, &x1);
+            const __m256d o = _mm256_loadu_pd(p->o[a] + k);
             nan |= (uint32_t)_mm256_movemask_pd(_mm256_cmp_pd(x0, x1, _CMP_UNORD_Q)) & in;
             fl[a] = _mm256_min_pd(_mm256_blendv_pd(inf, _mm256_min_pd(x0, x1), sel), fl[a]);
             fh[a] = _mm256_max_pd(_mm256_blendv_pd(ninf, _mm256_max_pd(x0, x1), sel), fh[a]);
