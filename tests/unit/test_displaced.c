@@ -93,6 +93,36 @@ static void test_affine_arith(void **state)
 
 /* ---- the pyramid ----------------------------------------------------------------- */
 
+/* The traversal's four children's heights at once (AVX2) against
+ * mr_dgrid_node_heights one by one, bit for bit, for node (I, J) of level
+ * l: every child that exists, and each alone. */
+static void check_child_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J)
+{
+#if defined(__x86_64__) && defined(__GNUC__)
+    if (!__builtin_cpu_supports("avx2"))
+        return;
+    const unsigned c = l - 1;
+    unsigned have = 0;
+    for (unsigned k = 0; k < 4; k++)
+        have |= (unsigned)(2 * I + (k & 1u) < g->lw[c] && 2 * J + (k >> 1) < g->lh[c]) << k;
+    for (unsigned mask = have; mask; mask = (mask - 1) & have) {
+        double hl[4], hh[4];
+        mr_dgrid_child_heights_avx2(g, c, 2 * I, 2 * J, mask, hl, hh);
+        for (unsigned m = mask; m; m &= m - 1) {
+            const unsigned k = (unsigned)__builtin_ctz(m);
+            double el, eh;
+            mr_dgrid_node_heights(g, c, 2 * I + (k & 1u), 2 * J + (k >> 1), &el, &eh);
+            if (memcmp(&el, &hl[k], sizeof el) || memcmp(&eh, &hh[k], sizeof eh))
+                fail_msg("%ux%u level %u node (%u, %u) child %u: [%.17g, %.17g], one by one "
+                         "[%.17g, %.17g]",
+                         g->w, g->h, l, I, J, k, hl[k], hh[k], el, eh);
+        }
+    }
+#else
+    (void)g, (void)l, (void)I, (void)J;
+#endif
+}
+
 static void test_pyramid_any_size(void **state)
 {
     (void)state;
@@ -157,6 +187,8 @@ static void test_pyramid_any_size(void **state)
                             fail_msg("%ux%u type %d level %u node (%u, %u): heights [%.17g, %.17g], "
                                      "reference [%.17g, %.17g]",
                                      g.w, g.h, (int)TYPES[ti], l, I, J, hl, hh, sl, sh);
+                        if (l > 0)
+                            check_child_heights(&g, l, I, J);
                     }
             mr_dgrid_free(&g);
             mr_asset_free(tex);

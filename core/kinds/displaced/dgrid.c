@@ -11,6 +11,9 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
 
 void mr_dgrid_free(mr_dgrid *g)
 {
@@ -113,6 +116,67 @@ void mr_dgrid_node_heights_slow(const mr_dgrid *g, unsigned l, uint32_t I, uint3
     *lo = ha < hb ? ha : hb;
     *hi = ha > hb ? ha : hb;
 }
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* mr_dgrid_height_of of four samples (AVX2): its operations lane by lane. */
+__attribute__((target("avx2"))) static inline __m256d heights4(const mr_dgrid *g, __m256d s)
+{
+    if (g->unit != 1)
+        s = _mm256_div_pd(s, _mm256_set1_pd(g->unit));
+    return _mm256_add_pd(_mm256_set1_pd(g->offset), _mm256_mul_pd(_mm256_set1_pd(g->scale), s));
+}
+
+/* dq of four quantised values (AVX2): gmin + q qstep, gmax for the top
+ * value (gmin for 0 is the same formula). */
+__attribute__((target("avx2"))) static inline __m256d dq4(const mr_dgrid *g, __m128i q)
+{
+    const __m256d v = _mm256_add_pd(_mm256_set1_pd(g->gmin),
+                                    _mm256_mul_pd(_mm256_cvtepi32_pd(q), _mm256_set1_pd(g->qstep)));
+    const __m128i top = _mm_cmpeq_epi32(q, _mm_set1_epi32(65535));
+    return _mm256_blendv_pd(v, _mm256_set1_pd(g->gmax),
+                            _mm256_castsi256_pd(_mm256_cvtepi32_epi64(top)));
+}
+
+__attribute__((target("avx2"))) void mr_dgrid_child_heights_avx2(const mr_dgrid *g, unsigned c,
+                                                                   uint32_t I0, uint32_t J0,
+                                                                   unsigned mask, double hl[4],
+                                                                   double hh[4])
+{
+    /* one by one: 8-bit samples (looked up: no faster four at once), a
+     * missing child, a cell across the period's edge, a byte pyramid */
+    if (g->lut8 || I0 + 1 >= g->lw[c] || J0 + 1 >= g->lh[c] ||
+        (c == 0 ? I0 + 2 >= g->w || J0 + 2 >= g->h : !g->qmin)) {
+        for (unsigned m = mask; m; m &= m - 1) {
+            const unsigned k = (unsigned)__builtin_ctz(m);
+            mr_dgrid_node_heights(g, c, I0 + (k & 1u), J0 + (k >> 1), &hl[k], &hh[k]);
+        }
+        return;
+    }
+    __m256d a, b; /* each child's smallest and largest sample */
+    if (c == 0) {
+        /* the four cells' 3 x 3 corners; cell k's corner (x, y) is
+         * v[y + (k >> 1)][x + (k & 1)], in node_samples' order of min
+         * and max (a, b, c, d: corners (0, 0), (1, 0), (0, 1), (1, 1)) */
+        double v[3][3];
+        for (uint32_t y = 0; y < 3; y++)
+            for (uint32_t x = 0; x < 3; x++)
+                v[y][x] = mr_dgrid_sample(g, I0 + x, J0 + y);
+        const __m256d s00 = _mm256_set_pd(v[1][1], v[1][0], v[0][1], v[0][0]);
+        const __m256d s10 = _mm256_set_pd(v[1][2], v[1][1], v[0][2], v[0][1]);
+        const __m256d s01 = _mm256_set_pd(v[2][1], v[2][0], v[1][1], v[1][0]);
+        const __m256d s11 = _mm256_set_pd(v[2][2], v[2][1], v[1][2], v[1][1]);
+        a = _mm256_min_pd(_mm256_min_pd(s00, s10), _mm256_min_pd(s01, s11));
+        b = _mm256_max_pd(_mm256_max_pd(s00, s10), _mm256_max_pd(s01, s11));
+    } else {
+        const size_t k0 = g->first[c] + (size_t)J0 * g->lw[c] + I0, k1 = k0 + g->lw[c];
+        a = dq4(g, _mm_set_epi32(g->qmin[k1 + 1], g->qmin[k1], g->qmin[k0 + 1], g->qmin[k0]));
+        b = dq4(g, _mm_set_epi32(g->qmax[k1 + 1], g->qmax[k1], g->qmax[k0 + 1], g->qmax[k0]));
+    }
+    const __m256d ha = heights4(g, a), hb = heights4(g, b);
+    _mm256_storeu_pd(hl, _mm256_min_pd(ha, hb)); /* (ordered: scale may be negative) */
+    _mm256_storeu_pd(hh, _mm256_max_pd(ha, hb));
+}
+#endif
 
 /* The period holding cell i of a grid of n cells per period. */
 static inline int64_t period_of(int64_t i, uint32_t n)

@@ -1604,10 +1604,7 @@ __attribute__((target("avx2"))) static unsigned tex_child_boxes_avx2(const mr_dg
     if (!inm)
         return 0;
     double hl[4] = {0}, hh[4] = {0};
-    for (unsigned m = inm; m; m &= m - 1) {
-        const unsigned k = (unsigned)__builtin_ctz(m);
-        mr_dgrid_node_heights(g, (unsigned)c, I0 + (k & 1u), J0 + (k >> 1), &hl[k], &hh[k]);
-    }
+    mr_dgrid_child_heights_avx2(g, (unsigned)c, I0, J0, inm, hl, hh);
     boxes4_avx2(gr, x0, x1, ylo, yhi, hl, hh, lo, hi);
     return inm;
 }
