@@ -459,6 +459,80 @@ static void fan_halves(const mr_dbase *b, pool *pl, const poly *a, line lines[5]
     }
 }
 
+/* fan_halves for edge_piece's polygon a of a CELL_EDGE cell (its pool pl:
+ * the square's corners, then the two crossings of edge e), the same cell
+ * without cutting: no side of the square crosses the diagonal (each lies
+ * on one side of it, touching it at most at a corner), so each half is a
+ * run of a's vertices, with the crossing of e and the diagonal where the
+ * stretch along e passes from one side to the other. That crossing is
+ * made once for both halves; vertices are told apart by their place in
+ * the pool (no two of its records are the same vertex) instead of by
+ * comparing records. The same vertices in the same order, the same
+ * triangles (test_cells_are_their_cuts); a third of the time of cutting. */
+static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, const line lines[5],
+                            int half, mr_dcell *out)
+{
+    out->nv = out->nt = 0;
+    if (!a->n)
+        return;
+    const line *d = &lines[4];
+    const double dv = (double)d->value;
+    int sd[MR_DSURF_MAX_POLY]; /* each vertex's side of the diagonal: the upper half's */
+    for (int m = 0; m < a->n; m++) {
+        const double c = coord(&pl->v[a->v[m]], MR_DLINE_D);
+        sd[m] = c > dv ? 1 : c < dv ? -1 : 0;
+    }
+    int xd = -1;   /* the crossing's place in the pool, once made */
+    int at[POOL_MAX]; /* a pool vertex's index in out, or -1 */
+    for (int k = 0; k < POOL_MAX; k++)
+        at[k] = -1;
+    for (int hf = 0; hf < 2; hf++) {
+        if (half != 2 && half != hf)
+            continue;
+        const int sign = hf == 1 ? 1 : -1;
+        uint8_t c[MR_DSURF_MAX_POLY];
+        int n = 0;
+        int sp = sign * sd[a->n - 1];
+        for (int m = 0; m < a->n; m++) {
+            const int sq = sign * sd[m];
+            if ((sp < 0 && sq > 0) || (sp > 0 && sq < 0)) {
+                if (xd < 0) {
+                    pl->v[pl->n] = edge_cross(b, e, d);
+                    xd = pl->n++;
+                }
+                c[n++] = (uint8_t)xd;
+            }
+            if (sq >= 0)
+                c[n++] = a->v[m];
+            sp = sq;
+        }
+        if (n < 3)
+            continue;
+        /* rotate_canonical's start: the first smallest (x, then y) */
+        int s0 = 0;
+        for (int k = 1; k < n; k++) {
+            const mr_dvert *p = &pl->v[c[k]], *q = &pl->v[c[s0]];
+            if (p->x < q->x || (p->x == q->x && p->y < q->y))
+                s0 = k;
+        }
+        int idx[MR_DSURF_MAX_POLY];
+        for (int k = 0; k < n; k++) {
+            const int v = c[(k + s0) % n];
+            if (at[v] < 0) {
+                out->v[out->nv] = pl->v[v];
+                at[v] = out->nv++;
+            }
+            idx[k] = at[v];
+        }
+        for (int k = 1; k + 1 < n; k++) {
+            out->tri[out->nt][0] = (uint8_t)idx[0];
+            out->tri[out->nt][1] = (uint8_t)idx[k];
+            out->tri[out->nt][2] = (uint8_t)idx[k + 1];
+            out->half[out->nt++] = (uint8_t)hf;
+        }
+    }
+}
+
 void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
 {
     int e;
@@ -472,10 +546,12 @@ void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *
     cell_lines(i, j, lines);
     pool pl;
     poly a;
-    if (how == CELL_EDGE)
+    if (how == CELL_EDGE) {
         edge_piece(b, i, j, e, inside, lines, &pl, &a);
-    else
-        cut_piece(b, lines, &pl, &a);
+        fan_edge_halves(b, &pl, &a, e, lines, half, out);
+        return;
+    }
+    cut_piece(b, lines, &pl, &a);
     fan_halves(b, &pl, &a, lines, half, out);
 }
 
