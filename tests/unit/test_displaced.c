@@ -95,7 +95,7 @@ static void test_affine_arith(void **state)
 
 /* The traversal's four children's heights at once (AVX2) against
  * mr_dgrid_node_heights one by one, bit for bit, for node (I, J) of level
- * l: every child that exists, and each alone. */
+ * l: every subset of the children that exist. */
 static void check_child_heights(const mr_dgrid *g, unsigned l, uint32_t I, uint32_t J)
 {
 #if defined(__x86_64__) && defined(__GNUC__)
