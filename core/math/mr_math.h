@@ -96,6 +96,11 @@ static inline mr_vec3 mr_v3_sub(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x - b.x, 
 static inline mr_vec3 mr_v3_scale(mr_vec3 a, float s) { return mr_v3(a.x * s, a.y * s, a.z * s); }
 static inline mr_vec3 mr_v3_mul(mr_vec3 a, mr_vec3 b) { return mr_v3(a.x * b.x, a.y * b.y, a.z * b.z); }
 static inline float mr_v3_dot(mr_vec3 a, mr_vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+/* The same of two double triples, in the same order. */
+static inline double mr_dot3d(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
 static inline mr_vec3 mr_v3_cross(mr_vec3 a, mr_vec3 b)
 {
     return mr_v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);

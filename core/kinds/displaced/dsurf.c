@@ -430,6 +430,19 @@ static void edge_piece(const mr_dbase *b, int64_t i, int64_t j, int e, unsigned 
     }
 }
 
+/* The fan of a half's polygon into out, its vertices idx[0 .. n) (their
+ * indices in out, from the polygon's canonical start): triangles (0, k,
+ * k + 1) of half hf. */
+static void fan_out(mr_dcell *out, const int *idx, int n, int hf)
+{
+    for (int k = 1; k + 1 < n; k++) {
+        out->tri[out->nt][0] = (uint8_t)idx[0];
+        out->tri[out->nt][1] = (uint8_t)idx[k];
+        out->tri[out->nt][2] = (uint8_t)idx[k + 1];
+        out->half[out->nt++] = (uint8_t)hf;
+    }
+}
+
 /* The micro-triangles of T's piece a of the cell: each half of it (the
  * piece cut by the diagonal), started at its smallest vertex and fanned. */
 static void fan_halves(const mr_dbase *b, pool *pl, const poly *a, line lines[5], int half,
@@ -450,12 +463,7 @@ static void fan_halves(const mr_dbase *b, pool *pl, const poly *a, line lines[5]
         int idx[MR_DSURF_MAX_POLY];
         for (int k = 0; k < c.n; k++)
             idx[k] = add_vert(out, &pl->v[c.v[k]]);
-        for (int k = 1; k + 1 < c.n; k++) {
-            out->tri[out->nt][0] = (uint8_t)idx[0];
-            out->tri[out->nt][1] = (uint8_t)idx[k];
-            out->tri[out->nt][2] = (uint8_t)idx[k + 1];
-            out->half[out->nt++] = (uint8_t)hf;
-        }
+        fan_out(out, idx, c.n, hf);
     }
 }
 
@@ -491,8 +499,7 @@ static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, c
         if (half != 2 && half != hf)
             continue;
         const int sign = hf == 1 ? 1 : -1;
-        uint8_t c[MR_DSURF_MAX_POLY];
-        int n = 0;
+        poly c = {0}; /* (its tags are not read after the diagonal) */
         int sp = sign * sd[a->n - 1];
         for (int m = 0; m < a->n; m++) {
             const int sq = sign * sd[m];
@@ -501,36 +508,25 @@ static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, c
                     pl->v[pl->n] = edge_cross(b, e, d);
                     xd = pl->n++;
                 }
-                c[n++] = (uint8_t)xd;
+                c.v[c.n++] = (uint8_t)xd;
             }
             if (sq >= 0)
-                c[n++] = a->v[m];
+                c.v[c.n++] = a->v[m];
             sp = sq;
         }
-        if (n < 3)
+        if (c.n < 3)
             continue;
-        /* rotate_canonical's start: the first smallest (x, then y) */
-        int s0 = 0;
-        for (int k = 1; k < n; k++) {
-            const mr_dvert *p = &pl->v[c[k]], *q = &pl->v[c[s0]];
-            if (p->x < q->x || (p->x == q->x && p->y < q->y))
-                s0 = k;
-        }
+        rotate_canonical(pl, &c);
         int idx[MR_DSURF_MAX_POLY];
-        for (int k = 0; k < n; k++) {
-            const int v = c[(k + s0) % n];
+        for (int k = 0; k < c.n; k++) {
+            const int v = c.v[k];
             if (at[v] < 0) {
                 out->v[out->nv] = pl->v[v];
                 at[v] = out->nv++;
             }
             idx[k] = at[v];
         }
-        for (int k = 1; k + 1 < n; k++) {
-            out->tri[out->nt][0] = (uint8_t)idx[0];
-            out->tri[out->nt][1] = (uint8_t)idx[k];
-            out->tri[out->nt][2] = (uint8_t)idx[k + 1];
-            out->half[out->nt++] = (uint8_t)hf;
-        }
+        fan_out(out, idx, c.n, hf);
     }
 }
 

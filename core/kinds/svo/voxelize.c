@@ -120,24 +120,19 @@ bool mr_tri_box_overlap(const double center[3], const double half[3], const doub
     return !separated(pa, pb, pc, r);
 }
 
-static inline double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
 /* Closest point of segment a-b to p as parameter t in [0, 1]. */
 static double seg_closest(const double p[3], const double a[3], const double b[3], double *d2)
 {
     double ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
     double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
-    double l2 = dot3(ab, ab);
-    double t = l2 > 0 ? dot3(ap, ab) / l2 : 0.0;
+    double l2 = mr_dot3d(ab, ab);
+    double t = l2 > 0 ? mr_dot3d(ap, ab) / l2 : 0.0;
     if (!(t > 0))
         t = 0;
     if (t > 1)
         t = 1;
     double q[3] = {ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2]};
-    *d2 = dot3(q, q);
+    *d2 = mr_dot3d(q, q);
     return t;
 }
 
@@ -168,19 +163,19 @@ double mr_tri_closest_point(const double p[3], const double a[3], const double b
     double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
     double cr[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
                     ab[0] * ac[1] - ab[1] * ac[0]};
-    double area2 = dot3(cr, cr);
+    double area2 = mr_dot3d(cr, cr);
     /* Slivers: the region logic below divides by quantities that vanish. */
-    if (!(area2 > 1e-24 * dot3(ab, ab) * dot3(ac, ac)))
+    if (!(area2 > 1e-24 * mr_dot3d(ab, ab) * mr_dot3d(ac, ac)))
         return degenerate_closest(p, a, b, c, w);
     /* Voronoi regions of the vertices, edges and face (Ericson 5.1.5). */
-    double d1 = dot3(ab, ap), d2 = dot3(ac, ap);
+    double d1 = mr_dot3d(ab, ap), d2 = mr_dot3d(ac, ap);
     if (d1 <= 0 && d2 <= 0) {
         w[0] = 1, w[1] = 0, w[2] = 0;
     } else {
         double bp[3] = {p[0] - b[0], p[1] - b[1], p[2] - b[2]};
-        double d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+        double d3 = mr_dot3d(ab, bp), d4 = mr_dot3d(ac, bp);
         double cp[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
-        double d5 = dot3(ab, cp), d6 = dot3(ac, cp);
+        double d5 = mr_dot3d(ab, cp), d6 = mr_dot3d(ac, cp);
         double vc = d1 * d4 - d3 * d2, vb = d5 * d2 - d1 * d6, va = d3 * d6 - d5 * d4;
         if (d3 >= 0 && d4 <= d3) {
             w[0] = 0, w[1] = 1, w[2] = 0;
@@ -208,7 +203,7 @@ double mr_tri_closest_point(const double p[3], const double a[3], const double b
     double q[3];
     for (int i = 0; i < 3; i++)
         q[i] = p[i] - (w[0] * a[i] + w[1] * b[i] + w[2] * c[i]);
-    return dot3(q, q);
+    return mr_dot3d(q, q);
 }
 
 void mr_svo_quantize_weights(const float *w, unsigned n, unsigned step, uint8_t *out)
