@@ -173,6 +173,9 @@ static void packet_check(const mr_dmm_patch *p, const mr_dmm_ray *r, int n)
     float tmin[8] = {0}, t[8], *tmax[8];
     bool take[8];
     mr_dmm_hit h[8];
+    const mr_dmm_ray *rp[8];
+    for (int k = 0; k < n; k++)
+        rp[k] = &r[k];
     for (int pass = 0; pass < 2; pass++) {
         float alone_t[8];
         mr_dmm_hit alone_h[8];
@@ -190,7 +193,7 @@ static void packet_check(const mr_dmm_patch *p, const mr_dmm_ray *r, int n)
             alone[k] = mr_dmm_intersect(p, &r[k], 0, &alone_t[k], take[k], false, &alone_h[k],
                                         NULL);
         }
-        uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, false, h, NULL);
+        uint32_t m = mr_dmm_intersect_packet(p, n, rp, tmin, tmax, take, false, h, NULL);
         for (int k = 0; k < n; k++)
             same_hit(pass ? "packet, at tmax" : "packet", (m >> k & 1u) != 0, &h[k], t[k],
                      alone[k], &alone_h[k], alone_t[k]);
@@ -201,7 +204,7 @@ static void packet_check(const mr_dmm_patch *p, const mr_dmm_ray *r, int n)
         tmax[k] = &t[k];
         take[k] = true;
     }
-    uint32_t m = mr_dmm_intersect_packet(p, n, r, tmin, tmax, take, true, NULL, NULL);
+    uint32_t m = mr_dmm_intersect_packet(p, n, rp, tmin, tmax, take, true, NULL, NULL);
     for (int k = 0; k < n; k++) {
         float ta = INFINITY;
         assert_int_equal((m >> k & 1u) != 0,
@@ -809,7 +812,8 @@ static void test_caller_caches(void **state)
                 assert_memory_equal(&h1, &h2, sizeof h1);
                 hits += a;
                 /* the same ray twice in a packet of three with the cache */
-                mr_dmm_ray rs[3] = {r, mr_dmm_ray_setup(mr_v3(0, 0, 0), mr_v3(1, 1, 1)), r};
+                const mr_dmm_ray other = mr_dmm_ray_setup(mr_v3(0, 0, 0), mr_v3(1, 1, 1));
+                const mr_dmm_ray *rs[3] = {&r, &other, &r};
                 float tm[3] = {tmin, tmin, tmin}, tx[3] = {tmax, tmax, tmax};
                 float *txp[3] = {&tx[0], &tx[1], &tx[2]};
                 const bool take[3] = {true, true, true};

@@ -951,11 +951,13 @@ static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, voi
 }
 
 /* Up to MR_DMM_PACKET_MAX of a packet's rays through one patch together
- * (mr_dmm_intersect_packet). */
+ * (mr_dmm_intersect_packet). Their set-ups are the thread's kept ones
+ * (ray_setup_kept: each lane's stays put through the callback), read in
+ * place rather than copied, 112 bytes a ray and base triangle. */
 typedef struct ray_batch {
     int n;
     unsigned lane[MR_DMM_PACKET_MAX];
-    mr_dmm_ray r[MR_DMM_PACKET_MAX];
+    const mr_dmm_ray *r[MR_DMM_PACKET_MAX];
     float tmin[MR_DMM_PACKET_MAX], *tmax[MR_DMM_PACKET_MAX];
     bool take_tmax[MR_DMM_PACKET_MAX];
 } ray_batch;
@@ -1002,7 +1004,7 @@ static void intersect_cb(const struct RTCIntersectFunctionNArguments *args)
             continue;
         }
         /* the traversal: the packet's rays together */
-        if (!ray_setup(ray, N, i, &b.r[b.n]))
+        if (!(b.r[b.n] = ray_setup_kept(ray, N, i)))
             continue;
         b.lane[b.n] = i;
         b.tmin[b.n] = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
@@ -1035,7 +1037,7 @@ static void occluded_cb(const struct RTCOccludedFunctionNArguments *args)
     ray_batch b;
     b.n = 0;
     for (unsigned i = 0; i <= N; i++) {
-        if (i < N && (lanes >> i & 1u) && ray_setup(args->ray, N, i, &b.r[b.n])) {
+        if (i < N && (lanes >> i & 1u) && (b.r[b.n] = ray_setup_kept(args->ray, N, i))) {
             b.lane[b.n] = i;
             b.tmin[b.n] = *mr_ray_f(args->ray, N, MR_RAY_TNEAR, i);
             b.tmax[b.n] = mr_ray_f(args->ray, N, MR_RAY_TFAR, i);

@@ -1105,7 +1105,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
     return c.found;
 }
 
-uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
+uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *const *rays,
                                  const float *tmin, float *const *tmax, const bool *take_tmax,
                                  bool any_hit, mr_dmm_hit *hits, mr_dmm_trace_stats *stats)
 {
@@ -1118,7 +1118,7 @@ uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray 
     const float *pad = shared.pad;
     for (int k = 0; k < n; k++) {
         cs[k] = (trace_ctx){.patch = p,
-                            .ray = &rays[k],
+                            .ray = rays[k],
                             .leaf = mr_dmm_trace_leaf_sublevel(p->level),
                             .segments = mr_umesh_segments(p->level),
                             .pad = {pad[0], pad[1], pad[2]},

@@ -157,7 +157,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
 /* Up to this many rays traced through one patch together. */
 #define MR_DMM_PACKET_MAX 16
 
-/* mr_dmm_intersect for rays[0 .. n) (n <= MR_DMM_PACKET_MAX) through the
+/* mr_dmm_intersect for *rays[0 .. n) (n <= MR_DMM_PACKET_MAX) through the
  * patch together: each node's children and boxes are made once and tested
  * against every ray still in the packet, each leaf's micro-triangles made
  * once. Ray k's *tmax[k] shrinks on a hit and hits[k] is filled then (hits
@@ -166,7 +166,7 @@ bool mr_dmm_intersect(const mr_dmm_patch *p, const mr_dmm_ray *ray, float tmin, 
  * and equal-t hits go by row order whatever the order of the visit); with
  * any_hit, a ray stops at its first hit. stats count each node's boxes
  * once, as made, and each ray's micro-triangle tests. */
-uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *rays,
+uint32_t mr_dmm_intersect_packet(const mr_dmm_patch *p, int n, const mr_dmm_ray *const *rays,
                                  const float *tmin, float *const *tmax, const bool *take_tmax,
                                  bool any_hit, mr_dmm_hit *hits, mr_dmm_trace_stats *stats);
 
