@@ -1005,7 +1005,6 @@ _Static_assert((NODE_SETS & (NODE_SETS - 1)) == 0, "walk_find picks a set by a m
  * another scene never match; 0: no entry). */
 typedef struct walk_key {
     uint64_t pose;
-    uint64_t used; /* the thread's look-up count when last used: the eviction order */
     int64_t x, y;
     uint32_t t;
     int32_t which;
@@ -1037,15 +1036,26 @@ typedef struct vert_entry {
     float V[3];
 } vert_entry;
 
+/* What a look-up reads first of a set of four ways, half a cache line:
+ * per way a tag of its key (walk_find: 32 bits of the key's hash with its
+ * pose; 0: empty), so a key is read only where its tag matches, and the
+ * thread's look-up count when the way was last used (its low 32 bits: the
+ * eviction order, compared modulo 2^32), so a miss picks its way without
+ * reading the set's keys (three lines: with the counts in them, a miss
+ * read all three). */
+#define WALK_WAYS 4
+_Static_assert(CELL_WAYS == WALK_WAYS && NODE_WAYS == WALK_WAYS, "a walk_set holds a set's ways");
+typedef struct walk_set {
+    uint32_t tag[WALK_WAYS];
+    uint32_t used[WALK_WAYS];
+} walk_set;
+
 /* A thread's caches: entries hold exactly what is computed, so what they
  * hold changes no result. 430 KB, on the heap (thread_block.h). */
 typedef struct walk_cache {
-    uint64_t clock; /* look-ups made */
-    /* per way, a tag of its key (walk_find: 32 bits of the key's hash
-     * with its pose; 0: empty): a look-up reads a key only where its tag
-     * matches */
-    uint32_t cell_tags[CELL_CACHE];
-    uint32_t node_tags[NODE_CACHE];
+    uint32_t clock; /* look-ups made (modulo 2^32) */
+    walk_set cell_sets[CELL_SETS];
+    walk_set node_sets[NODE_SETS];
     walk_key cell_keys[CELL_CACHE];
     walk_key node_keys[NODE_CACHE];
     cell_tris cells[CELL_CACHE];
@@ -1073,38 +1083,42 @@ static inline uint64_t walk_hash(uint32_t t, int64_t x, int64_t y, int32_t which
                     (uint64_t)t * 0x165667b19e3779f9ull ^ (uint64_t)(uint32_t)which);
 }
 
-/* The way of key k in its set of `ways` (at most 32) in keys (from hash h of k's
- * other fields, sets of them, a power of 2): its index and true when there;
- * else the least recently used way's, given k. The set's tags are compared
- * together and a key read only where its tag matches: comparing the keys
- * field by field, a set's three lines of them, took 8 % of the procedural
- * plane's frame at range 64 (h % sets, a division since sets is no
- * constant here, a sixth of that). */
-static bool walk_find(walk_cache *wc, uint32_t *tags, walk_key *keys, int ways, size_t sets, uint64_t h,
+/* The way of key k in its set (from hash h of k's other fields: one of
+ * `nsets` sets, a power of 2) of the WALK_WAYS ways in sets and keys: its
+ * index in keys and true when there; else the least recently used way's,
+ * given k. The set's tags are compared together and a key read only where
+ * its tag matches: comparing the keys field by field, a set's three lines
+ * of them, took 8 % of the procedural plane's frame at range 64 (h %
+ * sets, a division since sets is no constant here, a sixth of that). */
+static bool walk_find(walk_cache *wc, walk_set *sets, walk_key *keys, size_t nsets, uint64_t h,
                       const walk_key *k, size_t *at)
 {
-    const size_t set = (size_t)(h & (sets - 1u)) * (size_t)ways;
+    const size_t si = (size_t)(h & (nsets - 1u));
+    walk_set *ws = &sets[si];
+    walk_key *set = &keys[si * WALK_WAYS];
     /* (nonzero: an empty way's tag is 0) */
     const uint32_t tag = (uint32_t)((h ^ k->pose * 0x9e3779b97f4a7c15ull) >> 32) | 1u;
+    const uint32_t now = ++wc->clock;
     unsigned cand = 0;
-    for (int w = 0; w < ways; w++)
-        cand |= (unsigned)(tags[set + (size_t)w] == tag) << w;
+    for (int w = 0; w < WALK_WAYS; w++)
+        cand |= (unsigned)(ws->tag[w] == tag) << w;
     for (; cand; cand &= cand - 1) {
-        walk_key *x = &keys[set + (size_t)__builtin_ctz(cand)];
+        const int w = __builtin_ctz(cand);
+        const walk_key *x = &set[w];
         if (x->pose == k->pose && x->t == k->t && x->x == k->x && x->y == k->y && x->which == k->which) {
-            x->used = ++wc->clock;
-            *at = (size_t)(x - keys);
+            ws->used[w] = now;
+            *at = si * WALK_WAYS + (size_t)w;
             return true;
         }
     }
-    size_t e = set;
-    for (size_t w = set; w < set + (size_t)ways; w++)
-        if (keys[w].used < keys[e].used)
+    int e = 0; /* the oldest: the largest age now - used */
+    for (int w = 1; w < WALK_WAYS; w++)
+        if (now - ws->used[w] > now - ws->used[e])
             e = w;
-    tags[e] = tag;
-    keys[e] = *k;
-    keys[e].used = ++wc->clock;
-    *at = e;
+    ws->tag[e] = tag;
+    ws->used[e] = now;
+    set[e] = *k;
+    *at = si * WALK_WAYS + (size_t)e;
     return false;
 }
 
@@ -1149,7 +1163,7 @@ static const cell_tris *cell_get(const mr_dscene *s, uint32_t t, const mr_dbase 
     const walk_key k = {.pose = s->pose, .t = t, .x = i, .y = j, .which = half};
     const uint64_t h = walk_hash(t, i, j, half);
     size_t w;
-    if (!walk_find(wc, wc->cell_tags, wc->cell_keys, CELL_WAYS, CELL_SETS, h, &k, &w))
+    if (!walk_find(wc, wc->cell_sets, wc->cell_keys, CELL_SETS, h, &k, &w))
         wc->cell_keys[w].any = cell_make(s, wc, t, b, i, j, half, &wc->cells[w], st);
     return wc->cell_keys[w].any ? &wc->cells[w] : NULL;
 }
@@ -2264,7 +2278,7 @@ __attribute__((target("avx2"))) static const node_boxes *proc_child_boxes_kept(
     const walk_key k = {.pose = s->pose, .t = t, .x = n->x, .y = n->y, .which = n->level};
     const uint64_t h = walk_hash(t, n->x, n->y, n->level);
     size_t w;
-    const bool kept = walk_find(wc, wc->node_tags, wc->node_keys, NODE_WAYS, NODE_SETS, h, &k, &w);
+    const bool kept = walk_find(wc, wc->node_sets, wc->node_keys, NODE_SETS, h, &k, &w);
     node_boxes *nb = &wc->nodes[w];
     if (kept) {
         for (int c = 0; c < 4; c++)
