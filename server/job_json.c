@@ -542,7 +542,7 @@ static int parse_param(mr_json_ctx *c, const cJSON *v, const mr_param *p, const 
     case MR_PARAM_ARRAY:
         return parse_param_array(c, v, p, job, values);
     case MR_PARAM_ASSET: {
-        size_t index;
+        size_t index = 0;
         TRY(find_asset(c, v, job, &index));
         *PARAM_AT(values, p->offset, uint32_t) = (uint32_t)index + 1;
         return MR_OK;

@@ -404,7 +404,7 @@ int mr_store_job_retry(mr_store *st, const char *id, mr_error *err)
     int rc = store_tx_begin(st, err);
     if (rc < 0)
         goto done;
-    mr_job_state state;
+    mr_job_state state = MR_JOB_QUEUED; /* (set by the look-up; GCC 12 at -O3 cannot tell) */
     if ((rc = store_job_state_locked(st, id, &state, err)) < 0)
         goto done;
     if (state != MR_JOB_FAILED && state != MR_JOB_CANCELED) {

@@ -268,7 +268,7 @@ static inline http_result http_headers(const daemon_proc *d, const char *method,
     http_result r = {0};
     r.body = calloc(1, 1);
     char url[512];
-    snprintf(url, sizeof url, "%s%s", d->base, path);
+    assert_true((size_t)snprintf(url, sizeof url, "%s%s", d->base, path) < sizeof url);
     CURL *c = curl_easy_init();
     struct curl_slist *h = NULL;
     for (size_t i = 0; headers && headers[i]; i++)

@@ -66,8 +66,9 @@ static void write_json(const char *path, const cJSON *j)
 static void render(const char *job, const char *out)
 {
     char cmd[8192];
-    snprintf(cmd, sizeof cmd, "cd '%s' && '%s' render '%s' --out '%s' --cache '%s/cache' --quiet",
-             src_dir, bin, job, out, tmp_dir);
+    assert_true((size_t)snprintf(cmd, sizeof cmd,
+                                 "cd '%s' && '%s' render '%s' --out '%s' --cache '%s/cache' --quiet",
+                                 src_dir, bin, job, out, tmp_dir) < sizeof cmd);
     int st = system(cmd);
     assert_true(WIFEXITED(st));
     assert_int_equal(WEXITSTATUS(st), 0);

@@ -55,7 +55,7 @@ static int sh(const char *fmt, ...)
 static mr_film *read_exr(const char *dir, int k)
 {
     char path[700];
-    snprintf(path, sizeof path, "%s/%04d.exr", dir, k);
+    assert_true((size_t)snprintf(path, sizeof path, "%s/%04d.exr", dir, k) < sizeof path);
     mr_film *f = NULL;
     mr_error err;
     if (mr_exr_read_file(path, &f, NULL, &err) < 0)

@@ -526,7 +526,7 @@ int mr_umesh_eval_all(const mr_umesh_tri *tri, unsigned level, unsigned decimate
                 return mr_error_set(err, MR_ERR_INVALID,
                                     "displacement of micro-vertex %u is not finite", i);
     for (uint32_t i = 0; i < count; i++) {
-        uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, i), a, b;
+        uint32_t r = mr_umesh_vertex_remap(level, decimate_mask, i), a = 0, b = 0;
         mr_umesh_vertex_coords(level, r, &a, &b);
         out[i] = mr_umesh_eval_at(tri, level, a, b, disp ? disp[r] : 0.0f);
     }

@@ -684,6 +684,11 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
  * no projection at all; two threads 37-38 -> 42 M voxels/s).
  * test_svo_deform's test_screen_space and test_svo_lod's test_flythrough
  * fail if this measures twice the width. */
+/* (GCC 12 at -O3 calls each row's vectors below "maybe uninitialized" where
+ * they are written, in the avx2 clone of sel_pass1, with initialisers too:
+ * a false alarm, silenced for this function only) */
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *c, const float b[6])
 {
     static const int row[3] = {0, 1, 3}; /* clip x, y, w */
@@ -732,6 +737,7 @@ __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *
     }
     return true;
 }
+#pragma GCC diagnostic pop
 
 /* The leaf reached from interior node n by always taking the lowest child. */
 static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
