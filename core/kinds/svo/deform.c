@@ -687,8 +687,10 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
 /* (GCC 12 at -O3 calls each row's vectors below "maybe uninitialized" where
  * they are written, in the avx2 clone of sel_pass1, with initialisers too:
  * a false alarm, silenced for this function only) */
+#if defined(__GNUC__) && !defined(__clang__) /* (clang, the fuzzers' compiler, has no such warning) */
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *c, const float b[6])
 {
     static const int row[3] = {0, 1, 3}; /* clip x, y, w */
@@ -737,7 +739,9 @@ __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *
     }
     return true;
 }
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 
 /* The leaf reached from interior node n by always taking the lowest child. */
 static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
