@@ -329,11 +329,13 @@ static void corner_sides(const mr_dbase *b, int64_t i, int64_t j, unsigned in[3]
     const __m128d hi = _mm_set1_pd(b->margin), lo = _mm_set1_pd(-b->margin);
     for (int e = 0; e < 3; e++) {
         const double *l = b->edge[e];
-        const __m128d ax = _mm_mul_pd(_mm_set1_pd(l[0]), x), c = _mm_set1_pd(l[2]);
-        const __m128d v0 = _mm_add_pd(_mm_add_pd(ax, _mm_mul_pd(_mm_set1_pd(l[1]), y0)), c);
-        const __m128d v1 = _mm_add_pd(_mm_add_pd(ax, _mm_mul_pd(_mm_set1_pd(l[1]), y1)), c);
-        in[e] = (unsigned)(_mm_movemask_pd(_mm_cmpgt_pd(v0, hi)) | _mm_movemask_pd(_mm_cmpgt_pd(v1, hi)) << 2);
-        out[e] = (unsigned)(_mm_movemask_pd(_mm_cmplt_pd(v0, lo)) | _mm_movemask_pd(_mm_cmplt_pd(v1, lo)) << 2);
+        const __m128d ax = _mm_mul_pd(_mm_set1_pd(l[0]), x), by = _mm_set1_pd(l[1]), c = _mm_set1_pd(l[2]);
+        const __m128d v0 = _mm_add_pd(_mm_add_pd(ax, _mm_mul_pd(by, y0)), c);
+        const __m128d v1 = _mm_add_pd(_mm_add_pd(ax, _mm_mul_pd(by, y1)), c);
+        in[e] = (unsigned)(_mm_movemask_pd(_mm_cmpgt_pd(v0, hi)) |
+                           _mm_movemask_pd(_mm_cmpgt_pd(v1, hi)) << 2);
+        out[e] = (unsigned)(_mm_movemask_pd(_mm_cmplt_pd(v0, lo)) |
+                            _mm_movemask_pd(_mm_cmplt_pd(v1, lo)) << 2);
     }
 #else
     for (int e = 0; e < 3; e++) {
@@ -357,7 +359,8 @@ static int cell_case(const mr_dbase *b, int64_t i, int64_t j, int *edge, unsigne
     unsigned in[3], out[3];
     corner_sides(b, i, j, in, out);
     /* the edges some corner is not clearly inside */
-    const unsigned partial = (unsigned)(in[0] != 15u) | (unsigned)(in[1] != 15u) << 1 | (unsigned)(in[2] != 15u) << 2;
+    const unsigned partial =
+        (unsigned)(in[0] != 15u) | (unsigned)(in[1] != 15u) << 1 | (unsigned)(in[2] != 15u) << 2;
     if (!partial)
         return CELL_WHOLE;
     const int e = __builtin_ctz(partial);

@@ -972,6 +972,9 @@ typedef struct cell_tris {
 
 /* ---- what a thread keeps of this pose ------------------------------------------- */
 
+/* The ways of a set of the walk caches below (walk_set, walk_find). */
+#define WALK_WAYS 4
+
 /* Cells made this pose, per thread: rays of neighbouring packets and
  * pixels meet the same cells of the same base triangle, and making one
  * (cutting it by T's edges, evaluating its micro-vertices) costs more than
@@ -980,9 +983,8 @@ typedef struct cell_tris {
  * of neighbouring triangles that shared a slot evicted each other on every
  * ray). The keys lie apart from the cells: a set's four keys take three
  * cache lines, where with their cells they took four. */
-#define CELL_WAYS 4
 #define CELL_SETS 32
-#define CELL_CACHE (CELL_WAYS * CELL_SETS)
+#define CELL_CACHE (WALK_WAYS * CELL_SETS)
 _Static_assert((CELL_SETS & (CELL_SETS - 1)) == 0, "walk_find picks a set by a mask");
 
 /* The child boxes of procedural squares made this pose, per thread
@@ -994,9 +996,8 @@ _Static_assert((CELL_SETS & (CELL_SETS - 1)) == 0, "walk_find picks a set by a m
  * set-associative like the cells: 512 squares hit 64 % of the look-ups
  * on that sphere; 4,096 hit 79 % but missed the processor's caches,
  * 1.03-1.04 of the time. */
-#define NODE_WAYS 4
 #define NODE_SETS 128
-#define NODE_CACHE (NODE_WAYS * NODE_SETS)
+#define NODE_CACHE (WALK_WAYS * NODE_SETS)
 _Static_assert((NODE_SETS & (NODE_SETS - 1)) == 0, "walk_find picks a set by a mask");
 
 /* What an entry is of: base triangle t's cell (x, y) (`which`: its half)
@@ -1043,8 +1044,6 @@ typedef struct vert_entry {
  * eviction order, compared modulo 2^32), so a miss picks its way without
  * reading the set's keys (three lines: with the counts in them, a miss
  * read all three). */
-#define WALK_WAYS 4
-_Static_assert(CELL_WAYS == WALK_WAYS && NODE_WAYS == WALK_WAYS, "a walk_set holds a set's ways");
 typedef struct walk_set {
     uint32_t tag[WALK_WAYS];
     uint32_t used[WALK_WAYS];
