@@ -71,7 +71,7 @@ static int parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
     if (payload != size - HEAD)
         return mr_derived_bad(f, err, "payload of %llu bytes at byte offset %u, the file holds %zu",
                               (unsigned long long)payload, AT_PAYLOAD_BYTES, size - HEAD);
-    if (mr_crc32(buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + AT_PAYLOAD_CRC), buf + HEAD, size - HEAD))
         return mr_derived_bad(f, err, "payload checksum mismatch (bytes %u..%zu)", HEAD, size - 1);
     int rc = q->kind->checkpoint_load(q->geom, q->frames, buf + HEAD, size - HEAD, err);
     if (rc < 0)

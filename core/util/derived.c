@@ -138,7 +138,7 @@ int mr_derived_header_check(mr_derived_reader *r)
     if (hb != f->header_bytes)
         return mr_derived_bad(f, r->err, "header_bytes %u at byte offset %u (want %u)", hb,
                               MR_DERIVED_AT_HEADER_BYTES, f->header_bytes);
-    if (mr_le_get_u32(buf + at_crc) != mr_crc32(buf, at_crc))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + at_crc), buf, at_crc))
         return mr_derived_bad(f, r->err, "header checksum mismatch at byte offset %u (bytes "
                               "0..%u corrupted)", at_crc, at_crc - 1);
     return MR_OK;

@@ -519,7 +519,7 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header size %u at byte offset 12 (want %u)",
                             mr_le_get_u32(buf + 12), MR_DMM_HEADER_BYTES);
-    if (mr_le_get_u32(buf + 44) != mr_crc32(buf, 44))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + 44), buf, 44))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: header checksum mismatch at byte offset 44 "
                             "(bytes 0..43 corrupted)");
@@ -564,7 +564,7 @@ int mr_dmm_read(const uint8_t *buf, size_t size, mr_dmm_encoded **out, mr_error 
                             (unsigned long long)want);
     const uint8_t *info = buf + MR_DMM_HEADER_BYTES;
     uint64_t body_end = MR_DMM_HEADER_BYTES + (uint64_t)count + declared;
-    if (mr_le_get_u32(buf + body_end) != mr_crc32(info, (size_t)(count + (uint64_t)declared)))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + body_end), info, (size_t)(count + (uint64_t)declared)))
         return mr_error_set(err, MR_ERR_FORMAT,
                             "dmm file: record checksum mismatch at byte offset %llu (bytes "
                             "%u..%llu corrupted)",

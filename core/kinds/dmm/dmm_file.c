@@ -114,7 +114,7 @@ static int parse_mesh_header(parser *p, const mr_dmm_file *f, uint32_t i, size_t
     for (size_t k = 0; k < sizeof mesh_tag; k++)
         if (h[k] != mesh_tag[k])
             return bad(p, "mesh %u: bad section tag at byte offset %zu", i, off + k);
-    if (mr_le_get_u32(h + M_CRC) != mr_crc32(h, M_CRC))
+    if (!mr_crc32_matches(mr_le_get_u32(h + M_CRC), h, M_CRC))
         return bad(p, "mesh %u: header checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + M_CRC, off, off + M_CRC - 1);
 #define FIELD(o) (off + (size_t)(o))
@@ -230,7 +230,7 @@ static int parse_arrays(parser *p, uint32_t i, size_t off, uint32_t flags, uint3
     const uint8_t *a = p->buf + off;
     bool skinned = flags & FLAG_SKINNED;
     size_t n = (size_t)nv * (VERTEX_BYTES + (skinned ? SKIN_BYTES : 0)) + (size_t)nt * TRIANGLE_BYTES;
-    if (mr_le_get_u32(a + n) != mr_crc32(a, n))
+    if (!mr_crc32_matches(mr_le_get_u32(a + n), a, n))
         return bad(p, "mesh %u: array checksum mismatch at byte offset %zu (bytes %zu..%zu "
                    "corrupted)", i, off + n, off, off + n - 1);
     size_t pos_at = 0, dir_at = pos_at + (size_t)nv * 12, idx_at = dir_at + (size_t)nv * 12;

@@ -206,7 +206,7 @@ static int table_parse_into(const mr_dmm_lod_table *t, bool keep, const uint8_t 
     if (size != want)
         return mr_derived_bad(f, err, "%zu bytes (want %llu for %u base triangles)", size,
                               (unsigned long long)want, t->triangles);
-    if (mr_crc32(buf + LOD_HEAD, size - LOD_HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + AT_PAYLOAD_CRC), buf + LOD_HEAD, size - LOD_HEAD))
         return mr_derived_bad(f, err, "payload CRC mismatch at byte offset %u", AT_PAYLOAD_CRC);
     for (uint32_t tri = 0; tri < t->triangles; tri++)
         for (uint32_t k = 0; k < PER_TRIANGLE; k++) {

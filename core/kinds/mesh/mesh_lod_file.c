@@ -80,7 +80,7 @@ static int parse(void *ctx, const uint8_t *buf, size_t size, mr_error *err)
         return mr_derived_bad(f, err, "payload of %llu bytes at byte offset %u, the file holds %zu",
                               (unsigned long long)mr_le_get_u64(buf + AT_PAYLOAD_BYTES), AT_PAYLOAD_BYTES,
                               size - HEAD);
-    if (mr_crc32(buf + HEAD, size - HEAD) != mr_le_get_u32(buf + AT_PAYLOAD_CRC))
+    if (!mr_crc32_matches(mr_le_get_u32(buf + AT_PAYLOAD_CRC), buf + HEAD, size - HEAD))
         return mr_derived_bad(f, err, "payload checksum mismatch (bytes %u..%zu)", HEAD, size - 1);
     mr_mesh_lod lod = {.level_count = levels, .indices = {(uint32_t *)q->idx}, .distinct_count = distinct};
     uint64_t need = (uint64_t)LEVEL_BYTES * levels + 4ull * distinct;

@@ -268,7 +268,7 @@ static int parse(parser *p, mr_svo **out, mr_svo_file_meta *meta)
     if (rc < 0)
         goto fail;
     const layout o = layout_of(s->node_count, s->leaf_count, s->palette_count);
-    if (mr_le_get_u32(p->buf + o.crc) != mr_crc32(p->buf + o.first_node, o.crc - o.first_node)) {
+    if (!mr_crc32_matches(mr_le_get_u32(p->buf + o.crc), p->buf + o.first_node, o.crc - o.first_node)) {
         rc = bad(p, "payload checksum mismatch at byte offset %zu (bytes %zu..%zu corrupted)",
                  o.crc, o.first_node, o.crc - 1);
         goto fail;
