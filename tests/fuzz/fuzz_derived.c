@@ -43,6 +43,7 @@
 #include "kinds/svo/svo_trace.h"
 #include "kinds/svo/voxelize.h"
 #include "microray.h"
+#include "../support/grid_fixture.h"
 
 static void die(const char *what)
 {
@@ -175,36 +176,6 @@ static void read_bake(const uint8_t *data, size_t size)
 
 /* ---- seeds */
 
-/* An n x n height field over [-1, 1]^2 with bumps. */
-static mr_asset *field(unsigned n)
-{
-    float *p = malloc((size_t)n * n * 3 * sizeof(float));
-    uint32_t *idx = malloc((size_t)(n - 1) * (n - 1) * 6 * sizeof(uint32_t));
-    if (!p || !idx)
-        die("out of memory");
-    for (unsigned y = 0; y < n; y++)
-        for (unsigned x = 0; x < n; x++) {
-            float u = (float)x / (float)(n - 1) * 2 - 1, v = (float)y / (float)(n - 1) * 2 - 1;
-            float *q = p + ((size_t)y * n + x) * 3;
-            q[0] = u, q[1] = v, q[2] = 0.2f * sinf(4 * u) * cosf(3 * v);
-        }
-    size_t t = 0;
-    for (unsigned y = 0; y + 1 < n; y++)
-        for (unsigned x = 0; x + 1 < n; x++) {
-            uint32_t a = y * n + x, b = a + 1, c = a + n, d = c + 1;
-            const uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(idx + t, q, sizeof q);
-            t += 6;
-        }
-    mr_asset *asset = NULL;
-    mr_error err = {0};
-    if (mr_asset_from_mesh("field", p, NULL, n * n, idx, (uint32_t)(t / 3), &asset, &err) < 0)
-        die(err.msg);
-    free(p);
-    free(idx);
-    return asset;
-}
-
 static void write_seed(const char *dir, const char *name, uint8_t pick, const uint8_t *buf, size_t size)
 {
     char path[1024];
@@ -216,8 +187,10 @@ static void write_seed(const char *dir, const char *name, uint8_t pick, const ui
 
 static void write_seeds(const char *dir)
 {
-    mr_asset *a = field(6);
     mr_error err = {0};
+    mr_asset *a = grid_field(6, 0.2f, 4, 3, &err);
+    if (!a)
+        die(err.msg);
     static const struct {
         unsigned depth;
         mr_svo_voxelize_mode mode;

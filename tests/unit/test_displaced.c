@@ -30,6 +30,7 @@
 #include <math.h>
 
 #include "../support/displaced_fixture.h"
+#include "../support/grid_fixture.h"
 #include "../support/kind_stat_fixture.h"
 #include "kinds/displaced/dgrid.h"
 #include "kinds/displaced/dsurf.h"
@@ -555,15 +556,7 @@ static mr_asset *bumpy_grid(uint64_t *s, float uv_repeat)
             UV[v * 2] = uv_repeat * (float)x / (NX - 1);
             UV[v * 2 + 1] = uv_repeat * (float)y / (NY - 1);
         }
-    int k = 0;
-    for (int y = 0; y + 1 < NY; y++)
-        for (int x = 0; x + 1 < NX; x++) {
-            uint32_t a = (uint32_t)(y * NX + x), b = a + 1, c = a + NX, d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(I + k, q, sizeof q);
-            k += 6;
-        }
-    return dfx_mesh(P, N, UV, NX * NY, I, (NX - 1) * (NY - 1) * 2);
+    return dfx_mesh(P, N, UV, NX * NY, I, grid_triangles(NX, NY, I));
 }
 
 static void test_bumpy_mesh_against_brute_force(void **state)

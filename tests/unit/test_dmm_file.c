@@ -26,6 +26,7 @@
 #include <unistd.h>
 
 #include "../support/bcn_fixture.h"
+#include "../support/grid_fixture.h"
 #include "asset/asset.h"
 #include "kinds/dmm/dmm_file.h"
 #include "util/crc32.h"
@@ -55,29 +56,10 @@ static int teardown(void **state)
  * joints blended along x (slots 2.. unused: joint 0, weight 0). */
 static mr_asset *make_field(unsigned n, bool skin)
 {
-    float *p = malloc((size_t)n * n * 3 * sizeof(float));
-    uint32_t *idx = malloc((size_t)(n - 1) * (n - 1) * 6 * sizeof(uint32_t));
-    assert_true(p && idx);
-    for (unsigned y = 0; y < n; y++)
-        for (unsigned x = 0; x < n; x++) {
-            float u = (float)x / (float)(n - 1) * 2 - 1, v = (float)y / (float)(n - 1) * 2 - 1;
-            float *q = p + ((size_t)y * n + x) * 3;
-            q[0] = u, q[1] = v, q[2] = 0.1f * sinf(5 * u) * cosf(4 * v);
-        }
-    size_t t = 0;
-    for (unsigned y = 0; y + 1 < n; y++)
-        for (unsigned x = 0; x + 1 < n; x++) {
-            uint32_t a = y * n + x, b = a + 1, c = a + n, d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(idx + t, q, sizeof q);
-            t += 6;
-        }
-    mr_asset *asset = NULL;
     mr_error err = {0};
-    if (mr_asset_from_mesh("field", p, NULL, n * n, idx, (uint32_t)(t / 3), &asset, &err) < 0)
+    mr_asset *asset = grid_field(n, 0.1f, 5, 4, &err);
+    if (!asset)
         fail_msg("asset: %s", err.msg);
-    free(p);
-    free(idx);
     if (skin) {
         mr_mesh *m = &asset->meshes[0];
         m->joint_count = 2;

@@ -27,6 +27,7 @@
 #include <unistd.h>
 
 #include "../support/bcn_fixture.h"
+#include "../support/grid_fixture.h"
 #include "../support/scene_fixture.h"
 #include "kinds/dmm/dmm_bake.h"
 #include "kinds/dmm/dmm_encode.h"
@@ -184,7 +185,6 @@ static mr_asset *make_flat_grid(void)
     enum { N = 9 };
     float p[N * N * 3];
     uint32_t idx[(N - 1) * (N - 1) * 6];
-    size_t t = 0;
     for (int y = 0; y < N; y++)
         for (int x = 0; x < N; x++) {
             bool inner = x > 0 && y > 0 && x < N - 1 && y < N - 1;
@@ -194,16 +194,10 @@ static mr_asset *make_flat_grid(void)
             p[(y * N + x) * 3 + 1] = ((float)y + jy) / (N - 1) * 2 - 1;
             p[(y * N + x) * 3 + 2] = 0;
         }
-    for (uint32_t y = 0; y + 1 < N; y++)
-        for (uint32_t x = 0; x + 1 < N; x++) {
-            uint32_t a = y * N + x, b = a + 1, c = a + N, d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(idx + t, q, sizeof q);
-            t += 6;
-        }
+    const uint32_t nt = grid_triangles(N, N, idx);
     mr_asset *asset = NULL;
     mr_error err = {0};
-    if (mr_asset_from_mesh("grid", p, NULL, N * N, idx, (uint32_t)(t / 3), &asset, &err) < 0)
+    if (mr_asset_from_mesh("grid", p, NULL, N * N, idx, nt, &asset, &err) < 0)
         fail_msg("asset: %s", err.msg);
     return asset;
 }
