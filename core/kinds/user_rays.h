@@ -257,17 +257,4 @@ static inline uint32_t mr_rays_in_box(void *ray, unsigned N, const int *valid, c
         return &last[lane].r;                                                                     \
     }
 
-/* Defines `static bool name(void *ray, unsigned N, unsigned i, type *out)`:
- * MR_RAY_SETUP_CACHE_REF's set-up copied into *out; false when the ray
- * cannot hit anything. */
-#define MR_RAY_SETUP_CACHE(name, type, setup)                                                    \
-    MR_RAY_SETUP_CACHE_REF(name##_kept, type, setup)                                              \
-    static bool name(void *ray, unsigned N, unsigned i, type *out)                               \
-    {                                                                                             \
-        const type *r = name##_kept(ray, N, i);                                                   \
-        if (r)                                                                                    \
-            *out = *r;                                                                            \
-        return r != NULL;                                                                         \
-    }
-
 #endif

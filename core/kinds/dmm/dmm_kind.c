@@ -913,7 +913,7 @@ static void bounds_cb(const struct RTCBoundsFunctionArguments *args)
 }
 
 /* Ray i of an N-packet set up for the traversal (user_rays.h). */
-MR_RAY_SETUP_CACHE(ray_setup, mr_dmm_ray, mr_dmm_ray_setup)
+MR_RAY_SETUP_CACHE_REF(ray_setup_kept, mr_dmm_ray, mr_dmm_ray_setup)
 
 /* The lanes of an N-packet a callback for base triangle t traces: the
  * valid ones whose ray can meet t's box (mr_rays_in_box: three in four of
@@ -936,8 +936,8 @@ static uint32_t lanes_to_trace(const dmm_level *g, void *ray, unsigned N, const 
 static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, void *ray, unsigned N,
                       unsigned i, bool take_tmax, bool any_hit, mr_dmm_hit *h)
 {
-    mr_dmm_ray r;
-    if (!ray_setup(ray, N, i, &r))
+    const mr_dmm_ray *r = ray_setup_kept(ray, N, i);
+    if (!r)
         return false;
     float *tfar = mr_ray_f(ray, N, MR_RAY_TFAR, i);
     float tnear = *mr_ray_f(ray, N, MR_RAY_TNEAR, i);
@@ -945,9 +945,9 @@ static bool trace_one(const dmm_level *g, uint32_t t, const mr_dmm_patch *p, voi
         uint32_t count;
         const uint32_t *tris = local_tris(g, t, &count);
         return mr_dmm_intersect_micro(p, g->positions + (size_t)g->value_first[t] * 3, tris, count,
-                                      &r, tnear, tfar, take_tmax, any_hit, h);
+                                      r, tnear, tfar, take_tmax, any_hit, h);
     }
-    return mr_dmm_intersect(p, &r, tnear, tfar, take_tmax, any_hit, h, NULL);
+    return mr_dmm_intersect(p, r, tnear, tfar, take_tmax, any_hit, h, NULL);
 }
 
 /* Up to MR_DMM_PACKET_MAX of a packet's rays through one patch together
