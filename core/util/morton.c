@@ -1,25 +1,12 @@
 /*
- * morton.c - 63-bit Morton codes by bit spreading (morton.h). Each 21-bit
- * coordinate is spread so that bit i lands on bit 3i, in five shift-and-mask
- * steps (32, 16, 8, 4, 2); decoding runs the same masks in reverse. The
+ * morton.c - decoding 63-bit Morton codes (morton.h, where the encode is,
+ * inline): the encode's five shift-and-mask steps run in reverse. The
  * thesis' encode (Fig. 31) is this one; its decode shifts x twice, so the
  * decode here is written from the encode's masks, not from the listing.
  */
 #include "util/morton.h"
 
-/* Bit i of the low 21 bits -> bit 3i. */
-static uint64_t spread3(uint64_t v)
-{
-    v &= MR_MORTON_MAX;
-    v = (v | (v << 32)) & 0x001f00000000ffffull;
-    v = (v | (v << 16)) & 0x001f0000ff0000ffull;
-    v = (v | (v << 8)) & 0x100f00f00f00f00full;
-    v = (v | (v << 4)) & 0x10c30c30c30c30c3ull;
-    v = (v | (v << 2)) & 0x1249249249249249ull;
-    return v;
-}
-
-/* Bit 3i -> bit i (other bits ignored): the inverse of spread3. */
+/* Bit 3i -> bit i (other bits ignored): the inverse of mr_morton_spread. */
 static uint32_t compact3(uint64_t v)
 {
     v &= 0x1249249249249249ull;
@@ -29,11 +16,6 @@ static uint32_t compact3(uint64_t v)
     v = (v | (v >> 16)) & 0x001f00000000ffffull;
     v = (v | (v >> 32)) & MR_MORTON_MAX;
     return (uint32_t)v;
-}
-
-uint64_t mr_morton_encode(uint32_t x, uint32_t y, uint32_t z)
-{
-    return spread3(x) | (spread3(y) << 1) | (spread3(z) << 2);
 }
 
 void mr_morton_decode(uint64_t code, uint32_t *x, uint32_t *y, uint32_t *z)

@@ -9,7 +9,8 @@
  * ancestors of the keys, counted here by sorting; masks must be consistent
  * and breadth-first (children after parents, node 0 the root);
  * mr_svo_collect_keys must agree with the walk; 1, 2 and 4 threads must give
- * identical arrays. Cases: empty, single voxel, root leaf, single coarse key,
+ * identical arrays (one thread takes the serial pass, two and four the
+ * radix tree when the keys fill more than one block). Cases: empty, single voxel, root leaf, single coarse key,
  * depth 1 (full and partial), random sparse sets at depths 2..21 with one
  * level and with mixed levels (compacted first), invalid inputs.
  *

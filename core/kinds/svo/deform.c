@@ -1534,7 +1534,8 @@ static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, doub
 
 /* Level and cell ranges (r: first x, y, z, end x, y, z) of box i; returns
  * its number of cells. */
-static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6])
+static inline __attribute__((always_inline)) uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level,
+                                                             uint32_t r[6])
 {
     const float *b = &c->sel->box[i * 6];
     double lo[3], hi[3], smin = INFINITY, smax = 0.0, mag = 0.0;
@@ -1581,6 +1582,9 @@ static uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level, uint32_t r[6
     }
 }
 
+/* (AVX2's clone rounds with roundsd, where the baseline's floor is a
+ * dozen instructions after each division: the same values) */
+__attribute__((target_clones("avx2", "default")))
 static void rs_count(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -1630,8 +1634,8 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
             const uint32_t *r = &c->box_range[6 * i];
             const uint64_t ux = 1ull << (3 * sh), uy = ux << 1, uz = ux << 2;
             const uint64_t mx = MORTON_X, my = MORTON_X << 1, mz = MORTON_X << 2;
-            const uint64_t dx0 = mr_morton_encode(r[0] << sh, 0, 0), dy0 = mr_morton_encode(0, r[1] << sh, 0);
-            uint64_t dz = mr_morton_encode(0, 0, r[2] << sh);
+            const uint64_t dx0 = mr_morton_spread(r[0] << sh), dy0 = mr_morton_spread(r[1] << sh) << 1;
+            uint64_t dz = mr_morton_spread(r[2] << sh) << 2;
             for (uint32_t z = r[2]; z < r[5]; z++, dz = dilated_next(dz, mz, uz)) {
                 uint64_t dy = dy0;
                 for (uint32_t y = r[1]; y < r[4]; y++, dy = dilated_next(dy, my, uy)) {

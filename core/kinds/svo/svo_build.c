@@ -2,8 +2,8 @@
  * svo_build.c - compaction and the parallel octree build (svo_build.h).
  *
  * Build, for n sorted keys with pairwise disjoint cells (codes unique):
- *  1. Binary radix tree (Karras 2012's layout, built in one linear pass
- *     with a stack: radix_tree): node i's range, split and common prefix length in
+ *  1. Binary radix tree (Karras 2012's layout, built in linear passes
+ *     with a stack: radix_tree_halves): node i's range, split and common prefix length in
  *     bits of the 3D-bit codes. Each node writes its own prefix length into
  *     its two children ("parent prefix"), so no parent pointers are kept.
  *  2. Octree interior nodes are the cells that strictly contain a key. A
@@ -23,6 +23,11 @@
  *     counts over the node array (a blocked parallel scan).
  * All steps write to positions fixed by the input alone, so the result does
  * not depend on the thread count. Temporaries: 7 bytes per key.
+ *
+ * On one thread (or keys too few for two blocks) steps 1-3 are one serial
+ * pass instead (serial_count, serial_fill): the same cells in the same
+ * positions, without the radix tree, about three times faster; a frame's
+ * instances are each rebuilt on one thread.
  */
 #include "kinds/svo/svo_build.h"
 
@@ -217,7 +222,7 @@ static void walk_splits(build_ctx *c, split_entry *stack, int *top, size_t from,
 }
 
 /* The binary radix tree of the n >= 2 sorted unique keys, in Karras'
- * numbering, in one pass. Internal nodes are the n - 1 splits: split p lies
+ * numbering. Internal nodes are the n - 1 splits: split p lies
  * between keys p and p + 1, whose codes share d(p) leading bits. Its node
  * covers the keys back to the nearest split on the left with a shorter
  * common prefix (l) and on to the nearest on the right (r): [l + 1, r].
@@ -228,20 +233,14 @@ static void walk_splits(build_ctx *c, split_entry *stack, int *top, size_t from,
  * which is Karras' numbering (each node's range has its number at one end).
  * A stack of splits with rising d finds both neighbours: a split is popped
  * by its right one, and the one below it is its left. d rises strictly up
- * the stack, so it holds at most 64 splits. Sequential and linear, where
- * Karras' binary searches per node jumped across the keys. */
-static void radix_tree(build_ctx *c)
-{
-    split_entry stack[65];
-    int top = 0;
-    walk_splits(c, stack, &top, 0, c->n - 1);
-    close_splits(c, stack, &top, 0, c->n - 1, -1); /* the split after the last key */
-}
-
-/* The same tree from two halves of the splits walked at once (radix_tree's
- * pass is serial: 1.0-1.6 ms of a depth-8 resample's build on two threads,
- * whose other steps took 0.3-1.2 ms each). The left half [0, m) is walked as
- * radix_tree walks it and leaves its stack. The right half [m, n - 1)
+ * the stack, so it holds at most 64 splits. Linear, where Karras' binary
+ * searches per node jumped across the keys.
+ *
+ * One pass over the splits is serial (1.0-1.6 ms of a depth-8 resample's
+ * build on two threads, whose other steps took 0.3-1.2 ms each), so the
+ * tree is made from two halves of the splits walked at once. The left
+ * half [0, m) is walked as one pass walks it and leaves its stack. The
+ * right half [m, n - 1)
  * starts on an empty stack: a split it pops with nothing below it needs its
  * left neighbour from the left half, and the left half's open splits with a
  * larger d would be popped by the same right neighbour, so such a pop is
@@ -251,7 +250,6 @@ static void radix_tree(build_ctx *c)
  * Every node is written once, by the same arithmetic: the same tree. A
  * pending pop's split has a smaller d than the one before it, so there are
  * at most 65. */
-#define RADIX_HALVES_MIN 8192u
 
 typedef struct pending_pop {
     bool has_q;   /* false: the right half's first split, popping nothing of its own */
@@ -439,6 +437,78 @@ static void fill_fn(void *vctx, size_t begin, size_t end, unsigned worker)
     }
 }
 
+/* The serial build (one thread, a loop nested in another, or keys too few
+ * for a second block): sorted disjoint keys meet their interior cells in
+ * code order within each level, so one pass counts the cells each level
+ * gets and a second writes them, with the same arrays and positions as
+ * the radix tree's owners give (count_fn, fill_fn). Each key opens the
+ * cells below the deepest one it shares with the key before it, and adds
+ * itself to that shared cell's masks. */
+
+/* The deepest level whose cell keys f - 1 and f share, -1 for f = 0. It
+ * is above both keys' levels: sorted disjoint keys share no cell of
+ * either one's level. */
+static inline int shared_level(const build_ctx *c, size_t f)
+{
+    if (f == 0)
+        return -1;
+    const uint64_t x = c->keys[f].code ^ c->keys[f - 1].code;
+    /* codes have no bits above 3 * depth (validate_fn) */
+    const unsigned bits = (unsigned)(x ? __builtin_clzll(x) : 64) - (64u - 3u * c->depth);
+    return (int)(bits / 3u);
+}
+
+static void serial_count(build_ctx *c)
+{
+    uint32_t *nc = c->node_base, *lc = c->leaf_base;
+    memset(nc, 0, LEVELS * sizeof *nc);
+    memset(lc, 0, LEVELS * sizeof *lc);
+    for (size_t f = 0; f < c->n; f++) {
+        const int level = (int)c->keys[f].level;
+        for (int L = shared_level(c, f) + 1; L < level; L++)
+            nc[L]++;
+        lc[level]++;
+    }
+}
+
+static void serial_fill(build_ctx *c)
+{
+    mr_svo *o = c->out;
+    const unsigned D = c->depth;
+    uint8_t plus_z[2];
+    mr_svo_normal_encode(mr_v3(0.0f, 0.0f, 1.0f), plus_z);
+    uint32_t nrun[LEVELS], lrun[LEVELS];
+    memcpy(nrun, c->node_base, sizeof nrun);
+    memcpy(lrun, c->leaf_base, sizeof lrun);
+    for (size_t f = 0; f < c->n; f++) {
+        const uint64_t code = c->keys[f].code;
+        const int level = (int)c->keys[f].level, s = shared_level(c, f);
+        if (s >= 0) {
+            /* the shared cell is the last one written at its level */
+            const uint8_t bit = (uint8_t)(1u << digit_at(code, D, (unsigned)s + 1));
+            o->child_mask[nrun[s] - 1] |= bit;
+            if (s + 1 == level)
+                o->leaf_mask[nrun[s] - 1] |= bit;
+        }
+        for (int L = s + 1; L < level; L++) {
+            const uint32_t pos = nrun[L]++;
+            const uint8_t bit = (uint8_t)(1u << digit_at(code, D, (unsigned)L + 1));
+            o->child_mask[pos] = bit;
+            o->leaf_mask[pos] = L + 1 == level ? bit : 0;
+        }
+        const uint32_t lp = lrun[level]++;
+        if (o->leaf_keys)
+            o->leaf_keys[lp] = c->keys[f];
+        if (c->in_leaves) {
+            o->leaves[lp] = c->in_leaves[f];
+        } else {
+            o->leaves[lp].normal[0] = plus_z[0];
+            o->leaves[lp].normal[1] = plus_z[1];
+            o->leaves[lp].attr = 0;
+        }
+    }
+}
+
 static void block_nodes(const build_ctx *c, size_t b, size_t *lo, size_t *hi)
 {
     *lo = b * BLK;
@@ -544,27 +614,32 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
                           (unsigned long long)keys[i].code, keys[i].level, why);
         goto cleanup;
     }
-    size_t ni = count > 1 ? count - 1 : 1;
-    c.split = mr_large_alloc(ni * sizeof *c.split);
-    c.info = mr_large_alloc(ni);
-    c.pd_int = mr_large_alloc(ni);
-    c.pd_leaf = mr_large_alloc(count);
-    c.node_base = malloc(c.blocks * LEVELS * sizeof *c.node_base);
-    c.leaf_base = malloc(c.blocks * LEVELS * sizeof *c.leaf_base);
-    if (!c.split || !c.info || !c.pd_int || !c.pd_leaf || !c.node_base || !c.leaf_base)
+    const bool serial = threads == 1 || c.blocks == 1 || mr_parallel_nested();
+    const size_t level_blocks = serial ? 1 : c.blocks; /* blocks with counts of their own */
+    c.node_base = malloc(level_blocks * LEVELS * sizeof *c.node_base);
+    c.leaf_base = malloc(level_blocks * LEVELS * sizeof *c.leaf_base);
+    if (!c.node_base || !c.leaf_base)
         goto nomem;
-    c.pd_int[0] = -1; /* the radix root (or the only key) has no parent */
-    c.pd_leaf[0] = -1;
-    if (count >= RADIX_HALVES_MIN && threads != 1)
+    if (serial) {
+        serial_count(&c);
+    } else {
+        const size_t ni = count - 1; /* count > BLK */
+        c.split = mr_large_alloc(ni * sizeof *c.split);
+        c.info = mr_large_alloc(ni);
+        c.pd_int = mr_large_alloc(ni);
+        c.pd_leaf = mr_large_alloc(count);
+        if (!c.split || !c.info || !c.pd_int || !c.pd_leaf)
+            goto nomem;
+        c.pd_int[0] = -1; /* the radix root has no parent */
+        c.pd_leaf[0] = -1;
         radix_tree_halves(&c, threads);
-    else if (count > 1)
-        radix_tree(&c);
-    mr_parallel_for(threads, c.blocks, 1, count_fn, &c);
+        mr_parallel_for(threads, c.blocks, 1, count_fn, &c);
+    }
 
     /* Per-level totals, then each block's first position per level. */
     uint64_t node_total = 0, leaf_total = 0;
     for (unsigned L = 0; L < LEVELS; L++) {
-        for (size_t b = 0; b < c.blocks; b++) {
+        for (size_t b = 0; b < level_blocks; b++) {
             uint32_t nn = c.node_base[b * LEVELS + L], nl = c.leaf_base[b * LEVELS + L];
             c.node_base[b * LEVELS + L] = (uint32_t)node_total;
             c.leaf_base[b * LEVELS + L] = (uint32_t)leaf_total;
@@ -591,7 +666,10 @@ static int build(const mr_svo_key *keys, const mr_svo_leaf *leaves, size_t count
         out->leaf_keys = mr_large_alloc(leaf_total * sizeof *out->leaf_keys);
     if (!out->leaves || (!per_frame && !out->leaf_keys))
         goto nomem;
-    mr_parallel_for(threads, c.blocks, 1, fill_fn, &c);
+    if (serial)
+        serial_fill(&c);
+    else
+        mr_parallel_for(threads, c.blocks, 1, fill_fn, &c);
 
     if (node_total > 0) {
         c.node_blocks = (node_total + BLK - 1) / BLK;
