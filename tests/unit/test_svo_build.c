@@ -9,10 +9,10 @@
  * ancestors of the keys, counted here by sorting; masks must be consistent
  * and breadth-first (children after parents, node 0 the root);
  * mr_svo_collect_keys must agree with the walk; 1, 2 and 4 threads must give
- * identical arrays (one thread takes the serial pass, two and four the
- * radix tree when the keys fill more than one block). Cases: empty, single voxel, root leaf, single coarse key,
+ * identical arrays. Cases: empty, single voxel, root leaf, single coarse key,
  * depth 1 (full and partial), random sparse sets at depths 2..21 with one
- * level and with mixed levels (compacted first), invalid inputs.
+ * level and with mixed levels (compacted first), blocks of keys wholly
+ * inside one cell, invalid inputs.
  *
  * Normals: tolerance stated at test_normals. A timing run of ~10 M
  * surface-like keys prints sort / compact / build times and bytes per leaf
@@ -459,6 +459,41 @@ static void test_build_random(void **state)
     free(k);
 }
 
+/* Keys whose middle blocks lie wholly inside one cell: the build counts and
+ * writes its keys a block at a time (16,384 a block), and a block that
+ * opens no cell at a level adds its keys to the last cell of the blocks
+ * before it, after the loop. 40,000 keys inside one level-4 cell, with
+ * keys before and after it, make blocks whose every key adds to cells
+ * opened two blocks back (levels 0-4), at mixed levels. */
+static void test_build_blocks_in_one_cell(void **state)
+{
+    (void)state;
+    const unsigned depth = 12;
+    const size_t inside = 40000, n = inside + 64;
+    mr_svo_key *k = malloc(n * sizeof *k);
+    assert_non_null(k);
+    uint64_t s = 7;
+    size_t m = 0;
+    for (unsigned i = 0; i < 32; i++) /* before the cell (x < 256) and after it (x >= 512) */
+        k[m++] = key_at(depth, 9, (uint32_t)(rng_next(&s) % 32), (uint32_t)(rng_next(&s) % 512),
+                        (uint32_t)(rng_next(&s) % 512));
+    for (unsigned i = 0; i < 32; i++)
+        k[m++] = key_at(depth, 10, 256 + (uint32_t)(rng_next(&s) % 768), (uint32_t)(rng_next(&s) % 1024),
+                        (uint32_t)(rng_next(&s) % 1024));
+    for (size_t i = 0; i < inside; i++) { /* level-4 cell (1, 1, 1): finest cells 256..511 */
+        const unsigned level = 11 + (unsigned)(rng_next(&s) % 2), sh = depth - level;
+        const uint32_t lo = 256u >> sh, span = 256u >> sh;
+        k[m++] = key_at(depth, level, lo + (uint32_t)(rng_next(&s) % span), lo + (uint32_t)(rng_next(&s) % span),
+                        lo + (uint32_t)(rng_next(&s) % span));
+    }
+    assert_int_equal(mr_svo_radix_sort(k, m, NULL, 2, NULL), MR_OK);
+    size_t kept;
+    assert_int_equal(mr_svo_compact(k, m, depth, NULL, &kept, NULL), MR_OK);
+    assert_true(kept > 2 * 16384 + 32); /* two whole blocks inside the cell */
+    build_and_check(k, kept, depth);
+    free(k);
+}
+
 static void expect_invalid(const mr_svo_key *k, const mr_svo_leaf *leaves, size_t n, unsigned depth,
                            float size, uint32_t palette_count, const char *what)
 {
@@ -712,6 +747,7 @@ int main(void)
         cmocka_unit_test(test_compact_random),
         cmocka_unit_test(test_build_small_cases),
         cmocka_unit_test(test_build_random),
+        cmocka_unit_test(test_build_blocks_in_one_cell),
         cmocka_unit_test(test_build_invalid),
         cmocka_unit_test(test_collect_rejects_broken),
         cmocka_unit_test(test_normals),
