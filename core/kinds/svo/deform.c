@@ -1454,15 +1454,24 @@ static inline double plane_s(const rs_ctx *c, int a, double x, uint64_t k)
     return (c->origin[a] - x) + (double)k * c->cell21;
 }
 
+/* floor(log2(x)) of a positive normal double, from its exponent bits. */
+static inline int double_exponent(double x)
+{
+    uint64_t bits;
+    memcpy(&bits, &x, sizeof bits);
+    return (int)((bits >> 52) & 0x7ffu) - 1023;
+}
+
 /* Level whose cells are the smallest still at least `side` wide (the
  * coarsest that holds it, eq. 3.3.6 / 3.3.10), clamped to the depth. */
 static unsigned hold_level(const rs_ctx *c, double side)
 {
     if (!(side > 0.0))
         return c->depth;
-    int e;
-    (void)frexp(c->size / side, &e); /* size / side in [2^(e-1), 2^e) */
-    int h = e - 1;
+    /* A first guess from the exponents (floor(log2(size / side)) or one
+     * more; a subnormal side guesses high): the loops below end on the one
+     * answer from any guess, as cell[] falls with the level. */
+    int h = double_exponent(c->size) - double_exponent(side);
     if (h < 0)
         h = 0;
     if (h > (int)c->depth)
@@ -1531,7 +1540,6 @@ static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, doub
     const double u = (0.5 * (lo + hi) - c->origin[a]) / c->cell[l];
     return clamp_floor(u - 0.5, 0, n - 2);
 }
-
 /* Level and cell ranges (r: first x, y, z, end x, y, z) of box i; returns
  * its number of cells. */
 static inline __attribute__((always_inline)) uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level,
