@@ -103,18 +103,19 @@ int mr_svo_compact(mr_svo_key *keys, size_t count, unsigned depth, uint32_t *kep
         return mr_error_set(err, MR_ERR_LIMIT, "svo compact: %zu keys exceed 2^32 - 1", count);
     if (count > 0 && !keys)
         return mr_error_set(err, MR_ERR_INVALID, "svo compact: keys is NULL");
+    /* In sorted order, a key nested in any earlier key is nested in the last
+     * kept one: the cells are aligned, so anything between a kept key and a
+     * key inside it lies inside it too and was dropped. One pass checks and
+     * compacts: a key moves down to a position at or before its own, so
+     * keys i - 1 and i are still the input's when key i is checked (an
+     * invalid key leaves the keys before it compacted). */
+    size_t kept = 0;
+    uint64_t end = 0;
     for (size_t i = 0; i < count; i++) {
         const char *why = key_problem(keys, i, depth, 0);
         if (why)
             return mr_error_set(err, MR_ERR_INVALID, "svo compact: key %zu (code %#llx, level %u): %s", i,
                                 (unsigned long long)keys[i].code, keys[i].level, why);
-    }
-    /* In sorted order, a key nested in any earlier key is nested in the last
-     * kept one: the cells are aligned, so anything between a kept key and a
-     * key inside it lies inside it too and was dropped. */
-    size_t kept = 0;
-    uint64_t end = 0;
-    for (size_t i = 0; i < count; i++) {
         if (kept > 0 && keys[i].code < end)
             continue;
         end = keys[i].code + cell_span(depth, keys[i].level);

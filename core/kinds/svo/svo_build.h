@@ -28,7 +28,8 @@
  * index of the input key it is, so callers can compact payloads alongside.
  * Levels above depth, code bits at or above 3 * depth, codes not aligned to
  * their level (low 3 * (depth - level) bits set) and unsorted input give
- * MR_ERR_INVALID; count above 2^32 - 1 gives MR_ERR_LIMIT. */
+ * MR_ERR_INVALID (the keys before the first invalid one are then already
+ * compacted); count above 2^32 - 1 gives MR_ERR_LIMIT. */
 int mr_svo_compact(mr_svo_key *keys, size_t count, unsigned depth, uint32_t *kept_from,
                    size_t *out_count, mr_error *err);
 
