@@ -1540,6 +1540,7 @@ static uint64_t resize_first(const rs_ctx *c, int a, unsigned l, double lo, doub
     const double u = (0.5 * (lo + hi) - c->origin[a]) / c->cell[l];
     return clamp_floor(u - 0.5, 0, n - 2);
 }
+
 /* Level and cell ranges (r: first x, y, z, end x, y, z) of box i; returns
  * its number of cells. */
 static inline __attribute__((always_inline)) uint64_t rs_plan(const rs_ctx *c, size_t i, unsigned *level,
