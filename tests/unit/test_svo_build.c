@@ -460,27 +460,30 @@ static void test_build_random(void **state)
 }
 
 /* Keys whose middle blocks lie wholly inside one cell: the build counts and
- * writes its keys a block at a time (16,384 a block), and a block that
+ * writes its keys a block at a time (MR_SVO_BUILD_BLOCK), and a block that
  * opens no cell at a level adds its keys to the last cell of the blocks
- * before it, after the loop. 40,000 keys inside one level-4 cell, with
- * keys before and after it, make blocks whose every key adds to cells
- * opened two blocks back (levels 0-4), at mixed levels. */
+ * before it, after the loop. Keys in the level-4 cell (0, 0, 0), then
+ * three blocks' worth inside cell (1, 1, 1) at levels 11 and 12, then keys
+ * beyond it (Morton order: a level-4 cell with a coordinate >= 2 comes
+ * after (1, 1, 1)): the cell's levels 0-4 are opened in the first block
+ * and added to by two whole blocks after it, the last of them two blocks
+ * away. */
 static void test_build_blocks_in_one_cell(void **state)
 {
     (void)state;
     const unsigned depth = 12;
-    const size_t inside = 40000, n = inside + 64;
+    const size_t inside = 3 * MR_SVO_BUILD_BLOCK + 1000, n = inside + 64;
     mr_svo_key *k = malloc(n * sizeof *k);
     assert_non_null(k);
     uint64_t s = 7;
     size_t m = 0;
-    for (unsigned i = 0; i < 32; i++) /* before the cell (x < 256) and after it (x >= 512) */
-        k[m++] = key_at(depth, 9, (uint32_t)(rng_next(&s) % 32), (uint32_t)(rng_next(&s) % 512),
-                        (uint32_t)(rng_next(&s) % 512));
-    for (unsigned i = 0; i < 32; i++)
-        k[m++] = key_at(depth, 10, 256 + (uint32_t)(rng_next(&s) % 768), (uint32_t)(rng_next(&s) % 1024),
+    for (unsigned i = 0; i < 32; i++) /* level-9 cells in level-4 cell (0, 0, 0): finest 0..255 */
+        k[m++] = key_at(depth, 9, (uint32_t)(rng_next(&s) % 32), (uint32_t)(rng_next(&s) % 32),
+                        (uint32_t)(rng_next(&s) % 32));
+    for (unsigned i = 0; i < 32; i++) /* level-10 cells with finest x >= 512 */
+        k[m++] = key_at(depth, 10, 128 + (uint32_t)(rng_next(&s) % 896), (uint32_t)(rng_next(&s) % 1024),
                         (uint32_t)(rng_next(&s) % 1024));
-    for (size_t i = 0; i < inside; i++) { /* level-4 cell (1, 1, 1): finest cells 256..511 */
+    for (size_t i = 0; i < inside; i++) { /* level-4 cell (1, 1, 1): finest 256..511 */
         const unsigned level = 11 + (unsigned)(rng_next(&s) % 2), sh = depth - level;
         const uint32_t lo = 256u >> sh, span = 256u >> sh;
         k[m++] = key_at(depth, level, lo + (uint32_t)(rng_next(&s) % span), lo + (uint32_t)(rng_next(&s) % span),
@@ -489,7 +492,16 @@ static void test_build_blocks_in_one_cell(void **state)
     assert_int_equal(mr_svo_radix_sort(k, m, NULL, 2, NULL), MR_OK);
     size_t kept;
     assert_int_equal(mr_svo_compact(k, m, depth, NULL, &kept, NULL), MR_OK);
-    assert_true(kept > 2 * 16384 + 32); /* two whole blocks inside the cell */
+    /* the sorted keys inside the cell, [first, end): blocks 1 and 2 within */
+    const unsigned cell_shift = 3 * (depth - 4);
+    size_t first = kept, end = 0;
+    for (size_t i = 0; i < kept; i++)
+        if (k[i].code >> cell_shift == 7u) { /* Morton index of (1, 1, 1) */
+            first = i < first ? i : first;
+            end = i + 1;
+        }
+    assert_true(first > 0 && first < MR_SVO_BUILD_BLOCK);
+    assert_true(end >= 3 * MR_SVO_BUILD_BLOCK && end < kept);
     build_and_check(k, kept, depth);
     free(k);
 }

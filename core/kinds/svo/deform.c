@@ -1469,8 +1469,9 @@ static unsigned hold_level(const rs_ctx *c, double side)
     if (!(side > 0.0))
         return c->depth;
     /* A first guess from the exponents (floor(log2(size / side)) or one
-     * more; a subnormal side guesses high): the loops below end on the one
-     * answer from any guess, as cell[] falls with the level. */
+     * more; a subnormal side guesses low, and far above the depth either
+     * way): the loops below end on the one answer from any guess, as
+     * cell[] falls with the level. */
     int h = double_exponent(c->size) - double_exponent(side);
     if (h < 0)
         h = 0;

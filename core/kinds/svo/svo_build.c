@@ -24,8 +24,8 @@
  * not depend on the thread count. The thesis builds Karras' binary radix
  * tree first (a GPU's way to place cells in parallel); until stop 66 this
  * file did too, at about three times the time of these passes (64
- * instances' rebuild, one thread each). Temporaries: per block, 2 bytes a
- * level.
+ * instances' rebuild, one thread each). Temporaries: per block of keys
+ * 10 bytes a level and 8 more, per block of nodes 8 bytes.
  */
 #include "kinds/svo/svo_build.h"
 
@@ -37,7 +37,7 @@
 #include "util/parallel.h"
 #include "util/large_alloc.h"
 
-#define BLK 16384u
+#define BLK MR_SVO_BUILD_BLOCK
 #define LEVELS (MR_SVO_MAX_DEPTH + 1u)
 
 typedef struct {

@@ -1,10 +1,11 @@
 /*
- * svo_build.h - from sorted voxel keys to an octree (paper 004, 4.2, and
- * Karras 2012): duplicate/nesting compaction that keeps the coarsest voxel
+ * svo_build.h - from sorted voxel keys to an octree (paper 004, 4.2):
+ * duplicate/nesting compaction that keeps the coarsest voxel
  * (thesis 3.3 "sample level preservation", eq. 4.2.2 taken as "a coarser
- * voxel wins over the finer ones inside it"), then a parallel binary radix
- * tree over the unique codes from which the octree nodes of svo.h are
- * derived.
+ * voxel wins over the finer ones inside it"), then the octree nodes of
+ * svo.h built level by level from the sorted unique codes, in parallel over
+ * blocks of keys (svo_build.c; the thesis builds Karras' 2012 binary radix
+ * tree first).
  *
  * Layout produced: nodes in breadth-first order (by level, then code), so
  * node 0 is the root and the interior children of every node are
@@ -21,6 +22,10 @@
 #include "microray.h"
 #include "kinds/svo/svo.h"
 
+/* Keys the build counts and writes as one task (a block); a block's keys
+ * that add to a cell an earlier block opened do so after the loop. */
+#define MR_SVO_BUILD_BLOCK 16384u
+
 /* Compacts keys[0, count), sorted by (code, level) (mr_svo_radix_sort), in
  * place: drops exact duplicates and every key nested inside an earlier
  * (coarser or equal) key, so the first of each nest, which is the coarsest,
@@ -28,8 +33,9 @@
  * index of the input key it is, so callers can compact payloads alongside.
  * Levels above depth, code bits at or above 3 * depth, codes not aligned to
  * their level (low 3 * (depth - level) bits set) and unsorted input give
- * MR_ERR_INVALID (the keys before the first invalid one are then already
- * compacted); count above 2^32 - 1 gives MR_ERR_LIMIT. */
+ * MR_ERR_INVALID (*out_count is then 0, and the keys before the first
+ * invalid one and their kept_from entries are already compacted); count
+ * above 2^32 - 1 gives MR_ERR_LIMIT. */
 int mr_svo_compact(mr_svo_key *keys, size_t count, unsigned depth, uint32_t *kept_from,
                    size_t *out_count, mr_error *err);
 
