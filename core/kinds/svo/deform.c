@@ -911,18 +911,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * above max_level is refined: leaves (most of what is visited)
              * and voxels at max_level are selected whatever it is. */
             if (it->leaf || c->level >= c->max_level || (c->view_on && projects_below(c, b))) {
-                uint32_t src = it->index;
-                if (!it->leaf && !lowest_leaf(svo, it->index, &src)) {
-                    fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
-                    continue;
-                }
                 mr_svo_leaf *l = &c->out->leaf[slot];
                 c->out->level[slot] = (uint8_t)c->level;
                 l->attr = (uint16_t)attr0;
                 /* a coarse voxel stands for all its leaves: their mean
                  * normal (one leaf's would light the whole voxel by
                  * wherever that leaf's surface faces) */
-                const uint8_t *bn = it->leaf ? svo->leaves[src].normal : c->ex->normal[it->index];
+                const uint8_t *bn = it->leaf ? svo->leaves[it->index].normal : c->ex->normal[it->index];
                 if (p0 && p0 == p1) {
                     const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
                     uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
