@@ -44,6 +44,7 @@
 #include "kinds/svo/voxelize.h"
 #include "microray.h"
 #include "../support/grid_fixture.h"
+#include "fuzz_seeds.h"
 
 static void die(const char *what)
 {
@@ -51,13 +52,22 @@ static void die(const char *what)
     abort();
 }
 
-/* A reader's failure: one of the documented codes, with a message. */
-static void check_error(int rc, const mr_error *err)
+/* A reader's contract: MR_OK with what it read, or one of the documented
+ * codes, with a message and nothing read. True when it read something. */
+static bool reader_read(int rc, bool has_result, const mr_error *err)
 {
+    if (rc == MR_OK) {
+        if (!has_result)
+            die("a reader returned MR_OK without a result");
+        return true;
+    }
+    if (has_result)
+        die("a reader failed but handed back a result");
     if (rc != MR_ERR_FORMAT && rc != MR_ERR_LIMIT && rc != MR_ERR_NOMEM)
         die("a reader failed with an undocumented code");
     if (!memchr(err->msg, '\0', sizeof err->msg) || !err->msg[0])
         die("a reader failed without a message");
+    return false;
 }
 
 /* ---- the octree */
@@ -123,14 +133,8 @@ static void read_octree(const uint8_t *data, size_t size)
     mr_svo *svo = NULL;
     mr_error err = {0};
     int rc = mr_svo_file_read(data, size, &svo, &err);
-    if (rc != MR_OK) {
-        if (svo)
-            die("an octree with an error");
-        check_error(rc, &err);
+    if (!reader_read(rc, svo != NULL, &err))
         return;
-    }
-    if (!svo)
-        die("MR_OK without an octree");
     if (svo->has_occupied || mr_svo_fit_occupied(svo, &err) == MR_OK)
         trace_octree(svo);
     mr_svo_extremes ex;
@@ -147,14 +151,8 @@ static void read_bake(const uint8_t *data, size_t size)
     mr_dmm_file *f = NULL;
     mr_error err = {0};
     int rc = mr_dmm_file_read(data, size, &f, &err);
-    if (rc != MR_OK) {
-        if (f)
-            die("a bake with an error");
-        check_error(rc, &err);
+    if (!reader_read(rc, f != NULL, &err))
         return;
-    }
-    if (!f)
-        die("MR_OK without a bake");
     uint32_t budget = 4096;
     for (uint32_t m = 0; m < f->mesh_count && budget; m++) {
         const mr_dmm_encoded *enc = f->meshes[m].encoded;
@@ -238,11 +236,7 @@ static void write_seeds(const char *dir)
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
-    for (int i = 1; i + 1 < *argc; i++)
-        if (!strcmp((*argv)[i], "-seeds")) {
-            write_seeds((*argv)[i + 1]);
-            exit(0);
-        }
+    fuzz_seeds_option(*argc, *argv, write_seeds);
     return 0;
 }
 

@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include "microray.h"
+#include "fuzz_seeds.h"
 
 static int fd = -1;
 static char path[64];
@@ -74,11 +75,7 @@ static void write_seeds(const char *dir)
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
-    for (int i = 1; i + 1 < *argc; i++)
-        if (!strcmp((*argv)[i], "-seeds")) {
-            write_seeds((*argv)[i + 1]);
-            exit(0);
-        }
+    fuzz_seeds_option(*argc, *argv, write_seeds);
     fd = memfd_create("fuzz_exr", MFD_CLOEXEC);
     if (fd < 0)
         die("memfd_create");
