@@ -23,7 +23,8 @@
 #include "kinds/svo/svo.h"
 
 /* Keys the build counts and writes as one task (a block); a block's keys
- * that add to a cell an earlier block opened do so after the loop. */
+ * that add to a cell an earlier block opened do so after the loop. The
+ * prefix sums over the nodes run in blocks of as many nodes. */
 #define MR_SVO_BUILD_BLOCK 16384u
 
 /* Compacts keys[0, count), sorted by (code, level) (mr_svo_radix_sort), in
