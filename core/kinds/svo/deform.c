@@ -359,12 +359,19 @@ static inline void vcols_store(const vdouble in[3], double out[12])
 }
 
 /* One voxel to deform: its coordinates at the frontier's level (21 bits
- * each, x | y << 21 | z << 42) and its node or leaf index. */
+ * each, x | y << 21 | z << 42), its node or leaf index, and whether an
+ * ancestor was found well inside the view frustum (then predicate (a) is
+ * not tested again below it: frustum_planes). */
 typedef struct sel_item {
     uint64_t xyz;
     uint32_t index;
-    uint32_t leaf;
+    uint16_t leaf;
+    uint16_t inside;
 } sel_item;
+
+/* Bit of a level's expand entry (an item's index below it) that gives the
+ * item's children `inside`. */
+#define EXPAND_INSIDE 0x80000000u
 
 enum {
     FAIL_NONE = 0,
@@ -784,6 +791,33 @@ static inline void item_attrs(const sel_ctx *c, const sel_item *it, uint32_t *lo
     }
 }
 
+/* The seven frustum planes' values (view_setup's planes: lanes 0-3 of
+ * v[0] planes 0-3, lanes 0-2 of v[1] planes 4-6, lane 3 the constant 1)
+ * at their largest (most) or smallest (!most) over box b (lo xyz, hi xyz)
+ * grown by `grow` times its largest side on every side: per plane
+ * pl[3] + sum over a = 0, 1, 2 of max (min) of pl[a] * (lo - g) and
+ * pl[a] * (hi + g). */
+__attribute__((always_inline)) static inline void frustum_planes(const sel_ctx *c, const float b[6], double grow,
+                                                                 bool most, vdouble v[2])
+{
+    double blo[3], bhi[3], g = 0.0;
+    for (int a = 0; a < 3; a++) {
+        blo[a] = b[a];
+        bhi[a] = b[3 + a];
+        g = dmax(g, bhi[a] - blo[a]);
+    }
+    g *= grow;
+    v[0] = c->planes[3][0];
+    v[1] = c->planes[3][1];
+    for (int a = 0; a < 3; a++) {
+        const double l = blo[a] - g, h = bhi[a] + g;
+        for (int k = 0; k < 2; k++) {
+            const vdouble p = c->planes[a][k] * l, q = c->planes[a][k] * h;
+            v[k] += most ? VSEL(p > q, p, q) : VSEL(p < q, p, q);
+        }
+    }
+}
+
 /* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
 __attribute__((target_clones("avx2", "default")))
 static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
@@ -880,26 +914,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
-            if (c->view_on && c->cull) {
+            if (c->view_on && c->cull && !it->inside) {
                 /* Predicate (a): the box grown by its largest side (room for
                  * what descendants' own matrices may do) entirely on the
                  * outer side of one plane, or entirely behind the eye. */
-                double blo[3], bhi[3], g = 0.0;
-                for (int a = 0; a < 3; a++) {
-                    blo[a] = b[a];
-                    bhi[a] = b[3 + a];
-                    g = dmax(g, bhi[a] - blo[a]);
-                }
-                /* each plane's lane: mx = pl[3], then for a = 0, 1, 2
-                 * mx += max(pl[a] * (lo - g), pl[a] * (hi + g)) */
-                vdouble mx[2] = {c->planes[3][0], c->planes[3][1]};
-                for (int a = 0; a < 3; a++) {
-                    const double l = blo[a] - g, h = bhi[a] + g;
-                    for (int k = 0; k < 2; k++) {
-                        const vdouble p = c->planes[a][k] * l, q = c->planes[a][k] * h;
-                        mx[k] += VSEL(p > q, p, q);
-                    }
-                }
+                vdouble mx[2];
+                frustum_planes(c, b, 1.0, true, mx);
                 /* planes 0-5: mx < 0; plane 6 (w > 0): !(mx > 0) */
                 const vlong below0 = mx[0] < 0.0, below1 = mx[1] < 0.0, ahead = mx[1] > 0.0;
                 const bool outside =
@@ -950,7 +970,20 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
                 continue;
             }
-            c->expand[i0 + nexpand++] = (uint32_t)i;
+            /* Its descendants need no test of predicate (a) when this box
+             * grown by four times its largest side is strictly inside
+             * every plane: a descendant's box lies within this one grown
+             * by its largest side, as predicate (a) takes it, so its sides
+             * are at most three times that one, and grown by its own it
+             * stays in the four times grown box, which the test keeps. */
+            bool inside = it->inside;
+            if (c->view_on && c->cull && !inside) {
+                vdouble mn[2];
+                frustum_planes(c, b, 4.0, false, mn);
+                const vlong in0 = mn[0] > 0.0, in1 = mn[1] > 0.0;
+                inside = (in0[0] & in0[1] & in0[2] & in0[3] & in1[0] & in1[1] & in1[2]) != 0;
+            }
+            c->expand[i0 + nexpand++] = (uint32_t)i | (inside ? EXPAND_INSIDE : 0u);
             nchild += mr_svo_popcount8(svo->child_mask[it->index]);
         }
         nq_flush(&queue);
@@ -970,7 +1003,9 @@ static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
         const size_t i0 = ch * SEL_CHUNK;
         size_t k = c->chunk_child[ch];
         for (size_t e = 0; e < c->chunk_expand[ch]; e++) {
-            const sel_item *it = &c->items[c->expand[i0 + e]];
+            const uint32_t entry = c->expand[i0 + e];
+            const sel_item *it = &c->items[entry & ~EXPAND_INSIDE];
+            const uint16_t inside = (entry & EXPAND_INSIDE) != 0;
             const uint64_t x = it->xyz & 0x1fffffu, y = (it->xyz >> 21) & 0x1fffffu, z = (it->xyz >> 42) & 0x1fffffu;
             const unsigned cm = svo->child_mask[it->index], lm = svo->leaf_mask[it->index];
             /* child_index's numbering, counted along (checked in pass 1) */
@@ -984,7 +1019,8 @@ static void sel_pass2(void *vctx, size_t begin, size_t end, unsigned worker)
                 sel_item *o = &c->next[k++];
                 o->xyz = base | (uint64_t)(ci & 1u) | (uint64_t)((ci >> 1) & 1u) << 21 | (uint64_t)(ci >> 2) << 42;
                 o->index = is_leaf ? next_leaf : next_node;
-                o->leaf = is_leaf;
+                o->leaf = (uint16_t)is_leaf;
+                o->inside = inside;
                 next_leaf += is_leaf;
                 next_node += is_leaf ^ 1u;
             }
@@ -1159,6 +1195,8 @@ static int select_level(sel_run *r)
     const size_t n = r->n;
     const unsigned level = r->level;
     r->visited += n;
+    if (n > EXPAND_INSIDE) /* an expand entry's index takes 31 bits */
+        return mr_error_set(r->err, MR_ERR_LIMIT, "svo select: more than 2^31 voxels at level %u", level);
     if (r->visited > r->budget)
         return mr_error_set(r->err, MR_ERR_INVALID, "svo select: malformed octree (nodes reached twice)");
     const size_t chunks = (n + SEL_CHUNK - 1) / SEL_CHUNK;
@@ -1345,7 +1383,7 @@ int mr_svo_select_ws(const mr_svo *svo, const mr_svo_extremes *extremes, const m
             rc = mr_error_set(err, MR_ERR_NOMEM, "svo select: out of memory");
             goto cleanup;
         }
-        r.cur[0] = (sel_item){0, 0, svo->node_count == 0};
+        r.cur[0] = (sel_item){0, 0, svo->node_count == 0, 0};
         r.n = 1;
     }
     /* the top levels beside the table's fill where a second thread is
