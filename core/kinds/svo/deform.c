@@ -1463,9 +1463,9 @@ static void rs_bounds(void *vctx, size_t begin, size_t end, unsigned worker)
         c->chunk_bad[ch] = 0;
         for (size_t i = i0; i < i1; i++) {
             const float *b = &c->sel->box[i * 6];
-            bool ok = true;
+            bool ok = true; /* (no branch per test: boxes are rarely bad) */
             for (int a = 0; a < 3; a++)
-                ok = ok && isfinite(b[a]) && isfinite(b[3 + a]) && b[a] <= b[3 + a];
+                ok &= isfinite(b[a]) & isfinite(b[3 + a]) & (b[a] <= b[3 + a]);
             if (!ok) {
                 c->chunk_bad[ch] = i + 1;
                 break;
@@ -1662,6 +1662,24 @@ static inline uint64_t dilated_next(uint64_t d, uint64_t m, uint64_t unit)
     return ((d | ~m) + unit) & m;
 }
 
+/* Packed key k of box i at *o, kept by moving *o on unless the chunk's
+ * table of keys (seen) holds it; written either way, no branch (about half
+ * are repeats, in no order a predictor learns). The chunk's OR and AND of
+ * its keys take it. */
+__attribute__((always_inline)) static inline void put_packed(const rs_ctx *c, uint64_t *seen, uint64_t k,
+                                                             uint32_t i, uint64_t *o, uint64_t *bits_or,
+                                                             uint64_t *bits_and)
+{
+    uint64_t *seen_at = &seen[(k * 0x9E3779B97F4A7C15ull) >> (64 - RS_SEEN_BITS)];
+    const bool repeat = *seen_at == k;
+    *seen_at = k;
+    c->pk[*o] = k;
+    c->payload[*o] = i;
+    *bits_or |= k;
+    *bits_and &= k;
+    *o += !repeat;
+}
+
 static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
 {
     (void)worker;
@@ -1679,6 +1697,17 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
             const uint64_t mx = MORTON_X, my = MORTON_X << 1, mz = MORTON_X << 2;
             const uint64_t dx0 = mr_morton_spread(r[0] << sh), dy0 = mr_morton_spread(r[1] << sh) << 1;
             uint64_t dz = mr_morton_spread(r[2] << sh) << 2;
+            if (c->packed && c->method == MR_SVO_RESIZE) {
+                /* resize's 2 x 2 x 2 cells (rs_plan), in the loops' order
+                 * below (x fastest, then y, then z), without them */
+                const uint64_t dx[2] = {dx0, dilated_next(dx0, mx, ux)};
+                const uint64_t dy[2] = {dy0, dilated_next(dy0, my, uy)};
+                const uint64_t dzs[2] = {dz, dilated_next(dz, mz, uz)};
+                for (unsigned q = 0; q < 8; q++)
+                    put_packed(c, seen, mr_svo_key_pack(dx[q & 1u] | dy[(q >> 1) & 1u] | dzs[q >> 2], l),
+                               (uint32_t)i, &o, &bits_or, &bits_and);
+                continue;
+            }
             for (uint32_t z = r[2]; z < r[5]; z++, dz = dilated_next(dz, mz, uz)) {
                 uint64_t dy = dy0;
                 for (uint32_t y = r[1]; y < r[4]; y++, dy = dilated_next(dy, my, uy)) {
@@ -1686,18 +1715,7 @@ static void rs_write(void *vctx, size_t begin, size_t end, unsigned worker)
                     for (uint32_t x = r[0]; x < r[3]; x++, dx = dilated_next(dx, mx, ux)) {
                         const uint64_t code = dx | dy | dz;
                         if (c->packed) {
-                            /* written either way, kept by moving on: no
-                             * branch (about half are repeats, in no order
-                             * a predictor learns) */
-                            const uint64_t k = mr_svo_key_pack(code, l);
-                            uint64_t *seen_at = &seen[(k * 0x9E3779B97F4A7C15ull) >> (64 - RS_SEEN_BITS)];
-                            const bool repeat = *seen_at == k;
-                            *seen_at = k;
-                            c->pk[o] = k;
-                            c->payload[o] = (uint32_t)i;
-                            bits_or |= k;
-                            bits_and &= k;
-                            o += !repeat;
+                            put_packed(c, seen, mr_svo_key_pack(code, l), (uint32_t)i, &o, &bits_or, &bits_and);
                         } else {
                             c->keys[o].code = code;
                             c->keys[o].level = l;
