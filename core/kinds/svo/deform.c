@@ -484,9 +484,10 @@ __attribute__((always_inline)) static inline bool blend_entry(const mr_svo_attr 
         *out = d->mesh[at->mesh];
         return true;
     }
-    for (int q = 0; q < 3; q++)
-        for (int e = 0; e < 4; e++)
-            out->m[4 * q + e] = (float)acc[q][e];
+    for (int q = 0; q < 3; q++) { /* each row narrowed whole: the same roundings */
+        const vfloat row = __builtin_convertvector(acc[q], vfloat);
+        memcpy(out->m + 4 * q, &row, sizeof row);
+    }
     return true;
 }
 
