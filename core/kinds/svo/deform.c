@@ -1466,7 +1466,7 @@ static void rs_bounds(void *vctx, size_t begin, size_t end, unsigned worker)
             const float *b = &c->sel->box[i * 6];
             bool ok = true; /* (no branch per test: boxes are rarely bad) */
             for (int a = 0; a < 3; a++)
-                ok &= isfinite(b[a]) & isfinite(b[3 + a]) & (b[a] <= b[3 + a]);
+                ok &= (isfinite(b[a]) != 0) & (isfinite(b[3 + a]) != 0) & (b[a] <= b[3 + a]);
             if (!ok) {
                 c->chunk_bad[ch] = i + 1;
                 break;
