@@ -744,6 +744,46 @@ static bool removed_by_cull(const mr_mat4 *vp, const float b[6])
     return false;
 }
 
+/* Whether deformed box b (lo xyz, hi xyz) projects to fewer than delta
+ * pixels across on a width x height screen (eq. 3.2.3, all eight corners
+ * ahead of the eye), by the selection's operations in its order: each
+ * corner's clip x, y, w as ((x term + y term) + z term) + constant, then
+ * 0.5 x / w + 0.5. */
+static bool box_projects_below(const mr_mat4 *vp, const float b[6], double width, double height, double delta)
+{
+    static const int row[3] = {0, 1, 3};
+    double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+    for (int k = 0; k < 8; k++) {
+        double cl[3];
+        for (int r = 0; r < 3; r++) {
+            const float *m = &vp->m[4 * row[r]];
+            const double px = (double)m[0] * b[(k & 1) ? 3 : 0], py = (double)m[1] * b[(k & 2) ? 4 : 1];
+            const double pz = (double)m[2] * b[(k & 4) ? 5 : 2];
+            cl[r] = px + py + pz + (double)m[3];
+        }
+        if (!(cl[2] > 0.0))
+            return false;
+        const double x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
+        x0 = fmin(x0, x), x1 = fmax(x1, x), y0 = fmin(y0, y), y1 = fmax(y1, y);
+    }
+    return fmax(width * (x1 - x0), height * (y1 - y0)) < delta;
+}
+
+/* Every voxel of sel above the octree's depth D (an interior voxel: the
+ * leaves sit at D) projects below the view's delta, as eq. 3.2.3 keeps
+ * it; returns how many there are. */
+static size_t check_coarse_below(const mr_svo_selection *sel, const mr_svo_view *v, unsigned D)
+{
+    size_t coarse = 0;
+    for (size_t i = 0; i < sel->count; i++) {
+        if (sel->level[i] >= D)
+            continue;
+        coarse++;
+        assert_true(box_projects_below(&v->view_proj, &sel->box[6 * i], v->width, v->height, v->delta));
+    }
+    return coarse;
+}
+
 static void test_screen_space(void **state)
 {
     (void)state;
@@ -789,7 +829,19 @@ static void test_screen_space(void **state)
     v.delta = 8.0f;
     select_ok(s, &e, &near_r.d, &v, D, 2, &coarse);
     assert_true(coarse.count > 0 && coarse.count * 4 < near.count);
+    /* each coarse voxel kept because its box projects below delta, all
+     * eight corners measured (four voxels a time in the selection) */
+    assert_true(check_coarse_below(&coarse, &v, D) > 100);
+    /* where the near dancer's leaves start to merge (171 .. 3,420 coarse
+     * voxels at levels 5 and 6, decided after the frame's palette table
+     * is made, four voxels at a time) */
+    for (float d = 4.0f; d < 5.75f; d += 0.5f) {
+        v.delta = d;
+        select_ok(s, &e, &near_r.d, &v, D, 2, &tmp);
+        assert_true(check_coarse_below(&tmp, &v, D) > 100);
+    }
     v.delta = 1.0f;
+    assert_true(check_coarse_below(&far, &v, D) > 0);
 
     /* culling: behind the camera, removed at the root; in view, kept
      * whole; half out of view, only part kept */

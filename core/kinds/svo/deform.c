@@ -751,6 +751,46 @@ __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *
 #pragma GCC diagnostic pop
 #endif
 
+/* projects_below for up to four boxes at once, box k in lane k (lanes
+ * without a box hold a copy of one that has): the mask of those below.
+ * Each lane's operations are projects_below's for its box, corner by
+ * corner in the same order ((x + y) + z + constant, then 0.5 x / w +
+ * 0.5), and its answer is the one projects_below gives without its early
+ * answers: no when a corner lies at or behind the eye plane, else whether
+ * the larger side of all eight corners' rectangle is below delta (the
+ * early answers are no exactly when this one is: the rectangle only
+ * grows with more corners, and rounding keeps the order of differences). */
+__attribute__((always_inline)) static inline unsigned projects_below4(const sel_ctx *c, const float *const box[4])
+{
+    static const int row[3] = {0, 1, 3}; /* clip x, y, w */
+    vdouble p[3][3][2]; /* row, axis, lo / hi: the products by box lane */
+    for (int a = 0; a < 3; a++)
+        for (int h = 0; h < 2; h++) {
+            const vdouble v = {box[0][3 * h + a], box[1][3 * h + a], box[2][3 * h + a], box[3][3 * h + a]};
+            for (int r = 0; r < 3; r++)
+                p[r][a][h] = c->vp[4 * row[r] + a] * v;
+        }
+    const vdouble inf = INFINITY - (vdouble){0};
+    vdouble xmin = inf, xmax = -inf, ymin = inf, ymax = -inf;
+    vlong ahead = (vlong){0} == 0;
+    for (int k = 0; k < 8; k++) {
+        const int hx = k & 1, hy = (k >> 1) & 1, hz = k >> 2;
+        vdouble cl[3];
+        for (int r = 0; r < 3; r++)
+            cl[r] = p[r][0][hx] + p[r][1][hy] + p[r][2][hz] + c->vp[4 * row[r] + 3];
+        ahead &= cl[2] > 0.0;
+        const vdouble x = 0.5 * cl[0] / cl[2] + 0.5, y = 0.5 * cl[1] / cl[2] + 0.5;
+        xmin = VSEL(x < xmin, x, xmin);
+        xmax = VSEL(x > xmax, x, xmax);
+        ymin = VSEL(y < ymin, y, ymin);
+        ymax = VSEL(y > ymax, y, ymax);
+    }
+    const vdouble wx = c->width * (xmax - xmin), wy = c->height * (ymax - ymin);
+    const vlong below = ahead & (VSEL(wx > wy, wx, wy) < c->delta);
+    return (unsigned)(below[0] & 1) | (unsigned)(below[1] & 1) << 1 | (unsigned)(below[2] & 1) << 2 |
+           (unsigned)(below[3] & 1) << 3;
+}
+
 /* The leaf reached from interior node n by always taking the lowest child. */
 static bool lowest_leaf(const mr_svo *svo, uint32_t n, uint32_t *leaf)
 {
@@ -819,6 +859,129 @@ __attribute__((always_inline)) static inline void frustum_planes(const sel_ctx *
     }
 }
 
+/* A chunk of pass 1 under way: its counts, its first failure, its memo
+ * of moved normals and the normals waiting to be encoded. */
+typedef struct sel_chunk {
+    size_t i0, nsel, nchild, nexpand;
+    sel_fail *fail;
+    normal_queue queue;
+    /* With skinning, a voxel whose extremes share one palette entry
+     * (every leaf) has a moved normal that is a function of (entry,
+     * bind normal) only, and the voxels of a chunk, neighbours in
+     * Morton order, repeat such pairs: the chunk remembers them in a
+     * small hash table (the same value either way, so what it holds
+     * changes no result; memo_entry). Moved normals are encoded
+     * several at a time, the chunk's last ones at its end. */
+    uint64_t memo[NORMAL_MEMO];
+} sel_chunk;
+
+/* The end of item i's pass 1 once it is known to be selected (its
+ * deformed box, a0 and a1 its extremes' matrices, from p0 and p1 with
+ * the palette) or not: selected, its box goes to the chunk's next slot
+ * of the output with its moved normal; else it is expanded. */
+__attribute__((always_inline)) static inline void sel_finish(sel_ctx *c, sel_chunk *k, const sel_item *it, size_t i,
+                                                             uint32_t attr0, pal_entry *p0, pal_entry *p1,
+                                                             const mr_affine *a0, const mr_affine *a1,
+                                                             const float *box, bool selected)
+{
+    const mr_svo *svo = c->svo;
+    if (selected) {
+        /* the chunk's selected voxels fill its slots of the output (item
+         * i0's slot out_base + i0 and on) from the first: they are written
+         * where they stay unless an earlier chunk kept fewer than all of
+         * its items (select_ws closes such gaps) */
+        const size_t slot = c->out_base + k->i0 + k->nsel;
+        float *b = &c->out->box[slot * 6];
+        if (b != box)
+            memcpy(b, box, 6 * sizeof *b);
+        mr_svo_leaf *l = &c->out->leaf[slot];
+        c->out->level[slot] = (uint8_t)c->level;
+        l->attr = (uint16_t)attr0;
+        /* a coarse voxel stands for all its leaves: their mean normal (one
+         * leaf's would light the whole voxel by wherever that leaf's
+         * surface faces) */
+        const uint8_t *bn = it->leaf ? svo->leaves[it->index].normal : c->ex->normal[it->index];
+        if (p0 && p0 == p1) {
+            const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
+            uint64_t *m = &k->memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
+            if (memo_holds(*m, key)) {
+                l->normal[0] = (uint8_t)*m;
+                l->normal[1] = (uint8_t)(*m >> 8);
+            } else {
+                vdouble r[3];
+                if (c->pal_normal && p0->has_normal) {
+                    vcols_load(c->pal_normal[attr0], r);
+                } else {
+                    normal_matrix(a0, a0, r);
+                    if (c->pal_normal) { /* lazy_normals: its first */
+                        vcols_store(r, c->pal_normal[attr0]);
+                        p0->has_normal = true;
+                    }
+                }
+                move_normal(&k->queue, r, bn, l->normal, m, key);
+            }
+        } else {
+            vdouble r[3];
+            normal_matrix(a0, a1, r);
+            move_normal(&k->queue, r, bn, l->normal, NULL, 0);
+        }
+        k->nsel++;
+        return;
+    }
+    /* expand: check every child now so pass 2 cannot fail */
+    if (!children_ok(svo, it->index)) {
+        fail_set(k->fail, FAIL_CHILD, it->index, 0, NULL);
+        return;
+    }
+    /* Its descendants need no test of predicate (a) when this box grown by
+     * four times its largest side is strictly inside every plane: a
+     * descendant's box lies within this one grown by its largest side, as
+     * predicate (a) takes it, so its sides are at most three times that
+     * one, and grown by its own it stays in the four times grown box,
+     * which the test keeps. */
+    bool inside = it->inside;
+    if (c->view_on && c->cull && !inside) {
+        vdouble mn[2];
+        frustum_planes(c, box, 4.0, false, mn);
+        const vlong in0 = mn[0] > 0.0, in1 = mn[1] > 0.0;
+        inside = (in0[0] & in0[1] & in0[2] & in0[3] & in1[0] & in1[1] & in1[2]) != 0;
+    }
+    c->expand[k->i0 + k->nexpand++] = (uint32_t)i | (inside ? EXPAND_INSIDE : 0u);
+    k->nchild += mr_svo_popcount8(svo->child_mask[it->index]);
+}
+
+/* Items of pass 1 held until four of them need projects_below, which
+ * then takes them together (projects_below4), and the items after the
+ * first of those, which must finish after it (slots and expand entries
+ * go in item order). Palette table only: their matrices stay in it. */
+#define SEL_WAIT 16u
+typedef struct sel_wait {
+    const sel_item *it;
+    size_t i;
+    uint32_t attr0;
+    pal_entry *p0, *p1;
+    bool proj; /* its selection is projects_below's answer (else it is selected) */
+    float box[6];
+} sel_wait;
+
+__attribute__((always_inline)) static inline void sel_drain(sel_ctx *c, sel_chunk *k, sel_wait *w, unsigned *nwait)
+{
+    const float *box[4];
+    unsigned np = 0;
+    for (unsigned j = 0; j < *nwait && np < 4; j++)
+        if (w[j].proj)
+            box[np++] = w[j].box;
+    for (unsigned j = np; j < 4; j++)
+        box[j] = np ? box[0] : w[0].box; /* idle lanes: a copy */
+    const unsigned below = np ? projects_below4(c, box) : 0u;
+    for (unsigned j = 0, q = 0; j < *nwait; j++) {
+        const bool selected = !w[j].proj || (below >> q++ & 1u);
+        sel_finish(c, k, w[j].it, w[j].i, w[j].attr0, w[j].p0, w[j].p1, &w[j].p0->a, &w[j].p1->a, w[j].box,
+                   selected);
+    }
+    *nwait = 0;
+}
+
 /* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
 __attribute__((target_clones("avx2", "default")))
 static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
@@ -826,22 +989,22 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
     (void)worker;
     sel_ctx *c = vctx;
     const mr_svo *svo = c->svo;
+    /* with the palette's table, the projections four voxels at a time */
+    const bool batch = c->pal && !c->d->field && c->view_on;
     for (size_t ch = begin; ch < end; ch++) {
         const size_t i0 = ch * SEL_CHUNK, i1 = i0 + SEL_CHUNK < c->n ? i0 + SEL_CHUNK : c->n;
-        size_t nsel = 0, nchild = 0, nexpand = 0;
-        sel_fail *fail = &c->chunk_fail[ch];
-        /* With skinning, a voxel whose extremes share one palette entry
-         * (every leaf) has a moved normal that is a function of (entry,
-         * bind normal) only, and the voxels of a chunk, neighbours in
-         * Morton order, repeat such pairs: the chunk remembers them in a
-         * small hash table (the same value either way, so what it holds
-         * changes no result; memo_entry). Moved normals are encoded
-         * several at a time, the chunk's last ones at its end. */
-        uint64_t memo[NORMAL_MEMO];
-        memset(memo, 0, sizeof memo);
-        normal_queue queue;
-        queue.n = 0;
-        fail->kind = FAIL_NONE;
+        sel_chunk k;
+        k.i0 = i0;
+        k.nsel = k.nchild = k.nexpand = 0;
+        k.fail = &c->chunk_fail[ch];
+        k.fail->kind = FAIL_NONE;
+        k.queue.n = 0;
+        memset(k.memo, 0, sizeof k.memo);
+        sel_wait wait[SEL_WAIT];
+        unsigned nwait = 0, nproj = 0;
+/* a failure of item i: the items held before it finish first (their own
+ * failures come first), then the chunk keeps i's unless it has one */
+#define SEL_FAIL(...)                                                                                                do {                                                                                                                 if (nwait) {                                                                                                         sel_drain(c, &k, wait, &nwait);                                                                                  nproj = 0;                                                                                                   }                                                                                                                fail_set(k.fail, __VA_ARGS__);                                                                               } while (0)
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
             if (c->pal && i + PAL_AHEAD < i1) { /* (a miss each otherwise: entries in no order) */
@@ -862,8 +1025,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             uint32_t attr0, attr1;
             item_attrs(c, it, &attr0, &attr1);
             if (attr0 >= svo->palette_count || attr1 >= svo->palette_count) {
-                fail_set(fail, FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count,
-                         NULL);
+                SEL_FAIL(FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count, NULL);
                 continue;
             }
             /* the extremes' matrices: a0 and a1 point at them */
@@ -875,7 +1037,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 f0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
                 f1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
                 if (!affine_finite(&f0) || !affine_finite(&f1)) {
-                    fail_set(fail, FAIL_FIELD, 0, 0, affine_finite(&f0) ? hi : lo);
+                    SEL_FAIL(FAIL_FIELD, 0, 0, affine_finite(&f0) ? hi : lo);
                     continue;
                 }
                 a0 = &f0;
@@ -883,12 +1045,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             } else {
                 p0 = pal_get(c, attr0, &t0);
                 if (!p0->ok) {
-                    fail_set(fail, FAIL_PALETTE, attr0, 0, NULL);
+                    SEL_FAIL(FAIL_PALETTE, attr0, 0, NULL);
                     continue;
                 }
                 p1 = attr1 == attr0 ? p0 : pal_get(c, attr1, &t1);
                 if (!p1->ok) {
-                    fail_set(fail, FAIL_PALETTE, attr1, 0, NULL);
+                    SEL_FAIL(FAIL_PALETTE, attr1, 0, NULL);
                     continue;
                 }
                 a0 = &p0->a;
@@ -898,13 +1060,10 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             deform_box_grow(a0, lo, hi, &dlo, &dhi);
             if (p0 == NULL || p1 != p0)
                 deform_box_grow(a1, lo, hi, &dlo, &dhi);
-            /* the chunk's selected voxels fill its slots of the output
-             * (item i0's slot out_base + i0 and on) from the first, this
-             * one's until a later one takes it when it is not selected:
-             * they are written where they stay unless an earlier chunk
-             * kept fewer than all of its items (select_ws closes such gaps) */
-            const size_t slot = c->out_base + i0 + nsel;
-            float *b = &c->out->box[slot * 6];
+            /* the box where it is held, or straight in the chunk's next
+             * slot of the output (sel_finish), which a later voxel takes
+             * when this one is not selected */
+            float *b = batch ? wait[nwait].box : &c->out->box[(c->out_base + i0 + k.nsel) * 6];
             const vfloat flo = vfloat_round(&dlo, true), fhi = vfloat_round(&dhi, false);
             memcpy(b, &flo, 3 * sizeof(float));
             memcpy(b + 3, &fhi, 3 * sizeof(float));
@@ -912,7 +1071,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * ones is an infinity or a NaN */
             const vint finite = (((vint)flo & 0x7f800000) != 0x7f800000) & (((vint)fhi & 0x7f800000) != 0x7f800000);
             if (!(finite[0] & finite[1] & finite[2])) {
-                fail_set(fail, FAIL_OVERFLOW, c->level, 0, lo);
+                SEL_FAIL(FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
             if (c->view_on && c->cull && !it->inside) {
@@ -931,66 +1090,36 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             /* The projected size only decides whether an interior voxel
              * above max_level is refined: leaves (most of what is visited)
              * and voxels at max_level are selected whatever it is. */
-            if (it->leaf || c->level >= c->max_level || (c->view_on && projects_below(c, b))) {
-                mr_svo_leaf *l = &c->out->leaf[slot];
-                c->out->level[slot] = (uint8_t)c->level;
-                l->attr = (uint16_t)attr0;
-                /* a coarse voxel stands for all its leaves: their mean
-                 * normal (one leaf's would light the whole voxel by
-                 * wherever that leaf's surface faces) */
-                const uint8_t *bn = it->leaf ? svo->leaves[it->index].normal : c->ex->normal[it->index];
-                if (p0 && p0 == p1) {
-                    const uint32_t key = attr0 | (uint32_t)bn[0] << 16 | (uint32_t)bn[1] << 24;
-                    uint64_t *m = &memo[(key * 2654435761u) >> (32 - NORMAL_MEMO_BITS)];
-                    if (memo_holds(*m, key)) {
-                        l->normal[0] = (uint8_t)*m;
-                        l->normal[1] = (uint8_t)(*m >> 8);
-                    } else {
-                        vdouble r[3];
-                        if (c->pal_normal && p0->has_normal) {
-                            vcols_load(c->pal_normal[attr0], r);
-                        } else {
-                            normal_matrix(a0, a0, r);
-                            if (c->pal_normal) { /* lazy_normals: its first */
-                                vcols_store(r, c->pal_normal[attr0]);
-                                p0->has_normal = true;
-                            }
-                        }
-                        move_normal(&queue, r, bn, l->normal, m, key);
-                    }
-                } else {
-                    vdouble r[3];
-                    normal_matrix(a0, a1, r);
-                    move_normal(&queue, r, bn, l->normal, NULL, 0);
-                }
-                nsel++;
+            const bool must = it->leaf || c->level >= c->max_level, proj = !must && c->view_on;
+            if (!batch) {
+                sel_finish(c, &k, it, i, attr0, p0, p1, a0, a1, b, must || (proj && projects_below(c, b)));
                 continue;
             }
-            /* expand: check every child now so pass 2 cannot fail */
-            if (!children_ok(svo, it->index)) {
-                fail_set(fail, FAIL_CHILD, it->index, 0, NULL);
+            /* (batch: view_on, so an item without proj is selected) */
+            if (!proj && nwait == 0) {
+                sel_finish(c, &k, it, i, attr0, p0, p1, a0, a1, b, true);
                 continue;
             }
-            /* Its descendants need no test of predicate (a) when this box
-             * grown by four times its largest side is strictly inside
-             * every plane: a descendant's box lies within this one grown
-             * by its largest side, as predicate (a) takes it, so its sides
-             * are at most three times that one, and grown by its own it
-             * stays in the four times grown box, which the test keeps. */
-            bool inside = it->inside;
-            if (c->view_on && c->cull && !inside) {
-                vdouble mn[2];
-                frustum_planes(c, b, 4.0, false, mn);
-                const vlong in0 = mn[0] > 0.0, in1 = mn[1] > 0.0;
-                inside = (in0[0] & in0[1] & in0[2] & in0[3] & in1[0] & in1[1] & in1[2]) != 0;
+            sel_wait *w = &wait[nwait++];
+            w->it = it;
+            w->i = i;
+            w->attr0 = attr0;
+            w->p0 = p0;
+            w->p1 = p1;
+            w->proj = proj;
+            nproj += proj;
+            if (nproj == 4 || nwait == SEL_WAIT) {
+                sel_drain(c, &k, wait, &nwait);
+                nproj = 0;
             }
-            c->expand[i0 + nexpand++] = (uint32_t)i | (inside ? EXPAND_INSIDE : 0u);
-            nchild += mr_svo_popcount8(svo->child_mask[it->index]);
         }
-        nq_flush(&queue);
-        c->chunk_sel[ch] = nsel;
-        c->chunk_child[ch] = nchild;
-        c->chunk_expand[ch] = nexpand;
+        if (nwait)
+            sel_drain(c, &k, wait, &nwait);
+#undef SEL_FAIL
+        nq_flush(&k.queue);
+        c->chunk_sel[ch] = k.nsel;
+        c->chunk_child[ch] = k.nchild;
+        c->chunk_expand[ch] = k.nexpand;
     }
 }
 
