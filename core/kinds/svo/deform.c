@@ -699,22 +699,28 @@ static inline void deform_box_grow(const mr_affine *a, const double lo[3], const
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #endif
+/* projects_below's first answer: whether corners (lo, lo, lo) and (hi,
+ * lo, lo) of box b alone lie delta apart across (then the box does not
+ * project below delta). */
+__attribute__((always_inline)) static inline bool wide_at_two_corners(const sel_ctx *c, const float b[6])
+{
+    const double *mx = &c->vp[0], *mw = &c->vp[12];
+    /* clip x and w of corners (lo, lo, lo) and (hi, lo, lo) */
+    const double x_x0 = mx[0] * (double)b[0], x_x1 = mx[0] * (double)b[3];
+    const double x_y = mx[1] * (double)b[1], x_z = mx[2] * (double)b[2];
+    const double w_x0 = mw[0] * (double)b[0], w_x1 = mw[0] * (double)b[3];
+    const double w_y = mw[1] * (double)b[1], w_z = mw[2] * (double)b[2];
+    const double x0 = x_x0 + x_y + x_z + mx[3], x1 = x_x1 + x_y + x_z + mx[3];
+    const double w0 = w_x0 + w_y + w_z + mw[3], w1 = w_x1 + w_y + w_z + mw[3];
+    const double s0 = 0.5 * x0 / w0 + 0.5, s1 = 0.5 * x1 / w1 + 0.5;
+    return c->width * (dmax(s0, s1) - dmin(s0, s1)) >= c->delta;
+}
+
 __attribute__((always_inline)) static inline bool projects_below(const sel_ctx *c, const float b[6])
 {
     static const int row[3] = {0, 1, 3}; /* clip x, y, w */
-    {
-        const double *mx = &c->vp[0], *mw = &c->vp[12];
-        /* clip x and w of corners (lo, lo, lo) and (hi, lo, lo) */
-        const double x_x0 = mx[0] * (double)b[0], x_x1 = mx[0] * (double)b[3];
-        const double x_y = mx[1] * (double)b[1], x_z = mx[2] * (double)b[2];
-        const double w_x0 = mw[0] * (double)b[0], w_x1 = mw[0] * (double)b[3];
-        const double w_y = mw[1] * (double)b[1], w_z = mw[2] * (double)b[2];
-        const double x0 = x_x0 + x_y + x_z + mx[3], x1 = x_x1 + x_y + x_z + mx[3];
-        const double w0 = w_x0 + w_y + w_z + mw[3], w1 = w_x1 + w_y + w_z + mw[3];
-        const double s0 = 0.5 * x0 / w0 + 0.5, s1 = 0.5 * x1 / w1 + 0.5;
-        if (c->width * (dmax(s0, s1) - dmin(s0, s1)) >= c->delta)
-            return false;
-    }
+    if (wide_at_two_corners(c, b))
+        return false;
     vdouble cx[3], cy[3], cz[3][2];       /* per row: products by corner lane */
     for (int r = 0; r < 3; r++) {
         const double *m = &c->vp[4 * row[r]];
@@ -960,11 +966,13 @@ typedef struct sel_wait {
     size_t i;
     uint32_t attr0;
     pal_entry *p0, *p1;
-    bool proj; /* its selection is projects_below's answer (else it is selected) */
+    bool proj;     /* its selection is projects_below's answer */
+    bool selected; /* else, whether it is selected */
     float box[6];
 } sel_wait;
 
-__attribute__((always_inline)) static inline void sel_drain(sel_ctx *c, sel_chunk *k, sel_wait *w, unsigned *nwait)
+__attribute__((always_inline)) static inline void sel_drain(sel_ctx *c, sel_chunk *k, sel_wait *w, unsigned *nwait,
+                                                            unsigned *nproj)
 {
     const float *box[4];
     unsigned np = 0;
@@ -975,11 +983,23 @@ __attribute__((always_inline)) static inline void sel_drain(sel_ctx *c, sel_chun
         box[j] = np ? box[0] : w[0].box; /* idle lanes: a copy */
     const unsigned below = np ? projects_below4(c, box) : 0u;
     for (unsigned j = 0, q = 0; j < *nwait; j++) {
-        const bool selected = !w[j].proj || (below >> q++ & 1u);
+        const bool selected = w[j].proj ? (below >> q++ & 1u) != 0 : w[j].selected;
         sel_finish(c, k, w[j].it, w[j].i, w[j].attr0, w[j].p0, w[j].p1, &w[j].p0->a, &w[j].p1->a, w[j].box,
                    selected);
     }
-    *nwait = 0;
+    *nwait = *nproj = 0;
+}
+
+/* A failure of a voxel of pass 1: the voxels held before it finish first
+ * (their own failures come first), then the chunk keeps this one unless
+ * it has one. */
+__attribute__((always_inline)) static inline void sel_fail_held(sel_ctx *c, sel_chunk *k, sel_wait *w,
+                                                                unsigned *nwait, unsigned *nproj, int kind,
+                                                                uint32_t a, uint32_t b, const double p[3])
+{
+    if (*nwait)
+        sel_drain(c, k, w, nwait, nproj);
+    fail_set(k->fail, kind, a, b, p);
 }
 
 /* Pass 1: deform and classify items [chunk * SEL_CHUNK, ...). */
@@ -1002,9 +1022,6 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
         memset(k.memo, 0, sizeof k.memo);
         sel_wait wait[SEL_WAIT];
         unsigned nwait = 0, nproj = 0;
-/* a failure of item i: the items held before it finish first (their own
- * failures come first), then the chunk keeps i's unless it has one */
-#define SEL_FAIL(...)                                                                                                do {                                                                                                                 if (nwait) {                                                                                                         sel_drain(c, &k, wait, &nwait);                                                                                  nproj = 0;                                                                                                   }                                                                                                                fail_set(k.fail, __VA_ARGS__);                                                                               } while (0)
         for (size_t i = i0; i < i1; i++) {
             const sel_item *it = &c->items[i];
             if (c->pal && i + PAL_AHEAD < i1) { /* (a miss each otherwise: entries in no order) */
@@ -1025,7 +1042,8 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             uint32_t attr0, attr1;
             item_attrs(c, it, &attr0, &attr1);
             if (attr0 >= svo->palette_count || attr1 >= svo->palette_count) {
-                SEL_FAIL(FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1, svo->palette_count, NULL);
+                sel_fail_held(c, &k, wait, &nwait, &nproj, FAIL_ATTR, attr0 >= svo->palette_count ? attr0 : attr1,
+                              svo->palette_count, NULL);
                 continue;
             }
             /* the extremes' matrices: a0 and a1 point at them */
@@ -1037,7 +1055,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
                 f0 = c->d->field(c->d->field_ctx, mr_v3((float)lo[0], (float)lo[1], (float)lo[2]));
                 f1 = c->d->field(c->d->field_ctx, mr_v3((float)hi[0], (float)hi[1], (float)hi[2]));
                 if (!affine_finite(&f0) || !affine_finite(&f1)) {
-                    SEL_FAIL(FAIL_FIELD, 0, 0, affine_finite(&f0) ? hi : lo);
+                    sel_fail_held(c, &k, wait, &nwait, &nproj, FAIL_FIELD, 0, 0, affine_finite(&f0) ? hi : lo);
                     continue;
                 }
                 a0 = &f0;
@@ -1045,12 +1063,12 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             } else {
                 p0 = pal_get(c, attr0, &t0);
                 if (!p0->ok) {
-                    SEL_FAIL(FAIL_PALETTE, attr0, 0, NULL);
+                    sel_fail_held(c, &k, wait, &nwait, &nproj, FAIL_PALETTE, attr0, 0, NULL);
                     continue;
                 }
                 p1 = attr1 == attr0 ? p0 : pal_get(c, attr1, &t1);
                 if (!p1->ok) {
-                    SEL_FAIL(FAIL_PALETTE, attr1, 0, NULL);
+                    sel_fail_held(c, &k, wait, &nwait, &nproj, FAIL_PALETTE, attr1, 0, NULL);
                     continue;
                 }
                 a0 = &p0->a;
@@ -1060,10 +1078,11 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             deform_box_grow(a0, lo, hi, &dlo, &dhi);
             if (p0 == NULL || p1 != p0)
                 deform_box_grow(a1, lo, hi, &dlo, &dhi);
-            /* the box where it is held, or straight in the chunk's next
+            /* the box behind voxels held, or straight in the chunk's next
              * slot of the output (sel_finish), which a later voxel takes
-             * when this one is not selected */
-            float *b = batch ? wait[nwait].box : &c->out->box[(c->out_base + i0 + k.nsel) * 6];
+             * when this one is not selected (it moves to wait[0] if this
+             * voxel waits first) */
+            float *b = nwait ? wait[nwait].box : &c->out->box[(c->out_base + i0 + k.nsel) * 6];
             const vfloat flo = vfloat_round(&dlo, true), fhi = vfloat_round(&dhi, false);
             memcpy(b, &flo, 3 * sizeof(float));
             memcpy(b + 3, &fhi, 3 * sizeof(float));
@@ -1071,7 +1090,7 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
              * ones is an infinity or a NaN */
             const vint finite = (((vint)flo & 0x7f800000) != 0x7f800000) & (((vint)fhi & 0x7f800000) != 0x7f800000);
             if (!(finite[0] & finite[1] & finite[2])) {
-                SEL_FAIL(FAIL_OVERFLOW, c->level, 0, lo);
+                sel_fail_held(c, &k, wait, &nwait, &nproj, FAIL_OVERFLOW, c->level, 0, lo);
                 continue;
             }
             if (c->view_on && c->cull && !it->inside) {
@@ -1090,16 +1109,22 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             /* The projected size only decides whether an interior voxel
              * above max_level is refined: leaves (most of what is visited)
              * and voxels at max_level are selected whatever it is. */
-            const bool must = it->leaf || c->level >= c->max_level, proj = !must && c->view_on;
+            const bool must = it->leaf || c->level >= c->max_level;
+            bool proj = !must && c->view_on;
             if (!batch) {
                 sel_finish(c, &k, it, i, attr0, p0, p1, a0, a1, b, must || (proj && projects_below(c, b)));
                 continue;
             }
-            /* (batch: view_on, so an item without proj is selected) */
+            /* projects_below's first answer, cheap, keeps a voxel far wider
+             * than delta from waiting: it is expanded */
+            if (proj && wide_at_two_corners(c, b))
+                proj = false;
             if (!proj && nwait == 0) {
-                sel_finish(c, &k, it, i, attr0, p0, p1, a0, a1, b, true);
+                sel_finish(c, &k, it, i, attr0, p0, p1, a0, a1, b, must);
                 continue;
             }
+            if (nwait == 0)
+                memcpy(wait[0].box, b, sizeof wait[0].box);
             sel_wait *w = &wait[nwait++];
             w->it = it;
             w->i = i;
@@ -1107,15 +1132,13 @@ static void sel_pass1(void *vctx, size_t begin, size_t end, unsigned worker)
             w->p0 = p0;
             w->p1 = p1;
             w->proj = proj;
+            w->selected = must;
             nproj += proj;
-            if (nproj == 4 || nwait == SEL_WAIT) {
-                sel_drain(c, &k, wait, &nwait);
-                nproj = 0;
-            }
+            if (nproj == 4 || nwait == SEL_WAIT)
+                sel_drain(c, &k, wait, &nwait, &nproj);
         }
         if (nwait)
-            sel_drain(c, &k, wait, &nwait);
-#undef SEL_FAIL
+            sel_drain(c, &k, wait, &nwait, &nproj);
         nq_flush(&k.queue);
         c->chunk_sel[ch] = k.nsel;
         c->chunk_child[ch] = k.nchild;
