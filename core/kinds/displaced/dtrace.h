@@ -250,10 +250,11 @@ bool mr_dtrace_intersect(const mr_dscene *s, uint32_t t, const mr_dray *r, float
 
 /* A callback's packet of rays as Embree hands it (structure of arrays):
  * lane k's origin o[a][k] and direction d[a][k] (a = x, y, z) and its span
- * tmin[k] .. tmax[k]. A ray that goes alone (mr_dtrace_intersect: one in
- * the packet, or parallel to an axis of T's local frame) is set up by
- * setup(ctx, n, k): mr_dray_setup of the same origin and direction, valid
- * for the rest of the call, or NULL when the ray cannot hit anything. */
+ * tmin[k] .. tmax[k]. A ray that goes alone (mr_dtrace_intersect: on a
+ * triangle without packets, or parallel to an axis of T's local frame) is
+ * set up by setup(ctx, n, k): mr_dray_setup of the same origin and
+ * direction, valid for the rest of the call, or NULL when the ray cannot
+ * hit anything. */
 typedef struct mr_drays {
     int n;
     const float *o[3], *d[3];
