@@ -2153,7 +2153,7 @@ __attribute__((target("avx2"))) static void slab_four_avx2(const pack *p, uint32
     for (int a = 0; a < 3; a++)
         l[a] = _mm256_loadu_pd(lo[a]), h[a] = _mm256_loadu_pd(hi[a]);
     __m256d nearv = inf;
-    uint32_t i0 = 0, i1 = 0, i2 = 0, i3 = 0;
+    __m256i ins = _mm256_setzero_si256(); /* box c's rays in lane c: bit k, ray k */
     for (uint32_t m = live; m; m &= m - 1) {
         const int k = __builtin_ctz(m);
         __m256d t0 = _mm256_broadcast_sd(p->t0 + k), t1 = _mm256_broadcast_sd(p->t1 + k);
@@ -2169,13 +2169,80 @@ __attribute__((target("avx2"))) static void slab_four_avx2(const pack *p, uint32
         }
         /* enters: not t0 > t1 (ordered), slab_quad_avx2's rule */
         const __m256d enters = _mm256_cmp_pd(t0, t1, _CMP_NGT_UQ);
-        const uint32_t e = (uint32_t)_mm256_movemask_pd(enters);
         nearv = _mm256_min_pd(_mm256_blendv_pd(inf, t0, enters), nearv);
-        i0 |= (e & 1u) << k, i1 |= (e >> 1 & 1u) << k;
-        i2 |= (e >> 2 & 1u) << k, i3 |= (e >> 3 & 1u) << k;
+        ins = _mm256_or_si256(ins, _mm256_and_si256(_mm256_castpd_si256(enters),
+                                                    _mm256_set1_epi64x((int64_t)1 << k)));
     }
-    in[0] = i0, in[1] = i1, in[2] = i2, in[3] = i3;
+    uint64_t w[4];
+    _mm256_storeu_si256((__m256i *)w, ins);
+    for (int c = 0; c < 4; c++)
+        in[c] = (uint32_t)w[c];
     _mm256_storeu_pd(near, nearv);
+}
+
+/* slab_four_avx2 two rays a pass, for CPUs with AVX-512: lanes 0-3 the
+ * four boxes against one ray, lanes 4-7 against the next (the last ray of
+ * an odd count twice), each lane the same operations in the same order,
+ * so the same rays enter the same boxes. The nearest entries of the two
+ * halves are joined at the end: a min over the same entries, which may
+ * only differ from the one-ray-a-pass order in the sign of a zero, and an
+ * entry distance is only ever compared. */
+__attribute__((target("avx512f"))) static void slab_four_avx512(const pack *p, uint32_t live,
+                                                                 const double lo[3][4],
+                                                                 const double hi[3][4],
+                                                                 uint32_t in[4], double near[4])
+{
+    const __m512d grow = _mm512_set1_pd(1 + 4 * DBL_EPSILON);
+    __m512d l[3], h[3];
+    for (int a = 0; a < 3; a++)
+        l[a] = _mm512_broadcast_f64x4(_mm256_loadu_pd(lo[a])),
+        h[a] = _mm512_broadcast_f64x4(_mm256_loadu_pd(hi[a]));
+    __m512d nearv = _mm512_set1_pd(INFINITY);
+    __m512i ins = _mm512_setzero_si512();
+    for (uint32_t m = live; m;) {
+        const int ka = __builtin_ctz(m);
+        m &= m - 1;
+        const int kb = m ? __builtin_ctz(m) : ka;
+        m &= m - 1;
+/* ray ka's value of q in lanes 0-3, ray kb's in lanes 4-7 */
+#define PAIR(q) _mm512_insertf64x4(_mm512_set1_pd((q)[ka]), _mm256_set1_pd((q)[kb]), 1)
+        __m512d t0 = PAIR(p->t0), t1 = PAIR(p->t1);
+        for (int a = 0; a < 3; a++) {
+            const __m512d o = PAIR(p->o[a]), inv = PAIR(p->inv[a]);
+            const __m512d nn = _mm512_mul_pd(_mm512_sub_pd(l[a], o), inv);
+            const __m512d ff = _mm512_mul_pd(_mm512_sub_pd(h[a], o), inv);
+            const __m512d n = _mm512_min_pd(ff, nn);
+            const __m512d far = _mm512_mul_pd(_mm512_max_pd(nn, ff), grow);
+            t0 = _mm512_max_pd(n, t0);
+            t1 = _mm512_min_pd(far, t1);
+        }
+#undef PAIR
+        const __mmask8 e = _mm512_cmp_pd_mask(t0, t1, _CMP_NGT_UQ);
+        nearv = _mm512_mask_min_pd(nearv, e, t0, nearv);
+        const __m512i bits = _mm512_inserti64x4(_mm512_set1_epi64((int64_t)1 << ka),
+                                                _mm256_set1_epi64x((int64_t)1 << kb), 1);
+        ins = _mm512_mask_or_epi64(ins, e, ins, bits);
+    }
+    const __m256i both = _mm256_or_si256(_mm512_castsi512_si256(ins), _mm512_extracti64x4_epi64(ins, 1));
+    uint64_t w[4];
+    _mm256_storeu_si256((__m256i *)w, both);
+    for (int c = 0; c < 4; c++)
+        in[c] = (uint32_t)w[c];
+    _mm256_storeu_pd(near, _mm256_min_pd(_mm512_castpd512_pd256(nearv),
+                                         _mm512_extractf64x4_pd(nearv, 1)));
+}
+
+/* The packet's rays `live` into four boxes at once (slab_four_avx2 or
+ * _avx512, the same answers); for CPUs with AVX2. */
+__attribute__((target("avx2"))) static inline void slab_four(const pack *p, uint32_t live,
+                                                              const double lo[3][4],
+                                                              const double hi[3][4], uint32_t in[4],
+                                                              double near[4])
+{
+    if (__builtin_cpu_supports("avx512f"))
+        slab_four_avx512(p, live, lo, hi, in, near);
+    else
+        slab_four_avx2(p, live, lo, hi, in, near);
 }
 #define HAS_SLAB_FOUR 1
 
@@ -2240,7 +2307,7 @@ __attribute__((target("avx2"))) static unsigned proc_child_boxes_avx2(
             uint32_t in[4];
             double near[4];
             boxes4_avx2(gr, x0, x1, ylo, yhi, ph, pH, lo, hi);
-            slab_four_avx2(p, live, lo, hi, in, near);
+            slab_four(p, live, lo, hi, in, near);
             for (unsigned m = test; m; m &= m - 1) {
                 const unsigned k = (unsigned)__builtin_ctz(m);
                 if (!in[k])
@@ -2763,7 +2830,7 @@ static int packet_enters(const pack *p, uint32_t live, const tnode *n, int count
     if (boxed && __builtin_cpu_supports("avx2")) {
         uint32_t in[4];
         double near[4];
-        slab_four_avx2(p, live, lo, hi, in, near);
+        slab_four(p, live, lo, hi, in, near);
         for (int c = 0; c < count; c++)
             if ((boxed >> c & 1u) && in[c])
                 out[nh++] = (pentry){n[c], in[c], near[c], hlo[c], hhi[c]};
