@@ -3072,6 +3072,109 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
         }
     }
 }
+
+/* cell_test8 for the packet's sixteen lanes at once, for CPUs with
+ * AVX-512 (rays->n == PK == 16, every lane of `lanes` set up): lane k of
+ * every vector is packet lane k, and each lane does cell_test8's float
+ * operations in their order, so the same hits bit for bit. */
+__attribute__((target("avx512f"))) static void cell_test16(const cell_tris *ct, const pack_wt *w,
+                                                           uint32_t lanes, const mr_drays *rays,
+                                                           best *bh, mr_dstats *st)
+{
+    _Static_assert(PK == 16, "a packet is one vector of sixteen floats");
+    const mr_dcell *c = &ct->c;
+    if (st)
+        st->triangles += (uint64_t)c->nt * (uint64_t)mr_popcount32(lanes);
+    const __m512 ox = _mm512_loadu_ps(w->col[0]), oy = _mm512_loadu_ps(w->col[1]);
+    const __m512 oz = _mm512_loadu_ps(w->col[2]), sx = _mm512_loadu_ps(w->col[3]);
+    const __m512 sy = _mm512_loadu_ps(w->col[4]), sz = _mm512_loadu_ps(w->col[5]);
+    __mmask16 is0[3], is1[3]; /* per permuted axis: the lanes where it is x, where y */
+    for (int a = 0; a < 3; a++) {
+        const __m512i k = _mm512_loadu_si512(w->axis[a]);
+        is0[a] = _mm512_cmpeq_epi32_mask(k, _mm512_setzero_si512());
+        is1[a] = _mm512_cmpeq_epi32_mask(k, _mm512_set1_epi32(1));
+    }
+    __m512 X[2 * MR_DSURF_MAX_POLY], Y[2 * MR_DSURF_MAX_POLY], Z[2 * MR_DSURF_MAX_POLY];
+    for (int v = 0; v < c->nv; v++) {
+        const __m512 a0 = _mm512_sub_ps(_mm512_set1_ps(ct->V[v].x), ox);
+        const __m512 a1 = _mm512_sub_ps(_mm512_set1_ps(ct->V[v].y), oy);
+        const __m512 a2 = _mm512_sub_ps(_mm512_set1_ps(ct->V[v].z), oz);
+        __m512 p[3];
+        for (int a = 0; a < 3; a++)
+            p[a] = _mm512_mask_blend_ps(is0[a], _mm512_mask_blend_ps(is1[a], a2, a1), a0);
+        X[v] = _mm512_sub_ps(p[0], _mm512_mul_ps(sx, p[2]));
+        Y[v] = _mm512_sub_ps(p[1], _mm512_mul_ps(sy, p[2]));
+        Z[v] = _mm512_mul_ps(p[2], sz);
+    }
+    float lim[PK];
+    for (int q = 0; q < PK; q++)
+        lim[q] = (float)cull_limit(rays->tmax[q]);
+    const float *tmin = rays->tmin;
+    const __m512 vtmin = _mm512_loadu_ps(tmin), zero = _mm512_setzero_ps();
+    for (int k = 0; k < c->nt; k++) {
+        const uint8_t *tr = c->tri[k];
+        const __m512 ax = X[tr[0]], ay = Y[tr[0]], bx = X[tr[1]], by = Y[tr[1]];
+        const __m512 cx = X[tr[2]], cy = Y[tr[2]];
+        const __m512 u = _mm512_sub_ps(_mm512_mul_ps(cx, by), _mm512_mul_ps(cy, bx));
+        const __m512 v = _mm512_sub_ps(_mm512_mul_ps(ax, cy), _mm512_mul_ps(ay, cx));
+        const __m512 wv = _mm512_sub_ps(_mm512_mul_ps(bx, ay), _mm512_mul_ps(by, ax));
+        /* the lanes where an edge function is exactly 0, negative, positive */
+        const uint32_t edge0 = (uint32_t)(_mm512_cmp_ps_mask(u, zero, _CMP_EQ_OQ) |
+                                          _mm512_cmp_ps_mask(v, zero, _CMP_EQ_OQ) |
+                                          _mm512_cmp_ps_mask(wv, zero, _CMP_EQ_OQ)) &
+                               lanes;
+        const __mmask16 neg = _mm512_cmp_ps_mask(u, zero, _CMP_LT_OQ) |
+                              _mm512_cmp_ps_mask(v, zero, _CMP_LT_OQ) |
+                              _mm512_cmp_ps_mask(wv, zero, _CMP_LT_OQ);
+        const __mmask16 pos = _mm512_cmp_ps_mask(u, zero, _CMP_GT_OQ) |
+                              _mm512_cmp_ps_mask(v, zero, _CMP_GT_OQ) |
+                              _mm512_cmp_ps_mask(wv, zero, _CMP_GT_OQ);
+        const __m512 det = _mm512_add_ps(_mm512_add_ps(u, v), wv);
+        const __m512 adet = _mm512_abs_ps(det);
+        __mmask16 ok = (__mmask16)(~(neg & pos) &
+                                   _mm512_cmp_ps_mask(adet, _mm512_set1_ps(FLT_MIN), _CMP_GE_OQ));
+        const __m512 ts = _mm512_add_ps(
+            _mm512_add_ps(_mm512_mul_ps(u, Z[tr[0]]), _mm512_mul_ps(v, Z[tr[1]])),
+            _mm512_mul_ps(wv, Z[tr[2]]));
+        const __m512 vlim = _mm512_loadu_ps(lim);
+        const __m512 lo = _mm512_mul_ps(vtmin, det), hi = _mm512_mul_ps(vlim, det);
+        const __mmask16 dneg = _mm512_cmp_ps_mask(det, zero, _CMP_LT_OQ);
+        const __mmask16 out_neg = _mm512_cmp_ps_mask(ts, lo, _CMP_GT_OQ) |
+                                  _mm512_cmp_ps_mask(ts, hi, _CMP_LT_OQ);
+        const __mmask16 out_pos = _mm512_cmp_ps_mask(ts, lo, _CMP_LT_OQ) |
+                                  _mm512_cmp_ps_mask(ts, hi, _CMP_GT_OQ);
+        ok &= (__mmask16) ~((dneg & out_neg) | (~dneg & out_pos));
+        const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.0f), det);
+        const __m512 t = _mm512_mul_ps(ts, inv);
+        ok &= _mm512_cmp_ps_mask(t, vtmin, _CMP_GE_OQ) & _mm512_cmp_ps_mask(t, vlim, _CMP_LE_OQ) &
+              _mm512_cmp_ps_mask(t, _mm512_set1_ps(INFINITY), _CMP_LT_OQ);
+        const uint32_t hits = (uint32_t)ok & lanes & ~edge0;
+        if (!(hits | edge0))
+            continue;
+        float tv[PK], uv[PK], vv[PK];
+        _mm512_storeu_ps(tv, t);
+        _mm512_storeu_ps(uv, _mm512_mul_ps(v, inv));
+        _mm512_storeu_ps(vv, _mm512_mul_ps(wv, inv));
+        for (uint32_t m = hits | edge0; m; m &= m - 1) {
+            const int q = __builtin_ctz(m);
+            mr_wt_hit hit = {tv[q], uv[q], vv[q]};
+            if (edge0 >> q & 1u) { /* the scalar test, from this lane's sheared vertices */
+                mr_wt_vertex sv[3];
+                for (int e = 0; e < 3; e++) {
+                    float xs[PK], ys[PK], zs[PK];
+                    _mm512_storeu_ps(xs, X[tr[e]]), _mm512_storeu_ps(ys, Y[tr[e]]);
+                    _mm512_storeu_ps(zs, Z[tr[e]]);
+                    sv[e] = (mr_wt_vertex){xs[q], ys[q], zs[q]};
+                }
+                if (!mr_wt_intersect_sheared(&sv[0], &sv[1], &sv[2], tmin[q], lim[q], &hit))
+                    continue;
+            }
+            tri_keep(&hit, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
+                     &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, &rays->tmax[q], &bh[q]);
+            lim[q] = (float)cull_limit(rays->tmax[q]);
+        }
+    }
+}
 #define HAS_CELL8 1
 #else
 #define HAS_CELL8 0
@@ -3083,9 +3186,19 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
 static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_wt *w, uint32_t live,
                       best *bh, mr_dstats *st)
 {
-    uint32_t ready = 0;
+    uint32_t ready = 0, rest = live;
+#if HAS_CELL8
+    if (mr_popcount32(live) >= CELL8_MIN && rays->n == PK && __builtin_cpu_supports("avx512f")) {
+        for (int h = 0; h < PK / 8; h++)
+            if (live >> 8 * h & ~(w->made >> 8 * h) & 0xffu)
+                half_wt_avx2(rays, w, h);
+        ready = live & w->made;
+        cell_test16(ct, w, ready, rays, bh, st);
+        rest = 0;
+    }
+#endif
     for (int h = 0; h < PK / 8; h++) {
-        uint32_t half = live >> 8 * h & 0xffu;
+        uint32_t half = rest >> 8 * h & 0xffu;
         if (!half)
             continue;
 #if HAS_CELL8
