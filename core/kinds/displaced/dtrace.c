@@ -2818,36 +2818,45 @@ static int packet_start(const mr_dscene *s, uint32_t t, const mr_dgrad *gr, cons
 
 /* The nodes n[0 .. count) (at most 4) the packet's rays `live` enter:
  * node c, when bit c of `boxed` is set, has its box in lo[.][c] ..
- * hi[.][c] and its heights in hlo[c], hhi[c]. The entered ones go to out
- * in node order, each with its rays and their nearest entry; returns how
- * many. */
-static int packet_enters(const pack *p, uint32_t live, const tnode *n, int count, unsigned boxed,
-                         const double lo[3][4], const double hi[3][4], const double hlo[4],
-                         const double hhi[4], pentry out[4])
+ * hi[.][c] and its heights in hlo[c], hhi[c]. The entered ones, each with
+ * its rays and their nearest entry, are pushed onto the stack (sp
+ * entries; returns how many after) in PUSH_NEAREST_LAST's order:
+ * farthest first, ties in node order. Each is written once, in its place
+ * (entries built, sorted and copied cost the procedural sphere 4 %). */
+static int packet_push(const pack *p, uint32_t live, const tnode *n, int count, unsigned boxed,
+                       const double lo[3][4], const double hi[3][4], const double hlo[4],
+                       const double hhi[4], pentry *stack, int sp)
 {
-    int nh = 0;
+    uint32_t in[4] = {0};
+    double near[4];
 #if HAS_SLAB_FOUR
     if (boxed && __builtin_cpu_supports("avx2")) {
-        uint32_t in[4];
-        double near[4];
         slab_four(p, live, lo, hi, in, near);
-        for (int c = 0; c < count; c++)
-            if ((boxed >> c & 1u) && in[c])
-                out[nh++] = (pentry){n[c], in[c], near[c], hlo[c], hhi[c]};
-        return nh;
-    }
+    } else
 #endif
-    for (int c = 0; c < count; c++) {
-        if (!(boxed >> c & 1u))
-            continue;
-        const double l[3] = {lo[0][c], lo[1][c], lo[2][c]};
-        const double h[3] = {hi[0][c], hi[1][c], hi[2][c]};
-        double near;
-        const uint32_t in = SLAB_PACK(p, live, l, h, &near);
-        if (in)
-            out[nh++] = (pentry){n[c], in, near, hlo[c], hhi[c]};
+    {
+        for (int c = 0; c < count; c++) {
+            if (!(boxed >> c & 1u))
+                continue;
+            const double l[3] = {lo[0][c], lo[1][c], lo[2][c]};
+            const double h[3] = {hi[0][c], hi[1][c], hi[2][c]};
+            in[c] = SLAB_PACK(p, live, l, h, &near[c]);
+        }
     }
-    return nh;
+    int order[4], nh = 0; /* the entered nodes, farthest first (an insertion sort) */
+    for (int c = 0; c < count; c++) {
+        if (!(boxed >> c & 1u) || !in[c])
+            continue;
+        int m = nh++;
+        for (; m > 0 && near[c] > near[order[m - 1]]; m--)
+            order[m] = order[m - 1];
+        order[m] = c;
+    }
+    for (int k = 0; k < nh && sp < STACK_MAX; k++) {
+        const int c = order[k];
+        stack[sp++] = (pentry){n[c], in[c], near[c], hlo[c], hhi[c]};
+    }
+    return sp;
 }
 
 /* The packed rays' watertight set-ups (the micro-triangle test's:
@@ -3278,9 +3287,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
                 blo[a][k] = lo[a], bhi[a][k] = hi[a];
             boxed |= 1u << k;
         }
-        pentry hitc[4];
-        const int nh = packet_enters(&p, inpack, rs, nr, boxed, blo, bhi, rhlo, rhhi, hitc);
-        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
+        sp = packet_push(&p, inpack, rs, nr, boxed, blo, bhi, rhlo, rhhi, stack, sp);
     }
     while (sp > 0) {
         pentry e = stack[--sp];
@@ -3314,10 +3321,8 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
             const node_boxes *nb = proc_child_boxes_kept(s, t, b, gr, &e, ch, st);
             if (nb) { /* entered where they are kept (both paths through pointers to
                        * the boxes cost the texture sphere 3 %: a texture's stay here) */
-                pentry hitc[4];
-                const int nh = packet_enters(&p, live, ch, 4, nb->boxed, nb->lo, nb->hi, nb->hl,
-                                             nb->hh, hitc);
-                PUSH_NEAREST_LAST(stack, sp, hitc, nh);
+                sp = packet_push(&p, live, ch, 4, nb->boxed, nb->lo, nb->hi, nb->hl, nb->hh,
+                                 stack, sp);
                 continue;
             }
             boxed = proc_child_boxes_avx2(pr, b, gr, &e, &p, live, ch, blo, bhi, chlo, chhi, st);
@@ -3358,9 +3363,7 @@ uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_dra
                 boxed |= 1u << c;
             }
         }
-        pentry hitc[4];
-        const int nh = packet_enters(&p, live, ch, nc, boxed, blo, bhi, chlo, chhi, hitc);
-        PUSH_NEAREST_LAST(stack, sp, hitc, nh);
+        sp = packet_push(&p, live, ch, nc, boxed, blo, bhi, chlo, chhi, stack, sp);
     }
     for (uint32_t m = inpack; m; m &= m - 1) {
         int k = __builtin_ctz(m);
