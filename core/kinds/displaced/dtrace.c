@@ -2362,11 +2362,30 @@ __attribute__((target("avx2"))) static const node_boxes *proc_child_boxes_kept(
 #define HAS_SLAB_FOUR 0
 #endif
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* rays_before for CPUs with AVX-512: the packet's spans in two loads (the
+ * same comparisons), eight lanes each, as spans_after_avx512 writes them. */
+__attribute__((target("avx512f"))) static inline uint32_t rays_before_avx512(const pack *p,
+                                                                             uint32_t mask,
+                                                                             double tnear)
+{
+    const __m512d tv = _mm512_set1_pd(tnear);
+    const uint32_t past = (uint32_t)_mm512_cmp_pd_mask(tv, _mm512_loadu_pd(p->t1), _CMP_GT_OQ) |
+                          (uint32_t)_mm512_cmp_pd_mask(tv, _mm512_loadu_pd(p->t1 + 8), _CMP_GT_OQ) << 8;
+    return mask & ~past;
+}
+#endif
+
 /* The rays of mask whose tmax (p->t1: its cull_limit) a node entered at
  * tnear does not lie beyond. */
 static inline uint32_t rays_before(const pack *p, uint32_t mask, double tnear)
 {
     uint32_t past = 0;
+#if defined(__x86_64__) && defined(__GNUC__)
+    _Static_assert(PK == 16, "two vectors of eight");
+    if (__builtin_cpu_supports("avx512f"))
+        return rays_before_avx512(p, mask, tnear);
+#endif
 #if defined(__SSE2__)
     const __m128d tv = _mm_set1_pd(tnear);
     for (int k = 0; k < PK; k += 2)
@@ -3189,6 +3208,40 @@ __attribute__((target("avx512f"))) static void cell_test16(const cell_tris *ct, 
 #define HAS_CELL8 0
 #endif
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* spans_after for CPUs with AVX-512 (rays->n == PK): the same spans, each
+ * eight lanes written whole, so that rays_before's loads of them find one
+ * write to read from (written lane by lane, the next node's test waited
+ * for them to land). cull_limit's operations lane by lane. */
+__attribute__((target("avx512f"))) static void spans_after_avx512(pack *p, const mr_drays *rays,
+                                                                  uint32_t live, uint32_t ready)
+{
+    for (int h = 0; h < PK; h += 8) {
+        const __m512d tmax = _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmax + h));
+        const __m512d lim = _mm512_add_pd(tmax, _mm512_mul_pd(_mm512_abs_pd(tmax), _mm512_set1_pd(0x1p-20)));
+        const __m512d t1 = _mm512_mask_blend_pd((__mmask8)(ready >> h), _mm512_set1_pd(-INFINITY), lim);
+        _mm512_storeu_pd(p->t1 + h, _mm512_mask_blend_pd((__mmask8)(live >> h), _mm512_loadu_pd(p->t1 + h), t1));
+    }
+}
+#endif
+
+/* After a cell: each of the rays `live` has its span limit p->t1 follow
+ * its tmax (`ready`: the rays tested; any other, whose direction hits
+ * nothing: -inf). */
+static inline void spans_after(pack *p, const mr_drays *rays, uint32_t live, uint32_t ready)
+{
+#if defined(__x86_64__) && defined(__GNUC__)
+    if (rays->n == PK && __builtin_cpu_supports("avx512f")) {
+        spans_after_avx512(p, rays, live, ready);
+        return;
+    }
+#endif
+    for (uint32_t m = live; m; m &= m - 1) {
+        const int k = __builtin_ctz(m);
+        p->t1[k] = ready >> k & 1u ? cull_limit(rays->tmax[k]) : -INFINITY;
+    }
+}
+
 /* The packet's rays `live` against the cell's micro-triangles (cell_test
  * each, or eight at a time); each one's span limit p->t1 follows its tmax
  * (a ray whose direction hits nothing: -inf). */
@@ -3230,10 +3283,7 @@ static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_w
             ready |= 1u << k;
         }
     }
-    for (uint32_t m = live; m; m &= m - 1) {
-        const int k = __builtin_ctz(m);
-        p->t1[k] = ready >> k & 1u ? cull_limit(rays->tmax[k]) : -INFINITY;
-    }
+    spans_after(p, rays, live, ready);
 }
 
 uint32_t mr_dtrace_intersect_packet(const mr_dscene *s, uint32_t t, const mr_drays *rays,
