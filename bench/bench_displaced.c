@@ -17,8 +17,9 @@
  * (pyramid) and its first frame's bounds.
  * Not a test: it prints figures and never fails on a time.
  *
- * usage: bench_displaced [--quick] [--edit] [--size WxH] [--repeats N]
+ * usage: bench_displaced [--quick] [--edit] [--ratios] [--size WxH] [--repeats N]
  *   --edit: only the texture edit's cost
+ *   --ratios: only tf against tess at 640x360
  * (run from the repository root)
  */
 #include <math.h>
@@ -305,12 +306,14 @@ static void edit_cost(void)
 
 int main(int argc, char **argv)
 {
-    bool quick = false, edit_only = false;
+    bool quick = false, edit_only = false, ratios_only = false;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--quick"))
             quick = true;
         else if (!strcmp(argv[i], "--edit"))
             edit_only = true;
+        else if (!strcmp(argv[i], "--ratios"))
+            ratios_only = true;
         else if (!strcmp(argv[i], "--size") && i + 1 < argc)
             sscanf(argv[++i], "%dx%d", &width, &height);
         else if (!strcmp(argv[i], "--repeats") && i + 1 < argc)
@@ -331,19 +334,21 @@ int main(int argc, char **argv)
             mr_device_free(devs[m]);
         return 0;
     }
-    printf("\n## Displaced surfaces (paper 003, Table 6.1 side by side), %dx%d primary rays, "
-           "%u threads, medians of %d interleaved repeats\n\n", width, height,
-           mr_device_threads(dev), repeats);
-    printf("| scene | range | method | trace ms | Mrays/s | coverage %% | depth RMS | holes | MiB | |\n");
-    printf("|---|---|---|---|---|---|---|---|---|---|\n");
     static const int PR[] = {8, 16, 64, 128, 256, 512}, PRQ[] = {8, 64};
     static const int TL[] = {5, 4, 3, 2, 1, 0}, TLQ[] = {3, 0};
     const int *pr = quick ? PRQ : PR, *tl = quick ? TLQ : TL;
     int n = quick ? 2 : 6;
-    table("plane, procedural", "examples/models/plane.obj", CAM_PLANE, true, pr, n, 128);
-    table("sphere, procedural", "examples/models/sphere960.obj", CAM_SPHERE, true, pr, n, 128);
-    table("plane, texture", "examples/models/plane.obj", CAM_PLANE, false, tl, n, 99);
-    table("sphere, texture", "examples/models/sphere960.obj", CAM_SPHERE, false, tl, n, 99);
+    if (!ratios_only) {
+        printf("\n## Displaced surfaces (paper 003, Table 6.1 side by side), %dx%d primary rays, "
+               "%u threads, medians of %d interleaved repeats\n\n", width, height,
+               mr_device_threads(dev), repeats);
+        printf("| scene | range | method | trace ms | Mrays/s | coverage %% | depth RMS | holes | MiB | |\n");
+        printf("|---|---|---|---|---|---|---|---|---|---|\n");
+        table("plane, procedural", "examples/models/plane.obj", CAM_PLANE, true, pr, n, 128);
+        table("sphere, procedural", "examples/models/sphere960.obj", CAM_SPHERE, true, pr, n, 128);
+        table("plane, texture", "examples/models/plane.obj", CAM_PLANE, false, tl, n, 99);
+        table("sphere, texture", "examples/models/sphere960.obj", CAM_SPHERE, false, tl, n, 99);
+    }
     const int small_w = width, small_h = height;
     width = 640;
     height = 360;
@@ -356,7 +361,8 @@ int main(int argc, char **argv)
     ratio_table("sphere, texture", "examples/models/sphere960.obj", CAM_SPHERE, false, tl, n, 99);
     width = small_w;
     height = small_h;
-    edit_cost();
+    if (!ratios_only)
+        edit_cost();
     for (int m = 0; m < 5; m++)
         mr_device_free(devs[m]);
     return 0;
