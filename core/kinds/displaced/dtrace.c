@@ -2982,6 +2982,36 @@ __attribute__((target("avx2"))) static void half_wt_avx2(const mr_drays *rays, p
 }
 #endif
 
+/* What a vector test (cell_test8, cell_test16) of micro-triangle k of a
+ * cell found: lanes `hits` (their distance and barycentrics in tv, uv,
+ * vv) and lanes `edge0` (an edge function exactly 0: the scalar test
+ * again, from the lane's sheared vertices sh[vertex][axis][lane]), each
+ * kept by tri_keep for packet lane o + q, its span tmin[q] .. lim[q], lim
+ * following its tmax. */
+static inline void keep_lanes(const cell_tris *ct, int k, uint32_t hits, uint32_t edge0,
+                              const float *tv, const float *uv, const float *vv,
+                              const float sh[3][3][PK], const float *tmin, float *lim,
+                              const mr_drays *rays, int o, best *bh)
+{
+    const mr_dcell *c = &ct->c;
+    const uint8_t *tr = c->tri[k];
+    for (uint32_t m = hits | edge0; m; m &= m - 1) {
+        const int q = __builtin_ctz(m);
+        mr_wt_hit hit = {tv[q], uv[q], vv[q]};
+        if (edge0 >> q & 1u) {
+            mr_wt_vertex sv[3];
+            for (int e = 0; e < 3; e++)
+                sv[e] = (mr_wt_vertex){sh[e][0][q], sh[e][1][q], sh[e][2][q]};
+            if (!mr_wt_intersect_sheared(&sv[0], &sv[1], &sv[2], tmin[q], lim[q], &hit))
+                continue;
+        }
+        tri_keep(&hit, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
+                 &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, &rays->tmax[o + q],
+                 &bh[o + q]);
+        lim[q] = (float)cull_limit(rays->tmax[o + q]);
+    }
+}
+
 /* The fewest of a half packet's rays at a cell that cell_test8 takes
  * together: a lone ray's scalar test costs less than the eight lanes, two
  * rays' more (with 2 rather than 3, trace 0.97-0.99 on the sphere at 100
@@ -3077,29 +3107,15 @@ __attribute__((target("avx2"))) static void cell_test8(const cell_tris *ct, cons
         const uint32_t hits = (uint32_t)_mm256_movemask_ps(ok) & lanes & ~edge0;
         if (!(hits | edge0))
             continue;
-        float tv[8], uv[8], vv[8];
+        float tv[8], uv[8], vv[8], sh[3][3][PK];
         _mm256_storeu_ps(tv, t);
         _mm256_storeu_ps(uv, _mm256_mul_ps(v, inv));
         _mm256_storeu_ps(vv, _mm256_mul_ps(wv, inv));
-        for (uint32_t m = hits | edge0; m; m &= m - 1) {
-            const int q = __builtin_ctz(m);
-            mr_wt_hit hit = {tv[q], uv[q], vv[q]};
-            if (edge0 >> q & 1u) { /* the scalar test, from this lane's sheared vertices */
-                mr_wt_vertex sv[3];
-                for (int e = 0; e < 3; e++) {
-                    float xs[8], ys[8], zs[8];
-                    _mm256_storeu_ps(xs, X[tr[e]]), _mm256_storeu_ps(ys, Y[tr[e]]);
-                    _mm256_storeu_ps(zs, Z[tr[e]]);
-                    sv[e] = (mr_wt_vertex){xs[q], ys[q], zs[q]};
-                }
-                if (!mr_wt_intersect_sheared(&sv[0], &sv[1], &sv[2], tmin[q], lim[q], &hit))
-                    continue;
-            }
-            tri_keep(&hit, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
-                     &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, &rays->tmax[o + q],
-                     &bh[o + q]);
-            lim[q] = (float)cull_limit(rays->tmax[o + q]);
+        for (int e = 0; edge0 && e < 3; e++) {
+            _mm256_storeu_ps(sh[e][0], X[tr[e]]), _mm256_storeu_ps(sh[e][1], Y[tr[e]]);
+            _mm256_storeu_ps(sh[e][2], Z[tr[e]]);
         }
+        keep_lanes(ct, k, hits, edge0, tv, uv, vv, sh, tmin, lim, rays, o, bh);
     }
 }
 
@@ -3181,28 +3197,15 @@ __attribute__((target("avx512f"))) static void cell_test16(const cell_tris *ct, 
         const uint32_t hits = (uint32_t)ok & lanes & ~edge0;
         if (!(hits | edge0))
             continue;
-        float tv[PK], uv[PK], vv[PK];
+        float tv[PK], uv[PK], vv[PK], sh[3][3][PK];
         _mm512_storeu_ps(tv, t);
         _mm512_storeu_ps(uv, _mm512_mul_ps(v, inv));
         _mm512_storeu_ps(vv, _mm512_mul_ps(wv, inv));
-        for (uint32_t m = hits | edge0; m; m &= m - 1) {
-            const int q = __builtin_ctz(m);
-            mr_wt_hit hit = {tv[q], uv[q], vv[q]};
-            if (edge0 >> q & 1u) { /* the scalar test, from this lane's sheared vertices */
-                mr_wt_vertex sv[3];
-                for (int e = 0; e < 3; e++) {
-                    float xs[PK], ys[PK], zs[PK];
-                    _mm512_storeu_ps(xs, X[tr[e]]), _mm512_storeu_ps(ys, Y[tr[e]]);
-                    _mm512_storeu_ps(zs, Z[tr[e]]);
-                    sv[e] = (mr_wt_vertex){xs[q], ys[q], zs[q]};
-                }
-                if (!mr_wt_intersect_sheared(&sv[0], &sv[1], &sv[2], tmin[q], lim[q], &hit))
-                    continue;
-            }
-            tri_keep(&hit, ct->V[tr[0]], ct->V[tr[1]], ct->V[tr[2]], &c->v[tr[0]], &c->v[tr[1]],
-                     &c->v[tr[2]], (tri_key){ct->j, ct->i, c->half[k], k}, &rays->tmax[q], &bh[q]);
-            lim[q] = (float)cull_limit(rays->tmax[q]);
+        for (int e = 0; edge0 && e < 3; e++) {
+            _mm512_storeu_ps(sh[e][0], X[tr[e]]), _mm512_storeu_ps(sh[e][1], Y[tr[e]]);
+            _mm512_storeu_ps(sh[e][2], Z[tr[e]]);
         }
+        keep_lanes(ct, k, hits, edge0, tv, uv, vv, sh, tmin, lim, rays, 0, bh);
     }
 }
 #define HAS_CELL8 1
