@@ -17,6 +17,10 @@
  * for these small, steep triangles), so the reference, not the traversal,
  * is off there; they are counted and printed.
  *
+ * The tessellation-free frames are rendered a second time with the
+ * hand-written vector paths capped at AVX2 (util/simd.h): on a processor
+ * with AVX-512 the AVX2 paths must give the same frames, bit for bit.
+ *
  * Renders at half the examples' resolution, 1 sample.
  */
 #include <setjmp.h>
@@ -31,9 +35,11 @@
 #include <string.h>
 
 #include "../support/displaced_fixture.h"
+#include "../support/film_fixture.h"
 #include "files.h"
 #include "job_json.h"
 #include "render/camera.h"
+#include "util/simd.h"
 
 #define DEPTH_BOUND 1e-5
 
@@ -106,11 +112,12 @@ static void check_example(const char *name, const char *dir, mr_device *dev)
         if (mr_asset_load(tf->assets[i].path, &assets[i], &err) != MR_OK)
             fail_msg("%s", err.msg);
     mr_renderer *ra = NULL, *rb = NULL;
-    mr_film *fa = NULL, *fb = NULL;
+    mr_film *fa = NULL, *fb = NULL, *fc = NULL;
     if (mr_renderer_new(dev, tf, assets, NULL, &ra, &err) != MR_OK ||
         mr_renderer_new(dev, tess, assets, NULL, &rb, &err) != MR_OK ||
         mr_film_new(tf->output.width, tf->output.height, &fa, &err) != MR_OK ||
-        mr_film_new(tf->output.width, tf->output.height, &fb, &err) != MR_OK)
+        mr_film_new(tf->output.width, tf->output.height, &fb, &err) != MR_OK ||
+        mr_film_new(tf->output.width, tf->output.height, &fc, &err) != MR_OK)
         fail_msg("%s: %s", name, err.msg);
     double worst = 0;
     size_t explained = 0, pixels = 0;
@@ -119,6 +126,17 @@ static void check_example(const char *name, const char *dir, mr_device *dev)
         if (mr_renderer_render(ra, f, fa, &sa, &err) != MR_OK ||
             mr_renderer_render(rb, f, fb, &sb, &err) != MR_OK)
             fail_msg("%s frame %zu: %s", name, f, err.msg);
+        /* the same frame on the AVX2 paths (into a film with the same history) */
+        mr_frame_stats sc;
+        mr_simd_cap_avx2(true);
+        const int capped = mr_renderer_render(ra, f, fc, &sc, &err);
+        mr_simd_cap_avx2(false);
+        if (capped != MR_OK)
+            fail_msg("%s frame %zu, capped at AVX2: %s", name, f, err.msg);
+        char what[160];
+        snprintf(what, sizeof what, "%s frame %zu, AVX2 paths against the processor's widest",
+                 name, f);
+        fx_assert_same_pixels(fa, fc, what);
         mr_compare_result c;
         assert_int_equal(mr_film_compare(fa, fb, sb.scene_diagonal, &c, &err), MR_OK);
         if (c.hit_one || c.holes)
@@ -146,8 +164,10 @@ static void check_example(const char *name, const char *dir, mr_device *dev)
     }
     print_message("%s: %zu frames, %zu pixels: coverage error 0, holes 0, depth error <= %.2e of "
                   "the diagonal; %zu pixels where Embree's triangles leak, confirmed by brute "
-                  "force\n", name, tf->frame_count, pixels, worst, explained);
+                  "force; the AVX2 paths' frames the same as %s\n", name, tf->frame_count, pixels,
+                  worst, explained, mr_simd_avx512() ? "AVX-512's" : "themselves (no AVX-512 here)");
     mr_film_free(fa);
+    mr_film_free(fc);
     mr_film_free(fb);
     mr_renderer_free(ra);
     mr_renderer_free(rb);

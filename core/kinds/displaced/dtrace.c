@@ -14,6 +14,7 @@
 
 #include "kinds/displaced/tiling.h"
 #include "math/affine_arith.h"
+#include "util/simd.h"
 #include "util/thread_block.h"
 
 /* NaN-free minimum and maximum: libm's fmin/fmax are calls (they must
@@ -2242,7 +2243,7 @@ __attribute__((target("avx2"))) static inline void slab_four(const pack *p, uint
                                                               const double hi[3][4], uint32_t in[4],
                                                               double near[4])
 {
-    if (__builtin_cpu_supports("avx512f"))
+    if (mr_simd_avx512())
         slab_four_avx512(p, live, lo, hi, in, near);
     else
         slab_four_avx2(p, live, lo, hi, in, near);
@@ -2386,7 +2387,7 @@ static inline uint32_t rays_before(const pack *p, uint32_t mask, double tnear)
     uint32_t past = 0;
 #if defined(__x86_64__) && defined(__GNUC__)
     _Static_assert(PK == 16, "two vectors of eight");
-    if (__builtin_cpu_supports("avx512f"))
+    if (mr_simd_avx512())
         return rays_before_avx512(p, mask, tnear);
 #endif
 #if defined(__SSE2__)
@@ -3238,7 +3239,7 @@ __attribute__((target("avx512f"))) static void spans_after_avx512(pack *p, const
 static inline void spans_after(pack *p, const mr_drays *rays, uint32_t live, uint32_t ready)
 {
 #if defined(__x86_64__) && defined(__GNUC__)
-    if (rays->n == PK && __builtin_cpu_supports("avx512f")) {
+    if (rays->n == PK && mr_simd_avx512()) {
         spans_after_avx512(p, rays, live, ready);
         return;
     }
@@ -3257,7 +3258,7 @@ static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_w
 {
     uint32_t ready = 0, rest = live;
 #if HAS_CELL8
-    if (mr_popcount32(live) >= CELL8_MIN && rays->n == PK && __builtin_cpu_supports("avx512f")) {
+    if (mr_popcount32(live) >= CELL8_MIN && rays->n == PK && mr_simd_avx512()) {
         for (int h = 0; h < PK / 8; h++)
             if (live >> 8 * h & ~(w->made >> 8 * h) & 0xffu)
                 half_wt_avx2(rays, w, h);
