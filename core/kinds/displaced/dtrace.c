@@ -2584,8 +2584,90 @@ __attribute__((target("avx2"))) static uint32_t pack_enter_avx2(const mr_dgrad *
     *packed = in;
     return near;
 }
+
+/* pack_enter_avx2 eight lanes at a time, for CPUs with AVX-512 (rays->n a
+ * multiple of eight): local_quad_avx2's, the spans' and slab_quad_avx2's
+ * operations lane by lane (a lane parallel to an axis takes no division,
+ * and holds 0 there as the AVX2 code's mask leaves it), so the same lanes
+ * and numbers. */
+__attribute__((target("avx512f"))) static uint32_t pack_enter_avx512(const mr_dgrad *gr,
+                                                                     const mr_dbase *b,
+                                                                     const mr_drays *rays,
+                                                                     uint32_t lanes, pack *p,
+                                                                     uint32_t *packed)
+{
+    const __m512d inf = _mm512_set1_pd(INFINITY), ninf = _mm512_set1_pd(-INFINITY);
+    const __m512d zero = _mm512_setzero_pd();
+    uint32_t in = 0, near = 0;
+    for (int k = 0; k < PK; k += 8) {
+        const __mmask8 lq = (__mmask8)(lanes >> k);
+        if (!lq) {
+            for (int a = 0; a < 3; a++) {
+                _mm512_storeu_pd(p->o[a] + k, zero), _mm512_storeu_pd(p->inv[a] + k, zero);
+                if (a < 2)
+                    _mm512_storeu_pd(p->d[a] + k, zero);
+            }
+            _mm512_storeu_pd(p->t0 + k, inf), _mm512_storeu_pd(p->t1 + k, ninf);
+            continue;
+        }
+        /* local_ray */
+        __m512d od[3], d[3];
+        for (int c = 0; c < 3; c++) {
+            od[c] = _mm512_sub_pd(_mm512_cvtps_pd(_mm256_loadu_ps(rays->o[c] + k)),
+                                  _mm512_set1_pd(gr->P0[c]));
+            d[c] = _mm512_cvtps_pd(_mm256_loadu_ps(rays->d[c] + k));
+        }
+        __mmask8 par = 0;
+        for (int a = 0; a < 3; a++) {
+            const __m512d i0 = _mm512_set1_pd(gr->inv[a][0]), i1 = _mm512_set1_pd(gr->inv[a][1]);
+            const __m512d i2 = _mm512_set1_pd(gr->inv[a][2]);
+            __m512d lo = _mm512_add_pd(_mm512_mul_pd(i0, od[0]), _mm512_mul_pd(i1, od[1]));
+            __m512d ld = _mm512_add_pd(_mm512_mul_pd(i0, d[0]), _mm512_mul_pd(i1, d[1]));
+            lo = _mm512_add_pd(lo, _mm512_mul_pd(i2, od[2]));
+            ld = _mm512_add_pd(ld, _mm512_mul_pd(i2, d[2]));
+            if (a < 2)
+                lo = _mm512_add_pd(lo, _mm512_set1_pd(b->g[0][a]));
+            const __mmask8 z = _mm512_cmp_pd_mask(ld, zero, _CMP_EQ_OQ);
+            par |= z;
+            _mm512_storeu_pd(p->o[a] + k, lo);
+            _mm512_storeu_pd(p->inv[a] + k, _mm512_maskz_div_pd((__mmask8)~z, _mm512_set1_pd(1.0), ld));
+            if (a < 2)
+                _mm512_storeu_pd(p->d[a] + k, ld);
+        }
+        const __mmask8 iq = (__mmask8)(~par & lq);
+        /* the spans: [tmin, cull_limit(tmax)] */
+        const __m512d tmax = _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmax + k));
+        const __m512d lim = _mm512_add_pd(tmax, _mm512_mul_pd(_mm512_abs_pd(tmax), _mm512_set1_pd(0x1p-20)));
+        __m512d t0 = _mm512_mask_blend_pd(iq, inf, _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmin + k)));
+        const __m512d t1 = _mm512_mask_blend_pd(iq, ninf, lim);
+        _mm512_storeu_pd(p->t0 + k, t0), _mm512_storeu_pd(p->t1 + k, t1);
+        /* T's box */
+        __mmask8 nq = 0;
+        if (iq) {
+            __m512d u1 = t1;
+            for (int a = 0; a < 3; a++) {
+                const __m512d o = _mm512_loadu_pd(p->o[a] + k), inv = _mm512_loadu_pd(p->inv[a] + k);
+                const __m512d nn = _mm512_mul_pd(_mm512_sub_pd(_mm512_set1_pd(gr->tlo[a]), o), inv);
+                const __m512d ff = _mm512_mul_pd(_mm512_sub_pd(_mm512_set1_pd(gr->thi[a]), o), inv);
+                const __m512d n = _mm512_min_pd(ff, nn);
+                const __m512d far = _mm512_mul_pd(_mm512_max_pd(nn, ff), _mm512_set1_pd(1 + 4 * DBL_EPSILON));
+                t0 = _mm512_max_pd(n, t0);
+                u1 = _mm512_min_pd(far, u1);
+            }
+            nq = (__mmask8)(~_mm512_cmp_pd_mask(t0, u1, _CMP_GT_OQ) & iq);
+            _mm512_storeu_pd(p->s0 + k, t0), _mm512_storeu_pd(p->s1 + k, u1);
+            /* the packed lanes that miss T's box: an empty span */
+            _mm512_storeu_pd(p->t1 + k, _mm512_mask_blend_pd((__mmask8)(iq & ~nq), t1, ninf));
+        }
+        in |= (uint32_t)iq << k, near |= (uint32_t)nq << k;
+    }
+    *packed = in;
+    return near;
+}
 #define PACK_ENTER(gr, b, rays, lanes, p, packed)                                                 \
-    (__builtin_cpu_supports("avx2") && rays->n % 4 == 0                                           \
+    (mr_simd_avx512() && rays->n % 8 == 0                                                         \
+         ? pack_enter_avx512(gr, b, rays, lanes, p, packed)                                       \
+     : __builtin_cpu_supports("avx2") && rays->n % 4 == 0                                         \
          ? pack_enter_avx2(gr, b, rays, lanes, p, packed)                                         \
          : pack_enter(gr, b, rays, lanes, p, packed))
 #else
@@ -2660,6 +2742,7 @@ __attribute__((target("avx2"))) static uint32_t tri_lanes_avx2(const mr_dgrad *g
     }
     return in;
 }
+
 #define TRI_LANES(gr, p, live)                                                                    \
     (__builtin_cpu_supports("avx2") ? tri_lanes_avx2(gr, p, live) : tri_lanes(gr, p, live))
 #else
