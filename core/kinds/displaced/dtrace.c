@@ -807,6 +807,16 @@ static inline double cull_limit(float tmax)
     return (double)tmax + fabs((double)tmax) * 0x1p-20;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+/* cull_limit of eight floats at once (AVX-512): its operations lane by
+ * lane. */
+__attribute__((target("avx512f"))) static inline __m512d cull_limit8(__m256 tmax)
+{
+    const __m512d t = _mm512_cvtps_pd(tmax);
+    return _mm512_add_pd(t, _mm512_mul_pd(_mm512_abs_pd(t), _mm512_set1_pd(0x1p-20)));
+}
+#endif
+
 /* Which micro-triangle of T: its cell (i, j), cell half and place in the
  * cell's list (flat triangles: its place in the boundary fan). */
 typedef struct tri_key {
@@ -2384,12 +2394,12 @@ __attribute__((target("avx512f"))) static inline uint32_t rays_before_avx512(con
  * tnear does not lie beyond. */
 static inline uint32_t rays_before(const pack *p, uint32_t mask, double tnear)
 {
-    uint32_t past = 0;
 #if defined(__x86_64__) && defined(__GNUC__)
     _Static_assert(PK == 16, "two vectors of eight");
     if (mr_simd_avx512())
         return rays_before_avx512(p, mask, tnear);
 #endif
+    uint32_t past = 0;
 #if defined(__SSE2__)
     const __m128d tv = _mm_set1_pd(tnear);
     for (int k = 0; k < PK; k += 2)
@@ -2636,8 +2646,7 @@ __attribute__((target("avx512f"))) static uint32_t pack_enter_avx512(const mr_dg
         }
         const __mmask8 iq = (__mmask8)(~par & lq);
         /* the spans: [tmin, cull_limit(tmax)] */
-        const __m512d tmax = _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmax + k));
-        const __m512d lim = _mm512_add_pd(tmax, _mm512_mul_pd(_mm512_abs_pd(tmax), _mm512_set1_pd(0x1p-20)));
+        const __m512d lim = cull_limit8(_mm256_loadu_ps(rays->tmax + k));
         __m512d t0 = _mm512_mask_blend_pd(iq, inf, _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmin + k)));
         const __m512d t1 = _mm512_mask_blend_pd(iq, ninf, lim);
         _mm512_storeu_pd(p->t0 + k, t0), _mm512_storeu_pd(p->t1 + k, t1);
@@ -3308,8 +3317,7 @@ __attribute__((target("avx512f"))) static void spans_after_avx512(pack *p, const
                                                                   uint32_t live, uint32_t ready)
 {
     for (int h = 0; h < PK; h += 8) {
-        const __m512d tmax = _mm512_cvtps_pd(_mm256_loadu_ps(rays->tmax + h));
-        const __m512d lim = _mm512_add_pd(tmax, _mm512_mul_pd(_mm512_abs_pd(tmax), _mm512_set1_pd(0x1p-20)));
+        const __m512d lim = cull_limit8(_mm256_loadu_ps(rays->tmax + h));
         const __m512d t1 = _mm512_mask_blend_pd((__mmask8)(ready >> h), _mm512_set1_pd(-INFINITY), lim);
         _mm512_storeu_pd(p->t1 + h, _mm512_mask_blend_pd((__mmask8)(live >> h), _mm512_loadu_pd(p->t1 + h), t1));
     }
@@ -3334,8 +3342,8 @@ static inline void spans_after(pack *p, const mr_drays *rays, uint32_t live, uin
 }
 
 /* The packet's rays `live` against the cell's micro-triangles (cell_test
- * each, or eight at a time); each one's span limit p->t1 follows its tmax
- * (a ray whose direction hits nothing: -inf). */
+ * each, eight at a time, or the packet's sixteen at once); each one's span
+ * limit p->t1 follows its tmax (spans_after). */
 static void cell_rays(const cell_tris *ct, const mr_drays *rays, pack *p, pack_wt *w, uint32_t live,
                       best *bh, mr_dstats *st)
 {
