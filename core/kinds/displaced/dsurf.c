@@ -120,12 +120,15 @@ typedef struct line {
     bool keep_ge; /* keep the side where the coordinate is >= value */
 } line;
 
+/* A grid point's x and y are its (double)a and (double)b (every maker
+ * sets them so); its diagonal coordinate is a + b rounded once. */
 static inline double coord(const mr_dvert *v, uint8_t fam)
 {
-    if (v->kind == MR_DV_GRID)
-        return fam == MR_DLINE_X ? (double)v->a : fam == MR_DLINE_Y ? (double)v->b
-                                                                     : (double)(v->a + v->b);
-    return fam == MR_DLINE_X ? v->x : fam == MR_DLINE_Y ? v->y : v->x + v->y;
+    if (fam == MR_DLINE_X)
+        return v->x;
+    if (fam == MR_DLINE_Y)
+        return v->y;
+    return v->kind == MR_DV_GRID ? (double)(v->a + v->b) : v->x + v->y;
 }
 
 /* +1 inside, 0 on the line, -1 outside. */
@@ -500,19 +503,21 @@ static void fan_halves(const mr_dbase *b, pool *pl, const poly *a, line lines[5]
     }
 }
 
-/* fan_halves for edge_piece's polygon a of a CELL_EDGE cell (its pool pl:
- * the square's corners, then the two crossings of edge e), the same cell
- * without cutting: no side of the square crosses the diagonal (each lies
- * on one side of it, touching it at most at a corner), so each half is a
- * run of a's vertices, with the crossing of e and the diagonal where the
- * stretch along e passes from one side to the other. That crossing is
- * made once for both halves; vertices are told apart by their place in
- * the pool (no two of its records are the same vertex) instead of by
- * comparing records. The same vertices in the same order, the same
- * triangles (test_cells_are_their_cuts); the texture sphere's trace 0.97-
- * 0.98 of the time with cutting (docs/performance.md, stop 63). */
-static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, const line lines[5],
-                            int half, mr_dcell *out)
+/* fan_halves for a piece a of T that mr_dsurf_cell made (edge_piece's or
+ * cut_piece's, its pool pl), without cutting: each half is a run of a's
+ * vertices, with a crossing of the diagonal where an edge of a passes from
+ * one side to the other (a convex piece: at most two). Each crossing is
+ * made once for both halves, from the tag of the edge it is on, as `cut`
+ * makes it (a side of the square never crosses the diagonal: it touches
+ * it at most at a corner); vertices are then told apart by their place in
+ * the pool (no two of its records are the same vertex; a crossing that is
+ * the same record as an earlier one, which only a degenerate piece could
+ * make, takes its place) instead of by comparing records. The same
+ * vertices in the same order, the same triangles (test_cells_are_their_cuts);
+ * the texture sphere's trace 0.97-0.98 of the time with cutting for the
+ * edge pieces (docs/performance.md, stop 63). */
+static void fan_piece_halves(const mr_dbase *b, pool *pl, const poly *a, const line lines[5], int half,
+                             mr_dcell *out)
 {
     out->nv = out->nt = 0;
     if (!a->n)
@@ -520,13 +525,15 @@ static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, c
     const line *d = &lines[4];
     const double dv = (double)d->value;
     int sd[MR_DSURF_MAX_POLY]; /* each vertex's side of the diagonal: the upper half's */
+    int xd[MR_DSURF_MAX_POLY]; /* the crossing on a's edge into vertex m: its place in the pool, once made */
     for (int m = 0; m < a->n; m++) {
         const double c = coord(&pl->v[a->v[m]], MR_DLINE_D);
         sd[m] = c > dv ? 1 : c < dv ? -1 : 0;
+        xd[m] = -1;
     }
-    int xd = -1;   /* the crossing's place in the pool, once made */
-    int at[POOL_MAX]; /* a pool vertex's index in out, or -1 (the pool's and the crossing's) */
-    for (int k = 0; k <= pl->n; k++)
+    const int first_cross = pl->n;
+    int at[POOL_MAX]; /* a pool vertex's index in out, or -1 (the pool's and the crossings') */
+    for (int k = 0; k < pl->n + a->n && k < POOL_MAX; k++)
         at[k] = -1;
     for (int hf = 0; hf < 2; hf++) {
         if (half != 2 && half != hf)
@@ -537,11 +544,17 @@ static void fan_edge_halves(const mr_dbase *b, pool *pl, const poly *a, int e, c
         for (int m = 0; m < a->n; m++) {
             const int sq = sign * sd[m];
             if ((sp < 0 && sq > 0) || (sp > 0 && sq < 0)) {
-                if (xd < 0) {
-                    pl->v[pl->n] = edge_cross(b, e, d);
-                    xd = pl->n++;
+                if (xd[m] < 0) {
+                    const int pm = m ? m - 1 : a->n - 1;
+                    const int x = add_cross(b, pl, a->tag[pm], lines, d);
+                    xd[m] = x;
+                    for (int k = first_cross; k < x; k++)
+                        if (same_vert(&pl->v[k], &pl->v[x])) {
+                            xd[m] = k;
+                            break;
+                        }
                 }
-                c.v[c.n++] = (uint8_t)xd;
+                c.v[c.n++] = (uint8_t)xd[m];
             }
             if (sq >= 0)
                 c.v[c.n++] = a->v[m];
@@ -576,13 +589,11 @@ void mr_dsurf_cell(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *
     cell_lines(i, j, lines);
     pool pl;
     poly a;
-    if (how == CELL_EDGE) {
+    if (how == CELL_EDGE)
         edge_piece(b, i, j, e, inside, lines, &pl, &a);
-        fan_edge_halves(b, &pl, &a, e, lines, half, out);
-        return;
-    }
-    cut_piece(b, lines, &pl, &a);
-    fan_halves(b, &pl, &a, lines, half, out);
+    else
+        cut_piece(b, lines, &pl, &a);
+    fan_piece_halves(b, &pl, &a, lines, half, out);
 }
 
 void mr_dsurf_cell_cut(const mr_dbase *b, int64_t i, int64_t j, int half, mr_dcell *out)
