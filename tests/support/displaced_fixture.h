@@ -27,6 +27,7 @@
 #include "kinds/kind.h"
 #include "math/watertight.h"
 #include "render/device.h"
+#include "util/simd.h"
 #include "rng_fixture.h"
 
 /* A one-mesh asset with texture coordinates (uvs: 2 per vertex). */
@@ -257,10 +258,10 @@ static inline void dfx_packet_rays(mr_vec3 o, const mr_vec3 d[8], float tmin, fl
  * kind's callback the packet, whose rays the kind traverses together,
  * dtrace.h): lane 0 the ray itself, lane 1 the same ray again, lanes 2..7
  * rays from the same origin turned slightly (1e-2 .. 1e-6 of the
- * direction), as a camera's neighbouring pixels are. Each lane must get
- * what it gets alone: hit or miss, t, normal and (u, v) bit for bit, and
- * the same verdict as an occlusion packet (rtcOccluded8). Returns how many
- * lanes differ. */
+ * direction), as a camera's neighbouring pixels are; and inside a packet
+ * of 16. Each lane must get what it gets alone: hit or miss, t, normal and
+ * (u, v) bit for bit, and the same verdict as an occlusion packet
+ * (rtcOccluded8). Returns how many lanes differ. */
 static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmin, float tmax)
 {
     static const float TURN[8][3] = {{0, 0, 0},         {0, 0, 0},          {1e-2f, 0, 0},
@@ -279,11 +280,52 @@ static inline int dfx_packet_check(const dfx *f, mr_vec3 o, mr_vec3 d, float tmi
     struct RTCRay8 occ = rh.ray; /* the same rays as an occlusion packet */
     rtcIntersect8(valid, f->scene, &ic, &rh);
     rtcOccluded8(valid, f->scene, &ic, &occ);
+    /* The same rays in a packet of 16 (rtcIntersect16, as the renderer
+     * traces: the kind's widest paths, cell_test16 and the other AVX-512
+     * ones where the CPU has it), lanes 8..15 the eight again with every
+     * other one invalid (a NaN direction the kind must not read), on the
+     * CPU's paths and again capped at AVX2 (mr_simd_cap_avx2). */
+    RTC_ALIGN(64) int valid16[16];
+    struct RTCRayHit16 r16[2];
+    memset(r16, 0, sizeof r16);
+    for (int k = 0; k < 16; k++) {
+        const mr_vec3 dd = dk[k & 7];
+        valid16[k] = k < 8 || (k & 1) ? -1 : 0;
+        r16[0].ray.org_x[k] = o.x, r16[0].ray.org_y[k] = o.y, r16[0].ray.org_z[k] = o.z;
+        r16[0].ray.dir_x[k] = valid16[k] ? dd.x : NAN;
+        r16[0].ray.dir_y[k] = dd.y, r16[0].ray.dir_z[k] = dd.z;
+        r16[0].ray.tnear[k] = tmin;
+        r16[0].ray.tfar[k] = tmax;
+        r16[0].ray.mask[k] = 0xffffffffu;
+        r16[0].hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+    }
+    r16[1] = r16[0];
+    for (int cap = 0; cap < 2; cap++) {
+        mr_simd_cap_avx2(cap == 1);
+        rtcIntersect16(valid16, f->scene, &ic, &r16[cap]);
+    }
+    mr_simd_cap_avx2(false);
     int bad = 0;
     for (int k = 0; k < 8; k++) {
         float t, uv[2] = {0, 0};
         mr_vec3 ng = mr_v3(0, 0, 0);
         bool h = dfx_trace_uv(f, o, dk[k], tmin, tmax, &t, &ng, uv);
+        for (int q = 0; q < 4; q++) { /* lane k and k + 8, each way */
+            const int lane = k + 8 * (q & 1);
+            const struct RTCRayHit16 *r = &r16[q >> 1];
+            if (!valid16[lane])
+                continue;
+            const bool hq = r->hit.geomID[lane] != RTC_INVALID_GEOMETRY_ID;
+            const mr_vec3 ngq = mr_v3(r->hit.Ng_x[lane], r->hit.Ng_y[lane], r->hit.Ng_z[lane]);
+            const float uvq[2] = {r->hit.u[lane], r->hit.v[lane]};
+            if (h == hq && (!h || (t == r->ray.tfar[lane] && !memcmp(&ng, &ngq, sizeof ng) &&
+                                   !memcmp(uv, uvq, sizeof uv))))
+                continue;
+            print_error("16-packet lane %d%s: alone %s t %.9g, in the packet %s t %.9g\n", lane,
+                        q >> 1 ? " (AVX2)" : "", h ? "hit" : "miss", t, hq ? "hit" : "miss",
+                        r->ray.tfar[lane]);
+            bad++;
+        }
         bool hp = rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
         mr_vec3 ngp = mr_v3(rh.hit.Ng_x[k], rh.hit.Ng_y[k], rh.hit.Ng_z[k]);
         const float uvp[2] = {rh.hit.u[k], rh.hit.v[k]};
