@@ -218,13 +218,22 @@ static enum MHD_Result job_estimate(req *r, struct MHD_Connection *c, const mr_j
     return http_send_built(r, c, MHD_HTTP_OK, doc, ok);
 }
 
-/* dry_run: absent, "0"/"false" (no), "1"/"true" (yes); anything else -1. */
+/* dry_run: absent, "0"/"false" (no), "1"/"true" (yes); anything else -1,
+ * a bare `?dry_run` and an empty value included (libmicrohttpd gives the
+ * bare key a NULL value, which MHD_lookup_connection_value cannot tell
+ * from an absent one: read that way, `?dry_run` queued the job). */
 static int dry_run_arg(struct MHD_Connection *c)
 {
-    const char *v = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "dry_run");
-    if (!v || !strcmp(v, "0") || !strcmp(v, "false"))
+    static const char key[] = "dry_run";
+    const char *v = NULL;
+    size_t n = 0;
+    if (MHD_lookup_connection_value_n(c, MHD_GET_ARGUMENT_KIND, key, sizeof key - 1, &v, &n) != MHD_YES)
         return 0;
-    if (!strcmp(v, "1") || !strcmp(v, "true") || !v[0])
+    if (!v)
+        return -1;
+    if (!strcmp(v, "0") || !strcmp(v, "false"))
+        return 0;
+    if (!strcmp(v, "1") || !strcmp(v, "true"))
         return 1;
     return -1;
 }
