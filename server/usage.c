@@ -21,7 +21,7 @@ static const mr_usage_flag RENDER_FLAGS[] = {
 };
 
 static const mr_usage_flag COMPARE_FLAGS[] = {
-    {"--diagonal", "D", "the scene's bounding diagonal, the unit of depth errors (default: from A's header)"},
+    {"--diagonal", "D", "the scene's bounding diagonal, the unit of depth errors (default: from B's header, the reference's, else A's, else 1)"},
 };
 
 static const mr_usage_flag SERVE_FLAGS[] = {
