@@ -200,7 +200,7 @@ UNITDIR ?= $(PREFIX)/lib/systemd/system
 
 install: $(BUILD)/microrayd $(BUILD)/microray $(MAN_PAGES) $(COMPLETION)
 	install -d $(DESTDIR)$(BINDIR) $(DESTDIR)$(MANDIR) $(DESTDIR)$(COMPDIR) $(DESTDIR)$(UNITDIR) \
-	           $(DESTDIR)$(DATADIR)/examples
+	           $(DESTDIR)$(DATADIR)/examples $(DESTDIR)$(DATADIR)/examples/models
 	install -m 755 $(BUILD)/microrayd $(BUILD)/microray $(DESTDIR)$(BINDIR)/
 	install -m 644 $(MAN_PAGES) $(DESTDIR)$(MANDIR)/
 	install -m 644 $(COMPLETION) $(DESTDIR)$(COMPDIR)/
@@ -209,6 +209,7 @@ install: $(BUILD)/microrayd $(BUILD)/microray $(MAN_PAGES) $(COMPLETION)
 	chmod 644 $(DESTDIR)$(UNITDIR)/microrayd.service
 	install -m 644 packaging/microrayd.default $(DESTDIR)$(DATADIR)/microrayd.default
 	install -m 644 examples/*.json $(DESTDIR)$(DATADIR)/examples/
+	install -m 644 examples/models/*.obj $(DESTDIR)$(DATADIR)/examples/models/
 
 uninstall:
 	rm -f $(DESTDIR)$(BINDIR)/microrayd $(DESTDIR)$(BINDIR)/microray \

@@ -219,6 +219,15 @@ static void test_make_install(void **state)
     snprintf(cmd, sizeof cmd, "'%s/usr/bin/microrayd' version && '%s/usr/bin/microray' --version", dest, dest);
     assert_int_equal(fx_run(cmd, &out), 0);
     free(out);
+    /* an installed example that names a model beside it (models/...,
+     * relative to the job) finds it */
+    snprintf(cmd, sizeof cmd,
+             "'%s/usr/bin/microrayd' render --prepare '%s/usr/share/microray/examples/displaced-sphere.json' "
+             "--out '%s/installed-out' --cache '%s/installed-cache' --quiet 2>&1",
+             dest, dest, fx_tmp, fx_tmp);
+    if (fx_run(cmd, &out) != 0)
+        fail_msg("the installed displaced-sphere.json: %s", out);
+    free(out);
     /* the unit: sandboxed, the installed binary, and systemd finds nothing
      * wrong with it (its ExecStart pointed into the DESTDIR for the check) */
     char unit[1200];
