@@ -872,51 +872,78 @@ int mrc_cluster_main(int argc, char **argv, bool quiet)
     if (argc < 1)
         return usage();
     const char *cmd = argv[0];
+    /* the options of this cluster command's row of the usage table, read
+     * as every command reads them (client/main.c): "--name VALUE" or
+     * "--name=VALUE"; after "--" everything is positional */
+    char name[64];
+    snprintf(name, sizeof name, "cluster %s", cmd);
+    const mr_usage_command *uc = mrc_usage_find(name);
+    if (!uc) {
+        fprintf(stderr, "microray: unknown cluster command '%s'\n", cmd);
+        return usage();
+    }
     submit_opts so = {.chunk = 0};
-    bool slurm = false, json = false;
+    bool slurm = false, json = false, options_done = false;
     const char *dir = NULL;
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        bool takes = true;
-        if (!strcmp(a, "--slurm")) {
-            slurm = true;
-            takes = false;
-        } else if (!strcmp(a, "--json")) {
-            json = true;
-            takes = false;
-        } else if (a[0] == '-' && !v) {
-            fprintf(stderr, "microray: %s needs a value\n", a);
-            return usage();
-        } else if (!strcmp(a, "--out")) {
-            so.out = v;
-        } else if (!strcmp(a, "--chunk")) {
-            if (!parse_long(v, 1, 1 << 30, &so.chunk)) {
-                fprintf(stderr, "microray: --chunk wants a positive number of frames\n");
-                return usage();
-            }
-        } else if (!strcmp(a, "--threads")) {
-            if (!parse_long(v, 1, 256, &so.threads)) {
-                fprintf(stderr, "microray: --threads wants 1..256\n");
-                return usage();
-            }
-        } else if (!strcmp(a, "--partition")) {
-            so.partition = v;
-        } else if (!strcmp(a, "--time")) {
-            so.time_limit = v;
-        } else if (!strcmp(a, "--microrayd")) {
-            so.microrayd = v;
-        } else if (a[0] == '-') {
-            fprintf(stderr, "microray: unknown option '%s' for cluster %s\n", a, cmd);
-            return usage();
-        } else {
-            takes = false;
+        const char *a = argv[i];
+        if (!options_done && !strcmp(a, "--")) {
+            options_done = true;
+            continue;
+        }
+        if (options_done || a[0] != '-' || !a[1]) {
             if (dir) {
                 fprintf(stderr, "microray: unexpected argument '%s'\n", a);
                 return usage();
             }
             dir = a;
+            continue;
         }
-        i += takes;
+        const char *eq = strchr(a, '=');
+        char opt[64];
+        snprintf(opt, sizeof opt, "%.*s", (int)(eq ? (size_t)(eq - a) : strlen(a)), a);
+        const mr_usage_flag *f = mrc_usage_flag_find(uc, opt);
+        if (!f) {
+            fprintf(stderr, "microray: unknown option '%s' for cluster %s\n", a, cmd);
+            return usage();
+        }
+        const char *v = NULL;
+        if (!f->arg) {
+            if (eq) {
+                fprintf(stderr, "microray: option '%s' takes no value\n", a);
+                return usage();
+            }
+        } else if (eq) {
+            v = eq + 1;
+        } else if (i + 1 < argc) {
+            v = argv[++i];
+        } else {
+            fprintf(stderr, "microray: option '%s' needs a value\n", a);
+            return usage();
+        }
+        if (!strcmp(opt, "--slurm")) {
+            slurm = true;
+        } else if (!strcmp(opt, "--json")) {
+            json = true;
+        } else if (!strcmp(opt, "--out")) {
+            so.out = v;
+        } else if (!strcmp(opt, "--chunk")) {
+            if (!parse_long(v, 1, 1 << 30, &so.chunk)) {
+                fprintf(stderr, "microray: --chunk wants a positive number of frames\n");
+                return usage();
+            }
+        } else if (!strcmp(opt, "--threads")) {
+            if (!parse_long(v, 1, 256, &so.threads)) {
+                fprintf(stderr, "microray: --threads wants 1..256\n");
+                return usage();
+            }
+        } else if (!strcmp(opt, "--partition")) {
+            so.partition = v;
+        } else if (!strcmp(opt, "--time")) {
+            so.time_limit = v;
+        } else if (!strcmp(opt, "--microrayd")) {
+            so.microrayd = v;
+        }
     }
     mrc_error err = {0};
     int rc;
@@ -943,8 +970,10 @@ int mrc_cluster_main(int argc, char **argv, bool quiet)
             }
         }
     } else if (!strcmp(cmd, "status") || !strcmp(cmd, "wait")) {
-        if (!dir || slurm || so.out || so.chunk)
+        if (!dir) {
+            fprintf(stderr, "microray: cluster %s needs the job's --out DIR\n", cmd);
             return usage();
+        }
         cluster_state s;
         rc = state_load(dir, &s, &err);
         if (rc == 0 && !strcmp(cmd, "status")) {

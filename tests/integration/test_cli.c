@@ -105,7 +105,7 @@ static void test_help_lists_every_flag(void **state)
     source_flags("client/usage.c", cflags, sizeof cflags);
     source_flags("client/main.c", cflags, sizeof cflags);
     /* cluster.c passes flags to Slurm too: only those it compares with */
-    source_flags_after("client/cluster.c", "strcmp(a, ", cflags, sizeof cflags);
+    source_flags_after("client/cluster.c", "strcmp(opt, ", cflags, sizeof cflags);
     assert_non_null(strstr(cflags, "--partition"));
     flags_in(cflags, all, "microray --help");
     static const char *const ccommands[] = {"submit", "status", "list", "wait", "fetch", "cancel", "retry",
@@ -384,6 +384,41 @@ static int setup(void **state)
     return 0;
 }
 
+/* The cluster commands read their options as every command does
+ * (docs/client.md): "--name=VALUE" as "--name VALUE", "--" ends the
+ * options, and an option of another command is refused. Each line stops
+ * at a usage error (exit 2) that shows how far the parser got, before
+ * anything reaches Slurm. */
+static void test_cluster_options(void **state)
+{
+    (void)state;
+    static const struct {
+        const char *args, *says;
+    } cases[] = {
+        /* --chunk=0 read as --chunk with the value 0 */
+        {"cluster submit --slurm job.json --out=/nonexistent --chunk=0", "--chunk wants a positive number"},
+        {"cluster submit --slurm --threads=300 job.json", "--threads wants 1..256"},
+        {"cluster submit --slurm=yes job.json", "takes no value"},
+        {"cluster submit --slurm job.json --out", "needs a value"},
+        /* after --, a name starting with - is the job, and a second one too many */
+        {"cluster submit --slurm --chunk 2 -- -job.json --out", "unexpected argument '--out'"},
+        {"cluster status --threads 2 /nonexistent", "unknown option '--threads' for cluster status"},
+        {"cluster wait", "needs the job's --out DIR"},
+        {"cluster nosuch", "unknown cluster command 'nosuch'"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+        char cmd[3000], err[700];
+        snprintf(err, sizeof err, "%s/cluster.err", fx_tmp);
+        snprintf(cmd, sizeof cmd, "'%s/microray' %s 2>'%s'", fx_build_dir, cases[i].args, err);
+        const int st = fx_run(cmd, NULL);
+        char *said = fx_slurp(err, NULL);
+        if (st != 2 || !said || !strstr(said, cases[i].says))
+            fail_msg("microray %s: exit %d, '%s' (wanted 2 and '%s')", cases[i].args, st, said ? said : "",
+                     cases[i].says);
+        free(said);
+    }
+}
+
 static int teardown(void **state)
 {
     (void)state;
@@ -399,6 +434,7 @@ int main(void)
         cmocka_unit_test(test_help_lists_every_flag),
         cmocka_unit_test(test_man_pages_and_completion),
         cmocka_unit_test(test_make_install),
+        cmocka_unit_test(test_cluster_options),
         cmocka_unit_test(test_client_json),
         cmocka_unit_test(test_interrupt_says_how_to_resume),
     };
