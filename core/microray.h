@@ -1029,6 +1029,9 @@ const mr_param_table *mr_kind_params(const mr_kind *kind);
 /* Whether the kind keeps derived data (bakes, voxelisations) in
  * <cache root>/<its name>/. */
 bool mr_kind_keeps_derived(const mr_kind *kind);
+/* Whether an object of the kind may have a "pose" (a simulated kind moves
+ * by itself and takes none). */
+bool mr_kind_takes_pose(const mr_kind *kind);
 size_t mr_kind_stat_count(const mr_kind *kind);
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i);
 

@@ -729,7 +729,11 @@ static int parse_object(mr_json_ctx *c, const cJSON *v, mr_job *job, size_t inde
     o->color = mr_v3(0.8f, 0.8f, 0.8f);
     if (color)
         GO_ON_AT_KEY(c, "color", json_get_vec3(c, color, &SPEC_COLOR, &o->color));
-    if (pose)
+    if (pose && kind_ok && !mr_kind_takes_pose(o->kind))
+        GO_ON_AT_KEY(c, "pose",
+                     json_fail(c, MR_ERR_INVALID, "expected no pose: a \"%s\" object moves by itself",
+                               mr_kind_name(o->kind)));
+    else if (pose)
         GO_ON_AT_KEY(c, "pose", parse_object_pose(c, pose, o, job->frame_count));
     o->reference = job->reference; /* parsed before "objects" */
     if (reference)

@@ -11,6 +11,7 @@ const char *mr_kind_name(const mr_kind *kind) { return kind ? kind->name : NULL;
 const char *mr_kind_summary(const mr_kind *kind) { return kind ? kind->summary : NULL; }
 const mr_param_table *mr_kind_params(const mr_kind *kind) { return kind ? kind->params : NULL; }
 bool mr_kind_keeps_derived(const mr_kind *kind) { return kind && kind->has_derived; }
+bool mr_kind_takes_pose(const mr_kind *kind) { return !kind || !kind->takes_no_pose; }
 size_t mr_kind_stat_count(const mr_kind *kind) { return kind ? kind->stat_count : 0; }
 
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)

@@ -219,6 +219,8 @@ struct mr_kind {
     const mr_kind_stat *stats;     /* its own per-frame stats fields */
     size_t stat_count;
     bool self_posed;
+    bool takes_no_pose;            /* moves by itself (a simulation): an object's "pose" is
+                                      refused when the job is read (mr_kind_takes_pose) */
     bool has_lod;
     bool (*animated)(const void *params);
     size_t (*memory_floor)(const void *params);

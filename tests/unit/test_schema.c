@@ -472,6 +472,9 @@ static const parser_only_case PARSER_ONLY[] = {
     {"reference with no object that has one",
      "which objects have references is each kind's code (kinds/kind.h reference)",
      WITH_SVO("{'skeleton':true},'reference':true")},
+    {"springmass object with a pose", "which kinds take a pose is each kind's code "
+     "(kinds/kind.h takes_no_pose)",
+     WITH_OBJECT("{'asset':'m','kind':'springmass','pose':{'clip':0}}")},
     {"springmass force ending before it starts", "a relation between two fields (end > start)",
      WITH_OBJECT("{'asset':'m','kind':'springmass','springmass':{'forces':[{'start':2,'end':1}]}}")},
 };

@@ -278,8 +278,20 @@ static void test_errors(void **state)
 {
     (void)state;
     mr_error err;
-    /* a pose: the simulation moves the object */
-    mr_job *job = job_with("1000", "trilinear", ",\"pose\":{\"clip\":0}");
+    /* a pose: the simulation moves the object. The job's reader refuses
+     * it, naming the field; the kind refuses one a program puts in the
+     * job itself. */
+    char text[2048];
+    snprintf(text, sizeof text, JOB_FMT, "1000", "trilinear", ",\"pose\":{\"clip\":0}");
+    mr_job *job = NULL;
+    mr_job_error je;
+    assert_int_equal(mr_job_parse(text, strlen(text), &job, &je), MR_ERR_INVALID);
+    assert_string_equal(je.pointer, "/objects/0/pose");
+    assert_non_null(strstr(je.message, "moves by itself"));
+    job = job_with("1000", "trilinear", "");
+    static mr_pose_desc pose = {.has_clip = true, .speed = 1, .loop = true};
+    job->objects[0].poses = &pose; /* the test's: taken back before mr_job_free */
+    job->objects[0].pose_count = 1;
     mr_device *dev;
     assert_int_equal(mr_device_new(1, &dev, &err), MR_OK);
     mr_asset *a;
@@ -287,6 +299,8 @@ static void test_errors(void **state)
     mr_renderer *r = NULL;
     assert_int_equal(mr_renderer_new(dev, job, &a, NULL, &r, &err), MR_ERR_INVALID);
     assert_non_null(strstr(err.msg, "/objects/0/pose: a springmass object is moved by its simulation"));
+    job->objects[0].poses = NULL;
+    job->objects[0].pose_count = 0;
     mr_job_free(job);
     /* a pin dragged away faster than anything can follow: the springs
      * tear, and the frame says so instead of rendering the explosion */

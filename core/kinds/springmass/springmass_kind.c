@@ -738,6 +738,7 @@ const mr_kind mr_kind_springmass = {
     .stats = SPRINGMASS_STATS,
     .stat_count = sizeof SPRINGMASS_STATS / sizeof SPRINGMASS_STATS[0],
     .self_posed = true,
+    .takes_no_pose = true,
     .create = springmass_create,
     .update = springmass_update,
     .attach = springmass_attach,
