@@ -1194,6 +1194,10 @@ typedef struct mr_object_desc {
                                 "tolerance_px", else the job's); 0: off, the finest */
 } mr_object_desc;
 
+/* Whether the object derives data of its kind's (mr_kind_keeps_derived):
+ * a mesh only with "tolerance_px" (its levels of detail). */
+bool mr_object_derives(const mr_object_desc *desc);
+
 typedef struct mr_light_desc {
     mr_vec3 direction;       /* unit; the direction light travels (sun rays) */
     mr_vec3 color;           /* linear, already multiplied by intensity */

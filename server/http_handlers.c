@@ -195,7 +195,7 @@ static enum MHD_Result job_estimate(req *r, struct MHD_Connection *c, const mr_j
     cJSON *derived = http_put(doc, "derived", cJSON_CreateArray(), &ok);
     for (size_t i = 0; i < job->object_count && ok; i++) {
         const mr_kind *k = job->objects[i].kind;
-        if (!mr_kind_keeps_derived(k))
+        if (!mr_object_derives(&job->objects[i]))
             continue;
         char pointer[32];
         snprintf(pointer, sizeof pointer, "/objects/%zu", i);

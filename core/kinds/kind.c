@@ -12,6 +12,12 @@ const char *mr_kind_summary(const mr_kind *kind) { return kind ? kind->summary :
 const mr_param_table *mr_kind_params(const mr_kind *kind) { return kind ? kind->params : NULL; }
 bool mr_kind_keeps_derived(const mr_kind *kind) { return kind && kind->has_derived; }
 bool mr_kind_takes_pose(const mr_kind *kind) { return !kind || !kind->takes_no_pose; }
+
+bool mr_object_derives(const mr_object_desc *desc)
+{
+    const mr_kind *k = desc ? desc->kind : NULL;
+    return k && k->has_derived && (!k->derives || k->derives(desc));
+}
 size_t mr_kind_stat_count(const mr_kind *kind) { return kind ? kind->stat_count : 0; }
 
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)

@@ -216,6 +216,8 @@ struct mr_kind {
     const mr_param_table *params;  /* the block's fields, NULL: the kind takes none */
     mr_frame_order frame_order;
     bool has_derived;              /* keeps derived data in <cache root>/<name>/ */
+    bool (*derives)(const mr_object_desc *desc); /* whether this object derives any (NULL:
+                                                    every object of a has_derived kind) */
     const mr_kind_stat *stats;     /* its own per-frame stats fields */
     size_t stat_count;
     bool self_posed;

@@ -462,6 +462,19 @@ static void test_dry_run(void **state)
     assert_int_equal(stat("/usr/share/assimp/models/X/BCN_Epileptic.X", &st), 0);
     assert_true(cJSON_GetObjectItem(asset, "bytes")->valuedouble == (double)st.st_size);
     assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "references")), 0);
+    /* a mesh derives nothing without levels of detail */
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(doc, "derived")), 0);
+    cJSON_Delete(doc);
+    http_free(&r);
+    /* with "tolerance_px" it derives its levels */
+    job = fx_small_job(7, 160, "\"tolerance_px\":1,");
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", job, strlen(job), NULL);
+    free(job);
+    doc = cJSON_Parse(r.body);
+    cJSON *derived = cJSON_GetObjectItem(doc, "derived");
+    assert_int_equal(cJSON_GetArraySize(derived), 1);
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(derived, 0), "pointer")->valuestring, "/objects/0");
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(derived, 0), "kind")->valuestring, "mesh");
     cJSON_Delete(doc);
     http_free(&r);
     /* with reference passes: a mesh is its own tessellation, no ground truth */

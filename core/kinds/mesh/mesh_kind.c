@@ -466,11 +466,14 @@ static void mesh_frame_stats(const mr_geom *g, double *values)
     values[S_LOD_BUILD_S] = g->lod_build_s;
 }
 
+static bool mesh_derives(const mr_object_desc *desc) { return desc->tolerance_px > 0; }
+
 const mr_kind mr_kind_mesh = {
     .name = "mesh",
     .summary = "triangle meshes, skinned or rigid (the default kind)",
     .has_lod = true,
     .has_derived = true, /* the levels of detail of an object with "tolerance_px" */
+    .derives = mesh_derives,
     .lod = mesh_lod,
     .stats = MESH_STATS,
     .stat_count = S_COUNT,
