@@ -63,7 +63,7 @@ static const mr_usage_command COMMANDS[] = {
      RENDER_FLAGS, COUNT(RENDER_FLAGS)},
     {"plan", "JOB.json", "validate a job; print what splitting it needs as JSON",
      "Validates the job as the daemon would and prints {\"name\", \"frames\", \"max_retries\", "
-     "\"width\", \"height\"}.",
+     "\"width\", \"height\", \"references\"} (the reference passes its frames get).",
      NO_FLAGS, 0},
     {"stats-merge", "DIR JOB.json", "join the statistics of render --frames parts",
      "Joins DIR/stats.frames-*.json into DIR/stats.json (the newest part's figures for a frame "
