@@ -18,6 +18,7 @@ bool mr_object_derives(const mr_object_desc *desc)
     const mr_kind *k = desc ? desc->kind : NULL;
     return k && k->has_derived && (!k->derives || k->derives(desc));
 }
+
 size_t mr_kind_stat_count(const mr_kind *kind) { return kind ? kind->stat_count : 0; }
 
 const mr_kind_stat *mr_kind_stat_at(const mr_kind *kind, size_t i)
