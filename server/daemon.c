@@ -1190,6 +1190,11 @@ int mr_daemon_start(const mr_daemon_config *cfg, mr_daemon **out, mr_error *err)
         goto fail;
     if (rc > 0)
         log_line(d, "resuming %d job%s interrupted by a stop or crash", rc, rc == 1 ? "" : "s");
+    const size_t unknown = mr_store_unknown_frame_dirs(d->store);
+    if (unknown)
+        log_line(d, "%s/frames holds the frames of %zu job%s this database does not know (a database "
+                 "lost, emptied or replaced?): left in place, not served",
+                 d->data_dir, unknown, unknown == 1 ? "" : "s");
     d->workers = calloc(d->cfg.workers, sizeof *d->workers);
     d->procs = calloc(d->cfg.workers, sizeof *d->procs);
     if (!d->workers || !d->procs) {

@@ -36,7 +36,7 @@
 
 /* Schema version kept in PRAGMA user_version; open() migrates older files
  * step by step and refuses newer ones. */
-#define SCHEMA_VERSION 3
+#define SCHEMA_VERSION 4
 #define STORE_BUSY_MS 5000 /* another process (sqlite3 shell, backup) holding the lock */
 
 /* Columns of a job record, in the order read_job() expects. Done and
@@ -116,6 +116,9 @@ static const char *const stmt_sql[S_COUNT] = {
     [S_DEL_IDEM] = "DELETE FROM idempotency WHERE job_id = ?1",
     [S_DEL_FRAMES] = "DELETE FROM frames WHERE job_id = ?1",
     [S_DEL_JOB] = "DELETE FROM jobs WHERE id = ?1",
+    [S_TOMBSTONE_ADD] = "INSERT OR IGNORE INTO deleted_jobs(id) VALUES (?1)",
+    [S_TOMBSTONE_DROP] = "DELETE FROM deleted_jobs WHERE id = ?1",
+    [S_TOMBSTONES] = "SELECT id FROM deleted_jobs",
     [S_FRAMES_LIST] = "SELECT idx, state, retries, error, stats_json FROM frames "
                       "WHERE job_id = ?1 ORDER BY idx",
     [S_FRAME_ROW] = "SELECT idx, state, retries, error, stats_json FROM frames "
@@ -205,6 +208,12 @@ static const char schema_v3[] =
     "ALTER TABLE assets ADD COLUMN last_used REAL NOT NULL DEFAULT 0;"
     "ALTER TABLE jobs ADD COLUMN done_seq INTEGER NOT NULL DEFAULT 0;"
     "ALTER TABLE frames ADD COLUMN done_seq INTEGER NOT NULL DEFAULT 0;";
+
+/* Version 4: the jobs deleted whose frame folders may still be on disk (a
+ * crash between a delete's commit and its file removal). Start-up removes
+ * the folders listed here and no others: a folder of no job that is not
+ * listed (a database lost or replaced) is left alone and reported. */
+static const char schema_v4[] = "CREATE TABLE deleted_jobs(id TEXT PRIMARY KEY NOT NULL) WITHOUT ROWID;";
 
 /* ---- names ---------------------------------------------------------------- */
 
@@ -517,6 +526,11 @@ static int migrate(mr_store *st, mr_error *err)
         if (rc < 0)
             goto fail;
     }
+    if (version < 4) {
+        rc = exec_sql(st, schema_v4, "upgrade schema to version 4", err);
+        if (rc < 0)
+            goto fail;
+    }
     if (version != SCHEMA_VERSION) {
         char sql[64];
         snprintf(sql, sizeof sql, "PRAGMA user_version = %d", SCHEMA_VERSION);
@@ -640,26 +654,79 @@ const char *mr_store_dir(const mr_store *st) { return st ? st->dir : NULL; }
 
 /* ---- recovery --------------------------------------------------------------- */
 
-/* Best effort: frame directories of jobs whose rows are gone (a crash
- * between a delete's commit and its file removal) and asset temporaries
- * of interrupted uploads. Failures here must not stop a start-up. */
+/* Removes the temporaries a writer killed mid-write left in directory
+ * path (mr_fs_atomic's "<name>.tmpXXXXXX"): at start-up nothing writes
+ * there. */
+static void remove_temporaries(const char *path)
+{
+    DIR *d = opendir(path);
+    struct dirent *e;
+    while (d && (e = readdir(d)) != NULL) {
+        const size_t n = strlen(e->d_name);
+        if (n > 10 && memcmp(e->d_name + n - 10, ".tmp", 4) == 0)
+            unlinkat(dirfd(d), e->d_name, 0);
+    }
+    if (d)
+        closedir(d);
+}
+
+/* Best effort, failures must not stop a start-up: the frame folders of
+ * deleted jobs (deleted_jobs: a crash between a delete's commit and its
+ * file removal), temporaries of frames and uploads cut off by a crash.
+ * A folder of no job that no delete listed is left alone and counted
+ * (mr_store_unknown_frame_dirs): its rows are not in this database (one
+ * lost, emptied or replaced), and removing it would lose frames for good. */
 static void remove_orphans(mr_store *st)
 {
-    char path[STORE_PATH_MAX];
+    char path[STORE_PATH_MAX], sub[STORE_PATH_MAX];
+    st->unknown_frame_dirs = 0;
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_TOMBSTONES);
+    char (*gone)[40] = NULL;
+    size_t ngone = 0, cap = 0;
+    while (sqlite3_step(s) == SQLITE_ROW) {
+        const char *id = (const char *)sqlite3_column_text(s, 0);
+        if (!id || !store_valid_job_id(id))
+            continue;
+        if (ngone == cap) {
+            char(*more)[40] = realloc(gone, (cap = cap ? 2 * cap : 16) * sizeof *gone);
+            if (!more)
+                break;
+            gone = more;
+        }
+        snprintf(gone[ngone++], sizeof *gone, "%s", id);
+    }
+    store_stmt_release(s);
+    pthread_mutex_unlock(&st->lock);
+    for (size_t i = 0; i < ngone; i++) {
+        mr_job_state state;
+        pthread_mutex_lock(&st->lock);
+        const bool has_row = store_job_state_locked(st, gone[i], &state, NULL) == MR_OK;
+        pthread_mutex_unlock(&st->lock);
+        if (!has_row && store_path_join(sub, sizeof sub, NULL, "%s/frames/%s", st->dir, gone[i]) == MR_OK &&
+            mr_fs_remove_dir(sub, NULL) != MR_OK)
+            continue; /* listed still: tried again at the next start */
+        pthread_mutex_lock(&st->lock);
+        s = store_stmt(st, S_TOMBSTONE_DROP);
+        store_exec_bound(st, s, store_bind_text(s, 1, gone[i]), "forget a deleted job", NULL);
+        pthread_mutex_unlock(&st->lock);
+    }
+    free(gone);
     if (store_path_join(path, sizeof path, NULL, "%s/frames", st->dir) == MR_OK) {
         DIR *d = opendir(path);
         struct dirent *e;
         while (d && (e = readdir(d)) != NULL) {
-            if (!store_valid_job_id(e->d_name))
+            if (!store_valid_job_id(e->d_name) ||
+                store_path_join(sub, sizeof sub, NULL, "%s/%s", path, e->d_name) != MR_OK)
                 continue;
             mr_job_state state;
             pthread_mutex_lock(&st->lock);
-            int rc = store_job_state_locked(st, e->d_name, &state, NULL);
+            const int rc = store_job_state_locked(st, e->d_name, &state, NULL);
             pthread_mutex_unlock(&st->lock);
-            char sub[STORE_PATH_MAX];
-            if (rc == MR_ERR_NOT_FOUND &&
-                store_path_join(sub, sizeof sub, NULL, "%s/%s", path, e->d_name) == MR_OK)
-                mr_fs_remove_dir(sub, NULL);
+            if (rc == MR_ERR_NOT_FOUND)
+                st->unknown_frame_dirs++;
+            else
+                remove_temporaries(sub);
         }
         if (d)
             closedir(d);
@@ -677,6 +744,8 @@ static void remove_orphans(mr_store *st)
             closedir(d);
     }
 }
+
+size_t mr_store_unknown_frame_dirs(const mr_store *st) { return st ? st->unknown_frame_dirs : 0; }
 
 int mr_store_recover(mr_store *st, mr_error *err)
 {

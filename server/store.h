@@ -87,6 +87,9 @@ const char *mr_store_dir(const mr_store *st);
  * running, so it counts nothing. Returns the number of jobs re-queued, or a
  * negative mr_err. */
 int mr_store_recover(mr_store *st, mr_error *err);
+/* The frames/<id> folders the last mr_store_recover found of no job in the
+ * database and of no delete: left in place (the daemon says so). */
+size_t mr_store_unknown_frame_dirs(const mr_store *st);
 
 /* Creates a queued job holding the job document `json` (already validated)
  * with frame_count pending frames. With an idempotency key: if the key was

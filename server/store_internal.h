@@ -45,6 +45,9 @@ enum stmt_id {
     S_DEL_IDEM,
     S_DEL_FRAMES,
     S_DEL_JOB,
+    S_TOMBSTONE_ADD,
+    S_TOMBSTONE_DROP,
+    S_TOMBSTONES,
     S_FRAMES_LIST,
     S_FRAME_ROW,
     S_FRAME_GET,
@@ -70,6 +73,7 @@ struct mr_store {
     sqlite3 *db;
     sqlite3_stmt *stmt[S_COUNT];
     char dir[STORE_PATH_MAX];
+    size_t unknown_frame_dirs; /* frames/<id> folders of no job and no delete (mr_store_recover) */
 };
 
 

@@ -454,14 +454,22 @@ int mr_store_job_delete(mr_store *st, const char *id, mr_error *err)
         rc = store_no_job(err, id);
         goto done;
     }
+    sqlite3_stmt *listed = store_stmt(st, S_TOMBSTONE_ADD);
+    rc = store_exec_bound(st, listed, store_bind_text(listed, 1, id), "delete job", err);
 done:
     rc = store_tx_end(st, rc, err);
     if (rc < 0)
         return rc;
-    /* Rows first, files second: a crash in between leaves an orphan
-     * directory (removed by the next mr_store_recover), never a row whose
-     * files are gone. */
-    return mr_fs_remove_dir(dir, err);
+    /* Rows first (the job's listed in deleted_jobs in the same commit),
+     * files second: a crash in between leaves a folder the next
+     * mr_store_recover removes, never a row whose files are gone. */
+    if ((rc = mr_fs_remove_dir(dir, err)) < 0)
+        return rc;
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *drop = store_stmt(st, S_TOMBSTONE_DROP);
+    store_exec_bound(st, drop, store_bind_text(drop, 1, id), "forget a deleted job", NULL);
+    pthread_mutex_unlock(&st->lock);
+    return MR_OK;
 }
 
 int mr_store_job_counts(mr_store *st, uint64_t counts[5], mr_error *err)

@@ -336,7 +336,7 @@ static void test_open_schema(void **state)
     sqlite3_finalize(s);
     assert_int_equal(sqlite3_prepare_v2(db, "PRAGMA user_version", -1, &s, NULL), SQLITE_OK);
     assert_int_equal(sqlite3_step(s), SQLITE_ROW);
-    assert_int_equal(sqlite3_column_int(s, 0), 3);
+    assert_int_equal(sqlite3_column_int(s, 0), 4);
     sqlite3_finalize(s);
 
     /* A newer schema is refused instead of being misread. */
@@ -371,15 +371,61 @@ static void test_open_schema(void **state)
     /* Reopen the fixture's directory for teardown, with the version put back. */
     snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
     assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 3", NULL, NULL, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, "PRAGMA user_version = 4", NULL, NULL, NULL), SQLITE_OK);
     sqlite3_close(db);
     ok(mr_store_open(fx->dir, &fx->st, &err), &err);
 }
 
-/* What version 3 added, taken away again: a file as version 2 wrote it. */
+/* How many jobs the fixture's database lists as deleted with their
+ * folders maybe still on disk (deleted_jobs). */
+static int deleted_listed(const fixture *fx)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    sqlite3_stmt *s = NULL;
+    int n = -1;
+    if (sqlite3_open_v2(path, &db, SQLITE_OPEN_READONLY, NULL) == SQLITE_OK &&
+        sqlite3_prepare_v2(db, "SELECT count(*) FROM deleted_jobs", -1, &s, NULL) == SQLITE_OK &&
+        sqlite3_step(s) == SQLITE_ROW)
+        n = sqlite3_column_int(s, 0);
+    sqlite3_finalize(s);
+    sqlite3_close(db);
+    return n;
+}
+
+/* What version 4 added, taken away again: a file as version 3 wrote it. */
+#define UNDO_V4 "DROP TABLE deleted_jobs; "
+/* What versions 3 and 4 added: a file as version 2 wrote it. */
 #define UNDO_V3                                                                                    \
-    "DROP TABLE job_assets; ALTER TABLE assets DROP COLUMN last_used; "                            \
-    "ALTER TABLE jobs DROP COLUMN done_seq; ALTER TABLE frames DROP COLUMN done_seq; "
+    UNDO_V4 "DROP TABLE job_assets; ALTER TABLE assets DROP COLUMN last_used; "                    \
+            "ALTER TABLE jobs DROP COLUMN done_seq; ALTER TABLE frames DROP COLUMN done_seq; "
+
+/* A version-3 file (before deleted jobs were listed) is upgraded in place:
+ * its jobs stay, and a delete lists and forgets as in a new file. */
+static void test_schema_upgrade_from_v3(void **state)
+{
+    fixture *fx = *state;
+    mr_error err = {0};
+    char job[MR_JOB_ID_LEN + 1];
+    create_job(fx->st, "old", 2, 0, 0, job);
+    ok(mr_store_frame_done(fx->st, job, 0, "exr", 3, "{}", &err), &err);
+    mr_store_close(fx->st);
+    fx->st = NULL;
+    char path[512];
+    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, UNDO_V4 "PRAGMA user_version = 3", NULL, NULL, NULL), SQLITE_OK);
+    sqlite3_close(db);
+    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    assert_int_equal(get_job(fx->st, job).frames_done, 1);
+    ok(mr_store_job_delete(fx->st, job, &err), &err);
+    char dir[512];
+    snprintf(dir, sizeof dir, "%s/frames/%s", fx->dir, job);
+    assert_false(exists(dir));
+    assert_int_equal(deleted_listed(fx), 0); /* forgotten once its folder is gone */
+}
 
 /* A version-1 file (before crash-loop protection) is upgraded in place:
  * its jobs stay, and the new count works on them. */
@@ -948,9 +994,10 @@ static void crash_child(const char *dir, const char *expect_id)
     }
     if (mr_store_frame_set_running(st, id, 2, &err) != MR_OK)
         _exit(13);
-    /* Half a frame file, as a crash mid-write leaves it. */
+    /* Half a frame file, as a crash mid-write leaves it (mr_fs_atomic's
+     * temporary) */
     char tmp[512];
-    snprintf(tmp, sizeof tmp, "%s/frames/%s/0002.exr.tmp", dir, id);
+    snprintf(tmp, sizeof tmp, "%s/frames/%s/0002.exr.tmpQ1w2E3", dir, id);
     FILE *f = fopen(tmp, "w");
     if (f) {
         fputs("half", f);
@@ -976,8 +1023,25 @@ static void test_recover_after_crash(void **state)
     FILE *f = fopen(orphan_file, "w");
     assert_non_null(f);
     fclose(f);
+    /* ... and a folder of a job this database never had (a database lost
+     * or replaced): its frames must not be removed */
+    char unknown[512], unknown_file[600];
+    snprintf(unknown, sizeof unknown, "%s/frames/00000000000000000000000000000def", fx->dir);
+    assert_int_equal(mkdir(unknown, 0755), 0);
+    snprintf(unknown_file, sizeof unknown_file, "%s/0000.exr", unknown);
+    assert_non_null(f = fopen(unknown_file, "w"));
+    fclose(f);
     mr_store_close(fx->st);
     fx->st = NULL;
+    /* the delete's commit listed the orphan's job (deleted_jobs) */
+    char db_path[600];
+    snprintf(db_path, sizeof db_path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open(db_path, &db), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, "INSERT INTO deleted_jobs(id) VALUES ('00000000000000000000000000000abc')",
+                                  NULL, NULL, NULL),
+                     SQLITE_OK);
+    sqlite3_close(db);
 
     fflush(NULL);
     pid_t pid = fork();
@@ -1027,6 +1091,11 @@ static void test_recover_after_crash(void **state)
         free(bytes);
     }
     assert_false(exists(orphan));
+    assert_true(exists(unknown_file));
+    assert_int_equal(mr_store_unknown_frame_dirs(fx->st), 1);
+    char stale[600];
+    snprintf(stale, sizeof stale, "%s/frames/%s/0002.exr.tmpQ1w2E3", fx->dir, job);
+    assert_false(exists(stale));
 
     /* The resumed job is claimed first again (priority 1), and the stale
      * temporary does not get in the way of the next attempt. */
@@ -1223,6 +1292,7 @@ static void test_delete(void **state)
     assert_null(frames);
     assert_int_equal(n, 0);
     assert_false(exists(dir));
+    assert_int_equal(deleted_listed(fx), 0);
     assert_int_equal(mr_store_job_delete(fx->st, id, &err), MR_ERR_NOT_FOUND);
     assert_int_equal(mr_store_frame_done(fx->st, id, 0, "x", 1, NULL, &err), MR_ERR_NOT_FOUND);
     assert_false(exists(dir));
@@ -1548,6 +1618,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_recover_crash_loop, setup, teardown),
         cmocka_unit_test_setup_teardown(test_idempotency, setup, teardown),
         cmocka_unit_test_setup_teardown(test_delete, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_schema_upgrade_from_v3, setup, teardown),
         cmocka_unit_test_setup_teardown(test_assets, setup, teardown),
         cmocka_unit_test_setup_teardown(test_job_counts, setup, teardown),
         cmocka_unit_test_setup_teardown(test_large_job, setup, teardown),
