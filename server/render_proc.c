@@ -153,8 +153,22 @@ int mr_render_proc_new(const mr_render_proc_config *cfg, mr_render_proc **out, m
     return MR_OK;
 }
 
+/* Whether the idle worker is gone (killed while it waited for a job: the
+ * kernel's OOM killer picks a big idle worker too). An idle worker sends
+ * nothing, so its channel readable, hung up or broken means it is gone. */
+static bool idle_worker_gone(const mr_render_proc *p)
+{
+    struct pollfd pf = {.fd = p->fd, .events = POLLIN};
+    int n;
+    while ((n = poll(&pf, 1, 0)) < 0 && errno == EINTR)
+        ;
+    return n != 0;
+}
+
 int mr_render_proc_start(mr_render_proc *p, mr_error *err)
 {
+    if (p->pid && idle_worker_gone(p))
+        end_worker(p, false); /* reaped; the job goes to a new worker, not to the dead one */
     return p->pid ? MR_OK : start_worker(p, err);
 }
 

@@ -7,6 +7,7 @@
  *   - a frame in progress counts one failed attempt, with how the worker
  *     ended, and the job goes on in a new worker to a complete result;
  *   - a death while the job is being prepared fails the job, saying so;
+ *   - a worker killed while idle is replaced when the next job comes;
  *   - a job that surely needs more than --job-memory-mb is refused at
  *     submission; a worker over --worker-memory-mb is killed and the frame
  *     fails as over a limit (not retried);
@@ -170,6 +171,31 @@ static void test_worker_death_while_preparing_fails_the_job(void **state)
     cJSON_Delete(j);
 }
 
+/* A worker killed while idle (the OOM killer picks a big idle worker
+ * too) is replaced when the next job comes: the job renders, no attempt
+ * lost. */
+static void test_idle_worker_death_is_replaced(void **state)
+{
+    (void)state;
+    pid_t worker = fx_render_worker_pid(&D);
+    assert_true(worker > 0);
+    assert_int_equal(kill(worker, SIGKILL), 0);
+    for (int i = 0; i < 3000 && !process_gone(worker); i++)
+        fx_sleep_ms(10);
+    assert_true(process_gone(worker));
+    char *quick = fx_small_job(0, 72, NULL), id[64];
+    fx_submit(&D, quick, id);
+    free(quick);
+    cJSON *j = fx_wait_job(&D, id, 60);
+    if (strcmp(cJSON_GetObjectItem(j, "state")->valuestring, "succeeded") != 0)
+        fail_msg("the job after an idle worker's death: %s (%s)", cJSON_GetObjectItem(j, "state")->valuestring,
+                 cJSON_GetObjectItem(j, "error")->valuestring);
+    assert_int_equal(cJSON_GetObjectItem(frame_state(j, 0), "retries")->valueint, 0);
+    cJSON_Delete(j);
+    assert_true(fx_render_worker_pid(&D) != worker);
+    assert_healthy();
+}
+
 /* A cancel kills the worker at once (well within a second, mid-frame of
  * a frame that takes seconds); no frame of the job is stored after it. */
 static void test_cancel_kills_the_worker(void **state)
@@ -306,6 +332,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_worker_death_mid_frame_is_retried),
         cmocka_unit_test(test_worker_death_while_preparing_fails_the_job),
+        cmocka_unit_test(test_idle_worker_death_is_replaced),
         cmocka_unit_test(test_cancel_kills_the_worker),
         cmocka_unit_test(test_memory_limits),
         cmocka_unit_test(test_frame_timeout),
