@@ -695,6 +695,10 @@ static int run_frame_done(void *user, size_t index, const char *stats_json, cons
     if (rc == MR_OK && mr_store_job_get(d->store, r->id, &rec, &ignored) < 0)
         rec.done_seq = 0;
     pthread_mutex_unlock(&d->lock);
+    if (rc == MR_ERR_NO_SPACE) { /* the guard is told by run_frame_failed; the size first */
+        mr_daemon_no_space(d, err->msg);
+        mr_space_guard_need(d->space, exr_size);
+    }
     if (rc < 0)
         return rc;
     publish(d, r->id, "frame", stats_json, rec.done_seq, false);
@@ -746,8 +750,15 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     bool final = e->code == MR_ERR_LIMIT || e->code == MR_ERR_INVALID;
     char shown[sizeof e->msg];
     mr_daemon_redact(r->d, e->msg, shown, sizeof shown);
-    if (e->code == MR_ERR_NO_SPACE) /* first, so the reserve makes room for the record */
+    if (e->code == MR_ERR_NO_SPACE) {
+        /* the frame rendered and could not be stored: no attempt lost,
+         * it waits (pending) while the queue pauses for space; first the
+         * guard, whose reserve makes room for the record */
         mr_daemon_no_space(r->d, shown);
+        mr_store_frame_requeue(r->d->store, r->id, index, shown, &err);
+        log_line(r->d, "job=%s frame %zu not stored, it waits for disk space: %s", r->id, index, e->msg);
+        return MR_FRAME_RETRY;
+    }
     mr_store_frame_failed(r->d->store, r->id, index, shown, final, &gave_up, &err);
     pthread_mutex_lock(&r->d->lock);
     r->d->frames_failed++;

@@ -18,6 +18,7 @@ struct mr_space_guard {
     pthread_mutex_t lock;
     char *dir, *reserve_path;
     size_t reserve_bytes;
+    size_t need; /* what the write that failed wanted, while full */
     bool full;
     char why[512];
 };
@@ -135,6 +136,14 @@ bool mr_space_guard_report(mr_space_guard *g, const char *why)
     return entered;
 }
 
+void mr_space_guard_need(mr_space_guard *g, size_t bytes)
+{
+    pthread_mutex_lock(&g->lock);
+    if (g->full && bytes > g->need)
+        g->need = bytes;
+    pthread_mutex_unlock(&g->lock);
+}
+
 bool mr_space_guard_full(mr_space_guard *g, char *why, size_t size)
 {
     pthread_mutex_lock(&g->lock);
@@ -149,8 +158,9 @@ bool mr_space_guard_poll(mr_space_guard *g)
 {
     pthread_mutex_lock(&g->lock);
     bool full = g->full;
-    pthread_mutex_unlock(&g->lock);
     size_t want = 2 * g->reserve_bytes > (size_t)1 << 20 ? 2 * g->reserve_bytes : (size_t)1 << 20;
+    want += g->need;
+    pthread_mutex_unlock(&g->lock);
     if (!full || free_bytes(g->dir) < want)
         return false;
     mr_error e = {0};
@@ -158,6 +168,7 @@ bool mr_space_guard_poll(mr_space_guard *g)
         return false; /* filled again meanwhile: next poll */
     pthread_mutex_lock(&g->lock);
     g->full = false;
+    g->need = 0;
     g->why[0] = '\0';
     pthread_mutex_unlock(&g->lock);
     return true;

@@ -39,10 +39,15 @@ void mr_space_guard_close(mr_space_guard *g);
 /* A write failed for want of space (why: its message). Returns true when
  * this report turned the guard full (the caller logs it once). */
 bool mr_space_guard_report(mr_space_guard *g, const char *why);
+/* The write that failed wanted `bytes` (a frame's file): polling then
+ * waits for that much free beyond twice the reserve, so the queue does
+ * not resume only to fail the same write again. */
+void mr_space_guard_need(mr_space_guard *g, size_t bytes);
 /* Whether the disk is full; why (may be NULL) gets the first report. */
 bool mr_space_guard_full(mr_space_guard *g, char *why, size_t size);
-/* When full: if at least twice the reserve is free, writes the reserve
- * back and clears the state. Returns true when it did (the caller resumes). */
+/* When full: if at least twice the reserve (and what the failed write
+ * wanted) is free, writes the reserve back and clears the state. Returns
+ * true when it did (the caller resumes). */
 bool mr_space_guard_poll(mr_space_guard *g);
 
 #endif

@@ -159,6 +159,10 @@ int mr_store_frames_release(mr_store *st, const char *id, mr_error *err);
  * the row marked done with stats_json. */
 int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *exr,
                         size_t exr_size, const char *stats_json, mr_error *err);
+/* A frame that could not be stored for want of space goes back to
+ * pending without counting an attempt: the render was fine, the disk
+ * was full (the queue pauses until space is back). */
+int mr_store_frame_requeue(mr_store *st, const char *id, size_t index, const char *error, mr_error *err);
 /* Records a failed attempt: retries + 1; the frame goes back to pending
  * while retries <= max_retries, else to failed. A final failure (one that
  * would repeat: a limit, an invalid input) fails the frame at once.

@@ -198,6 +198,20 @@ int mr_store_frames_release(mr_store *st, const char *id, mr_error *err)
     return rc;
 }
 
+int mr_store_frame_requeue(mr_store *st, const char *id, size_t index, const char *error, mr_error *err)
+{
+    if (!st)
+        return mr_error_set(err, MR_ERR_INVALID, "mr_store_frame_requeue: no store");
+    if (!store_valid_job_id(id))
+        return store_no_job(err, id);
+    pthread_mutex_lock(&st->lock);
+    int retries = 0;
+    int rc = store_tx_begin(st, err);
+    if (rc == MR_OK && (rc = frame_get_locked(st, id, index, NULL, &retries, NULL, err)) == MR_OK)
+        rc = frame_set_locked(st, id, index, MR_FRAME_PENDING, retries, error, err);
+    return store_tx_end(st, rc, err);
+}
+
 int mr_store_frame_failed(mr_store *st, const char *id, size_t index, const char *error,
                           bool final, bool *gave_up, mr_error *err)
 {
