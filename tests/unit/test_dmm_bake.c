@@ -307,6 +307,14 @@ static void test_bake_bumpy_sphere(void **state)
     mr_dmm_bake_free(b1);
     mr_dmm_bake_free(b);
 
+    /* a target above the triangles there are keeps every one (meshopt
+     * asserted on it: a worker's SIGABRT) */
+    p.target_triangles = 1000000;
+    p.level = 0;
+    assert_int_equal(mr_dmm_bake_run(&f.mesh, &p, &b, &err), MR_OK);
+    assert_true(b->base_triangle_count > 400 && b->base_triangle_count <= f.mesh.triangle_count);
+    mr_dmm_bake_free(b);
+
     /* level 0 by ratio: only the corners, which are detailed vertices, so
      * their displacement is 0 up to the ray's float rounding */
     p.target_triangles = 0;

@@ -398,6 +398,8 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
                                              : (size_t)((double)params->target_ratio * (double)(wi / 3));
     if (target < 1)
         target = 1;
+    if (target > wi / 3) /* more than there are keeps them all (meshopt_simplify asserts it) */
+        target = wi / 3;
     float rerr = 0;
     size_t si = meshopt_simplify(sidx, widx, wi, wpos, nw, 3 * sizeof(float), 3 * target,
                                  params->max_error > 0 ? params->max_error : FLT_MAX, 0, &rerr);

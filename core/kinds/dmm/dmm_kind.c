@@ -2077,7 +2077,8 @@ static const mr_param DMM_PARAMS[] = {
     [P_TRIANGLES] = {.field = "base_triangles", .type = MR_PARAM_INT,
                      .offset = offsetof(mr_dmm_params, base_triangles), .lo = 1,
                      .hi = MR_MAX_ASSET_TRIANGLES, .def = 0,
-                     .description = "Target base triangle count per mesh, instead of base_ratio."},
+                     .description = "Target base triangle count per mesh, instead of base_ratio (at "
+                                    "least the mesh's welded triangles keeps every one)."},
     [P_MODE] = {.field = "mode", .type = MR_PARAM_ENUM, .offset = offsetof(mr_dmm_params, mode),
                 MR_PARAM_CHOICES(MODES), .def = MR_DMM_TESSELLATED, .after = after_mode,
                 .description = "How the micro-geometry is traced. \"tessellated\": the micro-triangles of the "
