@@ -163,6 +163,17 @@ static void test_huge_repeats(void **state)
     HARD_CHECK("other", rc == MR_ERR_INVALID && !g && strstr(err.msg, "displaced.range") ? 0 : 1,
                "==", 0, "10^7 repeats refused with an error naming displaced.range (%s)", err.msg);
     mr_asset_free(finer);
+    /* 100,000 repeats pre-tessellated: 10^11 cells, past the cap at once
+     * (the tessellation sized a table for every cell of a base triangle's
+     * box before counting: 13.8 GiB at range 4096 on a plane) */
+    mesh = grid_mesh(uv_huge, NULL);
+    f.assets[0] = mesh;
+    f.par.method = MR_DISPLACED_TESSELLATED;
+    err = (mr_error){0};
+    rc = mr_kind_displaced.create(mesh, &f.desc, &ctx, &g, &err);
+    HARD_CHECK("other", rc == MR_ERR_LIMIT && !g && strstr(err.msg, "micro-triangles") ? 0 : 1, "==", 0,
+               "100,000 repeats pre-tessellated refused over the cap, not out of memory (%s)", err.msg);
+    mr_asset_free(mesh);
     mr_asset_free(tex);
 }
 

@@ -150,7 +150,8 @@ typedef struct vkey {
 typedef struct vtable {
     vkey *keys;
     uint32_t *vals;
-    size_t cap; /* power of two; 0 unused slots have vals == UINT32_MAX */
+    size_t cap;   /* power of two; unused slots have vals == UINT32_MAX */
+    size_t count; /* slots used */
 } vtable;
 
 static vkey key_of(const mr_dvert *v)
@@ -163,11 +164,15 @@ static vkey key_of(const mr_dvert *v)
     return k;
 }
 
+/* Empties t, with room for about `want` vertices (at most 2^16 at first:
+ * a base triangle's box can hold far more cells than the triangle, and
+ * vtable_get grows the table as vertices come). */
 static bool vtable_reset(vtable *t, size_t want)
 {
     size_t cap = 64;
-    while (cap < want * 2)
+    while (cap < want * 2 && cap < (size_t)1 << 17)
         cap *= 2;
+    t->count = 0;
     if (cap > t->cap) {
         vkey *k = realloc(t->keys, cap * sizeof *k);
         uint32_t *v = k ? realloc(t->vals, cap * sizeof *v) : NULL;
@@ -182,37 +187,70 @@ static bool vtable_reset(vtable *t, size_t want)
     return true;
 }
 
-/* Index of k, or a new slot (*fresh) given index `next`. */
-static uint32_t vtable_get(vtable *t, vkey k, uint32_t next, bool *fresh)
+static size_t vtable_slot(const vtable *t, vkey k)
 {
     uint64_t h = (k.k1 * 0x9e3779b97f4a7c15ull) ^ (k.k2 * 0xc2b2ae3d27d4eb4full);
     h ^= h >> 29;
-    size_t mask = t->cap - 1;
-    for (size_t s = (size_t)h & mask;; s = (s + 1) & mask) {
-        if (t->vals[s] == UINT32_MAX) {
-            t->keys[s] = k;
-            t->vals[s] = next;
-            *fresh = true;
-            return next;
-        }
-        if (t->keys[s].k1 == k.k1 && t->keys[s].k2 == k.k2) {
-            *fresh = false;
-            return t->vals[s];
-        }
+    const size_t mask = t->cap - 1;
+    size_t s = (size_t)h & mask;
+    while (t->vals[s] != UINT32_MAX && (t->keys[s].k1 != k.k1 || t->keys[s].k2 != k.k2))
+        s = (s + 1) & mask;
+    return s;
+}
+
+/* Twice the slots, every entry moved; false when out of memory (t as it was). */
+static bool vtable_grow(vtable *t)
+{
+    vtable n = {.cap = t->cap * 2, .count = t->count};
+    n.keys = malloc(n.cap * sizeof *n.keys);
+    n.vals = malloc(n.cap * sizeof *n.vals);
+    if (!n.keys || !n.vals) {
+        free(n.keys), free(n.vals);
+        return false;
     }
+    memset(n.vals, 0xff, n.cap * sizeof *n.vals);
+    for (size_t i = 0; i < t->cap; i++)
+        if (t->vals[i] != UINT32_MAX) {
+            const size_t s = vtable_slot(&n, t->keys[i]);
+            n.keys[s] = t->keys[i];
+            n.vals[s] = t->vals[i];
+        }
+    free(t->keys), free(t->vals);
+    *t = n;
+    return true;
+}
+
+/* Index of k, or a new slot (*fresh) given index `next`; UINT32_MAX when
+ * out of memory. */
+static uint32_t vtable_get(vtable *t, vkey k, uint32_t next, bool *fresh)
+{
+    if (2 * (t->count + 1) > t->cap && !vtable_grow(t))
+        return UINT32_MAX;
+    const size_t s = vtable_slot(t, k);
+    if (t->vals[s] == UINT32_MAX) {
+        t->keys[s] = k;
+        t->vals[s] = next;
+        t->count++;
+        *fresh = true;
+        return next;
+    }
+    *fresh = false;
+    return t->vals[s];
 }
 
 /* The micro-triangles of base triangle t in the tessellation's order:
  * calls emit_v for each new micro-vertex (in order) and emit_t per
- * micro-triangle with local vertex indices. Returns false when out of
- * memory. */
+ * micro-triangle with local vertex indices, while `full` (NULL: never)
+ * says there is room. Returns MR_OK, MR_ERR_LIMIT when full stopped it
+ * or MR_ERR_NOMEM. */
 typedef struct tess_sink {
     void (*vertex)(void *user, const mr_dvert *v);
     void (*triangle)(void *user, uint32_t a, uint32_t b, uint32_t c);
+    bool (*full)(void *user);
     void *user;
 } tess_sink;
 
-static bool tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink)
+static int tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink)
 {
     uint32_t nv = 0;
     if (b->flat) {
@@ -222,14 +260,16 @@ static bool tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink
             sink->vertex(sink->user, &pts[k]);
         for (int k = 1; k + 1 < n; k++)
             sink->triangle(sink->user, 0, (uint32_t)k, (uint32_t)k + 1);
-        return true;
+        return MR_OK;
     }
     int64_t i0, i1, j0, j1;
     mr_dbase_cells(b, &i0, &i1, &j0, &j1);
     size_t cells = i1 >= i0 && j1 >= j0 ? (size_t)(i1 - i0 + 1) * (size_t)(j1 - j0 + 1) : 0;
     if (!vtable_reset(vt, cells + 16))
-        return false;
-    for (int64_t j = j0; j <= j1; j++)
+        return MR_ERR_NOMEM;
+    for (int64_t j = j0; j <= j1; j++) {
+        if (sink->full && sink->full(sink->user))
+            return MR_ERR_LIMIT;
         for (int64_t i = i0; i <= i1; i++) {
             mr_dcell c;
             mr_dsurf_cell(b, i, j, 2, &c);
@@ -237,6 +277,8 @@ static bool tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink
             for (int k = 0; k < c.nv; k++) {
                 bool fresh;
                 local[k] = vtable_get(vt, key_of(&c.v[k]), nv, &fresh);
+                if (local[k] == UINT32_MAX)
+                    return MR_ERR_NOMEM;
                 if (fresh) {
                     sink->vertex(sink->user, &c.v[k]);
                     nv++;
@@ -245,10 +287,12 @@ static bool tessellate_base(const mr_dbase *b, vtable *vt, const tess_sink *sink
             for (int k = 0; k < c.nt; k++)
                 sink->triangle(sink->user, local[c.tri[k][0]], local[c.tri[k][1]], local[c.tri[k][2]]);
         }
-    return true;
+    }
+    return MR_OK;
 }
 
-/* Counting pass. */
+/* Counting pass: the tessellation's micro-vertices and micro-triangles so
+ * far (v, t), full past the caps. */
 typedef struct count_sink {
     uint64_t v, t;
 } count_sink;
@@ -257,6 +301,11 @@ static void count_t(void *u, uint32_t a, uint32_t b, uint32_t c)
 {
     (void)a, (void)b, (void)c;
     ((count_sink *)u)->t++;
+}
+static bool count_full(void *u)
+{
+    const count_sink *c = u;
+    return c->v > MR_MAX_ASSET_VERTICES || c->t > MR_MAX_ASSET_TRIANGLES;
 }
 
 /* Filling pass: positions from the current pose, indices offset. */
@@ -295,29 +344,41 @@ static int tess_layout(mr_geom *g, const char *what, mr_error *err)
     vtable vt = {0};
     if (!g->tess_vfirst || !g->tess_tfirst)
         return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", what);
-    uint64_t v = 0, t = 0;
+    /* two micro-triangles a whole cell: the base triangles' area in cells
+     * says at once when the caps cannot hold them (counting them first
+     * would make every cell of a tessellation of billions) */
+    double cells = 0;
     for (size_t k = 0; k < nt; k++) {
-        g->tess_vfirst[k] = (uint32_t)v;
-        g->tess_tfirst[k] = (uint32_t)t;
-        count_sink c = {0};
-        tess_sink s = {count_v, count_t, &c};
-        if (!tessellate_base(&g->bases[k], &vt, &s)) {
-            free(vt.keys), free(vt.vals);
-            return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", what);
-        }
-        v += c.v;
-        t += c.t;
-        if (v > MR_MAX_ASSET_VERTICES || t > MR_MAX_ASSET_TRIANGLES) {
-            free(vt.keys), free(vt.vals);
-            return mr_error_set(err, MR_ERR_LIMIT,
-                                "%s: the tessellation would have more than %u micro-triangles "
-                                "(base triangle %zu reached %llu): use a coarser \"level\" or "
-                                "\"range\", or method \"tessellation_free\"",
-                                what, MR_MAX_ASSET_TRIANGLES, k, (unsigned long long)t);
-        }
+        const double(*gk)[2] = g->bases[k].g;
+        cells += 0.5 * fabs((gk[1][0] - gk[0][0]) * (gk[2][1] - gk[0][1]) -
+                            (gk[2][0] - gk[0][0]) * (gk[1][1] - gk[0][1]));
+    }
+    count_sink c = {0};
+    int rc = cells > (double)MR_MAX_ASSET_TRIANGLES ? MR_ERR_LIMIT : MR_OK;
+    size_t k = 0;
+    for (; k < nt && rc == MR_OK; k++) {
+        g->tess_vfirst[k] = (uint32_t)c.v;
+        g->tess_tfirst[k] = (uint32_t)c.t;
+        tess_sink s = {count_v, count_t, count_full, &c};
+        if ((rc = tessellate_base(&g->bases[k], &vt, &s)) == MR_OK && count_full(&c))
+            rc = MR_ERR_LIMIT;
     }
     free(vt.keys);
     free(vt.vals);
+    if (rc == MR_ERR_NOMEM)
+        return mr_error_set(err, MR_ERR_NOMEM, "%s: out of memory tessellating", what);
+    if (rc == MR_ERR_LIMIT) {
+        char why[96];
+        if (k)
+            snprintf(why, sizeof why, "base triangle %zu reached %llu", k - 1, (unsigned long long)c.t);
+        else
+            snprintf(why, sizeof why, "the base mesh covers %.3g cells, two each", cells);
+        return mr_error_set(err, MR_ERR_LIMIT,
+                            "%s: the tessellation would have more than %u micro-triangles (%s): use a "
+                            "coarser \"level\" or \"range\", or method \"tessellation_free\"",
+                            what, MR_MAX_ASSET_TRIANGLES, why);
+    }
+    const uint64_t v = c.v, t = c.t;
     g->tess_vfirst[nt] = (uint32_t)v;
     g->tess_tfirst[nt] = (uint32_t)t;
     g->tess_vertices = (uint32_t)v;
@@ -348,8 +409,8 @@ static void tess_range(void *ctx, size_t begin, size_t end, unsigned worker)
                        .pos = c->pos + (size_t)c->g->tess_vfirst[k] * 3,
                        .idx = c->idx + (size_t)c->g->tess_tfirst[k] * 3,
                        .v0 = c->g->tess_vfirst[k], .indices = c->indices};
-        tess_sink s = {fill_v, fill_t, &f};
-        if (!tessellate_base(f.b, &vt, &s))
+        tess_sink s = {fill_v, fill_t, NULL, &f};
+        if (tessellate_base(f.b, &vt, &s) != MR_OK)
             atomic_store(&c->failed, true);
     }
     free(vt.keys);
