@@ -462,6 +462,7 @@ static int parse_object_pose(mr_json_ctx *c, const cJSON *v, mr_object_desc *o, 
 static json_num_spec param_spec(const mr_param *p)
 {
     unsigned flags = (p->type == MR_PARAM_INT ? JSON_NUM_INT : 0u) |
+                     (p->type == MR_PARAM_NUMBER ? JSON_NUM_FLOAT : 0u) |
                      ((p->flags & MR_PARAM_LO_OPEN) ? JSON_NUM_LO_OPEN : 0u) |
                      ((p->flags & MR_PARAM_HI_OPEN) ? JSON_NUM_HI_OPEN : 0u);
     return (json_num_spec){p->lo, p->hi, flags, p->expect};

@@ -216,11 +216,11 @@ void json_spec_text(const json_num_spec *s, char *buf, size_t n)
         snprintf(buf, n, "a number in %.15g..%.15g", s->lo, s->hi);
 }
 
-int json_get_num(mr_json_ctx *c, const cJSON *v, const json_num_spec *s, double *out)
+/* Whether x is within s's range. Every test is false for NaN/inf, so the
+ * cast to integers later only ever sees finite, integral, in-range
+ * doubles. */
+static bool in_spec(const json_num_spec *s, double x)
 {
-    double x = cJSON_IsNumber(v) ? v->valuedouble : NAN;
-    /* Every test below is false for NaN/inf, so the cast to integers later
-     * only ever sees finite, integral, in-range doubles. */
     bool ok = isfinite(x) && x >= s->lo && x <= s->hi;
     if (ok && (s->flags & JSON_NUM_INT))
         ok = x == floor(x);
@@ -228,9 +228,18 @@ int json_get_num(mr_json_ctx *c, const cJSON *v, const json_num_spec *s, double 
         ok = x > s->lo;
     if (ok && (s->flags & JSON_NUM_HI_OPEN))
         ok = x < s->hi;
-    if (!ok) {
-        char expect[128];
+    return ok;
+}
+
+int json_get_num(mr_json_ctx *c, const cJSON *v, const json_num_spec *s, double *out)
+{
+    double x = cJSON_IsNumber(v) ? v->valuedouble : NAN;
+    const bool ok = in_spec(s, x);
+    if (!ok || ((s->flags & JSON_NUM_FLOAT) && !in_spec(s, (double)(float)x))) {
+        char expect[160];
         json_spec_text(s, expect, sizeof expect);
+        if (ok) /* only its float is out */
+            snprintf(expect + strlen(expect), sizeof expect - strlen(expect), " (as a 32-bit float)");
         return json_fail_expected(c, expect, v);
     }
     *out = x;

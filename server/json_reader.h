@@ -61,7 +61,9 @@ typedef struct mr_json_ctx {
     bool nul_escapes; /* prescan() rewrote some "\u0000" to "\u0001" */
 } mr_json_ctx;
 
-enum { JSON_NUM_INT = 1u, JSON_NUM_LO_OPEN = 2u, JSON_NUM_HI_OPEN = 4u };
+/* JSON_NUM_FLOAT: stored as a 32-bit float, which must be within the
+ * range too (1e-300 in (0, 1] rounds to 0). */
+enum { JSON_NUM_INT = 1u, JSON_NUM_LO_OPEN = 2u, JSON_NUM_HI_OPEN = 4u, JSON_NUM_FLOAT = 8u };
 
 typedef struct json_num_spec {
     double lo, hi;
