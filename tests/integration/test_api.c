@@ -524,6 +524,30 @@ static void test_dry_run(void **state)
                         "/assets/b/path");
     cJSON_Delete(doc);
     http_free(&r);
+    /* a model file over the cap (a sparse file: no disk used) is a problem
+     * of the submission, naming its path, not a job that fails on import */
+    char big[400];
+    snprintf(big, sizeof big, "%s/huge.obj", fx_root);
+    FILE *bf = fopen(big, "wb");
+    assert_non_null(bf);
+    assert_int_equal(fseeko(bf, (off_t)MR_MAX_ASSET_FILE_BYTES, SEEK_SET), 0);
+    assert_int_equal(fputc('\n', bf), '\n');
+    fclose(bf);
+    static const char huge[] =
+        "{\"assets\":{\"h\":{\"path\":\"huge.obj\"}},\"objects\":[{\"asset\":\"h\"}],"
+        "\"camera\":{\"path\":[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"end\":0}}";
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", huge, strlen(huge), NULL);
+    assert_int_equal(r.status, 422);
+    doc = cJSON_Parse(r.body);
+    errors = cJSON_GetObjectItem(doc, "errors");
+    assert_string_equal(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 0), "pointer")->valuestring,
+                        "/assets/h/path");
+    assert_non_null(strstr(cJSON_GetObjectItem(cJSON_GetArrayItem(errors, 0), "detail")->valuestring,
+                           "expected a model file of at most"));
+    cJSON_Delete(doc);
+    http_free(&r);
+    unlink(big);
+
     /* a value the API does not name is refused, never read as absent: a
      * bare ?dry_run (which libmicrohttpd hands over without a value) once
      * queued the job */
