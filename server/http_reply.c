@@ -181,8 +181,11 @@ static enum MHD_Result send_problem_h(req *r, struct MHD_Connection *c, problem_
                                       const char *extra_value, cJSON *ext, const char *fmt,
                                       va_list ap)
 {
-    char detail[1024];
-    vsnprintf(detail, sizeof detail, fmt, ap);
+    char raw[1024], detail[1024], instance[1024];
+    vsnprintf(raw, sizeof raw, fmt, ap);
+    /* what the client sent, quoted, may be any bytes: JSON wants UTF-8 */
+    json_utf8_text(raw, detail, sizeof detail);
+    json_utf8_text(r->url ? r->url : r->path, instance, sizeof instance);
     char type[128];
     snprintf(type, sizeof type, PROBLEM_BASE "%s", PROBLEMS[kind].slug);
     bool ok = true;
@@ -191,7 +194,7 @@ static enum MHD_Result send_problem_h(req *r, struct MHD_Connection *c, problem_
     http_put(doc, "title", cJSON_CreateString(PROBLEMS[kind].title), &ok);
     http_put(doc, "status", cJSON_CreateNumber(PROBLEMS[kind].status), &ok);
     http_put(doc, "detail", cJSON_CreateString(detail), &ok);
-    http_put(doc, "instance", cJSON_CreateString(r->url ? r->url : r->path), &ok);
+    http_put(doc, "instance", cJSON_CreateString(instance), &ok);
     if (pointer && *pointer)
         http_put(doc, "pointer", cJSON_CreateString(pointer), &ok);
     /* extension members (RFC 9457 3.2), moved over */

@@ -293,6 +293,32 @@ static size_t utf8_invalid_at(const char *str)
     return SIZE_MAX;
 }
 
+void json_utf8_text(const char *in, char *out, size_t size)
+{
+    size_t o = 0;
+    while (*in && o + 1 < size) {
+        const size_t bad = utf8_invalid_at(in);
+        const size_t good = bad == SIZE_MAX ? strlen(in) : bad;
+        const size_t n = good < size - 1 - o ? good : size - 1 - o;
+        memcpy(out + o, in, n);
+        o += n, in += n;
+        if (n < good) { /* out is full: no character cut in two */
+            out[o] = '\0';
+            while (o > 0 && utf8_invalid_at(out) != SIZE_MAX)
+                out[--o] = '\0';
+            return;
+        }
+        if (!*in)
+            break;
+        if (o + 5 > size)
+            break;
+        snprintf(out + o, 5, "\\x%02X", (unsigned char)*in++);
+        o += 4;
+    }
+    if (size)
+        out[o < size ? o : size - 1] = '\0';
+}
+
 /* Checks a string the job keeps (name, path, key): 1..max bytes, valid
  * UTF-8, no control characters (which also catches "\u0000", see top). */
 int json_check_text(mr_json_ctx *c, const char *s, size_t max)

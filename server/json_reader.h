@@ -139,6 +139,12 @@ int json_fail_expected(mr_json_ctx *c, const char *expect, const cJSON *v);
 void json_quote(const char *s, char *buf, size_t n);
 const char *json_describe(const cJSON *v, char *buf, size_t n);
 
+/* in copied into out (size bytes, NUL included) as valid UTF-8: each byte
+ * of an invalid sequence written as the four characters \xHH, so a message
+ * that quotes what a client sent is still a JSON string it can read. A
+ * multi-byte character that does not fit is cut before it. */
+void json_utf8_text(const char *in, char *out, size_t size);
+
 /* Scalars: a finite number within spec (integral with JSON_NUM_INT), a
  * boolean, one of names (its index), and the "one of: ..." text. */
 void json_spec_text(const json_num_spec *s, char *buf, size_t n);

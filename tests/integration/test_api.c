@@ -207,12 +207,24 @@ static void test_job_list_pages(void **state)
     assert_null(strstr(text, ids[1]));
     free(text);
 
-    static const char *const bad[] = {"/v1/jobs?limit=0", "/v1/jobs?limit=1001", "/v1/jobs?limit=x",
-                                      "/v1/jobs?cursor=abc", "/v1/jobs?state=done", "/v1/jobs?name="};
+    /* each a 400 whose problem document is JSON, quoting the bytes sent
+     * (not UTF-8 in the last ones) as \xHH */
+    static const char *const bad[] = {"/v1/jobs?limit=0",    "/v1/jobs?limit=1001",  "/v1/jobs?limit=x",
+                                      "/v1/jobs?cursor=abc", "/v1/jobs?state=done",  "/v1/jobs?name=",
+                                      "/v1/jobs?cursor=%ff%fe", "/v1/jobs?limit=%ff", "/v1/jobs?state=%c3"};
     for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
         r = http(&D, "GET", bad[i], NULL, 0, NULL);
         if (r.status != 400)
             fail_msg("GET %s: %ld, want 400", bad[i], r.status);
+        cJSON *problem = cJSON_Parse(r.body);
+        if (!problem || !cJSON_IsString(cJSON_GetObjectItem(problem, "detail")))
+            fail_msg("GET %s: the problem is not JSON: %s", bad[i], r.body);
+        for (const unsigned char *b = (const unsigned char *)r.body; *b; b++)
+            if (*b >= 0x80) /* (cJSON takes any bytes in strings; these messages are ASCII) */
+                fail_msg("GET %s: byte 0x%02X in the problem, not UTF-8 text", bad[i], *b);
+        if (strstr(bad[i], "%ff") && !strstr(cJSON_GetObjectItem(problem, "detail")->valuestring, "\\xFF"))
+            fail_msg("GET %s: the detail does not quote the byte: %s", bad[i], r.body);
+        cJSON_Delete(problem);
         http_free(&r);
     }
 }
