@@ -220,6 +220,12 @@ void mr_fs_atomic_abort(mr_fs_atomic *a);
 int mr_fs_write_atomic(const char *path, const void *buf, size_t size, const char *what,
                        mr_error *err);
 
+/* Whether `name` in the directory dirfd is a temporary of these writes
+ * ("<target>.tmpXXXXXX") that no live writer holds (its writer was killed:
+ * each writer holds a lock on its temporary until the write ends); its
+ * target in *target (size bytes) when so. */
+bool mr_fs_atomic_abandoned(int dirfd, const char *name, char *target, size_t size);
+
 /* Removes the files in dir, then dir itself; a missing dir is fine. A file
  * that appears while it is emptied (a writer racing the removal) keeps the
  * directory without an error: that writer owns cleaning up after itself.

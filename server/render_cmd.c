@@ -142,6 +142,38 @@ static bool render_wanted(void *user, size_t index)
     return !o->wanted || o->wanted[index];
 }
 
+/* What a run killed inside a write (SIGKILL, or Ctrl-C while a frame is
+ * synced) left of the files this run writes: their temporaries that no
+ * live writer holds (mr_fs_atomic_abandoned), removed before it renders.
+ * Only this run's files': a part of the job (--frames) leaves the other
+ * parts' alone. */
+static void remove_stale_temporaries(const render_out *o)
+{
+    DIR *d = opendir(o->dir);
+    struct dirent *e;
+    while (d && (e = readdir(d)) != NULL) {
+        char base[256];
+        if (!mr_fs_atomic_abandoned(dirfd(d), e->d_name, base, sizeof base))
+            continue;
+        bool ours = !strcmp(base, o->stats_name) || (!o->wanted && !strcmp(base, "contact-sheet.png"));
+        for (size_t i = 0; !ours && i < o->job->frame_count; i++) {
+            if (o->wanted && !o->wanted[i])
+                continue;
+            char name[MR_FRAME_NAME_MAX];
+            mr_frame_file_name(i, name);
+            ours = !strcmp(base, name);
+            if (!ours && o->png) {
+                mr_frame_preview_name(i, name);
+                ours = !strcmp(base, name);
+            }
+        }
+        if (ours)
+            unlinkat(dirfd(d), e->d_name, 0);
+    }
+    if (d)
+        closedir(d);
+}
+
 /* stats.json holds every frame so far; rewriting it after each frame would
  * make a long job quadratic (and fsync-bound), so it is rewritten at most
  * every MR_STATS_INTERVAL seconds and once more when the job ends. */
@@ -392,6 +424,8 @@ int mr_cmd_render(int argc, char **argv)
     }
     if (png)
         out.sheet_count = mr_contact_sheet_frames(job->frame_count, out.sheet_index);
+    if (!prepare)
+        remove_stale_temporaries(&out);
     mr_worker_io io = {.user = &out, .frame_done = write_frame, .progress = report_progress,
                        .wanted = render_wanted, .cache_dir = cache_dir,
                        .memory_budget = memory_budget};

@@ -655,17 +655,14 @@ const char *mr_store_dir(const mr_store *st) { return st ? st->dir : NULL; }
 /* ---- recovery --------------------------------------------------------------- */
 
 /* Removes the temporaries a writer killed mid-write left in directory
- * path (mr_fs_atomic's "<name>.tmpXXXXXX"): at start-up nothing writes
- * there. */
+ * path (mr_fs_atomic_abandoned). */
 static void remove_temporaries(const char *path)
 {
     DIR *d = opendir(path);
     struct dirent *e;
-    while (d && (e = readdir(d)) != NULL) {
-        const size_t n = strlen(e->d_name);
-        if (n > 10 && memcmp(e->d_name + n - 10, ".tmp", 4) == 0)
+    while (d && (e = readdir(d)) != NULL)
+        if (mr_fs_atomic_abandoned(dirfd(d), e->d_name, NULL, 0))
             unlinkat(dirfd(d), e->d_name, 0);
-    }
     if (d)
         closedir(d);
 }

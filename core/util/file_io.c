@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -104,6 +105,11 @@ int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_e
         unlink(tmp);
         goto fail;
     }
+    /* held until the write ends, so a sweep can tell a live writer's
+     * temporary from one a killed writer left (mr_fs_atomic_abandoned);
+     * the kernel drops it with the process. Best effort: where the file
+     * system has no locks, no temporary looks abandoned. */
+    (void)flock(fd, LOCK_EX | LOCK_NB);
     *a = (mr_fs_atomic){.fd = fd, .tmp = tmp, .path = target, .dir = dir};
     return MR_OK;
 fail:
@@ -111,6 +117,21 @@ fail:
     free(target);
     free(dir);
     return rc;
+}
+
+bool mr_fs_atomic_abandoned(int dirfd, const char *name, char *target, size_t size)
+{
+    const size_t n = strlen(name), suffix = sizeof ".tmpXXXXXX" - 1;
+    if (n <= suffix || memcmp(name + n - suffix, ".tmp", 4) != 0)
+        return false;
+    const int fd = openat(dirfd, name, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0)
+        return false;
+    const bool free_to_take = flock(fd, LOCK_EX | LOCK_NB) == 0;
+    close(fd);
+    if (free_to_take && target)
+        snprintf(target, size, "%.*s", (int)(n - suffix), name);
+    return free_to_take;
 }
 
 int mr_fs_atomic_write(mr_fs_atomic *a, const void *buf, size_t size, const char *what,

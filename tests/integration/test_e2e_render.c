@@ -18,6 +18,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -222,6 +224,34 @@ static void test_render_owns_its_temporaries(void **state)
     assert_int_equal(cJSON_GetObjectItem(stats, "frames_done")->valueint, 4);
     cJSON_Delete(stats);
     free(text);
+}
+
+/* What a killed render left (a temporary no writer holds) of the files a
+ * render writes is removed when the next one starts; a live writer's
+ * temporary (its lock held) and other files' are not. */
+static void test_render_removes_abandoned_temporaries(void **state)
+{
+    (void)state;
+    char dir[512], path[3][600];
+    snprintf(dir, sizeof dir, "%s/abandoned-out", tmp_dir);
+    assert_int_equal(mkdir(dir, 0755), 0);
+    snprintf(path[0], sizeof path[0], "%s/0000.exr.tmpAb12Cd", dir); /* a killed writer's */
+    snprintf(path[1], sizeof path[1], "%s/0001.exr.tmpLive01", dir); /* a live writer's */
+    snprintf(path[2], sizeof path[2], "%s/notes.txt.tmpAb12Cd", dir); /* not the render's */
+    int fd[3];
+    for (int i = 0; i < 3; i++) {
+        fd[i] = open(path[i], O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        assert_true(fd[i] >= 0);
+        assert_int_equal(write(fd[i], "half", 4), 4);
+    }
+    assert_int_equal(flock(fd[1], LOCK_EX), 0);
+    close(fd[0]), close(fd[2]);
+    render_small("abandoned-out", 2);
+    struct stat st;
+    assert_int_not_equal(stat(path[0], &st), 0);
+    assert_int_equal(stat(path[1], &st), 0);
+    assert_int_equal(stat(path[2], &st), 0);
+    close(fd[1]);
 }
 
 /* stats.json is an output of the job: when it cannot be written at the end,
@@ -600,6 +630,7 @@ int main(void)
         cmocka_unit_test(test_skinned_example_renders_and_moves),
         cmocka_unit_test(test_same_pixels_for_1_and_2_threads),
         cmocka_unit_test(test_render_owns_its_temporaries),
+        cmocka_unit_test(test_render_removes_abandoned_temporaries),
         cmocka_unit_test(test_render_fails_without_stats_json),
         cmocka_unit_test(test_compare_command),
         cmocka_unit_test(test_camera_from_gltf_node),
