@@ -380,7 +380,7 @@ static inline void fx_submit(const daemon_proc *d, const char *job, char id[64])
     cJSON *j = cJSON_Parse(r.body);
     assert_non_null(j);
     snprintf(id, 64, "%s", cJSON_GetObjectItem(j, "id")->valuestring);
-    char want[128];
+    char want[256];
     snprintf(want, sizeof want, "/v1/jobs/%s", id);
     assert_string_equal(r.location, want);
     cJSON_Delete(j);

@@ -861,6 +861,66 @@ static void receiver_stop(receiver *rv)
     pthread_mutex_destroy(&rv->mu);
 }
 
+/* A receiver that takes connections and never answers: how many it took,
+ * and the most it held open at once (a connection the client closed, on
+ * its timeout, no longer counts). */
+typedef struct silent {
+    int fd;
+    unsigned port;
+    pthread_t thread;
+    pthread_mutex_t mu;
+    int taken, most_open;
+    int held[16];
+} silent;
+
+static void *silent_main(void *arg)
+{
+    silent *sv = arg;
+    for (;;) {
+        int c = accept(sv->fd, NULL, NULL);
+        if (c < 0)
+            return NULL; /* shut down */
+        pthread_mutex_lock(&sv->mu);
+        int open = 1;
+        for (int k = 0; k < sv->taken && k < 16; k++) {
+            struct pollfd p = {.fd = sv->held[k], .events = POLLRDHUP};
+            open += poll(&p, 1, 0) == 0; /* nothing: the client still waits */
+        }
+        if (sv->taken < 16)
+            sv->held[sv->taken] = c;
+        else
+            close(c);
+        sv->taken++;
+        if (open > sv->most_open)
+            sv->most_open = open;
+        pthread_mutex_unlock(&sv->mu);
+    }
+}
+
+static void silent_start(silent *sv)
+{
+    memset(sv, 0, sizeof *sv);
+    pthread_mutex_init(&sv->mu, NULL);
+    sv->fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t al = sizeof a;
+    assert_int_equal(bind(sv->fd, (struct sockaddr *)&a, sizeof a), 0);
+    assert_int_equal(listen(sv->fd, 16), 0);
+    getsockname(sv->fd, (struct sockaddr *)&a, &al);
+    sv->port = ntohs(a.sin_port);
+    pthread_create(&sv->thread, NULL, silent_main, sv);
+}
+
+static void silent_stop(silent *sv)
+{
+    shutdown(sv->fd, SHUT_RDWR);
+    close(sv->fd);
+    pthread_join(sv->thread, NULL);
+    for (int k = 0; k < sv->taken && k < 16; k++)
+        close(sv->held[k]);
+    pthread_mutex_destroy(&sv->mu);
+}
+
 /* A job's notify URL gets its final state POSTed, retried with backoff
  * after a failed attempt (the receiver answers the first one 500). */
 static void test_notify_on_completion(void **state)
@@ -891,6 +951,32 @@ static void test_notify_on_completion(void **state)
         assert_true(cJSON_IsString(cJSON_GetObjectItem(b, "finished_at")));
         cJSON_Delete(b);
     }
+    /* three jobs whose receiver never answers: their deliveries are in
+     * flight at once (each job a second or two after the other, well
+     * within the 10 s an attempt waits), not one after another's timeout
+     * (one at a time, each delivery behind a silent one came 10 s late) */
+    silent sv;
+    silent_start(&sv);
+    char ids[3][64];
+    snprintf(extra, sizeof extra, "\"notify\":\"http://127.0.0.1:%u/silent\",", sv.port);
+    for (int k = 0; k < 3; k++) {
+        job = fx_small_job(0, 40 + 8 * k, extra);
+        fx_submit(&D, job, ids[k]);
+        free(job);
+    }
+    int taken = 0;
+    for (int i = 0; i < 600 && taken < 3; i++) {
+        fx_sleep_ms(100);
+        pthread_mutex_lock(&sv.mu);
+        taken = sv.taken;
+        pthread_mutex_unlock(&sv.mu);
+    }
+    const int most_open = sv.most_open;
+    silent_stop(&sv);
+    assert_int_equal(taken >= 3, 1);
+    if (most_open < 2)
+        fail_msg("the silent receiver held at most %d connection at once: deliveries one at a time", most_open);
+
     /* a URL that is not http(s) is refused at submission */
     job = fx_small_job(1, 48, "\"notify\":\"file:///etc/passwd\",");
     http_result r = http(&D, "POST", "/v1/jobs", job, strlen(job), NULL);
