@@ -653,7 +653,9 @@ static const mr_param SPRINGMASS_PARAMS[] = {
                    .lo = 0, .hi = COORD, .flags = MR_PARAM_LO_OPEN | MR_PARAM_NO_DEFAULT, .conflicts = "nodes",
                    .description = "Distance between neighbouring nodes, world units (instead of nodes)."},
     [P_NODES] = {.field = "nodes", .type = MR_PARAM_INT, .offset = offsetof(mr_springmass_params, nodes),
-                 .lo = 1, .hi = SM_GRID_MAX_NODES, .def = 4096,
+                 /* the spacing found lands within 5 % of the count: up to
+                  * 20/21 of the cap, so the grid it makes stays within it */
+                 .lo = 1, .hi = SM_GRID_MAX_NODES / 21 * 20, .def = 4096,
                  .description = "About how many nodes fill the mesh (the spacing is found for it, within 5 %)."},
     [P_STIFFNESS] = {.field = "stiffness", .type = MR_PARAM_NUMBER,
                      .offset = offsetof(mr_springmass_params, stiffness), .lo = 0, .hi = BIG, .def = 1000,
