@@ -971,7 +971,7 @@ int mrc_cluster_main(int argc, char **argv, bool quiet)
         }
     } else if (!strcmp(cmd, "status") || !strcmp(cmd, "wait")) {
         if (!dir) {
-            fprintf(stderr, "microray: cluster %s needs the job's --out DIR\n", cmd);
+            fprintf(stderr, "microray: cluster %s needs the job's output folder (DIR)\n", cmd);
             return usage();
         }
         cluster_state s;

@@ -632,6 +632,7 @@ typedef struct job_run {
     const mr_job *job;
     running_job *entry;
     size_t failed;
+    bool write_had_room; /* the last frame not stored for want of space had room by statvfs */
 } job_run;
 
 static void run_frame_started(void *user, size_t index)
@@ -721,8 +722,15 @@ static int run_frame_done(void *user, size_t index, const char *stats_json, cons
     if (rc == MR_OK && mr_store_job_get(d->store, r->id, &rec, &ignored) < 0)
         rec.done_seq = 0;
     pthread_mutex_unlock(&d->lock);
-    if (rc == MR_ERR_NO_SPACE) { /* the guard is told by run_frame_failed; the size first */
-        mr_daemon_no_space(d, err->msg);
+    if (rc == MR_ERR_NO_SPACE) {
+        /* A write refused with room on the file system (a quota: EDQUOT
+         * reads as no space too) is no full disk: run_frame_failed then
+         * counts the attempt, or the frame would render again forever.
+         * Asked before the guard frees its reserve. */
+        r->write_had_room = mr_space_guard_has_room(d->space, 2 * exr_size);
+        char shown[sizeof err->msg];
+        mr_daemon_redact(d, err->msg, shown, sizeof shown);
+        mr_daemon_no_space(d, shown);
         mr_space_guard_need(d->space, exr_size);
     }
     if (rc < 0)
@@ -776,7 +784,7 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
     bool final = e->code == MR_ERR_LIMIT || e->code == MR_ERR_INVALID;
     char shown[sizeof e->msg];
     mr_daemon_redact(r->d, e->msg, shown, sizeof shown);
-    if (e->code == MR_ERR_NO_SPACE) {
+    if (e->code == MR_ERR_NO_SPACE && !r->write_had_room) {
         /* the frame rendered and could not be stored: no attempt lost,
          * it waits (pending) while the queue pauses for space; first the
          * guard, whose reserve makes room for the record */
@@ -785,6 +793,9 @@ static mr_frame_decision run_frame_failed(void *user, size_t index, const mr_err
         log_line(r->d, "job=%s frame %zu not stored, it waits for disk space: %s", r->id, index, e->msg);
         return MR_FRAME_RETRY;
     }
+    if (e->code == MR_ERR_NO_SPACE) /* (with room: a quota) the queue pauses all the same */
+        mr_daemon_no_space(r->d, shown);
+    r->write_had_room = false;
     mr_store_frame_failed(r->d->store, r->id, index, shown, final, &gave_up, &err);
     pthread_mutex_lock(&r->d->lock);
     r->d->frames_failed++;

@@ -132,10 +132,14 @@ static enum MHD_Result job_refused(req *r, struct MHD_Connection *c, int rc,
     cJSON *ext = cJSON_CreateObject();
     cJSON *list = http_put(ext, "errors", cJSON_CreateArray(), &ok);
     for (size_t i = 0; i < problems->count && ok; i++) {
-        char shown[sizeof problems->items[i].message];
-        mr_daemon_redact(r->h->d, problems->items[i].message, shown, sizeof shown);
+        char redacted[sizeof problems->items[i].message], shown[sizeof redacted];
+        char pointer[sizeof problems->items[i].pointer];
+        mr_daemon_redact(r->h->d, problems->items[i].message, redacted, sizeof redacted);
+        /* UTF-8 text: a message cut to its size may end inside a character */
+        json_utf8_text(redacted, shown, sizeof shown);
+        json_utf8_text(problems->items[i].pointer, pointer, sizeof pointer);
         cJSON *e = cJSON_CreateObject();
-        http_put(e, "pointer", cJSON_CreateString(problems->items[i].pointer), &ok);
+        http_put(e, "pointer", cJSON_CreateString(pointer), &ok);
         http_put(e, "detail", cJSON_CreateString(shown), &ok);
         if (!e || !cJSON_AddItemToArray(list, e)) {
             cJSON_Delete(e);

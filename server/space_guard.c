@@ -136,6 +136,11 @@ bool mr_space_guard_report(mr_space_guard *g, const char *why)
     return entered;
 }
 
+bool mr_space_guard_has_room(mr_space_guard *g, size_t bytes)
+{
+    return free_bytes(g->dir) >= bytes;
+}
+
 void mr_space_guard_need(mr_space_guard *g, size_t bytes)
 {
     pthread_mutex_lock(&g->lock);

@@ -43,6 +43,9 @@ bool mr_space_guard_report(mr_space_guard *g, const char *why);
  * waits for that much free beyond twice the reserve, so the queue does
  * not resume only to fail the same write again. */
 void mr_space_guard_need(mr_space_guard *g, size_t bytes);
+/* Whether the file system has `bytes` free (statvfs: a quota does not
+ * show there). */
+bool mr_space_guard_has_room(mr_space_guard *g, size_t bytes);
 /* Whether the disk is full; why (may be NULL) gets the first report. */
 bool mr_space_guard_full(mr_space_guard *g, char *why, size_t size);
 /* When full: if at least twice the reserve (and what the failed write

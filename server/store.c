@@ -700,8 +700,9 @@ static void remove_orphans(mr_store *st)
         pthread_mutex_lock(&st->lock);
         const bool has_row = store_job_state_locked(st, gone[i], &state, NULL) == MR_OK;
         pthread_mutex_unlock(&st->lock);
+        struct stat left;
         if (!has_row && store_path_join(sub, sizeof sub, NULL, "%s/frames/%s", st->dir, gone[i]) == MR_OK &&
-            mr_fs_remove_dir(sub, NULL) != MR_OK)
+            (mr_fs_remove_dir(sub, NULL) != MR_OK || stat(sub, &left) == 0))
             continue; /* listed still: tried again at the next start */
         pthread_mutex_lock(&st->lock);
         s = store_stmt(st, S_TOMBSTONE_DROP);

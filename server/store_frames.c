@@ -8,6 +8,7 @@
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "store_internal.h"
@@ -296,10 +297,12 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
                                   store_bind_text(s, 3, stats_json),
                               "mark frame done", err);
         gone = rc == MR_OK && sqlite3_changes(st->db) == 0;
-        if (gone)
-            rc = store_no_job(err, id);
+        if (gone) { /* listed, so a crash before the clean-up below leaves no unknown folder */
+            s = store_stmt(st, S_TOMBSTONE_ADD);
+            rc = store_exec_bound(st, s, store_bind_text(s, 1, id), "list a deleted job's folder", err);
+        }
     }
-    if (rc == MR_OK) {
+    if (rc == MR_OK && !gone) {
         sqlite3_stmt *s = store_stmt(st, S_JOB_PROGRESS);
         rc = store_exec_bound(st, s, store_bind_text(s, 1, id), "record progress", err);
     }
@@ -309,6 +312,15 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
          * may have missed the file, so clean up here. */
         unlink(path);
         rmdir(dir);
+        struct stat left;
+        if (rc == MR_OK && stat(dir, &left) != 0) {
+            pthread_mutex_lock(&st->lock);
+            sqlite3_stmt *s = store_stmt(st, S_TOMBSTONE_DROP);
+            store_exec_bound(st, s, store_bind_text(s, 1, id), "forget a deleted job", NULL);
+            pthread_mutex_unlock(&st->lock);
+        }
+        if (rc == MR_OK)
+            rc = store_no_job(err, id);
     }
     return rc;
 }

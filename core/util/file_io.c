@@ -98,6 +98,11 @@ int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_e
         rc = mr_error_set(err, io_code(errno), "%s: cannot create %s: %s", what, tmp, strerror(errno));
         goto fail;
     }
+    /* held until the write ends, so a sweep can tell a live writer's
+     * temporary from one a killed writer left (mr_fs_atomic_abandoned);
+     * the kernel drops it with the process. Best effort: where the file
+     * system has no locks, no temporary looks abandoned. */
+    (void)flock(fd, LOCK_EX | LOCK_NB);
     /* mkstemp's 0600 would hide a cache or a frame from other users */
     if (fcntl(fd, F_SETFD, FD_CLOEXEC) != 0 || fchmod(fd, 0644) != 0) {
         rc = mr_error_set(err, MR_ERR_IO, "%s: cannot set up %s: %s", what, tmp, strerror(errno));
@@ -105,11 +110,6 @@ int mr_fs_atomic_begin(mr_fs_atomic *a, const char *path, const char *what, mr_e
         unlink(tmp);
         goto fail;
     }
-    /* held until the write ends, so a sweep can tell a live writer's
-     * temporary from one a killed writer left (mr_fs_atomic_abandoned);
-     * the kernel drops it with the process. Best effort: where the file
-     * system has no locks, no temporary looks abandoned. */
-    (void)flock(fd, LOCK_EX | LOCK_NB);
     *a = (mr_fs_atomic){.fd = fd, .tmp = tmp, .path = target, .dir = dir};
     return MR_OK;
 fail:
@@ -174,9 +174,12 @@ int mr_fs_atomic_commit(mr_fs_atomic *a, const char *path, const char *what, mr_
         rc = mr_error_set(err, io_code(errno), "%s: fsync %s: %s", what, a->tmp, strerror(errno));
         goto done;
     }
-    /* close can report a delayed write error (NFS): the data is not safe */
+    /* close can report a delayed write error (NFS): the data is not safe.
+     * A second descriptor keeps the temporary's lock (mr_fs_atomic_begin)
+     * until it is renamed: a sweep never takes a live write for dead. */
+    const int held = dup(a->fd);
     int c = close(a->fd);
-    a->fd = -1;
+    a->fd = held;
     if (c != 0) {
         rc = mr_error_set(err, io_code(errno), "%s: close %s: %s", what, a->tmp, strerror(errno));
         goto done;
@@ -200,11 +203,10 @@ void mr_fs_atomic_abort(mr_fs_atomic *a)
 {
     if (!a)
         return;
-    if (a->tmp) { /* tmp marks a write in progress; fd may already be closed */
-        if (a->fd >= 0)
-            close(a->fd);
+    if (a->fd >= 0) /* (after a commit: the descriptor that held the lock) */
+        close(a->fd);
+    if (a->tmp) /* tmp marks a write not renamed into place */
         unlink(a->tmp);
-    }
     free(a->tmp);
     free(a->path);
     free(a->dir);

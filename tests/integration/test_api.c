@@ -445,6 +445,29 @@ static void test_status_rule_over_malformed_table(void **state)
     http_free(&r);
 }
 
+/* Whether s is UTF-8 text (RFC 3629: no overlongs, surrogates or bytes
+ * above U+10FFFF's). */
+static bool utf8_text(const char *str)
+{
+    const unsigned char *s = (const unsigned char *)str;
+    while (*s) {
+        const unsigned b = *s;
+        const unsigned need = b < 0x80 ? 0 : b >= 0xC2 && b <= 0xDF ? 1 : b >= 0xE0 && b <= 0xEF ? 2 : b >= 0xF0 && b <= 0xF4 ? 3 : 4;
+        if (need == 4)
+            return false;
+        unsigned cp = need ? b & (0x3Fu >> need) : b;
+        for (unsigned k = 1; k <= need; k++) {
+            if ((s[k] & 0xC0) != 0x80)
+                return false;
+            cp = cp << 6 | (s[k] & 0x3F);
+        }
+        if ((need == 2 && (cp < 0x800 || (cp >= 0xD800 && cp <= 0xDFFF))) || (need == 3 && (cp < 0x10000 || cp > 0x10FFFF)))
+            return false;
+        s += need + 1;
+    }
+    return true;
+}
+
 /* POST /v1/jobs?dry_run=1 validates and estimates without queuing, and
  * reports every problem it finds, not only the first. */
 static void test_dry_run(void **state)
@@ -559,6 +582,21 @@ static void test_dry_run(void **state)
     cJSON_Delete(doc);
     http_free(&r);
     unlink(big);
+
+    /* a problem's message cut to its size inside a two-byte character (a
+     * path of 300 of them) is still UTF-8 text */
+    char *long_path = malloc(8192);
+    size_t lp = (size_t)snprintf(long_path, 8192, "{\"assets\":{\"a\":{\"path\":\"a");
+    for (int k = 0; k < 300; k++)
+        lp += (size_t)snprintf(long_path + lp, 8192 - lp, "\xc3\xa9");
+    snprintf(long_path + lp, 8192 - lp, ".obj\"}},\"objects\":[{\"asset\":\"a\"}],\"camera\":{\"path\":"
+             "[{\"t\":0,\"position\":[0,0,5],\"target\":[0,0,0]}]},\"frames\":{\"end\":0}}");
+    r = http(&D, "POST", "/v1/jobs?dry_run=1", long_path, strlen(long_path), NULL);
+    free(long_path);
+    assert_int_equal(r.status, 422);
+    if (!utf8_text(r.body))
+        fail_msg("the 422 for a long path is not UTF-8 text");
+    http_free(&r);
 
     /* a value the API does not name is refused, never read as absent: a
      * bare ?dry_run (which libmicrohttpd hands over without a value) once

@@ -403,7 +403,7 @@ static void test_cluster_options(void **state)
         /* after --, a name starting with - is the job, and a second one too many */
         {"cluster submit --slurm --chunk 2 -- -job.json --out", "unexpected argument '--out'"},
         {"cluster status --threads 2 /nonexistent", "unknown option '--threads' for cluster status"},
-        {"cluster wait", "needs the job's --out DIR"},
+        {"cluster wait", "needs the job's output folder (DIR)"},
         {"cluster nosuch", "unknown cluster command 'nosuch'"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {

@@ -555,9 +555,10 @@ static void fan_piece_halves(const mr_dbase *b, pool *pl, const poly *a, const l
                             break;
                         }
                 }
-                c.v[c.n++] = (uint8_t)xd[m];
+                if (c.n < MR_DSURF_MAX_POLY) /* (as `cut` holds it) */
+                    c.v[c.n++] = (uint8_t)xd[m];
             }
-            if (sq >= 0)
+            if (sq >= 0 && c.n < MR_DSURF_MAX_POLY)
                 c.v[c.n++] = a->v[m];
             sp = sq;
         }
