@@ -203,7 +203,8 @@ void mr_fs_atomic_abort(mr_fs_atomic *a)
 {
     if (!a)
         return;
-    if (a->fd >= 0) /* (after a commit: the descriptor that held the lock) */
+    if (a->fd >= 0 && a->path) /* (after a commit: the descriptor that held the lock;
+                                  a zeroed handle's 0 is no descriptor of it) */
         close(a->fd);
     if (a->tmp) /* tmp marks a write not renamed into place */
         unlink(a->tmp);
