@@ -869,17 +869,24 @@ static void *receiver_main(void *arg)
     }
 }
 
+/* A socket listening on a free loopback port: its descriptor, the port. */
+static int loopback_listen(unsigned *port)
+{
+    int fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t al = sizeof a;
+    assert_int_equal(bind(fd, (struct sockaddr *)&a, sizeof a), 0);
+    assert_int_equal(listen(fd, 16), 0);
+    getsockname(fd, (struct sockaddr *)&a, &al);
+    *port = ntohs(a.sin_port);
+    return fd;
+}
+
 static void receiver_start(receiver *rv)
 {
     memset(rv, 0, sizeof *rv);
     pthread_mutex_init(&rv->mu, NULL);
-    rv->fd = socket(AF_INET, SOCK_STREAM, 0);
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    socklen_t al = sizeof a;
-    assert_int_equal(bind(rv->fd, (struct sockaddr *)&a, sizeof a), 0);
-    assert_int_equal(listen(rv->fd, 8), 0);
-    getsockname(rv->fd, (struct sockaddr *)&a, &al);
-    rv->port = ntohs(a.sin_port);
+    rv->fd = loopback_listen(&rv->port);
     pthread_create(&rv->thread, NULL, receiver_main, rv);
 }
 
@@ -939,13 +946,7 @@ static void silent_start(silent *sv)
 {
     memset(sv, 0, sizeof *sv);
     pthread_mutex_init(&sv->mu, NULL);
-    sv->fd = socket(AF_INET, SOCK_STREAM, 0);
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    socklen_t al = sizeof a;
-    assert_int_equal(bind(sv->fd, (struct sockaddr *)&a, sizeof a), 0);
-    assert_int_equal(listen(sv->fd, 16), 0);
-    getsockname(sv->fd, (struct sockaddr *)&a, &al);
-    sv->port = ntohs(a.sin_port);
+    sv->fd = loopback_listen(&sv->port);
     pthread_create(&sv->thread, NULL, silent_main, sv);
 }
 

@@ -394,6 +394,23 @@ static int deleted_listed(const fixture *fx)
     return n;
 }
 
+/* The fixture's database as an older version wrote it: the store closed,
+ * sql (what later versions added, taken away, and the old version number)
+ * run on the file, the store opened again (which upgrades it). */
+static void reopen_as(fixture *fx, const char *sql)
+{
+    mr_store_close(fx->st);
+    fx->st = NULL;
+    char path[512];
+    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, sql, NULL, NULL, NULL), SQLITE_OK);
+    sqlite3_close(db);
+    mr_error err = {0};
+    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+}
+
 /* What version 4 added, taken away again: a file as version 3 wrote it. */
 #define UNDO_V4 "DROP TABLE deleted_jobs; "
 /* What versions 3 and 4 added: a file as version 2 wrote it. */
@@ -410,15 +427,7 @@ static void test_schema_upgrade_from_v3(void **state)
     char job[MR_JOB_ID_LEN + 1];
     create_job(fx->st, "old", 2, 0, 0, job);
     ok(mr_store_frame_done(fx->st, job, 0, "exr", 3, "{}", &err), &err);
-    mr_store_close(fx->st);
-    fx->st = NULL;
-    char path[512];
-    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
-    sqlite3 *db = NULL;
-    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, UNDO_V4 "PRAGMA user_version = 3", NULL, NULL, NULL), SQLITE_OK);
-    sqlite3_close(db);
-    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    reopen_as(fx, UNDO_V4 "PRAGMA user_version = 3");
     assert_int_equal(get_job(fx->st, job).frames_done, 1);
     ok(mr_store_job_delete(fx->st, job, &err), &err);
     char dir[512];
@@ -435,17 +444,7 @@ static void test_schema_upgrade_from_v1(void **state)
     mr_error err = {0};
     char job[MR_JOB_ID_LEN + 1];
     create_job(fx->st, "old", 2, 0, 0, job);
-    mr_store_close(fx->st);
-    fx->st = NULL;
-    char path[512];
-    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
-    sqlite3 *db = NULL;
-    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, UNDO_V3 "ALTER TABLE jobs DROP COLUMN interrupted; "
-                                      "PRAGMA user_version = 1", NULL, NULL, NULL), SQLITE_OK);
-    sqlite3_close(db);
-
-    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    reopen_as(fx, UNDO_V3 "ALTER TABLE jobs DROP COLUMN interrupted; PRAGMA user_version = 1");
     assert_string_equal(get_job(fx->st, job).name, "old");
     char id[MR_JOB_ID_LEN + 1];
     ok(mr_store_job_claim(fx->st, id, &err), &err);
@@ -465,16 +464,7 @@ static void test_schema_upgrade_from_v2(void **state)
     create_job(fx->st, "old", 3, 0, 0, job);
     ok(mr_store_frame_done(fx->st, job, 0, "exr", 3, "{}", &err), &err);
     ok(mr_store_asset_put(fx->st, "bytes", 5, asset, &existed, &err), &err);
-    mr_store_close(fx->st);
-    fx->st = NULL;
-    char path[512];
-    snprintf(path, sizeof path, "%s/microray.sqlite", fx->dir);
-    sqlite3 *db = NULL;
-    assert_int_equal(sqlite3_open_v2(path, &db, SQLITE_OPEN_READWRITE, NULL), SQLITE_OK);
-    assert_int_equal(sqlite3_exec(db, UNDO_V3 "PRAGMA user_version = 2", NULL, NULL, NULL), SQLITE_OK);
-    sqlite3_close(db);
-
-    ok(mr_store_open(fx->dir, &fx->st, &err), &err);
+    reopen_as(fx, UNDO_V3 "PRAGMA user_version = 2");
     mr_job_record r = get_job(fx->st, job);
     assert_int_equal(r.frames_done, 1);
     assert_true(r.done_seq == 0); /* frames done before the upgrade have no number */
