@@ -75,6 +75,8 @@ static void uv_degenerate(int x, int z, float o[2])
 }
 static void uv_repeats(int x, int z, float o[2]) { o[0] = 40 * x / 3.0f, o[1] = 40 * z / 3.0f; }
 static void uv_huge(int x, int z, float o[2]) { o[0] = 1e5f * x / 3.0f, o[1] = 1e5f * z / 3.0f; }
+/* grid coordinates past 2^63: their cells as integers were undefined */
+static void uv_absurd(int x, int z, float o[2]) { o[0] = 1e25f * x / 3.0f, o[1] = 1e25f * z / 3.0f; }
 static void uv_finer(int x, int z, float o[2]) { o[0] = 1e7f * x / 3.0f, o[1] = 1e7f * z / 3.0f; }
 
 /* Random rays at the displaced mesh against the brute force: returns the
@@ -163,6 +165,15 @@ static void test_huge_repeats(void **state)
     HARD_CHECK("other", rc == MR_ERR_INVALID && !g && strstr(err.msg, "displaced.range") ? 0 : 1,
                "==", 0, "10^7 repeats refused with an error naming displaced.range (%s)", err.msg);
     mr_asset_free(finer);
+    /* 10^25 repeats: cells beyond any integer, refused the same way (no
+     * undefined conversion on the way: make hard runs under UBSan) */
+    mr_asset *absurd = grid_mesh(uv_absurd, NULL);
+    f.assets[0] = absurd;
+    err = (mr_error){0};
+    rc = mr_kind_displaced.create(absurd, &f.desc, &ctx, &g, &err);
+    HARD_CHECK("other", rc == MR_ERR_INVALID && !g && strstr(err.msg, "displaced.range") ? 0 : 1,
+               "==", 0, "10^25 repeats refused with an error naming displaced.range (%s)", err.msg);
+    mr_asset_free(absurd);
     /* 100,000 repeats pre-tessellated: 10^11 cells, past the cap at once
      * (the tessellation sized a table for every cell of a base triangle's
      * box before counting: 13.8 GiB at range 4096 on a plane) */

@@ -538,8 +538,9 @@ static int create_surface(const mr_asset *asset, const mr_displaced_params *par,
                 rc = mr_error_set(err, MR_ERR_INVALID,
                                   "%s: base triangle %zu spans so many height cells that float "
                                   "coordinates cannot place its micro-vertices within %g cells: "
-                                  "lower displaced.range, raise displaced.level, or shrink the "
-                                  "texture coordinates' span",
+                                  "lower displaced.range or the heights (displaced.scale, "
+                                  "displaced.offset), raise displaced.level or procedural.triangle_size, "
+                                  "or shrink the texture coordinates' span",
                                   asset->path, t, MR_DTRACE_MAX_PAD_CELLS);
                 goto fail;
             }

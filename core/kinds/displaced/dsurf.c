@@ -98,6 +98,16 @@ void mr_dbase_init(mr_dbase *b, const double g[3][2], const float *p[3], const f
         b->h[k] = mr_dsurf_height_at(hs, g[k][0], g[k][1]);
 }
 
+/* floor(x) as an integer, held to +-2^60 (a coordinate beyond, or NaN,
+ * converted as it is would be undefined; such a triangle is refused by
+ * its caller for the cells it spans, and its cells' squares at level 62
+ * still fit in two per axis) */
+static int64_t floor_held(double x)
+{
+    const int64_t lim = (int64_t)1 << 60;
+    return !(x > (double)-lim) ? -lim : x >= (double)lim ? lim : (int64_t)floor(x);
+}
+
 void mr_dbase_cells(const mr_dbase *b, int64_t *i0, int64_t *i1, int64_t *j0, int64_t *j1)
 {
     double x0 = fmin(fmin(b->g[0][0], b->g[1][0]), b->g[2][0]);
@@ -106,10 +116,10 @@ void mr_dbase_cells(const mr_dbase *b, int64_t *i0, int64_t *i1, int64_t *j0, in
     double y1 = fmax(fmax(b->g[0][1], b->g[1][1]), b->g[2][1]);
     /* closed squares touching the box: a box edge on a grid line touches
      * the cells on both sides (clipping decides what is there) */
-    *i0 = (int64_t)floor(x0) - (x0 == floor(x0) ? 1 : 0);
-    *i1 = (int64_t)floor(x1);
-    *j0 = (int64_t)floor(y0) - (y0 == floor(y0) ? 1 : 0);
-    *j1 = (int64_t)floor(y1);
+    *i0 = floor_held(x0) - (x0 == floor(x0) ? 1 : 0);
+    *i1 = floor_held(x1);
+    *j0 = floor_held(y0) - (y0 == floor(y0) ? 1 : 0);
+    *j1 = floor_held(y1);
 }
 
 /* ---- cutting ------------------------------------------------------------------ */

@@ -429,7 +429,8 @@ int mr_dmm_bake_run(const mr_mesh *detail, const mr_dmm_bake_params *params, mr_
         nbt++;
     }
     if (nbt == 0) {
-        rc = mr_error_set(err, MR_ERR_INVALID, "dmm bake: simplification left no triangles");
+        rc = mr_error_set(err, MR_ERR_INVALID, "dmm bake: simplification left no triangles (raise "
+                                                "dmm.base_triangles or dmm.base_ratio)");
         goto cleanup;
     }
     b->base_vertex_count = nbv;

@@ -193,7 +193,9 @@ static mr_svo_view frame_view(const mr_geom *g, const mr_geom_frame *f)
     v.view_proj = mr_mat4_mul(&proj, &view);
     v.width = f->width;
     v.height = f->height;
-    v.delta = g->tolerance_px > 0 ? (float)(g->tolerance_px / SQRT3) : g->p->delta;
+    /* (held to the smallest normal float: a tolerance of 1e-45 pixels is
+     * every leaf, not a delta of 0) */
+    v.delta = g->tolerance_px > 0 ? fmaxf((float)(g->tolerance_px / SQRT3), FLT_MIN) : g->p->delta;
     v.cull = g->p->cull;
     return v;
 }
@@ -1754,9 +1756,9 @@ static int after_voxelize(void *values, const bool *given, mr_param_error *err)
 }
 
 static const mr_param SKELETON_PARAMS[] = {
-    {.field = "omega", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, omega), .lo = 0,
-     .hi = 0.5, .flags = MR_PARAM_LO_OPEN, .def = 0,
-     .expect = "a fraction of the voxel cube in (0, 0.5]",
+    {.field = "omega", .type = MR_PARAM_NUMBER, .offset = offsetof(mr_svo_params, omega), .lo = 0x1p-20,
+     .hi = 0.5, .flags = MR_PARAM_NO_DEFAULT, .def = 0,
+     .expect = "a fraction of the voxel cube in [2^-20, 0.5]",
      .description = "feature size of the contraction, a fraction of the voxel cube (default "
                     "2^-min(depth,5))"},
 };
