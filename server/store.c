@@ -654,6 +654,17 @@ const char *mr_store_dir(const mr_store *st) { return st ? st->dir : NULL; }
 
 /* ---- recovery --------------------------------------------------------------- */
 
+void store_forget_deleted(mr_store *st, const char *id, const char *dir)
+{
+    struct stat left;
+    if (dir && stat(dir, &left) == 0)
+        return;
+    pthread_mutex_lock(&st->lock);
+    sqlite3_stmt *s = store_stmt(st, S_TOMBSTONE_DROP);
+    store_exec_bound(st, s, store_bind_text(s, 1, id), "forget a deleted job", NULL);
+    pthread_mutex_unlock(&st->lock);
+}
+
 /* Removes the temporaries a writer killed mid-write left in directory
  * path (mr_fs_atomic_abandoned). */
 static void remove_temporaries(const char *path)
@@ -700,14 +711,13 @@ static void remove_orphans(mr_store *st)
         pthread_mutex_lock(&st->lock);
         const bool has_row = store_job_state_locked(st, gone[i], &state, NULL) == MR_OK;
         pthread_mutex_unlock(&st->lock);
-        struct stat left;
-        if (!has_row && store_path_join(sub, sizeof sub, NULL, "%s/frames/%s", st->dir, gone[i]) == MR_OK &&
-            (mr_fs_remove_dir(sub, NULL) != MR_OK || stat(sub, &left) == 0))
-            continue; /* listed still: tried again at the next start */
-        pthread_mutex_lock(&st->lock);
-        s = store_stmt(st, S_TOMBSTONE_DROP);
-        store_exec_bound(st, s, store_bind_text(s, 1, gone[i]), "forget a deleted job", NULL);
-        pthread_mutex_unlock(&st->lock);
+        const char *dir = NULL;
+        if (!has_row && store_path_join(sub, sizeof sub, NULL, "%s/frames/%s", st->dir, gone[i]) == MR_OK) {
+            if (mr_fs_remove_dir(sub, NULL) != MR_OK)
+                continue; /* listed still: tried again at the next start */
+            dir = sub;
+        }
+        store_forget_deleted(st, gone[i], dir);
     }
     free(gone);
     if (store_path_join(path, sizeof path, NULL, "%s/frames", st->dir) == MR_OK) {

@@ -8,7 +8,6 @@
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include "store_internal.h"
@@ -312,15 +311,10 @@ int mr_store_frame_done(mr_store *st, const char *id, size_t index, const void *
          * may have missed the file, so clean up here. */
         unlink(path);
         rmdir(dir);
-        struct stat left;
-        if (rc == MR_OK && stat(dir, &left) != 0) {
-            pthread_mutex_lock(&st->lock);
-            sqlite3_stmt *s = store_stmt(st, S_TOMBSTONE_DROP);
-            store_exec_bound(st, s, store_bind_text(s, 1, id), "forget a deleted job", NULL);
-            pthread_mutex_unlock(&st->lock);
-        }
-        if (rc == MR_OK)
+        if (rc == MR_OK) {
+            store_forget_deleted(st, id, dir);
             rc = store_no_job(err, id);
+        }
     }
     return rc;
 }

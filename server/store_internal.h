@@ -89,6 +89,10 @@ bool store_valid_job_id(const char *id);
 const char *store_printable(const char *s, char out[72]);
 /* MR_ERR_NOT_FOUND "no job '<id>'". */
 int store_no_job(mr_error *err, const char *id);
+/* Takes deleted job id off deleted_jobs once its frame folder dir is gone
+ * (NULL: at once); while the folder is there it stays listed, and the next
+ * start removes it. Takes the lock: the caller does not hold it. */
+void store_forget_deleted(mr_store *st, const char *id, const char *dir);
 /* MR_ERR_IO "<what> '<path>': <strerror(e)>". */
 int store_io_error(mr_error *err, const char *what, const char *path, int e);
 /* printf into a path buffer; MR_ERR_INVALID when it does not fit. */

@@ -9,7 +9,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/random.h>
-#include <sys/stat.h>
 
 #include "store_internal.h"
 #include "microray.h"
@@ -466,13 +465,7 @@ done:
      * mr_store_recover removes, never a row whose files are gone. */
     if ((rc = mr_fs_remove_dir(dir, err)) < 0)
         return rc;
-    struct stat left;
-    if (stat(dir, &left) == 0)
-        return MR_OK; /* a writer raced the removal: listed still, the next start removes it */
-    pthread_mutex_lock(&st->lock);
-    sqlite3_stmt *drop = store_stmt(st, S_TOMBSTONE_DROP);
-    store_exec_bound(st, drop, store_bind_text(drop, 1, id), "forget a deleted job", NULL);
-    pthread_mutex_unlock(&st->lock);
+    store_forget_deleted(st, id, dir); /* (a writer that raced the removal keeps it listed) */
     return MR_OK;
 }
 
